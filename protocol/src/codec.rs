@@ -1,0 +1,67 @@
+//! Little-endian field access at fixed offsets. Callers check lengths first, so the
+//! slice operations here never go out of bounds; they use `get` anyway so that a mistake
+//! reads zeros instead of panicking on network input.
+
+pub(crate) fn u16_le(b: &[u8], at: usize) -> u16 {
+    let mut v = [0u8; 2];
+    if let Some(s) = b.get(at..at + 2) {
+        v.copy_from_slice(s);
+    }
+    u16::from_le_bytes(v)
+}
+
+pub(crate) fn i16_le(b: &[u8], at: usize) -> i16 {
+    u16_le(b, at) as i16
+}
+
+pub(crate) fn u32_le(b: &[u8], at: usize) -> u32 {
+    let mut v = [0u8; 4];
+    if let Some(s) = b.get(at..at + 4) {
+        v.copy_from_slice(s);
+    }
+    u32::from_le_bytes(v)
+}
+
+pub(crate) fn i32_le(b: &[u8], at: usize) -> i32 {
+    u32_le(b, at) as i32
+}
+
+/// Writes at fixed offsets into a buffer the caller sized with `encoded_len`.
+pub(crate) struct Writer<'a> {
+    pub(crate) buf: &'a mut [u8],
+}
+
+impl Writer<'_> {
+    pub(crate) fn put(&mut self, at: usize, bytes: &[u8]) {
+        if let Some(s) = self.buf.get_mut(at..at + bytes.len()) {
+            s.copy_from_slice(bytes);
+        }
+    }
+    pub(crate) fn u8(&mut self, at: usize, v: u8) {
+        self.put(at, &[v]);
+    }
+    pub(crate) fn u16(&mut self, at: usize, v: u16) {
+        self.put(at, &v.to_le_bytes());
+    }
+    pub(crate) fn u32(&mut self, at: usize, v: u32) {
+        self.put(at, &v.to_le_bytes());
+    }
+    pub(crate) fn i16s(&mut self, at: usize, v: &[i16; 8]) {
+        for (i, x) in v.iter().enumerate() {
+            self.put(at + 2 * i, &x.to_le_bytes());
+        }
+    }
+    pub(crate) fn i32s(&mut self, at: usize, v: &[i32; 8]) {
+        for (i, x) in v.iter().enumerate() {
+            self.put(at + 4 * i, &x.to_le_bytes());
+        }
+    }
+}
+
+pub(crate) fn i16s(b: &[u8], at: usize) -> [i16; 8] {
+    core::array::from_fn(|i| i16_le(b, at + 2 * i))
+}
+
+pub(crate) fn i32s(b: &[u8], at: usize) -> [i32; 8] {
+    core::array::from_fn(|i| i32_le(b, at + 4 * i))
+}

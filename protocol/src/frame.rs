@@ -1,0 +1,577 @@
+//! Frames: decoding a datagram into a typed command or report, and encoding one back.
+
+use crate::codec::{Writer, u16_le, u32_le};
+use crate::error::{DecodeError, DecodeErrorKind, EncodeError, ExpectedLen, Field};
+use crate::types::{Ack, Location, Point, Pwm, State, StatusCode, StatusReport, Tag, UartInit};
+use crate::{FRAME_OVERHEAD, MAX_POINTS_PER_FRAME, MAX_SERIAL_CHUNK, limits, size};
+
+const CRC8: crc::Crc<u8> = crc::Crc::<u8>::new(&crc::CRC_8_SMBUS);
+
+/// CRC-8/SMBUS (poly 0x07, init 0, no reflection, no xorout) of `bytes`.
+pub fn crc8(bytes: &[u8]) -> u8 {
+    CRC8.checksum(bytes)
+}
+
+/// A decoded frame: the host's seq and the typed content.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize))]
+pub struct Frame<T> {
+    /// Sequence number.
+    pub seq: u8,
+    /// Content.
+    pub body: T,
+}
+
+/// The points of a PENDING frame: either still in wire form (decoded, zero-copy) or a
+/// slice of [`Point`]s (to encode).
+#[derive(Clone, Copy, Debug)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum PointList<'a> {
+    /// Whole 116-byte records, as received.
+    Wire(&'a [u8]),
+    /// Points to send.
+    Points(&'a [Point]),
+}
+
+impl<'a> PointList<'a> {
+    /// Number of points.
+    pub fn len(&self) -> usize {
+        match self {
+            PointList::Wire(b) => b.len() / size::POINT,
+            PointList::Points(p) => p.len(),
+        }
+    }
+    /// Whether there are no points.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+    /// Point `i`, if there is one.
+    pub fn get(&self, i: usize) -> Option<Point> {
+        match self {
+            PointList::Wire(b) => b
+                .get(i * size::POINT..(i + 1) * size::POINT)
+                .map(Point::read),
+            PointList::Points(p) => p.get(i).copied(),
+        }
+    }
+    /// The points in order.
+    pub fn iter(&self) -> PointsIter<'a> {
+        PointsIter {
+            list: *self,
+            next: 0,
+        }
+    }
+}
+
+impl PartialEq for PointList<'_> {
+    fn eq(&self, other: &Self) -> bool {
+        self.len() == other.len() && self.iter().eq(other.iter())
+    }
+}
+impl Eq for PointList<'_> {}
+
+#[cfg(feature = "serde")]
+impl serde::Serialize for PointList<'_> {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.collect_seq(self.iter())
+    }
+}
+
+/// Iterator over a [`PointList`].
+#[derive(Clone, Debug)]
+pub struct PointsIter<'a> {
+    list: PointList<'a>,
+    next: usize,
+}
+
+impl Iterator for PointsIter<'_> {
+    type Item = Point;
+    fn next(&mut self) -> Option<Point> {
+        let p = self.list.get(self.next)?;
+        self.next += 1;
+        Some(p)
+    }
+    fn size_hint(&self) -> (usize, Option<usize>) {
+        let n = self.list.len().saturating_sub(self.next);
+        (n, Some(n))
+    }
+}
+
+impl ExactSizeIterator for PointsIter<'_> {}
+
+/// A command from a host to the controller (PROTOCOL.md section 3).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize))]
+pub enum Command<'a> {
+    /// Start an upload of `count` points (big-endian on the wire).
+    New {
+        /// Points the trajectory will have, 1..65535.
+        count: u16,
+    },
+    /// 1..12 points to append.
+    Pending(PointList<'a>),
+    /// Start executing.
+    Runing,
+    /// Stop at once and drop the buffer.
+    Stopped,
+    /// Location reports on.
+    UploadStart,
+    /// Location reports off.
+    UploadStop,
+    /// Gripper PWM on.
+    PwmStart(Pwm),
+    /// Gripper PWM off.
+    PwmStop,
+    /// Open the serial pass-through.
+    UsartStart(UartInit),
+    /// Close it.
+    UsartStop,
+    /// 1..255 bytes to write to the serial port.
+    UsartSend(&'a [u8]),
+    /// GPIO_0 high.
+    Pin0On,
+    /// GPIO_0 low.
+    Pin0Off,
+    /// GPIO_1 high.
+    Pin1On,
+    /// GPIO_1 low.
+    Pin1Off,
+    /// Toggle the ENABLE of every driver (`None`) or of the masked ones.
+    ToggleEnablePins {
+        /// Bits 0-7 joints, bit 8 gripper (big-endian on the wire).
+        mask: Option<u16>,
+    },
+    /// Move every joint to zero.
+    Return,
+    /// Set the joint count, 1..8.
+    JointsCount(u8),
+    /// Set the current joint positions.
+    LocationSetting(Location),
+    /// Ask for a STATUS report.
+    Status,
+    /// Set the location report period.
+    UploadPeriod {
+        /// Microseconds, 1000..1000000.
+        period_us: u32,
+    },
+}
+
+/// A report from the controller to a host (PROTOCOL.md section 4).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize))]
+pub enum Report<'a> {
+    /// Reply to a command.
+    Ack(Ack),
+    /// Joint positions and state.
+    Location(Location),
+    /// 0..255 bytes read from the serial port.
+    UsartRecv(&'a [u8]),
+    /// Controller status.
+    Status(StatusReport),
+}
+
+/// Checks length and CRC, returns seq, tag byte and data.
+fn open(bytes: &[u8]) -> Result<(u8, u8, &[u8]), DecodeError> {
+    let [seq, tag, .., crc] = *bytes else {
+        return Err(DecodeError {
+            seq: bytes.first().copied().unwrap_or(0),
+            tag: bytes.get(1).copied().unwrap_or(0),
+            kind: DecodeErrorKind::TooShort { len: bytes.len() },
+        });
+    };
+    let body = &bytes[..bytes.len() - 1];
+    let computed = crc8(body);
+    if computed != crc {
+        return Err(DecodeError {
+            seq,
+            tag,
+            kind: DecodeErrorKind::BadCrc {
+                computed,
+                received: crc,
+            },
+        });
+    }
+    Ok((seq, tag, &body[2..]))
+}
+
+/// Builds a frame around `data_len` bytes written by `fill`.
+fn seal(
+    seq: u8,
+    tag: Tag,
+    data_len: usize,
+    buf: &mut [u8],
+    fill: impl FnOnce(&mut Writer<'_>),
+) -> Result<usize, EncodeError> {
+    let needed = data_len + FRAME_OVERHEAD;
+    let Some(frame) = buf.get_mut(..needed) else {
+        return Err(EncodeError::BufferTooSmall {
+            needed,
+            available: buf.len(),
+        });
+    };
+    frame.fill(0);
+    frame[0] = seq;
+    frame[1] = tag as u8;
+    fill(&mut Writer {
+        buf: &mut frame[2..2 + data_len],
+    });
+    frame[needed - 1] = crc8(&frame[..needed - 1]);
+    Ok(needed)
+}
+
+impl<'a> Command<'a> {
+    /// The tag this command travels under.
+    pub fn tag(&self) -> Tag {
+        match self {
+            Command::New { .. } => Tag::New,
+            Command::Pending(_) => Tag::Pending,
+            Command::Runing => Tag::Runing,
+            Command::Stopped => Tag::Stopped,
+            Command::UploadStart => Tag::UploadStart,
+            Command::UploadStop => Tag::UploadStop,
+            Command::PwmStart(_) => Tag::PwmStart,
+            Command::PwmStop => Tag::PwmStop,
+            Command::UsartStart(_) => Tag::UsartStart,
+            Command::UsartStop => Tag::UsartStop,
+            Command::UsartSend(_) => Tag::UsartSend,
+            Command::Pin0On => Tag::Pin0On,
+            Command::Pin0Off => Tag::Pin0Off,
+            Command::Pin1On => Tag::Pin1On,
+            Command::Pin1Off => Tag::Pin1Off,
+            Command::ToggleEnablePins { .. } => Tag::ToggleEnablePins,
+            Command::Return => Tag::Return,
+            Command::JointsCount(_) => Tag::JointsCount,
+            Command::LocationSetting(_) => Tag::Location,
+            Command::Status => Tag::Status,
+            Command::UploadPeriod { .. } => Tag::UploadPeriod,
+        }
+    }
+
+    /// Bytes of data in the canonical encoding.
+    pub fn data_len(&self) -> usize {
+        match self {
+            Command::New { .. } => 2,
+            Command::Pending(points) => points.len() * size::POINT,
+            Command::PwmStart(_) => size::PWM,
+            Command::UsartStart(_) => size::UART_INIT,
+            Command::UsartSend(bytes) => bytes.len(),
+            Command::ToggleEnablePins { mask } => {
+                if mask.is_some() {
+                    2
+                } else {
+                    0
+                }
+            }
+            Command::JointsCount(_) => 1,
+            Command::LocationSetting(_) => size::LOCATION,
+            Command::UploadPeriod { .. } => 4,
+            _ => 0,
+        }
+    }
+
+    /// Bytes of the whole encoded frame.
+    pub fn encoded_len(&self) -> usize {
+        self.data_len() + FRAME_OVERHEAD
+    }
+
+    /// Writes the frame with `seq` into `buf`; returns its length.
+    pub fn encode(&self, seq: u8, buf: &mut [u8]) -> Result<usize, EncodeError> {
+        match self {
+            Command::Pending(p) if p.is_empty() || p.len() > MAX_POINTS_PER_FRAME => {
+                return Err(EncodeError::InvalidContent);
+            }
+            Command::UsartSend(b) if b.is_empty() || b.len() > MAX_SERIAL_CHUNK => {
+                return Err(EncodeError::InvalidContent);
+            }
+            _ => {}
+        }
+        seal(seq, self.tag(), self.data_len(), buf, |w| match self {
+            Command::New { count } => w.put(0, &count.to_be_bytes()),
+            Command::Pending(PointList::Wire(bytes)) => w.put(0, bytes),
+            Command::Pending(PointList::Points(points)) => {
+                for (i, p) in points.iter().enumerate() {
+                    p.write(w, i * size::POINT);
+                }
+            }
+            Command::PwmStart(pwm) => {
+                w.u32(0, pwm.psc);
+                w.u32(4, pwm.arr);
+                w.u32(8, pwm.ccr1);
+                w.u32(12, pwm.pulse_count as u32);
+            }
+            Command::UsartStart(init) => init.write(w, 0),
+            Command::UsartSend(bytes) => w.put(0, bytes),
+            Command::ToggleEnablePins { mask: Some(mask) } => w.put(0, &mask.to_be_bytes()),
+            Command::JointsCount(n) => w.u8(0, *n),
+            Command::LocationSetting(loc) => loc.write(w, 0),
+            Command::UploadPeriod { period_us } => w.u32(0, *period_us),
+            _ => {}
+        })
+    }
+
+    /// Decodes a datagram sent to the controller. Never panics.
+    pub fn decode(bytes: &'a [u8]) -> Result<Frame<Command<'a>>, DecodeError> {
+        let (seq, tag_byte, data) = open(bytes)?;
+        let err = |kind| DecodeError {
+            seq,
+            tag: tag_byte,
+            kind,
+        };
+        let bad_len = |expected| {
+            err(DecodeErrorKind::BadLength {
+                expected,
+                found: data.len(),
+            })
+        };
+        let exactly = |n: usize| {
+            if data.len() == n {
+                Ok(())
+            } else {
+                Err(bad_len(ExpectedLen::Exactly(n)))
+            }
+        };
+        let out_of_range = |field| err(DecodeErrorKind::OutOfRange(field));
+        let Some(tag) = Tag::from_u8(tag_byte) else {
+            return Err(err(DecodeErrorKind::UnknownTag));
+        };
+        let body = match tag {
+            Tag::New => {
+                exactly(2)?;
+                let count = u16::from_be_bytes([data[0], data[1]]);
+                if count == 0 {
+                    return Err(out_of_range(Field::PointCount));
+                }
+                Command::New { count }
+            }
+            Tag::Pending => {
+                let records = data.len() / size::POINT;
+                if data.len() % size::POINT != 0 || records == 0 || records > MAX_POINTS_PER_FRAME {
+                    return Err(bad_len(ExpectedLen::Records {
+                        unit: size::POINT,
+                        max: MAX_POINTS_PER_FRAME,
+                    }));
+                }
+                let points = PointList::Wire(data);
+                if let Some(i) = points.iter().position(|p| p.duration < 1) {
+                    return Err(out_of_range(Field::Duration(i as u8)));
+                }
+                Command::Pending(points)
+            }
+            Tag::PwmStart => {
+                exactly(size::PWM)?;
+                let pwm = Pwm {
+                    psc: u32_le(data, 0),
+                    arr: u32_le(data, 4),
+                    ccr1: u32_le(data, 8),
+                    pulse_count: u32_le(data, 12) as i32,
+                };
+                if pwm.psc > 0xFFFF {
+                    return Err(out_of_range(Field::Psc));
+                }
+                if pwm.arr > 0xFFFF {
+                    return Err(out_of_range(Field::Arr));
+                }
+                if pwm.ccr1 > pwm.arr {
+                    return Err(out_of_range(Field::Ccr1));
+                }
+                Command::PwmStart(pwm)
+            }
+            Tag::UsartStart => {
+                let init = match data.len() {
+                    size::UART_INIT => UartInit::read(data, false),
+                    size::UART_INIT_MANUAL => UartInit::read(data, true),
+                    _ => {
+                        return Err(bad_len(ExpectedLen::Either(
+                            size::UART_INIT,
+                            size::UART_INIT_MANUAL,
+                        )));
+                    }
+                };
+                if !limits::BAUD_RATE.contains(&init.baud_rate) {
+                    return Err(out_of_range(Field::BaudRate));
+                }
+                Command::UsartStart(init)
+            }
+            Tag::UsartSend => {
+                if data.is_empty() || data.len() > MAX_SERIAL_CHUNK {
+                    return Err(bad_len(ExpectedLen::Between(1, MAX_SERIAL_CHUNK)));
+                }
+                Command::UsartSend(data)
+            }
+            Tag::ToggleEnablePins => match data.len() {
+                0 => Command::ToggleEnablePins { mask: None },
+                2 => {
+                    let mask = u16::from_be_bytes([data[0], data[1]]);
+                    if mask & !limits::ENABLE_MASK_BITS != 0 {
+                        return Err(out_of_range(Field::EnableMask));
+                    }
+                    Command::ToggleEnablePins { mask: Some(mask) }
+                }
+                _ => return Err(bad_len(ExpectedLen::Either(0, 2))),
+            },
+            Tag::JointsCount => {
+                exactly(1)?;
+                if !limits::JOINTS.contains(&data[0]) {
+                    return Err(out_of_range(Field::Joints));
+                }
+                Command::JointsCount(data[0])
+            }
+            Tag::Location => match data.len() {
+                size::LOCATION | size::LOCATION_PACKED => {
+                    Command::LocationSetting(Location::read(data))
+                }
+                _ => {
+                    return Err(bad_len(ExpectedLen::Either(
+                        size::LOCATION,
+                        size::LOCATION_PACKED,
+                    )));
+                }
+            },
+            Tag::UploadPeriod => {
+                exactly(4)?;
+                let period_us = u32_le(data, 0);
+                if !limits::UPLOAD_PERIOD_US.contains(&period_us) {
+                    return Err(out_of_range(Field::UploadPeriod));
+                }
+                Command::UploadPeriod { period_us }
+            }
+            Tag::UsartRecv | Tag::Ack => return Err(err(DecodeErrorKind::WrongDirection)),
+            Tag::Runing
+            | Tag::Stopped
+            | Tag::UploadStart
+            | Tag::UploadStop
+            | Tag::PwmStop
+            | Tag::UsartStop
+            | Tag::Pin0On
+            | Tag::Pin0Off
+            | Tag::Pin1On
+            | Tag::Pin1Off
+            | Tag::Return
+            | Tag::Status => {
+                exactly(0)?;
+                match tag {
+                    Tag::Runing => Command::Runing,
+                    Tag::Stopped => Command::Stopped,
+                    Tag::UploadStart => Command::UploadStart,
+                    Tag::UploadStop => Command::UploadStop,
+                    Tag::PwmStop => Command::PwmStop,
+                    Tag::UsartStop => Command::UsartStop,
+                    Tag::Pin0On => Command::Pin0On,
+                    Tag::Pin0Off => Command::Pin0Off,
+                    Tag::Pin1On => Command::Pin1On,
+                    Tag::Pin1Off => Command::Pin1Off,
+                    Tag::Return => Command::Return,
+                    _ => Command::Status,
+                }
+            }
+        };
+        Ok(Frame { seq, body })
+    }
+}
+
+impl<'a> Report<'a> {
+    /// The tag this report travels under.
+    pub fn tag(&self) -> Tag {
+        match self {
+            Report::Ack(_) => Tag::Ack,
+            Report::Location(_) => Tag::Location,
+            Report::UsartRecv(_) => Tag::UsartRecv,
+            Report::Status(_) => Tag::Status,
+        }
+    }
+
+    /// Bytes of data.
+    pub fn data_len(&self) -> usize {
+        match self {
+            Report::Ack(_) => size::ACK,
+            Report::Location(_) => size::LOCATION,
+            Report::UsartRecv(_) => size::USART_RECV,
+            Report::Status(_) => size::STATUS,
+        }
+    }
+
+    /// Bytes of the whole encoded frame.
+    pub fn encoded_len(&self) -> usize {
+        self.data_len() + FRAME_OVERHEAD
+    }
+
+    /// Writes the frame with `seq` into `buf`; returns its length.
+    pub fn encode(&self, seq: u8, buf: &mut [u8]) -> Result<usize, EncodeError> {
+        if let Report::UsartRecv(bytes) = self {
+            if bytes.len() > MAX_SERIAL_CHUNK {
+                return Err(EncodeError::InvalidContent);
+            }
+        }
+        seal(seq, self.tag(), self.data_len(), buf, |w| match self {
+            Report::Ack(ack) => ack.write(w, 0),
+            Report::Location(loc) => loc.write(w, 0),
+            Report::UsartRecv(bytes) => {
+                w.u8(0, bytes.len() as u8);
+                w.put(1, bytes);
+            }
+            Report::Status(status) => status.write(w, 0),
+        })
+    }
+
+    /// Decodes a datagram sent by the controller. Never panics.
+    pub fn decode(bytes: &'a [u8]) -> Result<Frame<Report<'a>>, DecodeError> {
+        let (seq, tag_byte, data) = open(bytes)?;
+        let err = |kind| DecodeError {
+            seq,
+            tag: tag_byte,
+            kind,
+        };
+        let exactly = |n: usize| {
+            if data.len() == n {
+                Ok(())
+            } else {
+                Err(err(DecodeErrorKind::BadLength {
+                    expected: ExpectedLen::Exactly(n),
+                    found: data.len(),
+                }))
+            }
+        };
+        let body = match Tag::from_u8(tag_byte) {
+            None => return Err(err(DecodeErrorKind::UnknownTag)),
+            Some(Tag::Ack) => {
+                exactly(size::ACK)?;
+                Report::Ack(Ack {
+                    acked_tag: data[0],
+                    status: StatusCode::from_u8(data[1])
+                        .ok_or(err(DecodeErrorKind::OutOfRange(Field::Status)))?,
+                    state: State::from_u8(data[2])
+                        .ok_or(err(DecodeErrorKind::OutOfRange(Field::State)))?,
+                    next_seq: data[3],
+                    buffered: u16_le(data, 4),
+                    free: u16_le(data, 6),
+                })
+            }
+            Some(Tag::Location) => {
+                if data.len() != size::LOCATION && data.len() != size::LOCATION_PACKED {
+                    return Err(err(DecodeErrorKind::BadLength {
+                        expected: ExpectedLen::Either(size::LOCATION, size::LOCATION_PACKED),
+                        found: data.len(),
+                    }));
+                }
+                Report::Location(Location::read(data))
+            }
+            Some(Tag::UsartRecv) => {
+                exactly(size::USART_RECV)?;
+                let len = usize::from(data[0]);
+                Report::UsartRecv(&data[1..1 + len])
+            }
+            Some(Tag::Status) => {
+                exactly(size::STATUS)?;
+                Report::Status(
+                    StatusReport::read(data)
+                        .ok_or(err(DecodeErrorKind::OutOfRange(Field::State)))?,
+                )
+            }
+            Some(_) => return Err(err(DecodeErrorKind::WrongDirection)),
+        };
+        Ok(Frame { seq, body })
+    }
+}

@@ -1,0 +1,80 @@
+//! The arm controller's wire protocol, as fixed by `docs/PROTOCOL.md`.
+//!
+//! One frame per UDP datagram: `| seq u8 | tag u8 | data | crc u8 |`, CRC-8/SMBUS over
+//! everything before the CRC, little-endian fields laid out as a 32-bit ARM C compiler lays
+//! out the manual's structs (NEW's count and TOGGLE_ENABLE_PINS's mask are big-endian).
+//!
+//! [`Command`] is what a host sends, [`Report`] what the controller sends back. Both decode
+//! from a byte slice without allocating or panicking, and encode into the caller's buffer.
+//! The crate is `no_std` and shared by the firmware, the simulator and the host tools.
+#![no_std]
+
+#[cfg(feature = "std")]
+extern crate std;
+
+mod codec;
+mod error;
+mod frame;
+mod types;
+
+pub use error::{DecodeError, DecodeErrorKind, EncodeError, ExpectedLen, Field};
+pub use frame::{Command, Frame, PointList, PointsIter, Report, crc8};
+pub use types::{
+    Ack, Location, Point, Pwm, State, StatusCode, StatusFlags, StatusReport, Tag, UartInit,
+    UartMode,
+};
+
+/// UDP port the controller listens on.
+pub const PORT: u16 = 8510;
+/// Largest datagram payload: Ethernet MTU 1500 less the IPv4 and UDP headers.
+pub const MAX_DATAGRAM: usize = 1472;
+/// seq, tag and crc around the data.
+pub const FRAME_OVERHEAD: usize = 3;
+/// Largest data part of a frame.
+pub const MAX_DATA: usize = MAX_DATAGRAM - FRAME_OVERHEAD;
+/// Joints a Point or Location carries, whatever the arm uses.
+pub const MAX_JOINTS: usize = 8;
+/// Points in one PENDING frame: 12 * 116 = 1392 bytes fit one datagram, 13 do not.
+pub const MAX_POINTS_PER_FRAME: usize = 12;
+/// Bytes of one USART_SEND or USART_RECV payload at most.
+pub const MAX_SERIAL_CHUNK: usize = 255;
+/// Protocol version reported in STATUS.
+pub const VERSION: [u8; 3] = [1, 0, 0];
+
+/// Encoded sizes of the wire structs.
+pub mod size {
+    /// `Point`: duration + four hint arrays + position.
+    pub const POINT: usize = 116;
+    /// `Location`: 33 bytes of fields + 3 padding bytes.
+    pub const LOCATION: usize = 36;
+    /// `Location` without its padding (tolerated on receipt).
+    pub const LOCATION_PACKED: usize = 33;
+    /// `Pwm`.
+    pub const PWM: usize = 16;
+    /// `UartInit`.
+    pub const UART_INIT: usize = 28;
+    /// `UartInit` as printed in the manual, with `Parity` twice (tolerated on receipt).
+    pub const UART_INIT_MANUAL: usize = 32;
+    /// ACK data.
+    pub const ACK: usize = 8;
+    /// STATUS report data.
+    pub const STATUS: usize = 36;
+    /// USART_RECV data: `len` + a 256-byte area.
+    pub const USART_RECV: usize = 257;
+}
+
+/// Value ranges that decode enforces (section 3 and 6 of PROTOCOL.md).
+pub mod limits {
+    /// Smallest and largest UPLOAD_PERIOD, microseconds.
+    pub const UPLOAD_PERIOD_US: core::ops::RangeInclusive<u32> = 1_000..=1_000_000;
+    /// Joint counts JOINTS_COUNT accepts.
+    pub const JOINTS: core::ops::RangeInclusive<u8> = 1..=8;
+    /// Serial baud rates USART_START accepts.
+    pub const BAUD_RATE: core::ops::RangeInclusive<u32> = 300..=4_000_000;
+    /// Bits of TOGGLE_ENABLE_PINS's mask that name a driver: joints 0-7, gripper 8.
+    pub const ENABLE_MASK_BITS: u16 = 0x01FF;
+    /// Default upload period, microseconds.
+    pub const DEFAULT_UPLOAD_PERIOD_US: u32 = 10_000;
+    /// Default joint count.
+    pub const DEFAULT_JOINTS: u8 = 6;
+}
