@@ -1,0 +1,134 @@
+//! The small hardware traits the controller's tasks are generic over. The board binary
+//! implements them with embassy-stm32 drivers, sim-host with simulated hardware; the
+//! behaviour behind them is written once, in this crate.
+
+use core::future::Future;
+
+use protocol::{Pwm, UartInit};
+
+pub use arm_step::{JointMask, StepPins};
+
+/// An IPv4 UDP endpoint.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Endpoint {
+    /// IPv4 address.
+    pub ip: [u8; 4],
+    /// UDP port.
+    pub port: u16,
+}
+
+/// Monotonic time in microseconds since boot, and waiting for it.
+pub trait Clock {
+    /// Microseconds since boot.
+    fn now_us(&self) -> u64;
+    /// Completes once `now_us() >= at_us`.
+    fn sleep_until(&self, at_us: u64) -> impl Future<Output = ()>;
+}
+
+/// The controller's UDP socket (bound to port 8510). Methods take `&self` so that one task
+/// can wait for a datagram and send one at the same time.
+pub trait Datagrams {
+    /// Transport error (logged, never fatal).
+    type Error: core::fmt::Debug;
+    /// Waits for the next datagram; returns its length (truncated to `buf`) and sender.
+    fn recv(&self, buf: &mut [u8]) -> impl Future<Output = Result<(usize, Endpoint), Self::Error>>;
+    /// Sends one datagram.
+    fn send(&self, to: Endpoint, frame: &[u8]) -> impl Future<Output = Result<(), Self::Error>>;
+}
+
+/// Asks the step timer for an interrupt as soon as possible (new segments, start, stop).
+/// The interrupt then runs [`arm_step::StepEngine::poll`].
+pub trait StepKick {
+    /// Requests an immediate step timer interrupt. Callable from any context.
+    fn kick(&self);
+    /// Current step timer tick (same time base as `StepEngine::poll`).
+    fn now_tick(&self) -> u64;
+}
+
+/// PIN0/PIN1 and the drivers' ENABLE lines.
+pub trait Outputs {
+    /// Drives user pin `pin` (0 or 1).
+    fn set_user_pin(&mut self, pin: u8, high: bool);
+    /// Sets the ENABLE lines: bit j = joint j enabled (holding), bit 8 = gripper.
+    fn set_enabled(&mut self, enabled: u16);
+}
+
+/// The gripper timer output (servo PWM or counted stepper pulses).
+pub trait Gripper {
+    /// Input clock of the gripper timer (STATUS `pwm_timer_clock_hz`).
+    fn timer_clock_hz(&self) -> u32;
+    /// Starts PWM with these registers (already validated). Stepper mode
+    /// (`pulse_count != 0`): sets the direction from the sign and stops by itself after
+    /// `|pulse_count|` pulses.
+    fn start(&mut self, pwm: &Pwm);
+    /// Output off at once.
+    fn stop(&mut self);
+    /// Whether the output is running (false once a counted burst has finished).
+    fn is_active(&self) -> bool;
+}
+
+/// Why the serial port refused something.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum SerialError {
+    /// The settings cannot be applied by this hardware.
+    Unsupported,
+    /// The port is closed.
+    Closed,
+    /// A framing, parity or overrun error on the line.
+    Line,
+}
+
+/// The pass-through serial port. Methods take `&self` so that reading and writing can wait
+/// at the same time (implementations keep the two halves apart).
+pub trait SerialPort {
+    /// Opens (or reopens) the port with these settings.
+    fn open(&self, init: &UartInit) -> Result<(), SerialError>;
+    /// Closes the port; pending reads return `Closed`.
+    fn close(&self);
+    /// Waits for at least one byte, then returns what arrived until `buf` is full or the
+    /// line went idle for one byte time.
+    fn read(&self, buf: &mut [u8]) -> impl Future<Output = Result<usize, SerialError>>;
+    /// Writes every byte.
+    fn write(&self, bytes: &[u8]) -> impl Future<Output = Result<(), SerialError>>;
+}
+
+/// Settings that survive a power cycle.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct PersistentSettings {
+    /// Joints in use (JOINTS_COUNT), 1..8.
+    pub joints: u8,
+    /// The controller's IPv4 address.
+    pub ip: [u8; 4],
+    /// Prefix length of its subnet.
+    pub prefix_len: u8,
+}
+
+impl Default for PersistentSettings {
+    fn default() -> Self {
+        PersistentSettings {
+            joints: protocol::limits::DEFAULT_JOINTS,
+            ip: [192, 168, 1, 30],
+            prefix_len: 24,
+        }
+    }
+}
+
+/// Persistent storage of [`PersistentSettings`].
+pub trait SettingsStore {
+    /// Storage error (logged; the controller keeps running on defaults).
+    type Error: core::fmt::Debug;
+    /// The stored settings, or `None` if nothing valid is stored.
+    fn load(&mut self) -> impl Future<Output = Result<Option<PersistentSettings>, Self::Error>>;
+    /// Stores the settings.
+    fn save(&mut self, settings: &PersistentSettings) -> impl Future<Output = Result<(), Self::Error>>;
+}
+
+/// Absolute joint encoders, for RETURN.
+pub trait Encoders {
+    /// Current joint positions in steps, or `None` if this board has no encoders (RETURN
+    /// then trusts the step count).
+    fn read(&mut self) -> impl Future<Output = Option<[i32; protocol::MAX_JOINTS]>>;
+}

@@ -1,0 +1,67 @@
+//! The step pulse scheduler: the code the step timer interrupt runs.
+//!
+//! The trajectory is handed over as [`Segment`]s (a duration and a signed step count per
+//! joint). For a segment that starts at tick `S`, lasts `D` ticks and moves a joint `N`
+//! steps, pulse `i` (1..=N) rises at `S + floor(i * D / N)`: computed incrementally with a
+//! Bresenham-style remainder, so no division per pulse and no drift. Segment start ticks are
+//! derived from the cumulative duration in microseconds since `start`, so segments chain with
+//! no gap and no rounding error accumulates even when the tick rate is not a multiple of
+//! 1 MHz.
+//!
+//! Direction lines change only while STEP is low, right after the joint's previous pulse
+//! ends, and the next pulse is never raised sooner than `dir_setup_ticks` after the change.
+//!
+//! The engine is sans-io: the timer interrupt calls [`StepEngine::poll`] with the current
+//! tick and a [`StepPins`] implementation, and re-arms its compare register for the
+//! returned deadline.
+#![no_std]
+
+/// Joints the engine drives.
+pub const MAX_JOINTS: usize = 8;
+
+/// Bit `j` = joint `j`.
+pub type JointMask = u8;
+
+/// One trajectory segment as the engine sees it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Segment {
+    /// Length in microseconds (>= 1).
+    pub duration_us: u32,
+    /// Signed steps per joint; the sign is the direction (positive = DIR high).
+    pub steps: [i32; MAX_JOINTS],
+}
+
+/// Timer resolution and driver timing requirements.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct StepTiming {
+    /// Step timer ticks per second.
+    pub tick_hz: u32,
+    /// How long STEP stays high, ticks.
+    pub pulse_width_ticks: u32,
+    /// Least time from a DIR change to the next rising STEP edge, ticks.
+    pub dir_setup_ticks: u32,
+}
+
+/// The step, direction lines. Called from the step timer interrupt: must not block.
+pub trait StepPins {
+    /// Sets joint `joint`'s DIR line (true = positive steps).
+    fn set_direction(&mut self, joint: usize, positive: bool);
+    /// Raises STEP on every joint in `joints`.
+    fn step_high(&mut self, joints: JointMask);
+    /// Lowers STEP on every joint in `joints`.
+    fn step_low(&mut self, joints: JointMask);
+}
+
+/// What one [`StepEngine::poll`] did and what the interrupt must do next.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Poll {
+    /// Tick at which `poll` must be called again; `None`: nothing to do until `start`.
+    pub next_deadline: Option<u64>,
+    /// Segments whose end time passed during this call (their slots are free now).
+    pub segments_finished: u32,
+    /// The engine ran out of segments during this call and is idle now.
+    pub ran_dry: bool,
+}
