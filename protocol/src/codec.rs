@@ -2,6 +2,15 @@
 //! slice operations here never go out of bounds; they use `get` anyway so that a mistake
 //! reads zeros instead of panicking on network input.
 
+pub(crate) fn u8_at(b: &[u8], at: usize) -> u8 {
+    b.get(at).copied().unwrap_or(0)
+}
+
+/// The two fields the manual gives high byte first (NEW's count, the enable mask).
+pub(crate) fn u16_be(b: &[u8], at: usize) -> u16 {
+    u16::from_be_bytes([u8_at(b, at), u8_at(b, at + 1)])
+}
+
 pub(crate) fn u16_le(b: &[u8], at: usize) -> u16 {
     let mut v = [0u8; 2];
     if let Some(s) = b.get(at..at + 2) {

@@ -1,6 +1,6 @@
 //! Frames: decoding a datagram into a typed command or report, and encoding one back.
 
-use crate::codec::{Writer, u16_le, u32_le};
+use crate::codec::{Writer, u8_at, u16_be, u16_le, u32_le};
 use crate::error::{DecodeError, DecodeErrorKind, EncodeError, ExpectedLen, Field};
 use crate::types::{Ack, Location, Point, Pwm, State, StatusCode, StatusReport, Tag, UartInit};
 use crate::{FRAME_OVERHEAD, MAX_POINTS_PER_FRAME, MAX_SERIAL_CHUNK, limits, size};
@@ -49,9 +49,12 @@ impl<'a> PointList<'a> {
     /// Point `i`, if there is one.
     pub fn get(&self, i: usize) -> Option<Point> {
         match self {
-            PointList::Wire(b) => b
-                .get(i * size::POINT..(i + 1) * size::POINT)
-                .map(Point::read),
+            PointList::Wire(b) => {
+                // Checked so that no index, however large, can overflow.
+                let start = i.checked_mul(size::POINT)?;
+                b.get(start..start.checked_add(size::POINT)?)
+                    .map(Point::read)
+            }
             PointList::Points(p) => p.get(i).copied(),
         }
     }
@@ -175,14 +178,18 @@ pub enum Report<'a> {
 
 /// Checks length and CRC, returns seq, tag byte and data.
 fn open(bytes: &[u8]) -> Result<(u8, u8, &[u8]), DecodeError> {
-    let [seq, tag, .., crc] = *bytes else {
-        return Err(DecodeError {
-            seq: bytes.first().copied().unwrap_or(0),
-            tag: bytes.get(1).copied().unwrap_or(0),
-            kind: DecodeErrorKind::TooShort { len: bytes.len() },
-        });
+    let too_short = DecodeError {
+        seq: u8_at(bytes, 0),
+        tag: u8_at(bytes, 1),
+        kind: DecodeErrorKind::TooShort { len: bytes.len() },
     };
-    let body = &bytes[..bytes.len() - 1];
+    let Some((&crc, body)) = bytes.split_last() else {
+        return Err(too_short);
+    };
+    let [seq, tag, data @ ..] = body else {
+        return Err(too_short);
+    };
+    let (seq, tag) = (*seq, *tag);
     let computed = crc8(body);
     if computed != crc {
         return Err(DecodeError {
@@ -194,7 +201,7 @@ fn open(bytes: &[u8]) -> Result<(u8, u8, &[u8]), DecodeError> {
             },
         });
     }
-    Ok((seq, tag, &body[2..]))
+    Ok((seq, tag, data))
 }
 
 /// Builds a frame around `data_len` bytes written by `fill`.
@@ -258,13 +265,7 @@ impl<'a> Command<'a> {
             Command::PwmStart(_) => size::PWM,
             Command::UsartStart(_) => size::UART_INIT,
             Command::UsartSend(bytes) => bytes.len(),
-            Command::ToggleEnablePins { mask } => {
-                if mask.is_some() {
-                    2
-                } else {
-                    0
-                }
-            }
+            Command::ToggleEnablePins { mask: Some(_) } => 2,
             Command::JointsCount(_) => 1,
             Command::LocationSetting(_) => size::LOCATION,
             Command::UploadPeriod { .. } => 4,
@@ -281,6 +282,10 @@ impl<'a> Command<'a> {
     pub fn encode(&self, seq: u8, buf: &mut [u8]) -> Result<usize, EncodeError> {
         match self {
             Command::Pending(p) if p.is_empty() || p.len() > MAX_POINTS_PER_FRAME => {
+                return Err(EncodeError::InvalidContent);
+            }
+            // A partial record would be silently dropped: refuse it instead.
+            Command::Pending(PointList::Wire(b)) if b.len() % size::POINT != 0 => {
                 return Err(EncodeError::InvalidContent);
             }
             Command::UsartSend(b) if b.is_empty() || b.len() > MAX_SERIAL_CHUNK => {
@@ -340,7 +345,7 @@ impl<'a> Command<'a> {
         let body = match tag {
             Tag::New => {
                 exactly(2)?;
-                let count = u16::from_be_bytes([data[0], data[1]]);
+                let count = u16_be(data, 0);
                 if count == 0 {
                     return Err(out_of_range(Field::PointCount));
                 }
@@ -404,7 +409,7 @@ impl<'a> Command<'a> {
             Tag::ToggleEnablePins => match data.len() {
                 0 => Command::ToggleEnablePins { mask: None },
                 2 => {
-                    let mask = u16::from_be_bytes([data[0], data[1]]);
+                    let mask = u16_be(data, 0);
                     if mask & !limits::ENABLE_MASK_BITS != 0 {
                         return Err(out_of_range(Field::EnableMask));
                     }
@@ -414,10 +419,11 @@ impl<'a> Command<'a> {
             },
             Tag::JointsCount => {
                 exactly(1)?;
-                if !limits::JOINTS.contains(&data[0]) {
+                let joints = u8_at(data, 0);
+                if !limits::JOINTS.contains(&joints) {
                     return Err(out_of_range(Field::Joints));
                 }
-                Command::JointsCount(data[0])
+                Command::JointsCount(joints)
             }
             Tag::Location => match data.len() {
                 size::LOCATION | size::LOCATION_PACKED => {
@@ -500,10 +506,10 @@ impl<'a> Report<'a> {
 
     /// Writes the frame with `seq` into `buf`; returns its length.
     pub fn encode(&self, seq: u8, buf: &mut [u8]) -> Result<usize, EncodeError> {
-        if let Report::UsartRecv(bytes) = self {
-            if bytes.len() > MAX_SERIAL_CHUNK {
-                return Err(EncodeError::InvalidContent);
-            }
+        if let Report::UsartRecv(bytes) = self
+            && bytes.len() > MAX_SERIAL_CHUNK
+        {
+            return Err(EncodeError::InvalidContent);
         }
         seal(seq, self.tag(), self.data_len(), buf, |w| match self {
             Report::Ack(ack) => ack.write(w, 0),
@@ -539,12 +545,12 @@ impl<'a> Report<'a> {
             Some(Tag::Ack) => {
                 exactly(size::ACK)?;
                 Report::Ack(Ack {
-                    acked_tag: data[0],
-                    status: StatusCode::from_u8(data[1])
+                    acked_tag: u8_at(data, 0),
+                    status: StatusCode::from_u8(u8_at(data, 1))
                         .ok_or(err(DecodeErrorKind::OutOfRange(Field::Status)))?,
-                    state: State::from_u8(data[2])
+                    state: State::from_u8(u8_at(data, 2))
                         .ok_or(err(DecodeErrorKind::OutOfRange(Field::State)))?,
-                    next_seq: data[3],
+                    next_seq: u8_at(data, 3),
                     buffered: u16_le(data, 4),
                     free: u16_le(data, 6),
                 })
@@ -556,12 +562,19 @@ impl<'a> Report<'a> {
                         found: data.len(),
                     }));
                 }
-                Report::Location(Location::read(data))
+                let location = Location::read(data);
+                // A host acts on the state, so a code outside the table is an error here
+                // (LOCATION_SETTING ignores the byte instead).
+                if State::from_u8(location.state).is_none() {
+                    return Err(err(DecodeErrorKind::OutOfRange(Field::State)));
+                }
+                Report::Location(location)
             }
             Some(Tag::UsartRecv) => {
                 exactly(size::USART_RECV)?;
-                let len = usize::from(data[0]);
-                Report::UsartRecv(&data[1..1 + len])
+                // `len` is at most 255 and the area 256 bytes, so `get` always succeeds.
+                let len = usize::from(u8_at(data, 0));
+                Report::UsartRecv(data.get(1..1 + len).unwrap_or_default())
             }
             Some(Tag::Status) => {
                 exactly(size::STATUS)?;

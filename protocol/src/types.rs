@@ -1,6 +1,6 @@
 //! The manual's structs and code tables as Rust values, with their wire layout.
 
-use crate::codec::{Writer, i16s, i32_le, i32s, u16_le, u32_le};
+use crate::codec::{Writer, i16s, i32_le, i32s, u8_at, u16_le, u32_le};
 use crate::{MAX_JOINTS, size};
 
 /// A frame's tag byte: the command or report it carries.
@@ -315,6 +315,9 @@ impl Point {
     }
 
     /// Steps joint `j` makes in this segment after `previous`, signed.
+    ///
+    /// # Panics
+    /// If `j >= MAX_JOINTS` (a caller's bug, never a value from the network).
     pub fn steps(&self, previous: &[i32; MAX_JOINTS], j: usize) -> i64 {
         i64::from(self.position[j]) - i64::from(previous[j])
     }
@@ -355,7 +358,7 @@ impl Location {
     pub(crate) fn read(b: &[u8]) -> Location {
         Location {
             position: i32s(b, 0),
-            state: b.get(32).copied().unwrap_or(0),
+            state: u8_at(b, 32),
         }
     }
     pub(crate) fn write(&self, w: &mut Writer<'_>, at: usize) {
@@ -579,10 +582,10 @@ pub struct StatusReport {
 impl StatusReport {
     pub(crate) fn read(b: &[u8]) -> Option<StatusReport> {
         Some(StatusReport {
-            version: [b[0], b[1], b[2]],
-            joints: b[3],
-            state: State::from_u8(b[4])?,
-            flags: StatusFlags(b[5]),
+            version: [u8_at(b, 0), u8_at(b, 1), u8_at(b, 2)],
+            joints: u8_at(b, 3),
+            state: State::from_u8(u8_at(b, 4))?,
+            flags: StatusFlags(u8_at(b, 5)),
             buffered: u16_le(b, 8),
             expected: u16_le(b, 10),
             received: u16_le(b, 12),
