@@ -1,1 +1,37 @@
+//! Host side of the arm controller: a client library over UDP and the `armctl` tool.
+//!
+//! ```no_run
+//! use armctl::{Controller, RunOptions};
+//! use protocol::Point;
+//!
+//! let arm = Controller::connect("127.0.0.1:8510")?;
+//! let status = arm.status()?;
+//! println!("{} joints, state {}", status.joints, status.state.name());
+//! let start = arm.last_location().map(|l| l.position).unwrap_or_default();
+//! let mut target = start;
+//! target[0] += 100;
+//! // 100 steps on joint 0 in 50 ms.
+//! let points = [Point::from_motion(50_000, &start, &target)];
+//! let report = arm.run_trajectory(&points, &RunOptions::default(), |p| {
+//!     println!("{}/{} acked, {} executed", p.acked, p.total, p.executed)
+//! })?;
+//! println!("{:?}", report.final_location);
+//! # Ok::<(), armctl::Error>(())
+//! ```
+//!
+//! - [`Controller`]: commands with retries and ACK checks; every refusal is an
+//!   [`Error::Refused`] whose message names the status and what to do about it.
+//! - [`Controller::run_trajectory`]: the reliable upload (go-back-N window, flow control).
+//! - [`trajectory`]: JointTrajectory JSON and CSV files to checked [`protocol::Point`]s.
+//! - [`record`] and [`plot`]: recorded location reports as CSV, and SVG plots of them.
 
+mod client;
+mod error;
+mod run;
+pub mod trajectory;
+
+pub use client::{Controller, Options};
+pub use error::{Error, Result, RunEnd};
+pub use run::{MAX_POINTS, MAX_WINDOW, Progress, RunOptions, RunReport};
+
+pub use protocol;

@@ -1,0 +1,489 @@
+//! The controller client: one UDP socket, a background thread that receives every report,
+//! and blocking calls that send a command and wait for its ACK with bounded retries.
+
+use std::collections::HashMap;
+use std::net::{SocketAddr, ToSocketAddrs, UdpSocket};
+use std::sync::atomic::{AtomicBool, AtomicU8, AtomicU64, Ordering};
+use std::sync::mpsc::{self, Receiver, RecvTimeoutError, Sender};
+use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use protocol::{
+    Ack, Command, Location, MAX_DATAGRAM, MAX_JOINTS, MAX_SERIAL_CHUNK, Pwm, Report, State,
+    StatusCode, StatusReport, Tag, UartInit,
+};
+
+use crate::error::{Error, Result};
+
+/// How long the receiver thread blocks in one `recv`, so that it notices a shutdown soon.
+const RECEIVER_POLL: Duration = Duration::from_millis(50);
+
+/// Timeouts and retry bounds of a [`Controller`].
+#[derive(Clone, Debug)]
+pub struct Options {
+    /// How long to wait for an ACK before sending the frame again.
+    pub ack_timeout: Duration,
+    /// How many times a frame is sent at most (the first send included).
+    pub attempts: u32,
+    /// How long to wait for a STATUS report after its ACK before asking again.
+    pub report_timeout: Duration,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Options {
+            ack_timeout: Duration::from_millis(100),
+            attempts: 10,
+            report_timeout: Duration::from_millis(300),
+        }
+    }
+}
+
+/// A connection to one controller. All methods take `&self`: share it with `Arc` to call
+/// [`Controller::stop`] from another thread while a run is uploading.
+///
+/// Commands other than STOPPED wait while [`Controller::run_trajectory`] uploads, because
+/// a command slipped between PENDING frames that got lost or refused would leave a hole in
+/// the upload's sequence numbers.
+pub struct Controller {
+    socket: UdpSocket,
+    addr: SocketAddr,
+    next_seq: AtomicU8,
+    options: Options,
+    shared: Arc<Shared>,
+    /// Held for a whole upload (see the type's doc).
+    pub(crate) upload: Mutex<()>,
+    receiver: Option<JoinHandle<()>>,
+}
+
+impl std::fmt::Debug for Controller {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Controller")
+            .field("addr", &self.addr)
+            .field("options", &self.options)
+            .finish_non_exhaustive()
+    }
+}
+
+/// Where the receiver thread delivers what arrives.
+#[derive(Default)]
+pub(crate) struct Shared {
+    shutdown: AtomicBool,
+    /// Who waits for the ACK of which seq.
+    waiters: Mutex<HashMap<u8, Sender<(u8, Ack)>>>,
+    locations: Mutex<Vec<Sender<Location>>>,
+    serial: Mutex<Vec<Sender<Vec<u8>>>>,
+    statuses: Mutex<Vec<Sender<StatusReport>>>,
+    last_location: Mutex<Option<Location>>,
+    last_status: Mutex<Option<StatusReport>>,
+    /// Datagrams that did not decode as a report.
+    undecodable: AtomicU64,
+}
+
+/// Locks a mutex even if a thread panicked while holding it: the data here (channel lists,
+/// last reports) stays consistent whatever happened.
+pub(crate) fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(PoisonError::into_inner)
+}
+
+/// Sends to every subscriber and forgets the ones that hung up.
+fn fan_out<T: Clone>(subs: &Mutex<Vec<Sender<T>>>, value: &T) {
+    lock(subs).retain(|s| s.send(value.clone()).is_ok());
+}
+
+impl Shared {
+    fn deliver(&self, datagram: &[u8]) {
+        let Ok(frame) = Report::decode(datagram) else {
+            self.undecodable.fetch_add(1, Ordering::Relaxed);
+            return;
+        };
+        match frame.body {
+            Report::Ack(ack) => {
+                if let Some(waiter) = lock(&self.waiters).get(&frame.seq) {
+                    let _ = waiter.send((frame.seq, ack));
+                }
+            }
+            Report::Location(location) => {
+                *lock(&self.last_location) = Some(location);
+                fan_out(&self.locations, &location);
+            }
+            Report::UsartRecv(bytes) => fan_out(&self.serial, &bytes.to_vec()),
+            Report::Status(status) => {
+                *lock(&self.last_status) = Some(status);
+                fan_out(&self.statuses, &status);
+            }
+        }
+    }
+}
+
+fn receive_loop(socket: UdpSocket, shared: Arc<Shared>) {
+    let mut buf = [0u8; MAX_DATAGRAM + 1];
+    while !shared.shutdown.load(Ordering::Relaxed) {
+        // Errors are timeouts, or ICMP "port unreachable" surfacing as ConnectionRefused
+        // while the controller is not up yet: keep listening.
+        if let Ok(n) = socket.recv(&mut buf) {
+            shared.deliver(&buf[..n]);
+        }
+    }
+}
+
+/// A registration for the ACKs of some seqs; removes them on drop.
+pub(crate) struct AckWaiter<'a> {
+    shared: &'a Shared,
+    seqs: Vec<u8>,
+    tx: Sender<(u8, Ack)>,
+    pub(crate) rx: Receiver<(u8, Ack)>,
+}
+
+impl AckWaiter<'_> {
+    pub(crate) fn expect(&mut self, seq: u8) {
+        lock(&self.shared.waiters).insert(seq, self.tx.clone());
+        self.seqs.push(seq);
+    }
+}
+
+impl Drop for AckWaiter<'_> {
+    fn drop(&mut self) {
+        let mut waiters = lock(&self.shared.waiters);
+        for seq in &self.seqs {
+            waiters.remove(seq);
+        }
+    }
+}
+
+impl Controller {
+    /// Connects to the controller at `addr` (e.g. `"127.0.0.1:8510"`) with default
+    /// [`Options`] and checks that it answers a STATUS.
+    pub fn connect(addr: impl ToSocketAddrs) -> Result<Controller> {
+        Self::connect_with(addr, Options::default())
+    }
+
+    /// Connects with the given options and checks that the controller answers a STATUS.
+    pub fn connect_with(addr: impl ToSocketAddrs, options: Options) -> Result<Controller> {
+        let controller = Self::open(addr, options)?;
+        controller.status()?;
+        Ok(controller)
+    }
+
+    /// Opens the socket and starts the receiver without talking to the controller.
+    pub fn open(addr: impl ToSocketAddrs, options: Options) -> Result<Controller> {
+        let addr = addr.to_socket_addrs()?.next().ok_or_else(|| {
+            Error::Io(std::io::Error::new(
+                std::io::ErrorKind::InvalidInput,
+                "the controller address resolves to nothing",
+            ))
+        })?;
+        let local: SocketAddr = match addr {
+            SocketAddr::V4(a) if a.ip().is_loopback() => "127.0.0.1:0",
+            SocketAddr::V4(_) => "0.0.0.0:0",
+            SocketAddr::V6(a) if a.ip().is_loopback() => "[::1]:0",
+            SocketAddr::V6(_) => "[::]:0",
+        }
+        .parse()
+        .map_err(|_| Error::Io(std::io::ErrorKind::InvalidInput.into()))?;
+        let socket = UdpSocket::bind(local)?;
+        // Only the controller's datagrams reach us.
+        socket.connect(addr)?;
+        let rx_socket = socket.try_clone()?;
+        rx_socket.set_read_timeout(Some(RECEIVER_POLL))?;
+        let shared = Arc::new(Shared::default());
+        let thread_shared = shared.clone();
+        let receiver = std::thread::Builder::new()
+            .name("armctl-rx".into())
+            .spawn(move || receive_loop(rx_socket, thread_shared))?;
+        // Start away from 0 so that two quick invocations do not look alike in a capture.
+        let first_seq = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.subsec_nanos() as u8);
+        Ok(Controller {
+            socket,
+            addr,
+            next_seq: AtomicU8::new(first_seq),
+            options,
+            shared,
+            upload: Mutex::new(()),
+            receiver: Some(receiver),
+        })
+    }
+
+    /// The controller's address.
+    pub fn addr(&self) -> SocketAddr {
+        self.addr
+    }
+
+    /// This host's address and port, as the controller sees it on loopback.
+    pub fn local_addr(&self) -> Result<SocketAddr> {
+        Ok(self.socket.local_addr()?)
+    }
+
+    /// The options in force.
+    pub fn options(&self) -> &Options {
+        &self.options
+    }
+
+    pub(crate) fn alloc_seq(&self) -> u8 {
+        self.next_seq.fetch_add(1, Ordering::Relaxed)
+    }
+
+    pub(crate) fn waiter(&self) -> AckWaiter<'_> {
+        let (tx, rx) = mpsc::channel();
+        AckWaiter {
+            shared: &self.shared,
+            seqs: Vec::new(),
+            tx,
+            rx,
+        }
+    }
+
+    pub(crate) fn send_bytes(&self, frame: &[u8]) -> Result<()> {
+        match self.socket.send(frame) {
+            Ok(_) => Ok(()),
+            // A previous datagram's ICMP "port unreachable" (nobody listening yet): the
+            // frame itself may not have left; the retry loop sends it again.
+            Err(e) if e.kind() == std::io::ErrorKind::ConnectionRefused => Ok(()),
+            Err(e) => Err(e.into()),
+        }
+    }
+
+    /// Sends a command and returns its ACK whatever its status; resends the same bytes
+    /// (same seq) until an ACK comes, at most `attempts` times.
+    pub fn exchange(&self, command: &Command<'_>) -> Result<Ack> {
+        if matches!(command, Command::Stopped) {
+            // STOPPED never waits behind an upload.
+            self.exchange_unlocked(command)
+        } else {
+            let _upload = lock(&self.upload);
+            self.exchange_unlocked(command)
+        }
+    }
+
+    pub(crate) fn exchange_unlocked(&self, command: &Command<'_>) -> Result<Ack> {
+        let mut buf = [0u8; MAX_DATAGRAM];
+        let seq = self.alloc_seq();
+        let len = command.encode(seq, &mut buf)?;
+        let frame = &buf[..len];
+        let tag = command.tag();
+        let mut waiter = self.waiter();
+        waiter.expect(seq);
+        let started = Instant::now();
+        for _ in 0..self.options.attempts {
+            self.send_bytes(frame)?;
+            let deadline = Instant::now() + self.options.ack_timeout;
+            loop {
+                let left = deadline.saturating_duration_since(Instant::now());
+                match waiter.rx.recv_timeout(left) {
+                    Ok((_, ack)) if ack.acked_tag != tag as u8 => continue,
+                    // Damaged on the way: send it again at once.
+                    Ok((_, ack)) if ack.status == StatusCode::BadCrc => break,
+                    Ok((_, ack)) => return Ok(ack),
+                    Err(RecvTimeoutError::Timeout) => break,
+                    Err(RecvTimeoutError::Disconnected) => break,
+                }
+            }
+        }
+        Err(Error::NoReply {
+            command: tag,
+            attempts: self.options.attempts,
+            waited: started.elapsed(),
+        })
+    }
+
+    /// Sends a command and waits for its ACK: `Ok` when the controller did it, else
+    /// [`Error::Refused`] with the status and what to do about it.
+    pub fn send(&self, command: &Command<'_>) -> Result<Ack> {
+        let ack = self.exchange(command)?;
+        check(command.tag(), ack)
+    }
+
+    /// Asks for a STATUS report and waits for it (asking again with a new frame if the
+    /// report is lost: a resent frame would be taken for a duplicate and not answered).
+    pub fn status(&self) -> Result<StatusReport> {
+        let _upload = lock(&self.upload);
+        self.status_unlocked()
+    }
+
+    pub(crate) fn status_unlocked(&self) -> Result<StatusReport> {
+        let reports = self.status_reports();
+        for _ in 0..self.options.attempts {
+            check(Tag::Status, self.exchange_unlocked(&Command::Status)?)?;
+            if let Ok(status) = reports.recv_timeout(self.options.report_timeout) {
+                return Ok(status);
+            }
+        }
+        Err(Error::NoReport {
+            command: Tag::Status,
+            attempts: self.options.attempts,
+        })
+    }
+
+    /// A new stream of every LOCATION report from now on (each call gets its own).
+    pub fn locations(&self) -> Receiver<Location> {
+        let (tx, rx) = mpsc::channel();
+        lock(&self.shared.locations).push(tx);
+        rx
+    }
+
+    /// A new stream of the bytes the controller's serial port receives (USART_RECV).
+    pub fn serial_rx(&self) -> Receiver<Vec<u8>> {
+        let (tx, rx) = mpsc::channel();
+        lock(&self.shared.serial).push(tx);
+        rx
+    }
+
+    /// A new stream of every STATUS report from now on.
+    pub fn status_reports(&self) -> Receiver<StatusReport> {
+        let (tx, rx) = mpsc::channel();
+        lock(&self.shared.statuses).push(tx);
+        rx
+    }
+
+    /// The most recent LOCATION report, if any came.
+    pub fn last_location(&self) -> Option<Location> {
+        *lock(&self.shared.last_location)
+    }
+
+    /// The most recent STATUS report, if any came.
+    pub fn last_status(&self) -> Option<StatusReport> {
+        *lock(&self.shared.last_status)
+    }
+
+    /// Datagrams received that were not valid reports (bad CRC, unknown tag...).
+    pub fn undecodable_datagrams(&self) -> u64 {
+        self.shared.undecodable.load(Ordering::Relaxed)
+    }
+
+    /// STOPPED: stops every step pulse at once and drops the buffer. Never waits behind an
+    /// upload.
+    pub fn stop(&self) -> Result<Ack> {
+        self.send(&Command::Stopped)
+    }
+
+    /// RETURN: moves every joint to zero. Returns when the controller accepted it; see
+    /// [`Controller::wait_stopped`] to wait for the end of the move.
+    pub fn go_home(&self) -> Result<Ack> {
+        self.send(&Command::Return)
+    }
+
+    /// JOINTS_COUNT: the number of joints, 1..8.
+    pub fn set_joints(&self, joints: u8) -> Result<Ack> {
+        self.send(&Command::JointsCount(joints))
+    }
+
+    /// LOCATION_SETTING: declares the current position of the joints in steps (the first
+    /// `positions.len()` joints; the others are set to 0).
+    pub fn set_location(&self, positions: &[i32]) -> Result<Ack> {
+        if positions.len() > MAX_JOINTS {
+            return Err(Error::InvalidTrajectory(format!(
+                "{} positions given, the controller has {MAX_JOINTS} joints at most",
+                positions.len()
+            )));
+        }
+        let mut location = Location::default();
+        location.position[..positions.len()].copy_from_slice(positions);
+        self.send(&Command::LocationSetting(location))
+    }
+
+    /// PIN0_ON/OFF or PIN1_ON/OFF.
+    pub fn pin(&self, pin: u8, high: bool) -> Result<Ack> {
+        let command = match (pin, high) {
+            (0, true) => Command::Pin0On,
+            (0, false) => Command::Pin0Off,
+            (1, true) => Command::Pin1On,
+            (1, false) => Command::Pin1Off,
+            _ => {
+                return Err(Error::Io(std::io::Error::new(
+                    std::io::ErrorKind::InvalidInput,
+                    format!("there is no GPIO pin {pin}: the controller has pins 0 and 1"),
+                )));
+            }
+        };
+        self.send(&command)
+    }
+
+    /// TOGGLE_ENABLE_PINS: toggles every driver's ENABLE (`None`) or the masked ones (bits
+    /// 0-7 joints, bit 8 gripper).
+    pub fn toggle_enable(&self, mask: Option<u16>) -> Result<Ack> {
+        self.send(&Command::ToggleEnablePins { mask })
+    }
+
+    /// PWM_START: gripper PWM, servo (`pulse_count` 0) or stepper mode.
+    pub fn pwm_start(&self, pwm: Pwm) -> Result<Ack> {
+        self.send(&Command::PwmStart(pwm))
+    }
+
+    /// PWM_STOP: gripper PWM off at once.
+    pub fn pwm_stop(&self) -> Result<Ack> {
+        self.send(&Command::PwmStop)
+    }
+
+    /// USART_START: opens the pass-through serial port.
+    pub fn serial_open(&self, init: UartInit) -> Result<Ack> {
+        self.send(&Command::UsartStart(init))
+    }
+
+    /// USART_STOP: closes the pass-through serial port.
+    pub fn serial_close(&self) -> Result<Ack> {
+        self.send(&Command::UsartStop)
+    }
+
+    /// USART_SEND: writes bytes to the serial port, in chunks of 255 (one frame each, in
+    /// order: each waits for the previous one's ACK).
+    pub fn serial_send(&self, bytes: &[u8]) -> Result<()> {
+        for chunk in bytes.chunks(MAX_SERIAL_CHUNK) {
+            self.send(&Command::UsartSend(chunk))?;
+        }
+        Ok(())
+    }
+
+    /// UPLOAD_START / UPLOAD_STOP: location reports on or off.
+    pub fn reports(&self, on: bool) -> Result<Ack> {
+        self.send(if on {
+            &Command::UploadStart
+        } else {
+            &Command::UploadStop
+        })
+    }
+
+    /// UPLOAD_PERIOD: location report period in microseconds (1000..1000000).
+    pub fn upload_period(&self, period_us: u32) -> Result<Ack> {
+        self.send(&Command::UploadPeriod { period_us })
+    }
+
+    /// Polls STATUS until the controller is STOPPED (a run or RETURN finished), at most
+    /// `timeout`. Returns the last STATUS.
+    pub fn wait_stopped(&self, timeout: Duration) -> Result<StatusReport> {
+        let deadline = Instant::now() + timeout;
+        let locations = self.locations();
+        loop {
+            let status = self.status()?;
+            if status.state == State::Stopped || Instant::now() >= deadline {
+                return Ok(status);
+            }
+            // A LOCATION report comes at once on a state change: wake up on it.
+            let _ = locations.recv_timeout(Duration::from_millis(100));
+        }
+    }
+}
+
+/// Turns a refused ACK into an error.
+pub(crate) fn check(command: Tag, ack: Ack) -> Result<Ack> {
+    if ack.status == StatusCode::Ok {
+        Ok(ack)
+    } else {
+        Err(Error::Refused {
+            command,
+            status: ack.status,
+            state: ack.state,
+        })
+    }
+}
+
+impl Drop for Controller {
+    fn drop(&mut self) {
+        self.shared.shutdown.store(true, Ordering::Relaxed);
+        if let Some(receiver) = self.receiver.take() {
+            let _ = receiver.join();
+        }
+    }
+}

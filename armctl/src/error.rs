@@ -1,0 +1,174 @@
+//! Everything that can go wrong talking to a controller, each with a message that says what
+//! to do about it.
+
+use std::fmt;
+use std::time::Duration;
+
+use protocol::{EncodeError, State, StatusCode, Tag};
+
+/// The result type of this crate.
+pub type Result<T, E = Error> = std::result::Result<T, E>;
+
+/// Why an operation on the controller failed.
+#[derive(Debug)]
+pub enum Error {
+    /// The socket failed (bind, send, receive).
+    Io(std::io::Error),
+    /// The controller answered with a status other than OK: the command did nothing.
+    Refused {
+        /// The command refused.
+        command: Tag,
+        /// Why.
+        status: StatusCode,
+        /// The controller's state when it refused.
+        state: State,
+    },
+    /// No ACK came back after every retry.
+    NoReply {
+        /// The command that got no answer.
+        command: Tag,
+        /// Times it was sent.
+        attempts: u32,
+        /// Time spent waiting in all.
+        waited: Duration,
+    },
+    /// The ACK came, but the report it asks for (STATUS) did not.
+    NoReport {
+        /// The command whose report is missing.
+        command: Tag,
+        /// Times it was asked for.
+        attempts: u32,
+    },
+    /// A command could not be encoded (an empty or oversized point list or serial chunk).
+    Encode(EncodeError),
+    /// A run ended before all its points were executed.
+    RunEnded {
+        /// Why it ended.
+        reason: RunEnd,
+        /// Points executed (from STATUS), if known.
+        executed: Option<u16>,
+        /// Points in the trajectory.
+        total: usize,
+    },
+    /// An upload made no progress for too long (every ACK lost, or the buffer never drained).
+    Stalled {
+        /// Points acknowledged so far.
+        acked: usize,
+        /// Points in the trajectory.
+        total: usize,
+        /// How long it went without progress.
+        waited: Duration,
+    },
+    /// A trajectory the controller cannot take (too many points, none at all).
+    InvalidTrajectory(String),
+}
+
+/// Why a run ended early.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RunEnd {
+    /// Someone sent STOPPED (this host or any other).
+    Stopped,
+    /// The buffer ran dry before every point had arrived.
+    Underrun,
+    /// The controller left the upload for a reason it did not say.
+    Unknown,
+}
+
+impl fmt::Display for Error {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Error::Io(e) => write!(f, "network error: {e}"),
+            Error::Refused {
+                command,
+                status,
+                state,
+            } => write!(
+                f,
+                "{} refused with {} (controller state {}): {}",
+                command.name(),
+                status.name(),
+                state.name(),
+                status.advice()
+            ),
+            Error::NoReply {
+                command,
+                attempts,
+                waited,
+            } => write!(
+                f,
+                "no ACK for {} after {attempts} attempts in {:.1} s: is the controller on and \
+                 reachable at that address, and is the port right (8510)?",
+                command.name(),
+                waited.as_secs_f64()
+            ),
+            Error::NoReport { command, attempts } => write!(
+                f,
+                "{} was ACKed but its report never came ({attempts} attempts): another host may \
+                 own the controller (reports go to the owner), or reports are being lost",
+                command.name()
+            ),
+            Error::Encode(e) => write!(f, "cannot encode the frame: {e}"),
+            Error::RunEnded {
+                reason,
+                executed,
+                total,
+            } => {
+                let why = match reason {
+                    RunEnd::Stopped => "STOPPED was sent (by this host or another)",
+                    RunEnd::Underrun => {
+                        "the trajectory buffer ran dry (underrun): the upload was too slow; \
+                         use a larger window or longer segments"
+                    }
+                    RunEnd::Unknown => "the controller left the upload",
+                };
+                match executed {
+                    Some(n) => write!(f, "run ended after {n} of {total} points: {why}"),
+                    None => write!(f, "run ended before its {total} points: {why}"),
+                }
+            }
+            Error::Stalled {
+                acked,
+                total,
+                waited,
+            } => write!(
+                f,
+                "upload stalled at {acked} of {total} points: no progress for {:.1} s \
+                 (ACKs lost, or the buffer never drained)",
+                waited.as_secs_f64()
+            ),
+            Error::InvalidTrajectory(why) => write!(f, "invalid trajectory: {why}"),
+        }
+    }
+}
+
+impl std::error::Error for Error {
+    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+        match self {
+            Error::Io(e) => Some(e),
+            Error::Encode(e) => Some(e),
+            _ => None,
+        }
+    }
+}
+
+impl From<std::io::Error> for Error {
+    fn from(e: std::io::Error) -> Self {
+        Error::Io(e)
+    }
+}
+
+impl From<EncodeError> for Error {
+    fn from(e: EncodeError) -> Self {
+        Error::Encode(e)
+    }
+}
+
+impl Error {
+    /// The refusal status, when the controller refused the command.
+    pub fn status(&self) -> Option<StatusCode> {
+        match self {
+            Error::Refused { status, .. } => Some(*status),
+            _ => None,
+        }
+    }
+}

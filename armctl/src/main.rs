@@ -1,0 +1,2 @@
+//! `armctl`: the command-line tool (work in progress).
+fn main() {}

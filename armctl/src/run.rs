@@ -1,0 +1,554 @@
+//! Uploading and running a trajectory: NEW, then PENDING frames streamed with a go-back-N
+//! window and flow control from the ACKs, RUNING once enough is buffered, then waiting for
+//! the controller to report the end of the run.
+
+use std::sync::mpsc::RecvTimeoutError;
+use std::time::{Duration, Instant};
+
+use protocol::{
+    Command, Location, MAX_DATAGRAM, MAX_POINTS_PER_FRAME, Point, PointList, State, StatusCode,
+    StatusFlags, StatusReport, Tag,
+};
+
+use crate::client::{Controller, check, lock};
+use crate::error::{Error, Result, RunEnd};
+
+/// Largest trajectory one NEW can announce. Longer ones are refused (not split): splitting
+/// would stop the arm between uploads, which a caller must decide to do explicitly.
+pub const MAX_POINTS: usize = u16::MAX as usize;
+
+/// Frames in flight at most: the controller recognises a retransmission among the last 32
+/// frames it accepted, so a go-back-N resend of a whole window must stay well inside that.
+pub const MAX_WINDOW: usize = 16;
+
+/// How a trajectory is uploaded and run.
+#[derive(Clone, Debug)]
+pub struct RunOptions {
+    /// Frames sent and not yet acknowledged at most (1 = stop-and-wait), 1..=16.
+    pub window: usize,
+    /// Points per PENDING frame, 1..=12.
+    pub points_per_frame: usize,
+    /// Send RUNING once this many points are acknowledged. `None`: once the buffer is full
+    /// or every point is acknowledged (the largest lead over execution).
+    pub start_after: Option<usize>,
+    /// Wait for the run to end and check it executed every point.
+    pub wait: bool,
+    /// Give up waiting for the upload when no frame is acknowledged for this long.
+    pub stall_timeout: Duration,
+    /// Longest wait for the end of the run after the upload; `None`: the trajectory's
+    /// duration plus 10 s.
+    pub completion_timeout: Option<Duration>,
+}
+
+impl Default for RunOptions {
+    fn default() -> Self {
+        RunOptions {
+            window: 8,
+            points_per_frame: MAX_POINTS_PER_FRAME,
+            start_after: None,
+            wait: true,
+            stall_timeout: Duration::from_secs(5),
+            completion_timeout: None,
+        }
+    }
+}
+
+/// Where a run is, for progress displays.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Progress {
+    /// Points in the trajectory.
+    pub total: usize,
+    /// Points sent at least once.
+    pub sent: usize,
+    /// Points the controller acknowledged.
+    pub acked: usize,
+    /// Points executed (from ACK buffer counts during the upload, then STATUS).
+    pub executed: usize,
+    /// The controller's state as last reported.
+    pub state: State,
+}
+
+/// What a finished run did.
+#[derive(Clone, Debug, Default)]
+pub struct RunReport {
+    /// Points in the trajectory.
+    pub points: usize,
+    /// PENDING/RUNING frames in the upload.
+    pub frames: usize,
+    /// Datagrams sent for the upload, retransmissions included.
+    pub datagrams_sent: usize,
+    /// Datagrams sent again (timeouts, go-back-N, buffer full).
+    pub retransmissions: usize,
+    /// OUT_OF_ORDER refusals seen.
+    pub out_of_order: usize,
+    /// BUFFER_FULL refusals seen.
+    pub buffer_full: usize,
+    /// ACK timeouts.
+    pub timeouts: usize,
+    /// From NEW to the last frame acknowledged.
+    pub upload_time: Duration,
+    /// From NEW to the end of the run (or of the upload when not waiting).
+    pub total_time: Duration,
+    /// STATUS after the run, when waited for.
+    pub final_status: Option<StatusReport>,
+    /// Positions after the run, when waited for.
+    pub final_location: Option<Location>,
+}
+
+/// One frame of the upload.
+struct Outgoing {
+    seq: u8,
+    tag: Tag,
+    bytes: Vec<u8>,
+    /// Points it carries (0 for RUNING).
+    points: usize,
+    acked: bool,
+    sent_at: Instant,
+}
+
+/// The upload in progress.
+struct Upload<'a, 'p> {
+    controller: &'a Controller,
+    options: &'a RunOptions,
+    points: &'p [Point],
+    waiter: crate::client::AckWaiter<'a>,
+    frames: Vec<Outgoing>,
+    /// First frame not yet acknowledged.
+    base: usize,
+    /// Points handed to frames so far.
+    points_framed: usize,
+    acked_points: usize,
+    /// `free` from the latest ACK that told it, and the index of the last frame that ACK
+    /// accounts for (`None`: NEW's ACK).
+    free: (usize, Option<usize>),
+    /// `buffered` from the latest ACK.
+    buffered: usize,
+    executed: usize,
+    runing_sent: bool,
+    state: State,
+    /// BUFFER_FULL back-off: resend from this frame once the instant has passed.
+    resume: Option<(Instant, usize)>,
+    /// Last go-back-N target and when, so that a burst of OUT_OF_ORDER is answered once.
+    last_rewind: Option<(usize, Instant)>,
+    last_progress: Instant,
+    timeouts_in_a_row: usize,
+    report: RunReport,
+}
+
+/// ACK timeouts in a row, without any progress, after which an upload gives up.
+const MAX_TIMEOUTS_IN_A_ROW: usize = 50;
+
+impl Upload<'_, '_> {
+    fn in_flight(&self) -> usize {
+        self.frames.len() - self.base
+    }
+
+    /// Slots the controller should have free for the next frame.
+    fn credit(&self) -> usize {
+        let (free, at) = self.free;
+        let after = at.map_or(0, |i| i + 1);
+        let unconfirmed: usize = self.frames[after.min(self.frames.len())..]
+            .iter()
+            .filter(|f| !f.acked)
+            .map(|f| f.points)
+            .sum();
+        free.saturating_sub(unconfirmed)
+    }
+
+    fn next_chunk(&self) -> usize {
+        self.options
+            .points_per_frame
+            .min(self.points.len() - self.points_framed)
+    }
+
+    fn should_start(&self) -> bool {
+        if self.runing_sent || self.acked_points == 0 {
+            return false;
+        }
+        let total = self.points.len();
+        match self.options.start_after {
+            Some(n) => self.acked_points >= n.min(total),
+            None => {
+                self.acked_points == total
+                    || (self.points_framed < total && self.credit() < self.next_chunk())
+            }
+        }
+    }
+
+    fn push(&mut self, command: &Command<'_>, points: usize) -> Result<()> {
+        let mut buf = [0u8; MAX_DATAGRAM];
+        let seq = self.controller.alloc_seq();
+        let len = command.encode(seq, &mut buf)?;
+        self.waiter.expect(seq);
+        let bytes = buf[..len].to_vec();
+        self.controller.send_bytes(&bytes)?;
+        self.report.datagrams_sent += 1;
+        self.frames.push(Outgoing {
+            seq,
+            tag: command.tag(),
+            bytes,
+            points,
+            acked: false,
+            sent_at: Instant::now(),
+        });
+        Ok(())
+    }
+
+    /// Go-back-N: sends again, unchanged, every unacknowledged frame from `from` on.
+    fn rewind(&mut self, from: usize) -> Result<()> {
+        let now = Instant::now();
+        self.last_rewind = Some((from, now));
+        for frame in &mut self.frames[from..] {
+            if frame.acked {
+                continue;
+            }
+            self.controller.send_bytes(&frame.bytes)?;
+            frame.sent_at = now;
+            self.report.datagrams_sent += 1;
+            self.report.retransmissions += 1;
+        }
+        Ok(())
+    }
+
+    fn confirm(&mut self, i: usize) {
+        if self.frames[i].acked {
+            return;
+        }
+        self.frames[i].acked = true;
+        self.acked_points += self.frames[i].points;
+        self.last_progress = Instant::now();
+        self.timeouts_in_a_row = 0;
+        while self.base < self.frames.len() && self.frames[self.base].acked {
+            self.base += 1;
+        }
+    }
+
+    /// How long until about `needed` more slots drain, from the durations of the points
+    /// waiting in the buffer: the back-off after BUFFER_FULL or when out of credit.
+    fn drain_wait(&self, needed: usize) -> Duration {
+        let first = self.executed.min(self.points.len());
+        let end = (first + needed.max(1)).min(self.points.len());
+        let us: i64 = self.points[first..end]
+            .iter()
+            .map(|p| i64::from(p.duration))
+            .sum();
+        Duration::from_micros(us.clamp(2_000, 200_000) as u64)
+    }
+
+    fn progress(&self) -> Progress {
+        Progress {
+            total: self.points.len(),
+            sent: self.points_framed,
+            acked: self.acked_points,
+            executed: self.executed,
+            state: self.state,
+        }
+    }
+
+    fn on_ack(&mut self, seq: u8, ack: protocol::Ack) -> Result<()> {
+        let Some(i) = self.frames[self.base..]
+            .iter()
+            .position(|f| f.seq == seq && f.tag as u8 == ack.acked_tag)
+            .map(|p| p + self.base)
+        else {
+            // A late duplicate of something already settled.
+            return Ok(());
+        };
+        self.state = ack.state;
+        match ack.status {
+            StatusCode::Ok => {
+                self.confirm(i);
+                if self.free.1.is_none_or(|at| at <= i) {
+                    self.free = (usize::from(ack.free), Some(i));
+                    self.buffered = usize::from(ack.buffered);
+                    if self.runing_sent {
+                        let executed = self.acked_points.saturating_sub(self.buffered);
+                        self.executed = self.executed.max(executed);
+                    }
+                }
+            }
+            StatusCode::OutOfOrder => {
+                self.report.out_of_order += 1;
+                let target = self.frames[self.base..]
+                    .iter()
+                    .position(|f| f.seq == ack.next_seq)
+                    .map(|p| p + self.base);
+                match target {
+                    Some(j) => {
+                        // The controller took everything before the first missing seq.
+                        for k in self.base..j {
+                            self.confirm(k);
+                        }
+                        let recent = self.last_rewind.is_some_and(|(at, when)| {
+                            at <= j && when.elapsed() < self.controller.options().ack_timeout
+                        });
+                        if !recent && self.resume.is_none() {
+                            self.rewind(j)?;
+                        }
+                    }
+                    None if self.frames.last().map(|f| f.seq.wrapping_add(1))
+                        == Some(ack.next_seq) =>
+                    {
+                        for k in self.base..self.frames.len() {
+                            self.confirm(k);
+                        }
+                    }
+                    // Resent on timeout.
+                    None => {}
+                }
+            }
+            StatusCode::BufferFull => {
+                self.report.buffer_full += 1;
+                self.free = (usize::from(ack.free), i.checked_sub(1));
+                self.buffered = usize::from(ack.buffered);
+                let needed = self.frames[i].points.saturating_sub(usize::from(ack.free));
+                let wait = self.drain_wait(needed);
+                // The frames after it come back OUT_OF_ORDER: answered by this resume.
+                self.resume = Some((Instant::now() + wait, i));
+                self.last_rewind = Some((i, Instant::now()));
+            }
+            StatusCode::BadCrc => self.rewind(i)?,
+            StatusCode::BadState if ack.state == State::Stopped => {
+                return Err(self.ended());
+            }
+            status => {
+                return Err(Error::Refused {
+                    command: self.frames[i].tag,
+                    status,
+                    state: ack.state,
+                });
+            }
+        }
+        Ok(())
+    }
+
+    /// The run stopped under the upload: find out why.
+    fn ended(&self) -> Error {
+        let status = self.controller.status_unlocked().ok();
+        run_ended(status.as_ref(), self.points.len())
+    }
+
+    fn run(&mut self, progress: &mut dyn FnMut(&Progress)) -> Result<()> {
+        let total = self.points.len();
+        let ack_timeout = self.controller.options().ack_timeout;
+        let mut last_shown = Progress::default();
+        loop {
+            if self.last_progress.elapsed() > self.options.stall_timeout
+                || self.timeouts_in_a_row > MAX_TIMEOUTS_IN_A_ROW
+            {
+                return Err(Error::Stalled {
+                    acked: self.acked_points,
+                    total,
+                    waited: self.last_progress.elapsed(),
+                });
+            }
+            let now = Instant::now();
+            if let Some((when, from)) = self.resume
+                && now >= when
+            {
+                self.resume = None;
+                self.rewind(from)?;
+            }
+            let mut probe_wait = None;
+            if self.resume.is_none() {
+                while self.in_flight() < self.options.window {
+                    if self.should_start() {
+                        self.push(&Command::Runing, 0)?;
+                        self.runing_sent = true;
+                        continue;
+                    }
+                    if self.points_framed == total {
+                        break;
+                    }
+                    let n = self.next_chunk();
+                    let credit = self.credit();
+                    let probe = self.in_flight() == 0
+                        && probe_wait.is_none()
+                        && self.frames.last().is_some_and(|f| {
+                            f.sent_at.elapsed() >= self.drain_wait(n - credit.min(n))
+                        });
+                    if credit < n && !probe {
+                        if self.in_flight() == 0 {
+                            probe_wait = Some(self.drain_wait(n - credit));
+                        }
+                        break;
+                    }
+                    let chunk = &self.points[self.points_framed..self.points_framed + n];
+                    self.push(&Command::Pending(PointList::Points(chunk)), n)?;
+                    self.points_framed += n;
+                }
+            }
+            let shown = self.progress();
+            if shown != last_shown {
+                progress(&shown);
+                last_shown = shown;
+            }
+            if self.in_flight() == 0 && self.points_framed == total && self.runing_sent {
+                return Ok(());
+            }
+            let now = Instant::now();
+            let wake = match (self.resume, self.frames.get(self.base)) {
+                (Some((when, _)), _) => when,
+                (None, Some(frame)) => frame.sent_at + ack_timeout,
+                (None, None) => now + probe_wait.unwrap_or(Duration::from_millis(2)),
+            };
+            match self
+                .waiter
+                .rx
+                .recv_timeout(wake.saturating_duration_since(now))
+            {
+                Ok((seq, ack)) => self.on_ack(seq, ack)?,
+                Err(RecvTimeoutError::Timeout) | Err(RecvTimeoutError::Disconnected) => {
+                    let overdue = self.resume.is_none()
+                        && self
+                            .frames
+                            .get(self.base)
+                            .is_some_and(|f| f.sent_at.elapsed() >= ack_timeout);
+                    if overdue {
+                        self.report.timeouts += 1;
+                        self.timeouts_in_a_row += 1;
+                        self.rewind(self.base)?;
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// The error for a run that stopped early, from the STATUS after it.
+fn run_ended(status: Option<&StatusReport>, total: usize) -> Error {
+    let reason = match status {
+        Some(s) if s.flags.has(StatusFlags::STOPPED_BY_HOST) => RunEnd::Stopped,
+        Some(s) if s.flags.has(StatusFlags::UNDERRUN) => RunEnd::Underrun,
+        _ => RunEnd::Unknown,
+    };
+    Error::RunEnded {
+        reason,
+        executed: status.map(|s| s.executed),
+        total,
+    }
+}
+
+impl Controller {
+    /// Uploads `points` (NEW, PENDING frames through a go-back-N window with flow control,
+    /// RUNING) and, if `options.wait`, waits for the run to end and checks that the
+    /// controller executed every point. `progress` is called whenever the counts change.
+    ///
+    /// Refused past [`MAX_POINTS`] points: split long trajectories yourself (the arm stops
+    /// between uploads).
+    pub fn run_trajectory(
+        &self,
+        points: &[Point],
+        options: &RunOptions,
+        mut progress: impl FnMut(&Progress),
+    ) -> Result<RunReport> {
+        let total = points.len();
+        if total == 0 || total > MAX_POINTS {
+            return Err(Error::InvalidTrajectory(format!(
+                "{total} points: one upload takes 1 to {MAX_POINTS}"
+            )));
+        }
+        if let Some(i) = points.iter().position(|p| p.duration < 1) {
+            return Err(Error::InvalidTrajectory(format!(
+                "point {i} has a duration of {} us (1 at least)",
+                points[i].duration
+            )));
+        }
+        let options = RunOptions {
+            window: options.window.clamp(1, MAX_WINDOW),
+            points_per_frame: options.points_per_frame.clamp(1, MAX_POINTS_PER_FRAME),
+            ..options.clone()
+        };
+        let started = Instant::now();
+        let locations = self.locations();
+        let mut report = {
+            let _upload = lock(&self.upload);
+            let ack = check(
+                Tag::New,
+                self.exchange_unlocked(&Command::New {
+                    count: total as u16,
+                })?,
+            )?;
+            let mut upload = Upload {
+                controller: self,
+                options: &options,
+                points,
+                waiter: self.waiter(),
+                frames: Vec::new(),
+                base: 0,
+                points_framed: 0,
+                acked_points: 0,
+                free: (usize::from(ack.free), None),
+                buffered: usize::from(ack.buffered),
+                executed: 0,
+                runing_sent: false,
+                state: ack.state,
+                resume: None,
+                last_rewind: None,
+                last_progress: Instant::now(),
+                timeouts_in_a_row: 0,
+                report: RunReport::default(),
+            };
+            upload.run(&mut progress)?;
+            upload.report.frames = upload.frames.len();
+            upload.report
+        };
+        report.points = total;
+        report.upload_time = started.elapsed();
+        if !options.wait {
+            report.total_time = started.elapsed();
+            return Ok(report);
+        }
+        let duration_us: i64 = points.iter().map(|p| i64::from(p.duration)).sum();
+        let timeout = options
+            .completion_timeout
+            .unwrap_or(Duration::from_micros(duration_us as u64) + Duration::from_secs(10));
+        let deadline = started + timeout;
+        let status = loop {
+            let status = self.status()?;
+            progress(&Progress {
+                total,
+                sent: total,
+                acked: total,
+                executed: usize::from(status.executed),
+                state: status.state,
+            });
+            if status.state == State::Stopped {
+                break status;
+            }
+            if Instant::now() >= deadline {
+                return Err(Error::Stalled {
+                    acked: total,
+                    total,
+                    waited: timeout,
+                });
+            }
+            // Every state change sends a LOCATION at once: it ends this wait early.
+            let until = Instant::now() + Duration::from_millis(100);
+            while let Ok(location) =
+                locations.recv_timeout(until.saturating_duration_since(Instant::now()))
+            {
+                if location.state == State::Stopped as u8 {
+                    break;
+                }
+            }
+        };
+        report.final_status = Some(status);
+        if status.flags.has(StatusFlags::REPORTS_ON) {
+            // The reports queued so far may predate the end; take a fresh one.
+            while locations.try_recv().is_ok() {}
+            let wait = Duration::from_micros(u64::from(status.upload_period_us) * 3)
+                .max(Duration::from_millis(100));
+            report.final_location = locations.recv_timeout(wait).ok();
+        }
+        report.total_time = started.elapsed();
+        let clean = !status.flags.has(StatusFlags::UNDERRUN)
+            && !status.flags.has(StatusFlags::STOPPED_BY_HOST)
+            && usize::from(status.executed) == total;
+        if clean {
+            Ok(report)
+        } else {
+            Err(run_ended(Some(&status), total))
+        }
+    }
+}

@@ -1,0 +1,636 @@
+//! Trajectory files to controller [`Point`]s.
+//!
+//! Two inputs:
+//! - JSON in the shape of ROS `trajectory_msgs/JointTrajectory`: `joint_names`, and
+//!   `points` with `positions` in radians and `time_from_start {sec, nanosec}`. It needs an
+//!   [`ArmConfig`] (steps per radian, zero offset, limits, max step rate per joint).
+//! - CSV: `time_s, joint 0, joint 1, ...` with positions in steps (an optional header line).
+//!
+//! [`to_points`] resamples the waypoints at a fixed segment duration (linear interpolation;
+//! the last segment may be shorter), rounds to whole steps, fills the timer hints with
+//! [`Point::from_motion`], and refuses, naming the file, the point and time, the joint,
+//! the value and the limit, whatever breaks a joint's position limits or step rate.
+//!
+//! As in ROS, a first waypoint later than time 0 means "from wherever the arm is": the
+//! current position is taken as the waypoint at time 0. A first waypoint at time 0 must be
+//! where the arm is. More than 65535 points is refused (one NEW announces at most 65535):
+//! the message gives the shortest segment duration that fits.
+
+use std::fmt;
+use std::path::Path;
+
+use protocol::{MAX_JOINTS, Point};
+use serde::Deserialize;
+
+use crate::run::MAX_POINTS;
+
+/// One joint's calibration and limits.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+pub struct JointConfig {
+    /// The name the trajectory files use (`joint_names`); optional for CSV.
+    #[serde(default)]
+    pub name: Option<String>,
+    /// Steps per radian of joint motion (gearing and microstepping included; negative to
+    /// reverse the direction).
+    #[serde(default = "default_steps_per_radian")]
+    pub steps_per_radian: f64,
+    /// Step position of 0 rad.
+    #[serde(default)]
+    pub zero_offset_steps: i32,
+    /// Lowest position allowed, steps.
+    #[serde(default = "min_i32")]
+    pub min_steps: i32,
+    /// Highest position allowed, steps.
+    #[serde(default = "max_i32")]
+    pub max_steps: i32,
+    /// Highest step rate of this joint, steps per second.
+    pub max_step_rate_hz: u32,
+}
+
+fn default_steps_per_radian() -> f64 {
+    1.0
+}
+fn min_i32() -> i32 {
+    i32::MIN
+}
+fn max_i32() -> i32 {
+    i32::MAX
+}
+
+/// The joint config file: `{"joints": [ {...}, ... ]}` in joint order.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+pub struct ArmConfig {
+    /// Joint 0 first.
+    pub joints: Vec<JointConfig>,
+}
+
+impl ArmConfig {
+    /// Reads a joint config file.
+    pub fn load(path: &Path) -> Result<ArmConfig, TrajectoryError> {
+        let file = path.display().to_string();
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| TrajectoryError::new(&file, ErrorKind::Read(e.to_string())))?;
+        Self::parse(&text, &file)
+    }
+
+    /// Parses a joint config; `file` names it in errors.
+    pub fn parse(text: &str, file: &str) -> Result<ArmConfig, TrajectoryError> {
+        let config: ArmConfig = serde_json::from_str(text)
+            .map_err(|e| TrajectoryError::new(file, ErrorKind::Parse(e.to_string())))?;
+        if config.joints.is_empty() || config.joints.len() > MAX_JOINTS {
+            return Err(TrajectoryError::new(
+                file,
+                ErrorKind::Parse(format!(
+                    "{} joints configured: 1 to {MAX_JOINTS}",
+                    config.joints.len()
+                )),
+            ));
+        }
+        for (j, joint) in config.joints.iter().enumerate() {
+            if joint.min_steps > joint.max_steps
+                || !joint.steps_per_radian.is_finite()
+                || joint.steps_per_radian == 0.0
+            {
+                return Err(TrajectoryError::new(
+                    file,
+                    ErrorKind::Parse(format!(
+                        "joint {j}: min_steps must not exceed max_steps and steps_per_radian \
+                         must be a non-zero number"
+                    )),
+                ));
+            }
+        }
+        Ok(config)
+    }
+
+    /// A config with no position limits and one step rate for `joints` joints.
+    pub fn unlimited(joints: usize, max_step_rate_hz: u32) -> ArmConfig {
+        ArmConfig {
+            joints: (0..joints.min(MAX_JOINTS))
+                .map(|_| JointConfig {
+                    name: None,
+                    steps_per_radian: 1.0,
+                    zero_offset_steps: 0,
+                    min_steps: i32::MIN,
+                    max_steps: i32::MAX,
+                    max_step_rate_hz,
+                })
+                .collect(),
+        }
+    }
+}
+
+/// Waypoints in steps, as read from a file.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Waypoints {
+    /// The file they came from (for messages).
+    pub file: String,
+    /// Time from start of each waypoint, microseconds, strictly increasing.
+    pub times_us: Vec<i64>,
+    /// Position of each joint at each waypoint, in (fractional) steps; `None`: the joint is
+    /// not in the file and holds its current position.
+    pub positions: Vec<Vec<Option<f64>>>,
+}
+
+/// Why a trajectory file was refused: where, and what.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TrajectoryError {
+    /// The file.
+    pub file: String,
+    /// Index of the waypoint (limits) or of the resampled point (step rate).
+    pub point: Option<usize>,
+    /// Time from start of that point, seconds.
+    pub time_s: Option<f64>,
+    /// The joint.
+    pub joint: Option<usize>,
+    /// What is wrong.
+    pub kind: ErrorKind,
+}
+
+/// What is wrong with a trajectory.
+#[derive(Clone, Debug, PartialEq)]
+pub enum ErrorKind {
+    /// The file cannot be read.
+    Read(String),
+    /// The file is not valid JSON/CSV of the expected shape.
+    Parse(String),
+    /// A joint name not in the joint config.
+    UnknownJoint(String),
+    /// A waypoint has the wrong number of positions.
+    WrongJointCount {
+        /// Positions found.
+        found: usize,
+        /// Positions expected.
+        expected: usize,
+    },
+    /// Times do not increase strictly.
+    TimeNotIncreasing,
+    /// Fewer than two waypoints, or no time between them.
+    TooShort,
+    /// A position below the joint's minimum (steps).
+    BelowMin {
+        /// Position, steps.
+        value: i64,
+        /// Limit, steps.
+        limit: i32,
+    },
+    /// A position above the joint's maximum (steps).
+    AboveMax {
+        /// Position, steps.
+        value: i64,
+        /// Limit, steps.
+        limit: i32,
+    },
+    /// A segment asks for more steps per second than the joint (or controller) allows.
+    StepRate {
+        /// Steps in the segment.
+        steps: u64,
+        /// Segment duration, microseconds.
+        duration_us: u32,
+        /// Limit, steps per second.
+        limit_hz: u32,
+    },
+    /// The first waypoint at time 0 is not where the arm is.
+    StartMismatch {
+        /// Where the arm is, steps.
+        current: i32,
+        /// Where the trajectory starts, steps.
+        start: i64,
+    },
+    /// More points than one upload takes.
+    TooManyPoints {
+        /// Points after resampling.
+        count: usize,
+        /// Shortest segment duration that fits, microseconds.
+        min_segment_us: u64,
+    },
+    /// A segment duration of 0.
+    BadSegment,
+}
+
+impl TrajectoryError {
+    fn new(file: &str, kind: ErrorKind) -> TrajectoryError {
+        TrajectoryError {
+            file: file.to_string(),
+            point: None,
+            time_s: None,
+            joint: None,
+            kind,
+        }
+    }
+
+    fn at(mut self, point: usize, time_us: i64, joint: Option<usize>) -> TrajectoryError {
+        self.point = Some(point);
+        self.time_s = Some(time_us as f64 / 1e6);
+        self.joint = joint;
+        self
+    }
+}
+
+impl fmt::Display for TrajectoryError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}", self.file)?;
+        if let Some(p) = self.point {
+            write!(f, ": point {p}")?;
+        }
+        if let Some(t) = self.time_s {
+            write!(f, " (t = {t:.6} s)")?;
+        }
+        if let Some(j) = self.joint {
+            write!(f, ", joint {j}")?;
+        }
+        f.write_str(": ")?;
+        match &self.kind {
+            ErrorKind::Read(e) => write!(f, "cannot read: {e}"),
+            ErrorKind::Parse(e) => write!(f, "cannot parse: {e}"),
+            ErrorKind::UnknownJoint(name) => write!(
+                f,
+                "joint name {name:?} is not in the joint config (add a joint with that `name`)"
+            ),
+            ErrorKind::WrongJointCount { found, expected } => {
+                write!(f, "{found} positions, expected {expected}")
+            }
+            ErrorKind::TimeNotIncreasing => {
+                f.write_str("time does not increase from the previous point")
+            }
+            ErrorKind::TooShort => {
+                f.write_str("a trajectory needs two waypoints at different times")
+            }
+            ErrorKind::BelowMin { value, limit } => {
+                write!(
+                    f,
+                    "position {value} steps is below the minimum {limit} steps"
+                )
+            }
+            ErrorKind::AboveMax { value, limit } => {
+                write!(
+                    f,
+                    "position {value} steps is above the maximum {limit} steps"
+                )
+            }
+            ErrorKind::StepRate {
+                steps,
+                duration_us,
+                limit_hz,
+            } => write!(
+                f,
+                "{steps} steps in {duration_us} us = {:.0} steps/s exceeds the limit of {limit_hz} steps/s: slow the trajectory down",
+                *steps as f64 * 1e6 / f64::from(*duration_us)
+            ),
+            ErrorKind::StartMismatch { current, start } => write!(
+                f,
+                "the trajectory starts at {start} steps at t = 0 but the arm is at {current} \
+                 steps: move there first, or start the trajectory later than t = 0 to move \
+                 from the current position"
+            ),
+            ErrorKind::TooManyPoints {
+                count,
+                min_segment_us,
+            } => write!(
+                f,
+                "{count} points after resampling, one upload takes at most {MAX_POINTS}: \
+                 use segments of {min_segment_us} us or longer"
+            ),
+            ErrorKind::BadSegment => f.write_str("the segment duration must be at least 1 us"),
+        }
+    }
+}
+
+impl std::error::Error for TrajectoryError {}
+
+/// ROS `trajectory_msgs/JointTrajectory` as JSON (other fields ignored).
+#[derive(Deserialize)]
+struct JointTrajectory {
+    joint_names: Vec<String>,
+    points: Vec<JointTrajectoryPoint>,
+}
+
+#[derive(Deserialize)]
+struct JointTrajectoryPoint {
+    positions: Vec<f64>,
+    time_from_start: RosDuration,
+}
+
+#[derive(Deserialize)]
+struct RosDuration {
+    sec: i64,
+    #[serde(default)]
+    nanosec: u32,
+}
+
+/// Reads a trajectory file: `.json` (JointTrajectory, needs `config`) or anything else as
+/// CSV in steps.
+pub fn load(path: &Path, config: Option<&ArmConfig>) -> Result<Waypoints, TrajectoryError> {
+    let file = path.display().to_string();
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| TrajectoryError::new(&file, ErrorKind::Read(e.to_string())))?;
+    let is_json = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("json"));
+    if is_json {
+        let config = config.ok_or_else(|| {
+            TrajectoryError::new(
+                &file,
+                ErrorKind::Parse(
+                    "a JointTrajectory in radians needs a joint config (--config FILE)".into(),
+                ),
+            )
+        })?;
+        parse_joint_trajectory(&text, &file, config)
+    } else {
+        parse_csv(&text, &file)
+    }
+}
+
+/// Parses a JointTrajectory JSON into steps with `config`.
+pub fn parse_joint_trajectory(
+    text: &str,
+    file: &str,
+    config: &ArmConfig,
+) -> Result<Waypoints, TrajectoryError> {
+    let trajectory: JointTrajectory = serde_json::from_str(text)
+        .map_err(|e| TrajectoryError::new(file, ErrorKind::Parse(e.to_string())))?;
+    let named = config.joints.iter().any(|j| j.name.is_some());
+    // Index into the config of each column of the file.
+    let mut columns = Vec::with_capacity(trajectory.joint_names.len());
+    for (i, name) in trajectory.joint_names.iter().enumerate() {
+        let joint = if named {
+            config
+                .joints
+                .iter()
+                .position(|j| j.name.as_deref() == Some(name.as_str()))
+        } else {
+            (i < config.joints.len()).then_some(i)
+        };
+        match joint {
+            Some(j) => columns.push(j),
+            None => {
+                return Err(TrajectoryError::new(
+                    file,
+                    ErrorKind::UnknownJoint(name.clone()),
+                ));
+            }
+        }
+    }
+    let mut waypoints = Waypoints {
+        file: file.to_string(),
+        times_us: Vec::new(),
+        positions: Vec::new(),
+    };
+    for (i, point) in trajectory.points.iter().enumerate() {
+        let time_us =
+            point.time_from_start.sec * 1_000_000 + i64::from(point.time_from_start.nanosec / 1000);
+        if point.positions.len() != columns.len() {
+            return Err(TrajectoryError::new(
+                file,
+                ErrorKind::WrongJointCount {
+                    found: point.positions.len(),
+                    expected: columns.len(),
+                },
+            )
+            .at(i, time_us, None));
+        }
+        let mut row = vec![None; config.joints.len()];
+        for (&j, &radians) in columns.iter().zip(&point.positions) {
+            let joint = &config.joints[j];
+            row[j] = Some(f64::from(joint.zero_offset_steps) + radians * joint.steps_per_radian);
+        }
+        waypoints.times_us.push(time_us);
+        waypoints.positions.push(row);
+    }
+    check_times(&waypoints)?;
+    Ok(waypoints)
+}
+
+/// Parses CSV rows `time_s, steps joint 0, steps joint 1, ...` (a first line that is not
+/// numbers is a header; `#` starts a comment line).
+pub fn parse_csv(text: &str, file: &str) -> Result<Waypoints, TrajectoryError> {
+    let mut waypoints = Waypoints {
+        file: file.to_string(),
+        times_us: Vec::new(),
+        positions: Vec::new(),
+    };
+    let mut joints = None;
+    for (line_no, line) in text.lines().enumerate() {
+        let line = line.trim();
+        if line.is_empty() || line.starts_with('#') {
+            continue;
+        }
+        let fields: Vec<&str> = line.split(',').map(str::trim).collect();
+        let numbers: Result<Vec<f64>, _> = fields.iter().map(|f| f.parse::<f64>()).collect();
+        let numbers = match numbers {
+            Ok(n) => n,
+            Err(_) if waypoints.times_us.is_empty() && joints.is_none() => {
+                // The header.
+                joints = Some(fields.len().saturating_sub(1));
+                continue;
+            }
+            Err(e) => {
+                return Err(TrajectoryError::new(
+                    file,
+                    ErrorKind::Parse(format!("line {}: {e}", line_no + 1)),
+                ));
+            }
+        };
+        let expected = *joints.get_or_insert(numbers.len().saturating_sub(1));
+        if expected == 0 || expected > MAX_JOINTS {
+            return Err(TrajectoryError::new(
+                file,
+                ErrorKind::Parse(format!(
+                    "line {}: time and 1 to {MAX_JOINTS} joint positions expected",
+                    line_no + 1
+                )),
+            ));
+        }
+        let time_us = (numbers[0] * 1e6).round() as i64;
+        let point = waypoints.times_us.len();
+        if numbers.len() - 1 != expected {
+            return Err(TrajectoryError::new(
+                file,
+                ErrorKind::WrongJointCount {
+                    found: numbers.len() - 1,
+                    expected,
+                },
+            )
+            .at(point, time_us, None));
+        }
+        if numbers.iter().any(|n| !n.is_finite()) {
+            return Err(TrajectoryError::new(
+                file,
+                ErrorKind::Parse(format!("line {}: not a finite number", line_no + 1)),
+            ));
+        }
+        waypoints.times_us.push(time_us);
+        waypoints
+            .positions
+            .push(numbers[1..].iter().map(|&p| Some(p)).collect());
+    }
+    check_times(&waypoints)?;
+    Ok(waypoints)
+}
+
+fn check_times(waypoints: &Waypoints) -> Result<(), TrajectoryError> {
+    let file = &waypoints.file;
+    if waypoints.times_us.is_empty() {
+        return Err(TrajectoryError::new(file, ErrorKind::TooShort));
+    }
+    if waypoints.times_us[0] < 0 {
+        return Err(TrajectoryError::new(file, ErrorKind::TimeNotIncreasing).at(
+            0,
+            waypoints.times_us[0],
+            None,
+        ));
+    }
+    for (i, pair) in waypoints.times_us.windows(2).enumerate() {
+        if pair[1] <= pair[0] {
+            return Err(TrajectoryError::new(file, ErrorKind::TimeNotIncreasing).at(
+                i + 1,
+                pair[1],
+                None,
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// Resamples `waypoints` into points of `segment_us` (the last one may be shorter), from
+/// the arm's current position `current`, and checks every position against the joint
+/// limits of `config` and every segment against the lower of the joint's and the
+/// controller's (`controller_max_rate_hz`) step rate.
+pub fn to_points(
+    waypoints: &Waypoints,
+    current: &[i32; MAX_JOINTS],
+    segment_us: u32,
+    config: &ArmConfig,
+    controller_max_rate_hz: Option<u32>,
+) -> Result<Vec<Point>, TrajectoryError> {
+    let file = waypoints.file.as_str();
+    if segment_us == 0 {
+        return Err(TrajectoryError::new(file, ErrorKind::BadSegment));
+    }
+    let joints = waypoints
+        .positions
+        .first()
+        .map_or(0, Vec::len)
+        .min(MAX_JOINTS);
+    if joints != config.joints.len() {
+        return Err(TrajectoryError::new(
+            file,
+            ErrorKind::WrongJointCount {
+                found: joints,
+                expected: config.joints.len(),
+            },
+        ));
+    }
+    // Waypoints in whole-number steps (held joints at the current position), with the
+    // current position prepended at t = 0 when the file starts later.
+    let mut times = Vec::with_capacity(waypoints.times_us.len() + 1);
+    let mut rows: Vec<[f64; MAX_JOINTS]> = Vec::with_capacity(times.capacity());
+    if waypoints.times_us[0] > 0 {
+        times.push(0);
+        rows.push(current.map(f64::from));
+    }
+    for (i, (&t, row)) in waypoints
+        .times_us
+        .iter()
+        .zip(&waypoints.positions)
+        .enumerate()
+    {
+        let mut steps = current.map(f64::from);
+        for (j, value) in row.iter().enumerate().take(joints) {
+            if let Some(v) = value {
+                steps[j] = *v;
+            }
+            let position = steps[j].round() as i64;
+            let limits = &config.joints[j];
+            if position < i64::from(limits.min_steps) {
+                return Err(TrajectoryError::new(
+                    file,
+                    ErrorKind::BelowMin {
+                        value: position,
+                        limit: limits.min_steps,
+                    },
+                )
+                .at(i, t, Some(j)));
+            }
+            if position > i64::from(limits.max_steps) {
+                return Err(TrajectoryError::new(
+                    file,
+                    ErrorKind::AboveMax {
+                        value: position,
+                        limit: limits.max_steps,
+                    },
+                )
+                .at(i, t, Some(j)));
+            }
+            if t == 0 && position != i64::from(current[j]) {
+                return Err(TrajectoryError::new(
+                    file,
+                    ErrorKind::StartMismatch {
+                        current: current[j],
+                        start: position,
+                    },
+                )
+                .at(i, t, Some(j)));
+            }
+        }
+        times.push(t);
+        rows.push(steps);
+    }
+    let total_us = *times.last().unwrap_or(&0);
+    if times.len() < 2 || total_us <= 0 {
+        return Err(TrajectoryError::new(file, ErrorKind::TooShort));
+    }
+    let segment = i64::from(segment_us);
+    let count = (total_us + segment - 1) / segment;
+    if count > MAX_POINTS as i64 {
+        let min_segment_us = (total_us as u64).div_ceil(MAX_POINTS as u64);
+        return Err(TrajectoryError::new(
+            file,
+            ErrorKind::TooManyPoints {
+                count: count as usize,
+                min_segment_us,
+            },
+        ));
+    }
+    let mut points = Vec::with_capacity(count as usize);
+    let mut previous = *current;
+    let mut previous_t = 0i64;
+    let mut w = 0usize;
+    for k in 1..=count {
+        let t = (k * segment).min(total_us);
+        while w + 2 < times.len() && times[w + 1] < t {
+            w += 1;
+        }
+        let (t0, t1) = (times[w], times[w + 1]);
+        let f = (t - t0) as f64 / (t1 - t0) as f64;
+        let mut target = previous;
+        for j in 0..joints {
+            let p = rows[w][j] + (rows[w + 1][j] - rows[w][j]) * f;
+            target[j] = p.round() as i32;
+        }
+        let duration = (t - previous_t) as u32;
+        let index = points.len();
+        for (j, limits) in config.joints.iter().enumerate() {
+            let limit_hz = controller_max_rate_hz
+                .map_or(limits.max_step_rate_hz, |c| c.min(limits.max_step_rate_hz));
+            let steps = (i64::from(target[j]) - i64::from(previous[j])).unsigned_abs();
+            // steps / duration > limit, in integers.
+            if u128::from(steps) * 1_000_000 > u128::from(limit_hz) * u128::from(duration) {
+                return Err(TrajectoryError::new(
+                    file,
+                    ErrorKind::StepRate {
+                        steps,
+                        duration_us: duration,
+                        limit_hz,
+                    },
+                )
+                .at(index, t, Some(j)));
+            }
+        }
+        points.push(Point::from_motion(duration as i32, &previous, &target));
+        previous = target;
+        previous_t = t;
+    }
+    Ok(points)
+}
