@@ -16,6 +16,12 @@
 //! returned deadline.
 #![no_std]
 
+mod engine;
+mod joint;
+mod ring;
+
+pub use engine::StepEngine;
+
 /// Joints the engine drives.
 pub const MAX_JOINTS: usize = 8;
 
@@ -42,6 +48,35 @@ pub struct StepTiming {
     pub pulse_width_ticks: u32,
     /// Least time from a DIR change to the next rising STEP edge, ticks.
     pub dir_setup_ticks: u32,
+}
+
+impl StepTiming {
+    /// STEP high time the engine uses: `pulse_width_ticks`, but at least one tick.
+    pub const fn pulse_ticks(&self) -> u32 {
+        if self.pulse_width_ticks == 0 {
+            1
+        } else {
+            self.pulse_width_ticks
+        }
+    }
+
+    /// Shortest spacing of two pulses of one joint that is always honoured on time: the
+    /// pulse width, then STEP low for the direction setup time (at least one tick, so a
+    /// driver always sees two separate pulses).
+    pub const fn min_pulse_period_ticks(&self) -> u64 {
+        let low = if self.dir_setup_ticks == 0 {
+            1
+        } else {
+            self.dir_setup_ticks
+        };
+        self.pulse_ticks() as u64 + low as u64
+    }
+
+    /// Highest per-joint step rate whose pulse spacing leaves room for the pulse width
+    /// and the direction setup time.
+    pub const fn max_step_rate_hz(&self) -> u32 {
+        (self.tick_hz as u64 / self.min_pulse_period_ticks()) as u32
+    }
 }
 
 /// The step, direction lines. Called from the step timer interrupt: must not block.

@@ -1,0 +1,416 @@
+//! [`StepEngine`]: the segment queue, each joint's walk through it, and `poll`.
+
+use crate::joint::Joint;
+use crate::ring::{SegmentRing, Slot};
+use crate::{JointMask, MAX_JOINTS, Poll, Segment, StepPins, StepTiming};
+
+/// Every joint.
+const ALL_JOINTS: JointMask = 0xFF;
+
+/// Microseconds per second: segment durations are in microseconds.
+const US_PER_S: u64 = 1_000_000;
+
+/// The set bits of a joint mask, lowest first.
+#[derive(Clone, Copy)]
+struct Joints(JointMask);
+
+impl Iterator for Joints {
+    type Item = usize;
+
+    #[inline(always)]
+    fn next(&mut self) -> Option<usize> {
+        if self.0 == 0 {
+            return None;
+        }
+        let joint = self.0.trailing_zeros() as usize;
+        self.0 &= self.0 - 1;
+        Some(joint)
+    }
+}
+
+/// The end of the queue on the run's timeline: the cumulative duration of every segment
+/// pushed since the run began, kept as whole seconds plus microseconds so that converting
+/// it to ticks never overflows and never rounds twice.
+#[derive(Clone, Copy, Debug, Default)]
+struct QueueEnd {
+    seconds: u64,
+    micros: u32,
+    /// `floor(cum_us * tick_hz / 1e6)`.
+    tick: u64,
+    /// `(cum_us * tick_hz) mod 1e6`.
+    frac: u32,
+}
+
+impl QueueEnd {
+    /// The end after one more segment of `duration_us`.
+    fn after(self, duration_us: u32, tick_hz: u64) -> Self {
+        let micros = u64::from(self.micros) + u64::from(duration_us);
+        let seconds = self.seconds + micros / US_PER_S;
+        let micros = micros % US_PER_S;
+        // micros < 1e6 and tick_hz < 2^32: no overflow.
+        let scaled = micros * tick_hz;
+        QueueEnd {
+            seconds,
+            micros: micros as u32,
+            tick: seconds * tick_hz + scaled / US_PER_S,
+            frac: (scaled % US_PER_S) as u32,
+        }
+    }
+}
+
+/// The step pulse scheduler. `QUEUE` = segments held on the interrupt's side.
+///
+/// Each joint walks the queue on its own: once it has emitted its last pulse of a segment
+/// (and that pulse has ended) it moves on, so it may set its DIR line for a later segment
+/// early. A segment's slot is freed once the timeline has passed its end and every joint is
+/// done with it.
+#[derive(Debug)]
+pub struct StepEngine<const QUEUE: usize> {
+    timing: StepTiming,
+    /// STEP high time, ticks (at least one).
+    pulse_ticks: u64,
+    /// Least time from a DIR change to the next rising edge, ticks.
+    setup_ticks: u64,
+    tick_hz: u64,
+    ring: SegmentRing<QUEUE>,
+    /// Ordinal (wrapping) of the ring's oldest slot.
+    head_ordinal: u32,
+    joints: [Joint; MAX_JOINTS],
+    /// Joints whose STEP line is high.
+    high: JointMask,
+    /// Joints that have walked past every queued segment.
+    waiting: JointMask,
+    /// Segments were pushed since the last `poll`: waiting joints may go on.
+    pushed: bool,
+    running: bool,
+    /// Tick where the run's first segment starts.
+    origin: u64,
+    queue_end: QueueEnd,
+    late_pulses: u32,
+}
+
+impl<const QUEUE: usize> StepEngine<QUEUE> {
+    /// An idle engine with an empty queue, all positions 0.
+    pub const fn new(timing: StepTiming) -> Self {
+        Self {
+            timing,
+            pulse_ticks: timing.pulse_ticks() as u64,
+            setup_ticks: timing.dir_setup_ticks as u64,
+            tick_hz: timing.tick_hz as u64,
+            ring: SegmentRing::new(),
+            head_ordinal: 0,
+            joints: [Joint::IDLE; MAX_JOINTS],
+            high: 0,
+            waiting: ALL_JOINTS,
+            pushed: false,
+            running: false,
+            origin: 0,
+            queue_end: QueueEnd {
+                seconds: 0,
+                micros: 0,
+                tick: 0,
+                frac: 0,
+            },
+            late_pulses: 0,
+        }
+    }
+
+    /// The timing this engine was built with.
+    pub fn timing(&self) -> StepTiming {
+        self.timing
+    }
+
+    /// Queues a segment behind the others; `Err(segment)` back if `QUEUE` are already held.
+    ///
+    /// While running, call `poll` soon after (kick the timer interrupt): joints that wait
+    /// at the end of the queue pick the segment up there.
+    pub fn push(&mut self, segment: Segment) -> Result<(), Segment> {
+        let start = self.queue_end;
+        let end = start.after(segment.duration_us, self.tick_hz);
+        let slot = Slot {
+            steps: segment.steps,
+            duration_us: segment.duration_us,
+            start_frac: start.frac,
+            start_tick: start.tick,
+            end_tick: end.tick,
+            pending: ALL_JOINTS,
+        };
+        if self.ring.push_back(slot).is_err() {
+            return Err(segment);
+        }
+        self.queue_end = end;
+        self.pushed = true;
+        Ok(())
+    }
+
+    /// Slots free for `push`.
+    pub fn free_slots(&self) -> usize {
+        QUEUE - self.ring.len()
+    }
+
+    /// Segments held (queued or running).
+    pub fn queued(&self) -> usize {
+        self.ring.len()
+    }
+
+    /// Starts running the queue; the first queued segment starts at `at_tick`, each later
+    /// one exactly where the previous ended (cumulative microseconds -> ticks, no drift).
+    /// No-op if already running.
+    ///
+    /// DIR lines are written at the next `poll`: leave `dir_setup_ticks` plus the interrupt
+    /// latency between that `poll` and `at_tick`, or the first pulses come late. Starting
+    /// with an empty queue runs dry at the next `poll`.
+    pub fn start(&mut self, at_tick: u64) {
+        if self.running {
+            return;
+        }
+        self.running = true;
+        self.origin = at_tick;
+        let head = self.ring.head_index();
+        for joint in &mut self.joints {
+            joint.ordinal = self.head_ordinal;
+            joint.slot = head;
+            joint.due = u64::MAX;
+            joint.remaining = 0;
+        }
+        self.waiting = ALL_JOINTS;
+        self.pushed = true;
+    }
+
+    /// Emergency stop: lowers every STEP line now, drops all queued segments, goes idle.
+    /// Positions keep exactly the pulses that were emitted.
+    pub fn stop(&mut self, pins: &mut impl StepPins) {
+        pins.step_low(ALL_JOINTS);
+        self.high = 0;
+        self.ring.clear();
+        self.head_ordinal = 0;
+        for joint in &mut self.joints {
+            joint.due = u64::MAX;
+            joint.remaining = 0;
+        }
+        self.waiting = ALL_JOINTS;
+        self.end_run();
+    }
+
+    /// Whether a run is under way.
+    pub fn is_running(&self) -> bool {
+        self.running
+    }
+
+    /// Pulses raised later than their ideal tick because the STEP/DIR timing left no room
+    /// (a host asking for more than `max_step_rate_hz`, or `poll` called late). Such
+    /// pulses are delayed, never dropped.
+    pub fn late_pulses(&self) -> u32 {
+        self.late_pulses
+    }
+
+    /// Position of each joint in steps, counted per pulse actually emitted.
+    pub fn positions(&self) -> [i32; MAX_JOINTS] {
+        let mut positions = [0; MAX_JOINTS];
+        for (position, joint) in positions.iter_mut().zip(&self.joints) {
+            *position = joint.position;
+        }
+        positions
+    }
+
+    /// Overwrites the position counters (calibration); refused (false) while running.
+    pub fn set_positions(&mut self, positions: [i32; MAX_JOINTS]) -> bool {
+        if self.running {
+            return false;
+        }
+        for (joint, position) in self.joints.iter_mut().zip(positions) {
+            joint.position = position;
+        }
+        true
+    }
+
+    /// Emits every edge due at or before `now_tick` (STEP low after pulse width, DIR
+    /// changes, STEP high for due pulses), and reports finished segments / running dry.
+    /// Running dry = the end of the last queued segment passed with nothing queued after
+    /// it: the engine goes idle and needs `start` again.
+    ///
+    /// Each call lowers and raises each line at most once, so a late call (interrupt
+    /// latency) emits the pulses it missed one by one on the following calls, in order,
+    /// each with its full pulse width. The returned deadline is always after `now_tick`.
+    pub fn poll(&mut self, now_tick: u64, pins: &mut impl StepPins) -> Poll {
+        if !self.running {
+            return Poll::default();
+        }
+        let now = now_tick;
+
+        // Which joints have an edge due.
+        let mut due: JointMask = 0;
+        for j in Joints(!self.waiting) {
+            if let Some(joint) = self.joints.get(j) {
+                due |= u8::from(joint.due <= now) << j;
+            }
+        }
+        let falls = due & self.high;
+        let mut rises = due & !self.high;
+
+        // Falling edges first: a DIR line may change only once its STEP line is low.
+        if falls != 0 {
+            pins.step_low(falls);
+            self.high &= !falls;
+            for j in Joints(falls) {
+                self.after_fall(j, now, pins);
+            }
+        }
+
+        if self.pushed {
+            self.pushed = false;
+            for j in Joints(self.waiting) {
+                self.seek(j, now, pins);
+                if let Some(joint) = self.joints.get(j) {
+                    rises |= u8::from(joint.due <= now) << j;
+                }
+            }
+        }
+
+        if rises != 0 {
+            pins.step_high(rises);
+            self.high |= rises;
+            let fall_at = now + self.pulse_ticks;
+            for j in Joints(rises) {
+                if let Some(joint) = self.joints.get_mut(j) {
+                    joint.rise(fall_at);
+                }
+            }
+        }
+
+        // Free the segments that are over for the timeline and for every joint.
+        let mut finished = 0;
+        let mut next = u64::MAX;
+        while let Some(front) = self.ring.front() {
+            let end = self.origin + front.end_tick;
+            if end > now {
+                next = end;
+                break;
+            }
+            if front.pending != 0 {
+                break;
+            }
+            self.ring.pop_front();
+            self.head_ordinal = self.head_ordinal.wrapping_add(1);
+            finished += 1;
+        }
+        if self.ring.is_empty() {
+            // Every joint is past every segment, so every STEP line is low.
+            self.end_run();
+            return Poll {
+                next_deadline: None,
+                segments_finished: finished,
+                ran_dry: true,
+            };
+        }
+
+        for j in Joints(!self.waiting) {
+            if let Some(joint) = self.joints.get(j) {
+                next = next.min(joint.due);
+            }
+        }
+        Poll {
+            next_deadline: Some(next),
+            segments_finished: finished,
+            ran_dry: false,
+        }
+    }
+
+    /// Joint `j`'s STEP line just fell at `now`: schedule its next pulse, or move it on to
+    /// the next segment.
+    fn after_fall(&mut self, j: usize, now: u64, pins: &mut impl StepPins) {
+        let Some(joint) = self.joints.get_mut(j) else {
+            return;
+        };
+        joint.earliest = now + 1;
+        if joint.remaining > 0 {
+            joint.schedule_rise(&mut self.late_pulses);
+            return;
+        }
+        if let Some(slot) = self.ring.get_mut(joint.slot) {
+            slot.pending &= !(1 << j);
+        }
+        joint.ordinal = joint.ordinal.wrapping_add(1);
+        joint.slot = SegmentRing::<QUEUE>::next_index(joint.slot);
+        self.seek(j, now, pins);
+    }
+
+    /// Moves joint `j` (not in a pulse, done with every earlier segment) through the
+    /// segments where it does not move, to the first where it does, and sets up its
+    /// direction and first pulse there; or marks it waiting at the end of the queue.
+    fn seek(&mut self, j: usize, now: u64, pins: &mut impl StepPins) {
+        let bit = 1 << j;
+        let Some(joint) = self.joints.get_mut(j) else {
+            return;
+        };
+        loop {
+            let held = joint.ordinal.wrapping_sub(self.head_ordinal) < self.ring.len() as u32;
+            let slot = match self.ring.get_mut(joint.slot) {
+                Some(slot) if held => slot,
+                _ => {
+                    joint.due = u64::MAX;
+                    self.waiting |= bit;
+                    return;
+                }
+            };
+            let steps = slot.steps.get(j).copied().unwrap_or(0);
+            if steps != 0 {
+                let positive = steps > 0;
+                if joint.direction != Some(positive) {
+                    pins.set_direction(j, positive);
+                    joint.direction = Some(positive);
+                    joint.earliest = joint.earliest.max(now + self.setup_ticks);
+                }
+                joint.begin_segment(
+                    self.origin + slot.start_tick,
+                    slot.start_frac,
+                    u64::from(slot.duration_us) * self.tick_hz,
+                    steps,
+                );
+                joint.schedule_rise(&mut self.late_pulses);
+                self.waiting &= !bit;
+                return;
+            }
+            slot.pending &= !bit;
+            joint.ordinal = joint.ordinal.wrapping_add(1);
+            joint.slot = SegmentRing::<QUEUE>::next_index(joint.slot);
+        }
+    }
+
+    /// Back to idle; the next pushed segment starts a new timeline.
+    fn end_run(&mut self) {
+        self.running = false;
+        self.pushed = false;
+        self.queue_end = QueueEnd::default();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn joint_bits_in_order() {
+        let mut bits = [0usize; 8];
+        let mut count = 0;
+        for (slot, j) in bits.iter_mut().zip(Joints(0b1010_0101)) {
+            *slot = j;
+            count += 1;
+        }
+        assert_eq!(&bits[..count], &[0, 2, 5, 7]);
+        assert_eq!(Joints(0).next(), None);
+    }
+
+    #[test]
+    fn queue_end_converts_without_drift() {
+        let mut end = QueueEnd::default();
+        let mut total_us = 0u64;
+        for duration in [1u32, 999_999, 3_000_000_000, 7, 123_456] {
+            end = end.after(duration, 2_999_999);
+            total_us += u64::from(duration);
+            let exact = u128::from(total_us) * 2_999_999;
+            assert_eq!(u128::from(end.tick), exact / 1_000_000);
+            assert_eq!(u128::from(end.frac), exact % 1_000_000);
+        }
+    }
+}
