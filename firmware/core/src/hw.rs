@@ -123,7 +123,10 @@ pub trait SettingsStore {
     /// The stored settings, or `None` if nothing valid is stored.
     fn load(&mut self) -> impl Future<Output = Result<Option<PersistentSettings>, Self::Error>>;
     /// Stores the settings.
-    fn save(&mut self, settings: &PersistentSettings) -> impl Future<Output = Result<(), Self::Error>>;
+    fn save(
+        &mut self,
+        settings: &PersistentSettings,
+    ) -> impl Future<Output = Result<(), Self::Error>>;
 }
 
 /// Absolute joint encoders, for RETURN.

@@ -1,0 +1,740 @@
+//! The controller's behaviour, sans-io: one datagram in, an ACK, reports and effects out.
+//!
+//! # Check order
+//! Every datagram goes through these checks, in this order; the first that fails decides
+//! the ACK's status and nothing further is done:
+//! 1. **length**: fewer than 3 bytes: no reply at all.
+//! 2. **CRC**: `BAD_CRC`, ACKed to the sender with the frame's seq and tag. A frame with a
+//!    bad CRC never changes the owner.
+//! 3. **owner**: the first sender of a CRC-valid frame owns the controller; another
+//!    address takes over when the owner has been silent for 5 s and the state is not
+//!    RUNNING; other senders get `NOT_OWNER`, except for tag STOPPED (anyone may stop the
+//!    arm).
+//! 4. **duplicate**: a frame (sender, seq, tag, CRC) accepted within the last 2 s (and
+//!    among the last 32 accepted) is ACKed `OK` again and not executed.
+//! 5. **decode**: `UNKNOWN_TAG`, `BAD_LENGTH`, `INVALID_CONFIG`, `INVALID_POINT` (duration
+//!    under 1 us), `UNSUPPORTED` (a report tag from a host).
+//! 6. **state**: `BAD_STATE` when the command is not allowed in the current state
+//!    (PROTOCOL.md section 3; USART_SEND needs an open port that may transmit).
+//! 7. **execute**: PENDING checks, in order: `OUT_OF_ORDER` (seq != `next_seq`),
+//!    `TOO_MANY_POINTS`, `INVALID_POINT` (step rate), `BUFFER_FULL`; every point of the
+//!    frame is checked before any is taken. USART_SEND: `BUFFER_FULL` when the serial
+//!    transmit queue has no room. USART_START: `INVALID_CONFIG` when the port cannot apply
+//!    the settings.
+//!
+//! A frame "accepted" is one ACKed `OK`: it is remembered for duplicate detection, it
+//! counts for the PENDING ordering rule (when it comes from the owner), and its source
+//! port becomes where the owner's reports go.
+//!
+//! # Effects
+//! What must happen synchronously (the step engine, pins, gripper, serial port) goes
+//! through the [`Plant`] trait; what needs waiting (flash, encoders) comes back as a
+//! [`Deferred`] in the [`Response`].
+
+use protocol::{
+    Ack, Command, Frame, Location, MAX_JOINTS, Pwm, State, StatusCode, StatusFlags, StatusReport,
+    Tag, UartInit, UartMode, crc8, limits,
+};
+
+use arm_step::Segment;
+
+use crate::buffer::{StoredPoint, TrajectoryBuffer};
+use crate::config::{ControllerConfig, OWNER_TIMEOUT_US};
+use crate::hw::{Endpoint, PersistentSettings, SerialError};
+use crate::link::{FrameKey, RecentFrames, UploadOrder};
+use crate::plan::{ReturnPlan, plan_return};
+
+/// Every ENABLE line: joints 0-7 and the gripper (bit 8).
+pub const ALL_DRIVERS: u16 = limits::ENABLE_MASK_BITS;
+
+/// What the controller drives and queries synchronously while it handles a command.
+///
+/// The firmware's implementation talks to the step engine shared with the step timer
+/// interrupt, the output pins, the gripper timer and the serial task's queue; tests use a
+/// fake that records every call.
+pub trait Plant {
+    /// Joint positions in steps, counted per pulse emitted.
+    fn positions(&self) -> [i32; MAX_JOINTS];
+    /// Overwrites the position counters (only called while no segment runs); `false` if
+    /// refused.
+    fn set_positions(&mut self, positions: [i32; MAX_JOINTS]) -> bool;
+    /// Emergency stop: no further step pulse, every segment handed over is dropped.
+    fn stop(&mut self);
+    /// Hands over the next segment of the trajectory; `false` when there is no room now
+    /// (offered again later).
+    fn push_segment(&mut self, segment: Segment) -> bool;
+    /// Starts executing the segments handed over (and those that follow) as soon as the
+    /// first one is in the engine.
+    fn start(&mut self);
+    /// Drives user pin 0 or 1.
+    fn set_user_pin(&mut self, pin: u8, high: bool);
+    /// Sets the ENABLE lines: bit j = joint j holding, bit 8 = gripper.
+    fn set_enabled(&mut self, enabled: u16);
+    /// Starts the gripper PWM (values already validated).
+    fn gripper_start(&mut self, pwm: &Pwm);
+    /// Gripper output off at once.
+    fn gripper_stop(&mut self);
+    /// Whether the gripper output runs (a counted burst ends by itself).
+    fn gripper_active(&self) -> bool;
+    /// Opens (or reopens) the pass-through serial port.
+    fn serial_open(&mut self, init: &UartInit) -> Result<(), SerialError>;
+    /// Closes it; whatever was not yet written is dropped.
+    fn serial_close(&mut self);
+    /// Queues bytes for the serial port; `false` when the queue has no room.
+    fn serial_send(&mut self, bytes: &[u8]) -> bool;
+}
+
+/// Work that needs waiting, left to the caller (the trajectory task).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Deferred {
+    /// Store these settings ([`crate::hw::SettingsStore::save`]).
+    SaveSettings(PersistentSettings),
+    /// RETURN was accepted: read the encoders ([`crate::hw::Encoders::read`]) and pass
+    /// the result to [`Controller::begin_return`].
+    ReadEncoders,
+}
+
+/// The ACK for one command.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Reply {
+    /// Where it goes: the command's sender.
+    pub to: Endpoint,
+    /// The command's seq.
+    pub seq: u8,
+    /// Content.
+    pub ack: Ack,
+}
+
+/// What handling one datagram produced.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Response {
+    /// The ACK; `None` only for a datagram under 3 bytes.
+    pub reply: Option<Reply>,
+    /// A STATUS report for the owner ([`Controller::report_to`]).
+    pub status: Option<StatusReport>,
+    /// A LOCATION report for the owner: the state changed (only while reports are on).
+    pub location: Option<Location>,
+    /// Work left to the caller.
+    pub deferred: Option<Deferred>,
+}
+
+/// The host that owns the controller.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Owner {
+    /// Its IPv4 address.
+    pub ip: [u8; 4],
+    /// Source port of its most recent accepted frame: where reports go.
+    pub report_port: u16,
+    /// When it last sent a CRC-valid frame, microseconds.
+    pub last_heard_us: u64,
+}
+
+/// Settings the location upload needs, copied out after every change.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct ReportSettings {
+    /// Where reports go (`None` before any host spoke).
+    pub to: Option<Endpoint>,
+    /// LOCATION reports on.
+    pub reports_on: bool,
+    /// LOCATION period, microseconds.
+    pub upload_period_us: u32,
+    /// The trajectory state.
+    pub state: State,
+}
+
+impl ReportSettings {
+    /// Boot values: reports on at the default period, nobody to send them to yet.
+    pub const BOOT: ReportSettings = ReportSettings {
+        to: None,
+        reports_on: true,
+        upload_period_us: limits::DEFAULT_UPLOAD_PERIOD_US,
+        state: State::Stopped,
+    };
+}
+
+/// The controller: state machine, trajectory buffer, owner and reliability rules.
+///
+/// `CAP` is the trajectory buffer's compile-time size (see
+/// [`crate::config::BOARD_TRAJECTORY_CAPACITY`]); `config.capacity` may use less of it.
+/// Construct it in a static (`new` is `const`): with 8192 points it is 300 KB.
+pub struct Controller<const CAP: usize> {
+    config: ControllerConfig,
+    settings: PersistentSettings,
+    state: State,
+    buffer: TrajectoryBuffer<CAP>,
+    /// Points the current trajectory has (NEW's count, or RETURN's).
+    expected: u32,
+    /// Points of it received.
+    received: u32,
+    /// Points of it finished.
+    executed: u32,
+    /// End position of the last point received (the next point's previous position).
+    received_end: [i32; MAX_JOINTS],
+    /// End position of the last point handed to the engine.
+    fed_end: [i32; MAX_JOINTS],
+    /// RETURN accepted, waiting for the encoder reading.
+    return_pending: bool,
+    /// RETURN running: its remaining points.
+    return_plan: Option<ReturnPlan>,
+    order: UploadOrder,
+    recent: RecentFrames,
+    owner: Option<Owner>,
+    reports_on: bool,
+    upload_period_us: u32,
+    enabled: u16,
+    pins: [bool; 2],
+    serial: Option<UartMode>,
+    underrun: bool,
+    stopped_by_host: bool,
+}
+
+impl<const CAP: usize> Controller<CAP> {
+    /// A controller in its boot state: STOPPED, drivers enabled, reports on.
+    pub const fn new(config: ControllerConfig) -> Self {
+        Controller {
+            buffer: TrajectoryBuffer::new(config.capacity),
+            config,
+            settings: PersistentSettings {
+                joints: limits::DEFAULT_JOINTS,
+                ip: [192, 168, 1, 30],
+                prefix_len: 24,
+            },
+            state: State::Stopped,
+            expected: 0,
+            received: 0,
+            executed: 0,
+            received_end: [0; MAX_JOINTS],
+            fed_end: [0; MAX_JOINTS],
+            return_pending: false,
+            return_plan: None,
+            order: UploadOrder::new(),
+            recent: RecentFrames::new(),
+            owner: None,
+            reports_on: true,
+            upload_period_us: limits::DEFAULT_UPLOAD_PERIOD_US,
+            enabled: ALL_DRIVERS,
+            pins: [false; 2],
+            serial: None,
+            underrun: false,
+            stopped_by_host: false,
+        }
+    }
+
+    /// Applies stored settings (at boot); an out-of-range joint count keeps the default.
+    pub fn apply_settings(&mut self, settings: PersistentSettings) {
+        self.settings = settings;
+        if !limits::JOINTS.contains(&settings.joints) {
+            self.settings.joints = limits::DEFAULT_JOINTS;
+        }
+    }
+
+    /// The settings as they should be stored.
+    pub fn settings(&self) -> PersistentSettings {
+        self.settings
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &ControllerConfig {
+        &self.config
+    }
+
+    /// The trajectory state.
+    pub fn state(&self) -> State {
+        self.state
+    }
+
+    /// Joints in use.
+    pub fn joints(&self) -> u8 {
+        self.settings.joints
+    }
+
+    /// The owner, if any host has spoken.
+    pub fn owner(&self) -> Option<Owner> {
+        self.owner
+    }
+
+    /// Where reports (STATUS, LOCATION, USART_RECV) go: the owner at the port of its most
+    /// recent accepted frame.
+    pub fn report_to(&self) -> Option<Endpoint> {
+        self.owner.map(|o| Endpoint {
+            ip: o.ip,
+            port: o.report_port,
+        })
+    }
+
+    /// The ENABLE lines as they should be driven (bit 8 = gripper).
+    pub fn enabled(&self) -> u16 {
+        self.enabled
+    }
+
+    /// Whether LOCATION reports are on.
+    pub fn reports_on(&self) -> bool {
+        self.reports_on
+    }
+
+    /// LOCATION period, microseconds.
+    pub fn upload_period_us(&self) -> u32 {
+        self.upload_period_us
+    }
+
+    /// What the location upload needs to know.
+    pub fn report_settings(&self) -> ReportSettings {
+        ReportSettings {
+            to: self.report_to(),
+            reports_on: self.reports_on,
+            upload_period_us: self.upload_period_us,
+            state: self.state,
+        }
+    }
+
+    /// Points held (received, not finished).
+    pub fn buffered(&self) -> usize {
+        self.buffer.buffered()
+    }
+
+    /// Free trajectory slots.
+    pub fn free(&self) -> usize {
+        self.buffer.free()
+    }
+
+    /// Points in use by design (`config.capacity` clamped to `CAP`).
+    pub fn capacity(&self) -> usize {
+        self.buffer.capacity()
+    }
+
+    /// The seq the next PENDING must carry.
+    pub fn next_seq(&self) -> u8 {
+        self.order.next_seq()
+    }
+
+    /// A LOCATION report of the current positions and state.
+    pub fn location(&self, plant: &impl Plant) -> Location {
+        Location {
+            position: plant.positions(),
+            state: self.state as u8,
+        }
+    }
+
+    /// The STATUS report.
+    pub fn status(&self, plant: &impl Plant) -> StatusReport {
+        let mut flags = StatusFlags::default();
+        flags.set(StatusFlags::REPORTS_ON, self.reports_on);
+        flags.set(StatusFlags::DRIVERS_ENABLED, self.enabled != 0);
+        flags.set(StatusFlags::SERIAL_OPEN, self.serial.is_some());
+        flags.set(StatusFlags::PIN0_HIGH, self.pins[0]);
+        flags.set(StatusFlags::PIN1_HIGH, self.pins[1]);
+        flags.set(StatusFlags::UNDERRUN, self.underrun);
+        flags.set(StatusFlags::PWM_ACTIVE, plant.gripper_active());
+        flags.set(StatusFlags::STOPPED_BY_HOST, self.stopped_by_host);
+        StatusReport {
+            version: protocol::VERSION,
+            joints: self.settings.joints,
+            state: self.state,
+            flags,
+            buffered: saturate(self.buffer.buffered()),
+            expected: saturate(self.expected as usize),
+            received: saturate(self.received as usize),
+            executed: saturate(self.executed as usize),
+            capacity: saturate(self.buffer.capacity()),
+            upload_period_us: self.upload_period_us,
+            pwm_timer_clock_hz: self.config.pwm_timer_clock_hz,
+            max_step_rate_hz: self.config.max_step_rate_hz,
+        }
+    }
+
+    fn ack(&self, to: Endpoint, seq: u8, tag: u8, status: StatusCode) -> Reply {
+        Reply {
+            to,
+            seq,
+            ack: Ack {
+                acked_tag: tag,
+                status,
+                state: self.state,
+                next_seq: self.order.next_seq(),
+                buffered: saturate(self.buffer.buffered()),
+                free: saturate(self.buffer.free()),
+            },
+        }
+    }
+
+    /// Handles one datagram from `from` received at `now_us` (see the module docs for the
+    /// order of checks).
+    pub fn handle(
+        &mut self,
+        from: Endpoint,
+        datagram: &[u8],
+        now_us: u64,
+        plant: &mut impl Plant,
+    ) -> Response {
+        let before = self.state;
+        let mut response = Response::default();
+        // 1. length
+        let [seq, tag, .., crc] = *datagram else {
+            return response;
+        };
+        let reply = |c: &Self, status| Some(c.ack(from, seq, tag, status));
+        // 2. CRC
+        let body = datagram.get(..datagram.len() - 1).unwrap_or_default();
+        if crc8(body) != crc {
+            response.reply = reply(self, StatusCode::BadCrc);
+            return response;
+        }
+        // 3. owner
+        let from_owner = match self.owner {
+            None => {
+                self.owner = Some(Owner {
+                    ip: from.ip,
+                    report_port: from.port,
+                    last_heard_us: now_us,
+                });
+                true
+            }
+            Some(ref mut owner) if owner.ip == from.ip => {
+                owner.last_heard_us = now_us;
+                true
+            }
+            Some(ref mut owner)
+                if self.state != State::Running
+                    && now_us.saturating_sub(owner.last_heard_us) >= OWNER_TIMEOUT_US =>
+            {
+                *owner = Owner {
+                    ip: from.ip,
+                    report_port: from.port,
+                    last_heard_us: now_us,
+                };
+                true
+            }
+            Some(_) if tag == Tag::Stopped as u8 => false,
+            Some(_) => {
+                response.reply = reply(self, StatusCode::NotOwner);
+                return response;
+            }
+        };
+        // 4. duplicate
+        let key = FrameKey {
+            from,
+            seq,
+            tag,
+            crc,
+        };
+        if self.recent.contains(&key, now_us) {
+            self.accepted(key, from_owner, now_us, false);
+            response.reply = reply(self, StatusCode::Ok);
+            return response;
+        }
+        // 5. decode
+        let frame = match Command::decode(datagram) {
+            Ok(frame) => frame,
+            Err(e) => {
+                response.reply = reply(self, e.status().unwrap_or(StatusCode::BadLength));
+                return response;
+            }
+        };
+        // 6. state and 7. execute
+        let status = match self.execute(frame, plant, &mut response) {
+            Ok(()) => {
+                self.accepted(key, from_owner, now_us, true);
+                StatusCode::Ok
+            }
+            Err(status) => status,
+        };
+        self.pump(plant);
+        response.reply = reply(self, status);
+        if self.state != before && self.reports_on {
+            response.location = Some(self.location(plant));
+        }
+        response
+    }
+
+    /// Bookkeeping for an accepted frame (executed now, or a duplicate).
+    fn accepted(&mut self, key: FrameKey, from_owner: bool, now_us: u64, remember: bool) {
+        if remember {
+            self.recent.remember(key, now_us);
+        }
+        if from_owner {
+            self.order.mark(key.seq);
+            if let Some(owner) = self.owner.as_mut() {
+                owner.report_port = key.from.port;
+            }
+        }
+    }
+
+    fn execute(
+        &mut self,
+        frame: Frame<Command<'_>>,
+        plant: &mut impl Plant,
+        response: &mut Response,
+    ) -> Result<(), StatusCode> {
+        let stopped_only = |c: &Self| {
+            if c.state == State::Stopped {
+                Ok(())
+            } else {
+                Err(StatusCode::BadState)
+            }
+        };
+        match frame.body {
+            Command::New { count } => {
+                if self.state == State::Running {
+                    return Err(StatusCode::BadState);
+                }
+                // An upload not yet running is dropped, with whatever was pre-fed.
+                plant.stop();
+                self.buffer.clear();
+                self.return_plan = None;
+                self.return_pending = false;
+                self.expected = u32::from(count);
+                self.received = 0;
+                self.executed = 0;
+                self.received_end = plant.positions();
+                self.fed_end = self.received_end;
+                self.order.restart(frame.seq);
+                self.state = State::New;
+            }
+            Command::Pending(points) => {
+                let uploading = matches!(self.state, State::New | State::Pending)
+                    || (self.state == State::Running && self.return_plan.is_none());
+                if !uploading || self.return_pending {
+                    return Err(StatusCode::BadState);
+                }
+                if !self.order.in_order(frame.seq) {
+                    return Err(StatusCode::OutOfOrder);
+                }
+                let n = points.len();
+                if self.received as usize + n > self.expected as usize {
+                    return Err(StatusCode::TooManyPoints);
+                }
+                // Every point is checked before any is taken.
+                let mut previous = self.received_end;
+                for point in points.iter() {
+                    previous = self
+                        .admit(&previous, &point)
+                        .ok_or(StatusCode::InvalidPoint)?
+                        .position;
+                }
+                if n > self.buffer.free() {
+                    return Err(StatusCode::BufferFull);
+                }
+                for point in points.iter() {
+                    if let Some(stored) = self.admit(&self.received_end, &point) {
+                        if self.buffer.push(stored) {
+                            self.received_end = stored.position;
+                            self.received += 1;
+                        }
+                    }
+                }
+                self.order.take(frame.seq);
+                if self.state == State::New {
+                    self.state = State::Pending;
+                }
+            }
+            Command::Runing => match self.state {
+                State::Pending => {
+                    self.underrun = false;
+                    self.stopped_by_host = false;
+                    self.state = State::Running;
+                    self.pump(plant);
+                    plant.start();
+                }
+                State::Running => {}
+                _ => return Err(StatusCode::BadState),
+            },
+            Command::Stopped => {
+                plant.stop();
+                self.buffer.clear();
+                self.return_plan = None;
+                self.return_pending = false;
+                self.underrun = false;
+                self.stopped_by_host = true;
+                self.state = State::Stopped;
+            }
+            Command::UploadStart => self.reports_on = true,
+            Command::UploadStop => self.reports_on = false,
+            Command::PwmStart(pwm) => plant.gripper_start(&pwm),
+            Command::PwmStop => plant.gripper_stop(),
+            Command::UsartStart(init) => {
+                plant
+                    .serial_open(&init)
+                    .map_err(|_| StatusCode::InvalidConfig)?;
+                self.serial = Some(init.mode());
+            }
+            Command::UsartStop => {
+                plant.serial_close();
+                self.serial = None;
+            }
+            Command::UsartSend(bytes) => {
+                match self.serial {
+                    None | Some(UartMode::ReceiveOnly) => return Err(StatusCode::BadState),
+                    Some(_) => {}
+                }
+                if !plant.serial_send(bytes) {
+                    return Err(StatusCode::BufferFull);
+                }
+            }
+            Command::Pin0On | Command::Pin0Off | Command::Pin1On | Command::Pin1Off => {
+                let pin = u8::from(matches!(frame.body, Command::Pin1On | Command::Pin1Off));
+                let high = matches!(frame.body, Command::Pin0On | Command::Pin1On);
+                plant.set_user_pin(pin, high);
+                if let Some(p) = self.pins.get_mut(usize::from(pin)) {
+                    *p = high;
+                }
+            }
+            Command::ToggleEnablePins { mask } => {
+                stopped_only(self)?;
+                self.enabled ^= mask.unwrap_or(ALL_DRIVERS) & ALL_DRIVERS;
+                plant.set_enabled(self.enabled);
+            }
+            Command::Return => {
+                stopped_only(self)?;
+                self.buffer.clear();
+                self.return_plan = None;
+                self.return_pending = true;
+                self.underrun = false;
+                self.stopped_by_host = false;
+                self.state = State::Running;
+                response.deferred = Some(Deferred::ReadEncoders);
+            }
+            Command::JointsCount(joints) => {
+                stopped_only(self)?;
+                self.settings.joints = joints;
+                response.deferred = Some(Deferred::SaveSettings(self.settings));
+            }
+            Command::LocationSetting(location) => {
+                stopped_only(self)?;
+                if !plant.set_positions(location.position) {
+                    return Err(StatusCode::BadState);
+                }
+            }
+            Command::Status => response.status = Some(self.status(plant)),
+            Command::UploadPeriod { period_us } => self.upload_period_us = period_us,
+        }
+        Ok(())
+    }
+
+    /// The stored form of `point` after `previous`, if it obeys section 5: for every joint
+    /// in use, at most `max_step_rate_hz` steps per second and a step count that fits a
+    /// segment. Joints not in use keep their previous position.
+    fn admit(&self, previous: &[i32; MAX_JOINTS], point: &protocol::Point) -> Option<StoredPoint> {
+        let duration = u32::try_from(point.duration).ok().filter(|d| *d >= 1)?;
+        let joints = usize::from(self.settings.joints).min(MAX_JOINTS);
+        let mut position = *previous;
+        for j in 0..joints {
+            let steps = point.steps(previous, j).unsigned_abs();
+            let too_fast = u128::from(steps) * 1_000_000
+                > u128::from(self.config.max_step_rate_hz) * u128::from(duration);
+            if too_fast || steps > i32::MAX as u64 {
+                return None;
+            }
+            position[j] = point.position[j];
+        }
+        Some(StoredPoint {
+            duration_us: duration,
+            position,
+        })
+    }
+
+    /// Hands as many buffered points to the engine as it takes (and, during RETURN, tops
+    /// the buffer up from the plan first).
+    pub fn pump(&mut self, plant: &mut impl Plant) {
+        if let Some(plan) = self.return_plan.as_mut() {
+            while self.buffer.free() > 0 {
+                let Some(point) = plan.next() else { break };
+                if self.buffer.push(point) {
+                    self.received += 1;
+                }
+            }
+        }
+        if !matches!(self.state, State::Pending | State::Running) {
+            return;
+        }
+        while let Some(point) = self.buffer.next_unfed() {
+            let mut steps = [0i32; MAX_JOINTS];
+            for (j, s) in steps.iter_mut().enumerate() {
+                let delta = i64::from(point.position[j]) - i64::from(self.fed_end[j]);
+                *s = delta.clamp(i64::from(i32::MIN), i64::from(i32::MAX)) as i32;
+            }
+            let segment = Segment {
+                duration_us: point.duration_us,
+                steps,
+            };
+            if !plant.push_segment(segment) {
+                break;
+            }
+            self.buffer.mark_fed();
+            self.fed_end = point.position;
+        }
+    }
+
+    /// The engine finished `finished` more segments and, if `ran_dry`, ran out of them
+    /// and stopped. Ends the run (completion or underrun) when it ran dry, feeds more
+    /// points otherwise. Returns a LOCATION report when the state changed.
+    pub fn on_step_progress(
+        &mut self,
+        finished: u32,
+        ran_dry: bool,
+        plant: &mut impl Plant,
+    ) -> Option<Location> {
+        let done = self.buffer.finish(finished as usize);
+        self.executed = self.executed.saturating_add(done as u32);
+        if ran_dry && self.state == State::Running && !self.return_pending {
+            let complete = self.executed >= self.expected;
+            // Clears anything pushed after the engine went idle.
+            plant.stop();
+            self.buffer.clear();
+            self.return_plan = None;
+            self.underrun = !complete;
+            self.stopped_by_host = false;
+            self.state = State::Stopped;
+            return self.reports_on.then(|| self.location(plant));
+        }
+        self.pump(plant);
+        None
+    }
+
+    /// Continues an accepted RETURN with the encoder reading (`None`: no encoders, trust
+    /// the step count): corrects the positions of the joints in use if they differ, plans
+    /// the move to zero and starts it. Returns a LOCATION report when the state changed
+    /// (nothing to move: back to STOPPED).
+    pub fn begin_return(
+        &mut self,
+        encoders: Option<[i32; MAX_JOINTS]>,
+        plant: &mut impl Plant,
+    ) -> Option<Location> {
+        if !self.return_pending || self.state != State::Running {
+            return None;
+        }
+        self.return_pending = false;
+        let joints = usize::from(self.settings.joints).min(MAX_JOINTS);
+        let mut start = plant.positions();
+        if let Some(read) = encoders {
+            let mut corrected = start;
+            corrected[..joints].copy_from_slice(&read[..joints]);
+            if corrected != start && plant.set_positions(corrected) {
+                start = corrected;
+            }
+        }
+        let plan = plan_return(start, self.settings.joints, &self.config);
+        self.buffer.clear();
+        self.expected = plan.total_points();
+        self.received = 0;
+        self.executed = 0;
+        self.received_end = start;
+        self.fed_end = start;
+        if plan.total_points() == 0 {
+            self.state = State::Stopped;
+            return self.reports_on.then(|| self.location(plant));
+        }
+        self.return_plan = Some(plan);
+        self.pump(plant);
+        plant.start();
+        None
+    }
+}
+
+fn saturate(n: usize) -> u16 {
+    u16::try_from(n).unwrap_or(u16::MAX)
+}
