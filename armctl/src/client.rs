@@ -450,6 +450,15 @@ impl Controller {
         self.send(&Command::UploadPeriod { period_us })
     }
 
+    /// A fresh LOCATION report (one that arrives after this call), at most `timeout`
+    /// from now. Location reports must be on (they are by default).
+    pub fn current_location(&self, timeout: Duration) -> Result<Location> {
+        let locations = self.locations();
+        locations
+            .recv_timeout(timeout)
+            .map_err(|_| Error::NoLocation { waited: timeout })
+    }
+
     /// Polls STATUS until the controller is STOPPED (a run or RETURN finished), at most
     /// `timeout`. Returns the last STATUS.
     pub fn wait_stopped(&self, timeout: Duration) -> Result<StatusReport> {

@@ -39,6 +39,11 @@ pub enum Error {
         /// Times it was asked for.
         attempts: u32,
     },
+    /// No LOCATION report came in time.
+    NoLocation {
+        /// How long it waited.
+        waited: Duration,
+    },
     /// A command could not be encoded (an empty or oversized point list or serial chunk).
     Encode(EncodeError),
     /// A run ended before all its points were executed.
@@ -106,6 +111,12 @@ impl fmt::Display for Error {
                 "{} was ACKed but its report never came ({attempts} attempts): another host may \
                  own the controller (reports go to the owner), or reports are being lost",
                 command.name()
+            ),
+            Error::NoLocation { waited } => write!(
+                f,
+                "no LOCATION report in {:.1} s: reports may be off (`armctl reports on`), or \
+                 another host owns the controller (reports go to the owner)",
+                waited.as_secs_f64()
             ),
             Error::Encode(e) => write!(f, "cannot encode the frame: {e}"),
             Error::RunEnded {

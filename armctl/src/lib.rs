@@ -27,6 +27,9 @@
 
 mod client;
 mod error;
+pub mod plot;
+pub mod pwm;
+pub mod record;
 mod run;
 pub mod trajectory;
 

@@ -1,0 +1,404 @@
+//! CLI parsing and `frame encode`/`frame decode` against the golden frames.
+
+use clap::Parser;
+
+use crate::cli::{self, Cli, Cmd, Direction, EncodeCmd, FrameCmd, OnOff, PwmCmd};
+
+fn parse(args: &[&str]) -> Cli {
+    Cli::try_parse_from(std::iter::once("armctl").chain(args.iter().copied()))
+        .unwrap_or_else(|e| panic!("{args:?}: {e}"))
+}
+
+fn refused(args: &[&str]) -> String {
+    match Cli::try_parse_from(std::iter::once("armctl").chain(args.iter().copied())) {
+        Ok(cli) => panic!("{args:?} parsed as {cli:?}"),
+        Err(e) => e.to_string(),
+    }
+}
+
+#[test]
+fn global_controller_option_and_default() {
+    assert_eq!(parse(&["status"]).controller, "127.0.0.1:8510");
+    let cli = parse(&["--controller", "127.0.0.2:9000", "stop"]);
+    assert_eq!(cli.controller, "127.0.0.2:9000");
+    assert!(matches!(cli.command, Cmd::Stop));
+    // Global: also after the subcommand.
+    assert_eq!(
+        parse(&["status", "--controller", "127.0.0.3:1"]).controller,
+        "127.0.0.3:1"
+    );
+}
+
+#[test]
+fn run_options() {
+    let cli = parse(&[
+        "run",
+        "t.json",
+        "--config",
+        "arm.json",
+        "--segment-ms",
+        "5",
+        "--window",
+        "1",
+        "--record",
+        "rec.csv",
+    ]);
+    let Cmd::Run(args) = cli.command else {
+        panic!("not run")
+    };
+    assert_eq!(args.file.to_str(), Some("t.json"));
+    assert_eq!(
+        args.config.as_deref().and_then(|p| p.to_str()),
+        Some("arm.json")
+    );
+    assert_eq!(args.segment_ms, 5.0);
+    assert_eq!(args.window, 1);
+    assert_eq!(
+        args.record.as_deref().and_then(|p| p.to_str()),
+        Some("rec.csv")
+    );
+    assert!(refused(&["run", "t.csv", "--window", "17"]).contains("17"));
+    assert!(refused(&["run", "t.csv", "--window", "0"]).contains('0'));
+}
+
+#[test]
+fn small_commands() {
+    assert!(matches!(
+        parse(&["joints", "6"]).command,
+        Cmd::Joints { n: 6 }
+    ));
+    refused(&["joints", "9"]);
+    refused(&["joints", "0"]);
+    let Cmd::SetLocation { positions } = parse(&["set-location", "1", "-2", "300"]).command else {
+        panic!()
+    };
+    assert_eq!(positions, vec![1, -2, 300]);
+    refused(&["set-location"]);
+    refused(&["set-location", "1", "2", "3", "4", "5", "6", "7", "8", "9"]);
+    assert!(matches!(
+        parse(&["enable", "--mask", "0x1ff"]).command,
+        Cmd::Enable { mask: Some(0x1FF) }
+    ));
+    assert!(matches!(
+        parse(&["enable"]).command,
+        Cmd::Enable { mask: None }
+    ));
+    assert!(refused(&["enable", "--mask", "0x200"]).contains("bits above 8"));
+    assert!(matches!(
+        parse(&["pin", "1", "on"]).command,
+        Cmd::Pin {
+            pin: 1,
+            level: OnOff::On
+        }
+    ));
+    refused(&["pin", "2", "on"]);
+    refused(&["pin", "0", "maybe"]);
+    assert!(matches!(
+        parse(&["upload-period", "20000"]).command,
+        Cmd::UploadPeriod { us: 20000 }
+    ));
+    assert!(matches!(
+        parse(&["return", "--wait"]).command,
+        Cmd::Return { wait: true }
+    ));
+    assert!(matches!(
+        parse(&["serial", "--baud", "9600"]).command,
+        Cmd::Serial { baud: 9600, .. }
+    ));
+}
+
+#[test]
+fn pwm_commands() {
+    let Cmd::Pwm(PwmCmd::Servo { freq, duty }) =
+        parse(&["pwm", "servo", "--freq", "50", "--duty", "0.075"]).command
+    else {
+        panic!()
+    };
+    assert_eq!((freq, duty), (50.0, 0.075));
+    let Cmd::Pwm(PwmCmd::Stepper { pulses, .. }) =
+        parse(&["pwm", "stepper", "--pulses", "-400"]).command
+    else {
+        panic!()
+    };
+    assert_eq!(pulses, -400);
+    let Cmd::Pwm(PwmCmd::Raw(raw)) = parse(&[
+        "pwm", "raw", "--psc", "239", "--arr", "19999", "--ccr1", "1500",
+    ])
+    .command
+    else {
+        panic!()
+    };
+    assert_eq!(
+        (raw.psc, raw.arr, raw.ccr1, raw.pulses),
+        (239, 19999, 1500, 0)
+    );
+    assert!(matches!(
+        parse(&["pwm", "stop"]).command,
+        Cmd::Pwm(PwmCmd::Stop)
+    ));
+}
+
+#[test]
+fn frame_subcommands_parse() {
+    let Cmd::Frame(FrameCmd::Decode { hex, direction }) =
+        parse(&["frame", "decode", "0003", "c5", "--as", "command"]).command
+    else {
+        panic!()
+    };
+    assert_eq!(hex, vec!["0003".to_string(), "c5".to_string()]);
+    assert_eq!(direction, Some(Direction::Command));
+    let Cmd::Frame(FrameCmd::Encode { seq, command }) =
+        parse(&["frame", "encode", "--seq", "7", "joints-count", "4"]).command
+    else {
+        panic!()
+    };
+    assert_eq!(seq, 7);
+    assert!(matches!(command, EncodeCmd::JointsCount { n: 4 }));
+}
+
+#[test]
+fn hex_parsing() {
+    assert_eq!(cli::parse_hex("0x01 02:03-0a").unwrap(), vec![1, 2, 3, 10]);
+    assert!(cli::parse_hex("123").unwrap_err().contains("odd"));
+    assert!(cli::parse_hex("zz").unwrap_err().contains("not a hex byte"));
+}
+
+fn encode(args: &[&str]) -> String {
+    let Cmd::Frame(FrameCmd::Encode { seq, command }) = parse(args).command else {
+        panic!("not frame encode")
+    };
+    cli::encode_frame(seq, &command).unwrap()
+}
+
+/// The golden frames from the project's shared vectors (`shared/` beside the repository).
+fn golden() -> Vec<serde_json::Value> {
+    let path =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/vectors/frames.json");
+    let text = std::fs::read_to_string(&path).unwrap_or_else(|e| {
+        panic!(
+            "{}: {e} (shared/ must sit beside the repository)",
+            path.display()
+        )
+    });
+    let value: serde_json::Value = serde_json::from_str(&text).unwrap();
+    value["frames"].as_array().unwrap().clone()
+}
+
+fn golden_hex(name: &str) -> String {
+    golden()
+        .into_iter()
+        .find(|f| f["name"] == name)
+        .unwrap_or_else(|| panic!("no golden frame {name:?}"))["hex"]
+        .as_str()
+        .unwrap()
+        .to_string()
+}
+
+#[test]
+fn encode_matches_golden_frames() {
+    let seq_of = |name: &str| -> String {
+        golden().into_iter().find(|f| f["name"] == name).unwrap()["seq"].to_string()
+    };
+    let cases: Vec<(&str, Vec<String>)> = vec![
+        ("NEW", vec!["new".into(), "61513".into()]),
+        ("RUNING", vec!["runing".into()]),
+        ("STOPPED", vec!["stopped".into()]),
+        ("UPLOAD_START", vec!["upload-start".into()]),
+        ("UPLOAD_STOP", vec!["upload-stop".into()]),
+        ("PWM_STOP", vec!["pwm-stop".into()]),
+        ("USART_STOP", vec!["usart-stop".into()]),
+        ("PIN0_ON", vec!["pin0-on".into()]),
+        ("PIN0_OFF", vec!["pin0-off".into()]),
+        ("PIN1_ON", vec!["pin1-on".into()]),
+        ("PIN1_OFF", vec!["pin1-off".into()]),
+        ("TOGGLE_ENABLE_PINS", vec!["toggle-enable".into()]),
+        (
+            "TOGGLE_ENABLE_PINS with mask",
+            vec!["toggle-enable".into(), "--mask".into(), "61".into()],
+        ),
+        ("RETURN", vec!["return".into()]),
+        ("STATUS", vec!["status".into()]),
+        (
+            "PWM_START",
+            [
+                "pwm-start",
+                "--psc",
+                "45001",
+                "--arr",
+                "65009",
+                "--ccr1",
+                "64779",
+                "--pulses",
+                "-18570",
+            ]
+            .map(String::from)
+            .to_vec(),
+        ),
+        (
+            "USART_START",
+            ["usart-start", "--baud", "19200", "--mode", "tx"]
+                .map(String::from)
+                .to_vec(),
+        ),
+        ("USART_SEND", vec!["usart-send".into(), "c9bf".into()]),
+        ("JOINTS_COUNT", vec!["joints-count".into(), "5".into()]),
+        (
+            "UPLOAD_PERIOD",
+            vec!["upload-period".into(), "940520".into()],
+        ),
+    ];
+    for (name, args) in cases {
+        let seq = seq_of(name);
+        let mut argv = vec!["frame", "encode", "--seq", seq.as_str()];
+        argv.extend(args.iter().map(String::as_str));
+        assert_eq!(encode(&argv), golden_hex(name), "{name}");
+    }
+}
+
+#[test]
+fn encode_location_setting_matches_golden() {
+    let frame = golden()
+        .into_iter()
+        .find(|f| f["name"] == "LOCATION_SETTING")
+        .unwrap();
+    let positions: Vec<String> = frame["fields"]["position"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| p.to_string())
+        .collect();
+    let seq = frame["seq"].to_string();
+    let mut argv = vec!["frame", "encode", "--seq", seq.as_str(), "location-setting"];
+    argv.extend(positions.iter().map(String::as_str));
+    assert_eq!(encode(&argv), frame["hex"].as_str().unwrap());
+}
+
+#[test]
+fn encode_pending_fills_hints_from_motion() {
+    let hex = encode(&[
+        "frame",
+        "encode",
+        "pending",
+        "--from",
+        "0,0",
+        "--point",
+        "10000:100,-50",
+        "--point",
+        "5000000:101,-50",
+    ]);
+    let bytes = cli::parse_hex(&hex).unwrap();
+    let frame = protocol::Command::decode(&bytes).unwrap();
+    let protocol::Command::Pending(points) = frame.body else {
+        panic!("not PENDING")
+    };
+    let points: Vec<_> = points.iter().collect();
+    assert_eq!(points.len(), 2);
+    assert_eq!(points[0].duration, 10_000);
+    assert_eq!(&points[0].position[..2], &[100, -50]);
+    assert_eq!(&points[0].number_of_period[..2], &[100, 50]);
+    assert_eq!(&points[0].period[..2], &[100, 200]);
+    // 5 s for one step: the period needs more than 16 bits and is split.
+    assert_eq!(points[1].number_of_period[0], 1);
+    assert_eq!(points[1].period[0], 5_000_000);
+    assert_eq!(points[1].number_of_full_period[0], (5_000_000 >> 16) as i16);
+    assert_eq!(points[1].rest_period[0], (5_000_000 & 0xFFFF) as u16 as i16);
+    assert_eq!(points[1].number_of_period[1], 0);
+}
+
+#[test]
+fn encode_refuses_empty_serial_and_bad_points() {
+    let Cmd::Frame(FrameCmd::Encode { seq, command }) =
+        parse(&["frame", "encode", "usart-send", ""]).command
+    else {
+        panic!()
+    };
+    assert!(cli::encode_frame(seq, &command).is_err());
+    let Cmd::Frame(FrameCmd::Encode { seq, command }) =
+        parse(&["frame", "encode", "pending", "--point", "100"]).command
+    else {
+        panic!()
+    };
+    assert!(
+        cli::encode_frame(seq, &command)
+            .unwrap_err()
+            .contains("DURATION_US")
+    );
+}
+
+#[test]
+fn decode_every_golden_frame() {
+    for frame in golden() {
+        let name = frame["name"].as_str().unwrap();
+        let bytes = cli::parse_hex(frame["hex"].as_str().unwrap()).unwrap();
+        let expect_error = !frame["expect_status"].is_null() || name == "two bytes: no reply";
+        if expect_error {
+            // As a command (a USART_RECV from a host is a fine report, a bad command).
+            let message = cli::decode_frame(&bytes, Some(Direction::Command)).expect_err(name);
+            assert!(!message.is_empty(), "{name}");
+            continue;
+        }
+        let result = cli::decode_frame(&bytes, None);
+        let json: serde_json::Value =
+            serde_json::from_str(&result.unwrap_or_else(|e| panic!("{name}: {e}"))).unwrap();
+        assert_eq!(json["seq"], frame["seq"], "{name}");
+        let direction = if frame["direction"] == "to_host" {
+            "report"
+        } else {
+            "command"
+        };
+        // A LOCATION report decodes as LOCATION_SETTING too (same tag and length):
+        // auto-detection prefers the command; --as report gives the report.
+        if name == "LOCATION report" {
+            let json: serde_json::Value =
+                serde_json::from_str(&cli::decode_frame(&bytes, Some(Direction::Report)).unwrap())
+                    .unwrap();
+            assert_eq!(json["direction"], "report");
+            assert_eq!(json["tag"], "LOCATION");
+            assert_eq!(
+                json["report"]["Location"]["position"],
+                frame["fields"]["position"]
+            );
+            continue;
+        }
+        assert_eq!(json["direction"], direction, "{name}");
+    }
+}
+
+#[test]
+fn decode_shows_fields() {
+    let json: serde_json::Value = serde_json::from_str(
+        &cli::decode_frame(&cli::parse_hex(&golden_hex("NEW")).unwrap(), None).unwrap(),
+    )
+    .unwrap();
+    assert_eq!(json["tag"], "NEW");
+    assert_eq!(json["command"]["New"]["count"], 61513);
+    let json: serde_json::Value = serde_json::from_str(
+        &cli::decode_frame(&cli::parse_hex(&golden_hex("ACK")).unwrap(), None).unwrap(),
+    )
+    .unwrap();
+    assert_eq!(json["direction"], "report");
+    assert_eq!(json["report"]["Ack"]["status"], "NotOwner");
+    assert_eq!(json["report"]["Ack"]["free"], 1868);
+}
+
+#[test]
+fn decode_errors_are_the_decode_error_message() {
+    let bad_crc =
+        cli::decode_frame(&cli::parse_hex(&golden_hex("bad CRC")).unwrap(), None).unwrap_err();
+    assert!(bad_crc.contains("CRC mismatch"), "{bad_crc}");
+    let short = cli::decode_frame(&[1, 2], None).unwrap_err();
+    assert!(short.contains("too short"), "{short}");
+    let joints = cli::decode_frame(
+        &cli::parse_hex(&golden_hex("JOINTS_COUNT 9")).unwrap(),
+        None,
+    )
+    .unwrap_err();
+    assert!(joints.contains("joint count must be 1..8"), "{joints}");
+    // Forced direction: a command frame is not a report.
+    let wrong = cli::decode_frame(
+        &cli::parse_hex(&golden_hex("NEW")).unwrap(),
+        Some(Direction::Report),
+    )
+    .unwrap_err();
+    assert!(wrong.contains("other way"), "{wrong}");
+}
