@@ -1,0 +1,5 @@
+//! `sim-host demo`.
+
+/// Options of the demo.
+#[derive(Clone, Debug, clap::Args)]
+pub struct DemoOptions {}

@@ -1,0 +1,443 @@
+//! The small simulated devices: user pins and ENABLE lines, the gripper timer, the absolute
+//! encoders, and the settings file.
+
+use std::io;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, AtomicU8, AtomicU16, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+
+use arm_core::hw::{Encoders, Gripper, Outputs, PersistentSettings, SettingsStore};
+use arm_step::MAX_JOINTS;
+use protocol::Pwm;
+
+use crate::clock::SimClock;
+use crate::steppers::MotorState;
+use crate::vcd::{Signal, Tracer, Value};
+
+/// Input clock of the simulated gripper timer: the board's TIM1 kernel clock (200 MHz), so
+/// that a host computes the same PSC/ARR for the simulator as for the board.
+pub const PWM_TIMER_CLOCK_HZ: u32 = 200_000_000;
+
+/// Levels of PIN0/PIN1 and the ENABLE lines, for whoever looks (tests, the demo).
+#[derive(Debug, Default)]
+pub struct OutputLevels {
+    /// Bit p = user pin p high.
+    pub user_pins: AtomicU8,
+    /// Bit j = joint j enabled, bit 8 = gripper.
+    pub enabled: AtomicU16,
+}
+
+/// [`Outputs`]: the two user pins and the drivers' ENABLE lines.
+#[derive(Clone, Debug)]
+pub struct SimOutputs {
+    levels: Arc<OutputLevels>,
+    tracer: Tracer,
+}
+
+impl SimOutputs {
+    /// Outputs recording into `levels` and the trace.
+    pub fn new(levels: Arc<OutputLevels>, tracer: Tracer) -> SimOutputs {
+        SimOutputs { levels, tracer }
+    }
+}
+
+impl Outputs for SimOutputs {
+    fn set_user_pin(&mut self, pin: u8, high: bool) {
+        let bit = 1u8 << (pin & 1);
+        let before = if high {
+            self.levels.user_pins.fetch_or(bit, Ordering::Relaxed)
+        } else {
+            self.levels.user_pins.fetch_and(!bit, Ordering::Relaxed)
+        };
+        if (before & bit != 0) != high {
+            log::info!("PIN{} {}", pin & 1, if high { "high" } else { "low" });
+        }
+        let signal = if pin & 1 == 0 {
+            Signal::Pin0
+        } else {
+            Signal::Pin1
+        };
+        self.tracer.record(signal, Value::Bit(high));
+    }
+
+    fn set_enabled(&mut self, enabled: u16) {
+        let before = self.levels.enabled.swap(enabled, Ordering::Relaxed);
+        if before != enabled {
+            log::info!("ENABLE lines {enabled:#011b} (bit 8 gripper, bits 0-7 joints)");
+        }
+        for j in 0..MAX_JOINTS {
+            self.tracer
+                .record(Signal::Enable(j as u8), Value::Bit(enabled & (1 << j) != 0));
+        }
+        self.tracer
+            .record(Signal::GripperEnable, Value::Bit(enabled & (1 << 8) != 0));
+    }
+}
+
+/// What the gripper timer is doing.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct GripperStatus {
+    /// Registers of the last start, if running.
+    pub pwm: Option<Pwm>,
+    /// End of a counted burst, simulated ns.
+    pub burst_end_ns: Option<u64>,
+    /// Bursts and servo starts so far.
+    pub starts: u64,
+    /// Stepper-mode pulses emitted by finished or stopped bursts so far (signed).
+    pub pulses_done: i64,
+}
+
+/// [`Gripper`]: a timer output simulated from its registers. Servo mode runs until
+/// stopped; stepper mode ends by itself after `|pulse_count|` periods of simulated time.
+#[derive(Clone, Debug)]
+pub struct SimGripper {
+    status: Arc<Mutex<GripperStatus>>,
+    generation: Arc<AtomicU64>,
+    clock: SimClock,
+    tracer: Tracer,
+}
+
+impl SimGripper {
+    /// A stopped gripper.
+    pub fn new(clock: SimClock, tracer: Tracer) -> SimGripper {
+        SimGripper {
+            status: Arc::new(Mutex::new(GripperStatus::default())),
+            generation: Arc::new(AtomicU64::new(0)),
+            clock,
+            tracer,
+        }
+    }
+
+    /// What the timer is doing now.
+    pub fn status(&self) -> GripperStatus {
+        self.status.lock().map(|s| *s).unwrap_or_default()
+    }
+
+    fn trace_off_at(&self, t_ns: u64, generation: Option<u64>) {
+        let guard = generation.map(|g| (self.generation.clone(), g));
+        self.tracer.record_guarded(
+            t_ns,
+            Signal::GripperActive,
+            Value::Bit(false),
+            guard.clone(),
+        );
+        self.tracer.record_guarded(
+            t_ns,
+            Signal::GripperFrequency,
+            Value::Real(0.0),
+            guard.clone(),
+        );
+        self.tracer
+            .record_guarded(t_ns, Signal::GripperDuty, Value::Real(0.0), guard);
+    }
+
+    /// Ends a burst whose time is over (bookkeeping only; the trace has the end already).
+    fn settle(status: &mut GripperStatus, now_ns: u64) {
+        if let (Some(end), Some(pwm)) = (status.burst_end_ns, status.pwm)
+            && now_ns >= end
+        {
+            status.pulses_done += i64::from(pwm.pulse_count);
+            status.pwm = None;
+            status.burst_end_ns = None;
+        }
+    }
+}
+
+impl Gripper for SimGripper {
+    fn timer_clock_hz(&self) -> u32 {
+        PWM_TIMER_CLOCK_HZ
+    }
+
+    fn start(&mut self, pwm: &Pwm) {
+        let now = self.clock.now_ns();
+        let generation = self.generation.fetch_add(1, Ordering::Relaxed) + 1;
+        let Ok(mut status) = self.status.lock() else {
+            return;
+        };
+        Self::settle(&mut status, now);
+        let period_ns = pwm.period_ticks() as f64 * 1e9 / f64::from(PWM_TIMER_CLOCK_HZ);
+        let frequency = pwm.frequency_hz(PWM_TIMER_CLOCK_HZ);
+        status.pwm = Some(*pwm);
+        status.starts += 1;
+        status.burst_end_ns = (pwm.pulse_count != 0)
+            .then(|| now + (period_ns * f64::from(pwm.pulse_count.unsigned_abs())) as u64);
+        self.tracer
+            .record_at(now, Signal::GripperActive, Value::Bit(true));
+        self.tracer
+            .record_at(now, Signal::GripperFrequency, Value::Real(frequency));
+        self.tracer
+            .record_at(now, Signal::GripperDuty, Value::Real(pwm.duty()));
+        self.tracer.record_at(
+            now,
+            Signal::GripperPulses,
+            Value::Int(pwm.pulse_count.unsigned_abs()),
+        );
+        if pwm.pulse_count != 0 {
+            self.tracer
+                .record_at(now, Signal::GripperDir, Value::Bit(pwm.pulse_count > 0));
+        }
+        match status.burst_end_ns {
+            Some(end) => {
+                log::info!(
+                    "gripper: stepper burst of {} pulses at {frequency:.1} Hz, ends in {:.1} ms",
+                    pwm.pulse_count,
+                    (end - now) as f64 / 1e6
+                );
+                self.trace_off_at(end, Some(generation));
+            }
+            None => log::info!(
+                "gripper: servo PWM {frequency:.1} Hz, duty {:.1}%",
+                pwm.duty() * 100.0
+            ),
+        }
+    }
+
+    fn stop(&mut self) {
+        let now = self.clock.now_ns();
+        self.generation.fetch_add(1, Ordering::Relaxed);
+        let Ok(mut status) = self.status.lock() else {
+            return;
+        };
+        Self::settle(&mut status, now);
+        if let Some(pwm) = status.pwm.take() {
+            if let Some(end) = status.burst_end_ns.take() {
+                // Stopped mid-burst: count the whole periods that ran.
+                let period_ns = pwm.period_ticks() as f64 * 1e9 / f64::from(PWM_TIMER_CLOCK_HZ);
+                let total_ns = period_ns * f64::from(pwm.pulse_count.unsigned_abs());
+                let left_ns = (end - now) as f64;
+                let done = ((total_ns - left_ns) / period_ns).floor() as i64;
+                status.pulses_done += done * i64::from(pwm.pulse_count.signum());
+            }
+            log::info!("gripper: stopped");
+        }
+        self.trace_off_at(now, None);
+    }
+
+    fn is_active(&self) -> bool {
+        let now = self.clock.now_ns();
+        self.status
+            .lock()
+            .map(|mut status| {
+                Self::settle(&mut status, now);
+                status.pwm.is_some()
+            })
+            .unwrap_or(false)
+    }
+}
+
+/// [`Encoders`]: absolute encoders on every joint reading the simulated motors' physical
+/// position plus a per-joint offset (`--encoder-offset J:STEPS`: where the joint really
+/// was at boot while the step count says 0, as after steps lost with power off).
+#[derive(Clone, Debug)]
+pub struct SimEncoders {
+    motors: Arc<MotorState>,
+    offsets: [i64; MAX_JOINTS],
+    present: bool,
+}
+
+impl SimEncoders {
+    /// Encoders on `motors`; `present = false` simulates a board without them.
+    pub fn new(motors: Arc<MotorState>, offsets: [i64; MAX_JOINTS], present: bool) -> Self {
+        SimEncoders {
+            motors,
+            offsets,
+            present,
+        }
+    }
+
+    /// What the encoders read now.
+    pub fn positions(&self) -> [i64; MAX_JOINTS] {
+        let motors = self.motors.positions();
+        core::array::from_fn(|j| motors[j] + self.offsets[j])
+    }
+}
+
+impl Encoders for SimEncoders {
+    async fn read(&mut self) -> Option<[i32; protocol::MAX_JOINTS]> {
+        if !self.present {
+            return None;
+        }
+        let positions = self.positions();
+        Some(core::array::from_fn(|j| {
+            positions[j].clamp(i64::from(i32::MIN), i64::from(i32::MAX)) as i32
+        }))
+    }
+}
+
+/// [`SettingsStore`] in a small text file (`key=value` lines), replaced atomically.
+#[derive(Clone, Debug)]
+pub struct FileSettings {
+    path: PathBuf,
+    saves: Arc<AtomicU64>,
+    loaded: Arc<AtomicBool>,
+}
+
+impl FileSettings {
+    /// Settings kept in `path` (created on the first save).
+    pub fn new(path: PathBuf) -> FileSettings {
+        FileSettings {
+            path,
+            saves: Arc::new(AtomicU64::new(0)),
+            loaded: Arc::new(AtomicBool::new(false)),
+        }
+    }
+
+    /// The file.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// Reads the file; `Ok(None)` if it does not exist.
+    pub fn read(&self) -> io::Result<Option<PersistentSettings>> {
+        let text = match std::fs::read_to_string(&self.path) {
+            Ok(text) => text,
+            Err(e) if e.kind() == io::ErrorKind::NotFound => return Ok(None),
+            Err(e) => return Err(e),
+        };
+        parse_settings(&text)
+            .map(Some)
+            .map_err(|e| io::Error::new(io::ErrorKind::InvalidData, e))
+    }
+
+    /// Writes the file (to a temporary file first, then renamed over it).
+    pub fn write(&self, settings: &PersistentSettings) -> io::Result<()> {
+        if let Some(dir) = self.path.parent()
+            && !dir.as_os_str().is_empty()
+        {
+            std::fs::create_dir_all(dir)?;
+        }
+        let tmp = self.path.with_extension("tmp");
+        std::fs::write(&tmp, format_settings(settings))?;
+        std::fs::rename(&tmp, &self.path)
+    }
+}
+
+/// The file's text for `settings`.
+pub fn format_settings(settings: &PersistentSettings) -> String {
+    let [a, b, c, d] = settings.ip;
+    format!(
+        "# arm controller simulator settings (sim-host)\njoints={}\nip={a}.{b}.{c}.{d}\nprefix_len={}\n",
+        settings.joints, settings.prefix_len
+    )
+}
+
+/// Parses the settings file; unknown keys are ignored, missing ones take their defaults.
+pub fn parse_settings(text: &str) -> Result<PersistentSettings, String> {
+    let mut settings = PersistentSettings::default();
+    for line in text.lines() {
+        let line = line.trim();
+        if line.is_empty() || line.starts_with('#') {
+            continue;
+        }
+        let (key, value) = line
+            .split_once('=')
+            .ok_or_else(|| format!("not key=value: {line}"))?;
+        let value = value.trim();
+        match key.trim() {
+            "joints" => {
+                let joints: u8 = value.parse().map_err(|_| format!("bad joints: {value}"))?;
+                if !protocol::limits::JOINTS.contains(&joints) {
+                    return Err(format!("joints out of range: {joints}"));
+                }
+                settings.joints = joints;
+            }
+            "ip" => {
+                let ip: std::net::Ipv4Addr =
+                    value.parse().map_err(|_| format!("bad ip: {value}"))?;
+                settings.ip = ip.octets();
+            }
+            "prefix_len" => {
+                let prefix: u8 = value
+                    .parse()
+                    .map_err(|_| format!("bad prefix_len: {value}"))?;
+                if prefix > 32 {
+                    return Err(format!("prefix_len out of range: {prefix}"));
+                }
+                settings.prefix_len = prefix;
+            }
+            _ => {}
+        }
+    }
+    Ok(settings)
+}
+
+impl SettingsStore for FileSettings {
+    type Error = io::ErrorKind;
+
+    async fn load(&mut self) -> Result<Option<PersistentSettings>, Self::Error> {
+        let loaded = self.read().map_err(|e| {
+            log::warn!("settings: cannot read {}: {e}", self.path.display());
+            e.kind()
+        })?;
+        self.loaded.store(true, Ordering::Relaxed);
+        match &loaded {
+            Some(s) => log::info!("settings: loaded {s:?} from {}", self.path.display()),
+            None => log::info!(
+                "settings: {} does not exist yet: defaults",
+                self.path.display()
+            ),
+        }
+        Ok(loaded)
+    }
+
+    async fn save(&mut self, settings: &PersistentSettings) -> Result<(), Self::Error> {
+        self.write(settings).map_err(|e| {
+            log::warn!("settings: cannot write {}: {e}", self.path.display());
+            e.kind()
+        })?;
+        self.saves.fetch_add(1, Ordering::Relaxed);
+        log::info!("settings: saved {settings:?} to {}", self.path.display());
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn settings_text_round_trips() {
+        let settings = PersistentSettings {
+            joints: 4,
+            ip: [10, 1, 2, 3],
+            prefix_len: 16,
+        };
+        assert_eq!(parse_settings(&format_settings(&settings)), Ok(settings));
+        assert!(parse_settings("joints=9\n").is_err());
+        assert!(parse_settings("ip=1.2.3\n").is_err());
+        assert_eq!(
+            parse_settings("# only a comment\nfuture_key=1\n"),
+            Ok(PersistentSettings::default())
+        );
+    }
+
+    #[test]
+    fn gripper_burst_ends_by_itself() {
+        let clock = SimClock::new(1000.0, 1_000_000);
+        let mut gripper = SimGripper::new(clock, Tracer::disabled());
+        // 200 MHz / (200 * 1000) = 1 kHz: 10 pulses = 10 ms simulated = 10 us real.
+        let pwm = Pwm {
+            psc: 199,
+            arr: 999,
+            ccr1: 500,
+            pulse_count: -10,
+        };
+        gripper.start(&pwm);
+        assert!(gripper.status().burst_end_ns.is_some());
+        let deadline = std::time::Instant::now() + std::time::Duration::from_secs(2);
+        while gripper.is_active() && std::time::Instant::now() < deadline {
+            std::thread::sleep(std::time::Duration::from_micros(100));
+        }
+        assert!(!gripper.is_active());
+        assert_eq!(gripper.status().pulses_done, -10);
+        // Servo mode runs until stopped.
+        gripper.start(&Pwm {
+            pulse_count: 0,
+            ..pwm
+        });
+        std::thread::sleep(std::time::Duration::from_millis(1));
+        assert!(gripper.is_active());
+        gripper.stop();
+        assert!(!gripper.is_active());
+    }
+}

@@ -1,0 +1,204 @@
+//! The controller's UDP socket on a PC: a std socket (`--bind`), or embassy-net on a TAP
+//! device (`--tap`, see [`crate::tap`]); either behind [`Faulty`], the fault injector.
+
+use std::collections::VecDeque;
+use std::net::{SocketAddr, SocketAddrV4, UdpSocket};
+use std::sync::{Arc, Mutex};
+use std::time::Instant;
+
+use arm_core::hw::{Datagrams, Endpoint};
+use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
+use embassy_sync::channel::Channel;
+use protocol::MAX_DATAGRAM;
+
+use crate::faults::{Direction, FaultConfig, FaultInjector, FaultStats};
+use crate::probe::Probe;
+
+/// Datagrams received and not yet taken by the network task; beyond this the receiving
+/// thread waits and the kernel's socket buffer holds the rest, as a NIC's ring would.
+const RX_QUEUE: usize = 32;
+
+/// A received datagram.
+#[derive(Clone, Debug)]
+pub struct Received {
+    /// Its bytes (at most [`MAX_DATAGRAM`]; longer ones are cut, so their CRC fails).
+    pub bytes: Vec<u8>,
+    /// Sender.
+    pub from: Endpoint,
+}
+
+/// [`Datagrams`] over a std UDP socket. A thread does the blocking receive and hands the
+/// datagrams to the executor through a channel; sends go straight to the socket (a UDP
+/// send to a local address does not block).
+pub struct UdpDatagrams {
+    socket: UdpSocket,
+    received: Channel<CriticalSectionRawMutex, Received, RX_QUEUE>,
+}
+
+impl std::fmt::Debug for UdpDatagrams {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("UdpDatagrams")
+            .field("local", &self.socket.local_addr().ok())
+            .finish()
+    }
+}
+
+impl UdpDatagrams {
+    /// Binds `addr` and starts the receiving thread.
+    pub fn bind(addr: SocketAddrV4, probe: Arc<Probe>) -> std::io::Result<&'static UdpDatagrams> {
+        let socket = UdpSocket::bind(addr)?;
+        let datagrams: &'static UdpDatagrams = Box::leak(Box::new(UdpDatagrams {
+            socket,
+            received: Channel::new(),
+        }));
+        std::thread::Builder::new()
+            .name("udp-rx".into())
+            .spawn(move || datagrams.receive_loop(&probe))?;
+        Ok(datagrams)
+    }
+
+    /// The bound address (the port, when bound to port 0).
+    pub fn local_addr(&self) -> std::io::Result<SocketAddr> {
+        self.socket.local_addr()
+    }
+
+    fn receive_loop(&self, probe: &Probe) {
+        // Bigger than any valid frame, so an oversized datagram is seen (and cut), not lost.
+        let mut buf = vec![0u8; 2048];
+        loop {
+            let (len, from) = match self.socket.recv_from(&mut buf) {
+                Ok(r) => r,
+                Err(e) => {
+                    log::warn!("udp: receive failed: {e}");
+                    std::thread::sleep(std::time::Duration::from_millis(10));
+                    continue;
+                }
+            };
+            let SocketAddr::V4(from) = from else { continue };
+            let bytes = buf[..len.min(MAX_DATAGRAM)].to_vec();
+            probe.datagram_received(&bytes, Instant::now());
+            let received = Received {
+                bytes,
+                from: endpoint_of(from),
+            };
+            embassy_futures::block_on(self.received.send(received));
+        }
+    }
+}
+
+/// The [`Endpoint`] of a std address.
+pub fn endpoint_of(addr: SocketAddrV4) -> Endpoint {
+    Endpoint {
+        ip: addr.ip().octets(),
+        port: addr.port(),
+    }
+}
+
+/// The std address of an [`Endpoint`].
+pub fn socket_addr_of(endpoint: Endpoint) -> SocketAddrV4 {
+    SocketAddrV4::new(endpoint.ip.into(), endpoint.port)
+}
+
+impl Datagrams for UdpDatagrams {
+    type Error = std::io::ErrorKind;
+
+    async fn recv(&self, buf: &mut [u8]) -> Result<(usize, Endpoint), Self::Error> {
+        let received = self.received.receive().await;
+        let n = received.bytes.len().min(buf.len());
+        buf[..n].copy_from_slice(&received.bytes[..n]);
+        Ok((n, received.from))
+    }
+
+    async fn send(&self, to: Endpoint, frame: &[u8]) -> Result<(), Self::Error> {
+        self.socket
+            .send_to(frame, socket_addr_of(to))
+            .map(|_| ())
+            .map_err(|e| e.kind())
+    }
+}
+
+/// A datagram on its way through the fault injector.
+type Travelling = (Vec<u8>, Endpoint);
+
+/// [`Datagrams`] wrapper that loses, duplicates and reorders datagrams in both directions
+/// (`--loss`, `--dup`, `--reorder`, `--seed`). With no fault configured it only forwards.
+pub struct Faulty<D> {
+    inner: D,
+    faults: Mutex<FaultInjector<Travelling>>,
+    /// Received datagrams already through the faults, waiting for `recv`.
+    ready: Mutex<VecDeque<Travelling>>,
+    enabled: bool,
+}
+
+impl<D> std::fmt::Debug for Faulty<D> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Faulty")
+            .field("enabled", &self.enabled)
+            .finish()
+    }
+}
+
+impl<D> Faulty<D> {
+    /// `inner` with `config`'s faults.
+    pub fn new(inner: D, config: FaultConfig) -> Self {
+        Faulty {
+            inner,
+            faults: Mutex::new(FaultInjector::new(config)),
+            ready: Mutex::new(VecDeque::new()),
+            enabled: config.is_active(),
+        }
+    }
+
+    /// What the faults did so far.
+    pub fn stats(&self) -> FaultStats {
+        self.faults.lock().map(|f| f.stats()).unwrap_or_default()
+    }
+}
+
+fn stream_tag(bytes: &[u8]) -> u8 {
+    bytes.get(1).copied().unwrap_or(0xFF)
+}
+
+impl<D: Datagrams> Datagrams for Faulty<D> {
+    type Error = D::Error;
+
+    async fn recv(&self, buf: &mut [u8]) -> Result<(usize, Endpoint), Self::Error> {
+        if !self.enabled {
+            return self.inner.recv(buf).await;
+        }
+        loop {
+            if let Some((bytes, from)) = self.ready.lock().ok().and_then(|mut r| r.pop_front()) {
+                let n = bytes.len().min(buf.len());
+                buf[..n].copy_from_slice(&bytes[..n]);
+                return Ok((n, from));
+            }
+            let (n, from) = self.inner.recv(buf).await?;
+            let bytes = buf[..n].to_vec();
+            let tag = stream_tag(&bytes);
+            if let (Ok(mut faults), Ok(mut ready)) = (self.faults.lock(), self.ready.lock()) {
+                let fate = faults.apply(Direction::Received, tag, (bytes, from), |d| {
+                    ready.push_back(d)
+                });
+                log::trace!("faults: received tag {tag:#04x}: {fate:?}");
+            }
+        }
+    }
+
+    async fn send(&self, to: Endpoint, frame: &[u8]) -> Result<(), Self::Error> {
+        if !self.enabled {
+            return self.inner.send(to, frame).await;
+        }
+        let mut outgoing = Vec::new();
+        if let Ok(mut faults) = self.faults.lock() {
+            let tag = stream_tag(frame);
+            let fate = faults.apply(Direction::Sent, tag, (frame.to_vec(), to), |d| {
+                outgoing.push(d)
+            });
+            log::trace!("faults: sent tag {tag:#04x}: {fate:?}");
+        }
+        for (bytes, to) in outgoing {
+            self.inner.send(to, &bytes).await?;
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,224 @@
+//! Command-line options of the simulated controller.
+
+use std::net::SocketAddrV4;
+use std::path::PathBuf;
+
+use clap::{Args, Parser, Subcommand};
+
+use crate::faults::FaultConfig;
+use crate::serial::SerialKind;
+
+/// The arm controller on a PC: the firmware's own tasks with simulated hardware.
+#[derive(Debug, Parser)]
+#[command(name = "sim-host", version, about, long_about = None)]
+pub struct Cli {
+    /// The simulated controller.
+    #[command(flatten)]
+    pub sim: SimOptions,
+    /// What to do (default: run the controller until Ctrl-C).
+    #[command(subcommand)]
+    pub command: Option<Command>,
+}
+
+/// Subcommands.
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Run a 6-joint pick-and-place against an in-process simulated controller, over UDP,
+    /// and write a plot of commanded versus executed joint positions.
+    Demo(crate::demo::DemoOptions),
+    /// Measure upload throughput, e-stop latency and CPU use of the simulated controller.
+    Bench(crate::bench::BenchOptions),
+}
+
+/// Everything that configures the simulated controller.
+#[derive(Clone, Debug, Args)]
+pub struct SimOptions {
+    /// UDP address the controller listens on.
+    #[arg(long, default_value = "127.0.0.1:8510")]
+    pub bind: SocketAddrV4,
+
+    /// Joint count at boot, overriding the persisted JOINTS_COUNT (1..8; not saved).
+    #[arg(long, value_parser = clap::value_parser!(u8).range(1..=8))]
+    pub joints: Option<u8>,
+
+    /// Trajectory buffer size in points (at most the firmware's compile-time storage).
+    #[arg(long)]
+    pub buffer_capacity: Option<usize>,
+
+    /// Step timer frequency, ticks per simulated second.
+    #[arg(long, default_value_t = 1_000_000, value_parser = clap::value_parser!(u32).range(1_000..=1_000_000_000))]
+    pub tick_hz: u32,
+
+    /// Simulated seconds per real second (10 = ten times faster than real time).
+    #[arg(long, default_value_t = 1.0, value_parser = parse_time_scale)]
+    pub time_scale: f64,
+
+    /// Log level: error, warn, info, debug, trace (or an env_logger filter such as
+    /// `info,sim_host=debug`). RUST_LOG overrides it.
+    #[arg(long, default_value = "info")]
+    pub log_level: String,
+
+    /// Write STEP/DIR/ENABLE of every joint, the gripper and PIN0/PIN1 to this VCD file.
+    #[arg(long, value_name = "FILE.vcd")]
+    pub trace: Option<PathBuf>,
+
+    /// The serial pass-through port.
+    #[arg(long, value_enum, default_value_t = SerialKind::Loopback)]
+    pub serial: SerialKind,
+
+    /// Where joint J's absolute encoder really is at boot, in steps, while the step count
+    /// starts at 0 (repeatable): RETURN then moves it home by the encoder.
+    #[arg(long = "encoder-offset", value_name = "J:STEPS", value_parser = parse_encoder_offset)]
+    pub encoder_offsets: Vec<(usize, i64)>,
+
+    /// Simulate a board without absolute encoders (RETURN trusts the step count).
+    #[arg(long)]
+    pub no_encoders: bool,
+
+    /// Settings file (JOINTS_COUNT, address). Default: sim-host/settings-PORT.txt in the
+    /// user's state directory.
+    #[arg(long, value_name = "FILE")]
+    pub settings: Option<PathBuf>,
+
+    /// Probability that a datagram is lost (each direction).
+    #[arg(long, default_value_t = 0.0, value_parser = parse_probability)]
+    pub loss: f64,
+
+    /// Probability that a datagram is duplicated (each direction).
+    #[arg(long, default_value_t = 0.0, value_parser = parse_probability)]
+    pub dup: f64,
+
+    /// Probability that a datagram is held back and delivered after the next one.
+    #[arg(long, default_value_t = 0.0, value_parser = parse_probability)]
+    pub reorder: f64,
+
+    /// Seed of the fault injection (same seed, same faults).
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+
+    /// Run the network task on embassy-net over this TAP device instead of a host socket.
+    #[arg(long, value_name = "IFACE")]
+    pub tap: Option<String>,
+
+    /// With --tap: static address and prefix (`192.168.7.2/24`) or `dhcp`. Default: the
+    /// persisted address.
+    #[arg(long, value_name = "ADDR/PREFIX|dhcp")]
+    pub ip: Option<String>,
+
+    /// Give the step thread real-time priority (SCHED_FIFO; needs privileges).
+    #[arg(long)]
+    pub realtime: bool,
+}
+
+impl SimOptions {
+    /// The fault configuration.
+    pub fn faults(&self) -> FaultConfig {
+        FaultConfig {
+            loss: self.loss,
+            dup: self.dup,
+            reorder: self.reorder,
+            seed: self.seed,
+        }
+    }
+
+    /// Default options, as with no argument.
+    pub fn defaults() -> SimOptions {
+        Cli::parse_from(["sim-host"]).sim
+    }
+
+    /// The settings file to use.
+    pub fn settings_path(&self) -> PathBuf {
+        if let Some(path) = &self.settings {
+            return path.clone();
+        }
+        let state = std::env::var_os("XDG_STATE_HOME")
+            .map(PathBuf::from)
+            .or_else(|| std::env::var_os("HOME").map(|h| PathBuf::from(h).join(".local/state")))
+            .unwrap_or_else(std::env::temp_dir);
+        state
+            .join("sim-host")
+            .join(format!("settings-{}.txt", self.bind.port()))
+    }
+
+    /// Encoder offsets per joint.
+    pub fn encoder_offset_array(&self) -> [i64; arm_step::MAX_JOINTS] {
+        let mut offsets = [0; arm_step::MAX_JOINTS];
+        for &(j, steps) in &self.encoder_offsets {
+            if let Some(o) = offsets.get_mut(j) {
+                *o = steps;
+            }
+        }
+        offsets
+    }
+}
+
+fn parse_probability(s: &str) -> Result<f64, String> {
+    let p: f64 = s.parse().map_err(|_| format!("not a number: {s}"))?;
+    if (0.0..=1.0).contains(&p) {
+        Ok(p)
+    } else {
+        Err(format!("{p} is not a probability in 0..1"))
+    }
+}
+
+fn parse_time_scale(s: &str) -> Result<f64, String> {
+    let scale: f64 = s.parse().map_err(|_| format!("not a number: {s}"))?;
+    if (0.01..=1000.0).contains(&scale) {
+        Ok(scale)
+    } else {
+        Err(format!("time scale {scale} is outside 0.01..1000"))
+    }
+}
+
+fn parse_encoder_offset(s: &str) -> Result<(usize, i64), String> {
+    let (joint, steps) = s
+        .split_once(':')
+        .ok_or_else(|| format!("expected J:STEPS, got {s}"))?;
+    let joint: usize = joint.parse().map_err(|_| format!("bad joint: {joint}"))?;
+    if joint >= arm_step::MAX_JOINTS {
+        return Err(format!(
+            "joint {joint} is not 0..{}",
+            arm_step::MAX_JOINTS - 1
+        ));
+    }
+    let steps: i64 = steps.parse().map_err(|_| format!("bad steps: {steps}"))?;
+    if i32::try_from(steps).is_err() {
+        return Err(format!("{steps} steps do not fit a position"));
+    }
+    Ok((joint, steps))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::CommandFactory;
+
+    #[test]
+    fn cli_is_consistent() {
+        Cli::command().debug_assert();
+    }
+
+    #[test]
+    fn options_parse() {
+        let cli = Cli::parse_from([
+            "sim-host",
+            "--bind",
+            "127.0.0.1:0",
+            "--encoder-offset",
+            "2:-300",
+            "--encoder-offset",
+            "0:5",
+            "--loss",
+            "0.1",
+            "--time-scale",
+            "10",
+        ]);
+        assert_eq!(cli.sim.encoder_offset_array()[2], -300);
+        assert_eq!(cli.sim.encoder_offset_array()[0], 5);
+        assert_eq!(cli.sim.faults().loss, 0.1);
+        assert_eq!(cli.sim.time_scale, 10.0);
+        assert!(Cli::try_parse_from(["sim-host", "--loss", "2"]).is_err());
+        assert!(Cli::try_parse_from(["sim-host", "--encoder-offset", "8:1"]).is_err());
+        assert!(Cli::try_parse_from(["sim-host", "--joints", "9"]).is_err());
+    }
+}

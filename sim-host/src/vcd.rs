@@ -1,0 +1,552 @@
+//! `--trace FILE.vcd`: every output line of the simulated board as a Value Change Dump that
+//! GTKWave and PulseView open.
+//!
+//! Changes come from two places: the step "interrupt" thread (STEP and DIR, stamped with
+//! the exact tick the step engine ran at) and the tasks (ENABLE, PIN0/PIN1, gripper). A
+//! writer thread takes them through a channel, keeps them in a heap for a short reorder
+//! window (VCD needs non-decreasing times) and writes them buffered. [`Tracer::finish`]
+//! flushes everything: it runs at exit and on SIGINT/SIGTERM.
+
+use std::cmp::Reverse;
+use std::collections::BinaryHeap;
+use std::fs::File;
+use std::io::{self, BufWriter, Write};
+use std::path::Path;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, mpsc};
+use std::thread::JoinHandle;
+use std::time::Duration;
+
+use crate::clock::SimClock;
+
+/// Joints traced: all the step engine can drive, whatever JOINTS_COUNT says.
+pub const TRACED_JOINTS: usize = arm_step::MAX_JOINTS;
+
+/// Real time an event may arrive late and still be written in order.
+const REORDER_WINDOW: Duration = Duration::from_millis(200);
+
+/// One traced line or value.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub enum Signal {
+    /// STEP of joint j.
+    Step(u8),
+    /// DIR of joint j (1 = positive).
+    Dir(u8),
+    /// ENABLE of joint j (1 = holding).
+    Enable(u8),
+    /// ENABLE of the gripper driver.
+    GripperEnable,
+    /// Gripper timer output running.
+    GripperActive,
+    /// Gripper stepper direction (1 = positive pulse count).
+    GripperDir,
+    /// Gripper PWM frequency, Hz.
+    GripperFrequency,
+    /// Gripper PWM duty, 0..1.
+    GripperDuty,
+    /// Gripper stepper-mode pulses of the current burst (0 = servo mode).
+    GripperPulses,
+    /// User pin 0.
+    Pin0,
+    /// User pin 1.
+    Pin1,
+}
+
+/// A traced value.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Value {
+    /// A wire.
+    Bit(bool),
+    /// A real number.
+    Real(f64),
+    /// A 32-bit integer.
+    Int(u32),
+}
+
+/// A change that is written only if `guard.0` still holds `guard.1` when its time comes.
+pub type Guard = Option<(Arc<AtomicU64>, u64)>;
+
+#[derive(Clone, Debug)]
+struct Change {
+    t_ns: u64,
+    order: u64,
+    signal: Signal,
+    value: Value,
+    guard: Guard,
+}
+
+impl PartialEq for Change {
+    fn eq(&self, other: &Self) -> bool {
+        (self.t_ns, self.order) == (other.t_ns, other.order)
+    }
+}
+impl Eq for Change {}
+impl PartialOrd for Change {
+    fn partial_cmp(&self, other: &Self) -> Option<std::cmp::Ordering> {
+        Some(self.cmp(other))
+    }
+}
+impl Ord for Change {
+    fn cmp(&self, other: &Self) -> std::cmp::Ordering {
+        (self.t_ns, self.order).cmp(&(other.t_ns, other.order))
+    }
+}
+
+enum Message {
+    Change(Change),
+    Finish(mpsc::Sender<()>),
+}
+
+/// Handle to the trace writer; cheap to clone, usable from any thread. A disabled tracer
+/// (no `--trace`) does nothing.
+#[derive(Clone)]
+pub struct Tracer {
+    inner: Option<Arc<TracerInner>>,
+}
+
+struct TracerInner {
+    sender: Mutex<mpsc::Sender<Message>>,
+    order: AtomicU64,
+    clock: SimClock,
+    writer: Mutex<Option<JoinHandle<()>>>,
+}
+
+impl std::fmt::Debug for Tracer {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Tracer")
+            .field("enabled", &self.inner.is_some())
+            .finish()
+    }
+}
+
+impl Tracer {
+    /// A tracer that records nothing.
+    pub fn disabled() -> Tracer {
+        Tracer { inner: None }
+    }
+
+    /// Creates `path` and starts the writer thread.
+    pub fn create(path: &Path, clock: SimClock) -> io::Result<Tracer> {
+        let file = BufWriter::with_capacity(1 << 20, File::create(path)?);
+        let (sender, receiver) = mpsc::channel();
+        let window_ns = (REORDER_WINDOW.as_nanos() as f64 * clock.time_scale()) as u64;
+        let mut writer = VcdWriter::new(file)?;
+        let thread = std::thread::Builder::new()
+            .name("vcd-writer".into())
+            .spawn(move || writer.run(receiver, clock, window_ns))?;
+        Ok(Tracer {
+            inner: Some(Arc::new(TracerInner {
+                sender: Mutex::new(sender),
+                order: AtomicU64::new(0),
+                clock,
+                writer: Mutex::new(Some(thread)),
+            })),
+        })
+    }
+
+    /// Whether changes are recorded.
+    pub fn is_enabled(&self) -> bool {
+        self.inner.is_some()
+    }
+
+    /// Records `signal` taking `value` at simulated nanosecond `t_ns`.
+    pub fn record_at(&self, t_ns: u64, signal: Signal, value: Value) {
+        self.record_guarded(t_ns, signal, value, None);
+    }
+
+    /// Records a change that may lie in the future (the end of a gripper burst): it is
+    /// written only if `guard`'s counter still holds its value by then.
+    pub fn record_guarded(&self, t_ns: u64, signal: Signal, value: Value, guard: Guard) {
+        if let Some(inner) = &self.inner {
+            let order = inner.order.fetch_add(1, Ordering::Relaxed);
+            let change = Change {
+                t_ns,
+                order,
+                signal,
+                value,
+                guard,
+            };
+            if let Ok(sender) = inner.sender.lock() {
+                let _ = sender.send(Message::Change(change));
+            }
+        }
+    }
+
+    /// Records `signal` taking `value` now.
+    pub fn record(&self, signal: Signal, value: Value) {
+        if let Some(inner) = &self.inner {
+            self.record_at(inner.clock.now_ns(), signal, value);
+        }
+    }
+
+    /// Writes out everything recorded and closes the file. Later changes are dropped.
+    pub fn finish(&self) {
+        let Some(inner) = &self.inner else { return };
+        let (done, wait) = mpsc::channel();
+        if let Ok(sender) = inner.sender.lock() {
+            let _ = sender.send(Message::Finish(done));
+        }
+        let _ = wait.recv_timeout(Duration::from_secs(5));
+        if let Some(thread) = inner.writer.lock().ok().and_then(|mut w| w.take()) {
+            let _ = thread.join();
+        }
+    }
+}
+
+/// VCD identifier codes: printable ASCII from '!'.
+fn identifier(signal: Signal) -> String {
+    let index = match signal {
+        Signal::Step(j) => j as usize,
+        Signal::Dir(j) => TRACED_JOINTS + j as usize,
+        Signal::Enable(j) => 2 * TRACED_JOINTS + j as usize,
+        Signal::GripperEnable => 3 * TRACED_JOINTS,
+        Signal::GripperActive => 3 * TRACED_JOINTS + 1,
+        Signal::GripperDir => 3 * TRACED_JOINTS + 2,
+        Signal::GripperFrequency => 3 * TRACED_JOINTS + 3,
+        Signal::GripperDuty => 3 * TRACED_JOINTS + 4,
+        Signal::GripperPulses => 3 * TRACED_JOINTS + 5,
+        Signal::Pin0 => 3 * TRACED_JOINTS + 6,
+        Signal::Pin1 => 3 * TRACED_JOINTS + 7,
+    };
+    // 94 printable characters: two-character codes are never needed for < 94 signals.
+    char::from(b'!' + index as u8).to_string()
+}
+
+/// Every traced signal with its VCD declaration and initial value.
+fn declarations() -> Vec<(Signal, &'static str, String, Value)> {
+    let mut all = Vec::new();
+    for j in 0..TRACED_JOINTS as u8 {
+        all.push((
+            Signal::Step(j),
+            "wire 1",
+            format!("step{j}"),
+            Value::Bit(false),
+        ));
+        all.push((
+            Signal::Dir(j),
+            "wire 1",
+            format!("dir{j}"),
+            Value::Bit(false),
+        ));
+        all.push((
+            Signal::Enable(j),
+            "wire 1",
+            format!("enable{j}"),
+            Value::Bit(false),
+        ));
+    }
+    let gripper = [
+        (
+            Signal::GripperEnable,
+            "wire 1",
+            "gripper_enable",
+            Value::Bit(false),
+        ),
+        (
+            Signal::GripperActive,
+            "wire 1",
+            "gripper_pwm_active",
+            Value::Bit(false),
+        ),
+        (
+            Signal::GripperDir,
+            "wire 1",
+            "gripper_dir",
+            Value::Bit(false),
+        ),
+        (
+            Signal::GripperFrequency,
+            "real 1",
+            "gripper_freq_hz",
+            Value::Real(0.0),
+        ),
+        (
+            Signal::GripperDuty,
+            "real 1",
+            "gripper_duty",
+            Value::Real(0.0),
+        ),
+        (
+            Signal::GripperPulses,
+            "integer 32",
+            "gripper_pulses",
+            Value::Int(0),
+        ),
+        (Signal::Pin0, "wire 1", "pin0", Value::Bit(false)),
+        (Signal::Pin1, "wire 1", "pin1", Value::Bit(false)),
+    ];
+    for (signal, kind, name, value) in gripper {
+        all.push((signal, kind, name.to_string(), value));
+    }
+    all
+}
+
+struct VcdWriter<W: Write> {
+    out: W,
+    current: std::collections::HashMap<Signal, Value>,
+    last_t_ns: Option<u64>,
+    late: u64,
+}
+
+impl<W: Write> VcdWriter<W> {
+    fn new(mut out: W) -> io::Result<Self> {
+        writeln!(out, "$version sim-host {} $end", env!("CARGO_PKG_VERSION"))?;
+        writeln!(out, "$comment simulated arm controller outputs $end")?;
+        writeln!(out, "$timescale 1ns $end")?;
+        writeln!(out, "$scope module arm $end")?;
+        let mut current = std::collections::HashMap::new();
+        for (signal, kind, name, _) in declarations() {
+            writeln!(out, "$var {kind} {} {name} $end", identifier(signal))?;
+        }
+        writeln!(out, "$upscope $end")?;
+        writeln!(out, "$enddefinitions $end")?;
+        writeln!(out, "#0")?;
+        writeln!(out, "$dumpvars")?;
+        for (signal, _, _, value) in declarations() {
+            write_value(&mut out, signal, value)?;
+            current.insert(signal, value);
+        }
+        writeln!(out, "$end")?;
+        Ok(VcdWriter {
+            out,
+            current,
+            last_t_ns: Some(0),
+            late: 0,
+        })
+    }
+
+    fn write(&mut self, change: Change) -> io::Result<()> {
+        if let Some((counter, expected)) = &change.guard
+            && counter.load(Ordering::Relaxed) != *expected
+        {
+            return Ok(());
+        }
+        if self.current.get(&change.signal) == Some(&change.value) {
+            return Ok(());
+        }
+        let mut t = change.t_ns;
+        if let Some(last) = self.last_t_ns
+            && t < last
+        {
+            // Arrived after the reorder window: stamped at the last written time.
+            self.late += 1;
+            t = last;
+        }
+        if self.last_t_ns != Some(t) {
+            writeln!(self.out, "#{t}")?;
+            self.last_t_ns = Some(t);
+        }
+        self.current.insert(change.signal, change.value);
+        write_value(&mut self.out, change.signal, change.value)
+    }
+
+    fn run(&mut self, receiver: mpsc::Receiver<Message>, clock: SimClock, window_ns: u64) {
+        let mut pending: BinaryHeap<Reverse<Change>> = BinaryHeap::new();
+        let mut finished: Option<mpsc::Sender<()>> = None;
+        loop {
+            match receiver.recv_timeout(Duration::from_millis(20)) {
+                Ok(Message::Change(c)) => pending.push(Reverse(c)),
+                Ok(Message::Finish(done)) => finished = Some(done),
+                Err(mpsc::RecvTimeoutError::Timeout) => {}
+                Err(mpsc::RecvTimeoutError::Disconnected) => break,
+            }
+            while finished.is_none() {
+                match receiver.try_recv() {
+                    Ok(Message::Change(c)) => pending.push(Reverse(c)),
+                    Ok(Message::Finish(done)) => finished = Some(done),
+                    Err(_) => break,
+                }
+            }
+            if finished.is_some() {
+                break;
+            }
+            let horizon = clock.now_ns().saturating_sub(window_ns);
+            while pending.peek().is_some_and(|c| c.0.t_ns <= horizon) {
+                if let Some(Reverse(c)) = pending.pop()
+                    && let Err(e) = self.write(c)
+                {
+                    log::error!("trace: write failed: {e}");
+                    return;
+                }
+            }
+        }
+        // Finish: everything still queued, including changes stamped in the future (the
+        // end of a gripper burst), then the final time.
+        while let Some(Reverse(c)) = pending.pop() {
+            if self.write(c).is_err() {
+                break;
+            }
+        }
+        let end = clock.now_ns().max(self.last_t_ns.unwrap_or(0));
+        if self.last_t_ns != Some(end) {
+            let _ = writeln!(self.out, "#{end}");
+        }
+        if let Err(e) = self.out.flush() {
+            log::error!("trace: flush failed: {e}");
+        }
+        if self.late > 0 {
+            log::warn!(
+                "trace: {} changes arrived too late to be written at their time",
+                self.late
+            );
+        }
+        if let Some(done) = finished {
+            let _ = done.send(());
+        }
+    }
+}
+
+fn write_value(out: &mut impl Write, signal: Signal, value: Value) -> io::Result<()> {
+    let id = identifier(signal);
+    match value {
+        Value::Bit(b) => writeln!(out, "{}{id}", u8::from(b)),
+        Value::Real(r) => writeln!(out, "r{r} {id}"),
+        Value::Int(i) => writeln!(out, "b{i:b} {id}"),
+    }
+}
+
+/// A parsed VCD file, for tests and the demo: the value changes of each named signal.
+#[derive(Debug, Default)]
+pub struct ParsedVcd {
+    /// `name -> [(time_ns, value as text)]`, in file order, including the initial values.
+    pub changes: std::collections::HashMap<String, Vec<(u64, String)>>,
+}
+
+impl ParsedVcd {
+    /// Parses the subset of VCD that [`Tracer`] writes.
+    pub fn parse(text: &str) -> Result<ParsedVcd, String> {
+        let mut names = std::collections::HashMap::new();
+        let mut parsed = ParsedVcd::default();
+        let mut t = 0u64;
+        let mut in_header = true;
+        for line in text.lines() {
+            let line = line.trim();
+            if in_header {
+                if line.starts_with("$var") {
+                    let parts: Vec<&str> = line.split_whitespace().collect();
+                    if parts.len() < 6 {
+                        return Err(format!("bad $var line: {line}"));
+                    }
+                    names.insert(parts[3].to_string(), parts[4].to_string());
+                } else if line.starts_with("$enddefinitions") {
+                    in_header = false;
+                }
+                continue;
+            }
+            if line.is_empty() || line.starts_with('$') {
+                continue;
+            }
+            if let Some(time) = line.strip_prefix('#') {
+                let next: u64 = time.parse().map_err(|_| format!("bad time: {line}"))?;
+                if next < t {
+                    return Err(format!("time goes backwards: {t} then {next}"));
+                }
+                t = next;
+                continue;
+            }
+            let (value, id) = if line.starts_with('r') || line.starts_with('b') {
+                let mut parts = line.splitn(2, ' ');
+                let value = parts.next().unwrap_or_default().to_string();
+                (value, parts.next().unwrap_or_default().to_string())
+            } else {
+                (line[..1].to_string(), line[1..].to_string())
+            };
+            let name = names
+                .get(&id)
+                .ok_or_else(|| format!("unknown identifier in {line}"))?;
+            parsed
+                .changes
+                .entry(name.clone())
+                .or_default()
+                .push((t, value));
+        }
+        Ok(parsed)
+    }
+
+    /// Times of the rising edges of wire `name`.
+    pub fn rising_edges(&self, name: &str) -> Vec<u64> {
+        let mut edges = Vec::new();
+        let mut level = false;
+        for (t, v) in self
+            .changes
+            .get(name)
+            .map(Vec::as_slice)
+            .unwrap_or_default()
+        {
+            let high = v == "1";
+            if high && !level {
+                edges.push(*t);
+            }
+            level = high;
+        }
+        edges
+    }
+
+    /// The value of `name` at time `t_ns` (the last change at or before it).
+    pub fn value_at(&self, name: &str, t_ns: u64) -> Option<&str> {
+        self.changes
+            .get(name)?
+            .iter()
+            .take_while(|(t, _)| *t <= t_ns)
+            .last()
+            .map(|(_, v)| v.as_str())
+    }
+
+    /// Net position of joint `j` from its STEP and DIR wires: +1 per rising STEP edge with
+    /// DIR high, -1 with DIR low.
+    pub fn joint_position(&self, j: usize) -> i64 {
+        let dir_name = format!("dir{j}");
+        let mut position = 0;
+        for t in self.rising_edges(&format!("step{j}")) {
+            // DIR is set before the pulse: take its value at the edge's time.
+            if self.value_at(&dir_name, t) == Some("1") {
+                position += 1;
+            } else {
+                position -= 1;
+            }
+        }
+        position
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn writer_output_parses_back() {
+        let mut writer = VcdWriter::new(Vec::new()).expect("header");
+        let mut order = 0;
+        let mut change = |t_ns, signal, value| {
+            order += 1;
+            Change {
+                t_ns,
+                order,
+                signal,
+                value,
+                guard: None,
+            }
+        };
+        let changes = [
+            change(10, Signal::Dir(2), Value::Bit(true)),
+            change(20, Signal::Step(2), Value::Bit(true)),
+            change(30, Signal::Step(2), Value::Bit(false)),
+            change(40, Signal::Step(2), Value::Bit(true)),
+            change(50, Signal::Step(2), Value::Bit(false)),
+            change(60, Signal::Dir(2), Value::Bit(false)),
+            change(70, Signal::Step(2), Value::Bit(true)),
+            change(80, Signal::GripperFrequency, Value::Real(50.0)),
+            change(80, Signal::GripperPulses, Value::Int(5)),
+        ];
+        for c in changes {
+            writer.write(c).expect("write");
+        }
+        let text = String::from_utf8(writer.out).expect("utf8");
+        let parsed = ParsedVcd::parse(&text).expect("parse");
+        assert_eq!(parsed.rising_edges("step2"), vec![20, 40, 70]);
+        assert_eq!(parsed.joint_position(2), 1);
+        assert_eq!(parsed.value_at("gripper_freq_hz", 100), Some("r50"));
+        assert_eq!(parsed.value_at("gripper_pulses", 100), Some("b101"));
+        assert_eq!(parsed.joint_position(0), 0);
+    }
+}
