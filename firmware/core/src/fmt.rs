@@ -71,3 +71,21 @@ macro_rules! error {
         }
     };
 }
+
+/// Wraps a value that is only `Debug` (the traits' associated error types) so that every
+/// logging backend can print it.
+#[cfg(feature = "defmt")]
+macro_rules! debug_value {
+    ($e:expr) => {
+        ::defmt::Debug2Format(&$e)
+    };
+}
+
+/// Wraps a value that is only `Debug` (the traits' associated error types) so that every
+/// logging backend can print it.
+#[cfg(not(feature = "defmt"))]
+macro_rules! debug_value {
+    ($e:expr) => {
+        $e
+    };
+}

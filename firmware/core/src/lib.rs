@@ -1,4 +1,41 @@
 //! The arm controller's behaviour, written once for the board and the simulator.
+//!
+//! * [`Controller`] (sans-io): one datagram in, the ACK, reports and effects out. The
+//!   check order, owner, duplicate and ordering rules are documented in [`controller`].
+//!   Effects that must happen at once go through the [`Plant`] trait; flash writes and
+//!   encoder reads come back as [`Deferred`] work.
+//! * [`plan_return`] (sans-io): RETURN's trapezoidal move to zero as ordinary points.
+//! * [`serial::SerialBatcher`] (sans-io): USART_RECV batching.
+//! * [`tasks`]: the async tasks, generic over the [`hw`] traits, and the step timer
+//!   interrupt's body [`on_step_timer`]. Binaries implement the traits, allocate a
+//!   [`Bus`], a [`StepShared`] and a [`Controller`] in statics, and wrap the task
+//!   functions in `#[embassy_executor::task]`s.
+//!
+//! # Tasks and channels
+//! ```text
+//!   UDP socket                                         step timer interrupt
+//!       |                                                  on_step_timer()
+//!  network_task --estop (CRC-valid STOPPED)-->+               |  ^
+//!   rx | tx     --inbox (all other frames)--->| trajectory    |  | StepShared: engine,
+//!      |  ^                                   | _task         |  | stop count, progress
+//!      |  |<--- outbox: ACK, STATUS, --------| (Controller)--+--' (stop/start directly)
+//!      |  |     LOCATION on state change      |   | segments    |
+//!      |  |                                   |   v             | step_wake
+//!      |  |                                   |  step_task <----+
+//!      |  |                                   |<--' step_progress (finished/ran dry)
+//!      |  |<--- LOCATION every period --- upload_task  (reads bus.reports + positions)
+//!      |  '<--- USART_RECV ------------- serial_task <-- serial_tx, serial_opened
+//! ```
+//!
+//! # The e-stop path
+//! `network_task` checks each datagram's tag and CRC as it arrives and puts a valid
+//! STOPPED on `bus.estop`, a separate queue; it never waits on a full queue (a full inbox
+//! drops the datagram, which the host resends), so a STOPPED is never stuck behind
+//! uploads. `trajectory_task` waits on `estop` first (biased select) and never waits on
+//! output (a full outbox drops the frame), so a STOPPED is handled after at most the one
+//! command being handled: the controller then stops the engine in a critical section
+//! (no pulse after that), and kicks the step interrupt, which lowers the STEP lines.
+//! Segments already cut for the engine are dropped by their stop count.
 #![no_std]
 
 #[cfg(test)]
@@ -13,10 +50,17 @@ pub mod config;
 pub mod controller;
 pub mod hw;
 pub mod link;
+pub mod outgoing;
 pub mod plan;
 pub mod serial;
+pub mod tasks;
 
 pub use buffer::{StoredPoint, TrajectoryBuffer};
 pub use config::ControllerConfig;
 pub use controller::{Controller, Deferred, Owner, Plant, Reply, ReportSettings, Response};
+pub use outgoing::{Outgoing, ReportEncoder};
 pub use plan::{ReturnPlan, plan_return};
+pub use tasks::{
+    Bus, Datagram, StepShared, TrajectoryHw, network_task, on_step_timer, serial_task, step_task,
+    trajectory_task, upload_task,
+};

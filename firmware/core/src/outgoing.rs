@@ -1,0 +1,129 @@
+//! Frames the controller sends, and their encoding with the controller's own report seq.
+
+use heapless::Vec;
+use protocol::{Location, MAX_SERIAL_CHUNK, Report, StatusReport, size};
+
+use crate::controller::Reply;
+use crate::hw::Endpoint;
+
+/// Largest frame the controller sends: USART_RECV (257 data bytes) + seq, tag and CRC.
+pub const MAX_REPORT_FRAME: usize = size::USART_RECV + protocol::FRAME_OVERHEAD;
+
+/// One frame to send.
+#[derive(Clone, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Outgoing {
+    /// An ACK, to the command's sender, with the command's seq.
+    Ack(Reply),
+    /// A LOCATION report, to the owner.
+    Location(Location),
+    /// A STATUS report, to the owner.
+    Status(StatusReport),
+    /// Bytes read from the serial port, to the owner.
+    UsartRecv(Vec<u8, MAX_SERIAL_CHUNK>),
+}
+
+/// Encodes [`Outgoing`] frames. Reports (everything but ACKs) carry the controller's own
+/// seq: one counter for LOCATION, STATUS and USART_RECV, counted here, where they are
+/// sent, so the seqs on the wire are consecutive in sending order.
+#[derive(Clone, Debug, Default)]
+pub struct ReportEncoder {
+    next_seq: u8,
+}
+
+impl ReportEncoder {
+    /// Starts counting at seq 0.
+    pub const fn new() -> Self {
+        ReportEncoder { next_seq: 0 }
+    }
+
+    /// The seq the next report will carry.
+    pub fn next_seq(&self) -> u8 {
+        self.next_seq
+    }
+
+    /// Encodes `out` into `buf`: returns the destination and the frame's length, or `None`
+    /// when a report has nowhere to go (no owner yet; no seq is used then) or `buf` is
+    /// too small.
+    pub fn encode(
+        &mut self,
+        out: &Outgoing,
+        report_to: Option<Endpoint>,
+        buf: &mut [u8],
+    ) -> Option<(Endpoint, usize)> {
+        let (to, seq, report) = match out {
+            Outgoing::Ack(reply) => (reply.to, reply.seq, Report::Ack(reply.ack)),
+            other => {
+                let report = match other {
+                    Outgoing::Location(l) => Report::Location(*l),
+                    Outgoing::Status(s) => Report::Status(*s),
+                    Outgoing::UsartRecv(bytes) => Report::UsartRecv(bytes),
+                    Outgoing::Ack(_) => return None,
+                };
+                (report_to?, self.next_seq, report)
+            }
+        };
+        let n = report.encode(seq, buf).ok()?;
+        if !matches!(out, Outgoing::Ack(_)) {
+            self.next_seq = self.next_seq.wrapping_add(1);
+        }
+        Some((to, n))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use protocol::{Ack, Frame, State, StatusCode};
+
+    #[test]
+    fn reports_share_one_counter_and_acks_keep_their_seq() {
+        let owner = Endpoint {
+            ip: [127, 0, 0, 1],
+            port: 7000,
+        };
+        let other = Endpoint {
+            ip: [127, 0, 0, 2],
+            port: 9,
+        };
+        let mut enc = ReportEncoder::new();
+        let mut buf = [0u8; MAX_REPORT_FRAME];
+        assert_eq!(
+            enc.encode(&Outgoing::Location(Location::default()), None, &mut buf),
+            None
+        );
+        let ack = Outgoing::Ack(Reply {
+            to: other,
+            seq: 77,
+            ack: Ack {
+                acked_tag: 3,
+                status: StatusCode::Ok,
+                state: State::Stopped,
+                next_seq: 1,
+                buffered: 0,
+                free: 8,
+            },
+        });
+        let outs = [
+            Outgoing::Location(Location::default()),
+            ack,
+            Outgoing::Status(StatusReport::default()),
+            Outgoing::UsartRecv(Vec::from_slice(b"hi").unwrap_or_default()),
+        ];
+        let mut seen = std::vec::Vec::new();
+        for out in &outs {
+            let (to, n) = enc.encode(out, Some(owner), &mut buf).expect("encodes");
+            let frame: Frame<Report<'_>> = Report::decode(&buf[..n]).expect("decodes");
+            seen.push((to, frame.seq, frame.body.tag() as u8));
+        }
+        assert_eq!(
+            seen,
+            [
+                (owner, 0, 0x13),
+                (other, 77, 0x14),
+                (owner, 1, 0x15),
+                (owner, 2, 0x0b)
+            ]
+        );
+    }
+}

@@ -1,0 +1,725 @@
+//! The controller's async tasks, generic over the hardware traits, and the step timer
+//! interrupt's body. Binaries allocate a [`Bus`], a [`StepShared`] and a
+//! [`Controller`] in statics and wrap these functions in `#[embassy_executor::task]`s.
+//!
+//! Every channel and signal uses [`CriticalSectionRawMutex`]: the step engine and the
+//! step task's wake-up are touched from the timer interrupt, and one kind of mutex for all
+//! keeps the rules simple.
+
+use core::cell::{Cell, RefCell};
+
+use arm_step::{Segment, StepEngine, StepPins, StepTiming};
+use embassy_futures::join::join;
+use embassy_futures::select::{Either, Either3, select, select3};
+use embassy_sync::blocking_mutex::Mutex;
+use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
+use embassy_sync::channel::Channel;
+use embassy_sync::signal::Signal;
+use heapless::Vec;
+use protocol::{MAX_DATAGRAM, MAX_JOINTS, MAX_SERIAL_CHUNK, Pwm, Tag, UartInit, UartMode, crc8};
+
+use crate::controller::{Controller, Deferred, Plant, ReportSettings, Response};
+use crate::hw::{
+    Clock, Datagrams, Encoders, Endpoint, Gripper, Outputs, SerialError, SerialPort, SettingsStore,
+    StepKick,
+};
+use crate::outgoing::{MAX_REPORT_FRAME, Outgoing, ReportEncoder};
+use crate::serial::{SerialBatcher, byte_time_us};
+
+/// The mutex kind of every channel, signal and shared cell.
+pub type Cs = CriticalSectionRawMutex;
+
+/// Queued STOPPED frames: one is enough to stop the arm; a few more keep the ACKs of a
+/// host that repeats STOPPED quickly (or several hosts stopping at once).
+pub const ESTOP_QUEUE: usize = 4;
+
+/// Queued datagrams for the trajectory task: a streaming host keeps a window of PENDING
+/// frames in flight (armctl: 4) plus a command or two; handling one takes microseconds,
+/// so 8 absorb a burst. When full, datagrams are dropped (the host resends: no ACK came),
+/// never waited for, so that a STOPPED behind them is never held up.
+pub const INBOX_QUEUE: usize = 8;
+
+/// Queued frames to send: the ACKs of a full inbox and of the e-stop queue, plus a
+/// LOCATION, a STATUS and a USART_RECV. When full, a frame is dropped (logged): the
+/// controller never waits to report.
+pub const OUTBOX_QUEUE: usize = 16;
+
+/// Segments between the trajectory task and the step task, on top of the engine's own
+/// queue: enough to refill the engine's queue in one go after a burst of short segments.
+pub const SEGMENT_QUEUE: usize = 8;
+
+/// USART_SEND payloads waiting for the serial port: at 115200 baud four are 90 ms of
+/// line time; a full queue refuses USART_SEND with BUFFER_FULL.
+pub const SERIAL_TX_QUEUE: usize = 4;
+
+/// Time between the start of a run being decided and its first segment's start: leaves
+/// the step interrupt time to set the DIR lines (and a simulator's scheduler some slack).
+pub const START_LEAD_US: u32 = 1_000;
+
+/// A datagram as received.
+#[derive(Clone, Debug)]
+pub struct Datagram {
+    /// Sender.
+    pub from: Endpoint,
+    /// The whole frame (seq, tag, data, crc).
+    pub bytes: Vec<u8, MAX_DATAGRAM>,
+}
+
+/// A segment on its way to the engine, tagged with the engine's stop count at the time it
+/// was cut: a segment cut before an emergency stop is dropped, not run.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct SegmentMsg {
+    /// [`StepShared::generation`] when the segment was cut.
+    pub generation: u32,
+    /// The segment.
+    pub segment: Segment,
+}
+
+/// The channels and signals that connect the tasks. Put one in a `static` (`new` is
+/// `const`) or a `StaticCell`.
+///
+/// ```text
+///            Datagrams                                               StepPins
+///   UDP <-> network_task --estop (STOPPED, first)--> trajectory_task     ^
+///              ^   |     --inbox (everything else)-->   | Controller     | on_step_timer
+///              |   |                                    | Outputs,       |   (ISR)
+///           outbox <----- ACK, STATUS, LOCATION --------+ Gripper,...  StepShared
+///              ^   ^                                    |  \--stop/start-->  ^  |
+///              |   |                          segments  v                    |  | step_wake
+///              |   |                                  step_task --push-------'  |
+///              |   |                                    | <---------------------'
+///              |   |                      step_progress '--> trajectory_task
+///              |   '-- LOCATION (period) -- upload_task <-- reports, upload_changed
+///              '------ USART_RECV --------- serial_task <-- serial_tx, serial_opened
+/// ```
+pub struct Bus {
+    /// CRC-valid STOPPED frames, routed here by `network_task`; drained by
+    /// `trajectory_task` before anything else (the e-stop path).
+    pub estop: Channel<Cs, Datagram, ESTOP_QUEUE>,
+    /// Every other datagram, from `network_task`; drained by `trajectory_task`.
+    pub inbox: Channel<Cs, Datagram, INBOX_QUEUE>,
+    /// Frames to send, from `trajectory_task`, `upload_task` and `serial_task`; drained by
+    /// `network_task`.
+    pub outbox: Channel<Cs, Outgoing, OUTBOX_QUEUE>,
+    /// Segments cut from the trajectory buffer by `trajectory_task`; drained by
+    /// `step_task` into the engine.
+    pub segments: Channel<Cs, SegmentMsg, SEGMENT_QUEUE>,
+    /// Raised by the step interrupt ([`on_step_timer`]) when segments finished or the
+    /// engine ran dry; waited on by `step_task`.
+    pub step_wake: Signal<Cs, ()>,
+    /// Raised by `step_task` after it moved segments or was woken by the interrupt;
+    /// waited on by `trajectory_task`, which then collects the progress from
+    /// [`StepShared`] and feeds more segments.
+    pub step_progress: Signal<Cs, ()>,
+    /// USART_SEND payloads, from `trajectory_task`; drained by `serial_task`.
+    pub serial_tx: Channel<Cs, Vec<u8, MAX_SERIAL_CHUNK>, SERIAL_TX_QUEUE>,
+    /// The serial port was opened with these settings, by `trajectory_task`; taken by
+    /// `serial_task`'s reader.
+    pub serial_opened: Signal<Cs, UartInit>,
+    /// Report destination, state and upload settings, written by `trajectory_task`; read
+    /// by `upload_task` and `network_task`.
+    pub reports: Mutex<Cs, Cell<ReportSettings>>,
+    /// Raised by `trajectory_task` when reports were switched or the period changed;
+    /// waited on by `upload_task`.
+    pub upload_changed: Signal<Cs, ()>,
+}
+
+impl Default for Bus {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl Bus {
+    /// Empty channels, boot report settings.
+    pub const fn new() -> Self {
+        Bus {
+            estop: Channel::new(),
+            inbox: Channel::new(),
+            outbox: Channel::new(),
+            segments: Channel::new(),
+            step_wake: Signal::new(),
+            step_progress: Signal::new(),
+            serial_tx: Channel::new(),
+            serial_opened: Signal::new(),
+            reports: Mutex::new(Cell::new(ReportSettings::BOOT)),
+            upload_changed: Signal::new(),
+        }
+    }
+
+    /// The report settings as last published.
+    pub fn report_settings(&self) -> ReportSettings {
+        self.reports.lock(|c| c.get())
+    }
+
+    /// Queues a frame to send; a full outbox drops it (logged) rather than wait.
+    pub fn send(&self, out: Outgoing) {
+        if self.outbox.try_send(out).is_err() {
+            warn!("outbox full: a frame was dropped");
+        }
+    }
+
+    /// Routes a received datagram: a CRC-valid STOPPED to `estop` (to `inbox` if that
+    /// is full), everything else to `inbox`. Never waits: a full inbox drops the datagram
+    /// (the host resends it since no ACK came).
+    pub fn route(&self, datagram: Datagram) {
+        let datagram = if is_stop(&datagram.bytes) {
+            match self.estop.try_send(datagram) {
+                Ok(()) => return,
+                Err(embassy_sync::channel::TrySendError::Full(d)) => d,
+            }
+        } else {
+            datagram
+        };
+        if self.inbox.try_send(datagram).is_err() {
+            warn!("inbox full: a datagram was dropped");
+        }
+    }
+}
+
+/// Whether a datagram is a CRC-valid STOPPED frame.
+pub fn is_stop(bytes: &[u8]) -> bool {
+    match bytes {
+        [_, tag, .., crc] => *tag == Tag::Stopped as u8 && crc8(&bytes[..bytes.len() - 1]) == *crc,
+        _ => false,
+    }
+}
+
+/// Microseconds to step timer ticks (rounded down).
+pub fn us_to_ticks(us: u64, tick_hz: u32) -> u64 {
+    (u128::from(us) * u128::from(tick_hz) / 1_000_000) as u64
+}
+
+/// Pins that do nothing: thread-level code stops the engine with these, and the next
+/// interrupt lowers the real STEP lines.
+struct NoPins;
+
+impl StepPins for NoPins {
+    fn set_direction(&mut self, _joint: usize, _positive: bool) {}
+    fn step_high(&mut self, _joints: arm_step::JointMask) {}
+    fn step_low(&mut self, _joints: arm_step::JointMask) {}
+}
+
+/// The step engine and what the interrupt reports to the tasks, behind one critical
+/// section mutex.
+pub struct StepState<const Q: usize> {
+    /// The engine.
+    pub engine: StepEngine<Q>,
+    /// Emergency stops so far: segments cut before the last stop are stale.
+    generation: u32,
+    /// Segments finished since the trajectory task last collected.
+    finished: u32,
+    /// The engine ran dry since the trajectory task last collected.
+    ran_dry: bool,
+    /// A start was asked for while the engine's queue was empty: start with the first
+    /// segment pushed.
+    start_pending: bool,
+    /// The engine was stopped outside the interrupt: the interrupt must lower every STEP
+    /// line.
+    lower_step_lines: bool,
+}
+
+/// What became of a segment offered to the engine.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum PushOutcome {
+    /// Queued in the engine.
+    Queued,
+    /// Cut before the last emergency stop: dropped.
+    Stale,
+    /// The engine's queue is full: offer it again later.
+    Full,
+}
+
+/// The step engine shared between the step timer interrupt and the tasks:
+/// `Mutex<CriticalSectionRawMutex, RefCell<..>>` around the engine plus the bookkeeping
+/// that must change atomically with it (stop count, finished segments, ran dry).
+pub struct StepShared<const Q: usize> {
+    inner: Mutex<Cs, RefCell<StepState<Q>>>,
+}
+
+impl<const Q: usize> StepShared<Q> {
+    /// An idle engine with this timing.
+    pub const fn new(timing: StepTiming) -> Self {
+        StepShared {
+            inner: Mutex::new(RefCell::new(StepState {
+                engine: StepEngine::new(timing),
+                generation: 0,
+                finished: 0,
+                ran_dry: false,
+                start_pending: false,
+                lower_step_lines: false,
+            })),
+        }
+    }
+
+    /// Runs `f` on the engine inside the critical section (inspection, simulators).
+    pub fn with_engine<R>(&self, f: impl FnOnce(&mut StepEngine<Q>) -> R) -> R {
+        self.inner.lock(|s| f(&mut s.borrow_mut().engine))
+    }
+
+    /// The engine's timing.
+    pub fn timing(&self) -> StepTiming {
+        self.with_engine(|e| e.timing())
+    }
+
+    /// Joint positions in steps, counted per pulse emitted.
+    pub fn positions(&self) -> [i32; MAX_JOINTS] {
+        self.with_engine(|e| e.positions())
+    }
+
+    /// Overwrites the positions; refused while running.
+    pub fn set_positions(&self, positions: [i32; MAX_JOINTS]) -> bool {
+        self.with_engine(|e| e.set_positions(positions))
+    }
+
+    /// Emergency stops so far.
+    pub fn generation(&self) -> u32 {
+        self.inner.lock(|s| s.borrow().generation)
+    }
+
+    /// Emergency stop: the engine drops every segment and emits no further pulse; the
+    /// next interrupt lowers the STEP lines (kick it). Segments cut before now become
+    /// stale; uncollected progress is dropped.
+    pub fn stop(&self) {
+        self.inner.lock(|s| {
+            let mut s = s.borrow_mut();
+            s.engine.stop(&mut NoPins);
+            s.generation = s.generation.wrapping_add(1);
+            s.finished = 0;
+            s.ran_dry = false;
+            s.start_pending = false;
+            s.lower_step_lines = true;
+        })
+    }
+
+    /// Offers a segment; starts the engine at `start_tick` if a start is pending.
+    pub fn push(&self, msg: SegmentMsg, start_tick: u64) -> PushOutcome {
+        self.inner.lock(|s| {
+            let mut s = s.borrow_mut();
+            if msg.generation != s.generation {
+                return PushOutcome::Stale;
+            }
+            if s.engine.push(msg.segment).is_err() {
+                return PushOutcome::Full;
+            }
+            if s.start_pending {
+                s.start_pending = false;
+                s.engine.start(start_tick);
+            }
+            PushOutcome::Queued
+        })
+    }
+
+    /// Starts the engine at `start_tick` if it holds a segment, else as soon as one is
+    /// pushed.
+    pub fn start(&self, start_tick: u64) {
+        self.inner.lock(|s| {
+            let mut s = s.borrow_mut();
+            if s.engine.queued() > 0 {
+                s.engine.start(start_tick);
+            } else {
+                s.start_pending = true;
+            }
+        })
+    }
+
+    /// Collects the progress since the last call: segments finished, ran dry.
+    pub fn take_progress(&self) -> (u32, bool) {
+        self.inner.lock(|s| {
+            let mut s = s.borrow_mut();
+            let progress = (s.finished, s.ran_dry);
+            s.finished = 0;
+            s.ran_dry = false;
+            progress
+        })
+    }
+
+    /// The body of the step timer interrupt, see [`on_step_timer`].
+    pub fn on_timer(
+        &self,
+        now_tick: u64,
+        pins: &mut impl StepPins,
+        wake: &Signal<Cs, ()>,
+    ) -> Option<u64> {
+        self.inner.lock(|s| {
+            let mut s = s.borrow_mut();
+            if s.lower_step_lines {
+                s.lower_step_lines = false;
+                pins.step_low(0xFF);
+            }
+            let poll = s.engine.poll(now_tick, pins);
+            if poll.segments_finished > 0 || poll.ran_dry {
+                s.finished = s.finished.saturating_add(poll.segments_finished);
+                s.ran_dry |= poll.ran_dry;
+                wake.signal(());
+            }
+            poll.next_deadline
+        })
+    }
+}
+
+/// What the step timer interrupt calls (board and simulator alike): emits the edges due
+/// at `now_tick`, records finished segments and running dry for the tasks (waking
+/// `wake`, the bus's `step_wake`), and returns the tick to be called again at (`None`:
+/// only when kicked).
+pub fn on_step_timer<const Q: usize>(
+    shared: &StepShared<Q>,
+    now_tick: u64,
+    pins: &mut impl StepPins,
+    wake: &Signal<Cs, ()>,
+) -> Option<u64> {
+    shared.on_timer(now_tick, pins, wake)
+}
+
+/// Moves segments from `bus.segments` into the engine as its queue frees up, starts a
+/// pending run with the first one, kicks the step timer, and tells the trajectory task
+/// when segments finished (relayed from the interrupt) or the segment channel has room.
+pub async fn step_task<const Q: usize, K: StepKick>(
+    bus: &Bus,
+    step: &StepShared<Q>,
+    kick: &K,
+) -> ! {
+    let lead = us_to_ticks(u64::from(START_LEAD_US), step.timing().tick_hz);
+    let mut held: Option<SegmentMsg> = None;
+    loop {
+        let mut moved = false;
+        loop {
+            if held.is_none() {
+                held = bus.segments.try_receive().ok();
+            }
+            let Some(msg) = held else { break };
+            match step.push(msg, kick.now_tick() + lead) {
+                PushOutcome::Queued => {
+                    moved = true;
+                    held = None;
+                }
+                PushOutcome::Stale => held = None,
+                PushOutcome::Full => break,
+            }
+        }
+        if moved {
+            kick.kick();
+        }
+        bus.step_progress.signal(());
+        if held.is_some() {
+            bus.step_wake.wait().await;
+        } else {
+            select(bus.step_wake.wait(), bus.segments.ready_to_receive()).await;
+        }
+    }
+}
+
+/// Receives datagrams and routes them ([`Bus::route`]), and sends what `bus.outbox`
+/// holds, both at once. Reports go to the owner as last published in `bus.reports`.
+pub async fn network_task<D: Datagrams>(socket: &D, bus: &Bus) -> ! {
+    let rx = async {
+        let mut buf = [0u8; MAX_DATAGRAM];
+        loop {
+            match socket.recv(&mut buf).await {
+                Ok((n, from)) => {
+                    let bytes =
+                        Vec::from_slice(buf.get(..n).unwrap_or_default()).unwrap_or_default();
+                    bus.route(Datagram { from, bytes });
+                }
+                Err(e) => warn!("receive failed: {:?}", debug_value!(e)),
+            }
+        }
+    };
+    let tx = async {
+        let mut encoder = ReportEncoder::new();
+        let mut buf = [0u8; MAX_REPORT_FRAME];
+        loop {
+            let out = bus.outbox.receive().await;
+            let report_to = bus.report_settings().to;
+            if let Some((to, n)) = encoder.encode(&out, report_to, &mut buf) {
+                if let Err(e) = socket.send(to, buf.get(..n).unwrap_or_default()).await {
+                    warn!("send failed: {:?}", debug_value!(e));
+                }
+            }
+        }
+    };
+    match join(rx, tx).await {}
+}
+
+/// Sends a LOCATION report (positions from the engine, state from `bus.reports`) every
+/// upload period while reports are on and an owner exists. The period restarts when the
+/// trajectory task changes it. (LOCATION reports on state changes are sent by the
+/// trajectory task itself, with the state of that instant.)
+pub async fn upload_task<const Q: usize, C: Clock>(
+    bus: &Bus,
+    step: &StepShared<Q>,
+    clock: &C,
+) -> ! {
+    let mut next = clock.now_us();
+    loop {
+        let period = u64::from(bus.report_settings().upload_period_us.max(1));
+        next += period;
+        let now = clock.now_us();
+        if next <= now {
+            // Fell behind (a long pause): skip the missed reports.
+            next = now + period;
+        }
+        match select(clock.sleep_until(next), bus.upload_changed.wait()).await {
+            Either::First(()) => {
+                let settings = bus.report_settings();
+                if settings.reports_on && settings.to.is_some() {
+                    bus.send(Outgoing::Location(protocol::Location {
+                        position: step.positions(),
+                        state: settings.state as u8,
+                    }));
+                }
+            }
+            Either::Second(()) => next = clock.now_us(),
+        }
+    }
+}
+
+/// The serial pass-through: writes USART_SEND payloads, and reads the port into
+/// USART_RECV reports (sent when 255 bytes wait, after one byte time of idle line, or 1 ms
+/// after data arrived). `port.read` must be cancel-safe (a read dropped before it
+/// completes loses no byte), since it is raced against the batch deadline.
+pub async fn serial_task<P: SerialPort, C: Clock>(port: &P, bus: &Bus, clock: &C) -> ! {
+    let writer = async {
+        loop {
+            let bytes = bus.serial_tx.receive().await;
+            if let Err(e) = port.write(&bytes).await {
+                warn!("serial write failed: {:?}", e);
+            }
+        }
+    };
+    let reader = async {
+        let mut open: Option<UartInit> = None;
+        let mut batch = SerialBatcher::new(0);
+        let mut buf = [0u8; MAX_SERIAL_CHUNK];
+        loop {
+            if let Some(init) = bus.serial_opened.try_take() {
+                open = Some(init);
+            }
+            let init = match open {
+                Some(init) if init.mode() != UartMode::TransmitOnly => init,
+                _ => {
+                    // Closed, or nothing to read: wait for the next USART_START.
+                    batch.clear();
+                    open = Some(bus.serial_opened.wait().await);
+                    continue;
+                }
+            };
+            batch.set_byte_time_us(byte_time_us(&init));
+            let room = batch.room().min(buf.len());
+            let read = port.read(&mut buf[..room]);
+            let outcome = match batch.deadline_us() {
+                Some(deadline) => match select(read, clock.sleep_until(deadline)).await {
+                    Either::First(r) => Some(r),
+                    Either::Second(()) => None,
+                },
+                None => Some(read.await),
+            };
+            match outcome {
+                Some(Ok(n)) => {
+                    batch.push(buf.get(..n).unwrap_or_default(), clock.now_us());
+                }
+                Some(Err(SerialError::Closed)) => {
+                    batch.clear();
+                    open = None;
+                }
+                Some(Err(e)) => warn!("serial read failed: {:?}", e),
+                None => {}
+            }
+            if batch.is_due(clock.now_us()) {
+                bus.send(Outgoing::UsartRecv(batch.take()));
+            }
+        }
+    };
+    match join(writer, reader).await {}
+}
+
+/// The hardware the trajectory task drives besides the step engine.
+pub struct TrajectoryHw<'a, K, O, G, P, S, E> {
+    /// The step timer.
+    pub kick: &'a K,
+    /// PIN0/PIN1 and the ENABLE lines.
+    pub outputs: O,
+    /// The gripper timer.
+    pub gripper: G,
+    /// The serial port (shared with `serial_task`; opened and closed here).
+    pub serial: &'a P,
+    /// Persistent settings.
+    pub settings: S,
+    /// Absolute encoders.
+    pub encoders: E,
+}
+
+/// [`Plant`] over the shared engine and the hardware.
+struct TaskPlant<'a, const Q: usize, K, O, G, P> {
+    bus: &'a Bus,
+    step: &'a StepShared<Q>,
+    kick: &'a K,
+    lead_ticks: u64,
+    outputs: &'a mut O,
+    gripper: &'a mut G,
+    serial: &'a P,
+}
+
+impl<const Q: usize, K: StepKick, O: Outputs, G: Gripper, P: SerialPort> Plant
+    for TaskPlant<'_, Q, K, O, G, P>
+{
+    fn positions(&self) -> [i32; MAX_JOINTS] {
+        self.step.positions()
+    }
+    fn set_positions(&mut self, positions: [i32; MAX_JOINTS]) -> bool {
+        self.step.set_positions(positions)
+    }
+    fn stop(&mut self) {
+        self.step.stop();
+        self.kick.kick();
+        self.bus.segments.clear();
+    }
+    fn push_segment(&mut self, segment: Segment) -> bool {
+        let msg = SegmentMsg {
+            generation: self.step.generation(),
+            segment,
+        };
+        self.bus.segments.try_send(msg).is_ok()
+    }
+    fn start(&mut self) {
+        self.step.start(self.kick.now_tick() + self.lead_ticks);
+        self.kick.kick();
+    }
+    fn set_user_pin(&mut self, pin: u8, high: bool) {
+        self.outputs.set_user_pin(pin, high);
+    }
+    fn set_enabled(&mut self, enabled: u16) {
+        self.outputs.set_enabled(enabled);
+    }
+    fn gripper_start(&mut self, pwm: &Pwm) {
+        self.gripper.start(pwm);
+    }
+    fn gripper_stop(&mut self) {
+        self.gripper.stop();
+    }
+    fn gripper_active(&self) -> bool {
+        self.gripper.is_active()
+    }
+    fn serial_open(&mut self, init: &UartInit) -> Result<(), SerialError> {
+        self.serial.open(init)?;
+        self.bus.serial_opened.signal(*init);
+        Ok(())
+    }
+    fn serial_close(&mut self) {
+        self.bus.serial_tx.clear();
+        self.serial.close();
+    }
+    fn serial_send(&mut self, bytes: &[u8]) -> bool {
+        match Vec::from_slice(bytes) {
+            Ok(v) => self.bus.serial_tx.try_send(v).is_ok(),
+            Err(_) => false,
+        }
+    }
+}
+
+/// Owns the [`Controller`]: handles datagrams (STOPPED from `bus.estop` first), sends
+/// ACKs and reports, executes the effects on the hardware, feeds segments to the step
+/// task and ends runs when the engine runs dry. Loads the stored settings at start and
+/// drives the ENABLE lines to their boot state (all holding).
+pub async fn trajectory_task<const CAP: usize, const Q: usize, C, K, O, G, P, S, E>(
+    controller: &mut Controller<CAP>,
+    bus: &Bus,
+    step: &StepShared<Q>,
+    clock: &C,
+    hw: TrajectoryHw<'_, K, O, G, P, S, E>,
+) -> !
+where
+    C: Clock,
+    K: StepKick,
+    O: Outputs,
+    G: Gripper,
+    P: SerialPort,
+    S: SettingsStore,
+    E: Encoders,
+{
+    let TrajectoryHw {
+        kick,
+        mut outputs,
+        mut gripper,
+        serial,
+        mut settings,
+        mut encoders,
+    } = hw;
+    match settings.load().await {
+        Ok(Some(stored)) => controller.apply_settings(stored),
+        Ok(None) => {}
+        Err(e) => warn!("settings not loaded, using defaults: {:?}", debug_value!(e)),
+    }
+    outputs.set_enabled(controller.enabled());
+    publish(bus, controller);
+    let lead_ticks = us_to_ticks(u64::from(START_LEAD_US), step.timing().tick_hz);
+    loop {
+        // Biased: a waiting STOPPED is always taken first.
+        let event = select3(
+            bus.estop.receive(),
+            bus.inbox.receive(),
+            bus.step_progress.wait(),
+        )
+        .await;
+        let mut plant = TaskPlant {
+            bus,
+            step,
+            kick,
+            lead_ticks,
+            outputs: &mut outputs,
+            gripper: &mut gripper,
+            serial,
+        };
+        let response = match event {
+            Either3::First(d) | Either3::Second(d) => {
+                controller.handle(d.from, &d.bytes, clock.now_us(), &mut plant)
+            }
+            Either3::Third(()) => Response::default(),
+        };
+        deliver(bus, &response);
+        match response.deferred {
+            Some(Deferred::SaveSettings(s)) => {
+                if let Err(e) = settings.save(&s).await {
+                    warn!("settings not saved: {:?}", debug_value!(e));
+                }
+            }
+            Some(Deferred::ReadEncoders) => {
+                let read = encoders.read().await;
+                if let Some(location) = controller.begin_return(read, &mut plant) {
+                    bus.send(Outgoing::Location(location));
+                }
+            }
+            None => {}
+        }
+        let (finished, ran_dry) = step.take_progress();
+        if let Some(location) = controller.on_step_progress(finished, ran_dry, &mut plant) {
+            bus.send(Outgoing::Location(location));
+        }
+        publish(bus, controller);
+    }
+}
+
+/// Queues what a handled datagram produced.
+fn deliver(bus: &Bus, response: &Response) {
+    if let Some(reply) = response.reply {
+        bus.send(Outgoing::Ack(reply));
+    }
+    if let Some(status) = response.status {
+        bus.send(Outgoing::Status(status));
+    }
+    if let Some(location) = response.location {
+        bus.send(Outgoing::Location(location));
+    }
+}
+
+/// Copies the report settings out for the other tasks; wakes the upload task when its
+/// settings changed.
+fn publish<const CAP: usize>(bus: &Bus, controller: &Controller<CAP>) {
+    let new = controller.report_settings();
+    let old = bus.reports.lock(|c| c.replace(new));
+    if old.reports_on != new.reports_on || old.upload_period_us != new.upload_period_us {
+        bus.upload_changed.signal(());
+    }
+}
