@@ -268,6 +268,7 @@ impl Encoders for SimEncoders {
 #[derive(Clone, Debug)]
 pub struct FileSettings {
     path: PathBuf,
+    boot_joints: Option<u8>,
     saves: Arc<AtomicU64>,
     loaded: Arc<AtomicBool>,
 }
@@ -277,9 +278,16 @@ impl FileSettings {
     pub fn new(path: PathBuf) -> FileSettings {
         FileSettings {
             path,
+            boot_joints: None,
             saves: Arc::new(AtomicU64::new(0)),
             loaded: Arc::new(AtomicBool::new(false)),
         }
+    }
+
+    /// Makes `load` report this joint count (`--joints`), whatever the file says; saving
+    /// still stores what the controller asks.
+    pub fn set_boot_joints(&mut self, joints: Option<u8>) {
+        self.boot_joints = joints;
     }
 
     /// The file.
@@ -370,6 +378,14 @@ impl SettingsStore for FileSettings {
             e.kind()
         })?;
         self.loaded.store(true, Ordering::Relaxed);
+        let loaded = match (loaded, self.boot_joints) {
+            (Some(stored), Some(joints)) => Some(PersistentSettings { joints, ..stored }),
+            (None, Some(joints)) => Some(PersistentSettings {
+                joints,
+                ..PersistentSettings::default()
+            }),
+            (loaded, None) => loaded,
+        };
         match &loaded {
             Some(s) => log::info!("settings: loaded {s:?} from {}", self.path.display()),
             None => log::info!(

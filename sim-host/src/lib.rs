@@ -19,5 +19,6 @@ pub mod steptimer;
 pub mod tap;
 pub mod vcd;
 
+pub mod app;
 pub mod bench;
 pub mod demo;

@@ -1,0 +1,491 @@
+//! Putting the simulated controller together: the hardware, the step thread, the executor
+//! and the firmware's tasks.
+
+use std::io;
+use std::net::SocketAddr;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use crate::clock::SimClock;
+use crate::devices::{FileSettings, OutputLevels, SimEncoders, SimGripper, SimOutputs};
+use crate::net::UdpDatagrams;
+use crate::options::SimOptions;
+use crate::probe::Probe;
+use crate::serial::SimSerial;
+use crate::steppers::{MotorState, SimSteppers};
+use crate::steptimer::SimStepKick;
+use crate::vcd::Tracer;
+
+/// The simulated board: everything the firmware's tasks drive, and what observes it.
+#[derive(Clone, Debug)]
+pub struct Board {
+    /// The options it was built from.
+    pub options: SimOptions,
+    /// Simulated time.
+    pub clock: SimClock,
+    /// The VCD trace (disabled without `--trace`).
+    pub tracer: Tracer,
+    /// The motors the STEP/DIR lines move.
+    pub motors: Arc<MotorState>,
+    /// PIN0/PIN1 and ENABLE levels.
+    pub levels: Arc<OutputLevels>,
+    /// The gripper timer.
+    pub gripper: SimGripper,
+    /// The serial port.
+    pub serial: &'static SimSerial,
+    /// The absolute encoders.
+    pub encoders: SimEncoders,
+    /// The settings file.
+    pub settings: FileSettings,
+    /// Wakes the step thread.
+    pub kick: SimStepKick,
+    /// Measurements for the benchmark.
+    pub probe: Arc<Probe>,
+    /// The host UDP socket (`None` with `--tap`, whose socket opens on the executor).
+    pub udp: Option<&'static UdpDatagrams>,
+}
+
+impl Board {
+    /// Builds the simulated hardware; binds the UDP socket unless `--tap` is given.
+    pub fn build(options: &SimOptions) -> io::Result<Board> {
+        let clock = SimClock::new(options.time_scale, options.tick_hz);
+        let tracer = match &options.trace {
+            Some(path) => {
+                let tracer = Tracer::create(path, clock)?;
+                log::info!("trace: writing {}", path.display());
+                tracer
+            }
+            None => Tracer::disabled(),
+        };
+        let motors = Arc::new(MotorState::default());
+        let probe = Arc::new(Probe::default());
+        let serial = SimSerial::create(options.serial, clock)?;
+        if let Some(path) = serial.pty_path() {
+            println!("sim-host: serial pty {path}");
+            log::info!("serial: attach a terminal with `picocom -b 115200 {path}`");
+        }
+        let udp = match &options.tap {
+            Some(_) => None,
+            None => Some(UdpDatagrams::bind(options.bind, probe.clone())?),
+        };
+        Ok(Board {
+            options: options.clone(),
+            clock,
+            tracer: tracer.clone(),
+            motors: motors.clone(),
+            levels: Arc::new(OutputLevels::default()),
+            gripper: SimGripper::new(clock, tracer),
+            serial,
+            encoders: SimEncoders::new(
+                motors,
+                options.encoder_offset_array(),
+                !options.no_encoders,
+            ),
+            settings: FileSettings::new(options.settings_path()),
+            kick: SimStepKick::new(clock),
+            probe,
+            udp,
+        })
+    }
+
+    /// The address the UDP socket is bound to.
+    pub fn local_addr(&self) -> Option<SocketAddr> {
+        self.udp.and_then(|u| u.local_addr().ok())
+    }
+
+    /// New STEP/DIR pins on this board's motors.
+    pub fn step_pins(&self) -> SimSteppers {
+        SimSteppers::new(self.motors.clone(), self.tracer.clone(), self.clock)
+    }
+
+    /// New output pins.
+    pub fn outputs(&self) -> SimOutputs {
+        SimOutputs::new(self.levels.clone(), self.tracer.clone())
+    }
+
+    /// Logs a summary of what the board did (at exit).
+    pub fn log_summary(&self) {
+        let positions = self.motors.positions();
+        let pulses = self.motors.pulse_counts();
+        log::info!("motors: positions {positions:?}, pulses {pulses:?}");
+        let serial = self.serial.counters();
+        log::info!(
+            "serial: {} bytes written, {} received, {} dropped",
+            serial.written.load(Ordering::Relaxed),
+            serial.received.load(Ordering::Relaxed),
+            serial.dropped.load(Ordering::Relaxed)
+        );
+        let dir_while_high = self.motors.dir_while_high.load(Ordering::Relaxed);
+        if dir_while_high > 0 {
+            log::warn!("motors: {dir_while_high} DIR changes while STEP was high");
+        }
+    }
+
+    /// Flushes the trace and logs the summary: the orderly end of a run.
+    pub fn shut_down(&self) {
+        static DONE: AtomicBool = AtomicBool::new(false);
+        if DONE.swap(true, Ordering::SeqCst) {
+            return;
+        }
+        self.log_summary();
+        self.tracer.finish();
+        if let Some(path) = &self.options.trace {
+            log::info!("trace: {} written", path.display());
+        }
+    }
+}
+
+/// Set by the SIGINT/SIGTERM handler.
+static TERMINATE: AtomicBool = AtomicBool::new(false);
+
+extern "C" fn on_terminate(_signal: libc::c_int) {
+    // Only an atomic store: async-signal-safe.
+    TERMINATE.store(true, Ordering::SeqCst);
+}
+
+/// On SIGINT or SIGTERM: shut the board down in order (trace flushed) and exit 0.
+pub fn exit_on_signal(board: Board) -> io::Result<()> {
+    // SAFETY: installing a handler that only stores to an atomic.
+    unsafe {
+        let handler = on_terminate as extern "C" fn(libc::c_int) as libc::sighandler_t;
+        libc::signal(libc::SIGINT, handler);
+        libc::signal(libc::SIGTERM, handler);
+    }
+    std::thread::Builder::new()
+        .name("signals".into())
+        .spawn(move || {
+            while !TERMINATE.load(Ordering::SeqCst) {
+                std::thread::sleep(std::time::Duration::from_millis(20));
+            }
+            log::info!("signal: shutting down");
+            board.shut_down();
+            std::process::exit(0);
+        })?;
+    Ok(())
+}
+
+/// Initialises logging at `level` (an env_logger filter); RUST_LOG wins when set.
+pub fn init_logging(level: &str) {
+    let env = env_logger::Env::default().default_filter_or(level);
+    let _ = env_logger::Builder::from_env(env)
+        .format_timestamp_micros()
+        .try_init();
+}
+
+// ---------------------------------------------------------------------------------------
+// The firmware's tasks on the std executor.
+
+use arm_core::config::{BOARD_MAX_STEP_RATE_HZ, BOARD_TRAJECTORY_CAPACITY};
+use arm_core::hw::{Datagrams, Endpoint};
+use arm_core::tasks::{Bus, StepShared, TrajectoryHw};
+use arm_core::{Controller, ControllerConfig};
+use arm_step::StepTiming;
+use embassy_executor::{Executor, Spawner};
+use static_cell::StaticCell;
+
+use crate::net::Faulty;
+use crate::tap::{TapAddress, TapDatagrams, TapError};
+
+/// Trajectory points the simulator can buffer: the board's size, so that a host sees the
+/// same flow control; `--buffer-capacity` uses less of it.
+pub const TRAJECTORY_STORAGE: usize = BOARD_TRAJECTORY_CAPACITY;
+
+/// Segments the step engine holds (the "interrupt side" queue): a few 10 ms segments, so
+/// a late step task never starves the engine.
+pub const STEP_QUEUE: usize = 16;
+
+/// STEP high time of the simulated drivers, ns (common drivers need 1-2.5 us).
+pub const PULSE_WIDTH_NS: u64 = 2_000;
+
+/// DIR setup time of the simulated drivers, ns.
+pub const DIR_SETUP_NS: u64 = 2_000;
+
+/// The controller as the simulator builds it.
+pub type SimController = Controller<TRAJECTORY_STORAGE>;
+/// The step engine shared with the step thread.
+pub type SimStepShared = StepShared<STEP_QUEUE>;
+
+/// The step timing for a step timer at `tick_hz`.
+pub fn step_timing(tick_hz: u32) -> StepTiming {
+    let ticks = |ns: u64| (ns * u64::from(tick_hz)).div_ceil(1_000_000_000).max(1) as u32;
+    StepTiming {
+        tick_hz,
+        pulse_width_ticks: ticks(PULSE_WIDTH_NS),
+        dir_setup_ticks: ticks(DIR_SETUP_NS),
+    }
+}
+
+/// The controller configuration for these options: the board's, with the simulator's
+/// gripper clock, the step rate its step timer allows and `--buffer-capacity`.
+pub fn controller_config(options: &SimOptions) -> ControllerConfig {
+    let timing = step_timing(options.tick_hz);
+    let capacity = options
+        .buffer_capacity
+        .unwrap_or(TRAJECTORY_STORAGE)
+        .clamp(1, TRAJECTORY_STORAGE);
+    ControllerConfig {
+        max_step_rate_hz: BOARD_MAX_STEP_RATE_HZ.min(timing.max_step_rate_hz()),
+        capacity,
+        pwm_timer_clock_hz: crate::devices::PWM_TIMER_CLOCK_HZ,
+        ..ControllerConfig::BOARD
+    }
+}
+
+/// The network the controller's socket is on.
+#[derive(Debug)]
+pub enum SimNet {
+    /// A host UDP socket.
+    Udp(&'static UdpDatagrams),
+    /// embassy-net on a TAP device.
+    Tap(&'static TapDatagrams),
+}
+
+/// Errors of [`SimNet`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SimNetError {
+    /// Host socket.
+    Udp(io::ErrorKind),
+    /// embassy-net.
+    Tap(TapError),
+}
+
+impl Datagrams for SimNet {
+    type Error = SimNetError;
+
+    async fn recv(&self, buf: &mut [u8]) -> Result<(usize, Endpoint), Self::Error> {
+        match self {
+            SimNet::Udp(udp) => udp.recv(buf).await.map_err(SimNetError::Udp),
+            SimNet::Tap(tap) => tap.recv(buf).await.map_err(SimNetError::Tap),
+        }
+    }
+
+    async fn send(&self, to: Endpoint, frame: &[u8]) -> Result<(), Self::Error> {
+        match self {
+            SimNet::Udp(udp) => udp.send(to, frame).await.map_err(SimNetError::Udp),
+            SimNet::Tap(tap) => tap.send(to, frame).await.map_err(SimNetError::Tap),
+        }
+    }
+}
+
+/// The socket as the network task sees it: behind the fault injector.
+pub type SimSocket = Faulty<SimNet>;
+
+type SimTrajectoryHw = TrajectoryHw<
+    'static,
+    SimStepKick,
+    SimOutputs,
+    SimGripper,
+    SimSerial,
+    FileSettings,
+    SimEncoders,
+>;
+
+#[embassy_executor::task]
+async fn network(socket: &'static SimSocket, bus: &'static Bus) -> ! {
+    arm_core::tasks::network_task(socket, bus).await
+}
+
+#[embassy_executor::task]
+async fn network_over_tap(
+    spawner: Spawner,
+    iface: String,
+    address: TapAddress,
+    faults: crate::faults::FaultConfig,
+    bus: &'static Bus,
+) {
+    let seed = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_nanos() as u64)
+        .unwrap_or(0x5EED);
+    match crate::tap::start(spawner, &iface, address, seed).await {
+        Ok(tap) => {
+            let socket: &'static SimSocket =
+                Box::leak(Box::new(Faulty::new(SimNet::Tap(tap), faults)));
+            println!("sim-host: listening on {iface} udp port {}", protocol::PORT);
+            arm_core::tasks::network_task(socket, bus).await
+        }
+        Err(e) => {
+            log::error!("tap: {e}");
+            std::process::exit(2);
+        }
+    }
+}
+
+#[embassy_executor::task]
+async fn step(bus: &'static Bus, step: &'static SimStepShared, kick: &'static SimStepKick) -> ! {
+    arm_core::tasks::step_task(bus, step, kick).await
+}
+
+#[embassy_executor::task]
+async fn upload(bus: &'static Bus, step: &'static SimStepShared, clock: &'static SimClock) -> ! {
+    arm_core::tasks::upload_task(bus, step, clock).await
+}
+
+#[embassy_executor::task]
+async fn serial(port: &'static SimSerial, bus: &'static Bus, clock: &'static SimClock) -> ! {
+    arm_core::tasks::serial_task(port, bus, clock).await
+}
+
+#[embassy_executor::task]
+async fn trajectory(
+    controller: &'static mut SimController,
+    bus: &'static Bus,
+    step: &'static SimStepShared,
+    clock: &'static SimClock,
+    hw: SimTrajectoryHw,
+) -> ! {
+    arm_core::tasks::trajectory_task(controller, bus, step, clock, hw).await
+}
+
+static BUS: Bus = Bus::new();
+static STEP: StaticCell<SimStepShared> = StaticCell::new();
+static CONTROLLER: StaticCell<SimController> = StaticCell::new();
+
+/// Everything the executor needs, made once per process.
+struct Wiring {
+    board: Board,
+    step: &'static SimStepShared,
+    controller: &'static mut SimController,
+}
+
+fn wire(board: Board) -> io::Result<Wiring> {
+    let once = || io::Error::other("the simulated controller runs once per process");
+    let config = controller_config(&board.options);
+    let timing = step_timing(board.options.tick_hz);
+    let step: &'static SimStepShared = STEP.try_init(StepShared::new(timing)).ok_or_else(once)?;
+    let controller = CONTROLLER
+        .try_init(Controller::new(config))
+        .ok_or_else(once)?;
+    log::info!(
+        "controller: {} trajectory points, step timer {} Hz (pulse {} ticks, DIR setup {} ticks), max {} steps/s per joint, time scale {}",
+        config.capacity,
+        timing.tick_hz,
+        timing.pulse_width_ticks,
+        timing.dir_setup_ticks,
+        config.max_step_rate_hz,
+        board.clock.time_scale()
+    );
+
+    // The step timer "interrupt".
+    let pins = board.step_pins();
+    crate::steptimer::spawn_step_thread(
+        &board.kick,
+        pins,
+        board.probe.clone(),
+        board.options.realtime,
+        move |tick, pins| arm_core::tasks::on_step_timer(step, tick, pins, &BUS.step_wake),
+    )?;
+    Ok(Wiring {
+        board,
+        step,
+        controller,
+    })
+}
+
+fn spawn_tasks(spawner: Spawner, wiring: Wiring) {
+    let Wiring {
+        board,
+        step: shared,
+        controller,
+    } = wiring;
+    let bus: &'static Bus = &BUS;
+    let clock: &'static SimClock = Box::leak(Box::new(board.clock));
+    let kick: &'static SimStepKick = Box::leak(Box::new(board.kick.clone()));
+    let options = &board.options;
+    let faults = options.faults();
+    if faults.is_active() {
+        log::info!(
+            "faults: loss {}, duplication {}, reordering {} (seed {})",
+            faults.loss,
+            faults.dup,
+            faults.reorder,
+            faults.seed
+        );
+    }
+
+    let mut settings = board.settings.clone();
+    settings.set_boot_joints(options.joints);
+    let hw = TrajectoryHw {
+        kick,
+        outputs: board.outputs(),
+        gripper: board.gripper.clone(),
+        serial: board.serial,
+        settings,
+        encoders: board.encoders.clone(),
+    };
+    let spawned = [
+        match (&options.tap, board.udp) {
+            (Some(iface), _) => {
+                let address = options
+                    .ip
+                    .as_deref()
+                    .map(TapAddress::parse)
+                    .transpose()
+                    .unwrap_or_else(|e| {
+                        log::error!("--ip: {e}");
+                        std::process::exit(2)
+                    });
+                let address = address.unwrap_or_else(|| stored_address(&board));
+                network_over_tap(spawner, iface.clone(), address, faults, bus)
+                    .map(|t| spawner.spawn(t))
+            }
+            (None, Some(udp)) => {
+                let socket: &'static SimSocket =
+                    Box::leak(Box::new(Faulty::new(SimNet::Udp(udp), faults)));
+                network(socket, bus).map(|t| spawner.spawn(t))
+            }
+            (None, None) => {
+                log::error!("no network: neither a socket nor --tap");
+                std::process::exit(2);
+            }
+        },
+        self::step(bus, shared, kick).map(|t| spawner.spawn(t)),
+        upload(bus, shared, clock).map(|t| spawner.spawn(t)),
+        serial(board.serial, bus, clock).map(|t| spawner.spawn(t)),
+        trajectory(controller, bus, shared, clock, hw).map(|t| spawner.spawn(t)),
+    ];
+    for result in spawned {
+        if let Err(e) = result {
+            log::error!("cannot spawn a task: {e:?}");
+            std::process::exit(2);
+        }
+    }
+    log::info!("controller: tasks running");
+}
+
+/// The persisted address, for `--tap` without `--ip` (as the board boots).
+fn stored_address(board: &Board) -> TapAddress {
+    let stored = board.settings.read().ok().flatten().unwrap_or_default();
+    TapAddress::Static(stored.ip.into(), stored.prefix_len)
+}
+
+/// Runs the controller on this thread until SIGINT/SIGTERM.
+pub fn run(options: &SimOptions) -> io::Result<()> {
+    let board = Board::build(options)?;
+    if let Some(addr) = board.local_addr() {
+        // The first line on stdout: scripts and tests read the port from it.
+        println!("sim-host: listening on udp {addr}");
+        log::info!("listening on udp {addr}");
+    }
+    log::info!("settings file: {}", board.settings.path().display());
+    exit_on_signal(board.clone())?;
+    let wiring = wire(board)?;
+    // The executor lives as long as the process: run() never returns.
+    let executor: &'static mut Executor = Box::leak(Box::new(Executor::new()));
+    executor.run(move |spawner| spawn_tasks(spawner, wiring))
+}
+
+/// Starts the controller on a background thread (for `demo` and `bench`); returns once
+/// its socket is bound, with the board to observe it.
+pub fn start_in_background(options: &SimOptions) -> io::Result<Board> {
+    let board = Board::build(options)?;
+    let observed = board.clone();
+    let wiring = wire(board)?;
+    std::thread::Builder::new()
+        .name("executor".into())
+        .spawn(move || {
+            let executor: &'static mut Executor = Box::leak(Box::new(Executor::new()));
+            executor.run(move |spawner| spawn_tasks(spawner, wiring))
+        })?;
+    Ok(observed)
+}
