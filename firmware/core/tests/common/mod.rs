@@ -1,0 +1,258 @@
+//! A fake plant and a host's frame builder for the controller's tests.
+#![allow(dead_code)]
+
+use std::collections::VecDeque;
+
+use arm_core::hw::{Endpoint, SerialError};
+use arm_core::{Controller, ControllerConfig, Plant, Response};
+use arm_step::Segment;
+use protocol::{Ack, Command, MAX_JOINTS, Point, PointList, Pwm, StatusCode, UartInit};
+
+pub const HOST: Endpoint = Endpoint {
+    ip: [127, 0, 0, 1],
+    port: 40_000,
+};
+pub const OTHER: Endpoint = Endpoint {
+    ip: [127, 0, 0, 2],
+    port: 40_001,
+};
+
+/// A step engine and peripherals that record what they are told. Segments pushed wait in
+/// `queue` until the test runs them with [`run`].
+#[derive(Debug)]
+pub struct FakePlant {
+    pub positions: [i32; MAX_JOINTS],
+    /// Segments in the engine, not yet run.
+    pub queue: VecDeque<Segment>,
+    /// Segments the engine queue holds at most.
+    pub room: usize,
+    /// Every segment run, in order.
+    pub executed: Vec<Segment>,
+    pub running: bool,
+    pub stops: u32,
+    pub starts: u32,
+    pub pins: Vec<(u8, bool)>,
+    pub enabled: Vec<u16>,
+    pub gripper: Option<Pwm>,
+    pub gripper_calls: u32,
+    pub serial: Option<UartInit>,
+    pub serial_refuses: bool,
+    pub serial_sent: Vec<Vec<u8>>,
+    pub serial_room: usize,
+    pub set_positions_calls: Vec<[i32; MAX_JOINTS]>,
+}
+
+impl Default for FakePlant {
+    fn default() -> Self {
+        FakePlant {
+            positions: [0; MAX_JOINTS],
+            queue: VecDeque::new(),
+            room: 16,
+            executed: Vec::new(),
+            running: false,
+            stops: 0,
+            starts: 0,
+            pins: Vec::new(),
+            enabled: Vec::new(),
+            gripper: None,
+            gripper_calls: 0,
+            serial: None,
+            serial_refuses: false,
+            serial_sent: Vec::new(),
+            serial_room: 4,
+            set_positions_calls: Vec::new(),
+        }
+    }
+}
+
+impl Plant for FakePlant {
+    fn positions(&self) -> [i32; MAX_JOINTS] {
+        self.positions
+    }
+    fn set_positions(&mut self, positions: [i32; MAX_JOINTS]) -> bool {
+        if self.running {
+            return false;
+        }
+        self.set_positions_calls.push(positions);
+        self.positions = positions;
+        true
+    }
+    fn stop(&mut self) {
+        self.stops += 1;
+        self.queue.clear();
+        self.running = false;
+    }
+    fn push_segment(&mut self, segment: Segment) -> bool {
+        if self.queue.len() >= self.room {
+            return false;
+        }
+        self.queue.push_back(segment);
+        true
+    }
+    fn start(&mut self) {
+        self.starts += 1;
+        self.running = true;
+    }
+    fn set_user_pin(&mut self, pin: u8, high: bool) {
+        self.pins.push((pin, high));
+    }
+    fn set_enabled(&mut self, enabled: u16) {
+        self.enabled.push(enabled);
+    }
+    fn gripper_start(&mut self, pwm: &Pwm) {
+        self.gripper = Some(*pwm);
+        self.gripper_calls += 1;
+    }
+    fn gripper_stop(&mut self) {
+        self.gripper = None;
+        self.gripper_calls += 1;
+    }
+    fn gripper_active(&self) -> bool {
+        self.gripper.is_some()
+    }
+    fn serial_open(&mut self, init: &UartInit) -> Result<(), SerialError> {
+        if self.serial_refuses {
+            return Err(SerialError::Unsupported);
+        }
+        self.serial = Some(*init);
+        Ok(())
+    }
+    fn serial_close(&mut self) {
+        self.serial = None;
+    }
+    fn serial_send(&mut self, bytes: &[u8]) -> bool {
+        if self.serial_sent.len() >= self.serial_room {
+            return false;
+        }
+        self.serial_sent.push(bytes.to_vec());
+        true
+    }
+}
+
+impl FakePlant {
+    /// Runs up to `n` queued segments (if running) and reports the progress; the engine
+    /// runs dry when it ran its last queued segment.
+    pub fn run<const CAP: usize>(
+        &mut self,
+        controller: &mut Controller<CAP>,
+        n: usize,
+    ) -> Option<protocol::Location> {
+        if !self.running {
+            return controller.on_step_progress(0, false, self);
+        }
+        let mut done = 0;
+        while done < n {
+            let Some(s) = self.queue.pop_front() else { break };
+            for j in 0..MAX_JOINTS {
+                self.positions[j] += s.steps[j];
+            }
+            self.executed.push(s);
+            done += 1;
+        }
+        let dry = self.queue.is_empty();
+        if dry {
+            self.running = false;
+        }
+        controller.on_step_progress(done as u32, dry, self)
+    }
+
+    /// Runs until the engine ran dry; returns the LOCATION the controller sent then.
+    pub fn run_to_end<const CAP: usize>(
+        &mut self,
+        controller: &mut Controller<CAP>,
+    ) -> Option<protocol::Location> {
+        for _ in 0..1_000_000 {
+            if !self.running {
+                return None;
+            }
+            if let Some(l) = self.run(controller, 1) {
+                return Some(l);
+            }
+        }
+        None
+    }
+}
+
+/// Encodes a command.
+pub fn frame(seq: u8, cmd: Command<'_>) -> Vec<u8> {
+    let mut buf = vec![0u8; protocol::MAX_DATAGRAM];
+    let n = cmd.encode(seq, &mut buf).expect("encodable command");
+    buf.truncate(n);
+    buf
+}
+
+/// A controller with the board's configuration but `capacity` points.
+pub fn controller<const CAP: usize>(capacity: usize) -> Controller<CAP> {
+    Controller::new(ControllerConfig {
+        capacity,
+        ..ControllerConfig::BOARD
+    })
+}
+
+/// Points moving every joint by `step` per point from `from`, 1 ms each.
+pub fn points(from: [i32; MAX_JOINTS], n: usize, step: i32) -> Vec<Point> {
+    let mut prev = from;
+    (0..n)
+        .map(|_| {
+            let next = prev.map(|p| p + step);
+            let p = Point::from_motion(1_000, &prev, &next);
+            prev = next;
+            p
+        })
+        .collect()
+}
+
+/// Encodes PENDING with these points.
+pub fn pending(seq: u8, pts: &[Point]) -> Vec<u8> {
+    frame(seq, Command::Pending(PointList::Points(pts)))
+}
+
+/// A host talking to one controller with a fake plant, numbering its frames.
+pub struct Session<const CAP: usize> {
+    pub controller: Controller<CAP>,
+    pub plant: FakePlant,
+    pub now_us: u64,
+    pub seq: u8,
+    pub from: Endpoint,
+}
+
+impl<const CAP: usize> Session<CAP> {
+    pub fn new(capacity: usize) -> Self {
+        Session {
+            controller: controller(capacity),
+            plant: FakePlant::default(),
+            now_us: 1_000,
+            seq: 0,
+            from: HOST,
+        }
+    }
+
+    /// Sends raw bytes from `from`.
+    pub fn send_raw(&mut self, from: Endpoint, bytes: &[u8]) -> Response {
+        self.now_us += 10;
+        self.controller
+            .handle(from, bytes, self.now_us, &mut self.plant)
+    }
+
+    /// Sends a command with the next seq; returns the ACK.
+    pub fn send(&mut self, cmd: Command<'_>) -> Ack {
+        self.seq = self.seq.wrapping_add(1);
+        let bytes = frame(self.seq, cmd);
+        self.send_raw(self.from, &bytes)
+            .reply
+            .expect("an ACK")
+            .ack
+    }
+
+    /// Sends a command and asserts its status.
+    pub fn expect(&mut self, cmd: Command<'_>, status: StatusCode) -> Ack {
+        let ack = self.send(cmd);
+        assert_eq!(ack.status, status, "{cmd:?}");
+        ack
+    }
+
+    /// Sends PENDING with these points.
+    pub fn pending(&mut self, pts: &[Point]) -> Ack {
+        self.send(Command::Pending(PointList::Points(pts)))
+    }
+}
