@@ -188,3 +188,33 @@ fn escape(text: &str) -> String {
         .replace('<', "&lt;")
         .replace('>', "&gt;")
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn svg_has_one_line_per_joint_and_the_commanded_dashed() {
+        let samples: Vec<Sample> = (0..10)
+            .map(|k| Sample {
+                time_s: f64::from(k) * 0.1,
+                state: 2,
+                position: vec![k * 10, -k],
+            })
+            .collect();
+        let commanded = Commanded {
+            times_s: vec![0.0, 1.0],
+            positions: vec![vec![0.0, 0.0], vec![100.0, -10.0]],
+            offset_s: 0.0,
+        };
+        let svg = svg(&samples, Some(&commanded), "run <1>");
+        assert!(svg.starts_with("<svg"));
+        assert!(svg.trim_end().ends_with("</svg>"));
+        assert_eq!(svg.matches("<polyline").count(), 4);
+        assert_eq!(svg.matches("stroke-dasharray=\"6 4\" opacity").count(), 2);
+        assert!(svg.contains("run &lt;1&gt;"));
+        assert!(svg.contains("joint 1"));
+        // No NaN coordinates.
+        assert!(!svg.contains("NaN"));
+    }
+}

@@ -110,3 +110,33 @@ pub fn parse(text: &str) -> io::Result<Vec<Sample>> {
 pub fn state_name(code: u8) -> &'static str {
     State::from_u8(code).map_or("?", State::name)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn recording_round_trips() {
+        let mut out = Vec::new();
+        {
+            let mut recorder = Recorder::new(&mut out, 3).unwrap();
+            for k in 0..4 {
+                let mut location = Location {
+                    state: State::Running as u8,
+                    ..Location::default()
+                };
+                location.position[..3].copy_from_slice(&[k, -k, 7]);
+                recorder.record(&location).unwrap();
+            }
+            recorder.flush().unwrap();
+        }
+        let text = String::from_utf8(out).unwrap();
+        assert!(text.starts_with("time_s,state,j0,j1,j2\n"));
+        let samples = parse(&text).unwrap();
+        assert_eq!(samples.len(), 4);
+        assert_eq!(samples[3].position, vec![3, -3, 7]);
+        assert_eq!(samples[3].state, 2);
+        assert!(samples.windows(2).all(|w| w[0].time_s <= w[1].time_s));
+        assert!(parse("time_s,state,j0\n").is_err());
+    }
+}

@@ -123,6 +123,8 @@ struct Upload<'a, 'p> {
     free: (usize, Option<usize>),
     /// `buffered` from the latest ACK.
     buffered: usize,
+    /// When the latest `free` arrived: slots drain from then on while running.
+    free_since: Instant,
     executed: usize,
     runing_sent: bool,
     state: State,
@@ -166,13 +168,12 @@ impl Upload<'_, '_> {
             return false;
         }
         let total = self.points.len();
-        match self.options.start_after {
-            Some(n) => self.acked_points >= n.min(total),
-            None => {
-                self.acked_points == total
-                    || (self.points_framed < total && self.credit() < self.next_chunk())
-            }
-        }
+        let buffer_full = self.points_framed < total && self.credit() < self.next_chunk();
+        let enough = self
+            .options
+            .start_after
+            .is_some_and(|n| self.acked_points >= n.min(total));
+        enough || buffer_full || self.acked_points == total
     }
 
     fn push(&mut self, command: &Command<'_>, points: usize) -> Result<()> {
@@ -196,6 +197,7 @@ impl Upload<'_, '_> {
 
     /// Go-back-N: sends again, unchanged, every unacknowledged frame from `from` on.
     fn rewind(&mut self, from: usize) -> Result<()> {
+        trace(format_args!("go back to frame {from}"));
         let now = Instant::now();
         self.last_rewind = Some((from, now));
         for frame in &mut self.frames[from..] {
@@ -232,7 +234,9 @@ impl Upload<'_, '_> {
             .iter()
             .map(|p| i64::from(p.duration))
             .sum();
-        Duration::from_micros(us.clamp(2_000, 200_000) as u64)
+        // A quarter more and a millisecond: the controller frees a slot only once the
+        // point's last step is due, and its timer may run a little behind ours.
+        Duration::from_micros((us.clamp(1_000, 200_000) * 5 / 4 + 1_000) as u64)
     }
 
     fn progress(&self) -> Progress {
@@ -255,11 +259,22 @@ impl Upload<'_, '_> {
             return Ok(());
         };
         self.state = ack.state;
+        trace(format_args!(
+            "ack of frame {i} (seq {seq}): {} next_seq {} free {} buffered {}; credit {} in flight {} acked {}",
+            ack.status.name(),
+            ack.next_seq,
+            ack.free,
+            ack.buffered,
+            self.credit(),
+            self.in_flight(),
+            self.acked_points
+        ));
         match ack.status {
             StatusCode::Ok => {
                 self.confirm(i);
                 if self.free.1.is_none_or(|at| at <= i) {
                     self.free = (usize::from(ack.free), Some(i));
+                    self.free_since = Instant::now();
                     self.buffered = usize::from(ack.buffered);
                     if self.runing_sent {
                         let executed = self.acked_points.saturating_sub(self.buffered);
@@ -300,6 +315,7 @@ impl Upload<'_, '_> {
             StatusCode::BufferFull => {
                 self.report.buffer_full += 1;
                 self.free = (usize::from(ack.free), i.checked_sub(1));
+                self.free_since = Instant::now();
                 self.buffered = usize::from(ack.buffered);
                 let needed = self.frames[i].points.saturating_sub(usize::from(ack.free));
                 let wait = self.drain_wait(needed);
@@ -362,14 +378,14 @@ impl Upload<'_, '_> {
                     }
                     let n = self.next_chunk();
                     let credit = self.credit();
+                    // Out of credit with nothing in flight, no ACK will bring news: once
+                    // the missing slots should have drained, one frame goes as a probe.
                     let probe = self.in_flight() == 0
-                        && probe_wait.is_none()
-                        && self.frames.last().is_some_and(|f| {
-                            f.sent_at.elapsed() >= self.drain_wait(n - credit.min(n))
-                        });
+                        && self.runing_sent
+                        && self.free_since.elapsed() >= self.drain_wait(n);
                     if credit < n && !probe {
                         if self.in_flight() == 0 {
-                            probe_wait = Some(self.drain_wait(n - credit));
+                            probe_wait = Some(self.drain_wait(n));
                         }
                         break;
                     }
@@ -405,6 +421,7 @@ impl Upload<'_, '_> {
                             .get(self.base)
                             .is_some_and(|f| f.sent_at.elapsed() >= ack_timeout);
                     if overdue {
+                        trace(format_args!("ACK timeout, frame {}", self.base));
                         self.report.timeouts += 1;
                         self.timeouts_in_a_row += 1;
                         self.rewind(self.base)?;
@@ -412,6 +429,13 @@ impl Upload<'_, '_> {
                 }
             }
         }
+    }
+}
+
+/// Upload events on stderr when `ARMCTL_TRACE` is set: for diagnosing a link.
+fn trace(args: std::fmt::Arguments<'_>) {
+    if std::env::var_os("ARMCTL_TRACE").is_some() {
+        eprintln!("armctl: {args}");
     }
 }
 
@@ -480,6 +504,7 @@ impl Controller {
                 acked_points: 0,
                 free: (usize::from(ack.free), None),
                 buffered: usize::from(ack.buffered),
+                free_since: Instant::now(),
                 executed: 0,
                 runing_sent: false,
                 state: ack.state,

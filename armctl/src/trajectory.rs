@@ -634,3 +634,257 @@ pub fn to_points(
     }
     Ok(points)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const CONFIG: &str = r#"{"joints": [
+        {"name": "shoulder", "steps_per_radian": 1000.0, "zero_offset_steps": 100,
+         "min_steps": -2000, "max_steps": 4000, "max_step_rate_hz": 2000},
+        {"name": "elbow", "steps_per_radian": -500.0, "max_step_rate_hz": 1000}
+    ]}"#;
+
+    fn config() -> ArmConfig {
+        ArmConfig::parse(CONFIG, "arm.json").unwrap()
+    }
+
+    fn trajectory(points: &str) -> String {
+        format!(r#"{{"joint_names": ["shoulder", "elbow"], "points": [{points}]}}"#)
+    }
+
+    fn point(sec: i64, nanosec: u32, a: f64, b: f64) -> String {
+        format!(
+            r#"{{"positions": [{a}, {b}], "velocities": [], "time_from_start": {{"sec": {sec}, "nanosec": {nanosec}}}}}"#
+        )
+    }
+
+    #[test]
+    fn joint_trajectory_radians_to_steps() {
+        let text = trajectory(&[point(0, 0, 0.0, 0.0), point(1, 500_000_000, 1.5, 0.5)].join(","));
+        let w = parse_joint_trajectory(&text, "t.json", &config()).unwrap();
+        assert_eq!(w.times_us, vec![0, 1_500_000]);
+        assert_eq!(w.positions[0], vec![Some(100.0), Some(0.0)]);
+        assert_eq!(w.positions[1], vec![Some(1600.0), Some(-250.0)]);
+    }
+
+    #[test]
+    fn joint_names_follow_the_config_not_the_file_order() {
+        let text = r#"{"joint_names": ["elbow"], "points": [
+            {"positions": [1.0], "time_from_start": {"sec": 1, "nanosec": 0}}]}"#;
+        let w = parse_joint_trajectory(text, "t.json", &config()).unwrap();
+        assert_eq!(w.positions[0], vec![None, Some(-500.0)]);
+        let unknown = r#"{"joint_names": ["wrist"], "points": []}"#;
+        let err = parse_joint_trajectory(unknown, "t.json", &config()).unwrap_err();
+        assert_eq!(err.kind, ErrorKind::UnknownJoint("wrist".into()));
+        assert!(err.to_string().contains("\"wrist\""));
+    }
+
+    #[test]
+    fn resampling_interpolates_linearly_and_keeps_the_end_exact() {
+        // Joint 0 from 100 to 1600 steps in 1.5 s, at 100 ms segments: 15 points of 100.
+        let text = trajectory(&[point(0, 0, 0.0, 0.0), point(1, 500_000_000, 1.5, 0.5)].join(","));
+        let w = parse_joint_trajectory(&text, "t.json", &config()).unwrap();
+        let start = [100, 0, 7, 0, 0, 0, 0, 0];
+        let points = to_points(&w, &start, 100_000, &config(), None).unwrap();
+        assert_eq!(points.len(), 15);
+        for (k, p) in points.iter().enumerate() {
+            assert_eq!(p.duration, 100_000);
+            assert_eq!(p.position[0], 100 + 100 * (k as i32 + 1));
+            // Joints beyond the config hold their position.
+            assert_eq!(p.position[2], 7);
+        }
+        assert_eq!(points[14].position[1], -250);
+        // Hints as PROTOCOL.md section 5 wants them.
+        assert_eq!(points[0].number_of_period[0], 100);
+        assert_eq!(points[0].period[0], 1000);
+    }
+
+    #[test]
+    fn last_segment_is_shorter_when_the_duration_does_not_divide() {
+        let w = parse_csv("time_s,j0\n0,0\n0.25,100\n", "t.csv").unwrap();
+        let config = ArmConfig::unlimited(1, 10_000);
+        let points = to_points(&w, &[0; 8], 100_000, &config, None).unwrap();
+        let durations: Vec<i32> = points.iter().map(|p| p.duration).collect();
+        assert_eq!(durations, vec![100_000, 100_000, 50_000]);
+        let positions: Vec<i32> = points.iter().map(|p| p.position[0]).collect();
+        assert_eq!(positions, vec![40, 80, 100]);
+    }
+
+    #[test]
+    fn a_late_first_waypoint_starts_from_the_current_position() {
+        let w = parse_csv("0.1,50\n0.2,50\n", "t.csv").unwrap();
+        let config = ArmConfig::unlimited(1, 10_000);
+        let points = to_points(&w, &[10, 0, 0, 0, 0, 0, 0, 0], 50_000, &config, None).unwrap();
+        let positions: Vec<i32> = points.iter().map(|p| p.position[0]).collect();
+        assert_eq!(positions, vec![30, 50, 50, 50]);
+    }
+
+    #[test]
+    fn a_first_waypoint_at_zero_must_be_where_the_arm_is() {
+        let w = parse_csv("0,5\n1,50\n", "t.csv").unwrap();
+        let err =
+            to_points(&w, &[0; 8], 10_000, &ArmConfig::unlimited(1, 10_000), None).unwrap_err();
+        assert_eq!(
+            err.kind,
+            ErrorKind::StartMismatch {
+                current: 0,
+                start: 5
+            }
+        );
+        assert_eq!((err.point, err.joint), (Some(0), Some(0)));
+    }
+
+    #[test]
+    fn step_rate_over_the_joint_limit_is_refused_with_where_and_what() {
+        // Shoulder: 2000 steps/s at most. 300 steps in 100 ms = 3000 steps/s.
+        let text = trajectory(&[point(0, 0, 0.0, 0.0), point(0, 100_000_000, 0.3, 0.0)].join(","));
+        let w = parse_joint_trajectory(&text, "fast.json", &config()).unwrap();
+        let err = to_points(&w, &[100, 0, 0, 0, 0, 0, 0, 0], 50_000, &config(), None).unwrap_err();
+        assert_eq!(err.point, Some(0));
+        assert_eq!(err.joint, Some(0));
+        assert_eq!(
+            err.kind,
+            ErrorKind::StepRate {
+                steps: 150,
+                duration_us: 50_000,
+                limit_hz: 2000
+            }
+        );
+        let message = err.to_string();
+        assert!(
+            message.starts_with("fast.json: point 0 (t = 0.050000 s), joint 0"),
+            "{message}"
+        );
+        assert!(
+            message.contains("3000 steps/s exceeds the limit of 2000"),
+            "{message}"
+        );
+    }
+
+    #[test]
+    fn the_controller_rate_caps_the_joint_rate() {
+        let w = parse_csv("0,0\n1,1500\n", "t.csv").unwrap();
+        let config = ArmConfig::unlimited(1, 10_000);
+        assert!(to_points(&w, &[0; 8], 10_000, &config, Some(2000)).is_ok());
+        let err = to_points(&w, &[0; 8], 10_000, &config, Some(1000)).unwrap_err();
+        assert!(matches!(
+            err.kind,
+            ErrorKind::StepRate { limit_hz: 1000, .. }
+        ));
+    }
+
+    #[test]
+    fn exactly_the_limit_is_allowed() {
+        let w = parse_csv("0,0\n1,1000\n", "t.csv").unwrap();
+        assert!(to_points(&w, &[0; 8], 10_000, &ArmConfig::unlimited(1, 1000), None).is_ok());
+        assert!(to_points(&w, &[0; 8], 10_000, &ArmConfig::unlimited(1, 999), None).is_err());
+    }
+
+    #[test]
+    fn position_limits_are_checked_per_waypoint() {
+        // Shoulder max 4000 steps = 100 + 3.9 rad * 1000.
+        let text = trajectory(
+            &[
+                point(0, 0, 0.0, 0.0),
+                point(10, 0, 3.9, 0.0),
+                point(20, 0, 3.95, 0.0),
+            ]
+            .join(","),
+        );
+        let w = parse_joint_trajectory(&text, "far.json", &config()).unwrap();
+        let err = to_points(&w, &[100, 0, 0, 0, 0, 0, 0, 0], 10_000, &config(), None).unwrap_err();
+        assert_eq!(
+            err.kind,
+            ErrorKind::AboveMax {
+                value: 4050,
+                limit: 4000
+            }
+        );
+        assert_eq!(
+            (err.point, err.joint, err.time_s),
+            (Some(2), Some(0), Some(20.0))
+        );
+        let low = parse_csv("0,0\n1,-2001\n", "low.csv").unwrap();
+        let config = ArmConfig::parse(
+            r#"{"joints": [{"min_steps": -2000, "max_step_rate_hz": 100000}]}"#,
+            "c.json",
+        )
+        .unwrap();
+        let err = to_points(&low, &[0; 8], 10_000, &config, None).unwrap_err();
+        assert_eq!(
+            err.kind,
+            ErrorKind::BelowMin {
+                value: -2001,
+                limit: -2000
+            }
+        );
+        assert!(
+            err.to_string()
+                .contains("low.csv: point 1 (t = 1.000000 s), joint 0")
+        );
+    }
+
+    #[test]
+    fn more_than_65535_points_is_refused_with_the_segment_that_fits() {
+        // 700 s at 10 ms = 70000 points.
+        let w = parse_csv("0,0\n700,0\n", "long.csv").unwrap();
+        let config = ArmConfig::unlimited(1, 1000);
+        let err = to_points(&w, &[0; 8], 10_000, &config, None).unwrap_err();
+        let ErrorKind::TooManyPoints {
+            count,
+            min_segment_us,
+        } = err.kind
+        else {
+            panic!("{err}")
+        };
+        assert_eq!(count, 70_000);
+        assert_eq!(min_segment_us, 10_682);
+        let points = to_points(&w, &[0; 8], min_segment_us as u32, &config, None).unwrap();
+        assert!(points.len() <= MAX_POINTS);
+    }
+
+    #[test]
+    fn csv_errors() {
+        assert!(matches!(
+            parse_csv("0,0\n0,1\n", "t.csv").unwrap_err().kind,
+            ErrorKind::TimeNotIncreasing
+        ));
+        let err = parse_csv("0,0,0\n1,1\n", "t.csv").unwrap_err();
+        assert_eq!(
+            err.kind,
+            ErrorKind::WrongJointCount {
+                found: 1,
+                expected: 2
+            }
+        );
+        assert!(matches!(
+            parse_csv("0,0\n1,x\n", "t.csv").unwrap_err().kind,
+            ErrorKind::Parse(_)
+        ));
+        assert!(matches!(
+            parse_csv("time_s,j0\n", "t.csv").unwrap_err().kind,
+            ErrorKind::TooShort
+        ));
+        let one = parse_csv("0,0\n", "t.csv").unwrap();
+        assert!(matches!(
+            to_points(&one, &[0; 8], 1000, &ArmConfig::unlimited(1, 1000), None)
+                .unwrap_err()
+                .kind,
+            ErrorKind::TooShort
+        ));
+    }
+
+    #[test]
+    fn config_errors() {
+        assert!(ArmConfig::parse(r#"{"joints": []}"#, "c").is_err());
+        assert!(ArmConfig::parse(r#"{"joints": [{"steps_per_radian": 1}]}"#, "c").is_err());
+        assert!(
+            ArmConfig::parse(
+                r#"{"joints": [{"min_steps": 5, "max_steps": 4, "max_step_rate_hz": 1}]}"#,
+                "c"
+            )
+            .is_err()
+        );
+    }
+}

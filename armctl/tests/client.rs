@@ -1,0 +1,142 @@
+//! The client's reliability logic against a fake controller with chosen faults.
+
+mod fake;
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use armctl::{Controller, Error, Options, RunEnd, RunOptions};
+use fake::{Fake, Faults, ramp};
+use protocol::{Command, State, StatusCode};
+
+fn options() -> Options {
+    Options {
+        ack_timeout: Duration::from_millis(30),
+        attempts: 20,
+        report_timeout: Duration::from_millis(100),
+    }
+}
+
+#[test]
+fn lossless_run_executes_every_point_in_order() {
+    let fake = Fake::start(64, Faults::default());
+    let arm = Controller::connect_with(fake.addr, options()).unwrap();
+    let points = ramp(300, 10, 1000);
+    let mut calls = 0;
+    let report = arm
+        .run_trajectory(&points, &RunOptions::default(), |_| calls += 1)
+        .unwrap();
+    assert!(calls > 0);
+    let counters = fake.counters();
+    assert_eq!(counters.taken, points);
+    assert_eq!(fake.position(), points.last().unwrap().position);
+    let status = report.final_status.unwrap();
+    assert_eq!(usize::from(status.executed), points.len());
+    assert_eq!(
+        report.final_location.unwrap().position,
+        points.last().unwrap().position
+    );
+    // A 64-slot buffer under a 300-point run: flow control keeps it from overflowing but
+    // for the odd probe sent when the slots should have drained (1 ms points here).
+    assert!(counters.buffer_full * 4 <= report.frames, "{report:?}");
+}
+
+#[test]
+fn stop_and_wait_gives_the_same_points() {
+    let fake = Fake::start(32, Faults::default());
+    let arm = Controller::connect_with(fake.addr, options()).unwrap();
+    let points = ramp(100, 3, 500);
+    let options = RunOptions {
+        window: 1,
+        points_per_frame: 5,
+        ..RunOptions::default()
+    };
+    let report = arm.run_trajectory(&points, &options, |_| {}).unwrap();
+    assert_eq!(fake.counters().taken, points);
+    assert_eq!(report.frames, 100 / 5 + 1);
+}
+
+#[test]
+fn lossy_link_still_delivers_each_point_exactly_once() {
+    for seed in 1..=3 {
+        let fake = Fake::start(
+            100,
+            Faults {
+                loss: 0.2,
+                dup: 0.05,
+                reorder: 0.05,
+                seed,
+            },
+        );
+        let arm = Controller::connect_with(fake.addr, options()).unwrap();
+        let points = ramp(200, 7, 5000);
+        let report = arm
+            .run_trajectory(&points, &RunOptions::default(), |_| {})
+            .unwrap_or_else(|e| panic!("seed {seed}: {e}"));
+        let counters = fake.counters();
+        assert_eq!(counters.taken, points, "seed {seed}");
+        assert_eq!(fake.position(), points.last().unwrap().position);
+        assert!(report.retransmissions > 0, "seed {seed}: no loss happened?");
+    }
+}
+
+#[test]
+fn refusals_name_the_status() {
+    let fake = Fake::start(16, Faults::default());
+    let arm = Controller::connect_with(fake.addr, options()).unwrap();
+    // RUNING in STOPPED: BAD_STATE.
+    let err = arm.send(&Command::Runing).unwrap_err();
+    assert_eq!(err.status(), Some(StatusCode::BadState));
+    let message = err.to_string();
+    assert!(
+        message.contains("RUNING refused with BAD_STATE"),
+        "{message}"
+    );
+    assert!(message.contains(StatusCode::BadState.advice()), "{message}");
+    // An out-of-range value is refused by the controller's decoder: INVALID_CONFIG.
+    let err = arm.set_joints(9).unwrap_err();
+    assert_eq!(err.status(), Some(StatusCode::InvalidConfig));
+}
+
+#[test]
+fn stop_from_another_thread_ends_the_run() {
+    let fake = Fake::start(1000, Faults::default());
+    let arm = Arc::new(Controller::connect_with(fake.addr, options()).unwrap());
+    let points = ramp(500, 1, 2000);
+    let stopper = {
+        let arm = arm.clone();
+        std::thread::spawn(move || {
+            std::thread::sleep(Duration::from_millis(300));
+            arm.stop().unwrap()
+        })
+    };
+    let err = arm
+        .run_trajectory(&points, &RunOptions::default(), |_| {})
+        .unwrap_err();
+    stopper.join().unwrap();
+    match err {
+        Error::RunEnded {
+            reason: RunEnd::Stopped,
+            executed: Some(n),
+            total: 500,
+        } => assert!(n > 0 && n < 500, "{n}"),
+        other => panic!("{other}"),
+    }
+    assert_eq!(arm.status().unwrap().state, State::Stopped);
+}
+
+#[test]
+fn no_controller_gives_no_reply() {
+    let socket = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+    let addr = socket.local_addr().unwrap();
+    let err = Controller::connect_with(
+        addr,
+        Options {
+            ack_timeout: Duration::from_millis(10),
+            attempts: 3,
+            ..Options::default()
+        },
+    )
+    .unwrap_err();
+    assert!(matches!(err, Error::NoReply { attempts: 3, .. }), "{err}");
+}
