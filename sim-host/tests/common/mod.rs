@@ -1,0 +1,267 @@
+//! Starting the sim-host binary and talking to it with the `protocol` crate.
+#![allow(dead_code)]
+
+use std::io::{BufRead, BufReader};
+use std::net::{SocketAddr, UdpSocket};
+use std::path::PathBuf;
+use std::process::{Child, Command as Process, Stdio};
+use std::time::{Duration, Instant};
+
+use protocol::{
+    Ack, Command, Location, MAX_JOINTS, Point, Report, State, StatusCode, StatusReport,
+};
+
+/// A running sim-host process, killed (SIGTERM, so it flushes its trace) when dropped.
+pub struct Sim {
+    child: Option<Child>,
+    pub addr: SocketAddr,
+}
+
+impl Sim {
+    /// Starts sim-host on a free 127.0.0.1 port with these extra arguments.
+    pub fn start(args: &[&str]) -> Sim {
+        let mut child = Process::new(env!("CARGO_BIN_EXE_sim-host"))
+            .args(["--bind", "127.0.0.1:0", "--log-level", "warn"])
+            .args(args)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .expect("sim-host starts");
+        let stdout = child.stdout.take().expect("stdout");
+        let mut lines = BufReader::new(stdout).lines();
+        let addr = loop {
+            let line = lines
+                .next()
+                .expect("sim-host printed its address")
+                .expect("stdout readable");
+            if let Some(addr) = line.strip_prefix("sim-host: listening on udp ") {
+                break addr.parse().expect("an address");
+            }
+        };
+        // Keep draining stdout so the child never blocks on a full pipe.
+        std::thread::spawn(move || for _ in lines {});
+        Sim {
+            child: Some(child),
+            addr,
+        }
+    }
+
+    /// Stops it with SIGTERM and waits for it to exit (trace flushed).
+    pub fn stop(&mut self) {
+        if let Some(mut child) = self.child.take() {
+            // SAFETY: signalling our own child process by its pid.
+            unsafe {
+                libc::kill(child.id() as libc::pid_t, libc::SIGTERM);
+            }
+            let deadline = Instant::now() + Duration::from_secs(10);
+            loop {
+                if let Ok(Some(_)) = child.try_wait() {
+                    break;
+                }
+                if Instant::now() > deadline {
+                    let _ = child.kill();
+                    let _ = child.wait();
+                    panic!("sim-host did not exit on SIGTERM");
+                }
+                std::thread::sleep(Duration::from_millis(10));
+            }
+        }
+    }
+
+    /// A client socket talking to it.
+    pub fn client(&self) -> Client {
+        Client::new(self.addr)
+    }
+}
+
+impl Drop for Sim {
+    fn drop(&mut self) {
+        if let Some(mut child) = self.child.take() {
+            let _ = child.kill();
+            let _ = child.wait();
+        }
+    }
+}
+
+/// A minimal host: one UDP socket, frames from `protocol`.
+pub struct Client {
+    pub socket: UdpSocket,
+    pub seq: u8,
+    /// Reports that arrived while waiting for something else.
+    pub reports: Vec<(u8, OwnedReport)>,
+}
+
+/// A report with its data copied out.
+#[derive(Clone, Debug, PartialEq)]
+pub enum OwnedReport {
+    Ack(Ack),
+    Location(Location),
+    UsartRecv(Vec<u8>),
+    Status(StatusReport),
+}
+
+impl Client {
+    pub fn new(addr: SocketAddr) -> Client {
+        let socket = UdpSocket::bind("127.0.0.1:0").expect("bind");
+        socket.connect(addr).expect("connect");
+        Client {
+            socket,
+            seq: 0,
+            reports: Vec::new(),
+        }
+    }
+
+    /// Sends `command` with `seq`, as is.
+    pub fn send_with_seq(&self, command: &Command<'_>, seq: u8) {
+        let mut buf = [0u8; protocol::MAX_DATAGRAM];
+        let n = command.encode(seq, &mut buf).expect("encodes");
+        self.socket.send(&buf[..n]).expect("send");
+    }
+
+    /// Receives one report within `timeout`.
+    pub fn receive(&self, timeout: Duration) -> Option<(u8, OwnedReport)> {
+        let deadline = Instant::now() + timeout;
+        let mut buf = [0u8; 2048];
+        let left = deadline.checked_duration_since(Instant::now())?;
+        self.socket
+            .set_read_timeout(Some(left.max(Duration::from_micros(100))))
+            .ok()?;
+        let n = self.socket.recv(&mut buf).ok()?;
+        let frame = Report::decode(&buf[..n]).expect("the controller sends valid frames");
+        let report = match frame.body {
+            Report::Ack(a) => OwnedReport::Ack(a),
+            Report::Location(l) => OwnedReport::Location(l),
+            Report::UsartRecv(b) => OwnedReport::UsartRecv(b.to_vec()),
+            Report::Status(s) => OwnedReport::Status(s),
+        };
+        Some((frame.seq, report))
+    }
+
+    /// Sends `command` with the next seq and waits for its ACK (resending up to 5 times);
+    /// other reports are kept in `reports`.
+    pub fn command(&mut self, command: &Command<'_>) -> Ack {
+        let seq = self.seq;
+        self.seq = self.seq.wrapping_add(1);
+        for _ in 0..5 {
+            self.send_with_seq(command, seq);
+            let deadline = Instant::now() + Duration::from_millis(500);
+            while let Some(left) = deadline.checked_duration_since(Instant::now()) {
+                match self.receive(left) {
+                    Some((s, OwnedReport::Ack(ack)))
+                        if s == seq && ack.acked_tag == command.tag() as u8 =>
+                    {
+                        return ack;
+                    }
+                    Some(other) => self.reports.push(other),
+                    None => break,
+                }
+            }
+        }
+        panic!("no ACK for {:?} (seq {seq})", command.tag());
+    }
+
+    /// Like [`Client::command`], and checks the ACK says OK.
+    pub fn ok(&mut self, command: &Command<'_>) -> Ack {
+        let ack = self.command(command);
+        assert_eq!(
+            ack.status,
+            StatusCode::Ok,
+            "{:?} refused: {ack:?}",
+            command.tag()
+        );
+        ack
+    }
+
+    /// Asks for STATUS and returns the report.
+    pub fn status(&mut self) -> StatusReport {
+        self.ok(&Command::Status);
+        let deadline = Instant::now() + Duration::from_secs(2);
+        loop {
+            if let Some(i) = self
+                .reports
+                .iter()
+                .rposition(|(_, r)| matches!(r, OwnedReport::Status(_)))
+            {
+                let (_, OwnedReport::Status(s)) = self.reports.remove(i) else {
+                    unreachable!()
+                };
+                self.reports.clear();
+                return s;
+            }
+            let left = deadline
+                .checked_duration_since(Instant::now())
+                .expect("a STATUS report");
+            if let Some(r) = self.receive(left) {
+                self.reports.push(r);
+            }
+        }
+    }
+
+    /// Waits until the controller reports STOPPED (polling STATUS).
+    pub fn wait_stopped(&mut self, timeout: Duration) -> StatusReport {
+        let deadline = Instant::now() + timeout;
+        loop {
+            let status = self.status();
+            if status.state == State::Stopped {
+                return status;
+            }
+            assert!(
+                Instant::now() < deadline,
+                "still {:?} after {timeout:?}",
+                status.state
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
+    /// Uploads `points` (NEW, then PENDING frames of up to 12, each ACKed OK), runs them
+    /// and waits until STOPPED. The buffer must hold them all.
+    pub fn run_points(&mut self, points: &[Point], timeout: Duration) -> StatusReport {
+        self.ok(&Command::New {
+            count: points.len() as u16,
+        });
+        for chunk in points.chunks(protocol::MAX_POINTS_PER_FRAME) {
+            self.ok(&Command::Pending(protocol::PointList::Points(chunk)));
+        }
+        self.ok(&Command::Runing);
+        self.wait_stopped(timeout)
+    }
+
+    /// The latest LOCATION among the kept reports, or a fresh one.
+    pub fn location(&mut self) -> Location {
+        self.reports.clear();
+        let deadline = Instant::now() + Duration::from_secs(2);
+        loop {
+            let left = deadline
+                .checked_duration_since(Instant::now())
+                .expect("a LOCATION report");
+            if let Some((_, OwnedReport::Location(l))) = self.receive(left) {
+                return l;
+            }
+        }
+    }
+}
+
+/// A unique temporary path for this test.
+pub fn temp_path(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("sim-host-tests-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    dir.join(name)
+}
+
+/// Points moving from `start` through `targets`, each segment `duration_us` long.
+pub fn points_through(
+    start: [i32; MAX_JOINTS],
+    targets: &[[i32; MAX_JOINTS]],
+    duration_us: i32,
+) -> Vec<Point> {
+    let mut previous = start;
+    targets
+        .iter()
+        .map(|target| {
+            let p = Point::from_motion(duration_us, &previous, target);
+            previous = *target;
+            p
+        })
+        .collect()
+}

@@ -1,0 +1,391 @@
+//! The simulated controller end to end: the sim-host binary on a free 127.0.0.1 port,
+//! frames from the `protocol` crate.
+
+mod common;
+
+use std::time::{Duration, Instant};
+
+use common::{OwnedReport, Sim, points_through, temp_path};
+use protocol::{Command, Location, MAX_JOINTS, Pwm, State, StatusCode, StatusFlags, UartInit};
+use sim_host::vcd::ParsedVcd;
+
+#[test]
+fn status_is_acked_and_reported() {
+    let sim = Sim::start(&["--settings", temp_path("status.txt").to_str().unwrap()]);
+    let mut client = sim.client();
+    let status = client.status();
+    assert_eq!(status.version, protocol::VERSION);
+    assert_eq!(status.joints, 6);
+    assert_eq!(status.state, State::Stopped);
+    assert_eq!(
+        usize::from(status.capacity),
+        sim_host::app::TRAJECTORY_STORAGE
+    );
+    assert_eq!(
+        status.pwm_timer_clock_hz,
+        sim_host::devices::PWM_TIMER_CLOCK_HZ
+    );
+    assert!(status.max_step_rate_hz > 0);
+    // The owner gets periodic LOCATION reports at the default 10 ms.
+    let location = client.location();
+    assert_eq!(location.position, [0; MAX_JOINTS]);
+    assert_eq!(location.state, State::Stopped as u8);
+}
+
+#[test]
+fn bad_frames_get_the_right_status() {
+    let sim = Sim::start(&["--settings", temp_path("bad.txt").to_str().unwrap()]);
+    let client = sim.client();
+    // Bad CRC: ACKed with the frame's seq and tag.
+    let wrong_crc = protocol::crc8(&[7, 0x15]) ^ 0x5A;
+    client.socket.send(&[7, 0x15, wrong_crc]).unwrap();
+    let (seq, report) = client.receive(Duration::from_secs(2)).expect("an ACK");
+    let OwnedReport::Ack(ack) = report else {
+        panic!("{report:?}")
+    };
+    assert_eq!(
+        (seq, ack.acked_tag, ack.status),
+        (7, 0x15, StatusCode::BadCrc)
+    );
+    // RUNING with nothing uploaded.
+    let mut client = client;
+    assert_eq!(
+        client.command(&Command::Runing).status,
+        StatusCode::BadState
+    );
+    // Too short: no reply at all.
+    client.socket.send(&[1, 2]).unwrap();
+    let reply = client.receive(Duration::from_millis(300));
+    assert!(
+        !matches!(reply, Some((_, OwnedReport::Ack(_)))),
+        "a 2-byte datagram got {reply:?}"
+    );
+}
+
+/// A trajectory's pulses in the VCD trace: counts and directions per joint equal the
+/// commanded steps, and every pulse is where the step rule puts it.
+#[test]
+fn trace_pulses_match_the_commanded_steps() {
+    let trace = temp_path("motion.vcd");
+    let mut sim = Sim::start(&[
+        "--trace",
+        trace.to_str().unwrap(),
+        "--settings",
+        temp_path("motion.txt").to_str().unwrap(),
+    ]);
+    let mut client = sim.client();
+    let start = [0; MAX_JOINTS];
+    let targets = [
+        [100, -37, 0, 5, 1, 250, 0, 0],
+        [160, -37, 0, -5, 1, 100, 0, 0],
+        [150, 63, 0, 0, 2, 100, 0, 0],
+    ];
+    let points = points_through(start, &targets, 20_000);
+    let status = client.run_points(&points, Duration::from_secs(10));
+    assert_eq!(status.executed, 3);
+    assert!(!StatusFlags(status.flags.0).has(StatusFlags::UNDERRUN));
+    let location = client.location();
+    assert_eq!(location.position, targets[2]);
+    sim.stop();
+
+    let vcd = ParsedVcd::parse(&std::fs::read_to_string(&trace).unwrap()).unwrap();
+    let mut expected_pulses = [0u64; MAX_JOINTS];
+    let mut previous = start;
+    for target in targets {
+        for j in 0..MAX_JOINTS {
+            expected_pulses[j] += (target[j] - previous[j]).unsigned_abs() as u64;
+        }
+        previous = target;
+    }
+    for j in 0..MAX_JOINTS {
+        assert_eq!(
+            vcd.rising_edges(&format!("step{j}")).len() as u64,
+            expected_pulses[j],
+            "pulses of joint {j}"
+        );
+        assert_eq!(vcd.joint_position(j), i64::from(targets[2][j]), "joint {j}");
+    }
+    // Joint 0's first segment: 100 pulses in 20 ms from the run's start S, pulse i at
+    // S + floor(i * 20000 / 100) us (1 MHz ticks, 1 ns VCD resolution).
+    let edges = vcd.rising_edges("step0");
+    let first = edges[0];
+    for (i, edge) in edges.iter().take(100).enumerate() {
+        let i = i as u64 + 1;
+        assert_eq!(edge - first, (i * 200 - 200) * 1000, "pulse {i}");
+    }
+    // Second segment of joint 0: 60 pulses in 20 ms starting at S + 20 ms.
+    let start_ns = first - 200_000;
+    for (i, edge) in edges[100..160].iter().enumerate() {
+        let i = i as u64 + 1;
+        assert_eq!(
+            edge - start_ns,
+            20_000_000 + i * 20_000_000 / 60 / 1000 * 1000,
+            "pulse {i}"
+        );
+    }
+}
+
+#[test]
+fn stopped_halts_the_pulses_at_once() {
+    let trace = temp_path("estop.vcd");
+    let mut sim = Sim::start(&[
+        "--trace",
+        trace.to_str().unwrap(),
+        "--settings",
+        temp_path("estop.txt").to_str().unwrap(),
+    ]);
+    let mut client = sim.client();
+    // 10 s of motion at 1000 steps/s on joint 0.
+    let targets: Vec<[i32; MAX_JOINTS]> =
+        (1..=100).map(|i| [i * 100, 0, 0, 0, 0, 0, 0, 0]).collect();
+    let points = points_through([0; MAX_JOINTS], &targets, 100_000);
+    client.ok(&Command::New { count: 100 });
+    for chunk in points.chunks(12) {
+        client.ok(&Command::Pending(protocol::PointList::Points(chunk)));
+    }
+    client.ok(&Command::Runing);
+    std::thread::sleep(Duration::from_millis(300));
+    assert_eq!(client.status().state, State::Running);
+    let ack = client.ok(&Command::Stopped);
+    assert_eq!(ack.state, State::Stopped);
+    let status = client.status();
+    assert!(status.flags.has(StatusFlags::STOPPED_BY_HOST));
+    let stopped_at = client.location().position[0];
+    std::thread::sleep(Duration::from_millis(200));
+    assert_eq!(
+        client.location().position[0],
+        stopped_at,
+        "moved after STOPPED"
+    );
+    assert!(stopped_at > 100 && stopped_at < 10_000, "{stopped_at}");
+    sim.stop();
+    let vcd = ParsedVcd::parse(&std::fs::read_to_string(&trace).unwrap()).unwrap();
+    assert_eq!(vcd.joint_position(0), i64::from(stopped_at));
+}
+
+#[test]
+fn settings_persist_across_restart() {
+    let settings = temp_path("persist.txt");
+    let _ = std::fs::remove_file(&settings);
+    let args = ["--settings", settings.to_str().unwrap()];
+    let mut sim = Sim::start(&args);
+    let mut client = sim.client();
+    assert_eq!(client.status().joints, 6);
+    client.ok(&Command::JointsCount(4));
+    assert_eq!(client.status().joints, 4);
+    // Saving is deferred to the trajectory task: give it a moment before the restart.
+    let deadline = Instant::now() + Duration::from_secs(5);
+    while !std::fs::read_to_string(&settings).is_ok_and(|t| t.contains("joints=4")) {
+        assert!(Instant::now() < deadline, "settings file not written");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    sim.stop();
+
+    let sim = Sim::start(&args);
+    assert_eq!(sim.client().status().joints, 4);
+    // --joints overrides the stored count for one run without saving it.
+    let sim2 = Sim::start(&["--settings", settings.to_str().unwrap(), "--joints", "3"]);
+    assert_eq!(sim2.client().status().joints, 3);
+    assert!(
+        std::fs::read_to_string(&settings)
+            .unwrap()
+            .contains("joints=4")
+    );
+}
+
+/// The seqs of the ACKs that come back for 60 STATUS frames sent 5 ms apart.
+fn ack_pattern(seed: &str) -> Vec<u8> {
+    let sim = Sim::start(&[
+        "--loss",
+        "0.2",
+        "--dup",
+        "0.2",
+        "--reorder",
+        "0.2",
+        "--seed",
+        seed,
+    ]);
+    let client = sim.client();
+    let mut acks = Vec::new();
+    for seq in 0..60u8 {
+        client.send_with_seq(&Command::UploadStop, seq);
+        let deadline = Instant::now() + Duration::from_millis(15);
+        while let Some(left) = deadline.checked_duration_since(Instant::now()) {
+            match client.receive(left) {
+                Some((s, OwnedReport::Ack(_))) => acks.push(s),
+                Some(_) => {}
+                None => break,
+            }
+        }
+    }
+    // Anything held back at the end.
+    while let Some(r) = client.receive(Duration::from_millis(100)) {
+        if let (s, OwnedReport::Ack(_)) = r {
+            acks.push(s);
+        }
+    }
+    acks
+}
+
+#[test]
+fn fault_injection_is_deterministic_for_a_seed() {
+    let a = ack_pattern("11");
+    let b = ack_pattern("11");
+    let c = ack_pattern("12");
+    assert_eq!(a, b, "same seed, same faults");
+    assert_ne!(a, c, "another seed, other faults");
+    // The faults are there: some ACKs missing, some twice, some out of order.
+    let mut sorted = a.clone();
+    sorted.sort_unstable();
+    sorted.dedup();
+    assert!(sorted.len() < 60, "nothing lost: {a:?}");
+    assert!(sorted.len() < a.len(), "nothing duplicated: {a:?}");
+    assert!(
+        a.windows(2).any(|w| w[1] < w[0]),
+        "nothing reordered: {a:?}"
+    );
+}
+
+#[test]
+fn return_goes_home_by_the_encoders() {
+    let trace = temp_path("return.vcd");
+    let mut sim = Sim::start(&[
+        "--encoder-offset",
+        "1:-300",
+        "--trace",
+        trace.to_str().unwrap(),
+        "--settings",
+        temp_path("return.txt").to_str().unwrap(),
+        "--time-scale",
+        "5",
+    ]);
+    let mut client = sim.client();
+    let targets = [[200, 0, 0, 0, 0, 0, 0, 0]];
+    client.run_points(
+        &points_through([0; MAX_JOINTS], &targets, 100_000),
+        Duration::from_secs(10),
+    );
+    client.ok(&Command::Return);
+    let status = client.wait_stopped(Duration::from_secs(30));
+    assert_eq!(status.state, State::Stopped);
+    assert_eq!(client.location().position, [0; MAX_JOINTS]);
+    sim.stop();
+    // Physically: joint 0 went +200 then -200; joint 1 was really at -300 and moved +300.
+    let vcd = ParsedVcd::parse(&std::fs::read_to_string(&trace).unwrap()).unwrap();
+    assert_eq!(vcd.joint_position(0), 0);
+    assert_eq!(vcd.joint_position(1), 300);
+}
+
+#[test]
+fn serial_loopback_echoes_usart_send() {
+    let sim = Sim::start(&[
+        "--serial",
+        "loopback",
+        "--settings",
+        temp_path("serial.txt").to_str().unwrap(),
+    ]);
+    let mut client = sim.client();
+    client.ok(&Command::UsartStart(UartInit {
+        baud_rate: 115_200,
+        ..UartInit::default()
+    }));
+    client.ok(&Command::UsartSend(b"hello arm"));
+    let deadline = Instant::now() + Duration::from_secs(2);
+    let mut echoed = Vec::new();
+    while echoed.len() < 9 {
+        let left = deadline
+            .checked_duration_since(Instant::now())
+            .expect("the echo");
+        match client.receive(left) {
+            Some((_, OwnedReport::UsartRecv(bytes))) => echoed.extend(bytes),
+            Some(_) => {}
+            None => break,
+        }
+    }
+    assert_eq!(echoed, b"hello arm");
+}
+
+#[test]
+fn gripper_burst_and_pins_are_traced() {
+    let trace = temp_path("gripper.vcd");
+    let mut sim = Sim::start(&[
+        "--trace",
+        trace.to_str().unwrap(),
+        "--settings",
+        temp_path("gripper.txt").to_str().unwrap(),
+    ]);
+    let mut client = sim.client();
+    client.ok(&Command::Pin0On);
+    // 200 MHz / (200 * 1000) = 1 kHz; 20 pulses = 20 ms.
+    client.ok(&Command::PwmStart(Pwm {
+        psc: 199,
+        arr: 999,
+        ccr1: 500,
+        pulse_count: 20,
+    }));
+    assert!(client.status().flags.has(StatusFlags::PWM_ACTIVE));
+    std::thread::sleep(Duration::from_millis(100));
+    assert!(
+        !client.status().flags.has(StatusFlags::PWM_ACTIVE),
+        "burst did not end"
+    );
+    client.ok(&Command::Pin0Off);
+    client.ok(&Command::ToggleEnablePins { mask: Some(0b10) });
+    sim.stop();
+    let vcd = ParsedVcd::parse(&std::fs::read_to_string(&trace).unwrap()).unwrap();
+    let active = &vcd.changes["gripper_pwm_active"];
+    let on = active.iter().find(|(_, v)| v == "1").expect("PWM on").0;
+    let off = active
+        .iter()
+        .rev()
+        .find(|(_, v)| v == "0")
+        .expect("PWM off")
+        .0;
+    assert_eq!(off - on, 20_000_000, "20 periods of 1 ms");
+    assert_eq!(vcd.value_at("gripper_freq_hz", on), Some("r1000"));
+    assert_eq!(vcd.rising_edges("pin0").len(), 1);
+    assert_eq!(
+        vcd.changes["enable1"].last().map(|(_, v)| v.as_str()),
+        Some("0")
+    );
+    assert_eq!(
+        vcd.changes["enable0"].last().map(|(_, v)| v.as_str()),
+        Some("1")
+    );
+}
+
+#[test]
+fn time_scale_runs_simulated_time_faster() {
+    let trace = temp_path("fast.vcd");
+    let mut sim = Sim::start(&[
+        "--time-scale",
+        "20",
+        "--trace",
+        trace.to_str().unwrap(),
+        "--settings",
+        temp_path("fast.txt").to_str().unwrap(),
+    ]);
+    let mut client = sim.client();
+    // 4 s of simulated motion.
+    let targets: Vec<[i32; MAX_JOINTS]> = (1..=40)
+        .map(|i| [i * 50, -i * 25, 0, 0, 0, 0, 0, 0])
+        .collect();
+    let began = Instant::now();
+    client.run_points(
+        &points_through([0; MAX_JOINTS], &targets, 100_000),
+        Duration::from_secs(20),
+    );
+    let real = began.elapsed();
+    assert!(
+        real < Duration::from_secs(3),
+        "4 s simulated took {real:?} at 20x"
+    );
+    let Location { position, .. } = client.location();
+    assert_eq!(position[..2], [2000, -1000]);
+    sim.stop();
+    let vcd = ParsedVcd::parse(&std::fs::read_to_string(&trace).unwrap()).unwrap();
+    let edges = vcd.rising_edges("step0");
+    assert_eq!(edges.len(), 2000);
+    // 50 steps per 100 ms: exactly 2 ms apart in simulated time, whatever the scale.
+    assert!(edges.windows(2).all(|w| w[1] - w[0] == 2_000_000));
+}
