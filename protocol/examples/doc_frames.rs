@@ -1,0 +1,227 @@
+//! Prints the worked example frames of `docs/PROTOCOL.md`, as they appear there.
+//!
+//! `cargo run -p protocol --example doc_frames`. The test `tests/doc_frames.rs` checks
+//! that every block printed here is in the document, byte for byte.
+
+use protocol::{
+    Ack, Command, Location, MAX_DATAGRAM, MAX_JOINTS, Point, PointList, Pwm, Report, State,
+    StatusCode, StatusFlags, StatusReport, UartInit, VERSION,
+};
+
+/// One worked example: a heading and the frame's bytes.
+pub struct DocFrame {
+    /// What the frame is, as the document's caption.
+    pub caption: String,
+    /// The whole datagram.
+    pub bytes: Vec<u8>,
+    /// Whether it goes host to controller (`Command`) or back (`Report`).
+    pub to_controller: bool,
+}
+
+/// Bytes per line of a hex block.
+const HEX_LINE: usize = 16;
+
+impl DocFrame {
+    /// The frame as the document shows it: lower-case hex, 16 bytes a line.
+    pub fn hex_block(&self) -> String {
+        self.bytes
+            .chunks(HEX_LINE)
+            .map(|line| {
+                line.iter()
+                    .map(|b| format!("{b:02x}"))
+                    .collect::<Vec<_>>()
+                    .join(" ")
+            })
+            .collect::<Vec<_>>()
+            .join("\n")
+    }
+}
+
+fn command(caption: &str, seq: u8, cmd: Command<'_>) -> DocFrame {
+    let mut buf = [0u8; MAX_DATAGRAM];
+    let n = cmd
+        .encode(seq, &mut buf)
+        .expect("example commands are valid");
+    DocFrame {
+        caption: caption.to_owned(),
+        bytes: buf[..n].to_vec(),
+        to_controller: true,
+    }
+}
+
+fn report(caption: &str, seq: u8, report: Report<'_>) -> DocFrame {
+    let mut buf = [0u8; MAX_DATAGRAM];
+    let n = report
+        .encode(seq, &mut buf)
+        .expect("example reports are valid");
+    DocFrame {
+        caption: caption.to_owned(),
+        bytes: buf[..n].to_vec(),
+        to_controller: false,
+    }
+}
+
+/// Joint positions with the first three joints set.
+fn joints(a: i32, b: i32, c: i32) -> [i32; MAX_JOINTS] {
+    [a, b, c, 0, 0, 0, 0, 0]
+}
+
+/// The worked examples, in the order the document shows them.
+pub fn doc_frames() -> Vec<DocFrame> {
+    // Joint 0 +100 steps, joint 1 -50 steps in 10 ms, from zero.
+    let first = Point::from_motion(10_000, &[0; MAX_JOINTS], &joints(100, -50, 0));
+    // Joint 2 one step in 100 ms: its period, 100000 us, needs the 16-bit split.
+    let slow = Point::from_motion(100_000, &first.position, &joints(100, -50, 1));
+    vec![
+        command(
+            "NEW, seq 0x01, 300 points",
+            0x01,
+            Command::New { count: 300 },
+        ),
+        command(
+            "PENDING, seq 0x02, one point: 10 ms, joint 0 to +100, joint 1 to -50",
+            0x02,
+            Command::Pending(PointList::Points(&[first])),
+        ),
+        command(
+            "PENDING, seq 0x03, one point: 100 ms, joint 2 one step (period split)",
+            0x03,
+            Command::Pending(PointList::Points(&[slow])),
+        ),
+        command("RUNING, seq 0x04", 0x04, Command::Runing),
+        command("STOPPED, seq 0x05", 0x05, Command::Stopped),
+        command("UPLOAD_START, seq 0x06", 0x06, Command::UploadStart),
+        command("UPLOAD_STOP, seq 0x07", 0x07, Command::UploadStop),
+        command(
+            "PWM_START, seq 0x08, servo: PSC 239, ARR 19999, CCR1 1500, PluseCount 0",
+            0x08,
+            Command::PwmStart(Pwm {
+                psc: 239,
+                arr: 19_999,
+                ccr1: 1_500,
+                pulse_count: 0,
+            }),
+        ),
+        command(
+            "PWM_START, seq 0x09, stepper: 200 pulses backwards",
+            0x09,
+            Command::PwmStart(Pwm {
+                psc: 239,
+                arr: 999,
+                ccr1: 500,
+                pulse_count: -200,
+            }),
+        ),
+        command("PWM_STOP, seq 0x0a", 0x0a, Command::PwmStop),
+        command(
+            "USART_START, seq 0x0b, 115200 baud 8N1, both directions",
+            0x0b,
+            Command::UsartStart(UartInit {
+                baud_rate: 115_200,
+                ..UartInit::default()
+            }),
+        ),
+        command(
+            "USART_SEND, seq 0x0c, \"hi\\r\\n\"",
+            0x0c,
+            Command::UsartSend(b"hi\r\n"),
+        ),
+        command("USART_STOP, seq 0x0d", 0x0d, Command::UsartStop),
+        command("PIN0_ON, seq 0x0e", 0x0e, Command::Pin0On),
+        command("PIN0_OFF, seq 0x0f", 0x0f, Command::Pin0Off),
+        command("PIN1_ON, seq 0x10", 0x10, Command::Pin1On),
+        command("PIN1_OFF, seq 0x11", 0x11, Command::Pin1Off),
+        command(
+            "TOGGLE_ENABLE_PINS, seq 0x12, every driver",
+            0x12,
+            Command::ToggleEnablePins { mask: None },
+        ),
+        command(
+            "TOGGLE_ENABLE_PINS, seq 0x13, joints 0 and 1 and the gripper (mask 0x0103)",
+            0x13,
+            Command::ToggleEnablePins { mask: Some(0x0103) },
+        ),
+        command("RETURN, seq 0x14", 0x14, Command::Return),
+        command(
+            "JOINTS_COUNT, seq 0x15, 6 joints",
+            0x15,
+            Command::JointsCount(6),
+        ),
+        command(
+            "LOCATION_SETTING, seq 0x16, joint 0 at 1000, joint 1 at -1000",
+            0x16,
+            Command::LocationSetting(Location {
+                position: joints(1_000, -1_000, 0),
+                state: 0,
+            }),
+        ),
+        command("STATUS, seq 0x17", 0x17, Command::Status),
+        command(
+            "UPLOAD_PERIOD, seq 0x18, 20000 us",
+            0x18,
+            Command::UploadPeriod { period_us: 20_000 },
+        ),
+        report(
+            "ACK of the NEW above: OK, state NEW, next_seq 0x02, 0 buffered, 8192 free",
+            0x01,
+            Report::Ack(Ack {
+                acked_tag: 0x00,
+                status: StatusCode::Ok,
+                state: State::New,
+                next_seq: 0x02,
+                buffered: 0,
+                free: 8_192,
+            }),
+        ),
+        report(
+            "ACK refusing a PENDING with seq 0x05: OUT_OF_ORDER, resend from seq 0x03",
+            0x05,
+            Report::Ack(Ack {
+                acked_tag: 0x01,
+                status: StatusCode::OutOfOrder,
+                state: State::Pending,
+                next_seq: 0x03,
+                buffered: 12,
+                free: 8_180,
+            }),
+        ),
+        report(
+            "LOCATION, report seq 0x2a, RUNNING, joint 0 at 100, joint 1 at -50",
+            0x2a,
+            Report::Location(Location {
+                position: joints(100, -50, 0),
+                state: State::Running as u8,
+            }),
+        ),
+        report(
+            "USART_RECV, report seq 0x2b, \"ok\\r\\n\"",
+            0x2b,
+            Report::UsartRecv(b"ok\r\n"),
+        ),
+        report(
+            "STATUS report, seq 0x17",
+            0x17,
+            Report::Status(StatusReport {
+                version: VERSION,
+                joints: 6,
+                state: State::Stopped,
+                flags: StatusFlags(StatusFlags::REPORTS_ON | StatusFlags::DRIVERS_ENABLED),
+                buffered: 0,
+                expected: 300,
+                received: 300,
+                executed: 300,
+                capacity: 8_192,
+                upload_period_us: 10_000,
+                pwm_timer_clock_hz: 240_000_000,
+                max_step_rate_hz: 100_000,
+            }),
+        ),
+    ]
+}
+
+#[allow(dead_code)] // The test includes this file for `doc_frames` alone.
+fn main() {
+    for frame in doc_frames() {
+        println!("{}:\n```text\n{}\n```\n", frame.caption, frame.hex_block());
+    }
+}
