@@ -10,7 +10,7 @@
 //! | SYSCLK (PLL1P) | 400 MHz | Cortex-M7 |
 //! | HCLK (AHB) | 200 MHz | AXI SRAM, Ethernet MAC/DMA, DMA1/2 |
 //! | APB1..APB4 | 100 MHz | USARTs, timers' bus side |
-//! | APB1/APB2 timer clocks | 200 MHz | TIM2 (steps), TIM5 (embassy-time), TIM1 (gripper) |
+//! | APB1/APB2 timer clocks | 200 MHz | TIM2 (steps), TIM5 (embassy-time), TIM15 (gripper) |
 //! | HSI48 | 48 MHz | RNG (network stack seed) |
 
 use embassy_stm32::Config;

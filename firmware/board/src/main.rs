@@ -2,79 +2,140 @@
 //!
 //! The controller speaks the UDP protocol of `docs/PROTOCOL.md` on port 8510 over the
 //! board's Ethernet (LAN8742A PHY, RMII), at the persisted static address (192.168.1.30/24
-//! by default) or from DHCP with the `dhcp` feature.
+//! by default) or from DHCP with the `dhcp` feature. Its behaviour is arm-core's: this
+//! crate implements arm-core's hardware traits with embassy-stm32 drivers and runs
+//! arm-core's tasks.
 //!
 //! # Design
 //!
-//! Work is split by how late it may be:
+//! Work is split by how late it may be, and each level has its own interrupt priority:
 //!
-//! - The step timer interrupt (TIM2, 32-bit, 200 MHz, highest priority) raises and lowers
-//!   the STEP lines at the step engine's deadlines. Nothing else may delay it, so nothing
-//!   else runs at its priority and it never waits for anything.
-//! - Everything else is async tasks on the thread-mode executor: the network stack's
-//!   runner, and the task that reads datagrams, decodes them with the `protocol` crate and
-//!   answers. Network input is decoded into typed commands and every error becomes an ACK
-//!   status; it can never panic or block the step interrupt.
+//! | priority | what | why |
+//! |---|---|---|
+//! | P0 (highest) | TIM2: step timer ([`step_timer`]) | edges at exact ticks; nothing may delay it |
+//! | P1 | TIM15: gripper burst reloads ([`gripper`]) | must reload within 128 PWM periods |
+//! | P2 | TIM5: embassy-time | task wake-ups |
+//! | P3 | Ethernet, USART6, DMA, flash, RNG | driver bookkeeping; their tasks wait anyway |
+//! | thread mode | every task, one executor | see below |
 //!
-//! Peripherals the tasks own live in `StaticCell`s, initialised once in `main`; every task
-//! gets `'static` references or owned drivers, so no task borrows from `main`'s stack.
+//! The tasks (arm-core's, each wrapped below in an `#[embassy_executor::task]`):
+//! - `net_task`: the embassy-net stack's runner.
+//! - `network`: receives datagrams and routes them: a CRC-valid STOPPED goes to its own
+//!   queue, which the trajectory task drains first; sends ACKs and reports.
+//! - `trajectory`: owns the [`Controller`]: handles frames, drives pins, gripper and
+//!   serial port, cuts segments for the step engine.
+//! - `stepper`: moves segments into the engine shared with TIM2 and relays its progress.
+//! - `upload`: LOCATION reports every upload period.
+//! - `serial`: the USART pass-through.
 //!
-//! # Stage
+//! One thread-mode executor is enough: no task computes for long (a PENDING frame of 12
+//! points is decoded and checked in microseconds), the e-stop has its own queue, and
+//! everything with a deadline below a millisecond is an interrupt. An emergency stop reaches
+//! the engine through a critical section, and the step interrupt then lowers the lines.
 //!
-//! This is the networking skeleton: STATUS is answered with an ACK and a STATUS report, every
-//! other frame with a valid CRC with an ACK whose status says why it was not executed.
+//! Network input can never panic or block: arm-core decodes it with the `protocol` crate
+//! and answers every error with an ACK status; queues that are full drop rather than wait.
+//!
+//! # Memory
+//! Every task, driver and buffer is a `static` (`StaticCell`), initialised once in `main`;
+//! there is no heap. The trajectory buffer (8192 points, 288 KiB) and the network buffers
+//! are in AXI SRAM, the stack in DTCM (see `memory.x`).
 
 #![no_std]
 #![no_main]
 
+mod board_hw;
 mod clocks;
+mod gripper;
 mod net;
+mod pins;
+mod serial;
+mod settings;
+mod step_timer;
 
+use arm_core::config::{BOARD_TRAJECTORY_CAPACITY, ControllerConfig};
+use arm_core::hw::{Gripper, PersistentSettings};
+use arm_core::{Bus, Controller, TrajectoryHw};
 use defmt::{info, warn};
 use embassy_executor::Spawner;
 use embassy_net::Stack;
 use embassy_net::udp::{PacketMetadata, UdpSocket};
+use embassy_stm32::flash::Flash;
+use embassy_stm32::interrupt::{InterruptExt, Priority};
 use embassy_stm32::rng::Rng;
-use embassy_stm32::{bind_interrupts, eth, peripherals, rng};
-use protocol::{
-    Ack, Command, MAX_DATAGRAM, PORT, Report, State, StatusCode, StatusFlags, StatusReport,
-};
-use static_cell::StaticCell;
+use embassy_stm32::usart::Uart;
+use embassy_stm32::{Peri, bind_interrupts, dma, eth, flash, interrupt, peripherals, rng, usart};
+use protocol::{MAX_DATAGRAM, PORT};
+use static_cell::{ConstStaticCell, StaticCell};
 use {defmt_rtt as _, panic_probe as _};
+
+use crate::board_hw::{BoardClock, BoardSocket, NoEncoders};
+use crate::gripper::GripperPwm;
+use crate::pins::{OutputLines, OutputPins, StepDirPins};
+use crate::serial::{BoardSerial, RX_RING_BYTES};
+use crate::settings::FlashSettings;
+use crate::step_timer::{STEP, StepTimer};
 
 bind_interrupts!(
     /// Interrupt handlers of the embassy drivers.
     pub struct Irqs {
         ETH => eth::InterruptHandler;
         RNG => rng::InterruptHandler<peripherals::RNG>;
+        FLASH => flash::InterruptHandler;
+        USART6 => usart::InterruptHandler<peripherals::USART6>;
+        DMA1_STREAM0 => dma::InterruptHandler<peripherals::DMA1_CH0>;
+        DMA1_STREAM1 => dma::InterruptHandler<peripherals::DMA1_CH1>;
     }
 );
 
-/// The controller's address until persisted settings are read (PROTOCOL.md section 1).
-const DEFAULT_IP: [u8; 4] = [192, 168, 1, 30];
-/// Prefix length of [`DEFAULT_IP`]'s subnet.
-const DEFAULT_PREFIX_LEN: u8 = 24;
-/// Joints reported until persisted settings are read.
-const DEFAULT_JOINTS: u8 = protocol::limits::DEFAULT_JOINTS;
+/// Joints the board has STEP/DIR/ENABLE lines for.
+pub const MAX_JOINTS: usize = protocol::MAX_JOINTS;
+
+/// Trajectory points buffered (arm-core's board figure: 80 s of 10 ms points).
+const CAP: usize = BOARD_TRAJECTORY_CAPACITY;
+
+/// The controller as this board instantiates it.
+type BoardController = Controller<CAP>;
+
+/// The hardware the trajectory task drives.
+type BoardTrajectoryHw = TrajectoryHw<
+    'static,
+    StepTimer,
+    OutputLines,
+    GripperPwm,
+    BoardSerial,
+    FlashSettings,
+    NoEncoders,
+>;
+
+/// The channels between the tasks (and the step interrupt).
+pub static BUS: Bus = Bus::new();
+/// Time for the tasks.
+static CLOCK: BoardClock = BoardClock;
+
+static CONTROLLER: StaticCell<BoardController> = StaticCell::new();
+static KICK: StaticCell<StepTimer> = StaticCell::new();
+static SERIAL: StaticCell<BoardSerial> = StaticCell::new();
+static SOCKET: StaticCell<BoardSocket> = StaticCell::new();
+static RX_RING: ConstStaticCell<[u8; RX_RING_BYTES]> = ConstStaticCell::new([0; RX_RING_BYTES]);
 
 /// Datagrams the socket queues in each direction.
 const UDP_PACKETS: usize = 8;
-/// Receive buffer: a host streams PENDING frames (up to 1395 bytes) ahead of the ACKs, and
-/// four full-size datagrams cover a burst while the task is answering the previous one.
+/// Receive buffer: a host keeps a window of PENDING frames (up to 1395 bytes each; armctl
+/// sends 4) in flight; four full-size datagrams cover it while the stack waits for the
+/// network task.
 const UDP_RX_BYTES: usize = 4 * MAX_DATAGRAM;
-/// Transmit buffer: an ACK, a STATUS report, a LOCATION report and a full USART_RECV report
-/// (260 bytes) together take well under two full datagrams.
-const UDP_TX_BYTES: usize = 2 * MAX_DATAGRAM;
+/// Transmit buffer: arm-core's outbox holds 16 frames of at most 260 bytes (USART_RECV);
+/// 4 KiB takes a whole outbox burst.
+const UDP_TX_BYTES: usize = 4096;
 
-/// The UDP socket's buffers, in one static so that the socket can be `'static`.
-struct UdpBuffers {
-    rx_meta: [PacketMetadata; UDP_PACKETS],
-    rx: [u8; UDP_RX_BYTES],
-    tx_meta: [PacketMetadata; UDP_PACKETS],
-    tx: [u8; UDP_TX_BYTES],
-}
-
-static UDP_BUFFERS: StaticCell<UdpBuffers> = StaticCell::new();
+/// The UDP socket's buffers: zeroed statics (`.bss`), taken once by [`bind_socket`].
+static UDP_RX_META: ConstStaticCell<[PacketMetadata; UDP_PACKETS]> =
+    ConstStaticCell::new([PacketMetadata::EMPTY; UDP_PACKETS]);
+static UDP_RX: ConstStaticCell<[u8; UDP_RX_BYTES]> = ConstStaticCell::new([0; UDP_RX_BYTES]);
+static UDP_TX_META: ConstStaticCell<[PacketMetadata; UDP_PACKETS]> =
+    ConstStaticCell::new([PacketMetadata::EMPTY; UDP_PACKETS]);
+static UDP_TX: ConstStaticCell<[u8; UDP_TX_BYTES]> = ConstStaticCell::new([0; UDP_TX_BYTES]);
 
 #[embassy_executor::task]
 async fn net_task(mut runner: net::Runner) -> ! {
@@ -82,94 +143,145 @@ async fn net_task(mut runner: net::Runner) -> ! {
 }
 
 #[embassy_executor::task]
-async fn command_task(socket: UdpSocket<'static>) -> ! {
-    let mut datagram = [0u8; MAX_DATAGRAM];
-    let mut reply = [0u8; MAX_DATAGRAM];
-    // The seq of the controller's own reports (PROTOCOL.md section 4).
-    let mut report_seq: u8 = 0;
-    loop {
-        let (len, meta) = match socket.recv_from(&mut datagram).await {
-            Ok(received) => received,
-            Err(e) => {
-                warn!("udp receive: {}", e);
-                continue;
-            }
-        };
-        let Some(bytes) = datagram.get(..len) else {
-            continue;
-        };
-        let (seq, tag, status, wants_status) = match Command::decode(bytes) {
-            Ok(frame) => {
-                let tag = frame.body.tag() as u8;
-                match frame.body {
-                    Command::Status => (frame.seq, tag, StatusCode::Ok, true),
-                    // Not executed at this stage: say so rather than claim success.
-                    _ => (frame.seq, tag, StatusCode::Unsupported, false),
-                }
-            }
-            Err(e) => match e.status() {
-                Some(status) => (e.seq, e.tag, status, false),
-                None => continue,
-            },
-        };
-        let ack = Report::Ack(Ack {
-            acked_tag: tag,
-            status,
-            state: State::Stopped,
-            next_seq: 0,
-            buffered: 0,
-            free: 0,
-        });
-        send(&socket, &ack, seq, &mut reply, meta.endpoint).await;
-        if wants_status {
-            let status = Report::Status(skeleton_status());
-            send(&socket, &status, report_seq, &mut reply, meta.endpoint).await;
-            report_seq = report_seq.wrapping_add(1);
-        }
-    }
+async fn network(socket: &'static BoardSocket) -> ! {
+    arm_core::network_task(socket, &BUS).await
 }
 
-/// Encodes `report` and sends it; failures are logged and dropped (the host retries).
-async fn send(
-    socket: &UdpSocket<'static>,
-    report: &Report<'_>,
-    seq: u8,
-    buf: &mut [u8],
-    to: embassy_net::IpEndpoint,
-) {
-    match report.encode(seq, buf) {
-        Ok(n) => {
-            if let Err(e) = socket.send_to(buf.get(..n).unwrap_or(&[]), to).await {
-                warn!("udp send: {}", e);
-            }
-        }
-        Err(e) => warn!("encode: {}", e),
-    }
+#[embassy_executor::task]
+async fn trajectory(controller: &'static mut BoardController, hw: BoardTrajectoryHw) -> ! {
+    arm_core::trajectory_task(controller, &BUS, &STEP, &CLOCK, hw).await
 }
 
-/// The STATUS report of the skeleton: idle, no trajectory buffer yet.
-fn skeleton_status() -> StatusReport {
-    StatusReport {
-        version: protocol::VERSION,
-        joints: DEFAULT_JOINTS,
-        state: State::Stopped,
-        flags: StatusFlags::default(),
-        upload_period_us: protocol::limits::DEFAULT_UPLOAD_PERIOD_US,
-        pwm_timer_clock_hz: embassy_stm32::rcc::frequency::<peripherals::TIM1>().0,
-        ..StatusReport::default()
+#[embassy_executor::task]
+async fn stepper(kick: &'static StepTimer) -> ! {
+    arm_core::step_task(&BUS, &STEP, kick).await
+}
+
+#[embassy_executor::task]
+async fn upload() -> ! {
+    arm_core::upload_task(&BUS, &STEP, &CLOCK).await
+}
+
+#[embassy_executor::task]
+async fn serial(port: &'static BoardSerial) -> ! {
+    arm_core::serial_task(port, &BUS, &CLOCK).await
+}
+
+/// Lowers every driver interrupt below the step and gripper timers (the drivers enable
+/// them at P0, the reset value).
+fn set_driver_priorities() {
+    interrupt::TIM5.set_priority(Priority::P2);
+    for irq in [
+        interrupt::ETH,
+        interrupt::USART6,
+        interrupt::DMA1_STREAM0,
+        interrupt::DMA1_STREAM1,
+        interrupt::FLASH,
+        interrupt::RNG,
+    ] {
+        irq.set_priority(Priority::P3);
     }
 }
 
 #[embassy_executor::main]
 async fn main(spawner: Spawner) -> ! {
-    let p = embassy_stm32::init(clocks::config());
+    let mut config = clocks::config();
+    config.dma_interrupt_priority = Priority::P3;
+    config.bdma_interrupt_priority = Priority::P3;
+    config.mdma_interrupt_priority = Priority::P3;
+    let p = embassy_stm32::init(config);
     info!("arm controller starting");
+    // The instruction cache makes interrupt entry and the step engine's code fast and
+    // steady despite the flash wait states. The data cache stays off: the
+    // Ethernet and USART DMA buffers are not cache-maintained.
+    match cortex_m::Peripherals::take() {
+        Some(mut core) => core.SCB.enable_icache(),
+        None => warn!("core peripherals already taken: instruction cache left off"),
+    }
 
-    // The TCP/IP stack wants a random seed (initial sequence numbers, DHCP transaction IDs).
-    let mut rng = Rng::new(p.RNG, Irqs);
-    let seed = rng.next_u64();
+    // Step outputs first: from here on the STEP lines are driven low.
+    let step_dir = StepDirPins {
+        step: [
+            p.PE8.into(),
+            p.PE9.into(),
+            p.PE10.into(),
+            p.PE11.into(),
+            p.PE12.into(),
+            p.PE13.into(),
+            p.PE14.into(),
+            p.PE15.into(),
+        ],
+        dir: [
+            p.PD0.into(),
+            p.PD1.into(),
+            p.PD2.into(),
+            p.PD3.into(),
+            p.PD4.into(),
+            p.PD5.into(),
+            p.PD6.into(),
+            p.PD7.into(),
+        ],
+    };
+    let kick = match step_timer::start(p.TIM2, step_dir.into_writer()) {
+        Ok(kick) => KICK.init(kick),
+        Err(e) => defmt::panic!(
+            "step timer clock is not {} Hz: {}",
+            step_timer::STEP_TIMER_HZ,
+            e
+        ),
+    };
+    let outputs = OutputLines::new(OutputPins {
+        pin0: p.PG2,
+        pin1: p.PG3,
+        enable: [
+            p.PF0.into(),
+            p.PF1.into(),
+            p.PF2.into(),
+            p.PF7.into(),
+            p.PF8.into(),
+            p.PF9.into(),
+            p.PF12.into(),
+            p.PF13.into(),
+            p.PF14.into(),
+        ],
+    });
+    let gripper = GripperPwm::new(p.TIM15, p.PE5, p.PE4);
 
-    let pins = net::EthernetPins {
+    let uart = match Uart::new(
+        p.USART6,
+        p.PC7,
+        p.PC6,
+        p.DMA1_CH0,
+        p.DMA1_CH1,
+        Irqs,
+        usart::Config::default(),
+    ) {
+        Ok(uart) => uart,
+        Err(e) => defmt::panic!("USART6: {}", e),
+    };
+    let serial_port = SERIAL.init(BoardSerial::new(uart, RX_RING.take()));
+
+    let mut settings = FlashSettings::new(Flash::new(p.FLASH, Irqs));
+    let stored = match settings.read().await {
+        Ok(stored) => stored,
+        Err(e) => {
+            warn!("settings unreadable, using defaults: {}", e);
+            None
+        }
+    };
+    let persistent = stored.unwrap_or_default();
+    info!("settings: {}", persistent);
+
+    let controller_config = ControllerConfig {
+        pwm_timer_clock_hz: gripper.timer_clock_hz(),
+        max_step_rate_hz: ControllerConfig::BOARD
+            .max_step_rate_hz
+            .min(step_timer::STEP_TIMING.max_step_rate_hz()),
+        ..ControllerConfig::BOARD
+    };
+    let controller = CONTROLLER.init_with(|| Controller::new(controller_config));
+
+    let eth_pins = net::EthernetPins {
         eth: p.ETH,
         sma: p.ETH_SMA,
         ref_clk: p.PA1,
@@ -182,17 +294,25 @@ async fn main(spawner: Spawner) -> ! {
         mdio: p.PA2,
         mdc: p.PC1,
     };
-    let (stack, runner) = net::init(pins, net::ip_config(DEFAULT_IP, DEFAULT_PREFIX_LEN), seed);
-    spawner.spawn(defmt::unwrap!(net_task(runner)));
+    let stack = start_network(&spawner, p.RNG, eth_pins, &persistent);
+    let socket = SOCKET.init(BoardSocket::new(bind_socket(stack)));
+    set_driver_priorities();
 
-    let buffers = UDP_BUFFERS.init(UdpBuffers {
-        rx_meta: [PacketMetadata::EMPTY; UDP_PACKETS],
-        rx: [0; UDP_RX_BYTES],
-        tx_meta: [PacketMetadata::EMPTY; UDP_PACKETS],
-        tx: [0; UDP_TX_BYTES],
-    });
-    let socket = bind_socket(stack, buffers);
-    spawner.spawn(defmt::unwrap!(command_task(socket)));
+    spawner.spawn(defmt::unwrap!(network(socket)));
+    spawner.spawn(defmt::unwrap!(trajectory(
+        controller,
+        TrajectoryHw {
+            kick,
+            outputs,
+            gripper,
+            serial: serial_port,
+            settings,
+            encoders: NoEncoders,
+        },
+    )));
+    spawner.spawn(defmt::unwrap!(stepper(kick)));
+    spawner.spawn(defmt::unwrap!(upload()));
+    spawner.spawn(defmt::unwrap!(serial(serial_port)));
 
     stack.wait_config_up().await;
     if let Some(config) = stack.config_v4() {
@@ -208,14 +328,28 @@ async fn main(spawner: Spawner) -> ! {
     }
 }
 
+/// Seeds and starts the network stack at the stored address; spawns its runner.
+fn start_network(
+    spawner: &Spawner,
+    rng: Peri<'static, peripherals::RNG>,
+    pins: net::EthernetPins,
+    settings: &PersistentSettings,
+) -> Stack<'static> {
+    // The TCP/IP stack wants a random seed (initial sequence numbers, DHCP transaction IDs).
+    let seed = Rng::new(rng, Irqs).next_u64();
+    let (stack, runner) = net::init(pins, net::ip_config(settings.ip, settings.prefix_len), seed);
+    spawner.spawn(defmt::unwrap!(net_task(runner)));
+    stack
+}
+
 /// The controller's socket, bound to [`PORT`].
-fn bind_socket(stack: Stack<'static>, buffers: &'static mut UdpBuffers) -> UdpSocket<'static> {
+fn bind_socket(stack: Stack<'static>) -> UdpSocket<'static> {
     let mut socket = UdpSocket::new(
         stack,
-        &mut buffers.rx_meta,
-        &mut buffers.rx,
-        &mut buffers.tx_meta,
-        &mut buffers.tx,
+        UDP_RX_META.take(),
+        UDP_RX.take(),
+        UDP_TX_META.take(),
+        UDP_TX.take(),
     );
     if let Err(e) = socket.bind(PORT) {
         // Only possible with port 0 or a second bind; both are programming errors.
