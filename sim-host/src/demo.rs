@@ -1,10 +1,603 @@
-//! `sim-host demo`.
+//! `sim-host demo`: a 6-joint pick-and-place on the simulated controller, driven over UDP
+//! with the `armctl` library exactly as a host drives the board.
+//!
+//! The controller runs in this process (its own threads and executor) on a free loopback
+//! port with a small trajectory buffer, so every run is longer than the buffer and
+//! streams. The demo opens the serial pass-through (loopback: what it sends comes back),
+//! signals with PIN0, closes and opens the gripper (servo PWM) between runs, ends with an
+//! emergency stop in the middle of a move, then checks the final positions three ways
+//! (commanded, the controller's LOCATION, the pulses the simulated motors received) and
+//! writes an SVG plot of commanded versus executed joint positions.
+
+use std::io::{self, IsTerminal};
+use std::path::PathBuf;
+use std::sync::atomic::Ordering;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use armctl::plot::Commanded;
+use armctl::record::Sample;
+use armctl::{Controller, Progress, RunOptions};
+use indicatif::{ProgressBar, ProgressStyle};
+use protocol::{Location, MAX_JOINTS, Point, State, StatusFlags, UartInit};
+
+use crate::app::Board;
+use crate::options::SimOptions;
+
+/// Joints of the demo arm.
+const JOINTS: usize = 6;
+
+/// Length of one trajectory point, microseconds (10 ms, a usual host rate).
+const POINT_US: u32 = 10_000;
+
+/// The demo controller's trajectory buffer: 0.64 s of points, far less than any run, so
+/// every run streams while it executes.
+const DEMO_BUFFER: usize = 64;
 
 /// Options of the demo.
 #[derive(Clone, Debug, clap::Args)]
-pub struct DemoOptions {}
+pub struct DemoOptions {
+    /// Where to write the SVG plot (default: sim-host-demo.svg next to the executable,
+    /// i.e. in cargo's target directory).
+    #[arg(long, value_name = "FILE.svg")]
+    pub plot: Option<PathBuf>,
+    /// No progress bar, one line per step (for logs).
+    #[arg(long)]
+    pub quiet: bool,
+}
+
+/// A named pose of the arm, joint positions in steps.
+type Pose = [i32; JOINTS];
+
+const HOME: Pose = [0, 0, 0, 0, 0, 0];
+const ABOVE_PICK: Pose = [4000, -2500, 3000, -800, 0, 1200];
+const PICK: Pose = [4000, -3400, 3800, -600, 0, 1200];
+const ABOVE_PLACE: Pose = [-3500, -2300, 2600, -700, 1600, -900];
+const PLACE: Pose = [-3500, -3200, 3500, -500, 1600, -900];
+
+/// One leg of a run: to `pose` in `seconds`, minimum-jerk profile.
+struct Leg {
+    pose: Pose,
+    seconds: f64,
+}
+
+/// Points through the legs from `start`, every [`POINT_US`].
+fn plan(start: Pose, legs: &[Leg]) -> Vec<Point> {
+    let mut points = Vec::new();
+    let mut previous = widen(start);
+    let mut from = start;
+    for leg in legs {
+        let n = (leg.seconds * 1e6 / f64::from(POINT_US)).round().max(1.0) as usize;
+        for i in 1..=n {
+            let s = i as f64 / n as f64;
+            // Minimum jerk: zero velocity and acceleration at both ends of the leg.
+            let blend = s * s * s * (10.0 - 15.0 * s + 6.0 * s * s);
+            let mut target = [0i32; MAX_JOINTS];
+            for j in 0..JOINTS {
+                let a = f64::from(from[j]);
+                let b = f64::from(leg.pose[j]);
+                target[j] = (a + (b - a) * blend).round() as i32;
+            }
+            points.push(Point::from_motion(POINT_US as i32, &previous, &target));
+            previous = target;
+        }
+        from = leg.pose;
+    }
+    points
+}
+
+fn widen(pose: Pose) -> [i32; MAX_JOINTS] {
+    let mut all = [0; MAX_JOINTS];
+    all[..JOINTS].copy_from_slice(&pose);
+    all
+}
+
+/// The outcome of one check in the summary.
+struct Check {
+    what: String,
+    passed: bool,
+}
+
+/// What the display thread shows.
+#[derive(Default)]
+struct Display {
+    phase: String,
+    progress: Progress,
+    gripper: String,
+}
 
 /// Runs the demo.
-pub fn run(_sim: &crate::options::SimOptions, _demo: &DemoOptions) -> std::io::Result<()> {
-    Err(std::io::Error::other("demo: not written yet"))
+pub fn run(sim: &SimOptions, demo: &DemoOptions) -> io::Result<()> {
+    let mut options = sim.clone();
+    // A port of its own, so a controller already on 8510 does not matter.
+    options.bind.set_port(0);
+    // A host paces its upload by wall-clock point durations: sped-up time drains the
+    // buffer faster than a host expects, so it gets proportionally more room.
+    let scaled_buffer = DEMO_BUFFER * sim.time_scale.ceil().max(1.0) as usize;
+    options.buffer_capacity = Some(sim.buffer_capacity.unwrap_or(scaled_buffer));
+    let settings_dir = std::env::temp_dir().join(format!("sim-host-demo-{}", std::process::id()));
+    if options.settings.is_none() {
+        options.settings = Some(settings_dir.join("settings.txt"));
+    }
+    let board = crate::app::start_in_background(&options)?;
+    let addr = board
+        .local_addr()
+        .ok_or_else(|| io::Error::other("the demo needs a UDP socket, not --tap"))?;
+    let result = drive(&board, addr, demo);
+    board.shut_down();
+    let _ = std::fs::remove_dir_all(&settings_dir);
+    result
+}
+
+fn to_io(e: armctl::Error) -> io::Error {
+    io::Error::other(e.to_string())
+}
+
+fn drive(board: &Board, addr: std::net::SocketAddr, demo: &DemoOptions) -> io::Result<()> {
+    let say = |line: String| println!("{line}");
+    say(format!(
+        "sim-host demo: 6-joint pick-and-place on the simulated controller at {addr} (time scale {})",
+        board.clock.time_scale()
+    ));
+    let arm = Arc::new(Controller::connect(addr).map_err(to_io)?);
+    arm.set_joints(JOINTS as u8).map_err(to_io)?;
+    let status = arm.status().map_err(to_io)?;
+    say(format!(
+        "  controller: protocol {}.{}.{}, {} joints, buffer {} points, max {} steps/s, gripper clock {} MHz",
+        status.version[0],
+        status.version[1],
+        status.version[2],
+        status.joints,
+        status.capacity,
+        status.max_step_rate_hz,
+        status.pwm_timer_clock_hz / 1_000_000
+    ));
+
+    // Every LOCATION report, for the plot.
+    let recording: Arc<Mutex<Vec<Sample>>> = Arc::default();
+    let t0 = Instant::now();
+    {
+        let locations = arm.locations();
+        let recording = recording.clone();
+        std::thread::spawn(move || {
+            for location in locations {
+                if let Ok(mut samples) = recording.lock() {
+                    samples.push(Sample {
+                        time_s: t0.elapsed().as_secs_f64(),
+                        state: location.state,
+                        position: location.position[..JOINTS].to_vec(),
+                    });
+                }
+            }
+        });
+    }
+    let mut checks: Vec<Check> = Vec::new();
+    let mut check = |what: String, passed: bool| {
+        let mark = if passed { "ok" } else { "FAILED" };
+        println!("  [{mark}] {what}");
+        checks.push(Check { what, passed });
+    };
+
+    // Serial pass-through: the simulator's port is a loopback, so the line comes back.
+    let serial = arm.serial_rx();
+    arm.serial_open(UartInit {
+        baud_rate: 115_200,
+        ..UartInit::default()
+    })
+    .map_err(to_io)?;
+    let hello = b"TOOL? gripper-v2\n";
+    arm.serial_send(hello).map_err(to_io)?;
+    let mut echoed = Vec::new();
+    let until = Instant::now() + Duration::from_secs(2);
+    while echoed.len() < hello.len() && Instant::now() < until {
+        if let Ok(bytes) = serial.recv_timeout(Duration::from_millis(100)) {
+            echoed.extend(bytes);
+        }
+    }
+    check(
+        format!(
+            "serial: sent {:?}, read back {:?}",
+            String::from_utf8_lossy(hello).trim_end(),
+            String::from_utf8_lossy(&echoed).trim_end()
+        ),
+        echoed == hello,
+    );
+    arm.pin(0, true).map_err(to_io)?;
+
+    // The display: a progress bar per run with live positions.
+    let display = Arc::new(Mutex::new(Display {
+        gripper: "open".into(),
+        ..Display::default()
+    }));
+    let interactive = !demo.quiet && io::stderr().is_terminal();
+
+    let gripper = |duty: f64| armctl::pwm::settings(status.pwm_timer_clock_hz, 50.0, duty, 0);
+    let open = gripper(0.05).map_err(io::Error::other)?;
+    let close = gripper(0.10).map_err(io::Error::other)?;
+    arm.pwm_start(open).map_err(to_io)?;
+
+    let mut commanded_times: Vec<f64> = Vec::new();
+    let mut commanded_positions: Vec<Vec<f64>> = Vec::new();
+    let runs: [(&str, Vec<Leg>); 2] = [
+        (
+            "approach",
+            vec![
+                Leg {
+                    pose: ABOVE_PICK,
+                    seconds: 1.5,
+                },
+                Leg {
+                    pose: PICK,
+                    seconds: 0.8,
+                },
+            ],
+        ),
+        (
+            "transfer",
+            vec![
+                Leg {
+                    pose: ABOVE_PICK,
+                    seconds: 0.8,
+                },
+                Leg {
+                    pose: ABOVE_PLACE,
+                    seconds: 2.0,
+                },
+                Leg {
+                    pose: PLACE,
+                    seconds: 0.8,
+                },
+            ],
+        ),
+    ];
+    let mut at = HOME;
+    let mut streamed = 0;
+    for (i, (name, legs)) in runs.iter().enumerate() {
+        let points = plan(at, legs);
+        let end = legs.last().map(|l| l.pose).unwrap_or(at);
+        let started = t0.elapsed().as_secs_f64();
+        let report = run_with_display(&arm, name, &points, &display, interactive, board)?;
+        streamed += points.len();
+        add_commanded(
+            &mut commanded_times,
+            &mut commanded_positions,
+            at,
+            &points,
+            run_start(&recording, started),
+            board.clock.time_scale(),
+        );
+        let location = report
+            .final_location
+            .map(|l| l.position)
+            .unwrap_or_default();
+        check(
+            format!(
+                "{name}: {} points through a {}-point buffer in {:.2} s ({} resent), ends at {:?}",
+                points.len(),
+                status.capacity,
+                report.total_time.as_secs_f64(),
+                report.retransmissions,
+                &location[..JOINTS]
+            ),
+            location[..JOINTS] == end,
+        );
+        at = end;
+        // Gripper: close on the part after the approach, open after the transfer.
+        let (pwm, word) = if i == 0 {
+            (close, "closed")
+        } else {
+            (open, "open")
+        };
+        arm.pwm_start(pwm).map_err(to_io)?;
+        if let Ok(mut d) = display.lock() {
+            d.gripper = word.into();
+        }
+        say(format!(
+            "  gripper {word}: servo PWM {:.0} Hz, duty {:.1} %",
+            pwm.frequency_hz(status.pwm_timer_clock_hz),
+            pwm.duty() * 100.0
+        ));
+        std::thread::sleep(Duration::from_secs_f64(0.3 / board.clock.time_scale()));
+    }
+
+    // The last move home is stopped half way: emergency stop.
+    let points = plan(
+        at,
+        &[
+            Leg {
+                pose: ABOVE_PLACE,
+                seconds: 0.8,
+            },
+            Leg {
+                pose: HOME,
+                seconds: 2.0,
+            },
+        ],
+    );
+    let retreat_started = t0.elapsed().as_secs_f64();
+    let stopper = {
+        let arm = arm.clone();
+        let scale = board.clock.time_scale();
+        std::thread::spawn(move || {
+            // Wait until it moves, then 1.2 s (simulated) into the move: STOPPED.
+            let until = Instant::now() + Duration::from_secs(10);
+            while arm
+                .last_location()
+                .is_none_or(|l| l.state != State::Running as u8)
+                && Instant::now() < until
+            {
+                std::thread::sleep(Duration::from_millis(2));
+            }
+            std::thread::sleep(Duration::from_secs_f64(1.2 / scale));
+            let sent = Instant::now();
+            let ack = arm.stop();
+            (sent.elapsed(), ack.map(|a| a.state))
+        })
+    };
+    let outcome = run_with_display(&arm, "retreat", &points, &display, interactive, board);
+    let (ack_time, stop_ack) = stopper
+        .join()
+        .map_err(|_| io::Error::other("the e-stop thread panicked"))?;
+    add_commanded(
+        &mut commanded_times,
+        &mut commanded_positions,
+        at,
+        &points,
+        run_start(&recording, retreat_started),
+        board.clock.time_scale(),
+    );
+    streamed += points.len();
+    check(
+        format!(
+            "e-stop: STOPPED acknowledged in {:.2} ms (state {}); the run ended early: {}",
+            ack_time.as_secs_f64() * 1e3,
+            stop_ack.as_ref().map_or("?", |s| s.name()),
+            match &outcome {
+                Ok(_) => "no (it completed)".to_string(),
+                Err(e) => e.to_string(),
+            }
+        ),
+        matches!(stop_ack, Ok(State::Stopped)) && outcome.is_err(),
+    );
+    let status = arm.status().map_err(to_io)?;
+    check(
+        format!(
+            "STATUS after the stop: {}, stopped-by-host flag set",
+            status.state.name()
+        ),
+        status.state == State::Stopped && status.flags.has(StatusFlags::STOPPED_BY_HOST),
+    );
+    let still = arm
+        .current_location(Duration::from_secs(2))
+        .map_err(to_io)?;
+    std::thread::sleep(Duration::from_millis(200));
+    let later = arm
+        .current_location(Duration::from_secs(2))
+        .map_err(to_io)?;
+    check(
+        format!(
+            "no step after the stop: {:?} 200 ms later",
+            &later.position[..JOINTS]
+        ),
+        still.position == later.position,
+    );
+    let motors = board.motors.positions();
+    let physical: Vec<i64> = motors[..JOINTS].to_vec();
+    let reported: Vec<i64> = later.position[..JOINTS]
+        .iter()
+        .map(|&p| i64::from(p))
+        .collect();
+    check(
+        format!("the motors received exactly the reported steps: pulses {physical:?}"),
+        physical == reported,
+    );
+    // On the commanded path (within its extent on every joint), short of home.
+    let on_path = (0..JOINTS).all(|j| {
+        let along = points.iter().map(|p| p.position[j]).chain([at[j]]);
+        let (low, high) = along.fold((i32::MAX, i32::MIN), |(l, h), x| (l.min(x), h.max(x)));
+        (low..=high).contains(&later.position[j])
+    });
+    check(
+        "stopped part way along the retreat, short of home".to_string(),
+        on_path && later.position[..JOINTS] != HOME,
+    );
+    let latencies = board.probe.take_estop_latencies();
+    if let Some(latency) = latencies.first() {
+        println!(
+            "  e-stop latency inside the controller (datagram read to step engine idle): {:.1} us",
+            latency.as_secs_f64() * 1e6
+        );
+    }
+    arm.pwm_stop().map_err(to_io)?;
+    arm.pin(0, false).map_err(to_io)?;
+    arm.serial_close().map_err(to_io)?;
+
+    // The plot.
+    let samples = recording.lock().map(|s| s.clone()).unwrap_or_default();
+    let commanded = Commanded {
+        times_s: commanded_times,
+        positions: commanded_positions,
+        offset_s: 0.0,
+    };
+    let svg = armctl::plot::svg(
+        &samples,
+        Some(&commanded),
+        "sim-host demo: commanded (dashed) vs executed joint positions",
+    );
+    let plot_path = demo.plot.clone().unwrap_or_else(default_plot_path);
+    std::fs::write(&plot_path, svg)?;
+    let failed = checks.iter().filter(|c| !c.passed).count();
+    println!(
+        "summary: {} points streamed in 3 runs, {} location reports recorded, {} of {} checks passed",
+        streamed,
+        samples.len(),
+        checks.len() - failed,
+        checks.len()
+    );
+    println!("plot: {}", plot_path.display());
+    let serial = board.serial.counters();
+    log::debug!(
+        "serial bytes written {}",
+        serial.written.load(Ordering::Relaxed)
+    );
+    if failed > 0 {
+        for c in checks.iter().filter(|c| !c.passed) {
+            eprintln!("FAILED: {}", c.what);
+        }
+        return Err(io::Error::other(format!("{failed} demo checks failed")));
+    }
+    Ok(())
+}
+
+/// Uploads and runs `points` with a progress bar showing the upload, execution and live
+/// joint positions.
+fn run_with_display(
+    arm: &Arc<Controller>,
+    name: &str,
+    points: &[Point],
+    display: &Arc<Mutex<Display>>,
+    interactive: bool,
+    board: &Board,
+) -> io::Result<armctl::RunReport> {
+    if let Ok(mut d) = display.lock() {
+        d.phase = name.to_string();
+        d.progress = Progress::default();
+    }
+    let bar = if interactive {
+        let bar = ProgressBar::new(points.len() as u64);
+        bar.set_style(
+            ProgressStyle::with_template(
+                "  {prefix:>9} [{bar:30.cyan/blue}] {pos:>4}/{len} executed  {msg}",
+            )
+            .unwrap_or_else(|_| ProgressStyle::default_bar())
+            .progress_chars("=> "),
+        );
+        bar.set_prefix(name.to_string());
+        bar
+    } else {
+        println!(
+            "  {name}: {} points ({:.1} s)",
+            points.len(),
+            points.len() as f64 * f64::from(POINT_US) / 1e6
+        );
+        ProgressBar::hidden()
+    };
+    // Live positions between progress callbacks.
+    let done = Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let ticker = {
+        let arm = arm.clone();
+        let bar = bar.clone();
+        let display = display.clone();
+        let done = done.clone();
+        std::thread::spawn(move || {
+            while !done.load(Ordering::Relaxed) {
+                let (progress, gripper) = display
+                    .lock()
+                    .map(|d| (d.progress, d.gripper.clone()))
+                    .unwrap_or_default();
+                bar.set_position(progress.executed as u64);
+                let joints = arm
+                    .last_location()
+                    .map(|l: Location| format!("{:?}", &l.position[..JOINTS]))
+                    .unwrap_or_default();
+                bar.set_message(format!(
+                    "acked {:>4}  joints {joints}  gripper {gripper}",
+                    progress.acked
+                ));
+                std::thread::sleep(Duration::from_millis(50));
+            }
+        })
+    };
+    let options = RunOptions {
+        completion_timeout: Some(Duration::from_secs_f64(
+            points.len() as f64 * f64::from(POINT_US) / 1e6 / board.clock.time_scale() + 10.0,
+        )),
+        ..RunOptions::default()
+    };
+    let result = arm.run_trajectory(points, &options, |p| {
+        if let Ok(mut d) = display.lock() {
+            d.progress = *p;
+        }
+    });
+    done.store(true, Ordering::Relaxed);
+    let _ = ticker.join();
+    if let Ok(report) = &result {
+        bar.set_position(report.points as u64);
+    }
+    bar.finish();
+    result.map_err(to_io)
+}
+
+/// When a run started moving: the first RUNNING report after `after` (seconds).
+fn run_start(recording: &Arc<Mutex<Vec<Sample>>>, after: f64) -> f64 {
+    recording
+        .lock()
+        .ok()
+        .and_then(|samples| {
+            samples
+                .iter()
+                .find(|s| s.time_s >= after && s.state == State::Running as u8)
+                .map(|s| s.time_s)
+        })
+        .unwrap_or(after)
+}
+
+/// Appends a run's commanded positions (in real seconds from the demo's start).
+fn add_commanded(
+    times: &mut Vec<f64>,
+    positions: &mut Vec<Vec<f64>>,
+    start: Pose,
+    points: &[Point],
+    at_s: f64,
+    time_scale: f64,
+) {
+    times.push(at_s);
+    positions.push(start.iter().map(|&p| f64::from(p)).collect());
+    let mut t = at_s;
+    for p in points {
+        t += f64::from(p.duration) / 1e6 / time_scale;
+        times.push(t);
+        positions.push(p.position[..JOINTS].iter().map(|&x| f64::from(x)).collect());
+    }
+}
+
+fn default_plot_path() -> PathBuf {
+    std::env::current_exe()
+        .ok()
+        .and_then(|exe| exe.parent().map(|dir| dir.join("sim-host-demo.svg")))
+        .unwrap_or_else(|| std::env::temp_dir().join("sim-host-demo.svg"))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn plan_reaches_every_pose_within_the_step_rate() {
+        let points = plan(
+            HOME,
+            &[
+                Leg {
+                    pose: PICK,
+                    seconds: 1.0,
+                },
+                Leg {
+                    pose: HOME,
+                    seconds: 0.5,
+                },
+            ],
+        );
+        assert_eq!(points.len(), 150);
+        assert_eq!(points[99].position[..JOINTS], PICK);
+        assert_eq!(points[149].position[..JOINTS], HOME);
+        let mut previous = [0; MAX_JOINTS];
+        for p in &points {
+            for j in 0..JOINTS {
+                let steps = p.steps(&previous, j).unsigned_abs();
+                // 100 kHz at most: 1000 steps in 10 ms.
+                assert!(steps <= 1000, "{steps}");
+            }
+            previous = p.position;
+        }
+    }
 }
