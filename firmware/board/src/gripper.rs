@@ -54,6 +54,23 @@ pub const fn next_burst(remaining: u32) -> u32 {
     }
 }
 
+// Checked at compile time for every count up to four full bursts and then some: the bursts
+// add up to the count, each fits the repetition counter, and when the interrupt is needed
+// (more than one burst) no burst is shorter than half a full one.
+const _: () = {
+    let mut count = 1;
+    while count <= 4 * MAX_BURST + 3 {
+        let mut remaining = count;
+        while remaining > 0 {
+            let burst = next_burst(remaining);
+            assert!(burst >= 1 && burst <= MAX_BURST);
+            assert!(count <= MAX_BURST || burst >= MAX_BURST / 2);
+            remaining -= burst;
+        }
+        count += 1;
+    }
+};
+
 /// The gripper timer ([`arm_core::hw::Gripper`]).
 pub struct GripperPwm {
     _timer: Timer<'static, TIM15>,

@@ -1,7 +1,9 @@
 //! Pin map of the NUCLEO-H743ZI2 (MB1364) as the arm controller uses it.
 //!
-//! Every pin is on a ST Zio connector (CN7-CN10, "Dnn" is its Zio name; UM2407 tables 12-15)
-//! and none of them is used by the board: the RMII Ethernet (PA1, PA2, PA7, PB13, PC1, PC4,
+//! Every pin is on a ST Zio connector (CN7-CN10; "Dnn" is the NUCLEO-144 Zio numbering as
+//! STM32duino's NUCLEO-H743ZI variant gives it: check it against UM2407's connector tables
+//! before wiring; the port pins are what the firmware drives) and none of them is used by
+//! the board: the RMII Ethernet (PA1, PA2, PA7, PB13, PC1, PC4,
 //! PC5, PG11, PG13), the ST-LINK (PA13, PA14, PB3 SWD/SWO; PD8, PD9 virtual COM port; PH0
 //! MCO), USB OTG (PA8-PA12, PG6, PG7), the LEDs (PB0, PE1, PB14) and the user button (PC13)
 //! are all left alone.

@@ -30,7 +30,7 @@ const RECORD_LEN: usize = 8;
 struct ItemBuffer([u8; 64]);
 
 /// The stored record for `settings`.
-pub fn encode(settings: &PersistentSettings) -> [u8; RECORD_LEN] {
+pub const fn encode(settings: &PersistentSettings) -> [u8; RECORD_LEN] {
     let [a, b, c, d] = settings.ip;
     [
         RECORD_VERSION,

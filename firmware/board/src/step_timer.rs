@@ -129,8 +129,31 @@ pub fn now_tick() -> u64 {
     let half_periods = HALF_PERIODS.load(Ordering::Acquire);
     compiler_fence(Ordering::Acquire);
     let counter = pac::TIM2.cnt().read();
-    (u64::from(half_periods) << 31) + u64::from(counter ^ ((half_periods & 1) << 31))
+    extend(half_periods, counter)
 }
+
+/// The 64-bit tick from the half periods counted so far and the 32-bit counter read after.
+/// An even count means the counter should be in its lower half: if it is in the upper
+/// half, the half-period interrupt has not run yet, and the XOR still gives the right
+/// tick; likewise after a wrap with an odd count.
+const fn extend(half_periods: u32, counter: u32) -> u64 {
+    ((half_periods as u64) << 31) + (counter ^ ((half_periods & 1) << 31)) as u64
+}
+
+// The cases that matter, checked at compile time: before and after each interrupt.
+const _: () = {
+    const HALF: u64 = 1 << 31;
+    assert!(extend(0, 5) == 5);
+    // Passed the middle, CC4 interrupt not yet run / run.
+    assert!(extend(0, HALF_RANGE + 5) == HALF + 5);
+    assert!(extend(1, HALF_RANGE + 5) == HALF + 5);
+    // Wrapped, update interrupt not yet run / run.
+    assert!(extend(1, 5) == 2 * HALF + 5);
+    assert!(extend(2, 5) == 2 * HALF + 5);
+    // Many periods later.
+    assert!(extend(7, u32::MAX) == 8 * HALF - 1);
+    assert!(extend(8, 0) == 8 * HALF);
+};
 
 /// Handle on the running step timer ([`arm_core::hw::StepKick`]).
 #[derive(Clone, Copy)]
