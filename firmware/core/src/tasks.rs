@@ -575,6 +575,10 @@ impl<const Q: usize, K: StepKick, O: Outputs, G: Gripper, P: SerialPort> Plant
         self.step.stop();
         self.kick.kick();
         self.bus.segments.clear();
+        // step_task may be waiting on step_wake with a segment the full engine refused;
+        // after a stop no segment finishes to wake it: wake it here, or it never takes
+        // the next run's segments.
+        self.bus.step_wake.signal(());
     }
     fn push_segment(&mut self, segment: Segment) -> bool {
         let msg = SegmentMsg {
