@@ -389,3 +389,22 @@ fn time_scale_runs_simulated_time_faster() {
     // 50 steps per 100 ms: exactly 2 ms apart in simulated time, whatever the scale.
     assert!(edges.windows(2).all(|w| w[1] - w[0] == 2_000_000));
 }
+
+#[test]
+fn a_run_after_a_stop_executes() {
+    let sim = Sim::start(&["--settings", temp_path("restart.txt").to_str().unwrap()]);
+    let mut client = sim.client();
+    let targets: Vec<[i32; MAX_JOINTS]> = (1..=50).map(|i| [i * 10, 0, 0, 0, 0, 0, 0, 0]).collect();
+    let points = points_through([0; MAX_JOINTS], &targets, 10_000);
+    client.ok(&Command::New { count: 50 });
+    for chunk in points.chunks(12) {
+        client.ok(&Command::Pending(protocol::PointList::Points(chunk)));
+    }
+    client.ok(&Command::Runing);
+    client.ok(&Command::Stopped);
+    let stopped_at = client.location().position;
+    client.ok(&Command::LocationSetting(Location::default()));
+    let status = client.run_points(&points, Duration::from_secs(5));
+    assert_eq!(status.executed, 50, "second run: {status:?} (first stopped at {stopped_at:?})");
+    assert_eq!(client.location().position[0], 500);
+}
