@@ -405,6 +405,9 @@ fn a_run_after_a_stop_executes() {
     let stopped_at = client.location().position;
     client.ok(&Command::LocationSetting(Location::default()));
     let status = client.run_points(&points, Duration::from_secs(5));
-    assert_eq!(status.executed, 50, "second run: {status:?} (first stopped at {stopped_at:?})");
+    assert_eq!(
+        status.executed, 50,
+        "second run: {status:?} (first stopped at {stopped_at:?})"
+    );
     assert_eq!(client.location().position[0], 500);
 }
