@@ -30,3 +30,25 @@ printf 'flash used %d of 2097152 bytes, AXI RAM static %d of 524288 bytes\n' \
   "$((text + data))" "$((data + bss))"
 # Per-section detail, for finding what grew.
 "$size_tool" -A "$elf" | awk 'NR > 2 && $2 > 0 && $1 !~ /^\.debug|^\.comment|^\.ARM|^\.symtab|^\.strtab|^\.shstrtab|^\.defmt|^Total/ {printf "  %-16s %8d @ 0x%08x\n", $1, $2, $3}'
+
+# Layout checks: the reset handler zeroes .bss from __sbss to __ebss and copies .data, so both
+# must stay inside AXI SRAM; the stack must be DTCM (memory.x). A wrong memory.x fails here
+# instead of faulting at reset on the board.
+nm_tool="$sysroot/lib/rustlib/$host/bin/llvm-nm"
+symbols="$("$nm_tool" "$elf")"
+symbol() { awk -v s="$1" '$3 == s { print $1 }' <<<"$symbols" | head -n 1; }
+check_range() { # name value low high
+  local v=$((16#$2))
+  if (( v < $3 || v > $4 )); then
+    printf 'fw-size: %s = 0x%x is outside 0x%x..0x%x: check memory.x\n' "$1" "$v" "$3" "$4" >&2
+    exit 1
+  fi
+}
+axi_start=$((0x24000000)); axi_end=$((0x24080000))
+for s in __sdata __edata __sbss __ebss; do
+  value="$(symbol "$s")"
+  [ -n "$value" ] || { echo "fw-size: symbol $s missing" >&2; exit 1; }
+  check_range "$s" "$value" "$axi_start" "$axi_end"
+done
+check_range _stack_start "$(symbol _stack_start)" $((0x20020000)) $((0x20020000))
+echo "layout ok: .data/.bss in AXI SRAM (ends 0x$(symbol __ebss)), stack top 0x$(symbol _stack_start) (DTCM)"
