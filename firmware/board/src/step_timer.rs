@@ -75,6 +75,8 @@ static TIMER: StaticCell<Timer<'static, TIM2>> = StaticCell::new();
 const SR_FLAGS: u32 = 0x1E5F;
 /// UIF.
 const SR_UPDATE: u32 = 1 << 0;
+/// CC1IF: the engine's deadline.
+const SR_DEADLINE: u32 = 1 << 1;
 /// CC4IF: the middle of the counter's range.
 const SR_HALF: u32 = 1 << 4;
 /// Where channel 4 fires: half of the 32-bit range.
@@ -190,6 +192,10 @@ fn arm(deadline: Option<u64>) -> bool {
     // The compare value is the deadline's low 32 bits: the counter reaches it exactly at
     // the deadline, since that is less than half a wrap away.
     regs.ccr(0).write_value(deadline as u32);
+    // A match of the old compare value may have left CC1IF set: clear it, or it would
+    // fire at once (harmless, but a wasted poll).
+    regs.sr()
+        .write_value(pac::timer::regs::SrGp16(!SR_DEADLINE & SR_FLAGS));
     regs.dier().modify(|w| w.set_ccie(0, true));
     // The counter may have passed the compare value while it was being written.
     now_tick() >= deadline
