@@ -54,6 +54,9 @@ pub const STEP_TIMING: StepTiming = StepTiming {
     dir_setup_ticks: 5 * TICKS_PER_US,
 };
 
+// The driver timing must leave room for the controller's advertised step rate.
+const _: () = assert!(STEP_TIMING.max_step_rate_hz() >= arm_core::config::BOARD_MAX_STEP_RATE_HZ);
+
 /// The step engine shared by the interrupt and the tasks (arm-core's [`StepShared`]: the
 /// engine, its stop count and the progress not yet collected, behind one critical-section
 /// mutex).
