@@ -240,9 +240,9 @@ async fn main(spawner: Spawner) -> ! {
             p.PF7.into(),
             p.PF8.into(),
             p.PF9.into(),
-            p.PF12.into(),
-            p.PF13.into(),
-            p.PF14.into(),
+            p.PG0.into(),
+            p.PG1.into(),
+            p.PE3.into(),
         ],
     });
     let gripper = GripperPwm::new(p.TIM15, p.PE5, p.PE4);

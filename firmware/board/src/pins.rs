@@ -1,19 +1,21 @@
 //! Pin map of the NUCLEO-H743ZI2 (MB1364) as the arm controller uses it.
 //!
-//! Every pin is on a ST Zio connector (CN7-CN10; "Dnn" is the NUCLEO-144 Zio numbering as
-//! STM32duino's NUCLEO-H743ZI variant gives it: check it against UM2407's connector tables
-//! before wiring; the port pins are what the firmware drives) and none of them is used by
-//! the board: the RMII Ethernet (PA1, PA2, PA7, PB13, PC1, PC4,
-//! PC5, PG11, PG13), the ST-LINK (PA13, PA14, PB3 SWD/SWO; PD8, PD9 virtual COM port; PH0
-//! MCO), USB OTG (PA8-PA12, PG6, PG7), the LEDs (PB0, PE1, PB14) and the user button (PC13)
-//! are all left alone.
+//! Every pin is on a ST Zio connector (CN7-CN10), and none is one the board itself uses:
+//! the RMII Ethernet (PA1, PA2, PA7, PB13, PC1, PC4, PC5, PG11, PG13), the ST-LINK (PA13,
+//! PA14, PB3 SWD/SWO; PD8, PD9 virtual COM port; PH0 MCO), USB OTG (PA8-PA12, PG6, PG7),
+//! the LEDs (PB0, PE1, PB14) and the user button (PC13) are all left alone.
+//!
+//! "Dnn" is the Zio name as CircuitPython's `nucleo_h743zi_2` board definition numbers the
+//! MB1364's pins. The first-generation NUCLEO-H743ZI numbers several differently (and has
+//! PF12-PF15 on Zio where the ZI2 has PG12, PG14, PE14, PF3), so check UM2407's connector
+//! tables before wiring: the port pins below are what the firmware drives.
 //!
 //! | signal | pin | Zio | why there |
 //! |---|---|---|---|
-//! | STEP joint 0..7 | PE8..PE15 | D42 D6 D40 D5 D39 D3 D38 D37 | one port, consecutive bits: one BSRR write raises or lowers any set of STEP lines |
+//! | STEP joint 0..7 | PE8..PE15 | D42 D6 D40 D5 D39 D3 D4 D37 | one port, consecutive bits: one BSRR write raises or lowers any set of STEP lines |
 //! | DIR joint 0..7 | PD0..PD7 | D67 D66 D48 D55 D54 D53 D52 D51 | one port, consecutive bits |
-//! | ENABLE joint 0..7 | PF0 PF1 PF2 PF7 PF8 PF9 PF12 PF13 | D68 D69 D70 D62 D61 D63 D8 D7 | |
-//! | ENABLE gripper | PF14 | D4 | |
+//! | ENABLE joint 0..7 | PF0 PF1 PF2 PF7 PF8 PF9 PG0 PG1 | D68 D69 D70 D62 D61 D63 D65 D64 | not speed critical: one pin at a time |
+//! | ENABLE gripper | PE3 | D60 | next to the gripper's other two lines |
 //! | gripper PWM | PE5 = TIM15_CH1 (AF4) | D58 | 16-bit timer with a repetition counter and one-pulse mode: counted bursts stop in hardware |
 //! | gripper DIR | PE4 | D57 | |
 //! | PIN0 / PIN1 | PG2 / PG3 | D49 / D50 | |
@@ -134,7 +136,7 @@ pub struct OutputPins {
     pub pin0: Peri<'static, peripherals::PG2>,
     /// PIN1 (PG3).
     pub pin1: Peri<'static, peripherals::PG3>,
-    /// ENABLE of joints 0..7 then the gripper: PF0 PF1 PF2 PF7 PF8 PF9 PF12 PF13 PF14.
+    /// ENABLE of joints 0..7 then the gripper: PF0 PF1 PF2 PF7 PF8 PF9 PG0 PG1, PE3.
     pub enable: [Peri<'static, embassy_stm32::gpio::AnyPin>; MAX_JOINTS + 1],
 }
 
