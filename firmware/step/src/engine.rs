@@ -76,6 +76,10 @@ pub struct StepEngine<const QUEUE: usize> {
     /// Ordinal (wrapping) of the ring's oldest slot.
     head_ordinal: u32,
     joints: [Joint; MAX_JOINTS],
+    /// Tick of each joint's next edge: STEP falling if its line is high, else the next
+    /// rising edge; `u64::MAX` while it waits for a segment. Kept apart from `joints` so
+    /// that `poll` scans eight packed words.
+    edges: [u64; MAX_JOINTS],
     /// Joints whose STEP line is high.
     high: JointMask,
     /// Joints that have walked past every queued segment.
@@ -100,6 +104,7 @@ impl<const QUEUE: usize> StepEngine<QUEUE> {
             ring: SegmentRing::new(),
             head_ordinal: 0,
             joints: [Joint::IDLE; MAX_JOINTS],
+            edges: [u64::MAX; MAX_JOINTS],
             high: 0,
             waiting: ALL_JOINTS,
             pushed: false,
@@ -170,9 +175,9 @@ impl<const QUEUE: usize> StepEngine<QUEUE> {
         for joint in &mut self.joints {
             joint.ordinal = self.head_ordinal;
             joint.slot = head;
-            joint.due = u64::MAX;
             joint.remaining = 0;
         }
+        self.edges = [u64::MAX; MAX_JOINTS];
         self.waiting = ALL_JOINTS;
         self.pushed = true;
     }
@@ -185,9 +190,9 @@ impl<const QUEUE: usize> StepEngine<QUEUE> {
         self.ring.clear();
         self.head_ordinal = 0;
         for joint in &mut self.joints {
-            joint.due = u64::MAX;
             joint.remaining = 0;
         }
+        self.edges = [u64::MAX; MAX_JOINTS];
         self.waiting = ALL_JOINTS;
         self.end_run();
     }
@@ -238,12 +243,13 @@ impl<const QUEUE: usize> StepEngine<QUEUE> {
         }
         let now = now_tick;
 
-        // Which joints have an edge due.
+        // Which joints have an edge due, and the earliest edge of the others.
         let mut due: JointMask = 0;
-        for j in Joints(!self.waiting) {
-            if let Some(joint) = self.joints.get(j) {
-                due |= u8::from(joint.due <= now) << j;
-            }
+        let mut next = u64::MAX;
+        for (j, &edge) in self.edges.iter().enumerate() {
+            let is_due = edge <= now;
+            due |= u8::from(is_due) << j;
+            next = next.min(if is_due { u64::MAX } else { edge });
         }
         let falls = due & self.high;
         let mut rises = due & !self.high;
@@ -254,6 +260,7 @@ impl<const QUEUE: usize> StepEngine<QUEUE> {
             self.high &= !falls;
             for j in Joints(falls) {
                 self.after_fall(j, now, pins);
+                next = next.min(self.edge(j));
             }
         }
 
@@ -261,8 +268,11 @@ impl<const QUEUE: usize> StepEngine<QUEUE> {
             self.pushed = false;
             for j in Joints(self.waiting) {
                 self.seek(j, now, pins);
-                if let Some(joint) = self.joints.get(j) {
-                    rises |= u8::from(joint.due <= now) << j;
+                let edge = self.edge(j);
+                if edge <= now {
+                    rises |= 1 << j;
+                } else {
+                    next = next.min(edge);
                 }
             }
         }
@@ -272,19 +282,20 @@ impl<const QUEUE: usize> StepEngine<QUEUE> {
             self.high |= rises;
             let fall_at = now + self.pulse_ticks;
             for j in Joints(rises) {
-                if let Some(joint) = self.joints.get_mut(j) {
-                    joint.rise(fall_at);
+                if let (Some(joint), Some(edge)) = (self.joints.get_mut(j), self.edges.get_mut(j)) {
+                    joint.rise();
+                    *edge = fall_at;
                 }
             }
+            next = next.min(fall_at);
         }
 
         // Free the segments that are over for the timeline and for every joint.
         let mut finished = 0;
-        let mut next = u64::MAX;
         while let Some(front) = self.ring.front() {
             let end = self.origin + front.end_tick;
             if end > now {
-                next = end;
+                next = next.min(end);
                 break;
             }
             if front.pending != 0 {
@@ -303,12 +314,6 @@ impl<const QUEUE: usize> StepEngine<QUEUE> {
                 ran_dry: true,
             };
         }
-
-        for j in Joints(!self.waiting) {
-            if let Some(joint) = self.joints.get(j) {
-                next = next.min(joint.due);
-            }
-        }
         Poll {
             next_deadline: Some(next),
             segments_finished: finished,
@@ -316,15 +321,20 @@ impl<const QUEUE: usize> StepEngine<QUEUE> {
         }
     }
 
+    /// Tick of joint `j`'s next edge.
+    fn edge(&self, j: usize) -> u64 {
+        self.edges.get(j).copied().unwrap_or(u64::MAX)
+    }
+
     /// Joint `j`'s STEP line just fell at `now`: schedule its next pulse, or move it on to
     /// the next segment.
     fn after_fall(&mut self, j: usize, now: u64, pins: &mut impl StepPins) {
-        let Some(joint) = self.joints.get_mut(j) else {
+        let (Some(joint), Some(edge)) = (self.joints.get_mut(j), self.edges.get_mut(j)) else {
             return;
         };
         joint.earliest = now + 1;
         if joint.remaining > 0 {
-            joint.schedule_rise(&mut self.late_pulses);
+            *edge = joint.next_rise(&mut self.late_pulses);
             return;
         }
         if let Some(slot) = self.ring.get_mut(joint.slot) {
@@ -340,7 +350,7 @@ impl<const QUEUE: usize> StepEngine<QUEUE> {
     /// direction and first pulse there; or marks it waiting at the end of the queue.
     fn seek(&mut self, j: usize, now: u64, pins: &mut impl StepPins) {
         let bit = 1 << j;
-        let Some(joint) = self.joints.get_mut(j) else {
+        let (Some(joint), Some(edge)) = (self.joints.get_mut(j), self.edges.get_mut(j)) else {
             return;
         };
         loop {
@@ -348,7 +358,7 @@ impl<const QUEUE: usize> StepEngine<QUEUE> {
             let slot = match self.ring.get_mut(joint.slot) {
                 Some(slot) if held => slot,
                 _ => {
-                    joint.due = u64::MAX;
+                    *edge = u64::MAX;
                     self.waiting |= bit;
                     return;
                 }
@@ -367,7 +377,7 @@ impl<const QUEUE: usize> StepEngine<QUEUE> {
                     u64::from(slot.duration_us) * self.tick_hz,
                     steps,
                 );
-                joint.schedule_rise(&mut self.late_pulses);
+                *edge = joint.next_rise(&mut self.late_pulses);
                 self.waiting &= !bit;
                 return;
             }

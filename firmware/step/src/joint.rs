@@ -15,9 +15,6 @@ pub(crate) struct Joint {
     pub ordinal: u32,
     /// Ring index of that segment.
     pub slot: usize,
-    /// Tick of this joint's next edge: STEP falling if the line is high, else the next
-    /// rising edge. `u64::MAX` while it waits for a segment.
-    pub due: u64,
     /// Ideal tick of the next pulse to raise.
     pub ideal: u64,
     /// Whole ticks between two pulses.
@@ -46,7 +43,6 @@ impl Joint {
     pub const IDLE: Joint = Joint {
         ordinal: 0,
         slot: 0,
-        due: u64::MAX,
         ideal: 0,
         whole: 0,
         fraction: 0,
@@ -87,19 +83,18 @@ impl Joint {
         self.ideal += u64::from(carry);
     }
 
-    /// Schedules the next rising edge at its ideal tick, or at `earliest` if the STEP/DIR
-    /// timing does not allow it: a delayed pulse, counted in `late`, never a dropped one.
+    /// Tick of the next rising edge: the ideal tick, or `earliest` if the STEP/DIR timing
+    /// does not allow it: a delayed pulse, counted in `late`, never a dropped one.
     #[inline(always)]
-    pub fn schedule_rise(&mut self, late: &mut u32) {
+    pub fn next_rise(&self, late: &mut u32) -> u64 {
         let is_late = self.earliest > self.ideal;
         *late = late.wrapping_add(u32::from(is_late));
-        self.due = if is_late { self.earliest } else { self.ideal };
+        if is_late { self.earliest } else { self.ideal }
     }
 
-    /// Books a rising edge made now; the line falls at `fall_at`.
+    /// Books a rising edge made now.
     #[inline(always)]
-    pub fn rise(&mut self, fall_at: u64) {
-        self.due = fall_at;
+    pub fn rise(&mut self) {
         self.position = self.position.wrapping_add(self.sign);
         self.remaining -= 1;
         self.advance_ideal();
@@ -117,7 +112,7 @@ mod tests {
         let mut out = [0; 64];
         for tick in out.iter_mut().take(steps.unsigned_abs() as usize) {
             *tick = joint.ideal;
-            joint.rise(0);
+            joint.rise();
         }
         assert_eq!(joint.remaining, 0);
         out
@@ -147,10 +142,8 @@ mod tests {
         assert_eq!(joint.ideal, 110);
         let mut late = 0;
         joint.earliest = 105;
-        joint.schedule_rise(&mut late);
-        assert_eq!((joint.due, late), (110, 0));
+        assert_eq!((joint.next_rise(&mut late), late), (110, 0));
         joint.earliest = 111;
-        joint.schedule_rise(&mut late);
-        assert_eq!((joint.due, late), (111, 1));
+        assert_eq!((joint.next_rise(&mut late), late), (111, 1));
     }
 }
