@@ -22,7 +22,8 @@ impl Iterator for Joints {
         if self.0 == 0 {
             return None;
         }
-        let joint = self.0.trailing_zeros() as usize;
+        // `& 7`: a no-op (the mask is not empty) that lets the compiler drop bounds checks.
+        let joint = self.0.trailing_zeros() as usize & (MAX_JOINTS - 1);
         self.0 &= self.0 - 1;
         Some(joint)
     }
@@ -89,6 +90,9 @@ pub struct StepEngine<const QUEUE: usize> {
     running: bool,
     /// Tick where the run's first segment starts.
     origin: u64,
+    /// Absolute end tick of the oldest held segment while running (`u64::MAX` if none),
+    /// cached so that `poll` checks the timeline with one comparison.
+    head_end: u64,
     queue_end: QueueEnd,
     late_pulses: u32,
 }
@@ -110,6 +114,7 @@ impl<const QUEUE: usize> StepEngine<QUEUE> {
             pushed: false,
             running: false,
             origin: 0,
+            head_end: u64::MAX,
             queue_end: QueueEnd {
                 seconds: 0,
                 micros: 0,
@@ -145,6 +150,9 @@ impl<const QUEUE: usize> StepEngine<QUEUE> {
         }
         self.queue_end = end;
         self.pushed = true;
+        if self.running && self.ring.len() == 1 {
+            self.head_end = self.origin + end.tick;
+        }
         Ok(())
     }
 
@@ -180,6 +188,7 @@ impl<const QUEUE: usize> StepEngine<QUEUE> {
         self.edges = [u64::MAX; MAX_JOINTS];
         self.waiting = ALL_JOINTS;
         self.pushed = true;
+        self.head_end = self.front_end();
     }
 
     /// Emergency stop: lowers every STEP line now, drops all queued segments, goes idle.
@@ -246,10 +255,13 @@ impl<const QUEUE: usize> StepEngine<QUEUE> {
         // Which joints have an edge due, and the earliest edge of the others.
         let mut due: JointMask = 0;
         let mut next = u64::MAX;
-        for (j, &edge) in self.edges.iter().enumerate() {
-            let is_due = edge <= now;
-            due |= u8::from(is_due) << j;
-            next = next.min(if is_due { u64::MAX } else { edge });
+        for j in Joints(!self.waiting) {
+            let edge = self.edge(j);
+            if edge <= now {
+                due |= 1 << j;
+            } else {
+                next = next.min(edge);
+            }
         }
         let falls = due & self.high;
         let mut rises = due & !self.high;
@@ -292,18 +304,23 @@ impl<const QUEUE: usize> StepEngine<QUEUE> {
 
         // Free the segments that are over for the timeline and for every joint.
         let mut finished = 0;
-        while let Some(front) = self.ring.front() {
-            let end = self.origin + front.end_tick;
-            if end > now {
-                next = next.min(end);
-                break;
+        if self.head_end > now {
+            next = next.min(self.head_end);
+        } else {
+            while let Some(front) = self.ring.front() {
+                let end = self.origin + front.end_tick;
+                if end > now {
+                    next = next.min(end);
+                    break;
+                }
+                if front.pending != 0 {
+                    break;
+                }
+                self.ring.pop_front();
+                self.head_ordinal = self.head_ordinal.wrapping_add(1);
+                finished += 1;
             }
-            if front.pending != 0 {
-                break;
-            }
-            self.ring.pop_front();
-            self.head_ordinal = self.head_ordinal.wrapping_add(1);
-            finished += 1;
+            self.head_end = self.front_end();
         }
         if self.ring.is_empty() {
             // Every joint is past every segment, so every STEP line is low.
@@ -318,6 +335,14 @@ impl<const QUEUE: usize> StepEngine<QUEUE> {
             next_deadline: Some(next),
             segments_finished: finished,
             ran_dry: false,
+        }
+    }
+
+    /// Absolute end tick of the oldest held segment, `u64::MAX` if none.
+    fn front_end(&self) -> u64 {
+        match self.ring.front() {
+            Some(front) => self.origin + front.end_tick,
+            None => u64::MAX,
         }
     }
 
@@ -390,6 +415,7 @@ impl<const QUEUE: usize> StepEngine<QUEUE> {
     /// Back to idle; the next pushed segment starts a new timeline.
     fn end_run(&mut self) {
         self.running = false;
+        self.head_end = u64::MAX;
         self.pushed = false;
         self.queue_end = QueueEnd::default();
     }
