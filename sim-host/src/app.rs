@@ -253,16 +253,79 @@ impl Datagrams for SimNet {
     type Error = SimNetError;
 
     async fn recv(&self, buf: &mut [u8]) -> Result<(usize, Endpoint), Self::Error> {
-        match self {
-            SimNet::Udp(udp) => udp.recv(buf).await.map_err(SimNetError::Udp),
-            SimNet::Tap(tap) => tap.recv(buf).await.map_err(SimNetError::Tap),
-        }
+        let (n, from) = match self {
+            SimNet::Udp(udp) => udp.recv(buf).await.map_err(SimNetError::Udp)?,
+            SimNet::Tap(tap) => tap.recv(buf).await.map_err(SimNetError::Tap)?,
+        };
+        log_received(buf.get(..n).unwrap_or_default(), from);
+        Ok((n, from))
     }
 
     async fn send(&self, to: Endpoint, frame: &[u8]) -> Result<(), Self::Error> {
+        log_sent(frame, to);
         match self {
             SimNet::Udp(udp) => udp.send(to, frame).await.map_err(SimNetError::Udp),
             SimNet::Tap(tap) => tap.send(to, frame).await.map_err(SimNetError::Tap),
+        }
+    }
+}
+
+fn show(endpoint: Endpoint) -> std::net::SocketAddrV4 {
+    crate::net::socket_addr_of(endpoint)
+}
+
+/// Debug log of every datagram received (decoded for the log only: the controller
+/// decodes it again, its own way).
+fn log_received(bytes: &[u8], from: Endpoint) {
+    if !log::log_enabled!(log::Level::Debug) {
+        return;
+    }
+    match protocol::Command::decode(bytes) {
+        Ok(frame) => log::debug!(
+            "<- {} seq {} {}",
+            show(from),
+            frame.seq,
+            frame.body.tag().name()
+        ),
+        Err(e) => log::debug!("<- {} {} bytes: {e:?}", show(from), bytes.len()),
+    }
+}
+
+/// The state the controller last reported, for logging its changes.
+static REPORTED_STATE: std::sync::atomic::AtomicU8 = std::sync::atomic::AtomicU8::new(u8::MAX);
+
+/// Logs state changes (info), refusals and ACKs (debug) as the controller reports them.
+fn log_sent(frame: &[u8], to: Endpoint) {
+    let Ok(report) = protocol::Report::decode(frame) else {
+        return;
+    };
+    let state = match report.body {
+        protocol::Report::Ack(ack) => {
+            let command = protocol::Tag::from_u8(ack.acked_tag).map_or("?", |t| t.name());
+            if ack.status == protocol::StatusCode::Ok {
+                log::debug!("-> {} ACK seq {} {command}: OK", show(to), report.seq);
+            } else {
+                log::info!(
+                    "-> {} {command} (seq {}) refused: {}",
+                    show(to),
+                    report.seq,
+                    ack.status.name()
+                );
+            }
+            Some(ack.state as u8)
+        }
+        protocol::Report::Location(location) => Some(location.state),
+        protocol::Report::Status(status) => Some(status.state as u8),
+        protocol::Report::UsartRecv(bytes) => {
+            log::debug!("-> {} USART_RECV {} bytes", show(to), bytes.len());
+            None
+        }
+    };
+    if let Some(state) = state {
+        let before = REPORTED_STATE.swap(state, Ordering::Relaxed);
+        if before != state && before != u8::MAX {
+            let name = |code| protocol::State::from_u8(code).map_or("?", |s| s.name());
+            log::info!("state {} -> {}", name(before), name(state));
         }
     }
 }

@@ -53,6 +53,8 @@ pub fn run(sim: &SimOptions, bench: &BenchOptions) -> io::Result<()> {
     let addr = board
         .local_addr()
         .ok_or_else(|| io::Error::other("the benchmark needs a UDP socket, not --tap"))?;
+    // Ctrl-C: the trace (if any) is still flushed.
+    crate::app::exit_on_signal(board.clone())?;
     let arm = Controller::connect(addr).map_err(to_io)?;
     arm.set_joints(6).map_err(to_io)?;
     let status = arm.status().map_err(to_io)?;

@@ -123,6 +123,8 @@ pub fn run(sim: &SimOptions, demo: &DemoOptions) -> io::Result<()> {
     let addr = board
         .local_addr()
         .ok_or_else(|| io::Error::other("the demo needs a UDP socket, not --tap"))?;
+    // Ctrl-C: the trace (if any) is still flushed.
+    crate::app::exit_on_signal(board.clone())?;
     let result = drive(&board, addr, demo);
     board.shut_down();
     let _ = std::fs::remove_dir_all(&settings_dir);

@@ -2,12 +2,12 @@
 //! handler at each deadline it returns, and at once when kicked.
 //!
 //! It sleeps until shortly before a deadline and spins the rest, so pulses leave on time
-//! in real time too. The handler is always called with the deadline's own tick (or the
-//! kick's), never a later one, even when the thread woke late: every edge is stamped
-//! with the exact tick the step engine computed, and the trace is the same as on a board
-//! whose interrupt is never late.
+//! in real time too. The handler is always called with the deadline's own tick, or for a
+//! kick with the tick at which `kick` was called, never a later one, even when the host
+//! scheduled the thread late: every edge is stamped with the exact tick the step engine
+//! computed, and the trace is the same as on a board whose interrupt is never late.
 
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Condvar, Mutex};
 use std::time::{Duration, Instant};
 
@@ -21,8 +21,12 @@ use crate::steppers::SimSteppers;
 /// kernel's wake-up latency.
 const SPIN_BEFORE: Duration = Duration::from_micros(60);
 
+/// `kick_at` when no kick is pending.
+const NO_KICK: u64 = u64::MAX;
+
 struct TimerShared {
-    kicked: AtomicBool,
+    /// Tick of the earliest kick not yet served, or [`NO_KICK`].
+    kick_at: AtomicU64,
     lock: Mutex<()>,
     wake: Condvar,
     clock: SimClock,
@@ -45,7 +49,7 @@ impl SimStepKick {
     pub fn new(clock: SimClock) -> SimStepKick {
         SimStepKick {
             shared: Arc::new(TimerShared {
-                kicked: AtomicBool::new(false),
+                kick_at: AtomicU64::new(NO_KICK),
                 lock: Mutex::new(()),
                 wake: Condvar::new(),
                 clock,
@@ -56,7 +60,8 @@ impl SimStepKick {
 
 impl StepKick for SimStepKick {
     fn kick(&self) {
-        self.shared.kicked.store(true, Ordering::Release);
+        let now = self.shared.clock.now_tick();
+        self.shared.kick_at.fetch_min(now, Ordering::AcqRel);
         let _guard = self.shared.lock.lock();
         self.shared.wake.notify_one();
     }
@@ -82,17 +87,23 @@ pub fn spawn_step_thread(
             raise_priority(realtime);
             let clock = shared.clock;
             let mut deadline: Option<u64> = None;
+            let mut last_tick = 0u64;
             loop {
                 let now = clock.now_tick();
-                let tick = match deadline {
-                    // A kick that came meanwhile is answered by the next round, at `now`.
-                    Some(due) if due <= now => due,
-                    _ if shared.kicked.swap(false, Ordering::AcqRel) => now,
+                let due = deadline.filter(|&d| d <= now);
+                let kick_at = shared.kick_at.load(Ordering::Acquire);
+                let tick = match due {
+                    // The earlier of an overdue deadline and a pending kick goes first.
+                    Some(d) if d <= kick_at => d,
+                    _ if kick_at != NO_KICK => shared.kick_at.swap(NO_KICK, Ordering::AcqRel),
                     _ => {
                         wait(&shared, deadline);
                         continue;
                     }
                 };
+                // Never back in time (a kick stamped before the last deadline served).
+                let tick = tick.max(last_tick);
+                last_tick = tick;
                 pins.set_tick(tick);
                 let was_running = deadline.is_some();
                 deadline = on_timer(tick, &mut pins);
@@ -107,11 +118,15 @@ pub fn spawn_step_thread(
     Ok(())
 }
 
+fn kicked(shared: &TimerShared) -> bool {
+    shared.kick_at.load(Ordering::Acquire) != NO_KICK
+}
+
 /// Waits until `deadline` is close (then spins to it) or a kick arrives.
 fn wait(shared: &TimerShared, deadline: Option<u64>) {
     let Some(due) = deadline else {
         if let Ok(guard) = shared.lock.lock()
-            && !shared.kicked.load(Ordering::Acquire)
+            && !kicked(shared)
         {
             let _ = shared.wake.wait_timeout(guard, Duration::from_millis(100));
         }
@@ -125,13 +140,13 @@ fn wait(shared: &TimerShared, deadline: Option<u64>) {
     let remaining = at - now;
     if remaining > SPIN_BEFORE {
         if let Ok(guard) = shared.lock.lock()
-            && !shared.kicked.load(Ordering::Acquire)
+            && !kicked(shared)
         {
             let _ = shared.wake.wait_timeout(guard, remaining - SPIN_BEFORE);
         }
     } else {
         // Spin, still answering a kick at once.
-        while Instant::now() < at && !shared.kicked.load(Ordering::Acquire) {
+        while Instant::now() < at && !kicked(shared) {
             std::hint::spin_loop();
         }
     }
