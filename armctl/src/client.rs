@@ -28,6 +28,10 @@ pub struct Options {
     pub attempts: u32,
     /// How long to wait for a STATUS report after its ACK before asking again.
     pub report_timeout: Duration,
+    /// Local address to send from (default: 127.0.0.1 or any address, port chosen by the
+    /// system). The controller's owner is an IP address: another local address such as
+    /// 127.0.0.2 is another host to it.
+    pub bind: Option<SocketAddr>,
 }
 
 impl Default for Options {
@@ -36,6 +40,7 @@ impl Default for Options {
             ack_timeout: Duration::from_millis(100),
             attempts: 10,
             report_timeout: Duration::from_millis(300),
+            bind: None,
         }
     }
 }
@@ -174,13 +179,16 @@ impl Controller {
                 "the controller address resolves to nothing",
             ))
         })?;
-        let local: SocketAddr = match addr {
-            SocketAddr::V4(a) if a.ip().is_loopback() => "127.0.0.1:0",
-            SocketAddr::V4(_) => "0.0.0.0:0",
-            SocketAddr::V6(a) if a.ip().is_loopback() => "[::1]:0",
-            SocketAddr::V6(_) => "[::]:0",
+        let local: SocketAddr = match options.bind {
+            Some(bind) => Ok(bind),
+            None => match addr {
+                SocketAddr::V4(a) if a.ip().is_loopback() => "127.0.0.1:0",
+                SocketAddr::V4(_) => "0.0.0.0:0",
+                SocketAddr::V6(a) if a.ip().is_loopback() => "[::1]:0",
+                SocketAddr::V6(_) => "[::]:0",
+            }
+            .parse(),
         }
-        .parse()
         .map_err(|_| Error::Io(std::io::ErrorKind::InvalidInput.into()))?;
         let socket = UdpSocket::bind(local)?;
         // Only the controller's datagrams reach us.

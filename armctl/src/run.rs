@@ -234,9 +234,10 @@ impl Upload<'_, '_> {
             .iter()
             .map(|p| i64::from(p.duration))
             .sum();
-        // A quarter more and a millisecond: the controller frees a slot only once the
-        // point's last step is due, and its timer may run a little behind ours.
-        Duration::from_micros((us.clamp(1_000, 200_000) * 5 / 4 + 1_000) as u64)
+        // A tenth more and a millisecond: the controller frees a slot only once the
+        // point's last step is due, and its timer may run a little behind ours. Too early
+        // costs one BUFFER_FULL round trip; too late lets the buffer run low.
+        Duration::from_micros((us.clamp(500, 200_000) * 11 / 10 + 1_000) as u64)
     }
 
     fn progress(&self) -> Progress {
@@ -382,10 +383,10 @@ impl Upload<'_, '_> {
                     // the missing slots should have drained, one frame goes as a probe.
                     let probe = self.in_flight() == 0
                         && self.runing_sent
-                        && self.free_since.elapsed() >= self.drain_wait(n);
+                        && self.free_since.elapsed() >= self.drain_wait(n - credit.min(n));
                     if credit < n && !probe {
                         if self.in_flight() == 0 {
-                            probe_wait = Some(self.drain_wait(n));
+                            probe_wait = Some(self.drain_wait(n - credit));
                         }
                         break;
                     }

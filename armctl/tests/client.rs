@@ -14,6 +14,7 @@ fn options() -> Options {
         ack_timeout: Duration::from_millis(30),
         attempts: 20,
         report_timeout: Duration::from_millis(100),
+        bind: None,
     }
 }
 
@@ -21,7 +22,7 @@ fn options() -> Options {
 fn lossless_run_executes_every_point_in_order() {
     let fake = Fake::start(64, Faults::default());
     let arm = Controller::connect_with(fake.addr, options()).unwrap();
-    let points = ramp(300, 10, 1000);
+    let points = ramp(200, 10, 3000);
     let mut calls = 0;
     let report = arm
         .run_trajectory(&points, &RunOptions::default(), |_| calls += 1)
@@ -36,8 +37,8 @@ fn lossless_run_executes_every_point_in_order() {
         report.final_location.unwrap().position,
         points.last().unwrap().position
     );
-    // A 64-slot buffer under a 300-point run: flow control keeps it from overflowing but
-    // for the odd probe sent when the slots should have drained (1 ms points here).
+    // A 64-slot buffer under a 200-point run: flow control keeps it from overflowing but
+    // for the odd probe sent when the slots should have drained.
     assert!(counters.buffer_full * 4 <= report.frames, "{report:?}");
 }
 

@@ -1,1 +1,173 @@
+//! Harness for the end-to-end tests: finds (or builds) the `sim-host` and `armctl`
+//! binaries, starts a simulated controller on a free 127.0.0.1 port, and kills it on drop.
+//!
+//! The binaries are looked up, in order: `SIM_HOST_BIN` / `ARMCTL_BIN`, next to the test
+//! executable's profile directory (`target/<profile>/`), else built with
+//! `cargo build -p <package>` into the same target directory (once per test process).
 
+use std::net::{Ipv4Addr, SocketAddr, SocketAddrV4, UdpSocket};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::Mutex;
+use std::time::{Duration, Instant};
+
+use armctl::{Controller, Options};
+
+/// How long a fresh sim-host gets to answer STATUS.
+const START_TIMEOUT: Duration = Duration::from_secs(10);
+
+/// Serialises on-demand builds within one test process.
+static BUILD: Mutex<()> = Mutex::new(());
+
+/// `target/<profile>/` of the running test executable (`target/<profile>/deps/test-…`).
+fn profile_dir() -> Option<PathBuf> {
+    let exe = std::env::current_exe().ok()?;
+    let deps = exe.parent()?;
+    Some(deps.parent()?.to_path_buf())
+}
+
+/// Path of binary `name` of package `package`, building it if it is not there.
+pub fn binary(name: &str, package: &str, env: &str) -> PathBuf {
+    if let Some(path) = std::env::var_os(env) {
+        return PathBuf::from(path);
+    }
+    let dir = profile_dir().expect("cannot locate the test executable's target directory");
+    let path = dir.join(format!("{name}{}", std::env::consts::EXE_SUFFIX));
+    let _build = BUILD.lock().unwrap_or_else(|e| e.into_inner());
+    if !path.exists() || std::env::var_os("SYSTEM_TESTS_REBUILD").is_some() {
+        build(package, &dir);
+    }
+    assert!(
+        path.exists(),
+        "{} not found: build it (`cargo build -p {package}`) or set {env}",
+        path.display()
+    );
+    path
+}
+
+fn build(package: &str, profile_dir: &Path) {
+    let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
+    let target_dir = profile_dir
+        .parent()
+        .expect("target directory above the profile directory");
+    let mut command = Command::new(cargo);
+    command
+        .args(["build", "-p", package, "--target-dir"])
+        .arg(target_dir);
+    if profile_dir.file_name().is_some_and(|n| n == "release") {
+        command.arg("--release");
+    }
+    let status = command
+        .status()
+        .expect("cannot run cargo to build the binary");
+    assert!(status.success(), "cargo build -p {package} failed");
+}
+
+/// The simulator binary.
+pub fn sim_host_bin() -> PathBuf {
+    binary("sim-host", "sim-host", "SIM_HOST_BIN")
+}
+
+/// The armctl binary.
+pub fn armctl_bin() -> PathBuf {
+    binary("armctl", "armctl", "ARMCTL_BIN")
+}
+
+/// A UDP port free on 127.0.0.1 right now.
+fn free_port() -> u16 {
+    UdpSocket::bind("127.0.0.1:0")
+        .and_then(|s| s.local_addr())
+        .map(|a| a.port())
+        .expect("no free UDP port on 127.0.0.1")
+}
+
+/// A running sim-host, killed on drop.
+pub struct SimHost {
+    /// Where it listens.
+    pub addr: SocketAddr,
+    child: Child,
+    dir: PathBuf,
+}
+
+impl SimHost {
+    /// Starts a sim-host with extra arguments (`--joints`, `--loss` ...) on a free port and
+    /// waits until it answers STATUS.
+    pub fn start(args: &[&str]) -> SimHost {
+        let bin = sim_host_bin();
+        let mut last_error = String::new();
+        // A port found free can be taken before the simulator binds it: try a few.
+        for _ in 0..5 {
+            let port = free_port();
+            let addr = SocketAddr::V4(SocketAddrV4::new(Ipv4Addr::LOCALHOST, port));
+            let dir =
+                std::env::temp_dir().join(format!("system-tests-{}-{port}", std::process::id()));
+            let _ = std::fs::create_dir_all(&dir);
+            let log = std::fs::File::create(dir.join("sim-host.log")).ok();
+            let mut child = Command::new(&bin)
+                .arg("--bind")
+                .arg(addr.to_string())
+                .arg("--settings")
+                .arg(dir.join("settings.txt"))
+                .args(["--log-level", "warn"])
+                .args(args)
+                .stdin(Stdio::null())
+                .stdout(Stdio::null())
+                .stderr(log.map_or_else(Stdio::null, Stdio::from))
+                .spawn()
+                .unwrap_or_else(|e| panic!("cannot start {}: {e}", bin.display()));
+            let started = Instant::now();
+            while started.elapsed() < START_TIMEOUT {
+                if let Ok(Some(status)) = child.try_wait() {
+                    last_error = format!(
+                        "sim-host exited with {status}: {}",
+                        std::fs::read_to_string(dir.join("sim-host.log")).unwrap_or_default()
+                    );
+                    break;
+                }
+                let quick = Options {
+                    ack_timeout: Duration::from_millis(100),
+                    attempts: 2,
+                    ..Options::default()
+                };
+                if Controller::connect_with(addr, quick).is_ok() {
+                    return SimHost { addr, child, dir };
+                }
+            }
+            let _ = child.kill();
+            let _ = child.wait();
+            if last_error.is_empty() {
+                last_error = format!("sim-host did not answer on {addr} in {START_TIMEOUT:?}");
+            }
+        }
+        panic!("{last_error}");
+    }
+
+    /// A client with options suited to loopback.
+    pub fn connect(&self) -> Controller {
+        self.connect_with(Options::default())
+    }
+
+    /// A client with the given options.
+    pub fn connect_with(&self, options: Options) -> Controller {
+        Controller::connect_with(self.addr, options)
+            .unwrap_or_else(|e| panic!("connect to sim-host at {}: {e}", self.addr))
+    }
+
+    /// The simulator's log so far (warnings and errors).
+    pub fn log(&self) -> String {
+        std::fs::read_to_string(self.dir.join("sim-host.log")).unwrap_or_default()
+    }
+
+    /// A scratch directory of this simulator's own.
+    pub fn dir(&self) -> &Path {
+        &self.dir
+    }
+}
+
+impl Drop for SimHost {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+        let _ = std::fs::remove_dir_all(&self.dir);
+    }
+}

@@ -1,0 +1,137 @@
+//! The `armctl` binary against the real sim-host.
+
+use std::process::Command;
+
+use system_tests::{SimHost, armctl_bin};
+
+fn armctl(sim: Option<&SimHost>, args: &[&str]) -> (bool, String, String) {
+    let mut command = Command::new(armctl_bin());
+    if let Some(sim) = sim {
+        command.arg("--controller").arg(sim.addr.to_string());
+    }
+    let output = command.args(args).output().expect("run armctl");
+    (
+        output.status.success(),
+        String::from_utf8_lossy(&output.stdout).into_owned(),
+        String::from_utf8_lossy(&output.stderr).into_owned(),
+    )
+}
+
+#[test]
+fn run_a_csv_record_it_and_plot_it() {
+    let sim = SimHost::start(&["--joints", "2"]);
+    let dir = sim.dir();
+    let file = dir.join("move.csv");
+    std::fs::write(&file, "time_s,j0,j1\n0,0,0\n0.3,150,-60\n0.6,0,40\n").unwrap();
+    let record = dir.join("rec.csv");
+    let (ok, out, err) = armctl(
+        Some(&sim),
+        &[
+            "run",
+            file.to_str().unwrap(),
+            "--quiet",
+            "--segment-ms",
+            "20",
+            "--record",
+            record.to_str().unwrap(),
+        ],
+    );
+    assert!(ok, "{out}\n{err}");
+    assert!(out.contains("30 points"), "{out}");
+    assert!(
+        out.contains("final positions match the last point: [0, 40]"),
+        "{out}"
+    );
+    let svg = dir.join("run.svg");
+    let (ok, out, err) = armctl(
+        None,
+        &[
+            "plot",
+            record.to_str().unwrap(),
+            "--trajectory",
+            file.to_str().unwrap(),
+            "-o",
+            svg.to_str().unwrap(),
+        ],
+    );
+    assert!(ok, "{out}\n{err}");
+    let svg = std::fs::read_to_string(svg).unwrap();
+    assert!(svg.contains("<polyline") && svg.contains("commanded"));
+
+    let (ok, out, _) = armctl(Some(&sim), &["status", "--json"]);
+    assert!(ok);
+    let status: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(status["executed"], 30);
+    assert_eq!(status["state"], "Stopped");
+}
+
+#[test]
+fn a_trajectory_too_fast_for_a_joint_is_refused_before_sending() {
+    let sim = SimHost::start(&["--joints", "1"]);
+    let dir = sim.dir();
+    let config = dir.join("arm.json");
+    std::fs::write(
+        &config,
+        r#"{"joints": [{"name": "base", "steps_per_radian": 1000, "max_step_rate_hz": 500}]}"#,
+    )
+    .unwrap();
+    let file = dir.join("fast.json");
+    std::fs::write(
+        &file,
+        r#"{"joint_names": ["base"], "points": [
+            {"positions": [0.0], "time_from_start": {"sec": 0, "nanosec": 0}},
+            {"positions": [1.0], "time_from_start": {"sec": 1, "nanosec": 0}}]}"#,
+    )
+    .unwrap();
+    let (ok, out, err) = armctl(
+        Some(&sim),
+        &[
+            "run",
+            file.to_str().unwrap(),
+            "--config",
+            config.to_str().unwrap(),
+        ],
+    );
+    assert!(!ok, "{out}");
+    assert!(err.contains("fast.json: point 0"), "{err}");
+    assert!(err.contains("joint 0"), "{err}");
+    assert!(err.contains("exceeds the limit of 500 steps/s"), "{err}");
+    // Nothing was uploaded.
+    let (_, out, _) = armctl(Some(&sim), &["status"]);
+    assert!(out.contains("0 announced"), "{out}");
+}
+
+#[test]
+fn refusals_print_the_status_and_advice() {
+    let sim = SimHost::start(&["--joints", "2"]);
+    let (ok, _, err) = armctl(Some(&sim), &["upload-period", "10"]);
+    assert!(!ok);
+    assert!(
+        err.contains("UPLOAD_PERIOD refused with INVALID_CONFIG"),
+        "{err}"
+    );
+    let (ok, out, err) = armctl(Some(&sim), &["pin", "1", "on"]);
+    assert!(ok, "{out}{err}");
+    let (_, out, _) = armctl(Some(&sim), &["status"]);
+    assert!(out.contains("pin1 yes"), "{out}");
+}
+
+#[test]
+fn frame_encode_and_decode_round_trip() {
+    let (ok, hex, err) = armctl(
+        None,
+        &["frame", "encode", "--seq", "9", "joints-count", "5"],
+    );
+    assert!(ok, "{err}");
+    let hex = hex.trim();
+    assert!(hex.starts_with("091205"), "{hex}");
+    let (ok, json, err) = armctl(None, &["frame", "decode", hex]);
+    assert!(ok, "{err}");
+    assert!(
+        json.contains("\"JOINTS_COUNT\"") && json.contains("\"seq\": 9"),
+        "{json}"
+    );
+    let (ok, _, err) = armctl(None, &["frame", "decode", "0912ff00"]);
+    assert!(!ok);
+    assert!(err.contains("CRC mismatch"), "{err}");
+}

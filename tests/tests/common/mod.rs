@@ -1,0 +1,85 @@
+//! Helpers shared by the end-to-end tests.
+#![allow(dead_code)]
+
+use std::net::{SocketAddr, UdpSocket};
+use std::time::Duration;
+
+use protocol::{Ack, MAX_DATAGRAM, MAX_JOINTS, Point, Report};
+
+/// `count` points of `duration_us` from `start`, each joint j moving `step * (j + 1)` per
+/// point, alternating direction by joint.
+pub fn sweep(
+    start: [i32; MAX_JOINTS],
+    joints: usize,
+    count: usize,
+    step: i32,
+    duration_us: i32,
+) -> Vec<Point> {
+    let mut previous = start;
+    (0..count)
+        .map(|k| {
+            let mut target = previous;
+            for (j, position) in target.iter_mut().enumerate().take(joints) {
+                // Out and back so that positions stay bounded.
+                let direction = if (k * 2 / count.max(1)) == 0 { 1 } else { -1 };
+                let sign = if j % 2 == 0 { 1 } else { -1 };
+                *position += direction * sign * step * (j as i32 + 1);
+            }
+            let point = Point::from_motion(duration_us, &previous, &target);
+            previous = target;
+            point
+        })
+        .collect()
+}
+
+/// A bare UDP socket that sends hand-made datagrams and reads the ACK for a seq.
+pub struct Raw {
+    pub socket: UdpSocket,
+}
+
+impl Raw {
+    pub fn new(bind: &str, controller: SocketAddr) -> Raw {
+        let socket = UdpSocket::bind(bind).unwrap();
+        socket.connect(controller).unwrap();
+        socket
+            .set_read_timeout(Some(Duration::from_millis(100)))
+            .unwrap();
+        Raw { socket }
+    }
+
+    /// Sends `datagram` (up to 5 times) until an ACK with `seq` comes back.
+    pub fn exchange(&self, datagram: &[u8], seq: u8) -> Option<Ack> {
+        let mut buf = [0u8; MAX_DATAGRAM];
+        for _ in 0..5 {
+            self.socket.send(datagram).unwrap();
+            let deadline = std::time::Instant::now() + Duration::from_millis(200);
+            while std::time::Instant::now() < deadline {
+                let Ok(n) = self.socket.recv(&mut buf) else {
+                    continue;
+                };
+                if let Ok(frame) = Report::decode(&buf[..n])
+                    && let Report::Ack(ack) = frame.body
+                    && frame.seq == seq
+                {
+                    return Some(ack);
+                }
+            }
+        }
+        None
+    }
+
+    /// Encodes and exchanges a command.
+    pub fn command(&self, seq: u8, command: &protocol::Command<'_>) -> Option<Ack> {
+        let mut buf = [0u8; MAX_DATAGRAM];
+        let n = command.encode(seq, &mut buf).unwrap();
+        self.exchange(&buf[..n], seq)
+    }
+}
+
+/// A datagram from parts with a correct CRC.
+pub fn datagram(seq: u8, tag: u8, data: &[u8]) -> Vec<u8> {
+    let mut bytes = vec![seq, tag];
+    bytes.extend_from_slice(data);
+    bytes.push(protocol::crc8(&bytes));
+    bytes
+}

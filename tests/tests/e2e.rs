@@ -1,0 +1,484 @@
+//! armctl's library against the real sim-host over loopback.
+
+mod common;
+
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use armctl::{Controller, Error, Options, RunEnd, RunOptions};
+use common::{Raw, datagram, sweep};
+use protocol::{
+    Command, Location, MAX_JOINTS, Point, PointList, Pwm, State, StatusCode, StatusFlags, Tag,
+    UartInit,
+};
+use system_tests::SimHost;
+
+fn loopback() -> Options {
+    Options {
+        ack_timeout: Duration::from_millis(50),
+        attempts: 20,
+        ..Options::default()
+    }
+}
+
+fn refused(result: armctl::Result<protocol::Ack>, status: StatusCode, what: &str) -> Error {
+    match result {
+        Err(e) if e.status() == Some(status) => {
+            let message = e.to_string();
+            assert!(message.contains(status.name()), "{what}: {message}");
+            assert!(message.contains(status.advice()), "{what}: {message}");
+            e
+        }
+        Err(e) => panic!("{what}: expected {}, got: {e}", status.name()),
+        Ok(ack) => panic!("{what}: expected {}, got {ack:?}", status.name()),
+    }
+}
+
+fn position(arm: &Controller) -> [i32; MAX_JOINTS] {
+    arm.current_location(Duration::from_secs(2))
+        .expect("a LOCATION report")
+        .position
+}
+
+#[test]
+fn run_reaches_the_last_point_and_executes_every_point() {
+    let sim = SimHost::start(&["--joints", "6"]);
+    let arm = sim.connect_with(loopback());
+    arm.set_location(&[100, -200, 300, 0, 0, 0]).unwrap();
+    let start = position(&arm);
+    assert_eq!(&start[..3], &[100, -200, 300]);
+    let points = sweep(start, 6, 120, 4, 10_000);
+    let mut last = armctl::Progress::default();
+    let report = arm
+        .run_trajectory(&points, &RunOptions::default(), |p| last = *p)
+        .unwrap_or_else(|e| panic!("{e}\n{}", sim.log()));
+    let expected = points.last().unwrap().position;
+    let status = report.final_status.unwrap();
+    assert_eq!(status.state, State::Stopped);
+    assert_eq!(usize::from(status.executed), points.len());
+    assert_eq!(usize::from(status.received), points.len());
+    assert!(!status.flags.has(StatusFlags::UNDERRUN));
+    assert_eq!(report.final_location.unwrap().position[..6], expected[..6]);
+    assert_eq!(position(&arm)[..6], expected[..6]);
+    assert_eq!(last.executed, points.len());
+    // 1.2 s of motion: the run cannot end much sooner.
+    assert!(
+        report.total_time >= Duration::from_millis(1150),
+        "{report:?}"
+    );
+}
+
+#[test]
+fn streaming_through_a_small_buffer_with_stop_and_wait_and_windows() {
+    let sim = SimHost::start(&["--joints", "3", "--buffer-capacity", "24"]);
+    let arm = sim.connect_with(loopback());
+    for window in [1, 4, 16] {
+        let start = position(&arm);
+        let points = sweep(start, 3, 150, 2, 4_000);
+        let options = RunOptions {
+            window,
+            ..RunOptions::default()
+        };
+        let report = arm
+            .run_trajectory(&points, &options, |_| {})
+            .unwrap_or_else(|e| panic!("window {window}: {e}\n{}", sim.log()));
+        let status = report.final_status.unwrap();
+        assert_eq!(
+            usize::from(status.executed),
+            points.len(),
+            "window {window}"
+        );
+        assert_eq!(
+            report.final_location.unwrap().position[..3],
+            points.last().unwrap().position[..3],
+            "window {window}"
+        );
+    }
+}
+
+#[test]
+fn every_refused_command_gives_its_error() {
+    let sim = SimHost::start(&["--joints", "6", "--buffer-capacity", "16"]);
+    let arm = sim.connect_with(loopback());
+
+    // STOPPED state.
+    refused(
+        arm.send(&Command::Runing),
+        StatusCode::BadState,
+        "RUNING when stopped",
+    );
+    let one = [Point::from_motion(
+        10_000,
+        &[0; 8],
+        &[1, 0, 0, 0, 0, 0, 0, 0],
+    )];
+    refused(
+        arm.send(&Command::Pending(PointList::Points(&one))),
+        StatusCode::BadState,
+        "PENDING without NEW",
+    );
+    refused(
+        arm.send(&Command::New { count: 0 }),
+        StatusCode::InvalidConfig,
+        "NEW 0",
+    );
+    refused(
+        arm.set_joints(9),
+        StatusCode::InvalidConfig,
+        "JOINTS_COUNT 9",
+    );
+    refused(
+        arm.set_joints(0),
+        StatusCode::InvalidConfig,
+        "JOINTS_COUNT 0",
+    );
+    refused(
+        arm.upload_period(999),
+        StatusCode::InvalidConfig,
+        "UPLOAD_PERIOD 999",
+    );
+    refused(
+        arm.upload_period(1_000_001),
+        StatusCode::InvalidConfig,
+        "UPLOAD_PERIOD 1000001",
+    );
+    refused(
+        arm.pwm_start(Pwm {
+            psc: 0,
+            arr: 100,
+            ccr1: 101,
+            pulse_count: 0,
+        }),
+        StatusCode::InvalidConfig,
+        "PWM CCR1 > ARR",
+    );
+    refused(
+        arm.pwm_start(Pwm {
+            psc: 0x1_0000,
+            arr: 100,
+            ccr1: 1,
+            pulse_count: 0,
+        }),
+        StatusCode::InvalidConfig,
+        "PWM PSC over 16 bits",
+    );
+    refused(
+        arm.serial_open(UartInit {
+            baud_rate: 299,
+            ..UartInit::default()
+        }),
+        StatusCode::InvalidConfig,
+        "baud 299",
+    );
+    refused(
+        arm.send(&Command::UsartSend(b"x")),
+        StatusCode::BadState,
+        "USART_SEND with the port closed",
+    );
+    refused(
+        arm.toggle_enable(Some(0x200)),
+        StatusCode::InvalidConfig,
+        "enable mask bit 9",
+    );
+
+    // Receive-only serial: USART_SEND refused.
+    arm.serial_open(UartInit {
+        baud_rate: 9600,
+        mode: 1,
+        ..UartInit::default()
+    })
+    .unwrap();
+    refused(
+        arm.send(&Command::UsartSend(b"x")),
+        StatusCode::BadState,
+        "USART_SEND to a receive-only port",
+    );
+    arm.serial_close().unwrap();
+
+    // TOO_MANY_POINTS: NEW 2, then 3 points.
+    arm.send(&Command::New { count: 2 }).unwrap();
+    let three: Vec<Point> = sweep([0; 8], 1, 3, 1, 10_000);
+    refused(
+        arm.send(&Command::Pending(PointList::Points(&three))),
+        StatusCode::TooManyPoints,
+        "3 points after NEW 2",
+    );
+    // INVALID_POINT: 10000 steps in 1 ms is far beyond any max step rate.
+    let status = arm.status().unwrap();
+    arm.send(&Command::New { count: 1 }).unwrap();
+    let steps = i32::try_from(status.max_step_rate_hz / 1000 + 1).unwrap();
+    let fast = [Point::from_motion(
+        1_000,
+        &[0; 8],
+        &[steps, 0, 0, 0, 0, 0, 0, 0],
+    )];
+    refused(
+        arm.send(&Command::Pending(PointList::Points(&fast))),
+        StatusCode::InvalidPoint,
+        "a point over the max step rate",
+    );
+    // BUFFER_FULL: a 16-point buffer, 12 + 12 points before RUNING.
+    arm.send(&Command::New { count: 100 }).unwrap();
+    let points = sweep(position(&arm), 2, 24, 1, 10_000);
+    arm.send(&Command::Pending(PointList::Points(&points[..12])))
+        .unwrap();
+    let full = refused(
+        arm.send(&Command::Pending(PointList::Points(&points[12..24]))),
+        StatusCode::BufferFull,
+        "12 points into 4 free slots",
+    );
+    assert!(matches!(
+        full,
+        Error::Refused {
+            command: Tag::Pending,
+            state: State::Pending,
+            ..
+        }
+    ));
+
+    // RUNNING: configuration commands are refused, STOPPED is not.
+    arm.send(&Command::Runing).unwrap();
+    refused(
+        arm.set_joints(5),
+        StatusCode::BadState,
+        "JOINTS_COUNT while running",
+    );
+    refused(
+        arm.set_location(&[0, 0, 0, 0, 0, 0]),
+        StatusCode::BadState,
+        "LOCATION_SETTING while running",
+    );
+    refused(arm.go_home(), StatusCode::BadState, "RETURN while running");
+    refused(
+        arm.toggle_enable(None),
+        StatusCode::BadState,
+        "TOGGLE_ENABLE_PINS while running",
+    );
+    refused(
+        arm.send(&Command::New { count: 5 }),
+        StatusCode::BadState,
+        "NEW while running",
+    );
+    arm.stop().unwrap();
+    assert_eq!(arm.status().unwrap().state, State::Stopped);
+
+    // Frames only a raw socket can make (same host, so the same owner; reports follow
+    // the port of the latest accepted frame, so take the position first).
+    let here = position(&arm);
+    let raw = Raw::new("127.0.0.1:0", sim.addr);
+    // A datagram too short for a frame gets no reply at all (before any accepted frame
+    // from this socket, so that no report comes here either).
+    raw.socket.send(&[1, 2]).unwrap();
+    let mut buf = [0u8; 64];
+    let mut replies = 0;
+    let deadline = Instant::now() + Duration::from_millis(300);
+    while Instant::now() < deadline {
+        if let Ok(n) = raw.socket.recv(&mut buf)
+            && let Ok(f) = protocol::Report::decode(&buf[..n])
+            && matches!(f.body, protocol::Report::Ack(_))
+        {
+            replies += 1;
+        }
+    }
+    assert_eq!(replies, 0, "a 2-byte datagram was answered");
+    let mut bad_crc = datagram(40, Tag::Status as u8, &[]);
+    *bad_crc.last_mut().unwrap() ^= 0xFF;
+    let ack = raw.exchange(&bad_crc, 40).expect("an ACK for a bad CRC");
+    assert_eq!(
+        (ack.status, ack.acked_tag),
+        (StatusCode::BadCrc, Tag::Status as u8)
+    );
+    let ack = raw.exchange(&datagram(41, 0x30, &[]), 41).unwrap();
+    assert_eq!(ack.status, StatusCode::UnknownTag);
+    let ack = raw
+        .exchange(&datagram(42, Tag::New as u8, &[0, 1, 2]), 42)
+        .unwrap();
+    assert_eq!(ack.status, StatusCode::BadLength);
+    let ack = raw
+        .exchange(&datagram(43, Tag::UsartRecv as u8, &[0u8; 257]), 43)
+        .unwrap();
+    assert_eq!(ack.status, StatusCode::Unsupported);
+    // OUT_OF_ORDER: NEW at 50, PENDING at 52 (51 never sent).
+    let ack = raw.command(50, &Command::New { count: 2 }).unwrap();
+    assert_eq!(ack.status, StatusCode::Ok);
+    let two = sweep(here, 1, 2, 1, 10_000);
+    let ack = raw
+        .command(52, &Command::Pending(PointList::Points(&two[..1])))
+        .unwrap();
+    assert_eq!(ack.status, StatusCode::OutOfOrder);
+    assert_eq!(ack.next_seq, 51, "next_seq names the missing frame");
+    let ack = raw
+        .command(51, &Command::Pending(PointList::Points(&two[..1])))
+        .unwrap();
+    assert_eq!(ack.status, StatusCode::Ok);
+    arm.stop().unwrap();
+}
+
+#[test]
+fn another_host_is_not_the_owner_but_may_stop_the_arm() {
+    let sim = SimHost::start(&["--joints", "2"]);
+    let arm = Arc::new(sim.connect_with(loopback()));
+    let other = Options {
+        bind: Some("127.0.0.2:0".parse().unwrap()),
+        ..loopback()
+    };
+    match Controller::connect_with(sim.addr, other.clone()) {
+        Err(e) => {
+            assert_eq!(e.status(), Some(StatusCode::NotOwner), "{e}");
+            assert!(e.to_string().contains("another host owns the controller"));
+        }
+        Ok(_) => panic!("a second host was answered as the owner"),
+    }
+    // Start a 2 s run as the owner; the other host stops it.
+    let points = sweep(position(&arm), 2, 200, 1, 10_000);
+    let runner = {
+        let arm = arm.clone();
+        std::thread::spawn(move || arm.run_trajectory(&points, &RunOptions::default(), |_| {}))
+    };
+    std::thread::sleep(Duration::from_millis(500));
+    let stranger = Controller::open(sim.addr, other).unwrap();
+    stranger.stop().expect("STOPPED from any host is obeyed");
+    match runner.join().unwrap() {
+        Err(Error::RunEnded {
+            reason: RunEnd::Stopped,
+            ..
+        }) => {}
+        other => panic!("expected the run to end by STOPPED, got {other:?}"),
+    }
+}
+
+#[test]
+fn emergency_stop_mid_run_freezes_the_joints() {
+    let sim = SimHost::start(&["--joints", "6"]);
+    let arm = Arc::new(sim.connect_with(loopback()));
+    let points = sweep(position(&arm), 6, 300, 3, 10_000);
+    let total = points.len();
+    let runner = {
+        let arm = arm.clone();
+        std::thread::spawn(move || arm.run_trajectory(&points, &RunOptions::default(), |_| {}))
+    };
+    std::thread::sleep(Duration::from_millis(800));
+    let stopped_at = Instant::now();
+    let ack = arm.stop().unwrap();
+    let latency = stopped_at.elapsed();
+    assert_eq!(ack.state, State::Stopped);
+    assert!(
+        latency < Duration::from_millis(200),
+        "STOPPED took {latency:?}"
+    );
+    let result = runner.join().unwrap();
+    let executed = match result {
+        Err(Error::RunEnded {
+            reason: RunEnd::Stopped,
+            executed: Some(n),
+            total: t,
+        }) => {
+            assert_eq!(t, total);
+            usize::from(n)
+        }
+        other => panic!("expected RunEnded(Stopped), got {other:?}"),
+    };
+    // 0.8 s into a 3 s run of 10 ms points.
+    assert!((40..=120).contains(&executed), "executed {executed}");
+    let status = arm.status().unwrap();
+    assert_eq!(status.state, State::Stopped);
+    assert!(status.flags.has(StatusFlags::STOPPED_BY_HOST));
+    assert_eq!(status.buffered, 0);
+    // Nothing moves after the stop.
+    let first: Location = arm.current_location(Duration::from_secs(1)).unwrap();
+    std::thread::sleep(Duration::from_millis(300));
+    let later = arm.current_location(Duration::from_secs(1)).unwrap();
+    assert_eq!(first.position, later.position);
+    assert_eq!(later.state, State::Stopped as u8);
+}
+
+#[test]
+fn lossy_link_executes_the_same_steps_as_a_lossless_one() {
+    // The same trajectory through a clean link and through 20% loss, 5% duplication and
+    // 5% reordering (each direction), streamed through a buffer smaller than it.
+    let run = |extra: &[&str]| {
+        let mut args = vec!["--joints", "6", "--buffer-capacity", "96"];
+        args.extend_from_slice(extra);
+        let sim = SimHost::start(&args);
+        let arm = sim.connect_with(Options {
+            ack_timeout: Duration::from_millis(40),
+            attempts: 40,
+            ..Options::default()
+        });
+        arm.set_location(&[0; 6]).unwrap();
+        let points = sweep([0; 8], 6, 250, 3, 8_000);
+        let report = arm
+            .run_trajectory(&points, &RunOptions::default(), |_| {})
+            .unwrap_or_else(|e| panic!("{extra:?}: {e}\n{}", sim.log()));
+        let status = report.final_status.unwrap();
+        let final_position = arm
+            .current_location(Duration::from_secs(2))
+            .expect("LOCATION after the run")
+            .position;
+        (report, status, final_position, points)
+    };
+    let (clean, clean_status, clean_position, points) = run(&[]);
+    let (lossy, lossy_status, lossy_position, _) = run(&[
+        "--loss",
+        "0.2",
+        "--dup",
+        "0.05",
+        "--reorder",
+        "0.05",
+        "--seed",
+        "7",
+    ]);
+    assert_eq!(lossy_position, clean_position);
+    assert_eq!(clean_position[..6], points.last().unwrap().position[..6]);
+    assert_eq!(lossy_status.executed, clean_status.executed);
+    assert_eq!(usize::from(lossy_status.executed), points.len());
+    assert_eq!(lossy_status.received, clean_status.received);
+    assert!(!lossy_status.flags.has(StatusFlags::UNDERRUN));
+    assert!(lossy.retransmissions > 0, "no loss seen: {lossy:?}");
+    assert_eq!(clean.timeouts, 0, "{clean:?}");
+}
+
+#[test]
+fn return_moves_every_joint_home() {
+    let sim = SimHost::start(&["--joints", "3", "--no-encoders"]);
+    let arm = sim.connect_with(loopback());
+    arm.set_location(&[400, -300, 200]).unwrap();
+    arm.go_home().unwrap();
+    let status = arm.wait_stopped(Duration::from_secs(30)).unwrap();
+    assert_eq!(status.state, State::Stopped);
+    assert_eq!(position(&arm)[..3], [0, 0, 0]);
+}
+
+#[test]
+fn pins_pwm_and_serial_round_trip() {
+    let sim = SimHost::start(&["--joints", "2", "--serial", "loopback"]);
+    let arm = sim.connect_with(loopback());
+    arm.pin(0, true).unwrap();
+    arm.pin(1, false).unwrap();
+    let status = arm.status().unwrap();
+    assert!(status.flags.has(StatusFlags::PIN0_HIGH));
+    assert!(!status.flags.has(StatusFlags::PIN1_HIGH));
+    let pwm = armctl::pwm::settings(status.pwm_timer_clock_hz, 50.0, 0.075, 0).unwrap();
+    arm.pwm_start(pwm).unwrap();
+    assert!(arm.status().unwrap().flags.has(StatusFlags::PWM_ACTIVE));
+    arm.pwm_stop().unwrap();
+    assert!(!arm.status().unwrap().flags.has(StatusFlags::PWM_ACTIVE));
+
+    let rx = arm.serial_rx();
+    arm.serial_open(UartInit {
+        baud_rate: 115_200,
+        ..UartInit::default()
+    })
+    .unwrap();
+    let message: Vec<u8> = (0..600u32).map(|i| b'a' + (i % 26) as u8).collect();
+    arm.serial_send(&message).unwrap();
+    let mut echoed = Vec::new();
+    let deadline = Instant::now() + Duration::from_secs(3);
+    while echoed.len() < message.len() && Instant::now() < deadline {
+        if let Ok(bytes) = rx.recv_timeout(Duration::from_millis(100)) {
+            echoed.extend(bytes);
+        }
+    }
+    assert_eq!(echoed, message);
+    arm.serial_close().unwrap();
+}
