@@ -73,7 +73,10 @@ fn bench(c: &mut Criterion) {
     let cases: [(&str, [i32; MAX_JOINTS]); 3] = [
         ("1 joint", [100, 0, 0, 0, 0, 0, 0, 0]),
         ("8 joints in step", [100; MAX_JOINTS]),
-        ("8 joints, distinct rates", [100, 97, 89, 83, 79, 73, 71, 67]),
+        (
+            "8 joints, distinct rates",
+            [100, 97, 89, 83, 79, 73, 71, 67],
+        ),
     ];
     let mut group = c.benchmark_group("poll per step");
     for (name, steps) in cases {

@@ -2,6 +2,7 @@
 
 use crate::joint::Joint;
 use crate::ring::{SegmentRing, Slot};
+use crate::schedule::EdgeTree;
 use crate::{JointMask, MAX_JOINTS, Poll, Segment, StepPins, StepTiming};
 
 /// Every joint.
@@ -78,9 +79,8 @@ pub struct StepEngine<const QUEUE: usize> {
     head_ordinal: u32,
     joints: [Joint; MAX_JOINTS],
     /// Tick of each joint's next edge: STEP falling if its line is high, else the next
-    /// rising edge; `u64::MAX` while it waits for a segment. Kept apart from `joints` so
-    /// that `poll` scans eight packed words.
-    edges: [u64; MAX_JOINTS],
+    /// rising edge; `u64::MAX` while it waits for a segment.
+    edges: EdgeTree,
     /// Joints whose STEP line is high.
     high: JointMask,
     /// Joints that have walked past every queued segment.
@@ -108,7 +108,7 @@ impl<const QUEUE: usize> StepEngine<QUEUE> {
             ring: SegmentRing::new(),
             head_ordinal: 0,
             joints: [Joint::IDLE; MAX_JOINTS],
-            edges: [u64::MAX; MAX_JOINTS],
+            edges: EdgeTree::IDLE,
             high: 0,
             waiting: ALL_JOINTS,
             pushed: false,
@@ -185,7 +185,7 @@ impl<const QUEUE: usize> StepEngine<QUEUE> {
             joint.slot = head;
             joint.remaining = 0;
         }
-        self.edges = [u64::MAX; MAX_JOINTS];
+        self.edges = EdgeTree::IDLE;
         self.waiting = ALL_JOINTS;
         self.pushed = true;
         self.head_end = self.front_end();
@@ -201,7 +201,7 @@ impl<const QUEUE: usize> StepEngine<QUEUE> {
         for joint in &mut self.joints {
             joint.remaining = 0;
         }
-        self.edges = [u64::MAX; MAX_JOINTS];
+        self.edges = EdgeTree::IDLE;
         self.waiting = ALL_JOINTS;
         self.end_run();
     }
@@ -252,19 +252,15 @@ impl<const QUEUE: usize> StepEngine<QUEUE> {
         }
         let now = now_tick;
 
-        // Which joints have an edge due, and the earliest edge of the others.
-        let mut due: JointMask = 0;
-        let mut next = u64::MAX;
-        for j in Joints(!self.waiting) {
-            let edge = self.edge(j);
-            if edge <= now {
-                due |= 1 << j;
-            } else {
-                next = next.min(edge);
-            }
-        }
+        // Which joints have an edge due.
+        let due = if self.edges.earliest() <= now {
+            self.edges.due(now, !self.waiting)
+        } else {
+            0
+        };
         let falls = due & self.high;
         let mut rises = due & !self.high;
+        let mut changed = due;
 
         // Falling edges first: a DIR line may change only once its STEP line is low.
         if falls != 0 {
@@ -272,7 +268,6 @@ impl<const QUEUE: usize> StepEngine<QUEUE> {
             self.high &= !falls;
             for j in Joints(falls) {
                 self.after_fall(j, now, pins);
-                next = next.min(self.edge(j));
             }
         }
 
@@ -280,11 +275,9 @@ impl<const QUEUE: usize> StepEngine<QUEUE> {
             self.pushed = false;
             for j in Joints(self.waiting) {
                 self.seek(j, now, pins);
-                let edge = self.edge(j);
-                if edge <= now {
+                changed |= 1 << j;
+                if self.edges.get(j) <= now {
                     rises |= 1 << j;
-                } else {
-                    next = next.min(edge);
                 }
             }
         }
@@ -294,13 +287,14 @@ impl<const QUEUE: usize> StepEngine<QUEUE> {
             self.high |= rises;
             let fall_at = now + self.pulse_ticks;
             for j in Joints(rises) {
-                if let (Some(joint), Some(edge)) = (self.joints.get_mut(j), self.edges.get_mut(j)) {
+                if let Some(joint) = self.joints.get_mut(j) {
                     joint.rise();
-                    *edge = fall_at;
                 }
+                self.edges.set(j, fall_at);
             }
-            next = next.min(fall_at);
         }
+        self.edges.refresh(changed);
+        let mut next = self.edges.earliest();
 
         // Free the segments that are over for the timeline and for every joint.
         let mut finished = 0;
@@ -346,20 +340,15 @@ impl<const QUEUE: usize> StepEngine<QUEUE> {
         }
     }
 
-    /// Tick of joint `j`'s next edge.
-    fn edge(&self, j: usize) -> u64 {
-        self.edges.get(j).copied().unwrap_or(u64::MAX)
-    }
-
     /// Joint `j`'s STEP line just fell at `now`: schedule its next pulse, or move it on to
     /// the next segment.
     fn after_fall(&mut self, j: usize, now: u64, pins: &mut impl StepPins) {
-        let (Some(joint), Some(edge)) = (self.joints.get_mut(j), self.edges.get_mut(j)) else {
+        let Some(joint) = self.joints.get_mut(j) else {
             return;
         };
         joint.earliest = now + 1;
         if joint.remaining > 0 {
-            *edge = joint.next_rise(&mut self.late_pulses);
+            self.edges.set(j, joint.next_rise(&mut self.late_pulses));
             return;
         }
         if let Some(slot) = self.ring.get_mut(joint.slot) {
@@ -375,7 +364,7 @@ impl<const QUEUE: usize> StepEngine<QUEUE> {
     /// direction and first pulse there; or marks it waiting at the end of the queue.
     fn seek(&mut self, j: usize, now: u64, pins: &mut impl StepPins) {
         let bit = 1 << j;
-        let (Some(joint), Some(edge)) = (self.joints.get_mut(j), self.edges.get_mut(j)) else {
+        let Some(joint) = self.joints.get_mut(j) else {
             return;
         };
         loop {
@@ -383,7 +372,7 @@ impl<const QUEUE: usize> StepEngine<QUEUE> {
             let slot = match self.ring.get_mut(joint.slot) {
                 Some(slot) if held => slot,
                 _ => {
-                    *edge = u64::MAX;
+                    self.edges.set(j, u64::MAX);
                     self.waiting |= bit;
                     return;
                 }
@@ -402,7 +391,7 @@ impl<const QUEUE: usize> StepEngine<QUEUE> {
                     u64::from(slot.duration_us) * self.tick_hz,
                     steps,
                 );
-                *edge = joint.next_rise(&mut self.late_pulses);
+                self.edges.set(j, joint.next_rise(&mut self.late_pulses));
                 self.waiting &= !bit;
                 return;
             }

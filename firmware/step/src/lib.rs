@@ -1,24 +1,33 @@
 //! The step pulse scheduler: the code the step timer interrupt runs.
 //!
 //! The trajectory is handed over as [`Segment`]s (a duration and a signed step count per
-//! joint). For a segment that starts at tick `S`, lasts `D` ticks and moves a joint `N`
-//! steps, pulse `i` (1..=N) rises at `S + floor(i * D / N)`: computed incrementally with a
-//! Bresenham-style remainder, so no division per pulse and no drift. Segment start ticks are
-//! derived from the cumulative duration in microseconds since `start`, so segments chain with
-//! no gap and no rounding error accumulates even when the tick rate is not a multiple of
-//! 1 MHz.
+//! joint). Segment `k` starts at `start_tick + floor(cum_us_k * tick_hz / 1e6)`, where
+//! `cum_us_k` is the sum of the earlier durations, so segments chain with no gap and no
+//! rounding error accumulates, even when the tick rate is not a multiple of 1 MHz. Pulse `i`
+//! (1..=N) of a joint moving `N` steps in a segment of `D` ticks rises at `S + floor(i * D /
+//! N)`, where `S` and `D` are the segment's exact (rational) start and length in ticks: the
+//! floor of the pulse's exact time, so every pulse is less than one tick after its ideal
+//! time and the last one lands exactly on the segment's end tick. (When the segment bounds
+//! fall on whole ticks, as at any whole-MHz tick rate, this is the integer formula with
+//! `S` and `D` in ticks.) It is computed incrementally with a remainder, one u64 division
+//! per segment and joint, none per pulse.
 //!
 //! Direction lines change only while STEP is low, right after the joint's previous pulse
-//! ends, and the next pulse is never raised sooner than `dir_setup_ticks` after the change.
+//! ends, and the next pulse is never raised sooner than `dir_setup_ticks` after the change:
+//! if a segment asks for more than [`StepTiming::max_step_rate_hz`], pulses are delayed
+//! (and counted, [`StepEngine::late_pulses`]), never dropped.
 //!
 //! The engine is sans-io: the timer interrupt calls [`StepEngine::poll`] with the current
 //! tick and a [`StepPins`] implementation, and re-arms its compare register for the
-//! returned deadline.
+//! returned deadline. `poll` does no allocation and no division per pulse; its cost per
+//! edge barely depends on how many joints move (a small tournament tree keeps the next
+//! deadline).
 #![no_std]
 
 mod engine;
 mod joint;
 mod ring;
+mod schedule;
 
 pub use engine::StepEngine;
 
