@@ -35,7 +35,7 @@ pub struct RunOptions {
     pub wait: bool,
     /// Give up waiting for the upload when no frame is acknowledged for this long.
     pub stall_timeout: Duration,
-    /// Longest wait for the end of the run after the upload; `None`: the trajectory's
+    /// Longest wait for the end of the run, from NEW; `None`: twice the trajectory's
     /// duration plus 10 s.
     pub completion_timeout: Option<Duration>,
 }
@@ -134,6 +134,10 @@ struct Upload<'a, 'p> {
     last_rewind: Option<(usize, Instant)>,
     last_progress: Instant,
     timeouts_in_a_row: usize,
+    /// The whole upload ends by then: twice the trajectory's duration plus two stall
+    /// timeouts (streaming cannot need longer than the run itself, with room for a
+    /// controller whose clock runs slow).
+    deadline: Instant,
     report: RunReport,
 }
 
@@ -314,6 +318,10 @@ impl Upload<'_, '_> {
                 }
             }
             StatusCode::BufferFull => {
+                // The controller answers: not a stall, however long its buffer takes to
+                // drain (the upload's overall deadline still bounds this).
+                self.last_progress = Instant::now();
+                self.timeouts_in_a_row = 0;
                 self.report.buffer_full += 1;
                 self.free = (usize::from(ack.free), i.checked_sub(1));
                 self.free_since = Instant::now();
@@ -352,6 +360,7 @@ impl Upload<'_, '_> {
         loop {
             if self.last_progress.elapsed() > self.options.stall_timeout
                 || self.timeouts_in_a_row > MAX_TIMEOUTS_IN_A_ROW
+                || Instant::now() >= self.deadline
             {
                 return Err(Error::Stalled {
                     acked: self.acked_points,
@@ -484,6 +493,7 @@ impl Controller {
             points_per_frame: options.points_per_frame.clamp(1, MAX_POINTS_PER_FRAME),
             ..options.clone()
         };
+        let duration_us: i64 = points.iter().map(|p| i64::from(p.duration)).sum();
         let started = Instant::now();
         let locations = self.locations();
         let mut report = {
@@ -513,6 +523,9 @@ impl Controller {
                 last_rewind: None,
                 last_progress: Instant::now(),
                 timeouts_in_a_row: 0,
+                deadline: Instant::now()
+                    + Duration::from_micros(duration_us as u64) * 2
+                    + options.stall_timeout * 2,
                 report: RunReport::default(),
             };
             upload.run(&mut progress)?;
@@ -525,10 +538,9 @@ impl Controller {
             report.total_time = started.elapsed();
             return Ok(report);
         }
-        let duration_us: i64 = points.iter().map(|p| i64::from(p.duration)).sum();
         let timeout = options
             .completion_timeout
-            .unwrap_or(Duration::from_micros(duration_us as u64) + Duration::from_secs(10));
+            .unwrap_or(Duration::from_micros(duration_us as u64) * 2 + Duration::from_secs(10));
         let deadline = started + timeout;
         let status = loop {
             let status = self.status()?;
