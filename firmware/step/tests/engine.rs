@@ -586,3 +586,62 @@ fn poll_while_idle_does_nothing() {
     assert_eq!(pins.calls, 0);
     assert_eq!(engine.queued(), 1, "segments wait for start");
 }
+
+#[test]
+fn zero_length_segment_pulses_come_late_but_all_come() {
+    let timing = timing(1_000_000, 2, 5);
+    let segments = [
+        one_joint(0, 0, 5),
+        one_joint(100, 0, 1),
+        Segment {
+            duration_us: 0,
+            steps: [0; MAX_JOINTS],
+        },
+    ];
+    let (engine, pins, outcome) = run_all::<4>(timing, &segments, 1_000, 10);
+    Model::new(&segments, 1_000, 1_000_000).assert_complete_in_order(&pins);
+    pins.check_timing(&timing);
+    assert_eq!(engine.positions()[0], 6);
+    assert_eq!(engine.late_pulses(), 4, "the first of the five is on time");
+    assert_eq!(outcome.segments_finished(), 3);
+}
+
+#[test]
+fn extreme_values_do_not_panic() {
+    // Largest durations, step counts and timings: a few polls, then stop.
+    for timing in [
+        timing(u32::MAX, u32::MAX, u32::MAX),
+        timing(0, 0, 0),
+        timing(1, 1, 0),
+        timing(10_000_000, 20, 50),
+    ] {
+        let mut engine = StepEngine::<4>::new(timing);
+        let mut pins = Recorder::default();
+        for steps in [i32::MIN, i32::MAX, 1, -1] {
+            let segment = Segment {
+                duration_us: u32::MAX,
+                steps: [steps; MAX_JOINTS],
+            };
+            assert!(engine.push(segment).is_ok());
+        }
+        assert!(engine.set_positions([i32::MAX; MAX_JOINTS]));
+        engine.start(u64::from(u32::MAX));
+        let mut now = 0;
+        for _ in 0..1_000 {
+            pins.now = now;
+            match engine.poll(now, &mut pins).next_deadline {
+                Some(deadline) => now = deadline,
+                None => break,
+            }
+        }
+        pins.stopping = true;
+        engine.stop(&mut pins);
+        assert_eq!(pins.step_high, [false; MAX_JOINTS]);
+        pins.check_timing(&timing);
+        // Positions wrap rather than panic; they still follow the emitted pulses.
+        let moved = pins.signed_pulses();
+        for (position, moved) in engine.positions().iter().zip(moved) {
+            assert_eq!(*position, i32::MAX.wrapping_add(moved));
+        }
+    }
+}
