@@ -887,4 +887,31 @@ mod tests {
             .is_err()
         );
     }
+
+    #[test]
+    fn the_shipped_examples_convert() {
+        let config = ArmConfig::parse(include_str!("../examples/arm.json"), "arm.json").unwrap();
+        let reach = parse_joint_trajectory(
+            include_str!("../examples/reach.json"),
+            "reach.json",
+            &config,
+        )
+        .unwrap();
+        let points = to_points(&reach, &[0; 8], 10_000, &config, Some(100_000)).unwrap();
+        assert_eq!(points.len(), 350);
+        assert_eq!(points[349].position, [0; 8]);
+        // 0.5 rad of base at 5093 steps/rad, reached at 1.5 s (point 149).
+        assert_eq!(points[149].position[0], 2547);
+        let wave = parse_csv(include_str!("../examples/wave.csv"), "wave.csv").unwrap();
+        let points = to_points(
+            &wave,
+            &[0; 8],
+            10_000,
+            &ArmConfig::unlimited(3, 100_000),
+            None,
+        )
+        .unwrap();
+        assert_eq!(points.len(), 200);
+        assert_eq!(&points[49].position[..3], &[800, -400, 200]);
+    }
 }
