@@ -106,7 +106,11 @@ fn every_command_in_every_state() {
     };
     let mut checked = 0;
     for state in [State::Stopped, State::New, State::Pending, State::Running] {
-        let from = if state == State::Stopped { [0; 8] } else { [2; 8] };
+        let from = if state == State::Stopped {
+            [0; 8]
+        } else {
+            [2; 8]
+        };
         let from = if state == State::New { [0; 8] } else { from };
         let pts = points(from, 1, 1);
         for cmd in all_commands(&pts, location) {
@@ -121,7 +125,13 @@ fn every_command_in_every_state() {
             } else {
                 state
             };
-            assert_eq!(ack.state, expect_state, "{} in {}", cmd.tag().name(), state.name());
+            assert_eq!(
+                ack.state,
+                expect_state,
+                "{} in {}",
+                cmd.tag().name(),
+                state.name()
+            );
             assert_eq!(s.controller.state(), expect_state);
             if want != Ok {
                 assert_eq!(s.controller.buffered(), buffered, "refused: nothing done");
@@ -143,13 +153,7 @@ fn usart_send_needs_an_open_port_that_transmits() {
     };
     s.expect(Command::UsartStart(rx_only), Ok);
     s.expect(Command::UsartSend(b"x"), BadState);
-    s.expect(
-        Command::UsartStart(UartInit {
-            mode: 2,
-            ..rx_only
-        }),
-        Ok,
-    );
+    s.expect(Command::UsartStart(UartInit { mode: 2, ..rx_only }), Ok);
     for _ in 0..4 {
         s.expect(Command::UsartSend(b"abc"), Ok);
     }
@@ -165,7 +169,10 @@ fn usart_send_needs_an_open_port_that_transmits() {
 
 #[test]
 fn golden_frames_get_the_right_status() {
-    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../../../shared/vectors/frames.json");
+    let path = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../../shared/vectors/frames.json"
+    );
     let text = std::fs::read_to_string(path).expect("golden frames");
     let json: serde_json::Value = serde_json::from_str(&text).expect("json");
     let mut checked = 0;
@@ -186,7 +193,11 @@ fn golden_frames_get_the_right_status() {
             continue;
         }
         let reply = response.reply.expect("an ACK");
-        assert_eq!((reply.seq, reply.ack.acked_tag), (bytes[0], bytes[1]), "{name}");
+        assert_eq!(
+            (reply.seq, reply.ack.acked_tag),
+            (bytes[0], bytes[1]),
+            "{name}"
+        );
         assert_eq!(reply.to, HOST);
         let want = match f["expect_status"].as_str() {
             Some(code) => match code {
@@ -217,10 +228,17 @@ fn short_datagrams_get_no_reply_and_bad_crc_is_acked_with_seq_and_tag() {
     let mut bytes = frame(42, Command::Pin0On);
     *bytes.last_mut().unwrap() ^= 0xFF;
     let reply = s.send_raw(OTHER, &bytes).reply.expect("ACK");
-    assert_eq!((reply.to, reply.seq, reply.ack.acked_tag), (OTHER, 42, 0x0c));
+    assert_eq!(
+        (reply.to, reply.seq, reply.ack.acked_tag),
+        (OTHER, 42, 0x0c)
+    );
     assert_eq!(reply.ack.status, BadCrc);
     assert!(s.plant.pins.is_empty());
-    assert_eq!(s.controller.owner(), None, "a bad CRC does not make an owner");
+    assert_eq!(
+        s.controller.owner(),
+        None,
+        "a bad CRC does not make an owner"
+    );
 }
 
 #[test]
@@ -300,13 +318,7 @@ fn duplicates_are_acked_and_not_executed_twice() {
     assert_eq!(s.controller.buffered(), 3);
     // The same bytes from another port are another frame.
     let r = s
-        .send_raw(
-            Endpoint {
-                port: 1,
-                ..HOST
-            },
-            &pin,
-        )
+        .send_raw(Endpoint { port: 1, ..HOST }, &pin)
         .reply
         .unwrap();
     assert_eq!(r.ack.status, Ok);
@@ -361,11 +373,17 @@ fn buffer_full_and_streaming() {
     assert_eq!(s.pending(&pts[6..9]).status, Ok);
     s.plant.run(&mut s.controller, 3);
     assert_eq!(s.pending(&pts[9..10]).status, Ok);
-    let loc = s.plant.run_to_end(&mut s.controller).expect("LOCATION at the end");
+    let loc = s
+        .plant
+        .run_to_end(&mut s.controller)
+        .expect("LOCATION at the end");
     assert_eq!(loc.state, State::Stopped as u8);
     assert_eq!(s.plant.positions, [10, 10, 10, 10, 10, 10, 0, 0]);
     let status = s.controller.status(&s.plant);
-    assert_eq!((status.executed, status.received, status.expected), (10, 10, 10));
+    assert_eq!(
+        (status.executed, status.received, status.expected),
+        (10, 10, 10)
+    );
     assert!(!status.flags.has(StatusFlags::UNDERRUN));
 }
 
@@ -393,7 +411,10 @@ fn invalid_point_takes_nothing() {
     pts[2] = Point::from_motion(1_000, &pts[1].position, &fast);
     let before = s.controller.next_seq();
     let a = s.pending(&pts);
-    assert_eq!((a.status, a.buffered, a.next_seq), (InvalidPoint, 0, before));
+    assert_eq!(
+        (a.status, a.buffered, a.next_seq),
+        (InvalidPoint, 0, before)
+    );
     // Exactly at the limit is fine, and joints beyond JOINTS_COUNT are not checked.
     fast[0] -= 1;
     fast[7] += 1_000_000;
@@ -459,7 +480,11 @@ fn stopped_drops_the_buffer_and_sets_its_flag() {
     assert_eq!(s.controller.buffered(), 0);
     let status = s.controller.status(&s.plant);
     assert!(status.flags.has(StatusFlags::STOPPED_BY_HOST));
-    assert_eq!(s.plant.positions, [1, 1, 1, 1, 1, 1, 0, 0], "6 joints in use");
+    assert_eq!(
+        s.plant.positions,
+        [1, 1, 1, 1, 1, 1, 0, 0],
+        "6 joints in use"
+    );
 }
 
 #[test]
@@ -499,11 +524,17 @@ fn status_report_fields() {
     let st = s.controller.status(&s.plant);
     assert_eq!(st.version, protocol::VERSION);
     assert_eq!((st.joints, st.state), (3, State::Pending));
-    assert_eq!((st.buffered, st.expected, st.received, st.executed), (2, 7, 2, 0));
+    assert_eq!(
+        (st.buffered, st.expected, st.received, st.executed),
+        (2, 7, 2, 0)
+    );
     assert_eq!(st.capacity, 20);
     assert_eq!(st.upload_period_us, 5_000);
     assert_eq!(st.max_step_rate_hz, s.controller.config().max_step_rate_hz);
-    assert_eq!(st.pwm_timer_clock_hz, s.controller.config().pwm_timer_clock_hz);
+    assert_eq!(
+        st.pwm_timer_clock_hz,
+        s.controller.config().pwm_timer_clock_hz
+    );
     let f = st.flags;
     assert!(f.has(StatusFlags::REPORTS_ON | StatusFlags::PIN1_HIGH | StatusFlags::PWM_ACTIVE));
     assert!(!f.has(StatusFlags::DRIVERS_ENABLED), "all toggled off");
@@ -551,24 +582,41 @@ fn return_reads_encoders_then_moves_every_joint_to_zero() {
         Ok,
     );
     let r = s.send_raw(HOST, &frame(9, Command::Return));
-    assert_eq!(r.reply.map(|r| (r.ack.status, r.ack.state)), Some((Ok, State::Running)));
+    assert_eq!(
+        r.reply.map(|r| (r.ack.status, r.ack.state)),
+        Some((Ok, State::Running))
+    );
     assert_eq!(r.deferred, Some(Deferred::ReadEncoders));
     // The encoders disagree with the step count on joint 1: they win.
     let encoders = [500, -320, 0, 0, 0, 0, 0, 0];
-    assert!(s.controller.begin_return(Some(encoders), &mut s.plant).is_none());
-    assert_eq!(s.plant.set_positions_calls.last(), Some(&[500, -320, 0, 0, 0, 0, 7, 7]));
+    assert!(
+        s.controller
+            .begin_return(Some(encoders), &mut s.plant)
+            .is_none()
+    );
+    assert_eq!(
+        s.plant.set_positions_calls.last(),
+        Some(&[500, -320, 0, 0, 0, 0, 7, 7])
+    );
     assert!(s.plant.running);
     // STOPPED works during it... but here it runs to the end.
-    let loc = s.plant.run_to_end(&mut s.controller).expect("LOCATION at the end");
+    let loc = s
+        .plant
+        .run_to_end(&mut s.controller)
+        .expect("LOCATION at the end");
     assert_eq!(loc.state, State::Stopped as u8);
-    assert_eq!(s.plant.positions, [0, 0, 0, 0, 0, 0, 7, 7], "joints 6, 7 not in use");
+    assert_eq!(
+        s.plant.positions,
+        [0, 0, 0, 0, 0, 0, 7, 7],
+        "joints 6, 7 not in use"
+    );
     let status = s.controller.status(&s.plant);
     assert!(status.executed > 0 && status.executed == status.expected);
     // Every point is a normal segment within the board's step rate.
     for seg in &s.plant.executed {
         for j in 0..MAX_JOINTS {
-            let rate = u64::from(seg.steps[j].unsigned_abs()) * 1_000_000
-                / u64::from(seg.duration_us);
+            let rate =
+                u64::from(seg.steps[j].unsigned_abs()) * 1_000_000 / u64::from(seg.duration_us);
             assert!(rate <= u64::from(s.controller.config().return_speed[j]));
         }
     }
@@ -592,7 +640,10 @@ fn stopped_during_return_and_pending_refused() {
     s.expect(Command::Return, Ok);
     s.controller.begin_return(None, &mut s.plant);
     s.plant.run(&mut s.controller, 3);
-    assert_eq!(s.pending(&points(s.plant.positions, 1, -1)).status, BadState);
+    assert_eq!(
+        s.pending(&points(s.plant.positions, 1, -1)).status,
+        BadState
+    );
     let at = s.plant.positions;
     s.expect(Command::Stopped, Ok);
     assert_eq!(s.controller.state(), State::Stopped);
@@ -616,7 +667,12 @@ fn a_long_return_streams_through_a_small_buffer() {
     s.plant.run_to_end(&mut s.controller);
     assert_eq!(s.plant.positions[0], 0);
     assert!(s.plant.executed.len() > 8);
-    assert!(!s.controller.status(&s.plant).flags.has(StatusFlags::UNDERRUN));
+    assert!(
+        !s.controller
+            .status(&s.plant)
+            .flags
+            .has(StatusFlags::UNDERRUN)
+    );
 }
 
 #[test]

@@ -130,8 +130,10 @@ impl Plant for FakePlant {
 }
 
 impl FakePlant {
-    /// Runs up to `n` queued segments (if running) and reports the progress; the engine
-    /// runs dry when it ran its last queued segment.
+    /// Runs up to `n` queued segments (if running), one at a time, reporting each to the
+    /// controller (which refills the queue in between, as the step task does while a
+    /// segment runs); the engine runs dry when it finishes its last queued segment.
+    /// Returns the LOCATION the controller sent, if any.
     pub fn run<const CAP: usize>(
         &mut self,
         controller: &mut Controller<CAP>,
@@ -140,20 +142,24 @@ impl FakePlant {
         if !self.running {
             return controller.on_step_progress(0, false, self);
         }
-        let mut done = 0;
-        while done < n {
-            let Some(s) = self.queue.pop_front() else { break };
+        for _ in 0..n {
+            let Some(s) = self.queue.pop_front() else {
+                break;
+            };
             for j in 0..MAX_JOINTS {
                 self.positions[j] += s.steps[j];
             }
             self.executed.push(s);
-            done += 1;
+            let dry = self.queue.is_empty();
+            if dry {
+                self.running = false;
+            }
+            let location = controller.on_step_progress(1, dry, self);
+            if dry {
+                return location;
+            }
         }
-        let dry = self.queue.is_empty();
-        if dry {
-            self.running = false;
-        }
-        controller.on_step_progress(done as u32, dry, self)
+        None
     }
 
     /// Runs until the engine ran dry; returns the LOCATION the controller sent then.
@@ -238,10 +244,7 @@ impl<const CAP: usize> Session<CAP> {
     pub fn send(&mut self, cmd: Command<'_>) -> Ack {
         self.seq = self.seq.wrapping_add(1);
         let bytes = frame(self.seq, cmd);
-        self.send_raw(self.from, &bytes)
-            .reply
-            .expect("an ACK")
-            .ack
+        self.send_raw(self.from, &bytes).reply.expect("an ACK").ack
     }
 
     /// Sends a command and asserts its status.
