@@ -1,9 +1,9 @@
 //! Harness for the end-to-end tests: finds (or builds) the `sim-host` and `armctl`
 //! binaries, starts a simulated controller on a free 127.0.0.1 port, and kills it on drop.
 //!
-//! The binaries are looked up, in order: `SIM_HOST_BIN` / `ARMCTL_BIN`, next to the test
-//! executable's profile directory (`target/<profile>/`), else built with
-//! `cargo build -p <package>` into the same target directory (once per test process).
+//! The binaries are `SIM_HOST_BIN` / `ARMCTL_BIN` when set, else `target/<profile>/sim-host`
+//! and `armctl` next to the test executable (`current_exe()/../../`), brought up to date
+//! with `cargo build -p <package>` once per test process.
 
 use std::net::{Ipv4Addr, SocketAddr, SocketAddrV4, UdpSocket};
 use std::path::{Path, PathBuf};
@@ -16,8 +16,8 @@ use armctl::{Controller, Options};
 /// How long a fresh sim-host gets to answer STATUS.
 const START_TIMEOUT: Duration = Duration::from_secs(10);
 
-/// Serialises on-demand builds within one test process.
-static BUILD: Mutex<()> = Mutex::new(());
+/// Packages already built by this test process.
+static BUILT: Mutex<Vec<String>> = Mutex::new(Vec::new());
 
 /// `target/<profile>/` of the running test executable (`target/<profile>/deps/test-…`).
 fn profile_dir() -> Option<PathBuf> {
@@ -26,30 +26,34 @@ fn profile_dir() -> Option<PathBuf> {
     Some(deps.parent()?.to_path_buf())
 }
 
-/// Path of binary `name` of package `package`, building it if it is not there.
+/// Path of binary `name` of package `package`. Unless `env` names it, the package is built
+/// once per test process (`cargo build -p`, a no-op when up to date) into the test's own
+/// target directory, so that a stale binary is never tested.
 pub fn binary(name: &str, package: &str, env: &str) -> PathBuf {
     if let Some(path) = std::env::var_os(env) {
         return PathBuf::from(path);
     }
     let dir = profile_dir().expect("cannot locate the test executable's target directory");
     let path = dir.join(format!("{name}{}", std::env::consts::EXE_SUFFIX));
-    let _build = BUILD.lock().unwrap_or_else(|e| e.into_inner());
-    if !path.exists() || std::env::var_os("SYSTEM_TESTS_REBUILD").is_some() {
-        build(package, &dir);
+    let mut built = BUILT.lock().unwrap_or_else(|e| e.into_inner());
+    if !built.iter().any(|p| p == package) {
+        let ok = build(package, &dir);
+        assert!(
+            ok || path.exists(),
+            "cargo build -p {package} failed and {} does not exist (or set {env})",
+            path.display()
+        );
+        built.push(package.to_string());
     }
-    assert!(
-        path.exists(),
-        "{} not found: build it (`cargo build -p {package}`) or set {env}",
-        path.display()
-    );
     path
 }
 
-fn build(package: &str, profile_dir: &Path) {
+/// Runs `cargo build -p package` for the profile of `profile_dir`; whether it succeeded.
+fn build(package: &str, profile_dir: &Path) -> bool {
     let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
-    let target_dir = profile_dir
-        .parent()
-        .expect("target directory above the profile directory");
+    let Some(target_dir) = profile_dir.parent() else {
+        return false;
+    };
     let mut command = Command::new(cargo);
     command
         .args(["build", "-p", package, "--target-dir"])
@@ -57,10 +61,7 @@ fn build(package: &str, profile_dir: &Path) {
     if profile_dir.file_name().is_some_and(|n| n == "release") {
         command.arg("--release");
     }
-    let status = command
-        .status()
-        .expect("cannot run cargo to build the binary");
-    assert!(status.success(), "cargo build -p {package} failed");
+    command.status().is_ok_and(|s| s.success())
 }
 
 /// The simulator binary.
