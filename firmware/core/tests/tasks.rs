@@ -1,0 +1,440 @@
+//! The async tasks run together with fake hardware on one thread (embassy_futures'
+//! `block_on` polls everything in a loop): a datagram in gives an ACK out and steps; a
+//! STOPPED stops a run; the serial bridge forwards both ways; LOCATION reports flow.
+
+use std::cell::{Cell, RefCell};
+use std::collections::VecDeque;
+use std::future::{Future, poll_fn};
+use std::task::Poll;
+use std::time::{Duration, Instant};
+
+use arm_core::hw::{
+    Clock, Datagrams, Encoders, Endpoint, Gripper, Outputs, PersistentSettings, SerialError,
+    SerialPort, SettingsStore, StepKick,
+};
+use arm_core::{
+    Bus, Controller, ControllerConfig, StepShared, TrajectoryHw, network_task, on_step_timer,
+    serial_task, step_task, trajectory_task, upload_task,
+};
+use arm_step::{JointMask, StepPins, StepTiming};
+use embassy_futures::block_on;
+use embassy_futures::join::{join, join5};
+use embassy_futures::select::select;
+use embassy_futures::yield_now;
+use protocol::{
+    Command, Frame, MAX_JOINTS, Point, PointList, Pwm, Report, State, StatusCode, UartInit,
+};
+
+const HOST: Endpoint = Endpoint {
+    ip: [127, 0, 0, 1],
+    port: 50_000,
+};
+const STRANGER: Endpoint = Endpoint {
+    ip: [127, 0, 0, 9],
+    port: 50_001,
+};
+
+/// Real time since the test started, in microseconds; sleeping spins (block_on re-polls).
+struct TestClock(Instant);
+
+impl Clock for TestClock {
+    fn now_us(&self) -> u64 {
+        self.0.elapsed().as_micros() as u64
+    }
+    fn sleep_until(&self, at_us: u64) -> impl Future<Output = ()> {
+        poll_fn(move |cx| {
+            if self.now_us() >= at_us {
+                Poll::Ready(())
+            } else {
+                cx.waker().wake_by_ref();
+                Poll::Pending
+            }
+        })
+    }
+}
+
+/// The step timer: 1 MHz ticks from the same clock; a kick asks for an interrupt.
+struct TestKick<'a> {
+    clock: &'a TestClock,
+    kicked: Cell<bool>,
+}
+
+impl StepKick for TestKick<'_> {
+    fn kick(&self) {
+        self.kicked.set(true);
+    }
+    fn now_tick(&self) -> u64 {
+        self.clock.now_us()
+    }
+}
+
+#[derive(Default)]
+struct TestPins {
+    direction: [bool; MAX_JOINTS],
+    high: JointMask,
+    position: [i64; MAX_JOINTS],
+    pulses: u64,
+}
+
+impl StepPins for TestPins {
+    fn set_direction(&mut self, joint: usize, positive: bool) {
+        self.direction[joint] = positive;
+    }
+    fn step_high(&mut self, joints: JointMask) {
+        for j in 0..MAX_JOINTS {
+            if joints & (1 << j) != 0 && self.high & (1 << j) == 0 {
+                self.position[j] += if self.direction[j] { 1 } else { -1 };
+                self.pulses += 1;
+            }
+        }
+        self.high |= joints;
+    }
+    fn step_low(&mut self, joints: JointMask) {
+        self.high &= !joints;
+    }
+}
+
+#[derive(Default)]
+struct TestSocket {
+    incoming: RefCell<VecDeque<(Vec<u8>, Endpoint)>>,
+    sent: RefCell<Vec<(Endpoint, Vec<u8>)>>,
+}
+
+impl Datagrams for TestSocket {
+    type Error = ();
+    fn recv(&self, buf: &mut [u8]) -> impl Future<Output = Result<(usize, Endpoint), ()>> {
+        poll_fn(move |cx| match self.incoming.borrow_mut().pop_front() {
+            Some((bytes, from)) => {
+                let n = bytes.len().min(buf.len());
+                buf[..n].copy_from_slice(&bytes[..n]);
+                Poll::Ready(Ok((n, from)))
+            }
+            None => {
+                cx.waker().wake_by_ref();
+                Poll::Pending
+            }
+        })
+    }
+    fn send(&self, to: Endpoint, frame: &[u8]) -> impl Future<Output = Result<(), ()>> {
+        self.sent.borrow_mut().push((to, frame.to_vec()));
+        std::future::ready(Ok(()))
+    }
+}
+
+#[derive(Default)]
+struct TestOutputs {
+    enabled: Vec<u16>,
+    pins: Vec<(u8, bool)>,
+}
+
+struct SharedOutputs<'a>(&'a RefCell<TestOutputs>);
+
+impl Outputs for SharedOutputs<'_> {
+    fn set_user_pin(&mut self, pin: u8, high: bool) {
+        self.0.borrow_mut().pins.push((pin, high));
+    }
+    fn set_enabled(&mut self, enabled: u16) {
+        self.0.borrow_mut().enabled.push(enabled);
+    }
+}
+
+struct TestGripper(Option<Pwm>);
+
+impl Gripper for TestGripper {
+    fn timer_clock_hz(&self) -> u32 {
+        240_000_000
+    }
+    fn start(&mut self, pwm: &Pwm) {
+        self.0 = Some(*pwm);
+    }
+    fn stop(&mut self) {
+        self.0 = None;
+    }
+    fn is_active(&self) -> bool {
+        self.0.is_some()
+    }
+}
+
+/// A serial port: bytes the test puts in `rx` are read; written bytes land in `tx`.
+#[derive(Default)]
+struct TestSerial {
+    open: Cell<bool>,
+    rx: RefCell<VecDeque<u8>>,
+    tx: RefCell<Vec<u8>>,
+}
+
+impl SerialPort for TestSerial {
+    fn open(&self, _init: &UartInit) -> Result<(), SerialError> {
+        self.open.set(true);
+        Ok(())
+    }
+    fn close(&self) {
+        self.open.set(false);
+    }
+    fn read(&self, buf: &mut [u8]) -> impl Future<Output = Result<usize, SerialError>> {
+        poll_fn(move |cx| {
+            if !self.open.get() {
+                return Poll::Ready(Err(SerialError::Closed));
+            }
+            let mut rx = self.rx.borrow_mut();
+            if rx.is_empty() || buf.is_empty() {
+                cx.waker().wake_by_ref();
+                return Poll::Pending;
+            }
+            let n = rx.len().min(buf.len());
+            for b in buf.iter_mut().take(n) {
+                *b = rx.pop_front().unwrap_or(0);
+            }
+            Poll::Ready(Ok(n))
+        })
+    }
+    fn write(&self, bytes: &[u8]) -> impl Future<Output = Result<(), SerialError>> {
+        self.tx.borrow_mut().extend_from_slice(bytes);
+        std::future::ready(Ok(()))
+    }
+}
+
+struct TestSettings(Option<PersistentSettings>);
+
+impl SettingsStore for TestSettings {
+    type Error = ();
+    async fn load(&mut self) -> Result<Option<PersistentSettings>, ()> {
+        Ok(self.0)
+    }
+    async fn save(&mut self, settings: &PersistentSettings) -> Result<(), ()> {
+        self.0 = Some(*settings);
+        Ok(())
+    }
+}
+
+struct NoEncoders;
+
+impl Encoders for NoEncoders {
+    async fn read(&mut self) -> Option<[i32; MAX_JOINTS]> {
+        None
+    }
+}
+
+fn frame(seq: u8, cmd: Command<'_>) -> Vec<u8> {
+    let mut buf = vec![0u8; protocol::MAX_DATAGRAM];
+    let n = cmd.encode(seq, &mut buf).unwrap();
+    buf.truncate(n);
+    buf
+}
+
+/// What the controller sent, decoded: (destination, seq, report).
+fn decoded(socket: &TestSocket) -> Vec<(Endpoint, u8, Report<'static>)> {
+    socket
+        .sent
+        .borrow()
+        .iter()
+        .map(|(to, bytes)| {
+            let leaked: &'static [u8] = Box::leak(bytes.clone().into_boxed_slice());
+            let Frame { seq, body } = Report::decode(leaked).expect("a valid report");
+            (*to, seq, body)
+        })
+        .collect()
+}
+
+fn acks(socket: &TestSocket) -> Vec<(Endpoint, u8, StatusCode, State)> {
+    decoded(socket)
+        .into_iter()
+        .filter_map(|(to, seq, r)| match r {
+            Report::Ack(a) => Some((to, seq, a.status, a.state)),
+            _ => None,
+        })
+        .collect()
+}
+
+/// Waits (spinning the other futures) until `done` holds; panics after `limit`.
+async fn until(what: &str, limit: Duration, mut done: impl FnMut() -> bool) {
+    let start = Instant::now();
+    while !done() {
+        assert!(start.elapsed() < limit, "timed out waiting for {what}");
+        yield_now().await;
+    }
+}
+
+#[test]
+fn datagrams_in_acks_and_steps_out() {
+    let clock = TestClock(Instant::now());
+    let kick = TestKick {
+        clock: &clock,
+        kicked: Cell::new(false),
+    };
+    let bus = Bus::new();
+    let timing = StepTiming {
+        tick_hz: 1_000_000,
+        pulse_width_ticks: 2,
+        dir_setup_ticks: 1,
+    };
+    let step = StepShared::<4>::new(timing);
+    let mut controller = Controller::<32>::new(ControllerConfig {
+        capacity: 32,
+        ..ControllerConfig::BOARD
+    });
+    let socket = TestSocket::default();
+    let serial = TestSerial::default();
+    let outputs = RefCell::new(TestOutputs::default());
+    let pins = RefCell::new(TestPins::default());
+    let settings = TestSettings(Some(PersistentSettings {
+        joints: 3,
+        ..PersistentSettings::default()
+    }));
+
+    // The step timer interrupt: runs when kicked or at its deadline.
+    let isr = async {
+        let mut deadline: Option<u64> = None;
+        loop {
+            let now = kick.now_tick();
+            if kick.kicked.replace(false) || deadline.is_some_and(|d| now >= d) {
+                deadline = on_step_timer(&step, now, &mut *pins.borrow_mut(), &bus.step_wake);
+            }
+            yield_now().await;
+        }
+    };
+    let tasks = join5(
+        network_task(&socket, &bus),
+        trajectory_task(
+            &mut controller,
+            &bus,
+            &step,
+            &clock,
+            TrajectoryHw {
+                kick: &kick,
+                outputs: SharedOutputs(&outputs),
+                gripper: TestGripper(None),
+                serial: &serial,
+                settings,
+                encoders: NoEncoders,
+            },
+        ),
+        step_task(&bus, &step, &kick),
+        upload_task(&bus, &step, &clock),
+        join(serial_task(&serial, &bus, &clock), isr),
+    );
+
+    let send = |seq: u8, cmd: Command<'_>, from: Endpoint| {
+        socket
+            .incoming
+            .borrow_mut()
+            .push_back((frame(seq, cmd), from));
+    };
+    let limit = Duration::from_secs(5);
+    let driver = async {
+        // A 3-point trajectory: joint 0 +10 per ms, joint 1 -5 per ms.
+        let mut prev = [0; MAX_JOINTS];
+        let pts: Vec<Point> = (1..=3)
+            .map(|k| {
+                let next = [10 * k, -5 * k, 0, 0, 0, 0, 0, 0];
+                let p = Point::from_motion(1_000, &prev, &next);
+                prev = next;
+                p
+            })
+            .collect();
+        send(1, Command::New { count: 3 }, HOST);
+        send(2, Command::Pending(PointList::Points(&pts)), HOST);
+        send(3, Command::Runing, HOST);
+        until("three ACKs", limit, || acks(&socket).len() >= 3).await;
+        let a = acks(&socket);
+        assert_eq!(
+            a[..3],
+            [
+                (HOST, 1, StatusCode::Ok, State::New),
+                (HOST, 2, StatusCode::Ok, State::Pending),
+                (HOST, 3, StatusCode::Ok, State::Running)
+            ]
+        );
+        until("the run to end", limit, || {
+            decoded(&socket).iter().any(
+                |(_, _, r)| matches!(r, Report::Location(l) if l.state == State::Stopped as u8),
+            )
+        })
+        .await;
+        assert_eq!(pins.borrow().position[..3], [30, -15, 0]);
+        assert_eq!(pins.borrow().pulses, 45);
+        assert_eq!(step.positions()[..2], [30, -15]);
+        assert_eq!(
+            outputs.borrow().enabled.first(),
+            Some(&0x1FF),
+            "drivers boot enabled"
+        );
+
+        // LOCATION reports flow every period, to the owner, with consecutive seqs.
+        let before = decoded(&socket).len();
+        until("periodic LOCATIONs", limit, || {
+            decoded(&socket).len() >= before + 3
+        })
+        .await;
+        let reports: Vec<u8> = decoded(&socket)
+            .into_iter()
+            .filter(|(to, _, r)| *to == HOST && !matches!(r, Report::Ack(_)))
+            .map(|(_, seq, _)| seq)
+            .collect();
+        assert!(
+            reports.windows(2).all(|w| w[1] == w[0].wrapping_add(1)),
+            "{reports:?}"
+        );
+        send(4, Command::UploadStop, HOST);
+        until("UPLOAD_STOP's ACK", limit, || acks(&socket).len() >= 4).await;
+
+        // A long run (2 s, 1000 steps) stopped by a stranger: the pulses stop at once.
+        let slow = Point::from_motion(2_000_000, &prev, &[1_030, -15, 0, 0, 0, 0, 0, 0]);
+        send(5, Command::New { count: 1 }, HOST);
+        send(6, Command::Pending(PointList::Points(&[slow])), HOST);
+        send(7, Command::Runing, HOST);
+        until("some steps", limit, || pins.borrow().position[0] > 60).await;
+        send(200, Command::Stopped, STRANGER);
+        until("STOPPED's ACK", limit, || {
+            acks(&socket).iter().any(|a| a.0 == STRANGER)
+        })
+        .await;
+        let stopped_at = pins.borrow().position[0];
+        assert!(stopped_at < 1_030, "stopped before the end");
+        let wait = clock.now_us() + 50_000;
+        until("50 ms", limit, || clock.now_us() > wait).await;
+        assert_eq!(
+            pins.borrow().position[0],
+            stopped_at,
+            "no pulse after STOPPED"
+        );
+        assert_eq!(pins.borrow().high, 0, "STEP lines low");
+        assert_eq!(step.positions()[0], stopped_at as i32);
+        let stranger_ack = acks(&socket).into_iter().find(|a| a.0 == STRANGER);
+        assert_eq!(
+            stranger_ack,
+            Some((STRANGER, 200, StatusCode::Ok, State::Stopped))
+        );
+
+        // The serial bridge: USART_SEND reaches the port, bytes read come back batched.
+        send(
+            8,
+            Command::UsartStart(UartInit {
+                baud_rate: 115_200,
+                ..UartInit::default()
+            }),
+            HOST,
+        );
+        send(9, Command::UsartSend(b"ping"), HOST);
+        until("the bytes written", limit, || {
+            serial.tx.borrow().as_slice() == b"ping"
+        })
+        .await;
+        serial.rx.borrow_mut().extend(b"pong".iter().copied());
+        until("USART_RECV", limit, || {
+            decoded(&socket)
+                .iter()
+                .any(|(to, _, r)| *to == HOST && matches!(r, Report::UsartRecv(b) if *b == b"pong"))
+        })
+        .await;
+        // STATUS reports the joint count loaded from the settings store.
+        send(10, Command::Status, HOST);
+        until("STATUS", limit, || {
+            decoded(&socket)
+                .iter()
+                .any(|(_, _, r)| matches!(r, Report::Status(s) if s.joints == 3))
+        })
+        .await;
+    };
+    block_on(select(tasks, driver));
+}
