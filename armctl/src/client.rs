@@ -71,12 +71,17 @@ impl std::fmt::Debug for Controller {
     }
 }
 
+/// Where the ACKs of a seq go: (seq, ACK).
+type AckSender = Sender<(u8, Ack)>;
+
 /// Where the receiver thread delivers what arrives.
 #[derive(Default)]
 pub(crate) struct Shared {
     shutdown: AtomicBool,
-    /// Who waits for the ACK of which seq.
-    waiters: Mutex<HashMap<u8, Sender<(u8, Ack)>>>,
+    /// Who (waiter id) waits for the ACK of which seq.
+    waiters: Mutex<HashMap<u8, (u64, AckSender)>>,
+    /// Source of waiter ids.
+    next_waiter: AtomicU64,
     locations: Mutex<Vec<Sender<Location>>>,
     serial: Mutex<Vec<Sender<Vec<u8>>>>,
     statuses: Mutex<Vec<Sender<StatusReport>>>,
@@ -105,7 +110,7 @@ impl Shared {
         };
         match frame.body {
             Report::Ack(ack) => {
-                if let Some(waiter) = lock(&self.waiters).get(&frame.seq) {
+                if let Some((_, waiter)) = lock(&self.waiters).get(&frame.seq) {
                     let _ = waiter.send((frame.seq, ack));
                 }
             }
@@ -133,9 +138,12 @@ fn receive_loop(socket: UdpSocket, shared: Arc<Shared>) {
     }
 }
 
-/// A registration for the ACKs of some seqs; removes them on drop.
+/// A registration for the ACKs of some seqs; removes them on drop (only those still its
+/// own: after 256 frames a seq may have gone to another waiter, e.g. a STOPPED sent from
+/// another thread during an upload).
 pub(crate) struct AckWaiter<'a> {
     shared: &'a Shared,
+    id: u64,
     seqs: Vec<u8>,
     tx: Sender<(u8, Ack)>,
     pub(crate) rx: Receiver<(u8, Ack)>,
@@ -143,7 +151,7 @@ pub(crate) struct AckWaiter<'a> {
 
 impl AckWaiter<'_> {
     pub(crate) fn expect(&mut self, seq: u8) {
-        lock(&self.shared.waiters).insert(seq, self.tx.clone());
+        lock(&self.shared.waiters).insert(seq, (self.id, self.tx.clone()));
         self.seqs.push(seq);
     }
 }
@@ -152,7 +160,9 @@ impl Drop for AckWaiter<'_> {
     fn drop(&mut self) {
         let mut waiters = lock(&self.shared.waiters);
         for seq in &self.seqs {
-            waiters.remove(seq);
+            if waiters.get(seq).is_some_and(|(id, _)| *id == self.id) {
+                waiters.remove(seq);
+            }
         }
     }
 }
@@ -238,6 +248,7 @@ impl Controller {
         let (tx, rx) = mpsc::channel();
         AckWaiter {
             shared: &self.shared,
+            id: self.shared.next_waiter.fetch_add(1, Ordering::Relaxed),
             seqs: Vec::new(),
             tx,
             rx,
