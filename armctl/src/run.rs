@@ -375,7 +375,7 @@ impl Upload<'_, '_> {
                 self.resume = None;
                 self.rewind(from)?;
             }
-            let mut probe_wait = None;
+            let mut probe_wait: Option<Instant> = None;
             if self.resume.is_none() {
                 while self.in_flight() < self.options.window {
                     if self.should_start() {
@@ -395,7 +395,7 @@ impl Upload<'_, '_> {
                         && self.free_since.elapsed() >= self.drain_wait(n - credit.min(n));
                     if credit < n && !probe {
                         if self.in_flight() == 0 {
-                            probe_wait = Some(self.drain_wait(n - credit));
+                            probe_wait = Some(self.free_since + self.drain_wait(n - credit));
                         }
                         break;
                     }
@@ -416,7 +416,8 @@ impl Upload<'_, '_> {
             let wake = match (self.resume, self.frames.get(self.base)) {
                 (Some((when, _)), _) => when,
                 (None, Some(frame)) => frame.sent_at + ack_timeout,
-                (None, None) => now + probe_wait.unwrap_or(Duration::from_millis(2)),
+                // Waiting for slots to drain: wake when the probe is due.
+                (None, None) => probe_wait.unwrap_or(now + Duration::from_millis(2)),
             };
             match self
                 .waiter
