@@ -65,7 +65,12 @@ impl QueueEnd {
 /// Each joint walks the queue on its own: once it has emitted its last pulse of a segment
 /// (and that pulse has ended) it moves on, so it may set its DIR line for a later segment
 /// early. A segment's slot is freed once the timeline has passed its end and every joint is
-/// done with it.
+/// done with it (its last pulse has fallen): usually `pulse_width_ticks` after its end,
+/// while the next segment already runs. Streaming therefore needs `QUEUE >= 2`: with one
+/// slot, the next segment can only be pushed after the run has gone dry.
+///
+/// The engine is not shared: the owner serialises `push`/`start`/`stop` with the timer
+/// interrupt's `poll` (a critical section around each call).
 #[derive(Debug)]
 pub struct StepEngine<const QUEUE: usize> {
     timing: StepTiming,
@@ -132,8 +137,9 @@ impl<const QUEUE: usize> StepEngine<QUEUE> {
 
     /// Queues a segment behind the others; `Err(segment)` back if `QUEUE` are already held.
     ///
-    /// While running, call `poll` soon after (kick the timer interrupt): joints that wait
-    /// at the end of the queue pick the segment up there.
+    /// While running, joints that wait at the end of the queue pick the segment up at the
+    /// next `poll`. That poll comes at the latest when the segment before it ends, so no
+    /// kick is needed for timing; kicking lets those joints set their DIR lines early.
     pub fn push(&mut self, segment: Segment) -> Result<(), Segment> {
         let start = self.queue_end;
         let end = start.after(segment.duration_us, self.tick_hz);
