@@ -32,9 +32,10 @@
 //! [`Deferred`] in the [`Response`].
 
 use protocol::{
-    Ack, Command, Frame, Location, MAX_JOINTS, Pwm, State, StatusCode, StatusFlags, StatusReport,
-    Tag, UartInit, UartMode, crc8, limits,
+    Ack, Command, Frame, Location, MAX_JOINTS, MAX_POINTS_PER_FRAME, Pwm, State, StatusCode,
+    StatusFlags, StatusReport, Tag, UartInit, UartMode, limits,
 };
+use protocol::{DecodeError, DecodeErrorKind};
 
 use arm_step::Segment;
 
@@ -378,9 +379,15 @@ impl<const CAP: usize> Controller<CAP> {
             return response;
         };
         let reply = |c: &Self, status| Some(c.ack(from, seq, tag, status));
+        // Decoding has no side effects, so it runs once here (checking the CRC once);
+        // its verdict is applied in the documented order below.
+        let decoded = Command::decode(datagram);
         // 2. CRC
-        let body = datagram.get(..datagram.len() - 1).unwrap_or_default();
-        if crc8(body) != crc {
+        if let Err(DecodeError {
+            kind: DecodeErrorKind::BadCrc { .. },
+            ..
+        }) = decoded
+        {
             response.reply = reply(self, StatusCode::BadCrc);
             return response;
         }
@@ -428,7 +435,7 @@ impl<const CAP: usize> Controller<CAP> {
             return response;
         }
         // 5. decode
-        let frame = match Command::decode(datagram) {
+        let frame = match decoded {
             Ok(frame) => frame,
             Err(e) => {
                 response.reply = reply(self, e.status().unwrap_or(StatusCode::BadLength));
@@ -509,22 +516,21 @@ impl<const CAP: usize> Controller<CAP> {
                     return Err(StatusCode::TooManyPoints);
                 }
                 // Every point is checked before any is taken.
+                let mut admitted = [StoredPoint::default(); MAX_POINTS_PER_FRAME];
                 let mut previous = self.received_end;
-                for point in points.iter() {
-                    previous = self
+                for (slot, point) in admitted.iter_mut().zip(points.iter()) {
+                    *slot = self
                         .admit(&previous, &point)
-                        .ok_or(StatusCode::InvalidPoint)?
-                        .position;
+                        .ok_or(StatusCode::InvalidPoint)?;
+                    previous = slot.position;
                 }
                 if n > self.buffer.free() {
                     return Err(StatusCode::BufferFull);
                 }
-                for point in points.iter() {
-                    if let Some(stored) = self.admit(&self.received_end, &point) {
-                        if self.buffer.push(stored) {
-                            self.received_end = stored.position;
-                            self.received += 1;
-                        }
+                for stored in admitted.iter().take(n) {
+                    if self.buffer.push(*stored) {
+                        self.received_end = stored.position;
+                        self.received += 1;
                     }
                 }
                 self.order.take(frame.seq);
