@@ -75,6 +75,9 @@ pub enum RunEnd {
     Stopped,
     /// The buffer ran dry before every point had arrived.
     Underrun,
+    /// The controller reported an underrun although every point had arrived: it fell
+    /// behind feeding its own step engine (a controller fault, not the upload's).
+    Starved,
     /// The controller left the upload for a reason it did not say.
     Unknown,
 }
@@ -127,8 +130,15 @@ impl fmt::Display for Error {
                 let why = match reason {
                     RunEnd::Stopped => "STOPPED was sent (by this host or another)",
                     RunEnd::Underrun => {
-                        "the trajectory buffer ran dry (underrun): the upload was too slow; \
-                         use a larger window or longer segments"
+                        "the trajectory buffer ran dry before every point had arrived \
+                         (underrun): the upload was too slow; use a larger window, longer \
+                         segments, or let RUNING wait for a full buffer (no --start-after)"
+                    }
+                    RunEnd::Starved => {
+                        "the controller reported an underrun although every point had \
+                         arrived: it fell behind feeding its step engine (a controller \
+                         fault, not the upload's; on the simulator, a loaded machine or a \
+                         high --time-scale)"
                     }
                     RunEnd::Unknown => "the controller left the upload",
                 };

@@ -103,10 +103,17 @@ struct Outgoing {
     /// Points it carries (0 for RUNING).
     points: usize,
     acked: bool,
+    /// Latest transmission.
     sent_at: Instant,
+    /// Transmissions so far.
+    sends: u32,
 }
 
 /// The upload in progress.
+///
+/// `frames[..base]` are acknowledged, `frames[base..next_send]` are in flight (some may be
+/// acknowledged out of order), `frames[next_send..]` wait to be sent again after a
+/// go-back-N. New frames are built only when every built frame is in flight.
 struct Upload<'a, 'p> {
     controller: &'a Controller,
     options: &'a RunOptions,
@@ -115,6 +122,14 @@ struct Upload<'a, 'p> {
     frames: Vec<Outgoing>,
     /// First frame not yet acknowledged.
     base: usize,
+    /// Next frame to (re)send.
+    next_send: usize,
+    /// Congestion window, frames: halved on a loss, grows by one per window of ACKs, up
+    /// to `options.window`. A burst the controller's receive queue cannot hold is lost
+    /// whole; this keeps go-back-N from repeating it.
+    cwnd: f64,
+    /// Smoothed round-trip time, from frames acknowledged at their first transmission.
+    srtt: Option<Duration>,
     /// Points handed to frames so far.
     points_framed: usize,
     acked_points: usize,
@@ -146,10 +161,15 @@ const MAX_TIMEOUTS_IN_A_ROW: usize = 50;
 
 impl Upload<'_, '_> {
     fn in_flight(&self) -> usize {
-        self.frames.len() - self.base
+        self.next_send.saturating_sub(self.base)
     }
 
-    /// Slots the controller should have free for the next frame.
+    /// Frames that may be in flight now.
+    fn window(&self) -> usize {
+        (self.cwnd as usize).clamp(1, self.options.window)
+    }
+
+    /// Slots the controller should have free for the next new frame.
     fn credit(&self) -> usize {
         let (free, at) = self.free;
         let after = at.map_or(0, |i| i + 1);
@@ -180,40 +200,47 @@ impl Upload<'_, '_> {
         enough || buffer_full || self.acked_points == total
     }
 
+    /// Builds the next frame (sent by [`Upload::send_next`]).
     fn push(&mut self, command: &Command<'_>, points: usize) -> Result<()> {
         let mut buf = [0u8; MAX_DATAGRAM];
         let seq = self.controller.alloc_seq();
         let len = command.encode(seq, &mut buf)?;
         self.waiter.expect(seq);
-        let bytes = buf[..len].to_vec();
-        self.controller.send_bytes(&bytes)?;
-        self.report.datagrams_sent += 1;
         self.frames.push(Outgoing {
             seq,
             tag: command.tag(),
-            bytes,
+            bytes: buf[..len].to_vec(),
             points,
             acked: false,
             sent_at: Instant::now(),
+            sends: 0,
         });
         Ok(())
     }
 
-    /// Go-back-N: sends again, unchanged, every unacknowledged frame from `from` on.
-    fn rewind(&mut self, from: usize) -> Result<()> {
-        trace(format_args!("go back to frame {from}"));
-        let now = Instant::now();
-        self.last_rewind = Some((from, now));
-        for frame in &mut self.frames[from..] {
-            if frame.acked {
-                continue;
-            }
-            self.controller.send_bytes(&frame.bytes)?;
-            frame.sent_at = now;
-            self.report.datagrams_sent += 1;
+    /// Sends `frames[next_send]`, unchanged if it was sent before.
+    fn send_next(&mut self) -> Result<()> {
+        let frame = &mut self.frames[self.next_send];
+        self.controller.send_bytes(&frame.bytes)?;
+        frame.sent_at = Instant::now();
+        frame.sends += 1;
+        self.report.datagrams_sent += 1;
+        if frame.sends > 1 {
             self.report.retransmissions += 1;
         }
+        self.next_send += 1;
         Ok(())
+    }
+
+    /// Go-back-N: every unacknowledged frame from `from` on is sent again, unchanged, as
+    /// the window allows. `loss`: a frame was lost, so the window shrinks.
+    fn rewind(&mut self, from: usize, loss: bool) {
+        trace(format_args!("go back to frame {from}"));
+        self.last_rewind = Some((from, Instant::now()));
+        self.next_send = self.next_send.min(from.max(self.base));
+        if loss {
+            self.cwnd = (self.cwnd / 2.0).max(1.0);
+        }
     }
 
     fn confirm(&mut self, i: usize) {
@@ -227,6 +254,7 @@ impl Upload<'_, '_> {
         while self.base < self.frames.len() && self.frames[self.base].acked {
             self.base += 1;
         }
+        self.next_send = self.next_send.max(self.base);
     }
 
     /// How long until about `needed` more slots drain, from the durations of the points
@@ -254,6 +282,26 @@ impl Upload<'_, '_> {
         }
     }
 
+    /// Whether an OUT_OF_ORDER naming frame `j`, in answer to frame `i`, is old news: it
+    /// answers a copy of `i` sent before the latest go-back-N, or comes so soon after
+    /// that go-back-N (within two round trips) that it may.
+    fn stale_out_of_order(&self, i: usize, j: usize) -> bool {
+        let Some((target, when)) = self.last_rewind else {
+            return false;
+        };
+        if target > j {
+            return false;
+        }
+        if self.frames[i].sent_at < when {
+            return true;
+        }
+        let ack_timeout = self.controller.options().ack_timeout;
+        let settle = self.srtt.map_or(ack_timeout / 2, |rtt| {
+            (rtt * 2 + Duration::from_millis(1)).min(ack_timeout)
+        });
+        when.elapsed() < settle
+    }
+
     fn on_ack(&mut self, seq: u8, ack: protocol::Ack) -> Result<()> {
         let Some(i) = self.frames[self.base..]
             .iter()
@@ -265,17 +313,25 @@ impl Upload<'_, '_> {
         };
         self.state = ack.state;
         trace(format_args!(
-            "ack of frame {i} (seq {seq}): {} next_seq {} free {} buffered {}; credit {} in flight {} acked {}",
+            "ack of frame {i} (seq {seq}): {} next_seq {} free {} buffered {}; credit {} in flight {} window {} acked {}",
             ack.status.name(),
             ack.next_seq,
             ack.free,
             ack.buffered,
             self.credit(),
             self.in_flight(),
+            self.window(),
             self.acked_points
         ));
         match ack.status {
             StatusCode::Ok => {
+                if self.frames[i].sends == 1 && !self.frames[i].acked {
+                    let sample = self.frames[i].sent_at.elapsed();
+                    self.srtt = Some(self.srtt.map_or(sample, |s| (s * 7 + sample) / 8));
+                }
+                if !self.frames[i].acked {
+                    self.cwnd = (self.cwnd + 1.0 / self.cwnd).min(self.options.window as f64);
+                }
                 self.confirm(i);
                 if self.free.1.is_none_or(|at| at <= i) {
                     self.free = (usize::from(ack.free), Some(i));
@@ -299,11 +355,8 @@ impl Upload<'_, '_> {
                         for k in self.base..j {
                             self.confirm(k);
                         }
-                        let recent = self.last_rewind.is_some_and(|(at, when)| {
-                            at <= j && when.elapsed() < self.controller.options().ack_timeout
-                        });
-                        if !recent && self.resume.is_none() {
-                            self.rewind(j)?;
+                        if self.resume.is_none() && !self.stale_out_of_order(i, j) {
+                            self.rewind(j, true);
                         }
                     }
                     None if self.frames.last().map(|f| f.seq.wrapping_add(1))
@@ -328,11 +381,12 @@ impl Upload<'_, '_> {
                 self.buffered = usize::from(ack.buffered);
                 let needed = self.frames[i].points.saturating_sub(usize::from(ack.free));
                 let wait = self.drain_wait(needed);
-                // The frames after it come back OUT_OF_ORDER: answered by this resume.
+                // Nothing goes out until then; the frames after it come back
+                // OUT_OF_ORDER, answered by the same resume.
                 self.resume = Some((Instant::now() + wait, i));
-                self.last_rewind = Some((i, Instant::now()));
+                self.rewind(i, false);
             }
-            StatusCode::BadCrc => self.rewind(i)?,
+            StatusCode::BadCrc => self.rewind(i, true),
             StatusCode::BadState if ack.state == State::Stopped => {
                 return Err(self.ended());
             }
@@ -353,6 +407,52 @@ impl Upload<'_, '_> {
         run_ended(status.as_ref(), self.points.len())
     }
 
+    /// Sends what the window, the credit and the back-off allow; returns when a probe is
+    /// due if it is waiting for slots to drain.
+    fn fill(&mut self) -> Result<Option<Instant>> {
+        let total = self.points.len();
+        if let Some((when, from)) = self.resume {
+            if Instant::now() < when {
+                return Ok(None);
+            }
+            self.resume = None;
+            self.rewind(from, false);
+        }
+        while self.in_flight() < self.window() {
+            // Frames to send again first (acknowledged ones are skipped).
+            while self.next_send < self.frames.len() && self.frames[self.next_send].acked {
+                self.next_send += 1;
+            }
+            if self.next_send < self.frames.len() {
+                self.send_next()?;
+                continue;
+            }
+            if self.should_start() {
+                self.push(&Command::Runing, 0)?;
+                self.runing_sent = true;
+                continue;
+            }
+            if self.points_framed == total {
+                break;
+            }
+            let n = self.next_chunk();
+            let credit = self.credit();
+            if credit < n {
+                // Out of credit with nothing in flight, no ACK will bring news: once
+                // the missing slots should have drained, one frame goes as a probe.
+                let due = self.free_since + self.drain_wait(n - credit);
+                let probe = self.in_flight() == 0 && self.runing_sent && Instant::now() >= due;
+                if !probe {
+                    return Ok((self.in_flight() == 0).then_some(due));
+                }
+            }
+            let chunk = &self.points[self.points_framed..self.points_framed + n];
+            self.push(&Command::Pending(PointList::Points(chunk)), n)?;
+            self.points_framed += n;
+        }
+        Ok(None)
+    }
+
     fn run(&mut self, progress: &mut dyn FnMut(&Progress)) -> Result<()> {
         let total = self.points.len();
         let ack_timeout = self.controller.options().ack_timeout;
@@ -368,56 +468,22 @@ impl Upload<'_, '_> {
                     waited: self.last_progress.elapsed(),
                 });
             }
-            let now = Instant::now();
-            if let Some((when, from)) = self.resume
-                && now >= when
-            {
-                self.resume = None;
-                self.rewind(from)?;
-            }
-            let mut probe_wait: Option<Instant> = None;
-            if self.resume.is_none() {
-                while self.in_flight() < self.options.window {
-                    if self.should_start() {
-                        self.push(&Command::Runing, 0)?;
-                        self.runing_sent = true;
-                        continue;
-                    }
-                    if self.points_framed == total {
-                        break;
-                    }
-                    let n = self.next_chunk();
-                    let credit = self.credit();
-                    // Out of credit with nothing in flight, no ACK will bring news: once
-                    // the missing slots should have drained, one frame goes as a probe.
-                    let probe = self.in_flight() == 0
-                        && self.runing_sent
-                        && self.free_since.elapsed() >= self.drain_wait(n - credit.min(n));
-                    if credit < n && !probe {
-                        if self.in_flight() == 0 {
-                            probe_wait = Some(self.free_since + self.drain_wait(n - credit));
-                        }
-                        break;
-                    }
-                    let chunk = &self.points[self.points_framed..self.points_framed + n];
-                    self.push(&Command::Pending(PointList::Points(chunk)), n)?;
-                    self.points_framed += n;
-                }
-            }
+            let probe_due = self.fill()?;
             let shown = self.progress();
             if shown != last_shown {
                 progress(&shown);
                 last_shown = shown;
             }
-            if self.in_flight() == 0 && self.points_framed == total && self.runing_sent {
+            if self.base == self.frames.len() && self.points_framed == total && self.runing_sent {
                 return Ok(());
             }
             let now = Instant::now();
-            let wake = match (self.resume, self.frames.get(self.base)) {
+            let oldest = (self.base < self.next_send).then(|| self.frames[self.base].sent_at);
+            let wake = match (self.resume, oldest) {
                 (Some((when, _)), _) => when,
-                (None, Some(frame)) => frame.sent_at + ack_timeout,
+                (None, Some(sent)) => sent + ack_timeout,
                 // Waiting for slots to drain: wake when the probe is due.
-                (None, None) => probe_wait.unwrap_or(now + Duration::from_millis(2)),
+                (None, None) => probe_due.unwrap_or(now + Duration::from_millis(2)),
             };
             match self
                 .waiter
@@ -427,15 +493,13 @@ impl Upload<'_, '_> {
                 Ok((seq, ack)) => self.on_ack(seq, ack)?,
                 Err(RecvTimeoutError::Timeout) | Err(RecvTimeoutError::Disconnected) => {
                     let overdue = self.resume.is_none()
-                        && self
-                            .frames
-                            .get(self.base)
-                            .is_some_and(|f| f.sent_at.elapsed() >= ack_timeout);
+                        && self.base < self.next_send
+                        && self.frames[self.base].sent_at.elapsed() >= ack_timeout;
                     if overdue {
                         trace(format_args!("ACK timeout, frame {}", self.base));
                         self.report.timeouts += 1;
                         self.timeouts_in_a_row += 1;
-                        self.rewind(self.base)?;
+                        self.rewind(self.base, true);
                     }
                 }
             }
@@ -454,6 +518,9 @@ fn trace(args: std::fmt::Arguments<'_>) {
 fn run_ended(status: Option<&StatusReport>, total: usize) -> Error {
     let reason = match status {
         Some(s) if s.flags.has(StatusFlags::STOPPED_BY_HOST) => RunEnd::Stopped,
+        Some(s) if s.flags.has(StatusFlags::UNDERRUN) && usize::from(s.received) >= total => {
+            RunEnd::Starved
+        }
         Some(s) if s.flags.has(StatusFlags::UNDERRUN) => RunEnd::Underrun,
         _ => RunEnd::Unknown,
     };
@@ -512,6 +579,9 @@ impl Controller {
                 waiter: self.waiter(),
                 frames: Vec::new(),
                 base: 0,
+                next_send: 0,
+                cwnd: options.window as f64,
+                srtt: None,
                 points_framed: 0,
                 acked_points: 0,
                 free: (usize::from(ack.free), None),
