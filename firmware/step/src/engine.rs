@@ -2,7 +2,7 @@
 
 use crate::joint::Joint;
 use crate::ring::{SegmentRing, Slot};
-use crate::schedule::EdgeTree;
+use crate::schedule::{Edges, at_most_two};
 use crate::{JointMask, MAX_JOINTS, Poll, Segment, StepPins, StepTiming};
 
 /// Every joint.
@@ -85,11 +85,17 @@ pub struct StepEngine<const QUEUE: usize> {
     joints: [Joint; MAX_JOINTS],
     /// Tick of each joint's next edge: STEP falling if its line is high, else the next
     /// rising edge; `u64::MAX` while it waits for a segment.
-    edges: EdgeTree,
+    edges: Edges,
+    /// The earliest of `edges` as of the end of the last `poll` (`u64::MAX`: none): a poll
+    /// before it has no edge to make.
+    next_edge: u64,
     /// Joints whose STEP line is high.
     high: JointMask,
     /// Joints that have walked past every queued segment.
     waiting: JointMask,
+    /// At most two joints are not waiting (kept up to date with `waiting`, which changes
+    /// about once per segment): `poll` then visits those alone instead of all eight.
+    few_moving: bool,
     /// Segments were pushed since the last `poll`: waiting joints may go on.
     pushed: bool,
     running: bool,
@@ -113,9 +119,11 @@ impl<const QUEUE: usize> StepEngine<QUEUE> {
             ring: SegmentRing::new(),
             head_ordinal: 0,
             joints: [Joint::IDLE; MAX_JOINTS],
-            edges: EdgeTree::IDLE,
+            edges: Edges::IDLE,
+            next_edge: u64::MAX,
             high: 0,
             waiting: ALL_JOINTS,
+            few_moving: true,
             pushed: false,
             running: false,
             origin: 0,
@@ -191,8 +199,10 @@ impl<const QUEUE: usize> StepEngine<QUEUE> {
             joint.slot = head;
             joint.remaining = 0;
         }
-        self.edges = EdgeTree::IDLE;
+        self.edges = Edges::IDLE;
+        self.next_edge = u64::MAX;
         self.waiting = ALL_JOINTS;
+        self.few_moving = true;
         self.pushed = true;
         self.head_end = self.front_end();
     }
@@ -207,8 +217,10 @@ impl<const QUEUE: usize> StepEngine<QUEUE> {
         for joint in &mut self.joints {
             joint.remaining = 0;
         }
-        self.edges = EdgeTree::IDLE;
+        self.edges = Edges::IDLE;
+        self.next_edge = u64::MAX;
         self.waiting = ALL_JOINTS;
+        self.few_moving = true;
         self.end_run();
     }
 
@@ -259,14 +271,14 @@ impl<const QUEUE: usize> StepEngine<QUEUE> {
         let now = now_tick;
 
         // Which joints have an edge due.
-        let due = if self.edges.earliest() <= now {
-            self.edges.due(now, !self.waiting)
+        let waiting = self.waiting;
+        let due = if self.next_edge <= now {
+            self.edges.due(now, !waiting, self.few_moving)
         } else {
             0
         };
         let falls = due & self.high;
         let mut rises = due & !self.high;
-        let mut changed = due;
 
         // Falling edges first: a DIR line may change only once its STEP line is low.
         if falls != 0 {
@@ -281,7 +293,6 @@ impl<const QUEUE: usize> StepEngine<QUEUE> {
             self.pushed = false;
             for j in Joints(self.waiting) {
                 self.seek(j, now, pins);
-                changed |= 1 << j;
                 if self.edges.get(j) <= now {
                     rises |= 1 << j;
                 }
@@ -299,8 +310,11 @@ impl<const QUEUE: usize> StepEngine<QUEUE> {
                 self.edges.set(j, fall_at);
             }
         }
-        self.edges.refresh(changed);
-        let mut next = self.edges.earliest();
+        if self.waiting != waiting {
+            self.few_moving = at_most_two(!self.waiting);
+        }
+        self.next_edge = self.edges.earliest(!self.waiting, self.few_moving);
+        let mut next = self.next_edge;
 
         // Free the segments that are over for the timeline and for every joint.
         let mut finished = 0;

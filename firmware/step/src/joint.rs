@@ -96,8 +96,8 @@ impl Joint {
     #[inline(always)]
     pub fn rise(&mut self) {
         self.position = self.position.wrapping_add(self.sign);
-        // Never 0 here (a joint with no pulse left has no rising edge); saturate anyway.
-        self.remaining = self.remaining.saturating_sub(1);
+        // Never 0 here: a joint with no pulse left has no rising edge.
+        self.remaining = self.remaining.wrapping_sub(1);
         self.advance_ideal();
     }
 }
