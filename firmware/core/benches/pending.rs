@@ -78,7 +78,7 @@ fn pending_frame(c: &mut Criterion) {
     let mut i = 0usize;
     c.bench_function("handle 12-point PENDING", |b| {
         b.iter(|| {
-            if i % frames.len() == 0 {
+            if i.is_multiple_of(frames.len()) {
                 now += 3_000_000; // past the duplicate window
                 controller.handle(HOST, &new, now, &mut plant);
             }

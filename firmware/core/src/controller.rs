@@ -628,14 +628,15 @@ impl<const CAP: usize> Controller<CAP> {
         let duration = u32::try_from(point.duration).ok().filter(|d| *d >= 1)?;
         let joints = usize::from(self.settings.joints).min(MAX_JOINTS);
         let mut position = *previous;
-        for j in 0..joints {
+        for (j, p) in position.iter_mut().enumerate().take(joints) {
             let steps = point.steps(previous, j).unsigned_abs();
-            let too_fast = u128::from(steps) * 1_000_000
-                > u128::from(self.config.max_step_rate_hz) * u128::from(duration);
+            // steps < 2^33 and duration < 2^31: both products fit u64.
+            let too_fast =
+                steps * 1_000_000 > u64::from(self.config.max_step_rate_hz) * u64::from(duration);
             if too_fast || steps > i32::MAX as u64 {
                 return None;
             }
-            position[j] = point.position[j];
+            *p = point.position[j];
         }
         Some(StoredPoint {
             duration_us: duration,

@@ -10,6 +10,9 @@ use crate::hw::Endpoint;
 pub const MAX_REPORT_FRAME: usize = size::USART_RECV + protocol::FRAME_OVERHEAD;
 
 /// One frame to send.
+// Sized by USART_RECV's 255 bytes on purpose: channel slots hold the largest variant
+// anyway, and there is no heap to box it in.
+#[allow(clippy::large_enum_variant)]
 #[derive(Clone, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum Outgoing {

@@ -62,8 +62,8 @@ pub fn plan_return(start: [i32; MAX_JOINTS], joints: u8, config: &ControllerConf
     let segment_s = f64::from(segment_us) / 1e6;
     let mut speed = f64::INFINITY;
     let mut accel = f64::INFINITY;
-    for j in 0..joints {
-        let distance = i64::from(start[j]).unsigned_abs() as f64;
+    for (j, &from) in start.iter().enumerate().take(joints) {
+        let distance = i64::from(from).unsigned_abs() as f64;
         if distance == 0.0 {
             continue;
         }

@@ -131,7 +131,7 @@ mod tests {
             t += 80;
         }
         assert_eq!(b.deadline_us(), Some(6_000));
-        assert!(t >= 6_000 && t < 6_080, "due at {t}");
+        assert!((6_000..6_080).contains(&t), "due at {t}");
         assert_eq!(b.take().len(), 13);
     }
 

@@ -433,10 +433,11 @@ pub async fn network_task<D: Datagrams>(socket: &D, bus: &Bus) -> ! {
         loop {
             let out = bus.outbox.receive().await;
             let report_to = bus.report_settings().to;
-            if let Some((to, n)) = encoder.encode(&out, report_to, &mut buf) {
-                if let Err(e) = socket.send(to, buf.get(..n).unwrap_or_default()).await {
-                    warn!("send failed: {:?}", debug_value!(e));
-                }
+            let Some((to, n)) = encoder.encode(&out, report_to, &mut buf) else {
+                continue;
+            };
+            if let Err(e) = socket.send(to, buf.get(..n).unwrap_or_default()).await {
+                warn!("send failed: {:?}", debug_value!(e));
             }
         }
     };
