@@ -67,6 +67,7 @@ fn lossy_link_still_delivers_each_point_exactly_once() {
                 dup: 0.05,
                 reorder: 0.05,
                 seed,
+                inbox: 0,
             },
         );
         let arm = Controller::connect_with(fake.addr, options()).unwrap();
@@ -140,4 +141,39 @@ fn no_controller_gives_no_reply() {
     )
     .unwrap_err();
     assert!(matches!(err, Error::NoReply { attempts: 3, .. }), "{err}");
+}
+
+#[test]
+fn a_window_larger_than_the_controller_inbox_backs_off() {
+    // The controller drops whatever of a burst exceeds 4 datagrams; the client asks for
+    // 16 frames in flight. The congestion window must bring the bursts down to what
+    // gets through instead of losing the same frames again and again.
+    let fake = Fake::start(
+        4000,
+        Faults {
+            inbox: 4,
+            ..Faults::default()
+        },
+    );
+    let arm = Controller::connect_with(fake.addr, options()).unwrap();
+    let points = ramp(1200, 1, 500);
+    let report = arm
+        .run_trajectory(
+            &points,
+            &RunOptions {
+                window: 16,
+                ..RunOptions::default()
+            },
+            |_| {},
+        )
+        .unwrap();
+    assert_eq!(fake.counters().taken, points);
+    assert!(report.out_of_order > 0, "no burst was cut: {report:?}");
+    // Without the window shrinking, most frames of every burst would go twice or more.
+    assert!(
+        report.retransmissions < report.frames,
+        "{} resends for {} frames",
+        report.retransmissions,
+        report.frames
+    );
 }

@@ -27,6 +27,9 @@ pub struct Faults {
     pub reorder: f64,
     /// RNG seed.
     pub seed: u64,
+    /// Datagrams the controller can queue at once (0: unbounded); a burst beyond it is
+    /// dropped, like a firmware inbox that is full.
+    pub inbox: usize,
 }
 
 /// What the fake counted.
@@ -187,8 +190,24 @@ fn serve(socket: UdpSocket, sim: Arc<Mutex<Sim>>, shutdown: Arc<AtomicBool>, fau
     let mut buf = [0u8; MAX_DATAGRAM];
     while !shutdown.load(Ordering::Relaxed) {
         let mut incoming = Vec::new();
+        // The first datagram (waiting 1 ms at most), then whatever is queued behind it:
+        // one burst.
+        let mut burst = Vec::new();
         if let Ok((n, from)) = socket.recv_from(&mut buf) {
-            let datagram = buf[..n].to_vec();
+            burst.push((buf[..n].to_vec(), from));
+            socket.set_nonblocking(true).unwrap();
+            while let Ok((n, from)) = socket.recv_from(&mut buf) {
+                burst.push((buf[..n].to_vec(), from));
+                if burst.len() >= 64 {
+                    break;
+                }
+            }
+            socket.set_nonblocking(false).unwrap();
+        }
+        if faults.inbox > 0 {
+            burst.truncate(faults.inbox);
+        }
+        for (datagram, from) in burst {
             if !in_rng.chance(faults.loss) {
                 if held_in.is_none() && in_rng.chance(faults.reorder) {
                     held_in = Some((datagram, from));
