@@ -234,6 +234,12 @@ impl<const CAP: usize> Controller<CAP> {
         }
     }
 
+    /// Sets the gripper timer's input clock reported in STATUS (the trajectory task takes
+    /// it from the [`crate::hw::Gripper`] at start).
+    pub fn set_pwm_timer_clock_hz(&mut self, hz: u32) {
+        self.config.pwm_timer_clock_hz = hz;
+    }
+
     /// The settings as they should be stored.
     pub fn settings(&self) -> PersistentSettings {
         self.settings

@@ -37,6 +37,7 @@
 //! (no pulse after that), and kicks the step interrupt, which lowers the STEP lines.
 //! Segments already cut for the engine are dropped by their stop count.
 #![no_std]
+#![warn(missing_docs)]
 
 #[cfg(test)]
 #[macro_use]

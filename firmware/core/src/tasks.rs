@@ -626,8 +626,9 @@ impl<const Q: usize, K: StepKick, O: Outputs, G: Gripper, P: SerialPort> Plant
 
 /// Owns the [`Controller`]: handles datagrams (STOPPED from `bus.estop` first), sends
 /// ACKs and reports, executes the effects on the hardware, feeds segments to the step
-/// task and ends runs when the engine runs dry. Loads the stored settings at start and
-/// drives the ENABLE lines to their boot state (all holding).
+/// task and ends runs when the engine runs dry. At start: loads the stored settings,
+/// takes the gripper timer clock for STATUS, and drives the ENABLE lines to their boot
+/// state (all holding).
 pub async fn trajectory_task<const CAP: usize, const Q: usize, C, K, O, G, P, S, E>(
     controller: &mut Controller<CAP>,
     bus: &Bus,
@@ -657,6 +658,7 @@ where
         Ok(None) => {}
         Err(e) => warn!("settings not loaded, using defaults: {:?}", debug_value!(e)),
     }
+    controller.set_pwm_timer_clock_hz(gripper.timer_clock_hz());
     outputs.set_enabled(controller.enabled());
     publish(bus, controller);
     let lead_ticks = us_to_ticks(u64::from(START_LEAD_US), step.timing().tick_hz);
