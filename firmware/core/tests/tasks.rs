@@ -438,3 +438,76 @@ fn datagrams_in_acks_and_steps_out() {
     };
     block_on(select(tasks, driver));
 }
+
+#[test]
+fn stopped_overtakes_queued_uploads() {
+    let clock = TestClock(Instant::now());
+    let kick = TestKick {
+        clock: &clock,
+        kicked: Cell::new(false),
+    };
+    let bus = Bus::new();
+    let step = StepShared::<4>::new(StepTiming {
+        tick_hz: 1_000_000,
+        pulse_width_ticks: 2,
+        dir_setup_ticks: 1,
+    });
+    let mut controller = Controller::<32>::new(ControllerConfig {
+        capacity: 32,
+        ..ControllerConfig::BOARD
+    });
+    let serial = TestSerial::default();
+    let outputs = RefCell::new(TestOutputs::default());
+    // The network task's routing, before the trajectory task gets to run: a full inbox
+    // of uploads, then a STOPPED.
+    let mut routed = 0;
+    for seq in 0..20u8 {
+        let cmd = if seq == 0 {
+            Command::New { count: 100 }
+        } else {
+            Command::Status
+        };
+        bus.route(arm_core::Datagram {
+            from: HOST,
+            bytes: heapless::Vec::from_slice(&frame(seq, cmd)).unwrap(),
+        });
+        routed += 1;
+    }
+    assert_eq!(routed, 20);
+    assert_eq!(
+        bus.inbox.len(),
+        arm_core::tasks::INBOX_QUEUE,
+        "the rest was dropped"
+    );
+    bus.route(arm_core::Datagram {
+        from: STRANGER,
+        bytes: heapless::Vec::from_slice(&frame(99, Command::Stopped)).unwrap(),
+    });
+    assert_eq!(bus.estop.len(), 1);
+    let trajectory = trajectory_task(
+        &mut controller,
+        &bus,
+        &step,
+        &clock,
+        TrajectoryHw {
+            kick: &kick,
+            outputs: SharedOutputs(&outputs),
+            gripper: TestGripper(None),
+            serial: &serial,
+            settings: TestSettings(None),
+            encoders: NoEncoders,
+        },
+    );
+    let driver = async {
+        let mut acks = Vec::new();
+        while acks.len() < 1 + arm_core::tasks::INBOX_QUEUE {
+            if let Ok(arm_core::Outgoing::Ack(reply)) = bus.outbox.try_receive() {
+                acks.push((reply.to, reply.seq));
+            }
+            yield_now().await;
+        }
+        assert_eq!(acks[0], (STRANGER, 99), "STOPPED first");
+        assert_eq!(acks[1], (HOST, 0));
+    };
+    block_on(select(trajectory, driver));
+}
