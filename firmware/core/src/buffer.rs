@@ -48,6 +48,12 @@ impl<const CAP: usize> TrajectoryBuffer<CAP> {
         }
     }
 
+    /// Empties the buffer and uses `capacity` slots (clamped to `1..=CAP`) from now on.
+    pub fn set_capacity(&mut self, capacity: usize) {
+        self.clear();
+        self.capacity = capacity.clamp(1, CAP.max(1));
+    }
+
     /// Slots in use by design.
     pub fn capacity(&self) -> usize {
         self.capacity
@@ -163,5 +169,11 @@ mod tests {
     fn capacity_is_clamped() {
         assert_eq!(TrajectoryBuffer::<4>::new(100).capacity(), 4);
         assert_eq!(TrajectoryBuffer::<4>::new(0).capacity(), 1);
+        let mut b = TrajectoryBuffer::<4>::new(4);
+        assert!(b.push(point(1)));
+        b.set_capacity(2);
+        assert_eq!((b.capacity(), b.buffered(), b.free()), (2, 0, 2));
+        b.set_capacity(9);
+        assert_eq!(b.capacity(), 4);
     }
 }

@@ -234,6 +234,14 @@ impl<const CAP: usize> Controller<CAP> {
         }
     }
 
+    /// Replaces the configuration (at boot, before any command: the trajectory buffer is
+    /// emptied). Lets a board build the controller as a `const` in a static (no 300 KB
+    /// value on the stack) and apply the configuration it computes at run time.
+    pub fn reconfigure(&mut self, config: ControllerConfig) {
+        self.config = config;
+        self.buffer.set_capacity(config.capacity);
+    }
+
     /// Sets the gripper timer's input clock reported in STATUS (the trajectory task takes
     /// it from the [`crate::hw::Gripper`] at start).
     pub fn set_pwm_timer_clock_hz(&mut self, hz: u32) {
