@@ -26,6 +26,18 @@
 //! counts for the PENDING ordering rule (when it comes from the owner), and its source
 //! port becomes where the owner's reports go.
 //!
+//! # Runs, reports and flags
+//! * A run starts with RUNING (or RETURN) and ends in STOPPED three ways: every point
+//!   ran (completion), the engine ran dry first (underrun: STATUS flag bit 5), or a
+//!   STOPPED command (bit 7; any STOPPED sets bit 7). Both bits are cleared when a run
+//!   starts, so they tell how the last run ended.
+//! * A LOCATION is produced at every state change while reports are on (UPLOAD_STOP
+//!   turns all LOCATION reports off, the periodic ones and these).
+//! * RETURN is accepted at once (ACK state RUNNING); the encoders are read by the caller
+//!   ([`Deferred::ReadEncoders`]) and [`Controller::begin_return`] plans and starts the
+//!   move. During it, PENDING is refused with `BAD_STATE` (the points are the
+//!   controller's own); STOPPED and LOCATION work as in any run.
+//!
 //! # Effects
 //! What must happen synchronously (the step engine, pins, gripper, serial port) goes
 //! through the [`Plant`] trait; what needs waiting (flash, encoders) comes back as a
