@@ -25,6 +25,9 @@ pub struct Cli {
     /// Times a frame is sent at most.
     #[arg(long, global = true, default_value_t = 10)]
     pub attempts: u32,
+    /// Local address to send from (e.g. 127.0.0.2:0 to act as another host).
+    #[arg(long, global = true, env = "ARMCTL_BIND", value_name = "ADDR:PORT")]
+    pub bind: Option<std::net::SocketAddr>,
     /// What to do.
     #[command(subcommand)]
     pub command: Cmd,
@@ -122,9 +125,10 @@ pub enum Cmd {
         /// Joint config, for a JointTrajectory .json.
         #[arg(long, value_name = "FILE")]
         config: Option<PathBuf>,
-        /// Seconds into the recording at which the trajectory starts.
-        #[arg(long, default_value_t = 0.0)]
-        offset: f64,
+        /// Seconds into the recording at which the trajectory starts (default: the first
+        /// report in state RUNNING).
+        #[arg(long)]
+        offset: Option<f64>,
         /// Output file.
         #[arg(short, long, default_value = "run.svg")]
         output: PathBuf,

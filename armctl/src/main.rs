@@ -35,10 +35,16 @@ fn connect(cli: &Cli) -> Result<Controller, String> {
     let options = Options {
         ack_timeout: Duration::from_millis(cli.ack_timeout_ms.max(1)),
         attempts: cli.attempts.max(1),
+        bind: cli.bind,
         ..Options::default()
     };
-    Controller::connect_with(cli.controller.as_str(), options)
-        .map_err(|e| format!("{}: {e}", cli.controller))
+    let controller = match cli.command {
+        // Anyone may stop the arm: no STATUS first, which another host's controller
+        // would refuse (NOT_OWNER).
+        Cmd::Stop => Controller::open(cli.controller.as_str(), options),
+        _ => Controller::connect_with(cli.controller.as_str(), options),
+    };
+    controller.map_err(|e| format!("{}: {e}", cli.controller))
 }
 
 fn done(ack: armctl::Result<protocol::Ack>) -> CliResult {
@@ -78,7 +84,13 @@ fn execute(cli: Cli) -> CliResult {
                     let waypoints =
                         trajectory::load(path, config.as_ref()).map_err(|e| e.to_string())?;
                     let mut commanded = Commanded::from_waypoints(&waypoints);
-                    commanded.offset_s = *offset;
+                    // A run's points start when the controller starts RUNNING.
+                    commanded.offset_s = offset.unwrap_or_else(|| {
+                        samples
+                            .iter()
+                            .find(|s| s.state == State::Running as u8)
+                            .map_or(0.0, |s| s.time_s)
+                    });
                     Some(commanded)
                 }
                 None => None,

@@ -135,3 +135,30 @@ fn frame_encode_and_decode_round_trip() {
     assert!(!ok);
     assert!(err.contains("CRC mismatch"), "{err}");
 }
+
+#[test]
+fn stop_works_from_a_host_that_does_not_own_the_controller() {
+    let sim = SimHost::start(&["--joints", "2"]);
+    // This process (127.0.0.1) becomes the owner.
+    let owner = sim.connect();
+    owner.pin(0, true).unwrap();
+    // armctl from 127.0.0.2 cannot ask for STATUS, but can stop.
+    let other = |args: &[&str]| {
+        let output = Command::new(armctl_bin())
+            .arg("--controller")
+            .arg(sim.addr.to_string())
+            .args(args)
+            .env("ARMCTL_BIND", "127.0.0.2:0")
+            .output()
+            .expect("run armctl");
+        (
+            output.status.success(),
+            String::from_utf8_lossy(&output.stderr).into_owned(),
+        )
+    };
+    let (ok, err) = other(&["status"]);
+    assert!(!ok);
+    assert!(err.contains("NOT_OWNER"), "{err}");
+    let (ok, err) = other(&["stop"]);
+    assert!(ok, "{err}");
+}
