@@ -172,8 +172,14 @@ fn encode(args: &[&str]) -> String {
 
 /// The golden frames from the project's shared vectors (`shared/` beside the repository).
 fn golden() -> Vec<serde_json::Value> {
-    let path =
-        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/vectors/frames.json");
+    // As protocol's golden test: ARM_VECTORS overrides the copy beside the repository.
+    let path = std::env::var_os("ARM_VECTORS").map_or_else(
+        || {
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+                .join("../../shared/vectors/frames.json")
+        },
+        std::path::PathBuf::from,
+    );
     let text = std::fs::read_to_string(&path).unwrap_or_else(|e| {
         panic!(
             "{}: {e} (shared/ must sit beside the repository)",
