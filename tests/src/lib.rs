@@ -8,13 +8,44 @@
 use std::net::{Ipv4Addr, SocketAddr, SocketAddrV4, UdpSocket};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
-use std::sync::Mutex;
+use std::sync::{Condvar, Mutex};
 use std::time::{Duration, Instant};
 
 use armctl::{Controller, Options};
 
 /// How long a fresh sim-host gets to answer STATUS.
 const START_TIMEOUT: Duration = Duration::from_secs(10);
+
+/// Simulators running at once in one test process: each runs real-time step threads,
+/// and the machine (and CI's) has two cores.
+const MAX_SIMULATORS: usize = 3;
+
+/// Simulators running now, and a wake-up for a free slot.
+static RUNNING: (Mutex<usize>, Condvar) = (Mutex::new(0), Condvar::new());
+
+/// A slot among [`MAX_SIMULATORS`]; freed on drop.
+struct Slot;
+
+impl Slot {
+    fn take() -> Slot {
+        let (count, freed) = &RUNNING;
+        let mut running = count.lock().unwrap_or_else(|e| e.into_inner());
+        while *running >= MAX_SIMULATORS {
+            running = freed.wait(running).unwrap_or_else(|e| e.into_inner());
+        }
+        *running += 1;
+        Slot
+    }
+}
+
+impl Drop for Slot {
+    fn drop(&mut self) {
+        let (count, freed) = &RUNNING;
+        let mut running = count.lock().unwrap_or_else(|e| e.into_inner());
+        *running = running.saturating_sub(1);
+        freed.notify_one();
+    }
+}
 
 /// Packages already built by this test process.
 static BUILT: Mutex<Vec<String>> = Mutex::new(Vec::new());
@@ -88,6 +119,8 @@ pub struct SimHost {
     pub addr: SocketAddr,
     child: Child,
     dir: PathBuf,
+    /// Dropped after the process is killed (fields drop after `Drop::drop`).
+    _slot: Slot,
 }
 
 impl SimHost {
@@ -95,6 +128,7 @@ impl SimHost {
     /// waits until it answers STATUS.
     pub fn start(args: &[&str]) -> SimHost {
         let bin = sim_host_bin();
+        let slot = Slot::take();
         let mut last_error = String::new();
         // A port found free can be taken before the simulator binds it: try a few.
         for _ in 0..5 {
@@ -131,7 +165,12 @@ impl SimHost {
                     ..Options::default()
                 };
                 if Controller::connect_with(addr, quick).is_ok() {
-                    return SimHost { addr, child, dir };
+                    return SimHost {
+                        addr,
+                        child,
+                        dir,
+                        _slot: slot,
+                    };
                 }
             }
             let _ = child.kill();
