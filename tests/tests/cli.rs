@@ -162,3 +162,49 @@ fn stop_works_from_a_host_that_does_not_own_the_controller() {
     let (ok, err) = other(&["stop"]);
     assert!(ok, "{err}");
 }
+
+#[test]
+fn serial_bridges_stdin_and_stdout_and_watch_records() {
+    use std::io::Write;
+    let sim = SimHost::start(&["--joints", "2", "--serial", "loopback"]);
+    let mut child = Command::new(armctl_bin())
+        .arg("--controller")
+        .arg(sim.addr.to_string())
+        .args(["serial", "--baud", "57600"])
+        .stdin(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("run armctl serial");
+    child
+        .stdin
+        .take()
+        .unwrap()
+        .write_all(b"hello through the arm\n")
+        .unwrap();
+    let output = child.wait_with_output().unwrap();
+    assert!(
+        output.status.success(),
+        "{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    assert_eq!(output.stdout, b"hello through the arm\n");
+
+    let record = sim.dir().join("watch.csv");
+    let (ok, out, err) = armctl(
+        Some(&sim),
+        &[
+            "watch",
+            "--duration",
+            "0.5",
+            "--record",
+            record.to_str().unwrap(),
+        ],
+    );
+    assert!(ok, "{err}");
+    assert!(out.contains("location reports"), "{out}");
+    let text = std::fs::read_to_string(&record).unwrap();
+    assert!(text.starts_with("time_s,state,j0,j1\n"), "{text}");
+    // 10 ms reports for half a second.
+    assert!(text.lines().count() > 20, "{text}");
+}
