@@ -130,10 +130,17 @@ impl Shared {
 fn receive_loop(socket: UdpSocket, shared: Arc<Shared>) {
     let mut buf = [0u8; MAX_DATAGRAM + 1];
     while !shared.shutdown.load(Ordering::Relaxed) {
-        // Errors are timeouts, or ICMP "port unreachable" surfacing as ConnectionRefused
-        // while the controller is not up yet: keep listening.
-        if let Ok(n) = socket.recv(&mut buf) {
-            shared.deliver(&buf[..n]);
+        match socket.recv(&mut buf) {
+            Ok(n) => shared.deliver(&buf[..n]),
+            // The poll timeout: check for shutdown.
+            Err(e)
+                if matches!(
+                    e.kind(),
+                    std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+                ) => {}
+            // ICMP "port unreachable" surfacing as ConnectionRefused while the controller
+            // is not up, or anything else: keep listening, without spinning.
+            Err(_) => std::thread::sleep(Duration::from_millis(1)),
         }
     }
 }

@@ -623,7 +623,12 @@ impl Controller {
                 state: status.state,
             });
             if status.state == State::Stopped {
-                break status;
+                // Confirmed by a second report: a late duplicate of an old one (a lossy
+                // link duplicates and delays) must not end the wait.
+                let again = self.status()?;
+                if again.state == State::Stopped {
+                    break again;
+                }
             }
             if Instant::now() >= deadline {
                 return Err(Error::Stalled {
