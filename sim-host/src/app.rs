@@ -435,7 +435,10 @@ fn wire(board: Board) -> io::Result<Wiring> {
         &board.kick,
         pins,
         board.probe.clone(),
-        board.options.realtime,
+        crate::steptimer::StepThreadConfig {
+            realtime: board.options.realtime,
+            spin: std::time::Duration::from_micros(board.options.spin_us),
+        },
         move |tick, pins| arm_core::tasks::on_step_timer(step, tick, pins, &BUS.step_wake),
     )?;
     Ok(Wiring {

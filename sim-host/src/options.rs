@@ -108,6 +108,12 @@ pub struct SimOptions {
     /// Give the step thread real-time priority (SCHED_FIFO; needs privileges).
     #[arg(long)]
     pub realtime: bool,
+
+    /// Microseconds before each step deadline that the step thread spins instead of
+    /// sleeping: aligns pulses with the wall clock more tightly, at the cost of CPU.
+    /// Pulse times in simulated time (the trace, positions) are exact whatever this is.
+    #[arg(long, default_value_t = 20, value_parser = clap::value_parser!(u64).range(0..=10_000))]
+    pub spin_us: u64,
 }
 
 impl SimOptions {

@@ -17,9 +17,16 @@ use crate::clock::SimClock;
 use crate::probe::Probe;
 use crate::steppers::SimSteppers;
 
-/// Real time before a deadline at which the thread stops sleeping and spins: covers the
-/// kernel's wake-up latency.
-const SPIN_BEFORE: Duration = Duration::from_micros(60);
+/// How the step thread waits for its deadlines.
+#[derive(Clone, Copy, Debug)]
+pub struct StepThreadConfig {
+    /// SCHED_FIFO instead of nice -10.
+    pub realtime: bool,
+    /// Real time before a deadline at which the thread stops sleeping and spins, to cover
+    /// the kernel's wake-up latency. Pulse times in simulated time are exact whatever
+    /// this is; it only aligns them with the wall clock, at the cost of CPU.
+    pub spin: Duration,
+}
 
 /// `kick_at` when no kick is pending.
 const NO_KICK: u64 = u64::MAX;
@@ -77,14 +84,14 @@ pub fn spawn_step_thread(
     kick: &SimStepKick,
     mut pins: SimSteppers,
     probe: Arc<Probe>,
-    realtime: bool,
+    config: StepThreadConfig,
     mut on_timer: impl FnMut(u64, &mut SimSteppers) -> Option<u64> + Send + 'static,
 ) -> std::io::Result<()> {
     let shared = kick.shared.clone();
     std::thread::Builder::new()
         .name("step-timer".into())
         .spawn(move || {
-            raise_priority(realtime);
+            raise_priority(config.realtime);
             let clock = shared.clock;
             let mut deadline: Option<u64> = None;
             let mut last_tick = 0u64;
@@ -97,7 +104,7 @@ pub fn spawn_step_thread(
                     Some(d) if d <= kick_at => d,
                     _ if kick_at != NO_KICK => shared.kick_at.swap(NO_KICK, Ordering::AcqRel),
                     _ => {
-                        wait(&shared, deadline);
+                        wait(&shared, deadline, config.spin);
                         continue;
                     }
                 };
@@ -123,7 +130,7 @@ fn kicked(shared: &TimerShared) -> bool {
 }
 
 /// Waits until `deadline` is close (then spins to it) or a kick arrives.
-fn wait(shared: &TimerShared, deadline: Option<u64>) {
+fn wait(shared: &TimerShared, deadline: Option<u64>, spin: Duration) {
     let Some(due) = deadline else {
         if let Ok(guard) = shared.lock.lock()
             && !kicked(shared)
@@ -138,11 +145,11 @@ fn wait(shared: &TimerShared, deadline: Option<u64>) {
         return;
     }
     let remaining = at - now;
-    if remaining > SPIN_BEFORE {
+    if remaining > spin {
         if let Ok(guard) = shared.lock.lock()
             && !kicked(shared)
         {
-            let _ = shared.wake.wait_timeout(guard, remaining - SPIN_BEFORE);
+            let _ = shared.wake.wait_timeout(guard, remaining - spin);
         }
     } else {
         // Spin, still answering a kick at once.

@@ -5,21 +5,54 @@ use std::io::{BufRead, BufReader};
 use std::net::{SocketAddr, UdpSocket};
 use std::path::PathBuf;
 use std::process::{Child, Command as Process, Stdio};
+use std::sync::{Condvar, Mutex};
 use std::time::{Duration, Instant};
 
 use protocol::{
     Ack, Command, Location, MAX_JOINTS, Point, Report, State, StatusCode, StatusReport,
 };
 
+/// Simulators running at once in this test binary: the machine may have 2 cores, and a
+/// simulator whose executor is starved runs its buffer dry like a starved board would.
+const CONCURRENT_SIMS: usize = 2;
+
+static RUNNING: Mutex<usize> = Mutex::new(0);
+static SLOT_FREED: Condvar = Condvar::new();
+
+/// A permit to run a simulator, returned on drop.
+struct Permit;
+
+impl Permit {
+    fn take() -> Permit {
+        let mut running = RUNNING.lock().unwrap_or_else(|e| e.into_inner());
+        while *running >= CONCURRENT_SIMS {
+            running = SLOT_FREED.wait(running).unwrap_or_else(|e| e.into_inner());
+        }
+        *running += 1;
+        Permit
+    }
+}
+
+impl Drop for Permit {
+    fn drop(&mut self) {
+        *RUNNING.lock().unwrap_or_else(|e| e.into_inner()) -= 1;
+        SLOT_FREED.notify_one();
+    }
+}
+
 /// A running sim-host process, killed (SIGTERM, so it flushes its trace) when dropped.
 pub struct Sim {
+    permit: Option<Permit>,
     child: Option<Child>,
     pub addr: SocketAddr,
+    /// What it printed on stdout before the address line (e.g. the pty path).
+    pub banner: Vec<String>,
 }
 
 impl Sim {
     /// Starts sim-host on a free 127.0.0.1 port with these extra arguments.
     pub fn start(args: &[&str]) -> Sim {
+        let permit = Permit::take();
         let mut child = Process::new(env!("CARGO_BIN_EXE_sim-host"))
             .args(["--bind", "127.0.0.1:0", "--log-level", "warn"])
             .args(args)
@@ -29,6 +62,7 @@ impl Sim {
             .expect("sim-host starts");
         let stdout = child.stdout.take().expect("stdout");
         let mut lines = BufReader::new(stdout).lines();
+        let mut banner = Vec::new();
         let addr = loop {
             let line = lines
                 .next()
@@ -37,17 +71,21 @@ impl Sim {
             if let Some(addr) = line.strip_prefix("sim-host: listening on udp ") {
                 break addr.parse().expect("an address");
             }
+            banner.push(line);
         };
         // Keep draining stdout so the child never blocks on a full pipe.
         std::thread::spawn(move || for _ in lines {});
         Sim {
+            permit: Some(permit),
             child: Some(child),
             addr,
+            banner,
         }
     }
 
     /// Stops it with SIGTERM and waits for it to exit (trace flushed).
     pub fn stop(&mut self) {
+        let _permit = self.permit.take();
         if let Some(mut child) = self.child.take() {
             // SAFETY: signalling our own child process by its pid.
             unsafe {
