@@ -430,7 +430,7 @@ fn drive(board: &Board, addr: std::net::SocketAddr, demo: &DemoOptions) -> io::R
     std::fs::write(&plot_path, svg)?;
     let failed = checks.iter().filter(|c| !c.passed).count();
     println!(
-        "summary: {} points streamed in 3 runs, {} location reports recorded, {} of {} checks passed",
+        "summary: {} points uploaded in 3 runs, {} location reports recorded, {} of {} checks passed",
         streamed,
         samples.len(),
         checks.len() - failed,
@@ -523,10 +523,30 @@ fn run_with_display(
     });
     done.store(true, Ordering::Relaxed);
     let _ = ticker.join();
-    if let Ok(report) = &result {
-        bar.set_position(report.points as u64);
+    // The bar's last line: where the run really ended.
+    let executed = match &result {
+        Ok(report) => report.points,
+        Err(_) => arm
+            .status()
+            .map(|s| usize::from(s.executed))
+            .unwrap_or_default(),
+    };
+    bar.set_position(executed as u64);
+    if let Ok(location) = arm.current_location(Duration::from_millis(200)) {
+        let gripper = display
+            .lock()
+            .map(|d| d.gripper.clone())
+            .unwrap_or_default();
+        bar.set_message(format!(
+            "joints {:?}  gripper {gripper}",
+            &location.position[..JOINTS]
+        ));
     }
-    bar.finish();
+    if result.is_ok() {
+        bar.finish();
+    } else {
+        bar.abandon();
+    }
     result.map_err(to_io)
 }
 

@@ -3,7 +3,7 @@
 
 use std::io;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicBool, AtomicU8, AtomicU16, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicU8, AtomicU16, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 
 use arm_core::hw::{Encoders, Gripper, Outputs, PersistentSettings, SettingsStore};
@@ -269,8 +269,6 @@ impl Encoders for SimEncoders {
 pub struct FileSettings {
     path: PathBuf,
     boot_joints: Option<u8>,
-    saves: Arc<AtomicU64>,
-    loaded: Arc<AtomicBool>,
 }
 
 impl FileSettings {
@@ -279,8 +277,6 @@ impl FileSettings {
         FileSettings {
             path,
             boot_joints: None,
-            saves: Arc::new(AtomicU64::new(0)),
-            loaded: Arc::new(AtomicBool::new(false)),
         }
     }
 
@@ -377,7 +373,6 @@ impl SettingsStore for FileSettings {
             log::warn!("settings: cannot read {}: {e}", self.path.display());
             e.kind()
         })?;
-        self.loaded.store(true, Ordering::Relaxed);
         let loaded = match (loaded, self.boot_joints) {
             (Some(stored), Some(joints)) => Some(PersistentSettings { joints, ..stored }),
             (None, Some(joints)) => Some(PersistentSettings {
@@ -401,7 +396,6 @@ impl SettingsStore for FileSettings {
             log::warn!("settings: cannot write {}: {e}", self.path.display());
             e.kind()
         })?;
-        self.saves.fetch_add(1, Ordering::Relaxed);
         log::info!("settings: saved {settings:?} to {}", self.path.display());
         Ok(())
     }
