@@ -511,3 +511,189 @@ fn stopped_overtakes_queued_uploads() {
     };
     block_on(select(trajectory, driver));
 }
+
+/// Runs the five tasks and the fake interrupt around `driver`.
+fn with_tasks<'a, F: Future<Output = ()>>(
+    capacity: usize,
+    socket: &'a TestSocket,
+    pins: &'a RefCell<TestPins>,
+    driver: impl FnOnce(&'a StepShared<4>) -> F,
+) {
+    let clock = TestClock(Instant::now());
+    let kick = TestKick {
+        clock: &clock,
+        kicked: Cell::new(false),
+    };
+    let bus = Bus::new();
+    let step: &'a StepShared<4> = Box::leak(Box::new(StepShared::new(StepTiming {
+        tick_hz: 1_000_000,
+        pulse_width_ticks: 2,
+        dir_setup_ticks: 1,
+    })));
+    let mut controller = Controller::<16>::new(ControllerConfig {
+        capacity,
+        ..ControllerConfig::BOARD
+    });
+    let serial = TestSerial::default();
+    let outputs = RefCell::new(TestOutputs::default());
+    let isr = async {
+        let mut deadline: Option<u64> = None;
+        loop {
+            let now = kick.now_tick();
+            if kick.kicked.replace(false) || deadline.is_some_and(|d| now >= d) {
+                deadline = on_step_timer(step, now, &mut *pins.borrow_mut(), &bus.step_wake);
+            }
+            yield_now().await;
+        }
+    };
+    let tasks = join5(
+        network_task(socket, &bus),
+        trajectory_task(
+            &mut controller,
+            &bus,
+            step,
+            &clock,
+            TrajectoryHw {
+                kick: &kick,
+                outputs: SharedOutputs(&outputs),
+                gripper: TestGripper(None),
+                serial: &serial,
+                settings: TestSettings(None),
+                encoders: NoEncoders,
+            },
+        ),
+        step_task(&bus, step, &kick),
+        upload_task(&bus, step, &clock),
+        join(serial_task(&serial, &bus, &clock), isr),
+    );
+    block_on(select(tasks, driver(step)));
+}
+
+fn last_ack(socket: &TestSocket, seq: u8) -> Option<protocol::Ack> {
+    decoded(socket)
+        .into_iter()
+        .rev()
+        .find_map(|(_, s, r)| match r {
+            Report::Ack(a) if s == seq => Some(a),
+            _ => None,
+        })
+}
+
+#[test]
+fn streaming_through_a_small_buffer_and_underrun() {
+    let socket_owned = TestSocket::default();
+    let pins_owned = RefCell::new(TestPins::default());
+    let (socket, pins) = (&socket_owned, &pins_owned);
+    let limit = Duration::from_secs(10);
+    let send = |seq: u8, cmd: Command<'_>| {
+        socket
+            .incoming
+            .borrow_mut()
+            .push_back((frame(seq, cmd), HOST));
+    };
+    with_tasks(4, socket, pins, |step| async move {
+        // 24 points of 10 ms, +2 steps each on joint 0, through a 4-point buffer: the host
+        // sends 2 points at a time, resending on BUFFER_FULL. (The buffer holds 30 ms or
+        // more ahead: a loaded test machine must not starve it.)
+        let mut prev = [0; MAX_JOINTS];
+        let pts: Vec<Point> = (1..=24)
+            .map(|k| {
+                let next = [2 * k, 0, 0, 0, 0, 0, 0, 0];
+                let p = Point::from_motion(10_000, &prev, &next);
+                prev = next;
+                p
+            })
+            .collect();
+        send(1, Command::New { count: 24 });
+        let mut seq = 2u8;
+        let mut running = false;
+        let mut refused = 0;
+        for pair in pts.chunks(2) {
+            loop {
+                send(seq, Command::Pending(PointList::Points(pair)));
+                until("the ACK", limit, || last_ack(socket, seq).is_some()).await;
+                let ack = last_ack(socket, seq).unwrap_or_else(|| unreachable!());
+                if ack.status == StatusCode::Ok {
+                    break;
+                }
+                assert_eq!(ack.status, StatusCode::BufferFull);
+                assert!(ack.buffered <= 4 && ack.free < 2);
+                refused += 1;
+                socket.sent.borrow_mut().clear();
+                let wait = Instant::now() + Duration::from_millis(1);
+                until("a while", limit, || Instant::now() > wait).await;
+            }
+            seq += 1;
+            if !running {
+                send(seq, Command::Runing);
+                until("RUNING's ACK", limit, || last_ack(socket, seq).is_some()).await;
+                seq += 1;
+                running = true;
+            }
+        }
+        assert!(refused > 0, "the 4-point buffer pushed back");
+        send(seq, Command::Status);
+        until("the end of the run", limit, || {
+            decoded(socket).iter().any(
+                |(_, _, r)| matches!(r, Report::Location(l) if l.state == State::Stopped as u8),
+            )
+        })
+        .await;
+        assert_eq!(pins.borrow().position[0], 48);
+        assert_eq!(step.positions()[0], 48);
+        seq += 1;
+        socket.sent.borrow_mut().clear();
+        send(seq, Command::Status);
+        until("STATUS", limit, || {
+            decoded(socket)
+                .iter()
+                .any(|(_, _, r)| matches!(r, Report::Status(_)))
+        })
+        .await;
+        let status = decoded(socket).into_iter().find_map(|(_, _, r)| match r {
+            Report::Status(s) => Some(s),
+            _ => None,
+        });
+        let status = status.unwrap_or_else(|| unreachable!());
+        assert_eq!((status.executed, status.expected), (24, 24));
+        assert_eq!(status.flags.0 & protocol::StatusFlags::UNDERRUN, 0);
+
+        // Now an underrun: 10 announced, 2 sent.
+        seq += 1;
+        send(seq, Command::New { count: 10 });
+        let more = [
+            Point::from_motion(2_000, &prev, &[50, 0, 0, 0, 0, 0, 0, 0]),
+            Point::from_motion(
+                2_000,
+                &[50, 0, 0, 0, 0, 0, 0, 0],
+                &[53, 0, 0, 0, 0, 0, 0, 0],
+            ),
+        ];
+        send(seq + 1, Command::Pending(PointList::Points(&more)));
+        send(seq + 2, Command::Runing);
+        seq += 3;
+        let wait = Instant::now() + Duration::from_millis(30);
+        until("the underrun", limit, || Instant::now() > wait).await;
+        socket.sent.borrow_mut().clear();
+        send(seq, Command::Status);
+        until("STATUS", limit, || {
+            decoded(socket)
+                .iter()
+                .any(|(_, _, r)| matches!(r, Report::Status(_)))
+        })
+        .await;
+        let status = decoded(socket).into_iter().find_map(|(_, _, r)| match r {
+            Report::Status(s) => Some(s),
+            _ => None,
+        });
+        let status = status.unwrap_or_else(|| unreachable!());
+        assert_eq!(status.state, State::Stopped);
+        assert_ne!(status.flags.0 & protocol::StatusFlags::UNDERRUN, 0);
+        assert_eq!((status.executed, status.expected), (2, 10));
+        assert_eq!(
+            pins.borrow().position[0],
+            53,
+            "stopped at the end of the last point"
+        );
+    });
+}
