@@ -35,7 +35,9 @@
 //! output (a full outbox drops the frame), so a STOPPED is handled after at most the one
 //! command being handled: the controller then stops the engine in a critical section
 //! (no pulse after that), and kicks the step interrupt, which lowers the STEP lines.
-//! Segments already cut for the engine are dropped by their stop count.
+//! Segments already cut for the engine are dropped by their stop count. The one wait in
+//! the trajectory task is deferred work: a settings write (JOINTS_COUNT, only in STOPPED)
+//! or the encoder read of a RETURN (before it moves); nothing moves meanwhile.
 #![no_std]
 #![warn(missing_docs)]
 
