@@ -556,3 +556,42 @@ fn a_lossy_link_still_runs_every_point_once() {
     // Joint 0 only ever moves forward: its pulse count is its position.
     assert_eq!(vcd.rising_edges("step0").len(), 1400);
 }
+
+/// At the board's step timer rate (200 MHz), pulse i of a segment still rises exactly at
+/// start + floor(i * D / N) ticks.
+#[test]
+fn a_200_mhz_step_timer_keeps_exact_pulse_times() {
+    let trace = temp_path("tick200.vcd");
+    let mut sim = Sim::start(&[
+        "--tick-hz",
+        "200000000",
+        "--trace",
+        trace.to_str().unwrap(),
+        "--settings",
+        temp_path("tick200.txt").to_str().unwrap(),
+    ]);
+    let mut client = sim.client();
+    let targets = [[30, 7, 0, 0, 0, 0, 0, 0], [60, 0, 0, 0, 0, 0, 0, 0]];
+    client.run_points(
+        &points_through([0; MAX_JOINTS], &targets, 10_000),
+        Duration::from_secs(10),
+    );
+    assert_eq!(client.location().position, targets[1]);
+    sim.stop();
+    let vcd = ParsedVcd::parse(&std::fs::read_to_string(&trace).unwrap()).unwrap();
+    let edges = vcd.rising_edges("step0");
+    assert_eq!(edges.len(), 60);
+    // 10 ms = 2_000_000 ticks of 5 ns; 30 pulses per segment; both segments alike.
+    let ticks_of = |i: u64| i * 2_000_000 / 30;
+    let start = edges[0] - ticks_of(1) * 5;
+    for (k, edge) in edges.iter().enumerate() {
+        let (segment, i) = (k as u64 / 30, k as u64 % 30 + 1);
+        assert_eq!(
+            edge - start,
+            (segment * 2_000_000 + ticks_of(i)) * 5,
+            "pulse {k}"
+        );
+    }
+    assert_eq!(vcd.joint_position(1), 0);
+    assert_eq!(vcd.rising_edges("step1").len(), 14);
+}
