@@ -256,13 +256,13 @@ fn declarations() -> Vec<(Signal, &'static str, String, Value)> {
         ),
         (
             Signal::GripperFrequency,
-            "real 1",
+            "real 64",
             "gripper_freq_hz",
             Value::Real(0.0),
         ),
         (
             Signal::GripperDuty,
-            "real 1",
+            "real 64",
             "gripper_duty",
             Value::Real(0.0),
         ),
