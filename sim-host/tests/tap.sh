@@ -1,8 +1,10 @@
 #!/usr/bin/env bash
 # sim-host over a TAP device, on the same embassy-net code path as the board, inside a
 # Linux network namespace this script creates and removes. A python3 client in the
-# namespace sends STATUS to 192.168.7.2:8510 and checks the ACK and the STATUS report.
-# Bounded in time; skips (exit 0) where namespaces or TAP devices are not available.
+# namespace sends STATUS to the controller and checks the ACK and the STATUS report:
+# first with a static address (--ip 192.168.7.2/24), then, where dnsmasq is installed,
+# with an address from DHCP (--ip dhcp). Bounded in time; skips (exit 0) where namespaces
+# or TAP devices are not available.
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 
@@ -20,8 +22,14 @@ bin="$target_dir/debug/sim-host"
 ns="armsim-$$"
 work=$(mktemp -d)
 sim_pid=""
-cleanup() {
+dhcp_pid=""
+stop_sim() {
   if [ -n "$sim_pid" ]; then kill "$sim_pid" 2>/dev/null || true; wait "$sim_pid" 2>/dev/null || true; fi
+  sim_pid=""
+}
+cleanup() {
+  stop_sim
+  if [ -n "$dhcp_pid" ]; then kill "$dhcp_pid" 2>/dev/null || true; wait "$dhcp_pid" 2>/dev/null || true; fi
   ip netns del "$ns" 2>/dev/null || true
   rm -rf "$work"
 }
@@ -32,19 +40,26 @@ ip netns exec "$ns" ip addr add 192.168.7.1/24 dev tap0
 ip netns exec "$ns" ip link set tap0 up
 ip netns exec "$ns" ip link set lo up
 
-ip netns exec "$ns" timeout 60 "$bin" --tap tap0 --ip 192.168.7.2/24 \
-  --settings "$work/settings.txt" --log-level info >"$work/out" 2>"$work/err" &
-sim_pid=$!
+# start_sim ARGS...: runs sim-host on tap0 in the namespace; waits until it has an address.
+start_sim() {
+  : >"$work/out"
+  ip netns exec "$ns" timeout 60 "$bin" --tap tap0 "$@" \
+    --settings "$work/settings.txt" --log-level info >"$work/out" 2>"$work/err" &
+  sim_pid=$!
+  for _ in $(seq 150); do
+    grep -q "listening on tap0" "$work/out" 2>/dev/null && return 0
+    kill -0 "$sim_pid" 2>/dev/null || { cat "$work/err"; echo "tap.sh: sim-host exited"; exit 1; }
+    sleep 0.1
+  done
+  cat "$work/err"
+  echo "tap.sh: sim-host got no address"
+  exit 1
+}
 
-for _ in $(seq 100); do
-  grep -q "listening on tap0" "$work/out" 2>/dev/null && break
-  kill -0 "$sim_pid" 2>/dev/null || { cat "$work/err"; echo "tap.sh: sim-host exited"; exit 1; }
-  sleep 0.1
-done
-grep -q "listening on tap0" "$work/out" || { cat "$work/err"; echo "tap.sh: sim-host not up"; exit 1; }
-
-ip netns exec "$ns" timeout 30 python3 - <<'PY'
-import socket, struct, sys, time
+# status_exchange ADDR: STATUS to ADDR:8510 from inside the namespace; checks ACK and report.
+status_exchange() {
+  ip netns exec "$ns" timeout 30 python3 - "$1" <<'PY'
+import socket, sys, time
 
 def crc8(data):
     crc = 0
@@ -54,15 +69,17 @@ def crc8(data):
             crc = ((crc << 1) ^ 0x07) & 0xFF if crc & 0x80 else (crc << 1) & 0xFF
     return crc
 
-controller = ("192.168.7.2", 8510)
+controller = (sys.argv[1], 8510)
 sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
 sock.bind(("192.168.7.1", 0))
 sock.settimeout(0.5)
-frame = bytes([42, 0x15])
-frame += bytes([crc8(frame)])
 ack = status = None
-# The first tries may go while ARP resolves: resend, a bounded number of times.
+# The first tries may go while ARP resolves: resend (a new seq each time, so that none is
+# taken for a duplicate), a bounded number of times.
 for attempt in range(20):
+    seq = 40 + attempt
+    frame = bytes([seq, 0x15])
+    frame += bytes([crc8(frame)])
     sock.sendto(frame, controller)
     deadline = time.time() + 0.5
     while time.time() < deadline and (ack is None or status is None):
@@ -72,23 +89,49 @@ for attempt in range(20):
             break
         if crc8(data[:-1]) != data[-1]:
             sys.exit("tap.sh: report with a bad CRC: " + data.hex())
-        tag = data[1]
-        if tag == 0x14 and data[0] == 42:
+        if data[1] == 0x14:
             ack = data
-        elif tag == 0x15:
+        elif data[1] == 0x15:
             status = data
     if ack is not None and status is not None:
         break
 if ack is None:
-    sys.exit("tap.sh: no ACK from 192.168.7.2:8510")
+    sys.exit(f"tap.sh: no ACK from {controller[0]}:8510")
 acked_tag, code, state = ack[2], ack[3], ack[4]
 if (acked_tag, code, state) != (0x15, 0, 3):
     sys.exit("tap.sh: unexpected ACK " + ack.hex())
 if status is None:
     sys.exit("tap.sh: no STATUS report")
 version, joints = tuple(status[2:5]), status[5]
-print(f"tap.sh: ACK OK (state STOPPED), STATUS version {version} joints {joints}")
+print(f"tap.sh: {controller[0]}: ACK OK (state STOPPED), STATUS version {version} joints {joints}")
 if joints != 6:
     sys.exit("tap.sh: expected 6 joints")
 PY
-echo "tap.sh: 1 passed, 0 failed"
+}
+
+passed=0
+start_sim --ip 192.168.7.2/24
+status_exchange 192.168.7.2
+passed=$((passed + 1))
+stop_sim
+
+skipped=0
+if command -v dnsmasq >/dev/null; then
+  ip netns exec "$ns" dnsmasq --no-daemon --port=0 --interface=tap0 --bind-interfaces \
+    --dhcp-range=192.168.7.50,192.168.7.60,255.255.255.0,10m \
+    --dhcp-leasefile="$work/leases" --pid-file="$work/dnsmasq.pid" >"$work/dnsmasq.log" 2>&1 &
+  dhcp_pid=$!
+  start_sim --ip dhcp
+  leased=$(grep -o "tap: address 192\.168\.7\.[0-9]*" "$work/err" | head -1 | cut -d' ' -f3)
+  case "$leased" in
+    192.168.7.5[0-9]|192.168.7.60) ;;
+    *) cat "$work/err"; echo "tap.sh: DHCP address not from the server's range: '$leased'"; exit 1 ;;
+  esac
+  status_exchange "$leased"
+  passed=$((passed + 1))
+  stop_sim
+else
+  echo "tap.sh: dnsmasq not installed: the DHCP case is skipped"
+  skipped=1
+fi
+echo "tap.sh: $passed passed, 0 failed, $skipped skipped"
