@@ -595,3 +595,20 @@ fn a_200_mhz_step_timer_keeps_exact_pulse_times() {
     assert_eq!(vcd.joint_position(1), 0);
     assert_eq!(vcd.rising_edges("step1").len(), 14);
 }
+
+#[test]
+fn without_a_serial_port_usart_start_is_refused() {
+    let sim = Sim::start(&[
+        "--serial",
+        "none",
+        "--settings",
+        temp_path("noserial.txt").to_str().unwrap(),
+    ]);
+    let mut client = sim.client();
+    let ack = client.command(&Command::UsartStart(UartInit {
+        baud_rate: 9600,
+        ..UartInit::default()
+    }));
+    assert_eq!(ack.status, StatusCode::InvalidConfig);
+    assert!(!client.status().flags.has(StatusFlags::SERIAL_OPEN));
+}
