@@ -58,7 +58,7 @@ impl Board {
             None => Tracer::disabled(),
         };
         let motors = Arc::new(MotorState::default());
-        let probe = Arc::new(Probe::default());
+        let probe = Arc::new(Probe::new(clock, tracer.clone()));
         let serial = SimSerial::create(options.serial, clock)?;
         if let Some(path) = serial.pty_path() {
             println!("sim-host: serial pty {path}");

@@ -118,7 +118,7 @@ pub fn spawn_step_thread(
                     .engine_running
                     .store(deadline.is_some(), Ordering::Release);
                 if was_running && deadline.is_none() {
-                    probe.engine_stopped(Instant::now());
+                    probe.engine_stopped(Instant::now(), clock.tick_to_ns(tick));
                 }
             }
         })?;

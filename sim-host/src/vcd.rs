@@ -50,6 +50,8 @@ pub enum Signal {
     Pin0,
     /// User pin 1.
     Pin1,
+    /// High from the arrival of a STOPPED datagram until the step engine is idle.
+    EStop,
 }
 
 /// A traced value.
@@ -207,6 +209,7 @@ fn identifier(signal: Signal) -> String {
         Signal::GripperPulses => 3 * TRACED_JOINTS + 5,
         Signal::Pin0 => 3 * TRACED_JOINTS + 6,
         Signal::Pin1 => 3 * TRACED_JOINTS + 7,
+        Signal::EStop => 3 * TRACED_JOINTS + 8,
     };
     // 94 printable characters: two-character codes are never needed for < 94 signals.
     char::from(b'!' + index as u8).to_string()
@@ -274,6 +277,7 @@ fn declarations() -> Vec<(Signal, &'static str, String, Value)> {
         ),
         (Signal::Pin0, "wire 1", "pin0", Value::Bit(false)),
         (Signal::Pin1, "wire 1", "pin1", Value::Bit(false)),
+        (Signal::EStop, "wire 1", "estop", Value::Bit(false)),
     ];
     for (signal, kind, name, value) in gripper {
         all.push((signal, kind, name.to_string(), value));

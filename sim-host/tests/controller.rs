@@ -161,6 +161,31 @@ fn stopped_halts_the_pulses_at_once() {
     sim.stop();
     let vcd = ParsedVcd::parse(&std::fs::read_to_string(&trace).unwrap()).unwrap();
     assert_eq!(vcd.joint_position(0), i64::from(stopped_at));
+    // The estop wire: high from the STOPPED datagram's arrival until the engine is idle;
+    // no STEP edge after it falls.
+    let estop = &vcd.changes["estop"];
+    let rise = estop
+        .iter()
+        .find(|(_, v)| v == "1")
+        .expect("estop marked")
+        .0;
+    let fall = estop
+        .iter()
+        .rev()
+        .find(|(_, v)| v == "0")
+        .expect("estop ends")
+        .0;
+    assert!(fall >= rise, "{rise} {fall}");
+    let last_edge = *vcd.rising_edges("step0").last().unwrap();
+    assert!(
+        last_edge <= fall,
+        "a pulse at {last_edge} after the stop at {fall}"
+    );
+    let changes_after = vcd.changes["step0"]
+        .iter()
+        .filter(|(t, _)| *t > fall)
+        .count();
+    assert_eq!(changes_after, 0, "STEP moved after the stop");
 }
 
 #[test]
