@@ -6,14 +6,23 @@ use std::net::SocketAddr;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 
+use arm_core::config::{BOARD_MAX_STEP_RATE_HZ, BOARD_TRAJECTORY_CAPACITY};
+use arm_core::hw::{Datagrams, Endpoint};
+use arm_core::tasks::{Bus, StepShared, TrajectoryHw};
+use arm_core::{Controller, ControllerConfig};
+use arm_step::StepTiming;
+use embassy_executor::{Executor, Spawner};
+use static_cell::StaticCell;
+
 use crate::clock::SimClock;
 use crate::devices::{FileSettings, OutputLevels, SimEncoders, SimGripper, SimOutputs};
-use crate::net::UdpDatagrams;
+use crate::net::{Faulty, UdpDatagrams};
 use crate::options::SimOptions;
 use crate::probe::Probe;
 use crate::serial::SimSerial;
 use crate::steppers::{MotorState, SimSteppers};
 use crate::steptimer::SimStepKick;
+use crate::tap::{TapAddress, TapDatagrams, TapError};
 use crate::vcd::Tracer;
 
 /// The simulated board: everything the firmware's tasks drive, and what observes it.
@@ -174,17 +183,6 @@ pub fn init_logging(level: &str) {
 
 // ---------------------------------------------------------------------------------------
 // The firmware's tasks on the std executor.
-
-use arm_core::config::{BOARD_MAX_STEP_RATE_HZ, BOARD_TRAJECTORY_CAPACITY};
-use arm_core::hw::{Datagrams, Endpoint};
-use arm_core::tasks::{Bus, StepShared, TrajectoryHw};
-use arm_core::{Controller, ControllerConfig};
-use arm_step::StepTiming;
-use embassy_executor::{Executor, Spawner};
-use static_cell::StaticCell;
-
-use crate::net::Faulty;
-use crate::tap::{TapAddress, TapDatagrams, TapError};
 
 /// Trajectory points the simulator can buffer: the board's size, so that a host sees the
 /// same flow control; `--buffer-capacity` uses less of it.
