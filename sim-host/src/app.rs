@@ -532,6 +532,9 @@ pub fn run(options: &SimOptions) -> io::Result<()> {
         log::info!("listening on udp {addr}");
     }
     log::info!("settings file: {}", board.settings.path().display());
+    if options.ip.is_some() && options.tap.is_none() {
+        log::warn!("--ip applies to --tap only: ignored");
+    }
     exit_on_signal(board.clone())?;
     let wiring = wire(board)?;
     // The executor lives as long as the process: run() never returns.
