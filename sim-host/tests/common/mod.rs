@@ -53,13 +53,21 @@ impl Sim {
     /// Starts sim-host on a free 127.0.0.1 port with these extra arguments.
     pub fn start(args: &[&str]) -> Sim {
         let permit = Permit::take();
-        let mut child = Process::new(env!("CARGO_BIN_EXE_sim-host"))
+        let mut command = Process::new(env!("CARGO_BIN_EXE_sim-host"));
+        command
             .args(["--bind", "127.0.0.1:0", "--log-level", "warn"])
             .args(args)
             .stdout(Stdio::piped())
-            .stderr(Stdio::inherit())
-            .spawn()
-            .expect("sim-host starts");
+            .stderr(Stdio::inherit());
+        // If the test process dies without dropping the Sim, the simulator goes too.
+        // SAFETY: prctl is async-signal-safe; nothing else runs between fork and exec.
+        unsafe {
+            std::os::unix::process::CommandExt::pre_exec(&mut command, || {
+                libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM);
+                Ok(())
+            });
+        }
+        let mut child = command.spawn().expect("sim-host starts");
         let stdout = child.stdout.take().expect("stdout");
         let mut lines = BufReader::new(stdout).lines();
         let mut banner = Vec::new();
