@@ -52,3 +52,18 @@ for s in __sdata __edata __sbss __ebss; do
 done
 check_range _stack_start "$(symbol _stack_start)" $((0x20020000)) $((0x20020000))
 echo "layout ok: .data/.bss in AXI SRAM (ends 0x$(symbol __ebss)), stack top 0x$(symbol _stack_start) (DTCM)"
+
+# Stack check: the stack is 128 KiB of DTCM, and the 300 KB controller must be built in place
+# in its static, never on the stack first. Fail if any function reserves a frame over 32 KiB.
+objdump_tool="$sysroot/lib/rustlib/$host/bin/llvm-objdump"
+largest_frame=0
+while read -r hex; do
+  (( 16#$hex > largest_frame )) && largest_frame=$((16#$hex))
+done < <("$objdump_tool" -d --no-show-raw-insn "$elf" \
+  | grep -oE 'sub(\.w)?[[:space:]]+sp, (sp, )?#0x[0-9a-f]+' | sed 's/.*#0x//')
+largest_frame=${largest_frame:-0}
+if (( largest_frame > 32768 )); then
+  echo "fw-size: a function reserves a $largest_frame-byte stack frame (over 32 KiB): something big is built on the stack" >&2
+  exit 1
+fi
+echo "stack ok: largest single stack frame $largest_frame bytes (of 131072 DTCM)"

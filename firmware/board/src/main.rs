@@ -225,6 +225,7 @@ async fn main(spawner: Spawner) -> ! {
     let kick = match step_timer::start(p.TIM2, step_dir.into_writer()) {
         Ok(kick) => KICK.init(kick),
         Err(e) => defmt::panic!(
+            // safe: boot-time bring-up, not network input
             "step timer clock is not {} Hz: {}",
             step_timer::STEP_TIMER_HZ,
             e
@@ -257,7 +258,7 @@ async fn main(spawner: Spawner) -> ! {
         usart::Config::default(),
     ) {
         Ok(uart) => uart,
-        Err(e) => defmt::panic!("USART6: {}", e),
+        Err(e) => defmt::panic!("USART6: {}", e), // safe: boot-time bring-up
     };
     let serial_port = SERIAL.init(BoardSerial::new(uart, RX_RING.take()));
 
@@ -353,7 +354,7 @@ fn bind_socket(stack: Stack<'static>) -> UdpSocket<'static> {
     );
     if let Err(e) = socket.bind(PORT) {
         // Only possible with port 0 or a second bind; both are programming errors.
-        defmt::panic!("udp bind: {}", e);
+        defmt::panic!("udp bind: {}", e); // safe: boot-time bring-up
     }
     socket
 }

@@ -24,8 +24,9 @@ pub const DEFAULT_RETURN_ACCEL: u32 = 8_000;
 /// corners are followed closely and long enough that a 30 s return needs only 3000 points.
 pub const DEFAULT_RETURN_SEGMENT_US: u32 = 10_000;
 
-/// Gripper timer input clock of the H743 board (APB timer clock at 240 MHz).
-pub const BOARD_PWM_TIMER_CLOCK_HZ: u32 = 240_000_000;
+/// Gripper timer input clock of the H743 board: the firmware runs the CPU at 400 MHz and
+/// the APB timer clocks at 200 MHz (the board passes its measured clock at boot anyway).
+pub const BOARD_PWM_TIMER_CLOCK_HZ: u32 = 200_000_000;
 
 /// How long the owner may be silent before another host may take over (PROTOCOL.md 1).
 pub const OWNER_TIMEOUT_US: u64 = 5_000_000;
