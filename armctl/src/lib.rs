@@ -23,7 +23,8 @@
 //!   [`Error::Refused`] whose message names the status and what to do about it.
 //! - [`Controller::run_trajectory`]: the reliable upload (go-back-N window, flow control).
 //! - [`trajectory`]: JointTrajectory JSON and CSV files to checked [`protocol::Point`]s.
-//! - [`record`] and [`plot`]: recorded location reports as CSV, and SVG plots of them.
+//! - [`record`] and [`plot`]: recorded location reports as CSV, and SVG plots of them;
+//!   [`vcd`]: joint positions from a simulator trace (`sim-host --trace`), for the same plots.
 
 mod client;
 mod error;
@@ -32,6 +33,7 @@ pub mod pwm;
 pub mod record;
 mod run;
 pub mod trajectory;
+pub mod vcd;
 
 pub use client::{Controller, Options};
 pub use error::{Error, Result, RunEnd};

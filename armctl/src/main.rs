@@ -8,7 +8,6 @@ use std::process::ExitCode;
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
-use armctl::plot::{self, Commanded};
 use armctl::record::{self, Recorder};
 use armctl::trajectory::{self, ArmConfig};
 use armctl::{Controller, Options, RunOptions};
@@ -64,43 +63,8 @@ fn execute(cli: Cli) -> CliResult {
             println!("{}", cli::encode_frame(*seq, command)?);
             Ok(())
         }
-        Cmd::Plot {
-            recording,
-            trajectory: commanded,
-            config,
-            offset,
-            output,
-            title,
-        } => {
-            let samples =
-                record::read(recording).map_err(|e| format!("{}: {e}", recording.display()))?;
-            let commanded = match commanded {
-                Some(path) => {
-                    let config = config
-                        .as_deref()
-                        .map(ArmConfig::load)
-                        .transpose()
-                        .map_err(|e| e.to_string())?;
-                    let waypoints =
-                        trajectory::load(path, config.as_ref()).map_err(|e| e.to_string())?;
-                    let mut commanded = Commanded::from_waypoints(&waypoints);
-                    // A run's points start when the controller starts RUNNING.
-                    commanded.offset_s = offset.unwrap_or_else(|| {
-                        samples
-                            .iter()
-                            .find(|s| s.state == State::Running as u8)
-                            .map_or(0.0, |s| s.time_s)
-                    });
-                    Some(commanded)
-                }
-                None => None,
-            };
-            let title = title
-                .clone()
-                .unwrap_or_else(|| recording.display().to_string());
-            std::fs::write(output, plot::svg(&samples, commanded.as_ref(), &title))
-                .map_err(|e| format!("{}: {e}", output.display()))?;
-            println!("wrote {} ({} samples)", output.display(), samples.len());
+        Cmd::Plot(args) => {
+            println!("{}", cli::plot(args)?);
             Ok(())
         }
         Cmd::Run(args) if args.dry_run => {

@@ -1,10 +1,11 @@
-//! SVG plots of a recorded run: joint positions (steps) over time, one colour per joint,
-//! with the commanded trajectory dashed when given.
+//! SVG plots of a recorded run (LOCATION reports, or a simulator trace): joint positions
+//! (steps) over time, one colour per joint, with the commanded trajectory dashed when given.
 
 use std::fmt::Write as _;
 
 use crate::record::Sample;
 use crate::trajectory::Waypoints;
+use crate::vcd::Trace;
 
 /// Plot size in pixels.
 const WIDTH: f64 = 960.0;
@@ -43,11 +44,99 @@ impl Commanded {
             offset_s: 0.0,
         }
     }
+
+    /// Seconds into the trajectory at which some joint is first half a step away from its
+    /// start: about when its first STEP pulse comes, to line it up with a trace.
+    pub fn first_step_s(&self) -> Option<f64> {
+        let start = self.positions.first()?;
+        let mut first: Option<f64> = None;
+        for (j, &p0) in start.iter().enumerate() {
+            let mut previous = (self.times_s.first().copied()?, p0);
+            for (&t, row) in self.times_s.iter().zip(&self.positions).skip(1) {
+                let Some(&p) = row.get(j) else { break };
+                if !(p.is_finite() && p0.is_finite()) {
+                    break;
+                }
+                if (p - p0).abs() >= 0.5 {
+                    // Linear between waypoints: where |position - p0| reaches 0.5.
+                    let (t_prev, p_prev) = previous;
+                    let target = p0 + 0.5 * (p - p0).signum();
+                    let f = if (p - p_prev).abs() > f64::EPSILON {
+                        ((target - p_prev) / (p - p_prev)).clamp(0.0, 1.0)
+                    } else {
+                        0.0
+                    };
+                    let t_step = t_prev + f * (t - t_prev);
+                    first = Some(first.map_or(t_step, |f: f64| f.min(t_step)));
+                    break;
+                }
+                previous = (t, p);
+            }
+        }
+        first
+    }
+}
+
+/// One joint's line: `(seconds, steps)` corners.
+struct Line {
+    joint: usize,
+    points: Vec<(f64, f64)>,
 }
 
 /// Draws the recording (and the commanded trajectory) as an SVG document.
 pub fn svg(samples: &[Sample], commanded: Option<&Commanded>, title: &str) -> String {
     let joints = samples.iter().map(|s| s.position.len()).max().unwrap_or(0);
+    let lines: Vec<Line> = (0..joints)
+        .map(|joint| Line {
+            joint,
+            points: samples
+                .iter()
+                .filter_map(|s| s.position.get(joint).map(|&p| (s.time_s, f64::from(p))))
+                .collect(),
+        })
+        .collect();
+    draw(&lines, commanded, title)
+}
+
+/// Draws a simulator trace (and the commanded trajectory) as an SVG document: the joints
+/// that stepped or are commanded (joint 0 when none did), each at most about two corners
+/// per bucket of its [`crate::vcd::Track`], ending exactly at its final position.
+pub fn trace_svg(trace: &Trace, commanded: Option<&Commanded>, title: &str) -> String {
+    let commanded_joints = commanded.map_or(0, |c| {
+        c.positions
+            .iter()
+            .map(|row| row.iter().rposition(|p| p.is_finite()).map_or(0, |j| j + 1))
+            .max()
+            .unwrap_or(0)
+    });
+    let mut lines: Vec<Line> = trace
+        .joints
+        .iter()
+        .enumerate()
+        .filter(|(j, joint)| joint.steps > 0 || *j < commanded_joints)
+        .map(|(joint, jt)| Line {
+            joint,
+            points: jt
+                .track
+                .points(trace.end_tick)
+                .into_iter()
+                .map(|(tick, p)| (tick as f64 * trace.seconds_per_tick, p as f64))
+                .collect(),
+        })
+        .collect();
+    if lines.is_empty() {
+        lines.push(Line {
+            joint: 0,
+            points: vec![
+                (0.0, 0.0),
+                (trace.end_tick as f64 * trace.seconds_per_tick, 0.0),
+            ],
+        });
+    }
+    draw(&lines, commanded, title)
+}
+
+fn draw(lines: &[Line], commanded: Option<&Commanded>, title: &str) -> String {
     let mut t_min = f64::INFINITY;
     let mut t_max = f64::NEG_INFINITY;
     let mut p_min = f64::INFINITY;
@@ -60,9 +149,9 @@ pub fn svg(samples: &[Sample], commanded: Option<&Commanded>, title: &str) -> St
             p_max = p_max.max(p);
         }
     };
-    for s in samples {
-        for &p in &s.position {
-            widen(s.time_s, f64::from(p));
+    for line in lines {
+        for &(t, p) in &line.points {
+            widen(t, p);
         }
     }
     if let Some(c) = commanded {
@@ -129,7 +218,8 @@ pub fn svg(samples: &[Sample], commanded: Option<&Commanded>, title: &str) -> St
         TOP + plot_h / 2.0,
         TOP + plot_h / 2.0
     );
-    for j in 0..joints {
+    for (slot, line) in lines.iter().enumerate() {
+        let j = line.joint;
         let colour = COLOURS[j % COLOURS.len()];
         if let Some(c) = commanded {
             let path: Vec<String> = c
@@ -148,17 +238,20 @@ pub fn svg(samples: &[Sample], commanded: Option<&Commanded>, title: &str) -> St
                 );
             }
         }
-        let path: Vec<String> = samples
-            .iter()
-            .filter_map(|s| s.position.get(j).map(|&p| (s.time_s, f64::from(p))))
-            .map(|(t, p)| format!("{:.2},{:.2}", x(t), y(p)))
-            .collect();
+        let mut path: Vec<String> = Vec::with_capacity(line.points.len());
+        for &(t, p) in &line.points {
+            let corner = format!("{:.2},{:.2}", x(t), y(p));
+            // Corners closer than the printed precision are one corner.
+            if path.last() != Some(&corner) {
+                path.push(corner);
+            }
+        }
         let _ = writeln!(
             out,
             r#"<polyline fill="none" stroke="{colour}" stroke-width="1.5" points="{}"/>"#,
             path.join(" ")
         );
-        let ly = TOP + 10.0 + 18.0 * j as f64;
+        let ly = TOP + 10.0 + 18.0 * slot as f64;
         let _ = writeln!(
             out,
             r#"<line x1="{0:.1}" y1="{ly:.1}" x2="{1:.1}" y2="{ly:.1}" stroke="{colour}" stroke-width="3"/><text x="{2:.1}" y="{3:.1}">joint {j}</text>"#,
@@ -169,7 +262,7 @@ pub fn svg(samples: &[Sample], commanded: Option<&Commanded>, title: &str) -> St
         );
     }
     if commanded.is_some() {
-        let ly = TOP + 10.0 + 18.0 * joints as f64;
+        let ly = TOP + 10.0 + 18.0 * lines.len() as f64;
         let _ = writeln!(
             out,
             r#"<line x1="{0:.1}" y1="{ly:.1}" x2="{1:.1}" y2="{ly:.1}" stroke="black" stroke-dasharray="6 4"/><text x="{2:.1}" y="{3:.1}">commanded</text>"#,
@@ -216,5 +309,62 @@ mod tests {
         assert!(svg.contains("joint 1"));
         // No NaN coordinates.
         assert!(!svg.contains("NaN"));
+    }
+
+    #[test]
+    fn a_trace_draws_the_joints_that_stepped_and_ends_at_their_final_position() {
+        let text = "$timescale 1us $end\n$var wire 1 a step0 $end\n$var wire 1 b dir0 $end\n\
+                    $var wire 1 c step2 $end\n$var wire 1 d step1 $end\n$enddefinitions $end\n\
+                    #0\n1b\n#1000\n1a\n#1500\n0a\n#2000\n1a\n1c\n#4000\n";
+        let trace = crate::vcd::parse(text.as_bytes(), "t.vcd").unwrap();
+        let svg = trace_svg(&trace, None, "trace");
+        // Joints 0 and 2 stepped; joint 1 did not.
+        assert_eq!(svg.matches("<polyline").count(), 2);
+        assert!(svg.contains("joint 0") && svg.contains("joint 2") && !svg.contains("joint 1"));
+        // Time axis to the trace's end (4 ms), positions -1..2.
+        assert!(svg.contains(">0.004<"), "{svg}");
+        // Joint 0's line ends at the right edge at its top (+2 steps).
+        let joint0 = svg
+            .lines()
+            .find(|l| l.contains("#1f77b4\" stroke-width=\"1.5\" points"))
+            .unwrap();
+        assert!(
+            joint0.ends_with(&format!("{:.2},{:.2}\"/>", WIDTH - RIGHT, TOP)),
+            "{joint0}"
+        );
+
+        let commanded = Commanded {
+            times_s: vec![0.0, 0.002],
+            positions: vec![vec![0.0, 0.0], vec![2.0, 4.0]],
+            offset_s: 0.0,
+        };
+        // Joint 1 is commanded: drawn (flat) with its dashed line.
+        let svg = trace_svg(&trace, Some(&commanded), "trace");
+        assert!(svg.contains("joint 1"));
+        assert_eq!(svg.matches("stroke-dasharray=\"6 4\" opacity").count(), 2);
+        assert!(!svg.contains("NaN"));
+    }
+
+    #[test]
+    fn first_commanded_step_is_where_a_joint_is_half_a_step_out() {
+        let commanded = Commanded {
+            times_s: vec![0.0, 1.0, 2.0, 3.0],
+            positions: vec![
+                vec![10.0, 0.0],
+                vec![10.0, 0.0],
+                vec![10.0, -0.25],
+                vec![14.0, -1.25],
+            ],
+            offset_s: 0.0,
+        };
+        // Joint 0 is 0.5 out at 2.125 s, joint 1 at 2.25 s.
+        let t = commanded.first_step_s().unwrap();
+        assert!((t - 2.125).abs() < 1e-9, "{t}");
+        let still = Commanded {
+            times_s: vec![0.0, 1.0],
+            positions: vec![vec![3.0], vec![3.2]],
+            offset_s: 0.0,
+        };
+        assert_eq!(still.first_step_s(), None);
     }
 }

@@ -1,0 +1,700 @@
+//! Joint positions from a Value Change Dump of the STEP/DIR lines, such as the trace
+//! `sim-host --trace FILE.vcd` writes, for `armctl plot`.
+//!
+//! Each joint j has wires `step{j}` and `dir{j}`: every rising STEP edge is one step, +1
+//! when DIR is high at that moment and -1 when it is low (the driver convention the
+//! simulator and the board use). Positions count from 0 at the start of the trace.
+//!
+//! A long trace has millions of edges, so positions are kept as a [`Track`]: the minimum,
+//! maximum and last position per time bucket, with at most [`TRACK_BUCKETS`] buckets over
+//! the whole trace (a bucket doubles in width whenever the trace outgrows them). The final
+//! position and step count of each joint are exact.
+//!
+//! The reader takes the VCD subset tools write: `$var` declarations (anywhere in the
+//! header, over several lines if need be), `$timescale`, `#time` lines, scalar changes
+//! (`0`, `1`, `x`, `z`) and vector/real changes (`b1010 id`, `r0.5 id`), which are read
+//! and ignored. A malformed file gives a [`VcdError`] naming the file, the line and the
+//! problem.
+
+use std::collections::HashMap;
+use std::fmt;
+use std::io::{self, BufRead};
+use std::path::Path;
+
+use protocol::MAX_JOINTS;
+
+/// Time buckets a [`Track`] keeps at most: about one per pixel column of the plot (its
+/// plot area is 760 px wide), so that a trace of any length draws as a small SVG.
+pub const TRACK_BUCKETS: u64 = 1024;
+
+/// A problem reading a VCD file.
+#[derive(Debug)]
+pub struct VcdError {
+    /// The file (or the name the text was given).
+    pub file: String,
+    /// 1-based line of the problem; `None` for a problem with the whole file.
+    pub line: Option<usize>,
+    /// What is wrong.
+    pub problem: String,
+}
+
+impl fmt::Display for VcdError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self.line {
+            Some(line) => write!(f, "{}:{line}: {}", self.file, self.problem),
+            None => write!(f, "{}: {}", self.file, self.problem),
+        }
+    }
+}
+
+impl std::error::Error for VcdError {}
+
+/// One time bucket of a [`Track`]: what the position did between `first_tick` and
+/// `last_tick` (the times of its first and last step).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Bucket {
+    /// Index of the bucket: it covers ticks `index * width ..  (index + 1) * width`.
+    pub index: u64,
+    /// Time of the first step in the bucket, ticks.
+    pub first_tick: u64,
+    /// Time of the last step in the bucket, ticks.
+    pub last_tick: u64,
+    /// Position before the first step.
+    pub enter: i64,
+    /// Lowest position in the bucket.
+    pub min: i64,
+    /// Highest position in the bucket.
+    pub max: i64,
+    /// Position after the last step.
+    pub last: i64,
+}
+
+/// A joint's position over time, reduced to at most [`TRACK_BUCKETS`] buckets. Buckets
+/// with no step are not stored: the position is flat there.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Track {
+    /// Ticks per bucket (a power of two).
+    pub width: u64,
+    /// Buckets with at least one step, in time order.
+    pub buckets: Vec<Bucket>,
+}
+
+impl Default for Track {
+    fn default() -> Track {
+        Track {
+            width: 1,
+            buckets: Vec::new(),
+        }
+    }
+}
+
+impl Track {
+    /// Records a step at `tick` from `before` to `after`. Ticks never decrease.
+    fn step(&mut self, tick: u64, before: i64, after: i64) {
+        while tick / self.width >= TRACK_BUCKETS {
+            self.coarsen();
+        }
+        let index = tick / self.width;
+        match self.buckets.last_mut() {
+            Some(bucket) if bucket.index == index => {
+                bucket.last_tick = tick;
+                bucket.min = bucket.min.min(after);
+                bucket.max = bucket.max.max(after);
+                bucket.last = after;
+            }
+            _ => self.buckets.push(Bucket {
+                index,
+                first_tick: tick,
+                last_tick: tick,
+                enter: before,
+                min: before.min(after),
+                max: before.max(after),
+                last: after,
+            }),
+        }
+    }
+
+    /// Doubles the bucket width, merging neighbours.
+    fn coarsen(&mut self) {
+        self.width = self.width.saturating_mul(2);
+        let mut merged: Vec<Bucket> = Vec::with_capacity(self.buckets.len());
+        for mut bucket in self.buckets.drain(..) {
+            bucket.index /= 2;
+            match merged.last_mut() {
+                Some(previous) if previous.index == bucket.index => {
+                    previous.last_tick = bucket.last_tick;
+                    previous.min = previous.min.min(bucket.min);
+                    previous.max = previous.max.max(bucket.max);
+                    previous.last = bucket.last;
+                }
+                _ => merged.push(bucket),
+            }
+        }
+        self.buckets = merged;
+    }
+
+    /// The polyline that draws the track from tick 0 (position 0) to `end_tick`:
+    /// `(tick, position)` corners, no two alike in a row. Within a bucket the line goes
+    /// from the entering position through the extremes to the last one.
+    pub fn points(&self, end_tick: u64) -> Vec<(u64, i64)> {
+        let mut points = vec![(0, 0)];
+        let mut push = |point: (u64, i64)| {
+            if points.last() != Some(&point) {
+                points.push(point);
+            }
+        };
+        let mut position = 0;
+        for bucket in &self.buckets {
+            push((bucket.first_tick, bucket.enter));
+            let middle = bucket.first_tick + (bucket.last_tick - bucket.first_tick) / 2;
+            let (low, high) = (bucket.enter.min(bucket.last), bucket.enter.max(bucket.last));
+            // Extremes beyond the ends: a move and back inside one bucket.
+            if bucket.enter <= bucket.last {
+                if bucket.min < low {
+                    push((middle, bucket.min));
+                }
+                if bucket.max > high {
+                    push((middle, bucket.max));
+                }
+            } else {
+                if bucket.max > high {
+                    push((middle, bucket.max));
+                }
+                if bucket.min < low {
+                    push((middle, bucket.min));
+                }
+            }
+            push((bucket.last_tick, bucket.last));
+            position = bucket.last;
+        }
+        let last_tick = self.buckets.last().map_or(0, |b| b.last_tick);
+        push((end_tick.max(last_tick), position));
+        points
+    }
+}
+
+/// One joint's STEP/DIR wires in a trace.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct JointTrace {
+    /// Rising STEP edges.
+    pub steps: u64,
+    /// Position at the end of the trace (exact): steps with DIR high minus steps with DIR
+    /// low.
+    pub position: i64,
+    /// Position over time.
+    pub track: Track,
+    /// Whether the file declares this joint's STEP wire.
+    pub declared: bool,
+}
+
+/// Joint positions read from a VCD file.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Trace {
+    /// Seconds per time unit (`$timescale`; 1 ns when the file has none).
+    pub seconds_per_tick: f64,
+    /// The last time stamp in the file, ticks.
+    pub end_tick: u64,
+    /// Joint 0 to [`MAX_JOINTS`] - 1 (joints the file does not declare are empty).
+    pub joints: Vec<JointTrace>,
+}
+
+impl Trace {
+    /// Exact final positions of joints `0..count`.
+    pub fn positions(&self, count: usize) -> Vec<i64> {
+        self.joints.iter().take(count).map(|j| j.position).collect()
+    }
+
+    /// Time of the first rising STEP edge of any joint, seconds.
+    pub fn first_step_s(&self) -> Option<f64> {
+        self.joints
+            .iter()
+            .filter_map(|j| j.track.buckets.first().map(|b| b.first_tick))
+            .min()
+            .map(|tick| tick as f64 * self.seconds_per_tick)
+    }
+}
+
+/// What a declared identifier is.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Role {
+    Step(usize),
+    Dir(usize),
+    Other,
+}
+
+/// Reads a VCD file.
+pub fn read(path: &Path) -> Result<Trace, VcdError> {
+    let name = path.display().to_string();
+    let file = std::fs::File::open(path).map_err(|e| VcdError {
+        file: name.clone(),
+        line: None,
+        problem: e.to_string(),
+    })?;
+    parse(io::BufReader::with_capacity(1 << 16, file), &name)
+}
+
+/// Whether the start of a file looks like a VCD (its first word is a `$` keyword).
+pub fn looks_like_vcd(start: &[u8]) -> bool {
+    start
+        .split(|b| b.is_ascii_whitespace())
+        .find(|word| !word.is_empty())
+        .is_some_and(|word| word.starts_with(b"$"))
+}
+
+/// Reads VCD text; `file` names it in errors.
+pub fn parse(input: impl BufRead, file: &str) -> Result<Trace, VcdError> {
+    Reader::new(file).run(input)
+}
+
+/// The reader's state while it goes through the lines.
+struct Reader<'a> {
+    file: &'a str,
+    line: usize,
+    /// `$keyword` of the section being read and the words read so far.
+    section: Option<(String, Vec<String>)>,
+    in_header: bool,
+    /// Identifier code to the roles it has (a code may be declared more than once).
+    ids: HashMap<Vec<u8>, Vec<Role>>,
+    seconds_per_tick: Option<f64>,
+    tick: u64,
+    /// Value code of a vector or real change waiting for its identifier.
+    pending_vector: bool,
+    step_high: [bool; MAX_JOINTS],
+    dir_high: [bool; MAX_JOINTS],
+    joints: Vec<JointTrace>,
+}
+
+impl<'a> Reader<'a> {
+    fn new(file: &'a str) -> Reader<'a> {
+        Reader {
+            file,
+            line: 0,
+            section: None,
+            in_header: true,
+            ids: HashMap::new(),
+            seconds_per_tick: None,
+            tick: 0,
+            pending_vector: false,
+            step_high: [false; MAX_JOINTS],
+            dir_high: [false; MAX_JOINTS],
+            joints: vec![JointTrace::default(); MAX_JOINTS],
+        }
+    }
+
+    fn error(&self, problem: impl Into<String>) -> VcdError {
+        VcdError {
+            file: self.file.to_string(),
+            line: Some(self.line),
+            problem: problem.into(),
+        }
+    }
+
+    fn run(mut self, mut input: impl BufRead) -> Result<Trace, VcdError> {
+        let mut bytes = Vec::new();
+        loop {
+            bytes.clear();
+            let n = input.read_until(b'\n', &mut bytes).map_err(|e| {
+                let mut error = self.error(e.to_string());
+                error.line = Some(self.line + 1);
+                error
+            })?;
+            if n == 0 {
+                break;
+            }
+            self.line += 1;
+            for word in bytes
+                .split(|b| b.is_ascii_whitespace())
+                .filter(|w| !w.is_empty())
+            {
+                self.word(word)?;
+            }
+        }
+        if let Some((keyword, _)) = &self.section {
+            return Err(self.error(format!("{keyword} has no $end (file truncated?)")));
+        }
+        if self.pending_vector {
+            return Err(self.error("a vector or real value has no identifier (file truncated?)"));
+        }
+        if self.in_header {
+            return Err(VcdError {
+                file: self.file.to_string(),
+                line: None,
+                problem: "no $enddefinitions: not a VCD file, or cut short in its header".into(),
+            });
+        }
+        if !self.joints.iter().any(|j| j.declared) {
+            return Err(VcdError {
+                file: self.file.to_string(),
+                line: None,
+                problem: "no step0..step7 wires declared: not a trace of the arm's STEP/DIR lines"
+                    .into(),
+            });
+        }
+        Ok(Trace {
+            seconds_per_tick: self.seconds_per_tick.unwrap_or(1e-9),
+            end_tick: self.tick,
+            joints: self.joints,
+        })
+    }
+
+    fn word(&mut self, word: &[u8]) -> Result<(), VcdError> {
+        if let Some((keyword, mut words)) = self.section.take() {
+            if word == b"$end" {
+                return self.end_section(&keyword, &words);
+            }
+            match std::str::from_utf8(word) {
+                Ok(text) => words.push(text.to_string()),
+                Err(_) => return Err(self.error(format!("{keyword}: text is not UTF-8"))),
+            }
+            self.section = Some((keyword, words));
+            return Ok(());
+        }
+        if self.pending_vector {
+            self.pending_vector = false;
+            return self.change(None, word);
+        }
+        match word.first() {
+            Some(b'$') => self.keyword(word),
+            _ if self.in_header => Err(self.error(format!(
+                "`{}` outside a $ section before $enddefinitions",
+                String::from_utf8_lossy(word)
+            ))),
+            Some(b'#') => self.time(&word[1..]),
+            Some(b'0' | b'1' | b'x' | b'X' | b'z' | b'Z') if word.len() > 1 => {
+                self.change(Some(word[0]), &word[1..])
+            }
+            Some(b'b' | b'B' | b'r' | b'R') => {
+                // Vectors and reals: the identifier is the next word.
+                self.pending_vector = true;
+                Ok(())
+            }
+            _ => Err(self.error(format!(
+                "`{}` is not a time (#N) or a value change (0id, 1id, b... id, r... id)",
+                String::from_utf8_lossy(word)
+            ))),
+        }
+    }
+
+    fn keyword(&mut self, word: &[u8]) -> Result<(), VcdError> {
+        let keyword = String::from_utf8_lossy(word).into_owned();
+        match keyword.as_str() {
+            // Markers around value changes in the body; their changes are read as usual.
+            "$dumpvars" | "$dumpall" | "$dumpon" | "$dumpoff" | "$end" if !self.in_header => Ok(()),
+            "$end" => Err(self.error("$end without a section")),
+            "$comment" => {
+                self.section = Some((keyword, Vec::new()));
+                Ok(())
+            }
+            _ if self.in_header => {
+                self.section = Some((keyword, Vec::new()));
+                Ok(())
+            }
+            _ => Err(self.error(format!("unexpected {keyword} after $enddefinitions"))),
+        }
+    }
+
+    fn end_section(&mut self, keyword: &str, words: &[String]) -> Result<(), VcdError> {
+        match keyword {
+            "$var" => self.declare(words),
+            "$timescale" => {
+                self.seconds_per_tick = Some(timescale(&words.concat()).ok_or_else(|| {
+                    self.error(format!(
+                        "$timescale `{}` is not 1, 10 or 100 of s, ms, us, ns, ps or fs",
+                        words.join(" ")
+                    ))
+                })?);
+                Ok(())
+            }
+            "$enddefinitions" => {
+                self.in_header = false;
+                Ok(())
+            }
+            // $version, $date, $comment, $scope, $upscope: nothing to take.
+            _ => Ok(()),
+        }
+    }
+
+    /// `$var <type> <size> <id> <reference> [range] $end`.
+    fn declare(&mut self, words: &[String]) -> Result<(), VcdError> {
+        let [_kind, _size, id, reference, ..] = words else {
+            return Err(self.error(format!(
+                "$var needs a type, size, identifier and name: `$var {} $end`",
+                words.join(" ")
+            )));
+        };
+        let role = joint_wire(reference, "step")
+            .map(Role::Step)
+            .or_else(|| joint_wire(reference, "dir").map(Role::Dir))
+            .unwrap_or(Role::Other);
+        if let Role::Step(j) = role
+            && let Some(joint) = self.joints.get_mut(j)
+        {
+            joint.declared = true;
+        }
+        self.ids
+            .entry(id.as_bytes().to_vec())
+            .or_default()
+            .push(role);
+        Ok(())
+    }
+
+    fn time(&mut self, digits: &[u8]) -> Result<(), VcdError> {
+        let tick = std::str::from_utf8(digits)
+            .ok()
+            .and_then(|t| t.parse::<u64>().ok())
+            .ok_or_else(|| {
+                self.error(format!(
+                    "`#{}` is not a time",
+                    String::from_utf8_lossy(digits)
+                ))
+            })?;
+        if tick < self.tick {
+            return Err(self.error(format!("time goes back from #{} to #{tick}", self.tick)));
+        }
+        self.tick = tick;
+        Ok(())
+    }
+
+    /// A change of `id` to scalar `value` (or to a vector/real value when `None`).
+    fn change(&mut self, value: Option<u8>, id: &[u8]) -> Result<(), VcdError> {
+        let Some(roles) = self.ids.get(id) else {
+            return Err(self.error(format!(
+                "identifier `{}` is not declared",
+                String::from_utf8_lossy(id)
+            )));
+        };
+        let Some(value) = value else {
+            return Ok(());
+        };
+        // x and z read as low: a line that is not driven high makes no step.
+        let high = value == b'1';
+        for &role in roles {
+            match role {
+                Role::Dir(j) => self.dir_high[j] = high,
+                Role::Step(j) => {
+                    let rising = high && !self.step_high[j];
+                    self.step_high[j] = high;
+                    if rising {
+                        let joint = &mut self.joints[j];
+                        let before = joint.position;
+                        joint.position += if self.dir_high[j] { 1 } else { -1 };
+                        joint.steps += 1;
+                        joint.track.step(self.tick, before, joint.position);
+                    }
+                }
+                Role::Other => {}
+            }
+        }
+        Ok(())
+    }
+}
+
+/// `j` if `reference` is `{prefix}{j}` with j < MAX_JOINTS.
+fn joint_wire(reference: &str, prefix: &str) -> Option<usize> {
+    let digits = reference.strip_prefix(prefix)?;
+    if digits.is_empty() || !digits.bytes().all(|b| b.is_ascii_digit()) {
+        return None;
+    }
+    digits.parse().ok().filter(|&j| j < MAX_JOINTS)
+}
+
+/// Seconds of a `$timescale` such as `1ns` or `10 us` (spaces removed).
+fn timescale(text: &str) -> Option<f64> {
+    let split = text.find(|c: char| !c.is_ascii_digit())?;
+    let (number, unit) = text.split_at(split);
+    let number = match number {
+        "1" => 1.0,
+        "10" => 10.0,
+        "100" => 100.0,
+        _ => return None,
+    };
+    let unit = match unit {
+        "s" => 1.0,
+        "ms" => 1e-3,
+        "us" => 1e-6,
+        "ns" => 1e-9,
+        "ps" => 1e-12,
+        "fs" => 1e-15,
+        _ => return None,
+    };
+    Some(number * unit)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const HEADER: &str = "$date today $end\n$version test $end\n$timescale 1ns $end\n\
+        $scope module arm $end\n$var wire 1 ! step0 $end\n$var wire 1 \" step1 $end\n\
+        $var wire 1 ) dir0 $end\n$var wire 1 * dir1 $end\n$var real 64 A gripper_freq_hz $end\n\
+        $var integer 32 B gripper_pulses $end\n$upscope $end\n$enddefinitions $end\n\
+        #0\n$dumpvars\n0!\n0\"\n0)\n0*\nr0 A\nb0 B\n$end\n";
+
+    fn parse_text(body: &str) -> Result<Trace, VcdError> {
+        parse(format!("{HEADER}{body}").as_bytes(), "test.vcd")
+    }
+
+    fn error_of(body: &str) -> VcdError {
+        parse_text(body).expect_err("should not parse")
+    }
+
+    #[test]
+    fn rising_edges_count_with_direction() {
+        // Joint 0: two steps up, one down. Joint 1: DIR low, two steps down; a STEP that
+        // stays high is one edge.
+        let trace = parse_text(
+            "#5\n1)\n#10\n1!\n#12\n0!\n#20\n1!\n1\"\nr50 A\nb101 B\n#22\n0!\n1\"\n\
+             #25\n0)\n#30\n1!\n0\"\n#31\n1\"\n#40\n",
+        )
+        .unwrap();
+        assert_eq!(trace.positions(2), vec![1, -2]);
+        assert_eq!(trace.joints[0].steps, 3);
+        assert_eq!(trace.joints[1].steps, 2);
+        assert_eq!(trace.end_tick, 40);
+        assert!((trace.seconds_per_tick - 1e-9).abs() < 1e-24);
+        assert_eq!(
+            trace.joints[0].track.points(trace.end_tick),
+            vec![
+                (0, 0),
+                (10, 0),
+                (10, 1),
+                (20, 1),
+                (20, 2),
+                (30, 2),
+                (30, 1),
+                (40, 1)
+            ]
+        );
+        assert_eq!(
+            trace.joints[1].track.points(trace.end_tick),
+            vec![(0, 0), (20, 0), (20, -1), (31, -1), (31, -2), (40, -2)]
+        );
+        assert_eq!(trace.first_step_s(), Some(10e-9));
+        assert!(trace.joints[1].declared && !trace.joints[2].declared);
+    }
+
+    #[test]
+    fn dir_set_at_the_same_time_as_the_step_counts() {
+        // sim-host writes DIR before STEP within one time stamp.
+        let trace = parse_text("#100\n1)\n1!\n#200\n0!\n0)\n#300\n1!\n").unwrap();
+        assert_eq!(trace.positions(1), vec![0]);
+        assert_eq!(trace.joints[0].steps, 2);
+    }
+
+    #[test]
+    fn x_and_z_are_low_and_aliases_follow_their_wire() {
+        // One identifier declared as the STEP wire of joints 3 and 4; only joint 3 has DIR.
+        let text = "$timescale 10 us $end\n$var wire 1 s step3 $end\n\
+                    $var wire 1 s step4 $end\n$var wire 1 d dir3 $end\n\
+                    $enddefinitions $end\n#0\nxs\n1d\n#1\n1s\n#2\nzs\n#3\n1s\n#4\n0s\n";
+        let trace = parse(text.as_bytes(), "alias.vcd").unwrap();
+        assert_eq!(trace.positions(5), vec![0, 0, 0, 2, -2]);
+        assert!((trace.seconds_per_tick - 1e-5).abs() < 1e-18);
+        let first = trace.first_step_s().unwrap();
+        assert!((first - 1e-5).abs() < 1e-18, "{first}");
+    }
+
+    #[test]
+    fn a_long_trace_is_kept_in_few_buckets_with_the_exact_end() {
+        let mut body = String::from("1)\n");
+        // 100k steps up then 40k down, 1 us apart.
+        let mut t = 0u64;
+        for k in 0..140_000u64 {
+            if k == 100_000 {
+                body.push_str(&format!("#{}\n0)\n", t + 700));
+            }
+            t += 1000;
+            body.push_str(&format!("#{t}\n1!\n#{}\n0!\n", t + 500));
+        }
+        let trace = parse_text(&body).unwrap();
+        let joint = &trace.joints[0];
+        assert_eq!(joint.position, 60_000);
+        assert_eq!(joint.steps, 140_000);
+        assert!(joint.track.buckets.len() as u64 <= TRACK_BUCKETS);
+        assert!(joint.track.buckets.len() as u64 > TRACK_BUCKETS / 2);
+        let points = joint.track.points(trace.end_tick);
+        assert!(
+            points.len() < 4 * TRACK_BUCKETS as usize,
+            "{}",
+            points.len()
+        );
+        assert_eq!(points.last(), Some(&(trace.end_tick, 60_000)));
+        let peak = points.iter().map(|p| p.1).max();
+        assert_eq!(peak, Some(100_000));
+        // Time never goes back along the line.
+        assert!(points.windows(2).all(|w| w[0].0 <= w[1].0));
+    }
+
+    #[test]
+    fn a_move_and_back_inside_one_bucket_keeps_its_peak() {
+        let mut track = Track {
+            width: 1000,
+            buckets: Vec::new(),
+        };
+        track.step(10, 0, 1);
+        track.step(20, 1, 2);
+        track.step(30, 2, 1);
+        track.step(40, 1, 0);
+        assert_eq!(track.buckets.len(), 1);
+        assert_eq!(
+            track.points(50),
+            vec![(0, 0), (10, 0), (25, 2), (40, 0), (50, 0)]
+        );
+    }
+
+    #[test]
+    fn malformed_files_name_the_line_and_the_problem() {
+        let header_lines = HEADER.lines().count();
+        let cases = [
+            ("#10\n1!\n#5\n", 3, "time goes back from #10 to #5"),
+            ("#1\n1?\n", 2, "identifier `?` is not declared"),
+            ("#abc\n", 1, "`#abc` is not a time"),
+            ("#1\nhello\n", 2, "is not a time (#N) or a value change"),
+            ("#1\n$var wire 1 q step4 $end\n", 2, "unexpected $var"),
+            ("#1\n2!\n", 2, "is not a time (#N) or a value change"),
+        ];
+        for (body, line, problem) in cases {
+            let error = error_of(body);
+            assert_eq!(error.line, Some(header_lines + line), "{body:?}: {error}");
+            assert!(error.problem.contains(problem), "{body:?}: {error}");
+            assert!(error.to_string().starts_with("test.vcd:"), "{error}");
+        }
+        let error = error_of("#1\nb101");
+        assert!(error.problem.contains("no identifier"), "{error}");
+        assert_eq!(error.line, Some(header_lines + 2));
+
+        let cut = parse(&b"$timescale 1ns $end\n$var wire 1 ! step0"[..], "cut.vcd")
+            .expect_err("cut short");
+        assert_eq!(
+            cut.to_string(),
+            "cut.vcd:2: $var has no $end (file truncated?)"
+        );
+        let no_definitions = parse(&b"$var wire 1 ! step0 $end\n"[..], "a.vcd").unwrap_err();
+        assert!(no_definitions.problem.contains("no $enddefinitions"));
+        assert_eq!(no_definitions.line, None);
+        let no_steps = parse(
+            &b"$var wire 1 ! pin0 $end\n$enddefinitions $end\n#0\n1!\n"[..],
+            "pins.vcd",
+        )
+        .unwrap_err();
+        assert!(no_steps.problem.contains("no step0..step7"), "{no_steps}");
+        let short_var = parse(&b"$var wire 1 ! $end\n"[..], "v.vcd").unwrap_err();
+        assert_eq!(short_var.line, Some(1));
+        assert!(short_var.problem.contains("$var needs"));
+        let scale = parse(&b"$timescale 3 ns $end\n"[..], "s.vcd").unwrap_err();
+        assert!(scale.problem.contains("$timescale `3 ns`"), "{scale}");
+        let value_in_header = parse(&b"$var wire 1 ! step0 $end\n1!\n"[..], "h.vcd").unwrap_err();
+        assert!(value_in_header.problem.contains("before $enddefinitions"));
+        let binary = parse(&b"$comment \xff\xfe $end\n"[..], "bin.vcd").unwrap_err();
+        assert!(binary.problem.contains("not UTF-8"), "{binary}");
+        let missing = read(Path::new("/nonexistent/trace.vcd")).unwrap_err();
+        assert!(missing.to_string().starts_with("/nonexistent/trace.vcd: "));
+    }
+
+    #[test]
+    fn vcd_is_recognised_by_its_first_word() {
+        assert!(looks_like_vcd(b"\n  $date today $end"));
+        assert!(!looks_like_vcd(b"time_s,state,j0\n0.1,2,5\n"));
+        assert!(!looks_like_vcd(b""));
+    }
+}
