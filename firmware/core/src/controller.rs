@@ -29,8 +29,9 @@
 //! # Runs, reports and flags
 //! * A run starts with RUNING (or RETURN) and ends in STOPPED three ways: every point
 //!   ran (completion), the engine ran dry first (underrun: STATUS flag bit 5), or a
-//!   STOPPED command (bit 7; any STOPPED sets bit 7). Both bits are cleared when a run
-//!   starts, so they tell how the last run ended.
+//!   STOPPED command (bit 7; also set by a STOPPED that drops an upload in NEW or
+//!   PENDING, while a STOPPED in state STOPPED leaves both bits alone). Both bits are
+//!   cleared when a run starts, so they tell how the last run ended.
 //! * A LOCATION is produced at every state change while reports are on (UPLOAD_STOP
 //!   turns all LOCATION reports off, the periodic ones and these).
 //! * RETURN is accepted at once (ACK state RUNNING); the encoders are read by the caller
@@ -484,13 +485,18 @@ impl<const CAP: usize> Controller<CAP> {
         response
     }
 
-    /// Bookkeeping for an accepted frame (executed now, or a duplicate).
-    fn accepted(&mut self, key: FrameKey, from_owner: bool, now_us: u64, remember: bool) {
-        if remember {
+    /// Bookkeeping for an accepted frame (`executed` now, or else a duplicate).
+    fn accepted(&mut self, key: FrameKey, from_owner: bool, now_us: u64, executed: bool) {
+        if executed {
             self.recent.remember(key, now_us);
         }
         if from_owner {
-            self.order.mark(key.seq);
+            // A duplicate's seq was marked when the frame was executed. Marking it again
+            // once the upload has moved past it would mark that seq a lap (256) ahead,
+            // and a PENDING lost there would be skipped.
+            if executed {
+                self.order.mark(key.seq);
+            }
             if let Some(owner) = self.owner.as_mut() {
                 owner.report_port = key.from.port;
             }
@@ -580,8 +586,12 @@ impl<const CAP: usize> Controller<CAP> {
                 self.buffer.clear();
                 self.return_plan = None;
                 self.return_pending = false;
-                self.underrun = false;
-                self.stopped_by_host = true;
+                // Bits 5 and 7 tell how the last trajectory ended: a STOPPED with none
+                // under way (already STOPPED) leaves them alone.
+                if self.state != State::Stopped {
+                    self.underrun = false;
+                    self.stopped_by_host = true;
+                }
                 self.state = State::Stopped;
             }
             Command::UploadStart => self.reports_on = true,
