@@ -685,6 +685,9 @@ where
             }
             Either3::Third(()) => Response::default(),
         };
+        // Published before the reports are queued: the network task addresses them when
+        // it sends them, possibly while this task waits below.
+        publish(bus, controller);
         deliver(bus, &response);
         match response.deferred {
             Some(Deferred::SaveSettings(s)) => {

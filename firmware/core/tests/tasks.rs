@@ -697,3 +697,68 @@ fn streaming_through_a_small_buffer_and_underrun() {
         );
     });
 }
+
+/// Encoders that take a while to answer (a bus transaction): the trajectory task waits.
+struct SlowEncoders;
+
+impl Encoders for SlowEncoders {
+    async fn read(&mut self) -> Option<[i32; MAX_JOINTS]> {
+        for _ in 0..10 {
+            yield_now().await;
+        }
+        None
+    }
+}
+
+#[test]
+fn reports_queued_before_a_wait_go_to_the_sender_of_the_frame() {
+    let clock = TestClock(Instant::now());
+    let kick = TestKick {
+        clock: &clock,
+        kicked: Cell::new(false),
+    };
+    let bus = Bus::new();
+    let step = StepShared::<4>::new(StepTiming {
+        tick_hz: 1_000_000,
+        pulse_width_ticks: 2,
+        dir_setup_ticks: 1,
+    });
+    let mut controller = Controller::<32>::new(ControllerConfig {
+        capacity: 32,
+        ..ControllerConfig::BOARD
+    });
+    let serial = TestSerial::default();
+    let outputs = RefCell::new(TestOutputs::default());
+    // The first frame ever is a RETURN: its LOCATION (state RUNNING) is queued, then the
+    // trajectory task waits for the encoders, and the network task may send it meanwhile.
+    bus.route(arm_core::Datagram {
+        from: HOST,
+        bytes: heapless::Vec::from_slice(&frame(1, Command::Return)).unwrap(),
+    });
+    let trajectory = trajectory_task(
+        &mut controller,
+        &bus,
+        &step,
+        &clock,
+        TrajectoryHw {
+            kick: &kick,
+            outputs: SharedOutputs(&outputs),
+            gripper: TestGripper(None),
+            serial: &serial,
+            settings: TestSettings(None),
+            encoders: SlowEncoders,
+        },
+    );
+    let driver = async {
+        loop {
+            if let Ok(arm_core::Outgoing::Location(location)) = bus.outbox.try_receive() {
+                // What the network task would read to address it, at this instant.
+                assert_eq!(location.state, State::Running as u8);
+                assert_eq!(bus.report_settings().to, Some(HOST));
+                return;
+            }
+            yield_now().await;
+        }
+    };
+    block_on(select(trajectory, driver));
+}
