@@ -4,6 +4,10 @@
 use crate::config::{DUPLICATE_MEMORY, DUPLICATE_WINDOW_US};
 use crate::hw::Endpoint;
 
+/// Accepted seqs in a row after the base that make the base move up to them: half the
+/// 256 seqs, so the marks always have room ahead for frames that arrive out of order.
+pub const SLIDE_AFTER: usize = 128;
+
 /// Which seqs after the last taken PENDING (or NEW) were used by accepted commands.
 ///
 /// Bit `i` of `marks` stands for seq `base + 1 + i` (mod 256). A PENDING is taken only if
@@ -24,7 +28,8 @@ impl UploadOrder {
         }
     }
 
-    /// The seq of the last taken NEW or PENDING.
+    /// The seq of the last taken NEW or PENDING (or of the last of [`SLIDE_AFTER`]
+    /// accepted commands in a row after it).
     pub fn base(&self) -> u8 {
         self.base
     }
@@ -36,6 +41,11 @@ impl UploadOrder {
     }
 
     /// A command (any tag) with `seq` was accepted.
+    ///
+    /// Once [`SLIDE_AFTER`] seqs after the base are accepted in a row, the base moves to
+    /// the last of them, as if a PENDING had been taken there (`next_seq` is unchanged):
+    /// the marks only cover 255 seqs, and a host may interleave any number of commands
+    /// (say, STATUS polls while it waits for room) between two PENDING frames.
     pub fn mark(&mut self, seq: u8) {
         let d = usize::from(seq.wrapping_sub(self.base));
         if d >= 1 {
@@ -43,6 +53,10 @@ impl UploadOrder {
             if let Some(w) = self.marks.get_mut(i / 64) {
                 *w |= 1 << (i % 64);
             }
+        }
+        let run = self.first_unmarked();
+        if run >= SLIDE_AFTER {
+            self.take(self.base.wrapping_add(run as u8));
         }
     }
 

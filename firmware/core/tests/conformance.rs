@@ -208,6 +208,38 @@ fn a_late_duplicate_never_lets_a_lost_pending_be_skipped_a_lap_later() {
 }
 
 #[test]
+fn any_number_of_commands_may_be_interleaved_between_pendings() {
+    for interleaved in [254usize, 255, 256, 300, 700] {
+        let mut s = Session::<16>::new(16);
+        let pts = points([0; 8], 3, 1);
+        s.send_raw(HOST, &frame(10, Command::New { count: 3 }));
+        assert_eq!(status_of(&s.send_raw(HOST, &pending(11, &pts[0..1]))), Ok);
+        // A host polling STATUS while it waits to send more points.
+        let mut seq = 11u8;
+        for _ in 0..interleaved {
+            seq = seq.wrapping_add(1);
+            let r = s.send_raw(HOST, &frame(seq, Command::Status));
+            assert_eq!(status_of(&r), Ok);
+        }
+        let r = s.send_raw(HOST, &pending(seq.wrapping_add(1), &pts[1..2]));
+        let ack = r.reply.unwrap().ack;
+        assert_eq!(
+            (ack.status, ack.next_seq),
+            (Ok, seq.wrapping_add(2)),
+            "{interleaved} commands in between"
+        );
+        // And the rule still holds after it: a lost PENDING is not skipped.
+        let r = s.send_raw(HOST, &pending(seq.wrapping_add(3), &pts[2..3]));
+        let ack = r.reply.unwrap().ack;
+        assert_eq!(
+            (ack.status, ack.next_seq),
+            (OutOfOrder, seq.wrapping_add(2))
+        );
+        assert_eq!(s.controller.buffered(), 2);
+    }
+}
+
+#[test]
 fn duplicates_are_remembered_2_s_and_only_the_last_32() {
     let mut s = Session::<16>::new(16);
     let pin = frame(7, Command::Pin0On);
