@@ -8,6 +8,12 @@ use crate::hw::Endpoint;
 /// 256 seqs, so the marks always have room ahead for frames that arrive out of order.
 pub const SLIDE_AFTER: usize = 128;
 
+/// Seqs just behind the base (base - 64 up to base - 1) whose accepted frames are taken
+/// for late arrivals from before it, and not marked: marked, they would stand for the same
+/// seqs a lap (256) later and let a PENDING lost there be skipped. Leaves 191 seqs ahead
+/// for marks, far more than any host keeps in flight.
+pub const LATE_SEQS: usize = 64;
+
 /// Which seqs after the last taken PENDING (or NEW) were used by accepted commands.
 ///
 /// Bit `i` of `marks` stands for seq `base + 1 + i` (mod 256). A PENDING is taken only if
@@ -48,7 +54,8 @@ impl UploadOrder {
     /// (say, STATUS polls while it waits for room) between two PENDING frames.
     pub fn mark(&mut self, seq: u8) {
         let d = usize::from(seq.wrapping_sub(self.base));
-        if d >= 1 {
+        // A seq just behind the base is a late frame from before it, not one a lap ahead.
+        if (1..=255 - LATE_SEQS).contains(&d) {
             let i = d - 1;
             if let Some(w) = self.marks.get_mut(i / 64) {
                 *w |= 1 << (i % 64);

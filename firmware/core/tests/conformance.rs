@@ -240,6 +240,36 @@ fn any_number_of_commands_may_be_interleaved_between_pendings() {
 }
 
 #[test]
+fn a_late_command_from_before_new_never_lets_a_lost_pending_be_skipped() {
+    let mut s = Session::<512>::new(512);
+    let pts = points([0; 8], 300, 1);
+    s.send_raw(HOST, &frame(10, Command::New { count: 300 }));
+    // The host sent STATUS 9 just before NEW 10; the network delivered it after.
+    assert_eq!(status_of(&s.send_raw(HOST, &frame(9, Command::Status))), Ok);
+    let mut next = 0;
+    let mut seq = 11u8;
+    while seq != 8 {
+        let r = s.send_raw(HOST, &pending(seq, &pts[next..next + 1]));
+        assert_eq!(status_of(&r), Ok, "seq {seq}");
+        next += 1;
+        seq = seq.wrapping_add(1);
+    }
+    // A lap later PENDING 8 is lost: 9 is refused, the host resends 8 and then 9.
+    let p8 = pending(8, &pts[next..next + 1]);
+    let p9 = pending(9, &pts[next + 1..next + 2]);
+    let ack = s.send_raw(HOST, &p9).reply.unwrap().ack;
+    assert_eq!((ack.status, ack.next_seq), (OutOfOrder, 8));
+    assert_eq!(status_of(&s.send_raw(HOST, &p8)), Ok);
+    let ack = s.send_raw(HOST, &p9).reply.unwrap().ack;
+    assert_eq!(
+        (ack.status, ack.next_seq),
+        (Ok, 10),
+        "PENDING 9 taken, not skipped"
+    );
+    assert_eq!(s.controller.buffered(), next + 2);
+}
+
+#[test]
 fn duplicates_are_remembered_2_s_and_only_the_last_32() {
     let mut s = Session::<16>::new(16);
     let pin = frame(7, Command::Pin0On);
