@@ -713,3 +713,18 @@ fn usart_recv_is_always_257_data_bytes() {
     let n = Report::UsartRecv(&[0xAA; 255]).encode(0, &mut buf).unwrap();
     assert_eq!((n, buf[2]), (260, 255));
 }
+
+#[test]
+fn a_resent_new_does_not_drop_the_upload_it_started() {
+    let mut s = Session::<16>::new(16);
+    let new = frame(20, Command::New { count: 4 });
+    s.send_raw(HOST, &new);
+    assert_eq!(
+        status_of(&s.send_raw(HOST, &pending(21, &points([0; 8], 2, 1)))),
+        Ok
+    );
+    // NEW's ACK was lost; the host resends it: a duplicate, the 2 points stay.
+    let ack = s.send_raw(HOST, &new).reply.unwrap().ack;
+    assert_eq!((ack.status, ack.buffered, ack.next_seq), (Ok, 2, 22));
+    assert_eq!(s.controller.state(), State::Pending);
+}
