@@ -39,6 +39,13 @@
 //!   move. During it, PENDING is refused with `BAD_STATE` (the points are the
 //!   controller's own); STOPPED and LOCATION work as in any run.
 //!
+//! # Overtaken frames
+//! The tasks handle a STOPPED before datagrams queued ahead of it (the e-stop path in
+//! [`crate::tasks`]). Such an overtaken frame is still handled with [`Controller::handle`]
+//! (its ACK and duplicate memory as in arrival order: a resent RUNING is a duplicate, not
+//! a new run), and [`Controller::stop_after_overtaken`] then applies the STOPPED that
+//! followed it, so that the result is that of arrival order.
+//!
 //! # Effects
 //! What must happen synchronously (the step engine, pins, gripper, serial port) goes
 //! through the [`Plant`] trait; what needs waiting (flash, encoders) comes back as a
@@ -581,19 +588,7 @@ impl<const CAP: usize> Controller<CAP> {
                 State::Running => {}
                 _ => return Err(StatusCode::BadState),
             },
-            Command::Stopped => {
-                plant.stop();
-                self.buffer.clear();
-                self.return_plan = None;
-                self.return_pending = false;
-                // Bits 5 and 7 tell how the last trajectory ended: a STOPPED with none
-                // under way (already STOPPED) leaves them alone.
-                if self.state != State::Stopped {
-                    self.underrun = false;
-                    self.stopped_by_host = true;
-                }
-                self.state = State::Stopped;
-            }
+            Command::Stopped => self.stop_by_host(plant),
             Command::UploadStart => self.reports_on = true,
             Command::UploadStop => self.reports_on = false,
             Command::PwmStart(pwm) => plant.gripper_start(&pwm),
@@ -655,6 +650,34 @@ impl<const CAP: usize> Controller<CAP> {
             Command::UploadPeriod { period_us } => self.upload_period_us = period_us,
         }
         Ok(())
+    }
+
+    /// STOPPED's execution: no further pulse, the trajectory dropped, state STOPPED.
+    fn stop_by_host(&mut self, plant: &mut impl Plant) {
+        plant.stop();
+        self.buffer.clear();
+        self.return_plan = None;
+        self.return_pending = false;
+        // Bits 5 and 7 tell how the last trajectory ended: a STOPPED with none under way
+        // (already STOPPED) leaves them alone.
+        if self.state != State::Stopped {
+            self.underrun = false;
+            self.stopped_by_host = true;
+        }
+        self.state = State::Stopped;
+    }
+
+    /// Applies a STOPPED that arrived after the frame just handled but was handled before
+    /// it (see "Overtaken frames" in the module docs): what STOPPED's execution does,
+    /// without an ACK, and nothing when the state is STOPPED already. Call it right after
+    /// [`Controller::handle`], with no wait in between, so that a run that frame started
+    /// never emits a pulse. Returns a LOCATION report when the state changed (reports on).
+    pub fn stop_after_overtaken(&mut self, plant: &mut impl Plant) -> Option<Location> {
+        if self.state == State::Stopped {
+            return None;
+        }
+        self.stop_by_host(plant);
+        self.reports_on.then(|| self.location(plant))
     }
 
     /// The stored form of `point` after `previous`, if it obeys section 5: for every joint

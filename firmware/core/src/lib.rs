@@ -38,6 +38,15 @@
 //! Segments already cut for the engine are dropped by their stop count. The one wait in
 //! the trajectory task is deferred work: a settings write (JOINTS_COUNT, only in STOPPED)
 //! or the encoder read of a RETURN (before it moves); nothing moves meanwhile.
+//!
+//! A STOPPED overtakes the datagrams queued before it, but the result is that of arrival
+//! order: `Bus::route` stamps each datagram with the STOPPEDs put on `estop` before it
+//! arrived, and `trajectory_task` counts those it took. A datagram stamped with fewer was
+//! overtaken: it (and those queued behind it with the same stamp) is handled as usual,
+//! then [`Controller::stop_after_overtaken`] applies the STOPPED again, before any wait
+//! (a run it started never emits a pulse: the engine starts [`tasks::START_LEAD_US`]
+//! later, fed by the step task); a RETURN's encoder read is dropped, a settings write is
+//! done.
 #![no_std]
 #![warn(missing_docs)]
 

@@ -63,6 +63,20 @@ pub struct Datagram {
     pub from: Endpoint,
     /// The whole frame (seq, tag, data, crc).
     pub bytes: Vec<u8, MAX_DATAGRAM>,
+    /// STOPPED frames put on `bus.estop` before this one arrived (wrapping), stamped by
+    /// [`Bus::route`]: tells the trajectory task which STOPPEDs it handled overtook it.
+    pub stops_before: u32,
+}
+
+impl Datagram {
+    /// A datagram from `from`, not yet stamped (see [`Bus::route`]).
+    pub fn new(from: Endpoint, bytes: Vec<u8, MAX_DATAGRAM>) -> Self {
+        Datagram {
+            from,
+            bytes,
+            stops_before: 0,
+        }
+    }
 }
 
 /// A segment on its way to the engine, tagged with the engine's stop count at the time it
@@ -123,6 +137,9 @@ pub struct Bus {
     /// Raised by `trajectory_task` when reports were switched or the period changed;
     /// waited on by `upload_task`.
     pub upload_changed: Signal<Cs, ()>,
+    /// STOPPED frames put on `estop` so far (wrapping); every datagram is stamped with it
+    /// ([`Datagram::stops_before`]). Counted by [`Bus::route`] only.
+    stops_routed: Mutex<Cs, Cell<u32>>,
 }
 
 impl Default for Bus {
@@ -145,6 +162,7 @@ impl Bus {
             serial_opened: Signal::new(),
             reports: Mutex::new(Cell::new(ReportSettings::BOOT)),
             upload_changed: Signal::new(),
+            stops_routed: Mutex::new(Cell::new(0)),
         }
     }
 
@@ -162,17 +180,26 @@ impl Bus {
 
     /// Routes a received datagram: a CRC-valid STOPPED to `estop` (to `inbox` if that
     /// is full), everything else to `inbox`. Never waits: a full inbox drops the datagram
-    /// (the host resends it since no ACK came).
-    pub fn route(&self, datagram: Datagram) {
-        let datagram = if is_stop(&datagram.bytes) {
-            match self.estop.try_send(datagram) {
-                Ok(()) => return,
-                Err(embassy_sync::channel::TrySendError::Full(d)) => d,
-            }
-        } else {
-            datagram
-        };
-        if self.inbox.try_send(datagram).is_err() {
+    /// (the host resends it since no ACK came). Stamps it with the STOPPEDs put on
+    /// `estop` before it ([`Datagram::stops_before`]).
+    pub fn route(&self, mut datagram: Datagram) {
+        // One critical section: stamps and queue order agree even if two tasks route.
+        let queued = self.stops_routed.lock(|routed| {
+            datagram.stops_before = routed.get();
+            let datagram = if is_stop(&datagram.bytes) {
+                match self.estop.try_send(datagram) {
+                    Ok(()) => {
+                        routed.set(routed.get().wrapping_add(1));
+                        return true;
+                    }
+                    Err(embassy_sync::channel::TrySendError::Full(d)) => d,
+                }
+            } else {
+                datagram
+            };
+            self.inbox.try_send(datagram).is_ok()
+        });
+        if !queued {
             warn!("inbox full: a datagram was dropped");
         }
     }
@@ -421,7 +448,7 @@ pub async fn network_task<D: Datagrams>(socket: &D, bus: &Bus) -> ! {
                 Ok((n, from)) => {
                     let bytes =
                         Vec::from_slice(buf.get(..n).unwrap_or_default()).unwrap_or_default();
-                    bus.route(Datagram { from, bytes });
+                    bus.route(Datagram::new(from, bytes));
                 }
                 Err(e) => warn!("receive failed: {:?}", debug_value!(e)),
             }
@@ -662,6 +689,9 @@ where
     outputs.set_enabled(controller.enabled());
     publish(bus, controller);
     let lead_ticks = us_to_ticks(u64::from(START_LEAD_US), step.timing().tick_hz);
+    // STOPPEDs taken from `bus.estop` (wrapping): an inbox datagram stamped with fewer
+    // arrived before one of them, which overtook it.
+    let mut stops_taken: u32 = 0;
     loop {
         // Biased: a waiting STOPPED is always taken first.
         let event = select3(
@@ -680,9 +710,15 @@ where
             serial,
         };
         let response = match event {
-            Either3::First(d) | Either3::Second(d) => {
+            Either3::First(d) => {
+                stops_taken = stops_taken.wrapping_add(1);
                 controller.handle(d.from, &d.bytes, clock.now_us(), &mut plant)
             }
+            Either3::Second(d) if overtaken(&d, stops_taken) => Response {
+                deferred: handle_overtaken(controller, bus, d, clock, &mut plant),
+                ..Response::default()
+            },
+            Either3::Second(d) => controller.handle(d.from, &d.bytes, clock.now_us(), &mut plant),
             Either3::Third(()) => Response::default(),
         };
         // Published before the reports are queued: the network task addresses them when
@@ -709,6 +745,51 @@ where
         }
         publish(bus, controller);
     }
+}
+
+/// Whether a STOPPED taken from `bus.estop` arrived after `datagram` (it overtook it).
+fn overtaken(datagram: &Datagram, stops_taken: u32) -> bool {
+    // Wrapping counters: the difference is small and positive when overtaken.
+    (stops_taken.wrapping_sub(datagram.stops_before) as i32) > 0
+}
+
+/// Handles `first`, an inbox datagram overtaken by a STOPPED already handled, then the
+/// queued datagrams that arrived between it and that STOPPED, in arrival order (same ACKs,
+/// same duplicate memory), then applies the STOPPED after them
+/// ([`Controller::stop_after_overtaken`]). All without a wait: a run one of them starts
+/// is stopped before the step task can hand the engine a segment. Returns the deferred
+/// work still to do: a settings write (an encoder read would start a cancelled RETURN).
+fn handle_overtaken<const CAP: usize, C: Clock>(
+    controller: &mut Controller<CAP>,
+    bus: &Bus,
+    first: Datagram,
+    clock: &C,
+    plant: &mut impl Plant,
+) -> Option<Deferred> {
+    let mut save = None;
+    let mut next = Some(first);
+    while let Some(datagram) = next.take() {
+        let response = controller.handle(datagram.from, &datagram.bytes, clock.now_us(), plant);
+        publish(bus, controller);
+        deliver(bus, &response);
+        if let Some(Deferred::SaveSettings(settings)) = response.deferred {
+            save = Some(settings);
+        }
+        // The same stamp: no STOPPED arrived between the two, the stop comes after both.
+        if bus
+            .inbox
+            .try_peek()
+            .is_ok_and(|queued| queued.stops_before == datagram.stops_before)
+        {
+            next = bus.inbox.try_receive().ok();
+        }
+    }
+    let location = controller.stop_after_overtaken(plant);
+    publish(bus, controller);
+    if let Some(location) = location {
+        bus.send(Outgoing::Location(location));
+    }
+    save.map(Deferred::SaveSettings)
 }
 
 /// Queues what a handled datagram produced.

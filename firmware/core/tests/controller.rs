@@ -706,3 +706,69 @@ fn new_drops_an_upload_that_is_not_running() {
     assert_eq!((st.expected, st.received), (1, 0));
     let _ = StoredPoint::default();
 }
+
+#[test]
+fn stop_after_overtaken_applies_stopped_without_an_ack() {
+    // A RUNING overtaken by a STOPPED: handled as usual, then stopped again.
+    let mut s = in_state(State::Pending);
+    let runing = frame(s.seq.wrapping_add(1), Command::Runing);
+    let r = s.send_raw(HOST, &runing);
+    assert_eq!(r.reply.map(|r| r.ack.state), Some(State::Running));
+    assert!(s.plant.running);
+    let (stops, starts) = (s.plant.stops, s.plant.starts);
+    let loc = s.controller.stop_after_overtaken(&mut s.plant);
+    assert_eq!(loc.map(|l| l.state), Some(State::Stopped as u8));
+    assert_eq!(s.plant.stops, stops + 1);
+    assert!(!s.plant.running && s.plant.queue.is_empty());
+    assert!(s.plant.executed.is_empty(), "nothing ran");
+    assert_eq!(s.controller.state(), State::Stopped);
+    assert_eq!(s.controller.buffered(), 0);
+    let status = s.controller.status(&s.plant);
+    assert!(status.flags.has(StatusFlags::STOPPED_BY_HOST));
+    assert!(!status.flags.has(StatusFlags::UNDERRUN));
+    // The RUNING resent: a duplicate, ACKed and not run again.
+    let r = s.send_raw(HOST, &runing);
+    assert_eq!(
+        r.reply.map(|r| (r.ack.status, r.ack.state)),
+        Some((Ok, State::Stopped))
+    );
+    assert_eq!(s.plant.starts, starts);
+
+    // An upload (NEW) cut: bit 7 too; reports off: no LOCATION.
+    let mut s = in_state(State::New);
+    s.expect(Command::UploadStop, Ok);
+    assert_eq!(s.controller.stop_after_overtaken(&mut s.plant), None);
+    assert_eq!(s.controller.state(), State::Stopped);
+    assert!(
+        s.controller
+            .status(&s.plant)
+            .flags
+            .has(StatusFlags::STOPPED_BY_HOST)
+    );
+
+    // A RETURN waiting for its encoder reading: cancelled, it never starts.
+    let mut s = Session::<64>::new(64);
+    s.expect(
+        Command::LocationSetting(Location {
+            position: [300; 8],
+            state: 0,
+        }),
+        Ok,
+    );
+    s.expect(Command::Return, Ok);
+    let loc = s.controller.stop_after_overtaken(&mut s.plant);
+    assert_eq!(loc.map(|l| l.state), Some(State::Stopped as u8));
+    assert_eq!(s.controller.begin_return(None, &mut s.plant), None);
+    assert_eq!((s.plant.starts, s.plant.running), (0, false));
+    assert_eq!(s.plant.positions, [300; 8]);
+
+    // Already STOPPED (the last run ended by underrun): nothing done, flags kept.
+    let mut s = in_state(State::Running);
+    s.plant.run_to_end(&mut s.controller);
+    assert_eq!(s.controller.state(), State::Stopped);
+    let stops = s.plant.stops;
+    assert_eq!(s.controller.stop_after_overtaken(&mut s.plant), None);
+    assert_eq!(s.plant.stops, stops);
+    let flags = s.controller.status(&s.plant).flags;
+    assert!(flags.has(StatusFlags::UNDERRUN) && !flags.has(StatusFlags::STOPPED_BY_HOST));
+}

@@ -22,7 +22,8 @@ use embassy_futures::join::{join, join5};
 use embassy_futures::select::select;
 use embassy_futures::yield_now;
 use protocol::{
-    Command, Frame, MAX_JOINTS, Point, PointList, Pwm, Report, State, StatusCode, UartInit,
+    Command, Frame, MAX_JOINTS, Point, PointList, Pwm, Report, State, StatusCode, StatusFlags, Tag,
+    UartInit,
 };
 
 const HOST: Endpoint = Endpoint {
@@ -467,10 +468,10 @@ fn stopped_overtakes_queued_uploads() {
         } else {
             Command::Status
         };
-        bus.route(arm_core::Datagram {
-            from: HOST,
-            bytes: heapless::Vec::from_slice(&frame(seq, cmd)).unwrap(),
-        });
+        bus.route(arm_core::Datagram::new(
+            HOST,
+            heapless::Vec::from_slice(&frame(seq, cmd)).unwrap(),
+        ));
         routed += 1;
     }
     assert_eq!(routed, 20);
@@ -479,10 +480,10 @@ fn stopped_overtakes_queued_uploads() {
         arm_core::tasks::INBOX_QUEUE,
         "the rest was dropped"
     );
-    bus.route(arm_core::Datagram {
-        from: STRANGER,
-        bytes: heapless::Vec::from_slice(&frame(99, Command::Stopped)).unwrap(),
-    });
+    bus.route(arm_core::Datagram::new(
+        STRANGER,
+        heapless::Vec::from_slice(&frame(99, Command::Stopped)).unwrap(),
+    ));
     assert_eq!(bus.estop.len(), 1);
     let trajectory = trajectory_task(
         &mut controller,
@@ -731,10 +732,10 @@ fn reports_queued_before_a_wait_go_to_the_sender_of_the_frame() {
     let outputs = RefCell::new(TestOutputs::default());
     // The first frame ever is a RETURN: its LOCATION (state RUNNING) is queued, then the
     // trajectory task waits for the encoders, and the network task may send it meanwhile.
-    bus.route(arm_core::Datagram {
-        from: HOST,
-        bytes: heapless::Vec::from_slice(&frame(1, Command::Return)).unwrap(),
-    });
+    bus.route(arm_core::Datagram::new(
+        HOST,
+        heapless::Vec::from_slice(&frame(1, Command::Return)).unwrap(),
+    ));
     let trajectory = trajectory_task(
         &mut controller,
         &bus,
@@ -761,4 +762,284 @@ fn reports_queued_before_a_wait_go_to_the_sender_of_the_frame() {
         }
     };
     block_on(select(trajectory, driver));
+}
+
+/// Encoders that count their reads (RETURN reads them just before it moves).
+struct CountingEncoders<'a>(&'a Cell<u32>);
+
+impl Encoders for CountingEncoders<'_> {
+    async fn read(&mut self) -> Option<[i32; MAX_JOINTS]> {
+        self.0.set(self.0.get() + 1);
+        None
+    }
+}
+
+/// The trajectory task, the step task and the step interrupt, with frames routed onto the
+/// bus as the network task would (`route`) before the trajectory task first runs; what
+/// the controller sends is collected from the outbox (`drain`).
+struct Rig {
+    clock: TestClock,
+    bus: Bus,
+    step: StepShared<4>,
+    pins: RefCell<TestPins>,
+    encoder_reads: Cell<u32>,
+    sent: RefCell<Vec<arm_core::Outgoing>>,
+}
+
+impl Rig {
+    fn new() -> Self {
+        Rig {
+            clock: TestClock(Instant::now()),
+            bus: Bus::new(),
+            step: StepShared::new(StepTiming {
+                tick_hz: 1_000_000,
+                pulse_width_ticks: 2,
+                dir_setup_ticks: 1,
+            }),
+            pins: RefCell::new(TestPins::default()),
+            encoder_reads: Cell::new(0),
+            sent: RefCell::new(Vec::new()),
+        }
+    }
+
+    /// Routes the frame as the network task does when it arrives.
+    fn route(&self, bytes: &[u8]) {
+        bus_route(&self.bus, HOST, bytes);
+    }
+
+    /// Moves what the controller queued for sending into `sent`.
+    fn drain(&self) {
+        while let Ok(out) = self.bus.outbox.try_receive() {
+            self.sent.borrow_mut().push(out);
+        }
+    }
+
+    /// The ACKs sent so far: (seq, tag, status, state).
+    fn acks(&self) -> Vec<(u8, u8, StatusCode, State)> {
+        self.drain();
+        self.sent
+            .borrow()
+            .iter()
+            .filter_map(|o| match o {
+                arm_core::Outgoing::Ack(r) => {
+                    Some((r.seq, r.ack.acked_tag, r.ack.status, r.ack.state))
+                }
+                _ => None,
+            })
+            .collect()
+    }
+
+    /// Waits `ms` milliseconds of real time, the tasks running meanwhile.
+    async fn wait_ms(&self, ms: u64) {
+        let end = self.clock.now_us() + ms * 1_000;
+        until("the time to pass", Duration::from_secs(5), || {
+            self.drain();
+            self.clock.now_us() > end
+        })
+        .await;
+    }
+
+    fn run(&self, driver: impl Future<Output = ()>) {
+        let kick = TestKick {
+            clock: &self.clock,
+            kicked: Cell::new(false),
+        };
+        let mut controller = Controller::<32>::new(ControllerConfig {
+            capacity: 32,
+            ..ControllerConfig::BOARD
+        });
+        let serial = TestSerial::default();
+        let outputs = RefCell::new(TestOutputs::default());
+        let isr = async {
+            let mut deadline: Option<u64> = None;
+            loop {
+                let now = kick.now_tick();
+                if kick.kicked.replace(false) || deadline.is_some_and(|d| now >= d) {
+                    deadline = on_step_timer(
+                        &self.step,
+                        now,
+                        &mut *self.pins.borrow_mut(),
+                        &self.bus.step_wake,
+                    );
+                }
+                yield_now().await;
+            }
+        };
+        let tasks = join(
+            trajectory_task(
+                &mut controller,
+                &self.bus,
+                &self.step,
+                &self.clock,
+                TrajectoryHw {
+                    kick: &kick,
+                    outputs: SharedOutputs(&outputs),
+                    gripper: TestGripper(None),
+                    serial: &serial,
+                    settings: TestSettings(None),
+                    encoders: CountingEncoders(&self.encoder_reads),
+                },
+            ),
+            join(step_task(&self.bus, &self.step, &kick), isr),
+        );
+        block_on(select(tasks, driver));
+    }
+}
+
+#[test]
+fn stopped_cancels_the_run_of_the_frames_it_overtook() {
+    let rig = Rig::new();
+    let pts: Vec<Point> = (1..=3)
+        .map(|k| Point::from_motion(1_000, &[10 * (k - 1); 8], &[10 * k; 8]))
+        .collect();
+    let runing = frame(3, Command::Runing);
+    // Arrival order: NEW, PENDING, RUNING, then STOPPED, all before the trajectory task
+    // gets to run: the STOPPED overtakes the three.
+    rig.route(&frame(1, Command::New { count: 3 }));
+    rig.route(&frame(2, Command::Pending(PointList::Points(&pts))));
+    rig.route(&runing);
+    rig.route(&frame(4, Command::Stopped));
+    assert_eq!((rig.bus.estop.len(), rig.bus.inbox.len()), (1, 3));
+    let limit = Duration::from_secs(5);
+    rig.run(async {
+        until("four ACKs", limit, || rig.acks().len() >= 4).await;
+        // Longer than the start lead and the whole trajectory (3 ms).
+        rig.wait_ms(30).await;
+        use StatusCode::Ok;
+        let stopped = Tag::Stopped as u8;
+        assert_eq!(
+            rig.acks(),
+            [
+                (4, stopped, Ok, State::Stopped),
+                (1, Tag::New as u8, Ok, State::New),
+                (2, Tag::Pending as u8, Ok, State::Pending),
+                (3, Tag::Runing as u8, Ok, State::Running),
+            ],
+            "the STOPPED is handled first; the others are ACKed as in arrival order"
+        );
+        assert_eq!(rig.pins.borrow().pulses, 0, "no STEP pulse, ever");
+        assert_eq!(rig.step.positions(), [0; MAX_JOINTS]);
+        assert_eq!(rig.bus.report_settings().state, State::Stopped);
+        let last_location = rig.sent.borrow().iter().rev().find_map(|o| match o {
+            arm_core::Outgoing::Location(l) => Some(l.state),
+            _ => None,
+        });
+        assert_eq!(last_location, Some(State::Stopped as u8));
+
+        // STATUS: stopped by the host (bit 7), nothing buffered.
+        rig.route(&frame(5, Command::Status));
+        until("STATUS", limit, || {
+            rig.drain();
+            rig.sent
+                .borrow()
+                .iter()
+                .any(|o| matches!(o, arm_core::Outgoing::Status(_)))
+        })
+        .await;
+        let status = rig.sent.borrow().iter().find_map(|o| match o {
+            arm_core::Outgoing::Status(s) => Some(*s),
+            _ => None,
+        });
+        let status = status.unwrap_or_else(|| unreachable!());
+        assert_eq!(status.state, State::Stopped);
+        assert!(status.flags.has(StatusFlags::STOPPED_BY_HOST));
+        assert_eq!(status.buffered, 0);
+
+        // The host did not get RUNING's ACK and resends it: a duplicate, not run again.
+        rig.sent.borrow_mut().clear();
+        rig.route(&runing);
+        until("the resent RUNING's ACK", limit, || !rig.acks().is_empty()).await;
+        rig.wait_ms(30).await;
+        assert_eq!(
+            rig.acks(),
+            [(3, Tag::Runing as u8, StatusCode::Ok, State::Stopped)]
+        );
+        assert_eq!(
+            rig.pins.borrow().pulses,
+            0,
+            "no STEP pulse after the resend"
+        );
+        assert_eq!(rig.bus.report_settings().state, State::Stopped);
+    });
+}
+
+#[test]
+fn stopped_cancels_a_return_it_overtook() {
+    let rig = Rig::new();
+    let start = [200, -100, 0, 0, 0, 0, 0, 0];
+    assert!(rig.step.set_positions(start));
+    let ret = frame(1, Command::Return);
+    rig.route(&ret);
+    rig.route(&frame(2, Command::Stopped));
+    assert_eq!((rig.bus.estop.len(), rig.bus.inbox.len()), (1, 1));
+    let limit = Duration::from_secs(5);
+    rig.run(async {
+        until("two ACKs", limit, || rig.acks().len() >= 2).await;
+        rig.wait_ms(30).await;
+        use StatusCode::Ok;
+        assert_eq!(
+            rig.acks(),
+            [
+                (2, Tag::Stopped as u8, Ok, State::Stopped),
+                (1, Tag::Return as u8, Ok, State::Running),
+            ]
+        );
+        assert_eq!(
+            rig.encoder_reads.get(),
+            0,
+            "no encoder read to start the move"
+        );
+        assert_eq!(rig.pins.borrow().pulses, 0);
+        assert_eq!(rig.step.positions(), start);
+        assert_eq!(rig.bus.report_settings().state, State::Stopped);
+
+        // A resent RETURN is a duplicate: not executed again.
+        rig.sent.borrow_mut().clear();
+        rig.route(&ret);
+        until("the resent RETURN's ACK", limit, || !rig.acks().is_empty()).await;
+        rig.wait_ms(30).await;
+        assert_eq!(rig.acks(), [(1, Tag::Return as u8, Ok, State::Stopped)]);
+        assert_eq!(rig.encoder_reads.get(), 0);
+        assert_eq!(rig.pins.borrow().pulses, 0);
+        assert_eq!(rig.step.positions(), start);
+    });
+}
+
+#[test]
+fn each_overtaking_stopped_cancels_what_came_before_it() {
+    // Arrival order: NEW, STOPPED, PENDING, STOPPED. In that order the PENDING finds the
+    // arm STOPPED (BAD_STATE); both STOPPEDs overtake both frames, which must still get
+    // the ACKs of arrival order.
+    let rig = Rig::new();
+    let pts = [Point::from_motion(1_000, &[0; 8], &[5; 8])];
+    rig.route(&frame(1, Command::New { count: 1 }));
+    rig.route(&frame(2, Command::Stopped));
+    rig.route(&frame(3, Command::Pending(PointList::Points(&pts))));
+    rig.route(&frame(4, Command::Stopped));
+    assert_eq!((rig.bus.estop.len(), rig.bus.inbox.len()), (2, 2));
+    let limit = Duration::from_secs(5);
+    rig.run(async {
+        until("four ACKs", limit, || rig.acks().len() >= 4).await;
+        rig.wait_ms(10).await;
+        use StatusCode::{BadState, Ok};
+        assert_eq!(
+            rig.acks(),
+            [
+                (2, Tag::Stopped as u8, Ok, State::Stopped),
+                (4, Tag::Stopped as u8, Ok, State::Stopped),
+                (1, Tag::New as u8, Ok, State::New),
+                (3, Tag::Pending as u8, BadState, State::Stopped),
+            ]
+        );
+        assert_eq!(rig.bus.report_settings().state, State::Stopped);
+        assert_eq!(rig.pins.borrow().pulses, 0);
+    });
+}
+
+/// Routes a datagram as the network task does.
+fn bus_route(bus: &Bus, from: Endpoint, bytes: &[u8]) {
+    bus.route(arm_core::Datagram::new(
+        from,
+        heapless::Vec::from_slice(bytes).unwrap(),
+    ));
 }
