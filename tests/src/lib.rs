@@ -117,7 +117,8 @@ fn free_port() -> u16 {
 pub struct SimHost {
     /// Where it listens.
     pub addr: SocketAddr,
-    child: Child,
+    /// `None` once [`SimHost::terminate`] has waited for it.
+    child: Option<Child>,
     dir: PathBuf,
     /// Dropped after the process is killed (fields drop after `Drop::drop`).
     _slot: Slot,
@@ -127,6 +128,15 @@ impl SimHost {
     /// Starts a sim-host with extra arguments (`--joints`, `--loss` ...) on a free port and
     /// waits until it answers STATUS.
     pub fn start(args: &[&str]) -> SimHost {
+        SimHost::launch(args, false)
+    }
+
+    /// As [`SimHost::start`], with `--trace` writing to [`SimHost::trace`].
+    pub fn start_traced(args: &[&str]) -> SimHost {
+        SimHost::launch(args, true)
+    }
+
+    fn launch(args: &[&str], traced: bool) -> SimHost {
         let bin = sim_host_bin();
         let slot = Slot::take();
         let mut last_error = String::new();
@@ -144,6 +154,11 @@ impl SimHost {
                 .arg("--settings")
                 .arg(dir.join("settings.txt"))
                 .args(["--log-level", "warn"])
+                .args(if traced {
+                    vec!["--trace".into(), dir.join("run.vcd").into_os_string()]
+                } else {
+                    Vec::new()
+                })
                 .args(args)
                 .stdin(Stdio::null())
                 .stdout(Stdio::null())
@@ -167,7 +182,7 @@ impl SimHost {
                 if Controller::connect_with(addr, quick).is_ok() {
                     return SimHost {
                         addr,
-                        child,
+                        child: Some(child),
                         dir,
                         _slot: slot,
                     };
@@ -202,12 +217,43 @@ impl SimHost {
     pub fn dir(&self) -> &Path {
         &self.dir
     }
+
+    /// The VCD trace of a simulator started with [`SimHost::start_traced`]; complete once
+    /// [`SimHost::terminate`] has returned.
+    pub fn trace(&self) -> PathBuf {
+        self.dir.join("run.vcd")
+    }
+
+    /// SIGTERM, then waits (bounded) for a clean exit, so that the trace is flushed.
+    pub fn terminate(&mut self) {
+        let mut child = self.child.take().expect("sim-host still running");
+        let sent = Command::new("kill")
+            .args(["-TERM", &child.id().to_string()])
+            .status()
+            .expect("run kill");
+        assert!(sent.success(), "kill -TERM failed");
+        let asked = Instant::now();
+        loop {
+            if let Some(status) = child.try_wait().expect("wait for sim-host") {
+                assert!(status.success(), "sim-host exited with {status}");
+                return;
+            }
+            if asked.elapsed() > START_TIMEOUT {
+                let _ = child.kill();
+                let _ = child.wait();
+                panic!("sim-host did not exit within {START_TIMEOUT:?} of SIGTERM");
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
 }
 
 impl Drop for SimHost {
     fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
+        if let Some(mut child) = self.child.take() {
+            let _ = child.kill();
+            let _ = child.wait();
+        }
         let _ = std::fs::remove_dir_all(&self.dir);
     }
 }
