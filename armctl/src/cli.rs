@@ -4,7 +4,7 @@
 use std::path::PathBuf;
 
 use armctl::plot::{self, Commanded};
-use armctl::trajectory::{self, ArmConfig};
+use armctl::trajectory;
 use armctl::{record, vcd};
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use protocol::{
@@ -560,13 +560,8 @@ fn is_vcd(path: &std::path::Path) -> bool {
 pub fn plot(args: &PlotArgs) -> Result<String, String> {
     let commanded = match &args.trajectory {
         Some(path) => {
-            let config = args
-                .config
-                .as_deref()
-                .map(ArmConfig::load)
-                .transpose()
-                .map_err(|e| e.to_string())?;
-            let waypoints = trajectory::load(path, config.as_ref()).map_err(|e| e.to_string())?;
+            let (waypoints, _) =
+                trajectory::load_files(path, args.config.as_deref()).map_err(|e| e.to_string())?;
             Some(Commanded::from_waypoints(&waypoints))
         }
         None => None,

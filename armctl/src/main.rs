@@ -249,13 +249,8 @@ fn convert(
     controller_joints: Option<usize>,
     controller_max_rate: Option<u32>,
 ) -> Result<(Vec<Point>, usize), String> {
-    let config = args
-        .config
-        .as_deref()
-        .map(ArmConfig::load)
-        .transpose()
-        .map_err(|e| e.to_string())?;
-    let waypoints = trajectory::load(&args.file, config.as_ref()).map_err(|e| e.to_string())?;
+    let (waypoints, config) =
+        trajectory::load_files(&args.file, args.config.as_deref()).map_err(|e| e.to_string())?;
     let joints = waypoints.positions.first().map_or(0, Vec::len);
     if let Some(n) = controller_joints
         && joints > n

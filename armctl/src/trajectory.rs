@@ -318,6 +318,17 @@ struct RosDuration {
     nanosec: u32,
 }
 
+/// Reads a trajectory file and, when given, the joint config file it is read with; the
+/// config is returned too, for the conversion to points.
+pub fn load_files(
+    path: &Path,
+    config: Option<&Path>,
+) -> Result<(Waypoints, Option<ArmConfig>), TrajectoryError> {
+    let config = config.map(ArmConfig::load).transpose()?;
+    let waypoints = load(path, config.as_ref())?;
+    Ok((waypoints, config))
+}
+
 /// Reads a trajectory file: `.json` (JointTrajectory, needs `config`) or anything else as
 /// CSV in steps.
 pub fn load(path: &Path, config: Option<&ArmConfig>) -> Result<Waypoints, TrajectoryError> {
