@@ -1,0 +1,845 @@
+//! Drives arm-core's sans-io `Controller` with a sequence of events read from the fuzz
+//! input (datagrams from three endpoints, resends, time, step progress, RETURN's encoder
+//! reading, an overtaking STOPPED) against a fake plant, and checks after every event what
+//! PROTOCOL.md guarantees. Nothing may panic.
+//!
+//! The checks, and why each holds by the protocol (docs/PROTOCOL.md):
+//! * a datagram under 3 bytes gets no reply and changes nothing; any other gets exactly
+//!   one ACK, to its sender, with its seq and tag; BAD_CRC exactly when the CRC is wrong;
+//! * every ACK: `buffered + free == capacity`, `buffered <= capacity`, and its state,
+//!   `next_seq` and `buffered` are the controller's after the command; the ACK re-encodes
+//!   and decodes (state code one of the four);
+//! * OK only for a CRC-valid frame that decodes, or that matches an earlier accepted one
+//!   (a duplicate); a CRC-valid STOPPED is never NOT_OWNER, and a valid one is always OK;
+//! * a refused frame (status not OK) changes nothing: no plant call other than feeding
+//!   already-buffered points, no change of state or counters;
+//! * a frame that surely is a duplicate (same sender, seq, tag and CRC as a frame executed
+//!   less than 2 s ago, with fewer than 32 accepted frames since) is ACKed OK and changes
+//!   nothing at all, engine pushes included;
+//! * an executed command was allowed in the state it arrived in (section 6) and did what
+//!   the table says (NEW, PENDING, RUNING, STOPPED, RETURN, JOINTS_COUNT, LOCATION_SETTING,
+//!   STATUS);
+//! * positions change only by segments the engine runs, or by an executed
+//!   LOCATION_SETTING; LOCATION reports carry the plant's positions and the current state,
+//!   and one comes with every state change while reports are on;
+//! * at all times: `buffered + free == capacity`, `received <= expected`,
+//!   `executed <= received`; no pulse outside RUNNING; no segment left in the engine in
+//!   STOPPED or NEW; every segment has a duration >= 1 us and obeys `max_step_rate_hz`;
+//! * when the engine runs dry in RUNNING the state becomes STOPPED; the underrun flag is
+//!   set exactly when fewer points ran than announced; a completed upload ends exactly on
+//!   its last point, a completed RETURN exactly on zero (joints in use).
+#![no_main]
+
+use std::collections::VecDeque;
+
+use arm_core::hw::{Endpoint, SerialError};
+use arm_core::{Controller, ControllerConfig, Deferred, Plant, Response};
+use arm_step::Segment;
+use libfuzzer_sys::arbitrary::{Result, Unstructured};
+use libfuzzer_sys::fuzz_target;
+use protocol::{
+    Ack, Command, Frame, Location, MAX_DATAGRAM, MAX_JOINTS, Point, PointList, Pwm, Report, State,
+    StatusCode, StatusFlags, StatusReport, Tag, UartInit, crc8,
+};
+
+/// Compile-time trajectory buffer size (the run-time capacity is 1..=64, from the input).
+const CAP: usize = 64;
+/// How long an accepted frame is a duplicate (PROTOCOL.md section 7).
+const DUPLICATE_WINDOW_US: u64 = 2_000_000;
+/// How many accepted frames are remembered (PROTOCOL.md section 7).
+const DUPLICATE_MEMORY: u64 = 32;
+/// Events per input: keeps one execution short.
+const MAX_EVENTS: usize = 400;
+/// Datagrams kept for the resend event.
+const RESEND_MEMORY: usize = 8;
+/// Serial sends the fake port queues before it reports no room (drained as time passes).
+const SERIAL_ROOM: usize = 4;
+
+/// The owner's address on two ports (reports may move between them), and a stranger.
+const ENDPOINTS: [Endpoint; 3] = [
+    Endpoint {
+        ip: [127, 0, 0, 1],
+        port: 40_000,
+    },
+    Endpoint {
+        ip: [127, 0, 0, 1],
+        port: 40_001,
+    },
+    Endpoint {
+        ip: [127, 0, 0, 2],
+        port: 40_000,
+    },
+];
+
+/// Calls the controller made on the plant, counted.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+struct Effects {
+    pushed: u64,
+    stops: u32,
+    starts: u32,
+    pins: u32,
+    enables: u32,
+    gripper_calls: u32,
+    serial_opens: u32,
+    serial_closes: u32,
+    serial_sends: u32,
+    position_sets: u32,
+}
+
+/// A step engine holding up to `room` segments that run only when the harness says so,
+/// and peripherals that count what they are told.
+struct FakePlant {
+    positions: [i32; MAX_JOINTS],
+    queue: VecDeque<Segment>,
+    room: usize,
+    running: bool,
+    gripper_on: bool,
+    serial_queued: usize,
+    max_step_rate_hz: u64,
+    effects: Effects,
+}
+
+impl Plant for FakePlant {
+    fn positions(&self) -> [i32; MAX_JOINTS] {
+        self.positions
+    }
+    fn set_positions(&mut self, positions: [i32; MAX_JOINTS]) -> bool {
+        if self.running {
+            return false;
+        }
+        self.effects.position_sets += 1;
+        self.positions = positions;
+        true
+    }
+    fn stop(&mut self) {
+        self.effects.stops += 1;
+        self.queue.clear();
+        self.running = false;
+    }
+    fn push_segment(&mut self, segment: Segment) -> bool {
+        assert!(segment.duration_us >= 1, "segment of 0 us: {segment:?}");
+        for s in segment.steps {
+            assert!(
+                u64::from(s.unsigned_abs()) * 1_000_000
+                    <= self.max_step_rate_hz * u64::from(segment.duration_us),
+                "segment faster than max_step_rate_hz: {segment:?}"
+            );
+        }
+        if self.queue.len() >= self.room {
+            return false;
+        }
+        self.queue.push_back(segment);
+        self.effects.pushed += 1;
+        true
+    }
+    fn start(&mut self) {
+        self.effects.starts += 1;
+        self.running = true;
+    }
+    fn set_user_pin(&mut self, pin: u8, _high: bool) {
+        assert!(pin < 2, "user pin {pin}");
+        self.effects.pins += 1;
+    }
+    fn set_enabled(&mut self, enabled: u16) {
+        assert_eq!(enabled & !0x01FF, 0, "ENABLE bits beyond the gripper's");
+        self.effects.enables += 1;
+    }
+    fn gripper_start(&mut self, _pwm: &Pwm) {
+        self.effects.gripper_calls += 1;
+        self.gripper_on = true;
+    }
+    fn gripper_stop(&mut self) {
+        self.effects.gripper_calls += 1;
+        self.gripper_on = false;
+    }
+    fn gripper_active(&self) -> bool {
+        self.gripper_on
+    }
+    fn serial_open(&mut self, init: &UartInit) -> Result<(), SerialError> {
+        // Some settings this "hardware" cannot apply, to reach USART_START's refusal.
+        if init.baud_rate.is_multiple_of(7) {
+            return Err(SerialError::Unsupported);
+        }
+        self.effects.serial_opens += 1;
+        Ok(())
+    }
+    fn serial_close(&mut self) {
+        self.effects.serial_closes += 1;
+        self.serial_queued = 0;
+    }
+    fn serial_send(&mut self, bytes: &[u8]) -> bool {
+        assert!(
+            (1..=255).contains(&bytes.len()),
+            "serial chunk of {}",
+            bytes.len()
+        );
+        if self.serial_queued >= SERIAL_ROOM {
+            return false;
+        }
+        self.serial_queued += 1;
+        self.effects.serial_sends += 1;
+        true
+    }
+}
+
+/// Everything a command could change that the harness can see.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct Snapshot {
+    effects: Effects,
+    positions: [i32; MAX_JOINTS],
+    running: bool,
+    queued: usize,
+    status: StatusReport,
+    next_seq: u8,
+}
+
+impl Snapshot {
+    /// Without the engine feeding (which may catch up after any command).
+    fn without_feeding(mut self) -> Snapshot {
+        self.effects.pushed = 0;
+        self.queued = 0;
+        self
+    }
+}
+
+/// What identifies a frame for duplicate detection (sender, seq, tag, CRC).
+type FrameKey = (Endpoint, u8, u8, u8);
+
+/// A frame ACKed OK.
+struct Accepted {
+    key: FrameKey,
+    at_us: u64,
+    /// Whether the controller executed it: surely (no earlier match at all), surely not
+    /// (surely a duplicate), or unknown.
+    executed: Option<bool>,
+    /// Its place among all OK replies.
+    index: u64,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum RunKind {
+    Upload,
+    Return,
+}
+
+struct Harness {
+    controller: Controller<CAP>,
+    plant: FakePlant,
+    capacity: usize,
+    now_us: u64,
+    /// The host's seq counter for structured commands.
+    host_seq: u8,
+    /// The last ACK's next_seq.
+    acked_next_seq: u8,
+    /// End position of the last point the host had taken (where new points start).
+    host_end: [i32; MAX_JOINTS],
+    sent: VecDeque<(usize, Vec<u8>)>,
+    /// OK replies of the last 2 s, oldest first.
+    accepted: VecDeque<Accepted>,
+    ok_replies: u64,
+    /// Positions of the last point taken since the last NEW.
+    last_taken: Option<[i32; MAX_JOINTS]>,
+    run_kind: Option<RunKind>,
+}
+
+impl Harness {
+    fn new(capacity: usize, room: usize) -> Self {
+        let config = ControllerConfig {
+            capacity,
+            ..ControllerConfig::BOARD
+        };
+        Harness {
+            controller: Controller::new(config),
+            plant: FakePlant {
+                positions: [0; MAX_JOINTS],
+                queue: VecDeque::new(),
+                room,
+                running: false,
+                gripper_on: false,
+                serial_queued: 0,
+                max_step_rate_hz: u64::from(config.max_step_rate_hz),
+                effects: Effects::default(),
+            },
+            capacity,
+            now_us: 1_000,
+            host_seq: 0,
+            acked_next_seq: 1,
+            host_end: [0; MAX_JOINTS],
+            sent: VecDeque::new(),
+            accepted: VecDeque::new(),
+            ok_replies: 0,
+            last_taken: None,
+            run_kind: None,
+        }
+    }
+
+    fn status(&self) -> StatusReport {
+        self.controller.status(&self.plant)
+    }
+
+    fn snapshot(&self) -> Snapshot {
+        Snapshot {
+            effects: self.plant.effects,
+            positions: self.plant.positions,
+            running: self.plant.running,
+            queued: self.plant.queue.len(),
+            status: self.status(),
+            next_seq: self.controller.next_seq(),
+        }
+    }
+
+    /// Invariants that hold between any two events.
+    fn check_always(&self) {
+        let s = self.status();
+        assert_eq!(usize::from(s.capacity), self.capacity);
+        assert!(usize::from(s.buffered) <= self.capacity, "{s:?}");
+        assert_eq!(
+            usize::from(s.buffered) + self.controller.free(),
+            self.capacity
+        );
+        assert!(s.received <= s.expected, "received > expected: {s:?}");
+        assert!(s.executed <= s.received, "executed > received: {s:?}");
+        assert!(State::from_u8(s.state as u8).is_some());
+        if s.state != State::Running {
+            assert!(!self.plant.running, "engine running in {:?}", s.state);
+        }
+        if matches!(s.state, State::Stopped | State::New) {
+            assert!(
+                self.plant.queue.is_empty(),
+                "{} segments left in the engine in {:?}",
+                self.plant.queue.len(),
+                s.state
+            );
+        }
+        assert!(self.plant.queue.len() <= self.plant.room);
+    }
+
+    /// A LOCATION report: the plant's positions and the current state.
+    fn check_location(&self, location: &Location) {
+        assert_eq!(
+            location.position, self.plant.positions,
+            "LOCATION positions"
+        );
+        assert_eq!(
+            State::from_u8(location.state),
+            Some(self.status().state),
+            "LOCATION state"
+        );
+    }
+
+    /// (possibly a duplicate, surely a duplicate) for a frame with `key` arriving now.
+    fn duplicate(&self, key: &FrameKey) -> (bool, bool) {
+        let mut possibly = false;
+        let mut surely = false;
+        for a in self.accepted.iter().filter(|a| a.key == *key) {
+            let age = self.now_us - a.at_us;
+            possibly |= age <= DUPLICATE_WINDOW_US;
+            surely |= a.executed == Some(true)
+                && age < DUPLICATE_WINDOW_US
+                && self.ok_replies - a.index <= DUPLICATE_MEMORY;
+        }
+        (possibly, surely)
+    }
+
+    fn datagram(&mut self, from_index: usize, bytes: &[u8]) {
+        if self.sent.len() >= RESEND_MEMORY {
+            self.sent.pop_front();
+        }
+        self.sent.push_back((from_index, bytes.to_vec()));
+        let from = ENDPOINTS[from_index];
+        let before = self.snapshot();
+        if bytes.len() < 3 {
+            let r = self
+                .controller
+                .handle(from, bytes, self.now_us, &mut self.plant);
+            assert_eq!(r, Response::default(), "reply to {} bytes", bytes.len());
+            assert_eq!(
+                self.snapshot(),
+                before,
+                "{} bytes changed something",
+                bytes.len()
+            );
+            return;
+        }
+        let (&crc, body) = bytes.split_last().expect("3 bytes or more");
+        let key = (from, bytes[0], bytes[1], crc);
+        let (possibly_dup, surely_dup) = self.duplicate(&key);
+        let r = self
+            .controller
+            .handle(from, bytes, self.now_us, &mut self.plant);
+        let after = self.snapshot();
+
+        // Exactly one ACK, to the sender, for this frame.
+        let reply = r.reply.expect("no ACK for a datagram of 3 bytes or more");
+        assert_eq!(reply.to, from);
+        assert_eq!((reply.seq, reply.ack.acked_tag), (bytes[0], bytes[1]));
+        let crc_ok = crc8(body) == crc;
+        let status = reply.ack.status;
+        assert_eq!(
+            status == StatusCode::BadCrc,
+            !crc_ok,
+            "{status:?}, CRC ok {crc_ok}"
+        );
+        self.check_ack(reply.seq, &reply.ack, &after);
+        self.acked_next_seq = reply.ack.next_seq;
+
+        let decoded = Command::decode(bytes);
+        if crc_ok && bytes[1] == Tag::Stopped as u8 {
+            assert_ne!(status, StatusCode::NotOwner, "STOPPED refused as NOT_OWNER");
+            if bytes.len() == 3 {
+                assert_eq!(status, StatusCode::Ok, "a valid STOPPED refused");
+            }
+        }
+        if status == StatusCode::Ok {
+            assert!(
+                decoded.is_ok() || possibly_dup,
+                "OK for a frame that does not decode ({:?}) and is no duplicate",
+                decoded.err()
+            );
+        }
+        if surely_dup && crc_ok {
+            assert_eq!(status, StatusCode::Ok, "a duplicate not ACKed OK");
+            assert_eq!(after, before, "a duplicate changed something");
+        }
+        if status != StatusCode::Ok || (surely_dup && crc_ok) {
+            assert_eq!(
+                after.without_feeding(),
+                before.without_feeding(),
+                "a frame ACKed {status:?} changed something"
+            );
+            assert_eq!(
+                (r.status, r.location, r.deferred),
+                (None, None, None),
+                "reports or work from a frame ACKed {status:?} (duplicate: {surely_dup})"
+            );
+        }
+        let executed = status == StatusCode::Ok && !possibly_dup;
+        if after.positions != before.positions {
+            assert!(
+                status == StatusCode::Ok
+                    && matches!(
+                        decoded,
+                        Ok(Frame {
+                            body: Command::LocationSetting(_),
+                            ..
+                        })
+                    ),
+                "positions changed without the engine: {:?} -> {:?}",
+                before.positions,
+                after.positions
+            );
+        }
+        if let Some(location) = &r.location {
+            self.check_location(location);
+        }
+        let reports_on = |s: &StatusReport| s.flags.has(StatusFlags::REPORTS_ON);
+        if after.status.state != before.status.state
+            && reports_on(&before.status)
+            && reports_on(&after.status)
+        {
+            assert!(r.location.is_some(), "no LOCATION for a state change");
+        }
+
+        if status == StatusCode::Ok {
+            self.accepted.push_back(Accepted {
+                key,
+                at_us: self.now_us,
+                executed: if surely_dup {
+                    Some(false)
+                } else if possibly_dup {
+                    None
+                } else {
+                    Some(true)
+                },
+                index: self.ok_replies,
+            });
+            self.ok_replies += 1;
+        }
+        if after.status.state == State::New {
+            self.last_taken = None;
+            self.run_kind = Some(RunKind::Upload);
+        }
+        if executed && let Ok(frame) = decoded {
+            self.check_executed(&frame.body, &before, &after, &r);
+        }
+    }
+
+    fn check_ack(&self, seq: u8, ack: &Ack, after: &Snapshot) {
+        assert!(usize::from(ack.buffered) <= self.capacity, "{ack:?}");
+        assert_eq!(
+            usize::from(ack.buffered) + usize::from(ack.free),
+            self.capacity
+        );
+        assert_eq!(ack.state, after.status.state, "ACK state");
+        assert_eq!(ack.buffered, after.status.buffered, "ACK buffered");
+        assert_eq!(ack.next_seq, after.next_seq, "ACK next_seq");
+        let mut buf = [0u8; 16];
+        let n = Report::Ack(*ack)
+            .encode(seq, &mut buf)
+            .expect("an ACK encodes");
+        let again = Report::decode(&buf[..n]).expect("an ACK decodes");
+        assert_eq!(again.body, Report::Ack(*ack));
+    }
+
+    /// What an executed command must have done (PROTOCOL.md sections 3 and 6).
+    fn check_executed(
+        &mut self,
+        cmd: &Command<'_>,
+        before: &Snapshot,
+        after: &Snapshot,
+        r: &Response,
+    ) {
+        let (was, is) = (before.status.state, after.status.state);
+        match cmd {
+            Command::New { count } => {
+                assert_ne!(was, State::Running, "NEW accepted in RUNNING");
+                assert_eq!(is, State::New);
+                let s = after.status;
+                assert_eq!(
+                    (s.expected, s.received, s.executed, s.buffered),
+                    (*count, 0, 0, 0)
+                );
+                self.host_end = after.positions;
+            }
+            Command::Pending(points) => {
+                assert!(
+                    matches!(was, State::New | State::Pending | State::Running),
+                    "PENDING accepted in {was:?}"
+                );
+                assert_eq!(
+                    is,
+                    if was == State::New {
+                        State::Pending
+                    } else {
+                        was
+                    }
+                );
+                let n = points.len() as u16;
+                assert_eq!(
+                    after.status.received,
+                    before.status.received + n,
+                    "points taken"
+                );
+                assert_eq!(
+                    after.status.buffered,
+                    before.status.buffered + n,
+                    "points buffered"
+                );
+                if let Some(last) = points.iter().last() {
+                    self.last_taken = Some(last.position);
+                    self.host_end = last.position;
+                }
+            }
+            Command::Runing => {
+                assert!(
+                    matches!(was, State::Pending | State::Running),
+                    "RUNING in {was:?}"
+                );
+                assert_eq!(is, State::Running);
+            }
+            Command::Stopped => {
+                assert_eq!(is, State::Stopped);
+                assert!(!self.plant.running && self.plant.queue.is_empty());
+            }
+            Command::Return => {
+                assert_eq!(was, State::Stopped, "RETURN accepted in {was:?}");
+                assert_eq!(is, State::Running);
+                assert_eq!(r.deferred, Some(Deferred::ReadEncoders));
+                self.run_kind = Some(RunKind::Return);
+            }
+            Command::JointsCount(n) => {
+                assert_eq!(was, State::Stopped, "JOINTS_COUNT accepted in {was:?}");
+                assert_eq!(after.status.joints, *n);
+                assert!(
+                    matches!(r.deferred, Some(Deferred::SaveSettings(s)) if s.joints == *n),
+                    "{:?}",
+                    r.deferred
+                );
+            }
+            Command::LocationSetting(location) => {
+                assert_eq!(was, State::Stopped, "LOCATION_SETTING accepted in {was:?}");
+                assert_eq!(self.plant.positions, location.position);
+            }
+            Command::ToggleEnablePins { .. } => {
+                assert_eq!(
+                    was,
+                    State::Stopped,
+                    "TOGGLE_ENABLE_PINS accepted in {was:?}"
+                );
+            }
+            Command::Status => {
+                let report = r.status.expect("no STATUS report for STATUS");
+                assert_eq!(report.state, is);
+            }
+            Command::UploadStart => assert!(after.status.flags.has(StatusFlags::REPORTS_ON)),
+            Command::UploadStop => assert!(!after.status.flags.has(StatusFlags::REPORTS_ON)),
+            _ => {}
+        }
+    }
+
+    /// The engine finishes some of its segments (the step task's report), or nothing.
+    fn progress(&mut self, batch: u8) {
+        let before = self.status();
+        if !self.plant.running || self.plant.queue.is_empty() {
+            let location = self.controller.on_step_progress(0, false, &mut self.plant);
+            assert_eq!(
+                self.status().state,
+                before.state,
+                "state changed with no progress"
+            );
+            if let Some(l) = location {
+                self.check_location(&l);
+            }
+            return;
+        }
+        let k = 1 + usize::from(batch) % self.plant.queue.len();
+        for _ in 0..k {
+            let segment = self.plant.queue.pop_front().expect("k <= queue length");
+            for (p, s) in self.plant.positions.iter_mut().zip(segment.steps) {
+                *p = p
+                    .checked_add(s)
+                    .expect("a joint driven beyond the i32 range");
+            }
+        }
+        let dry = self.plant.queue.is_empty();
+        if dry {
+            self.plant.running = false;
+        }
+        let location = self
+            .controller
+            .on_step_progress(k as u32, dry, &mut self.plant);
+        let after = self.status();
+        if let Some(l) = &location {
+            self.check_location(l);
+        }
+        if !dry {
+            return;
+        }
+        assert_eq!(before.state, State::Running);
+        assert_eq!(
+            after.state,
+            State::Stopped,
+            "the engine ran dry but the run goes on"
+        );
+        if before.flags.has(StatusFlags::REPORTS_ON) {
+            assert!(location.is_some(), "no LOCATION when the run ended");
+        }
+        let underrun = after.flags.has(StatusFlags::UNDERRUN);
+        assert_eq!(
+            underrun,
+            after.executed < after.expected,
+            "underrun flag vs points run: {after:?}"
+        );
+        assert!(!after.flags.has(StatusFlags::STOPPED_BY_HOST));
+        if underrun {
+            return;
+        }
+        let joints = usize::from(after.joints).min(MAX_JOINTS);
+        match self.run_kind {
+            Some(RunKind::Upload) => {
+                if let Some(last) = self.last_taken {
+                    assert_eq!(
+                        self.plant.positions[..joints],
+                        last[..joints],
+                        "a completed upload did not end on its last point"
+                    );
+                }
+            }
+            Some(RunKind::Return) => assert_eq!(
+                self.plant.positions[..joints],
+                [0; MAX_JOINTS][..joints],
+                "a completed RETURN did not end on zero"
+            ),
+            None => {}
+        }
+    }
+
+    fn begin_return(&mut self, encoders: Option<[i32; MAX_JOINTS]>) {
+        let location = self.controller.begin_return(encoders, &mut self.plant);
+        if let Some(l) = &location {
+            self.check_location(l);
+            assert_eq!(self.status().state, State::Stopped);
+        }
+    }
+
+    fn stop_after_overtaken(&mut self) {
+        let location = self.controller.stop_after_overtaken(&mut self.plant);
+        assert_eq!(self.status().state, State::Stopped);
+        if let Some(l) = &location {
+            self.check_location(l);
+        }
+    }
+
+    /// A well-formed command, so that runs get far past decoding.
+    fn command(&mut self, u: &mut Unstructured<'_>) -> Result<()> {
+        let from = usize::from(u.arbitrary::<u8>()?) % ENDPOINTS.len();
+        let seq = match u.arbitrary::<u8>()? % 4 {
+            0 => u.arbitrary::<u8>()?,
+            1 => self.acked_next_seq,
+            _ => {
+                self.host_seq = self.host_seq.wrapping_add(1);
+                self.host_seq
+            }
+        };
+        let small = |u: &mut Unstructured<'_>| -> Result<[i32; MAX_JOINTS]> {
+            let mut p = [0i32; MAX_JOINTS];
+            for x in &mut p {
+                *x = i32::from(u.arbitrary::<i8>()?);
+            }
+            Ok(p)
+        };
+        let mut points = Vec::new();
+        let serial_bytes: Vec<u8>;
+        let cmd = match u.arbitrary::<u8>()? % 22 {
+            0 => Command::New {
+                count: if u.arbitrary()? {
+                    u.int_in_range(1..=30)?
+                } else {
+                    u.arbitrary()?
+                },
+            },
+            1..=4 => {
+                // Often exactly the points still missing, so that uploads complete.
+                let s = self.status();
+                let missing = usize::from(s.expected.saturating_sub(s.received));
+                let n = if u.arbitrary()? && (1..=12).contains(&missing) {
+                    missing
+                } else {
+                    u.int_in_range(1..=12)?
+                };
+                let mut previous = self.host_end;
+                for _ in 0..n {
+                    let duration = i32::from(u.arbitrary::<u16>()?);
+                    let deltas = small(u)?;
+                    let mut next = previous;
+                    for (p, d) in next.iter_mut().zip(deltas) {
+                        *p = p.saturating_add(d);
+                    }
+                    points.push(Point::from_motion(duration, &previous, &next));
+                    previous = next;
+                }
+                Command::Pending(PointList::Points(&points))
+            }
+            5 | 6 => Command::Runing,
+            7 => Command::Stopped,
+            8 => Command::UploadStart,
+            9 => Command::UploadStop,
+            10 => Command::PwmStart(Pwm {
+                psc: u.arbitrary::<u16>()?.into(),
+                arr: u.arbitrary::<u16>()?.into(),
+                ccr1: u.arbitrary::<u16>()?.into(),
+                pulse_count: u.arbitrary::<i16>()?.into(),
+            }),
+            11 => Command::PwmStop,
+            12 => Command::UsartStart(UartInit {
+                baud_rate: u.int_in_range(0..=5_000_000)?,
+                mode: u.int_in_range(0..=3)?,
+                ..UartInit::default()
+            }),
+            13 => Command::UsartStop,
+            14 => {
+                let n = u.int_in_range(1..=16)?;
+                serial_bytes = u.bytes(n)?.to_vec();
+                Command::UsartSend(&serial_bytes)
+            }
+            15 => match u.arbitrary::<u8>()? % 4 {
+                0 => Command::Pin0On,
+                1 => Command::Pin0Off,
+                2 => Command::Pin1On,
+                _ => Command::Pin1Off,
+            },
+            16 => Command::ToggleEnablePins {
+                mask: u.arbitrary()?,
+            },
+            17 => Command::Return,
+            18 => Command::JointsCount(u.int_in_range(0..=9)?),
+            19 => Command::LocationSetting(Location {
+                position: if u.arbitrary()? {
+                    small(u)?
+                } else {
+                    u.arbitrary()?
+                },
+                state: 0,
+            }),
+            20 => Command::Status,
+            _ => Command::UploadPeriod {
+                period_us: if u.arbitrary()? {
+                    u.int_in_range(1_000..=1_000_000)?
+                } else {
+                    u.arbitrary()?
+                },
+            },
+        };
+        let mut buf = [0u8; MAX_DATAGRAM];
+        if let Ok(n) = cmd.encode(seq, &mut buf) {
+            self.datagram(from, &buf[..n]);
+        }
+        Ok(())
+    }
+
+    fn step(&mut self, u: &mut Unstructured<'_>) -> Result<()> {
+        match u.arbitrary::<u8>()? % 12 {
+            // Raw bytes, as received or with the CRC fixed.
+            op @ 0..=1 => {
+                let from = usize::from(u.arbitrary::<u8>()?) % ENDPOINTS.len();
+                let n = usize::from(u.arbitrary::<u16>()?) % (MAX_DATAGRAM + 1);
+                let mut bytes = u.bytes(n.min(u.len()))?.to_vec();
+                if op == 1
+                    && let Some((last, body)) = bytes.split_last_mut()
+                {
+                    *last = crc8(body);
+                }
+                self.datagram(from, &bytes);
+            }
+            2..=4 => self.command(u)?,
+            5 => {
+                if !self.sent.is_empty() {
+                    let i = usize::from(u.arbitrary::<u8>()?) % self.sent.len();
+                    let (from, bytes) = self.sent[i].clone();
+                    self.datagram(from, &bytes);
+                }
+            }
+            6 => {
+                self.now_us += if u.arbitrary()? {
+                    u64::from(u.arbitrary::<u16>()?)
+                } else {
+                    u.int_in_range(0..=10_000_000)?
+                };
+                self.plant.serial_queued = 0;
+                while self
+                    .accepted
+                    .front()
+                    .is_some_and(|a| self.now_us - a.at_us > DUPLICATE_WINDOW_US)
+                {
+                    self.accepted.pop_front();
+                }
+            }
+            7..=9 => self.progress(u.arbitrary()?),
+            10 => {
+                let encoders = match u.arbitrary::<u8>()? % 3 {
+                    0 => None,
+                    1 => Some(u.arbitrary::<[i16; MAX_JOINTS]>()?.map(i32::from)),
+                    _ => Some(u.arbitrary()?),
+                };
+                self.begin_return(encoders);
+            }
+            _ => self.stop_after_overtaken(),
+        }
+        self.check_always();
+        Ok(())
+    }
+}
+
+fuzz_target!(|data: &[u8]| {
+    let mut u = Unstructured::new(data);
+    let (Ok(capacity), Ok(room)) = (u.int_in_range(1..=CAP), u.int_in_range(1..=16usize)) else {
+        return;
+    };
+    let mut harness = Harness::new(capacity, room);
+    harness.check_always();
+    for _ in 0..MAX_EVENTS {
+        if u.is_empty() || harness.step(&mut u).is_err() {
+            break;
+        }
+    }
+});
