@@ -69,6 +69,38 @@ impl StepKick for TestKick<'_> {
     }
 }
 
+/// The step timing of these tests: 1 MHz ticks, 2-tick pulses, 1-tick DIR setup.
+const TIMING: StepTiming = StepTiming {
+    tick_hz: 1_000_000,
+    pulse_width_ticks: 2,
+    dir_setup_ticks: 1,
+};
+
+/// A controller with a 32-point buffer.
+fn controller_32() -> Controller<32> {
+    Controller::new(ControllerConfig {
+        capacity: 32,
+        ..ControllerConfig::BOARD
+    })
+}
+
+/// The step timer interrupt: runs `on_step_timer` when kicked or at its deadline.
+async fn step_interrupt<const Q: usize>(
+    kick: &TestKick<'_>,
+    step: &StepShared<Q>,
+    pins: &RefCell<TestPins>,
+    bus: &Bus,
+) {
+    let mut deadline: Option<u64> = None;
+    loop {
+        let now = kick.now_tick();
+        if kick.kicked.replace(false) || deadline.is_some_and(|d| now >= d) {
+            deadline = on_step_timer(step, now, &mut *pins.borrow_mut(), &bus.step_wake);
+        }
+        yield_now().await;
+    }
+}
+
 #[derive(Default)]
 struct TestPins {
     direction: [bool; MAX_JOINTS],
@@ -264,16 +296,8 @@ fn datagrams_in_acks_and_steps_out() {
         kicked: Cell::new(false),
     };
     let bus = Bus::new();
-    let timing = StepTiming {
-        tick_hz: 1_000_000,
-        pulse_width_ticks: 2,
-        dir_setup_ticks: 1,
-    };
-    let step = StepShared::<4>::new(timing);
-    let mut controller = Controller::<32>::new(ControllerConfig {
-        capacity: 32,
-        ..ControllerConfig::BOARD
-    });
+    let step = StepShared::<4>::new(TIMING);
+    let mut controller = controller_32();
     let socket = TestSocket::default();
     let serial = TestSerial::default();
     let outputs = RefCell::new(TestOutputs::default());
@@ -283,17 +307,7 @@ fn datagrams_in_acks_and_steps_out() {
         ..PersistentSettings::default()
     }));
 
-    // The step timer interrupt: runs when kicked or at its deadline.
-    let isr = async {
-        let mut deadline: Option<u64> = None;
-        loop {
-            let now = kick.now_tick();
-            if kick.kicked.replace(false) || deadline.is_some_and(|d| now >= d) {
-                deadline = on_step_timer(&step, now, &mut *pins.borrow_mut(), &bus.step_wake);
-            }
-            yield_now().await;
-        }
-    };
+    let isr = step_interrupt(&kick, &step, &pins, &bus);
     let tasks = join5(
         network_task(&socket, &bus),
         trajectory_task(
@@ -448,15 +462,8 @@ fn stopped_overtakes_queued_uploads() {
         kicked: Cell::new(false),
     };
     let bus = Bus::new();
-    let step = StepShared::<4>::new(StepTiming {
-        tick_hz: 1_000_000,
-        pulse_width_ticks: 2,
-        dir_setup_ticks: 1,
-    });
-    let mut controller = Controller::<32>::new(ControllerConfig {
-        capacity: 32,
-        ..ControllerConfig::BOARD
-    });
+    let step = StepShared::<4>::new(TIMING);
+    let mut controller = controller_32();
     let serial = TestSerial::default();
     let outputs = RefCell::new(TestOutputs::default());
     // The network task's routing, before the trajectory task gets to run: a full inbox
@@ -468,10 +475,7 @@ fn stopped_overtakes_queued_uploads() {
         } else {
             Command::Status
         };
-        bus.route(arm_core::Datagram::new(
-            HOST,
-            heapless::Vec::from_slice(&frame(seq, cmd)).unwrap(),
-        ));
+        bus_route(&bus, HOST, &frame(seq, cmd));
         routed += 1;
     }
     assert_eq!(routed, 20);
@@ -480,10 +484,7 @@ fn stopped_overtakes_queued_uploads() {
         arm_core::tasks::INBOX_QUEUE,
         "the rest was dropped"
     );
-    bus.route(arm_core::Datagram::new(
-        STRANGER,
-        heapless::Vec::from_slice(&frame(99, Command::Stopped)).unwrap(),
-    ));
+    bus_route(&bus, STRANGER, &frame(99, Command::Stopped));
     assert_eq!(bus.estop.len(), 1);
     let trajectory = trajectory_task(
         &mut controller,
@@ -526,27 +527,14 @@ fn with_tasks<'a, F: Future<Output = ()>>(
         kicked: Cell::new(false),
     };
     let bus = Bus::new();
-    let step: &'a StepShared<4> = Box::leak(Box::new(StepShared::new(StepTiming {
-        tick_hz: 1_000_000,
-        pulse_width_ticks: 2,
-        dir_setup_ticks: 1,
-    })));
+    let step: &'a StepShared<4> = Box::leak(Box::new(StepShared::new(TIMING)));
     let mut controller = Controller::<16>::new(ControllerConfig {
         capacity,
         ..ControllerConfig::BOARD
     });
     let serial = TestSerial::default();
     let outputs = RefCell::new(TestOutputs::default());
-    let isr = async {
-        let mut deadline: Option<u64> = None;
-        loop {
-            let now = kick.now_tick();
-            if kick.kicked.replace(false) || deadline.is_some_and(|d| now >= d) {
-                deadline = on_step_timer(step, now, &mut *pins.borrow_mut(), &bus.step_wake);
-            }
-            yield_now().await;
-        }
-    };
+    let isr = step_interrupt(&kick, step, pins, &bus);
     let tasks = join5(
         network_task(socket, &bus),
         trajectory_task(
@@ -719,23 +707,13 @@ fn reports_queued_before_a_wait_go_to_the_sender_of_the_frame() {
         kicked: Cell::new(false),
     };
     let bus = Bus::new();
-    let step = StepShared::<4>::new(StepTiming {
-        tick_hz: 1_000_000,
-        pulse_width_ticks: 2,
-        dir_setup_ticks: 1,
-    });
-    let mut controller = Controller::<32>::new(ControllerConfig {
-        capacity: 32,
-        ..ControllerConfig::BOARD
-    });
+    let step = StepShared::<4>::new(TIMING);
+    let mut controller = controller_32();
     let serial = TestSerial::default();
     let outputs = RefCell::new(TestOutputs::default());
     // The first frame ever is a RETURN: its LOCATION (state RUNNING) is queued, then the
     // trajectory task waits for the encoders, and the network task may send it meanwhile.
-    bus.route(arm_core::Datagram::new(
-        HOST,
-        heapless::Vec::from_slice(&frame(1, Command::Return)).unwrap(),
-    ));
+    bus_route(&bus, HOST, &frame(1, Command::Return));
     let trajectory = trajectory_task(
         &mut controller,
         &bus,
@@ -791,11 +769,7 @@ impl Rig {
         Rig {
             clock: TestClock(Instant::now()),
             bus: Bus::new(),
-            step: StepShared::new(StepTiming {
-                tick_hz: 1_000_000,
-                pulse_width_ticks: 2,
-                dir_setup_ticks: 1,
-            }),
+            step: StepShared::new(TIMING),
             pins: RefCell::new(TestPins::default()),
             encoder_reads: Cell::new(0),
             sent: RefCell::new(Vec::new()),
@@ -844,27 +818,10 @@ impl Rig {
             clock: &self.clock,
             kicked: Cell::new(false),
         };
-        let mut controller = Controller::<32>::new(ControllerConfig {
-            capacity: 32,
-            ..ControllerConfig::BOARD
-        });
+        let mut controller = controller_32();
         let serial = TestSerial::default();
         let outputs = RefCell::new(TestOutputs::default());
-        let isr = async {
-            let mut deadline: Option<u64> = None;
-            loop {
-                let now = kick.now_tick();
-                if kick.kicked.replace(false) || deadline.is_some_and(|d| now >= d) {
-                    deadline = on_step_timer(
-                        &self.step,
-                        now,
-                        &mut *self.pins.borrow_mut(),
-                        &self.bus.step_wake,
-                    );
-                }
-                yield_now().await;
-            }
-        };
+        let isr = step_interrupt(&kick, &self.step, &self.pins, &self.bus);
         let tasks = join(
             trajectory_task(
                 &mut controller,
