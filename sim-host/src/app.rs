@@ -543,6 +543,28 @@ pub fn run(options: &SimOptions) -> io::Result<()> {
     executor.run(move |spawner| spawn_tasks(spawner, wiring))
 }
 
+/// Starts the controller for an in-process client (`demo`, `bench`): on a loopback port of
+/// its own (so a controller already on 8510 does not matter), with a throwaway settings
+/// file unless one was given, and Ctrl-C handled (the trace is still flushed). Returns the
+/// board, its UDP address and the scratch directory to remove after `shut_down`.
+pub fn start_for_client(
+    options: &SimOptions,
+    purpose: &str,
+) -> io::Result<(Board, SocketAddr, std::path::PathBuf)> {
+    let mut options = options.clone();
+    options.bind.set_port(0);
+    let scratch = std::env::temp_dir().join(format!("sim-host-{purpose}-{}", std::process::id()));
+    if options.settings.is_none() {
+        options.settings = Some(scratch.join("settings.txt"));
+    }
+    let board = start_in_background(&options)?;
+    let addr = board
+        .local_addr()
+        .ok_or_else(|| io::Error::other(format!("the {purpose} needs a UDP socket, not --tap")))?;
+    exit_on_signal(board.clone())?;
+    Ok((board, addr, scratch))
+}
+
 /// Starts the controller on a background thread (for `demo` and `bench`); returns once
 /// its socket is bound, with the board to observe it.
 pub fn start_in_background(options: &SimOptions) -> io::Result<Board> {

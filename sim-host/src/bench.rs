@@ -43,18 +43,7 @@ fn to_io(e: armctl::Error) -> io::Error {
 
 /// Runs the benchmark and prints the figures.
 pub fn run(sim: &SimOptions, bench: &BenchOptions) -> io::Result<()> {
-    let mut options = sim.clone();
-    options.bind.set_port(0);
-    let settings_dir = std::env::temp_dir().join(format!("sim-host-bench-{}", std::process::id()));
-    if options.settings.is_none() {
-        options.settings = Some(settings_dir.join("settings.txt"));
-    }
-    let board = crate::app::start_in_background(&options)?;
-    let addr = board
-        .local_addr()
-        .ok_or_else(|| io::Error::other("the benchmark needs a UDP socket, not --tap"))?;
-    // Ctrl-C: the trace (if any) is still flushed.
-    crate::app::exit_on_signal(board.clone())?;
+    let (board, addr, settings_dir) = crate::app::start_for_client(sim, "benchmark")?;
     let arm = Controller::connect(addr).map_err(to_io)?;
     arm.set_joints(6).map_err(to_io)?;
     let status = arm.status().map_err(to_io)?;

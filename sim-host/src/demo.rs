@@ -109,22 +109,11 @@ struct Display {
 /// Runs the demo.
 pub fn run(sim: &SimOptions, demo: &DemoOptions) -> io::Result<()> {
     let mut options = sim.clone();
-    // A port of its own, so a controller already on 8510 does not matter.
-    options.bind.set_port(0);
     // A host paces its upload by wall-clock point durations: sped-up time drains the
     // buffer faster than a host expects, so it gets proportionally more room.
     let scaled_buffer = DEMO_BUFFER * sim.time_scale.ceil().max(1.0) as usize;
     options.buffer_capacity = Some(sim.buffer_capacity.unwrap_or(scaled_buffer));
-    let settings_dir = std::env::temp_dir().join(format!("sim-host-demo-{}", std::process::id()));
-    if options.settings.is_none() {
-        options.settings = Some(settings_dir.join("settings.txt"));
-    }
-    let board = crate::app::start_in_background(&options)?;
-    let addr = board
-        .local_addr()
-        .ok_or_else(|| io::Error::other("the demo needs a UDP socket, not --tap"))?;
-    // Ctrl-C: the trace (if any) is still flushed.
-    crate::app::exit_on_signal(board.clone())?;
+    let (board, addr, settings_dir) = crate::app::start_for_client(&options, "demo")?;
     let result = drive(&board, addr, demo);
     board.shut_down();
     let _ = std::fs::remove_dir_all(&settings_dir);
