@@ -6,10 +6,16 @@
 //!   [`ArmConfig`] (steps per radian, zero offset, limits, max step rate per joint).
 //! - CSV: `time_s, joint 0, joint 1, ...` with positions in steps (an optional header line).
 //!
-//! [`to_points`] resamples the waypoints at a fixed segment duration (linear interpolation;
-//! the last segment may be shorter), rounds to whole steps, fills the timer hints with
-//! [`Point::from_motion`], and refuses, naming the file, the point and time, the joint,
-//! the value and the limit, whatever breaks a joint's position limits or step rate.
+//! [`to_points`] resamples the waypoints at a fixed segment duration (the last segment may
+//! be shorter), rounds to whole steps, fills the timer hints with [`Point::from_motion`],
+//! and refuses, naming the file, the point and time, the joint, the value and the limit,
+//! whatever breaks a joint's position limits or step rate.
+//!
+//! Between two waypoints that both give a joint's velocity (MoveIt's trajectories do), that
+//! joint follows the cubic Hermite curve through both positions with both velocities, as
+//! ROS trajectory controllers do; without velocities it follows a straight line. Either way
+//! every waypoint is passed exactly (to the rounding to whole steps) and the last point is
+//! the last waypoint.
 //!
 //! As in ROS, a first waypoint later than time 0 means "from wherever the arm is": the
 //! current position is taken as the waypoint at time 0. A first waypoint at time 0 must be
@@ -130,6 +136,10 @@ pub struct Waypoints {
     /// Position of each joint at each waypoint, in (fractional) steps; `None`: the joint is
     /// not in the file and holds its current position.
     pub positions: Vec<Vec<Option<f64>>>,
+    /// Velocity of each joint at each waypoint, steps per second, in the shape of
+    /// `positions`; `None` (or an empty list for the waypoint): not given. A segment whose
+    /// two ends give a joint's velocity is a cubic Hermite curve for that joint.
+    pub velocities: Vec<Vec<Option<f64>>>,
 }
 
 /// Why a trajectory file was refused: where, and what.
@@ -298,24 +308,35 @@ impl fmt::Display for TrajectoryError {
 
 impl std::error::Error for TrajectoryError {}
 
-/// ROS `trajectory_msgs/JointTrajectory` as JSON (other fields ignored).
-#[derive(Deserialize)]
-struct JointTrajectory {
-    joint_names: Vec<String>,
-    points: Vec<JointTrajectoryPoint>,
+/// ROS `trajectory_msgs/JointTrajectory` (as JSON: other fields ignored), in radians.
+#[derive(Clone, Debug, Default, Deserialize, PartialEq)]
+pub struct JointTrajectory {
+    /// Names of the joints, in the order of each point's values.
+    pub joint_names: Vec<String>,
+    /// The waypoints.
+    pub points: Vec<JointTrajectoryPoint>,
 }
 
-#[derive(Deserialize)]
-struct JointTrajectoryPoint {
-    positions: Vec<f64>,
-    time_from_start: RosDuration,
-}
-
-#[derive(Deserialize)]
-struct RosDuration {
-    sec: i64,
+/// One waypoint of a [`JointTrajectory`].
+#[derive(Clone, Debug, Default, Deserialize, PartialEq)]
+pub struct JointTrajectoryPoint {
+    /// Radians, one per joint name.
+    pub positions: Vec<f64>,
+    /// Radians per second, one per joint name, or empty: not given.
     #[serde(default)]
-    nanosec: u32,
+    pub velocities: Vec<f64>,
+    /// When to be there, from the start of the trajectory.
+    pub time_from_start: RosDuration,
+}
+
+/// ROS `builtin_interfaces/Duration`.
+#[derive(Clone, Copy, Debug, Default, Deserialize, PartialEq)]
+pub struct RosDuration {
+    /// Whole seconds.
+    pub sec: i64,
+    /// Nanoseconds, 0..1e9.
+    #[serde(default)]
+    pub nanosec: u32,
 }
 
 /// Reads a trajectory file and, when given, the joint config file it is read with; the
@@ -361,6 +382,17 @@ pub fn parse_joint_trajectory(
 ) -> Result<Waypoints, TrajectoryError> {
     let trajectory: JointTrajectory = serde_json::from_str(text)
         .map_err(|e| TrajectoryError::new(file, ErrorKind::Parse(e.to_string())))?;
+    joint_trajectory_to_waypoints(&trajectory, file, config)
+}
+
+/// Converts a [`JointTrajectory`] in radians into waypoints in steps with `config`; `file`
+/// names its source in errors. Joint names are matched against the config's names (by
+/// position when the config names none).
+pub fn joint_trajectory_to_waypoints(
+    trajectory: &JointTrajectory,
+    file: &str,
+    config: &ArmConfig,
+) -> Result<Waypoints, TrajectoryError> {
     let named = config.joints.iter().any(|j| j.name.is_some());
     // Index into the config of each column of the file.
     let mut columns = Vec::with_capacity(trajectory.joint_names.len());
@@ -387,10 +419,34 @@ pub fn parse_joint_trajectory(
         file: file.to_string(),
         times_us: Vec::new(),
         positions: Vec::new(),
+        velocities: Vec::new(),
     };
     for (i, point) in trajectory.points.iter().enumerate() {
         let time_us =
             point.time_from_start.sec * 1_000_000 + i64::from(point.time_from_start.nanosec / 1000);
+        let finite = point
+            .positions
+            .iter()
+            .chain(&point.velocities)
+            .all(|v| v.is_finite());
+        if !finite {
+            return Err(TrajectoryError::new(
+                file,
+                ErrorKind::Parse("a position or velocity is not a finite number".into()),
+            )
+            .at(i, time_us, None));
+        }
+        let velocities_given = !point.velocities.is_empty();
+        if velocities_given && point.velocities.len() != columns.len() {
+            return Err(TrajectoryError::new(
+                file,
+                ErrorKind::WrongJointCount {
+                    found: point.velocities.len(),
+                    expected: columns.len(),
+                },
+            )
+            .at(i, time_us, None));
+        }
         if point.positions.len() != columns.len() {
             return Err(TrajectoryError::new(
                 file,
@@ -406,8 +462,13 @@ pub fn parse_joint_trajectory(
             let joint = &config.joints[j];
             row[j] = Some(f64::from(joint.zero_offset_steps) + radians * joint.steps_per_radian);
         }
+        let mut speeds = vec![None; config.joints.len()];
+        for (&j, &radians_per_s) in columns.iter().zip(&point.velocities) {
+            speeds[j] = Some(radians_per_s * config.joints[j].steps_per_radian);
+        }
         waypoints.times_us.push(time_us);
         waypoints.positions.push(row);
+        waypoints.velocities.push(speeds);
     }
     check_times(&waypoints)?;
     Ok(waypoints)
@@ -420,6 +481,7 @@ pub fn parse_csv(text: &str, file: &str) -> Result<Waypoints, TrajectoryError> {
         file: file.to_string(),
         times_us: Vec::new(),
         positions: Vec::new(),
+        velocities: Vec::new(),
     };
     let mut joints = None;
     for (line_no, line) in text.lines().enumerate() {
@@ -537,9 +599,12 @@ pub fn to_points(
     // current position prepended at t = 0 when the file starts later.
     let mut times = Vec::with_capacity(waypoints.times_us.len() + 1);
     let mut rows: Vec<[f64; MAX_JOINTS]> = Vec::with_capacity(times.capacity());
+    // Steps per second where given (Hermite segments), `None` where not (straight lines).
+    let mut speeds: Vec<[Option<f64>; MAX_JOINTS]> = Vec::with_capacity(times.capacity());
     if waypoints.times_us[0] > 0 {
         times.push(0);
         rows.push(current.map(f64::from));
+        speeds.push([None; MAX_JOINTS]);
     }
     for (i, (&t, row)) in waypoints
         .times_us
@@ -548,9 +613,16 @@ pub fn to_points(
         .enumerate()
     {
         let mut steps = current.map(f64::from);
+        let mut speed = [None; MAX_JOINTS];
         for (j, value) in row.iter().enumerate().take(joints) {
             if let Some(v) = value {
                 steps[j] = *v;
+                speed[j] = waypoints
+                    .velocities
+                    .get(i)
+                    .and_then(|r| r.get(j))
+                    .copied()
+                    .flatten();
             }
             let position = steps[j].round() as i64;
             let limits = &config.joints[j];
@@ -587,6 +659,7 @@ pub fn to_points(
         }
         times.push(t);
         rows.push(steps);
+        speeds.push(speed);
     }
     let total_us = *times.last().unwrap_or(&0);
     if times.len() < 2 || total_us <= 0 {
@@ -615,14 +688,40 @@ pub fn to_points(
         }
         let (t0, t1) = (times[w], times[w + 1]);
         let f = (t - t0) as f64 / (t1 - t0) as f64;
+        let segment_s = (t1 - t0) as f64 / 1e6;
         let mut target = previous;
         for j in 0..joints {
-            let p = rows[w][j] + (rows[w + 1][j] - rows[w][j]) * f;
-            target[j] = p.round() as i32;
+            let (p0, p1) = (rows[w][j], rows[w + 1][j]);
+            let p = match (speeds[w][j], speeds[w + 1][j]) {
+                (Some(v0), Some(v1)) => hermite(p0, v0 * segment_s, p1, v1 * segment_s, f),
+                _ => p0 + (p1 - p0) * f,
+            };
+            target[j] = p.round().clamp(f64::from(i32::MIN), f64::from(i32::MAX)) as i32;
         }
         let duration = (t - previous_t) as u32;
         let index = points.len();
         for (j, limits) in config.joints.iter().enumerate() {
+            // Waypoints are checked above; a Hermite curve can overshoot between them.
+            if target[j] < limits.min_steps {
+                return Err(TrajectoryError::new(
+                    file,
+                    ErrorKind::BelowMin {
+                        value: i64::from(target[j]),
+                        limit: limits.min_steps,
+                    },
+                )
+                .at(index, t, Some(j)));
+            }
+            if target[j] > limits.max_steps {
+                return Err(TrajectoryError::new(
+                    file,
+                    ErrorKind::AboveMax {
+                        value: i64::from(target[j]),
+                        limit: limits.max_steps,
+                    },
+                )
+                .at(index, t, Some(j)));
+            }
             let limit_hz = controller_max_rate_hz
                 .map_or(limits.max_step_rate_hz, |c| c.min(limits.max_step_rate_hz));
             let steps = (i64::from(target[j]) - i64::from(previous[j])).unsigned_abs();
@@ -644,6 +743,17 @@ pub fn to_points(
         previous_t = t;
     }
     Ok(points)
+}
+
+/// The cubic Hermite curve from `p0` to `p1` at `f` in 0..=1, with the end tangents `m0`
+/// and `m1` already scaled to the segment (velocity times its duration).
+fn hermite(p0: f64, m0: f64, p1: f64, m1: f64, f: f64) -> f64 {
+    let f2 = f * f;
+    let f3 = f2 * f;
+    (2.0 * f3 - 3.0 * f2 + 1.0) * p0
+        + (f3 - 2.0 * f2 + f) * m0
+        + (-2.0 * f3 + 3.0 * f2) * p1
+        + (f3 - f2) * m1
 }
 
 #[cfg(test)]
@@ -896,6 +1006,151 @@ mod tests {
                 "c"
             )
             .is_err()
+        );
+    }
+
+    /// Waypoints of one joint sampled from `curve` (position, velocity in steps, steps/s)
+    /// every `every_us` up to `end_us`.
+    fn sampled(curve: impl Fn(f64) -> (f64, f64), every_us: i64, end_us: i64) -> Waypoints {
+        let times_us: Vec<i64> = (0..=end_us / every_us).map(|k| k * every_us).collect();
+        let (positions, velocities) = times_us
+            .iter()
+            .map(|&t| {
+                let (p, v) = curve(t as f64 / 1e6);
+                (vec![Some(p)], vec![Some(v)])
+            })
+            .unzip();
+        Waypoints {
+            file: "curve".into(),
+            times_us,
+            positions,
+            velocities,
+        }
+    }
+
+    #[test]
+    fn hermite_reproduces_a_cubic_exactly() {
+        // p(t) = 100 + 400 t + 900 t^2 - 450 t^3 steps: a cubic is its own Hermite curve,
+        // so every resampled point is the curve rounded to a step, whatever the waypoints.
+        let cubic = |t: f64| {
+            (
+                100.0 + 400.0 * t + 900.0 * t * t - 450.0 * t * t * t,
+                400.0 + 1800.0 * t - 1350.0 * t * t,
+            )
+        };
+        let w = sampled(cubic, 500_000, 2_000_000);
+        let points = to_points(
+            &w,
+            &[100, 0, 0, 0, 0, 0, 0, 0],
+            10_000,
+            &ArmConfig::unlimited(1, 100_000),
+            None,
+        )
+        .unwrap();
+        assert_eq!(points.len(), 200);
+        for (k, p) in points.iter().enumerate() {
+            let t = (k + 1) as f64 * 0.01;
+            let exact = cubic(t).0;
+            assert!(
+                (f64::from(p.position[0]) - exact).abs() <= 0.5 + 1e-6,
+                "t = {t}: {} vs {exact}",
+                p.position[0]
+            );
+        }
+        assert_eq!(points[199].position[0], cubic(2.0).0.round() as i32);
+    }
+
+    #[test]
+    fn hermite_follows_a_sine_within_its_error_bound() {
+        // 2000 sin(2 pi t) steps, waypoints every 100 ms. The cubic Hermite error is at
+        // most max|p''''| h^4 / 384 = 2000 (2 pi)^4 0.1^4 / 384 = 0.81 steps, plus the
+        // rounding to a step; straight lines through the same waypoints miss by up to
+        // 2000 (1 - cos(pi/10)) = 98 steps.
+        let w = 2.0 * std::f64::consts::PI;
+        let sine = |t: f64| (2000.0 * (w * t).sin(), 2000.0 * w * (w * t).cos());
+        let bound = 2000.0 * w.powi(4) * 0.1f64.powi(4) / 384.0 + 0.5;
+        let waypoints = sampled(sine, 100_000, 1_000_000);
+        let config = ArmConfig::unlimited(1, 100_000);
+        let points = to_points(&waypoints, &[0; 8], 5_000, &config, None).unwrap();
+        let worst = points
+            .iter()
+            .enumerate()
+            .map(|(k, p)| (f64::from(p.position[0]) - sine((k + 1) as f64 * 0.005).0).abs())
+            .fold(0.0, f64::max);
+        assert!(worst <= bound, "worst {worst} > bound {bound}");
+        assert_eq!(points.last().unwrap().position[0], 0);
+        // The same waypoints without velocities: straight lines, far off between them.
+        let mut linear = waypoints.clone();
+        linear.velocities.clear();
+        let points = to_points(&linear, &[0; 8], 5_000, &config, None).unwrap();
+        let worst_linear = points
+            .iter()
+            .enumerate()
+            .map(|(k, p)| (f64::from(p.position[0]) - sine((k + 1) as f64 * 0.005).0).abs())
+            .fold(0.0, f64::max);
+        assert!(worst_linear > 90.0, "{worst_linear}");
+    }
+
+    #[test]
+    fn velocities_in_radians_per_second_become_steps_per_second() {
+        // MoveIt-style: at rest at both ends, 1 rad in 1 s; the shoulder has 1000
+        // steps/rad, the elbow -500. The Hermite curve with zero end velocities is the
+        // smoothstep 3f^2 - 2f^3: a quarter of the way is 15.625 % of the move.
+        let text = r#"{"joint_names": ["shoulder", "elbow"], "points": [
+            {"positions": [0.0, 0.0], "velocities": [0.0, 0.0], "time_from_start": {"sec": 0}},
+            {"positions": [1.0, 1.0], "velocities": [0.0, 0.0], "time_from_start": {"sec": 1}}]}"#;
+        let w = parse_joint_trajectory(text, "t.json", &config()).unwrap();
+        assert_eq!(w.velocities[1], vec![Some(0.0), Some(-0.0)]);
+        let points = to_points(&w, &[100, 0, 0, 0, 0, 0, 0, 0], 250_000, &config(), None).unwrap();
+        let shoulder: Vec<i32> = points.iter().map(|p| p.position[0]).collect();
+        let elbow: Vec<i32> = points.iter().map(|p| p.position[1]).collect();
+        assert_eq!(shoulder, vec![256, 600, 944, 1100]);
+        assert_eq!(elbow, vec![-78, -250, -422, -500]);
+        let text = r#"{"joint_names": ["shoulder", "elbow"], "points": [
+            {"positions": [0.0, 0.0], "velocities": [0.0], "time_from_start": {"sec": 0}}]}"#;
+        let err = parse_joint_trajectory(text, "t.json", &config()).unwrap_err();
+        assert_eq!(
+            err.kind,
+            ErrorKind::WrongJointCount {
+                found: 1,
+                expected: 2
+            }
+        );
+    }
+
+    #[test]
+    fn a_segment_without_velocities_at_both_ends_is_a_straight_line() {
+        // Velocity given at t = 0 and 2 s, not at 1 s: both segments are straight lines.
+        let w = Waypoints {
+            file: "mixed".into(),
+            times_us: vec![0, 1_000_000, 2_000_000],
+            positions: vec![vec![Some(0.0)], vec![Some(100.0)], vec![Some(300.0)]],
+            velocities: vec![vec![Some(500.0)], vec![None], vec![Some(0.0)]],
+        };
+        let points = to_points(&w, &[0; 8], 250_000, &ArmConfig::unlimited(1, 1000), None).unwrap();
+        let positions: Vec<i32> = points.iter().map(|p| p.position[0]).collect();
+        assert_eq!(positions, vec![25, 50, 75, 100, 150, 200, 250, 300]);
+    }
+
+    #[test]
+    fn a_hermite_overshoot_past_a_limit_is_refused() {
+        // From 0 to 100 steps with a large start velocity: the curve passes 100 between
+        // the waypoints, which a limit at 100 refuses although both waypoints are inside.
+        let w = Waypoints {
+            file: "over".into(),
+            times_us: vec![0, 1_000_000],
+            positions: vec![vec![Some(0.0)], vec![Some(100.0)]],
+            velocities: vec![vec![Some(600.0)], vec![Some(0.0)]],
+        };
+        let config = ArmConfig::parse(
+            r#"{"joints": [{"max_steps": 100, "max_step_rate_hz": 100000}]}"#,
+            "c.json",
+        )
+        .unwrap();
+        let err = to_points(&w, &[0; 8], 50_000, &config, None).unwrap_err();
+        assert!(
+            matches!(err.kind, ErrorKind::AboveMax { limit: 100, .. }),
+            "{err}"
         );
     }
 
