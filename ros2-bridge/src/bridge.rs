@@ -1,0 +1,678 @@
+//! The running bridge: one ROS 2 node (ros2-client on RustDDS) whose action servers,
+//! service and publisher run as futures on one thread, and the armctl [`Controller`] whose
+//! blocking calls run on threads of their own so that a slow controller never holds up
+//! joint_states.
+//!
+//! ```text
+//!  controller --LOCATION--> location thread --(sample, arrival stamp)--> joint_states task
+//!       ^                        |                                      (one JointState each)
+//!       |                        +--> latest sample (feedback, start-state check)
+//!       +--- run thread: run_trajectory (NEW, PENDING..., RUNING, wait) <-- trajectory task
+//!       +--- STOPPED: cancel, e-stop service;   PWM: gripper task;   STATUS: keep-alive thread
+//! ```
+
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::mpsc;
+use std::sync::{Arc, Mutex, PoisonError};
+use std::time::{Duration, Instant, SystemTime};
+
+use armctl::protocol::{Location, MAX_JOINTS, State, StatusReport, Tag};
+use armctl::trajectory::ArmConfig;
+use armctl::{Controller, Error, Progress, RunOptions, RunReport};
+use async_io::Timer;
+use futures::{FutureExt, StreamExt};
+use ros2_client::action::{
+    ActionServerQosPolicies, AsyncActionServer, ExecutingGoalHandle, GoalEndStatus, NewGoalHandle,
+};
+use ros2_client::qos::{Durability, History};
+use ros2_client::{
+    ActionTypeName, Context, MessageTypeName, Name, NodeName, NodeOptions, QosProfile,
+    ServiceMapping, ServiceTypeName,
+};
+
+use crate::config::BridgeConfig;
+use crate::goal::{self, Plan};
+use crate::msgs::{
+    FollowJointTrajectoryFeedback, FollowJointTrajectoryGoal, FollowJointTrajectoryResult,
+    GripperCommandGoal, GripperCommandResult, Time, TriggerRequest, TriggerResponse,
+};
+
+type TrajectoryServer = AsyncActionServer<
+    FollowJointTrajectoryGoal,
+    FollowJointTrajectoryResult,
+    FollowJointTrajectoryFeedback,
+>;
+type GripperServer =
+    AsyncActionServer<GripperCommandGoal, GripperCommandResult, GripperCommandResult>;
+
+/// How often the bridge sends STATUS while idle: the controller hands ownership to another
+/// host after 5 s of silence (PROTOCOL.md section 1).
+const KEEP_ALIVE: Duration = Duration::from_secs(1);
+
+/// How long a finished goal's result waits for the client to ask for it.
+const RESULT_WAIT: Duration = Duration::from_secs(10);
+
+/// LOCATION reports queued for joint_states at most; older ones are dropped (a stale
+/// joint state is worse than a missing one).
+const SAMPLE_QUEUE: usize = 64;
+
+/// One LOCATION report and the host clock when it arrived.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Sample {
+    /// The report.
+    pub location: Location,
+    /// When the bridge received it (the JointState stamp).
+    pub stamp: SystemTime,
+}
+
+fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(PoisonError::into_inner)
+}
+
+/// Runs `work` on a thread of its own and waits for it without blocking the executor;
+/// `None` if it panicked.
+async fn off_thread<T: Send + 'static>(work: impl FnOnce() -> T + Send + 'static) -> Option<T> {
+    let (tx, rx) = async_channel::bounded(1);
+    std::thread::spawn(move || {
+        let _ = tx.send_blocking(work());
+    });
+    rx.recv().await.ok()
+}
+
+/// The bridge between one controller and the ROS 2 graph.
+pub struct Bridge {
+    config: BridgeConfig,
+    arm: ArmConfig,
+    names: Vec<String>,
+    controller: Arc<Controller>,
+    status: StatusReport,
+    latest: Arc<Mutex<Option<Sample>>>,
+    observers: Arc<Mutex<Vec<mpsc::Sender<Sample>>>>,
+    /// E-stops served so far: a run that ends STOPPED after one was aborted by it.
+    estops: AtomicU64,
+    shutdown: Arc<AtomicBool>,
+}
+
+impl std::fmt::Debug for Bridge {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Bridge")
+            .field("controller", &self.config.controller)
+            .finish_non_exhaustive()
+    }
+}
+
+impl Bridge {
+    /// Connects to the controller, checks it has the configured joints, and asks for
+    /// LOCATION reports at the JointState rate.
+    pub fn connect(config: BridgeConfig, arm: ArmConfig) -> Result<Bridge, String> {
+        let controller = Controller::connect(config.controller.as_str())
+            .map_err(|e| format!("controller {}: {e}", config.controller))?;
+        let status = controller.status().map_err(|e| e.to_string())?;
+        if usize::from(status.joints) < arm.joints.len() {
+            return Err(format!(
+                "the controller has {} joints, the config {}",
+                status.joints,
+                arm.joints.len()
+            ));
+        }
+        let period_us = (1e6 / config.joint_state_rate_hz).round() as u32;
+        controller
+            .upload_period(period_us.clamp(1000, 1_000_000))
+            .map_err(|e| e.to_string())?;
+        controller.reports(true).map_err(|e| e.to_string())?;
+        let names = config.joint_names();
+        Ok(Bridge {
+            config,
+            arm,
+            names,
+            controller: Arc::new(controller),
+            status,
+            latest: Arc::new(Mutex::new(None)),
+            observers: Arc::new(Mutex::new(Vec::new())),
+            estops: AtomicU64::new(0),
+            shutdown: Arc::new(AtomicBool::new(false)),
+        })
+    }
+
+    /// Every LOCATION sample the bridge turns into a JointState, as it does (for tests and
+    /// tools that compare the two).
+    pub fn observe(&self) -> mpsc::Receiver<Sample> {
+        let (tx, rx) = mpsc::channel();
+        lock(&self.observers).push(tx);
+        rx
+    }
+
+    /// The last LOCATION sample.
+    pub fn latest(&self) -> Option<Sample> {
+        *lock(&self.latest)
+    }
+
+    /// Serves ROS 2 until `stop` receives (or closes).
+    pub fn run(&self, stop: async_channel::Receiver<()>) -> Result<(), String> {
+        let (sample_tx, sample_rx) = async_channel::bounded(SAMPLE_QUEUE);
+        let location_thread = self.start_location_thread(sample_tx, sample_rx.clone());
+        let keep_alive_thread = self.start_keep_alive_thread();
+        let result = self.serve(sample_rx, stop);
+        self.shutdown.store(true, Ordering::Relaxed);
+        let _ = location_thread.join();
+        let _ = keep_alive_thread.join();
+        result
+    }
+
+    fn start_location_thread(
+        &self,
+        samples: async_channel::Sender<Sample>,
+        oldest: async_channel::Receiver<Sample>,
+    ) -> std::thread::JoinHandle<()> {
+        let locations = self.controller.locations();
+        let latest = self.latest.clone();
+        let observers = self.observers.clone();
+        let shutdown = self.shutdown.clone();
+        std::thread::spawn(move || {
+            while !shutdown.load(Ordering::Relaxed) {
+                let Ok(location) = locations.recv_timeout(Duration::from_millis(100)) else {
+                    continue;
+                };
+                let sample = Sample {
+                    location,
+                    stamp: SystemTime::now(),
+                };
+                *lock(&latest) = Some(sample);
+                lock(&observers).retain(|o| o.send(sample).is_ok());
+                if samples.is_full() {
+                    let _ = oldest.try_recv();
+                }
+                let _ = samples.try_send(sample);
+            }
+        })
+    }
+
+    fn start_keep_alive_thread(&self) -> std::thread::JoinHandle<()> {
+        let controller = self.controller.clone();
+        let shutdown = self.shutdown.clone();
+        std::thread::spawn(move || {
+            let mut next = Instant::now() + KEEP_ALIVE;
+            while !shutdown.load(Ordering::Relaxed) {
+                std::thread::sleep(Duration::from_millis(100));
+                if Instant::now() >= next {
+                    if let Err(e) = controller.status() {
+                        log::warn!("keep-alive STATUS: {e}");
+                    }
+                    next = Instant::now() + KEEP_ALIVE;
+                }
+            }
+        })
+    }
+
+    fn serve(
+        &self,
+        samples: async_channel::Receiver<Sample>,
+        stop: async_channel::Receiver<()>,
+    ) -> Result<(), String> {
+        let name = |full: &str| -> Result<Name, String> {
+            let (namespace, base) = full.rsplit_once('/').unwrap_or(("", full));
+            let namespace = if namespace.is_empty() && full.starts_with('/') {
+                "/"
+            } else {
+                namespace
+            };
+            Name::new(namespace, base).map_err(|e| format!("ROS name {full:?}: {e:?}"))
+        };
+        let context = Context::new().map_err(|e| format!("DDS: {e:?}"))?;
+        let mut node = context
+            .new_node(
+                NodeName::new(&self.config.namespace, &self.config.node_name)
+                    .map_err(|e| format!("node name: {e:?}"))?,
+                NodeOptions::new(),
+            )
+            .map_err(|e| format!("node: {e:?}"))?;
+
+        let joint_states_topic = node
+            .create_topic(
+                &name(&self.config.joint_states_topic)?,
+                MessageTypeName::new("sensor_msgs", "JointState"),
+                &QosProfile::publisher_default()
+                    .durability(Durability::Volatile)
+                    .history(History::KeepLast { depth: 10 }),
+            )
+            .map_err(|e| format!("joint_states topic: {e:?}"))?;
+        let joint_states = node
+            .create_publisher::<crate::msgs::JointState>(&joint_states_topic, None)
+            .map_err(|e| format!("joint_states publisher: {e:?}"))?;
+
+        let trajectory_server: TrajectoryServer = AsyncActionServer::new(
+            node.create_action_server(
+                ServiceMapping::Enhanced,
+                &name(&self.config.action_name)?,
+                &ActionTypeName::new("control_msgs", "FollowJointTrajectory"),
+                action_qos(),
+            )
+            .map_err(|e| format!("FollowJointTrajectory server: {e:?}"))?,
+        );
+        let gripper_server: Option<GripperServer> = match &self.config.gripper {
+            Some(_) => Some(AsyncActionServer::new(
+                node.create_action_server(
+                    ServiceMapping::Enhanced,
+                    &name(&self.config.gripper_action_name)?,
+                    &ActionTypeName::new("control_msgs", "GripperCommand"),
+                    action_qos(),
+                )
+                .map_err(|e| format!("GripperCommand server: {e:?}"))?,
+            )),
+            None => None,
+        };
+        let service_qos = QosProfile::publisher_default()
+            .durability(Durability::Volatile)
+            .history(History::KeepLast { depth: 10 });
+        let estop_server = node
+            .create_server::<TriggerRequest, TriggerResponse>(
+                ServiceMapping::Enhanced,
+                &name(&self.config.estop_service)?,
+                &ServiceTypeName::new("std_srvs", "Trigger"),
+                service_qos.clone(),
+                service_qos,
+            )
+            .map_err(|e| format!("e-stop service: {e:?}"))?;
+        let spinner = node.spinner().map_err(|e| format!("spinner: {e:?}"))?;
+
+        let publish_joint_states = async {
+            while let Ok(sample) = samples.recv().await {
+                let state = goal::joint_state(
+                    &self.names,
+                    &self.arm,
+                    &sample.location.position,
+                    Time::from_system(sample.stamp),
+                );
+                if let Err(e) = joint_states.async_publish(state).await {
+                    log::warn!("joint_states: {e:?}");
+                }
+            }
+        };
+        let serve_estop = async {
+            loop {
+                match estop_server.async_receive_request().await {
+                    Ok((request, _)) => {
+                        let response = self.estop().await;
+                        if let Err(e) = estop_server.async_send_response(request, response).await {
+                            log::warn!("e-stop response: {e:?}");
+                        }
+                    }
+                    Err(e) => log::warn!("e-stop request: {e:?}"),
+                }
+            }
+        };
+        let serve_gripper = async {
+            match &gripper_server {
+                Some(server) => self.serve_gripper(server).await,
+                None => futures::future::pending().await,
+            }
+        };
+        let all = async {
+            futures::join!(
+                spinner.spin().map(|r| {
+                    if let Err(e) = r {
+                        log::error!("spinner: {e:?}");
+                    }
+                }),
+                publish_joint_states,
+                self.serve_trajectories(&trajectory_server),
+                serve_gripper,
+                serve_estop,
+            );
+        };
+        async_io::block_on(async {
+            futures::select! {
+                _ = all.fuse() => {},
+                _ = stop.recv().fuse() => {},
+            }
+        });
+        Ok(())
+    }
+
+    /// STOPPED, as the e-stop service's answer.
+    async fn estop(&self) -> TriggerResponse {
+        self.estops.fetch_add(1, Ordering::SeqCst);
+        let controller = self.controller.clone();
+        match off_thread(move || controller.stop()).await {
+            Some(Ok(ack)) => TriggerResponse {
+                success: true,
+                message: format!(
+                    "STOPPED acknowledged, controller state {}",
+                    ack.state.name()
+                ),
+            },
+            Some(Err(e)) => TriggerResponse {
+                success: false,
+                message: format!("STOPPED failed: {e}"),
+            },
+            None => TriggerResponse {
+                success: false,
+                message: "STOPPED failed: internal error".into(),
+            },
+        }
+    }
+
+    async fn serve_trajectories(&self, server: &TrajectoryServer) {
+        loop {
+            futures::select! {
+                new_goal = server.receive_new_goal().fuse() => match new_goal {
+                    Ok(handle) => self.handle_goal(server, handle).await,
+                    Err(e) => log::warn!("FollowJointTrajectory goal: {e:?}"),
+                },
+                cancel = server.receive_cancel_request().fuse() => if let Ok(cancel) = cancel {
+                    // Nothing runs: nothing to cancel.
+                    let _ = server.respond_to_cancel_requests(&cancel, std::iter::empty()).await;
+                },
+            }
+        }
+    }
+
+    /// Where the arm is: the last LOCATION, or a fresh one.
+    async fn current_position(&self) -> Result<[i32; MAX_JOINTS], String> {
+        if let Some(sample) = self.latest() {
+            return Ok(sample.location.position);
+        }
+        let controller = self.controller.clone();
+        match off_thread(move || controller.current_location(Duration::from_secs(1))).await {
+            Some(Ok(location)) => Ok(location.position),
+            Some(Err(e)) => Err(e.to_string()),
+            None => Err("internal error reading the position".into()),
+        }
+    }
+
+    async fn handle_goal(
+        &self,
+        server: &TrajectoryServer,
+        handle: NewGoalHandle<FollowJointTrajectoryGoal>,
+    ) {
+        let Some(goal) = server.get_new_goal(handle.clone()) else {
+            return;
+        };
+        let planned = match self.current_position().await {
+            Ok(current) => goal::plan(
+                &goal,
+                &self.config,
+                &self.arm,
+                &current,
+                Some(self.status.max_step_rate_hz).filter(|&r| r > 0),
+            ),
+            Err(e) => Err(goal::Refusal {
+                code: FollowJointTrajectoryResult::INVALID_GOAL,
+                message: format!("the arm's position is unknown: {e}"),
+            }),
+        };
+        // Invalid goals are accepted and aborted at once rather than rejected: a rejection
+        // carries no reason, the result's error string does.
+        let executing = match server.accept_goal(handle).await {
+            Ok(accepted) => match server.start_executing_goal(accepted).await {
+                Ok(executing) => executing,
+                Err(e) => return log::warn!("start goal: {e:?}"),
+            },
+            Err(e) => return log::warn!("accept goal: {e:?}"),
+        };
+        let (status, result) = match planned {
+            Err(refusal) => {
+                log::info!("goal refused: {}", refusal.message);
+                (
+                    GoalEndStatus::Aborted,
+                    FollowJointTrajectoryResult {
+                        error_code: refusal.code,
+                        error_string: refusal.message,
+                    },
+                )
+            }
+            Ok(plan) => self.execute(server, executing.clone(), &plan).await,
+        };
+        log::info!(
+            "goal ended {status:?}: {} {}",
+            result.error_code,
+            result.error_string
+        );
+        futures::select! {
+            sent = server.send_result_response(executing, status, result).fuse() => {
+                if let Err(e) = sent {
+                    log::warn!("result: {e:?}");
+                }
+            }
+            _ = FutureExt::fuse(Timer::after(RESULT_WAIT)) => log::warn!("nobody asked for the result"),
+        }
+    }
+
+    /// Streams `plan` with armctl's client, publishing feedback, serving cancels and
+    /// rejecting other goals until the run ends.
+    async fn execute(
+        &self,
+        server: &TrajectoryServer,
+        executing: ExecutingGoalHandle<FollowJointTrajectoryGoal>,
+        plan: &Plan,
+    ) -> (GoalEndStatus, FollowJointTrajectoryResult) {
+        let running_since: Arc<Mutex<Option<Instant>>> = Arc::new(Mutex::new(None));
+        let executed = Arc::new(AtomicU64::new(0));
+        let (done_tx, done_rx) = async_channel::bounded::<armctl::Result<RunReport>>(1);
+        let estops_before = self.estops.load(Ordering::SeqCst);
+        {
+            let controller = self.controller.clone();
+            let points = plan.points.clone();
+            let running_since = running_since.clone();
+            let executed = executed.clone();
+            std::thread::spawn(move || {
+                let result =
+                    controller.run_trajectory(&points, &RunOptions::default(), |p: &Progress| {
+                        executed.store(p.executed as u64, Ordering::Relaxed);
+                        if p.state == State::Running {
+                            lock(&running_since).get_or_insert_with(Instant::now);
+                        }
+                    });
+                let _ = done_tx.send_blocking(result);
+            });
+        }
+        let period = Duration::from_secs_f64(1.0 / self.config.feedback_rate_hz);
+        let mut ticker = Timer::interval(period);
+        let mut canceled = false;
+        let mut path_violation: Option<String> = None;
+        let outcome = loop {
+            futures::select! {
+                done = done_rx.recv().fuse() => break done.ok(),
+                _ = ticker.next().fuse() => {
+                    let elapsed_us = lock(&running_since)
+                        .map_or(0, |t| t.elapsed().as_micros() as i64);
+                    let desired = plan.desired_steps(elapsed_us);
+                    let actual = self.latest().map_or(plan.start, |s| s.location.position);
+                    let feedback = goal::feedback(plan, &self.arm, &desired, &actual, elapsed_us,
+                        Time::from_system(SystemTime::now()));
+                    if let Err(e) = server.publish_feedback(executing.clone(), feedback).await {
+                        log::warn!("feedback: {e:?}");
+                    }
+                    if path_violation.is_none() && !canceled
+                        && let Some(why) = goal::path_violation(plan, &self.arm, &desired, &actual)
+                    {
+                        path_violation = Some(why);
+                        self.stop_detached();
+                    }
+                },
+                cancel = server.receive_cancel_request().fuse() => if let Ok(cancel) = cancel {
+                    let mine = executing.goal_id();
+                    if cancel.contains_goal(&mine) {
+                        canceled = true;
+                        self.stop_detached();
+                        let _ = server.respond_to_cancel_requests(&cancel, std::iter::once(mine)).await;
+                    } else {
+                        let _ = server.respond_to_cancel_requests(&cancel, std::iter::empty()).await;
+                    }
+                },
+                other = server.receive_new_goal().fuse() => if let Ok(other) = other {
+                    // One trajectory at a time: MoveIt waits for the running one or cancels it.
+                    log::info!("goal rejected: another goal is running");
+                    let _ = server.reject_goal(other).await;
+                },
+            }
+        };
+        let executed = executed.load(Ordering::Relaxed);
+        let total = plan.points.len();
+        let position = |p: &[i32; MAX_JOINTS]| -> String {
+            let rad: Vec<String> = (0..self.arm.joints.len())
+                .map(|j| format!("{:.4}", goal::radians(&self.arm, j, f64::from(p[j]))))
+                .collect();
+            format!("[{}] rad", rad.join(", "))
+        };
+        let result = |code: i32, message: String| FollowJointTrajectoryResult {
+            error_code: code,
+            error_string: message,
+        };
+        let end_position = match &outcome {
+            Some(Ok(report)) => report.final_location.map(|l| l.position),
+            _ => None,
+        }
+        .or_else(|| self.latest().map(|s| s.location.position));
+        match outcome {
+            _ if canceled => (
+                GoalEndStatus::Canceled,
+                result(
+                    FollowJointTrajectoryResult::SUCCESSFUL,
+                    format!(
+                        "canceled: STOPPED sent to the controller after about {executed} of \
+                         {total} points; the arm stopped at {}",
+                        end_position.map_or("an unknown position".into(), |p| position(&p))
+                    ),
+                ),
+            ),
+            Some(Ok(_)) => match end_position {
+                Some(end) => match goal::check_end(plan, &self.arm, &self.config, &end) {
+                    Ok(summary) => (
+                        GoalEndStatus::Succeeded,
+                        result(FollowJointTrajectoryResult::SUCCESSFUL, summary),
+                    ),
+                    Err(why) => (
+                        GoalEndStatus::Aborted,
+                        result(FollowJointTrajectoryResult::GOAL_TOLERANCE_VIOLATED, why),
+                    ),
+                },
+                None => (
+                    GoalEndStatus::Aborted,
+                    result(
+                        FollowJointTrajectoryResult::GOAL_TOLERANCE_VIOLATED,
+                        "the run ended but no LOCATION report says where the arm is".into(),
+                    ),
+                ),
+            },
+            Some(Err(e)) => {
+                let code = match &e {
+                    Error::Refused {
+                        command: Tag::New, ..
+                    }
+                    | Error::InvalidTrajectory(_) => FollowJointTrajectoryResult::INVALID_GOAL,
+                    _ => FollowJointTrajectoryResult::PATH_TOLERANCE_VIOLATED,
+                };
+                let why = if let Some(why) = path_violation {
+                    format!("{why}: STOPPED sent ({e})")
+                } else if self.estops.load(Ordering::SeqCst) != estops_before {
+                    format!("stopped by the e-stop service: {e}")
+                } else {
+                    e.to_string()
+                };
+                (
+                    GoalEndStatus::Aborted,
+                    result(
+                        code,
+                        format!(
+                            "{why}; the arm is at {}",
+                            end_position.map_or("an unknown position".into(), |p| position(&p))
+                        ),
+                    ),
+                )
+            }
+            None => (
+                GoalEndStatus::Aborted,
+                result(
+                    FollowJointTrajectoryResult::PATH_TOLERANCE_VIOLATED,
+                    "the streaming thread failed".into(),
+                ),
+            ),
+        }
+    }
+
+    /// Sends STOPPED from a thread of its own (it must not wait behind anything).
+    fn stop_detached(&self) {
+        let controller = self.controller.clone();
+        std::thread::spawn(move || {
+            if let Err(e) = controller.stop() {
+                log::error!("STOPPED: {e}");
+            }
+        });
+    }
+
+    async fn serve_gripper(&self, server: &GripperServer) {
+        let Some(gripper) = self.config.gripper.clone() else {
+            return;
+        };
+        loop {
+            futures::select! {
+                new_goal = server.receive_new_goal().fuse() => {
+                    let Ok(handle) = new_goal else { continue };
+                    let Some(goal) = server.get_new_goal(handle) else { continue };
+                    let position = goal.command.position;
+                    let Ok(accepted) = server.accept_goal(handle).await else { continue };
+                    let Ok(executing) = server.start_executing_goal(accepted).await else { continue };
+                    let applied = match gripper.duty(position) {
+                        Err(e) => Err(e),
+                        Ok(duty) => {
+                            let controller = self.controller.clone();
+                            let clock = self.status.pwm_timer_clock_hz;
+                            let hz = gripper.pwm_hz;
+                            off_thread(move || {
+                                let pwm = armctl::pwm::settings(clock, hz, duty, 0)?;
+                                controller.pwm_start(pwm).map_err(|e| e.to_string())
+                            })
+                            .await
+                            .unwrap_or_else(|| Err("internal error".into()))
+                            .map(|_| duty)
+                        }
+                    };
+                    let (status, reached) = match applied {
+                        Ok(duty) => {
+                            log::info!("gripper to {position} m: duty {duty:.4}");
+                            Timer::after(Duration::from_millis(gripper.settle_ms)).await;
+                            (GoalEndStatus::Succeeded, true)
+                        }
+                        Err(e) => {
+                            log::warn!("gripper: {e}");
+                            (GoalEndStatus::Aborted, false)
+                        }
+                    };
+                    let result = GripperCommandResult {
+                        position: if reached { position } else { f64::NAN },
+                        effort: 0.0,
+                        stalled: false,
+                        reached_goal: reached,
+                    };
+                    futures::select! {
+                        sent = server.send_result_response(executing, status, result).fuse() => {
+                            if let Err(e) = sent { log::warn!("gripper result: {e:?}"); }
+                        }
+                        _ = FutureExt::fuse(Timer::after(RESULT_WAIT)) => {},
+                    }
+                },
+                cancel = server.receive_cancel_request().fuse() => if let Ok(cancel) = cancel {
+                    // A servo command is one PWM setting: nothing to cancel.
+                    let _ = server.respond_to_cancel_requests(&cancel, std::iter::empty()).await;
+                },
+            }
+        }
+    }
+}
+
+/// ROS 2's QoS for actions: volatile services and feedback, transient-local status.
+pub fn action_qos() -> ActionServerQosPolicies {
+    let volatile = QosProfile::publisher_default()
+        .durability(Durability::Volatile)
+        .history(History::KeepLast { depth: 10 });
+    ActionServerQosPolicies {
+        goal_service: volatile.clone(),
+        result_service: volatile.clone(),
+        cancel_service: volatile.clone(),
+        feedback_publisher: volatile,
+        status_publisher: QosProfile::publisher_default()
+            .history(History::KeepLast { depth: 1 })
+            .durability(Durability::TransientLocal),
+    }
+}

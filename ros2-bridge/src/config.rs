@@ -1,0 +1,260 @@
+//! The bridge's configuration file (JSON): the controller's address, ROS names, rates and
+//! the joint config in armctl's format (`joints`: steps per radian, offsets, limits, step
+//! rates), plus the gripper servo's duty range.
+
+use std::path::Path;
+
+use armctl::trajectory::ArmConfig;
+use serde::Deserialize;
+
+/// Everything the bridge is told. Every field but `joints` has a default.
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BridgeConfig {
+    /// The controller, `host:port`.
+    #[serde(default = "default_controller")]
+    pub controller: String,
+    /// ROS node name.
+    #[serde(default = "default_node_name")]
+    pub node_name: String,
+    /// ROS node namespace.
+    #[serde(default = "default_namespace")]
+    pub namespace: String,
+    /// The FollowJointTrajectory action (MoveIt: `<controller name>/<action_ns>`).
+    #[serde(default = "default_action_name")]
+    pub action_name: String,
+    /// The GripperCommand action.
+    #[serde(default = "default_gripper_action_name")]
+    pub gripper_action_name: String,
+    /// The `std_srvs/Trigger` service that sends STOPPED.
+    #[serde(default = "default_estop_service")]
+    pub estop_service: String,
+    /// The JointState topic.
+    #[serde(default = "default_joint_states_topic")]
+    pub joint_states_topic: String,
+    /// JointState rate, 1..=1000 Hz: the controller is asked for LOCATION reports at this
+    /// rate and every report becomes one JointState.
+    #[serde(default = "default_joint_state_rate_hz")]
+    pub joint_state_rate_hz: f64,
+    /// FollowJointTrajectory feedback rate while a goal runs, 1..=1000 Hz.
+    #[serde(default = "default_feedback_rate_hz")]
+    pub feedback_rate_hz: f64,
+    /// Duration of one controller point when resampling a trajectory, microseconds.
+    #[serde(default = "default_segment_us")]
+    pub segment_us: u32,
+    /// Largest difference between a goal's first point (at time 0) and where the arm is,
+    /// radians (MoveIt's default allowed start deviation is 0.01).
+    #[serde(default = "default_start_tolerance_rad")]
+    pub start_tolerance_rad: f64,
+    /// Largest difference between the last point and where the arm ends, steps, when the
+    /// goal gives no goal tolerance for a joint.
+    #[serde(default)]
+    pub goal_tolerance_steps: u32,
+    /// The arm's joints, joint 0 first (armctl's joint config entries; `name` is the ROS
+    /// joint name).
+    pub joints: Vec<armctl::trajectory::JointConfig>,
+    /// The gripper servo; `None`: no GripperCommand action.
+    #[serde(default)]
+    pub gripper: Option<GripperConfig>,
+}
+
+/// A hobby servo on the gripper PWM: a position (gap, metres) maps linearly to a duty.
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GripperConfig {
+    /// Servo frame rate, Hz (50 for most hobby servos).
+    #[serde(default = "default_servo_hz")]
+    pub pwm_hz: f64,
+    /// Gap when closed, metres.
+    pub closed_position: f64,
+    /// Gap when open, metres.
+    pub open_position: f64,
+    /// Duty (0..1) that closes it (1 ms of 20 ms = 0.05).
+    pub closed_duty: f64,
+    /// Duty (0..1) that opens it (2 ms of 20 ms = 0.10).
+    pub open_duty: f64,
+    /// How long the servo takes to get anywhere, milliseconds: the result waits this long.
+    #[serde(default = "default_settle_ms")]
+    pub settle_ms: u64,
+}
+
+impl GripperConfig {
+    /// The duty for a gap, or why the gap is refused.
+    pub fn duty(&self, position: f64) -> Result<f64, String> {
+        let (low, high) = if self.closed_position <= self.open_position {
+            (self.closed_position, self.open_position)
+        } else {
+            (self.open_position, self.closed_position)
+        };
+        if !position.is_finite() || position < low - 1e-9 || position > high + 1e-9 {
+            return Err(format!(
+                "gripper position {position} m is outside {low}..={high} m (closed {} m, open {} m)",
+                self.closed_position, self.open_position
+            ));
+        }
+        let f = (position - self.closed_position) / (self.open_position - self.closed_position);
+        Ok(self.closed_duty + f.clamp(0.0, 1.0) * (self.open_duty - self.closed_duty))
+    }
+}
+
+fn default_controller() -> String {
+    "127.0.0.1:8510".into()
+}
+fn default_node_name() -> String {
+    "armctl_bridge".into()
+}
+fn default_namespace() -> String {
+    "/".into()
+}
+fn default_action_name() -> String {
+    "/arm_controller/follow_joint_trajectory".into()
+}
+fn default_gripper_action_name() -> String {
+    "/gripper_controller/gripper_cmd".into()
+}
+fn default_estop_service() -> String {
+    "/arm_controller/estop".into()
+}
+fn default_joint_states_topic() -> String {
+    "/joint_states".into()
+}
+fn default_joint_state_rate_hz() -> f64 {
+    50.0
+}
+fn default_feedback_rate_hz() -> f64 {
+    25.0
+}
+fn default_segment_us() -> u32 {
+    10_000
+}
+fn default_start_tolerance_rad() -> f64 {
+    0.01
+}
+fn default_servo_hz() -> f64 {
+    50.0
+}
+fn default_settle_ms() -> u64 {
+    300
+}
+
+impl BridgeConfig {
+    /// Reads and checks a config file.
+    pub fn load(path: &Path) -> Result<(BridgeConfig, ArmConfig), String> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| format!("{}: cannot read: {e}", path.display()))?;
+        Self::parse(&text, &path.display().to_string())
+    }
+
+    /// Parses and checks a config; `file` names it in messages. Returns the joint config
+    /// as armctl takes it too.
+    pub fn parse(text: &str, file: &str) -> Result<(BridgeConfig, ArmConfig), String> {
+        let config: BridgeConfig =
+            serde_json::from_str(text).map_err(|e| format!("{file}: cannot parse: {e}"))?;
+        let arm = ArmConfig::parse(text, file).map_err(|e| e.to_string())?;
+        let rates = [
+            ("joint_state_rate_hz", config.joint_state_rate_hz),
+            ("feedback_rate_hz", config.feedback_rate_hz),
+        ];
+        for (name, rate) in rates {
+            if !(1.0..=1000.0).contains(&rate) {
+                return Err(format!("{file}: {name} {rate} must be 1 to 1000 Hz"));
+            }
+        }
+        if config.segment_us == 0 {
+            return Err(format!("{file}: segment_us must be at least 1"));
+        }
+        if !(config.start_tolerance_rad.is_finite() && config.start_tolerance_rad >= 0.0) {
+            return Err(format!("{file}: start_tolerance_rad must be 0 or more"));
+        }
+        for (j, joint) in config.joints.iter().enumerate() {
+            if joint.name.is_none() {
+                return Err(format!(
+                    "{file}: joint {j} has no `name` (the ROS joint name is needed)"
+                ));
+            }
+            let repeated = config.joints[..j].iter().any(|o| o.name == joint.name);
+            if repeated {
+                return Err(format!("{file}: joint name {:?} repeated", joint.name));
+            }
+        }
+        if let Some(g) = &config.gripper {
+            let duties_ok = [g.closed_duty, g.open_duty]
+                .iter()
+                .all(|d| (0.0..=1.0).contains(d));
+            if !(duties_ok && g.pwm_hz.is_finite() && g.pwm_hz > 0.0) {
+                return Err(format!(
+                    "{file}: gripper duties must be 0 to 1 and pwm_hz above 0"
+                ));
+            }
+            if !(g.closed_position.is_finite() && g.open_position.is_finite())
+                || g.closed_position == g.open_position
+            {
+                return Err(format!(
+                    "{file}: gripper closed_position and open_position must differ"
+                ));
+            }
+        }
+        Ok((config, arm))
+    }
+
+    /// The ROS joint names, joint 0 first.
+    pub fn joint_names(&self) -> Vec<String> {
+        self.joints
+            .iter()
+            .map(|j| j.name.clone().unwrap_or_default())
+            .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const EXAMPLE: &str = include_str!("../examples/bridge.json");
+
+    #[test]
+    fn the_example_parses() {
+        let (config, arm) = BridgeConfig::parse(EXAMPLE, "bridge.json").unwrap();
+        assert_eq!(arm.joints.len(), 6);
+        assert_eq!(config.joint_names()[0], "base");
+        assert_eq!(
+            config.action_name,
+            "/arm_controller/follow_joint_trajectory"
+        );
+        let gripper = config.gripper.unwrap();
+        assert!(
+            (gripper.duty(gripper.closed_position).unwrap() - gripper.closed_duty).abs() < 1e-12
+        );
+        assert!((gripper.duty(gripper.open_position).unwrap() - gripper.open_duty).abs() < 1e-12);
+        assert!(gripper.duty(gripper.open_position + 0.01).is_err());
+    }
+
+    #[test]
+    fn bad_configs_are_refused_with_what_is_wrong() {
+        let nameless = r#"{"joints": [{"max_step_rate_hz": 1000}]}"#;
+        assert!(
+            BridgeConfig::parse(nameless, "c")
+                .unwrap_err()
+                .contains("no `name`")
+        );
+        let rate =
+            r#"{"joint_state_rate_hz": 0, "joints": [{"name": "a", "max_step_rate_hz": 1}]}"#;
+        assert!(
+            BridgeConfig::parse(rate, "c")
+                .unwrap_err()
+                .contains("joint_state_rate_hz")
+        );
+        let typo = r#"{"joint_state_hz": 50, "joints": [{"name": "a", "max_step_rate_hz": 1}]}"#;
+        assert!(
+            BridgeConfig::parse(typo, "c")
+                .unwrap_err()
+                .contains("joint_state_hz")
+        );
+        let twice = r#"{"joints": [{"name": "a", "max_step_rate_hz": 1}, {"name": "a", "max_step_rate_hz": 1}]}"#;
+        assert!(
+            BridgeConfig::parse(twice, "c")
+                .unwrap_err()
+                .contains("repeated")
+        );
+    }
+}

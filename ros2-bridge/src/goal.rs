@@ -1,0 +1,487 @@
+//! What the bridge decides, without any I/O: whether a FollowJointTrajectory goal can run
+//! and the controller points it becomes, where the trajectory wants the joints at a time,
+//! whether a run ended at the goal, and JointState/feedback messages from LOCATION reports.
+
+use armctl::protocol::{MAX_JOINTS, Point};
+use armctl::trajectory::{self, ArmConfig, ErrorKind, RosDuration};
+
+use crate::config::BridgeConfig;
+use crate::msgs::{
+    FollowJointTrajectoryFeedback, FollowJointTrajectoryGoal, FollowJointTrajectoryResult as R,
+    Header, JointState, JointTrajectoryPoint, Time,
+};
+
+/// Why a goal is refused: a control_msgs result code and the reason in words.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Refusal {
+    /// `FollowJointTrajectoryResult::INVALID_GOAL` or `INVALID_JOINTS`.
+    pub code: i32,
+    /// What is wrong.
+    pub message: String,
+}
+
+impl Refusal {
+    fn goal(message: String) -> Refusal {
+        Refusal {
+            code: R::INVALID_GOAL,
+            message,
+        }
+    }
+    fn joints(message: String) -> Refusal {
+        Refusal {
+            code: R::INVALID_JOINTS,
+            message,
+        }
+    }
+}
+
+/// A goal ready to stream.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Plan {
+    /// Controller points, from `start`.
+    pub points: Vec<Point>,
+    /// Where the arm was when the goal was planned, steps.
+    pub start: [i32; MAX_JOINTS],
+    /// The goal's joint names and the config joint of each.
+    pub joint_names: Vec<String>,
+    /// Config joint index of each goal joint.
+    pub columns: Vec<usize>,
+    /// Largest |end - last point| accepted per config joint, steps (`u32::MAX`: any).
+    pub goal_tolerance_steps: [u32; MAX_JOINTS],
+    /// Largest |desired - actual| while moving per config joint, radians (`None`: none).
+    pub path_tolerance_rad: [Option<f64>; MAX_JOINTS],
+}
+
+impl Plan {
+    /// The last point: where the arm must end.
+    pub fn end(&self) -> [i32; MAX_JOINTS] {
+        self.points.last().map_or(self.start, |p| p.position)
+    }
+
+    /// Total duration, microseconds.
+    pub fn duration_us(&self) -> i64 {
+        self.points.iter().map(|p| i64::from(p.duration)).sum()
+    }
+
+    /// Where the points put each joint `elapsed_us` into the run (straight between points,
+    /// which are a few milliseconds apart), steps.
+    pub fn desired_steps(&self, elapsed_us: i64) -> [f64; MAX_JOINTS] {
+        let mut from = self.start;
+        let mut t0 = 0i64;
+        for p in &self.points {
+            let t1 = t0 + i64::from(p.duration);
+            if elapsed_us < t1 {
+                let f = (elapsed_us - t0).max(0) as f64 / f64::from(p.duration.max(1));
+                let mut out = [0.0; MAX_JOINTS];
+                for j in 0..MAX_JOINTS {
+                    out[j] = f64::from(from[j]) + f64::from(p.position[j] - from[j]) * f;
+                }
+                return out;
+            }
+            from = p.position;
+            t0 = t1;
+        }
+        from.map(f64::from)
+    }
+}
+
+/// Radians of config joint `j` at `steps`.
+pub fn radians(arm: &ArmConfig, j: usize, steps: f64) -> f64 {
+    let joint = &arm.joints[j];
+    (steps - f64::from(joint.zero_offset_steps)) / joint.steps_per_radian
+}
+
+/// Checks `goal` against the config and the arm's position `current` (steps) and turns it
+/// into controller points: joint names known and not repeated (INVALID_JOINTS), a first
+/// point at time 0 within `start_tolerance_rad` of where the arm is, positions within the
+/// limits and segments within the step rates of the joints and of the controller
+/// (`controller_max_rate_hz`) (INVALID_GOAL).
+pub fn plan(
+    goal: &FollowJointTrajectoryGoal,
+    config: &BridgeConfig,
+    arm: &ArmConfig,
+    current: &[i32; MAX_JOINTS],
+    controller_max_rate_hz: Option<u32>,
+) -> Result<Plan, Refusal> {
+    let names = config.joint_names();
+    let trajectory = &goal.trajectory;
+    if trajectory.joint_names.is_empty() {
+        return Err(Refusal::joints(format!(
+            "the goal names no joints; this controller has {names:?}"
+        )));
+    }
+    let unknown: Vec<&String> = trajectory
+        .joint_names
+        .iter()
+        .filter(|n| !names.contains(n))
+        .collect();
+    if !unknown.is_empty() {
+        return Err(Refusal::joints(format!(
+            "unknown joint names {unknown:?}: this controller has {names:?}"
+        )));
+    }
+    for (i, name) in trajectory.joint_names.iter().enumerate() {
+        if trajectory.joint_names[..i].contains(name) {
+            return Err(Refusal::joints(format!("joint {name:?} is named twice")));
+        }
+    }
+    if !goal.multi_dof_trajectory.joint_names.is_empty() {
+        return Err(Refusal::joints(format!(
+            "multi-DOF joints {:?}: this controller has single-DOF joints only",
+            goal.multi_dof_trajectory.joint_names
+        )));
+    }
+    if trajectory.points.is_empty() {
+        return Err(Refusal::goal("the trajectory has no points".into()));
+    }
+    let columns: Vec<usize> = trajectory
+        .joint_names
+        .iter()
+        .filter_map(|n| names.iter().position(|c| c == n))
+        .collect();
+    let converted = trajectory::JointTrajectory {
+        joint_names: trajectory.joint_names.clone(),
+        points: trajectory
+            .points
+            .iter()
+            .map(|p| trajectory::JointTrajectoryPoint {
+                positions: p.positions.clone(),
+                velocities: p.velocities.clone(),
+                time_from_start: RosDuration {
+                    sec: i64::from(p.time_from_start.sec),
+                    nanosec: p.time_from_start.nanosec,
+                },
+            })
+            .collect(),
+    };
+    let source = "goal";
+    let mut waypoints = trajectory::joint_trajectory_to_waypoints(&converted, source, arm)
+        .map_err(|e| match e.kind {
+            ErrorKind::UnknownJoint(_) => Refusal::joints(e.to_string()),
+            _ => Refusal::goal(e.to_string()),
+        })?;
+    // MoveIt's first point is the start state at time 0: within the tolerance of where
+    // the arm is, it is taken as exactly there (whole steps).
+    if waypoints.times_us[0] == 0 {
+        for &j in &columns {
+            let Some(start) = waypoints.positions[0][j] else {
+                continue;
+            };
+            let at = radians(arm, j, f64::from(current[j]));
+            let wanted = radians(arm, j, start);
+            if (wanted - at).abs() > config.start_tolerance_rad {
+                return Err(Refusal::goal(format!(
+                    "the trajectory starts joint {:?} at {wanted:.4} rad but it is at {at:.4} rad \
+                     ({:.4} rad apart, more than the start tolerance of {} rad): plan from the \
+                     current state",
+                    names[j],
+                    (wanted - at).abs(),
+                    config.start_tolerance_rad
+                )));
+            }
+            waypoints.positions[0][j] = Some(f64::from(current[j]));
+        }
+    }
+    let points = trajectory::to_points(
+        &waypoints,
+        current,
+        config.segment_us,
+        arm,
+        controller_max_rate_hz,
+    )
+    .map_err(|e| Refusal::goal(e.to_string()))?;
+
+    let mut goal_tolerance_steps = [config.goal_tolerance_steps; MAX_JOINTS];
+    for tolerance in &goal.goal_tolerance {
+        if let Some(j) = names.iter().position(|n| *n == tolerance.name) {
+            if tolerance.position < 0.0 {
+                goal_tolerance_steps[j] = u32::MAX;
+            } else if tolerance.position > 0.0 {
+                let steps = tolerance.position * arm.joints[j].steps_per_radian.abs();
+                goal_tolerance_steps[j] = steps.floor().min(f64::from(u32::MAX - 1)) as u32;
+            }
+        }
+    }
+    let mut path_tolerance_rad = [None; MAX_JOINTS];
+    for tolerance in &goal.path_tolerance {
+        if let Some(j) = names.iter().position(|n| *n == tolerance.name)
+            && tolerance.position > 0.0
+        {
+            path_tolerance_rad[j] = Some(tolerance.position);
+        }
+    }
+    Ok(Plan {
+        points,
+        start: *current,
+        joint_names: trajectory.joint_names.clone(),
+        columns,
+        goal_tolerance_steps,
+        path_tolerance_rad,
+    })
+}
+
+/// Whether the arm ended where `plan` goes: `Ok` with a summary, or the
+/// GOAL_TOLERANCE_VIOLATED message naming each joint off, by how much.
+pub fn check_end(
+    plan: &Plan,
+    arm: &ArmConfig,
+    config: &BridgeConfig,
+    end: &[i32; MAX_JOINTS],
+) -> Result<String, String> {
+    let names = config.joint_names();
+    let goal = plan.end();
+    let mut off = Vec::new();
+    for j in 0..arm.joints.len() {
+        let error = (i64::from(end[j]) - i64::from(goal[j])).unsigned_abs();
+        if error > u64::from(plan.goal_tolerance_steps[j]) {
+            off.push(format!(
+                "joint {:?} ended at {} steps ({:.5} rad), the goal is {} steps ({:.5} rad): \
+                 {error} steps off, tolerance {} steps",
+                names[j],
+                end[j],
+                radians(arm, j, f64::from(end[j])),
+                goal[j],
+                radians(arm, j, f64::from(goal[j])),
+                plan.goal_tolerance_steps[j]
+            ));
+        }
+    }
+    if off.is_empty() {
+        Ok(format!(
+            "reached the goal: {} points executed, every joint at its goal step",
+            plan.points.len()
+        ))
+    } else {
+        Err(off.join("; "))
+    }
+}
+
+/// The first joint (of the goal's) off its path by more than its path tolerance, as a
+/// PATH_TOLERANCE_VIOLATED message.
+pub fn path_violation(
+    plan: &Plan,
+    arm: &ArmConfig,
+    desired: &[f64; MAX_JOINTS],
+    actual: &[i32; MAX_JOINTS],
+) -> Option<String> {
+    plan.columns.iter().find_map(|&j| {
+        let tolerance = plan.path_tolerance_rad[j]?;
+        let error = radians(arm, j, desired[j]) - radians(arm, j, f64::from(actual[j]));
+        (error.abs() > tolerance).then(|| {
+            format!(
+                "joint {:?} was {:.4} rad off its path (path tolerance {tolerance} rad)",
+                plan.joint_names[plan.columns.iter().position(|&c| c == j).unwrap_or(0)],
+                error.abs()
+            )
+        })
+    })
+}
+
+/// A JointState of every configured joint from a LOCATION, stamped `stamp`.
+pub fn joint_state(
+    names: &[String],
+    arm: &ArmConfig,
+    position: &[i32; MAX_JOINTS],
+    stamp: Time,
+) -> JointState {
+    JointState {
+        header: Header {
+            stamp,
+            frame_id: String::new(),
+        },
+        name: names.to_vec(),
+        position: (0..arm.joints.len())
+            .map(|j| radians(arm, j, f64::from(position[j])))
+            .collect(),
+        velocity: Vec::new(),
+        effort: Vec::new(),
+    }
+}
+
+/// Feedback for the goal's joints: desired (steps, from [`Plan::desired_steps`]), actual
+/// (the last LOCATION) and their difference, in radians; `elapsed_us` into the run.
+pub fn feedback(
+    plan: &Plan,
+    arm: &ArmConfig,
+    desired: &[f64; MAX_JOINTS],
+    actual: &[i32; MAX_JOINTS],
+    elapsed_us: i64,
+    stamp: Time,
+) -> FollowJointTrajectoryFeedback {
+    let time_from_start =
+        crate::msgs::Duration::from_std(std::time::Duration::from_micros(elapsed_us.max(0) as u64));
+    let point = |values: Vec<f64>| JointTrajectoryPoint {
+        positions: values,
+        time_from_start,
+        ..JointTrajectoryPoint::default()
+    };
+    let desired_rad: Vec<f64> = plan
+        .columns
+        .iter()
+        .map(|&j| radians(arm, j, desired[j]))
+        .collect();
+    let actual_rad: Vec<f64> = plan
+        .columns
+        .iter()
+        .map(|&j| radians(arm, j, f64::from(actual[j])))
+        .collect();
+    let error: Vec<f64> = desired_rad
+        .iter()
+        .zip(&actual_rad)
+        .map(|(d, a)| d - a)
+        .collect();
+    FollowJointTrajectoryFeedback {
+        header: Header {
+            stamp,
+            frame_id: String::new(),
+        },
+        joint_names: plan.joint_names.clone(),
+        desired: point(desired_rad),
+        actual: point(actual_rad),
+        error: point(error),
+        ..FollowJointTrajectoryFeedback::default()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::msgs::{Duration, JointTolerance, JointTrajectory};
+
+    fn setup() -> (BridgeConfig, ArmConfig) {
+        BridgeConfig::parse(include_str!("../examples/bridge.json"), "bridge.json").unwrap()
+    }
+
+    fn point(t_ms: i64, positions: &[f64], velocities: &[f64]) -> JointTrajectoryPoint {
+        JointTrajectoryPoint {
+            positions: positions.to_vec(),
+            velocities: velocities.to_vec(),
+            time_from_start: Duration::from_std(std::time::Duration::from_millis(t_ms as u64)),
+            ..JointTrajectoryPoint::default()
+        }
+    }
+
+    fn goal(names: &[&str], points: Vec<JointTrajectoryPoint>) -> FollowJointTrajectoryGoal {
+        FollowJointTrajectoryGoal {
+            trajectory: JointTrajectory {
+                joint_names: names.iter().map(|n| n.to_string()).collect(),
+                points,
+                ..JointTrajectory::default()
+            },
+            ..FollowJointTrajectoryGoal::default()
+        }
+    }
+
+    #[test]
+    fn a_moveit_goal_becomes_points_ending_at_its_last_point() {
+        let (config, arm) = setup();
+        // Start 0.005 rad (25 steps) from where the arm is: within 0.01 rad.
+        let current = [25, 0, 0, 0, 0, 0, 0, 0];
+        let g = goal(
+            &["base", "elbow"],
+            vec![
+                point(0, &[0.0, 0.0], &[0.0, 0.0]),
+                point(500, &[0.1, -0.2], &[0.3, -0.5]),
+                point(1000, &[0.2, -0.3], &[0.0, 0.0]),
+            ],
+        );
+        let plan = plan(&g, &config, &arm, &current, Some(100_000)).unwrap();
+        assert_eq!(plan.points.len(), 100);
+        assert_eq!(plan.columns, vec![0, 2]);
+        // 0.2 rad * 5093 steps/rad = 1018.6 -> 1019; -0.3 * 5093 = -1527.9 -> -1528.
+        assert_eq!(plan.end()[..3], [1019, 0, -1528]);
+        assert_eq!(plan.desired_steps(0)[0], 25.0);
+        assert_eq!(plan.desired_steps(2_000_000)[2], -1528.0);
+        assert_eq!(plan.duration_us(), 1_000_000);
+    }
+
+    #[test]
+    fn wrong_joint_names_are_invalid_joints() {
+        let (config, arm) = setup();
+        let g = goal(&["base", "knee"], vec![point(1000, &[0.0, 0.0], &[])]);
+        let refusal = plan(&g, &config, &arm, &[0; 8], None).unwrap_err();
+        assert_eq!(refusal.code, R::INVALID_JOINTS);
+        assert!(refusal.message.contains("\"knee\""), "{}", refusal.message);
+        let twice = goal(&["base", "base"], vec![point(1000, &[0.0, 0.0], &[])]);
+        assert_eq!(
+            plan(&twice, &config, &arm, &[0; 8], None).unwrap_err().code,
+            R::INVALID_JOINTS
+        );
+    }
+
+    #[test]
+    fn a_start_away_from_the_arm_is_an_invalid_goal() {
+        let (config, arm) = setup();
+        let g = goal(
+            &["base"],
+            vec![point(0, &[0.02], &[]), point(1000, &[0.1], &[])],
+        );
+        let refusal = plan(&g, &config, &arm, &[0; 8], None).unwrap_err();
+        assert_eq!(refusal.code, R::INVALID_GOAL);
+        assert!(
+            refusal.message.contains("start tolerance"),
+            "{}",
+            refusal.message
+        );
+    }
+
+    #[test]
+    fn too_fast_or_out_of_limits_is_an_invalid_goal_naming_the_joint() {
+        let (config, arm) = setup();
+        // base: 20000 steps/s at most; 1 rad in 0.1 s is 50930 steps/s.
+        let g = goal(
+            &["base"],
+            vec![point(0, &[0.0], &[]), point(100, &[1.0], &[])],
+        );
+        let refusal = plan(&g, &config, &arm, &[0; 8], None).unwrap_err();
+        assert_eq!(refusal.code, R::INVALID_GOAL);
+        assert!(refusal.message.contains("joint 0"), "{}", refusal.message);
+        let far = goal(
+            &["shoulder"],
+            vec![point(0, &[0.0], &[]), point(10_000, &[2.0], &[])],
+        );
+        let refusal = plan(&far, &config, &arm, &[0; 8], None).unwrap_err();
+        assert!(
+            refusal.message.contains("above the maximum"),
+            "{}",
+            refusal.message
+        );
+    }
+
+    #[test]
+    fn goal_tolerance_from_the_goal_or_the_config() {
+        let (config, arm) = setup();
+        let mut g = goal(
+            &["base"],
+            vec![point(0, &[0.0], &[]), point(1000, &[0.1], &[])],
+        );
+        let exact = plan(&g, &config, &arm, &[0; 8], None).unwrap();
+        let mut end = exact.end();
+        assert!(check_end(&exact, &arm, &config, &end).is_ok());
+        end[0] += 1;
+        let message = check_end(&exact, &arm, &config, &end).unwrap_err();
+        assert!(message.contains("1 steps off"), "{message}");
+        g.goal_tolerance = vec![JointTolerance {
+            name: "base".into(),
+            position: 0.001,
+            ..JointTolerance::default()
+        }];
+        let loose = plan(&g, &config, &arm, &[0; 8], None).unwrap();
+        assert_eq!(loose.goal_tolerance_steps[0], 5);
+        assert!(check_end(&loose, &arm, &config, &end).is_ok());
+    }
+
+    #[test]
+    fn joint_states_are_radians_in_config_order() {
+        let (config, arm) = setup();
+        let state = joint_state(
+            &config.joint_names(),
+            &arm,
+            &[5093, -5093, 0, 2546, 0, 0, 0, 0],
+            Time { sec: 5, nanosec: 7 },
+        );
+        assert_eq!(state.name.len(), 6);
+        assert_eq!(state.position[..4], [1.0, -1.0, 0.0, 1.0]);
+        assert_eq!(state.header.stamp, Time { sec: 5, nanosec: 7 });
+    }
+}
