@@ -26,8 +26,8 @@ use ros2_client::action::{
 };
 use ros2_client::qos::{Durability, History};
 use ros2_client::{
-    ActionTypeName, Context, MessageTypeName, Name, NodeName, NodeOptions, QosProfile,
-    ServiceMapping, ServiceTypeName,
+    ActionTypeName, Context, ContextOptions, MessageTypeName, Name, NodeName, NodeOptions,
+    QosProfile, ServiceMapping, ServiceTypeName,
 };
 
 use crate::config::BridgeConfig;
@@ -142,6 +142,16 @@ impl Bridge {
         rx
     }
 
+    /// The controller connection (shared with the bridge's threads).
+    pub fn controller(&self) -> &Arc<Controller> {
+        &self.controller
+    }
+
+    /// The joint config.
+    pub fn arm(&self) -> &ArmConfig {
+        &self.arm
+    }
+
     /// The last LOCATION sample.
     pub fn latest(&self) -> Option<Sample> {
         *lock(&self.latest)
@@ -218,7 +228,8 @@ impl Bridge {
             };
             Name::new(namespace, base).map_err(|e| format!("ROS name {full:?}: {e:?}"))
         };
-        let context = Context::new().map_err(|e| format!("DDS: {e:?}"))?;
+        let context = Context::with_options(ContextOptions::new().domain_id(self.config.domain_id))
+            .map_err(|e| format!("DDS: {e:?}"))?;
         let mut node = context
             .new_node(
                 NodeName::new(&self.config.namespace, &self.config.node_name)

@@ -14,6 +14,9 @@ pub struct BridgeConfig {
     /// The controller, `host:port`.
     #[serde(default = "default_controller")]
     pub controller: String,
+    /// DDS domain (`ROS_DOMAIN_ID`).
+    #[serde(default)]
+    pub domain_id: u16,
     /// ROS node name.
     #[serde(default = "default_node_name")]
     pub node_name: String,
@@ -122,7 +125,7 @@ fn default_joint_state_rate_hz() -> f64 {
     50.0
 }
 fn default_feedback_rate_hz() -> f64 {
-    25.0
+    30.0
 }
 fn default_segment_us() -> u32 {
     10_000

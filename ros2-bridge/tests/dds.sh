@@ -1,0 +1,34 @@
+#!/usr/bin/env bash
+# The ROS 2 bridge's DDS tests (ros2-bridge/tests/dds.rs), inside a private network
+# namespace that this script creates with `unshare -n` and that ends with it: DDS discovery
+# multicasts, and nothing may leave the machine. Inside, only `lo` exists, with multicast
+# on and a route for 224.0.0.0/4. Needs root; skips (exit 0, saying why) without it.
+# Installs the PyPI package cyclonedds (the independent DDS stack of the interop test)
+# when it is missing.
+set -euo pipefail
+cd "$(dirname "$0")/../.."
+
+skip() { echo "dds.sh: SKIP: $*"; exit 0; }
+[ "$(id -u)" = 0 ] || skip "needs root (for unshare -n)"
+command -v unshare >/dev/null || skip "needs unshare (util-linux)"
+command -v ip >/dev/null || skip "needs iproute2 (ip)"
+command -v python3 >/dev/null || skip "needs python3"
+
+if ! python3 -c "import cyclonedds" 2>/dev/null; then
+  python3 -m pip install -q cyclonedds || pip install -q --break-system-packages cyclonedds
+fi
+
+# Build outside the namespace (cargo may want the registry); run offline inside it.
+cargo build -q -p sim-host
+cargo test -q -p armctl-ros2 --test dds --no-run
+target_dir=${CARGO_TARGET_DIR:-target}
+export SIM_HOST_BIN="$target_dir/debug/sim-host"
+
+unshare -n -- bash -c '
+  set -euo pipefail
+  ip link set lo up
+  ip link set lo multicast on
+  ip route add 224.0.0.0/4 dev lo
+  ARMCTL_ROS2_NETNS=1 timeout 900 cargo test -q --offline -p armctl-ros2 --test dds -- \
+    --ignored --test-threads=1 --nocapture
+'
