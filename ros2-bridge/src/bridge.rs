@@ -484,7 +484,8 @@ impl Bridge {
         let outcome = loop {
             futures::select! {
                 done = done_rx.recv().fuse() => break done.ok(),
-                _ = ticker.next().fuse() => {
+                // After a cancel the goal is CANCELING: no more feedback for it.
+                _ = ticker.next().fuse() => if !canceled {
                     let elapsed_us = lock(&running_since)
                         .map_or(0, |t| t.elapsed().as_micros() as i64);
                     let desired = plan.desired_steps(elapsed_us);
