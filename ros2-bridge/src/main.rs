@@ -7,10 +7,13 @@ use armctl_ros2::{Bridge, BridgeConfig};
 
 const USAGE: &str = "usage: armctl-ros2 CONFIG.json [--controller HOST:PORT]\n\
     Serves FollowJointTrajectory, GripperCommand, an e-stop Trigger and /joint_states\n\
-    for the arm controller named in the config (docs/ROS2.md). RUST_LOG=info for a log.";
+    for the arm controller named in the config (docs/ROS2.md). RUST_LOG=debug logs more.";
 
 fn main() -> ExitCode {
-    env_logger::Builder::from_env(env_logger::Env::default().default_filter_or("info,rustdds=warn,ros2_client=warn")).init();
+    env_logger::Builder::from_env(
+        env_logger::Env::default().default_filter_or("info,rustdds=warn,ros2_client=warn"),
+    )
+    .init();
     let mut args = std::env::args().skip(1);
     let mut config_path: Option<PathBuf> = None;
     let mut controller: Option<String> = None;
