@@ -52,6 +52,10 @@ const KEEP_ALIVE: Duration = Duration::from_secs(1);
 /// How long a finished goal's result waits for the client to ask for it.
 const RESULT_WAIT: Duration = Duration::from_secs(10);
 
+/// A LOCATION older than this does not say where the arm is now (reports come every
+/// 1 ms to 1 s; the bridge asks for 1 ms to 1 s).
+const STALE_LOCATION: Duration = Duration::from_millis(1500);
+
 /// LOCATION reports queued for joint_states at most; older ones are dropped (a stale
 /// joint state is worse than a missing one).
 const SAMPLE_QUEUE: usize = 64;
@@ -378,9 +382,10 @@ impl Bridge {
         }
     }
 
-    /// Where the arm is: the last LOCATION, or a fresh one.
+    /// Where the arm is: the last LOCATION if recent, else a fresh one.
     async fn current_position(&self) -> Result<[i32; MAX_JOINTS], String> {
-        if let Some(sample) = self.latest() {
+        let recent = |s: &Sample| s.stamp.elapsed().is_ok_and(|age| age < STALE_LOCATION);
+        if let Some(sample) = self.latest().filter(recent) {
             return Ok(sample.location.position);
         }
         let controller = self.controller.clone();
@@ -569,7 +574,11 @@ impl Bridge {
             },
             Some(Err(e)) => {
                 let code = match &e {
+                    // Refused or unanswered before anything was uploaded: nothing moved.
                     Error::Refused {
+                        command: Tag::New, ..
+                    }
+                    | Error::NoReply {
                         command: Tag::New, ..
                     }
                     | Error::InvalidTrajectory(_) => FollowJointTrajectoryResult::INVALID_GOAL,

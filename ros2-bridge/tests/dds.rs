@@ -14,7 +14,7 @@ use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant, SystemTime};
 
-use armctl::protocol::MAX_JOINTS;
+use armctl::protocol::{MAX_JOINTS, StatusFlags};
 use armctl::trajectory::ArmConfig;
 use armctl_ros2::bridge::action_qos;
 use armctl_ros2::msgs::{
@@ -391,75 +391,102 @@ fn follow_joint_trajectory_goals_against_sim_host() {
     );
     let goal_end = |f: &Fixture| -> Vec<i32> { (0..6).map(|j| f.steps(j, target[j])).collect() };
 
-    let (success, invalid_joints, wrong_start, canceled, estop_response, gripped) =
-        with_node(&mut node, async |node: &Node| {
-            let t0 = Instant::now();
-            let phase = |what: &str| println!("[{:6.3} s] {what}", t0.elapsed().as_secs_f64());
-            wait_for(node, "goal", client.goal_client()).await;
-            wait_for(node, "result", client.result_client()).await;
-            wait_for(node, "cancel", client.cancel_client()).await;
-            wait_for(node, "e-stop", &estop).await;
-            wait_for(node, "gripper goal", gripper.goal_client()).await;
-            wait_for(node, "gripper result", gripper.result_client()).await;
-            phase("services discovered");
+    let (
+        success,
+        invalid_joints,
+        wrong_start,
+        (canceled, stopped_at, after_cancel),
+        (estopped, estop_response),
+        gripped,
+    ) = with_node(&mut node, async |node: &Node| {
+        let t0 = Instant::now();
+        let phase = |what: &str| println!("[{:6.3} s] {what}", t0.elapsed().as_secs_f64());
+        wait_for(node, "goal", client.goal_client()).await;
+        wait_for(node, "result", client.result_client()).await;
+        wait_for(node, "cancel", client.cancel_client()).await;
+        wait_for(node, "e-stop", &estop).await;
+        wait_for(node, "gripper goal", gripper.goal_client()).await;
+        wait_for(node, "gripper result", gripper.result_client()).await;
+        phase("services discovered");
 
-            let success = run_goal(&client, moveit, None, None).await;
-            phase("success goal done");
-            let invalid_joints = run_goal(&client, wrong_names, None, None).await;
-            phase("wrong-names goal done");
-            // Starts 0.05 rad from where the arm is (the tolerance is 0.01).
-            let mut off: Vec<f64> = target.to_vec();
-            off[2] += 0.05;
-            let wrong_start = run_goal(
-                &client,
-                goal(
-                    &names,
-                    vec![point(0, &off, &[]), point(1000, &[0.0; 6], &[])],
-                ),
-                None,
-                None,
-            )
-            .await;
-            phase("wrong-start goal done");
-            // Back to 0 slowly, cancelled after 0.8 s; a second goal mid-run is rejected.
-            let slow = goal(&names, vec![point(4000, &[0.0; 6], &[])]);
-            let canceled = run_goal(
-                &client,
-                slow.clone(),
-                Some(slow),
-                Some(Duration::from_millis(800)),
-            )
-            .await;
-            phase("cancelled goal done");
-            let estop_response = estop
+        let success = run_goal(&client, moveit, None, None).await;
+        phase("success goal done");
+        let invalid_joints = run_goal(&client, wrong_names, None, None).await;
+        phase("wrong-names goal done");
+        // Starts 0.05 rad from where the arm is (the tolerance is 0.01).
+        let mut off: Vec<f64> = target.to_vec();
+        off[2] += 0.05;
+        let wrong_start = run_goal(
+            &client,
+            goal(
+                &names,
+                vec![point(0, &off, &[]), point(1000, &[0.0; 6], &[])],
+            ),
+            None,
+            None,
+        )
+        .await;
+        phase("wrong-start goal done");
+        // Back to 0 slowly, cancelled after 0.8 s; a second goal mid-run is rejected.
+        let slow = goal(&names, vec![point(4000, &[0.0; 6], &[])]);
+        let canceled = run_goal(
+            &client,
+            slow.clone(),
+            Some(slow),
+            Some(Duration::from_millis(800)),
+        )
+        .await;
+        phase("cancelled goal done");
+        // No step after the cancel: LOCATION stands still for 0.6 s.
+        while fixture.samples.try_recv().is_ok() {}
+        let stopped_at = fixture.position();
+        async_io::Timer::after(Duration::from_millis(600)).await;
+        let after_cancel: Vec<[i32; MAX_JOINTS]> = fixture
+            .samples
+            .try_iter()
+            .map(|s| s.location.position)
+            .collect();
+        // Out again, and the e-stop service called 0.5 s into the move.
+        let out = goal(&names, vec![point(3000, &target, &[])]);
+        let estopped = async {
+            let run = run_goal(&client, out, None, None);
+            futures::pin_mut!(run);
+            futures::select! {
+                _ = FutureExt::fuse(async_io::Timer::after(Duration::from_millis(500))) => {}
+                _ = run.as_mut().fuse() => panic!("the goal ended before the e-stop"),
+            }
+            let response = estop
                 .async_call_service(TriggerRequest::default())
                 .await
                 .expect("e-stop");
-            phase("e-stop done");
-            let (gripper_goal, response) = gripper
-                .async_send_goal(GripperCommandGoal {
-                    command: GripperCommand {
-                        position: 0.04,
-                        max_effort: 0.0,
-                    },
-                })
-                .await
-                .expect("gripper goal");
-            assert!(response.accepted);
-            let gripped = gripper
-                .async_request_result(gripper_goal)
-                .await
-                .expect("gripper result");
-            phase("gripper done");
-            (
-                success,
-                invalid_joints,
-                wrong_start,
-                canceled,
-                estop_response,
-                gripped,
-            )
-        });
+            (run.await, response)
+        }
+        .await;
+        phase("e-stop done");
+        let (gripper_goal, response) = gripper
+            .async_send_goal(GripperCommandGoal {
+                command: GripperCommand {
+                    position: 0.04,
+                    max_effort: 0.0,
+                },
+            })
+            .await
+            .expect("gripper goal");
+        assert!(response.accepted);
+        let gripped = gripper
+            .async_request_result(gripper_goal)
+            .await
+            .expect("gripper result");
+        phase("gripper done");
+        (
+            success,
+            invalid_joints,
+            wrong_start,
+            (canceled, stopped_at, after_cancel),
+            estopped,
+            gripped,
+        )
+    });
 
     // 1. Success, ending exactly at the goal in steps.
     assert!(success.accepted);
@@ -514,38 +541,43 @@ fn follow_joint_trajectory_goals_against_sim_host() {
     assert!(result.error_string.contains("STOPPED"), "{result:?}");
     assert_eq!(canceled.second_accepted, Some(false));
     // ... and no step after it: the arm stands still, part way back.
-    while fixture.samples.try_recv().is_ok() {}
-    let stopped_at = fixture.position();
-    let mut later = Vec::new();
-    let until = Instant::now() + Duration::from_millis(600);
-    while let Some(left) = until.checked_duration_since(Instant::now()) {
-        if let Ok(s) = fixture.samples.recv_timeout(left) {
-            later.push(s.location.position);
-        }
-    }
     assert!(
-        later.len() >= 20,
+        after_cancel.len() >= 20,
         "{} LOCATION reports in 0.6 s",
-        later.len()
+        after_cancel.len()
     );
     assert!(
-        later.iter().all(|p| *p == stopped_at),
+        after_cancel.iter().all(|p| *p == stopped_at),
         "moved after the cancel"
     );
     let moved_back = (0..6).all(|j| stopped_at[j] != success_end[j]);
     let not_home = (0..6).any(|j| stopped_at[j] != 0);
     assert!(moved_back && not_home, "cancelled at {stopped_at:?}");
 
+    // 5. The e-stop service mid-run: ABORTED, PATH_TOLERANCE_VIOLATED, says why.
     assert!(estop_response.success, "{estop_response:?}");
+    let result = estopped.result.as_ref().unwrap();
+    assert_eq!(estopped.status, Some(GoalStatusEnum::Aborted), "{result:?}");
+    assert_eq!(
+        result.error_code,
+        FollowJointTrajectoryResult::PATH_TOLERANCE_VIOLATED
+    );
+    assert!(result.error_string.contains("e-stop"), "{result:?}");
+    let estopped_at = fixture.position();
+    assert!((0..6).any(|j| estopped_at[j] != stopped_at[j] && estopped_at[j] != success_end[j]));
+
+    // 6. The gripper: the PWM runs.
     assert_eq!(gripped.0, GoalStatusEnum::Succeeded);
     assert!(gripped.1.reached_goal);
+    let status = fixture.bridge.controller().status().unwrap();
+    assert!(status.flags.has(StatusFlags::PWM_ACTIVE));
 
     // The simulated motors' pulses agree: the trace ends where LOCATION says.
     fixture.shutdown();
     fixture.sim.terminate();
     let trace = armctl::vcd::read(&fixture.sim.trace()).unwrap();
     let traced: Vec<i64> = trace.positions(6);
-    let reported: Vec<i64> = stopped_at[..6].iter().map(|&p| i64::from(p)).collect();
+    let reported: Vec<i64> = estopped_at[..6].iter().map(|&p| i64::from(p)).collect();
     assert_eq!(traced, reported);
 }
 
