@@ -437,6 +437,13 @@ impl Bridge {
                     },
                 )
             }
+            Ok(plan) if plan.points.is_empty() => (
+                GoalEndStatus::Succeeded,
+                FollowJointTrajectoryResult {
+                    error_code: FollowJointTrajectoryResult::SUCCESSFUL,
+                    error_string: "the goal is where the arm is: nothing to move".into(),
+                },
+            ),
             Ok(plan) => self.execute(server, executing.clone(), &plan).await,
         };
         log::info!(

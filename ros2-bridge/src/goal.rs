@@ -182,6 +182,20 @@ pub fn plan(
             waypoints.positions[0][j] = Some(f64::from(current[j]));
         }
     }
+    let goal_tolerance_steps = goal_tolerances(goal, config, arm, &names);
+    let path_tolerance_rad = path_tolerances(goal, &names);
+    // A lone point at time 0 (MoveIt sends one when the arm is already at the goal): the
+    // start check above passed, so there is nothing to move.
+    if waypoints.times_us == [0] {
+        return Ok(Plan {
+            points: Vec::new(),
+            start: *current,
+            joint_names: trajectory.joint_names.clone(),
+            columns,
+            goal_tolerance_steps,
+            path_tolerance_rad,
+        });
+    }
     let points = trajectory::to_points(
         &waypoints,
         current,
@@ -191,25 +205,6 @@ pub fn plan(
     )
     .map_err(|e| Refusal::goal(e.to_string()))?;
 
-    let mut goal_tolerance_steps = [config.goal_tolerance_steps; MAX_JOINTS];
-    for tolerance in &goal.goal_tolerance {
-        if let Some(j) = names.iter().position(|n| *n == tolerance.name) {
-            if tolerance.position < 0.0 {
-                goal_tolerance_steps[j] = u32::MAX;
-            } else if tolerance.position > 0.0 {
-                let steps = tolerance.position * arm.joints[j].steps_per_radian.abs();
-                goal_tolerance_steps[j] = steps.floor().min(f64::from(u32::MAX - 1)) as u32;
-            }
-        }
-    }
-    let mut path_tolerance_rad = [None; MAX_JOINTS];
-    for tolerance in &goal.path_tolerance {
-        if let Some(j) = names.iter().position(|n| *n == tolerance.name)
-            && tolerance.position > 0.0
-        {
-            path_tolerance_rad[j] = Some(tolerance.position);
-        }
-    }
     Ok(Plan {
         points,
         start: *current,
@@ -218,6 +213,44 @@ pub fn plan(
         goal_tolerance_steps,
         path_tolerance_rad,
     })
+}
+
+/// Goal tolerance per config joint in steps: the goal's (radians; -1: any), else the
+/// config's.
+fn goal_tolerances(
+    goal: &FollowJointTrajectoryGoal,
+    config: &BridgeConfig,
+    arm: &ArmConfig,
+    names: &[String],
+) -> [u32; MAX_JOINTS] {
+    let mut steps = [config.goal_tolerance_steps; MAX_JOINTS];
+    for tolerance in &goal.goal_tolerance {
+        if let Some(j) = names.iter().position(|n| *n == tolerance.name) {
+            if tolerance.position < 0.0 {
+                steps[j] = u32::MAX;
+            } else if tolerance.position > 0.0 {
+                let value = tolerance.position * arm.joints[j].steps_per_radian.abs();
+                steps[j] = value.floor().min(f64::from(u32::MAX - 1)) as u32;
+            }
+        }
+    }
+    steps
+}
+
+/// Path tolerance per config joint in radians, where the goal gives one.
+fn path_tolerances(
+    goal: &FollowJointTrajectoryGoal,
+    names: &[String],
+) -> [Option<f64>; MAX_JOINTS] {
+    let mut radians = [None; MAX_JOINTS];
+    for tolerance in &goal.path_tolerance {
+        if let Some(j) = names.iter().position(|n| *n == tolerance.name)
+            && tolerance.position > 0.0
+        {
+            radians[j] = Some(tolerance.position);
+        }
+    }
+    radians
 }
 
 /// Whether the arm ended where `plan` goes: `Ok` with a summary, or the
@@ -469,6 +502,55 @@ mod tests {
         let loose = plan(&g, &config, &arm, &[0; 8], None).unwrap();
         assert_eq!(loose.goal_tolerance_steps[0], 5);
         assert!(check_end(&loose, &arm, &config, &end).is_ok());
+    }
+
+    #[test]
+    fn a_lone_point_at_the_arm_is_nothing_to_do() {
+        let (config, arm) = setup();
+        let g = goal(&["base"], vec![point(0, &[0.001], &[0.0])]);
+        let plan = plan(&g, &config, &arm, &[5, 0, 0, 0, 0, 0, 0, 0], None).unwrap();
+        assert!(plan.points.is_empty());
+        assert_eq!(plan.end(), [5, 0, 0, 0, 0, 0, 0, 0]);
+        let far = goal(&["base"], vec![point(0, &[0.1], &[])]);
+        assert_eq!(
+            super::plan(&far, &config, &arm, &[0; 8], None)
+                .unwrap_err()
+                .code,
+            R::INVALID_GOAL
+        );
+    }
+
+    #[test]
+    fn malformed_goals_are_invalid_not_a_panic() {
+        let (config, arm) = setup();
+        let cases = [
+            goal(&["base"], vec![point(0, &[f64::NAN], &[])]),
+            goal(&["base"], vec![point(1000, &[f64::INFINITY], &[])]),
+            goal(&["base"], vec![point(1000, &[0.1], &[f64::NAN])]),
+            goal(&["base"], vec![point(1000, &[1e300], &[1e300])]),
+            goal(&["base"], vec![point(1000, &[0.1, 0.2], &[])]),
+            goal(&["base"], vec![point(1000, &[0.1], &[0.1, 0.2])]),
+            goal(
+                &["base"],
+                vec![point(1000, &[0.1], &[]), point(500, &[0.2], &[])],
+            ),
+            goal(&["base"], vec![]),
+        ];
+        for g in &cases {
+            let refusal = plan(g, &config, &arm, &[0; 8], None).unwrap_err();
+            assert_eq!(refusal.code, R::INVALID_GOAL, "{g:?}");
+        }
+        let mut negative = goal(&["base"], vec![point(1000, &[0.1], &[])]);
+        negative.trajectory.points[0].time_from_start.sec = -5;
+        assert!(plan(&negative, &config, &arm, &[0; 8], None).is_err());
+        let mut endless = goal(&["base"], vec![point(1000, &[0.1], &[])]);
+        endless.trajectory.points[0].time_from_start.sec = i32::MAX;
+        let refusal = plan(&endless, &config, &arm, &[0; 8], None).unwrap_err();
+        assert!(
+            refusal.message.contains("at most 65535"),
+            "{}",
+            refusal.message
+        );
     }
 
     #[test]
