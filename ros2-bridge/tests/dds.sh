@@ -13,6 +13,7 @@ skip() { echo "dds.sh: SKIP: $*"; exit 0; }
 command -v unshare >/dev/null || skip "needs unshare (util-linux)"
 command -v ip >/dev/null || skip "needs iproute2 (ip)"
 command -v python3 >/dev/null || skip "needs python3"
+unshare -n true 2>/dev/null || skip "cannot create a network namespace (unshare -n)"
 
 if ! python3 -c "import cyclonedds" 2>/dev/null; then
   python3 -m pip install -q cyclonedds || pip install -q --break-system-packages cyclonedds
