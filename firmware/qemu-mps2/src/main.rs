@@ -100,6 +100,29 @@ async fn link_watch(stack: embassy_net::Stack<'static>) -> ! {
     arm_wiring::net::watch_link(stack).await
 }
 
+/// Logs the pulses the step output emitted each time the engine comes to rest, so that a
+/// test can compare what left the "pins" with the positions the controller reports.
+#[embassy_executor::task]
+async fn step_output_monitor() -> ! {
+    let mut logged = [0i32; arm_step::MAX_JOINTS];
+    loop {
+        embassy_time::Timer::after_millis(100).await;
+        let (running, late) = STEP.with_engine(|e| (e.is_running(), e.late_pulses()));
+        let pulses = step_out::LINES
+            .pulses
+            .each_ref()
+            .map(|p| p.load(Ordering::Relaxed));
+        if !running && pulses != logged {
+            log::info!(
+                "step output at rest: pulses {:?}, late pulses {}",
+                pulses,
+                late
+            );
+            logged = pulses;
+        }
+    }
+}
+
 #[cortex_m_rt::entry]
 fn main() -> ! {
     // Before anything steals them (enabling an interrupt does).
@@ -166,11 +189,11 @@ fn main() -> ! {
             encoders: NoEncoders,
         },
     )
-    .and_then(|stack| link_watch(stack).map(|token| spawner.spawn(token)));
+    .and_then(|stack| link_watch(stack).map(|token| spawner.spawn(token)))
+    .and_then(|()| step_output_monitor().map(|token| spawner.spawn(token)));
     if let Err(e) = spawned {
         panic!("spawning the tasks: {:?}", e); // safe: boot-time bring-up
     }
-    let _ = &STEP;
 
     loop {
         WORK.store(false, Ordering::Release);
