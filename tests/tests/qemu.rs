@@ -9,7 +9,8 @@
 //! log; a hang fails it through armctl's timeouts, also with the log.
 //!
 //! Owner lock and an e-stop from a second host need two host addresses; QEMU's user-mode
-//! network shows every host as 10.0.2.2, so those are not here.
+//! network shows every host as 10.0.2.2, so those run over TAP in a network namespace, in
+//! `tests/qemu/tap.sh` (root; `.ci/run` runs it).
 
 mod common;
 
