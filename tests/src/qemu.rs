@@ -247,6 +247,59 @@ impl QemuBoard {
     }
 }
 
+/// Boots the image with QEMU's `-append CMDLINE` (the firmware reads it through
+/// semihosting) and no network, and waits at most `timeout` for QEMU to exit; returns
+/// whether it exited with success (`None`: still running, killed) and the firmware's log.
+pub fn run_to_exit(cmdline: &str, timeout: Duration) -> (Option<bool>, String) {
+    let image = image();
+    let _turn = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    let dir = std::env::temp_dir().join(format!(
+        "qemu-tests-{}-exit-{}",
+        std::process::id(),
+        free_tcp_port()
+    ));
+    let _ = std::fs::create_dir_all(&dir);
+    let log_path = dir.join("uart0.log");
+    let mut command = Command::new("qemu-system-arm");
+    command
+        .args(["-M", "mps2-an500", "-display", "none", "-monitor", "none"])
+        .args(["-semihosting-config", "enable=on,target=native"])
+        .arg("-kernel")
+        .arg(&image)
+        .args(["-append", cmdline, "-nic", "user,model=lan9118"])
+        .arg("-serial")
+        .arg(format!("file:{}", log_path.display()))
+        .args(["-serial", "null"])
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::null());
+    // SAFETY: as in `QemuBoard::start`.
+    unsafe {
+        command.pre_exec(|| {
+            if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGKILL) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            Ok(())
+        });
+    }
+    let mut child = command.spawn().expect("start qemu-system-arm");
+    let started = Instant::now();
+    let exited = loop {
+        if let Ok(Some(status)) = child.try_wait() {
+            break Some(status.success());
+        }
+        if started.elapsed() > timeout {
+            let _ = child.kill();
+            let _ = child.wait();
+            break None;
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    let log = std::fs::read_to_string(&log_path).unwrap_or_default();
+    let _ = std::fs::remove_dir_all(&dir);
+    (exited, log)
+}
+
 impl Drop for QemuBoard {
     fn drop(&mut self) {
         if let Some(mut child) = self.child.take() {

@@ -24,7 +24,7 @@ use common::{Raw, datagram, sweep};
 use protocol::{
     Command, MAX_JOINTS, Point, PointList, Pwm, State, StatusCode, StatusFlags, Tag, UartInit,
 };
-use system_tests::qemu::{QemuBoard, echo, unavailable};
+use system_tests::qemu::{FAULT_MARKERS, QemuBoard, echo, run_to_exit, unavailable};
 
 /// Skips the test, saying what it needs, when QEMU is not installed. The message goes to
 /// the real stderr (not the test harness's capture), so a passing skip is still seen.
@@ -568,4 +568,35 @@ fn lossy_link_executes_the_same_steps_as_a_lossless_one() {
     assert_eq!(usize::from(lossy_status.executed), points.len());
     assert_eq!(lossy_status.executed, clean_status.executed);
     assert!(lossy.retransmissions > 0, "no loss seen: {lossy:?}");
+}
+
+#[test]
+fn a_fault_ends_qemu_with_a_failure_and_its_log() {
+    require_qemu!();
+    // The firmware commits the fault QEMU's command line asks for, 300 ms after boot.
+    for (kind, expected) in [
+        ("panic", "PANIC: panicked at"),
+        ("hardfault", "HARDFAULT: pc="),
+        (
+            "stack-overflow",
+            "HARDFAULT: stack overflow (guard region hit)",
+        ),
+    ] {
+        let (exited, log) = run_to_exit(&format!("inject-fault={kind}"), Duration::from_secs(20));
+        assert_eq!(
+            exited,
+            Some(false),
+            "{kind}: QEMU should exit with a failure\n{log}"
+        );
+        assert!(log.contains(expected), "{kind}: no '{expected}' in\n{log}");
+        assert!(
+            log.contains("FATAL: steps stopped"),
+            "{kind}: no safe stop in\n{log}"
+        );
+        assert!(FAULT_MARKERS.iter().any(|m| log.contains(m)));
+    }
+    // And without one it keeps running.
+    let (exited, log) = run_to_exit("", Duration::from_secs(2));
+    assert_eq!(exited, None, "QEMU exited without an injected fault\n{log}");
+    assert!(log.contains("listening on 10.0.2.15/24:8510"), "{log}");
 }

@@ -110,3 +110,74 @@ unsafe fn DefaultHandler(irqn: i16) {
     ));
     safe_stop()
 }
+
+/// A fault the emulator's command line asks for (`-append inject-fault=KIND`), so that the
+/// tests can check that each kind ends QEMU with a failure and its log. Only QEMU's command
+/// line can ask: nothing on the network can.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum InjectedFault {
+    /// A Rust panic.
+    Panic,
+    /// A load from an address with nothing behind it (precise bus fault, escalated).
+    HardFault,
+    /// Unbounded recursion into the MPU guard region.
+    StackOverflow,
+}
+
+/// Semihosting SYS_GET_CMDLINE.
+const SYS_GET_CMDLINE: u32 = 0x15;
+
+/// The fault asked for on QEMU's command line, if any.
+pub fn injected() -> Option<InjectedFault> {
+    // QEMU puts the kernel's path first (an absolute path can be long) and refuses the
+    // call if the whole line does not fit.
+    let mut buf = [0u8; 512];
+    let mut block: [u32; 2] = [buf.as_mut_ptr() as u32, buf.len() as u32];
+    // SAFETY: SYS_GET_CMDLINE writes at most `block[1]` bytes into `buf` and the length
+    // back into `block[1]`; QEMU runs with semihosting enabled.
+    let result =
+        unsafe { cortex_m::asm::semihosting_syscall(SYS_GET_CMDLINE, block.as_mut_ptr() as u32) };
+    if result != 0 {
+        log::warn!("QEMU command line unreadable (semihosting SYS_GET_CMDLINE failed)");
+        return None;
+    }
+    let len = (block[1] as usize).min(buf.len());
+    let line = core::str::from_utf8(&buf[..len]).ok()?;
+    log::info!("QEMU command line: {:?}", line);
+    line.split_whitespace().find_map(|word| match word {
+        "inject-fault=panic" => Some(InjectedFault::Panic),
+        "inject-fault=hardfault" => Some(InjectedFault::HardFault),
+        "inject-fault=stack-overflow" => Some(InjectedFault::StackOverflow),
+        _ => None,
+    })
+}
+
+/// Commits the fault.
+pub fn inject(fault: InjectedFault) -> ! {
+    log::warn!("injecting {:?} (QEMU command line)", fault);
+    match fault {
+        InjectedFault::Panic => panic!("injected panic"),
+        InjectedFault::HardFault => {
+            // SAFETY: deliberately faulting: 0xE0100000 is past the private peripheral bus,
+            // nothing answers there.
+            let value = unsafe { core::ptr::read_volatile(0xE010_0000 as *const u32) };
+            panic!("read {:#x} where a bus fault was expected", value)
+        }
+        InjectedFault::StackOverflow => {
+            let depth = recurse(0);
+            panic!("recursion returned at depth {}", depth)
+        }
+    }
+}
+
+/// Recurses with a 1 KiB frame that the optimiser must keep, until the guard stops it.
+#[inline(never)]
+fn recurse(depth: u32) -> u32 {
+    let mut frame = [0u8; 1024];
+    frame[(depth as usize) % 1024] = depth as u8;
+    let frame = core::hint::black_box(frame);
+    if depth == u32::MAX {
+        return u32::from(frame[0]);
+    }
+    recurse(depth + 1).wrapping_add(u32::from(frame[1]))
+}

@@ -123,6 +123,13 @@ async fn step_output_monitor() -> ! {
     }
 }
 
+/// Commits the fault QEMU's command line asked for, once the controller is up.
+#[embassy_executor::task]
+async fn inject_fault(fault: fault::InjectedFault) -> ! {
+    embassy_time::Timer::after_millis(300).await;
+    fault::inject(fault)
+}
+
 #[cortex_m_rt::entry]
 fn main() -> ! {
     // Before anything steals them (enabling an interrupt does).
@@ -190,7 +197,11 @@ fn main() -> ! {
         },
     )
     .and_then(|stack| link_watch(stack).map(|token| spawner.spawn(token)))
-    .and_then(|()| step_output_monitor().map(|token| spawner.spawn(token)));
+    .and_then(|()| step_output_monitor().map(|token| spawner.spawn(token)))
+    .and_then(|()| match fault::injected() {
+        Some(fault) => inject_fault(fault).map(|token| spawner.spawn(token)),
+        None => Ok(()),
+    });
     if let Err(e) = spawned {
         panic!("spawning the tasks: {:?}", e); // safe: boot-time bring-up
     }
