@@ -111,6 +111,8 @@ pub struct QemuBoard {
     pub addr: SocketAddr,
     /// Where the pass-through UART's chardev listens (TCP on 127.0.0.1).
     pub serial_addr: SocketAddr,
+    /// Where QEMU's monitor listens (TCP on 127.0.0.1), for [`QemuBoard::monitor`].
+    monitor_addr: SocketAddr,
     child: Option<Child>,
     dir: PathBuf,
     _turn: MutexGuard<'static, ()>,
@@ -126,6 +128,8 @@ impl QemuBoard {
         for _ in 0..5 {
             let port = free_udp_port();
             let serial_port = free_tcp_port();
+            let monitor_port = free_tcp_port();
+            let monitor_addr = SocketAddr::V4(SocketAddrV4::new(Ipv4Addr::LOCALHOST, monitor_port));
             let addr = SocketAddr::V4(SocketAddrV4::new(Ipv4Addr::LOCALHOST, port));
             let serial_addr = SocketAddr::V4(SocketAddrV4::new(Ipv4Addr::LOCALHOST, serial_port));
             let dir =
@@ -134,7 +138,8 @@ impl QemuBoard {
             let log_path = dir.join("uart0.log");
             let mut command = Command::new("qemu-system-arm");
             command
-                .args(["-M", "mps2-an500", "-display", "none", "-monitor", "none"])
+                .args(["-M", "mps2-an500", "-display", "none", "-monitor"])
+                .arg(format!("tcp:127.0.0.1:{monitor_port},server=on,wait=off"))
                 .args(["-semihosting-config", "enable=on,target=native"])
                 .arg("-kernel")
                 .arg(&image)
@@ -183,6 +188,7 @@ impl QemuBoard {
                     return QemuBoard {
                         addr,
                         serial_addr,
+                        monitor_addr,
                         child: Some(child),
                         dir,
                         _turn: turn,
@@ -230,6 +236,35 @@ impl QemuBoard {
         {
             panic!("QEMU exited with {status}:\n{log}");
         }
+    }
+
+    /// Runs one command on QEMU's monitor (e.g. `set_link lan9118.0 off`: the NIC's link
+    /// as its PHY reports it).
+    pub fn monitor(&self, command: &str) {
+        use std::io::Write;
+        let mut stream = TcpStream::connect(self.monitor_addr)
+            .unwrap_or_else(|e| panic!("QEMU monitor {}: {e}", self.monitor_addr));
+        let _ = stream.set_read_timeout(Some(Duration::from_millis(200)));
+        stream
+            .write_all(format!("{command}\n").as_bytes())
+            .expect("write to QEMU's monitor");
+        // Wait for the prompt after the command: it has run.
+        let mut seen = Vec::new();
+        let mut buf = [0u8; 1024];
+        let deadline = Instant::now() + Duration::from_secs(5);
+        while Instant::now() < deadline {
+            if let Ok(n) = stream.read(&mut buf) {
+                seen.extend_from_slice(&buf[..n]);
+                let text = String::from_utf8_lossy(&seen);
+                if text.matches("(qemu)").count() >= 2 {
+                    return;
+                }
+            }
+        }
+        panic!(
+            "QEMU's monitor did not run {command:?}: {}",
+            String::from_utf8_lossy(&seen)
+        );
     }
 
     /// Connects to the pass-through UART's chardev, as the device on the serial line.

@@ -233,6 +233,15 @@ fn every_command_of_the_manual() {
     assert!(arm.status().unwrap().flags.has(StatusFlags::PWM_ACTIVE));
     arm.pwm_stop().unwrap();
     assert!(!arm.status().unwrap().flags.has(StatusFlags::PWM_ACTIVE));
+    // A counted burst (gripper stepper mode): 50 pulses at 1 kHz end by themselves.
+    let burst = armctl::pwm::settings(status.pwm_timer_clock_hz, 1000.0, 0.5, 50).unwrap();
+    arm.pwm_start(burst).unwrap();
+    assert!(arm.status().unwrap().flags.has(StatusFlags::PWM_ACTIVE));
+    std::thread::sleep(Duration::from_millis(300));
+    assert!(
+        !arm.status().unwrap().flags.has(StatusFlags::PWM_ACTIVE),
+        "burst did not end"
+    );
 
     // UART_INIT, USART_SEND, USART_RECV through the CMSDK UART and QEMU's chardev, with
     // the test as a loopback device on the line.
@@ -599,4 +608,41 @@ fn a_fault_ends_qemu_with_a_failure_and_its_log() {
     let (exited, log) = run_to_exit("", Duration::from_secs(2));
     assert_eq!(exited, None, "QEMU exited without an injected fault\n{log}");
     assert!(log.contains("listening on 10.0.2.15/24:8510"), "{log}");
+}
+
+#[test]
+fn link_down_and_up_reach_the_stack_through_the_phy_interrupt() {
+    require_qemu!();
+    let mut board = QemuBoard::start();
+    let arm = board.connect_with(emulated());
+    arm.status().unwrap();
+    board.monitor("set_link lan9118.0 off");
+    let quick = Options {
+        ack_timeout: Duration::from_millis(100),
+        attempts: 3,
+        ..Options::default()
+    };
+    let wait_for = |line: &str| {
+        let deadline = Instant::now() + Duration::from_secs(5);
+        while !board.log().contains(line) && Instant::now() < deadline {
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        assert!(
+            board.log().contains(line),
+            "no '{line}' in\n{}",
+            board.log()
+        );
+    };
+    wait_for("WARN  ethernet link down");
+    assert!(
+        Controller::connect_with(board.addr, quick.clone()).is_err(),
+        "answered with the link down"
+    );
+    board.monitor("set_link lan9118.0 on");
+    wait_for("INFO  ethernet link up");
+    let status = arm
+        .status()
+        .unwrap_or_else(|e| panic!("no STATUS after the link came back: {e}\n{}", board.log()));
+    assert_eq!(status.state, State::Stopped);
+    board.assert_healthy();
 }
