@@ -101,12 +101,26 @@ async fn link_watch(stack: embassy_net::Stack<'static>) -> ! {
 }
 
 /// Logs the pulses the step output emitted each time the engine comes to rest, so that a
-/// test can compare what left the "pins" with the positions the controller reports.
+/// test can compare what left the "pins" with the positions the controller reports; and
+/// the Ethernet driver's error counters when they change.
 #[embassy_executor::task]
 async fn step_output_monitor() -> ! {
     let mut logged = [0i32; arm_step::MAX_JOINTS];
+    let mut nic_errors = (0, 0);
     loop {
         embassy_time::Timer::after_millis(100).await;
+        let errors = (
+            lan9118::RX_DROPPED.load(Ordering::Relaxed),
+            lan9118::TX_ERRORS.load(Ordering::Relaxed),
+        );
+        if errors != nic_errors {
+            log::warn!(
+                "LAN9118: {} frames dropped on receive, {} failed to send",
+                errors.0,
+                errors.1
+            );
+            nic_errors = errors;
+        }
         let (running, late) = STEP.with_engine(|e| (e.is_running(), e.late_pulses()));
         let pulses = step_out::LINES
             .pulses
