@@ -19,7 +19,10 @@ command -v ip >/dev/null || skip "needs iproute2 (ip)"
 command -v qemu-system-arm >/dev/null || skip "needs qemu-system-arm"
 [ -c /dev/net/tun ] || skip "no /dev/net/tun"
 
-target_dir=${CARGO_TARGET_DIR:-target}
+# firmware/qemu-mps2 is a workspace of its own: without this its build would go to its own
+# target/ directory.
+export CARGO_TARGET_DIR="${CARGO_TARGET_DIR:-$PWD/target}"
+target_dir=$CARGO_TARGET_DIR
 cargo qemu-fw --quiet
 cargo build --quiet --release -p armctl
 elf="$target_dir/thumbv7em-none-eabihf/release/firmware-qemu"
