@@ -5,6 +5,9 @@
 //! and `armctl` next to the test executable (`current_exe()/../../`), brought up to date
 //! with `cargo build -p <package>` once per test process.
 
+/// The firmware on QEMU's mps2-an500 (tests/tests/qemu.rs).
+pub mod qemu;
+
 use std::net::{Ipv4Addr, SocketAddr, SocketAddrV4, UdpSocket};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};

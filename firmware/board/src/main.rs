@@ -18,7 +18,8 @@
 //! | P3 | Ethernet, USART6, DMA, flash, RNG | driver bookkeeping; their tasks wait anyway |
 //! | thread mode | every task, one executor | see below |
 //!
-//! The tasks (arm-core's, each wrapped below in an `#[embassy_executor::task]`):
+//! The tasks (arm-core's, each wrapped in an `#[embassy_executor::task]` by
+//! `arm_wiring::controller_tasks!`):
 //! - `net_task`: the embassy-net stack's runner.
 //! - `network`: receives datagrams and routes them: a CRC-valid STOPPED goes to its own
 //!   queue, which the trajectory task drains first; sends ACKs and reports.
@@ -36,6 +37,10 @@
 //! Network input can never panic or block: arm-core decodes it with the `protocol` crate
 //! and answers every error with an ACK status; queues that are full drop rather than wait.
 //!
+//! The task wrappers, the controller's static, the UDP socket and its buffers come from
+//! [`arm_wiring::controller_tasks!`], shared with the QEMU board (`firmware/qemu-mps2`), so
+//! that the two cannot drift apart; this crate passes its types.
+//!
 //! # Memory
 //! Every task, driver and buffer is a `static` (`StaticCell`), initialised once in `main`;
 //! there is no heap. The trajectory buffer (8192 points, 288 KiB) and the network buffers
@@ -44,7 +49,6 @@
 #![no_std]
 #![no_main]
 
-mod board_hw;
 mod clocks;
 mod gripper;
 mod net;
@@ -54,27 +58,24 @@ mod settings;
 mod step_timer;
 
 use arm_core::config::{BOARD_TRAJECTORY_CAPACITY, ControllerConfig};
-use arm_core::hw::{Gripper, PersistentSettings};
-use arm_core::{Bus, Controller, TrajectoryHw};
+use arm_core::hw::Gripper;
+use arm_core::{Bus, TrajectoryHw};
+use arm_wiring::NoEncoders;
 use defmt::{info, warn};
 use embassy_executor::Spawner;
-use embassy_net::Stack;
-use embassy_net::udp::{PacketMetadata, UdpSocket};
 use embassy_stm32::flash::Flash;
 use embassy_stm32::interrupt::{InterruptExt, Priority};
 use embassy_stm32::rng::Rng;
 use embassy_stm32::usart::Uart;
-use embassy_stm32::{Peri, bind_interrupts, dma, eth, flash, interrupt, peripherals, rng, usart};
-use protocol::{MAX_DATAGRAM, PORT};
+use embassy_stm32::{bind_interrupts, dma, eth, flash, interrupt, peripherals, rng, usart};
 use static_cell::{ConstStaticCell, StaticCell};
 use {defmt_rtt as _, panic_probe as _};
 
-use crate::board_hw::{BoardClock, BoardSocket, NoEncoders};
 use crate::gripper::GripperPwm;
 use crate::pins::{OutputLines, OutputPins, StepDirPins};
 use crate::serial::{BoardSerial, RX_RING_BYTES};
 use crate::settings::FlashSettings;
-use crate::step_timer::{STEP, StepTimer};
+use crate::step_timer::StepTimer;
 
 bind_interrupts!(
     /// Interrupt handlers of the embassy drivers.
@@ -94,78 +95,25 @@ pub const MAX_JOINTS: usize = protocol::MAX_JOINTS;
 /// Trajectory points buffered (arm-core's board figure: 80 s of 10 ms points).
 const CAP: usize = BOARD_TRAJECTORY_CAPACITY;
 
-/// The controller as this board instantiates it.
-type BoardController = Controller<CAP>;
-
-/// The hardware the trajectory task drives.
-type BoardTrajectoryHw = TrajectoryHw<
-    'static,
-    StepTimer,
-    OutputLines,
-    GripperPwm,
-    BoardSerial,
-    FlashSettings,
-    NoEncoders,
->;
-
 /// The channels between the tasks (and the step interrupt).
 pub static BUS: Bus = Bus::new();
-/// Time for the tasks.
-static CLOCK: BoardClock = BoardClock;
 
-static CONTROLLER: StaticCell<BoardController> = StaticCell::new();
+arm_wiring::controller_tasks! {
+    device: net::Device,
+    capacity: CAP,
+    bus: crate::BUS,
+    step: crate::step_timer::STEP,
+    kick: StepTimer,
+    outputs: OutputLines,
+    gripper: GripperPwm,
+    serial: BoardSerial,
+    settings: FlashSettings,
+    encoders: NoEncoders,
+}
+
 static KICK: StaticCell<StepTimer> = StaticCell::new();
 static SERIAL: StaticCell<BoardSerial> = StaticCell::new();
-static SOCKET: StaticCell<BoardSocket> = StaticCell::new();
 static RX_RING: ConstStaticCell<[u8; RX_RING_BYTES]> = ConstStaticCell::new([0; RX_RING_BYTES]);
-
-/// Datagrams the socket queues in each direction.
-const UDP_PACKETS: usize = 8;
-/// Receive buffer: a host keeps a window of PENDING frames (up to 1395 bytes each; armctl
-/// sends 4) in flight; four full-size datagrams cover it while the stack waits for the
-/// network task.
-const UDP_RX_BYTES: usize = 4 * MAX_DATAGRAM;
-/// Transmit buffer: arm-core's outbox holds 16 frames of at most 260 bytes (USART_RECV);
-/// 4 KiB takes a whole outbox burst.
-const UDP_TX_BYTES: usize = 4096;
-
-/// The UDP socket's buffers: zeroed statics (`.bss`), taken once by [`bind_socket`].
-static UDP_RX_META: ConstStaticCell<[PacketMetadata; UDP_PACKETS]> =
-    ConstStaticCell::new([PacketMetadata::EMPTY; UDP_PACKETS]);
-static UDP_RX: ConstStaticCell<[u8; UDP_RX_BYTES]> = ConstStaticCell::new([0; UDP_RX_BYTES]);
-static UDP_TX_META: ConstStaticCell<[PacketMetadata; UDP_PACKETS]> =
-    ConstStaticCell::new([PacketMetadata::EMPTY; UDP_PACKETS]);
-static UDP_TX: ConstStaticCell<[u8; UDP_TX_BYTES]> = ConstStaticCell::new([0; UDP_TX_BYTES]);
-
-#[embassy_executor::task]
-async fn net_task(mut runner: net::Runner) -> ! {
-    runner.run().await
-}
-
-#[embassy_executor::task]
-async fn network(socket: &'static BoardSocket) -> ! {
-    arm_core::network_task(socket, &BUS).await
-}
-
-#[embassy_executor::task]
-async fn trajectory(controller: &'static mut BoardController, hw: BoardTrajectoryHw) -> ! {
-    arm_core::trajectory_task(controller, &BUS, &STEP, &CLOCK, hw).await
-}
-
-#[embassy_executor::task]
-async fn stepper(kick: &'static StepTimer) -> ! {
-    arm_core::step_task(&BUS, &STEP, kick).await
-}
-
-#[embassy_executor::task]
-async fn upload() -> ! {
-    arm_core::upload_task(&BUS, &STEP, &CLOCK).await
-}
-
-#[embassy_executor::task]
-async fn serial(port: &'static BoardSerial) -> ! {
-    arm_core::serial_task(port, &BUS, &CLOCK).await
-}
 
 /// Lowers every driver interrupt below the step and gripper timers (the drivers enable
 /// them at P0, the reset value).
@@ -280,8 +228,6 @@ async fn main(spawner: Spawner) -> ! {
             .min(step_timer::STEP_TIMING.max_step_rate_hz()),
         ..ControllerConfig::BOARD
     };
-    let controller = CONTROLLER.init_with(|| Controller::new(controller_config));
-
     let eth_pins = net::EthernetPins {
         eth: p.ETH,
         sma: p.ETH_SMA,
@@ -295,13 +241,17 @@ async fn main(spawner: Spawner) -> ! {
         mdio: p.PA2,
         mdc: p.PC1,
     };
-    let stack = start_network(&spawner, p.RNG, eth_pins, &persistent);
-    let socket = SOCKET.init(BoardSocket::new(bind_socket(stack)));
+    let device = net::device(eth_pins);
+    // The TCP/IP stack wants a random seed (initial sequence numbers, DHCP transaction IDs).
+    let seed = Rng::new(p.RNG, Irqs).next_u64();
     set_driver_priorities();
 
-    spawner.spawn(defmt::unwrap!(network(socket)));
-    spawner.spawn(defmt::unwrap!(trajectory(
-        controller,
+    let stack = defmt::unwrap!(spawn_controller(
+        &spawner,
+        device,
+        arm_wiring::net::ip_config(persistent.ip, persistent.prefix_len),
+        seed,
+        controller_config,
         TrajectoryHw {
             kick,
             outputs,
@@ -310,51 +260,8 @@ async fn main(spawner: Spawner) -> ! {
             settings,
             encoders: NoEncoders,
         },
-    )));
-    spawner.spawn(defmt::unwrap!(stepper(kick)));
-    spawner.spawn(defmt::unwrap!(upload()));
-    spawner.spawn(defmt::unwrap!(serial(serial_port)));
-
-    stack.wait_config_up().await;
-    if let Some(config) = stack.config_v4() {
-        info!("listening on {}:{}", config.address, PORT);
-    }
-    loop {
-        // The link can drop and come back; log it so a person at the probe can see why the
-        // controller went silent.
-        stack.wait_link_down().await;
-        warn!("ethernet link down");
-        stack.wait_link_up().await;
-        info!("ethernet link up");
-    }
-}
-
-/// Seeds and starts the network stack at the stored address; spawns its runner.
-fn start_network(
-    spawner: &Spawner,
-    rng: Peri<'static, peripherals::RNG>,
-    pins: net::EthernetPins,
-    settings: &PersistentSettings,
-) -> Stack<'static> {
-    // The TCP/IP stack wants a random seed (initial sequence numbers, DHCP transaction IDs).
-    let seed = Rng::new(rng, Irqs).next_u64();
-    let (stack, runner) = net::init(pins, net::ip_config(settings.ip, settings.prefix_len), seed);
-    spawner.spawn(defmt::unwrap!(net_task(runner)));
-    stack
-}
-
-/// The controller's socket, bound to [`PORT`].
-fn bind_socket(stack: Stack<'static>) -> UdpSocket<'static> {
-    let mut socket = UdpSocket::new(
-        stack,
-        UDP_RX_META.take(),
-        UDP_RX.take(),
-        UDP_TX_META.take(),
-        UDP_TX.take(),
-    );
-    if let Err(e) = socket.bind(PORT) {
-        // Only possible with port 0 or a second bind; both are programming errors.
-        defmt::panic!("udp bind: {}", e); // safe: boot-time bring-up
-    }
-    socket
+    ));
+    // The link can drop and come back; it is logged so a person at the probe can see why
+    // the controller went silent.
+    arm_wiring::net::watch_link(stack).await
 }

@@ -3,9 +3,6 @@
 //! The MAC's descriptors and packet buffers ([`PacketQueue`]) are a `static` in `.bss`, which
 //! memory.x puts in AXI SRAM: the Ethernet DMA cannot reach DTCM.
 
-#[cfg(not(feature = "dhcp"))]
-use embassy_net::{Ipv4Address, Ipv4Cidr, StaticConfigV4};
-use embassy_net::{Stack, StackResources};
 use embassy_stm32::eth::{Ethernet, GenericPhy, PacketQueue, Sma};
 use embassy_stm32::peripherals::{ETH, ETH_SMA};
 use embassy_stm32::{Peri, peripherals};
@@ -15,8 +12,6 @@ use crate::Irqs;
 
 /// The Ethernet driver as the stack sees it.
 pub type Device = Ethernet<'static, ETH, GenericPhy<Sma<'static, ETH_SMA>>>;
-/// The stack's background task handle.
-pub type Runner = embassy_net::Runner<'static, Device>;
 
 /// Transmit descriptors: a burst of ACK + STATUS + LOCATION + USART_RECV fits without
 /// waiting for the MAC.
@@ -24,8 +19,6 @@ const TX_PACKETS: usize = 4;
 /// Receive descriptors: a host streaming PENDING frames back to back (each up to 1395 bytes)
 /// keeps a few in flight; more cost 1.5 KiB each.
 const RX_PACKETS: usize = 4;
-/// Sockets in the stack: the controller's UDP socket, plus DHCP's when enabled.
-const SOCKETS: usize = 2;
 
 /// The pins and peripherals the Ethernet uses on the NUCLEO-H743ZI2 (UM2407 table 11:
 /// default solder bridges). No other driver may use these.
@@ -66,35 +59,12 @@ pub fn mac_address() -> [u8; 6] {
     mac
 }
 
-/// The stack's address configuration: the static address `ip`/`prefix_len`, no gateway
-/// (replies go to hosts on the same subnet, as the protocol expects).
-#[cfg(not(feature = "dhcp"))]
-pub fn ip_config(ip: [u8; 4], prefix_len: u8) -> embassy_net::Config {
-    let [a, b, c, d] = ip;
-    embassy_net::Config::ipv4_static(StaticConfigV4 {
-        address: Ipv4Cidr::new(Ipv4Address::new(a, b, c, d), prefix_len),
-        dns_servers: heapless::Vec::new(),
-        gateway: None,
-    })
-}
-
-/// The stack's address configuration: an address from a DHCP server (the persisted static
-/// address is not used in this build).
-#[cfg(feature = "dhcp")]
-pub fn ip_config(_ip: [u8; 4], _prefix_len: u8) -> embassy_net::Config {
-    embassy_net::Config::dhcpv4(Default::default())
-}
-
-/// Brings up the MAC and PHY and creates the stack. Call once.
-pub fn init(
-    pins: EthernetPins,
-    config: embassy_net::Config,
-    seed: u64,
-) -> (Stack<'static>, Runner) {
+/// Brings up the MAC and PHY; the driver for the stack (arm-wiring creates the stack, with
+/// the address from `arm_wiring::net::ip_config`). Call once.
+pub fn device(pins: EthernetPins) -> Device {
     static PACKETS: StaticCell<PacketQueue<TX_PACKETS, RX_PACKETS>> = StaticCell::new();
-    static RESOURCES: StaticCell<StackResources<SOCKETS>> = StaticCell::new();
 
-    let device = Ethernet::new(
+    Ethernet::new(
         PACKETS.init(PacketQueue::new()),
         pins.eth,
         Irqs,
@@ -109,6 +79,5 @@ pub fn init(
         pins.sma,
         pins.mdio,
         pins.mdc,
-    );
-    embassy_net::new(device, config, RESOURCES.init(StackResources::new()), seed)
+    )
 }

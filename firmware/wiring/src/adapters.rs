@@ -1,16 +1,17 @@
-//! The small hardware adapters: time from embassy-time, the UDP socket from embassy-net,
-//! and the (absent) encoders.
+//! The small hardware adapters every board uses: time from embassy-time, the UDP socket
+//! from embassy-net, and the (absent) encoders.
 
 use arm_core::hw::{Clock, Datagrams, Encoders, Endpoint};
 use embassy_net::udp::{RecvError, SendError, UdpSocket};
 use embassy_net::{IpAddress, IpEndpoint, Ipv4Address};
 use embassy_time::{Instant, Timer};
 
-/// [`Clock`] on embassy-time (TIM5 at 1 MHz ticks: microseconds exactly).
+/// [`Clock`] on embassy-time (the board's time driver; microseconds exactly when it ticks
+/// at 1 MHz).
 #[derive(Clone, Copy, Default)]
-pub struct BoardClock;
+pub struct EmbassyClock;
 
-impl Clock for BoardClock {
+impl Clock for EmbassyClock {
     fn now_us(&self) -> u64 {
         Instant::now().as_micros()
     }
@@ -21,7 +22,8 @@ impl Clock for BoardClock {
 }
 
 /// Why a datagram could not be received or sent (logged by the network task).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, defmt::Format)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum DatagramError {
     /// Receiving failed (a datagram longer than the buffer: dropped).
     Recv(RecvError),
@@ -30,14 +32,14 @@ pub enum DatagramError {
 }
 
 /// [`Datagrams`] on the controller's bound embassy-net UDP socket.
-pub struct BoardSocket {
+pub struct NetSocket {
     socket: UdpSocket<'static>,
 }
 
-impl BoardSocket {
+impl NetSocket {
     /// Wraps a socket already bound to the controller's port.
     pub fn new(socket: UdpSocket<'static>) -> Self {
-        BoardSocket { socket }
+        NetSocket { socket }
     }
 }
 
@@ -51,7 +53,7 @@ fn to_endpoint(endpoint: IpEndpoint) -> Endpoint {
     }
 }
 
-impl Datagrams for BoardSocket {
+impl Datagrams for NetSocket {
     type Error = DatagramError;
 
     async fn recv(&self, buf: &mut [u8]) -> Result<(usize, Endpoint), Self::Error> {
@@ -73,7 +75,7 @@ impl Datagrams for BoardSocket {
     }
 }
 
-/// This board has no absolute encoders: RETURN trusts the step count.
+/// A board without absolute encoders: RETURN trusts the step count.
 #[derive(Clone, Copy, Default)]
 pub struct NoEncoders;
 

@@ -1,0 +1,235 @@
+//! The arm controller firmware on an emulated Cortex-M7: QEMU's `mps2-an500` machine (ARM
+//! MPS2 with the AN500 FPGA image) with its LAN9118 Ethernet controller.
+//!
+//! No board is attached to the machines this project is built on; this target runs the
+//! no_std firmware (executor on Cortex-M, critical sections, interrupts, embassy-net,
+//! arm-core's tasks and step engine) for real, over an emulated Ethernet link, in CI. The
+//! tasks, their wiring and their static allocation are the NUCLEO board's, from
+//! [`arm_wiring::controller_tasks!`]; only the chip-specific parts are here:
+//!
+//! | what | NUCLEO-H743ZI2 | here |
+//! |---|---|---|
+//! | Ethernet | STM32 MAC + LAN8742A, DMA | LAN9118 by PIO ([`lan9118`]) |
+//! | embassy-time | TIM5 | CMSDK timers 0 and 1 ([`time_driver`]) |
+//! | step timer | TIM2 compare, GPIO BSRR | dual timer one-shot, lines in memory ([`step_out`]) |
+//! | serial pass-through | USART6 + DMA | CMSDK UART 1, interrupts ([`serial`]) |
+//! | gripper, PIN0/1, ENABLE | TIM15 PWM, GPIO | timed and logged fakes ([`devices`]) |
+//! | settings | flash (sequential-storage) | RAM |
+//! | logs | defmt over RTT | text on UART 0 ([`logger`]) |
+//! | faults | panic-probe | log, stop steps, exit QEMU with failure ([`fault`]) |
+//!
+//! Interrupt priorities follow the NUCLEO's: step timer highest, then time, then the
+//! drivers; every task runs in one thread-mode executor, which sleeps with WFI (QEMU
+//! treats WFE as a yield and would spin a host core).
+//!
+//! Run it (the test `tests/tests/qemu.rs` does this):
+//! ```text
+//! cargo qemu-fw
+//! qemu-system-arm -M mps2-an500 -nographic -semihosting-config enable=on,target=native \
+//!   -kernel target/thumbv7em-none-eabihf/release/firmware-qemu \
+//!   -nic user,model=lan9118,hostfwd=udp:127.0.0.1:8510-:8510 \
+//!   -serial stdio -serial tcp:127.0.0.1:8520,server=on,wait=off
+//! ```
+//! UART 0 (the first `-serial`) carries the log, UART 1 the serial pass-through.
+
+#![no_std]
+#![no_main]
+
+mod devices;
+mod fault;
+mod lan9118;
+mod logger;
+mod marks;
+mod mps2;
+mod serial;
+mod step_out;
+mod time_driver;
+mod uart;
+
+use core::sync::atomic::{AtomicBool, Ordering};
+
+use arm_core::config::{BOARD_TRAJECTORY_CAPACITY, ControllerConfig};
+use arm_core::hw::{Gripper, PersistentSettings};
+use arm_core::{Bus, TrajectoryHw};
+use arm_wiring::NoEncoders;
+use embassy_executor::raw::Executor;
+use static_cell::StaticCell;
+
+use crate::devices::{LoggedOutputs, QEMU_GUEST_IP, RamSettings, TimedGripper};
+use crate::lan9118::Lan9118;
+use crate::serial::QemuSerial;
+use crate::step_out::{STEP, StepTimer};
+
+/// The channels between the tasks (and the step interrupt).
+pub static BUS: Bus = Bus::new();
+
+/// Trajectory points buffered: the NUCLEO's figure, so that uploads behave the same.
+const CAP: usize = BOARD_TRAJECTORY_CAPACITY;
+
+/// The MAC address if the chip's EEPROM has none (QEMU loads one: 52:54:00:12:34:56 unless
+/// `-nic ...,mac=` says otherwise). Locally administered, unicast.
+const FALLBACK_MAC: [u8; 6] = [0x02, 0x00, 0x00, 0x00, 0x85, 0x10];
+
+arm_wiring::controller_tasks! {
+    device: Lan9118,
+    capacity: CAP,
+    bus: crate::BUS,
+    step: crate::step_out::STEP,
+    kick: StepTimer,
+    outputs: LoggedOutputs,
+    gripper: TimedGripper,
+    serial: QemuSerial,
+    settings: RamSettings,
+    encoders: NoEncoders,
+}
+
+static KICK: StaticCell<StepTimer> = StaticCell::new();
+static SERIAL: StaticCell<QemuSerial> = StaticCell::new();
+static EXECUTOR: StaticCell<Executor> = StaticCell::new();
+
+/// Set by the executor's pender (a task was woken): the idle loop must poll, not sleep.
+static WORK: AtomicBool = AtomicBool::new(false);
+
+#[unsafe(export_name = "__pender")]
+fn pender(_context: *mut ()) {
+    WORK.store(true, Ordering::Release);
+}
+
+#[embassy_executor::task]
+async fn link_watch(stack: embassy_net::Stack<'static>) -> ! {
+    arm_wiring::net::watch_link(stack).await
+}
+
+/// Logs the pulses the step output emitted each time the engine comes to rest, so that a
+/// test can compare what left the "pins" with the positions the controller reports; and
+/// the Ethernet driver's error counters when they change.
+#[embassy_executor::task]
+async fn step_output_monitor() -> ! {
+    let mut logged = [0i32; arm_step::MAX_JOINTS];
+    let mut nic_errors = (0, 0);
+    loop {
+        embassy_time::Timer::after_millis(100).await;
+        let errors = (
+            lan9118::RX_DROPPED.load(Ordering::Relaxed),
+            lan9118::TX_ERRORS.load(Ordering::Relaxed),
+        );
+        if errors != nic_errors {
+            log::warn!(
+                "LAN9118: {} frames dropped on receive, {} failed to send",
+                errors.0,
+                errors.1
+            );
+            nic_errors = errors;
+        }
+        let (running, late) = STEP.with_engine(|e| (e.is_running(), e.late_pulses()));
+        let pulses = step_out::LINES
+            .pulses
+            .each_ref()
+            .map(|p| p.load(Ordering::Relaxed));
+        if !running && pulses != logged {
+            log::info!(
+                "step output at rest: pulses {:?}, late pulses {}",
+                pulses,
+                late
+            );
+            logged = pulses;
+        }
+    }
+}
+
+/// Commits the fault QEMU's command line asked for, once the controller is up.
+#[embassy_executor::task]
+async fn inject_fault(fault: fault::InjectedFault) -> ! {
+    embassy_time::Timer::after_millis(300).await;
+    fault::inject(fault)
+}
+
+#[cortex_m_rt::entry]
+fn main() -> ! {
+    // Before anything steals them (enabling an interrupt does).
+    let Some(mut core) = cortex_m::Peripherals::take() else {
+        panic!("core peripherals taken before main"); // safe: boot-time bring-up
+    };
+    // Time first: the log's timestamps read it.
+    time_driver::init();
+    logger::init();
+    log::info!("arm controller starting (QEMU mps2-an500)");
+    fault::install_stack_guard(&mut core.MPU);
+    let kick = KICK.init(step_out::init());
+    let serial_port = SERIAL.init(QemuSerial::new());
+
+    let ethernet = match Lan9118::new(FALLBACK_MAC) {
+        Ok(ethernet) => ethernet,
+        Err(e) => panic!("LAN9118: {:?}", e), // safe: boot-time bring-up
+    };
+    let [a, b, c, d, e, f] = ethernet.mac_address();
+    log::info!(
+        "LAN9118 id {:#010x}, MAC {:02x}:{:02x}:{:02x}:{:02x}:{:02x}:{:02x}",
+        Lan9118::id_rev(),
+        a,
+        b,
+        c,
+        d,
+        e,
+        f
+    );
+    mps2::enable(mps2::Irq::Ethernet, mps2::priority::DRIVERS);
+
+    let settings = RamSettings::new(PersistentSettings {
+        ip: QEMU_GUEST_IP,
+        ..PersistentSettings::default()
+    });
+    let persistent = settings.current().unwrap_or_default();
+    log::info!("settings: {:?}", persistent);
+
+    let gripper = TimedGripper::default();
+    let controller_config = ControllerConfig {
+        pwm_timer_clock_hz: gripper.timer_clock_hz(),
+        max_step_rate_hz: ControllerConfig::BOARD
+            .max_step_rate_hz
+            .min(step_out::STEP_TIMING.max_step_rate_hz()),
+        ..ControllerConfig::BOARD
+    };
+    // No RNG on this board: the seed only varies TCP sequence numbers and DHCP ids.
+    let seed = time_driver::now_cycles() ^ u64::from_le_bytes([a, b, c, d, e, f, 0x95, 0x18]);
+
+    let executor = EXECUTOR.init(Executor::new(core::ptr::null_mut()));
+    let spawner = executor.spawner();
+    let spawned = spawn_controller(
+        &spawner,
+        ethernet,
+        arm_wiring::net::ip_config(persistent.ip, persistent.prefix_len),
+        seed,
+        controller_config,
+        TrajectoryHw {
+            kick,
+            outputs: LoggedOutputs::default(),
+            gripper,
+            serial: serial_port,
+            settings,
+            encoders: NoEncoders,
+        },
+    )
+    .and_then(|stack| link_watch(stack).map(|token| spawner.spawn(token)))
+    .and_then(|()| step_output_monitor().map(|token| spawner.spawn(token)))
+    .and_then(|()| match fault::injected() {
+        Some(fault) => inject_fault(fault).map(|token| spawner.spawn(token)),
+        None => Ok(()),
+    });
+    if let Err(e) = spawned {
+        panic!("spawning the tasks: {:?}", e); // safe: boot-time bring-up
+    }
+
+    loop {
+        WORK.store(false, Ordering::Release);
+        // SAFETY: this executor is polled from this loop only, in thread mode.
+        unsafe { executor.poll() };
+        // Sleep unless a wake came meanwhile; an interrupt ends WFI even while masked, and
+        // runs once the critical section ends.
+        cortex_m::interrupt::free(|_| {
+            if !WORK.load(Ordering::Acquire) {
+                cortex_m::asm::wfi();
+            }
+        });
+    }
+}

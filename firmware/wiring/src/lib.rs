@@ -1,0 +1,155 @@
+//! What the firmware boards share beyond arm-core, so that they cannot drift apart: the
+//! task wiring and static allocation ([`controller_tasks!`]), the clock on embassy-time,
+//! the controller's UDP socket on embassy-net with its buffers, the address
+//! configuration, and the link watch.
+//!
+//! A board crate (the NUCLEO-H743ZI2 in `firmware/board`, the emulated MPS2-AN500 in
+//! `firmware/qemu-mps2`) keeps only what is chip-specific: bring-up, its drivers for
+//! arm-core's hardware traits, its Ethernet driver, its step timer and interrupt
+//! priorities. It owns the [`arm_core::Bus`] and [`arm_core::StepShared`] statics (its step
+//! interrupt reaches them by path) and invokes [`controller_tasks!`] once with its types;
+//! the macro defines the `#[embassy_executor::task]` wrappers (which cannot be generic),
+//! the controller's static, and one `spawn_controller` that starts the network stack and
+//! every task in one order for both boards.
+//!
+//! Logging goes through `defmt` or `log` (features of the same names), like arm-core's.
+#![no_std]
+#![warn(missing_docs)]
+
+// This must go first so that the other modules see its macros.
+mod fmt;
+
+mod adapters;
+pub mod net;
+
+pub use adapters::{DatagramError, EmbassyClock, NetSocket, NoEncoders};
+
+/// Re-exports for [`controller_tasks!`]'s expansion (the board crate need not name them).
+#[doc(hidden)]
+pub mod __private {
+    pub use arm_core;
+    pub use embassy_net;
+    pub use static_cell::StaticCell;
+}
+
+/// Defines a board's controller tasks and `spawn_controller`, the one place where the tasks
+/// are wired to each other, to the network stack and to the hardware.
+///
+/// ```ignore
+/// arm_wiring::controller_tasks! {
+///     device: net::Device,          // the embassy-net-driver of the board's Ethernet
+///     capacity: CAP,                // trajectory points the controller buffers
+///     bus: BUS,                     // path of the board's `static BUS: arm_core::Bus`
+///     step: STEP,                   // path of its `static STEP: arm_core::StepShared<Q>`
+///     kick: StepTimer,              // arm_core::hw::StepKick
+///     outputs: OutputLines,         // arm_core::hw::Outputs
+///     gripper: GripperPwm,          // arm_core::hw::Gripper
+///     serial: BoardSerial,          // arm_core::hw::SerialPort
+///     settings: FlashSettings,      // arm_core::hw::SettingsStore
+///     encoders: NoEncoders,         // arm_core::hw::Encoders
+/// }
+/// ```
+///
+/// It defines, in the invoking module:
+/// - `BoardController` and `BoardTrajectoryHw`, the concrete controller and hardware types;
+/// - the tasks `net_task` (the stack's runner), `network`, `trajectory`, `stepper`,
+///   `upload` and `serial`, each a thin wrapper of arm-core's generic task;
+/// - `spawn_controller(spawner, device, net_config, seed, controller_config, hw)`, which
+///   creates the stack and the bound socket ([`net`]), puts the controller in a static and
+///   spawns every task; it returns the stack (for the link watch, [`net::watch_link`]).
+///   It fails only if called twice (the task pools hold one task each).
+#[macro_export]
+macro_rules! controller_tasks {
+    (
+        device: $device:ty,
+        capacity: $cap:expr,
+        bus: $bus:path,
+        step: $step:path,
+        kick: $kick:ty,
+        outputs: $outputs:ty,
+        gripper: $gripper:ty,
+        serial: $serial:ty,
+        settings: $settings:ty,
+        encoders: $encoders:ty $(,)?
+    ) => {
+        /// The controller as this board instantiates it.
+        pub type BoardController = $crate::__private::arm_core::Controller<{ $cap }>;
+
+        /// The hardware the trajectory task drives.
+        pub type BoardTrajectoryHw = $crate::__private::arm_core::TrajectoryHw<
+            'static,
+            $kick,
+            $outputs,
+            $gripper,
+            $serial,
+            $settings,
+            $encoders,
+        >;
+
+        /// Time for the tasks.
+        static CLOCK: $crate::EmbassyClock = $crate::EmbassyClock;
+        /// The controller, owned by the trajectory task.
+        static CONTROLLER: $crate::__private::StaticCell<BoardController> =
+            $crate::__private::StaticCell::new();
+        /// The controller's socket, shared by the network task's two halves.
+        static SOCKET: $crate::__private::StaticCell<$crate::NetSocket> =
+            $crate::__private::StaticCell::new();
+
+        #[embassy_executor::task]
+        async fn net_task(
+            mut runner: $crate::__private::embassy_net::Runner<'static, $device>,
+        ) -> ! {
+            runner.run().await
+        }
+
+        #[embassy_executor::task]
+        async fn network(socket: &'static $crate::NetSocket) -> ! {
+            $crate::__private::arm_core::network_task(socket, &$bus).await
+        }
+
+        #[embassy_executor::task]
+        async fn trajectory(controller: &'static mut BoardController, hw: BoardTrajectoryHw) -> ! {
+            $crate::__private::arm_core::trajectory_task(controller, &$bus, &$step, &CLOCK, hw)
+                .await
+        }
+
+        #[embassy_executor::task]
+        async fn stepper(kick: &'static $kick) -> ! {
+            $crate::__private::arm_core::step_task(&$bus, &$step, kick).await
+        }
+
+        #[embassy_executor::task]
+        async fn upload() -> ! {
+            $crate::__private::arm_core::upload_task(&$bus, &$step, &CLOCK).await
+        }
+
+        #[embassy_executor::task]
+        async fn serial(port: &'static $serial) -> ! {
+            $crate::__private::arm_core::serial_task(port, &$bus, &CLOCK).await
+        }
+
+        /// Starts the network stack on `device` and every controller task (network,
+        /// trajectory, stepper, upload, serial); returns the stack.
+        pub fn spawn_controller(
+            spawner: &embassy_executor::Spawner,
+            device: $device,
+            net_config: $crate::__private::embassy_net::Config,
+            seed: u64,
+            controller_config: $crate::__private::arm_core::ControllerConfig,
+            hw: BoardTrajectoryHw,
+        ) -> Result<$crate::__private::embassy_net::Stack<'static>, embassy_executor::SpawnError> {
+            let (stack, runner) = $crate::net::new_stack(device, net_config, seed);
+            spawner.spawn(net_task(runner)?);
+            let socket = SOCKET.init($crate::NetSocket::new($crate::net::bind_socket(stack)));
+            let controller = CONTROLLER
+                .init_with(|| $crate::__private::arm_core::Controller::new(controller_config));
+            let (kick, port) = (hw.kick, hw.serial);
+            spawner.spawn(network(socket)?);
+            spawner.spawn(trajectory(controller, hw)?);
+            spawner.spawn(stepper(kick)?);
+            spawner.spawn(upload()?);
+            spawner.spawn(serial(port)?);
+            Ok(stack)
+        }
+    };
+}

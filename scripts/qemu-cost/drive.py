@@ -1,0 +1,113 @@
+#!/usr/bin/env python3
+"""Drives the firmware under QEMU for scripts/qemu-cost/run.sh: warms the path up, then
+sends the measured datagrams one at a time, each after a quiet pause, so that each one's
+interval in the exec trace (counted by run.sh's awk) stands alone.
+
+Usage: drive.py ARMCTL HOST:PORT COUNTS_FILE REPEATS
+Prints "pending: <counts...>" and "stopped: <counts...>".
+"""
+import socket
+import subprocess
+import sys
+import time
+
+armctl, target, counts_file, repeats = sys.argv[1], sys.argv[2], sys.argv[3], int(sys.argv[4])
+host, port = target.rsplit(":", 1)
+addr = (host, int(port))
+sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+sock.bind(("127.0.0.1", 0))
+sock.settimeout(0.5)
+seq = 0
+
+
+def crc8(data):
+    """CRC-8/SMBUS (polynomial 0x07), the protocol's frame check."""
+    crc = 0
+    for b in data:
+        crc ^= b
+        for _ in range(8):
+            crc = ((crc << 1) ^ 0x07) & 0xFF if crc & 0x80 else (crc << 1) & 0xFF
+    return crc
+
+
+def encode(*args):
+    """A frame from `armctl frame encode ARGS`, renumbered with the next sequence number."""
+    global seq
+    hexed = subprocess.run([armctl, "frame", "encode", *args], check=True,
+                           capture_output=True, text=True).stdout.strip()
+    body = bytearray(bytes.fromhex(hexed)[:-1])
+    body[0] = seq
+    seq = (seq + 1) % 256
+    return bytes(body) + bytes([crc8(body)])
+
+
+def exchange(frame, what):
+    """Sends `frame` until its ACK (tag 0x14... any report whose seq matches) comes back."""
+    for _ in range(20):
+        sock.sendto(frame, addr)
+        deadline = time.time() + 0.5
+        while time.time() < deadline:
+            try:
+                reply, _ = sock.recvfrom(2048)
+            except socket.timeout:
+                break
+            if reply[0] == frame[0]:
+                return reply
+    sys.exit(f"no reply to {what}")
+
+
+def intervals():
+    """Lines the trace counter has written so far."""
+    with open(counts_file) as f:
+        return [line.split() for line in f if line.strip()]
+
+
+def settle():
+    # The trace is written through pipes: let it drain, and the firmware go idle.
+    time.sleep(1.0)
+
+
+def measured(frame, what, kind):
+    before = len(intervals())
+    exchange(frame, what)
+    settle()
+    new = [int(n) for k, n in intervals()[before:] if k == kind]
+    if not new:
+        sys.exit(f"{what}: no '{kind}' interval in the trace")
+    return new[0]
+
+
+point = "--point"
+moves = [f"{point}", "10000:1,1"]
+exchange(encode("status"), "STATUS")
+exchange(encode("joints-count", "2"), "JOINTS_COUNT")
+exchange(encode("upload-stop"), "UPLOAD_STOP")
+exchange(encode("location-setting", "0", "0"), "LOCATION_SETTING")
+settle()
+
+# One 12-point PENDING each, NIC interrupt to the ACK leaving the NIC.
+pending = []
+for r in range(repeats):
+    exchange(encode("new", "12"), "NEW")
+    args = ["pending", "--from", "0,0"]
+    for k in range(12):
+        args += [point, f"10000:{k + 1},{k + 1}"]
+    settle()
+    pending.append(measured(encode(*args), "PENDING", "ack"))
+    exchange(encode("stopped"), "STOPPED")
+
+# STOPPED during a slow run, NIC interrupt to the step output stopped.
+stopped = []
+for r in range(repeats):
+    exchange(encode("location-setting", "0", "0"), "LOCATION_SETTING")
+    exchange(encode("new", "12"), "NEW")
+    args = ["pending", "--from", "0,0"]
+    for k in range(12):
+        args += [point, f"100000:{10 * (k + 1)},{10 * (k + 1)}"]
+    exchange(encode(*args), "PENDING")
+    exchange(encode("runing"), "RUNING")
+    time.sleep(0.5)
+    stopped.append(measured(encode("stopped"), "STOPPED", "stop"))
+
+print("pending:", *pending)
+print("stopped:", *stopped)

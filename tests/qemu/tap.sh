@@ -1,0 +1,94 @@
+#!/usr/bin/env bash
+# The firmware on QEMU mps2-an500 over a TAP device, inside a Linux network namespace this
+# script creates and removes: two host addresses (10.0.2.2 and 10.0.2.3) on the TAP link
+# reach the controller at 10.0.2.15, which QEMU's user-mode network (every host is 10.0.2.2
+# there) cannot give. Checks with armctl:
+#  1. the owner lock: the first host owns the controller; the second is refused
+#     (NOT_OWNER) a configuration command;
+#  2. an e-stop from the second host: a run of the owner's, stopped by the other host,
+#     ends by STOPPED and the controller reports STOPPED.
+# Bounded in time; skips (exit 0, saying why) where root, namespaces, TAP or QEMU are
+# missing. Run by .ci/run.
+set -euo pipefail
+cd "$(dirname "$0")/../.."
+
+skip() { echo "qemu/tap.sh: SKIP: $*"; exit 0; }
+fail() { echo "qemu/tap.sh: FAIL: $*"; echo "--- firmware log ---"; cat "$work/uart0.log" 2>/dev/null || true; exit 1; }
+[ "$(id -u)" = 0 ] || skip "needs root"
+command -v ip >/dev/null || skip "needs iproute2 (ip)"
+command -v qemu-system-arm >/dev/null || skip "needs qemu-system-arm"
+[ -c /dev/net/tun ] || skip "no /dev/net/tun"
+
+# firmware/qemu-mps2 is a workspace of its own: without this its build would go to its own
+# target/ directory.
+export CARGO_TARGET_DIR="${CARGO_TARGET_DIR:-$PWD/target}"
+target_dir=$CARGO_TARGET_DIR
+cargo qemu-fw --quiet
+cargo build --quiet --release -p armctl
+elf="$target_dir/thumbv7em-none-eabihf/release/firmware-qemu"
+armctl="$target_dir/release/armctl"
+
+ns="armqemu-$$"
+work=$(mktemp -d)
+qemu_pid=""
+run_pid=""
+cleanup() {
+  for pid in $run_pid $qemu_pid; do kill "$pid" 2>/dev/null || true; wait "$pid" 2>/dev/null || true; done
+  ip netns del "$ns" 2>/dev/null || true
+  rm -rf "$work"
+}
+trap cleanup EXIT
+ip netns add "$ns" 2>/dev/null || skip "cannot create a network namespace"
+ip netns exec "$ns" ip tuntap add name tap0 mode tap || skip "cannot create a TAP device"
+ip netns exec "$ns" ip addr add 10.0.2.2/24 dev tap0
+ip netns exec "$ns" ip addr add 10.0.2.3/24 dev tap0
+ip netns exec "$ns" ip link set tap0 up
+ip netns exec "$ns" ip link set lo up
+
+ip netns exec "$ns" timeout 120 qemu-system-arm -M mps2-an500 -display none -monitor none \
+  -semihosting-config enable=on,target=native -kernel "$elf" \
+  -nic tap,ifname=tap0,script=no,downscript=no,model=lan9118 \
+  -serial "file:$work/uart0.log" -serial null &
+qemu_pid=$!
+
+controller=10.0.2.15:8510
+owner() { ip netns exec "$ns" timeout 60 "$armctl" --controller "$controller" --bind 10.0.2.2:0 "$@"; }
+other() { ip netns exec "$ns" timeout 60 "$armctl" --controller "$controller" --bind 10.0.2.3:0 "$@"; }
+
+up=""
+for _ in $(seq 50); do
+  if owner status >/dev/null 2>&1; then up=1; break; fi
+  kill -0 "$qemu_pid" 2>/dev/null || fail "QEMU exited"
+  sleep 0.2
+done
+[ -n "$up" ] || fail "no STATUS from $controller over TAP"
+echo "qemu/tap.sh: STATUS over TAP from 10.0.2.2"
+
+# 1. Owner lock.
+owner joints 2 >/dev/null
+owner set-location 0 0 >/dev/null
+if other joints 3 >"$work/refused" 2>&1; then fail "a second host changed JOINTS_COUNT"; fi
+grep -q "NOT_OWNER\|another host owns" "$work/refused" || fail "second host: expected NOT_OWNER, got: $(cat "$work/refused")"
+echo "qemu/tap.sh: second host refused (NOT_OWNER)"
+
+# 2. E-stop from the second host during the owner's 4 s run.
+{
+  echo "time_s,j0,j1"
+  for k in $(seq 1 400); do echo "$(awk -v k="$k" 'BEGIN { printf "%.3f", k * 0.01 }'),$((k * 2)),$((-k * 2))"; done
+} >"$work/run.csv"
+owner run --quiet "$work/run.csv" >"$work/run.out" 2>&1 &
+run_pid=$!
+sleep 1.5
+other stop >/dev/null || fail "STOPPED from the second host was not acknowledged"
+set +e
+wait "$run_pid"
+run_status=$?
+set -e
+run_pid=""
+[ "$run_status" -ne 0 ] || fail "the run ended normally despite STOPPED: $(cat "$work/run.out")"
+grep -qi "stop" "$work/run.out" || fail "the run did not end by STOPPED: $(cat "$work/run.out")"
+first=$(owner status | grep -i "state")
+echo "$first" | grep -q STOPPED || fail "not STOPPED after the e-stop: $first"
+echo "qemu/tap.sh: e-stop from the second host ended the owner's run"
+grep -qE "PANIC|HARDFAULT|FATAL" "$work/uart0.log" && fail "the firmware faulted"
+echo "qemu/tap.sh: ok"

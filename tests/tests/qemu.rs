@@ -1,0 +1,648 @@
+//! The firmware itself (no_std, Cortex-M7, embassy-net over the LAN9118 driver) on QEMU's
+//! `mps2-an500`, driven over emulated Ethernet by armctl: the end-to-end checks that
+//! `e2e.rs` runs against sim-host, where they apply to the board (its buffer is the
+//! NUCLEO's 8192 points; the lossy link is a relay on the host side).
+//!
+//! Needs `qemu-system-arm`; without it every test prints why it is skipped and passes
+//! (`.ci/run` installs QEMU, so CI runs them). A panic, HardFault, stack overflow or
+//! unexpected interrupt in the firmware ends QEMU and fails the test with the firmware's
+//! log; a hang fails it through armctl's timeouts, also with the log.
+//!
+//! Owner lock and an e-stop from a second host need two host addresses; QEMU's user-mode
+//! network shows every host as 10.0.2.2, so those run over TAP in a network namespace, in
+//! `tests/qemu/tap.sh` (root; `.ci/run` runs it).
+
+mod common;
+
+use std::net::{SocketAddr, UdpSocket};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use armctl::{Controller, Error, Options, RunEnd, RunOptions};
+use common::{Raw, datagram, sweep};
+use protocol::{
+    Command, MAX_JOINTS, Point, PointList, Pwm, State, StatusCode, StatusFlags, Tag, UartInit,
+};
+use system_tests::qemu::{FAULT_MARKERS, QemuBoard, echo, run_to_exit, unavailable};
+
+/// Skips the test, saying what it needs, when QEMU is not installed. The message goes to
+/// the real stderr (not the test harness's capture), so a passing skip is still seen.
+macro_rules! require_qemu {
+    () => {
+        if let Some(reason) = unavailable() {
+            use std::io::Write;
+            let _ = writeln!(std::io::stderr().lock(), "{}: {reason}", module_path!());
+            return;
+        }
+    };
+}
+
+/// Emulated time runs close to wall time, but a loaded host stalls QEMU now and then:
+/// generous ACK timeouts, many attempts.
+fn emulated() -> Options {
+    Options {
+        ack_timeout: Duration::from_millis(150),
+        attempts: 20,
+        ..Options::default()
+    }
+}
+
+fn position(board: &QemuBoard, arm: &Controller) -> [i32; MAX_JOINTS] {
+    arm.current_location(Duration::from_secs(3))
+        .unwrap_or_else(|e| panic!("a LOCATION report: {e}\n{}", board.log()))
+        .position
+}
+
+fn refused(
+    board: &QemuBoard,
+    result: armctl::Result<protocol::Ack>,
+    status: StatusCode,
+    what: &str,
+) {
+    match result {
+        Err(e) if e.status() == Some(status) => {}
+        Err(e) => panic!(
+            "{what}: expected {}, got: {e}\n{}",
+            status.name(),
+            board.log()
+        ),
+        Ok(ack) => panic!("{what}: expected {}, got {ack:?}", status.name()),
+    }
+}
+
+#[test]
+fn status_over_emulated_ethernet() {
+    require_qemu!();
+    let mut board = QemuBoard::start();
+    let arm = board.connect_with(emulated());
+    let status = arm.status().unwrap();
+    assert_eq!(status.state, State::Stopped);
+    assert_eq!(usize::from(status.capacity), 8192, "{status:?}");
+    assert_eq!(status.pwm_timer_clock_hz, 25_000_000);
+    assert_eq!(status.joints, 6);
+    assert!(
+        board.log().contains("LAN9118 id 0x01180001"),
+        "{}",
+        board.log()
+    );
+    board.assert_healthy();
+}
+
+#[test]
+fn run_reaches_the_last_point_and_executes_every_point() {
+    require_qemu!();
+    let mut board = QemuBoard::start();
+    let arm = board.connect_with(emulated());
+    arm.set_location(&[100, -200, 300, 0, 0, 0]).unwrap();
+    let start = position(&board, &arm);
+    assert_eq!(&start[..3], &[100, -200, 300]);
+    let points = sweep(start, 6, 120, 4, 10_000);
+    let report = arm
+        .run_trajectory(&points, &RunOptions::default(), |_| {})
+        .unwrap_or_else(|e| panic!("{e}\n{}", board.log()));
+    let status = report.final_status.unwrap();
+    let expected = points.last().unwrap().position;
+    assert_eq!(status.state, State::Stopped);
+    assert_eq!(usize::from(status.executed), points.len());
+    assert!(!status.flags.has(StatusFlags::UNDERRUN));
+    assert_eq!(position(&board, &arm)[..6], expected[..6]);
+    assert!(
+        report.total_time >= Duration::from_millis(1150),
+        "{report:?}"
+    );
+    board.assert_healthy();
+}
+
+#[test]
+fn every_command_of_the_manual() {
+    require_qemu!();
+    let mut board = QemuBoard::start();
+    let arm = board.connect_with(emulated());
+
+    // Refusals in STOPPED.
+    refused(
+        &board,
+        arm.send(&Command::Runing),
+        StatusCode::BadState,
+        "RUNING when stopped",
+    );
+    let one = [Point::from_motion(
+        10_000,
+        &[0; 8],
+        &[1, 0, 0, 0, 0, 0, 0, 0],
+    )];
+    refused(
+        &board,
+        arm.send(&Command::Pending(PointList::Points(&one))),
+        StatusCode::BadState,
+        "PENDING without NEW",
+    );
+    refused(
+        &board,
+        arm.send(&Command::New { count: 0 }),
+        StatusCode::InvalidConfig,
+        "NEW 0",
+    );
+    refused(
+        &board,
+        arm.set_joints(9),
+        StatusCode::InvalidConfig,
+        "JOINTS_COUNT 9",
+    );
+    refused(
+        &board,
+        arm.upload_period(999),
+        StatusCode::InvalidConfig,
+        "UPLOAD_PERIOD 999",
+    );
+    refused(
+        &board,
+        arm.pwm_start(Pwm {
+            psc: 0,
+            arr: 100,
+            ccr1: 101,
+            pulse_count: 0,
+        }),
+        StatusCode::InvalidConfig,
+        "PWM CCR1 > ARR",
+    );
+    refused(
+        &board,
+        arm.serial_open(UartInit {
+            baud_rate: 299,
+            ..UartInit::default()
+        }),
+        StatusCode::InvalidConfig,
+        "baud 299",
+    );
+    refused(
+        &board,
+        arm.send(&Command::UsartSend(b"x")),
+        StatusCode::BadState,
+        "USART_SEND with the port closed",
+    );
+    refused(
+        &board,
+        arm.toggle_enable(Some(0x200)),
+        StatusCode::InvalidConfig,
+        "enable mask bit 9",
+    );
+
+    // JOINTS_COUNT (settings in RAM), LOCATION_SETTING, UPLOAD_PERIOD, UPLOAD_START/STOP.
+    arm.set_joints(3).unwrap();
+    assert_eq!(arm.status().unwrap().joints, 3);
+    arm.set_location(&[400, -300, 200]).unwrap();
+    assert_eq!(position(&board, &arm)[..3], [400, -300, 200]);
+    arm.upload_period(20_000).unwrap();
+    assert_eq!(arm.status().unwrap().upload_period_us, 20_000);
+    arm.reports(false).unwrap();
+    assert!(!arm.status().unwrap().flags.has(StatusFlags::REPORTS_ON));
+    arm.reports(true).unwrap();
+
+    // RETURN: a planned move to zero, run by the step engine.
+    arm.go_home().unwrap();
+    let status = arm
+        .wait_stopped(Duration::from_secs(30))
+        .unwrap_or_else(|e| panic!("RETURN: {e}\n{}", board.log()));
+    assert_eq!(status.state, State::Stopped);
+    assert_eq!(position(&board, &arm)[..3], [0, 0, 0]);
+
+    // TOGGLE_ENABLE_PINS, PIN0/PIN1, gripper PWM.
+    let enabled = arm
+        .status()
+        .unwrap()
+        .flags
+        .has(StatusFlags::DRIVERS_ENABLED);
+    arm.toggle_enable(None).unwrap();
+    assert_ne!(
+        arm.status()
+            .unwrap()
+            .flags
+            .has(StatusFlags::DRIVERS_ENABLED),
+        enabled
+    );
+    arm.toggle_enable(None).unwrap();
+    arm.pin(0, true).unwrap();
+    arm.pin(1, false).unwrap();
+    let status = arm.status().unwrap();
+    assert!(status.flags.has(StatusFlags::PIN0_HIGH));
+    assert!(!status.flags.has(StatusFlags::PIN1_HIGH));
+    let pwm = armctl::pwm::settings(status.pwm_timer_clock_hz, 50.0, 0.075, 0).unwrap();
+    arm.pwm_start(pwm).unwrap();
+    assert!(arm.status().unwrap().flags.has(StatusFlags::PWM_ACTIVE));
+    arm.pwm_stop().unwrap();
+    assert!(!arm.status().unwrap().flags.has(StatusFlags::PWM_ACTIVE));
+    // A counted burst (gripper stepper mode): 50 pulses at 1 kHz end by themselves.
+    let burst = armctl::pwm::settings(status.pwm_timer_clock_hz, 1000.0, 0.5, 50).unwrap();
+    arm.pwm_start(burst).unwrap();
+    assert!(arm.status().unwrap().flags.has(StatusFlags::PWM_ACTIVE));
+    std::thread::sleep(Duration::from_millis(300));
+    assert!(
+        !arm.status().unwrap().flags.has(StatusFlags::PWM_ACTIVE),
+        "burst did not end"
+    );
+
+    // UART_INIT, USART_SEND, USART_RECV through the CMSDK UART and QEMU's chardev, with
+    // the test as a loopback device on the line.
+    let device = echo(board.serial_device(), Duration::from_secs(10));
+    let rx = arm.serial_rx();
+    arm.serial_open(UartInit {
+        baud_rate: 115_200,
+        ..UartInit::default()
+    })
+    .unwrap();
+    let message: Vec<u8> = (0..600u32).map(|i| b'a' + (i % 26) as u8).collect();
+    arm.serial_send(&message).unwrap();
+    let mut echoed = Vec::new();
+    let deadline = Instant::now() + Duration::from_secs(5);
+    while echoed.len() < message.len() && Instant::now() < deadline {
+        if let Ok(bytes) = rx.recv_timeout(Duration::from_millis(100)) {
+            echoed.extend(bytes);
+        }
+    }
+    assert_eq!(echoed, message, "{}", board.log());
+    arm.serial_close().unwrap();
+    drop(device);
+
+    // Frames only a raw socket can make.
+    let here = position(&board, &arm);
+    let raw = Raw::new("127.0.0.1:0", board.addr);
+    let mut bad_crc = datagram(40, Tag::Status as u8, &[]);
+    *bad_crc.last_mut().unwrap() ^= 0xFF;
+    let ack = raw.exchange(&bad_crc, 40).expect("an ACK for a bad CRC");
+    assert_eq!(
+        (ack.status, ack.acked_tag),
+        (StatusCode::BadCrc, Tag::Status as u8)
+    );
+    let ack = raw.exchange(&datagram(41, 0x30, &[]), 41).unwrap();
+    assert_eq!(ack.status, StatusCode::UnknownTag);
+    let ack = raw
+        .exchange(&datagram(42, Tag::New as u8, &[0, 1, 2]), 42)
+        .unwrap();
+    assert_eq!(ack.status, StatusCode::BadLength);
+    // OUT_OF_ORDER: NEW at 50, PENDING at 52 (51 never sent).
+    let ack = raw.command(50, &Command::New { count: 2 }).unwrap();
+    assert_eq!(ack.status, StatusCode::Ok);
+    let two = sweep(here, 1, 2, 1, 10_000);
+    let ack = raw
+        .command(52, &Command::Pending(PointList::Points(&two[..1])))
+        .unwrap();
+    assert_eq!(ack.status, StatusCode::OutOfOrder);
+    assert_eq!(ack.next_seq, 51, "next_seq names the missing frame");
+    let ack = raw
+        .command(51, &Command::Pending(PointList::Points(&two[..1])))
+        .unwrap();
+    assert_eq!(ack.status, StatusCode::Ok);
+    arm.stop().unwrap();
+    board.assert_healthy();
+}
+
+#[test]
+fn upload_streams_past_the_buffer_and_ends_exactly() {
+    require_qemu!();
+    let mut board = QemuBoard::start();
+    let arm = board.connect_with(emulated());
+    arm.set_joints(2).unwrap();
+    arm.set_location(&[0, 0]).unwrap();
+    let capacity = usize::from(arm.status().unwrap().capacity);
+
+    // BUFFER_FULL: fill the buffer before RUNING, then one frame more.
+    let filler = sweep([0; 8], 2, capacity + 12, 1, 10_000);
+    arm.send(&Command::New {
+        count: u16::try_from(filler.len()).unwrap(),
+    })
+    .unwrap();
+    for chunk in filler[..capacity].chunks(12) {
+        arm.send(&Command::Pending(PointList::Points(chunk)))
+            .unwrap_or_else(|e| panic!("filling the buffer: {e}\n{}", board.log()));
+    }
+    assert_eq!(usize::from(arm.status().unwrap().buffered), capacity);
+    refused(
+        &board,
+        arm.send(&Command::Pending(PointList::Points(&filler[capacity..]))),
+        StatusCode::BufferFull,
+        "12 points into a full buffer",
+    );
+    arm.stop().unwrap();
+
+    // A run of 1.3 buffers of 1 ms points, streamed while it executes.
+    let points = sweep([0; 8], 2, capacity * 13 / 10, 1, 1_000);
+    let report = arm
+        .run_trajectory(&points, &RunOptions::default(), |_| {})
+        .unwrap_or_else(|e| panic!("{e}\n{}", board.log()));
+    let status = report.final_status.unwrap();
+    assert_eq!(usize::from(status.executed), points.len());
+    assert!(!status.flags.has(StatusFlags::UNDERRUN), "{status:?}");
+    assert_eq!(
+        position(&board, &arm)[..2],
+        points.last().unwrap().position[..2]
+    );
+    board.assert_healthy();
+}
+
+#[test]
+fn emergency_stop_mid_run_freezes_the_joints() {
+    require_qemu!();
+    let mut board = QemuBoard::start();
+    let arm = Arc::new(board.connect_with(emulated()));
+    let points = sweep(position(&board, &arm), 6, 300, 3, 10_000);
+    let total = points.len();
+    let runner = {
+        let arm = arm.clone();
+        std::thread::spawn(move || arm.run_trajectory(&points, &RunOptions::default(), |_| {}))
+    };
+    std::thread::sleep(Duration::from_millis(800));
+    let ack = arm.stop().unwrap();
+    assert_eq!(ack.state, State::Stopped);
+    match runner.join().unwrap() {
+        Err(Error::RunEnded {
+            reason: RunEnd::Stopped,
+            executed: Some(n),
+            ..
+        }) => assert!(usize::from(n) < total - 50, "executed {n}"),
+        other => panic!("expected RunEnded(Stopped), got {other:?}\n{}", board.log()),
+    }
+    let status = arm.status().unwrap();
+    assert_eq!(status.state, State::Stopped);
+    assert!(status.flags.has(StatusFlags::STOPPED_BY_HOST));
+    let first = position(&board, &arm);
+    std::thread::sleep(Duration::from_millis(300));
+    assert_eq!(position(&board, &arm), first, "a joint moved after STOPPED");
+    board.assert_healthy();
+}
+
+/// Malformed datagrams of every kind, from a second socket, `count` of them.
+fn flood(to: SocketAddr, count: usize, stop: &AtomicBool) -> usize {
+    let socket = UdpSocket::bind("127.0.0.1:0").unwrap();
+    let mut sent = 0;
+    let mut state = 0x2545_f491_u32;
+    let started = Instant::now();
+    while sent < count
+        && !stop.load(Ordering::Relaxed)
+        && started.elapsed() < Duration::from_secs(20)
+    {
+        state ^= state << 13;
+        state ^= state >> 17;
+        state ^= state << 5;
+        let len = (state % 1500) as usize;
+        let mut bytes: Vec<u8> = (0..len).map(|i| (state >> (i % 24)) as u8).collect();
+        match sent % 5 {
+            // A valid-looking PENDING with a wrong CRC.
+            0 if len > 3 => bytes[1] = Tag::Pending as u8,
+            // A STOPPED with a wrong CRC (must not stop anything).
+            1 if len > 3 => {
+                bytes.truncate(3);
+                bytes[1] = Tag::Stopped as u8;
+                bytes[2] = !protocol::crc8(&bytes[..2]);
+            }
+            // Too short for a frame.
+            2 => bytes.truncate(1),
+            // A correct CRC over a PENDING of garbage length.
+            3 if len > 3 => {
+                bytes[1] = Tag::Pending as u8;
+                let crc = protocol::crc8(&bytes[..len - 1]);
+                bytes[len - 1] = crc;
+            }
+            _ => {}
+        }
+        let _ = socket.send_to(&bytes, to);
+        sent += 1;
+        if sent % 50 == 0 {
+            std::thread::sleep(Duration::from_millis(2));
+        }
+    }
+    sent
+}
+
+#[test]
+fn malformed_flood_during_a_run_changes_no_step() {
+    require_qemu!();
+    let mut board = QemuBoard::start();
+    let arm = board.connect_with(emulated());
+    arm.set_location(&[0; 6]).unwrap();
+    let points = sweep([0; 8], 6, 200, 3, 10_000);
+    let stop = Arc::new(AtomicBool::new(false));
+    let flooder = {
+        let stop = stop.clone();
+        let to = board.addr;
+        std::thread::spawn(move || flood(to, 5_000, &stop))
+    };
+    let report = arm.run_trajectory(&points, &RunOptions::default(), |_| {});
+    stop.store(true, Ordering::Relaxed);
+    let sent = flooder.join().unwrap();
+    let report = report.unwrap_or_else(|e| panic!("{e}\n{}", board.log()));
+    let status = report.final_status.unwrap();
+    assert!(sent > 500, "only {sent} malformed datagrams sent");
+    assert_eq!(usize::from(status.executed), points.len());
+    assert!(
+        !status.flags.has(StatusFlags::STOPPED_BY_HOST),
+        "{status:?}"
+    );
+    assert_eq!(
+        position(&board, &arm)[..6],
+        points.last().unwrap().position[..6]
+    );
+    board.assert_healthy();
+}
+
+/// A UDP relay between one client and the board that drops, duplicates and reorders
+/// datagrams in both directions (seeded, so runs repeat).
+struct LossyRelay {
+    addr: SocketAddr,
+    stop: Arc<AtomicBool>,
+    thread: Option<std::thread::JoinHandle<()>>,
+}
+
+impl LossyRelay {
+    fn start(board: SocketAddr, loss: u32, dup: u32, reorder: u32, seed: u32) -> LossyRelay {
+        let front = UdpSocket::bind("127.0.0.1:0").unwrap();
+        let back = UdpSocket::bind("127.0.0.1:0").unwrap();
+        back.connect(board).unwrap();
+        front
+            .set_read_timeout(Some(Duration::from_millis(5)))
+            .unwrap();
+        back.set_read_timeout(Some(Duration::from_millis(5)))
+            .unwrap();
+        let addr = front.local_addr().unwrap();
+        let stop = Arc::new(AtomicBool::new(false));
+        let thread = {
+            let stop = stop.clone();
+            std::thread::spawn(move || {
+                let mut state = seed | 1;
+                let mut roll = move || {
+                    state ^= state << 13;
+                    state ^= state >> 17;
+                    state ^= state << 5;
+                    state % 100
+                };
+                let mut client: Option<SocketAddr> = None;
+                let mut held_up: Option<Vec<u8>> = None;
+                let mut held_down: Option<Vec<u8>> = None;
+                let mut buf = [0u8; 2048];
+                let started = Instant::now();
+                // Bounded: a test run never takes ten minutes.
+                while !stop.load(Ordering::Relaxed) && started.elapsed() < Duration::from_secs(600)
+                {
+                    if let Ok((n, from)) = front.recv_from(&mut buf) {
+                        client = Some(from);
+                        let frame = buf[..n].to_vec();
+                        if roll() >= loss {
+                            if roll() < reorder && held_up.is_none() {
+                                held_up = Some(frame);
+                            } else {
+                                let _ = back.send(&frame);
+                                if roll() < dup {
+                                    let _ = back.send(&frame);
+                                }
+                                if let Some(late) = held_up.take() {
+                                    let _ = back.send(&late);
+                                }
+                            }
+                        }
+                    }
+                    if let Ok(n) = back.recv(&mut buf)
+                        && let Some(client) = client
+                    {
+                        let frame = buf[..n].to_vec();
+                        if roll() >= loss {
+                            if roll() < reorder && held_down.is_none() {
+                                held_down = Some(frame);
+                            } else {
+                                let _ = front.send_to(&frame, client);
+                                if roll() < dup {
+                                    let _ = front.send_to(&frame, client);
+                                }
+                                if let Some(late) = held_down.take() {
+                                    let _ = front.send_to(&late, client);
+                                }
+                            }
+                        }
+                    }
+                }
+            })
+        };
+        LossyRelay {
+            addr,
+            stop,
+            thread: Some(thread),
+        }
+    }
+}
+
+impl Drop for LossyRelay {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+        if let Some(thread) = self.thread.take() {
+            let _ = thread.join();
+        }
+    }
+}
+
+#[test]
+fn lossy_link_executes_the_same_steps_as_a_lossless_one() {
+    require_qemu!();
+    // The same trajectory through a clean link and through 20% loss, 5% duplication and
+    // 5% reordering each way.
+    let run = |lossy: bool| {
+        let mut board = QemuBoard::start();
+        let relay = lossy.then(|| LossyRelay::start(board.addr, 20, 5, 5, 7));
+        let addr = relay.as_ref().map_or(board.addr, |r| r.addr);
+        let arm = Controller::connect_with(
+            addr,
+            Options {
+                ack_timeout: Duration::from_millis(60),
+                attempts: 60,
+                ..Options::default()
+            },
+        )
+        .unwrap_or_else(|e| panic!("connect: {e}\n{}", board.log()));
+        arm.set_location(&[0; 6]).unwrap();
+        let points = sweep([0; 8], 6, 250, 3, 8_000);
+        let report = arm
+            .run_trajectory(&points, &RunOptions::default(), |_| {})
+            .unwrap_or_else(|e| panic!("lossy {lossy}: {e}\n{}", board.log()));
+        let position = arm
+            .current_location(Duration::from_secs(3))
+            .expect("LOCATION after the run")
+            .position;
+        board.assert_healthy();
+        (report, position, points)
+    };
+    let (clean, clean_position, points) = run(false);
+    let (lossy, lossy_position, _) = run(true);
+    assert_eq!(clean_position[..6], points.last().unwrap().position[..6]);
+    assert_eq!(lossy_position, clean_position);
+    let (clean_status, lossy_status) = (clean.final_status.unwrap(), lossy.final_status.unwrap());
+    assert_eq!(usize::from(lossy_status.executed), points.len());
+    assert_eq!(lossy_status.executed, clean_status.executed);
+    assert!(lossy.retransmissions > 0, "no loss seen: {lossy:?}");
+}
+
+#[test]
+fn a_fault_ends_qemu_with_a_failure_and_its_log() {
+    require_qemu!();
+    // The firmware commits the fault QEMU's command line asks for, 300 ms after boot.
+    for (kind, expected) in [
+        ("panic", "PANIC: panicked at"),
+        ("hardfault", "HARDFAULT: pc="),
+        (
+            "stack-overflow",
+            "HARDFAULT: stack overflow (guard region hit)",
+        ),
+    ] {
+        let (exited, log) = run_to_exit(&format!("inject-fault={kind}"), Duration::from_secs(20));
+        assert_eq!(
+            exited,
+            Some(false),
+            "{kind}: QEMU should exit with a failure\n{log}"
+        );
+        assert!(log.contains(expected), "{kind}: no '{expected}' in\n{log}");
+        assert!(
+            log.contains("FATAL: steps stopped"),
+            "{kind}: no safe stop in\n{log}"
+        );
+        assert!(FAULT_MARKERS.iter().any(|m| log.contains(m)));
+    }
+    // And without one it keeps running.
+    let (exited, log) = run_to_exit("", Duration::from_secs(2));
+    assert_eq!(exited, None, "QEMU exited without an injected fault\n{log}");
+    assert!(log.contains("listening on 10.0.2.15/24:8510"), "{log}");
+}
+
+#[test]
+fn link_down_and_up_reach_the_stack_through_the_phy_interrupt() {
+    require_qemu!();
+    let mut board = QemuBoard::start();
+    let arm = board.connect_with(emulated());
+    arm.status().unwrap();
+    board.monitor("set_link lan9118.0 off");
+    let quick = Options {
+        ack_timeout: Duration::from_millis(100),
+        attempts: 3,
+        ..Options::default()
+    };
+    let wait_for = |line: &str| {
+        let deadline = Instant::now() + Duration::from_secs(5);
+        while !board.log().contains(line) && Instant::now() < deadline {
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        assert!(
+            board.log().contains(line),
+            "no '{line}' in\n{}",
+            board.log()
+        );
+    };
+    wait_for("WARN  ethernet link down");
+    assert!(
+        Controller::connect_with(board.addr, quick.clone()).is_err(),
+        "answered with the link down"
+    );
+    board.monitor("set_link lan9118.0 on");
+    wait_for("INFO  ethernet link up");
+    let status = arm
+        .status()
+        .unwrap_or_else(|e| panic!("no STATUS after the link came back: {e}\n{}", board.log()));
+    assert_eq!(status.state, State::Stopped);
+    board.assert_healthy();
+}
