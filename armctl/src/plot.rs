@@ -1,23 +1,42 @@
-//! SVG plots of a recorded run (LOCATION reports, or a simulator trace): joint positions
+//! SVG plots (drawn with plotters) of a recorded run (LOCATION reports, or a simulator trace): joint positions
 //! (steps) over time, one colour per joint, with the commanded trajectory dashed when given.
 
-use std::fmt::Write as _;
+use std::ops::Range;
+
+use plotters::element::DashedPathElement;
+use plotters::prelude::*;
 
 use crate::record::Sample;
 use crate::trajectory::Waypoints;
 use crate::vcd::Trace;
 
 /// Plot size in pixels.
-const WIDTH: f64 = 960.0;
-const HEIGHT: f64 = 540.0;
-/// Margins: left for the step labels, bottom for the time labels.
-const LEFT: f64 = 80.0;
-const RIGHT: f64 = 120.0;
-const TOP: f64 = 40.0;
-const BOTTOM: f64 = 50.0;
+const WIDTH: u32 = 960;
+const HEIGHT: u32 = 540;
+/// Space around the chart, and for the tick labels and axis names below and left of it.
+const MARGIN: u32 = 15;
+const X_LABEL_AREA: u32 = 45;
+const Y_LABEL_AREA: u32 = 75;
+/// About this many labelled ticks per axis (plotters picks round values).
+const TICKS: usize = 8;
+/// A generic family: the SVG names it and the viewer picks the font (no font files here).
+const FONT: &str = "sans-serif";
+/// Line widths (px): the recording over its commanded trajectory.
+const JOINT_WIDTH: u32 = 2;
+const COMMANDED_WIDTH: u32 = 1;
+/// Dash and gap of the commanded trajectory (px).
+const DASH: u32 = 6;
+const GAP: u32 = 4;
 /// One colour per joint (8 joints at most).
-const COLOURS: [&str; 8] = [
-    "#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#17becf",
+const COLOURS: [RGBColor; 8] = [
+    RGBColor(0x1f, 0x77, 0xb4),
+    RGBColor(0xd6, 0x27, 0x28),
+    RGBColor(0x2c, 0xa0, 0x2c),
+    RGBColor(0xff, 0x7f, 0x0e),
+    RGBColor(0x94, 0x67, 0xbd),
+    RGBColor(0x8c, 0x56, 0x4b),
+    RGBColor(0xe3, 0x77, 0xc2),
+    RGBColor(0x17, 0xbe, 0xcf),
 ];
 
 /// A commanded trajectory to draw under the recording: time (s) and positions (steps).
@@ -137,6 +156,17 @@ pub fn trace_svg(trace: &Trace, commanded: Option<&Commanded>, title: &str) -> S
 }
 
 fn draw(lines: &[Line], commanded: Option<&Commanded>, title: &str) -> String {
+    render(lines, commanded, title).unwrap_or_else(|e| {
+        // Drawing into a String has no I/O; only a layout error could get here.
+        format!(
+            "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"{WIDTH}\" height=\"{HEIGHT}\"><text x=\"20\" y=\"40\">plot failed: {}</text></svg>\n",
+            escape(&e.to_string())
+        )
+    })
+}
+
+/// The plot's extent: time (s) and position (steps), widened so that neither is empty.
+fn bounds(lines: &[Line], commanded: Option<&Commanded>) -> (Range<f64>, Range<f64>) {
     let mut t_min = f64::INFINITY;
     let mut t_max = f64::NEG_INFINITY;
     let mut p_min = f64::INFINITY;
@@ -171,109 +201,106 @@ fn draw(lines: &[Line], commanded: Option<&Commanded>, title: &str) -> String {
         p_min -= 1.0;
         p_max += 1.0;
     }
-    let plot_w = WIDTH - LEFT - RIGHT;
-    let plot_h = HEIGHT - TOP - BOTTOM;
-    let x = |t: f64| LEFT + (t - t_min) / (t_max - t_min) * plot_w;
-    let y = |p: f64| TOP + (p_max - p) / (p_max - p_min) * plot_h;
+    (t_min..t_max, p_min..p_max)
+}
 
+/// An axis label: plotters puts ticks on round values (1, 2 or 5 times a power of ten), so
+/// the shortest decimal of the value rounded to a nanounit is exact and has no float noise.
+fn tick_label(value: f64) -> String {
+    let rounded = (value * 1e9).round() / 1e9;
+    // No "-0".
+    format!("{}", rounded + 0.0)
+}
+
+fn render(
+    lines: &[Line],
+    commanded: Option<&Commanded>,
+    title: &str,
+) -> Result<String, Box<dyn std::error::Error>> {
+    let (times, positions) = bounds(lines, commanded);
     let mut out = String::new();
-    let _ = writeln!(
-        out,
-        r#"<svg xmlns="http://www.w3.org/2000/svg" width="{WIDTH}" height="{HEIGHT}" viewBox="0 0 {WIDTH} {HEIGHT}" font-family="sans-serif" font-size="12">"#
-    );
-    let _ = writeln!(
-        out,
-        r#"<rect width="100%" height="100%" fill="white"/><text x="{}" y="24" text-anchor="middle" font-size="16">{}</text>"#,
-        WIDTH / 2.0,
-        escape(title)
-    );
-    // Axes and grid with five ticks each way.
-    for i in 0..=5 {
-        let f = f64::from(i) / 5.0;
-        let t = t_min + f * (t_max - t_min);
-        let p = p_min + f * (p_max - p_min);
-        let _ = writeln!(
-            out,
-            r##"<line x1="{0:.1}" y1="{TOP}" x2="{0:.1}" y2="{1:.1}" stroke="#ddd"/><text x="{0:.1}" y="{2:.1}" text-anchor="middle">{3:.3}</text>"##,
-            x(t),
-            TOP + plot_h,
-            TOP + plot_h + 18.0,
-            t
-        );
-        let _ = writeln!(
-            out,
-            r##"<line x1="{LEFT}" y1="{0:.1}" x2="{1:.1}" y2="{0:.1}" stroke="#ddd"/><text x="{2:.1}" y="{3:.1}" text-anchor="end">{4:.0}</text>"##,
-            y(p),
-            LEFT + plot_w,
-            LEFT - 6.0,
-            y(p) + 4.0,
-            p
-        );
-    }
-    let _ = writeln!(
-        out,
-        r#"<rect x="{LEFT}" y="{TOP}" width="{plot_w}" height="{plot_h}" fill="none" stroke="black"/><text x="{}" y="{}" text-anchor="middle">time (s)</text><text x="16" y="{}" transform="rotate(-90 16 {})" text-anchor="middle">position (steps)</text>"#,
-        LEFT + plot_w / 2.0,
-        HEIGHT - 10.0,
-        TOP + plot_h / 2.0,
-        TOP + plot_h / 2.0
-    );
-    for (slot, line) in lines.iter().enumerate() {
-        let j = line.joint;
-        let colour = COLOURS[j % COLOURS.len()];
-        if let Some(c) = commanded {
-            let path: Vec<String> = c
-                .times_s
-                .iter()
-                .zip(&c.positions)
-                .filter_map(|(t, row)| row.get(j).map(|&p| (t + c.offset_s, p)))
-                .filter(|(_, p)| p.is_finite())
-                .map(|(t, p)| format!("{:.2},{:.2}", x(t), y(p)))
-                .collect();
-            if path.len() > 1 {
-                let _ = writeln!(
-                    out,
-                    r#"<polyline fill="none" stroke="{colour}" stroke-width="1.5" stroke-dasharray="6 4" opacity="0.7" points="{}"/>"#,
-                    path.join(" ")
-                );
+    {
+        let root = SVGBackend::with_string(&mut out, (WIDTH, HEIGHT)).into_drawing_area();
+        root.fill(&WHITE)?;
+        let mut chart = ChartBuilder::on(&root)
+            .caption(title, (FONT, 20))
+            .margin(MARGIN)
+            .x_label_area_size(X_LABEL_AREA)
+            .y_label_area_size(Y_LABEL_AREA)
+            .build_cartesian_2d(times, positions)?;
+        chart
+            .configure_mesh()
+            .x_desc("time (s)")
+            .y_desc("position (steps)")
+            .x_labels(TICKS)
+            .y_labels(TICKS)
+            .max_light_lines(0)
+            .x_label_formatter(&|t| tick_label(*t))
+            .y_label_formatter(&|p| tick_label(*p))
+            .label_style((FONT, 14))
+            .axis_desc_style((FONT, 15))
+            .draw()?;
+        for line in lines {
+            let j = line.joint;
+            let colour = colour(j);
+            if let Some(c) = commanded {
+                let corners: Vec<(f64, f64)> = c
+                    .times_s
+                    .iter()
+                    .zip(&c.positions)
+                    .filter_map(|(t, row)| row.get(j).map(|&p| (t + c.offset_s, p)))
+                    .filter(|(_, p)| p.is_finite())
+                    .collect();
+                if corners.len() > 1 {
+                    chart.draw_series(DashedLineSeries::new(
+                        corners,
+                        DASH,
+                        GAP,
+                        colour.mix(0.7).stroke_width(COMMANDED_WIDTH),
+                    ))?;
+                }
             }
-        }
-        let mut path: Vec<String> = Vec::with_capacity(line.points.len());
-        for &(t, p) in &line.points {
-            let corner = format!("{:.2},{:.2}", x(t), y(p));
-            // Corners closer than the printed precision are one corner.
-            if path.last() != Some(&corner) {
-                path.push(corner);
+            // Corners that fall on the same pixel are one corner.
+            let mut corners: Vec<(f64, f64)> = Vec::with_capacity(line.points.len());
+            let mut last_pixel = None;
+            for &(t, p) in &line.points {
+                let pixel = chart.backend_coord(&(t, p));
+                if last_pixel != Some(pixel) {
+                    corners.push((t, p));
+                    last_pixel = Some(pixel);
+                }
             }
+            chart
+                .draw_series(LineSeries::new(corners, colour.stroke_width(JOINT_WIDTH)))?
+                .label(format!("joint {j}"))
+                .legend(move |(x, y)| {
+                    PathElement::new([(x, y), (x + 20, y)], colour.stroke_width(3))
+                });
         }
-        let _ = writeln!(
-            out,
-            r#"<polyline fill="none" stroke="{colour}" stroke-width="1.5" points="{}"/>"#,
-            path.join(" ")
-        );
-        let ly = TOP + 10.0 + 18.0 * slot as f64;
-        let _ = writeln!(
-            out,
-            r#"<line x1="{0:.1}" y1="{ly:.1}" x2="{1:.1}" y2="{ly:.1}" stroke="{colour}" stroke-width="3"/><text x="{2:.1}" y="{3:.1}">joint {j}</text>"#,
-            LEFT + plot_w + 10.0,
-            LEFT + plot_w + 34.0,
-            LEFT + plot_w + 40.0,
-            ly + 4.0
-        );
+        if commanded.is_some() {
+            // A legend entry only: the dashed lines themselves are drawn in each joint's colour.
+            chart
+                .draw_series(std::iter::empty::<PathElement<(f64, f64)>>())?
+                .label("commanded")
+                .legend(|(x, y)| {
+                    DashedPathElement::new([(x, y), (x + 20, y)], 5, 3, BLACK.stroke_width(1))
+                });
+        }
+        chart
+            .configure_series_labels()
+            .position(SeriesLabelPosition::UpperRight)
+            .label_font((FONT, 14))
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK)
+            .draw()?;
+        root.present()?;
     }
-    if commanded.is_some() {
-        let ly = TOP + 10.0 + 18.0 * lines.len() as f64;
-        let _ = writeln!(
-            out,
-            r#"<line x1="{0:.1}" y1="{ly:.1}" x2="{1:.1}" y2="{ly:.1}" stroke="black" stroke-dasharray="6 4"/><text x="{2:.1}" y="{3:.1}">commanded</text>"#,
-            LEFT + plot_w + 10.0,
-            LEFT + plot_w + 34.0,
-            LEFT + plot_w + 40.0,
-            ly + 4.0
-        );
-    }
-    out.push_str("</svg>\n");
-    out
+    Ok(out)
+}
+
+/// The colour of a joint's lines.
+fn colour(joint: usize) -> RGBColor {
+    COLOURS[joint % COLOURS.len()]
 }
 
 fn escape(text: &str) -> String {
@@ -285,6 +312,35 @@ fn escape(text: &str) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The joints' solid lines (plotters writes a series as one `<polyline>`).
+    fn joint_lines(svg: &str) -> Vec<&str> {
+        svg.lines()
+            .filter(|l| l.starts_with("<polyline") && l.contains("stroke-width=\"2\""))
+            .collect()
+    }
+
+    /// Dashes of the commanded trajectory, in the colour of joint `j`.
+    fn dashes(svg: &str, joint: usize) -> usize {
+        let c = colour(joint);
+        let stroke = format!(
+            "stroke=\"#{:02X}{:02X}{:02X}\" stroke-width=\"1\"",
+            c.0, c.1, c.2
+        );
+        svg.lines()
+            .filter(|l| l.starts_with("<polyline") && l.contains(&stroke))
+            .count()
+    }
+
+    /// The text of the `<text>` elements (plotters puts it on its own line).
+    fn texts(svg: &str) -> Vec<&str> {
+        let lines: Vec<&str> = svg.lines().collect();
+        lines
+            .windows(2)
+            .filter(|w| w[0].starts_with("<text"))
+            .map(|w| w[1])
+            .collect()
+    }
 
     #[test]
     fn svg_has_one_line_per_joint_and_the_commanded_dashed() {
@@ -303,12 +359,34 @@ mod tests {
         let svg = svg(&samples, Some(&commanded), "run <1>");
         assert!(svg.starts_with("<svg"));
         assert!(svg.trim_end().ends_with("</svg>"));
-        assert_eq!(svg.matches("<polyline").count(), 4);
-        assert_eq!(svg.matches("stroke-dasharray=\"6 4\" opacity").count(), 2);
+        assert_eq!(joint_lines(&svg).len(), 2);
+        assert!(dashes(&svg, 0) > 10 && dashes(&svg, 1) > 10, "{svg}");
         assert!(svg.contains("run &lt;1&gt;"));
-        assert!(svg.contains("joint 1"));
+        let labels = texts(&svg);
+        assert!(labels.contains(&"joint 1") && labels.contains(&"commanded"));
         // No NaN coordinates.
         assert!(!svg.contains("NaN"));
+    }
+
+    #[test]
+    fn axis_ticks_are_round_numbers() {
+        let samples: Vec<Sample> = [(0.004, 3), (1.874, 250), (9.354, -17)]
+            .iter()
+            .map(|&(time_s, p)| Sample {
+                time_s,
+                state: 2,
+                position: vec![p],
+            })
+            .collect();
+        let svg = svg(&samples, None, "ticks");
+        let numbers: Vec<f64> = texts(&svg).iter().filter_map(|t| t.parse().ok()).collect();
+        assert!(numbers.len() >= 8, "{numbers:?}");
+        for n in numbers {
+            // Whole thousandths (of seconds or steps), printed without float noise.
+            let thousandths = n * 1000.0;
+            assert!((thousandths - thousandths.round()).abs() < 1e-6, "tick {n}");
+            assert!(n.to_string().len() <= 5, "tick {n}");
+        }
     }
 
     #[test]
@@ -319,18 +397,35 @@ mod tests {
         let trace = crate::vcd::parse(text.as_bytes(), "t.vcd").unwrap();
         let svg = trace_svg(&trace, None, "trace");
         // Joints 0 and 2 stepped; joint 1 did not.
-        assert_eq!(svg.matches("<polyline").count(), 2);
-        assert!(svg.contains("joint 0") && svg.contains("joint 2") && !svg.contains("joint 1"));
+        assert_eq!(joint_lines(&svg).len(), 2);
+        let labels = texts(&svg);
+        assert!(
+            labels.contains(&"joint 0")
+                && labels.contains(&"joint 2")
+                && !labels.contains(&"joint 1")
+        );
         // Time axis to the trace's end (4 ms), positions -1..2.
-        assert!(svg.contains(">0.004<"), "{svg}");
-        // Joint 0's line ends at the right edge at its top (+2 steps).
-        let joint0 = svg
-            .lines()
-            .find(|l| l.contains("#1f77b4\" stroke-width=\"1.5\" points"))
+        assert!(labels.contains(&"0.004") && labels.contains(&"2"), "{svg}");
+        // Joint 0's line ends at the right edge (the 4 ms tick) at its top (+2 steps).
+        let tick_x = |label: &str| -> String {
+            let lines: Vec<&str> = svg.lines().collect();
+            let at = lines.iter().position(|l| *l == label).unwrap();
+            let x = lines[at - 1].split("x=\"").nth(1).unwrap();
+            x[..x.find('"').unwrap()].to_string()
+        };
+        let (right, top) = (tick_x("0.004"), {
+            let lines: Vec<&str> = svg.lines().collect();
+            let at = lines.iter().position(|l| *l == "2").unwrap();
+            let y = lines[at - 1].split("y=\"").nth(1).unwrap();
+            y[..y.find('"').unwrap()].to_string()
+        });
+        let joint0 = joint_lines(&svg)
+            .into_iter()
+            .find(|l| l.contains("#1F77B4"))
             .unwrap();
         assert!(
-            joint0.ends_with(&format!("{:.2},{:.2}\"/>", WIDTH - RIGHT, TOP)),
-            "{joint0}"
+            joint0.ends_with(&format!("{right},{top} \"/>")),
+            "{joint0} should end at {right},{top}"
         );
 
         let commanded = Commanded {
@@ -340,8 +435,9 @@ mod tests {
         };
         // Joint 1 is commanded: drawn (flat) with its dashed line.
         let svg = trace_svg(&trace, Some(&commanded), "trace");
-        assert!(svg.contains("joint 1"));
-        assert_eq!(svg.matches("stroke-dasharray=\"6 4\" opacity").count(), 2);
+        assert!(texts(&svg).contains(&"joint 1"));
+        assert_eq!(joint_lines(&svg).len(), 3);
+        assert!(dashes(&svg, 0) > 0 && dashes(&svg, 1) > 0 && dashes(&svg, 2) == 0);
         assert!(!svg.contains("NaN"));
     }
 

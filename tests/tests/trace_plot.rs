@@ -89,7 +89,20 @@ fn traced_pulses_end_where_the_controller_says_and_plot() {
     let svg = std::fs::read_to_string(&svg).unwrap();
     assert!(svg.starts_with("<svg") && svg.trim_end().ends_with("</svg>"));
     // Joints 0..2 drawn (2 is commanded though still), each with its dashed command.
-    assert_eq!(svg.matches("<polyline").count(), 6, "{svg}");
+    // plotters writes each joint's line as one `<polyline>` of width 2 (axes and ticks are
+    // width 1), and each dash of a commanded line as a `<polyline>` of width 1.
+    let joint_lines = svg
+        .lines()
+        .filter(|l| l.starts_with("<polyline") && l.contains("stroke-width=\"2\""))
+        .count();
+    assert_eq!(joint_lines, 3, "{svg}");
+    for colour in ["#1F77B4", "#D62728", "#2CA02C"] {
+        let stroke = format!("stroke=\"{colour}\" stroke-width=\"1\"");
+        assert!(
+            svg.contains(&stroke),
+            "no dashed command in {colour}: {svg}"
+        );
+    }
     assert!(svg.contains("joint 2") && svg.contains("commanded"));
     assert!(svg.len() < 200_000, "{} bytes", svg.len());
 }
