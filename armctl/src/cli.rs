@@ -601,8 +601,7 @@ pub fn plot(args: &PlotArgs) -> Result<String, String> {
         );
         (plot::trace_svg(&trace, commanded.as_ref(), &title), summary)
     } else {
-        let samples = record::read(&args.recording)
-            .map_err(|e| format!("{}: {e}", args.recording.display()))?;
+        let samples = record::read(&args.recording).map_err(|e| e.to_string())?;
         let commanded = commanded.map(|mut c| {
             // A run's points start when the controller starts RUNNING.
             c.offset_s = args.offset.unwrap_or_else(|| {

@@ -72,25 +72,67 @@ impl<W: Write> Recorder<W> {
     }
 }
 
-/// Reads a recording back.
-pub fn read(path: &Path) -> io::Result<Vec<Sample>> {
-    parse(&std::fs::read_to_string(path)?)
+/// A recording that cannot be read: the file, the line (1-based) when one is at fault, and
+/// what is wrong.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RecordError {
+    /// The file, as given.
+    pub file: String,
+    /// The line at fault, counting the header as line 1.
+    pub line: Option<u64>,
+    /// What is wrong.
+    pub problem: String,
 }
 
-/// Parses a recording (the header line and malformed lines are skipped).
-pub fn parse(text: &str) -> io::Result<Vec<Sample>> {
-    let mut samples = Vec::new();
-    for line in text.lines().skip(1) {
-        let fields: Vec<&str> = line.split(',').map(str::trim).collect();
-        if fields.len() < 3 {
-            continue;
+impl std::fmt::Display for RecordError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self.line {
+            Some(line) => write!(f, "{}: line {line}: {}", self.file, self.problem),
+            None => write!(f, "{}: {}", self.file, self.problem),
         }
-        let (Ok(time_s), Ok(state)) = (fields[0].parse::<f64>(), fields[1].parse::<u8>()) else {
-            continue;
-        };
-        let Ok(position) = fields[2..].iter().map(|f| f.parse::<i32>()).collect() else {
-            continue;
-        };
+    }
+}
+
+impl std::error::Error for RecordError {}
+
+/// Reads a recording back.
+pub fn read(path: &Path) -> Result<Vec<Sample>, RecordError> {
+    let file = path.display().to_string();
+    let text = std::fs::read_to_string(path).map_err(|e| RecordError {
+        file: file.clone(),
+        line: None,
+        problem: e.to_string(),
+    })?;
+    parse(&text, &file)
+}
+
+/// Parses a recording of `file`: a header line, then `time_s,state,j0,...` lines with as many
+/// fields as the header. Any other line is an error naming its line.
+pub fn parse(text: &str, file: &str) -> Result<Vec<Sample>, RecordError> {
+    let error = |line: Option<u64>, problem: String| RecordError {
+        file: file.to_string(),
+        line,
+        problem,
+    };
+    let mut rows = csv::ReaderBuilder::new()
+        .has_headers(true)
+        .trim(csv::Trim::All)
+        .from_reader(text.as_bytes());
+    let mut samples = Vec::new();
+    for row in rows.records() {
+        let row = row.map_err(|e| error(e.position().map(csv::Position::line), e.to_string()))?;
+        let line = row.position().map(csv::Position::line);
+        if row.len() < 3 {
+            return Err(error(
+                line,
+                format!("{} fields, expected `time_s,state,j0,...`", row.len()),
+            ));
+        }
+        let time_s = number(&row, 0, "time", file)?;
+        let state = number(&row, 1, "state", file)?;
+        let position = (2..row.len())
+            .map(|at| number(&row, at, &format!("joint {} position", at - 2), file))
+            .collect::<Result<Vec<i32>, RecordError>>()?;
         samples.push(Sample {
             time_s,
             state,
@@ -98,12 +140,26 @@ pub fn parse(text: &str) -> io::Result<Vec<Sample>> {
         });
     }
     if samples.is_empty() {
-        return Err(io::Error::new(
-            io::ErrorKind::InvalidData,
-            "no samples in the recording (expected lines `time_s,state,j0,...`)",
+        return Err(error(
+            None,
+            "no samples in the recording (expected lines `time_s,state,j0,...`)".to_string(),
         ));
     }
     Ok(samples)
+}
+
+/// Field `at` of a recording's row as a number; `what` names it in the error.
+fn number<T>(row: &csv::StringRecord, at: usize, what: &str, file: &str) -> Result<T, RecordError>
+where
+    T: std::str::FromStr,
+    T::Err: std::fmt::Display,
+{
+    let text = &row[at];
+    text.parse().map_err(|e| RecordError {
+        file: file.to_string(),
+        line: row.position().map(csv::Position::line),
+        problem: format!("{what} {text:?}: {e}"),
+    })
 }
 
 /// Name of a state code for display.
@@ -132,11 +188,40 @@ mod tests {
         }
         let text = String::from_utf8(out).unwrap();
         assert!(text.starts_with("time_s,state,j0,j1,j2\n"));
-        let samples = parse(&text).unwrap();
+        let samples = parse(&text, "run.csv").unwrap();
         assert_eq!(samples.len(), 4);
         assert_eq!(samples[3].position, vec![3, -3, 7]);
         assert_eq!(samples[3].state, 2);
         assert!(samples.windows(2).all(|w| w[0].time_s <= w[1].time_s));
-        assert!(parse("time_s,state,j0\n").is_err());
+        assert!(parse("time_s,state,j0\n", "run.csv").is_err());
+    }
+
+    #[test]
+    fn a_malformed_line_is_an_error_naming_file_and_line() {
+        let good = "time_s,state,j0,j1\n0.0,2,1,2\n0.1,2,3,4\n";
+        assert_eq!(parse(good, "run.csv").unwrap().len(), 2);
+        for (bad, line, says) in [
+            (
+                "time_s,state,j0,j1\n0.0,2,1,2\n0.1,2,x,4\n",
+                3,
+                "joint 0 position \"x\"",
+            ),
+            (
+                "time_s,state,j0,j1\n0.0,2,1,2\n0.1,2,3\n",
+                3,
+                "found record with 3 fields",
+            ),
+            ("time_s,state,j0,j1\nnow,2,1,2\n", 2, "time \"now\""),
+            ("time_s,state,j0,j1\n0.0,300,1,2\n", 2, "state \"300\""),
+            ("time_s,state\n0.0,2\n", 2, "2 fields"),
+        ] {
+            let err = parse(bad, "run.csv").unwrap_err();
+            assert_eq!(err.line, Some(line), "{err}");
+            let text = err.to_string();
+            assert!(
+                text.starts_with(&format!("run.csv: line {line}: ")) && text.contains(says),
+                "{text}"
+            );
+        }
     }
 }

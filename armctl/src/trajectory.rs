@@ -484,12 +484,25 @@ pub fn parse_csv(text: &str, file: &str) -> Result<Waypoints, TrajectoryError> {
         velocities: Vec::new(),
     };
     let mut joints = None;
-    for (line_no, line) in text.lines().enumerate() {
-        let line = line.trim();
-        if line.is_empty() || line.starts_with('#') {
+    let mut rows = csv::ReaderBuilder::new()
+        .has_headers(false)
+        .flexible(true)
+        .trim(csv::Trim::All)
+        .comment(Some(b'#'))
+        .from_reader(text.as_bytes());
+    for row in rows.records() {
+        let row = row.map_err(|e| {
+            let line = e
+                .position()
+                .map_or(String::new(), |p| format!("line {}: ", p.line()));
+            TrajectoryError::new(file, ErrorKind::Parse(format!("{line}{e}")))
+        })?;
+        let line_no = row.position().map_or(0, |p| p.line() as usize - 1);
+        let fields: Vec<&str> = row.iter().collect();
+        if fields.iter().all(|f| f.is_empty()) || fields[0].starts_with('#') {
+            // A blank line, or a comment after spaces.
             continue;
         }
-        let fields: Vec<&str> = line.split(',').map(str::trim).collect();
         let numbers: Result<Vec<f64>, _> = fields.iter().map(|f| f.parse::<f64>()).collect();
         let numbers = match numbers {
             Ok(n) => n,
@@ -963,6 +976,16 @@ mod tests {
         assert_eq!(min_segment_us, 10_682);
         let points = to_points(&w, &[0; 8], min_segment_us as u32, &config, None).unwrap();
         assert!(points.len() <= MAX_POINTS);
+    }
+
+    #[test]
+    fn csv_header_comments_and_blank_lines_are_skipped() {
+        let text = "# made by hand\ntime_s, j0 ,j1\n\n0, 0, 0\n   \n  # halfway\n0.5,10,-10\n";
+        let w = parse_csv(text, "t.csv").unwrap();
+        assert_eq!(w.times_us, vec![0, 500_000]);
+        assert_eq!(w.positions[1], vec![Some(10.0), Some(-10.0)]);
+        let err = parse_csv("time_s,j0\n0,0\n1,x\n", "t.csv").unwrap_err();
+        assert!(err.to_string().contains("line 3"), "{err}");
     }
 
     #[test]
