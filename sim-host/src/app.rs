@@ -12,6 +12,8 @@ use arm_core::tasks::{Bus, StepShared, TrajectoryHw};
 use arm_core::{Controller, ControllerConfig};
 use arm_step::StepTiming;
 use embassy_executor::{Executor, Spawner};
+use signal_hook::consts::{SIGINT, SIGTERM};
+use signal_hook::iterator::Signals;
 use static_cell::StaticCell;
 
 use crate::clock::SimClock;
@@ -144,29 +146,16 @@ impl Board {
     }
 }
 
-/// Set by the SIGINT/SIGTERM handler.
-static TERMINATE: AtomicBool = AtomicBool::new(false);
-
-extern "C" fn on_terminate(_signal: libc::c_int) {
-    // Only an atomic store: async-signal-safe.
-    TERMINATE.store(true, Ordering::SeqCst);
-}
-
 /// On SIGINT or SIGTERM: shut the board down in order (trace flushed) and exit 0.
 pub fn exit_on_signal(board: Board) -> io::Result<()> {
-    // SAFETY: installing a handler that only stores to an atomic.
-    unsafe {
-        let handler = on_terminate as extern "C" fn(libc::c_int) as libc::sighandler_t;
-        libc::signal(libc::SIGINT, handler);
-        libc::signal(libc::SIGTERM, handler);
-    }
+    // signal-hook's handler only writes to a pipe; the thread below does the work.
+    let mut signals = Signals::new([SIGINT, SIGTERM])?;
     std::thread::Builder::new()
         .name("signals".into())
         .spawn(move || {
-            while !TERMINATE.load(Ordering::SeqCst) {
-                std::thread::sleep(std::time::Duration::from_millis(20));
+            if let Some(signal) = signals.forever().next() {
+                log::info!("signal {signal}: shutting down");
             }
-            log::info!("signal: shutting down");
             board.shut_down();
             std::process::exit(0);
         })?;

@@ -6,7 +6,7 @@
 //! fills; a full pipe drops bytes, as a UART overruns. Writes take the line time of the
 //! configured baud rate in simulated time.
 
-use std::os::fd::{AsRawFd, FromRawFd, OwnedFd};
+use std::os::fd::{AsFd, BorrowedFd, OwnedFd};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 
@@ -15,6 +15,10 @@ use embassy_futures::select::{Either, select};
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::pipe::Pipe;
 use embassy_sync::signal::Signal;
+use nix::fcntl::{FcntlArg, OFlag, fcntl};
+use nix::poll::{PollFd, PollFlags, PollTimeout, poll};
+use nix::pty::{OpenptyResult, openpty};
+use nix::sys::termios::{self, SetArg};
 use protocol::UartInit;
 
 use crate::clock::SimClock;
@@ -100,10 +104,9 @@ impl SimSerial {
             pty_path,
         }));
         if let Backend::Pty { master, .. } = &serial.backend {
-            let fd = master.as_raw_fd();
             std::thread::Builder::new()
                 .name("serial-pty".into())
-                .spawn(move || serial.pty_reader(fd))?;
+                .spawn(move || serial.pty_reader(master.as_fd()))?;
         }
         Ok(serial)
     }
@@ -155,25 +158,17 @@ impl SimSerial {
         }
     }
 
-    fn pty_reader(&self, fd: i32) {
+    fn pty_reader(&self, master: BorrowedFd<'_>) {
         let mut buf = [0u8; 512];
         loop {
-            let mut poll = libc::pollfd {
-                fd,
-                events: libc::POLLIN,
-                revents: 0,
-            };
-            // SAFETY: one valid pollfd; the fd lives as long as `self` ('static).
-            let ready = unsafe { libc::poll(&mut poll, 1, 1000) };
-            if ready <= 0 {
+            let mut ready = [PollFd::new(master, PollFlags::POLLIN)];
+            if !matches!(poll(&mut ready, PollTimeout::from(1000u16)), Ok(n) if n > 0) {
                 continue;
             }
-            // SAFETY: reading into a buffer we own, of its length.
-            let n = unsafe { libc::read(fd, buf.as_mut_ptr().cast(), buf.len()) };
-            if n > 0 {
-                self.receive(&buf[..n as usize]);
-            } else {
-                std::thread::sleep(std::time::Duration::from_millis(10));
+            match nix::unistd::read(master, &mut buf) {
+                Ok(n) if n > 0 => self.receive(&buf[..n]),
+                // Nothing yet (non-blocking), or an error while no terminal is attached.
+                _ => std::thread::sleep(std::time::Duration::from_millis(10)),
             }
         }
     }
@@ -256,59 +251,33 @@ impl SerialPort for SimSerial {
 fn write_nonblocking(master: &OwnedFd, bytes: &[u8], counters: &SerialCounters) {
     let mut rest = bytes;
     while !rest.is_empty() {
-        // SAFETY: writing from a slice we borrow, of its length, to an open fd.
-        let n = unsafe { libc::write(master.as_raw_fd(), rest.as_ptr().cast(), rest.len()) };
-        if n <= 0 {
-            counters
-                .dropped
-                .fetch_add(rest.len() as u64, Ordering::Relaxed);
-            log::debug!("serial: pty full or closed, {} bytes dropped", rest.len());
-            return;
+        match nix::unistd::write(master, rest) {
+            Ok(n) if n > 0 => rest = &rest[n..],
+            _ => {
+                counters
+                    .dropped
+                    .fetch_add(rest.len() as u64, Ordering::Relaxed);
+                log::debug!("serial: pty full or closed, {} bytes dropped", rest.len());
+                return;
+            }
         }
-        rest = &rest[n as usize..];
     }
 }
 
-/// Opens a pseudo-terminal in raw mode; returns master, slave (kept open so that reads on
-/// the master do not fail while no terminal is attached) and the slave's path.
+/// Opens a pseudo-terminal in raw mode; returns master (non-blocking), slave (kept open so
+/// that reads on the master do not fail while no terminal is attached) and the slave's path.
 fn open_pty() -> std::io::Result<(OwnedFd, OwnedFd, String)> {
-    let mut master: libc::c_int = -1;
-    let mut slave: libc::c_int = -1;
-    // SAFETY: openpty writes two fds; name, termios and winsize may be null.
-    let rc = unsafe {
-        libc::openpty(
-            &mut master,
-            &mut slave,
-            std::ptr::null_mut(),
-            std::ptr::null(),
-            std::ptr::null(),
-        )
-    };
-    if rc != 0 {
-        return Err(std::io::Error::last_os_error());
+    let OpenptyResult { master, slave } = openpty(None, None)?;
+    // Raw: the bridge passes bytes, not lines; no echo, no CR/LF translation.
+    if let Ok(mut termios) = termios::tcgetattr(&slave) {
+        termios::cfmakeraw(&mut termios);
+        termios::tcsetattr(&slave, SetArg::TCSANOW, &termios)?;
     }
-    // SAFETY: openpty succeeded: both fds are open and ours.
-    let (master, slave) = unsafe { (OwnedFd::from_raw_fd(master), OwnedFd::from_raw_fd(slave)) };
-    // SAFETY: termios is plain data; tcgetattr fills it from an open tty fd.
-    unsafe {
-        let mut termios: libc::termios = std::mem::zeroed();
-        if libc::tcgetattr(slave.as_raw_fd(), &mut termios) == 0 {
-            libc::cfmakeraw(&mut termios);
-            libc::tcsetattr(slave.as_raw_fd(), libc::TCSANOW, &termios);
-        }
-        let flags = libc::fcntl(master.as_raw_fd(), libc::F_GETFL);
-        libc::fcntl(master.as_raw_fd(), libc::F_SETFL, flags | libc::O_NONBLOCK);
-    }
-    let mut name = [0 as libc::c_char; 128];
-    // SAFETY: ttyname_r writes a NUL-terminated name into our buffer of its length.
-    let rc = unsafe { libc::ttyname_r(slave.as_raw_fd(), name.as_mut_ptr(), name.len()) };
-    let path = if rc == 0 {
-        // SAFETY: ttyname_r succeeded, so `name` holds a NUL-terminated string.
-        unsafe { std::ffi::CStr::from_ptr(name.as_ptr()) }
-            .to_string_lossy()
-            .into_owned()
-    } else {
-        "(unknown pty)".to_string()
-    };
+    let flags = OFlag::from_bits_truncate(fcntl(&master, FcntlArg::F_GETFL)?);
+    fcntl(&master, FcntlArg::F_SETFL(flags | OFlag::O_NONBLOCK))?;
+    let path = nix::unistd::ttyname(&slave).map_or_else(
+        |_| "(unknown pty)".to_string(),
+        |p| p.to_string_lossy().into_owned(),
+    );
     Ok((master, slave, path))
 }

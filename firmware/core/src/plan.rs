@@ -14,6 +14,8 @@
 //! exceed its limit; the change of its steps per segment from one segment to the next
 //! exceeds `amax * segment^2` by at most 2 steps (rounding of two positions).
 
+// `core` has no square root on no_std targets; libm's is correctly rounded.
+use libm::sqrt;
 use protocol::MAX_JOINTS;
 
 use crate::buffer::StoredPoint;
@@ -167,23 +169,6 @@ impl Iterator for ReturnPlan {
         self.next += 1;
         Some(p)
     }
-}
-
-/// Square root by Newton's method (`core` has none); exact to the last few ulps for the
-/// positive, moderate values used here.
-fn sqrt(x: f64) -> f64 {
-    if x <= 0.0 {
-        return 0.0;
-    }
-    let mut g = if x > 1.0 { x / 2.0 } else { 1.0 };
-    for _ in 0..200 {
-        let n = 0.5 * (g + x / g);
-        if n == g || (n - g) * (n - g) < 1e-30 * x {
-            return n;
-        }
-        g = n;
-    }
-    g
 }
 
 fn floor(x: f64) -> f64 {
