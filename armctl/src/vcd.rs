@@ -214,6 +214,33 @@ impl Trace {
     }
 }
 
+/// A joint's traced line.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum JointWire {
+    /// The STEP line: one step per rising edge.
+    Step,
+    /// The DIR line: high counts up.
+    Dir,
+    /// The driver's ENABLE line.
+    Enable,
+}
+
+impl JointWire {
+    fn prefix(self) -> &'static str {
+        match self {
+            JointWire::Step => "step",
+            JointWire::Dir => "dir",
+            JointWire::Enable => "enable",
+        }
+    }
+}
+
+/// The VCD name of joint `joint`'s `wire` (`step0`, `dir3`, `enable7`): the simulator's
+/// trace writer declares its wires with it and this reader finds them by it.
+pub fn wire_name(wire: JointWire, joint: usize) -> String {
+    format!("{}{joint}", wire.prefix())
+}
+
 /// What a declared identifier is.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Role {
@@ -224,13 +251,21 @@ enum Role {
 
 /// Reads a VCD file.
 pub fn read(path: &Path) -> Result<Trace, VcdError> {
+    let (input, name) = open(path)?;
+    parse(input, &name)
+}
+
+/// Opens a VCD file for reading, with its name for errors.
+fn open(path: &Path) -> Result<(io::BufReader<std::fs::File>, String), VcdError> {
     let name = path.display().to_string();
-    let file = std::fs::File::open(path).map_err(|e| VcdError {
-        file: name.clone(),
-        line: None,
-        problem: e.to_string(),
-    })?;
-    parse(io::BufReader::with_capacity(1 << 16, file), &name)
+    match std::fs::File::open(path) {
+        Ok(file) => Ok((io::BufReader::with_capacity(1 << 16, file), name)),
+        Err(e) => Err(VcdError {
+            file: name,
+            line: None,
+            problem: e.to_string(),
+        }),
+    }
 }
 
 /// Whether the start of a file looks like a VCD (its first word is a `$` keyword).
@@ -246,6 +281,76 @@ pub fn parse(input: impl BufRead, file: &str) -> Result<Trace, VcdError> {
     Reader::new(file).run(input)
 }
 
+/// Every value change of every signal of a VCD file, by name: for tests that check more of
+/// a simulator trace than the joints' positions (gripper, pins, e-stop, edge times).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Changes {
+    /// `name -> [(tick, value as written)]` in file order, the initial values included;
+    /// a value is one character (`0`, `1`, `x`, `z`) or a vector/real word (`b101`, `r50`).
+    pub changes: HashMap<String, Vec<(u64, String)>>,
+}
+
+impl Changes {
+    /// Times of the rising edges of wire `name`.
+    pub fn rising_edges(&self, name: &str) -> Vec<u64> {
+        let mut edges = Vec::new();
+        let mut level = false;
+        for (t, v) in self
+            .changes
+            .get(name)
+            .map(Vec::as_slice)
+            .unwrap_or_default()
+        {
+            let high = v == "1";
+            if high && !level {
+                edges.push(*t);
+            }
+            level = high;
+        }
+        edges
+    }
+
+    /// The value of `name` at `tick` (the last change at or before it).
+    pub fn value_at(&self, name: &str, tick: u64) -> Option<&str> {
+        self.changes
+            .get(name)?
+            .iter()
+            .take_while(|(t, _)| *t <= tick)
+            .last()
+            .map(|(_, v)| v.as_str())
+    }
+
+    /// Net position of joint `j` from its STEP and DIR wires, as [`Trace`] counts it.
+    pub fn joint_position(&self, j: usize) -> i64 {
+        let dir = wire_name(JointWire::Dir, j);
+        self.rising_edges(&wire_name(JointWire::Step, j))
+            .into_iter()
+            // DIR is set before the pulse: its value at the edge's time.
+            .map(|t| {
+                if self.value_at(&dir, t) == Some("1") {
+                    1
+                } else {
+                    -1
+                }
+            })
+            .sum()
+    }
+}
+
+/// Reads every value change of VCD text; `file` names it in errors.
+pub fn changes(input: impl BufRead, file: &str) -> Result<Changes, VcdError> {
+    let mut reader = Reader::new(file);
+    reader.all_changes = Some(Changes::default());
+    reader.read_all(input)?;
+    Ok(reader.all_changes.unwrap_or_default())
+}
+
+/// Reads every value change of a VCD file.
+pub fn read_changes(path: &Path) -> Result<Changes, VcdError> {
+    let (input, name) = open(path)?;
+    changes(input, &name)
+}
+
 /// The reader's state while it goes through the lines.
 struct Reader<'a> {
     file: &'a str,
@@ -257,8 +362,12 @@ struct Reader<'a> {
     ids: HashMap<Vec<u8>, Vec<Role>>,
     seconds_per_tick: Option<f64>,
     tick: u64,
-    /// Value code of a vector or real change waiting for its identifier.
-    pending_vector: bool,
+    /// Value (`b1010`, `r0.5`) of a vector or real change waiting for its identifier.
+    pending_vector: Option<Vec<u8>>,
+    /// Every change by signal name, when asked for ([`changes`]).
+    all_changes: Option<Changes>,
+    /// Identifier code to the names declared with it, when keeping every change.
+    names: HashMap<Vec<u8>, Vec<String>>,
     step_high: [bool; MAX_JOINTS],
     dir_high: [bool; MAX_JOINTS],
     joints: Vec<JointTrace>,
@@ -274,7 +383,9 @@ impl<'a> Reader<'a> {
             ids: HashMap::new(),
             seconds_per_tick: None,
             tick: 0,
-            pending_vector: false,
+            pending_vector: None,
+            all_changes: None,
+            names: HashMap::new(),
             step_high: [false; MAX_JOINTS],
             dir_high: [false; MAX_JOINTS],
             joints: vec![JointTrace::default(); MAX_JOINTS],
@@ -289,7 +400,25 @@ impl<'a> Reader<'a> {
         }
     }
 
-    fn run(mut self, mut input: impl BufRead) -> Result<Trace, VcdError> {
+    fn run(mut self, input: impl BufRead) -> Result<Trace, VcdError> {
+        self.read_all(input)?;
+        if !self.joints.iter().any(|j| j.declared) {
+            return Err(VcdError {
+                file: self.file.to_string(),
+                line: None,
+                problem: "no step0..step7 wires declared: not a trace of the arm's STEP/DIR lines"
+                    .into(),
+            });
+        }
+        Ok(Trace {
+            seconds_per_tick: self.seconds_per_tick.unwrap_or(1e-9),
+            end_tick: self.tick,
+            joints: self.joints,
+        })
+    }
+
+    /// Goes through every line and checks that the file did not stop part way.
+    fn read_all(&mut self, mut input: impl BufRead) -> Result<(), VcdError> {
         let mut bytes = Vec::new();
         loop {
             bytes.clear();
@@ -312,7 +441,7 @@ impl<'a> Reader<'a> {
         if let Some((keyword, _)) = &self.section {
             return Err(self.error(format!("{keyword} has no $end (file truncated?)")));
         }
-        if self.pending_vector {
+        if self.pending_vector.is_some() {
             return Err(self.error("a vector or real value has no identifier (file truncated?)"));
         }
         if self.in_header {
@@ -322,19 +451,7 @@ impl<'a> Reader<'a> {
                 problem: "no $enddefinitions: not a VCD file, or cut short in its header".into(),
             });
         }
-        if !self.joints.iter().any(|j| j.declared) {
-            return Err(VcdError {
-                file: self.file.to_string(),
-                line: None,
-                problem: "no step0..step7 wires declared: not a trace of the arm's STEP/DIR lines"
-                    .into(),
-            });
-        }
-        Ok(Trace {
-            seconds_per_tick: self.seconds_per_tick.unwrap_or(1e-9),
-            end_tick: self.tick,
-            joints: self.joints,
-        })
+        Ok(())
     }
 
     fn word(&mut self, word: &[u8]) -> Result<(), VcdError> {
@@ -349,9 +466,8 @@ impl<'a> Reader<'a> {
             self.section = Some((keyword, words));
             return Ok(());
         }
-        if self.pending_vector {
-            self.pending_vector = false;
-            return self.change(None, word);
+        if let Some(value) = self.pending_vector.take() {
+            return self.change(&value, word);
         }
         match word.first() {
             Some(b'$') => self.keyword(word),
@@ -361,11 +477,11 @@ impl<'a> Reader<'a> {
             ))),
             Some(b'#') => self.time(&word[1..]),
             Some(b'0' | b'1' | b'x' | b'X' | b'z' | b'Z') if word.len() > 1 => {
-                self.change(Some(word[0]), &word[1..])
+                self.change(&word[..1], &word[1..])
             }
             Some(b'b' | b'B' | b'r' | b'R') => {
                 // Vectors and reals: the identifier is the next word.
-                self.pending_vector = true;
+                self.pending_vector = Some(word.to_vec());
                 Ok(())
             }
             _ => Err(self.error(format!(
@@ -422,9 +538,9 @@ impl<'a> Reader<'a> {
                 words.join(" ")
             )));
         };
-        let role = joint_wire(reference, "step")
+        let role = joint_wire(reference, JointWire::Step)
             .map(Role::Step)
-            .or_else(|| joint_wire(reference, "dir").map(Role::Dir))
+            .or_else(|| joint_wire(reference, JointWire::Dir).map(Role::Dir))
             .unwrap_or(Role::Other);
         if let Role::Step(j) = role
             && let Some(joint) = self.joints.get_mut(j)
@@ -435,6 +551,12 @@ impl<'a> Reader<'a> {
             .entry(id.as_bytes().to_vec())
             .or_default()
             .push(role);
+        if self.all_changes.is_some() {
+            self.names
+                .entry(id.as_bytes().to_vec())
+                .or_default()
+                .push(reference.clone());
+        }
         Ok(())
     }
 
@@ -455,19 +577,28 @@ impl<'a> Reader<'a> {
         Ok(())
     }
 
-    /// A change of `id` to scalar `value` (or to a vector/real value when `None`).
-    fn change(&mut self, value: Option<u8>, id: &[u8]) -> Result<(), VcdError> {
+    /// A change of `id` to `value`: one scalar character, or a vector/real (`b...`, `r...`).
+    fn change(&mut self, value: &[u8], id: &[u8]) -> Result<(), VcdError> {
         let Some(roles) = self.ids.get(id) else {
             return Err(self.error(format!(
                 "identifier `{}` is not declared",
                 String::from_utf8_lossy(id)
             )));
         };
-        let Some(value) = value else {
+        if let Some(all) = &mut self.all_changes {
+            let text = String::from_utf8_lossy(value);
+            for name in self.names.get(id).into_iter().flatten() {
+                all.changes
+                    .entry(name.clone())
+                    .or_default()
+                    .push((self.tick, text.clone().into_owned()));
+            }
+        }
+        let [scalar] = value else {
             return Ok(());
         };
         // x and z read as low: a line that is not driven high makes no step.
-        let high = value == b'1';
+        let high = *scalar == b'1';
         for &role in roles {
             match role {
                 Role::Dir(j) => self.dir_high[j] = high,
@@ -489,9 +620,9 @@ impl<'a> Reader<'a> {
     }
 }
 
-/// `j` if `reference` is `{prefix}{j}` with j < MAX_JOINTS.
-fn joint_wire(reference: &str, prefix: &str) -> Option<usize> {
-    let digits = reference.strip_prefix(prefix)?;
+/// `j` if `reference` is [`wire_name`]`(wire, j)` with j < MAX_JOINTS.
+fn joint_wire(reference: &str, wire: JointWire) -> Option<usize> {
+    let digits = reference.strip_prefix(wire.prefix())?;
     if digits.is_empty() || !digits.bytes().all(|b| b.is_ascii_digit()) {
         return None;
     }

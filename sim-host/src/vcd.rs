@@ -17,6 +17,8 @@ use std::sync::{Arc, Mutex, mpsc};
 use std::thread::JoinHandle;
 use std::time::Duration;
 
+use armctl::vcd::{JointWire, wire_name};
+
 use crate::clock::SimClock;
 
 /// Joints traced: all the step engine can drive, whatever JOINTS_COUNT says.
@@ -222,19 +224,19 @@ fn declarations() -> Vec<(Signal, &'static str, String, Value)> {
         all.push((
             Signal::Step(j),
             "wire 1",
-            format!("step{j}"),
+            wire_name(JointWire::Step, usize::from(j)),
             Value::Bit(false),
         ));
         all.push((
             Signal::Dir(j),
             "wire 1",
-            format!("dir{j}"),
+            wire_name(JointWire::Dir, usize::from(j)),
             Value::Bit(false),
         ));
         all.push((
             Signal::Enable(j),
             "wire 1",
-            format!("enable{j}"),
+            wire_name(JointWire::Enable, usize::from(j)),
             Value::Bit(false),
         ));
     }
@@ -409,110 +411,6 @@ fn write_value(out: &mut impl Write, signal: Signal, value: Value) -> io::Result
     }
 }
 
-/// A parsed VCD file, for tests and the demo: the value changes of each named signal.
-#[derive(Debug, Default)]
-pub struct ParsedVcd {
-    /// `name -> [(time_ns, value as text)]`, in file order, including the initial values.
-    pub changes: std::collections::HashMap<String, Vec<(u64, String)>>,
-}
-
-impl ParsedVcd {
-    /// Parses the subset of VCD that [`Tracer`] writes.
-    pub fn parse(text: &str) -> Result<ParsedVcd, String> {
-        let mut names = std::collections::HashMap::new();
-        let mut parsed = ParsedVcd::default();
-        let mut t = 0u64;
-        let mut in_header = true;
-        for line in text.lines() {
-            let line = line.trim();
-            if in_header {
-                if line.starts_with("$var") {
-                    let parts: Vec<&str> = line.split_whitespace().collect();
-                    if parts.len() < 6 {
-                        return Err(format!("bad $var line: {line}"));
-                    }
-                    names.insert(parts[3].to_string(), parts[4].to_string());
-                } else if line.starts_with("$enddefinitions") {
-                    in_header = false;
-                }
-                continue;
-            }
-            if line.is_empty() || line.starts_with('$') {
-                continue;
-            }
-            if let Some(time) = line.strip_prefix('#') {
-                let next: u64 = time.parse().map_err(|_| format!("bad time: {line}"))?;
-                if next < t {
-                    return Err(format!("time goes backwards: {t} then {next}"));
-                }
-                t = next;
-                continue;
-            }
-            let (value, id) = if line.starts_with('r') || line.starts_with('b') {
-                let mut parts = line.splitn(2, ' ');
-                let value = parts.next().unwrap_or_default().to_string();
-                (value, parts.next().unwrap_or_default().to_string())
-            } else {
-                (line[..1].to_string(), line[1..].to_string())
-            };
-            let name = names
-                .get(&id)
-                .ok_or_else(|| format!("unknown identifier in {line}"))?;
-            parsed
-                .changes
-                .entry(name.clone())
-                .or_default()
-                .push((t, value));
-        }
-        Ok(parsed)
-    }
-
-    /// Times of the rising edges of wire `name`.
-    pub fn rising_edges(&self, name: &str) -> Vec<u64> {
-        let mut edges = Vec::new();
-        let mut level = false;
-        for (t, v) in self
-            .changes
-            .get(name)
-            .map(Vec::as_slice)
-            .unwrap_or_default()
-        {
-            let high = v == "1";
-            if high && !level {
-                edges.push(*t);
-            }
-            level = high;
-        }
-        edges
-    }
-
-    /// The value of `name` at time `t_ns` (the last change at or before it).
-    pub fn value_at(&self, name: &str, t_ns: u64) -> Option<&str> {
-        self.changes
-            .get(name)?
-            .iter()
-            .take_while(|(t, _)| *t <= t_ns)
-            .last()
-            .map(|(_, v)| v.as_str())
-    }
-
-    /// Net position of joint `j` from its STEP and DIR wires: +1 per rising STEP edge with
-    /// DIR high, -1 with DIR low.
-    pub fn joint_position(&self, j: usize) -> i64 {
-        let dir_name = format!("dir{j}");
-        let mut position = 0;
-        for t in self.rising_edges(&format!("step{j}")) {
-            // DIR is set before the pulse: take its value at the edge's time.
-            if self.value_at(&dir_name, t) == Some("1") {
-                position += 1;
-            } else {
-                position -= 1;
-            }
-        }
-        position
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -546,7 +444,7 @@ mod tests {
             writer.write(c).expect("write");
         }
         let text = String::from_utf8(writer.out).expect("utf8");
-        let parsed = ParsedVcd::parse(&text).expect("parse");
+        let parsed = armctl::vcd::changes(text.as_bytes(), "t.vcd").expect("parse");
         assert_eq!(parsed.rising_edges("step2"), vec![20, 40, 70]);
         assert_eq!(parsed.joint_position(2), 1);
         assert_eq!(parsed.value_at("gripper_freq_hz", 100), Some("r50"));

@@ -5,9 +5,9 @@ mod common;
 
 use std::time::{Duration, Instant};
 
+use armctl::vcd;
 use common::{OwnedReport, Sim, points_through, temp_path};
 use protocol::{Command, Location, MAX_JOINTS, Pwm, State, StatusCode, StatusFlags, UartInit};
-use sim_host::vcd::ParsedVcd;
 
 #[test]
 fn status_is_acked_and_reported() {
@@ -88,7 +88,7 @@ fn trace_pulses_match_the_commanded_steps() {
     assert_eq!(location.position, targets[2]);
     sim.stop();
 
-    let vcd = ParsedVcd::parse(&std::fs::read_to_string(&trace).unwrap()).unwrap();
+    let vcd = vcd::read_changes(&trace).unwrap();
     let mut expected_pulses = [0u64; MAX_JOINTS];
     let mut previous = start;
     for target in targets {
@@ -159,7 +159,7 @@ fn stopped_halts_the_pulses_at_once() {
     );
     assert!(stopped_at > 100 && stopped_at < 10_000, "{stopped_at}");
     sim.stop();
-    let vcd = ParsedVcd::parse(&std::fs::read_to_string(&trace).unwrap()).unwrap();
+    let vcd = vcd::read_changes(&trace).unwrap();
     assert_eq!(vcd.joint_position(0), i64::from(stopped_at));
     // The estop wire: high from the STOPPED datagram's arrival until the engine is idle;
     // no STEP edge after it falls.
@@ -298,7 +298,7 @@ fn return_goes_home_by_the_encoders() {
     assert_eq!(client.location().position, [0; MAX_JOINTS]);
     sim.stop();
     // Physically: joint 0 went +200 then -200; joint 1 was really at -300 and moved +300.
-    let vcd = ParsedVcd::parse(&std::fs::read_to_string(&trace).unwrap()).unwrap();
+    let vcd = vcd::read_changes(&trace).unwrap();
     assert_eq!(vcd.joint_position(0), 0);
     assert_eq!(vcd.joint_position(1), 300);
 }
@@ -359,7 +359,7 @@ fn gripper_burst_and_pins_are_traced() {
     client.ok(&Command::Pin0Off);
     client.ok(&Command::ToggleEnablePins { mask: Some(0b10) });
     sim.stop();
-    let vcd = ParsedVcd::parse(&std::fs::read_to_string(&trace).unwrap()).unwrap();
+    let vcd = vcd::read_changes(&trace).unwrap();
     let active = &vcd.changes["gripper_pwm_active"];
     let on = active.iter().find(|(_, v)| v == "1").expect("PWM on").0;
     let off = active
@@ -410,7 +410,7 @@ fn time_scale_runs_simulated_time_faster() {
     let Location { position, .. } = client.location();
     assert_eq!(position[..2], [2000, -1000]);
     sim.stop();
-    let vcd = ParsedVcd::parse(&std::fs::read_to_string(&trace).unwrap()).unwrap();
+    let vcd = vcd::read_changes(&trace).unwrap();
     let edges = vcd.rising_edges("step0");
     assert_eq!(edges.len(), 2000);
     // 50 steps per 100 ms: exactly 2 ms apart in simulated time, whatever the scale.
@@ -465,7 +465,7 @@ fn direction_changes_respect_the_setup_time() {
         Duration::from_secs(10),
     );
     sim.stop();
-    let vcd = ParsedVcd::parse(&std::fs::read_to_string(&trace).unwrap()).unwrap();
+    let vcd = vcd::read_changes(&trace).unwrap();
     let mut checked = 0;
     for j in 0..MAX_JOINTS {
         let edges = vcd.rising_edges(&format!("step{j}"));
@@ -574,7 +574,7 @@ fn a_lossy_link_still_runs_every_point_once() {
     );
     drop(arm);
     sim.stop();
-    let vcd = ParsedVcd::parse(&std::fs::read_to_string(&trace).unwrap()).unwrap();
+    let vcd = vcd::read_changes(&trace).unwrap();
     for (j, &target) in targets[199].iter().enumerate() {
         assert_eq!(vcd.joint_position(j), i64::from(target), "joint {j}");
     }
@@ -603,7 +603,7 @@ fn a_200_mhz_step_timer_keeps_exact_pulse_times() {
     );
     assert_eq!(client.location().position, targets[1]);
     sim.stop();
-    let vcd = ParsedVcd::parse(&std::fs::read_to_string(&trace).unwrap()).unwrap();
+    let vcd = vcd::read_changes(&trace).unwrap();
     let edges = vcd.rising_edges("step0");
     assert_eq!(edges.len(), 60);
     // 10 ms = 2_000_000 ticks of 5 ns; 30 pulses per segment; both segments alike.
