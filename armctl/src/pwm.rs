@@ -1,4 +1,4 @@
-//! Gripper timer settings from a frequency and duty cycle (PROTOCOL.md section 6):
+//! Gripper timer settings from a frequency and duty cycle (docs/PROTOCOL.md, "Pwm (16 bytes)"):
 //! frequency = clock / ((PSC+1)(ARR+1)), duty = CCR1 / (ARR+1).
 
 use protocol::Pwm;

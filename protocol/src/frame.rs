@@ -103,7 +103,7 @@ impl Iterator for PointsIter<'_> {
 
 impl ExactSizeIterator for PointsIter<'_> {}
 
-/// A command from a host to the controller (PROTOCOL.md section 3).
+/// A command from a host to the controller (docs/PROTOCOL.md, "Commands (host to controller)").
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 #[cfg_attr(feature = "serde", derive(serde::Serialize))]
@@ -161,7 +161,7 @@ pub enum Command<'a> {
     },
 }
 
-/// A report from the controller to a host (PROTOCOL.md section 4).
+/// A report from the controller to a host (docs/PROTOCOL.md, "Reports (controller to host)").
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 #[cfg_attr(feature = "serde", derive(serde::Serialize))]

@@ -63,7 +63,8 @@ pub mod size {
     pub const USART_RECV: usize = 257;
 }
 
-/// Value ranges that decode enforces (section 3 and 6 of PROTOCOL.md).
+/// Value ranges that decode enforces (docs/PROTOCOL.md: the table of "Commands (host to
+/// controller)", its TOGGLE_ENABLE_PINS section, and "UartInit (28 bytes)" for the baud rate).
 pub mod limits {
     /// Smallest and largest UPLOAD_PERIOD, microseconds.
     pub const UPLOAD_PERIOD_US: core::ops::RangeInclusive<u32> = 1_000..=1_000_000;

@@ -212,7 +212,7 @@ impl StatusCode {
         })
     }
 
-    /// Name as in PROTOCOL.md section 7.
+    /// Name as in docs/PROTOCOL.md, "Status codes (the ACK's `status`)".
     pub const fn name(self) -> &'static str {
         use StatusCode::*;
         match self {
@@ -286,8 +286,8 @@ pub struct Point {
 
 impl Point {
     /// A point of `duration_us` that moves from `previous` to `target`, with the timer
-    /// hints filled as PROTOCOL.md section 5 says (`numberOfPeriod` = N truncated to 16
-    /// bits, `period` = floor(duration / N), the split when it exceeds 16 bits).
+    /// hints filled as docs/PROTOCOL.md's "Point (116 bytes)" says (`numberOfPeriod` = N
+    /// truncated to 16 bits, `period` = floor(duration / N), the split when it exceeds 16 bits).
     pub fn from_motion(
         duration_us: i32,
         previous: &[i32; MAX_JOINTS],

@@ -1,7 +1,7 @@
 //! Properties of the wire format over arbitrary values: every command and report survives
 //! encode then decode, no byte string makes a decoder panic, every single-bit error is
 //! caught by the CRC, and `Point::from_motion` fills the timer hints by the rules of
-//! PROTOCOL.md section 5.
+//! docs/PROTOCOL.md, "Point (116 bytes): one segment of a trajectory".
 
 use proptest::prelude::*;
 use protocol::{

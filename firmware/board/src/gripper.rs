@@ -1,6 +1,6 @@
 //! The gripper output: TIM15 channel 1 on PE5, with its DIR line on PE4.
 //!
-//! The host sends the timer's own registers (PSC, ARR, CCR1; PROTOCOL.md section 6), so
+//! The host sends the timer's own registers (PSC, ARR, CCR1; PROTOCOL.md "Pwm (16 bytes)"), so
 //! they are written as they come. The channel runs in PWM mode 2 with the compare value
 //! `ARR + 1 - CCR1`: the output is high for the last CCR1 ticks of each period, which is
 //! the requested duty, and low whenever the counter rests at 0, so a stopped timer always

@@ -28,7 +28,7 @@ use protocol::{UartInit, UartMode, limits};
 /// 2.5 ms of line time, more than twice the serial task's 1 ms batching delay.
 pub const RX_RING_BYTES: usize = 1024;
 
-/// STM32F4 HAL codes in `UartInit` (PROTOCOL.md section 6).
+/// STM32F4 HAL codes in `UartInit` (docs/PROTOCOL.md, "UartInit (28 bytes)").
 mod hal {
     /// UART_WORDLENGTH_9B: 9 bits on the line (8 data + parity, or 9 data).
     pub const WORD_9B: u32 = 0x1000;

@@ -28,13 +28,16 @@ pub const DEFAULT_RETURN_SEGMENT_US: u32 = 10_000;
 /// the APB timer clocks at 200 MHz (the board passes its measured clock at boot anyway).
 pub const BOARD_PWM_TIMER_CLOCK_HZ: u32 = 200_000_000;
 
-/// How long the owner may be silent before another host may take over (PROTOCOL.md 1).
+/// How long the owner may be silent before another host may take over (docs/PROTOCOL.md,
+/// "Transport and ownership").
 pub const OWNER_TIMEOUT_US: u64 = 5_000_000;
 
-/// How long an accepted frame is remembered for duplicate detection (PROTOCOL.md 5).
+/// How long an accepted frame is remembered for duplicate detection (docs/PROTOCOL.md,
+/// "Ordering, retransmission and duplicates").
 pub const DUPLICATE_WINDOW_US: u64 = 2_000_000;
 
-/// Accepted frames remembered for duplicate detection (PROTOCOL.md 5).
+/// Accepted frames remembered for duplicate detection (docs/PROTOCOL.md, "Ordering,
+/// retransmission and duplicates").
 pub const DUPLICATE_MEMORY: usize = 32;
 
 /// Everything about the controller that differs between boards (and the simulator).

@@ -1,4 +1,4 @@
-//! USART_RECV batching (PROTOCOL.md section 4): bytes read from the serial port are sent
+//! USART_RECV batching (docs/PROTOCOL.md, "USART_RECV (0x0b)"): bytes from the port are sent
 //! when 255 are waiting, when the line has been idle for one byte time after data, or 1 ms
 //! after the first of them arrived, whichever comes first.
 
