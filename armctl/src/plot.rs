@@ -27,16 +27,9 @@ const COMMANDED_WIDTH: u32 = 1;
 /// Dash and gap of the commanded trajectory (px).
 const DASH: u32 = 6;
 const GAP: u32 = 4;
-/// One colour per joint (8 joints at most).
-const COLOURS: [RGBColor; 8] = [
-    RGBColor(0x1f, 0x77, 0xb4),
-    RGBColor(0xd6, 0x27, 0x28),
-    RGBColor(0x2c, 0xa0, 0x2c),
-    RGBColor(0xff, 0x7f, 0x0e),
-    RGBColor(0x94, 0x67, 0xbd),
-    RGBColor(0x8c, 0x56, 0x4b),
-    RGBColor(0xe3, 0x77, 0xc2),
-    RGBColor(0x17, 0xbe, 0xcf),
+/// One colour per joint (8 joints at most), as 0xRRGGBB.
+const COLOURS: [u32; 8] = [
+    0x1f77b4, 0xd62728, 0x2ca02c, 0xff7f0e, 0x9467bd, 0x8c564b, 0xe377c2, 0x17becf,
 ];
 
 /// A commanded trajectory to draw under the recording: time (s) and positions (steps).
@@ -300,7 +293,8 @@ fn render(
 
 /// The colour of a joint's lines.
 fn colour(joint: usize) -> RGBColor {
-    COLOURS[joint % COLOURS.len()]
+    let [_, r, g, b] = COLOURS[joint % COLOURS.len()].to_be_bytes();
+    RGBColor(r, g, b)
 }
 
 fn escape(text: &str) -> String {

@@ -108,7 +108,7 @@ pub fn armctl_bin() -> PathBuf {
     binary("armctl", "armctl", "ARMCTL_BIN")
 }
 
-/// A UDP port free on 127.0.0.1 right now.
+/// A UDP port free on 127.0.0.1 right now (for sim-host and QEMU's host forward).
 fn free_port() -> u16 {
     UdpSocket::bind("127.0.0.1:0")
         .and_then(|s| s.local_addr())

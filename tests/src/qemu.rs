@@ -8,7 +8,7 @@
 //! only 10.0.2.2, which QEMU maps to the host.
 
 use std::io::Read;
-use std::net::{Ipv4Addr, SocketAddr, SocketAddrV4, TcpListener, TcpStream, UdpSocket};
+use std::net::{Ipv4Addr, SocketAddr, SocketAddrV4, TcpListener, TcpStream};
 use std::os::unix::process::CommandExt;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
@@ -90,14 +90,7 @@ pub fn image() -> PathBuf {
     path
 }
 
-/// A port free on 127.0.0.1 right now (UDP or TCP).
-fn free_udp_port() -> u16 {
-    UdpSocket::bind("127.0.0.1:0")
-        .and_then(|s| s.local_addr())
-        .map(|a| a.port())
-        .expect("no free UDP port on 127.0.0.1")
-}
-
+/// A TCP port free on 127.0.0.1 right now.
 fn free_tcp_port() -> u16 {
     TcpListener::bind("127.0.0.1:0")
         .and_then(|s| s.local_addr())
@@ -126,7 +119,7 @@ impl QemuBoard {
         let mut last_error = String::new();
         // A port found free can be taken before QEMU binds it: try a few.
         for _ in 0..5 {
-            let port = free_udp_port();
+            let port = crate::free_port();
             let serial_port = free_tcp_port();
             let monitor_port = free_tcp_port();
             let monitor_addr = SocketAddr::V4(SocketAddrV4::new(Ipv4Addr::LOCALHOST, monitor_port));
