@@ -222,6 +222,17 @@ pub struct ReportSettings {
 }
 
 impl ReportSettings {
+    /// Before the trajectory task first publishes the controller's: no report anywhere,
+    /// period 0 (the upload task waits for the first publication). All zero bytes, so that
+    /// a [`crate::Bus`] in a `static` is zero-initialised (`.bss`, not a flash copy).
+    pub const UNPUBLISHED: ReportSettings = ReportSettings {
+        location_to: None,
+        serial_to: None,
+        reports_on: false,
+        upload_period_us: 0,
+        state: State::New,
+    };
+
     /// Boot values: reports on at the default period, nobody to send them to yet.
     pub const BOOT: ReportSettings = ReportSettings {
         location_to: None,
