@@ -481,6 +481,23 @@ impl<const CAP: usize> Controller<CAP> {
         plant: &mut impl Plant,
     ) -> Response {
         let before = self.state;
+        let mut response = self.check_and_execute(from, datagram, now_us, plant);
+        // A state change (the command's, or a hand-over that dropped an upload before the
+        // command was refused) is reported at once.
+        if self.state != before && self.reports_on {
+            response.location = Some(self.location(plant));
+        }
+        response
+    }
+
+    /// [`Controller::handle`] but for the LOCATION of a state change.
+    fn check_and_execute(
+        &mut self,
+        from: Endpoint,
+        datagram: &[u8],
+        now_us: u64,
+        plant: &mut impl Plant,
+    ) -> Response {
         let mut response = Response::default();
         // 1. length
         let [seq, tag, .., crc] = *datagram else {
@@ -569,9 +586,6 @@ impl<const CAP: usize> Controller<CAP> {
         };
         self.pump(plant);
         response.reply = reply(self, status);
-        if self.state != before && self.reports_on {
-            response.location = Some(self.location(plant));
-        }
         response
     }
 

@@ -287,3 +287,20 @@ fn status_advertises_the_window() {
     assert_eq!(usize::from(status.window), arm_core::config::HOST_WINDOW);
     assert!(status.window >= 32);
 }
+
+#[test]
+fn a_hand_over_that_drops_an_upload_reports_the_state_change_even_if_refused() {
+    // Found by the fuzz target: the new owner's first frame is refused (here a NEW of 0
+    // points: INVALID_CONFIG), yet the hand-over dropped the old owner's upload.
+    let mut s = Session::<64>::new(64);
+    s.send_raw(HOST, &frame(1, Command::New { count: 4 }));
+    s.now_us += OWNER_TIMEOUT_US;
+    let r = s.send_raw(OTHER, &frame(1, Command::New { count: 0 }));
+    assert_eq!(r.reply.unwrap().ack.status, InvalidConfig);
+    assert_eq!(s.controller.state(), State::Stopped);
+    assert_eq!(
+        r.location.map(|l| l.state),
+        Some(State::Stopped as u8),
+        "the state change is reported"
+    );
+}
