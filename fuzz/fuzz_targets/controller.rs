@@ -516,7 +516,13 @@ impl Harness {
         }
         self.check_upload_order(from, bytes[0], status, &decoded, &before, &after);
         if executed && let Ok(frame) = decoded {
-            self.check_executed(&frame.body, &before, &after, &r);
+            // After a hand-over that dropped an upload, the command met state STOPPED.
+            let mut met = before;
+            if dropped_at_hand_over {
+                met.status.state = State::Stopped;
+                met.status.buffered = 0;
+            }
+            self.check_executed(&frame.body, &met, &after, &r);
         }
     }
 
