@@ -17,7 +17,8 @@
 //! 5. **decode**: `UNKNOWN_TAG`, `BAD_LENGTH`, `INVALID_CONFIG`, `INVALID_POINT` (duration
 //!    under 1 us), `UNSUPPORTED` (a report tag from a host).
 //! 6. **state**: `BAD_STATE` when the command is not allowed in the current state
-//!    (PROTOCOL.md section 3; USART_SEND needs an open port that may transmit).
+//!    (PROTOCOL.md section 3; USART_SEND needs an open port that may transmit; PENDING
+//!    must come from the endpoint that sent the NEW).
 //! 7. **execute**: PENDING checks, in order: `OUT_OF_ORDER` (seq != `next_seq`),
 //!    `TOO_MANY_POINTS`, `INVALID_POINT` (step rate), `BUFFER_FULL`; every point of the
 //!    frame is checked before any is taken. USART_SEND: `BUFFER_FULL` when the serial
@@ -713,6 +714,11 @@ impl<const CAP: usize> Controller<CAP> {
                 let uploading = matches!(self.state, State::New | State::Pending)
                     || (self.state == State::Running && self.return_plan.is_none());
                 if !uploading || self.return_pending {
+                    return Err(StatusCode::BadState);
+                }
+                // The upload under way is another endpoint's: its points are the ones
+                // that sender numbered, never a second tool's.
+                if self.uploader != Some(from) {
                     return Err(StatusCode::BadState);
                 }
                 if !self.order.in_order(frame.seq) {

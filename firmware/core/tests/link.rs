@@ -304,3 +304,16 @@ fn a_hand_over_that_drops_an_upload_reports_the_state_change_even_if_refused() {
         "the state change is reported"
     );
 }
+
+#[test]
+fn a_pending_from_another_endpoint_than_the_uploader_is_refused() {
+    // Found by the fuzz target's "points are the uploader's" invariant.
+    let mut s = Session::<64>::new(64);
+    let pts = points([0; 8], 2, 1);
+    s.send_raw(TOOL, &frame(1, Command::New { count: 4 }));
+    let ack = s.send_raw(HOST, &pending(2, &pts)).reply.unwrap().ack;
+    assert_eq!((ack.status, ack.state), (BadState, State::New));
+    assert_eq!(s.controller.buffered(), 0);
+    let ack = s.send_raw(TOOL, &pending(2, &pts)).reply.unwrap().ack;
+    assert_eq!(ack.status, Ok);
+}
