@@ -1206,3 +1206,50 @@ proptest::proptest! {
         proptest::prop_assert_eq!((position, pins), (4 * n as i32, 4 * n as i64));
     }
 }
+
+#[test]
+fn a_burst_of_a_whole_window_is_queued_whole_and_a_stopped_behind_it_goes_first() {
+    // Bug 3: NEW + 31 PENDING frames of 12 points (1395 bytes) back to back, plus a
+    // STATUS poll of another tool each, all routed before the trajectory task runs: none
+    // may be dropped (the inbox held 8).
+    use arm_core::config::HOST_WINDOW;
+    let rig = Rig::new();
+    let tool = Endpoint {
+        port: HOST.port + 1,
+        ..HOST
+    };
+    let pts: Vec<Point> = (0..12)
+        .map(|k| Point::from_motion(1_000, &[k; 8], &[k + 1; 8]))
+        .collect();
+    rig.route(&frame(0, Command::New { count: 12 * 31 }));
+    for seq in 1..HOST_WINDOW as u8 {
+        let bytes = frame(seq, Command::Pending(PointList::Points(&pts)));
+        assert_eq!(bytes.len(), 1395);
+        rig.route(&bytes);
+    }
+    for seq in 0..8 {
+        bus_route(&rig.bus, tool, &frame(seq, Command::Status));
+    }
+    rig.route(&frame(99, Command::Stopped));
+    assert_eq!(rig.bus.inbox_drops(), 0, "nothing dropped");
+    assert_eq!(rig.bus.inbox.len(), HOST_WINDOW + 8);
+    assert_eq!(rig.bus.estop.len(), 1);
+    let limit = Duration::from_secs(5);
+    rig.run(async {
+        until("every ACK", limit, || rig.acks().len() > HOST_WINDOW + 8).await;
+        let acks = rig.acks();
+        assert_eq!(acks[0].0, 99, "the STOPPED first");
+        assert_eq!(acks[1], (0, Tag::New as u8, StatusCode::Ok, State::New));
+        // Every PENDING answered, in order (this 32-point buffer takes two frames; then
+        // BUFFER_FULL and, go-back-N, OUT_OF_ORDER for the rest of the window).
+        let pending_seqs: Vec<u8> = acks[2..=HOST_WINDOW].iter().map(|a| a.0).collect();
+        assert_eq!(pending_seqs, (1..HOST_WINDOW as u8).collect::<Vec<_>>());
+        assert_eq!((acks[2].2, acks[3].2), (StatusCode::Ok, StatusCode::Ok));
+        assert!(
+            acks[HOST_WINDOW + 1..]
+                .iter()
+                .all(|a| a.1 == Tag::Status as u8 && a.2 == StatusCode::Ok),
+            "the other tool's STATUS polls: {acks:?}"
+        );
+    });
+}
