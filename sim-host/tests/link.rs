@@ -291,3 +291,61 @@ fn burst_figure_against_a_running_controller() {
     let whole = whole_bursts(&mut client, tries);
     println!("{addr}: burst of 32 taken whole in {whole} of {tries} tries");
 }
+
+/// A host resending a refused frame in a loop: the simulator logs the first refusal of
+/// each second with a count, not a line per datagram.
+#[test]
+fn a_host_resending_in_a_loop_gets_no_log_line_per_datagram() {
+    use std::io::{BufRead, BufReader};
+    use std::process::{Command as Process, Stdio};
+    let settings = temp_path("link-log.txt");
+    let mut child = Process::new(env!("CARGO_BIN_EXE_sim-host"))
+        .args(["--bind", "127.0.0.1:0", "--log-level", "info", "--settings"])
+        .arg(&settings)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("sim-host starts");
+    let stdout = child.stdout.take().expect("stdout");
+    let mut lines = BufReader::new(stdout).lines();
+    let addr: std::net::SocketAddr = loop {
+        let line = lines.next().expect("an address line").expect("readable");
+        if let Some(a) = line.strip_prefix("sim-host: listening on udp ") {
+            break a.parse().expect("an address");
+        }
+    };
+    std::thread::spawn(move || for _ in lines {});
+    let stderr = child.stderr.take().expect("stderr");
+    let log = std::thread::spawn(move || {
+        BufReader::new(stderr)
+            .lines()
+            .map_while(Result::ok)
+            .filter(|l| l.contains("refused"))
+            .count()
+    });
+    let mut client = Client::new(addr);
+    client.ok(&Command::Status);
+    // RUNING in STOPPED: BAD_STATE, 2000 times in well under a second.
+    const SENT: usize = 2_000;
+    let runing = encoded(7, &Command::Runing);
+    let started = Instant::now();
+    let mut acked = 0;
+    for _ in 0..SENT {
+        client.socket.send(&runing).expect("send");
+        if let Some((_, OwnedReport::Ack(a))) = client.receive(Duration::from_millis(200)) {
+            acked += usize::from(a.status == StatusCode::BadState);
+        }
+    }
+    let seconds = started.elapsed().as_secs() as usize + 1;
+    // SAFETY: signalling our own child process by its pid.
+    unsafe {
+        libc::kill(child.id() as libc::pid_t, libc::SIGTERM);
+    }
+    let _ = child.wait();
+    let logged = log.join().expect("log reader");
+    assert!(acked > SENT / 2, "{acked} refusals ACKed");
+    assert!(
+        (1..=seconds + 1).contains(&logged),
+        "{logged} refusal lines for {SENT} refusals in {seconds} s"
+    );
+}
