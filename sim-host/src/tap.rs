@@ -12,10 +12,16 @@ use static_cell::StaticCell;
 
 /// Sockets in the stack: the controller's UDP socket and DHCP's.
 const SOCKETS: usize = 3;
-/// Datagrams queued per direction: a host streaming PENDING frames keeps several in flight.
-const PACKETS: usize = 16;
-/// Payload bytes queued per direction: [`PACKETS`] full-size datagrams.
-const PAYLOAD_BYTES: usize = PACKETS * protocol::MAX_DATAGRAM;
+/// Datagrams the socket's receive side queues: a host's whole window (32, back to back)
+/// plus 8 for other tools' commands, as on the board ([`arm_core::tasks::INBOX_QUEUE`]).
+const RX_PACKETS: usize = arm_core::tasks::INBOX_QUEUE;
+/// Receive payload bytes: [`RX_PACKETS`] full-size datagrams, plus one because smoltcp's
+/// packet ring never splits a datagram across its end.
+const RX_PAYLOAD_BYTES: usize = (RX_PACKETS + 1) * protocol::MAX_DATAGRAM;
+/// Datagrams queued to send (ACKs and reports are small; the network task waits when full).
+const TX_PACKETS: usize = 16;
+/// Payload bytes queued to send: [`TX_PACKETS`] full-size datagrams.
+const TX_PAYLOAD_BYTES: usize = TX_PACKETS * protocol::MAX_DATAGRAM;
 
 /// How the TAP interface gets its address.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -98,16 +104,16 @@ pub async fn start(
         log::info!("tap: address {}", v4.address);
     }
 
-    static RX_META: StaticCell<[PacketMetadata; PACKETS]> = StaticCell::new();
-    static TX_META: StaticCell<[PacketMetadata; PACKETS]> = StaticCell::new();
-    static RX_BUFFER: StaticCell<[u8; PAYLOAD_BYTES]> = StaticCell::new();
-    static TX_BUFFER: StaticCell<[u8; PAYLOAD_BYTES]> = StaticCell::new();
+    static RX_META: StaticCell<[PacketMetadata; RX_PACKETS]> = StaticCell::new();
+    static TX_META: StaticCell<[PacketMetadata; TX_PACKETS]> = StaticCell::new();
+    static RX_BUFFER: StaticCell<[u8; RX_PAYLOAD_BYTES]> = StaticCell::new();
+    static TX_BUFFER: StaticCell<[u8; TX_PAYLOAD_BYTES]> = StaticCell::new();
     let mut socket = UdpSocket::new(
         stack,
-        RX_META.init([PacketMetadata::EMPTY; PACKETS]),
-        RX_BUFFER.init([0; PAYLOAD_BYTES]),
-        TX_META.init([PacketMetadata::EMPTY; PACKETS]),
-        TX_BUFFER.init([0; PAYLOAD_BYTES]),
+        RX_META.init([PacketMetadata::EMPTY; RX_PACKETS]),
+        RX_BUFFER.init([0; RX_PAYLOAD_BYTES]),
+        TX_META.init([PacketMetadata::EMPTY; TX_PACKETS]),
+        TX_BUFFER.init([0; TX_PAYLOAD_BYTES]),
     );
     socket
         .bind(protocol::PORT)

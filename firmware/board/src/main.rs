@@ -43,8 +43,10 @@
 //!
 //! # Memory
 //! Every task, driver and buffer is a `static` (`StaticCell`), initialised once in `main`;
-//! there is no heap. The trajectory buffer (8192 points, 288 KiB) and the network buffers
-//! are in AXI SRAM, the stack in DTCM (see `memory.x`).
+//! there is no heap. The trajectory buffer (8192 points, 288 KiB), the UDP socket and the
+//! tasks' queues are in AXI SRAM, the Ethernet descriptor ring (62 KiB, sized with the
+//! socket and the inbox for a burst of 32 full datagrams, see `net.rs`) in SRAM1, the
+//! stack in DTCM (see `memory.x`).
 
 #![no_std]
 #![no_main]

@@ -8,23 +8,38 @@
 //!    bad CRC never changes the owner.
 //! 3. **owner**: the first sender of a CRC-valid frame owns the controller; another
 //!    address takes over when the owner has been silent for 5 s and the state is not
-//!    RUNNING; other senders get `NOT_OWNER`, except for tag STOPPED (anyone may stop the
-//!    arm).
+//!    RUNNING (an upload it had not started is dropped then: STATUS `more_flags` bit 0);
+//!    other senders get `NOT_OWNER` with zeros for state, next_seq, buffered and free,
+//!    except for tag STOPPED (anyone may stop the arm).
 //! 4. **duplicate**: a frame (sender, seq, tag, CRC) accepted within the last 2 s (and
-//!    among the last 32 accepted) is ACKed `OK` again and not executed.
+//!    among the last [`crate::config::DUPLICATE_MEMORY`] accepted) is ACKed `OK` again and
+//!    not executed ([`Response::executed`] is false).
 //! 5. **decode**: `UNKNOWN_TAG`, `BAD_LENGTH`, `INVALID_CONFIG`, `INVALID_POINT` (duration
 //!    under 1 us), `UNSUPPORTED` (a report tag from a host).
 //! 6. **state**: `BAD_STATE` when the command is not allowed in the current state
-//!    (PROTOCOL.md section 3; USART_SEND needs an open port that may transmit).
+//!    (PROTOCOL.md section 3; USART_SEND needs an open port that may transmit; PENDING
+//!    must come from the endpoint that sent the NEW).
 //! 7. **execute**: PENDING checks, in order: `OUT_OF_ORDER` (seq != `next_seq`),
 //!    `TOO_MANY_POINTS`, `INVALID_POINT` (step rate), `BUFFER_FULL`; every point of the
 //!    frame is checked before any is taken. USART_SEND: `BUFFER_FULL` when the serial
 //!    transmit queue has no room. USART_START: `INVALID_CONFIG` when the port cannot apply
 //!    the settings.
 //!
-//! A frame "accepted" is one ACKed `OK`: it is remembered for duplicate detection, it
-//! counts for the PENDING ordering rule (when it comes from the owner), and its source
-//! port becomes where the owner's reports go.
+//! A frame "accepted" is one ACKed `OK`: it is remembered for duplicate detection and it
+//! counts for the PENDING ordering rule when it comes from the uploader (the endpoint,
+//! address and port, that sent the NEW: another tool on the owner's machine numbers its
+//! seqs on its own).
+//!
+//! # Who gets which report
+//! The ACK and a STATUS report go to the command's sender. LOCATION goes to each of the
+//! owner's endpoints (up to [`LOCATION_LISTENERS`]) whose commands were executed and that
+//! have not been silent for 5 s; the endpoint that started the upload or run (NEW,
+//! RETURN) or turned reports on (UPLOAD_START, UPLOAD_PERIOD) keeps them while anything
+//! runs, however long it is silent. So no tool takes another's reports: a watcher keeps
+//! its LOCATIONs while a poller polls, and an uploader that waits for its first LOCATION
+//! gets it though another tool spoke last. USART_RECV goes to the endpoint that sent
+//! USART_START. At first everything goes to the endpoint that became the owner; one tool
+//! with one socket gets everything, as the manual has it.
 //!
 //! # Runs, reports and flags
 //! * A run starts with RUNING (or RETURN) and ends in STOPPED three ways: every point
@@ -52,15 +67,15 @@
 //! [`Deferred`] in the [`Response`].
 
 use protocol::{
-    Ack, Command, Frame, Location, MAX_JOINTS, MAX_POINTS_PER_FRAME, Pwm, State, StatusCode,
-    StatusFlags, StatusReport, Tag, UartInit, UartMode, limits,
+    Ack, Command, Frame, Location, MAX_JOINTS, MAX_POINTS_PER_FRAME, MoreFlags, Pwm, State,
+    StatusCode, StatusFlags, StatusReport, Tag, UartInit, UartMode, limits,
 };
 use protocol::{DecodeError, DecodeErrorKind};
 
 use arm_step::Segment;
 
 use crate::buffer::{StoredPoint, TrajectoryBuffer};
-use crate::config::{ControllerConfig, OWNER_TIMEOUT_US};
+use crate::config::{ControllerConfig, HOST_WINDOW, OWNER_TIMEOUT_US};
 use crate::hw::{Endpoint, PersistentSettings, SerialError};
 use crate::link::{FrameKey, RecentFrames, UploadOrder};
 use crate::plan::{ReturnPlan, plan_return};
@@ -134,12 +149,16 @@ pub struct Reply {
 pub struct Response {
     /// The ACK; `None` only for a datagram under 3 bytes.
     pub reply: Option<Reply>,
-    /// A STATUS report for the owner ([`Controller::report_to`]).
-    pub status: Option<StatusReport>,
-    /// A LOCATION report for the owner: the state changed (only while reports are on).
+    /// A STATUS report and where it goes: the endpoint that asked for it.
+    pub status: Option<(Endpoint, StatusReport)>,
+    /// A LOCATION report: the state changed (only while reports are on). It goes to
+    /// [`ReportSettings::location_to`].
     pub location: Option<Location>,
     /// Work left to the caller.
     pub deferred: Option<Deferred>,
+    /// The command was executed: ACKed `OK` and not a duplicate. Only an executed STOPPED
+    /// stops anything (the e-stop path in [`crate::tasks`] relies on it).
+    pub executed: bool,
 }
 
 /// The host that owns the controller.
@@ -148,18 +167,34 @@ pub struct Response {
 pub struct Owner {
     /// Its IPv4 address.
     pub ip: [u8; 4],
-    /// Source port of its most recent accepted frame: where reports go.
-    pub report_port: u16,
     /// When it last sent a CRC-valid frame, microseconds.
     pub last_heard_us: u64,
+}
+
+/// Owner endpoints that get the LOCATION reports at once: a few tools on the owner's
+/// machine (an uploader, a watcher, a poller, one more), each a socket of its own.
+pub const LOCATION_LISTENERS: usize = 4;
+
+/// An owner endpoint that gets LOCATION reports (see "Who gets which report").
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+struct Listener {
+    /// The endpoint.
+    to: Endpoint,
+    /// When it last sent a CRC-valid frame, microseconds: silent [`OWNER_TIMEOUT_US`], it
+    /// stops getting reports (unless it started the upload or run under way).
+    heard_us: u64,
 }
 
 /// Settings the location upload needs, copied out after every change.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct ReportSettings {
-    /// Where reports go (`None` before any host spoke).
-    pub to: Option<Endpoint>,
+    /// Where LOCATION reports go: each of these owner endpoints (none before any host
+    /// spoke).
+    pub location_to: [Option<Endpoint>; LOCATION_LISTENERS],
+    /// Where USART_RECV reports go (`None` before any host spoke).
+    pub serial_to: Option<Endpoint>,
     /// LOCATION reports on.
     pub reports_on: bool,
     /// LOCATION period, microseconds.
@@ -169,9 +204,31 @@ pub struct ReportSettings {
 }
 
 impl ReportSettings {
+    /// Whether a LOCATION report has anywhere to go.
+    pub fn has_location_listener(&self) -> bool {
+        self.location_to.iter().any(Option::is_some)
+    }
+
+    /// Whether `endpoint` gets LOCATION reports.
+    pub fn location_goes_to(&self, endpoint: Endpoint) -> bool {
+        self.location_to.contains(&Some(endpoint))
+    }
+
+    /// Before the trajectory task first publishes the controller's: no report anywhere,
+    /// period 0 (the upload task waits for the first publication). All zero bytes, so that
+    /// a [`crate::Bus`] in a `static` is zero-initialised (`.bss`, not a flash copy).
+    pub const UNPUBLISHED: ReportSettings = ReportSettings {
+        location_to: [None; LOCATION_LISTENERS],
+        serial_to: None,
+        reports_on: false,
+        upload_period_us: 0,
+        state: State::New,
+    };
+
     /// Boot values: reports on at the default period, nobody to send them to yet.
     pub const BOOT: ReportSettings = ReportSettings {
-        to: None,
+        location_to: [None; LOCATION_LISTENERS],
+        serial_to: None,
         reports_on: true,
         upload_period_us: limits::DEFAULT_UPLOAD_PERIOD_US,
         state: State::Stopped,
@@ -203,8 +260,21 @@ pub struct Controller<const CAP: usize> {
     /// RETURN running: its remaining points.
     return_plan: Option<ReturnPlan>,
     order: UploadOrder,
+    /// The endpoint whose NEW started the upload: only its frames count for the ordering
+    /// rule, so another tool on the owner's machine cannot fill the upload's gaps.
+    uploader: Option<Endpoint>,
     recent: RecentFrames,
     owner: Option<Owner>,
+    /// The owner's endpoints that get LOCATION reports.
+    listeners: [Option<Listener>; LOCATION_LISTENERS],
+    /// The endpoint that started the upload or run (NEW, RETURN) or turned reports on
+    /// (UPLOAD_START, UPLOAD_PERIOD): it keeps its LOCATION reports while anything runs,
+    /// however long it is silent.
+    location_claimer: Option<Endpoint>,
+    /// Where USART_RECV reports go: the endpoint that sent USART_START.
+    serial_to: Option<Endpoint>,
+    /// STATUS `more_flags`.
+    more_flags: MoreFlags,
     reports_on: bool,
     upload_period_us: u32,
     enabled: u16,
@@ -234,8 +304,13 @@ impl<const CAP: usize> Controller<CAP> {
             return_pending: false,
             return_plan: None,
             order: UploadOrder::new(),
+            uploader: None,
             recent: RecentFrames::new(),
             owner: None,
+            listeners: [None; LOCATION_LISTENERS],
+            location_claimer: None,
+            serial_to: None,
+            more_flags: MoreFlags(0),
             reports_on: true,
             upload_period_us: limits::DEFAULT_UPLOAD_PERIOD_US,
             enabled: ALL_DRIVERS,
@@ -293,13 +368,10 @@ impl<const CAP: usize> Controller<CAP> {
         self.owner
     }
 
-    /// Where reports (STATUS, LOCATION, USART_RECV) go: the owner at the port of its most
-    /// recent accepted frame.
-    pub fn report_to(&self) -> Option<Endpoint> {
-        self.owner.map(|o| Endpoint {
-            ip: o.ip,
-            port: o.report_port,
-        })
+    /// The endpoint whose NEW started the current upload (its frames alone count for the
+    /// ordering rule).
+    pub fn uploader(&self) -> Option<Endpoint> {
+        self.uploader
     }
 
     /// The ENABLE lines as they should be driven (bit 8 = gripper).
@@ -320,7 +392,8 @@ impl<const CAP: usize> Controller<CAP> {
     /// What the location upload needs to know.
     pub fn report_settings(&self) -> ReportSettings {
         ReportSettings {
-            to: self.report_to(),
+            location_to: self.listeners.map(|l| l.map(|l| l.to)),
+            serial_to: self.serial_to,
             reports_on: self.reports_on,
             upload_period_us: self.upload_period_us,
             state: self.state,
@@ -371,11 +444,13 @@ impl<const CAP: usize> Controller<CAP> {
             joints: self.settings.joints,
             state: self.state,
             flags,
+            window: saturate(HOST_WINDOW),
             buffered: saturate(self.buffer.buffered()),
             expected: saturate(self.expected as usize),
             received: saturate(self.received as usize),
             executed: saturate(self.executed as usize),
             capacity: saturate(self.buffer.capacity()),
+            more_flags: self.more_flags,
             upload_period_us: self.upload_period_us,
             pwm_timer_clock_hz: self.config.pwm_timer_clock_hz,
             max_step_rate_hz: self.config.max_step_rate_hz,
@@ -407,6 +482,23 @@ impl<const CAP: usize> Controller<CAP> {
         plant: &mut impl Plant,
     ) -> Response {
         let before = self.state;
+        let mut response = self.check_and_execute(from, datagram, now_us, plant);
+        // A state change (the command's, or a hand-over that dropped an upload before the
+        // command was refused) is reported at once.
+        if self.state != before && self.reports_on {
+            response.location = Some(self.location(plant));
+        }
+        response
+    }
+
+    /// [`Controller::handle`] but for the LOCATION of a state change.
+    fn check_and_execute(
+        &mut self,
+        from: Endpoint,
+        datagram: &[u8],
+        now_us: u64,
+        plant: &mut impl Plant,
+    ) -> Response {
         let mut response = Response::default();
         // 1. length
         let [seq, tag, .., crc] = *datagram else {
@@ -428,31 +520,40 @@ impl<const CAP: usize> Controller<CAP> {
         // 3. owner
         let from_owner = match self.owner {
             None => {
-                self.owner = Some(Owner {
-                    ip: from.ip,
-                    report_port: from.port,
-                    last_heard_us: now_us,
-                });
+                self.take_over(from, now_us, plant);
                 true
             }
             Some(ref mut owner) if owner.ip == from.ip => {
                 owner.last_heard_us = now_us;
+                for listener in self.listeners.iter_mut().flatten() {
+                    if listener.to == from {
+                        listener.heard_us = now_us;
+                    }
+                }
                 true
             }
-            Some(ref mut owner)
+            Some(owner)
                 if self.state != State::Running
                     && now_us.saturating_sub(owner.last_heard_us) >= OWNER_TIMEOUT_US =>
             {
-                *owner = Owner {
-                    ip: from.ip,
-                    report_port: from.port,
-                    last_heard_us: now_us,
-                };
+                self.take_over(from, now_us, plant);
                 true
             }
             Some(_) if tag == Tag::Stopped as u8 => false,
             Some(_) => {
-                response.reply = reply(self, StatusCode::NotOwner);
+                // Tells a stranger nothing about the arm: zeros (section 8).
+                response.reply = Some(Reply {
+                    to: from,
+                    seq,
+                    ack: Ack {
+                        acked_tag: tag,
+                        status: StatusCode::NotOwner,
+                        state: State::New,
+                        next_seq: 0,
+                        buffered: 0,
+                        free: 0,
+                    },
+                });
                 return response;
             }
         };
@@ -464,7 +565,6 @@ impl<const CAP: usize> Controller<CAP> {
             crc,
         };
         if self.recent.contains(&key, now_us) {
-            self.accepted(key, from_owner, now_us, false);
             response.reply = reply(self, StatusCode::Ok);
             return response;
         }
@@ -477,42 +577,109 @@ impl<const CAP: usize> Controller<CAP> {
             }
         };
         // 6. state and 7. execute
-        let status = match self.execute(frame, plant, &mut response) {
+        let status = match self.execute(frame, from, plant, &mut response) {
             Ok(()) => {
-                self.accepted(key, from_owner, now_us, true);
+                self.executed(key, from_owner, now_us);
+                response.executed = true;
                 StatusCode::Ok
             }
             Err(status) => status,
         };
         self.pump(plant);
         response.reply = reply(self, status);
-        if self.state != before && self.reports_on {
-            response.location = Some(self.location(plant));
-        }
         response
     }
 
-    /// Bookkeeping for an accepted frame (`executed` now, or else a duplicate).
-    fn accepted(&mut self, key: FrameKey, from_owner: bool, now_us: u64, executed: bool) {
-        if executed {
-            self.recent.remember(key, now_us);
+    /// Bookkeeping for an executed frame. (A duplicate's seq was marked when the frame
+    /// was executed: marking it again once the upload has moved past it would mark that
+    /// seq a lap (256) ahead, and a PENDING lost there would be skipped.)
+    fn executed(&mut self, key: FrameKey, from_owner: bool, now_us: u64) {
+        self.recent.remember(key, now_us);
+        if self.uploader == Some(key.from) {
+            self.order.mark(key.seq);
         }
-        if from_owner {
-            // A duplicate's seq was marked when the frame was executed. Marking it again
-            // once the upload has moved past it would mark that seq a lap (256) ahead,
-            // and a PENDING lost there would be skipped.
-            if executed {
-                self.order.mark(key.seq);
+        if !from_owner {
+            return;
+        }
+        let claims_location = [Tag::New, Tag::Return, Tag::UploadStart, Tag::UploadPeriod]
+            .iter()
+            .any(|t| *t as u8 == key.tag);
+        if claims_location {
+            self.location_claimer = Some(key.from);
+        }
+        if key.tag == Tag::UsartStart as u8 {
+            self.serial_to = Some(key.from);
+        }
+        self.listen(key.from, now_us);
+    }
+
+    /// `from`, an owner endpoint whose command was executed, gets LOCATION reports from
+    /// now on: it takes a free slot, or that of a listener silent for 5 s, or else that of
+    /// the one heard least recently (never the claimer's while something runs).
+    fn listen(&mut self, from: Endpoint, now_us: u64) {
+        let keep_claimer = self.state != State::Stopped;
+        let claimer = self.location_claimer;
+        let protected = |l: &Listener| keep_claimer && Some(l.to) == claimer;
+        for slot in self.listeners.iter_mut() {
+            if slot.is_some_and(|l| {
+                !protected(&l) && now_us.saturating_sub(l.heard_us) >= OWNER_TIMEOUT_US
+            }) {
+                *slot = None;
             }
-            if let Some(owner) = self.owner.as_mut() {
-                owner.report_port = key.from.port;
-            }
+        }
+        let fresh = Listener {
+            to: from,
+            heard_us: now_us,
+        };
+        if let Some(slot) = self.listeners.iter_mut().flatten().find(|l| l.to == from) {
+            *slot = fresh;
+            return;
+        }
+        if let Some(slot) = self.listeners.iter_mut().find(|l| l.is_none()) {
+            *slot = Some(fresh);
+            return;
+        }
+        let oldest = self
+            .listeners
+            .iter_mut()
+            .filter(|l| l.is_some_and(|l| !protected(&l)))
+            .min_by_key(|l| l.map_or(0, |l| l.heard_us));
+        if let Some(slot) = oldest {
+            *slot = Some(fresh);
+        }
+    }
+
+    /// `from` becomes the owner (the first host, or a new one after the owner's 5 s of
+    /// silence, not while running): every report goes to it, and an upload the old owner
+    /// had not started is dropped, so that the new owner's RUNING cannot run half of it.
+    fn take_over(&mut self, from: Endpoint, now_us: u64, plant: &mut impl Plant) {
+        self.owner = Some(Owner {
+            ip: from.ip,
+            last_heard_us: now_us,
+        });
+        self.listeners = [None; LOCATION_LISTENERS];
+        self.listeners[0] = Some(Listener {
+            to: from,
+            heard_us: now_us,
+        });
+        self.location_claimer = Some(from);
+        self.serial_to = Some(from);
+        self.uploader = None;
+        if matches!(self.state, State::New | State::Pending) {
+            plant.stop();
+            self.buffer.clear();
+            self.return_plan = None;
+            self.return_pending = false;
+            self.state = State::Stopped;
+            self.more_flags.set(MoreFlags::UPLOAD_DROPPED, true);
+            warn!("owner hand-over: the old owner's unstarted upload was dropped");
         }
     }
 
     fn execute(
         &mut self,
         frame: Frame<Command<'_>>,
+        from: Endpoint,
         plant: &mut impl Plant,
         response: &mut Response,
     ) -> Result<(), StatusCode> {
@@ -539,12 +706,19 @@ impl<const CAP: usize> Controller<CAP> {
                 self.received_end = plant.positions();
                 self.fed_end = self.received_end;
                 self.order.restart(frame.seq);
+                self.uploader = Some(from);
+                self.more_flags.set(MoreFlags::UPLOAD_DROPPED, false);
                 self.state = State::New;
             }
             Command::Pending(points) => {
                 let uploading = matches!(self.state, State::New | State::Pending)
                     || (self.state == State::Running && self.return_plan.is_none());
                 if !uploading || self.return_pending {
+                    return Err(StatusCode::BadState);
+                }
+                // The upload under way is another endpoint's: its points are the ones
+                // that sender numbered, never a second tool's.
+                if self.uploader != Some(from) {
                     return Err(StatusCode::BadState);
                 }
                 if !self.order.in_order(frame.seq) {
@@ -646,7 +820,7 @@ impl<const CAP: usize> Controller<CAP> {
                     return Err(StatusCode::BadState);
                 }
             }
-            Command::Status => response.status = Some(self.status(plant)),
+            Command::Status => response.status = Some((from, self.status(plant))),
             Command::UploadPeriod { period_us } => self.upload_period_us = period_us,
         }
         Ok(())

@@ -62,8 +62,8 @@ fn a_strangers_stopped_changes_neither_owner_nor_report_port_nor_silence() {
     let owner = s.controller.owner().expect("an owner");
     assert_eq!(owner.ip, HOST.ip);
     assert_eq!(
-        s.controller.report_to(),
-        Some(HOST),
+        s.controller.report_settings().location_to,
+        [Some(HOST), None, None, None],
         "reports stay with the owner"
     );
     // The stranger's STOPPED did not refresh the owner's silence: 1 s later the owner has
@@ -71,7 +71,10 @@ fn a_strangers_stopped_changes_neither_owner_nor_report_port_nor_silence() {
     s.now_us += 1_000_000;
     let r = s.send_raw(OTHER, &frame(201, Command::Status));
     assert_eq!(status_of(&r), Ok);
-    assert_eq!(s.controller.report_to(), Some(OTHER));
+    assert_eq!(
+        s.controller.report_settings().location_to,
+        [Some(OTHER), None, None, None]
+    );
 }
 
 #[test]
@@ -129,7 +132,7 @@ fn not_owner_comes_before_decode_errors_and_duplicates() {
 }
 
 #[test]
-fn every_ack_goes_to_its_sender_and_reports_to_the_owners_last_accepted_port() {
+fn every_ack_and_status_goes_to_its_sender_and_location_to_each_tool() {
     let mut s = Session::<16>::new(16);
     let a = Endpoint {
         port: 5_001,
@@ -141,17 +144,29 @@ fn every_ack_goes_to_its_sender_and_reports_to_the_owners_last_accepted_port() {
     };
     let r = s.send_raw(a, &frame(1, Command::Status));
     assert_eq!(r.reply.map(|r| r.to), Some(a));
-    assert!(r.status.is_some());
-    assert_eq!(s.controller.report_to(), Some(a));
+    assert_eq!(r.status.map(|(to, _)| to), Some(a));
+    assert!(s.controller.report_settings().location_goes_to(a));
     let r = s.send_raw(b, &frame(2, Command::Status));
     assert_eq!(r.reply.map(|r| r.to), Some(b));
-    assert_eq!(s.controller.report_to(), Some(b), "STATUS report goes to b");
-    // A stranger's STOPPED is ACKed to the stranger; its LOCATION goes to the owner.
+    assert_eq!(
+        r.status.map(|(to, _)| to),
+        Some(b),
+        "STATUS report goes to b"
+    );
+    let settings = s.controller.report_settings();
+    assert!(
+        settings.location_goes_to(a) && settings.location_goes_to(b),
+        "b's STATUS does not take LOCATION away from a: both get it"
+    );
+    // A stranger's STOPPED is ACKed to the stranger; its LOCATION goes to the owner's
+    // tools, not to the stranger.
     s.send_raw(b, &frame(3, Command::New { count: 1 }));
     let r = s.send_raw(OTHER, &frame(9, Command::Stopped));
     assert_eq!(r.reply.map(|r| r.to), Some(OTHER));
     assert_eq!(r.location.map(|l| l.state), Some(State::Stopped as u8));
-    assert_eq!(s.controller.report_to(), Some(b));
+    let settings = s.controller.report_settings();
+    assert!(settings.location_goes_to(a) && settings.location_goes_to(b));
+    assert!(!settings.location_goes_to(OTHER));
 }
 
 // ---- Section 5: ordering and duplicates ----
@@ -270,14 +285,14 @@ fn a_late_command_from_before_new_never_lets_a_lost_pending_be_skipped() {
 }
 
 #[test]
-fn duplicates_are_remembered_2_s_and_only_the_last_32() {
+fn duplicates_are_remembered_2_s_and_only_the_last_duplicate_memory() {
     let mut s = Session::<16>::new(16);
     let pin = frame(7, Command::Pin0On);
     s.send_raw(HOST, &pin);
     s.now_us += DUPLICATE_WINDOW_US - 100;
     assert_eq!(status_of(&s.send_raw(HOST, &pin)), Ok);
     assert_eq!(s.plant.pins.len(), 1, "within 2 s: not executed again");
-    // 31 more accepted frames: PIN0_ON 7 is still among the last 32.
+    // DUPLICATE_MEMORY - 1 more accepted frames: PIN0_ON 7 is still remembered.
     let mut s = Session::<16>::new(16);
     s.send_raw(HOST, &pin);
     for seq in 8..8 + DUPLICATE_MEMORY as u8 - 1 {
@@ -288,7 +303,11 @@ fn duplicates_are_remembered_2_s_and_only_the_last_32() {
     // One more: it is forgotten and executed again.
     s.send_raw(HOST, &frame(100, Command::Status));
     s.send_raw(HOST, &pin);
-    assert_eq!(s.plant.pins.len(), 2, "forgotten after 32 newer frames");
+    assert_eq!(
+        s.plant.pins.len(),
+        2,
+        "forgotten after DUPLICATE_MEMORY newer frames"
+    );
 }
 
 #[test]
@@ -687,13 +706,13 @@ fn status_report_bytes_at_their_offsets() {
     // reports off, drivers on, serial open, PIN0 high, PIN1 low, no underrun, PWM off,
     // not stopped.
     assert_eq!(d[5], 0b0000_1110, "flags");
-    assert_eq!(&d[6..8], &[0, 0]);
+    assert_eq!(&d[6..8], &32u16.to_le_bytes(), "window");
     assert_eq!(&d[8..10], &3u16.to_le_bytes(), "buffered");
     assert_eq!(&d[10..12], &0x0107u16.to_le_bytes(), "expected");
     assert_eq!(&d[12..14], &3u16.to_le_bytes(), "received");
     assert_eq!(&d[14..16], &0u16.to_le_bytes(), "executed");
     assert_eq!(&d[16..18], &20u16.to_le_bytes(), "capacity");
-    assert_eq!(&d[18..20], &[0, 0]);
+    assert_eq!(&d[18..20], &[0, 0], "more_flags");
     assert_eq!(&d[20..24], &0x0001_2345u32.to_le_bytes(), "period");
     let clock = s.controller.config().pwm_timer_clock_hz;
     assert_eq!(&d[24..28], &clock.to_le_bytes());

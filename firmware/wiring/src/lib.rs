@@ -104,7 +104,7 @@ macro_rules! controller_tasks {
 
         #[embassy_executor::task]
         async fn network(socket: &'static $crate::NetSocket) -> ! {
-            $crate::__private::arm_core::network_task(socket, &$bus).await
+            $crate::__private::arm_core::network_task(socket, &$bus, &CLOCK).await
         }
 
         #[embassy_executor::task]

@@ -12,22 +12,28 @@ use static_cell::{ConstStaticCell, StaticCell};
 /// Sockets in the stack: the controller's UDP socket, plus DHCP's when enabled.
 const SOCKETS: usize = 2;
 
-/// Datagrams the socket queues in each direction.
-const UDP_PACKETS: usize = 8;
-/// Receive buffer: a host keeps a window of PENDING frames (up to 1395 bytes each; armctl
-/// sends 4) in flight; four full-size datagrams cover it while the stack waits for the
-/// network task.
-const UDP_RX_BYTES: usize = 4 * MAX_DATAGRAM;
-/// Transmit buffer: arm-core's outbox holds 16 frames of at most 260 bytes (USART_RECV);
-/// 4 KiB takes a whole outbox burst.
-const UDP_TX_BYTES: usize = 4096;
+/// Datagrams the socket's receive side queues: a host's whole window
+/// ([`arm_core::config::HOST_WINDOW`] = 32, sent back to back) plus 8 for other tools'
+/// commands, the same 40 as the board's Ethernet ring and arm-core's inbox
+/// ([`arm_core::tasks::INBOX_QUEUE`]), so no stage drops a burst the next one could take.
+const UDP_RX_PACKETS: usize = arm_core::tasks::INBOX_QUEUE;
+/// Receive buffer: 40 full-size datagrams, plus one more because smoltcp's packet ring
+/// never splits a datagram across its end (up to one datagram's bytes can sit unused
+/// there): 41 x 1472 = 60,352 bytes.
+const UDP_RX_BYTES: usize = (UDP_RX_PACKETS + 1) * MAX_DATAGRAM;
+/// Datagrams the socket's send side queues: ACKs are small (11 bytes) and the network task
+/// waits when this is full (it never drops); 16 keep the MAC busy.
+const UDP_TX_PACKETS: usize = 16;
+/// Transmit buffer: arm-core's outbox holds 16 frames of at most 260 bytes (USART_RECV):
+/// 16 x 260 = 4160 bytes.
+const UDP_TX_BYTES: usize = 16 * 260;
 
 /// The UDP socket's buffers: zeroed statics (`.bss`), taken once by [`bind_socket`].
-static UDP_RX_META: ConstStaticCell<[PacketMetadata; UDP_PACKETS]> =
-    ConstStaticCell::new([PacketMetadata::EMPTY; UDP_PACKETS]);
+static UDP_RX_META: ConstStaticCell<[PacketMetadata; UDP_RX_PACKETS]> =
+    ConstStaticCell::new([PacketMetadata::EMPTY; UDP_RX_PACKETS]);
 static UDP_RX: ConstStaticCell<[u8; UDP_RX_BYTES]> = ConstStaticCell::new([0; UDP_RX_BYTES]);
-static UDP_TX_META: ConstStaticCell<[PacketMetadata; UDP_PACKETS]> =
-    ConstStaticCell::new([PacketMetadata::EMPTY; UDP_PACKETS]);
+static UDP_TX_META: ConstStaticCell<[PacketMetadata; UDP_TX_PACKETS]> =
+    ConstStaticCell::new([PacketMetadata::EMPTY; UDP_TX_PACKETS]);
 static UDP_TX: ConstStaticCell<[u8; UDP_TX_BYTES]> = ConstStaticCell::new([0; UDP_TX_BYTES]);
 
 /// The stack's address configuration: the static address `ip`/`prefix_len`, no gateway
