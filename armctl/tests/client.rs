@@ -14,7 +14,7 @@ fn options() -> Options {
         ack_timeout: Duration::from_millis(30),
         attempts: 20,
         report_timeout: Duration::from_millis(100),
-        bind: None,
+        ..Options::default()
     }
 }
 
@@ -67,7 +67,7 @@ fn lossy_link_still_delivers_each_point_exactly_once() {
                 dup: 0.05,
                 reorder: 0.05,
                 seed,
-                inbox: 0,
+                ..Faults::default()
             },
         );
         let arm = Controller::connect_with(fake.addr, options()).unwrap();
@@ -121,6 +121,7 @@ fn stop_from_another_thread_ends_the_run() {
             reason: RunEnd::Stopped,
             executed: Some(n),
             total: 500,
+            ..
         } => assert!(n > 0 && n < 500, "{n}"),
         other => panic!("{other}"),
     }
@@ -176,4 +177,64 @@ fn a_window_larger_than_the_controller_inbox_backs_off() {
         report.retransmissions,
         report.frames
     );
+}
+
+/// Bug 4 of issue 14, over UDP: the controller ended the run by underrun in the middle of
+/// the upload, with a full buffer of points received and not run. That is the controller
+/// falling behind, not a slow upload (armctl used to say "the upload was too slow" because
+/// not every point had been received).
+#[test]
+fn a_controller_that_falls_behind_is_not_blamed_on_the_upload() {
+    let fake = Fake::start(
+        200,
+        Faults {
+            fall_behind_after: Some(50),
+            ..Faults::default()
+        },
+    );
+    let arm = Controller::connect_with(fake.addr, options()).unwrap();
+    let points = ramp(1000, 2, 2000);
+    let err = arm
+        .run_trajectory(&points, &RunOptions::default(), |_| {})
+        .unwrap_err();
+    match &err {
+        Error::RunEnded {
+            reason: RunEnd::Starved,
+            executed: Some(executed),
+            received: Some(received),
+            total: 1000,
+        } => assert!(
+            *executed >= 50 && received > executed && *received < 1000,
+            "{err}"
+        ),
+        other => panic!("expected RunEnded(Starved) mid-upload, got {other:?}"),
+    }
+    let text = err.to_string();
+    assert!(text.contains("fell behind"), "{text}");
+    assert!(!text.contains("upload was too slow"), "{text}");
+}
+
+/// The other side of bug 4: points of 10 us each cannot be uploaded as fast as they run,
+/// so the buffer runs dry with every point received already run: the upload's fault.
+#[test]
+fn an_upload_slower_than_the_run_is_reported_as_such() {
+    let fake = Fake::start(600, Faults::default());
+    let arm = Controller::connect_with(fake.addr, options()).unwrap();
+    let points = ramp(2000, 0, 10);
+    let run = RunOptions {
+        window: 1,
+        start_after: Some(12),
+        ..RunOptions::default()
+    };
+    let err = arm.run_trajectory(&points, &run, |_| {}).unwrap_err();
+    match &err {
+        Error::RunEnded {
+            reason: RunEnd::Underrun,
+            executed: Some(executed),
+            received: Some(received),
+            total: 2000,
+        } => assert_eq!(executed, received, "{err}"),
+        other => panic!("expected RunEnded(Underrun), got {other:?}"),
+    }
+    assert!(err.to_string().contains("upload was too slow"), "{err}");
 }

@@ -30,6 +30,10 @@ pub struct Faults {
     /// Datagrams the controller can queue at once (0: unbounded); a burst beyond it is
     /// dropped, like a firmware inbox that is full.
     pub inbox: usize,
+    /// After executing this many points of a run, the fake "falls behind": it ends the run
+    /// with an underrun although points are still buffered (a controller that cannot feed
+    /// its step engine in time).
+    pub fall_behind_after: Option<u16>,
 }
 
 /// What the fake counted.
@@ -81,6 +85,7 @@ struct Sim {
     counters: Counters,
     upload_period: Duration,
     last_report: Instant,
+    fall_behind_after: Option<u16>,
 }
 
 /// A running fake controller on 127.0.0.1.
@@ -118,6 +123,7 @@ impl Fake {
             counters: Counters::default(),
             upload_period: Duration::from_millis(10),
             last_report: Instant::now(),
+            fall_behind_after: faults.fall_behind_after,
         }));
         let shutdown = Arc::new(AtomicBool::new(false));
         let thread = {
@@ -413,6 +419,15 @@ impl Sim {
 
     fn tick(&mut self, link: &mut Link) {
         let now = Instant::now();
+        if self.state == State::Running
+            && self
+                .fall_behind_after
+                .is_some_and(|n| self.executed >= n && !self.buffer.is_empty())
+        {
+            self.flags.set(StatusFlags::UNDERRUN, true);
+            self.buffer.clear();
+            self.set_state(State::Stopped, link);
+        }
         if self.state == State::Running {
             while let Some(p) = self.buffer.front() {
                 let end = self.segment_start + Duration::from_micros(p.duration as u64);
