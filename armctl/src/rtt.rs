@@ -81,11 +81,21 @@ impl RttEstimator {
 
     /// How long to wait for an ACK now.
     pub fn rto(&self) -> Duration {
+        self.rto_backed_off(MAX_BACKOFF_SHIFT)
+    }
+
+    /// How long to wait for an ACK now, counting at most `max_doublings` of the back-off.
+    ///
+    /// A stream of frames (an upload) uses a short cap: on a LAN, losses are random rather
+    /// than congestion, and a run draining its buffer cannot afford waits that double up
+    /// to the ceiling; its own stall timeout bounds how long it keeps trying.
+    pub fn rto_backed_off(&self, max_doublings: u32) -> Duration {
         let base = match self.srtt {
             None => self.max,
             Some(srtt) => srtt + (self.rttvar * 4).max(GRANULARITY),
         };
-        (base.max(self.min) * (1 << self.backoff)).clamp(self.min, self.max)
+        let doublings = self.backoff.min(max_doublings).min(MAX_BACKOFF_SHIFT);
+        (base.max(self.min) * (1 << doublings)).clamp(self.min, self.max)
     }
 
     /// The smoothed round trip, once measured.
@@ -146,6 +156,20 @@ mod tests {
         assert_eq!(rtt.rto(), ms(100.0));
         rtt.sample(Duration::from_micros(200));
         assert_eq!(rtt.rto(), ms(3.0));
+    }
+
+    #[test]
+    fn a_stream_caps_the_back_off() {
+        let mut rtt = RttEstimator::new(ms(100.0), ms(3.0));
+        for _ in 0..20 {
+            rtt.sample(Duration::from_micros(200));
+        }
+        for _ in 0..10 {
+            rtt.back_off();
+        }
+        assert_eq!(rtt.rto_backed_off(3), ms(24.0));
+        assert_eq!(rtt.rto_backed_off(0), ms(3.0));
+        assert_eq!(rtt.rto(), ms(100.0));
     }
 
     #[test]

@@ -164,8 +164,14 @@ struct Upload<'a, 'p> {
     report: RunReport,
 }
 
-/// ACK timeouts in a row, without any progress, after which an upload gives up.
-const MAX_TIMEOUTS_IN_A_ROW: usize = 50;
+/// ACK timeouts in a row, without any progress, after which an upload gives up (with
+/// [`UPLOAD_MAX_DOUBLINGS`], about 6 s at a 3 ms round-trip estimate; `stall_timeout`
+/// usually ends it first).
+const MAX_TIMEOUTS_IN_A_ROW: usize = 250;
+
+/// Back-off doublings an upload frame's ACK timeout takes at most (8 times the estimate):
+/// a streak of random losses must not let the buffer run dry while the client waits.
+const UPLOAD_MAX_DOUBLINGS: u32 = 3;
 
 impl Upload<'_, '_> {
     fn in_flight(&self) -> usize {
@@ -488,7 +494,7 @@ impl Upload<'_, '_> {
                 return Ok(());
             }
             let now = Instant::now();
-            let ack_timeout = self.controller.rto();
+            let ack_timeout = lock(&self.controller.rtt).rto_backed_off(UPLOAD_MAX_DOUBLINGS);
             let oldest = (self.base < self.next_send).then(|| self.frames[self.base].sent_at);
             let wake = match (self.resume, oldest) {
                 (Some((when, _)), _) => when,
