@@ -165,13 +165,15 @@ struct Upload<'a, 'p> {
 }
 
 /// ACK timeouts in a row, without any progress, after which an upload gives up (with
-/// [`UPLOAD_MAX_DOUBLINGS`], about 6 s at a 3 ms round-trip estimate; `stall_timeout`
-/// usually ends it first).
+/// [`UPLOAD_MAX_DOUBLINGS`], at least 1.5 s at the 3 ms floor; `stall_timeout` usually
+/// ends it first).
 const MAX_TIMEOUTS_IN_A_ROW: usize = 250;
 
-/// Back-off doublings an upload frame's ACK timeout takes at most (8 times the estimate):
-/// a streak of random losses must not let the buffer run dry while the client waits.
-const UPLOAD_MAX_DOUBLINGS: u32 = 3;
+/// Back-off doublings an upload frame's ACK timeout takes at most (twice the estimate):
+/// on a LAN losses are random rather than congestion, a resend too many is only a
+/// duplicate the controller ACKs again, and a streak of losses must not let the running
+/// arm's buffer run dry while the client waits.
+const UPLOAD_MAX_DOUBLINGS: u32 = 1;
 
 impl Upload<'_, '_> {
     fn in_flight(&self) -> usize {
