@@ -4,8 +4,8 @@
 //! that every block printed here is in the document, byte for byte.
 
 use protocol::{
-    Ack, Command, Location, MAX_DATAGRAM, MAX_JOINTS, Point, PointList, Pwm, Report, State,
-    StatusCode, StatusFlags, StatusReport, UartInit, VERSION,
+    Ack, Command, Location, MAX_DATAGRAM, MAX_JOINTS, MoreFlags, Point, PointList, Pwm, Report,
+    State, StatusCode, StatusFlags, StatusReport, UartInit, VERSION,
 };
 
 /// One worked example: a heading and the frame's bytes.
@@ -206,11 +206,13 @@ pub fn doc_frames() -> Vec<DocFrame> {
                 joints: 6,
                 state: State::Stopped,
                 flags: StatusFlags(StatusFlags::REPORTS_ON | StatusFlags::DRIVERS_ENABLED),
+                window: 32,
                 buffered: 0,
                 expected: 300,
                 received: 300,
                 executed: 300,
                 capacity: 8_192,
+                more_flags: MoreFlags(0),
                 upload_period_us: 10_000,
                 pwm_timer_clock_hz: 240_000_000,
                 max_step_rate_hz: 100_000,

@@ -20,8 +20,8 @@ mod types;
 pub use error::{DecodeError, DecodeErrorKind, EncodeError, ExpectedLen, Field};
 pub use frame::{Command, Frame, PointList, PointsIter, Report, crc8};
 pub use types::{
-    Ack, Location, Point, Pwm, State, StatusCode, StatusFlags, StatusReport, Tag, UartInit,
-    UartMode,
+    Ack, DEFAULT_WINDOW, Location, MoreFlags, Point, Pwm, State, StatusCode, StatusFlags,
+    StatusReport, Tag, UartInit, UartMode,
 };
 
 /// UDP port the controller listens on.

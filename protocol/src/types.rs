@@ -548,6 +548,35 @@ impl StatusFlags {
     }
 }
 
+/// STATUS `more_flags` bits (offset 18; an old controller sends 0).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+pub struct MoreFlags(pub u16);
+
+impl MoreFlags {
+    /// An upload not yet running (state NEW or PENDING) was dropped when another host
+    /// took the controller over after the owner's 5 s of silence. Cleared by the next NEW.
+    pub const UPLOAD_DROPPED: u16 = 1 << 0;
+
+    /// Whether every bit of `bits` is set.
+    pub const fn has(self, bits: u16) -> bool {
+        self.0 & bits == bits
+    }
+    /// Sets or clears `bits`.
+    pub fn set(&mut self, bits: u16, on: bool) {
+        if on {
+            self.0 |= bits;
+        } else {
+            self.0 &= !bits;
+        }
+    }
+}
+
+/// The window a host may assume when STATUS `window` is 0 (a controller from before the
+/// field existed took bursts of 8 datagrams).
+pub const DEFAULT_WINDOW: u16 = 8;
+
 /// The STATUS report (36 bytes).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -561,6 +590,9 @@ pub struct StatusReport {
     pub state: State,
     /// See [`StatusFlags`].
     pub flags: StatusFlags,
+    /// Datagrams the controller takes back to back without dropping one (the window a
+    /// host may keep in flight); 0 from an old controller: assume [`DEFAULT_WINDOW`].
+    pub window: u16,
     /// Points held (received, not yet run).
     pub buffered: u16,
     /// Points NEW announced.
@@ -571,6 +603,8 @@ pub struct StatusReport {
     pub executed: u16,
     /// Trajectory buffer size in points.
     pub capacity: u16,
+    /// See [`MoreFlags`].
+    pub more_flags: MoreFlags,
     /// Location report period, microseconds.
     pub upload_period_us: u32,
     /// Input clock of the gripper timer.
@@ -586,11 +620,13 @@ impl StatusReport {
             joints: u8_at(b, 3),
             state: State::from_u8(u8_at(b, 4))?,
             flags: StatusFlags(u8_at(b, 5)),
+            window: u16_le(b, 6),
             buffered: u16_le(b, 8),
             expected: u16_le(b, 10),
             received: u16_le(b, 12),
             executed: u16_le(b, 14),
             capacity: u16_le(b, 16),
+            more_flags: MoreFlags(u16_le(b, 18)),
             upload_period_us: u32_le(b, 20),
             pwm_timer_clock_hz: u32_le(b, 24),
             max_step_rate_hz: u32_le(b, 28),
@@ -601,13 +637,13 @@ impl StatusReport {
         w.u8(at + 3, self.joints);
         w.u8(at + 4, self.state as u8);
         w.u8(at + 5, self.flags.0);
-        w.u16(at + 6, 0);
+        w.u16(at + 6, self.window);
         w.u16(at + 8, self.buffered);
         w.u16(at + 10, self.expected);
         w.u16(at + 12, self.received);
         w.u16(at + 14, self.executed);
         w.u16(at + 16, self.capacity);
-        w.u16(at + 18, 0);
+        w.u16(at + 18, self.more_flags.0);
         w.u32(at + 20, self.upload_period_us);
         w.u32(at + 24, self.pwm_timer_clock_hz);
         w.u32(at + 28, self.max_step_rate_hz);

@@ -149,7 +149,7 @@ fn status_report() -> impl Strategy<Value = StatusReport> {
         any::<u8>(),
         state(),
         any::<u8>(),
-        prop::array::uniform5(any::<u16>()),
+        prop::array::uniform7(any::<u16>()),
         prop::array::uniform3(any::<u32>()),
     )
         .prop_map(
@@ -158,6 +158,8 @@ fn status_report() -> impl Strategy<Value = StatusReport> {
                 joints,
                 state,
                 flags: StatusFlags(flags),
+                window: counts[5],
+                more_flags: protocol::MoreFlags(counts[6]),
                 buffered: counts[0],
                 expected: counts[1],
                 received: counts[2],

@@ -290,6 +290,20 @@ fn log_received(bytes: &[u8], from: Endpoint) {
     }
 }
 
+/// Refusals logged at info level: a host resending a refused frame in a loop must not
+/// write a line per datagram (the first of each second, with the count of the others).
+static REFUSALS_LOGGED: std::sync::Mutex<arm_core::LogLimit> =
+    std::sync::Mutex::new(arm_core::LogLimit::new());
+
+/// Microseconds of wall-clock time since the first call (for the log limits).
+pub(crate) fn log_time_us() -> u64 {
+    static START: std::sync::OnceLock<std::time::Instant> = std::sync::OnceLock::new();
+    START
+        .get_or_init(std::time::Instant::now)
+        .elapsed()
+        .as_micros() as u64
+}
+
 /// The state the controller last reported, for logging its changes.
 static REPORTED_STATE: std::sync::atomic::AtomicU8 = std::sync::atomic::AtomicU8::new(u8::MAX);
 
@@ -304,12 +318,25 @@ fn log_sent(frame: &[u8], to: Endpoint) {
             if ack.status == protocol::StatusCode::Ok {
                 log::debug!("-> {} ACK seq {} {command}: OK", show(to), report.seq);
             } else {
-                log::info!(
-                    "-> {} {command} (seq {}) refused: {}",
-                    show(to),
-                    report.seq,
-                    ack.status.name()
-                );
+                let verdict = REFUSALS_LOGGED
+                    .lock()
+                    .map(|mut l| l.event(log_time_us()))
+                    .unwrap_or(arm_core::LogVerdict::Silent);
+                match verdict {
+                    arm_core::LogVerdict::Log { suppressed } => log::info!(
+                        "-> {} {command} (seq {}) refused: {} ({suppressed} more refusals \
+                         since the last such line)",
+                        show(to),
+                        report.seq,
+                        ack.status.name()
+                    ),
+                    arm_core::LogVerdict::Silent => log::debug!(
+                        "-> {} {command} (seq {}) refused: {}",
+                        show(to),
+                        report.seq,
+                        ack.status.name()
+                    ),
+                }
             }
             Some(ack.state as u8)
         }
@@ -343,8 +370,8 @@ type SimTrajectoryHw = TrajectoryHw<
 >;
 
 #[embassy_executor::task]
-async fn network(socket: &'static SimSocket, bus: &'static Bus) -> ! {
-    arm_core::tasks::network_task(socket, bus).await
+async fn network(socket: &'static SimSocket, bus: &'static Bus, clock: &'static SimClock) -> ! {
+    arm_core::tasks::network_task(socket, bus, clock).await
 }
 
 #[embassy_executor::task]
@@ -354,6 +381,7 @@ async fn network_over_tap(
     address: TapAddress,
     faults: crate::faults::FaultConfig,
     bus: &'static Bus,
+    clock: &'static SimClock,
 ) {
     let seed = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
@@ -364,7 +392,7 @@ async fn network_over_tap(
             let socket: &'static SimSocket =
                 Box::leak(Box::new(Faulty::new(SimNet::Tap(tap), faults)));
             println!("sim-host: listening on {iface} udp port {}", protocol::PORT);
-            arm_core::tasks::network_task(socket, bus).await
+            arm_core::tasks::network_task(socket, bus, clock).await
         }
         Err(e) => {
             log::error!("tap: {e}");
@@ -491,13 +519,13 @@ fn spawn_tasks(spawner: Spawner, wiring: Wiring) {
                         std::process::exit(2)
                     });
                 let address = address.unwrap_or_else(|| stored_address(&board));
-                network_over_tap(spawner, iface.clone(), address, faults, bus)
+                network_over_tap(spawner, iface.clone(), address, faults, bus, clock)
                     .map(|t| spawner.spawn(t))
             }
             (None, Some(udp)) => {
                 let socket: &'static SimSocket =
                     Box::leak(Box::new(Faulty::new(SimNet::Udp(udp), faults)));
-                network(socket, bus).map(|t| spawner.spawn(t))
+                network(socket, bus, clock).map(|t| spawner.spawn(t))
             }
             (None, None) => {
                 log::error!("no network: neither a socket nor --tap");

@@ -65,11 +65,18 @@ impl UdpDatagrams {
     fn receive_loop(&self, probe: &Probe) {
         // Bigger than any valid frame, so an oversized datagram is seen (and cut), not lost.
         let mut buf = vec![0u8; 2048];
+        let mut failures = arm_core::LogLimit::new();
         loop {
             let (len, from) = match self.socket.recv_from(&mut buf) {
                 Ok(r) => r,
                 Err(e) => {
-                    log::warn!("udp: receive failed: {e}");
+                    if let arm_core::LogVerdict::Log { suppressed } =
+                        failures.event(crate::app::log_time_us())
+                    {
+                        log::warn!(
+                            "udp: receive failed: {e} ({suppressed} more since the last such line)"
+                        );
+                    }
                     std::thread::sleep(std::time::Duration::from_millis(10));
                     continue;
                 }

@@ -34,8 +34,23 @@ pub const OWNER_TIMEOUT_US: u64 = 5_000_000;
 /// How long an accepted frame is remembered for duplicate detection (PROTOCOL.md 5).
 pub const DUPLICATE_WINDOW_US: u64 = 2_000_000;
 
-/// Accepted frames remembered for duplicate detection (PROTOCOL.md 5).
-pub const DUPLICATE_MEMORY: usize = 32;
+/// Datagrams a host may send back to back without waiting for an ACK (its window), all
+/// taken without a drop: STATUS `window` advertises it (PROTOCOL.md 7). The network path
+/// of the board and of sim-host is sized for it (`tasks::INBOX_QUEUE`, the board's
+/// Ethernet ring and UDP socket). 32 PENDING frames of 12 points are 384 points, 3.8 s of
+/// 10 ms points: enough to cover a LAN round trip many times over.
+pub const HOST_WINDOW: usize = 32;
+
+/// Executed frames remembered for duplicate detection (PROTOCOL.md 5): twice the window,
+/// so that a resend of the oldest frame of a full window is still recognised after the
+/// whole window and as many interleaved commands were executed behind it.
+pub const DUPLICATE_MEMORY: usize = 2 * HOST_WINDOW;
+
+// A host resending the first frame of a full window must still find it remembered.
+const _: () = assert!(
+    DUPLICATE_MEMORY > HOST_WINDOW,
+    "duplicate memory must exceed the largest window"
+);
 
 /// Everything about the controller that differs between boards (and the simulator).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -52,15 +52,15 @@
 //! [`Deferred`] in the [`Response`].
 
 use protocol::{
-    Ack, Command, Frame, Location, MAX_JOINTS, MAX_POINTS_PER_FRAME, Pwm, State, StatusCode,
-    StatusFlags, StatusReport, Tag, UartInit, UartMode, limits,
+    Ack, Command, Frame, Location, MAX_JOINTS, MAX_POINTS_PER_FRAME, MoreFlags, Pwm, State,
+    StatusCode, StatusFlags, StatusReport, Tag, UartInit, UartMode, limits,
 };
 use protocol::{DecodeError, DecodeErrorKind};
 
 use arm_step::Segment;
 
 use crate::buffer::{StoredPoint, TrajectoryBuffer};
-use crate::config::{ControllerConfig, OWNER_TIMEOUT_US};
+use crate::config::{ControllerConfig, HOST_WINDOW, OWNER_TIMEOUT_US};
 use crate::hw::{Endpoint, PersistentSettings, SerialError};
 use crate::link::{FrameKey, RecentFrames, UploadOrder};
 use crate::plan::{ReturnPlan, plan_return};
@@ -134,12 +134,16 @@ pub struct Reply {
 pub struct Response {
     /// The ACK; `None` only for a datagram under 3 bytes.
     pub reply: Option<Reply>,
-    /// A STATUS report for the owner ([`Controller::report_to`]).
-    pub status: Option<StatusReport>,
-    /// A LOCATION report for the owner: the state changed (only while reports are on).
+    /// A STATUS report and where it goes: the endpoint that asked for it.
+    pub status: Option<(Endpoint, StatusReport)>,
+    /// A LOCATION report: the state changed (only while reports are on). It goes to
+    /// [`ReportSettings::location_to`].
     pub location: Option<Location>,
     /// Work left to the caller.
     pub deferred: Option<Deferred>,
+    /// The command was executed: ACKed `OK` and not a duplicate. Only an executed STOPPED
+    /// stops anything (the e-stop path in [`crate::tasks`] relies on it).
+    pub executed: bool,
 }
 
 /// The host that owns the controller.
@@ -148,18 +152,56 @@ pub struct Response {
 pub struct Owner {
     /// Its IPv4 address.
     pub ip: [u8; 4],
-    /// Source port of its most recent accepted frame: where reports go.
-    pub report_port: u16,
     /// When it last sent a CRC-valid frame, microseconds.
     pub last_heard_us: u64,
+}
+
+/// Where one kind of report goes: an endpoint on the owner's address (see "Reports" in
+/// the module docs).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct ReportRoute {
+    /// The endpoint.
+    pub to: Endpoint,
+    /// When it last sent a CRC-valid frame, microseconds: a route whose endpoint has been
+    /// silent [`OWNER_TIMEOUT_US`] (and the arm is STOPPED) passes to the next of the
+    /// owner's endpoints whose frame is executed.
+    pub heard_us: u64,
+}
+
+impl ReportRoute {
+    fn new(to: Endpoint, now_us: u64) -> Self {
+        ReportRoute {
+            to,
+            heard_us: now_us,
+        }
+    }
+
+    /// `from` sent a CRC-valid frame at `now_us`.
+    fn heard(&mut self, from: Endpoint, now_us: u64) {
+        if self.to == from {
+            self.heard_us = now_us;
+        }
+    }
+
+    /// An executed frame from `from` (on the owner's address): `claims` moves the route
+    /// there; otherwise it moves only when its endpoint went silent and nothing runs.
+    fn follow(&mut self, from: Endpoint, claims: bool, idle: bool, now_us: u64) {
+        let lapsed = idle && now_us.saturating_sub(self.heard_us) >= OWNER_TIMEOUT_US;
+        if claims || lapsed {
+            *self = ReportRoute::new(from, now_us);
+        }
+    }
 }
 
 /// Settings the location upload needs, copied out after every change.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct ReportSettings {
-    /// Where reports go (`None` before any host spoke).
-    pub to: Option<Endpoint>,
+    /// Where LOCATION reports go (`None` before any host spoke).
+    pub location_to: Option<Endpoint>,
+    /// Where USART_RECV reports go (`None` before any host spoke).
+    pub serial_to: Option<Endpoint>,
     /// LOCATION reports on.
     pub reports_on: bool,
     /// LOCATION period, microseconds.
@@ -171,7 +213,8 @@ pub struct ReportSettings {
 impl ReportSettings {
     /// Boot values: reports on at the default period, nobody to send them to yet.
     pub const BOOT: ReportSettings = ReportSettings {
-        to: None,
+        location_to: None,
+        serial_to: None,
         reports_on: true,
         upload_period_us: limits::DEFAULT_UPLOAD_PERIOD_US,
         state: State::Stopped,
@@ -203,8 +246,17 @@ pub struct Controller<const CAP: usize> {
     /// RETURN running: its remaining points.
     return_plan: Option<ReturnPlan>,
     order: UploadOrder,
+    /// The endpoint whose NEW started the upload: only its frames count for the ordering
+    /// rule, so another tool on the owner's machine cannot fill the upload's gaps.
+    uploader: Option<Endpoint>,
     recent: RecentFrames,
     owner: Option<Owner>,
+    /// Where LOCATION reports go.
+    location_route: Option<ReportRoute>,
+    /// Where USART_RECV reports go.
+    serial_route: Option<ReportRoute>,
+    /// STATUS `more_flags`.
+    more_flags: MoreFlags,
     reports_on: bool,
     upload_period_us: u32,
     enabled: u16,
@@ -234,8 +286,12 @@ impl<const CAP: usize> Controller<CAP> {
             return_pending: false,
             return_plan: None,
             order: UploadOrder::new(),
+            uploader: None,
             recent: RecentFrames::new(),
             owner: None,
+            location_route: None,
+            serial_route: None,
+            more_flags: MoreFlags(0),
             reports_on: true,
             upload_period_us: limits::DEFAULT_UPLOAD_PERIOD_US,
             enabled: ALL_DRIVERS,
@@ -293,13 +349,10 @@ impl<const CAP: usize> Controller<CAP> {
         self.owner
     }
 
-    /// Where reports (STATUS, LOCATION, USART_RECV) go: the owner at the port of its most
-    /// recent accepted frame.
-    pub fn report_to(&self) -> Option<Endpoint> {
-        self.owner.map(|o| Endpoint {
-            ip: o.ip,
-            port: o.report_port,
-        })
+    /// The endpoint whose NEW started the current upload (its frames alone count for the
+    /// ordering rule).
+    pub fn uploader(&self) -> Option<Endpoint> {
+        self.uploader
     }
 
     /// The ENABLE lines as they should be driven (bit 8 = gripper).
@@ -320,7 +373,8 @@ impl<const CAP: usize> Controller<CAP> {
     /// What the location upload needs to know.
     pub fn report_settings(&self) -> ReportSettings {
         ReportSettings {
-            to: self.report_to(),
+            location_to: self.location_route.map(|r| r.to),
+            serial_to: self.serial_route.map(|r| r.to),
             reports_on: self.reports_on,
             upload_period_us: self.upload_period_us,
             state: self.state,
@@ -371,11 +425,13 @@ impl<const CAP: usize> Controller<CAP> {
             joints: self.settings.joints,
             state: self.state,
             flags,
+            window: saturate(HOST_WINDOW),
             buffered: saturate(self.buffer.buffered()),
             expected: saturate(self.expected as usize),
             received: saturate(self.received as usize),
             executed: saturate(self.executed as usize),
             capacity: saturate(self.buffer.capacity()),
+            more_flags: self.more_flags,
             upload_period_us: self.upload_period_us,
             pwm_timer_clock_hz: self.config.pwm_timer_clock_hz,
             max_step_rate_hz: self.config.max_step_rate_hz,
@@ -428,31 +484,40 @@ impl<const CAP: usize> Controller<CAP> {
         // 3. owner
         let from_owner = match self.owner {
             None => {
-                self.owner = Some(Owner {
-                    ip: from.ip,
-                    report_port: from.port,
-                    last_heard_us: now_us,
-                });
+                self.take_over(from, now_us, plant);
                 true
             }
             Some(ref mut owner) if owner.ip == from.ip => {
                 owner.last_heard_us = now_us;
+                for route in [&mut self.location_route, &mut self.serial_route] {
+                    if let Some(route) = route.as_mut() {
+                        route.heard(from, now_us);
+                    }
+                }
                 true
             }
-            Some(ref mut owner)
+            Some(owner)
                 if self.state != State::Running
                     && now_us.saturating_sub(owner.last_heard_us) >= OWNER_TIMEOUT_US =>
             {
-                *owner = Owner {
-                    ip: from.ip,
-                    report_port: from.port,
-                    last_heard_us: now_us,
-                };
+                self.take_over(from, now_us, plant);
                 true
             }
             Some(_) if tag == Tag::Stopped as u8 => false,
             Some(_) => {
-                response.reply = reply(self, StatusCode::NotOwner);
+                // Tells a stranger nothing about the arm: zeros (section 8).
+                response.reply = Some(Reply {
+                    to: from,
+                    seq,
+                    ack: Ack {
+                        acked_tag: tag,
+                        status: StatusCode::NotOwner,
+                        state: State::New,
+                        next_seq: 0,
+                        buffered: 0,
+                        free: 0,
+                    },
+                });
                 return response;
             }
         };
@@ -464,7 +529,6 @@ impl<const CAP: usize> Controller<CAP> {
             crc,
         };
         if self.recent.contains(&key, now_us) {
-            self.accepted(key, from_owner, now_us, false);
             response.reply = reply(self, StatusCode::Ok);
             return response;
         }
@@ -477,9 +541,10 @@ impl<const CAP: usize> Controller<CAP> {
             }
         };
         // 6. state and 7. execute
-        let status = match self.execute(frame, plant, &mut response) {
+        let status = match self.execute(frame, from, plant, &mut response) {
             Ok(()) => {
-                self.accepted(key, from_owner, now_us, true);
+                self.executed(key, from_owner, now_us);
+                response.executed = true;
                 StatusCode::Ok
             }
             Err(status) => status,
@@ -492,27 +557,59 @@ impl<const CAP: usize> Controller<CAP> {
         response
     }
 
-    /// Bookkeeping for an accepted frame (`executed` now, or else a duplicate).
-    fn accepted(&mut self, key: FrameKey, from_owner: bool, now_us: u64, executed: bool) {
-        if executed {
-            self.recent.remember(key, now_us);
+    /// Bookkeeping for an executed frame. (A duplicate's seq was marked when the frame
+    /// was executed: marking it again once the upload has moved past it would mark that
+    /// seq a lap (256) ahead, and a PENDING lost there would be skipped.)
+    fn executed(&mut self, key: FrameKey, from_owner: bool, now_us: u64) {
+        self.recent.remember(key, now_us);
+        if self.uploader == Some(key.from) {
+            self.order.mark(key.seq);
         }
-        if from_owner {
-            // A duplicate's seq was marked when the frame was executed. Marking it again
-            // once the upload has moved past it would mark that seq a lap (256) ahead,
-            // and a PENDING lost there would be skipped.
-            if executed {
-                self.order.mark(key.seq);
+        if !from_owner {
+            return;
+        }
+        let idle = self.state == State::Stopped;
+        let claims_location = [Tag::New, Tag::Return, Tag::UploadStart, Tag::UploadPeriod]
+            .iter()
+            .any(|t| *t as u8 == key.tag);
+        let claims_serial = key.tag == Tag::UsartStart as u8;
+        for (route, claims) in [
+            (&mut self.location_route, claims_location),
+            (&mut self.serial_route, claims_serial),
+        ] {
+            match route.as_mut() {
+                Some(route) => route.follow(key.from, claims, idle, now_us),
+                None => *route = Some(ReportRoute::new(key.from, now_us)),
             }
-            if let Some(owner) = self.owner.as_mut() {
-                owner.report_port = key.from.port;
-            }
+        }
+    }
+
+    /// `from` becomes the owner (the first host, or a new one after the owner's 5 s of
+    /// silence, not while running): every report goes to it, and an upload the old owner
+    /// had not started is dropped, so that the new owner's RUNING cannot run half of it.
+    fn take_over(&mut self, from: Endpoint, now_us: u64, plant: &mut impl Plant) {
+        self.owner = Some(Owner {
+            ip: from.ip,
+            last_heard_us: now_us,
+        });
+        self.location_route = Some(ReportRoute::new(from, now_us));
+        self.serial_route = Some(ReportRoute::new(from, now_us));
+        self.uploader = None;
+        if matches!(self.state, State::New | State::Pending) {
+            plant.stop();
+            self.buffer.clear();
+            self.return_plan = None;
+            self.return_pending = false;
+            self.state = State::Stopped;
+            self.more_flags.set(MoreFlags::UPLOAD_DROPPED, true);
+            warn!("owner hand-over: the old owner's unstarted upload was dropped");
         }
     }
 
     fn execute(
         &mut self,
         frame: Frame<Command<'_>>,
+        from: Endpoint,
         plant: &mut impl Plant,
         response: &mut Response,
     ) -> Result<(), StatusCode> {
@@ -539,6 +636,8 @@ impl<const CAP: usize> Controller<CAP> {
                 self.received_end = plant.positions();
                 self.fed_end = self.received_end;
                 self.order.restart(frame.seq);
+                self.uploader = Some(from);
+                self.more_flags.set(MoreFlags::UPLOAD_DROPPED, false);
                 self.state = State::New;
             }
             Command::Pending(points) => {
@@ -646,7 +745,7 @@ impl<const CAP: usize> Controller<CAP> {
                     return Err(StatusCode::BadState);
                 }
             }
-            Command::Status => response.status = Some(self.status(plant)),
+            Command::Status => response.status = Some((from, self.status(plant))),
             Command::UploadPeriod { period_us } => self.upload_period_us = period_us,
         }
         Ok(())

@@ -41,12 +41,14 @@
 //!
 //! A STOPPED overtakes the datagrams queued before it, but the result is that of arrival
 //! order: `Bus::route` stamps each datagram with the STOPPEDs put on `estop` before it
-//! arrived, and `trajectory_task` counts those it took. A datagram stamped with fewer was
-//! overtaken: it (and those queued behind it with the same stamp) is handled as usual,
-//! then [`Controller::stop_after_overtaken`] applies the STOPPED again, before any wait
-//! (a run it started never emits a pulse: the engine starts [`tasks::START_LEAD_US`]
-//! later, fed by the step task); a RETURN's encoder read is dropped, a settings write is
-//! done.
+//! arrived, and `trajectory_task` records which of those it took the controller executed
+//! ([`tasks::OvertakingStops`]; a refused STOPPED, say `BAD_LENGTH`, or a duplicate did
+//! nothing, so it stops nothing). A datagram that arrived before an executed STOPPED taken
+//! already was overtaken: it and the queued datagrams up to that STOPPED are handled as
+//! usual, each executed STOPPED applied again ([`Controller::stop_after_overtaken`]) right
+//! after the datagram it followed, all before any wait (a run one of them started never
+//! emits a pulse: the engine starts [`tasks::START_LEAD_US`] later, fed by the step task);
+//! a RETURN's encoder read is dropped, a settings write is done.
 #![no_std]
 #![warn(missing_docs)]
 
@@ -62,6 +64,7 @@ pub mod config;
 pub mod controller;
 pub mod hw;
 pub mod link;
+pub mod log_limit;
 pub mod outgoing;
 pub mod plan;
 pub mod serial;
@@ -70,6 +73,7 @@ pub mod tasks;
 pub use buffer::{StoredPoint, TrajectoryBuffer};
 pub use config::ControllerConfig;
 pub use controller::{Controller, Deferred, Owner, Plant, Reply, ReportSettings, Response};
+pub use log_limit::{LogLimit, LogVerdict};
 pub use outgoing::{Outgoing, ReportEncoder};
 pub use plan::{ReturnPlan, plan_return};
 pub use tasks::{

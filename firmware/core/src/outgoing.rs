@@ -3,7 +3,7 @@
 use heapless::Vec;
 use protocol::{Location, MAX_SERIAL_CHUNK, Report, StatusReport, size};
 
-use crate::controller::Reply;
+use crate::controller::{Reply, ReportSettings};
 use crate::hw::Endpoint;
 
 /// Largest frame the controller sends: USART_RECV (257 data bytes) + seq, tag and CRC.
@@ -18,11 +18,11 @@ pub const MAX_REPORT_FRAME: usize = size::USART_RECV + protocol::FRAME_OVERHEAD;
 pub enum Outgoing {
     /// An ACK, to the command's sender, with the command's seq.
     Ack(Reply),
-    /// A LOCATION report, to the owner.
+    /// A LOCATION report, to [`ReportSettings::location_to`].
     Location(Location),
-    /// A STATUS report, to the owner.
-    Status(StatusReport),
-    /// Bytes read from the serial port, to the owner.
+    /// A STATUS report, to the endpoint that asked for it.
+    Status(Endpoint, StatusReport),
+    /// Bytes read from the serial port, to [`ReportSettings::serial_to`].
     UsartRecv(Vec<u8, MAX_SERIAL_CHUNK>),
 }
 
@@ -45,25 +45,21 @@ impl ReportEncoder {
         self.next_seq
     }
 
-    /// Encodes `out` into `buf`: returns the destination and the frame's length, or `None`
-    /// when a report has nowhere to go (no owner yet; no seq is used then) or `buf` is
-    /// too small.
+    /// Encodes `out` into `buf`: returns the destination (ACK and STATUS: their own;
+    /// LOCATION and USART_RECV: as `routes` say) and the frame's length, or `None` when a
+    /// report has nowhere to go (no owner yet; no seq is used then) or `buf` is too small.
     pub fn encode(
         &mut self,
         out: &Outgoing,
-        report_to: Option<Endpoint>,
+        routes: &ReportSettings,
         buf: &mut [u8],
     ) -> Option<(Endpoint, usize)> {
         let (to, seq, report) = match out {
             Outgoing::Ack(reply) => (reply.to, reply.seq, Report::Ack(reply.ack)),
-            other => {
-                let report = match other {
-                    Outgoing::Location(l) => Report::Location(*l),
-                    Outgoing::Status(s) => Report::Status(*s),
-                    Outgoing::UsartRecv(bytes) => Report::UsartRecv(bytes),
-                    Outgoing::Ack(_) => return None,
-                };
-                (report_to?, self.next_seq, report)
+            Outgoing::Status(to, s) => (*to, self.next_seq, Report::Status(*s)),
+            Outgoing::Location(l) => (routes.location_to?, self.next_seq, Report::Location(*l)),
+            Outgoing::UsartRecv(bytes) => {
+                (routes.serial_to?, self.next_seq, Report::UsartRecv(bytes))
             }
         };
         let n = report.encode(seq, buf).ok()?;
@@ -92,9 +88,22 @@ mod tests {
         let mut enc = ReportEncoder::new();
         let mut buf = [0u8; MAX_REPORT_FRAME];
         assert_eq!(
-            enc.encode(&Outgoing::Location(Location::default()), None, &mut buf),
+            enc.encode(
+                &Outgoing::Location(Location::default()),
+                &ReportSettings::BOOT,
+                &mut buf
+            ),
             None
         );
+        let tool = Endpoint {
+            port: 7001,
+            ..owner
+        };
+        let routes = ReportSettings {
+            location_to: Some(owner),
+            serial_to: Some(owner),
+            ..ReportSettings::BOOT
+        };
         let ack = Outgoing::Ack(Reply {
             to: other,
             seq: 77,
@@ -110,12 +119,12 @@ mod tests {
         let outs = [
             Outgoing::Location(Location::default()),
             ack,
-            Outgoing::Status(StatusReport::default()),
+            Outgoing::Status(tool, StatusReport::default()),
             Outgoing::UsartRecv(Vec::from_slice(b"hi").unwrap_or_default()),
         ];
         let mut seen = std::vec::Vec::new();
         for out in &outs {
-            let (to, n) = enc.encode(out, Some(owner), &mut buf).expect("encodes");
+            let (to, n) = enc.encode(out, &routes, &mut buf).expect("encodes");
             let frame: Frame<Report<'_>> = Report::decode(&buf[..n]).expect("decodes");
             seen.push((to, frame.seq, frame.body.tag() as u8));
         }
@@ -124,7 +133,7 @@ mod tests {
             [
                 (owner, 0, 0x13),
                 (other, 77, 0x14),
-                (owner, 1, 0x15),
+                (tool, 1, 0x15),
                 (owner, 2, 0x0b)
             ]
         );

@@ -18,11 +18,13 @@ use embassy_sync::signal::Signal;
 use heapless::Vec;
 use protocol::{MAX_DATAGRAM, MAX_JOINTS, MAX_SERIAL_CHUNK, Pwm, Tag, UartInit, UartMode, crc8};
 
+use crate::config::HOST_WINDOW;
 use crate::controller::{Controller, Deferred, Plant, ReportSettings, Response};
 use crate::hw::{
     Clock, Datagrams, Encoders, Endpoint, Gripper, Outputs, SerialError, SerialPort, SettingsStore,
     StepKick,
 };
+use crate::log_limit::{LogLimit, LogVerdict};
 use crate::outgoing::{MAX_REPORT_FRAME, Outgoing, ReportEncoder};
 use crate::serial::{SerialBatcher, byte_time_us};
 
@@ -33,16 +35,21 @@ pub type Cs = CriticalSectionRawMutex;
 /// host that repeats STOPPED quickly (or several hosts stopping at once).
 pub const ESTOP_QUEUE: usize = 4;
 
-/// Queued datagrams for the trajectory task: a streaming host keeps a window of PENDING
-/// frames in flight (armctl: 4) plus a command or two; handling one takes microseconds,
-/// so 8 absorb a burst. When full, datagrams are dropped (the host resends: no ACK came),
-/// never waited for, so that a STOPPED behind them is never held up.
-pub const INBOX_QUEUE: usize = 8;
+/// Queued datagrams for the trajectory task: a host's whole window
+/// ([`HOST_WINDOW`] = 32 datagrams, each up to 1472 bytes, sent back to back) plus 8 for
+/// the commands of other tools on the same machine (a STATUS poller, a watcher) arriving
+/// in the same instant. The network task can route a burst faster than the trajectory
+/// task handles it (on the board the Ethernet ring and the UDP socket hold the same burst
+/// before it), so the inbox must hold it whole. When full, datagrams are dropped (the host
+/// resends: no ACK came), never waited for, so that a STOPPED behind them is never held
+/// up. Each slot is a [`Datagram`] (1472 bytes + 12): 40 slots are 58 KiB of RAM.
+pub const INBOX_QUEUE: usize = HOST_WINDOW + 8;
 
-/// Queued frames to send: the ACKs of a full inbox and of the e-stop queue, plus a
-/// LOCATION, a STATUS and a USART_RECV. When full, a frame is dropped (logged): the
-/// controller never waits to report.
-pub const OUTBOX_QUEUE: usize = 16;
+/// Queued frames to send: the ACKs of a full inbox and of the e-stop queue (44), plus a
+/// LOCATION, a STATUS and a USART_RECV, and a few LOCATIONs of state changes. When full,
+/// a frame is dropped (counted, logged at most once a second): the controller never
+/// waits to report. A slot holds the largest frame's content (USART_RECV, 255 bytes).
+pub const OUTBOX_QUEUE: usize = INBOX_QUEUE + ESTOP_QUEUE + 8;
 
 /// Segments between the trajectory task and the step task, on top of the engine's own
 /// queue: enough to refill the engine's queue in one go after a burst of short segments.
@@ -140,6 +147,11 @@ pub struct Bus {
     /// STOPPED frames put on `estop` so far (wrapping); every datagram is stamped with it
     /// ([`Datagram::stops_before`]). Counted by [`Bus::route`] only.
     stops_routed: Mutex<Cs, Cell<u32>>,
+    /// Datagrams dropped by [`Bus::route`] (full inbox), and the limit on their log lines.
+    inbox_drops: Mutex<Cs, Cell<(u32, LogLimit)>>,
+    /// Frames dropped by [`Bus::send`] (full outbox) not yet logged: `network_task` logs
+    /// them, at most once a second.
+    outbox_drops: Mutex<Cs, Cell<u32>>,
 }
 
 impl Default for Bus {
@@ -163,7 +175,19 @@ impl Bus {
             reports: Mutex::new(Cell::new(ReportSettings::BOOT)),
             upload_changed: Signal::new(),
             stops_routed: Mutex::new(Cell::new(0)),
+            inbox_drops: Mutex::new(Cell::new((0, LogLimit::new()))),
+            outbox_drops: Mutex::new(Cell::new(0)),
         }
+    }
+
+    /// Datagrams dropped so far because the inbox was full (wrapping).
+    pub fn inbox_drops(&self) -> u32 {
+        self.inbox_drops.lock(|c| c.get().0)
+    }
+
+    /// Takes the count of frames dropped because the outbox was full since the last call.
+    pub fn take_outbox_drops(&self) -> u32 {
+        self.outbox_drops.lock(|c| c.replace(0))
     }
 
     /// The report settings as last published.
@@ -171,18 +195,20 @@ impl Bus {
         self.reports.lock(|c| c.get())
     }
 
-    /// Queues a frame to send; a full outbox drops it (logged) rather than wait.
+    /// Queues a frame to send; a full outbox drops it (counted; `network_task` logs the
+    /// count) rather than wait.
     pub fn send(&self, out: Outgoing) {
         if self.outbox.try_send(out).is_err() {
-            warn!("outbox full: a frame was dropped");
+            self.outbox_drops.lock(|c| c.set(c.get().saturating_add(1)));
         }
     }
 
     /// Routes a received datagram: a CRC-valid STOPPED to `estop` (to `inbox` if that
     /// is full), everything else to `inbox`. Never waits: a full inbox drops the datagram
-    /// (the host resends it since no ACK came). Stamps it with the STOPPEDs put on
+    /// (the host resends it since no ACK came; the drops are counted and logged at most
+    /// once a second, `now_us` being the arrival time). Stamps it with the STOPPEDs put on
     /// `estop` before it ([`Datagram::stops_before`]).
-    pub fn route(&self, mut datagram: Datagram) {
+    pub fn route(&self, mut datagram: Datagram, now_us: u64) {
         // One critical section: stamps and queue order agree even if two tasks route.
         let queued = self.stops_routed.lock(|routed| {
             datagram.stops_before = routed.get();
@@ -200,7 +226,18 @@ impl Bus {
             self.inbox.try_send(datagram).is_ok()
         });
         if !queued {
-            warn!("inbox full: a datagram was dropped");
+            let verdict = self.inbox_drops.lock(|c| {
+                let (drops, mut limit) = c.get();
+                let verdict = limit.event(now_us);
+                c.set((drops.wrapping_add(1), limit));
+                verdict
+            });
+            if let LogVerdict::Log { suppressed } = verdict {
+                warn!(
+                    "inbox full: a datagram was dropped ({} more since the last such line)",
+                    suppressed
+                );
+            }
         }
     }
 }
@@ -439,32 +476,58 @@ pub async fn step_task<const Q: usize, K: StepKick>(
 }
 
 /// Receives datagrams and routes them ([`Bus::route`]), and sends what `bus.outbox`
-/// holds, both at once. Reports go to the owner as last published in `bus.reports`.
-pub async fn network_task<D: Datagrams>(socket: &D, bus: &Bus) -> ! {
+/// holds, both at once. ACKs and STATUS reports go to their requester, LOCATION and
+/// USART_RECV as last published in `bus.reports`. Failures a datagram can cause are
+/// logged at most once a second each ([`LogLimit`]), with the count.
+pub async fn network_task<D: Datagrams, C: Clock>(socket: &D, bus: &Bus, clock: &C) -> ! {
     let rx = async {
         let mut buf = [0u8; MAX_DATAGRAM];
+        let mut failures = LogLimit::new();
         loop {
             match socket.recv(&mut buf).await {
                 Ok((n, from)) => {
                     let bytes =
                         Vec::from_slice(buf.get(..n).unwrap_or_default()).unwrap_or_default();
-                    bus.route(Datagram::new(from, bytes));
+                    bus.route(Datagram::new(from, bytes), clock.now_us());
                 }
-                Err(e) => warn!("receive failed: {:?}", debug_value!(e)),
+                Err(e) => {
+                    if let LogVerdict::Log { suppressed } = failures.event(clock.now_us()) {
+                        warn!(
+                            "receive failed: {:?} ({} more since the last such line)",
+                            debug_value!(e),
+                            suppressed
+                        );
+                    }
+                }
             }
         }
     };
     let tx = async {
         let mut encoder = ReportEncoder::new();
         let mut buf = [0u8; MAX_REPORT_FRAME];
+        let mut failures = LogLimit::new();
+        let mut outbox_full = LogLimit::new();
         loop {
             let out = bus.outbox.receive().await;
-            let report_to = bus.report_settings().to;
-            let Some((to, n)) = encoder.encode(&out, report_to, &mut buf) else {
+            let drops = bus.take_outbox_drops();
+            if let LogVerdict::Log { suppressed } = outbox_full.events(drops, clock.now_us()) {
+                warn!(
+                    "outbox full: {} frames dropped since the last such line",
+                    suppressed.saturating_add(drops)
+                );
+            }
+            let routes = bus.report_settings();
+            let Some((to, n)) = encoder.encode(&out, &routes, &mut buf) else {
                 continue;
             };
-            if let Err(e) = socket.send(to, buf.get(..n).unwrap_or_default()).await {
-                warn!("send failed: {:?}", debug_value!(e));
+            if let Err(e) = socket.send(to, buf.get(..n).unwrap_or_default()).await
+                && let LogVerdict::Log { suppressed } = failures.event(clock.now_us())
+            {
+                warn!(
+                    "send failed: {:?} ({} more since the last such line)",
+                    debug_value!(e),
+                    suppressed
+                );
             }
         }
     };
@@ -492,7 +555,7 @@ pub async fn upload_task<const Q: usize, C: Clock>(
         match select(clock.sleep_until(next), bus.upload_changed.wait()).await {
             Either::First(()) => {
                 let settings = bus.report_settings();
-                if settings.reports_on && settings.to.is_some() {
+                if settings.reports_on && settings.location_to.is_some() {
                     bus.send(Outgoing::Location(protocol::Location {
                         position: step.positions(),
                         state: settings.state as u8,
@@ -689,9 +752,9 @@ where
     outputs.set_enabled(controller.enabled());
     publish(bus, controller);
     let lead_ticks = us_to_ticks(u64::from(START_LEAD_US), step.timing().tick_hz);
-    // STOPPEDs taken from `bus.estop` (wrapping): an inbox datagram stamped with fewer
-    // arrived before one of them, which overtook it.
-    let mut stops_taken: u32 = 0;
+    // STOPPEDs taken from `bus.estop`, and which of them the controller executed: an
+    // inbox datagram stamped with fewer arrived before them; only an executed one stops.
+    let mut stops = OvertakingStops::new();
     loop {
         // Biased: a waiting STOPPED is always taken first.
         let event = select3(
@@ -711,11 +774,14 @@ where
         };
         let response = match event {
             Either3::First(d) => {
-                stops_taken = stops_taken.wrapping_add(1);
-                controller.handle(d.from, &d.bytes, clock.now_us(), &mut plant)
+                let response = controller.handle(d.from, &d.bytes, clock.now_us(), &mut plant);
+                // Refused (BAD_LENGTH) or a duplicate: it did nothing, and it must not
+                // stop the frames it overtook either.
+                stops.took(response.executed);
+                response
             }
-            Either3::Second(d) if overtaken(&d, stops_taken) => Response {
-                deferred: handle_overtaken(controller, bus, d, clock, &mut plant),
+            Either3::Second(d) if stops.executed_between(d.stops_before, None) => Response {
+                deferred: handle_overtaken(controller, bus, d, clock, &mut plant, &stops),
                 ..Response::default()
             },
             Either3::Second(d) => controller.handle(d.from, &d.bytes, clock.now_us(), &mut plant),
@@ -747,15 +813,9 @@ where
     }
 }
 
-/// Whether a STOPPED taken from `bus.estop` arrived after `datagram` (it overtook it).
-fn overtaken(datagram: &Datagram, stops_taken: u32) -> bool {
-    // Wrapping counters: the difference is small and positive when overtaken.
-    (stops_taken.wrapping_sub(datagram.stops_before) as i32) > 0
-}
-
-/// Handles `first`, an inbox datagram overtaken by a STOPPED already handled, then the
-/// queued datagrams that arrived between it and that STOPPED, in arrival order (same ACKs,
-/// same duplicate memory), then applies the STOPPED after them
+/// Handles `first`, an inbox datagram overtaken by an executed STOPPED, then the queued
+/// datagrams that arrived before the last executed STOPPED, in arrival order (same ACKs,
+/// same duplicate memory), applying each executed STOPPED after the datagram it followed
 /// ([`Controller::stop_after_overtaken`]). All without a wait: a run one of them starts
 /// is stopped before the step task can hand the engine a segment. Returns the deferred
 /// work still to do: a settings write (an encoder read would start a cancelled RETURN).
@@ -765,6 +825,7 @@ fn handle_overtaken<const CAP: usize, C: Clock>(
     first: Datagram,
     clock: &C,
     plant: &mut impl Plant,
+    stops: &OvertakingStops,
 ) -> Option<Deferred> {
     let mut save = None;
     let mut next = Some(first);
@@ -775,21 +836,73 @@ fn handle_overtaken<const CAP: usize, C: Clock>(
         if let Some(Deferred::SaveSettings(settings)) = response.deferred {
             save = Some(settings);
         }
-        // The same stamp: no STOPPED arrived between the two, the stop comes after both.
-        if bus
-            .inbox
-            .try_peek()
-            .is_ok_and(|queued| queued.stops_before == datagram.stops_before)
-        {
+        let next_stamp = bus.inbox.try_peek().ok().map(|queued| queued.stops_before);
+        // An executed STOPPED arrived between this datagram and the next: apply it now.
+        if stops.executed_between(datagram.stops_before, next_stamp) {
+            let location = controller.stop_after_overtaken(plant);
+            publish(bus, controller);
+            if let Some(location) = location {
+                bus.send(Outgoing::Location(location));
+            }
+        }
+        // The next one was overtaken too: handle it before anything else.
+        if next_stamp.is_some_and(|stamp| stops.executed_between(stamp, None)) {
             next = bus.inbox.try_receive().ok();
         }
     }
-    let location = controller.stop_after_overtaken(plant);
-    publish(bus, controller);
-    if let Some(location) = location {
-        bus.send(Outgoing::Location(location));
-    }
     save.map(Deferred::SaveSettings)
+}
+
+/// STOPPED window of [`OvertakingStops`]: how many of the latest STOPPEDs taken it tells
+/// apart. Older ones count as executed (a stop is the safe side); only a flood of more
+/// than this many STOPPEDs while a datagram waits in the inbox gets there.
+pub const STOP_MEMORY: u32 = 128;
+
+/// The STOPPEDs the trajectory task took from `bus.estop` (each numbered by
+/// [`Bus::route`] as it arrived: the stamps of [`Datagram::stops_before`]) and which of
+/// them the controller executed. A datagram stamped `s` arrived before STOPPED number
+/// `s`; it was overtaken by those numbered `s` and up that were taken before it. Only an
+/// executed STOPPED (ACK `OK`, not a duplicate) stops what it overtook: a refused or
+/// repeated one did nothing in arrival order either.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct OvertakingStops {
+    /// STOPPEDs taken (wrapping): the next one taken is number `taken`.
+    taken: u32,
+    /// Bit `i`: STOPPED number `taken - 1 - i` was executed.
+    executed: u128,
+}
+
+impl OvertakingStops {
+    /// None taken yet.
+    pub const fn new() -> Self {
+        OvertakingStops {
+            taken: 0,
+            executed: 0,
+        }
+    }
+
+    /// The next STOPPED from `bus.estop` was handled; `executed` if it did stop.
+    pub fn took(&mut self, executed: bool) {
+        self.taken = self.taken.wrapping_add(1);
+        self.executed = (self.executed << 1) | u128::from(executed);
+    }
+
+    /// Whether an executed STOPPED numbered `from` up to (not including) `to` (`None`:
+    /// every one taken) was taken.
+    pub fn executed_between(&self, from: u32, to: Option<u32>) -> bool {
+        // Stops taken with a number >= from (wrapping counters, small differences).
+        let since_from = self.taken.wrapping_sub(from) as i32;
+        let since_to = to.map_or(0, |to| (self.taken.wrapping_sub(to) as i32).max(0));
+        if since_from <= since_to {
+            return false;
+        }
+        if since_from as u32 > STOP_MEMORY {
+            return true;
+        }
+        // Bits since_to..since_from stand for numbers from..to.
+        let below = |n: i32| 1u128.checked_shl(n as u32).map_or(u128::MAX, |bit| bit - 1);
+        self.executed & below(since_from) & !below(since_to) != 0
+    }
 }
 
 /// Queues what a handled datagram produced.
@@ -797,8 +910,8 @@ fn deliver(bus: &Bus, response: &Response) {
     if let Some(reply) = response.reply {
         bus.send(Outgoing::Ack(reply));
     }
-    if let Some(status) = response.status {
-        bus.send(Outgoing::Status(status));
+    if let Some((to, status)) = response.status {
+        bus.send(Outgoing::Status(to, status));
     }
     if let Some(location) = response.location {
         bus.send(Outgoing::Location(location));

@@ -62,7 +62,7 @@ fn a_strangers_stopped_changes_neither_owner_nor_report_port_nor_silence() {
     let owner = s.controller.owner().expect("an owner");
     assert_eq!(owner.ip, HOST.ip);
     assert_eq!(
-        s.controller.report_to(),
+        s.controller.report_settings().location_to,
         Some(HOST),
         "reports stay with the owner"
     );
@@ -71,7 +71,7 @@ fn a_strangers_stopped_changes_neither_owner_nor_report_port_nor_silence() {
     s.now_us += 1_000_000;
     let r = s.send_raw(OTHER, &frame(201, Command::Status));
     assert_eq!(status_of(&r), Ok);
-    assert_eq!(s.controller.report_to(), Some(OTHER));
+    assert_eq!(s.controller.report_settings().location_to, Some(OTHER));
 }
 
 #[test]
@@ -129,7 +129,7 @@ fn not_owner_comes_before_decode_errors_and_duplicates() {
 }
 
 #[test]
-fn every_ack_goes_to_its_sender_and_reports_to_the_owners_last_accepted_port() {
+fn every_ack_and_status_goes_to_its_sender_and_location_to_the_uploader() {
     let mut s = Session::<16>::new(16);
     let a = Endpoint {
         port: 5_001,
@@ -141,17 +141,28 @@ fn every_ack_goes_to_its_sender_and_reports_to_the_owners_last_accepted_port() {
     };
     let r = s.send_raw(a, &frame(1, Command::Status));
     assert_eq!(r.reply.map(|r| r.to), Some(a));
-    assert!(r.status.is_some());
-    assert_eq!(s.controller.report_to(), Some(a));
+    assert_eq!(r.status.map(|(to, _)| to), Some(a));
+    assert_eq!(s.controller.report_settings().location_to, Some(a));
     let r = s.send_raw(b, &frame(2, Command::Status));
     assert_eq!(r.reply.map(|r| r.to), Some(b));
-    assert_eq!(s.controller.report_to(), Some(b), "STATUS report goes to b");
-    // A stranger's STOPPED is ACKed to the stranger; its LOCATION goes to the owner.
+    assert_eq!(
+        r.status.map(|(to, _)| to),
+        Some(b),
+        "STATUS report goes to b"
+    );
+    assert_eq!(
+        s.controller.report_settings().location_to,
+        Some(a),
+        "a STATUS does not take LOCATION away from a"
+    );
+    // b starts an upload: LOCATION follows it. A stranger's STOPPED is ACKed to the
+    // stranger; its LOCATION goes to b.
     s.send_raw(b, &frame(3, Command::New { count: 1 }));
+    assert_eq!(s.controller.report_settings().location_to, Some(b));
     let r = s.send_raw(OTHER, &frame(9, Command::Stopped));
     assert_eq!(r.reply.map(|r| r.to), Some(OTHER));
     assert_eq!(r.location.map(|l| l.state), Some(State::Stopped as u8));
-    assert_eq!(s.controller.report_to(), Some(b));
+    assert_eq!(s.controller.report_settings().location_to, Some(b));
 }
 
 // ---- Section 5: ordering and duplicates ----
@@ -687,13 +698,13 @@ fn status_report_bytes_at_their_offsets() {
     // reports off, drivers on, serial open, PIN0 high, PIN1 low, no underrun, PWM off,
     // not stopped.
     assert_eq!(d[5], 0b0000_1110, "flags");
-    assert_eq!(&d[6..8], &[0, 0]);
+    assert_eq!(&d[6..8], &32u16.to_le_bytes(), "window");
     assert_eq!(&d[8..10], &3u16.to_le_bytes(), "buffered");
     assert_eq!(&d[10..12], &0x0107u16.to_le_bytes(), "expected");
     assert_eq!(&d[12..14], &3u16.to_le_bytes(), "received");
     assert_eq!(&d[14..16], &0u16.to_le_bytes(), "executed");
     assert_eq!(&d[16..18], &20u16.to_le_bytes(), "capacity");
-    assert_eq!(&d[18..20], &[0, 0]);
+    assert_eq!(&d[18..20], &[0, 0], "more_flags");
     assert_eq!(&d[20..24], &0x0001_2345u32.to_le_bytes(), "period");
     let clock = s.controller.config().pwm_timer_clock_hz;
     assert_eq!(&d[24..28], &clock.to_le_bytes());

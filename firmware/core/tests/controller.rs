@@ -260,20 +260,26 @@ fn owner_rule() {
     assert_eq!(s.controller.state(), State::Stopped);
     assert_eq!(s.plant.stops, stops + 1);
     assert_eq!(s.controller.owner().map(|o| o.ip), Some(HOST.ip));
-    // Reports go to the owner's most recent accepted port.
+    // LOCATION goes to the endpoint that turned reports on.
     s.from = Endpoint {
         port: 41_000,
         ..HOST
     };
-    s.expect(Command::Status, Ok);
-    assert_eq!(s.controller.report_to(), Some(s.from));
-    // A refused frame does not move the report port.
+    s.expect(Command::UploadStart, Ok);
+    assert_eq!(s.controller.report_settings().location_to, Some(s.from));
+    // A refused frame does not move it.
     s.from = Endpoint {
         port: 41_001,
         ..HOST
     };
-    s.expect(Command::Runing, BadState);
-    assert_eq!(s.controller.report_to().map(|e| e.port), Some(41_000));
+    s.expect(Command::Return, Ok);
+    s.expect(Command::Return, BadState);
+    assert_eq!(
+        s.controller.report_settings().location_to.map(|e| e.port),
+        Some(41_001),
+        "the executed RETURN moved it"
+    );
+    s.expect(Command::Stopped, Ok);
     // After 5 s of silence, not running, another host takes over.
     s.now_us += OWNER_TIMEOUT_US - 100;
     let r = s.send_raw(OTHER, &frame(2, Command::Status)).reply.unwrap();
@@ -281,7 +287,7 @@ fn owner_rule() {
     s.now_us += 100;
     let r = s.send_raw(OTHER, &frame(3, Command::Status)).reply.unwrap();
     assert_eq!(r.ack.status, Ok);
-    assert_eq!(s.controller.report_to(), Some(OTHER));
+    assert_eq!(s.controller.report_settings().location_to, Some(OTHER));
     let r = s.send_raw(HOST, &frame(50, Command::Status)).reply.unwrap();
     assert_eq!(r.ack.status, NotOwner);
 }
@@ -495,7 +501,7 @@ fn location_on_state_changes_only_while_reports_are_on() {
     assert_eq!(r.location.map(|l| l.state), Some(State::New as u8));
     let r = s.send_raw(HOST, &frame(3, Command::Status));
     assert!(r.location.is_none(), "no change");
-    assert_eq!(r.status.map(|st| st.version), Some(protocol::VERSION));
+    assert_eq!(r.status.map(|(_, st)| st.version), Some(protocol::VERSION));
     s.send_raw(HOST, &frame(4, Command::UploadStop));
     let r = s.send_raw(HOST, &pending(5, &points([0; 8], 1, 1)));
     assert_eq!(r.reply.map(|r| r.ack.status), Some(Ok));

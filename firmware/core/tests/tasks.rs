@@ -309,7 +309,7 @@ fn datagrams_in_acks_and_steps_out() {
 
     let isr = step_interrupt(&kick, &step, &pins, &bus);
     let tasks = join5(
-        network_task(&socket, &bus),
+        network_task(&socket, &bus, &clock),
         trajectory_task(
             &mut controller,
             &bus,
@@ -469,7 +469,8 @@ fn stopped_overtakes_queued_uploads() {
     // The network task's routing, before the trajectory task gets to run: a full inbox
     // of uploads, then a STOPPED.
     let mut routed = 0;
-    for seq in 0..20u8 {
+    let sent = arm_core::tasks::INBOX_QUEUE + 12;
+    for seq in 0..sent as u8 {
         let cmd = if seq == 0 {
             Command::New { count: 100 }
         } else {
@@ -478,7 +479,8 @@ fn stopped_overtakes_queued_uploads() {
         bus_route(&bus, HOST, &frame(seq, cmd));
         routed += 1;
     }
-    assert_eq!(routed, 20);
+    assert_eq!(routed, sent);
+    assert_eq!(bus.inbox_drops(), 12);
     assert_eq!(
         bus.inbox.len(),
         arm_core::tasks::INBOX_QUEUE,
@@ -536,7 +538,7 @@ fn with_tasks<'a, F: Future<Output = ()>>(
     let outputs = RefCell::new(TestOutputs::default());
     let isr = step_interrupt(&kick, step, pins, &bus);
     let tasks = join5(
-        network_task(socket, &bus),
+        network_task(socket, &bus, &clock),
         trajectory_task(
             &mut controller,
             &bus,
@@ -733,7 +735,7 @@ fn reports_queued_before_a_wait_go_to_the_sender_of_the_frame() {
             if let Ok(arm_core::Outgoing::Location(location)) = bus.outbox.try_receive() {
                 // What the network task would read to address it, at this instant.
                 assert_eq!(location.state, State::Running as u8);
-                assert_eq!(bus.report_settings().to, Some(HOST));
+                assert_eq!(bus.report_settings().location_to, Some(HOST));
                 return;
             }
             yield_now().await;
@@ -890,11 +892,11 @@ fn stopped_cancels_the_run_of_the_frames_it_overtook() {
             rig.sent
                 .borrow()
                 .iter()
-                .any(|o| matches!(o, arm_core::Outgoing::Status(_)))
+                .any(|o| matches!(o, arm_core::Outgoing::Status(..)))
         })
         .await;
         let status = rig.sent.borrow().iter().find_map(|o| match o {
-            arm_core::Outgoing::Status(s) => Some(*s),
+            arm_core::Outgoing::Status(_, s) => Some(*s),
             _ => None,
         });
         let status = status.unwrap_or_else(|| unreachable!());
@@ -995,8 +997,125 @@ fn each_overtaking_stopped_cancels_what_came_before_it() {
 
 /// Routes a datagram as the network task does.
 fn bus_route(bus: &Bus, from: Endpoint, bytes: &[u8]) {
-    bus.route(arm_core::Datagram::new(
-        from,
-        heapless::Vec::from_slice(bytes).unwrap(),
-    ));
+    bus.route(
+        arm_core::Datagram::new(from, heapless::Vec::from_slice(bytes).unwrap()),
+        0,
+    );
+}
+
+/// A frame with any tag and data, with a correct CRC (for lengths no command has).
+fn raw(seq: u8, tag: u8, data: &[u8]) -> Vec<u8> {
+    let mut bytes = vec![seq, tag];
+    bytes.extend_from_slice(data);
+    bytes.push(protocol::crc8(&bytes));
+    bytes
+}
+
+/// Three 1 ms points of +10 steps on every joint: a run the tests can watch end.
+fn three_points() -> Vec<Point> {
+    (1..=3)
+        .map(|k| Point::from_motion(1_000, &[10 * (k - 1); 8], &[10 * k; 8]))
+        .collect()
+}
+
+#[test]
+fn a_refused_stopped_behind_queued_datagrams_does_not_stop_the_run() {
+    // Bug 1: a STOPPED with one data byte (BAD_LENGTH) overtook the queued upload and the
+    // task stopped the run it started anyway.
+    let rig = Rig::new();
+    let pts = three_points();
+    rig.route(&frame(1, Command::New { count: 3 }));
+    rig.route(&frame(2, Command::Pending(PointList::Points(&pts))));
+    for seq in 3..8 {
+        rig.route(&frame(seq, Command::Status));
+    }
+    rig.route(&frame(8, Command::Runing));
+    rig.route(&raw(9, Tag::Stopped as u8, &[0]));
+    assert_eq!((rig.bus.estop.len(), rig.bus.inbox.len()), (1, 8));
+    let limit = Duration::from_secs(5);
+    rig.run(async {
+        until("nine ACKs", limit, || rig.acks().len() >= 9).await;
+        until("the run's end", limit, || {
+            rig.drain();
+            rig.step.positions()[0] == 30
+        })
+        .await;
+        let acks = rig.acks();
+        assert_eq!(
+            acks[0],
+            (9, Tag::Stopped as u8, StatusCode::BadLength, State::Stopped),
+            "refused (handled first, before the upload)"
+        );
+        assert_eq!(
+            acks[8],
+            (8, Tag::Runing as u8, StatusCode::Ok, State::Running)
+        );
+        assert_eq!(rig.pins.borrow().position[0], 30, "every point ran");
+    });
+}
+
+#[test]
+fn a_resent_stopped_does_not_stop_a_fresh_run() {
+    // Bug 1: a retransmitted STOPPED (a duplicate within 2 s) overtook the next run's
+    // upload and stopped it.
+    let rig = Rig::new();
+    let pts = three_points();
+    let stop = frame(1, Command::Stopped);
+    rig.route(&stop);
+    let limit = Duration::from_secs(5);
+    rig.run(async {
+        until("STOPPED's ACK", limit, || rig.acks().len() >= 1).await;
+        // All queued before the task runs again; the resent STOPPED overtakes them.
+        rig.route(&frame(2, Command::New { count: 3 }));
+        rig.route(&frame(3, Command::Pending(PointList::Points(&pts))));
+        rig.route(&frame(4, Command::Runing));
+        rig.route(&stop);
+        until("five ACKs", limit, || rig.acks().len() >= 5).await;
+        until("the run's end", limit, || {
+            rig.drain();
+            rig.step.positions()[0] == 30
+        })
+        .await;
+        let acks = rig.acks();
+        assert_eq!(acks[1].0, 1, "the duplicate is handled first");
+        assert_eq!(acks[1].2, StatusCode::Ok, "and ACKed OK again");
+        assert_eq!(
+            acks[4],
+            (4, Tag::Runing as u8, StatusCode::Ok, State::Running)
+        );
+        assert_eq!(rig.pins.borrow().position[0], 30, "every point ran");
+    });
+}
+
+#[test]
+fn an_executed_stopped_after_a_refused_one_stops_after_the_frames_between() {
+    // Arrival order: NEW, a refused STOPPED, PENDING, RUNING, STOPPED. The refused one
+    // does nothing, so PENDING and RUNING are taken (ACKs as in arrival order), and the
+    // real STOPPED cancels the run before any pulse.
+    let rig = Rig::new();
+    let pts = three_points();
+    rig.route(&frame(1, Command::New { count: 3 }));
+    rig.route(&raw(9, Tag::Stopped as u8, &[7]));
+    rig.route(&frame(2, Command::Pending(PointList::Points(&pts))));
+    rig.route(&frame(3, Command::Runing));
+    rig.route(&frame(4, Command::Stopped));
+    let limit = Duration::from_secs(5);
+    rig.run(async {
+        until("five ACKs", limit, || rig.acks().len() >= 5).await;
+        rig.wait_ms(30).await;
+        let acks = rig.acks();
+        use StatusCode::{BadLength, Ok};
+        assert_eq!(acks[0].2, BadLength);
+        assert_eq!(acks[1], (4, Tag::Stopped as u8, Ok, State::Stopped));
+        assert_eq!(
+            acks[2..],
+            [
+                (1, Tag::New as u8, Ok, State::New),
+                (2, Tag::Pending as u8, Ok, State::Pending),
+                (3, Tag::Runing as u8, Ok, State::Running),
+            ]
+        );
+        assert_eq!(rig.pins.borrow().pulses, 0, "no STEP pulse, ever");
+        assert_eq!(rig.bus.report_settings().state, State::Stopped);
+    });
 }

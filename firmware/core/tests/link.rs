@@ -1,0 +1,267 @@
+//! Issue 14's link rules, sans-io: only an executed STOPPED stops (bug 1), the ordering
+//! rule and the reports follow endpoints, not addresses (bug 2), and the smaller findings
+//! (NOT_OWNER tells nothing, hand-over drops an unstarted upload, the advertised window).
+
+mod common;
+
+use arm_core::config::{DUPLICATE_WINDOW_US, OWNER_TIMEOUT_US};
+use arm_core::hw::Endpoint;
+use arm_core::tasks::OvertakingStops;
+use common::*;
+use protocol::{Command, State, StatusCode, Tag, crc8};
+
+use StatusCode::*;
+
+fn raw(seq: u8, tag: u8, data: &[u8]) -> Vec<u8> {
+    let mut bytes = vec![seq, tag];
+    bytes.extend_from_slice(data);
+    bytes.push(crc8(&bytes));
+    bytes
+}
+
+/// A second tool on the owner's machine: same address, another port.
+const TOOL: Endpoint = Endpoint {
+    port: 40_999,
+    ..HOST
+};
+
+// ---- Bug 1: only an executed STOPPED counts ----
+
+#[test]
+fn only_an_executed_stopped_says_it_was_executed() {
+    let mut s = Session::<16>::new(16);
+    let r = s.send_raw(HOST, &raw(1, Tag::Stopped as u8, &[0]));
+    assert_eq!(
+        (r.reply.unwrap().ack.status, r.executed),
+        (BadLength, false)
+    );
+    let stop = frame(2, Command::Stopped);
+    let r = s.send_raw(HOST, &stop);
+    assert_eq!((r.reply.unwrap().ack.status, r.executed), (Ok, true));
+    let r = s.send_raw(HOST, &stop);
+    assert_eq!(
+        (r.reply.unwrap().ack.status, r.executed),
+        (Ok, false),
+        "a duplicate is ACKed OK but not executed"
+    );
+    s.now_us += DUPLICATE_WINDOW_US;
+    let r = s.send_raw(HOST, &stop);
+    assert!(r.executed, "after the window it is a new command");
+    let r = s.send_raw(OTHER, &raw(3, Tag::Stopped as u8, &[]));
+    assert!(r.executed, "a stranger's STOPPED is executed");
+}
+
+#[test]
+fn overtaking_stops_tell_executed_from_refused() {
+    let mut stops = OvertakingStops::new();
+    // Datagram stamped 0 arrived before STOPPED 0 (refused) and STOPPED 1 (executed).
+    stops.took(false);
+    assert!(!stops.executed_between(0, None));
+    stops.took(true);
+    assert!(stops.executed_between(0, None));
+    assert!(
+        !stops.executed_between(0, Some(1)),
+        "only the refused one in 0..1"
+    );
+    assert!(stops.executed_between(1, Some(2)));
+    assert!(!stops.executed_between(2, None), "arrived after both");
+    assert!(!stops.executed_between(1, Some(1)), "empty range");
+    // Far more refused STOPPEDs than the memory: an old executed one is still seen;
+    // beyond the memory the answer is the safe one (stop).
+    for _ in 0..100 {
+        stops.took(false);
+    }
+    assert!(stops.executed_between(1, Some(2)));
+    assert!(!stops.executed_between(2, None));
+    for _ in 0..100 {
+        stops.took(false);
+    }
+    assert!(
+        stops.executed_between(1, Some(2)),
+        "forgotten: counted as a stop"
+    );
+    // Wrapping stamps.
+    let mut stops = OvertakingStops::new();
+    for _ in 0..5 {
+        stops.took(false);
+    }
+    assert!(!stops.executed_between(u32::MAX - 3, None));
+}
+
+// ---- Bug 2: the ordering rule counts only the uploader's endpoint ----
+
+#[test]
+fn a_second_tool_on_the_owners_address_does_not_move_next_seq() {
+    let mut s = Session::<64>::new(64);
+    let pts = points([0; 8], 4, 1);
+    assert_eq!(
+        s.send_raw(HOST, &frame(10, Command::New { count: 4 }))
+            .reply
+            .unwrap()
+            .ack
+            .status,
+        Ok
+    );
+    let ack = s.send_raw(HOST, &pending(11, &pts[..2])).reply.unwrap().ack;
+    assert_eq!((ack.status, ack.next_seq), (Ok, 12));
+    // Another socket on the same machine polls STATUS with seq 12.
+    let ack = s
+        .send_raw(TOOL, &frame(12, Command::Status))
+        .reply
+        .unwrap()
+        .ack;
+    assert_eq!(ack.status, Ok);
+    assert_eq!(
+        s.controller.next_seq(),
+        12,
+        "the tool's seq is not the uploader's"
+    );
+    let ack = s.send_raw(HOST, &pending(12, &pts[2..])).reply.unwrap().ack;
+    assert_eq!((ack.status, ack.next_seq), (Ok, 13), "{ack:?}");
+    assert_eq!(s.controller.buffered(), 4, "no point lost");
+}
+
+#[test]
+fn the_uploaders_own_commands_still_fill_gaps() {
+    let mut s = Session::<64>::new(64);
+    let pts = points([0; 8], 4, 1);
+    s.send_raw(HOST, &frame(10, Command::New { count: 4 }));
+    s.send_raw(HOST, &pending(11, &pts[..2]));
+    s.send_raw(HOST, &frame(12, Command::Status));
+    s.send_raw(TOOL, &frame(13, Command::Status));
+    assert_eq!(s.controller.next_seq(), 13);
+    let ack = s.send_raw(HOST, &pending(14, &pts[2..])).reply.unwrap().ack;
+    assert_eq!((ack.status, ack.next_seq), (OutOfOrder, 13));
+    let ack = s.send_raw(HOST, &pending(13, &pts[2..])).reply.unwrap().ack;
+    assert_eq!(ack.status, Ok);
+}
+
+// ---- Bug 2: who gets which report ----
+
+#[test]
+fn status_answers_its_requester_and_location_stays_with_the_uploader() {
+    let mut s = Session::<64>::new(64);
+    let pts = points([0; 8], 2, 1);
+    s.send_raw(HOST, &frame(1, Command::New { count: 2 }));
+    let r = s.send_raw(TOOL, &frame(7, Command::Status));
+    assert_eq!(
+        r.status.map(|(to, _)| to),
+        Some(TOOL),
+        "STATUS to its requester"
+    );
+    assert_eq!(s.controller.report_settings().location_to, Some(HOST));
+    s.send_raw(HOST, &pending(2, &pts));
+    let r = s.send_raw(TOOL, &frame(8, Command::Status));
+    assert_eq!(r.status.map(|(to, _)| to), Some(TOOL));
+    let r = s.send_raw(HOST, &frame(3, Command::Runing));
+    assert!(r.location.is_some());
+    assert_eq!(s.controller.report_settings().location_to, Some(HOST));
+    // UPLOAD_START from the tool: it turned reports on, LOCATION follows it.
+    s.send_raw(TOOL, &frame(9, Command::UploadStart));
+    assert_eq!(s.controller.report_settings().location_to, Some(TOOL));
+}
+
+#[test]
+fn usart_recv_goes_to_the_endpoint_that_opened_the_port() {
+    let mut s = Session::<64>::new(64);
+    s.send_raw(HOST, &frame(1, Command::Status));
+    let init = protocol::UartInit {
+        baud_rate: 115_200,
+        ..Default::default()
+    };
+    let r = s.send_raw(TOOL, &frame(1, Command::UsartStart(init)));
+    assert_eq!(r.reply.unwrap().ack.status, Ok);
+    s.send_raw(HOST, &frame(2, Command::Status));
+    assert_eq!(s.controller.report_settings().serial_to, Some(TOOL));
+    assert_eq!(s.controller.report_settings().location_to, Some(HOST));
+}
+
+#[test]
+fn reports_of_a_tool_gone_silent_fall_back_to_the_owners_next_sender() {
+    let mut s = Session::<64>::new(64);
+    s.send_raw(TOOL, &frame(1, Command::UploadStart));
+    s.send_raw(HOST, &frame(1, Command::Status));
+    assert_eq!(s.controller.report_settings().location_to, Some(TOOL));
+    s.now_us += OWNER_TIMEOUT_US;
+    s.send_raw(HOST, &frame(2, Command::Status));
+    assert_eq!(
+        s.controller.report_settings().location_to,
+        Some(HOST),
+        "the tool was silent 5 s: its claim lapsed"
+    );
+}
+
+#[test]
+fn one_tool_gets_every_report_as_before() {
+    let mut s = Session::<64>::new(64);
+    let r = s.send_raw(HOST, &frame(1, Command::Status));
+    assert_eq!(r.status.map(|(to, _)| to), Some(HOST));
+    let settings = s.controller.report_settings();
+    assert_eq!(
+        (settings.location_to, settings.serial_to),
+        (Some(HOST), Some(HOST))
+    );
+}
+
+// ---- Smaller findings ----
+
+#[test]
+fn a_not_owner_ack_tells_nothing() {
+    let mut s = Session::<64>::new(64);
+    let pts = points([0; 8], 2, 1);
+    s.send_raw(HOST, &frame(1, Command::New { count: 4 }));
+    s.send_raw(HOST, &pending(2, &pts));
+    let ack = s
+        .send_raw(OTHER, &frame(5, Command::Status))
+        .reply
+        .unwrap()
+        .ack;
+    assert_eq!(ack.status, NotOwner);
+    assert_eq!(
+        (ack.state as u8, ack.next_seq, ack.buffered, ack.free),
+        (0, 0, 0, 0),
+        "{ack:?}"
+    );
+}
+
+#[test]
+fn hand_over_drops_an_unstarted_upload_and_says_so() {
+    let mut s = Session::<64>::new(64);
+    let pts = points([0; 8], 2, 1);
+    s.send_raw(HOST, &frame(1, Command::New { count: 4 }));
+    s.send_raw(HOST, &pending(2, &pts));
+    assert_eq!(s.controller.state(), State::Pending);
+    s.now_us += OWNER_TIMEOUT_US;
+    let r = s.send_raw(OTHER, &frame(1, Command::Status));
+    assert_eq!(r.reply.unwrap().ack.status, Ok);
+    assert_eq!(
+        s.controller.state(),
+        State::Stopped,
+        "the old upload is gone"
+    );
+    assert_eq!(s.controller.buffered(), 0);
+    let (_, status) = r.status.unwrap();
+    assert!(status.more_flags.has(protocol::MoreFlags::UPLOAD_DROPPED));
+    let ack = s
+        .send_raw(OTHER, &frame(2, Command::Runing))
+        .reply
+        .unwrap()
+        .ack;
+    assert_eq!(
+        ack.status, BadState,
+        "RUNING cannot start the old owner's half upload"
+    );
+    // A new upload clears the flag.
+    s.send_raw(OTHER, &frame(3, Command::New { count: 1 }));
+    let r = s.send_raw(OTHER, &frame(4, Command::Status));
+    assert_eq!(r.status.unwrap().1.more_flags.0, 0);
+}
+
+#[test]
+fn status_advertises_the_window() {
+    let mut s = Session::<64>::new(64);
+    let r = s.send_raw(HOST, &frame(1, Command::Status));
+    let (_, status) = r.status.unwrap();
+    assert_eq!(usize::from(status.window), arm_core::config::HOST_WINDOW);
+    assert!(status.window >= 32);
+}
