@@ -550,12 +550,25 @@ impl Controller {
         self.send(&Command::UploadPeriod { period_us })
     }
 
+    /// Routes LOCATION reports to this client: UPLOAD_PERIOD with the period in force
+    /// (nothing else changes). The controller sends LOCATION to the endpoint that last
+    /// started an upload or set reports (PROTOCOL.md, "The ordering rule and the reports
+    /// follow endpoints"): a second tool on the same machine, or a fresh `armctl` after
+    /// another, claims them this way. Uploads (NEW) and RETURN claim them by themselves.
+    pub fn claim_locations(&self) -> Result<()> {
+        let period_us = self.status()?.upload_period_us;
+        self.upload_period(period_us).map(|_| ())
+    }
+
     /// A fresh LOCATION report (one that arrives after this call), at most `timeout`
-    /// from now. Location reports must be on (they are by default).
+    /// from now, after claiming the reports for this client ([`Controller::claim_locations`]).
+    /// Location reports must be on (they are by default).
     pub fn current_location(&self, timeout: Duration) -> Result<Location> {
+        let started = Instant::now();
         let locations = self.locations();
+        self.claim_locations()?;
         locations
-            .recv_timeout(timeout)
+            .recv_timeout(timeout.saturating_sub(started.elapsed()))
             .map_err(|_| Error::NoLocation { waited: timeout })
     }
 

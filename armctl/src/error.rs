@@ -142,8 +142,9 @@ impl fmt::Display for Error {
             ),
             Error::NoLocation { waited } => write!(
                 f,
-                "no LOCATION report in {:.1} s: reports may be off (`armctl reports on`), or \
-                 another host owns the controller (reports go to the owner)",
+                "no LOCATION report in {:.1} s: reports may be off (`armctl reports on`), \
+                 another host owns the controller (reports go to the owner), or another \
+                 tool on this machine claimed them since",
                 waited.as_secs_f64()
             ),
             Error::Encode(e) => write!(f, "cannot encode the frame: {e}"),

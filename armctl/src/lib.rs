@@ -39,7 +39,7 @@ pub mod vcd;
 pub use client::{Controller, Options};
 pub use error::{Error, Result, RunEnd};
 pub use rtt::{DEFAULT_MIN_RTO, DUPLICATE_WINDOW, RESEND_HORIZON, RttEstimator};
-pub use run::{DEFAULT_WINDOW, MAX_POINTS, MAX_WINDOW, Progress, RunOptions, RunReport};
+pub use run::{DEFAULT_WINDOW, MAX_POINTS, MAX_WINDOW, Progress, RunOptions, RunReport, window_of};
 
 /// The controller's UDP port, when an address names none.
 pub const DEFAULT_PORT: u16 = 8510;

@@ -175,6 +175,15 @@ fn print_status(s: &StatusReport) {
         "trajectory       {} announced, {} received, {} executed",
         s.expected, s.received, s.executed
     );
+    println!(
+        "window           {} datagrams back to back{}",
+        armctl::window_of(s),
+        if s.window == 0 {
+            " (not advertised: assumed)"
+        } else {
+            ""
+        }
+    );
     println!("report period    {} us", s.upload_period_us);
     println!("max step rate    {} steps/s", s.max_step_rate_hz);
     println!("pwm timer clock  {} Hz", s.pwm_timer_clock_hz);
@@ -192,6 +201,9 @@ fn print_status(s: &StatusReport) {
         flag(StatusFlags::UNDERRUN),
         flag(StatusFlags::STOPPED_BY_HOST)
     );
+    if s.more_flags.has(protocol::MoreFlags::UPLOAD_DROPPED) {
+        println!("an unstarted upload was dropped when another host took the controller over");
+    }
 }
 
 fn location_line(location: &Location, joints: usize) -> String {
@@ -206,6 +218,8 @@ fn watch(arm: &Controller, record: Option<&std::path::Path>, duration: Option<f6
     let status = arm.status().map_err(|e| e.to_string())?;
     let joints = usize::from(status.joints).clamp(1, 8);
     let locations = arm.locations();
+    // LOCATION reports go to the tool that asked last: this one, from now on.
+    arm.claim_locations().map_err(|e| e.to_string())?;
     let mut recorder = record
         .map(|path| Recorder::create(path, joints).map_err(|e| format!("{}: {e}", path.display())))
         .transpose()?;

@@ -25,7 +25,7 @@ pub const MAX_WINDOW: usize = 32;
 
 /// The window of a controller that advertises none (STATUS `window` 0: an older
 /// controller): what every controller takes back to back.
-pub const DEFAULT_WINDOW: usize = 8;
+pub const DEFAULT_WINDOW: usize = protocol::DEFAULT_WINDOW as usize;
 
 /// How a trajectory is uploaded and run.
 #[derive(Clone, Debug)]
@@ -569,11 +569,13 @@ fn run_ended(status: Option<&StatusReport>, total: usize) -> Error {
     }
 }
 
-/// The window a STATUS advertises: datagrams the controller takes back to back.
-pub(crate) fn window_of(status: &StatusReport) -> usize {
-    // TODO(link-core merge): STATUS `window` (offset 6) once the protocol crate has it.
-    let _ = status;
-    DEFAULT_WINDOW
+/// The window a STATUS advertises: datagrams the controller takes back to back
+/// ([`DEFAULT_WINDOW`] when it advertises none, at most [`MAX_WINDOW`]).
+pub fn window_of(status: &StatusReport) -> usize {
+    match status.window {
+        0 => DEFAULT_WINDOW,
+        n => usize::from(n).min(MAX_WINDOW),
+    }
 }
 
 impl Controller {
@@ -769,6 +771,18 @@ mod tests {
         // Everything arrived and ran, yet UNDERRUN: the controller's fault again.
         let e = ended(StatusFlags::UNDERRUN, 1_200, 1_199, 1_200);
         assert_eq!(reason(&e), RunEnd::Starved, "{e}");
+    }
+
+    #[test]
+    fn the_window_is_the_advertised_one_or_eight() {
+        let status = |window| StatusReport {
+            window,
+            ..StatusReport::default()
+        };
+        assert_eq!(window_of(&status(0)), 8, "an old controller");
+        assert_eq!(window_of(&status(32)), 32);
+        assert_eq!(window_of(&status(4)), 4);
+        assert_eq!(window_of(&status(1000)), MAX_WINDOW);
     }
 
     #[test]

@@ -238,3 +238,32 @@ fn an_upload_slower_than_the_run_is_reported_as_such() {
     }
     assert!(err.to_string().contains("upload was too slow"), "{err}");
 }
+
+/// The client keeps as many frames in flight as the controller advertises in STATUS
+/// `window`, 8 when it advertises none, and an explicit window wins.
+#[test]
+fn the_advertised_window_is_used_by_default() {
+    for (advertised, used) in [(0u16, 8usize), (3, 3), (32, 32)] {
+        let fake = Fake::start(
+            4000,
+            Faults {
+                window: advertised,
+                ..Faults::default()
+            },
+        );
+        let arm = Controller::connect_with(fake.addr, options()).unwrap();
+        assert_eq!(arm.advertised_window().unwrap(), used);
+        let points = ramp(600, 1, 500);
+        let report = arm
+            .run_trajectory(&points, &RunOptions::default(), |_| {})
+            .unwrap();
+        assert_eq!(report.window, used, "advertised {advertised}");
+        assert_eq!(fake.counters().taken, points);
+        let explicit = RunOptions {
+            window: 2,
+            ..RunOptions::default()
+        };
+        let report = arm.run_trajectory(&points, &explicit, |_| {}).unwrap();
+        assert_eq!(report.window, 2);
+    }
+}

@@ -34,6 +34,8 @@ pub struct Faults {
     /// with an underrun although points are still buffered (a controller that cannot feed
     /// its step engine in time).
     pub fall_behind_after: Option<u16>,
+    /// The window STATUS advertises (0: none, as an older controller).
+    pub window: u16,
 }
 
 /// What the fake counted.
@@ -86,6 +88,7 @@ struct Sim {
     upload_period: Duration,
     last_report: Instant,
     fall_behind_after: Option<u16>,
+    window: u16,
 }
 
 /// A running fake controller on 127.0.0.1.
@@ -124,6 +127,7 @@ impl Fake {
             upload_period: Duration::from_millis(10),
             last_report: Instant::now(),
             fall_behind_after: faults.fall_behind_after,
+            window: faults.window,
         }));
         let shutdown = Arc::new(AtomicBool::new(false));
         let thread = {
@@ -332,6 +336,8 @@ impl Sim {
                 upload_period_us: self.upload_period.as_micros() as u32,
                 pwm_timer_clock_hz: 240_000_000,
                 max_step_rate_hz: 50_000,
+                window: self.window,
+                ..StatusReport::default()
             };
             self.report(&Report::Status(status), link);
         }
