@@ -267,3 +267,39 @@ fn the_advertised_window_is_used_by_default() {
         assert_eq!(report.window, 2);
     }
 }
+
+/// One PENDING lost in the middle of a window: the frames after it are refused
+/// OUT_OF_ORDER, and the client goes back to `next_seq` at once instead of waiting for an
+/// ACK timeout.
+#[test]
+fn out_of_order_goes_back_at_once() {
+    // Datagram 0 is connect's STATUS, 1 the NEW, 2.. the PENDING frames: the third is lost.
+    let fake = Fake::start(
+        4000,
+        Faults {
+            drop_received: Some(4),
+            ..Faults::default()
+        },
+    );
+    // A long ACK timeout: waiting for one would show.
+    let arm = Controller::connect_with(
+        fake.addr,
+        Options {
+            ack_timeout: Duration::from_secs(2),
+            min_ack_timeout: Duration::from_secs(1),
+            ..options()
+        },
+    )
+    .unwrap();
+    let points = ramp(240, 1, 500);
+    let run = RunOptions {
+        window: 8,
+        wait: false,
+        ..RunOptions::default()
+    };
+    let report = arm.run_trajectory(&points, &run, |_| {}).unwrap();
+    assert_eq!(fake.counters().taken, points);
+    assert!(report.out_of_order >= 1, "{report:?}");
+    // No 1 s wait: the OUT_OF_ORDER answers brought the lost frame back.
+    assert_eq!(report.timeouts, 0, "{report:?}");
+}

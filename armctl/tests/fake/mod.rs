@@ -36,6 +36,8 @@ pub struct Faults {
     pub fall_behind_after: Option<u16>,
     /// The window STATUS advertises (0: none, as an older controller).
     pub window: u16,
+    /// Drops the received datagram with this index (0 = the first), once.
+    pub drop_received: Option<usize>,
 }
 
 /// What the fake counted.
@@ -197,6 +199,7 @@ fn serve(socket: UdpSocket, sim: Arc<Mutex<Sim>>, shutdown: Arc<AtomicBool>, fau
     };
     let mut in_rng = Rng(faults.seed.wrapping_mul(31).max(7));
     let mut held_in: Option<(Vec<u8>, SocketAddr)> = None;
+    let mut received = 0usize;
     let mut buf = [0u8; MAX_DATAGRAM];
     while !shutdown.load(Ordering::Relaxed) {
         let mut incoming = Vec::new();
@@ -218,6 +221,10 @@ fn serve(socket: UdpSocket, sim: Arc<Mutex<Sim>>, shutdown: Arc<AtomicBool>, fau
             burst.truncate(faults.inbox);
         }
         for (datagram, from) in burst {
+            received += 1;
+            if faults.drop_received == Some(received - 1) {
+                continue;
+            }
             if !in_rng.chance(faults.loss) {
                 if held_in.is_none() && in_rng.chance(faults.reorder) {
                     held_in = Some((datagram, from));
