@@ -255,3 +255,49 @@ fn dry_run_checks_step_rates_without_a_controller() {
     assert!(stderr.contains("limit of 100000 steps/s"), "{stderr}");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// The bug 2 as a user meets it: `armctl run` while `armctl status` polls every
+/// 0.2 s from the same machine. Each poll is another socket on the owner's address; its
+/// STATUS must neither break the upload's order nor take its reports. (Whether a poll's
+/// seq collides with the upload's is chance here; sim-host's own UDP tests reproduce the
+/// collision deterministically. This checks the tools together.)
+#[test]
+fn a_run_with_status_polled_alongside_ends_exactly() {
+    // A buffer of 64 points: the upload streams for the whole run, between the polls.
+    let sim = SimHost::start(&["--joints", "2", "--buffer-capacity", "64"]);
+    let file = sim.dir().join("two.csv");
+    sine_csv(&file, 2, 3);
+    let controller = sim.addr.to_string();
+    let done = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let poller = {
+        let controller = controller.clone();
+        let done = done.clone();
+        std::thread::spawn(move || {
+            let mut polls = 0;
+            // Bounded: at most 100 polls (20 s) even if the run never ends.
+            while !done.load(std::sync::atomic::Ordering::Relaxed) && polls < 100 {
+                let out = armctl(&["--controller", &controller, "status"]);
+                assert!(out.status.success(), "{}", text(&out.stderr));
+                polls += 1;
+                std::thread::sleep(std::time::Duration::from_millis(200));
+            }
+            polls
+        })
+    };
+    let out = armctl(&[
+        "--controller",
+        &controller,
+        "run",
+        file.to_str().unwrap(),
+        "--quiet",
+    ]);
+    done.store(true, std::sync::atomic::Ordering::Relaxed);
+    let polls = poller.join().unwrap();
+    let (stdout, stderr) = (text(&out.stdout), text(&out.stderr));
+    assert!(out.status.success(), "{stdout}\n{stderr}\n{}", sim.log());
+    assert!(
+        stdout.contains("final positions match the last point"),
+        "{stdout}"
+    );
+    assert!(polls >= 5, "only {polls} polls during the run");
+}
