@@ -14,9 +14,18 @@ use protocol::MAX_DATAGRAM;
 use crate::faults::{Direction, FaultConfig, FaultInjector, FaultStats};
 use crate::probe::Probe;
 
-/// Datagrams received and not yet taken by the network task; beyond this the receiving
-/// thread waits and the kernel's socket buffer holds the rest, as a NIC's ring would.
-const RX_QUEUE: usize = 32;
+/// Datagrams received and not yet taken by the network task: a host's whole window
+/// ([`arm_core::config::HOST_WINDOW`] = 32) plus 8 for other tools' commands, as the
+/// board's Ethernet ring. Beyond this the receiving thread waits and the kernel's socket
+/// buffer ([`SOCKET_RX_BYTES`]) holds the rest, as a NIC's ring would.
+const RX_QUEUE: usize = arm_core::tasks::INBOX_QUEUE;
+
+/// Receive buffer asked of the kernel: two windows of full-size datagrams at the kernel's
+/// cost per datagram (its buffer accounting charges the whole socket buffer of a
+/// datagram, about 2.3 KiB on loopback for 1472 bytes; 4 KiB leaves a margin):
+/// 2 x 40 x 4 KiB = 320 KiB. Linux caps it at `net.core.rmem_max` (usually 208 KiB,
+/// still 50 such datagrams); the kernel drops silently beyond it.
+const SOCKET_RX_BYTES: usize = 2 * RX_QUEUE * 4096;
 
 /// A received datagram.
 #[derive(Clone, Debug)]
@@ -47,6 +56,7 @@ impl UdpDatagrams {
     /// Binds `addr` and starts the receiving thread.
     pub fn bind(addr: SocketAddrV4, probe: Arc<Probe>) -> std::io::Result<&'static UdpDatagrams> {
         let socket = UdpSocket::bind(addr)?;
+        set_receive_buffer(&socket, SOCKET_RX_BYTES);
         let datagrams: &'static UdpDatagrams = Box::leak(Box::new(UdpDatagrams {
             socket,
             received: Channel::new(),
@@ -90,6 +100,43 @@ impl UdpDatagrams {
             };
             embassy_futures::block_on(self.received.send(received));
         }
+    }
+}
+
+/// Asks the kernel for a receive buffer of `bytes` (it may grant less: logged).
+fn set_receive_buffer(socket: &UdpSocket, bytes: usize) {
+    use std::os::fd::AsRawFd;
+    let size = libc::c_int::try_from(bytes).unwrap_or(libc::c_int::MAX);
+    let len = std::mem::size_of::<libc::c_int>() as libc::socklen_t;
+    // SAFETY: a valid socket descriptor and a pointer to a c_int of the given length.
+    let set = unsafe {
+        libc::setsockopt(
+            socket.as_raw_fd(),
+            libc::SOL_SOCKET,
+            libc::SO_RCVBUF,
+            (&raw const size).cast(),
+            len,
+        )
+    };
+    let mut granted: libc::c_int = 0;
+    let mut granted_len = len;
+    // SAFETY: as above, with room for the c_int the kernel writes.
+    let got = unsafe {
+        libc::getsockopt(
+            socket.as_raw_fd(),
+            libc::SOL_SOCKET,
+            libc::SO_RCVBUF,
+            (&raw mut granted).cast(),
+            &raw mut granted_len,
+        )
+    };
+    if set != 0 || got != 0 {
+        log::warn!(
+            "udp: cannot size the receive buffer: {}",
+            std::io::Error::last_os_error()
+        );
+    } else {
+        log::debug!("udp: receive buffer {granted} bytes (asked {bytes})");
     }
 }
 

@@ -38,8 +38,10 @@
 //!
 //! # Memory
 //! Every task, driver and buffer is a `static` (`StaticCell`), initialised once in `main`;
-//! there is no heap. The trajectory buffer (8192 points, 288 KiB) and the network buffers
-//! are in AXI SRAM, the stack in DTCM (see `memory.x`).
+//! there is no heap. The trajectory buffer (8192 points, 288 KiB), the UDP socket and the
+//! tasks' queues are in AXI SRAM, the Ethernet descriptor ring (62 KiB, sized with the
+//! socket and the inbox for a burst of 32 full datagrams, see `net.rs`) in SRAM1, the
+//! stack in DTCM (see `memory.x`).
 
 #![no_std]
 #![no_main]
@@ -119,22 +121,28 @@ static SERIAL: StaticCell<BoardSerial> = StaticCell::new();
 static SOCKET: StaticCell<BoardSocket> = StaticCell::new();
 static RX_RING: ConstStaticCell<[u8; RX_RING_BYTES]> = ConstStaticCell::new([0; RX_RING_BYTES]);
 
-/// Datagrams the socket queues in each direction.
-const UDP_PACKETS: usize = 8;
-/// Receive buffer: a host keeps a window of PENDING frames (up to 1395 bytes each; armctl
-/// sends 4) in flight; four full-size datagrams cover it while the stack waits for the
-/// network task.
-const UDP_RX_BYTES: usize = 4 * MAX_DATAGRAM;
-/// Transmit buffer: arm-core's outbox holds 16 frames of at most 260 bytes (USART_RECV);
-/// 4 KiB takes a whole outbox burst.
-const UDP_TX_BYTES: usize = 4096;
+/// Datagrams the socket's receive side queues: a host's whole window
+/// ([`arm_core::config::HOST_WINDOW`] = 32, sent back to back) plus 8 for other tools'
+/// commands, the same 40 as the Ethernet ring and arm-core's inbox
+/// ([`arm_core::tasks::INBOX_QUEUE`]), so no stage drops a burst the next one could take.
+const UDP_RX_PACKETS: usize = arm_core::tasks::INBOX_QUEUE;
+/// Receive buffer: 40 full-size datagrams, plus one more because smoltcp's packet ring
+/// never splits a datagram across its end (up to one datagram's bytes can sit unused
+/// there): 41 x 1472 = 60,352 bytes.
+const UDP_RX_BYTES: usize = (UDP_RX_PACKETS + 1) * MAX_DATAGRAM;
+/// Datagrams the socket's send side queues: ACKs are small (11 bytes) and the network task
+/// waits when this is full (it never drops); 16 keep the MAC busy.
+const UDP_TX_PACKETS: usize = 16;
+/// Transmit buffer: 16 frames of at most 260 bytes (USART_RECV) = 4160 bytes; 4 KiB plus
+/// room to spare.
+const UDP_TX_BYTES: usize = 16 * 260;
 
 /// The UDP socket's buffers: zeroed statics (`.bss`), taken once by [`bind_socket`].
-static UDP_RX_META: ConstStaticCell<[PacketMetadata; UDP_PACKETS]> =
-    ConstStaticCell::new([PacketMetadata::EMPTY; UDP_PACKETS]);
+static UDP_RX_META: ConstStaticCell<[PacketMetadata; UDP_RX_PACKETS]> =
+    ConstStaticCell::new([PacketMetadata::EMPTY; UDP_RX_PACKETS]);
 static UDP_RX: ConstStaticCell<[u8; UDP_RX_BYTES]> = ConstStaticCell::new([0; UDP_RX_BYTES]);
-static UDP_TX_META: ConstStaticCell<[PacketMetadata; UDP_PACKETS]> =
-    ConstStaticCell::new([PacketMetadata::EMPTY; UDP_PACKETS]);
+static UDP_TX_META: ConstStaticCell<[PacketMetadata; UDP_TX_PACKETS]> =
+    ConstStaticCell::new([PacketMetadata::EMPTY; UDP_TX_PACKETS]);
 static UDP_TX: ConstStaticCell<[u8; UDP_TX_BYTES]> = ConstStaticCell::new([0; UDP_TX_BYTES]);
 
 #[embassy_executor::task]
@@ -144,7 +152,7 @@ async fn net_task(mut runner: net::Runner) -> ! {
 
 #[embassy_executor::task]
 async fn network(socket: &'static BoardSocket) -> ! {
-    arm_core::network_task(socket, &BUS).await
+    arm_core::network_task(socket, &BUS, &CLOCK).await
 }
 
 #[embassy_executor::task]

@@ -1,15 +1,22 @@
 //! Ethernet (LAN8742A PHY over RMII) and the embassy-net stack.
 //!
-//! The MAC's descriptors and packet buffers ([`PacketQueue`]) are a `static` in `.bss`, which
-//! memory.x puts in AXI SRAM: the Ethernet DMA cannot reach DTCM.
+//! The MAC's descriptors and packet buffers ([`PacketQueue`], 62 KiB for a whole burst of
+//! datagrams) are a `static` in SRAM1 (memory.x's `.sram1`, D2 domain): the Ethernet DMA
+//! reaches it (never DTCM), and the AXI SRAM stays for the trajectory buffer, the tasks'
+//! inbox and the UDP socket. The data cache is off, so no MPU region is needed.
 
+use core::mem::MaybeUninit;
+use core::sync::atomic::{AtomicBool, Ordering};
 #[cfg(not(feature = "dhcp"))]
 use embassy_net::{Ipv4Address, Ipv4Cidr, StaticConfigV4};
 use embassy_net::{Stack, StackResources};
 use embassy_stm32::eth::{Ethernet, GenericPhy, PacketQueue, Sma};
 use embassy_stm32::peripherals::{ETH, ETH_SMA};
+
 use embassy_stm32::{Peri, peripherals};
 use static_cell::StaticCell;
+
+use arm_core::config::HOST_WINDOW;
 
 use crate::Irqs;
 
@@ -19,11 +26,17 @@ pub type Device = Ethernet<'static, ETH, GenericPhy<Sma<'static, ETH_SMA>>>;
 pub type Runner = embassy_net::Runner<'static, Device>;
 
 /// Transmit descriptors: a burst of ACK + STATUS + LOCATION + USART_RECV fits without
-/// waiting for the MAC.
+/// waiting for the MAC; a burst of 40 ACKs (11 bytes each, 1.3 us on the wire at
+/// 100 Mbit/s) waits for the MAC for microseconds, which costs nothing.
 const TX_PACKETS: usize = 4;
-/// Receive descriptors: a host streaming PENDING frames back to back (each up to 1395 bytes)
-/// keeps a few in flight; more cost 1.5 KiB each.
-const RX_PACKETS: usize = 4;
+/// Receive descriptors: a whole burst. A host's window is [`HOST_WINDOW`] = 32 datagrams
+/// of up to 1472 bytes sent back to back (32 x 123 us = 3.9 ms at 100 Mbit/s), plus 8 for
+/// other tools' commands, ARP and the like arriving meanwhile: 40. Each descriptor owns a
+/// 1536-byte buffer (embassy-stm32's `RX_BUFFER_SIZE`), so the ring costs
+/// 40 x (1536 + 16) = 62,080 bytes of AXI SRAM. Sized so that nothing is dropped even if
+/// the stack's runner does not get to run during the whole burst (smoltcp and the MAC drop
+/// silently; the host would only see a missing ACK).
+const RX_PACKETS: usize = HOST_WINDOW + 8;
 /// Sockets in the stack: the controller's UDP socket, plus DHCP's when enabled.
 const SOCKETS: usize = 2;
 
@@ -85,17 +98,38 @@ pub fn ip_config(_ip: [u8; 4], _prefix_len: u8) -> embassy_net::Config {
     embassy_net::Config::dhcpv4(Default::default())
 }
 
+/// The MAC's descriptor rings and buffers, in SRAM1 (a NOLOAD section: neither zeroed nor
+/// initialised at boot; [`init`] initialises it in place, once).
+#[unsafe(link_section = ".sram1")]
+static mut PACKETS: MaybeUninit<PacketQueue<TX_PACKETS, RX_PACKETS>> = MaybeUninit::uninit();
+/// [`PACKETS`] was handed out (in `.bss`: zeroed at boot, unlike SRAM1).
+static PACKETS_TAKEN: AtomicBool = AtomicBool::new(false);
+
 /// Brings up the MAC and PHY and creates the stack. Call once.
 pub fn init(
     pins: EthernetPins,
     config: embassy_net::Config,
     seed: u64,
 ) -> (Stack<'static>, Runner) {
-    static PACKETS: StaticCell<PacketQueue<TX_PACKETS, RX_PACKETS>> = StaticCell::new();
     static RESOURCES: StaticCell<StackResources<SOCKETS>> = StaticCell::new();
 
+    if PACKETS_TAKEN.swap(true, Ordering::AcqRel) {
+        defmt::panic!("net::init called twice"); // safe: boot-time bring-up
+    }
+    // SRAM1 is clocked for the CPU (and so follows its run mode) only with SRAM1EN set
+    // (RM0433, RCC_AHB2ENR); set it before the first access.
+    embassy_stm32::pac::RCC
+        .ahb2enr()
+        .modify(|w| w.set_sram1en(true));
+    let packets = &raw mut PACKETS;
+    // SAFETY: the only reference to PACKETS ever made (guarded by PACKETS_TAKEN above).
+    let packets = unsafe { &mut *packets };
+    // 62 KiB: initialised in place (zeroed), never built on the stack first.
+    PacketQueue::init(packets);
+    // SAFETY: `PacketQueue::init` just initialised it (all zeros is its initial state).
+    let packets = unsafe { packets.assume_init_mut() };
     let device = Ethernet::new(
-        PACKETS.init(PacketQueue::new()),
+        packets,
         pins.eth,
         Irqs,
         pins.ref_clk,

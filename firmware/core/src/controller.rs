@@ -8,10 +8,12 @@
 //!    bad CRC never changes the owner.
 //! 3. **owner**: the first sender of a CRC-valid frame owns the controller; another
 //!    address takes over when the owner has been silent for 5 s and the state is not
-//!    RUNNING; other senders get `NOT_OWNER`, except for tag STOPPED (anyone may stop the
-//!    arm).
+//!    RUNNING (an upload it had not started is dropped then: STATUS `more_flags` bit 0);
+//!    other senders get `NOT_OWNER` with zeros for state, next_seq, buffered and free,
+//!    except for tag STOPPED (anyone may stop the arm).
 //! 4. **duplicate**: a frame (sender, seq, tag, CRC) accepted within the last 2 s (and
-//!    among the last 32 accepted) is ACKed `OK` again and not executed.
+//!    among the last [`crate::config::DUPLICATE_MEMORY`] accepted) is ACKed `OK` again and
+//!    not executed ([`Response::executed`] is false).
 //! 5. **decode**: `UNKNOWN_TAG`, `BAD_LENGTH`, `INVALID_CONFIG`, `INVALID_POINT` (duration
 //!    under 1 us), `UNSUPPORTED` (a report tag from a host).
 //! 6. **state**: `BAD_STATE` when the command is not allowed in the current state
@@ -22,9 +24,18 @@
 //!    transmit queue has no room. USART_START: `INVALID_CONFIG` when the port cannot apply
 //!    the settings.
 //!
-//! A frame "accepted" is one ACKed `OK`: it is remembered for duplicate detection, it
-//! counts for the PENDING ordering rule (when it comes from the owner), and its source
-//! port becomes where the owner's reports go.
+//! A frame "accepted" is one ACKed `OK`: it is remembered for duplicate detection and it
+//! counts for the PENDING ordering rule when it comes from the uploader (the endpoint,
+//! address and port, that sent the NEW: another tool on the owner's machine numbers its
+//! seqs on its own).
+//!
+//! # Who gets which report
+//! The ACK and a STATUS report go to the command's sender. LOCATION goes to the owner's
+//! endpoint that started the upload (NEW, RETURN) or turned reports on (UPLOAD_START,
+//! UPLOAD_PERIOD); USART_RECV to the one that sent USART_START; both start at the endpoint
+//! that became the owner. A route whose endpoint has been silent 5 s while the state is
+//! STOPPED passes to the next owner endpoint whose command is executed ([`ReportRoute`]).
+//! One tool with one socket gets everything, as the manual has it.
 //!
 //! # Runs, reports and flags
 //! * A run starts with RUNING (or RETURN) and ends in STOPPED three ways: every point
@@ -211,6 +222,17 @@ pub struct ReportSettings {
 }
 
 impl ReportSettings {
+    /// Before the trajectory task first publishes the controller's: no report anywhere,
+    /// period 0 (the upload task waits for the first publication). All zero bytes, so that
+    /// a [`crate::Bus`] in a `static` is zero-initialised (`.bss`, not a flash copy).
+    pub const UNPUBLISHED: ReportSettings = ReportSettings {
+        location_to: None,
+        serial_to: None,
+        reports_on: false,
+        upload_period_us: 0,
+        state: State::New,
+    };
+
     /// Boot values: reports on at the default period, nobody to send them to yet.
     pub const BOOT: ReportSettings = ReportSettings {
         location_to: None,

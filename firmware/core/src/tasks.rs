@@ -172,7 +172,7 @@ impl Bus {
             step_progress: Signal::new(),
             serial_tx: Channel::new(),
             serial_opened: Signal::new(),
-            reports: Mutex::new(Cell::new(ReportSettings::BOOT)),
+            reports: Mutex::new(Cell::new(ReportSettings::UNPUBLISHED)),
             upload_changed: Signal::new(),
             stops_routed: Mutex::new(Cell::new(0)),
             inbox_drops: Mutex::new(Cell::new((0, LogLimit::new()))),
@@ -545,6 +545,12 @@ pub async fn upload_task<const Q: usize, C: Clock>(
 ) -> ! {
     let mut next = clock.now_us();
     loop {
+        if bus.report_settings().upload_period_us == 0 {
+            // Not published yet (ReportSettings::UNPUBLISHED).
+            bus.upload_changed.wait().await;
+            next = clock.now_us();
+            continue;
+        }
         let period = u64::from(bus.report_settings().upload_period_us.max(1));
         next += period;
         let now = clock.now_us();

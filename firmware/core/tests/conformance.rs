@@ -281,14 +281,14 @@ fn a_late_command_from_before_new_never_lets_a_lost_pending_be_skipped() {
 }
 
 #[test]
-fn duplicates_are_remembered_2_s_and_only_the_last_32() {
+fn duplicates_are_remembered_2_s_and_only_the_last_duplicate_memory() {
     let mut s = Session::<16>::new(16);
     let pin = frame(7, Command::Pin0On);
     s.send_raw(HOST, &pin);
     s.now_us += DUPLICATE_WINDOW_US - 100;
     assert_eq!(status_of(&s.send_raw(HOST, &pin)), Ok);
     assert_eq!(s.plant.pins.len(), 1, "within 2 s: not executed again");
-    // 31 more accepted frames: PIN0_ON 7 is still among the last 32.
+    // DUPLICATE_MEMORY - 1 more accepted frames: PIN0_ON 7 is still remembered.
     let mut s = Session::<16>::new(16);
     s.send_raw(HOST, &pin);
     for seq in 8..8 + DUPLICATE_MEMORY as u8 - 1 {
@@ -299,7 +299,11 @@ fn duplicates_are_remembered_2_s_and_only_the_last_32() {
     // One more: it is forgotten and executed again.
     s.send_raw(HOST, &frame(100, Command::Status));
     s.send_raw(HOST, &pin);
-    assert_eq!(s.plant.pins.len(), 2, "forgotten after 32 newer frames");
+    assert_eq!(
+        s.plant.pins.len(),
+        2,
+        "forgotten after DUPLICATE_MEMORY newer frames"
+    );
 }
 
 #[test]

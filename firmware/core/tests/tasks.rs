@@ -1064,7 +1064,7 @@ fn a_resent_stopped_does_not_stop_a_fresh_run() {
     rig.route(&stop);
     let limit = Duration::from_secs(5);
     rig.run(async {
-        until("STOPPED's ACK", limit, || rig.acks().len() >= 1).await;
+        until("STOPPED's ACK", limit, || !rig.acks().is_empty()).await;
         // All queued before the task runs again; the resent STOPPED overtakes them.
         rig.route(&frame(2, Command::New { count: 3 }));
         rig.route(&frame(3, Command::Pending(PointList::Points(&pts))));

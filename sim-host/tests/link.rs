@@ -1,0 +1,259 @@
+//! Issue 14 over UDP, against the sim-host process: a refused or repeated STOPPED never
+//! stops a run (bug 1), a second tool on the owner's machine disturbs neither the upload
+//! nor another tool's reports (bug 2), and a burst of a whole window is taken whole
+//! (bug 3). Every loop is bounded in count and time; traffic goes to 127.0.0.1 only.
+
+mod common;
+
+use std::collections::HashMap;
+use std::time::{Duration, Instant};
+
+use common::{Client, OwnedReport, Sim, points_through, temp_path};
+use protocol::{
+    Ack, Command, MAX_JOINTS, MAX_POINTS_PER_FRAME, Point, PointList, State, StatusCode,
+    StatusFlags, Tag, crc8,
+};
+
+/// A frame with any tag and data, with a correct CRC.
+fn raw(seq: u8, tag: u8, data: &[u8]) -> Vec<u8> {
+    let mut bytes = vec![seq, tag];
+    bytes.extend_from_slice(data);
+    bytes.push(crc8(&bytes));
+    bytes
+}
+
+fn encoded(seq: u8, command: &Command<'_>) -> Vec<u8> {
+    let mut buf = vec![0u8; protocol::MAX_DATAGRAM];
+    let n = command.encode(seq, &mut buf).expect("encodes");
+    buf.truncate(n);
+    buf
+}
+
+/// Sends `frames` (seq, bytes) back to back, then collects their ACKs (by seq) for up to
+/// `wait`; other reports are kept in `client.reports`.
+fn burst(client: &mut Client, frames: &[(u8, Vec<u8>)], wait: Duration) -> HashMap<u8, Ack> {
+    for (_, bytes) in frames {
+        client.socket.send(bytes).expect("send");
+    }
+    let mut acks = HashMap::new();
+    let deadline = Instant::now() + wait;
+    while acks.len() < frames.len() {
+        let Some(left) = deadline.checked_duration_since(Instant::now()) else {
+            break;
+        };
+        match client.receive(left) {
+            Some((seq, OwnedReport::Ack(ack))) => {
+                acks.insert(seq, ack);
+            }
+            Some(other) => client.reports.push(other),
+            None => break,
+        }
+    }
+    acks
+}
+
+/// `n` points moving joint 0 by +5 steps each, `us` long.
+fn points(n: usize, us: i32) -> Vec<Point> {
+    let targets: Vec<[i32; MAX_JOINTS]> = (1..=n as i32)
+        .map(|i| [i * 5, 0, 0, 0, 0, 0, 0, 0])
+        .collect();
+    points_through([0; MAX_JOINTS], &targets, us)
+}
+
+/// Takes the next `n` seqs of the client.
+fn seqs(client: &mut Client, n: usize) -> Vec<u8> {
+    (0..n)
+        .map(|_| {
+            let s = client.seq;
+            client.seq = client.seq.wrapping_add(1);
+            s
+        })
+        .collect()
+}
+
+/// Queues an upload and its RUNING back to back, then `stop` (a STOPPED that does
+/// nothing); the run must end by completion. Returns the final STATUS.
+fn run_with_a_stop_that_does_nothing(
+    client: &mut Client,
+    pts: &[Point],
+    stop: Vec<u8>,
+) -> protocol::StatusReport {
+    let s = seqs(client, 9);
+    let mut frames = vec![(
+        s[0],
+        encoded(
+            s[0],
+            &Command::New {
+                count: pts.len() as u16,
+            },
+        ),
+    )];
+    frames.push((
+        s[1],
+        encoded(s[1], &Command::Pending(PointList::Points(pts))),
+    ));
+    for &seq in &s[2..8] {
+        frames.push((seq, encoded(seq, &Command::Status)));
+    }
+    frames.push((s[8], encoded(s[8], &Command::Runing)));
+    frames.push((stop[0], stop));
+    let acks = burst(client, &frames, Duration::from_secs(3));
+    for seq in [s[0], s[1], s[8]] {
+        assert_eq!(
+            acks.get(&seq).map(|a| a.status),
+            Some(StatusCode::Ok),
+            "seq {seq}: {acks:?}"
+        );
+    }
+    client.wait_stopped(Duration::from_secs(5))
+}
+
+#[test]
+fn a_refused_or_repeated_stopped_never_stops_the_run_it_overtook() {
+    let sim = Sim::start(&["--settings", temp_path("link-stop.txt").to_str().unwrap()]);
+    let mut client = sim.client();
+    // 20 ms points: a loaded machine must not starve the simulated engine.
+    let pts = points(6, 20_000);
+    let mut stopped = 0;
+    const TRIES: usize = 8;
+    for _ in 0..TRIES {
+        // A STOPPED with one data byte: BAD_LENGTH, so it did nothing.
+        let seq = seqs(&mut client, 1)[0];
+        let status = run_with_a_stop_that_does_nothing(
+            &mut client,
+            &pts,
+            raw(seq, Tag::Stopped as u8, &[0]),
+        );
+        stopped += usize::from(status.flags.has(StatusFlags::STOPPED_BY_HOST));
+        assert_eq!(status.executed, 6, "{status:?}");
+    }
+    for _ in 0..TRIES {
+        // A STOPPED executed before the upload, resent behind it: a duplicate.
+        let seq = seqs(&mut client, 1)[0];
+        let stop = encoded(seq, &Command::Stopped);
+        let acks = burst(&mut client, &[(seq, stop.clone())], Duration::from_secs(2));
+        assert_eq!(acks.get(&seq).map(|a| a.status), Some(StatusCode::Ok));
+        let status = run_with_a_stop_that_does_nothing(&mut client, &pts, stop);
+        stopped += usize::from(status.flags.has(StatusFlags::STOPPED_BY_HOST));
+        assert_eq!(status.executed, 6, "{status:?}");
+    }
+    assert_eq!(stopped, 0, "runs stopped by a STOPPED that did nothing");
+}
+
+#[test]
+fn a_second_tool_on_the_owners_machine_disturbs_neither_upload_nor_reports() {
+    let sim = Sim::start(&["--settings", temp_path("link-tools.txt").to_str().unwrap()]);
+    let mut uploader = sim.client();
+    let mut poller = sim.client();
+    assert_ne!(
+        uploader.socket.local_addr().unwrap(),
+        poller.socket.local_addr().unwrap()
+    );
+    // 24 points of 20 ms: a half-second run.
+    let pts = points(24, 20_000);
+    uploader.seq = 10;
+    uploader.ok(&Command::New { count: 24 });
+    let ack = uploader.ok(&Command::Pending(PointList::Points(&pts[..12])));
+    assert_eq!(ack.next_seq, 12);
+    // The other tool's STATUS uses seq 12 of its own numbering.
+    poller.seq = 12;
+    let status = poller.status();
+    assert_eq!(status.state, State::Pending, "STATUS answers its requester");
+    let ack = uploader.command(&Command::Pending(PointList::Points(&pts[12..])));
+    assert_eq!((ack.status, ack.next_seq), (StatusCode::Ok, 13), "{ack:?}");
+    uploader.ok(&Command::Runing);
+    // The poller polls through the run; LOCATION reports stay with the uploader.
+    let started = Instant::now();
+    let mut polls = 0;
+    let mut final_state = None;
+    while started.elapsed() < Duration::from_secs(5) {
+        let status = poller.status();
+        polls += 1;
+        if status.state == State::Stopped {
+            final_state = Some(status);
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let status = final_state.expect("the run ended");
+    assert_eq!((status.executed, status.expected), (24, 24), "{status:?}");
+    assert!(polls > 3, "{polls}");
+    // What the uploader received meanwhile (periodic LOCATIONs keep coming: read 300 ms).
+    let mut locations = 0;
+    let mut stopped_seen = false;
+    let until = Instant::now() + Duration::from_millis(300);
+    while let Some(left) = until.checked_duration_since(Instant::now()) {
+        let Some(report) = uploader.receive(left) else {
+            break;
+        };
+        if let (_, OwnedReport::Location(l)) = report {
+            locations += 1;
+            stopped_seen |= l.state == State::Stopped as u8;
+        }
+    }
+    let poller_locations = poller
+        .reports
+        .iter()
+        .filter(|(_, r)| matches!(r, OwnedReport::Location(_)))
+        .count();
+    assert!(locations >= 10, "the uploader got {locations} LOCATIONs");
+    assert!(stopped_seen, "the uploader saw the run end");
+    assert_eq!(poller_locations, 0, "the poller got LOCATIONs");
+}
+
+/// NEW then 31 PENDING frames of 12 points (1395 bytes each), back to back: how many of
+/// `tries` bursts were taken whole (every frame ACKed OK).
+fn whole_bursts(client: &mut Client, tries: usize) -> usize {
+    let window = 32;
+    let pts = points(MAX_POINTS_PER_FRAME * (window - 1), 10_000);
+    let mut whole = 0;
+    for _ in 0..tries {
+        let s = seqs(client, window);
+        let mut frames = vec![(
+            s[0],
+            encoded(
+                s[0],
+                &Command::New {
+                    count: pts.len() as u16,
+                },
+            ),
+        )];
+        for (chunk, &seq) in pts.chunks(MAX_POINTS_PER_FRAME).zip(&s[1..]) {
+            frames.push((
+                seq,
+                encoded(seq, &Command::Pending(PointList::Points(chunk))),
+            ));
+        }
+        assert!(frames[1..].iter().all(|(_, b)| b.len() == 1395));
+        let acks = burst(client, &frames, Duration::from_secs(3));
+        let ok = s
+            .iter()
+            .filter(|seq| acks.get(seq).is_some_and(|a| a.status == StatusCode::Ok))
+            .count();
+        whole += usize::from(ok == window);
+    }
+    whole
+}
+
+#[test]
+fn a_burst_of_a_whole_window_is_taken_whole() {
+    let sim = Sim::start(&["--settings", temp_path("link-burst.txt").to_str().unwrap()]);
+    let mut client = sim.client();
+    let status = client.status();
+    assert_eq!(status.window, 32, "STATUS advertises the window");
+    const TRIES: usize = 20;
+    let whole = whole_bursts(&mut client, TRIES);
+    println!(
+        "burst of 32 (NEW + 31 PENDING of 1395 bytes) taken whole in {whole} of {TRIES} tries"
+    );
+    assert_eq!(whole, TRIES);
+    // And a STOPPED behind a burst is still obeyed.
+    let s = seqs(&mut client, 1)[0];
+    let acks = burst(
+        &mut client,
+        &[(s, encoded(s, &Command::Stopped))],
+        Duration::from_secs(2),
+    );
+    assert_eq!(acks.get(&s).map(|a| a.status), Some(StatusCode::Ok));
+    assert_eq!(client.status().state, State::Stopped);
+}
