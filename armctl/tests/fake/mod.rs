@@ -335,7 +335,6 @@ impl Sim {
                 joints: self.joints,
                 state: self.state,
                 flags: self.flags,
-                window: 32,
                 buffered: self.buffer.len() as u16,
                 expected: self.expected,
                 received: self.received,
@@ -346,7 +345,6 @@ impl Sim {
                 pwm_timer_clock_hz: 240_000_000,
                 max_step_rate_hz: 50_000,
                 window: self.window,
-                ..StatusReport::default()
             };
             self.report(&Report::Status(status), link);
         }
