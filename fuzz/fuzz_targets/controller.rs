@@ -14,8 +14,15 @@
 //! * a refused frame (status not OK) changes nothing: no plant call other than feeding
 //!   already-buffered points, no change of state or counters;
 //! * a frame that surely is a duplicate (same sender, seq, tag and CRC as a frame executed
-//!   less than 2 s ago, with fewer than 32 accepted frames since) is ACKed OK and changes
-//!   nothing at all, engine pushes included;
+//!   less than 2 s ago, with fewer than `DUPLICATE_MEMORY` accepted frames since) is ACKed
+//!   OK and changes nothing at all, engine pushes included;
+//! * the points taken are exactly the uploader's PENDING points, in order, none skipped:
+//!   a PENDING is taken only from the endpoint (address and port) whose NEW started the
+//!   upload, and only if every seq between the last frame taken (or the NEW) and its own
+//!   was used by a frame from that endpoint ACKed OK (another tool on the owner's address,
+//!   endpoint 1, numbers its seqs on its own and must never fill the uploader's gaps);
+//! * a NOT_OWNER ACK carries zeros for state, next_seq, buffered and free; a STATUS
+//!   report goes to the endpoint that asked for it;
 //! * an executed command was allowed in the state it arrived in (section 6) and did what
 //!   the table says (NEW, PENDING, RUNING, STOPPED, RETURN, JOINTS_COUNT, LOCATION_SETTING,
 //!   STATUS);
@@ -47,7 +54,7 @@ const CAP: usize = 64;
 /// How long an accepted frame is a duplicate (PROTOCOL.md section 7).
 const DUPLICATE_WINDOW_US: u64 = 2_000_000;
 /// How many accepted frames are remembered (PROTOCOL.md section 7).
-const DUPLICATE_MEMORY: u64 = 32;
+const DUPLICATE_MEMORY: u64 = arm_core::config::DUPLICATE_MEMORY as u64;
 /// Events per input: keeps one execution short.
 const MAX_EVENTS: usize = 400;
 /// Datagrams kept for the resend event.
@@ -55,7 +62,8 @@ const RESEND_MEMORY: usize = 8;
 /// Serial sends the fake port queues before it reports no room (drained as time passes).
 const SERIAL_ROOM: usize = 4;
 
-/// The owner's address on two ports (reports may move between them), and a stranger.
+/// The owner's address on two ports (two tools on one machine: reports and the ordering
+/// rule must tell them apart), and a stranger.
 const ENDPOINTS: [Endpoint; 3] = [
     Endpoint {
         ip: [127, 0, 0, 1],
@@ -216,6 +224,16 @@ struct Accepted {
     index: u64,
 }
 
+/// The upload under way, as the host side sees it.
+struct UploadTrack {
+    /// The endpoint whose executed NEW started it.
+    uploader: Endpoint,
+    /// Seq of the NEW or of the last PENDING taken.
+    last_taken_seq: u8,
+    /// Seqs of the uploader's frames ACKed OK since then.
+    accepted: [bool; 256],
+}
+
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum RunKind {
     Upload,
@@ -240,6 +258,7 @@ struct Harness {
     /// Positions of the last point taken since the last NEW.
     last_taken: Option<[i32; MAX_JOINTS]>,
     run_kind: Option<RunKind>,
+    upload: Option<UploadTrack>,
 }
 
 impl Harness {
@@ -270,6 +289,7 @@ impl Harness {
             ok_replies: 0,
             last_taken: None,
             run_kind: None,
+            upload: None,
         }
     }
 
@@ -364,10 +384,31 @@ impl Harness {
         let (&crc, body) = bytes.split_last().expect("3 bytes or more");
         let key = (from, bytes[0], bytes[1], crc);
         let (possibly_dup, surely_dup) = self.duplicate(&key);
+        let owner_before = self.controller.owner().map(|o| o.ip);
         let r = self
             .controller
             .handle(from, bytes, self.now_us, &mut self.plant);
         let after = self.snapshot();
+        // A new owner (the old one silent 5 s, not running) takes over with any CRC-valid
+        // frame, even one it then refuses; an upload the old owner had not started is
+        // dropped then (STATUS more_flags bit 0): an effect of the hand-over, not of the
+        // frame.
+        let handed_over = owner_before.is_some_and(|ip| ip != from.ip)
+            && self.controller.owner().map(|o| o.ip) == Some(from.ip);
+        let dropped_at_hand_over =
+            handed_over && matches!(before.status.state, State::New | State::Pending);
+        if dropped_at_hand_over {
+            assert!(
+                after
+                    .status
+                    .more_flags
+                    .has(protocol::MoreFlags::UPLOAD_DROPPED)
+                    || after.status.state == State::New,
+                "an unstarted upload survived the hand-over: {:?}",
+                after.status
+            );
+            self.upload = None;
+        }
 
         // Exactly one ACK, to the sender, for this frame.
         let reply = r.reply.expect("no ACK for a datagram of 3 bytes or more");
@@ -380,8 +421,20 @@ impl Harness {
             !crc_ok,
             "{status:?}, CRC ok {crc_ok}"
         );
-        self.check_ack(reply.seq, &reply.ack, &after);
-        self.acked_next_seq = reply.ack.next_seq;
+        if status == StatusCode::NotOwner {
+            let a = reply.ack;
+            assert_eq!(
+                (a.state as u8, a.next_seq, a.buffered, a.free),
+                (0, 0, 0, 0),
+                "a NOT_OWNER ACK told a stranger about the arm"
+            );
+        } else {
+            self.check_ack(reply.seq, &reply.ack, &after);
+            self.acked_next_seq = reply.ack.next_seq;
+        }
+        if let Some((to, _)) = r.status {
+            assert_eq!(to, from, "a STATUS report not to its requester");
+        }
 
         let decoded = Command::decode(bytes);
         if crc_ok && bytes[1] == Tag::Stopped as u8 {
@@ -399,9 +452,11 @@ impl Harness {
         }
         if surely_dup && crc_ok {
             assert_eq!(status, StatusCode::Ok, "a duplicate not ACKed OK");
-            assert_eq!(after, before, "a duplicate changed something");
+            if !dropped_at_hand_over {
+                assert_eq!(after, before, "a duplicate changed something");
+            }
         }
-        if status != StatusCode::Ok || (surely_dup && crc_ok) {
+        if (status != StatusCode::Ok || (surely_dup && crc_ok)) && !dropped_at_hand_over {
             assert_eq!(
                 after.without_feeding(),
                 before.without_feeding(),
@@ -459,8 +514,64 @@ impl Harness {
             self.last_taken = None;
             self.run_kind = Some(RunKind::Upload);
         }
+        self.check_upload_order(from, bytes[0], status, &decoded, &before, &after);
         if executed && let Ok(frame) = decoded {
             self.check_executed(&frame.body, &before, &after, &r);
+        }
+    }
+
+    /// The points taken are exactly the uploader's PENDING points, in order, none skipped.
+    fn check_upload_order(
+        &mut self,
+        from: Endpoint,
+        seq: u8,
+        status: StatusCode,
+        decoded: &std::result::Result<Frame<Command<'_>>, protocol::DecodeError>,
+        before: &Snapshot,
+        after: &Snapshot,
+    ) {
+        let is = |tag: Tag| matches!(decoded, Ok(f) if f.body.tag() == tag);
+        // An executed NEW always stops the engine; its duplicate changes nothing.
+        let new_upload = is(Tag::New)
+            && status == StatusCode::Ok
+            && after.status.state == State::New
+            && after.effects.stops > before.effects.stops;
+        if new_upload {
+            self.upload = Some(UploadTrack {
+                uploader: from,
+                last_taken_seq: seq,
+                accepted: [false; 256],
+            });
+            return;
+        }
+        let taken = is(Tag::Pending) && after.status.received > before.status.received;
+        if taken {
+            let upload = self
+                .upload
+                .as_mut()
+                .expect("a PENDING taken with no upload started");
+            assert_eq!(
+                from, upload.uploader,
+                "a PENDING taken from an endpoint that did not send the NEW"
+            );
+            let gap = seq.wrapping_sub(upload.last_taken_seq);
+            assert_ne!(gap, 0, "a PENDING taken with the seq of the last one");
+            for d in 1..gap {
+                let between = upload.last_taken_seq.wrapping_add(d);
+                assert!(
+                    upload.accepted[usize::from(between)],
+                    "PENDING {seq} taken after {}: seq {between} was never accepted from \
+                     the uploader (points skipped)",
+                    upload.last_taken_seq
+                );
+            }
+            upload.last_taken_seq = seq;
+            upload.accepted = [false; 256];
+        } else if status == StatusCode::Ok
+            && let Some(upload) = self.upload.as_mut()
+            && upload.uploader == from
+        {
+            upload.accepted[usize::from(seq)] = true;
         }
     }
 
@@ -568,7 +679,7 @@ impl Harness {
                 );
             }
             Command::Status => {
-                let report = r.status.expect("no STATUS report for STATUS");
+                let (_, report) = r.status.expect("no STATUS report for STATUS");
                 assert_eq!(report.state, is);
             }
             Command::UploadStart => assert!(after.status.flags.has(StatusFlags::REPORTS_ON)),

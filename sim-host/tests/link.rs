@@ -162,43 +162,49 @@ fn a_second_tool_on_the_owners_machine_disturbs_neither_upload_nor_reports() {
     let ack = uploader.command(&Command::Pending(PointList::Points(&pts[12..])));
     assert_eq!((ack.status, ack.next_seq), (StatusCode::Ok, 13), "{ack:?}");
     uploader.ok(&Command::Runing);
-    // The poller polls through the run; LOCATION reports stay with the uploader.
+    // The poller polls through the run; the uploader keeps getting its LOCATION
+    // reports (every 10 ms), with no hole, and sees the run end.
     let started = Instant::now();
     let mut polls = 0;
     let mut final_state = None;
+    let mut arrivals: Vec<Instant> = Vec::new();
+    let mut stopped_seen = false;
     while started.elapsed() < Duration::from_secs(5) {
         let status = poller.status();
         polls += 1;
-        if status.state == State::Stopped {
+        let until = Instant::now() + Duration::from_millis(20);
+        while let Some(left) = until.checked_duration_since(Instant::now()) {
+            let Some(report) = uploader.receive(left) else {
+                break;
+            };
+            if let (_, OwnedReport::Location(l)) = report {
+                arrivals.push(Instant::now());
+                stopped_seen |= l.state == State::Stopped as u8;
+            }
+        }
+        if status.state == State::Stopped && stopped_seen {
             final_state = Some(status);
             break;
         }
-        std::thread::sleep(Duration::from_millis(20));
     }
-    let status = final_state.expect("the run ended");
+    let status = final_state.expect("the run ended, and the uploader saw it");
     assert_eq!((status.executed, status.expected), (24, 24), "{status:?}");
     assert!(polls > 3, "{polls}");
-    // What the uploader received meanwhile (periodic LOCATIONs keep coming: read 300 ms).
-    let mut locations = 0;
-    let mut stopped_seen = false;
-    let until = Instant::now() + Duration::from_millis(300);
-    while let Some(left) = until.checked_duration_since(Instant::now()) {
-        let Some(report) = uploader.receive(left) else {
-            break;
-        };
-        if let (_, OwnedReport::Location(l)) = report {
-            locations += 1;
-            stopped_seen |= l.state == State::Stopped as u8;
-        }
-    }
-    let poller_locations = poller
-        .reports
-        .iter()
-        .filter(|(_, r)| matches!(r, OwnedReport::Location(_)))
-        .count();
-    assert!(locations >= 10, "the uploader got {locations} LOCATIONs");
-    assert!(stopped_seen, "the uploader saw the run end");
-    assert_eq!(poller_locations, 0, "the poller got LOCATIONs");
+    assert!(
+        arrivals.len() >= 20,
+        "the uploader got {} LOCATIONs",
+        arrivals.len()
+    );
+    let longest_hole = arrivals
+        .windows(2)
+        .map(|w| w[1] - w[0])
+        .max()
+        .unwrap_or_default();
+    // 10 ms reports; a loaded test machine may delay some, never by 0.3 s.
+    assert!(
+        longest_hole < Duration::from_millis(300),
+        "a {longest_hole:?} hole in the uploader's LOCATION reports"
+    );
 }
 
 /// NEW then 31 PENDING frames of 12 points (1395 bytes each), back to back: how many of

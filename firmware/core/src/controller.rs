@@ -30,12 +30,15 @@
 //! seqs on its own).
 //!
 //! # Who gets which report
-//! The ACK and a STATUS report go to the command's sender. LOCATION goes to the owner's
-//! endpoint that started the upload (NEW, RETURN) or turned reports on (UPLOAD_START,
-//! UPLOAD_PERIOD); USART_RECV to the one that sent USART_START; both start at the endpoint
-//! that became the owner. A route whose endpoint has been silent 5 s while the state is
-//! STOPPED passes to the next owner endpoint whose command is executed ([`ReportRoute`]).
-//! One tool with one socket gets everything, as the manual has it.
+//! The ACK and a STATUS report go to the command's sender. LOCATION goes to each of the
+//! owner's endpoints (up to [`LOCATION_LISTENERS`]) whose commands were executed and that
+//! have not been silent for 5 s; the endpoint that started the upload or run (NEW,
+//! RETURN) or turned reports on (UPLOAD_START, UPLOAD_PERIOD) keeps them while anything
+//! runs, however long it is silent. So no tool takes another's reports: a watcher keeps
+//! its LOCATIONs while a poller polls, and an uploader that waits for its first LOCATION
+//! gets it though another tool spoke last. USART_RECV goes to the endpoint that sent
+//! USART_START. At first everything goes to the endpoint that became the owner; one tool
+//! with one socket gets everything, as the manual has it.
 //!
 //! # Runs, reports and flags
 //! * A run starts with RUNING (or RETURN) and ends in STOPPED three ways: every point
@@ -167,50 +170,28 @@ pub struct Owner {
     pub last_heard_us: u64,
 }
 
-/// Where one kind of report goes: an endpoint on the owner's address (see "Reports" in
-/// the module docs).
+/// Owner endpoints that get the LOCATION reports at once: a few tools on the owner's
+/// machine (an uploader, a watcher, a poller, one more), each a socket of its own.
+pub const LOCATION_LISTENERS: usize = 4;
+
+/// An owner endpoint that gets LOCATION reports (see "Who gets which report").
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub struct ReportRoute {
+struct Listener {
     /// The endpoint.
-    pub to: Endpoint,
-    /// When it last sent a CRC-valid frame, microseconds: a route whose endpoint has been
-    /// silent [`OWNER_TIMEOUT_US`] (and the arm is STOPPED) passes to the next of the
-    /// owner's endpoints whose frame is executed.
-    pub heard_us: u64,
-}
-
-impl ReportRoute {
-    fn new(to: Endpoint, now_us: u64) -> Self {
-        ReportRoute {
-            to,
-            heard_us: now_us,
-        }
-    }
-
-    /// `from` sent a CRC-valid frame at `now_us`.
-    fn heard(&mut self, from: Endpoint, now_us: u64) {
-        if self.to == from {
-            self.heard_us = now_us;
-        }
-    }
-
-    /// An executed frame from `from` (on the owner's address): `claims` moves the route
-    /// there; otherwise it moves only when its endpoint went silent and nothing runs.
-    fn follow(&mut self, from: Endpoint, claims: bool, idle: bool, now_us: u64) {
-        let lapsed = idle && now_us.saturating_sub(self.heard_us) >= OWNER_TIMEOUT_US;
-        if claims || lapsed {
-            *self = ReportRoute::new(from, now_us);
-        }
-    }
+    to: Endpoint,
+    /// When it last sent a CRC-valid frame, microseconds: silent [`OWNER_TIMEOUT_US`], it
+    /// stops getting reports (unless it started the upload or run under way).
+    heard_us: u64,
 }
 
 /// Settings the location upload needs, copied out after every change.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct ReportSettings {
-    /// Where LOCATION reports go (`None` before any host spoke).
-    pub location_to: Option<Endpoint>,
+    /// Where LOCATION reports go: each of these owner endpoints (none before any host
+    /// spoke).
+    pub location_to: [Option<Endpoint>; LOCATION_LISTENERS],
     /// Where USART_RECV reports go (`None` before any host spoke).
     pub serial_to: Option<Endpoint>,
     /// LOCATION reports on.
@@ -222,11 +203,21 @@ pub struct ReportSettings {
 }
 
 impl ReportSettings {
+    /// Whether a LOCATION report has anywhere to go.
+    pub fn has_location_listener(&self) -> bool {
+        self.location_to.iter().any(Option::is_some)
+    }
+
+    /// Whether `endpoint` gets LOCATION reports.
+    pub fn location_goes_to(&self, endpoint: Endpoint) -> bool {
+        self.location_to.contains(&Some(endpoint))
+    }
+
     /// Before the trajectory task first publishes the controller's: no report anywhere,
     /// period 0 (the upload task waits for the first publication). All zero bytes, so that
     /// a [`crate::Bus`] in a `static` is zero-initialised (`.bss`, not a flash copy).
     pub const UNPUBLISHED: ReportSettings = ReportSettings {
-        location_to: None,
+        location_to: [None; LOCATION_LISTENERS],
         serial_to: None,
         reports_on: false,
         upload_period_us: 0,
@@ -235,7 +226,7 @@ impl ReportSettings {
 
     /// Boot values: reports on at the default period, nobody to send them to yet.
     pub const BOOT: ReportSettings = ReportSettings {
-        location_to: None,
+        location_to: [None; LOCATION_LISTENERS],
         serial_to: None,
         reports_on: true,
         upload_period_us: limits::DEFAULT_UPLOAD_PERIOD_US,
@@ -273,10 +264,14 @@ pub struct Controller<const CAP: usize> {
     uploader: Option<Endpoint>,
     recent: RecentFrames,
     owner: Option<Owner>,
-    /// Where LOCATION reports go.
-    location_route: Option<ReportRoute>,
-    /// Where USART_RECV reports go.
-    serial_route: Option<ReportRoute>,
+    /// The owner's endpoints that get LOCATION reports.
+    listeners: [Option<Listener>; LOCATION_LISTENERS],
+    /// The endpoint that started the upload or run (NEW, RETURN) or turned reports on
+    /// (UPLOAD_START, UPLOAD_PERIOD): it keeps its LOCATION reports while anything runs,
+    /// however long it is silent.
+    location_claimer: Option<Endpoint>,
+    /// Where USART_RECV reports go: the endpoint that sent USART_START.
+    serial_to: Option<Endpoint>,
     /// STATUS `more_flags`.
     more_flags: MoreFlags,
     reports_on: bool,
@@ -311,8 +306,9 @@ impl<const CAP: usize> Controller<CAP> {
             uploader: None,
             recent: RecentFrames::new(),
             owner: None,
-            location_route: None,
-            serial_route: None,
+            listeners: [None; LOCATION_LISTENERS],
+            location_claimer: None,
+            serial_to: None,
             more_flags: MoreFlags(0),
             reports_on: true,
             upload_period_us: limits::DEFAULT_UPLOAD_PERIOD_US,
@@ -395,8 +391,8 @@ impl<const CAP: usize> Controller<CAP> {
     /// What the location upload needs to know.
     pub fn report_settings(&self) -> ReportSettings {
         ReportSettings {
-            location_to: self.location_route.map(|r| r.to),
-            serial_to: self.serial_route.map(|r| r.to),
+            location_to: self.listeners.map(|l| l.map(|l| l.to)),
+            serial_to: self.serial_to,
             reports_on: self.reports_on,
             upload_period_us: self.upload_period_us,
             state: self.state,
@@ -485,6 +481,23 @@ impl<const CAP: usize> Controller<CAP> {
         plant: &mut impl Plant,
     ) -> Response {
         let before = self.state;
+        let mut response = self.check_and_execute(from, datagram, now_us, plant);
+        // A state change (the command's, or a hand-over that dropped an upload before the
+        // command was refused) is reported at once.
+        if self.state != before && self.reports_on {
+            response.location = Some(self.location(plant));
+        }
+        response
+    }
+
+    /// [`Controller::handle`] but for the LOCATION of a state change.
+    fn check_and_execute(
+        &mut self,
+        from: Endpoint,
+        datagram: &[u8],
+        now_us: u64,
+        plant: &mut impl Plant,
+    ) -> Response {
         let mut response = Response::default();
         // 1. length
         let [seq, tag, .., crc] = *datagram else {
@@ -511,9 +524,9 @@ impl<const CAP: usize> Controller<CAP> {
             }
             Some(ref mut owner) if owner.ip == from.ip => {
                 owner.last_heard_us = now_us;
-                for route in [&mut self.location_route, &mut self.serial_route] {
-                    if let Some(route) = route.as_mut() {
-                        route.heard(from, now_us);
+                for listener in self.listeners.iter_mut().flatten() {
+                    if listener.to == from {
+                        listener.heard_us = now_us;
                     }
                 }
                 true
@@ -573,9 +586,6 @@ impl<const CAP: usize> Controller<CAP> {
         };
         self.pump(plant);
         response.reply = reply(self, status);
-        if self.state != before && self.reports_on {
-            response.location = Some(self.location(plant));
-        }
         response
     }
 
@@ -590,19 +600,51 @@ impl<const CAP: usize> Controller<CAP> {
         if !from_owner {
             return;
         }
-        let idle = self.state == State::Stopped;
         let claims_location = [Tag::New, Tag::Return, Tag::UploadStart, Tag::UploadPeriod]
             .iter()
             .any(|t| *t as u8 == key.tag);
-        let claims_serial = key.tag == Tag::UsartStart as u8;
-        for (route, claims) in [
-            (&mut self.location_route, claims_location),
-            (&mut self.serial_route, claims_serial),
-        ] {
-            match route.as_mut() {
-                Some(route) => route.follow(key.from, claims, idle, now_us),
-                None => *route = Some(ReportRoute::new(key.from, now_us)),
+        if claims_location {
+            self.location_claimer = Some(key.from);
+        }
+        if key.tag == Tag::UsartStart as u8 {
+            self.serial_to = Some(key.from);
+        }
+        self.listen(key.from, now_us);
+    }
+
+    /// `from`, an owner endpoint whose command was executed, gets LOCATION reports from
+    /// now on: it takes a free slot, or that of a listener silent for 5 s, or else that of
+    /// the one heard least recently (never the claimer's while something runs).
+    fn listen(&mut self, from: Endpoint, now_us: u64) {
+        let keep_claimer = self.state != State::Stopped;
+        let claimer = self.location_claimer;
+        let protected = |l: &Listener| keep_claimer && Some(l.to) == claimer;
+        for slot in self.listeners.iter_mut() {
+            if slot.is_some_and(|l| {
+                !protected(&l) && now_us.saturating_sub(l.heard_us) >= OWNER_TIMEOUT_US
+            }) {
+                *slot = None;
             }
+        }
+        let fresh = Listener {
+            to: from,
+            heard_us: now_us,
+        };
+        if let Some(slot) = self.listeners.iter_mut().flatten().find(|l| l.to == from) {
+            *slot = fresh;
+            return;
+        }
+        if let Some(slot) = self.listeners.iter_mut().find(|l| l.is_none()) {
+            *slot = Some(fresh);
+            return;
+        }
+        let oldest = self
+            .listeners
+            .iter_mut()
+            .filter(|l| l.is_some_and(|l| !protected(&l)))
+            .min_by_key(|l| l.map_or(0, |l| l.heard_us));
+        if let Some(slot) = oldest {
+            *slot = Some(fresh);
         }
     }
 
@@ -614,8 +656,13 @@ impl<const CAP: usize> Controller<CAP> {
             ip: from.ip,
             last_heard_us: now_us,
         });
-        self.location_route = Some(ReportRoute::new(from, now_us));
-        self.serial_route = Some(ReportRoute::new(from, now_us));
+        self.listeners = [None; LOCATION_LISTENERS];
+        self.listeners[0] = Some(Listener {
+            to: from,
+            heard_us: now_us,
+        });
+        self.location_claimer = Some(from);
+        self.serial_to = Some(from);
         self.uploader = None;
         if matches!(self.state, State::New | State::Pending) {
             plant.stop();

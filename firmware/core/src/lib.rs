@@ -72,7 +72,9 @@ pub mod tasks;
 
 pub use buffer::{StoredPoint, TrajectoryBuffer};
 pub use config::ControllerConfig;
-pub use controller::{Controller, Deferred, Owner, Plant, Reply, ReportSettings, Response};
+pub use controller::{
+    Controller, Deferred, LOCATION_LISTENERS, Owner, Plant, Reply, ReportSettings, Response,
+};
 pub use log_limit::{LogLimit, LogVerdict};
 pub use outgoing::{Outgoing, ReportEncoder};
 pub use plan::{ReturnPlan, plan_return};

@@ -3,8 +3,11 @@
 use heapless::Vec;
 use protocol::{Location, MAX_SERIAL_CHUNK, Report, StatusReport, size};
 
-use crate::controller::{Reply, ReportSettings};
+use crate::controller::{LOCATION_LISTENERS, Reply, ReportSettings};
 use crate::hw::Endpoint;
+
+/// Where one encoded frame goes.
+pub type Destinations = Vec<Endpoint, LOCATION_LISTENERS>;
 
 /// Largest frame the controller sends: USART_RECV (257 data bytes) + seq, tag and CRC.
 pub const MAX_REPORT_FRAME: usize = size::USART_RECV + protocol::FRAME_OVERHEAD;
@@ -45,22 +48,37 @@ impl ReportEncoder {
         self.next_seq
     }
 
-    /// Encodes `out` into `buf`: returns the destination (ACK and STATUS: their own;
-    /// LOCATION and USART_RECV: as `routes` say) and the frame's length, or `None` when a
-    /// report has nowhere to go (no owner yet; no seq is used then) or `buf` is too small.
+    /// Encodes `out` into `buf`: returns the destinations (ACK and STATUS: their own;
+    /// LOCATION and USART_RECV: as `routes` say; every one gets the same bytes) and the
+    /// frame's length, or `None` when a report has nowhere to go (no owner yet; no seq is
+    /// used then) or `buf` is too small.
     pub fn encode(
         &mut self,
         out: &Outgoing,
         routes: &ReportSettings,
         buf: &mut [u8],
-    ) -> Option<(Endpoint, usize)> {
+    ) -> Option<(Destinations, usize)> {
+        let one = |to: Endpoint| {
+            let mut d = Destinations::new();
+            // Capacity LOCATION_LISTENERS >= 1.
+            let _ = d.push(to);
+            d
+        };
         let (to, seq, report) = match out {
-            Outgoing::Ack(reply) => (reply.to, reply.seq, Report::Ack(reply.ack)),
-            Outgoing::Status(to, s) => (*to, self.next_seq, Report::Status(*s)),
-            Outgoing::Location(l) => (routes.location_to?, self.next_seq, Report::Location(*l)),
-            Outgoing::UsartRecv(bytes) => {
-                (routes.serial_to?, self.next_seq, Report::UsartRecv(bytes))
+            Outgoing::Ack(reply) => (one(reply.to), reply.seq, Report::Ack(reply.ack)),
+            Outgoing::Status(to, s) => (one(*to), self.next_seq, Report::Status(*s)),
+            Outgoing::Location(l) => {
+                let to: Destinations = routes.location_to.iter().flatten().copied().collect();
+                if to.is_empty() {
+                    return None;
+                }
+                (to, self.next_seq, Report::Location(*l))
             }
+            Outgoing::UsartRecv(bytes) => (
+                one(routes.serial_to?),
+                self.next_seq,
+                Report::UsartRecv(bytes),
+            ),
         };
         let n = report.encode(seq, buf).ok()?;
         if !matches!(out, Outgoing::Ack(_)) {
@@ -100,7 +118,7 @@ mod tests {
             ..owner
         };
         let routes = ReportSettings {
-            location_to: Some(owner),
+            location_to: [Some(owner), None, None, None],
             serial_to: Some(owner),
             ..ReportSettings::BOOT
         };
@@ -125,6 +143,7 @@ mod tests {
         let mut seen = std::vec::Vec::new();
         for out in &outs {
             let (to, n) = enc.encode(out, &routes, &mut buf).expect("encodes");
+            let to = to[0];
             let frame: Frame<Report<'_>> = Report::decode(&buf[..n]).expect("decodes");
             seen.push((to, frame.seq, frame.body.tag() as u8));
         }

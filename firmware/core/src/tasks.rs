@@ -517,17 +517,19 @@ pub async fn network_task<D: Datagrams, C: Clock>(socket: &D, bus: &Bus, clock: 
                 );
             }
             let routes = bus.report_settings();
-            let Some((to, n)) = encoder.encode(&out, &routes, &mut buf) else {
+            let Some((destinations, n)) = encoder.encode(&out, &routes, &mut buf) else {
                 continue;
             };
-            if let Err(e) = socket.send(to, buf.get(..n).unwrap_or_default()).await
-                && let LogVerdict::Log { suppressed } = failures.event(clock.now_us())
-            {
-                warn!(
-                    "send failed: {:?} ({} more since the last such line)",
-                    debug_value!(e),
-                    suppressed
-                );
+            for to in destinations {
+                if let Err(e) = socket.send(to, buf.get(..n).unwrap_or_default()).await
+                    && let LogVerdict::Log { suppressed } = failures.event(clock.now_us())
+                {
+                    warn!(
+                        "send failed: {:?} ({} more since the last such line)",
+                        debug_value!(e),
+                        suppressed
+                    );
+                }
             }
         }
     };
@@ -561,7 +563,7 @@ pub async fn upload_task<const Q: usize, C: Clock>(
         match select(clock.sleep_until(next), bus.upload_changed.wait()).await {
             Either::First(()) => {
                 let settings = bus.report_settings();
-                if settings.reports_on && settings.location_to.is_some() {
+                if settings.reports_on && settings.has_location_listener() {
                     bus.send(Outgoing::Location(protocol::Location {
                         position: step.positions(),
                         state: settings.state as u8,

@@ -63,7 +63,7 @@ fn a_strangers_stopped_changes_neither_owner_nor_report_port_nor_silence() {
     assert_eq!(owner.ip, HOST.ip);
     assert_eq!(
         s.controller.report_settings().location_to,
-        Some(HOST),
+        [Some(HOST), None, None, None],
         "reports stay with the owner"
     );
     // The stranger's STOPPED did not refresh the owner's silence: 1 s later the owner has
@@ -71,7 +71,10 @@ fn a_strangers_stopped_changes_neither_owner_nor_report_port_nor_silence() {
     s.now_us += 1_000_000;
     let r = s.send_raw(OTHER, &frame(201, Command::Status));
     assert_eq!(status_of(&r), Ok);
-    assert_eq!(s.controller.report_settings().location_to, Some(OTHER));
+    assert_eq!(
+        s.controller.report_settings().location_to,
+        [Some(OTHER), None, None, None]
+    );
 }
 
 #[test]
@@ -129,7 +132,7 @@ fn not_owner_comes_before_decode_errors_and_duplicates() {
 }
 
 #[test]
-fn every_ack_and_status_goes_to_its_sender_and_location_to_the_uploader() {
+fn every_ack_and_status_goes_to_its_sender_and_location_to_each_tool() {
     let mut s = Session::<16>::new(16);
     let a = Endpoint {
         port: 5_001,
@@ -142,7 +145,7 @@ fn every_ack_and_status_goes_to_its_sender_and_location_to_the_uploader() {
     let r = s.send_raw(a, &frame(1, Command::Status));
     assert_eq!(r.reply.map(|r| r.to), Some(a));
     assert_eq!(r.status.map(|(to, _)| to), Some(a));
-    assert_eq!(s.controller.report_settings().location_to, Some(a));
+    assert!(s.controller.report_settings().location_goes_to(a));
     let r = s.send_raw(b, &frame(2, Command::Status));
     assert_eq!(r.reply.map(|r| r.to), Some(b));
     assert_eq!(
@@ -150,19 +153,20 @@ fn every_ack_and_status_goes_to_its_sender_and_location_to_the_uploader() {
         Some(b),
         "STATUS report goes to b"
     );
-    assert_eq!(
-        s.controller.report_settings().location_to,
-        Some(a),
-        "a STATUS does not take LOCATION away from a"
+    let settings = s.controller.report_settings();
+    assert!(
+        settings.location_goes_to(a) && settings.location_goes_to(b),
+        "b's STATUS does not take LOCATION away from a: both get it"
     );
-    // b starts an upload: LOCATION follows it. A stranger's STOPPED is ACKed to the
-    // stranger; its LOCATION goes to b.
+    // A stranger's STOPPED is ACKed to the stranger; its LOCATION goes to the owner's
+    // tools, not to the stranger.
     s.send_raw(b, &frame(3, Command::New { count: 1 }));
-    assert_eq!(s.controller.report_settings().location_to, Some(b));
     let r = s.send_raw(OTHER, &frame(9, Command::Stopped));
     assert_eq!(r.reply.map(|r| r.to), Some(OTHER));
     assert_eq!(r.location.map(|l| l.state), Some(State::Stopped as u8));
-    assert_eq!(s.controller.report_settings().location_to, Some(b));
+    let settings = s.controller.report_settings();
+    assert!(settings.location_goes_to(a) && settings.location_goes_to(b));
+    assert!(!settings.location_goes_to(OTHER));
 }
 
 // ---- Section 5: ordering and duplicates ----

@@ -264,26 +264,20 @@ fn owner_rule() {
     assert_eq!(s.controller.state(), State::Stopped);
     assert_eq!(s.plant.stops, stops + 1);
     assert_eq!(s.controller.owner().map(|o| o.ip), Some(HOST.ip));
-    // LOCATION goes to the endpoint that turned reports on.
+    // LOCATION goes to each owner endpoint whose command was executed.
     s.from = Endpoint {
         port: 41_000,
         ..HOST
     };
     s.expect(Command::UploadStart, Ok);
-    assert_eq!(s.controller.report_settings().location_to, Some(s.from));
-    // A refused frame does not move it.
+    assert!(s.controller.report_settings().location_goes_to(s.from));
+    // A refused frame does not add its sender.
     s.from = Endpoint {
         port: 41_001,
         ..HOST
     };
-    s.expect(Command::Return, Ok);
-    s.expect(Command::Return, BadState);
-    assert_eq!(
-        s.controller.report_settings().location_to.map(|e| e.port),
-        Some(41_001),
-        "the executed RETURN moved it"
-    );
-    s.expect(Command::Stopped, Ok);
+    s.expect(Command::Runing, BadState);
+    assert!(!s.controller.report_settings().location_goes_to(s.from));
     // After 5 s of silence, not running, another host takes over.
     s.now_us += OWNER_TIMEOUT_US - 100;
     let r = s.send_raw(OTHER, &frame(2, Command::Status)).reply.unwrap();
@@ -291,7 +285,10 @@ fn owner_rule() {
     s.now_us += 100;
     let r = s.send_raw(OTHER, &frame(3, Command::Status)).reply.unwrap();
     assert_eq!(r.ack.status, Ok);
-    assert_eq!(s.controller.report_settings().location_to, Some(OTHER));
+    assert_eq!(
+        s.controller.report_settings().location_to,
+        [Some(OTHER), None, None, None]
+    );
     let r = s.send_raw(HOST, &frame(50, Command::Status)).reply.unwrap();
     assert_eq!(r.ack.status, NotOwner);
 }

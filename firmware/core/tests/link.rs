@@ -139,7 +139,7 @@ fn the_uploaders_own_commands_still_fill_gaps() {
 // ---- Bug 2: who gets which report ----
 
 #[test]
-fn status_answers_its_requester_and_location_stays_with_the_uploader() {
+fn status_answers_its_requester_and_location_keeps_going_to_the_uploader() {
     let mut s = Session::<64>::new(64);
     let pts = points([0; 8], 2, 1);
     s.send_raw(HOST, &frame(1, Command::New { count: 2 }));
@@ -149,16 +149,21 @@ fn status_answers_its_requester_and_location_stays_with_the_uploader() {
         Some(TOOL),
         "STATUS to its requester"
     );
-    assert_eq!(s.controller.report_settings().location_to, Some(HOST));
+    assert!(s.controller.report_settings().location_goes_to(HOST));
     s.send_raw(HOST, &pending(2, &pts));
     let r = s.send_raw(TOOL, &frame(8, Command::Status));
     assert_eq!(r.status.map(|(to, _)| to), Some(TOOL));
     let r = s.send_raw(HOST, &frame(3, Command::Runing));
     assert!(r.location.is_some());
-    assert_eq!(s.controller.report_settings().location_to, Some(HOST));
-    // UPLOAD_START from the tool: it turned reports on, LOCATION follows it.
-    s.send_raw(TOOL, &frame(9, Command::UploadStart));
-    assert_eq!(s.controller.report_settings().location_to, Some(TOOL));
+    // The tool polls for a long time; the uploader waits silently for its run to end: it
+    // keeps its LOCATIONs (it started the run).
+    for k in 0..10 {
+        s.now_us += 1_000_000;
+        s.send_raw(TOOL, &frame(20 + k, Command::Status));
+    }
+    let settings = s.controller.report_settings();
+    assert!(settings.location_goes_to(HOST), "{settings:?}");
+    assert!(settings.location_goes_to(TOOL));
 }
 
 #[test]
@@ -173,22 +178,39 @@ fn usart_recv_goes_to_the_endpoint_that_opened_the_port() {
     assert_eq!(r.reply.unwrap().ack.status, Ok);
     s.send_raw(HOST, &frame(2, Command::Status));
     assert_eq!(s.controller.report_settings().serial_to, Some(TOOL));
-    assert_eq!(s.controller.report_settings().location_to, Some(HOST));
+    assert!(s.controller.report_settings().location_goes_to(HOST));
 }
 
 #[test]
-fn reports_of_a_tool_gone_silent_fall_back_to_the_owners_next_sender() {
+fn a_tool_gone_silent_gets_no_more_locations_and_a_new_one_gets_them_at_once() {
     let mut s = Session::<64>::new(64);
-    s.send_raw(TOOL, &frame(1, Command::UploadStart));
-    s.send_raw(HOST, &frame(1, Command::Status));
-    assert_eq!(s.controller.report_settings().location_to, Some(TOOL));
+    s.send_raw(TOOL, &frame(1, Command::Status));
+    // One-shot tools, one after the other (each a new socket): each gets LOCATIONs from
+    // its first executed command on.
+    let next = Endpoint {
+        port: 41_500,
+        ..HOST
+    };
+    s.send_raw(next, &frame(1, Command::Status));
+    assert!(s.controller.report_settings().location_goes_to(next));
     s.now_us += OWNER_TIMEOUT_US;
     s.send_raw(HOST, &frame(2, Command::Status));
-    assert_eq!(
-        s.controller.report_settings().location_to,
-        Some(HOST),
-        "the tool was silent 5 s: its claim lapsed"
+    let settings = s.controller.report_settings();
+    assert!(settings.location_goes_to(HOST));
+    assert!(
+        !settings.location_goes_to(TOOL) && !settings.location_goes_to(next),
+        "silent 5 s: dropped {settings:?}"
     );
+    // Many tools: the one heard least recently makes room.
+    for port in 0..6 {
+        let e = Endpoint {
+            port: 42_000 + port,
+            ..HOST
+        };
+        s.now_us += 10;
+        s.send_raw(e, &frame(1, Command::Status));
+        assert!(s.controller.report_settings().location_goes_to(e));
+    }
 }
 
 #[test]
@@ -199,7 +221,7 @@ fn one_tool_gets_every_report_as_before() {
     let settings = s.controller.report_settings();
     assert_eq!(
         (settings.location_to, settings.serial_to),
-        (Some(HOST), Some(HOST))
+        ([Some(HOST), None, None, None], Some(HOST))
     );
 }
 
@@ -264,4 +286,21 @@ fn status_advertises_the_window() {
     let (_, status) = r.status.unwrap();
     assert_eq!(usize::from(status.window), arm_core::config::HOST_WINDOW);
     assert!(status.window >= 32);
+}
+
+#[test]
+fn a_hand_over_that_drops_an_upload_reports_the_state_change_even_if_refused() {
+    // Found by the fuzz target: the new owner's first frame is refused (here a NEW of 0
+    // points: INVALID_CONFIG), yet the hand-over dropped the old owner's upload.
+    let mut s = Session::<64>::new(64);
+    s.send_raw(HOST, &frame(1, Command::New { count: 4 }));
+    s.now_us += OWNER_TIMEOUT_US;
+    let r = s.send_raw(OTHER, &frame(1, Command::New { count: 0 }));
+    assert_eq!(r.reply.unwrap().ack.status, InvalidConfig);
+    assert_eq!(s.controller.state(), State::Stopped);
+    assert_eq!(
+        r.location.map(|l| l.state),
+        Some(State::Stopped as u8),
+        "the state change is reported"
+    );
 }

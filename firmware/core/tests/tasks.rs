@@ -735,7 +735,7 @@ fn reports_queued_before_a_wait_go_to_the_sender_of_the_frame() {
             if let Ok(arm_core::Outgoing::Location(location)) = bus.outbox.try_receive() {
                 // What the network task would read to address it, at this instant.
                 assert_eq!(location.state, State::Running as u8);
-                assert_eq!(bus.report_settings().location_to, Some(HOST));
+                assert!(bus.report_settings().location_goes_to(HOST));
                 return;
             }
             yield_now().await;
@@ -1118,4 +1118,91 @@ fn an_executed_stopped_after_a_refused_one_stops_after_the_frames_between() {
         assert_eq!(rig.pins.borrow().pulses, 0, "no STEP pulse, ever");
         assert_eq!(rig.bus.report_settings().state, State::Stopped);
     });
+}
+
+/// A STOPPED that does nothing: refused for its length, or a resend of one executed.
+#[derive(Clone, Copy, Debug)]
+enum IdleStop {
+    /// STOPPED with this many data bytes (1..=4): BAD_LENGTH.
+    BadLength(usize),
+    /// The STOPPED executed before the upload, sent again (a duplicate).
+    Resent,
+}
+
+fn idle_stop() -> impl proptest::strategy::Strategy<Value = IdleStop> {
+    use proptest::prelude::*;
+    prop_oneof![
+        (1usize..=4).prop_map(IdleStop::BadLength),
+        Just(IdleStop::Resent)
+    ]
+}
+
+proptest::proptest! {
+    #![proptest_config(proptest::test_runner::Config {
+        cases: 24,
+        failure_persistence: None,
+        ..proptest::test_runner::Config::default()
+    })]
+
+    /// Bug 1 at the task level: datagrams queued (an upload, STATUS polls, RUNING), then
+    /// STOPPEDs that do nothing, all before the trajectory task runs (so they overtake the
+    /// queue): the run must end by completion, every point run, never stopped.
+    #[test]
+    fn stoppeds_that_do_nothing_never_stop_the_queued_run(
+        frames_of_points in 1usize..=3,
+        polls in 0u8..=6,
+        stops in proptest::collection::vec(idle_stop(), 1..=3),
+    ) {
+        let rig = Rig::new();
+        let limit = Duration::from_secs(5);
+        let first_stop = frame(200, Command::Stopped);
+        let n = 2 * frames_of_points;
+        let pts: Vec<Point> = (1..=n as i32)
+            .map(|k| Point::from_motion(1_000, &[4 * (k - 1); 8], &[4 * k; 8]))
+            .collect();
+        rig.route(&first_stop);
+        let mut outcome = None;
+        rig.run(async {
+            until("the first STOPPED's ACK", limit, || !rig.acks().is_empty()).await;
+            let mut seq = 1u8;
+            let mut routed = 0;
+            rig.route(&frame(seq, Command::New { count: n as u16 }));
+            for pair in pts.chunks(2) {
+                seq += 1;
+                rig.route(&frame(seq, Command::Pending(PointList::Points(pair))));
+            }
+            for _ in 0..polls {
+                seq += 1;
+                rig.route(&frame(seq, Command::Status));
+            }
+            seq += 1;
+            let runing_seq = seq;
+            rig.route(&frame(seq, Command::Runing));
+            routed += usize::from(seq);
+            for (i, stop) in stops.iter().enumerate() {
+                match stop {
+                    IdleStop::BadLength(len) => {
+                        rig.route(&raw(100 + i as u8, Tag::Stopped as u8, &vec![0; *len]))
+                    }
+                    IdleStop::Resent => rig.route(&first_stop),
+                }
+                routed += 1;
+            }
+            until("every ACK", limit, || rig.acks().len() > routed).await;
+            until("the run's end", limit, || {
+                rig.drain();
+                rig.bus.report_settings().state == State::Stopped
+                    && rig.step.positions()[0] == 4 * n as i32
+            })
+            .await;
+            let runing_ack = rig.acks().into_iter().find(|a| a.0 == runing_seq);
+            outcome = Some((runing_ack, rig.step.positions()[0], rig.pins.borrow().position[0]));
+        });
+        let (runing_ack, position, pins) = outcome.expect("the driver finished");
+        proptest::prop_assert_eq!(
+            runing_ack.map(|a| (a.2, a.3)),
+            Some((StatusCode::Ok, State::Running))
+        );
+        proptest::prop_assert_eq!((position, pins), (4 * n as i32, 4 * n as i64));
+    }
 }
