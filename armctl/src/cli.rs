@@ -15,18 +15,20 @@ use protocol::{
 #[derive(Parser, Debug)]
 #[command(name = "armctl", version, about)]
 pub struct Cli {
-    /// The controller's address.
+    /// The controller's address: HOST or HOST:PORT (port 8510 when not given).
     #[arg(
         long,
         global = true,
         default_value = "127.0.0.1:8510",
-        value_name = "ADDR:PORT"
+        value_name = "HOST[:PORT]"
     )]
     pub controller: String,
-    /// Milliseconds to wait for an ACK before sending again.
+    /// Milliseconds to wait for an ACK before sending again, until round trips are
+    /// measured (the wait then follows them, down to 3 ms); also the longest wait.
     #[arg(long, global = true, default_value_t = 100, value_name = "MS")]
     pub ack_timeout_ms: u64,
-    /// Times a frame is sent at most.
+    /// Times a frame is sent at most (no copy leaves later than 1.8 s after the first:
+    /// the controller recognises copies for 2 s).
     #[arg(long, global = true, default_value_t = 10)]
     pub attempts: u32,
     /// Local address to send from (e.g. 127.0.0.2:0 to act as another host).
@@ -161,9 +163,10 @@ pub struct RunArgs {
     /// Segment duration in milliseconds.
     #[arg(long, default_value_t = 10.0)]
     pub segment_ms: f64,
-    /// Frames in flight (1 = stop-and-wait).
-    #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u16).range(1..=16))]
-    pub window: u16,
+    /// Frames in flight (1 = stop-and-wait, at most 32; default: the window the
+    /// controller advertises in STATUS, 8 for one that advertises none).
+    #[arg(long, value_parser = clap::value_parser!(u16).range(1..=32))]
+    pub window: Option<u16>,
     /// Send RUNING once this many points are acknowledged (default: when the buffer is full
     /// or everything is uploaded).
     #[arg(long)]
@@ -171,9 +174,15 @@ pub struct RunArgs {
     /// Write every LOCATION report during the run to this CSV file.
     #[arg(long, value_name = "FILE")]
     pub record: Option<PathBuf>,
-    /// Only convert and check the file; print the points count and send nothing.
+    /// Only convert and check the file; print the points count and send nothing. Without
+    /// a controller the step rate is checked against the config, and at most against
+    /// `--max-step-rate`.
     #[arg(long)]
     pub dry_run: bool,
+    /// For `--dry-run`: the controller's step rate limit per joint (steps/s) to check
+    /// against; the board's by default.
+    #[arg(long, value_name = "HZ", default_value_t = DEFAULT_MAX_STEP_RATE_HZ)]
+    pub max_step_rate: u32,
     /// Do not show a progress bar.
     #[arg(long)]
     pub quiet: bool,
@@ -375,6 +384,49 @@ pub enum EncodeCmd {
         /// Microseconds.
         us: u32,
     },
+}
+
+/// The step rate limit `run --dry-run` checks against without a controller: the board's
+/// `max_step_rate_hz` (PROTOCOL.md, "Figures of this firmware"; sim-host reports the same).
+pub const DEFAULT_MAX_STEP_RATE_HZ: u32 = 100_000;
+
+/// The controller address with the default port when `text` names none: `HOST`,
+/// `A.B.C.D`, `::1` or `[::1]` get `:8510`; `HOST:PORT` and `[V6]:PORT` are kept.
+pub fn controller_address(text: &str) -> String {
+    let text = text.trim();
+    if text.parse::<std::net::SocketAddr>().is_ok() {
+        return text.to_string();
+    }
+    if let Ok(ip) = text.parse::<std::net::IpAddr>() {
+        return std::net::SocketAddr::new(ip, armctl::DEFAULT_PORT).to_string();
+    }
+    if let Some(inner) = text.strip_prefix('[').and_then(|t| t.strip_suffix(']'))
+        && let Ok(ip) = inner.parse::<std::net::Ipv6Addr>()
+    {
+        return std::net::SocketAddr::new(ip.into(), armctl::DEFAULT_PORT).to_string();
+    }
+    match text.rsplit_once(':') {
+        Some((host, port)) if !host.contains(':') && port.parse::<u16>().is_ok() => {
+            text.to_string()
+        }
+        _ => format!("{text}:{}", armctl::DEFAULT_PORT),
+    }
+}
+
+/// A warning when `--ack-timeout-ms` x `--attempts` reaches past the controller's
+/// duplicate window: the client then stops resending 1.8 s after the first copy.
+pub fn resend_warning(ack_timeout_ms: u64, attempts: u32) -> Option<String> {
+    let span = u128::from(ack_timeout_ms) * u128::from(attempts);
+    (span > armctl::DUPLICATE_WINDOW.as_millis()).then(|| {
+        format!(
+            "--ack-timeout-ms {ack_timeout_ms} x --attempts {attempts} = {:.1} s exceeds the \
+             controller's {} s duplicate window: a copy sent later could be executed twice, \
+             so resends stop {:.1} s after the first copy",
+            span as f64 / 1000.0,
+            armctl::DUPLICATE_WINDOW.as_secs(),
+            armctl::RESEND_HORIZON.as_secs_f64()
+        )
+    })
 }
 
 /// Parses a mask in decimal or `0x` hex.

@@ -15,6 +15,7 @@ use protocol::{
 };
 
 use crate::error::{Error, Result};
+use crate::rtt::{DEFAULT_MIN_RTO, RESEND_HORIZON, RttEstimator};
 
 /// How long the receiver thread blocks in one `recv`, so that it notices a shutdown soon.
 const RECEIVER_POLL: Duration = Duration::from_millis(50);
@@ -22,9 +23,15 @@ const RECEIVER_POLL: Duration = Duration::from_millis(50);
 /// Timeouts and retry bounds of a [`Controller`].
 #[derive(Clone, Debug)]
 pub struct Options {
-    /// How long to wait for an ACK before sending the frame again.
+    /// How long to wait for an ACK before sending the frame again, before any round trip
+    /// is measured; also the longest wait. Once ACKs come, the wait follows the measured
+    /// round trip (RFC 6298), down to `min_ack_timeout`.
     pub ack_timeout: Duration,
-    /// How many times a frame is sent at most (the first send included).
+    /// The shortest wait for an ACK, however short the measured round trip.
+    pub min_ack_timeout: Duration,
+    /// How many times a frame is sent at most (the first send included). Whatever the
+    /// count, no copy of a command leaves later than [`RESEND_HORIZON`] after its first, so
+    /// that the controller's 2 s duplicate window recognises every copy (exactly once).
     pub attempts: u32,
     /// How long to wait for a STATUS report after its ACK before asking again.
     pub report_timeout: Duration,
@@ -38,6 +45,7 @@ impl Default for Options {
     fn default() -> Self {
         Options {
             ack_timeout: Duration::from_millis(100),
+            min_ack_timeout: DEFAULT_MIN_RTO,
             attempts: 10,
             report_timeout: Duration::from_millis(300),
             bind: None,
@@ -59,6 +67,8 @@ pub struct Controller {
     shared: Arc<Shared>,
     /// Held for a whole upload (see the type's doc).
     pub(crate) upload: Mutex<()>,
+    /// The round-trip estimate every command and upload frame feeds and waits by.
+    pub(crate) rtt: Mutex<RttEstimator>,
     receiver: Option<JoinHandle<()>>,
 }
 
@@ -71,8 +81,17 @@ impl std::fmt::Debug for Controller {
     }
 }
 
-/// Where the ACKs of a seq go: (seq, ACK).
-type AckSender = Sender<(u8, Ack)>;
+/// What a waiter for ACKs hears from the receiver thread.
+#[derive(Clone, Copy, Debug)]
+pub(crate) enum Event {
+    /// The ACK of a seq.
+    Ack(u8, Ack),
+    /// The system reported the controller's port unreachable (ICMP): nothing listens there.
+    Refused,
+}
+
+/// Where the ACKs of a seq go.
+type AckSender = Sender<Event>;
 
 /// Where the receiver thread delivers what arrives.
 #[derive(Default)]
@@ -103,6 +122,13 @@ fn fan_out<T: Clone>(subs: &Mutex<Vec<Sender<T>>>, value: &T) {
 }
 
 impl Shared {
+    /// Tells every waiter that the controller's port was reported unreachable.
+    fn refused(&self) {
+        for (_, waiter) in lock(&self.waiters).values() {
+            let _ = waiter.send(Event::Refused);
+        }
+    }
+
     fn deliver(&self, datagram: &[u8]) {
         let Ok(frame) = Report::decode(datagram) else {
             self.undecodable.fetch_add(1, Ordering::Relaxed);
@@ -111,7 +137,7 @@ impl Shared {
         match frame.body {
             Report::Ack(ack) => {
                 if let Some((_, waiter)) = lock(&self.waiters).get(&frame.seq) {
-                    let _ = waiter.send((frame.seq, ack));
+                    let _ = waiter.send(Event::Ack(frame.seq, ack));
                 }
             }
             Report::Location(location) => {
@@ -138,8 +164,12 @@ fn receive_loop(socket: UdpSocket, shared: Arc<Shared>) {
                     e.kind(),
                     std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
                 ) => {}
-            // ICMP "port unreachable" surfacing as ConnectionRefused while the controller
-            // is not up, or anything else: keep listening, without spinning.
+            // ICMP "port unreachable": nothing listens on the controller's port (yet).
+            // Waiters decide what it means; keep listening, without spinning.
+            Err(e) if e.kind() == std::io::ErrorKind::ConnectionRefused => {
+                shared.refused();
+                std::thread::sleep(Duration::from_millis(1));
+            }
             Err(_) => std::thread::sleep(Duration::from_millis(1)),
         }
     }
@@ -152,8 +182,8 @@ pub(crate) struct AckWaiter<'a> {
     shared: &'a Shared,
     id: u64,
     seqs: Vec<u8>,
-    tx: Sender<(u8, Ack)>,
-    pub(crate) rx: Receiver<(u8, Ack)>,
+    tx: Sender<Event>,
+    pub(crate) rx: Receiver<Event>,
 }
 
 impl AckWaiter<'_> {
@@ -225,6 +255,10 @@ impl Controller {
             socket,
             addr,
             next_seq: AtomicU8::new(first_seq),
+            rtt: Mutex::new(RttEstimator::new(
+                options.ack_timeout,
+                options.min_ack_timeout,
+            )),
             options,
             shared,
             upload: Mutex::new(()),
@@ -265,11 +299,29 @@ impl Controller {
     pub(crate) fn send_bytes(&self, frame: &[u8]) -> Result<()> {
         match self.socket.send(frame) {
             Ok(_) => Ok(()),
-            // A previous datagram's ICMP "port unreachable" (nobody listening yet): the
-            // frame itself may not have left; the retry loop sends it again.
-            Err(e) if e.kind() == std::io::ErrorKind::ConnectionRefused => Ok(()),
+            // A previous datagram's ICMP "port unreachable" (nobody listening): on
+            // loopback that is final; elsewhere the controller may be booting, and the
+            // retry loop sends the frame again.
+            Err(e) if e.kind() == std::io::ErrorKind::ConnectionRefused => {
+                if self.fails_fast_when_refused() {
+                    Err(Error::ConnectionRefused { addr: self.addr })
+                } else {
+                    Ok(())
+                }
+            }
             Err(e) => Err(e.into()),
         }
+    }
+
+    /// Whether a refused port ends a command at once: on loopback, an ICMP "port
+    /// unreachable" means nothing listens on this machine, and waiting will not change it.
+    pub(crate) fn fails_fast_when_refused(&self) -> bool {
+        self.addr.ip().is_loopback()
+    }
+
+    /// The current wait for an ACK.
+    pub(crate) fn rto(&self) -> Duration {
+        lock(&self.rtt).rto()
     }
 
     /// Sends a command and returns its ACK whatever its status; resends the same bytes
@@ -293,25 +345,47 @@ impl Controller {
         let mut waiter = self.waiter();
         waiter.expect(seq);
         let started = Instant::now();
-        for _ in 0..self.options.attempts {
+        let mut sent = 0;
+        while sent < self.options.attempts {
+            // Exactly once: a copy that came after the controller forgot the first could
+            // be executed a second time.
+            if sent > 0 && started.elapsed() >= RESEND_HORIZON {
+                break;
+            }
             self.send_bytes(frame)?;
-            let deadline = Instant::now() + self.options.ack_timeout;
+            sent += 1;
+            let sent_at = Instant::now();
+            let deadline = sent_at + self.rto();
             loop {
                 let left = deadline.saturating_duration_since(Instant::now());
                 match waiter.rx.recv_timeout(left) {
-                    Ok((_, ack)) if ack.acked_tag != tag as u8 => continue,
+                    Ok(Event::Ack(_, ack)) if ack.acked_tag != tag as u8 => continue,
                     // Damaged on the way: send it again at once.
-                    Ok((_, ack)) if ack.status == StatusCode::BadCrc => break,
-                    Ok((_, ack)) => return Ok(ack),
-                    Err(RecvTimeoutError::Timeout) => break,
+                    Ok(Event::Ack(_, ack)) if ack.status == StatusCode::BadCrc => break,
+                    Ok(Event::Ack(_, ack)) => {
+                        if sent == 1 {
+                            // Karn's rule: only a frame sent once times the round trip.
+                            lock(&self.rtt).sample(sent_at.elapsed());
+                        }
+                        return Ok(ack);
+                    }
+                    Ok(Event::Refused) if self.fails_fast_when_refused() => {
+                        return Err(Error::ConnectionRefused { addr: self.addr });
+                    }
+                    Ok(Event::Refused) => continue,
+                    Err(RecvTimeoutError::Timeout) => {
+                        lock(&self.rtt).back_off();
+                        break;
+                    }
                     Err(RecvTimeoutError::Disconnected) => break,
                 }
             }
         }
         Err(Error::NoReply {
             command: tag,
-            attempts: self.options.attempts,
+            attempts: sent,
             waited: started.elapsed(),
+            to: self.addr,
         })
     }
 
@@ -476,12 +550,25 @@ impl Controller {
         self.send(&Command::UploadPeriod { period_us })
     }
 
+    /// Routes LOCATION reports to this client: UPLOAD_PERIOD with the period in force
+    /// (nothing else changes). The controller sends LOCATION to the endpoint that last
+    /// started an upload or set reports (PROTOCOL.md, "The ordering rule and the reports
+    /// follow endpoints"): a second tool on the same machine, or a fresh `armctl` after
+    /// another, claims them this way. Uploads (NEW) and RETURN claim them by themselves.
+    pub fn claim_locations(&self) -> Result<()> {
+        let period_us = self.status()?.upload_period_us;
+        self.upload_period(period_us).map(|_| ())
+    }
+
     /// A fresh LOCATION report (one that arrives after this call), at most `timeout`
-    /// from now. Location reports must be on (they are by default).
+    /// from now, after claiming the reports for this client ([`Controller::claim_locations`]).
+    /// Location reports must be on (they are by default).
     pub fn current_location(&self, timeout: Duration) -> Result<Location> {
+        let started = Instant::now();
         let locations = self.locations();
+        self.claim_locations()?;
         locations
-            .recv_timeout(timeout)
+            .recv_timeout(timeout.saturating_sub(started.elapsed()))
             .map_err(|_| Error::NoLocation { waited: timeout })
     }
 

@@ -31,6 +31,14 @@ pub enum Error {
         attempts: u32,
         /// Time spent waiting in all.
         waited: Duration,
+        /// Where the frames went.
+        to: std::net::SocketAddr,
+    },
+    /// Nothing listens on the controller's port (the system answered "port unreachable"
+    /// on loopback): the controller or simulator is not running there.
+    ConnectionRefused {
+        /// The address tried.
+        addr: std::net::SocketAddr,
     },
     /// The ACK came, but the report it asks for (STATUS) did not.
     NoReport {
@@ -52,6 +60,9 @@ pub enum Error {
         reason: RunEnd,
         /// Points executed (from STATUS), if known.
         executed: Option<u16>,
+        /// Points the controller received (from STATUS), if known: more than `executed`
+        /// means points were still waiting in its buffer when it stopped.
+        received: Option<u16>,
         /// Points in the trajectory.
         total: usize,
     },
@@ -73,10 +84,12 @@ pub enum Error {
 pub enum RunEnd {
     /// Someone sent STOPPED (this host or any other).
     Stopped,
-    /// The buffer ran dry before every point had arrived.
+    /// The buffer ran dry before every point had arrived: every point received had run
+    /// (STATUS `received` = `executed` < total), so the upload came too slowly.
     Underrun,
-    /// The controller reported an underrun although every point had arrived: it fell
-    /// behind feeding its own step engine (a controller fault, not the upload's).
+    /// The controller reported an underrun although points it had received were not run
+    /// (`received` > `executed`), or every point had arrived: it fell behind feeding its
+    /// own step engine (a controller fault, not the upload's).
     Starved,
     /// The controller left the upload for a reason it did not say.
     Unknown,
@@ -102,12 +115,24 @@ impl fmt::Display for Error {
                 command,
                 attempts,
                 waited,
+                to,
             } => write!(
                 f,
                 "no ACK for {} after {attempts} attempts in {:.1} s: is the controller on and \
-                 reachable at that address, and is the port right (8510)?",
+                 reachable at {}, and is port {} right (controllers listen on {} unless \
+                 configured otherwise)?",
                 command.name(),
-                waited.as_secs_f64()
+                waited.as_secs_f64(),
+                to.ip(),
+                to.port(),
+                crate::DEFAULT_PORT
+            ),
+            Error::ConnectionRefused { addr } => write!(
+                f,
+                "nothing listens on {addr} (connection refused): start the controller \
+                 (`cargo sim`), or check the port (controllers listen on {} unless \
+                 configured otherwise)",
+                crate::DEFAULT_PORT
             ),
             Error::NoReport { command, attempts } => write!(
                 f,
@@ -117,34 +142,42 @@ impl fmt::Display for Error {
             ),
             Error::NoLocation { waited } => write!(
                 f,
-                "no LOCATION report in {:.1} s: reports may be off (`armctl reports on`), or \
-                 another host owns the controller (reports go to the owner)",
+                "no LOCATION report in {:.1} s: reports may be off (`armctl reports on`), \
+                 another host owns the controller (reports go to the owner), or another \
+                 tool on this machine claimed them since",
                 waited.as_secs_f64()
             ),
             Error::Encode(e) => write!(f, "cannot encode the frame: {e}"),
             Error::RunEnded {
                 reason,
                 executed,
+                received,
                 total,
             } => {
                 let why = match reason {
                     RunEnd::Stopped => "STOPPED was sent (by this host or another)",
                     RunEnd::Underrun => {
                         "the trajectory buffer ran dry before every point had arrived \
-                         (underrun): the upload was too slow; use a larger window, longer \
-                         segments, or let RUNING wait for a full buffer (no --start-after)"
+                         (underrun; every point received had run): the upload was too slow; \
+                         use a larger window, longer segments, or let RUNING wait for a \
+                         full buffer (no --start-after)"
                     }
                     RunEnd::Starved => {
-                        "the controller reported an underrun although every point had \
-                         arrived: it fell behind feeding its step engine (a controller \
+                        "the controller reported an underrun although it had points left \
+                         to run: it fell behind feeding its step engine (a controller \
                          fault, not the upload's; on the simulator, a loaded machine or a \
                          high --time-scale)"
                     }
                     RunEnd::Unknown => "the controller left the upload",
                 };
-                match executed {
-                    Some(n) => write!(f, "run ended after {n} of {total} points: {why}"),
-                    None => write!(f, "run ended before its {total} points: {why}"),
+                match (executed, received) {
+                    (Some(n), Some(r)) => write!(
+                        f,
+                        "run ended after {n} of {total} points ({r} received, {} not run): {why}",
+                        r.saturating_sub(*n)
+                    ),
+                    (Some(n), None) => write!(f, "run ended after {n} of {total} points: {why}"),
+                    _ => write!(f, "run ended before its {total} points: {why}"),
                 }
             }
             Error::Stalled {

@@ -31,12 +31,17 @@ mod error;
 pub mod plot;
 pub mod pwm;
 pub mod record;
+mod rtt;
 mod run;
 pub mod trajectory;
 pub mod vcd;
 
 pub use client::{Controller, Options};
 pub use error::{Error, Result, RunEnd};
-pub use run::{MAX_POINTS, MAX_WINDOW, Progress, RunOptions, RunReport};
+pub use rtt::{DEFAULT_MIN_RTO, DUPLICATE_WINDOW, RESEND_HORIZON, RttEstimator};
+pub use run::{DEFAULT_WINDOW, MAX_POINTS, MAX_WINDOW, Progress, RunOptions, RunReport, window_of};
+
+/// The controller's UDP port, when an address names none.
+pub const DEFAULT_PORT: u16 = 8510;
 
 pub use protocol;

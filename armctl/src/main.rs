@@ -12,15 +12,19 @@ use armctl::record::{self, Recorder};
 use armctl::trajectory::{self, ArmConfig};
 use armctl::{Controller, Options, RunOptions};
 use clap::Parser;
-use protocol::{Location, Point, State, StatusFlags, StatusReport, UartInit};
+use protocol::{Location, MAX_JOINTS, Point, State, StatusFlags, StatusReport, UartInit};
 
 use cli::{Cli, Cmd, FrameCmd, OnOff, PwmCmd, RunArgs};
 
-/// A failure with the message to print; exit code 1.
+/// A failure with the message to print; exit code 1 (clap exits with 2 on a usage error).
 type CliResult = Result<(), String>;
 
 fn main() -> ExitCode {
-    let cli = Cli::parse();
+    let mut cli = Cli::parse();
+    cli.controller = cli::controller_address(&cli.controller);
+    if let Some(warning) = cli::resend_warning(cli.ack_timeout_ms, cli.attempts) {
+        eprintln!("warning: {warning}");
+    }
     match execute(cli) {
         Ok(()) => ExitCode::SUCCESS,
         Err(message) => {
@@ -68,8 +72,17 @@ fn execute(cli: Cli) -> CliResult {
             Ok(())
         }
         Cmd::Run(args) if args.dry_run => {
-            let (points, _) = convert(args, &[0; 8], None, None)?;
-            print_points_summary(&points);
+            let converted = convert(args, &[0; 8], None, Some(args.max_step_rate))?;
+            print_points_summary(&converted.points);
+            println!(
+                "step rates checked against {} (at most {} steps/s per joint, --max-step-rate)",
+                if args.config.is_some() {
+                    "the joint config"
+                } else {
+                    "the controller's limit"
+                },
+                args.max_step_rate
+            );
             Ok(())
         }
         _ => {
@@ -162,6 +175,15 @@ fn print_status(s: &StatusReport) {
         "trajectory       {} announced, {} received, {} executed",
         s.expected, s.received, s.executed
     );
+    println!(
+        "window           {} datagrams back to back{}",
+        armctl::window_of(s),
+        if s.window == 0 {
+            " (not advertised: assumed)"
+        } else {
+            ""
+        }
+    );
     println!("report period    {} us", s.upload_period_us);
     println!("max step rate    {} steps/s", s.max_step_rate_hz);
     println!("pwm timer clock  {} Hz", s.pwm_timer_clock_hz);
@@ -179,6 +201,9 @@ fn print_status(s: &StatusReport) {
         flag(StatusFlags::UNDERRUN),
         flag(StatusFlags::STOPPED_BY_HOST)
     );
+    if s.more_flags.has(protocol::MoreFlags::UPLOAD_DROPPED) {
+        println!("an unstarted upload was dropped when another host took the controller over");
+    }
 }
 
 fn location_line(location: &Location, joints: usize) -> String {
@@ -193,6 +218,8 @@ fn watch(arm: &Controller, record: Option<&std::path::Path>, duration: Option<f6
     let status = arm.status().map_err(|e| e.to_string())?;
     let joints = usize::from(status.joints).clamp(1, 8);
     let locations = arm.locations();
+    // LOCATION reports go to the tool that asked last: this one, from now on.
+    arm.claim_locations().map_err(|e| e.to_string())?;
     let mut recorder = record
         .map(|path| Recorder::create(path, joints).map_err(|e| format!("{}: {e}", path.display())))
         .transpose()?;
@@ -242,13 +269,20 @@ fn watch(arm: &Controller, record: Option<&std::path::Path>, duration: Option<f6
     Ok(())
 }
 
-/// The trajectory file as points, from `current`; also the waypoints' joint count.
+/// A trajectory file converted to points.
+struct Converted {
+    points: Vec<Point>,
+    /// How messages name each joint: `joint 2 (elbow)`, or `joint 2` without a name.
+    joint_names: Vec<String>,
+}
+
+/// The trajectory file as points, from `current`.
 fn convert(
     args: &RunArgs,
     current: &[i32; 8],
     controller_joints: Option<usize>,
     controller_max_rate: Option<u32>,
-) -> Result<(Vec<Point>, usize), String> {
+) -> Result<Converted, String> {
     let (waypoints, config) =
         trajectory::load_files(&args.file, args.config.as_deref()).map_err(|e| e.to_string())?;
     let joints = waypoints.positions.first().map_or(0, Vec::len);
@@ -273,8 +307,19 @@ fn convert(
         &config,
         controller_max_rate,
     )
-    .map_err(|e| e.to_string())?;
-    Ok((points, joints))
+    .map_err(|e| e.with_joint_names(&config).to_string())?;
+    let joint_names = (0..MAX_JOINTS)
+        .map(
+            |j| match config.joints.get(j).and_then(|c| c.name.as_ref()) {
+                Some(name) => format!("joint {j} ({name})"),
+                None => format!("joint {j}"),
+            },
+        )
+        .collect();
+    Ok(Converted {
+        points,
+        joint_names,
+    })
 }
 
 fn print_points_summary(points: &[Point]) {
@@ -299,7 +344,10 @@ fn run(arm: &Controller, args: &RunArgs) -> CliResult {
     let current = arm
         .current_location(Duration::from_secs(2))
         .map_err(|e| e.to_string())?;
-    let (points, _) = convert(
+    let Converted {
+        points,
+        joint_names,
+    } = convert(
         args,
         &current.position,
         Some(joints),
@@ -343,7 +391,8 @@ fn run(arm: &Controller, args: &RunArgs) -> CliResult {
         .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
     );
     let options = RunOptions {
-        window: usize::from(args.window),
+        // 0: the controller's advertised window.
+        window: args.window.map_or(0, usize::from),
         start_after: args.start_after,
         ..RunOptions::default()
     };
@@ -369,9 +418,10 @@ fn run(arm: &Controller, args: &RunArgs) -> CliResult {
     }
     let report = result.map_err(|e| e.to_string())?;
     println!(
-        "uploaded {} points in {} frames ({} datagrams, {} resent, {} out of order, {} buffer full, {} timeouts) in {:.3} s; run took {:.3} s",
+        "uploaded {} points in {} frames, window {} ({} datagrams, {} resent, {} out of order, {} buffer full, {} timeouts) in {:.3} s; run took {:.3} s",
         report.points,
         report.frames,
+        report.window,
         report.datagrams_sent,
         report.retransmissions,
         report.out_of_order,
@@ -388,8 +438,8 @@ fn run(arm: &Controller, args: &RunArgs) -> CliResult {
         .filter(|&j| location.position[j] != expected[j])
         .map(|j| {
             format!(
-                "joint {j} at {} steps, expected {}",
-                location.position[j], expected[j]
+                "{} at {} steps, expected {}",
+                joint_names[j], location.position[j], expected[j]
             )
         })
         .collect();

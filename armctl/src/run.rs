@@ -10,21 +10,29 @@ use protocol::{
     StatusFlags, StatusReport, Tag,
 };
 
-use crate::client::{Controller, check, lock};
+use crate::client::{Controller, Event, check, lock};
 use crate::error::{Error, Result, RunEnd};
 
 /// Largest trajectory one NEW can announce. Longer ones are refused (not split): splitting
 /// would stop the arm between uploads, which a caller must decide to do explicitly.
 pub const MAX_POINTS: usize = u16::MAX as usize;
 
-/// Frames in flight at most: the controller recognises a retransmission among the last 32
-/// frames it accepted, so a go-back-N resend of a whole window must stay well inside that.
-pub const MAX_WINDOW: usize = 16;
+/// Frames in flight at most: a controller takes a burst of 32 datagrams whole (the most
+/// it may advertise in STATUS `window`), and recognises a retransmission among more frames
+/// than that (PROTOCOL.md section 7), so a go-back-N resend of a whole window is still
+/// recognised.
+pub const MAX_WINDOW: usize = 32;
+
+/// The window of a controller that advertises none (STATUS `window` 0: an older
+/// controller): what every controller takes back to back.
+pub const DEFAULT_WINDOW: usize = protocol::DEFAULT_WINDOW as usize;
 
 /// How a trajectory is uploaded and run.
 #[derive(Clone, Debug)]
 pub struct RunOptions {
-    /// Frames sent and not yet acknowledged at most (1 = stop-and-wait), 1..=16.
+    /// Frames sent and not yet acknowledged at most (1 = stop-and-wait), up to
+    /// [`MAX_WINDOW`]; 0 = the window the controller advertises in STATUS
+    /// ([`DEFAULT_WINDOW`] for one that advertises none).
     pub window: usize,
     /// Points per PENDING frame, 1..=12.
     pub points_per_frame: usize,
@@ -43,7 +51,7 @@ pub struct RunOptions {
 impl Default for RunOptions {
     fn default() -> Self {
         RunOptions {
-            window: 8,
+            window: 0,
             points_per_frame: MAX_POINTS_PER_FRAME,
             start_after: None,
             wait: true,
@@ -75,6 +83,8 @@ pub struct RunReport {
     pub points: usize,
     /// PENDING/RUNING frames in the upload.
     pub frames: usize,
+    /// The window used (frames in flight at most).
+    pub window: usize,
     /// Datagrams sent for the upload, retransmissions included.
     pub datagrams_sent: usize,
     /// Datagrams sent again (timeouts, go-back-N, buffer full).
@@ -128,8 +138,6 @@ struct Upload<'a, 'p> {
     /// to `options.window`. A burst the controller's receive queue cannot hold is lost
     /// whole; this keeps go-back-N from repeating it.
     cwnd: f64,
-    /// Smoothed round-trip time, from frames acknowledged at their first transmission.
-    srtt: Option<Duration>,
     /// Points handed to frames so far.
     points_framed: usize,
     acked_points: usize,
@@ -156,8 +164,16 @@ struct Upload<'a, 'p> {
     report: RunReport,
 }
 
-/// ACK timeouts in a row, without any progress, after which an upload gives up.
-const MAX_TIMEOUTS_IN_A_ROW: usize = 50;
+/// ACK timeouts in a row, without any progress, after which an upload gives up (with
+/// [`UPLOAD_MAX_DOUBLINGS`], at least 1.5 s at the 3 ms floor; `stall_timeout` usually
+/// ends it first).
+const MAX_TIMEOUTS_IN_A_ROW: usize = 250;
+
+/// Back-off doublings an upload frame's ACK timeout takes at most (twice the estimate):
+/// on a LAN losses are random rather than congestion, a resend too many is only a
+/// duplicate the controller ACKs again, and a streak of losses must not let the running
+/// arm's buffer run dry while the client waits.
+const UPLOAD_MAX_DOUBLINGS: u32 = 1;
 
 impl Upload<'_, '_> {
     fn in_flight(&self) -> usize {
@@ -295,9 +311,11 @@ impl Upload<'_, '_> {
         if self.frames[i].sent_at < when {
             return true;
         }
-        let ack_timeout = self.controller.options().ack_timeout;
-        let settle = self.srtt.map_or(ack_timeout / 2, |rtt| {
-            (rtt * 2 + Duration::from_millis(1)).min(ack_timeout)
+        // Answers to copies of `i` that left before the go-back-N arrive within about a
+        // round trip of it; later ones answer copies sent after it.
+        let rtt = lock(&self.controller.rtt).clone();
+        let settle = rtt.srtt().map_or(rtt.rto() / 2, |srtt| {
+            (srtt * 2 + Duration::from_micros(500)).min(rtt.rto())
         });
         when.elapsed() < settle
     }
@@ -326,8 +344,9 @@ impl Upload<'_, '_> {
         match ack.status {
             StatusCode::Ok => {
                 if self.frames[i].sends == 1 && !self.frames[i].acked {
+                    // Karn's rule: only frames sent once time the round trip.
                     let sample = self.frames[i].sent_at.elapsed();
-                    self.srtt = Some(self.srtt.map_or(sample, |s| (s * 7 + sample) / 8));
+                    lock(&self.controller.rtt).sample(sample);
                 }
                 if !self.frames[i].acked {
                     self.cwnd = (self.cwnd + 1.0 / self.cwnd).min(self.options.window as f64);
@@ -455,7 +474,6 @@ impl Upload<'_, '_> {
 
     fn run(&mut self, progress: &mut dyn FnMut(&Progress)) -> Result<()> {
         let total = self.points.len();
-        let ack_timeout = self.controller.options().ack_timeout;
         let mut last_shown = Progress::default();
         loop {
             if self.last_progress.elapsed() > self.options.stall_timeout
@@ -478,6 +496,7 @@ impl Upload<'_, '_> {
                 return Ok(());
             }
             let now = Instant::now();
+            let ack_timeout = lock(&self.controller.rtt).rto_backed_off(UPLOAD_MAX_DOUBLINGS);
             let oldest = (self.base < self.next_send).then(|| self.frames[self.base].sent_at);
             let wake = match (self.resume, oldest) {
                 (Some((when, _)), _) => when,
@@ -490,15 +509,26 @@ impl Upload<'_, '_> {
                 .rx
                 .recv_timeout(wake.saturating_duration_since(now))
             {
-                Ok((seq, ack)) => self.on_ack(seq, ack)?,
+                Ok(Event::Ack(seq, ack)) => self.on_ack(seq, ack)?,
+                Ok(Event::Refused) if self.controller.fails_fast_when_refused() => {
+                    return Err(Error::ConnectionRefused {
+                        addr: self.controller.addr(),
+                    });
+                }
+                Ok(Event::Refused) => {}
                 Err(RecvTimeoutError::Timeout) | Err(RecvTimeoutError::Disconnected) => {
                     let overdue = self.resume.is_none()
                         && self.base < self.next_send
                         && self.frames[self.base].sent_at.elapsed() >= ack_timeout;
                     if overdue {
-                        trace(format_args!("ACK timeout, frame {}", self.base));
+                        trace(format_args!(
+                            "ACK timeout ({} us), frame {}",
+                            ack_timeout.as_micros(),
+                            self.base
+                        ));
                         self.report.timeouts += 1;
                         self.timeouts_in_a_row += 1;
+                        lock(&self.controller.rtt).back_off();
                         self.rewind(self.base, true);
                     }
                 }
@@ -516,9 +546,16 @@ fn trace(args: std::fmt::Arguments<'_>) {
 
 /// The error for a run that stopped early, from the STATUS after it.
 fn run_ended(status: Option<&StatusReport>, total: usize) -> Error {
+    // Received versus executed (PROTOCOL.md, "How the last run ended"): an underrun with
+    // points received and not run, or with every point received, is the controller falling
+    // behind its own buffer; only one that ran everything it had received, short of the
+    // total, is an upload that came too slowly.
     let reason = match status {
         Some(s) if s.flags.has(StatusFlags::STOPPED_BY_HOST) => RunEnd::Stopped,
-        Some(s) if s.flags.has(StatusFlags::UNDERRUN) && usize::from(s.received) >= total => {
+        Some(s)
+            if s.flags.has(StatusFlags::UNDERRUN)
+                && (s.received > s.executed || usize::from(s.received) >= total) =>
+        {
             RunEnd::Starved
         }
         Some(s) if s.flags.has(StatusFlags::UNDERRUN) => RunEnd::Underrun,
@@ -527,11 +564,32 @@ fn run_ended(status: Option<&StatusReport>, total: usize) -> Error {
     Error::RunEnded {
         reason,
         executed: status.map(|s| s.executed),
+        received: status.map(|s| s.received),
         total,
     }
 }
 
+/// The window a STATUS advertises: datagrams the controller takes back to back
+/// ([`DEFAULT_WINDOW`] when it advertises none, at most [`MAX_WINDOW`]).
+pub fn window_of(status: &StatusReport) -> usize {
+    match status.window {
+        0 => DEFAULT_WINDOW,
+        n => usize::from(n).min(MAX_WINDOW),
+    }
+}
+
 impl Controller {
+    /// The window the controller advertises in STATUS (from the last STATUS this client
+    /// received, else a fresh one): [`DEFAULT_WINDOW`] for a controller that advertises
+    /// none, at most [`MAX_WINDOW`].
+    pub fn advertised_window(&self) -> Result<usize> {
+        let status = match self.last_status() {
+            Some(status) => status,
+            None => self.status()?,
+        };
+        Ok(window_of(&status))
+    }
+
     /// Uploads `points` (NEW, PENDING frames through a go-back-N window with flow control,
     /// RUNING) and, if `options.wait`, waits for the run to end and checks that the
     /// controller executed every point. `progress` is called whenever the counts change.
@@ -556,8 +614,12 @@ impl Controller {
                 points[i].duration
             )));
         }
+        let window = match options.window {
+            0 => self.advertised_window()?,
+            n => n,
+        };
         let options = RunOptions {
-            window: options.window.clamp(1, MAX_WINDOW),
+            window: window.clamp(1, MAX_WINDOW),
             points_per_frame: options.points_per_frame.clamp(1, MAX_POINTS_PER_FRAME),
             ..options.clone()
         };
@@ -581,7 +643,6 @@ impl Controller {
                 base: 0,
                 next_send: 0,
                 cwnd: options.window as f64,
-                srtt: None,
                 points_framed: 0,
                 acked_points: 0,
                 free: (usize::from(ack.free), None),
@@ -601,6 +662,7 @@ impl Controller {
             };
             upload.run(&mut progress)?;
             upload.report.frames = upload.frames.len();
+            upload.report.window = options.window;
             upload.report
         };
         report.points = total;
@@ -664,5 +726,74 @@ impl Controller {
         } else {
             Err(run_ended(Some(&status), total))
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn ended(flags: u8, received: u16, executed: u16, total: usize) -> Error {
+        let status = StatusReport {
+            state: State::Stopped,
+            flags: StatusFlags(flags),
+            expected: total as u16,
+            received,
+            executed,
+            ..StatusReport::default()
+        };
+        run_ended(Some(&status), total)
+    }
+
+    fn reason(e: &Error) -> RunEnd {
+        match e {
+            Error::RunEnded { reason, .. } => *reason,
+            other => panic!("not RunEnded: {other}"),
+        }
+    }
+
+    /// Bug 4 of issue 14: at time scale 20 with 1 ms segments a run ended with 8,000
+    /// points received and not run, and armctl said the upload was too slow.
+    #[test]
+    fn underrun_with_points_still_received_blames_the_controller() {
+        let e = ended(StatusFlags::UNDERRUN, 9_000, 1_000, 20_000);
+        assert_eq!(reason(&e), RunEnd::Starved, "{e}");
+        let text = e.to_string();
+        assert!(text.contains("8000"), "{text}");
+        assert!(!text.contains("upload was too slow"), "{text}");
+    }
+
+    #[test]
+    fn underrun_with_every_received_point_run_blames_the_upload() {
+        let e = ended(StatusFlags::UNDERRUN, 900, 900, 1_200);
+        assert_eq!(reason(&e), RunEnd::Underrun, "{e}");
+        assert!(e.to_string().contains("upload was too slow"), "{e}");
+        // Everything arrived and ran, yet UNDERRUN: the controller's fault again.
+        let e = ended(StatusFlags::UNDERRUN, 1_200, 1_199, 1_200);
+        assert_eq!(reason(&e), RunEnd::Starved, "{e}");
+    }
+
+    #[test]
+    fn the_window_is_the_advertised_one_or_eight() {
+        let status = |window| StatusReport {
+            window,
+            ..StatusReport::default()
+        };
+        assert_eq!(window_of(&status(0)), 8, "an old controller");
+        assert_eq!(window_of(&status(32)), 32);
+        assert_eq!(window_of(&status(4)), 4);
+        assert_eq!(window_of(&status(1000)), MAX_WINDOW);
+    }
+
+    #[test]
+    fn stopped_wins_and_no_status_is_unknown() {
+        let e = ended(
+            StatusFlags::UNDERRUN | StatusFlags::STOPPED_BY_HOST,
+            50,
+            10,
+            100,
+        );
+        assert_eq!(reason(&e), RunEnd::Stopped);
+        assert_eq!(reason(&run_ended(None, 100)), RunEnd::Unknown);
     }
 }

@@ -52,13 +52,46 @@ fn run_options() {
         Some("arm.json")
     );
     assert_eq!(args.segment_ms, 5.0);
-    assert_eq!(args.window, 1);
+    assert_eq!(args.window, Some(1));
     assert_eq!(
         args.record.as_deref().and_then(|p| p.to_str()),
         Some("rec.csv")
     );
-    assert!(refused(&["run", "t.csv", "--window", "17"]).contains("17"));
+    assert!(refused(&["run", "t.csv", "--window", "33"]).contains("33"));
     assert!(refused(&["run", "t.csv", "--window", "0"]).contains('0'));
+    let Cmd::Run(args) = parse(&["run", "t.csv", "--window", "32"]).command else {
+        panic!("not run")
+    };
+    assert_eq!(args.window, Some(32));
+    // Default: the controller's advertised window.
+    let Cmd::Run(args) = parse(&["run", "t.csv"]).command else {
+        panic!("not run")
+    };
+    assert_eq!(args.window, None);
+    assert_eq!(args.max_step_rate, cli::DEFAULT_MAX_STEP_RATE_HZ);
+}
+
+#[test]
+fn controller_address_gets_the_default_port() {
+    use cli::controller_address as addr;
+    assert_eq!(addr("192.168.1.30"), "192.168.1.30:8510");
+    assert_eq!(addr("192.168.1.30:9000"), "192.168.1.30:9000");
+    assert_eq!(addr("localhost"), "localhost:8510");
+    assert_eq!(addr("localhost:7"), "localhost:7");
+    assert_eq!(addr("arm-1.lab"), "arm-1.lab:8510");
+    assert_eq!(addr("::1"), "[::1]:8510");
+    assert_eq!(addr("[::1]"), "[::1]:8510");
+    assert_eq!(addr("[::1]:9"), "[::1]:9");
+    assert_eq!(addr(" 127.0.0.1 "), "127.0.0.1:8510");
+}
+
+#[test]
+fn resends_past_the_duplicate_window_are_warned_about() {
+    assert_eq!(cli::resend_warning(100, 10), None);
+    assert_eq!(cli::resend_warning(200, 10), None);
+    let warning = cli::resend_warning(500, 10).expect("5 s of resends");
+    assert!(warning.contains("5.0 s"), "{warning}");
+    assert!(warning.contains("2 s duplicate window"), "{warning}");
 }
 
 #[test]

@@ -97,11 +97,15 @@ impl ArmConfig {
                 || !joint.steps_per_radian.is_finite()
                 || joint.steps_per_radian == 0.0
             {
+                let name = joint
+                    .name
+                    .as_ref()
+                    .map_or(String::new(), |n| format!(" ({n})"));
                 return Err(TrajectoryError::new(
                     file,
                     ErrorKind::Parse(format!(
-                        "joint {j}: min_steps must not exceed max_steps and steps_per_radian \
-                         must be a non-zero number"
+                        "joint {j}{name}: min_steps must not exceed max_steps and \
+                         steps_per_radian must be a non-zero number"
                     )),
                 ));
             }
@@ -147,12 +151,15 @@ pub struct Waypoints {
 pub struct TrajectoryError {
     /// The file.
     pub file: String,
-    /// Index of the waypoint (limits) or of the resampled point (step rate).
+    /// Index of the file's waypoint (limits, start, times) or of the resampled segment
+    /// (step rate: the kind says which).
     pub point: Option<usize>,
     /// Time from start of that point, seconds.
     pub time_s: Option<f64>,
     /// The joint.
     pub joint: Option<usize>,
+    /// The joint's name in the joint config, when it has one (boxed: a small error).
+    pub joint_name: Option<Box<str>>,
     /// What is wrong.
     pub kind: ErrorKind,
 }
@@ -225,6 +232,7 @@ impl TrajectoryError {
             point: None,
             time_s: None,
             joint: None,
+            joint_name: None,
             kind,
         }
     }
@@ -235,19 +243,44 @@ impl TrajectoryError {
         self.joint = joint;
         self
     }
+
+    /// Names the joint after `config` (its `name`), for the message.
+    pub fn with_joint_names(mut self, config: &ArmConfig) -> TrajectoryError {
+        if let Some(j) = self.joint {
+            self.joint_name = config
+                .joints
+                .get(j)
+                .and_then(|c| c.name.as_deref())
+                .map(Box::from);
+        }
+        self
+    }
+
+    /// Whether `point` counts resampled segments (`--segment-ms`) rather than the file's
+    /// waypoints.
+    pub fn point_is_segment(&self) -> bool {
+        matches!(self.kind, ErrorKind::StepRate { .. })
+    }
 }
 
 impl fmt::Display for TrajectoryError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         write!(f, "{}", self.file)?;
         if let Some(p) = self.point {
-            write!(f, ": point {p}")?;
+            if self.point_is_segment() {
+                write!(f, ": resampled segment {p}")?;
+            } else {
+                write!(f, ": waypoint {p} of the file")?;
+            }
         }
         if let Some(t) = self.time_s {
             write!(f, " (t = {t:.6} s)")?;
         }
         if let Some(j) = self.joint {
             write!(f, ", joint {j}")?;
+            if let Some(name) = &self.joint_name {
+                write!(f, " ({name})")?;
+            }
         }
         f.write_str(": ")?;
         match &self.kind {
@@ -885,9 +918,10 @@ mod tests {
                 limit_hz: 2000
             }
         );
-        let message = err.to_string();
+        let message = err.clone().with_joint_names(&config()).to_string();
         assert!(
-            message.starts_with("fast.json: point 0 (t = 0.050000 s), joint 0"),
+            message
+                .starts_with("fast.json: resampled segment 0 (t = 0.050000 s), joint 0 (shoulder)"),
             "{message}"
         );
         assert!(
@@ -955,7 +989,7 @@ mod tests {
         );
         assert!(
             err.to_string()
-                .contains("low.csv: point 1 (t = 1.000000 s), joint 0")
+                .contains("low.csv: waypoint 1 of the file (t = 1.000000 s), joint 0")
         );
     }
 

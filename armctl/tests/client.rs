@@ -14,7 +14,7 @@ fn options() -> Options {
         ack_timeout: Duration::from_millis(30),
         attempts: 20,
         report_timeout: Duration::from_millis(100),
-        bind: None,
+        ..Options::default()
     }
 }
 
@@ -67,7 +67,7 @@ fn lossy_link_still_delivers_each_point_exactly_once() {
                 dup: 0.05,
                 reorder: 0.05,
                 seed,
-                inbox: 0,
+                ..Faults::default()
             },
         );
         let arm = Controller::connect_with(fake.addr, options()).unwrap();
@@ -121,6 +121,7 @@ fn stop_from_another_thread_ends_the_run() {
             reason: RunEnd::Stopped,
             executed: Some(n),
             total: 500,
+            ..
         } => assert!(n > 0 && n < 500, "{n}"),
         other => panic!("{other}"),
     }
@@ -176,4 +177,129 @@ fn a_window_larger_than_the_controller_inbox_backs_off() {
         report.retransmissions,
         report.frames
     );
+}
+
+/// Bug 4 of issue 14, over UDP: the controller ended the run by underrun in the middle of
+/// the upload, with a full buffer of points received and not run. That is the controller
+/// falling behind, not a slow upload (armctl used to say "the upload was too slow" because
+/// not every point had been received).
+#[test]
+fn a_controller_that_falls_behind_is_not_blamed_on_the_upload() {
+    let fake = Fake::start(
+        200,
+        Faults {
+            fall_behind_after: Some(50),
+            ..Faults::default()
+        },
+    );
+    let arm = Controller::connect_with(fake.addr, options()).unwrap();
+    let points = ramp(1000, 2, 2000);
+    let err = arm
+        .run_trajectory(&points, &RunOptions::default(), |_| {})
+        .unwrap_err();
+    match &err {
+        Error::RunEnded {
+            reason: RunEnd::Starved,
+            executed: Some(executed),
+            received: Some(received),
+            total: 1000,
+        } => assert!(
+            *executed >= 50 && received > executed && *received < 1000,
+            "{err}"
+        ),
+        other => panic!("expected RunEnded(Starved) mid-upload, got {other:?}"),
+    }
+    let text = err.to_string();
+    assert!(text.contains("fell behind"), "{text}");
+    assert!(!text.contains("upload was too slow"), "{text}");
+}
+
+/// The other side of bug 4: points of 10 us each cannot be uploaded as fast as they run,
+/// so the buffer runs dry with every point received already run: the upload's fault.
+#[test]
+fn an_upload_slower_than_the_run_is_reported_as_such() {
+    let fake = Fake::start(600, Faults::default());
+    let arm = Controller::connect_with(fake.addr, options()).unwrap();
+    let points = ramp(2000, 0, 10);
+    let run = RunOptions {
+        window: 1,
+        start_after: Some(12),
+        ..RunOptions::default()
+    };
+    let err = arm.run_trajectory(&points, &run, |_| {}).unwrap_err();
+    match &err {
+        Error::RunEnded {
+            reason: RunEnd::Underrun,
+            executed: Some(executed),
+            received: Some(received),
+            total: 2000,
+        } => assert_eq!(executed, received, "{err}"),
+        other => panic!("expected RunEnded(Underrun), got {other:?}"),
+    }
+    assert!(err.to_string().contains("upload was too slow"), "{err}");
+}
+
+/// The client keeps as many frames in flight as the controller advertises in STATUS
+/// `window`, 8 when it advertises none, and an explicit window wins.
+#[test]
+fn the_advertised_window_is_used_by_default() {
+    for (advertised, used) in [(0u16, 8usize), (3, 3), (32, 32)] {
+        let fake = Fake::start(
+            4000,
+            Faults {
+                window: advertised,
+                ..Faults::default()
+            },
+        );
+        let arm = Controller::connect_with(fake.addr, options()).unwrap();
+        assert_eq!(arm.advertised_window().unwrap(), used);
+        let points = ramp(600, 1, 500);
+        let report = arm
+            .run_trajectory(&points, &RunOptions::default(), |_| {})
+            .unwrap();
+        assert_eq!(report.window, used, "advertised {advertised}");
+        assert_eq!(fake.counters().taken, points);
+        let explicit = RunOptions {
+            window: 2,
+            ..RunOptions::default()
+        };
+        let report = arm.run_trajectory(&points, &explicit, |_| {}).unwrap();
+        assert_eq!(report.window, 2);
+    }
+}
+
+/// One PENDING lost in the middle of a window: the frames after it are refused
+/// OUT_OF_ORDER, and the client goes back to `next_seq` at once instead of waiting for an
+/// ACK timeout.
+#[test]
+fn out_of_order_goes_back_at_once() {
+    // Datagram 0 is connect's STATUS, 1 the NEW, 2.. the PENDING frames: the third is lost.
+    let fake = Fake::start(
+        4000,
+        Faults {
+            drop_received: Some(4),
+            ..Faults::default()
+        },
+    );
+    // A long ACK timeout: waiting for one would show.
+    let arm = Controller::connect_with(
+        fake.addr,
+        Options {
+            ack_timeout: Duration::from_secs(2),
+            min_ack_timeout: Duration::from_secs(1),
+            ..options()
+        },
+    )
+    .unwrap();
+    let points = ramp(240, 1, 500);
+    let run = RunOptions {
+        window: 8,
+        wait: false,
+        ..RunOptions::default()
+    };
+    let report = arm.run_trajectory(&points, &run, |_| {}).unwrap();
+    assert_eq!(fake.counters().taken, points);
+    assert!(report.out_of_order >= 1, "{report:?}");
+    // No 1 s wait: the OUT_OF_ORDER answers brought the lost frame back.
+    assert_eq!(report.timeouts, 0, "{report:?}");
 }

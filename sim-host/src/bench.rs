@@ -1,8 +1,9 @@
 //! `sim-host bench`: figures of the simulated controller, measured over loopback with the
 //! `armctl` client.
 //!
-//! - Upload throughput (points/s): a trajectory that fits the buffer, uploaded with a
-//!   go-back-N window and stop-and-wait (window 1).
+//! - Upload throughput (points/s): a trajectory that fits the buffer, uploaded with
+//!   go-back-N windows of 32, 16 and 8 frames and stop-and-wait (window 1), side by side,
+//!   with the resends, OUT_OF_ORDER refusals and ACK timeouts each needed.
 //! - E-stop latency: from the moment the STOPPED datagram is read from the socket to the
 //!   moment the step engine is idle (measured inside the simulator), and the host's
 //!   STOPPED-to-ACK round trip; p50/p99 over repeated stops of a running trajectory.
@@ -64,10 +65,15 @@ pub fn run(sim: &SimOptions, bench: &BenchOptions) -> io::Result<()> {
     let trajectory: Vec<Point> = (0..points)
         .map(|_| Point::from_motion(1_000, &[0; MAX_JOINTS], &[0; MAX_JOINTS]))
         .collect();
-    println!("upload throughput ({points} points of 116 bytes, 12 per frame, loopback):");
-    for window in [8usize, 4, 1] {
+    println!(
+        "upload throughput ({points} points of 116 bytes, 12 per frame, loopback; the controller advertises window {}):",
+        arm.advertised_window().map_err(to_io)?
+    );
+    for window in [32usize, 16, 8, 1] {
         let mut rates = Vec::new();
         let mut resent = 0;
+        let mut out_of_order = 0;
+        let mut timeouts = 0;
         for _ in 0..bench.repeats.max(1) {
             let run = RunOptions {
                 window,
@@ -82,6 +88,8 @@ pub fn run(sim: &SimOptions, bench: &BenchOptions) -> io::Result<()> {
             arm.stop().map_err(to_io)?;
             rates.push(points as f64 / report.upload_time.as_secs_f64());
             resent += report.retransmissions;
+            out_of_order += report.out_of_order;
+            timeouts += report.timeouts;
         }
         rates.sort_by(f64::total_cmp);
         let median = rates[rates.len() / 2];
@@ -91,8 +99,9 @@ pub fn run(sim: &SimOptions, bench: &BenchOptions) -> io::Result<()> {
             format!("windowed (window {window})")
         };
         println!(
-            "  {label:<26} {median:>9.0} points/s  ({:.0} frames/s, {resent} resent)",
-            median / 12.0
+            "  {label:<26} {median:>9.0} points/s  ({:.0} frames/s; over {} uploads: {resent} resent, {out_of_order} out of order, {timeouts} ACK timeouts)",
+            median / 12.0,
+            rates.len()
         );
     }
 

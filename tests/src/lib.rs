@@ -190,6 +190,8 @@ impl SimHost {
                         _slot: slot,
                     };
                 }
+                // A port nobody listens on yet is refused at once on loopback: do not spin.
+                std::thread::sleep(Duration::from_millis(20));
             }
             let _ = child.kill();
             let _ = child.wait();

@@ -93,8 +93,8 @@ fn a_trajectory_too_fast_for_a_joint_is_refused_before_sending() {
         ],
     );
     assert!(!ok, "{out}");
-    assert!(err.contains("fast.json: point 0"), "{err}");
-    assert!(err.contains("joint 0"), "{err}");
+    assert!(err.contains("fast.json: resampled segment 0"), "{err}");
+    assert!(err.contains("joint 0 (base)"), "{err}");
     assert!(err.contains("exceeds the limit of 500 steps/s"), "{err}");
     // Nothing was uploaded.
     let (_, out, _) = armctl(Some(&sim), &["status"]);

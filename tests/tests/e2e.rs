@@ -366,6 +366,7 @@ fn emergency_stop_mid_run_freezes_the_joints() {
             reason: RunEnd::Stopped,
             executed: Some(n),
             total: t,
+            ..
         }) => {
             assert_eq!(t, total);
             usize::from(n)

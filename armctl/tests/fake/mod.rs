@@ -30,6 +30,14 @@ pub struct Faults {
     /// Datagrams the controller can queue at once (0: unbounded); a burst beyond it is
     /// dropped, like a firmware inbox that is full.
     pub inbox: usize,
+    /// After executing this many points of a run, the fake "falls behind": it ends the run
+    /// with an underrun although points are still buffered (a controller that cannot feed
+    /// its step engine in time).
+    pub fall_behind_after: Option<u16>,
+    /// The window STATUS advertises (0: none, as an older controller).
+    pub window: u16,
+    /// Drops the received datagram with this index (0 = the first), once.
+    pub drop_received: Option<usize>,
 }
 
 /// What the fake counted.
@@ -81,6 +89,8 @@ struct Sim {
     counters: Counters,
     upload_period: Duration,
     last_report: Instant,
+    fall_behind_after: Option<u16>,
+    window: u16,
 }
 
 /// A running fake controller on 127.0.0.1.
@@ -118,6 +128,8 @@ impl Fake {
             counters: Counters::default(),
             upload_period: Duration::from_millis(10),
             last_report: Instant::now(),
+            fall_behind_after: faults.fall_behind_after,
+            window: faults.window,
         }));
         let shutdown = Arc::new(AtomicBool::new(false));
         let thread = {
@@ -187,6 +199,7 @@ fn serve(socket: UdpSocket, sim: Arc<Mutex<Sim>>, shutdown: Arc<AtomicBool>, fau
     };
     let mut in_rng = Rng(faults.seed.wrapping_mul(31).max(7));
     let mut held_in: Option<(Vec<u8>, SocketAddr)> = None;
+    let mut received = 0usize;
     let mut buf = [0u8; MAX_DATAGRAM];
     while !shutdown.load(Ordering::Relaxed) {
         let mut incoming = Vec::new();
@@ -208,6 +221,10 @@ fn serve(socket: UdpSocket, sim: Arc<Mutex<Sim>>, shutdown: Arc<AtomicBool>, fau
             burst.truncate(faults.inbox);
         }
         for (datagram, from) in burst {
+            received += 1;
+            if faults.drop_received == Some(received - 1) {
+                continue;
+            }
             if !in_rng.chance(faults.loss) {
                 if held_in.is_none() && in_rng.chance(faults.reorder) {
                     held_in = Some((datagram, from));
@@ -318,7 +335,6 @@ impl Sim {
                 joints: self.joints,
                 state: self.state,
                 flags: self.flags,
-                window: 32,
                 buffered: self.buffer.len() as u16,
                 expected: self.expected,
                 received: self.received,
@@ -328,6 +344,7 @@ impl Sim {
                 upload_period_us: self.upload_period.as_micros() as u32,
                 pwm_timer_clock_hz: 240_000_000,
                 max_step_rate_hz: 50_000,
+                window: self.window,
             };
             self.report(&Report::Status(status), link);
         }
@@ -415,6 +432,15 @@ impl Sim {
 
     fn tick(&mut self, link: &mut Link) {
         let now = Instant::now();
+        if self.state == State::Running
+            && self
+                .fall_behind_after
+                .is_some_and(|n| self.executed >= n && !self.buffer.is_empty())
+        {
+            self.flags.set(StatusFlags::UNDERRUN, true);
+            self.buffer.clear();
+            self.set_state(State::Stopped, link);
+        }
         if self.state == State::Running {
             while let Some(p) = self.buffer.front() {
                 let end = self.segment_start + Duration::from_micros(p.duration as u64);
