@@ -11,7 +11,6 @@ use embassy_stm32::eth::{Ethernet, GenericPhy, PacketQueue, Sma};
 use embassy_stm32::peripherals::{ETH, ETH_SMA};
 
 use embassy_stm32::{Peri, peripherals};
-use static_cell::StaticCell;
 
 use arm_core::config::HOST_WINDOW;
 
