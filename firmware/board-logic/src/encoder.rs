@@ -346,6 +346,28 @@ pub async fn read_positions<B: EncoderBus>(
     Ok(positions)
 }
 
+/// Whether encoders are fitted at all: asks joints `0..joints` once each and stops at the
+/// first answer (any answer, even an exception, means a device on the bus). A board
+/// without encoders then runs RETURN on the step count; with encoders, a later failure
+/// refuses RETURN instead.
+pub async fn probe<B: EncoderBus>(bus: &mut B, config: &EncoderConfig, joints: u8) -> bool {
+    let once = EncoderConfig {
+        attempts: 1,
+        ..*config
+    };
+    for encoder in config
+        .joints
+        .iter()
+        .take(usize::from(joints).min(MAX_JOINTS))
+    {
+        match read_counts(bus, &once, encoder.address).await {
+            Ok(_) | Err(ReplyError::Exception(_)) => return true,
+            Err(_) => {}
+        }
+    }
+    false
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -557,6 +579,16 @@ mod tests {
         let read = block_on(read_positions(&mut bus, &EncoderConfig::DEFAULT, 1));
         assert_eq!(read.unwrap_err().kind, EncoderFaultKind::Exception(2));
         assert_eq!(bus.sent.len(), 1, "an exception is not retried");
+    }
+
+    #[test]
+    fn probe_finds_any_answering_encoder_and_asks_each_once() {
+        let mut bus = FakeBus::new(&[(3, &[Behaviour::Answer(1)])]);
+        assert!(block_on(probe(&mut bus, &EncoderConfig::DEFAULT, 6)));
+        assert_eq!(bus.sent.len(), 3);
+        let mut bus = FakeBus::new(&[]);
+        assert!(!block_on(probe(&mut bus, &EncoderConfig::DEFAULT, 6)));
+        assert_eq!(bus.sent.len(), 6);
     }
 
     proptest! {

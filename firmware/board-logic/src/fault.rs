@@ -55,6 +55,11 @@ pub enum FaultKind {
         /// SCB BFAR: the bus fault's data address, when CFSR's BFARVALID is set.
         bfar: u32,
     },
+    /// An interrupt with no handler fired (cortex-m-rt's default handler would spin).
+    UnexpectedInterrupt {
+        /// Its number (negative: a system exception).
+        irqn: i16,
+    },
 }
 
 /// The register writes of the fault path, in the board's terms. Every method must be safe

@@ -11,6 +11,7 @@
 //! * [`encoder`]: absolute multi-turn encoders over Modbus RTU (RS-485): frame codec, CRC,
 //!   timeouts, and the read of every joint, generic over the bus.
 //! * [`gripper`]: the burst arithmetic of counted gripper pulses.
+//! * [`net`]: REF_CLK detection, autonegotiated link mode, the link-loss policy.
 //! * [`uart`]: the mapping of UART_INIT's HAL codes to a frame format.
 #![no_std]
 #![warn(missing_docs)]
@@ -23,6 +24,7 @@ pub mod clock;
 pub mod encoder;
 pub mod fault;
 pub mod gripper;
+pub mod net;
 pub mod settings;
 pub mod uart;
 pub mod watchdog;

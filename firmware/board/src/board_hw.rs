@@ -1,10 +1,15 @@
-//! The small hardware adapters: time from embassy-time, the UDP socket from embassy-net,
-//! and the (absent) encoders.
+//! The small hardware adapters: time from embassy-time and the UDP socket from
+//! embassy-net.
 
-use arm_core::hw::{Clock, Datagrams, Encoders, Endpoint};
+use arm_core::hw::{Clock, Datagrams, Endpoint};
+use embassy_futures::select::{Either, select};
 use embassy_net::udp::{RecvError, SendError, UdpSocket};
 use embassy_net::{IpAddress, IpEndpoint, Ipv4Address};
 use embassy_time::{Instant, Timer};
+
+/// While no datagram arrives, a receive wakes its task this often: each wake-up polls the
+/// network task's future, whose heartbeat the watchdog checks (`main.rs`).
+const RECEIVE_HEARTBEAT_MS: u64 = 100;
 
 /// [`Clock`] on embassy-time (TIM5 at 1 MHz ticks: microseconds exactly).
 #[derive(Clone, Copy, Default)]
@@ -55,12 +60,20 @@ impl Datagrams for BoardSocket {
     type Error = DatagramError;
 
     async fn recv(&self, buf: &mut [u8]) -> Result<(usize, Endpoint), Self::Error> {
-        let (len, meta) = self
-            .socket
-            .recv_from(buf)
+        loop {
+            // recv_from is cancel-safe (a poll of the socket's queue): nothing is lost when
+            // the heartbeat timer wins.
+            match select(
+                self.socket.recv_from(buf),
+                Timer::after_millis(RECEIVE_HEARTBEAT_MS),
+            )
             .await
-            .map_err(DatagramError::Recv)?;
-        Ok((len, to_endpoint(meta.endpoint)))
+            {
+                Either::First(Ok((len, meta))) => return Ok((len, to_endpoint(meta.endpoint))),
+                Either::First(Err(e)) => return Err(DatagramError::Recv(e)),
+                Either::Second(()) => {}
+            }
+        }
     }
 
     async fn send(&self, to: Endpoint, frame: &[u8]) -> Result<(), Self::Error> {
@@ -70,15 +83,5 @@ impl Datagrams for BoardSocket {
             .send_to(frame, remote)
             .await
             .map_err(DatagramError::Send)
-    }
-}
-
-/// This board has no absolute encoders: RETURN trusts the step count.
-#[derive(Clone, Copy, Default)]
-pub struct NoEncoders;
-
-impl Encoders for NoEncoders {
-    async fn read(&mut self) -> Option<[i32; protocol::MAX_JOINTS]> {
-        None
     }
 }

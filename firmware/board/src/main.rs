@@ -36,43 +36,89 @@
 //! Network input can never panic or block: arm-core decodes it with the `protocol` crate
 //! and answers every error with an ACK status; queues that are full drop rather than wait.
 //!
-//! # Memory
+//! # Memory and caches
 //! Every task, driver and buffer is a `static` (`StaticCell`), initialised once in `main`;
-//! there is no heap. The trajectory buffer (8192 points, 288 KiB) and the network buffers
-//! are in AXI SRAM, the stack in DTCM (see `memory.x`).
+//! there is no heap. Both caches are on ([`memory`]); the layout:
+//!
+//! | region | what | cache |
+//! |---|---|---|
+//! | flash bank 1 + bank 2 up to 0x081C_0000 | code, constants (`memory.x` FLASH) | I-cache |
+//! | flash 0x081C_0000..0x0820_0000 | settings (two sectors, [`settings`]) | - |
+//! | AXI SRAM 0x2400_0000 (512 KiB) | `.data`, `.bss`: the trajectory buffer (8192 points, 288 KiB), the bus, the tasks' futures, the UDP socket buffers | D-cache, write-back |
+//! | DTCM 0x2000_0000 (128 KiB) | the stack (CPU only, zero wait states) | never cached |
+//! | SRAM1 0x3000_0000 (128 KiB) | every DMA buffer: Ethernet descriptors and packets, serial RX ring and TX staging, step streams ([`memory::DmaBuffers`]) | MPU region 0: non-cacheable |
+//!
+//! A DMA never sees a stale cache line because nothing it touches is cacheable; nothing
+//! on the CPU side needs cache maintenance. The step engine's state (`STEP`) and the bus
+//! stay in AXI SRAM: with the D-cache on they are cache hits in the step interrupt, as
+//! fast as DTCM would be, without a second linker region to manage.
+//!
+//! Flash image: the big statics have zero initial values so they cost no flash: [`BUS`]
+//! (23 KiB) is built at run time in place (`LateBus`), the others are `StaticCell`s.
+//! `scripts/fw-size.sh` fails above 96 KiB.
+//!
+//! # Faults, watchdog, boot
+//! - Panics, HardFaults and stray interrupts take one path ([`fault`]): steps and gripper
+//!   stopped, STEP low, drivers holding, a defmt line, reset.
+//! - The IWDG (1 s) is fed by the `watchdog` task only while the step task and the
+//!   network task both show signs of life (board-logic's `watchdog` module).
+//! - Clocks: HSE from the ST-LINK if it starts within 10 ms, else HSI ([`clocks`]).
+//! - Network: brought up only once the PHY's reference clock runs, retried every 5 s;
+//!   everything else runs meanwhile ([`net`]). Link loss changes nothing in the controller:
+//!   a run keeps executing what is buffered and the underrun rule stops it
+//!   (board-logic's `net` module documents why).
+//! - Settings: corruption is erased to defaults, an ECC double error costs one extra reset
+//!   ([`settings`]).
 
 #![no_std]
 #![no_main]
 
 mod board_hw;
 mod clocks;
+mod encoder;
+mod fault;
 mod gripper;
+mod memory;
 mod net;
 mod pins;
 mod serial;
 mod settings;
 mod step_timer;
 
+use core::cell::UnsafeCell;
+use core::mem::MaybeUninit;
+use core::ops::Deref;
+
 use arm_core::config::{BOARD_TRAJECTORY_CAPACITY, ControllerConfig};
-use arm_core::hw::{Gripper, PersistentSettings};
+use arm_core::hw::Gripper;
 use arm_core::{Bus, Controller, TrajectoryHw};
-use defmt::{info, warn};
+use board_logic::net::RETRY_SECONDS;
+use board_logic::watchdog::{
+    Beating, CHECK_PERIOD_MS, Heartbeat, IWDG_TIMEOUT_MS, Liveness, Verdict,
+};
+use defmt::{error, info, warn};
+use defmt_rtt as _;
 use embassy_executor::Spawner;
 use embassy_net::Stack;
 use embassy_net::udp::{PacketMetadata, UdpSocket};
+use embassy_stm32::eth::PacketQueue;
 use embassy_stm32::flash::Flash;
 use embassy_stm32::interrupt::{InterruptExt, Priority};
 use embassy_stm32::rng::Rng;
-use embassy_stm32::usart::Uart;
-use embassy_stm32::{Peri, bind_interrupts, dma, eth, flash, interrupt, peripherals, rng, usart};
+use embassy_stm32::usart::{BufferedUart, Uart};
+use embassy_stm32::wdg::IndependentWatchdog;
+use embassy_stm32::{bind_interrupts, dma, eth, flash, interrupt, peripherals, rng, usart};
+use embassy_time::Timer;
 use protocol::{MAX_DATAGRAM, PORT};
 use static_cell::{ConstStaticCell, StaticCell};
-use {defmt_rtt as _, panic_probe as _};
 
-use crate::board_hw::{BoardClock, BoardSocket, NoEncoders};
+use crate::board_hw::{BoardClock, BoardSocket};
+use crate::clocks::ClockSource;
+use crate::encoder::{ModbusEncoders, Rs485};
 use crate::gripper::GripperPwm;
+use crate::net::{RX_PACKETS, TX_PACKETS};
 use crate::pins::{OutputLines, OutputPins, StepDirPins};
-use crate::serial::{BoardSerial, RX_RING_BYTES};
+use crate::serial::BoardSerial;
 use crate::settings::FlashSettings;
 use crate::step_timer::{STEP, StepTimer};
 
@@ -83,6 +129,7 @@ bind_interrupts!(
         RNG => rng::InterruptHandler<peripherals::RNG>;
         FLASH => flash::InterruptHandler;
         USART6 => usart::InterruptHandler<peripherals::USART6>;
+        UART4 => usart::BufferedInterruptHandler<peripherals::UART4>;
         DMA1_STREAM0 => dma::InterruptHandler<peripherals::DMA1_CH0>;
         DMA1_STREAM1 => dma::InterruptHandler<peripherals::DMA1_CH1>;
     }
@@ -105,11 +152,41 @@ type BoardTrajectoryHw = TrajectoryHw<
     GripperPwm,
     BoardSerial,
     FlashSettings,
-    NoEncoders,
+    ModbusEncoders,
 >;
 
+/// The [`Bus`] in a zero-initialised static (`.bss`), built in place at the start of
+/// `main`: `Bus::new()` as a `const` initialiser has non-zero bytes, which would store
+/// all 23 KiB of it in flash and copy them at boot.
+pub struct LateBus(UnsafeCell<MaybeUninit<Bus>>);
+
+// SAFETY: written once by `init` before any task, interrupt or other reference exists;
+// after that only shared references are handed out, and `Bus` itself is `Sync`.
+unsafe impl Sync for LateBus {}
+
+impl LateBus {
+    const fn new() -> Self {
+        LateBus(UnsafeCell::new(MaybeUninit::uninit()))
+    }
+
+    /// Builds the bus. Call once, first thing in `main`, before the step timer starts.
+    fn init(&self) {
+        // SAFETY: see the `Sync` impl: nothing has a reference yet.
+        unsafe { (*self.0.get()).write(Bus::new()) };
+    }
+}
+
+impl Deref for LateBus {
+    type Target = Bus;
+
+    fn deref(&self) -> &Bus {
+        // SAFETY: `init` ran first thing in `main`, before anything that can reach `BUS`.
+        unsafe { (*self.0.get()).assume_init_ref() }
+    }
+}
+
 /// The channels between the tasks (and the step interrupt).
-pub static BUS: Bus = Bus::new();
+pub static BUS: LateBus = LateBus::new();
 /// Time for the tasks.
 static CLOCK: BoardClock = BoardClock;
 
@@ -117,7 +194,18 @@ static CONTROLLER: StaticCell<BoardController> = StaticCell::new();
 static KICK: StaticCell<StepTimer> = StaticCell::new();
 static SERIAL: StaticCell<BoardSerial> = StaticCell::new();
 static SOCKET: StaticCell<BoardSocket> = StaticCell::new();
-static RX_RING: ConstStaticCell<[u8; RX_RING_BYTES]> = ConstStaticCell::new([0; RX_RING_BYTES]);
+/// The encoder UART's buffers (interrupt-driven: no DMA, so cacheable memory is fine).
+static ENCODER_RX: ConstStaticCell<[u8; encoder::RX_BYTES]> =
+    ConstStaticCell::new([0; encoder::RX_BYTES]);
+static ENCODER_TX: ConstStaticCell<[u8; encoder::TX_BYTES]> =
+    ConstStaticCell::new([0; encoder::TX_BYTES]);
+
+/// Polls of the step task's future (watchdog liveness).
+static STEP_BEAT: Heartbeat = Heartbeat::new();
+/// Polls of the network task's future, or of the bring-up loop until it starts.
+static NETWORK_BEAT: Heartbeat = Heartbeat::new();
+/// Names of the heartbeats, in [`Liveness`] order.
+const BEAT_NAMES: [&str; 2] = ["step task", "network task"];
 
 /// Datagrams the socket queues in each direction.
 const UDP_PACKETS: usize = 8;
@@ -144,7 +232,7 @@ async fn net_task(mut runner: net::Runner) -> ! {
 
 #[embassy_executor::task]
 async fn network(socket: &'static BoardSocket) -> ! {
-    arm_core::network_task(socket, &BUS).await
+    Beating::new(&NETWORK_BEAT, arm_core::network_task(socket, &BUS)).await
 }
 
 #[embassy_executor::task]
@@ -154,7 +242,31 @@ async fn trajectory(controller: &'static mut BoardController, hw: BoardTrajector
 
 #[embassy_executor::task]
 async fn stepper(kick: &'static StepTimer) -> ! {
-    arm_core::step_task(&BUS, &STEP, kick).await
+    Beating::new(&STEP_BEAT, arm_core::step_task(&BUS, &STEP, kick)).await
+}
+
+/// Feeds the IWDG while the step task and the network task both live. Every check period
+/// it wakes the step task (a spurious `step_wake` only makes it look at its queue again;
+/// the network task wakes itself, see `board_hw`), then compares the heartbeats.
+#[embassy_executor::task]
+async fn watchdog(mut iwdg: IndependentWatchdog<'static, peripherals::IWDG1>) -> ! {
+    let beats = || [STEP_BEAT.count(), NETWORK_BEAT.count()];
+    let mut liveness = Liveness::new(beats());
+    loop {
+        BUS.step_wake.signal(());
+        Timer::after_millis(u64::from(CHECK_PERIOD_MS)).await;
+        match liveness.check(beats()) {
+            Verdict::Feed => iwdg.pet(),
+            Verdict::Late { index } => {
+                warn!("watchdog: {} late", BEAT_NAMES[index]);
+                iwdg.pet();
+            }
+            Verdict::Hung { index } => error!(
+                "watchdog: {} hung: IWDG not fed, reset within {} ms",
+                BEAT_NAMES[index], IWDG_TIMEOUT_MS
+            ),
+        }
+    }
 }
 
 #[embassy_executor::task]
@@ -174,6 +286,7 @@ fn set_driver_priorities() {
     for irq in [
         interrupt::ETH,
         interrupt::USART6,
+        interrupt::UART4,
         interrupt::DMA1_STREAM0,
         interrupt::DMA1_STREAM1,
         interrupt::FLASH,
@@ -185,19 +298,32 @@ fn set_driver_priorities() {
 
 #[embassy_executor::main]
 async fn main(spawner: Spawner) -> ! {
-    let mut config = clocks::config();
+    // Before anything that can reach it (the step interrupt, the tasks).
+    BUS.init();
+    let clock_source = clocks::probe_hse();
+    let mut config = clocks::config(clock_source);
     config.dma_interrupt_priority = Priority::P3;
     config.bdma_interrupt_priority = Priority::P3;
     config.mdma_interrupt_priority = Priority::P3;
     let p = embassy_stm32::init(config);
     info!("arm controller starting");
-    // The instruction cache makes interrupt entry and the step engine's code fast and
-    // steady despite the flash wait states. The data cache stays off: the
-    // Ethernet and USART DMA buffers are not cache-maintained.
-    match cortex_m::Peripherals::take() {
-        Some(mut core) => core.SCB.enable_icache(),
-        None => warn!("core peripherals already taken: instruction cache left off"),
+    match clock_source {
+        ClockSource::Hse => info!("clock: HSE 8 MHz (ST-LINK MCO)"),
+        ClockSource::HsiFallback => warn!("clock: HSE missing, running on HSI"),
     }
+    // Caches before any DMA starts: every DMA buffer is in non-cacheable SRAM1.
+    match cortex_m::Peripherals::take() {
+        Some(mut core) => memory::enable_caches(&mut core.MPU, &mut core.SCB, &mut core.CPUID),
+        None => warn!("core peripherals already taken: caches left off"),
+    }
+    let Some(dma_buffers) = memory::take_dma_buffers() else {
+        defmt::panic!("DMA buffers taken twice"); // safe: boot-time bring-up
+    };
+    let memory::DmaBuffers {
+        eth: eth_packets,
+        serial_rx,
+        serial_tx,
+    } = dma_buffers;
 
     // Step outputs first: from here on the STEP lines are driven low.
     let step_dir = StepDirPins {
@@ -260,18 +386,25 @@ async fn main(spawner: Spawner) -> ! {
         Ok(uart) => uart,
         Err(e) => defmt::panic!("USART6: {}", e), // safe: boot-time bring-up
     };
-    let serial_port = SERIAL.init(BoardSerial::new(uart, RX_RING.take()));
+    let serial_port = SERIAL.init(BoardSerial::new(uart, serial_rx, serial_tx));
 
     let mut settings = FlashSettings::new(Flash::new(p.FLASH, Irqs));
-    let stored = match settings.read().await {
-        Ok(stored) => stored,
-        Err(e) => {
-            warn!("settings unreadable, using defaults: {}", e);
-            None
-        }
+    let persistent = settings.read().await.settings();
+
+    let encoder_uart = match BufferedUart::new_with_de(
+        p.UART4,
+        p.PC11,
+        p.PC10,
+        p.PA15,
+        Irqs,
+        ENCODER_TX.take(),
+        ENCODER_RX.take(),
+        encoder::uart_config(),
+    ) {
+        Ok(uart) => uart,
+        Err(e) => defmt::panic!("UART4: {}", e), // safe: boot-time bring-up
     };
-    let persistent = stored.unwrap_or_default();
-    info!("settings: {}", persistent);
+    let encoders = ModbusEncoders::detect(Rs485::new(encoder_uart), persistent.joints).await;
 
     let controller_config = ControllerConfig {
         pwm_timer_clock_hz: gripper.timer_clock_hz(),
@@ -281,8 +414,30 @@ async fn main(spawner: Spawner) -> ! {
         ..ControllerConfig::BOARD
     };
     let controller = CONTROLLER.init_with(|| Controller::new(controller_config));
+    set_driver_priorities();
 
-    let eth_pins = net::EthernetPins {
+    spawner.spawn(defmt::unwrap!(trajectory(
+        controller,
+        TrajectoryHw {
+            kick,
+            outputs,
+            gripper,
+            serial: serial_port,
+            settings,
+            encoders,
+        },
+    )));
+    spawner.spawn(defmt::unwrap!(stepper(kick)));
+    spawner.spawn(defmt::unwrap!(upload()));
+    spawner.spawn(defmt::unwrap!(serial(serial_port)));
+
+    let mut iwdg = IndependentWatchdog::new(p.IWDG1, IWDG_TIMEOUT_MS * 1_000);
+    iwdg.unleash();
+    spawner.spawn(defmt::unwrap!(watchdog(iwdg)));
+    info!("watchdog: IWDG on, {} ms", IWDG_TIMEOUT_MS);
+
+    // The network last: without a PHY (or its clock) the board runs on, and tries again.
+    let mut eth_pins = net::EthernetPins {
         eth: p.ETH,
         sma: p.ETH_SMA,
         ref_clk: p.PA1,
@@ -295,50 +450,54 @@ async fn main(spawner: Spawner) -> ! {
         mdio: p.PA2,
         mdc: p.PC1,
     };
-    let stack = start_network(&spawner, p.RNG, eth_pins, &persistent);
+    // The TCP/IP stack wants a random seed (initial sequence numbers, DHCP transaction IDs).
+    let seed = Rng::new(p.RNG, Irqs).next_u64();
+    while !net::phy_clock_present(eth_pins.ref_clk.reborrow()) {
+        warn!(
+            "ethernet: no RMII reference clock (PHY missing or dead): no network, retry in {} s",
+            RETRY_SECONDS
+        );
+        // Beat for the network task that does not exist yet.
+        for _ in 0..RETRY_SECONDS * 10 {
+            NETWORK_BEAT.beat();
+            Timer::after_millis(100).await;
+        }
+    }
+    let stack = start_network(&spawner, eth_pins, eth_packets, &persistent, seed);
     let socket = SOCKET.init(BoardSocket::new(bind_socket(stack)));
-    set_driver_priorities();
-
     spawner.spawn(defmt::unwrap!(network(socket)));
-    spawner.spawn(defmt::unwrap!(trajectory(
-        controller,
-        TrajectoryHw {
-            kick,
-            outputs,
-            gripper,
-            serial: serial_port,
-            settings,
-            encoders: NoEncoders,
-        },
-    )));
-    spawner.spawn(defmt::unwrap!(stepper(kick)));
-    spawner.spawn(defmt::unwrap!(upload()));
-    spawner.spawn(defmt::unwrap!(serial(serial_port)));
 
     stack.wait_config_up().await;
     if let Some(config) = stack.config_v4() {
         info!("listening on {}:{}", config.address, PORT);
     }
     loop {
-        // The link can drop and come back; log it so a person at the probe can see why the
-        // controller went silent.
+        // Link-loss policy (board-logic `net`): nothing changes in the controller; a run
+        // keeps executing what is buffered and the underrun rule stops it.
         stack.wait_link_down().await;
-        warn!("ethernet link down");
+        warn!(
+            "ethernet link down in state {}: a run keeps executing what is buffered",
+            BUS.report_settings().state
+        );
         stack.wait_link_up().await;
         info!("ethernet link up");
     }
 }
 
-/// Seeds and starts the network stack at the stored address; spawns its runner.
+/// Starts the network stack at the stored address; spawns its runner.
 fn start_network(
     spawner: &Spawner,
-    rng: Peri<'static, peripherals::RNG>,
     pins: net::EthernetPins,
-    settings: &PersistentSettings,
+    packets: &'static mut PacketQueue<TX_PACKETS, RX_PACKETS>,
+    settings: &arm_core::hw::PersistentSettings,
+    seed: u64,
 ) -> Stack<'static> {
-    // The TCP/IP stack wants a random seed (initial sequence numbers, DHCP transaction IDs).
-    let seed = Rng::new(rng, Irqs).next_u64();
-    let (stack, runner) = net::init(pins, net::ip_config(settings.ip, settings.prefix_len), seed);
+    let (stack, runner) = net::init(
+        pins,
+        packets,
+        net::ip_config(settings.ip, settings.prefix_len),
+        seed,
+    );
     spawner.spawn(defmt::unwrap!(net_task(runner)));
     stack
 }
