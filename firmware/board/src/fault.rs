@@ -111,8 +111,10 @@ impl SafeStateHw for BoardSafeState<'_> {
     }
 
     fn log(&mut self, fault: &FaultKind) {
-        if let Some(info) = self.panic {
-            defmt::error!("panic: {}", defmt::Display2Format(info));
+        // The location only: formatting the message would link core::fmt's machinery
+        // (kilobytes of flash) for a line that the source location already pins down.
+        if let Some(location) = self.panic.and_then(|info| info.location()) {
+            defmt::error!("panic at {}:{}", location.file(), location.line());
         }
         defmt::error!(
             "fault: {} (steps and gripper stopped, ENABLE {}); resetting",

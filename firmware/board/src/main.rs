@@ -217,12 +217,12 @@ const UDP_RX_BYTES: usize = 4 * MAX_DATAGRAM;
 /// 4 KiB takes a whole outbox burst.
 const UDP_TX_BYTES: usize = 4096;
 
-/// The UDP socket's buffers: zeroed statics (`.bss`), taken once by [`bind_socket`].
-static UDP_RX_META: ConstStaticCell<[PacketMetadata; UDP_PACKETS]> =
-    ConstStaticCell::new([PacketMetadata::EMPTY; UDP_PACKETS]);
+/// The UDP socket's buffers: zeroed statics (`.bss`), taken once by [`bind_socket`]. The
+/// metadata is filled at run time: `PacketMetadata::EMPTY` has non-zero bytes, which a
+/// `const` initialiser would store in flash.
+static UDP_RX_META: StaticCell<[PacketMetadata; UDP_PACKETS]> = StaticCell::new();
 static UDP_RX: ConstStaticCell<[u8; UDP_RX_BYTES]> = ConstStaticCell::new([0; UDP_RX_BYTES]);
-static UDP_TX_META: ConstStaticCell<[PacketMetadata; UDP_PACKETS]> =
-    ConstStaticCell::new([PacketMetadata::EMPTY; UDP_PACKETS]);
+static UDP_TX_META: StaticCell<[PacketMetadata; UDP_PACKETS]> = StaticCell::new();
 static UDP_TX: ConstStaticCell<[u8; UDP_TX_BYTES]> = ConstStaticCell::new([0; UDP_TX_BYTES]);
 
 #[embassy_executor::task]
@@ -469,7 +469,17 @@ async fn main(spawner: Spawner) -> ! {
 
     stack.wait_config_up().await;
     if let Some(config) = stack.config_v4() {
-        info!("listening on {}:{}", config.address, PORT);
+        // Octets, not the address type's Display: that would link core::fmt.
+        let [a, b, c, d] = config.address.address().octets();
+        info!(
+            "listening on {}.{}.{}.{}/{}:{}",
+            a,
+            b,
+            c,
+            d,
+            config.address.prefix_len(),
+            PORT
+        );
     }
     loop {
         // Link-loss policy (board-logic `net`): nothing changes in the controller; a run
@@ -506,9 +516,9 @@ fn start_network(
 fn bind_socket(stack: Stack<'static>) -> UdpSocket<'static> {
     let mut socket = UdpSocket::new(
         stack,
-        UDP_RX_META.take(),
+        UDP_RX_META.init([PacketMetadata::EMPTY; UDP_PACKETS]),
         UDP_RX.take(),
-        UDP_TX_META.take(),
+        UDP_TX_META.init([PacketMetadata::EMPTY; UDP_PACKETS]),
         UDP_TX.take(),
     );
     if let Err(e) = socket.bind(PORT) {
