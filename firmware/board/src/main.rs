@@ -44,12 +44,13 @@
 //! |---|---|---|
 //! | flash bank 1 + bank 2 up to 0x081C_0000 | code, constants (`memory.x` FLASH) | I-cache |
 //! | flash 0x081C_0000..0x0820_0000 | settings (two sectors, [`settings`]) | - |
-//! | AXI SRAM 0x2400_0000 (512 KiB) | `.data`, `.bss`: the trajectory buffer (8192 points, 288 KiB), the bus, the tasks' futures, the UDP socket buffers | D-cache, write-back |
+//! | AXI SRAM 0x2400_0000 (512 KiB) | `.data`, `.bss`, `.uninit`: the trajectory buffer (8192 points, 288 KiB), the bus, the tasks' futures, the UDP socket buffers, defmt's RTT buffer | MPU region 1: D-cache write-through (the probe sees every RTT write) |
 //! | DTCM 0x2000_0000 (128 KiB) | the stack (CPU only, zero wait states) | never cached |
 //! | SRAM1 0x3000_0000 (128 KiB) | every DMA buffer: Ethernet descriptors and packets, serial RX ring and TX staging, step streams ([`memory::DmaBuffers`]) | MPU region 0: non-cacheable |
 //!
-//! A DMA never sees a stale cache line because nothing it touches is cacheable; nothing
-//! on the CPU side needs cache maintenance. The step engine's state (`STEP`) and the bus
+//! A DMA never sees a stale cache line because nothing it touches is cacheable, and no
+//! store waits in a dirty line (write-through), so nothing needs cache maintenance, not
+//! even before the fault path's reset. The step engine's state (`STEP`) and the bus
 //! stay in AXI SRAM: with the D-cache on they are cache hits in the step interrupt, as
 //! fast as DTCM would be, without a second linker region to manage.
 //!
