@@ -34,7 +34,9 @@ pub const EXCEPTION_REPLY_LEN: usize = 5;
 /// The longest reply read: a position reply (longer answers are not ours).
 pub const MAX_REPLY_LEN: usize = POSITION_REPLY_LEN;
 
-const MODBUS_CRC: crc::Crc<u16> = crc::Crc::<u16>::new(&crc::CRC_16_MODBUS);
+/// Bitwise, no table: a few dozen bytes per frame at most, and 512 bytes less flash.
+const MODBUS_CRC: crc::Crc<u16, crc::NoTable> =
+    crc::Crc::<u16, crc::NoTable>::new(&crc::CRC_16_MODBUS);
 
 /// CRC-16/MODBUS of `bytes` (sent low byte first).
 pub fn crc16(bytes: &[u8]) -> u16 {
@@ -346,26 +348,20 @@ pub async fn read_positions<B: EncoderBus>(
     Ok(positions)
 }
 
-/// Whether encoders are fitted at all: asks joints `0..joints` once each and stops at the
-/// first answer (any answer, even an exception, means a device on the bus). A board
-/// without encoders then runs RETURN on the step count; with encoders, a later failure
-/// refuses RETURN instead.
+/// Whether encoders are fitted at all: one read of joints `0..joints` with a single
+/// attempt each. Encoders are fitted if it succeeds, or if it fails anywhere but with
+/// silence on joint 0 (something answered: joint 0's encoder, or the read got past it).
+/// A board without encoders then runs RETURN on the step count; with encoders, a later
+/// failure refuses RETURN instead. (The same read as RETURN's: one copy of the code.)
 pub async fn probe<B: EncoderBus>(bus: &mut B, config: &EncoderConfig, joints: u8) -> bool {
     let once = EncoderConfig {
         attempts: 1,
         ..*config
     };
-    for encoder in config
-        .joints
-        .iter()
-        .take(usize::from(joints).min(MAX_JOINTS))
-    {
-        match read_counts(bus, &once, encoder.address).await {
-            Ok(_) | Err(ReplyError::Exception(_)) => return true,
-            Err(_) => {}
-        }
+    match read_positions(bus, &once, joints).await {
+        Ok(_) => true,
+        Err(fault) => fault.joint > 0 || fault.kind != EncoderFaultKind::NoAnswer,
     }
-    false
 }
 
 #[cfg(test)]
@@ -582,13 +578,25 @@ mod tests {
     }
 
     #[test]
-    fn probe_finds_any_answering_encoder_and_asks_each_once() {
-        let mut bus = FakeBus::new(&[(3, &[Behaviour::Answer(1)])]);
+    fn probe_asks_once_and_tells_fitted_from_absent() {
+        let all = [
+            (1, &[Behaviour::Answer(1)][..]),
+            (2, &[Behaviour::Answer(2)][..]),
+        ];
+        let mut bus = FakeBus::new(&all);
+        assert!(block_on(probe(&mut bus, &EncoderConfig::DEFAULT, 2)));
+        assert_eq!(bus.sent.len(), 2);
+        // Joint 0 answers, joint 1 is dead: fitted (RETURN will refuse, naming joint 1).
+        let mut bus = FakeBus::new(&[(1, &[Behaviour::Answer(1)])]);
         assert!(block_on(probe(&mut bus, &EncoderConfig::DEFAULT, 6)));
-        assert_eq!(bus.sent.len(), 3);
+        assert_eq!(bus.sent.len(), 2, "one attempt per joint");
+        // Joint 0 answers with an error: a device is there.
+        let mut bus = FakeBus::new(&[(1, &[Behaviour::CorruptCrc(1)])]);
+        assert!(block_on(probe(&mut bus, &EncoderConfig::DEFAULT, 6)));
+        // Nobody: not fitted, after one request.
         let mut bus = FakeBus::new(&[]);
         assert!(!block_on(probe(&mut bus, &EncoderConfig::DEFAULT, 6)));
-        assert_eq!(bus.sent.len(), 6);
+        assert_eq!(bus.sent.len(), 1);
     }
 
     proptest! {

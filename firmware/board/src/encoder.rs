@@ -1,7 +1,7 @@
 //! Absolute multi-turn encoders on RS-485 (Modbus RTU), for RETURN: UART4 with hardware
-//! driver-enable, interrupt-driven (no DMA). The protocol, checks and timeouts are
-//! board-logic's `encoder` module (host-tested, and the same code sim-host runs against its
-//! simulated encoders); this is the bus.
+//! driver-enable. The protocol, checks and timeouts are board-logic's `encoder` module
+//! (host-tested, and the same code sim-host runs against its simulated encoders); this is
+//! the bus.
 //!
 //! | signal | pin | to the transceiver (e.g. MAX3485, THVD1450 at 3.3 V) |
 //! |---|---|---|
@@ -13,6 +13,13 @@
 //! first byte to the end of the last stop bit, so the bus is released the moment the
 //! request is out and the reply is never cut.
 //!
+//! The bus is polled, not interrupt- or DMA-driven: a request (8 bytes) and a reply (at
+//! most 9) fit the USART's 16-byte FIFOs, so the driver fills the TX FIFO at once and then
+//! looks at the RX FIFO every [`POLL_US`] (a byte takes 96 us at 115200 baud: the FIFO
+//! holds 1.5 ms), yielding to the executor in between. That costs a fraction of the flash
+//! of a buffered, interrupt-driven driver, needs no DMA buffer, and RETURN is the only
+//! user.
+//!
 //! At boot, [`ModbusEncoders::detect`] asks the joints in use once each: if none answers, the
 //! board has no encoders and RETURN trusts the step count (as before); if any answers,
 //! every later RETURN needs every joint's encoder, and one that does not answer ends the
@@ -21,9 +28,11 @@
 use arm_core::hw::{EncoderFault, Encoders};
 use board_logic::encoder::{self, EncoderBus, EncoderConfig};
 use defmt::{info, warn};
-use embassy_stm32::usart::{self, BufferedUart};
-use embassy_time::{Duration, Timer, with_timeout};
-use embedded_io_async::{Read, Write};
+use embassy_stm32::mode::Blocking;
+use embassy_stm32::pac;
+use embassy_stm32::usart::{self, Uart};
+use embassy_time::{Instant, Timer};
+use embedded_hal_nb::serial::Read;
 use protocol::MAX_JOINTS;
 
 /// The encoders' settings: joint j at Modbus address j + 1, positions in steps, 115200
@@ -31,10 +40,11 @@ use protocol::MAX_JOINTS;
 /// (docs/BOARD.md, "Absolute encoders").
 pub const ENCODER_CONFIG: EncoderConfig = EncoderConfig::DEFAULT;
 
-/// Receive buffer of the UART: two replies.
-pub const RX_BYTES: usize = 32;
-/// Transmit buffer: one request.
-pub const TX_BYTES: usize = 16;
+/// How often the RX FIFO is looked at while a reply is due, microseconds.
+pub const POLL_US: u64 = 200;
+
+/// Bytes of stale input dropped before a request, at most (the FIFO's depth).
+const STALE_BYTES_MAX: usize = 16;
 
 /// The UART settings for [`ENCODER_CONFIG`].
 pub fn uart_config() -> usart::Config {
@@ -43,36 +53,45 @@ pub fn uart_config() -> usart::Config {
     config
 }
 
-/// The RS-485 bus ([`EncoderBus`]).
+/// The RS-485 bus ([`EncoderBus`]) on UART4.
 pub struct Rs485 {
-    uart: BufferedUart<'static>,
+    uart: Uart<'static, Blocking>,
 }
 
 impl Rs485 {
-    /// On a UART set up with hardware DE.
-    pub fn new(uart: BufferedUart<'static>) -> Self {
+    /// On UART4 set up with hardware DE (`Uart::new_blocking_with_de`).
+    pub fn new(uart: Uart<'static, Blocking>) -> Self {
         Rs485 { uart }
     }
+}
 
-    /// Drops whatever arrived since the last transaction (a late reply, noise).
-    async fn discard_stale(&mut self) {
-        let mut scratch = [0u8; RX_BYTES];
-        while let Ok(Ok(n)) =
-            with_timeout(Duration::from_ticks(0), self.uart.read(&mut scratch)).await
-        {
-            if n == 0 {
-                break;
-            }
-        }
-    }
+/// Whether UART4 has sent its last stop bit (ISR.TC).
+fn transmission_complete() -> bool {
+    pac::UART4.isr().read().tc()
 }
 
 impl EncoderBus for Rs485 {
     async fn send(&mut self, frame: &[u8]) -> Result<(), ()> {
-        self.discard_stale().await;
-        self.uart.write_all(frame).await.map_err(|_| ())?;
+        // A late reply or noise from before: not part of the next answer.
+        for _ in 0..STALE_BYTES_MAX {
+            if let Err(nb::Error::WouldBlock) = self.uart.read() {
+                break;
+            }
+        }
+        // Fits the TX FIFO: returns at once.
+        self.uart.blocking_write(frame).map_err(|_| ())?;
         // Until the last stop bit is out: the reply timeout starts from there.
-        self.uart.flush().await.map_err(|_| ())
+        let deadline = Instant::now()
+            + embassy_time::Duration::from_micros(u64::from(
+                ENCODER_CONFIG.timing.frame_us(frame.len() + 2),
+            ));
+        while !transmission_complete() {
+            if Instant::now() > deadline {
+                return Err(());
+            }
+            Timer::after_micros(POLL_US).await;
+        }
+        Ok(())
     }
 
     async fn receive(
@@ -82,21 +101,27 @@ impl EncoderBus for Rs485 {
         silent_us: u32,
     ) -> usize {
         let mut n = 0;
-        let mut timeout = first_byte_timeout_us;
+        let mut deadline =
+            Instant::now() + embassy_time::Duration::from_micros(u64::from(first_byte_timeout_us));
         while n < buf.len() {
-            let Some(rest) = buf.get_mut(n..) else { break };
-            match with_timeout(
-                Duration::from_micros(u64::from(timeout)),
-                self.uart.read(rest),
-            )
-            .await
-            {
-                Ok(Ok(got)) if got > 0 => n += got,
-                // Silence (end of frame or no reply), or a framing/parity/noise error: the
-                // CRC check decides what the bytes are worth.
-                _ => break,
+            match self.uart.read() {
+                Ok(byte) => {
+                    if let Some(slot) = buf.get_mut(n) {
+                        *slot = byte;
+                    }
+                    n += 1;
+                    deadline =
+                        Instant::now() + embassy_time::Duration::from_micros(u64::from(silent_us));
+                    continue;
+                }
+                // A framing, parity or noise error: the byte is lost, the CRC will say so.
+                Err(nb::Error::Other(_)) => continue,
+                Err(nb::Error::WouldBlock) => {}
             }
-            timeout = silent_us;
+            if Instant::now() > deadline {
+                break;
+            }
+            Timer::after_micros(POLL_US).await;
         }
         n
     }

@@ -106,7 +106,7 @@ use embassy_stm32::eth::PacketQueue;
 use embassy_stm32::flash::Flash;
 use embassy_stm32::interrupt::{InterruptExt, Priority};
 use embassy_stm32::rng::Rng;
-use embassy_stm32::usart::{BufferedUart, Uart};
+use embassy_stm32::usart::Uart;
 use embassy_stm32::wdg::IndependentWatchdog;
 use embassy_stm32::{bind_interrupts, dma, eth, flash, interrupt, peripherals, rng, usart};
 use embassy_time::Timer;
@@ -130,7 +130,6 @@ bind_interrupts!(
         RNG => rng::InterruptHandler<peripherals::RNG>;
         FLASH => flash::InterruptHandler;
         USART6 => usart::InterruptHandler<peripherals::USART6>;
-        UART4 => usart::BufferedInterruptHandler<peripherals::UART4>;
         DMA1_STREAM0 => dma::InterruptHandler<peripherals::DMA1_CH0>;
         DMA1_STREAM1 => dma::InterruptHandler<peripherals::DMA1_CH1>;
     }
@@ -195,11 +194,6 @@ static CONTROLLER: StaticCell<BoardController> = StaticCell::new();
 static KICK: StaticCell<StepTimer> = StaticCell::new();
 static SERIAL: StaticCell<BoardSerial> = StaticCell::new();
 static SOCKET: StaticCell<BoardSocket> = StaticCell::new();
-/// The encoder UART's buffers (interrupt-driven: no DMA, so cacheable memory is fine).
-static ENCODER_RX: ConstStaticCell<[u8; encoder::RX_BYTES]> =
-    ConstStaticCell::new([0; encoder::RX_BYTES]);
-static ENCODER_TX: ConstStaticCell<[u8; encoder::TX_BYTES]> =
-    ConstStaticCell::new([0; encoder::TX_BYTES]);
 
 /// Polls of the step task's future (watchdog liveness).
 static STEP_BEAT: Heartbeat = Heartbeat::new();
@@ -287,7 +281,6 @@ fn set_driver_priorities() {
     for irq in [
         interrupt::ETH,
         interrupt::USART6,
-        interrupt::UART4,
         interrupt::DMA1_STREAM0,
         interrupt::DMA1_STREAM1,
         interrupt::FLASH,
@@ -392,19 +385,11 @@ async fn main(spawner: Spawner) -> ! {
     let mut settings = FlashSettings::new(Flash::new(p.FLASH, Irqs));
     let persistent = settings.read().await.settings();
 
-    let encoder_uart = match BufferedUart::new_with_de(
-        p.UART4,
-        p.PC11,
-        p.PC10,
-        p.PA15,
-        Irqs,
-        ENCODER_TX.take(),
-        ENCODER_RX.take(),
-        encoder::uart_config(),
-    ) {
-        Ok(uart) => uart,
-        Err(e) => defmt::panic!("UART4: {}", e), // safe: boot-time bring-up
-    };
+    let encoder_uart =
+        match Uart::new_blocking_with_de(p.UART4, p.PC11, p.PC10, p.PA15, encoder::uart_config()) {
+            Ok(uart) => uart,
+            Err(e) => defmt::panic!("UART4: {}", e), // safe: boot-time bring-up
+        };
     let encoders = ModbusEncoders::detect(Rs485::new(encoder_uart), persistent.joints).await;
 
     let controller_config = ControllerConfig {
