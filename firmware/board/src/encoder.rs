@@ -29,9 +29,8 @@ use arm_core::hw::{EncoderFault, Encoders};
 use board_logic::encoder::{self, EncoderBus, EncoderConfig};
 use defmt::{info, warn};
 use embassy_stm32::mode::Blocking;
-use embassy_stm32::pac;
 use embassy_stm32::usart::{self, Uart};
-use embassy_time::{Instant, Timer};
+use embassy_time::{Duration, Instant, Timer};
 use embedded_hal_nb::serial::Read;
 use protocol::MAX_JOINTS;
 
@@ -56,18 +55,19 @@ pub fn uart_config() -> usart::Config {
 /// The RS-485 bus ([`EncoderBus`]) on UART4.
 pub struct Rs485 {
     uart: Uart<'static, Blocking>,
+    /// Line time of the request still leaving the TX FIFO when `send` returned: the reply
+    /// timeout starts after it.
+    sending_us: u32,
 }
 
 impl Rs485 {
     /// On UART4 set up with hardware DE (`Uart::new_blocking_with_de`).
     pub fn new(uart: Uart<'static, Blocking>) -> Self {
-        Rs485 { uart }
+        Rs485 {
+            uart,
+            sending_us: 0,
+        }
     }
-}
-
-/// Whether UART4 has sent its last stop bit (ISR.TC).
-fn transmission_complete() -> bool {
-    pac::UART4.isr().read().tc()
 }
 
 impl EncoderBus for Rs485 {
@@ -78,31 +78,16 @@ impl EncoderBus for Rs485 {
                 break;
             }
         }
-        // Fits the TX FIFO: returns at once.
+        // Fits the TX FIFO: returns at once, the hardware sends it and drives DE.
         self.uart.blocking_write(frame).map_err(|_| ())?;
-        // Until the last stop bit is out: the reply timeout starts from there.
-        let deadline = Instant::now()
-            + embassy_time::Duration::from_micros(u64::from(
-                ENCODER_CONFIG.timing.frame_us(frame.len() + 2),
-            ));
-        while !transmission_complete() {
-            if Instant::now() > deadline {
-                return Err(());
-            }
-            Timer::after_micros(POLL_US).await;
-        }
+        self.sending_us = ENCODER_CONFIG.timing.frame_us(frame.len());
         Ok(())
     }
 
-    async fn receive(
-        &mut self,
-        buf: &mut [u8],
-        first_byte_timeout_us: u32,
-        silent_us: u32,
-    ) -> usize {
+    async fn receive(&mut self, buf: &mut [u8], first_byte_timeout_us: u32, silent_us: u32) -> usize {
         let mut n = 0;
-        let mut deadline =
-            Instant::now() + embassy_time::Duration::from_micros(u64::from(first_byte_timeout_us));
+        let mut wait_us = self.sending_us + first_byte_timeout_us;
+        let mut deadline = Instant::now() + Duration::from_micros(u64::from(wait_us));
         while n < buf.len() {
             match self.uart.read() {
                 Ok(byte) => {
@@ -110,8 +95,8 @@ impl EncoderBus for Rs485 {
                         *slot = byte;
                     }
                     n += 1;
-                    deadline =
-                        Instant::now() + embassy_time::Duration::from_micros(u64::from(silent_us));
+                    wait_us = silent_us;
+                    deadline = Instant::now() + Duration::from_micros(u64::from(wait_us));
                     continue;
                 }
                 // A framing, parity or noise error: the byte is lost, the CRC will say so.
