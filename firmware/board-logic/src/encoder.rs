@@ -209,14 +209,18 @@ impl EncoderJoint {
     }
 
     /// The joint position in steps for `counts` (rounded to the nearest step, saturated).
+    /// 64-bit arithmetic (the product saturates rather than overflows): 128-bit division
+    /// would cost a kilobyte of flash for ratios no encoder needs.
     pub fn steps(&self, counts: i32) -> i32 {
         let from_zero = i64::from(counts) - i64::from(self.zero_counts);
         let signed = if self.reversed { -from_zero } else { from_zero };
-        let num = i128::from(signed) * i128::from(self.steps_per_rev);
-        let den = i128::from(self.counts_per_rev.max(1));
-        // Round half away from zero.
-        let steps = (2 * num + num.signum() * den) / (2 * den);
-        steps.clamp(i128::from(i32::MIN), i128::from(i32::MAX)) as i32
+        let num = signed.saturating_mul(i64::from(self.steps_per_rev));
+        let den = i64::from(self.counts_per_rev.max(1));
+        // Round half away from zero: (|num| + den / 2) / den, with the sign of num.
+        let magnitude = num.unsigned_abs().saturating_add(den as u64 / 2) / den as u64;
+        let steps = i64::try_from(magnitude).unwrap_or(i64::MAX);
+        let steps = if num < 0 { -steps } else { steps };
+        steps.clamp(i64::from(i32::MIN), i64::from(i32::MAX)) as i32
     }
 }
 
@@ -449,6 +453,26 @@ mod tests {
         };
         assert_eq!(r.steps(1000 + 4096), -3200);
         assert_eq!(EncoderJoint::in_steps(1).steps(i32::MIN), i32::MIN);
+        assert_eq!(EncoderJoint::in_steps(1).steps(i32::MAX), i32::MAX);
+        // Half a step rounds away from zero, both ways.
+        let half = EncoderJoint {
+            counts_per_rev: 2,
+            steps_per_rev: 1,
+            zero_counts: 0,
+            ..e
+        };
+        assert_eq!(half.steps(1), 1);
+        assert_eq!(half.steps(-1), -1);
+        assert_eq!(half.steps(3), 2);
+        // Huge ratios saturate instead of wrapping.
+        let huge = EncoderJoint {
+            counts_per_rev: 1,
+            steps_per_rev: u32::MAX,
+            zero_counts: 0,
+            ..e
+        };
+        assert_eq!(huge.steps(i32::MAX), i32::MAX);
+        assert_eq!(huge.steps(i32::MIN), i32::MIN);
     }
 
     /// What the fake bus does with each request.

@@ -20,9 +20,9 @@
 //! of a buffered, interrupt-driven driver, needs no DMA buffer, and RETURN is the only
 //! user.
 //!
-//! At boot, [`ModbusEncoders::detect`] asks the joints in use once each: if none answers, the
-//! board has no encoders and RETURN trusts the step count (as before); if any answers,
-//! every later RETURN needs every joint's encoder, and one that does not answer ends the
+//! At boot, [`ModbusEncoders::detect`] reads the joints in use once (one attempt each): if
+//! joint 0's encoder is silent, the board has no encoders and RETURN trusts the step count
+//! (as before); if anything answers, every later RETURN needs every joint's encoder, and one that does not answer ends the
 //! RETURN in STOPPED without moving (logged, and `Controller::return_fault`).
 
 use arm_core::hw::{EncoderFault, Encoders};
@@ -84,7 +84,12 @@ impl EncoderBus for Rs485 {
         Ok(())
     }
 
-    async fn receive(&mut self, buf: &mut [u8], first_byte_timeout_us: u32, silent_us: u32) -> usize {
+    async fn receive(
+        &mut self,
+        buf: &mut [u8],
+        first_byte_timeout_us: u32,
+        silent_us: u32,
+    ) -> usize {
         let mut n = 0;
         let mut wait_us = self.sending_us + first_byte_timeout_us;
         let mut deadline = Instant::now() + Duration::from_micros(u64::from(wait_us));

@@ -78,12 +78,8 @@ impl FlashSettings {
         write_mark(BootMarker::READING);
         let outcome = self.area.load().await;
         write_mark(BootMarker::IDLE);
-        match outcome {
-            LoadOutcome::Stored(s) => info!("settings: stored {}", s),
-            LoadOutcome::Empty => info!("settings: none stored, defaults"),
-            LoadOutcome::Erased => warn!("settings: area corrupted, erased: defaults"),
-            LoadOutcome::Unreadable => warn!("settings: unreadable and not erasable: defaults"),
-        }
+        // Stored(..), Empty (defaults), Erased (corrupted, erased: defaults), Unreadable.
+        info!("settings: {}", outcome);
         outcome
     }
 }

@@ -8,6 +8,19 @@ use protocol::{Pwm, UartInit};
 
 pub use arm_step::{JointMask, StepPins};
 
+/// What the tasks need of a hardware error to log it: `Debug`, and `defmt::Format` when
+/// logging with defmt (so the board never formats with `core::fmt`).
+#[cfg(feature = "defmt")]
+pub trait LogError: core::fmt::Debug + defmt::Format {}
+#[cfg(feature = "defmt")]
+impl<T: core::fmt::Debug + defmt::Format> LogError for T {}
+/// What the tasks need of a hardware error to log it: `Debug`, and `defmt::Format` when
+/// logging with defmt (so the board never formats with `core::fmt`).
+#[cfg(not(feature = "defmt"))]
+pub trait LogError: core::fmt::Debug {}
+#[cfg(not(feature = "defmt"))]
+impl<T: core::fmt::Debug> LogError for T {}
+
 /// An IPv4 UDP endpoint.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -30,7 +43,7 @@ pub trait Clock {
 /// can wait for a datagram and send one at the same time.
 pub trait Datagrams {
     /// Transport error (logged, never fatal).
-    type Error: core::fmt::Debug;
+    type Error: LogError;
     /// Waits for the next datagram; returns its length (truncated to `buf`) and sender.
     fn recv(&self, buf: &mut [u8]) -> impl Future<Output = Result<(usize, Endpoint), Self::Error>>;
     /// Sends one datagram.
@@ -121,7 +134,7 @@ impl Default for PersistentSettings {
 /// Persistent storage of [`PersistentSettings`].
 pub trait SettingsStore {
     /// Storage error (logged; the controller keeps running on defaults).
-    type Error: core::fmt::Debug;
+    type Error: LogError;
     /// The stored settings, or `None` if nothing valid is stored.
     fn load(&mut self) -> impl Future<Output = Result<Option<PersistentSettings>, Self::Error>>;
     /// Stores the settings.
