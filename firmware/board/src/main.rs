@@ -55,7 +55,7 @@
 //! fast as DTCM would be, without a second linker region to manage.
 //!
 //! Flash image: the big statics have zero initial values so they cost no flash: [`BUS`]
-//! (23 KiB) is built at run time in place (`LateBus`), the others are `StaticCell`s.
+//! (23 KiB) is built at run time ([`late::Late`]), the others are `StaticCell`s.
 //! `scripts/fw-size.sh` fails above 96 KiB.
 //!
 //! # Faults, watchdog, boot
@@ -79,16 +79,13 @@ mod clocks;
 mod encoder;
 mod fault;
 mod gripper;
+mod late;
 mod memory;
 mod net;
 mod pins;
 mod serial;
 mod settings;
 mod step_timer;
-
-use core::cell::UnsafeCell;
-use core::mem::MaybeUninit;
-use core::ops::Deref;
 
 use arm_core::config::{BOARD_TRAJECTORY_CAPACITY, ControllerConfig};
 use arm_core::hw::Gripper;
@@ -117,6 +114,7 @@ use crate::board_hw::{BoardClock, BoardSocket};
 use crate::clocks::ClockSource;
 use crate::encoder::{ModbusEncoders, Rs485};
 use crate::gripper::GripperPwm;
+use crate::late::Late;
 use crate::net::{RX_PACKETS, TX_PACKETS};
 use crate::pins::{OutputLines, OutputPins, StepDirPins};
 use crate::serial::BoardSerial;
@@ -155,38 +153,10 @@ type BoardTrajectoryHw = TrajectoryHw<
     ModbusEncoders,
 >;
 
-/// The [`Bus`] in a zero-initialised static (`.bss`), built in place at the start of
-/// `main`: `Bus::new()` as a `const` initialiser has non-zero bytes, which would store
-/// all 23 KiB of it in flash and copy them at boot.
-pub struct LateBus(UnsafeCell<MaybeUninit<Bus>>);
-
-// SAFETY: written once by `init` before any task, interrupt or other reference exists;
-// after that only shared references are handed out, and `Bus` itself is `Sync`.
-unsafe impl Sync for LateBus {}
-
-impl LateBus {
-    const fn new() -> Self {
-        LateBus(UnsafeCell::new(MaybeUninit::uninit()))
-    }
-
-    /// Builds the bus. Call once, first thing in `main`, before the step timer starts.
-    fn init(&self) {
-        // SAFETY: see the `Sync` impl: nothing has a reference yet.
-        unsafe { (*self.0.get()).write(Bus::new()) };
-    }
-}
-
-impl Deref for LateBus {
-    type Target = Bus;
-
-    fn deref(&self) -> &Bus {
-        // SAFETY: `init` ran first thing in `main`, before anything that can reach `BUS`.
-        unsafe { (*self.0.get()).assume_init_ref() }
-    }
-}
-
-/// The channels between the tasks (and the step interrupt).
-pub static BUS: LateBus = LateBus::new();
+/// The channels between the tasks (and the step interrupt), built at the start of `main`
+/// ([`Late`]: `Bus::new()` has non-zero bytes, which as a `const` initialiser would store
+/// all 23 KiB of it in flash).
+pub static BUS: Late<Bus> = Late::new();
 /// Time for the tasks.
 static CLOCK: BoardClock = BoardClock;
 
@@ -292,8 +262,9 @@ fn set_driver_priorities() {
 
 #[embassy_executor::main]
 async fn main(spawner: Spawner) -> ! {
-    // Before anything that can reach it (the step interrupt, the tasks).
-    BUS.init();
+    // SAFETY: first thing, before anything that can reach it (the step interrupt, the
+    // tasks).
+    unsafe { BUS.init(Bus::new()) };
     let clock_source = clocks::probe_hse();
     let mut config = clocks::config(clock_source);
     config.dma_interrupt_priority = Priority::P3;
