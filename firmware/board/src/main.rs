@@ -388,6 +388,10 @@ async fn main(spawner: Spawner) -> ! {
     spawner.spawn(defmt::unwrap!(upload()));
     spawner.spawn(defmt::unwrap!(serial(serial_port)));
 
+    // The IWDG stops while a debugger halts the core: a breakpoint does not reset the board.
+    embassy_stm32::pac::DBGMCU
+        .apb4fzr1()
+        .modify(|w| w.set_iwdg1(true));
     let mut iwdg = IndependentWatchdog::new(p.IWDG1, IWDG_TIMEOUT_MS * 1_000);
     iwdg.unleash();
     spawner.spawn(defmt::unwrap!(watchdog(iwdg)));
