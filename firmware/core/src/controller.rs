@@ -777,6 +777,10 @@ impl<const CAP: usize> Controller<CAP> {
         self.return_pending = false;
         self.return_plan = None;
         self.buffer.clear();
+        // A RETURN of no points: STATUS shows expected = executed = 0, not the last run's.
+        self.expected = 0;
+        self.received = 0;
+        self.executed = 0;
         self.underrun = false;
         self.stopped_by_host = false;
         self.return_fault = Some(fault);

@@ -62,6 +62,25 @@ fn a_failed_encoder_read_ends_return_in_stopped_without_moving() {
 }
 
 #[test]
+fn a_failed_return_after_a_run_reports_no_points_not_the_last_runs() {
+    let mut s = Session::<64>::new(64);
+    s.expect(Command::New { count: 3 }, StatusCode::Ok);
+    assert_eq!(s.pending(&points([0; 8], 3, 1)).status, StatusCode::Ok);
+    s.expect(Command::Runing, StatusCode::Ok);
+    s.plant.run_to_end(&mut s.controller);
+    assert_eq!(s.controller.status(&s.plant).executed, 3);
+    s.expect(Command::Return, StatusCode::Ok);
+    let fault = EncoderFault {
+        joint: 0,
+        kind: EncoderFaultKind::Exception(2),
+    };
+    s.controller.fail_return(fault, &mut s.plant);
+    let status = s.controller.status(&s.plant);
+    assert_eq!((status.expected, status.executed), (0, 0));
+    assert_eq!(s.controller.state(), State::Stopped);
+}
+
+#[test]
 fn fail_return_outside_a_pending_return_does_nothing() {
     let mut s = Session::<64>::new(64);
     let fault = EncoderFault {
