@@ -55,6 +55,12 @@ pub enum FaultKind {
         /// SCB BFAR: the bus fault's data address, when CFSR's BFARVALID is set.
         bfar: u32,
     },
+    /// The watchdog task found a task hung (board-logic `watchdog`): the safe state now,
+    /// rather than an IWDG reset that leaves the outputs to float.
+    TaskHung {
+        /// Which heartbeat stopped (the board's list: 0 step task, 1 network task).
+        task: u8,
+    },
     /// An interrupt with no handler fired (cortex-m-rt's default handler would spin).
     UnexpectedInterrupt {
         /// Its number (negative: a system exception).

@@ -90,6 +90,7 @@ mod step_timer;
 use arm_core::config::{BOARD_TRAJECTORY_CAPACITY, ControllerConfig};
 use arm_core::hw::Gripper;
 use arm_core::{Bus, Controller, TrajectoryHw};
+use board_logic::fault::FaultKind;
 use board_logic::net::RETRY_SECONDS;
 use board_logic::watchdog::{
     Beating, CHECK_PERIOD_MS, Heartbeat, IWDG_TIMEOUT_MS, Liveness, Verdict,
@@ -212,7 +213,9 @@ async fn stepper(kick: &'static StepTimer) -> ! {
 
 /// Feeds the IWDG while the step task and the network task both live. Every check period
 /// it wakes the step task (a spurious `step_wake` only makes it look at its queue again;
-/// the network task wakes itself, see `board_hw`), then compares the heartbeats.
+/// the network task wakes itself, see `board_hw`), then compares the heartbeats. A hung
+/// task takes the fault path (safe state, log, reset); a hung executor, where this task
+/// cannot run either, is reset by the IWDG.
 #[embassy_executor::task]
 async fn watchdog(mut iwdg: IndependentWatchdog<'static, peripherals::IWDG1>) -> ! {
     let beats = || [STEP_BEAT.count(), NETWORK_BEAT.count()];
@@ -226,10 +229,12 @@ async fn watchdog(mut iwdg: IndependentWatchdog<'static, peripherals::IWDG1>) ->
                 warn!("watchdog: {} late", BEAT_NAMES[index]);
                 iwdg.pet();
             }
-            Verdict::Hung { index } => error!(
-                "watchdog: {} hung: IWDG not fed, reset within {} ms",
-                BEAT_NAMES[index], IWDG_TIMEOUT_MS
-            ),
+            Verdict::Hung { index } => {
+                error!("watchdog: {} hung", BEAT_NAMES[index]);
+                // The orderly way out; if even this task could not run, the IWDG (no longer
+                // fed) resets the board within IWDG_TIMEOUT_MS.
+                fault::fault(FaultKind::TaskHung { task: index as u8 }, None);
+            }
         }
     }
 }
