@@ -45,10 +45,18 @@ pub const POLL_US: u64 = 200;
 /// Bytes of stale input dropped before a request, at most (the FIFO's depth).
 const STALE_BYTES_MAX: usize = 16;
 
-/// The UART settings for [`ENCODER_CONFIG`].
+/// Parity on the encoder bus. Modbus RTU's default is even parity (8E1), most RS-485
+/// encoders ship with none (8N1, 2 stop bits would be the standard's alternative but
+/// encoders accept 1). With parity on, a byte that fails it is dropped by the USART, so
+/// the reply's CRC check fails and the request is retried.
+pub const ENCODER_PARITY: usart::Parity = usart::Parity::ParityNone;
+
+/// The UART settings for [`ENCODER_CONFIG`]: 8 data bits, [`ENCODER_PARITY`], 1 stop bit.
 pub fn uart_config() -> usart::Config {
     let mut config = usart::Config::default();
     config.baudrate = encoder::DEFAULT_BAUD;
+    config.data_bits = usart::DataBits::DataBits8;
+    config.parity = ENCODER_PARITY;
     config
 }
 
