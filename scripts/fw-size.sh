@@ -77,5 +77,8 @@ if (( largest_frame > 32768 )); then
 fi
 echo "stack ok: largest single stack frame $largest_frame bytes (of 131072 DTCM)"
 if [ -n "${over_budget:-}" ]; then
+  echo "fw-size: largest .data statics (const-initialised, stored in flash):" >&2
+  "$nm_tool" --print-size --size-sort --radix=d -C "$elf" | awk '$3 ~ /^[dD]$/' | tail -n 5 \
+    | awk '{ printf "  %8d  %s\n", $2, $4 }' >&2
   exit 1
 fi
