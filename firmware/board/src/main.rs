@@ -62,7 +62,8 @@
 //! fast as DTCM would be, without a second linker region to manage.
 //!
 //! Flash image: the big statics have zero initial values so they cost no flash: [`BUS`]
-//! (23 KiB) is built at run time ([`late::Late`]), the others are `StaticCell`s.
+//! (23 KiB) and the step engine's `STEP` (4.9 KiB) are built at run time
+//! ([`late::Late`]), the others are `StaticCell`s.
 //! `scripts/fw-size.sh` fails above 96 KiB.
 //!
 //! # Faults, watchdog, boot
@@ -97,7 +98,7 @@ use core::future::Future;
 
 use arm_core::config::{BOARD_TRAJECTORY_CAPACITY, ControllerConfig};
 use arm_core::hw::Gripper;
-use arm_core::{Bus, TrajectoryHw};
+use arm_core::{Bus, StepShared, TrajectoryHw};
 use board_logic::fault::FaultKind;
 use board_logic::net::RETRY_SECONDS;
 use board_logic::watchdog::{
@@ -122,7 +123,7 @@ use crate::late::Late;
 use crate::pins::{OutputLines, OutputPins, StepDirPins};
 use crate::serial::BoardSerial;
 use crate::settings::FlashSettings;
-use crate::step_timer::{STEP_TIMING, StepTimer};
+use crate::step_timer::{STEP, STEP_TIMING, StepTimer};
 
 bind_interrupts!(
     /// Interrupt handlers of the embassy drivers.
@@ -232,6 +233,9 @@ async fn main(spawner: Spawner) -> ! {
     // SAFETY: first thing, before anything that can reach it (the step interrupt, the
     // tasks).
     unsafe { BUS.init(Bus::new()) };
+    // SAFETY: as BUS: before the step timer's interrupt is enabled and before any task is
+    // spawned, nothing else holds a reference to STEP.
+    unsafe { STEP.init(StepShared::new(STEP_TIMING)) };
     let clock_source = clocks::probe_hse();
     let mut config = clocks::config(clock_source);
     config.dma_interrupt_priority = Priority::P3;
