@@ -72,6 +72,10 @@ pub fn bind_socket(stack: Stack<'static>) -> UdpSocket<'static> {
     );
     if let Err(e) = socket.bind(PORT) {
         // Only possible with port 0 or a second bind; both are programming errors.
+        // With defmt, its panic: core's would link core::fmt into the image.
+        #[cfg(feature = "defmt")]
+        defmt::panic!("udp bind: {}", e); // safe: boot-time bring-up
+        #[cfg(not(feature = "defmt"))]
         panic!("udp bind: {:?}", e); // safe: boot-time bring-up
     }
     socket
