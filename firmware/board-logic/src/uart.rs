@@ -1,5 +1,5 @@
-//! UART_INIT's STM32F4 HAL codes (PROTOCOL.md section 6) mapped to the frame format the
-//! board's USART is set to.
+//! UART_INIT's STM32F4 HAL codes (docs/PROTOCOL.md, "UartInit (28 bytes)") mapped to the
+//! frame format the board's USART is set to.
 //!
 //! The HAL counts the parity bit in the word length, the H7's USART (and embassy) does not:
 //! an 8-bit HAL word with parity is 7 data bits plus parity. Hardware flow control is
