@@ -1,6 +1,8 @@
 #!/usr/bin/env bash
-# Prints the release firmware's section sizes: text (flash), data (flash + RAM), bss (RAM).
-# Run after `cargo fw`. Uses llvm-size from the pinned toolchain's llvm-tools component.
+# Prints the release firmware's section sizes: text (flash), data (flash + RAM), bss (RAM),
+# and fails when the flash image (text + data) is over FW_FLASH_LIMIT bytes (default 96 KiB,
+# issue 9: with defmt at info). Run after `cargo fw`. Uses llvm-size from the pinned
+# toolchain's llvm-tools component.
 # Usage: scripts/fw-size.sh [path/to/firmware.elf]
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -26,10 +28,17 @@ printf 'firmware: %s\n' "$elf"
 printf 'text %8d bytes  (flash: code, constants, vector table)\n' "$text"
 printf 'data %8d bytes  (flash image copied to RAM at boot)\n' "$data"
 printf 'bss  %8d bytes  (RAM zeroed at boot)\n' "$bss"
-printf 'flash used %d of 2097152 bytes, AXI RAM static %d of 524288 bytes\n' \
-  "$((text + data))" "$((data + bss))"
+flash_limit="${FW_FLASH_LIMIT:-98304}"
+printf 'flash image %d bytes (text + data) of %d allowed; AXI RAM static %d of 524288 bytes\n' \
+  "$((text + data))" "$flash_limit" "$((data + bss))"
 # Per-section detail, for finding what grew.
 "$size_tool" -A "$elf" | awk 'NR > 2 && $2 > 0 && $1 !~ /^\.debug|^\.comment|^\.ARM|^\.symtab|^\.strtab|^\.shstrtab|^\.defmt|^Total/ {printf "  %-16s %8d @ 0x%08x\n", $1, $2, $3}'
+
+if (( text + data > flash_limit )); then
+  echo "fw-size: flash image $((text + data)) bytes is over the $flash_limit-byte budget;" \
+    "a big .data means a static with a non-zero const initialiser (make it zero or build it at run time)" >&2
+  over_budget=1
+fi
 
 # Layout checks: the reset handler zeroes .bss from __sbss to __ebss and copies .data, so both
 # must stay inside AXI SRAM; the stack must be DTCM (memory.x). A wrong memory.x fails here
@@ -67,3 +76,9 @@ if (( largest_frame > 32768 )); then
   exit 1
 fi
 echo "stack ok: largest single stack frame $largest_frame bytes (of 131072 DTCM)"
+if [ -n "${over_budget:-}" ]; then
+  echo "fw-size: largest .data statics (const-initialised, stored in flash):" >&2
+  "$nm_tool" --print-size --size-sort --radix=d -C "$elf" | awk '$3 ~ /^[dD]$/' | tail -n 5 \
+    | awk '{ printf "  %8d  %s\n", $2, $4 }' >&2
+  exit 1
+fi

@@ -91,7 +91,8 @@ impl Board {
                 motors,
                 options.encoder_offset_array(),
                 !options.no_encoders,
-            ),
+            )
+            .with_bus(clock, options.encoder_fault_array()),
             settings: FileSettings::new(options.settings_path()),
             kick: SimStepKick::new(clock),
             probe,

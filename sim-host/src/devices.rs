@@ -6,8 +6,11 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU8, AtomicU16, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 
-use arm_core::hw::{Encoders, Gripper, Outputs, PersistentSettings, SettingsStore};
+use arm_core::hw::{
+    Clock, EncoderFault, Encoders, Gripper, Outputs, PersistentSettings, SettingsStore,
+};
 use arm_step::MAX_JOINTS;
+use board_logic::encoder::{self, EncoderBus, EncoderConfig};
 use protocol::Pwm;
 
 use crate::clock::SimClock;
@@ -225,14 +228,33 @@ impl Gripper for SimGripper {
     }
 }
 
-/// [`Encoders`]: absolute encoders on every joint reading the simulated motors' physical
-/// position plus a per-joint offset (`--encoder-offset J:STEPS`: where the joint really
-/// was at boot while the step count says 0, as after steps lost with power off).
+/// How a simulated encoder misbehaves (`--encoder-fault J:KIND`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
+pub enum EncoderFaultMode {
+    /// Answers every request correctly.
+    #[default]
+    None,
+    /// Never answers (unplugged, unpowered, wrong address).
+    Silent,
+    /// Answers with a wrong CRC (noise, missing termination).
+    Crc,
+    /// Answers with Modbus exception 2 (illegal data address: wrong register configured).
+    Exception,
+}
+
+/// [`Encoders`]: absolute multi-turn encoders on every joint, on a simulated RS-485 bus
+/// speaking Modbus RTU, read with the board's own code (board-logic's `encoder` module:
+/// the same requests, CRC checks, timeouts and retries). Each encoder reads the simulated
+/// motor's physical position plus a per-joint offset (`--encoder-offset J:STEPS`: where
+/// the joint really was at boot while the step count says 0, as after steps lost with
+/// power off), in steps; `--encoder-fault J:KIND` makes one misbehave.
 #[derive(Clone, Debug)]
 pub struct SimEncoders {
     motors: Arc<MotorState>,
     offsets: [i64; MAX_JOINTS],
     present: bool,
+    clock: Option<SimClock>,
+    faults: [EncoderFaultMode; MAX_JOINTS],
 }
 
 impl SimEncoders {
@@ -242,7 +264,17 @@ impl SimEncoders {
             motors,
             offsets,
             present,
+            clock: None,
+            faults: [EncoderFaultMode::None; MAX_JOINTS],
         }
+    }
+
+    /// Timeouts and line time on `clock` (without one, a silent encoder costs no time),
+    /// and the given misbehaviours.
+    pub fn with_bus(mut self, clock: SimClock, faults: [EncoderFaultMode; MAX_JOINTS]) -> Self {
+        self.clock = Some(clock);
+        self.faults = faults;
+        self
     }
 
     /// What the encoders read now.
@@ -250,17 +282,103 @@ impl SimEncoders {
         let motors = self.motors.positions();
         core::array::from_fn(|j| motors[j] + self.offsets[j])
     }
+
+    async fn wait_us(&self, us: u32) {
+        if let Some(clock) = self.clock {
+            clock.sleep_until(clock.now_us() + u64::from(us)).await;
+        }
+    }
+}
+
+/// The simulated RS-485 bus with the encoders on it.
+struct SimEncoderBus<'a> {
+    encoders: &'a SimEncoders,
+    /// The reply to the last request (empty: none).
+    reply: Vec<u8>,
+}
+
+impl EncoderBus for SimEncoderBus<'_> {
+    async fn send(&mut self, frame: &[u8]) -> Result<(), ()> {
+        let timing = EncoderConfig::DEFAULT.timing;
+        self.encoders.wait_us(timing.frame_us(frame.len())).await;
+        self.reply.clear();
+        // An encoder ignores a request with a bad CRC or for another address.
+        let Some((address, _register)) = encoder::parse_position_request(frame) else {
+            return Ok(());
+        };
+        let Some(joint) = usize::from(address)
+            .checked_sub(1)
+            .filter(|j| *j < MAX_JOINTS)
+        else {
+            return Ok(());
+        };
+        let counts =
+            self.encoders.positions()[joint].clamp(i64::from(i32::MIN), i64::from(i32::MAX)) as i32;
+        match self.encoders.faults[joint] {
+            EncoderFaultMode::None => {
+                self.reply
+                    .extend_from_slice(&encoder::position_reply(address, counts));
+            }
+            EncoderFaultMode::Silent => {}
+            EncoderFaultMode::Crc => {
+                let mut reply = encoder::position_reply(address, counts);
+                reply[encoder::POSITION_REPLY_LEN - 1] ^= 0x5A;
+                self.reply.extend_from_slice(&reply);
+            }
+            EncoderFaultMode::Exception => {
+                self.reply
+                    .extend_from_slice(&encoder::exception_reply(address, 2));
+            }
+        }
+        Ok(())
+    }
+
+    async fn receive(
+        &mut self,
+        buf: &mut [u8],
+        first_byte_timeout_us: u32,
+        silent_us: u32,
+    ) -> usize {
+        if self.reply.is_empty() {
+            self.encoders.wait_us(first_byte_timeout_us).await;
+            return 0;
+        }
+        let timing = EncoderConfig::DEFAULT.timing;
+        self.encoders
+            .wait_us(timing.frame_us(self.reply.len()) + silent_us)
+            .await;
+        let n = self.reply.len().min(buf.len());
+        buf[..n].copy_from_slice(&self.reply[..n]);
+        self.reply.clear();
+        n
+    }
+
+    async fn pause(&mut self, us: u32) {
+        self.encoders.wait_us(us).await;
+    }
 }
 
 impl Encoders for SimEncoders {
     async fn read(&mut self) -> Option<[i32; protocol::MAX_JOINTS]> {
+        self.read_joints(MAX_JOINTS as u8).await.ok().flatten()
+    }
+
+    async fn read_joints(
+        &mut self,
+        joints: u8,
+    ) -> Result<Option<[i32; protocol::MAX_JOINTS]>, EncoderFault> {
         if !self.present {
-            return None;
+            return Ok(None);
         }
-        let positions = self.positions();
-        Some(core::array::from_fn(|j| {
-            positions[j].clamp(i64::from(i32::MIN), i64::from(i32::MAX)) as i32
-        }))
+        let mut bus = SimEncoderBus {
+            encoders: self,
+            reply: Vec::new(),
+        };
+        let read = encoder::read_positions(&mut bus, &EncoderConfig::DEFAULT, joints).await;
+        if let Err(fault) = read {
+            log::warn!("encoders: joint {} failed: {:?}", fault.joint, fault.kind);
+        }
+        read.map(Some)
     }
 }
 

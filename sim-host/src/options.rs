@@ -5,6 +5,7 @@ use std::path::PathBuf;
 
 use clap::{Args, Parser, Subcommand};
 
+use crate::devices::EncoderFaultMode;
 use crate::faults::FaultConfig;
 use crate::serial::SerialKind;
 
@@ -70,6 +71,12 @@ pub struct SimOptions {
     /// starts at 0 (repeatable): RETURN then moves it home by the encoder.
     #[arg(long = "encoder-offset", value_name = "J:STEPS", value_parser = parse_encoder_offset)]
     pub encoder_offsets: Vec<(usize, i64)>,
+
+    /// Make joint J's simulated Modbus encoder misbehave (repeatable): `silent` never
+    /// answers, `crc` answers with a bad CRC, `exception` refuses the request. RETURN then
+    /// ends in STOPPED without moving.
+    #[arg(long = "encoder-fault", value_name = "J:KIND", value_parser = parse_encoder_fault)]
+    pub encoder_faults: Vec<(usize, EncoderFaultMode)>,
 
     /// Simulate a board without absolute encoders (RETURN trusts the step count).
     #[arg(long)]
@@ -156,6 +163,35 @@ impl SimOptions {
         }
         offsets
     }
+}
+
+impl SimOptions {
+    /// Encoder misbehaviour per joint.
+    pub fn encoder_fault_array(&self) -> [EncoderFaultMode; arm_step::MAX_JOINTS] {
+        let mut faults = [EncoderFaultMode::None; arm_step::MAX_JOINTS];
+        for &(j, mode) in &self.encoder_faults {
+            if let Some(f) = faults.get_mut(j) {
+                *f = mode;
+            }
+        }
+        faults
+    }
+}
+
+fn parse_encoder_fault(s: &str) -> Result<(usize, EncoderFaultMode), String> {
+    let (joint, kind) = s
+        .split_once(':')
+        .ok_or_else(|| format!("expected J:KIND, got {s}"))?;
+    let joint: usize = joint.parse().map_err(|_| format!("bad joint: {joint}"))?;
+    if joint >= arm_step::MAX_JOINTS {
+        return Err(format!(
+            "joint {joint} is not 0..{}",
+            arm_step::MAX_JOINTS - 1
+        ));
+    }
+    let mode = <EncoderFaultMode as clap::ValueEnum>::from_str(kind, true)
+        .map_err(|_| format!("bad encoder fault {kind}: silent, crc or exception"))?;
+    Ok((joint, mode))
 }
 
 fn parse_probability(s: &str) -> Result<f64, String> {

@@ -19,6 +19,7 @@
 
 use core::cell::Cell;
 
+use board_logic::gripper::{next_burst, rcr_for};
 use embassy_stm32::gpio::{Level, Output, OutputType, Speed};
 use embassy_stm32::interrupt::{InterruptExt, Priority};
 use embassy_stm32::peripherals::{PE4, PE5, TIM15};
@@ -30,9 +31,6 @@ use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use protocol::Pwm;
 
-/// Periods per burst at most: the repetition counter of TIM15 has 8 bits.
-const MAX_BURST: u32 = 256;
-
 /// TIM15 status flags that exist (UIF, CC1IF, CC2IF, COMIF, TIF, BIF, CC1OF, CC2OF).
 const SR_FLAGS: u32 = 0x06E7;
 /// UIF.
@@ -40,36 +38,6 @@ const SR_UPDATE: u32 = 1 << 0;
 
 /// Pulses of the current stepper-mode run not yet loaded into the repetition counter.
 static UNLOADED_PULSES: Mutex<CriticalSectionRawMutex, Cell<u32>> = Mutex::new(Cell::new(0));
-
-/// The size of the next burst when `remaining` pulses are not yet loaded: full bursts,
-/// and the last 257..=512 split in two halves so that the final burst, which the
-/// interrupt must see start before it ends, is never short.
-pub const fn next_burst(remaining: u32) -> u32 {
-    if remaining <= MAX_BURST {
-        remaining
-    } else if remaining <= 2 * MAX_BURST {
-        remaining - remaining / 2
-    } else {
-        MAX_BURST
-    }
-}
-
-// Checked at compile time for every count up to four full bursts and then some: the bursts
-// add up to the count, each fits the repetition counter, and when the interrupt is needed
-// (more than one burst) no burst is shorter than half a full one.
-const _: () = {
-    let mut count = 1;
-    while count <= 4 * MAX_BURST + 3 {
-        let mut remaining = count;
-        while remaining > 0 {
-            let burst = next_burst(remaining);
-            assert!(burst >= 1 && burst <= MAX_BURST);
-            assert!(count <= MAX_BURST || burst >= MAX_BURST / 2);
-            remaining -= burst;
-        }
-        count += 1;
-    }
-};
 
 /// The gripper timer ([`arm_core::hw::Gripper`]).
 pub struct GripperPwm {
@@ -157,7 +125,7 @@ impl arm_core::hw::Gripper for GripperPwm {
                 return;
             }
             let first = next_burst(pulses);
-            regs.rcr().write(|w| w.set_rep((first - 1) as u8));
+            regs.rcr().write(|w| w.set_rep(rcr_for(first)));
             // Loads PSC, ARR, CCR1 and the repetition counter; the counter restarts at 0.
             regs.egr().write(|w| w.set_ug(true));
             let mut remaining = pulses - first;
@@ -165,7 +133,7 @@ impl arm_core::hw::Gripper for GripperPwm {
                 // Preload the second burst: the repetition counter takes it at the end of
                 // the first.
                 let second = next_burst(remaining);
-                regs.rcr().write(|w| w.set_rep((second - 1) as u8));
+                regs.rcr().write(|w| w.set_rep(rcr_for(second)));
                 remaining -= second;
             }
             unloaded.set(remaining);
@@ -217,7 +185,7 @@ fn TIM15() {
             regs.dier().write(|w| w.set_uie(false));
         } else {
             let burst = next_burst(remaining);
-            regs.rcr().write(|w| w.set_rep((burst - 1) as u8));
+            regs.rcr().write(|w| w.set_rep(rcr_for(burst)));
             unloaded.set(remaining - burst);
         }
     });

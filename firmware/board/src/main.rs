@@ -28,6 +28,7 @@
 //! - `stepper`: moves segments into the engine shared with TIM2 and relays its progress.
 //! - `upload`: LOCATION reports every upload period.
 //! - `serial`: the USART pass-through.
+//! - `watchdog` (this board's): feeds the IWDG while `stepper` and `network` live.
 //!
 //! One thread-mode executor is enough: no task computes for long (a PENDING frame of 12
 //! points is decoded and checked in microseconds), the e-stop has its own queue, and
@@ -39,45 +40,90 @@
 //!
 //! The task wrappers, the controller's static, the UDP socket and its buffers come from
 //! [`arm_wiring::controller_tasks!`], shared with the QEMU board (`firmware/qemu-mps2`), so
-//! that the two cannot drift apart; this crate passes its types.
+//! that the two cannot drift apart; this crate passes its types, and the watchdog's
+//! heartbeat wrappers of the step and network tasks.
 //!
-//! # Memory
+//! # Memory and caches
 //! Every task, driver and buffer is a `static` (`StaticCell`), initialised once in `main`;
-//! there is no heap. The trajectory buffer (8192 points, 288 KiB), the UDP socket and the
-//! tasks' queues are in AXI SRAM, the Ethernet descriptor ring (62 KiB, sized with the
-//! socket and the inbox for a burst of 32 full datagrams, see `net.rs`) in SRAM1, the
-//! stack in DTCM (see `memory.x`).
+//! there is no heap. Both caches are on ([`memory`]); the layout:
+//!
+//! | region | what | cache |
+//! |---|---|---|
+//! | flash bank 1 + bank 2 up to 0x081C_0000 | code, constants (`memory.x` FLASH) | I-cache |
+//! | flash 0x081C_0000..0x0820_0000 | settings (two sectors, [`settings`]) | - |
+//! | AXI SRAM 0x2400_0000 (512 KiB) | `.data`, `.bss`, `.uninit`: the trajectory buffer (8192 points, 288 KiB), the bus, the tasks' futures, the UDP socket buffers, defmt's RTT buffer | MPU region 1: D-cache write-through (the probe sees every RTT write) |
+//! | DTCM 0x2000_0000 (128 KiB) | the stack (CPU only, zero wait states) | never cached |
+//! | SRAM1 0x3000_0000 (128 KiB) | every DMA buffer: Ethernet descriptors and packets (a ring of 40, 62 KiB, sized with the UDP socket and the inbox for a burst of 32 full datagrams: `net.rs`), serial RX ring and TX staging, step streams ([`memory::DmaBuffers`]) | MPU region 0: non-cacheable |
+//!
+//! A DMA never sees a stale cache line because nothing it touches is cacheable, and no
+//! store waits in a dirty line (write-through), so nothing needs cache maintenance, not
+//! even before the fault path's reset. The step engine's state (`STEP`) and the bus
+//! stay in AXI SRAM: with the D-cache on they are cache hits in the step interrupt, as
+//! fast as DTCM would be, without a second linker region to manage.
+//!
+//! Flash image: the big statics have zero initial values so they cost no flash: [`BUS`]
+//! (23 KiB) and the step engine's `STEP` (4.9 KiB) are built at run time
+//! ([`late::Late`]), the others are `StaticCell`s.
+//! `scripts/fw-size.sh` fails above 96 KiB.
+//!
+//! # Faults, watchdog, boot
+//! - Panics, HardFaults and stray interrupts take one path ([`fault`]): steps and gripper
+//!   stopped, STEP low, drivers holding, a defmt line, reset.
+//! - The IWDG (1 s) is fed by the `watchdog` task only while the step task and the
+//!   network task both show signs of life (board-logic's `watchdog` module).
+//! - Clocks: HSE from the ST-LINK if it starts within 10 ms, else HSI ([`clocks`]).
+//! - Network: brought up only once the PHY's reference clock runs, retried every 5 s;
+//!   everything else runs meanwhile ([`net`]). Link loss changes nothing in the controller:
+//!   a run keeps executing what is buffered and the underrun rule stops it
+//!   (board-logic's `net` module documents why).
+//! - Settings: corruption is erased to defaults, an ECC double error costs one extra reset
+//!   ([`settings`]).
 
 #![no_std]
 #![no_main]
 
 mod clocks;
+mod encoder;
+mod fault;
 mod gripper;
+mod late;
+mod memory;
 mod net;
 mod pins;
 mod serial;
 mod settings;
 mod step_timer;
 
+use core::future::Future;
+
 use arm_core::config::{BOARD_TRAJECTORY_CAPACITY, ControllerConfig};
 use arm_core::hw::Gripper;
-use arm_core::{Bus, TrajectoryHw};
-use arm_wiring::NoEncoders;
-use defmt::{info, warn};
+use arm_core::{Bus, StepShared, TrajectoryHw};
+use board_logic::fault::FaultKind;
+use board_logic::net::RETRY_SECONDS;
+use board_logic::watchdog::{
+    Beating, CHECK_PERIOD_MS, Heartbeat, IWDG_TIMEOUT_MS, Liveness, Verdict,
+};
+use defmt::{error, info, warn};
+use defmt_rtt as _;
 use embassy_executor::Spawner;
 use embassy_stm32::flash::Flash;
 use embassy_stm32::interrupt::{InterruptExt, Priority};
 use embassy_stm32::rng::Rng;
 use embassy_stm32::usart::Uart;
+use embassy_stm32::wdg::IndependentWatchdog;
 use embassy_stm32::{bind_interrupts, dma, eth, flash, interrupt, peripherals, rng, usart};
-use static_cell::{ConstStaticCell, StaticCell};
-use {defmt_rtt as _, panic_probe as _};
+use embassy_time::Timer;
+use static_cell::StaticCell;
 
+use crate::clocks::ClockSource;
+use crate::encoder::{ModbusEncoders, Rs485};
 use crate::gripper::GripperPwm;
+use crate::late::Late;
 use crate::pins::{OutputLines, OutputPins, StepDirPins};
-use crate::serial::{BoardSerial, RX_RING_BYTES};
+use crate::serial::BoardSerial;
 use crate::settings::FlashSettings;
-use crate::step_timer::StepTimer;
+use crate::step_timer::{STEP, STEP_TIMING, StepTimer};
 
 bind_interrupts!(
     /// Interrupt handlers of the embassy drivers.
@@ -97,8 +143,10 @@ pub const MAX_JOINTS: usize = protocol::MAX_JOINTS;
 /// Trajectory points buffered (arm-core's board figure: 80 s of 10 ms points).
 const CAP: usize = BOARD_TRAJECTORY_CAPACITY;
 
-/// The channels between the tasks (and the step interrupt).
-pub static BUS: Bus = Bus::new();
+/// The channels between the tasks (and the step interrupt), built at the start of `main`
+/// ([`Late`]: `Bus::new()` has non-zero bytes, which as a `const` initialiser would store
+/// all 23 KiB of it in flash).
+pub static BUS: Late<Bus> = Late::new();
 
 arm_wiring::controller_tasks! {
     device: net::Device,
@@ -110,12 +158,59 @@ arm_wiring::controller_tasks! {
     gripper: GripperPwm,
     serial: BoardSerial,
     settings: FlashSettings,
-    encoders: NoEncoders,
+    encoders: ModbusEncoders,
+    // The watchdog feeds the IWDG only while these two futures are polled.
+    liveness: { stepper: crate::step_beating, network: crate::network_beating },
 }
 
 static KICK: StaticCell<StepTimer> = StaticCell::new();
 static SERIAL: StaticCell<BoardSerial> = StaticCell::new();
-static RX_RING: ConstStaticCell<[u8; RX_RING_BYTES]> = ConstStaticCell::new([0; RX_RING_BYTES]);
+
+/// Polls of the step task's future (watchdog liveness).
+static STEP_BEAT: Heartbeat = Heartbeat::new();
+/// Polls of the network task's future, or of the bring-up loop until it starts.
+static NETWORK_BEAT: Heartbeat = Heartbeat::new();
+/// Names of the heartbeats, in [`Liveness`] order.
+const BEAT_NAMES: [&str; 2] = ["step task", "network task"];
+
+/// The step task's future, beating [`STEP_BEAT`] on every poll.
+fn step_beating<F: Future>(task: F) -> Beating<'static, F> {
+    Beating::new(&STEP_BEAT, task)
+}
+
+/// The network task's future, beating [`NETWORK_BEAT`] on every poll (its socket wakes it
+/// at least every 100 ms).
+fn network_beating<F: Future>(task: F) -> Beating<'static, F> {
+    Beating::new(&NETWORK_BEAT, task)
+}
+
+/// Feeds the IWDG while the step task and the network task both live. Every check period
+/// it wakes the step task (a spurious `step_wake` only makes it look at its queue again;
+/// the network task wakes itself, see arm-wiring's socket adapter), then compares the
+/// heartbeats. A hung task takes the fault path (safe state, log, reset); a hung executor,
+/// where this task cannot run either, is reset by the IWDG.
+#[embassy_executor::task]
+async fn watchdog(mut iwdg: IndependentWatchdog<'static, peripherals::IWDG1>) -> ! {
+    let beats = || [STEP_BEAT.count(), NETWORK_BEAT.count()];
+    let mut liveness = Liveness::new(beats());
+    loop {
+        BUS.step_wake.signal(());
+        Timer::after_millis(u64::from(CHECK_PERIOD_MS)).await;
+        match liveness.check(beats()) {
+            Verdict::Feed => iwdg.pet(),
+            Verdict::Late { index } => {
+                warn!("watchdog: {} late", BEAT_NAMES[index]);
+                iwdg.pet();
+            }
+            Verdict::Hung { index } => {
+                error!("watchdog: {} hung", BEAT_NAMES[index]);
+                // The orderly way out; if even this task could not run, the IWDG (no longer
+                // fed) resets the board within IWDG_TIMEOUT_MS.
+                fault::fault(FaultKind::TaskHung { task: index as u8 }, None);
+            }
+        }
+    }
+}
 
 /// Lowers every driver interrupt below the step and gripper timers (the drivers enable
 /// them at P0, the reset value).
@@ -135,19 +230,36 @@ fn set_driver_priorities() {
 
 #[embassy_executor::main]
 async fn main(spawner: Spawner) -> ! {
-    let mut config = clocks::config();
+    // SAFETY: first thing, before anything that can reach it (the step interrupt, the
+    // tasks).
+    unsafe { BUS.init(Bus::new()) };
+    // SAFETY: as BUS: before the step timer's interrupt is enabled and before any task is
+    // spawned, nothing else holds a reference to STEP.
+    unsafe { STEP.init(StepShared::new(STEP_TIMING)) };
+    let clock_source = clocks::probe_hse();
+    let mut config = clocks::config(clock_source);
     config.dma_interrupt_priority = Priority::P3;
     config.bdma_interrupt_priority = Priority::P3;
     config.mdma_interrupt_priority = Priority::P3;
     let p = embassy_stm32::init(config);
     info!("arm controller starting");
-    // The instruction cache makes interrupt entry and the step engine's code fast and
-    // steady despite the flash wait states. The data cache stays off: the
-    // Ethernet and USART DMA buffers are not cache-maintained.
-    match cortex_m::Peripherals::take() {
-        Some(mut core) => core.SCB.enable_icache(),
-        None => warn!("core peripherals already taken: instruction cache left off"),
+    match clock_source {
+        ClockSource::Hse => info!("clock: HSE 8 MHz (ST-LINK MCO)"),
+        ClockSource::HsiFallback => warn!("clock: HSE missing, running on HSI"),
     }
+    // Caches before any DMA starts: every DMA buffer is in non-cacheable SRAM1.
+    match cortex_m::Peripherals::take() {
+        Some(mut core) => memory::enable_caches(&mut core.MPU, &mut core.SCB, &mut core.CPUID),
+        None => warn!("core peripherals already taken: caches left off"),
+    }
+    let Some(dma_buffers) = memory::take_dma_buffers() else {
+        defmt::panic!("DMA buffers taken twice"); // safe: boot-time bring-up
+    };
+    let memory::DmaBuffers {
+        eth: eth_packets,
+        serial_rx,
+        serial_tx,
+    } = dma_buffers;
 
     // Step outputs first: from here on the STEP lines are driven low.
     let step_dir = StepDirPins {
@@ -210,27 +322,53 @@ async fn main(spawner: Spawner) -> ! {
         Ok(uart) => uart,
         Err(e) => defmt::panic!("USART6: {}", e), // safe: boot-time bring-up
     };
-    let serial_port = SERIAL.init(BoardSerial::new(uart, RX_RING.take()));
+    let serial_port = SERIAL.init(BoardSerial::new(uart, serial_rx, serial_tx));
 
     let mut settings = FlashSettings::new(Flash::new(p.FLASH, Irqs));
-    let stored = match settings.read().await {
-        Ok(stored) => stored,
-        Err(e) => {
-            warn!("settings unreadable, using defaults: {}", e);
-            None
-        }
-    };
-    let persistent = stored.unwrap_or_default();
-    info!("settings: {}", persistent);
+    let persistent = settings.read().await.settings();
+
+    let encoder_uart =
+        match Uart::new_blocking_with_de(p.UART4, p.PC11, p.PC10, p.PA15, encoder::uart_config()) {
+            Ok(uart) => uart,
+            Err(e) => defmt::panic!("UART4: {}", e), // safe: boot-time bring-up
+        };
+    let encoders = ModbusEncoders::detect(Rs485::new(encoder_uart), persistent.joints).await;
 
     let controller_config = ControllerConfig {
         pwm_timer_clock_hz: gripper.timer_clock_hz(),
         max_step_rate_hz: ControllerConfig::BOARD
             .max_step_rate_hz
-            .min(step_timer::STEP_TIMING.max_step_rate_hz()),
+            .min(STEP_TIMING.max_step_rate_hz()),
         ..ControllerConfig::BOARD
     };
-    let eth_pins = net::EthernetPins {
+    set_driver_priorities();
+
+    // Every task but the network's: the arm works (and stops on its underrun rule) with or
+    // without a network.
+    defmt::unwrap!(spawn_controller(
+        &spawner,
+        controller_config,
+        TrajectoryHw {
+            kick,
+            outputs,
+            gripper,
+            serial: serial_port,
+            settings,
+            encoders,
+        },
+    ));
+
+    // The IWDG stops while a debugger halts the core: a breakpoint does not reset the board.
+    embassy_stm32::pac::DBGMCU
+        .apb4fzr1()
+        .modify(|w| w.set_iwdg1(true));
+    let mut iwdg = IndependentWatchdog::new(p.IWDG1, IWDG_TIMEOUT_MS * 1_000);
+    iwdg.unleash();
+    spawner.spawn(defmt::unwrap!(watchdog(iwdg)));
+    info!("watchdog: IWDG on, {} ms", IWDG_TIMEOUT_MS);
+
+    // The network last: without a PHY (or its clock) the board runs on, and tries again.
+    let mut eth_pins = net::EthernetPins {
         eth: p.ETH,
         sma: p.ETH_SMA,
         ref_clk: p.PA1,
@@ -243,27 +381,26 @@ async fn main(spawner: Spawner) -> ! {
         mdio: p.PA2,
         mdc: p.PC1,
     };
-    let device = net::device(eth_pins);
     // The TCP/IP stack wants a random seed (initial sequence numbers, DHCP transaction IDs).
     let seed = Rng::new(p.RNG, Irqs).next_u64();
-    set_driver_priorities();
-
-    let stack = defmt::unwrap!(spawn_controller(
+    while !net::phy_clock_present(eth_pins.ref_clk.reborrow()) {
+        warn!(
+            "ethernet: no RMII reference clock (PHY missing or dead): no network, retry in {} s",
+            RETRY_SECONDS
+        );
+        // Beat for the network task that does not exist yet.
+        for _ in 0..RETRY_SECONDS * 10 {
+            NETWORK_BEAT.beat();
+            Timer::after_millis(100).await;
+        }
+    }
+    let device = net::device(eth_pins, eth_packets);
+    let stack = defmt::unwrap!(spawn_network(
         &spawner,
         device,
         arm_wiring::net::ip_config(persistent.ip, persistent.prefix_len),
         seed,
-        controller_config,
-        TrajectoryHw {
-            kick,
-            outputs,
-            gripper,
-            serial: serial_port,
-            settings,
-            encoders: NoEncoders,
-        },
     ));
-    // The link can drop and come back; it is logged so a person at the probe can see why
-    // the controller went silent.
-    arm_wiring::net::watch_link(stack).await
+    // Logs the address, then every link change with the state it happened in.
+    arm_wiring::net::watch_link(stack, &BUS).await
 }

@@ -1,36 +1,51 @@
 //! Ethernet (LAN8742A PHY over RMII) and the embassy-net stack.
 //!
-//! The MAC's descriptors and packet buffers ([`PacketQueue`], 62 KiB for a whole burst of
-//! datagrams) are a `static` in SRAM1 (memory.x's `.sram1`, D2 domain): the Ethernet DMA
-//! reaches it (never DTCM), and the AXI SRAM stays for the trajectory buffer, the tasks'
-//! inbox and the UDP socket. The data cache is off, so no MPU region is needed.
+//! Bring-up never blocks the rest of the board: before touching the MAC, [`phy_clock_present`]
+//! checks that the PHY drives the 50 MHz RMII reference clock (without it the MAC's DMA
+//! software reset never completes and embassy's driver would spin forever). A missing or
+//! dead PHY is retried every `RETRY_SECONDS` by the bring-up task in `main.rs` while the
+//! steps, gripper, serial port and watchdog run normally.
+//!
+//! [`Lan8742a`] replaces embassy's `GenericPhy`: its reset is bounded (no panic when the PHY
+//! does not answer on MDIO), it advertises every mode, and on each link-up it reads the
+//! negotiated speed and duplex (register 31) and sets the MAC to match, instead of forcing
+//! 100 Mbit/s full duplex (a 10 Mbit/s or half-duplex partner would see collisions and CRC
+//! errors).
+//!
+//! The MAC's descriptors and packet buffers ([`PacketQueue`]) are in SRAM1, non-cacheable
+//! (see `memory.rs`): the Ethernet DMA cannot reach DTCM and does not see the D-cache.
 
-use core::mem::MaybeUninit;
-use core::sync::atomic::{AtomicBool, Ordering};
-use embassy_stm32::eth::{Ethernet, GenericPhy, PacketQueue, Sma};
+use core::future::Future;
+use core::pin::Pin;
+use core::task::Context;
+
+use board_logic::net::{LinkMode, REF_CLK_SAMPLES, link_mode, ref_clock_running};
+use defmt::{info, warn};
+use embassy_stm32::eth::{Ethernet, PacketQueue, Phy, Sma, StationManagement};
+use embassy_stm32::gpio::{Input, Pull};
 use embassy_stm32::peripherals::{ETH, ETH_SMA};
-
-use embassy_stm32::{Peri, peripherals};
+use embassy_stm32::{Peri, pac, peripherals};
+use embassy_time::{Duration, Instant, Timer};
 
 use arm_core::config::HOST_WINDOW;
 
 use crate::Irqs;
 
 /// The Ethernet driver as the stack sees it.
-pub type Device = Ethernet<'static, ETH, GenericPhy<Sma<'static, ETH_SMA>>>;
+pub type Device = Ethernet<'static, ETH, Lan8742a>;
 
 /// Transmit descriptors: a burst of ACK + STATUS + LOCATION + USART_RECV fits without
 /// waiting for the MAC; a burst of 40 ACKs (11 bytes each, 1.3 us on the wire at
 /// 100 Mbit/s) waits for the MAC for microseconds, which costs nothing.
-const TX_PACKETS: usize = 4;
+pub const TX_PACKETS: usize = 4;
 /// Receive descriptors: a whole burst. A host's window is [`HOST_WINDOW`] = 32 datagrams
 /// of up to 1472 bytes sent back to back (32 x 123 us = 3.9 ms at 100 Mbit/s), plus 8 for
 /// other tools' commands, ARP and the like arriving meanwhile: 40. Each descriptor owns a
 /// 1536-byte buffer (embassy-stm32's `RX_BUFFER_SIZE`), so the ring costs
-/// 40 x (1536 + 16) = 62,080 bytes (in SRAM1). Sized so that nothing is dropped even if
-/// the stack's runner does not get to run during the whole burst (smoltcp and the MAC drop
-/// silently; the host would only see a missing ACK).
-const RX_PACKETS: usize = HOST_WINDOW + 8;
+/// 40 x (1536 + 16) = 62,080 bytes (in SRAM1, see `memory.rs`). Sized so that nothing is
+/// dropped even if the stack's runner does not get to run during the whole burst (smoltcp
+/// and the MAC drop silently; the host would only see a missing ACK).
+pub const RX_PACKETS: usize = HOST_WINDOW + 8;
 
 /// The pins and peripherals the Ethernet uses on the NUCLEO-H743ZI2 (UM2407 table 11:
 /// default solder bridges). No other driver may use these.
@@ -71,32 +86,32 @@ pub fn mac_address() -> [u8; 6] {
     mac
 }
 
-/// The MAC's descriptor rings and buffers, in SRAM1 (a NOLOAD section: neither zeroed nor
-/// initialised at boot; [`device`] initialises it in place, once).
-#[unsafe(link_section = ".sram1")]
-static mut PACKETS: MaybeUninit<PacketQueue<TX_PACKETS, RX_PACKETS>> = MaybeUninit::uninit();
-/// [`PACKETS`] was handed out (in `.bss`: zeroed at boot, unlike SRAM1).
-static PACKETS_TAKEN: AtomicBool = AtomicBool::new(false);
+/// Whether the PHY drives RMII_REF_CLK: samples the pin as an input (pull-down) at
+/// irregular intervals and looks for both levels. Leaves the pin for the MAC.
+pub fn phy_clock_present(ref_clk: Peri<'_, peripherals::PA1>) -> bool {
+    let input = Input::new(ref_clk, Pull::Down);
+    let (mut highs, mut lows) = (0u32, 0u32);
+    for i in 0..REF_CLK_SAMPLES {
+        if input.is_high() {
+            highs += 1;
+        } else {
+            lows += 1;
+        }
+        // Irregular spacing: a sampling rate locked to the 50 MHz clock cannot fake "stuck".
+        cortex_m::asm::delay(i % 7);
+    }
+    ref_clock_running(highs, lows)
+}
 
 /// Brings up the MAC and PHY; the driver for the stack (arm-wiring creates the stack, with
-/// the address from `arm_wiring::net::ip_config`). Call once.
-pub fn device(pins: EthernetPins) -> Device {
-    if PACKETS_TAKEN.swap(true, Ordering::AcqRel) {
-        defmt::panic!("net::device called twice"); // safe: boot-time bring-up
-    }
-    // SRAM1 is clocked for the CPU (and so follows its run mode) only with SRAM1EN set
-    // (RM0433, RCC_AHB2ENR); set it before the first access.
-    embassy_stm32::pac::RCC
-        .ahb2enr()
-        .modify(|w| w.set_sram1en(true));
-    let packets = &raw mut PACKETS;
-    // SAFETY: the only reference to PACKETS ever made (guarded by PACKETS_TAKEN above).
-    let packets = unsafe { &mut *packets };
-    // 62 KiB: initialised in place (zeroed), never built on the stack first.
-    PacketQueue::init(packets);
-    // SAFETY: `PacketQueue::init` just initialised it (all zeros is its initial state).
-    let packets = unsafe { packets.assume_init_mut() };
-    Ethernet::new(
+/// the address from `arm_wiring::net::ip_config`). Call once, after [`phy_clock_present`]
+/// said yes.
+pub fn device(
+    pins: EthernetPins,
+    packets: &'static mut PacketQueue<TX_PACKETS, RX_PACKETS>,
+) -> Device {
+    let phy = Lan8742a::new(Sma::new(pins.sma, pins.mdio, pins.mdc));
+    Ethernet::new_with_phy(
         packets,
         pins.eth,
         Irqs,
@@ -108,8 +123,142 @@ pub fn device(pins: EthernetPins) -> Device {
         pins.tx_d1,
         pins.tx_en,
         mac_address(),
-        pins.sma,
-        pins.mdio,
-        pins.mdc,
+        phy,
     )
+}
+
+/// The LAN8742A's MDIO address on the NUCLEO-H743ZI2 (PHYAD0 strapped low).
+const PHY_ADDRESS: u8 = 0;
+/// Basic control register and its bits.
+const BCR: u8 = 0;
+const BCR_RESET: u16 = 1 << 15;
+const BCR_AUTONEG: u16 = 1 << 12;
+const BCR_RESTART_AUTONEG: u16 = 1 << 9;
+/// Basic status register: link up.
+const BSR: u8 = 1;
+const BSR_LINK_UP: u16 = 1 << 2;
+/// PHY identifier 1: 0x0007 for every Microchip/SMSC PHY.
+const PHY_ID1: u8 = 2;
+const PHY_ID1_MICROCHIP: u16 = 0x0007;
+/// Auto-negotiation advertisement: 10/100, half/full, IEEE 802.3 selector.
+const ANAR: u8 = 4;
+const ANAR_ALL_MODES: u16 = 0x01E1;
+/// PHY special control/status (speed indication).
+const PSCSR: u8 = 31;
+/// Polls of BCR_RESET after a reset: the LAN8742A needs under 1 ms; 10 ms at most.
+const RESET_POLLS: u32 = 10;
+/// Link status poll period (the driver polls on every wake-up of the runner).
+const POLL_PERIOD: Duration = Duration::from_millis(500);
+/// Between two attempts at a PHY that did not answer.
+const REDETECT_PERIOD: Duration = Duration::from_secs(5);
+
+/// The NUCLEO's PHY ([`Phy`] for embassy's Ethernet driver).
+pub struct Lan8742a {
+    sm: Sma<'static, ETH_SMA>,
+    /// The PHY answered its reset.
+    present: bool,
+    /// The mode the MAC is set to (`None`: link down).
+    mode: Option<LinkMode>,
+    next_poll: Instant,
+    next_redetect: Instant,
+}
+
+impl Lan8742a {
+    fn new(sm: Sma<'static, ETH_SMA>) -> Self {
+        Lan8742a {
+            sm,
+            present: false,
+            mode: None,
+            next_poll: Instant::from_ticks(0),
+            next_redetect: Instant::from_ticks(0),
+        }
+    }
+
+    /// Resets the PHY, bounded; whether it answered like a LAN8742A.
+    fn try_reset(&mut self) -> bool {
+        if self.sm.smi_read(PHY_ADDRESS, PHY_ID1) != PHY_ID1_MICROCHIP {
+            return false;
+        }
+        self.sm.smi_write(PHY_ADDRESS, BCR, BCR_RESET);
+        for _ in 0..RESET_POLLS {
+            embassy_time::block_for(Duration::from_millis(1));
+            if self.sm.smi_read(PHY_ADDRESS, BCR) & BCR_RESET == 0 {
+                return true;
+            }
+        }
+        false
+    }
+
+    fn start_autonegotiation(&mut self) {
+        self.sm.smi_write(PHY_ADDRESS, ANAR, ANAR_ALL_MODES);
+        self.sm
+            .smi_write(PHY_ADDRESS, BCR, BCR_AUTONEG | BCR_RESTART_AUTONEG);
+    }
+}
+
+/// Sets the MAC's speed and duplex (MACCR FES, DM).
+fn set_mac_mode(mode: LinkMode) {
+    pac::ETH.ethernet_mac().maccr().modify(|w| {
+        w.set_fes(mode.fast);
+        w.set_dm(mode.full_duplex);
+    });
+}
+
+impl Phy for Lan8742a {
+    fn phy_reset(&mut self) {
+        self.present = self.try_reset();
+        if !self.present {
+            warn!("ethernet: the PHY does not answer on MDIO; retrying every 5 s");
+        }
+    }
+
+    fn phy_init(&mut self) {
+        if self.present {
+            self.start_autonegotiation();
+        }
+    }
+
+    fn poll_link(&mut self, cx: &mut Context) -> bool {
+        let now = Instant::now();
+        if now < self.next_poll {
+            // Woken early by traffic: report the last state; the poll timer is armed.
+            return self.mode.is_some();
+        }
+        self.next_poll = now + POLL_PERIOD;
+        // Be polled again then: polling a timer once registers the runner's waker in the
+        // time queue, which wakes it at the deadline even after the timer is dropped (what
+        // embassy's GenericPhy does too).
+        let mut timer = Timer::at(self.next_poll);
+        let _ = Future::poll(Pin::new(&mut timer), cx);
+
+        if !self.present {
+            if now >= self.next_redetect {
+                self.next_redetect = now + REDETECT_PERIOD;
+                self.present = self.try_reset();
+                if self.present {
+                    info!("ethernet: PHY found");
+                    self.start_autonegotiation();
+                }
+            }
+            return false;
+        }
+        let up = self.sm.smi_read(PHY_ADDRESS, BSR) & BSR_LINK_UP != 0;
+        let mode = if up {
+            link_mode(self.sm.smi_read(PHY_ADDRESS, PSCSR))
+        } else {
+            None
+        };
+        if mode != self.mode {
+            if let Some(m) = mode {
+                set_mac_mode(m);
+                info!(
+                    "ethernet: link {} Mbit/s {} duplex",
+                    if m.fast { 100 } else { 10 },
+                    if m.full_duplex { "full" } else { "half" }
+                );
+            }
+            self.mode = mode;
+        }
+        mode.is_some()
+    }
 }

@@ -14,6 +14,7 @@
 use core::cell::Cell;
 
 use arm_core::hw::SerialError;
+use board_logic::uart::{self, uart_frame};
 use defmt::warn;
 use embassy_futures::select::{Either, select};
 use embassy_stm32::mode::Async;
@@ -22,63 +23,37 @@ use embassy_sync::blocking_mutex::Mutex as BlockingMutex;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::mutex::Mutex;
 use embassy_sync::signal::Signal;
-use protocol::{UartInit, UartMode, limits};
+use protocol::{UartInit, UartMode};
+
+/// Bytes of the transmit staging buffer: writes are copied here (non-cacheable SRAM1, see
+/// `memory.rs`) chunk by chunk before the DMA reads them, since the caller's bytes live in
+/// cacheable AXI SRAM. 256 bytes: a whole USART_SEND payload at once.
+pub const TX_STAGING_BYTES: usize = 256;
 
 /// Bytes of the receive DMA ring: at the 4 Mbaud maximum a byte takes 2.5 us, so 1 KiB is
 /// 2.5 ms of line time, more than twice the serial task's 1 ms batching delay.
 pub const RX_RING_BYTES: usize = 1024;
 
-/// STM32F4 HAL codes in `UartInit` (docs/PROTOCOL.md, "UartInit (28 bytes)").
-mod hal {
-    /// UART_WORDLENGTH_9B: 9 bits on the line (8 data + parity, or 9 data).
-    pub const WORD_9B: u32 = 0x1000;
-    /// UART_STOPBITS_2.
-    pub const STOP_2: u32 = 0x2000;
-    /// UART_PARITY_EVEN.
-    pub const PARITY_EVEN: u32 = 0x0400;
-    /// UART_PARITY_ODD.
-    pub const PARITY_ODD: u32 = 0x0600;
-    /// UART_OVERSAMPLING_8.
-    pub const OVERSAMPLING_8: u32 = 0x8000;
-}
-
-/// The embassy configuration for `init`, or why this board cannot apply it.
-///
-/// The HAL counts the parity bit in the word length, embassy does not: an 8-bit frame with
-/// parity is 7 data bits. Hardware flow control is refused (no RTS/CTS pins are wired).
-/// Oversampling is chosen by the driver for the baud rate, so both HAL values are
-/// accepted.
+/// The embassy configuration for `init`, or why this board cannot apply it (the mapping
+/// of the HAL codes is board-logic's `uart::uart_frame`, tested on the host).
 pub fn uart_config(init: &UartInit) -> Result<Config, SerialError> {
-    if !limits::BAUD_RATE.contains(&init.baud_rate) || init.hw_flow_ctl != 0 {
-        return Err(SerialError::Unsupported);
-    }
-    if init.over_sampling != 0 && init.over_sampling != hal::OVERSAMPLING_8 {
-        return Err(SerialError::Unsupported);
-    }
-    let parity = match init.parity {
-        0 => Parity::ParityNone,
-        hal::PARITY_EVEN => Parity::ParityEven,
-        hal::PARITY_ODD => Parity::ParityOdd,
-        _ => return Err(SerialError::Unsupported),
-    };
-    let with_parity = parity != Parity::ParityNone;
-    let data_bits = match (init.word_length, with_parity) {
-        (0, false) => DataBits::DataBits8,
-        (0, true) => DataBits::DataBits7,
-        (hal::WORD_9B, false) => DataBits::DataBits9,
-        (hal::WORD_9B, true) => DataBits::DataBits8,
-        _ => return Err(SerialError::Unsupported),
-    };
-    let stop_bits = match init.stop_bits {
-        0 => StopBits::STOP1,
-        hal::STOP_2 => StopBits::STOP2,
-        _ => return Err(SerialError::Unsupported),
-    };
+    let frame = uart_frame(init)?;
     let mut config = Config::default();
-    config.baudrate = init.baud_rate;
-    config.data_bits = data_bits;
-    config.parity = parity;
-    config.stop_bits = stop_bits;
+    config.baudrate = frame.baud_rate;
+    config.data_bits = match frame.data_bits {
+        uart::DataBits::Seven => DataBits::DataBits7,
+        uart::DataBits::Eight => DataBits::DataBits8,
+        uart::DataBits::Nine => DataBits::DataBits9,
+    };
+    config.parity = match frame.parity {
+        uart::Parity::None => Parity::ParityNone,
+        uart::Parity::Even => Parity::ParityEven,
+        uart::Parity::Odd => Parity::ParityOdd,
+    };
+    config.stop_bits = match frame.stop_bits {
+        uart::StopBits::One => StopBits::STOP1,
+        uart::StopBits::Two => StopBits::STOP2,
+    };
     Ok(config)
 }
 
@@ -91,6 +66,12 @@ struct Wanted {
     open: Option<UartInit>,
 }
 
+/// The transmit half and its DMA-visible staging buffer.
+struct TxStaged {
+    uart: UartTx<'static, Async>,
+    staging: &'static mut [u8; TX_STAGING_BYTES],
+}
+
 /// A half of the port and the settings generation it last applied.
 struct Half<T> {
     io: T,
@@ -99,7 +80,7 @@ struct Half<T> {
 
 /// The pass-through port ([`arm_core::hw::SerialPort`]).
 pub struct BoardSerial {
-    tx: Mutex<CriticalSectionRawMutex, Half<UartTx<'static, Async>>>,
+    tx: Mutex<CriticalSectionRawMutex, Half<TxStaged>>,
     rx: Mutex<CriticalSectionRawMutex, Half<RingBufferedUartRx<'static>>>,
     wanted: BlockingMutex<CriticalSectionRawMutex, Cell<Wanted>>,
     /// Raised by `open`/`close`: a waiting read re-checks the settings.
@@ -108,10 +89,18 @@ pub struct BoardSerial {
 
 impl BoardSerial {
     /// Splits the UART; reception starts into `ring` with the first read after an `open`.
-    pub fn new(uart: Uart<'static, Async>, ring: &'static mut [u8; RX_RING_BYTES]) -> Self {
+    /// `ring` and `staging` are DMA buffers: they must be in non-cacheable memory.
+    pub fn new(
+        uart: Uart<'static, Async>,
+        ring: &'static mut [u8; RX_RING_BYTES],
+        staging: &'static mut [u8; TX_STAGING_BYTES],
+    ) -> Self {
         let (tx, rx) = uart.split();
         BoardSerial {
-            tx: Mutex::new(Half { io: tx, applied: 0 }),
+            tx: Mutex::new(Half {
+                io: TxStaged { uart: tx, staging },
+                applied: 0,
+            }),
             rx: Mutex::new(Half {
                 io: rx.into_ring_buffered(ring),
                 applied: 0,
@@ -190,14 +179,21 @@ impl arm_core::hw::SerialPort for BoardSerial {
         if tx.applied != wanted.generation {
             let config = uart_config(&init)?;
             tx.io
+                .uart
                 .set_config(&config)
                 .map_err(|_| SerialError::Unsupported)?;
             tx.applied = wanted.generation;
         }
-        tx.io.write(bytes).await.map_err(|e| {
-            warn!("serial transmit: {}", e);
-            SerialError::Line
-        })
+        let TxStaged { uart, staging } = &mut tx.io;
+        for chunk in bytes.chunks(TX_STAGING_BYTES) {
+            let staged = &mut staging[..chunk.len()];
+            staged.copy_from_slice(chunk);
+            uart.write(staged).await.map_err(|e| {
+                warn!("serial transmit: {}", e);
+                SerialError::Line
+            })?;
+        }
+        Ok(())
     }
 }
 

@@ -1,14 +1,25 @@
 //! Persistent settings in the last two 128 KiB sectors of flash bank 2, as a
-//! `sequential-storage` map (wear-levelled, power-fail safe, CRC-checked items).
+//! `sequential-storage` map (wear-levelled, power-fail safe, CRC-checked items), with
+//! board-logic's recovery: a corrupted area is erased to defaults, a save that fails
+//! erases and stores again.
 //!
 //! Bank 2 is written while the code runs from bank 1 (read-while-write), so an erase
 //! (about 2 s for a sector) stalls neither the step interrupt nor the network; the async
-//! flash driver yields while the flash is busy.
+//! flash driver yields while the flash is busy. `memory.x` ends FLASH at
+//! [`SETTINGS_START`], so the program can never grow into these sectors (the link fails).
+//!
+//! ECC double errors: a flash word whose programming was cut by a power loss can read
+//! with an uncorrectable ECC error, which the H7 reports as a bus fault. The read is
+//! bracketed by a marker in `.uninit` RAM (kept across the fault path's reset): a boot
+//! that finds the marker still set erases the area before reading (one extra reset, then
+//! defaults), instead of faulting on every boot.
+
+use core::mem::MaybeUninit;
 
 use arm_core::hw::PersistentSettings;
+use board_logic::settings::{BootMarker, LoadOutcome, SettingsArea, must_erase_first};
+use defmt::{info, warn};
 use embassy_stm32::flash::{Async, Flash};
-use sequential_storage::cache::{Cache, Uncached};
-use sequential_storage::map::{MapConfig, MapStorage};
 
 /// First byte (offset from the start of flash) of the settings area: bank 2 sector 6.
 pub const SETTINGS_START: u32 = 0x1C_0000;
@@ -16,76 +27,60 @@ pub const SETTINGS_START: u32 = 0x1C_0000;
 /// sequential-storage map works with.
 pub const SETTINGS_END: u32 = 0x20_0000;
 
-/// Map key of the settings record.
-const SETTINGS_KEY: u8 = 1;
-/// Layout version in the record's first byte: a record written by another layout is
-/// ignored (defaults apply) rather than misread.
-const RECORD_VERSION: u8 = 1;
-/// Bytes of the record: version, joints, ip[4], prefix_len, reserved.
-const RECORD_LEN: usize = 8;
+/// Why settings could not be written.
+pub type StoreError = board_logic::settings::StoreError<embassy_stm32::flash::Error>;
 
-/// Scratch for one item: key + record + item header, rounded up to the H7's 32-byte flash
-/// word (32-byte aligned, as the flash driver writes whole words from it).
-#[repr(C, align(32))]
-struct ItemBuffer([u8; 64]);
+/// Set while a read of the settings area is under way; survives a reset (not zeroed).
+#[unsafe(link_section = ".uninit.SETTINGS_READ_MARK")]
+static mut SETTINGS_READ_MARK: MaybeUninit<u32> = MaybeUninit::uninit();
 
-/// The stored record for `settings`.
-pub const fn encode(settings: &PersistentSettings) -> [u8; RECORD_LEN] {
-    let [a, b, c, d] = settings.ip;
-    [
-        RECORD_VERSION,
-        settings.joints,
-        a,
-        b,
-        c,
-        d,
-        settings.prefix_len,
-        0,
-    ]
+fn read_mark() -> u32 {
+    // SAFETY: a plain 32-bit location; any bit pattern is a valid u32, and only thread
+    // mode touches it (before and during the settings reads, never from interrupts).
+    unsafe {
+        core::ptr::addr_of!(SETTINGS_READ_MARK)
+            .cast::<u32>()
+            .read_volatile()
+    }
 }
 
-/// The settings in a stored record, if it is one this firmware wrote and its values are
-/// in range.
-pub fn decode(record: &[u8; RECORD_LEN]) -> Option<PersistentSettings> {
-    let [version, joints, a, b, c, d, prefix_len, _] = *record;
-    let valid =
-        version == RECORD_VERSION && protocol::limits::JOINTS.contains(&joints) && prefix_len <= 32;
-    valid.then_some(PersistentSettings {
-        joints,
-        ip: [a, b, c, d],
-        prefix_len,
-    })
+fn write_mark(value: u32) {
+    // SAFETY: as in `read_mark`.
+    unsafe {
+        core::ptr::addr_of_mut!(SETTINGS_READ_MARK)
+            .cast::<u32>()
+            .write_volatile(value)
+    }
 }
-
-/// Why settings could not be read or written.
-pub type StoreError = sequential_storage::Error<embassy_stm32::flash::Error>;
 
 /// [`arm_core::hw::SettingsStore`] on the internal flash.
 pub struct FlashSettings {
-    map: MapStorage<u8, Flash<'static, Async>, Cache<Uncached, Uncached, Uncached, u8>>,
-    buffer: ItemBuffer,
+    area: SettingsArea<Flash<'static, Async>>,
 }
 
 impl FlashSettings {
     /// Uses the settings area of `flash`.
     pub fn new(flash: Flash<'static, Async>) -> Self {
         FlashSettings {
-            map: MapStorage::new(
-                flash,
-                const { MapConfig::new(SETTINGS_START..SETTINGS_END) },
-                Cache::new_uncached(),
-            ),
-            buffer: ItemBuffer([0; 64]),
+            area: SettingsArea::new(flash, SETTINGS_START..SETTINGS_END),
         }
     }
 
-    /// Reads the settings before the tasks start (the address is needed for the network).
-    pub async fn read(&mut self) -> Result<Option<PersistentSettings>, StoreError> {
-        let record = self
-            .map
-            .fetch_item::<[u8; RECORD_LEN]>(&mut self.buffer.0, &SETTINGS_KEY)
-            .await?;
-        Ok(record.as_ref().and_then(decode))
+    /// Reads the settings (marker set around the read, area erased first if the previous
+    /// boot's read faulted); logs what it found.
+    pub async fn read(&mut self) -> LoadOutcome {
+        if must_erase_first(read_mark()) {
+            warn!("settings: the previous read faulted (ECC error?): erasing the area");
+            if let Err(e) = self.area.erase().await {
+                warn!("settings: erase failed: {}", e);
+            }
+        }
+        write_mark(BootMarker::READING);
+        let outcome = self.area.load().await;
+        write_mark(BootMarker::IDLE);
+        // Stored(..), Empty (defaults), Erased (corrupted, erased: defaults), Unreadable.
+        info!("settings: {}", outcome);
+        outcome
     }
 }
 
@@ -93,12 +88,16 @@ impl arm_core::hw::SettingsStore for FlashSettings {
     type Error = StoreError;
 
     async fn load(&mut self) -> Result<Option<PersistentSettings>, Self::Error> {
-        self.read().await
+        Ok(match self.read().await {
+            LoadOutcome::Stored(s) => Some(s),
+            _ => None,
+        })
     }
 
     async fn save(&mut self, settings: &PersistentSettings) -> Result<(), Self::Error> {
-        self.map
-            .store_item(&mut self.buffer.0, &SETTINGS_KEY, &encode(settings))
-            .await
+        if self.area.save(settings).await? {
+            warn!("settings: the area was corrupted: erased and stored again");
+        }
+        Ok(())
     }
 }

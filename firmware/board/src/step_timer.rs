@@ -32,6 +32,7 @@ use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use static_cell::StaticCell;
 
+use crate::late::Late;
 use crate::pins::StepDirWriter;
 
 /// Segments the engine holds on the interrupt's side: with the shortest common point
@@ -59,8 +60,9 @@ const _: () = assert!(STEP_TIMING.max_step_rate_hz() >= arm_core::config::BOARD_
 
 /// The step engine shared by the interrupt and the tasks (arm-core's [`StepShared`]: the
 /// engine, its stop count and the progress not yet collected, behind one critical-section
-/// mutex).
-pub static STEP: StepShared<STEP_QUEUE> = StepShared::new(STEP_TIMING);
+/// mutex). Built at the start of `main` ([`Late`]): `StepShared::new` has non-zero bytes,
+/// which as a `const` initialiser would store all 4.9 KiB of it in flash.
+pub static STEP: Late<StepShared<STEP_QUEUE>> = Late::new();
 
 /// The STEP/DIR writer, handed to the interrupt by [`start`]; the interrupt does nothing
 /// before.

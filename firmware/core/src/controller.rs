@@ -76,7 +76,7 @@ use arm_step::Segment;
 
 use crate::buffer::{StoredPoint, TrajectoryBuffer};
 use crate::config::{ControllerConfig, HOST_WINDOW, OWNER_TIMEOUT_US};
-use crate::hw::{Endpoint, PersistentSettings, SerialError};
+use crate::hw::{EncoderFault, Endpoint, PersistentSettings, SerialError};
 use crate::link::{FrameKey, RecentFrames, UploadOrder};
 use crate::plan::{ReturnPlan, plan_return};
 
@@ -259,6 +259,9 @@ pub struct Controller<const CAP: usize> {
     return_pending: bool,
     /// RETURN running: its remaining points.
     return_plan: Option<ReturnPlan>,
+    /// Why the last RETURN was refused after its ACK (an encoder did not answer); cleared
+    /// by the next RETURN.
+    return_fault: Option<EncoderFault>,
     order: UploadOrder,
     /// The endpoint whose NEW started the upload: only its frames count for the ordering
     /// rule, so another tool on the owner's machine cannot fill the upload's gaps.
@@ -303,6 +306,7 @@ impl<const CAP: usize> Controller<CAP> {
             fed_end: [0; MAX_JOINTS],
             return_pending: false,
             return_plan: None,
+            return_fault: None,
             order: UploadOrder::new(),
             uploader: None,
             recent: RecentFrames::new(),
@@ -804,6 +808,7 @@ impl<const CAP: usize> Controller<CAP> {
                 self.buffer.clear();
                 self.return_plan = None;
                 self.return_pending = true;
+                self.return_fault = None;
                 self.underrun = false;
                 self.stopped_by_host = false;
                 self.state = State::Running;
@@ -933,6 +938,34 @@ impl<const CAP: usize> Controller<CAP> {
         }
         self.pump(plant);
         None
+    }
+
+    /// Ends an accepted RETURN whose encoder read failed: nothing moves, the state goes
+    /// back to STOPPED (neither underrun nor STOPPED-by-host: the run never started) and
+    /// the fault is kept for [`Controller::return_fault`]. Returns a LOCATION report when
+    /// the state changed (reports on).
+    pub fn fail_return(&mut self, fault: EncoderFault, plant: &mut impl Plant) -> Option<Location> {
+        if !self.return_pending || self.state != State::Running {
+            return None;
+        }
+        self.return_pending = false;
+        self.return_plan = None;
+        self.buffer.clear();
+        // A RETURN of no points: STATUS shows expected = executed = 0, not the last run's.
+        self.expected = 0;
+        self.received = 0;
+        self.executed = 0;
+        self.underrun = false;
+        self.stopped_by_host = false;
+        self.return_fault = Some(fault);
+        self.state = State::Stopped;
+        self.reports_on.then(|| self.location(plant))
+    }
+
+    /// Why the last RETURN was refused after its ACK (`None`: it was not, or no RETURN
+    /// since boot).
+    pub fn return_fault(&self) -> Option<EncoderFault> {
+        self.return_fault
     }
 
     /// Continues an accepted RETURN with the encoder reading (`None`: no encoders, trust

@@ -72,12 +72,13 @@ macro_rules! error {
     };
 }
 
-/// Wraps a value that is only `Debug` (the traits' associated error types) so that every
-/// logging backend can print it.
+/// A hardware trait's error value ([`crate::hw::LogError`]) for the logging backend. With
+/// defmt it is printed by its own `defmt::Format` (not `Debug2Format`: that links
+/// `core::fmt`, about 3 KB of the board's flash).
 #[cfg(feature = "defmt")]
 macro_rules! debug_value {
     ($e:expr) => {
-        ::defmt::Debug2Format(&$e)
+        $e
     };
 }
 

@@ -8,6 +8,19 @@ use protocol::{Pwm, UartInit};
 
 pub use arm_step::{JointMask, StepPins};
 
+/// What the tasks need of a hardware error to log it: `Debug`, and `defmt::Format` when
+/// logging with defmt (so the board never formats with `core::fmt`).
+#[cfg(feature = "defmt")]
+pub trait LogError: core::fmt::Debug + defmt::Format {}
+#[cfg(feature = "defmt")]
+impl<T: core::fmt::Debug + defmt::Format> LogError for T {}
+/// What the tasks need of a hardware error to log it: `Debug`, and `defmt::Format` when
+/// logging with defmt (so the board never formats with `core::fmt`).
+#[cfg(not(feature = "defmt"))]
+pub trait LogError: core::fmt::Debug {}
+#[cfg(not(feature = "defmt"))]
+impl<T: core::fmt::Debug> LogError for T {}
+
 /// An IPv4 UDP endpoint.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -30,7 +43,7 @@ pub trait Clock {
 /// can wait for a datagram and send one at the same time.
 pub trait Datagrams {
     /// Transport error (logged, never fatal).
-    type Error: core::fmt::Debug;
+    type Error: LogError;
     /// Waits for the next datagram; returns its length (truncated to `buf`) and sender.
     fn recv(&self, buf: &mut [u8]) -> impl Future<Output = Result<(usize, Endpoint), Self::Error>>;
     /// Sends one datagram.
@@ -121,7 +134,7 @@ impl Default for PersistentSettings {
 /// Persistent storage of [`PersistentSettings`].
 pub trait SettingsStore {
     /// Storage error (logged; the controller keeps running on defaults).
-    type Error: core::fmt::Debug;
+    type Error: LogError;
     /// The stored settings, or `None` if nothing valid is stored.
     fn load(&mut self) -> impl Future<Output = Result<Option<PersistentSettings>, Self::Error>>;
     /// Stores the settings.
@@ -131,9 +144,46 @@ pub trait SettingsStore {
     ) -> impl Future<Output = Result<(), Self::Error>>;
 }
 
+/// Why the absolute encoders could not be read.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct EncoderFault {
+    /// The first joint whose encoder did not answer properly (0-based).
+    pub joint: u8,
+    /// What went wrong.
+    pub kind: EncoderFaultKind,
+}
+
+/// What went wrong with one encoder (after the retries its driver makes).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum EncoderFaultKind {
+    /// No answer within the response timeout (not connected, no power, wrong address or
+    /// baud rate).
+    NoAnswer,
+    /// Answers arrived with a wrong checksum (CRC) or parity: wiring, termination, noise.
+    BadCrc,
+    /// An answer that is not a position reply (cut off, wrong length, another address).
+    BadReply,
+    /// The encoder refused the request (a Modbus exception code).
+    Exception(u8),
+}
+
 /// Absolute joint encoders, for RETURN.
 pub trait Encoders {
     /// Current joint positions in steps, or `None` if this board has no encoders (RETURN
     /// then trusts the step count).
     fn read(&mut self) -> impl Future<Output = Option<[i32; protocol::MAX_JOINTS]>>;
+
+    /// The positions of joints `0..joints` (the others are not used), `Ok(None)` without
+    /// encoders, or the encoder that failed: RETURN is then refused without moving
+    /// ([`crate::Controller::fail_return`]). The default has no failure mode: it is
+    /// [`Encoders::read`].
+    fn read_joints(
+        &mut self,
+        joints: u8,
+    ) -> impl Future<Output = Result<Option<[i32; protocol::MAX_JOINTS]>, EncoderFault>> {
+        let _ = joints;
+        async { Ok(self.read().await) }
+    }
 }

@@ -806,8 +806,17 @@ where
                 }
             }
             Some(Deferred::ReadEncoders) => {
-                let read = encoders.read().await;
-                if let Some(location) = controller.begin_return(read, &mut plant) {
+                let location = match encoders.read_joints(controller.joints()).await {
+                    Ok(read) => controller.begin_return(read, &mut plant),
+                    Err(fault) => {
+                        warn!(
+                            "RETURN refused: encoder of joint {} failed: {:?}",
+                            fault.joint, fault.kind
+                        );
+                        controller.fail_return(fault, &mut plant)
+                    }
+                };
+                if let Some(location) = location {
                     bus.send(Outgoing::Location(location));
                 }
             }

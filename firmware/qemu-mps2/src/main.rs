@@ -97,7 +97,7 @@ fn pender(_context: *mut ()) {
 
 #[embassy_executor::task]
 async fn link_watch(stack: embassy_net::Stack<'static>) -> ! {
-    arm_wiring::net::watch_link(stack).await
+    arm_wiring::net::watch_link(stack, &BUS).await
 }
 
 /// Logs the pulses the step output emitted each time the engine comes to rest, so that a
@@ -197,9 +197,6 @@ fn main() -> ! {
     let spawner = executor.spawner();
     let spawned = spawn_controller(
         &spawner,
-        ethernet,
-        arm_wiring::net::ip_config(persistent.ip, persistent.prefix_len),
-        seed,
         controller_config,
         TrajectoryHw {
             kick,
@@ -210,6 +207,15 @@ fn main() -> ! {
             encoders: NoEncoders,
         },
     )
+    // The LAN9118 is up as soon as `Lan9118::new` returned: the network starts at once.
+    .and_then(|()| {
+        spawn_network(
+            &spawner,
+            ethernet,
+            arm_wiring::net::ip_config(persistent.ip, persistent.prefix_len),
+            seed,
+        )
+    })
     .and_then(|stack| link_watch(stack).map(|token| spawner.spawn(token)))
     .and_then(|()| step_output_monitor().map(|token| spawner.spawn(token)))
     .and_then(|()| match fault::injected() {

@@ -2,9 +2,15 @@
 //! from embassy-net, and the (absent) encoders.
 
 use arm_core::hw::{Clock, Datagrams, Encoders, Endpoint};
+use embassy_futures::select::{Either, select};
 use embassy_net::udp::{RecvError, SendError, UdpSocket};
 use embassy_net::{IpAddress, IpEndpoint, Ipv4Address};
 use embassy_time::{Instant, Timer};
+
+/// While no datagram arrives, a receive wakes its task this often: each wake-up polls the
+/// network task's future, whose heartbeat a board's watchdog checks (the NUCLEO's
+/// `liveness` wrappers in `firmware/board/src/main.rs`).
+const RECEIVE_HEARTBEAT_MS: u64 = 100;
 
 /// [`Clock`] on embassy-time (the board's time driver; microseconds exactly when it ticks
 /// at 1 MHz).
@@ -57,12 +63,20 @@ impl Datagrams for NetSocket {
     type Error = DatagramError;
 
     async fn recv(&self, buf: &mut [u8]) -> Result<(usize, Endpoint), Self::Error> {
-        let (len, meta) = self
-            .socket
-            .recv_from(buf)
+        loop {
+            // recv_from is cancel-safe (a poll of the socket's queue): nothing is lost when
+            // the heartbeat timer wins.
+            match select(
+                self.socket.recv_from(buf),
+                Timer::after_millis(RECEIVE_HEARTBEAT_MS),
+            )
             .await
-            .map_err(DatagramError::Recv)?;
-        Ok((len, to_endpoint(meta.endpoint)))
+            {
+                Either::First(Ok((len, meta))) => return Ok((len, to_endpoint(meta.endpoint))),
+                Either::First(Err(e)) => return Err(DatagramError::Recv(e)),
+                Either::Second(()) => {}
+            }
+        }
     }
 
     async fn send(&self, to: Endpoint, frame: &[u8]) -> Result<(), Self::Error> {

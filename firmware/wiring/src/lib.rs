@@ -9,8 +9,9 @@
 //! priorities. It owns the [`arm_core::Bus`] and [`arm_core::StepShared`] statics (its step
 //! interrupt reaches them by path) and invokes [`controller_tasks!`] once with its types;
 //! the macro defines the `#[embassy_executor::task]` wrappers (which cannot be generic),
-//! the controller's static, and one `spawn_controller` that starts the network stack and
-//! every task in one order for both boards.
+//! the controller's static, and `spawn_controller` and `spawn_network`, which start the
+//! tasks in one order for both boards (the network separately: a board may bring its
+//! Ethernet up later than the rest, as the NUCLEO does when its PHY's clock is missing).
 //!
 //! Logging goes through `defmt` or `log` (features of the same names), like arm-core's.
 #![no_std]
@@ -39,14 +40,17 @@ pub mod __private {
 /// arm_wiring::controller_tasks! {
 ///     device: net::Device,          // the embassy-net-driver of the board's Ethernet
 ///     capacity: CAP,                // trajectory points the controller buffers
-///     bus: BUS,                     // path of the board's `static BUS: arm_core::Bus`
-///     step: STEP,                   // path of its `static STEP: arm_core::StepShared<Q>`
+///     bus: BUS,                     // path of the board's `static BUS` (derefs to arm_core::Bus)
+///     step: STEP,                   // path of its `static STEP` (derefs to StepShared<Q>)
 ///     kick: StepTimer,              // arm_core::hw::StepKick
 ///     outputs: OutputLines,         // arm_core::hw::Outputs
 ///     gripper: GripperPwm,          // arm_core::hw::Gripper
 ///     serial: BoardSerial,          // arm_core::hw::SerialPort
 ///     settings: FlashSettings,      // arm_core::hw::SettingsStore
-///     encoders: NoEncoders,         // arm_core::hw::Encoders
+///     encoders: ModbusEncoders,     // arm_core::hw::Encoders (or NoEncoders)
+///     // Optional: wrappers of the step and network tasks' futures, e.g. to count their
+///     // polls for a watchdog; each is a path to `fn<F: Future>(F) -> impl Future<Output = F::Output>`.
+///     liveness: { stepper: step_beating, network: network_beating },
 /// }
 /// ```
 ///
@@ -54,10 +58,16 @@ pub mod __private {
 /// - `BoardController` and `BoardTrajectoryHw`, the concrete controller and hardware types;
 /// - the tasks `net_task` (the stack's runner), `network`, `trajectory`, `stepper`,
 ///   `upload` and `serial`, each a thin wrapper of arm-core's generic task;
-/// - `spawn_controller(spawner, device, net_config, seed, controller_config, hw)`, which
-///   creates the stack and the bound socket ([`net`]), puts the controller in a static and
-///   spawns every task; it returns the stack (for the link watch, [`net::watch_link`]).
-///   It fails only if called twice (the task pools hold one task each).
+/// - `spawn_controller(spawner, controller_config, hw)`, which puts the controller in a
+///   static and spawns every task but the network's (trajectory, stepper, upload, serial):
+///   the arm runs, and stops on its underrun rule, with or without a network;
+/// - `spawn_network(spawner, device, net_config, seed)`, which creates the stack and the
+///   bound socket ([`net`]) and spawns the stack's runner and the network task; it returns
+///   the stack (for the link watch, [`net::watch_link`]). A board calls it once its
+///   Ethernet works (the NUCLEO waits for the PHY's clock), right after
+///   `spawn_controller` or any time later: until then the bus simply holds no frames.
+///
+/// Each fails only if called twice (the task pools hold one task each).
 #[macro_export]
 macro_rules! controller_tasks {
     (
@@ -70,7 +80,9 @@ macro_rules! controller_tasks {
         gripper: $gripper:ty,
         serial: $serial:ty,
         settings: $settings:ty,
-        encoders: $encoders:ty $(,)?
+        encoders: $encoders:ty
+        $(, liveness: { stepper: $stepper_watch:path, network: $network_watch:path $(,)? })?
+        $(,)?
     ) => {
         /// The controller as this board instantiates it.
         pub type BoardController = $crate::__private::arm_core::Controller<{ $cap }>;
@@ -104,7 +116,11 @@ macro_rules! controller_tasks {
 
         #[embassy_executor::task]
         async fn network(socket: &'static $crate::NetSocket) -> ! {
-            $crate::__private::arm_core::network_task(socket, &$bus, &CLOCK).await
+            $crate::__watched!(
+                ($($network_watch)?),
+                $crate::__private::arm_core::network_task(socket, &$bus, &CLOCK)
+            )
+            .await
         }
 
         #[embassy_executor::task]
@@ -115,7 +131,11 @@ macro_rules! controller_tasks {
 
         #[embassy_executor::task]
         async fn stepper(kick: &'static $kick) -> ! {
-            $crate::__private::arm_core::step_task(&$bus, &$step, kick).await
+            $crate::__watched!(
+                ($($stepper_watch)?),
+                $crate::__private::arm_core::step_task(&$bus, &$step, kick)
+            )
+            .await
         }
 
         #[embassy_executor::task]
@@ -128,28 +148,49 @@ macro_rules! controller_tasks {
             $crate::__private::arm_core::serial_task(port, &$bus, &CLOCK).await
         }
 
-        /// Starts the network stack on `device` and every controller task (network,
-        /// trajectory, stepper, upload, serial); returns the stack.
+        /// Puts the controller in its static and spawns the trajectory, stepper, upload and
+        /// serial tasks (the network's come from `spawn_network`).
         pub fn spawn_controller(
             spawner: &embassy_executor::Spawner,
-            device: $device,
-            net_config: $crate::__private::embassy_net::Config,
-            seed: u64,
             controller_config: $crate::__private::arm_core::ControllerConfig,
             hw: BoardTrajectoryHw,
-        ) -> Result<$crate::__private::embassy_net::Stack<'static>, embassy_executor::SpawnError> {
-            let (stack, runner) = $crate::net::new_stack(device, net_config, seed);
-            spawner.spawn(net_task(runner)?);
-            let socket = SOCKET.init($crate::NetSocket::new($crate::net::bind_socket(stack)));
+        ) -> Result<(), embassy_executor::SpawnError> {
             let controller = CONTROLLER
                 .init_with(|| $crate::__private::arm_core::Controller::new(controller_config));
             let (kick, port) = (hw.kick, hw.serial);
-            spawner.spawn(network(socket)?);
             spawner.spawn(trajectory(controller, hw)?);
             spawner.spawn(stepper(kick)?);
             spawner.spawn(upload()?);
             spawner.spawn(serial(port)?);
+            Ok(())
+        }
+
+        /// Starts the network stack on `device`, its runner and the network task, on the
+        /// controller's port; returns the stack.
+        pub fn spawn_network(
+            spawner: &embassy_executor::Spawner,
+            device: $device,
+            net_config: $crate::__private::embassy_net::Config,
+            seed: u64,
+        ) -> Result<$crate::__private::embassy_net::Stack<'static>, embassy_executor::SpawnError> {
+            let (stack, runner) = $crate::net::new_stack(device, net_config, seed);
+            spawner.spawn(net_task(runner)?);
+            let socket = SOCKET.init($crate::NetSocket::new($crate::net::bind_socket(stack)));
+            spawner.spawn(network(socket)?);
             Ok(stack)
         }
+    };
+}
+
+/// A task's future as [`controller_tasks!`] runs it: unchanged, or passed through the
+/// board's `liveness` wrapper.
+#[doc(hidden)]
+#[macro_export]
+macro_rules! __watched {
+    ((), $task:expr) => {
+        $task
+    };
+    (($watch:path), $task:expr) => {
+        $watch($task)
     };
 }

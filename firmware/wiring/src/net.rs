@@ -2,6 +2,7 @@
 //! UDP socket and its buffers (zeroed statics, `.bss`), the address configuration and the
 //! link watch. The Ethernet driver is the board's.
 
+use arm_core::Bus;
 use embassy_net::udp::{PacketMetadata, UdpSocket};
 #[cfg(not(feature = "dhcp"))]
 use embassy_net::{Ipv4Address, Ipv4Cidr, StaticConfigV4};
@@ -28,12 +29,12 @@ const UDP_TX_PACKETS: usize = 16;
 /// 16 x 260 = 4160 bytes.
 const UDP_TX_BYTES: usize = 16 * 260;
 
-/// The UDP socket's buffers: zeroed statics (`.bss`), taken once by [`bind_socket`].
-static UDP_RX_META: ConstStaticCell<[PacketMetadata; UDP_RX_PACKETS]> =
-    ConstStaticCell::new([PacketMetadata::EMPTY; UDP_RX_PACKETS]);
+/// The UDP socket's buffers: zeroed statics (`.bss`), taken once by [`bind_socket`]. The
+/// metadata is filled at run time: `PacketMetadata::EMPTY` has non-zero bytes, which a
+/// `const` initialiser would store in flash.
+static UDP_RX_META: StaticCell<[PacketMetadata; UDP_RX_PACKETS]> = StaticCell::new();
 static UDP_RX: ConstStaticCell<[u8; UDP_RX_BYTES]> = ConstStaticCell::new([0; UDP_RX_BYTES]);
-static UDP_TX_META: ConstStaticCell<[PacketMetadata; UDP_TX_PACKETS]> =
-    ConstStaticCell::new([PacketMetadata::EMPTY; UDP_TX_PACKETS]);
+static UDP_TX_META: StaticCell<[PacketMetadata; UDP_TX_PACKETS]> = StaticCell::new();
 static UDP_TX: ConstStaticCell<[u8; UDP_TX_BYTES]> = ConstStaticCell::new([0; UDP_TX_BYTES]);
 
 /// The stack's address configuration: the static address `ip`/`prefix_len`, no gateway
@@ -70,13 +71,17 @@ pub fn new_stack<D: embassy_net::driver::Driver>(
 pub fn bind_socket(stack: Stack<'static>) -> UdpSocket<'static> {
     let mut socket = UdpSocket::new(
         stack,
-        UDP_RX_META.take(),
+        UDP_RX_META.init([PacketMetadata::EMPTY; UDP_PACKETS]),
         UDP_RX.take(),
-        UDP_TX_META.take(),
+        UDP_TX_META.init([PacketMetadata::EMPTY; UDP_PACKETS]),
         UDP_TX.take(),
     );
     if let Err(e) = socket.bind(PORT) {
         // Only possible with port 0 or a second bind; both are programming errors.
+        // With defmt, its panic: core's would link core::fmt into the image.
+        #[cfg(feature = "defmt")]
+        defmt::panic!("udp bind: {}", e); // safe: boot-time bring-up
+        #[cfg(not(feature = "defmt"))]
         panic!("udp bind: {:?}", e); // safe: boot-time bring-up
     }
     socket
@@ -84,15 +89,32 @@ pub fn bind_socket(stack: Stack<'static>) -> UdpSocket<'static> {
 
 /// Logs the address once configured, then every link change, forever: a person watching
 /// the log sees why the controller went silent.
-pub async fn watch_link(stack: Stack<'static>) -> ! {
+///
+/// Link loss changes nothing in the controller (the policy `firmware/board-logic`'s `net`
+/// module documents): a run keeps executing what is buffered and the underrun rule stops
+/// it, so the log names the state the link went down in.
+pub async fn watch_link(stack: Stack<'static>, bus: &Bus) -> ! {
     stack.wait_link_up().await;
     stack.wait_config_up().await;
     if let Some(config) = stack.config_v4() {
-        info!("listening on {}:{}", config.address, PORT);
+        // Octets, not the address type's Display: with defmt that would link core::fmt.
+        let [a, b, c, d] = config.address.address().octets();
+        info!(
+            "listening on {}.{}.{}.{}/{}:{}",
+            a,
+            b,
+            c,
+            d,
+            config.address.prefix_len(),
+            PORT
+        );
     }
     loop {
         stack.wait_link_down().await;
-        warn!("ethernet link down");
+        warn!(
+            "ethernet link down in state {:?}: a run keeps executing what is buffered",
+            bus.report_settings().state
+        );
         stack.wait_link_up().await;
         info!("ethernet link up");
     }

@@ -1,0 +1,30 @@
+//! The NUCLEO-H743ZI2 board's logic that needs no hardware, kept out of the board binary
+//! (which builds for `thumbv7em-none-eabihf` only) so that it is tested on the host:
+//!
+//! * [`fault`]: the one fault path of panics and HardFaults, as an ordered sequence of
+//!   calls on a [`fault::SafeStateHw`] trait (the board implements it with register
+//!   writes, the tests with a recording fake).
+//! * [`watchdog`]: the liveness rule that decides whether the IWDG is fed.
+//! * [`clock`]: the bounded wait for HSE, with the HSI fallback decision.
+//! * [`settings`]: the settings record, and its flash store that recovers from corruption
+//!   (on sequential-storage, tested with its mock flash and fault injection).
+//! * [`encoder`]: absolute multi-turn encoders over Modbus RTU (RS-485): frame codec, CRC,
+//!   timeouts, and the read of every joint, generic over the bus.
+//! * [`gripper`]: the burst arithmetic of counted gripper pulses.
+//! * [`net`]: REF_CLK detection, autonegotiated link mode, the link-loss policy.
+//! * [`uart`]: the mapping of UART_INIT's HAL codes to a frame format.
+#![no_std]
+#![warn(missing_docs)]
+
+#[cfg(test)]
+#[macro_use]
+extern crate std;
+
+pub mod clock;
+pub mod encoder;
+pub mod fault;
+pub mod gripper;
+pub mod net;
+pub mod settings;
+pub mod uart;
+pub mod watchdog;

@@ -1,0 +1,342 @@
+//! The persisted settings: the record's layout, and a store on any NOR flash
+//! (sequential-storage's map) that recovers from corruption instead of failing forever.
+//!
+//! Recovery rules:
+//! * A read that finds the area corrupted (sequential-storage cannot repair it) erases the
+//!   whole area and continues on defaults ([`LoadOutcome::Erased`]).
+//! * A save that fails for any reason erases the area and stores again once; a second failure is reported (the controller keeps running on what it
+//!   has, and the next save tries again).
+//! * A write cut by power loss can leave a flash word with an ECC double error; on the H7,
+//!   reading it is a bus fault, so the boot-time read faults (and, through the fault path,
+//!   resets) on every boot. The board sets a marker in RAM that survives the reset
+//!   ([`BootMarker`]) before the read and clears it after: a boot that finds it set knows
+//!   the previous read faulted and erases the area before reading ([`must_erase_first`]).
+
+use arm_core::hw::PersistentSettings;
+use embedded_storage_async::nor_flash::NorFlash;
+use sequential_storage::cache::{Cache, Uncached};
+use sequential_storage::map::{MapConfig, MapStorage};
+
+/// Map key of the settings record.
+pub const SETTINGS_KEY: u8 = 1;
+/// Layout version in the record's first byte: a record written by another layout is
+/// ignored (defaults apply) rather than misread.
+pub const RECORD_VERSION: u8 = 1;
+/// Bytes of the record: version, joints, ip[4], prefix_len, reserved.
+pub const RECORD_LEN: usize = 8;
+
+/// The stored record for `settings`.
+pub const fn encode(settings: &PersistentSettings) -> [u8; RECORD_LEN] {
+    let [a, b, c, d] = settings.ip;
+    [
+        RECORD_VERSION,
+        settings.joints,
+        a,
+        b,
+        c,
+        d,
+        settings.prefix_len,
+        0,
+    ]
+}
+
+/// The settings in a stored record, if it is one this firmware wrote and its values are
+/// in range.
+pub fn decode(record: &[u8; RECORD_LEN]) -> Option<PersistentSettings> {
+    let [version, joints, a, b, c, d, prefix_len, _] = *record;
+    let valid =
+        version == RECORD_VERSION && protocol::limits::JOINTS.contains(&joints) && prefix_len <= 32;
+    valid.then_some(PersistentSettings {
+        joints,
+        ip: [a, b, c, d],
+        prefix_len,
+    })
+}
+
+/// The RAM marker that tells a boot the previous boot's settings read faulted.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct BootMarker;
+
+impl BootMarker {
+    /// Written before the boot-time read, cleared after. Any other value (RAM after
+    /// power-on is random, but 32 bits matching by chance is 1 in 4 billion) means no read
+    /// was under way.
+    pub const READING: u32 = 0x5E77_1265;
+    /// Written after the read.
+    pub const IDLE: u32 = 0;
+}
+
+/// Whether the area must be erased before the boot-time read: the marker left by the
+/// previous boot says its read never finished (it faulted, e.g. on an ECC double error).
+pub const fn must_erase_first(marker: u32) -> bool {
+    marker == BootMarker::READING
+}
+
+/// Scratch for one item: key + record + item header, rounded up to the H7's 32-byte flash
+/// word (32-byte aligned, as the flash driver writes whole words from it).
+#[repr(C, align(32))]
+struct ItemBuffer([u8; 64]);
+
+/// What a load found.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum LoadOutcome {
+    /// A valid record.
+    Stored(PersistentSettings),
+    /// Nothing stored, or a record of another layout: defaults.
+    Empty,
+    /// The area was corrupted (or the previous boot faulted reading it) and was erased:
+    /// defaults.
+    Erased,
+    /// Unreadable, and erasing failed too: defaults (the next save tries again).
+    Unreadable,
+}
+
+impl LoadOutcome {
+    /// The settings to run with.
+    pub fn settings(self) -> PersistentSettings {
+        match self {
+            LoadOutcome::Stored(s) => s,
+            _ => PersistentSettings::default(),
+        }
+    }
+}
+
+/// Why a save failed.
+pub type StoreError<E> = sequential_storage::Error<E>;
+
+/// The settings store on `F`'s `range` (at least two erase sectors).
+pub struct SettingsArea<F: NorFlash> {
+    map: MapStorage<u8, F, Cache<Uncached, Uncached, Uncached, u8>>,
+    buffer: ItemBuffer,
+}
+
+impl<F: NorFlash> SettingsArea<F> {
+    /// Uses `range` of `flash`. Panics (at compile time when `range` is a constant
+    /// evaluated in a `const` block by the caller) if the range is not whole sectors.
+    pub fn new(flash: F, range: core::ops::Range<u32>) -> Self {
+        SettingsArea {
+            map: MapStorage::new(flash, MapConfig::new(range), Cache::new_uncached()),
+            buffer: ItemBuffer([0; 64]),
+        }
+    }
+
+    /// Erases the whole area.
+    pub async fn erase(&mut self) -> Result<(), StoreError<F::Error>> {
+        self.map.erase_all().await
+    }
+
+    /// Reads the settings, recovering from corruption by erasing (see the module docs).
+    pub async fn load(&mut self) -> LoadOutcome {
+        match self
+            .map
+            .fetch_item::<[u8; RECORD_LEN]>(&mut self.buffer.0, &SETTINGS_KEY)
+            .await
+        {
+            Ok(Some(record)) => match decode(&record) {
+                Some(s) => LoadOutcome::Stored(s),
+                None => LoadOutcome::Empty,
+            },
+            Ok(None) => LoadOutcome::Empty,
+            Err(_) => match self.erase().await {
+                Ok(()) => LoadOutcome::Erased,
+                Err(_) => LoadOutcome::Unreadable,
+            },
+        }
+    }
+
+    /// Stores `settings`; on any failure, erases the area and stores once more (a word
+    /// left half-programmed by a power cut makes every later write there fail; only an
+    /// erase clears it). Returns whether the area was erased on the way.
+    pub async fn save(
+        &mut self,
+        settings: &PersistentSettings,
+    ) -> Result<bool, StoreError<F::Error>> {
+        if self.store_once(settings).await.is_ok() {
+            return Ok(false);
+        }
+        self.erase().await?;
+        self.store_once(settings).await?;
+        Ok(true)
+    }
+
+    /// One attempt at storing `settings`, no recovery: what a power cut interrupts.
+    pub async fn store_once(
+        &mut self,
+        settings: &PersistentSettings,
+    ) -> Result<(), StoreError<F::Error>> {
+        self.map
+            .store_item(&mut self.buffer.0, &SETTINGS_KEY, &encode(settings))
+            .await
+    }
+
+    /// The flash back (tests inspect it).
+    pub fn into_flash(self) -> F {
+        self.map.destroy().0
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use embassy_futures::block_on;
+    use sequential_storage::mock_flash::{MockFlashBase, WriteCountCheck};
+
+    /// Like the H7's flash: 32-byte words written once (ECC); small sectors for speed.
+    type Flash = MockFlashBase<4, 32, 64>;
+    const RANGE: core::ops::Range<u32> = 0..(4 * 64 * 32);
+
+    fn custom() -> PersistentSettings {
+        PersistentSettings {
+            joints: 3,
+            ip: [10, 0, 0, 7],
+            prefix_len: 16,
+        }
+    }
+
+    #[test]
+    fn record_round_trips_and_refuses_foreign_layouts() {
+        let s = custom();
+        assert_eq!(decode(&encode(&s)), Some(s));
+        let mut other_version = encode(&s);
+        other_version[0] = 2;
+        assert_eq!(decode(&other_version), None);
+        let mut bad_joints = encode(&s);
+        bad_joints[1] = 9;
+        assert_eq!(decode(&bad_joints), None);
+        bad_joints[1] = 0;
+        assert_eq!(decode(&bad_joints), None);
+        let mut bad_prefix = encode(&s);
+        bad_prefix[6] = 33;
+        assert_eq!(decode(&bad_prefix), None);
+        assert_eq!(encode(&s), [1, 3, 10, 0, 0, 7, 16, 0]);
+    }
+
+    #[test]
+    fn empty_flash_gives_defaults_and_a_save_is_read_back() {
+        let mut area = SettingsArea::new(Flash::default(), RANGE);
+        assert_eq!(block_on(area.load()), LoadOutcome::Empty);
+        assert_eq!(block_on(area.save(&custom())), Ok(false));
+        assert_eq!(block_on(area.load()), LoadOutcome::Stored(custom()));
+        // A second area on the same flash (a reboot) reads the same.
+        let flash = area.into_flash();
+        let mut rebooted = SettingsArea::new(flash, RANGE);
+        assert_eq!(block_on(rebooted.load()), LoadOutcome::Stored(custom()));
+    }
+
+    #[test]
+    fn many_saves_wrap_around_the_sectors() {
+        let mut area = SettingsArea::new(Flash::default(), RANGE);
+        for i in 0..500u32 {
+            let s = PersistentSettings {
+                joints: 1 + (i % 8) as u8,
+                ..custom()
+            };
+            block_on(area.save(&s)).unwrap();
+            assert_eq!(block_on(area.load()), LoadOutcome::Stored(s));
+        }
+    }
+
+    /// Garbage over the page headers: sequential-storage sees an impossible page state.
+    fn scribble(flash: &mut Flash) {
+        for (i, b) in flash.as_bytes_mut().iter_mut().enumerate() {
+            *b = (i * 37 % 251) as u8;
+        }
+    }
+
+    #[test]
+    fn a_corrupted_area_is_erased_to_defaults_and_saves_work_again() {
+        let mut flash = Flash::default();
+        scribble(&mut flash);
+        let mut area = SettingsArea::new(flash, RANGE);
+        assert_eq!(block_on(area.load()), LoadOutcome::Erased);
+        assert_eq!(block_on(area.load()), LoadOutcome::Empty);
+        assert_eq!(block_on(area.save(&custom())), Ok(false));
+        assert_eq!(block_on(area.load()), LoadOutcome::Stored(custom()));
+    }
+
+    #[test]
+    fn a_save_into_a_corrupted_area_erases_it_and_stores() {
+        let mut flash = Flash::default();
+        scribble(&mut flash);
+        let mut area = SettingsArea::new(flash, RANGE);
+        assert_eq!(block_on(area.save(&custom())), Ok(true));
+        assert_eq!(block_on(area.load()), LoadOutcome::Stored(custom()));
+    }
+
+    /// Power cut after every possible number of bytes of a save: the next boot always
+    /// reads either the old or the new settings (or defaults after an erase), and the
+    /// next save always succeeds.
+    #[test]
+    fn a_save_cut_by_power_loss_at_any_byte_never_bricks_the_settings() {
+        let old = custom();
+        let new = PersistentSettings {
+            joints: 8,
+            ..custom()
+        };
+        let mut cuts = 0;
+        // A save writes about 64 bytes, more when it moves to the next sector; saves before
+        // it walk its position through two sector switches.
+        for (before, shutoff) in (0..70u32)
+            .step_by(3)
+            .flat_map(|b| (0..=100u32).map(move |s| (b, s)))
+        {
+            let mut area = SettingsArea::new(Flash::default(), RANGE);
+            for _ in 0..before {
+                block_on(area.save(&old)).unwrap();
+            }
+            block_on(area.save(&old)).unwrap();
+            let mut flash = area.into_flash();
+            flash.bytes_until_shutoff = Some(shutoff);
+            let mut area = SettingsArea::new(flash, RANGE);
+            let result = block_on(area.store_once(&new));
+            let mut flash = area.into_flash();
+            if flash.bytes_until_shutoff.is_none() {
+                cuts += 1;
+                assert!(result.is_err());
+            }
+            flash.bytes_until_shutoff = None;
+            let mut rebooted = SettingsArea::new(flash, RANGE);
+            let loaded = block_on(rebooted.load());
+            assert!(
+                matches!(loaded, LoadOutcome::Stored(s) if s == old || s == new)
+                    || loaded == LoadOutcome::Erased,
+                "cut after {before} saves and {shutoff} bytes: {loaded:?}"
+            );
+            block_on(rebooted.save(&new)).unwrap();
+            assert_eq!(block_on(rebooted.load()), LoadOutcome::Stored(new));
+        }
+        assert!(
+            cuts > 1500,
+            "the fault injection must actually cut saves ({cuts})"
+        );
+    }
+
+    #[test]
+    fn the_boot_marker_asks_for_an_erase_only_after_a_faulted_read() {
+        assert!(must_erase_first(BootMarker::READING));
+        assert!(!must_erase_first(BootMarker::IDLE));
+        assert!(!must_erase_first(0xFFFF_FFFF));
+    }
+
+    #[test]
+    fn an_area_erased_after_a_faulted_boot_read_gives_defaults() {
+        let mut area = SettingsArea::new(Flash::default(), RANGE);
+        block_on(area.save(&custom())).unwrap();
+        // The previous boot faulted mid-read (ECC double error): this one erases first.
+        if must_erase_first(BootMarker::READING) {
+            block_on(area.erase()).unwrap();
+        }
+        assert_eq!(block_on(area.load()), LoadOutcome::Empty);
+        assert_eq!(LoadOutcome::Empty.settings(), PersistentSettings::default());
+    }
+
+    #[test]
+    fn writes_respect_the_h7_write_once_rule() {
+        let flash = MockFlashBase::<4, 32, 64>::new(WriteCountCheck::OnceOnly, None, true);
+        let mut area = SettingsArea::new(flash, RANGE);
+        for _ in 0..50 {
+            block_on(area.save(&custom())).unwrap();
+        }
+    }
+}
