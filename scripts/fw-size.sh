@@ -8,7 +8,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 
 target_dir="${CARGO_TARGET_DIR:-target}"
-elf="${1:-$target_dir/thumbv7em-none-eabihf/release/firmware}"
+elf="${1:-$target_dir/thumbv7em-none-eabihf/fw/firmware}"
 if [ ! -f "$elf" ]; then
   echo "fw-size: $elf not found; build it with 'cargo fw' first" >&2
   exit 1

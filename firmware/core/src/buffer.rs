@@ -34,18 +34,41 @@ pub struct TrajectoryBuffer<const CAP: usize> {
 impl<const CAP: usize> TrajectoryBuffer<CAP> {
     /// An empty buffer using `capacity` slots (clamped to `1..=CAP`).
     pub const fn new(capacity: usize) -> Self {
-        let capacity = if capacity > CAP { CAP } else { capacity };
-        let capacity = if capacity == 0 { 1 } else { capacity };
         TrajectoryBuffer {
             points: [StoredPoint {
                 duration_us: 0,
                 position: [0; MAX_JOINTS],
             }; CAP],
-            capacity,
+            capacity: Self::clamp_capacity(capacity),
             head: 0,
             len: 0,
             fed: 0,
         }
+    }
+
+    /// Builds an empty buffer in place at `slot`, as [`TrajectoryBuffer::new`] would: the
+    /// points are zeroed where they lie, never built on the stack first (8192 points are
+    /// 288 KiB, more than a board's stack).
+    ///
+    /// # Safety
+    /// `slot` is valid for writes of `Self` and properly aligned; whatever it held is
+    /// overwritten without being dropped.
+    pub unsafe fn init_in_place(slot: *mut Self, capacity: usize) {
+        // SAFETY: `slot` is valid for writes (the caller's contract); a `StoredPoint` is
+        // plain integers, for which all-zero bytes are a valid value (`new`'s points).
+        unsafe {
+            (&raw mut (*slot).points).write_bytes(0, 1);
+            (&raw mut (*slot).capacity).write(Self::clamp_capacity(capacity));
+            (&raw mut (*slot).head).write(0);
+            (&raw mut (*slot).len).write(0);
+            (&raw mut (*slot).fed).write(0);
+        }
+    }
+
+    /// `capacity` clamped to `1..=CAP`.
+    const fn clamp_capacity(capacity: usize) -> usize {
+        let capacity = if capacity > CAP { CAP } else { capacity };
+        if capacity == 0 { 1 } else { capacity }
     }
 
     /// Empties the buffer and uses `capacity` slots (clamped to `1..=CAP`) from now on.

@@ -5,7 +5,7 @@ mod common;
 
 use arm_core::config::OWNER_TIMEOUT_US;
 use arm_core::hw::Endpoint;
-use arm_core::{Deferred, StoredPoint};
+use arm_core::{Controller, ControllerConfig, Deferred, StoredPoint};
 use common::*;
 use protocol::{
     Command, Location, MAX_JOINTS, Point, PointList, Pwm, State, StatusCode, StatusFlags, Tag,
@@ -784,4 +784,55 @@ fn stop_after_overtaken_applies_stopped_without_an_ack() {
     assert_eq!(s.plant.stops, stops);
     let flags = s.controller.status(&s.plant).flags;
     assert!(flags.has(StatusFlags::UNDERRUN) && !flags.has(StatusFlags::STOPPED_BY_HOST));
+}
+
+/// `init_in_place` (how the boards build their 300 KB controller) gives the same controller
+/// as `new`, whatever the storage held before: same getters, same STATUS, and the same
+/// answers to an upload, a run and its end.
+#[test]
+fn a_controller_built_in_place_behaves_as_new() {
+    use std::mem::MaybeUninit;
+    const CAP: usize = 64;
+    let config = ControllerConfig {
+        capacity: 48,
+        ..ControllerConfig::BOARD
+    };
+    // Storage full of garbage: a field that init_in_place forgot would show up as a
+    // difference below.
+    let mut slot = Box::new(MaybeUninit::<Controller<CAP>>::uninit());
+    // SAFETY: filling the bytes of a MaybeUninit is always sound.
+    unsafe {
+        slot.as_mut_ptr()
+            .cast::<u8>()
+            .write_bytes(0xA5, size_of::<Controller<CAP>>())
+    };
+    let in_place = Controller::<CAP>::init_in_place(&mut slot, config);
+    let mut by_value = Controller::<CAP>::new(config);
+
+    let plant = FakePlant::default();
+    assert_eq!(in_place.status(&plant), by_value.status(&plant));
+    assert_eq!(in_place.location(&plant), by_value.location(&plant));
+    assert_eq!(in_place.report_settings(), by_value.report_settings());
+    assert_eq!(in_place.settings(), by_value.settings());
+    assert_eq!(
+        (in_place.capacity(), in_place.free(), in_place.next_seq()),
+        (by_value.capacity(), by_value.free(), by_value.next_seq())
+    );
+
+    let pts = points([0; MAX_JOINTS], 6, 3);
+    let frames = [
+        frame(1, Command::Status),
+        frame(2, Command::New { count: 6 }),
+        pending(3, &pts),
+        frame(4, Command::Runing),
+        frame(5, Command::Status),
+    ];
+    let (mut plant_a, mut plant_b) = (FakePlant::default(), FakePlant::default());
+    for (i, bytes) in frames.iter().enumerate() {
+        let now = 1_000 + 100 * i as u64;
+        let a = in_place.handle(HOST, bytes, now, &mut plant_a);
+        let b = by_value.handle(HOST, bytes, now, &mut plant_b);
+        assert_eq!(format!("{a:?}"), format!("{b:?}"), "frame {i}");
+    }
+    assert_eq!(in_place.status(&plant_a), by_value.status(&plant_b));
 }

@@ -155,8 +155,11 @@ macro_rules! controller_tasks {
             controller_config: $crate::__private::arm_core::ControllerConfig,
             hw: BoardTrajectoryHw,
         ) -> Result<(), embassy_executor::SpawnError> {
-            let controller = CONTROLLER
-                .init_with(|| $crate::__private::arm_core::Controller::new(controller_config));
+            // Built in place: 300 KB never pass through the stack.
+            let controller = $crate::__private::arm_core::Controller::init_in_place(
+                CONTROLLER.uninit(),
+                controller_config,
+            );
             let (kick, port) = (hw.kick, hw.serial);
             spawner.spawn(trajectory(controller, hw)?);
             spawner.spawn(stepper(kick)?);
