@@ -32,6 +32,10 @@ pub struct Cli {
     /// Local address to send from (e.g. 127.0.0.2:0 to act as another host).
     #[arg(long, global = true, env = "ARMCTL_BIND", value_name = "ADDR:PORT")]
     pub bind: Option<std::net::SocketAddr>,
+    /// Write every datagram sent and received to this pcap file (open it in Wireshark
+    /// with tools/wireshark/arm_controller.lua).
+    #[arg(long, global = true, value_name = "FILE")]
+    pub pcap: Option<PathBuf>,
     /// What to do.
     #[command(subcommand)]
     pub command: Cmd,

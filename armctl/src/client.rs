@@ -15,6 +15,7 @@ use protocol::{
 };
 
 use crate::error::{Error, Result};
+use crate::pcap::PcapLog;
 
 /// How long the receiver thread blocks in one `recv`, so that it notices a shutdown soon.
 const RECEIVER_POLL: Duration = Duration::from_millis(50);
@@ -89,6 +90,8 @@ pub(crate) struct Shared {
     last_status: Mutex<Option<StatusReport>>,
     /// Datagrams that did not decode as a report.
     undecodable: AtomicU64,
+    /// Where every datagram sent and received is written ([`Controller::capture`]).
+    pcap: Mutex<Option<Arc<PcapLog>>>,
 }
 
 /// Locks a mutex even if a thread panicked while holding it: the data here (channel lists,
@@ -129,9 +132,15 @@ impl Shared {
 
 fn receive_loop(socket: UdpSocket, shared: Arc<Shared>) {
     let mut buf = [0u8; MAX_DATAGRAM + 1];
+    let ends = socket.peer_addr().ok().zip(socket.local_addr().ok());
     while !shared.shutdown.load(Ordering::Relaxed) {
         match socket.recv(&mut buf) {
-            Ok(n) => shared.deliver(&buf[..n]),
+            Ok(n) => {
+                if let (Some(pcap), Some((from, to))) = (lock(&shared.pcap).as_ref(), ends) {
+                    let _ = pcap.record(from, to, &buf[..n]);
+                }
+                shared.deliver(&buf[..n])
+            }
             // The poll timeout: check for shutdown.
             Err(e)
                 if matches!(
@@ -262,9 +271,20 @@ impl Controller {
         }
     }
 
+    /// From now on, writes every datagram sent and received to `pcap` (`--pcap FILE`).
+    pub fn capture(&self, pcap: Arc<PcapLog>) {
+        *lock(&self.shared.pcap) = Some(pcap);
+    }
+
     pub(crate) fn send_bytes(&self, frame: &[u8]) -> Result<()> {
         match self.socket.send(frame) {
-            Ok(_) => Ok(()),
+            Ok(_) => {
+                if let Some(pcap) = lock(&self.shared.pcap).as_ref() {
+                    let local = self.socket.local_addr()?;
+                    let _ = pcap.record(local, self.addr, frame);
+                }
+                Ok(())
+            }
             // A previous datagram's ICMP "port unreachable" (nobody listening yet): the
             // frame itself may not have left; the retry loop sends it again.
             Err(e) if e.kind() == std::io::ErrorKind::ConnectionRefused => Ok(()),

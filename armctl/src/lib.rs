@@ -28,6 +28,7 @@
 
 mod client;
 mod error;
+pub mod pcap;
 pub mod plot;
 pub mod pwm;
 pub mod record;

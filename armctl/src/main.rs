@@ -37,13 +37,23 @@ fn connect(cli: &Cli) -> Result<Controller, String> {
         bind: cli.bind,
         ..Options::default()
     };
-    let controller = match cli.command {
+    let controller = Controller::open(cli.controller.as_str(), options)
+        .map_err(|e| format!("{}: {e}", cli.controller))?;
+    if let Some(path) = &cli.pcap {
+        let log = armctl::pcap::PcapLog::create(path)
+            .map_err(|e| format!("--pcap {}: {e}", path.display()))?;
+        controller.capture(std::sync::Arc::new(log));
+    }
+    match cli.command {
         // Anyone may stop the arm: no STATUS first, which another host's controller
         // would refuse (NOT_OWNER).
-        Cmd::Stop => Controller::open(cli.controller.as_str(), options),
-        _ => Controller::connect_with(cli.controller.as_str(), options),
-    };
-    controller.map_err(|e| format!("{}: {e}", cli.controller))
+        Cmd::Stop => Ok(controller),
+        // As Controller::connect_with: check that the controller answers.
+        _ => match controller.status() {
+            Ok(_) => Ok(controller),
+            Err(e) => Err(format!("{}: {e}", cli.controller)),
+        },
+    }
 }
 
 fn done(ack: armctl::Result<protocol::Ack>) -> CliResult {

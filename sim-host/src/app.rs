@@ -77,6 +77,22 @@ impl Board {
             Some(_) => None,
             None => Some(UdpDatagrams::bind(options.bind, probe.clone())?),
         };
+        if let Some(path) = &options.pcap {
+            let local = match (udp.and_then(|u| u.local_addr().ok()), &options.ip) {
+                (Some(SocketAddr::V4(bound)), _) => bound,
+                // On TAP: the static --ip, or 0.0.0.0 until DHCP has spoken.
+                (_, Some(ip)) => match TapAddress::parse(ip) {
+                    Ok(TapAddress::Static(ip, _)) => {
+                        std::net::SocketAddrV4::new(ip, protocol::PORT)
+                    }
+                    _ => {
+                        std::net::SocketAddrV4::new(std::net::Ipv4Addr::UNSPECIFIED, protocol::PORT)
+                    }
+                },
+                _ => std::net::SocketAddrV4::new(std::net::Ipv4Addr::UNSPECIFIED, protocol::PORT),
+            };
+            open_capture(path, local)?;
+        }
         Ok(Board {
             options: options.clone(),
             clock,
@@ -257,14 +273,53 @@ impl Datagrams for SimNet {
             SimNet::Tap(tap) => tap.recv(buf).await.map_err(SimNetError::Tap)?,
         };
         log_received(buf.get(..n).unwrap_or_default(), from);
+        capture(from, false, buf.get(..n).unwrap_or_default());
         Ok((n, from))
     }
 
     async fn send(&self, to: Endpoint, frame: &[u8]) -> Result<(), Self::Error> {
         log_sent(frame, to);
+        capture(to, true, frame);
         match self {
             SimNet::Udp(udp) => udp.send(to, frame).await.map_err(SimNetError::Udp),
             SimNet::Tap(tap) => tap.send(to, frame).await.map_err(SimNetError::Tap),
+        }
+    }
+}
+
+/// The `--pcap` capture and the controller's own address in it.
+struct Capture {
+    log: armctl::pcap::PcapLog,
+    local: std::net::SocketAddrV4,
+}
+
+/// Set once, when the board is built with `--pcap`.
+static CAPTURE: std::sync::OnceLock<Capture> = std::sync::OnceLock::new();
+
+/// Opens the `--pcap` capture; `local` is the controller's address in it.
+fn open_capture(path: &std::path::Path, local: std::net::SocketAddrV4) -> io::Result<()> {
+    let log = armctl::pcap::PcapLog::create(path)
+        .map_err(|e| io::Error::new(e.kind(), format!("--pcap {}: {e}", path.display())))?;
+    CAPTURE
+        .set(Capture { log, local })
+        .map_err(|_| io::Error::other("--pcap: one capture per process"))?;
+    log::info!("pcap: writing {}", path.display());
+    Ok(())
+}
+
+/// Appends a datagram to the `--pcap` capture, if any: one sent to `peer` (`outgoing`) or
+/// received from it.
+fn capture(peer: Endpoint, outgoing: bool, bytes: &[u8]) {
+    if let Some(capture) = CAPTURE.get() {
+        let peer = SocketAddr::V4(show(peer));
+        let local = SocketAddr::V4(capture.local);
+        let (from, to) = if outgoing {
+            (local, peer)
+        } else {
+            (peer, local)
+        };
+        if let Err(e) = capture.log.record(from, to, bytes) {
+            log::warn!("pcap: {e}");
         }
     }
 }
