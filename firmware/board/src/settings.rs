@@ -23,6 +23,11 @@ const SETTINGS_KEY: u8 = 1;
 const RECORD_VERSION: u8 = 1;
 /// Bytes of the record: version, joints, ip[4], prefix_len, reserved.
 const RECORD_LEN: usize = 8;
+/// Map key of the network record NET_SET added (gateway, DHCP), beside the first record
+/// so that a record written before it still loads.
+const NET_KEY: u8 = 2;
+/// Bytes of the network record: gateway[4], flags (bit 0: DHCP), reserved.
+const NET_RECORD_LEN: usize = 6;
 
 /// Scratch for one item: key + record + item header, rounded up to the H7's 32-byte flash
 /// word (32-byte aligned, as the flash driver writes whole words from it).
@@ -54,7 +59,27 @@ pub fn decode(record: &[u8; RECORD_LEN]) -> Option<PersistentSettings> {
         joints,
         ip: [a, b, c, d],
         prefix_len,
+        ..PersistentSettings::DEFAULT
     })
+}
+
+/// The stored network record (NET_SET) for `settings`.
+pub const fn encode_net(settings: &PersistentSettings) -> [u8; NET_RECORD_LEN] {
+    let [a, b, c, d] = settings.gateway;
+    [a, b, c, d, settings.dhcp as u8, 0]
+}
+
+/// `settings` with the gateway and DHCP choice of a stored network record.
+pub fn decode_net(
+    settings: PersistentSettings,
+    record: &[u8; NET_RECORD_LEN],
+) -> PersistentSettings {
+    let [a, b, c, d, flags, _] = *record;
+    PersistentSettings {
+        gateway: [a, b, c, d],
+        dhcp: flags & 1 != 0,
+        ..settings
+    }
 }
 
 /// Why settings could not be read or written.
@@ -85,7 +110,17 @@ impl FlashSettings {
             .map
             .fetch_item::<[u8; RECORD_LEN]>(&mut self.buffer.0, &SETTINGS_KEY)
             .await?;
-        Ok(record.as_ref().and_then(decode))
+        let Some(settings) = record.as_ref().and_then(decode) else {
+            return Ok(None);
+        };
+        let net = self
+            .map
+            .fetch_item::<[u8; NET_RECORD_LEN]>(&mut self.buffer.0, &NET_KEY)
+            .await?;
+        Ok(Some(match net {
+            Some(net) => decode_net(settings, &net),
+            None => settings,
+        }))
     }
 }
 
@@ -99,6 +134,9 @@ impl arm_core::hw::SettingsStore for FlashSettings {
     async fn save(&mut self, settings: &PersistentSettings) -> Result<(), Self::Error> {
         self.map
             .store_item(&mut self.buffer.0, &SETTINGS_KEY, &encode(settings))
+            .await?;
+        self.map
+            .store_item(&mut self.buffer.0, &NET_KEY, &encode_net(settings))
             .await
     }
 }

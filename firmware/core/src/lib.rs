@@ -69,7 +69,9 @@ pub mod tasks;
 
 pub use buffer::{StoredPoint, TrajectoryBuffer};
 pub use config::ControllerConfig;
-pub use controller::{Controller, Deferred, Owner, Plant, Reply, ReportSettings, Response};
+pub use controller::{
+    Controller, Deferred, Discovery, Owner, Plant, Reply, ReportSettings, Response,
+};
 pub use outgoing::{Outgoing, ReportEncoder};
 pub use plan::{ReturnPlan, plan_return};
 pub use tasks::{

@@ -3,7 +3,7 @@
 use heapless::Vec;
 use protocol::{Location, MAX_SERIAL_CHUNK, Report, StatusReport, size};
 
-use crate::controller::Reply;
+use crate::controller::{Discovery, Reply};
 use crate::hw::Endpoint;
 
 /// Largest frame the controller sends: USART_RECV (257 data bytes) + seq, tag and CRC.
@@ -24,6 +24,8 @@ pub enum Outgoing {
     Status(StatusReport),
     /// Bytes read from the serial port, to the owner.
     UsartRecv(Vec<u8, MAX_SERIAL_CHUNK>),
+    /// A DISCOVER_REPLY, to the DISCOVER's sender, with its seq.
+    Discovery(Discovery),
 }
 
 /// Encodes [`Outgoing`] frames. Reports (everything but ACKs) carry the controller's own
@@ -54,6 +56,10 @@ impl ReportEncoder {
         report_to: Option<Endpoint>,
         buf: &mut [u8],
     ) -> Option<(Endpoint, usize)> {
+        if let Outgoing::Discovery(d) = out {
+            // Like an ACK: the asker's seq, not the report counter.
+            return Some((d.to, d.reply.encode(d.seq, buf).ok()?));
+        }
         let (to, seq, report) = match out {
             Outgoing::Ack(reply) => (reply.to, reply.seq, Report::Ack(reply.ack)),
             other => {
@@ -61,7 +67,7 @@ impl ReportEncoder {
                     Outgoing::Location(l) => Report::Location(*l),
                     Outgoing::Status(s) => Report::Status(*s),
                     Outgoing::UsartRecv(bytes) => Report::UsartRecv(bytes),
-                    Outgoing::Ack(_) => return None,
+                    Outgoing::Ack(_) | Outgoing::Discovery(_) => return None,
                 };
                 (report_to?, self.next_seq, report)
             }
