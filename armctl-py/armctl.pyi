@@ -9,7 +9,7 @@ propagates.
 """
 
 from os import PathLike
-from typing import Any, Dict, Iterator, Optional, Tuple, TypedDict, Union
+from typing import Any, Dict, Iterator, List, Optional, Tuple, TypedDict, Union
 
 import numpy as np
 import numpy.typing as npt
@@ -159,8 +159,38 @@ class Arm:
     def pwm_servo(self, duty: float, freq: float = 50.0) -> None: ...
     def pwm_stepper(self, pulses: int, freq: float = 1000.0) -> None: ...
     def pwm_stop(self) -> None: ...
+    def net_set(self, ip: Optional[str] = None, gateway: Optional[str] = None, dhcp: bool = False) -> None:
+        """NET_SET: store 'A.B.C.D/P' (with an optional gateway) or DHCP; used from the
+        controller's next reset. Owner only, not while running (RefusedError)."""
     def locations(self, count: Optional[int] = None, timeout: float = 1.0) -> Locations:
         """LOCATION reports as they arrive; ends after `count` or `timeout` s of silence."""
+
+class Found(TypedDict, total=False):
+    address: str
+    """Where the answer came from: the address in use, 'A.B.C.D:8510'."""
+    mac: str
+    version: Tuple[int, int, int]
+    joints: int
+    state: str
+    owner: str
+    """'free', 'owned' or 'owned by you'."""
+    owner_ip: str
+    dhcp: bool
+    stored_ip: str
+    prefix_len: int
+    gateway: str
+    pending_reset: bool
+    """The stored settings take effect at the next reset."""
+
+def discover(
+    to: str = "255.255.255.255:8510",
+    *,
+    wait: float = 0.3,
+    rounds: int = 2,
+    bind: Optional[str] = None,
+) -> List[Found]:
+    """DISCOVER to a broadcast address or one controller; one dict per controller that
+    answered (a controller without DISCOVER gives only 'address'). Changes nothing."""
 
 def connect(
     address: str = "127.0.0.1:8510",

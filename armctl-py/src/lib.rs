@@ -22,7 +22,7 @@ use std::time::{Duration, Instant};
 use armctl::trajectory::{self, ArmConfig, Waypoints};
 use armctl::{Controller, Error, Options, Progress, RunEnd, RunOptions, RunReport};
 use numpy::{PyArray1, PyReadonlyArray1, PyReadonlyArray2};
-use protocol::{Location, MAX_JOINTS, State, StatusFlags, StatusReport};
+use protocol::{Location, MAX_JOINTS, NetSettings, State, StatusFlags, StatusReport};
 use pyo3::create_exception;
 use pyo3::exceptions::{PyException, PyValueError};
 use pyo3::prelude::*;
@@ -720,6 +720,42 @@ impl Arm {
             .map_err(|e| to_py_err(py, e))
     }
 
+    /// NET_SET: stores the controller's address, `"A.B.C.D/P"` with an optional gateway,
+    /// or DHCP; the controller uses it from its next reset (owner only, not while running).
+    #[pyo3(signature = (ip=None, gateway=None, dhcp=false))]
+    fn net_set(
+        &self,
+        py: Python<'_>,
+        ip: Option<&str>,
+        gateway: Option<&str>,
+        dhcp: bool,
+    ) -> PyResult<()> {
+        let net = match (ip, dhcp) {
+            (None, true) if gateway.is_none() => NetSettings::DHCP,
+            (Some(ip), false) => {
+                let (ip, prefix) =
+                    armctl::discover::parse_cidr(ip).map_err(PyValueError::new_err)?;
+                let gateway = gateway
+                    .map(|g| g.parse::<std::net::Ipv4Addr>())
+                    .transpose()
+                    .map_err(|_| PyValueError::new_err("gateway must be an IPv4 address"))?;
+                NetSettings::fixed(ip, prefix, gateway.map(|g| g.octets()))
+            }
+            _ => {
+                return Err(PyValueError::new_err(
+                    "give ip='A.B.C.D/P' (and optionally gateway), or dhcp=True alone",
+                ));
+            }
+        };
+        if !net.is_valid() {
+            return Err(PyValueError::new_err(format!(
+                "{}: not usable (a unicast address with a prefix of 1..32 and a gateway inside its subnet)",
+                armctl::discover::net_string(&net)
+            )));
+        }
+        self.call(py, move |arm| arm.net_set(net)).map(|_| ())
+    }
+
     /// PWM_STOP: gripper output off at once.
     fn pwm_stop(&self, py: Python<'_>) -> PyResult<()> {
         self.call(py, |arm| arm.pwm_stop()).map(|_| ())
@@ -749,6 +785,58 @@ impl Arm {
             None => "<armctl.Arm closed>".into(),
         }
     }
+}
+
+/// Finds controllers: DISCOVER to `to` (a broadcast address, or one controller); returns
+/// one dict per controller that answered (nothing changes on them).
+#[pyfunction]
+#[pyo3(signature = (to="255.255.255.255:8510", *, wait=0.3, rounds=2, bind=None))]
+fn discover<'py>(
+    py: Python<'py>,
+    to: &str,
+    wait: f64,
+    rounds: u32,
+    bind: Option<&str>,
+) -> PyResult<Vec<Bound<'py, PyDict>>> {
+    use armctl::discover::{DiscoverOptions, mac_string};
+    let target = to
+        .parse()
+        .map_err(|_| PyValueError::new_err("to must be an IPv4 address:port"))?;
+    let bind = bind
+        .map(|b| b.parse())
+        .transpose()
+        .map_err(|_| PyValueError::new_err("bind must be an IPv4 address:port"))?;
+    let options = DiscoverOptions {
+        target,
+        bind,
+        wait: Duration::from_secs_f64(wait.clamp(0.001, 10.0)),
+        rounds: rounds.clamp(1, 10),
+    };
+    let found = py
+        .detach(move || armctl::discover::discover(&options))
+        .map_err(|e| ArmctlError::new_err(format!("DISCOVER to {to}: {e}")))?;
+    let ip = |q: [u8; 4]| std::net::Ipv4Addr::from(q).to_string();
+    found
+        .iter()
+        .map(|f| {
+            let d = PyDict::new(py);
+            d.set_item("address", f.from.to_string())?;
+            if let Some(r) = &f.reply {
+                d.set_item("mac", mac_string(&r.mac))?;
+                d.set_item("version", (r.version[0], r.version[1], r.version[2]))?;
+                d.set_item("joints", r.joints)?;
+                d.set_item("state", r.state.name())?;
+                d.set_item("owner", r.owner.name())?;
+                d.set_item("owner_ip", ip(r.owner_ip))?;
+                d.set_item("dhcp", r.net.dhcp)?;
+                d.set_item("stored_ip", ip(r.net.ip))?;
+                d.set_item("prefix_len", r.net.prefix_len)?;
+                d.set_item("gateway", ip(r.net.gateway))?;
+                d.set_item("pending_reset", r.pending_reset)?;
+            }
+            Ok(d)
+        })
+        .collect()
 }
 
 /// Connects to the controller at `address` (`host:port`) and checks that it answers a
@@ -798,6 +886,7 @@ fn connect(
 fn armctl_py(m: &Bound<'_, PyModule>) -> PyResult<()> {
     let py = m.py();
     m.add_function(wrap_pyfunction!(connect, m)?)?;
+    m.add_function(wrap_pyfunction!(discover, m)?)?;
     m.add_class::<Arm>()?;
     m.add_class::<RunHandle>()?;
     m.add_class::<Locations>()?;

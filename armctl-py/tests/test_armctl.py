@@ -163,3 +163,20 @@ def test_ctrl_c_stops_the_arm(sim, python_child, mode):
         time.sleep(0.2)
         assert arm.positions()[0] == stopped_at, "the arm still moves"
         assert stopped_at >= moving
+
+
+def test_discover_and_net_set(sim):
+    # DISCOVER sent to the simulator's own address (a broadcast only inside a namespace).
+    found = armctl.discover(sim.address, wait=0.2)
+    assert len(found) == 1
+    assert found[0]["address"] == sim.address
+    assert found[0]["mac"].startswith("02:53:49:4d")
+    assert found[0]["joints"] == 6
+    with armctl.connect(sim.address) as arm:
+        arm.net_set(ip="10.4.5.6/24", gateway="10.4.5.1")
+        with pytest.raises(ValueError):
+            arm.net_set(ip="10.4.5.255/24")
+    found = armctl.discover(sim.address, wait=0.2)[0]
+    assert (found["stored_ip"], found["prefix_len"], found["gateway"]) == ("10.4.5.6", 24, "10.4.5.1")
+    assert found["pending_reset"]
+    assert found["owner"] == "owned by you"

@@ -277,14 +277,14 @@ impl Controller {
     }
 
     pub(crate) fn send_bytes(&self, frame: &[u8]) -> Result<()> {
+        // Recorded before it leaves: the receiver thread may record the answer before
+        // this thread returns from `send`, and a capture must keep the order on the wire.
+        if let Some(pcap) = lock(&self.shared.pcap).as_ref() {
+            let local = self.socket.local_addr()?;
+            let _ = pcap.record(local, self.addr, frame);
+        }
         match self.socket.send(frame) {
-            Ok(_) => {
-                if let Some(pcap) = lock(&self.shared.pcap).as_ref() {
-                    let local = self.socket.local_addr()?;
-                    let _ = pcap.record(local, self.addr, frame);
-                }
-                Ok(())
-            }
+            Ok(_) => Ok(()),
             // A previous datagram's ICMP "port unreachable" (nobody listening yet): the
             // frame itself may not have left; the retry loop sends it again.
             Err(e) if e.kind() == std::io::ErrorKind::ConnectionRefused => Ok(()),

@@ -27,6 +27,7 @@
 //!   [`vcd`]: joint positions from a simulator trace (`sim-host --trace`), for the same plots.
 
 mod client;
+pub mod discover;
 mod error;
 pub mod pcap;
 pub mod plot;

@@ -414,7 +414,8 @@ async fn network_over_tap(
         .duration_since(std::time::UNIX_EPOCH)
         .map(|d| d.as_nanos() as u64)
         .unwrap_or(0x5EED);
-    match crate::tap::start(spawner, &iface, address, seed).await {
+    let mac = sim_mac(Some(&iface), protocol::PORT);
+    match crate::tap::start(spawner, &iface, address, mac, seed).await {
         Ok(tap) => {
             let socket: &'static SimSocket =
                 Box::leak(Box::new(Faulty::new(SimNet::Tap(tap), faults)));
@@ -473,6 +474,8 @@ fn wire(board: Board) -> io::Result<Wiring> {
     let controller = CONTROLLER
         .try_init(Controller::new(config))
         .ok_or_else(once)?;
+    let port = board.local_addr().map_or(protocol::PORT, |a| a.port());
+    controller.set_mac(sim_mac(board.options.tap.as_deref(), port));
     log::info!(
         "controller: {} trajectory points, step timer {} Hz (pulse {} ticks, DIR setup {} ticks), max {} steps/s per joint, time scale {}",
         config.capacity,
@@ -573,10 +576,33 @@ fn spawn_tasks(spawner: Spawner, wiring: Wiring) {
     log::info!("controller: tasks running");
 }
 
-/// The persisted address, for `--tap` without `--ip` (as the board boots).
+/// The persisted address, for `--tap` without `--ip` (as the board boots): the static
+/// address, or DHCP when NET_SET chose it.
 fn stored_address(board: &Board) -> TapAddress {
     let stored = board.settings.read().ok().flatten().unwrap_or_default();
-    TapAddress::Static(stored.ip.into(), stored.prefix_len)
+    if stored.dhcp {
+        TapAddress::Dhcp
+    } else {
+        TapAddress::Static(stored.ip.into(), stored.prefix_len)
+    }
+}
+
+/// The simulated controller's MAC address (DISCOVER_REPLY, and the TAP interface's):
+/// locally administered `02:53:49:4d` ("SIM") and two bytes from the TAP device's name or
+/// else the UDP port, so that simulators side by side differ.
+pub fn sim_mac(tap: Option<&str>, port: u16) -> [u8; 6] {
+    let tail = match tap {
+        // FNV-1a of the name, folded to 16 bits.
+        Some(iface) => {
+            let hash = iface.bytes().fold(0x811c_9dc5u32, |h, b| {
+                (h ^ u32::from(b)).wrapping_mul(0x0100_0193)
+            });
+            ((hash >> 16) ^ hash) as u16
+        }
+        None => port,
+    };
+    let [hi, lo] = tail.to_be_bytes();
+    [0x02, 0x53, 0x49, 0x4d, hi, lo]
 }
 
 /// Runs the controller on this thread until SIGINT/SIGTERM.

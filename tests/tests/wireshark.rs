@@ -487,6 +487,17 @@ fn session_captures_pair_acks_and_mark_retransmissions() {
     pin.push(crc8(&pin));
     send_and_ack(&socket, &pin);
     send_and_ack(&socket, &pin);
+    // DISCOVER: answered with a DISCOVER_REPLY, which the dissector pairs with it.
+    let mut discover = vec![0x43, protocol::Tag::Discover as u8];
+    discover.push(crc8(&discover));
+    socket.send(&discover).unwrap();
+    let mut buf = [0u8; 2048];
+    let reply = loop {
+        let n = socket.recv(&mut buf).expect("a DISCOVER_REPLY");
+        if let Ok(frame) = protocol::DiscoverReply::decode(&buf[..n]) {
+            break frame.body;
+        }
+    };
     drop(socket);
 
     // The CLI's own capture of the same session.
@@ -513,6 +524,14 @@ fn session_captures_pair_acks_and_mark_retransmissions() {
         "armctl.response_to",
         "armctl.time",
         "armctl.retransmission",
+        "armctl.discover.mac",
+        "armctl.discover.ip",
+        "armctl.discover.prefix_len",
+        "armctl.discover.version",
+        "armctl.discover.joints",
+        "armctl.discover.state",
+        "armctl.discover.owner",
+        "armctl.discover.owner_ip",
     ];
     // The controller's capture: commands are paired with their ACKs, the resend is marked.
     let port = Some(sim.addr.port());
@@ -556,6 +575,33 @@ fn session_captures_pair_acks_and_mark_retransmissions() {
         pins[1].get("armctl.retransmission"),
         pins[0].get("frame.number"),
         "the resend points at the first copy"
+    );
+    let shown = packets
+        .iter()
+        .find(|p| p.get("armctl.tag").is_some_and(|t| t == "0x22"))
+        .expect("the DISCOVER_REPLY in the capture");
+    let [a, b, c, d] = reply.net.ip;
+    let [e, f, g, h] = reply.owner_ip;
+    let [v0, v1, v2] = reply.version;
+    let mac: Vec<String> = reply.mac.iter().map(|b| format!("{b:02x}")).collect();
+    for (field, value) in [
+        ("armctl.discover.mac", mac.join(":")),
+        ("armctl.discover.ip", format!("{a}.{b}.{c}.{d}")),
+        (
+            "armctl.discover.prefix_len",
+            reply.net.prefix_len.to_string(),
+        ),
+        ("armctl.discover.version", format!("{v0}.{v1}.{v2}")),
+        ("armctl.discover.joints", reply.joints.to_string()),
+        ("armctl.discover.state", (reply.state as u8).to_string()),
+        ("armctl.discover.owner", (reply.owner as u8).to_string()),
+        ("armctl.discover.owner_ip", format!("{e}.{f}.{g}.{h}")),
+    ] {
+        assert_eq!(shown.get(field), Some(&value), "DISCOVER_REPLY {field}");
+    }
+    assert!(
+        shown.contains_key("armctl.response_to"),
+        "paired with DISCOVER"
     );
     let pin1_in_sim = commands
         .iter()

@@ -33,7 +33,7 @@ local tag_names = {
     [0x0e] = "PIN1_ON", [0x0f] = "PIN1_OFF", [0x10] = "TOGGLE_ENABLE_PINS",
     [0x11] = "RETURN", [0x12] = "JOINTS_COUNT", [0x13] = "LOCATION_SETTING/LOCATION",
     [0x14] = "ACK", [0x15] = "STATUS", [0x16] = "UPLOAD_PERIOD",
-    [0x17] = "DISCOVER", [0x18] = "NET_SET", [0x19] = "DISCOVER_REPLY",
+    [0x20] = "DISCOVER", [0x21] = "NET_SET", [0x22] = "DISCOVER_REPLY",
 }
 -- Names that depend on the direction.
 local host_names = { [0x13] = "LOCATION_SETTING", [0x15] = "STATUS request" }
@@ -130,7 +130,7 @@ local f = {
     st_max_rate = ProtoField.uint32("armctl.status.max_step_rate_hz", "Max step rate (steps/s)", base.DEC),
     st_word32 = ProtoField.uint32("armctl.status.offset32", "Offset 32 (u32)", base.DEC),
 
-    -- DISCOVER reply and NET_SET (protocol 1.1)
+    -- DISCOVER_REPLY and NET_SET (PROTOCOL.md section 12)
     disc_mac = ProtoField.ether("armctl.discover.mac", "MAC address"),
     disc_ip = ProtoField.ipv4("armctl.discover.ip", "IPv4 address"),
     disc_prefix = ProtoField.uint8("armctl.discover.prefix_len", "Prefix length", base.DEC),
@@ -418,15 +418,16 @@ local host_dissectors = {
         if period < 1000 or period > 1000000 then out_of_range(tree, "upload period must be 1000..1000000 us") end
         return data(0, 4):le_uint() .. " us"
     end,
-    [0x18] = function(tree, data, len)
+    [0x21] = function(tree, data, len)
         if len ~= 10 then return length_error(tree, data, "10", len) end
         dissect_net_set(tree, data)
+        if data(0, 1):uint() > 1 then out_of_range(tree, "address mode must be 0 (static) or 1 (DHCP)") end
         if data(0, 1):uint() == 1 then return "DHCP" end
         return string.format("%s/%d", tostring(data(1, 4):ipv4()), data(5, 1):uint())
     end,
 }
 -- Commands without data.
-for _, tag in ipairs({ 0x02, 0x03, 0x04, 0x05, 0x07, 0x09, 0x0c, 0x0d, 0x0e, 0x0f, 0x11, 0x15, 0x17 }) do
+for _, tag in ipairs({ 0x02, 0x03, 0x04, 0x05, 0x07, 0x09, 0x0c, 0x0d, 0x0e, 0x0f, 0x11, 0x15, 0x20 }) do
     host_dissectors[tag] = function(tree, data, len)
         if len ~= 0 then return length_error(tree, data, "0", len) end
         return ""
@@ -468,7 +469,7 @@ local controller_dissectors = {
         dissect_status_report(tree, data)
         return state_names[data(4, 1):uint()] or "?"
     end,
-    [0x19] = function(tree, data, len)
+    [0x22] = function(tree, data, len)
         if len ~= 27 then return length_error(tree, data, "27", len) end
         dissect_discover_reply(tree, data)
         return tostring(data(6, 4):ipv4())
@@ -496,8 +497,10 @@ local function analyse(pinfo, to_controller, seq, tag, crc, data, len)
             first_copy[copy_key] = pinfo.number
         end
         commands[key] = { frame = pinfo.number, time = pinfo.abs_ts }
-    elseif tag == 0x14 and len == 8 then
-        local key = host_key .. "|" .. seq .. "|" .. data(0, 1):uint()
+    elseif (tag == 0x14 and len == 8) or tag == 0x22 then
+        -- An ACK answers the tag it names; a DISCOVER_REPLY answers DISCOVER.
+        local answered = tag == 0x22 and 0x20 or data(0, 1):uint()
+        local key = host_key .. "|" .. seq .. "|" .. answered
         local command = commands[key]
         if command then
             local info = frame_info(pinfo.number)
