@@ -362,6 +362,18 @@ impl Harness {
             return;
         }
         let (&crc, body) = bytes.split_last().expect("3 bytes or more");
+        if bytes.len() == 3 && bytes[1] == Tag::Discover as u8 && crc8(body) == crc {
+            // DISCOVER (PROTOCOL.md 12): a DISCOVER_REPLY to the sender instead of an ACK,
+            // and nothing changes.
+            let r = self
+                .controller
+                .handle(from, bytes, self.now_us, &mut self.plant);
+            let d = r.discovery.expect("no DISCOVER_REPLY");
+            assert_eq!((d.to, d.seq), (from, bytes[0]));
+            assert_eq!(r.reply, None, "an ACK besides the DISCOVER_REPLY");
+            assert_eq!(self.snapshot(), before, "DISCOVER changed something");
+            return;
+        }
         let key = (from, bytes[0], bytes[1], crc);
         let (possibly_dup, surely_dup) = self.duplicate(&key);
         let r = self
