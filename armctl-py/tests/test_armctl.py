@@ -1,5 +1,6 @@
 """The armctl Python module against a real sim-host process."""
 
+import pathlib
 import signal
 import time
 
@@ -180,3 +181,26 @@ def test_discover_and_net_set(sim):
     assert (found["stored_ip"], found["prefix_len"], found["gateway"]) == ("10.4.5.6", 24, "10.4.5.1")
     assert found["pending_reset"]
     assert found["owner"] == "owned by you"
+
+
+EXAMPLES = pathlib.Path(__file__).resolve().parents[2] / "armctl" / "examples"
+
+
+def test_radians_with_a_joint_config_and_run_file(sim):
+    config = EXAMPLES / "arm.json"
+    with armctl.connect(sim.address) as arm:
+        np.testing.assert_array_equal(arm.positions(), np.zeros(6, dtype=np.int32))
+        # Waypoints in radians: steps = zero_offset + rad * steps_per_radian.
+        times = np.array([0.0, 0.3, 0.6])
+        radians = np.array([[0.0] * 6, [0.1, -0.05, 0.2, 0.0, 0.3, -0.3], [0.2, -0.1, 0.4, 0.1, 0.6, -0.6]])
+        report = arm.run(times, radians, config=config)
+        spr = np.array([5093.0, 5093.0, 5093.0, 2546.0, 2546.0, 2546.0])
+        np.testing.assert_array_equal(report["final_positions"], np.round(radians[-1] * spr).astype(np.int32))
+        # A joint limit of the config: refused before anything moves.
+        with pytest.raises(armctl.TrajectoryError):
+            arm.run(np.array([0.0, 10.0]), np.array([radians[-1], [10.0] + [0.0] * 5]), config=config)
+        # The same files `armctl run` takes: back to zero first, then the CSV (steps).
+        arm.run(np.array([0.0, 0.5]), np.array([radians[-1], [0.0] * 6]), config=config)
+        report = arm.run_file(EXAMPLES / "wave.csv")
+        np.testing.assert_array_equal(report["final_positions"][:3], [0, 0, 0])
+        assert report["points"] == 200
