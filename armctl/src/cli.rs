@@ -474,6 +474,12 @@ pub fn decode_frame(bytes: &[u8], direction: Option<Direction>) -> Result<String
         })
     };
     let as_report = || {
+        // DISCOVER_REPLY is not a `Report` (it answers only the asker): decoded on its own.
+        if let Ok(frame) = protocol::DiscoverReply::decode(bytes) {
+            return Ok(
+                serde_json::json!({ "direction": "report", "seq": frame.seq, "tag": "DISCOVER_REPLY", "report": frame.body }),
+            );
+        }
         Report::decode(bytes).map(|frame| {
             let tag = match frame.body.tag() {
                 protocol::Tag::Location => "LOCATION",
