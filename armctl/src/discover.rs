@@ -16,7 +16,7 @@ pub struct Found {
     /// Where the answer came from: the controller's address in use and its port.
     pub from: SocketAddrV4,
     /// What it said; `None` for a controller older than DISCOVER (it answered with an ACK
-    /// `UNKNOWN_TAG`: it is there, but cannot tell more).
+    /// `UNKNOWN_TAG` or `NOT_OWNER`: it is there, but cannot tell more).
     pub reply: Option<DiscoverReply>,
 }
 
@@ -103,17 +103,17 @@ pub fn discover(options: &DiscoverOptions) -> std::io::Result<Vec<Found>> {
 }
 
 /// What a datagram says about its sender: `Some(Some(reply))` a DISCOVER_REPLY,
-/// `Some(None)` an older controller's ACK `UNKNOWN_TAG` to DISCOVER, `None` anything else.
+/// `Some(None)` an older controller's ACK to DISCOVER (`UNKNOWN_TAG`, or `NOT_OWNER` when
+/// another host owns it: a controller that knows DISCOVER never ACKs an intact one),
+/// `None` anything else.
 fn answer(datagram: &[u8]) -> Option<Option<DiscoverReply>> {
     if let Ok(frame) = DiscoverReply::decode(datagram) {
         return Some(Some(frame.body));
     }
     match Report::decode(datagram).ok()?.body {
         Report::Ack(Ack {
-            acked_tag,
-            status: StatusCode::UnknownTag,
-            ..
-        }) if acked_tag == Tag::Discover as u8 => Some(None),
+            acked_tag, status, ..
+        }) if acked_tag == Tag::Discover as u8 && status != StatusCode::BadCrc => Some(None),
         _ => None,
     }
 }
@@ -205,6 +205,18 @@ mod tests {
         });
         let n = ack.encode(7, &mut buf).unwrap();
         assert_eq!(answer(&buf[..n]), Some(None));
+        for (status, old) in [(StatusCode::NotOwner, true), (StatusCode::BadCrc, false)] {
+            let ack = Report::Ack(Ack {
+                acked_tag: Tag::Discover as u8,
+                status,
+                state: State::Stopped,
+                next_seq: 0,
+                buffered: 0,
+                free: 8192,
+            });
+            let n = ack.encode(7, &mut buf).unwrap();
+            assert_eq!(answer(&buf[..n]), old.then_some(None), "{status:?}");
+        }
         assert_eq!(answer(&[1, 2, 3]), None);
         assert_eq!(mac_string(&reply.mac), "02:53:49:4d:00:01");
         assert_eq!(net_string(&reply.net), "10.0.0.2/24 via 10.0.0.1");
