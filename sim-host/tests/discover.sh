@@ -147,8 +147,9 @@ expect "BAD_STATE" "$(cat "$work/err.txt")" "net set while running"
 admin stop >/dev/null
 wait "$run_pid" 2>/dev/null || true
 
-admin net set --ip 192.168.7.9/24 --gateway 192.168.7.1 | tee /dev/stderr | grep -q "after its next reset" \
-  || fail "net set did not confirm"
+out=$(admin net set --ip 192.168.7.9/24 --gateway 192.168.7.1)
+echo "$out" >&2
+expect "after its next reset" "$out" "net set"
 out=$(discover --to 192.168.7.2:8510)
 expect "stored 192.168.7.9/24 via 192.168.7.1 (after reset)" "$(line_of 192.168.7.2 "$out")" "pending address"
 grep -q "^ip=192.168.7.9$" "$work/a.txt" || fail "settings file: $(cat "$work/a.txt")"
