@@ -150,8 +150,10 @@ def test_ctrl_c_stops_the_arm(sim, python_child, mode):
     # released the GIL while waiting).
     wait_for_line(child, "moving")
     with armctl.connect(sim.address) as arm:
-        assert arm.status()["state"] == "RUNNING"
-        moving = arm.positions()[0]
+        # STATUS only while the child runs: both are 127.0.0.1, one owner, and LOCATION
+        # reports go to whichever of the two sent the latest frame.
+        running = arm.status()
+        assert running["state"] == "RUNNING"
         child.send_signal(signal.SIGINT)
         _, stderr = child.communicate(timeout=20)
         assert child.returncode != 0
@@ -159,11 +161,11 @@ def test_ctrl_c_stops_the_arm(sim, python_child, mode):
         status = arm.status()
         assert status["state"] == "STOPPED"
         assert status["flags"]["stopped_by_host"]
-        assert status["executed"] < status["expected"]
+        assert running["executed"] <= status["executed"] < status["expected"]
         stopped_at = arm.positions()[0]
         time.sleep(0.2)
         assert arm.positions()[0] == stopped_at, "the arm still moves"
-        assert stopped_at >= moving
+        assert stopped_at > 0
 
 
 def test_discover_and_net_set(sim):
