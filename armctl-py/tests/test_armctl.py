@@ -154,6 +154,7 @@ def test_ctrl_c_stops_the_arm(sim, python_child, mode):
         # reports go to whichever of the two sent the latest frame.
         running = arm.status()
         assert running["state"] == "RUNNING"
+        time.sleep(0.3)  # some steps made: the stop below is mid-move
         child.send_signal(signal.SIGINT)
         _, stderr = child.communicate(timeout=20)
         assert child.returncode != 0
