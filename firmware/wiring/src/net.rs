@@ -71,9 +71,9 @@ pub fn new_stack<D: embassy_net::driver::Driver>(
 pub fn bind_socket(stack: Stack<'static>) -> UdpSocket<'static> {
     let mut socket = UdpSocket::new(
         stack,
-        UDP_RX_META.init([PacketMetadata::EMPTY; UDP_PACKETS]),
+        UDP_RX_META.init([PacketMetadata::EMPTY; UDP_RX_PACKETS]),
         UDP_RX.take(),
-        UDP_TX_META.init([PacketMetadata::EMPTY; UDP_PACKETS]),
+        UDP_TX_META.init([PacketMetadata::EMPTY; UDP_TX_PACKETS]),
         UDP_TX.take(),
     );
     if let Err(e) = socket.bind(PORT) {
