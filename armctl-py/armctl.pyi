@@ -83,7 +83,7 @@ class RefusedError(ArmctlError):
     """The controller's state when it refused."""
 
 class NoReplyError(ArmctlError):
-    """No ACK (or report) after every retry: wrong address, controller off."""
+    """No ACK (or report) after every retry, or nothing listening (a refused loopback port): wrong address, controller off."""
 
 class RunEndedError(ArmctlError):
     """A run ended before every point ran."""
@@ -91,6 +91,8 @@ class RunEndedError(ArmctlError):
     reason: str
     """'stopped', 'underrun', 'starved' or 'unknown'."""
     executed: Optional[int]
+    received: Optional[int]
+    """Points the controller had received: more than `executed` means points were still buffered."""
     total: int
 
 class StalledError(ArmctlError):

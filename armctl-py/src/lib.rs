@@ -91,12 +91,16 @@ fn to_py_err(py: Python<'_>, error: Error) -> PyErr {
             let _ = value.setattr("state", state.name());
             err
         }
-        Error::NoReply { .. } | Error::NoReport { .. } | Error::NoLocation { .. } => {
-            NoReplyError::new_err(message)
-        }
+        // A closed port on loopback is refused at once (nothing listens there): to Python
+        // that is the same "nothing answers" as a timeout.
+        Error::NoReply { .. }
+        | Error::ConnectionRefused { .. }
+        | Error::NoReport { .. }
+        | Error::NoLocation { .. } => NoReplyError::new_err(message),
         Error::RunEnded {
             reason,
             executed,
+            received,
             total,
         } => {
             let err = RunEndedError::new_err(message);
@@ -109,6 +113,7 @@ fn to_py_err(py: Python<'_>, error: Error) -> PyErr {
             };
             let _ = value.setattr("reason", reason);
             let _ = value.setattr("executed", executed);
+            let _ = value.setattr("received", received);
             let _ = value.setattr("total", total);
             err
         }
@@ -584,6 +589,8 @@ impl Arm {
             file: "<numpy arrays>".into(),
             times_us,
             positions: rows,
+            // Straight lines between the waypoints, as before armctl's Hermite resampling.
+            velocities: Vec::new(),
         };
         let (status, location) = self.before_run(py)?;
         let arm_joints = usize::from(status.joints).clamp(1, MAX_JOINTS);
