@@ -170,7 +170,12 @@ passed=4
 # 5. DHCP, where dnsmasq is installed.
 skipped=0
 if command -v dnsmasq >/dev/null; then
-  in_ns timeout 30 "$armctl" --bind 192.168.7.200:0 --controller 192.168.7.9:8510 net set --dhcp >/dev/null
+  # The first unicast to a controller just reset: its stack must resolve .200's MAC first,
+  # and embassy-net (smoltcp) sends at most one ARP request a second, so the first ACK can
+  # take over armctl's default 1 s (10 x 100 ms). 18 attempts stay inside the 2 s
+  # duplicate window.
+  in_ns timeout 30 "$armctl" --bind 192.168.7.200:0 --controller 192.168.7.9:8510 --attempts 18 \
+    net set --dhcp >/dev/null
   stop_sim a
   ip netns exec "$ns" dnsmasq --no-daemon --port=0 --interface=br0 --bind-interfaces \
     --dhcp-range=192.168.7.50,192.168.7.60,255.255.255.0,10m \
