@@ -34,6 +34,10 @@ pub struct Cli {
     /// Local address to send from (e.g. 127.0.0.2:0 to act as another host).
     #[arg(long, global = true, env = "ARMCTL_BIND", value_name = "ADDR:PORT")]
     pub bind: Option<std::net::SocketAddr>,
+    /// Write every datagram sent and received to this pcap file (open it in Wireshark
+    /// with tools/wireshark/arm_controller.lua).
+    #[arg(long, global = true, value_name = "FILE")]
+    pub pcap: Option<PathBuf>,
     /// What to do.
     #[command(subcommand)]
     pub command: Cmd,
@@ -118,11 +122,51 @@ pub enum Cmd {
         /// On or off.
         state: OnOff,
     },
+    /// Find controllers: DISCOVER to a broadcast address (or --to one controller). Every
+    /// controller answers with its MAC, address, version, joints and owner; nothing changes.
+    Discover {
+        /// Where DISCOVER goes: a broadcast address or one controller.
+        #[arg(long, default_value = "255.255.255.255:8510", value_name = "ADDR:PORT")]
+        to: std::net::SocketAddrV4,
+        /// Milliseconds to collect answers after each DISCOVER.
+        #[arg(long, default_value_t = 300, value_name = "MS")]
+        wait_ms: u64,
+        /// DISCOVERs to send.
+        #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(1..=10))]
+        rounds: u32,
+        /// As JSON.
+        #[arg(long)]
+        json: bool,
+    },
+    /// The controller's network settings (stored in flash, applied after a reset).
+    #[command(subcommand)]
+    Net(NetCmd),
     /// Encode or decode frames (no controller needed).
     #[command(subcommand)]
     Frame(FrameCmd),
     /// Draw a recorded run (CSV of LOCATION reports, or a sim-host VCD trace) as SVG.
     Plot(PlotArgs),
+}
+
+/// `net` subcommands.
+#[derive(Subcommand, Debug)]
+pub enum NetCmd {
+    /// Show the stored settings of --controller (asks with DISCOVER: any host may).
+    Show,
+    /// NET_SET: store a static address or DHCP (owner only, not while RUNNING); the
+    /// controller uses it from its next reset.
+    #[command(group(clap::ArgGroup::new("mode").required(true).args(["ip", "dhcp"])))]
+    Set {
+        /// Static address with its prefix length, e.g. 192.168.1.30/24.
+        #[arg(long, value_name = "A.B.C.D/P")]
+        ip: Option<String>,
+        /// Default gateway (with --ip).
+        #[arg(long, value_name = "A.B.C.D", requires = "ip")]
+        gateway: Option<std::net::Ipv4Addr>,
+        /// Take the address from DHCP.
+        #[arg(long, conflicts_with_all = ["ip", "gateway"])]
+        dhcp: bool,
+    },
 }
 
 /// `plot` options.
@@ -482,6 +526,12 @@ pub fn decode_frame(bytes: &[u8], direction: Option<Direction>) -> Result<String
         })
     };
     let as_report = || {
+        // DISCOVER_REPLY is not a `Report` (it answers only the asker): decoded on its own.
+        if let Ok(frame) = protocol::DiscoverReply::decode(bytes) {
+            return Ok(
+                serde_json::json!({ "direction": "report", "seq": frame.seq, "tag": "DISCOVER_REPLY", "report": frame.body }),
+            );
+        }
         Report::decode(bytes).map(|frame| {
             let tag = match frame.body.tag() {
                 protocol::Tag::Location => "LOCATION",

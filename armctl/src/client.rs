@@ -15,6 +15,7 @@ use protocol::{
 };
 
 use crate::error::{Error, Result};
+use crate::pcap::PcapLog;
 use crate::rtt::{DEFAULT_MIN_RTO, RESEND_HORIZON, RttEstimator};
 
 /// How long the receiver thread blocks in one `recv`, so that it notices a shutdown soon.
@@ -108,6 +109,8 @@ pub(crate) struct Shared {
     last_status: Mutex<Option<StatusReport>>,
     /// Datagrams that did not decode as a report.
     undecodable: AtomicU64,
+    /// Where every datagram sent and received is written ([`Controller::capture`]).
+    pcap: Mutex<Option<Arc<PcapLog>>>,
 }
 
 /// Locks a mutex even if a thread panicked while holding it: the data here (channel lists,
@@ -155,9 +158,15 @@ impl Shared {
 
 fn receive_loop(socket: UdpSocket, shared: Arc<Shared>) {
     let mut buf = [0u8; MAX_DATAGRAM + 1];
+    let ends = socket.peer_addr().ok().zip(socket.local_addr().ok());
     while !shared.shutdown.load(Ordering::Relaxed) {
         match socket.recv(&mut buf) {
-            Ok(n) => shared.deliver(&buf[..n]),
+            Ok(n) => {
+                if let (Some(pcap), Some((from, to))) = (lock(&shared.pcap).as_ref(), ends) {
+                    let _ = pcap.record(from, to, &buf[..n]);
+                }
+                shared.deliver(&buf[..n])
+            }
             // The poll timeout: check for shutdown.
             Err(e)
                 if matches!(
@@ -296,7 +305,18 @@ impl Controller {
         }
     }
 
+    /// From now on, writes every datagram sent and received to `pcap` (`--pcap FILE`).
+    pub fn capture(&self, pcap: Arc<PcapLog>) {
+        *lock(&self.shared.pcap) = Some(pcap);
+    }
+
     pub(crate) fn send_bytes(&self, frame: &[u8]) -> Result<()> {
+        // Recorded before it leaves: the receiver thread may record the answer before
+        // this thread returns from `send`, and a capture must keep the order on the wire.
+        if let Some(pcap) = lock(&self.shared.pcap).as_ref() {
+            let local = self.socket.local_addr()?;
+            let _ = pcap.record(local, self.addr, frame);
+        }
         match self.socket.send(frame) {
             Ok(_) => Ok(()),
             // A previous datagram's ICMP "port unreachable" (nobody listening): on

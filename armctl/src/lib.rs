@@ -27,7 +27,9 @@
 //!   [`vcd`]: joint positions from a simulator trace (`sim-host --trace`), for the same plots.
 
 mod client;
+pub mod discover;
 mod error;
+pub mod pcap;
 pub mod plot;
 pub mod pwm;
 pub mod record;

@@ -14,7 +14,7 @@ use armctl::{Controller, Options, RunOptions};
 use clap::Parser;
 use protocol::{Location, MAX_JOINTS, Point, State, StatusFlags, StatusReport, UartInit};
 
-use cli::{Cli, Cmd, FrameCmd, OnOff, PwmCmd, RunArgs};
+use cli::{Cli, Cmd, FrameCmd, NetCmd, OnOff, PwmCmd, RunArgs};
 
 /// A failure with the message to print; exit code 1 (clap exits with 2 on a usage error).
 type CliResult = Result<(), String>;
@@ -41,13 +41,23 @@ fn connect(cli: &Cli) -> Result<Controller, String> {
         bind: cli.bind,
         ..Options::default()
     };
-    let controller = match cli.command {
+    let controller = Controller::open(cli.controller.as_str(), options)
+        .map_err(|e| format!("{}: {e}", cli.controller))?;
+    if let Some(path) = &cli.pcap {
+        let log = armctl::pcap::PcapLog::create(path)
+            .map_err(|e| format!("--pcap {}: {e}", path.display()))?;
+        controller.capture(std::sync::Arc::new(log));
+    }
+    match cli.command {
         // Anyone may stop the arm: no STATUS first, which another host's controller
         // would refuse (NOT_OWNER).
-        Cmd::Stop => Controller::open(cli.controller.as_str(), options),
-        _ => Controller::connect_with(cli.controller.as_str(), options),
-    };
-    controller.map_err(|e| format!("{}: {e}", cli.controller))
+        Cmd::Stop => Ok(controller),
+        // As Controller::connect_with: check that the controller answers.
+        _ => match controller.status() {
+            Ok(_) => Ok(controller),
+            Err(e) => Err(format!("{}: {e}", cli.controller)),
+        },
+    }
 }
 
 fn done(ack: armctl::Result<protocol::Ack>) -> CliResult {
@@ -70,6 +80,19 @@ fn execute(cli: Cli) -> CliResult {
         Cmd::Plot(args) => {
             println!("{}", cli::plot(args)?);
             Ok(())
+        }
+        Cmd::Discover {
+            to,
+            wait_ms,
+            rounds,
+            json,
+        } => discover(&cli, *to, *wait_ms, *rounds, *json),
+        Cmd::Net(NetCmd::Show) => {
+            let to = match cli.controller.parse::<std::net::SocketAddr>() {
+                Ok(std::net::SocketAddr::V4(to)) => to,
+                _ => return Err(format!("{}: give an IPv4 address:port", cli.controller)),
+            };
+            discover(&cli, to, 300, 3, false)
         }
         Cmd::Run(args) if args.dry_run => {
             let converted = convert(args, &[0; 8], None, Some(args.max_step_rate))?;
@@ -153,8 +176,102 @@ fn execute_online(cli: &Cli, arm: &Controller) -> CliResult {
         } => serial(arm, *baud, mode.code(), *keep_open),
         Cmd::UploadPeriod { us } => done(arm.upload_period(*us)),
         Cmd::Reports { state } => done(arm.reports(*state == OnOff::On)),
-        Cmd::Frame(_) | Cmd::Plot { .. } => Ok(()),
+        Cmd::Net(NetCmd::Set { ip, gateway, dhcp }) => {
+            let net = if *dhcp {
+                protocol::NetSettings::DHCP
+            } else {
+                let (ip, prefix) = armctl::discover::parse_cidr(ip.as_deref().unwrap_or_default())?;
+                protocol::NetSettings::fixed(ip, prefix, gateway.map(|g| g.octets()))
+            };
+            if !net.is_valid() {
+                return Err(format!(
+                    "{}: not usable (a unicast address with a prefix of 1..32 and a gateway \
+                     inside its subnet, or --dhcp)",
+                    armctl::discover::net_string(&net)
+                ));
+            }
+            let ack = arm.net_set(net).map_err(|e| e.to_string())?;
+            println!(
+                "stored {} (state {}): the controller uses it after its next reset",
+                armctl::discover::net_string(&net),
+                ack.state.name()
+            );
+            Ok(())
+        }
+        Cmd::Frame(_) | Cmd::Plot { .. } | Cmd::Discover { .. } | Cmd::Net(NetCmd::Show) => Ok(()),
     }
+}
+
+/// `discover` (and `net show`): one line per controller that answered.
+fn discover(
+    cli: &Cli,
+    to: std::net::SocketAddrV4,
+    wait_ms: u64,
+    rounds: u32,
+    json: bool,
+) -> CliResult {
+    use armctl::discover::{DiscoverOptions, mac_string, net_string};
+    let bind = match cli.bind {
+        Some(std::net::SocketAddr::V4(b)) => Some(b),
+        Some(other) => return Err(format!("--bind {other}: DISCOVER is IPv4")),
+        None => None,
+    };
+    let found = armctl::discover::discover(&DiscoverOptions {
+        target: to,
+        bind,
+        wait: Duration::from_millis(wait_ms.max(1)),
+        rounds,
+    })
+    .map_err(|e| format!("DISCOVER to {to}: {e}"))?;
+    if json {
+        let list: Vec<serde_json::Value> = found
+            .iter()
+            .map(|f| serde_json::json!({ "address": f.from.to_string(), "reply": f.reply }))
+            .collect();
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&list).map_err(|e| e.to_string())?
+        );
+        return Ok(());
+    }
+    for f in &found {
+        match &f.reply {
+            Some(r) => {
+                let owner = match r.owner {
+                    protocol::OwnerState::Free => "free".to_string(),
+                    protocol::OwnerState::Asker => "owned by this host".to_string(),
+                    protocol::OwnerState::Other => {
+                        let [a, b, c, d] = r.owner_ip;
+                        format!("owned by {a}.{b}.{c}.{d}")
+                    }
+                };
+                let pending = if r.pending_reset {
+                    " (after reset)"
+                } else {
+                    ""
+                };
+                println!(
+                    "{:<21} mac {}  version {}.{}.{}  {} joints  {:<8} {}  stored {}{pending}",
+                    f.from.to_string(),
+                    mac_string(&r.mac),
+                    r.version[0],
+                    r.version[1],
+                    r.version[2],
+                    r.joints,
+                    r.state.name(),
+                    owner,
+                    net_string(&r.net)
+                );
+            }
+            None => println!(
+                "{:<21} a controller without DISCOVER (protocol 1.0): `armctl --controller {} status` tells more",
+                f.from.to_string(),
+                f.from
+            ),
+        }
+    }
+    println!("{} controller(s) answered DISCOVER to {to}", found.len());
+    Ok(())
 }
 
 fn print_status(s: &StatusReport) {

@@ -382,6 +382,28 @@ impl Harness {
             return;
         }
         let (&crc, body) = bytes.split_last().expect("3 bytes or more");
+        if bytes.len() == 3 && bytes[1] == Tag::Discover as u8 && crc8(body) == crc {
+            // DISCOVER (PROTOCOL.md 12): a DISCOVER_REPLY to the sender instead of an ACK,
+            // and nothing changes: no owner taken or refreshed, no LOCATION listener or
+            // serial route registered (issue 14's per-endpoint routing).
+            let owner_before = self.controller.owner();
+            let routes_before = self.controller.report_settings();
+            let r = self
+                .controller
+                .handle(from, bytes, self.now_us, &mut self.plant);
+            let d = r.discovery.expect("no DISCOVER_REPLY");
+            assert_eq!((d.to, d.seq), (from, bytes[0]));
+            assert_eq!(r.reply, None, "an ACK besides the DISCOVER_REPLY");
+            assert_eq!((r.status, r.executed), (None, false), "DISCOVER executed");
+            assert_eq!(self.snapshot(), before, "DISCOVER changed something");
+            assert_eq!(self.controller.owner(), owner_before, "DISCOVER touched the owner");
+            assert_eq!(
+                self.controller.report_settings(),
+                routes_before,
+                "DISCOVER changed where reports go"
+            );
+            return;
+        }
         let key = (from, bytes[0], bytes[1], crc);
         let (possibly_dup, surely_dup) = self.duplicate(&key);
         let owner_before = self.controller.owner().map(|o| o.ip);

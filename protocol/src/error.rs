@@ -94,6 +94,10 @@ pub enum Field {
     State,
     /// A status code (ACK).
     Status,
+    /// NET_SET's settings (mode 0 or 1; a usable unicast address, prefix and gateway).
+    NetSettings,
+    /// DISCOVER_REPLY's owner state (0..2).
+    Owner,
 }
 
 impl DecodeError {
@@ -138,6 +142,10 @@ impl fmt::Display for Field {
             Field::Duration(i) => write!(f, "point {i} has a duration under 1 us"),
             Field::State => f.write_str("unknown state code"),
             Field::Status => f.write_str("unknown status code"),
+            Field::NetSettings => f.write_str(
+                "network settings must be DHCP, or a unicast address with a prefix of 1..32 and a gateway inside its subnet",
+            ),
+            Field::Owner => f.write_str("unknown owner state"),
         }
     }
 }

@@ -2,6 +2,7 @@
 
 use crate::codec::{Writer, u8_at, u16_be, u16_le, u32_le};
 use crate::error::{DecodeError, DecodeErrorKind, EncodeError, ExpectedLen, Field};
+use crate::net::NetSettings;
 use crate::types::{Ack, Location, Point, Pwm, State, StatusCode, StatusReport, Tag, UartInit};
 use crate::{FRAME_OVERHEAD, MAX_POINTS_PER_FRAME, MAX_SERIAL_CHUNK, limits, size};
 
@@ -159,6 +160,10 @@ pub enum Command<'a> {
         /// Microseconds, 1000..1000000.
         period_us: u32,
     },
+    /// Who is there? (answered with a DISCOVER_REPLY by any controller, to any host).
+    Discover,
+    /// Store new network settings, applied after the next reset.
+    NetSet(NetSettings),
 }
 
 /// A report from the controller to a host (docs/PROTOCOL.md, "Reports (controller to host)").
@@ -254,6 +259,8 @@ impl<'a> Command<'a> {
             Command::LocationSetting(_) => Tag::Location,
             Command::Status => Tag::Status,
             Command::UploadPeriod { .. } => Tag::UploadPeriod,
+            Command::Discover => Tag::Discover,
+            Command::NetSet(_) => Tag::NetSet,
         }
     }
 
@@ -269,6 +276,7 @@ impl<'a> Command<'a> {
             Command::JointsCount(_) => 1,
             Command::LocationSetting(_) => size::LOCATION,
             Command::UploadPeriod { .. } => 4,
+            Command::NetSet(_) => size::NET_SET,
             _ => 0,
         }
     }
@@ -313,6 +321,7 @@ impl<'a> Command<'a> {
             Command::JointsCount(n) => w.u8(0, *n),
             Command::LocationSetting(loc) => loc.write(w, 0),
             Command::UploadPeriod { period_us } => w.u32(0, *period_us),
+            Command::NetSet(net) => net.write(w, 0),
             _ => {}
         })
     }
@@ -444,7 +453,16 @@ impl<'a> Command<'a> {
                 }
                 Command::UploadPeriod { period_us }
             }
-            Tag::UsartRecv | Tag::Ack => return Err(err(DecodeErrorKind::WrongDirection)),
+            Tag::NetSet => {
+                exactly(size::NET_SET)?;
+                match NetSettings::read(data) {
+                    Some(net) if net.is_valid() => Command::NetSet(net),
+                    _ => return Err(out_of_range(Field::NetSettings)),
+                }
+            }
+            Tag::UsartRecv | Tag::Ack | Tag::DiscoverReply => {
+                return Err(err(DecodeErrorKind::WrongDirection));
+            }
             Tag::Runing
             | Tag::Stopped
             | Tag::UploadStart
@@ -456,7 +474,8 @@ impl<'a> Command<'a> {
             | Tag::Pin1On
             | Tag::Pin1Off
             | Tag::Return
-            | Tag::Status => {
+            | Tag::Status
+            | Tag::Discover => {
                 exactly(0)?;
                 match tag {
                     Tag::Runing => Command::Runing,
@@ -470,6 +489,7 @@ impl<'a> Command<'a> {
                     Tag::Pin1On => Command::Pin1On,
                     Tag::Pin1Off => Command::Pin1Off,
                     Tag::Return => Command::Return,
+                    Tag::Discover => Command::Discover,
                     _ => Command::Status,
                 }
             }

@@ -15,10 +15,12 @@ extern crate std;
 mod codec;
 mod error;
 mod frame;
+mod net;
 mod types;
 
 pub use error::{DecodeError, DecodeErrorKind, EncodeError, ExpectedLen, Field};
 pub use frame::{Command, Frame, PointList, PointsIter, Report, crc8};
+pub use net::{DiscoverReply, NetSettings, OwnerState};
 pub use types::{
     Ack, DEFAULT_WINDOW, Location, MoreFlags, Point, Pwm, State, StatusCode, StatusFlags,
     StatusReport, Tag, UartInit, UartMode,
@@ -61,6 +63,10 @@ pub mod size {
     pub const STATUS: usize = 36;
     /// USART_RECV data: `len` + a 256-byte area.
     pub const USART_RECV: usize = 257;
+    /// NET_SET data: mode, ip, prefix length, gateway.
+    pub const NET_SET: usize = 10;
+    /// DISCOVER_REPLY data.
+    pub const DISCOVER_REPLY: usize = 27;
 }
 
 /// Value ranges that decode enforces (docs/PROTOCOL.md: the table of "Commands (host to

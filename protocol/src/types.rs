@@ -55,6 +55,12 @@ pub enum Tag {
     Status = 0x15,
     /// Location report period.
     UploadPeriod = 0x16,
+    /// Who is there? Answered by every controller, from any host (PROTOCOL.md 12).
+    Discover = 0x20,
+    /// Store the controller's network settings (applied after a reset).
+    NetSet = 0x21,
+    /// The answer to DISCOVER (controller to host).
+    DiscoverReply = 0x22,
 }
 
 impl Tag {
@@ -85,6 +91,9 @@ impl Tag {
             0x14 => Ack,
             0x15 => Status,
             0x16 => UploadPeriod,
+            0x20 => Discover,
+            0x21 => NetSet,
+            0x22 => DiscoverReply,
             _ => return None,
         })
     }
@@ -116,6 +125,9 @@ impl Tag {
             Ack => "ACK",
             Status => "STATUS",
             UploadPeriod => "UPLOAD_PERIOD",
+            Discover => "DISCOVER",
+            NetSet => "NET_SET",
+            DiscoverReply => "DISCOVER_REPLY",
         }
     }
 }

@@ -79,6 +79,22 @@ impl Board {
             Some(_) => None,
             None => Some(UdpDatagrams::bind(options.bind, probe.clone())?),
         };
+        if let Some(path) = &options.pcap {
+            let local = match (udp.and_then(|u| u.local_addr().ok()), &options.ip) {
+                (Some(SocketAddr::V4(bound)), _) => bound,
+                // On TAP: the static --ip, or 0.0.0.0 until DHCP has spoken.
+                (_, Some(ip)) => match TapAddress::parse(ip) {
+                    Ok(TapAddress::Static(ip, _)) => {
+                        std::net::SocketAddrV4::new(ip, protocol::PORT)
+                    }
+                    _ => {
+                        std::net::SocketAddrV4::new(std::net::Ipv4Addr::UNSPECIFIED, protocol::PORT)
+                    }
+                },
+                _ => std::net::SocketAddrV4::new(std::net::Ipv4Addr::UNSPECIFIED, protocol::PORT),
+            };
+            open_capture(path, local)?;
+        }
         Ok(Board {
             options: options.clone(),
             clock,
@@ -247,14 +263,53 @@ impl Datagrams for SimNet {
             SimNet::Tap(tap) => tap.recv(buf).await.map_err(SimNetError::Tap)?,
         };
         log_received(buf.get(..n).unwrap_or_default(), from);
+        capture(from, false, buf.get(..n).unwrap_or_default());
         Ok((n, from))
     }
 
     async fn send(&self, to: Endpoint, frame: &[u8]) -> Result<(), Self::Error> {
         log_sent(frame, to);
+        capture(to, true, frame);
         match self {
             SimNet::Udp(udp) => udp.send(to, frame).await.map_err(SimNetError::Udp),
             SimNet::Tap(tap) => tap.send(to, frame).await.map_err(SimNetError::Tap),
+        }
+    }
+}
+
+/// The `--pcap` capture and the controller's own address in it.
+struct Capture {
+    log: armctl::pcap::PcapLog,
+    local: std::net::SocketAddrV4,
+}
+
+/// Set once, when the board is built with `--pcap`.
+static CAPTURE: std::sync::OnceLock<Capture> = std::sync::OnceLock::new();
+
+/// Opens the `--pcap` capture; `local` is the controller's address in it.
+fn open_capture(path: &std::path::Path, local: std::net::SocketAddrV4) -> io::Result<()> {
+    let log = armctl::pcap::PcapLog::create(path)
+        .map_err(|e| io::Error::new(e.kind(), format!("--pcap {}: {e}", path.display())))?;
+    CAPTURE
+        .set(Capture { log, local })
+        .map_err(|_| io::Error::other("--pcap: one capture per process"))?;
+    log::info!("pcap: writing {}", path.display());
+    Ok(())
+}
+
+/// Appends a datagram to the `--pcap` capture, if any: one sent to `peer` (`outgoing`) or
+/// received from it.
+fn capture(peer: Endpoint, outgoing: bool, bytes: &[u8]) {
+    if let Some(capture) = CAPTURE.get() {
+        let peer = SocketAddr::V4(show(peer));
+        let local = SocketAddr::V4(capture.local);
+        let (from, to) = if outgoing {
+            (local, peer)
+        } else {
+            (peer, local)
+        };
+        if let Err(e) = capture.log.record(from, to, bytes) {
+            log::warn!("pcap: {e}");
         }
     }
 }
@@ -377,7 +432,8 @@ async fn network_over_tap(
         .duration_since(std::time::UNIX_EPOCH)
         .map(|d| d.as_nanos() as u64)
         .unwrap_or(0x5EED);
-    match crate::tap::start(spawner, &iface, address, seed).await {
+    let mac = sim_mac(Some(&iface), protocol::PORT);
+    match crate::tap::start(spawner, &iface, address, mac, seed).await {
         Ok(tap) => {
             let socket: &'static SimSocket =
                 Box::leak(Box::new(Faulty::new(SimNet::Tap(tap), faults)));
@@ -436,6 +492,8 @@ fn wire(board: Board) -> io::Result<Wiring> {
     let controller = CONTROLLER
         .try_init(Controller::new(config))
         .ok_or_else(once)?;
+    let port = board.local_addr().map_or(protocol::PORT, |a| a.port());
+    controller.set_mac(sim_mac(board.options.tap.as_deref(), port));
     log::info!(
         "controller: {} trajectory points, step timer {} Hz (pulse {} ticks, DIR setup {} ticks), max {} steps/s per joint, time scale {}",
         config.capacity,
@@ -536,10 +594,33 @@ fn spawn_tasks(spawner: Spawner, wiring: Wiring) {
     log::info!("controller: tasks running");
 }
 
-/// The persisted address, for `--tap` without `--ip` (as the board boots).
+/// The persisted address, for `--tap` without `--ip` (as the board boots): the static
+/// address, or DHCP when NET_SET chose it.
 fn stored_address(board: &Board) -> TapAddress {
     let stored = board.settings.read().ok().flatten().unwrap_or_default();
-    TapAddress::Static(stored.ip.into(), stored.prefix_len)
+    if stored.dhcp {
+        TapAddress::Dhcp
+    } else {
+        TapAddress::Static(stored.ip.into(), stored.prefix_len)
+    }
+}
+
+/// The simulated controller's MAC address (DISCOVER_REPLY, and the TAP interface's):
+/// locally administered `02:53:49:4d` ("SIM") and two bytes from the TAP device's name or
+/// else the UDP port, so that simulators side by side differ.
+pub fn sim_mac(tap: Option<&str>, port: u16) -> [u8; 6] {
+    let tail = match tap {
+        // FNV-1a of the name, folded to 16 bits.
+        Some(iface) => {
+            let hash = iface.bytes().fold(0x811c_9dc5u32, |h, b| {
+                (h ^ u32::from(b)).wrapping_mul(0x0100_0193)
+            });
+            ((hash >> 16) ^ hash) as u16
+        }
+        None => port,
+    };
+    let [hi, lo] = tail.to_be_bytes();
+    [0x02, 0x53, 0x49, 0x4d, hi, lo]
 }
 
 /// Runs the controller on this thread until SIGINT/SIGTERM.

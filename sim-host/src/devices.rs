@@ -437,9 +437,10 @@ impl FileSettings {
 /// The file's text for `settings`.
 pub fn format_settings(settings: &PersistentSettings) -> String {
     let [a, b, c, d] = settings.ip;
+    let [e, f, g, h] = settings.gateway;
     format!(
-        "# arm controller simulator settings (sim-host)\njoints={}\nip={a}.{b}.{c}.{d}\nprefix_len={}\n",
-        settings.joints, settings.prefix_len
+        "# arm controller simulator settings (sim-host)\njoints={}\nip={a}.{b}.{c}.{d}\nprefix_len={}\ngateway={e}.{f}.{g}.{h}\ndhcp={}\n",
+        settings.joints, settings.prefix_len, settings.dhcp
     )
 }
 
@@ -476,6 +477,14 @@ pub fn parse_settings(text: &str) -> Result<PersistentSettings, String> {
                     return Err(format!("prefix_len out of range: {prefix}"));
                 }
                 settings.prefix_len = prefix;
+            }
+            "gateway" => {
+                let gateway: std::net::Ipv4Addr =
+                    value.parse().map_err(|_| format!("bad gateway: {value}"))?;
+                settings.gateway = gateway.octets();
+            }
+            "dhcp" => {
+                settings.dhcp = value.parse().map_err(|_| format!("bad dhcp: {value}"))?;
             }
             _ => {}
         }
@@ -529,8 +538,19 @@ mod tests {
             joints: 4,
             ip: [10, 1, 2, 3],
             prefix_len: 16,
+            gateway: [10, 1, 0, 1],
+            dhcp: true,
         };
         assert_eq!(parse_settings(&format_settings(&settings)), Ok(settings));
+        // A file from before NET_SET: a static address, no gateway.
+        assert_eq!(
+            parse_settings("joints=4\nip=10.1.2.3\nprefix_len=16\n"),
+            Ok(PersistentSettings {
+                gateway: [0; 4],
+                dhcp: false,
+                ..settings
+            })
+        );
         assert!(parse_settings("joints=9\n").is_err());
         assert!(parse_settings("ip=1.2.3\n").is_err());
         assert_eq!(

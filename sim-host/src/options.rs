@@ -63,6 +63,11 @@ pub struct SimOptions {
     #[arg(long, value_name = "FILE.vcd")]
     pub trace: Option<PathBuf>,
 
+    /// Write every datagram the controller receives and sends to this pcap file (open it
+    /// in Wireshark with tools/wireshark/arm_controller.lua).
+    #[arg(long, value_name = "FILE.pcap")]
+    pub pcap: Option<PathBuf>,
+
     /// The serial pass-through port.
     #[arg(long, value_enum, default_value_t = SerialKind::Loopback)]
     pub serial: SerialKind,

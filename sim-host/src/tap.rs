@@ -80,9 +80,13 @@ pub async fn start(
     spawner: Spawner,
     iface: &str,
     address: TapAddress,
+    mac: [u8; 6],
     seed: u64,
 ) -> Result<&'static TapDatagrams, String> {
-    let device = TunTapDevice::new(iface).map_err(|e| format!("cannot open TAP {iface}: {e}"))?;
+    let mut device =
+        TunTapDevice::new(iface).map_err(|e| format!("cannot open TAP {iface}: {e}"))?;
+    // Its own MAC: several simulators on one bridge must not share one.
+    device.set_hardware_address(mac);
     let config = match address {
         TapAddress::Static(ip, prefix) => Config::ipv4_static(StaticConfigV4 {
             address: Ipv4Cidr::new(ip, prefix),

@@ -6,7 +6,9 @@
 #  1. the owner lock: the first host owns the controller; the second is refused
 #     (NOT_OWNER) a configuration command;
 #  2. an e-stop from the second host: a run of the owner's, stopped by the other host,
-#     ends by STOPPED and the controller reports STOPPED.
+#     ends by STOPPED and the controller reports STOPPED;
+#  3. `armctl discover` (limited broadcast, inside the namespace) from the second host:
+#     the board's DISCOVER_REPLY carries its LAN9118 MAC and names the owner.
 # Bounded in time; skips (exit 0, saying why) where root, namespaces, TAP or QEMU are
 # missing. Run by .ci/run.
 set -euo pipefail
@@ -44,6 +46,11 @@ ip netns exec "$ns" ip addr add 10.0.2.2/24 dev tap0
 ip netns exec "$ns" ip addr add 10.0.2.3/24 dev tap0
 ip netns exec "$ns" ip link set tap0 up
 ip netns exec "$ns" ip link set lo up
+# Broadcast DISCOVER (step 3) stays inside this namespace: the limited broadcast needs a
+# route, the TAP link; multicast only on lo.
+ip netns exec "$ns" ip link set lo multicast on
+ip netns exec "$ns" ip route add 224.0.0.0/4 dev lo
+ip netns exec "$ns" ip route add default dev tap0
 
 ip netns exec "$ns" timeout 120 qemu-system-arm -M mps2-an500 -display none -monitor none \
   -semihosting-config enable=on,target=native -kernel "$elf" \
@@ -90,5 +97,16 @@ grep -qi "stop" "$work/run.out" || fail "the run did not end by STOPPED: $(cat "
 first=$(owner status | grep -i "state")
 echo "$first" | grep -q STOPPED || fail "not STOPPED after the e-stop: $first"
 echo "qemu/tap.sh: e-stop from the second host ended the owner's run"
+
+# 3. DISCOVER by limited broadcast from the second host: the board answers with the MAC
+# its LAN9118 uses (as its log prints it) and names the owner, and takes no owner.
+found=$(ip netns exec "$ns" timeout 20 "$armctl" --bind 10.0.2.3:0 discover)
+line=$(grep "^10\.0\.2\.15:8510 " <<<"$found" || true)
+[ -n "$line" ] || fail "no DISCOVER_REPLY from 10.0.2.15 to a broadcast: $found"
+mac=$(grep -o "mac [0-9a-f:]*" <<<"$line" | cut -d' ' -f2)
+grep -qi "MAC $mac" "$work/uart0.log" || fail "DISCOVER_REPLY's MAC $mac is not the LAN9118's: $line"
+grep -q "owned by 10.0.2.2" <<<"$line" || fail "DISCOVER_REPLY does not name the owner: $line"
+owner status >/dev/null || fail "the owner lost the controller to a DISCOVER"
+echo "qemu/tap.sh: broadcast DISCOVER answered: $line"
 grep -qE "PANIC|HARDFAULT|FATAL" "$work/uart0.log" && fail "the firmware faulted"
 echo "qemu/tap.sh: ok"

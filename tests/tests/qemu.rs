@@ -89,6 +89,42 @@ fn status_over_emulated_ethernet() {
     board.assert_healthy();
 }
 
+/// DISCOVER_REPLY carries the LAN9118's MAC (the board hands it to the controller at boot,
+/// through arm-wiring's `spawn_controller`) and the stored address, which is the one in use.
+#[test]
+fn discover_reports_the_boards_mac_and_address() {
+    require_qemu!();
+    let mut board = QemuBoard::start();
+    let SocketAddr::V4(target) = board.addr else {
+        panic!("the board's forwarded port is IPv4: {}", board.addr);
+    };
+    let found = armctl::discover::discover(&armctl::discover::DiscoverOptions {
+        target,
+        bind: Some(std::net::SocketAddrV4::new(
+            std::net::Ipv4Addr::LOCALHOST,
+            0,
+        )),
+        wait: Duration::from_millis(500),
+        rounds: 4,
+    })
+    .unwrap();
+    let reply = found
+        .first()
+        .and_then(|f| f.reply)
+        .unwrap_or_else(|| panic!("no DISCOVER_REPLY: {found:?}\n{}", board.log()));
+    assert_ne!(reply.mac, [0; 6], "the controller was never given the MAC");
+    let mac = armctl::discover::mac_string(&reply.mac);
+    assert!(
+        board.log().contains(&format!("MAC {mac}")),
+        "DISCOVER_REPLY says {mac}:\n{}",
+        board.log()
+    );
+    assert_eq!(reply.net.ip, [10, 0, 2, 15], "{reply:?}");
+    assert!(!reply.net.dhcp && !reply.pending_reset, "{reply:?}");
+    assert_eq!((reply.joints, reply.state), (6, State::Stopped));
+    board.assert_healthy();
+}
+
 #[test]
 fn run_reaches_the_last_point_and_executes_every_point() {
     require_qemu!();

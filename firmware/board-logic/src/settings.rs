@@ -24,6 +24,11 @@ pub const SETTINGS_KEY: u8 = 1;
 pub const RECORD_VERSION: u8 = 1;
 /// Bytes of the record: version, joints, ip[4], prefix_len, reserved.
 pub const RECORD_LEN: usize = 8;
+/// Map key of the network record NET_SET added (gateway, DHCP), beside the first record
+/// so that a record written before it still loads (with no gateway, static address).
+pub const NET_KEY: u8 = 2;
+/// Bytes of the network record: gateway[4], flags (bit 0: DHCP), reserved.
+pub const NET_RECORD_LEN: usize = 6;
 
 /// The stored record for `settings`.
 pub const fn encode(settings: &PersistentSettings) -> [u8; RECORD_LEN] {
@@ -50,7 +55,27 @@ pub fn decode(record: &[u8; RECORD_LEN]) -> Option<PersistentSettings> {
         joints,
         ip: [a, b, c, d],
         prefix_len,
+        ..PersistentSettings::DEFAULT
     })
+}
+
+/// The stored network record (NET_SET) for `settings`.
+pub const fn encode_net(settings: &PersistentSettings) -> [u8; NET_RECORD_LEN] {
+    let [a, b, c, d] = settings.gateway;
+    [a, b, c, d, settings.dhcp as u8, 0]
+}
+
+/// `settings` with the gateway and DHCP choice of a stored network record.
+pub fn decode_net(
+    settings: PersistentSettings,
+    record: &[u8; NET_RECORD_LEN],
+) -> PersistentSettings {
+    let [a, b, c, d, flags, _] = *record;
+    PersistentSettings {
+        gateway: [a, b, c, d],
+        dhcp: flags & 1 != 0,
+        ..settings
+    }
 }
 
 /// The RAM marker that tells a boot the previous boot's settings read faulted.
@@ -134,14 +159,39 @@ impl<F: NorFlash> SettingsArea<F> {
             .await
         {
             Ok(Some(record)) => match decode(&record) {
-                Some(s) => LoadOutcome::Stored(s),
+                Some(s) => match self.load_net(s).await {
+                    Ok(s) => LoadOutcome::Stored(s),
+                    Err(_) => self.erase_after_corruption().await,
+                },
                 None => LoadOutcome::Empty,
             },
             Ok(None) => LoadOutcome::Empty,
-            Err(_) => match self.erase().await {
-                Ok(()) => LoadOutcome::Erased,
-                Err(_) => LoadOutcome::Unreadable,
+            Err(_) => self.erase_after_corruption().await,
+        }
+    }
+
+    /// `settings` with the network record applied, if there is one (a record from before
+    /// NET_SET has none: no gateway, static address).
+    async fn load_net(
+        &mut self,
+        settings: PersistentSettings,
+    ) -> Result<PersistentSettings, StoreError<F::Error>> {
+        Ok(
+            match self
+                .map
+                .fetch_item::<[u8; NET_RECORD_LEN]>(&mut self.buffer.0, &NET_KEY)
+                .await?
+            {
+                Some(net) => decode_net(settings, &net),
+                None => settings,
             },
+        )
+    }
+
+    async fn erase_after_corruption(&mut self) -> LoadOutcome {
+        match self.erase().await {
+            Ok(()) => LoadOutcome::Erased,
+            Err(_) => LoadOutcome::Unreadable,
         }
     }
 
@@ -167,6 +217,9 @@ impl<F: NorFlash> SettingsArea<F> {
     ) -> Result<(), StoreError<F::Error>> {
         self.map
             .store_item(&mut self.buffer.0, &SETTINGS_KEY, &encode(settings))
+            .await?;
+        self.map
+            .store_item(&mut self.buffer.0, &NET_KEY, &encode_net(settings))
             .await
     }
 
@@ -191,13 +244,18 @@ mod tests {
             joints: 3,
             ip: [10, 0, 0, 7],
             prefix_len: 16,
+            gateway: [10, 0, 0, 1],
+            dhcp: false,
         }
     }
 
     #[test]
     fn record_round_trips_and_refuses_foreign_layouts() {
         let s = custom();
-        assert_eq!(decode(&encode(&s)), Some(s));
+        // The first record has no gateway; the network record adds it back.
+        let base = decode(&encode(&s)).unwrap();
+        assert_eq!(base.gateway, [0; 4]);
+        assert_eq!(decode_net(base, &encode_net(&s)), s);
         let mut other_version = encode(&s);
         other_version[0] = 2;
         assert_eq!(decode(&other_version), None);
@@ -210,6 +268,41 @@ mod tests {
         bad_prefix[6] = 33;
         assert_eq!(decode(&bad_prefix), None);
         assert_eq!(encode(&s), [1, 3, 10, 0, 0, 7, 16, 0]);
+    }
+
+    #[test]
+    fn a_record_from_before_net_set_still_loads_without_gateway_or_dhcp() {
+        let mut area = SettingsArea::new(Flash::default(), RANGE);
+        // What the firmware before NET_SET stored: the first record only.
+        let old = custom();
+        block_on(
+            area.map
+                .store_item(&mut area.buffer.0, &SETTINGS_KEY, &encode(&old)),
+        )
+        .unwrap();
+        assert_eq!(
+            block_on(area.load()),
+            LoadOutcome::Stored(PersistentSettings {
+                gateway: [0; 4],
+                dhcp: false,
+                ..old
+            })
+        );
+    }
+
+    #[test]
+    fn gateway_and_dhcp_are_saved_and_read_back() {
+        let dhcp = PersistentSettings {
+            dhcp: true,
+            ..custom()
+        };
+        assert_eq!(encode_net(&dhcp), [10, 0, 0, 1, 1, 0]);
+        assert!(decode_net(PersistentSettings::DEFAULT, &encode_net(&dhcp)).dhcp);
+        let mut area = SettingsArea::new(Flash::default(), RANGE);
+        block_on(area.save(&dhcp)).unwrap();
+        assert_eq!(block_on(area.load()), LoadOutcome::Stored(dhcp));
+        block_on(area.save(&custom())).unwrap();
+        assert_eq!(block_on(area.load()), LoadOutcome::Stored(custom()));
     }
 
     #[test]

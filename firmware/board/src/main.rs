@@ -348,6 +348,7 @@ async fn main(spawner: Spawner) -> ! {
     defmt::unwrap!(spawn_controller(
         &spawner,
         controller_config,
+        net::mac_address(),
         TrajectoryHw {
             kick,
             outputs,
@@ -398,7 +399,7 @@ async fn main(spawner: Spawner) -> ! {
     let stack = defmt::unwrap!(spawn_network(
         &spawner,
         device,
-        arm_wiring::net::ip_config(persistent.ip, persistent.prefix_len),
+        arm_wiring::net::ip_config(&persistent),
         seed,
     ));
     // Logs the address, then every link change with the state it happened in.

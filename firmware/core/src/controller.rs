@@ -71,6 +71,7 @@ use protocol::{
     StatusCode, StatusFlags, StatusReport, Tag, UartInit, UartMode, limits,
 };
 use protocol::{DecodeError, DecodeErrorKind};
+use protocol::{DiscoverReply, NetSettings, OwnerState};
 
 use core::mem::MaybeUninit;
 
@@ -161,6 +162,20 @@ pub struct Response {
     /// The command was executed: ACKed `OK` and not a duplicate. Only an executed STOPPED
     /// stops anything (the e-stop path in [`crate::tasks`] relies on it).
     pub executed: bool,
+    /// The answer to a DISCOVER, for its sender (instead of an ACK).
+    pub discovery: Option<Discovery>,
+}
+
+/// A DISCOVER_REPLY for the host that asked (PROTOCOL.md section 12).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Discovery {
+    /// The DISCOVER's sender.
+    pub to: Endpoint,
+    /// The DISCOVER's seq.
+    pub seq: u8,
+    /// Content.
+    pub reply: DiscoverReply,
 }
 
 /// The host that owns the controller.
@@ -287,6 +302,10 @@ pub struct Controller<const CAP: usize> {
     serial: Option<UartMode>,
     underrun: bool,
     stopped_by_host: bool,
+    /// Ethernet MAC, for DISCOVER_REPLY.
+    mac: [u8; 6],
+    /// The network settings loaded at boot (the ones in use); NET_SET stores others.
+    booted_net: NetSettings,
 }
 
 /// The boot value of every [`Controller`] field but the trajectory buffer, written once for
@@ -297,11 +316,7 @@ macro_rules! with_boot_fields {
     ($config:expr, $emit:ident!($($head:tt)*)) => {
         $emit!($($head)* ;
         config: $config,
-        settings: PersistentSettings {
-            joints: limits::DEFAULT_JOINTS,
-            ip: [192, 168, 1, 30],
-            prefix_len: 24,
-        },
+        settings: PersistentSettings::DEFAULT,
         state: State::Stopped,
         expected: 0,
         received: 0,
@@ -326,6 +341,8 @@ macro_rules! with_boot_fields {
         serial: None,
         underrun: false,
         stopped_by_host: false,
+        mac: [0; 6],
+        booted_net: NetSettings::fixed([192, 168, 1, 30], 24, None),
         )
     };
 }
@@ -369,9 +386,39 @@ impl<const CAP: usize> Controller<CAP> {
         }
     }
 
+    /// Sets the MAC address DISCOVER_REPLY reports (at boot).
+    pub fn set_mac(&mut self, mac: [u8; 6]) {
+        self.mac = mac;
+    }
+
+    /// The DISCOVER_REPLY for a host at `asker`: changes nothing.
+    fn discovery(&self, asker: [u8; 4], now_us: u64) -> DiscoverReply {
+        // An owner silent for 5 s with the arm not running has lost the arm already.
+        let owner = self.owner.filter(|o| {
+            self.state == State::Running
+                || now_us.saturating_sub(o.last_heard_us) < OWNER_TIMEOUT_US
+        });
+        let net = self.settings.net();
+        DiscoverReply {
+            mac: self.mac,
+            net,
+            version: protocol::VERSION,
+            joints: self.settings.joints,
+            state: self.state,
+            owner: match owner {
+                None => OwnerState::Free,
+                Some(o) if o.ip == asker => OwnerState::Asker,
+                Some(_) => OwnerState::Other,
+            },
+            owner_ip: owner.map_or([0; 4], |o| o.ip),
+            pending_reset: net != self.booted_net,
+        }
+    }
+
     /// Applies stored settings (at boot); an out-of-range joint count keeps the default.
     pub fn apply_settings(&mut self, settings: PersistentSettings) {
         self.settings = settings;
+        self.booted_net = settings.net();
         if !limits::JOINTS.contains(&settings.joints) {
             self.settings.joints = limits::DEFAULT_JOINTS;
         }
@@ -563,6 +610,17 @@ impl<const CAP: usize> Controller<CAP> {
         }) = decoded
         {
             response.reply = reply(self, StatusCode::BadCrc);
+            return response;
+        }
+        // DISCOVER (PROTOCOL.md 12): answered to any host, before the owner rule, with a
+        // DISCOVER_REPLY instead of an ACK; it changes nothing (no owner, no duplicate
+        // memory, no ordering mark, no LOCATION listener).
+        if tag == Tag::Discover as u8 && datagram.len() == protocol::FRAME_OVERHEAD {
+            response.discovery = Some(Discovery {
+                to: from,
+                seq,
+                reply: self.discovery(from.ip, now_us),
+            });
             return response;
         }
         // 3. owner
@@ -871,6 +929,16 @@ impl<const CAP: usize> Controller<CAP> {
             }
             Command::Status => response.status = Some((from, self.status(plant))),
             Command::UploadPeriod { period_us } => self.upload_period_us = period_us,
+            // Answered in `handle` before the owner rule; never reaches here.
+            Command::Discover => {}
+            // Stored now, applied after the next reset (PROTOCOL.md 12).
+            Command::NetSet(net) => {
+                if self.state == State::Running {
+                    return Err(StatusCode::BadState);
+                }
+                self.settings.set_net(net);
+                response.deferred = Some(Deferred::SaveSettings(self.settings));
+            }
         }
         Ok(())
     }

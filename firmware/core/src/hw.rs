@@ -4,7 +4,7 @@
 
 use core::future::Future;
 
-use protocol::{Pwm, UartInit};
+use protocol::{NetSettings, Pwm, UartInit};
 
 pub use arm_step::{JointMask, StepPins};
 
@@ -119,15 +119,46 @@ pub struct PersistentSettings {
     pub ip: [u8; 4],
     /// Prefix length of its subnet.
     pub prefix_len: u8,
+    /// Default gateway, 0.0.0.0 for none (NET_SET).
+    pub gateway: [u8; 4],
+    /// Take the address from DHCP instead of `ip`/`prefix_len` (NET_SET).
+    pub dhcp: bool,
+}
+
+impl PersistentSettings {
+    /// The defaults, as a constant.
+    pub const DEFAULT: PersistentSettings = PersistentSettings {
+        joints: protocol::limits::DEFAULT_JOINTS,
+        ip: [192, 168, 1, 30],
+        prefix_len: 24,
+        gateway: [0; 4],
+        dhcp: false,
+    };
+
+    /// The network part, as NET_SET and DISCOVER_REPLY carry it.
+    pub fn net(&self) -> NetSettings {
+        if self.dhcp {
+            NetSettings::DHCP
+        } else {
+            NetSettings::fixed(self.ip, self.prefix_len, Some(self.gateway))
+        }
+    }
+
+    /// Replaces the network part (the static address is kept when DHCP is chosen, so that
+    /// the board can fall back to it).
+    pub fn set_net(&mut self, net: NetSettings) {
+        self.dhcp = net.dhcp;
+        if !net.dhcp {
+            self.ip = net.ip;
+            self.prefix_len = net.prefix_len;
+            self.gateway = net.gateway;
+        }
+    }
 }
 
 impl Default for PersistentSettings {
     fn default() -> Self {
-        PersistentSettings {
-            joints: protocol::limits::DEFAULT_JOINTS,
-            ip: [192, 168, 1, 30],
-            prefix_len: 24,
-        }
+        Self::DEFAULT
     }
 }
 

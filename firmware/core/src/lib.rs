@@ -73,7 +73,8 @@ pub mod tasks;
 pub use buffer::{StoredPoint, TrajectoryBuffer};
 pub use config::ControllerConfig;
 pub use controller::{
-    Controller, Deferred, LOCATION_LISTENERS, Owner, Plant, Reply, ReportSettings, Response,
+    Controller, Deferred, Discovery, LOCATION_LISTENERS, Owner, Plant, Reply, ReportSettings,
+    Response,
 };
 pub use log_limit::{LogLimit, LogVerdict};
 pub use outgoing::{Outgoing, ReportEncoder};

@@ -3,7 +3,7 @@
 use heapless::Vec;
 use protocol::{Location, MAX_SERIAL_CHUNK, Report, StatusReport, size};
 
-use crate::controller::{LOCATION_LISTENERS, Reply, ReportSettings};
+use crate::controller::{Discovery, LOCATION_LISTENERS, Reply, ReportSettings};
 use crate::hw::Endpoint;
 
 /// Where one encoded frame goes.
@@ -27,6 +27,8 @@ pub enum Outgoing {
     Status(Endpoint, StatusReport),
     /// Bytes read from the serial port, to [`ReportSettings::serial_to`].
     UsartRecv(Vec<u8, MAX_SERIAL_CHUNK>),
+    /// A DISCOVER_REPLY, to the DISCOVER's sender, with its seq.
+    Discovery(Discovery),
 }
 
 /// Encodes [`Outgoing`] frames. Reports (everything but ACKs) carry the controller's own
@@ -64,6 +66,10 @@ impl ReportEncoder {
             let _ = d.push(to);
             d
         };
+        if let Outgoing::Discovery(d) = out {
+            // Like an ACK: the asker's seq, not the report counter.
+            return Some((one(d.to), d.reply.encode(d.seq, buf).ok()?));
+        }
         let (to, seq, report) = match out {
             Outgoing::Ack(reply) => (one(reply.to), reply.seq, Report::Ack(reply.ack)),
             Outgoing::Status(to, s) => (one(*to), self.next_seq, Report::Status(*s)),
@@ -79,6 +85,7 @@ impl ReportEncoder {
                 self.next_seq,
                 Report::UsartRecv(bytes),
             ),
+            Outgoing::Discovery(_) => return None,
         };
         let n = report.encode(seq, buf).ok()?;
         if !matches!(out, Outgoing::Ack(_)) {

@@ -933,6 +933,9 @@ fn deliver(bus: &Bus, response: &Response) {
     if let Some(location) = response.location {
         bus.send(Outgoing::Location(location));
     }
+    if let Some(discovery) = response.discovery {
+        bus.send(Outgoing::Discovery(discovery));
+    }
 }
 
 /// Copies the report settings out for the other tasks; wakes the upload task when its

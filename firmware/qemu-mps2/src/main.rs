@@ -198,6 +198,7 @@ fn main() -> ! {
     let spawned = spawn_controller(
         &spawner,
         controller_config,
+        ethernet.mac_address(),
         TrajectoryHw {
             kick,
             outputs: LoggedOutputs::default(),
@@ -212,7 +213,7 @@ fn main() -> ! {
         spawn_network(
             &spawner,
             ethernet,
-            arm_wiring::net::ip_config(persistent.ip, persistent.prefix_len),
+            arm_wiring::net::ip_config(&persistent),
             seed,
         )
     })

@@ -58,8 +58,8 @@ pub mod __private {
 /// - `BoardController` and `BoardTrajectoryHw`, the concrete controller and hardware types;
 /// - the tasks `net_task` (the stack's runner), `network`, `trajectory`, `stepper`,
 ///   `upload` and `serial`, each a thin wrapper of arm-core's generic task;
-/// - `spawn_controller(spawner, controller_config, hw)`, which puts the controller in a
-///   static and spawns every task but the network's (trajectory, stepper, upload, serial):
+/// - `spawn_controller(spawner, controller_config, mac, hw)`, which puts the controller in
+///   a static (with the Ethernet MAC address DISCOVER_REPLY reports) and spawns every task but the network's (trajectory, stepper, upload, serial):
 ///   the arm runs, and stops on its underrun rule, with or without a network;
 /// - `spawn_network(spawner, device, net_config, seed)`, which creates the stack and the
 ///   bound socket ([`net`]) and spawns the stack's runner and the network task; it returns
@@ -148,11 +148,13 @@ macro_rules! controller_tasks {
             $crate::__private::arm_core::serial_task(port, &$bus, &CLOCK).await
         }
 
-        /// Puts the controller in its static and spawns the trajectory, stepper, upload and
-        /// serial tasks (the network's come from `spawn_network`).
+        /// Puts the controller in its static, with the board's Ethernet `mac` (which
+        /// DISCOVER_REPLY reports), and spawns the trajectory, stepper, upload and serial
+        /// tasks (the network's come from `spawn_network`).
         pub fn spawn_controller(
             spawner: &embassy_executor::Spawner,
             controller_config: $crate::__private::arm_core::ControllerConfig,
+            mac: [u8; 6],
             hw: BoardTrajectoryHw,
         ) -> Result<(), embassy_executor::SpawnError> {
             // Built in place: 300 KB never pass through the stack.
@@ -160,6 +162,7 @@ macro_rules! controller_tasks {
                 CONTROLLER.uninit(),
                 controller_config,
             );
+            controller.set_mac(mac);
             let (kick, port) = (hw.kick, hw.serial);
             spawner.spawn(trajectory(controller, hw)?);
             spawner.spawn(stepper(kick)?);

@@ -3,6 +3,7 @@
 //! link watch. The Ethernet driver is the board's.
 
 use arm_core::Bus;
+use arm_core::hw::PersistentSettings;
 use embassy_net::udp::{PacketMetadata, UdpSocket};
 #[cfg(not(feature = "dhcp"))]
 use embassy_net::{Ipv4Address, Ipv4Cidr, StaticConfigV4};
@@ -37,22 +38,30 @@ static UDP_RX: ConstStaticCell<[u8; UDP_RX_BYTES]> = ConstStaticCell::new([0; UD
 static UDP_TX_META: StaticCell<[PacketMetadata; UDP_TX_PACKETS]> = StaticCell::new();
 static UDP_TX: ConstStaticCell<[u8; UDP_TX_BYTES]> = ConstStaticCell::new([0; UDP_TX_BYTES]);
 
-/// The stack's address configuration: the static address `ip`/`prefix_len`, no gateway
-/// (replies go to hosts on the same subnet, as the protocol expects).
+/// The stack's address configuration from the stored settings (PROTOCOL.md section 12):
+/// the static address `ip`/`prefix_len`, and the stored gateway (none when 0.0.0.0; with
+/// one, the board also answers hosts beyond its subnet). A stored DHCP choice (NET_SET
+/// `--dhcp`) needs the `dhcp` build: this one logs that and keeps the static address, which
+/// NET_SET stores alongside for that fallback.
 #[cfg(not(feature = "dhcp"))]
-pub fn ip_config(ip: [u8; 4], prefix_len: u8) -> embassy_net::Config {
-    let [a, b, c, d] = ip;
+pub fn ip_config(settings: &PersistentSettings) -> embassy_net::Config {
+    if settings.dhcp {
+        warn!("settings: DHCP stored, but this firmware is built without DHCP: static address");
+    }
+    let [a, b, c, d] = settings.ip;
+    let [g0, g1, g2, g3] = settings.gateway;
+    let gateway = (settings.gateway != [0; 4]).then(|| Ipv4Address::new(g0, g1, g2, g3));
     embassy_net::Config::ipv4_static(StaticConfigV4 {
-        address: Ipv4Cidr::new(Ipv4Address::new(a, b, c, d), prefix_len),
+        address: Ipv4Cidr::new(Ipv4Address::new(a, b, c, d), settings.prefix_len),
         dns_servers: heapless::Vec::new(),
-        gateway: None,
+        gateway,
     })
 }
 
-/// The stack's address configuration: an address from a DHCP server (the persisted static
-/// address is not used in this build).
+/// The stack's address configuration: an address (and gateway) from a DHCP server, whatever
+/// the stored settings say (the `dhcp` build is DHCP-only).
 #[cfg(feature = "dhcp")]
-pub fn ip_config(_ip: [u8; 4], _prefix_len: u8) -> embassy_net::Config {
+pub fn ip_config(_settings: &PersistentSettings) -> embassy_net::Config {
     embassy_net::Config::dhcpv4(Default::default())
 }
 

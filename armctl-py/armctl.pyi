@@ -1,0 +1,206 @@
+"""Drive the arm controller (the board or sim-host) from Python.
+
+    with armctl.connect("127.0.0.1:8510") as arm:
+        arm.run(times, positions)
+
+Every call forwards to the armctl Rust library (the same client as the `armctl` tool).
+Waits release the GIL; Ctrl-C during a run sends STOPPED before KeyboardInterrupt
+propagates.
+"""
+
+from os import PathLike
+from typing import Any, Dict, Iterator, List, Optional, Tuple, TypedDict, Union
+
+import numpy as np
+import numpy.typing as npt
+
+PORT: int
+"""The controller's UDP port, 8510."""
+
+_Path = Union[str, PathLike]
+
+class Flags(TypedDict):
+    reports_on: bool
+    drivers_enabled: bool
+    serial_open: bool
+    pin0_high: bool
+    pin1_high: bool
+    underrun: bool
+    """The last run ended because the buffer ran dry."""
+    pwm_active: bool
+    stopped_by_host: bool
+    """The last run ended by STOPPED."""
+
+class Status(TypedDict):
+    version: Tuple[int, int, int]
+    joints: int
+    state: str
+    """'NEW', 'PENDING', 'RUNNING' or 'STOPPED'."""
+    flags: Flags
+    buffered: int
+    expected: int
+    received: int
+    executed: int
+    capacity: int
+    upload_period_us: int
+    pwm_timer_clock_hz: int
+    max_step_rate_hz: int
+
+class Location(TypedDict):
+    positions: npt.NDArray[np.int32]
+    """One position per joint in use, in steps."""
+    state: str
+
+class Progress(TypedDict):
+    total: int
+    sent: int
+    acked: int
+    executed: int
+    state: str
+    done: bool
+
+class RunReport(TypedDict):
+    points: int
+    frames: int
+    datagrams_sent: int
+    retransmissions: int
+    upload_time: float
+    total_time: float
+    final_status: Optional[Status]
+    final_positions: Optional[npt.NDArray[np.int32]]
+
+class ArmctlError(Exception):
+    """Base class of every error of this module."""
+
+class RefusedError(ArmctlError):
+    """The controller refused a command; it did nothing."""
+
+    status: str
+    """The status name, e.g. 'BAD_STATE', 'NOT_OWNER', 'INVALID_CONFIG'."""
+    command: str
+    """The command refused, e.g. 'NEW'."""
+    state: str
+    """The controller's state when it refused."""
+
+class NoReplyError(ArmctlError):
+    """No ACK (or report) after every retry, or nothing listening (a refused loopback port): wrong address, controller off."""
+
+class RunEndedError(ArmctlError):
+    """A run ended before every point ran."""
+
+    reason: str
+    """'stopped', 'underrun', 'starved' or 'unknown'."""
+    executed: Optional[int]
+    received: Optional[int]
+    """Points the controller had received: more than `executed` means points were still buffered."""
+    total: int
+
+class StalledError(ArmctlError):
+    """An upload or run made no progress for too long."""
+
+class TrajectoryError(ArmctlError):
+    """A trajectory the controller cannot take (shape, limits, step rate, file)."""
+
+class RunHandle:
+    """A run started with wait=False."""
+
+    @property
+    def progress(self) -> Progress: ...
+    @property
+    def done(self) -> bool: ...
+    def wait(self, timeout: Optional[float] = None) -> RunReport:
+        """Waits for the end (TimeoutError after `timeout` s; the run goes on). Raises
+        what ended the run early. Ctrl-C while waiting stops the arm."""
+    def cancel(self) -> None:
+        """Sends STOPPED and waits for the run to end."""
+
+class Locations(Iterator[Location]):
+    def __iter__(self) -> "Locations": ...
+    def __next__(self) -> Location: ...
+
+class Arm:
+    """A connection to one controller; a context manager that closes it (and stops a
+    run under way when the block ends by an exception)."""
+
+    @property
+    def address(self) -> str: ...
+    def __enter__(self) -> "Arm": ...
+    def __exit__(self, exc_type: Any = None, exc_value: Any = None, traceback: Any = None) -> bool: ...
+    def close(self) -> None: ...
+    def status(self) -> Status: ...
+    def positions(self) -> npt.NDArray[np.int32]:
+        """Joint positions in steps, one per joint in use."""
+    def run(
+        self,
+        times: npt.ArrayLike,
+        positions: npt.ArrayLike,
+        config: Optional[_Path] = None,
+        wait: bool = True,
+        segment_ms: float = 10.0,
+        window: int = 8,
+    ) -> Union[RunReport, RunHandle]:
+        """Runs through waypoints: `times` (N,) seconds, strictly increasing; `positions`
+        (N, J) steps, or radians with a joint `config` file. Returns the report (wait) or
+        a RunHandle (wait=False)."""
+    def run_file(
+        self,
+        path: _Path,
+        config: Optional[_Path] = None,
+        wait: bool = True,
+        segment_ms: float = 10.0,
+        window: int = 8,
+    ) -> Union[RunReport, RunHandle]:
+        """Runs a JointTrajectory JSON (radians, with `config`) or CSV (steps) file."""
+    def stop(self) -> None:
+        """STOPPED: every joint stops at once, the trajectory is dropped."""
+    def go_home(self, wait: bool = True, timeout: float = 600.0) -> None:
+        """RETURN: every joint to zero."""
+    def set_location(self, positions: Any) -> None: ...
+    def set_joints(self, joints: int) -> None: ...
+    def pin(self, pin: int, high: bool) -> None: ...
+    def pwm_servo(self, duty: float, freq: float = 50.0) -> None: ...
+    def pwm_stepper(self, pulses: int, freq: float = 1000.0) -> None: ...
+    def pwm_stop(self) -> None: ...
+    def net_set(self, ip: Optional[str] = None, gateway: Optional[str] = None, dhcp: bool = False) -> None:
+        """NET_SET: store 'A.B.C.D/P' (with an optional gateway) or DHCP; used from the
+        controller's next reset. Owner only, not while running (RefusedError)."""
+    def locations(self, count: Optional[int] = None, timeout: float = 1.0) -> Locations:
+        """LOCATION reports as they arrive; ends after `count` or `timeout` s of silence."""
+
+class Found(TypedDict, total=False):
+    address: str
+    """Where the answer came from: the address in use, 'A.B.C.D:8510'."""
+    mac: str
+    version: Tuple[int, int, int]
+    joints: int
+    state: str
+    owner: str
+    """'free', 'owned' or 'owned by you'."""
+    owner_ip: str
+    dhcp: bool
+    stored_ip: str
+    prefix_len: int
+    gateway: str
+    pending_reset: bool
+    """The stored settings take effect at the next reset."""
+
+def discover(
+    to: str = "255.255.255.255:8510",
+    *,
+    wait: float = 0.3,
+    rounds: int = 2,
+    bind: Optional[str] = None,
+) -> List[Found]:
+    """DISCOVER to a broadcast address or one controller; one dict per controller that
+    answered (a controller without DISCOVER gives only 'address'). Changes nothing."""
+
+def connect(
+    address: str = "127.0.0.1:8510",
+    *,
+    ack_timeout: float = 0.1,
+    attempts: int = 10,
+    bind: Optional[str] = None,
+    pcap: Optional[_Path] = None,
+) -> Arm:
+    """Connects and checks the controller answers STATUS (NoReplyError otherwise).
+    `pcap`: write every datagram to this capture file (for Wireshark)."""

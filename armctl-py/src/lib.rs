@@ -1,0 +1,908 @@
+//! The Python module `armctl`: the armctl host library for Python scripts.
+//!
+//! Everything here forwards to the `armctl` crate (the same client, upload and trajectory
+//! conversion as the `armctl` tool); this file only converts between Python and Rust
+//! values and decides how blocking calls behave in Python:
+//!
+//! - every wait (an ACK, a run, a LOCATION report) releases the GIL, so other Python
+//!   threads run meanwhile;
+//! - a wait for a run wakes every [`SIGNAL_POLL`] to let Python handle signals: Ctrl-C
+//!   (KeyboardInterrupt) during a run sends STOPPED before it propagates;
+//! - leaving a `with armctl.connect(...)` block by an exception while a run is under way
+//!   sends STOPPED.
+//!
+//! The `.pyi` stub beside Cargo.toml (`armctl.pyi`) documents the API for Python users.
+
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc::{Receiver, RecvTimeoutError};
+use std::sync::{Arc, Condvar, Mutex, MutexGuard, PoisonError};
+use std::time::{Duration, Instant};
+
+use armctl::trajectory::{self, ArmConfig, Waypoints};
+use armctl::{Controller, Error, Options, Progress, RunEnd, RunOptions, RunReport};
+use numpy::{PyArray1, PyReadonlyArray1, PyReadonlyArray2};
+use protocol::{Location, MAX_JOINTS, NetSettings, State, StatusFlags, StatusReport};
+use pyo3::create_exception;
+use pyo3::exceptions::{PyException, PyValueError};
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+
+/// How often a blocking wait wakes up to let Python run its signal handlers (Ctrl-C).
+const SIGNAL_POLL: Duration = Duration::from_millis(50);
+
+/// How long `positions()` and a run wait for a fresh LOCATION report.
+const LOCATION_TIMEOUT: Duration = Duration::from_secs(2);
+
+create_exception!(
+    armctl,
+    ArmctlError,
+    PyException,
+    "Base class of every error of the armctl module."
+);
+create_exception!(
+    armctl,
+    RefusedError,
+    ArmctlError,
+    "The controller refused a command: `.status` is the status name (e.g. 'BAD_STATE'), `.command` the command, `.state` the controller's state."
+);
+create_exception!(
+    armctl,
+    NoReplyError,
+    ArmctlError,
+    "The controller did not answer: no ACK or report after every retry."
+);
+create_exception!(
+    armctl,
+    RunEndedError,
+    ArmctlError,
+    "A run ended before every point ran: `.reason` is 'stopped', 'underrun', 'starved' or 'unknown'; `.executed` and `.total` count points."
+);
+create_exception!(
+    armctl,
+    StalledError,
+    ArmctlError,
+    "An upload or a run made no progress for too long."
+);
+create_exception!(
+    armctl,
+    TrajectoryError,
+    ArmctlError,
+    "A trajectory the controller cannot take: bad shape, a joint limit, a step rate, a file that does not parse."
+);
+
+fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(PoisonError::into_inner)
+}
+
+/// The Python exception for an armctl error, with its fields as attributes.
+fn to_py_err(py: Python<'_>, error: Error) -> PyErr {
+    let message = error.to_string();
+    match error {
+        Error::Refused {
+            command,
+            status,
+            state,
+        } => {
+            let err = RefusedError::new_err(message);
+            let value = err.value(py);
+            let _ = value.setattr("status", status.name());
+            let _ = value.setattr("command", command.name());
+            let _ = value.setattr("state", state.name());
+            err
+        }
+        // A closed port on loopback is refused at once (nothing listens there): to Python
+        // that is the same "nothing answers" as a timeout.
+        Error::NoReply { .. }
+        | Error::ConnectionRefused { .. }
+        | Error::NoReport { .. }
+        | Error::NoLocation { .. } => NoReplyError::new_err(message),
+        Error::RunEnded {
+            reason,
+            executed,
+            received,
+            total,
+        } => {
+            let err = RunEndedError::new_err(message);
+            let value = err.value(py);
+            let reason = match reason {
+                RunEnd::Stopped => "stopped",
+                RunEnd::Underrun => "underrun",
+                RunEnd::Starved => "starved",
+                RunEnd::Unknown => "unknown",
+            };
+            let _ = value.setattr("reason", reason);
+            let _ = value.setattr("executed", executed);
+            let _ = value.setattr("received", received);
+            let _ = value.setattr("total", total);
+            err
+        }
+        Error::Stalled { .. } => StalledError::new_err(message),
+        Error::InvalidTrajectory(_) => TrajectoryError::new_err(message),
+        Error::Io(_) | Error::Encode(_) => ArmctlError::new_err(message),
+    }
+}
+
+fn trajectory_err(e: trajectory::TrajectoryError) -> PyErr {
+    TrajectoryError::new_err(e.to_string())
+}
+
+/// STATUS as a dict.
+fn status_dict<'py>(py: Python<'py>, s: &StatusReport) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    d.set_item("version", (s.version[0], s.version[1], s.version[2]))?;
+    d.set_item("joints", s.joints)?;
+    d.set_item("state", s.state.name())?;
+    let flags = PyDict::new(py);
+    for (name, bit) in [
+        ("reports_on", StatusFlags::REPORTS_ON),
+        ("drivers_enabled", StatusFlags::DRIVERS_ENABLED),
+        ("serial_open", StatusFlags::SERIAL_OPEN),
+        ("pin0_high", StatusFlags::PIN0_HIGH),
+        ("pin1_high", StatusFlags::PIN1_HIGH),
+        ("underrun", StatusFlags::UNDERRUN),
+        ("pwm_active", StatusFlags::PWM_ACTIVE),
+        ("stopped_by_host", StatusFlags::STOPPED_BY_HOST),
+    ] {
+        flags.set_item(name, s.flags.has(bit))?;
+    }
+    d.set_item("flags", flags)?;
+    d.set_item("buffered", s.buffered)?;
+    d.set_item("expected", s.expected)?;
+    d.set_item("received", s.received)?;
+    d.set_item("executed", s.executed)?;
+    d.set_item("capacity", s.capacity)?;
+    d.set_item("upload_period_us", s.upload_period_us)?;
+    d.set_item("pwm_timer_clock_hz", s.pwm_timer_clock_hz)?;
+    d.set_item("max_step_rate_hz", s.max_step_rate_hz)?;
+    Ok(d)
+}
+
+fn state_name(code: u8) -> &'static str {
+    State::from_u8(code).map_or("?", State::name)
+}
+
+/// A LOCATION report as a dict: `positions` (int32 array, steps) and `state`.
+fn location_dict<'py>(
+    py: Python<'py>,
+    location: &Location,
+    joints: usize,
+) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    d.set_item(
+        "positions",
+        PyArray1::from_slice(py, &location.position[..joints.clamp(1, MAX_JOINTS)]),
+    )?;
+    d.set_item("state", state_name(location.state))?;
+    Ok(d)
+}
+
+fn progress_dict<'py>(py: Python<'py>, p: &Progress, done: bool) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    d.set_item("total", p.total)?;
+    d.set_item("sent", p.sent)?;
+    d.set_item("acked", p.acked)?;
+    d.set_item("executed", p.executed)?;
+    d.set_item("state", p.state.name())?;
+    d.set_item("done", done)?;
+    Ok(d)
+}
+
+fn report_dict<'py>(py: Python<'py>, r: &RunReport, joints: usize) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    d.set_item("points", r.points)?;
+    d.set_item("frames", r.frames)?;
+    d.set_item("datagrams_sent", r.datagrams_sent)?;
+    d.set_item("retransmissions", r.retransmissions)?;
+    d.set_item("upload_time", r.upload_time.as_secs_f64())?;
+    d.set_item("total_time", r.total_time.as_secs_f64())?;
+    match &r.final_status {
+        Some(s) => d.set_item("final_status", status_dict(py, s)?)?,
+        None => d.set_item("final_status", py.None())?,
+    }
+    match &r.final_location {
+        Some(l) => d.set_item(
+            "final_positions",
+            PyArray1::from_slice(py, &l.position[..joints.clamp(1, MAX_JOINTS)]),
+        )?,
+        None => d.set_item("final_positions", py.None())?,
+    }
+    Ok(d)
+}
+
+/// A run on its own thread: its progress, and its outcome once it ended.
+#[derive(Default)]
+struct RunState {
+    progress: Mutex<Progress>,
+    outcome: Mutex<Option<Result<RunReport, Error>>>,
+    ended: Condvar,
+    done: AtomicBool,
+}
+
+/// A trajectory run started by `Arm.run(..., wait=False)` (or `run_file`).
+#[pyclass(module = "armctl")]
+struct RunHandle {
+    arm: Arc<Controller>,
+    state: Arc<RunState>,
+    joints: usize,
+    /// What `wait()` returns (or raises), once known.
+    result: Mutex<Option<PyResult<Py<PyAny>>>>,
+}
+
+impl RunHandle {
+    fn start(
+        arm: Arc<Controller>,
+        points: Vec<protocol::Point>,
+        options: RunOptions,
+        joints: usize,
+    ) -> PyResult<RunHandle> {
+        let state = Arc::new(RunState::default());
+        let (thread_arm, thread_state) = (arm.clone(), state.clone());
+        std::thread::Builder::new()
+            .name("armctl-run".into())
+            .spawn(move || {
+                let result = thread_arm.run_trajectory(&points, &options, |p| {
+                    *lock(&thread_state.progress) = *p;
+                });
+                *lock(&thread_state.outcome) = Some(result);
+                thread_state.done.store(true, Ordering::SeqCst);
+                thread_state.ended.notify_all();
+            })
+            .map_err(|e| ArmctlError::new_err(format!("cannot start the run thread: {e}")))?;
+        Ok(RunHandle {
+            arm,
+            state,
+            joints,
+            result: Mutex::new(None),
+        })
+    }
+
+    /// Waits for the end of the run with the GIL released, waking to check for signals.
+    /// A KeyboardInterrupt (or any signal handler's exception) stops the arm first.
+    fn wait_inner(&self, py: Python<'_>, timeout: Option<f64>) -> PyResult<Py<PyAny>> {
+        let deadline = timeout.map(|s| Instant::now() + Duration::from_secs_f64(s.max(0.0)));
+        loop {
+            if let Some(result) = lock(&self.result).as_ref() {
+                return match result {
+                    Ok(v) => Ok(v.clone_ref(py)),
+                    Err(e) => Err(e.clone_ref(py)),
+                };
+            }
+            let state = self.state.clone();
+            let outcome = py.detach(move || {
+                let guard = lock(&state.outcome);
+                let (mut guard, _) = state
+                    .ended
+                    .wait_timeout_while(guard, SIGNAL_POLL, |o| o.is_none())
+                    .unwrap_or_else(PoisonError::into_inner);
+                guard.take()
+            });
+            if let Some(outcome) = outcome {
+                let result = match outcome {
+                    Ok(report) => {
+                        report_dict(py, &report, self.joints).map(|d| d.into_any().unbind())
+                    }
+                    Err(e) => Err(to_py_err(py, e)),
+                };
+                let copy = match &result {
+                    Ok(v) => Ok(v.clone_ref(py)),
+                    Err(e) => Err(e.clone_ref(py)),
+                };
+                *lock(&self.result) = Some(copy);
+                return result;
+            }
+            if let Err(interrupt) = py.check_signals() {
+                let arm = self.arm.clone();
+                // Stop first, then let the exception propagate.
+                let _ = py.detach(move || arm.stop());
+                return Err(interrupt);
+            }
+            if deadline.is_some_and(|d| Instant::now() >= d) {
+                return Err(pyo3::exceptions::PyTimeoutError::new_err(
+                    "the run has not ended yet",
+                ));
+            }
+        }
+    }
+}
+
+#[pymethods]
+impl RunHandle {
+    /// Where the run is: total, sent, acked, executed points, the state, done.
+    #[getter]
+    fn progress<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let progress = *lock(&self.state.progress);
+        progress_dict(py, &progress, self.state.done.load(Ordering::SeqCst))
+    }
+
+    /// Whether the run has ended (successfully or not).
+    #[getter]
+    fn done(&self) -> bool {
+        self.state.done.load(Ordering::SeqCst)
+    }
+
+    /// Waits for the end of the run and returns its report (dict); raises what ended it.
+    /// `timeout` in seconds: TimeoutError if still running then (the run goes on).
+    #[pyo3(signature = (timeout=None))]
+    fn wait(&self, py: Python<'_>, timeout: Option<f64>) -> PyResult<Py<PyAny>> {
+        self.wait_inner(py, timeout)
+    }
+
+    /// Sends STOPPED and waits for the run to end (its `wait()` then raises
+    /// RunEndedError with reason 'stopped').
+    fn cancel(&self, py: Python<'_>) -> PyResult<()> {
+        let arm = self.arm.clone();
+        py.detach(move || arm.stop())
+            .map_err(|e| to_py_err(py, e))?;
+        let state = self.state.clone();
+        py.detach(move || {
+            let guard = lock(&state.outcome);
+            let _ = state
+                .ended
+                .wait_timeout_while(guard, Duration::from_secs(10), |_| {
+                    !state.done.load(Ordering::SeqCst)
+                });
+        });
+        Ok(())
+    }
+
+    fn __repr__(&self) -> String {
+        let p = *lock(&self.state.progress);
+        format!(
+            "<armctl.RunHandle {}/{} executed, {}{}>",
+            p.executed,
+            p.total,
+            p.state.name(),
+            if self.state.done.load(Ordering::SeqCst) {
+                ", done"
+            } else {
+                ""
+            }
+        )
+    }
+}
+
+/// Iterator over LOCATION reports (`Arm.locations()`).
+#[pyclass(module = "armctl")]
+struct Locations {
+    reports: Mutex<Receiver<Location>>,
+    timeout: Duration,
+    remaining: Mutex<Option<usize>>,
+    joints: usize,
+}
+
+#[pymethods]
+impl Locations {
+    fn __iter__(slf: PyRef<'_, Self>) -> PyRef<'_, Self> {
+        slf
+    }
+
+    fn __next__<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyDict>>> {
+        {
+            let mut remaining = lock(&self.remaining);
+            match remaining.as_mut() {
+                Some(0) => return Ok(None),
+                Some(n) => *n -= 1,
+                None => {}
+            }
+        }
+        let deadline = Instant::now() + self.timeout;
+        loop {
+            let slice = SIGNAL_POLL.min(deadline.saturating_duration_since(Instant::now()));
+            let received = py.detach(|| lock(&self.reports).recv_timeout(slice));
+            match received {
+                Ok(location) => return location_dict(py, &location, self.joints).map(Some),
+                Err(RecvTimeoutError::Disconnected) => return Ok(None),
+                Err(RecvTimeoutError::Timeout) => {
+                    py.check_signals()?;
+                    if Instant::now() >= deadline {
+                        return Ok(None);
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// A connection to one controller (`armctl.connect(...)`); a context manager.
+#[pyclass(module = "armctl")]
+struct Arm {
+    inner: Mutex<Option<Arc<Controller>>>,
+    /// Runs started here, to stop on an exception in a `with` block.
+    runs: Mutex<Vec<Arc<RunState>>>,
+}
+
+impl Arm {
+    fn controller(&self) -> PyResult<Arc<Controller>> {
+        lock(&self.inner)
+            .clone()
+            .ok_or_else(|| ArmctlError::new_err("the connection is closed"))
+    }
+
+    /// Calls `f` on the controller with the GIL released; armctl errors become Python's.
+    fn call<T: Send>(
+        &self,
+        py: Python<'_>,
+        f: impl FnOnce(&Controller) -> armctl::Result<T> + Send,
+    ) -> PyResult<T> {
+        let arm = self.controller()?;
+        py.detach(move || f(&arm)).map_err(|e| to_py_err(py, e))
+    }
+
+    fn start_run(
+        &self,
+        py: Python<'_>,
+        points: Vec<protocol::Point>,
+        joints: usize,
+        wait: bool,
+        window: usize,
+    ) -> PyResult<Py<PyAny>> {
+        let arm = self.controller()?;
+        let options = RunOptions {
+            window,
+            ..RunOptions::default()
+        };
+        let handle = RunHandle::start(arm, points, options, joints)?;
+        lock(&self.runs).push(handle.state.clone());
+        if wait {
+            handle.wait_inner(py, None)
+        } else {
+            Ok(Py::new(py, handle)?.into_any())
+        }
+    }
+
+    /// STATUS and a fresh LOCATION: what converting a trajectory needs.
+    fn before_run(&self, py: Python<'_>) -> PyResult<(StatusReport, Location)> {
+        self.call(py, |arm| {
+            let status = arm.status()?;
+            let location = arm.current_location(LOCATION_TIMEOUT)?;
+            Ok((status, location))
+        })
+    }
+}
+
+#[pymethods]
+impl Arm {
+    fn __enter__(slf: PyRef<'_, Self>) -> PyRef<'_, Self> {
+        slf
+    }
+
+    /// Closes the connection; when the block is left by an exception (Ctrl-C included)
+    /// while a run started here is under way, sends STOPPED first.
+    #[pyo3(signature = (exc_type=None, _exc_value=None, _traceback=None))]
+    fn __exit__(
+        &self,
+        py: Python<'_>,
+        exc_type: Option<Bound<'_, PyAny>>,
+        _exc_value: Option<Bound<'_, PyAny>>,
+        _traceback: Option<Bound<'_, PyAny>>,
+    ) -> PyResult<bool> {
+        let failed = exc_type.is_some_and(|t| !t.is_none());
+        let running = lock(&self.runs)
+            .iter()
+            .any(|r| !r.done.load(Ordering::SeqCst));
+        if failed
+            && running
+            && let Ok(arm) = self.controller()
+        {
+            let _ = py.detach(move || arm.stop());
+        }
+        self.close();
+        Ok(false)
+    }
+
+    /// Closes the connection (runs still under way keep it open until they end).
+    fn close(&self) {
+        lock(&self.inner).take();
+    }
+
+    /// The controller's address, `host:port`.
+    #[getter]
+    fn address(&self) -> PyResult<String> {
+        Ok(self.controller()?.addr().to_string())
+    }
+
+    /// The controller's STATUS report as a dict.
+    fn status<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let status = self.call(py, |arm| arm.status())?;
+        status_dict(py, &status)
+    }
+
+    /// Joint positions in steps (numpy int32 array, one per joint in use), from a fresh
+    /// LOCATION report.
+    fn positions<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray1<i32>>> {
+        let (status, location) = self.before_run(py)?;
+        let joints = usize::from(status.joints).clamp(1, MAX_JOINTS);
+        Ok(PyArray1::from_slice(py, &location.position[..joints]))
+    }
+
+    /// Runs a trajectory through waypoints: `times` (N,) seconds from the start,
+    /// strictly increasing; `positions` (N, J) in steps, or in radians with `config` (a
+    /// joint config JSON file: steps_per_radian, zero_offset_steps, limits). The arm moves
+    /// from where it is to the first waypoint (at t=0 it must be there already), and
+    /// through the rest resampled into `segment_ms` points. `wait=False` returns a
+    /// RunHandle at once.
+    #[pyo3(signature = (times, positions, config=None, wait=true, segment_ms=10.0, window=8))]
+    #[allow(clippy::too_many_arguments)]
+    fn run(
+        &self,
+        py: Python<'_>,
+        times: &Bound<'_, PyAny>,
+        positions: &Bound<'_, PyAny>,
+        config: Option<PathBuf>,
+        wait: bool,
+        segment_ms: f64,
+        window: usize,
+    ) -> PyResult<Py<PyAny>> {
+        let numpy = py.import("numpy")?;
+        let times = numpy.call_method1("ascontiguousarray", (times, "float64"))?;
+        let positions = numpy.call_method1("ascontiguousarray", (positions, "float64"))?;
+        let times: PyReadonlyArray1<f64> = times
+            .extract()
+            .map_err(|_| PyValueError::new_err("times must be a 1-D array of seconds"))?;
+        let positions: PyReadonlyArray2<f64> = positions.extract().map_err(|_| {
+            PyValueError::new_err("positions must be a 2-D array (N waypoints, J joints)")
+        })?;
+        let times = times.as_array();
+        let positions = positions.as_array();
+        let (n, joints) = positions.dim();
+        if n != times.len() || n == 0 {
+            return Err(PyValueError::new_err(format!(
+                "{} times for {n} rows of positions: one time per waypoint, at least one",
+                times.len()
+            )));
+        }
+        if joints == 0 || joints > MAX_JOINTS {
+            return Err(PyValueError::new_err(format!(
+                "{joints} joints: 1 to {MAX_JOINTS}"
+            )));
+        }
+        let config = config
+            .map(|path| ArmConfig::load(&path))
+            .transpose()
+            .map_err(trajectory_err)?;
+        let mut times_us = Vec::with_capacity(n);
+        for &t in times.iter() {
+            if !t.is_finite() {
+                return Err(PyValueError::new_err("times must be finite"));
+            }
+            times_us.push((t * 1e6).round() as i64);
+        }
+        let mut rows = Vec::with_capacity(n);
+        for row in positions.rows() {
+            let mut steps = Vec::with_capacity(joints);
+            for (j, &v) in row.iter().enumerate() {
+                if !v.is_finite() {
+                    return Err(PyValueError::new_err("positions must be finite"));
+                }
+                // Radians to steps as armctl reads a JointTrajectory with this config.
+                steps.push(Some(match &config {
+                    Some(c) => c.joints.get(j).map_or(v, |jc| {
+                        f64::from(jc.zero_offset_steps) + v * jc.steps_per_radian
+                    }),
+                    None => v,
+                }));
+            }
+            rows.push(steps);
+        }
+        let waypoints = Waypoints {
+            file: "<numpy arrays>".into(),
+            times_us,
+            positions: rows,
+            // Straight lines between the waypoints, as before armctl's Hermite resampling.
+            velocities: Vec::new(),
+        };
+        let (status, location) = self.before_run(py)?;
+        let arm_joints = usize::from(status.joints).clamp(1, MAX_JOINTS);
+        if joints > arm_joints {
+            return Err(TrajectoryError::new_err(format!(
+                "{joints} joints in the positions, the controller drives {arm_joints}"
+            )));
+        }
+        let config =
+            config.unwrap_or_else(|| ArmConfig::unlimited(joints, status.max_step_rate_hz));
+        if !(segment_ms.is_finite() && segment_ms > 0.0) {
+            return Err(PyValueError::new_err("segment_ms must be above 0"));
+        }
+        let segment_us = (segment_ms * 1000.0).round().clamp(1.0, 1e9) as u32;
+        let points = trajectory::to_points(
+            &waypoints,
+            &location.position,
+            segment_us,
+            &config,
+            Some(status.max_step_rate_hz),
+        )
+        .map_err(trajectory_err)?;
+        self.start_run(py, points, arm_joints, wait, window)
+    }
+
+    /// Runs a trajectory file as `armctl run` does: JointTrajectory JSON (radians, needs
+    /// `config`) or CSV (`time_s, steps...`).
+    #[pyo3(signature = (path, config=None, wait=true, segment_ms=10.0, window=8))]
+    fn run_file(
+        &self,
+        py: Python<'_>,
+        path: PathBuf,
+        config: Option<PathBuf>,
+        wait: bool,
+        segment_ms: f64,
+        window: usize,
+    ) -> PyResult<Py<PyAny>> {
+        let (waypoints, config) =
+            trajectory::load_files(&path, config.as_deref()).map_err(trajectory_err)?;
+        let joints = waypoints.positions.first().map_or(0, Vec::len);
+        let (status, location) = self.before_run(py)?;
+        let arm_joints = usize::from(status.joints).clamp(1, MAX_JOINTS);
+        if joints > arm_joints {
+            return Err(TrajectoryError::new_err(format!(
+                "{}: {joints} joints in the file, the controller drives {arm_joints}",
+                path.display()
+            )));
+        }
+        let config =
+            config.unwrap_or_else(|| ArmConfig::unlimited(joints, status.max_step_rate_hz));
+        if !(segment_ms.is_finite() && segment_ms > 0.0) {
+            return Err(PyValueError::new_err("segment_ms must be above 0"));
+        }
+        let segment_us = (segment_ms * 1000.0).round().clamp(1.0, 1e9) as u32;
+        let points = trajectory::to_points(
+            &waypoints,
+            &location.position,
+            segment_us,
+            &config,
+            Some(status.max_step_rate_hz),
+        )
+        .map_err(trajectory_err)?;
+        self.start_run(py, points, arm_joints, wait, window)
+    }
+
+    /// STOPPED: stops every joint at once and drops the trajectory (obeyed from anyone).
+    fn stop(&self, py: Python<'_>) -> PyResult<()> {
+        self.call(py, |arm| arm.stop()).map(|_| ())
+    }
+
+    /// RETURN: drives every joint to zero; with `wait`, until the move ended.
+    #[pyo3(signature = (wait=true, timeout=600.0))]
+    fn go_home(&self, py: Python<'_>, wait: bool, timeout: f64) -> PyResult<()> {
+        self.call(py, |arm| arm.go_home())?;
+        if wait {
+            let timeout = Duration::from_secs_f64(timeout.max(0.0));
+            self.call(py, move |arm| arm.wait_stopped(timeout))?;
+        }
+        Ok(())
+    }
+
+    /// LOCATION_SETTING: declares where the joints are, in steps (calibration).
+    fn set_location(&self, py: Python<'_>, positions: Vec<i32>) -> PyResult<()> {
+        self.call(py, move |arm| arm.set_location(&positions))
+            .map(|_| ())
+    }
+
+    /// JOINTS_COUNT: the number of joints (1..8), kept across power cycles.
+    fn set_joints(&self, py: Python<'_>, joints: u8) -> PyResult<()> {
+        self.call(py, move |arm| arm.set_joints(joints)).map(|_| ())
+    }
+
+    /// PIN0/PIN1 high (`True`) or low.
+    fn pin(&self, py: Python<'_>, pin: u8, high: bool) -> PyResult<()> {
+        self.call(py, move |arm| arm.pin(pin, high)).map(|_| ())
+    }
+
+    /// Gripper servo PWM at `freq` Hz with `duty` (0..1), until `pwm_stop()`.
+    #[pyo3(signature = (duty, freq=50.0))]
+    fn pwm_servo(&self, py: Python<'_>, duty: f64, freq: f64) -> PyResult<()> {
+        let arm = self.controller()?;
+        let clock = py
+            .detach({
+                let arm = arm.clone();
+                move || arm.status()
+            })
+            .map_err(|e| to_py_err(py, e))?
+            .pwm_timer_clock_hz;
+        let pwm = armctl::pwm::settings(clock, freq, duty, 0).map_err(PyValueError::new_err)?;
+        py.detach(move || arm.pwm_start(pwm))
+            .map(|_| ())
+            .map_err(|e| to_py_err(py, e))
+    }
+
+    /// Stepper-driven gripper: `pulses` pulses (negative: the other way) at `freq` Hz.
+    #[pyo3(signature = (pulses, freq=1000.0))]
+    fn pwm_stepper(&self, py: Python<'_>, pulses: i32, freq: f64) -> PyResult<()> {
+        if pulses == 0 {
+            return Err(PyValueError::new_err(
+                "0 pulses would be servo mode: use pwm_servo",
+            ));
+        }
+        let arm = self.controller()?;
+        let clock = py
+            .detach({
+                let arm = arm.clone();
+                move || arm.status()
+            })
+            .map_err(|e| to_py_err(py, e))?
+            .pwm_timer_clock_hz;
+        let pwm = armctl::pwm::settings(clock, freq, 0.5, pulses).map_err(PyValueError::new_err)?;
+        py.detach(move || arm.pwm_start(pwm))
+            .map(|_| ())
+            .map_err(|e| to_py_err(py, e))
+    }
+
+    /// NET_SET: stores the controller's address, `"A.B.C.D/P"` with an optional gateway,
+    /// or DHCP; the controller uses it from its next reset (owner only, not while running).
+    #[pyo3(signature = (ip=None, gateway=None, dhcp=false))]
+    fn net_set(
+        &self,
+        py: Python<'_>,
+        ip: Option<&str>,
+        gateway: Option<&str>,
+        dhcp: bool,
+    ) -> PyResult<()> {
+        let net = match (ip, dhcp) {
+            (None, true) if gateway.is_none() => NetSettings::DHCP,
+            (Some(ip), false) => {
+                let (ip, prefix) =
+                    armctl::discover::parse_cidr(ip).map_err(PyValueError::new_err)?;
+                let gateway = gateway
+                    .map(|g| g.parse::<std::net::Ipv4Addr>())
+                    .transpose()
+                    .map_err(|_| PyValueError::new_err("gateway must be an IPv4 address"))?;
+                NetSettings::fixed(ip, prefix, gateway.map(|g| g.octets()))
+            }
+            _ => {
+                return Err(PyValueError::new_err(
+                    "give ip='A.B.C.D/P' (and optionally gateway), or dhcp=True alone",
+                ));
+            }
+        };
+        if !net.is_valid() {
+            return Err(PyValueError::new_err(format!(
+                "{}: not usable (a unicast address with a prefix of 1..32 and a gateway inside its subnet)",
+                armctl::discover::net_string(&net)
+            )));
+        }
+        self.call(py, move |arm| arm.net_set(net)).map(|_| ())
+    }
+
+    /// PWM_STOP: gripper output off at once.
+    fn pwm_stop(&self, py: Python<'_>) -> PyResult<()> {
+        self.call(py, |arm| arm.pwm_stop()).map(|_| ())
+    }
+
+    /// LOCATION reports as they arrive (dicts with `positions` and `state`); the iterator
+    /// ends after `count` reports, or when none came for `timeout` seconds.
+    #[pyo3(signature = (count=None, timeout=1.0))]
+    fn locations(&self, py: Python<'_>, count: Option<usize>, timeout: f64) -> PyResult<Locations> {
+        let arm = self.controller()?;
+        let reports = arm.locations();
+        let joints = match arm.last_status() {
+            Some(s) => usize::from(s.joints),
+            None => usize::from(self.call(py, |arm| arm.status())?.joints),
+        };
+        Ok(Locations {
+            reports: Mutex::new(reports),
+            timeout: Duration::from_secs_f64(timeout.max(0.0)),
+            remaining: Mutex::new(count),
+            joints: joints.clamp(1, MAX_JOINTS),
+        })
+    }
+
+    fn __repr__(&self) -> String {
+        match lock(&self.inner).as_ref() {
+            Some(arm) => format!("<armctl.Arm {}>", arm.addr()),
+            None => "<armctl.Arm closed>".into(),
+        }
+    }
+}
+
+/// Finds controllers: DISCOVER to `to` (a broadcast address, or one controller); returns
+/// one dict per controller that answered (nothing changes on them).
+#[pyfunction]
+#[pyo3(signature = (to="255.255.255.255:8510", *, wait=0.3, rounds=2, bind=None))]
+fn discover<'py>(
+    py: Python<'py>,
+    to: &str,
+    wait: f64,
+    rounds: u32,
+    bind: Option<&str>,
+) -> PyResult<Vec<Bound<'py, PyDict>>> {
+    use armctl::discover::{DiscoverOptions, mac_string};
+    let target = to
+        .parse()
+        .map_err(|_| PyValueError::new_err("to must be an IPv4 address:port"))?;
+    let bind = bind
+        .map(|b| b.parse())
+        .transpose()
+        .map_err(|_| PyValueError::new_err("bind must be an IPv4 address:port"))?;
+    let options = DiscoverOptions {
+        target,
+        bind,
+        wait: Duration::from_secs_f64(wait.clamp(0.001, 10.0)),
+        rounds: rounds.clamp(1, 10),
+    };
+    let found = py
+        .detach(move || armctl::discover::discover(&options))
+        .map_err(|e| ArmctlError::new_err(format!("DISCOVER to {to}: {e}")))?;
+    let ip = |q: [u8; 4]| std::net::Ipv4Addr::from(q).to_string();
+    found
+        .iter()
+        .map(|f| {
+            let d = PyDict::new(py);
+            d.set_item("address", f.from.to_string())?;
+            if let Some(r) = &f.reply {
+                d.set_item("mac", mac_string(&r.mac))?;
+                d.set_item("version", (r.version[0], r.version[1], r.version[2]))?;
+                d.set_item("joints", r.joints)?;
+                d.set_item("state", r.state.name())?;
+                d.set_item("owner", r.owner.name())?;
+                d.set_item("owner_ip", ip(r.owner_ip))?;
+                d.set_item("dhcp", r.net.dhcp)?;
+                d.set_item("stored_ip", ip(r.net.ip))?;
+                d.set_item("prefix_len", r.net.prefix_len)?;
+                d.set_item("gateway", ip(r.net.gateway))?;
+                d.set_item("pending_reset", r.pending_reset)?;
+            }
+            Ok(d)
+        })
+        .collect()
+}
+
+/// Connects to the controller at `address` (`host:port`) and checks that it answers a
+/// STATUS. `pcap`: write every datagram to this capture file.
+#[pyfunction]
+#[pyo3(signature = (address="127.0.0.1:8510", *, ack_timeout=0.1, attempts=10, bind=None, pcap=None))]
+fn connect(
+    py: Python<'_>,
+    address: &str,
+    ack_timeout: f64,
+    attempts: u32,
+    bind: Option<&str>,
+    pcap: Option<PathBuf>,
+) -> PyResult<Arm> {
+    let bind = bind
+        .map(|b| b.parse())
+        .transpose()
+        .map_err(|_| PyValueError::new_err("bind must be an address:port"))?;
+    if !(ack_timeout.is_finite() && ack_timeout > 0.0) {
+        return Err(PyValueError::new_err("ack_timeout must be above 0 seconds"));
+    }
+    let options = Options {
+        ack_timeout: Duration::from_secs_f64(ack_timeout),
+        attempts: attempts.max(1),
+        bind,
+        ..Options::default()
+    };
+    let address = address.to_string();
+    let arm = py
+        .detach(move || -> armctl::Result<Controller> {
+            let arm = Controller::open(address.as_str(), options)?;
+            if let Some(path) = pcap {
+                arm.capture(Arc::new(armctl::pcap::PcapLog::create(&path)?));
+            }
+            arm.status()?;
+            Ok(arm)
+        })
+        .map_err(|e| to_py_err(py, e))?;
+    Ok(Arm {
+        inner: Mutex::new(Some(Arc::new(arm))),
+        runs: Mutex::new(Vec::new()),
+    })
+}
+
+/// The arm controller from Python: `with armctl.connect("127.0.0.1:8510") as arm: ...`
+#[pymodule(name = "armctl")]
+fn armctl_py(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    let py = m.py();
+    m.add_function(wrap_pyfunction!(connect, m)?)?;
+    m.add_function(wrap_pyfunction!(discover, m)?)?;
+    m.add_class::<Arm>()?;
+    m.add_class::<RunHandle>()?;
+    m.add_class::<Locations>()?;
+    m.add("ArmctlError", py.get_type::<ArmctlError>())?;
+    m.add("RefusedError", py.get_type::<RefusedError>())?;
+    m.add("NoReplyError", py.get_type::<NoReplyError>())?;
+    m.add("RunEndedError", py.get_type::<RunEndedError>())?;
+    m.add("StalledError", py.get_type::<StalledError>())?;
+    m.add("TrajectoryError", py.get_type::<TrajectoryError>())?;
+    m.add("PORT", protocol::PORT)?;
+    Ok(())
+}

@@ -1,0 +1,97 @@
+"""Fixtures: a sim-host process on a free loopback port, killed after the test.
+
+The simulator binary is $SIM_HOST_BIN, else target/debug/sim-host of this repository
+($CARGO_TARGET_DIR respected), built with `cargo build -p sim-host` when missing.
+"""
+
+import os
+import pathlib
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+
+import pytest
+
+ROOT = pathlib.Path(__file__).resolve().parents[2]
+
+
+def sim_host_bin() -> pathlib.Path:
+    if os.environ.get("SIM_HOST_BIN"):
+        return pathlib.Path(os.environ["SIM_HOST_BIN"])
+    target = pathlib.Path(os.environ.get("CARGO_TARGET_DIR", ROOT / "target"))
+    binary = target / "debug" / "sim-host"
+    if not binary.exists():
+        subprocess.run(["cargo", "build", "-q", "-p", "sim-host"], cwd=ROOT, check=True)
+    return binary
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class SimHost:
+    def __init__(self, *args: str):
+        self.dir = tempfile.TemporaryDirectory(prefix="armctl-py-")
+        self.address = f"127.0.0.1:{free_port()}"
+        self.process = subprocess.Popen(
+            [str(sim_host_bin()), "--bind", self.address,
+             "--settings", os.path.join(self.dir.name, "settings.txt"),
+             "--log-level", "warn", *args],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        )
+        line = self.process.stdout.readline()
+        if "listening" not in line:
+            self.process.kill()
+            raise RuntimeError(f"sim-host did not start: {line!r} {self.process.stderr.read()}")
+
+    def close(self):
+        if self.process.poll() is None:
+            self.process.send_signal(signal.SIGTERM)
+            try:
+                self.process.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                self.process.kill()
+                self.process.wait()
+        self.dir.cleanup()
+
+
+@pytest.fixture
+def sim():
+    """A simulated controller (6 joints, real time)."""
+    host = SimHost()
+    yield host
+    host.close()
+
+
+@pytest.fixture
+def python_child():
+    """Starts `python3 -c SCRIPT ARGS...` with pipes; killed after the test."""
+    children = []
+
+    def start(script: str, *args: str) -> subprocess.Popen:
+        child = subprocess.Popen([sys.executable, "-c", script, *args],
+                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        children.append(child)
+        return child
+
+    yield start
+    for child in children:
+        if child.poll() is None:
+            child.kill()
+            child.wait()
+
+
+def wait_for_line(process: subprocess.Popen, text: str, timeout: float = 20.0) -> str:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        line = process.stdout.readline()
+        if text in line:
+            return line
+        if not line and process.poll() is not None:
+            break
+    raise AssertionError(f"no line with {text!r}: {process.stderr.read() if process.poll() is not None else ''}")

@@ -1,0 +1,228 @@
+//! Finding controllers: DISCOVER to a broadcast address (every controller on the segment
+//! answers) or to one address, and the DISCOVER_REPLYs that come back (PROTOCOL.md 12).
+//!
+//! Discovery changes nothing on a controller (no owner is taken), so it may be run from any
+//! host at any time. Broadcasts leave the host: in tests, run it only inside a network
+//! namespace of the test's own.
+
+use std::net::{SocketAddr, SocketAddrV4, UdpSocket};
+use std::time::{Duration, Instant};
+
+use protocol::{Ack, Command, DiscoverReply, MAX_DATAGRAM, Report, StatusCode, Tag};
+
+/// One controller that answered.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Found {
+    /// Where the answer came from: the controller's address in use and its port.
+    pub from: SocketAddrV4,
+    /// What it said; `None` for a controller older than DISCOVER (it answered with an ACK
+    /// `UNKNOWN_TAG` or `NOT_OWNER`: it is there, but cannot tell more).
+    pub reply: Option<DiscoverReply>,
+}
+
+/// How to look.
+#[derive(Clone, Debug)]
+pub struct DiscoverOptions {
+    /// Where DISCOVER goes: a broadcast address (`255.255.255.255:8510`, or the subnet's)
+    /// or one controller.
+    pub target: SocketAddrV4,
+    /// Local address to send from (default any address, a port chosen by the system).
+    pub bind: Option<SocketAddrV4>,
+    /// How long to collect answers after each DISCOVER.
+    pub wait: Duration,
+    /// DISCOVERs sent (each with a new seq), in case one or an answer is lost.
+    pub rounds: u32,
+}
+
+impl Default for DiscoverOptions {
+    fn default() -> Self {
+        DiscoverOptions {
+            target: SocketAddrV4::new([255, 255, 255, 255].into(), protocol::PORT),
+            bind: None,
+            wait: Duration::from_millis(300),
+            rounds: 2,
+        }
+    }
+}
+
+/// Sends DISCOVER `options.rounds` times and returns every controller that answered, once
+/// each, in order of first answer. Bounded: at most `rounds` datagrams, `rounds * wait`.
+pub fn discover(options: &DiscoverOptions) -> std::io::Result<Vec<Found>> {
+    let bind = options
+        .bind
+        .unwrap_or_else(|| SocketAddrV4::new([0, 0, 0, 0].into(), 0));
+    let socket = UdpSocket::bind(bind)?;
+    socket.set_broadcast(true)?;
+    let first_seq = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.subsec_nanos() as u8);
+    let mut found: Vec<Found> = Vec::new();
+    let mut buf = [0u8; MAX_DATAGRAM];
+    for round in 0..options.rounds.max(1) {
+        let seq = first_seq.wrapping_add(round as u8);
+        let mut frame = [0u8; 3];
+        let n = Command::Discover
+            .encode(seq, &mut frame)
+            .map_err(std::io::Error::other)?;
+        socket.send_to(&frame[..n], options.target)?;
+        let deadline = Instant::now() + options.wait;
+        loop {
+            let left = deadline.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                break;
+            }
+            socket.set_read_timeout(Some(left))?;
+            let (len, from) = match socket.recv_from(&mut buf) {
+                Ok(r) => r,
+                Err(e)
+                    if matches!(
+                        e.kind(),
+                        std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+                    ) =>
+                {
+                    break;
+                }
+                // An ICMP error from an earlier datagram: keep listening.
+                Err(_) => continue,
+            };
+            let SocketAddr::V4(from) = from else { continue };
+            let Some(reply) = answer(&buf[..len]) else {
+                continue;
+            };
+            match found.iter_mut().find(|f| f.from == from) {
+                Some(known) => {
+                    if known.reply.is_none() {
+                        known.reply = reply;
+                    }
+                }
+                None => found.push(Found { from, reply }),
+            }
+        }
+    }
+    Ok(found)
+}
+
+/// What a datagram says about its sender: `Some(Some(reply))` a DISCOVER_REPLY,
+/// `Some(None)` an older controller's ACK to DISCOVER (`UNKNOWN_TAG`, or `NOT_OWNER` when
+/// another host owns it: a controller that knows DISCOVER never ACKs an intact one),
+/// `None` anything else.
+fn answer(datagram: &[u8]) -> Option<Option<DiscoverReply>> {
+    if let Ok(frame) = DiscoverReply::decode(datagram) {
+        return Some(Some(frame.body));
+    }
+    match Report::decode(datagram).ok()?.body {
+        Report::Ack(Ack {
+            acked_tag, status, ..
+        }) if acked_tag == Tag::Discover as u8 && status != StatusCode::BadCrc => Some(None),
+        _ => None,
+    }
+}
+
+/// A MAC address as `02:53:49:4d:00:01`.
+pub fn mac_string(mac: &[u8; 6]) -> String {
+    mac.iter()
+        .map(|b| format!("{b:02x}"))
+        .collect::<Vec<_>>()
+        .join(":")
+}
+
+/// Network settings as `192.168.1.30/24 via 192.168.1.1` or `DHCP`.
+pub fn net_string(net: &protocol::NetSettings) -> String {
+    if net.dhcp {
+        return "DHCP".into();
+    }
+    let [a, b, c, d] = net.ip;
+    let mut s = format!("{a}.{b}.{c}.{d}/{}", net.prefix_len);
+    if net.gateway != [0; 4] {
+        let [a, b, c, d] = net.gateway;
+        s.push_str(&format!(" via {a}.{b}.{c}.{d}"));
+    }
+    s
+}
+
+/// Parses `A.B.C.D/P` (the prefix is required).
+pub fn parse_cidr(s: &str) -> Result<([u8; 4], u8), String> {
+    let (ip, prefix) = s
+        .split_once('/')
+        .ok_or_else(|| format!("{s}: give the address with its prefix, e.g. 192.168.1.30/24"))?;
+    let ip: std::net::Ipv4Addr = ip
+        .parse()
+        .map_err(|_| format!("{ip}: not an IPv4 address"))?;
+    let prefix: u8 = prefix
+        .parse()
+        .ok()
+        .filter(|p| (1..=32).contains(p))
+        .ok_or_else(|| format!("{prefix}: the prefix length must be 1..32"))?;
+    Ok((ip.octets(), prefix))
+}
+
+impl crate::Controller {
+    /// NET_SET: stores new network settings on the controller (owner only, not while
+    /// RUNNING); the controller applies them at its next reset. Invalid settings are
+    /// refused here, before anything is sent.
+    pub fn net_set(&self, net: protocol::NetSettings) -> crate::Result<Ack> {
+        if !net.is_valid() {
+            return Err(crate::Error::Io(std::io::Error::new(
+                std::io::ErrorKind::InvalidInput,
+                format!(
+                    "{}: not usable (a unicast address with a prefix of 1..32, a gateway \
+                     inside its subnet, or DHCP)",
+                    net_string(&net)
+                ),
+            )));
+        }
+        self.send(&Command::NetSet(net))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use protocol::{NetSettings, OwnerState, State};
+
+    #[test]
+    fn answers_are_recognised() {
+        let reply = DiscoverReply {
+            mac: [2, 0x53, 0x49, 0x4d, 0, 1],
+            net: NetSettings::fixed([10, 0, 0, 2], 24, Some([10, 0, 0, 1])),
+            version: [1, 0, 0],
+            joints: 6,
+            state: State::Stopped,
+            owner: OwnerState::Free,
+            owner_ip: [0; 4],
+            pending_reset: false,
+        };
+        let mut buf = [0u8; 64];
+        let n = reply.encode(7, &mut buf).unwrap();
+        assert_eq!(answer(&buf[..n]), Some(Some(reply)));
+        let ack = Report::Ack(Ack {
+            acked_tag: Tag::Discover as u8,
+            status: StatusCode::UnknownTag,
+            state: State::Stopped,
+            next_seq: 0,
+            buffered: 0,
+            free: 8192,
+        });
+        let n = ack.encode(7, &mut buf).unwrap();
+        assert_eq!(answer(&buf[..n]), Some(None));
+        for (status, old) in [(StatusCode::NotOwner, true), (StatusCode::BadCrc, false)] {
+            let ack = Report::Ack(Ack {
+                acked_tag: Tag::Discover as u8,
+                status,
+                state: State::Stopped,
+                next_seq: 0,
+                buffered: 0,
+                free: 8192,
+            });
+            let n = ack.encode(7, &mut buf).unwrap();
+            assert_eq!(answer(&buf[..n]), old.then_some(None), "{status:?}");
+        }
+        assert_eq!(answer(&[1, 2, 3]), None);
+        assert_eq!(mac_string(&reply.mac), "02:53:49:4d:00:01");
+        assert_eq!(net_string(&reply.net), "10.0.0.2/24 via 10.0.0.1");
+        assert_eq!(net_string(&NetSettings::DHCP), "DHCP");
+        assert_eq!(parse_cidr("10.0.0.2/24"), Ok(([10, 0, 0, 2], 24)));
+        assert!(parse_cidr("10.0.0.2").is_err());
+        assert!(parse_cidr("10.0.0.2/33").is_err());
+    }
+}

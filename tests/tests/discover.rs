@@ -1,0 +1,118 @@
+//! `armctl discover` and `armctl net` against a sim-host on loopback, with DISCOVER sent to
+//! the simulator's own address (broadcast discovery runs in a network namespace:
+//! sim-host/tests/discover.sh).
+
+use std::process::Command;
+use std::time::Duration;
+
+use armctl::{Error, RunOptions};
+use protocol::{NetSettings, Point, StatusCode};
+use system_tests::{SimHost, armctl_bin};
+
+fn armctl(args: &[&str]) -> (bool, String) {
+    let out = Command::new(armctl_bin())
+        .args(args)
+        .output()
+        .expect("run armctl");
+    let text = format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    (out.status.success(), text)
+}
+
+#[test]
+fn discover_answers_any_host_and_net_set_is_stored_for_the_next_reset() {
+    let sim = SimHost::start(&[]);
+    let to = sim.addr.to_string();
+    let controller = ["--controller", to.as_str()];
+
+    // The harness's STATUS made 127.0.0.1 the owner. Another host (127.0.0.2) is
+    // answered all the same, and told who owns the controller.
+    let arm = sim.connect();
+    let (ok, out) = armctl(&["--bind", "127.0.0.2:0", "discover", "--to", &to]);
+    assert!(ok, "{out}");
+    assert!(out.contains("mac 02:53:49:4d:"), "{out}");
+    assert!(out.contains("6 joints") && out.contains("STOPPED"), "{out}");
+    assert!(out.contains("owned by 127.0.0.1"), "{out}");
+    assert!(out.contains("1 controller(s) answered"), "{out}");
+    // Discovery changed nothing: 127.0.0.2 is still not the owner.
+    let (ok, out) = armctl(&["--bind", "127.0.0.2:0", "--controller", &to, "status"]);
+    assert!(!ok && out.contains("NOT_OWNER"), "{out}");
+    let (_, out) = armctl(&["discover", "--to", &to]);
+    assert!(out.contains("owned by this host"), "{out}");
+
+    // NET_SET from another host: NOT_OWNER (its STATUS is refused first).
+    let (ok, out) = armctl(&[
+        "--bind",
+        "127.0.0.2:0",
+        "--controller",
+        &to,
+        "net",
+        "set",
+        "--dhcp",
+    ]);
+    assert!(!ok && out.contains("NOT_OWNER"), "{out}");
+
+    // While the arm runs: BAD_STATE.
+    let start = arm.last_location().map(|l| l.position).unwrap_or_default();
+    let mut target = start;
+    target[0] += 2_000;
+    let points = [Point::from_motion(2_000_000, &start, &target)];
+    arm.run_trajectory(
+        &points,
+        &RunOptions {
+            wait: false,
+            ..RunOptions::default()
+        },
+        |_| {},
+    )
+    .expect("run started");
+    let refused = arm.net_set(NetSettings::fixed([10, 1, 2, 3], 24, None));
+    assert!(
+        matches!(
+            refused,
+            Err(Error::Refused {
+                status: StatusCode::BadState,
+                ..
+            })
+        ),
+        "{refused:?}"
+    );
+    arm.stop().expect("stop");
+
+    // Stored, shown as pending, in the settings file.
+    let mut args = controller.to_vec();
+    args.extend(["net", "set", "--ip", "10.1.2.3/24", "--gateway", "10.1.2.1"]);
+    let (ok, out) = armctl(&args);
+    assert!(ok && out.contains("after its next reset"), "{out}");
+    let mut args = controller.to_vec();
+    args.extend(["net", "show"]);
+    let (ok, out) = armctl(&args);
+    assert!(ok, "{out}");
+    assert!(
+        out.contains("stored 10.1.2.3/24 via 10.1.2.1 (after reset)"),
+        "{out}"
+    );
+    let settings = std::fs::read_to_string(sim.dir().join("settings.txt")).unwrap_or_default();
+    assert!(settings.contains("ip=10.1.2.3"), "{settings}");
+    assert!(settings.contains("gateway=10.1.2.1"), "{settings}");
+
+    // Settings no controller can use are refused before anything is sent.
+    let mut args = controller.to_vec();
+    args.extend(["net", "set", "--ip", "10.1.2.255/24"]);
+    let (ok, out) = armctl(&args);
+    assert!(!ok && out.contains("not usable"), "{out}");
+    drop(arm);
+}
+
+#[test]
+fn discover_of_nothing_is_an_empty_list_in_bounded_time() {
+    // A closed loopback port: nothing answers.
+    let started = std::time::Instant::now();
+    let (ok, out) = armctl(&["discover", "--to", "127.0.0.1:9", "--wait-ms", "100"]);
+    assert!(ok, "{out}");
+    assert!(out.contains("0 controller(s) answered"), "{out}");
+    assert!(started.elapsed() < Duration::from_secs(5));
+}

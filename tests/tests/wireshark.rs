@@ -1,0 +1,633 @@
+//! The Wireshark dissector `tools/wireshark/arm_controller.lua` against the protocol crate.
+//!
+//! 1. Every golden frame of `shared/vectors/frames.json` goes through `text2pcap` (UDP
+//!    headers with the controller's port on the right side) and `tshark -X lua_script:`;
+//!    each field the dissector shows must equal what `protocol`'s own decoder makes of the
+//!    same bytes, and for an invalid frame its verdict (`armctl.verdict`) must be the status
+//!    the file names and the crate gives.
+//! 2. A capture written by `sim-host --pcap` and one by `armctl --pcap` of the same session
+//!    open in tshark: each command is paired with its ACK (with the round trip), and a
+//!    command resent with the same bytes is marked as a retransmission.
+//!
+//! Needs `tshark` and `text2pcap` (Debian: `apt-get install tshark`; `.ci/run` installs
+//! it); without them each test says so and passes.
+
+use std::collections::HashMap;
+use std::net::UdpSocket;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::Duration;
+
+use protocol::{Command as Cmd, Report, crc8};
+use serde_json::Value;
+use system_tests::{SimHost, armctl_bin};
+
+const DISSECTOR: &str = concat!(
+    env!("CARGO_MANIFEST_DIR"),
+    "/../tools/wireshark/arm_controller.lua"
+);
+const DEFAULT_VECTORS: &str = concat!(
+    env!("CARGO_MANIFEST_DIR"),
+    "/../../shared/vectors/frames.json"
+);
+
+/// Whether tshark and text2pcap run here; prints why not.
+fn have_wireshark(test: &str) -> bool {
+    for tool in ["tshark", "text2pcap"] {
+        let found = Command::new(tool)
+            .arg("--version")
+            .output()
+            .is_ok_and(|o| o.status.success());
+        if !found {
+            eprintln!(
+                "SKIP {test}: needs `{tool}` (Debian: apt-get install tshark; .ci/run installs it)"
+            );
+            return false;
+        }
+    }
+    true
+}
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("wireshark-test-{}-{name}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("scratch dir");
+    dir
+}
+
+/// The packets of `pcap` as tshark with the dissector shows them: one map of field name to
+/// value (all occurrences, comma separated) per packet. `two_pass`: analysis that needs
+/// later frames (an ACK's frame number in its command). `port`: the controller's UDP port
+/// when it is not 8510 (decoded as armctl, as Wireshark's "Decode As" does).
+fn dissect(
+    pcap: &Path,
+    fields: &[&str],
+    two_pass: bool,
+    port: Option<u16>,
+) -> Vec<HashMap<String, String>> {
+    let mut command = Command::new("tshark");
+    command
+        .arg("-r")
+        .arg(pcap)
+        .arg("-X")
+        .arg(format!("lua_script:{DISSECTOR}"))
+        .args(["-T", "fields", "-E", "occurrence=a", "-E", "aggregator=,"]);
+    if two_pass {
+        command.arg("-2");
+    }
+    if let Some(port) = port {
+        command.args(["-d", &format!("udp.port=={port},armctl")]);
+    }
+    for field in fields {
+        command.args(["-e", field]);
+    }
+    let out = command.output().expect("run tshark");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "tshark failed: {stderr}");
+    assert!(
+        !stderr.contains("Lua"),
+        "the dissector raised an error in tshark: {stderr}"
+    );
+    String::from_utf8_lossy(&out.stdout)
+        .lines()
+        .map(|line| {
+            fields
+                .iter()
+                .zip(line.split('\t'))
+                .filter(|(_, v)| !v.is_empty())
+                .map(|(k, v)| (k.to_string(), v.to_string()))
+                .collect()
+        })
+        .collect()
+}
+
+/// A tshark value as numbers: decimal or 0x hex, comma separated.
+fn numbers(value: &str) -> Vec<i64> {
+    value
+        .split(',')
+        .map(|v| {
+            let v = v.trim();
+            match v.strip_prefix("0x") {
+                Some(hex) => i64::from_str_radix(hex, 16),
+                None => v.parse(),
+            }
+            .unwrap_or_else(|_| panic!("not a number: {v:?} in {value:?}"))
+        })
+        .collect()
+}
+
+fn hex(bytes: &[u8]) -> String {
+    bytes.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+fn from_hex(s: &str) -> Vec<u8> {
+    (0..s.len())
+        .step_by(2)
+        .map(|i| u8::from_str_radix(&s[i..i + 2], 16).expect("hex"))
+        .collect()
+}
+
+/// What the dissector must show for one frame, from the protocol crate's decoding.
+#[derive(Default)]
+struct Expected {
+    numbers: Vec<(&'static str, Vec<i64>)>,
+    strings: Vec<(&'static str, String)>,
+}
+
+impl Expected {
+    fn num(&mut self, field: &'static str, values: impl IntoIterator<Item = i64>) {
+        self.numbers.push((field, values.into_iter().collect()));
+    }
+    fn one(&mut self, field: &'static str, value: impl Into<i64>) {
+        self.num(field, [value.into()]);
+    }
+    fn text(&mut self, field: &'static str, value: String) {
+        self.strings.push((field, value));
+    }
+}
+
+fn expect_command(frame: &protocol::Frame<Cmd<'_>>, e: &mut Expected) {
+    e.one("armctl.verdict", 0);
+    match frame.body {
+        Cmd::New { count } => e.one("armctl.new.count", count),
+        Cmd::Pending(points) => {
+            e.one("armctl.points", points.len() as i64);
+            e.num(
+                "armctl.point.duration",
+                points.iter().map(|p| i64::from(p.duration)),
+            );
+            e.num(
+                "armctl.point.position",
+                points.iter().flat_map(|p| p.position.map(i64::from)),
+            );
+            e.num(
+                "armctl.point.number_of_period",
+                points
+                    .iter()
+                    .flat_map(|p| p.number_of_period.map(i64::from)),
+            );
+            e.num(
+                "armctl.point.period",
+                points.iter().flat_map(|p| p.period.map(i64::from)),
+            );
+            e.num(
+                "armctl.point.number_of_full_period",
+                points
+                    .iter()
+                    .flat_map(|p| p.number_of_full_period.map(i64::from)),
+            );
+            e.num(
+                "armctl.point.rest_period",
+                points.iter().flat_map(|p| p.rest_period.map(i64::from)),
+            );
+        }
+        Cmd::PwmStart(pwm) => {
+            e.one("armctl.pwm.psc", pwm.psc);
+            e.one("armctl.pwm.arr", pwm.arr);
+            e.one("armctl.pwm.ccr1", pwm.ccr1);
+            e.one("armctl.pwm.pulse_count", pwm.pulse_count);
+        }
+        Cmd::UsartStart(init) => {
+            e.one("armctl.uart.baud_rate", init.baud_rate);
+            e.one("armctl.uart.word_length", init.word_length);
+            e.one("armctl.uart.stop_bits", init.stop_bits);
+            e.one("armctl.uart.parity", init.parity);
+            e.one("armctl.uart.mode", init.mode);
+            e.one("armctl.uart.hw_flow_ctl", init.hw_flow_ctl);
+            e.one("armctl.uart.over_sampling", init.over_sampling);
+        }
+        Cmd::UsartSend(bytes) => e.text("armctl.usart.data", hex(bytes)),
+        Cmd::ToggleEnablePins { mask: Some(mask) } => e.one("armctl.enable.mask", mask),
+        Cmd::JointsCount(n) => e.one("armctl.joints", n),
+        Cmd::LocationSetting(location) => {
+            e.num("armctl.location.position", location.position.map(i64::from));
+            e.one("armctl.location.state", location.state);
+        }
+        Cmd::UploadPeriod { period_us } => e.one("armctl.upload_period_us", period_us),
+        _ => {}
+    }
+}
+
+fn expect_report(frame: &protocol::Frame<Report<'_>>, e: &mut Expected) {
+    match frame.body {
+        Report::Ack(ack) => {
+            e.one("armctl.ack.acked_tag", ack.acked_tag);
+            e.one("armctl.ack.status", ack.status as u8);
+            e.one("armctl.ack.state", ack.state as u8);
+            e.one("armctl.ack.next_seq", ack.next_seq);
+            e.one("armctl.ack.buffered", ack.buffered);
+            e.one("armctl.ack.free", ack.free);
+        }
+        Report::Location(location) => {
+            e.num("armctl.location.position", location.position.map(i64::from));
+            e.one("armctl.location.state", location.state);
+        }
+        Report::UsartRecv(bytes) => {
+            e.one("armctl.usart.len", bytes.len() as i64);
+            e.text("armctl.usart.data", hex(bytes));
+        }
+        Report::Status(s) => {
+            let [a, b, c] = s.version;
+            e.text("armctl.status.version", format!("{a}.{b}.{c}"));
+            e.one("armctl.status.joints", s.joints);
+            e.one("armctl.status.state", s.state as u8);
+            e.one("armctl.status.flags", s.flags.0);
+            e.one("armctl.status.buffered", s.buffered);
+            e.one("armctl.status.expected", s.expected);
+            e.one("armctl.status.received", s.received);
+            e.one("armctl.status.executed", s.executed);
+            e.one("armctl.status.capacity", s.capacity);
+            e.one("armctl.status.upload_period_us", s.upload_period_us);
+            e.one("armctl.status.pwm_timer_clock_hz", s.pwm_timer_clock_hz);
+            e.one("armctl.status.max_step_rate_hz", s.max_step_rate_hz);
+        }
+    }
+}
+
+/// Every field the checks below read.
+const FIELDS: &[&str] = &[
+    "armctl.seq",
+    "armctl.tag",
+    "armctl.direction",
+    "armctl.crc",
+    "armctl.crc.status",
+    "armctl.verdict",
+    "armctl.new.count",
+    "armctl.points",
+    "armctl.point.duration",
+    "armctl.point.position",
+    "armctl.point.number_of_period",
+    "armctl.point.period",
+    "armctl.point.number_of_full_period",
+    "armctl.point.rest_period",
+    "armctl.pwm.psc",
+    "armctl.pwm.arr",
+    "armctl.pwm.ccr1",
+    "armctl.pwm.pulse_count",
+    "armctl.uart.baud_rate",
+    "armctl.uart.word_length",
+    "armctl.uart.stop_bits",
+    "armctl.uart.parity",
+    "armctl.uart.mode",
+    "armctl.uart.hw_flow_ctl",
+    "armctl.uart.over_sampling",
+    "armctl.usart.len",
+    "armctl.usart.data",
+    "armctl.enable.mask",
+    "armctl.joints",
+    "armctl.upload_period_us",
+    "armctl.location.position",
+    "armctl.location.state",
+    "armctl.ack.acked_tag",
+    "armctl.ack.status",
+    "armctl.ack.state",
+    "armctl.ack.next_seq",
+    "armctl.ack.buffered",
+    "armctl.ack.free",
+    "armctl.status.version",
+    "armctl.status.joints",
+    "armctl.status.state",
+    "armctl.status.flags",
+    "armctl.status.buffered",
+    "armctl.status.expected",
+    "armctl.status.received",
+    "armctl.status.executed",
+    "armctl.status.capacity",
+    "armctl.status.upload_period_us",
+    "armctl.status.pwm_timer_clock_hz",
+    "armctl.status.max_step_rate_hz",
+    "_ws.expert.message",
+];
+
+fn status_code(name: &str) -> u8 {
+    (0..=255u8)
+        .find(|&c| protocol::StatusCode::from_u8(c).is_some_and(|s| s.name() == name))
+        .unwrap_or_else(|| panic!("unknown status name {name}"))
+}
+
+#[test]
+fn golden_frames_decode_in_wireshark_as_in_the_protocol_crate() {
+    if !have_wireshark("golden frames") {
+        return;
+    }
+    let path =
+        std::env::var_os("ARM_VECTORS").map_or(PathBuf::from(DEFAULT_VECTORS), PathBuf::from);
+    let text = std::fs::read_to_string(&path).unwrap_or_else(|e| {
+        panic!(
+            "golden vectors not readable at {}: {e} (set ARM_VECTORS)",
+            path.display()
+        )
+    });
+    let root: Value = serde_json::from_str(&text).expect("frames.json is JSON");
+    let vectors = root["frames"].as_array().expect("a frames array");
+    assert!(!vectors.is_empty());
+
+    // One text2pcap input, each frame marked inbound (to the controller's port 8510) or
+    // outbound (from it): -D swaps the dummy addresses and ports for outbound frames.
+    let dir = scratch("golden");
+    let mut dump = String::new();
+    for v in vectors {
+        let bytes = from_hex(v["hex"].as_str().expect("hex"));
+        let to_controller = v["direction"] == "to_controller";
+        dump.push_str(if to_controller { "I\n" } else { "O\n" });
+        for (i, chunk) in bytes.chunks(16).enumerate() {
+            let line: Vec<String> = chunk.iter().map(|b| format!("{b:02x}")).collect();
+            dump.push_str(&format!("{:06x} {}\n", i * 16, line.join(" ")));
+        }
+    }
+    std::fs::write(dir.join("golden.txt"), dump).unwrap();
+    let pcap = dir.join("golden.pcap");
+    let status = Command::new("text2pcap")
+        .args(["-q", "-D", "-u", &format!("50000,{}", protocol::PORT)])
+        .arg(dir.join("golden.txt"))
+        .arg(&pcap)
+        .status()
+        .expect("run text2pcap");
+    assert!(status.success(), "text2pcap failed");
+    let packets = dissect(&pcap, FIELDS, false, None);
+    assert_eq!(packets.len(), vectors.len(), "one packet per golden frame");
+
+    let mut checked_fields = 0;
+    for (v, shown) in vectors.iter().zip(&packets) {
+        let name = v["name"].as_str().unwrap_or("?");
+        let bytes = from_hex(v["hex"].as_str().unwrap());
+        let to_controller = v["direction"] == "to_controller";
+        let get = |field: &str| shown.get(field).map(String::as_str);
+        assert_eq!(
+            get("armctl.direction"),
+            Some(if to_controller { "0" } else { "1" }),
+            "{name}: direction"
+        );
+        if bytes.len() < 3 {
+            assert!(get("armctl.seq").is_none(), "{name}: no frame in {shown:?}");
+            assert!(
+                get("_ws.expert.message").is_some_and(|m| m.contains("too short")),
+                "{name}: too short: {shown:?}"
+            );
+            continue;
+        }
+        assert_eq!(
+            get("armctl.seq").map(numbers),
+            Some(vec![i64::from(bytes[0])]),
+            "{name}: seq"
+        );
+        assert_eq!(
+            get("armctl.tag").map(numbers),
+            Some(vec![i64::from(bytes[1])]),
+            "{name}: tag"
+        );
+        assert_eq!(
+            get("armctl.crc").map(numbers),
+            Some(vec![i64::from(bytes[bytes.len() - 1])]),
+            "{name}: crc"
+        );
+        let crc_good = crc8(&bytes[..bytes.len() - 1]) == bytes[bytes.len() - 1];
+        assert_eq!(
+            get("armctl.crc.status"),
+            Some(if crc_good { "1" } else { "0" }),
+            "{name}: crc status"
+        );
+
+        if let Some(expected) = v["expect_status"].as_str() {
+            // An invalid frame: the dissector's verdict is the file's and the crate's.
+            let crate_status = Cmd::decode(&bytes)
+                .err()
+                .and_then(|e| e.status())
+                .map(|s| s.name());
+            assert_eq!(crate_status, Some(expected), "{name}: the crate's verdict");
+            assert_eq!(
+                get("armctl.verdict").map(numbers),
+                Some(vec![i64::from(status_code(expected))]),
+                "{name}: the dissector's verdict ({shown:?})"
+            );
+            assert!(
+                get("_ws.expert.message").is_some(),
+                "{name}: an expert note says what is wrong"
+            );
+            continue;
+        }
+
+        let mut expected = Expected::default();
+        if to_controller {
+            let frame = Cmd::decode(&bytes).unwrap_or_else(|e| panic!("{name}: {e}"));
+            expect_command(&frame, &mut expected);
+        } else {
+            let frame = Report::decode(&bytes).unwrap_or_else(|e| panic!("{name}: {e}"));
+            expect_report(&frame, &mut expected);
+        }
+        for (field, values) in &expected.numbers {
+            assert_eq!(
+                get(field).map(numbers).unwrap_or_default(),
+                *values,
+                "{name}: {field}"
+            );
+            checked_fields += 1;
+        }
+        for (field, value) in &expected.strings {
+            assert_eq!(get(field), Some(value.as_str()), "{name}: {field}");
+            checked_fields += 1;
+        }
+        // Nothing shown that the crate did not decode (a field of another command).
+        for field in shown.keys() {
+            let generic = [
+                "armctl.seq",
+                "armctl.tag",
+                "armctl.direction",
+                "armctl.crc",
+                "armctl.crc.status",
+                "_ws.expert.message",
+            ];
+            let listed = expected.numbers.iter().any(|(f, _)| f == field)
+                || expected.strings.iter().any(|(f, _)| f == field);
+            assert!(
+                generic.contains(&field.as_str()) || listed,
+                "{name}: unexpected field {field} = {}",
+                shown[field]
+            );
+        }
+    }
+    eprintln!(
+        "wireshark: {} golden frames, {checked_fields} decoded fields equal to the protocol crate's",
+        vectors.len()
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Sends `frame` from `socket` and waits (bounded) for its ACK.
+fn send_and_ack(socket: &UdpSocket, frame: &[u8]) {
+    socket.send(frame).expect("send");
+    let mut buf = [0u8; 2048];
+    for _ in 0..20 {
+        let Ok(n) = socket.recv(&mut buf) else {
+            continue;
+        };
+        if n == 11 && buf[1] == 0x14 && buf[0] == frame[0] {
+            return;
+        }
+    }
+    panic!("no ACK for seq {}", frame[0]);
+}
+
+#[test]
+fn session_captures_pair_acks_and_mark_retransmissions() {
+    if !have_wireshark("session captures") {
+        return;
+    }
+    let dir = scratch("session");
+    let sim_pcap = dir.join("sim-host.pcap");
+    let mut sim = SimHost::start(&["--pcap", sim_pcap.to_str().unwrap()]);
+
+    // A host that resends PIN0_ON with the same bytes (as after a lost ACK): the
+    // controller re-ACKs it without executing it twice; the capture must say so.
+    let socket = UdpSocket::bind("127.0.0.1:0").unwrap();
+    socket.connect(sim.addr).unwrap();
+    socket
+        .set_read_timeout(Some(Duration::from_millis(200)))
+        .unwrap();
+    let mut pin = vec![0x42, 0x0c];
+    pin.push(crc8(&pin));
+    send_and_ack(&socket, &pin);
+    send_and_ack(&socket, &pin);
+    // DISCOVER: answered with a DISCOVER_REPLY, which the dissector pairs with it.
+    let mut discover = vec![0x43, protocol::Tag::Discover as u8];
+    discover.push(crc8(&discover));
+    socket.send(&discover).unwrap();
+    let mut buf = [0u8; 2048];
+    let reply = loop {
+        let n = socket.recv(&mut buf).expect("a DISCOVER_REPLY");
+        if let Ok(frame) = protocol::DiscoverReply::decode(&buf[..n]) {
+            break frame.body;
+        }
+    };
+    drop(socket);
+
+    // The CLI's own capture of the same session.
+    let cli_pcap = dir.join("armctl.pcap");
+    let out = Command::new(armctl_bin())
+        .args(["--controller", &sim.addr.to_string(), "--pcap"])
+        .arg(&cli_pcap)
+        .args(["pin", "1", "on"])
+        .output()
+        .expect("run armctl");
+    assert!(
+        out.status.success(),
+        "armctl pin: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    sim.terminate();
+
+    let fields = [
+        "frame.number",
+        "armctl.direction",
+        "armctl.tag",
+        "armctl.seq",
+        "armctl.response_in",
+        "armctl.response_to",
+        "armctl.time",
+        "armctl.retransmission",
+        "armctl.discover.mac",
+        "armctl.discover.ip",
+        "armctl.discover.prefix_len",
+        "armctl.discover.version",
+        "armctl.discover.joints",
+        "armctl.discover.state",
+        "armctl.discover.owner",
+        "armctl.discover.owner_ip",
+    ];
+    // The controller's capture: commands are paired with their ACKs, the resend is marked.
+    let port = Some(sim.addr.port());
+    let packets = dissect(&sim_pcap, &fields, true, port);
+    let commands: Vec<_> = packets
+        .iter()
+        .filter(|p| p.get("armctl.direction").is_some_and(|d| d == "0"))
+        .collect();
+    let acks: Vec<_> = packets
+        .iter()
+        .filter(|p| p.get("armctl.tag").is_some_and(|t| t == "0x14"))
+        .collect();
+    assert!(
+        !commands.is_empty() && !acks.is_empty(),
+        "{} packets, none dissected as commands and ACKs",
+        packets.len()
+    );
+    for command in &commands {
+        assert!(
+            command.contains_key("armctl.response_in"),
+            "command without its ACK: {command:?}"
+        );
+    }
+    for ack in &acks {
+        let to = ack.get("armctl.response_to").expect("ACK paired");
+        let rtt: f64 = ack["armctl.time"].parse().expect("round trip in seconds");
+        assert!((0.0..1.0).contains(&rtt), "round trip {rtt} s");
+        let command = packets
+            .iter()
+            .find(|p| p.get("frame.number") == Some(to))
+            .expect("the paired frame exists");
+        assert_eq!(command.get("armctl.seq"), ack.get("armctl.seq"));
+    }
+    let pins: Vec<_> = commands
+        .iter()
+        .filter(|p| p.get("armctl.tag").is_some_and(|t| t == "0x0c"))
+        .collect();
+    assert_eq!(pins.len(), 2, "PIN0_ON twice: {pins:?}");
+    assert!(!pins[0].contains_key("armctl.retransmission"));
+    assert_eq!(
+        pins[1].get("armctl.retransmission"),
+        pins[0].get("frame.number"),
+        "the resend points at the first copy"
+    );
+    let shown = packets
+        .iter()
+        .find(|p| p.get("armctl.tag").is_some_and(|t| t == "0x22"))
+        .expect("the DISCOVER_REPLY in the capture");
+    let [a, b, c, d] = reply.net.ip;
+    let [e, f, g, h] = reply.owner_ip;
+    let [v0, v1, v2] = reply.version;
+    let mac: Vec<String> = reply.mac.iter().map(|b| format!("{b:02x}")).collect();
+    for (field, value) in [
+        ("armctl.discover.mac", mac.join(":")),
+        ("armctl.discover.ip", format!("{a}.{b}.{c}.{d}")),
+        (
+            "armctl.discover.prefix_len",
+            reply.net.prefix_len.to_string(),
+        ),
+        ("armctl.discover.version", format!("{v0}.{v1}.{v2}")),
+        ("armctl.discover.joints", reply.joints.to_string()),
+        ("armctl.discover.state", (reply.state as u8).to_string()),
+        ("armctl.discover.owner", (reply.owner as u8).to_string()),
+        ("armctl.discover.owner_ip", format!("{e}.{f}.{g}.{h}")),
+    ] {
+        assert_eq!(shown.get(field), Some(&value), "DISCOVER_REPLY {field}");
+    }
+    assert!(
+        shown.contains_key("armctl.response_to"),
+        "paired with DISCOVER"
+    );
+    let pin1_in_sim = commands
+        .iter()
+        .any(|p| p.get("armctl.tag").is_some_and(|t| t == "0x0e"));
+    assert!(
+        pin1_in_sim,
+        "armctl's PIN1_ON reached the controller's capture"
+    );
+
+    // armctl's capture: STATUS (connect) and PIN1_ON, each with its ACK.
+    let packets = dissect(&cli_pcap, &fields, true, port);
+    let tags: Vec<&str> = packets
+        .iter()
+        .filter(|p| p.get("armctl.direction").is_some_and(|d| d == "0"))
+        .filter_map(|p| p.get("armctl.tag").map(String::as_str))
+        .collect();
+    assert!(
+        tags.contains(&"0x15") && tags.contains(&"0x0e"),
+        "armctl's capture holds STATUS and PIN1_ON: {tags:?}"
+    );
+    assert!(
+        packets
+            .iter()
+            .filter(|p| p.get("armctl.direction").is_some_and(|d| d == "0"))
+            .all(|p| p.contains_key("armctl.response_in")),
+        "every command in armctl's capture got its ACK: {packets:?}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}

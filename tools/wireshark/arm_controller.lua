@@ -1,0 +1,626 @@
+-- Wireshark dissector for the arm controller's UDP protocol (docs/PROTOCOL.md).
+--
+-- Install: copy this file into Wireshark's personal Lua plugins folder (Help > About >
+-- Folders > "Personal Lua Plugins", e.g. ~/.local/lib/wireshark/plugins/), or run
+-- `tshark -X lua_script:tools/wireshark/arm_controller.lua -r capture.pcap`.
+-- docs/WIRESHARK.md has the details.
+--
+-- A frame is | seq u8 | tag u8 | data | crc u8 | (CRC-8/SMBUS over seq, tag and data).
+-- Tags 0x13 and 0x15 travel both ways with different contents (LOCATION_SETTING from a
+-- host / LOCATION from the controller; a STATUS request / the STATUS report): the
+-- direction is decided by the port, 8510 being the controller's (Edit > Preferences >
+-- Protocols > ARMCTL to change it, or Decode As for a simulator on another port).
+--
+-- Analysis (done on the first pass over a capture): each command is paired with its ACK
+-- (armctl.response_in / armctl.response_to, round trip armctl.time), and a command sent
+-- again with the same bytes by the same host port is marked as a retransmission of the
+-- first copy (armctl.retransmission, with an expert note).
+
+local armctl = Proto("armctl", "Arm controller protocol")
+
+local DEFAULT_PORT = 8510
+armctl.prefs.port = Pref.uint("Controller UDP port", DEFAULT_PORT,
+    "UDP port the controller listens on: datagrams to it are commands, from it reports")
+
+----------------------------------------------------------------------------------------
+-- Value names
+
+local tag_names = {
+    [0x00] = "NEW", [0x01] = "PENDING", [0x02] = "RUNING", [0x03] = "STOPPED",
+    [0x04] = "UPLOAD_START", [0x05] = "UPLOAD_STOP", [0x06] = "PWM_START",
+    [0x07] = "PWM_STOP", [0x08] = "USART_START", [0x09] = "USART_STOP",
+    [0x0a] = "USART_SEND", [0x0b] = "USART_RECV", [0x0c] = "PIN0_ON", [0x0d] = "PIN0_OFF",
+    [0x0e] = "PIN1_ON", [0x0f] = "PIN1_OFF", [0x10] = "TOGGLE_ENABLE_PINS",
+    [0x11] = "RETURN", [0x12] = "JOINTS_COUNT", [0x13] = "LOCATION_SETTING/LOCATION",
+    [0x14] = "ACK", [0x15] = "STATUS", [0x16] = "UPLOAD_PERIOD",
+    [0x20] = "DISCOVER", [0x21] = "NET_SET", [0x22] = "DISCOVER_REPLY",
+}
+-- Names that depend on the direction.
+local host_names = { [0x13] = "LOCATION_SETTING", [0x15] = "STATUS request" }
+local controller_names = { [0x13] = "LOCATION", [0x15] = "STATUS report" }
+
+local state_names = { [0] = "NEW", [1] = "PENDING", [2] = "RUNNING", [3] = "STOPPED" }
+
+local status_names = {
+    [0] = "OK", [1] = "BAD_CRC", [2] = "UNKNOWN_TAG", [3] = "BAD_LENGTH", [4] = "BAD_STATE",
+    [5] = "OUT_OF_ORDER", [6] = "TOO_MANY_POINTS", [7] = "INVALID_POINT", [8] = "BUFFER_FULL",
+    [9] = "NOT_OWNER", [10] = "UNSUPPORTED", [11] = "INVALID_CONFIG",
+}
+
+local crc_status_names = { [0] = "Bad", [1] = "Good", [2] = "Unverified" }
+local direction_names = { [0] = "host to controller", [1] = "controller to host" }
+local uart_mode_names = { [0] = "both directions", [1] = "receive only", [2] = "transmit only" }
+local owner_names = { [0] = "no owner", [1] = "owned", [2] = "owned by the asking host" }
+local addr_mode_names = { [0] = "static", [1] = "DHCP" }
+
+----------------------------------------------------------------------------------------
+-- Fields
+
+local f = {
+    seq = ProtoField.uint8("armctl.seq", "Sequence number", base.DEC),
+    tag = ProtoField.uint8("armctl.tag", "Tag", base.HEX, tag_names),
+    direction = ProtoField.uint8("armctl.direction", "Direction", base.DEC, direction_names),
+    data = ProtoField.bytes("armctl.data", "Data"),
+    crc = ProtoField.uint8("armctl.crc", "CRC-8/SMBUS", base.HEX),
+    crc_status = ProtoField.uint8("armctl.crc.status", "CRC status", base.DEC, crc_status_names),
+    crc_computed = ProtoField.uint8("armctl.crc.computed", "Computed CRC", base.HEX),
+
+    -- commands
+    new_count = ProtoField.uint16("armctl.new.count", "Point count", base.DEC),
+    points = ProtoField.uint8("armctl.points", "Points in frame", base.DEC),
+    point = ProtoField.none("armctl.point", "Point"),
+    point_duration = ProtoField.int32("armctl.point.duration", "Duration (us)", base.DEC),
+    point_position = ProtoField.int32("armctl.point.position", "Position (steps)", base.DEC),
+    point_full = ProtoField.int16("armctl.point.number_of_full_period", "numberOfFullPeriod", base.DEC),
+    point_rest = ProtoField.int16("armctl.point.rest_period", "restPeriod", base.DEC),
+    point_nperiod = ProtoField.int16("armctl.point.number_of_period", "numberOfPeriod", base.DEC),
+    point_period = ProtoField.int32("armctl.point.period", "period", base.DEC),
+    pwm_psc = ProtoField.uint32("armctl.pwm.psc", "PSC", base.DEC),
+    pwm_arr = ProtoField.uint32("armctl.pwm.arr", "ARR", base.DEC),
+    pwm_ccr1 = ProtoField.uint32("armctl.pwm.ccr1", "CCR1", base.DEC),
+    pwm_pulse_count = ProtoField.int32("armctl.pwm.pulse_count", "PluseCount", base.DEC),
+    uart_baud = ProtoField.uint32("armctl.uart.baud_rate", "BaudRate", base.DEC),
+    uart_word = ProtoField.uint32("armctl.uart.word_length", "WordLength", base.HEX),
+    uart_stop = ProtoField.uint32("armctl.uart.stop_bits", "StopBits", base.HEX),
+    uart_parity = ProtoField.uint32("armctl.uart.parity", "Parity", base.HEX),
+    uart_parity2 = ProtoField.uint32("armctl.uart.parity_repeated", "Parity (repeated, ignored)", base.HEX),
+    uart_mode = ProtoField.uint32("armctl.uart.mode", "Mode", base.DEC, uart_mode_names),
+    uart_flow = ProtoField.uint32("armctl.uart.hw_flow_ctl", "HwFlowCtl", base.HEX),
+    uart_over = ProtoField.uint32("armctl.uart.over_sampling", "OverSampling", base.HEX),
+    usart_len = ProtoField.uint8("armctl.usart.len", "Length", base.DEC),
+    usart_data = ProtoField.bytes("armctl.usart.data", "Serial bytes"),
+    enable_mask = ProtoField.uint16("armctl.enable.mask", "Enable mask", base.HEX),
+    joints = ProtoField.uint8("armctl.joints", "Joints", base.DEC),
+    upload_period = ProtoField.uint32("armctl.upload_period_us", "Upload period (us)", base.DEC),
+
+    -- LOCATION / LOCATION_SETTING
+    location_position = ProtoField.int32("armctl.location.position", "Position (steps)", base.DEC),
+    location_state = ProtoField.uint8("armctl.location.state", "State", base.DEC, state_names),
+
+    -- ACK
+    ack_acked_tag = ProtoField.uint8("armctl.ack.acked_tag", "Acknowledged tag", base.HEX, tag_names),
+    ack_status = ProtoField.uint8("armctl.ack.status", "Status", base.DEC, status_names),
+    ack_state = ProtoField.uint8("armctl.ack.state", "State", base.DEC, state_names),
+    ack_next_seq = ProtoField.uint8("armctl.ack.next_seq", "Next seq", base.DEC),
+    ack_buffered = ProtoField.uint16("armctl.ack.buffered", "Buffered points", base.DEC),
+    ack_free = ProtoField.uint16("armctl.ack.free", "Free slots", base.DEC),
+
+    -- STATUS report
+    st_version = ProtoField.string("armctl.status.version", "Protocol version"),
+    st_joints = ProtoField.uint8("armctl.status.joints", "Joints", base.DEC),
+    st_state = ProtoField.uint8("armctl.status.state", "State", base.DEC, state_names),
+    st_flags = ProtoField.uint8("armctl.status.flags", "Flags", base.HEX),
+    st_flag_reports = ProtoField.bool("armctl.status.flags.reports_on", "Location reports on", 8, nil, 0x01),
+    st_flag_drivers = ProtoField.bool("armctl.status.flags.drivers_enabled", "Drivers enabled", 8, nil, 0x02),
+    st_flag_serial = ProtoField.bool("armctl.status.flags.serial_open", "Serial open", 8, nil, 0x04),
+    st_flag_pin0 = ProtoField.bool("armctl.status.flags.pin0_high", "PIN0 high", 8, nil, 0x08),
+    st_flag_pin1 = ProtoField.bool("armctl.status.flags.pin1_high", "PIN1 high", 8, nil, 0x10),
+    st_flag_underrun = ProtoField.bool("armctl.status.flags.underrun", "Last run ended by underrun", 8, nil, 0x20),
+    st_flag_pwm = ProtoField.bool("armctl.status.flags.pwm_active", "Gripper PWM active", 8, nil, 0x40),
+    st_flag_stopped = ProtoField.bool("armctl.status.flags.stopped_by_host", "Last run ended by STOPPED", 8, nil, 0x80),
+    st_window = ProtoField.uint16("armctl.status.window", "Window (offset 6; 0 = old controller)", base.DEC),
+    st_buffered = ProtoField.uint16("armctl.status.buffered", "Buffered points", base.DEC),
+    st_expected = ProtoField.uint16("armctl.status.expected", "Points announced", base.DEC),
+    st_received = ProtoField.uint16("armctl.status.received", "Points received", base.DEC),
+    st_executed = ProtoField.uint16("armctl.status.executed", "Points executed", base.DEC),
+    st_capacity = ProtoField.uint16("armctl.status.capacity", "Buffer capacity", base.DEC),
+    st_more_flags = ProtoField.uint16("armctl.status.more_flags", "More flags (offset 18)", base.HEX),
+    st_upload_period = ProtoField.uint32("armctl.status.upload_period_us", "Upload period (us)", base.DEC),
+    st_pwm_clock = ProtoField.uint32("armctl.status.pwm_timer_clock_hz", "PWM timer clock (Hz)", base.DEC),
+    st_max_rate = ProtoField.uint32("armctl.status.max_step_rate_hz", "Max step rate (steps/s)", base.DEC),
+    st_word32 = ProtoField.uint32("armctl.status.offset32", "Offset 32 (u32)", base.DEC),
+
+    -- DISCOVER_REPLY and NET_SET (PROTOCOL.md section 12)
+    disc_mac = ProtoField.ether("armctl.discover.mac", "MAC address"),
+    disc_ip = ProtoField.ipv4("armctl.discover.ip", "IPv4 address"),
+    disc_prefix = ProtoField.uint8("armctl.discover.prefix_len", "Prefix length", base.DEC),
+    disc_gateway = ProtoField.ipv4("armctl.discover.gateway", "Gateway"),
+    disc_mode = ProtoField.uint8("armctl.discover.addr_mode", "Address mode", base.DEC, addr_mode_names),
+    disc_version = ProtoField.string("armctl.discover.version", "Protocol version"),
+    disc_joints = ProtoField.uint8("armctl.discover.joints", "Joints", base.DEC),
+    disc_state = ProtoField.uint8("armctl.discover.state", "State", base.DEC, state_names),
+    disc_owner = ProtoField.uint8("armctl.discover.owner", "Owner state", base.DEC, owner_names),
+    disc_owner_ip = ProtoField.ipv4("armctl.discover.owner_ip", "Owner address"),
+    disc_pending = ProtoField.bool("armctl.discover.pending_reset", "New address stored, applied after reset", 8, nil, 0x01),
+    net_mode = ProtoField.uint8("armctl.net.addr_mode", "Address mode", base.DEC, addr_mode_names),
+    net_ip = ProtoField.ipv4("armctl.net.ip", "IPv4 address"),
+    net_prefix = ProtoField.uint8("armctl.net.prefix_len", "Prefix length", base.DEC),
+    net_gateway = ProtoField.ipv4("armctl.net.gateway", "Gateway"),
+
+    -- what a controller answers to this command (host to controller only)
+    verdict = ProtoField.uint8("armctl.verdict", "Controller answers", base.DEC, status_names),
+
+    -- analysis
+    response_in = ProtoField.framenum("armctl.response_in", "ACK in frame"),
+    response_to = ProtoField.framenum("armctl.response_to", "ACK to the command in frame"),
+    rtt = ProtoField.relative_time("armctl.time", "Round trip"),
+    retransmission = ProtoField.framenum("armctl.retransmission", "Retransmission of frame"),
+}
+local fields = {}
+for _, field in pairs(f) do fields[#fields + 1] = field end
+armctl.fields = fields
+
+local e = {
+    bad_crc = ProtoExpert.new("armctl.crc.bad", "Bad CRC", expert.group.CHECKSUM, expert.severity.ERROR),
+    too_short = ProtoExpert.new("armctl.too_short", "Datagram too short for a frame (3 bytes at least): no reply",
+        expert.group.MALFORMED, expert.severity.ERROR),
+    bad_length = ProtoExpert.new("armctl.bad_length", "Data length does not fit the tag",
+        expert.group.MALFORMED, expert.severity.ERROR),
+    unknown_tag = ProtoExpert.new("armctl.unknown_tag", "Unknown tag", expert.group.MALFORMED, expert.severity.ERROR),
+    wrong_direction = ProtoExpert.new("armctl.wrong_direction", "Tag sent in the wrong direction",
+        expert.group.PROTOCOL, expert.severity.WARN),
+    refused = ProtoExpert.new("armctl.ack.refused", "Command refused", expert.group.RESPONSE_CODE, expert.severity.WARN),
+    retransmission = ProtoExpert.new("armctl.retransmission.expert", "Retransmission",
+        expert.group.SEQUENCE, expert.severity.NOTE),
+    invalid_config = ProtoExpert.new("armctl.invalid_config", "Value out of range",
+        expert.group.MALFORMED, expert.severity.ERROR),
+    invalid_point = ProtoExpert.new("armctl.invalid_point", "Point duration under 1 us",
+        expert.group.MALFORMED, expert.severity.ERROR),
+    no_ack = ProtoExpert.new("armctl.no_ack", "No ACK seen for this command",
+        expert.group.SEQUENCE, expert.severity.NOTE),
+}
+armctl.experts = { e.bad_crc, e.too_short, e.bad_length, e.unknown_tag, e.wrong_direction,
+    e.refused, e.retransmission, e.no_ack, e.invalid_config, e.invalid_point }
+
+----------------------------------------------------------------------------------------
+-- CRC-8/SMBUS: polynomial 0x07, init 0, no reflection, no final XOR. (Wireshark 4.0 runs
+-- Lua 5.2: no bitwise operators, hence the `bit` library.)
+
+local crc_table = {}
+for i = 0, 255 do
+    local c = i
+    for _ = 1, 8 do
+        if c >= 0x80 then c = bit.bxor((c * 2) % 256, 0x07) else c = (c * 2) % 256 end
+    end
+    crc_table[i] = c
+end
+
+local function crc8(tvb, len)
+    local c = 0
+    for i = 0, len - 1 do
+        c = crc_table[bit.bxor(c, tvb(i, 1):uint())]
+    end
+    return c
+end
+
+----------------------------------------------------------------------------------------
+-- Pairing and retransmissions (filled on the first pass, shown on every pass)
+
+local analysis = {}     -- frame number -> { response_in, response_to, rtt, retransmission_of }
+local commands = {}     -- "host ip:port|seq|tag" -> { frame, time, crc } of the latest copy
+local first_copy = {}   -- "host ip:port|seq|tag|crc" -> frame number of the first copy
+
+function armctl.init()
+    analysis = {}
+    commands = {}
+    first_copy = {}
+end
+
+local function frame_info(number)
+    local info = analysis[number]
+    if not info then
+        info = {}
+        analysis[number] = info
+    end
+    return info
+end
+
+----------------------------------------------------------------------------------------
+-- Field helpers
+
+local function add_le(tree, field, range, signed)
+    if signed then return tree:add_le(field, range, range:le_int()) end
+    return tree:add_le(field, range)
+end
+
+local function add_positions(tree, field, data, at)
+    local positions = {}
+    local sub = tree:add(armctl, data(at, 32), "Positions (steps)")
+    for j = 0, 7 do
+        local v = data(at + 4 * j, 4):le_int()
+        sub:add_le(field, data(at + 4 * j, 4), v):prepend_text("Joint " .. j .. " ")
+        positions[#positions + 1] = tostring(v)
+    end
+    sub:append_text(": " .. table.concat(positions, ", "))
+end
+
+local function dissect_point(tree, data, at, index)
+    local point = tree:add(f.point, data(at, 116))
+    local duration = data(at, 4):le_int()
+    point:set_text(string.format("Point %d: %d us", index, duration))
+    point:add_le(f.point_duration, data(at, 4), duration)
+    add_positions(point, f.point_position, data, at + 84)
+    local hints = point:add(armctl, data(at + 4, 80), "Timer hints (not used by the controller)")
+    for j = 0, 7 do hints:add_le(f.point_full, data(at + 4 + 2 * j, 2), data(at + 4 + 2 * j, 2):le_int()) end
+    for j = 0, 7 do hints:add_le(f.point_rest, data(at + 20 + 2 * j, 2), data(at + 20 + 2 * j, 2):le_int()) end
+    for j = 0, 7 do hints:add_le(f.point_nperiod, data(at + 36 + 2 * j, 2), data(at + 36 + 2 * j, 2):le_int()) end
+    for j = 0, 7 do hints:add_le(f.point_period, data(at + 52 + 4 * j, 4), data(at + 52 + 4 * j, 4):le_int()) end
+end
+
+local function dissect_location(tree, data)
+    add_positions(tree, f.location_position, data, 0)
+    tree:add(f.location_state, data(32, 1))
+end
+
+local function dissect_uart(tree, data, manual_form)
+    local skip = manual_form and 4 or 0
+    tree:add_le(f.uart_baud, data(0, 4))
+    tree:add_le(f.uart_word, data(4, 4))
+    tree:add_le(f.uart_stop, data(8, 4))
+    tree:add_le(f.uart_parity, data(12, 4))
+    if manual_form then tree:add_le(f.uart_parity2, data(16, 4)) end
+    tree:add_le(f.uart_mode, data(16 + skip, 4))
+    tree:add_le(f.uart_flow, data(20 + skip, 4))
+    tree:add_le(f.uart_over, data(24 + skip, 4))
+end
+
+local function dissect_status_report(tree, data)
+    local v = data(0, 3)
+    tree:add(f.st_version, v, string.format("%d.%d.%d", v(0, 1):uint(), v(1, 1):uint(), v(2, 1):uint()))
+    tree:add(f.st_joints, data(3, 1))
+    tree:add(f.st_state, data(4, 1))
+    local flags = tree:add(f.st_flags, data(5, 1))
+    for _, bit in ipairs({ f.st_flag_reports, f.st_flag_drivers, f.st_flag_serial, f.st_flag_pin0,
+        f.st_flag_pin1, f.st_flag_underrun, f.st_flag_pwm, f.st_flag_stopped }) do
+        flags:add(bit, data(5, 1))
+    end
+    tree:add_le(f.st_window, data(6, 2))
+    tree:add_le(f.st_buffered, data(8, 2))
+    tree:add_le(f.st_expected, data(10, 2))
+    tree:add_le(f.st_received, data(12, 2))
+    tree:add_le(f.st_executed, data(14, 2))
+    tree:add_le(f.st_capacity, data(16, 2))
+    tree:add_le(f.st_more_flags, data(18, 2))
+    tree:add_le(f.st_upload_period, data(20, 4))
+    tree:add_le(f.st_pwm_clock, data(24, 4))
+    tree:add_le(f.st_max_rate, data(28, 4))
+    tree:add_le(f.st_word32, data(32, 4))
+end
+
+local function dissect_discover_reply(tree, data)
+    tree:add(f.disc_mac, data(0, 6))
+    tree:add(f.disc_ip, data(6, 4))
+    tree:add(f.disc_prefix, data(10, 1))
+    tree:add(f.disc_gateway, data(11, 4))
+    tree:add(f.disc_mode, data(15, 1))
+    local v = data(16, 3)
+    tree:add(f.disc_version, v, string.format("%d.%d.%d", v(0, 1):uint(), v(1, 1):uint(), v(2, 1):uint()))
+    tree:add(f.disc_joints, data(19, 1))
+    tree:add(f.disc_state, data(20, 1))
+    tree:add(f.disc_owner, data(21, 1))
+    tree:add(f.disc_owner_ip, data(22, 4))
+    tree:add(f.disc_pending, data(26, 1))
+end
+
+local function dissect_net_set(tree, data)
+    tree:add(f.net_mode, data(0, 1))
+    tree:add(f.net_ip, data(1, 4))
+    tree:add(f.net_prefix, data(5, 1))
+    tree:add(f.net_gateway, data(6, 4))
+end
+
+-- Each returns a short summary for the Info column, or nil plus an error for a bad length.
+-- `len` is the data length, `data` the data range (nil when empty).
+
+-- The status a controller answers to the frame being dissected (PROTOCOL.md section 8):
+-- the first failure found, or OK.
+local verdict = 0
+
+local function refuse(status)
+    if verdict == 0 then verdict = status end
+end
+
+local function out_of_range(tree, what)
+    refuse(11)
+    tree:add_proto_expert_info(e.invalid_config, what)
+end
+
+local function length_error(tree, range, expected, found)
+    refuse(3)
+    tree:add_proto_expert_info(e.bad_length,
+        string.format("Data length %d, expected %s", found, expected))
+    return nil
+end
+
+local host_dissectors = {
+    [0x00] = function(tree, data, len)
+        if len ~= 2 then return length_error(tree, data, "2", len) end
+        tree:add(f.new_count, data(0, 2))
+        if data(0, 2):uint() == 0 then out_of_range(tree, "NEW point count must be 1..65535") end
+        return "count " .. data(0, 2):uint()
+    end,
+    [0x01] = function(tree, data, len)
+        if len == 0 or len % 116 ~= 0 or len > 12 * 116 then
+            return length_error(tree, data, "1 to 12 records of 116 bytes", len)
+        end
+        local n = math.floor(len / 116)
+        tree:add(f.points, data(0, len), n)
+        local total = 0
+        for i = 0, n - 1 do
+            dissect_point(tree, data, i * 116, i)
+            local duration = data(i * 116, 4):le_int()
+            if duration < 1 then
+                refuse(7)
+                tree:add_proto_expert_info(e.invalid_point, string.format("Point %d has a duration of %d us", i, duration))
+            end
+            total = total + duration
+        end
+        return string.format("%d point%s, %d us", n, n == 1 and "" or "s", total)
+    end,
+    [0x06] = function(tree, data, len)
+        if len ~= 16 then return length_error(tree, data, "16", len) end
+        tree:add_le(f.pwm_psc, data(0, 4))
+        tree:add_le(f.pwm_arr, data(4, 4))
+        tree:add_le(f.pwm_ccr1, data(8, 4))
+        local pulses = data(12, 4):le_int()
+        tree:add_le(f.pwm_pulse_count, data(12, 4), pulses)
+        local psc, arr, ccr1 = data(0, 4):le_uint(), data(4, 4):le_uint(), data(8, 4):le_uint()
+        if psc > 0xFFFF then out_of_range(tree, "PWM PSC must fit 16 bits") end
+        if arr > 0xFFFF then out_of_range(tree, "PWM ARR must fit 16 bits") end
+        if ccr1 > arr then out_of_range(tree, "PWM CCR1 must not exceed ARR") end
+        return pulses == 0 and "servo" or ("stepper, " .. pulses .. " pulses")
+    end,
+    [0x08] = function(tree, data, len)
+        if len ~= 28 and len ~= 32 then return length_error(tree, data, "28 or 32", len) end
+        dissect_uart(tree, data, len == 32)
+        local baud = data(0, 4):le_uint()
+        if baud < 300 or baud > 4000000 then out_of_range(tree, "baud rate must be 300..4000000") end
+        return data(0, 4):le_uint() .. " baud"
+    end,
+    [0x0a] = function(tree, data, len)
+        if len < 1 or len > 255 then return length_error(tree, data, "1 to 255", len) end
+        tree:add(f.usart_data, data(0, len))
+        return len .. " bytes"
+    end,
+    [0x10] = function(tree, data, len)
+        if len == 0 then return "every driver" end
+        if len ~= 2 then return length_error(tree, data, "0 or 2", len) end
+        tree:add(f.enable_mask, data(0, 2))
+        if data(0, 2):uint() > 0x01FF then out_of_range(tree, "enable mask may only use bits 0-8") end
+        return string.format("mask 0x%04x", data(0, 2):uint())
+    end,
+    [0x12] = function(tree, data, len)
+        if len ~= 1 then return length_error(tree, data, "1", len) end
+        tree:add(f.joints, data(0, 1))
+        local joints = data(0, 1):uint()
+        if joints < 1 or joints > 8 then out_of_range(tree, "joint count must be 1..8") end
+        return data(0, 1):uint() .. " joints"
+    end,
+    [0x13] = function(tree, data, len)
+        if len ~= 36 and len ~= 33 then return length_error(tree, data, "36 or 33", len) end
+        dissect_location(tree, data)
+        return ""
+    end,
+    [0x16] = function(tree, data, len)
+        if len ~= 4 then return length_error(tree, data, "4", len) end
+        tree:add_le(f.upload_period, data(0, 4))
+        local period = data(0, 4):le_uint()
+        if period < 1000 or period > 1000000 then out_of_range(tree, "upload period must be 1000..1000000 us") end
+        return data(0, 4):le_uint() .. " us"
+    end,
+    [0x21] = function(tree, data, len)
+        if len ~= 10 then return length_error(tree, data, "10", len) end
+        dissect_net_set(tree, data)
+        if data(0, 1):uint() > 1 then out_of_range(tree, "address mode must be 0 (static) or 1 (DHCP)") end
+        if data(0, 1):uint() == 1 then return "DHCP" end
+        return string.format("%s/%d", tostring(data(1, 4):ipv4()), data(5, 1):uint())
+    end,
+}
+-- Commands without data.
+for _, tag in ipairs({ 0x02, 0x03, 0x04, 0x05, 0x07, 0x09, 0x0c, 0x0d, 0x0e, 0x0f, 0x11, 0x15, 0x20 }) do
+    host_dissectors[tag] = function(tree, data, len)
+        if len ~= 0 then return length_error(tree, data, "0", len) end
+        return ""
+    end
+end
+
+local controller_dissectors = {
+    [0x14] = function(tree, data, len)
+        if len ~= 8 then return length_error(tree, data, "8", len) end
+        local acked = data(0, 1):uint()
+        local status = data(1, 1):uint()
+        tree:add(f.ack_acked_tag, data(0, 1))
+        local item = tree:add(f.ack_status, data(1, 1))
+        tree:add(f.ack_state, data(2, 1))
+        tree:add(f.ack_next_seq, data(3, 1))
+        tree:add_le(f.ack_buffered, data(4, 2))
+        tree:add_le(f.ack_free, data(6, 2))
+        if status ~= 0 then
+            item:add_proto_expert_info(e.refused, string.format("%s refused: %s",
+                tag_names[acked] or string.format("0x%02x", acked), status_names[status] or tostring(status)))
+        end
+        return string.format("%s %s", tag_names[acked] or string.format("0x%02x", acked),
+            status_names[status] or tostring(status))
+    end,
+    [0x13] = function(tree, data, len)
+        if len ~= 36 and len ~= 33 then return length_error(tree, data, "36 or 33", len) end
+        dissect_location(tree, data)
+        return state_names[data(32, 1):uint()] or "?"
+    end,
+    [0x0b] = function(tree, data, len)
+        if len ~= 257 then return length_error(tree, data, "257", len) end
+        local n = data(0, 1):uint()
+        tree:add(f.usart_len, data(0, 1))
+        if n > 0 then tree:add(f.usart_data, data(1, n)) end
+        return n .. " bytes"
+    end,
+    [0x15] = function(tree, data, len)
+        if len ~= 36 then return length_error(tree, data, "36", len) end
+        dissect_status_report(tree, data)
+        return state_names[data(4, 1):uint()] or "?"
+    end,
+    [0x22] = function(tree, data, len)
+        if len ~= 27 then return length_error(tree, data, "27", len) end
+        dissect_discover_reply(tree, data)
+        return tostring(data(6, 4):ipv4())
+    end,
+}
+
+----------------------------------------------------------------------------------------
+-- The dissector
+
+local function analyse(pinfo, to_controller, seq, tag, crc, data, len)
+    if pinfo.visited then return end
+    local host_key
+    if to_controller then
+        host_key = tostring(pinfo.src) .. ":" .. pinfo.src_port
+    else
+        host_key = tostring(pinfo.dst) .. ":" .. pinfo.dst_port
+    end
+    if to_controller then
+        local key = host_key .. "|" .. seq .. "|" .. tag
+        local copy_key = key .. "|" .. crc
+        local first = first_copy[copy_key]
+        if first and first ~= pinfo.number then
+            frame_info(pinfo.number).retransmission_of = first
+        else
+            first_copy[copy_key] = pinfo.number
+        end
+        commands[key] = { frame = pinfo.number, time = pinfo.abs_ts }
+    elseif (tag == 0x14 and len == 8) or tag == 0x22 then
+        -- An ACK answers the tag it names; a DISCOVER_REPLY answers DISCOVER.
+        local answered = tag == 0x22 and 0x20 or data(0, 1):uint()
+        local key = host_key .. "|" .. seq .. "|" .. answered
+        local command = commands[key]
+        if command then
+            local info = frame_info(pinfo.number)
+            info.response_to = command.frame
+            info.rtt = pinfo.abs_ts - command.time
+            local cmd_info = frame_info(command.frame)
+            if not cmd_info.response_in then cmd_info.response_in = pinfo.number end
+        end
+    end
+end
+
+local function show_analysis(tree, pinfo, to_controller)
+    local info = analysis[pinfo.number]
+    if to_controller then
+        if info and info.response_in then
+            tree:add(f.response_in, info.response_in):set_generated()
+        end
+        if info and info.retransmission_of then
+            local item = tree:add(f.retransmission, info.retransmission_of)
+            item:set_generated()
+            item:add_proto_expert_info(e.retransmission,
+                "Retransmission of frame " .. info.retransmission_of)
+        end
+    elseif info and info.response_to then
+        tree:add(f.response_to, info.response_to):set_generated()
+        local secs = math.floor(info.rtt)
+        local rtt = NSTime.new(secs, math.floor((info.rtt - secs) * 1e9 + 0.5))
+        tree:add(f.rtt, rtt):set_generated()
+    end
+end
+
+function armctl.dissector(tvb, pinfo, tree)
+    local len = tvb:len()
+    if len == 0 then return 0 end
+    -- The controller's port: the one the UDP port table matched (the preference, or a
+    -- port chosen with Decode As, e.g. a simulator on another port).
+    local port = armctl.prefs.port
+    if pinfo.match_uint == pinfo.src_port or pinfo.match_uint == pinfo.dst_port then
+        port = pinfo.match_uint
+    end
+    local to_controller = pinfo.dst_port == port or pinfo.src_port ~= port
+    pinfo.cols.protocol = armctl.name:upper()
+    local root = tree:add(armctl, tvb(), "Arm controller protocol")
+    root:add(f.direction, to_controller and 0 or 1):set_generated()
+    if len < 3 then
+        root:add_proto_expert_info(e.too_short)
+        pinfo.cols.info = string.format("%d-byte datagram: too short for a frame", len)
+        return len
+    end
+
+    local seq = tvb(0, 1):uint()
+    local tag = tvb(1, 1):uint()
+    local data_len = len - 3
+    local data = data_len > 0 and tvb(2, data_len) or nil
+    local names = to_controller and host_names or controller_names
+    local name = names[tag] or tag_names[tag] or string.format("unknown tag 0x%02x", tag)
+
+    root:add(f.seq, tvb(0, 1))
+    local tag_item = root:add(f.tag, tvb(1, 1))
+    tag_item:set_text(string.format("Tag: %s (0x%02x)", name, tag))
+
+    local crc = tvb(len - 1, 1):uint()
+    local computed = crc8(tvb, len - 1)
+    local crc_item = root:add(f.crc, tvb(len - 1, 1))
+    local crc_good = crc == computed
+    crc_item:add(f.crc_status, tvb(len - 1, 1), crc_good and 1 or 0):set_generated()
+    if not crc_good then
+        crc_item:append_text(string.format(" [incorrect, should be 0x%02x]", computed))
+        crc_item:add(f.crc_computed, tvb(len - 1, 1), computed):set_generated()
+        crc_item:add_proto_expert_info(e.bad_crc,
+            string.format("Bad CRC: frame says 0x%02x, content gives 0x%02x", crc, computed))
+    end
+
+    root:append_text(string.format(", %s, seq %d", name, seq))
+    local summary
+    verdict = crc_good and 0 or 1
+    if crc_good then
+        local dissectors = to_controller and host_dissectors or controller_dissectors
+        local other = to_controller and controller_dissectors or host_dissectors
+        local dissect = dissectors[tag]
+        if data then root:add(f.data, data):set_hidden() end
+        if dissect then
+            summary = dissect(root, data, data_len)
+        elseif other[tag] then
+            root:add_proto_expert_info(e.wrong_direction, string.format("%s only travels %s", name,
+                to_controller and "from the controller" or "from a host"))
+            summary = "wrong direction"
+            refuse(10)
+        else
+            root:add_proto_expert_info(e.unknown_tag, string.format("Unknown tag 0x%02x", tag))
+            summary = "unknown tag"
+            refuse(2)
+        end
+        analyse(pinfo, to_controller, seq, tag, crc, data, data_len)
+    else
+        summary = "BAD CRC"
+    end
+
+    if to_controller then root:add(f.verdict, verdict):set_generated() end
+    show_analysis(root, pinfo, to_controller)
+    local info = string.format("%s %s seq=%d", to_controller and "->" or "<-", name, seq)
+    if summary == nil then
+        info = info .. " [bad length]"
+    elseif summary ~= "" then
+        info = info .. " " .. summary
+    end
+    local a = analysis[pinfo.number]
+    if a and a.retransmission_of then info = info .. " [retransmission]" end
+    pinfo.cols.info = info
+    return len
+end
+
+local udp_port = DissectorTable.get("udp.port")
+local registered_port = DEFAULT_PORT
+udp_port:add(registered_port, armctl)
+
+function armctl.prefs_changed()
+    if armctl.prefs.port ~= registered_port then
+        udp_port:remove(registered_port, armctl)
+        registered_port = armctl.prefs.port
+        udp_port:add(registered_port, armctl)
+    end
+end
