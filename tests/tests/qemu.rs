@@ -15,8 +15,8 @@
 mod common;
 
 use std::net::{SocketAddr, UdpSocket};
-use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use armctl::{Controller, Error, Options, RunEnd, RunOptions};
@@ -484,84 +484,127 @@ fn malformed_flood_during_a_run_changes_no_step() {
 
 /// A UDP relay between one client and the board that drops, duplicates and reorders
 /// datagrams in both directions (seeded, so runs repeat).
+///
+/// Each direction has its own thread blocked in `recv`, so every datagram is passed on as
+/// soon as it arrives. (A single thread polling the two sockets in turn with 5 ms read
+/// timeouts passed on at most one datagram per direction per turn, about 80 a second on a
+/// loaded host: fewer than the board sends, 100 LOCATION reports a second to its one
+/// endpoint besides an ACK per frame. The backlog in the relay grew without end, ACKs
+/// came later and later, armctl resent more, and after a run a command's ACK queued
+/// behind seconds of old datagrams: `NoReply` with no datagram lost.)
 struct LossyRelay {
     addr: SocketAddr,
     stop: Arc<AtomicBool>,
-    thread: Option<std::thread::JoinHandle<()>>,
+    threads: Vec<std::thread::JoinHandle<()>>,
 }
+
+/// How a [`LossyRelay`] spoils one direction, in percent of datagrams.
+#[derive(Clone, Copy)]
+struct Spoil {
+    loss: u32,
+    dup: u32,
+    reorder: u32,
+}
+
+/// A read timeout, so that a relay thread with nothing to do sees `stop` soon.
+const RELAY_POLL: Duration = Duration::from_millis(20);
+
+/// Bounded: a test run never takes ten minutes.
+const RELAY_LIFETIME: Duration = Duration::from_secs(600);
 
 impl LossyRelay {
     fn start(board: SocketAddr, loss: u32, dup: u32, reorder: u32, seed: u32) -> LossyRelay {
+        let spoil = Spoil { loss, dup, reorder };
         let front = UdpSocket::bind("127.0.0.1:0").unwrap();
         let back = UdpSocket::bind("127.0.0.1:0").unwrap();
         back.connect(board).unwrap();
-        front
-            .set_read_timeout(Some(Duration::from_millis(5)))
-            .unwrap();
-        back.set_read_timeout(Some(Duration::from_millis(5)))
-            .unwrap();
+        front.set_read_timeout(Some(RELAY_POLL)).unwrap();
+        back.set_read_timeout(Some(RELAY_POLL)).unwrap();
         let addr = front.local_addr().unwrap();
         let stop = Arc::new(AtomicBool::new(false));
-        let thread = {
+        // The client's address, learnt from its datagrams: the board's go back to it.
+        let client: Arc<Mutex<Option<SocketAddr>>> = Arc::default();
+        let up = {
+            let (front, back) = (front.try_clone().unwrap(), back.try_clone().unwrap());
+            let (stop, client) = (stop.clone(), client.clone());
+            std::thread::spawn(move || {
+                relay_one_way(
+                    |buf| {
+                        let (n, from) = front.recv_from(buf).ok()?;
+                        *client.lock().unwrap() = Some(from);
+                        Some(n)
+                    },
+                    |frame| {
+                        let _ = back.send(frame);
+                    },
+                    spoil,
+                    seed,
+                    &stop,
+                )
+            })
+        };
+        let down = {
             let stop = stop.clone();
             std::thread::spawn(move || {
-                let mut state = seed | 1;
-                let mut roll = move || {
-                    state ^= state << 13;
-                    state ^= state >> 17;
-                    state ^= state << 5;
-                    state % 100
-                };
-                let mut client: Option<SocketAddr> = None;
-                let mut held_up: Option<Vec<u8>> = None;
-                let mut held_down: Option<Vec<u8>> = None;
-                let mut buf = [0u8; 2048];
-                let started = Instant::now();
-                // Bounded: a test run never takes ten minutes.
-                while !stop.load(Ordering::Relaxed) && started.elapsed() < Duration::from_secs(600)
-                {
-                    if let Ok((n, from)) = front.recv_from(&mut buf) {
-                        client = Some(from);
-                        let frame = buf[..n].to_vec();
-                        if roll() >= loss {
-                            if roll() < reorder && held_up.is_none() {
-                                held_up = Some(frame);
-                            } else {
-                                let _ = back.send(&frame);
-                                if roll() < dup {
-                                    let _ = back.send(&frame);
-                                }
-                                if let Some(late) = held_up.take() {
-                                    let _ = back.send(&late);
-                                }
-                            }
+                relay_one_way(
+                    |buf| back.recv(buf).ok(),
+                    |frame| {
+                        if let Some(client) = *client.lock().unwrap() {
+                            let _ = front.send_to(frame, client);
                         }
-                    }
-                    if let Ok(n) = back.recv(&mut buf)
-                        && let Some(client) = client
-                    {
-                        let frame = buf[..n].to_vec();
-                        if roll() >= loss {
-                            if roll() < reorder && held_down.is_none() {
-                                held_down = Some(frame);
-                            } else {
-                                let _ = front.send_to(&frame, client);
-                                if roll() < dup {
-                                    let _ = front.send_to(&frame, client);
-                                }
-                                if let Some(late) = held_down.take() {
-                                    let _ = front.send_to(&late, client);
-                                }
-                            }
-                        }
-                    }
-                }
+                    },
+                    spoil,
+                    // Its own sequence: the directions run concurrently.
+                    seed.rotate_left(16) ^ 0x5a5a_5a5a,
+                    &stop,
+                )
             })
         };
         LossyRelay {
             addr,
             stop,
-            thread: Some(thread),
+            threads: vec![up, down],
+        }
+    }
+}
+
+/// One direction of a [`LossyRelay`]: each datagram `recv` yields is dropped, or held back
+/// to go after the next one (reordered), or passed to `send`, sometimes twice.
+fn relay_one_way(
+    mut recv: impl FnMut(&mut [u8]) -> Option<usize>,
+    send: impl Fn(&[u8]),
+    spoil: Spoil,
+    seed: u32,
+    stop: &AtomicBool,
+) {
+    let mut state = seed | 1;
+    let mut roll = move || {
+        state ^= state << 13;
+        state ^= state >> 17;
+        state ^= state << 5;
+        state % 100
+    };
+    let mut held: Option<Vec<u8>> = None;
+    let mut buf = [0u8; 2048];
+    let started = Instant::now();
+    while !stop.load(Ordering::Relaxed) && started.elapsed() < RELAY_LIFETIME {
+        let Some(n) = recv(&mut buf) else {
+            continue;
+        };
+        let frame = &buf[..n];
+        if roll() < spoil.loss {
+            continue;
+        }
+        if roll() < spoil.reorder && held.is_none() {
+            held = Some(frame.to_vec());
+            continue;
+        }
+        send(frame);
+        if roll() < spoil.dup {
+            send(frame);
+        }
+        if let Some(late) = held.take() {
+            send(&late);
         }
     }
 }
@@ -569,10 +612,78 @@ impl LossyRelay {
 impl Drop for LossyRelay {
     fn drop(&mut self) {
         self.stop.store(true, Ordering::Relaxed);
-        if let Some(thread) = self.thread.take() {
+        for thread in self.threads.drain(..) {
             let _ = thread.join();
         }
     }
+}
+
+/// Regression: the relay keeps up with a board that sends more than it is sent (reports
+/// on a timer besides an ACK per frame, as the controller's 100 LOCATION reports a
+/// second), so its delay does not grow with time. The polling relay passed on one
+/// datagram per 5 ms turn at best: its backlog grew by hundreds a second here, and the
+/// replies fell seconds behind. Needs no QEMU: the board is a socket that echoes each
+/// datagram and sends a report every 2 ms.
+#[test]
+fn the_relay_passes_on_everything_the_board_sends_as_it_comes() {
+    const REPORT_EVERY: Duration = Duration::from_millis(2);
+    const TALK_FOR: Duration = Duration::from_secs(3);
+    let board = UdpSocket::bind("127.0.0.1:0").unwrap();
+    board
+        .set_read_timeout(Some(Duration::from_millis(1)))
+        .unwrap();
+    let board_addr = board.local_addr().unwrap();
+    let stop = Arc::new(AtomicBool::new(false));
+    let fake_board = {
+        let stop = stop.clone();
+        std::thread::spawn(move || {
+            let mut buf = [0u8; 64];
+            let mut client = None;
+            let mut next_report = Instant::now();
+            while !stop.load(Ordering::Relaxed) {
+                if let Ok((n, from)) = board.recv_from(&mut buf) {
+                    let _ = board.send_to(&buf[..n], from);
+                    client = Some(from);
+                }
+                while let Some(client) = client
+                    && next_report <= Instant::now()
+                {
+                    let _ = board.send_to(b"report", client);
+                    next_report += REPORT_EVERY;
+                }
+            }
+        })
+    };
+    let relay = LossyRelay::start(board_addr, 0, 0, 0, 7);
+    let client = UdpSocket::bind("127.0.0.1:0").unwrap();
+    client.connect(relay.addr).unwrap();
+    client
+        .set_read_timeout(Some(Duration::from_millis(50)))
+        .unwrap();
+    let started = Instant::now();
+    let (mut round, mut slowest) = (0u32, Duration::ZERO);
+    while started.elapsed() < TALK_FOR {
+        let sent = Instant::now();
+        client.send(&round.to_be_bytes()).unwrap();
+        let mut buf = [0u8; 64];
+        // Generous: a relay that keeps up answers within milliseconds.
+        while sent.elapsed() < Duration::from_secs(2) {
+            if let Ok(n) = client.recv(&mut buf)
+                && buf[..n] == round.to_be_bytes()
+            {
+                break;
+            }
+        }
+        slowest = slowest.max(sent.elapsed());
+        round += 1;
+    }
+    drop(relay);
+    stop.store(true, Ordering::Relaxed);
+    fake_board.join().unwrap();
+    assert!(
+        slowest < Duration::from_secs(1),
+        "a round trip through the relay took {slowest:?} ({round} round trips): it falls behind"
+    );
 }
 
 #[test]
