@@ -51,10 +51,10 @@ use protocol::{
 
 /// Compile-time trajectory buffer size (the run-time capacity is 1..=64, from the input).
 const CAP: usize = 64;
-/// How long an accepted frame is a duplicate (PROTOCOL.md section 7).
-const DUPLICATE_WINDOW_US: u64 = 2_000_000;
-/// How many accepted frames are remembered (PROTOCOL.md section 7).
-const DUPLICATE_MEMORY: u64 = arm_core::config::DUPLICATE_MEMORY as u64;
+/// How long an accepted frame is a duplicate.
+const DUPLICATE_WINDOW_US: u64 = protocol::limits::DUPLICATE_WINDOW_US;
+/// How many accepted frames are remembered.
+const DUPLICATE_MEMORY: u64 = protocol::limits::DUPLICATE_MEMORY as u64;
 /// Events per input: keeps one execution short.
 const MAX_EVENTS: usize = 400;
 /// Datagrams kept for the resend event.
