@@ -111,11 +111,6 @@ impl ReturnPlan {
         self.count
     }
 
-    /// Points not yet produced.
-    pub fn remaining(&self) -> u32 {
-        self.count - self.next
-    }
-
     /// Length of every point, microseconds.
     pub fn segment_us(&self) -> u32 {
         self.segment_us
