@@ -3,7 +3,10 @@
 //! model). [`FakePlant`] is a step engine and peripherals that record every call, with
 //! faults a test switches on: a full engine queue ([`FakePlant::room`]), a serial port
 //! that refuses its settings ([`FakePlant::serial_refuses`]) or has no room
-//! ([`FakePlant::serial_room`]). [`Session`] is a host talking to one controller over it.
+//! ([`FakePlant::serial_room`], [`FakePlant::serial_refuses_if`]); and contract checks
+//! ([`FakePlant::checks`]) that panic when the controller asks the hardware for what it
+//! must never ask (the fuzz target runs with them). [`Session`] is a host talking to one
+//! controller over it.
 
 use std::collections::VecDeque;
 use std::vec::Vec;
@@ -57,8 +60,25 @@ pub struct FakePlant {
     pub serial_refuses: bool,
     /// Every serial chunk sent, in order.
     pub serial_sent: Vec<Vec<u8>>,
-    /// Fault: serial chunks the port takes at most; further sends find no room.
+    /// Fault: serial chunks the port queues at most; further sends find no room.
     pub serial_room: usize,
+    /// Serial chunks queued and not yet transmitted: closing the port empties it, and so
+    /// may the test (the port transmitting).
+    pub serial_queued: usize,
+    /// Fault: the serial port refuses the settings for which this returns true.
+    pub serial_refuses_if: Option<fn(&UartInit) -> bool>,
+    /// Calls to `serial_open` that succeeded.
+    pub serial_opens: u32,
+    /// Calls to `serial_close`.
+    pub serial_closes: u32,
+    /// Segments `push_segment` took.
+    pub pushed: u64,
+    /// Contract checks: panic on a segment shorter than 1 us or faster than
+    /// [`FakePlant::max_step_rate_hz`] on any joint, a user pin other than 0 and 1, enable
+    /// bits beyond the gripper's, a serial chunk of 0 or more than 255 bytes.
+    pub checks: bool,
+    /// With [`FakePlant::checks`]: the highest step rate a segment may ask of a joint.
+    pub max_step_rate_hz: u64,
     /// Every `set_positions` taken, in order.
     pub set_positions_calls: Vec<[i32; MAX_JOINTS]>,
 }
@@ -81,6 +101,13 @@ impl Default for FakePlant {
             serial_refuses: false,
             serial_sent: Vec::new(),
             serial_room: 4,
+            serial_queued: 0,
+            serial_refuses_if: None,
+            serial_opens: 0,
+            serial_closes: 0,
+            pushed: 0,
+            checks: false,
+            max_step_rate_hz: u64::MAX,
             set_positions_calls: Vec::new(),
         }
     }
@@ -104,10 +131,21 @@ impl Plant for FakePlant {
         self.running = false;
     }
     fn push_segment(&mut self, segment: Segment) -> bool {
+        if self.checks {
+            assert!(segment.duration_us >= 1, "segment of 0 us: {segment:?}");
+            for s in segment.steps {
+                assert!(
+                    u64::from(s.unsigned_abs()) * 1_000_000
+                        <= self.max_step_rate_hz * u64::from(segment.duration_us),
+                    "segment faster than max_step_rate_hz: {segment:?}"
+                );
+            }
+        }
         if self.queue.len() >= self.room {
             return false;
         }
         self.queue.push_back(segment);
+        self.pushed += 1;
         true
     }
     fn start(&mut self) {
@@ -115,9 +153,14 @@ impl Plant for FakePlant {
         self.running = true;
     }
     fn set_user_pin(&mut self, pin: u8, high: bool) {
+        assert!(!self.checks || pin < 2, "user pin {pin}");
         self.pins.push((pin, high));
     }
     fn set_enabled(&mut self, enabled: u16) {
+        assert!(
+            !self.checks || enabled & !protocol::limits::ENABLE_MASK_BITS == 0,
+            "ENABLE bits beyond the gripper's"
+        );
         self.enabled.push(enabled);
     }
     fn gripper_start(&mut self, pwm: &Pwm) {
@@ -132,19 +175,28 @@ impl Plant for FakePlant {
         self.gripper.is_some()
     }
     fn serial_open(&mut self, init: &UartInit) -> Result<(), SerialError> {
-        if self.serial_refuses {
+        if self.serial_refuses || self.serial_refuses_if.is_some_and(|refuses| refuses(init)) {
             return Err(SerialError::Unsupported);
         }
         self.serial = Some(*init);
+        self.serial_opens += 1;
         Ok(())
     }
     fn serial_close(&mut self) {
         self.serial = None;
+        self.serial_closes += 1;
+        self.serial_queued = 0;
     }
     fn serial_send(&mut self, bytes: &[u8]) -> bool {
-        if self.serial_sent.len() >= self.serial_room {
+        assert!(
+            !self.checks || (1..=255).contains(&bytes.len()),
+            "serial chunk of {}",
+            bytes.len()
+        );
+        if self.serial_queued >= self.serial_room {
             return false;
         }
+        self.serial_queued += 1;
         self.serial_sent.push(bytes.to_vec());
         true
     }
