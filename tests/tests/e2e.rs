@@ -6,7 +6,10 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use armctl::{Controller, Error, Options, RunEnd, RunOptions};
-use common::{Raw, datagram, out_of_order_names_the_missing_frame, raw_frames_are_refused, sweep};
+use common::{
+    Raw, datagram, out_of_order_names_the_missing_frame, raw_frames_are_refused, serial_round_trip,
+    sweep,
+};
 use protocol::{
     Command, Location, MAX_JOINTS, Point, PointList, Pwm, State, StatusCode, StatusFlags, Tag,
     UartInit,
@@ -438,21 +441,7 @@ fn pins_pwm_and_serial_round_trip() {
     arm.pwm_stop().unwrap();
     assert!(!arm.status().unwrap().flags.has(StatusFlags::PWM_ACTIVE));
 
-    let rx = arm.serial_rx();
-    arm.serial_open(UartInit {
-        baud_rate: 115_200,
-        ..UartInit::default()
-    })
-    .unwrap();
-    let message: Vec<u8> = (0..600u32).map(|i| b'a' + (i % 26) as u8).collect();
-    arm.serial_send(&message).unwrap();
-    let mut echoed = Vec::new();
-    let deadline = Instant::now() + Duration::from_secs(3);
-    while echoed.len() < message.len() && Instant::now() < deadline {
-        if let Ok(bytes) = rx.recv_timeout(Duration::from_millis(100)) {
-            echoed.extend(bytes);
-        }
-    }
+    let (message, echoed) = serial_round_trip(&arm, Duration::from_secs(3));
     assert_eq!(echoed, message);
     arm.serial_close().unwrap();
 }

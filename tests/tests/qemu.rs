@@ -20,7 +20,9 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use armctl::{Controller, Error, Options, RunEnd, RunOptions};
-use common::{Raw, out_of_order_names_the_missing_frame, raw_frames_are_refused, sweep};
+use common::{
+    Raw, out_of_order_names_the_missing_frame, raw_frames_are_refused, serial_round_trip, sweep,
+};
 use protocol::{
     Command, MAX_JOINTS, Point, PointList, Pwm, State, StatusCode, StatusFlags, Tag, UartInit,
 };
@@ -246,21 +248,7 @@ fn every_command_of_the_manual() {
     // UART_INIT, USART_SEND, USART_RECV through the CMSDK UART and QEMU's chardev, with
     // the test as a loopback device on the line.
     let device = echo(board.serial_device(), Duration::from_secs(10));
-    let rx = arm.serial_rx();
-    arm.serial_open(UartInit {
-        baud_rate: 115_200,
-        ..UartInit::default()
-    })
-    .unwrap();
-    let message: Vec<u8> = (0..600u32).map(|i| b'a' + (i % 26) as u8).collect();
-    arm.serial_send(&message).unwrap();
-    let mut echoed = Vec::new();
-    let deadline = Instant::now() + Duration::from_secs(5);
-    while echoed.len() < message.len() && Instant::now() < deadline {
-        if let Ok(bytes) = rx.recv_timeout(Duration::from_millis(100)) {
-            echoed.extend(bytes);
-        }
-    }
+    let (message, echoed) = serial_round_trip(&arm, Duration::from_secs(5));
     assert_eq!(echoed, message, "{}", board.log());
     arm.serial_close().unwrap();
     drop(device);

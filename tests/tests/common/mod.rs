@@ -2,7 +2,7 @@
 #![allow(dead_code)]
 
 use std::net::{SocketAddr, UdpSocket};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use protocol::{Ack, Command, MAX_DATAGRAM, MAX_JOINTS, Point, PointList, Report, StatusCode, Tag};
 
@@ -117,4 +117,25 @@ pub fn out_of_order_names_the_missing_frame(raw: &Raw, here: [i32; MAX_JOINTS]) 
         .command(51, &Command::Pending(PointList::Points(&two[..1])))
         .unwrap();
     assert_eq!(ack.status, StatusCode::Ok);
+}
+
+/// Opens the serial pass-through at 115200 baud, sends 600 bytes and collects what comes
+/// back within `timeout` (the line is a loopback); returns (sent, received).
+pub fn serial_round_trip(arm: &armctl::Controller, timeout: Duration) -> (Vec<u8>, Vec<u8>) {
+    let rx = arm.serial_rx();
+    arm.serial_open(protocol::UartInit {
+        baud_rate: 115_200,
+        ..protocol::UartInit::default()
+    })
+    .unwrap();
+    let message: Vec<u8> = (0..600u32).map(|i| b'a' + (i % 26) as u8).collect();
+    arm.serial_send(&message).unwrap();
+    let mut echoed = Vec::new();
+    let deadline = Instant::now() + timeout;
+    while echoed.len() < message.len() && Instant::now() < deadline {
+        if let Ok(bytes) = rx.recv_timeout(Duration::from_millis(100)) {
+            echoed.extend(bytes);
+        }
+    }
+    (message, echoed)
 }
