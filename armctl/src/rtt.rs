@@ -14,9 +14,10 @@ use std::time::Duration;
 /// controller ACKs again without executing it).
 pub const DEFAULT_MIN_RTO: Duration = Duration::from_millis(3);
 
-/// The controller's duplicate window (PROTOCOL.md section 7): a copy of an accepted frame
-/// that arrives within 2 s of it is recognised and not executed again.
-pub const DUPLICATE_WINDOW: Duration = Duration::from_secs(2);
+/// The controller's duplicate window (docs/PROTOCOL.md, "Ordering, retransmission and
+/// duplicates"): a copy of an accepted frame that arrives within 2 s of it is recognised
+/// and not executed again.
+pub const DUPLICATE_WINDOW: Duration = Duration::from_micros(protocol::limits::DUPLICATE_WINDOW_US);
 
 /// No copy of a command leaves later than this after its first copy: the duplicate window
 /// less room for the datagram's way and for the controller's clock running a little fast.

@@ -15,13 +15,13 @@ use crate::error::{Error, Result, RunEnd};
 
 /// Largest trajectory one NEW can announce. Longer ones are refused (not split): splitting
 /// would stop the arm between uploads, which a caller must decide to do explicitly.
-pub const MAX_POINTS: usize = u16::MAX as usize;
+pub const MAX_POINTS: usize = protocol::limits::MAX_POINTS_PER_NEW;
 
 /// Frames in flight at most: a controller takes a burst of 32 datagrams whole (the most
 /// it may advertise in STATUS `window`), and recognises a retransmission among more frames
-/// than that (PROTOCOL.md section 7), so a go-back-N resend of a whole window is still
-/// recognised.
-pub const MAX_WINDOW: usize = 32;
+/// than that (docs/PROTOCOL.md, "Ordering, retransmission and duplicates"), so a go-back-N
+/// resend of a whole window is still recognised.
+pub const MAX_WINDOW: usize = protocol::limits::HOST_WINDOW;
 
 /// The window of a controller that advertises none (STATUS `window` 0: an older
 /// controller): what every controller takes back to back.

@@ -39,9 +39,9 @@
 
 use std::collections::VecDeque;
 
-use arm_core::hw::{Endpoint, SerialError};
-use arm_core::{Controller, ControllerConfig, Deferred, Plant, Response};
-use arm_step::Segment;
+use arm_core::hw::Endpoint;
+use arm_core::test_support::FakePlant;
+use arm_core::{Controller, ControllerConfig, Deferred, Response};
 use libfuzzer_sys::arbitrary::{Result, Unstructured};
 use libfuzzer_sys::fuzz_target;
 use protocol::{
@@ -51,10 +51,10 @@ use protocol::{
 
 /// Compile-time trajectory buffer size (the run-time capacity is 1..=64, from the input).
 const CAP: usize = 64;
-/// How long an accepted frame is a duplicate (PROTOCOL.md section 7).
-const DUPLICATE_WINDOW_US: u64 = 2_000_000;
-/// How many accepted frames are remembered (PROTOCOL.md section 7).
-const DUPLICATE_MEMORY: u64 = arm_core::config::DUPLICATE_MEMORY as u64;
+/// How long an accepted frame is a duplicate.
+const DUPLICATE_WINDOW_US: u64 = protocol::limits::DUPLICATE_WINDOW_US;
+/// How many accepted frames are remembered.
+const DUPLICATE_MEMORY: u64 = protocol::limits::DUPLICATE_MEMORY as u64;
 /// Events per input: keeps one execution short.
 const MAX_EVENTS: usize = 400;
 /// Datagrams kept for the resend event.
@@ -94,99 +94,22 @@ struct Effects {
     position_sets: u32,
 }
 
-/// A step engine holding up to `room` segments that run only when the harness says so,
-/// and peripherals that count what they are told.
-struct FakePlant {
-    positions: [i32; MAX_JOINTS],
-    queue: VecDeque<Segment>,
-    room: usize,
-    running: bool,
-    gripper_on: bool,
-    serial_queued: usize,
-    max_step_rate_hz: u64,
-    effects: Effects,
-}
-
-impl Plant for FakePlant {
-    fn positions(&self) -> [i32; MAX_JOINTS] {
-        self.positions
-    }
-    fn set_positions(&mut self, positions: [i32; MAX_JOINTS]) -> bool {
-        if self.running {
-            return false;
+impl Effects {
+    /// What `plant` (arm-core's test-support fake, with its contract checks on) counted.
+    fn of(plant: &FakePlant) -> Effects {
+        let count = |n: usize| u32::try_from(n).unwrap_or(u32::MAX);
+        Effects {
+            pushed: plant.pushed,
+            stops: plant.stops,
+            starts: plant.starts,
+            pins: count(plant.pins.len()),
+            enables: count(plant.enabled.len()),
+            gripper_calls: plant.gripper_calls,
+            serial_opens: plant.serial_opens,
+            serial_closes: plant.serial_closes,
+            serial_sends: count(plant.serial_sent.len()),
+            position_sets: count(plant.set_positions_calls.len()),
         }
-        self.effects.position_sets += 1;
-        self.positions = positions;
-        true
-    }
-    fn stop(&mut self) {
-        self.effects.stops += 1;
-        self.queue.clear();
-        self.running = false;
-    }
-    fn push_segment(&mut self, segment: Segment) -> bool {
-        assert!(segment.duration_us >= 1, "segment of 0 us: {segment:?}");
-        for s in segment.steps {
-            assert!(
-                u64::from(s.unsigned_abs()) * 1_000_000
-                    <= self.max_step_rate_hz * u64::from(segment.duration_us),
-                "segment faster than max_step_rate_hz: {segment:?}"
-            );
-        }
-        if self.queue.len() >= self.room {
-            return false;
-        }
-        self.queue.push_back(segment);
-        self.effects.pushed += 1;
-        true
-    }
-    fn start(&mut self) {
-        self.effects.starts += 1;
-        self.running = true;
-    }
-    fn set_user_pin(&mut self, pin: u8, _high: bool) {
-        assert!(pin < 2, "user pin {pin}");
-        self.effects.pins += 1;
-    }
-    fn set_enabled(&mut self, enabled: u16) {
-        assert_eq!(enabled & !0x01FF, 0, "ENABLE bits beyond the gripper's");
-        self.effects.enables += 1;
-    }
-    fn gripper_start(&mut self, _pwm: &Pwm) {
-        self.effects.gripper_calls += 1;
-        self.gripper_on = true;
-    }
-    fn gripper_stop(&mut self) {
-        self.effects.gripper_calls += 1;
-        self.gripper_on = false;
-    }
-    fn gripper_active(&self) -> bool {
-        self.gripper_on
-    }
-    fn serial_open(&mut self, init: &UartInit) -> Result<(), SerialError> {
-        // Some settings this "hardware" cannot apply, to reach USART_START's refusal.
-        if init.baud_rate.is_multiple_of(7) {
-            return Err(SerialError::Unsupported);
-        }
-        self.effects.serial_opens += 1;
-        Ok(())
-    }
-    fn serial_close(&mut self) {
-        self.effects.serial_closes += 1;
-        self.serial_queued = 0;
-    }
-    fn serial_send(&mut self, bytes: &[u8]) -> bool {
-        assert!(
-            (1..=255).contains(&bytes.len()),
-            "serial chunk of {}",
-            bytes.len()
-        );
-        if self.serial_queued >= SERIAL_ROOM {
-            return false;
-        }
-        self.serial_queued += 1;
-        self.effects.serial_sends += 1;
-        true
     }
 }
 
@@ -270,14 +193,13 @@ impl Harness {
         Harness {
             controller: Controller::new(config),
             plant: FakePlant {
-                positions: [0; MAX_JOINTS],
-                queue: VecDeque::new(),
                 room,
-                running: false,
-                gripper_on: false,
-                serial_queued: 0,
+                serial_room: SERIAL_ROOM,
+                // Some settings this "hardware" cannot apply, to reach USART_START's refusal.
+                serial_refuses_if: Some(|init| init.baud_rate.is_multiple_of(7)),
+                checks: true,
                 max_step_rate_hz: u64::from(config.max_step_rate_hz),
-                effects: Effects::default(),
+                ..FakePlant::default()
             },
             capacity,
             now_us: 1_000,
@@ -299,7 +221,7 @@ impl Harness {
 
     fn snapshot(&self) -> Snapshot {
         Snapshot {
-            effects: self.plant.effects,
+            effects: Effects::of(&self.plant),
             positions: self.plant.positions,
             running: self.plant.running,
             queued: self.plant.queue.len(),

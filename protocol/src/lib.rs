@@ -15,6 +15,7 @@ extern crate std;
 mod codec;
 mod error;
 mod frame;
+pub mod limits;
 mod net;
 mod types;
 
@@ -67,21 +68,4 @@ pub mod size {
     pub const NET_SET: usize = 10;
     /// DISCOVER_REPLY data.
     pub const DISCOVER_REPLY: usize = 27;
-}
-
-/// Value ranges that decode enforces (docs/PROTOCOL.md: the table of "Commands (host to
-/// controller)", its TOGGLE_ENABLE_PINS section, and "UartInit (28 bytes)" for the baud rate).
-pub mod limits {
-    /// Smallest and largest UPLOAD_PERIOD, microseconds.
-    pub const UPLOAD_PERIOD_US: core::ops::RangeInclusive<u32> = 1_000..=1_000_000;
-    /// Joint counts JOINTS_COUNT accepts.
-    pub const JOINTS: core::ops::RangeInclusive<u8> = 1..=8;
-    /// Serial baud rates USART_START accepts.
-    pub const BAUD_RATE: core::ops::RangeInclusive<u32> = 300..=4_000_000;
-    /// Bits of TOGGLE_ENABLE_PINS's mask that name a driver: joints 0-7, gripper 8.
-    pub const ENABLE_MASK_BITS: u16 = 0x01FF;
-    /// Default upload period, microseconds.
-    pub const DEFAULT_UPLOAD_PERIOD_US: u32 = 10_000;
-    /// Default joint count.
-    pub const DEFAULT_JOINTS: u8 = 6;
 }

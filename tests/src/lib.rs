@@ -1,5 +1,7 @@
 //! Harness for the end-to-end tests: finds (or builds) the `sim-host` and `armctl`
 //! binaries, starts a simulated controller on a free 127.0.0.1 port, and kills it on drop.
+//! It is the one sim-host process harness: sim-host's own tests start their simulator with
+//! it too ([`SimHost::start_binary`]).
 //!
 //! The binaries are `SIM_HOST_BIN` / `ARMCTL_BIN` when set, else `target/<profile>/sim-host`
 //! and `armctl` next to the test executable (`current_exe()/../../`), brought up to date
@@ -8,20 +10,29 @@
 /// The firmware on QEMU's mps2-an500 (tests/tests/qemu.rs).
 pub mod qemu;
 
-use std::net::{Ipv4Addr, SocketAddr, SocketAddrV4, UdpSocket};
+use std::io::{BufRead, BufReader};
+use std::net::{SocketAddr, UdpSocket};
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
-use std::sync::{Condvar, Mutex};
+use std::process::{Child, Command, ExitStatus, Stdio};
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Condvar, Mutex, mpsc};
 use std::time::{Duration, Instant};
 
 use armctl::{Controller, Options};
 
-/// How long a fresh sim-host gets to answer STATUS.
+/// How long a fresh sim-host gets to say where it listens, and to exit on SIGTERM.
 const START_TIMEOUT: Duration = Duration::from_secs(10);
 
 /// Simulators running at once in one test process: each runs real-time step threads,
-/// and the machine (and CI's) has two cores.
-const MAX_SIMULATORS: usize = 3;
+/// and the machine (and CI's) has two cores. [`limit_simulators`] lowers it.
+static MAX_SIMULATORS: AtomicUsize = AtomicUsize::new(3);
+
+/// Sets how many simulators this test process runs at once (3 unless set): a test binary
+/// whose simulators must never be starved (their buffers would run dry, as a starved
+/// board's would) runs fewer.
+pub fn limit_simulators(n: usize) {
+    MAX_SIMULATORS.store(n.max(1), Ordering::Relaxed);
+}
 
 /// Simulators running now, and a wake-up for a free slot.
 static RUNNING: (Mutex<usize>, Condvar) = (Mutex::new(0), Condvar::new());
@@ -33,7 +44,7 @@ impl Slot {
     fn take() -> Slot {
         let (count, freed) = &RUNNING;
         let mut running = count.lock().unwrap_or_else(|e| e.into_inner());
-        while *running >= MAX_SIMULATORS {
+        while *running >= MAX_SIMULATORS.load(Ordering::Relaxed) {
             running = freed.wait(running).unwrap_or_else(|e| e.into_inner());
         }
         *running += 1;
@@ -108,7 +119,7 @@ pub fn armctl_bin() -> PathBuf {
     binary("armctl", "armctl", "ARMCTL_BIN")
 }
 
-/// A UDP port free on 127.0.0.1 right now (for sim-host and QEMU's host forward).
+/// A UDP port free on 127.0.0.1 right now (for QEMU's host forward).
 fn free_port() -> u16 {
     UdpSocket::bind("127.0.0.1:0")
         .and_then(|s| s.local_addr())
@@ -116,90 +127,114 @@ fn free_port() -> u16 {
         .expect("no free UDP port on 127.0.0.1")
 }
 
+/// The line sim-host prints on stdout once it listens, before the address.
+const LISTENING: &str = "sim-host: listening on udp ";
+
 /// A running sim-host, killed on drop.
 pub struct SimHost {
     /// Where it listens.
     pub addr: SocketAddr,
-    /// `None` once [`SimHost::terminate`] has waited for it.
+    /// What it printed on stdout before the address line (e.g. the pty path).
+    pub banner: Vec<String>,
+    /// `None` once [`SimHost::stop`] has waited for it.
     child: Option<Child>,
     dir: PathBuf,
-    /// Dropped after the process is killed (fields drop after `Drop::drop`).
-    _slot: Slot,
+    /// Freed when it is stopped or dropped (fields drop after `Drop::drop`).
+    slot: Option<Slot>,
 }
 
 impl SimHost {
     /// Starts a sim-host with extra arguments (`--joints`, `--loss` ...) on a free port and
-    /// waits until it answers STATUS.
+    /// waits until it listens.
     pub fn start(args: &[&str]) -> SimHost {
-        SimHost::launch(args, false)
+        SimHost::launch(&sim_host_bin(), args, false)
     }
 
     /// As [`SimHost::start`], with `--trace` writing to [`SimHost::trace`].
     pub fn start_traced(args: &[&str]) -> SimHost {
-        SimHost::launch(args, true)
+        SimHost::launch(&sim_host_bin(), args, true)
     }
 
-    fn launch(args: &[&str], traced: bool) -> SimHost {
-        let bin = sim_host_bin();
+    /// As [`SimHost::start`], running the sim-host binary at `bin` (sim-host's own tests
+    /// pass `CARGO_BIN_EXE_sim-host`).
+    pub fn start_binary(bin: &Path, args: &[&str]) -> SimHost {
+        SimHost::launch(bin, args, false)
+    }
+
+    /// Binds 127.0.0.1:0 (the simulator picks a free port, so no other process can take
+    /// it first) and reads the address it prints; `--settings` is a scratch file unless
+    /// `args` name one.
+    fn launch(bin: &Path, args: &[&str], traced: bool) -> SimHost {
         let slot = Slot::take();
-        let mut last_error = String::new();
-        // A port found free can be taken before the simulator binds it: try a few.
-        for _ in 0..5 {
-            let port = free_port();
-            let addr = SocketAddr::V4(SocketAddrV4::new(Ipv4Addr::LOCALHOST, port));
-            let dir =
-                std::env::temp_dir().join(format!("system-tests-{}-{port}", std::process::id()));
-            let _ = std::fs::create_dir_all(&dir);
-            let log = std::fs::File::create(dir.join("sim-host.log")).ok();
-            let mut child = Command::new(&bin)
-                .arg("--bind")
-                .arg(addr.to_string())
-                .arg("--settings")
-                .arg(dir.join("settings.txt"))
-                .args(["--log-level", "warn"])
-                .args(if traced {
-                    vec!["--trace".into(), dir.join("run.vcd").into_os_string()]
-                } else {
-                    Vec::new()
-                })
-                .args(args)
-                .stdin(Stdio::null())
-                .stdout(Stdio::null())
-                .stderr(log.map_or_else(Stdio::null, Stdio::from))
-                .spawn()
-                .unwrap_or_else(|e| panic!("cannot start {}: {e}", bin.display()));
-            let started = Instant::now();
-            while started.elapsed() < START_TIMEOUT {
-                if let Ok(Some(status)) = child.try_wait() {
-                    last_error = format!(
-                        "sim-host exited with {status}: {}",
-                        std::fs::read_to_string(dir.join("sim-host.log")).unwrap_or_default()
-                    );
+        let dir = std::env::temp_dir().join(format!(
+            "system-tests-{}-{}",
+            std::process::id(),
+            next_instance()
+        ));
+        let _ = std::fs::create_dir_all(&dir);
+        let log = std::fs::File::create(dir.join("sim-host.log")).ok();
+        let mut command = Command::new(bin);
+        command.args(["--bind", "127.0.0.1:0", "--log-level", "warn"]);
+        if !args.contains(&"--settings") {
+            command.arg("--settings").arg(dir.join("settings.txt"));
+        }
+        if traced {
+            command.arg("--trace").arg(dir.join("run.vcd"));
+        }
+        command
+            .args(args)
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(log.map_or_else(Stdio::null, Stdio::from));
+        // If the test process dies without dropping the SimHost, the simulator goes too.
+        // SAFETY: prctl is async-signal-safe; nothing else runs between fork and exec.
+        unsafe {
+            std::os::unix::process::CommandExt::pre_exec(&mut command, || {
+                libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM);
+                Ok(())
+            });
+        }
+        let mut child = command
+            .spawn()
+            .unwrap_or_else(|e| panic!("cannot start {}: {e}", bin.display()));
+        let stdout = child.stdout.take().expect("piped stdout");
+        // The banner and address, then keep draining so the child never blocks on a full
+        // pipe.
+        let (found, listening) = mpsc::channel();
+        std::thread::spawn(move || {
+            let mut lines = BufReader::new(stdout).lines().map_while(Result::ok);
+            let mut banner = Vec::new();
+            for line in lines.by_ref() {
+                if let Some(addr) = line.strip_prefix(LISTENING) {
+                    let _ = found.send((addr.parse::<SocketAddr>(), banner));
                     break;
                 }
-                let quick = Options {
-                    ack_timeout: Duration::from_millis(100),
-                    attempts: 2,
-                    ..Options::default()
-                };
-                if Controller::connect_with(addr, quick).is_ok() {
-                    return SimHost {
-                        addr,
-                        child: Some(child),
-                        dir,
-                        _slot: slot,
-                    };
-                }
-                // A port nobody listens on yet is refused at once on loopback: do not spin.
-                std::thread::sleep(Duration::from_millis(20));
+                banner.push(line);
             }
-            let _ = child.kill();
-            let _ = child.wait();
-            if last_error.is_empty() {
-                last_error = format!("sim-host did not answer on {addr} in {START_TIMEOUT:?}");
+            for _ in lines {}
+        });
+        match listening.recv_timeout(START_TIMEOUT) {
+            Ok((Ok(addr), banner)) => SimHost {
+                addr,
+                banner,
+                child: Some(child),
+                dir,
+                slot: Some(slot),
+            },
+            outcome => {
+                let _ = child.kill();
+                let status = child.wait();
+                let log = std::fs::read_to_string(dir.join("sim-host.log")).unwrap_or_default();
+                let _ = std::fs::remove_dir_all(&dir);
+                match outcome {
+                    Ok((Err(e), _)) => panic!("sim-host printed a bad address ({e}): {log}"),
+                    _ => panic!(
+                        "sim-host did not say where it listens within {START_TIMEOUT:?} \
+                         (exit: {status:?}): {log}"
+                    ),
+                }
             }
         }
-        panic!("{last_error}");
     }
 
     /// A client with options suited to loopback.
@@ -231,7 +266,14 @@ impl SimHost {
 
     /// SIGTERM, then waits (bounded) for a clean exit, so that the trace is flushed.
     pub fn terminate(&mut self) {
+        let status = self.stop();
+        assert!(status.success(), "sim-host exited with {status}");
+    }
+
+    /// SIGTERM, then waits (bounded) for it to exit and frees its slot; its exit status.
+    pub fn stop(&mut self) -> ExitStatus {
         let mut child = self.child.take().expect("sim-host still running");
+        let _slot = self.slot.take();
         let sent = Command::new("kill")
             .args(["-TERM", &child.id().to_string()])
             .status()
@@ -240,8 +282,7 @@ impl SimHost {
         let asked = Instant::now();
         loop {
             if let Some(status) = child.try_wait().expect("wait for sim-host") {
-                assert!(status.success(), "sim-host exited with {status}");
-                return;
+                return status;
             }
             if asked.elapsed() > START_TIMEOUT {
                 let _ = child.kill();
@@ -251,6 +292,12 @@ impl SimHost {
             std::thread::sleep(Duration::from_millis(20));
         }
     }
+}
+
+/// A number for each simulator this process starts (their scratch directories).
+fn next_instance() -> usize {
+    static STARTED: AtomicUsize = AtomicUsize::new(0);
+    STARTED.fetch_add(1, Ordering::Relaxed)
 }
 
 impl Drop for SimHost {

@@ -6,7 +6,10 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use armctl::{Controller, Error, Options, RunEnd, RunOptions};
-use common::{Raw, datagram, sweep};
+use common::{
+    Raw, datagram, out_of_order_names_the_missing_frame, raw_frames_are_refused, serial_round_trip,
+    sweep,
+};
 use protocol::{
     Command, Location, MAX_JOINTS, Point, PointList, Pwm, State, StatusCode, StatusFlags, Tag,
     UartInit,
@@ -281,36 +284,12 @@ fn every_refused_command_gives_its_error() {
         }
     }
     assert_eq!(replies, 0, "a 2-byte datagram was answered");
-    let mut bad_crc = datagram(40, Tag::Status as u8, &[]);
-    *bad_crc.last_mut().unwrap() ^= 0xFF;
-    let ack = raw.exchange(&bad_crc, 40).expect("an ACK for a bad CRC");
-    assert_eq!(
-        (ack.status, ack.acked_tag),
-        (StatusCode::BadCrc, Tag::Status as u8)
-    );
-    let ack = raw.exchange(&datagram(41, 0x30, &[]), 41).unwrap();
-    assert_eq!(ack.status, StatusCode::UnknownTag);
-    let ack = raw
-        .exchange(&datagram(42, Tag::New as u8, &[0, 1, 2]), 42)
-        .unwrap();
-    assert_eq!(ack.status, StatusCode::BadLength);
+    raw_frames_are_refused(&raw);
     let ack = raw
         .exchange(&datagram(43, Tag::UsartRecv as u8, &[0u8; 257]), 43)
         .unwrap();
     assert_eq!(ack.status, StatusCode::Unsupported);
-    // OUT_OF_ORDER: NEW at 50, PENDING at 52 (51 never sent).
-    let ack = raw.command(50, &Command::New { count: 2 }).unwrap();
-    assert_eq!(ack.status, StatusCode::Ok);
-    let two = sweep(here, 1, 2, 1, 10_000);
-    let ack = raw
-        .command(52, &Command::Pending(PointList::Points(&two[..1])))
-        .unwrap();
-    assert_eq!(ack.status, StatusCode::OutOfOrder);
-    assert_eq!(ack.next_seq, 51, "next_seq names the missing frame");
-    let ack = raw
-        .command(51, &Command::Pending(PointList::Points(&two[..1])))
-        .unwrap();
-    assert_eq!(ack.status, StatusCode::Ok);
+    out_of_order_names_the_missing_frame(&raw, here);
     arm.stop().unwrap();
 }
 
@@ -462,21 +441,7 @@ fn pins_pwm_and_serial_round_trip() {
     arm.pwm_stop().unwrap();
     assert!(!arm.status().unwrap().flags.has(StatusFlags::PWM_ACTIVE));
 
-    let rx = arm.serial_rx();
-    arm.serial_open(UartInit {
-        baud_rate: 115_200,
-        ..UartInit::default()
-    })
-    .unwrap();
-    let message: Vec<u8> = (0..600u32).map(|i| b'a' + (i % 26) as u8).collect();
-    arm.serial_send(&message).unwrap();
-    let mut echoed = Vec::new();
-    let deadline = Instant::now() + Duration::from_secs(3);
-    while echoed.len() < message.len() && Instant::now() < deadline {
-        if let Ok(bytes) = rx.recv_timeout(Duration::from_millis(100)) {
-            echoed.extend(bytes);
-        }
-    }
+    let (message, echoed) = serial_round_trip(&arm, Duration::from_secs(3));
     assert_eq!(echoed, message);
     arm.serial_close().unwrap();
 }

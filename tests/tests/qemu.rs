@@ -20,7 +20,9 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use armctl::{Controller, Error, Options, RunEnd, RunOptions};
-use common::{Raw, datagram, sweep};
+use common::{
+    Raw, out_of_order_names_the_missing_frame, raw_frames_are_refused, serial_round_trip, sweep,
+};
 use protocol::{
     Command, MAX_JOINTS, Point, PointList, Pwm, State, StatusCode, StatusFlags, Tag, UartInit,
 };
@@ -282,21 +284,7 @@ fn every_command_of_the_manual() {
     // UART_INIT, USART_SEND, USART_RECV through the CMSDK UART and QEMU's chardev, with
     // the test as a loopback device on the line.
     let device = echo(board.serial_device(), Duration::from_secs(10));
-    let rx = arm.serial_rx();
-    arm.serial_open(UartInit {
-        baud_rate: 115_200,
-        ..UartInit::default()
-    })
-    .unwrap();
-    let message: Vec<u8> = (0..600u32).map(|i| b'a' + (i % 26) as u8).collect();
-    arm.serial_send(&message).unwrap();
-    let mut echoed = Vec::new();
-    let deadline = Instant::now() + Duration::from_secs(5);
-    while echoed.len() < message.len() && Instant::now() < deadline {
-        if let Ok(bytes) = rx.recv_timeout(Duration::from_millis(100)) {
-            echoed.extend(bytes);
-        }
-    }
+    let (message, echoed) = serial_round_trip(&arm, Duration::from_secs(5));
     assert_eq!(echoed, message, "{}", board.log());
     arm.serial_close().unwrap();
     drop(device);
@@ -304,32 +292,8 @@ fn every_command_of_the_manual() {
     // Frames only a raw socket can make.
     let here = position(&board, &arm);
     let raw = Raw::new("127.0.0.1:0", board.addr);
-    let mut bad_crc = datagram(40, Tag::Status as u8, &[]);
-    *bad_crc.last_mut().unwrap() ^= 0xFF;
-    let ack = raw.exchange(&bad_crc, 40).expect("an ACK for a bad CRC");
-    assert_eq!(
-        (ack.status, ack.acked_tag),
-        (StatusCode::BadCrc, Tag::Status as u8)
-    );
-    let ack = raw.exchange(&datagram(41, 0x30, &[]), 41).unwrap();
-    assert_eq!(ack.status, StatusCode::UnknownTag);
-    let ack = raw
-        .exchange(&datagram(42, Tag::New as u8, &[0, 1, 2]), 42)
-        .unwrap();
-    assert_eq!(ack.status, StatusCode::BadLength);
-    // OUT_OF_ORDER: NEW at 50, PENDING at 52 (51 never sent).
-    let ack = raw.command(50, &Command::New { count: 2 }).unwrap();
-    assert_eq!(ack.status, StatusCode::Ok);
-    let two = sweep(here, 1, 2, 1, 10_000);
-    let ack = raw
-        .command(52, &Command::Pending(PointList::Points(&two[..1])))
-        .unwrap();
-    assert_eq!(ack.status, StatusCode::OutOfOrder);
-    assert_eq!(ack.next_seq, 51, "next_seq names the missing frame");
-    let ack = raw
-        .command(51, &Command::Pending(PointList::Points(&two[..1])))
-        .unwrap();
-    assert_eq!(ack.status, StatusCode::Ok);
+    raw_frames_are_refused(&raw);
+    out_of_order_names_the_missing_frame(&raw, here);
     arm.stop().unwrap();
     board.assert_healthy();
 }

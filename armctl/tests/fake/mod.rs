@@ -1,20 +1,22 @@
-//! A small controller that follows PROTOCOL.md closely enough to exercise the client's
-//! reliability logic with deterministic loss, duplication and reordering that the test
-//! chooses. It is not the simulator: `tests/` (system-tests) runs the real sim-host.
+//! The real controller state machine (`arm_core::Controller`, with arm-core's test-support
+//! `FakePlant` run in real time) behind a UDP socket on 127.0.0.1, with a fault injector
+//! between it and the client: deterministic loss, duplication and reordering the test
+//! chooses, a small inbox, one chosen datagram dropped, an advertised window, and a
+//! controller that falls behind mid-run. The duplicate, ordering and BUFFER_FULL rules are
+//! the firmware's own. `tests/` (system-tests) runs the whole sim-host.
 
 #![allow(dead_code)]
 
-use std::collections::VecDeque;
 use std::net::{SocketAddr, UdpSocket};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use protocol::{
-    Ack, Command, Frame, Location, MAX_DATAGRAM, Point, Report, State, StatusCode, StatusFlags,
-    StatusReport, Tag,
-};
+use arm_core::hw::Endpoint;
+use arm_core::test_support::FakePlant;
+use arm_core::{Controller, ControllerConfig, Deferred};
+use protocol::{Command, Location, MAX_DATAGRAM, Point, PointList, Report, StatusCode, Tag};
 
 /// Faults applied to datagrams in both directions.
 #[derive(Clone, Copy, Debug, Default)]
@@ -30,11 +32,12 @@ pub struct Faults {
     /// Datagrams the controller can queue at once (0: unbounded); a burst beyond it is
     /// dropped, like a firmware inbox that is full.
     pub inbox: usize,
-    /// After executing this many points of a run, the fake "falls behind": it ends the run
-    /// with an underrun although points are still buffered (a controller that cannot feed
-    /// its step engine in time).
+    /// After executing this many points of a run, the fake "falls behind": its step engine
+    /// runs dry although points are still buffered (a controller that cannot feed its step
+    /// engine in time), which the controller ends as an underrun.
     pub fall_behind_after: Option<u16>,
-    /// The window STATUS advertises (0: none, as an older controller).
+    /// The window STATUS advertises (0: none, as an older controller), written over the
+    /// controller's own.
     pub window: u16,
     /// Drops the received datagram with this index (0 = the first), once.
     pub drop_received: Option<usize>,
@@ -45,7 +48,7 @@ pub struct Faults {
 pub struct Counters {
     /// PENDING frames whose points were taken.
     pub pending_taken: usize,
-    /// Frames recognised as duplicates.
+    /// PENDING frames ACKed OK whose points were not taken again (duplicates).
     pub duplicates: usize,
     /// OUT_OF_ORDER refusals.
     pub out_of_order: usize,
@@ -67,27 +70,24 @@ impl Rng {
     }
 }
 
+/// The largest trajectory buffer a test asks for.
+const CAP: usize = 4096;
+
+/// Highest step rate of one joint of the fake engine: fast enough for any test's jump.
+const FAST_ENGINE_HZ: u32 = 10_000_000;
+
+/// Segments the fake step engine queues (the controller keeps it fed).
+const ENGINE_ROOM: usize = 16;
+
 struct Sim {
-    state: State,
-    joints: u8,
-    capacity: usize,
-    buffer: VecDeque<Point>,
-    expected: u16,
-    received: u16,
-    executed: u16,
-    position: [i32; 8],
-    segment_start: Instant,
-    flags: StatusFlags,
-    /// The seq a PENDING must carry to be taken: the first seq after the last taken
-    /// NEW/PENDING not used by an accepted command.
-    expect_seq: u8,
-    /// Seqs accepted since the last taken NEW/PENDING.
-    accepted: std::collections::HashSet<u8>,
-    recent: VecDeque<(u16, u8, u8, u8, Instant)>,
-    owner: Option<SocketAddr>,
+    controller: Box<Controller<CAP>>,
+    plant: FakePlant,
+    /// The controller's clock starts here.
+    started: Instant,
+    /// When the engine's front segment began, while it runs.
+    segment_start: Option<Instant>,
     report_seq: u8,
     counters: Counters,
-    upload_period: Duration,
     last_report: Instant,
     fall_behind_after: Option<u16>,
     window: u16,
@@ -104,29 +104,28 @@ pub struct Fake {
 impl Fake {
     /// Starts a fake with `capacity` buffer slots and the given faults.
     pub fn start(capacity: usize, faults: Faults) -> Fake {
+        assert!(capacity <= CAP, "the fake buffers at most {CAP} points");
         let socket = UdpSocket::bind("127.0.0.1:0").unwrap();
         socket
             .set_read_timeout(Some(Duration::from_millis(1)))
             .unwrap();
         let addr = socket.local_addr().unwrap();
         let sim = Arc::new(Mutex::new(Sim {
-            state: State::Stopped,
-            joints: 6,
-            capacity,
-            buffer: VecDeque::new(),
-            expected: 0,
-            received: 0,
-            executed: 0,
-            position: [0; 8],
-            segment_start: Instant::now(),
-            flags: StatusFlags(StatusFlags::REPORTS_ON),
-            expect_seq: 0,
-            accepted: Default::default(),
-            recent: VecDeque::new(),
-            owner: None,
+            controller: Box::new(Controller::new(ControllerConfig {
+                capacity,
+                // Tests run the same ramp twice from where the first run ended: the jump
+                // back to its start is a fast first segment, which this engine can take.
+                max_step_rate_hz: FAST_ENGINE_HZ,
+                ..ControllerConfig::BOARD
+            })),
+            plant: FakePlant {
+                room: ENGINE_ROOM,
+                ..FakePlant::default()
+            },
+            started: Instant::now(),
+            segment_start: None,
             report_seq: 0,
             counters: Counters::default(),
-            upload_period: Duration::from_millis(10),
             last_report: Instant::now(),
             fall_behind_after: faults.fall_behind_after,
             window: faults.window,
@@ -150,7 +149,7 @@ impl Fake {
     }
 
     pub fn position(&self) -> [i32; 8] {
-        self.sim.lock().unwrap().position
+        self.sim.lock().unwrap().plant.positions
     }
 }
 
@@ -248,222 +247,133 @@ fn serve(socket: UdpSocket, sim: Arc<Mutex<Sim>>, shutdown: Arc<AtomicBool>, fau
 }
 
 impl Sim {
-    fn report(&mut self, report: &Report<'_>, link: &mut Link) {
-        let Some(owner) = self.owner else { return };
+    fn send_report(&mut self, report: &Report<'_>, to: SocketAddr, link: &mut Link) {
         let mut out = [0u8; MAX_DATAGRAM];
         self.report_seq = self.report_seq.wrapping_add(1);
         let n = report.encode(self.report_seq, &mut out).unwrap();
-        link.send(&out[..n], owner);
+        link.send(&out[..n], to);
     }
 
-    fn location(&mut self, link: &mut Link) {
-        let location = Location {
-            position: self.position,
-            state: self.state as u8,
-        };
-        self.report(&Report::Location(location), link);
-    }
-
-    fn set_state(&mut self, state: State, link: &mut Link) {
-        if self.state != state {
-            self.state = state;
-            self.location(link);
+    /// A LOCATION to every endpoint the controller reports to.
+    fn send_location(&mut self, location: Location, link: &mut Link) {
+        let settings = self.controller.report_settings();
+        for to in settings.location_to.iter().flatten() {
+            self.send_report(&Report::Location(location), address(*to), link);
         }
     }
 
     fn handle(&mut self, datagram: &[u8], from: SocketAddr, link: &mut Link) {
-        let reply = |status: StatusCode, sim: &Sim, seq: u8, tag: u8, link: &mut Link| {
+        let now_us = u64::try_from(self.started.elapsed().as_micros()).unwrap_or(u64::MAX);
+        let received_before = self.controller.status(&self.plant).received;
+        let response = self
+            .controller
+            .handle(endpoint(from), datagram, now_us, &mut self.plant);
+        let received_after = self.controller.status(&self.plant).received;
+        if let Some(reply) = response.reply {
+            match reply.ack.status {
+                StatusCode::OutOfOrder => self.counters.out_of_order += 1,
+                StatusCode::BufferFull => self.counters.buffer_full += 1,
+                StatusCode::Ok => {
+                    if let Ok(frame) = Command::decode(datagram)
+                        && let Command::Pending(points) = frame.body
+                    {
+                        if received_after > received_before {
+                            self.counters.taken.extend(points_of(&points));
+                            self.counters.pending_taken += 1;
+                        } else {
+                            self.counters.duplicates += 1;
+                        }
+                    }
+                }
+                _ => {}
+            }
             let mut out = [0u8; MAX_DATAGRAM];
-            let ack = Ack {
-                acked_tag: tag,
-                status,
-                state: sim.state,
-                next_seq: sim.expect_seq,
-                buffered: sim.buffer.len() as u16,
-                free: (sim.capacity - sim.buffer.len()) as u16,
-            };
-            let n = Report::Ack(ack).encode(seq, &mut out).unwrap();
-            link.send(&out[..n], from);
-        };
-        let frame: Frame<Command<'_>> = match Command::decode(datagram) {
-            Ok(f) => f,
-            Err(e) => {
-                if let Some(status) = e.status() {
-                    reply(status, self, e.seq, e.tag, link);
-                }
-                return;
-            }
-        };
-        let seq = frame.seq;
-        let tag = frame.body.tag() as u8;
-        let crc = datagram[datagram.len() - 1];
-        let now = Instant::now();
-        self.owner = Some(from);
-        self.recent
-            .retain(|r| now.duration_since(r.4) < Duration::from_secs(2));
-        if self
-            .recent
-            .iter()
-            .any(|r| (r.0, r.1, r.2, r.3) == (from.port(), seq, tag, crc))
+            let n = Report::Ack(reply.ack).encode(reply.seq, &mut out).unwrap();
+            link.send(&out[..n], address(reply.to));
+        }
+        if let Some((to, mut status)) = response.status {
+            status.window = self.window;
+            self.send_report(&Report::Status(status), address(to), link);
+        }
+        if let Some(location) = response.location {
+            self.send_location(location, link);
+        }
+        if response.deferred == Some(Deferred::ReadEncoders)
+            && let Some(location) = self.controller.begin_return(None, &mut self.plant)
         {
-            self.counters.duplicates += 1;
-            reply(StatusCode::Ok, self, seq, tag, link);
-            return;
-        }
-        let status = self.execute(seq, &frame.body, link);
-        match status {
-            StatusCode::Ok => {
-                self.recent.push_back((from.port(), seq, tag, crc, now));
-                if self.recent.len() > 32 {
-                    self.recent.pop_front();
-                }
-                if !matches!(frame.body, Command::New { .. }) {
-                    self.accepted.insert(seq);
-                }
-                while self.accepted.remove(&self.expect_seq) {
-                    self.expect_seq = self.expect_seq.wrapping_add(1);
-                }
-            }
-            StatusCode::OutOfOrder => self.counters.out_of_order += 1,
-            StatusCode::BufferFull => self.counters.buffer_full += 1,
-            _ => {}
-        }
-        reply(status, self, seq, tag, link);
-        if matches!(frame.body, Command::Status) && status == StatusCode::Ok {
-            let status = StatusReport {
-                version: protocol::VERSION,
-                joints: self.joints,
-                state: self.state,
-                flags: self.flags,
-                buffered: self.buffer.len() as u16,
-                expected: self.expected,
-                received: self.received,
-                executed: self.executed,
-                capacity: self.capacity as u16,
-                more_flags: protocol::MoreFlags::default(),
-                upload_period_us: self.upload_period.as_micros() as u32,
-                pwm_timer_clock_hz: 240_000_000,
-                max_step_rate_hz: 50_000,
-                window: self.window,
-            };
-            self.report(&Report::Status(status), link);
+            self.send_location(location, link);
         }
     }
 
-    fn execute(&mut self, seq: u8, command: &Command<'_>, link: &mut Link) -> StatusCode {
-        match *command {
-            Command::New { count } => {
-                if self.state == State::Running {
-                    return StatusCode::BadState;
-                }
-                self.buffer.clear();
-                self.expected = count;
-                self.received = 0;
-                self.executed = 0;
-                self.expect_seq = seq.wrapping_add(1);
-                self.accepted.clear();
-                self.set_state(State::New, link);
-                StatusCode::Ok
-            }
-            Command::Pending(points) => {
-                if !matches!(self.state, State::New | State::Pending | State::Running) {
-                    return StatusCode::BadState;
-                }
-                if seq != self.expect_seq {
-                    return StatusCode::OutOfOrder;
-                }
-                if usize::from(self.received) + points.len() > usize::from(self.expected) {
-                    return StatusCode::TooManyPoints;
-                }
-                if self.buffer.len() + points.len() > self.capacity {
-                    return StatusCode::BufferFull;
-                }
-                for p in points.iter() {
-                    self.buffer.push_back(p);
-                    self.counters.taken.push(p);
-                }
-                self.received += points.len() as u16;
-                self.counters.pending_taken += 1;
-                if self.state != State::Running {
-                    self.set_state(State::Pending, link);
-                }
-                StatusCode::Ok
-            }
-            Command::Runing => match self.state {
-                State::Pending => {
-                    self.segment_start = Instant::now();
-                    self.flags.set(StatusFlags::UNDERRUN, false);
-                    self.flags.set(StatusFlags::STOPPED_BY_HOST, false);
-                    self.set_state(State::Running, link);
-                    StatusCode::Ok
-                }
-                State::Running => StatusCode::Ok,
-                _ => StatusCode::BadState,
-            },
-            Command::Stopped => {
-                if self.state == State::Running {
-                    self.flags.set(StatusFlags::STOPPED_BY_HOST, true);
-                }
-                self.buffer.clear();
-                self.set_state(State::Stopped, link);
-                StatusCode::Ok
-            }
-            Command::JointsCount(n) => {
-                if self.state != State::Stopped {
-                    return StatusCode::BadState;
-                }
-                self.joints = n;
-                StatusCode::Ok
-            }
-            Command::LocationSetting(location) => {
-                if self.state != State::Stopped {
-                    return StatusCode::BadState;
-                }
-                self.position = location.position;
-                StatusCode::Ok
-            }
-            Command::UploadPeriod { period_us } => {
-                self.upload_period = Duration::from_micros(u64::from(period_us));
-                StatusCode::Ok
-            }
-            _ => StatusCode::Ok,
-        }
-    }
-
+    /// Runs the engine's segments in real time, falls behind when told, and sends the
+    /// periodic LOCATION reports.
     fn tick(&mut self, link: &mut Link) {
         let now = Instant::now();
-        if self.state == State::Running
-            && self
-                .fall_behind_after
-                .is_some_and(|n| self.executed >= n && !self.buffer.is_empty())
+        if !self.plant.running {
+            self.segment_start = None;
+        }
+        if self.plant.running
+            && self.fall_behind_after.is_some_and(|n| {
+                self.controller.status(&self.plant).executed >= n
+                    && self.controller.buffered() > self.plant.queue.len()
+            })
         {
-            self.flags.set(StatusFlags::UNDERRUN, true);
-            self.buffer.clear();
-            self.set_state(State::Stopped, link);
-        }
-        if self.state == State::Running {
-            while let Some(p) = self.buffer.front() {
-                let end = self.segment_start + Duration::from_micros(p.duration as u64);
-                if now < end {
-                    break;
-                }
-                self.position = p.position;
-                self.segment_start = end;
-                self.executed += 1;
-                self.buffer.pop_front();
-            }
-            if self.buffer.is_empty() {
-                if self.executed < self.expected {
-                    self.flags.set(StatusFlags::UNDERRUN, true);
-                }
-                self.set_state(State::Stopped, link);
+            self.plant.queue.clear();
+            self.plant.running = false;
+            if let Some(location) = self.controller.on_step_progress(0, true, &mut self.plant) {
+                self.send_location(location, link);
             }
         }
-        if now.duration_since(self.last_report) >= self.upload_period {
+        while self.plant.running {
+            let begun = *self.segment_start.get_or_insert(now);
+            let Some(segment) = self.plant.queue.front() else {
+                break;
+            };
+            let end = begun + Duration::from_micros(u64::from(segment.duration_us));
+            if now < end {
+                break;
+            }
+            let segment = self.plant.queue.pop_front().expect("a front segment");
+            for (position, steps) in self.plant.positions.iter_mut().zip(segment.steps) {
+                *position += steps;
+            }
+            self.segment_start = Some(end);
+            let dry = self.plant.queue.is_empty();
+            if dry {
+                self.plant.running = false;
+                self.segment_start = None;
+            }
+            if let Some(location) = self.controller.on_step_progress(1, dry, &mut self.plant) {
+                self.send_location(location, link);
+            }
+        }
+        let settings = self.controller.report_settings();
+        let period = Duration::from_micros(u64::from(settings.upload_period_us));
+        if settings.reports_on && now.duration_since(self.last_report) >= period {
             self.last_report = now;
-            self.location(link);
+            let location = self.controller.location(&self.plant);
+            self.send_location(location, link);
         }
     }
+}
+
+fn endpoint(address: SocketAddr) -> Endpoint {
+    let ip = match address.ip() {
+        std::net::IpAddr::V4(ip) => ip.octets(),
+        std::net::IpAddr::V6(_) => [0; 4],
+    };
+    Endpoint {
+        ip,
+        port: address.port(),
+    }
+}
+
+fn address(endpoint: Endpoint) -> SocketAddr {
+    SocketAddr::from((endpoint.ip, endpoint.port))
+}
+
+fn points_of(points: &PointList<'_>) -> Vec<Point> {
+    points.iter().collect()
 }
 
 /// `n` points moving joint 0 by `step` steps each over `duration_us`.

@@ -28,33 +28,11 @@ pub const DEFAULT_RETURN_SEGMENT_US: u32 = 10_000;
 /// the APB timer clocks at 200 MHz (the board passes its measured clock at boot anyway).
 pub const BOARD_PWM_TIMER_CLOCK_HZ: u32 = 200_000_000;
 
-/// How long the owner may be silent before another host may take over (docs/PROTOCOL.md,
-/// "Transport and ownership").
-pub const OWNER_TIMEOUT_US: u64 = 5_000_000;
-
-/// How long an accepted frame is remembered for duplicate detection (docs/PROTOCOL.md,
-/// "Ordering, retransmission and duplicates").
-pub const DUPLICATE_WINDOW_US: u64 = 2_000_000;
-
-/// Datagrams a host may send back to back without waiting for an ACK (its window), all
-/// taken without a drop: STATUS `window` advertises it (docs/PROTOCOL.md,
-/// "Ordering, retransmission and duplicates"). The network path
-/// of the board and of sim-host is sized for it (`tasks::INBOX_QUEUE`, the board's
-/// Ethernet ring and UDP socket). 32 PENDING frames of 12 points are 384 points, 3.8 s of
-/// 10 ms points: enough to cover a LAN round trip many times over.
-pub const HOST_WINDOW: usize = 32;
-
-/// Executed frames remembered for duplicate detection (docs/PROTOCOL.md, "Ordering,
-/// retransmission and duplicates"): twice the window,
-/// so that a resend of the oldest frame of a full window is still recognised after the
-/// whole window and as many interleaved commands were executed behind it.
-pub const DUPLICATE_MEMORY: usize = 2 * HOST_WINDOW;
-
-// A host resending the first frame of a full window must still find it remembered.
-const _: () = assert!(
-    DUPLICATE_MEMORY > HOST_WINDOW,
-    "duplicate memory must exceed the largest window"
-);
+// The protocol's timing and memory of ownership and duplicate detection, and the largest
+// host window, are declared once, in the protocol crate (hosts need them too).
+// The network path of the board and of sim-host is sized for `HOST_WINDOW`
+// (`tasks::INBOX_QUEUE`, the board's Ethernet ring and UDP socket).
+pub use protocol::limits::{DUPLICATE_MEMORY, DUPLICATE_WINDOW_US, HOST_WINDOW, OWNER_TIMEOUT_US};
 
 /// Everything about the controller that differs between boards (and the simulator).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -52,7 +52,7 @@
 #![no_std]
 #![warn(missing_docs)]
 
-#[cfg(test)]
+#[cfg(any(test, feature = "test-support"))]
 #[macro_use]
 extern crate std;
 
@@ -69,6 +69,8 @@ pub mod outgoing;
 pub mod plan;
 pub mod serial;
 pub mod tasks;
+#[cfg(feature = "test-support")]
+pub mod test_support;
 
 pub use buffer::{StoredPoint, TrajectoryBuffer};
 pub use config::ControllerConfig;

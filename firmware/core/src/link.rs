@@ -163,11 +163,6 @@ impl RecentFrames {
         }
         self.next = (self.next + 1) % DUPLICATE_MEMORY;
     }
-
-    /// Forgets everything.
-    pub fn clear(&mut self) {
-        self.entries = [None; DUPLICATE_MEMORY];
-    }
 }
 
 #[cfg(test)]

@@ -22,7 +22,7 @@ use crate::buffer::StoredPoint;
 use crate::config::ControllerConfig;
 
 /// Most points a RETURN may have: its count is reported where NEW's would be (u16).
-pub const MAX_RETURN_POINTS: u64 = u16::MAX as u64;
+pub const MAX_RETURN_POINTS: u64 = protocol::limits::MAX_POINTS_PER_NEW as u64;
 
 /// A planned RETURN: produces its points one by one (the buffer is filled as it drains,
 /// so a long return needs no more room than a streamed upload).
@@ -109,11 +109,6 @@ impl ReturnPlan {
     /// Points of the whole move.
     pub fn total_points(&self) -> u32 {
         self.count
-    }
-
-    /// Points not yet produced.
-    pub fn remaining(&self) -> u32 {
-        self.count - self.next
     }
 
     /// Length of every point, microseconds.

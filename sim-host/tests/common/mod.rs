@@ -1,49 +1,23 @@
 //! Starting the sim-host binary and talking to it with the `protocol` crate.
 #![allow(dead_code)]
 
-use std::io::{BufRead, BufReader};
 use std::net::{SocketAddr, UdpSocket};
-use std::path::PathBuf;
-use std::process::{Child, Command as Process, Stdio};
-use std::sync::{Condvar, Mutex};
+use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use protocol::{
     Ack, Command, Location, MAX_JOINTS, Point, Report, State, StatusCode, StatusReport,
 };
+use system_tests::SimHost;
 
 /// Simulators running at once in this test binary: the machine may have 2 cores, and a
 /// simulator whose executor is starved runs its buffer dry like a starved board would.
 const CONCURRENT_SIMS: usize = 2;
 
-static RUNNING: Mutex<usize> = Mutex::new(0);
-static SLOT_FREED: Condvar = Condvar::new();
-
-/// A permit to run a simulator, returned on drop.
-struct Permit;
-
-impl Permit {
-    fn take() -> Permit {
-        let mut running = RUNNING.lock().unwrap_or_else(|e| e.into_inner());
-        while *running >= CONCURRENT_SIMS {
-            running = SLOT_FREED.wait(running).unwrap_or_else(|e| e.into_inner());
-        }
-        *running += 1;
-        Permit
-    }
-}
-
-impl Drop for Permit {
-    fn drop(&mut self) {
-        *RUNNING.lock().unwrap_or_else(|e| e.into_inner()) -= 1;
-        SLOT_FREED.notify_one();
-    }
-}
-
-/// A running sim-host process, killed (SIGTERM, so it flushes its trace) when dropped.
+/// A running sim-host process (system-tests' harness, the one for every test), killed
+/// (SIGTERM, so it flushes its trace) when dropped.
 pub struct Sim {
-    permit: Option<Permit>,
-    child: Option<Child>,
+    host: SimHost,
     pub addr: SocketAddr,
     /// What it printed on stdout before the address line (e.g. the pty path).
     pub banner: Vec<String>,
@@ -52,80 +26,23 @@ pub struct Sim {
 impl Sim {
     /// Starts sim-host on a free 127.0.0.1 port with these extra arguments.
     pub fn start(args: &[&str]) -> Sim {
-        let permit = Permit::take();
-        let mut command = Process::new(env!("CARGO_BIN_EXE_sim-host"));
-        command
-            .args(["--bind", "127.0.0.1:0", "--log-level", "warn"])
-            .args(args)
-            .stdout(Stdio::piped())
-            .stderr(Stdio::inherit());
-        // If the test process dies without dropping the Sim, the simulator goes too.
-        // SAFETY: prctl is async-signal-safe; nothing else runs between fork and exec.
-        unsafe {
-            std::os::unix::process::CommandExt::pre_exec(&mut command, || {
-                libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM);
-                Ok(())
-            });
-        }
-        let mut child = command.spawn().expect("sim-host starts");
-        let stdout = child.stdout.take().expect("stdout");
-        let mut lines = BufReader::new(stdout).lines();
-        let mut banner = Vec::new();
-        let addr = loop {
-            let line = lines
-                .next()
-                .expect("sim-host printed its address")
-                .expect("stdout readable");
-            if let Some(addr) = line.strip_prefix("sim-host: listening on udp ") {
-                break addr.parse().expect("an address");
-            }
-            banner.push(line);
-        };
-        // Keep draining stdout so the child never blocks on a full pipe.
-        std::thread::spawn(move || for _ in lines {});
+        system_tests::limit_simulators(CONCURRENT_SIMS);
+        let host = SimHost::start_binary(Path::new(env!("CARGO_BIN_EXE_sim-host")), args);
         Sim {
-            permit: Some(permit),
-            child: Some(child),
-            addr,
-            banner,
+            addr: host.addr,
+            banner: host.banner.clone(),
+            host,
         }
     }
 
     /// Stops it with SIGTERM and waits for it to exit (trace flushed).
     pub fn stop(&mut self) {
-        let _permit = self.permit.take();
-        if let Some(mut child) = self.child.take() {
-            // SAFETY: signalling our own child process by its pid.
-            unsafe {
-                libc::kill(child.id() as libc::pid_t, libc::SIGTERM);
-            }
-            let deadline = Instant::now() + Duration::from_secs(10);
-            loop {
-                if let Ok(Some(_)) = child.try_wait() {
-                    break;
-                }
-                if Instant::now() > deadline {
-                    let _ = child.kill();
-                    let _ = child.wait();
-                    panic!("sim-host did not exit on SIGTERM");
-                }
-                std::thread::sleep(Duration::from_millis(10));
-            }
-        }
+        self.host.stop();
     }
 
     /// A client socket talking to it.
     pub fn client(&self) -> Client {
         Client::new(self.addr)
-    }
-}
-
-impl Drop for Sim {
-    fn drop(&mut self) {
-        if let Some(mut child) = self.child.take() {
-            let _ = child.kill();
-            let _ = child.wait();
-        }
     }
 }
 

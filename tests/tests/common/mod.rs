@@ -2,9 +2,9 @@
 #![allow(dead_code)]
 
 use std::net::{SocketAddr, UdpSocket};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
-use protocol::{Ack, MAX_DATAGRAM, MAX_JOINTS, Point, Report};
+use protocol::{Ack, Command, MAX_DATAGRAM, MAX_JOINTS, Point, PointList, Report, StatusCode, Tag};
 
 /// `count` points of `duration_us` from `start`, each joint j moving `step * (j + 1)` per
 /// point, alternating direction by joint.
@@ -82,4 +82,60 @@ pub fn datagram(seq: u8, tag: u8, data: &[u8]) -> Vec<u8> {
     bytes.extend_from_slice(data);
     bytes.push(protocol::crc8(&bytes));
     bytes
+}
+
+/// What every controller (sim-host, the firmware on QEMU) answers to frames only a raw
+/// socket makes: BAD_CRC naming the tag, UNKNOWN_TAG, BAD_LENGTH (seqs 40 to 42).
+pub fn raw_frames_are_refused(raw: &Raw) {
+    let mut bad_crc = datagram(40, Tag::Status as u8, &[]);
+    *bad_crc.last_mut().unwrap() ^= 0xFF;
+    let ack = raw.exchange(&bad_crc, 40).expect("an ACK for a bad CRC");
+    assert_eq!(
+        (ack.status, ack.acked_tag),
+        (StatusCode::BadCrc, Tag::Status as u8)
+    );
+    let ack = raw.exchange(&datagram(41, 0x30, &[]), 41).unwrap();
+    assert_eq!(ack.status, StatusCode::UnknownTag);
+    let ack = raw
+        .exchange(&datagram(42, Tag::New as u8, &[0, 1, 2]), 42)
+        .unwrap();
+    assert_eq!(ack.status, StatusCode::BadLength);
+}
+
+/// OUT_OF_ORDER: NEW at 50, PENDING at 52 (51 never sent) is refused naming 51, which is
+/// then taken; the arm is at `here`.
+pub fn out_of_order_names_the_missing_frame(raw: &Raw, here: [i32; MAX_JOINTS]) {
+    let ack = raw.command(50, &Command::New { count: 2 }).unwrap();
+    assert_eq!(ack.status, StatusCode::Ok);
+    let two = sweep(here, 1, 2, 1, 10_000);
+    let ack = raw
+        .command(52, &Command::Pending(PointList::Points(&two[..1])))
+        .unwrap();
+    assert_eq!(ack.status, StatusCode::OutOfOrder);
+    assert_eq!(ack.next_seq, 51, "next_seq names the missing frame");
+    let ack = raw
+        .command(51, &Command::Pending(PointList::Points(&two[..1])))
+        .unwrap();
+    assert_eq!(ack.status, StatusCode::Ok);
+}
+
+/// Opens the serial pass-through at 115200 baud, sends 600 bytes and collects what comes
+/// back within `timeout` (the line is a loopback); returns (sent, received).
+pub fn serial_round_trip(arm: &armctl::Controller, timeout: Duration) -> (Vec<u8>, Vec<u8>) {
+    let rx = arm.serial_rx();
+    arm.serial_open(protocol::UartInit {
+        baud_rate: 115_200,
+        ..protocol::UartInit::default()
+    })
+    .unwrap();
+    let message: Vec<u8> = (0..600u32).map(|i| b'a' + (i % 26) as u8).collect();
+    arm.serial_send(&message).unwrap();
+    let mut echoed = Vec::new();
+    let deadline = Instant::now() + timeout;
+    while echoed.len() < message.len() && Instant::now() < deadline {
+        if let Ok(bytes) = rx.recv_timeout(Duration::from_millis(100)) {
+            echoed.extend(bytes);
+        }
+    }
+    (message, echoed)
 }

@@ -1,0 +1,108 @@
+//! The joint config file: calibration and limits of each joint.
+
+use std::path::Path;
+
+use protocol::MAX_JOINTS;
+use serde::Deserialize;
+
+use super::{ErrorKind, TrajectoryError};
+
+/// One joint's calibration and limits.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+pub struct JointConfig {
+    /// The name the trajectory files use (`joint_names`); optional for CSV.
+    #[serde(default)]
+    pub name: Option<String>,
+    /// Steps per radian of joint motion (gearing and microstepping included; negative to
+    /// reverse the direction).
+    #[serde(default = "default_steps_per_radian")]
+    pub steps_per_radian: f64,
+    /// Step position of 0 rad.
+    #[serde(default)]
+    pub zero_offset_steps: i32,
+    /// Lowest position allowed, steps.
+    #[serde(default = "min_i32")]
+    pub min_steps: i32,
+    /// Highest position allowed, steps.
+    #[serde(default = "max_i32")]
+    pub max_steps: i32,
+    /// Highest step rate of this joint, steps per second.
+    pub max_step_rate_hz: u32,
+}
+
+fn default_steps_per_radian() -> f64 {
+    1.0
+}
+fn min_i32() -> i32 {
+    i32::MIN
+}
+fn max_i32() -> i32 {
+    i32::MAX
+}
+
+/// The joint config file: `{"joints": [ {...}, ... ]}` in joint order.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+pub struct ArmConfig {
+    /// Joint 0 first.
+    pub joints: Vec<JointConfig>,
+}
+
+impl ArmConfig {
+    /// Reads a joint config file.
+    pub fn load(path: &Path) -> Result<ArmConfig, TrajectoryError> {
+        let file = path.display().to_string();
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| TrajectoryError::new(&file, ErrorKind::Read(e.to_string())))?;
+        Self::parse(&text, &file)
+    }
+
+    /// Parses a joint config; `file` names it in errors.
+    pub fn parse(text: &str, file: &str) -> Result<ArmConfig, TrajectoryError> {
+        let config: ArmConfig = serde_json::from_str(text)
+            .map_err(|e| TrajectoryError::new(file, ErrorKind::Parse(e.to_string())))?;
+        if config.joints.is_empty() || config.joints.len() > MAX_JOINTS {
+            return Err(TrajectoryError::new(
+                file,
+                ErrorKind::Parse(format!(
+                    "{} joints configured: 1 to {MAX_JOINTS}",
+                    config.joints.len()
+                )),
+            ));
+        }
+        for (j, joint) in config.joints.iter().enumerate() {
+            if joint.min_steps > joint.max_steps
+                || !joint.steps_per_radian.is_finite()
+                || joint.steps_per_radian == 0.0
+            {
+                let name = joint
+                    .name
+                    .as_ref()
+                    .map_or(String::new(), |n| format!(" ({n})"));
+                return Err(TrajectoryError::new(
+                    file,
+                    ErrorKind::Parse(format!(
+                        "joint {j}{name}: min_steps must not exceed max_steps and \
+                         steps_per_radian must be a non-zero number"
+                    )),
+                ));
+            }
+        }
+        Ok(config)
+    }
+
+    /// A config with no position limits and one step rate for `joints` joints.
+    pub fn unlimited(joints: usize, max_step_rate_hz: u32) -> ArmConfig {
+        ArmConfig {
+            joints: (0..joints.min(MAX_JOINTS))
+                .map(|_| JointConfig {
+                    name: None,
+                    steps_per_radian: 1.0,
+                    zero_offset_steps: 0,
+                    min_steps: i32::MIN,
+                    max_steps: i32::MAX,
+                    max_step_rate_hz,
+                })
+                .collect(),
+        }
+    }
+}

@@ -1,0 +1,206 @@
+//! Why a trajectory file was refused.
+
+use std::fmt;
+
+use super::ArmConfig;
+use crate::run::MAX_POINTS;
+
+/// Why a trajectory file was refused: where, and what.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TrajectoryError {
+    /// The file.
+    pub file: String,
+    /// Index of the file's waypoint (limits, start, times) or of the resampled segment
+    /// (step rate: the kind says which).
+    pub point: Option<usize>,
+    /// Time from start of that point, seconds.
+    pub time_s: Option<f64>,
+    /// The joint.
+    pub joint: Option<usize>,
+    /// The joint's name in the joint config, when it has one (boxed: a small error).
+    pub joint_name: Option<Box<str>>,
+    /// What is wrong.
+    pub kind: ErrorKind,
+}
+
+/// What is wrong with a trajectory.
+#[derive(Clone, Debug, PartialEq)]
+pub enum ErrorKind {
+    /// The file cannot be read.
+    Read(String),
+    /// The file is not valid JSON/CSV of the expected shape.
+    Parse(String),
+    /// A joint name not in the joint config.
+    UnknownJoint(String),
+    /// A waypoint has the wrong number of positions.
+    WrongJointCount {
+        /// Positions found.
+        found: usize,
+        /// Positions expected.
+        expected: usize,
+    },
+    /// Times do not increase strictly.
+    TimeNotIncreasing,
+    /// Fewer than two waypoints, or no time between them.
+    TooShort,
+    /// A position below the joint's minimum (steps).
+    BelowMin {
+        /// Position, steps.
+        value: i64,
+        /// Limit, steps.
+        limit: i32,
+    },
+    /// A position above the joint's maximum (steps).
+    AboveMax {
+        /// Position, steps.
+        value: i64,
+        /// Limit, steps.
+        limit: i32,
+    },
+    /// A segment asks for more steps per second than the joint (or controller) allows.
+    StepRate {
+        /// Steps in the segment.
+        steps: u64,
+        /// Segment duration, microseconds.
+        duration_us: u32,
+        /// Limit, steps per second.
+        limit_hz: u32,
+    },
+    /// The first waypoint at time 0 is not where the arm is.
+    StartMismatch {
+        /// Where the arm is, steps.
+        current: i32,
+        /// Where the trajectory starts, steps.
+        start: i64,
+    },
+    /// More points than one upload takes.
+    TooManyPoints {
+        /// Points after resampling.
+        count: usize,
+        /// Shortest segment duration that fits, microseconds.
+        min_segment_us: u64,
+    },
+    /// A segment duration of 0.
+    BadSegment,
+}
+
+impl TrajectoryError {
+    pub(super) fn new(file: &str, kind: ErrorKind) -> TrajectoryError {
+        TrajectoryError {
+            file: file.to_string(),
+            point: None,
+            time_s: None,
+            joint: None,
+            joint_name: None,
+            kind,
+        }
+    }
+
+    pub(super) fn at(
+        mut self,
+        point: usize,
+        time_us: i64,
+        joint: Option<usize>,
+    ) -> TrajectoryError {
+        self.point = Some(point);
+        self.time_s = Some(time_us as f64 / 1e6);
+        self.joint = joint;
+        self
+    }
+
+    /// Names the joint after `config` (its `name`), for the message.
+    pub fn with_joint_names(mut self, config: &ArmConfig) -> TrajectoryError {
+        if let Some(j) = self.joint {
+            self.joint_name = config
+                .joints
+                .get(j)
+                .and_then(|c| c.name.as_deref())
+                .map(Box::from);
+        }
+        self
+    }
+
+    /// Whether `point` counts resampled segments (`--segment-ms`) rather than the file's
+    /// waypoints.
+    pub fn point_is_segment(&self) -> bool {
+        matches!(self.kind, ErrorKind::StepRate { .. })
+    }
+}
+
+impl fmt::Display for TrajectoryError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}", self.file)?;
+        if let Some(p) = self.point {
+            if self.point_is_segment() {
+                write!(f, ": resampled segment {p}")?;
+            } else {
+                write!(f, ": waypoint {p} of the file")?;
+            }
+        }
+        if let Some(t) = self.time_s {
+            write!(f, " (t = {t:.6} s)")?;
+        }
+        if let Some(j) = self.joint {
+            write!(f, ", joint {j}")?;
+            if let Some(name) = &self.joint_name {
+                write!(f, " ({name})")?;
+            }
+        }
+        f.write_str(": ")?;
+        match &self.kind {
+            ErrorKind::Read(e) => write!(f, "cannot read: {e}"),
+            ErrorKind::Parse(e) => write!(f, "cannot parse: {e}"),
+            ErrorKind::UnknownJoint(name) => write!(
+                f,
+                "joint name {name:?} is not in the joint config (add a joint with that `name`)"
+            ),
+            ErrorKind::WrongJointCount { found, expected } => {
+                write!(f, "{found} positions, expected {expected}")
+            }
+            ErrorKind::TimeNotIncreasing => {
+                f.write_str("time does not increase from the previous point")
+            }
+            ErrorKind::TooShort => {
+                f.write_str("a trajectory needs two waypoints at different times")
+            }
+            ErrorKind::BelowMin { value, limit } => {
+                write!(
+                    f,
+                    "position {value} steps is below the minimum {limit} steps"
+                )
+            }
+            ErrorKind::AboveMax { value, limit } => {
+                write!(
+                    f,
+                    "position {value} steps is above the maximum {limit} steps"
+                )
+            }
+            ErrorKind::StepRate {
+                steps,
+                duration_us,
+                limit_hz,
+            } => write!(
+                f,
+                "{steps} steps in {duration_us} us = {:.0} steps/s exceeds the limit of {limit_hz} steps/s: slow the trajectory down",
+                *steps as f64 * 1e6 / f64::from(*duration_us)
+            ),
+            ErrorKind::StartMismatch { current, start } => write!(
+                f,
+                "the trajectory starts at {start} steps at t = 0 but the arm is at {current} \
+                 steps: move there first, or start the trajectory later than t = 0 to move \
+                 from the current position"
+            ),
+            ErrorKind::TooManyPoints {
+                count,
+                min_segment_us,
+            } => write!(
+                f,
+                "{count} points after resampling, one upload takes at most {MAX_POINTS}: \
+                 use segments of {min_segment_us} us or longer"
+            ),
+            ErrorKind::BadSegment => f.write_str("the segment duration must be at least 1 us"),
+        }
+    }
+}
+
+impl std::error::Error for TrajectoryError {}

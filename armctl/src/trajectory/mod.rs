@@ -1,0 +1,96 @@
+//! Trajectory files to controller [`Point`]s.
+//!
+//! Two inputs:
+//! - JSON in the shape of ROS `trajectory_msgs/JointTrajectory`: `joint_names`, and
+//!   `points` with `positions` in radians and `time_from_start {sec, nanosec}`. It needs an
+//!   [`ArmConfig`] (steps per radian, zero offset, limits, max step rate per joint).
+//! - CSV: `time_s, joint 0, joint 1, ...` with positions in steps (an optional header line).
+//!
+//! [`to_points`] resamples the waypoints at a fixed segment duration (the last segment may
+//! be shorter), rounds to whole steps, fills the timer hints with [`Point::from_motion`],
+//! and refuses, naming the file, the point and time, the joint, the value and the limit,
+//! whatever breaks a joint's position limits or step rate.
+//!
+//! Between two waypoints that both give a joint's velocity (MoveIt's trajectories do), that
+//! joint follows the cubic Hermite curve through both positions with both velocities, as
+//! ROS trajectory controllers do; without velocities it follows a straight line. Either way
+//! every waypoint is passed exactly (to the rounding to whole steps) and the last point is
+//! the last waypoint.
+//!
+//! As in ROS, a first waypoint later than time 0 means "from wherever the arm is": the
+//! current position is taken as the waypoint at time 0. A first waypoint at time 0 must be
+//! where the arm is. More than 65535 points is refused (one NEW announces at most 65535):
+//! the message gives the shortest segment duration that fits.
+
+//!
+//! The module is laid out as the conversion runs: [`config`] (the joint config file),
+//! [`parse`] (JointTrajectory JSON and CSV to [`Waypoints`]), [`resample`] (waypoints to
+//! points, linear or Hermite, with the limit checks), and the error type.
+
+use std::path::Path;
+
+mod config;
+mod error;
+mod parse;
+mod resample;
+#[cfg(test)]
+mod tests;
+
+pub use config::{ArmConfig, JointConfig};
+pub use error::{ErrorKind, TrajectoryError};
+pub use parse::{
+    JointTrajectory, JointTrajectoryPoint, RosDuration, joint_trajectory_to_waypoints, parse_csv,
+    parse_joint_trajectory,
+};
+pub use resample::to_points;
+
+/// Waypoints in steps, as read from a file.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Waypoints {
+    /// The file they came from (for messages).
+    pub file: String,
+    /// Time from start of each waypoint, microseconds, strictly increasing.
+    pub times_us: Vec<i64>,
+    /// Position of each joint at each waypoint, in (fractional) steps; `None`: the joint is
+    /// not in the file and holds its current position.
+    pub positions: Vec<Vec<Option<f64>>>,
+    /// Velocity of each joint at each waypoint, steps per second, in the shape of
+    /// `positions`; `None` (or an empty list for the waypoint): not given. A segment whose
+    /// two ends give a joint's velocity is a cubic Hermite curve for that joint.
+    pub velocities: Vec<Vec<Option<f64>>>,
+}
+
+/// Reads a trajectory file and, when given, the joint config file it is read with; the
+/// config is returned too, for the conversion to points.
+pub fn load_files(
+    path: &Path,
+    config: Option<&Path>,
+) -> Result<(Waypoints, Option<ArmConfig>), TrajectoryError> {
+    let config = config.map(ArmConfig::load).transpose()?;
+    let waypoints = load(path, config.as_ref())?;
+    Ok((waypoints, config))
+}
+
+/// Reads a trajectory file: `.json` (JointTrajectory, needs `config`) or anything else as
+/// CSV in steps.
+pub fn load(path: &Path, config: Option<&ArmConfig>) -> Result<Waypoints, TrajectoryError> {
+    let file = path.display().to_string();
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| TrajectoryError::new(&file, ErrorKind::Read(e.to_string())))?;
+    let is_json = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("json"));
+    if is_json {
+        let config = config.ok_or_else(|| {
+            TrajectoryError::new(
+                &file,
+                ErrorKind::Parse(
+                    "a JointTrajectory in radians needs a joint config (--config FILE)".into(),
+                ),
+            )
+        })?;
+        parse_joint_trajectory(&text, &file, config)
+    } else {
+        parse_csv(&text, &file)
+    }
+}

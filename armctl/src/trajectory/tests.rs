@@ -1,0 +1,432 @@
+use super::*;
+use crate::run::MAX_POINTS;
+
+const CONFIG: &str = r#"{"joints": [
+    {"name": "shoulder", "steps_per_radian": 1000.0, "zero_offset_steps": 100,
+     "min_steps": -2000, "max_steps": 4000, "max_step_rate_hz": 2000},
+    {"name": "elbow", "steps_per_radian": -500.0, "max_step_rate_hz": 1000}
+]}"#;
+
+fn config() -> ArmConfig {
+    ArmConfig::parse(CONFIG, "arm.json").unwrap()
+}
+
+fn trajectory(points: &str) -> String {
+    format!(r#"{{"joint_names": ["shoulder", "elbow"], "points": [{points}]}}"#)
+}
+
+fn point(sec: i64, nanosec: u32, a: f64, b: f64) -> String {
+    format!(
+        r#"{{"positions": [{a}, {b}], "velocities": [], "time_from_start": {{"sec": {sec}, "nanosec": {nanosec}}}}}"#
+    )
+}
+
+#[test]
+fn joint_trajectory_radians_to_steps() {
+    let text = trajectory(&[point(0, 0, 0.0, 0.0), point(1, 500_000_000, 1.5, 0.5)].join(","));
+    let w = parse_joint_trajectory(&text, "t.json", &config()).unwrap();
+    assert_eq!(w.times_us, vec![0, 1_500_000]);
+    assert_eq!(w.positions[0], vec![Some(100.0), Some(0.0)]);
+    assert_eq!(w.positions[1], vec![Some(1600.0), Some(-250.0)]);
+}
+
+#[test]
+fn joint_names_follow_the_config_not_the_file_order() {
+    let text = r#"{"joint_names": ["elbow"], "points": [
+        {"positions": [1.0], "time_from_start": {"sec": 1, "nanosec": 0}}]}"#;
+    let w = parse_joint_trajectory(text, "t.json", &config()).unwrap();
+    assert_eq!(w.positions[0], vec![None, Some(-500.0)]);
+    let unknown = r#"{"joint_names": ["wrist"], "points": []}"#;
+    let err = parse_joint_trajectory(unknown, "t.json", &config()).unwrap_err();
+    assert_eq!(err.kind, ErrorKind::UnknownJoint("wrist".into()));
+    assert!(err.to_string().contains("\"wrist\""));
+}
+
+#[test]
+fn resampling_interpolates_linearly_and_keeps_the_end_exact() {
+    // Joint 0 from 100 to 1600 steps in 1.5 s, at 100 ms segments: 15 points of 100.
+    let text = trajectory(&[point(0, 0, 0.0, 0.0), point(1, 500_000_000, 1.5, 0.5)].join(","));
+    let w = parse_joint_trajectory(&text, "t.json", &config()).unwrap();
+    let start = [100, 0, 7, 0, 0, 0, 0, 0];
+    let points = to_points(&w, &start, 100_000, &config(), None).unwrap();
+    assert_eq!(points.len(), 15);
+    for (k, p) in points.iter().enumerate() {
+        assert_eq!(p.duration, 100_000);
+        assert_eq!(p.position[0], 100 + 100 * (k as i32 + 1));
+        // Joints beyond the config hold their position.
+        assert_eq!(p.position[2], 7);
+    }
+    assert_eq!(points[14].position[1], -250);
+    // Hints as PROTOCOL.md section 5 wants them.
+    assert_eq!(points[0].number_of_period[0], 100);
+    assert_eq!(points[0].period[0], 1000);
+}
+
+#[test]
+fn last_segment_is_shorter_when_the_duration_does_not_divide() {
+    let w = parse_csv("time_s,j0\n0,0\n0.25,100\n", "t.csv").unwrap();
+    let config = ArmConfig::unlimited(1, 10_000);
+    let points = to_points(&w, &[0; 8], 100_000, &config, None).unwrap();
+    let durations: Vec<i32> = points.iter().map(|p| p.duration).collect();
+    assert_eq!(durations, vec![100_000, 100_000, 50_000]);
+    let positions: Vec<i32> = points.iter().map(|p| p.position[0]).collect();
+    assert_eq!(positions, vec![40, 80, 100]);
+}
+
+#[test]
+fn a_late_first_waypoint_starts_from_the_current_position() {
+    let w = parse_csv("0.1,50\n0.2,50\n", "t.csv").unwrap();
+    let config = ArmConfig::unlimited(1, 10_000);
+    let points = to_points(&w, &[10, 0, 0, 0, 0, 0, 0, 0], 50_000, &config, None).unwrap();
+    let positions: Vec<i32> = points.iter().map(|p| p.position[0]).collect();
+    assert_eq!(positions, vec![30, 50, 50, 50]);
+}
+
+#[test]
+fn a_first_waypoint_at_zero_must_be_where_the_arm_is() {
+    let w = parse_csv("0,5\n1,50\n", "t.csv").unwrap();
+    let err = to_points(&w, &[0; 8], 10_000, &ArmConfig::unlimited(1, 10_000), None).unwrap_err();
+    assert_eq!(
+        err.kind,
+        ErrorKind::StartMismatch {
+            current: 0,
+            start: 5
+        }
+    );
+    assert_eq!((err.point, err.joint), (Some(0), Some(0)));
+}
+
+#[test]
+fn step_rate_over_the_joint_limit_is_refused_with_where_and_what() {
+    // Shoulder: 2000 steps/s at most. 300 steps in 100 ms = 3000 steps/s.
+    let text = trajectory(&[point(0, 0, 0.0, 0.0), point(0, 100_000_000, 0.3, 0.0)].join(","));
+    let w = parse_joint_trajectory(&text, "fast.json", &config()).unwrap();
+    let err = to_points(&w, &[100, 0, 0, 0, 0, 0, 0, 0], 50_000, &config(), None).unwrap_err();
+    assert_eq!(err.point, Some(0));
+    assert_eq!(err.joint, Some(0));
+    assert_eq!(
+        err.kind,
+        ErrorKind::StepRate {
+            steps: 150,
+            duration_us: 50_000,
+            limit_hz: 2000
+        }
+    );
+    let message = err.clone().with_joint_names(&config()).to_string();
+    assert!(
+        message.starts_with("fast.json: resampled segment 0 (t = 0.050000 s), joint 0 (shoulder)"),
+        "{message}"
+    );
+    assert!(
+        message.contains("3000 steps/s exceeds the limit of 2000"),
+        "{message}"
+    );
+}
+
+#[test]
+fn the_controller_rate_caps_the_joint_rate() {
+    let w = parse_csv("0,0\n1,1500\n", "t.csv").unwrap();
+    let config = ArmConfig::unlimited(1, 10_000);
+    assert!(to_points(&w, &[0; 8], 10_000, &config, Some(2000)).is_ok());
+    let err = to_points(&w, &[0; 8], 10_000, &config, Some(1000)).unwrap_err();
+    assert!(matches!(
+        err.kind,
+        ErrorKind::StepRate { limit_hz: 1000, .. }
+    ));
+}
+
+#[test]
+fn exactly_the_limit_is_allowed() {
+    let w = parse_csv("0,0\n1,1000\n", "t.csv").unwrap();
+    assert!(to_points(&w, &[0; 8], 10_000, &ArmConfig::unlimited(1, 1000), None).is_ok());
+    assert!(to_points(&w, &[0; 8], 10_000, &ArmConfig::unlimited(1, 999), None).is_err());
+}
+
+#[test]
+fn position_limits_are_checked_per_waypoint() {
+    // Shoulder max 4000 steps = 100 + 3.9 rad * 1000.
+    let text = trajectory(
+        &[
+            point(0, 0, 0.0, 0.0),
+            point(10, 0, 3.9, 0.0),
+            point(20, 0, 3.95, 0.0),
+        ]
+        .join(","),
+    );
+    let w = parse_joint_trajectory(&text, "far.json", &config()).unwrap();
+    let err = to_points(&w, &[100, 0, 0, 0, 0, 0, 0, 0], 10_000, &config(), None).unwrap_err();
+    assert_eq!(
+        err.kind,
+        ErrorKind::AboveMax {
+            value: 4050,
+            limit: 4000
+        }
+    );
+    assert_eq!(
+        (err.point, err.joint, err.time_s),
+        (Some(2), Some(0), Some(20.0))
+    );
+    let low = parse_csv("0,0\n1,-2001\n", "low.csv").unwrap();
+    let config = ArmConfig::parse(
+        r#"{"joints": [{"min_steps": -2000, "max_step_rate_hz": 100000}]}"#,
+        "c.json",
+    )
+    .unwrap();
+    let err = to_points(&low, &[0; 8], 10_000, &config, None).unwrap_err();
+    assert_eq!(
+        err.kind,
+        ErrorKind::BelowMin {
+            value: -2001,
+            limit: -2000
+        }
+    );
+    assert!(
+        err.to_string()
+            .contains("low.csv: waypoint 1 of the file (t = 1.000000 s), joint 0")
+    );
+}
+
+#[test]
+fn more_than_65535_points_is_refused_with_the_segment_that_fits() {
+    // 700 s at 10 ms = 70000 points.
+    let w = parse_csv("0,0\n700,0\n", "long.csv").unwrap();
+    let config = ArmConfig::unlimited(1, 1000);
+    let err = to_points(&w, &[0; 8], 10_000, &config, None).unwrap_err();
+    let ErrorKind::TooManyPoints {
+        count,
+        min_segment_us,
+    } = err.kind
+    else {
+        panic!("{err}")
+    };
+    assert_eq!(count, 70_000);
+    assert_eq!(min_segment_us, 10_682);
+    let points = to_points(&w, &[0; 8], min_segment_us as u32, &config, None).unwrap();
+    assert!(points.len() <= MAX_POINTS);
+}
+
+#[test]
+fn csv_header_comments_and_blank_lines_are_skipped() {
+    let text = "# made by hand\ntime_s, j0 ,j1\n\n0, 0, 0\n   \n  # halfway\n0.5,10,-10\n";
+    let w = parse_csv(text, "t.csv").unwrap();
+    assert_eq!(w.times_us, vec![0, 500_000]);
+    assert_eq!(w.positions[1], vec![Some(10.0), Some(-10.0)]);
+    let err = parse_csv("time_s,j0\n0,0\n1,x\n", "t.csv").unwrap_err();
+    assert!(err.to_string().contains("line 3"), "{err}");
+}
+
+#[test]
+fn csv_errors() {
+    assert!(matches!(
+        parse_csv("0,0\n0,1\n", "t.csv").unwrap_err().kind,
+        ErrorKind::TimeNotIncreasing
+    ));
+    let err = parse_csv("0,0,0\n1,1\n", "t.csv").unwrap_err();
+    assert_eq!(
+        err.kind,
+        ErrorKind::WrongJointCount {
+            found: 1,
+            expected: 2
+        }
+    );
+    assert!(matches!(
+        parse_csv("0,0\n1,x\n", "t.csv").unwrap_err().kind,
+        ErrorKind::Parse(_)
+    ));
+    assert!(matches!(
+        parse_csv("time_s,j0\n", "t.csv").unwrap_err().kind,
+        ErrorKind::TooShort
+    ));
+    let one = parse_csv("0,0\n", "t.csv").unwrap();
+    assert!(matches!(
+        to_points(&one, &[0; 8], 1000, &ArmConfig::unlimited(1, 1000), None)
+            .unwrap_err()
+            .kind,
+        ErrorKind::TooShort
+    ));
+}
+
+#[test]
+fn config_errors() {
+    assert!(ArmConfig::parse(r#"{"joints": []}"#, "c").is_err());
+    assert!(ArmConfig::parse(r#"{"joints": [{"steps_per_radian": 1}]}"#, "c").is_err());
+    assert!(
+        ArmConfig::parse(
+            r#"{"joints": [{"min_steps": 5, "max_steps": 4, "max_step_rate_hz": 1}]}"#,
+            "c"
+        )
+        .is_err()
+    );
+}
+
+/// Waypoints of one joint sampled from `curve` (position, velocity in steps, steps/s)
+/// every `every_us` up to `end_us`.
+fn sampled(curve: impl Fn(f64) -> (f64, f64), every_us: i64, end_us: i64) -> Waypoints {
+    let times_us: Vec<i64> = (0..=end_us / every_us).map(|k| k * every_us).collect();
+    let (positions, velocities) = times_us
+        .iter()
+        .map(|&t| {
+            let (p, v) = curve(t as f64 / 1e6);
+            (vec![Some(p)], vec![Some(v)])
+        })
+        .unzip();
+    Waypoints {
+        file: "curve".into(),
+        times_us,
+        positions,
+        velocities,
+    }
+}
+
+#[test]
+fn hermite_reproduces_a_cubic_exactly() {
+    // p(t) = 100 + 400 t + 900 t^2 - 450 t^3 steps: a cubic is its own Hermite curve,
+    // so every resampled point is the curve rounded to a step, whatever the waypoints.
+    let cubic = |t: f64| {
+        (
+            100.0 + 400.0 * t + 900.0 * t * t - 450.0 * t * t * t,
+            400.0 + 1800.0 * t - 1350.0 * t * t,
+        )
+    };
+    let w = sampled(cubic, 500_000, 2_000_000);
+    let points = to_points(
+        &w,
+        &[100, 0, 0, 0, 0, 0, 0, 0],
+        10_000,
+        &ArmConfig::unlimited(1, 100_000),
+        None,
+    )
+    .unwrap();
+    assert_eq!(points.len(), 200);
+    for (k, p) in points.iter().enumerate() {
+        let t = (k + 1) as f64 * 0.01;
+        let exact = cubic(t).0;
+        assert!(
+            (f64::from(p.position[0]) - exact).abs() <= 0.5 + 1e-6,
+            "t = {t}: {} vs {exact}",
+            p.position[0]
+        );
+    }
+    assert_eq!(points[199].position[0], cubic(2.0).0.round() as i32);
+}
+
+#[test]
+fn hermite_follows_a_sine_within_its_error_bound() {
+    // 2000 sin(2 pi t) steps, waypoints every 100 ms. The cubic Hermite error is at
+    // most max|p''''| h^4 / 384 = 2000 (2 pi)^4 0.1^4 / 384 = 0.81 steps, plus the
+    // rounding to a step; straight lines through the same waypoints miss by up to
+    // 2000 (1 - cos(pi/10)) = 98 steps.
+    let w = 2.0 * std::f64::consts::PI;
+    let sine = |t: f64| (2000.0 * (w * t).sin(), 2000.0 * w * (w * t).cos());
+    let bound = 2000.0 * w.powi(4) * 0.1f64.powi(4) / 384.0 + 0.5;
+    let waypoints = sampled(sine, 100_000, 1_000_000);
+    let config = ArmConfig::unlimited(1, 100_000);
+    let points = to_points(&waypoints, &[0; 8], 5_000, &config, None).unwrap();
+    let worst = points
+        .iter()
+        .enumerate()
+        .map(|(k, p)| (f64::from(p.position[0]) - sine((k + 1) as f64 * 0.005).0).abs())
+        .fold(0.0, f64::max);
+    assert!(worst <= bound, "worst {worst} > bound {bound}");
+    assert_eq!(points.last().unwrap().position[0], 0);
+    // The same waypoints without velocities: straight lines, far off between them.
+    let mut linear = waypoints.clone();
+    linear.velocities.clear();
+    let points = to_points(&linear, &[0; 8], 5_000, &config, None).unwrap();
+    let worst_linear = points
+        .iter()
+        .enumerate()
+        .map(|(k, p)| (f64::from(p.position[0]) - sine((k + 1) as f64 * 0.005).0).abs())
+        .fold(0.0, f64::max);
+    assert!(worst_linear > 90.0, "{worst_linear}");
+}
+
+#[test]
+fn velocities_in_radians_per_second_become_steps_per_second() {
+    // MoveIt-style: at rest at both ends, 1 rad in 1 s; the shoulder has 1000
+    // steps/rad, the elbow -500. The Hermite curve with zero end velocities is the
+    // smoothstep 3f^2 - 2f^3: a quarter of the way is 15.625 % of the move.
+    let text = r#"{"joint_names": ["shoulder", "elbow"], "points": [
+        {"positions": [0.0, 0.0], "velocities": [0.0, 0.0], "time_from_start": {"sec": 0}},
+        {"positions": [1.0, 1.0], "velocities": [0.0, 0.0], "time_from_start": {"sec": 1}}]}"#;
+    let w = parse_joint_trajectory(text, "t.json", &config()).unwrap();
+    assert_eq!(w.velocities[1], vec![Some(0.0), Some(-0.0)]);
+    let points = to_points(&w, &[100, 0, 0, 0, 0, 0, 0, 0], 250_000, &config(), None).unwrap();
+    let shoulder: Vec<i32> = points.iter().map(|p| p.position[0]).collect();
+    let elbow: Vec<i32> = points.iter().map(|p| p.position[1]).collect();
+    assert_eq!(shoulder, vec![256, 600, 944, 1100]);
+    assert_eq!(elbow, vec![-78, -250, -422, -500]);
+    let text = r#"{"joint_names": ["shoulder", "elbow"], "points": [
+        {"positions": [0.0, 0.0], "velocities": [0.0], "time_from_start": {"sec": 0}}]}"#;
+    let err = parse_joint_trajectory(text, "t.json", &config()).unwrap_err();
+    assert_eq!(
+        err.kind,
+        ErrorKind::WrongJointCount {
+            found: 1,
+            expected: 2
+        }
+    );
+}
+
+#[test]
+fn a_segment_without_velocities_at_both_ends_is_a_straight_line() {
+    // Velocity given at t = 0 and 2 s, not at 1 s: both segments are straight lines.
+    let w = Waypoints {
+        file: "mixed".into(),
+        times_us: vec![0, 1_000_000, 2_000_000],
+        positions: vec![vec![Some(0.0)], vec![Some(100.0)], vec![Some(300.0)]],
+        velocities: vec![vec![Some(500.0)], vec![None], vec![Some(0.0)]],
+    };
+    let points = to_points(&w, &[0; 8], 250_000, &ArmConfig::unlimited(1, 1000), None).unwrap();
+    let positions: Vec<i32> = points.iter().map(|p| p.position[0]).collect();
+    assert_eq!(positions, vec![25, 50, 75, 100, 150, 200, 250, 300]);
+}
+
+#[test]
+fn a_hermite_overshoot_past_a_limit_is_refused() {
+    // From 0 to 100 steps with a large start velocity: the curve passes 100 between
+    // the waypoints, which a limit at 100 refuses although both waypoints are inside.
+    let w = Waypoints {
+        file: "over".into(),
+        times_us: vec![0, 1_000_000],
+        positions: vec![vec![Some(0.0)], vec![Some(100.0)]],
+        velocities: vec![vec![Some(600.0)], vec![Some(0.0)]],
+    };
+    let config = ArmConfig::parse(
+        r#"{"joints": [{"max_steps": 100, "max_step_rate_hz": 100000}]}"#,
+        "c.json",
+    )
+    .unwrap();
+    let err = to_points(&w, &[0; 8], 50_000, &config, None).unwrap_err();
+    assert!(
+        matches!(err.kind, ErrorKind::AboveMax { limit: 100, .. }),
+        "{err}"
+    );
+}
+
+#[test]
+fn the_shipped_examples_convert() {
+    let config = ArmConfig::parse(include_str!("../../examples/arm.json"), "arm.json").unwrap();
+    let reach = parse_joint_trajectory(
+        include_str!("../../examples/reach.json"),
+        "reach.json",
+        &config,
+    )
+    .unwrap();
+    let points = to_points(&reach, &[0; 8], 10_000, &config, Some(100_000)).unwrap();
+    assert_eq!(points.len(), 350);
+    assert_eq!(points[349].position, [0; 8]);
+    // 0.5 rad of base at 5093 steps/rad, reached at 1.5 s (point 149).
+    assert_eq!(points[149].position[0], 2547);
+    let wave = parse_csv(include_str!("../../examples/wave.csv"), "wave.csv").unwrap();
+    let points = to_points(
+        &wave,
+        &[0; 8],
+        10_000,
+        &ArmConfig::unlimited(3, 100_000),
+        None,
+    )
+    .unwrap();
+    assert_eq!(points.len(), 200);
+    assert_eq!(&points[49].position[..3], &[800, -400, 200]);
+}

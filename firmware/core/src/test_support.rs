@@ -1,0 +1,340 @@
+//! Fakes and helpers for the controller's tests, behind the `test-support` feature: used by
+//! arm-core's own tests and by other crates' tests (sequential-storage's `mock_flash` is the
+//! model). [`FakePlant`] is a step engine and peripherals that record every call, with
+//! faults a test switches on: a full engine queue ([`FakePlant::room`]), a serial port
+//! that refuses its settings ([`FakePlant::serial_refuses`]) or has no room
+//! ([`FakePlant::serial_room`], [`FakePlant::serial_refuses_if`]); and contract checks
+//! ([`FakePlant::checks`]) that panic when the controller asks the hardware for what it
+//! must never ask (the fuzz target runs with them). [`Session`] is a host talking to one
+//! controller over it.
+
+use std::collections::VecDeque;
+use std::vec::Vec;
+
+use arm_step::Segment;
+use protocol::{Ack, Command, MAX_JOINTS, Point, PointList, Pwm, StatusCode, UartInit};
+
+use crate::hw::{Endpoint, SerialError};
+use crate::{Controller, ControllerConfig, Plant, Response};
+
+/// The host most tests talk from.
+pub const HOST: Endpoint = Endpoint {
+    ip: [127, 0, 0, 1],
+    port: 40_000,
+};
+/// A second host.
+pub const OTHER: Endpoint = Endpoint {
+    ip: [127, 0, 0, 2],
+    port: 40_001,
+};
+
+/// A step engine and peripherals that record what they are told. Segments pushed wait in
+/// `queue` until the test runs them with [`run`].
+#[derive(Debug)]
+pub struct FakePlant {
+    /// Position of each joint, steps.
+    pub positions: [i32; MAX_JOINTS],
+    /// Segments in the engine, not yet run.
+    pub queue: VecDeque<Segment>,
+    /// Fault: segments the engine queue holds at most; a push beyond is refused.
+    pub room: usize,
+    /// Every segment run, in order.
+    pub executed: Vec<Segment>,
+    /// Whether the engine is running (started and not yet dry or stopped).
+    pub running: bool,
+    /// Calls to `stop`.
+    pub stops: u32,
+    /// Calls to `start`.
+    pub starts: u32,
+    /// Every user pin set, in order: (pin, high).
+    pub pins: Vec<(u8, bool)>,
+    /// Every driver-enable mask set, in order.
+    pub enabled: Vec<u16>,
+    /// The gripper's PWM while it runs.
+    pub gripper: Option<Pwm>,
+    /// Calls to `gripper_start` and `gripper_stop`.
+    pub gripper_calls: u32,
+    /// The serial port's settings while it is open.
+    pub serial: Option<UartInit>,
+    /// Fault: the serial port refuses any settings (`SerialError::Unsupported`).
+    pub serial_refuses: bool,
+    /// Every serial chunk sent, in order.
+    pub serial_sent: Vec<Vec<u8>>,
+    /// Fault: serial chunks the port queues at most; further sends find no room.
+    pub serial_room: usize,
+    /// Serial chunks queued and not yet transmitted: closing the port empties it, and so
+    /// may the test (the port transmitting).
+    pub serial_queued: usize,
+    /// Fault: the serial port refuses the settings for which this returns true.
+    pub serial_refuses_if: Option<fn(&UartInit) -> bool>,
+    /// Calls to `serial_open` that succeeded.
+    pub serial_opens: u32,
+    /// Calls to `serial_close`.
+    pub serial_closes: u32,
+    /// Segments `push_segment` took.
+    pub pushed: u64,
+    /// Contract checks: panic on a segment shorter than 1 us or faster than
+    /// [`FakePlant::max_step_rate_hz`] on any joint, a user pin other than 0 and 1, enable
+    /// bits beyond the gripper's, a serial chunk of 0 or more than 255 bytes.
+    pub checks: bool,
+    /// With [`FakePlant::checks`]: the highest step rate a segment may ask of a joint.
+    pub max_step_rate_hz: u64,
+    /// Every `set_positions` taken, in order.
+    pub set_positions_calls: Vec<[i32; MAX_JOINTS]>,
+}
+
+impl Default for FakePlant {
+    fn default() -> Self {
+        FakePlant {
+            positions: [0; MAX_JOINTS],
+            queue: VecDeque::new(),
+            room: 16,
+            executed: Vec::new(),
+            running: false,
+            stops: 0,
+            starts: 0,
+            pins: Vec::new(),
+            enabled: Vec::new(),
+            gripper: None,
+            gripper_calls: 0,
+            serial: None,
+            serial_refuses: false,
+            serial_sent: Vec::new(),
+            serial_room: 4,
+            serial_queued: 0,
+            serial_refuses_if: None,
+            serial_opens: 0,
+            serial_closes: 0,
+            pushed: 0,
+            checks: false,
+            max_step_rate_hz: u64::MAX,
+            set_positions_calls: Vec::new(),
+        }
+    }
+}
+
+impl Plant for FakePlant {
+    fn positions(&self) -> [i32; MAX_JOINTS] {
+        self.positions
+    }
+    fn set_positions(&mut self, positions: [i32; MAX_JOINTS]) -> bool {
+        if self.running {
+            return false;
+        }
+        self.set_positions_calls.push(positions);
+        self.positions = positions;
+        true
+    }
+    fn stop(&mut self) {
+        self.stops += 1;
+        self.queue.clear();
+        self.running = false;
+    }
+    fn push_segment(&mut self, segment: Segment) -> bool {
+        if self.checks {
+            assert!(segment.duration_us >= 1, "segment of 0 us: {segment:?}");
+            for s in segment.steps {
+                assert!(
+                    u64::from(s.unsigned_abs()) * 1_000_000
+                        <= self.max_step_rate_hz * u64::from(segment.duration_us),
+                    "segment faster than max_step_rate_hz: {segment:?}"
+                );
+            }
+        }
+        if self.queue.len() >= self.room {
+            return false;
+        }
+        self.queue.push_back(segment);
+        self.pushed += 1;
+        true
+    }
+    fn start(&mut self) {
+        self.starts += 1;
+        self.running = true;
+    }
+    fn set_user_pin(&mut self, pin: u8, high: bool) {
+        assert!(!self.checks || pin < 2, "user pin {pin}");
+        self.pins.push((pin, high));
+    }
+    fn set_enabled(&mut self, enabled: u16) {
+        assert!(
+            !self.checks || enabled & !protocol::limits::ENABLE_MASK_BITS == 0,
+            "ENABLE bits beyond the gripper's"
+        );
+        self.enabled.push(enabled);
+    }
+    fn gripper_start(&mut self, pwm: &Pwm) {
+        self.gripper = Some(*pwm);
+        self.gripper_calls += 1;
+    }
+    fn gripper_stop(&mut self) {
+        self.gripper = None;
+        self.gripper_calls += 1;
+    }
+    fn gripper_active(&self) -> bool {
+        self.gripper.is_some()
+    }
+    fn serial_open(&mut self, init: &UartInit) -> Result<(), SerialError> {
+        if self.serial_refuses || self.serial_refuses_if.is_some_and(|refuses| refuses(init)) {
+            return Err(SerialError::Unsupported);
+        }
+        self.serial = Some(*init);
+        self.serial_opens += 1;
+        Ok(())
+    }
+    fn serial_close(&mut self) {
+        self.serial = None;
+        self.serial_closes += 1;
+        self.serial_queued = 0;
+    }
+    fn serial_send(&mut self, bytes: &[u8]) -> bool {
+        assert!(
+            !self.checks || (1..=255).contains(&bytes.len()),
+            "serial chunk of {}",
+            bytes.len()
+        );
+        if self.serial_queued >= self.serial_room {
+            return false;
+        }
+        self.serial_queued += 1;
+        self.serial_sent.push(bytes.to_vec());
+        true
+    }
+}
+
+impl FakePlant {
+    /// Runs up to `n` queued segments (if running), one at a time, reporting each to the
+    /// controller (which refills the queue in between, as the step task does while a
+    /// segment runs); the engine runs dry when it finishes its last queued segment.
+    /// Returns the LOCATION the controller sent, if any.
+    pub fn run<const CAP: usize>(
+        &mut self,
+        controller: &mut Controller<CAP>,
+        n: usize,
+    ) -> Option<protocol::Location> {
+        if !self.running {
+            return controller.on_step_progress(0, false, self);
+        }
+        for _ in 0..n {
+            let Some(s) = self.queue.pop_front() else {
+                break;
+            };
+            for j in 0..MAX_JOINTS {
+                self.positions[j] += s.steps[j];
+            }
+            self.executed.push(s);
+            let dry = self.queue.is_empty();
+            if dry {
+                self.running = false;
+            }
+            let location = controller.on_step_progress(1, dry, self);
+            if dry {
+                return location;
+            }
+        }
+        None
+    }
+
+    /// Runs until the engine ran dry; returns the LOCATION the controller sent then.
+    pub fn run_to_end<const CAP: usize>(
+        &mut self,
+        controller: &mut Controller<CAP>,
+    ) -> Option<protocol::Location> {
+        for _ in 0..1_000_000 {
+            if !self.running {
+                return None;
+            }
+            if let Some(l) = self.run(controller, 1) {
+                return Some(l);
+            }
+        }
+        None
+    }
+}
+
+/// Encodes a command.
+pub fn frame(seq: u8, cmd: Command<'_>) -> Vec<u8> {
+    let mut buf = std::vec![0u8; protocol::MAX_DATAGRAM];
+    let n = cmd.encode(seq, &mut buf).expect("encodable command");
+    buf.truncate(n);
+    buf
+}
+
+/// A controller with the board's configuration but `capacity` points.
+pub fn controller<const CAP: usize>(capacity: usize) -> Controller<CAP> {
+    Controller::new(ControllerConfig {
+        capacity,
+        ..ControllerConfig::BOARD
+    })
+}
+
+/// Points moving every joint by `step` per point from `from`, 1 ms each.
+pub fn points(from: [i32; MAX_JOINTS], n: usize, step: i32) -> Vec<Point> {
+    let mut prev = from;
+    (0..n)
+        .map(|_| {
+            let next = prev.map(|p| p + step);
+            let p = Point::from_motion(1_000, &prev, &next);
+            prev = next;
+            p
+        })
+        .collect()
+}
+
+/// Encodes PENDING with these points.
+pub fn pending(seq: u8, pts: &[Point]) -> Vec<u8> {
+    frame(seq, Command::Pending(PointList::Points(pts)))
+}
+
+/// A host talking to one controller with a fake plant, numbering its frames.
+pub struct Session<const CAP: usize> {
+    /// The controller under test.
+    pub controller: Controller<CAP>,
+    /// Its plant.
+    pub plant: FakePlant,
+    /// The time of the last frame, microseconds (each frame advances it by 10).
+    pub now_us: u64,
+    /// The seq of the last frame sent.
+    pub seq: u8,
+    /// Where [`Session::send`] sends from.
+    pub from: Endpoint,
+}
+
+impl<const CAP: usize> Session<CAP> {
+    /// A controller with `capacity` points and a default [`FakePlant`], at 1 ms.
+    pub fn new(capacity: usize) -> Self {
+        Session {
+            controller: controller(capacity),
+            plant: FakePlant::default(),
+            now_us: 1_000,
+            seq: 0,
+            from: HOST,
+        }
+    }
+
+    /// Sends raw bytes from `from`.
+    pub fn send_raw(&mut self, from: Endpoint, bytes: &[u8]) -> Response {
+        self.now_us += 10;
+        self.controller
+            .handle(from, bytes, self.now_us, &mut self.plant)
+    }
+
+    /// Sends a command with the next seq; returns the ACK.
+    pub fn send(&mut self, cmd: Command<'_>) -> Ack {
+        self.seq = self.seq.wrapping_add(1);
+        let bytes = frame(self.seq, cmd);
+        self.send_raw(self.from, &bytes).reply.expect("an ACK").ack
+    }
+
+    /// Sends a command and asserts its status.
+    pub fn expect(&mut self, cmd: Command<'_>, status: StatusCode) -> Ack {
+        let ack = self.send(cmd);
+        assert_eq!(ack.status, status, "{cmd:?}");
+        ack
+    }
+
+    /// Sends PENDING with these points.
+    pub fn pending(&mut self, pts: &[Point]) -> Ack {
+        self.send(Command::Pending(PointList::Points(pts)))
+    }
+}
