@@ -26,10 +26,12 @@
 
 mod engine;
 mod joint;
+mod producer;
 mod ring;
 mod schedule;
 
 pub use engine::StepEngine;
+pub use producer::{Filled, PulsePeriod, PulseProducer};
 
 /// Joints the engine drives.
 pub const MAX_JOINTS: usize = 8;
@@ -67,6 +69,11 @@ impl StepTiming {
         } else {
             self.pulse_width_ticks
         }
+    }
+
+    /// Least STEP low time between two pulses of one joint, ticks (at least one).
+    pub const fn low_ticks(&self) -> u32 {
+        1
     }
 
     /// Shortest spacing of two pulses of one joint that is always honoured on time: the
