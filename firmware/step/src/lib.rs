@@ -29,9 +29,11 @@ mod joint;
 mod producer;
 mod ring;
 mod schedule;
+mod stream;
 
 pub use engine::StepEngine;
-pub use producer::{Filled, PulsePeriod, PulseProducer};
+pub use producer::{Filled, PulsePeriod, PulseProducer, sign_of};
+pub use stream::{DirChange, JointBuffer, PRELUDE, Refill, StepStreams};
 
 /// Joints the engine drives.
 pub const MAX_JOINTS: usize = 8;

@@ -18,14 +18,16 @@
 //!
 //! Per joint and segment, one division sets up the pulse clock (whole ticks per pulse, the
 //! fraction and its modulus, reduced by `gcd(tick_hz, 1e6)`); per pulse it only adds.
-//! While the segment's ticks and the modulus fit in 31 bits (always at whole-MHz tick rates up
-//! to 21 s segments at 200 MHz) the pulses are computed in u32 relative to the segment's
+//! While the segment's ticks and the modulus fit in 31 bits (at whole-MHz tick rates:
+//! segments up to 5 s at 200 MHz) the pulses are computed in u32 relative to the segment's
 //! start; otherwise a u64 path does the same arithmetic.
 //!
 //! Gaps longer than a joint's timer can count (`max_period_ticks`: 2^16 for 16-bit timers)
 //! are split into filler periods of at least half that length, so a 16-bit timer needs no
 //! more CPU at low step rates than it can afford. A joint with nothing queued fills its
-//! buffer with idle periods of `max_period_ticks`.
+//! buffer with idle periods as long as its timer counts, so an idle joint costs a refill
+//! every `HALF * 2^16` ticks at most. The run is over at [`PulseProducer::run_end_tick`],
+//! known once every pulse is written: the owner stops the streams at that tick.
 
 use crate::engine::QueueEnd;
 use crate::ring::{SegmentRing, Slot};
@@ -55,6 +57,17 @@ pub struct PulsePeriod {
     pub high: u32,
 }
 
+/// The sign of each pulse in `periods` as [`PulseProducer::fill`] marked them in `signs`
+/// (0 for periods without a pulse), starting from `sign` for pulses before the first mark.
+pub fn sign_of(periods: &[PulsePeriod], signs: &[i8], mut sign: i8) -> impl Iterator<Item = i8> {
+    periods.iter().zip(signs).map(move |(period, &mark)| {
+        if mark != 0 {
+            sign = mark;
+        }
+        if period.high != 0 { sign } else { 0 }
+    })
+}
+
 impl PulsePeriod {
     /// A zeroed period (one tick, no pulse): what a buffer holds before its first fill.
     pub const ZERO: PulsePeriod = PulsePeriod {
@@ -82,6 +95,10 @@ pub struct Filled {
     /// Whether the joint has nothing left to do in the queued segments: the written periods
     /// after its last pulse are idle fillers.
     pub idle: bool,
+    /// Every period written is an idle period (no pulse, the timer's longest): a buffer
+    /// half that holds these needs no rewrite while the joint stays idle
+    /// ([`PulseProducer::skip_idle`]).
+    pub all_idle: bool,
 }
 
 /// One joint's stream: its walk through the queue, its pulse clock, and the open period
@@ -94,6 +111,9 @@ struct JointStream {
     slot: usize,
     /// Walked past every queued segment: writes idle fillers until more are pushed.
     waiting: bool,
+    /// The last `cruise` stopped at the end of the buffer with pulses left, so the next
+    /// fill can go straight on cruising (its conditions still hold).
+    cruising: bool,
     /// Pulses still to compute in the current segment.
     remaining: u32,
     /// u32 clock usable (modulus and the segment's relative ticks fit).
@@ -139,6 +159,7 @@ impl JointStream {
         ordinal: 0,
         slot: 0,
         waiting: true,
+        cruising: false,
         remaining: 0,
         fast: false,
         base: 0,
@@ -213,6 +234,9 @@ pub struct PulseProducer<const QUEUE: usize> {
     queue_end: QueueEnd,
     running: bool,
     origin: u64,
+    /// Where the last run ends (its last segment's end, or its last pulse's fall if
+    /// later), once every pulse of it is written; `u64::MAX` before.
+    run_end: u64,
     joints: [JointStream; MAX_JOINTS],
     late_pulses: u32,
 }
@@ -262,6 +286,7 @@ impl<const QUEUE: usize> PulseProducer<QUEUE> {
             queue_end: QueueEnd::ZERO,
             running: false,
             origin: 0,
+            run_end: u64::MAX,
             joints: [JointStream::IDLE; MAX_JOINTS],
             late_pulses: 0,
         }
@@ -308,7 +333,9 @@ impl<const QUEUE: usize> PulseProducer<QUEUE> {
 
     /// Starts a run: the first queued segment starts at `at_tick`, and every joint's
     /// stream starts at `stream_tick` (`<= at_tick`): the tick the timers start, where
-    /// the first DIR levels are set (as the engine sets them at its first `poll`).
+    /// the first DIR levels are set (as the engine sets them at its first `poll`). Each
+    /// run may have its own timeline: `stream_tick` must only be later than the end of
+    /// the previous run if both are on one clock.
     /// No-op if already running.
     pub fn start(&mut self, at_tick: u64, stream_tick: u64) {
         if self.running {
@@ -316,6 +343,7 @@ impl<const QUEUE: usize> PulseProducer<QUEUE> {
         }
         self.running = true;
         self.origin = at_tick;
+        self.run_end = u64::MAX;
         let head = self.ring.head_index();
         let ordinal = self.head_ordinal;
         for joint in &mut self.joints {
@@ -323,14 +351,15 @@ impl<const QUEUE: usize> PulseProducer<QUEUE> {
             joint.slot = head;
             joint.remaining = 0;
             joint.waiting = false;
+            joint.cruising = false;
             joint.cursor = stream_tick;
             joint.open_high = 0;
             joint.open_delta = 0;
             joint.next_rise = u64::MAX;
             joint.seek_at = stream_tick;
-            // Pulses rise at or after `at_tick >= stream_tick` anyway; this keeps a stale
-            // bound from an earlier run from lying before the stream.
-            joint.earliest = joint.earliest.max(stream_tick);
+            // A new timeline (the board restarts its timers at 0 for every run): what the
+            // last run required is over.
+            joint.earliest = stream_tick;
         }
     }
 
@@ -343,6 +372,7 @@ impl<const QUEUE: usize> PulseProducer<QUEUE> {
         for joint in &mut self.joints {
             joint.remaining = 0;
             joint.waiting = true;
+            joint.cruising = false;
             joint.next_rise = u64::MAX;
         }
         self.running = false;
@@ -366,6 +396,13 @@ impl<const QUEUE: usize> PulseProducer<QUEUE> {
     /// over once the hardware has played them).
     pub fn drained(&self) -> bool {
         self.ring.is_empty() && self.joints.iter().all(|j| j.waiting)
+    }
+
+    /// Where the run ends (the end of its last segment, or its last pulse's fall if later),
+    /// once every pulse of it has been written; `None` while pulses are still to come.
+    /// The engine runs dry at the same tick.
+    pub fn run_end_tick(&self) -> Option<u64> {
+        (!self.running && self.run_end != u64::MAX).then_some(self.run_end)
     }
 
     /// Pulses placed later than their ideal tick (see [`crate::StepEngine::late_pulses`]).
@@ -393,29 +430,52 @@ impl<const QUEUE: usize> PulseProducer<QUEUE> {
         true
     }
 
-    /// Writes joint `joint`'s next `periods.len()` periods, and in `deltas` (same length)
-    /// each period's position change (+1, -1, 0). DIR changes go to `on_dir(tick,
-    /// positive)` in order. Always fills the whole slice (idle fillers when the joint has
-    /// nothing queued); an idle producer writes idle fillers from where it stopped.
+    /// Writes joint `joint`'s next `periods.len()` periods. `signs` (same length) gets the
+    /// direction of the pulses from each marked period on: +1 or -1 where the writer marks
+    /// one, 0 elsewhere; a pulse period with no mark has the sign of the last mark before
+    /// it in the slice, and the first pulse period of a fill is always marked
+    /// ([`sign_of`] reads it back); `signs` must be all 0 when passed. DIR changes go to
+    /// `on_dir(tick, positive)` in order.
+    /// Always fills the whole slice (idle periods when the joint has nothing queued); an
+    /// idle producer writes idle periods from where it stopped.
     pub fn fill(
         &mut self,
         joint: usize,
         periods: &mut [PulsePeriod],
-        deltas: &mut [i8],
+        signs: &mut [i8],
         on_dir: &mut impl FnMut(u64, bool),
     ) -> Filled {
-        let len = periods.len().min(deltas.len());
+        let len = periods.len().min(signs.len());
+        let periods = &mut periods[..len];
+        let signs = &mut signs[..len];
         let j = joint & (MAX_JOINTS - 1);
+        if self.joints[j].cruising && self.joints[j].remaining as usize >= len {
+            // The common case: a whole buffer half of on-time pulses of one segment.
+            let written = self.cruise(j, periods, signs);
+            let s = &self.joints[j];
+            return Filled {
+                pulses: written as u32,
+                end_tick: s.cursor,
+                ..Filled::default()
+            };
+        }
         let max = self.max_period[j];
         let mut filled = Filled::default();
         let mut k = 0;
         let mut pulses = 0u32;
+        let mut walked = false;
         while k < len {
             let s = &mut self.joints[j];
             if s.next_rise == u64::MAX {
                 if s.remaining > 0 {
-                    if s.fast && s.open_delta == s.sign && s.cursor >= s.base {
-                        let written = self.run_fast(j, &mut periods[k..len], &mut deltas[k..len]);
+                    if s.fast
+                        && s.open_delta == s.sign
+                        && s.earliest <= s.base + u64::from(s.ideal)
+                        && s.whole >= self.min_period
+                        && s.whole < max
+                        && s.base + u64::from(s.ideal) - s.cursor <= u64::from(max)
+                    {
+                        let written = self.cruise(j, &mut periods[k..], &mut signs[k..]);
                         k += written;
                         pulses += written as u32;
                         continue;
@@ -431,7 +491,8 @@ impl<const QUEUE: usize> PulseProducer<QUEUE> {
                     continue;
                 }
                 if self.running && !s.waiting {
-                    filled.segments_finished += self.seek(j, on_dir);
+                    self.seek(j, on_dir);
+                    walked = true;
                     continue;
                 }
                 if self.running && self.held(j) {
@@ -442,23 +503,31 @@ impl<const QUEUE: usize> PulseProducer<QUEUE> {
                     s.earliest = s.earliest.max(s.cursor);
                     continue;
                 }
-                // Idle: close the open period after the longest span the timer makes.
+                // Idle: close the open period after the longest span the timer makes, then
+                // idle periods.
+                let idle = max;
                 let s = &mut self.joints[j];
-                if let (Some(period), Some(delta)) = (periods.get_mut(k), deltas.get_mut(k)) {
-                    *period = PulsePeriod {
-                        reload: max - 1,
-                        repetition: 0,
-                        high: s.open_high,
-                    };
-                    *delta = s.open_delta;
+                let mut period = PulsePeriod {
+                    reload: idle - 1,
+                    repetition: 0,
+                    high: s.open_high,
+                };
+                if let (Some(first), Some(sign)) = (periods.get_mut(k), signs.get_mut(k)) {
+                    *first = period;
+                    *sign = s.open_delta;
                 }
+                filled.all_idle = k == 0 && s.open_high == 0;
                 s.position = s.position.wrapping_add(i32::from(s.open_delta));
                 pulses += u32::from(s.open_delta != 0);
-                s.cursor += u64::from(max);
+                period.high = 0;
+                for rest in periods.get_mut(k + 1..).unwrap_or_default() {
+                    *rest = period;
+                }
+                s.cursor += u64::from(idle) * (len - k) as u64;
                 s.open_high = 0;
                 s.open_delta = 0;
                 filled.idle = true;
-                k += 1;
+                k = len;
                 continue;
             }
             // Close the open period at `next_rise`, in pieces if the timer cannot count
@@ -480,13 +549,13 @@ impl<const QUEUE: usize> PulseProducer<QUEUE> {
             } else {
                 gap / 2
             };
-            if let (Some(period), Some(delta)) = (periods.get_mut(k), deltas.get_mut(k)) {
+            if let (Some(period), Some(sign)) = (periods.get_mut(k), signs.get_mut(k)) {
                 *period = PulsePeriod {
                     reload: (take - 1) as u32,
                     repetition: 0,
                     high: s.open_high,
                 };
-                *delta = s.open_delta;
+                *sign = s.open_delta;
             }
             s.position = s.position.wrapping_add(i32::from(s.open_delta));
             pulses += u32::from(s.open_delta != 0);
@@ -507,72 +576,74 @@ impl<const QUEUE: usize> PulseProducer<QUEUE> {
         filled.pulses = pulses;
         filled.end_tick = s.cursor;
         filled.idle &= s.waiting || !self.running;
-        filled.segments_finished += self.pop_finished();
+        if walked {
+            filled.segments_finished = self.pop_finished();
+        }
         filled
     }
 
-    /// The u32 inner loop: pulses of the current segment while each period fits the timer.
-    /// Returns the periods written. Precondition: fast clock, open pulse period at or after
-    /// `base`, no rise pending.
+    /// The u32 inner loop for pulses that are all on time: the open period is one of this
+    /// segment's pulses, the next pulse is on time, pulses are at least `min_period` apart
+    /// (so every later one is on time too) and every gap fits the timer. Each period is
+    /// then `whole` ticks plus the carry of the fraction: no comparison with `earliest`,
+    /// no late pulse, no split. Returns the periods written.
     #[inline(always)]
-    fn run_fast(&mut self, j: usize, periods: &mut [PulsePeriod], deltas: &mut [i8]) -> usize {
-        let max = self.max_period[j];
+    fn cruise(&mut self, j: usize, periods: &mut [PulsePeriod], signs: &mut [i8]) -> usize {
         let high = self.pulse_ticks;
-        let min_period = self.min_period;
         let s = &mut self.joints[j];
-        let base = s.base;
-        let mut ideal = s.ideal;
+        let count = (s.remaining as usize).min(periods.len());
+        let (whole_m1, fraction, modulus) = (s.whole - 1, s.fraction, s.modulus);
         let mut remainder = s.remainder;
-        let (whole, fraction, modulus) = (s.whole, s.fraction, s.modulus);
-        // Both below FAST_LIMIT (checked when the segment was set up).
-        let mut cursor = (s.cursor - base) as u32;
-        let mut earliest = s.earliest.saturating_sub(base) as u32;
-        let sign = s.sign;
-        let count = (s.remaining as usize).min(periods.len()).min(deltas.len());
-        let mut late = 0u32;
-        let mut written = 0usize;
-        let mut pending = u64::MAX;
-        for (period, delta) in periods[..count].iter_mut().zip(&mut deltas[..count]) {
-            let is_late = earliest > ideal;
-            let rise = if is_late { earliest } else { ideal };
-            late += u32::from(is_late);
-            ideal += whole;
+        // Ticks from the open period's start to the next pulse (checked: fits the timer).
+        let first = (s.base + u64::from(s.ideal) - s.cursor) as u32;
+        let mut reload = first - 1;
+        // Sum of the reloads written (the span is that plus one tick per period).
+        let mut reloads = 0u32;
+        for period in &mut periods[..count] {
+            period.high = high;
+            period.reload = reload;
+            reloads += reload;
             remainder += fraction;
+            reload = whole_m1;
             if remainder >= modulus {
                 remainder -= modulus;
-                ideal += 1;
+                reload += 1;
             }
-            let gap = rise - cursor;
-            if gap > max {
-                // Longer than the timer counts: the general path splits it.
-                pending = base + u64::from(rise);
-                written += 1;
-                break;
-            }
-            period.reload = gap - 1;
-            period.high = high;
-            *delta = sign;
-            cursor = rise;
-            earliest = rise + min_period;
-            written += 1;
         }
-        // `written` pulses computed, each closing the period before it; the last one is
-        // still open (or pending, if its gap must be split).
-        s.remaining -= written as u32;
-        s.ideal = ideal;
+        let span = reloads + count as u32;
+        if let Some(sign) = signs.first_mut() {
+            *sign = s.sign;
+        }
+        s.cruising = s.remaining as usize > count;
+        // `count` pulses rose; the last one's period is open. `reload + 1` is the gap
+        // from it to the pulse after.
+        let cursor = s.cursor + u64::from(span);
+        s.cursor = cursor;
+        s.ideal = (cursor - s.base) as u32 + reload + 1;
         s.remainder = remainder;
-        self.late_pulses = self.late_pulses.wrapping_add(late);
-        if pending != u64::MAX {
-            s.next_rise = pending;
-            written -= 1;
+        s.remaining -= count as u32;
+        s.position = s.position.wrapping_add(i32::from(s.sign) * count as i32);
+        s.earliest = cursor + u64::from(self.min_period);
+        s.seek_at = cursor + u64::from(high);
+        count
+    }
+
+    /// If joint `joint` is idle (nothing queued for it, no pulse open) and would write
+    /// nothing but idle periods: moves its stream `count` idle periods on without writing
+    /// them (the buffer half already holds them) and returns true.
+    pub fn skip_idle(&mut self, joint: usize, count: usize) -> bool {
+        let j = joint & (MAX_JOINTS - 1);
+        let held = self.running && self.held(j);
+        let s = &mut self.joints[j];
+        let idle = (!self.running || s.waiting)
+            && !held
+            && s.remaining == 0
+            && s.next_rise == u64::MAX
+            && s.open_high == 0;
+        if idle {
+            s.cursor += u64::from(self.max_period[j]) * count as u64;
         }
-        s.position = s.position.wrapping_add(i32::from(sign) * written as i32);
-        if pending == u64::MAX {
-            s.earliest = base + u64::from(earliest);
-            s.seek_at = base + u64::from(cursor) + u64::from(high);
-        }
-        s.cursor = base + u64::from(cursor);
-        written
+        idle
     }
 
     /// Whether joint `j` waits for a segment that is now queued.
@@ -582,21 +653,21 @@ impl<const QUEUE: usize> PulseProducer<QUEUE> {
     }
 
     /// Moves joint `j` (done with its current segment's pulses) to the next segment where
-    /// it moves, setting DIR and its pulse clock there, or marks it waiting. Returns 0
-    /// (slots are popped by `pop_finished`).
-    fn seek(&mut self, j: usize, on_dir: &mut impl FnMut(u64, bool)) -> u32 {
+    /// it moves, setting DIR and its pulse clock there, or marks it waiting (slots are
+    /// popped by `pop_finished`).
+    fn seek(&mut self, j: usize, on_dir: &mut impl FnMut(u64, bool)) {
         let bit = 1 << j;
         let at = self.joints[j].seek_at;
         loop {
             if !self.held(j) {
                 let s = &mut self.joints[j];
                 s.waiting = true;
-                return 0;
+                return;
             }
             let s = &mut self.joints[j];
             let Some(slot) = self.ring.get_mut(s.slot) else {
                 s.waiting = true;
-                return 0;
+                return;
             };
             let steps = slot.steps.get(j).copied().unwrap_or(0);
             let slot = *slot;
@@ -618,7 +689,7 @@ impl<const QUEUE: usize> PulseProducer<QUEUE> {
             }
             // The oracle's `seek` happens at `at`: nothing rises before the walk.
             self.begin_segment(j, &slot, steps);
-            return 0;
+            return;
         }
     }
 
@@ -680,7 +751,10 @@ impl<const QUEUE: usize> PulseProducer<QUEUE> {
             self.head_ordinal = self.head_ordinal.wrapping_add(1);
             finished += 1;
         }
-        if self.ring.is_empty() && self.joints.iter().all(|j| j.waiting) {
+        if self.running && self.ring.is_empty() && self.joints.iter().all(|j| j.waiting) {
+            // Each waiting joint's `seek_at` is the fall of its last pulse.
+            let last_fall = self.joints.iter().map(|j| j.seek_at).max().unwrap_or(0);
+            self.run_end = (self.origin + self.queue_end.tick).max(last_fall);
             self.running = false;
             self.queue_end = QueueEnd::ZERO;
         }

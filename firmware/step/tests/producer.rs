@@ -12,7 +12,7 @@
 
 mod common;
 
-use arm_step::{MAX_JOINTS, PulsePeriod, PulseProducer, Segment, StepEngine, StepTiming};
+use arm_step::{MAX_JOINTS, PulsePeriod, PulseProducer, Segment, StepEngine, StepTiming, sign_of};
 use common::Recorder;
 use proptest::prelude::*;
 
@@ -140,10 +140,11 @@ fn sort_lines(lines: &mut [Vec<Line>]) {
 /// What a run of either gives: per joint line changes, late pulses, positions.
 type Lines = (Vec<Vec<Line>>, u32, [i32; MAX_JOINTS]);
 
-/// The engine's line changes per joint, its late pulses and positions, and the tick at
-/// which each run started (each starts after the previous one ran dry).
-fn engine_lines(case: &Case) -> (Lines, Vec<u64>) {
+/// The engine's line changes per joint, its late pulses and positions, the tick at which
+/// each run started (each starts after the previous one ran dry) and where it ran dry.
+fn engine_lines(case: &Case) -> (Lines, Vec<u64>, Vec<u64>) {
     let mut starts = Vec::new();
+    let mut ends = Vec::new();
     let mut engine = StepEngine::<QUEUE>::new(case.timing);
     let mut pins = Recorder::default();
     let mut lines = vec![Vec::new(); MAX_JOINTS];
@@ -164,6 +165,7 @@ fn engine_lines(case: &Case) -> (Lines, Vec<u64>) {
                 None => break,
             }
         }
+        ends.push(now);
         last_end = now + 1;
     }
     for event in &pins.events {
@@ -176,18 +178,23 @@ fn engine_lines(case: &Case) -> (Lines, Vec<u64>) {
         lines[event.joint].push(line);
     }
     sort_lines(&mut lines);
-    ((lines, engine.late_pulses(), engine.positions()), starts)
+    (
+        (lines, engine.late_pulses(), engine.positions()),
+        starts,
+        ends,
+    )
 }
 
 /// The producer's line changes per joint (periods played back from each stream's start),
 /// its late pulses and positions; also checks that the buffers say what the positions say.
-fn producer_lines(case: &Case, run_starts: &[u64]) -> Lines {
+fn producer_lines(case: &Case, run_starts: &[u64], run_ends: &[u64]) -> Lines {
     let mut producer = PulseProducer::<QUEUE>::new(case.timing, case.max_period);
     let mut lines: Vec<Vec<Line>> = vec![Vec::new(); MAX_JOINTS];
     let mut periods = [PulsePeriod::ZERO; 80];
-    let mut deltas = [0i8; 80];
+    let mut deltas;
     let mut fills = 0usize;
-    for ((segments, _, lead), &start) in case.runs.iter().zip(run_starts) {
+    let mut moved = [0i32; MAX_JOINTS];
+    for (((segments, _, lead), &start), &end) in case.runs.iter().zip(run_starts).zip(run_ends) {
         for segment in segments {
             assert!(producer.push(*segment).is_ok());
         }
@@ -208,6 +215,7 @@ fn producer_lines(case: &Case, run_starts: &[u64]) -> Lines {
                 let half = case.halves[fills % case.halves.len()];
                 fills += 1;
                 let mut dirs = Vec::new();
+                deltas = [0; 80];
                 let filled = producer.fill(
                     joint,
                     &mut periods[..half],
@@ -215,10 +223,13 @@ fn producer_lines(case: &Case, run_starts: &[u64]) -> Lines {
                     &mut |tick, positive| dirs.push(Line::Dir(tick, positive)),
                 );
                 let mut pulses = 0;
-                for (period, &delta) in periods[..half].iter().zip(&deltas[..half]) {
+                // Every fill marks its first pulse: the starting sign must not matter.
+                let signed: Vec<i8> = sign_of(&periods[..half], &deltas[..half], 0).collect();
+                for (period, &sign) in periods[..half].iter().zip(&signed) {
                     assert!(period.high == 0 || u64::from(period.high) < period.ticks());
                     assert!(period.ticks() <= u64::from(producer.max_period_ticks(joint)));
-                    assert_eq!(period.high != 0, delta != 0);
+                    assert_eq!(period.high != 0, sign != 0, "pulse without a sign");
+                    moved[joint] += i32::from(sign);
                     if period.high != 0 {
                         pulses += 1;
                         lines[joint].push(Line::Rise(at[joint]));
@@ -235,6 +246,16 @@ fn producer_lines(case: &Case, run_starts: &[u64]) -> Lines {
         }
         assert!(producer.drained());
         assert!(!producer.is_running());
+        assert_eq!(
+            producer.run_end_tick(),
+            Some(end),
+            "the run ends where the engine ran dry"
+        );
+        assert_eq!(
+            moved,
+            producer.positions(),
+            "signs marked beside the periods"
+        );
     }
     sort_lines(&mut lines);
     (lines, producer.late_pulses(), producer.positions())
@@ -242,8 +263,8 @@ fn producer_lines(case: &Case, run_starts: &[u64]) -> Lines {
 
 /// Compares one case; returns the pulses compared and how many of them were late.
 fn compare(case: &Case) -> Result<(u64, u64), String> {
-    let ((engine, late, positions), starts) = engine_lines(case);
-    let (produced, produced_late, produced_positions) = producer_lines(case, &starts);
+    let ((engine, late, positions), starts, ends) = engine_lines(case);
+    let (produced, produced_late, produced_positions) = producer_lines(case, &starts, &ends);
     for joint in 0..MAX_JOINTS {
         if engine[joint] != produced[joint] {
             let first = engine[joint]
