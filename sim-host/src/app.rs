@@ -198,6 +198,8 @@ pub const PULSE_WIDTH_NS: u64 = 2_000;
 
 /// DIR setup time of the simulated drivers, ns.
 pub const DIR_SETUP_NS: u64 = 2_000;
+/// Least STEP low time between pulses: as long as the pulse (DM542/TB6600-class drivers).
+pub const STEP_LOW_NS: u64 = 2_000;
 
 /// The controller as the simulator builds it.
 pub type SimController = Controller<TRAJECTORY_STORAGE>;
@@ -211,6 +213,7 @@ pub fn step_timing(tick_hz: u32) -> StepTiming {
         tick_hz,
         pulse_width_ticks: ticks(PULSE_WIDTH_NS),
         dir_setup_ticks: ticks(DIR_SETUP_NS),
+        step_low_ticks: ticks(STEP_LOW_NS),
     }
 }
 

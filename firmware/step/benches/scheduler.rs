@@ -30,6 +30,7 @@ const TIMING: StepTiming = StepTiming {
     tick_hz: 10_000_000,
     pulse_width_ticks: 20,
     dir_setup_ticks: 50,
+    step_low_ticks: 20,
 };
 
 /// 1 ms segments, direction reversing each segment, `steps[j]` pulses per joint.

@@ -84,6 +84,8 @@ pub struct StepEngine<const QUEUE: usize> {
     timing: StepTiming,
     /// STEP high time, ticks (at least one).
     pulse_ticks: u64,
+    /// Least STEP low time, ticks (at least one).
+    low_ticks: u64,
     /// Least time from a DIR change to the next rising edge, ticks.
     setup_ticks: u64,
     tick_hz: u64,
@@ -122,6 +124,7 @@ impl<const QUEUE: usize> StepEngine<QUEUE> {
         Self {
             timing,
             pulse_ticks: timing.pulse_ticks() as u64,
+            low_ticks: timing.low_ticks() as u64,
             setup_ticks: timing.dir_setup_ticks as u64,
             tick_hz: timing.tick_hz as u64,
             ring: SegmentRing::new(),
@@ -374,7 +377,7 @@ impl<const QUEUE: usize> StepEngine<QUEUE> {
         let Some(joint) = self.joints.get_mut(j) else {
             return;
         };
-        joint.earliest = now + 1;
+        joint.earliest = now + self.low_ticks;
         if joint.remaining > 0 {
             self.edges.set(j, joint.next_rise(&mut self.late_pulses));
             return;

@@ -13,9 +13,11 @@
 //! per segment and joint, none per pulse.
 //!
 //! Direction lines change only while STEP is low, right after the joint's previous pulse
-//! ends, and the next pulse is never raised sooner than `dir_setup_ticks` after the change:
-//! if a segment asks for more than [`StepTiming::max_step_rate_hz`], pulses are delayed
-//! (and counted, [`StepEngine::late_pulses`]), never dropped.
+//! ends, and the next pulse is never raised sooner than `dir_setup_ticks` after the change,
+//! nor sooner than `step_low_ticks` after the previous pulse ended: if a segment asks for
+//! more than [`StepTiming::max_step_rate_hz`] (or reverses at a rate that leaves no room
+//! for the setup time), pulses are delayed (and counted, [`StepEngine::late_pulses`]),
+//! never dropped.
 //!
 //! The engine is sans-io: the timer interrupt calls [`StepEngine::poll`] with the current
 //! tick and a [`StepPins`] implementation, and re-arms its compare register for the
@@ -52,6 +54,12 @@ pub struct Segment {
 }
 
 /// Timer resolution and driver timing requirements.
+///
+/// The driver's datasheet gives three figures: the least STEP high time, the least STEP
+/// low time between two pulses, and the DIR setup time before a rising edge. Only the
+/// first two limit the step rate ([`StepTiming::max_step_rate_hz`]); the setup time is
+/// waited for after a DIR change only. Typical values: DM542/TB6600-class opto-isolated
+/// drivers 2.5 us high, 2.5 us low, 5 us setup; TMC/DRV-class drivers 100 ns, 100 ns, 20 ns.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct StepTiming {
@@ -61,6 +69,8 @@ pub struct StepTiming {
     pub pulse_width_ticks: u32,
     /// Least time from a DIR change to the next rising STEP edge, ticks.
     pub dir_setup_ticks: u32,
+    /// Least time STEP stays low between two pulses, ticks (at least one is kept).
+    pub step_low_ticks: u32,
 }
 
 impl StepTiming {
@@ -73,25 +83,26 @@ impl StepTiming {
         }
     }
 
-    /// Least STEP low time between two pulses of one joint, ticks (at least one).
+    /// Least STEP low time between two pulses of one joint, ticks: `step_low_ticks`, but
+    /// at least one (a driver must see two separate pulses).
     pub const fn low_ticks(&self) -> u32 {
-        1
+        if self.step_low_ticks == 0 {
+            1
+        } else {
+            self.step_low_ticks
+        }
     }
 
     /// Shortest spacing of two pulses of one joint that is always honoured on time: the
-    /// pulse width, then STEP low for the direction setup time (at least one tick, so a
-    /// driver always sees two separate pulses).
+    /// pulse width, then STEP low for the least low time. (After a DIR change the next
+    /// pulse also waits for the setup time: a reversal at the highest rate may make a
+    /// pulse late, never lost.)
     pub const fn min_pulse_period_ticks(&self) -> u64 {
-        let low = if self.dir_setup_ticks == 0 {
-            1
-        } else {
-            self.dir_setup_ticks
-        };
-        self.pulse_ticks() as u64 + low as u64
+        self.pulse_ticks() as u64 + self.low_ticks() as u64
     }
 
-    /// Highest per-joint step rate whose pulse spacing leaves room for the pulse width
-    /// and the direction setup time.
+    /// Highest per-joint step rate the driver timing allows: `tick_hz` over the pulse width
+    /// plus the least low time.
     pub const fn max_step_rate_hz(&self) -> u32 {
         (self.tick_hz as u64 / self.min_pulse_period_ticks()) as u32
     }

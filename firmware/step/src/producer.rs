@@ -333,9 +333,8 @@ impl<const QUEUE: usize> PulseProducer<QUEUE> {
 
     /// Starts a run: the first queued segment starts at `at_tick`, and every joint's
     /// stream starts at `stream_tick` (`<= at_tick`): the tick the timers start, where
-    /// the first DIR levels are set (as the engine sets them at its first `poll`). Each
-    /// run may have its own timeline: `stream_tick` must only be later than the end of
-    /// the previous run if both are on one clock.
+    /// the first DIR levels are set (as the engine sets them at its first `poll`). Ticks
+    /// are on the same clock as the previous run's (see [`PulseProducer::start_new_clock`]).
     /// No-op if already running.
     pub fn start(&mut self, at_tick: u64, stream_tick: u64) {
         if self.running {
@@ -357,10 +356,25 @@ impl<const QUEUE: usize> PulseProducer<QUEUE> {
             joint.open_delta = 0;
             joint.next_rise = u64::MAX;
             joint.seek_at = stream_tick;
-            // A new timeline (the board restarts its timers at 0 for every run): what the
-            // last run required is over.
-            joint.earliest = stream_tick;
+            // Pulses rise at or after `at_tick >= stream_tick` anyway; this keeps a stale
+            // bound from an earlier run from lying before the stream (the least low time
+            // after the last run's last pulse still holds, as in the engine).
+            joint.earliest = joint.earliest.max(stream_tick);
         }
+    }
+
+    /// Starts a run on a new clock (the board restarts its timers at 0 for every run):
+    /// `start(at_tick, 0)` with what the previous run required of the next pulse
+    /// (the least low time after its last pulse) taken as over, which the caller
+    /// guarantees (the board starts runs at least a millisecond after the last ended).
+    pub fn start_new_clock(&mut self, at_tick: u64) {
+        if self.running {
+            return;
+        }
+        for joint in &mut self.joints {
+            joint.earliest = 0;
+        }
+        self.start(at_tick, 0);
     }
 
     /// Emergency stop: drops every segment, goes idle. The positions stay those of the
@@ -459,6 +473,8 @@ impl<const QUEUE: usize> PulseProducer<QUEUE> {
                 ..Filled::default()
             };
         }
+        // Anything but a straight cruise may change what cruising relies on.
+        self.joints[j].cruising = false;
         let max = self.max_period[j];
         let mut filled = Filled::default();
         let mut k = 0;
@@ -480,6 +496,7 @@ impl<const QUEUE: usize> PulseProducer<QUEUE> {
                         pulses += written as u32;
                         continue;
                     }
+                    s.cruising = false;
                     let ideal = s.take_ideal();
                     let rise = if s.earliest > ideal {
                         self.late_pulses = self.late_pulses.wrapping_add(1);
@@ -710,6 +727,7 @@ impl<const QUEUE: usize> PulseProducer<QUEUE> {
             (travel / modulus, travel % modulus)
         };
         let s = &mut self.joints[j];
+        s.cruising = false;
         s.remaining = steps.unsigned_abs();
         s.sign = if steps > 0 { 1 } else { -1 };
         s.base = base;

@@ -156,7 +156,7 @@ impl<const Q: usize, const HALF: usize> StepStreams<Q, HALF> {
         for dirs in &mut self.dirs {
             dirs.len = 0;
         }
-        self.producer.start(at_tick, 0);
+        self.producer.start_new_clock(at_tick);
         let mut outcome = Refill::default();
         for (joint, (prelude, buffer)) in prelude.iter_mut().zip(buffers.iter_mut()).enumerate() {
             let dirs = &mut self.dirs[joint];

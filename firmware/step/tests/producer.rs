@@ -72,6 +72,7 @@ fn random_case(rng: &mut Rng) -> Case {
         tick_hz,
         pulse_width_ticks: rng.range(0, u64::from(3 * per_us)) as u32,
         dir_setup_ticks: rng.range(0, u64::from(6 * per_us)) as u32,
+        step_low_ticks: rng.range(0, u64::from(3 * per_us)) as u32,
     };
     let max_period = core::array::from_fn(|_| match rng.below(4) {
         0 => u32::MAX,

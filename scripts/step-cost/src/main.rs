@@ -27,6 +27,7 @@ const TIMING: StepTiming = StepTiming {
     tick_hz: 200_000_000,
     pulse_width_ticks: 500,
     dir_setup_ticks: 1_000,
+    step_low_ticks: 500,
 };
 
 /// Timer ranges as on the board: TIM2 and TIM5 (32-bit) for joints 0 and 1, 16-bit
