@@ -326,6 +326,7 @@ impl Sim {
                 upload_period_us: self.upload_period.as_micros() as u32,
                 pwm_timer_clock_hz: 240_000_000,
                 max_step_rate_hz: 50_000,
+                step_budget_hz: 0,
             };
             self.report(&Report::Status(status), link);
         }
