@@ -506,6 +506,7 @@ impl BoardSteps {
         {
             // Every pulse played and the last segment over: outputs low, streams off.
             stop_all_step_outputs();
+            streams.producer().end_run();
             self.run = Run::Idle;
             step_timer::disarm();
             return StepProgress {

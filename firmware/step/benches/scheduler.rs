@@ -125,6 +125,7 @@ fn produce(mut p: Producing) -> [i32; MAX_JOINTS] {
     for (joint, buffer) in p.buffers.iter_mut().enumerate() {
         p.streams.refill(joint, half, &mut buffer.periods[half]);
     }
+    p.streams.producer().end_run();
     p.streams.producer_ref().positions()
 }
 

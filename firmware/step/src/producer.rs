@@ -95,10 +95,10 @@ pub struct Filled {
     /// Whether the joint has nothing left to do in the queued segments: the written periods
     /// after its last pulse are idle fillers.
     pub idle: bool,
-    /// Every period written is an idle period (no pulse, the timer's longest): a buffer
-    /// half that holds these needs no rewrite while the joint stays idle
-    /// ([`PulseProducer::skip_idle`]).
-    pub all_idle: bool,
+    /// Every period written is the same idle period, of this many ticks: a buffer half
+    /// that holds these needs no rewrite while the joint would write the same
+    /// ([`PulseProducer::idle_period`], [`PulseProducer::skip_idle`]).
+    pub uniform_idle: Option<u32>,
 }
 
 /// One joint's stream: its walk through the queue, its pulse clock, and the open period
@@ -227,6 +227,11 @@ pub struct PulseProducer<const QUEUE: usize> {
     us_scale: u64,
     /// `gcd(tick_hz, 1e6)`.
     gcd: u32,
+    /// Idle period of a joint that waits for segments while its run goes on: 100 us (at
+    /// least two pulse periods). Two buffer halves of them (12.8 ms with 64-period
+    /// halves) is how far such a joint commits ahead; the step task keeps the queue far
+    /// more ahead (64 segments), so a segment pushed in time is never late for it.
+    idle_short: u32,
     /// Longest period each joint's timer can make.
     max_period: [u32; MAX_JOINTS],
     ring: SegmentRing<QUEUE>,
@@ -280,6 +285,11 @@ impl<const QUEUE: usize> PulseProducer<QUEUE> {
             tick_scale: timing.tick_hz as u64 / g,
             us_scale: US_PER_S / g,
             gcd: g as u32,
+            idle_short: {
+                let short = timing.tick_hz / 10_000;
+                let floor = min_period.saturating_mul(2);
+                if short < floor { floor } else { short }
+            },
             max_period,
             ring: SegmentRing::new(),
             head_ordinal: 0,
@@ -318,6 +328,8 @@ impl<const QUEUE: usize> PulseProducer<QUEUE> {
             return Err(segment);
         }
         self.queue_end = end;
+        // More to come: the run does not end where it would have.
+        self.run_end = u64::MAX;
         Ok(())
     }
 
@@ -413,10 +425,20 @@ impl<const QUEUE: usize> PulseProducer<QUEUE> {
     }
 
     /// Where the run ends (the end of its last segment, or its last pulse's fall if later),
-    /// once every pulse of it has been written; `None` while pulses are still to come.
-    /// The engine runs dry at the same tick.
+    /// once every pulse of the queued segments has been written; `None` while pulses are
+    /// still to come. The engine runs dry at the same tick. A segment pushed before the
+    /// hardware gets there continues the run (the end is `None` again); otherwise the
+    /// owner stops the hardware there and calls [`PulseProducer::end_run`].
     pub fn run_end_tick(&self) -> Option<u64> {
-        (!self.running && self.run_end != u64::MAX).then_some(self.run_end)
+        (self.running && self.run_end != u64::MAX).then_some(self.run_end)
+    }
+
+    /// The run is over (its end tick passed with nothing more queued): idle, the next
+    /// pushed segment starts a new timeline.
+    pub fn end_run(&mut self) {
+        self.running = false;
+        self.run_end = u64::MAX;
+        self.queue_end = QueueEnd::ZERO;
     }
 
     /// Pulses placed later than their ideal tick (see [`crate::StepEngine::late_pulses`]).
@@ -520,8 +542,40 @@ impl<const QUEUE: usize> PulseProducer<QUEUE> {
                     s.earliest = s.earliest.max(s.cursor);
                     continue;
                 }
-                // Idle: close the open period after the longest span the timer makes, then
-                // idle periods.
+                if self.running {
+                    // Waiting while the run may still get segments: short idle periods, so
+                    // that a segment pushed later is picked up at most two buffer halves of
+                    // them after the push. Their halves are all alike, so refills skip
+                    // rewriting them (`idle_period`).
+                    let short = max.min(self.idle_short);
+                    let s = &mut self.joints[j];
+                    let idle = PulsePeriod {
+                        reload: short - 1,
+                        repetition: 0,
+                        high: 0,
+                    };
+                    let rest = periods.get_mut(k..).unwrap_or_default();
+                    for period in rest.iter_mut() {
+                        *period = idle;
+                    }
+                    if let Some(first) = rest.first_mut() {
+                        first.high = s.open_high;
+                    }
+                    if let Some(sign) = signs.get_mut(k) {
+                        *sign = s.open_delta;
+                    }
+                    filled.uniform_idle = (k == 0 && s.open_high == 0).then_some(short);
+                    s.position = s.position.wrapping_add(i32::from(s.open_delta));
+                    pulses += u32::from(s.open_delta != 0);
+                    s.cursor += u64::from(short) * (len - k) as u64;
+                    s.open_high = 0;
+                    s.open_delta = 0;
+                    filled.idle = true;
+                    k = len;
+                    continue;
+                }
+                // Idle, no run: close the open period after the longest span the timer
+                // makes, then idle periods.
                 let idle = max;
                 let s = &mut self.joints[j];
                 let mut period = PulsePeriod {
@@ -533,7 +587,7 @@ impl<const QUEUE: usize> PulseProducer<QUEUE> {
                     *first = period;
                     *sign = s.open_delta;
                 }
-                filled.all_idle = k == 0 && s.open_high == 0;
+                filled.uniform_idle = (k == 0 && s.open_high == 0).then_some(max);
                 s.position = s.position.wrapping_add(i32::from(s.open_delta));
                 pulses += u32::from(s.open_delta != 0);
                 period.high = 0;
@@ -645,22 +699,29 @@ impl<const QUEUE: usize> PulseProducer<QUEUE> {
         count
     }
 
-    /// If joint `joint` is idle (nothing queued for it, no pulse open) and would write
-    /// nothing but idle periods: moves its stream `count` idle periods on without writing
-    /// them (the buffer half already holds them) and returns true.
-    pub fn skip_idle(&mut self, joint: usize, count: usize) -> bool {
+    /// The idle period joint `joint` would write next, if all its next periods are the
+    /// same idle one: nothing queued for it, no pulse open, and no run (the timer's longest
+    /// period) or waiting in a run (the short one).
+    pub fn idle_period(&self, joint: usize) -> Option<u32> {
         let j = joint & (MAX_JOINTS - 1);
-        let held = self.running && self.held(j);
-        let s = &mut self.joints[j];
-        let idle = (!self.running || s.waiting)
-            && !held
-            && s.remaining == 0
-            && s.next_rise == u64::MAX
-            && s.open_high == 0;
-        if idle {
-            s.cursor += u64::from(self.max_period[j]) * count as u64;
+        let s = &self.joints[j];
+        let quiet = s.remaining == 0 && s.next_rise == u64::MAX && s.open_high == 0;
+        if !quiet {
+            return None;
         }
-        idle
+        let max = self.max_period[j];
+        if !self.running {
+            return Some(max);
+        }
+        (s.waiting && !self.held(j)).then_some(max.min(self.idle_short))
+    }
+
+    /// Moves joint `joint`'s stream `count` periods of `period` ticks on without writing
+    /// them: the buffer half already holds them (`period` from
+    /// [`PulseProducer::idle_period`]).
+    pub fn skip_idle(&mut self, joint: usize, count: usize, period: u32) {
+        let j = joint & (MAX_JOINTS - 1);
+        self.joints[j].cursor += u64::from(period) * count as u64;
     }
 
     /// Whether joint `j` waits for a segment that is now queued.
@@ -770,11 +831,10 @@ impl<const QUEUE: usize> PulseProducer<QUEUE> {
             finished += 1;
         }
         if self.running && self.ring.is_empty() && self.joints.iter().all(|j| j.waiting) {
-            // Each waiting joint's `seek_at` is the fall of its last pulse.
+            // Each waiting joint's `seek_at` is the fall of its last pulse. The run goes
+            // on (a push before this tick continues it); the owner ends it here.
             let last_fall = self.joints.iter().map(|j| j.seek_at).max().unwrap_or(0);
             self.run_end = (self.origin + self.queue_end.tick).max(last_fall);
-            self.running = false;
-            self.queue_end = QueueEnd::ZERO;
         }
         finished
     }

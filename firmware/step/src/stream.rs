@@ -111,9 +111,9 @@ pub struct StepStreams<const Q: usize, const HALF: usize> {
     prelude_deltas: [[i8; PRELUDE]; MAX_JOINTS],
     /// The prelude's periods, per joint (for `unwind`).
     prelude: [[PulsePeriod; PRELUDE]; MAX_JOINTS],
-    /// Whether each half holds idle periods only (then an idle joint's refill writes
-    /// nothing), per joint.
-    half_idle: [[bool; 2]; MAX_JOINTS],
+    /// The idle period each half holds throughout, if it does (then an idle joint's
+    /// refill that would write the same writes nothing), per joint.
+    half_idle: [[Option<u32>; 2]; MAX_JOINTS],
     dirs: [DirRing; MAX_JOINTS],
 }
 
@@ -128,7 +128,7 @@ impl<const Q: usize, const HALF: usize> StepStreams<Q, HALF> {
             signs: [[[0; HALF]; 2]; MAX_JOINTS],
             prelude_deltas: [[0; PRELUDE]; MAX_JOINTS],
             prelude: [[PulsePeriod::ZERO; PRELUDE]; MAX_JOINTS],
-            half_idle: [[false; 2]; MAX_JOINTS],
+            half_idle: [[None; 2]; MAX_JOINTS],
             dirs: [DirRing::EMPTY; MAX_JOINTS],
         }
     }
@@ -196,8 +196,11 @@ impl<const Q: usize, const HALF: usize> StepStreams<Q, HALF> {
     ) -> Refill {
         let j = joint & (MAX_JOINTS - 1);
         let h = half & 1;
-        if self.half_idle[j][h] && self.producer.skip_idle(j, HALF) {
-            // An idle joint, and this half already holds idle periods.
+        if let Some(period) = self.producer.idle_period(j)
+            && self.half_idle[j][h] == Some(period)
+        {
+            // An idle joint, and this half already holds its idle periods.
+            self.producer.skip_idle(j, HALF, period);
             return Refill::default();
         }
         let dirs = &mut self.dirs[j];
@@ -209,7 +212,7 @@ impl<const Q: usize, const HALF: usize> StepStreams<Q, HALF> {
             .fill(j, periods, signs, &mut |tick, positive| {
                 overflow |= !dirs.push(tick, positive)
             });
-        self.half_idle[j][h] = filled.all_idle;
+        self.half_idle[j][h] = filled.uniform_idle;
         Refill {
             segments_finished: filled.segments_finished,
             dir_overflow: overflow,

@@ -246,12 +246,13 @@ fn producer_lines(case: &Case, run_starts: &[u64], run_ends: &[u64]) -> Lines {
             }
         }
         assert!(producer.drained());
-        assert!(!producer.is_running());
         assert_eq!(
             producer.run_end_tick(),
             Some(end),
             "the run ends where the engine ran dry"
         );
+        producer.end_run();
+        assert!(!producer.is_running());
         assert_eq!(
             moved,
             producer.positions(),
