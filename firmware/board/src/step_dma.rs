@@ -331,6 +331,8 @@ pub struct BoardSteps {
     started: [bool; MAX_JOINTS],
     /// The run's end (timeline ticks) has been handed to the step clock.
     end_armed: bool,
+    /// Segments finished while priming the run, reported with the next progress.
+    primed_finished: u32,
 }
 
 /// The backend shared by the tasks and the step interrupts.
@@ -339,6 +341,7 @@ pub static STEP: StepShared<STEP_QUEUE, BoardSteps> = StepShared::with_backend(B
     run: Run::Idle,
     started: [false; MAX_JOINTS],
     end_armed: false,
+    primed_finished: 0,
 });
 
 impl StepBackend for BoardSteps {
@@ -405,6 +408,7 @@ impl StepBackend for BoardSteps {
             timer.write(reg::CR1, reg::CR1_URS | reg::CR1_ARPE | reg::CR1_CEN);
         }
         self.run = Run::Running { origin };
+        self.primed_finished = primed.segments_finished;
         self.started = [false; MAX_JOINTS];
         self.end_armed = false;
         self.arm_alarm();
@@ -477,7 +481,8 @@ impl BoardSteps {
         }
         self.arm_alarm();
         StepProgress {
-            segments_finished: refill.segments_finished,
+            segments_finished: refill.segments_finished
+                + core::mem::take(&mut self.primed_finished),
             ran_dry: false,
         }
     }
@@ -510,7 +515,7 @@ impl BoardSteps {
             self.run = Run::Idle;
             step_timer::disarm();
             return StepProgress {
-                segments_finished: 0,
+                segments_finished: core::mem::take(&mut self.primed_finished),
                 ran_dry: true,
             };
         }
