@@ -309,26 +309,45 @@ impl<const Q: usize> StepBackend for SimSteps<Q> {
                 self.pins.set_tick(now.max(origin));
                 self.pins.step_low(1 << j);
             }
-            let play = self.play[j];
-            // Periods from `next` on never started (the simulated DMA refills a half as
-            // soon as the timer leaves it, so the other half is never stale).
-            let first_unplayed = (play.next >= PRELUDE as u64)
-                .then(|| ((play.next - PRELUDE as u64) % (2 * HALF) as u64) as usize);
+            // Periods from `next` on never started.
+            let (first_unplayed, stale) = unplayed_from(self.play[j].next);
             self.streams
-                .unwind(j, &self.buffers[j], first_unplayed, false);
+                .unwind(j, &self.buffers[j], first_unplayed, stale);
         }
         self.streams.producer().stop();
         self.streams.clear_dir_changes();
         self.origin = None;
     }
 
+    /// The pulses played so far (the producer's count less what is still in the
+    /// buffers), as on the board.
     fn positions(&self) -> [i32; MAX_JOINTS] {
-        self.streams.producer_ref().positions()
+        let mut positions = self.streams.producer_ref().positions();
+        if self.origin.is_some() {
+            for (j, position) in positions.iter_mut().enumerate() {
+                let (first_unplayed, stale) = unplayed_from(self.play[j].next);
+                *position -=
+                    self.streams
+                        .unplayed_steps(j, &self.buffers[j], first_unplayed, stale);
+            }
+        }
+        positions
     }
 
     fn set_positions(&mut self, positions: [i32; MAX_JOINTS]) -> bool {
         self.origin.is_none() && self.streams.producer().set_positions(positions)
     }
+}
+
+/// For a stream whose next period to start is `next`: the buffer index of that period
+/// (`None` while in the prelude) and whether the half before it is stale (played, and
+/// its refill, due when `next` starts, not done: `next` is the first of a half).
+fn unplayed_from(next: u64) -> (Option<usize>, bool) {
+    let first =
+        (next >= PRELUDE as u64).then(|| ((next - PRELUDE as u64) % (2 * HALF) as u64) as usize);
+    let stale =
+        next >= (PRELUDE + HALF) as u64 && (next - PRELUDE as u64).is_multiple_of(HALF as u64);
+    (first, stale)
 }
 
 /// What the step thread asks of the shared hardware at each wake-up.

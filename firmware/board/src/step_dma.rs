@@ -423,12 +423,7 @@ impl StepBackend for BoardSteps {
             // SAFETY: inside STEP's critical section, streams disabled.
             let buffers = unsafe { &*BUFFERS.0.get() };
             for (joint, position) in stopped.iter().enumerate() {
-                let first_unplayed = if self.started[joint] || position.next > 0 {
-                    // The period in the preload register never started either.
-                    Some((position.next + 2 * HALF - 1) % (2 * HALF))
-                } else {
-                    None
-                };
+                let first_unplayed = first_unplayed(self.started[joint], *position);
                 streams.unwind(
                     joint,
                     &buffers[joint],
@@ -443,10 +438,28 @@ impl StepBackend for BoardSteps {
         step_timer::disarm();
     }
 
+    /// The pulses played so far: the producer's count less what the streams have not
+    /// played yet (read from the streams' positions, within a period).
     fn positions(&self) -> [i32; MAX_JOINTS] {
-        self.streams
-            .as_ref()
-            .map_or([0; MAX_JOINTS], |s| s.producer_ref().positions())
+        let Some(streams) = self.streams.as_ref() else {
+            return [0; MAX_JOINTS];
+        };
+        let mut positions = streams.producer_ref().positions();
+        if self.run != Run::Idle {
+            // SAFETY: inside STEP's critical section; only read.
+            let buffers = unsafe { &*BUFFERS.0.get() };
+            for (joint, position) in positions.iter_mut().enumerate() {
+                let at = stream_position(joint);
+                let first_unplayed = self.first_unplayed(joint, at);
+                *position -= streams.unplayed_steps(
+                    joint,
+                    &buffers[joint],
+                    first_unplayed,
+                    at.other_half_played,
+                );
+            }
+        }
+        positions
     }
 
     fn set_positions(&mut self, positions: [i32; MAX_JOINTS]) -> bool {
@@ -459,6 +472,12 @@ impl StepBackend for BoardSteps {
 }
 
 impl BoardSteps {
+    /// The first period of `joint`'s stream that has not started, from where the stream
+    /// stands (`None`: the prelude's second period has not either).
+    fn first_unplayed(&self, joint: usize, at: StreamPosition) -> Option<usize> {
+        first_unplayed(self.started[joint], at)
+    }
+
     /// Refills the half of `joint`'s buffer its stream just left.
     fn refill(&mut self, joint: usize, half: usize) -> StepProgress {
         if self.run == Run::Idle {
@@ -575,30 +594,41 @@ pub fn stop_all_step_outputs() -> [StreamPosition; MAX_JOINTS] {
             let timer = joint_timer(joint);
             timer.write(reg::CR1, reg::CR1_URS | reg::CR1_ARPE);
             timer.write(reg::DIER, 0);
-            let stream = pac::DMA2.st(joint);
-            stream.cr().modify(|w| w.set_en(false));
-            let remaining = stream.ndtr().read().ndt() as usize;
-            let done = BUFFER_WORDS.saturating_sub(remaining) / WORDS_PER_PERIOD;
-            let flags = pac::DMA2.isr(joint / 4).read();
-            let n = joint % 4;
-            let next = done % (2 * HALF);
-            // The first unplayed period is the one in the preload register (next - 1);
-            // the other half than its own is stale if its refill is still pending (HT:
-            // half 0 played, TC: half 1 played).
-            let unplayed_half = ((next + 2 * HALF - 1) % (2 * HALF)) / HALF;
-            let other_half_played = if unplayed_half == 0 {
-                flags.tcif(n)
-            } else {
-                flags.htif(n)
-            };
-            *position = StreamPosition {
-                next,
-                other_half_played,
-            };
+            pac::DMA2.st(joint).cr().modify(|w| w.set_en(false));
+            *position = stream_position(joint);
             clear_stream_flags(joint);
         }
         positions
     })
+}
+
+/// The first period of a stream that has not started, from where it stands (`None`: the
+/// prelude's second period has not either); `started`: it has left the prelude.
+fn first_unplayed(started: bool, at: StreamPosition) -> Option<usize> {
+    // The period in the preload register (the one before `next`) has not started either.
+    (started || at.next > 0).then_some((at.next + 2 * HALF - 1) % (2 * HALF))
+}
+
+/// Where joint `joint`'s stream stands (running or stopped).
+fn stream_position(joint: usize) -> StreamPosition {
+    let remaining = pac::DMA2.st(joint).ndtr().read().ndt() as usize;
+    let done = BUFFER_WORDS.saturating_sub(remaining) / WORDS_PER_PERIOD;
+    let flags = pac::DMA2.isr(joint / 4).read();
+    let n = joint % 4;
+    let next = done % (2 * HALF);
+    // The first unplayed period is the one in the preload register (next - 1); the other
+    // half than its own is stale if its refill is still pending (HT: half 0 played, TC:
+    // half 1 played).
+    let unplayed_half = ((next + 2 * HALF - 1) % (2 * HALF)) / HALF;
+    let other_half_played = if unplayed_half == 0 {
+        flags.tcif(n)
+    } else {
+        flags.htif(n)
+    };
+    StreamPosition {
+        next,
+        other_half_played,
+    }
 }
 
 /// Clears every interrupt flag of DMA2 stream `joint`.

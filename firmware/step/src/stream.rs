@@ -241,12 +241,8 @@ impl<const Q: usize, const HALF: usize> StepStreams<Q, HALF> {
         }
     }
 
-    /// After a stop: takes back the pulses written for `joint` but never played.
-    /// `first_unplayed`: buffer index (0..2*HALF) of the first period that never started,
-    /// or `None` if the second prelude period never started either (the DMA had not
-    /// transferred anything). The rest of that period's half is unplayed, and so is the
-    /// other half unless `other_half_played` (its refill interrupt was still pending:
-    /// it holds periods that already played).
+    /// After a stop: takes back the pulses written for `joint` but never played
+    /// ([`StepStreams::unplayed_steps`]).
     pub fn unwind(
         &mut self,
         joint: usize,
@@ -254,6 +250,24 @@ impl<const Q: usize, const HALF: usize> StepStreams<Q, HALF> {
         first_unplayed: Option<usize>,
         other_half_played: bool,
     ) {
+        let steps = self.unplayed_steps(joint, periods, first_unplayed, other_half_played);
+        self.producer.unwind(joint & (MAX_JOINTS - 1), steps);
+    }
+
+    /// The signed pulses written for `joint` (in `periods`, its buffer) that have not
+    /// started yet: the producer's positions minus these are the motors' positions.
+    /// `first_unplayed`: buffer index (0..2*HALF) of the first period that has not
+    /// started, or `None` if the second prelude period has not either (the DMA has not
+    /// transferred anything). The rest of that period's half is unplayed, and so is the
+    /// other half unless `other_half_played` (its refill interrupt is still pending: it
+    /// holds periods that already played).
+    pub fn unplayed_steps(
+        &self,
+        joint: usize,
+        periods: &JointBuffer<HALF>,
+        first_unplayed: Option<usize>,
+        other_half_played: bool,
+    ) -> i32 {
         let j = joint & (MAX_JOINTS - 1);
         let signs = &self.signs[j];
         // Signed pulses of half `h` from period `from` on. Every half's first pulse is
@@ -268,7 +282,7 @@ impl<const Q: usize, const HALF: usize> StepStreams<Q, HALF> {
             .map(i32::from)
             .sum::<i32>()
         };
-        let steps = match first_unplayed {
+        match first_unplayed {
             None => i32::from(self.prelude_deltas[j][PRELUDE - 1]) + sum(0, 0) + sum(1, 0),
             Some(index) => {
                 let index = index % (2 * HALF);
@@ -279,8 +293,7 @@ impl<const Q: usize, const HALF: usize> StepStreams<Q, HALF> {
                     sum(h, i) + sum(1 - h, 0)
                 }
             }
-        };
-        self.producer.unwind(j, steps);
+        }
     }
 
     /// Drops every queued DIR change (after a stop).
