@@ -418,11 +418,9 @@ fn wire(board: Board) -> io::Result<Wiring> {
     let config = controller_config(&board.options);
     let timing = step_timing(board.options.tick_hz);
     let step: &'static SimStepShared = STEP
-        .try_init(StepShared::with_backend(SimSteps::new(
-            timing,
-            board.step_pins(),
-            board.clock,
-        )))
+        .try_init(StepShared::with_backend(
+            SimSteps::new(timing, board.step_pins(), board.clock).with_probe(board.probe.clone()),
+        ))
         .ok_or_else(once)?;
     let controller = CONTROLLER
         .try_init(Controller::new(config))
@@ -447,7 +445,12 @@ fn wire(board: Board) -> io::Result<Wiring> {
         move |now| {
             step.on_interrupt(&BUS.step_wake, |steps| {
                 let progress = steps.advance(now);
-                ((steps.is_running(), steps.next_due()), progress)
+                let played = crate::steptimer::Played {
+                    running: steps.is_running(),
+                    due: steps.next_due(),
+                    ended: progress.ran_dry,
+                };
+                (played, progress)
             })
         },
     )?;

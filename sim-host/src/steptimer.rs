@@ -125,6 +125,8 @@ pub struct SimSteps<const Q: usize> {
     play: [Play; MAX_JOINTS],
     /// Segments finished while priming a run, reported with the next progress.
     primed_finished: u32,
+    /// Told when an emergency stop has stopped the run (the e-stop latency's end).
+    probe: Option<Arc<Probe>>,
 }
 
 impl<const Q: usize> std::fmt::Debug for SimSteps<Q> {
@@ -147,7 +149,14 @@ impl<const Q: usize> SimSteps<Q> {
             origin: None,
             play: [Play::default(); MAX_JOINTS],
             primed_finished: 0,
+            probe: None,
         }
+    }
+
+    /// Tells `probe` when an emergency stop has stopped a run.
+    pub fn with_probe(mut self, probe: Arc<Probe>) -> SimSteps<Q> {
+        self.probe = Some(probe);
+        self
     }
 
     /// Whether a run is playing.
@@ -317,6 +326,10 @@ impl<const Q: usize> StepBackend for SimSteps<Q> {
         self.streams.producer().stop();
         self.streams.clear_dir_changes();
         self.origin = None;
+        if let Some(probe) = &self.probe {
+            probe.engine_running.store(false, Ordering::Release);
+            probe.engine_stopped(Instant::now(), self.clock.tick_to_ns(now));
+        }
     }
 
     /// The pulses played so far (the producer's count less what is still in the
@@ -350,15 +363,25 @@ fn unplayed_from(next: u64) -> (Option<usize>, bool) {
     (first, stale)
 }
 
-/// What the step thread asks of the shared hardware at each wake-up.
-pub trait StepPlayer: Send + 'static {
-    /// Plays up to step clock tick `now` (recording progress for the tasks); returns
-    /// whether a run is still playing and the tick at which to run next.
-    fn play(&mut self, now: u64) -> (bool, Option<u64>);
+/// What one play of the step hardware found.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Played {
+    /// A run is still playing.
+    pub running: bool,
+    /// Step clock tick at which to play next (a refill or the run's end).
+    pub due: Option<u64>,
+    /// The run reached its end during this play.
+    pub ended: bool,
 }
 
-impl<F: FnMut(u64) -> (bool, Option<u64>) + Send + 'static> StepPlayer for F {
-    fn play(&mut self, now: u64) -> (bool, Option<u64>) {
+/// What the step thread asks of the shared hardware at each wake-up.
+pub trait StepPlayer: Send + 'static {
+    /// Plays up to step clock tick `now` (recording progress for the tasks).
+    fn play(&mut self, now: u64) -> Played;
+}
+
+impl<F: FnMut(u64) -> Played + Send + 'static> StepPlayer for F {
+    fn play(&mut self, now: u64) -> Played {
         self(now)
     }
 }
@@ -378,16 +401,19 @@ pub fn spawn_step_thread(
         .spawn(move || {
             raise_priority(config.realtime);
             let clock = shared.clock;
-            let mut running = false;
             loop {
                 shared.kick_at.store(NO_KICK, Ordering::Release);
                 let now = clock.now_tick();
-                let (still_running, due) = player.play(now);
-                probe.engine_running.store(still_running, Ordering::Release);
-                if running && !still_running {
+                let Played {
+                    running,
+                    due,
+                    ended,
+                } = player.play(now);
+                probe.engine_running.store(running, Ordering::Release);
+                if ended {
+                    // (An emergency stop tells the probe itself, inside the stop.)
                     probe.engine_stopped(Instant::now(), clock.tick_to_ns(now));
                 }
-                running = still_running;
                 // Sleep until the next refill or end, a kick, or the play interval.
                 let mut wait = if running {
                     PLAY_INTERVAL
