@@ -399,14 +399,15 @@ impl StepBackend for BoardSteps {
         for (joint, prelude) in prelude.iter().enumerate() {
             load_joint(joint, prelude);
         }
-        // The step clock runs on; its tick at the joint timers' start is their tick 0.
-        // It is read before the counters start, so the DIR alarms (on the step clock) fire
-        // a few ticks late rather than early: never while STEP is high.
-        let origin = step_timer::now_tick();
         for joint in 0..MAX_JOINTS {
             let timer = joint_timer(joint);
             timer.write(reg::CR1, reg::CR1_URS | reg::CR1_ARPE | reg::CR1_CEN);
         }
+        // The step clock runs on; its tick at the joint timers' start is their tick 0.
+        // It is read after the counters started, so the DIR alarms (on the step clock)
+        // fire a few ticks late rather than early: never while STEP is still high (the
+        // DIR setup includes DIR_LATENCY_NS for this and the interrupt's latency).
+        let origin = step_timer::now_tick();
         self.run = Run::Running { origin };
         self.primed_finished = primed.segments_finished;
         self.started = [false; MAX_JOINTS];
