@@ -425,12 +425,17 @@ impl StepBackend for BoardSteps {
             let buffers = unsafe { &*BUFFERS.0.get() };
             for (joint, position) in stopped.iter().enumerate() {
                 let first_unplayed = first_unplayed(self.started[joint], *position);
-                streams.unwind(
-                    joint,
-                    &buffers[joint],
-                    first_unplayed,
-                    position.other_half_played,
-                );
+                match first_unplayed {
+                    Some(index) if position.preload_evicted => {
+                        streams.unwind_evicted(joint, &buffers[joint], index / HALF)
+                    }
+                    _ => streams.unwind(
+                        joint,
+                        &buffers[joint],
+                        first_unplayed,
+                        position.other_half_played,
+                    ),
+                }
             }
         }
         streams.producer().stop();
@@ -452,12 +457,17 @@ impl StepBackend for BoardSteps {
             for (joint, position) in positions.iter_mut().enumerate() {
                 let at = stream_position(joint);
                 let first_unplayed = self.first_unplayed(joint, at);
-                *position -= streams.unplayed_steps(
-                    joint,
-                    &buffers[joint],
-                    first_unplayed,
-                    at.other_half_played,
-                );
+                *position -= match first_unplayed {
+                    Some(index) if at.preload_evicted => {
+                        streams.unplayed_evicted(joint, &buffers[joint], index / HALF)
+                    }
+                    _ => streams.unplayed_steps(
+                        joint,
+                        &buffers[joint],
+                        first_unplayed,
+                        at.other_half_played,
+                    ),
+                };
             }
         }
         positions
@@ -574,9 +584,10 @@ pub struct StreamPosition {
     pub next: usize,
     /// The half other than the one of the first unplayed period (`next - 1`, in the
     /// preload register) was played and not refilled yet (its interrupt was pending).
-    /// (A stop in the one period after a half's refill ran loses that period's sign: the
-    /// position can then be one step off. Known limitation.)
     pub other_half_played: bool,
+    /// The first unplayed period (`next - 1`) is the last of its half and that half was
+    /// refilled since: the period lives on only in the preload register.
+    pub preload_evicted: bool,
 }
 
 /// Stops every step timer and DMA stream and forces every STEP output low, in one
@@ -620,15 +631,18 @@ fn stream_position(joint: usize) -> StreamPosition {
     // The first unplayed period is the one in the preload register (next - 1); the other
     // half than its own is stale if its refill is still pending (HT: half 0 played, TC:
     // half 1 played).
-    let unplayed_half = ((next + 2 * HALF - 1) % (2 * HALF)) / HALF;
-    let other_half_played = if unplayed_half == 0 {
-        flags.tcif(n)
+    let preload = (next + 2 * HALF - 1) % (2 * HALF);
+    let unplayed_half = preload / HALF;
+    let (own_flag, other_flag) = if unplayed_half == 0 {
+        (flags.htif(n), flags.tcif(n))
     } else {
-        flags.htif(n)
+        (flags.tcif(n), flags.htif(n))
     };
     StreamPosition {
         next,
-        other_half_played,
+        other_half_played: other_flag,
+        // The half's end was read (its flag was raised); not pending any more: refilled.
+        preload_evicted: preload % HALF == HALF - 1 && !own_flag,
     }
 }
 

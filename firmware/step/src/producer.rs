@@ -88,6 +88,10 @@ impl PulsePeriod {
 pub struct Filled {
     /// Pulses written (periods with `high > 0`).
     pub pulses: u32,
+    /// Position change of the last period written (its pulse's sign, 0 for none): what
+    /// a stop must take back if that period never started after its buffer half was
+    /// refilled over (`StepStreams` keeps it).
+    pub last_sign: i8,
     /// Segments every joint has now been through (their slots are free).
     pub segments_finished: u32,
     /// Tick at which the written periods end (where the next fill continues).
@@ -491,6 +495,7 @@ impl<const QUEUE: usize> PulseProducer<QUEUE> {
             let s = &self.joints[j];
             return Filled {
                 pulses: written as u32,
+                last_sign: if written > 0 { s.sign } else { 0 },
                 end_tick: s.cursor,
                 ..Filled::default()
             };
@@ -501,6 +506,7 @@ impl<const QUEUE: usize> PulseProducer<QUEUE> {
         let mut filled = Filled::default();
         let mut k = 0;
         let mut pulses = 0u32;
+        let mut last_sign = 0i8;
         let mut walked = false;
         while k < len {
             let s = &mut self.joints[j];
@@ -516,6 +522,9 @@ impl<const QUEUE: usize> PulseProducer<QUEUE> {
                         let written = self.cruise(j, &mut periods[k..], &mut signs[k..]);
                         k += written;
                         pulses += written as u32;
+                        if written > 0 {
+                            last_sign = self.joints[j].sign;
+                        }
                         continue;
                     }
                     s.cruising = false;
@@ -565,6 +574,7 @@ impl<const QUEUE: usize> PulseProducer<QUEUE> {
                         *sign = s.open_delta;
                     }
                     filled.uniform_idle = (k == 0 && s.open_high == 0).then_some(short);
+                    last_sign = if len - k >= 2 { 0 } else { s.open_delta };
                     s.position = s.position.wrapping_add(i32::from(s.open_delta));
                     pulses += u32::from(s.open_delta != 0);
                     s.cursor += u64::from(short) * (len - k) as u64;
@@ -588,6 +598,7 @@ impl<const QUEUE: usize> PulseProducer<QUEUE> {
                     *sign = s.open_delta;
                 }
                 filled.uniform_idle = (k == 0 && s.open_high == 0).then_some(max);
+                last_sign = if len - k >= 2 { 0 } else { s.open_delta };
                 s.position = s.position.wrapping_add(i32::from(s.open_delta));
                 pulses += u32::from(s.open_delta != 0);
                 period.high = 0;
@@ -630,6 +641,7 @@ impl<const QUEUE: usize> PulseProducer<QUEUE> {
             }
             s.position = s.position.wrapping_add(i32::from(s.open_delta));
             pulses += u32::from(s.open_delta != 0);
+            last_sign = s.open_delta;
             k += 1;
             s.cursor += take;
             if take == gap {
@@ -645,6 +657,7 @@ impl<const QUEUE: usize> PulseProducer<QUEUE> {
         }
         let s = &self.joints[j];
         filled.pulses = pulses;
+        filled.last_sign = last_sign;
         filled.end_tick = s.cursor;
         filled.idle &= s.waiting || !self.running;
         if walked {

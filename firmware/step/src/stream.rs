@@ -114,6 +114,11 @@ pub struct StepStreams<const Q: usize, const HALF: usize> {
     /// The idle period each half holds throughout, if it does (then an idle joint's
     /// refill that would write the same writes nothing), per joint.
     half_idle: [[Option<u32>; 2]; MAX_JOINTS],
+    /// Position change of the last period of each half, per joint.
+    last_sign: [[i8; 2]; MAX_JOINTS],
+    /// Position change of the last period a half held before its latest refill wrote over
+    /// it, per joint: that period may still be in the timer's preload register.
+    evicted: [[i8; 2]; MAX_JOINTS],
     dirs: [DirRing; MAX_JOINTS],
 }
 
@@ -129,6 +134,8 @@ impl<const Q: usize, const HALF: usize> StepStreams<Q, HALF> {
             prelude_deltas: [[0; PRELUDE]; MAX_JOINTS],
             prelude: [[PulsePeriod::ZERO; PRELUDE]; MAX_JOINTS],
             half_idle: [[None; 2]; MAX_JOINTS],
+            last_sign: [[0; 2]; MAX_JOINTS],
+            evicted: [[0; 2]; MAX_JOINTS],
             dirs: [DirRing::EMPTY; MAX_JOINTS],
         }
     }
@@ -196,11 +203,13 @@ impl<const Q: usize, const HALF: usize> StepStreams<Q, HALF> {
     ) -> Refill {
         let j = joint & (MAX_JOINTS - 1);
         let h = half & 1;
+        self.evicted[j][h] = self.last_sign[j][h];
         if let Some(period) = self.producer.idle_period(j)
             && self.half_idle[j][h] == Some(period)
         {
             // An idle joint, and this half already holds its idle periods.
             self.producer.skip_idle(j, HALF, period);
+            self.last_sign[j][h] = 0;
             return Refill::default();
         }
         let dirs = &mut self.dirs[j];
@@ -213,6 +222,7 @@ impl<const Q: usize, const HALF: usize> StepStreams<Q, HALF> {
                 overflow |= !dirs.push(tick, positive)
             });
         self.half_idle[j][h] = filled.uniform_idle;
+        self.last_sign[j][h] = filled.last_sign;
         Refill {
             segments_finished: filled.segments_finished,
             dir_overflow: overflow,
@@ -252,6 +262,23 @@ impl<const Q: usize, const HALF: usize> StepStreams<Q, HALF> {
     ) {
         let steps = self.unplayed_steps(joint, periods, first_unplayed, other_half_played);
         self.producer.unwind(joint & (MAX_JOINTS - 1), steps);
+    }
+
+    /// Like [`StepStreams::unwind`] when the first unplayed period is the last of its half
+    /// and that half has been refilled since the DMA read it (the period lives on only in
+    /// the timer's preload register): takes back that period's pulse and both halves.
+    pub fn unwind_evicted(&mut self, joint: usize, periods: &JointBuffer<HALF>, half: usize) {
+        let steps = self.unplayed_evicted(joint, periods, half);
+        self.producer.unwind(joint & (MAX_JOINTS - 1), steps);
+    }
+
+    /// The unplayed pulses in the case of [`StepStreams::unwind_evicted`].
+    pub fn unplayed_evicted(&self, joint: usize, periods: &JointBuffer<HALF>, half: usize) -> i32 {
+        let j = joint & (MAX_JOINTS - 1);
+        let h = half & 1;
+        // Both halves hold periods after it: the other half's (refilled before) and this
+        // half's new ones.
+        i32::from(self.evicted[j][h]) + self.unplayed_steps(j, periods, Some(0), false)
     }
 
     /// The signed pulses written for `joint` (in `periods`, its buffer) that have not
