@@ -712,6 +712,13 @@ impl<const QUEUE: usize> PulseProducer<QUEUE> {
         count
     }
 
+    /// Whether the next fill of `len` periods for joint `joint` is one straight cruise:
+    /// on-time pulses of one segment, which mark only the first period's sign.
+    pub fn will_cruise(&self, joint: usize, len: usize) -> bool {
+        let s = &self.joints[joint & (MAX_JOINTS - 1)];
+        s.cruising && s.remaining as usize >= len
+    }
+
     /// The idle period joint `joint` would write next, if all its next periods are the
     /// same idle one: nothing queued for it, no pulse open, and no run (the timer's longest
     /// period) or waiting in a run (the short one).

@@ -114,6 +114,9 @@ pub struct StepStreams<const Q: usize, const HALF: usize> {
     /// The idle period each half holds throughout, if it does (then an idle joint's
     /// refill that would write the same writes nothing), per joint.
     half_idle: [[Option<u32>; 2]; MAX_JOINTS],
+    /// Whether only the first sign mark of each half can be set (it was last filled by one
+    /// straight cruise), per joint: then a cruise refill need not clear the others.
+    marks_clean: [[bool; 2]; MAX_JOINTS],
     /// Position change of the last period of each half, per joint.
     last_sign: [[i8; 2]; MAX_JOINTS],
     /// Position change of the last period a half held before its latest refill wrote over
@@ -134,6 +137,7 @@ impl<const Q: usize, const HALF: usize> StepStreams<Q, HALF> {
             prelude_deltas: [[0; PRELUDE]; MAX_JOINTS],
             prelude: [[PulsePeriod::ZERO; PRELUDE]; MAX_JOINTS],
             half_idle: [[None; 2]; MAX_JOINTS],
+            marks_clean: [[false; 2]; MAX_JOINTS],
             last_sign: [[0; 2]; MAX_JOINTS],
             evicted: [[0; 2]; MAX_JOINTS],
             dirs: [DirRing::EMPTY; MAX_JOINTS],
@@ -215,7 +219,11 @@ impl<const Q: usize, const HALF: usize> StepStreams<Q, HALF> {
         let dirs = &mut self.dirs[j];
         let mut overflow = false;
         let signs = &mut self.signs[j][h];
-        *signs = [0; HALF];
+        let cruise = self.producer.will_cruise(j, HALF);
+        if !(cruise && self.marks_clean[j][h]) {
+            *signs = [0; HALF];
+        }
+        self.marks_clean[j][h] = cruise;
         let filled = self
             .producer
             .fill(j, periods, signs, &mut |tick, positive| {
