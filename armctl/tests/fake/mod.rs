@@ -345,6 +345,7 @@ impl Sim {
                 pwm_timer_clock_hz: 240_000_000,
                 max_step_rate_hz: 50_000,
                 window: self.window,
+                step_budget_hz: 0,
             };
             self.report(&Report::Status(status), link);
         }
