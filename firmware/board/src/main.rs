@@ -55,16 +55,16 @@
 //! | flash 0x081C_0000..0x0820_0000 | settings (two sectors, [`settings`]) | - |
 //! | AXI SRAM 0x2400_0000 (512 KiB) | `.data`, `.bss`, `.uninit`: the trajectory buffer (8192 points, 288 KiB), the bus, the tasks' futures, the UDP socket buffers, defmt's RTT buffer | MPU region 1: D-cache write-through (the probe sees every RTT write) |
 //! | DTCM 0x2000_0000 (128 KiB) | the stack (CPU only, zero wait states) | never cached |
-//! | SRAM1 0x3000_0000 (128 KiB) | every DMA buffer: Ethernet descriptors and packets (a ring of 40, 62 KiB, sized with the UDP socket and the inbox for a burst of 32 full datagrams: `net.rs`), serial RX ring and TX staging, step streams ([`memory::DmaBuffers`]) | MPU region 0: non-cacheable |
+//! | SRAM1 0x3000_0000 (128 KiB) | every DMA buffer: Ethernet descriptors and packets (a ring of 40, 62 KiB, sized with the UDP socket and the inbox for a burst of 32 full datagrams: `net.rs`), serial RX ring and TX staging ([`memory::DmaBuffers`]); the step streams' buffers, 12 KiB (`step_dma` `BUFFERS`, a `.sram1` static) | MPU region 0: non-cacheable |
 //!
 //! A DMA never sees a stale cache line because nothing it touches is cacheable, and no
 //! store waits in a dirty line (write-through), so nothing needs cache maintenance, not
-//! even before the fault path's reset. The step engine's state (`STEP`) and the bus
+//! even before the fault path's reset. The step producer's state (`STEP`) and the bus
 //! stay in AXI SRAM: with the D-cache on they are cache hits in the step interrupt, as
 //! fast as DTCM would be, without a second linker region to manage.
 //!
 //! Flash image: the big statics have zero initial values so they cost no flash: [`BUS`]
-//! (23 KiB) and the step engine's `STEP` (4.9 KiB) are built at run time
+//! (23 KiB) and the step producer's `STEP` (15 KiB) are built at run time
 //! ([`late::Late`]), the others are `StaticCell`s.
 //! `scripts/fw-size.sh` fails above 96 KiB.
 //!
