@@ -216,6 +216,7 @@ pub fn doc_frames() -> Vec<DocFrame> {
                 upload_period_us: 10_000,
                 pwm_timer_clock_hz: 240_000_000,
                 max_step_rate_hz: 100_000,
+                step_budget_hz: 0,
             }),
         ),
     ]

@@ -623,6 +623,10 @@ pub struct StatusReport {
     pub pwm_timer_clock_hz: u32,
     /// Highest step rate of one joint.
     pub max_step_rate_hz: u32,
+    /// Most steps per second over all joints together that the controller takes on
+    /// (offset 32; 0 from a controller that predates it: no limit stated). Points
+    /// asking for more are refused with INVALID_POINT (docs/PROTOCOL.md).
+    pub step_budget_hz: u32,
 }
 
 impl StatusReport {
@@ -642,6 +646,7 @@ impl StatusReport {
             upload_period_us: u32_le(b, 20),
             pwm_timer_clock_hz: u32_le(b, 24),
             max_step_rate_hz: u32_le(b, 28),
+            step_budget_hz: u32_le(b, 32),
         })
     }
     pub(crate) fn write(&self, w: &mut Writer<'_>, at: usize) {
@@ -659,7 +664,7 @@ impl StatusReport {
         w.u32(at + 20, self.upload_period_us);
         w.u32(at + 24, self.pwm_timer_clock_hz);
         w.u32(at + 28, self.max_step_rate_hz);
-        w.u32(at + 32, 0);
+        w.u32(at + 32, self.step_budget_hz);
     }
 }
 

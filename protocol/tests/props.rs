@@ -150,7 +150,7 @@ fn status_report() -> impl Strategy<Value = StatusReport> {
         state(),
         any::<u8>(),
         prop::array::uniform7(any::<u16>()),
-        prop::array::uniform3(any::<u32>()),
+        prop::array::uniform4(any::<u32>()),
     )
         .prop_map(
             |(version, joints, state, flags, counts, words)| StatusReport {
@@ -168,6 +168,7 @@ fn status_report() -> impl Strategy<Value = StatusReport> {
                 upload_period_us: words[0],
                 pwm_timer_clock_hz: words[1],
                 max_step_rate_hz: words[2],
+                step_budget_hz: words[3],
             },
         )
 }

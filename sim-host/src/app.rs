@@ -23,7 +23,7 @@ use crate::options::SimOptions;
 use crate::probe::Probe;
 use crate::serial::SimSerial;
 use crate::steppers::{MotorState, SimSteppers};
-use crate::steptimer::SimStepKick;
+use crate::steptimer::{SimStepKick, SimSteps};
 use crate::tap::{TapAddress, TapDatagrams, TapError};
 use crate::vcd::Tracer;
 
@@ -204,11 +204,13 @@ pub const PULSE_WIDTH_NS: u64 = 2_000;
 
 /// DIR setup time of the simulated drivers, ns.
 pub const DIR_SETUP_NS: u64 = 2_000;
+/// Least STEP low time between pulses: as long as the pulse (DM542/TB6600-class drivers).
+pub const STEP_LOW_NS: u64 = 2_000;
 
 /// The controller as the simulator builds it.
 pub type SimController = Controller<TRAJECTORY_STORAGE>;
 /// The step engine shared with the step thread.
-pub type SimStepShared = StepShared<STEP_QUEUE>;
+pub type SimStepShared = StepShared<STEP_QUEUE, SimSteps<STEP_QUEUE>>;
 
 /// The step timing for a step timer at `tick_hz`.
 pub fn step_timing(tick_hz: u32) -> StepTiming {
@@ -217,6 +219,7 @@ pub fn step_timing(tick_hz: u32) -> StepTiming {
         tick_hz,
         pulse_width_ticks: ticks(PULSE_WIDTH_NS),
         dir_setup_ticks: ticks(DIR_SETUP_NS),
+        step_low_ticks: ticks(STEP_LOW_NS),
     }
 }
 
@@ -488,7 +491,11 @@ fn wire(board: Board) -> io::Result<Wiring> {
     let once = || io::Error::other("the simulated controller runs once per process");
     let config = controller_config(&board.options);
     let timing = step_timing(board.options.tick_hz);
-    let step: &'static SimStepShared = STEP.try_init(StepShared::new(timing)).ok_or_else(once)?;
+    let step: &'static SimStepShared = STEP
+        .try_init(StepShared::with_backend(
+            SimSteps::new(timing, board.step_pins(), board.clock).with_probe(board.probe.clone()),
+        ))
+        .ok_or_else(once)?;
     let controller = CONTROLLER
         .try_init(Controller::new(config))
         .ok_or_else(once)?;
@@ -504,17 +511,24 @@ fn wire(board: Board) -> io::Result<Wiring> {
         board.clock.time_scale()
     );
 
-    // The step timer "interrupt".
-    let pins = board.step_pins();
+    // The step timers and DMA streams, played in simulated time.
     crate::steptimer::spawn_step_thread(
         &board.kick,
-        pins,
         board.probe.clone(),
         crate::steptimer::StepThreadConfig {
             realtime: board.options.realtime,
-            spin: std::time::Duration::from_micros(board.options.spin_us),
         },
-        move |tick, pins| arm_core::tasks::on_step_timer(step, tick, pins, &BUS.step_wake),
+        move |now| {
+            step.on_interrupt(&BUS.step_wake, |steps| {
+                let progress = steps.advance(now);
+                let played = crate::steptimer::Played {
+                    running: steps.is_running(),
+                    due: steps.next_due(),
+                    ended: progress.ran_dry,
+                };
+                (played, progress)
+            })
+        },
     )?;
     Ok(Wiring {
         board,

@@ -121,9 +121,8 @@ pub struct SimOptions {
     #[arg(long)]
     pub realtime: bool,
 
-    /// Microseconds before each step deadline that the step thread spins instead of
-    /// sleeping: aligns pulses with the wall clock more tightly, at the cost of CPU.
-    /// Pulse times in simulated time (the trace, positions) are exact whatever this is.
+    /// No effect, kept so that old command lines still work: the step thread no longer
+    /// has per-edge deadlines to spin for (it plays DMA buffers in simulated time).
     #[arg(long, default_value_t = 20, value_parser = clap::value_parser!(u64).range(0..=10_000))]
     pub spin_us: u64,
 }

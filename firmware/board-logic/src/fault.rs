@@ -73,7 +73,8 @@ pub enum FaultKind {
 pub trait SafeStateHw {
     /// Masks every interrupt (PRIMASK).
     fn mask_interrupts(&mut self);
-    /// Stops every step timer and the DMA streams that feed it: no new STEP edge.
+    /// Stops every step timer and the DMA streams that feed it: no new STEP edge (the
+    /// NUCLEO: `step_dma::stop_all_step_outputs`).
     fn stop_all_step_output(&mut self);
     /// Drives every STEP line low.
     fn force_step_low(&mut self);

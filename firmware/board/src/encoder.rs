@@ -7,7 +7,11 @@
 //! |---|---|---|
 //! | UART4_TX | PC10 (AF8) | DI |
 //! | UART4_RX | PC11 (AF8) | RO |
-//! | UART4_DE | PA15 (AF8) | DE and /RE tied together |
+//! | UART4_DE | PB14 (AF8) | DE and /RE tied together |
+//!
+//! DE is on PB14, not UART4's other DE pin PA15: PA15 is joint 0's STEP (TIM2_CH1,
+//! `pins.rs`). PB14 also drives the NUCLEO's red LED LD3, which so lights while a request
+//! is sent.
 //!
 //! The USART drives DE itself (RS-485 driver-enable mode): high from the start bit of the
 //! first byte to the end of the last stop bit, so the bus is released the moment the

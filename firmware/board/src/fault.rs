@@ -19,7 +19,7 @@ use cortex_m_rt::{ExceptionFrame, exception};
 use embassy_stm32::pac;
 use embassy_stm32::pac::gpio::regs::Bsrr;
 
-use crate::pins::STEP_SHIFT;
+use crate::pins::STEP_LINES;
 
 /// Set by the first fault; a fault while it is set skips the log.
 static IN_FAULT: AtomicBool = AtomicBool::new(false);
@@ -41,15 +41,13 @@ const ENABLE_LINES: [(pac::gpio::Gpio, u8); 9] = [
 /// The gripper's PWM output: PE5 (TIM15_CH1).
 const GRIPPER_PWM_PIN: usize = 5;
 
-/// The hook that stops all step output: today's step timer, TIM2 (counter, interrupts).
-/// When step-hw's DMA-fed compare channels replace it, this calls their stop function
-/// (timers and their DMA streams).
+/// The hook that stops all step output: every joint timer's output forced inactive, its
+/// counter stopped, its DMA stream disabled ([`crate::step_dma::stop_all_step_outputs`]),
+/// and the step clock's interrupt (DIR changes, end of run) masked.
 pub fn stop_all_step_output() {
-    let tim = pac::TIM2;
-    tim.cr1().modify(|w| w.set_cen(false));
-    tim.dier().write(|_| {});
-    NVIC::mask(pac::Interrupt::TIM2);
-    NVIC::unpend(pac::Interrupt::TIM2);
+    crate::step_dma::stop_all_step_outputs();
+    NVIC::mask(pac::Interrupt::TIM8_UP_TIM13);
+    NVIC::unpend(pac::Interrupt::TIM8_UP_TIM13);
 }
 
 /// [`SafeStateHw`] with direct register writes (no driver state: usable from any fault).
@@ -68,9 +66,13 @@ impl SafeStateHw for BoardSafeState<'_> {
     }
 
     fn force_step_low(&mut self) {
-        pac::GPIOE
-            .bsrr()
-            .write_value(Bsrr(0xFF << (STEP_SHIFT + 16)));
+        // The timers already hold their outputs inactive; as plain outputs at 0 the lines
+        // stay low whatever happens to the timers until the reset.
+        for (port, pin) in STEP_LINES {
+            port.bsrr().write_value(Bsrr(1 << (pin + 16)));
+            port.moder()
+                .modify(|w| w.set_moder(pin, pac::gpio::vals::Moder::OUTPUT));
+        }
     }
 
     fn stop_gripper(&mut self) {

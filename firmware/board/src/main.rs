@@ -12,9 +12,9 @@
 //!
 //! | priority | what | why |
 //! |---|---|---|
-//! | P0 (highest) | TIM2: step timer ([`step_timer`]) | edges at exact ticks; nothing may delay it |
-//! | P1 | TIM15: gripper burst reloads ([`gripper`]) | must reload within 128 PWM periods |
-//! | P2 | TIM5: embassy-time | task wake-ups |
+//! | P0 (highest) | TIM13: step clock ([`step_timer`]): DIR changes at reversals, end of run | a DIR change must come between a pulse's fall and the next pulse's setup |
+//! | P1 | DMA2 streams 0-7: STEP buffer refills ([`step_dma`]); TIM15: gripper burst reloads ([`gripper`]) | a half (64 periods) of slack; 128 PWM periods |
+//! | P2 | TIM12: embassy-time | task wake-ups |
 //! | P3 | Ethernet, USART6, DMA, flash, RNG | driver bookkeeping; their tasks wait anyway |
 //! | thread mode | every task, one executor | see below |
 //!
@@ -25,15 +25,17 @@
 //!   queue, which the trajectory task drains first; sends ACKs and reports.
 //! - `trajectory`: owns the [`Controller`]: handles frames, drives pins, gripper and
 //!   serial port, cuts segments for the step engine.
-//! - `stepper`: moves segments into the engine shared with TIM2 and relays its progress.
+//! - `stepper`: moves segments into the step producer shared with the DMA refills and
+//!   relays their progress.
 //! - `upload`: LOCATION reports every upload period.
 //! - `serial`: the USART pass-through.
 //! - `watchdog` (this board's): feeds the IWDG while `stepper` and `network` live.
 //!
 //! One thread-mode executor is enough: no task computes for long (a PENDING frame of 12
 //! points is decoded and checked in microseconds), the e-stop has its own queue, and
-//! everything with a deadline below a millisecond is an interrupt. An emergency stop reaches
-//! the engine through a critical section, and the step interrupt then lowers the lines.
+//! everything with a deadline below a millisecond is an interrupt. STEP pulses are made by
+//! timer hardware fed by DMA ([`step_dma`]); an emergency stop forces every STEP output
+//! low and stops the timers and streams inside the critical section that handles it.
 //!
 //! Network input can never panic or block: arm-core decodes it with the `protocol` crate
 //! and answers every error with an ACK status; queues that are full drop rather than wait.
@@ -53,16 +55,16 @@
 //! | flash 0x081C_0000..0x0820_0000 | settings (two sectors, [`settings`]) | - |
 //! | AXI SRAM 0x2400_0000 (512 KiB) | `.data`, `.bss`, `.uninit`: the trajectory buffer (8192 points, 288 KiB), the bus, the tasks' futures, the UDP socket buffers, defmt's RTT buffer | MPU region 1: D-cache write-through (the probe sees every RTT write) |
 //! | DTCM 0x2000_0000 (128 KiB) | the stack (CPU only, zero wait states) | never cached |
-//! | SRAM1 0x3000_0000 (128 KiB) | every DMA buffer: Ethernet descriptors and packets (a ring of 40, 62 KiB, sized with the UDP socket and the inbox for a burst of 32 full datagrams: `net.rs`), serial RX ring and TX staging, step streams ([`memory::DmaBuffers`]) | MPU region 0: non-cacheable |
+//! | SRAM1 0x3000_0000 (128 KiB) | every DMA buffer: Ethernet descriptors and packets (a ring of 40, 62 KiB, sized with the UDP socket and the inbox for a burst of 32 full datagrams: `net.rs`), serial RX ring and TX staging ([`memory::DmaBuffers`]); the step streams' buffers, 12 KiB (`step_dma` `BUFFERS`, a `.sram1` static) | MPU region 0: non-cacheable |
 //!
 //! A DMA never sees a stale cache line because nothing it touches is cacheable, and no
 //! store waits in a dirty line (write-through), so nothing needs cache maintenance, not
-//! even before the fault path's reset. The step engine's state (`STEP`) and the bus
+//! even before the fault path's reset. The step producer's state (`STEP`) and the bus
 //! stay in AXI SRAM: with the D-cache on they are cache hits in the step interrupt, as
 //! fast as DTCM would be, without a second linker region to manage.
 //!
 //! Flash image: the big statics have zero initial values so they cost no flash: [`BUS`]
-//! (23 KiB) and the step engine's `STEP` (4.9 KiB) are built at run time
+//! (23 KiB) and the step producer's `STEP` (15 KiB) are built at run time
 //! ([`late::Late`]), the others are `StaticCell`s.
 //! `scripts/fw-size.sh` fails above 96 KiB.
 //!
@@ -92,6 +94,7 @@ mod net;
 mod pins;
 mod serial;
 mod settings;
+mod step_dma;
 mod step_timer;
 
 use core::future::Future;
@@ -112,7 +115,7 @@ use embassy_stm32::interrupt::{InterruptExt, Priority};
 use embassy_stm32::rng::Rng;
 use embassy_stm32::usart::Uart;
 use embassy_stm32::wdg::IndependentWatchdog;
-use embassy_stm32::{bind_interrupts, dma, eth, flash, interrupt, peripherals, rng, usart};
+use embassy_stm32::{Peri, bind_interrupts, dma, eth, flash, interrupt, peripherals, rng, usart};
 use embassy_time::Timer;
 use static_cell::StaticCell;
 
@@ -120,10 +123,11 @@ use crate::clocks::ClockSource;
 use crate::encoder::{ModbusEncoders, Rs485};
 use crate::gripper::GripperPwm;
 use crate::late::Late;
-use crate::pins::{OutputLines, OutputPins, StepDirPins};
+use crate::pins::{DirPins, OutputLines, OutputPins, StepPins};
 use crate::serial::BoardSerial;
 use crate::settings::FlashSettings;
-use crate::step_timer::{STEP, STEP_TIMING, StepTimer};
+use crate::step_dma::{BoardSteps, STEP};
+use crate::step_timer::StepTimer;
 
 bind_interrupts!(
     /// Interrupt handlers of the embassy drivers.
@@ -152,7 +156,7 @@ arm_wiring::controller_tasks! {
     device: net::Device,
     capacity: CAP,
     bus: crate::BUS,
-    step: crate::step_timer::STEP,
+    step: crate::step_dma::STEP,
     kick: StepTimer,
     outputs: OutputLines,
     gripper: GripperPwm,
@@ -164,6 +168,10 @@ arm_wiring::controller_tasks! {
 }
 
 static KICK: StaticCell<StepTimer> = StaticCell::new();
+/// TIM13 (the step clock) as embassy's low-level timer: keeps its clock on and tells the
+/// timer clock frequency.
+static STEP_CLOCK: StaticCell<embassy_stm32::timer::low_level::Timer<'static, peripherals::TIM13>> =
+    StaticCell::new();
 static SERIAL: StaticCell<BoardSerial> = StaticCell::new();
 
 /// Polls of the step task's future (watchdog liveness).
@@ -215,7 +223,7 @@ async fn watchdog(mut iwdg: IndependentWatchdog<'static, peripherals::IWDG1>) ->
 /// Lowers every driver interrupt below the step and gripper timers (the drivers enable
 /// them at P0, the reset value).
 fn set_driver_priorities() {
-    interrupt::TIM5.set_priority(Priority::P2);
+    interrupt::TIM8_BRK_TIM12.set_priority(Priority::P2);
     for irq in [
         interrupt::ETH,
         interrupt::USART6,
@@ -235,7 +243,7 @@ async fn main(spawner: Spawner) -> ! {
     unsafe { BUS.init(Bus::new()) };
     // SAFETY: as BUS: before the step timer's interrupt is enabled and before any task is
     // spawned, nothing else holds a reference to STEP.
-    unsafe { STEP.init(StepShared::new(STEP_TIMING)) };
+    unsafe { STEP.init(StepShared::with_backend(BoardSteps::new())) };
     let clock_source = clocks::probe_hse();
     let mut config = clocks::config(clock_source);
     config.dma_interrupt_priority = Priority::P3;
@@ -261,38 +269,38 @@ async fn main(spawner: Spawner) -> ! {
         serial_tx,
     } = dma_buffers;
 
-    // Step outputs first: from here on the STEP lines are driven low.
-    let step_dir = StepDirPins {
-        step: [
-            p.PE8.into(),
-            p.PE9.into(),
-            p.PE10.into(),
-            p.PE11.into(),
-            p.PE12.into(),
-            p.PE13.into(),
-            p.PE14.into(),
-            p.PE15.into(),
-        ],
-        dir: [
-            p.PD0.into(),
-            p.PD1.into(),
-            p.PD2.into(),
-            p.PD3.into(),
-            p.PD4.into(),
-            p.PD5.into(),
-            p.PD6.into(),
-            p.PD7.into(),
-        ],
-    };
-    let kick = match step_timer::start(p.TIM2, step_dir.into_writer()) {
-        Ok(kick) => KICK.init(kick),
-        Err(e) => defmt::panic!(
-            // safe: boot-time bring-up, not network input
-            "step timer clock is not {} Hz: {}",
-            step_timer::STEP_TIMER_HZ,
-            e
-        ),
-    };
+    // Step outputs first: from here on the STEP lines are driven low by their timers.
+    let kick = start_steps(StepHardware {
+        step: StepPins {
+            joint0: p.PA15,
+            joint1: p.PA0,
+            joint2: p.PA6,
+            joint3: p.PD12,
+            joint4: p.PE9,
+            joint5: p.PA5,
+            joint6: p.PB8,
+            joint7: p.PB9,
+        },
+        dir: DirPins {
+            dir: [
+                p.PD0.into(),
+                p.PD1.into(),
+                p.PD2.into(),
+                p.PD3.into(),
+                p.PD4.into(),
+                p.PD5.into(),
+                p.PD6.into(),
+                p.PD7.into(),
+            ],
+        },
+        clock: p.TIM13,
+    });
+    // The joint timers and DMA2 streams are driven through their registers
+    // (step_dma.rs); their handles are not used by anything else.
+    let _step_hw = (
+        p.TIM1, p.TIM2, p.TIM3, p.TIM4, p.TIM5, p.TIM8, p.TIM16, p.TIM17, p.DMA2_CH0, p.DMA2_CH1,
+        p.DMA2_CH2, p.DMA2_CH3, p.DMA2_CH4, p.DMA2_CH5, p.DMA2_CH6, p.DMA2_CH7,
+    );
     let outputs = OutputLines::new(OutputPins {
         pin0: p.PG2,
         pin1: p.PG3,
@@ -328,7 +336,7 @@ async fn main(spawner: Spawner) -> ! {
     let persistent = settings.read().await.settings();
 
     let encoder_uart =
-        match Uart::new_blocking_with_de(p.UART4, p.PC11, p.PC10, p.PA15, encoder::uart_config()) {
+        match Uart::new_blocking_with_de(p.UART4, p.PC11, p.PC10, p.PB14, encoder::uart_config()) {
             Ok(uart) => uart,
             Err(e) => defmt::panic!("UART4: {}", e), // safe: boot-time bring-up
         };
@@ -336,11 +344,11 @@ async fn main(spawner: Spawner) -> ! {
 
     let controller_config = ControllerConfig {
         pwm_timer_clock_hz: gripper.timer_clock_hz(),
-        max_step_rate_hz: ControllerConfig::BOARD
-            .max_step_rate_hz
-            .min(STEP_TIMING.max_step_rate_hz()),
+        max_step_rate_hz: step_dma::MAX_STEP_RATE_HZ,
         ..ControllerConfig::BOARD
     };
+    // The controller boots with arm-core's BOARD_STEP_BUDGET_HZ, which is this board's.
+    const _: () = assert!(step_dma::BOARD_STEP_BUDGET_HZ == arm_core::config::BOARD_STEP_BUDGET_HZ);
     set_driver_priorities();
 
     // Every task but the network's: the arm works (and stops on its underrun rule) with or
@@ -404,4 +412,29 @@ async fn main(spawner: Spawner) -> ! {
     ));
     // Logs the address, then every link change with the state it happened in.
     arm_wiring::net::watch_link(stack, &BUS).await
+}
+
+/// What the step path needs besides the timers and streams it drives by register.
+struct StepHardware {
+    step: StepPins,
+    dir: DirPins,
+    clock: Peri<'static, peripherals::TIM13>,
+}
+
+/// Sets up the step timers and streams (STEP low), the pins and the step clock.
+#[inline(never)]
+fn start_steps(hw: StepHardware) -> &'static StepTimer {
+    step_dma::init();
+    hw.step.into_timer_outputs();
+    hw.dir.configure();
+    let step_clock = STEP_CLOCK.init(embassy_stm32::timer::low_level::Timer::new(hw.clock));
+    match step_timer::start(step_clock.get_clock_frequency().0) {
+        Ok(kick) => KICK.init(kick),
+        Err(e) => defmt::panic!(
+            // safe: boot-time bring-up, not network input
+            "step timer clock is not {} Hz: {}",
+            step_dma::STEP_TIMER_HZ,
+            e
+        ),
+    }
 }

@@ -12,6 +12,12 @@ pub const BOARD_TRAJECTORY_CAPACITY: usize = 8192;
 /// accept.
 pub const BOARD_MAX_STEP_RATE_HZ: u32 = 100_000;
 
+/// Steps per second of all joints together on the board: 8 joints x 500 kHz, about a
+/// third of the 400 MHz Cortex-M7 at the measured 29 instructions per step
+/// (scripts/step-cost; derivation in docs/PROTOCOL.md, "Step rate budget"). STATUS
+/// `step_budget_hz`; [`crate::Controller::set_step_budget_hz`] changes it.
+pub const BOARD_STEP_BUDGET_HZ: u32 = 4_000_000;
+
 /// Default RETURN speed limit of every joint, steps per second: a quarter of a 1.8 degree,
 /// 16-microstep motor's 5 rev/s, gentle enough for an arm returning blind.
 pub const DEFAULT_RETURN_SPEED: u32 = 4_000;

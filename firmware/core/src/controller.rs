@@ -306,6 +306,8 @@ pub struct Controller<const CAP: usize> {
     mac: [u8; 6],
     /// The network settings loaded at boot (the ones in use); NET_SET stores others.
     booted_net: NetSettings,
+    /// Steps per second of all joints together that points may ask for (0: no limit).
+    step_budget_hz: u32,
 }
 
 /// The boot value of every [`Controller`] field but the trajectory buffer, written once for
@@ -343,6 +345,7 @@ macro_rules! with_boot_fields {
         stopped_by_host: false,
         mac: [0; 6],
         booted_net: NetSettings::fixed([192, 168, 1, 30], 24, None),
+        step_budget_hz: crate::config::BOARD_STEP_BUDGET_HZ,
         )
     };
 }
@@ -436,6 +439,13 @@ impl<const CAP: usize> Controller<CAP> {
     /// it from the [`crate::hw::Gripper`] at start).
     pub fn set_pwm_timer_clock_hz(&mut self, hz: u32) {
         self.config.pwm_timer_clock_hz = hz;
+    }
+
+    /// Sets the steps per second of all joints together that points may ask for (STATUS
+    /// `step_budget_hz`; 0: no limit beyond the per-joint one). Boot default:
+    /// [`crate::config::BOARD_STEP_BUDGET_HZ`].
+    pub fn set_step_budget_hz(&mut self, hz: u32) {
+        self.step_budget_hz = hz;
     }
 
     /// The settings as they should be stored.
@@ -549,6 +559,7 @@ impl<const CAP: usize> Controller<CAP> {
             upload_period_us: self.upload_period_us,
             pwm_timer_clock_hz: self.config.pwm_timer_clock_hz,
             max_step_rate_hz: self.config.max_step_rate_hz,
+            step_budget_hz: self.step_budget_hz,
         }
     }
 
@@ -973,13 +984,16 @@ impl<const CAP: usize> Controller<CAP> {
 
     /// The stored form of `point` after `previous`, if it obeys section 5: for every joint
     /// in use, at most `max_step_rate_hz` steps per second and a step count that fits a
-    /// segment. Joints not in use keep their previous position.
+    /// segment, and all joints together at most `step_budget_hz` steps per second. Joints
+    /// not in use keep their previous position.
     fn admit(&self, previous: &[i32; MAX_JOINTS], point: &protocol::Point) -> Option<StoredPoint> {
         let duration = u32::try_from(point.duration).ok().filter(|d| *d >= 1)?;
         let joints = usize::from(self.settings.joints).min(MAX_JOINTS);
         let mut position = *previous;
+        let mut total_steps = 0u64;
         for (j, p) in position.iter_mut().enumerate().take(joints) {
             let steps = point.steps(previous, j).unsigned_abs();
+            total_steps += steps;
             // steps < 2^33 and duration < 2^31: both products fit u64.
             let too_fast =
                 steps * 1_000_000 > u64::from(self.config.max_step_rate_hz) * u64::from(duration);
@@ -987,6 +1001,11 @@ impl<const CAP: usize> Controller<CAP> {
                 return None;
             }
             *p = point.position[j];
+        }
+        // total_steps < 2^36: the product fits u64.
+        let budget = u64::from(self.step_budget_hz);
+        if budget > 0 && total_steps * 1_000_000 > budget * u64::from(duration) {
+            return None;
         }
         Some(StoredPoint {
             duration_us: duration,

@@ -82,6 +82,6 @@ pub use log_limit::{LogLimit, LogVerdict};
 pub use outgoing::{Outgoing, ReportEncoder};
 pub use plan::{ReturnPlan, plan_return};
 pub use tasks::{
-    Bus, Datagram, StepShared, TrajectoryHw, network_task, on_step_timer, serial_task, step_task,
-    trajectory_task, upload_task,
+    Bus, Datagram, StepBackend, StepProgress, StepShared, TrajectoryHw, network_task,
+    on_step_timer, serial_task, step_task, trajectory_task, upload_task,
 };

@@ -265,11 +265,68 @@ impl StepPins for NoPins {
     fn step_low(&mut self, _joints: arm_step::JointMask) {}
 }
 
-/// The step engine and what the interrupt reports to the tasks, behind one critical
+/// What the tasks need from whatever makes the step pulses: [`StepEngine`] (edges made by
+/// an interrupt; the simulator) or the DMA streams' producer (the board). Called inside
+/// [`StepShared`]'s critical section: implementations must not block.
+pub trait StepBackend {
+    /// Timer resolution and driver timing.
+    fn timing(&self) -> StepTiming;
+    /// Queues a segment; gives it back if the queue is full.
+    fn push(&mut self, segment: Segment) -> Result<(), Segment>;
+    /// Segments held.
+    fn queued(&self) -> usize;
+    /// Starts running the queue at `at_tick` (step timer ticks, [`StepKick::now_tick`]).
+    fn start(&mut self, at_tick: u64);
+    /// Emergency stop: no pulse after this returns (or, for an engine whose lines the
+    /// next interrupt lowers, after that interrupt); the queue is dropped; positions
+    /// keep the pulses made.
+    fn stop(&mut self);
+    /// Joint positions, steps.
+    fn positions(&self) -> [i32; MAX_JOINTS];
+    /// Overwrites the positions; refused (false) while running.
+    fn set_positions(&mut self, positions: [i32; MAX_JOINTS]) -> bool;
+}
+
+impl<const Q: usize> StepBackend for StepEngine<Q> {
+    fn timing(&self) -> StepTiming {
+        StepEngine::timing(self)
+    }
+    fn push(&mut self, segment: Segment) -> Result<(), Segment> {
+        StepEngine::push(self, segment)
+    }
+    fn queued(&self) -> usize {
+        StepEngine::queued(self)
+    }
+    fn start(&mut self, at_tick: u64) {
+        StepEngine::start(self, at_tick)
+    }
+    fn stop(&mut self) {
+        // The lines are lowered by the next interrupt (`lower_step_lines`).
+        StepEngine::stop(self, &mut NoPins)
+    }
+    fn positions(&self) -> [i32; MAX_JOINTS] {
+        StepEngine::positions(self)
+    }
+    fn set_positions(&mut self, positions: [i32; MAX_JOINTS]) -> bool {
+        StepEngine::set_positions(self, positions)
+    }
+}
+
+/// What a step interrupt reports to the tasks.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct StepProgress {
+    /// Segments finished (their slots are free).
+    pub segments_finished: u32,
+    /// The run is over: every pulse was made and the last segment ended.
+    pub ran_dry: bool,
+}
+
+/// The step backend and what the interrupts report to the tasks, behind one critical
 /// section mutex.
-pub struct StepState<const Q: usize> {
-    /// The engine.
-    pub engine: StepEngine<Q>,
+pub struct StepState<B> {
+    /// The engine (or other backend).
+    pub engine: B,
     /// Emergency stops so far: segments cut before the last stop are stale.
     generation: u32,
     /// Segments finished since the trajectory task last collected.
@@ -296,19 +353,27 @@ pub enum PushOutcome {
     Full,
 }
 
-/// The step engine shared between the step timer interrupt and the tasks:
-/// `Mutex<CriticalSectionRawMutex, RefCell<..>>` around the engine plus the bookkeeping
-/// that must change atomically with it (stop count, finished segments, ran dry).
-pub struct StepShared<const Q: usize> {
-    inner: Mutex<Cs, RefCell<StepState<Q>>>,
+/// The step engine (or other [`StepBackend`]) shared between the step interrupts and the
+/// tasks: `Mutex<CriticalSectionRawMutex, RefCell<..>>` around it plus the bookkeeping
+/// that must change atomically with it (stop count, finished segments, ran dry). `Q`:
+/// the engine's queue when the backend is the default [`StepEngine`].
+pub struct StepShared<const Q: usize, B = StepEngine<Q>> {
+    inner: Mutex<Cs, RefCell<StepState<B>>>,
 }
 
 impl<const Q: usize> StepShared<Q> {
     /// An idle engine with this timing.
     pub const fn new(timing: StepTiming) -> Self {
+        Self::with_backend(StepEngine::new(timing))
+    }
+}
+
+impl<const Q: usize, B: StepBackend> StepShared<Q, B> {
+    /// Shares `backend` (idle).
+    pub const fn with_backend(backend: B) -> Self {
         StepShared {
             inner: Mutex::new(RefCell::new(StepState {
-                engine: StepEngine::new(timing),
+                engine: backend,
                 generation: 0,
                 finished: 0,
                 ran_dry: false,
@@ -318,9 +383,31 @@ impl<const Q: usize> StepShared<Q> {
         }
     }
 
-    /// Runs `f` on the engine inside the critical section (inspection, simulators).
-    pub fn with_engine<R>(&self, f: impl FnOnce(&mut StepEngine<Q>) -> R) -> R {
+    /// Runs `f` on the backend inside the critical section (inspection, simulators).
+    pub fn with_engine<R>(&self, f: impl FnOnce(&mut B) -> R) -> R {
         self.inner.lock(|s| f(&mut s.borrow_mut().engine))
+    }
+
+    /// The body of a step interrupt other than the engine's timer (the board's DMA
+    /// refills and run end): runs `f` on the backend in the critical section, records the
+    /// progress it reports and wakes `wake` (the bus's `step_wake`) if there is any.
+    /// Nothing is recorded for a run cut by a stop in the meantime (the caller's `f`
+    /// sees the stopped backend).
+    pub fn on_interrupt<R>(
+        &self,
+        wake: &Signal<Cs, ()>,
+        f: impl FnOnce(&mut B) -> (R, StepProgress),
+    ) -> R {
+        self.inner.lock(|s| {
+            let mut s = s.borrow_mut();
+            let (r, progress) = f(&mut s.engine);
+            if progress.segments_finished > 0 || progress.ran_dry {
+                s.finished = s.finished.saturating_add(progress.segments_finished);
+                s.ran_dry |= progress.ran_dry;
+                wake.signal(());
+            }
+            r
+        })
     }
 
     /// The engine's timing.
@@ -349,7 +436,7 @@ impl<const Q: usize> StepShared<Q> {
     pub fn stop(&self) {
         self.inner.lock(|s| {
             let mut s = s.borrow_mut();
-            s.engine.stop(&mut NoPins);
+            s.engine.stop();
             s.generation = s.generation.wrapping_add(1);
             s.finished = 0;
             s.ran_dry = false;
@@ -399,7 +486,9 @@ impl<const Q: usize> StepShared<Q> {
             progress
         })
     }
+}
 
+impl<const Q: usize> StepShared<Q> {
     /// The body of the step timer interrupt, see [`on_step_timer`].
     pub fn on_timer(
         &self,
@@ -440,9 +529,9 @@ pub fn on_step_timer<const Q: usize>(
 /// Moves segments from `bus.segments` into the engine as its queue frees up, starts a
 /// pending run with the first one, kicks the step timer, and tells the trajectory task
 /// when segments finished (relayed from the interrupt) or the segment channel has room.
-pub async fn step_task<const Q: usize, K: StepKick>(
+pub async fn step_task<const Q: usize, B: StepBackend, K: StepKick>(
     bus: &Bus,
-    step: &StepShared<Q>,
+    step: &StepShared<Q, B>,
     kick: &K,
 ) -> ! {
     let lead = us_to_ticks(u64::from(START_LEAD_US), step.timing().tick_hz);
@@ -540,9 +629,9 @@ pub async fn network_task<D: Datagrams, C: Clock>(socket: &D, bus: &Bus, clock: 
 /// upload period while reports are on and an owner exists. The period restarts when the
 /// trajectory task changes it. (LOCATION reports on state changes are sent by the
 /// trajectory task itself, with the state of that instant.)
-pub async fn upload_task<const Q: usize, C: Clock>(
+pub async fn upload_task<const Q: usize, B: StepBackend, C: Clock>(
     bus: &Bus,
-    step: &StepShared<Q>,
+    step: &StepShared<Q, B>,
     clock: &C,
 ) -> ! {
     let mut next = clock.now_us();
@@ -651,9 +740,9 @@ pub struct TrajectoryHw<'a, K, O, G, P, S, E> {
 }
 
 /// [`Plant`] over the shared engine and the hardware.
-struct TaskPlant<'a, const Q: usize, K, O, G, P> {
+struct TaskPlant<'a, const Q: usize, B, K, O, G, P> {
     bus: &'a Bus,
-    step: &'a StepShared<Q>,
+    step: &'a StepShared<Q, B>,
     kick: &'a K,
     lead_ticks: u64,
     outputs: &'a mut O,
@@ -661,8 +750,8 @@ struct TaskPlant<'a, const Q: usize, K, O, G, P> {
     serial: &'a P,
 }
 
-impl<const Q: usize, K: StepKick, O: Outputs, G: Gripper, P: SerialPort> Plant
-    for TaskPlant<'_, Q, K, O, G, P>
+impl<const Q: usize, B: StepBackend, K: StepKick, O: Outputs, G: Gripper, P: SerialPort> Plant
+    for TaskPlant<'_, Q, B, K, O, G, P>
 {
     fn positions(&self) -> [i32; MAX_JOINTS] {
         self.step.positions()
@@ -727,14 +816,15 @@ impl<const Q: usize, K: StepKick, O: Outputs, G: Gripper, P: SerialPort> Plant
 /// task and ends runs when the engine runs dry. At start: loads the stored settings,
 /// takes the gripper timer clock for STATUS, and drives the ENABLE lines to their boot
 /// state (all holding).
-pub async fn trajectory_task<const CAP: usize, const Q: usize, C, K, O, G, P, S, E>(
+pub async fn trajectory_task<const CAP: usize, const Q: usize, B, C, K, O, G, P, S, E>(
     controller: &mut Controller<CAP>,
     bus: &Bus,
-    step: &StepShared<Q>,
+    step: &StepShared<Q, B>,
     clock: &C,
     hw: TrajectoryHw<'_, K, O, G, P, S, E>,
 ) -> !
 where
+    B: StepBackend,
     C: Clock,
     K: StepKick,
     O: Outputs,

@@ -718,7 +718,9 @@ fn status_report_bytes_at_their_offsets() {
     assert_eq!(&d[24..28], &clock.to_le_bytes());
     let rate = s.controller.config().max_step_rate_hz;
     assert_eq!(&d[28..32], &rate.to_le_bytes());
-    assert_eq!(&d[32..36], &[0; 4]);
+    // Offset 32: the step rate budget of all joints together (issue 8).
+    let budget = arm_core::config::BOARD_STEP_BUDGET_HZ;
+    assert_eq!(&d[32..36], &budget.to_le_bytes(), "step budget");
 }
 
 #[test]

@@ -74,6 +74,7 @@ const TIMING: StepTiming = StepTiming {
     tick_hz: 1_000_000,
     pulse_width_ticks: 2,
     dir_setup_ticks: 1,
+    step_low_ticks: 1,
 };
 
 /// A controller with a 32-point buffer.

@@ -29,11 +29,13 @@ pub const STEP_QUEUE: usize = 64;
 /// SYSCLK cycles per microsecond.
 const CYCLES_PER_US: u32 = SYSCLK_HZ / 1_000_000;
 
-/// Driver timing as on the NUCLEO: 2.5 us STEP high time, 5 us DIR setup.
+/// Driver timing as the NUCLEO's default (opto-isolated drivers): 2.5 us STEP high,
+/// 2.5 us low, 5 us DIR setup.
 pub const STEP_TIMING: StepTiming = StepTiming {
     tick_hz: SYSCLK_HZ,
     pulse_width_ticks: 5 * CYCLES_PER_US / 2,
     dir_setup_ticks: 5 * CYCLES_PER_US,
+    step_low_ticks: 5 * CYCLES_PER_US / 2,
 };
 
 // The driver timing must leave room for the controller's advertised step rate.

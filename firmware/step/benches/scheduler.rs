@@ -4,7 +4,10 @@
 
 use std::hint::black_box;
 
-use arm_step::{JointMask, MAX_JOINTS, Segment, StepEngine, StepPins, StepTiming};
+use arm_step::{
+    JointBuffer, JointMask, MAX_JOINTS, PRELUDE, PulsePeriod, Segment, StepEngine, StepPins,
+    StepStreams, StepTiming,
+};
 use criterion::{BatchSize, Criterion, Throughput, criterion_group, criterion_main};
 
 /// Segments per run: all held at once so that the run measures `poll` alone.
@@ -30,6 +33,7 @@ const TIMING: StepTiming = StepTiming {
     tick_hz: 10_000_000,
     pulse_width_ticks: 20,
     dir_setup_ticks: 50,
+    step_low_ticks: 20,
 };
 
 /// 1 ms segments, direction reversing each segment, `steps[j]` pulses per joint.
@@ -69,6 +73,62 @@ fn run(mut engine: StepEngine<SEGMENTS>) -> [i32; MAX_JOINTS] {
     engine.positions()
 }
 
+/// Periods per DMA buffer half, as on the board.
+const HALF: usize = 64;
+
+/// The board's timer ranges: two 32-bit timers, six 16-bit ones.
+const MAX_PERIOD: [u32; MAX_JOINTS] = [
+    u32::MAX,
+    u32::MAX,
+    1 << 16,
+    1 << 16,
+    1 << 16,
+    1 << 16,
+    1 << 16,
+    1 << 16,
+];
+
+/// The producer with every segment queued, and the buffers it fills.
+struct Producing {
+    streams: Box<StepStreams<SEGMENTS, HALF>>,
+    buffers: Box<[JointBuffer<HALF>; MAX_JOINTS]>,
+}
+
+fn producing(segments: &[Segment]) -> Producing {
+    let mut streams = Box::new(StepStreams::new(TIMING, MAX_PERIOD));
+    for segment in segments {
+        assert!(streams.producer().push(*segment).is_ok());
+    }
+    Producing {
+        streams,
+        buffers: Box::new([JointBuffer::ZERO; MAX_JOINTS]),
+    }
+}
+
+/// The board's step path without the hardware: prime, then refill every joint's halves
+/// in turn until every pulse is written (the DMA interrupts' work, in a fixed order).
+fn produce(mut p: Producing) -> [i32; MAX_JOINTS] {
+    let mut prelude = [[PulsePeriod::ZERO; PRELUDE]; MAX_JOINTS];
+    {
+        let [b0, b1, b2, b3, b4, b5, b6, b7] = &mut *p.buffers;
+        p.streams
+            .prime(1_000, &mut prelude, &mut [b0, b1, b2, b3, b4, b5, b6, b7]);
+    }
+    let mut half = 0;
+    while p.streams.producer_ref().run_end_tick().is_none() {
+        for (joint, buffer) in p.buffers.iter_mut().enumerate() {
+            black_box(p.streams.refill(joint, half, &mut buffer.periods[half]));
+        }
+        half ^= 1;
+    }
+    // Close every joint's last pulse period.
+    for (joint, buffer) in p.buffers.iter_mut().enumerate() {
+        p.streams.refill(joint, half, &mut buffer.periods[half]);
+    }
+    p.streams.producer().end_run();
+    p.streams.producer_ref().positions()
+}
+
 fn bench(c: &mut Criterion) {
     let cases: [(&str, [i32; MAX_JOINTS]); 3] = [
         ("1 joint", [100, 0, 0, 0, 0, 0, 0, 0]),
@@ -92,6 +152,22 @@ fn bench(c: &mut Criterion) {
         group.throughput(Throughput::Elements(total));
         group.bench_function(name, |b| {
             b.iter_batched(|| loaded(&segments), run, BatchSize::SmallInput)
+        });
+    }
+    group.finish();
+
+    let mut group = c.benchmark_group("producer per step");
+    for (name, steps) in cases {
+        let segments = trajectory(steps);
+        let total: u64 = segments
+            .iter()
+            .flat_map(|s| s.steps)
+            .map(|n| u64::from(n.unsigned_abs()))
+            .sum();
+        assert_eq!(produce(producing(&segments)), [0; MAX_JOINTS]);
+        group.throughput(Throughput::Elements(total));
+        group.bench_function(name, |b| {
+            b.iter_batched(|| producing(&segments), produce, BatchSize::SmallInput)
         });
     }
     group.finish();

@@ -34,18 +34,26 @@ impl Iterator for Joints {
 /// pushed since the run began, kept as whole seconds plus microseconds so that converting
 /// it to ticks never overflows and never rounds twice.
 #[derive(Clone, Copy, Debug, Default)]
-struct QueueEnd {
+pub(crate) struct QueueEnd {
     seconds: u64,
     micros: u32,
     /// `floor(cum_us * tick_hz / 1e6)`.
-    tick: u64,
+    pub tick: u64,
     /// `(cum_us * tick_hz) mod 1e6`.
-    frac: u32,
+    pub frac: u32,
 }
 
 impl QueueEnd {
+    /// The start of a run's timeline.
+    pub(crate) const ZERO: QueueEnd = QueueEnd {
+        seconds: 0,
+        micros: 0,
+        tick: 0,
+        frac: 0,
+    };
+
     /// The end after one more segment of `duration_us`.
-    fn after(self, duration_us: u32, tick_hz: u64) -> Self {
+    pub(crate) fn after(self, duration_us: u32, tick_hz: u64) -> Self {
         let micros = u64::from(self.micros) + u64::from(duration_us);
         let seconds = self.seconds + micros / US_PER_S;
         let micros = micros % US_PER_S;
@@ -76,6 +84,8 @@ pub struct StepEngine<const QUEUE: usize> {
     timing: StepTiming,
     /// STEP high time, ticks (at least one).
     pulse_ticks: u64,
+    /// Least STEP low time, ticks (at least one).
+    low_ticks: u64,
     /// Least time from a DIR change to the next rising edge, ticks.
     setup_ticks: u64,
     tick_hz: u64,
@@ -114,6 +124,7 @@ impl<const QUEUE: usize> StepEngine<QUEUE> {
         Self {
             timing,
             pulse_ticks: timing.pulse_ticks() as u64,
+            low_ticks: timing.low_ticks() as u64,
             setup_ticks: timing.dir_setup_ticks as u64,
             tick_hz: timing.tick_hz as u64,
             ring: SegmentRing::new(),
@@ -366,7 +377,7 @@ impl<const QUEUE: usize> StepEngine<QUEUE> {
         let Some(joint) = self.joints.get_mut(j) else {
             return;
         };
-        joint.earliest = now + 1;
+        joint.earliest = now + self.low_ticks;
         if joint.remaining > 0 {
             self.edges.set(j, joint.next_rise(&mut self.late_pulses));
             return;

@@ -10,6 +10,9 @@ fn timing(tick_hz: u32, pulse_width_ticks: u32, dir_setup_ticks: u32) -> StepTim
         tick_hz,
         pulse_width_ticks,
         dir_setup_ticks,
+        // Room for the DIR setup between any two pulses: trajectories at the max rate
+        // reverse on time too.
+        step_low_ticks: dir_setup_ticks,
     }
 }
 
@@ -218,7 +221,11 @@ fn direction_changes_only_while_low_and_before_setup() {
 #[test]
 fn too_short_dir_setup_delays_pulses_never_drops_them() {
     // 10 pulses 10 ticks apart, then 10 back: the turn-around needs 100 ticks of setup.
-    let timing = timing(1_000_000, 2, 100);
+    // A driver that needs one tick low between pulses.
+    let timing = StepTiming {
+        step_low_ticks: 1,
+        ..timing(1_000_000, 2, 100)
+    };
     let segments = [one_joint(100, 0, 10), one_joint(100, 0, -10)];
     let start = 1_000;
     let (engine, pins, outcome) = run_all::<4>(timing, &segments, start, 200);
@@ -563,14 +570,27 @@ fn zero_step_segments_poll_only_at_their_ends() {
 }
 
 #[test]
-fn max_step_rate_leaves_room_for_width_and_setup() {
-    let timing = timing(10_000_000, 20, 50);
-    assert_eq!(timing.min_pulse_period_ticks(), 70);
-    assert_eq!(timing.max_step_rate_hz(), 142_857);
+fn max_step_rate_leaves_room_for_width_and_low_time() {
+    // The DIR setup does not limit the rate: it is waited for after a change only.
+    let timing = StepTiming {
+        step_low_ticks: 30,
+        ..timing(10_000_000, 20, 50)
+    };
+    assert_eq!(timing.min_pulse_period_ticks(), 50);
+    assert_eq!(timing.max_step_rate_hz(), 200_000);
+    // TMC-class timing at 200 MHz: 100 ns high, 100 ns low.
+    let tmc = StepTiming {
+        tick_hz: 200_000_000,
+        pulse_width_ticks: 20,
+        dir_setup_ticks: 4,
+        step_low_ticks: 20,
+    };
+    assert_eq!(tmc.max_step_rate_hz(), 5_000_000);
     let zero = StepTiming {
         tick_hz: 1_000_000,
         pulse_width_ticks: 0,
         dir_setup_ticks: 0,
+        step_low_ticks: 0,
     };
     assert_eq!(zero.min_pulse_period_ticks(), 2);
     assert_eq!(zero.max_step_rate_hz(), 500_000);

@@ -21,6 +21,9 @@ fn timing_strategy() -> impl Strategy<Value = StepTiming> {
             tick_hz,
             pulse_width_ticks,
             dir_setup_ticks,
+            // Room for the DIR setup between any two pulses: at the max rate even
+            // reversals are on time.
+            step_low_ticks: dir_setup_ticks,
         }
     })
 }

@@ -1,0 +1,340 @@
+//! [`StepStreams`]: the producer with every joint's double-buffered DMA buffer, and the
+//! work the half/complete interrupt of a joint's stream does ([`StepStreams::refill`]).
+//!
+//! Each joint's DMA stream plays `periods` circularly: half 0, then half 1, then half 0
+//! again. When a half has been handed to the timer, the stream's interrupt refills it
+//! with the next periods while the other half plays. Before a run starts,
+//! [`StepStreams::prime`] fills the two periods the timer's registers take directly and
+//! both halves. The pulses' directions are marked beside the periods (`signs`, not read
+//! by the DMA), so that a stop can take back exactly the pulses that were written but not
+//! played ([`StepStreams::unwind`]).
+//!
+//! The DIR changes the producer hands out wait in a small queue per joint
+//! ([`StepStreams::next_dir_change`]) for whoever makes them at their tick (on the board
+//! a compare interrupt, one per reversal).
+//!
+//! Hardware-independent: the board and sim-host own the registers; the step-cost script
+//! runs `refill` under QEMU to count its instructions per step.
+
+use crate::producer::{PulsePeriod, PulseProducer, sign_of};
+use crate::{MAX_JOINTS, StepTiming};
+
+/// Periods the timer's registers take before the DMA starts: the first period goes into
+/// the active registers (through an update event), the second into the preload ones.
+pub const PRELUDE: usize = 2;
+
+/// DIR changes a joint can have waiting: one per pulse at most, and the producer is at
+/// most two halves (plus the prelude) ahead of the hardware.
+const fn dir_queue_len(half: usize) -> usize {
+    2 * half + PRELUDE + 2
+}
+
+/// DIR ring capacity: enough for halves of up to 64 periods.
+const DIR_RING: usize = dir_queue_len(64);
+
+/// A DIR change to make at `tick` (stream ticks).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct DirChange {
+    /// When, in ticks since the streams started.
+    pub tick: u64,
+    /// The level: true = positive steps.
+    pub positive: bool,
+}
+
+/// One joint's DMA buffer: `2 * HALF` periods, played circularly. Lives where the DMA
+/// can read it (on the H7: AXI SRAM or SRAM1-3, never DTCM).
+#[repr(C, align(32))]
+#[derive(Debug)]
+pub struct JointBuffer<const HALF: usize> {
+    /// Half 0, then half 1.
+    pub periods: [[PulsePeriod; HALF]; 2],
+}
+
+impl<const HALF: usize> JointBuffer<HALF> {
+    /// Zeroed (so that a static of these goes to .bss, not flash).
+    pub const ZERO: Self = JointBuffer {
+        periods: [[PulsePeriod::ZERO; HALF]; 2],
+    };
+}
+
+/// What one refill found.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Refill {
+    /// Segments every joint has now gone through.
+    pub segments_finished: u32,
+    /// A DIR queue overflowed: the run must stop (cannot happen with the queue sized as
+    /// above; checked rather than assumed).
+    pub dir_overflow: bool,
+}
+
+/// One joint's DIR changes waiting to be made, oldest first: the tick, with the level in
+/// bit 63 (8 bytes each; ticks never reach 2^63).
+#[derive(Clone, Copy, Debug)]
+struct DirRing {
+    changes: [u64; DIR_RING],
+    head: usize,
+    len: usize,
+}
+
+/// Bit of a packed DIR change that holds the level.
+const DIR_LEVEL: u64 = 1 << 63;
+
+impl DirRing {
+    const EMPTY: DirRing = DirRing {
+        changes: [0; DIR_RING],
+        head: 0,
+        len: 0,
+    };
+
+    /// Queues a change; false if full.
+    fn push(&mut self, tick: u64, positive: bool) -> bool {
+        if self.len >= DIR_RING {
+            return false;
+        }
+        let at = (self.head + self.len) % DIR_RING;
+        self.changes[at] = (tick & !DIR_LEVEL) | if positive { DIR_LEVEL } else { 0 };
+        self.len += 1;
+        true
+    }
+}
+
+/// The producer and every joint's buffer bookkeeping. `Q` = segments held, `HALF` =
+/// periods per buffer half.
+#[derive(Debug)]
+pub struct StepStreams<const Q: usize, const HALF: usize> {
+    producer: PulseProducer<Q>,
+    /// Direction marks of each half's pulses, per joint (see [`PulseProducer::fill`]).
+    signs: [[[i8; HALF]; 2]; MAX_JOINTS],
+    /// The prelude's pulses: their position change, per joint.
+    prelude_deltas: [[i8; PRELUDE]; MAX_JOINTS],
+    /// The prelude's periods, per joint (for `unwind`).
+    prelude: [[PulsePeriod; PRELUDE]; MAX_JOINTS],
+    /// The idle period each half holds throughout, if it does (then an idle joint's
+    /// refill that would write the same writes nothing), per joint.
+    half_idle: [[Option<u32>; 2]; MAX_JOINTS],
+    /// Whether only the first sign mark of each half can be set (it was last filled by one
+    /// straight cruise), per joint: then a cruise refill need not clear the others.
+    marks_clean: [[bool; 2]; MAX_JOINTS],
+    /// Position change of the last period of each half, per joint.
+    last_sign: [[i8; 2]; MAX_JOINTS],
+    /// Position change of the last period a half held before its latest refill wrote over
+    /// it, per joint: that period may still be in the timer's preload register.
+    evicted: [[i8; 2]; MAX_JOINTS],
+    dirs: [DirRing; MAX_JOINTS],
+}
+
+impl<const Q: usize, const HALF: usize> StepStreams<Q, HALF> {
+    const FITS: () = assert!(dir_queue_len(HALF) <= DIR_RING && HALF > 0);
+
+    /// Idle streams.
+    pub const fn new(timing: StepTiming, max_period_ticks: [u32; MAX_JOINTS]) -> Self {
+        let () = Self::FITS;
+        StepStreams {
+            producer: PulseProducer::new(timing, max_period_ticks),
+            signs: [[[0; HALF]; 2]; MAX_JOINTS],
+            prelude_deltas: [[0; PRELUDE]; MAX_JOINTS],
+            prelude: [[PulsePeriod::ZERO; PRELUDE]; MAX_JOINTS],
+            half_idle: [[None; 2]; MAX_JOINTS],
+            marks_clean: [[false; 2]; MAX_JOINTS],
+            last_sign: [[0; 2]; MAX_JOINTS],
+            evicted: [[0; 2]; MAX_JOINTS],
+            dirs: [DirRing::EMPTY; MAX_JOINTS],
+        }
+    }
+
+    /// The producer (push segments, positions, stop).
+    pub fn producer(&mut self) -> &mut PulseProducer<Q> {
+        &mut self.producer
+    }
+
+    /// The producer, read-only.
+    pub fn producer_ref(&self) -> &PulseProducer<Q> {
+        &self.producer
+    }
+
+    /// Starts a run: segments from `at_tick`, streams from tick 0 (the timers' start).
+    /// Fills `prelude[j]` (for joint `j`'s timer registers) and both halves of `buffers[j]`.
+    /// The DIR changes at tick 0 are queued like the others: make them before starting
+    /// the timers.
+    pub fn prime(
+        &mut self,
+        at_tick: u64,
+        prelude: &mut [[PulsePeriod; PRELUDE]; MAX_JOINTS],
+        buffers: &mut [&mut JointBuffer<HALF>; MAX_JOINTS],
+    ) -> Refill {
+        for dirs in &mut self.dirs {
+            dirs.len = 0;
+        }
+        self.producer.start_new_clock(at_tick);
+        let mut outcome = Refill::default();
+        for (joint, (prelude, buffer)) in prelude.iter_mut().zip(buffers.iter_mut()).enumerate() {
+            let dirs = &mut self.dirs[joint];
+            let mut overflow = false;
+            let mut signs = [0i8; PRELUDE];
+            let filled = self
+                .producer
+                .fill(joint, prelude, &mut signs, &mut |tick, positive| {
+                    overflow |= !dirs.push(tick, positive)
+                });
+            for (delta, sign) in self.prelude_deltas[joint]
+                .iter_mut()
+                .zip(sign_of(prelude, &signs, 1))
+            {
+                *delta = sign;
+            }
+            self.prelude[joint] = *prelude;
+            outcome.segments_finished += filled.segments_finished;
+            outcome.dir_overflow |= overflow;
+            for (half, periods) in buffer.periods.iter_mut().enumerate() {
+                let r = self.refill(joint, half, periods);
+                outcome.segments_finished += r.segments_finished;
+                outcome.dir_overflow |= r.dir_overflow;
+            }
+        }
+        outcome
+    }
+
+    /// Refills `half` (0 or 1) of `joint`'s buffer (`periods`: that half) once the DMA has
+    /// moved on to the other half: the body of the stream's half/complete interrupt.
+    #[inline]
+    pub fn refill(
+        &mut self,
+        joint: usize,
+        half: usize,
+        periods: &mut [PulsePeriod; HALF],
+    ) -> Refill {
+        let j = joint & (MAX_JOINTS - 1);
+        let h = half & 1;
+        self.evicted[j][h] = self.last_sign[j][h];
+        if let Some(period) = self.producer.idle_period(j)
+            && self.half_idle[j][h] == Some(period)
+        {
+            // An idle joint, and this half already holds its idle periods.
+            self.producer.skip_idle(j, HALF, period);
+            self.last_sign[j][h] = 0;
+            return Refill::default();
+        }
+        let dirs = &mut self.dirs[j];
+        let mut overflow = false;
+        let signs = &mut self.signs[j][h];
+        let cruise = self.producer.will_cruise(j, HALF);
+        if !(cruise && self.marks_clean[j][h]) {
+            *signs = [0; HALF];
+        }
+        self.marks_clean[j][h] = cruise;
+        let filled = self
+            .producer
+            .fill(j, periods, signs, &mut |tick, positive| {
+                overflow |= !dirs.push(tick, positive)
+            });
+        self.half_idle[j][h] = filled.uniform_idle;
+        self.last_sign[j][h] = filled.last_sign;
+        Refill {
+            segments_finished: filled.segments_finished,
+            dir_overflow: overflow,
+        }
+    }
+
+    /// The oldest DIR change of `joint` not made yet.
+    pub fn next_dir_change(&self, joint: usize) -> Option<DirChange> {
+        let dirs = self.dirs.get(joint)?;
+        (dirs.len > 0).then(|| {
+            let packed = dirs.changes[dirs.head];
+            DirChange {
+                tick: packed & !DIR_LEVEL,
+                positive: packed & DIR_LEVEL != 0,
+            }
+        })
+    }
+
+    /// Drops the oldest DIR change of `joint` (made).
+    pub fn pop_dir_change(&mut self, joint: usize) {
+        if let Some(dirs) = self.dirs.get_mut(joint)
+            && dirs.len > 0
+        {
+            dirs.head = (dirs.head + 1) % DIR_RING;
+            dirs.len -= 1;
+        }
+    }
+
+    /// After a stop: takes back the pulses written for `joint` but never played
+    /// ([`StepStreams::unplayed_steps`]).
+    pub fn unwind(
+        &mut self,
+        joint: usize,
+        periods: &JointBuffer<HALF>,
+        first_unplayed: Option<usize>,
+        other_half_played: bool,
+    ) {
+        let steps = self.unplayed_steps(joint, periods, first_unplayed, other_half_played);
+        self.producer.unwind(joint & (MAX_JOINTS - 1), steps);
+    }
+
+    /// Like [`StepStreams::unwind`] when the first unplayed period is the last of its half
+    /// and that half has been refilled since the DMA read it (the period lives on only in
+    /// the timer's preload register): takes back that period's pulse and both halves.
+    pub fn unwind_evicted(&mut self, joint: usize, periods: &JointBuffer<HALF>, half: usize) {
+        let steps = self.unplayed_evicted(joint, periods, half);
+        self.producer.unwind(joint & (MAX_JOINTS - 1), steps);
+    }
+
+    /// The unplayed pulses in the case of [`StepStreams::unwind_evicted`].
+    pub fn unplayed_evicted(&self, joint: usize, periods: &JointBuffer<HALF>, half: usize) -> i32 {
+        let j = joint & (MAX_JOINTS - 1);
+        let h = half & 1;
+        // Both halves hold periods after it: the other half's (refilled before) and this
+        // half's new ones.
+        i32::from(self.evicted[j][h]) + self.unplayed_steps(j, periods, Some(0), false)
+    }
+
+    /// The signed pulses written for `joint` (in `periods`, its buffer) that have not
+    /// started yet: the producer's positions minus these are the motors' positions.
+    /// `first_unplayed`: buffer index (0..2*HALF) of the first period that has not
+    /// started, or `None` if the second prelude period has not either (the DMA has not
+    /// transferred anything). The rest of that period's half is unplayed, and so is the
+    /// other half unless `other_half_played` (its refill interrupt is still pending: it
+    /// holds periods that already played).
+    pub fn unplayed_steps(
+        &self,
+        joint: usize,
+        periods: &JointBuffer<HALF>,
+        first_unplayed: Option<usize>,
+        other_half_played: bool,
+    ) -> i32 {
+        let j = joint & (MAX_JOINTS - 1);
+        let signs = &self.signs[j];
+        // Signed pulses of half `h` from period `from` on. Every half's first pulse is
+        // marked, so the sign before `from` is the last mark before it.
+        let sum = |h: usize, from: usize| {
+            let start = signs[h][..from].iter().rev().find(|&&m| m != 0).copied();
+            sign_of(
+                &periods.periods[h][from..],
+                &signs[h][from..],
+                start.unwrap_or(1),
+            )
+            .map(i32::from)
+            .sum::<i32>()
+        };
+        match first_unplayed {
+            None => i32::from(self.prelude_deltas[j][PRELUDE - 1]) + sum(0, 0) + sum(1, 0),
+            Some(index) => {
+                let index = index % (2 * HALF);
+                let (h, i) = (index / HALF, index % HALF);
+                if other_half_played {
+                    sum(h, i)
+                } else {
+                    sum(h, i) + sum(1 - h, 0)
+                }
+            }
+        }
+    }
+
+    /// Drops every queued DIR change (after a stop).
+    pub fn clear_dir_changes(&mut self) {
+        for dirs in &mut self.dirs {
+            dirs.len = 0;
+        }
+    }
+}

@@ -1,0 +1,349 @@
+//! The pulse-time producer against the step engine (the oracle): for random trajectories
+//! (direction changes, idle joints, pulses too close together to be on time, segments of
+//! any length), random driver timing and tick rates (200 MHz, 10 MHz, odd ones), random
+//! timer ranges (32-bit, 16-bit, tiny ones that force gap splitting) and random buffer
+//! halves, every joint's rising edges, falling edges and DIR changes must be identical,
+//! as must the late-pulse count and the positions.
+//!
+//! `producer_matches_engine_on_10m_pulses` runs seeded cases until at least
+//! `STEP_EQ_PULSES` pulses (default 10,000,000) were compared; arm-step is built with
+//! opt-level 3 in the dev profile (workspace Cargo.toml) so that this takes seconds under
+//! plain `cargo test`. `STEP_EQ_SEED` picks another seed; a failure prints the case's seed.
+
+mod common;
+
+use arm_step::{MAX_JOINTS, PulsePeriod, PulseProducer, Segment, StepEngine, StepTiming, sign_of};
+use common::Recorder;
+use proptest::prelude::*;
+
+/// Segments held by both: every segment of a run is queued before it starts, so that the
+/// engine's wait-for-push timing (which depends on when its owner pushes) stays out.
+const QUEUE: usize = 64;
+
+/// One joint's line changes: (tick, what).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Line {
+    Rise(u64),
+    Fall(u64),
+    Dir(u64, bool),
+}
+
+/// A random case.
+#[derive(Clone, Debug)]
+struct Case {
+    timing: StepTiming,
+    max_period: [u32; MAX_JOINTS],
+    /// Runs one after the other: (segments, start tick, ticks from stream start to it).
+    runs: Vec<(Vec<Segment>, u64, u64)>,
+    /// Fill sizes, cycled.
+    halves: Vec<usize>,
+}
+
+/// xorshift64*.
+struct Rng(u64);
+
+impl Rng {
+    fn next(&mut self) -> u64 {
+        self.0 ^= self.0 >> 12;
+        self.0 ^= self.0 << 25;
+        self.0 ^= self.0 >> 27;
+        self.0.wrapping_mul(0x2545_f491_4f6c_dd1d)
+    }
+    fn below(&mut self, n: u64) -> u64 {
+        self.next() % n.max(1)
+    }
+    fn range(&mut self, lo: u64, hi: u64) -> u64 {
+        lo + self.below(hi - lo + 1)
+    }
+}
+
+fn random_case(rng: &mut Rng) -> Case {
+    let tick_hz = match rng.below(7) {
+        0 => 200_000_000,
+        1 => 10_000_000,
+        2 => 2_999_999,
+        3 => 1_000_000,
+        4 => 48_000_000,
+        5 => 7_372_800,
+        _ => rng.range(1_000_000, 250_000_000) as u32,
+    };
+    let per_us = (tick_hz / 1_000_000).max(1);
+    let timing = StepTiming {
+        tick_hz,
+        pulse_width_ticks: rng.range(0, u64::from(3 * per_us)) as u32,
+        dir_setup_ticks: rng.range(0, u64::from(6 * per_us)) as u32,
+        step_low_ticks: rng.range(0, u64::from(3 * per_us)) as u32,
+    };
+    let max_period = core::array::from_fn(|_| match rng.below(4) {
+        0 => u32::MAX,
+        1 => 1 << 16,
+        2 => rng.range(2, 2_000) as u32,
+        _ => rng.range(500, 100_000) as u32,
+    });
+    let runs = (0..rng.range(1, 2))
+        .map(|_| {
+            let count = rng.range(1, QUEUE as u64) as usize;
+            // A rate scale per run: mostly reachable, sometimes far over the pins' limit.
+            // Many steps per segment (at odd tick rates the modulus then exceeds u32: the
+            // u64 path) in some runs.
+            let most_steps = if rng.below(16) == 0 { 20_000 } else { 600 };
+            let rate_cap = match rng.below(4) {
+                0 => 2_000_000u64,
+                1 => 1_000,
+                _ => u64::from(timing.max_step_rate_hz()),
+            };
+            let segments = (0..count)
+                .map(|_| {
+                    let duration_us = match rng.below(200) {
+                        // Longer than 2^31 ticks at the fast tick rates: the u64 path.
+                        0 => rng.range(5_000_000, 20_000_000),
+                        1..=25 => rng.range(1, 20),
+                        26..=50 => rng.range(20_000, 3_000_000),
+                        _ => rng.range(20, 3_000),
+                    } as u32;
+                    let max = (rate_cap * u64::from(duration_us) / 1_000_000).clamp(1, most_steps);
+                    let steps = core::array::from_fn(|_| match rng.below(5) {
+                        0 => 0,
+                        1 => max as i32,
+                        2 => -(max as i32),
+                        _ => rng.range(0, 2 * max) as i32 - max as i32,
+                    });
+                    Segment { duration_us, steps }
+                })
+                .collect::<Vec<_>>();
+            let lead = rng.range(0, 3 * u64::from(timing.dir_setup_ticks) + 2);
+            (segments, rng.range(lead, 1 << 40), lead)
+        })
+        .collect();
+    let halves = (0..rng.range(1, 4))
+        .map(|_| rng.range(1, 80) as usize)
+        .collect();
+    Case {
+        timing,
+        max_period,
+        runs,
+        halves,
+    }
+}
+
+/// Each joint's changes in time order; at one tick a fall, then a DIR change (made when
+/// the previous pulse falls), then a rise (a DIR setup of 0).
+fn sort_lines(lines: &mut [Vec<Line>]) {
+    for joint_lines in lines {
+        joint_lines.sort_by_key(|line| match *line {
+            Line::Fall(t) => (t, 0),
+            Line::Dir(t, _) => (t, 1),
+            Line::Rise(t) => (t, 2),
+        });
+    }
+}
+
+/// What a run of either gives: per joint line changes, late pulses, positions.
+type Lines = (Vec<Vec<Line>>, u32, [i32; MAX_JOINTS]);
+
+/// The engine's line changes per joint, its late pulses and positions, the tick at which
+/// each run started (each starts after the previous one ran dry) and where it ran dry.
+fn engine_lines(case: &Case) -> (Lines, Vec<u64>, Vec<u64>) {
+    let mut starts = Vec::new();
+    let mut ends = Vec::new();
+    let mut engine = StepEngine::<QUEUE>::new(case.timing);
+    let mut pins = Recorder::default();
+    let mut lines = vec![Vec::new(); MAX_JOINTS];
+    let mut last_end = 0;
+    for (segments, start, lead) in &case.runs {
+        let start = *start.max(&(last_end + lead));
+        starts.push(start);
+        for segment in segments {
+            assert!(engine.push(*segment).is_ok());
+        }
+        engine.start(start);
+        let mut now = start - lead;
+        loop {
+            pins.now = now;
+            let poll = engine.poll(now, &mut pins);
+            match poll.next_deadline {
+                Some(deadline) => now = deadline,
+                None => break,
+            }
+        }
+        ends.push(now);
+        last_end = now + 1;
+    }
+    for event in &pins.events {
+        let line = match event.edge {
+            common::Edge::Rise => Line::Rise(event.tick),
+            common::Edge::Fall => Line::Fall(event.tick),
+            common::Edge::Dir(level) => Line::Dir(event.tick, level),
+            common::Edge::Cut => unreachable!("no stop in these runs"),
+        };
+        lines[event.joint].push(line);
+    }
+    sort_lines(&mut lines);
+    (
+        (lines, engine.late_pulses(), engine.positions()),
+        starts,
+        ends,
+    )
+}
+
+/// The producer's line changes per joint (periods played back from each stream's start),
+/// its late pulses and positions; also checks that the buffers say what the positions say.
+fn producer_lines(case: &Case, run_starts: &[u64], run_ends: &[u64]) -> Lines {
+    let mut producer = PulseProducer::<QUEUE>::new(case.timing, case.max_period);
+    let mut lines: Vec<Vec<Line>> = vec![Vec::new(); MAX_JOINTS];
+    let mut periods = [PulsePeriod::ZERO; 80];
+    let mut deltas;
+    let mut fills = 0usize;
+    let mut moved = [0i32; MAX_JOINTS];
+    for (((segments, _, lead), &start), &end) in case.runs.iter().zip(run_starts).zip(run_ends) {
+        for segment in segments {
+            assert!(producer.push(*segment).is_ok());
+        }
+        let stream = start - lead;
+        producer.start(start, stream);
+        // Every joint is filled in turn, a half at a time, until it idles: its last pulse
+        // is written.
+        let mut at = [stream; MAX_JOINTS];
+        let mut done = [false; MAX_JOINTS];
+        let mut guard = 0;
+        while !done.iter().all(|&d| d) {
+            guard += 1;
+            assert!(guard < 10_000_000, "producer never drained");
+            for joint in 0..MAX_JOINTS {
+                if done[joint] {
+                    continue;
+                }
+                let half = case.halves[fills % case.halves.len()];
+                fills += 1;
+                let mut dirs = Vec::new();
+                deltas = [0; 80];
+                let filled = producer.fill(
+                    joint,
+                    &mut periods[..half],
+                    &mut deltas[..half],
+                    &mut |tick, positive| dirs.push(Line::Dir(tick, positive)),
+                );
+                let mut pulses = 0;
+                // Every fill marks its first pulse: the starting sign must not matter.
+                let signed: Vec<i8> = sign_of(&periods[..half], &deltas[..half], 0).collect();
+                for (period, &sign) in periods[..half].iter().zip(&signed) {
+                    assert!(period.high == 0 || u64::from(period.high) < period.ticks());
+                    assert!(period.ticks() <= u64::from(producer.max_period_ticks(joint)));
+                    assert_eq!(period.high != 0, sign != 0, "pulse without a sign");
+                    moved[joint] += i32::from(sign);
+                    if period.high != 0 {
+                        pulses += 1;
+                        lines[joint].push(Line::Rise(at[joint]));
+                        lines[joint].push(Line::Fall(at[joint] + u64::from(period.high)));
+                    }
+                    at[joint] += period.ticks();
+                }
+                lines[joint].extend(dirs);
+                assert_eq!(filled.pulses, pulses);
+                assert_eq!(filled.end_tick, at[joint]);
+                // Idle: every pulse of the run written (nothing more is pushed).
+                done[joint] = filled.idle;
+            }
+        }
+        assert!(producer.drained());
+        assert_eq!(
+            producer.run_end_tick(),
+            Some(end),
+            "the run ends where the engine ran dry"
+        );
+        producer.end_run();
+        assert!(!producer.is_running());
+        assert_eq!(
+            moved,
+            producer.positions(),
+            "signs marked beside the periods"
+        );
+    }
+    sort_lines(&mut lines);
+    (lines, producer.late_pulses(), producer.positions())
+}
+
+/// Compares one case; returns the pulses compared and how many of them were late.
+fn compare(case: &Case) -> Result<(u64, u64), String> {
+    let ((engine, late, positions), starts, ends) = engine_lines(case);
+    let (produced, produced_late, produced_positions) = producer_lines(case, &starts, &ends);
+    for joint in 0..MAX_JOINTS {
+        if engine[joint] != produced[joint] {
+            let first = engine[joint]
+                .iter()
+                .zip(&produced[joint])
+                .position(|(a, b)| a != b)
+                .unwrap_or(engine[joint].len().min(produced[joint].len()));
+            let from = first.saturating_sub(3);
+            return Err(format!(
+                "joint {joint}: first difference at change {first} of {} / {}:\n engine   {:?}\n producer {:?}",
+                engine[joint].len(),
+                produced[joint].len(),
+                &engine[joint][from..(first + 4).min(engine[joint].len())],
+                &produced[joint][from..(first + 4).min(produced[joint].len())],
+            ));
+        }
+    }
+    if late != produced_late {
+        return Err(format!(
+            "late pulses: engine {late}, producer {produced_late}"
+        ));
+    }
+    if positions != produced_positions {
+        return Err(format!(
+            "positions: engine {positions:?}, producer {produced_positions:?}"
+        ));
+    }
+    let pulses = engine
+        .iter()
+        .flatten()
+        .filter(|l| matches!(l, Line::Rise(_)))
+        .count() as u64;
+    Ok((pulses, u64::from(late)))
+}
+
+#[test]
+fn producer_matches_engine_on_10m_pulses() {
+    let target: u64 = std::env::var("STEP_EQ_PULSES")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(10_000_000);
+    let seed: u64 = std::env::var("STEP_EQ_SEED")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(0x5eed_0fa1_1ed9_e5e5);
+    let started = std::time::Instant::now();
+    let mut pulses = 0u64;
+    let mut late = 0u64;
+    let mut cases = 0u64;
+    while pulses < target {
+        let case_seed = seed.wrapping_add(cases.wrapping_mul(0x9e37_79b9_7f4a_7c15)) | 1;
+        let case = random_case(&mut Rng(case_seed));
+        match compare(&case) {
+            Ok((n, l)) => {
+                pulses += n;
+                late += l;
+            }
+            Err(e) => panic!("case seed {case_seed:#x} ({case:?}):\n{e}"),
+        }
+        cases += 1;
+    }
+    println!(
+        "producer == engine on {pulses} pulses ({late} of them late) in {cases} cases ({:.1} s)",
+        started.elapsed().as_secs_f64()
+    );
+    assert!(pulses >= target);
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 64, ..ProptestConfig::default() })]
+
+    /// The same comparison as a property, for shrinking a failure to a small case.
+    #[test]
+    fn producer_matches_engine(seed in any::<u64>()) {
+        let case = random_case(&mut Rng(seed | 1));
+        if let Err(e) = compare(&case) {
+            return Err(TestCaseError::fail(e));
+        }
+    }
+}
