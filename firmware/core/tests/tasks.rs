@@ -584,14 +584,15 @@ fn streaming_through_a_small_buffer_and_underrun() {
             .push_back((frame(seq, cmd), HOST));
     };
     with_tasks(4, socket, pins, |step| async move {
-        // 24 points of 10 ms, +2 steps each on joint 0, through a 4-point buffer: the host
-        // sends 2 points at a time, resending on BUFFER_FULL. (The buffer holds 30 ms or
-        // more ahead: a loaded test machine must not starve it.)
+        // 24 points of 50 ms, +2 steps each on joint 0, through a 4-point buffer: the host
+        // sends 2 points at a time, resending on BUFFER_FULL. (The buffer holds 150 ms or
+        // more ahead: with 10 ms points, a loaded CI machine (load 5 on 2 cores) starved it
+        // and the run ended by underrun before the upload did.)
         let mut prev = [0; MAX_JOINTS];
         let pts: Vec<Point> = (1..=24)
             .map(|k| {
                 let next = [2 * k, 0, 0, 0, 0, 0, 0, 0];
-                let p = Point::from_motion(10_000, &prev, &next);
+                let p = Point::from_motion(50_000, &prev, &next);
                 prev = next;
                 p
             })
