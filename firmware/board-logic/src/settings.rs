@@ -230,11 +230,21 @@ impl<F: NorFlash> SettingsArea<F> {
         &mut self,
         settings: &PersistentSettings,
     ) -> Result<(), StoreError<F::Error>> {
+        // As `&[u8]`: the same bytes as the arrays' `Value` impls write, with one
+        // instantiation of the serialiser instead of one per record length.
         self.map
-            .store_item(&mut self.buffer.0, &SETTINGS_KEY, &encode(settings))
+            .store_item::<&[u8]>(
+                &mut self.buffer.0,
+                &SETTINGS_KEY,
+                &encode(settings).as_slice(),
+            )
             .await?;
         self.map
-            .store_item(&mut self.buffer.0, &NET_KEY, &encode_net(settings))
+            .store_item::<&[u8]>(
+                &mut self.buffer.0,
+                &NET_KEY,
+                &encode_net(settings).as_slice(),
+            )
             .await
     }
 
@@ -342,6 +352,23 @@ mod tests {
                 ..custom()
             })
         );
+    }
+
+    #[test]
+    fn saves_store_the_records_as_the_fixed_size_arrays_did() {
+        // Flash written by this firmware must read back with the earlier `[u8; N]` values.
+        let mut area = SettingsArea::new(Flash::default(), RANGE);
+        block_on(area.save(&custom())).unwrap();
+        let record = block_on(
+            area.map
+                .fetch_item::<[u8; RECORD_LEN]>(&mut area.buffer.0, &SETTINGS_KEY),
+        );
+        assert_eq!(record.unwrap(), Some(encode(&custom())));
+        let net = block_on(
+            area.map
+                .fetch_item::<[u8; NET_RECORD_LEN]>(&mut area.buffer.0, &NET_KEY),
+        );
+        assert_eq!(net.unwrap(), Some(encode_net(&custom())));
     }
 
     #[test]
