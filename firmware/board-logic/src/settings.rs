@@ -15,7 +15,7 @@
 use arm_core::hw::PersistentSettings;
 use embedded_storage_async::nor_flash::NorFlash;
 use sequential_storage::cache::{Cache, Uncached};
-use sequential_storage::map::{MapConfig, MapStorage};
+use sequential_storage::map::{MapConfig, MapStorage, SerializationError};
 
 /// Map key of the settings record.
 pub const SETTINGS_KEY: u8 = 1;
@@ -153,11 +153,7 @@ impl<F: NorFlash> SettingsArea<F> {
 
     /// Reads the settings, recovering from corruption by erasing (see the module docs).
     pub async fn load(&mut self) -> LoadOutcome {
-        match self
-            .map
-            .fetch_item::<[u8; RECORD_LEN]>(&mut self.buffer.0, &SETTINGS_KEY)
-            .await
-        {
+        match self.fetch_record::<RECORD_LEN>(&SETTINGS_KEY).await {
             Ok(Some(record)) => match decode(&record) {
                 Some(s) => match self.load_net(s).await {
                     Ok(s) => LoadOutcome::Stored(s),
@@ -176,16 +172,35 @@ impl<F: NorFlash> SettingsArea<F> {
         &mut self,
         settings: PersistentSettings,
     ) -> Result<PersistentSettings, StoreError<F::Error>> {
-        Ok(
-            match self
-                .map
-                .fetch_item::<[u8; NET_RECORD_LEN]>(&mut self.buffer.0, &NET_KEY)
-                .await?
-            {
-                Some(net) => decode_net(settings, &net),
-                None => settings,
-            },
-        )
+        Ok(match self.fetch_record::<NET_RECORD_LEN>(&NET_KEY).await? {
+            Some(net) => decode_net(settings, &net),
+            None => settings,
+        })
+    }
+
+    /// The record stored under `key`, if any, read as `[u8; N]`'s own `Value` impl reads
+    /// it (a shorter value is a serialization error). Both records go through one
+    /// `fetch_item::<&[u8]>`: each value type instantiates the map's fetch-and-repair code
+    /// again (about 0.5 KB of the board's flash).
+    async fn fetch_record<const N: usize>(
+        &mut self,
+        key: &u8,
+    ) -> Result<Option<[u8; N]>, StoreError<F::Error>> {
+        let value = self.fetch_value(key).await?;
+        value
+            .map(|bytes| {
+                bytes.first_chunk::<N>().copied().ok_or(
+                    sequential_storage::Error::SerializationError(
+                        SerializationError::BufferTooSmall,
+                    ),
+                )
+            })
+            .transpose()
+    }
+
+    /// The value bytes stored under `key`, if any (not generic: one instantiation).
+    async fn fetch_value(&mut self, key: &u8) -> Result<Option<&[u8]>, StoreError<F::Error>> {
+        self.map.fetch_item::<&[u8]>(&mut self.buffer.0, key).await
     }
 
     async fn erase_after_corruption(&mut self) -> LoadOutcome {
@@ -215,11 +230,21 @@ impl<F: NorFlash> SettingsArea<F> {
         &mut self,
         settings: &PersistentSettings,
     ) -> Result<(), StoreError<F::Error>> {
+        // As `&[u8]`: the same bytes as the arrays' `Value` impls write, with one
+        // instantiation of the serialiser instead of one per record length.
         self.map
-            .store_item(&mut self.buffer.0, &SETTINGS_KEY, &encode(settings))
+            .store_item::<&[u8]>(
+                &mut self.buffer.0,
+                &SETTINGS_KEY,
+                &encode(settings).as_slice(),
+            )
             .await?;
         self.map
-            .store_item(&mut self.buffer.0, &NET_KEY, &encode_net(settings))
+            .store_item::<&[u8]>(
+                &mut self.buffer.0,
+                &NET_KEY,
+                &encode_net(settings).as_slice(),
+            )
             .await
     }
 
@@ -288,6 +313,62 @@ mod tests {
                 ..old
             })
         );
+    }
+
+    #[test]
+    fn a_record_shorter_than_its_layout_is_corruption_and_is_erased() {
+        // As `[u8; N]`'s own `Value` reads them: a short value is a serialization error.
+        let mut area = SettingsArea::new(Flash::default(), RANGE);
+        let short: &[u8] = &encode(&custom())[..RECORD_LEN - 1];
+        block_on(
+            area.map
+                .store_item(&mut area.buffer.0, &SETTINGS_KEY, &short),
+        )
+        .unwrap();
+        assert_eq!(block_on(area.load()), LoadOutcome::Erased);
+
+        let mut area = SettingsArea::new(Flash::default(), RANGE);
+        block_on(area.save(&custom())).unwrap();
+        let short_net: &[u8] = &encode_net(&custom())[..NET_RECORD_LEN - 1];
+        block_on(
+            area.map
+                .store_item(&mut area.buffer.0, &NET_KEY, &short_net),
+        )
+        .unwrap();
+        assert_eq!(block_on(area.load()), LoadOutcome::Erased);
+        // A longer value still reads its first bytes, as before.
+        let long = [encode(&custom()).as_slice(), &[0xAA; 4]].concat();
+        block_on(
+            area.map
+                .store_item(&mut area.buffer.0, &SETTINGS_KEY, &long.as_slice()),
+        )
+        .unwrap();
+        block_on(area.map.remove_item(&mut area.buffer.0, &NET_KEY)).unwrap();
+        assert_eq!(
+            block_on(area.load()),
+            LoadOutcome::Stored(PersistentSettings {
+                gateway: [0; 4],
+                dhcp: false,
+                ..custom()
+            })
+        );
+    }
+
+    #[test]
+    fn saves_store_the_records_as_the_fixed_size_arrays_did() {
+        // Flash written by this firmware must read back with the earlier `[u8; N]` values.
+        let mut area = SettingsArea::new(Flash::default(), RANGE);
+        block_on(area.save(&custom())).unwrap();
+        let record = block_on(
+            area.map
+                .fetch_item::<[u8; RECORD_LEN]>(&mut area.buffer.0, &SETTINGS_KEY),
+        );
+        assert_eq!(record.unwrap(), Some(encode(&custom())));
+        let net = block_on(
+            area.map
+                .fetch_item::<[u8; NET_RECORD_LEN]>(&mut area.buffer.0, &NET_KEY),
+        );
+        assert_eq!(net.unwrap(), Some(encode_net(&custom())));
     }
 
     #[test]
