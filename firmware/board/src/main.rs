@@ -66,7 +66,7 @@
 //! Flash image: the big statics have zero initial values so they cost no flash: [`BUS`]
 //! (23 KiB) and the step producer's `STEP` (15 KiB) are built at run time
 //! ([`late::Late`]), the others are `StaticCell`s.
-//! `scripts/fw-size.sh` fails above 96 KiB.
+//! `scripts/fw-size.sh` fails above 104 KiB (the goal is 96 KiB: see its header).
 //!
 //! # Faults, watchdog, boot
 //! - Panics, HardFaults and stray interrupts take one path ([`fault`]): steps and gripper
