@@ -22,7 +22,8 @@ fi
 # Build outside the namespace (cargo may want the registry); run offline inside it.
 cargo build -q -p sim-host
 cargo test -q -p armctl-ros2 --test dds --no-run
-target_dir=${CARGO_TARGET_DIR:-target}
+# Absolute: the test runs in ros2-bridge/ (cargo test's working directory is the package's).
+target_dir=$(realpath "${CARGO_TARGET_DIR:-target}")
 export SIM_HOST_BIN="$target_dir/debug/sim-host"
 
 unshare -n -- bash -c '
