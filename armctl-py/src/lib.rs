@@ -451,6 +451,47 @@ impl Arm {
         }
     }
 
+    /// What `run` and `run_file` share once they have waypoints: STATUS and LOCATION, the
+    /// joint count check, resampling into points against the arm's position, the run.
+    fn run_waypoints(
+        &self,
+        py: Python<'_>,
+        run: WaypointRun,
+        wait: bool,
+        window: usize,
+    ) -> PyResult<Py<PyAny>> {
+        let joints = run.waypoints.positions.first().map_or(0, Vec::len);
+        let (status, location) = self.before_run(py)?;
+        let arm_joints = usize::from(status.joints).clamp(1, MAX_JOINTS);
+        if joints > arm_joints {
+            return Err(TrajectoryError::new_err(match &run.file {
+                None => {
+                    format!("{joints} joints in the positions, the controller drives {arm_joints}")
+                }
+                Some(path) => format!(
+                    "{}: {joints} joints in the file, the controller drives {arm_joints}",
+                    path.display()
+                ),
+            }));
+        }
+        let config = run
+            .config
+            .unwrap_or_else(|| ArmConfig::unlimited(joints, status.max_step_rate_hz));
+        if !(run.segment_ms.is_finite() && run.segment_ms > 0.0) {
+            return Err(PyValueError::new_err("segment_ms must be above 0"));
+        }
+        let segment_us = (run.segment_ms * 1000.0).round().clamp(1.0, 1e9) as u32;
+        let points = trajectory::to_points(
+            &run.waypoints,
+            &location.position,
+            segment_us,
+            &config,
+            Some(status.max_step_rate_hz),
+        )
+        .map_err(trajectory_err)?;
+        self.start_run(py, points, arm_joints, wait, window)
+    }
+
     /// STATUS and a fresh LOCATION: what converting a trajectory needs.
     fn before_run(&self, py: Python<'_>) -> PyResult<(StatusReport, Location)> {
         self.call(py, |arm| {
@@ -459,6 +500,16 @@ impl Arm {
             Ok((status, location))
         })
     }
+}
+
+/// A trajectory `run` or `run_file` has read, before it meets the arm.
+struct WaypointRun {
+    waypoints: Waypoints,
+    /// The joint config, if one was given (else every joint at the arm's step rate).
+    config: Option<ArmConfig>,
+    /// The file they were read from (`run_file`), for errors; `None` for numpy arrays.
+    file: Option<PathBuf>,
+    segment_ms: f64,
 }
 
 #[pymethods]
@@ -592,28 +643,13 @@ impl Arm {
             // Straight lines between the waypoints, as before armctl's Hermite resampling.
             velocities: Vec::new(),
         };
-        let (status, location) = self.before_run(py)?;
-        let arm_joints = usize::from(status.joints).clamp(1, MAX_JOINTS);
-        if joints > arm_joints {
-            return Err(TrajectoryError::new_err(format!(
-                "{joints} joints in the positions, the controller drives {arm_joints}"
-            )));
-        }
-        let config =
-            config.unwrap_or_else(|| ArmConfig::unlimited(joints, status.max_step_rate_hz));
-        if !(segment_ms.is_finite() && segment_ms > 0.0) {
-            return Err(PyValueError::new_err("segment_ms must be above 0"));
-        }
-        let segment_us = (segment_ms * 1000.0).round().clamp(1.0, 1e9) as u32;
-        let points = trajectory::to_points(
-            &waypoints,
-            &location.position,
-            segment_us,
-            &config,
-            Some(status.max_step_rate_hz),
-        )
-        .map_err(trajectory_err)?;
-        self.start_run(py, points, arm_joints, wait, window)
+        let run = WaypointRun {
+            waypoints,
+            config,
+            file: None,
+            segment_ms,
+        };
+        self.run_waypoints(py, run, wait, window)
     }
 
     /// Runs a trajectory file as `armctl run` does: JointTrajectory JSON (radians, needs
@@ -630,30 +666,13 @@ impl Arm {
     ) -> PyResult<Py<PyAny>> {
         let (waypoints, config) =
             trajectory::load_files(&path, config.as_deref()).map_err(trajectory_err)?;
-        let joints = waypoints.positions.first().map_or(0, Vec::len);
-        let (status, location) = self.before_run(py)?;
-        let arm_joints = usize::from(status.joints).clamp(1, MAX_JOINTS);
-        if joints > arm_joints {
-            return Err(TrajectoryError::new_err(format!(
-                "{}: {joints} joints in the file, the controller drives {arm_joints}",
-                path.display()
-            )));
-        }
-        let config =
-            config.unwrap_or_else(|| ArmConfig::unlimited(joints, status.max_step_rate_hz));
-        if !(segment_ms.is_finite() && segment_ms > 0.0) {
-            return Err(PyValueError::new_err("segment_ms must be above 0"));
-        }
-        let segment_us = (segment_ms * 1000.0).round().clamp(1.0, 1e9) as u32;
-        let points = trajectory::to_points(
-            &waypoints,
-            &location.position,
-            segment_us,
-            &config,
-            Some(status.max_step_rate_hz),
-        )
-        .map_err(trajectory_err)?;
-        self.start_run(py, points, arm_joints, wait, window)
+        let run = WaypointRun {
+            waypoints,
+            config,
+            file: Some(path),
+            segment_ms,
+        };
+        self.run_waypoints(py, run, wait, window)
     }
 
     /// STOPPED: stops every joint at once and drops the trajectory (obeyed from anyone).
