@@ -484,11 +484,6 @@ impl<const CAP: usize> Controller<CAP> {
         self.enabled
     }
 
-    /// Whether LOCATION reports are on.
-    pub fn reports_on(&self) -> bool {
-        self.reports_on
-    }
-
     /// LOCATION period, microseconds.
     pub fn upload_period_us(&self) -> u32 {
         self.upload_period_us
