@@ -17,9 +17,9 @@ use crate::clock::SimClock;
 use crate::steppers::MotorState;
 use crate::vcd::{Signal, Tracer, Value};
 
-/// Input clock of the simulated gripper timer: the board's TIM1 kernel clock (200 MHz), so
-/// that a host computes the same PSC/ARR for the simulator as for the board.
-pub const PWM_TIMER_CLOCK_HZ: u32 = 200_000_000;
+/// Input clock of the simulated gripper timer: the board's (TIM15, declared once in
+/// arm-core), so that a host computes the same PSC/ARR for the simulator as for the board.
+pub use arm_core::config::BOARD_PWM_TIMER_CLOCK_HZ as PWM_TIMER_CLOCK_HZ;
 
 /// Levels of PIN0/PIN1 and the ENABLE lines, for whoever looks (tests, the demo).
 #[derive(Debug, Default)]

@@ -45,10 +45,8 @@ use crate::late::Late;
 use crate::pins;
 use crate::step_timer;
 
-/// Segments held on the interrupts' side: with the shortest common point (1 ms) that is
-/// 64 ms of motion, far more than the controller task's worst wake-up latency; the same
-/// figure as the engine had.
-pub const STEP_QUEUE: usize = 64;
+/// Segments held on the interrupts' side (declared once, with its reason, in arm-core).
+pub use arm_core::STEP_QUEUE;
 
 /// Periods per buffer half: at 500 kHz a half plays for 128 us, so a refill interrupt may
 /// wait that long; 64 keeps the refill's fixed cost (about 250 instructions) to 4 per step.

@@ -31,7 +31,9 @@ pub const DEFAULT_RETURN_ACCEL: u32 = 8_000;
 pub const DEFAULT_RETURN_SEGMENT_US: u32 = 10_000;
 
 /// Gripper timer input clock of the H743 board: the firmware runs the CPU at 400 MHz and
-/// the APB timer clocks at 200 MHz (the board passes its measured clock at boot anyway).
+/// the APB timer clocks at 200 MHz, so TIM15 (the gripper) counts at 200 MHz (the board
+/// passes its measured clock at boot anyway). The simulator's gripper uses this figure, so
+/// that a host computes the same PSC/ARR for both.
 pub const BOARD_PWM_TIMER_CLOCK_HZ: u32 = 200_000_000;
 
 // The protocol's timing and memory of ownership and duplicate detection, and the largest

@@ -22,8 +22,8 @@
 //! 7. **execute**: PENDING checks, in order: `OUT_OF_ORDER` (seq != `next_seq`),
 //!    `TOO_MANY_POINTS`, `INVALID_POINT` (step rate), `BUFFER_FULL`; every point of the
 //!    frame is checked before any is taken. USART_SEND: `BUFFER_FULL` when the serial
-//!    transmit queue has no room. USART_START: `INVALID_CONFIG` when the port cannot apply
-//!    the settings.
+//!    transmit queue has no room. USART_START: `INVALID_CONFIG` for settings the board's
+//!    USART cannot make ([`crate::uart::uart_frame`]), or when the port cannot apply them.
 //!
 //! A frame "accepted" is one ACKed `OK`: it is remembered for duplicate detection and it
 //! counts for the PENDING ordering rule when it comes from the uploader (the endpoint,
@@ -66,117 +66,32 @@
 //! through the [`Plant`] trait; what needs waiting (flash, encoders) comes back as a
 //! [`Deferred`] in the [`Response`].
 
+use protocol::NetSettings;
 use protocol::{
-    Ack, Command, Frame, Location, MAX_JOINTS, MAX_POINTS_PER_FRAME, MoreFlags, Pwm, State,
-    StatusCode, StatusFlags, StatusReport, Tag, UartInit, UartMode, limits,
+    Ack, Command, Frame, Location, MAX_JOINTS, MAX_POINTS_PER_FRAME, MoreFlags, State, StatusCode,
+    StatusFlags, StatusReport, Tag, UartMode, limits,
 };
 use protocol::{DecodeError, DecodeErrorKind};
-use protocol::{DiscoverReply, NetSettings, OwnerState};
-
-use core::mem::MaybeUninit;
-
-use arm_step::Segment;
 
 use crate::buffer::{StoredPoint, TrajectoryBuffer};
 use crate::config::{ControllerConfig, HOST_WINDOW, OWNER_TIMEOUT_US};
-use crate::hw::{EncoderFault, Endpoint, PersistentSettings, SerialError};
+use crate::hw::{EncoderFault, Endpoint, PersistentSettings};
 use crate::link::{FrameKey, RecentFrames, UploadOrder};
-use crate::plan::{ReturnPlan, plan_return};
+use crate::plan::ReturnPlan;
+use crate::reports::Listener;
+use crate::uart::uart_frame;
+
+mod boot;
+mod owner;
+mod runs;
+
+// The types the controller's API speaks in, kept at their old paths.
+pub use crate::plant::Plant;
+pub use crate::reports::{LOCATION_LISTENERS, ReportSettings};
+pub use crate::response::{Deferred, Discovery, Reply, Response};
 
 /// Every ENABLE line: joints 0-7 and the gripper (bit 8).
 pub const ALL_DRIVERS: u16 = limits::ENABLE_MASK_BITS;
-
-/// What the controller drives and queries synchronously while it handles a command.
-///
-/// The firmware's implementation talks to the step engine shared with the step timer
-/// interrupt, the output pins, the gripper timer and the serial task's queue; tests use a
-/// fake that records every call.
-pub trait Plant {
-    /// Joint positions in steps, counted per pulse emitted.
-    fn positions(&self) -> [i32; MAX_JOINTS];
-    /// Overwrites the position counters (only called while no segment runs); `false` if
-    /// refused.
-    fn set_positions(&mut self, positions: [i32; MAX_JOINTS]) -> bool;
-    /// Emergency stop: no further step pulse, every segment handed over is dropped.
-    fn stop(&mut self);
-    /// Hands over the next segment of the trajectory; `false` when there is no room now
-    /// (offered again later).
-    fn push_segment(&mut self, segment: Segment) -> bool;
-    /// Starts executing the segments handed over (and those that follow) as soon as the
-    /// first one is in the engine.
-    fn start(&mut self);
-    /// Drives user pin 0 or 1.
-    fn set_user_pin(&mut self, pin: u8, high: bool);
-    /// Sets the ENABLE lines: bit j = joint j holding, bit 8 = gripper.
-    fn set_enabled(&mut self, enabled: u16);
-    /// Starts the gripper PWM (values already validated).
-    fn gripper_start(&mut self, pwm: &Pwm);
-    /// Gripper output off at once.
-    fn gripper_stop(&mut self);
-    /// Whether the gripper output runs (a counted burst ends by itself).
-    fn gripper_active(&self) -> bool;
-    /// Opens (or reopens) the pass-through serial port.
-    fn serial_open(&mut self, init: &UartInit) -> Result<(), SerialError>;
-    /// Closes it; whatever was not yet written is dropped.
-    fn serial_close(&mut self);
-    /// Queues bytes for the serial port; `false` when the queue has no room.
-    fn serial_send(&mut self, bytes: &[u8]) -> bool;
-}
-
-/// Work that needs waiting, left to the caller (the trajectory task).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum Deferred {
-    /// Store these settings ([`crate::hw::SettingsStore::save`]).
-    SaveSettings(PersistentSettings),
-    /// RETURN was accepted: read the encoders ([`crate::hw::Encoders::read`]) and pass
-    /// the result to [`Controller::begin_return`].
-    ReadEncoders,
-}
-
-/// The ACK for one command.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub struct Reply {
-    /// Where it goes: the command's sender.
-    pub to: Endpoint,
-    /// The command's seq.
-    pub seq: u8,
-    /// Content.
-    pub ack: Ack,
-}
-
-/// What handling one datagram produced.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub struct Response {
-    /// The ACK; `None` only for a datagram under 3 bytes.
-    pub reply: Option<Reply>,
-    /// A STATUS report and where it goes: the endpoint that asked for it.
-    pub status: Option<(Endpoint, StatusReport)>,
-    /// A LOCATION report: the state changed (only while reports are on). It goes to
-    /// [`ReportSettings::location_to`].
-    pub location: Option<Location>,
-    /// Work left to the caller.
-    pub deferred: Option<Deferred>,
-    /// The command was executed: ACKed `OK` and not a duplicate. Only an executed STOPPED
-    /// stops anything (the e-stop path in [`crate::tasks`] relies on it).
-    pub executed: bool,
-    /// The answer to a DISCOVER, for its sender (instead of an ACK).
-    pub discovery: Option<Discovery>,
-}
-
-/// A DISCOVER_REPLY for the host that asked (PROTOCOL.md section 12).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub struct Discovery {
-    /// The DISCOVER's sender.
-    pub to: Endpoint,
-    /// The DISCOVER's seq.
-    pub seq: u8,
-    /// Content.
-    pub reply: DiscoverReply,
-}
 
 /// The host that owns the controller.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -186,70 +101,6 @@ pub struct Owner {
     pub ip: [u8; 4],
     /// When it last sent a CRC-valid frame, microseconds.
     pub last_heard_us: u64,
-}
-
-/// Owner endpoints that get the LOCATION reports at once: a few tools on the owner's
-/// machine (an uploader, a watcher, a poller, one more), each a socket of its own.
-pub const LOCATION_LISTENERS: usize = 4;
-
-/// An owner endpoint that gets LOCATION reports (see "Who gets which report").
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-struct Listener {
-    /// The endpoint.
-    to: Endpoint,
-    /// When it last sent a CRC-valid frame, microseconds: silent [`OWNER_TIMEOUT_US`], it
-    /// stops getting reports (unless it started the upload or run under way).
-    heard_us: u64,
-}
-
-/// Settings the location upload needs, copied out after every change.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub struct ReportSettings {
-    /// Where LOCATION reports go: each of these owner endpoints (none before any host
-    /// spoke).
-    pub location_to: [Option<Endpoint>; LOCATION_LISTENERS],
-    /// Where USART_RECV reports go (`None` before any host spoke).
-    pub serial_to: Option<Endpoint>,
-    /// LOCATION reports on.
-    pub reports_on: bool,
-    /// LOCATION period, microseconds.
-    pub upload_period_us: u32,
-    /// The trajectory state.
-    pub state: State,
-}
-
-impl ReportSettings {
-    /// Whether a LOCATION report has anywhere to go.
-    pub fn has_location_listener(&self) -> bool {
-        self.location_to.iter().any(Option::is_some)
-    }
-
-    /// Whether `endpoint` gets LOCATION reports.
-    pub fn location_goes_to(&self, endpoint: Endpoint) -> bool {
-        self.location_to.contains(&Some(endpoint))
-    }
-
-    /// Before the trajectory task first publishes the controller's: no report anywhere,
-    /// period 0 (the upload task waits for the first publication). All zero bytes, so that
-    /// a [`crate::Bus`] in a `static` is zero-initialised (`.bss`, not a flash copy).
-    pub const UNPUBLISHED: ReportSettings = ReportSettings {
-        location_to: [None; LOCATION_LISTENERS],
-        serial_to: None,
-        reports_on: false,
-        upload_period_us: 0,
-        state: State::New,
-    };
-
-    /// Boot values: reports on at the default period, nobody to send them to yet.
-    pub const BOOT: ReportSettings = ReportSettings {
-        location_to: [None; LOCATION_LISTENERS],
-        serial_to: None,
-        reports_on: true,
-        upload_period_us: limits::DEFAULT_UPLOAD_PERIOD_US,
-        state: State::Stopped,
-    };
 }
 
 /// The controller: state machine, trajectory buffer, owner and reliability rules.
@@ -310,112 +161,10 @@ pub struct Controller<const CAP: usize> {
     step_budget_hz: u32,
 }
 
-/// The boot value of every [`Controller`] field but the trajectory buffer, written once for
-/// [`Controller::new`] (a struct literal: the compiler checks that no field is missing) and
-/// [`Controller::init_in_place`] (the same list, each field written where it lies).
-/// `$emit!($($head)* ; field: value, ...)` is called with the list.
-macro_rules! with_boot_fields {
-    ($config:expr, $emit:ident!($($head:tt)*)) => {
-        $emit!($($head)* ;
-        config: $config,
-        settings: PersistentSettings::DEFAULT,
-        state: State::Stopped,
-        expected: 0,
-        received: 0,
-        executed: 0,
-        received_end: [0; MAX_JOINTS],
-        fed_end: [0; MAX_JOINTS],
-        return_pending: false,
-        return_plan: None,
-        return_fault: None,
-        order: UploadOrder::new(),
-        uploader: None,
-        recent: RecentFrames::new(),
-        owner: None,
-        listeners: [None; LOCATION_LISTENERS],
-        location_claimer: None,
-        serial_to: None,
-        more_flags: MoreFlags(0),
-        reports_on: true,
-        upload_period_us: limits::DEFAULT_UPLOAD_PERIOD_US,
-        enabled: ALL_DRIVERS,
-        pins: [false; 2],
-        serial: None,
-        underrun: false,
-        stopped_by_host: false,
-        mac: [0; 6],
-        booted_net: NetSettings::fixed([192, 168, 1, 30], 24, None),
-        step_budget_hz: crate::config::BOARD_STEP_BUDGET_HZ,
-        )
-    };
-}
-
-/// `Controller { buffer, boot fields }`: see `with_boot_fields`.
-macro_rules! controller_literal {
-    ($buffer:expr ; $($field:ident : $value:expr),* $(,)?) => {
-        Controller { buffer: $buffer, $($field: $value),* }
-    };
-}
-
-/// Writes each boot field through the pointer `$slot`: see `with_boot_fields`.
-macro_rules! write_fields {
-    ($slot:expr ; $($field:ident : $value:expr),* $(,)?) => {
-        $( (&raw mut (*$slot).$field).write($value); )*
-    };
-}
-
 impl<const CAP: usize> Controller<CAP> {
-    /// A controller in its boot state: STOPPED, drivers enabled, reports on.
-    pub const fn new(config: ControllerConfig) -> Self {
-        with_boot_fields!(
-            config,
-            controller_literal!(TrajectoryBuffer::new(config.capacity))
-        )
-    }
-
-    /// Builds a controller in its boot state in place, in `slot` (a static's storage), and
-    /// returns it: the same value as [`Controller::new`], but never built on the stack first.
-    /// A board's controller is 300 KB, more than its stack; `StaticCell::init(new())` relies
-    /// on the compiler to elide that copy, which it does not at every optimisation level.
-    pub fn init_in_place(slot: &mut MaybeUninit<Self>, config: ControllerConfig) -> &mut Self {
-        let p = slot.as_mut_ptr();
-        // SAFETY: `p` points to `slot`'s storage, valid for writes and aligned; every field
-        // is written below (the buffer by its own in-place constructor, the others from the
-        // list that `new`'s struct literal proves complete), so the value is initialised.
-        unsafe {
-            TrajectoryBuffer::init_in_place(&raw mut (*p).buffer, config.capacity);
-            with_boot_fields!(config, write_fields!(p));
-            slot.assume_init_mut()
-        }
-    }
-
     /// Sets the MAC address DISCOVER_REPLY reports (at boot).
     pub fn set_mac(&mut self, mac: [u8; 6]) {
         self.mac = mac;
-    }
-
-    /// The DISCOVER_REPLY for a host at `asker`: changes nothing.
-    fn discovery(&self, asker: [u8; 4], now_us: u64) -> DiscoverReply {
-        // An owner silent for 5 s with the arm not running has lost the arm already.
-        let owner = self.owner.filter(|o| {
-            self.state == State::Running
-                || now_us.saturating_sub(o.last_heard_us) < OWNER_TIMEOUT_US
-        });
-        let net = self.settings.net();
-        DiscoverReply {
-            mac: self.mac,
-            net,
-            version: protocol::VERSION,
-            joints: self.settings.joints,
-            state: self.state,
-            owner: match owner {
-                None => OwnerState::Free,
-                Some(o) if o.ip == asker => OwnerState::Asker,
-                Some(_) => OwnerState::Other,
-            },
-            owner_ip: owner.map_or([0; 4], |o| o.ip),
-            pending_reset: net != self.booted_net,
-        }
     }
 
     /// Applies stored settings (at boot); an out-of-range joint count keeps the default.
@@ -725,69 +474,6 @@ impl<const CAP: usize> Controller<CAP> {
         self.listen(key.from, now_us);
     }
 
-    /// `from`, an owner endpoint whose command was executed, gets LOCATION reports from
-    /// now on: it takes a free slot, or that of a listener silent for 5 s, or else that of
-    /// the one heard least recently (never the claimer's while something runs).
-    fn listen(&mut self, from: Endpoint, now_us: u64) {
-        let keep_claimer = self.state != State::Stopped;
-        let claimer = self.location_claimer;
-        let protected = |l: &Listener| keep_claimer && Some(l.to) == claimer;
-        for slot in self.listeners.iter_mut() {
-            if slot.is_some_and(|l| {
-                !protected(&l) && now_us.saturating_sub(l.heard_us) >= OWNER_TIMEOUT_US
-            }) {
-                *slot = None;
-            }
-        }
-        let fresh = Listener {
-            to: from,
-            heard_us: now_us,
-        };
-        if let Some(slot) = self.listeners.iter_mut().flatten().find(|l| l.to == from) {
-            *slot = fresh;
-            return;
-        }
-        if let Some(slot) = self.listeners.iter_mut().find(|l| l.is_none()) {
-            *slot = Some(fresh);
-            return;
-        }
-        let oldest = self
-            .listeners
-            .iter_mut()
-            .filter(|l| l.is_some_and(|l| !protected(&l)))
-            .min_by_key(|l| l.map_or(0, |l| l.heard_us));
-        if let Some(slot) = oldest {
-            *slot = Some(fresh);
-        }
-    }
-
-    /// `from` becomes the owner (the first host, or a new one after the owner's 5 s of
-    /// silence, not while running): every report goes to it, and an upload the old owner
-    /// had not started is dropped, so that the new owner's RUNING cannot run half of it.
-    fn take_over(&mut self, from: Endpoint, now_us: u64, plant: &mut impl Plant) {
-        self.owner = Some(Owner {
-            ip: from.ip,
-            last_heard_us: now_us,
-        });
-        self.listeners = [None; LOCATION_LISTENERS];
-        self.listeners[0] = Some(Listener {
-            to: from,
-            heard_us: now_us,
-        });
-        self.location_claimer = Some(from);
-        self.serial_to = Some(from);
-        self.uploader = None;
-        if matches!(self.state, State::New | State::Pending) {
-            plant.stop();
-            self.buffer.clear();
-            self.return_plan = None;
-            self.return_pending = false;
-            self.state = State::Stopped;
-            self.more_flags.set(MoreFlags::UPLOAD_DROPPED, true);
-            warn!("owner hand-over: the old owner's unstarted upload was dropped");
-        }
-    }
-
     fn execute(
         &mut self,
         frame: Frame<Command<'_>>,
@@ -880,6 +566,9 @@ impl<const CAP: usize> Controller<CAP> {
             Command::PwmStart(pwm) => plant.gripper_start(&pwm),
             Command::PwmStop => plant.gripper_stop(),
             Command::UsartStart(init) => {
+                // Settings the board's USART cannot make are refused here, before the
+                // port is touched: the simulator refuses what the board refuses.
+                uart_frame(&init).map_err(|_| StatusCode::InvalidConfig)?;
                 plant
                     .serial_open(&init)
                     .map_err(|_| StatusCode::InvalidConfig)?;
@@ -975,162 +664,6 @@ impl<const CAP: usize> Controller<CAP> {
         }
         self.stop_by_host(plant);
         self.reports_on.then(|| self.location(plant))
-    }
-
-    /// The stored form of `point` after `previous`, if it obeys section 5: for every joint
-    /// in use, at most `max_step_rate_hz` steps per second and a step count that fits a
-    /// segment, and all joints together at most `step_budget_hz` steps per second. Joints
-    /// not in use keep their previous position.
-    fn admit(&self, previous: &[i32; MAX_JOINTS], point: &protocol::Point) -> Option<StoredPoint> {
-        let duration = u32::try_from(point.duration).ok().filter(|d| *d >= 1)?;
-        let joints = usize::from(self.settings.joints).min(MAX_JOINTS);
-        let mut position = *previous;
-        let mut total_steps = 0u64;
-        for (j, p) in position.iter_mut().enumerate().take(joints) {
-            let steps = point.steps(previous, j).unsigned_abs();
-            total_steps += steps;
-            // steps < 2^33 and duration < 2^31: both products fit u64.
-            let too_fast =
-                steps * 1_000_000 > u64::from(self.config.max_step_rate_hz) * u64::from(duration);
-            if too_fast || steps > i32::MAX as u64 {
-                return None;
-            }
-            *p = point.position[j];
-        }
-        // total_steps < 2^36: the product fits u64.
-        let budget = u64::from(self.step_budget_hz);
-        if budget > 0 && total_steps * 1_000_000 > budget * u64::from(duration) {
-            return None;
-        }
-        Some(StoredPoint {
-            duration_us: duration,
-            position,
-        })
-    }
-
-    /// Hands as many buffered points to the engine as it takes (and, during RETURN, tops
-    /// the buffer up from the plan first).
-    pub fn pump(&mut self, plant: &mut impl Plant) {
-        if let Some(plan) = self.return_plan.as_mut() {
-            while self.buffer.free() > 0 {
-                let Some(point) = plan.next() else { break };
-                if self.buffer.push(point) {
-                    self.received += 1;
-                }
-            }
-        }
-        if !matches!(self.state, State::Pending | State::Running) {
-            return;
-        }
-        while let Some(point) = self.buffer.next_unfed() {
-            let mut steps = [0i32; MAX_JOINTS];
-            for (j, s) in steps.iter_mut().enumerate() {
-                let delta = i64::from(point.position[j]) - i64::from(self.fed_end[j]);
-                *s = delta.clamp(i64::from(i32::MIN), i64::from(i32::MAX)) as i32;
-            }
-            let segment = Segment {
-                duration_us: point.duration_us,
-                steps,
-            };
-            if !plant.push_segment(segment) {
-                break;
-            }
-            self.buffer.mark_fed();
-            self.fed_end = point.position;
-        }
-    }
-
-    /// The engine finished `finished` more segments and, if `ran_dry`, ran out of them
-    /// and stopped. Ends the run (completion or underrun) when it ran dry, feeds more
-    /// points otherwise. Returns a LOCATION report when the state changed.
-    pub fn on_step_progress(
-        &mut self,
-        finished: u32,
-        ran_dry: bool,
-        plant: &mut impl Plant,
-    ) -> Option<Location> {
-        let done = self.buffer.finish(finished as usize);
-        self.executed = self.executed.saturating_add(done as u32);
-        if ran_dry && self.state == State::Running && !self.return_pending {
-            let complete = self.executed >= self.expected;
-            // Clears anything pushed after the engine went idle.
-            plant.stop();
-            self.buffer.clear();
-            self.return_plan = None;
-            self.underrun = !complete;
-            self.stopped_by_host = false;
-            self.state = State::Stopped;
-            return self.reports_on.then(|| self.location(plant));
-        }
-        self.pump(plant);
-        None
-    }
-
-    /// Ends an accepted RETURN whose encoder read failed: nothing moves, the state goes
-    /// back to STOPPED (neither underrun nor STOPPED-by-host: the run never started) and
-    /// the fault is kept for [`Controller::return_fault`]. Returns a LOCATION report when
-    /// the state changed (reports on).
-    pub fn fail_return(&mut self, fault: EncoderFault, plant: &mut impl Plant) -> Option<Location> {
-        if !self.return_pending || self.state != State::Running {
-            return None;
-        }
-        self.return_pending = false;
-        self.return_plan = None;
-        self.buffer.clear();
-        // A RETURN of no points: STATUS shows expected = executed = 0, not the last run's.
-        self.expected = 0;
-        self.received = 0;
-        self.executed = 0;
-        self.underrun = false;
-        self.stopped_by_host = false;
-        self.return_fault = Some(fault);
-        self.state = State::Stopped;
-        self.reports_on.then(|| self.location(plant))
-    }
-
-    /// Why the last RETURN was refused after its ACK (`None`: it was not, or no RETURN
-    /// since boot).
-    pub fn return_fault(&self) -> Option<EncoderFault> {
-        self.return_fault
-    }
-
-    /// Continues an accepted RETURN with the encoder reading (`None`: no encoders, trust
-    /// the step count): corrects the positions of the joints in use if they differ, plans
-    /// the move to zero and starts it. Returns a LOCATION report when the state changed
-    /// (nothing to move: back to STOPPED).
-    pub fn begin_return(
-        &mut self,
-        encoders: Option<[i32; MAX_JOINTS]>,
-        plant: &mut impl Plant,
-    ) -> Option<Location> {
-        if !self.return_pending || self.state != State::Running {
-            return None;
-        }
-        self.return_pending = false;
-        let joints = usize::from(self.settings.joints).min(MAX_JOINTS);
-        let mut start = plant.positions();
-        if let Some(read) = encoders {
-            let mut corrected = start;
-            corrected[..joints].copy_from_slice(&read[..joints]);
-            if corrected != start && plant.set_positions(corrected) {
-                start = corrected;
-            }
-        }
-        let plan = plan_return(start, self.settings.joints, &self.config);
-        self.buffer.clear();
-        self.expected = plan.total_points();
-        self.received = 0;
-        self.executed = 0;
-        self.received_end = start;
-        self.fed_end = start;
-        if plan.total_points() == 0 {
-            self.state = State::Stopped;
-            return self.reports_on.then(|| self.location(plant));
-        }
-        self.return_plan = Some(plan);
-        self.pump(plant);
-        plant.start();
-        None
     }
 }
 

@@ -1,31 +1,38 @@
 //! The arm controller's behaviour, written once for the board and the simulator.
 //!
-//! * [`Controller`] (sans-io): one datagram in, the ACK, reports and effects out. The
-//!   check order, owner, duplicate and ordering rules are documented in [`controller`].
-//!   Effects that must happen at once go through the [`Plant`] trait; flash writes and
-//!   encoder reads come back as [`Deferred`] work.
-//! * [`plan_return`] (sans-io): RETURN's trapezoidal move to zero as ordinary points.
-//! * [`serial::SerialBatcher`] (sans-io): USART_RECV batching.
-//! * [`tasks`]: the async tasks, generic over the [`hw`] traits, and the step timer
-//!   interrupt's body [`on_step_timer`]. Binaries implement the traits, allocate a
-//!   [`Bus`], a [`StepShared`] and a [`Controller`] in statics, and wrap the task
-//!   functions in `#[embassy_executor::task]`s.
+//! # Where each piece lives
+//! Following a datagram from the socket to the step engine:
 //!
-//! # Tasks and channels
-//! ```text
-//!   UDP socket                                         step timer interrupt
-//!       |                                                  on_step_timer()
-//!  network_task --estop (CRC-valid STOPPED)-->+               |  ^
-//!   rx | tx     --inbox (all other frames)--->| trajectory    |  | StepShared: engine,
-//!      |  ^                                   | _task         |  | stop count, progress
-//!      |  |<--- outbox: ACK, STATUS, --------| (Controller)--+--' (stop/start directly)
-//!      |  |     LOCATION on state change      |   | segments    |
-//!      |  |                                   |   v             | step_wake
-//!      |  |                                   |  step_task <----+
-//!      |  |                                   |<--' step_progress (finished/ran dry)
-//!      |  |<--- LOCATION every period --- upload_task  (reads bus.reports + positions)
-//!      |  '<--- USART_RECV ------------- serial_task <-- serial_tx, serial_opened
-//! ```
+//! 1. [`tasks::network_task`] (`tasks/network.rs`) receives it from a [`hw::Datagrams`]
+//!    socket and [`Bus::route`]s it (`bus.rs`): a CRC-valid STOPPED onto `bus.estop`,
+//!    anything else onto `bus.inbox`. [`bus`] holds every queue and signal between the
+//!    tasks, their capacities, and the one diagram of who sends what to whom.
+//! 2. [`tasks::trajectory_task`] (`tasks/trajectory.rs`) takes it (STOPPED first) and
+//!    hands it to the [`Controller`] (`controller.rs`, sans-io: the state machine, with
+//!    the check order, owner, duplicate and ordering rules in its docs; the duplicate
+//!    memory and upload order are in `link.rs`, the trajectory points in `buffer.rs`,
+//!    RETURN's move in `plan.rs`). The controller answers with a [`Response`]
+//!    (`response.rs`: the ACK, reports, [`Deferred`] work such as a flash write or an
+//!    encoder read) and acts on the hardware at once through the [`Plant`] trait
+//!    (`plant.rs`). `tasks/overtaken.rs` keeps the result that of arrival order when a
+//!    STOPPED overtook queued datagrams.
+//! 3. The controller hands buffered points to its [`Plant`] as segments
+//!    ([`Controller::pump`]), which the trajectory task's puts on `bus.segments`; [`tasks::step_task`] (`tasks/step.rs`) pushes them into the engine
+//!    in [`StepShared`] (`step_shared.rs`: the engine shared with the step interrupts,
+//!    whose body is [`on_step_timer`]), which makes the pulses and reports progress back.
+//! 4. Replies go out the other way: ACK, STATUS and state-change LOCATION onto
+//!    `bus.outbox`, encoded and addressed by [`ReportEncoder`] (`outgoing.rs`, with
+//!    [`ReportSettings`] from `reports.rs`), sent by the network task. Periodic LOCATION
+//!    comes from [`tasks::upload_task`] (`tasks/upload.rs`), USART_RECV from
+//!    [`tasks::serial_task`] (`tasks/serial.rs`, batching in `serial.rs`).
+//!
+//! Also: `config.rs` (capacities and board defaults), `hw.rs` (the hardware traits the
+//! tasks are generic over), `log_limit.rs` (at most one log line a second), and
+//! `test_support.rs` (fakes for tests, feature `test-support`).
+//!
+//! Binaries implement the [`hw`] traits, allocate a [`Bus`], a [`StepShared`] and a
+//! [`Controller`] in statics, and wrap the task functions in
+//! `#[embassy_executor::task]`s.
 //!
 //! # The e-stop path
 //! `network_task` checks each datagram's tag and CRC as it arrives and puts a valid
@@ -60,6 +67,7 @@ extern crate std;
 mod fmt;
 
 pub mod buffer;
+pub mod bus;
 pub mod config;
 pub mod controller;
 pub mod hw;
@@ -67,10 +75,15 @@ pub mod link;
 pub mod log_limit;
 pub mod outgoing;
 pub mod plan;
+pub mod plant;
+pub mod reports;
+pub mod response;
 pub mod serial;
+pub mod step_shared;
 pub mod tasks;
 #[cfg(feature = "test-support")]
 pub mod test_support;
+pub mod uart;
 
 pub use buffer::{StoredPoint, TrajectoryBuffer};
 pub use config::ControllerConfig;
@@ -81,6 +94,7 @@ pub use controller::{
 pub use log_limit::{LogLimit, LogVerdict};
 pub use outgoing::{Outgoing, ReportEncoder};
 pub use plan::{ReturnPlan, plan_return};
+pub use step_shared::STEP_QUEUE;
 pub use tasks::{
     Bus, Datagram, StepBackend, StepProgress, StepShared, TrajectoryHw, network_task,
     on_step_timer, serial_task, step_task, trajectory_task, upload_task,

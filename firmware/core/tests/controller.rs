@@ -167,6 +167,67 @@ fn usart_send_needs_an_open_port_that_transmits() {
     assert!(!status.flags.has(StatusFlags::SERIAL_OPEN));
 }
 
+/// Settings the board's USART cannot make are refused by the controller itself, so the
+/// simulator (whose port accepts anything) refuses what the board refuses; the port is
+/// never touched and the port stays as it was.
+#[test]
+fn usart_start_refuses_what_the_board_cannot_make() {
+    use arm_core::uart::hal;
+    let mut s = Session::<16>::new(16);
+    let good = UartInit {
+        baud_rate: 115_200,
+        ..UartInit::default()
+    };
+    for bad in [
+        UartInit {
+            word_length: 0x0800,
+            ..good
+        },
+        UartInit {
+            stop_bits: 0x1000,
+            ..good
+        },
+        UartInit {
+            parity: 0x0200,
+            ..good
+        },
+        UartInit {
+            hw_flow_ctl: 0x0300,
+            ..good
+        },
+        UartInit {
+            over_sampling: 0x4000,
+            ..good
+        },
+    ] {
+        s.expect(Command::UsartStart(bad), InvalidConfig);
+        assert_eq!(s.plant.serial, None, "{bad:?}");
+        assert_eq!(s.plant.serial_opens, 0, "{bad:?}");
+    }
+    let seven_e2 = UartInit {
+        parity: hal::PARITY_EVEN,
+        stop_bits: hal::STOP_2,
+        over_sampling: hal::OVERSAMPLING_8,
+        ..good
+    };
+    s.expect(Command::UsartStart(seven_e2), Ok);
+    assert_eq!(s.plant.serial, Some(seven_e2));
+    s.expect(
+        Command::UsartStart(UartInit {
+            parity: 0x0200,
+            ..good
+        }),
+        InvalidConfig,
+    );
+    assert_eq!(
+        s.plant.serial,
+        Some(seven_e2),
+        "a refused USART_START keeps the port"
+    );
+    let status = s.controller.status(&s.plant);
+    assert!(status.flags.has(StatusFlags::SERIAL_OPEN));
+}
+
 #[test]
 fn golden_frames_get_the_right_status() {
     // As protocol's golden test: ARM_VECTORS overrides the copy beside the repository.

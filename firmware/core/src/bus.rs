@@ -1,0 +1,244 @@
+//! The bus: the queues and signals that connect the tasks, and the routing of received
+//! datagrams onto them ([`Bus::route`]: a CRC-valid STOPPED to `estop`, everything else to
+//! `inbox`). Who sends what to whom:
+//!
+//! ```text
+//!            Datagrams                                               StepPins
+//!   UDP <-> network_task --estop (STOPPED, first)--> trajectory_task     ^
+//!              ^   |     --inbox (everything else)-->   | Controller     | on_step_timer
+//!              |   |                                    | Outputs,       |   (ISR)
+//!           outbox <----- ACK, STATUS, LOCATION --------+ Gripper,...  StepShared
+//!              ^   ^                                    |  \--stop/start-->  ^  |
+//!              |   |                          segments  v                    |  | step_wake
+//!              |   |                                  step_task --push-------'  |
+//!              |   |                                    | <---------------------'
+//!              |   |                      step_progress '--> trajectory_task
+//!              |   '-- LOCATION (period) -- upload_task <-- reports, upload_changed
+//!              '------ USART_RECV --------- serial_task <-- serial_tx, serial_opened
+//! ```
+//!
+//! Every channel and signal uses [`CriticalSectionRawMutex`]: the step engine and the
+//! step task's wake-up are touched from the timer interrupt, and one kind of mutex for all
+//! keeps the rules simple.
+
+use core::cell::Cell;
+
+use arm_step::Segment;
+use embassy_sync::blocking_mutex::Mutex;
+use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
+use embassy_sync::channel::Channel;
+use embassy_sync::signal::Signal;
+use heapless::Vec;
+use protocol::{MAX_DATAGRAM, MAX_SERIAL_CHUNK, Tag, UartInit, crc8};
+
+use crate::config::HOST_WINDOW;
+use crate::controller::ReportSettings;
+use crate::hw::Endpoint;
+use crate::log_limit::{LogLimit, LogVerdict};
+use crate::outgoing::Outgoing;
+#[cfg(doc)]
+use crate::step_shared::{StepShared, on_step_timer};
+
+/// The mutex kind of every channel, signal and shared cell.
+pub type Cs = CriticalSectionRawMutex;
+
+/// Queued STOPPED frames: one is enough to stop the arm; a few more keep the ACKs of a
+/// host that repeats STOPPED quickly (or several hosts stopping at once).
+pub const ESTOP_QUEUE: usize = 4;
+
+/// Queued datagrams for the trajectory task: a host's whole window
+/// ([`HOST_WINDOW`] = 32 datagrams, each up to 1472 bytes, sent back to back) plus 8 for
+/// the commands of other tools on the same machine (a STATUS poller, a watcher) arriving
+/// in the same instant. The network task can route a burst faster than the trajectory
+/// task handles it (on the board the Ethernet ring and the UDP socket hold the same burst
+/// before it), so the inbox must hold it whole. When full, datagrams are dropped (the host
+/// resends: no ACK came), never waited for, so that a STOPPED behind them is never held
+/// up. Each slot is a [`Datagram`] (1472 bytes + 12): 40 slots are 58 KiB of RAM.
+pub const INBOX_QUEUE: usize = HOST_WINDOW + 8;
+
+/// Queued frames to send: the ACKs of a full inbox and of the e-stop queue (44), plus a
+/// LOCATION, a STATUS and a USART_RECV, and a few LOCATIONs of state changes. When full,
+/// a frame is dropped (counted, logged at most once a second): the controller never
+/// waits to report. A slot holds the largest frame's content (USART_RECV, 255 bytes).
+pub const OUTBOX_QUEUE: usize = INBOX_QUEUE + ESTOP_QUEUE + 8;
+
+/// Segments between the trajectory task and the step task, on top of the engine's own
+/// queue: enough to refill the engine's queue in one go after a burst of short segments.
+pub const SEGMENT_QUEUE: usize = 8;
+
+/// USART_SEND payloads waiting for the serial port: at 115200 baud four are 90 ms of
+/// line time; a full queue refuses USART_SEND with BUFFER_FULL.
+pub const SERIAL_TX_QUEUE: usize = 4;
+
+/// A datagram as received.
+#[derive(Clone, Debug)]
+pub struct Datagram {
+    /// Sender.
+    pub from: Endpoint,
+    /// The whole frame (seq, tag, data, crc).
+    pub bytes: Vec<u8, MAX_DATAGRAM>,
+    /// STOPPED frames put on `bus.estop` before this one arrived (wrapping), stamped by
+    /// [`Bus::route`]: tells the trajectory task which STOPPEDs it handled overtook it.
+    pub stops_before: u32,
+}
+
+impl Datagram {
+    /// A datagram from `from`, not yet stamped (see [`Bus::route`]).
+    pub fn new(from: Endpoint, bytes: Vec<u8, MAX_DATAGRAM>) -> Self {
+        Datagram {
+            from,
+            bytes,
+            stops_before: 0,
+        }
+    }
+}
+
+/// A segment on its way to the engine, tagged with the engine's stop count at the time it
+/// was cut: a segment cut before an emergency stop is dropped, not run.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct SegmentMsg {
+    /// [`StepShared::generation`] when the segment was cut.
+    pub generation: u32,
+    /// The segment.
+    pub segment: Segment,
+}
+
+/// The channels and signals that connect the tasks. Put one in a `static` (`new` is
+/// `const`) or a `StaticCell`.
+/// See the module docs for who sends what to whom.
+pub struct Bus {
+    /// CRC-valid STOPPED frames, routed here by `network_task`; drained by
+    /// `trajectory_task` before anything else (the e-stop path).
+    pub estop: Channel<Cs, Datagram, ESTOP_QUEUE>,
+    /// Every other datagram, from `network_task`; drained by `trajectory_task`.
+    pub inbox: Channel<Cs, Datagram, INBOX_QUEUE>,
+    /// Frames to send, from `trajectory_task`, `upload_task` and `serial_task`; drained by
+    /// `network_task`.
+    pub outbox: Channel<Cs, Outgoing, OUTBOX_QUEUE>,
+    /// Segments cut from the trajectory buffer by `trajectory_task`; drained by
+    /// `step_task` into the engine.
+    pub segments: Channel<Cs, SegmentMsg, SEGMENT_QUEUE>,
+    /// Raised by the step interrupt ([`on_step_timer`]) when segments finished or the
+    /// engine ran dry; waited on by `step_task`.
+    pub step_wake: Signal<Cs, ()>,
+    /// Raised by `step_task` after it moved segments or was woken by the interrupt;
+    /// waited on by `trajectory_task`, which then collects the progress from
+    /// [`StepShared`] and feeds more segments.
+    pub step_progress: Signal<Cs, ()>,
+    /// USART_SEND payloads, from `trajectory_task`; drained by `serial_task`.
+    pub serial_tx: Channel<Cs, Vec<u8, MAX_SERIAL_CHUNK>, SERIAL_TX_QUEUE>,
+    /// The serial port was opened with these settings, by `trajectory_task`; taken by
+    /// `serial_task`'s reader.
+    pub serial_opened: Signal<Cs, UartInit>,
+    /// Report destination, state and upload settings, written by `trajectory_task`; read
+    /// by `upload_task` and `network_task`.
+    pub reports: Mutex<Cs, Cell<ReportSettings>>,
+    /// Raised by `trajectory_task` when reports were switched or the period changed;
+    /// waited on by `upload_task`.
+    pub upload_changed: Signal<Cs, ()>,
+    /// STOPPED frames put on `estop` so far (wrapping); every datagram is stamped with it
+    /// ([`Datagram::stops_before`]). Counted by [`Bus::route`] only.
+    stops_routed: Mutex<Cs, Cell<u32>>,
+    /// Datagrams dropped by [`Bus::route`] (full inbox), and the limit on their log lines.
+    inbox_drops: Mutex<Cs, Cell<(u32, LogLimit)>>,
+    /// Frames dropped by [`Bus::send`] (full outbox) not yet logged: `network_task` logs
+    /// them, at most once a second.
+    outbox_drops: Mutex<Cs, Cell<u32>>,
+}
+
+impl Default for Bus {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl Bus {
+    /// Empty channels, boot report settings.
+    pub const fn new() -> Self {
+        Bus {
+            estop: Channel::new(),
+            inbox: Channel::new(),
+            outbox: Channel::new(),
+            segments: Channel::new(),
+            step_wake: Signal::new(),
+            step_progress: Signal::new(),
+            serial_tx: Channel::new(),
+            serial_opened: Signal::new(),
+            reports: Mutex::new(Cell::new(ReportSettings::UNPUBLISHED)),
+            upload_changed: Signal::new(),
+            stops_routed: Mutex::new(Cell::new(0)),
+            inbox_drops: Mutex::new(Cell::new((0, LogLimit::new()))),
+            outbox_drops: Mutex::new(Cell::new(0)),
+        }
+    }
+
+    /// Datagrams dropped so far because the inbox was full (wrapping).
+    pub fn inbox_drops(&self) -> u32 {
+        self.inbox_drops.lock(|c| c.get().0)
+    }
+
+    /// Takes the count of frames dropped because the outbox was full since the last call.
+    pub fn take_outbox_drops(&self) -> u32 {
+        self.outbox_drops.lock(|c| c.replace(0))
+    }
+
+    /// The report settings as last published.
+    pub fn report_settings(&self) -> ReportSettings {
+        self.reports.lock(|c| c.get())
+    }
+
+    /// Queues a frame to send; a full outbox drops it (counted; `network_task` logs the
+    /// count) rather than wait.
+    pub fn send(&self, out: Outgoing) {
+        if self.outbox.try_send(out).is_err() {
+            self.outbox_drops.lock(|c| c.set(c.get().saturating_add(1)));
+        }
+    }
+
+    /// Routes a received datagram: a CRC-valid STOPPED to `estop` (to `inbox` if that
+    /// is full), everything else to `inbox`. Never waits: a full inbox drops the datagram
+    /// (the host resends it since no ACK came; the drops are counted and logged at most
+    /// once a second, `now_us` being the arrival time). Stamps it with the STOPPEDs put on
+    /// `estop` before it ([`Datagram::stops_before`]).
+    pub fn route(&self, mut datagram: Datagram, now_us: u64) {
+        // One critical section: stamps and queue order agree even if two tasks route.
+        let queued = self.stops_routed.lock(|routed| {
+            datagram.stops_before = routed.get();
+            let datagram = if is_stop(&datagram.bytes) {
+                match self.estop.try_send(datagram) {
+                    Ok(()) => {
+                        routed.set(routed.get().wrapping_add(1));
+                        return true;
+                    }
+                    Err(embassy_sync::channel::TrySendError::Full(d)) => d,
+                }
+            } else {
+                datagram
+            };
+            self.inbox.try_send(datagram).is_ok()
+        });
+        if !queued {
+            let verdict = self.inbox_drops.lock(|c| {
+                let (drops, mut limit) = c.get();
+                let verdict = limit.event(now_us);
+                c.set((drops.wrapping_add(1), limit));
+                verdict
+            });
+            if let LogVerdict::Log { suppressed } = verdict {
+                warn!(
+                    "inbox full: a datagram was dropped ({} more since the last such line)",
+                    suppressed
+                );
+            }
+        }
+    }
+}
+
+/// Whether a datagram is a CRC-valid STOPPED frame.
+pub fn is_stop(bytes: &[u8]) -> bool {
+    match bytes {
+        [_, tag, .., crc] => *tag == Tag::Stopped as u8 && crc8(&bytes[..bytes.len() - 1]) == *crc,
+        _ => false,
+    }
+}

@@ -1,0 +1,99 @@
+//! The owner rule and who gets LOCATION reports (see "Who gets which report" in
+//! [`crate::controller`]), and the DISCOVER_REPLY that tells a host who owns the arm.
+
+use protocol::{DiscoverReply, MoreFlags, OwnerState, State};
+
+use super::{Controller, Owner};
+use crate::config::OWNER_TIMEOUT_US;
+use crate::hw::Endpoint;
+use crate::plant::Plant;
+use crate::reports::{LOCATION_LISTENERS, Listener};
+
+impl<const CAP: usize> Controller<CAP> {
+    /// The DISCOVER_REPLY for a host at `asker`: changes nothing.
+    pub(super) fn discovery(&self, asker: [u8; 4], now_us: u64) -> DiscoverReply {
+        // An owner silent for 5 s with the arm not running has lost the arm already.
+        let owner = self.owner.filter(|o| {
+            self.state == State::Running
+                || now_us.saturating_sub(o.last_heard_us) < OWNER_TIMEOUT_US
+        });
+        let net = self.settings.net();
+        DiscoverReply {
+            mac: self.mac,
+            net,
+            version: protocol::VERSION,
+            joints: self.settings.joints,
+            state: self.state,
+            owner: match owner {
+                None => OwnerState::Free,
+                Some(o) if o.ip == asker => OwnerState::Asker,
+                Some(_) => OwnerState::Other,
+            },
+            owner_ip: owner.map_or([0; 4], |o| o.ip),
+            pending_reset: net != self.booted_net,
+        }
+    }
+
+    /// `from`, an owner endpoint whose command was executed, gets LOCATION reports from
+    /// now on: it takes a free slot, or that of a listener silent for 5 s, or else that of
+    /// the one heard least recently (never the claimer's while something runs).
+    pub(super) fn listen(&mut self, from: Endpoint, now_us: u64) {
+        let keep_claimer = self.state != State::Stopped;
+        let claimer = self.location_claimer;
+        let protected = |l: &Listener| keep_claimer && Some(l.to) == claimer;
+        for slot in self.listeners.iter_mut() {
+            if slot.is_some_and(|l| {
+                !protected(&l) && now_us.saturating_sub(l.heard_us) >= OWNER_TIMEOUT_US
+            }) {
+                *slot = None;
+            }
+        }
+        let fresh = Listener {
+            to: from,
+            heard_us: now_us,
+        };
+        if let Some(slot) = self.listeners.iter_mut().flatten().find(|l| l.to == from) {
+            *slot = fresh;
+            return;
+        }
+        if let Some(slot) = self.listeners.iter_mut().find(|l| l.is_none()) {
+            *slot = Some(fresh);
+            return;
+        }
+        let oldest = self
+            .listeners
+            .iter_mut()
+            .filter(|l| l.is_some_and(|l| !protected(&l)))
+            .min_by_key(|l| l.map_or(0, |l| l.heard_us));
+        if let Some(slot) = oldest {
+            *slot = Some(fresh);
+        }
+    }
+
+    /// `from` becomes the owner (the first host, or a new one after the owner's 5 s of
+    /// silence, not while running): every report goes to it, and an upload the old owner
+    /// had not started is dropped, so that the new owner's RUNING cannot run half of it.
+    pub(super) fn take_over(&mut self, from: Endpoint, now_us: u64, plant: &mut impl Plant) {
+        self.owner = Some(Owner {
+            ip: from.ip,
+            last_heard_us: now_us,
+        });
+        self.listeners = [None; LOCATION_LISTENERS];
+        self.listeners[0] = Some(Listener {
+            to: from,
+            heard_us: now_us,
+        });
+        self.location_claimer = Some(from);
+        self.serial_to = Some(from);
+        self.uploader = None;
+        if matches!(self.state, State::New | State::Pending) {
+            plant.stop();
+            self.buffer.clear();
+            self.return_plan = None;
+            self.return_pending = false;
+            self.state = State::Stopped;
+            self.more_flags.set(MoreFlags::UPLOAD_DROPPED, true);
+            warn!("owner hand-over: the old owner's unstarted upload was dropped");
+        }
+    }
+}

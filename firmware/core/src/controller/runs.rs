@@ -1,0 +1,173 @@
+//! Runs: points admitted into the buffer, fed to the engine, finished; RETURN's encoder
+//! read and plan (see "Runs, reports and flags" in [`crate::controller`]).
+
+use arm_step::Segment;
+use protocol::{Location, MAX_JOINTS, State};
+
+use super::Controller;
+use crate::buffer::StoredPoint;
+use crate::hw::EncoderFault;
+use crate::plan::plan_return;
+use crate::plant::Plant;
+
+impl<const CAP: usize> Controller<CAP> {
+    /// The stored form of `point` after `previous`, if it obeys section 5: for every joint
+    /// in use, at most `max_step_rate_hz` steps per second and a step count that fits a
+    /// segment, and all joints together at most `step_budget_hz` steps per second. Joints
+    /// not in use keep their previous position.
+    pub(super) fn admit(
+        &self,
+        previous: &[i32; MAX_JOINTS],
+        point: &protocol::Point,
+    ) -> Option<StoredPoint> {
+        let duration = u32::try_from(point.duration).ok().filter(|d| *d >= 1)?;
+        let joints = usize::from(self.settings.joints).min(MAX_JOINTS);
+        let mut position = *previous;
+        let mut total_steps = 0u64;
+        for (j, p) in position.iter_mut().enumerate().take(joints) {
+            let steps = point.steps(previous, j).unsigned_abs();
+            total_steps += steps;
+            // steps < 2^33 and duration < 2^31: both products fit u64.
+            let too_fast =
+                steps * 1_000_000 > u64::from(self.config.max_step_rate_hz) * u64::from(duration);
+            if too_fast || steps > i32::MAX as u64 {
+                return None;
+            }
+            *p = point.position[j];
+        }
+        // total_steps < 2^36: the product fits u64.
+        let budget = u64::from(self.step_budget_hz);
+        if budget > 0 && total_steps * 1_000_000 > budget * u64::from(duration) {
+            return None;
+        }
+        Some(StoredPoint {
+            duration_us: duration,
+            position,
+        })
+    }
+
+    /// Hands as many buffered points to the engine as it takes (and, during RETURN, tops
+    /// the buffer up from the plan first).
+    pub fn pump(&mut self, plant: &mut impl Plant) {
+        if let Some(plan) = self.return_plan.as_mut() {
+            while self.buffer.free() > 0 {
+                let Some(point) = plan.next() else { break };
+                if self.buffer.push(point) {
+                    self.received += 1;
+                }
+            }
+        }
+        if !matches!(self.state, State::Pending | State::Running) {
+            return;
+        }
+        while let Some(point) = self.buffer.next_unfed() {
+            let mut steps = [0i32; MAX_JOINTS];
+            for (j, s) in steps.iter_mut().enumerate() {
+                let delta = i64::from(point.position[j]) - i64::from(self.fed_end[j]);
+                *s = delta.clamp(i64::from(i32::MIN), i64::from(i32::MAX)) as i32;
+            }
+            let segment = Segment {
+                duration_us: point.duration_us,
+                steps,
+            };
+            if !plant.push_segment(segment) {
+                break;
+            }
+            self.buffer.mark_fed();
+            self.fed_end = point.position;
+        }
+    }
+
+    /// The engine finished `finished` more segments and, if `ran_dry`, ran out of them
+    /// and stopped. Ends the run (completion or underrun) when it ran dry, feeds more
+    /// points otherwise. Returns a LOCATION report when the state changed.
+    pub fn on_step_progress(
+        &mut self,
+        finished: u32,
+        ran_dry: bool,
+        plant: &mut impl Plant,
+    ) -> Option<Location> {
+        let done = self.buffer.finish(finished as usize);
+        self.executed = self.executed.saturating_add(done as u32);
+        if ran_dry && self.state == State::Running && !self.return_pending {
+            let complete = self.executed >= self.expected;
+            // Clears anything pushed after the engine went idle.
+            plant.stop();
+            self.buffer.clear();
+            self.return_plan = None;
+            self.underrun = !complete;
+            self.stopped_by_host = false;
+            self.state = State::Stopped;
+            return self.reports_on.then(|| self.location(plant));
+        }
+        self.pump(plant);
+        None
+    }
+
+    /// Ends an accepted RETURN whose encoder read failed: nothing moves, the state goes
+    /// back to STOPPED (neither underrun nor STOPPED-by-host: the run never started) and
+    /// the fault is kept for [`Controller::return_fault`]. Returns a LOCATION report when
+    /// the state changed (reports on).
+    pub fn fail_return(&mut self, fault: EncoderFault, plant: &mut impl Plant) -> Option<Location> {
+        if !self.return_pending || self.state != State::Running {
+            return None;
+        }
+        self.return_pending = false;
+        self.return_plan = None;
+        self.buffer.clear();
+        // A RETURN of no points: STATUS shows expected = executed = 0, not the last run's.
+        self.expected = 0;
+        self.received = 0;
+        self.executed = 0;
+        self.underrun = false;
+        self.stopped_by_host = false;
+        self.return_fault = Some(fault);
+        self.state = State::Stopped;
+        self.reports_on.then(|| self.location(plant))
+    }
+
+    /// Why the last RETURN was refused after its ACK (`None`: it was not, or no RETURN
+    /// since boot).
+    pub fn return_fault(&self) -> Option<EncoderFault> {
+        self.return_fault
+    }
+
+    /// Continues an accepted RETURN with the encoder reading (`None`: no encoders, trust
+    /// the step count): corrects the positions of the joints in use if they differ, plans
+    /// the move to zero and starts it. Returns a LOCATION report when the state changed
+    /// (nothing to move: back to STOPPED).
+    pub fn begin_return(
+        &mut self,
+        encoders: Option<[i32; MAX_JOINTS]>,
+        plant: &mut impl Plant,
+    ) -> Option<Location> {
+        if !self.return_pending || self.state != State::Running {
+            return None;
+        }
+        self.return_pending = false;
+        let joints = usize::from(self.settings.joints).min(MAX_JOINTS);
+        let mut start = plant.positions();
+        if let Some(read) = encoders {
+            let mut corrected = start;
+            corrected[..joints].copy_from_slice(&read[..joints]);
+            if corrected != start && plant.set_positions(corrected) {
+                start = corrected;
+            }
+        }
+        let plan = plan_return(start, self.settings.joints, &self.config);
+        self.buffer.clear();
+        self.expected = plan.total_points();
+        self.received = 0;
+        self.executed = 0;
+        self.received_end = start;
+        self.fed_end = start;
+        if plan.total_points() == 0 {
+            self.state = State::Stopped;
+            return self.reports_on.then(|| self.location(plant));
+        }
+        self.return_plan = Some(plan);
+        self.pump(plant);
+        plant.start();
+        None
+    }
+}

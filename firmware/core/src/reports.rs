@@ -1,0 +1,72 @@
+//! Where reports go: the owner endpoints that get LOCATION ([`LOCATION_LISTENERS`] of
+//! them) and the settings the upload and network tasks read ([`ReportSettings`]), copied
+//! out of the [`crate::Controller`] after every change (see "Who gets which report" in
+//! [`crate::controller`]).
+
+use protocol::{State, limits};
+
+use crate::hw::Endpoint;
+
+/// Owner endpoints that get the LOCATION reports at once: a few tools on the owner's
+/// machine (an uploader, a watcher, a poller, one more), each a socket of its own.
+pub const LOCATION_LISTENERS: usize = 4;
+
+/// An owner endpoint that gets LOCATION reports (see "Who gets which report").
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub(crate) struct Listener {
+    /// The endpoint.
+    pub(crate) to: Endpoint,
+    /// When it last sent a CRC-valid frame, microseconds: silent [`OWNER_TIMEOUT_US`], it
+    /// stops getting reports (unless it started the upload or run under way).
+    pub(crate) heard_us: u64,
+}
+
+/// Settings the location upload needs, copied out after every change.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct ReportSettings {
+    /// Where LOCATION reports go: each of these owner endpoints (none before any host
+    /// spoke).
+    pub location_to: [Option<Endpoint>; LOCATION_LISTENERS],
+    /// Where USART_RECV reports go (`None` before any host spoke).
+    pub serial_to: Option<Endpoint>,
+    /// LOCATION reports on.
+    pub reports_on: bool,
+    /// LOCATION period, microseconds.
+    pub upload_period_us: u32,
+    /// The trajectory state.
+    pub state: State,
+}
+
+impl ReportSettings {
+    /// Whether a LOCATION report has anywhere to go.
+    pub fn has_location_listener(&self) -> bool {
+        self.location_to.iter().any(Option::is_some)
+    }
+
+    /// Whether `endpoint` gets LOCATION reports.
+    pub fn location_goes_to(&self, endpoint: Endpoint) -> bool {
+        self.location_to.contains(&Some(endpoint))
+    }
+
+    /// Before the trajectory task first publishes the controller's: no report anywhere,
+    /// period 0 (the upload task waits for the first publication). All zero bytes, so that
+    /// a [`crate::Bus`] in a `static` is zero-initialised (`.bss`, not a flash copy).
+    pub const UNPUBLISHED: ReportSettings = ReportSettings {
+        location_to: [None; LOCATION_LISTENERS],
+        serial_to: None,
+        reports_on: false,
+        upload_period_us: 0,
+        state: State::New,
+    };
+
+    /// Boot values: reports on at the default period, nobody to send them to yet.
+    pub const BOOT: ReportSettings = ReportSettings {
+        location_to: [None; LOCATION_LISTENERS],
+        serial_to: None,
+        reports_on: true,
+        upload_period_us: limits::DEFAULT_UPLOAD_PERIOD_US,
+        state: State::Stopped,
+    };
+}

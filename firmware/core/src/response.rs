@@ -1,0 +1,63 @@
+//! What [`crate::Controller::handle`] returns: the ACK ([`Reply`]), reports, and the
+//! work left to the caller ([`Deferred`]), all in one [`Response`].
+
+use protocol::{Ack, DiscoverReply, Location, StatusReport};
+
+use crate::hw::{Endpoint, PersistentSettings};
+#[cfg(doc)]
+use crate::reports::ReportSettings;
+
+/// Work that needs waiting, left to the caller (the trajectory task).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Deferred {
+    /// Store these settings ([`crate::hw::SettingsStore::save`]).
+    SaveSettings(PersistentSettings),
+    /// RETURN was accepted: read the encoders ([`crate::hw::Encoders::read`]) and pass
+    /// the result to [`Controller::begin_return`].
+    ReadEncoders,
+}
+
+/// The ACK for one command.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Reply {
+    /// Where it goes: the command's sender.
+    pub to: Endpoint,
+    /// The command's seq.
+    pub seq: u8,
+    /// Content.
+    pub ack: Ack,
+}
+
+/// What handling one datagram produced.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Response {
+    /// The ACK; `None` only for a datagram under 3 bytes.
+    pub reply: Option<Reply>,
+    /// A STATUS report and where it goes: the endpoint that asked for it.
+    pub status: Option<(Endpoint, StatusReport)>,
+    /// A LOCATION report: the state changed (only while reports are on). It goes to
+    /// [`ReportSettings::location_to`].
+    pub location: Option<Location>,
+    /// Work left to the caller.
+    pub deferred: Option<Deferred>,
+    /// The command was executed: ACKed `OK` and not a duplicate. Only an executed STOPPED
+    /// stops anything (the e-stop path in [`crate::tasks`] relies on it).
+    pub executed: bool,
+    /// The answer to a DISCOVER, for its sender (instead of an ACK).
+    pub discovery: Option<Discovery>,
+}
+
+/// A DISCOVER_REPLY for the host that asked (PROTOCOL.md section 12).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Discovery {
+    /// The DISCOVER's sender.
+    pub to: Endpoint,
+    /// The DISCOVER's seq.
+    pub seq: u8,
+    /// Content.
+    pub reply: DiscoverReply,
+}

@@ -1,0 +1,302 @@
+//! The step backend shared between the step interrupts and the tasks ([`StepShared`]):
+//! the engine (or the board's DMA producer, any [`StepBackend`]) behind one critical
+//! section, with the bookkeeping that must change with it (stop count, finished segments,
+//! ran dry), and the step timer interrupt's body [`on_step_timer`].
+
+use core::cell::RefCell;
+
+use arm_step::{Segment, StepEngine, StepPins, StepTiming};
+use embassy_sync::blocking_mutex::Mutex;
+use embassy_sync::signal::Signal;
+use protocol::MAX_JOINTS;
+
+use crate::bus::{Cs, SegmentMsg};
+#[cfg(doc)]
+use crate::hw::StepKick;
+
+/// Segments the step backend holds on the interrupts' side (the engine's queue, or the
+/// board's DMA producer's): with the shortest common point (1 ms) that is 64 ms of motion,
+/// far more than the trajectory task's worst wake-up latency on the board; in the
+/// simulator at `--time-scale 20`, 64 points of 10 ms are 32 ms of real time, which covers
+/// a host scheduler hiccup. The board, the QEMU firmware and the simulator all use it.
+pub const STEP_QUEUE: usize = 64;
+
+/// Time between the start of a run being decided and its first segment's start: leaves
+/// the step interrupt time to set the DIR lines (and a simulator's scheduler some slack).
+pub const START_LEAD_US: u32 = 1_000;
+
+/// Microseconds to step timer ticks (rounded down).
+pub fn us_to_ticks(us: u64, tick_hz: u32) -> u64 {
+    (u128::from(us) * u128::from(tick_hz) / 1_000_000) as u64
+}
+
+/// Pins that do nothing: thread-level code stops the engine with these, and the next
+/// interrupt lowers the real STEP lines.
+struct NoPins;
+
+impl StepPins for NoPins {
+    fn set_direction(&mut self, _joint: usize, _positive: bool) {}
+    fn step_high(&mut self, _joints: arm_step::JointMask) {}
+    fn step_low(&mut self, _joints: arm_step::JointMask) {}
+}
+
+/// What the tasks need from whatever makes the step pulses: [`StepEngine`] (edges made by
+/// an interrupt; the simulator) or the DMA streams' producer (the board). Called inside
+/// [`StepShared`]'s critical section: implementations must not block.
+pub trait StepBackend {
+    /// Timer resolution and driver timing.
+    fn timing(&self) -> StepTiming;
+    /// Queues a segment; gives it back if the queue is full.
+    fn push(&mut self, segment: Segment) -> Result<(), Segment>;
+    /// Segments held.
+    fn queued(&self) -> usize;
+    /// Starts running the queue at `at_tick` (step timer ticks, [`StepKick::now_tick`]).
+    fn start(&mut self, at_tick: u64);
+    /// Emergency stop: no pulse after this returns (or, for an engine whose lines the
+    /// next interrupt lowers, after that interrupt); the queue is dropped; positions
+    /// keep the pulses made.
+    fn stop(&mut self);
+    /// Joint positions, steps.
+    fn positions(&self) -> [i32; MAX_JOINTS];
+    /// Overwrites the positions; refused (false) while running.
+    fn set_positions(&mut self, positions: [i32; MAX_JOINTS]) -> bool;
+}
+
+impl<const Q: usize> StepBackend for StepEngine<Q> {
+    fn timing(&self) -> StepTiming {
+        StepEngine::timing(self)
+    }
+    fn push(&mut self, segment: Segment) -> Result<(), Segment> {
+        StepEngine::push(self, segment)
+    }
+    fn queued(&self) -> usize {
+        StepEngine::queued(self)
+    }
+    fn start(&mut self, at_tick: u64) {
+        StepEngine::start(self, at_tick)
+    }
+    fn stop(&mut self) {
+        // The lines are lowered by the next interrupt (`lower_step_lines`).
+        StepEngine::stop(self, &mut NoPins)
+    }
+    fn positions(&self) -> [i32; MAX_JOINTS] {
+        StepEngine::positions(self)
+    }
+    fn set_positions(&mut self, positions: [i32; MAX_JOINTS]) -> bool {
+        StepEngine::set_positions(self, positions)
+    }
+}
+
+/// What a step interrupt reports to the tasks.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct StepProgress {
+    /// Segments finished (their slots are free).
+    pub segments_finished: u32,
+    /// The run is over: every pulse was made and the last segment ended.
+    pub ran_dry: bool,
+}
+
+/// The step backend and what the interrupts report to the tasks, behind one critical
+/// section mutex.
+pub struct StepState<B> {
+    /// The engine (or other backend).
+    pub engine: B,
+    /// Emergency stops so far: segments cut before the last stop are stale.
+    generation: u32,
+    /// Segments finished since the trajectory task last collected.
+    finished: u32,
+    /// The engine ran dry since the trajectory task last collected.
+    ran_dry: bool,
+    /// A start was asked for while the engine's queue was empty: start with the first
+    /// segment pushed.
+    start_pending: bool,
+    /// The engine was stopped outside the interrupt: the interrupt must lower every STEP
+    /// line.
+    lower_step_lines: bool,
+}
+
+/// What became of a segment offered to the engine.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum PushOutcome {
+    /// Queued in the engine.
+    Queued,
+    /// Cut before the last emergency stop: dropped.
+    Stale,
+    /// The engine's queue is full: offer it again later.
+    Full,
+}
+
+/// The step engine (or other [`StepBackend`]) shared between the step interrupts and the
+/// tasks: `Mutex<CriticalSectionRawMutex, RefCell<..>>` around it plus the bookkeeping
+/// that must change atomically with it (stop count, finished segments, ran dry). `Q`:
+/// the engine's queue when the backend is the default [`StepEngine`].
+pub struct StepShared<const Q: usize, B = StepEngine<Q>> {
+    inner: Mutex<Cs, RefCell<StepState<B>>>,
+}
+
+impl<const Q: usize> StepShared<Q> {
+    /// An idle engine with this timing.
+    pub const fn new(timing: StepTiming) -> Self {
+        Self::with_backend(StepEngine::new(timing))
+    }
+}
+
+impl<const Q: usize, B: StepBackend> StepShared<Q, B> {
+    /// Shares `backend` (idle).
+    pub const fn with_backend(backend: B) -> Self {
+        StepShared {
+            inner: Mutex::new(RefCell::new(StepState {
+                engine: backend,
+                generation: 0,
+                finished: 0,
+                ran_dry: false,
+                start_pending: false,
+                lower_step_lines: false,
+            })),
+        }
+    }
+
+    /// Runs `f` on the backend inside the critical section (inspection, simulators).
+    pub fn with_engine<R>(&self, f: impl FnOnce(&mut B) -> R) -> R {
+        self.inner.lock(|s| f(&mut s.borrow_mut().engine))
+    }
+
+    /// The body of a step interrupt other than the engine's timer (the board's DMA
+    /// refills and run end): runs `f` on the backend in the critical section, records the
+    /// progress it reports and wakes `wake` (the bus's `step_wake`) if there is any.
+    /// Nothing is recorded for a run cut by a stop in the meantime (the caller's `f`
+    /// sees the stopped backend).
+    pub fn on_interrupt<R>(
+        &self,
+        wake: &Signal<Cs, ()>,
+        f: impl FnOnce(&mut B) -> (R, StepProgress),
+    ) -> R {
+        self.inner.lock(|s| {
+            let mut s = s.borrow_mut();
+            let (r, progress) = f(&mut s.engine);
+            if progress.segments_finished > 0 || progress.ran_dry {
+                s.finished = s.finished.saturating_add(progress.segments_finished);
+                s.ran_dry |= progress.ran_dry;
+                wake.signal(());
+            }
+            r
+        })
+    }
+
+    /// The engine's timing.
+    pub fn timing(&self) -> StepTiming {
+        self.with_engine(|e| e.timing())
+    }
+
+    /// Joint positions in steps, counted per pulse emitted.
+    pub fn positions(&self) -> [i32; MAX_JOINTS] {
+        self.with_engine(|e| e.positions())
+    }
+
+    /// Overwrites the positions; refused while running.
+    pub fn set_positions(&self, positions: [i32; MAX_JOINTS]) -> bool {
+        self.with_engine(|e| e.set_positions(positions))
+    }
+
+    /// Emergency stops so far.
+    pub fn generation(&self) -> u32 {
+        self.inner.lock(|s| s.borrow().generation)
+    }
+
+    /// Emergency stop: the engine drops every segment and emits no further pulse; the
+    /// next interrupt lowers the STEP lines (kick it). Segments cut before now become
+    /// stale; uncollected progress is dropped.
+    pub fn stop(&self) {
+        self.inner.lock(|s| {
+            let mut s = s.borrow_mut();
+            s.engine.stop();
+            s.generation = s.generation.wrapping_add(1);
+            s.finished = 0;
+            s.ran_dry = false;
+            s.start_pending = false;
+            s.lower_step_lines = true;
+        })
+    }
+
+    /// Offers a segment; starts the engine at `start_tick` if a start is pending.
+    pub fn push(&self, msg: SegmentMsg, start_tick: u64) -> PushOutcome {
+        self.inner.lock(|s| {
+            let mut s = s.borrow_mut();
+            if msg.generation != s.generation {
+                return PushOutcome::Stale;
+            }
+            if s.engine.push(msg.segment).is_err() {
+                return PushOutcome::Full;
+            }
+            if s.start_pending {
+                s.start_pending = false;
+                s.engine.start(start_tick);
+            }
+            PushOutcome::Queued
+        })
+    }
+
+    /// Starts the engine at `start_tick` if it holds a segment, else as soon as one is
+    /// pushed.
+    pub fn start(&self, start_tick: u64) {
+        self.inner.lock(|s| {
+            let mut s = s.borrow_mut();
+            if s.engine.queued() > 0 {
+                s.engine.start(start_tick);
+            } else {
+                s.start_pending = true;
+            }
+        })
+    }
+
+    /// Collects the progress since the last call: segments finished, ran dry.
+    pub fn take_progress(&self) -> (u32, bool) {
+        self.inner.lock(|s| {
+            let mut s = s.borrow_mut();
+            let progress = (s.finished, s.ran_dry);
+            s.finished = 0;
+            s.ran_dry = false;
+            progress
+        })
+    }
+}
+
+impl<const Q: usize> StepShared<Q> {
+    /// The body of the step timer interrupt, see [`on_step_timer`].
+    pub fn on_timer(
+        &self,
+        now_tick: u64,
+        pins: &mut impl StepPins,
+        wake: &Signal<Cs, ()>,
+    ) -> Option<u64> {
+        self.inner.lock(|s| {
+            let mut s = s.borrow_mut();
+            if s.lower_step_lines {
+                s.lower_step_lines = false;
+                pins.step_low(0xFF);
+            }
+            let poll = s.engine.poll(now_tick, pins);
+            if poll.segments_finished > 0 || poll.ran_dry {
+                s.finished = s.finished.saturating_add(poll.segments_finished);
+                s.ran_dry |= poll.ran_dry;
+                wake.signal(());
+            }
+            poll.next_deadline
+        })
+    }
+}
+
+/// What the step timer interrupt calls (board and simulator alike): emits the edges due
+/// at `now_tick`, records finished segments and running dry for the tasks (waking
+/// `wake`, the bus's `step_wake`), and returns the tick to be called again at (`None`:
+/// only when kicked).
+pub fn on_step_timer<const Q: usize>(
+    shared: &StepShared<Q>,
+    now_tick: u64,
+    pins: &mut impl StepPins,
+    wake: &Signal<Cs, ()>,
+) -> Option<u64> {
+    shared.on_timer(now_tick, pins, wake)
+}

@@ -1,0 +1,71 @@
+//! The network task: the UDP socket's both directions.
+
+use embassy_futures::join::join;
+use heapless::Vec;
+use protocol::MAX_DATAGRAM;
+
+use crate::bus::{Bus, Datagram};
+use crate::hw::{Clock, Datagrams};
+use crate::log_limit::{LogLimit, LogVerdict};
+use crate::outgoing::{MAX_REPORT_FRAME, ReportEncoder};
+
+/// Receives datagrams and routes them ([`Bus::route`]), and sends what `bus.outbox`
+/// holds, both at once. ACKs and STATUS reports go to their requester, LOCATION and
+/// USART_RECV as last published in `bus.reports`. Failures a datagram can cause are
+/// logged at most once a second each ([`LogLimit`]), with the count.
+pub async fn network_task<D: Datagrams, C: Clock>(socket: &D, bus: &Bus, clock: &C) -> ! {
+    let rx = async {
+        let mut buf = [0u8; MAX_DATAGRAM];
+        let mut failures = LogLimit::new();
+        loop {
+            match socket.recv(&mut buf).await {
+                Ok((n, from)) => {
+                    let bytes =
+                        Vec::from_slice(buf.get(..n).unwrap_or_default()).unwrap_or_default();
+                    bus.route(Datagram::new(from, bytes), clock.now_us());
+                }
+                Err(e) => {
+                    if let LogVerdict::Log { suppressed } = failures.event(clock.now_us()) {
+                        warn!(
+                            "receive failed: {:?} ({} more since the last such line)",
+                            debug_value!(e),
+                            suppressed
+                        );
+                    }
+                }
+            }
+        }
+    };
+    let tx = async {
+        let mut encoder = ReportEncoder::new();
+        let mut buf = [0u8; MAX_REPORT_FRAME];
+        let mut failures = LogLimit::new();
+        let mut outbox_full = LogLimit::new();
+        loop {
+            let out = bus.outbox.receive().await;
+            let drops = bus.take_outbox_drops();
+            if let LogVerdict::Log { suppressed } = outbox_full.events(drops, clock.now_us()) {
+                warn!(
+                    "outbox full: {} frames dropped since the last such line",
+                    suppressed.saturating_add(drops)
+                );
+            }
+            let routes = bus.report_settings();
+            let Some((destinations, n)) = encoder.encode(&out, &routes, &mut buf) else {
+                continue;
+            };
+            for to in destinations {
+                if let Err(e) = socket.send(to, buf.get(..n).unwrap_or_default()).await
+                    && let LogVerdict::Log { suppressed } = failures.event(clock.now_us())
+                {
+                    warn!(
+                        "send failed: {:?} ({} more since the last such line)",
+                        debug_value!(e),
+                        suppressed
+                    );
+                }
+            }
+        }
+    };
+    match join(rx, tx).await {}
+}

@@ -1,0 +1,240 @@
+//! The trajectory task: owns the [`Controller`], executes its effects on the hardware
+//! ([`Plant`] over the shared step engine and the other devices) and waits for its
+//! deferred work.
+
+use arm_step::Segment;
+use embassy_futures::select::{Either3, select3};
+use heapless::Vec;
+use protocol::{MAX_JOINTS, Pwm, UartInit};
+
+use super::overtaken::{OvertakingStops, handle_overtaken};
+use crate::bus::{Bus, SegmentMsg};
+use crate::controller::{Controller, Deferred, Plant, Response};
+use crate::hw::{
+    Clock, Encoders, Gripper, Outputs, SerialError, SerialPort, SettingsStore, StepKick,
+};
+use crate::outgoing::Outgoing;
+use crate::step_shared::{START_LEAD_US, StepBackend, StepShared, us_to_ticks};
+
+/// The hardware the trajectory task drives besides the step engine.
+pub struct TrajectoryHw<'a, K, O, G, P, S, E> {
+    /// The step timer.
+    pub kick: &'a K,
+    /// PIN0/PIN1 and the ENABLE lines.
+    pub outputs: O,
+    /// The gripper timer.
+    pub gripper: G,
+    /// The serial port (shared with `serial_task`; opened and closed here).
+    pub serial: &'a P,
+    /// Persistent settings.
+    pub settings: S,
+    /// Absolute encoders.
+    pub encoders: E,
+}
+
+/// [`Plant`] over the shared engine and the hardware.
+struct TaskPlant<'a, const Q: usize, B, K, O, G, P> {
+    bus: &'a Bus,
+    step: &'a StepShared<Q, B>,
+    kick: &'a K,
+    lead_ticks: u64,
+    outputs: &'a mut O,
+    gripper: &'a mut G,
+    serial: &'a P,
+}
+
+impl<const Q: usize, B: StepBackend, K: StepKick, O: Outputs, G: Gripper, P: SerialPort> Plant
+    for TaskPlant<'_, Q, B, K, O, G, P>
+{
+    fn positions(&self) -> [i32; MAX_JOINTS] {
+        self.step.positions()
+    }
+    fn set_positions(&mut self, positions: [i32; MAX_JOINTS]) -> bool {
+        self.step.set_positions(positions)
+    }
+    fn stop(&mut self) {
+        self.step.stop();
+        self.kick.kick();
+        self.bus.segments.clear();
+        // step_task may be waiting on step_wake with a segment the full engine refused;
+        // after a stop no segment finishes to wake it: wake it here, or it never takes
+        // the next run's segments.
+        self.bus.step_wake.signal(());
+    }
+    fn push_segment(&mut self, segment: Segment) -> bool {
+        let msg = SegmentMsg {
+            generation: self.step.generation(),
+            segment,
+        };
+        self.bus.segments.try_send(msg).is_ok()
+    }
+    fn start(&mut self) {
+        self.step.start(self.kick.now_tick() + self.lead_ticks);
+        self.kick.kick();
+    }
+    fn set_user_pin(&mut self, pin: u8, high: bool) {
+        self.outputs.set_user_pin(pin, high);
+    }
+    fn set_enabled(&mut self, enabled: u16) {
+        self.outputs.set_enabled(enabled);
+    }
+    fn gripper_start(&mut self, pwm: &Pwm) {
+        self.gripper.start(pwm);
+    }
+    fn gripper_stop(&mut self) {
+        self.gripper.stop();
+    }
+    fn gripper_active(&self) -> bool {
+        self.gripper.is_active()
+    }
+    fn serial_open(&mut self, init: &UartInit) -> Result<(), SerialError> {
+        self.serial.open(init)?;
+        self.bus.serial_opened.signal(*init);
+        Ok(())
+    }
+    fn serial_close(&mut self) {
+        self.bus.serial_tx.clear();
+        self.serial.close();
+    }
+    fn serial_send(&mut self, bytes: &[u8]) -> bool {
+        match Vec::from_slice(bytes) {
+            Ok(v) => self.bus.serial_tx.try_send(v).is_ok(),
+            Err(_) => false,
+        }
+    }
+}
+
+/// Owns the [`Controller`]: handles datagrams (STOPPED from `bus.estop` first), sends
+/// ACKs and reports, executes the effects on the hardware, feeds segments to the step
+/// task and ends runs when the engine runs dry. At start: loads the stored settings,
+/// takes the gripper timer clock for STATUS, and drives the ENABLE lines to their boot
+/// state (all holding).
+pub async fn trajectory_task<const CAP: usize, const Q: usize, B, C, K, O, G, P, S, E>(
+    controller: &mut Controller<CAP>,
+    bus: &Bus,
+    step: &StepShared<Q, B>,
+    clock: &C,
+    hw: TrajectoryHw<'_, K, O, G, P, S, E>,
+) -> !
+where
+    B: StepBackend,
+    C: Clock,
+    K: StepKick,
+    O: Outputs,
+    G: Gripper,
+    P: SerialPort,
+    S: SettingsStore,
+    E: Encoders,
+{
+    let TrajectoryHw {
+        kick,
+        mut outputs,
+        mut gripper,
+        serial,
+        mut settings,
+        mut encoders,
+    } = hw;
+    match settings.load().await {
+        Ok(Some(stored)) => controller.apply_settings(stored),
+        Ok(None) => {}
+        Err(e) => warn!("settings not loaded, using defaults: {:?}", debug_value!(e)),
+    }
+    controller.set_pwm_timer_clock_hz(gripper.timer_clock_hz());
+    outputs.set_enabled(controller.enabled());
+    publish(bus, controller);
+    let lead_ticks = us_to_ticks(u64::from(START_LEAD_US), step.timing().tick_hz);
+    // STOPPEDs taken from `bus.estop`, and which of them the controller executed: an
+    // inbox datagram stamped with fewer arrived before them; only an executed one stops.
+    let mut stops = OvertakingStops::new();
+    loop {
+        // Biased: a waiting STOPPED is always taken first.
+        let event = select3(
+            bus.estop.receive(),
+            bus.inbox.receive(),
+            bus.step_progress.wait(),
+        )
+        .await;
+        let mut plant = TaskPlant {
+            bus,
+            step,
+            kick,
+            lead_ticks,
+            outputs: &mut outputs,
+            gripper: &mut gripper,
+            serial,
+        };
+        let response = match event {
+            Either3::First(d) => {
+                let response = controller.handle(d.from, &d.bytes, clock.now_us(), &mut plant);
+                // Refused (BAD_LENGTH) or a duplicate: it did nothing, and it must not
+                // stop the frames it overtook either.
+                stops.took(response.executed);
+                response
+            }
+            Either3::Second(d) if stops.executed_between(d.stops_before, None) => Response {
+                deferred: handle_overtaken(controller, bus, d, clock, &mut plant, &stops),
+                ..Response::default()
+            },
+            Either3::Second(d) => controller.handle(d.from, &d.bytes, clock.now_us(), &mut plant),
+            Either3::Third(()) => Response::default(),
+        };
+        // Published before the reports are queued: the network task addresses them when
+        // it sends them, possibly while this task waits below.
+        publish(bus, controller);
+        deliver(bus, &response);
+        match response.deferred {
+            Some(Deferred::SaveSettings(s)) => {
+                if let Err(e) = settings.save(&s).await {
+                    warn!("settings not saved: {:?}", debug_value!(e));
+                }
+            }
+            Some(Deferred::ReadEncoders) => {
+                let location = match encoders.read_joints(controller.joints()).await {
+                    Ok(read) => controller.begin_return(read, &mut plant),
+                    Err(fault) => {
+                        warn!(
+                            "RETURN refused: encoder of joint {} failed: {:?}",
+                            fault.joint, fault.kind
+                        );
+                        controller.fail_return(fault, &mut plant)
+                    }
+                };
+                if let Some(location) = location {
+                    bus.send(Outgoing::Location(location));
+                }
+            }
+            None => {}
+        }
+        let (finished, ran_dry) = step.take_progress();
+        if let Some(location) = controller.on_step_progress(finished, ran_dry, &mut plant) {
+            bus.send(Outgoing::Location(location));
+        }
+        publish(bus, controller);
+    }
+}
+
+/// Queues what a handled datagram produced.
+pub(super) fn deliver(bus: &Bus, response: &Response) {
+    if let Some(reply) = response.reply {
+        bus.send(Outgoing::Ack(reply));
+    }
+    if let Some((to, status)) = response.status {
+        bus.send(Outgoing::Status(to, status));
+    }
+    if let Some(location) = response.location {
+        bus.send(Outgoing::Location(location));
+    }
+    if let Some(discovery) = response.discovery {
+        bus.send(Outgoing::Discovery(discovery));
+    }
+}
+
+/// Copies the report settings out for the other tasks; wakes the upload task when its
+/// settings changed.
+pub(super) fn publish<const CAP: usize>(bus: &Bus, controller: &Controller<CAP>) {
+    let new = controller.report_settings();
+    let old = bus.reports.lock(|c| c.replace(new));
+    if old.reports_on != new.reports_on || old.upload_period_us != new.upload_period_us {
+        bus.upload_changed.signal(());
+    }
+}
