@@ -35,7 +35,8 @@ pub const TX_STAGING_BYTES: usize = 256;
 pub const RX_RING_BYTES: usize = 1024;
 
 /// The embassy configuration for `init`, or why this board cannot apply it (the mapping
-/// of the HAL codes is board-logic's `uart::uart_frame`, tested on the host).
+/// of the HAL codes is `arm_core::uart::uart_frame`, which the controller checks first,
+/// tested on the host).
 pub fn uart_config(init: &UartInit) -> Result<Config, SerialError> {
     let frame = uart_frame(init)?;
     let mut config = Config::default();
@@ -62,7 +63,7 @@ pub fn uart_config(init: &UartInit) -> Result<Config, SerialError> {
 struct Wanted {
     /// Bumped by every `open` and `close`.
     generation: u32,
-    /// The settings of the open port (already checked by [`uart_config`]); `None`: closed.
+    /// The settings of the open port (already checked by the controller); `None`: closed.
     open: Option<UartInit>,
 }
 
@@ -128,7 +129,8 @@ impl BoardSerial {
 
 impl arm_core::hw::SerialPort for BoardSerial {
     fn open(&self, init: &UartInit) -> Result<(), SerialError> {
-        uart_config(init)?;
+        // The controller refused settings this USART cannot make (`arm_core::uart`)
+        // before calling this; each half maps them with `uart_config` when it applies them.
         self.set_wanted(Some(*init));
         Ok(())
     }

@@ -237,8 +237,8 @@ impl Bus {
 
 /// Whether a datagram is a CRC-valid STOPPED frame.
 pub fn is_stop(bytes: &[u8]) -> bool {
-    match bytes {
-        [_, tag, .., crc] => *tag == Tag::Stopped as u8 && crc8(&bytes[..bytes.len() - 1]) == *crc,
+    match bytes.split_last() {
+        Some((crc, body @ [_, tag, ..])) => *tag == Tag::Stopped as u8 && crc8(body) == *crc,
         _ => false,
     }
 }

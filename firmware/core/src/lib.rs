@@ -57,7 +57,10 @@
 //! emits a pulse: the engine starts [`tasks::START_LEAD_US`] later, fed by the step task);
 //! a RETURN's encoder read is dropped, a settings write is done.
 #![no_std]
-#![warn(missing_docs)]
+// Firmware code never panics on data from the network: no indexing, no unwrap, no
+// silently truncating cast (issue 12). Unit tests index and unwrap freely.
+#![warn(missing_docs, clippy::cast_possible_truncation)]
+#![cfg_attr(not(test), warn(clippy::indexing_slicing, clippy::unwrap_used))]
 
 #[cfg(any(test, feature = "test-support"))]
 #[macro_use]

@@ -62,29 +62,29 @@ impl UploadOrder {
             }
         }
         let run = self.first_unmarked();
-        if run >= SLIDE_AFTER {
-            self.take(self.base.wrapping_add(run as u8));
+        if usize::from(run) >= SLIDE_AFTER {
+            self.take(self.base.wrapping_add(run));
         }
     }
 
     /// Index of the first unmarked bit (0..=255).
-    fn first_unmarked(&self) -> usize {
+    fn first_unmarked(&self) -> u8 {
         let mut at = 0;
         for w in self.marks {
-            let ones = w.trailing_ones() as usize;
+            let ones = w.trailing_ones();
             at += ones;
             if ones < 64 {
                 break;
             }
         }
-        at.min(255)
+        u8::try_from(at).unwrap_or(u8::MAX)
     }
 
     /// The seq the next PENDING must carry.
     pub fn next_seq(&self) -> u8 {
         self.base
             .wrapping_add(1)
-            .wrapping_add(self.first_unmarked() as u8)
+            .wrapping_add(self.first_unmarked())
     }
 
     /// Whether a PENDING with `seq` may be taken now.
@@ -97,7 +97,7 @@ impl UploadOrder {
         let d = usize::from(seq.wrapping_sub(self.base));
         let (words, bits) = (d / 64, d % 64);
         let old = self.marks;
-        for i in 0..4 {
+        for (i, mark) in self.marks.iter_mut().enumerate() {
             let src = i + words;
             let lo = old.get(src).map_or(0, |w| w >> bits);
             let hi = if bits > 0 {
@@ -105,7 +105,7 @@ impl UploadOrder {
             } else {
                 0
             };
-            self.marks[i] = lo | hi;
+            *mark = lo | hi;
         }
         self.base = seq;
     }
@@ -223,7 +223,7 @@ mod tests {
         assert!(r.contains(&key, 1_000 + DUPLICATE_WINDOW_US - 1));
         assert!(!r.contains(&key, 1_000 + DUPLICATE_WINDOW_US));
         assert!(!r.contains(&FrameKey { crc: 8, ..key }, 1_000));
-        for s in 0..DUPLICATE_MEMORY as u8 {
+        for s in (0u8..).take(DUPLICATE_MEMORY) {
             r.remember(FrameKey { seq: s + 10, ..key }, 2_000);
         }
         assert!(!r.contains(&key, 2_000), "forgotten after 32 newer frames");

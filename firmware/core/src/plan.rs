@@ -64,19 +64,20 @@ pub fn plan_return(start: [i32; MAX_JOINTS], joints: u8, config: &ControllerConf
     let segment_s = f64::from(segment_us) / 1e6;
     let mut speed = f64::INFINITY;
     let mut accel = f64::INFINITY;
-    for (j, &from) in start.iter().enumerate().take(joints) {
+    let limits = config.return_speed.iter().zip(&config.return_accel);
+    for (&from, (&speed_limit, &accel_limit)) in start.iter().zip(limits).take(joints) {
         let distance = i64::from(from).unsigned_abs() as f64;
         if distance == 0.0 {
             continue;
         }
-        let vmax = f64::from(config.return_speed[j].min(config.max_step_rate_hz).max(1));
+        let vmax = f64::from(speed_limit.min(config.max_step_rate_hz).max(1));
         let whole_steps = floor(vmax * segment_s);
         let vmax = if whole_steps >= 1.0 {
             whole_steps / segment_s
         } else {
             vmax
         };
-        let amax = f64::from(config.return_accel[j].max(1));
+        let amax = f64::from(accel_limit.max(1));
         speed = speed.min(vmax / distance);
         accel = accel.min(amax / distance);
     }
@@ -94,10 +95,8 @@ pub fn plan_return(start: [i32; MAX_JOINTS], joints: u8, config: &ControllerConf
     let total_us = ceil_u64((2.0 * t_accel + t_cruise) * 1e6).max(1);
     // Lengthen the points rather than exceed the count a u16 can report.
     let segment_us = u64::from(segment_us).max(total_us.div_ceil(MAX_RETURN_POINTS));
-    plan.segment_us = segment_us.min(u64::from(u32::MAX)) as u32;
-    plan.count = total_us
-        .div_ceil(u64::from(plan.segment_us))
-        .min(u64::from(u32::MAX)) as u32;
+    plan.segment_us = u32::try_from(segment_us).unwrap_or(u32::MAX);
+    plan.count = u32::try_from(total_us.div_ceil(u64::from(plan.segment_us))).unwrap_or(u32::MAX);
     plan.accel = accel;
     plan.peak = peak;
     plan.t_accel = t_accel;
@@ -143,11 +142,11 @@ impl ReturnPlan {
         let t = f64::from(k + 1) * f64::from(self.segment_us) / 1e6;
         let left = 1.0 - self.progress(t);
         let mut position = self.start;
-        for (j, p) in position.iter_mut().enumerate().take(self.joints) {
+        for (p, &from) in position.iter_mut().zip(&self.start).take(self.joints) {
             *p = if k + 1 == self.count {
                 0
             } else {
-                round_i32(f64::from(self.start[j]) * left)
+                round_i32(f64::from(from) * left)
             };
         }
         Some(StoredPoint {
@@ -166,10 +165,20 @@ impl Iterator for ReturnPlan {
     }
 }
 
+// Float-to-integer `as` saturates (and NaN gives 0): these helpers rely on it, and their
+// callers keep the values in range.
+#[allow(
+    clippy::cast_possible_truncation,
+    reason = "float to integer `as` saturates"
+)]
 fn floor(x: f64) -> f64 {
     if x <= 0.0 { 0.0 } else { (x as u64) as f64 }
 }
 
+#[allow(
+    clippy::cast_possible_truncation,
+    reason = "float to integer `as` saturates"
+)]
 fn ceil_u64(x: f64) -> u64 {
     if x <= 0.0 {
         return 0;
@@ -178,6 +187,10 @@ fn ceil_u64(x: f64) -> u64 {
     if (t as f64) < x { t + 1 } else { t }
 }
 
+#[allow(
+    clippy::cast_possible_truncation,
+    reason = "float to integer `as` saturates"
+)]
 fn round_i32(x: f64) -> i32 {
     if x >= 0.0 {
         (x + 0.5) as i32
@@ -203,7 +216,7 @@ mod tests {
     fn check(start: [i32; MAX_JOINTS], joints: u8, config: &ControllerConfig) -> Vec<StoredPoint> {
         let plan = plan_return(start, joints, config);
         let points: Vec<_> = plan.clone().collect();
-        assert_eq!(points.len() as u32, plan.total_points());
+        assert_eq!(points.len(), plan.total_points() as usize);
         let seg = f64::from(plan.segment_us()) / 1e6;
         let mut prev = start;
         let mut prev_steps = [0i64; MAX_JOINTS];

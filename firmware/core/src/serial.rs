@@ -11,7 +11,7 @@ pub const SERIAL_BATCH_DELAY_US: u64 = 1_000;
 /// Microseconds one byte occupies on the line with these settings (rounded up).
 pub fn byte_time_us(init: &UartInit) -> u32 {
     let bits = u64::from(init.bits_per_byte()) * 1_000_000;
-    bits.div_ceil(u64::from(init.baud_rate.max(1))) as u32
+    u32::try_from(bits.div_ceil(u64::from(init.baud_rate.max(1)))).unwrap_or(u32::MAX)
 }
 
 /// Collects received bytes into USART_RECV payloads. Sans-io: the caller passes the time.
@@ -60,7 +60,9 @@ impl SerialBatcher {
             self.first_at_us = now_us;
         }
         self.last_at_us = now_us;
-        let _ = self.bytes.extend_from_slice(&bytes[..n]);
+        let _ = self
+            .bytes
+            .extend_from_slice(bytes.get(..n).unwrap_or_default());
         n
     }
 

@@ -27,7 +27,7 @@ pub const START_LEAD_US: u32 = 1_000;
 
 /// Microseconds to step timer ticks (rounded down).
 pub fn us_to_ticks(us: u64, tick_hz: u32) -> u64 {
-    (u128::from(us) * u128::from(tick_hz) / 1_000_000) as u64
+    u64::try_from(u128::from(us) * u128::from(tick_hz) / 1_000_000).unwrap_or(u64::MAX)
 }
 
 /// Pins that do nothing: thread-level code stops the engine with these, and the next

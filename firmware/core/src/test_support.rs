@@ -219,8 +219,8 @@ impl FakePlant {
             let Some(s) = self.queue.pop_front() else {
                 break;
             };
-            for j in 0..MAX_JOINTS {
-                self.positions[j] += s.steps[j];
+            for (p, steps) in self.positions.iter_mut().zip(s.steps) {
+                *p += steps;
             }
             self.executed.push(s);
             let dry = self.queue.is_empty();

@@ -24,7 +24,12 @@ impl<const CAP: usize> Controller<CAP> {
         let joints = usize::from(self.settings.joints).min(MAX_JOINTS);
         let mut position = *previous;
         let mut total_steps = 0u64;
-        for (j, p) in position.iter_mut().enumerate().take(joints) {
+        for (j, (p, &to)) in position
+            .iter_mut()
+            .zip(&point.position)
+            .enumerate()
+            .take(joints)
+        {
             let steps = point.steps(previous, j).unsigned_abs();
             total_steps += steps;
             // steps < 2^33 and duration < 2^31: both products fit u64.
@@ -33,7 +38,7 @@ impl<const CAP: usize> Controller<CAP> {
             if too_fast || steps > i32::MAX as u64 {
                 return None;
             }
-            *p = point.position[j];
+            *p = to;
         }
         // total_steps < 2^36: the product fits u64.
         let budget = u64::from(self.step_budget_hz);
@@ -62,9 +67,9 @@ impl<const CAP: usize> Controller<CAP> {
         }
         while let Some(point) = self.buffer.next_unfed() {
             let mut steps = [0i32; MAX_JOINTS];
-            for (j, s) in steps.iter_mut().enumerate() {
-                let delta = i64::from(point.position[j]) - i64::from(self.fed_end[j]);
-                *s = delta.clamp(i64::from(i32::MIN), i64::from(i32::MAX)) as i32;
+            for ((s, &to), &from) in steps.iter_mut().zip(&point.position).zip(&self.fed_end) {
+                let delta = i64::from(to) - i64::from(from);
+                *s = i32::try_from(delta).unwrap_or(if delta < 0 { i32::MIN } else { i32::MAX });
             }
             let segment = Segment {
                 duration_us: point.duration_us,
@@ -88,7 +93,9 @@ impl<const CAP: usize> Controller<CAP> {
         plant: &mut impl Plant,
     ) -> Option<Location> {
         let done = self.buffer.finish(finished as usize);
-        self.executed = self.executed.saturating_add(done as u32);
+        self.executed = self
+            .executed
+            .saturating_add(u32::try_from(done).unwrap_or(u32::MAX));
         if ran_dry && self.state == State::Running && !self.return_pending {
             let complete = self.executed >= self.expected;
             // Clears anything pushed after the engine went idle.
@@ -149,7 +156,9 @@ impl<const CAP: usize> Controller<CAP> {
         let mut start = plant.positions();
         if let Some(read) = encoders {
             let mut corrected = start;
-            corrected[..joints].copy_from_slice(&read[..joints]);
+            for (c, r) in corrected.iter_mut().zip(read).take(joints) {
+                *c = r;
+            }
             if corrected != start && plant.set_positions(corrected) {
                 start = corrected;
             }

@@ -41,7 +41,7 @@ pub async fn serial_task<P: SerialPort, C: Clock>(port: &P, bus: &Bus, clock: &C
             };
             batch.set_byte_time_us(byte_time_us(&init));
             let room = batch.room().min(buf.len());
-            let read = port.read(&mut buf[..room]);
+            let read = port.read(buf.get_mut(..room).unwrap_or_default());
             let outcome = match batch.deadline_us() {
                 Some(deadline) => match select(read, clock.sleep_until(deadline)).await {
                     Either::First(r) => Some(r),
