@@ -65,12 +65,12 @@ pub struct ControllerConfig {
 impl ControllerConfig {
     /// The NUCLEO-H743ZI2 board's configuration.
     pub const BOARD: ControllerConfig = ControllerConfig {
-        max_step_rate_hz: BOARD_MAX_STEP_RATE_HZ,
-        capacity: BOARD_TRAJECTORY_CAPACITY,
-        pwm_timer_clock_hz: BOARD_PWM_TIMER_CLOCK_HZ,
         return_speed: [DEFAULT_RETURN_SPEED; MAX_JOINTS],
         return_accel: [DEFAULT_RETURN_ACCEL; MAX_JOINTS],
         return_segment_us: DEFAULT_RETURN_SEGMENT_US,
+        max_step_rate_hz: BOARD_MAX_STEP_RATE_HZ,
+        capacity: BOARD_TRAJECTORY_CAPACITY,
+        pwm_timer_clock_hz: BOARD_PWM_TIMER_CLOCK_HZ,
     };
 }
 

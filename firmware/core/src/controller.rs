@@ -332,7 +332,7 @@ impl<const CAP: usize> Controller<CAP> {
         plant: &mut impl Plant,
     ) -> Response {
         let before = self.state;
-        let mut response = self.check_and_execute(from, datagram, now_us, plant);
+        let mut response = self.check_and_execute(plant, now_us, from, datagram);
         // A state change (the command's, or a hand-over that dropped an upload before the
         // command was refused) is reported at once.
         if self.state != before && self.reports_on {
@@ -344,10 +344,10 @@ impl<const CAP: usize> Controller<CAP> {
     /// [`Controller::handle`] but for the LOCATION of a state change.
     fn check_and_execute(
         &mut self,
+        plant: &mut impl Plant,
+        now_us: u64,
         from: Endpoint,
         datagram: &[u8],
-        now_us: u64,
-        plant: &mut impl Plant,
     ) -> Response {
         let mut response = Response::default();
         // 1. length

@@ -63,10 +63,9 @@ impl ReportSettings {
 
     /// Boot values: reports on at the default period, nobody to send them to yet.
     pub const BOOT: ReportSettings = ReportSettings {
-        location_to: [None; LOCATION_LISTENERS],
-        serial_to: None,
         reports_on: true,
         upload_period_us: limits::DEFAULT_UPLOAD_PERIOD_US,
         state: State::Stopped,
+        ..ReportSettings::UNPUBLISHED
     };
 }
