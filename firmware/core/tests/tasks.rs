@@ -26,6 +26,9 @@ use protocol::{
     UartInit,
 };
 
+/// How long a test waits for what it expects before it fails.
+const LIMIT: Duration = Duration::from_secs(5);
+
 const HOST: Endpoint = Endpoint {
     ip: [127, 0, 0, 1],
     port: 50_000,
@@ -58,6 +61,15 @@ impl Clock for TestClock {
 struct TestKick<'a> {
     clock: &'a TestClock,
     kicked: Cell<bool>,
+}
+
+impl<'a> TestKick<'a> {
+    fn new(clock: &'a TestClock) -> Self {
+        TestKick {
+            clock,
+            kicked: Cell::new(false),
+        }
+    }
 }
 
 impl StepKick for TestKick<'_> {
@@ -249,6 +261,25 @@ impl Encoders for NoEncoders {
     }
 }
 
+/// The trajectory task's hardware in these tests: the step timer `kick`, the shared
+/// outputs and serial port, a gripper that is off, and `settings` and `encoders`.
+fn test_hw<'a, E: Encoders>(
+    kick: &'a TestKick<'a>,
+    outputs: &'a RefCell<TestOutputs>,
+    serial: &'a TestSerial,
+    settings: TestSettings,
+    encoders: E,
+) -> TrajectoryHw<'a, TestKick<'a>, SharedOutputs<'a>, TestGripper, TestSerial, TestSettings, E> {
+    TrajectoryHw {
+        kick,
+        outputs: SharedOutputs(outputs),
+        gripper: TestGripper(None),
+        serial,
+        settings,
+        encoders,
+    }
+}
+
 fn frame(seq: u8, cmd: Command<'_>) -> Vec<u8> {
     let mut buf = vec![0u8; protocol::MAX_DATAGRAM];
     let n = cmd.encode(seq, &mut buf).unwrap();
@@ -292,10 +323,7 @@ async fn until(what: &str, limit: Duration, mut done: impl FnMut() -> bool) {
 #[test]
 fn datagrams_in_acks_and_steps_out() {
     let clock = TestClock(Instant::now());
-    let kick = TestKick {
-        clock: &clock,
-        kicked: Cell::new(false),
-    };
+    let kick = TestKick::new(&clock);
     let bus = Bus::new();
     let step = StepShared::<4>::new(TIMING);
     let mut controller = controller_32();
@@ -316,14 +344,7 @@ fn datagrams_in_acks_and_steps_out() {
             &bus,
             &step,
             &clock,
-            TrajectoryHw {
-                kick: &kick,
-                outputs: SharedOutputs(&outputs),
-                gripper: TestGripper(None),
-                serial: &serial,
-                settings,
-                encoders: NoEncoders,
-            },
+            test_hw(&kick, &outputs, &serial, settings, NoEncoders),
         ),
         step_task(&bus, &step, &kick),
         upload_task(&bus, &step, &clock),
@@ -336,7 +357,6 @@ fn datagrams_in_acks_and_steps_out() {
             .borrow_mut()
             .push_back((frame(seq, cmd), from));
     };
-    let limit = Duration::from_secs(5);
     let driver = async {
         // A 3-point trajectory: joint 0 +10 per ms, joint 1 -5 per ms.
         let mut prev = [0; MAX_JOINTS];
@@ -351,7 +371,7 @@ fn datagrams_in_acks_and_steps_out() {
         send(1, Command::New { count: 3 }, HOST);
         send(2, Command::Pending(PointList::Points(&pts)), HOST);
         send(3, Command::Runing, HOST);
-        until("three ACKs", limit, || acks(&socket).len() >= 3).await;
+        until("three ACKs", LIMIT, || acks(&socket).len() >= 3).await;
         let a = acks(&socket);
         assert_eq!(
             a[..3],
@@ -361,7 +381,7 @@ fn datagrams_in_acks_and_steps_out() {
                 (HOST, 3, StatusCode::Ok, State::Running)
             ]
         );
-        until("the run to end", limit, || {
+        until("the run to end", LIMIT, || {
             decoded(&socket).iter().any(
                 |(_, _, r)| matches!(r, Report::Location(l) if l.state == State::Stopped as u8),
             )
@@ -378,7 +398,7 @@ fn datagrams_in_acks_and_steps_out() {
 
         // LOCATION reports flow every period, to the owner, with consecutive seqs.
         let before = decoded(&socket).len();
-        until("periodic LOCATIONs", limit, || {
+        until("periodic LOCATIONs", LIMIT, || {
             decoded(&socket).len() >= before + 3
         })
         .await;
@@ -392,23 +412,23 @@ fn datagrams_in_acks_and_steps_out() {
             "{reports:?}"
         );
         send(4, Command::UploadStop, HOST);
-        until("UPLOAD_STOP's ACK", limit, || acks(&socket).len() >= 4).await;
+        until("UPLOAD_STOP's ACK", LIMIT, || acks(&socket).len() >= 4).await;
 
         // A long run (2 s, 1000 steps) stopped by a stranger: the pulses stop at once.
         let slow = Point::from_motion(2_000_000, &prev, &[1_030, -15, 0, 0, 0, 0, 0, 0]);
         send(5, Command::New { count: 1 }, HOST);
         send(6, Command::Pending(PointList::Points(&[slow])), HOST);
         send(7, Command::Runing, HOST);
-        until("some steps", limit, || pins.borrow().position[0] > 60).await;
+        until("some steps", LIMIT, || pins.borrow().position[0] > 60).await;
         send(200, Command::Stopped, STRANGER);
-        until("STOPPED's ACK", limit, || {
+        until("STOPPED's ACK", LIMIT, || {
             acks(&socket).iter().any(|a| a.0 == STRANGER)
         })
         .await;
         let stopped_at = pins.borrow().position[0];
         assert!(stopped_at < 1_030, "stopped before the end");
         let wait = clock.now_us() + 50_000;
-        until("50 ms", limit, || clock.now_us() > wait).await;
+        until("50 ms", LIMIT, || clock.now_us() > wait).await;
         assert_eq!(
             pins.borrow().position[0],
             stopped_at,
@@ -432,12 +452,12 @@ fn datagrams_in_acks_and_steps_out() {
             HOST,
         );
         send(9, Command::UsartSend(b"ping"), HOST);
-        until("the bytes written", limit, || {
+        until("the bytes written", LIMIT, || {
             serial.tx.borrow().as_slice() == b"ping"
         })
         .await;
         serial.rx.borrow_mut().extend(b"pong".iter().copied());
-        until("USART_RECV", limit, || {
+        until("USART_RECV", LIMIT, || {
             decoded(&socket)
                 .iter()
                 .any(|(to, _, r)| *to == HOST && matches!(r, Report::UsartRecv(b) if *b == b"pong"))
@@ -445,7 +465,7 @@ fn datagrams_in_acks_and_steps_out() {
         .await;
         // STATUS reports the joint count loaded from the settings store.
         send(10, Command::Status, HOST);
-        until("STATUS", limit, || {
+        until("STATUS", LIMIT, || {
             decoded(&socket)
                 .iter()
                 .any(|(_, _, r)| matches!(r, Report::Status(s) if s.joints == 3))
@@ -458,10 +478,7 @@ fn datagrams_in_acks_and_steps_out() {
 #[test]
 fn stopped_overtakes_queued_uploads() {
     let clock = TestClock(Instant::now());
-    let kick = TestKick {
-        clock: &clock,
-        kicked: Cell::new(false),
-    };
+    let kick = TestKick::new(&clock);
     let bus = Bus::new();
     let step = StepShared::<4>::new(TIMING);
     let mut controller = controller_32();
@@ -494,14 +511,7 @@ fn stopped_overtakes_queued_uploads() {
         &bus,
         &step,
         &clock,
-        TrajectoryHw {
-            kick: &kick,
-            outputs: SharedOutputs(&outputs),
-            gripper: TestGripper(None),
-            serial: &serial,
-            settings: TestSettings(None),
-            encoders: NoEncoders,
-        },
+        test_hw(&kick, &outputs, &serial, TestSettings(None), NoEncoders),
     );
     let driver = async {
         let mut acks = Vec::new();
@@ -525,10 +535,7 @@ fn with_tasks<'a, F: Future<Output = ()>>(
     driver: impl FnOnce(&'a StepShared<4>) -> F,
 ) {
     let clock = TestClock(Instant::now());
-    let kick = TestKick {
-        clock: &clock,
-        kicked: Cell::new(false),
-    };
+    let kick = TestKick::new(&clock);
     let bus = Bus::new();
     let step: &'a StepShared<4> = Box::leak(Box::new(StepShared::new(TIMING)));
     let mut controller = Controller::<16>::new(ControllerConfig {
@@ -545,20 +552,29 @@ fn with_tasks<'a, F: Future<Output = ()>>(
             &bus,
             step,
             &clock,
-            TrajectoryHw {
-                kick: &kick,
-                outputs: SharedOutputs(&outputs),
-                gripper: TestGripper(None),
-                serial: &serial,
-                settings: TestSettings(None),
-                encoders: NoEncoders,
-            },
+            test_hw(&kick, &outputs, &serial, TestSettings(None), NoEncoders),
         ),
         step_task(&bus, step, &kick),
         upload_task(&bus, step, &clock),
         join(serial_task(&serial, &bus, &clock), isr),
     );
     block_on(select(tasks, driver(step)));
+}
+
+/// Waits for the STATUS report the controller sends to the socket (cleared before the
+/// STATUS was sent) and returns it.
+async fn status_reply(socket: &TestSocket, limit: Duration) -> protocol::StatusReport {
+    until("STATUS", limit, || {
+        decoded(socket)
+            .iter()
+            .any(|(_, _, r)| matches!(r, Report::Status(_)))
+    })
+    .await;
+    let status = decoded(socket).into_iter().find_map(|(_, _, r)| match r {
+        Report::Status(s) => Some(s),
+        _ => None,
+    });
+    status.unwrap_or_else(|| unreachable!())
 }
 
 fn last_ack(socket: &TestSocket, seq: u8) -> Option<protocol::Ack> {
@@ -637,17 +653,7 @@ fn streaming_through_a_small_buffer_and_underrun() {
         seq += 1;
         socket.sent.borrow_mut().clear();
         send(seq, Command::Status);
-        until("STATUS", limit, || {
-            decoded(socket)
-                .iter()
-                .any(|(_, _, r)| matches!(r, Report::Status(_)))
-        })
-        .await;
-        let status = decoded(socket).into_iter().find_map(|(_, _, r)| match r {
-            Report::Status(s) => Some(s),
-            _ => None,
-        });
-        let status = status.unwrap_or_else(|| unreachable!());
+        let status = status_reply(socket, limit).await;
         assert_eq!((status.executed, status.expected), (24, 24));
         assert_eq!(status.flags.0 & protocol::StatusFlags::UNDERRUN, 0);
 
@@ -669,17 +675,7 @@ fn streaming_through_a_small_buffer_and_underrun() {
         until("the underrun", limit, || Instant::now() > wait).await;
         socket.sent.borrow_mut().clear();
         send(seq, Command::Status);
-        until("STATUS", limit, || {
-            decoded(socket)
-                .iter()
-                .any(|(_, _, r)| matches!(r, Report::Status(_)))
-        })
-        .await;
-        let status = decoded(socket).into_iter().find_map(|(_, _, r)| match r {
-            Report::Status(s) => Some(s),
-            _ => None,
-        });
-        let status = status.unwrap_or_else(|| unreachable!());
+        let status = status_reply(socket, limit).await;
         assert_eq!(status.state, State::Stopped);
         assert_ne!(status.flags.0 & protocol::StatusFlags::UNDERRUN, 0);
         assert_eq!((status.executed, status.expected), (2, 10));
@@ -706,10 +702,7 @@ impl Encoders for SlowEncoders {
 #[test]
 fn reports_queued_before_a_wait_go_to_the_sender_of_the_frame() {
     let clock = TestClock(Instant::now());
-    let kick = TestKick {
-        clock: &clock,
-        kicked: Cell::new(false),
-    };
+    let kick = TestKick::new(&clock);
     let bus = Bus::new();
     let step = StepShared::<4>::new(TIMING);
     let mut controller = controller_32();
@@ -723,14 +716,7 @@ fn reports_queued_before_a_wait_go_to_the_sender_of_the_frame() {
         &bus,
         &step,
         &clock,
-        TrajectoryHw {
-            kick: &kick,
-            outputs: SharedOutputs(&outputs),
-            gripper: TestGripper(None),
-            serial: &serial,
-            settings: TestSettings(None),
-            encoders: SlowEncoders,
-        },
+        test_hw(&kick, &outputs, &serial, TestSettings(None), SlowEncoders),
     );
     let driver = async {
         loop {
@@ -817,11 +803,35 @@ impl Rig {
         .await;
     }
 
+    /// Waits until `n` ACKs were sent, then `settle_ms` more, the tasks running; returns
+    /// the ACKs.
+    async fn acks_after(&self, n: usize, settle_ms: u64) -> Vec<(u8, u8, StatusCode, State)> {
+        until("the ACKs", LIMIT, || self.acks().len() >= n).await;
+        self.wait_ms(settle_ms).await;
+        self.acks()
+    }
+
+    /// Waits until the run of [`three_points`] ended: joint 0 at 30.
+    async fn until_three_points_ran(&self) {
+        until("the run's end", LIMIT, || {
+            self.drain();
+            self.step.positions()[0] == 30
+        })
+        .await;
+    }
+
+    /// `ack` is RUNING's (`seq`) ACK, OK in state RUNNING, and every point of
+    /// [`three_points`] ran.
+    fn assert_runing_ok_and_every_point_ran(&self, ack: &(u8, u8, StatusCode, State), seq: u8) {
+        assert_eq!(
+            *ack,
+            (seq, Tag::Runing as u8, StatusCode::Ok, State::Running)
+        );
+        assert_eq!(self.pins.borrow().position[0], 30, "every point ran");
+    }
+
     fn run(&self, driver: impl Future<Output = ()>) {
-        let kick = TestKick {
-            clock: &self.clock,
-            kicked: Cell::new(false),
-        };
+        let kick = TestKick::new(&self.clock);
         let mut controller = controller_32();
         let serial = TestSerial::default();
         let outputs = RefCell::new(TestOutputs::default());
@@ -832,14 +842,13 @@ impl Rig {
                 &self.bus,
                 &self.step,
                 &self.clock,
-                TrajectoryHw {
-                    kick: &kick,
-                    outputs: SharedOutputs(&outputs),
-                    gripper: TestGripper(None),
-                    serial: &serial,
-                    settings: TestSettings(None),
-                    encoders: CountingEncoders(&self.encoder_reads),
-                },
+                test_hw(
+                    &kick,
+                    &outputs,
+                    &serial,
+                    TestSettings(None),
+                    CountingEncoders(&self.encoder_reads),
+                ),
             ),
             join(step_task(&self.bus, &self.step, &kick), isr),
         );
@@ -861,15 +870,13 @@ fn stopped_cancels_the_run_of_the_frames_it_overtook() {
     rig.route(&runing);
     rig.route(&frame(4, Command::Stopped));
     assert_eq!((rig.bus.estop.len(), rig.bus.inbox.len()), (1, 3));
-    let limit = Duration::from_secs(5);
     rig.run(async {
-        until("four ACKs", limit, || rig.acks().len() >= 4).await;
         // Longer than the start lead and the whole trajectory (3 ms).
-        rig.wait_ms(30).await;
+        let acks = rig.acks_after(4, 30).await;
         use StatusCode::Ok;
         let stopped = Tag::Stopped as u8;
         assert_eq!(
-            rig.acks(),
+            acks,
             [
                 (4, stopped, Ok, State::Stopped),
                 (1, Tag::New as u8, Ok, State::New),
@@ -889,7 +896,7 @@ fn stopped_cancels_the_run_of_the_frames_it_overtook() {
 
         // STATUS: stopped by the host (bit 7), nothing buffered.
         rig.route(&frame(5, Command::Status));
-        until("STATUS", limit, || {
+        until("STATUS", LIMIT, || {
             rig.drain();
             rig.sent
                 .borrow()
@@ -909,7 +916,7 @@ fn stopped_cancels_the_run_of_the_frames_it_overtook() {
         // The host did not get RUNING's ACK and resends it: a duplicate, not run again.
         rig.sent.borrow_mut().clear();
         rig.route(&runing);
-        until("the resent RUNING's ACK", limit, || !rig.acks().is_empty()).await;
+        until("the resent RUNING's ACK", LIMIT, || !rig.acks().is_empty()).await;
         rig.wait_ms(30).await;
         assert_eq!(
             rig.acks(),
@@ -933,13 +940,11 @@ fn stopped_cancels_a_return_it_overtook() {
     rig.route(&ret);
     rig.route(&frame(2, Command::Stopped));
     assert_eq!((rig.bus.estop.len(), rig.bus.inbox.len()), (1, 1));
-    let limit = Duration::from_secs(5);
     rig.run(async {
-        until("two ACKs", limit, || rig.acks().len() >= 2).await;
-        rig.wait_ms(30).await;
+        let acks = rig.acks_after(2, 30).await;
         use StatusCode::Ok;
         assert_eq!(
-            rig.acks(),
+            acks,
             [
                 (2, Tag::Stopped as u8, Ok, State::Stopped),
                 (1, Tag::Return as u8, Ok, State::Running),
@@ -957,7 +962,7 @@ fn stopped_cancels_a_return_it_overtook() {
         // A resent RETURN is a duplicate: not executed again.
         rig.sent.borrow_mut().clear();
         rig.route(&ret);
-        until("the resent RETURN's ACK", limit, || !rig.acks().is_empty()).await;
+        until("the resent RETURN's ACK", LIMIT, || !rig.acks().is_empty()).await;
         rig.wait_ms(30).await;
         assert_eq!(rig.acks(), [(1, Tag::Return as u8, Ok, State::Stopped)]);
         assert_eq!(rig.encoder_reads.get(), 0);
@@ -978,13 +983,11 @@ fn each_overtaking_stopped_cancels_what_came_before_it() {
     rig.route(&frame(3, Command::Pending(PointList::Points(&pts))));
     rig.route(&frame(4, Command::Stopped));
     assert_eq!((rig.bus.estop.len(), rig.bus.inbox.len()), (2, 2));
-    let limit = Duration::from_secs(5);
     rig.run(async {
-        until("four ACKs", limit, || rig.acks().len() >= 4).await;
-        rig.wait_ms(10).await;
+        let acks = rig.acks_after(4, 10).await;
         use StatusCode::{BadState, Ok};
         assert_eq!(
-            rig.acks(),
+            acks,
             [
                 (2, Tag::Stopped as u8, Ok, State::Stopped),
                 (4, Tag::Stopped as u8, Ok, State::Stopped),
@@ -1034,25 +1037,16 @@ fn a_refused_stopped_behind_queued_datagrams_does_not_stop_the_run() {
     rig.route(&frame(8, Command::Runing));
     rig.route(&raw(9, Tag::Stopped as u8, &[0]));
     assert_eq!((rig.bus.estop.len(), rig.bus.inbox.len()), (1, 8));
-    let limit = Duration::from_secs(5);
     rig.run(async {
-        until("nine ACKs", limit, || rig.acks().len() >= 9).await;
-        until("the run's end", limit, || {
-            rig.drain();
-            rig.step.positions()[0] == 30
-        })
-        .await;
+        until("nine ACKs", LIMIT, || rig.acks().len() >= 9).await;
+        rig.until_three_points_ran().await;
         let acks = rig.acks();
         assert_eq!(
             acks[0],
             (9, Tag::Stopped as u8, StatusCode::BadLength, State::Stopped),
             "refused (handled first, before the upload)"
         );
-        assert_eq!(
-            acks[8],
-            (8, Tag::Runing as u8, StatusCode::Ok, State::Running)
-        );
-        assert_eq!(rig.pins.borrow().position[0], 30, "every point ran");
+        rig.assert_runing_ok_and_every_point_ran(&acks[8], 8);
     });
 }
 
@@ -1064,28 +1058,19 @@ fn a_resent_stopped_does_not_stop_a_fresh_run() {
     let pts = three_points();
     let stop = frame(1, Command::Stopped);
     rig.route(&stop);
-    let limit = Duration::from_secs(5);
     rig.run(async {
-        until("STOPPED's ACK", limit, || !rig.acks().is_empty()).await;
+        until("STOPPED's ACK", LIMIT, || !rig.acks().is_empty()).await;
         // All queued before the task runs again; the resent STOPPED overtakes them.
         rig.route(&frame(2, Command::New { count: 3 }));
         rig.route(&frame(3, Command::Pending(PointList::Points(&pts))));
         rig.route(&frame(4, Command::Runing));
         rig.route(&stop);
-        until("five ACKs", limit, || rig.acks().len() >= 5).await;
-        until("the run's end", limit, || {
-            rig.drain();
-            rig.step.positions()[0] == 30
-        })
-        .await;
+        until("five ACKs", LIMIT, || rig.acks().len() >= 5).await;
+        rig.until_three_points_ran().await;
         let acks = rig.acks();
         assert_eq!(acks[1].0, 1, "the duplicate is handled first");
         assert_eq!(acks[1].2, StatusCode::Ok, "and ACKed OK again");
-        assert_eq!(
-            acks[4],
-            (4, Tag::Runing as u8, StatusCode::Ok, State::Running)
-        );
-        assert_eq!(rig.pins.borrow().position[0], 30, "every point ran");
+        rig.assert_runing_ok_and_every_point_ran(&acks[4], 4);
     });
 }
 
@@ -1101,11 +1086,8 @@ fn an_executed_stopped_after_a_refused_one_stops_after_the_frames_between() {
     rig.route(&frame(2, Command::Pending(PointList::Points(&pts))));
     rig.route(&frame(3, Command::Runing));
     rig.route(&frame(4, Command::Stopped));
-    let limit = Duration::from_secs(5);
     rig.run(async {
-        until("five ACKs", limit, || rig.acks().len() >= 5).await;
-        rig.wait_ms(30).await;
-        let acks = rig.acks();
+        let acks = rig.acks_after(5, 30).await;
         use StatusCode::{BadLength, Ok};
         assert_eq!(acks[0].2, BadLength);
         assert_eq!(acks[1], (4, Tag::Stopped as u8, Ok, State::Stopped));
@@ -1156,7 +1138,6 @@ proptest::proptest! {
         stops in proptest::collection::vec(idle_stop(), 1..=3),
     ) {
         let rig = Rig::new();
-        let limit = Duration::from_secs(5);
         let first_stop = frame(200, Command::Stopped);
         let n = 2 * frames_of_points;
         let pts: Vec<Point> = (1..=n as i32)
@@ -1165,7 +1146,7 @@ proptest::proptest! {
         rig.route(&first_stop);
         let mut outcome = None;
         rig.run(async {
-            until("the first STOPPED's ACK", limit, || !rig.acks().is_empty()).await;
+            until("the first STOPPED's ACK", LIMIT, || !rig.acks().is_empty()).await;
             let mut seq = 1u8;
             let mut routed = 0;
             rig.route(&frame(seq, Command::New { count: n as u16 }));
@@ -1190,8 +1171,8 @@ proptest::proptest! {
                 }
                 routed += 1;
             }
-            until("every ACK", limit, || rig.acks().len() > routed).await;
-            until("the run's end", limit, || {
+            until("every ACK", LIMIT, || rig.acks().len() > routed).await;
+            until("the run's end", LIMIT, || {
                 rig.drain();
                 rig.bus.report_settings().state == State::Stopped
                     && rig.step.positions()[0] == 4 * n as i32
@@ -1236,9 +1217,8 @@ fn a_burst_of_a_whole_window_is_queued_whole_and_a_stopped_behind_it_goes_first(
     assert_eq!(rig.bus.inbox_drops(), 0, "nothing dropped");
     assert_eq!(rig.bus.inbox.len(), HOST_WINDOW + 8);
     assert_eq!(rig.bus.estop.len(), 1);
-    let limit = Duration::from_secs(5);
     rig.run(async {
-        until("every ACK", limit, || rig.acks().len() > HOST_WINDOW + 8).await;
+        until("every ACK", LIMIT, || rig.acks().len() > HOST_WINDOW + 8).await;
         let acks = rig.acks();
         assert_eq!(acks[0].0, 99, "the STOPPED first");
         assert_eq!(acks[1], (0, Tag::New as u8, StatusCode::Ok, State::New));
