@@ -12,7 +12,7 @@ use std::collections::VecDeque;
 use std::vec::Vec;
 
 use arm_step::Segment;
-use protocol::{Ack, Command, MAX_JOINTS, Point, PointList, Pwm, StatusCode, UartInit};
+use protocol::{Ack, Command, Location, MAX_JOINTS, Point, PointList, Pwm, StatusCode, UartInit};
 
 use crate::hw::{Endpoint, SerialError};
 use crate::{Controller, ControllerConfig, Plant, Response};
@@ -211,7 +211,7 @@ impl FakePlant {
         &mut self,
         controller: &mut Controller<CAP>,
         n: usize,
-    ) -> Option<protocol::Location> {
+    ) -> Option<Location> {
         if !self.running {
             return controller.on_step_progress(0, false, self);
         }
@@ -239,7 +239,7 @@ impl FakePlant {
     pub fn run_to_end<const CAP: usize>(
         &mut self,
         controller: &mut Controller<CAP>,
-    ) -> Option<protocol::Location> {
+    ) -> Option<Location> {
         for _ in 0..1_000_000 {
             if !self.running {
                 return None;
@@ -331,6 +331,19 @@ impl<const CAP: usize> Session<CAP> {
         let ack = self.send(cmd);
         assert_eq!(ack.status, status, "{cmd:?}");
         ack
+    }
+
+    /// Sets the joint positions (LOCATION_SETTING) and asserts it was taken (`OK`).
+    pub fn set_location(&mut self, position: [i32; MAX_JOINTS]) -> Ack {
+        let location = Location { position, state: 0 };
+        self.expect(Command::LocationSetting(location), StatusCode::Ok)
+    }
+
+    /// NEW of `count` points (asserted `OK`), PENDING with `pts`, RUNING (asserted `OK`).
+    pub fn start_run(&mut self, count: u16, pts: &[Point]) {
+        self.expect(Command::New { count }, StatusCode::Ok);
+        self.pending(pts);
+        self.expect(Command::Runing, StatusCode::Ok);
     }
 
     /// Sends PENDING with these points.

@@ -335,9 +335,7 @@ fn a_refused_frame_is_not_a_duplicate_and_a_duplicate_skips_the_state_check() {
 #[test]
 fn stopped_in_idle_keeps_how_the_last_run_ended() {
     let mut s = Session::<16>::new(16);
-    s.expect(Command::New { count: 5 }, Ok);
-    s.pending(&points([0; 8], 2, 1));
-    s.expect(Command::Runing, Ok);
+    s.start_run(5, &points([0; 8], 2, 1));
     s.plant.run_to_end(&mut s.controller);
     let flags = s.controller.status(&s.plant).flags;
     assert!(flags.has(StatusFlags::UNDERRUN));
@@ -356,9 +354,7 @@ fn stopped_in_idle_keeps_how_the_last_run_ended() {
     let flags = s.controller.status(&s.plant).flags;
     assert!(flags.has(StatusFlags::STOPPED_BY_HOST) && !flags.has(StatusFlags::UNDERRUN));
     // A run that completes, then a STOPPED: neither bit.
-    s.expect(Command::New { count: 1 }, Ok);
-    s.pending(&points(s.plant.positions, 1, 1));
-    s.expect(Command::Runing, Ok);
+    s.start_run(1, &points(s.plant.positions, 1, 1));
     s.plant.run_to_end(&mut s.controller);
     s.expect(Command::Stopped, Ok);
     let flags = s.controller.status(&s.plant).flags;
@@ -368,9 +364,7 @@ fn stopped_in_idle_keeps_how_the_last_run_ended() {
 #[test]
 fn new_is_refused_while_running_and_leaves_the_run_alone() {
     let mut s = Session::<16>::new(16);
-    s.expect(Command::New { count: 3 }, Ok);
-    s.pending(&points([0; 8], 3, 1));
-    s.expect(Command::Runing, Ok);
+    s.start_run(3, &points([0; 8], 3, 1));
     let stops = s.plant.stops;
     let a = s.expect(Command::New { count: 1 }, BadState);
     assert_eq!((a.state, a.buffered), (State::Running, 3));
@@ -382,9 +376,7 @@ fn new_is_refused_while_running_and_leaves_the_run_alone() {
 #[test]
 fn the_first_point_starts_where_the_previous_run_stopped() {
     let mut s = Session::<16>::new(16);
-    s.expect(Command::New { count: 2 }, Ok);
-    s.pending(&points([0; 8], 2, 5));
-    s.expect(Command::Runing, Ok);
+    s.start_run(2, &points([0; 8], 2, 5));
     s.plant.run(&mut s.controller, 1);
     s.expect(Command::Stopped, Ok);
     assert_eq!(s.plant.positions[0], 5);
@@ -434,49 +426,22 @@ fn points_of_joints_not_in_use_never_move_them_later() {
 #[test]
 fn value_ranges_are_checked_at_their_bounds() {
     let mut s = Session::<16>::new(16);
+    let period = |period_us| Command::UploadPeriod { period_us };
+    let usart = |baud_rate| {
+        Command::UsartStart(UartInit {
+            baud_rate,
+            ..UartInit::default()
+        })
+    };
     let cases: Vec<(Command<'_>, StatusCode)> = vec![
-        (Command::UploadPeriod { period_us: 999 }, InvalidConfig),
-        (Command::UploadPeriod { period_us: 1_000 }, Ok),
-        (
-            Command::UploadPeriod {
-                period_us: 1_000_000,
-            },
-            Ok,
-        ),
-        (
-            Command::UploadPeriod {
-                period_us: 1_000_001,
-            },
-            InvalidConfig,
-        ),
-        (
-            Command::UsartStart(UartInit {
-                baud_rate: 299,
-                ..UartInit::default()
-            }),
-            InvalidConfig,
-        ),
-        (
-            Command::UsartStart(UartInit {
-                baud_rate: 300,
-                ..UartInit::default()
-            }),
-            Ok,
-        ),
-        (
-            Command::UsartStart(UartInit {
-                baud_rate: 4_000_000,
-                ..UartInit::default()
-            }),
-            Ok,
-        ),
-        (
-            Command::UsartStart(UartInit {
-                baud_rate: 4_000_001,
-                ..UartInit::default()
-            }),
-            InvalidConfig,
-        ),
+        (period(999), InvalidConfig),
+        (period(1_000), Ok),
+        (period(1_000_000), Ok),
+        (period(1_000_001), InvalidConfig),
+        (usart(299), InvalidConfig),
+        (usart(300), Ok),
+        (usart(4_000_000), Ok),
+        (usart(4_000_001), InvalidConfig),
         (Command::JointsCount(0), InvalidConfig),
         (Command::JointsCount(9), InvalidConfig),
         (Command::JointsCount(8), Ok),

@@ -322,9 +322,7 @@ fn owner_rule() {
     assert_eq!((r.to, r.ack.status), (OTHER, NotOwner));
     assert!(!s.plant.pins.contains(&(1, true)));
     // ... but may stop the arm.
-    s.expect(Command::New { count: 2 }, Ok);
-    s.pending(&points([0; 8], 2, 1));
-    s.expect(Command::Runing, Ok);
+    s.start_run(2, &points([0; 8], 2, 1));
     let stops = s.plant.stops;
     let r = s.send_raw(OTHER, &frame(9, Command::Stopped));
     assert_eq!(r.reply.map(|r| (r.to, r.ack.status)), Some((OTHER, Ok)));
@@ -363,9 +361,7 @@ fn owner_rule() {
 #[test]
 fn no_takeover_while_running() {
     let mut s = Session::<16>::new(16);
-    s.expect(Command::New { count: 2 }, Ok);
-    s.pending(&points([0; 8], 2, 1));
-    s.expect(Command::Runing, Ok);
+    s.start_run(2, &points([0; 8], 2, 1));
     s.now_us += 10 * OWNER_TIMEOUT_US;
     let r = s.send_raw(OTHER, &frame(3, Command::Status)).reply.unwrap();
     assert_eq!(r.ack.status, NotOwner);
@@ -508,13 +504,7 @@ fn invalid_point_takes_nothing() {
 #[test]
 fn first_point_starts_from_the_position_at_new() {
     let mut s = Session::<16>::new(16);
-    s.expect(
-        Command::LocationSetting(Location {
-            position: [100, -100, 0, 0, 0, 0, 0, 0],
-            state: 0,
-        }),
-        Ok,
-    );
+    s.set_location([100, -100, 0, 0, 0, 0, 0, 0]);
     s.expect(Command::New { count: 1 }, Ok);
     let target = [103, -90, 1, 0, 0, 0, 0, 0];
     s.pending(&[Point::from_motion(500, &[0; 8], &target)]);
@@ -527,9 +517,7 @@ fn first_point_starts_from_the_position_at_new() {
 #[test]
 fn underrun_stops_at_the_end_of_the_last_point() {
     let mut s = Session::<16>::new(16);
-    s.expect(Command::New { count: 5 }, Ok);
-    s.pending(&points([0; 8], 2, 3));
-    s.expect(Command::Runing, Ok);
+    s.start_run(5, &points([0; 8], 2, 3));
     let loc = s.plant.run_to_end(&mut s.controller).expect("LOCATION");
     assert_eq!((loc.state, loc.position[0]), (State::Stopped as u8, 6));
     let status = s.controller.status(&s.plant);
@@ -543,9 +531,7 @@ fn underrun_stops_at_the_end_of_the_last_point() {
 #[test]
 fn stopped_drops_the_buffer_and_sets_its_flag() {
     let mut s = Session::<16>::new(16);
-    s.expect(Command::New { count: 5 }, Ok);
-    s.pending(&points([0; 8], 5, 1));
-    s.expect(Command::Runing, Ok);
+    s.start_run(5, &points([0; 8], 5, 1));
     s.plant.run(&mut s.controller, 1);
     let stops = s.plant.stops;
     let r = s.send_raw(HOST, &frame(s.seq.wrapping_add(1), Command::Stopped));
@@ -648,13 +634,7 @@ fn joints_count_is_saved_and_limits_the_checked_joints() {
 #[test]
 fn return_reads_encoders_then_moves_every_joint_to_zero() {
     let mut s = Session::<64>::new(64);
-    s.expect(
-        Command::LocationSetting(Location {
-            position: [500, -300, 0, 0, 0, 0, 7, 7],
-            state: 0,
-        }),
-        Ok,
-    );
+    s.set_location([500, -300, 0, 0, 0, 0, 7, 7]);
     let r = s.send_raw(HOST, &frame(9, Command::Return));
     assert_eq!(
         r.reply.map(|r| (r.ack.status, r.ack.state)),
@@ -704,13 +684,7 @@ fn return_reads_encoders_then_moves_every_joint_to_zero() {
 #[test]
 fn stopped_during_return_and_pending_refused() {
     let mut s = Session::<64>::new(64);
-    s.expect(
-        Command::LocationSetting(Location {
-            position: [5_000; 8],
-            state: 0,
-        }),
-        Ok,
-    );
+    s.set_location([5_000; 8]);
     s.expect(Command::Return, Ok);
     s.controller.begin_return(None, &mut s.plant);
     s.plant.run(&mut s.controller, 3);
@@ -728,13 +702,7 @@ fn stopped_during_return_and_pending_refused() {
 #[test]
 fn a_long_return_streams_through_a_small_buffer() {
     let mut s = Session::<8>::new(8);
-    s.expect(
-        Command::LocationSetting(Location {
-            position: [40_000, 0, 0, 0, 0, 0, 0, 0],
-            state: 0,
-        }),
-        Ok,
-    );
+    s.set_location([40_000, 0, 0, 0, 0, 0, 0, 0]);
     s.expect(Command::Return, Ok);
     s.controller.begin_return(None, &mut s.plant);
     assert!(s.controller.buffered() <= 8);
@@ -822,13 +790,7 @@ fn stop_after_overtaken_applies_stopped_without_an_ack() {
 
     // A RETURN waiting for its encoder reading: cancelled, it never starts.
     let mut s = Session::<64>::new(64);
-    s.expect(
-        Command::LocationSetting(Location {
-            position: [300; 8],
-            state: 0,
-        }),
-        Ok,
-    );
+    s.set_location([300; 8]);
     s.expect(Command::Return, Ok);
     let loc = s.controller.stop_after_overtaken(&mut s.plant);
     assert_eq!(loc.map(|l| l.state), Some(State::Stopped as u8));

@@ -146,9 +146,7 @@ fn net_set_is_stored_by_the_owner_and_applied_after_reset() {
 #[test]
 fn net_set_is_refused_while_running_and_when_invalid() {
     let mut s = Session::<64>::new(64);
-    s.expect(Command::New { count: 4 }, Ok);
-    s.pending(&points([0; 8], 4, 1));
-    s.expect(Command::Runing, Ok);
+    s.start_run(4, &points([0; 8], 4, 1));
     let ack = s.expect(
         Command::NetSet(NetSettings::fixed([10, 0, 0, 2], 8, None)),
         BadState,

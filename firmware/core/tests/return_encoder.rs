@@ -6,18 +6,12 @@ mod common;
 use arm_core::Deferred;
 use arm_core::hw::{EncoderFault, EncoderFaultKind};
 use common::*;
-use protocol::{Command, Location, State, StatusCode, StatusFlags};
+use protocol::{Command, State, StatusCode, StatusFlags};
 
 #[test]
 fn a_failed_encoder_read_ends_return_in_stopped_without_moving() {
     let mut s = Session::<64>::new(64);
-    s.expect(
-        Command::LocationSetting(Location {
-            position: [500, -300, 0, 0, 0, 0, 0, 0],
-            state: 0,
-        }),
-        StatusCode::Ok,
-    );
+    s.set_location([500, -300, 0, 0, 0, 0, 0, 0]);
     s.seq = s.seq.wrapping_add(1);
     let r = s.send_raw(s.from, &frame(s.seq, Command::Return));
     assert_eq!(r.deferred, Some(Deferred::ReadEncoders));
