@@ -637,3 +637,35 @@ fn without_a_serial_port_usart_start_is_refused() {
     assert_eq!(ack.status, StatusCode::InvalidConfig);
     assert!(!client.status().flags.has(StatusFlags::SERIAL_OPEN));
 }
+
+#[test]
+fn usart_start_refuses_what_the_board_cannot_make() {
+    // The simulator's port could open anything; the controller refuses what the board's
+    // USART cannot make (arm_core::uart), so a host sees the board's answer here too.
+    let sim = Sim::start(&[
+        "--serial",
+        "loopback",
+        "--settings",
+        temp_path("serial-refused.txt").to_str().unwrap(),
+    ]);
+    let mut client = sim.client();
+    let good = UartInit {
+        baud_rate: 115_200,
+        ..UartInit::default()
+    };
+    let rts_cts = UartInit {
+        hw_flow_ctl: 0x0300,
+        ..good
+    };
+    let ack = client.command(&Command::UsartStart(rts_cts));
+    assert_eq!(ack.status, StatusCode::InvalidConfig);
+    assert!(!client.status().flags.has(StatusFlags::SERIAL_OPEN));
+    // 8 data bits, even parity, 2 stop bits: the board makes it, so the simulator opens.
+    client.ok(&Command::UsartStart(UartInit {
+        word_length: 0x1000,
+        parity: 0x0400,
+        stop_bits: 0x2000,
+        ..good
+    }));
+    assert!(client.status().flags.has(StatusFlags::SERIAL_OPEN));
+}
