@@ -65,6 +65,13 @@
 //! What must happen synchronously (the step engine, pins, gripper, serial port) goes
 //! through the [`Plant`] trait; what needs waiting (flash, encoders) comes back as a
 //! [`Deferred`] in the [`Response`].
+//!
+//! # Layout
+//! This file is the state machine proper: the checks above in their order
+//! (`check_and_execute`) and what each command does (`execute`, one `match` so that every
+//! command's rule reads in one place), about 600 lines with these docs. The boot state is
+//! in `controller/boot.rs`, the owner rule and LOCATION listeners in `controller/owner.rs`,
+//! admitting points, feeding the engine, run ends and RETURN in `controller/runs.rs`.
 
 use protocol::NetSettings;
 use protocol::{

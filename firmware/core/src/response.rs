@@ -14,7 +14,7 @@ pub enum Deferred {
     /// Store these settings ([`crate::hw::SettingsStore::save`]).
     SaveSettings(PersistentSettings),
     /// RETURN was accepted: read the encoders ([`crate::hw::Encoders::read`]) and pass
-    /// the result to [`Controller::begin_return`].
+    /// the result to [`crate::Controller::begin_return`].
     ReadEncoders,
 }
 
