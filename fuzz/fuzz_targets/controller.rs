@@ -318,7 +318,11 @@ impl Harness {
             assert_eq!(r.reply, None, "an ACK besides the DISCOVER_REPLY");
             assert_eq!((r.status, r.executed), (None, false), "DISCOVER executed");
             assert_eq!(self.snapshot(), before, "DISCOVER changed something");
-            assert_eq!(self.controller.owner(), owner_before, "DISCOVER touched the owner");
+            assert_eq!(
+                self.controller.owner(),
+                owner_before,
+                "DISCOVER touched the owner"
+            );
             assert_eq!(
                 self.controller.report_settings(),
                 routes_before,
