@@ -17,8 +17,8 @@
 //! 5. **decode**: `UNKNOWN_TAG`, `BAD_LENGTH`, `INVALID_CONFIG`, `INVALID_POINT` (duration
 //!    under 1 us), `UNSUPPORTED` (a report tag from a host).
 //! 6. **state**: `BAD_STATE` when the command is not allowed in the current state
-//!    (PROTOCOL.md section 3; USART_SEND needs an open port that may transmit; PENDING
-//!    must come from the endpoint that sent the NEW).
+//!    (docs/PROTOCOL.md, "Commands (host to controller)"; USART_SEND needs an open port
+//!    that may transmit; PENDING must come from the endpoint that sent the NEW).
 //! 7. **execute**: PENDING checks, in order: `OUT_OF_ORDER` (seq != `next_seq`),
 //!    `TOO_MANY_POINTS`, `INVALID_POINT` (step rate), `BUFFER_FULL`; every point of the
 //!    frame is checked before any is taken. USART_SEND: `BUFFER_FULL` when the serial
@@ -374,9 +374,10 @@ impl<const CAP: usize> Controller<CAP> {
             response.reply = reply(self, StatusCode::BadCrc);
             return response;
         }
-        // DISCOVER (PROTOCOL.md 12): answered to any host, before the owner rule, with a
-        // DISCOVER_REPLY instead of an ACK; it changes nothing (no owner, no duplicate
-        // memory, no ordering mark, no LOCATION listener).
+        // DISCOVER (docs/PROTOCOL.md, "Finding controllers and setting their address"):
+        // answered to any host, before the owner rule, with a DISCOVER_REPLY instead of an
+        // ACK; it changes nothing (no owner, no duplicate memory, no ordering mark, no
+        // LOCATION listener).
         if tag == Tag::Discover as u8 && datagram.len() == protocol::FRAME_OVERHEAD {
             response.discovery = Some(Discovery {
                 to: from,
@@ -409,7 +410,7 @@ impl<const CAP: usize> Controller<CAP> {
             }
             Some(_) if tag == Tag::Stopped as u8 => false,
             Some(_) => {
-                // Tells a stranger nothing about the arm: zeros (section 8).
+                // Tells a stranger nothing about the arm: zeros (docs/PROTOCOL.md, "Status codes").
                 response.reply = Some(Reply {
                     to: from,
                     seq,
@@ -633,7 +634,7 @@ impl<const CAP: usize> Controller<CAP> {
             Command::UploadPeriod { period_us } => self.upload_period_us = period_us,
             // Answered in `handle` before the owner rule; never reaches here.
             Command::Discover => {}
-            // Stored now, applied after the next reset (PROTOCOL.md 12).
+            // Stored now, applied after the next reset (docs/PROTOCOL.md, "Finding controllers").
             Command::NetSet(net) => {
                 if self.state == State::Running {
                     return Err(StatusCode::BadState);

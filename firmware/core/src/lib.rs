@@ -17,9 +17,10 @@
 //!    (`plant.rs`). `tasks/overtaken.rs` keeps the result that of arrival order when a
 //!    STOPPED overtook queued datagrams.
 //! 3. The controller hands buffered points to its [`Plant`] as segments
-//!    ([`Controller::pump`]), which the trajectory task's puts on `bus.segments`; [`tasks::step_task`] (`tasks/step.rs`) pushes them into the engine
-//!    in [`StepShared`] (`step_shared.rs`: the engine shared with the step interrupts,
-//!    whose body is [`on_step_timer`]), which makes the pulses and reports progress back.
+//!    ([`Controller::pump`]), which the trajectory task's puts on `bus.segments`;
+//!    [`tasks::step_task`] (`tasks/step.rs`) pushes them into the engine in
+//!    [`StepShared`] (`step_shared.rs`: the engine shared with the step interrupts, whose
+//!    body is [`on_step_timer`]), which makes the pulses and reports progress back.
 //! 4. Replies go out the other way: ACK, STATUS and state-change LOCATION onto
 //!    `bus.outbox`, encoded and addressed by [`ReportEncoder`] (`outgoing.rs`, with
 //!    [`ReportSettings`] from `reports.rs`), sent by the network task. Periodic LOCATION
@@ -27,8 +28,9 @@
 //!    [`tasks::serial_task`] (`tasks/serial.rs`, batching in `serial.rs`).
 //!
 //! Also: `config.rs` (capacities and board defaults), `hw.rs` (the hardware traits the
-//! tasks are generic over), `log_limit.rs` (at most one log line a second), and
-//! `test_support.rs` (fakes for tests, feature `test-support`).
+//! tasks are generic over), `uart.rs` (the USART_START settings the controller accepts:
+//! the board's, for the simulator too), `log_limit.rs` (at most one log line a second),
+//! and `test_support.rs` (fakes for tests, feature `test-support`).
 //!
 //! Binaries implement the [`hw`] traits, allocate a [`Bus`], a [`StepShared`] and a
 //! [`Controller`] in statics, and wrap the task functions in

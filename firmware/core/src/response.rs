@@ -50,7 +50,8 @@ pub struct Response {
     pub discovery: Option<Discovery>,
 }
 
-/// A DISCOVER_REPLY for the host that asked (PROTOCOL.md section 12).
+/// A DISCOVER_REPLY for the host that asked (docs/PROTOCOL.md, "Finding controllers and
+/// setting their address").
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Discovery {

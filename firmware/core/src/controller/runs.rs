@@ -11,10 +11,10 @@ use crate::plan::plan_return;
 use crate::plant::Plant;
 
 impl<const CAP: usize> Controller<CAP> {
-    /// The stored form of `point` after `previous`, if it obeys section 5: for every joint
-    /// in use, at most `max_step_rate_hz` steps per second and a step count that fits a
-    /// segment, and all joints together at most `step_budget_hz` steps per second. Joints
-    /// not in use keep their previous position.
+    /// The stored form of `point` after `previous`, if it obeys docs/PROTOCOL.md ("Point",
+    /// "Step rate budget"): for every joint in use, at most `max_step_rate_hz` steps per
+    /// second and a step count that fits a segment, and all joints together at most
+    /// `step_budget_hz` steps per second. Joints not in use keep their previous position.
     pub(super) fn admit(
         &self,
         previous: &[i32; MAX_JOINTS],
