@@ -261,6 +261,41 @@ impl Encoders for NoEncoders {
     }
 }
 
+/// What most task tests set up: the clock, the bus, an engine with a 4-segment queue, the
+/// serial port and the outputs (the step timer borrows the clock: `TestKick::new`).
+struct Fixture {
+    clock: TestClock,
+    bus: Bus,
+    step: StepShared<4>,
+    serial: TestSerial,
+    outputs: RefCell<TestOutputs>,
+}
+
+impl Fixture {
+    /// The trajectory task over these devices, the step timer `kick`, `settings` and
+    /// `encoders`.
+    async fn trajectory_task<E: Encoders>(
+        &self,
+        controller: &mut Controller<32>,
+        kick: &TestKick<'_>,
+        settings: TestSettings,
+        encoders: E,
+    ) {
+        let hw = test_hw(kick, &self.outputs, &self.serial, settings, encoders);
+        trajectory_task(controller, &self.bus, &self.step, &self.clock, hw).await
+    }
+
+    fn new() -> Self {
+        Fixture {
+            clock: TestClock(Instant::now()),
+            bus: Bus::new(),
+            step: StepShared::new(TIMING),
+            serial: TestSerial::default(),
+            outputs: RefCell::new(TestOutputs::default()),
+        }
+    }
+}
+
 /// The trajectory task's hardware in these tests: the step timer `kick`, the shared
 /// outputs and serial port, a gripper that is off, and `settings` and `encoders`.
 fn test_hw<'a, E: Encoders>(
@@ -322,33 +357,23 @@ async fn until(what: &str, limit: Duration, mut done: impl FnMut() -> bool) {
 
 #[test]
 fn datagrams_in_acks_and_steps_out() {
-    let clock = TestClock(Instant::now());
-    let kick = TestKick::new(&clock);
-    let bus = Bus::new();
-    let step = StepShared::<4>::new(TIMING);
+    let fx = Fixture::new();
+    let kick = TestKick::new(&fx.clock);
     let mut controller = controller_32();
     let socket = TestSocket::default();
-    let serial = TestSerial::default();
-    let outputs = RefCell::new(TestOutputs::default());
     let pins = RefCell::new(TestPins::default());
     let settings = TestSettings(Some(PersistentSettings {
         joints: 3,
         ..PersistentSettings::default()
     }));
 
-    let isr = step_interrupt(&kick, &step, &pins, &bus);
+    let isr = step_interrupt(&kick, &fx.step, &pins, &fx.bus);
     let tasks = join5(
-        network_task(&socket, &bus, &clock),
-        trajectory_task(
-            &mut controller,
-            &bus,
-            &step,
-            &clock,
-            test_hw(&kick, &outputs, &serial, settings, NoEncoders),
-        ),
-        step_task(&bus, &step, &kick),
-        upload_task(&bus, &step, &clock),
-        join(serial_task(&serial, &bus, &clock), isr),
+        network_task(&socket, &fx.bus, &fx.clock),
+        fx.trajectory_task(&mut controller, &kick, settings, NoEncoders),
+        step_task(&fx.bus, &fx.step, &kick),
+        upload_task(&fx.bus, &fx.step, &fx.clock),
+        join(serial_task(&fx.serial, &fx.bus, &fx.clock), isr),
     );
 
     let send = |seq: u8, cmd: Command<'_>, from: Endpoint| {
@@ -389,9 +414,9 @@ fn datagrams_in_acks_and_steps_out() {
         .await;
         assert_eq!(pins.borrow().position[..3], [30, -15, 0]);
         assert_eq!(pins.borrow().pulses, 45);
-        assert_eq!(step.positions()[..2], [30, -15]);
+        assert_eq!(fx.step.positions()[..2], [30, -15]);
         assert_eq!(
-            outputs.borrow().enabled.first(),
+            fx.outputs.borrow().enabled.first(),
             Some(&0x1FF),
             "drivers boot enabled"
         );
@@ -427,15 +452,15 @@ fn datagrams_in_acks_and_steps_out() {
         .await;
         let stopped_at = pins.borrow().position[0];
         assert!(stopped_at < 1_030, "stopped before the end");
-        let wait = clock.now_us() + 50_000;
-        until("50 ms", LIMIT, || clock.now_us() > wait).await;
+        let wait = fx.clock.now_us() + 50_000;
+        until("50 ms", LIMIT, || fx.clock.now_us() > wait).await;
         assert_eq!(
             pins.borrow().position[0],
             stopped_at,
             "no pulse after STOPPED"
         );
         assert_eq!(pins.borrow().high, 0, "STEP lines low");
-        assert_eq!(step.positions()[0], stopped_at as i32);
+        assert_eq!(fx.step.positions()[0], stopped_at as i32);
         let stranger_ack = acks(&socket).into_iter().find(|a| a.0 == STRANGER);
         assert_eq!(
             stranger_ack,
@@ -453,10 +478,10 @@ fn datagrams_in_acks_and_steps_out() {
         );
         send(9, Command::UsartSend(b"ping"), HOST);
         until("the bytes written", LIMIT, || {
-            serial.tx.borrow().as_slice() == b"ping"
+            fx.serial.tx.borrow().as_slice() == b"ping"
         })
         .await;
-        serial.rx.borrow_mut().extend(b"pong".iter().copied());
+        fx.serial.rx.borrow_mut().extend(b"pong".iter().copied());
         until("USART_RECV", LIMIT, || {
             decoded(&socket)
                 .iter()
@@ -477,13 +502,9 @@ fn datagrams_in_acks_and_steps_out() {
 
 #[test]
 fn stopped_overtakes_queued_uploads() {
-    let clock = TestClock(Instant::now());
-    let kick = TestKick::new(&clock);
-    let bus = Bus::new();
-    let step = StepShared::<4>::new(TIMING);
+    let fx = Fixture::new();
+    let kick = TestKick::new(&fx.clock);
     let mut controller = controller_32();
-    let serial = TestSerial::default();
-    let outputs = RefCell::new(TestOutputs::default());
     // The network task's routing, before the trajectory task gets to run: a full inbox
     // of uploads, then a STOPPED.
     let mut routed = 0;
@@ -494,29 +515,23 @@ fn stopped_overtakes_queued_uploads() {
         } else {
             Command::Status
         };
-        bus_route(&bus, HOST, &frame(seq, cmd));
+        bus_route(&fx.bus, HOST, &frame(seq, cmd));
         routed += 1;
     }
     assert_eq!(routed, sent);
-    assert_eq!(bus.inbox_drops(), 12);
+    assert_eq!(fx.bus.inbox_drops(), 12);
     assert_eq!(
-        bus.inbox.len(),
+        fx.bus.inbox.len(),
         arm_core::tasks::INBOX_QUEUE,
         "the rest was dropped"
     );
-    bus_route(&bus, STRANGER, &frame(99, Command::Stopped));
-    assert_eq!(bus.estop.len(), 1);
-    let trajectory = trajectory_task(
-        &mut controller,
-        &bus,
-        &step,
-        &clock,
-        test_hw(&kick, &outputs, &serial, TestSettings(None), NoEncoders),
-    );
+    bus_route(&fx.bus, STRANGER, &frame(99, Command::Stopped));
+    assert_eq!(fx.bus.estop.len(), 1);
+    let trajectory = fx.trajectory_task(&mut controller, &kick, TestSettings(None), NoEncoders);
     let driver = async {
         let mut acks = Vec::new();
         while acks.len() < 1 + arm_core::tasks::INBOX_QUEUE {
-            if let Ok(arm_core::Outgoing::Ack(reply)) = bus.outbox.try_receive() {
+            if let Ok(arm_core::Outgoing::Ack(reply)) = fx.bus.outbox.try_receive() {
                 acks.push((reply.to, reply.seq));
             }
             yield_now().await;
@@ -701,29 +716,19 @@ impl Encoders for SlowEncoders {
 
 #[test]
 fn reports_queued_before_a_wait_go_to_the_sender_of_the_frame() {
-    let clock = TestClock(Instant::now());
-    let kick = TestKick::new(&clock);
-    let bus = Bus::new();
-    let step = StepShared::<4>::new(TIMING);
+    let fx = Fixture::new();
+    let kick = TestKick::new(&fx.clock);
     let mut controller = controller_32();
-    let serial = TestSerial::default();
-    let outputs = RefCell::new(TestOutputs::default());
     // The first frame ever is a RETURN: its LOCATION (state RUNNING) is queued, then the
     // trajectory task waits for the encoders, and the network task may send it meanwhile.
-    bus_route(&bus, HOST, &frame(1, Command::Return));
-    let trajectory = trajectory_task(
-        &mut controller,
-        &bus,
-        &step,
-        &clock,
-        test_hw(&kick, &outputs, &serial, TestSettings(None), SlowEncoders),
-    );
+    bus_route(&fx.bus, HOST, &frame(1, Command::Return));
+    let trajectory = fx.trajectory_task(&mut controller, &kick, TestSettings(None), SlowEncoders);
     let driver = async {
         loop {
-            if let Ok(arm_core::Outgoing::Location(location)) = bus.outbox.try_receive() {
+            if let Ok(arm_core::Outgoing::Location(location)) = fx.bus.outbox.try_receive() {
                 // What the network task would read to address it, at this instant.
                 assert_eq!(location.state, State::Running as u8);
-                assert!(bus.report_settings().location_goes_to(HOST));
+                assert!(fx.bus.report_settings().location_goes_to(HOST));
                 return;
             }
             yield_now().await;
@@ -764,6 +769,11 @@ impl Rig {
             encoder_reads: Cell::new(0),
             sent: RefCell::new(Vec::new()),
         }
+    }
+
+    /// STOPPEDs on the e-stop queue and datagrams in the inbox.
+    fn queued(&self) -> (usize, usize) {
+        (self.bus.estop.len(), self.bus.inbox.len())
     }
 
     /// Routes the frame as the network task does when it arrives.
@@ -869,14 +879,13 @@ fn stopped_cancels_the_run_of_the_frames_it_overtook() {
     rig.route(&frame(2, Command::Pending(PointList::Points(&pts))));
     rig.route(&runing);
     rig.route(&frame(4, Command::Stopped));
-    assert_eq!((rig.bus.estop.len(), rig.bus.inbox.len()), (1, 3));
+    assert_eq!(rig.queued(), (1, 3));
     rig.run(async {
-        // Longer than the start lead and the whole trajectory (3 ms).
-        let acks = rig.acks_after(4, 30).await;
         use StatusCode::Ok;
         let stopped = Tag::Stopped as u8;
         assert_eq!(
-            acks,
+            // 30 ms: longer than the start lead and the whole trajectory (3 ms).
+            rig.acks_after(4, 30).await,
             [
                 (4, stopped, Ok, State::Stopped),
                 (1, Tag::New as u8, Ok, State::New),
@@ -939,12 +948,11 @@ fn stopped_cancels_a_return_it_overtook() {
     let ret = frame(1, Command::Return);
     rig.route(&ret);
     rig.route(&frame(2, Command::Stopped));
-    assert_eq!((rig.bus.estop.len(), rig.bus.inbox.len()), (1, 1));
+    assert_eq!(rig.queued(), (1, 1));
     rig.run(async {
-        let acks = rig.acks_after(2, 30).await;
         use StatusCode::Ok;
         assert_eq!(
-            acks,
+            rig.acks_after(2, 30).await,
             [
                 (2, Tag::Stopped as u8, Ok, State::Stopped),
                 (1, Tag::Return as u8, Ok, State::Running),
@@ -982,12 +990,11 @@ fn each_overtaking_stopped_cancels_what_came_before_it() {
     rig.route(&frame(2, Command::Stopped));
     rig.route(&frame(3, Command::Pending(PointList::Points(&pts))));
     rig.route(&frame(4, Command::Stopped));
-    assert_eq!((rig.bus.estop.len(), rig.bus.inbox.len()), (2, 2));
+    assert_eq!(rig.queued(), (2, 2));
     rig.run(async {
-        let acks = rig.acks_after(4, 10).await;
         use StatusCode::{BadState, Ok};
         assert_eq!(
-            acks,
+            rig.acks_after(4, 10).await,
             [
                 (2, Tag::Stopped as u8, Ok, State::Stopped),
                 (4, Tag::Stopped as u8, Ok, State::Stopped),
@@ -1036,7 +1043,7 @@ fn a_refused_stopped_behind_queued_datagrams_does_not_stop_the_run() {
     }
     rig.route(&frame(8, Command::Runing));
     rig.route(&raw(9, Tag::Stopped as u8, &[0]));
-    assert_eq!((rig.bus.estop.len(), rig.bus.inbox.len()), (1, 8));
+    assert_eq!(rig.queued(), (1, 8));
     rig.run(async {
         until("nine ACKs", LIMIT, || rig.acks().len() >= 9).await;
         rig.until_three_points_ran().await;
