@@ -32,7 +32,7 @@ use heapless::Vec;
 use protocol::{MAX_DATAGRAM, MAX_SERIAL_CHUNK, Tag, UartInit, crc8};
 
 use crate::config::HOST_WINDOW;
-use crate::controller::ReportSettings;
+use crate::reports::ReportSettings;
 use crate::hw::Endpoint;
 use crate::log_limit::{LogLimit, LogVerdict};
 use crate::outgoing::Outgoing;

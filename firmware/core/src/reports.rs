@@ -11,14 +11,16 @@ use crate::hw::Endpoint;
 /// machine (an uploader, a watcher, a poller, one more), each a socket of its own.
 pub const LOCATION_LISTENERS: usize = 4;
 
-/// An owner endpoint that gets LOCATION reports (see "Who gets which report").
+/// An owner endpoint that gets LOCATION reports (see "Who gets which report" in
+/// [`crate::controller`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub(crate) struct Listener {
     /// The endpoint.
     pub(crate) to: Endpoint,
-    /// When it last sent a CRC-valid frame, microseconds: silent [`OWNER_TIMEOUT_US`], it
-    /// stops getting reports (unless it started the upload or run under way).
+    /// When it last sent a CRC-valid frame, microseconds: silent
+    /// [`crate::config::OWNER_TIMEOUT_US`], it stops getting reports (unless it started
+    /// the upload or run under way).
     pub(crate) heard_us: u64,
 }
 
