@@ -32,10 +32,10 @@ use heapless::Vec;
 use protocol::{MAX_DATAGRAM, MAX_SERIAL_CHUNK, Tag, UartInit, crc8};
 
 use crate::config::HOST_WINDOW;
-use crate::reports::ReportSettings;
 use crate::hw::Endpoint;
 use crate::log_limit::{LogLimit, LogVerdict};
 use crate::outgoing::Outgoing;
+use crate::reports::ReportSettings;
 #[cfg(doc)]
 use crate::step_shared::{StepShared, on_step_timer};
 

@@ -3,8 +3,9 @@
 use heapless::Vec;
 use protocol::{Location, MAX_SERIAL_CHUNK, Report, StatusReport, size};
 
-use crate::controller::{Discovery, LOCATION_LISTENERS, Reply, ReportSettings};
 use crate::hw::Endpoint;
+use crate::reports::{LOCATION_LISTENERS, ReportSettings};
+use crate::response::{Discovery, Reply};
 
 /// Where one encoded frame goes.
 pub type Destinations = Vec<Endpoint, LOCATION_LISTENERS>;

@@ -4,9 +4,11 @@
 
 use super::trajectory::{deliver, publish};
 use crate::bus::{Bus, Datagram};
-use crate::controller::{Controller, Deferred, Plant};
+use crate::controller::Controller;
 use crate::hw::Clock;
 use crate::outgoing::Outgoing;
+use crate::plant::Plant;
+use crate::response::Deferred;
 
 /// Handles `first`, an inbox datagram overtaken by an executed STOPPED, then the queued
 /// datagrams that arrived before the last executed STOPPED, in arrival order (same ACKs,

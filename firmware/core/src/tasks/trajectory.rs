@@ -9,11 +9,13 @@ use protocol::{MAX_JOINTS, Pwm, UartInit};
 
 use super::overtaken::{OvertakingStops, handle_overtaken};
 use crate::bus::{Bus, SegmentMsg};
-use crate::controller::{Controller, Deferred, Plant, Response};
+use crate::controller::Controller;
 use crate::hw::{
     Clock, Encoders, Gripper, Outputs, SerialError, SerialPort, SettingsStore, StepKick,
 };
 use crate::outgoing::Outgoing;
+use crate::plant::Plant;
+use crate::response::{Deferred, Response};
 use crate::step_shared::{START_LEAD_US, StepBackend, StepShared, us_to_ticks};
 
 /// The hardware the trajectory task drives besides the step engine.
