@@ -1,9 +1,10 @@
 //! Frames: decoding a datagram into a typed command or report, and encoding one back.
 
 use crate::codec::{Writer, u8_at, u16_be, u16_le, u32_le};
+use crate::codes::{State, StatusCode, Tag};
 use crate::error::{DecodeError, DecodeErrorKind, EncodeError, ExpectedLen, Field};
 use crate::net::NetSettings;
-use crate::types::{Ack, Location, Point, Pwm, State, StatusCode, StatusReport, Tag, UartInit};
+use crate::types::{Ack, Location, Point, Pwm, StatusReport, UartInit};
 use crate::{FRAME_OVERHEAD, MAX_POINTS_PER_FRAME, MAX_SERIAL_CHUNK, limits, size};
 
 const CRC8: crc::Crc<u8> = crc::Crc::<u8>::new(&crc::CRC_8_SMBUS);

@@ -13,18 +13,20 @@
 extern crate std;
 
 mod codec;
+mod codes;
 mod error;
 mod frame;
 pub mod limits;
 mod net;
 mod types;
 
+pub use codes::{State, StatusCode, Tag};
 pub use error::{DecodeError, DecodeErrorKind, EncodeError, ExpectedLen, Field};
 pub use frame::{Command, Frame, PointList, PointsIter, Report, crc8};
 pub use net::{DiscoverReply, NetSettings, OwnerState};
 pub use types::{
-    Ack, DEFAULT_WINDOW, Location, MoreFlags, Point, Pwm, State, StatusCode, StatusFlags,
-    StatusReport, Tag, UartInit, UartMode,
+    Ack, DEFAULT_WINDOW, Location, MoreFlags, Point, Pwm, StatusFlags, StatusReport, UartInit,
+    UartMode,
 };
 
 /// UDP port the controller listens on.

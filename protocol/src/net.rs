@@ -6,9 +6,9 @@
 //! the host that asked (as an ACK does), and hosts that never ask never see one.
 
 use crate::codec::{Writer, u8_at};
+use crate::codes::{State, Tag};
 use crate::error::{DecodeError, DecodeErrorKind, EncodeError, ExpectedLen, Field};
 use crate::frame::{Frame, crc8};
-use crate::types::{State, Tag};
 use crate::{FRAME_OVERHEAD, size};
 
 /// How the controller gets its IPv4 address (NET_SET's data, 10 bytes).
