@@ -211,7 +211,7 @@ fn open(bytes: &[u8]) -> Result<(u8, u8, &[u8]), DecodeError> {
 }
 
 /// Builds a frame around `data_len` bytes written by `fill`.
-fn seal(
+pub(crate) fn seal(
     seq: u8,
     tag: Tag,
     data_len: usize,
@@ -219,19 +219,20 @@ fn seal(
     fill: impl FnOnce(&mut Writer<'_>),
 ) -> Result<usize, EncodeError> {
     let needed = data_len + FRAME_OVERHEAD;
-    let Some(frame) = buf.get_mut(..needed) else {
-        return Err(EncodeError::BufferTooSmall {
-            needed,
-            available: buf.len(),
-        });
+    let too_small = EncodeError::BufferTooSmall {
+        needed,
+        available: buf.len(),
     };
-    frame.fill(0);
-    frame[0] = seq;
-    frame[1] = tag as u8;
-    fill(&mut Writer {
-        buf: &mut frame[2..2 + data_len],
-    });
-    frame[needed - 1] = crc8(&frame[..needed - 1]);
+    let Some((crc, body)) = buf.get_mut(..needed).and_then(|f| f.split_last_mut()) else {
+        return Err(too_small);
+    };
+    let Some((header, data)) = body.split_first_chunk_mut::<2>() else {
+        return Err(too_small);
+    };
+    *header = [seq, tag.into()];
+    data.fill(0);
+    fill(&mut Writer { buf: data });
+    *crc = crc8(body);
     Ok(needed)
 }
 
@@ -371,7 +372,10 @@ impl<'a> Command<'a> {
                 }
                 let points = PointList::Wire(data);
                 if let Some(i) = points.iter().position(|p| p.duration < 1) {
-                    return Err(out_of_range(Field::Duration(i as u8)));
+                    // i < MAX_POINTS_PER_FRAME (12).
+                    return Err(out_of_range(Field::Duration(
+                        u8::try_from(i).unwrap_or(u8::MAX),
+                    )));
                 }
                 Command::Pending(points)
             }
@@ -536,7 +540,8 @@ impl<'a> Report<'a> {
             Report::Ack(ack) => ack.write(w, 0),
             Report::Location(loc) => loc.write(w, 0),
             Report::UsartRecv(bytes) => {
-                w.u8(0, bytes.len() as u8);
+                // At most MAX_SERIAL_CHUNK (255): checked above.
+                w.u8(0, u8::try_from(bytes.len()).unwrap_or(u8::MAX));
                 w.put(1, bytes);
             }
             Report::Status(status) => status.write(w, 0),

@@ -8,6 +8,15 @@
 //! from a byte slice without allocating or panicking, and encode into the caller's buffer.
 //! The crate is `no_std` and shared by the firmware, the simulator and the host tools.
 #![no_std]
+#![warn(missing_docs)]
+#![cfg_attr(
+    not(test),
+    warn(
+        clippy::indexing_slicing,
+        clippy::unwrap_used,
+        clippy::cast_possible_truncation
+    )
+)]
 
 #[cfg(feature = "std")]
 extern crate std;

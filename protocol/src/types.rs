@@ -43,17 +43,23 @@ impl Point {
             position: *target,
             ..Point::default()
         };
-        for j in 0..MAX_JOINTS {
-            let steps = (i64::from(target[j]) - i64::from(previous[j])).unsigned_abs();
+        let hints = (p.number_of_period.iter_mut().zip(&mut p.period))
+            .zip(p.number_of_full_period.iter_mut().zip(&mut p.rest_period));
+        for ((from, to), ((count, period_hint), (full, rest))) in
+            previous.iter().zip(target).zip(hints)
+        {
+            let steps = (i64::from(*to) - i64::from(*from)).unsigned_abs();
             if steps == 0 {
                 continue;
             }
-            let period = (i64::from(duration_us.max(0)) as u64 / steps) as u32;
-            p.number_of_period[j] = steps as u16 as i16;
-            p.period[j] = period as i32;
+            // duration_us / steps <= i32::MAX.
+            let period = u32::try_from(i64::from(duration_us.max(0)).unsigned_abs() / steps)
+                .unwrap_or(u32::MAX);
+            *count = low_16(steps);
+            *period_hint = period as i32;
             if period > 0xFFFF {
-                p.number_of_full_period[j] = (period >> 16) as u16 as i16;
-                p.rest_period[j] = (period & 0xFFFF) as u16 as i16;
+                *full = low_16(u64::from(period >> 16));
+                *rest = low_16(u64::from(period));
             }
         }
         p
@@ -63,6 +69,10 @@ impl Point {
     ///
     /// # Panics
     /// If `j >= MAX_JOINTS` (a caller's bug, never a value from the network).
+    #[allow(
+        clippy::indexing_slicing,
+        reason = "documented: j >= MAX_JOINTS is the caller's bug"
+    )]
     pub fn steps(&self, previous: &[i32; MAX_JOINTS], j: usize) -> i64 {
         i64::from(self.position[j]) - i64::from(previous[j])
     }
@@ -86,6 +96,16 @@ impl Point {
         w.i32s(at + 52, &self.period);
         w.i32s(at + 84, &self.position);
     }
+}
+
+/// The low 16 bits, as the manual's `int16_t` hints hold a count or period that may not
+/// fit them.
+#[allow(
+    clippy::cast_possible_truncation,
+    reason = "truncation to 16 bits is the hint's definition"
+)]
+fn low_16(v: u64) -> i16 {
+    v as u16 as i16
 }
 
 /// Joint positions (steps) and, in reports, the state (`struct Location`, 36 bytes).
