@@ -399,7 +399,8 @@ impl<const QUEUE: usize> StepEngine<QUEUE> {
             return;
         };
         loop {
-            let held = joint.ordinal.wrapping_sub(self.head_ordinal) < self.ring.len() as u32;
+            let held = joint.ordinal.wrapping_sub(self.head_ordinal)
+                < u32::try_from(self.ring.len()).unwrap_or(u32::MAX);
             let slot = match self.ring.get_mut(joint.slot) {
                 Some(slot) if held => slot,
                 _ => {

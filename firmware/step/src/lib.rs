@@ -34,6 +34,15 @@
 //! edge barely depends on how many joints move (a small tournament tree keeps the next
 //! deadline).
 #![no_std]
+#![warn(missing_docs)]
+#![cfg_attr(
+    not(test),
+    warn(
+        clippy::indexing_slicing,
+        clippy::unwrap_used,
+        clippy::cast_possible_truncation
+    )
+)]
 
 mod engine;
 mod joint;
@@ -112,6 +121,7 @@ impl StepTiming {
 
     /// Highest per-joint step rate the driver timing allows: `tick_hz` over the pulse width
     /// plus the least low time.
+    #[allow(clippy::cast_possible_truncation, reason = "at most tick_hz, a u32")]
     pub const fn max_step_rate_hz(&self) -> u32 {
         (self.tick_hz as u64 / self.min_pulse_period_ticks()) as u32
     }

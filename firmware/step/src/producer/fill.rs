@@ -15,6 +15,11 @@ impl<const QUEUE: usize> PulseProducer<QUEUE> {
     /// `on_dir(tick, positive)` in order.
     /// Always fills the whole slice (idle periods when the joint has nothing queued); an
     /// idle producer writes idle periods from where it stopped.
+    #[allow(
+        clippy::indexing_slicing,
+        clippy::cast_possible_truncation,
+        reason = "j is masked to 0..MAX_JOINTS, the length of joints and max_period; k < len, the slices' length; periods written in one fill are a buffer half's at most"
+    )]
     pub fn fill(
         &mut self,
         joint: usize,
@@ -209,6 +214,11 @@ impl<const QUEUE: usize> PulseProducer<QUEUE> {
     /// then `whole` ticks plus the carry of the fraction: no comparison with `earliest`,
     /// no late pulse, no split. Returns the periods written.
     #[inline(always)]
+    #[allow(
+        clippy::indexing_slicing,
+        clippy::cast_possible_truncation,
+        reason = "j < MAX_JOINTS (masked by the caller); count <= periods.len(); the first gap was checked to fit the timer, ticks relative to base fit the u32 clock (FAST_LIMIT), count is a buffer half's periods at most"
+    )]
     fn cruise(&mut self, j: usize, periods: &mut [PulsePeriod], signs: &mut [i8]) -> usize {
         let high = self.pulse_ticks;
         let s = &mut self.joints[j];
@@ -251,6 +261,10 @@ impl<const QUEUE: usize> PulseProducer<QUEUE> {
 
     /// Whether the next fill of `len` periods for joint `joint` is one straight cruise:
     /// on-time pulses of one segment, which mark only the first period's sign.
+    #[allow(
+        clippy::indexing_slicing,
+        reason = "the joint number is masked to 0..MAX_JOINTS"
+    )]
     pub fn will_cruise(&self, joint: usize, len: usize) -> bool {
         let s = &self.joints[joint & (MAX_JOINTS - 1)];
         s.cruising && s.remaining as usize >= len
@@ -259,6 +273,10 @@ impl<const QUEUE: usize> PulseProducer<QUEUE> {
     /// The idle period joint `joint` would write next, if all its next periods are the
     /// same idle one: nothing queued for it, no pulse open, and no run (the timer's longest
     /// period) or waiting in a run (the short one).
+    #[allow(
+        clippy::indexing_slicing,
+        reason = "the joint number is masked to 0..MAX_JOINTS"
+    )]
     pub fn idle_period(&self, joint: usize) -> Option<u32> {
         let j = joint & (MAX_JOINTS - 1);
         let s = &self.joints[j];
@@ -276,20 +294,33 @@ impl<const QUEUE: usize> PulseProducer<QUEUE> {
     /// Moves joint `joint`'s stream `count` periods of `period` ticks on without writing
     /// them: the buffer half already holds them (`period` from
     /// [`PulseProducer::idle_period`]).
+    #[allow(
+        clippy::indexing_slicing,
+        reason = "the joint number is masked to 0..MAX_JOINTS"
+    )]
     pub fn skip_idle(&mut self, joint: usize, count: usize, period: u32) {
         let j = joint & (MAX_JOINTS - 1);
         self.joints[j].cursor += u64::from(period) * count as u64;
     }
 
     /// Whether joint `j` waits for a segment that is now queued.
+    #[allow(
+        clippy::indexing_slicing,
+        reason = "j < MAX_JOINTS (masked by the callers)"
+    )]
     fn held(&self, j: usize) -> bool {
         let s = &self.joints[j];
-        s.ordinal.wrapping_sub(self.head_ordinal) < self.ring.len() as u32
+        s.ordinal.wrapping_sub(self.head_ordinal)
+            < u32::try_from(self.ring.len()).unwrap_or(u32::MAX)
     }
 
     /// Moves joint `j` (done with its current segment's pulses) to the next segment where
     /// it moves, setting DIR and its pulse clock there, or marks it waiting (slots are
     /// popped by `pop_finished`).
+    #[allow(
+        clippy::indexing_slicing,
+        reason = "j < MAX_JOINTS (masked by the callers)"
+    )]
     fn seek(&mut self, j: usize, on_dir: &mut impl FnMut(u64, bool)) {
         let bit = 1 << j;
         let at = self.joints[j].seek_at;
@@ -330,6 +361,11 @@ impl<const QUEUE: usize> PulseProducer<QUEUE> {
 
     /// Sets up joint `j`'s pulse clock for `steps` (non-zero) pulses in `slot`: one
     /// division.
+    #[allow(
+        clippy::indexing_slicing,
+        clippy::cast_possible_truncation,
+        reason = "j < MAX_JOINTS (masked by the callers); u32 casts only where checked to fit (travel and modulus <= u32::MAX; the fast clock's values < FAST_LIMIT = 2^31)"
+    )]
     fn begin_segment(&mut self, j: usize, slot: &Slot, steps: i32) {
         let n = u64::from(steps.unsigned_abs());
         let base = self.origin + slot.start_tick;

@@ -97,6 +97,11 @@ const fn gcd(mut a: u64, mut b: u64) -> u64 {
 impl<const QUEUE: usize> PulseProducer<QUEUE> {
     /// An idle producer; `max_period_ticks[j]` is the longest period joint `j`'s timer can
     /// make (2^16 for a 16-bit timer; at least `2 * min_pulse_period_ticks`).
+    #[allow(
+        clippy::indexing_slicing,
+        clippy::cast_possible_truncation,
+        reason = "j < MAX_JOINTS, the loop's bound; g = gcd(tick_hz, 1e6) <= 1e6 fits u32"
+    )]
     pub const fn new(timing: StepTiming, max_period_ticks: [u32; MAX_JOINTS]) -> Self {
         let g = gcd(timing.tick_hz as u64, US_PER_S);
         let g = if g == 0 { 1 } else { g };
