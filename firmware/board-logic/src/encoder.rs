@@ -75,10 +75,11 @@ pub fn exception_reply(address: u8, code: u8) -> [u8; EXCEPTION_REPLY_LEN] {
 /// A position request as an encoder receives it: (address, register) if the frame is
 /// one (CRC checked). For the simulated encoder.
 pub fn parse_position_request(frame: &[u8]) -> Option<(u8, u16)> {
-    let [address, function, reg_hi, reg_lo, 0, 2, crc_lo, crc_hi] = *frame else {
+    let (body, crc) = frame.split_last_chunk::<2>()?;
+    let [address, function, reg_hi, reg_lo, 0, 2] = *body else {
         return None;
     };
-    let crc_ok = crc16(&frame[..6]) == u16::from_le_bytes([crc_lo, crc_hi]);
+    let crc_ok = crc16(body) == u16::from_le_bytes(*crc);
     (crc_ok && function == READ_HOLDING_REGISTERS)
         .then(|| (address, u16::from_be_bytes([reg_hi, reg_lo])))
 }
@@ -129,8 +130,10 @@ pub fn parse_position_reply(address: u8, reply: &[u8]) -> Result<i32, ReplyError
     if reply.len() != len {
         return Err(ReplyError::Unexpected);
     }
-    let (body, crc) = frame.split_at(len - 2);
-    if crc16(body) != u16::from_le_bytes([crc[0], crc[1]]) {
+    let Some((body, crc)) = frame.split_last_chunk::<2>() else {
+        return Err(ReplyError::Short);
+    };
+    if crc16(body) != u16::from_le_bytes(*crc) {
         return Err(ReplyError::BadCrc);
     }
     match *body {
@@ -174,6 +177,10 @@ impl BusTiming {
     }
 
     /// Line time of `bytes` characters, microseconds.
+    #[allow(
+        clippy::cast_possible_truncation,
+        reason = "a Modbus frame's byte count, 256 at most"
+    )]
     pub const fn frame_us(&self, bytes: usize) -> u32 {
         self.char_us * bytes as u32
     }
@@ -220,7 +227,7 @@ impl EncoderJoint {
         let magnitude = num.unsigned_abs().saturating_add(den as u64 / 2) / den as u64;
         let steps = i64::try_from(magnitude).unwrap_or(i64::MAX);
         let steps = if num < 0 { -steps } else { steps };
-        steps.clamp(i64::from(i32::MIN), i64::from(i32::MAX)) as i32
+        i32::try_from(steps).unwrap_or(if steps < 0 { i32::MIN } else { i32::MAX })
     }
 }
 
@@ -343,7 +350,8 @@ pub async fn read_positions<B: EncoderBus>(
             Ok(counts) => *position = encoder.steps(counts),
             Err(e) => {
                 return Err(EncoderFault {
-                    joint: j as u8,
+                    // j < MAX_JOINTS.
+                    joint: u8::try_from(j).unwrap_or(u8::MAX),
                     kind: e.fault_kind(),
                 });
             }

@@ -15,6 +15,14 @@
 //! * [`uart`]: the mapping of UART_INIT's HAL codes to a frame format.
 #![no_std]
 #![warn(missing_docs)]
+#![cfg_attr(
+    not(test),
+    warn(
+        clippy::indexing_slicing,
+        clippy::unwrap_used,
+        clippy::cast_possible_truncation
+    )
+)]
 
 #[cfg(test)]
 #[macro_use]
