@@ -23,16 +23,20 @@ extern crate std;
 
 mod codec;
 mod codes;
+mod command;
 mod error;
 mod frame;
 pub mod limits;
 mod net;
+mod report;
 mod types;
 
 pub use codes::{State, StatusCode, Tag};
+pub use command::Command;
 pub use error::{DecodeError, DecodeErrorKind, EncodeError, ExpectedLen, Field};
-pub use frame::{Command, Frame, PointList, PointsIter, Report, crc8};
+pub use frame::{Frame, PointList, PointsIter, crc8};
 pub use net::{DiscoverReply, NetSettings, OwnerState};
+pub use report::Report;
 pub use types::{
     Ack, DEFAULT_WINDOW, Location, MoreFlags, Point, Pwm, StatusFlags, StatusReport, UartInit,
     UartMode,
