@@ -5,8 +5,8 @@
 use std::hint::black_box;
 
 use arm_step::{
-    JointBuffer, JointMask, MAX_JOINTS, PRELUDE, PulsePeriod, Segment, StepEngine, StepPins,
-    StepStreams, StepTiming,
+    JointBuffer, JointMask, MAX_JOINTS, NUCLEO_STEP_TIMER_MAX_PERIOD_TICKS, PRELUDE, PulsePeriod,
+    Segment, StepEngine, StepPins, StepStreams, StepTiming,
 };
 use criterion::{BatchSize, Criterion, Throughput, criterion_group, criterion_main};
 
@@ -76,18 +76,6 @@ fn run(mut engine: StepEngine<SEGMENTS>) -> [i32; MAX_JOINTS] {
 /// Periods per DMA buffer half, as on the board.
 const HALF: usize = 64;
 
-/// The board's timer ranges: two 32-bit timers, six 16-bit ones.
-const MAX_PERIOD: [u32; MAX_JOINTS] = [
-    u32::MAX,
-    u32::MAX,
-    1 << 16,
-    1 << 16,
-    1 << 16,
-    1 << 16,
-    1 << 16,
-    1 << 16,
-];
-
 /// The producer with every segment queued, and the buffers it fills.
 struct Producing {
     streams: Box<StepStreams<SEGMENTS, HALF>>,
@@ -95,7 +83,7 @@ struct Producing {
 }
 
 fn producing(segments: &[Segment]) -> Producing {
-    let mut streams = Box::new(StepStreams::new(TIMING, MAX_PERIOD));
+    let mut streams = Box::new(StepStreams::new(TIMING, NUCLEO_STEP_TIMER_MAX_PERIOD_TICKS));
     for segment in segments {
         assert!(streams.producer().push(*segment).is_ok());
     }

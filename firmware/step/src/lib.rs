@@ -58,6 +58,22 @@ pub use stream::{DirChange, JointBuffer, PRELUDE, Refill, StepStreams};
 /// Joints the engine drives.
 pub const MAX_JOINTS: usize = 8;
 
+/// The NUCLEO-H743ZI2's step timers: the longest period each joint's timer makes, 2^32
+/// ticks for TIM2 and TIM5 (32-bit, joints 0-1: 21 s at 200 MHz), 2^16 for the 16-bit ones
+/// (joints 2-7: 328 us; longer gaps are split into periods without a pulse). The board
+/// builds its [`StepStreams`] with it; sim-host and the benchmarks (step-cost, the
+/// scheduler bench) run the board's ranges.
+pub const NUCLEO_STEP_TIMER_MAX_PERIOD_TICKS: [u32; MAX_JOINTS] = [
+    u32::MAX,
+    u32::MAX,
+    1 << 16,
+    1 << 16,
+    1 << 16,
+    1 << 16,
+    1 << 16,
+    1 << 16,
+];
+
 /// Bit `j` = joint `j`.
 pub type JointMask = u8;
 
