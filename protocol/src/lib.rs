@@ -35,11 +35,11 @@ pub use codes::{State, StatusCode, Tag};
 pub use command::Command;
 pub use error::{DecodeError, DecodeErrorKind, EncodeError, ExpectedLen, Field};
 pub use frame::{Frame, PointList, PointsIter, crc8};
+pub use limits::DEFAULT_WINDOW;
 pub use net::{DiscoverReply, NetSettings, OwnerState};
 pub use report::Report;
 pub use types::{
-    Ack, DEFAULT_WINDOW, Location, MoreFlags, Point, Pwm, StatusFlags, StatusReport, UartInit,
-    UartMode,
+    Ack, Location, MoreFlags, Point, Pwm, StatusFlags, StatusReport, UartInit, UartMode,
 };
 
 /// UDP port the controller listens on.

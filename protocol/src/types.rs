@@ -338,10 +338,6 @@ impl MoreFlags {
     }
 }
 
-/// The window a host may assume when STATUS `window` is 0 (a controller from before the
-/// field existed took bursts of 8 datagrams).
-pub const DEFAULT_WINDOW: u16 = 8;
-
 /// The STATUS report (36 bytes).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -356,7 +352,8 @@ pub struct StatusReport {
     /// See [`StatusFlags`].
     pub flags: StatusFlags,
     /// Datagrams the controller takes back to back without dropping one (the window a
-    /// host may keep in flight); 0 from an old controller: assume [`DEFAULT_WINDOW`].
+    /// host may keep in flight); 0 from an old controller: assume
+    /// [`DEFAULT_WINDOW`](crate::limits::DEFAULT_WINDOW).
     pub window: u16,
     /// Points held (received, not yet run).
     pub buffered: u16,
