@@ -23,9 +23,9 @@
 //!   endpoint 1, numbers its seqs on its own and must never fill the uploader's gaps);
 //! * a NOT_OWNER ACK carries zeros for state, next_seq, buffered and free; a STATUS
 //!   report goes to the endpoint that asked for it;
-//! * an executed command was allowed in the state it arrived in (section 6) and did what
-//!   the table says (NEW, PENDING, RUNING, STOPPED, RETURN, JOINTS_COUNT, LOCATION_SETTING,
-//!   STATUS);
+//! * an executed command was allowed in the state it arrived in ("The trajectory state
+//!   machine") and did what the table says (NEW, PENDING, RUNING, STOPPED, RETURN,
+//!   JOINTS_COUNT, LOCATION_SETTING, STATUS);
 //! * positions change only by segments the engine runs, or by an executed
 //!   LOCATION_SETTING; LOCATION reports carry the plant's positions and the current state,
 //!   and one comes with every state change while reports are on;
@@ -305,9 +305,10 @@ impl Harness {
         }
         let (&crc, body) = bytes.split_last().expect("3 bytes or more");
         if bytes.len() == 3 && bytes[1] == Tag::Discover as u8 && crc8(body) == crc {
-            // DISCOVER (PROTOCOL.md 12): a DISCOVER_REPLY to the sender instead of an ACK,
-            // and nothing changes: no owner taken or refreshed, no LOCATION listener or
-            // serial route registered (issue 14's per-endpoint routing).
+            // DISCOVER (PROTOCOL.md, "Finding controllers and setting their address"): a
+            // DISCOVER_REPLY to the sender instead of an ACK, and nothing changes: no owner
+            // taken or refreshed, no LOCATION listener or serial route registered (issue
+            // 14's per-endpoint routing).
             let owner_before = self.controller.owner();
             let routes_before = self.controller.report_settings();
             let r = self
@@ -542,7 +543,8 @@ impl Harness {
         assert_eq!(again.body, Report::Ack(*ack));
     }
 
-    /// What an executed command must have done (PROTOCOL.md sections 3 and 6).
+    /// What an executed command must have done (PROTOCOL.md, "Commands (host to
+    /// controller)" and "The trajectory state machine").
     fn check_executed(
         &mut self,
         cmd: &Command<'_>,

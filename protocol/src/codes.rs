@@ -124,7 +124,8 @@ wire_code! {
         Status = 0x15 => "STATUS",
         /// Location report period.
         UploadPeriod = 0x16 => "UPLOAD_PERIOD",
-        /// Who is there? Answered by every controller, from any host (PROTOCOL.md 12).
+        /// Who is there? Answered by every controller, from any host (PROTOCOL.md,
+        /// "Finding controllers and setting their address").
         Discover = 0x20 => "DISCOVER",
         /// Store the controller's network settings (applied after a reset).
         NetSet = 0x21 => "NET_SET",

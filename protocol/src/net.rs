@@ -1,4 +1,5 @@
-//! Finding controllers and setting their address (PROTOCOL.md section 12): DISCOVER (0x20)
+//! Finding controllers and setting their address (PROTOCOL.md, the section of that name):
+//! DISCOVER (0x20)
 //! and its answer DISCOVER_REPLY (0x22), and NET_SET (0x21).
 //!
 //! DISCOVER travels as a [`crate::Command`] like any other command; DISCOVER_REPLY is

@@ -129,7 +129,8 @@ fn command_fields(cmd: &Command<'_>) -> Value {
         // The state byte of LOCATION_SETTING is ignored, so the file does not list it.
         Command::LocationSetting(loc) => json!({ "position": loc.position }),
         Command::UploadPeriod { period_us } => json!({ "period_us": period_us }),
-        // Not in the shared golden file (PROTOCOL.md 12 adds them; protocol/tests/net.rs).
+        // Not in the shared golden file (PROTOCOL.md, "Finding controllers and setting
+        // their address", adds them; protocol/tests/net.rs).
         Command::NetSet(net) => json!({ "net": format!("{net:?}") }),
         Command::Discover
         | Command::Runing
@@ -388,7 +389,8 @@ fn vectors_cover_every_command_and_report() {
         .iter()
         .copied()
         .filter(|t| !matches!(t, Tag::UsartRecv | Tag::Ack))
-        // PROTOCOL.md section 12 came after the shared file: protocol/tests/net.rs.
+        // PROTOCOL.md, "Finding controllers and setting their address", came after the
+        // shared file: protocol/tests/net.rs.
         .filter(|t| !matches!(t, Tag::Discover | Tag::NetSet | Tag::DiscoverReply))
         .filter(|t| !commands.contains(t))
         .map(Tag::name)

@@ -1,5 +1,6 @@
-//! DISCOVER, NET_SET and DISCOVER_REPLY (PROTOCOL.md section 12): layouts, round trips,
-//! what NET_SET refuses, and that old frames are untouched.
+//! DISCOVER, NET_SET and DISCOVER_REPLY (PROTOCOL.md, "Finding controllers and setting
+//! their address"): layouts, round trips, what NET_SET refuses, and that old frames are
+//! untouched.
 
 use protocol::{
     Command, DecodeErrorKind, DiscoverReply, Field, NetSettings, OwnerState, Report, State,
@@ -126,7 +127,8 @@ fn discover_reply_round_trips() {
     ));
 }
 
-/// The examples of PROTOCOL.md section 12 are what the crate encodes.
+/// The examples of PROTOCOL.md, "Finding controllers and setting their address", are what
+/// the crate encodes.
 #[test]
 fn protocol_md_examples_are_the_crates_bytes() {
     let hex = |bytes: &[u8]| {

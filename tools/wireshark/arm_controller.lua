@@ -130,7 +130,7 @@ local f = {
     st_max_rate = ProtoField.uint32("armctl.status.max_step_rate_hz", "Max step rate (steps/s)", base.DEC),
     st_word32 = ProtoField.uint32("armctl.status.offset32", "Offset 32 (u32)", base.DEC),
 
-    -- DISCOVER_REPLY and NET_SET (PROTOCOL.md section 12)
+    -- DISCOVER_REPLY and NET_SET (PROTOCOL.md, "Finding controllers and setting their address")
     disc_mac = ProtoField.ether("armctl.discover.mac", "MAC address"),
     disc_ip = ProtoField.ipv4("armctl.discover.ip", "IPv4 address"),
     disc_prefix = ProtoField.uint8("armctl.discover.prefix_len", "Prefix length", base.DEC),
@@ -322,7 +322,8 @@ end
 -- Each returns a short summary for the Info column, or nil plus an error for a bad length.
 -- `len` is the data length, `data` the data range (nil when empty).
 
--- The status a controller answers to the frame being dissected (PROTOCOL.md section 8):
+-- The status a controller answers to the frame being dissected (PROTOCOL.md, the order of
+-- checks at the end of "Ordering, retransmission and duplicates"):
 -- the first failure found, or OK.
 local verdict = 0
 

@@ -17,8 +17,8 @@
 //! 5. **decode**: `UNKNOWN_TAG`, `BAD_LENGTH`, `INVALID_CONFIG`, `INVALID_POINT` (duration
 //!    under 1 us), `UNSUPPORTED` (a report tag from a host).
 //! 6. **state**: `BAD_STATE` when the command is not allowed in the current state
-//!    (PROTOCOL.md section 3; USART_SEND needs an open port that may transmit; PENDING
-//!    must come from the endpoint that sent the NEW).
+//!    (PROTOCOL.md, "Commands (host to controller)"; USART_SEND needs an open port that may
+//!    transmit; PENDING must come from the endpoint that sent the NEW).
 //! 7. **execute**: PENDING checks, in order: `OUT_OF_ORDER` (seq != `next_seq`),
 //!    `TOO_MANY_POINTS`, `INVALID_POINT` (step rate), `BUFFER_FULL`; every point of the
 //!    frame is checked before any is taken. USART_SEND: `BUFFER_FULL` when the serial
@@ -166,7 +166,8 @@ pub struct Response {
     pub discovery: Option<Discovery>,
 }
 
-/// A DISCOVER_REPLY for the host that asked (PROTOCOL.md section 12).
+/// A DISCOVER_REPLY for the host that asked (PROTOCOL.md, "Finding controllers and setting
+/// their address").
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Discovery {
@@ -618,9 +619,10 @@ impl<const CAP: usize> Controller<CAP> {
             response.reply = reply(self, StatusCode::BadCrc);
             return response;
         }
-        // DISCOVER (PROTOCOL.md 12): answered to any host, before the owner rule, with a
-        // DISCOVER_REPLY instead of an ACK; it changes nothing (no owner, no duplicate
-        // memory, no ordering mark, no LOCATION listener).
+        // DISCOVER (PROTOCOL.md, "Finding controllers and setting their address"): answered
+        // to any host, before the owner rule, with a DISCOVER_REPLY instead of an ACK; it
+        // changes nothing (no owner, no duplicate memory, no ordering mark, no LOCATION
+        // listener).
         if tag == Tag::Discover as u8 && datagram.len() == protocol::FRAME_OVERHEAD {
             response.discovery = Some(Discovery {
                 to: from,
@@ -653,7 +655,7 @@ impl<const CAP: usize> Controller<CAP> {
             }
             Some(_) if tag == Tag::Stopped as u8 => false,
             Some(_) => {
-                // Tells a stranger nothing about the arm: zeros (section 8).
+                // Tells a stranger nothing about the arm: zeros (PROTOCOL.md, "Status codes").
                 response.reply = Some(Reply {
                     to: from,
                     seq,
@@ -937,7 +939,8 @@ impl<const CAP: usize> Controller<CAP> {
             Command::UploadPeriod { period_us } => self.upload_period_us = period_us,
             // Answered in `handle` before the owner rule; never reaches here.
             Command::Discover => {}
-            // Stored now, applied after the next reset (PROTOCOL.md 12).
+            // Stored now, applied after the next reset (PROTOCOL.md, "Finding controllers
+            // and setting their address").
             Command::NetSet(net) => {
                 if self.state == State::Running {
                     return Err(StatusCode::BadState);
@@ -977,10 +980,11 @@ impl<const CAP: usize> Controller<CAP> {
         self.reports_on.then(|| self.location(plant))
     }
 
-    /// The stored form of `point` after `previous`, if it obeys section 5: for every joint
-    /// in use, at most `max_step_rate_hz` steps per second and a step count that fits a
-    /// segment, and all joints together at most `step_budget_hz` steps per second. Joints
-    /// not in use keep their previous position.
+    /// The stored form of `point` after `previous`, if it obeys PROTOCOL.md's "Point (116
+    /// bytes)" and "Step rate budget": for every joint in use, at most `max_step_rate_hz`
+    /// steps per second and a step count that fits a segment, and all joints together at
+    /// most `step_budget_hz` steps per second. Joints not in use keep their previous
+    /// position.
     fn admit(&self, previous: &[i32; MAX_JOINTS], point: &protocol::Point) -> Option<StoredPoint> {
         let duration = u32::try_from(point.duration).ok().filter(|d| *d >= 1)?;
         let joints = usize::from(self.settings.joints).min(MAX_JOINTS);

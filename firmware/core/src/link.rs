@@ -1,5 +1,6 @@
-//! The reliability rules of PROTOCOL.md section 5: the ordering of PENDING frames
-//! (go-back-N) and the memory of recently accepted frames (duplicates).
+//! The reliability rules of PROTOCOL.md, "Ordering, retransmission and duplicates": the
+//! ordering of PENDING frames (go-back-N) and the memory of recently accepted frames
+//! (duplicates).
 
 use crate::config::{DUPLICATE_MEMORY, DUPLICATE_WINDOW_US};
 use crate::hw::Endpoint;

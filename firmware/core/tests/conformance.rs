@@ -24,7 +24,7 @@ fn status_of(r: &arm_core::Response) -> StatusCode {
     r.reply.expect("an ACK").ack.status
 }
 
-// ---- Section 1: the owner ----
+// ---- PROTOCOL.md, "Transport and ownership": the owner ----
 
 #[test]
 fn a_host_keeps_ownership_by_sending_status() {
@@ -169,7 +169,7 @@ fn every_ack_and_status_goes_to_its_sender_and_location_to_each_tool() {
     assert!(!settings.location_goes_to(OTHER));
 }
 
-// ---- Section 5: ordering and duplicates ----
+// ---- PROTOCOL.md, "Ordering, retransmission and duplicates" ----
 
 #[test]
 fn next_seq_wraps_from_255_to_0_with_interleaved_commands() {
@@ -330,7 +330,7 @@ fn a_refused_frame_is_not_a_duplicate_and_a_duplicate_skips_the_state_check() {
     );
 }
 
-// ---- Section 3: commands ----
+// ---- PROTOCOL.md, "Commands (host to controller)" ----
 
 #[test]
 fn stopped_in_idle_keeps_how_the_last_run_ended() {
@@ -616,7 +616,7 @@ fn location_setting_ignores_its_state_byte_and_sets_all_positions() {
     assert_eq!(s.plant.positions, [1, 2, 3, 4, 5, 6, 7, 8]);
 }
 
-// ---- Section 4: reports ----
+// ---- PROTOCOL.md, "Reports (controller to host)" ----
 
 #[test]
 fn location_at_once_on_every_state_change_with_the_new_state() {

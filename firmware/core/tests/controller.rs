@@ -69,7 +69,8 @@ fn all_commands<'a>(pts: &'a [Point], location: Location) -> Vec<Command<'a>> {
     ]
 }
 
-/// PROTOCOL.md section 3's "allowed in state" column (USART_SEND with the port closed).
+/// PROTOCOL.md's "allowed when" column of "Commands (host to controller)" (USART_SEND with
+/// the port closed).
 fn allowed(cmd: &Command<'_>, state: State) -> StatusCode {
     use State::*;
     let ok_if = |yes: bool| if yes { Ok } else { BadState };

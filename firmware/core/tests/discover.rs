@@ -1,7 +1,7 @@
-//! DISCOVER and NET_SET (PROTOCOL.md section 12) in the sans-io controller: DISCOVER is
-//! answered to any host with a DISCOVER_REPLY and changes nothing; NET_SET is the owner's,
-//! refused while RUNNING, stored through the settings (a deferred save) and reported as
-//! pending until the next boot.
+//! DISCOVER and NET_SET (PROTOCOL.md, "Finding controllers and setting their address") in
+//! the sans-io controller: DISCOVER is answered to any host with a DISCOVER_REPLY and
+//! changes nothing; NET_SET is the owner's, refused while RUNNING, stored through the
+//! settings (a deferred save) and reported as pending until the next boot.
 
 mod common;
 
