@@ -275,6 +275,26 @@ impl Ack {
     }
 }
 
+/// `has` and `set` of a bit-set field (`StatusFlags`, `MoreFlags`).
+macro_rules! flag_bits {
+    ($flags:ident, $bits:ty) => {
+        impl $flags {
+            /// Whether every bit of `bits` is set.
+            pub const fn has(self, bits: $bits) -> bool {
+                self.0 & bits == bits
+            }
+            /// Sets or clears `bits`.
+            pub fn set(&mut self, bits: $bits, on: bool) {
+                if on {
+                    self.0 |= bits;
+                } else {
+                    self.0 &= !bits;
+                }
+            }
+        }
+    };
+}
+
 /// STATUS `flags` bits.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -298,20 +318,9 @@ impl StatusFlags {
     pub const PWM_ACTIVE: u8 = 1 << 6;
     /// The last run ended by STOPPED.
     pub const STOPPED_BY_HOST: u8 = 1 << 7;
-
-    /// Whether every bit of `bits` is set.
-    pub const fn has(self, bits: u8) -> bool {
-        self.0 & bits == bits
-    }
-    /// Sets or clears `bits`.
-    pub fn set(&mut self, bits: u8, on: bool) {
-        if on {
-            self.0 |= bits;
-        } else {
-            self.0 &= !bits;
-        }
-    }
 }
+
+flag_bits!(StatusFlags, u8);
 
 /// STATUS `more_flags` bits (offset 18; an old controller sends 0).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
@@ -323,20 +332,9 @@ impl MoreFlags {
     /// An upload not yet running (state NEW or PENDING) was dropped when another host
     /// took the controller over after the owner's 5 s of silence. Cleared by the next NEW.
     pub const UPLOAD_DROPPED: u16 = 1 << 0;
-
-    /// Whether every bit of `bits` is set.
-    pub const fn has(self, bits: u16) -> bool {
-        self.0 & bits == bits
-    }
-    /// Sets or clears `bits`.
-    pub fn set(&mut self, bits: u16, on: bool) {
-        if on {
-            self.0 |= bits;
-        } else {
-            self.0 &= !bits;
-        }
-    }
 }
+
+flag_bits!(MoreFlags, u16);
 
 /// The STATUS report (36 bytes).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]

@@ -117,6 +117,33 @@ fn produce(mut p: Producing) -> [i32; MAX_JOINTS] {
     p.streams.producer_ref().positions()
 }
 
+/// One benchmark per case: `setup` (not measured) then `play`, which must emit every step
+/// (checked once before measuring), in steps per second.
+fn group<S>(
+    c: &mut Criterion,
+    name: &str,
+    cases: &[(&str, [i32; MAX_JOINTS])],
+    setup: fn(&[Segment]) -> S,
+    play: fn(S) -> [i32; MAX_JOINTS],
+) {
+    let mut group = c.benchmark_group(name);
+    for &(name, steps) in cases {
+        let segments = trajectory(steps);
+        let total: u64 = segments
+            .iter()
+            .flat_map(|s| s.steps)
+            .map(|n| u64::from(n.unsigned_abs()))
+            .sum();
+        // Sanity: the run emits every step.
+        assert_eq!(play(setup(&segments)), [0; MAX_JOINTS]);
+        group.throughput(Throughput::Elements(total));
+        group.bench_function(name, |b| {
+            b.iter_batched(|| setup(&segments), play, BatchSize::SmallInput)
+        });
+    }
+    group.finish();
+}
+
 fn bench(c: &mut Criterion) {
     let cases: [(&str, [i32; MAX_JOINTS]); 3] = [
         ("1 joint", [100, 0, 0, 0, 0, 0, 0, 0]),
@@ -126,39 +153,8 @@ fn bench(c: &mut Criterion) {
             [100, 97, 89, 83, 79, 73, 71, 67],
         ),
     ];
-    let mut group = c.benchmark_group("poll per step");
-    for (name, steps) in cases {
-        let segments = trajectory(steps);
-        let total: u64 = segments
-            .iter()
-            .flat_map(|s| s.steps)
-            .map(|n| u64::from(n.unsigned_abs()))
-            .sum();
-        // Sanity: the run emits every step.
-        let end = run(loaded(&segments));
-        assert_eq!(end, [0; MAX_JOINTS]);
-        group.throughput(Throughput::Elements(total));
-        group.bench_function(name, |b| {
-            b.iter_batched(|| loaded(&segments), run, BatchSize::SmallInput)
-        });
-    }
-    group.finish();
-
-    let mut group = c.benchmark_group("producer per step");
-    for (name, steps) in cases {
-        let segments = trajectory(steps);
-        let total: u64 = segments
-            .iter()
-            .flat_map(|s| s.steps)
-            .map(|n| u64::from(n.unsigned_abs()))
-            .sum();
-        assert_eq!(produce(producing(&segments)), [0; MAX_JOINTS]);
-        group.throughput(Throughput::Elements(total));
-        group.bench_function(name, |b| {
-            b.iter_batched(|| producing(&segments), produce, BatchSize::SmallInput)
-        });
-    }
-    group.finish();
+    group(c, "poll per step", &cases, loaded, run);
+    group(c, "producer per step", &cases, producing, produce);
 }
 
 criterion_group!(benches, bench);

@@ -249,22 +249,14 @@ impl<const QUEUE: usize> StepEngine<QUEUE> {
 
     /// Position of each joint in steps, counted per pulse actually emitted.
     pub fn positions(&self) -> [i32; MAX_JOINTS] {
-        let mut positions = [0; MAX_JOINTS];
-        for (position, joint) in positions.iter_mut().zip(&self.joints) {
-            *position = joint.position;
-        }
-        positions
+        self.joints.each_ref().map(|joint| joint.position)
     }
 
     /// Overwrites the position counters (calibration); refused (false) while running.
     pub fn set_positions(&mut self, positions: [i32; MAX_JOINTS]) -> bool {
-        if self.running {
-            return false;
-        }
-        for (joint, position) in self.joints.iter_mut().zip(positions) {
-            joint.position = position;
-        }
-        true
+        crate::set_positions(self.running, &mut self.joints, positions, |j| {
+            &mut j.position
+        })
     }
 
     /// Emits every edge due at or before `now_tick` (STEP low after pulse width, DIR

@@ -35,14 +35,9 @@
 //! deadline).
 #![no_std]
 #![warn(missing_docs)]
-#![cfg_attr(
-    not(test),
-    warn(
-        clippy::indexing_slicing,
-        clippy::unwrap_used,
-        clippy::cast_possible_truncation
-    )
-)]
+// Tests index and unwrap freely: a failing test is meant to panic.
+#![cfg_attr(not(test), warn(clippy::indexing_slicing, clippy::unwrap_used))]
+#![cfg_attr(not(test), warn(clippy::cast_possible_truncation))]
 
 mod engine;
 mod joint;
@@ -85,6 +80,22 @@ pub struct Segment {
     pub duration_us: u32,
     /// Signed steps per joint; the sign is the direction (positive = DIR high).
     pub steps: [i32; MAX_JOINTS],
+}
+
+/// Sets each joint's step counter (`counter`) to `positions`, unless a run is under way
+/// (then false): `set_positions` of [`StepEngine`] and [`PulseProducer`].
+fn set_positions<J>(
+    running: bool,
+    joints: &mut [J; MAX_JOINTS],
+    positions: [i32; MAX_JOINTS],
+    counter: fn(&mut J) -> &mut i32,
+) -> bool {
+    if !running {
+        for (joint, position) in joints.iter_mut().zip(positions) {
+            *counter(joint) = position;
+        }
+    }
+    !running
 }
 
 /// Timer resolution and driver timing requirements.

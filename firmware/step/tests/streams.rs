@@ -134,6 +134,14 @@ fn board_stop_after(segments: &[Segment], stop: u64) -> ([i32; MAX_JOINTS], [i32
     (positions, played)
 }
 
+/// One segment per duration, each with the same `steps`.
+fn segments(steps: [i32; MAX_JOINTS], durations: &[u32]) -> Vec<Segment> {
+    durations
+        .iter()
+        .map(|&duration_us| Segment { duration_us, steps })
+        .collect()
+}
+
 proptest! {
     #![proptest_config(ProptestConfig { cases: 64, ..ProptestConfig::default() })]
 
@@ -146,11 +154,7 @@ proptest! {
         durations in prop::collection::vec(50u32..=2_000, 1..=QUEUE),
         stop in 0u64..200,
     ) {
-        let segments: Vec<Segment> = durations
-            .iter()
-            .map(|&duration_us| Segment { duration_us, steps })
-            .collect();
-        let (positions, played) = stop_after(&segments, stop);
+        let (positions, played) = stop_after(&segments(steps, &durations), stop);
         prop_assert_eq!(positions, played);
     }
 
@@ -162,11 +166,7 @@ proptest! {
         durations in prop::collection::vec(50u32..=2_000, 1..=QUEUE),
         stop in 1u64..200,
     ) {
-        let segments: Vec<Segment> = durations
-            .iter()
-            .map(|&duration_us| Segment { duration_us, steps })
-            .collect();
-        let (positions, played) = board_stop_after(&segments, stop);
+        let (positions, played) = board_stop_after(&segments(steps, &durations), stop);
         prop_assert_eq!(positions, played);
     }
 }

@@ -292,21 +292,13 @@ impl<const QUEUE: usize> PulseProducer<QUEUE> {
 
     /// Position of each joint in steps, counted per pulse written.
     pub fn positions(&self) -> [i32; MAX_JOINTS] {
-        let mut positions = [0; MAX_JOINTS];
-        for (position, joint) in positions.iter_mut().zip(&self.joints) {
-            *position = joint.position;
-        }
-        positions
+        self.joints.each_ref().map(|joint| joint.position)
     }
 
     /// Overwrites the position counters; refused (false) while running.
     pub fn set_positions(&mut self, positions: [i32; MAX_JOINTS]) -> bool {
-        if self.running {
-            return false;
-        }
-        for (joint, position) in self.joints.iter_mut().zip(positions) {
-            joint.position = position;
-        }
-        true
+        crate::set_positions(self.running, &mut self.joints, positions, |j| {
+            &mut j.position
+        })
     }
 }
