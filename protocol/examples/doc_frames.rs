@@ -22,19 +22,24 @@ pub struct DocFrame {
 const HEX_LINE: usize = 16;
 
 impl DocFrame {
-    /// The frame as the document shows it: lower-case hex, 16 bytes a line.
+    /// The frame as the document shows it ([`hex_block`]).
     pub fn hex_block(&self) -> String {
-        self.bytes
-            .chunks(HEX_LINE)
-            .map(|line| {
-                line.iter()
-                    .map(|b| format!("{b:02x}"))
-                    .collect::<Vec<_>>()
-                    .join(" ")
-            })
-            .collect::<Vec<_>>()
-            .join("\n")
+        hex_block(&self.bytes)
     }
+}
+
+/// Bytes as the document shows them: lower-case hex, 16 bytes a line.
+pub fn hex_block(bytes: &[u8]) -> String {
+    bytes
+        .chunks(HEX_LINE)
+        .map(|line| {
+            line.iter()
+                .map(|b| format!("{b:02x}"))
+                .collect::<Vec<_>>()
+                .join(" ")
+        })
+        .collect::<Vec<_>>()
+        .join("\n")
 }
 
 fn command(caption: &str, seq: u8, cmd: Command<'_>) -> DocFrame {
