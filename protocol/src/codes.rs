@@ -3,8 +3,8 @@
 
 /// Declares a `#[repr(u8)]` wire code: each variant with its doc comment, its byte and its
 /// upper-case name as docs/PROTOCOL.md spells it (`Variant = 0x00 => "NAME",`). Generates
-/// `ALL`, `from_u8`, `TryFrom<u8>`, `From<_> for u8`, `name`, `from_name` and `Display`
-/// (the name), so that no other crate keeps a table of its own.
+/// `ALL`, `from_u8`, `TryFrom<u8>`, `From<_> for u8`, `name`, `name_of`, `from_name` and
+/// `Display` (the name), so that no other crate keeps a table of its own.
 macro_rules! wire_code {
     (
         $(#[$meta:meta])*
@@ -43,6 +43,15 @@ macro_rules! wire_code {
             pub const fn name(self) -> &'static str {
                 match self {
                     $($code::$variant => $name,)+
+                }
+            }
+
+            /// The name of the value of byte `b`, or "?" if no value has it (for logs and
+            /// displays of bytes as received).
+            pub const fn name_of(b: u8) -> &'static str {
+                match $code::from_u8(b) {
+                    Some(code) => code.name(),
+                    None => "?",
                 }
             }
 
