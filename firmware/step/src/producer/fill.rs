@@ -93,60 +93,33 @@ impl<const QUEUE: usize> PulseProducer<QUEUE> {
                     s.earliest = s.earliest.max(s.cursor);
                     continue;
                 }
-                if self.running {
-                    // Waiting while the run may still get segments: short idle periods, so
-                    // that a segment pushed later is picked up at most two buffer halves of
-                    // them after the push. Their halves are all alike, so refills skip
-                    // rewriting them (`idle_period`).
-                    let short = max.min(self.idle_short);
-                    let s = &mut self.joints[j];
-                    let idle = PulsePeriod {
-                        reload: short - 1,
-                        repetition: 0,
-                        high: 0,
-                    };
-                    let rest = periods.get_mut(k..).unwrap_or_default();
-                    for period in rest.iter_mut() {
-                        *period = idle;
-                    }
-                    if let Some(first) = rest.first_mut() {
-                        first.high = s.open_high;
-                    }
-                    if let Some(sign) = signs.get_mut(k) {
-                        *sign = s.open_delta;
-                    }
-                    filled.uniform_idle = (k == 0 && s.open_high == 0).then_some(short);
-                    last_sign = if len - k >= 2 { 0 } else { s.open_delta };
-                    s.position = s.position.wrapping_add(i32::from(s.open_delta));
-                    pulses += u32::from(s.open_delta != 0);
-                    s.cursor += u64::from(short) * (len - k) as u64;
-                    s.open_high = 0;
-                    s.open_delta = 0;
-                    filled.idle = true;
-                    k = len;
-                    continue;
-                }
-                // Idle, no run: close the open period after the longest span the timer
-                // makes, then idle periods.
-                let idle = max;
+                // Waiting while the run may still get segments: short idle periods, so that
+                // a segment pushed later is picked up at most two buffer halves of them after
+                // the push; their halves are all alike, so refills skip rewriting them
+                // (`idle_period`). Idle, no run: the longest span the timer makes. Either way
+                // the open period is closed after one idle span.
+                let idle = if self.running {
+                    max.min(self.idle_short)
+                } else {
+                    max
+                };
                 let s = &mut self.joints[j];
-                let mut period = PulsePeriod {
+                let rest = periods.get_mut(k..).unwrap_or_default();
+                rest.fill(PulsePeriod {
                     reload: idle - 1,
                     repetition: 0,
-                    high: s.open_high,
-                };
-                if let (Some(first), Some(sign)) = (periods.get_mut(k), signs.get_mut(k)) {
-                    *first = period;
+                    high: 0,
+                });
+                if let Some(first) = rest.first_mut() {
+                    first.high = s.open_high;
+                }
+                if let Some(sign) = signs.get_mut(k) {
                     *sign = s.open_delta;
                 }
-                filled.uniform_idle = (k == 0 && s.open_high == 0).then_some(max);
+                filled.uniform_idle = (k == 0 && s.open_high == 0).then_some(idle);
                 last_sign = if len - k >= 2 { 0 } else { s.open_delta };
                 s.position = s.position.wrapping_add(i32::from(s.open_delta));
                 pulses += u32::from(s.open_delta != 0);
-                period.high = 0;
-                for rest in periods.get_mut(k + 1..).unwrap_or_default() {
-                    *rest = period;
-                }
                 s.cursor += u64::from(idle) * (len - k) as u64;
                 s.open_high = 0;
                 s.open_delta = 0;
