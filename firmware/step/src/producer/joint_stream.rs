@@ -84,9 +84,10 @@ impl JointStream {
     };
 
     /// Ideal tick of the next pulse (absolute), advancing the clock past it.
+    ///
     /// The u32 and u64 clocks step alike, written out twice on purpose: a generic helper
-    /// (or one clock struct for both) costs the step path 0.4 instructions per step
-    /// (scripts/step-cost, 1 joint: 30.2 instead of 29.8 when measured, over its limit of 30).
+    /// (or one clock struct for both) cost the step path 0.4 instructions per step when
+    /// measured (scripts/step-cost, 1 joint: 30.2 instead of 29.8; the limit is 30).
     #[inline]
     pub(super) fn take_ideal(&mut self) -> u64 {
         self.remaining -= 1;
