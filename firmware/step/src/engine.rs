@@ -1,15 +1,9 @@
 //! [`StepEngine`]: the segment queue, each joint's walk through it, and `poll`.
 
 use crate::joint::Joint;
-use crate::ring::{SegmentRing, Slot};
+use crate::ring::SegmentRing;
 use crate::schedule::{Edges, at_most_two};
-use crate::{JointMask, MAX_JOINTS, Poll, Segment, StepPins, StepTiming};
-
-/// Every joint.
-const ALL_JOINTS: JointMask = 0xFF;
-
-/// Microseconds per second: segment durations are in microseconds.
-const US_PER_S: u64 = 1_000_000;
+use crate::{ALL_JOINTS, JointMask, MAX_JOINTS, Poll, Segment, StepPins, StepTiming, US_PER_S};
 
 /// The set bits of a joint mask, lowest first.
 #[derive(Clone, Copy)]
@@ -160,19 +154,10 @@ impl<const QUEUE: usize> StepEngine<QUEUE> {
     /// next `poll`. That poll comes at the latest when the segment before it ends, so no
     /// kick is needed for timing; kicking lets those joints set their DIR lines early.
     pub fn push(&mut self, segment: Segment) -> Result<(), Segment> {
-        let start = self.queue_end;
-        let end = start.after(segment.duration_us, self.tick_hz);
-        let slot = Slot {
-            steps: segment.steps,
-            duration_us: segment.duration_us,
-            start_frac: start.frac,
-            start_tick: start.tick,
-            end_tick: end.tick,
-            pending: ALL_JOINTS,
-        };
-        if self.ring.push_back(slot).is_err() {
-            return Err(segment);
-        }
+        let end = self
+            .ring
+            .push_segment(&segment, self.queue_end, self.tick_hz);
+        let end = end.ok_or(segment)?;
         self.queue_end = end;
         self.pushed = true;
         if self.running && self.ring.len() == 1 {

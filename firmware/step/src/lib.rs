@@ -72,6 +72,12 @@ pub const NUCLEO_STEP_TIMER_MAX_PERIOD_TICKS: [u32; MAX_JOINTS] = [
 /// Bit `j` = joint `j`.
 pub type JointMask = u8;
 
+/// Every joint.
+const ALL_JOINTS: JointMask = 0xFF;
+
+/// Microseconds per second: segment durations are in microseconds.
+const US_PER_S: u64 = 1_000_000;
+
 /// One trajectory segment as the engine sees it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]

@@ -30,8 +30,8 @@
 //! known once every pulse is written: the owner stops the streams at that tick.
 
 use crate::engine::QueueEnd;
-use crate::ring::{SegmentRing, Slot};
-use crate::{JointMask, MAX_JOINTS, Segment, StepTiming};
+use crate::ring::SegmentRing;
+use crate::{MAX_JOINTS, Segment, StepTiming, US_PER_S};
 
 mod fill;
 mod joint_stream;
@@ -39,12 +39,6 @@ mod period;
 
 use joint_stream::JointStream;
 pub use period::{Filled, PulsePeriod, sign_of};
-
-/// Microseconds per second: segment durations are in microseconds.
-const US_PER_S: u64 = 1_000_000;
-
-/// Every joint.
-const ALL_JOINTS: JointMask = 0xFF;
 
 /// Relative ticks of the u32 pulse clock stay below this, so that sums of two never wrap.
 const FAST_LIMIT: u64 = 1 << 31;
@@ -158,20 +152,10 @@ impl<const QUEUE: usize> PulseProducer<QUEUE> {
 
     /// Queues a segment behind the others; `Err(segment)` back if `QUEUE` are held.
     pub fn push(&mut self, segment: Segment) -> Result<(), Segment> {
-        let start = self.queue_end;
-        let end = start.after(segment.duration_us, self.tick_hz);
-        let slot = Slot {
-            steps: segment.steps,
-            duration_us: segment.duration_us,
-            start_frac: start.frac,
-            start_tick: start.tick,
-            end_tick: end.tick,
-            pending: ALL_JOINTS,
-        };
-        if self.ring.push_back(slot).is_err() {
-            return Err(segment);
-        }
-        self.queue_end = end;
+        let end = self
+            .ring
+            .push_segment(&segment, self.queue_end, self.tick_hz);
+        self.queue_end = end.ok_or(segment)?;
         // More to come: the run does not end where it would have.
         self.run_end = u64::MAX;
         Ok(())
