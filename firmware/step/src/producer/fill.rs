@@ -11,7 +11,7 @@ impl<const QUEUE: usize> PulseProducer<QUEUE> {
     /// direction of the pulses from each marked period on: +1 or -1 where the writer marks
     /// one, 0 elsewhere; a pulse period with no mark has the sign of the last mark before
     /// it in the slice, and the first pulse period of a fill is always marked
-    /// ([`sign_of`] reads it back); `signs` must be all 0 when passed. DIR changes go to
+    /// ([`crate::sign_of`] reads it back); `signs` must be all 0 when passed. DIR changes go to
     /// `on_dir(tick, positive)` in order.
     /// Always fills the whole slice (idle periods when the joint has nothing queued); an
     /// idle producer writes idle periods from where it stopped.

@@ -15,7 +15,7 @@ pub struct PulsePeriod {
     pub high: u32,
 }
 
-/// The sign of each pulse in `periods` as [`PulseProducer::fill`] marked them in `signs`
+/// The sign of each pulse in `periods` as [`crate::PulseProducer::fill`] marked them in `signs`
 /// (0 for periods without a pulse), starting from `sign` for pulses before the first mark.
 pub fn sign_of(periods: &[PulsePeriod], signs: &[i8], mut sign: i8) -> impl Iterator<Item = i8> {
     periods.iter().zip(signs).map(move |(period, &mark)| {
@@ -40,7 +40,7 @@ impl PulsePeriod {
     }
 }
 
-/// What one [`PulseProducer::fill`] wrote.
+/// What one [`crate::PulseProducer::fill`] wrote.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Filled {
@@ -59,6 +59,6 @@ pub struct Filled {
     pub idle: bool,
     /// Every period written is the same idle period, of this many ticks: a buffer half
     /// that holds these needs no rewrite while the joint would write the same
-    /// ([`PulseProducer::idle_period`], [`PulseProducer::skip_idle`]).
+    /// ([`crate::PulseProducer::idle_period`], [`crate::PulseProducer::skip_idle`]).
     pub uniform_idle: Option<u32>,
 }
