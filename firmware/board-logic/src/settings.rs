@@ -27,7 +27,7 @@ pub const RECORD_LEN: usize = 8;
 /// Map key of the network record NET_SET added (gateway, DHCP), beside the first record
 /// so that a record written before it still loads (with no gateway, static address).
 pub const NET_KEY: u8 = 2;
-/// Bytes of the network record: gateway[4], flags (bit 0: DHCP), reserved.
+/// Bytes of the network record: `gateway[4]`, flags (bit 0: DHCP), reserved.
 pub const NET_RECORD_LEN: usize = 6;
 
 /// The stored record for `settings`.
