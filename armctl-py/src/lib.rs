@@ -159,7 +159,7 @@ fn status_dict<'py>(py: Python<'py>, s: &StatusReport) -> PyResult<Bound<'py, Py
 }
 
 fn state_name(code: u8) -> &'static str {
-    State::from_u8(code).map_or("?", State::name)
+    State::name_of(code)
 }
 
 /// A LOCATION report as a dict: `positions` (int32 array, steps) and `state`.

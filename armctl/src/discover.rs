@@ -1,5 +1,6 @@
 //! Finding controllers: DISCOVER to a broadcast address (every controller on the segment
-//! answers) or to one address, and the DISCOVER_REPLYs that come back (PROTOCOL.md 12).
+//! answers) or to one address, and the DISCOVER_REPLYs that come back (PROTOCOL.md,
+//! "Finding controllers and setting their address").
 //!
 //! Discovery changes nothing on a controller (no owner is taken), so it may be run from any
 //! host at any time. Broadcasts leave the host: in tests, run it only inside a network

@@ -4,8 +4,8 @@
 //! that every block printed here is in the document, byte for byte.
 
 use protocol::{
-    Ack, Command, Location, MAX_DATAGRAM, MAX_JOINTS, MoreFlags, Point, PointList, Pwm, Report,
-    State, StatusCode, StatusFlags, StatusReport, UartInit, VERSION,
+    Ack, Command, EncodeError, Location, MAX_DATAGRAM, MAX_JOINTS, MoreFlags, Point, PointList,
+    Pwm, Report, State, StatusCode, StatusFlags, StatusReport, UartInit, VERSION,
 };
 
 /// One worked example: a heading and the frame's bytes.
@@ -22,42 +22,46 @@ pub struct DocFrame {
 const HEX_LINE: usize = 16;
 
 impl DocFrame {
-    /// The frame as the document shows it: lower-case hex, 16 bytes a line.
+    /// The frame as the document shows it ([`hex_block`]).
     pub fn hex_block(&self) -> String {
-        self.bytes
-            .chunks(HEX_LINE)
-            .map(|line| {
-                line.iter()
-                    .map(|b| format!("{b:02x}"))
-                    .collect::<Vec<_>>()
-                    .join(" ")
-            })
-            .collect::<Vec<_>>()
-            .join("\n")
+        hex_block(&self.bytes)
     }
+}
+
+/// Bytes as the document shows them: lower-case hex, 16 bytes a line.
+pub fn hex_block(bytes: &[u8]) -> String {
+    bytes
+        .chunks(HEX_LINE)
+        .map(|line| {
+            line.iter()
+                .map(|b| format!("{b:02x}"))
+                .collect::<Vec<_>>()
+                .join(" ")
+        })
+        .collect::<Vec<_>>()
+        .join("\n")
 }
 
 fn command(caption: &str, seq: u8, cmd: Command<'_>) -> DocFrame {
-    let mut buf = [0u8; MAX_DATAGRAM];
-    let n = cmd
-        .encode(seq, &mut buf)
-        .expect("example commands are valid");
-    DocFrame {
-        caption: caption.to_owned(),
-        bytes: buf[..n].to_vec(),
-        to_controller: true,
-    }
+    example(caption, true, |buf| cmd.encode(seq, buf))
 }
 
 fn report(caption: &str, seq: u8, report: Report<'_>) -> DocFrame {
+    example(caption, false, |buf| report.encode(seq, buf))
+}
+
+/// The frame `encode` writes (an example: it must be valid).
+fn example(
+    caption: &str,
+    to_controller: bool,
+    encode: impl FnOnce(&mut [u8]) -> Result<usize, EncodeError>,
+) -> DocFrame {
     let mut buf = [0u8; MAX_DATAGRAM];
-    let n = report
-        .encode(seq, &mut buf)
-        .expect("example reports are valid");
+    let n = encode(&mut buf).unwrap_or_else(|e| panic!("{caption}: {e}"));
     DocFrame {
         caption: caption.to_owned(),
         bytes: buf[..n].to_vec(),
-        to_controller: false,
+        to_controller,
     }
 }
 

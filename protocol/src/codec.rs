@@ -11,12 +11,15 @@ pub(crate) fn u16_be(b: &[u8], at: usize) -> u16 {
     u16::from_be_bytes([u8_at(b, at), u8_at(b, at + 1)])
 }
 
+/// `N` bytes at `at`, zeros if `b` is shorter.
+fn bytes_at<const N: usize>(b: &[u8], at: usize) -> [u8; N] {
+    b.get(at..at + N)
+        .and_then(|s| s.try_into().ok())
+        .unwrap_or([0; N])
+}
+
 pub(crate) fn u16_le(b: &[u8], at: usize) -> u16 {
-    let mut v = [0u8; 2];
-    if let Some(s) = b.get(at..at + 2) {
-        v.copy_from_slice(s);
-    }
-    u16::from_le_bytes(v)
+    u16::from_le_bytes(bytes_at(b, at))
 }
 
 pub(crate) fn i16_le(b: &[u8], at: usize) -> i16 {
@@ -24,11 +27,7 @@ pub(crate) fn i16_le(b: &[u8], at: usize) -> i16 {
 }
 
 pub(crate) fn u32_le(b: &[u8], at: usize) -> u32 {
-    let mut v = [0u8; 4];
-    if let Some(s) = b.get(at..at + 4) {
-        v.copy_from_slice(s);
-    }
-    u32::from_le_bytes(v)
+    u32::from_le_bytes(bytes_at(b, at))
 }
 
 pub(crate) fn i32_le(b: &[u8], at: usize) -> i32 {

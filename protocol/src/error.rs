@@ -152,7 +152,7 @@ impl fmt::Display for Field {
 
 impl fmt::Display for DecodeError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        let name = crate::Tag::from_u8(self.tag).map_or("?", |t| t.name());
+        let name = crate::Tag::name_of(self.tag);
         match self.kind {
             DecodeErrorKind::TooShort { len } => {
                 write!(

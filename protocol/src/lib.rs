@@ -8,23 +8,33 @@
 //! from a byte slice without allocating or panicking, and encode into the caller's buffer.
 //! The crate is `no_std` and shared by the firmware, the simulator and the host tools.
 #![no_std]
+#![warn(missing_docs)]
+// Tests index and unwrap freely: a failing test is meant to panic.
+#![cfg_attr(not(test), warn(clippy::indexing_slicing, clippy::unwrap_used))]
+#![cfg_attr(not(test), warn(clippy::cast_possible_truncation))]
 
 #[cfg(feature = "std")]
 extern crate std;
 
 mod codec;
+mod codes;
+mod command;
 mod error;
 mod frame;
 pub mod limits;
 mod net;
+mod report;
 mod types;
 
+pub use codes::{State, StatusCode, Tag};
+pub use command::Command;
 pub use error::{DecodeError, DecodeErrorKind, EncodeError, ExpectedLen, Field};
-pub use frame::{Command, Frame, PointList, PointsIter, Report, crc8};
+pub use frame::{Frame, PointList, PointsIter, crc8};
+pub use limits::DEFAULT_WINDOW;
 pub use net::{DiscoverReply, NetSettings, OwnerState};
+pub use report::Report;
 pub use types::{
-    Ack, DEFAULT_WINDOW, Location, MoreFlags, Point, Pwm, State, StatusCode, StatusFlags,
-    StatusReport, Tag, UartInit, UartMode,
+    Ack, Location, MoreFlags, Point, Pwm, StatusFlags, StatusReport, UartInit, UartMode,
 };
 
 /// UDP port the controller listens on.

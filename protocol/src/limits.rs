@@ -37,6 +37,10 @@ pub const DUPLICATE_WINDOW_US: u64 = 2_000_000;
 /// points, 3.8 s of 10 ms points: enough to cover a LAN round trip many times over.
 pub const HOST_WINDOW: usize = 32;
 
+/// The window a host may assume when STATUS `window` is 0 (a controller from before the
+/// field existed took bursts of 8 datagrams).
+pub const DEFAULT_WINDOW: u16 = 8;
+
 /// Accepted frames remembered for duplicate detection ("Ordering, retransmission and
 /// duplicates"): twice the window, so that a resend of the oldest frame of a full window
 /// is still recognised after the whole window and as many interleaved commands were
@@ -47,4 +51,10 @@ pub const DUPLICATE_MEMORY: usize = 2 * HOST_WINDOW;
 const _: () = assert!(
     DUPLICATE_MEMORY > HOST_WINDOW,
     "duplicate memory must exceed the largest window"
+);
+
+// A host that assumes the default window of an old controller stays within the largest.
+const _: () = assert!(
+    DEFAULT_WINDOW as usize <= HOST_WINDOW,
+    "the default window must not exceed the largest"
 );

@@ -1,4 +1,5 @@
-//! Finding controllers and setting their address (PROTOCOL.md section 12): DISCOVER (0x20)
+//! Finding controllers and setting their address (PROTOCOL.md, the section of that name):
+//! DISCOVER (0x20)
 //! and its answer DISCOVER_REPLY (0x22), and NET_SET (0x21).
 //!
 //! DISCOVER travels as a [`crate::Command`] like any other command; DISCOVER_REPLY is
@@ -6,10 +7,10 @@
 //! the host that asked (as an ACK does), and hosts that never ask never see one.
 
 use crate::codec::{Writer, u8_at};
+use crate::codes::{State, Tag};
 use crate::error::{DecodeError, DecodeErrorKind, EncodeError, ExpectedLen, Field};
-use crate::frame::{Frame, crc8};
-use crate::types::{State, Tag};
-use crate::{FRAME_OVERHEAD, size};
+use crate::frame::{Frame, crc8, seal};
+use crate::size;
 
 /// How the controller gets its IPv4 address (NET_SET's data, 10 bytes).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
@@ -151,32 +152,19 @@ impl DiscoverReply {
 
     /// Writes the frame with `seq` (the DISCOVER's) into `buf`; returns its length.
     pub fn encode(&self, seq: u8, buf: &mut [u8]) -> Result<usize, EncodeError> {
-        let needed = size::DISCOVER_REPLY + FRAME_OVERHEAD;
-        let Some(frame) = buf.get_mut(..needed) else {
-            return Err(EncodeError::BufferTooSmall {
-                needed,
-                available: buf.len(),
-            });
-        };
-        frame.fill(0);
-        frame[0] = seq;
-        frame[1] = Tag::DiscoverReply as u8;
-        let mut w = Writer {
-            buf: &mut frame[2..needed - 1],
-        };
-        w.put(0, &self.mac);
-        w.put(6, &self.net.ip);
-        w.u8(10, self.net.prefix_len);
-        w.put(11, &self.net.gateway);
-        w.u8(15, u8::from(self.net.dhcp));
-        w.put(16, &self.version);
-        w.u8(19, self.joints);
-        w.u8(20, self.state as u8);
-        w.u8(21, self.owner as u8);
-        w.put(22, &self.owner_ip);
-        w.u8(26, u8::from(self.pending_reset));
-        frame[needed - 1] = crc8(&frame[..needed - 1]);
-        Ok(needed)
+        seal(seq, Tag::DiscoverReply, size::DISCOVER_REPLY, buf, |w| {
+            w.put(0, &self.mac);
+            w.put(6, &self.net.ip);
+            w.u8(10, self.net.prefix_len);
+            w.put(11, &self.net.gateway);
+            w.u8(15, u8::from(self.net.dhcp));
+            w.put(16, &self.version);
+            w.u8(19, self.joints);
+            w.u8(20, self.state as u8);
+            w.u8(21, self.owner as u8);
+            w.put(22, &self.owner_ip);
+            w.u8(26, u8::from(self.pending_reset));
+        })
     }
 
     /// Decodes a DISCOVER_REPLY datagram. Never panics.

@@ -1,275 +1,8 @@
 //! The manual's structs and code tables as Rust values, with their wire layout.
 
 use crate::codec::{Writer, i16s, i32_le, i32s, u8_at, u16_le, u32_le};
+use crate::codes::{State, StatusCode};
 use crate::{MAX_JOINTS, size};
-
-/// A frame's tag byte: the command or report it carries.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
-#[repr(u8)]
-pub enum Tag {
-    /// Start an upload of `count` points.
-    New = 0x00,
-    /// 1..12 trajectory points.
-    Pending = 0x01,
-    /// Start executing (the manual's spelling).
-    Runing = 0x02,
-    /// Stop at once, drop the buffer.
-    Stopped = 0x03,
-    /// Location reports on.
-    UploadStart = 0x04,
-    /// Location reports off.
-    UploadStop = 0x05,
-    /// Gripper PWM on.
-    PwmStart = 0x06,
-    /// Gripper PWM off.
-    PwmStop = 0x07,
-    /// Open the pass-through serial port.
-    UsartStart = 0x08,
-    /// Close it.
-    UsartStop = 0x09,
-    /// Bytes to write to the serial port.
-    UsartSend = 0x0a,
-    /// Bytes read from the serial port (controller to host).
-    UsartRecv = 0x0b,
-    /// GPIO_0 high.
-    Pin0On = 0x0c,
-    /// GPIO_0 low.
-    Pin0Off = 0x0d,
-    /// GPIO_1 high.
-    Pin1On = 0x0e,
-    /// GPIO_1 low.
-    Pin1Off = 0x0f,
-    /// Toggle driver ENABLE lines.
-    ToggleEnablePins = 0x10,
-    /// Move every joint to zero.
-    Return = 0x11,
-    /// Set the number of joints.
-    JointsCount = 0x12,
-    /// LOCATION_SETTING (host to controller) or LOCATION (controller to host).
-    Location = 0x13,
-    /// ACK (controller to host).
-    Ack = 0x14,
-    /// STATUS request or report.
-    Status = 0x15,
-    /// Location report period.
-    UploadPeriod = 0x16,
-    /// Who is there? Answered by every controller, from any host (PROTOCOL.md 12).
-    Discover = 0x20,
-    /// Store the controller's network settings (applied after a reset).
-    NetSet = 0x21,
-    /// The answer to DISCOVER (controller to host).
-    DiscoverReply = 0x22,
-}
-
-impl Tag {
-    /// The tag for a byte, if there is one.
-    pub const fn from_u8(b: u8) -> Option<Tag> {
-        use Tag::*;
-        Some(match b {
-            0x00 => New,
-            0x01 => Pending,
-            0x02 => Runing,
-            0x03 => Stopped,
-            0x04 => UploadStart,
-            0x05 => UploadStop,
-            0x06 => PwmStart,
-            0x07 => PwmStop,
-            0x08 => UsartStart,
-            0x09 => UsartStop,
-            0x0a => UsartSend,
-            0x0b => UsartRecv,
-            0x0c => Pin0On,
-            0x0d => Pin0Off,
-            0x0e => Pin1On,
-            0x0f => Pin1Off,
-            0x10 => ToggleEnablePins,
-            0x11 => Return,
-            0x12 => JointsCount,
-            0x13 => Location,
-            0x14 => Ack,
-            0x15 => Status,
-            0x16 => UploadPeriod,
-            0x20 => Discover,
-            0x21 => NetSet,
-            0x22 => DiscoverReply,
-            _ => return None,
-        })
-    }
-
-    /// The manual's name for the command (host direction).
-    pub const fn name(self) -> &'static str {
-        use Tag::*;
-        match self {
-            New => "NEW",
-            Pending => "PENDING",
-            Runing => "RUNING",
-            Stopped => "STOPPED",
-            UploadStart => "UPLOAD_START",
-            UploadStop => "UPLOAD_STOP",
-            PwmStart => "PWM_START",
-            PwmStop => "PWM_STOP",
-            UsartStart => "USART_START",
-            UsartStop => "USART_STOP",
-            UsartSend => "USART_SEND",
-            UsartRecv => "USART_RECV",
-            Pin0On => "PIN0_ON",
-            Pin0Off => "PIN0_OFF",
-            Pin1On => "PIN1_ON",
-            Pin1Off => "PIN1_OFF",
-            ToggleEnablePins => "TOGGLE_ENABLE_PINS",
-            Return => "RETURN",
-            JointsCount => "JOINTS_COUNT",
-            Location => "LOCATION_SETTING",
-            Ack => "ACK",
-            Status => "STATUS",
-            UploadPeriod => "UPLOAD_PERIOD",
-            Discover => "DISCOVER",
-            NetSet => "NET_SET",
-            DiscoverReply => "DISCOVER_REPLY",
-        }
-    }
-}
-
-/// The trajectory state machine's state, as LOCATION, ACK and STATUS carry it.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
-#[repr(u8)]
-pub enum State {
-    /// NEW arrived; waiting for the first points.
-    New = 0,
-    /// Points arriving; not moving.
-    Pending = 1,
-    /// Executing the buffered points.
-    Running = 2,
-    /// Idle: boot, after a run, after STOPPED.
-    #[default]
-    Stopped = 3,
-}
-
-impl State {
-    /// The state for a code, if there is one.
-    pub const fn from_u8(b: u8) -> Option<State> {
-        match b {
-            0 => Some(State::New),
-            1 => Some(State::Pending),
-            2 => Some(State::Running),
-            3 => Some(State::Stopped),
-            _ => None,
-        }
-    }
-    /// Upper-case name as in the manual.
-    pub const fn name(self) -> &'static str {
-        match self {
-            State::New => "NEW",
-            State::Pending => "PENDING",
-            State::Running => "RUNNING",
-            State::Stopped => "STOPPED",
-        }
-    }
-}
-
-/// An ACK's status: 0 = done, anything else = the command did nothing.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
-#[repr(u8)]
-pub enum StatusCode {
-    /// Done.
-    Ok = 0,
-    /// CRC mismatch; nothing done.
-    BadCrc = 1,
-    /// No such command.
-    UnknownTag = 2,
-    /// Data length wrong for the tag.
-    BadLength = 3,
-    /// Not allowed in the current state.
-    BadState = 4,
-    /// PENDING seq is not `next_seq`.
-    OutOfOrder = 5,
-    /// More points than NEW announced.
-    TooManyPoints = 6,
-    /// A point breaks the trajectory rules (step rate, duration).
-    InvalidPoint = 7,
-    /// Not enough free buffer slots.
-    BufferFull = 8,
-    /// Another host owns the controller.
-    NotOwner = 9,
-    /// Not a command a host may send.
-    Unsupported = 10,
-    /// A configuration value out of range.
-    InvalidConfig = 11,
-}
-
-impl StatusCode {
-    /// The code for a byte, if there is one.
-    pub const fn from_u8(b: u8) -> Option<StatusCode> {
-        use StatusCode::*;
-        Some(match b {
-            0 => Ok,
-            1 => BadCrc,
-            2 => UnknownTag,
-            3 => BadLength,
-            4 => BadState,
-            5 => OutOfOrder,
-            6 => TooManyPoints,
-            7 => InvalidPoint,
-            8 => BufferFull,
-            9 => NotOwner,
-            10 => Unsupported,
-            11 => InvalidConfig,
-            _ => return None,
-        })
-    }
-
-    /// Name as in docs/PROTOCOL.md, "Status codes (the ACK's `status`)".
-    pub const fn name(self) -> &'static str {
-        use StatusCode::*;
-        match self {
-            Ok => "OK",
-            BadCrc => "BAD_CRC",
-            UnknownTag => "UNKNOWN_TAG",
-            BadLength => "BAD_LENGTH",
-            BadState => "BAD_STATE",
-            OutOfOrder => "OUT_OF_ORDER",
-            TooManyPoints => "TOO_MANY_POINTS",
-            InvalidPoint => "INVALID_POINT",
-            BufferFull => "BUFFER_FULL",
-            NotOwner => "NOT_OWNER",
-            Unsupported => "UNSUPPORTED",
-            InvalidConfig => "INVALID_CONFIG",
-        }
-    }
-
-    /// What a host should do about it.
-    pub const fn advice(self) -> &'static str {
-        use StatusCode::*;
-        match self {
-            Ok => "nothing",
-            BadCrc => "the frame was damaged on the way: resend it",
-            UnknownTag => "the controller has no such command: check the tag",
-            BadLength => "the data length is wrong for this command: check the encoder",
-            BadState => {
-                "not allowed in the controller's current state: STOP it or wait for the run to end"
-            }
-            OutOfOrder => "a PENDING frame was lost: resend from the ACK's next_seq",
-            TooManyPoints => "more points than NEW announced: send NEW with the right count",
-            InvalidPoint => {
-                "a point asks for more than the controller's max step rate, or has a duration under 1 us"
-            }
-            BufferFull => "the trajectory buffer is full: resend when the ACK's `free` allows",
-            NotOwner => {
-                "another host owns the controller: wait 5 s after it goes quiet, or have it release the arm"
-            }
-            Unsupported => "this frame only goes from controller to host",
-            InvalidConfig => {
-                "a value is out of its range (PWM, serial, joint count, point count, upload period)"
-            }
-        }
-    }
-}
 
 /// One trajectory segment as the manual's `struct Point` (116 bytes).
 ///
@@ -310,17 +43,23 @@ impl Point {
             position: *target,
             ..Point::default()
         };
-        for j in 0..MAX_JOINTS {
-            let steps = (i64::from(target[j]) - i64::from(previous[j])).unsigned_abs();
+        let hints = (p.number_of_period.iter_mut().zip(&mut p.period))
+            .zip(p.number_of_full_period.iter_mut().zip(&mut p.rest_period));
+        for ((from, to), ((count, period_hint), (full, rest))) in
+            previous.iter().zip(target).zip(hints)
+        {
+            let steps = (i64::from(*to) - i64::from(*from)).unsigned_abs();
             if steps == 0 {
                 continue;
             }
-            let period = (i64::from(duration_us.max(0)) as u64 / steps) as u32;
-            p.number_of_period[j] = steps as u16 as i16;
-            p.period[j] = period as i32;
+            // duration_us / steps <= i32::MAX.
+            let period = u32::try_from(i64::from(duration_us.max(0)).unsigned_abs() / steps)
+                .unwrap_or(u32::MAX);
+            *count = low_16(steps);
+            *period_hint = period as i32;
             if period > 0xFFFF {
-                p.number_of_full_period[j] = (period >> 16) as u16 as i16;
-                p.rest_period[j] = (period & 0xFFFF) as u16 as i16;
+                *full = low_16(u64::from(period >> 16));
+                *rest = low_16(u64::from(period));
             }
         }
         p
@@ -330,6 +69,10 @@ impl Point {
     ///
     /// # Panics
     /// If `j >= MAX_JOINTS` (a caller's bug, never a value from the network).
+    #[allow(
+        clippy::indexing_slicing,
+        reason = "documented: j >= MAX_JOINTS is the caller's bug"
+    )]
     pub fn steps(&self, previous: &[i32; MAX_JOINTS], j: usize) -> i64 {
         i64::from(self.position[j]) - i64::from(previous[j])
     }
@@ -353,6 +96,16 @@ impl Point {
         w.i32s(at + 52, &self.period);
         w.i32s(at + 84, &self.position);
     }
+}
+
+/// The low 16 bits, as the manual's `int16_t` hints hold a count or period that may not
+/// fit them.
+#[allow(
+    clippy::cast_possible_truncation,
+    reason = "truncation to 16 bits is the hint's definition"
+)]
+fn low_16(v: u64) -> i16 {
+    v as u16 as i16
 }
 
 /// Joint positions (steps) and, in reports, the state (`struct Location`, 36 bytes).
@@ -522,6 +275,26 @@ impl Ack {
     }
 }
 
+/// `has` and `set` of a bit-set field (`StatusFlags`, `MoreFlags`).
+macro_rules! flag_bits {
+    ($flags:ident, $bits:ty) => {
+        impl $flags {
+            /// Whether every bit of `bits` is set.
+            pub const fn has(self, bits: $bits) -> bool {
+                self.0 & bits == bits
+            }
+            /// Sets or clears `bits`.
+            pub fn set(&mut self, bits: $bits, on: bool) {
+                if on {
+                    self.0 |= bits;
+                } else {
+                    self.0 &= !bits;
+                }
+            }
+        }
+    };
+}
+
 /// STATUS `flags` bits.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -545,20 +318,9 @@ impl StatusFlags {
     pub const PWM_ACTIVE: u8 = 1 << 6;
     /// The last run ended by STOPPED.
     pub const STOPPED_BY_HOST: u8 = 1 << 7;
-
-    /// Whether every bit of `bits` is set.
-    pub const fn has(self, bits: u8) -> bool {
-        self.0 & bits == bits
-    }
-    /// Sets or clears `bits`.
-    pub fn set(&mut self, bits: u8, on: bool) {
-        if on {
-            self.0 |= bits;
-        } else {
-            self.0 &= !bits;
-        }
-    }
 }
+
+flag_bits!(StatusFlags, u8);
 
 /// STATUS `more_flags` bits (offset 18; an old controller sends 0).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
@@ -570,24 +332,9 @@ impl MoreFlags {
     /// An upload not yet running (state NEW or PENDING) was dropped when another host
     /// took the controller over after the owner's 5 s of silence. Cleared by the next NEW.
     pub const UPLOAD_DROPPED: u16 = 1 << 0;
-
-    /// Whether every bit of `bits` is set.
-    pub const fn has(self, bits: u16) -> bool {
-        self.0 & bits == bits
-    }
-    /// Sets or clears `bits`.
-    pub fn set(&mut self, bits: u16, on: bool) {
-        if on {
-            self.0 |= bits;
-        } else {
-            self.0 &= !bits;
-        }
-    }
 }
 
-/// The window a host may assume when STATUS `window` is 0 (a controller from before the
-/// field existed took bursts of 8 datagrams).
-pub const DEFAULT_WINDOW: u16 = 8;
+flag_bits!(MoreFlags, u16);
 
 /// The STATUS report (36 bytes).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
@@ -603,7 +350,8 @@ pub struct StatusReport {
     /// See [`StatusFlags`].
     pub flags: StatusFlags,
     /// Datagrams the controller takes back to back without dropping one (the window a
-    /// host may keep in flight); 0 from an old controller: assume [`DEFAULT_WINDOW`].
+    /// host may keep in flight); 0 from an old controller: assume
+    /// [`DEFAULT_WINDOW`](crate::limits::DEFAULT_WINDOW).
     pub window: u16,
     /// Points held (received, not yet run).
     pub buffered: u16,

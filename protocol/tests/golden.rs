@@ -9,7 +9,8 @@
 use std::path::PathBuf;
 
 use protocol::{
-    Command, DecodeErrorKind, MAX_DATAGRAM, Point, PointList, Report, StatusCode, Tag, crc8, size,
+    Command, DecodeError, DecodeErrorKind, Frame, MAX_DATAGRAM, Point, PointList, Report,
+    StatusCode, Tag, crc8, size,
 };
 use serde_json::{Value, json};
 
@@ -129,7 +130,8 @@ fn command_fields(cmd: &Command<'_>) -> Value {
         // The state byte of LOCATION_SETTING is ignored, so the file does not list it.
         Command::LocationSetting(loc) => json!({ "position": loc.position }),
         Command::UploadPeriod { period_us } => json!({ "period_us": period_us }),
-        // Not in the shared golden file (PROTOCOL.md 12 adds them; protocol/tests/net.rs).
+        // Not in the shared golden file (PROTOCOL.md, "Finding controllers and setting
+        // their address", adds them; protocol/tests/net.rs).
         Command::NetSet(net) => json!({ "net": format!("{net:?}") }),
         Command::Discover
         | Command::Runing
@@ -231,6 +233,36 @@ fn canonical_of_tolerated(bytes: &[u8]) -> Option<Vec<u8>> {
     Some(out)
 }
 
+/// `v` decoded by `decode`, its fields (`fields`: tag and JSON) compared with the file's;
+/// `None` if it does not decode. Failures go to `failures`.
+fn decoded<'a, T>(
+    v: &'a Vector,
+    failures: &mut Vec<String>,
+    decode: fn(&'a [u8]) -> Result<Frame<T>, DecodeError>,
+    fields: impl Fn(&T) -> (Tag, Value),
+) -> Option<Frame<T>> {
+    let frame = decode(&v.bytes)
+        .map_err(|e| failures.push(format!("{}: does not decode: {e}", v.name)))
+        .ok()?;
+    let (tag, decoded) = fields(&frame.body);
+    for p in compare(v, frame.seq, tag, &decoded) {
+        failures.push(format!("{}: {p}", v.name));
+    }
+    Some(frame)
+}
+
+/// The failure when `v` re-encodes to `encoded` rather than `want`.
+fn mismatch(v: &Vector, encoded: &[u8], want: &[u8]) -> Option<String> {
+    (encoded != want).then(|| {
+        format!(
+            "{}: re-encodes to\n  {}\nnot\n  {}",
+            v.name,
+            to_hex(encoded),
+            to_hex(want)
+        )
+    })
+}
+
 fn fail_if_any(kind: &str, checked: usize, failures: &[String]) {
     assert!(
         failures.is_empty(),
@@ -255,16 +287,11 @@ fn commands_decode_to_their_fields_and_reencode() {
         .filter(|v| v.direction == "to_controller" && !is_invalid(v))
     {
         checked += 1;
-        let frame = match Command::decode(&v.bytes) {
-            Ok(frame) => frame,
-            Err(e) => {
-                failures.push(format!("{}: does not decode: {e}", v.name));
-                continue;
-            }
+        let Some(frame) = decoded(v, &mut failures, Command::decode, |c| {
+            (c.tag(), command_fields(c))
+        }) else {
+            continue;
         };
-        for p in compare(v, frame.seq, frame.body.tag(), &command_fields(&frame.body)) {
-            failures.push(format!("{}: {p}", v.name));
-        }
         let mut buf = [0u8; MAX_DATAGRAM];
         let n = frame.body.encode(frame.seq, &mut buf).expect("re-encodes");
         let encoded = &buf[..n];
@@ -276,14 +303,7 @@ fn commands_decode_to_their_fields_and_reencode() {
             }
             None => v.bytes.clone(),
         };
-        if encoded != want.as_slice() {
-            failures.push(format!(
-                "{}: re-encodes to\n  {}\nnot\n  {}",
-                v.name,
-                to_hex(encoded),
-                to_hex(&want)
-            ));
-        }
+        failures.extend(mismatch(v, encoded, &want));
         // The canonical form carries a valid CRC and the same content.
         match Command::decode(encoded) {
             Ok(again) if again == frame => {}
@@ -303,26 +323,14 @@ fn reports_decode_to_their_fields_and_reencode_exactly() {
     let mut checked = 0;
     for v in load().iter().filter(|v| v.direction == "to_host") {
         checked += 1;
-        let frame = match Report::decode(&v.bytes) {
-            Ok(frame) => frame,
-            Err(e) => {
-                failures.push(format!("{}: does not decode: {e}", v.name));
-                continue;
-            }
+        let Some(frame) = decoded(v, &mut failures, Report::decode, |r| {
+            (r.tag(), report_fields(r))
+        }) else {
+            continue;
         };
-        for p in compare(v, frame.seq, frame.body.tag(), &report_fields(&frame.body)) {
-            failures.push(format!("{}: {p}", v.name));
-        }
         let mut buf = [0u8; MAX_DATAGRAM];
         let n = frame.body.encode(frame.seq, &mut buf).expect("re-encodes");
-        if buf[..n] != v.bytes[..] {
-            failures.push(format!(
-                "{}: re-encodes to\n  {}\nnot\n  {}",
-                v.name,
-                to_hex(&buf[..n]),
-                to_hex(&v.bytes)
-            ));
-        }
+        failures.extend(mismatch(v, &buf[..n], &v.bytes));
     }
     fail_if_any("report", checked, &failures);
 }
@@ -341,9 +349,7 @@ fn invalid_frames_give_the_named_status() {
         let want = match &v.entry["expect_status"] {
             Value::Null => None,
             Value::String(name) => Some(
-                (0..=u8::MAX)
-                    .filter_map(StatusCode::from_u8)
-                    .find(|c| c.name() == name)
+                StatusCode::from_name(name)
                     .unwrap_or_else(|| panic!("{}: no status code named {name}", v.name)),
             ),
             other => panic!("{}: expect_status is {other}", v.name),
@@ -386,10 +392,12 @@ fn vectors_cover_every_command_and_report() {
         .iter()
         .filter_map(|v| Report::decode(&v.bytes).ok().map(|f| f.body.tag()))
         .collect();
-    let missing_commands: Vec<&str> = (0..=u8::MAX)
-        .filter_map(Tag::from_u8)
+    let missing_commands: Vec<&str> = Tag::ALL
+        .iter()
+        .copied()
         .filter(|t| !matches!(t, Tag::UsartRecv | Tag::Ack))
-        // PROTOCOL.md section 12 came after the shared file: protocol/tests/net.rs.
+        // PROTOCOL.md, "Finding controllers and setting their address", came after the
+        // shared file: protocol/tests/net.rs.
         .filter(|t| !matches!(t, Tag::Discover | Tag::NetSet | Tag::DiscoverReply))
         .filter(|t| !commands.contains(t))
         .map(Tag::name)

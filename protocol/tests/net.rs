@@ -1,10 +1,16 @@
-//! DISCOVER, NET_SET and DISCOVER_REPLY (PROTOCOL.md section 12): layouts, round trips,
-//! what NET_SET refuses, and that old frames are untouched.
+//! DISCOVER, NET_SET and DISCOVER_REPLY (PROTOCOL.md, "Finding controllers and setting
+//! their address"): layouts, round trips, what NET_SET refuses, and that old frames are
+//! untouched.
 
 use protocol::{
     Command, DecodeErrorKind, DiscoverReply, Field, NetSettings, OwnerState, Report, State,
     StatusCode, Tag, crc8,
 };
+
+// The worked examples' hex layout.
+#[path = "../examples/doc_frames.rs"]
+#[allow(dead_code, reason = "only hex_block is used here")]
+mod doc_frames;
 
 fn encode(seq: u8, command: Command<'_>) -> Vec<u8> {
     let mut buf = [0u8; 64];
@@ -87,18 +93,25 @@ fn net_set_refuses_unusable_settings() {
     ));
 }
 
-#[test]
-fn discover_reply_round_trips() {
-    let reply = DiscoverReply {
-        mac: [2, 0x53, 0x49, 0x4d, 0x12, 0x34],
-        net: NetSettings::fixed([192, 168, 7, 2], 24, Some([192, 168, 7, 1])),
+/// The reply of a 6-joint controller at 192.168.7.`host`/24 (gateway .1), MAC
+/// 02:53:49:4d:`mac_tail`, owned by another host, its stored settings pending a reset.
+fn owned_reply(mac_tail: [u8; 2], host: u8, state: State, owner_ip: [u8; 4]) -> DiscoverReply {
+    let [m4, m5] = mac_tail;
+    DiscoverReply {
+        mac: [0x02, 0x53, 0x49, 0x4d, m4, m5],
+        net: NetSettings::fixed([192, 168, 7, host], 24, Some([192, 168, 7, 1])),
         version: [1, 0, 0],
         joints: 6,
-        state: State::Running,
+        state,
         owner: OwnerState::Other,
-        owner_ip: [192, 168, 7, 1],
+        owner_ip,
         pending_reset: true,
-    };
+    }
+}
+
+#[test]
+fn discover_reply_round_trips() {
+    let reply = owned_reply([0x12, 0x34], 2, State::Running, [192, 168, 7, 1]);
     let mut buf = [0u8; 64];
     let n = reply.encode(42, &mut buf).unwrap();
     assert_eq!(n, 30);
@@ -126,34 +139,15 @@ fn discover_reply_round_trips() {
     ));
 }
 
-/// The examples of PROTOCOL.md section 12 are what the crate encodes.
+/// The examples of PROTOCOL.md, "Finding controllers and setting their address", are what
+/// the crate encodes.
 #[test]
 fn protocol_md_examples_are_the_crates_bytes() {
-    let hex = |bytes: &[u8]| {
-        bytes
-            .chunks(16)
-            .map(|line| {
-                line.iter()
-                    .map(|b| format!("{b:02x}"))
-                    .collect::<Vec<_>>()
-                    .join(" ")
-            })
-            .collect::<Vec<_>>()
-            .join("\n")
-    };
+    let hex = doc_frames::hex_block;
     let doc = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../docs/PROTOCOL.md"))
         .expect("docs/PROTOCOL.md");
     let discover = encode(5, Command::Discover);
-    let reply = DiscoverReply {
-        mac: [0x02, 0x53, 0x49, 0x4d, 0xd6, 0x9c],
-        net: NetSettings::fixed([192, 168, 7, 9], 24, Some([192, 168, 7, 1])),
-        version: [1, 0, 0],
-        joints: 6,
-        state: State::Stopped,
-        owner: OwnerState::Other,
-        owner_ip: [192, 168, 7, 200],
-        pending_reset: true,
-    };
+    let reply = owned_reply([0xd6, 0x9c], 9, State::Stopped, [192, 168, 7, 200]);
     let mut buf = [0u8; 64];
     let n = reply.encode(5, &mut buf).unwrap();
     let net_set = encode(

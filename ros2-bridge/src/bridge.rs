@@ -46,7 +46,7 @@ type GripperServer =
     AsyncActionServer<GripperCommandGoal, GripperCommandResult, GripperCommandResult>;
 
 /// How often the bridge sends STATUS while idle: the controller hands ownership to another
-/// host after 5 s of silence (PROTOCOL.md section 1).
+/// host after 5 s of silence (PROTOCOL.md, "Transport and ownership").
 const KEEP_ALIVE: Duration = Duration::from_secs(1);
 
 /// How long a finished goal's result waits for the client to ask for it.

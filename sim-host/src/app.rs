@@ -361,7 +361,7 @@ fn log_sent(frame: &[u8], to: Endpoint) {
     };
     let state = match report.body {
         protocol::Report::Ack(ack) => {
-            let command = protocol::Tag::from_u8(ack.acked_tag).map_or("?", |t| t.name());
+            let command = protocol::Tag::name_of(ack.acked_tag);
             if ack.status == protocol::StatusCode::Ok {
                 log::debug!("-> {} ACK seq {} {command}: OK", show(to), report.seq);
             } else {
@@ -397,7 +397,7 @@ fn log_sent(frame: &[u8], to: Endpoint) {
     if let Some(state) = state {
         let before = REPORTED_STATE.swap(state, Ordering::Relaxed);
         if before != state && before != u8::MAX {
-            let name = |code| protocol::State::from_u8(code).map_or("?", |s| s.name());
+            let name = protocol::State::name_of;
             log::info!("state {} -> {}", name(before), name(state));
         }
     }

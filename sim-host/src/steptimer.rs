@@ -18,7 +18,8 @@ use std::time::{Duration, Instant};
 use arm_core::hw::StepKick;
 use arm_core::tasks::{StepBackend, StepProgress};
 use arm_step::{
-    JointBuffer, MAX_JOINTS, PRELUDE, PulsePeriod, Segment, StepPins, StepStreams, StepTiming,
+    JointBuffer, MAX_JOINTS, NUCLEO_STEP_TIMER_MAX_PERIOD_TICKS, PRELUDE, PulsePeriod, Segment,
+    StepPins, StepStreams, StepTiming,
 };
 
 use crate::clock::SimClock;
@@ -89,18 +90,6 @@ pub const PLAY_INTERVAL: Duration = Duration::from_millis(5);
 /// Periods per DMA buffer half: the board's (`firmware/board/src/step_dma.rs`).
 pub const HALF: usize = 64;
 
-/// The board's timer ranges: TIM2 and TIM5 (32-bit) for joints 0-1, 16-bit timers for 2-7.
-pub const MAX_PERIOD_TICKS: [u32; MAX_JOINTS] = [
-    u32::MAX,
-    u32::MAX,
-    1 << 16,
-    1 << 16,
-    1 << 16,
-    1 << 16,
-    1 << 16,
-    1 << 16,
-];
-
 /// Where one joint's simulated timer is.
 #[derive(Clone, Copy, Debug, Default)]
 struct Play {
@@ -141,7 +130,7 @@ impl<const Q: usize> SimSteps<Q> {
     /// Idle hardware driving `pins`.
     pub fn new(timing: StepTiming, pins: SimSteppers, clock: SimClock) -> SimSteps<Q> {
         SimSteps {
-            streams: Box::new(StepStreams::new(timing, MAX_PERIOD_TICKS)),
+            streams: Box::new(StepStreams::new(timing, NUCLEO_STEP_TIMER_MAX_PERIOD_TICKS)),
             buffers: Box::new([JointBuffer::ZERO; MAX_JOINTS]),
             prelude: [[PulsePeriod::ZERO; PRELUDE]; MAX_JOINTS],
             pins,

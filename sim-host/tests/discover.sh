@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
-# DISCOVER and NET_SET (PROTOCOL.md section 12) over TAP, inside a Linux network namespace
-# this script creates and removes, so that every broadcast stays inside it.
+# DISCOVER and NET_SET (PROTOCOL.md, "Finding controllers and setting their address") over
+# TAP, inside a Linux network namespace this script creates and removes, so that every
+# broadcast stays inside it.
 #
 # Two simulated controllers on one bridge (tap0 and tap1 under br0), as two boards on one
 # switch. The host side has two addresses on the bridge: 192.168.7.1 and .200 (two hosts).

@@ -210,7 +210,7 @@ fn a_second_tool_on_the_owners_machine_disturbs_neither_upload_nor_reports() {
 /// NEW then 31 PENDING frames of 12 points (1395 bytes each), back to back: how many of
 /// `tries` bursts were taken whole (every frame ACKed OK).
 fn whole_bursts(client: &mut Client, tries: usize) -> usize {
-    let window = 32;
+    let window = protocol::limits::HOST_WINDOW;
     let pts = points(MAX_POINTS_PER_FRAME * (window - 1), 10_000);
     let mut whole = 0;
     for _ in 0..tries {

@@ -299,8 +299,8 @@ const FIELDS: &[&str] = &[
 ];
 
 fn status_code(name: &str) -> u8 {
-    (0..=255u8)
-        .find(|&c| protocol::StatusCode::from_u8(c).is_some_and(|s| s.name() == name))
+    protocol::StatusCode::from_name(name)
+        .map(u8::from)
         .unwrap_or_else(|| panic!("unknown status name {name}"))
 }
 

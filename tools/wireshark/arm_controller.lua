@@ -56,105 +56,127 @@ local addr_mode_names = { [0] = "static", [1] = "DHCP" }
 ----------------------------------------------------------------------------------------
 -- Fields
 
+-- A field "armctl.<name>" of Wireshark type `kind`; the rest as ProtoField.<kind> takes it.
+local function field(kind, name, label, ...)
+    return ProtoField[kind]("armctl." .. name, label, ...)
+end
+
+-- A number field shown in decimal, with value names if `names` is given.
+local function dec(kind, name, label, names)
+    if names then return field(kind, name, label, base.DEC, names) end
+    return field(kind, name, label, base.DEC)
+end
+
+-- A number field shown in hex, with value names if `names` is given.
+local function hex(kind, name, label, names)
+    if names then return field(kind, name, label, base.HEX, names) end
+    return field(kind, name, label, base.HEX)
+end
+
+-- One bit of STATUS `flags`.
+local function status_flag(name, label, mask)
+    return field("bool", "status.flags." .. name, label, 8, nil, mask)
+end
+
 local f = {
-    seq = ProtoField.uint8("armctl.seq", "Sequence number", base.DEC),
-    tag = ProtoField.uint8("armctl.tag", "Tag", base.HEX, tag_names),
-    direction = ProtoField.uint8("armctl.direction", "Direction", base.DEC, direction_names),
-    data = ProtoField.bytes("armctl.data", "Data"),
-    crc = ProtoField.uint8("armctl.crc", "CRC-8/SMBUS", base.HEX),
-    crc_status = ProtoField.uint8("armctl.crc.status", "CRC status", base.DEC, crc_status_names),
-    crc_computed = ProtoField.uint8("armctl.crc.computed", "Computed CRC", base.HEX),
+    seq = dec("uint8", "seq", "Sequence number"),
+    tag = hex("uint8", "tag", "Tag", tag_names),
+    direction = dec("uint8", "direction", "Direction", direction_names),
+    data = field("bytes", "data", "Data"),
+    crc = hex("uint8", "crc", "CRC-8/SMBUS"),
+    crc_status = dec("uint8", "crc.status", "CRC status", crc_status_names),
+    crc_computed = hex("uint8", "crc.computed", "Computed CRC"),
 
     -- commands
-    new_count = ProtoField.uint16("armctl.new.count", "Point count", base.DEC),
-    points = ProtoField.uint8("armctl.points", "Points in frame", base.DEC),
-    point = ProtoField.none("armctl.point", "Point"),
-    point_duration = ProtoField.int32("armctl.point.duration", "Duration (us)", base.DEC),
-    point_position = ProtoField.int32("armctl.point.position", "Position (steps)", base.DEC),
-    point_full = ProtoField.int16("armctl.point.number_of_full_period", "numberOfFullPeriod", base.DEC),
-    point_rest = ProtoField.int16("armctl.point.rest_period", "restPeriod", base.DEC),
-    point_nperiod = ProtoField.int16("armctl.point.number_of_period", "numberOfPeriod", base.DEC),
-    point_period = ProtoField.int32("armctl.point.period", "period", base.DEC),
-    pwm_psc = ProtoField.uint32("armctl.pwm.psc", "PSC", base.DEC),
-    pwm_arr = ProtoField.uint32("armctl.pwm.arr", "ARR", base.DEC),
-    pwm_ccr1 = ProtoField.uint32("armctl.pwm.ccr1", "CCR1", base.DEC),
-    pwm_pulse_count = ProtoField.int32("armctl.pwm.pulse_count", "PluseCount", base.DEC),
-    uart_baud = ProtoField.uint32("armctl.uart.baud_rate", "BaudRate", base.DEC),
-    uart_word = ProtoField.uint32("armctl.uart.word_length", "WordLength", base.HEX),
-    uart_stop = ProtoField.uint32("armctl.uart.stop_bits", "StopBits", base.HEX),
-    uart_parity = ProtoField.uint32("armctl.uart.parity", "Parity", base.HEX),
-    uart_parity2 = ProtoField.uint32("armctl.uart.parity_repeated", "Parity (repeated, ignored)", base.HEX),
-    uart_mode = ProtoField.uint32("armctl.uart.mode", "Mode", base.DEC, uart_mode_names),
-    uart_flow = ProtoField.uint32("armctl.uart.hw_flow_ctl", "HwFlowCtl", base.HEX),
-    uart_over = ProtoField.uint32("armctl.uart.over_sampling", "OverSampling", base.HEX),
-    usart_len = ProtoField.uint8("armctl.usart.len", "Length", base.DEC),
-    usart_data = ProtoField.bytes("armctl.usart.data", "Serial bytes"),
-    enable_mask = ProtoField.uint16("armctl.enable.mask", "Enable mask", base.HEX),
-    joints = ProtoField.uint8("armctl.joints", "Joints", base.DEC),
-    upload_period = ProtoField.uint32("armctl.upload_period_us", "Upload period (us)", base.DEC),
+    new_count = dec("uint16", "new.count", "Point count"),
+    points = dec("uint8", "points", "Points in frame"),
+    point = field("none", "point", "Point"),
+    point_duration = dec("int32", "point.duration", "Duration (us)"),
+    point_position = dec("int32", "point.position", "Position (steps)"),
+    point_full = dec("int16", "point.number_of_full_period", "numberOfFullPeriod"),
+    point_rest = dec("int16", "point.rest_period", "restPeriod"),
+    point_nperiod = dec("int16", "point.number_of_period", "numberOfPeriod"),
+    point_period = dec("int32", "point.period", "period"),
+    pwm_psc = dec("uint32", "pwm.psc", "PSC"),
+    pwm_arr = dec("uint32", "pwm.arr", "ARR"),
+    pwm_ccr1 = dec("uint32", "pwm.ccr1", "CCR1"),
+    pwm_pulse_count = dec("int32", "pwm.pulse_count", "PluseCount"),
+    uart_baud = dec("uint32", "uart.baud_rate", "BaudRate"),
+    uart_word = hex("uint32", "uart.word_length", "WordLength"),
+    uart_stop = hex("uint32", "uart.stop_bits", "StopBits"),
+    uart_parity = hex("uint32", "uart.parity", "Parity"),
+    uart_parity2 = hex("uint32", "uart.parity_repeated", "Parity (repeated, ignored)"),
+    uart_mode = dec("uint32", "uart.mode", "Mode", uart_mode_names),
+    uart_flow = hex("uint32", "uart.hw_flow_ctl", "HwFlowCtl"),
+    uart_over = hex("uint32", "uart.over_sampling", "OverSampling"),
+    usart_len = dec("uint8", "usart.len", "Length"),
+    usart_data = field("bytes", "usart.data", "Serial bytes"),
+    enable_mask = hex("uint16", "enable.mask", "Enable mask"),
+    joints = dec("uint8", "joints", "Joints"),
+    upload_period = dec("uint32", "upload_period_us", "Upload period (us)"),
 
     -- LOCATION / LOCATION_SETTING
-    location_position = ProtoField.int32("armctl.location.position", "Position (steps)", base.DEC),
-    location_state = ProtoField.uint8("armctl.location.state", "State", base.DEC, state_names),
+    location_position = dec("int32", "location.position", "Position (steps)"),
+    location_state = dec("uint8", "location.state", "State", state_names),
 
     -- ACK
-    ack_acked_tag = ProtoField.uint8("armctl.ack.acked_tag", "Acknowledged tag", base.HEX, tag_names),
-    ack_status = ProtoField.uint8("armctl.ack.status", "Status", base.DEC, status_names),
-    ack_state = ProtoField.uint8("armctl.ack.state", "State", base.DEC, state_names),
-    ack_next_seq = ProtoField.uint8("armctl.ack.next_seq", "Next seq", base.DEC),
-    ack_buffered = ProtoField.uint16("armctl.ack.buffered", "Buffered points", base.DEC),
-    ack_free = ProtoField.uint16("armctl.ack.free", "Free slots", base.DEC),
+    ack_acked_tag = hex("uint8", "ack.acked_tag", "Acknowledged tag", tag_names),
+    ack_status = dec("uint8", "ack.status", "Status", status_names),
+    ack_state = dec("uint8", "ack.state", "State", state_names),
+    ack_next_seq = dec("uint8", "ack.next_seq", "Next seq"),
+    ack_buffered = dec("uint16", "ack.buffered", "Buffered points"),
+    ack_free = dec("uint16", "ack.free", "Free slots"),
 
     -- STATUS report
-    st_version = ProtoField.string("armctl.status.version", "Protocol version"),
-    st_joints = ProtoField.uint8("armctl.status.joints", "Joints", base.DEC),
-    st_state = ProtoField.uint8("armctl.status.state", "State", base.DEC, state_names),
-    st_flags = ProtoField.uint8("armctl.status.flags", "Flags", base.HEX),
-    st_flag_reports = ProtoField.bool("armctl.status.flags.reports_on", "Location reports on", 8, nil, 0x01),
-    st_flag_drivers = ProtoField.bool("armctl.status.flags.drivers_enabled", "Drivers enabled", 8, nil, 0x02),
-    st_flag_serial = ProtoField.bool("armctl.status.flags.serial_open", "Serial open", 8, nil, 0x04),
-    st_flag_pin0 = ProtoField.bool("armctl.status.flags.pin0_high", "PIN0 high", 8, nil, 0x08),
-    st_flag_pin1 = ProtoField.bool("armctl.status.flags.pin1_high", "PIN1 high", 8, nil, 0x10),
-    st_flag_underrun = ProtoField.bool("armctl.status.flags.underrun", "Last run ended by underrun", 8, nil, 0x20),
-    st_flag_pwm = ProtoField.bool("armctl.status.flags.pwm_active", "Gripper PWM active", 8, nil, 0x40),
-    st_flag_stopped = ProtoField.bool("armctl.status.flags.stopped_by_host", "Last run ended by STOPPED", 8, nil, 0x80),
-    st_window = ProtoField.uint16("armctl.status.window", "Window (offset 6; 0 = old controller)", base.DEC),
-    st_buffered = ProtoField.uint16("armctl.status.buffered", "Buffered points", base.DEC),
-    st_expected = ProtoField.uint16("armctl.status.expected", "Points announced", base.DEC),
-    st_received = ProtoField.uint16("armctl.status.received", "Points received", base.DEC),
-    st_executed = ProtoField.uint16("armctl.status.executed", "Points executed", base.DEC),
-    st_capacity = ProtoField.uint16("armctl.status.capacity", "Buffer capacity", base.DEC),
-    st_more_flags = ProtoField.uint16("armctl.status.more_flags", "More flags (offset 18)", base.HEX),
-    st_upload_period = ProtoField.uint32("armctl.status.upload_period_us", "Upload period (us)", base.DEC),
-    st_pwm_clock = ProtoField.uint32("armctl.status.pwm_timer_clock_hz", "PWM timer clock (Hz)", base.DEC),
-    st_max_rate = ProtoField.uint32("armctl.status.max_step_rate_hz", "Max step rate (steps/s)", base.DEC),
-    st_word32 = ProtoField.uint32("armctl.status.offset32", "Offset 32 (u32)", base.DEC),
+    st_version = field("string", "status.version", "Protocol version"),
+    st_joints = dec("uint8", "status.joints", "Joints"),
+    st_state = dec("uint8", "status.state", "State", state_names),
+    st_flags = hex("uint8", "status.flags", "Flags"),
+    st_flag_reports = status_flag("reports_on", "Location reports on", 0x01),
+    st_flag_drivers = status_flag("drivers_enabled", "Drivers enabled", 0x02),
+    st_flag_serial = status_flag("serial_open", "Serial open", 0x04),
+    st_flag_pin0 = status_flag("pin0_high", "PIN0 high", 0x08),
+    st_flag_pin1 = status_flag("pin1_high", "PIN1 high", 0x10),
+    st_flag_underrun = status_flag("underrun", "Last run ended by underrun", 0x20),
+    st_flag_pwm = status_flag("pwm_active", "Gripper PWM active", 0x40),
+    st_flag_stopped = status_flag("stopped_by_host", "Last run ended by STOPPED", 0x80),
+    st_window = dec("uint16", "status.window", "Window (offset 6; 0 = old controller)"),
+    st_buffered = dec("uint16", "status.buffered", "Buffered points"),
+    st_expected = dec("uint16", "status.expected", "Points announced"),
+    st_received = dec("uint16", "status.received", "Points received"),
+    st_executed = dec("uint16", "status.executed", "Points executed"),
+    st_capacity = dec("uint16", "status.capacity", "Buffer capacity"),
+    st_more_flags = hex("uint16", "status.more_flags", "More flags (offset 18)"),
+    st_upload_period = dec("uint32", "status.upload_period_us", "Upload period (us)"),
+    st_pwm_clock = dec("uint32", "status.pwm_timer_clock_hz", "PWM timer clock (Hz)"),
+    st_max_rate = dec("uint32", "status.max_step_rate_hz", "Max step rate (steps/s)"),
+    st_word32 = dec("uint32", "status.offset32", "Offset 32 (u32)"),
 
-    -- DISCOVER_REPLY and NET_SET (PROTOCOL.md section 12)
-    disc_mac = ProtoField.ether("armctl.discover.mac", "MAC address"),
-    disc_ip = ProtoField.ipv4("armctl.discover.ip", "IPv4 address"),
-    disc_prefix = ProtoField.uint8("armctl.discover.prefix_len", "Prefix length", base.DEC),
-    disc_gateway = ProtoField.ipv4("armctl.discover.gateway", "Gateway"),
-    disc_mode = ProtoField.uint8("armctl.discover.addr_mode", "Address mode", base.DEC, addr_mode_names),
-    disc_version = ProtoField.string("armctl.discover.version", "Protocol version"),
-    disc_joints = ProtoField.uint8("armctl.discover.joints", "Joints", base.DEC),
-    disc_state = ProtoField.uint8("armctl.discover.state", "State", base.DEC, state_names),
-    disc_owner = ProtoField.uint8("armctl.discover.owner", "Owner state", base.DEC, owner_names),
-    disc_owner_ip = ProtoField.ipv4("armctl.discover.owner_ip", "Owner address"),
-    disc_pending = ProtoField.bool("armctl.discover.pending_reset", "New address stored, applied after reset", 8, nil, 0x01),
-    net_mode = ProtoField.uint8("armctl.net.addr_mode", "Address mode", base.DEC, addr_mode_names),
-    net_ip = ProtoField.ipv4("armctl.net.ip", "IPv4 address"),
-    net_prefix = ProtoField.uint8("armctl.net.prefix_len", "Prefix length", base.DEC),
-    net_gateway = ProtoField.ipv4("armctl.net.gateway", "Gateway"),
+    -- DISCOVER_REPLY and NET_SET (PROTOCOL.md, "Finding controllers and setting their address")
+    disc_mac = field("ether", "discover.mac", "MAC address"),
+    disc_ip = field("ipv4", "discover.ip", "IPv4 address"),
+    disc_prefix = dec("uint8", "discover.prefix_len", "Prefix length"),
+    disc_gateway = field("ipv4", "discover.gateway", "Gateway"),
+    disc_mode = dec("uint8", "discover.addr_mode", "Address mode", addr_mode_names),
+    disc_version = field("string", "discover.version", "Protocol version"),
+    disc_joints = dec("uint8", "discover.joints", "Joints"),
+    disc_state = dec("uint8", "discover.state", "State", state_names),
+    disc_owner = dec("uint8", "discover.owner", "Owner state", owner_names),
+    disc_owner_ip = field("ipv4", "discover.owner_ip", "Owner address"),
+    disc_pending = field("bool", "discover.pending_reset", "New address stored, applied after reset", 8, nil, 0x01),
+    net_mode = dec("uint8", "net.addr_mode", "Address mode", addr_mode_names),
+    net_ip = field("ipv4", "net.ip", "IPv4 address"),
+    net_prefix = dec("uint8", "net.prefix_len", "Prefix length"),
+    net_gateway = field("ipv4", "net.gateway", "Gateway"),
 
     -- what a controller answers to this command (host to controller only)
-    verdict = ProtoField.uint8("armctl.verdict", "Controller answers", base.DEC, status_names),
+    verdict = dec("uint8", "verdict", "Controller answers", status_names),
 
     -- analysis
-    response_in = ProtoField.framenum("armctl.response_in", "ACK in frame"),
-    response_to = ProtoField.framenum("armctl.response_to", "ACK to the command in frame"),
-    rtt = ProtoField.relative_time("armctl.time", "Round trip"),
-    retransmission = ProtoField.framenum("armctl.retransmission", "Retransmission of frame"),
+    response_in = field("framenum", "response_in", "ACK in frame"),
+    response_to = field("framenum", "response_to", "ACK to the command in frame"),
+    rtt = field("relative_time", "time", "Round trip"),
+    retransmission = field("framenum", "retransmission", "Retransmission of frame"),
 }
 local fields = {}
 for _, field in pairs(f) do fields[#fields + 1] = field end
@@ -251,10 +273,15 @@ local function dissect_point(tree, data, at, index)
     point:add_le(f.point_duration, data(at, 4), duration)
     add_positions(point, f.point_position, data, at + 84)
     local hints = point:add(armctl, data(at + 4, 80), "Timer hints (not used by the controller)")
-    for j = 0, 7 do hints:add_le(f.point_full, data(at + 4 + 2 * j, 2), data(at + 4 + 2 * j, 2):le_int()) end
-    for j = 0, 7 do hints:add_le(f.point_rest, data(at + 20 + 2 * j, 2), data(at + 20 + 2 * j, 2):le_int()) end
-    for j = 0, 7 do hints:add_le(f.point_nperiod, data(at + 36 + 2 * j, 2), data(at + 36 + 2 * j, 2):le_int()) end
-    for j = 0, 7 do hints:add_le(f.point_period, data(at + 52 + 4 * j, 4), data(at + 52 + 4 * j, 4):le_int()) end
+    -- Four arrays of 8 signed values: { field, offset, width }.
+    for _, array in ipairs({ { f.point_full, 4, 2 }, { f.point_rest, 20, 2 },
+        { f.point_nperiod, 36, 2 }, { f.point_period, 52, 4 } }) do
+        local field, offset, width = array[1], array[2], array[3]
+        for j = 0, 7 do
+            local range = data(at + offset + width * j, width)
+            hints:add_le(field, range, range:le_int())
+        end
+    end
 end
 
 local function dissect_location(tree, data)
@@ -284,17 +311,14 @@ local function dissect_status_report(tree, data)
         f.st_flag_pin1, f.st_flag_underrun, f.st_flag_pwm, f.st_flag_stopped }) do
         flags:add(bit, data(5, 1))
     end
-    tree:add_le(f.st_window, data(6, 2))
-    tree:add_le(f.st_buffered, data(8, 2))
-    tree:add_le(f.st_expected, data(10, 2))
-    tree:add_le(f.st_received, data(12, 2))
-    tree:add_le(f.st_executed, data(14, 2))
-    tree:add_le(f.st_capacity, data(16, 2))
-    tree:add_le(f.st_more_flags, data(18, 2))
-    tree:add_le(f.st_upload_period, data(20, 4))
-    tree:add_le(f.st_pwm_clock, data(24, 4))
-    tree:add_le(f.st_max_rate, data(28, 4))
-    tree:add_le(f.st_word32, data(32, 4))
+    -- u16 fields from offset 6, then u32 fields from offset 20.
+    for i, field in ipairs({ f.st_window, f.st_buffered, f.st_expected, f.st_received,
+        f.st_executed, f.st_capacity, f.st_more_flags }) do
+        tree:add_le(field, data(4 + 2 * i, 2))
+    end
+    for i, field in ipairs({ f.st_upload_period, f.st_pwm_clock, f.st_max_rate, f.st_word32 }) do
+        tree:add_le(field, data(16 + 4 * i, 4))
+    end
 end
 
 local function dissect_discover_reply(tree, data)
@@ -322,7 +346,8 @@ end
 -- Each returns a short summary for the Info column, or nil plus an error for a bad length.
 -- `len` is the data length, `data` the data range (nil when empty).
 
--- The status a controller answers to the frame being dissected (PROTOCOL.md section 8):
+-- The status a controller answers to the frame being dissected (PROTOCOL.md, the order of
+-- checks at the end of "Ordering, retransmission and duplicates"):
 -- the first failure found, or OK.
 local verdict = 0
 

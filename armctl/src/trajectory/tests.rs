@@ -57,7 +57,7 @@ fn resampling_interpolates_linearly_and_keeps_the_end_exact() {
         assert_eq!(p.position[2], 7);
     }
     assert_eq!(points[14].position[1], -250);
-    // Hints as PROTOCOL.md section 5 wants them.
+    // Hints as PROTOCOL.md, "Point (116 bytes)", wants them.
     assert_eq!(points[0].number_of_period[0], 100);
     assert_eq!(points[0].period[0], 1000);
 }

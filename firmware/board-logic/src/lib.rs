@@ -15,6 +15,9 @@
 //! * [`uart`]: the mapping of UART_INIT's HAL codes to a frame format.
 #![no_std]
 #![warn(missing_docs)]
+// Tests index and unwrap freely: a failing test is meant to panic.
+#![cfg_attr(not(test), warn(clippy::indexing_slicing, clippy::unwrap_used))]
+#![cfg_attr(not(test), warn(clippy::cast_possible_truncation))]
 
 #[cfg(test)]
 #[macro_use]

@@ -22,12 +22,12 @@ pub const SETTINGS_KEY: u8 = 1;
 /// Layout version in the record's first byte: a record written by another layout is
 /// ignored (defaults apply) rather than misread.
 pub const RECORD_VERSION: u8 = 1;
-/// Bytes of the record: version, joints, ip[4], prefix_len, reserved.
+/// Bytes of the record: version, joints, `ip[4]`, prefix_len, reserved.
 pub const RECORD_LEN: usize = 8;
 /// Map key of the network record NET_SET added (gateway, DHCP), beside the first record
 /// so that a record written before it still loads (with no gateway, static address).
 pub const NET_KEY: u8 = 2;
-/// Bytes of the network record: gateway[4], flags (bit 0: DHCP), reserved.
+/// Bytes of the network record: `gateway[4]`, flags (bit 0: DHCP), reserved.
 pub const NET_RECORD_LEN: usize = 6;
 
 /// The stored record for `settings`.

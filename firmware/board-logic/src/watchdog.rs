@@ -115,7 +115,10 @@ impl<const N: usize> Liveness<N> {
     /// Compares `now` with the counters at the previous check. Once a task is reported
     /// hung, it stays hung (the IWDG is never fed again).
     pub fn check(&mut self, now: [u32; N]) -> Verdict {
-        let stuck = (0..N).find(|&i| now[i] == self.last[i]);
+        let stuck = now
+            .iter()
+            .zip(&self.last)
+            .position(|(now, last)| now == last);
         self.last = now;
         match stuck {
             None if self.missed <= MISSED_CHECKS_ALLOWED => {

@@ -36,7 +36,8 @@ use core::ptr::addr_of;
 use arm_core::StepShared;
 use arm_core::tasks::{StepBackend, StepProgress};
 use arm_step::{
-    DirChange, JointBuffer, MAX_JOINTS, PRELUDE, PulsePeriod, Segment, StepStreams, StepTiming,
+    DirChange, JointBuffer, MAX_JOINTS, NUCLEO_STEP_TIMER_MAX_PERIOD_TICKS, PRELUDE, PulsePeriod,
+    Segment, StepStreams, StepTiming,
 };
 use embassy_stm32::interrupt::{InterruptExt, Priority};
 use embassy_stm32::{interrupt, pac};
@@ -212,7 +213,7 @@ impl JointTimer {
 
 /// The timer of joint `joint` (pins.rs has the map and the reasons).
 fn joint_timer(joint: usize) -> JointTimer {
-    // (Joints 0 and 1 have 32-bit counters: MAX_PERIOD_TICKS.)
+    // (Joints 0 and 1 have 32-bit counters: NUCLEO_STEP_TIMER_MAX_PERIOD_TICKS.)
     let t = |base: *mut (), request, has_moe| JointTimer {
         base: base.cast(),
         request,
@@ -233,19 +234,6 @@ fn joint_timer(joint: usize) -> JointTimer {
         _ => t(pac::TIM17.as_ptr(), 112, true),
     }
 }
-
-/// Longest period of each joint's timer: 2^32 ticks for TIM2/TIM5 (21 s), 2^16 for the
-/// 16-bit ones (328 us: longer gaps are split into periods without a pulse).
-pub const MAX_PERIOD_TICKS: [u32; MAX_JOINTS] = [
-    u32::MAX,
-    u32::MAX,
-    1 << 16,
-    1 << 16,
-    1 << 16,
-    1 << 16,
-    1 << 16,
-    1 << 16,
-];
 
 /// Words the stream moves per period (ARR, RCR, CCR1).
 const WORDS_PER_PERIOD: usize = 3;
@@ -730,9 +718,10 @@ pub fn init() {
     );
     STEP.with_engine(|steps| {
         if steps.streams.is_none() {
-            steps
-                .streams
-                .set(StepStreams::new(STEP_TIMING, MAX_PERIOD_TICKS));
+            steps.streams.set(StepStreams::new(
+                STEP_TIMING,
+                NUCLEO_STEP_TIMER_MAX_PERIOD_TICKS,
+            ));
         }
     });
     pac::RCC.apb1lenr().modify(|w| {

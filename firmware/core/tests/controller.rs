@@ -272,14 +272,9 @@ fn golden_frames_get_the_right_status() {
         );
         assert_eq!(reply.to, HOST);
         let want = match f["expect_status"].as_str() {
-            Some(code) => match code {
-                "BAD_CRC" => BadCrc,
-                "UNKNOWN_TAG" => UnknownTag,
-                "BAD_LENGTH" => BadLength,
-                "UNSUPPORTED" => Unsupported,
-                "INVALID_CONFIG" => InvalidConfig,
-                other => panic!("unexpected code {other}"),
-            },
+            Some(code) => {
+                StatusCode::from_name(code).unwrap_or_else(|| panic!("unexpected code {code}"))
+            }
             // Valid frames, at boot (STOPPED, serial closed).
             None => match Tag::from_u8(bytes[1]) {
                 Some(Tag::Pending | Tag::Runing | Tag::UsartSend) => BadState,

@@ -5,8 +5,8 @@
 use std::hint::black_box;
 
 use arm_step::{
-    JointBuffer, JointMask, MAX_JOINTS, PRELUDE, PulsePeriod, Segment, StepEngine, StepPins,
-    StepStreams, StepTiming,
+    JointBuffer, JointMask, MAX_JOINTS, NUCLEO_STEP_TIMER_MAX_PERIOD_TICKS, PRELUDE, PulsePeriod,
+    Segment, StepEngine, StepPins, StepStreams, StepTiming,
 };
 use criterion::{BatchSize, Criterion, Throughput, criterion_group, criterion_main};
 
@@ -76,18 +76,6 @@ fn run(mut engine: StepEngine<SEGMENTS>) -> [i32; MAX_JOINTS] {
 /// Periods per DMA buffer half, as on the board.
 const HALF: usize = 64;
 
-/// The board's timer ranges: two 32-bit timers, six 16-bit ones.
-const MAX_PERIOD: [u32; MAX_JOINTS] = [
-    u32::MAX,
-    u32::MAX,
-    1 << 16,
-    1 << 16,
-    1 << 16,
-    1 << 16,
-    1 << 16,
-    1 << 16,
-];
-
 /// The producer with every segment queued, and the buffers it fills.
 struct Producing {
     streams: Box<StepStreams<SEGMENTS, HALF>>,
@@ -95,7 +83,7 @@ struct Producing {
 }
 
 fn producing(segments: &[Segment]) -> Producing {
-    let mut streams = Box::new(StepStreams::new(TIMING, MAX_PERIOD));
+    let mut streams = Box::new(StepStreams::new(TIMING, NUCLEO_STEP_TIMER_MAX_PERIOD_TICKS));
     for segment in segments {
         assert!(streams.producer().push(*segment).is_ok());
     }
@@ -129,6 +117,33 @@ fn produce(mut p: Producing) -> [i32; MAX_JOINTS] {
     p.streams.producer_ref().positions()
 }
 
+/// One benchmark per case: `setup` (not measured) then `play`, which must emit every step
+/// (checked once before measuring), in steps per second.
+fn group<S>(
+    c: &mut Criterion,
+    name: &str,
+    cases: &[(&str, [i32; MAX_JOINTS])],
+    setup: fn(&[Segment]) -> S,
+    play: fn(S) -> [i32; MAX_JOINTS],
+) {
+    let mut group = c.benchmark_group(name);
+    for &(name, steps) in cases {
+        let segments = trajectory(steps);
+        let total: u64 = segments
+            .iter()
+            .flat_map(|s| s.steps)
+            .map(|n| u64::from(n.unsigned_abs()))
+            .sum();
+        // Sanity: the run emits every step.
+        assert_eq!(play(setup(&segments)), [0; MAX_JOINTS]);
+        group.throughput(Throughput::Elements(total));
+        group.bench_function(name, |b| {
+            b.iter_batched(|| setup(&segments), play, BatchSize::SmallInput)
+        });
+    }
+    group.finish();
+}
+
 fn bench(c: &mut Criterion) {
     let cases: [(&str, [i32; MAX_JOINTS]); 3] = [
         ("1 joint", [100, 0, 0, 0, 0, 0, 0, 0]),
@@ -138,39 +153,8 @@ fn bench(c: &mut Criterion) {
             [100, 97, 89, 83, 79, 73, 71, 67],
         ),
     ];
-    let mut group = c.benchmark_group("poll per step");
-    for (name, steps) in cases {
-        let segments = trajectory(steps);
-        let total: u64 = segments
-            .iter()
-            .flat_map(|s| s.steps)
-            .map(|n| u64::from(n.unsigned_abs()))
-            .sum();
-        // Sanity: the run emits every step.
-        let end = run(loaded(&segments));
-        assert_eq!(end, [0; MAX_JOINTS]);
-        group.throughput(Throughput::Elements(total));
-        group.bench_function(name, |b| {
-            b.iter_batched(|| loaded(&segments), run, BatchSize::SmallInput)
-        });
-    }
-    group.finish();
-
-    let mut group = c.benchmark_group("producer per step");
-    for (name, steps) in cases {
-        let segments = trajectory(steps);
-        let total: u64 = segments
-            .iter()
-            .flat_map(|s| s.steps)
-            .map(|n| u64::from(n.unsigned_abs()))
-            .sum();
-        assert_eq!(produce(producing(&segments)), [0; MAX_JOINTS]);
-        group.throughput(Throughput::Elements(total));
-        group.bench_function(name, |b| {
-            b.iter_batched(|| producing(&segments), produce, BatchSize::SmallInput)
-        });
-    }
-    group.finish();
+    group(c, "poll per step", &cases, loaded, run);
+    group(c, "producer per step", &cases, producing, produce);
 }
 
 criterion_group!(benches, bench);

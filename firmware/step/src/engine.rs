@@ -1,15 +1,9 @@
 //! [`StepEngine`]: the segment queue, each joint's walk through it, and `poll`.
 
 use crate::joint::Joint;
-use crate::ring::{SegmentRing, Slot};
+use crate::ring::SegmentRing;
 use crate::schedule::{Edges, at_most_two};
-use crate::{JointMask, MAX_JOINTS, Poll, Segment, StepPins, StepTiming};
-
-/// Every joint.
-const ALL_JOINTS: JointMask = 0xFF;
-
-/// Microseconds per second: segment durations are in microseconds.
-const US_PER_S: u64 = 1_000_000;
+use crate::{ALL_JOINTS, JointMask, MAX_JOINTS, Poll, Segment, StepPins, StepTiming, US_PER_S};
 
 /// The set bits of a joint mask, lowest first.
 #[derive(Clone, Copy)]
@@ -160,19 +154,10 @@ impl<const QUEUE: usize> StepEngine<QUEUE> {
     /// next `poll`. That poll comes at the latest when the segment before it ends, so no
     /// kick is needed for timing; kicking lets those joints set their DIR lines early.
     pub fn push(&mut self, segment: Segment) -> Result<(), Segment> {
-        let start = self.queue_end;
-        let end = start.after(segment.duration_us, self.tick_hz);
-        let slot = Slot {
-            steps: segment.steps,
-            duration_us: segment.duration_us,
-            start_frac: start.frac,
-            start_tick: start.tick,
-            end_tick: end.tick,
-            pending: ALL_JOINTS,
-        };
-        if self.ring.push_back(slot).is_err() {
-            return Err(segment);
-        }
+        let end = self
+            .ring
+            .push_segment(&segment, self.queue_end, self.tick_hz);
+        let end = end.ok_or(segment)?;
         self.queue_end = end;
         self.pushed = true;
         if self.running && self.ring.len() == 1 {
@@ -249,22 +234,14 @@ impl<const QUEUE: usize> StepEngine<QUEUE> {
 
     /// Position of each joint in steps, counted per pulse actually emitted.
     pub fn positions(&self) -> [i32; MAX_JOINTS] {
-        let mut positions = [0; MAX_JOINTS];
-        for (position, joint) in positions.iter_mut().zip(&self.joints) {
-            *position = joint.position;
-        }
-        positions
+        self.joints.each_ref().map(|joint| joint.position)
     }
 
     /// Overwrites the position counters (calibration); refused (false) while running.
     pub fn set_positions(&mut self, positions: [i32; MAX_JOINTS]) -> bool {
-        if self.running {
-            return false;
-        }
-        for (joint, position) in self.joints.iter_mut().zip(positions) {
-            joint.position = position;
-        }
-        true
+        crate::set_positions(self.running, &mut self.joints, positions, |j| {
+            &mut j.position
+        })
     }
 
     /// Emits every edge due at or before `now_tick` (STEP low after pulse width, DIR
@@ -399,7 +376,8 @@ impl<const QUEUE: usize> StepEngine<QUEUE> {
             return;
         };
         loop {
-            let held = joint.ordinal.wrapping_sub(self.head_ordinal) < self.ring.len() as u32;
+            let held = joint.ordinal.wrapping_sub(self.head_ordinal)
+                < u32::try_from(self.ring.len()).unwrap_or(u32::MAX);
             let slot = match self.ring.get_mut(joint.slot) {
                 Some(slot) if held => slot,
                 _ => {

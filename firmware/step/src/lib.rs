@@ -34,6 +34,10 @@
 //! edge barely depends on how many joints move (a small tournament tree keeps the next
 //! deadline).
 #![no_std]
+#![warn(missing_docs)]
+// Tests index and unwrap freely: a failing test is meant to panic.
+#![cfg_attr(not(test), warn(clippy::indexing_slicing, clippy::unwrap_used))]
+#![cfg_attr(not(test), warn(clippy::cast_possible_truncation))]
 
 mod engine;
 mod joint;
@@ -49,8 +53,30 @@ pub use stream::{DirChange, JointBuffer, PRELUDE, Refill, StepStreams};
 /// Joints the engine drives.
 pub const MAX_JOINTS: usize = 8;
 
+/// The NUCLEO-H743ZI2's step timers: the longest period each joint's timer makes, 2^32
+/// ticks for TIM2 and TIM5 (32-bit, joints 0-1: 21 s at 200 MHz), 2^16 for the 16-bit ones
+/// (joints 2-7: 328 us; longer gaps are split into periods without a pulse). The board
+/// builds its [`StepStreams`] with it; sim-host and the benchmarks (step-cost, the
+/// scheduler bench) run the board's ranges.
+pub const NUCLEO_STEP_TIMER_MAX_PERIOD_TICKS: [u32; MAX_JOINTS] = [
+    u32::MAX,
+    u32::MAX,
+    1 << 16,
+    1 << 16,
+    1 << 16,
+    1 << 16,
+    1 << 16,
+    1 << 16,
+];
+
 /// Bit `j` = joint `j`.
 pub type JointMask = u8;
+
+/// Every joint.
+const ALL_JOINTS: JointMask = 0xFF;
+
+/// Microseconds per second: segment durations are in microseconds.
+const US_PER_S: u64 = 1_000_000;
 
 /// One trajectory segment as the engine sees it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
@@ -60,6 +86,22 @@ pub struct Segment {
     pub duration_us: u32,
     /// Signed steps per joint; the sign is the direction (positive = DIR high).
     pub steps: [i32; MAX_JOINTS],
+}
+
+/// Sets each joint's step counter (`counter`) to `positions`, unless a run is under way
+/// (then false): `set_positions` of [`StepEngine`] and [`PulseProducer`].
+fn set_positions<J>(
+    running: bool,
+    joints: &mut [J; MAX_JOINTS],
+    positions: [i32; MAX_JOINTS],
+    counter: fn(&mut J) -> &mut i32,
+) -> bool {
+    if !running {
+        for (joint, position) in joints.iter_mut().zip(positions) {
+            *counter(joint) = position;
+        }
+    }
+    !running
 }
 
 /// Timer resolution and driver timing requirements.
@@ -112,6 +154,7 @@ impl StepTiming {
 
     /// Highest per-joint step rate the driver timing allows: `tick_hz` over the pulse width
     /// plus the least low time.
+    #[allow(clippy::cast_possible_truncation, reason = "at most tick_hz, a u32")]
     pub const fn max_step_rate_hz(&self) -> u32 {
         (self.tick_hz as u64 / self.min_pulse_period_ticks()) as u32
     }

@@ -1,6 +1,7 @@
 //! A fixed ring of queued segments (no dependencies, no allocation).
 
-use crate::{JointMask, MAX_JOINTS};
+use crate::engine::QueueEnd;
+use crate::{ALL_JOINTS, JointMask, MAX_JOINTS, Segment};
 
 /// One queued segment and its place on the run's timeline, worked out when it is pushed so
 /// that the interrupt never divides by 1_000_000.
@@ -69,6 +70,26 @@ impl<const QUEUE: usize> SegmentRing<QUEUE> {
     /// Index of the oldest held slot (where the next pushed slot goes if the ring is empty).
     pub fn head_index(&self) -> usize {
         self.head
+    }
+
+    /// Appends `segment`, to start at `start` (the queue's end, on a timeline of `tick_hz`);
+    /// the queue's new end, or `None` if the ring is full.
+    pub fn push_segment(
+        &mut self,
+        segment: &Segment,
+        start: QueueEnd,
+        tick_hz: u64,
+    ) -> Option<QueueEnd> {
+        let end = start.after(segment.duration_us, tick_hz);
+        let slot = Slot {
+            steps: segment.steps,
+            duration_us: segment.duration_us,
+            start_frac: start.frac,
+            start_tick: start.tick,
+            end_tick: end.tick,
+            pending: ALL_JOINTS,
+        };
+        self.push_back(slot).ok().map(|()| end)
     }
 
     /// Appends `slot`; gives it back if the ring is full.

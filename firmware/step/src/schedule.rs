@@ -24,12 +24,20 @@ impl Edges {
 
     /// Joint `j`'s next edge.
     #[inline(always)]
+    #[allow(
+        clippy::indexing_slicing,
+        reason = "the joint number is masked to 0..MAX_JOINTS"
+    )]
     pub fn get(&self, j: usize) -> u64 {
         self.ticks[j & (MAX_JOINTS - 1)]
     }
 
     /// Sets joint `j`'s next edge.
     #[inline(always)]
+    #[allow(
+        clippy::indexing_slicing,
+        reason = "the joint number is masked to 0..MAX_JOINTS"
+    )]
     pub fn set(&mut self, j: usize, tick: u64) {
         self.ticks[j & (MAX_JOINTS - 1)] = tick;
     }

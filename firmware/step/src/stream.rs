@@ -89,6 +89,10 @@ impl DirRing {
     };
 
     /// Queues a change; false if full.
+    #[allow(
+        clippy::indexing_slicing,
+        reason = "at is reduced modulo DIR_RING, the ring's length"
+    )]
     fn push(&mut self, tick: u64, positive: bool) -> bool {
         if self.len >= DIR_RING {
             return false;
@@ -158,6 +162,10 @@ impl<const Q: usize, const HALF: usize> StepStreams<Q, HALF> {
     /// Fills `prelude[j]` (for joint `j`'s timer registers) and both halves of `buffers[j]`.
     /// The DIR changes at tick 0 are queued like the others: make them before starting
     /// the timers.
+    #[allow(
+        clippy::indexing_slicing,
+        reason = "joint enumerates [_; MAX_JOINTS] arrays, the length of the per-joint ones indexed"
+    )]
     pub fn prime(
         &mut self,
         at_tick: u64,
@@ -199,6 +207,10 @@ impl<const Q: usize, const HALF: usize> StepStreams<Q, HALF> {
     /// Refills `half` (0 or 1) of `joint`'s buffer (`periods`: that half) once the DMA has
     /// moved on to the other half: the body of the stream's half/complete interrupt.
     #[inline]
+    #[allow(
+        clippy::indexing_slicing,
+        reason = "the joint number is masked to 0..MAX_JOINTS and the half to 0..2, the arrays' lengths"
+    )]
     pub fn refill(
         &mut self,
         joint: usize,
@@ -240,12 +252,10 @@ impl<const Q: usize, const HALF: usize> StepStreams<Q, HALF> {
     /// The oldest DIR change of `joint` not made yet.
     pub fn next_dir_change(&self, joint: usize) -> Option<DirChange> {
         let dirs = self.dirs.get(joint)?;
-        (dirs.len > 0).then(|| {
-            let packed = dirs.changes[dirs.head];
-            DirChange {
-                tick: packed & !DIR_LEVEL,
-                positive: packed & DIR_LEVEL != 0,
-            }
+        let packed = *dirs.changes.get(dirs.head).filter(|_| dirs.len > 0)?;
+        Some(DirChange {
+            tick: packed & !DIR_LEVEL,
+            positive: packed & DIR_LEVEL != 0,
         })
     }
 
@@ -281,6 +291,10 @@ impl<const Q: usize, const HALF: usize> StepStreams<Q, HALF> {
     }
 
     /// The unplayed pulses in the case of [`StepStreams::unwind_evicted`].
+    #[allow(
+        clippy::indexing_slicing,
+        reason = "the joint number is masked to 0..MAX_JOINTS and the half to 0..2, the arrays' lengths"
+    )]
     pub fn unplayed_evicted(&self, joint: usize, periods: &JointBuffer<HALF>, half: usize) -> i32 {
         let j = joint & (MAX_JOINTS - 1);
         let h = half & 1;
@@ -296,6 +310,10 @@ impl<const Q: usize, const HALF: usize> StepStreams<Q, HALF> {
     /// transferred anything). The rest of that period's half is unplayed, and so is the
     /// other half unless `other_half_played` (its refill interrupt is still pending: it
     /// holds periods that already played).
+    #[allow(
+        clippy::indexing_slicing,
+        reason = "the joint number is masked to 0..MAX_JOINTS; h = index / HALF < 2 (index < 2 * HALF), from <= HALF, the halves' length; PRELUDE - 1 < PRELUDE"
+    )]
     pub fn unplayed_steps(
         &self,
         joint: usize,

@@ -14,9 +14,8 @@ const TIMING: StepTiming = StepTiming {
     step_low_ticks: 20,
 };
 
-/// Plays the streams period by period (refilling a half when the player enters the other
-/// one, as the DMA interrupts do) and stops after `stop_after` periods of every joint.
-fn stop_after(segments: &[Segment], stop_after: u64) -> ([i32; MAX_JOINTS], [i32; MAX_JOINTS]) {
+/// Streams with `segments` queued, and zeroed preludes and buffers for them.
+fn queued(segments: &[Segment]) -> (Streams, Prelude, Vec<JointBuffer<HALF>>) {
     let mut streams = Box::new(StepStreams::<QUEUE, HALF>::new(
         TIMING,
         [1 << 16; MAX_JOINTS],
@@ -24,8 +23,18 @@ fn stop_after(segments: &[Segment], stop_after: u64) -> ([i32; MAX_JOINTS], [i32
     for segment in segments {
         assert!(streams.producer().push(*segment).is_ok());
     }
-    let mut prelude = [[PulsePeriod::ZERO; PRELUDE]; MAX_JOINTS];
-    let mut buffers: Vec<JointBuffer<HALF>> = (0..MAX_JOINTS).map(|_| JointBuffer::ZERO).collect();
+    let prelude = [[PulsePeriod::ZERO; PRELUDE]; MAX_JOINTS];
+    let buffers = (0..MAX_JOINTS).map(|_| JointBuffer::ZERO).collect();
+    (streams, prelude, buffers)
+}
+
+type Streams = Box<StepStreams<QUEUE, HALF>>;
+type Prelude = [[PulsePeriod; PRELUDE]; MAX_JOINTS];
+
+/// Plays the streams period by period (refilling a half when the player enters the other
+/// one, as the DMA interrupts do) and stops after `stop_after` periods of every joint.
+fn stop_after(segments: &[Segment], stop_after: u64) -> ([i32; MAX_JOINTS], [i32; MAX_JOINTS]) {
+    let (mut streams, mut prelude, mut buffers) = queued(segments);
     let mut played = [0i32; MAX_JOINTS];
     {
         let mut it = buffers.iter_mut();
@@ -73,15 +82,7 @@ fn stop_after(segments: &[Segment], stop_after: u64) -> ([i32; MAX_JOINTS], [i32
 /// started leaves period `stop` in the preload register: unplayed, though its half may
 /// have been refilled over it.
 fn board_stop_after(segments: &[Segment], stop: u64) -> ([i32; MAX_JOINTS], [i32; MAX_JOINTS]) {
-    let mut streams = Box::new(StepStreams::<QUEUE, HALF>::new(
-        TIMING,
-        [1 << 16; MAX_JOINTS],
-    ));
-    for segment in segments {
-        assert!(streams.producer().push(*segment).is_ok());
-    }
-    let mut prelude = [[PulsePeriod::ZERO; PRELUDE]; MAX_JOINTS];
-    let mut buffers: Vec<JointBuffer<HALF>> = (0..MAX_JOINTS).map(|_| JointBuffer::ZERO).collect();
+    let (mut streams, mut prelude, mut buffers) = queued(segments);
     {
         let mut it = buffers.iter_mut();
         let mut all: [&mut JointBuffer<HALF>; MAX_JOINTS] =
@@ -134,6 +135,14 @@ fn board_stop_after(segments: &[Segment], stop: u64) -> ([i32; MAX_JOINTS], [i32
     (positions, played)
 }
 
+/// One segment per duration, each with the same `steps`.
+fn segments(steps: [i32; MAX_JOINTS], durations: &[u32]) -> Vec<Segment> {
+    durations
+        .iter()
+        .map(|&duration_us| Segment { duration_us, steps })
+        .collect()
+}
+
 proptest! {
     #![proptest_config(ProptestConfig { cases: 64, ..ProptestConfig::default() })]
 
@@ -146,11 +155,7 @@ proptest! {
         durations in prop::collection::vec(50u32..=2_000, 1..=QUEUE),
         stop in 0u64..200,
     ) {
-        let segments: Vec<Segment> = durations
-            .iter()
-            .map(|&duration_us| Segment { duration_us, steps })
-            .collect();
-        let (positions, played) = stop_after(&segments, stop);
+        let (positions, played) = stop_after(&segments(steps, &durations), stop);
         prop_assert_eq!(positions, played);
     }
 
@@ -162,11 +167,7 @@ proptest! {
         durations in prop::collection::vec(50u32..=2_000, 1..=QUEUE),
         stop in 1u64..200,
     ) {
-        let segments: Vec<Segment> = durations
-            .iter()
-            .map(|&duration_us| Segment { duration_us, steps })
-            .collect();
-        let (positions, played) = board_stop_after(&segments, stop);
+        let (positions, played) = board_stop_after(&segments(steps, &durations), stop);
         prop_assert_eq!(positions, played);
     }
 }

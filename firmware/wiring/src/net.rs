@@ -38,11 +38,11 @@ static UDP_RX: ConstStaticCell<[u8; UDP_RX_BYTES]> = ConstStaticCell::new([0; UD
 static UDP_TX_META: StaticCell<[PacketMetadata; UDP_TX_PACKETS]> = StaticCell::new();
 static UDP_TX: ConstStaticCell<[u8; UDP_TX_BYTES]> = ConstStaticCell::new([0; UDP_TX_BYTES]);
 
-/// The stack's address configuration from the stored settings (PROTOCOL.md section 12):
-/// the static address `ip`/`prefix_len`, and the stored gateway (none when 0.0.0.0; with
-/// one, the board also answers hosts beyond its subnet). A stored DHCP choice (NET_SET
-/// `--dhcp`) needs the `dhcp` build: this one logs that and keeps the static address, which
-/// NET_SET stores alongside for that fallback.
+/// The stack's address configuration from the stored settings (PROTOCOL.md, "Finding
+/// controllers and setting their address"): the static address `ip`/`prefix_len`, and the
+/// stored gateway (none when 0.0.0.0; with one, the board also answers hosts beyond its
+/// subnet). A stored DHCP choice (NET_SET `--dhcp`) needs the `dhcp` build: this one logs
+/// that and keeps the static address, which NET_SET stores alongside for that fallback.
 #[cfg(not(feature = "dhcp"))]
 pub fn ip_config(settings: &PersistentSettings) -> embassy_net::Config {
     if settings.dhcp {

@@ -12,7 +12,10 @@
 use core::hint::black_box;
 use core::ptr::{addr_of_mut, read_volatile, write_volatile};
 
-use arm_step::{JointBuffer, MAX_JOINTS, PRELUDE, PulsePeriod, Segment, StepStreams, StepTiming};
+use arm_step::{
+    JointBuffer, MAX_JOINTS, NUCLEO_STEP_TIMER_MAX_PERIOD_TICKS, PRELUDE, PulsePeriod, Segment,
+    StepStreams, StepTiming,
+};
 use cortex_m_rt::entry;
 use cortex_m_semihosting::{debug, hprintln};
 
@@ -30,20 +33,8 @@ const TIMING: StepTiming = StepTiming {
     step_low_ticks: 500,
 };
 
-/// Timer ranges as on the board: TIM2 and TIM5 (32-bit) for joints 0 and 1, 16-bit
-/// timers for the others.
-const MAX_PERIOD: [u32; MAX_JOINTS] = [
-    u32::MAX,
-    u32::MAX,
-    1 << 16,
-    1 << 16,
-    1 << 16,
-    1 << 16,
-    1 << 16,
-    1 << 16,
-];
-
-static mut STREAMS: StepStreams<SEGMENTS, HALF> = StepStreams::new(TIMING, MAX_PERIOD);
+static mut STREAMS: StepStreams<SEGMENTS, HALF> =
+    StepStreams::new(TIMING, NUCLEO_STEP_TIMER_MAX_PERIOD_TICKS);
 static mut BUFFERS: [JointBuffer<HALF>; MAX_JOINTS] = [JointBuffer::ZERO; MAX_JOINTS];
 static mut PRELUDES: [[PulsePeriod; PRELUDE]; MAX_JOINTS] =
     [[PulsePeriod::ZERO; PRELUDE]; MAX_JOINTS];

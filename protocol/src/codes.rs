@@ -1,0 +1,220 @@
+//! The wire's code tables (tags, states, status codes): each declared once by
+//! [`wire_code!`], which makes the enum and its conversions from the one list.
+
+/// Declares a `#[repr(u8)]` wire code: each variant with its doc comment, its byte and its
+/// upper-case name as docs/PROTOCOL.md spells it (`Variant = 0x00 => "NAME",`). Generates
+/// `ALL`, `from_u8`, `TryFrom<u8>`, `From<_> for u8`, `name`, `name_of`, `from_name` and
+/// `Display` (the name), so that no other crate keeps a table of its own.
+macro_rules! wire_code {
+    (
+        $(#[$meta:meta])*
+        pub enum $code:ident {
+            $(
+                $(#[$variant_meta:meta])*
+                $variant:ident = $byte:literal => $name:literal,
+            )+
+        }
+    ) => {
+        $(#[$meta])*
+        #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+        #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+        #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+        #[repr(u8)]
+        pub enum $code {
+            $(
+                $(#[$variant_meta])*
+                $variant = $byte,
+            )+
+        }
+
+        impl $code {
+            /// Every value, in the order of their bytes.
+            pub const ALL: &'static [$code] = &[$($code::$variant),+];
+
+            /// The value for a byte, if there is one.
+            pub const fn from_u8(b: u8) -> Option<$code> {
+                match b {
+                    $($byte => Some($code::$variant),)+
+                    _ => None,
+                }
+            }
+
+            /// The upper-case name, as docs/PROTOCOL.md spells it.
+            pub const fn name(self) -> &'static str {
+                match self {
+                    $($code::$variant => $name,)+
+                }
+            }
+
+            /// The name of the value of byte `b`, or "?" if no value has it (for logs and
+            /// displays of bytes as received).
+            pub const fn name_of(b: u8) -> &'static str {
+                match $code::from_u8(b) {
+                    Some(code) => code.name(),
+                    None => "?",
+                }
+            }
+
+            /// The value [`name`](Self::name) gives `name` for, if there is one.
+            pub fn from_name(name: &str) -> Option<$code> {
+                Self::ALL.iter().copied().find(|c| c.name() == name)
+            }
+        }
+
+        impl TryFrom<u8> for $code {
+            /// The byte that names no value.
+            type Error = u8;
+            fn try_from(b: u8) -> Result<$code, u8> {
+                $code::from_u8(b).ok_or(b)
+            }
+        }
+
+        impl From<$code> for u8 {
+            fn from(code: $code) -> u8 {
+                code as u8
+            }
+        }
+
+        impl core::fmt::Display for $code {
+            fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+                f.write_str(self.name())
+            }
+        }
+    };
+}
+
+wire_code! {
+    /// A frame's tag byte: the command or report it carries. Its name is the command's
+    /// (host direction): 0x13 is "LOCATION_SETTING" (the report is LOCATION).
+    pub enum Tag {
+        /// Start an upload of `count` points.
+        New = 0x00 => "NEW",
+        /// 1..12 trajectory points.
+        Pending = 0x01 => "PENDING",
+        /// Start executing (the manual's spelling).
+        Runing = 0x02 => "RUNING",
+        /// Stop at once, drop the buffer.
+        Stopped = 0x03 => "STOPPED",
+        /// Location reports on.
+        UploadStart = 0x04 => "UPLOAD_START",
+        /// Location reports off.
+        UploadStop = 0x05 => "UPLOAD_STOP",
+        /// Gripper PWM on.
+        PwmStart = 0x06 => "PWM_START",
+        /// Gripper PWM off.
+        PwmStop = 0x07 => "PWM_STOP",
+        /// Open the pass-through serial port.
+        UsartStart = 0x08 => "USART_START",
+        /// Close it.
+        UsartStop = 0x09 => "USART_STOP",
+        /// Bytes to write to the serial port.
+        UsartSend = 0x0a => "USART_SEND",
+        /// Bytes read from the serial port (controller to host).
+        UsartRecv = 0x0b => "USART_RECV",
+        /// GPIO_0 high.
+        Pin0On = 0x0c => "PIN0_ON",
+        /// GPIO_0 low.
+        Pin0Off = 0x0d => "PIN0_OFF",
+        /// GPIO_1 high.
+        Pin1On = 0x0e => "PIN1_ON",
+        /// GPIO_1 low.
+        Pin1Off = 0x0f => "PIN1_OFF",
+        /// Toggle driver ENABLE lines.
+        ToggleEnablePins = 0x10 => "TOGGLE_ENABLE_PINS",
+        /// Move every joint to zero.
+        Return = 0x11 => "RETURN",
+        /// Set the number of joints.
+        JointsCount = 0x12 => "JOINTS_COUNT",
+        /// LOCATION_SETTING (host to controller) or LOCATION (controller to host).
+        Location = 0x13 => "LOCATION_SETTING",
+        /// ACK (controller to host).
+        Ack = 0x14 => "ACK",
+        /// STATUS request or report.
+        Status = 0x15 => "STATUS",
+        /// Location report period.
+        UploadPeriod = 0x16 => "UPLOAD_PERIOD",
+        /// Who is there? Answered by every controller, from any host (PROTOCOL.md,
+        /// "Finding controllers and setting their address").
+        Discover = 0x20 => "DISCOVER",
+        /// Store the controller's network settings (applied after a reset).
+        NetSet = 0x21 => "NET_SET",
+        /// The answer to DISCOVER (controller to host).
+        DiscoverReply = 0x22 => "DISCOVER_REPLY",
+    }
+}
+
+wire_code! {
+    /// The trajectory state machine's state, as LOCATION, ACK and STATUS carry it.
+    #[derive(Default)]
+    pub enum State {
+        /// NEW arrived; waiting for the first points.
+        New = 0 => "NEW",
+        /// Points arriving; not moving.
+        Pending = 1 => "PENDING",
+        /// Executing the buffered points.
+        Running = 2 => "RUNNING",
+        /// Idle: boot, after a run, after STOPPED.
+        #[default]
+        Stopped = 3 => "STOPPED",
+    }
+}
+
+wire_code! {
+    /// An ACK's status: 0 = done, anything else = the command did nothing. Names as in
+    /// docs/PROTOCOL.md, "Status codes (the ACK's `status`)".
+    pub enum StatusCode {
+        /// Done.
+        Ok = 0 => "OK",
+        /// CRC mismatch; nothing done.
+        BadCrc = 1 => "BAD_CRC",
+        /// No such command.
+        UnknownTag = 2 => "UNKNOWN_TAG",
+        /// Data length wrong for the tag.
+        BadLength = 3 => "BAD_LENGTH",
+        /// Not allowed in the current state.
+        BadState = 4 => "BAD_STATE",
+        /// PENDING seq is not `next_seq`.
+        OutOfOrder = 5 => "OUT_OF_ORDER",
+        /// More points than NEW announced.
+        TooManyPoints = 6 => "TOO_MANY_POINTS",
+        /// A point breaks the trajectory rules (step rate, duration).
+        InvalidPoint = 7 => "INVALID_POINT",
+        /// Not enough free buffer slots.
+        BufferFull = 8 => "BUFFER_FULL",
+        /// Another host owns the controller.
+        NotOwner = 9 => "NOT_OWNER",
+        /// Not a command a host may send.
+        Unsupported = 10 => "UNSUPPORTED",
+        /// A configuration value out of range.
+        InvalidConfig = 11 => "INVALID_CONFIG",
+    }
+}
+
+impl StatusCode {
+    /// What a host should do about it.
+    pub const fn advice(self) -> &'static str {
+        use StatusCode::*;
+        match self {
+            Ok => "nothing",
+            BadCrc => "the frame was damaged on the way: resend it",
+            UnknownTag => "the controller has no such command: check the tag",
+            BadLength => "the data length is wrong for this command: check the encoder",
+            BadState => {
+                "not allowed in the controller's current state: STOP it or wait for the run to end"
+            }
+            OutOfOrder => "a PENDING frame was lost: resend from the ACK's next_seq",
+            TooManyPoints => "more points than NEW announced: send NEW with the right count",
+            InvalidPoint => {
+                "a point asks for more than the controller's max step rate, or has a duration under 1 us"
+            }
+            BufferFull => "the trajectory buffer is full: resend when the ACK's `free` allows",
+            NotOwner => {
+                "another host owns the controller: wait 5 s after it goes quiet, or have it release the arm"
+            }
+            Unsupported => "this frame only goes from controller to host",
+            InvalidConfig => {
+                "a value is out of its range (PWM, serial, joint count, point count, upload period)"
+            }
+        }
+    }
+}

@@ -1,0 +1,338 @@
+//! [`Command`]: what a host sends, decoded from and encoded into a datagram.
+
+use crate::codec::{u8_at, u16_be, u32_le};
+use crate::codes::Tag;
+use crate::error::{DecodeError, DecodeErrorKind, EncodeError, ExpectedLen, Field};
+use crate::frame::{Frame, PointList, open, seal};
+use crate::net::NetSettings;
+use crate::types::{Location, Pwm, UartInit};
+use crate::{FRAME_OVERHEAD, MAX_POINTS_PER_FRAME, MAX_SERIAL_CHUNK, limits, size};
+
+/// A command from a host to the controller (docs/PROTOCOL.md, "Commands (host to controller)").
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize))]
+pub enum Command<'a> {
+    /// Start an upload of `count` points (big-endian on the wire).
+    New {
+        /// Points the trajectory will have, 1..65535.
+        count: u16,
+    },
+    /// 1..12 points to append.
+    Pending(PointList<'a>),
+    /// Start executing.
+    Runing,
+    /// Stop at once and drop the buffer.
+    Stopped,
+    /// Location reports on.
+    UploadStart,
+    /// Location reports off.
+    UploadStop,
+    /// Gripper PWM on.
+    PwmStart(Pwm),
+    /// Gripper PWM off.
+    PwmStop,
+    /// Open the serial pass-through.
+    UsartStart(UartInit),
+    /// Close it.
+    UsartStop,
+    /// 1..255 bytes to write to the serial port.
+    UsartSend(&'a [u8]),
+    /// GPIO_0 high.
+    Pin0On,
+    /// GPIO_0 low.
+    Pin0Off,
+    /// GPIO_1 high.
+    Pin1On,
+    /// GPIO_1 low.
+    Pin1Off,
+    /// Toggle the ENABLE of every driver (`None`) or of the masked ones.
+    ToggleEnablePins {
+        /// Bits 0-7 joints, bit 8 gripper (big-endian on the wire).
+        mask: Option<u16>,
+    },
+    /// Move every joint to zero.
+    Return,
+    /// Set the joint count, 1..8.
+    JointsCount(u8),
+    /// Set the current joint positions.
+    LocationSetting(Location),
+    /// Ask for a STATUS report.
+    Status,
+    /// Set the location report period.
+    UploadPeriod {
+        /// Microseconds, 1000..1000000.
+        period_us: u32,
+    },
+    /// Who is there? (answered with a DISCOVER_REPLY by any controller, to any host).
+    Discover,
+    /// Store new network settings, applied after the next reset.
+    NetSet(NetSettings),
+}
+
+impl<'a> Command<'a> {
+    /// The tag this command travels under.
+    pub fn tag(&self) -> Tag {
+        match self {
+            Command::New { .. } => Tag::New,
+            Command::Pending(_) => Tag::Pending,
+            Command::Runing => Tag::Runing,
+            Command::Stopped => Tag::Stopped,
+            Command::UploadStart => Tag::UploadStart,
+            Command::UploadStop => Tag::UploadStop,
+            Command::PwmStart(_) => Tag::PwmStart,
+            Command::PwmStop => Tag::PwmStop,
+            Command::UsartStart(_) => Tag::UsartStart,
+            Command::UsartStop => Tag::UsartStop,
+            Command::UsartSend(_) => Tag::UsartSend,
+            Command::Pin0On => Tag::Pin0On,
+            Command::Pin0Off => Tag::Pin0Off,
+            Command::Pin1On => Tag::Pin1On,
+            Command::Pin1Off => Tag::Pin1Off,
+            Command::ToggleEnablePins { .. } => Tag::ToggleEnablePins,
+            Command::Return => Tag::Return,
+            Command::JointsCount(_) => Tag::JointsCount,
+            Command::LocationSetting(_) => Tag::Location,
+            Command::Status => Tag::Status,
+            Command::UploadPeriod { .. } => Tag::UploadPeriod,
+            Command::Discover => Tag::Discover,
+            Command::NetSet(_) => Tag::NetSet,
+        }
+    }
+
+    /// Bytes of data in the canonical encoding.
+    pub fn data_len(&self) -> usize {
+        match self {
+            Command::New { .. } => 2,
+            Command::Pending(points) => points.len() * size::POINT,
+            Command::PwmStart(_) => size::PWM,
+            Command::UsartStart(_) => size::UART_INIT,
+            Command::UsartSend(bytes) => bytes.len(),
+            Command::ToggleEnablePins { mask: Some(_) } => 2,
+            Command::JointsCount(_) => 1,
+            Command::LocationSetting(_) => size::LOCATION,
+            Command::UploadPeriod { .. } => 4,
+            Command::NetSet(_) => size::NET_SET,
+            _ => 0,
+        }
+    }
+
+    /// Bytes of the whole encoded frame.
+    pub fn encoded_len(&self) -> usize {
+        self.data_len() + FRAME_OVERHEAD
+    }
+
+    /// Writes the frame with `seq` into `buf`; returns its length.
+    pub fn encode(&self, seq: u8, buf: &mut [u8]) -> Result<usize, EncodeError> {
+        match self {
+            Command::Pending(p) if p.is_empty() || p.len() > MAX_POINTS_PER_FRAME => {
+                return Err(EncodeError::InvalidContent);
+            }
+            // A partial record would be silently dropped: refuse it instead.
+            Command::Pending(PointList::Wire(b)) if b.len() % size::POINT != 0 => {
+                return Err(EncodeError::InvalidContent);
+            }
+            Command::UsartSend(b) if b.is_empty() || b.len() > MAX_SERIAL_CHUNK => {
+                return Err(EncodeError::InvalidContent);
+            }
+            _ => {}
+        }
+        seal(seq, self.tag(), self.data_len(), buf, |w| match self {
+            Command::New { count } => w.put(0, &count.to_be_bytes()),
+            Command::Pending(PointList::Wire(bytes)) => w.put(0, bytes),
+            Command::Pending(PointList::Points(points)) => {
+                for (i, p) in points.iter().enumerate() {
+                    p.write(w, i * size::POINT);
+                }
+            }
+            Command::PwmStart(pwm) => {
+                w.u32(0, pwm.psc);
+                w.u32(4, pwm.arr);
+                w.u32(8, pwm.ccr1);
+                w.u32(12, pwm.pulse_count as u32);
+            }
+            Command::UsartStart(init) => init.write(w, 0),
+            Command::UsartSend(bytes) => w.put(0, bytes),
+            Command::ToggleEnablePins { mask: Some(mask) } => w.put(0, &mask.to_be_bytes()),
+            Command::JointsCount(n) => w.u8(0, *n),
+            Command::LocationSetting(loc) => loc.write(w, 0),
+            Command::UploadPeriod { period_us } => w.u32(0, *period_us),
+            Command::NetSet(net) => net.write(w, 0),
+            _ => {}
+        })
+    }
+
+    /// Decodes a datagram sent to the controller. Never panics.
+    pub fn decode(bytes: &'a [u8]) -> Result<Frame<Command<'a>>, DecodeError> {
+        let (seq, tag_byte, data) = open(bytes)?;
+        let err = |kind| DecodeError {
+            seq,
+            tag: tag_byte,
+            kind,
+        };
+        let bad_len = |expected| {
+            err(DecodeErrorKind::BadLength {
+                expected,
+                found: data.len(),
+            })
+        };
+        let exactly = |n: usize| {
+            if data.len() == n {
+                Ok(())
+            } else {
+                Err(bad_len(ExpectedLen::Exactly(n)))
+            }
+        };
+        let out_of_range = |field| err(DecodeErrorKind::OutOfRange(field));
+        let Some(tag) = Tag::from_u8(tag_byte) else {
+            return Err(err(DecodeErrorKind::UnknownTag));
+        };
+        let body = match tag {
+            Tag::New => {
+                exactly(2)?;
+                let count = u16_be(data, 0);
+                if count == 0 {
+                    return Err(out_of_range(Field::PointCount));
+                }
+                Command::New { count }
+            }
+            Tag::Pending => {
+                let records = data.len() / size::POINT;
+                if data.len() % size::POINT != 0 || records == 0 || records > MAX_POINTS_PER_FRAME {
+                    return Err(bad_len(ExpectedLen::Records {
+                        unit: size::POINT,
+                        max: MAX_POINTS_PER_FRAME,
+                    }));
+                }
+                let points = PointList::Wire(data);
+                if let Some(i) = points.iter().position(|p| p.duration < 1) {
+                    // i < MAX_POINTS_PER_FRAME (12).
+                    return Err(out_of_range(Field::Duration(
+                        u8::try_from(i).unwrap_or(u8::MAX),
+                    )));
+                }
+                Command::Pending(points)
+            }
+            Tag::PwmStart => {
+                exactly(size::PWM)?;
+                let pwm = Pwm {
+                    psc: u32_le(data, 0),
+                    arr: u32_le(data, 4),
+                    ccr1: u32_le(data, 8),
+                    pulse_count: u32_le(data, 12) as i32,
+                };
+                if pwm.psc > 0xFFFF {
+                    return Err(out_of_range(Field::Psc));
+                }
+                if pwm.arr > 0xFFFF {
+                    return Err(out_of_range(Field::Arr));
+                }
+                if pwm.ccr1 > pwm.arr {
+                    return Err(out_of_range(Field::Ccr1));
+                }
+                Command::PwmStart(pwm)
+            }
+            Tag::UsartStart => {
+                let init = match data.len() {
+                    size::UART_INIT => UartInit::read(data, false),
+                    size::UART_INIT_MANUAL => UartInit::read(data, true),
+                    _ => {
+                        return Err(bad_len(ExpectedLen::Either(
+                            size::UART_INIT,
+                            size::UART_INIT_MANUAL,
+                        )));
+                    }
+                };
+                if !limits::BAUD_RATE.contains(&init.baud_rate) {
+                    return Err(out_of_range(Field::BaudRate));
+                }
+                Command::UsartStart(init)
+            }
+            Tag::UsartSend => {
+                if data.is_empty() || data.len() > MAX_SERIAL_CHUNK {
+                    return Err(bad_len(ExpectedLen::Between(1, MAX_SERIAL_CHUNK)));
+                }
+                Command::UsartSend(data)
+            }
+            Tag::ToggleEnablePins => match data.len() {
+                0 => Command::ToggleEnablePins { mask: None },
+                2 => {
+                    let mask = u16_be(data, 0);
+                    if mask & !limits::ENABLE_MASK_BITS != 0 {
+                        return Err(out_of_range(Field::EnableMask));
+                    }
+                    Command::ToggleEnablePins { mask: Some(mask) }
+                }
+                _ => return Err(bad_len(ExpectedLen::Either(0, 2))),
+            },
+            Tag::JointsCount => {
+                exactly(1)?;
+                let joints = u8_at(data, 0);
+                if !limits::JOINTS.contains(&joints) {
+                    return Err(out_of_range(Field::Joints));
+                }
+                Command::JointsCount(joints)
+            }
+            Tag::Location => match data.len() {
+                size::LOCATION | size::LOCATION_PACKED => {
+                    Command::LocationSetting(Location::read(data))
+                }
+                _ => {
+                    return Err(bad_len(ExpectedLen::Either(
+                        size::LOCATION,
+                        size::LOCATION_PACKED,
+                    )));
+                }
+            },
+            Tag::UploadPeriod => {
+                exactly(4)?;
+                let period_us = u32_le(data, 0);
+                if !limits::UPLOAD_PERIOD_US.contains(&period_us) {
+                    return Err(out_of_range(Field::UploadPeriod));
+                }
+                Command::UploadPeriod { period_us }
+            }
+            Tag::NetSet => {
+                exactly(size::NET_SET)?;
+                match NetSettings::read(data) {
+                    Some(net) if net.is_valid() => Command::NetSet(net),
+                    _ => return Err(out_of_range(Field::NetSettings)),
+                }
+            }
+            Tag::UsartRecv | Tag::Ack | Tag::DiscoverReply => {
+                return Err(err(DecodeErrorKind::WrongDirection));
+            }
+            Tag::Runing
+            | Tag::Stopped
+            | Tag::UploadStart
+            | Tag::UploadStop
+            | Tag::PwmStop
+            | Tag::UsartStop
+            | Tag::Pin0On
+            | Tag::Pin0Off
+            | Tag::Pin1On
+            | Tag::Pin1Off
+            | Tag::Return
+            | Tag::Status
+            | Tag::Discover => {
+                exactly(0)?;
+                match tag {
+                    Tag::Runing => Command::Runing,
+                    Tag::Stopped => Command::Stopped,
+                    Tag::UploadStart => Command::UploadStart,
+                    Tag::UploadStop => Command::UploadStop,
+                    Tag::PwmStop => Command::PwmStop,
+                    Tag::UsartStop => Command::UsartStop,
+                    Tag::Pin0On => Command::Pin0On,
+                    Tag::Pin0Off => Command::Pin0Off,
+                    Tag::Pin1On => Command::Pin1On,
+                    Tag::Pin1Off => Command::Pin1Off,
+                    Tag::Return => Command::Return,
+                    Tag::Discover => Command::Discover,
+                    _ => Command::Status,
+                }
+            }
+        };
+        Ok(Frame { seq, body })
+    }
+}
