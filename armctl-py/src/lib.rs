@@ -20,7 +20,7 @@ use std::sync::{Arc, Condvar, Mutex, MutexGuard, PoisonError};
 use std::time::{Duration, Instant};
 
 use armctl::trajectory::{self, ArmConfig, Waypoints};
-use armctl::{Controller, Error, Options, Progress, RunEnd, RunOptions, RunReport};
+use armctl::{Client, Error, Options, Progress, RunEnd, RunOptions, RunReport};
 use numpy::{PyArray1, PyReadonlyArray1, PyReadonlyArray2};
 use protocol::{Location, MAX_JOINTS, NetSettings, State, StatusFlags, StatusReport};
 use pyo3::create_exception;
@@ -222,7 +222,7 @@ struct RunState {
 /// A trajectory run started by `Arm.run(..., wait=False)` (or `run_file`).
 #[pyclass(module = "armctl")]
 struct RunHandle {
-    arm: Arc<Controller>,
+    arm: Arc<Client>,
     state: Arc<RunState>,
     joints: usize,
     /// What `wait()` returns (or raises), once known.
@@ -231,7 +231,7 @@ struct RunHandle {
 
 impl RunHandle {
     fn start(
-        arm: Arc<Controller>,
+        arm: Arc<Client>,
         points: Vec<protocol::Point>,
         options: RunOptions,
         joints: usize,
@@ -407,13 +407,13 @@ impl Locations {
 /// A connection to one controller (`armctl.connect(...)`); a context manager.
 #[pyclass(module = "armctl")]
 struct Arm {
-    inner: Mutex<Option<Arc<Controller>>>,
+    inner: Mutex<Option<Arc<Client>>>,
     /// Runs started here, to stop on an exception in a `with` block.
     runs: Mutex<Vec<Arc<RunState>>>,
 }
 
 impl Arm {
-    fn controller(&self) -> PyResult<Arc<Controller>> {
+    fn controller(&self) -> PyResult<Arc<Client>> {
         lock(&self.inner)
             .clone()
             .ok_or_else(|| ArmctlError::new_err("the connection is closed"))
@@ -423,7 +423,7 @@ impl Arm {
     fn call<T: Send>(
         &self,
         py: Python<'_>,
-        f: impl FnOnce(&Controller) -> armctl::Result<T> + Send,
+        f: impl FnOnce(&Client) -> armctl::Result<T> + Send,
     ) -> PyResult<T> {
         let arm = self.controller()?;
         py.detach(move || f(&arm)).map_err(|e| to_py_err(py, e))
@@ -892,8 +892,8 @@ fn connect(
     };
     let address = address.to_string();
     let arm = py
-        .detach(move || -> armctl::Result<Controller> {
-            let arm = Controller::open(address.as_str(), options)?;
+        .detach(move || -> armctl::Result<Client> {
+            let arm = Client::open(address.as_str(), options)?;
             if let Some(path) = pcap {
                 arm.capture(Arc::new(armctl::pcap::PcapLog::create(&path)?));
             }

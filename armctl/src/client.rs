@@ -21,7 +21,7 @@ use crate::rtt::{DEFAULT_MIN_RTO, RESEND_HORIZON, RttEstimator};
 /// How long the receiver thread blocks in one `recv`, so that it notices a shutdown soon.
 const RECEIVER_POLL: Duration = Duration::from_millis(50);
 
-/// Timeouts and retry bounds of a [`Controller`].
+/// Timeouts and retry bounds of a [`Client`].
 #[derive(Clone, Debug)]
 pub struct Options {
     /// How long to wait for an ACK before sending the frame again, before any round trip
@@ -55,12 +55,12 @@ impl Default for Options {
 }
 
 /// A connection to one controller. All methods take `&self`: share it with `Arc` to call
-/// [`Controller::stop`] from another thread while a run is uploading.
+/// [`Client::stop`] from another thread while a run is uploading.
 ///
-/// Commands other than STOPPED wait while [`Controller::run_trajectory`] uploads, because
+/// Commands other than STOPPED wait while [`Client::run_trajectory`] uploads, because
 /// a command slipped between PENDING frames that got lost or refused would leave a hole in
 /// the upload's sequence numbers.
-pub struct Controller {
+pub struct Client {
     socket: UdpSocket,
     addr: SocketAddr,
     next_seq: AtomicU8,
@@ -73,9 +73,9 @@ pub struct Controller {
     receiver: Option<JoinHandle<()>>,
 }
 
-impl std::fmt::Debug for Controller {
+impl std::fmt::Debug for Client {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("Controller")
+        f.debug_struct("Client")
             .field("addr", &self.addr)
             .field("options", &self.options)
             .finish_non_exhaustive()
@@ -109,7 +109,7 @@ pub(crate) struct Shared {
     last_status: Mutex<Option<StatusReport>>,
     /// Datagrams that did not decode as a report.
     undecodable: AtomicU64,
-    /// Where every datagram sent and received is written ([`Controller::capture`]).
+    /// Where every datagram sent and received is written ([`Client::capture`]).
     pcap: Mutex<Option<Arc<PcapLog>>>,
 }
 
@@ -213,22 +213,22 @@ impl Drop for AckWaiter<'_> {
     }
 }
 
-impl Controller {
+impl Client {
     /// Connects to the controller at `addr` (e.g. `"127.0.0.1:8510"`) with default
     /// [`Options`] and checks that it answers a STATUS.
-    pub fn connect(addr: impl ToSocketAddrs) -> Result<Controller> {
+    pub fn connect(addr: impl ToSocketAddrs) -> Result<Client> {
         Self::connect_with(addr, Options::default())
     }
 
     /// Connects with the given options and checks that the controller answers a STATUS.
-    pub fn connect_with(addr: impl ToSocketAddrs, options: Options) -> Result<Controller> {
+    pub fn connect_with(addr: impl ToSocketAddrs, options: Options) -> Result<Client> {
         let controller = Self::open(addr, options)?;
         controller.status()?;
         Ok(controller)
     }
 
     /// Opens the socket and starts the receiver without talking to the controller.
-    pub fn open(addr: impl ToSocketAddrs, options: Options) -> Result<Controller> {
+    pub fn open(addr: impl ToSocketAddrs, options: Options) -> Result<Client> {
         let addr = addr.to_socket_addrs()?.next().ok_or_else(|| {
             Error::Io(std::io::Error::new(
                 std::io::ErrorKind::InvalidInput,
@@ -260,7 +260,7 @@ impl Controller {
         let first_seq = std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)
             .map_or(0, |d| d.subsec_nanos() as u8);
-        Ok(Controller {
+        Ok(Client {
             socket,
             addr,
             next_seq: AtomicU8::new(first_seq),
@@ -480,7 +480,7 @@ impl Controller {
     }
 
     /// RETURN: moves every joint to zero. Returns when the controller accepted it; see
-    /// [`Controller::wait_stopped`] to wait for the end of the move.
+    /// [`Client::wait_stopped`] to wait for the end of the move.
     pub fn go_home(&self) -> Result<Ack> {
         self.send(&Command::Return)
     }
@@ -581,7 +581,7 @@ impl Controller {
     }
 
     /// A fresh LOCATION report (one that arrives after this call), at most `timeout`
-    /// from now, after claiming the reports for this client ([`Controller::claim_locations`]).
+    /// from now, after claiming the reports for this client ([`Client::claim_locations`]).
     /// Location reports must be on (they are by default).
     pub fn current_location(&self, timeout: Duration) -> Result<Location> {
         let started = Instant::now();
@@ -621,7 +621,7 @@ pub(crate) fn check(command: Tag, ack: Ack) -> Result<Ack> {
     }
 }
 
-impl Drop for Controller {
+impl Drop for Client {
     fn drop(&mut self) {
         self.shared.shutdown.store(true, Ordering::Relaxed);
         if let Some(receiver) = self.receiver.take() {

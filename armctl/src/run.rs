@@ -10,7 +10,7 @@ use protocol::{
     StatusFlags, StatusReport, Tag,
 };
 
-use crate::client::{Controller, Event, check, lock};
+use crate::client::{Client, Event, check, lock};
 use crate::error::{Error, Result, RunEnd};
 
 /// Largest trajectory one NEW can announce. Longer ones are refused (not split): splitting
@@ -125,7 +125,7 @@ struct Outgoing {
 /// acknowledged out of order), `frames[next_send..]` wait to be sent again after a
 /// go-back-N. New frames are built only when every built frame is in flight.
 struct Upload<'a, 'p> {
-    controller: &'a Controller,
+    controller: &'a Client,
     options: &'a RunOptions,
     points: &'p [Point],
     waiter: crate::client::AckWaiter<'a>,
@@ -251,7 +251,7 @@ impl Upload<'_, '_> {
     /// Go-back-N: every unacknowledged frame from `from` on is sent again, unchanged, as
     /// the window allows. `loss`: a frame was lost, so the window shrinks.
     fn rewind(&mut self, from: usize, loss: bool) {
-        trace(format_args!("go back to frame {from}"));
+        log::debug!("go back to frame {from}");
         self.last_rewind = Some((from, Instant::now()));
         self.next_send = self.next_send.min(from.max(self.base));
         if loss {
@@ -330,7 +330,7 @@ impl Upload<'_, '_> {
             return Ok(());
         };
         self.state = ack.state;
-        trace(format_args!(
+        log::trace!(
             "ack of frame {i} (seq {seq}): {} next_seq {} free {} buffered {}; credit {} in flight {} window {} acked {}",
             ack.status.name(),
             ack.next_seq,
@@ -340,7 +340,7 @@ impl Upload<'_, '_> {
             self.in_flight(),
             self.window(),
             self.acked_points
-        ));
+        );
         match ack.status {
             StatusCode::Ok => {
                 if self.frames[i].sends == 1 && !self.frames[i].acked {
@@ -521,11 +521,11 @@ impl Upload<'_, '_> {
                         && self.base < self.next_send
                         && self.frames[self.base].sent_at.elapsed() >= ack_timeout;
                     if overdue {
-                        trace(format_args!(
+                        log::debug!(
                             "ACK timeout ({} us), frame {}",
                             ack_timeout.as_micros(),
                             self.base
-                        ));
+                        );
                         self.report.timeouts += 1;
                         self.timeouts_in_a_row += 1;
                         lock(&self.controller.rtt).back_off();
@@ -534,13 +534,6 @@ impl Upload<'_, '_> {
                 }
             }
         }
-    }
-}
-
-/// Upload events on stderr when `ARMCTL_TRACE` is set: for diagnosing a link.
-fn trace(args: std::fmt::Arguments<'_>) {
-    if std::env::var_os("ARMCTL_TRACE").is_some() {
-        eprintln!("armctl: {args}");
     }
 }
 
@@ -578,7 +571,7 @@ pub fn window_of(status: &StatusReport) -> usize {
     }
 }
 
-impl Controller {
+impl Client {
     /// The window the controller advertises in STATUS (from the last STATUS this client
     /// received, else a fresh one): [`DEFAULT_WINDOW`] for a controller that advertises
     /// none, at most [`MAX_WINDOW`].

@@ -5,7 +5,7 @@ mod fake;
 use std::sync::Arc;
 use std::time::Duration;
 
-use armctl::{Controller, Error, Options, RunEnd, RunOptions};
+use armctl::{Client, Error, Options, RunEnd, RunOptions};
 use fake::{Fake, Faults, ramp};
 use protocol::{Command, State, StatusCode};
 
@@ -21,7 +21,7 @@ fn options() -> Options {
 #[test]
 fn lossless_run_executes_every_point_in_order() {
     let fake = Fake::start(64, Faults::default());
-    let arm = Controller::connect_with(fake.addr, options()).unwrap();
+    let arm = Client::connect_with(fake.addr, options()).unwrap();
     let points = ramp(200, 10, 3000);
     let mut calls = 0;
     let report = arm
@@ -45,7 +45,7 @@ fn lossless_run_executes_every_point_in_order() {
 #[test]
 fn stop_and_wait_gives_the_same_points() {
     let fake = Fake::start(32, Faults::default());
-    let arm = Controller::connect_with(fake.addr, options()).unwrap();
+    let arm = Client::connect_with(fake.addr, options()).unwrap();
     let points = ramp(100, 3, 500);
     let options = RunOptions {
         window: 1,
@@ -70,7 +70,7 @@ fn lossy_link_still_delivers_each_point_exactly_once() {
                 ..Faults::default()
             },
         );
-        let arm = Controller::connect_with(fake.addr, options()).unwrap();
+        let arm = Client::connect_with(fake.addr, options()).unwrap();
         let points = ramp(200, 7, 5000);
         let report = arm
             .run_trajectory(&points, &RunOptions::default(), |_| {})
@@ -85,7 +85,7 @@ fn lossy_link_still_delivers_each_point_exactly_once() {
 #[test]
 fn refusals_name_the_status() {
     let fake = Fake::start(16, Faults::default());
-    let arm = Controller::connect_with(fake.addr, options()).unwrap();
+    let arm = Client::connect_with(fake.addr, options()).unwrap();
     // RUNING in STOPPED: BAD_STATE.
     let err = arm.send(&Command::Runing).unwrap_err();
     assert_eq!(err.status(), Some(StatusCode::BadState));
@@ -103,7 +103,7 @@ fn refusals_name_the_status() {
 #[test]
 fn stop_from_another_thread_ends_the_run() {
     let fake = Fake::start(1000, Faults::default());
-    let arm = Arc::new(Controller::connect_with(fake.addr, options()).unwrap());
+    let arm = Arc::new(Client::connect_with(fake.addr, options()).unwrap());
     let points = ramp(500, 1, 2000);
     let stopper = {
         let arm = arm.clone();
@@ -132,7 +132,7 @@ fn stop_from_another_thread_ends_the_run() {
 fn no_controller_gives_no_reply() {
     let socket = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
     let addr = socket.local_addr().unwrap();
-    let err = Controller::connect_with(
+    let err = Client::connect_with(
         addr,
         Options {
             ack_timeout: Duration::from_millis(10),
@@ -156,7 +156,7 @@ fn a_window_larger_than_the_controller_inbox_backs_off() {
             ..Faults::default()
         },
     );
-    let arm = Controller::connect_with(fake.addr, options()).unwrap();
+    let arm = Client::connect_with(fake.addr, options()).unwrap();
     let points = ramp(1200, 1, 500);
     let report = arm
         .run_trajectory(
@@ -192,7 +192,7 @@ fn a_controller_that_falls_behind_is_not_blamed_on_the_upload() {
             ..Faults::default()
         },
     );
-    let arm = Controller::connect_with(fake.addr, options()).unwrap();
+    let arm = Client::connect_with(fake.addr, options()).unwrap();
     let points = ramp(1000, 2, 2000);
     let err = arm
         .run_trajectory(&points, &RunOptions::default(), |_| {})
@@ -219,7 +219,7 @@ fn a_controller_that_falls_behind_is_not_blamed_on_the_upload() {
 #[test]
 fn an_upload_slower_than_the_run_is_reported_as_such() {
     let fake = Fake::start(600, Faults::default());
-    let arm = Controller::connect_with(fake.addr, options()).unwrap();
+    let arm = Client::connect_with(fake.addr, options()).unwrap();
     let points = ramp(2000, 0, 10);
     let run = RunOptions {
         window: 1,
@@ -251,7 +251,7 @@ fn the_advertised_window_is_used_by_default() {
                 ..Faults::default()
             },
         );
-        let arm = Controller::connect_with(fake.addr, options()).unwrap();
+        let arm = Client::connect_with(fake.addr, options()).unwrap();
         assert_eq!(arm.advertised_window().unwrap(), used);
         let points = ramp(600, 1, 500);
         let report = arm
@@ -282,7 +282,7 @@ fn out_of_order_goes_back_at_once() {
         },
     );
     // A long ACK timeout: waiting for one would show.
-    let arm = Controller::connect_with(
+    let arm = Client::connect_with(
         fake.addr,
         Options {
             ack_timeout: Duration::from_secs(2),

@@ -1,5 +1,5 @@
 //! The running bridge: one ROS 2 node (ros2-client on RustDDS) whose action servers,
-//! service and publisher run as futures on one thread, and the armctl [`Controller`] whose
+//! service and publisher run as futures on one thread, and the armctl [`Client`] whose
 //! blocking calls run on threads of their own so that a slow controller never holds up
 //! joint_states.
 //!
@@ -18,7 +18,7 @@ use std::time::{Duration, Instant, SystemTime};
 
 use armctl::protocol::{Location, MAX_JOINTS, State, StatusReport, Tag};
 use armctl::trajectory::ArmConfig;
-use armctl::{Controller, Error, Progress, RunOptions, RunReport};
+use armctl::{Client, Error, Progress, RunOptions, RunReport};
 use async_io::Timer;
 use futures::{FutureExt, StreamExt};
 use ros2_client::action::{
@@ -88,7 +88,7 @@ pub struct Bridge {
     config: BridgeConfig,
     arm: ArmConfig,
     names: Vec<String>,
-    controller: Arc<Controller>,
+    controller: Arc<Client>,
     status: StatusReport,
     latest: Arc<Mutex<Option<Sample>>>,
     observers: Arc<Mutex<Vec<mpsc::Sender<Sample>>>>,
@@ -109,7 +109,7 @@ impl Bridge {
     /// Connects to the controller, checks it has the configured joints, and asks for
     /// LOCATION reports at the JointState rate.
     pub fn connect(config: BridgeConfig, arm: ArmConfig) -> Result<Bridge, String> {
-        let controller = Controller::connect(config.controller.as_str())
+        let controller = Client::connect(config.controller.as_str())
             .map_err(|e| format!("controller {}: {e}", config.controller))?;
         let status = controller.status().map_err(|e| e.to_string())?;
         if usize::from(status.joints) < arm.joints.len() {
@@ -147,7 +147,7 @@ impl Bridge {
     }
 
     /// The controller connection (shared with the bridge's threads).
-    pub fn controller(&self) -> &Arc<Controller> {
+    pub fn controller(&self) -> &Arc<Client> {
         &self.controller
     }
 

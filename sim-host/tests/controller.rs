@@ -555,7 +555,7 @@ fn a_lossy_link_still_runs_every_point_once() {
         "--settings",
         temp_path("lossy.txt").to_str().unwrap(),
     ]);
-    let arm = armctl::Controller::connect(sim.addr).expect("connects through the faults");
+    let arm = armctl::Client::connect(sim.addr).expect("connects through the faults");
     let targets: Vec<[i32; MAX_JOINTS]> = (1..=200)
         .map(|i| [i * 7, -i * 3, i % 5, 0, 0, i * 2, 0, 0])
         .collect();

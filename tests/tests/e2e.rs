@@ -5,7 +5,7 @@ mod common;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use armctl::{Controller, Error, Options, RunEnd, RunOptions};
+use armctl::{Client, Error, Options, RunEnd, RunOptions};
 use common::{
     Raw, datagram, out_of_order_names_the_missing_frame, raw_frames_are_refused, serial_round_trip,
     sweep,
@@ -37,7 +37,7 @@ fn refused(result: armctl::Result<protocol::Ack>, status: StatusCode, what: &str
     }
 }
 
-fn position(arm: &Controller) -> [i32; MAX_JOINTS] {
+fn position(arm: &Client) -> [i32; MAX_JOINTS] {
     arm.current_location(Duration::from_secs(2))
         .expect("a LOCATION report")
         .position
@@ -301,7 +301,7 @@ fn another_host_is_not_the_owner_but_may_stop_the_arm() {
         bind: Some("127.0.0.2:0".parse().unwrap()),
         ..loopback()
     };
-    match Controller::connect_with(sim.addr, other.clone()) {
+    match Client::connect_with(sim.addr, other.clone()) {
         Err(e) => {
             assert_eq!(e.status(), Some(StatusCode::NotOwner), "{e}");
             assert!(e.to_string().contains("another host owns the controller"));
@@ -315,7 +315,7 @@ fn another_host_is_not_the_owner_but_may_stop_the_arm() {
         std::thread::spawn(move || arm.run_trajectory(&points, &RunOptions::default(), |_| {}))
     };
     std::thread::sleep(Duration::from_millis(500));
-    let stranger = Controller::open(sim.addr, other).unwrap();
+    let stranger = Client::open(sim.addr, other).unwrap();
     stranger.stop().expect("STOPPED from any host is obeyed");
     match runner.join().unwrap() {
         Err(Error::RunEnded {

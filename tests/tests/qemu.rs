@@ -19,7 +19,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use armctl::{Controller, Error, Options, RunEnd, RunOptions};
+use armctl::{Client, Error, Options, RunEnd, RunOptions};
 use common::{
     Raw, out_of_order_names_the_missing_frame, raw_frames_are_refused, serial_round_trip, sweep,
 };
@@ -50,7 +50,7 @@ fn emulated() -> Options {
     }
 }
 
-fn position(board: &QemuBoard, arm: &Controller) -> [i32; MAX_JOINTS] {
+fn position(board: &QemuBoard, arm: &Client) -> [i32; MAX_JOINTS] {
     arm.current_location(Duration::from_secs(3))
         .unwrap_or_else(|e| panic!("a LOCATION report: {e}\n{}", board.log()))
         .position
@@ -659,7 +659,7 @@ fn lossy_link_executes_the_same_steps_as_a_lossless_one() {
         let mut board = QemuBoard::start();
         let relay = lossy.then(|| LossyRelay::start(board.addr, 20, 5, 5, 7));
         let addr = relay.as_ref().map_or(board.addr, |r| r.addr);
-        let arm = Controller::connect_with(
+        let arm = Client::connect_with(
             addr,
             Options {
                 ack_timeout: Duration::from_millis(60),
@@ -746,7 +746,7 @@ fn link_down_and_up_reach_the_stack_through_the_phy_interrupt() {
     };
     wait_for("WARN  ethernet link down");
     assert!(
-        Controller::connect_with(board.addr, quick.clone()).is_err(),
+        Client::connect_with(board.addr, quick.clone()).is_err(),
         "answered with the link down"
     );
     board.monitor("set_link lan9118.0 on");

@@ -121,7 +121,7 @@ pub fn out_of_order_names_the_missing_frame(raw: &Raw, here: [i32; MAX_JOINTS]) 
 
 /// Opens the serial pass-through at 115200 baud, sends 600 bytes and collects what comes
 /// back within `timeout` (the line is a loopback); returns (sent, received).
-pub fn serial_round_trip(arm: &armctl::Controller, timeout: Duration) -> (Vec<u8>, Vec<u8>) {
+pub fn serial_round_trip(arm: &armctl::Client, timeout: Duration) -> (Vec<u8>, Vec<u8>) {
     let rx = arm.serial_rx();
     arm.serial_open(protocol::UartInit {
         baud_rate: 115_200,
