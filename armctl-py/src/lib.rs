@@ -911,6 +911,14 @@ fn connect(
 #[pymodule(name = "armctl")]
 fn armctl_py(m: &Bound<'_, PyModule>) -> PyResult<()> {
     let py = m.py();
+    // ARMCTL_TRACE: the client's upload traces (ACKs, timeouts, resends) on stderr, as
+    // the `armctl` tool shows them. Nothing is installed otherwise (the host program's
+    // own logging stays its own).
+    if armctl::trace_requested() {
+        let _ = env_logger::Builder::new()
+            .filter_module("armctl", log::LevelFilter::Trace)
+            .try_init();
+    }
     m.add_function(wrap_pyfunction!(connect, m)?)?;
     m.add_function(wrap_pyfunction!(discover, m)?)?;
     m.add_class::<Arm>()?;

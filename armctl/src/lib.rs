@@ -49,6 +49,14 @@ pub use error::{Error, Result, RunEnd};
 pub use rtt::{DEFAULT_MIN_RTO, DUPLICATE_WINDOW, RESEND_HORIZON, RttEstimator};
 pub use run::{DEFAULT_WINDOW, MAX_POINTS, MAX_WINDOW, Progress, RunOptions, RunReport, window_of};
 
+/// Whether `ARMCTL_TRACE` is set: a program that installs a logger then shows every record
+/// of the `armctl` target (an upload's ACKs at `trace`, timeouts and go-back-N resends at
+/// `debug`), whatever `RUST_LOG` says. The library itself only logs; the `armctl` binary,
+/// sim-host, ros2-bridge and the Python module install the loggers.
+pub fn trace_requested() -> bool {
+    std::env::var_os("ARMCTL_TRACE").is_some()
+}
+
 /// The controller's UDP port, when an address names none.
 pub const DEFAULT_PORT: u16 = 8510;
 

@@ -57,7 +57,7 @@ fn main() -> ExitCode {
 fn init_logging() {
     let mut logger =
         env_logger::Builder::from_env(env_logger::Env::default().default_filter_or("warn"));
-    if std::env::var_os("ARMCTL_TRACE").is_some() {
+    if armctl::trace_requested() {
         logger.filter_module("armctl", log::LevelFilter::Trace);
     }
     logger.init();
