@@ -81,7 +81,7 @@ impl UdpDatagrams {
                 Ok(r) => r,
                 Err(e) => {
                     if let arm_core::LogVerdict::Log { suppressed } =
-                        failures.event(crate::app::log_time_us())
+                        failures.event(crate::simnet::log_time_us())
                     {
                         log::warn!(
                             "udp: receive failed: {e} ({suppressed} more since the last such line)"
