@@ -7,8 +7,8 @@ use std::time::{Duration, Instant};
 
 use armctl::{Client, Error, Options, RunEnd, RunOptions};
 use common::{
-    Raw, datagram, out_of_order_names_the_missing_frame, raw_frames_are_refused, serial_round_trip,
-    sweep,
+    Raw, datagram, out_of_order_names_the_missing_frame, raw_frames_are_refused,
+    refusals_in_stopped, serial_round_trip, sweep,
 };
 use protocol::{
     Command, Location, MAX_JOINTS, Point, PointList, Pwm, State, StatusCode, StatusFlags, Tag,
@@ -104,56 +104,20 @@ fn every_refused_command_gives_its_error() {
     let sim = SimHost::start(&["--joints", "6", "--buffer-capacity", "16"]);
     let arm = sim.connect_with(loopback());
 
-    // STOPPED state.
-    refused(
-        arm.send(&Command::Runing),
-        StatusCode::BadState,
-        "RUNING when stopped",
-    );
-    let one = [Point::from_motion(
-        10_000,
-        &[0; 8],
-        &[1, 0, 0, 0, 0, 0, 0, 0],
-    )];
-    refused(
-        arm.send(&Command::Pending(PointList::Points(&one))),
-        StatusCode::BadState,
-        "PENDING without NEW",
-    );
-    refused(
-        arm.send(&Command::New { count: 0 }),
-        StatusCode::InvalidConfig,
-        "NEW 0",
-    );
-    refused(
-        arm.set_joints(9),
-        StatusCode::InvalidConfig,
-        "JOINTS_COUNT 9",
-    );
+    // STOPPED state: the refusals every controller gives, then the simulator's other
+    // bounds.
+    refusals_in_stopped(&arm, |result, status, what| {
+        refused(result, status, what);
+    });
     refused(
         arm.set_joints(0),
         StatusCode::InvalidConfig,
         "JOINTS_COUNT 0",
     );
     refused(
-        arm.upload_period(999),
-        StatusCode::InvalidConfig,
-        "UPLOAD_PERIOD 999",
-    );
-    refused(
         arm.upload_period(1_000_001),
         StatusCode::InvalidConfig,
         "UPLOAD_PERIOD 1000001",
-    );
-    refused(
-        arm.pwm_start(Pwm {
-            psc: 0,
-            arr: 100,
-            ccr1: 101,
-            pulse_count: 0,
-        }),
-        StatusCode::InvalidConfig,
-        "PWM CCR1 > ARR",
     );
     refused(
         arm.pwm_start(Pwm {
@@ -164,24 +128,6 @@ fn every_refused_command_gives_its_error() {
         }),
         StatusCode::InvalidConfig,
         "PWM PSC over 16 bits",
-    );
-    refused(
-        arm.serial_open(UartInit {
-            baud_rate: 299,
-            ..UartInit::default()
-        }),
-        StatusCode::InvalidConfig,
-        "baud 299",
-    );
-    refused(
-        arm.send(&Command::UsartSend(b"x")),
-        StatusCode::BadState,
-        "USART_SEND with the port closed",
-    );
-    refused(
-        arm.toggle_enable(Some(0x200)),
-        StatusCode::InvalidConfig,
-        "enable mask bit 9",
     );
 
     // Receive-only serial: USART_SEND refused.

@@ -21,11 +21,10 @@ use std::time::{Duration, Instant};
 
 use armctl::{Client, Error, Options, RunEnd, RunOptions};
 use common::{
-    Raw, out_of_order_names_the_missing_frame, raw_frames_are_refused, serial_round_trip, sweep,
+    Raw, out_of_order_names_the_missing_frame, raw_frames_are_refused, refusals_in_stopped,
+    serial_round_trip, sweep,
 };
-use protocol::{
-    Command, MAX_JOINTS, Point, PointList, Pwm, State, StatusCode, StatusFlags, Tag, UartInit,
-};
+use protocol::{Command, MAX_JOINTS, PointList, State, StatusCode, StatusFlags, Tag};
 use system_tests::qemu::{FAULT_MARKERS, QemuBoard, echo, run_to_exit, unavailable};
 
 /// Skips the test, saying what it needs, when QEMU is not installed. The message goes to
@@ -159,73 +158,9 @@ fn every_command_of_the_manual() {
     let arm = board.connect_with(emulated());
 
     // Refusals in STOPPED.
-    refused(
-        &board,
-        arm.send(&Command::Runing),
-        StatusCode::BadState,
-        "RUNING when stopped",
-    );
-    let one = [Point::from_motion(
-        10_000,
-        &[0; 8],
-        &[1, 0, 0, 0, 0, 0, 0, 0],
-    )];
-    refused(
-        &board,
-        arm.send(&Command::Pending(PointList::Points(&one))),
-        StatusCode::BadState,
-        "PENDING without NEW",
-    );
-    refused(
-        &board,
-        arm.send(&Command::New { count: 0 }),
-        StatusCode::InvalidConfig,
-        "NEW 0",
-    );
-    refused(
-        &board,
-        arm.set_joints(9),
-        StatusCode::InvalidConfig,
-        "JOINTS_COUNT 9",
-    );
-    refused(
-        &board,
-        arm.upload_period(999),
-        StatusCode::InvalidConfig,
-        "UPLOAD_PERIOD 999",
-    );
-    refused(
-        &board,
-        arm.pwm_start(Pwm {
-            psc: 0,
-            arr: 100,
-            ccr1: 101,
-            pulse_count: 0,
-        }),
-        StatusCode::InvalidConfig,
-        "PWM CCR1 > ARR",
-    );
-    refused(
-        &board,
-        arm.serial_open(UartInit {
-            baud_rate: 299,
-            ..UartInit::default()
-        }),
-        StatusCode::InvalidConfig,
-        "baud 299",
-    );
-    refused(
-        &board,
-        arm.send(&Command::UsartSend(b"x")),
-        StatusCode::BadState,
-        "USART_SEND with the port closed",
-    );
-    refused(
-        &board,
-        arm.toggle_enable(Some(0x200)),
-        StatusCode::InvalidConfig,
-        "enable mask bit 9",
-    );
+    refusals_in_stopped(&arm, |result, status, what| {
+        refused(&board, result, status, what)
+    });
 
     // JOINTS_COUNT (settings in RAM), LOCATION_SETTING, UPLOAD_PERIOD, UPLOAD_START/STOP.
     arm.set_joints(3).unwrap();

@@ -4,7 +4,10 @@
 use std::net::{SocketAddr, UdpSocket};
 use std::time::{Duration, Instant};
 
-use protocol::{Ack, Command, MAX_DATAGRAM, MAX_JOINTS, Point, PointList, Report, StatusCode, Tag};
+use protocol::{
+    Ack, Command, MAX_DATAGRAM, MAX_JOINTS, Point, PointList, Pwm, Report, StatusCode, Tag,
+    UartInit,
+};
 
 /// `count` points of `duration_us` from `start`, each joint j moving `step * (j + 1)` per
 /// point, alternating direction by joint.
@@ -138,4 +141,71 @@ pub fn serial_round_trip(arm: &armctl::Client, timeout: Duration) -> (Vec<u8>, V
         }
     }
     (message, echoed)
+}
+
+/// The refusals every controller gives in STOPPED (sim-host and the firmware under QEMU
+/// alike): each command's result goes to `check` with the status it must carry and what
+/// it is.
+pub fn refusals_in_stopped(
+    arm: &armctl::Client,
+    mut check: impl FnMut(armctl::Result<Ack>, StatusCode, &str),
+) {
+    check(
+        arm.send(&Command::Runing),
+        StatusCode::BadState,
+        "RUNING when stopped",
+    );
+    let one = [Point::from_motion(
+        10_000,
+        &[0; 8],
+        &[1, 0, 0, 0, 0, 0, 0, 0],
+    )];
+    check(
+        arm.send(&Command::Pending(PointList::Points(&one))),
+        StatusCode::BadState,
+        "PENDING without NEW",
+    );
+    check(
+        arm.send(&Command::New { count: 0 }),
+        StatusCode::InvalidConfig,
+        "NEW 0",
+    );
+    check(
+        arm.set_joints(9),
+        StatusCode::InvalidConfig,
+        "JOINTS_COUNT 9",
+    );
+    check(
+        arm.upload_period(999),
+        StatusCode::InvalidConfig,
+        "UPLOAD_PERIOD 999",
+    );
+    check(
+        arm.pwm_start(Pwm {
+            psc: 0,
+            arr: 100,
+            ccr1: 101,
+            pulse_count: 0,
+        }),
+        StatusCode::InvalidConfig,
+        "PWM CCR1 > ARR",
+    );
+    check(
+        arm.serial_open(UartInit {
+            baud_rate: 299,
+            ..UartInit::default()
+        }),
+        StatusCode::InvalidConfig,
+        "baud 299",
+    );
+    check(
+        arm.send(&Command::UsartSend(b"x")),
+        StatusCode::BadState,
+        "USART_SEND with the port closed",
+    );
+    check(
+        arm.toggle_enable(Some(0x200)),
+        StatusCode::InvalidConfig,
+        "enable mask bit 9",
+    );
 }
