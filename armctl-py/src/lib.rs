@@ -20,7 +20,7 @@ use std::sync::{Arc, Condvar, Mutex, MutexGuard, PoisonError};
 use std::time::{Duration, Instant};
 
 use armctl::trajectory::{self, ArmConfig, Waypoints};
-use armctl::{Client, Error, Options, Progress, RunEnd, RunOptions, RunReport};
+use armctl::{Client, Error, Options, Progress, RunOptions, RunReport};
 use numpy::{PyArray1, PyReadonlyArray1, PyReadonlyArray2};
 use protocol::{Location, MAX_JOINTS, NetSettings, State, StatusFlags, StatusReport};
 use pyo3::create_exception;
@@ -105,13 +105,7 @@ fn to_py_err(py: Python<'_>, error: Error) -> PyErr {
         } => {
             let err = RunEndedError::new_err(message);
             let value = err.value(py);
-            let reason = match reason {
-                RunEnd::Stopped => "stopped",
-                RunEnd::Underrun => "underrun",
-                RunEnd::Starved => "starved",
-                RunEnd::Unknown => "unknown",
-            };
-            let _ = value.setattr("reason", reason);
+            let _ = value.setattr("reason", reason.name());
             let _ = value.setattr("executed", executed);
             let _ = value.setattr("received", received);
             let _ = value.setattr("total", total);
@@ -127,12 +121,21 @@ fn trajectory_err(e: trajectory::TrajectoryError) -> PyErr {
     TrajectoryError::new_err(e.to_string())
 }
 
+/// Sets each `"key" => value` on a Python dict (`set_item`, `?` on failure).
+macro_rules! set_items {
+    ($dict:expr, { $($key:literal => $value:expr),* $(,)? }) => {
+        $( $dict.set_item($key, $value)?; )*
+    };
+}
+
 /// STATUS as a dict.
 fn status_dict<'py>(py: Python<'py>, s: &StatusReport) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
-    d.set_item("version", (s.version[0], s.version[1], s.version[2]))?;
-    d.set_item("joints", s.joints)?;
-    d.set_item("state", s.state.name())?;
+    set_items!(d, {
+        "version" => (s.version[0], s.version[1], s.version[2]),
+        "joints" => s.joints,
+        "state" => s.state.name(),
+    });
     let flags = PyDict::new(py);
     for (name, bit) in [
         ("reports_on", StatusFlags::REPORTS_ON),
@@ -146,15 +149,17 @@ fn status_dict<'py>(py: Python<'py>, s: &StatusReport) -> PyResult<Bound<'py, Py
     ] {
         flags.set_item(name, s.flags.has(bit))?;
     }
-    d.set_item("flags", flags)?;
-    d.set_item("buffered", s.buffered)?;
-    d.set_item("expected", s.expected)?;
-    d.set_item("received", s.received)?;
-    d.set_item("executed", s.executed)?;
-    d.set_item("capacity", s.capacity)?;
-    d.set_item("upload_period_us", s.upload_period_us)?;
-    d.set_item("pwm_timer_clock_hz", s.pwm_timer_clock_hz)?;
-    d.set_item("max_step_rate_hz", s.max_step_rate_hz)?;
+    set_items!(d, {
+        "flags" => flags,
+        "buffered" => s.buffered,
+        "expected" => s.expected,
+        "received" => s.received,
+        "executed" => s.executed,
+        "capacity" => s.capacity,
+        "upload_period_us" => s.upload_period_us,
+        "pwm_timer_clock_hz" => s.pwm_timer_clock_hz,
+        "max_step_rate_hz" => s.max_step_rate_hz,
+    });
     Ok(d)
 }
 
@@ -179,23 +184,27 @@ fn location_dict<'py>(
 
 fn progress_dict<'py>(py: Python<'py>, p: &Progress, done: bool) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
-    d.set_item("total", p.total)?;
-    d.set_item("sent", p.sent)?;
-    d.set_item("acked", p.acked)?;
-    d.set_item("executed", p.executed)?;
-    d.set_item("state", p.state.name())?;
-    d.set_item("done", done)?;
+    set_items!(d, {
+        "total" => p.total,
+        "sent" => p.sent,
+        "acked" => p.acked,
+        "executed" => p.executed,
+        "state" => p.state.name(),
+        "done" => done,
+    });
     Ok(d)
 }
 
 fn report_dict<'py>(py: Python<'py>, r: &RunReport, joints: usize) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
-    d.set_item("points", r.points)?;
-    d.set_item("frames", r.frames)?;
-    d.set_item("datagrams_sent", r.datagrams_sent)?;
-    d.set_item("retransmissions", r.retransmissions)?;
-    d.set_item("upload_time", r.upload_time.as_secs_f64())?;
-    d.set_item("total_time", r.total_time.as_secs_f64())?;
+    set_items!(d, {
+        "points" => r.points,
+        "frames" => r.frames,
+        "datagrams_sent" => r.datagrams_sent,
+        "retransmissions" => r.retransmissions,
+        "upload_time" => r.upload_time.as_secs_f64(),
+        "total_time" => r.total_time.as_secs_f64(),
+    });
     match &r.final_status {
         Some(s) => d.set_item("final_status", status_dict(py, s)?)?,
         None => d.set_item("final_status", py.None())?,
@@ -848,17 +857,19 @@ fn discover<'py>(
             let d = PyDict::new(py);
             d.set_item("address", f.from.to_string())?;
             if let Some(r) = &f.reply {
-                d.set_item("mac", mac_string(&r.mac))?;
-                d.set_item("version", (r.version[0], r.version[1], r.version[2]))?;
-                d.set_item("joints", r.joints)?;
-                d.set_item("state", r.state.name())?;
-                d.set_item("owner", r.owner.name())?;
-                d.set_item("owner_ip", ip(r.owner_ip))?;
-                d.set_item("dhcp", r.net.dhcp)?;
-                d.set_item("stored_ip", ip(r.net.ip))?;
-                d.set_item("prefix_len", r.net.prefix_len)?;
-                d.set_item("gateway", ip(r.net.gateway))?;
-                d.set_item("pending_reset", r.pending_reset)?;
+                set_items!(d, {
+                    "mac" => mac_string(&r.mac),
+                    "version" => (r.version[0], r.version[1], r.version[2]),
+                    "joints" => r.joints,
+                    "state" => r.state.name(),
+                    "owner" => r.owner.name(),
+                    "owner_ip" => ip(r.owner_ip),
+                    "dhcp" => r.net.dhcp,
+                    "stored_ip" => ip(r.net.ip),
+                    "prefix_len" => r.net.prefix_len,
+                    "gateway" => ip(r.net.gateway),
+                    "pending_reset" => r.pending_reset,
+                });
             }
             Ok(d)
         })
