@@ -7,8 +7,8 @@ use std::time::{Duration, Instant};
 
 use armctl::{Client, Error, Options, RunEnd, RunOptions};
 use common::{
-    Raw, datagram, out_of_order_names_the_missing_frame, raw_frames_are_refused,
-    refusals_in_stopped, serial_round_trip, sweep,
+    Raw, datagram, out_of_order_names_the_missing_frame, pins_and_servo_pwm,
+    raw_frames_are_refused, refusals_in_stopped, serial_round_trip, sweep,
 };
 use protocol::{
     Command, Location, MAX_JOINTS, Point, PointList, Pwm, State, StatusCode, StatusFlags, Tag,
@@ -376,16 +376,7 @@ fn return_moves_every_joint_home() {
 fn pins_pwm_and_serial_round_trip() {
     let sim = SimHost::start(&["--joints", "2", "--serial", "loopback"]);
     let arm = sim.connect_with(loopback());
-    arm.pin(0, true).unwrap();
-    arm.pin(1, false).unwrap();
-    let status = arm.status().unwrap();
-    assert!(status.flags.has(StatusFlags::PIN0_HIGH));
-    assert!(!status.flags.has(StatusFlags::PIN1_HIGH));
-    let pwm = armctl::pwm::settings(status.pwm_timer_clock_hz, 50.0, 0.075, 0).unwrap();
-    arm.pwm_start(pwm).unwrap();
-    assert!(arm.status().unwrap().flags.has(StatusFlags::PWM_ACTIVE));
-    arm.pwm_stop().unwrap();
-    assert!(!arm.status().unwrap().flags.has(StatusFlags::PWM_ACTIVE));
+    pins_and_servo_pwm(&arm);
 
     let (message, echoed) = serial_round_trip(&arm, Duration::from_secs(3));
     assert_eq!(echoed, message);

@@ -21,8 +21,8 @@ use std::time::{Duration, Instant};
 
 use armctl::{Client, Error, Options, RunEnd, RunOptions};
 use common::{
-    Raw, out_of_order_names_the_missing_frame, raw_frames_are_refused, refusals_in_stopped,
-    serial_round_trip, sweep,
+    Raw, out_of_order_names_the_missing_frame, pins_and_servo_pwm, raw_frames_are_refused,
+    refusals_in_stopped, serial_round_trip, sweep,
 };
 use protocol::{Command, MAX_JOINTS, PointList, State, StatusCode, StatusFlags, Tag};
 use system_tests::qemu::{FAULT_MARKERS, QemuBoard, echo, run_to_exit, unavailable};
@@ -196,16 +196,7 @@ fn every_command_of_the_manual() {
         enabled
     );
     arm.toggle_enable(None).unwrap();
-    arm.pin(0, true).unwrap();
-    arm.pin(1, false).unwrap();
-    let status = arm.status().unwrap();
-    assert!(status.flags.has(StatusFlags::PIN0_HIGH));
-    assert!(!status.flags.has(StatusFlags::PIN1_HIGH));
-    let pwm = armctl::pwm::settings(status.pwm_timer_clock_hz, 50.0, 0.075, 0).unwrap();
-    arm.pwm_start(pwm).unwrap();
-    assert!(arm.status().unwrap().flags.has(StatusFlags::PWM_ACTIVE));
-    arm.pwm_stop().unwrap();
-    assert!(!arm.status().unwrap().flags.has(StatusFlags::PWM_ACTIVE));
+    let status = pins_and_servo_pwm(&arm);
     // A counted burst (gripper stepper mode): 50 pulses at 1 kHz end by themselves.
     let burst = armctl::pwm::settings(status.pwm_timer_clock_hz, 1000.0, 0.5, 50).unwrap();
     arm.pwm_start(burst).unwrap();

@@ -209,3 +209,20 @@ pub fn refusals_in_stopped(
         "enable mask bit 9",
     );
 }
+
+/// PIN0 high and PIN1 low, then a 50 Hz servo PWM started and stopped, each checked in
+/// STATUS; returns the STATUS after the pins were set.
+pub fn pins_and_servo_pwm(arm: &armctl::Client) -> protocol::StatusReport {
+    use protocol::StatusFlags;
+    arm.pin(0, true).unwrap();
+    arm.pin(1, false).unwrap();
+    let status = arm.status().unwrap();
+    assert!(status.flags.has(StatusFlags::PIN0_HIGH));
+    assert!(!status.flags.has(StatusFlags::PIN1_HIGH));
+    let pwm = armctl::pwm::settings(status.pwm_timer_clock_hz, 50.0, 0.075, 0).unwrap();
+    arm.pwm_start(pwm).unwrap();
+    assert!(arm.status().unwrap().flags.has(StatusFlags::PWM_ACTIVE));
+    arm.pwm_stop().unwrap();
+    assert!(!arm.status().unwrap().flags.has(StatusFlags::PWM_ACTIVE));
+    status
+}
