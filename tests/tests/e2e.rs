@@ -8,7 +8,7 @@ use std::time::{Duration, Instant};
 use armctl::{Client, Error, Options, RunEnd, RunOptions};
 use common::{
     Raw, datagram, out_of_order_names_the_missing_frame, pins_and_servo_pwm,
-    raw_frames_are_refused, refusals_in_stopped, serial_round_trip, sweep,
+    raw_frames_are_refused, refusals_in_stopped, serial_round_trip, stop_mid_run, sweep,
 };
 use protocol::{
     Command, Location, MAX_JOINTS, Point, PointList, Pwm, State, StatusCode, StatusFlags, Tag,
@@ -278,14 +278,7 @@ fn emergency_stop_mid_run_freezes_the_joints() {
     let arm = Arc::new(sim.connect_with(loopback()));
     let points = sweep(position(&arm), 6, 300, 3, 10_000);
     let total = points.len();
-    let runner = {
-        let arm = arm.clone();
-        std::thread::spawn(move || arm.run_trajectory(&points, &RunOptions::default(), |_| {}))
-    };
-    std::thread::sleep(Duration::from_millis(800));
-    let ack = arm.stop().unwrap();
-    assert_eq!(ack.state, State::Stopped);
-    let result = runner.join().unwrap();
+    let result = stop_mid_run(&arm, points, Duration::from_millis(800));
     let executed = match result {
         Err(Error::RunEnded {
             reason: RunEnd::Stopped,

@@ -22,7 +22,7 @@ use std::time::{Duration, Instant};
 use armctl::{Client, Error, Options, RunEnd, RunOptions};
 use common::{
     Raw, out_of_order_names_the_missing_frame, pins_and_servo_pwm, raw_frames_are_refused,
-    refusals_in_stopped, serial_round_trip, sweep,
+    refusals_in_stopped, serial_round_trip, stop_mid_run, sweep,
 };
 use protocol::{Command, MAX_JOINTS, PointList, State, StatusCode, StatusFlags, Tag};
 use system_tests::qemu::{FAULT_MARKERS, QemuBoard, echo, run_to_exit, unavailable};
@@ -274,14 +274,7 @@ fn emergency_stop_mid_run_freezes_the_joints() {
     let arm = Arc::new(board.connect_with(emulated()));
     let points = sweep(position(&board, &arm), 6, 300, 3, 10_000);
     let total = points.len();
-    let runner = {
-        let arm = arm.clone();
-        std::thread::spawn(move || arm.run_trajectory(&points, &RunOptions::default(), |_| {}))
-    };
-    std::thread::sleep(Duration::from_millis(800));
-    let ack = arm.stop().unwrap();
-    assert_eq!(ack.state, State::Stopped);
-    match runner.join().unwrap() {
+    match stop_mid_run(&arm, points, Duration::from_millis(800)) {
         Err(Error::RunEnded {
             reason: RunEnd::Stopped,
             executed: Some(n),

@@ -226,3 +226,22 @@ pub fn pins_and_servo_pwm(arm: &armctl::Client) -> protocol::StatusReport {
     assert!(!arm.status().unwrap().flags.has(StatusFlags::PWM_ACTIVE));
     status
 }
+
+/// Runs `points` on a thread of its own, sends STOPPED after `delay` (its ACK must say
+/// STOPPED) and returns how the run ended.
+pub fn stop_mid_run(
+    arm: &std::sync::Arc<armctl::Client>,
+    points: Vec<Point>,
+    delay: Duration,
+) -> armctl::Result<armctl::RunReport> {
+    let runner = {
+        let arm = arm.clone();
+        std::thread::spawn(move || {
+            arm.run_trajectory(&points, &armctl::RunOptions::default(), |_| {})
+        })
+    };
+    std::thread::sleep(delay);
+    let ack = arm.stop().unwrap();
+    assert_eq!(ack.state, protocol::State::Stopped);
+    runner.join().unwrap()
+}
