@@ -68,6 +68,24 @@ struct Arm {
 }
 
 impl Arm {
+    /// PWM_START with the registers for `freq` Hz, `duty` and `pulses` (0: servo mode) at
+    /// the controller's PWM timer clock (from a STATUS).
+    fn pwm_start_at(&self, py: Python<'_>, freq: f64, duty: f64, pulses: i32) -> PyResult<()> {
+        let arm = self.controller()?;
+        let clock = py
+            .detach({
+                let arm = arm.clone();
+                move || arm.status()
+            })
+            .map_err(|e| to_py_err(py, e))?
+            .pwm_timer_clock_hz;
+        let pwm =
+            armctl::pwm::settings(clock, freq, duty, pulses).map_err(PyValueError::new_err)?;
+        py.detach(move || arm.pwm_start(pwm))
+            .map(|_| ())
+            .map_err(|e| to_py_err(py, e))
+    }
+
     fn controller(&self) -> PyResult<Arc<Client>> {
         lock(&self.inner)
             .clone()
@@ -365,18 +383,7 @@ impl Arm {
     /// Gripper servo PWM at `freq` Hz with `duty` (0..1), until `pwm_stop()`.
     #[pyo3(signature = (duty, freq=50.0))]
     fn pwm_servo(&self, py: Python<'_>, duty: f64, freq: f64) -> PyResult<()> {
-        let arm = self.controller()?;
-        let clock = py
-            .detach({
-                let arm = arm.clone();
-                move || arm.status()
-            })
-            .map_err(|e| to_py_err(py, e))?
-            .pwm_timer_clock_hz;
-        let pwm = armctl::pwm::settings(clock, freq, duty, 0).map_err(PyValueError::new_err)?;
-        py.detach(move || arm.pwm_start(pwm))
-            .map(|_| ())
-            .map_err(|e| to_py_err(py, e))
+        self.pwm_start_at(py, freq, duty, 0)
     }
 
     /// Stepper-driven gripper: `pulses` pulses (negative: the other way) at `freq` Hz.
@@ -387,18 +394,7 @@ impl Arm {
                 "0 pulses would be servo mode: use pwm_servo",
             ));
         }
-        let arm = self.controller()?;
-        let clock = py
-            .detach({
-                let arm = arm.clone();
-                move || arm.status()
-            })
-            .map_err(|e| to_py_err(py, e))?
-            .pwm_timer_clock_hz;
-        let pwm = armctl::pwm::settings(clock, freq, 0.5, pulses).map_err(PyValueError::new_err)?;
-        py.detach(move || arm.pwm_start(pwm))
-            .map(|_| ())
-            .map_err(|e| to_py_err(py, e))
+        self.pwm_start_at(py, freq, 0.5, pulses)
     }
 
     /// NET_SET: stores the controller's address, `"A.B.C.D/P"` with an optional gateway,
