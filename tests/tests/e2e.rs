@@ -7,22 +7,13 @@ use std::time::{Duration, Instant};
 
 use armctl::{Client, Error, Options, RunEnd, RunOptions};
 use common::{
-    Raw, datagram, out_of_order_names_the_missing_frame, pins_and_servo_pwm,
+    Raw, datagram, loopback, out_of_order_names_the_missing_frame, pins_and_servo_pwm, position,
     raw_frames_are_refused, refusals_in_stopped, serial_round_trip, stop_mid_run, sweep,
 };
 use protocol::{
-    Command, Location, MAX_JOINTS, Point, PointList, Pwm, State, StatusCode, StatusFlags, Tag,
-    UartInit,
+    Command, Location, Point, PointList, Pwm, State, StatusCode, StatusFlags, Tag, UartInit,
 };
 use system_tests::SimHost;
-
-fn loopback() -> Options {
-    Options {
-        ack_timeout: Duration::from_millis(50),
-        attempts: 20,
-        ..Options::default()
-    }
-}
 
 fn refused(result: armctl::Result<protocol::Ack>, status: StatusCode, what: &str) -> Error {
     match result {
@@ -35,12 +26,6 @@ fn refused(result: armctl::Result<protocol::Ack>, status: StatusCode, what: &str
         Err(e) => panic!("{what}: expected {}, got: {e}", status.name()),
         Ok(ack) => panic!("{what}: expected {}, got {ack:?}", status.name()),
     }
-}
-
-fn position(arm: &Client) -> [i32; MAX_JOINTS] {
-    arm.current_location(Duration::from_secs(2))
-        .expect("a LOCATION report")
-        .position
 }
 
 #[test]

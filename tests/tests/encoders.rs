@@ -1,25 +1,14 @@
 //! RETURN by absolute encoder, end to end: sim-host's simulated Modbus RTU encoders on a
 //! simulated RS-485 bus, read with the board's own protocol code (board-logic `encoder`).
 
+mod common;
+
 use std::time::Duration;
 
-use armctl::{Client, Options};
-use protocol::{MAX_JOINTS, State, StatusFlags};
+use armctl::Client;
+use common::{loopback, position};
+use protocol::{State, StatusFlags};
 use system_tests::SimHost;
-
-fn loopback() -> Options {
-    Options {
-        ack_timeout: Duration::from_millis(50),
-        attempts: 20,
-        ..Options::default()
-    }
-}
-
-fn position(arm: &Client) -> [i32; MAX_JOINTS] {
-    arm.current_location(Duration::from_secs(2))
-        .expect("a LOCATION report")
-        .position
-}
 
 #[test]
 fn return_homes_by_the_encoders_not_the_step_count() {

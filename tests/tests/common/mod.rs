@@ -245,3 +245,19 @@ pub fn stop_mid_run(
     assert_eq!(ack.state, protocol::State::Stopped);
     runner.join().unwrap()
 }
+
+/// Client options for a simulator on loopback: a short first ACK wait, many tries.
+pub fn loopback() -> armctl::Options {
+    armctl::Options {
+        ack_timeout: Duration::from_millis(50),
+        attempts: 20,
+        ..armctl::Options::default()
+    }
+}
+
+/// Where the arm is, from a LOCATION report (2 s at most).
+pub fn position(arm: &armctl::Client) -> [i32; MAX_JOINTS] {
+    arm.current_location(Duration::from_secs(2))
+        .expect("a LOCATION report")
+        .position
+}
