@@ -1,6 +1,10 @@
 //! STATUS, LOCATION, progress and run reports as Python dicts.
 
-use super::*;
+use armctl::{Progress, RunReport};
+use numpy::PyArray1;
+use protocol::{Location, MAX_JOINTS, State, StatusFlags, StatusReport};
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
 
 /// STATUS as a dict.
 pub(crate) fn status_dict<'py>(py: Python<'py>, s: &StatusReport) -> PyResult<Bound<'py, PyDict>> {

@@ -1,6 +1,9 @@
 //! The module's exceptions, and the armctl errors as them (fields as attributes).
 
-use super::*;
+use armctl::{Error, trajectory};
+use pyo3::create_exception;
+use pyo3::exceptions::PyException;
+use pyo3::prelude::*;
 
 create_exception!(
     armctl,

@@ -17,17 +17,15 @@
 //! The `.pyi` stub beside Cargo.toml (`armctl.pyi`) documents the API for Python users.
 
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::mpsc::{Receiver, RecvTimeoutError};
-use std::sync::{Arc, Condvar, Mutex, MutexGuard, PoisonError};
-use std::time::{Duration, Instant};
+use std::sync::atomic::Ordering;
+use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
+use std::time::Duration;
 
 use armctl::trajectory::{self, ArmConfig, Waypoints};
-use armctl::{Client, Error, Options, Progress, RunOptions, RunReport};
+use armctl::{Client, Options, RunOptions};
 use numpy::{PyArray1, PyReadonlyArray1, PyReadonlyArray2};
-use protocol::{Location, MAX_JOINTS, NetSettings, State, StatusFlags, StatusReport};
-use pyo3::create_exception;
-use pyo3::exceptions::{PyException, PyValueError};
+use protocol::{Location, MAX_JOINTS, NetSettings, StatusReport};
+use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
@@ -48,7 +46,7 @@ mod dicts;
 mod errors;
 mod run;
 
-use dicts::{location_dict, progress_dict, report_dict, status_dict};
+use dicts::status_dict;
 use errors::{
     ArmctlError, NoReplyError, RefusedError, RunEndedError, StalledError, TrajectoryError,
     to_py_err, trajectory_err,

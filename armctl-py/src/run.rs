@@ -1,7 +1,19 @@
 //! Runs on their own thread (`RunHandle`) and the LOCATION report iterator (`Locations`):
 //! every wait releases the GIL and wakes every `SIGNAL_POLL` for Python's signal handlers.
 
-use super::*;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc::{Receiver, RecvTimeoutError};
+use std::sync::{Arc, Condvar, Mutex, PoisonError};
+use std::time::{Duration, Instant};
+
+use armctl::{Client, Error, Progress, RunOptions, RunReport};
+use protocol::Location;
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+
+use crate::dicts::{location_dict, progress_dict, report_dict};
+use crate::errors::{ArmctlError, to_py_err};
+use crate::{SIGNAL_POLL, lock};
 
 /// A run on its own thread: its progress, and its outcome once it ended.
 #[derive(Default)]
