@@ -19,14 +19,12 @@ use std::sync::mpsc;
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::{Duration, Instant, SystemTime};
 
-use armctl::protocol::{Location, MAX_JOINTS, State, StatusReport, Tag};
+use armctl::Client;
+use armctl::protocol::{Location, StatusReport};
 use armctl::trajectory::ArmConfig;
-use armctl::{Client, Error, Progress, RunOptions, RunReport};
 use async_io::Timer;
-use futures::{FutureExt, StreamExt};
-use ros2_client::action::{
-    ActionServerQosPolicies, AsyncActionServer, ExecutingGoalHandle, GoalEndStatus, NewGoalHandle,
-};
+use futures::FutureExt;
+use ros2_client::action::{ActionServerQosPolicies, AsyncActionServer, GoalEndStatus};
 use ros2_client::qos::{Durability, History};
 use ros2_client::{
     ActionTypeName, Context, ContextOptions, MessageTypeName, Name, NodeName, NodeOptions,
@@ -34,7 +32,7 @@ use ros2_client::{
 };
 
 use crate::config::BridgeConfig;
-use crate::goal::{self, Plan};
+use crate::goal;
 use crate::msgs::{
     FollowJointTrajectoryFeedback, FollowJointTrajectoryGoal, FollowJointTrajectoryResult,
     GripperCommandGoal, GripperCommandResult, Time, TriggerRequest, TriggerResponse,

@@ -2,7 +2,19 @@
 //! `run_trajectory` on a thread of its own, with feedback from the LOCATION samples, a
 //! cancel as STOPPED, and the result from where the arm ended.
 
-use super::*;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant, SystemTime};
+
+use armctl::protocol::{MAX_JOINTS, State, Tag};
+use armctl::{Error, Progress, RunOptions, RunReport};
+use async_io::Timer;
+use futures::{FutureExt, StreamExt};
+use ros2_client::action::{ExecutingGoalHandle, GoalEndStatus, NewGoalHandle};
+
+use super::{Bridge, RESULT_WAIT, STALE_LOCATION, Sample, TrajectoryServer, lock, off_thread};
+use crate::goal::{self, Plan};
+use crate::msgs::{FollowJointTrajectoryGoal, FollowJointTrajectoryResult, Time};
 
 impl Bridge {
     /// Serves FollowJointTrajectory goals, one at a time, until the bridge stops.
