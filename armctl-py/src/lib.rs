@@ -1,8 +1,11 @@
 //! The Python module `armctl`: the armctl host library for Python scripts.
 //!
 //! Everything here forwards to the `armctl` crate (the same client, upload and trajectory
-//! conversion as the `armctl` tool); this file only converts between Python and Rust
-//! values and decides how blocking calls behave in Python:
+//! conversion as the `armctl` tool); this crate only converts between Python and Rust
+//! values and decides how blocking calls behave in Python. This file holds the `Arm` class,
+//! `connect`, `discover` and the module; `errors.rs` the exceptions, `dicts.rs` the report
+//! dicts, `run.rs` runs in the background and the LOCATION iterator. How blocking calls
+//! behave:
 //!
 //! - every wait (an ACK, a run, a LOCATION report) releases the GIL, so other Python
 //!   threads run meanwhile;
@@ -14,17 +17,15 @@
 //! The `.pyi` stub beside Cargo.toml (`armctl.pyi`) documents the API for Python users.
 
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::mpsc::{Receiver, RecvTimeoutError};
-use std::sync::{Arc, Condvar, Mutex, MutexGuard, PoisonError};
-use std::time::{Duration, Instant};
+use std::sync::atomic::Ordering;
+use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
+use std::time::Duration;
 
 use armctl::trajectory::{self, ArmConfig, Waypoints};
-use armctl::{Controller, Error, Options, Progress, RunEnd, RunOptions, RunReport};
+use armctl::{Client, Options, RunOptions};
 use numpy::{PyArray1, PyReadonlyArray1, PyReadonlyArray2};
-use protocol::{Location, MAX_JOINTS, NetSettings, State, StatusFlags, StatusReport};
-use pyo3::create_exception;
-use pyo3::exceptions::{PyException, PyValueError};
+use protocol::{Location, MAX_JOINTS, NetSettings, StatusReport};
+use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
@@ -34,386 +35,56 @@ const SIGNAL_POLL: Duration = Duration::from_millis(50);
 /// How long `positions()` and a run wait for a fresh LOCATION report.
 const LOCATION_TIMEOUT: Duration = Duration::from_secs(2);
 
-create_exception!(
-    armctl,
-    ArmctlError,
-    PyException,
-    "Base class of every error of the armctl module."
-);
-create_exception!(
-    armctl,
-    RefusedError,
-    ArmctlError,
-    "The controller refused a command: `.status` is the status name (e.g. 'BAD_STATE'), `.command` the command, `.state` the controller's state."
-);
-create_exception!(
-    armctl,
-    NoReplyError,
-    ArmctlError,
-    "The controller did not answer: no ACK or report after every retry."
-);
-create_exception!(
-    armctl,
-    RunEndedError,
-    ArmctlError,
-    "A run ended before every point ran: `.reason` is 'stopped', 'underrun', 'starved' or 'unknown'; `.executed` and `.total` count points."
-);
-create_exception!(
-    armctl,
-    StalledError,
-    ArmctlError,
-    "An upload or a run made no progress for too long."
-);
-create_exception!(
-    armctl,
-    TrajectoryError,
-    ArmctlError,
-    "A trajectory the controller cannot take: bad shape, a joint limit, a step rate, a file that does not parse."
-);
+/// Sets each `"key" => value` on a Python dict (`set_item`, `?` on failure).
+macro_rules! set_items {
+    ($dict:expr, { $($key:literal => $value:expr),* $(,)? }) => {
+        $( $dict.set_item($key, $value)?; )*
+    };
+}
+
+mod dicts;
+mod errors;
+mod run;
+
+use dicts::status_dict;
+use errors::{
+    ArmctlError, NoReplyError, RefusedError, RunEndedError, StalledError, TrajectoryError,
+    to_py_err, trajectory_err,
+};
+use run::{Locations, RunHandle, RunState};
 
 fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
     m.lock().unwrap_or_else(PoisonError::into_inner)
 }
 
-/// The Python exception for an armctl error, with its fields as attributes.
-fn to_py_err(py: Python<'_>, error: Error) -> PyErr {
-    let message = error.to_string();
-    match error {
-        Error::Refused {
-            command,
-            status,
-            state,
-        } => {
-            let err = RefusedError::new_err(message);
-            let value = err.value(py);
-            let _ = value.setattr("status", status.name());
-            let _ = value.setattr("command", command.name());
-            let _ = value.setattr("state", state.name());
-            err
-        }
-        // A closed port on loopback is refused at once (nothing listens there): to Python
-        // that is the same "nothing answers" as a timeout.
-        Error::NoReply { .. }
-        | Error::ConnectionRefused { .. }
-        | Error::NoReport { .. }
-        | Error::NoLocation { .. } => NoReplyError::new_err(message),
-        Error::RunEnded {
-            reason,
-            executed,
-            received,
-            total,
-        } => {
-            let err = RunEndedError::new_err(message);
-            let value = err.value(py);
-            let reason = match reason {
-                RunEnd::Stopped => "stopped",
-                RunEnd::Underrun => "underrun",
-                RunEnd::Starved => "starved",
-                RunEnd::Unknown => "unknown",
-            };
-            let _ = value.setattr("reason", reason);
-            let _ = value.setattr("executed", executed);
-            let _ = value.setattr("received", received);
-            let _ = value.setattr("total", total);
-            err
-        }
-        Error::Stalled { .. } => StalledError::new_err(message),
-        Error::InvalidTrajectory(_) => TrajectoryError::new_err(message),
-        Error::Io(_) | Error::Encode(_) => ArmctlError::new_err(message),
-    }
-}
-
-fn trajectory_err(e: trajectory::TrajectoryError) -> PyErr {
-    TrajectoryError::new_err(e.to_string())
-}
-
-/// STATUS as a dict.
-fn status_dict<'py>(py: Python<'py>, s: &StatusReport) -> PyResult<Bound<'py, PyDict>> {
-    let d = PyDict::new(py);
-    d.set_item("version", (s.version[0], s.version[1], s.version[2]))?;
-    d.set_item("joints", s.joints)?;
-    d.set_item("state", s.state.name())?;
-    let flags = PyDict::new(py);
-    for (name, bit) in [
-        ("reports_on", StatusFlags::REPORTS_ON),
-        ("drivers_enabled", StatusFlags::DRIVERS_ENABLED),
-        ("serial_open", StatusFlags::SERIAL_OPEN),
-        ("pin0_high", StatusFlags::PIN0_HIGH),
-        ("pin1_high", StatusFlags::PIN1_HIGH),
-        ("underrun", StatusFlags::UNDERRUN),
-        ("pwm_active", StatusFlags::PWM_ACTIVE),
-        ("stopped_by_host", StatusFlags::STOPPED_BY_HOST),
-    ] {
-        flags.set_item(name, s.flags.has(bit))?;
-    }
-    d.set_item("flags", flags)?;
-    d.set_item("buffered", s.buffered)?;
-    d.set_item("expected", s.expected)?;
-    d.set_item("received", s.received)?;
-    d.set_item("executed", s.executed)?;
-    d.set_item("capacity", s.capacity)?;
-    d.set_item("upload_period_us", s.upload_period_us)?;
-    d.set_item("pwm_timer_clock_hz", s.pwm_timer_clock_hz)?;
-    d.set_item("max_step_rate_hz", s.max_step_rate_hz)?;
-    Ok(d)
-}
-
-fn state_name(code: u8) -> &'static str {
-    State::name_of(code)
-}
-
-/// A LOCATION report as a dict: `positions` (int32 array, steps) and `state`.
-fn location_dict<'py>(
-    py: Python<'py>,
-    location: &Location,
-    joints: usize,
-) -> PyResult<Bound<'py, PyDict>> {
-    let d = PyDict::new(py);
-    d.set_item(
-        "positions",
-        PyArray1::from_slice(py, &location.position[..joints.clamp(1, MAX_JOINTS)]),
-    )?;
-    d.set_item("state", state_name(location.state))?;
-    Ok(d)
-}
-
-fn progress_dict<'py>(py: Python<'py>, p: &Progress, done: bool) -> PyResult<Bound<'py, PyDict>> {
-    let d = PyDict::new(py);
-    d.set_item("total", p.total)?;
-    d.set_item("sent", p.sent)?;
-    d.set_item("acked", p.acked)?;
-    d.set_item("executed", p.executed)?;
-    d.set_item("state", p.state.name())?;
-    d.set_item("done", done)?;
-    Ok(d)
-}
-
-fn report_dict<'py>(py: Python<'py>, r: &RunReport, joints: usize) -> PyResult<Bound<'py, PyDict>> {
-    let d = PyDict::new(py);
-    d.set_item("points", r.points)?;
-    d.set_item("frames", r.frames)?;
-    d.set_item("datagrams_sent", r.datagrams_sent)?;
-    d.set_item("retransmissions", r.retransmissions)?;
-    d.set_item("upload_time", r.upload_time.as_secs_f64())?;
-    d.set_item("total_time", r.total_time.as_secs_f64())?;
-    match &r.final_status {
-        Some(s) => d.set_item("final_status", status_dict(py, s)?)?,
-        None => d.set_item("final_status", py.None())?,
-    }
-    match &r.final_location {
-        Some(l) => d.set_item(
-            "final_positions",
-            PyArray1::from_slice(py, &l.position[..joints.clamp(1, MAX_JOINTS)]),
-        )?,
-        None => d.set_item("final_positions", py.None())?,
-    }
-    Ok(d)
-}
-
-/// A run on its own thread: its progress, and its outcome once it ended.
-#[derive(Default)]
-struct RunState {
-    progress: Mutex<Progress>,
-    outcome: Mutex<Option<Result<RunReport, Error>>>,
-    ended: Condvar,
-    done: AtomicBool,
-}
-
-/// A trajectory run started by `Arm.run(..., wait=False)` (or `run_file`).
-#[pyclass(module = "armctl")]
-struct RunHandle {
-    arm: Arc<Controller>,
-    state: Arc<RunState>,
-    joints: usize,
-    /// What `wait()` returns (or raises), once known.
-    result: Mutex<Option<PyResult<Py<PyAny>>>>,
-}
-
-impl RunHandle {
-    fn start(
-        arm: Arc<Controller>,
-        points: Vec<protocol::Point>,
-        options: RunOptions,
-        joints: usize,
-    ) -> PyResult<RunHandle> {
-        let state = Arc::new(RunState::default());
-        let (thread_arm, thread_state) = (arm.clone(), state.clone());
-        std::thread::Builder::new()
-            .name("armctl-run".into())
-            .spawn(move || {
-                let result = thread_arm.run_trajectory(&points, &options, |p| {
-                    *lock(&thread_state.progress) = *p;
-                });
-                *lock(&thread_state.outcome) = Some(result);
-                thread_state.done.store(true, Ordering::SeqCst);
-                thread_state.ended.notify_all();
-            })
-            .map_err(|e| ArmctlError::new_err(format!("cannot start the run thread: {e}")))?;
-        Ok(RunHandle {
-            arm,
-            state,
-            joints,
-            result: Mutex::new(None),
-        })
-    }
-
-    /// Waits for the end of the run with the GIL released, waking to check for signals.
-    /// A KeyboardInterrupt (or any signal handler's exception) stops the arm first.
-    fn wait_inner(&self, py: Python<'_>, timeout: Option<f64>) -> PyResult<Py<PyAny>> {
-        let deadline = timeout.map(|s| Instant::now() + Duration::from_secs_f64(s.max(0.0)));
-        loop {
-            if let Some(result) = lock(&self.result).as_ref() {
-                return match result {
-                    Ok(v) => Ok(v.clone_ref(py)),
-                    Err(e) => Err(e.clone_ref(py)),
-                };
-            }
-            let state = self.state.clone();
-            let outcome = py.detach(move || {
-                let guard = lock(&state.outcome);
-                let (mut guard, _) = state
-                    .ended
-                    .wait_timeout_while(guard, SIGNAL_POLL, |o| o.is_none())
-                    .unwrap_or_else(PoisonError::into_inner);
-                guard.take()
-            });
-            if let Some(outcome) = outcome {
-                let result = match outcome {
-                    Ok(report) => {
-                        report_dict(py, &report, self.joints).map(|d| d.into_any().unbind())
-                    }
-                    Err(e) => Err(to_py_err(py, e)),
-                };
-                let copy = match &result {
-                    Ok(v) => Ok(v.clone_ref(py)),
-                    Err(e) => Err(e.clone_ref(py)),
-                };
-                *lock(&self.result) = Some(copy);
-                return result;
-            }
-            if let Err(interrupt) = py.check_signals() {
-                let arm = self.arm.clone();
-                // Stop first, then let the exception propagate.
-                let _ = py.detach(move || arm.stop());
-                return Err(interrupt);
-            }
-            if deadline.is_some_and(|d| Instant::now() >= d) {
-                return Err(pyo3::exceptions::PyTimeoutError::new_err(
-                    "the run has not ended yet",
-                ));
-            }
-        }
-    }
-}
-
-#[pymethods]
-impl RunHandle {
-    /// Where the run is: total, sent, acked, executed points, the state, done.
-    #[getter]
-    fn progress<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-        let progress = *lock(&self.state.progress);
-        progress_dict(py, &progress, self.state.done.load(Ordering::SeqCst))
-    }
-
-    /// Whether the run has ended (successfully or not).
-    #[getter]
-    fn done(&self) -> bool {
-        self.state.done.load(Ordering::SeqCst)
-    }
-
-    /// Waits for the end of the run and returns its report (dict); raises what ended it.
-    /// `timeout` in seconds: TimeoutError if still running then (the run goes on).
-    #[pyo3(signature = (timeout=None))]
-    fn wait(&self, py: Python<'_>, timeout: Option<f64>) -> PyResult<Py<PyAny>> {
-        self.wait_inner(py, timeout)
-    }
-
-    /// Sends STOPPED and waits for the run to end (its `wait()` then raises
-    /// RunEndedError with reason 'stopped').
-    fn cancel(&self, py: Python<'_>) -> PyResult<()> {
-        let arm = self.arm.clone();
-        py.detach(move || arm.stop())
-            .map_err(|e| to_py_err(py, e))?;
-        let state = self.state.clone();
-        py.detach(move || {
-            let guard = lock(&state.outcome);
-            let _ = state
-                .ended
-                .wait_timeout_while(guard, Duration::from_secs(10), |_| {
-                    !state.done.load(Ordering::SeqCst)
-                });
-        });
-        Ok(())
-    }
-
-    fn __repr__(&self) -> String {
-        let p = *lock(&self.state.progress);
-        format!(
-            "<armctl.RunHandle {}/{} executed, {}{}>",
-            p.executed,
-            p.total,
-            p.state.name(),
-            if self.state.done.load(Ordering::SeqCst) {
-                ", done"
-            } else {
-                ""
-            }
-        )
-    }
-}
-
-/// Iterator over LOCATION reports (`Arm.locations()`).
-#[pyclass(module = "armctl")]
-struct Locations {
-    reports: Mutex<Receiver<Location>>,
-    timeout: Duration,
-    remaining: Mutex<Option<usize>>,
-    joints: usize,
-}
-
-#[pymethods]
-impl Locations {
-    fn __iter__(slf: PyRef<'_, Self>) -> PyRef<'_, Self> {
-        slf
-    }
-
-    fn __next__<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyDict>>> {
-        {
-            let mut remaining = lock(&self.remaining);
-            match remaining.as_mut() {
-                Some(0) => return Ok(None),
-                Some(n) => *n -= 1,
-                None => {}
-            }
-        }
-        let deadline = Instant::now() + self.timeout;
-        loop {
-            let slice = SIGNAL_POLL.min(deadline.saturating_duration_since(Instant::now()));
-            let received = py.detach(|| lock(&self.reports).recv_timeout(slice));
-            match received {
-                Ok(location) => return location_dict(py, &location, self.joints).map(Some),
-                Err(RecvTimeoutError::Disconnected) => return Ok(None),
-                Err(RecvTimeoutError::Timeout) => {
-                    py.check_signals()?;
-                    if Instant::now() >= deadline {
-                        return Ok(None);
-                    }
-                }
-            }
-        }
-    }
-}
-
 /// A connection to one controller (`armctl.connect(...)`); a context manager.
 #[pyclass(module = "armctl")]
 struct Arm {
-    inner: Mutex<Option<Arc<Controller>>>,
+    inner: Mutex<Option<Arc<Client>>>,
     /// Runs started here, to stop on an exception in a `with` block.
     runs: Mutex<Vec<Arc<RunState>>>,
 }
 
 impl Arm {
-    fn controller(&self) -> PyResult<Arc<Controller>> {
+    /// PWM_START with the registers for `freq` Hz, `duty` and `pulses` (0: servo mode) at
+    /// the controller's PWM timer clock (from a STATUS).
+    fn pwm_start_at(&self, py: Python<'_>, freq: f64, duty: f64, pulses: i32) -> PyResult<()> {
+        let arm = self.controller()?;
+        let clock = py
+            .detach({
+                let arm = arm.clone();
+                move || arm.status()
+            })
+            .map_err(|e| to_py_err(py, e))?
+            .pwm_timer_clock_hz;
+        let pwm =
+            armctl::pwm::settings(clock, freq, duty, pulses).map_err(PyValueError::new_err)?;
+        py.detach(move || arm.pwm_start(pwm))
+            .map(|_| ())
+            .map_err(|e| to_py_err(py, e))
+    }
+
+    fn controller(&self) -> PyResult<Arc<Client>> {
         lock(&self.inner)
             .clone()
             .ok_or_else(|| ArmctlError::new_err("the connection is closed"))
@@ -423,7 +94,7 @@ impl Arm {
     fn call<T: Send>(
         &self,
         py: Python<'_>,
-        f: impl FnOnce(&Controller) -> armctl::Result<T> + Send,
+        f: impl FnOnce(&Client) -> armctl::Result<T> + Send,
     ) -> PyResult<T> {
         let arm = self.controller()?;
         py.detach(move || f(&arm)).map_err(|e| to_py_err(py, e))
@@ -710,18 +381,7 @@ impl Arm {
     /// Gripper servo PWM at `freq` Hz with `duty` (0..1), until `pwm_stop()`.
     #[pyo3(signature = (duty, freq=50.0))]
     fn pwm_servo(&self, py: Python<'_>, duty: f64, freq: f64) -> PyResult<()> {
-        let arm = self.controller()?;
-        let clock = py
-            .detach({
-                let arm = arm.clone();
-                move || arm.status()
-            })
-            .map_err(|e| to_py_err(py, e))?
-            .pwm_timer_clock_hz;
-        let pwm = armctl::pwm::settings(clock, freq, duty, 0).map_err(PyValueError::new_err)?;
-        py.detach(move || arm.pwm_start(pwm))
-            .map(|_| ())
-            .map_err(|e| to_py_err(py, e))
+        self.pwm_start_at(py, freq, duty, 0)
     }
 
     /// Stepper-driven gripper: `pulses` pulses (negative: the other way) at `freq` Hz.
@@ -732,18 +392,7 @@ impl Arm {
                 "0 pulses would be servo mode: use pwm_servo",
             ));
         }
-        let arm = self.controller()?;
-        let clock = py
-            .detach({
-                let arm = arm.clone();
-                move || arm.status()
-            })
-            .map_err(|e| to_py_err(py, e))?
-            .pwm_timer_clock_hz;
-        let pwm = armctl::pwm::settings(clock, freq, 0.5, pulses).map_err(PyValueError::new_err)?;
-        py.detach(move || arm.pwm_start(pwm))
-            .map(|_| ())
-            .map_err(|e| to_py_err(py, e))
+        self.pwm_start_at(py, freq, 0.5, pulses)
     }
 
     /// NET_SET: stores the controller's address, `"A.B.C.D/P"` with an optional gateway,
@@ -848,17 +497,19 @@ fn discover<'py>(
             let d = PyDict::new(py);
             d.set_item("address", f.from.to_string())?;
             if let Some(r) = &f.reply {
-                d.set_item("mac", mac_string(&r.mac))?;
-                d.set_item("version", (r.version[0], r.version[1], r.version[2]))?;
-                d.set_item("joints", r.joints)?;
-                d.set_item("state", r.state.name())?;
-                d.set_item("owner", r.owner.name())?;
-                d.set_item("owner_ip", ip(r.owner_ip))?;
-                d.set_item("dhcp", r.net.dhcp)?;
-                d.set_item("stored_ip", ip(r.net.ip))?;
-                d.set_item("prefix_len", r.net.prefix_len)?;
-                d.set_item("gateway", ip(r.net.gateway))?;
-                d.set_item("pending_reset", r.pending_reset)?;
+                set_items!(d, {
+                    "mac" => mac_string(&r.mac),
+                    "version" => (r.version[0], r.version[1], r.version[2]),
+                    "joints" => r.joints,
+                    "state" => r.state.name(),
+                    "owner" => r.owner.name(),
+                    "owner_ip" => ip(r.owner_ip),
+                    "dhcp" => r.net.dhcp,
+                    "stored_ip" => ip(r.net.ip),
+                    "prefix_len" => r.net.prefix_len,
+                    "gateway" => ip(r.net.gateway),
+                    "pending_reset" => r.pending_reset,
+                });
             }
             Ok(d)
         })
@@ -892,8 +543,8 @@ fn connect(
     };
     let address = address.to_string();
     let arm = py
-        .detach(move || -> armctl::Result<Controller> {
-            let arm = Controller::open(address.as_str(), options)?;
+        .detach(move || -> armctl::Result<Client> {
+            let arm = Client::open(address.as_str(), options)?;
             if let Some(path) = pcap {
                 arm.capture(Arc::new(armctl::pcap::PcapLog::create(&path)?));
             }
@@ -911,6 +562,14 @@ fn connect(
 #[pymodule(name = "armctl")]
 fn armctl_py(m: &Bound<'_, PyModule>) -> PyResult<()> {
     let py = m.py();
+    // ARMCTL_TRACE: the client's upload traces (ACKs, timeouts, resends) on stderr, as
+    // the `armctl` tool shows them. Nothing is installed otherwise (the host program's
+    // own logging stays its own).
+    if armctl::trace_requested() {
+        let _ = env_logger::Builder::new()
+            .filter_module("armctl", log::LevelFilter::Trace)
+            .try_init();
+    }
     m.add_function(wrap_pyfunction!(connect, m)?)?;
     m.add_function(wrap_pyfunction!(discover, m)?)?;
     m.add_class::<Arm>()?;

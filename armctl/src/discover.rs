@@ -157,7 +157,7 @@ pub fn parse_cidr(s: &str) -> Result<([u8; 4], u8), String> {
     Ok((ip.octets(), prefix))
 }
 
-impl crate::Controller {
+impl crate::Client {
     /// NET_SET: stores new network settings on the controller (owner only, not while
     /// RUNNING); the controller applies them at its next reset. Invalid settings are
     /// refused here, before anything is sent.

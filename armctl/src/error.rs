@@ -95,6 +95,19 @@ pub enum RunEnd {
     Unknown,
 }
 
+impl RunEnd {
+    /// The reason as one lower-case word (`stopped`, `underrun`, `starved`, `unknown`): what
+    /// the Python package's `RunEndedError.reason` says.
+    pub fn name(self) -> &'static str {
+        match self {
+            RunEnd::Stopped => "stopped",
+            RunEnd::Underrun => "underrun",
+            RunEnd::Starved => "starved",
+            RunEnd::Unknown => "unknown",
+        }
+    }
+}
+
 impl fmt::Display for Error {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {

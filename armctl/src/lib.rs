@@ -1,10 +1,10 @@
 //! Host side of the arm controller: a client library over UDP and the `armctl` tool.
 //!
 //! ```no_run
-//! use armctl::{Controller, RunOptions};
+//! use armctl::{Client, RunOptions};
 //! use protocol::Point;
 //!
-//! let arm = Controller::connect("127.0.0.1:8510")?;
+//! let arm = Client::connect("127.0.0.1:8510")?;
 //! let status = arm.status()?;
 //! println!("{} joints, state {}", status.joints, status.state.name());
 //! let start = arm.last_location().map(|l| l.position).unwrap_or_default();
@@ -19,9 +19,9 @@
 //! # Ok::<(), armctl::Error>(())
 //! ```
 //!
-//! - [`Controller`]: commands with retries and ACK checks; every refusal is an
+//! - [`Client`]: commands with retries and ACK checks; every refusal is an
 //!   [`Error::Refused`] whose message names the status and what to do about it.
-//! - [`Controller::run_trajectory`]: the reliable upload (go-back-N window, flow control).
+//! - [`Client::run_trajectory`]: the reliable upload (go-back-N window, flow control).
 //! - [`trajectory`]: JointTrajectory JSON and CSV files to checked [`protocol::Point`]s.
 //! - [`record`] and [`plot`]: recorded location reports as CSV, and SVG plots of them;
 //!   [`vcd`]: joint positions from a simulator trace (`sim-host --trace`), for the same plots.
@@ -38,10 +38,24 @@ mod run;
 pub mod trajectory;
 pub mod vcd;
 
-pub use client::{Controller, Options};
+pub use client::{Client, Options};
+
+/// The old name of [`Client`], kept so that integrators' code still builds. Renamed because
+/// it clashed with `arm_core::Controller` (the controller's state machine) in code that
+/// uses both.
+#[deprecated(since = "0.1.0", note = "renamed to `armctl::Client`")]
+pub type Controller = Client;
 pub use error::{Error, Result, RunEnd};
 pub use rtt::{DEFAULT_MIN_RTO, DUPLICATE_WINDOW, RESEND_HORIZON, RttEstimator};
 pub use run::{DEFAULT_WINDOW, MAX_POINTS, MAX_WINDOW, Progress, RunOptions, RunReport, window_of};
+
+/// Whether `ARMCTL_TRACE` is set: a program that installs a logger then shows every record
+/// of the `armctl` target (an upload's ACKs at `trace`, timeouts and go-back-N resends at
+/// `debug`), whatever `RUST_LOG` says. The library itself only logs; the `armctl` binary,
+/// sim-host, ros2-bridge and the Python module install the loggers.
+pub fn trace_requested() -> bool {
+    std::env::var_os("ARMCTL_TRACE").is_some()
+}
 
 /// The controller's UDP port, when an address names none.
 pub const DEFAULT_PORT: u16 = 8510;

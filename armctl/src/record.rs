@@ -164,7 +164,7 @@ where
 
 /// Name of a state code for display.
 pub fn state_name(code: u8) -> &'static str {
-    State::from_u8(code).map_or("?", State::name)
+    State::name_of(code)
 }
 
 #[cfg(test)]

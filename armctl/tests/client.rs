@@ -5,9 +5,17 @@ mod fake;
 use std::sync::Arc;
 use std::time::Duration;
 
-use armctl::{Controller, Error, Options, RunEnd, RunOptions};
+use armctl::{Client, Error, Options, RunEnd, RunOptions};
 use fake::{Fake, Faults, ramp};
 use protocol::{Command, State, StatusCode};
+
+/// A fake controller with `capacity` points of buffer and `faults`, and a client
+/// connected to it with [`options`].
+fn connected(capacity: usize, faults: Faults) -> (Fake, Client) {
+    let fake = Fake::start(capacity, faults);
+    let arm = Client::connect_with(fake.addr, options()).unwrap();
+    (fake, arm)
+}
 
 fn options() -> Options {
     Options {
@@ -20,8 +28,7 @@ fn options() -> Options {
 
 #[test]
 fn lossless_run_executes_every_point_in_order() {
-    let fake = Fake::start(64, Faults::default());
-    let arm = Controller::connect_with(fake.addr, options()).unwrap();
+    let (fake, arm) = connected(64, Faults::default());
     let points = ramp(200, 10, 3000);
     let mut calls = 0;
     let report = arm
@@ -44,8 +51,7 @@ fn lossless_run_executes_every_point_in_order() {
 
 #[test]
 fn stop_and_wait_gives_the_same_points() {
-    let fake = Fake::start(32, Faults::default());
-    let arm = Controller::connect_with(fake.addr, options()).unwrap();
+    let (fake, arm) = connected(32, Faults::default());
     let points = ramp(100, 3, 500);
     let options = RunOptions {
         window: 1,
@@ -60,7 +66,7 @@ fn stop_and_wait_gives_the_same_points() {
 #[test]
 fn lossy_link_still_delivers_each_point_exactly_once() {
     for seed in 1..=3 {
-        let fake = Fake::start(
+        let (fake, arm) = connected(
             100,
             Faults {
                 loss: 0.2,
@@ -70,7 +76,6 @@ fn lossy_link_still_delivers_each_point_exactly_once() {
                 ..Faults::default()
             },
         );
-        let arm = Controller::connect_with(fake.addr, options()).unwrap();
         let points = ramp(200, 7, 5000);
         let report = arm
             .run_trajectory(&points, &RunOptions::default(), |_| {})
@@ -84,8 +89,7 @@ fn lossy_link_still_delivers_each_point_exactly_once() {
 
 #[test]
 fn refusals_name_the_status() {
-    let fake = Fake::start(16, Faults::default());
-    let arm = Controller::connect_with(fake.addr, options()).unwrap();
+    let (_fake, arm) = connected(16, Faults::default());
     // RUNING in STOPPED: BAD_STATE.
     let err = arm.send(&Command::Runing).unwrap_err();
     assert_eq!(err.status(), Some(StatusCode::BadState));
@@ -103,7 +107,7 @@ fn refusals_name_the_status() {
 #[test]
 fn stop_from_another_thread_ends_the_run() {
     let fake = Fake::start(1000, Faults::default());
-    let arm = Arc::new(Controller::connect_with(fake.addr, options()).unwrap());
+    let arm = Arc::new(Client::connect_with(fake.addr, options()).unwrap());
     let points = ramp(500, 1, 2000);
     let stopper = {
         let arm = arm.clone();
@@ -132,7 +136,7 @@ fn stop_from_another_thread_ends_the_run() {
 fn no_controller_gives_no_reply() {
     let socket = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
     let addr = socket.local_addr().unwrap();
-    let err = Controller::connect_with(
+    let err = Client::connect_with(
         addr,
         Options {
             ack_timeout: Duration::from_millis(10),
@@ -149,14 +153,13 @@ fn a_window_larger_than_the_controller_inbox_backs_off() {
     // The controller drops whatever of a burst exceeds 4 datagrams; the client asks for
     // 16 frames in flight. The congestion window must bring the bursts down to what
     // gets through instead of losing the same frames again and again.
-    let fake = Fake::start(
+    let (fake, arm) = connected(
         4000,
         Faults {
             inbox: 4,
             ..Faults::default()
         },
     );
-    let arm = Controller::connect_with(fake.addr, options()).unwrap();
     let points = ramp(1200, 1, 500);
     let report = arm
         .run_trajectory(
@@ -185,14 +188,13 @@ fn a_window_larger_than_the_controller_inbox_backs_off() {
 /// not every point had been received).
 #[test]
 fn a_controller_that_falls_behind_is_not_blamed_on_the_upload() {
-    let fake = Fake::start(
+    let (_fake, arm) = connected(
         200,
         Faults {
             fall_behind_after: Some(50),
             ..Faults::default()
         },
     );
-    let arm = Controller::connect_with(fake.addr, options()).unwrap();
     let points = ramp(1000, 2, 2000);
     let err = arm
         .run_trajectory(&points, &RunOptions::default(), |_| {})
@@ -218,8 +220,7 @@ fn a_controller_that_falls_behind_is_not_blamed_on_the_upload() {
 /// so the buffer runs dry with every point received already run: the upload's fault.
 #[test]
 fn an_upload_slower_than_the_run_is_reported_as_such() {
-    let fake = Fake::start(600, Faults::default());
-    let arm = Controller::connect_with(fake.addr, options()).unwrap();
+    let (_fake, arm) = connected(600, Faults::default());
     let points = ramp(2000, 0, 10);
     let run = RunOptions {
         window: 1,
@@ -244,14 +245,13 @@ fn an_upload_slower_than_the_run_is_reported_as_such() {
 #[test]
 fn the_advertised_window_is_used_by_default() {
     for (advertised, used) in [(0u16, 8usize), (3, 3), (32, 32)] {
-        let fake = Fake::start(
+        let (fake, arm) = connected(
             4000,
             Faults {
                 window: advertised,
                 ..Faults::default()
             },
         );
-        let arm = Controller::connect_with(fake.addr, options()).unwrap();
         assert_eq!(arm.advertised_window().unwrap(), used);
         let points = ramp(600, 1, 500);
         let report = arm
@@ -282,7 +282,7 @@ fn out_of_order_goes_back_at_once() {
         },
     );
     // A long ACK timeout: waiting for one would show.
-    let arm = Controller::connect_with(
+    let arm = Client::connect_with(
         fake.addr,
         Options {
             ack_timeout: Duration::from_secs(2),

@@ -1,5 +1,5 @@
 //! The running bridge: one ROS 2 node (ros2-client on RustDDS) whose action servers,
-//! service and publisher run as futures on one thread, and the armctl [`Controller`] whose
+//! service and publisher run as futures on one thread, and the armctl [`Client`] whose
 //! blocking calls run on threads of their own so that a slow controller never holds up
 //! joint_states.
 //!
@@ -10,20 +10,21 @@
 //!       +--- run thread: run_trajectory (NEW, PENDING..., RUNING, wait) <-- trajectory task
 //!       +--- STOPPED: cancel, e-stop service;   PWM: gripper task;   STATUS: keep-alive thread
 //! ```
+//!
+//! The FollowJointTrajectory action (goal, streaming, feedback, cancel, result) is in
+//! `bridge/trajectory.rs`.
 
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::mpsc;
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::{Duration, Instant, SystemTime};
 
-use armctl::protocol::{Location, MAX_JOINTS, State, StatusReport, Tag};
+use armctl::Client;
+use armctl::protocol::{Location, StatusReport};
 use armctl::trajectory::ArmConfig;
-use armctl::{Controller, Error, Progress, RunOptions, RunReport};
 use async_io::Timer;
-use futures::{FutureExt, StreamExt};
-use ros2_client::action::{
-    ActionServerQosPolicies, AsyncActionServer, ExecutingGoalHandle, GoalEndStatus, NewGoalHandle,
-};
+use futures::FutureExt;
+use ros2_client::action::{ActionServerQosPolicies, AsyncActionServer, GoalEndStatus};
 use ros2_client::qos::{Durability, History};
 use ros2_client::{
     ActionTypeName, Context, ContextOptions, MessageTypeName, Name, NodeName, NodeOptions,
@@ -31,11 +32,13 @@ use ros2_client::{
 };
 
 use crate::config::BridgeConfig;
-use crate::goal::{self, Plan};
+use crate::goal;
 use crate::msgs::{
     FollowJointTrajectoryFeedback, FollowJointTrajectoryGoal, FollowJointTrajectoryResult,
     GripperCommandGoal, GripperCommandResult, Time, TriggerRequest, TriggerResponse,
 };
+
+mod trajectory;
 
 type TrajectoryServer = AsyncActionServer<
     FollowJointTrajectoryGoal,
@@ -88,7 +91,7 @@ pub struct Bridge {
     config: BridgeConfig,
     arm: ArmConfig,
     names: Vec<String>,
-    controller: Arc<Controller>,
+    controller: Arc<Client>,
     status: StatusReport,
     latest: Arc<Mutex<Option<Sample>>>,
     observers: Arc<Mutex<Vec<mpsc::Sender<Sample>>>>,
@@ -109,7 +112,7 @@ impl Bridge {
     /// Connects to the controller, checks it has the configured joints, and asks for
     /// LOCATION reports at the JointState rate.
     pub fn connect(config: BridgeConfig, arm: ArmConfig) -> Result<Bridge, String> {
-        let controller = Controller::connect(config.controller.as_str())
+        let controller = Client::connect(config.controller.as_str())
             .map_err(|e| format!("controller {}: {e}", config.controller))?;
         let status = controller.status().map_err(|e| e.to_string())?;
         if usize::from(status.joints) < arm.joints.len() {
@@ -147,7 +150,7 @@ impl Bridge {
     }
 
     /// The controller connection (shared with the bridge's threads).
-    pub fn controller(&self) -> &Arc<Controller> {
+    pub fn controller(&self) -> &Arc<Client> {
         &self.controller
     }
 
@@ -364,258 +367,6 @@ impl Bridge {
                 success: false,
                 message: "STOPPED failed: internal error".into(),
             },
-        }
-    }
-
-    async fn serve_trajectories(&self, server: &TrajectoryServer) {
-        loop {
-            futures::select! {
-                new_goal = server.receive_new_goal().fuse() => match new_goal {
-                    Ok(handle) => self.handle_goal(server, handle).await,
-                    Err(e) => log::warn!("FollowJointTrajectory goal: {e:?}"),
-                },
-                cancel = server.receive_cancel_request().fuse() => if let Ok(cancel) = cancel {
-                    // Nothing runs: nothing to cancel.
-                    let _ = server.respond_to_cancel_requests(&cancel, std::iter::empty()).await;
-                },
-            }
-        }
-    }
-
-    /// Where the arm is: the last LOCATION if recent, else a fresh one.
-    async fn current_position(&self) -> Result<[i32; MAX_JOINTS], String> {
-        let recent = |s: &Sample| s.stamp.elapsed().is_ok_and(|age| age < STALE_LOCATION);
-        if let Some(sample) = self.latest().filter(recent) {
-            return Ok(sample.location.position);
-        }
-        let controller = self.controller.clone();
-        match off_thread(move || controller.current_location(Duration::from_secs(1))).await {
-            Some(Ok(location)) => Ok(location.position),
-            Some(Err(e)) => Err(e.to_string()),
-            None => Err("internal error reading the position".into()),
-        }
-    }
-
-    async fn handle_goal(
-        &self,
-        server: &TrajectoryServer,
-        handle: NewGoalHandle<FollowJointTrajectoryGoal>,
-    ) {
-        let Some(goal) = server.get_new_goal(handle.clone()) else {
-            return;
-        };
-        let planned = match self.current_position().await {
-            Ok(current) => goal::plan(
-                &goal,
-                &self.config,
-                &self.arm,
-                &current,
-                Some(self.status.max_step_rate_hz).filter(|&r| r > 0),
-            ),
-            Err(e) => Err(goal::Refusal {
-                code: FollowJointTrajectoryResult::INVALID_GOAL,
-                message: format!("the arm's position is unknown: {e}"),
-            }),
-        };
-        // Invalid goals are accepted and aborted at once rather than rejected: a rejection
-        // carries no reason, the result's error string does.
-        let executing = match server.accept_goal(handle).await {
-            Ok(accepted) => match server.start_executing_goal(accepted).await {
-                Ok(executing) => executing,
-                Err(e) => return log::warn!("start goal: {e:?}"),
-            },
-            Err(e) => return log::warn!("accept goal: {e:?}"),
-        };
-        let (status, result) = match planned {
-            Err(refusal) => {
-                log::info!("goal refused: {}", refusal.message);
-                (
-                    GoalEndStatus::Aborted,
-                    FollowJointTrajectoryResult {
-                        error_code: refusal.code,
-                        error_string: refusal.message,
-                    },
-                )
-            }
-            Ok(plan) if plan.points.is_empty() => (
-                GoalEndStatus::Succeeded,
-                FollowJointTrajectoryResult {
-                    error_code: FollowJointTrajectoryResult::SUCCESSFUL,
-                    error_string: "the goal is where the arm is: nothing to move".into(),
-                },
-            ),
-            Ok(plan) => self.execute(server, executing.clone(), &plan).await,
-        };
-        log::info!(
-            "goal ended {status:?}: {} {}",
-            result.error_code,
-            result.error_string
-        );
-        futures::select! {
-            sent = server.send_result_response(executing, status, result).fuse() => {
-                if let Err(e) = sent {
-                    log::warn!("result: {e:?}");
-                }
-            }
-            _ = FutureExt::fuse(Timer::after(RESULT_WAIT)) => log::warn!("nobody asked for the result"),
-        }
-    }
-
-    /// Streams `plan` with armctl's client, publishing feedback, serving cancels and
-    /// rejecting other goals until the run ends.
-    async fn execute(
-        &self,
-        server: &TrajectoryServer,
-        executing: ExecutingGoalHandle<FollowJointTrajectoryGoal>,
-        plan: &Plan,
-    ) -> (GoalEndStatus, FollowJointTrajectoryResult) {
-        let running_since: Arc<Mutex<Option<Instant>>> = Arc::new(Mutex::new(None));
-        let executed = Arc::new(AtomicU64::new(0));
-        let (done_tx, done_rx) = async_channel::bounded::<armctl::Result<RunReport>>(1);
-        let estops_before = self.estops.load(Ordering::SeqCst);
-        {
-            let controller = self.controller.clone();
-            let points = plan.points.clone();
-            let running_since = running_since.clone();
-            let executed = executed.clone();
-            std::thread::spawn(move || {
-                let result =
-                    controller.run_trajectory(&points, &RunOptions::default(), |p: &Progress| {
-                        executed.store(p.executed as u64, Ordering::Relaxed);
-                        if p.state == State::Running {
-                            lock(&running_since).get_or_insert_with(Instant::now);
-                        }
-                    });
-                let _ = done_tx.send_blocking(result);
-            });
-        }
-        let period = Duration::from_secs_f64(1.0 / self.config.feedback_rate_hz);
-        let mut ticker = Timer::interval(period);
-        let mut canceled = false;
-        let mut path_violation: Option<String> = None;
-        let outcome = loop {
-            futures::select! {
-                done = done_rx.recv().fuse() => break done.ok(),
-                // After a cancel the goal is CANCELING: no more feedback for it.
-                _ = ticker.next().fuse() => if !canceled {
-                    let elapsed_us = lock(&running_since)
-                        .map_or(0, |t| t.elapsed().as_micros() as i64);
-                    let desired = plan.desired_steps(elapsed_us);
-                    let actual = self.latest().map_or(plan.start, |s| s.location.position);
-                    let feedback = goal::feedback(plan, &self.arm, &desired, &actual, elapsed_us,
-                        Time::from_system(SystemTime::now()));
-                    if let Err(e) = server.publish_feedback(executing.clone(), feedback).await {
-                        log::warn!("feedback: {e:?}");
-                    }
-                    if path_violation.is_none() && !canceled
-                        && let Some(why) = goal::path_violation(plan, &self.arm, &desired, &actual)
-                    {
-                        path_violation = Some(why);
-                        self.stop_detached();
-                    }
-                },
-                cancel = server.receive_cancel_request().fuse() => if let Ok(cancel) = cancel {
-                    let mine = executing.goal_id();
-                    if cancel.contains_goal(&mine) {
-                        canceled = true;
-                        self.stop_detached();
-                        let _ = server.respond_to_cancel_requests(&cancel, std::iter::once(mine)).await;
-                    } else {
-                        let _ = server.respond_to_cancel_requests(&cancel, std::iter::empty()).await;
-                    }
-                },
-                other = server.receive_new_goal().fuse() => if let Ok(other) = other {
-                    // One trajectory at a time: MoveIt waits for the running one or cancels it.
-                    log::info!("goal rejected: another goal is running");
-                    let _ = server.reject_goal(other).await;
-                },
-            }
-        };
-        let executed = executed.load(Ordering::Relaxed);
-        let total = plan.points.len();
-        let position = |p: &[i32; MAX_JOINTS]| -> String {
-            let rad: Vec<String> = (0..self.arm.joints.len())
-                .map(|j| format!("{:.4}", goal::radians(&self.arm, j, f64::from(p[j]))))
-                .collect();
-            format!("[{}] rad", rad.join(", "))
-        };
-        let result = |code: i32, message: String| FollowJointTrajectoryResult {
-            error_code: code,
-            error_string: message,
-        };
-        let end_position = match &outcome {
-            Some(Ok(report)) => report.final_location.map(|l| l.position),
-            _ => None,
-        }
-        .or_else(|| self.latest().map(|s| s.location.position));
-        match outcome {
-            _ if canceled => (
-                GoalEndStatus::Canceled,
-                result(
-                    FollowJointTrajectoryResult::SUCCESSFUL,
-                    format!(
-                        "canceled: STOPPED sent to the controller after about {executed} of \
-                         {total} points; the arm stopped at {}",
-                        end_position.map_or("an unknown position".into(), |p| position(&p))
-                    ),
-                ),
-            ),
-            Some(Ok(_)) => match end_position {
-                Some(end) => match goal::check_end(plan, &self.arm, &self.config, &end) {
-                    Ok(summary) => (
-                        GoalEndStatus::Succeeded,
-                        result(FollowJointTrajectoryResult::SUCCESSFUL, summary),
-                    ),
-                    Err(why) => (
-                        GoalEndStatus::Aborted,
-                        result(FollowJointTrajectoryResult::GOAL_TOLERANCE_VIOLATED, why),
-                    ),
-                },
-                None => (
-                    GoalEndStatus::Aborted,
-                    result(
-                        FollowJointTrajectoryResult::GOAL_TOLERANCE_VIOLATED,
-                        "the run ended but no LOCATION report says where the arm is".into(),
-                    ),
-                ),
-            },
-            Some(Err(e)) => {
-                let code = match &e {
-                    // Refused or unanswered before anything was uploaded: nothing moved.
-                    Error::Refused {
-                        command: Tag::New, ..
-                    }
-                    | Error::NoReply {
-                        command: Tag::New, ..
-                    }
-                    | Error::InvalidTrajectory(_) => FollowJointTrajectoryResult::INVALID_GOAL,
-                    _ => FollowJointTrajectoryResult::PATH_TOLERANCE_VIOLATED,
-                };
-                let why = if let Some(why) = path_violation {
-                    format!("{why}: STOPPED sent ({e})")
-                } else if self.estops.load(Ordering::SeqCst) != estops_before {
-                    format!("stopped by the e-stop service: {e}")
-                } else {
-                    e.to_string()
-                };
-                (
-                    GoalEndStatus::Aborted,
-                    result(
-                        code,
-                        format!(
-                            "{why}; the arm is at {}",
-                            end_position.map_or("an unknown position".into(), |p| position(&p))
-                        ),
-                    ),
-                )
-            }
-            None => (
-                GoalEndStatus::Aborted,
-                result(
-                    FollowJointTrajectoryResult::PATH_TOLERANCE_VIOLATED,
-                    "the streaming thread failed".into(),
-                ),
-            ),
         }
     }
 

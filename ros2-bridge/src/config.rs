@@ -100,44 +100,29 @@ impl GripperConfig {
     }
 }
 
-fn default_controller() -> String {
-    "127.0.0.1:8510".into()
+/// The serde default functions, `name: Type = value;` each.
+macro_rules! defaults {
+    ($($name:ident: $ty:ty = $value:expr;)*) => {
+        $(fn $name() -> $ty {
+            $value
+        })*
+    };
 }
-fn default_node_name() -> String {
-    "armctl_bridge".into()
-}
-fn default_namespace() -> String {
-    "/".into()
-}
-fn default_action_name() -> String {
-    "/arm_controller/follow_joint_trajectory".into()
-}
-fn default_gripper_action_name() -> String {
-    "/gripper_controller/gripper_cmd".into()
-}
-fn default_estop_service() -> String {
-    "/arm_controller/estop".into()
-}
-fn default_joint_states_topic() -> String {
-    "/joint_states".into()
-}
-fn default_joint_state_rate_hz() -> f64 {
-    50.0
-}
-fn default_feedback_rate_hz() -> f64 {
-    30.0
-}
-fn default_segment_us() -> u32 {
-    10_000
-}
-fn default_start_tolerance_rad() -> f64 {
-    0.01
-}
-fn default_servo_hz() -> f64 {
-    50.0
-}
-fn default_settle_ms() -> u64 {
-    300
+
+defaults! {
+    default_controller: String = String::from("127.0.0.1:8510");
+    default_node_name: String = String::from("armctl_bridge");
+    default_namespace: String = String::from("/");
+    default_action_name: String = String::from("/arm_controller/follow_joint_trajectory");
+    default_gripper_action_name: String = String::from("/gripper_controller/gripper_cmd");
+    default_estop_service: String = String::from("/arm_controller/estop");
+    default_joint_states_topic: String = String::from("/joint_states");
+    default_joint_state_rate_hz: f64 = 50.0;
+    default_feedback_rate_hz: f64 = 30.0;
+    default_segment_us: u32 = 10_000;
+    default_start_tolerance_rad: f64 = 0.01;
+    default_servo_hz: f64 = 50.0;
+    default_settle_ms: u64 = 300;
 }
 
 impl BridgeConfig {

@@ -394,6 +394,17 @@ mod tests {
         }
     }
 
+    /// `plan`'s refusal of `g` from the arm at zero, without a controller step limit.
+    fn refuse(g: &FollowJointTrajectoryGoal) -> Refusal {
+        let (config, arm) = setup();
+        plan(g, &config, &arm, &[0; 8], None).unwrap_err()
+    }
+
+    /// Asserts that `message` says `text`.
+    fn assert_says(message: &str, text: &str) {
+        assert!(message.contains(text), "{message}");
+    }
+
     fn goal(names: &[&str], points: Vec<JointTrajectoryPoint>) -> FollowJointTrajectoryGoal {
         FollowJointTrajectoryGoal {
             trajectory: JointTrajectory {
@@ -430,55 +441,41 @@ mod tests {
 
     #[test]
     fn wrong_joint_names_are_invalid_joints() {
-        let (config, arm) = setup();
         let g = goal(&["base", "knee"], vec![point(1000, &[0.0, 0.0], &[])]);
-        let refusal = plan(&g, &config, &arm, &[0; 8], None).unwrap_err();
+        let refusal = refuse(&g);
         assert_eq!(refusal.code, R::INVALID_JOINTS);
-        assert!(refusal.message.contains("\"knee\""), "{}", refusal.message);
+        assert_says(&refusal.message, "\"knee\"");
         let twice = goal(&["base", "base"], vec![point(1000, &[0.0, 0.0], &[])]);
-        assert_eq!(
-            plan(&twice, &config, &arm, &[0; 8], None).unwrap_err().code,
-            R::INVALID_JOINTS
-        );
+        assert_eq!(refuse(&twice).code, R::INVALID_JOINTS);
     }
 
     #[test]
     fn a_start_away_from_the_arm_is_an_invalid_goal() {
-        let (config, arm) = setup();
         let g = goal(
             &["base"],
             vec![point(0, &[0.02], &[]), point(1000, &[0.1], &[])],
         );
-        let refusal = plan(&g, &config, &arm, &[0; 8], None).unwrap_err();
+        let refusal = refuse(&g);
         assert_eq!(refusal.code, R::INVALID_GOAL);
-        assert!(
-            refusal.message.contains("start tolerance"),
-            "{}",
-            refusal.message
-        );
+        assert_says(&refusal.message, "start tolerance");
     }
 
     #[test]
     fn too_fast_or_out_of_limits_is_an_invalid_goal_naming_the_joint() {
-        let (config, arm) = setup();
         // base: 20000 steps/s at most; 1 rad in 0.1 s is 50930 steps/s.
         let g = goal(
             &["base"],
             vec![point(0, &[0.0], &[]), point(100, &[1.0], &[])],
         );
-        let refusal = plan(&g, &config, &arm, &[0; 8], None).unwrap_err();
+        let refusal = refuse(&g);
         assert_eq!(refusal.code, R::INVALID_GOAL);
-        assert!(refusal.message.contains("joint 0"), "{}", refusal.message);
+        assert_says(&refusal.message, "joint 0");
         let far = goal(
             &["shoulder"],
             vec![point(0, &[0.0], &[]), point(10_000, &[2.0], &[])],
         );
-        let refusal = plan(&far, &config, &arm, &[0; 8], None).unwrap_err();
-        assert!(
-            refusal.message.contains("above the maximum"),
-            "{}",
-            refusal.message
-        );
+        let refusal = refuse(&far);
+        assert_says(&refusal.message, "above the maximum");
     }
 
     #[test]
@@ -512,12 +509,7 @@ mod tests {
         assert!(plan.points.is_empty());
         assert_eq!(plan.end(), [5, 0, 0, 0, 0, 0, 0, 0]);
         let far = goal(&["base"], vec![point(0, &[0.1], &[])]);
-        assert_eq!(
-            super::plan(&far, &config, &arm, &[0; 8], None)
-                .unwrap_err()
-                .code,
-            R::INVALID_GOAL
-        );
+        assert_eq!(refuse(&far).code, R::INVALID_GOAL);
     }
 
     #[test]
@@ -537,7 +529,7 @@ mod tests {
             goal(&["base"], vec![]),
         ];
         for g in &cases {
-            let refusal = plan(g, &config, &arm, &[0; 8], None).unwrap_err();
+            let refusal = refuse(g);
             assert_eq!(refusal.code, R::INVALID_GOAL, "{g:?}");
         }
         let mut negative = goal(&["base"], vec![point(1000, &[0.1], &[])]);
@@ -545,12 +537,8 @@ mod tests {
         assert!(plan(&negative, &config, &arm, &[0; 8], None).is_err());
         let mut endless = goal(&["base"], vec![point(1000, &[0.1], &[])]);
         endless.trajectory.points[0].time_from_start.sec = i32::MAX;
-        let refusal = plan(&endless, &config, &arm, &[0; 8], None).unwrap_err();
-        assert!(
-            refusal.message.contains("at most 65535"),
-            "{}",
-            refusal.message
-        );
+        let refusal = refuse(&endless);
+        assert_says(&refusal.message, "at most 65535");
     }
 
     #[test]

@@ -10,7 +10,7 @@
 
 use std::process::{Command, Stdio};
 use std::sync::mpsc::Receiver;
-use std::sync::{Arc, Mutex};
+use std::sync::{Arc, Mutex, MutexGuard};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant, SystemTime};
 
@@ -155,6 +155,23 @@ fn node(domain: u16, name: &str) -> (Context, Node) {
         .new_node(NodeName::new("/test", name).unwrap(), NodeOptions::new())
         .unwrap();
     (context, node)
+}
+
+/// For a DDS test: `None` (skip) outside a private network namespace, else the lock that
+/// runs the DDS tests one at a time.
+fn dds_turn(test: &str) -> Option<MutexGuard<'static, ()>> {
+    dds_allowed(test).then(|| SERIAL.lock().unwrap_or_else(|e| e.into_inner()))
+}
+
+/// A FollowJointTrajectory client of the bridge's `/arm_controller`.
+fn trajectory_client(node: &mut Node) -> TrajectoryClient {
+    node.create_action_client(
+        ServiceMapping::Enhanced,
+        &Name::new("/arm_controller", "follow_joint_trajectory").unwrap(),
+        &ActionTypeName::new("control_msgs", "FollowJointTrajectory"),
+        client_qos(),
+    )
+    .unwrap()
 }
 
 fn client_qos() -> ActionClientQosPolicies {
@@ -337,21 +354,13 @@ fn with_node<T>(node: &mut Node, body: impl AsyncFnOnce(&Node) -> T) -> T {
 #[test]
 #[ignore = "DDS multicasts: runs only in a private network namespace, via ros2-bridge/tests/dds.sh as root (.ci/run runs it)"]
 fn follow_joint_trajectory_goals_against_sim_host() {
-    if !dds_allowed("follow_joint_trajectory_goals_against_sim_host") {
+    let Some(_serial) = dds_turn("follow_joint_trajectory_goals_against_sim_host") else {
         return;
-    }
-    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    };
     let mut fixture = Fixture::start(41, true);
     let names = fixture.config.joint_names();
     let (_context, mut node) = node(41, "fjt_client");
-    let client: TrajectoryClient = node
-        .create_action_client(
-            ServiceMapping::Enhanced,
-            &Name::new("/arm_controller", "follow_joint_trajectory").unwrap(),
-            &ActionTypeName::new("control_msgs", "FollowJointTrajectory"),
-            client_qos(),
-        )
-        .unwrap();
+    let client = trajectory_client(&mut node);
     let estop: ros2_client::service::Client<TriggerRequest, TriggerResponse> = node
         .create_client(
             ServiceMapping::Enhanced,
@@ -590,21 +599,13 @@ fn follow_joint_trajectory_goals_against_sim_host() {
 #[test]
 #[ignore = "DDS multicasts: runs only in a private network namespace, via ros2-bridge/tests/dds.sh as root (.ci/run runs it)"]
 fn a_moveit_goal_with_velocities_ends_exactly_at_the_goal() {
-    if !dds_allowed("a_moveit_goal_with_velocities_ends_exactly_at_the_goal") {
+    let Some(_serial) = dds_turn("a_moveit_goal_with_velocities_ends_exactly_at_the_goal") else {
         return;
-    }
-    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    };
     let mut fixture = Fixture::start(42, true);
     let names = fixture.config.joint_names();
     let (_context, mut node) = node(42, "moveit_client");
-    let client: TrajectoryClient = node
-        .create_action_client(
-            ServiceMapping::Enhanced,
-            &Name::new("/arm_controller", "follow_joint_trajectory").unwrap(),
-            &ActionTypeName::new("control_msgs", "FollowJointTrajectory"),
-            client_qos(),
-        )
-        .unwrap();
+    let client = trajectory_client(&mut node);
     // A time-parameterised reach as MoveIt sends it: 11 waypoints of a smooth profile,
     // velocities from its derivative, at rest at both ends.
     let target = [0.8, -0.5, 1.1, -0.9, 0.7, -1.2];
@@ -766,10 +767,9 @@ fn joint_states_at(domain: u16, rate_hz: f64) {
 #[test]
 #[ignore = "DDS multicasts: runs only in a private network namespace, via ros2-bridge/tests/dds.sh as root (.ci/run runs it)"]
 fn cyclone_dds_reads_joint_states() {
-    if !dds_allowed("cyclone_dds_reads_joint_states") {
+    let Some(_serial) = dds_turn("cyclone_dds_reads_joint_states") else {
         return;
-    }
-    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    };
     let probe = Command::new("python3")
         .args(["-c", "import cyclonedds"])
         .output();

@@ -8,11 +8,12 @@
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 
-skip() { echo "dds.sh: SKIP: $*"; exit 0; }
+script=dds.sh
+. tests/scripts/netns.sh
 [ "$(id -u)" = 0 ] || skip "needs root (for unshare -n)"
-command -v unshare >/dev/null || skip "needs unshare (util-linux)"
-command -v ip >/dev/null || skip "needs iproute2 (ip)"
-command -v python3 >/dev/null || skip "needs python3"
+need unshare "unshare (util-linux)"
+need ip "iproute2 (ip)"
+need python3 python3
 unshare -n true 2>/dev/null || skip "cannot create a network namespace (unshare -n)"
 
 if ! python3 -c "import cyclonedds" 2>/dev/null; then
@@ -28,9 +29,9 @@ export SIM_HOST_BIN="$target_dir/debug/sim-host"
 
 unshare -n -- bash -c '
   set -euo pipefail
-  ip link set lo up
-  ip link set lo multicast on
-  ip route add 224.0.0.0/4 dev lo
+  script=dds.sh
+  . tests/scripts/netns.sh
+  lo_multicast
   ARMCTL_ROS2_NETNS=1 timeout 900 cargo test -q --offline -p armctl-ros2 --test dds -- \
     --ignored --test-threads=1 --nocapture
 '

@@ -6,10 +6,14 @@ interval in the exec trace (counted by run.sh's awk) stands alone.
 Usage: drive.py ARMCTL HOST:PORT COUNTS_FILE REPEATS
 Prints "pending: <counts...>" and "stopped: <counts...>".
 """
+import os
 import socket
 import subprocess
 import sys
 import time
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "../../tests/scripts"))
+from arm_frames import crc8  # noqa: E402
 
 armctl, target, counts_file, repeats = sys.argv[1], sys.argv[2], sys.argv[3], int(sys.argv[4])
 host, port = target.rsplit(":", 1)
@@ -18,16 +22,6 @@ sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
 sock.bind(("127.0.0.1", 0))
 sock.settimeout(0.5)
 seq = 0
-
-
-def crc8(data):
-    """CRC-8/SMBUS (polynomial 0x07), the protocol's frame check."""
-    crc = 0
-    for b in data:
-        crc ^= b
-        for _ in range(8):
-            crc = ((crc << 1) ^ 0x07) & 0xFF if crc & 0x80 else (crc << 1) & 0xFF
-    return crc
 
 
 def encode(*args):

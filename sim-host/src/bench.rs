@@ -13,7 +13,7 @@
 use std::io;
 use std::time::{Duration, Instant};
 
-use armctl::{Controller, RunOptions};
+use armctl::{Client, RunOptions};
 use protocol::{MAX_JOINTS, Point};
 
 use crate::options::SimOptions;
@@ -45,7 +45,7 @@ fn to_io(e: armctl::Error) -> io::Error {
 /// Runs the benchmark and prints the figures.
 pub fn run(sim: &SimOptions, bench: &BenchOptions) -> io::Result<()> {
     let (board, addr, settings_dir) = crate::app::start_for_client(sim, "benchmark")?;
-    let arm = Controller::connect(addr).map_err(to_io)?;
+    let arm = Client::connect(addr).map_err(to_io)?;
     arm.set_joints(6).map_err(to_io)?;
     let status = arm.status().map_err(to_io)?;
     println!(

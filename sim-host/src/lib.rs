@@ -14,6 +14,7 @@ pub mod net;
 pub mod options;
 pub mod probe;
 pub mod serial;
+pub mod simnet;
 pub mod steppers;
 pub mod steptimer;
 pub mod tap;

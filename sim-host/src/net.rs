@@ -81,7 +81,7 @@ impl UdpDatagrams {
                 Ok(r) => r,
                 Err(e) => {
                     if let arm_core::LogVerdict::Log { suppressed } =
-                        failures.event(crate::app::log_time_us())
+                        failures.event(crate::simnet::log_time_us())
                     {
                         log::warn!(
                             "udp: receive failed: {e} ({suppressed} more since the last such line)"
@@ -105,38 +105,10 @@ impl UdpDatagrams {
 
 /// Asks the kernel for a receive buffer of `bytes` (it may grant less: logged).
 fn set_receive_buffer(socket: &UdpSocket, bytes: usize) {
-    use std::os::fd::AsRawFd;
-    let size = libc::c_int::try_from(bytes).unwrap_or(libc::c_int::MAX);
-    let len = std::mem::size_of::<libc::c_int>() as libc::socklen_t;
-    // SAFETY: a valid socket descriptor and a pointer to a c_int of the given length.
-    let set = unsafe {
-        libc::setsockopt(
-            socket.as_raw_fd(),
-            libc::SOL_SOCKET,
-            libc::SO_RCVBUF,
-            (&raw const size).cast(),
-            len,
-        )
-    };
-    let mut granted: libc::c_int = 0;
-    let mut granted_len = len;
-    // SAFETY: as above, with room for the c_int the kernel writes.
-    let got = unsafe {
-        libc::getsockopt(
-            socket.as_raw_fd(),
-            libc::SOL_SOCKET,
-            libc::SO_RCVBUF,
-            (&raw mut granted).cast(),
-            &raw mut granted_len,
-        )
-    };
-    if set != 0 || got != 0 {
-        log::warn!(
-            "udp: cannot size the receive buffer: {}",
-            std::io::Error::last_os_error()
-        );
-    } else {
-        log::debug!("udp: receive buffer {granted} bytes (asked {bytes})");
+    use nix::sys::socket::{getsockopt, setsockopt, sockopt::RcvBuf};
+    match setsockopt(socket, RcvBuf, &bytes).and_then(|()| getsockopt(socket, RcvBuf)) {
+        Ok(granted) => log::debug!("udp: receive buffer {granted} bytes (asked {bytes})"),
+        Err(e) => log::warn!("udp: cannot size the receive buffer: {e}"),
     }
 }
 

@@ -182,10 +182,12 @@ impl SimOptions {
     }
 }
 
-fn parse_encoder_fault(s: &str) -> Result<(usize, EncoderFaultMode), String> {
-    let (joint, kind) = s
+/// Splits `J:VALUE` (`what` names VALUE in the message) into a joint number in
+/// 0..MAX_JOINTS and the value's text.
+fn parse_joint_value<'a>(s: &'a str, what: &str) -> Result<(usize, &'a str), String> {
+    let (joint, value) = s
         .split_once(':')
-        .ok_or_else(|| format!("expected J:KIND, got {s}"))?;
+        .ok_or_else(|| format!("expected J:{what}, got {s}"))?;
     let joint: usize = joint.parse().map_err(|_| format!("bad joint: {joint}"))?;
     if joint >= arm_step::MAX_JOINTS {
         return Err(format!(
@@ -193,6 +195,11 @@ fn parse_encoder_fault(s: &str) -> Result<(usize, EncoderFaultMode), String> {
             arm_step::MAX_JOINTS - 1
         ));
     }
+    Ok((joint, value))
+}
+
+fn parse_encoder_fault(s: &str) -> Result<(usize, EncoderFaultMode), String> {
+    let (joint, kind) = parse_joint_value(s, "KIND")?;
     let mode = <EncoderFaultMode as clap::ValueEnum>::from_str(kind, true)
         .map_err(|_| format!("bad encoder fault {kind}: silent, crc or exception"))?;
     Ok((joint, mode))
@@ -217,16 +224,7 @@ fn parse_time_scale(s: &str) -> Result<f64, String> {
 }
 
 fn parse_encoder_offset(s: &str) -> Result<(usize, i64), String> {
-    let (joint, steps) = s
-        .split_once(':')
-        .ok_or_else(|| format!("expected J:STEPS, got {s}"))?;
-    let joint: usize = joint.parse().map_err(|_| format!("bad joint: {joint}"))?;
-    if joint >= arm_step::MAX_JOINTS {
-        return Err(format!(
-            "joint {joint} is not 0..{}",
-            arm_step::MAX_JOINTS - 1
-        ));
-    }
+    let (joint, steps) = parse_joint_value(s, "STEPS")?;
     let steps: i64 = steps.parse().map_err(|_| format!("bad steps: {steps}"))?;
     if i32::try_from(steps).is_err() {
         return Err(format!("{steps} steps do not fit a position"));

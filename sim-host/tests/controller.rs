@@ -66,13 +66,7 @@ fn bad_frames_get_the_right_status() {
 /// commanded steps, and every pulse is where the step rule puts it.
 #[test]
 fn trace_pulses_match_the_commanded_steps() {
-    let trace = temp_path("motion.vcd");
-    let mut sim = Sim::start(&[
-        "--trace",
-        trace.to_str().unwrap(),
-        "--settings",
-        temp_path("motion.txt").to_str().unwrap(),
-    ]);
+    let (mut sim, trace) = Sim::start_traced("motion", &[]);
     let mut client = sim.client();
     let start = [0; MAX_JOINTS];
     let targets = [
@@ -127,13 +121,7 @@ fn trace_pulses_match_the_commanded_steps() {
 
 #[test]
 fn stopped_halts_the_pulses_at_once() {
-    let trace = temp_path("estop.vcd");
-    let mut sim = Sim::start(&[
-        "--trace",
-        trace.to_str().unwrap(),
-        "--settings",
-        temp_path("estop.txt").to_str().unwrap(),
-    ]);
+    let (mut sim, trace) = Sim::start_traced("estop", &[]);
     let mut client = sim.client();
     // 10 s of motion at 1000 steps/s on joint 0.
     let targets: Vec<[i32; MAX_JOINTS]> =
@@ -274,17 +262,10 @@ fn fault_injection_is_deterministic_for_a_seed() {
 
 #[test]
 fn return_goes_home_by_the_encoders() {
-    let trace = temp_path("return.vcd");
-    let mut sim = Sim::start(&[
-        "--encoder-offset",
-        "1:-300",
-        "--trace",
-        trace.to_str().unwrap(),
-        "--settings",
-        temp_path("return.txt").to_str().unwrap(),
-        "--time-scale",
-        "2",
-    ]);
+    let (mut sim, trace) = Sim::start_traced(
+        "return",
+        &["--encoder-offset", "1:-300", "--time-scale", "2"],
+    );
     let mut client = sim.client();
     let targets = [[200, 0, 0, 0, 0, 0, 0, 0]];
     client.run_points(
@@ -334,13 +315,7 @@ fn serial_loopback_echoes_usart_send() {
 
 #[test]
 fn gripper_burst_and_pins_are_traced() {
-    let trace = temp_path("gripper.vcd");
-    let mut sim = Sim::start(&[
-        "--trace",
-        trace.to_str().unwrap(),
-        "--settings",
-        temp_path("gripper.txt").to_str().unwrap(),
-    ]);
+    let (mut sim, trace) = Sim::start_traced("gripper", &[]);
     let mut client = sim.client();
     client.ok(&Command::Pin0On);
     // 200 MHz / (200 * 1000) = 1 kHz; 20 pulses = 20 ms.
@@ -383,15 +358,7 @@ fn gripper_burst_and_pins_are_traced() {
 
 #[test]
 fn time_scale_runs_simulated_time_faster() {
-    let trace = temp_path("fast.vcd");
-    let mut sim = Sim::start(&[
-        "--time-scale",
-        "20",
-        "--trace",
-        trace.to_str().unwrap(),
-        "--settings",
-        temp_path("fast.txt").to_str().unwrap(),
-    ]);
+    let (mut sim, trace) = Sim::start_traced("fast", &["--time-scale", "20"]);
     let mut client = sim.client();
     // 4 s of simulated motion.
     let targets: Vec<[i32; MAX_JOINTS]> = (1..=40)
@@ -443,15 +410,7 @@ fn a_run_after_a_stop_executes() {
 /// next rising STEP edge.
 #[test]
 fn direction_changes_respect_the_setup_time() {
-    let trace = temp_path("dir.vcd");
-    let mut sim = Sim::start(&[
-        "--joints",
-        "8",
-        "--trace",
-        trace.to_str().unwrap(),
-        "--settings",
-        temp_path("dir.txt").to_str().unwrap(),
-    ]);
+    let (mut sim, trace) = Sim::start_traced("dir", &["--joints", "8"]);
     let mut client = sim.client();
     // Every joint reverses at each point, at high rates.
     let targets: Vec<[i32; MAX_JOINTS]> = (1..=10)
@@ -538,24 +497,22 @@ fn serial_pty_passes_bytes_both_ways() {
 /// (armctl's go-back-N) still runs every point exactly once.
 #[test]
 fn a_lossy_link_still_runs_every_point_once() {
-    let trace = temp_path("lossy.vcd");
-    let mut sim = Sim::start(&[
-        "--loss",
-        "0.1",
-        "--dup",
-        "0.1",
-        "--reorder",
-        "0.1",
-        "--seed",
-        "3",
-        "--buffer-capacity",
-        "64",
-        "--trace",
-        trace.to_str().unwrap(),
-        "--settings",
-        temp_path("lossy.txt").to_str().unwrap(),
-    ]);
-    let arm = armctl::Controller::connect(sim.addr).expect("connects through the faults");
+    let (mut sim, trace) = Sim::start_traced(
+        "lossy",
+        &[
+            "--loss",
+            "0.1",
+            "--dup",
+            "0.1",
+            "--reorder",
+            "0.1",
+            "--seed",
+            "3",
+            "--buffer-capacity",
+            "64",
+        ],
+    );
+    let arm = armctl::Client::connect(sim.addr).expect("connects through the faults");
     let targets: Vec<[i32; MAX_JOINTS]> = (1..=200)
         .map(|i| [i * 7, -i * 3, i % 5, 0, 0, i * 2, 0, 0])
         .collect();
@@ -586,15 +543,7 @@ fn a_lossy_link_still_runs_every_point_once() {
 /// start + floor(i * D / N) ticks.
 #[test]
 fn a_200_mhz_step_timer_keeps_exact_pulse_times() {
-    let trace = temp_path("tick200.vcd");
-    let mut sim = Sim::start(&[
-        "--tick-hz",
-        "200000000",
-        "--trace",
-        trace.to_str().unwrap(),
-        "--settings",
-        temp_path("tick200.txt").to_str().unwrap(),
-    ]);
+    let (mut sim, trace) = Sim::start_traced("tick200", &["--tick-hz", "200000000"]);
     let mut client = sim.client();
     let targets = [[30, 7, 0, 0, 0, 0, 0, 0], [60, 0, 0, 0, 0, 0, 0, 0]];
     client.run_points(

@@ -16,10 +16,11 @@
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 
-skip() { echo "discover.sh: SKIP: $*"; exit 0; }
+script=discover.sh
+. tests/scripts/netns.sh
 fail() { echo "discover.sh: FAIL: $*"; exit 1; }
 [ "$(id -u)" = 0 ] || skip "needs root"
-command -v ip >/dev/null || skip "needs iproute2 (ip)"
+need ip "iproute2 (ip)"
 [ -c /dev/net/tun ] || skip "no /dev/net/tun"
 
 target_dir=${CARGO_TARGET_DIR:-target}
@@ -41,7 +42,7 @@ stop_sim() {
 }
 cleanup() {
   for name in "${!sim_pid[@]}"; do stop_sim "$name"; done
-  if [ -n "$dhcp_pid" ]; then kill "$dhcp_pid" 2>/dev/null || true; wait "$dhcp_pid" 2>/dev/null || true; fi
+  stop_pids "$dhcp_pid"
   ip netns del "$ns" 2>/dev/null || true
   rm -rf "$work"
 }
@@ -49,9 +50,7 @@ trap cleanup EXIT
 
 in_ns() { ip netns exec "$ns" "$@"; }
 ip netns add "$ns" 2>/dev/null || skip "cannot create a network namespace"
-in_ns ip link set lo up
-in_ns ip link set lo multicast on
-in_ns ip route add 224.0.0.0/4 dev lo
+lo_multicast in_ns
 in_ns ip link add br0 type bridge || skip "cannot create a bridge"
 for tap in tap0 tap1; do
   in_ns ip tuntap add name "$tap" mode tap || skip "cannot create a TAP device"

@@ -29,6 +29,11 @@ fn encoded(seq: u8, command: &Command<'_>) -> Vec<u8> {
     buf
 }
 
+/// `command` encoded with `seq`, with its seq: one entry of a [`burst`].
+fn seq_frame(seq: u8, command: &Command<'_>) -> (u8, Vec<u8>) {
+    (seq, encoded(seq, command))
+}
+
 /// Sends `frames` (seq, bytes) back to back, then collects their ACKs (by seq) for up to
 /// `wait`; other reports are kept in `client.reports`.
 fn burst(client: &mut Client, frames: &[(u8, Vec<u8>)], wait: Duration) -> HashMap<u8, Ack> {
@@ -79,23 +84,17 @@ fn run_with_a_stop_that_does_nothing(
     stop: Vec<u8>,
 ) -> protocol::StatusReport {
     let s = seqs(client, 9);
-    let mut frames = vec![(
+    let mut frames = vec![seq_frame(
         s[0],
-        encoded(
-            s[0],
-            &Command::New {
-                count: pts.len() as u16,
-            },
-        ),
+        &Command::New {
+            count: pts.len() as u16,
+        },
     )];
-    frames.push((
-        s[1],
-        encoded(s[1], &Command::Pending(PointList::Points(pts))),
-    ));
+    frames.push(seq_frame(s[1], &Command::Pending(PointList::Points(pts))));
     for &seq in &s[2..8] {
-        frames.push((seq, encoded(seq, &Command::Status)));
+        frames.push(seq_frame(seq, &Command::Status));
     }
-    frames.push((s[8], encoded(s[8], &Command::Runing)));
+    frames.push(seq_frame(s[8], &Command::Runing));
     frames.push((stop[0], stop));
     let acks = burst(client, &frames, Duration::from_secs(3));
     for seq in [s[0], s[1], s[8]] {
@@ -215,20 +214,14 @@ fn whole_bursts(client: &mut Client, tries: usize) -> usize {
     let mut whole = 0;
     for _ in 0..tries {
         let s = seqs(client, window);
-        let mut frames = vec![(
+        let mut frames = vec![seq_frame(
             s[0],
-            encoded(
-                s[0],
-                &Command::New {
-                    count: pts.len() as u16,
-                },
-            ),
+            &Command::New {
+                count: pts.len() as u16,
+            },
         )];
         for (chunk, &seq) in pts.chunks(MAX_POINTS_PER_FRAME).zip(&s[1..]) {
-            frames.push((
-                seq,
-                encoded(seq, &Command::Pending(PointList::Points(chunk))),
-            ));
+            frames.push(seq_frame(seq, &Command::Pending(PointList::Points(chunk))));
         }
         assert!(frames[1..].iter().all(|(_, b)| b.len() == 1395));
         let acks = burst(client, &frames, Duration::from_secs(3));

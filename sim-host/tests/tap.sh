@@ -8,10 +8,11 @@
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 
-skip() { echo "tap.sh: SKIP: $*"; exit 0; }
+script=tap.sh
+. tests/scripts/netns.sh
 [ "$(id -u)" = 0 ] || skip "needs root"
-command -v ip >/dev/null || skip "needs iproute2 (ip)"
-command -v python3 >/dev/null || skip "needs python3"
+need ip "iproute2 (ip)"
+need python3 python3
 [ -c /dev/net/tun ] || skip "no /dev/net/tun"
 
 target_dir=${CARGO_TARGET_DIR:-target}
@@ -24,21 +25,17 @@ work=$(mktemp -d)
 sim_pid=""
 dhcp_pid=""
 stop_sim() {
-  if [ -n "$sim_pid" ]; then kill "$sim_pid" 2>/dev/null || true; wait "$sim_pid" 2>/dev/null || true; fi
+  stop_pids "$sim_pid"
   sim_pid=""
 }
 cleanup() {
   stop_sim
-  if [ -n "$dhcp_pid" ]; then kill "$dhcp_pid" 2>/dev/null || true; wait "$dhcp_pid" 2>/dev/null || true; fi
+  stop_pids "$dhcp_pid"
   ip netns del "$ns" 2>/dev/null || true
   rm -rf "$work"
 }
 trap cleanup EXIT
-ip netns add "$ns" 2>/dev/null || skip "cannot create a network namespace"
-ip netns exec "$ns" ip tuntap add name tap0 mode tap || skip "cannot create a TAP device"
-ip netns exec "$ns" ip addr add 192.168.7.1/24 dev tap0
-ip netns exec "$ns" ip link set tap0 up
-ip netns exec "$ns" ip link set lo up
+netns_with_tap "$ns" 192.168.7.1/24
 
 # start_sim ARGS...: runs sim-host on tap0 in the namespace; waits until it has an address.
 start_sim() {
@@ -60,14 +57,8 @@ start_sim() {
 status_exchange() {
   ip netns exec "$ns" timeout 30 python3 - "$1" <<'PY'
 import socket, sys, time
-
-def crc8(data):
-    crc = 0
-    for byte in data:
-        crc ^= byte
-        for _ in range(8):
-            crc = ((crc << 1) ^ 0x07) & 0xFF if crc & 0x80 else (crc << 1) & 0xFF
-    return crc
+sys.path.insert(0, "tests/scripts")
+from arm_frames import crc8
 
 controller = (sys.argv[1], 8510)
 sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)

@@ -14,11 +14,12 @@
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 
-skip() { echo "qemu/tap.sh: SKIP: $*"; exit 0; }
+script=qemu/tap.sh
+. tests/scripts/netns.sh
 fail() { echo "qemu/tap.sh: FAIL: $*"; echo "--- firmware log ---"; cat "$work/uart0.log" 2>/dev/null || true; exit 1; }
 [ "$(id -u)" = 0 ] || skip "needs root"
-command -v ip >/dev/null || skip "needs iproute2 (ip)"
-command -v qemu-system-arm >/dev/null || skip "needs qemu-system-arm"
+need ip "iproute2 (ip)"
+need qemu-system-arm qemu-system-arm
 [ -c /dev/net/tun ] || skip "no /dev/net/tun"
 
 # firmware/qemu-mps2 is a workspace of its own: without this its build would go to its own
@@ -35,17 +36,12 @@ work=$(mktemp -d)
 qemu_pid=""
 run_pid=""
 cleanup() {
-  for pid in $run_pid $qemu_pid; do kill "$pid" 2>/dev/null || true; wait "$pid" 2>/dev/null || true; done
+  stop_pids "$run_pid" "$qemu_pid"
   ip netns del "$ns" 2>/dev/null || true
   rm -rf "$work"
 }
 trap cleanup EXIT
-ip netns add "$ns" 2>/dev/null || skip "cannot create a network namespace"
-ip netns exec "$ns" ip tuntap add name tap0 mode tap || skip "cannot create a TAP device"
-ip netns exec "$ns" ip addr add 10.0.2.2/24 dev tap0
-ip netns exec "$ns" ip addr add 10.0.2.3/24 dev tap0
-ip netns exec "$ns" ip link set tap0 up
-ip netns exec "$ns" ip link set lo up
+netns_with_tap "$ns" 10.0.2.2/24 10.0.2.3/24
 # Broadcast DISCOVER (step 3) stays inside this namespace: the limited broadcast needs a
 # route, the TAP link; multicast only on lo.
 ip netns exec "$ns" ip link set lo multicast on

@@ -18,7 +18,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Condvar, Mutex, mpsc};
 use std::time::{Duration, Instant};
 
-use armctl::{Controller, Options};
+use armctl::{Client, Options};
 
 /// How long a fresh sim-host gets to say where it listens, and to exit on SIGTERM.
 const START_TIMEOUT: Duration = Duration::from_secs(10);
@@ -238,13 +238,13 @@ impl SimHost {
     }
 
     /// A client with options suited to loopback.
-    pub fn connect(&self) -> Controller {
+    pub fn connect(&self) -> Client {
         self.connect_with(Options::default())
     }
 
     /// A client with the given options.
-    pub fn connect_with(&self, options: Options) -> Controller {
-        Controller::connect_with(self.addr, options)
+    pub fn connect_with(&self, options: Options) -> Client {
+        Client::connect_with(self.addr, options)
             .unwrap_or_else(|e| panic!("connect to sim-host at {}: {e}", self.addr))
     }
 

@@ -15,7 +15,7 @@ use std::process::{Child, Command, Stdio};
 use std::sync::{Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
-use armctl::{Controller, Options};
+use armctl::{Client, Options};
 
 /// How long a fresh board gets to answer STATUS (boot takes ~50 ms of emulated time).
 const START_TIMEOUT: Duration = Duration::from_secs(20);
@@ -177,7 +177,7 @@ impl QemuBoard {
                     attempts: 2,
                     ..Options::default()
                 };
-                if Controller::connect_with(addr, quick).is_ok() {
+                if Client::connect_with(addr, quick).is_ok() {
                     return QemuBoard {
                         addr,
                         serial_addr,
@@ -202,8 +202,8 @@ impl QemuBoard {
     }
 
     /// A client with the given options.
-    pub fn connect_with(&self, options: Options) -> Controller {
-        Controller::connect_with(self.addr, options).unwrap_or_else(|e| {
+    pub fn connect_with(&self, options: Options) -> Client {
+        Client::connect_with(self.addr, options).unwrap_or_else(|e| {
             panic!("connect to the board at {}: {e}\n{}", self.addr, self.log())
         })
     }

@@ -5,24 +5,15 @@ mod common;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use armctl::{Controller, Error, Options, RunEnd, RunOptions};
+use armctl::{Client, Error, Options, RunEnd, RunOptions};
 use common::{
-    Raw, datagram, out_of_order_names_the_missing_frame, raw_frames_are_refused, serial_round_trip,
-    sweep,
+    Raw, datagram, loopback, out_of_order_names_the_missing_frame, pins_and_servo_pwm, position,
+    raw_frames_are_refused, refusals_in_stopped, serial_round_trip, stop_mid_run, sweep,
 };
 use protocol::{
-    Command, Location, MAX_JOINTS, Point, PointList, Pwm, State, StatusCode, StatusFlags, Tag,
-    UartInit,
+    Command, Location, Point, PointList, Pwm, State, StatusCode, StatusFlags, Tag, UartInit,
 };
 use system_tests::SimHost;
-
-fn loopback() -> Options {
-    Options {
-        ack_timeout: Duration::from_millis(50),
-        attempts: 20,
-        ..Options::default()
-    }
-}
 
 fn refused(result: armctl::Result<protocol::Ack>, status: StatusCode, what: &str) -> Error {
     match result {
@@ -35,12 +26,6 @@ fn refused(result: armctl::Result<protocol::Ack>, status: StatusCode, what: &str
         Err(e) => panic!("{what}: expected {}, got: {e}", status.name()),
         Ok(ack) => panic!("{what}: expected {}, got {ack:?}", status.name()),
     }
-}
-
-fn position(arm: &Controller) -> [i32; MAX_JOINTS] {
-    arm.current_location(Duration::from_secs(2))
-        .expect("a LOCATION report")
-        .position
 }
 
 #[test]
@@ -104,56 +89,20 @@ fn every_refused_command_gives_its_error() {
     let sim = SimHost::start(&["--joints", "6", "--buffer-capacity", "16"]);
     let arm = sim.connect_with(loopback());
 
-    // STOPPED state.
-    refused(
-        arm.send(&Command::Runing),
-        StatusCode::BadState,
-        "RUNING when stopped",
-    );
-    let one = [Point::from_motion(
-        10_000,
-        &[0; 8],
-        &[1, 0, 0, 0, 0, 0, 0, 0],
-    )];
-    refused(
-        arm.send(&Command::Pending(PointList::Points(&one))),
-        StatusCode::BadState,
-        "PENDING without NEW",
-    );
-    refused(
-        arm.send(&Command::New { count: 0 }),
-        StatusCode::InvalidConfig,
-        "NEW 0",
-    );
-    refused(
-        arm.set_joints(9),
-        StatusCode::InvalidConfig,
-        "JOINTS_COUNT 9",
-    );
+    // STOPPED state: the refusals every controller gives, then the simulator's other
+    // bounds.
+    refusals_in_stopped(&arm, |result, status, what| {
+        refused(result, status, what);
+    });
     refused(
         arm.set_joints(0),
         StatusCode::InvalidConfig,
         "JOINTS_COUNT 0",
     );
     refused(
-        arm.upload_period(999),
-        StatusCode::InvalidConfig,
-        "UPLOAD_PERIOD 999",
-    );
-    refused(
         arm.upload_period(1_000_001),
         StatusCode::InvalidConfig,
         "UPLOAD_PERIOD 1000001",
-    );
-    refused(
-        arm.pwm_start(Pwm {
-            psc: 0,
-            arr: 100,
-            ccr1: 101,
-            pulse_count: 0,
-        }),
-        StatusCode::InvalidConfig,
-        "PWM CCR1 > ARR",
     );
     refused(
         arm.pwm_start(Pwm {
@@ -164,24 +113,6 @@ fn every_refused_command_gives_its_error() {
         }),
         StatusCode::InvalidConfig,
         "PWM PSC over 16 bits",
-    );
-    refused(
-        arm.serial_open(UartInit {
-            baud_rate: 299,
-            ..UartInit::default()
-        }),
-        StatusCode::InvalidConfig,
-        "baud 299",
-    );
-    refused(
-        arm.send(&Command::UsartSend(b"x")),
-        StatusCode::BadState,
-        "USART_SEND with the port closed",
-    );
-    refused(
-        arm.toggle_enable(Some(0x200)),
-        StatusCode::InvalidConfig,
-        "enable mask bit 9",
     );
 
     // Receive-only serial: USART_SEND refused.
@@ -301,7 +232,7 @@ fn another_host_is_not_the_owner_but_may_stop_the_arm() {
         bind: Some("127.0.0.2:0".parse().unwrap()),
         ..loopback()
     };
-    match Controller::connect_with(sim.addr, other.clone()) {
+    match Client::connect_with(sim.addr, other.clone()) {
         Err(e) => {
             assert_eq!(e.status(), Some(StatusCode::NotOwner), "{e}");
             assert!(e.to_string().contains("another host owns the controller"));
@@ -315,7 +246,7 @@ fn another_host_is_not_the_owner_but_may_stop_the_arm() {
         std::thread::spawn(move || arm.run_trajectory(&points, &RunOptions::default(), |_| {}))
     };
     std::thread::sleep(Duration::from_millis(500));
-    let stranger = Controller::open(sim.addr, other).unwrap();
+    let stranger = Client::open(sim.addr, other).unwrap();
     stranger.stop().expect("STOPPED from any host is obeyed");
     match runner.join().unwrap() {
         Err(Error::RunEnded {
@@ -332,14 +263,7 @@ fn emergency_stop_mid_run_freezes_the_joints() {
     let arm = Arc::new(sim.connect_with(loopback()));
     let points = sweep(position(&arm), 6, 300, 3, 10_000);
     let total = points.len();
-    let runner = {
-        let arm = arm.clone();
-        std::thread::spawn(move || arm.run_trajectory(&points, &RunOptions::default(), |_| {}))
-    };
-    std::thread::sleep(Duration::from_millis(800));
-    let ack = arm.stop().unwrap();
-    assert_eq!(ack.state, State::Stopped);
-    let result = runner.join().unwrap();
+    let result = stop_mid_run(&arm, points, Duration::from_millis(800));
     let executed = match result {
         Err(Error::RunEnded {
             reason: RunEnd::Stopped,
@@ -430,16 +354,7 @@ fn return_moves_every_joint_home() {
 fn pins_pwm_and_serial_round_trip() {
     let sim = SimHost::start(&["--joints", "2", "--serial", "loopback"]);
     let arm = sim.connect_with(loopback());
-    arm.pin(0, true).unwrap();
-    arm.pin(1, false).unwrap();
-    let status = arm.status().unwrap();
-    assert!(status.flags.has(StatusFlags::PIN0_HIGH));
-    assert!(!status.flags.has(StatusFlags::PIN1_HIGH));
-    let pwm = armctl::pwm::settings(status.pwm_timer_clock_hz, 50.0, 0.075, 0).unwrap();
-    arm.pwm_start(pwm).unwrap();
-    assert!(arm.status().unwrap().flags.has(StatusFlags::PWM_ACTIVE));
-    arm.pwm_stop().unwrap();
-    assert!(!arm.status().unwrap().flags.has(StatusFlags::PWM_ACTIVE));
+    pins_and_servo_pwm(&arm);
 
     let (message, echoed) = serial_round_trip(&arm, Duration::from_secs(3));
     assert_eq!(echoed, message);

@@ -1,25 +1,14 @@
 //! RETURN by absolute encoder, end to end: sim-host's simulated Modbus RTU encoders on a
 //! simulated RS-485 bus, read with the board's own protocol code (board-logic `encoder`).
 
+mod common;
+
 use std::time::Duration;
 
-use armctl::{Controller, Options};
-use protocol::{MAX_JOINTS, State, StatusFlags};
+use armctl::Client;
+use common::{loopback, position};
+use protocol::{State, StatusFlags};
 use system_tests::SimHost;
-
-fn loopback() -> Options {
-    Options {
-        ack_timeout: Duration::from_millis(50),
-        attempts: 20,
-        ..Options::default()
-    }
-}
-
-fn position(arm: &Controller) -> [i32; MAX_JOINTS] {
-    arm.current_location(Duration::from_secs(2))
-        .expect("a LOCATION report")
-        .position
-}
 
 #[test]
 fn return_homes_by_the_encoders_not_the_step_count() {
@@ -32,7 +21,7 @@ fn return_homes_by_the_encoders_not_the_step_count() {
         "--encoder-offset",
         "2:-250",
     ]);
-    let arm = Controller::connect_with(sim.addr, loopback()).unwrap();
+    let arm = Client::connect_with(sim.addr, loopback()).unwrap();
     arm.go_home().unwrap();
     let status = arm.wait_stopped(Duration::from_secs(30)).unwrap();
     assert_eq!(status.state, State::Stopped);
@@ -45,7 +34,7 @@ fn return_homes_by_the_encoders_not_the_step_count() {
 #[test]
 fn return_with_a_silent_encoder_ends_stopped_without_moving() {
     let sim = SimHost::start(&["--joints", "3", "--encoder-fault", "1:silent"]);
-    let arm = Controller::connect_with(sim.addr, loopback()).unwrap();
+    let arm = Client::connect_with(sim.addr, loopback()).unwrap();
     arm.set_location(&[400, -300, 200]).unwrap();
     // Accepted (RUNNING) at once: the encoders are read after the ACK.
     arm.go_home().unwrap();
@@ -64,7 +53,7 @@ fn return_with_a_silent_encoder_ends_stopped_without_moving() {
 #[test]
 fn return_with_a_corrupting_encoder_ends_stopped_without_moving() {
     let sim = SimHost::start(&["--joints", "2", "--encoder-fault", "0:crc"]);
-    let arm = Controller::connect_with(sim.addr, loopback()).unwrap();
+    let arm = Client::connect_with(sim.addr, loopback()).unwrap();
     arm.set_location(&[123, 456]).unwrap();
     arm.go_home().unwrap();
     let status = arm.wait_stopped(Duration::from_secs(30)).unwrap();

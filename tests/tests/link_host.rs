@@ -155,20 +155,32 @@ fn a_refused_loopback_port_fails_at_once() {
     eprintln!("refused port reported in {:?}", started.elapsed());
 }
 
+/// `armctl --attempts A --ack-timeout-ms T COMMAND...` against a loopback socket that never
+/// answers: its port and armctl's output.
+fn against_a_silent_socket(
+    attempts: &str,
+    ack_timeout_ms: &str,
+    command: &[&str],
+) -> (u16, Output) {
+    let silent = UdpSocket::bind("127.0.0.1:0").unwrap();
+    let port = silent.local_addr().unwrap().port();
+    let controller = format!("127.0.0.1:{port}");
+    let mut args = vec![
+        "--controller",
+        controller.as_str(),
+        "--attempts",
+        attempts,
+        "--ack-timeout-ms",
+        ack_timeout_ms,
+    ];
+    args.extend_from_slice(command);
+    (port, armctl(&args))
+}
+
 /// A socket that never answers: the hint names the port actually used.
 #[test]
 fn no_reply_names_the_port_used() {
-    let silent = UdpSocket::bind("127.0.0.1:0").unwrap();
-    let port = silent.local_addr().unwrap().port();
-    let out = armctl(&[
-        "--controller",
-        &format!("127.0.0.1:{port}"),
-        "--attempts",
-        "2",
-        "--ack-timeout-ms",
-        "20",
-        "status",
-    ]);
+    let (port, out) = against_a_silent_socket("2", "20", &["status"]);
     let stderr = text(&out.stderr);
     assert_eq!(out.status.code(), Some(1), "{stderr}");
     assert!(
@@ -179,19 +191,7 @@ fn no_reply_names_the_port_used() {
 
 #[test]
 fn resends_past_the_duplicate_window_are_warned_about() {
-    let silent = UdpSocket::bind("127.0.0.1:0").unwrap();
-    let port = silent.local_addr().unwrap().port();
-    let out = armctl(&[
-        "--controller",
-        &format!("127.0.0.1:{port}"),
-        "--attempts",
-        "30",
-        "--ack-timeout-ms",
-        "100",
-        "frame",
-        "encode",
-        "status",
-    ]);
+    let (_, out) = against_a_silent_socket("30", "100", &["frame", "encode", "status"]);
     let stderr = text(&out.stderr);
     assert!(out.status.success(), "{stderr}");
     assert!(stderr.contains("2 s duplicate window"), "{stderr}");

@@ -19,13 +19,12 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use armctl::{Controller, Error, Options, RunEnd, RunOptions};
+use armctl::{Client, Error, Options, RunEnd, RunOptions};
 use common::{
-    Raw, out_of_order_names_the_missing_frame, raw_frames_are_refused, serial_round_trip, sweep,
+    Raw, out_of_order_names_the_missing_frame, pins_and_servo_pwm, raw_frames_are_refused,
+    refusals_in_stopped, serial_round_trip, stop_mid_run, sweep,
 };
-use protocol::{
-    Command, MAX_JOINTS, Point, PointList, Pwm, State, StatusCode, StatusFlags, Tag, UartInit,
-};
+use protocol::{Command, MAX_JOINTS, PointList, State, StatusCode, StatusFlags, Tag};
 use system_tests::qemu::{FAULT_MARKERS, QemuBoard, echo, run_to_exit, unavailable};
 
 /// Skips the test, saying what it needs, when QEMU is not installed. The message goes to
@@ -50,7 +49,7 @@ fn emulated() -> Options {
     }
 }
 
-fn position(board: &QemuBoard, arm: &Controller) -> [i32; MAX_JOINTS] {
+fn position(board: &QemuBoard, arm: &Client) -> [i32; MAX_JOINTS] {
     arm.current_location(Duration::from_secs(3))
         .unwrap_or_else(|e| panic!("a LOCATION report: {e}\n{}", board.log()))
         .position
@@ -159,73 +158,9 @@ fn every_command_of_the_manual() {
     let arm = board.connect_with(emulated());
 
     // Refusals in STOPPED.
-    refused(
-        &board,
-        arm.send(&Command::Runing),
-        StatusCode::BadState,
-        "RUNING when stopped",
-    );
-    let one = [Point::from_motion(
-        10_000,
-        &[0; 8],
-        &[1, 0, 0, 0, 0, 0, 0, 0],
-    )];
-    refused(
-        &board,
-        arm.send(&Command::Pending(PointList::Points(&one))),
-        StatusCode::BadState,
-        "PENDING without NEW",
-    );
-    refused(
-        &board,
-        arm.send(&Command::New { count: 0 }),
-        StatusCode::InvalidConfig,
-        "NEW 0",
-    );
-    refused(
-        &board,
-        arm.set_joints(9),
-        StatusCode::InvalidConfig,
-        "JOINTS_COUNT 9",
-    );
-    refused(
-        &board,
-        arm.upload_period(999),
-        StatusCode::InvalidConfig,
-        "UPLOAD_PERIOD 999",
-    );
-    refused(
-        &board,
-        arm.pwm_start(Pwm {
-            psc: 0,
-            arr: 100,
-            ccr1: 101,
-            pulse_count: 0,
-        }),
-        StatusCode::InvalidConfig,
-        "PWM CCR1 > ARR",
-    );
-    refused(
-        &board,
-        arm.serial_open(UartInit {
-            baud_rate: 299,
-            ..UartInit::default()
-        }),
-        StatusCode::InvalidConfig,
-        "baud 299",
-    );
-    refused(
-        &board,
-        arm.send(&Command::UsartSend(b"x")),
-        StatusCode::BadState,
-        "USART_SEND with the port closed",
-    );
-    refused(
-        &board,
-        arm.toggle_enable(Some(0x200)),
-        StatusCode::InvalidConfig,
-        "enable mask bit 9",
-    );
+    refusals_in_stopped(&arm, |result, status, what| {
+        refused(&board, result, status, what)
+    });
 
     // JOINTS_COUNT (settings in RAM), LOCATION_SETTING, UPLOAD_PERIOD, UPLOAD_START/STOP.
     arm.set_joints(3).unwrap();
@@ -261,16 +196,7 @@ fn every_command_of_the_manual() {
         enabled
     );
     arm.toggle_enable(None).unwrap();
-    arm.pin(0, true).unwrap();
-    arm.pin(1, false).unwrap();
-    let status = arm.status().unwrap();
-    assert!(status.flags.has(StatusFlags::PIN0_HIGH));
-    assert!(!status.flags.has(StatusFlags::PIN1_HIGH));
-    let pwm = armctl::pwm::settings(status.pwm_timer_clock_hz, 50.0, 0.075, 0).unwrap();
-    arm.pwm_start(pwm).unwrap();
-    assert!(arm.status().unwrap().flags.has(StatusFlags::PWM_ACTIVE));
-    arm.pwm_stop().unwrap();
-    assert!(!arm.status().unwrap().flags.has(StatusFlags::PWM_ACTIVE));
+    let status = pins_and_servo_pwm(&arm);
     // A counted burst (gripper stepper mode): 50 pulses at 1 kHz end by themselves.
     let burst = armctl::pwm::settings(status.pwm_timer_clock_hz, 1000.0, 0.5, 50).unwrap();
     arm.pwm_start(burst).unwrap();
@@ -348,14 +274,7 @@ fn emergency_stop_mid_run_freezes_the_joints() {
     let arm = Arc::new(board.connect_with(emulated()));
     let points = sweep(position(&board, &arm), 6, 300, 3, 10_000);
     let total = points.len();
-    let runner = {
-        let arm = arm.clone();
-        std::thread::spawn(move || arm.run_trajectory(&points, &RunOptions::default(), |_| {}))
-    };
-    std::thread::sleep(Duration::from_millis(800));
-    let ack = arm.stop().unwrap();
-    assert_eq!(ack.state, State::Stopped);
-    match runner.join().unwrap() {
+    match stop_mid_run(&arm, points, Duration::from_millis(800)) {
         Err(Error::RunEnded {
             reason: RunEnd::Stopped,
             executed: Some(n),
@@ -659,7 +578,7 @@ fn lossy_link_executes_the_same_steps_as_a_lossless_one() {
         let mut board = QemuBoard::start();
         let relay = lossy.then(|| LossyRelay::start(board.addr, 20, 5, 5, 7));
         let addr = relay.as_ref().map_or(board.addr, |r| r.addr);
-        let arm = Controller::connect_with(
+        let arm = Client::connect_with(
             addr,
             Options {
                 ack_timeout: Duration::from_millis(60),
@@ -746,7 +665,7 @@ fn link_down_and_up_reach_the_stack_through_the_phy_interrupt() {
     };
     wait_for("WARN  ethernet link down");
     assert!(
-        Controller::connect_with(board.addr, quick.clone()).is_err(),
+        Client::connect_with(board.addr, quick.clone()).is_err(),
         "answered with the link down"
     );
     board.monitor("set_link lan9118.0 on");

@@ -5,7 +5,7 @@ use std::path::Path;
 use std::process::Command;
 use std::time::Duration;
 
-use armctl::{Controller, vcd};
+use armctl::{Client, vcd};
 use protocol::State;
 use system_tests::{SimHost, armctl_bin};
 
@@ -49,7 +49,7 @@ fn traced_pulses_end_where_the_controller_says_and_plot() {
     ]);
     assert!(out.contains("20 points"), "{out}");
 
-    let arm = Controller::connect(sim.addr).unwrap();
+    let arm = Client::connect(sim.addr).unwrap();
     let status = arm.status().unwrap();
     assert_eq!(status.state, State::Stopped);
     assert_eq!(status.executed, 20);

@@ -145,6 +145,9 @@ impl Expected {
     }
 }
 
+/// One per-joint field of a point, joint 0 first.
+type PerJoint = fn(protocol::Point) -> [i64; protocol::MAX_JOINTS];
+
 fn expect_command(frame: &protocol::Frame<Cmd<'_>>, e: &mut Expected) {
     e.one("armctl.verdict", 0);
     match frame.body {
@@ -155,30 +158,21 @@ fn expect_command(frame: &protocol::Frame<Cmd<'_>>, e: &mut Expected) {
                 "armctl.point.duration",
                 points.iter().map(|p| i64::from(p.duration)),
             );
-            e.num(
-                "armctl.point.position",
-                points.iter().flat_map(|p| p.position.map(i64::from)),
-            );
-            e.num(
-                "armctl.point.number_of_period",
-                points
-                    .iter()
-                    .flat_map(|p| p.number_of_period.map(i64::from)),
-            );
-            e.num(
-                "armctl.point.period",
-                points.iter().flat_map(|p| p.period.map(i64::from)),
-            );
-            e.num(
-                "armctl.point.number_of_full_period",
-                points
-                    .iter()
-                    .flat_map(|p| p.number_of_full_period.map(i64::from)),
-            );
-            e.num(
-                "armctl.point.rest_period",
-                points.iter().flat_map(|p| p.rest_period.map(i64::from)),
-            );
+            // Per joint, joint 0 first in each point.
+            let per_joint: [(&'static str, PerJoint); 5] = [
+                ("armctl.point.position", |p| p.position.map(i64::from)),
+                ("armctl.point.number_of_period", |p| {
+                    p.number_of_period.map(i64::from)
+                }),
+                ("armctl.point.period", |p| p.period.map(i64::from)),
+                ("armctl.point.number_of_full_period", |p| {
+                    p.number_of_full_period.map(i64::from)
+                }),
+                ("armctl.point.rest_period", |p| p.rest_period.map(i64::from)),
+            ];
+            for (field, values) in per_joint {
+                e.num(field, points.iter().flat_map(values));
+            }
         }
         Cmd::PwmStart(pwm) => {
             e.one("armctl.pwm.psc", pwm.psc);

@@ -1,4 +1,4 @@
-//! Trajectory files to controller [`Point`]s.
+//! Trajectory files to controller [`Point`](protocol::Point)s.
 //!
 //! Two inputs:
 //! - JSON in the shape of ROS `trajectory_msgs/JointTrajectory`: `joint_names`, and
@@ -7,7 +7,8 @@
 //! - CSV: `time_s, joint 0, joint 1, ...` with positions in steps (an optional header line).
 //!
 //! [`to_points`] resamples the waypoints at a fixed segment duration (the last segment may
-//! be shorter), rounds to whole steps, fills the timer hints with [`Point::from_motion`],
+//! be shorter), rounds to whole steps, fills the timer hints with
+//! [`Point::from_motion`](protocol::Point::from_motion),
 //! and refuses, naming the file, the point and time, the joint, the value and the limit,
 //! whatever breaks a joint's position limits or step rate.
 //!
@@ -23,8 +24,8 @@
 //! the message gives the shortest segment duration that fits.
 
 //!
-//! The module is laid out as the conversion runs: [`config`] (the joint config file),
-//! [`parse`] (JointTrajectory JSON and CSV to [`Waypoints`]), [`resample`] (waypoints to
+//! The module is laid out as the conversion runs: `config` (the joint config file),
+//! `parse` (JointTrajectory JSON and CSV to [`Waypoints`]), `resample` (waypoints to
 //! points, linear or Hermite, with the limit checks), and the error type.
 
 use std::path::Path;

@@ -393,5 +393,5 @@ pub fn ramp(n: usize, step: i32, duration_us: i32) -> Vec<Point> {
 
 #[allow(unused)]
 pub fn tag_name(t: u8) -> &'static str {
-    Tag::from_u8(t).map_or("?", Tag::name)
+    Tag::name_of(t)
 }

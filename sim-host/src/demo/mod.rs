@@ -19,7 +19,7 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use armctl::record::Sample;
-use armctl::{Controller, Progress, RunOptions};
+use armctl::{Client, Progress, RunOptions};
 use indicatif::{ProgressBar, ProgressStyle};
 use protocol::{Location, MAX_JOINTS, Point, State};
 
@@ -131,7 +131,7 @@ fn to_io(e: armctl::Error) -> io::Error {
 /// Uploads and runs `points` with a progress bar showing the upload, execution and live
 /// joint positions.
 fn run_with_display(
-    arm: &Arc<Controller>,
+    arm: &Arc<Client>,
     name: &str,
     points: &[Point],
     display: &Arc<Mutex<Display>>,

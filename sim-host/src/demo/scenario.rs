@@ -5,7 +5,7 @@ use std::sync::atomic::Ordering;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use armctl::Controller;
+use armctl::Client;
 use armctl::plot::Commanded;
 use armctl::record::Sample;
 use protocol::{Point, State, StatusFlags, UartInit};
@@ -35,7 +35,7 @@ pub(super) fn drive(
 /// The state the phases of the demo share.
 struct Scenario<'a> {
     board: &'a Board,
-    arm: Arc<Controller>,
+    arm: Arc<Client>,
     /// STATUS read at connection.
     status: protocol::StatusReport,
     /// When the recording started: the time origin of the plot.
@@ -62,7 +62,7 @@ impl<'a> Scenario<'a> {
             "sim-host demo: 6-joint pick-and-place on the simulated controller at {addr} (time scale {})",
             board.clock.time_scale()
         );
-        let arm = Arc::new(Controller::connect(addr).map_err(to_io)?);
+        let arm = Arc::new(Client::connect(addr).map_err(to_io)?);
         arm.set_joints(JOINTS as u8).map_err(to_io)?;
         let status = arm.status().map_err(to_io)?;
         println!(

@@ -35,6 +35,22 @@ impl Sim {
         }
     }
 
+    /// Starts sim-host as [`Sim::start`] does, writing its VCD trace to `NAME.vcd` and its
+    /// settings to `NAME.txt` in this process's temporary directory; returns the trace's
+    /// path with it.
+    pub fn start_traced(name: &str, args: &[&str]) -> (Sim, PathBuf) {
+        let trace = temp_path(&format!("{name}.vcd"));
+        let settings = temp_path(&format!("{name}.txt"));
+        let mut all = args.to_vec();
+        all.extend([
+            "--trace",
+            trace.to_str().unwrap(),
+            "--settings",
+            settings.to_str().unwrap(),
+        ]);
+        (Sim::start(&all), trace)
+    }
+
     /// Stops it with SIGTERM and waits for it to exit (trace flushed).
     pub fn stop(&mut self) {
         self.host.stop();

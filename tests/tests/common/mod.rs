@@ -4,7 +4,10 @@
 use std::net::{SocketAddr, UdpSocket};
 use std::time::{Duration, Instant};
 
-use protocol::{Ack, Command, MAX_DATAGRAM, MAX_JOINTS, Point, PointList, Report, StatusCode, Tag};
+use protocol::{
+    Ack, Command, MAX_DATAGRAM, MAX_JOINTS, Point, PointList, Pwm, Report, StatusCode, Tag,
+    UartInit,
+};
 
 /// `count` points of `duration_us` from `start`, each joint j moving `step * (j + 1)` per
 /// point, alternating direction by joint.
@@ -121,7 +124,7 @@ pub fn out_of_order_names_the_missing_frame(raw: &Raw, here: [i32; MAX_JOINTS]) 
 
 /// Opens the serial pass-through at 115200 baud, sends 600 bytes and collects what comes
 /// back within `timeout` (the line is a loopback); returns (sent, received).
-pub fn serial_round_trip(arm: &armctl::Controller, timeout: Duration) -> (Vec<u8>, Vec<u8>) {
+pub fn serial_round_trip(arm: &armctl::Client, timeout: Duration) -> (Vec<u8>, Vec<u8>) {
     let rx = arm.serial_rx();
     arm.serial_open(protocol::UartInit {
         baud_rate: 115_200,
@@ -138,4 +141,123 @@ pub fn serial_round_trip(arm: &armctl::Controller, timeout: Duration) -> (Vec<u8
         }
     }
     (message, echoed)
+}
+
+/// The refusals every controller gives in STOPPED (sim-host and the firmware under QEMU
+/// alike): each command's result goes to `check` with the status it must carry and what
+/// it is.
+pub fn refusals_in_stopped(
+    arm: &armctl::Client,
+    mut check: impl FnMut(armctl::Result<Ack>, StatusCode, &str),
+) {
+    check(
+        arm.send(&Command::Runing),
+        StatusCode::BadState,
+        "RUNING when stopped",
+    );
+    let one = [Point::from_motion(
+        10_000,
+        &[0; 8],
+        &[1, 0, 0, 0, 0, 0, 0, 0],
+    )];
+    check(
+        arm.send(&Command::Pending(PointList::Points(&one))),
+        StatusCode::BadState,
+        "PENDING without NEW",
+    );
+    check(
+        arm.send(&Command::New { count: 0 }),
+        StatusCode::InvalidConfig,
+        "NEW 0",
+    );
+    check(
+        arm.set_joints(9),
+        StatusCode::InvalidConfig,
+        "JOINTS_COUNT 9",
+    );
+    check(
+        arm.upload_period(999),
+        StatusCode::InvalidConfig,
+        "UPLOAD_PERIOD 999",
+    );
+    check(
+        arm.pwm_start(Pwm {
+            psc: 0,
+            arr: 100,
+            ccr1: 101,
+            pulse_count: 0,
+        }),
+        StatusCode::InvalidConfig,
+        "PWM CCR1 > ARR",
+    );
+    check(
+        arm.serial_open(UartInit {
+            baud_rate: 299,
+            ..UartInit::default()
+        }),
+        StatusCode::InvalidConfig,
+        "baud 299",
+    );
+    check(
+        arm.send(&Command::UsartSend(b"x")),
+        StatusCode::BadState,
+        "USART_SEND with the port closed",
+    );
+    check(
+        arm.toggle_enable(Some(0x200)),
+        StatusCode::InvalidConfig,
+        "enable mask bit 9",
+    );
+}
+
+/// PIN0 high and PIN1 low, then a 50 Hz servo PWM started and stopped, each checked in
+/// STATUS; returns the STATUS after the pins were set.
+pub fn pins_and_servo_pwm(arm: &armctl::Client) -> protocol::StatusReport {
+    use protocol::StatusFlags;
+    arm.pin(0, true).unwrap();
+    arm.pin(1, false).unwrap();
+    let status = arm.status().unwrap();
+    assert!(status.flags.has(StatusFlags::PIN0_HIGH));
+    assert!(!status.flags.has(StatusFlags::PIN1_HIGH));
+    let pwm = armctl::pwm::settings(status.pwm_timer_clock_hz, 50.0, 0.075, 0).unwrap();
+    arm.pwm_start(pwm).unwrap();
+    assert!(arm.status().unwrap().flags.has(StatusFlags::PWM_ACTIVE));
+    arm.pwm_stop().unwrap();
+    assert!(!arm.status().unwrap().flags.has(StatusFlags::PWM_ACTIVE));
+    status
+}
+
+/// Runs `points` on a thread of its own, sends STOPPED after `delay` (its ACK must say
+/// STOPPED) and returns how the run ended.
+pub fn stop_mid_run(
+    arm: &std::sync::Arc<armctl::Client>,
+    points: Vec<Point>,
+    delay: Duration,
+) -> armctl::Result<armctl::RunReport> {
+    let runner = {
+        let arm = arm.clone();
+        std::thread::spawn(move || {
+            arm.run_trajectory(&points, &armctl::RunOptions::default(), |_| {})
+        })
+    };
+    std::thread::sleep(delay);
+    let ack = arm.stop().unwrap();
+    assert_eq!(ack.state, protocol::State::Stopped);
+    runner.join().unwrap()
+}
+
+/// Client options for a simulator on loopback: a short first ACK wait, many tries.
+pub fn loopback() -> armctl::Options {
+    armctl::Options {
+        ack_timeout: Duration::from_millis(50),
+        attempts: 20,
+        ..armctl::Options::default()
+    }
+}
+
+/// Where the arm is, from a LOCATION report (2 s at most).
+pub fn position(arm: &armctl::Client) -> [i32; MAX_JOINTS] {
+    arm.current_location(Duration::from_secs(2))
+        .expect("a LOCATION report")
+        .position
 }

@@ -2,7 +2,10 @@
 
 use clap::Parser;
 
-use crate::cli::{self, Cli, Cmd, Direction, EncodeCmd, FrameCmd, OnOff, PwmCmd};
+use crate::cli::{self, Cli, Cmd, OnOff};
+use crate::frame::{self, Direction, EncodeCmd, FrameCmd};
+use crate::pwm::PwmCmd;
+use crate::run;
 
 fn parse(args: &[&str]) -> Cli {
     Cli::try_parse_from(std::iter::once("armctl").chain(args.iter().copied()))
@@ -68,7 +71,7 @@ fn run_options() {
         panic!("not run")
     };
     assert_eq!(args.window, None);
-    assert_eq!(args.max_step_rate, cli::DEFAULT_MAX_STEP_RATE_HZ);
+    assert_eq!(args.max_step_rate, run::DEFAULT_MAX_STEP_RATE_HZ);
 }
 
 #[test]
@@ -191,16 +194,23 @@ fn frame_subcommands_parse() {
 
 #[test]
 fn hex_parsing() {
-    assert_eq!(cli::parse_hex("0x01 02:03-0a").unwrap(), vec![1, 2, 3, 10]);
-    assert!(cli::parse_hex("123").unwrap_err().contains("odd"));
-    assert!(cli::parse_hex("zz").unwrap_err().contains("not a hex byte"));
+    assert_eq!(
+        frame::parse_hex("0x01 02:03-0a").unwrap(),
+        vec![1, 2, 3, 10]
+    );
+    assert!(frame::parse_hex("123").unwrap_err().contains("odd"));
+    assert!(
+        frame::parse_hex("zz")
+            .unwrap_err()
+            .contains("not a hex byte")
+    );
 }
 
 fn encode(args: &[&str]) -> String {
     let Cmd::Frame(FrameCmd::Encode { seq, command }) = parse(args).command else {
         panic!("not frame encode")
     };
-    cli::encode_frame(seq, &command).unwrap()
+    frame::encode_frame(seq, &command).unwrap()
 }
 
 /// The golden frames from the project's shared vectors (`shared/` beside the repository).
@@ -325,7 +335,7 @@ fn encode_pending_fills_hints_from_motion() {
         "--point",
         "5000000:101,-50",
     ]);
-    let bytes = cli::parse_hex(&hex).unwrap();
+    let bytes = frame::parse_hex(&hex).unwrap();
     let frame = protocol::Command::decode(&bytes).unwrap();
     let protocol::Command::Pending(points) = frame.body else {
         panic!("not PENDING")
@@ -351,14 +361,14 @@ fn encode_refuses_empty_serial_and_bad_points() {
     else {
         panic!()
     };
-    assert!(cli::encode_frame(seq, &command).is_err());
+    assert!(frame::encode_frame(seq, &command).is_err());
     let Cmd::Frame(FrameCmd::Encode { seq, command }) =
         parse(&["frame", "encode", "pending", "--point", "100"]).command
     else {
         panic!()
     };
     assert!(
-        cli::encode_frame(seq, &command)
+        frame::encode_frame(seq, &command)
             .unwrap_err()
             .contains("DURATION_US")
     );
@@ -368,15 +378,15 @@ fn encode_refuses_empty_serial_and_bad_points() {
 fn decode_every_golden_frame() {
     for frame in golden() {
         let name = frame["name"].as_str().unwrap();
-        let bytes = cli::parse_hex(frame["hex"].as_str().unwrap()).unwrap();
+        let bytes = frame::parse_hex(frame["hex"].as_str().unwrap()).unwrap();
         let expect_error = !frame["expect_status"].is_null() || name == "two bytes: no reply";
         if expect_error {
             // As a command (a USART_RECV from a host is a fine report, a bad command).
-            let message = cli::decode_frame(&bytes, Some(Direction::Command)).expect_err(name);
+            let message = frame::decode_frame(&bytes, Some(Direction::Command)).expect_err(name);
             assert!(!message.is_empty(), "{name}");
             continue;
         }
-        let result = cli::decode_frame(&bytes, None);
+        let result = frame::decode_frame(&bytes, None);
         let json: serde_json::Value =
             serde_json::from_str(&result.unwrap_or_else(|e| panic!("{name}: {e}"))).unwrap();
         assert_eq!(json["seq"], frame["seq"], "{name}");
@@ -388,9 +398,10 @@ fn decode_every_golden_frame() {
         // A LOCATION report decodes as LOCATION_SETTING too (same tag and length):
         // auto-detection prefers the command; --as report gives the report.
         if name == "LOCATION report" {
-            let json: serde_json::Value =
-                serde_json::from_str(&cli::decode_frame(&bytes, Some(Direction::Report)).unwrap())
-                    .unwrap();
+            let json: serde_json::Value = serde_json::from_str(
+                &frame::decode_frame(&bytes, Some(Direction::Report)).unwrap(),
+            )
+            .unwrap();
             assert_eq!(json["direction"], "report");
             assert_eq!(json["tag"], "LOCATION");
             assert_eq!(
@@ -406,13 +417,13 @@ fn decode_every_golden_frame() {
 #[test]
 fn decode_shows_fields() {
     let json: serde_json::Value = serde_json::from_str(
-        &cli::decode_frame(&cli::parse_hex(&golden_hex("NEW")).unwrap(), None).unwrap(),
+        &frame::decode_frame(&frame::parse_hex(&golden_hex("NEW")).unwrap(), None).unwrap(),
     )
     .unwrap();
     assert_eq!(json["tag"], "NEW");
     assert_eq!(json["command"]["New"]["count"], 61513);
     let json: serde_json::Value = serde_json::from_str(
-        &cli::decode_frame(&cli::parse_hex(&golden_hex("ACK")).unwrap(), None).unwrap(),
+        &frame::decode_frame(&frame::parse_hex(&golden_hex("ACK")).unwrap(), None).unwrap(),
     )
     .unwrap();
     assert_eq!(json["direction"], "report");
@@ -423,19 +434,19 @@ fn decode_shows_fields() {
 #[test]
 fn decode_errors_are_the_decode_error_message() {
     let bad_crc =
-        cli::decode_frame(&cli::parse_hex(&golden_hex("bad CRC")).unwrap(), None).unwrap_err();
+        frame::decode_frame(&frame::parse_hex(&golden_hex("bad CRC")).unwrap(), None).unwrap_err();
     assert!(bad_crc.contains("CRC mismatch"), "{bad_crc}");
-    let short = cli::decode_frame(&[1, 2], None).unwrap_err();
+    let short = frame::decode_frame(&[1, 2], None).unwrap_err();
     assert!(short.contains("too short"), "{short}");
-    let joints = cli::decode_frame(
-        &cli::parse_hex(&golden_hex("JOINTS_COUNT 9")).unwrap(),
+    let joints = frame::decode_frame(
+        &frame::parse_hex(&golden_hex("JOINTS_COUNT 9")).unwrap(),
         None,
     )
     .unwrap_err();
     assert!(joints.contains("joint count must be 1..8"), "{joints}");
     // Forced direction: a command frame is not a report.
-    let wrong = cli::decode_frame(
-        &cli::parse_hex(&golden_hex("NEW")).unwrap(),
+    let wrong = frame::decode_frame(
+        &frame::parse_hex(&golden_hex("NEW")).unwrap(),
         Some(Direction::Report),
     )
     .unwrap_err();

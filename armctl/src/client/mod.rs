@@ -1,27 +1,31 @@
 //! The controller client: one UDP socket, a background thread that receives every report,
 //! and blocking calls that send a command and wait for its ACK with bounded retries.
 
-use std::collections::HashMap;
 use std::net::{SocketAddr, ToSocketAddrs, UdpSocket};
-use std::sync::atomic::{AtomicBool, AtomicU8, AtomicU64, Ordering};
-use std::sync::mpsc::{self, Receiver, RecvTimeoutError, Sender};
-use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
+use std::sync::atomic::{AtomicU8, Ordering};
+use std::sync::mpsc::{self, Receiver, RecvTimeoutError};
+use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use protocol::{
-    Ack, Command, Location, MAX_DATAGRAM, MAX_JOINTS, MAX_SERIAL_CHUNK, Pwm, Report, State,
-    StatusCode, StatusReport, Tag, UartInit,
+    Ack, Command, Location, MAX_DATAGRAM, MAX_JOINTS, MAX_SERIAL_CHUNK, Pwm, State, StatusCode,
+    StatusReport, Tag, UartInit,
 };
 
 use crate::error::{Error, Result};
 use crate::pcap::PcapLog;
 use crate::rtt::{DEFAULT_MIN_RTO, RESEND_HORIZON, RttEstimator};
 
+mod receiver;
+
+pub(crate) use receiver::{AckWaiter, Event, lock};
+use receiver::{Shared, receive_loop};
+
 /// How long the receiver thread blocks in one `recv`, so that it notices a shutdown soon.
 const RECEIVER_POLL: Duration = Duration::from_millis(50);
 
-/// Timeouts and retry bounds of a [`Controller`].
+/// Timeouts and retry bounds of a [`Client`].
 #[derive(Clone, Debug)]
 pub struct Options {
     /// How long to wait for an ACK before sending the frame again, before any round trip
@@ -55,12 +59,12 @@ impl Default for Options {
 }
 
 /// A connection to one controller. All methods take `&self`: share it with `Arc` to call
-/// [`Controller::stop`] from another thread while a run is uploading.
+/// [`Client::stop`] from another thread while a run is uploading.
 ///
-/// Commands other than STOPPED wait while [`Controller::run_trajectory`] uploads, because
+/// Commands other than STOPPED wait while [`Client::run_trajectory`] uploads, because
 /// a command slipped between PENDING frames that got lost or refused would leave a hole in
 /// the upload's sequence numbers.
-pub struct Controller {
+pub struct Client {
     socket: UdpSocket,
     addr: SocketAddr,
     next_seq: AtomicU8,
@@ -73,162 +77,31 @@ pub struct Controller {
     receiver: Option<JoinHandle<()>>,
 }
 
-impl std::fmt::Debug for Controller {
+impl std::fmt::Debug for Client {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("Controller")
+        f.debug_struct("Client")
             .field("addr", &self.addr)
             .field("options", &self.options)
             .finish_non_exhaustive()
     }
 }
 
-/// What a waiter for ACKs hears from the receiver thread.
-#[derive(Clone, Copy, Debug)]
-pub(crate) enum Event {
-    /// The ACK of a seq.
-    Ack(u8, Ack),
-    /// The system reported the controller's port unreachable (ICMP): nothing listens there.
-    Refused,
-}
-
-/// Where the ACKs of a seq go.
-type AckSender = Sender<Event>;
-
-/// Where the receiver thread delivers what arrives.
-#[derive(Default)]
-pub(crate) struct Shared {
-    shutdown: AtomicBool,
-    /// Who (waiter id) waits for the ACK of which seq.
-    waiters: Mutex<HashMap<u8, (u64, AckSender)>>,
-    /// Source of waiter ids.
-    next_waiter: AtomicU64,
-    locations: Mutex<Vec<Sender<Location>>>,
-    serial: Mutex<Vec<Sender<Vec<u8>>>>,
-    statuses: Mutex<Vec<Sender<StatusReport>>>,
-    last_location: Mutex<Option<Location>>,
-    last_status: Mutex<Option<StatusReport>>,
-    /// Datagrams that did not decode as a report.
-    undecodable: AtomicU64,
-    /// Where every datagram sent and received is written ([`Controller::capture`]).
-    pcap: Mutex<Option<Arc<PcapLog>>>,
-}
-
-/// Locks a mutex even if a thread panicked while holding it: the data here (channel lists,
-/// last reports) stays consistent whatever happened.
-pub(crate) fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
-    m.lock().unwrap_or_else(PoisonError::into_inner)
-}
-
-/// Sends to every subscriber and forgets the ones that hung up.
-fn fan_out<T: Clone>(subs: &Mutex<Vec<Sender<T>>>, value: &T) {
-    lock(subs).retain(|s| s.send(value.clone()).is_ok());
-}
-
-impl Shared {
-    /// Tells every waiter that the controller's port was reported unreachable.
-    fn refused(&self) {
-        for (_, waiter) in lock(&self.waiters).values() {
-            let _ = waiter.send(Event::Refused);
-        }
-    }
-
-    fn deliver(&self, datagram: &[u8]) {
-        let Ok(frame) = Report::decode(datagram) else {
-            self.undecodable.fetch_add(1, Ordering::Relaxed);
-            return;
-        };
-        match frame.body {
-            Report::Ack(ack) => {
-                if let Some((_, waiter)) = lock(&self.waiters).get(&frame.seq) {
-                    let _ = waiter.send(Event::Ack(frame.seq, ack));
-                }
-            }
-            Report::Location(location) => {
-                *lock(&self.last_location) = Some(location);
-                fan_out(&self.locations, &location);
-            }
-            Report::UsartRecv(bytes) => fan_out(&self.serial, &bytes.to_vec()),
-            Report::Status(status) => {
-                *lock(&self.last_status) = Some(status);
-                fan_out(&self.statuses, &status);
-            }
-        }
-    }
-}
-
-fn receive_loop(socket: UdpSocket, shared: Arc<Shared>) {
-    let mut buf = [0u8; MAX_DATAGRAM + 1];
-    let ends = socket.peer_addr().ok().zip(socket.local_addr().ok());
-    while !shared.shutdown.load(Ordering::Relaxed) {
-        match socket.recv(&mut buf) {
-            Ok(n) => {
-                if let (Some(pcap), Some((from, to))) = (lock(&shared.pcap).as_ref(), ends) {
-                    let _ = pcap.record(from, to, &buf[..n]);
-                }
-                shared.deliver(&buf[..n])
-            }
-            // The poll timeout: check for shutdown.
-            Err(e)
-                if matches!(
-                    e.kind(),
-                    std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
-                ) => {}
-            // ICMP "port unreachable": nothing listens on the controller's port (yet).
-            // Waiters decide what it means; keep listening, without spinning.
-            Err(e) if e.kind() == std::io::ErrorKind::ConnectionRefused => {
-                shared.refused();
-                std::thread::sleep(Duration::from_millis(1));
-            }
-            Err(_) => std::thread::sleep(Duration::from_millis(1)),
-        }
-    }
-}
-
-/// A registration for the ACKs of some seqs; removes them on drop (only those still its
-/// own: after 256 frames a seq may have gone to another waiter, e.g. a STOPPED sent from
-/// another thread during an upload).
-pub(crate) struct AckWaiter<'a> {
-    shared: &'a Shared,
-    id: u64,
-    seqs: Vec<u8>,
-    tx: Sender<Event>,
-    pub(crate) rx: Receiver<Event>,
-}
-
-impl AckWaiter<'_> {
-    pub(crate) fn expect(&mut self, seq: u8) {
-        lock(&self.shared.waiters).insert(seq, (self.id, self.tx.clone()));
-        self.seqs.push(seq);
-    }
-}
-
-impl Drop for AckWaiter<'_> {
-    fn drop(&mut self) {
-        let mut waiters = lock(&self.shared.waiters);
-        for seq in &self.seqs {
-            if waiters.get(seq).is_some_and(|(id, _)| *id == self.id) {
-                waiters.remove(seq);
-            }
-        }
-    }
-}
-
-impl Controller {
+impl Client {
     /// Connects to the controller at `addr` (e.g. `"127.0.0.1:8510"`) with default
     /// [`Options`] and checks that it answers a STATUS.
-    pub fn connect(addr: impl ToSocketAddrs) -> Result<Controller> {
+    pub fn connect(addr: impl ToSocketAddrs) -> Result<Client> {
         Self::connect_with(addr, Options::default())
     }
 
     /// Connects with the given options and checks that the controller answers a STATUS.
-    pub fn connect_with(addr: impl ToSocketAddrs, options: Options) -> Result<Controller> {
+    pub fn connect_with(addr: impl ToSocketAddrs, options: Options) -> Result<Client> {
         let controller = Self::open(addr, options)?;
         controller.status()?;
         Ok(controller)
     }
 
     /// Opens the socket and starts the receiver without talking to the controller.
-    pub fn open(addr: impl ToSocketAddrs, options: Options) -> Result<Controller> {
+    pub fn open(addr: impl ToSocketAddrs, options: Options) -> Result<Client> {
         let addr = addr.to_socket_addrs()?.next().ok_or_else(|| {
             Error::Io(std::io::Error::new(
                 std::io::ErrorKind::InvalidInput,
@@ -260,7 +133,7 @@ impl Controller {
         let first_seq = std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)
             .map_or(0, |d| d.subsec_nanos() as u8);
-        Ok(Controller {
+        Ok(Client {
             socket,
             addr,
             next_seq: AtomicU8::new(first_seq),
@@ -295,14 +168,7 @@ impl Controller {
     }
 
     pub(crate) fn waiter(&self) -> AckWaiter<'_> {
-        let (tx, rx) = mpsc::channel();
-        AckWaiter {
-            shared: &self.shared,
-            id: self.shared.next_waiter.fetch_add(1, Ordering::Relaxed),
-            seqs: Vec::new(),
-            tx,
-            rx,
-        }
+        self.shared.waiter()
     }
 
     /// From now on, writes every datagram sent and received to `pcap` (`--pcap FILE`).
@@ -480,7 +346,7 @@ impl Controller {
     }
 
     /// RETURN: moves every joint to zero. Returns when the controller accepted it; see
-    /// [`Controller::wait_stopped`] to wait for the end of the move.
+    /// [`Client::wait_stopped`] to wait for the end of the move.
     pub fn go_home(&self) -> Result<Ack> {
         self.send(&Command::Return)
     }
@@ -581,7 +447,7 @@ impl Controller {
     }
 
     /// A fresh LOCATION report (one that arrives after this call), at most `timeout`
-    /// from now, after claiming the reports for this client ([`Controller::claim_locations`]).
+    /// from now, after claiming the reports for this client ([`Client::claim_locations`]).
     /// Location reports must be on (they are by default).
     pub fn current_location(&self, timeout: Duration) -> Result<Location> {
         let started = Instant::now();
@@ -621,7 +487,7 @@ pub(crate) fn check(command: Tag, ack: Ack) -> Result<Ack> {
     }
 }
 
-impl Drop for Controller {
+impl Drop for Client {
     fn drop(&mut self) {
         self.shared.shutdown.store(true, Ordering::Relaxed);
         if let Some(receiver) = self.receiver.take() {

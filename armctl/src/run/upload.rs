@@ -1,109 +1,15 @@
-//! Uploading and running a trajectory: NEW, then PENDING frames streamed with a go-back-N
-//! window and flow control from the ACKs, RUNING once enough is buffered, then waiting for
-//! the controller to report the end of the run.
+//! The upload engine behind [`Client::run_trajectory`]: frames built as the window allows,
+//! go-back-N on a loss or OUT_OF_ORDER, BUFFER_FULL back-off, the congestion window, and
+//! RUNING once enough is buffered.
 
 use std::sync::mpsc::RecvTimeoutError;
 use std::time::{Duration, Instant};
 
-use protocol::{
-    Command, Location, MAX_DATAGRAM, MAX_POINTS_PER_FRAME, Point, PointList, State, StatusCode,
-    StatusFlags, StatusReport, Tag,
-};
+use protocol::{Command, MAX_DATAGRAM, Point, PointList, State, StatusCode, Tag};
 
-use crate::client::{Controller, Event, check, lock};
-use crate::error::{Error, Result, RunEnd};
-
-/// Largest trajectory one NEW can announce. Longer ones are refused (not split): splitting
-/// would stop the arm between uploads, which a caller must decide to do explicitly.
-pub const MAX_POINTS: usize = protocol::limits::MAX_POINTS_PER_NEW;
-
-/// Frames in flight at most: a controller takes a burst of 32 datagrams whole (the most
-/// it may advertise in STATUS `window`), and recognises a retransmission among more frames
-/// than that (docs/PROTOCOL.md, "Ordering, retransmission and duplicates"), so a go-back-N
-/// resend of a whole window is still recognised.
-pub const MAX_WINDOW: usize = protocol::limits::HOST_WINDOW;
-
-/// The window of a controller that advertises none (STATUS `window` 0: an older
-/// controller): what every controller takes back to back.
-pub const DEFAULT_WINDOW: usize = protocol::DEFAULT_WINDOW as usize;
-
-/// How a trajectory is uploaded and run.
-#[derive(Clone, Debug)]
-pub struct RunOptions {
-    /// Frames sent and not yet acknowledged at most (1 = stop-and-wait), up to
-    /// [`MAX_WINDOW`]; 0 = the window the controller advertises in STATUS
-    /// ([`DEFAULT_WINDOW`] for one that advertises none).
-    pub window: usize,
-    /// Points per PENDING frame, 1..=12.
-    pub points_per_frame: usize,
-    /// Send RUNING once this many points are acknowledged. `None`: once the buffer is full
-    /// or every point is acknowledged (the largest lead over execution).
-    pub start_after: Option<usize>,
-    /// Wait for the run to end and check it executed every point.
-    pub wait: bool,
-    /// Give up waiting for the upload when no frame is acknowledged for this long.
-    pub stall_timeout: Duration,
-    /// Longest wait for the end of the run, from NEW; `None`: twice the trajectory's
-    /// duration plus 10 s.
-    pub completion_timeout: Option<Duration>,
-}
-
-impl Default for RunOptions {
-    fn default() -> Self {
-        RunOptions {
-            window: 0,
-            points_per_frame: MAX_POINTS_PER_FRAME,
-            start_after: None,
-            wait: true,
-            stall_timeout: Duration::from_secs(5),
-            completion_timeout: None,
-        }
-    }
-}
-
-/// Where a run is, for progress displays.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct Progress {
-    /// Points in the trajectory.
-    pub total: usize,
-    /// Points sent at least once.
-    pub sent: usize,
-    /// Points the controller acknowledged.
-    pub acked: usize,
-    /// Points executed (from ACK buffer counts during the upload, then STATUS).
-    pub executed: usize,
-    /// The controller's state as last reported.
-    pub state: State,
-}
-
-/// What a finished run did.
-#[derive(Clone, Debug, Default)]
-pub struct RunReport {
-    /// Points in the trajectory.
-    pub points: usize,
-    /// PENDING/RUNING frames in the upload.
-    pub frames: usize,
-    /// The window used (frames in flight at most).
-    pub window: usize,
-    /// Datagrams sent for the upload, retransmissions included.
-    pub datagrams_sent: usize,
-    /// Datagrams sent again (timeouts, go-back-N, buffer full).
-    pub retransmissions: usize,
-    /// OUT_OF_ORDER refusals seen.
-    pub out_of_order: usize,
-    /// BUFFER_FULL refusals seen.
-    pub buffer_full: usize,
-    /// ACK timeouts.
-    pub timeouts: usize,
-    /// From NEW to the last frame acknowledged.
-    pub upload_time: Duration,
-    /// From NEW to the end of the run (or of the upload when not waiting).
-    pub total_time: Duration,
-    /// STATUS after the run, when waited for.
-    pub final_status: Option<StatusReport>,
-    /// Positions after the run, when waited for.
-    pub final_location: Option<Location>,
-}
+use super::{Progress, RunOptions, RunReport, run_ended};
+use crate::client::{Client, Event, lock};
+use crate::error::{Error, Result};
 
 /// One frame of the upload.
 struct Outgoing {
@@ -124,8 +30,8 @@ struct Outgoing {
 /// `frames[..base]` are acknowledged, `frames[base..next_send]` are in flight (some may be
 /// acknowledged out of order), `frames[next_send..]` wait to be sent again after a
 /// go-back-N. New frames are built only when every built frame is in flight.
-struct Upload<'a, 'p> {
-    controller: &'a Controller,
+pub(super) struct Upload<'a, 'p> {
+    controller: &'a Client,
     options: &'a RunOptions,
     points: &'p [Point],
     waiter: crate::client::AckWaiter<'a>,
@@ -174,6 +80,52 @@ const MAX_TIMEOUTS_IN_A_ROW: usize = 250;
 /// duplicate the controller ACKs again, and a streak of losses must not let the running
 /// arm's buffer run dry while the client waits.
 const UPLOAD_MAX_DOUBLINGS: u32 = 1;
+
+impl<'a, 'p> Upload<'a, 'p> {
+    /// The upload after NEW was acknowledged with `ack`; `duration_us` is the whole
+    /// trajectory's, for the deadline.
+    pub(super) fn new(
+        controller: &'a Client,
+        options: &'a RunOptions,
+        points: &'p [Point],
+        ack: &protocol::Ack,
+        duration_us: i64,
+    ) -> Self {
+        Upload {
+            controller,
+            options,
+            points,
+            waiter: controller.waiter(),
+            frames: Vec::new(),
+            base: 0,
+            next_send: 0,
+            cwnd: options.window as f64,
+            points_framed: 0,
+            acked_points: 0,
+            free: (usize::from(ack.free), None),
+            buffered: usize::from(ack.buffered),
+            free_since: Instant::now(),
+            executed: 0,
+            runing_sent: false,
+            state: ack.state,
+            resume: None,
+            last_rewind: None,
+            last_progress: Instant::now(),
+            timeouts_in_a_row: 0,
+            deadline: Instant::now()
+                + Duration::from_micros(duration_us as u64) * 2
+                + options.stall_timeout * 2,
+            report: RunReport::default(),
+        }
+    }
+
+    /// The report of a finished upload, with its frame count and window.
+    pub(super) fn into_report(mut self) -> RunReport {
+        self.report.frames = self.frames.len();
+        self.report.window = self.options.window;
+        self.report
+    }
+}
 
 impl Upload<'_, '_> {
     fn in_flight(&self) -> usize {
@@ -251,7 +203,7 @@ impl Upload<'_, '_> {
     /// Go-back-N: every unacknowledged frame from `from` on is sent again, unchanged, as
     /// the window allows. `loss`: a frame was lost, so the window shrinks.
     fn rewind(&mut self, from: usize, loss: bool) {
-        trace(format_args!("go back to frame {from}"));
+        log::debug!("go back to frame {from}");
         self.last_rewind = Some((from, Instant::now()));
         self.next_send = self.next_send.min(from.max(self.base));
         if loss {
@@ -330,7 +282,7 @@ impl Upload<'_, '_> {
             return Ok(());
         };
         self.state = ack.state;
-        trace(format_args!(
+        log::trace!(
             "ack of frame {i} (seq {seq}): {} next_seq {} free {} buffered {}; credit {} in flight {} window {} acked {}",
             ack.status.name(),
             ack.next_seq,
@@ -340,7 +292,7 @@ impl Upload<'_, '_> {
             self.in_flight(),
             self.window(),
             self.acked_points
-        ));
+        );
         match ack.status {
             StatusCode::Ok => {
                 if self.frames[i].sends == 1 && !self.frames[i].acked {
@@ -472,7 +424,7 @@ impl Upload<'_, '_> {
         Ok(None)
     }
 
-    fn run(&mut self, progress: &mut dyn FnMut(&Progress)) -> Result<()> {
+    pub(super) fn run(&mut self, progress: &mut dyn FnMut(&Progress)) -> Result<()> {
         let total = self.points.len();
         let mut last_shown = Progress::default();
         loop {
@@ -521,11 +473,11 @@ impl Upload<'_, '_> {
                         && self.base < self.next_send
                         && self.frames[self.base].sent_at.elapsed() >= ack_timeout;
                     if overdue {
-                        trace(format_args!(
+                        log::debug!(
                             "ACK timeout ({} us), frame {}",
                             ack_timeout.as_micros(),
                             self.base
-                        ));
+                        );
                         self.report.timeouts += 1;
                         self.timeouts_in_a_row += 1;
                         lock(&self.controller.rtt).back_off();
@@ -534,266 +486,5 @@ impl Upload<'_, '_> {
                 }
             }
         }
-    }
-}
-
-/// Upload events on stderr when `ARMCTL_TRACE` is set: for diagnosing a link.
-fn trace(args: std::fmt::Arguments<'_>) {
-    if std::env::var_os("ARMCTL_TRACE").is_some() {
-        eprintln!("armctl: {args}");
-    }
-}
-
-/// The error for a run that stopped early, from the STATUS after it.
-fn run_ended(status: Option<&StatusReport>, total: usize) -> Error {
-    // Received versus executed (PROTOCOL.md, "How the last run ended"): an underrun with
-    // points received and not run, or with every point received, is the controller falling
-    // behind its own buffer; only one that ran everything it had received, short of the
-    // total, is an upload that came too slowly.
-    let reason = match status {
-        Some(s) if s.flags.has(StatusFlags::STOPPED_BY_HOST) => RunEnd::Stopped,
-        Some(s)
-            if s.flags.has(StatusFlags::UNDERRUN)
-                && (s.received > s.executed || usize::from(s.received) >= total) =>
-        {
-            RunEnd::Starved
-        }
-        Some(s) if s.flags.has(StatusFlags::UNDERRUN) => RunEnd::Underrun,
-        _ => RunEnd::Unknown,
-    };
-    Error::RunEnded {
-        reason,
-        executed: status.map(|s| s.executed),
-        received: status.map(|s| s.received),
-        total,
-    }
-}
-
-/// The window a STATUS advertises: datagrams the controller takes back to back
-/// ([`DEFAULT_WINDOW`] when it advertises none, at most [`MAX_WINDOW`]).
-pub fn window_of(status: &StatusReport) -> usize {
-    match status.window {
-        0 => DEFAULT_WINDOW,
-        n => usize::from(n).min(MAX_WINDOW),
-    }
-}
-
-impl Controller {
-    /// The window the controller advertises in STATUS (from the last STATUS this client
-    /// received, else a fresh one): [`DEFAULT_WINDOW`] for a controller that advertises
-    /// none, at most [`MAX_WINDOW`].
-    pub fn advertised_window(&self) -> Result<usize> {
-        let status = match self.last_status() {
-            Some(status) => status,
-            None => self.status()?,
-        };
-        Ok(window_of(&status))
-    }
-
-    /// Uploads `points` (NEW, PENDING frames through a go-back-N window with flow control,
-    /// RUNING) and, if `options.wait`, waits for the run to end and checks that the
-    /// controller executed every point. `progress` is called whenever the counts change.
-    ///
-    /// Refused past [`MAX_POINTS`] points: split long trajectories yourself (the arm stops
-    /// between uploads).
-    pub fn run_trajectory(
-        &self,
-        points: &[Point],
-        options: &RunOptions,
-        mut progress: impl FnMut(&Progress),
-    ) -> Result<RunReport> {
-        let total = points.len();
-        if total == 0 || total > MAX_POINTS {
-            return Err(Error::InvalidTrajectory(format!(
-                "{total} points: one upload takes 1 to {MAX_POINTS}"
-            )));
-        }
-        if let Some(i) = points.iter().position(|p| p.duration < 1) {
-            return Err(Error::InvalidTrajectory(format!(
-                "point {i} has a duration of {} us (1 at least)",
-                points[i].duration
-            )));
-        }
-        let window = match options.window {
-            0 => self.advertised_window()?,
-            n => n,
-        };
-        let options = RunOptions {
-            window: window.clamp(1, MAX_WINDOW),
-            points_per_frame: options.points_per_frame.clamp(1, MAX_POINTS_PER_FRAME),
-            ..options.clone()
-        };
-        let duration_us: i64 = points.iter().map(|p| i64::from(p.duration)).sum();
-        let started = Instant::now();
-        let locations = self.locations();
-        let mut report = {
-            let _upload = lock(&self.upload);
-            let ack = check(
-                Tag::New,
-                self.exchange_unlocked(&Command::New {
-                    count: total as u16,
-                })?,
-            )?;
-            let mut upload = Upload {
-                controller: self,
-                options: &options,
-                points,
-                waiter: self.waiter(),
-                frames: Vec::new(),
-                base: 0,
-                next_send: 0,
-                cwnd: options.window as f64,
-                points_framed: 0,
-                acked_points: 0,
-                free: (usize::from(ack.free), None),
-                buffered: usize::from(ack.buffered),
-                free_since: Instant::now(),
-                executed: 0,
-                runing_sent: false,
-                state: ack.state,
-                resume: None,
-                last_rewind: None,
-                last_progress: Instant::now(),
-                timeouts_in_a_row: 0,
-                deadline: Instant::now()
-                    + Duration::from_micros(duration_us as u64) * 2
-                    + options.stall_timeout * 2,
-                report: RunReport::default(),
-            };
-            upload.run(&mut progress)?;
-            upload.report.frames = upload.frames.len();
-            upload.report.window = options.window;
-            upload.report
-        };
-        report.points = total;
-        report.upload_time = started.elapsed();
-        if !options.wait {
-            report.total_time = started.elapsed();
-            return Ok(report);
-        }
-        let timeout = options
-            .completion_timeout
-            .unwrap_or(Duration::from_micros(duration_us as u64) * 2 + Duration::from_secs(10));
-        let deadline = started + timeout;
-        let status = loop {
-            let status = self.status()?;
-            progress(&Progress {
-                total,
-                sent: total,
-                acked: total,
-                executed: usize::from(status.executed),
-                state: status.state,
-            });
-            if status.state == State::Stopped {
-                // Confirmed by a second report: a late duplicate of an old one (a lossy
-                // link duplicates and delays) must not end the wait.
-                let again = self.status()?;
-                if again.state == State::Stopped {
-                    break again;
-                }
-            }
-            if Instant::now() >= deadline {
-                return Err(Error::Stalled {
-                    acked: total,
-                    total,
-                    waited: timeout,
-                });
-            }
-            // Every state change sends a LOCATION at once: it ends this wait early.
-            let until = Instant::now() + Duration::from_millis(100);
-            while let Ok(location) =
-                locations.recv_timeout(until.saturating_duration_since(Instant::now()))
-            {
-                if location.state == State::Stopped as u8 {
-                    break;
-                }
-            }
-        };
-        report.final_status = Some(status);
-        if status.flags.has(StatusFlags::REPORTS_ON) {
-            // The reports queued so far may predate the end; take a fresh one.
-            while locations.try_recv().is_ok() {}
-            let wait = Duration::from_micros(u64::from(status.upload_period_us) * 3)
-                .max(Duration::from_millis(100));
-            report.final_location = locations.recv_timeout(wait).ok();
-        }
-        report.total_time = started.elapsed();
-        let clean = !status.flags.has(StatusFlags::UNDERRUN)
-            && !status.flags.has(StatusFlags::STOPPED_BY_HOST)
-            && usize::from(status.executed) == total;
-        if clean {
-            Ok(report)
-        } else {
-            Err(run_ended(Some(&status), total))
-        }
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn ended(flags: u8, received: u16, executed: u16, total: usize) -> Error {
-        let status = StatusReport {
-            state: State::Stopped,
-            flags: StatusFlags(flags),
-            expected: total as u16,
-            received,
-            executed,
-            ..StatusReport::default()
-        };
-        run_ended(Some(&status), total)
-    }
-
-    fn reason(e: &Error) -> RunEnd {
-        match e {
-            Error::RunEnded { reason, .. } => *reason,
-            other => panic!("not RunEnded: {other}"),
-        }
-    }
-
-    /// Bug 4 of issue 14: at time scale 20 with 1 ms segments a run ended with 8,000
-    /// points received and not run, and armctl said the upload was too slow.
-    #[test]
-    fn underrun_with_points_still_received_blames_the_controller() {
-        let e = ended(StatusFlags::UNDERRUN, 9_000, 1_000, 20_000);
-        assert_eq!(reason(&e), RunEnd::Starved, "{e}");
-        let text = e.to_string();
-        assert!(text.contains("8000"), "{text}");
-        assert!(!text.contains("upload was too slow"), "{text}");
-    }
-
-    #[test]
-    fn underrun_with_every_received_point_run_blames_the_upload() {
-        let e = ended(StatusFlags::UNDERRUN, 900, 900, 1_200);
-        assert_eq!(reason(&e), RunEnd::Underrun, "{e}");
-        assert!(e.to_string().contains("upload was too slow"), "{e}");
-        // Everything arrived and ran, yet UNDERRUN: the controller's fault again.
-        let e = ended(StatusFlags::UNDERRUN, 1_200, 1_199, 1_200);
-        assert_eq!(reason(&e), RunEnd::Starved, "{e}");
-    }
-
-    #[test]
-    fn the_window_is_the_advertised_one_or_eight() {
-        let status = |window| StatusReport {
-            window,
-            ..StatusReport::default()
-        };
-        assert_eq!(window_of(&status(0)), 8, "an old controller");
-        assert_eq!(window_of(&status(32)), 32);
-        assert_eq!(window_of(&status(4)), 4);
-        assert_eq!(window_of(&status(1000)), MAX_WINDOW);
-    }
-
-    #[test]
-    fn stopped_wins_and_no_status_is_unknown() {
-        let e = ended(
-            StatusFlags::UNDERRUN | StatusFlags::STOPPED_BY_HOST,
-            50,
-            10,
-            100,
-        );
-        assert_eq!(reason(&e), RunEnd::Stopped);
-        assert_eq!(reason(&run_ended(None, 100)), RunEnd::Unknown);
     }
 }

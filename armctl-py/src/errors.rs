@@ -1,0 +1,89 @@
+//! The module's exceptions, and the armctl errors as them (fields as attributes).
+
+use armctl::{Error, trajectory};
+use pyo3::create_exception;
+use pyo3::exceptions::PyException;
+use pyo3::prelude::*;
+
+create_exception!(
+    armctl,
+    ArmctlError,
+    PyException,
+    "Base class of every error of the armctl module."
+);
+create_exception!(
+    armctl,
+    RefusedError,
+    ArmctlError,
+    "The controller refused a command: `.status` is the status name (e.g. 'BAD_STATE'), `.command` the command, `.state` the controller's state."
+);
+create_exception!(
+    armctl,
+    NoReplyError,
+    ArmctlError,
+    "The controller did not answer: no ACK or report after every retry."
+);
+create_exception!(
+    armctl,
+    RunEndedError,
+    ArmctlError,
+    "A run ended before every point ran: `.reason` is 'stopped', 'underrun', 'starved' or 'unknown'; `.executed` and `.total` count points."
+);
+create_exception!(
+    armctl,
+    StalledError,
+    ArmctlError,
+    "An upload or a run made no progress for too long."
+);
+create_exception!(
+    armctl,
+    TrajectoryError,
+    ArmctlError,
+    "A trajectory the controller cannot take: bad shape, a joint limit, a step rate, a file that does not parse."
+);
+
+/// The Python exception for an armctl error, with its fields as attributes.
+pub(crate) fn to_py_err(py: Python<'_>, error: Error) -> PyErr {
+    let message = error.to_string();
+    match error {
+        Error::Refused {
+            command,
+            status,
+            state,
+        } => {
+            let err = RefusedError::new_err(message);
+            let value = err.value(py);
+            let _ = value.setattr("status", status.name());
+            let _ = value.setattr("command", command.name());
+            let _ = value.setattr("state", state.name());
+            err
+        }
+        // A closed port on loopback is refused at once (nothing listens there): to Python
+        // that is the same "nothing answers" as a timeout.
+        Error::NoReply { .. }
+        | Error::ConnectionRefused { .. }
+        | Error::NoReport { .. }
+        | Error::NoLocation { .. } => NoReplyError::new_err(message),
+        Error::RunEnded {
+            reason,
+            executed,
+            received,
+            total,
+        } => {
+            let err = RunEndedError::new_err(message);
+            let value = err.value(py);
+            let _ = value.setattr("reason", reason.name());
+            let _ = value.setattr("executed", executed);
+            let _ = value.setattr("received", received);
+            let _ = value.setattr("total", total);
+            err
+        }
+        Error::Stalled { .. } => StalledError::new_err(message),
+        Error::InvalidTrajectory(_) => TrajectoryError::new_err(message),
+        Error::Io(_) | Error::Encode(_) => ArmctlError::new_err(message),
+    }
+}
+
+pub(crate) fn trajectory_err(e: trajectory::TrajectoryError) -> PyErr {
+    TrajectoryError::new_err(e.to_string())
+}

@@ -1,0 +1,235 @@
+//! Command-line syntax of `armctl`: the global options and the list of subcommands. The
+//! options of the larger subcommands live with them (`run::RunArgs`, `plot::PlotArgs`,
+//! `pwm::PwmCmd`, `net::NetCmd`, `frame::FrameCmd`).
+
+use std::path::PathBuf;
+
+use clap::{Parser, Subcommand, ValueEnum};
+
+use crate::frame::FrameCmd;
+use crate::net::NetCmd;
+use crate::plot::PlotArgs;
+use crate::pwm::PwmCmd;
+use crate::run::RunArgs;
+
+/// Drive an arm controller over UDP.
+#[derive(Parser, Debug)]
+#[command(name = "armctl", version, about)]
+pub struct Cli {
+    /// The controller's address: HOST or HOST:PORT (port 8510 when not given).
+    #[arg(
+        long,
+        global = true,
+        default_value = "127.0.0.1:8510",
+        value_name = "HOST[:PORT]"
+    )]
+    pub controller: String,
+    /// Milliseconds to wait for an ACK before sending again, until round trips are
+    /// measured (the wait then follows them, down to 3 ms); also the longest wait.
+    #[arg(long, global = true, default_value_t = 100, value_name = "MS")]
+    pub ack_timeout_ms: u64,
+    /// Times a frame is sent at most (no copy leaves later than 1.8 s after the first:
+    /// the controller recognises copies for 2 s).
+    #[arg(long, global = true, default_value_t = 10)]
+    pub attempts: u32,
+    /// Local address to send from (e.g. 127.0.0.2:0 to act as another host).
+    #[arg(long, global = true, env = "ARMCTL_BIND", value_name = "ADDR:PORT")]
+    pub bind: Option<std::net::SocketAddr>,
+    /// Write every datagram sent and received to this pcap file (open it in Wireshark
+    /// with tools/wireshark/arm_controller.lua).
+    #[arg(long, global = true, value_name = "FILE")]
+    pub pcap: Option<PathBuf>,
+    /// What to do.
+    #[command(subcommand)]
+    pub command: Cmd,
+}
+
+/// The commands.
+#[derive(Subcommand, Debug)]
+pub enum Cmd {
+    /// Print the controller's STATUS.
+    Status {
+        /// As JSON.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Print live positions and state (Ctrl-C ends).
+    Watch {
+        /// Also write every LOCATION report to this CSV file (for `plot`).
+        #[arg(long, value_name = "FILE")]
+        record: Option<PathBuf>,
+        /// Stop after this many seconds.
+        #[arg(long, value_name = "S")]
+        duration: Option<f64>,
+    },
+    /// Upload and execute a trajectory file (JointTrajectory .json or CSV in steps).
+    Run(RunArgs),
+    /// STOPPED: stop every joint at once and drop the trajectory.
+    Stop,
+    /// RETURN: move every joint to zero.
+    Return {
+        /// Wait until the move ends.
+        #[arg(long)]
+        wait: bool,
+    },
+    /// JOINTS_COUNT: set the number of joints (1..8).
+    Joints {
+        /// Joint count.
+        #[arg(value_parser = clap::value_parser!(u8).range(1..=8))]
+        n: u8,
+    },
+    /// LOCATION_SETTING: declare the current joint positions, in steps.
+    SetLocation {
+        /// Position of joint 0, 1, ... in steps.
+        #[arg(required = true, num_args = 1..=8, allow_negative_numbers = true)]
+        positions: Vec<i32>,
+    },
+    /// TOGGLE_ENABLE_PINS: toggle driver ENABLE lines (all, or the masked ones).
+    Enable {
+        /// Bits 0-7 joints, bit 8 gripper (decimal or 0x hex).
+        #[arg(long, value_parser = parse_mask)]
+        mask: Option<u16>,
+    },
+    /// Set GPIO pin 0 or 1.
+    Pin {
+        /// Pin number.
+        #[arg(value_parser = clap::value_parser!(u8).range(0..=1))]
+        pin: u8,
+        /// Level.
+        level: OnOff,
+    },
+    /// Gripper PWM.
+    #[command(subcommand)]
+    Pwm(PwmCmd),
+    /// Bridge stdin/stdout to the controller's serial port.
+    Serial {
+        /// Baud rate.
+        #[arg(long, default_value_t = 115_200)]
+        baud: u32,
+        /// Directions.
+        #[arg(long, value_enum, default_value_t = SerialMode::Both)]
+        mode: SerialMode,
+        /// Leave the port open at the end of input.
+        #[arg(long)]
+        keep_open: bool,
+    },
+    /// UPLOAD_PERIOD: location report period in microseconds (1000..1000000).
+    UploadPeriod {
+        /// Microseconds.
+        us: u32,
+    },
+    /// UPLOAD_START/UPLOAD_STOP: location reports on or off.
+    Reports {
+        /// On or off.
+        state: OnOff,
+    },
+    /// Find controllers: DISCOVER to a broadcast address (or --to one controller). Every
+    /// controller answers with its MAC, address, version, joints and owner; nothing changes.
+    Discover {
+        /// Where DISCOVER goes: a broadcast address or one controller.
+        #[arg(long, default_value = "255.255.255.255:8510", value_name = "ADDR:PORT")]
+        to: std::net::SocketAddrV4,
+        /// Milliseconds to collect answers after each DISCOVER.
+        #[arg(long, default_value_t = 300, value_name = "MS")]
+        wait_ms: u64,
+        /// DISCOVERs to send.
+        #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(1..=10))]
+        rounds: u32,
+        /// As JSON.
+        #[arg(long)]
+        json: bool,
+    },
+    /// The controller's network settings (stored in flash, applied after a reset).
+    #[command(subcommand)]
+    Net(NetCmd),
+    /// Encode or decode frames (no controller needed).
+    #[command(subcommand)]
+    Frame(FrameCmd),
+    /// Draw a recorded run (CSV of LOCATION reports, or a sim-host VCD trace) as SVG.
+    Plot(PlotArgs),
+}
+
+/// On or off.
+#[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum OnOff {
+    /// High / on.
+    On,
+    /// Low / off.
+    Off,
+}
+
+/// Serial directions.
+#[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SerialMode {
+    /// Transmit and receive.
+    Both,
+    /// Receive only.
+    Rx,
+    /// Transmit only.
+    Tx,
+}
+
+impl SerialMode {
+    /// The UartInit `Mode` value.
+    pub fn code(self) -> u32 {
+        match self {
+            SerialMode::Both => 0,
+            SerialMode::Rx => 1,
+            SerialMode::Tx => 2,
+        }
+    }
+}
+
+/// The controller address with the default port when `text` names none: `HOST`,
+/// `A.B.C.D`, `::1` or `[::1]` get `:8510`; `HOST:PORT` and `[V6]:PORT` are kept.
+pub fn controller_address(text: &str) -> String {
+    let text = text.trim();
+    if text.parse::<std::net::SocketAddr>().is_ok() {
+        return text.to_string();
+    }
+    if let Ok(ip) = text.parse::<std::net::IpAddr>() {
+        return std::net::SocketAddr::new(ip, armctl::DEFAULT_PORT).to_string();
+    }
+    if let Some(inner) = text.strip_prefix('[').and_then(|t| t.strip_suffix(']'))
+        && let Ok(ip) = inner.parse::<std::net::Ipv6Addr>()
+    {
+        return std::net::SocketAddr::new(ip.into(), armctl::DEFAULT_PORT).to_string();
+    }
+    match text.rsplit_once(':') {
+        Some((host, port)) if !host.contains(':') && port.parse::<u16>().is_ok() => {
+            text.to_string()
+        }
+        _ => format!("{text}:{}", armctl::DEFAULT_PORT),
+    }
+}
+
+/// A warning when `--ack-timeout-ms` x `--attempts` reaches past the controller's
+/// duplicate window: the client then stops resending 1.8 s after the first copy.
+pub fn resend_warning(ack_timeout_ms: u64, attempts: u32) -> Option<String> {
+    let span = u128::from(ack_timeout_ms) * u128::from(attempts);
+    (span > armctl::DUPLICATE_WINDOW.as_millis()).then(|| {
+        format!(
+            "--ack-timeout-ms {ack_timeout_ms} x --attempts {attempts} = {:.1} s exceeds the \
+             controller's {} s duplicate window: a copy sent later could be executed twice, \
+             so resends stop {:.1} s after the first copy",
+            span as f64 / 1000.0,
+            armctl::DUPLICATE_WINDOW.as_secs(),
+            armctl::RESEND_HORIZON.as_secs_f64()
+        )
+    })
+}
+
+/// Parses a mask in decimal or `0x` hex.
+pub fn parse_mask(text: &str) -> Result<u16, String> {
+    let value = match text.strip_prefix("0x").or_else(|| text.strip_prefix("0X")) {
+        Some(hex) => u16::from_str_radix(hex, 16),
+        None => text.parse::<u16>(),
+    }
+    .map_err(|e| format!("{text:?} is not a 16-bit number: {e}"))?;
+    if value & !protocol::limits::ENABLE_MASK_BITS != 0 {
+        return Err(format!(
+            "mask {value:#x} uses bits above 8 (bits 0-7 joints, bit 8 gripper)"
+        ));
+    }
+    Ok(value)
+}

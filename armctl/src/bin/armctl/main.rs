@@ -1,0 +1,116 @@
+//! `armctl`: the command-line tool that drives an arm controller. `armctl --help` lists
+//! the commands.
+//!
+//! This file parses the command line and hands each subcommand to its module:
+//! - `cli`: the global options and the list of subcommands (the syntax, with clap);
+//! - `connect`: opening the client, and the check that the controller answers;
+//! - one module per subcommand or family: `status`, `watch`, `run`, `single` (the
+//!   commands that are one frame and an `OK`: stop, return, joints, set-location, enable,
+//!   pin, upload-period, reports), `pwm`, `serial`, `net`, `discover`, and `frame` and
+//!   `plot`, which need no controller.
+//!
+//! Every failure prints `error: ...` and exits with 1; clap exits with 2 on a usage error.
+//! Library diagnostics (an upload's ACKs, timeouts, go-back-N resends) go through the `log`
+//! facade: `ARMCTL_TRACE=1` shows them all, `RUST_LOG` (e.g. `RUST_LOG=armctl=debug`)
+//! chooses more finely.
+
+mod cli;
+mod connect;
+mod discover;
+mod frame;
+mod net;
+mod plot;
+mod pwm;
+mod run;
+mod serial;
+mod single;
+mod status;
+mod watch;
+
+use std::process::ExitCode;
+
+use clap::Parser;
+
+use cli::{Cli, Cmd};
+
+/// A failure with the message to print; exit code 1 (clap exits with 2 on a usage error).
+type CliResult = Result<(), String>;
+
+fn main() -> ExitCode {
+    init_logging();
+    let mut cli = Cli::parse();
+    cli.controller = cli::controller_address(&cli.controller);
+    if let Some(warning) = cli::resend_warning(cli.ack_timeout_ms, cli.attempts) {
+        eprintln!("warning: {warning}");
+    }
+    match execute(cli) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(message) => {
+            eprintln!("error: {message}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+/// The logger behind the library's `log` records: `RUST_LOG` as usual (warnings by
+/// default), and every record of the armctl crate with `ARMCTL_TRACE` set.
+fn init_logging() {
+    let mut logger =
+        env_logger::Builder::from_env(env_logger::Env::default().default_filter_or("warn"));
+    if armctl::trace_requested() {
+        logger.filter_module("armctl", log::LevelFilter::Trace);
+    }
+    logger.init();
+}
+
+/// The commands that need no controller, then the others over one connection.
+fn execute(cli: Cli) -> CliResult {
+    match &cli.command {
+        Cmd::Frame(command) => frame::execute(command),
+        Cmd::Plot(args) => plot::execute(args),
+        Cmd::Discover {
+            to,
+            wait_ms,
+            rounds,
+            json,
+        } => discover::execute(&cli, *to, *wait_ms, *rounds, *json),
+        Cmd::Net(net::NetCmd::Show) => net::show(&cli),
+        Cmd::Run(args) if args.dry_run => run::dry_run(args),
+        _ => {
+            let arm = connect::connect(&cli)?;
+            execute_online(&cli, &arm)
+        }
+    }
+}
+
+/// The commands that talk to the controller at `--controller`.
+fn execute_online(cli: &Cli, arm: &armctl::Client) -> CliResult {
+    match &cli.command {
+        Cmd::Status { json } => status::execute(arm, *json),
+        Cmd::Watch { record, duration } => watch::execute(arm, record.as_deref(), *duration),
+        Cmd::Run(args) => run::execute(arm, args),
+        Cmd::Stop => single::done(arm.stop()),
+        Cmd::Return { wait } => single::go_home(arm, *wait),
+        Cmd::Joints { n } => single::done(arm.set_joints(*n)),
+        Cmd::SetLocation { positions } => single::done(arm.set_location(positions)),
+        Cmd::Enable { mask } => single::done(arm.toggle_enable(*mask)),
+        Cmd::Pin { pin, level } => single::done(arm.pin(*pin, *level == cli::OnOff::On)),
+        Cmd::Pwm(command) => pwm::execute(arm, command),
+        Cmd::Serial {
+            baud,
+            mode,
+            keep_open,
+        } => serial::execute(arm, *baud, mode.code(), *keep_open),
+        Cmd::UploadPeriod { us } => single::done(arm.upload_period(*us)),
+        Cmd::Reports { state } => single::done(arm.reports(*state == cli::OnOff::On)),
+        Cmd::Net(net::NetCmd::Set { ip, gateway, dhcp }) => {
+            net::set(arm, ip.as_deref(), *gateway, *dhcp)
+        }
+        Cmd::Frame(_) | Cmd::Plot { .. } | Cmd::Discover { .. } | Cmd::Net(net::NetCmd::Show) => {
+            Ok(())
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,259 @@
+//! `armctl run`: a trajectory file converted, uploaded and run (or only checked, with
+//! `--dry-run`).
+
+use std::path::PathBuf;
+use std::sync::mpsc;
+use std::time::Duration;
+
+use armctl::record::Recorder;
+use armctl::trajectory::{self, ArmConfig};
+use armctl::{Client, RunOptions};
+use clap::Args;
+use protocol::{MAX_JOINTS, Point, State};
+
+use crate::CliResult;
+
+/// `run` options.
+#[derive(Args, Debug)]
+pub struct RunArgs {
+    /// Trajectory file: `.json` (JointTrajectory, radians; needs --config) or CSV
+    /// (`time_s, steps...`).
+    pub file: PathBuf,
+    /// Joint config (JSON: steps_per_radian, zero_offset_steps, min/max_steps,
+    /// max_step_rate_hz per joint).
+    #[arg(long, value_name = "FILE")]
+    pub config: Option<PathBuf>,
+    /// Segment duration in milliseconds.
+    #[arg(long, default_value_t = 10.0)]
+    pub segment_ms: f64,
+    /// Frames in flight (1 = stop-and-wait, at most 32; default: the window the
+    /// controller advertises in STATUS, 8 for one that advertises none).
+    #[arg(long, value_parser = clap::value_parser!(u16).range(1..=32))]
+    pub window: Option<u16>,
+    /// Send RUNING once this many points are acknowledged (default: when the buffer is full
+    /// or everything is uploaded).
+    #[arg(long)]
+    pub start_after: Option<usize>,
+    /// Write every LOCATION report during the run to this CSV file.
+    #[arg(long, value_name = "FILE")]
+    pub record: Option<PathBuf>,
+    /// Only convert and check the file; print the points count and send nothing. Without
+    /// a controller the step rate is checked against the config, and at most against
+    /// `--max-step-rate`.
+    #[arg(long)]
+    pub dry_run: bool,
+    /// For `--dry-run`: the controller's step rate limit per joint (steps/s) to check
+    /// against; the board's by default.
+    #[arg(long, value_name = "HZ", default_value_t = DEFAULT_MAX_STEP_RATE_HZ)]
+    pub max_step_rate: u32,
+    /// Do not show a progress bar.
+    #[arg(long)]
+    pub quiet: bool,
+}
+
+/// The step rate limit `run --dry-run` checks against without a controller: the board's
+/// `max_step_rate_hz` (PROTOCOL.md, "Figures of this firmware"; sim-host reports the same).
+pub const DEFAULT_MAX_STEP_RATE_HZ: u32 = 100_000;
+
+/// Runs `run --dry-run`: converts and checks the file, sends nothing.
+pub fn dry_run(args: &RunArgs) -> CliResult {
+    let converted = convert(args, &[0; 8], None, Some(args.max_step_rate))?;
+    print_points_summary(&converted.points);
+    println!(
+        "step rates checked against {} (at most {} steps/s per joint, --max-step-rate)",
+        if args.config.is_some() {
+            "the joint config"
+        } else {
+            "the controller's limit"
+        },
+        args.max_step_rate
+    );
+    Ok(())
+}
+
+/// A trajectory file converted to points.
+struct Converted {
+    points: Vec<Point>,
+    /// How messages name each joint: `joint 2 (elbow)`, or `joint 2` without a name.
+    joint_names: Vec<String>,
+}
+
+/// The trajectory file as points, from `current`.
+fn convert(
+    args: &RunArgs,
+    current: &[i32; 8],
+    controller_joints: Option<usize>,
+    controller_max_rate: Option<u32>,
+) -> Result<Converted, String> {
+    let (waypoints, config) =
+        trajectory::load_files(&args.file, args.config.as_deref()).map_err(|e| e.to_string())?;
+    let joints = waypoints.positions.first().map_or(0, Vec::len);
+    if let Some(n) = controller_joints
+        && joints > n
+    {
+        return Err(format!(
+            "{}: {joints} joints in the file, the controller drives {n} (`armctl joints N`)",
+            args.file.display()
+        ));
+    }
+    let config = config
+        .unwrap_or_else(|| ArmConfig::unlimited(joints, controller_max_rate.unwrap_or(u32::MAX)));
+    if !(args.segment_ms.is_finite() && args.segment_ms > 0.0) {
+        return Err("--segment-ms must be above 0".into());
+    }
+    let segment_us = (args.segment_ms * 1000.0).round().clamp(1.0, 1e9) as u32;
+    let points = trajectory::to_points(
+        &waypoints,
+        current,
+        segment_us,
+        &config,
+        controller_max_rate,
+    )
+    .map_err(|e| e.with_joint_names(&config).to_string())?;
+    let joint_names = (0..MAX_JOINTS)
+        .map(
+            |j| match config.joints.get(j).and_then(|c| c.name.as_ref()) {
+                Some(name) => format!("joint {j} ({name})"),
+                None => format!("joint {j}"),
+            },
+        )
+        .collect();
+    Ok(Converted {
+        points,
+        joint_names,
+    })
+}
+
+fn print_points_summary(points: &[Point]) {
+    let us: i64 = points.iter().map(|p| i64::from(p.duration)).sum();
+    println!(
+        "{} points, {:.3} s, ends at {:?}",
+        points.len(),
+        us as f64 / 1e6,
+        points.last().map(|p| p.position).unwrap_or_default()
+    );
+}
+
+/// Runs `run`: converts the file from the current position, uploads and runs it, and
+/// checks the final positions.
+pub fn execute(arm: &Client, args: &RunArgs) -> CliResult {
+    let status = arm.status().map_err(|e| e.to_string())?;
+    if status.state != State::Stopped {
+        return Err(format!(
+            "the controller is {}: `armctl stop` first, or wait for the run to end",
+            status.state.name()
+        ));
+    }
+    let joints = usize::from(status.joints).clamp(1, 8);
+    let current = arm
+        .current_location(Duration::from_secs(2))
+        .map_err(|e| e.to_string())?;
+    let Converted {
+        points,
+        joint_names,
+    } = convert(
+        args,
+        &current.position,
+        Some(joints),
+        Some(status.max_step_rate_hz),
+    )?;
+    print_points_summary(&points);
+
+    // Record from a thread that owns its own report stream.
+    let recording = match &args.record {
+        Some(path) => {
+            let mut recorder =
+                Recorder::create(path, joints).map_err(|e| format!("{}: {e}", path.display()))?;
+            let locations = arm.locations();
+            let (stop_tx, stop_rx) = mpsc::channel::<()>();
+            let handle = std::thread::spawn(move || -> std::io::Result<()> {
+                while stop_rx.try_recv().is_err() {
+                    if let Ok(location) = locations.recv_timeout(Duration::from_millis(50)) {
+                        recorder.record(&location)?;
+                    }
+                }
+                // What arrived before the stop.
+                while let Ok(location) = locations.try_recv() {
+                    recorder.record(&location)?;
+                }
+                recorder.flush()
+            });
+            Some((stop_tx, handle))
+        }
+        None => None,
+    };
+
+    let bar = if args.quiet {
+        indicatif::ProgressBar::hidden()
+    } else {
+        indicatif::ProgressBar::new(points.len() as u64)
+    };
+    bar.set_style(
+        indicatif::ProgressStyle::with_template(
+            "{spinner} [{elapsed_precise}] {bar:40} {pos}/{len} executed  {msg}",
+        )
+        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    let options = RunOptions {
+        // 0: the controller's advertised window.
+        window: args.window.map_or(0, usize::from),
+        start_after: args.start_after,
+        ..RunOptions::default()
+    };
+    let result = arm.run_trajectory(&points, &options, |p| {
+        bar.set_position(p.executed as u64);
+        bar.set_message(format!(
+            "{} sent, {} acked, {}",
+            p.sent,
+            p.acked,
+            p.state.name()
+        ));
+    });
+    bar.finish();
+    if let Some((stop, handle)) = recording {
+        // A last report or two after the end.
+        std::thread::sleep(Duration::from_millis(50));
+        let _ = stop.send(());
+        match handle.join() {
+            Ok(Ok(())) => {}
+            Ok(Err(e)) => eprintln!("warning: recording: {e}"),
+            Err(_) => eprintln!("warning: the recording thread failed"),
+        }
+    }
+    let report = result.map_err(|e| e.to_string())?;
+    println!(
+        "uploaded {} points in {} frames, window {} ({} datagrams, {} resent, {} out of order, {} buffer full, {} timeouts) in {:.3} s; run took {:.3} s",
+        report.points,
+        report.frames,
+        report.window,
+        report.datagrams_sent,
+        report.retransmissions,
+        report.out_of_order,
+        report.buffer_full,
+        report.timeouts,
+        report.upload_time.as_secs_f64(),
+        report.total_time.as_secs_f64()
+    );
+    let expected = points.last().map(|p| p.position).unwrap_or_default();
+    let Some(location) = report.final_location else {
+        return Err("no LOCATION report after the run: cannot check the final positions".into());
+    };
+    let wrong: Vec<String> = (0..joints)
+        .filter(|&j| location.position[j] != expected[j])
+        .map(|j| {
+            format!(
+                "{} at {} steps, expected {}",
+                joint_names[j], location.position[j], expected[j]
+            )
+        })
+        .collect();
+    if wrong.is_empty() {
+        println!(
+            "final positions match the last point: {:?}",
+            &location.position[..joints]
+        );
+        Ok(())
+    } else {
+        Err(format!("final positions differ: {}", wrong.join("; ")))
+    }
+}

@@ -1,0 +1,76 @@
+//! `armctl watch`: live positions and state from LOCATION reports.
+
+use std::io::{IsTerminal, Write};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+use armctl::Client;
+use armctl::record::{self, Recorder};
+use protocol::Location;
+
+use crate::CliResult;
+
+fn location_line(location: &Location, joints: usize) -> String {
+    let mut line = format!("{:<8}", record::state_name(location.state));
+    for (j, p) in location.position.iter().take(joints).enumerate() {
+        line.push_str(&format!(" j{j} {p:>9}"));
+    }
+    line
+}
+
+/// Runs `watch`: live positions on screen, optionally recorded, until the end of
+/// `duration` or Ctrl-C.
+pub fn execute(arm: &Client, record: Option<&std::path::Path>, duration: Option<f64>) -> CliResult {
+    let status = arm.status().map_err(|e| e.to_string())?;
+    let joints = usize::from(status.joints).clamp(1, 8);
+    let locations = arm.locations();
+    // LOCATION reports go to the tool that asked last: this one, from now on.
+    arm.claim_locations().map_err(|e| e.to_string())?;
+    let mut recorder = record
+        .map(|path| Recorder::create(path, joints).map_err(|e| format!("{}: {e}", path.display())))
+        .transpose()?;
+    let started = Instant::now();
+    let end = duration.map(|s| started + Duration::from_secs_f64(s.max(0.0)));
+    let tty = std::io::stdout().is_terminal();
+    let mut last_print = Instant::now() - Duration::from_secs(1);
+    let mut last_status = Instant::now();
+    let mut seen = 0u64;
+    loop {
+        if end.is_some_and(|e| Instant::now() >= e) {
+            break;
+        }
+        match locations.recv_timeout(Duration::from_millis(200)) {
+            Ok(location) => {
+                seen += 1;
+                if let Some(r) = recorder.as_mut() {
+                    r.record(&location)
+                        .and_then(|()| r.flush())
+                        .map_err(|e| e.to_string())?;
+                }
+                // At most 10 lines a second on screen, every state change included.
+                if last_print.elapsed() >= Duration::from_millis(100) {
+                    last_print = Instant::now();
+                    let line = location_line(&location, joints);
+                    if tty {
+                        print!("\r{line}");
+                        let _ = std::io::stdout().flush();
+                    } else {
+                        println!("{line}");
+                    }
+                }
+            }
+            Err(mpsc::RecvTimeoutError::Timeout) => {}
+            Err(mpsc::RecvTimeoutError::Disconnected) => break,
+        }
+        // STATUS now and then keeps this host the owner (reports go to the owner).
+        if last_status.elapsed() >= Duration::from_secs(1) {
+            last_status = Instant::now();
+            arm.status().map_err(|e| e.to_string())?;
+        }
+    }
+    if tty {
+        println!();
+    }
+    println!("{seen} location reports");
+    Ok(())
+}

@@ -1,0 +1,67 @@
+//! How a run that stopped early is explained, and the window a STATUS advertises.
+
+use super::*;
+
+fn ended(flags: u8, received: u16, executed: u16, total: usize) -> Error {
+    let status = StatusReport {
+        state: State::Stopped,
+        flags: StatusFlags(flags),
+        expected: total as u16,
+        received,
+        executed,
+        ..StatusReport::default()
+    };
+    run_ended(Some(&status), total)
+}
+
+fn reason(e: &Error) -> RunEnd {
+    match e {
+        Error::RunEnded { reason, .. } => *reason,
+        other => panic!("not RunEnded: {other}"),
+    }
+}
+
+/// Bug 4 of issue 14: at time scale 20 with 1 ms segments a run ended with 8,000
+/// points received and not run, and armctl said the upload was too slow.
+#[test]
+fn underrun_with_points_still_received_blames_the_controller() {
+    let e = ended(StatusFlags::UNDERRUN, 9_000, 1_000, 20_000);
+    assert_eq!(reason(&e), RunEnd::Starved, "{e}");
+    let text = e.to_string();
+    assert!(text.contains("8000"), "{text}");
+    assert!(!text.contains("upload was too slow"), "{text}");
+}
+
+#[test]
+fn underrun_with_every_received_point_run_blames_the_upload() {
+    let e = ended(StatusFlags::UNDERRUN, 900, 900, 1_200);
+    assert_eq!(reason(&e), RunEnd::Underrun, "{e}");
+    assert!(e.to_string().contains("upload was too slow"), "{e}");
+    // Everything arrived and ran, yet UNDERRUN: the controller's fault again.
+    let e = ended(StatusFlags::UNDERRUN, 1_200, 1_199, 1_200);
+    assert_eq!(reason(&e), RunEnd::Starved, "{e}");
+}
+
+#[test]
+fn the_window_is_the_advertised_one_or_eight() {
+    let status = |window| StatusReport {
+        window,
+        ..StatusReport::default()
+    };
+    assert_eq!(window_of(&status(0)), 8, "an old controller");
+    assert_eq!(window_of(&status(32)), 32);
+    assert_eq!(window_of(&status(4)), 4);
+    assert_eq!(window_of(&status(1000)), MAX_WINDOW);
+}
+
+#[test]
+fn stopped_wins_and_no_status_is_unknown() {
+    let e = ended(
+        StatusFlags::UNDERRUN | StatusFlags::STOPPED_BY_HOST,
+        50,
+        10,
+        100,
+    );
+    assert_eq!(reason(&e), RunEnd::Stopped);
+    assert_eq!(reason(&run_ended(None, 100)), RunEnd::Unknown);
+}
