@@ -63,9 +63,9 @@
 //! stay in AXI SRAM: with the D-cache on they are cache hits in the step interrupt, as
 //! fast as DTCM would be, without a second linker region to manage.
 //!
-//! Flash image: the big statics have zero initial values so they cost no flash: [`BUS`]
-//! (23 KiB) and the step producer's `STEP` (15 KiB) are built at run time
-//! ([`late::Late`]), the others are `StaticCell`s.
+//! Flash image: the big statics cost no flash: [`BUS`] (23 KiB) is built at run time
+//! ([`late::Late`]), the step producer's `STEP` (15 KiB) has an all-zero initial value
+//! (`.bss`), the others are `StaticCell`s.
 //! `scripts/fw-size.sh` fails above 104 KiB (the goal is 96 KiB: see its header).
 //!
 //! # Faults, watchdog, boot
@@ -101,7 +101,7 @@ use core::future::Future;
 
 use arm_core::config::{BOARD_TRAJECTORY_CAPACITY, ControllerConfig};
 use arm_core::hw::Gripper;
-use arm_core::{Bus, StepShared, TrajectoryHw};
+use arm_core::{Bus, TrajectoryHw};
 use board_logic::fault::FaultKind;
 use board_logic::net::RETRY_SECONDS;
 use board_logic::watchdog::{
@@ -126,7 +126,6 @@ use crate::late::Late;
 use crate::pins::{DirPins, OutputLines, OutputPins, StepPins};
 use crate::serial::BoardSerial;
 use crate::settings::FlashSettings;
-use crate::step_dma::{BoardSteps, STEP};
 use crate::step_timer::StepTimer;
 
 bind_interrupts!(
@@ -241,9 +240,6 @@ async fn main(spawner: Spawner) -> ! {
     // SAFETY: first thing, before anything that can reach it (the step interrupt, the
     // tasks).
     unsafe { BUS.init(Bus::new()) };
-    // SAFETY: as BUS: before the step timer's interrupt is enabled and before any task is
-    // spawned, nothing else holds a reference to STEP.
-    unsafe { STEP.init(StepShared::with_backend(BoardSteps::new())) };
     let clock_source = clocks::probe_hse();
     let mut config = clocks::config(clock_source);
     config.dma_interrupt_priority = Priority::P3;

@@ -41,7 +41,6 @@ use arm_step::{
 use embassy_stm32::interrupt::{InterruptExt, Priority};
 use embassy_stm32::{interrupt, pac};
 
-use crate::late::Late;
 use crate::pins;
 use crate::step_timer;
 
@@ -339,10 +338,12 @@ pub struct BoardSteps {
     primed_finished: u32,
 }
 
-/// The backend shared by the tasks and the step interrupts. Built at the start of `main`
-/// ([`Late`]): as a `const` initialiser any non-zero byte of it would store it whole in
-/// flash (.data).
-pub static STEP: Late<StepShared<STEP_QUEUE, BoardSteps>> = Late::new();
+/// The backend shared by the tasks and the step interrupts. Its initial value is all zero
+/// bytes (the streams' slot is empty and uninitialised, [`Run::Idle`] is discriminant 0), so
+/// it is `.bss`, with nothing in flash and nothing built at boot: `scripts/fw-size.sh` fails
+/// if a non-zero byte ever sends its 15 KiB to `.data`. (Built at run time it would pass
+/// through `main`'s stack twice: a 31 KB frame.)
+pub static STEP: StepShared<STEP_QUEUE, BoardSteps> = StepShared::with_backend(BoardSteps::new());
 
 impl BoardSteps {
     /// Idle, without streams (set by [`init`]).
