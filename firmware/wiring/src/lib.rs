@@ -21,6 +21,9 @@
 mod fmt;
 
 mod adapters;
+// Flash-lean memcpy/memmove/memset for the Cortex-M boards (assembly for ARMv7-M).
+#[cfg(all(target_arch = "arm", target_os = "none"))]
+mod mem;
 pub mod net;
 
 pub use adapters::{DatagramError, EmbassyClock, NetSocket, NoEncoders};
