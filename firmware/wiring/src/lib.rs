@@ -13,7 +13,7 @@
 //! tasks in one order for both boards (the network separately: a board may bring its
 //! Ethernet up later than the rest, as the NUCLEO does when its PHY's clock is missing).
 //!
-//! Logging goes through `defmt` or `log` (features of the same names), like arm-core's.
+//! Logging goes through arm-core's shim (`defmt` or `log`, features of the same names).
 #![no_std]
 #![warn(missing_docs)]
 
