@@ -82,6 +82,12 @@
 //!   ([`settings`]).
 
 #![no_std]
+#![warn(missing_docs)]
+#![warn(
+    clippy::indexing_slicing,
+    clippy::unwrap_used,
+    clippy::cast_possible_truncation
+)]
 #![no_main]
 
 mod clocks;
@@ -213,7 +219,8 @@ async fn watchdog(mut iwdg: IndependentWatchdog<'static, peripherals::IWDG1>) ->
                 error!("watchdog: {} hung", BEAT_NAMES[index]);
                 // The orderly way out; if even this task could not run, the IWDG (no longer
                 // fed) resets the board within IWDG_TIMEOUT_MS.
-                fault::fault(FaultKind::TaskHung { task: index as u8 }, None);
+                let task = u8::try_from(index).unwrap_or(u8::MAX);
+                fault::fault(FaultKind::TaskHung { task }, None);
             }
         }
     }

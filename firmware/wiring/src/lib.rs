@@ -16,6 +16,11 @@
 //! Logging goes through arm-core's shim (`defmt` or `log`, features of the same names).
 #![no_std]
 #![warn(missing_docs)]
+#![warn(
+    clippy::indexing_slicing,
+    clippy::unwrap_used,
+    clippy::cast_possible_truncation
+)]
 
 // This must go first so that the other modules see its macros.
 mod fmt;
