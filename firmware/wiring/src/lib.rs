@@ -33,6 +33,8 @@ mod div;
 #[cfg(all(target_arch = "arm", target_os = "none"))]
 mod mem;
 pub mod net;
+#[cfg(all(target_arch = "arm", target_os = "none"))]
+pub mod runtime_check;
 
 pub use adapters::{DatagramError, EmbassyClock, NetSocket, NoEncoders};
 
