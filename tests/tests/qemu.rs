@@ -610,6 +610,16 @@ fn lossy_link_executes_the_same_steps_as_a_lossless_one() {
 }
 
 #[test]
+fn the_boards_assembly_mem_and_division_routines_match_their_models() {
+    require_qemu!();
+    // arm-wiring's memcpy/memmove/memset/memcmp and u64 division (assembly, both boards)
+    // against byte-by-byte and bit-by-bit models, on the emulated Cortex-M7.
+    let (exited, log) = run_to_exit("check-runtime", Duration::from_secs(60));
+    assert_eq!(exited, Some(true), "the check failed or did not end\n{log}");
+    assert!(log.contains(" 0 failures"), "{log}");
+}
+
+#[test]
 fn a_fault_ends_qemu_with_a_failure_and_its_log() {
     require_qemu!();
     // The firmware commits the fault QEMU's command line asks for, 300 ms after boot.

@@ -155,7 +155,8 @@ impl ModbusEncoders {
 
 impl Encoders for ModbusEncoders {
     async fn read(&mut self) -> Option<[i32; MAX_JOINTS]> {
-        self.read_joints(MAX_JOINTS as u8).await.ok().flatten()
+        let joints = u8::try_from(MAX_JOINTS).unwrap_or(u8::MAX);
+        self.read_joints(joints).await.ok().flatten()
     }
 
     async fn read_joints(&mut self, joints: u8) -> Result<Option<[i32; MAX_JOINTS]>, EncoderFault> {

@@ -103,8 +103,8 @@ impl arm_core::hw::Gripper for GripperPwm {
         let mode = if high_ticks == 0 {
             pac::timer::vals::Ocm::FORCE_INACTIVE
         } else {
-            regs.ccr(0)
-                .write(|w| w.set_ccr((arr + 1 - high_ticks) as u16));
+            let compare = u16::try_from(arr + 1 - high_ticks).unwrap_or(u16::MAX);
+            regs.ccr(0).write(|w| w.set_ccr(compare));
             pac::timer::vals::Ocm::PWM_MODE2
         };
         self.dir.set_level(Level::from(pwm.pulse_count >= 0));

@@ -5,7 +5,7 @@
 //! at boot as soon as one of its bytes is not zero: `Bus::new()` is 23 KiB of that. A
 //! `Late<T>` is zero bytes of flash (`.bss`) and is written once at the start of `main`,
 //! before anything can reach it. Use it for every big static whose initial value is not
-//! all zeros (the step path's `StepShared`, `step_dma::STEP`, is the other: 15 KiB).
+//! all zeros; one whose initial value is all zeros (`step_dma::STEP`) is a plain `static`.
 
 use core::cell::UnsafeCell;
 use core::mem::MaybeUninit;

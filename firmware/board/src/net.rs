@@ -80,8 +80,11 @@ pub fn mac_address() -> [u8; 6] {
     let uid = embassy_stm32::uid::uid();
     let mut mac = [0x02, 0, 0, 0, 0, 0];
     // Fold the 12 ID bytes into 5: wafer position, wafer number and lot all vary.
-    for (i, byte) in uid.iter().enumerate() {
-        mac[1 + i % 5] ^= byte;
+    let (_, folded) = mac.split_at_mut(1);
+    for chunk in uid.chunks(folded.len()) {
+        for (folded_byte, byte) in folded.iter_mut().zip(chunk) {
+            *folded_byte ^= byte;
+        }
     }
     mac
 }

@@ -194,7 +194,7 @@ pub fn set_direction(joint: usize, positive: bool) {
     if joint >= MAX_JOINTS {
         return;
     }
-    let bit = 1u32 << (DIR_SHIFT + joint as u32);
+    let bit = 1u32 << (DIR_SHIFT as usize + joint);
     let bsrr = if positive { bit } else { bit << 16 };
     pac::GPIOD.bsrr().write_value(pac::gpio::regs::Bsrr(bsrr));
 }

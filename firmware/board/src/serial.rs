@@ -188,6 +188,10 @@ impl arm_core::hw::SerialPort for BoardSerial {
         }
         let TxStaged { uart, staging } = &mut tx.io;
         for chunk in bytes.chunks(TX_STAGING_BYTES) {
+            #[allow(
+                clippy::indexing_slicing,
+                reason = "a chunk is at most TX_STAGING_BYTES, the staging buffer's length"
+            )]
             let staged = &mut staging[..chunk.len()];
             staged.copy_from_slice(chunk);
             uart.write(staged).await.map_err(|e| {

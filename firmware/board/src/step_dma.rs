@@ -42,7 +42,6 @@ use arm_step::{
 use embassy_stm32::interrupt::{InterruptExt, Priority};
 use embassy_stm32::{interrupt, pac};
 
-use crate::late::Late;
 use crate::pins;
 use crate::step_timer;
 
@@ -93,6 +92,10 @@ impl DriverTiming {
 
     /// The step timing on the joint timers' clock (rounded up to whole ticks).
     pub const fn step_timing(&self) -> StepTiming {
+        #[allow(
+            clippy::cast_possible_truncation,
+            reason = "const-evaluated for the drivers' figures: a few thousand ticks"
+        )]
         const fn ticks(ns: u32) -> u32 {
             ((ns as u64 * STEP_TIMER_HZ as u64).div_ceil(1_000_000_000)) as u32
         }
@@ -206,6 +209,10 @@ impl JointTimer {
     }
 
     /// Address of the DMA burst register, the stream's peripheral address.
+    #[allow(
+        clippy::cast_possible_truncation,
+        reason = "addresses are 32 bits on this chip"
+    )]
     fn dmar(self) -> u32 {
         self.base as u32 + reg::DMAR as u32
     }
@@ -325,10 +332,12 @@ pub struct BoardSteps {
     primed_finished: u32,
 }
 
-/// The backend shared by the tasks and the step interrupts. Built at the start of `main`
-/// ([`Late`]): as a `const` initialiser any non-zero byte of it would store it whole in
-/// flash (.data).
-pub static STEP: Late<StepShared<STEP_QUEUE, BoardSteps>> = Late::new();
+/// The backend shared by the tasks and the step interrupts. Its initial value is all zero
+/// bytes (the streams' slot is empty and uninitialised, [`Run::Idle`] is discriminant 0), so
+/// it is `.bss`, with nothing in flash and nothing built at boot: `scripts/fw-size.sh` fails
+/// if a non-zero byte ever sends its 15 KiB to `.data`. (Built at run time it would pass
+/// through `main`'s stack twice: a 31 KB frame.)
+pub static STEP: StepShared<STEP_QUEUE, BoardSteps> = StepShared::with_backend(BoardSteps::new());
 
 impl BoardSteps {
     /// Idle, without streams (set by [`init`]).
@@ -414,6 +423,10 @@ impl StepBackend for BoardSteps {
         self.arm_alarm();
     }
 
+    #[allow(
+        clippy::indexing_slicing,
+        reason = "joint < MAX_JOINTS (the DMA streams' numbers, or enumerate over [_; MAX_JOINTS]) and half < 2: the step path's arrays"
+    )]
     fn stop(&mut self) {
         let stopped = stop_all_step_outputs();
         let Some(streams) = self.streams.as_mut() else {
@@ -445,6 +458,10 @@ impl StepBackend for BoardSteps {
 
     /// The pulses played so far: the producer's count less what the streams have not
     /// played yet (read from the streams' positions, within a period).
+    #[allow(
+        clippy::indexing_slicing,
+        reason = "joint < MAX_JOINTS (the DMA streams' numbers, or enumerate over [_; MAX_JOINTS]) and half < 2: the step path's arrays"
+    )]
     fn positions(&self) -> [i32; MAX_JOINTS] {
         let Some(streams) = self.streams.as_ref() else {
             return [0; MAX_JOINTS];
@@ -484,11 +501,19 @@ impl StepBackend for BoardSteps {
 impl BoardSteps {
     /// The first period of `joint`'s stream that has not started, from where the stream
     /// stands (`None`: the prelude's second period has not either).
+    #[allow(
+        clippy::indexing_slicing,
+        reason = "joint < MAX_JOINTS (the DMA streams' numbers, or enumerate over [_; MAX_JOINTS]) and half < 2: the step path's arrays"
+    )]
     fn first_unplayed(&self, joint: usize, at: StreamPosition) -> Option<usize> {
         first_unplayed(self.started[joint], at)
     }
 
     /// Refills the half of `joint`'s buffer its stream just left.
+    #[allow(
+        clippy::indexing_slicing,
+        reason = "joint < MAX_JOINTS (the DMA streams' numbers, or enumerate over [_; MAX_JOINTS]) and half < 2: the step path's arrays"
+    )]
     fn refill(&mut self, joint: usize, half: usize) -> StepProgress {
         if self.run == Run::Idle {
             return StepProgress::default();
@@ -659,6 +684,11 @@ fn clear_stream_flags(joint: usize) {
 
 /// Loads joint `joint`'s timer with the prelude (period 0 active, period 1 preloaded) and
 /// enables its stream; the counter is started by the caller.
+#[allow(
+    clippy::indexing_slicing,
+    clippy::cast_possible_truncation,
+    reason = "joint < MAX_JOINTS (start's loop); BUFFER_WORDS fits 16 bits (const assert) and addresses are 32 bits"
+)]
 fn load_joint(joint: usize, prelude: &[PulsePeriod; PRELUDE]) {
     let timer = joint_timer(joint);
     let [first, second] = prelude;

@@ -19,6 +19,8 @@ const GUARD_BYTES: u32 = 1024;
 const SYS_EXIT: u32 = 0x18;
 /// ADP_Stopped_RunTimeErrorUnknown: QEMU exits with status 1.
 const ADP_STOPPED_RUNTIME_ERROR: u32 = 0x20023;
+/// Semihosting exit reason: normal end (QEMU exits with status 0).
+const ADP_STOPPED_APPLICATION_EXIT: u32 = 0x20026;
 
 unsafe extern "C" {
     /// End of `.bss`/`.uninit` (cortex-m-rt): the lowest address the stack may reach.
@@ -127,11 +129,10 @@ pub enum InjectedFault {
 /// Semihosting SYS_GET_CMDLINE.
 const SYS_GET_CMDLINE: u32 = 0x15;
 
-/// The fault asked for on QEMU's command line, if any.
-pub fn injected() -> Option<InjectedFault> {
+/// QEMU's command line, read through semihosting into `buf` (`None` if unreadable).
+fn command_line(buf: &mut [u8; 512]) -> Option<&str> {
     // QEMU puts the kernel's path first (an absolute path can be long) and refuses the
     // call if the whole line does not fit.
-    let mut buf = [0u8; 512];
     let mut block: [u32; 2] = [buf.as_mut_ptr() as u32, buf.len() as u32];
     // SAFETY: SYS_GET_CMDLINE writes at most `block[1]` bytes into `buf` and the length
     // back into `block[1]`; QEMU runs with semihosting enabled.
@@ -142,7 +143,13 @@ pub fn injected() -> Option<InjectedFault> {
         return None;
     }
     let len = (block[1] as usize).min(buf.len());
-    let line = core::str::from_utf8(&buf[..len]).ok()?;
+    core::str::from_utf8(&buf[..len]).ok()
+}
+
+/// The fault asked for on QEMU's command line, if any.
+pub fn injected() -> Option<InjectedFault> {
+    let mut buf = [0u8; 512];
+    let line = command_line(&mut buf)?;
     log::info!("QEMU command line: {:?}", line);
     line.split_whitespace().find_map(|word| match word {
         "inject-fault=panic" => Some(InjectedFault::Panic),
@@ -180,4 +187,35 @@ fn recurse(depth: u32) -> u32 {
         return u32::from(frame[0]);
     }
     recurse(depth + 1).wrapping_add(u32::from(frame[1]))
+}
+
+/// Whether QEMU's command line asks for the check of arm-wiring's run-time routines
+/// (`-append check-runtime`).
+pub fn runtime_check_requested() -> bool {
+    let mut buf = [0u8; 512];
+    command_line(&mut buf).is_some_and(|line| line.split_whitespace().any(|w| w == "check-runtime"))
+}
+
+/// Runs arm-wiring's check of its assembly `memcpy`, `memmove`, `memset`, `memcmp` and u64
+/// division against their models, logs the outcome and ends the emulation: status 0 if
+/// every case matched, a failure otherwise.
+pub fn run_runtime_check() -> ! {
+    let outcome = arm_wiring::runtime_check::check();
+    log::info!(
+        "runtime check: {} cases, {} failures",
+        outcome.cases,
+        outcome.failures
+    );
+    let reason = if outcome.failures == 0 {
+        ADP_STOPPED_APPLICATION_EXIT
+    } else {
+        ADP_STOPPED_RUNTIME_ERROR
+    };
+    // SAFETY: semihosting SYS_EXIT, as in `safe_stop`.
+    unsafe {
+        cortex_m::asm::semihosting_syscall(SYS_EXIT, reason);
+    }
+    loop {
+        cortex_m::asm::wfi();
+    }
 }

@@ -155,6 +155,9 @@ fn main() -> ! {
     logger::init();
     log::info!("arm controller starting (QEMU mps2-an500)");
     fault::install_stack_guard(&mut core.MPU);
+    if fault::runtime_check_requested() {
+        fault::run_runtime_check();
+    }
     let kick = KICK.init(step_out::init());
     let serial_port = SERIAL.init(QemuSerial::new());
 

@@ -1,91 +1,12 @@
-//! Logging shim in the style of embassy-net's `fmt.rs`: the same macro names log through
-//! `defmt` with the `defmt` feature, through `log` with the `log` feature, and compile to
-//! nothing (arguments still type-checked) with neither.
+//! Logging through arm-core's shim (`arm_core::__log!`, which picks defmt or `log` by
+//! arm-core's features, enabled by this crate's features of the same names), under the
+//! usual macro names: only the levels this crate uses.
 #![macro_use]
-#![allow(unused)]
-
-#[cfg(all(feature = "defmt", feature = "log"))]
-compile_error!("You may not enable both `defmt` and `log` features.");
-
-macro_rules! trace {
-    ($s:literal $(, $x:expr)* $(,)?) => {
-        {
-            #[cfg(feature = "log")]
-            ::log::trace!($s $(, $x)*);
-            #[cfg(feature = "defmt")]
-            ::defmt::trace!($s $(, $x)*);
-            #[cfg(not(any(feature = "log", feature="defmt")))]
-            let _ = ($( & $x ),*);
-        }
-    };
-}
-
-macro_rules! debug {
-    ($s:literal $(, $x:expr)* $(,)?) => {
-        {
-            #[cfg(feature = "log")]
-            ::log::debug!($s $(, $x)*);
-            #[cfg(feature = "defmt")]
-            ::defmt::debug!($s $(, $x)*);
-            #[cfg(not(any(feature = "log", feature="defmt")))]
-            let _ = ($( & $x ),*);
-        }
-    };
-}
 
 macro_rules! info {
-    ($s:literal $(, $x:expr)* $(,)?) => {
-        {
-            #[cfg(feature = "log")]
-            ::log::info!($s $(, $x)*);
-            #[cfg(feature = "defmt")]
-            ::defmt::info!($s $(, $x)*);
-            #[cfg(not(any(feature = "log", feature="defmt")))]
-            let _ = ($( & $x ),*);
-        }
-    };
+    ($($arg:tt)*) => { ::arm_core::__log!(info, $($arg)*) };
 }
 
 macro_rules! warn {
-    ($s:literal $(, $x:expr)* $(,)?) => {
-        {
-            #[cfg(feature = "log")]
-            ::log::warn!($s $(, $x)*);
-            #[cfg(feature = "defmt")]
-            ::defmt::warn!($s $(, $x)*);
-            #[cfg(not(any(feature = "log", feature="defmt")))]
-            let _ = ($( & $x ),*);
-        }
-    };
-}
-
-macro_rules! error {
-    ($s:literal $(, $x:expr)* $(,)?) => {
-        {
-            #[cfg(feature = "log")]
-            ::log::error!($s $(, $x)*);
-            #[cfg(feature = "defmt")]
-            ::defmt::error!($s $(, $x)*);
-            #[cfg(not(any(feature = "log", feature="defmt")))]
-            let _ = ($( & $x ),*);
-        }
-    };
-}
-
-/// Wraps a value that is only `Debug` (the traits' associated error types) so that every
-/// logging backend can print it.
-#[cfg(feature = "defmt")]
-macro_rules! debug_value {
-    ($e:expr) => {
-        ::defmt::Debug2Format(&$e)
-    };
-}
-
-/// Wraps a value that is only `Debug` (the traits' associated error types) so that every
-/// logging backend can print it.
-#[cfg(not(feature = "defmt"))]
-macro_rules! debug_value {
-    ($e:expr) => {
-        $e
-    };
+    ($($arg:tt)*) => { ::arm_core::__log!(warn, $($arg)*) };
 }

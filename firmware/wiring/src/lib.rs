@@ -13,15 +13,28 @@
 //! tasks in one order for both boards (the network separately: a board may bring its
 //! Ethernet up later than the rest, as the NUCLEO does when its PHY's clock is missing).
 //!
-//! Logging goes through `defmt` or `log` (features of the same names), like arm-core's.
+//! Logging goes through arm-core's shim (`defmt` or `log`, features of the same names).
 #![no_std]
 #![warn(missing_docs)]
+#![warn(
+    clippy::indexing_slicing,
+    clippy::unwrap_used,
+    clippy::cast_possible_truncation
+)]
 
 // This must go first so that the other modules see its macros.
 mod fmt;
 
 mod adapters;
+// Flash-lean run-time routines for the Cortex-M boards (assembly for ARMv7-M): memcpy,
+// memmove, memset and u64 division.
+#[cfg(all(target_arch = "arm", target_os = "none"))]
+mod div;
+#[cfg(all(target_arch = "arm", target_os = "none"))]
+mod mem;
 pub mod net;
+#[cfg(all(target_arch = "arm", target_os = "none"))]
+pub mod runtime_check;
 
 pub use adapters::{DatagramError, EmbassyClock, NetSocket, NoEncoders};
 
