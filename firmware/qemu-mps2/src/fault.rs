@@ -129,11 +129,14 @@ pub enum InjectedFault {
 /// Semihosting SYS_GET_CMDLINE.
 const SYS_GET_CMDLINE: u32 = 0x15;
 
+/// Room for QEMU's command line (the kernel's path and `-append`'s words).
+const CMDLINE_BYTES: u32 = 512;
+
 /// QEMU's command line, read through semihosting into `buf` (`None` if unreadable).
-fn command_line(buf: &mut [u8; 512]) -> Option<&str> {
+fn command_line(buf: &mut [u8; CMDLINE_BYTES as usize]) -> Option<&str> {
     // QEMU puts the kernel's path first (an absolute path can be long) and refuses the
     // call if the whole line does not fit.
-    let mut block: [u32; 2] = [buf.as_mut_ptr() as u32, buf.len() as u32];
+    let mut block: [u32; 2] = [buf.as_mut_ptr() as u32, CMDLINE_BYTES];
     // SAFETY: SYS_GET_CMDLINE writes at most `block[1]` bytes into `buf` and the length
     // back into `block[1]`; QEMU runs with semihosting enabled.
     let result =
@@ -143,12 +146,12 @@ fn command_line(buf: &mut [u8; 512]) -> Option<&str> {
         return None;
     }
     let len = (block[1] as usize).min(buf.len());
-    core::str::from_utf8(&buf[..len]).ok()
+    core::str::from_utf8(buf.get(..len)?).ok()
 }
 
 /// The fault asked for on QEMU's command line, if any.
 pub fn injected() -> Option<InjectedFault> {
-    let mut buf = [0u8; 512];
+    let mut buf = [0u8; CMDLINE_BYTES as usize];
     let line = command_line(&mut buf)?;
     log::info!("QEMU command line: {:?}", line);
     line.split_whitespace().find_map(|word| match word {
@@ -181,7 +184,10 @@ pub fn inject(fault: InjectedFault) -> ! {
 #[inline(never)]
 fn recurse(depth: u32) -> u32 {
     let mut frame = [0u8; 1024];
-    frame[(depth as usize) % 1024] = depth as u8;
+    let [depth_low, ..] = depth.to_le_bytes();
+    if let Some(byte) = frame.get_mut(depth as usize % 1024) {
+        *byte = depth_low;
+    }
     let frame = core::hint::black_box(frame);
     if depth == u32::MAX {
         return u32::from(frame[0]);
@@ -192,7 +198,7 @@ fn recurse(depth: u32) -> u32 {
 /// Whether QEMU's command line asks for the check of arm-wiring's run-time routines
 /// (`-append check-runtime`).
 pub fn runtime_check_requested() -> bool {
-    let mut buf = [0u8; 512];
+    let mut buf = [0u8; CMDLINE_BYTES as usize];
     command_line(&mut buf).is_some_and(|line| line.split_whitespace().any(|w| w == "check-runtime"))
 }
 

@@ -29,7 +29,9 @@ const BASE: usize = 0xA000_0000;
 
 /// The largest frame handed to or taken from the stack: Ethernet header and 1500 bytes of
 /// payload, without the FCS (the MAC adds and checks it).
-pub const MTU: usize = 1514;
+pub const MTU: usize = MTU_BYTES as usize;
+/// [`MTU`] as the chip's length fields count it (a widening cast makes the `usize`).
+const MTU_BYTES: u32 = 1514;
 
 /// System control and status registers (datasheet section 5.3), offsets from [`BASE`].
 mod reg {
@@ -149,7 +151,7 @@ const RX_STATUS_ERROR: u32 = 1 << 15;
 const TX_STATUS_ERROR: u32 = 1 << 15;
 /// FIFO_INT: TX data available level, in 64-byte units: room for a full frame and its
 /// two command words.
-const FIFO_INT_TX_AVAILABLE: u32 = (MTU as u32 + 8).div_ceil(64) << 24;
+const FIFO_INT_TX_AVAILABLE: u32 = (MTU_BYTES + 8).div_ceil(64) << 24;
 /// Polls of a busy bit before bring-up gives up (each is a register read; the chip answers
 /// CSR commands within a microsecond, a soft reset within 100 us).
 const BUSY_POLLS: u32 = 100_000;
@@ -215,7 +217,9 @@ fn phy_read(register: u32) -> Result<u16, InitError> {
     wait("MII", || mac_read(mac::MII_ACC).is_ok_and(|v| v & 1 == 0))?;
     mac_write(mac::MII_ACC, (phy::ADDRESS << 11) | (register << 6) | 1)?;
     wait("MII", || mac_read(mac::MII_ACC).is_ok_and(|v| v & 1 == 0))?;
-    Ok(mac_read(mac::MII_DATA)? as u16)
+    // PHY registers are 16 bits wide: MII_DATA's low half.
+    let [low, high, ..] = mac_read(mac::MII_DATA)?.to_le_bytes();
+    Ok(u16::from_le_bytes([low, high]))
 }
 
 fn phy_write(register: u32, value: u16) -> Result<(), InitError> {
@@ -324,8 +328,9 @@ impl Lan9118 {
                 let word = read(reg::RX_DATA_FIFO).to_le_bytes();
                 // The last word(s) hold the FCS: nothing to copy once the buffer ends.
                 if let Some(chunk) = chunks.next() {
-                    let n = chunk.len();
-                    chunk.copy_from_slice(&word[..n]);
+                    for (byte, &from_fifo) in chunk.iter_mut().zip(&word) {
+                        *byte = from_fifo;
+                    }
                 }
             }
             return Some(len);
@@ -341,7 +346,7 @@ impl Lan9118 {
                 TX_ERRORS.fetch_add(1, Ordering::Relaxed);
             }
         }
-        let needed = MTU as u32 + 8 + 3;
+        let needed = MTU_BYTES + 8 + 3;
         if read(reg::TX_FIFO_INF) & 0xFFFF >= needed {
             return true;
         }
@@ -371,15 +376,26 @@ pub struct TxToken<'a> {
 impl embassy_net_driver::TxToken for TxToken<'_> {
     fn consume<R, F: FnOnce(&mut [u8]) -> R>(self, len: usize, f: F) -> R {
         let len = len.min(MTU);
+        #[allow(
+            clippy::indexing_slicing,
+            reason = "`len` is clamped to MTU, the buffer's length"
+        )]
         let frame = &mut self.buf[..len];
         let result = f(frame);
+        #[allow(
+            clippy::cast_possible_truncation,
+            reason = "`len` is clamped to MTU (1514): it fits the 11-bit length fields"
+        )]
         let len_field = len as u32;
         write(reg::TX_DATA_FIFO, CMD_A_FIRST_LAST | len_field);
         // Command B: packet tag (unused, 0) and frame length.
         write(reg::TX_DATA_FIFO, len_field);
         for chunk in frame.chunks(4) {
+            // The last chunk may be short: zero padding.
             let mut word = [0u8; 4];
-            word[..chunk.len()].copy_from_slice(chunk);
+            for (byte, &from_frame) in word.iter_mut().zip(chunk) {
+                *byte = from_frame;
+            }
             write(reg::TX_DATA_FIFO, u32::from_le_bytes(word));
         }
         crate::marks::qemu_mark_frame_sent();
@@ -398,12 +414,9 @@ impl embassy_net_driver::Driver for Lan9118 {
             return None;
         }
         let len = self.pop_frame()?;
-        Some((
-            RxToken {
-                frame: &mut self.rx[..len],
-            },
-            TxToken { buf: &mut self.tx },
-        ))
+        // Always `Some`: `pop_frame` only returns lengths up to MTU, the buffer's length.
+        let frame = self.rx.get_mut(..len)?;
+        Some((RxToken { frame }, TxToken { buf: &mut self.tx }))
     }
 
     fn transmit(&mut self, cx: &mut Context) -> Option<TxToken<'_>> {

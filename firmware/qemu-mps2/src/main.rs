@@ -33,6 +33,12 @@
 //! UART 0 (the first `-serial`) carries the log, UART 1 the serial pass-through.
 
 #![no_std]
+#![warn(missing_docs)]
+#![warn(
+    clippy::indexing_slicing,
+    clippy::unwrap_used,
+    clippy::cast_possible_truncation
+)]
 #![no_main]
 
 mod devices;

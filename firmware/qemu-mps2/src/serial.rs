@@ -139,14 +139,13 @@ impl SerialPort for QemuSerial {
                 return (None, p.overruns);
             }
             let mut n = 0;
-            while n < buf.len() {
-                match p.ring.pop_front() {
-                    Some(b) => {
-                        buf[n] = b;
-                        n += 1;
-                    }
-                    None => break,
-                }
+            // `zip` asks `buf` first: no byte leaves the ring once `buf` is full.
+            for (slot, b) in buf
+                .iter_mut()
+                .zip(core::iter::from_fn(|| p.ring.pop_front()))
+            {
+                *slot = b;
+                n += 1;
             }
             (Some(n), p.overruns)
         });
@@ -199,7 +198,8 @@ pub fn on_rx_interrupt() {
         let mut p = p.borrow_mut();
         write(UART1, uart::INT, uart::INT_RX);
         while read(UART1, uart::STATE) & uart::STATE_RX_FULL != 0 {
-            let byte = read(UART1, uart::DATA) as u8;
+            // The received byte is DATA's low 8 bits.
+            let [byte, ..] = read(UART1, uart::DATA).to_le_bytes();
             if p.ring.push_back(byte).is_err() {
                 p.overruns = p.overruns.wrapping_add(1);
             }

@@ -90,7 +90,7 @@ fn set_alarm(cs: CriticalSection<'_>, at: u64) -> bool {
         return false;
     }
     // Farther than one count of the timer: wake early and look again.
-    let cycles = (due - now).min(u64::from(u32::MAX)) as u32;
+    let cycles = u32::try_from(due - now).unwrap_or(u32::MAX);
     // The handler stops it; until then a reload would be 172 s away.
     write(TIMER1, reg::RELOAD, u32::MAX);
     write(TIMER1, reg::VALUE, cycles);
