@@ -298,13 +298,16 @@ impl StreamsSlot {
         value: MaybeUninit::uninit(),
     };
 
-    fn set(&mut self, streams: Streams) {
-        self.value.write(streams);
-        self.ready = true;
-    }
-
-    fn is_none(&self) -> bool {
-        !self.ready
+    /// Builds the idle streams in the slot, once (in place: never on the stack).
+    fn init(&mut self) {
+        if !self.ready {
+            StepStreams::init_in_place(
+                &mut self.value,
+                STEP_TIMING,
+                NUCLEO_STEP_TIMER_MAX_PERIOD_TICKS,
+            );
+            self.ready = true;
+        }
     }
 
     fn as_mut(&mut self) -> Option<&mut Streams> {
@@ -746,14 +749,7 @@ pub fn init() {
         start,
         len
     );
-    STEP.with_engine(|steps| {
-        if steps.streams.is_none() {
-            steps.streams.set(StepStreams::new(
-                STEP_TIMING,
-                NUCLEO_STEP_TIMER_MAX_PERIOD_TICKS,
-            ));
-        }
-    });
+    STEP.with_engine(|steps| steps.streams.init());
     pac::RCC.apb1lenr().modify(|w| {
         w.set_tim2en(true);
         w.set_tim3en(true);

@@ -54,6 +54,24 @@ impl<const QUEUE: usize> SegmentRing<QUEUE> {
         }
     }
 
+    /// Writes [`SegmentRing::new`]'s value at `ring`, slot by slot (never the whole ring
+    /// on the stack first).
+    ///
+    /// # Safety
+    /// `ring` is valid for writes and aligned (the storage of a `SegmentRing<QUEUE>`).
+    pub unsafe fn init_in_place(ring: *mut Self) {
+        // SAFETY: the caller's guarantee; every write is to a field of `ring` (or a slot of
+        // its array, `i < QUEUE`), and every field and slot is written.
+        unsafe {
+            let slots = (&raw mut (*ring).slots).cast::<Slot>();
+            for i in 0..QUEUE {
+                slots.add(i).write(Slot::EMPTY);
+            }
+            (&raw mut (*ring).head).write(0);
+            (&raw mut (*ring).len).write(0);
+        }
+    }
+
     pub fn len(&self) -> usize {
         self.len
     }

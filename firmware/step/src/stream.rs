@@ -16,6 +16,8 @@
 //! Hardware-independent: the board and sim-host own the registers; the step-cost script
 //! runs `refill` under QEMU to count its instructions per step.
 
+use core::mem::MaybeUninit;
+
 use crate::producer::{PulsePeriod, PulseProducer, sign_of};
 use crate::{MAX_JOINTS, StepTiming};
 
@@ -129,14 +131,13 @@ pub struct StepStreams<const Q: usize, const HALF: usize> {
     dirs: [DirRing; MAX_JOINTS],
 }
 
-impl<const Q: usize, const HALF: usize> StepStreams<Q, HALF> {
-    const FITS: () = assert!(dir_queue_len(HALF) <= DIR_RING && HALF > 0);
-
-    /// Idle streams.
-    pub const fn new(timing: StepTiming, max_period_ticks: [u32; MAX_JOINTS]) -> Self {
-        let () = Self::FITS;
-        StepStreams {
-            producer: PulseProducer::new(timing, max_period_ticks),
+/// The idle value of every [`StepStreams`] field but the producer and the DIR rings,
+/// written once for [`StepStreams::new`] (a struct literal: the compiler checks that no
+/// field is missing) and [`StepStreams::init_in_place`] (the same list, each field written
+/// where it lies). `$emit!($($head)* ; field: value, ...)` is called with the list.
+macro_rules! with_idle_fields {
+    ($emit:ident!($($head:tt)*)) => {
+        $emit!($($head)* ;
             signs: [[[0; HALF]; 2]; MAX_JOINTS],
             prelude_deltas: [[0; PRELUDE]; MAX_JOINTS],
             prelude: [[PulsePeriod::ZERO; PRELUDE]; MAX_JOINTS],
@@ -144,7 +145,63 @@ impl<const Q: usize, const HALF: usize> StepStreams<Q, HALF> {
             marks_clean: [[false; 2]; MAX_JOINTS],
             last_sign: [[0; 2]; MAX_JOINTS],
             evicted: [[0; 2]; MAX_JOINTS],
+        )
+    };
+}
+
+/// `StepStreams { producer, idle DIR rings, idle fields }`: see `with_idle_fields`.
+macro_rules! streams_literal {
+    ($producer:expr ; $($field:ident : $value:expr),* $(,)?) => {
+        StepStreams {
+            producer: $producer,
             dirs: [DirRing::EMPTY; MAX_JOINTS],
+            $($field: $value),*
+        }
+    };
+}
+
+/// Writes each idle field through the pointer `$slot`: see `with_idle_fields`.
+macro_rules! write_fields {
+    ($slot:expr ; $($field:ident : $value:expr),* $(,)?) => {{
+        $( (&raw mut (*$slot).$field).write($value); )*
+    }};
+}
+
+impl<const Q: usize, const HALF: usize> StepStreams<Q, HALF> {
+    const FITS: () = assert!(dir_queue_len(HALF) <= DIR_RING && HALF > 0);
+
+    /// Idle streams.
+    pub const fn new(timing: StepTiming, max_period_ticks: [u32; MAX_JOINTS]) -> Self {
+        let () = Self::FITS;
+        with_idle_fields!(streams_literal!(PulseProducer::new(
+            timing,
+            max_period_ticks
+        )))
+    }
+
+    /// Builds idle streams in place, in `slot` (a static's storage), and returns them: the
+    /// same value as [`StepStreams::new`], but never built on the stack first. The board's
+    /// streams are 15 KiB; `slot.write(new(..))` builds them in the caller's frame and
+    /// copies them, as the compiler does not elide that copy.
+    pub fn init_in_place(
+        slot: &mut MaybeUninit<Self>,
+        timing: StepTiming,
+        max_period_ticks: [u32; MAX_JOINTS],
+    ) -> &mut Self {
+        let () = Self::FITS;
+        let p = slot.as_mut_ptr();
+        // SAFETY: `p` points to `slot`'s storage, valid for writes and aligned; every field
+        // is written below (the producer by its own in-place constructor, the DIR rings
+        // ring by ring, the others from the list that `new`'s struct literal proves
+        // complete), so the value is initialised.
+        unsafe {
+            PulseProducer::init_in_place(&raw mut (*p).producer, timing, max_period_ticks);
+            let dirs = (&raw mut (*p).dirs).cast::<DirRing>();
+            for joint in 0..MAX_JOINTS {
+                dirs.add(joint).write(DirRing::EMPTY);
+            }
+            with_idle_fields!(write_fields!(p));
+            slot.assume_init_mut()
         }
     }
 
