@@ -160,13 +160,6 @@ macro_rules! streams_literal {
     };
 }
 
-/// Writes each idle field through the pointer `$slot`: see `with_idle_fields`.
-macro_rules! write_fields {
-    ($slot:expr ; $($field:ident : $value:expr),* $(,)?) => {{
-        $( (&raw mut (*$slot).$field).write($value); )*
-    }};
-}
-
 impl<const Q: usize, const HALF: usize> StepStreams<Q, HALF> {
     const FITS: () = assert!(dir_queue_len(HALF) <= DIR_RING && HALF > 0);
 

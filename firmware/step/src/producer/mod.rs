@@ -156,13 +156,6 @@ macro_rules! producer_literal {
     };
 }
 
-/// Writes each idle field through the pointer `$slot`: see `with_idle_fields`.
-macro_rules! write_fields {
-    ($slot:expr ; $($field:ident : $value:expr),* $(,)?) => {{
-        $( (&raw mut (*$slot).$field).write($value); )*
-    }};
-}
-
 impl<const QUEUE: usize> PulseProducer<QUEUE> {
     /// An idle producer; `max_period_ticks[j]` is the longest period joint `j`'s timer can
     /// make (2^16 for a 16-bit timer; at least `2 * min_pulse_period_ticks`).
