@@ -12,15 +12,13 @@ use arm_step::{
 };
 use proptest::prelude::*;
 
-/// The board's shape: 64 periods per half, 200 MHz timers, its timers' ranges.
+mod common;
+
+use common::BOARD_TIMING as BOARD;
+
+/// The board's buffer halves (64 periods) and a queue of 32 segments.
 const HALF: usize = 64;
 const QUEUE: usize = 32;
-const BOARD: StepTiming = StepTiming {
-    tick_hz: 200_000_000,
-    pulse_width_ticks: 500,
-    dir_setup_ticks: 2_000,
-    step_low_ticks: 500,
-};
 
 type Streams = StepStreams<QUEUE, HALF>;
 type Prelude = [[PulsePeriod; PRELUDE]; MAX_JOINTS];
