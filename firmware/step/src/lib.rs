@@ -48,6 +48,19 @@ macro_rules! write_fields {
     }};
 }
 
+/// Writes `value` into every element of `array`, element by element (never a whole array
+/// on the stack first).
+///
+/// # Safety
+/// `array` is valid for writes and aligned.
+pub(crate) unsafe fn write_each<T: Copy, const N: usize>(array: *mut [T; N], value: T) {
+    let first = array.cast::<T>();
+    for i in 0..N {
+        // SAFETY: the caller's guarantee; `i < N`, inside the array.
+        unsafe { first.add(i).write(value) };
+    }
+}
+
 mod engine;
 mod joint;
 mod producer;

@@ -31,7 +31,7 @@
 
 use crate::engine::QueueEnd;
 use crate::ring::SegmentRing;
-use crate::{MAX_JOINTS, Segment, StepTiming, US_PER_S};
+use crate::{MAX_JOINTS, Segment, StepTiming, US_PER_S, write_each};
 
 mod fill;
 mod joint_stream;
@@ -108,7 +108,8 @@ const fn max_periods(min_period: u32, max_period_ticks: [u32; MAX_JOINTS]) -> [u
     max_period
 }
 
-/// The idle value of every [`PulseProducer`] field but the segment ring, written once for
+/// The idle value of every [`PulseProducer`] field but the segment ring and the joints'
+/// streams (each [`JointStream::IDLE`]), written once for
 /// [`PulseProducer::new`] (a struct literal: the compiler checks that no field is missing)
 /// and [`PulseProducer::init_in_place`] (the same list, each field written where it lies).
 /// `$emit!($($head)* ; field: value, ...)` is called with the list.
@@ -143,16 +144,19 @@ macro_rules! with_idle_fields {
             running: false,
             origin: 0,
             run_end: u64::MAX,
-            joints: [JointStream::IDLE; MAX_JOINTS],
             late_pulses: 0,
         )
     }};
 }
 
-/// `PulseProducer { ring, idle fields }`: see `with_idle_fields`.
+/// `PulseProducer { ring, idle joints, idle fields }`: see `with_idle_fields`.
 macro_rules! producer_literal {
     ($ring:expr ; $($field:ident : $value:expr),* $(,)?) => {
-        PulseProducer { ring: $ring, $($field: $value),* }
+        PulseProducer {
+            ring: $ring,
+            joints: [JointStream::IDLE; MAX_JOINTS],
+            $($field: $value),*
+        }
     };
 }
 
@@ -178,10 +182,11 @@ impl<const QUEUE: usize> PulseProducer<QUEUE> {
         max_period_ticks: [u32; MAX_JOINTS],
     ) {
         // SAFETY: the caller's guarantee; every write is to a field of `producer`: the ring
-        // by its own in-place constructor, the others from the list that `new`'s struct
-        // literal proves complete.
+        // by its own in-place constructor, the joints' streams one by one, the others from
+        // the list that `new`'s struct literal proves complete.
         unsafe {
             SegmentRing::init_in_place(&raw mut (*producer).ring);
+            write_each(&raw mut (*producer).joints, JointStream::IDLE);
             with_idle_fields!(timing, max_period_ticks, write_fields!(producer));
         }
     }
