@@ -299,7 +299,7 @@ async fn main(spawner: Spawner) -> ! {
         clock: p.TIM13,
     });
     // The joint timers and DMA2 streams are driven through their registers
-    // (step_dma.rs); their handles are not used by anything else.
+    // (step_dma/); their handles are not used by anything else.
     let _step_hw = (
         p.TIM1, p.TIM2, p.TIM3, p.TIM4, p.TIM5, p.TIM8, p.TIM16, p.TIM17, p.DMA2_CH0, p.DMA2_CH1,
         p.DMA2_CH2, p.DMA2_CH3, p.DMA2_CH4, p.DMA2_CH5, p.DMA2_CH6, p.DMA2_CH7,

@@ -14,7 +14,7 @@
 //! | Ethernet descriptors and packet buffers ([`DmaBuffers::eth`]), a burst of 40 datagrams (`net.rs`) | ~62 KiB | ETH DMA |
 //! | serial receive ring ([`DmaBuffers::serial_rx`]) | 1 KiB | DMA1 stream 1 |
 //! | serial transmit staging ([`DmaBuffers::serial_tx`]) | 256 B | DMA1 stream 0 |
-//! | step streams: per joint 2 halves of 64 periods (ARR, RCR, CCR1), `step_dma.rs` `BUFFERS` (a `.sram1` static, zeroed by `step_dma::init`) | 12 KiB | DMA2 streams 0-7 |
+//! | step streams: per joint 2 halves of 64 periods (ARR, RCR, CCR1), `step_dma/mod.rs` `BUFFERS` (a `.sram1` static, zeroed by `step_dma::init`) | 12 KiB | DMA2 streams 0-7 |
 //!
 //! Anything new that a DMA touches goes into [`DmaBuffers`] (or another `.sram1` static):
 //! the `.sram1` output section (memory.x) is NOLOAD, so it is initialised here at run time.

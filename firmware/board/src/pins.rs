@@ -35,7 +35,7 @@
 //! alternate-function table as embassy-stm32's generated pin traits give it (checked by
 //! the compiler for these pins: `TimerPin<Ch1>` / `TimerComplementaryPin<Ch1>`). Every
 //! joint has a timer of its own because each STEP period is reloaded by that timer's
-//! update DMA (ARR and CCR1 per period, see `step_dma.rs`); TIM2 and TIM5 are the only
+//! update DMA (ARR and CCR1 per period, see `step_dma/`); TIM2 and TIM5 are the only
 //! 32-bit ones, TIM12/13/14 have no DMA request, TIM15 is the gripper's, TIM6/7 have no
 //! output. embassy-time runs on TIM12 and the step clock (DIR changes, end of run) on
 //! TIM13, neither of which has a use for its pins here.

@@ -1,6 +1,6 @@
 //! The step clock: TIM13 counting the 200 MHz timer clock, extended to 64 bits, with one
 //! compare alarm for the step path's rare timed events: DIR changes at reversals and the
-//! end of a run (`step_dma.rs` makes the pulses themselves in hardware).
+//! end of a run (`step_dma/` makes the pulses themselves in hardware).
 //!
 //! TIM13 is a 16-bit timer free-running over its whole range (328 us): its update
 //! interrupt counts the wraps, and [`now_tick`] combines the count with the counter,

@@ -39,6 +39,28 @@
 #![cfg_attr(not(test), warn(clippy::indexing_slicing, clippy::unwrap_used))]
 #![cfg_attr(not(test), warn(clippy::cast_possible_truncation))]
 
+/// Writes each `field: value` through the pointer `$slot`, where the field lies: the
+/// in-place constructors (`StepStreams::init_in_place`, `PulseProducer::init_in_place`),
+/// called with their `with_idle_fields` lists. Unsafe: `$slot` must be valid for writes.
+macro_rules! write_fields {
+    ($slot:expr ; $($field:ident : $value:expr),* $(,)?) => {{
+        $( (&raw mut (*$slot).$field).write($value); )*
+    }};
+}
+
+/// Writes `value` into every element of `array`, element by element (never a whole array
+/// on the stack first).
+///
+/// # Safety
+/// `array` is valid for writes and aligned.
+pub(crate) unsafe fn write_each<T: Copy, const N: usize>(array: *mut [T; N], value: T) {
+    let first = array.cast::<T>();
+    for i in 0..N {
+        // SAFETY: the caller's guarantee; `i < N`, inside the array.
+        unsafe { first.add(i).write(value) };
+    }
+}
+
 mod engine;
 mod joint;
 mod producer;

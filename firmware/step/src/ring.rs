@@ -1,7 +1,7 @@
 //! A fixed ring of queued segments (no dependencies, no allocation).
 
 use crate::engine::QueueEnd;
-use crate::{ALL_JOINTS, JointMask, MAX_JOINTS, Segment};
+use crate::{ALL_JOINTS, JointMask, MAX_JOINTS, Segment, write_each};
 
 /// One queued segment and its place on the run's timeline, worked out when it is pushed so
 /// that the interrupt never divides by 1_000_000.
@@ -51,6 +51,21 @@ impl<const QUEUE: usize> SegmentRing<QUEUE> {
             slots: [Slot::EMPTY; QUEUE],
             head: 0,
             len: 0,
+        }
+    }
+
+    /// Writes [`SegmentRing::new`]'s value at `ring`, slot by slot (never the whole ring
+    /// on the stack first).
+    ///
+    /// # Safety
+    /// `ring` is valid for writes and aligned (the storage of a `SegmentRing<QUEUE>`).
+    pub unsafe fn init_in_place(ring: *mut Self) {
+        // SAFETY: the caller's guarantee; every write is to a field of `ring`, and every
+        // field (every slot) is written.
+        unsafe {
+            write_each(&raw mut (*ring).slots, Slot::EMPTY);
+            (&raw mut (*ring).head).write(0);
+            (&raw mut (*ring).len).write(0);
         }
     }
 

@@ -16,8 +16,10 @@
 //! Hardware-independent: the board and sim-host own the registers; the step-cost script
 //! runs `refill` under QEMU to count its instructions per step.
 
+use core::mem::MaybeUninit;
+
 use crate::producer::{PulsePeriod, PulseProducer, sign_of};
-use crate::{MAX_JOINTS, StepTiming};
+use crate::{MAX_JOINTS, StepTiming, write_each};
 
 /// Periods the timer's registers take before the DMA starts: the first period goes into
 /// the active registers (through an update event), the second into the preload ones.
@@ -129,22 +131,75 @@ pub struct StepStreams<const Q: usize, const HALF: usize> {
     dirs: [DirRing; MAX_JOINTS],
 }
 
+/// The idle value of one joint's share of every [`StepStreams`] field but the producer
+/// (all of them are per joint arrays), written once for [`StepStreams::new`] (a struct
+/// literal: the compiler checks that no field is missing) and [`StepStreams::init_in_place`]
+/// (the same list, each joint's element written where it lies). `$emit!($($head)* ; field:
+/// value, ...)` is called with the list.
+macro_rules! with_idle_joint_fields {
+    ($emit:ident!($($head:tt)*)) => {
+        $emit!($($head)* ;
+            signs: [[0; HALF]; 2],
+            prelude_deltas: [0; PRELUDE],
+            prelude: [PulsePeriod::ZERO; PRELUDE],
+            half_idle: [None; 2],
+            marks_clean: [false; 2],
+            last_sign: [0; 2],
+            evicted: [0; 2],
+            dirs: DirRing::EMPTY,
+        )
+    };
+}
+
+/// `StepStreams { producer, idle joint fields }`: see `with_idle_joint_fields`.
+macro_rules! streams_literal {
+    ($producer:expr ; $($field:ident : $value:expr),* $(,)?) => {
+        StepStreams {
+            producer: $producer,
+            $($field: [$value; MAX_JOINTS]),*
+        }
+    };
+}
+
+/// Writes each joint's element of each field through the pointer `$slot`: see
+/// `with_idle_joint_fields`.
+macro_rules! write_joint_fields {
+    ($slot:expr ; $($field:ident : $value:expr),* $(,)?) => {{
+        $( write_each(&raw mut (*$slot).$field, $value); )*
+    }};
+}
+
 impl<const Q: usize, const HALF: usize> StepStreams<Q, HALF> {
     const FITS: () = assert!(dir_queue_len(HALF) <= DIR_RING && HALF > 0);
 
     /// Idle streams.
     pub const fn new(timing: StepTiming, max_period_ticks: [u32; MAX_JOINTS]) -> Self {
         let () = Self::FITS;
-        StepStreams {
-            producer: PulseProducer::new(timing, max_period_ticks),
-            signs: [[[0; HALF]; 2]; MAX_JOINTS],
-            prelude_deltas: [[0; PRELUDE]; MAX_JOINTS],
-            prelude: [[PulsePeriod::ZERO; PRELUDE]; MAX_JOINTS],
-            half_idle: [[None; 2]; MAX_JOINTS],
-            marks_clean: [[false; 2]; MAX_JOINTS],
-            last_sign: [[0; 2]; MAX_JOINTS],
-            evicted: [[0; 2]; MAX_JOINTS],
-            dirs: [DirRing::EMPTY; MAX_JOINTS],
+        with_idle_joint_fields!(streams_literal!(PulseProducer::new(
+            timing,
+            max_period_ticks
+        )))
+    }
+
+    /// Builds idle streams in place, in `slot` (a static's storage), and returns them: the
+    /// same value as [`StepStreams::new`], but never built on the stack first. The board's
+    /// streams are 15 KiB; `slot.write(new(..))` builds them in the caller's frame and
+    /// copies them, as the compiler does not elide that copy.
+    pub fn init_in_place(
+        slot: &mut MaybeUninit<Self>,
+        timing: StepTiming,
+        max_period_ticks: [u32; MAX_JOINTS],
+    ) -> &mut Self {
+        let () = Self::FITS;
+        let p = slot.as_mut_ptr();
+        // SAFETY: `p` points to `slot`'s storage, valid for writes and aligned; every field
+        // is written below (the producer by its own in-place constructor, the others joint
+        // by joint from the list that `new`'s struct literal proves complete), so the value
+        // is initialised.
+        unsafe {
+            PulseProducer::init_in_place(&raw mut (*p).producer, timing, max_period_ticks);
+            with_idle_joint_fields!(write_joint_fields!(p));
+            slot.assume_init_mut()
         }
     }
 

@@ -31,7 +31,7 @@
 
 use crate::engine::QueueEnd;
 use crate::ring::SegmentRing;
-use crate::{MAX_JOINTS, Segment, StepTiming, US_PER_S};
+use crate::{MAX_JOINTS, Segment, StepTiming, US_PER_S, write_each};
 
 mod fill;
 mod joint_stream;
@@ -88,55 +88,106 @@ const fn gcd(mut a: u64, mut b: u64) -> u64 {
     a
 }
 
-impl<const QUEUE: usize> PulseProducer<QUEUE> {
-    /// An idle producer; `max_period_ticks[j]` is the longest period joint `j`'s timer can
-    /// make (2^16 for a 16-bit timer; at least `2 * min_pulse_period_ticks`).
-    #[allow(
-        clippy::indexing_slicing,
-        clippy::cast_possible_truncation,
-        reason = "j < MAX_JOINTS, the loop's bound; g = gcd(tick_hz, 1e6) <= 1e6 fits u32"
-    )]
-    pub const fn new(timing: StepTiming, max_period_ticks: [u32; MAX_JOINTS]) -> Self {
+/// `max_period_ticks` raised where needed: splitting a gap needs room for two pulse
+/// periods (4 ticks at least).
+#[allow(clippy::indexing_slicing, reason = "j < MAX_JOINTS, the loop's bound")]
+const fn max_periods(min_period: u32, max_period_ticks: [u32; MAX_JOINTS]) -> [u32; MAX_JOINTS] {
+    let mut max_period = max_period_ticks;
+    let mut j = 0;
+    while j < MAX_JOINTS {
+        let floor = if min_period < 2 {
+            4
+        } else {
+            min_period.saturating_mul(2)
+        };
+        if max_period[j] < floor {
+            max_period[j] = floor;
+        }
+        j += 1;
+    }
+    max_period
+}
+
+/// The idle value of every [`PulseProducer`] field but the segment ring and the joints'
+/// streams (each [`JointStream::IDLE`]), written once for
+/// [`PulseProducer::new`] (a struct literal: the compiler checks that no field is missing)
+/// and [`PulseProducer::init_in_place`] (the same list, each field written where it lies).
+/// `$emit!($($head)* ; field: value, ...)` is called with the list.
+macro_rules! with_idle_fields {
+    ($timing:expr, $max_period_ticks:expr, $emit:ident!($($head:tt)*)) => {{
+        let timing: StepTiming = $timing;
         let g = gcd(timing.tick_hz as u64, US_PER_S);
         let g = if g == 0 { 1 } else { g };
         let min_period = timing.pulse_ticks().saturating_add(timing.low_ticks());
-        let mut max_period = max_period_ticks;
-        let mut j = 0;
-        while j < MAX_JOINTS {
-            // Splitting needs room for two pulse periods; 2 ticks at least.
-            let floor = if min_period < 2 {
-                4
-            } else {
-                min_period.saturating_mul(2)
-            };
-            if max_period[j] < floor {
-                max_period[j] = floor;
-            }
-            j += 1;
-        }
-        Self {
-            timing,
+        #[allow(
+            clippy::cast_possible_truncation,
+            reason = "g = gcd(tick_hz, 1e6) <= 1e6 fits u32"
+        )]
+        let g32 = g as u32;
+        $emit!($($head)* ;
+            timing: timing,
             pulse_ticks: timing.pulse_ticks(),
-            min_period,
+            min_period: min_period,
             setup_ticks: timing.dir_setup_ticks as u64,
             tick_hz: timing.tick_hz as u64,
             tick_scale: timing.tick_hz as u64 / g,
             us_scale: US_PER_S / g,
-            gcd: g as u32,
+            gcd: g32,
             idle_short: {
                 let short = timing.tick_hz / 10_000;
                 let floor = min_period.saturating_mul(2);
                 if short < floor { floor } else { short }
             },
-            max_period,
-            ring: SegmentRing::new(),
+            max_period: max_periods(min_period, $max_period_ticks),
             head_ordinal: 0,
             queue_end: QueueEnd::ZERO,
             running: false,
             origin: 0,
             run_end: u64::MAX,
-            joints: [JointStream::IDLE; MAX_JOINTS],
             late_pulses: 0,
+        )
+    }};
+}
+
+/// `PulseProducer { ring, idle joints, idle fields }`: see `with_idle_fields`.
+macro_rules! producer_literal {
+    ($ring:expr ; $($field:ident : $value:expr),* $(,)?) => {
+        PulseProducer {
+            ring: $ring,
+            joints: [JointStream::IDLE; MAX_JOINTS],
+            $($field: $value),*
+        }
+    };
+}
+
+impl<const QUEUE: usize> PulseProducer<QUEUE> {
+    /// An idle producer; `max_period_ticks[j]` is the longest period joint `j`'s timer can
+    /// make (2^16 for a 16-bit timer; at least `2 * min_pulse_period_ticks`).
+    pub const fn new(timing: StepTiming, max_period_ticks: [u32; MAX_JOINTS]) -> Self {
+        with_idle_fields!(
+            timing,
+            max_period_ticks,
+            producer_literal!(SegmentRing::new())
+        )
+    }
+
+    /// Writes [`PulseProducer::new`]'s value at `producer`, field by field (the segment
+    /// ring slot by slot): never the whole producer on the stack first.
+    ///
+    /// # Safety
+    /// `producer` is valid for writes and aligned (the storage of a `PulseProducer<QUEUE>`).
+    pub(crate) unsafe fn init_in_place(
+        producer: *mut Self,
+        timing: StepTiming,
+        max_period_ticks: [u32; MAX_JOINTS],
+    ) {
+        // SAFETY: the caller's guarantee; every write is to a field of `producer`: the ring
+        // by its own in-place constructor, the joints' streams one by one, the others from
+        // the list that `new`'s struct literal proves complete.
+        unsafe {
+            SegmentRing::init_in_place(&raw mut (*producer).ring);
+            write_each(&raw mut (*producer).joints, JointStream::IDLE);
+            with_idle_fields!(timing, max_period_ticks, write_fields!(producer));
         }
     }
 

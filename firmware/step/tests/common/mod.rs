@@ -4,6 +4,15 @@
 
 use arm_step::{JointMask, MAX_JOINTS, Poll, Segment, StepEngine, StepPins, StepTiming};
 
+/// The board's timing with its opto drivers: 200 MHz timers, 2.5 us STEP high and low,
+/// 10 us DIR setup (the drivers' 5 us and the board's interrupt latency).
+pub const BOARD_TIMING: StepTiming = StepTiming {
+    tick_hz: 200_000_000,
+    pulse_width_ticks: 500,
+    dir_setup_ticks: 2_000,
+    step_low_ticks: 500,
+};
+
 /// What happened on a line.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Edge {

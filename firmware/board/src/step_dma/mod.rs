@@ -1,0 +1,232 @@
+//! STEP pulses made by timer hardware: one timer per joint in PWM mode, its period and
+//! pulse width reloaded at every update event by a DMA stream from a double buffer that
+//! the CPU refills half by half.
+//!
+//! Each joint's timer (see `pins.rs` for the map) runs PWM mode 1 on CH1 (joint 5: CH1N)
+//! with ARR and CCR1 preloaded. At each update event its DMA request makes a DMA2 stream
+//! write the next [`arm_step::PulsePeriod`] (ARR, RCR, CCR1) through the timer's DMA burst register
+//! (`DCR.DBA` = ARR, three transfers): a period that starts with a pulse of `high` ticks,
+//! or none. Rising edges are period starts: placed by the counter to the tick, with no
+//! CPU involved. The stream is circular over [`HALF`]` * 2` periods; its half-transfer and
+//! transfer-complete interrupts ([`refill::refill`]) refill the half it just left with
+//! [`arm_step::StepStreams::refill`] (arm-step's producer). The CPU's whole share is the producer's
+//! arithmetic: 23 to 30 instructions per step (scripts/step-cost).
+//!
+//! DIR lines change at reversals only, when the joint's previous pulse has fallen, from
+//! the step clock's compare interrupt (`step_timer.rs`), and the producer places the next
+//! pulse no sooner than the DIR setup time (plus [`DIR_LATENCY_NS`] for the interrupt)
+//! after. The run ends at the producer's `run_end_tick`, also from the step clock.
+//!
+//! Safety: [`stop_all_step_outputs`] forces every STEP output inactive (OCxM = force
+//! inactive: the pin goes low at once, whatever the counter does), stops the counters and
+//! disables the streams, for the emergency stop, the end of a run, an underrun (a stream
+//! that reaches a half its interrupt has not refilled: [`refill::refill`] sees both halves
+//! played, or the stream already back in the half it is about to write) and the fault
+//! path. The interrupts are bounded: a refill writes one half and returns; nothing
+//! re-pends itself, so no step path can starve the tasks.
+//!
+//! Memory: the buffers are a static in SRAM1 (`.sram1`, zeroed by [`init`]): DMA2 reaches
+//! it (never DTCM), and MPU region 0 makes all of SRAM1 non-cacheable, so with the D-cache
+//! on the streams read what the refills wrote ([`dma_buffer_region`], `memory.rs`).
+//!
+//! Files: this one has the timing constants, the buffers and [`init`]; `registers.rs` the
+//! joint timers' and streams' registers (loading a run's prelude, where a stream stands);
+//! `backend.rs` [`STEP`] and its [`backend::BoardSteps`] (arm-core's `StepBackend`: start,
+//! stop, positions, the DIR alarm); `refill.rs` the streams' interrupts; `stop.rs`
+//! [`stop_all_step_outputs`].
+
+use core::cell::UnsafeCell;
+
+use arm_step::{JointBuffer, MAX_JOINTS, StepTiming};
+use embassy_stm32::interrupt::{InterruptExt, Priority};
+use embassy_stm32::pac;
+
+mod backend;
+mod refill;
+mod registers;
+mod stop;
+
+pub use backend::STEP;
+pub use stop::stop_all_step_outputs;
+
+use refill::STREAM_IRQS;
+use registers::{joint_timer, reg};
+
+/// Segments held on the interrupts' side (declared once, with its reason, in arm-core).
+pub use arm_core::STEP_QUEUE;
+
+/// Periods per buffer half: at 500 kHz a half plays for 128 us, so a refill interrupt may
+/// wait that long; 64 keeps the refill's fixed cost (about 250 instructions) to 4 per step.
+/// 2 * 64 * 12 bytes per joint.
+pub const HALF: usize = 64;
+
+/// The joint timers' input clock (APB1 and APB2 timer clocks, `clocks.rs`).
+pub const STEP_TIMER_HZ: u32 = 200_000_000;
+
+/// Longest wait of a DIR change behind its tick: the step clock's interrupt at P0 can be
+/// held off by a critical section, the longest being a refill (one half: about 2.5 us at
+/// 400 MHz). Added to the driver's DIR setup time, so the driver still sees its setup.
+pub const DIR_LATENCY_NS: u32 = 5_000;
+
+/// A driver's timing requirements (its datasheet's figures), in nanoseconds.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, defmt::Format)]
+pub struct DriverTiming {
+    /// Least STEP high time.
+    pub high_ns: u32,
+    /// Least STEP low time between pulses.
+    pub low_ns: u32,
+    /// Least time from a DIR change to the next rising STEP edge.
+    pub dir_setup_ns: u32,
+}
+
+impl DriverTiming {
+    #[cfg_attr(feature = "tmc-drivers", allow(dead_code))]
+    /// DM542, TB6600 and other opto-isolated drivers: 2.5 us high, 2.5 us low, 5 us DIR
+    /// setup (safe for DRV8825 and A4988 too). 200 kHz per joint.
+    pub const OPTO: DriverTiming = DriverTiming {
+        high_ns: 2_500,
+        low_ns: 2_500,
+        dir_setup_ns: 5_000,
+    };
+    #[cfg_attr(not(feature = "tmc-drivers"), allow(dead_code))]
+    /// TMC2209/TMC5160-class drivers: 100 ns high, 100 ns low, 20 ns DIR setup: 5 MHz by
+    /// the driver, 1 MHz by the board ([`BOARD_MAX_STEP_RATE_HZ`]).
+    pub const TMC: DriverTiming = DriverTiming {
+        high_ns: 100,
+        low_ns: 100,
+        dir_setup_ns: 20,
+    };
+
+    /// The step timing on the joint timers' clock (rounded up to whole ticks).
+    pub const fn step_timing(&self) -> StepTiming {
+        #[allow(
+            clippy::cast_possible_truncation,
+            reason = "const-evaluated for the drivers' figures: a few thousand ticks"
+        )]
+        const fn ticks(ns: u32) -> u32 {
+            ((ns as u64 * STEP_TIMER_HZ as u64).div_ceil(1_000_000_000)) as u32
+        }
+        StepTiming {
+            tick_hz: STEP_TIMER_HZ,
+            pulse_width_ticks: ticks(self.high_ns),
+            dir_setup_ticks: ticks(self.dir_setup_ns + DIR_LATENCY_NS),
+            step_low_ticks: ticks(self.low_ns),
+        }
+    }
+}
+
+/// The drivers this board is built for: `--features tmc-drivers` for TMC-class timing,
+/// otherwise the opto-isolated drivers' (safe for all).
+#[cfg(not(feature = "tmc-drivers"))]
+pub const DRIVER: DriverTiming = DriverTiming::OPTO;
+/// The drivers this board is built for.
+#[cfg(feature = "tmc-drivers")]
+pub const DRIVER: DriverTiming = DriverTiming::TMC;
+
+/// The step timing of every joint.
+pub const STEP_TIMING: StepTiming = DRIVER.step_timing();
+
+/// Per joint ceiling of the board, whatever the drivers allow: a period's DMA burst
+/// (three words into an APB timer, with eight streams sharing two DMA controllers) must
+/// finish within the shortest period; 1 us periods leave a wide margin. Also the
+/// ceiling of the CPU budget per joint (see [`BOARD_STEP_BUDGET_HZ`]).
+pub const BOARD_MAX_STEP_RATE_HZ: u32 = 1_000_000;
+
+/// Steps per second over all joints the board takes on: 8 x 500 kHz. At the measured
+/// 29.8 instructions per step (scripts/step-cost, the worst of its three trajectories),
+/// about 1.3 cycles each on the Cortex-M7 at 400 MHz, that is 4e6 * 29.8 * 1.3 / 400e6 =
+/// 39% of the CPU, leaving the rest to the network and the tasks. STATUS reports it at
+/// offset 32; points asking for more are refused (docs/PROTOCOL.md).
+pub const BOARD_STEP_BUDGET_HZ: u32 = arm_core::config::BOARD_STEP_BUDGET_HZ;
+
+/// Per joint maximum step rate: what the drivers allow, within the board's ceiling.
+pub const MAX_STEP_RATE_HZ: u32 = if STEP_TIMING.max_step_rate_hz() < BOARD_MAX_STEP_RATE_HZ {
+    STEP_TIMING.max_step_rate_hz()
+} else {
+    BOARD_MAX_STEP_RATE_HZ
+};
+
+// Opto drivers: 200 kHz per joint; TMC: the board's 1 MHz. Both above the protocol's
+// usual 100 kHz, and TMC timing gives every joint >= 500 kHz.
+const _: () = assert!(MAX_STEP_RATE_HZ >= 100_000);
+#[cfg(feature = "tmc-drivers")]
+const _: () = assert!(MAX_STEP_RATE_HZ >= 500_000);
+
+/// Every joint's DMA buffer. Written by the refills (inside [`STEP`]'s critical section,
+/// for the half the stream is not reading) and read by the DMA.
+struct Buffers(UnsafeCell<[JointBuffer<HALF>; MAX_JOINTS]>);
+
+// SAFETY: every CPU access happens inside STEP's critical section; the DMA reads the other
+// half (the refill checks where the stream is before it writes).
+unsafe impl Sync for Buffers {}
+
+/// In SRAM1 (`.sram1`, NOLOAD: zeroed by [`init`]), which MPU region 0 makes
+/// non-cacheable (`memory.rs`): the DMA never reads a period still in the D-cache.
+#[unsafe(link_section = ".sram1.step_buffers")]
+static BUFFERS: Buffers = Buffers(UnsafeCell::new([JointBuffer::ZERO; MAX_JOINTS]));
+
+/// Address and length of the step DMA buffers (inside SRAM1, MPU region 0; logged at
+/// debug level by [`init`]).
+pub fn dma_buffer_region() -> (usize, usize) {
+    (
+        BUFFERS.0.get() as usize,
+        core::mem::size_of::<[JointBuffer<HALF>; MAX_JOINTS]>(),
+    )
+}
+
+/// One-time set-up: clocks of the joint timers and DMA2, every timer's output forced
+/// inactive (STEP low) and enabled, DMAMUX routes, the streams' interrupts at P1 (below
+/// the step clock's P0, which makes the DIR changes). Call before the STEP pins are
+/// switched to their timers.
+pub fn init() {
+    // SAFETY: before any stream runs or any refill can touch them: `.sram1` is NOLOAD,
+    // so the buffers are zeroed here, not by the reset handler.
+    // `JointBuffer::ZERO` is all zero bytes.
+    unsafe { BUFFERS.0.get().write_bytes(0, 1) };
+    let (start, len) = dma_buffer_region();
+    defmt::debug!(
+        "step DMA buffers at {=usize:#x}, {=usize} bytes",
+        start,
+        len
+    );
+    STEP.with_engine(|steps| steps.streams.init());
+    pac::RCC.apb1lenr().modify(|w| {
+        w.set_tim2en(true);
+        w.set_tim3en(true);
+        w.set_tim4en(true);
+        w.set_tim5en(true);
+    });
+    pac::RCC.apb2enr().modify(|w| {
+        w.set_tim1en(true);
+        w.set_tim8en(true);
+        w.set_tim16en(true);
+        w.set_tim17en(true);
+    });
+    pac::RCC.ahb1enr().modify(|w| w.set_dma2en(true));
+    for joint in 0..MAX_JOINTS {
+        let timer = joint_timer(joint);
+        timer.write(reg::CR1, reg::CR1_URS | reg::CR1_ARPE);
+        timer.write(reg::PSC, 0);
+        timer.write(reg::CCMR1, reg::CCMR1_FORCE_INACTIVE);
+        timer.write(
+            reg::CCER,
+            if timer.complementary {
+                reg::CCER_CC1NE
+            } else {
+                reg::CCER_CC1E
+            },
+        );
+        if timer.has_moe {
+            timer.write(reg::BDTR, reg::BDTR_MOE);
+        }
+        // DMA2 stream `joint` is DMAMUX1 channel 8 + joint.
+        pac::DMAMUX1
+            .ccr(8 + joint)
+            .write(|w| w.set_dmareq_id(timer.request));
+    }
+    for irq in STREAM_IRQS {
+        irq.set_priority(Priority::P1);
+        // SAFETY: the handlers below only touch STEP (critical section) and DMA2's flags.
+        unsafe { irq.enable() };
+    }
+}

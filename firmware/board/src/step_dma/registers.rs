@@ -1,0 +1,216 @@
+//! The joint timers' and DMA2 streams' registers: which timer a joint has, loading a
+//! timer with a run's prelude and starting its stream, where a stream stands, its flags.
+
+use core::ptr::addr_of;
+
+use arm_step::{MAX_JOINTS, PRELUDE, PulsePeriod};
+use embassy_stm32::pac;
+
+use super::{BUFFERS, HALF};
+
+/// One joint's timer: registers, DMA request, and how its output is enabled.
+#[derive(Clone, Copy)]
+pub(super) struct JointTimer {
+    /// Register block base.
+    base: *mut u32,
+    /// DMAMUX1 request of its update event.
+    pub(super) request: u8,
+    /// Advanced-control timer or TIM16/17: has BDTR.MOE.
+    pub(super) has_moe: bool,
+    /// The STEP output is CH1N (TIM8 on PA5), not CH1.
+    pub(super) complementary: bool,
+}
+
+/// Register offsets common to every timer used (RM0433, timer register maps).
+pub(super) mod reg {
+    pub const CR1: usize = 0x00;
+    pub const DIER: usize = 0x0C;
+    pub const SR: usize = 0x10;
+    pub const EGR: usize = 0x14;
+    pub const CCMR1: usize = 0x18;
+    pub const CCER: usize = 0x20;
+    pub const CNT: usize = 0x24;
+    pub const PSC: usize = 0x28;
+    pub const ARR: usize = 0x2C;
+    pub const CCR1: usize = 0x34;
+    pub const BDTR: usize = 0x44;
+    pub const DCR: usize = 0x48;
+    pub const DMAR: usize = 0x4C;
+
+    /// CR1: counter enable, update only on overflow (UG makes no DMA request), ARR
+    /// preloaded.
+    pub const CR1_CEN: u32 = 1 << 0;
+    pub const CR1_URS: u32 = 1 << 2;
+    pub const CR1_ARPE: u32 = 1 << 7;
+    /// DIER: DMA request on update.
+    pub const DIER_UDE: u32 = 1 << 8;
+    /// EGR: update generation.
+    pub const EGR_UG: u32 = 1 << 0;
+    /// CCMR1: OC1 preload, PWM mode 1 (active while CNT < CCR1), forced inactive.
+    pub const CCMR1_OC1PE: u32 = 1 << 3;
+    pub const CCMR1_PWM1: u32 = 0b110 << 4;
+    pub const CCMR1_FORCE_INACTIVE: u32 = 0b100 << 4;
+    /// CCER: CC1 output enable, CC1N output enable.
+    pub const CCER_CC1E: u32 = 1 << 0;
+    pub const CCER_CC1NE: u32 = 1 << 2;
+    /// BDTR: main output enable.
+    pub const BDTR_MOE: u32 = 1 << 15;
+    /// DCR: burst from ARR (0x2C / 4 = 11), three transfers (DBL = 2): ARR, RCR, CCR1.
+    pub const DCR_ARR_RCR_CCR1: u32 = 11 | (2 << 8);
+}
+
+impl JointTimer {
+    pub(super) fn write(self, offset: usize, value: u32) {
+        // SAFETY: `base` is a timer register block of this chip; `offset` is one of its
+        // registers (mod reg); volatile word access is how the hardware is driven.
+        unsafe { self.base.byte_add(offset).write_volatile(value) }
+    }
+
+    pub(super) fn read(self, offset: usize) -> u32 {
+        // SAFETY: as in `write`.
+        unsafe { self.base.byte_add(offset).read_volatile() }
+    }
+
+    /// Address of the DMA burst register, the stream's peripheral address.
+    #[allow(
+        clippy::cast_possible_truncation,
+        reason = "addresses are 32 bits on this chip"
+    )]
+    fn dmar(self) -> u32 {
+        self.base as u32 + reg::DMAR as u32
+    }
+}
+
+/// The timer of joint `joint` (pins.rs has the map and the reasons).
+pub(super) fn joint_timer(joint: usize) -> JointTimer {
+    // (Joints 0 and 1 have 32-bit counters: NUCLEO_STEP_TIMER_MAX_PERIOD_TICKS.)
+    let t = |base: *mut (), request, has_moe| JointTimer {
+        base: base.cast(),
+        request,
+        has_moe,
+        complementary: false,
+    };
+    match joint {
+        0 => t(pac::TIM2.as_ptr(), 22, false),
+        1 => t(pac::TIM5.as_ptr(), 59, false),
+        2 => t(pac::TIM3.as_ptr(), 27, false),
+        3 => t(pac::TIM4.as_ptr(), 32, false),
+        4 => t(pac::TIM1.as_ptr(), 15, true),
+        5 => JointTimer {
+            complementary: true,
+            ..t(pac::TIM8.as_ptr(), 51, true)
+        },
+        6 => t(pac::TIM16.as_ptr(), 110, true),
+        _ => t(pac::TIM17.as_ptr(), 112, true),
+    }
+}
+
+/// Words the stream moves per period (ARR, RCR, CCR1).
+pub(super) const WORDS_PER_PERIOD: usize = 3;
+/// Words in one joint's whole circular buffer.
+pub(super) const BUFFER_WORDS: usize = 2 * HALF * WORDS_PER_PERIOD;
+
+/// Where a stream stood when it was stopped.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct StreamPosition {
+    /// Index (0..2*HALF) of the next period the stream would have transferred.
+    pub next: usize,
+    /// The half other than the one of the first unplayed period (`next - 1`, in the
+    /// preload register) was played and not refilled yet (its interrupt was pending).
+    pub other_half_played: bool,
+    /// The first unplayed period (`next - 1`) is the last of its half and that half was
+    /// refilled since: the period lives on only in the preload register.
+    pub preload_evicted: bool,
+}
+
+/// Where joint `joint`'s stream stands (running or stopped).
+pub(super) fn stream_position(joint: usize) -> StreamPosition {
+    let remaining = pac::DMA2.st(joint).ndtr().read().ndt() as usize;
+    let done = BUFFER_WORDS.saturating_sub(remaining) / WORDS_PER_PERIOD;
+    let flags = pac::DMA2.isr(joint / 4).read();
+    let n = joint % 4;
+    let next = done % (2 * HALF);
+    // The first unplayed period is the one in the preload register (next - 1); the other
+    // half than its own is stale if its refill is still pending (HT: half 0 played, TC:
+    // half 1 played).
+    let preload = (next + 2 * HALF - 1) % (2 * HALF);
+    let unplayed_half = preload / HALF;
+    let (own_flag, other_flag) = if unplayed_half == 0 {
+        (flags.htif(n), flags.tcif(n))
+    } else {
+        (flags.tcif(n), flags.htif(n))
+    };
+    StreamPosition {
+        next,
+        other_half_played: other_flag,
+        // The half's end was read (its flag was raised); not pending any more: refilled.
+        preload_evicted: preload % HALF == HALF - 1 && !own_flag,
+    }
+}
+
+/// Clears every interrupt flag of DMA2 stream `joint`.
+pub(super) fn clear_stream_flags(joint: usize) {
+    let n = joint % 4;
+    pac::DMA2.ifcr(joint / 4).write(|w| {
+        w.set_feif(n, true);
+        w.set_dmeif(n, true);
+        w.set_teif(n, true);
+        w.set_htif(n, true);
+        w.set_tcif(n, true);
+    });
+}
+
+/// Loads joint `joint`'s timer with the prelude (period 0 active, period 1 preloaded) and
+/// enables its stream; the counter is started by the caller.
+#[allow(
+    clippy::indexing_slicing,
+    clippy::cast_possible_truncation,
+    reason = "joint < MAX_JOINTS (start's loop); BUFFER_WORDS fits 16 bits (const assert) and addresses are 32 bits"
+)]
+pub(super) fn load_joint(joint: usize, prelude: &[PulsePeriod; PRELUDE]) {
+    let timer = joint_timer(joint);
+    let [first, second] = prelude;
+    timer.write(reg::CR1, reg::CR1_URS | reg::CR1_ARPE);
+    timer.write(reg::DIER, 0);
+    timer.write(reg::CNT, 0);
+    timer.write(reg::ARR, first.reload);
+    timer.write(reg::CCR1, first.high);
+    timer.write(reg::CCMR1, reg::CCMR1_OC1PE | reg::CCMR1_PWM1);
+    // Loads ARR/CCR1 into the active registers (URS: no DMA request for this one).
+    timer.write(reg::EGR, reg::EGR_UG);
+    timer.write(reg::ARR, second.reload);
+    timer.write(reg::CCR1, second.high);
+    timer.write(reg::SR, 0);
+    timer.write(reg::DCR, reg::DCR_ARR_RCR_CCR1);
+
+    let stream = pac::DMA2.st(joint);
+    stream.cr().modify(|w| w.set_en(false));
+    clear_stream_flags(joint);
+    stream.par().write_value(timer.dmar());
+    // SAFETY: only the address is taken.
+    let buffer = unsafe { addr_of!((*BUFFERS.0.get())[joint]) };
+    stream.m0ar().write_value(buffer as u32);
+    stream.ndtr().write(|w| w.set_ndt(BUFFER_WORDS as u16));
+    stream.cr().write(|w| {
+        w.set_dir(pac::dma::vals::Dir::MEMORY_TO_PERIPHERAL);
+        w.set_circ(true);
+        w.set_minc(true);
+        w.set_pinc(false);
+        w.set_psize(pac::dma::vals::Size::BITS32);
+        w.set_msize(pac::dma::vals::Size::BITS32);
+        w.set_pl(pac::dma::vals::Pl::VERY_HIGH);
+        w.set_htie(true);
+        w.set_tcie(true);
+        w.set_teie(true);
+    });
+    stream.cr().modify(|w| w.set_en(true));
+    timer.write(reg::DIER, reg::DIER_UDE);
+}
+
+const _: () = assert!(BUFFER_WORDS <= u16::MAX as usize);
+
+/// Counter of each joint timer (for debugging with a probe).
+#[allow(dead_code)]
+pub fn counters() -> [u32; MAX_JOINTS] {
+    core::array::from_fn(|j| joint_timer(j).read(reg::CNT))
+}
