@@ -73,7 +73,7 @@ largest_frame=0
 while read -r hex; do
   (( 16#$hex > largest_frame )) && largest_frame=$((16#$hex))
 done < <("$objdump_tool" -d --no-show-raw-insn "$elf" \
-  | grep -oE 'sub(\.w)?[[:space:]]+sp, (sp, )?#0x[0-9a-f]+' | sed 's/.*#0x//')
+  | grep -oE 'sub(\.w|w)?[[:space:]]+sp, (sp, )?#0x[0-9a-f]+' | sed 's/.*#0x//')
 largest_frame=${largest_frame:-0}
 if (( largest_frame > 32768 )); then
   echo "fw-size: a function reserves a $largest_frame-byte stack frame (over 32 KiB): something big is built on the stack" >&2

@@ -87,8 +87,8 @@ impl StepKick for SimStepKick {
 /// present by at most this much.
 pub const PLAY_INTERVAL: Duration = Duration::from_millis(5);
 
-/// Periods per DMA buffer half: the board's (`firmware/board/src/step_dma.rs`).
-pub const HALF: usize = 64;
+/// Periods per DMA buffer half: the board's.
+pub const HALF: usize = arm_step::NUCLEO_STEP_BUFFER_HALF;
 
 /// Where one joint's simulated timer is.
 #[derive(Clone, Copy, Debug, Default)]

@@ -91,6 +91,12 @@ pub const NUCLEO_STEP_TIMER_MAX_PERIOD_TICKS: [u32; MAX_JOINTS] = [
     1 << 16,
 ];
 
+/// The NUCLEO-H743ZI2's periods per DMA buffer half (the `HALF` of its [`StepStreams`]): at
+/// 500 kHz a half plays for 128 us, so a refill interrupt may wait that long; 64 keeps the
+/// refill's fixed cost (about 250 instructions) to 4 per step. 2 * 64 * 12 bytes per joint.
+/// sim-host and step-cost play the board's halves.
+pub const NUCLEO_STEP_BUFFER_HALF: usize = 64;
+
 /// Bit `j` = joint `j`.
 pub type JointMask = u8;
 

@@ -22,8 +22,8 @@ use cortex_m_semihosting::{debug, hprintln};
 /// Segments per trajectory: all queued before the measured run.
 const SEGMENTS: usize = 10;
 
-/// Periods per DMA buffer half, as on the board (`firmware/board/src/step_dma.rs`).
-const HALF: usize = 64;
+/// Periods per DMA buffer half, as on the board.
+const HALF: usize = arm_step::NUCLEO_STEP_BUFFER_HALF;
 
 /// Board timing: 200 MHz timer clock, 2.5 us STEP high, 2.5 us low, 5 us DIR setup.
 const TIMING: StepTiming = StepTiming {
@@ -61,7 +61,7 @@ pub extern "C" fn step_cost_mark(case: u32) {
 }
 
 /// The body of joint `joint`'s DMA stream interrupt, as the board runs it
-/// (`firmware/board/src/step_dma.rs`): read and clear the flags, refill the half the DMA
+/// (`firmware/board/src/step_dma/refill.rs`): read and clear the flags, refill the half the DMA
 /// left, wake the step task when segments finished, arm the run's end once it is known.
 #[unsafe(no_mangle)]
 #[inline(never)]

@@ -55,10 +55,8 @@ use registers::{joint_timer, reg};
 /// Segments held on the interrupts' side (declared once, with its reason, in arm-core).
 pub use arm_core::STEP_QUEUE;
 
-/// Periods per buffer half: at 500 kHz a half plays for 128 us, so a refill interrupt may
-/// wait that long; 64 keeps the refill's fixed cost (about 250 instructions) to 4 per step.
-/// 2 * 64 * 12 bytes per joint.
-pub const HALF: usize = 64;
+/// Periods per buffer half (declared once, with its reason, in arm-step).
+pub const HALF: usize = arm_step::NUCLEO_STEP_BUFFER_HALF;
 
 /// The joint timers' input clock (APB1 and APB2 timer clocks, `clocks.rs`).
 pub const STEP_TIMER_HZ: u32 = 200_000_000;
