@@ -131,9 +131,9 @@ pub const STEP_TIMING: StepTiming = DRIVER.step_timing();
 pub const BOARD_MAX_STEP_RATE_HZ: u32 = 1_000_000;
 
 /// Steps per second over all joints the board takes on: 8 x 500 kHz. At the measured
-/// 29.8 instructions per step (scripts/step-cost, the worst of its three trajectories),
-/// about 1.3 cycles each on the Cortex-M7 at 400 MHz, that is 4e6 * 29.8 * 1.3 / 400e6 =
-/// 39% of the CPU, leaving the rest to the network and the tasks. STATUS reports it at
+/// 29.5 instructions per step (scripts/step-cost, the worst of its three trajectories),
+/// about 1.3 cycles each on the Cortex-M7 at 400 MHz, that is 4e6 * 29.5 * 1.3 / 400e6 =
+/// 38% of the CPU, leaving the rest to the network and the tasks. STATUS reports it at
 /// offset 32; points asking for more are refused (docs/PROTOCOL.md).
 pub const BOARD_STEP_BUDGET_HZ: u32 = arm_core::config::BOARD_STEP_BUDGET_HZ;
 
