@@ -4,13 +4,18 @@ mod common;
 
 use common::*;
 use proptest::prelude::*;
-use protocol::{Command, StatusCode, crc8};
+use protocol::{Command, StatusCode, Tag, crc8};
 
 fn datagram() -> impl Strategy<Value = Vec<u8>> {
     (
         any::<u8>(),
-        prop_oneof![0u8..0x18, any::<u8>()],
-        prop::collection::vec(any::<u8>(), 0..1500),
+        // Every tag (DISCOVER and NET_SET are 0x20..0x22), and any byte.
+        prop_oneof![0u8..0x18, 0x20u8..0x23, any::<u8>()],
+        // Often no payload at all (DISCOVER's form), else anything up to a datagram.
+        prop_oneof![
+            Just(Vec::new()),
+            prop::collection::vec(any::<u8>(), 0..1500)
+        ],
         any::<bool>(),
     )
         .prop_map(|(seq, tag, data, fix_crc)| {
@@ -22,6 +27,24 @@ fn datagram() -> impl Strategy<Value = Vec<u8>> {
             }
             bytes
         })
+}
+
+/// A CRC-valid DISCOVER (tag and CRC only): the one frame of 3 bytes or more that gets no ACK.
+fn is_discover(bytes: &[u8]) -> bool {
+    matches!(bytes, [_, tag, crc] if *tag == Tag::Discover as u8 && crc8(&bytes[..2]) == *crc)
+}
+
+/// The property's inputs once drew a CRC-valid DISCOVER (seq 0) and expected an ACK for it;
+/// DISCOVER is answered with a DISCOVER_REPLY instead.
+#[test]
+fn a_discover_among_arbitrary_datagrams_gets_its_reply_not_an_ack() {
+    let mut s = Session::<32>::new(32);
+    let mut bytes = vec![0, Tag::Discover as u8];
+    bytes.push(crc8(&bytes));
+    assert!(is_discover(&bytes));
+    let r = s.send_raw(HOST, &bytes);
+    assert!(r.reply.is_none());
+    assert_eq!(r.discovery.map(|d| (d.to, d.seq)), Some((HOST, 0)));
 }
 
 proptest! {
@@ -45,6 +68,13 @@ proptest! {
             let r = s.send_raw(from, &bytes);
             if bytes.len() < 3 {
                 prop_assert!(r.reply.is_none());
+                continue;
+            }
+            if is_discover(&bytes) {
+                // Answered with a DISCOVER_REPLY instead of an ACK (docs/PROTOCOL.md,
+                // "Finding controllers and setting their address").
+                prop_assert!(r.reply.is_none());
+                prop_assert_eq!(r.discovery.map(|d| (d.to, d.seq)), Some((from, bytes[0])));
                 continue;
             }
             let reply = r.reply.expect("an ACK for 3 bytes or more");
