@@ -52,7 +52,10 @@ fn lossless_run_executes_every_point_in_order() {
 #[test]
 fn stop_and_wait_gives_the_same_points() {
     let (fake, arm) = connected(32, Faults::default());
-    let points = ramp(100, 3, 500);
+    // 5 ms points: a frame of 5 is 25 ms of motion, so one round trip per frame keeps the
+    // run fed even on a loaded machine (0.5 ms points underran when a round trip took
+    // longer than 2.5 ms, failing the run).
+    let points = ramp(100, 3, 5_000);
     let options = RunOptions {
         window: 1,
         points_per_frame: 5,
