@@ -57,6 +57,18 @@ pub fn trace_requested() -> bool {
     std::env::var_os("ARMCTL_TRACE").is_some()
 }
 
+/// The logger the project's host programs install (the `armctl` tool, sim-host,
+/// ros2-bridge): `RUST_LOG` when set, else `default_filter`; with `ARMCTL_TRACE` set, every
+/// record of the armctl crate too ([`trace_requested`]).
+pub fn logger(default_filter: &str) -> env_logger::Builder {
+    let env = env_logger::Env::default().default_filter_or(default_filter);
+    let mut logger = env_logger::Builder::from_env(env);
+    if trace_requested() {
+        logger.filter_module("armctl", log::LevelFilter::Trace);
+    }
+    logger
+}
+
 /// The controller's UDP port, when an address names none.
 pub const DEFAULT_PORT: u16 = 8510;
 

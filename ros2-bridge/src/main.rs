@@ -10,14 +10,8 @@ const USAGE: &str = "usage: armctl-ros2 CONFIG.json [--controller HOST:PORT]\n\
     for the arm controller named in the config (docs/ROS2.md). RUST_LOG=debug logs more.";
 
 fn main() -> ExitCode {
-    let mut logger = env_logger::Builder::from_env(
-        env_logger::Env::default().default_filter_or("info,rustdds=warn,ros2_client=warn"),
-    );
-    // The armctl client's upload traces (ACKs, timeouts, resends).
-    if armctl::trace_requested() {
-        logger.filter_module("armctl", log::LevelFilter::Trace);
-    }
-    logger.init();
+    // With ARMCTL_TRACE, the armctl client's upload traces (ACKs, timeouts, resends) too.
+    armctl::logger("info,rustdds=warn,ros2_client=warn").init();
     let mut args = std::env::args().skip(1);
     let mut config_path: Option<PathBuf> = None;
     let mut controller: Option<String> = None;

@@ -183,12 +183,7 @@ pub fn exit_on_signal(board: Board) -> io::Result<()> {
 /// Initialises logging at `level` (an env_logger filter); RUST_LOG wins when set, and
 /// `ARMCTL_TRACE` shows the armctl client's upload traces (demo, bench).
 pub fn init_logging(level: &str) {
-    let env = env_logger::Env::default().default_filter_or(level);
-    let mut logger = env_logger::Builder::from_env(env);
-    if armctl::trace_requested() {
-        logger.filter_module("armctl", log::LevelFilter::Trace);
-    }
-    let _ = logger.format_timestamp_micros().try_init();
+    let _ = armctl::logger(level).format_timestamp_micros().try_init();
 }
 
 // ---------------------------------------------------------------------------------------

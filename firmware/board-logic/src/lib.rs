@@ -12,7 +12,6 @@
 //!   timeouts, and the read of every joint, generic over the bus.
 //! * [`gripper`]: the burst arithmetic of counted gripper pulses.
 //! * [`net`]: REF_CLK detection, autonegotiated link mode, the link-loss policy.
-//! * [`uart`]: the mapping of UART_INIT's HAL codes to a frame format.
 #![no_std]
 #![warn(missing_docs)]
 // Tests index and unwrap freely: a failing test is meant to panic.
@@ -29,5 +28,4 @@ pub mod fault;
 pub mod gripper;
 pub mod net;
 pub mod settings;
-pub mod uart;
 pub mod watchdog;

@@ -14,7 +14,7 @@
 use core::cell::Cell;
 
 use arm_core::hw::SerialError;
-use board_logic::uart::{self, uart_frame};
+use arm_core::uart::{self, uart_frame};
 use defmt::warn;
 use embassy_futures::select::{Either, select};
 use embassy_stm32::mode::Async;

@@ -60,6 +60,16 @@ impl<const QUEUE: usize> SegmentRing<QUEUE> {
     /// # Safety
     /// `ring` is valid for writes and aligned (the storage of a `SegmentRing<QUEUE>`).
     pub unsafe fn init_in_place(ring: *mut Self) {
+        // Every field is listed here: a field added to the ring fails to compile until it
+        // is written below too.
+        #[allow(dead_code, reason = "only compiled, never called")]
+        fn every_field_is_written<const Q: usize>(ring: &SegmentRing<Q>) {
+            let SegmentRing {
+                slots: _,
+                head: _,
+                len: _,
+            } = ring;
+        }
         // SAFETY: the caller's guarantee; every write is to a field of `ring`, and every
         // field (every slot) is written.
         unsafe {

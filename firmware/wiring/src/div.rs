@@ -4,8 +4,8 @@
 //!
 //! When both operands fit in 32 bits (most calls), this is the hardware `udiv`. Otherwise
 //! it is a shift-and-subtract division over the quotient's bits only (the divisor is first
-//! aligned with the dividend's top bit): a few hundred cycles at worst, about a microsecond
-//! at 400 MHz. The u64 divisions here are off the step path's per-pulse work: arm-step
+//! aligned with the dividend's top bit): about 1,200 cycles at worst (63 shift-and-subtract
+//! steps), about 3 us at 400 MHz. The u64 divisions here are off the step path's per-pulse work: arm-step
 //! divides in u32 whenever a segment's figures fit (its `begin_segment`), and the others
 //! are in tasks (time conversions, encoder and trajectory arithmetic).
 //!
@@ -24,7 +24,7 @@
 core::arch::global_asm!(
     ".syntax unified",
     ".thumb",
-    ".section .text.__aeabi_uldivmod,\"ax\",%progbits",
+    ".pushsection .text.__aeabi_uldivmod,\"ax\",%progbits",
     ".global __aeabi_uldivmod",
     ".type __aeabi_uldivmod,%function",
     ".thumb_func",
@@ -92,4 +92,6 @@ core::arch::global_asm!(
     "    pop {{r4, r5, r6, r7}}",
     "    bx lr",
     ".size __aeabi_uldivmod, . - __aeabi_uldivmod",
+    // Back to the section the assembler was in.
+    ".popsection",
 );

@@ -25,7 +25,7 @@ core::arch::global_asm!(
     ".syntax unified",
     ".thumb",
     // memcpy: forward copy. r0 = dst, r1 = src, r2 = n; returns dst.
-    ".section .text.memcpy,\"ax\",%progbits",
+    ".pushsection .text.memcpy,\"ax\",%progbits",
     ".global memcpy",
     ".global __aeabi_memcpy",
     ".global __aeabi_memcpy4",
@@ -184,4 +184,6 @@ core::arch::global_asm!(
     "3:  mov r0, r3",
     "    bx lr",
     ".size memcmp, . - memcmp",
+    // Back to the section the assembler was in.
+    ".popsection",
 );

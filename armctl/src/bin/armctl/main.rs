@@ -55,12 +55,7 @@ fn main() -> ExitCode {
 /// The logger behind the library's `log` records: `RUST_LOG` as usual (warnings by
 /// default), and every record of the armctl crate with `ARMCTL_TRACE` set.
 fn init_logging() {
-    let mut logger =
-        env_logger::Builder::from_env(env_logger::Env::default().default_filter_or("warn"));
-    if armctl::trace_requested() {
-        logger.filter_module("armctl", log::LevelFilter::Trace);
-    }
-    logger.init();
+    armctl::logger("warn").init();
 }
 
 /// The commands that need no controller, then the others over one connection.
