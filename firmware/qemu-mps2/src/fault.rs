@@ -149,17 +149,38 @@ fn command_line(buf: &mut [u8; CMDLINE_BYTES as usize]) -> Option<&str> {
     core::str::from_utf8(buf.get(..len)?).ok()
 }
 
-/// The fault asked for on QEMU's command line, if any.
-pub fn injected() -> Option<InjectedFault> {
+/// What QEMU's command line (`-append`) asks of this boot.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Requested {
+    /// `check-runtime`: check arm-wiring's run-time routines first.
+    pub runtime_check: bool,
+    /// `inject-fault=...`: the fault to commit once the tasks run.
+    pub fault: Option<InjectedFault>,
+}
+
+/// Reads QEMU's command line once (a semihosting call) and says what it asks for.
+pub fn requested() -> Requested {
     let mut buf = [0u8; CMDLINE_BYTES as usize];
-    let line = command_line(&mut buf)?;
+    let Some(line) = command_line(&mut buf) else {
+        return Requested::default();
+    };
     log::info!("QEMU command line: {:?}", line);
-    line.split_whitespace().find_map(|word| match word {
-        "inject-fault=panic" => Some(InjectedFault::Panic),
-        "inject-fault=hardfault" => Some(InjectedFault::HardFault),
-        "inject-fault=stack-overflow" => Some(InjectedFault::StackOverflow),
-        _ => None,
-    })
+    let mut requested = Requested::default();
+    for word in line.split_whitespace() {
+        let fault = match word {
+            "check-runtime" => {
+                requested.runtime_check = true;
+                None
+            }
+            "inject-fault=panic" => Some(InjectedFault::Panic),
+            "inject-fault=hardfault" => Some(InjectedFault::HardFault),
+            "inject-fault=stack-overflow" => Some(InjectedFault::StackOverflow),
+            _ => None,
+        };
+        // The first fault named wins.
+        requested.fault = requested.fault.or(fault);
+    }
+    requested
 }
 
 /// Commits the fault.
@@ -193,13 +214,6 @@ fn recurse(depth: u32) -> u32 {
         return u32::from(frame[0]);
     }
     recurse(depth + 1).wrapping_add(u32::from(frame[1]))
-}
-
-/// Whether QEMU's command line asks for the check of arm-wiring's run-time routines
-/// (`-append check-runtime`).
-pub fn runtime_check_requested() -> bool {
-    let mut buf = [0u8; CMDLINE_BYTES as usize];
-    command_line(&mut buf).is_some_and(|line| line.split_whitespace().any(|w| w == "check-runtime"))
 }
 
 /// Runs arm-wiring's check of its assembly `memcpy`, `memmove`, `memset`, `memcmp` and u64

@@ -161,7 +161,8 @@ fn main() -> ! {
     logger::init();
     log::info!("arm controller starting (QEMU mps2-an500)");
     fault::install_stack_guard(&mut core.MPU);
-    if fault::runtime_check_requested() {
+    let requested = fault::requested();
+    if requested.runtime_check {
         fault::run_runtime_check();
     }
     let kick = KICK.init(step_out::init());
@@ -228,7 +229,7 @@ fn main() -> ! {
     })
     .and_then(|stack| link_watch(stack).map(|token| spawner.spawn(token)))
     .and_then(|()| step_output_monitor().map(|token| spawner.spawn(token)))
-    .and_then(|()| match fault::injected() {
+    .and_then(|()| match requested.fault {
         Some(fault) => inject_fault(fault).map(|token| spawner.spawn(token)),
         None => Ok(()),
     });
