@@ -193,9 +193,9 @@ pub fn init_logging(level: &str) {
 /// same flow control; `--buffer-capacity` uses less of it.
 pub const TRAJECTORY_STORAGE: usize = BOARD_TRAJECTORY_CAPACITY;
 
-/// Segments the step engine holds (the "interrupt side" queue): the board's, declared once
-/// in arm-core, so the simulator has the same lookahead.
-pub use arm_core::STEP_QUEUE;
+// Segments the step engine holds (the "interrupt side" queue): the board's, declared once
+// in arm-core, so the simulator has the same lookahead.
+use arm_core::STEP_QUEUE;
 
 /// STEP high time of the simulated drivers, ns (common drivers need 1-2.5 us).
 pub const PULSE_WIDTH_NS: u64 = 2_000;

@@ -22,8 +22,8 @@ use cortex_m::peripheral::NVIC;
 use crate::mps2::{self, DUALTIMER, Irq, SYSCLK_HZ, write};
 use crate::time_driver::now_cycles;
 
-/// Segments the engine holds on the interrupt's side (declared once, in arm-core).
-pub use arm_core::STEP_QUEUE;
+// Segments the engine holds on the interrupt's side (declared once, in arm-core).
+use arm_core::STEP_QUEUE;
 
 /// SYSCLK cycles per microsecond.
 const CYCLES_PER_US: u32 = SYSCLK_HZ / 1_000_000;

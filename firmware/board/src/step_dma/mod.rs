@@ -52,9 +52,6 @@ pub use stop::stop_all_step_outputs;
 use refill::STREAM_IRQS;
 use registers::{joint_timer, reg};
 
-/// Segments held on the interrupts' side (declared once, with its reason, in arm-core).
-pub use arm_core::STEP_QUEUE;
-
 /// Periods per buffer half (declared once, with its reason, in arm-step).
 pub const HALF: usize = arm_step::NUCLEO_STEP_BUFFER_HALF;
 
