@@ -461,6 +461,69 @@ fn send_and_ack(socket: &UdpSocket, frame: &[u8]) {
     panic!("no ACK for seq {}", frame[0]);
 }
 
+/// A host whose first ACK came late resent the command (same bytes), and the controller
+/// ACKed both copies: each copy is paired with its own ACK, in order, so no command is
+/// shown unanswered (CI once saw the first copy left without one: both ACKs went to the
+/// latest copy).
+#[test]
+fn a_resent_command_and_its_two_acks_pair_in_order() {
+    if !have_wireshark("resend pairing") {
+        return;
+    }
+    let dir = scratch("resend");
+    let pcap = dir.join("resend.pcap");
+    let host: std::net::SocketAddr = "127.0.0.1:40000".parse().unwrap();
+    let controller: std::net::SocketAddr = format!("127.0.0.1:{}", protocol::PORT).parse().unwrap();
+    let log = armctl::pcap::PcapLog::create(&pcap).expect("create the capture");
+    let mut pin1_on = vec![123, 0x0e];
+    pin1_on.push(crc8(&pin1_on));
+    let ack = protocol::Report::Ack(protocol::Ack {
+        acked_tag: 0x0e,
+        status: protocol::StatusCode::Ok,
+        state: protocol::State::New,
+        next_seq: 0,
+        buffered: 0,
+        free: 100,
+    });
+    let mut ack_frame = [0u8; 16];
+    let n = ack.encode(123, &mut ack_frame).expect("encode ACK");
+    // Frames 1, 2: the command and its resend; 3, 4: the two ACKs.
+    log.record(host, controller, &pin1_on).unwrap();
+    log.record(host, controller, &pin1_on).unwrap();
+    log.record(controller, host, &ack_frame[..n]).unwrap();
+    log.record(controller, host, &ack_frame[..n]).unwrap();
+    drop(log);
+
+    let fields = [
+        "frame.number",
+        "armctl.response_in",
+        "armctl.response_to",
+        "armctl.retransmission",
+    ];
+    let packets = dissect(&pcap, &fields, true, None);
+    let shown: Vec<(Option<&str>, Option<&str>, Option<&str>)> = packets
+        .iter()
+        .map(|p| {
+            (
+                p.get("armctl.response_in").map(String::as_str),
+                p.get("armctl.response_to").map(String::as_str),
+                p.get("armctl.retransmission").map(String::as_str),
+            )
+        })
+        .collect();
+    assert_eq!(
+        shown,
+        [
+            (Some("3"), None, None),
+            (Some("4"), None, Some("1")),
+            (None, Some("1"), None),
+            (None, Some("2"), None),
+        ],
+        "(response_in, response_to, retransmission) of frames 1-4"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 #[test]
 fn session_captures_pair_acks_and_mark_retransmissions() {
     if !have_wireshark("session captures") {

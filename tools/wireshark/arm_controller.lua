@@ -12,7 +12,8 @@
 -- Protocols > ARMCTL to change it, or Decode As for a simulator on another port).
 --
 -- Analysis (done on the first pass over a capture): each command is paired with its ACK
--- (armctl.response_in / armctl.response_to, round trip armctl.time), and a command sent
+-- (armctl.response_in / armctl.response_to, round trip armctl.time; copies of a resent
+-- command are paired with the ACKs in the order they came), and a command sent
 -- again with the same bytes by the same host port is marked as a retransmission of the
 -- first copy (armctl.retransmission, with an expert note).
 
@@ -229,7 +230,8 @@ end
 -- Pairing and retransmissions (filled on the first pass, shown on every pass)
 
 local analysis = {}     -- frame number -> { response_in, response_to, rtt, retransmission_of }
-local commands = {}     -- "host ip:port|seq|tag" -> { frame, time, crc } of the latest copy
+local commands = {}     -- "host ip:port|seq|tag" -> { crc, copies = { {frame, time}, ... } }:
+                        -- the copies not yet answered, oldest first, and the latest one
 local first_copy = {}   -- "host ip:port|seq|tag|crc" -> frame number of the first copy
 
 function armctl.init()
@@ -521,12 +523,28 @@ local function analyse(pinfo, to_controller, seq, tag, crc, data, len)
         else
             first_copy[copy_key] = pinfo.number
         end
-        commands[key] = { frame = pinfo.number, time = pinfo.abs_ts }
+        -- Copies with the same bytes queue up: the controller answers each in the order it
+        -- got them, so a resend's ACK goes to the resend, not to the first copy. Other bytes
+        -- under the same seq and tag (seq wrapped) are a new command: forget the old copies.
+        local pending = commands[key]
+        if not pending or pending.crc ~= crc then
+            pending = { crc = crc, copies = {} }
+            commands[key] = pending
+        end
+        local copy = { frame = pinfo.number, time = pinfo.abs_ts }
+        table.insert(pending.copies, copy)
+        pending.latest = copy
     elseif (tag == 0x14 and len == 8) or tag == 0x22 then
         -- An ACK answers the tag it names; a DISCOVER_REPLY answers DISCOVER.
         local answered = tag == 0x22 and 0x20 or data(0, 1):uint()
         local key = host_key .. "|" .. seq .. "|" .. answered
-        local command = commands[key]
+        local pending = commands[key]
+        local command
+        if pending then
+            -- The oldest unanswered copy; an ACK beyond the copies seen (its command was not
+            -- captured) goes to the latest.
+            command = table.remove(pending.copies, 1) or pending.latest
+        end
         if command then
             local info = frame_info(pinfo.number)
             info.response_to = command.frame
