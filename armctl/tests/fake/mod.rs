@@ -257,8 +257,9 @@ impl Sim {
     /// A LOCATION to every endpoint the controller reports to.
     fn send_location(&mut self, location: Location, link: &mut Link) {
         let settings = self.controller.report_settings();
-        for to in settings.location_to.iter().flatten() {
-            self.send_report(&Report::Location(location), address(*to), link);
+        let now_us = u64::try_from(self.started.elapsed().as_micros()).unwrap_or(u64::MAX);
+        for to in settings.location_destinations(now_us) {
+            self.send_report(&Report::Location(location), address(to), link);
         }
     }
 

@@ -35,7 +35,9 @@
 //! owner's endpoints (up to [`LOCATION_LISTENERS`]) whose commands were executed and that
 //! have not been silent for 5 s; the endpoint that started the upload or run (NEW,
 //! RETURN) or turned reports on (UPLOAD_START, UPLOAD_PERIOD) keeps them while anything
-//! runs, however long it is silent. So no tool takes another's reports: a watcher keeps
+//! runs, however long it is silent. The 5 s are checked each time a LOCATION is sent
+//! ([`ReportSettings::location_until_us`]), so a tool that went away stops getting them
+//! even while nobody speaks. So no tool takes another's reports: a watcher keeps
 //! its LOCATIONs while a poller polls, and an uploader that waits for its first LOCATION
 //! gets it though another tool spoke last. USART_RECV goes to the endpoint that sent
 //! USART_START. At first everything goes to the endpoint that became the owner; one tool
@@ -249,6 +251,9 @@ impl<const CAP: usize> Controller<CAP> {
     pub fn report_settings(&self) -> ReportSettings {
         ReportSettings {
             location_to: self.listeners.map(|l| l.map(|l| l.to)),
+            location_until_us: self
+                .listeners
+                .map(|l| l.map_or(0, |l| l.until_us(Some(l.to) == self.location_keeper()))),
             serial_to: self.serial_to,
             reports_on: self.reports_on,
             upload_period_us: self.upload_period_us,

@@ -51,14 +51,16 @@ impl ReportEncoder {
         self.next_seq
     }
 
-    /// Encodes `out` into `buf`: returns the destinations (ACK and STATUS: their own;
-    /// LOCATION and USART_RECV: as `routes` say; every one gets the same bytes) and the
+    /// Encodes `out`, sent at `now_us`, into `buf`: returns the destinations (ACK and
+    /// STATUS: their own; LOCATION and USART_RECV: as `routes` say; every one gets the same
+    /// bytes) and the
     /// frame's length, or `None` when a report has nowhere to go (no owner yet; no seq is
     /// used then) or `buf` is too small.
     pub fn encode(
         &mut self,
         out: &Outgoing,
         routes: &ReportSettings,
+        now_us: u64,
         buf: &mut [u8],
     ) -> Option<(Destinations, usize)> {
         let one = |to: Endpoint| {
@@ -75,7 +77,7 @@ impl ReportEncoder {
             Outgoing::Ack(reply) => (one(reply.to), reply.seq, Report::Ack(reply.ack)),
             Outgoing::Status(to, s) => (one(*to), self.next_seq, Report::Status(*s)),
             Outgoing::Location(l) => {
-                let to: Destinations = routes.location_to.iter().flatten().copied().collect();
+                let to: Destinations = routes.location_destinations(now_us).collect();
                 if to.is_empty() {
                     return None;
                 }
@@ -117,6 +119,7 @@ mod tests {
             enc.encode(
                 &Outgoing::Location(Location::default()),
                 &ReportSettings::BOOT,
+                0,
                 &mut buf
             ),
             None
@@ -127,6 +130,7 @@ mod tests {
         };
         let routes = ReportSettings {
             location_to: [Some(owner), None, None, None],
+            location_until_us: [1_000, 0, 0, 0],
             serial_to: Some(owner),
             ..ReportSettings::BOOT
         };
@@ -150,7 +154,7 @@ mod tests {
         ];
         let mut seen = std::vec::Vec::new();
         for out in &outs {
-            let (to, n) = enc.encode(out, &routes, &mut buf).expect("encodes");
+            let (to, n) = enc.encode(out, &routes, 0, &mut buf).expect("encodes");
             let to = to[0];
             let frame: Frame<Report<'_>> = Report::decode(&buf[..n]).expect("decodes");
             seen.push((to, frame.seq, frame.body.tag() as u8));

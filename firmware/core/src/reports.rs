@@ -5,6 +5,7 @@
 
 use protocol::{State, limits};
 
+use crate::config::OWNER_TIMEOUT_US;
 use crate::hw::Endpoint;
 
 /// Owner endpoints that get the LOCATION reports at once: a few tools on the owner's
@@ -24,13 +25,30 @@ pub(crate) struct Listener {
     pub(crate) heard_us: u64,
 }
 
+impl Listener {
+    /// When it stops getting LOCATION reports unless heard from again (`kept`: it started
+    /// the upload or run under way, and never does).
+    pub(crate) fn until_us(&self, kept: bool) -> u64 {
+        if kept {
+            u64::MAX
+        } else {
+            self.heard_us.saturating_add(OWNER_TIMEOUT_US)
+        }
+    }
+}
+
 /// Settings the location upload needs, copied out after every change.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct ReportSettings {
     /// Where LOCATION reports go: each of these owner endpoints (none before any host
-    /// spoke).
+    /// spoke) until its time in `location_until_us`.
     pub location_to: [Option<Endpoint>; LOCATION_LISTENERS],
+    /// When each of `location_to` stops getting LOCATION reports unless it is heard from
+    /// again, microseconds: 5 s after its last CRC-valid frame, or `u64::MAX` for the
+    /// endpoint that started the upload or run under way. Checked when a report is sent,
+    /// so a tool that went away stops getting reports even if no later command comes.
+    pub location_until_us: [u64; LOCATION_LISTENERS],
     /// Where USART_RECV reports go (`None` before any host spoke).
     pub serial_to: Option<Endpoint>,
     /// LOCATION reports on.
@@ -42,14 +60,22 @@ pub struct ReportSettings {
 }
 
 impl ReportSettings {
-    /// Whether a LOCATION report has anywhere to go.
-    pub fn has_location_listener(&self) -> bool {
-        self.location_to.iter().any(Option::is_some)
+    /// The endpoints a LOCATION report sent at `now_us` goes to.
+    pub fn location_destinations(&self, now_us: u64) -> impl Iterator<Item = Endpoint> + '_ {
+        self.location_to
+            .iter()
+            .zip(self.location_until_us)
+            .filter_map(move |(to, until_us)| to.filter(|_| now_us < until_us))
     }
 
-    /// Whether `endpoint` gets LOCATION reports.
-    pub fn location_goes_to(&self, endpoint: Endpoint) -> bool {
-        self.location_to.contains(&Some(endpoint))
+    /// Whether a LOCATION report sent at `now_us` has anywhere to go.
+    pub fn has_location_listener(&self, now_us: u64) -> bool {
+        self.location_destinations(now_us).next().is_some()
+    }
+
+    /// Whether a LOCATION report sent at `now_us` goes to `endpoint`.
+    pub fn location_goes_to(&self, endpoint: Endpoint, now_us: u64) -> bool {
+        self.location_destinations(now_us).any(|to| to == endpoint)
     }
 
     /// Before the trajectory task first publishes the controller's: no report anywhere,
@@ -57,6 +83,7 @@ impl ReportSettings {
     /// a [`crate::Bus`] in a `static` is zero-initialised (`.bss`, not a flash copy).
     pub const UNPUBLISHED: ReportSettings = ReportSettings {
         location_to: [None; LOCATION_LISTENERS],
+        location_until_us: [0; LOCATION_LISTENERS],
         serial_to: None,
         reports_on: false,
         upload_period_us: 0,

@@ -145,7 +145,7 @@ fn every_ack_and_status_goes_to_its_sender_and_location_to_each_tool() {
     let r = s.send_raw(a, &frame(1, Command::Status));
     assert_eq!(r.reply.map(|r| r.to), Some(a));
     assert_eq!(r.status.map(|(to, _)| to), Some(a));
-    assert!(s.controller.report_settings().location_goes_to(a));
+    assert!(s.controller.report_settings().location_goes_to(a, s.now_us));
     let r = s.send_raw(b, &frame(2, Command::Status));
     assert_eq!(r.reply.map(|r| r.to), Some(b));
     assert_eq!(
@@ -155,7 +155,7 @@ fn every_ack_and_status_goes_to_its_sender_and_location_to_each_tool() {
     );
     let settings = s.controller.report_settings();
     assert!(
-        settings.location_goes_to(a) && settings.location_goes_to(b),
+        settings.location_goes_to(a, s.now_us) && settings.location_goes_to(b, s.now_us),
         "b's STATUS does not take LOCATION away from a: both get it"
     );
     // A stranger's STOPPED is ACKed to the stranger; its LOCATION goes to the owner's
@@ -165,8 +165,8 @@ fn every_ack_and_status_goes_to_its_sender_and_location_to_each_tool() {
     assert_eq!(r.reply.map(|r| r.to), Some(OTHER));
     assert_eq!(r.location.map(|l| l.state), Some(State::Stopped as u8));
     let settings = s.controller.report_settings();
-    assert!(settings.location_goes_to(a) && settings.location_goes_to(b));
-    assert!(!settings.location_goes_to(OTHER));
+    assert!(settings.location_goes_to(a, s.now_us) && settings.location_goes_to(b, s.now_us));
+    assert!(!settings.location_goes_to(OTHER, s.now_us));
 }
 
 // ---- docs/PROTOCOL.md, "Ordering, retransmission and duplicates" ----

@@ -331,14 +331,22 @@ fn owner_rule() {
         ..HOST
     };
     s.expect(Command::UploadStart, Ok);
-    assert!(s.controller.report_settings().location_goes_to(s.from));
+    assert!(
+        s.controller
+            .report_settings()
+            .location_goes_to(s.from, s.now_us)
+    );
     // A refused frame does not add its sender.
     s.from = Endpoint {
         port: 41_001,
         ..HOST
     };
     s.expect(Command::Runing, BadState);
-    assert!(!s.controller.report_settings().location_goes_to(s.from));
+    assert!(
+        !s.controller
+            .report_settings()
+            .location_goes_to(s.from, s.now_us)
+    );
     // After 5 s of silence, not running, another host takes over.
     s.now_us += OWNER_TIMEOUT_US - 100;
     let r = s.send_raw(OTHER, &frame(2, Command::Status)).reply.unwrap();

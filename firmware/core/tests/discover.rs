@@ -60,7 +60,11 @@ fn discover_is_answered_to_anyone_and_changes_nothing() {
     let d = s.send_raw(side_port, &discover(12)).discovery.unwrap();
     assert_eq!(d.reply.owner, OwnerState::Asker);
     assert_eq!(s.controller.report_settings(), before);
-    assert!(!s.controller.report_settings().location_goes_to(side_port));
+    assert!(
+        !s.controller
+            .report_settings()
+            .location_goes_to(side_port, s.now_us)
+    );
 
     // A resent DISCOVER (same bytes) is answered again: it is not a command to dedupe.
     assert!(s.send_raw(OTHER, &discover(10)).discovery.is_some());
@@ -184,7 +188,12 @@ fn discovery_goes_to_the_asker_with_its_seq_and_leaves_the_report_counter() {
     let mut encoder = ReportEncoder::new();
     let mut buf = [0u8; 300];
     let (to, n) = encoder
-        .encode(&Outgoing::Discovery(d), &ReportSettings::BOOT, &mut buf)
+        .encode(
+            &Outgoing::Discovery(d),
+            &ReportSettings::BOOT,
+            s.now_us,
+            &mut buf,
+        )
         .expect("sent even with no owner");
     assert_eq!(to.as_slice(), &[OTHER]);
     let frame = DiscoverReply::decode(&buf[..n]).expect("a DISCOVER_REPLY");

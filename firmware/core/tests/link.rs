@@ -149,7 +149,11 @@ fn status_answers_its_requester_and_location_keeps_going_to_the_uploader() {
         Some(TOOL),
         "STATUS to its requester"
     );
-    assert!(s.controller.report_settings().location_goes_to(HOST));
+    assert!(
+        s.controller
+            .report_settings()
+            .location_goes_to(HOST, s.now_us)
+    );
     s.send_raw(HOST, &pending(2, &pts));
     let r = s.send_raw(TOOL, &frame(8, Command::Status));
     assert_eq!(r.status.map(|(to, _)| to), Some(TOOL));
@@ -162,8 +166,8 @@ fn status_answers_its_requester_and_location_keeps_going_to_the_uploader() {
         s.send_raw(TOOL, &frame(20 + k, Command::Status));
     }
     let settings = s.controller.report_settings();
-    assert!(settings.location_goes_to(HOST), "{settings:?}");
-    assert!(settings.location_goes_to(TOOL));
+    assert!(settings.location_goes_to(HOST, s.now_us), "{settings:?}");
+    assert!(settings.location_goes_to(TOOL, s.now_us));
 }
 
 #[test]
@@ -178,7 +182,11 @@ fn usart_recv_goes_to_the_endpoint_that_opened_the_port() {
     assert_eq!(r.reply.unwrap().ack.status, Ok);
     s.send_raw(HOST, &frame(2, Command::Status));
     assert_eq!(s.controller.report_settings().serial_to, Some(TOOL));
-    assert!(s.controller.report_settings().location_goes_to(HOST));
+    assert!(
+        s.controller
+            .report_settings()
+            .location_goes_to(HOST, s.now_us)
+    );
 }
 
 #[test]
@@ -192,13 +200,17 @@ fn a_tool_gone_silent_gets_no_more_locations_and_a_new_one_gets_them_at_once() {
         ..HOST
     };
     s.send_raw(next, &frame(1, Command::Status));
-    assert!(s.controller.report_settings().location_goes_to(next));
+    assert!(
+        s.controller
+            .report_settings()
+            .location_goes_to(next, s.now_us)
+    );
     s.now_us += OWNER_TIMEOUT_US;
     s.send_raw(HOST, &frame(2, Command::Status));
     let settings = s.controller.report_settings();
-    assert!(settings.location_goes_to(HOST));
+    assert!(settings.location_goes_to(HOST, s.now_us));
     assert!(
-        !settings.location_goes_to(TOOL) && !settings.location_goes_to(next),
+        !settings.location_goes_to(TOOL, s.now_us) && !settings.location_goes_to(next, s.now_us),
         "silent 5 s: dropped {settings:?}"
     );
     // Many tools: the one heard least recently makes room.
@@ -209,8 +221,40 @@ fn a_tool_gone_silent_gets_no_more_locations_and_a_new_one_gets_them_at_once() {
         };
         s.now_us += 10;
         s.send_raw(e, &frame(1, Command::Status));
-        assert!(s.controller.report_settings().location_goes_to(e));
+        assert!(s.controller.report_settings().location_goes_to(e, s.now_us));
     }
+}
+
+#[test]
+fn a_tool_gone_silent_gets_no_more_locations_even_if_no_command_follows() {
+    // Once the listener list was only pruned when a later command executed: a poller that
+    // went away kept getting LOCATIONs for the whole of a long run nobody spoke during.
+    let mut s = Session::<64>::new(64);
+    let pts = points([0; 8], 2, 1);
+    s.send_raw(HOST, &frame(1, Command::New { count: 2 }));
+    s.send_raw(HOST, &pending(2, &pts));
+    s.send_raw(HOST, &frame(3, Command::Runing));
+    s.send_raw(TOOL, &frame(7, Command::Status));
+    let settings = s.controller.report_settings();
+    let heard_tool_us = s.now_us;
+    let just_before = heard_tool_us + OWNER_TIMEOUT_US - 1;
+    assert!(settings.location_goes_to(TOOL, just_before), "{settings:?}");
+    let silent = heard_tool_us + OWNER_TIMEOUT_US;
+    assert!(!settings.location_goes_to(TOOL, silent), "{settings:?}");
+    // The uploader started the run: it keeps its reports however long it waits.
+    let long_after = silent + 60 * OWNER_TIMEOUT_US;
+    assert!(settings.location_goes_to(HOST, long_after));
+    let mut encoder = arm_core::ReportEncoder::new();
+    let mut buf = [0u8; arm_core::outgoing::MAX_REPORT_FRAME];
+    let location = arm_core::Outgoing::Location(protocol::Location::default());
+    let (to, _) = encoder
+        .encode(&location, &settings, silent, &mut buf)
+        .expect("a LOCATION for the uploader");
+    assert_eq!(
+        to.as_slice(),
+        &[HOST],
+        "sent 5 s after the tool's last frame"
+    );
 }
 
 #[test]

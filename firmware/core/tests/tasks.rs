@@ -728,7 +728,11 @@ fn reports_queued_before_a_wait_go_to_the_sender_of_the_frame() {
             if let Ok(arm_core::Outgoing::Location(location)) = fx.bus.outbox.try_receive() {
                 // What the network task would read to address it, at this instant.
                 assert_eq!(location.state, State::Running as u8);
-                assert!(fx.bus.report_settings().location_goes_to(HOST));
+                assert!(
+                    fx.bus
+                        .report_settings()
+                        .location_goes_to(HOST, fx.clock.now_us())
+                );
                 return;
             }
             yield_now().await;

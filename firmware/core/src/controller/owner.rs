@@ -34,17 +34,21 @@ impl<const CAP: usize> Controller<CAP> {
         }
     }
 
+    /// The endpoint that keeps its LOCATION reports however long it is silent: the one
+    /// that started the upload or run, while the arm is not STOPPED.
+    pub(super) fn location_keeper(&self) -> Option<Endpoint> {
+        self.location_claimer
+            .filter(|_| self.state != State::Stopped)
+    }
+
     /// `from`, an owner endpoint whose command was executed, gets LOCATION reports from
     /// now on: it takes a free slot, or that of a listener silent for 5 s, or else that of
     /// the one heard least recently (never the claimer's while something runs).
     pub(super) fn listen(&mut self, from: Endpoint, now_us: u64) {
-        let keep_claimer = self.state != State::Stopped;
-        let claimer = self.location_claimer;
-        let protected = |l: &Listener| keep_claimer && Some(l.to) == claimer;
+        let keeper = self.location_keeper();
+        let protected = |l: &Listener| Some(l.to) == keeper;
         for slot in self.listeners.iter_mut() {
-            if slot.is_some_and(|l| {
-                !protected(&l) && now_us.saturating_sub(l.heard_us) >= OWNER_TIMEOUT_US
-            }) {
+            if slot.is_some_and(|l| now_us >= l.until_us(protected(&l))) {
                 *slot = None;
             }
         }

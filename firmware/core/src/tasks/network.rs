@@ -51,7 +51,8 @@ pub async fn network_task<D: Datagrams, C: Clock>(socket: &D, bus: &Bus, clock: 
                 );
             }
             let routes = bus.report_settings();
-            let Some((destinations, n)) = encoder.encode(&out, &routes, &mut buf) else {
+            let Some((destinations, n)) = encoder.encode(&out, &routes, clock.now_us(), &mut buf)
+            else {
                 continue;
             };
             for to in destinations {

@@ -34,7 +34,7 @@ pub async fn upload_task<const Q: usize, B: StepBackend, C: Clock>(
         match select(clock.sleep_until(next), bus.upload_changed.wait()).await {
             Either::First(()) => {
                 let settings = bus.report_settings();
-                if settings.reports_on && settings.has_location_listener() {
+                if settings.reports_on && settings.has_location_listener(clock.now_us()) {
                     bus.send(Outgoing::Location(protocol::Location {
                         position: step.positions(),
                         state: settings.state as u8,
