@@ -7,7 +7,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use arm_core::config::{BOARD_MAX_STEP_RATE_HZ, BOARD_TRAJECTORY_CAPACITY};
-use arm_core::tasks::{Bus, StepShared, TrajectoryHw};
+use arm_core::{Bus, StepShared, TrajectoryHw};
 use arm_core::{Controller, ControllerConfig};
 use arm_step::StepTiming;
 use embassy_executor::{Executor, Spawner};

@@ -18,7 +18,7 @@ use crate::probe::Probe;
 /// ([`arm_core::config::HOST_WINDOW`] = 32) plus 8 for other tools' commands, as the
 /// board's Ethernet ring. Beyond this the receiving thread waits and the kernel's socket
 /// buffer ([`SOCKET_RX_BYTES`]) holds the rest, as a NIC's ring would.
-const RX_QUEUE: usize = arm_core::tasks::INBOX_QUEUE;
+const RX_QUEUE: usize = arm_core::bus::INBOX_QUEUE;
 
 /// Receive buffer asked of the kernel: two windows of full-size datagrams at the kernel's
 /// cost per datagram (its buffer accounting charges the whole socket buffer of a

@@ -16,7 +16,7 @@ use std::sync::{Arc, Condvar, Mutex};
 use std::time::{Duration, Instant};
 
 use arm_core::hw::StepKick;
-use arm_core::tasks::{StepBackend, StepProgress};
+use arm_core::{StepBackend, StepProgress};
 use arm_step::{
     JointBuffer, MAX_JOINTS, NUCLEO_STEP_TIMER_MAX_PERIOD_TICKS, PRELUDE, PulsePeriod, Segment,
     StepPins, StepStreams, StepTiming,

@@ -13,8 +13,8 @@ use static_cell::StaticCell;
 /// Sockets in the stack: the controller's UDP socket and DHCP's.
 const SOCKETS: usize = 3;
 /// Datagrams the socket's receive side queues: a host's whole window (32, back to back)
-/// plus 8 for other tools' commands, as on the board ([`arm_core::tasks::INBOX_QUEUE`]).
-const RX_PACKETS: usize = arm_core::tasks::INBOX_QUEUE;
+/// plus 8 for other tools' commands, as on the board ([`arm_core::bus::INBOX_QUEUE`]).
+const RX_PACKETS: usize = arm_core::bus::INBOX_QUEUE;
 /// Receive payload bytes: [`RX_PACKETS`] full-size datagrams, plus one because smoltcp's
 /// packet ring never splits a datagram across its end.
 const RX_PAYLOAD_BYTES: usize = (RX_PACKETS + 1) * protocol::MAX_DATAGRAM;

@@ -39,7 +39,7 @@ pub const BOARD_PWM_TIMER_CLOCK_HZ: u32 = 200_000_000;
 // The protocol's timing and memory of ownership and duplicate detection, and the largest
 // host window, are declared once, in the protocol crate (hosts need them too).
 // The network path of the board and of sim-host is sized for `HOST_WINDOW`
-// (`tasks::INBOX_QUEUE`, the board's Ethernet ring and UDP socket).
+// (`bus::INBOX_QUEUE`, the board's Ethernet ring and UDP socket).
 pub use protocol::limits::{DUPLICATE_MEMORY, DUPLICATE_WINDOW_US, HOST_WINDOW, OWNER_TIMEOUT_US};
 
 /// Everything about the controller that differs between boards (and the simulator).

@@ -87,7 +87,9 @@ use crate::config::{ControllerConfig, HOST_WINDOW, OWNER_TIMEOUT_US};
 use crate::hw::{EncoderFault, Endpoint, PersistentSettings};
 use crate::link::{FrameKey, RecentFrames, UploadOrder};
 use crate::plan::ReturnPlan;
-use crate::reports::Listener;
+use crate::plant::Plant;
+use crate::reports::{LOCATION_LISTENERS, Listener, ReportSettings};
+use crate::response::{Deferred, Discovery, Reply, Response};
 use crate::uart::uart_frame;
 
 mod boot;
@@ -95,9 +97,6 @@ mod owner;
 mod runs;
 
 // The types the controller's API speaks in, kept at their old paths.
-pub use crate::plant::Plant;
-pub use crate::reports::{LOCATION_LISTENERS, ReportSettings};
-pub use crate::response::{Deferred, Discovery, Reply, Response};
 
 /// Every ENABLE line: joints 0-7 and the gripper (bit 8).
 pub const ALL_DRIVERS: u16 = limits::ENABLE_MASK_BITS;

@@ -56,7 +56,7 @@
 //! already was overtaken: it and the queued datagrams up to that STOPPED are handled as
 //! usual, each executed STOPPED applied again ([`Controller::stop_after_overtaken`]) right
 //! after the datagram it followed, all before any wait (a run one of them started never
-//! emits a pulse: the engine starts [`tasks::START_LEAD_US`] later, fed by the step task);
+//! emits a pulse: the engine starts [`step_shared::START_LEAD_US`] later, fed by the step task);
 //! a RETURN's encoder read is dropped, a settings write is done.
 #![no_std]
 // Firmware code never panics on data from the network: no indexing, no unwrap, no
@@ -91,16 +91,14 @@ pub mod test_support;
 pub mod uart;
 
 pub use buffer::{StoredPoint, TrajectoryBuffer};
+pub use bus::{Bus, Datagram};
 pub use config::ControllerConfig;
-pub use controller::{
-    Controller, Deferred, Discovery, LOCATION_LISTENERS, Owner, Plant, Reply, ReportSettings,
-    Response,
-};
+pub use controller::{Controller, Owner};
 pub use log_limit::{LogLimit, LogVerdict};
 pub use outgoing::{Outgoing, ReportEncoder};
 pub use plan::{ReturnPlan, plan_return};
-pub use step_shared::STEP_QUEUE;
-pub use tasks::{
-    Bus, Datagram, StepBackend, StepProgress, StepShared, TrajectoryHw, network_task,
-    on_step_timer, serial_task, step_task, trajectory_task, upload_task,
-};
+pub use plant::Plant;
+pub use reports::{LOCATION_LISTENERS, ReportSettings};
+pub use response::{Deferred, Discovery, Reply, Response};
+pub use step_shared::{STEP_QUEUE, StepBackend, StepProgress, StepShared, on_step_timer};
+pub use tasks::{TrajectoryHw, network_task, serial_task, step_task, trajectory_task, upload_task};

@@ -508,7 +508,7 @@ fn stopped_overtakes_queued_uploads() {
     // The network task's routing, before the trajectory task gets to run: a full inbox
     // of uploads, then a STOPPED.
     let mut routed = 0;
-    let sent = arm_core::tasks::INBOX_QUEUE + 12;
+    let sent = arm_core::bus::INBOX_QUEUE + 12;
     for seq in 0..sent as u8 {
         let cmd = if seq == 0 {
             Command::New { count: 100 }
@@ -522,7 +522,7 @@ fn stopped_overtakes_queued_uploads() {
     assert_eq!(fx.bus.inbox_drops(), 12);
     assert_eq!(
         fx.bus.inbox.len(),
-        arm_core::tasks::INBOX_QUEUE,
+        arm_core::bus::INBOX_QUEUE,
         "the rest was dropped"
     );
     bus_route(&fx.bus, STRANGER, &frame(99, Command::Stopped));
@@ -530,7 +530,7 @@ fn stopped_overtakes_queued_uploads() {
     let trajectory = fx.trajectory_task(&mut controller, &kick, TestSettings(None), NoEncoders);
     let driver = async {
         let mut acks = Vec::new();
-        while acks.len() < 1 + arm_core::tasks::INBOX_QUEUE {
+        while acks.len() < 1 + arm_core::bus::INBOX_QUEUE {
             if let Ok(arm_core::Outgoing::Ack(reply)) = fx.bus.outbox.try_receive() {
                 acks.push((reply.to, reply.seq));
             }

@@ -15,7 +15,7 @@ use core::sync::atomic::{AtomicI32, AtomicU8, Ordering};
 
 use arm_core::StepShared;
 use arm_core::hw::StepKick;
-use arm_core::tasks::on_step_timer;
+use arm_core::on_step_timer;
 use arm_step::{JointMask, StepPins, StepTiming};
 use cortex_m::peripheral::NVIC;
 

@@ -17,8 +17,8 @@ const SOCKETS: usize = 2;
 /// Datagrams the socket's receive side queues: a host's whole window
 /// ([`arm_core::config::HOST_WINDOW`] = 32, sent back to back) plus 8 for other tools'
 /// commands, the same 40 as the board's Ethernet ring and arm-core's inbox
-/// ([`arm_core::tasks::INBOX_QUEUE`]), so no stage drops a burst the next one could take.
-const UDP_RX_PACKETS: usize = arm_core::tasks::INBOX_QUEUE;
+/// ([`arm_core::bus::INBOX_QUEUE`]), so no stage drops a burst the next one could take.
+const UDP_RX_PACKETS: usize = arm_core::bus::INBOX_QUEUE;
 /// Receive buffer: 40 full-size datagrams, plus one more because smoltcp's packet ring
 /// never splits a datagram across its end (up to one datagram's bytes can sit unused
 /// there): 41 x 1472 = 60,352 bytes.

@@ -4,7 +4,7 @@
 use core::mem::MaybeUninit;
 
 use arm_core::StepShared;
-use arm_core::tasks::{StepBackend, StepProgress};
+use arm_core::{StepBackend, StepProgress};
 use arm_step::{
     DirChange, MAX_JOINTS, NUCLEO_STEP_TIMER_MAX_PERIOD_TICKS, PRELUDE, PulsePeriod, Segment,
     StepStreams, StepTiming,

@@ -1,7 +1,7 @@
 //! The DMA2 streams' half-transfer and transfer-complete interrupts: each refills the
 //! half its stream just left, or stops everything on an underrun or a transfer error.
 
-use arm_core::tasks::{StepBackend, StepProgress};
+use arm_core::{StepBackend, StepProgress};
 use arm_step::MAX_JOINTS;
 use embassy_stm32::{interrupt, pac};
 

@@ -11,11 +11,10 @@
 //! * [`serial_task`] (`serial.rs`): the USART pass-through.
 //!
 //! The queues, signals and the diagram of who sends what to whom are in [`crate::bus`];
-//! the step engine shared with the interrupts is in [`crate::step_shared`]. Both are
-//! re-exported here, so `arm_core::tasks::Bus` and the like keep working.
+//! the step engine shared with the interrupts is in [`crate::step_shared`].
 
 #[cfg(doc)]
-use crate::controller::Controller;
+use crate::{bus::Bus, controller::Controller, step_shared::StepShared};
 
 mod network;
 mod overtaken;
@@ -24,14 +23,6 @@ mod step;
 mod trajectory;
 mod upload;
 
-pub use crate::bus::{
-    Bus, Cs, Datagram, ESTOP_QUEUE, INBOX_QUEUE, OUTBOX_QUEUE, SEGMENT_QUEUE, SERIAL_TX_QUEUE,
-    SegmentMsg, is_stop,
-};
-pub use crate::step_shared::{
-    PushOutcome, START_LEAD_US, STEP_QUEUE, StepBackend, StepProgress, StepShared, StepState,
-    on_step_timer, us_to_ticks,
-};
 pub use network::network_task;
 pub use overtaken::{OvertakingStops, STOP_MEMORY};
 pub use serial::serial_task;
