@@ -35,9 +35,10 @@
 //! owner's endpoints (up to [`LOCATION_LISTENERS`]) whose commands were executed and that
 //! have not been silent for 5 s; the endpoint that started the upload or run (NEW,
 //! RETURN) or turned reports on (UPLOAD_START, UPLOAD_PERIOD) keeps them while anything
-//! runs, however long it is silent. The 5 s are checked each time a LOCATION is sent
-//! ([`ReportSettings::location_until_us`]), so a tool that went away stops getting them
-//! even while nobody speaks. So no tool takes another's reports: a watcher keeps
+//! runs, however long it is silent, and otherwise the endpoint heard most recently keeps
+//! them (so a host with one socket gets every report, as the manual has it). The 5 s are
+//! checked each time a LOCATION is sent ([`ReportSettings::location_until_us`]), so a tool
+//! that went away stops getting them even while nobody speaks. So no tool takes another's reports: a watcher keeps
 //! its LOCATIONs while a poller polls, and an uploader that waits for its first LOCATION
 //! gets it though another tool spoke last. USART_RECV goes to the endpoint that sent
 //! USART_START. At first everything goes to the endpoint that became the owner; one tool
@@ -95,8 +96,6 @@ use crate::uart::uart_frame;
 mod boot;
 mod owner;
 mod runs;
-
-// The types the controller's API speaks in, kept at their old paths.
 
 /// Every ENABLE line: joints 0-7 and the gripper (bit 8).
 pub const ALL_DRIVERS: u16 = limits::ENABLE_MASK_BITS;

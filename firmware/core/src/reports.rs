@@ -27,7 +27,8 @@ pub(crate) struct Listener {
 
 impl Listener {
     /// When it stops getting LOCATION reports unless heard from again (`kept`: it started
-    /// the upload or run under way, and never does).
+    /// the upload or run under way, or nothing runs and it was heard most recently, and
+    /// never does).
     pub(crate) fn until_us(&self, kept: bool) -> u64 {
         if kept {
             u64::MAX
@@ -46,7 +47,8 @@ pub struct ReportSettings {
     pub location_to: [Option<Endpoint>; LOCATION_LISTENERS],
     /// When each of `location_to` stops getting LOCATION reports unless it is heard from
     /// again, microseconds: 5 s after its last CRC-valid frame, or `u64::MAX` for the
-    /// endpoint that started the upload or run under way. Checked when a report is sent,
+    /// endpoint that started the upload or run under way (or, when nothing runs, the one
+    /// heard most recently). Checked when a report is sent,
     /// so a tool that went away stops getting reports even if no later command comes.
     pub location_until_us: [u64; LOCATION_LISTENERS],
     /// Where USART_RECV reports go (`None` before any host spoke).

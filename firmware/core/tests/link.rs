@@ -258,6 +258,27 @@ fn a_tool_gone_silent_gets_no_more_locations_even_if_no_command_follows() {
 }
 
 #[test]
+fn a_lone_host_that_only_listens_keeps_its_locations() {
+    // A host with one socket that turned reports on and then only listens, arm STOPPED:
+    // it is the endpoint heard most recently, so reports keep coming, as under the manual.
+    let mut s = Session::<64>::new(64);
+    s.send_raw(HOST, &frame(1, Command::UploadStart));
+    s.now_us += 1_000;
+    s.send_raw(TOOL, &frame(1, Command::Status));
+    let settings = s.controller.report_settings();
+    let much_later = s.now_us + 60 * OWNER_TIMEOUT_US;
+    assert!(settings.location_goes_to(TOOL, much_later), "{settings:?}");
+    assert!(
+        !settings.location_goes_to(HOST, much_later),
+        "the other one, silent, is dropped: {settings:?}"
+    );
+    let mut s = Session::<64>::new(64);
+    s.send_raw(HOST, &frame(1, Command::Status));
+    let settings = s.controller.report_settings();
+    assert!(settings.location_goes_to(HOST, s.now_us + 60 * OWNER_TIMEOUT_US));
+}
+
+#[test]
 fn one_tool_gets_every_report_as_before() {
     let mut s = Session::<64>::new(64);
     let r = s.send_raw(HOST, &frame(1, Command::Status));

@@ -34,19 +34,33 @@ impl<const CAP: usize> Controller<CAP> {
         }
     }
 
-    /// The endpoint that keeps its LOCATION reports however long it is silent: the one
-    /// that started the upload or run, while the arm is not STOPPED.
-    pub(super) fn location_keeper(&self) -> Option<Endpoint> {
+    /// The endpoint that started the upload or run, while the arm is not STOPPED.
+    fn running_claimer(&self) -> Option<Endpoint> {
         self.location_claimer
             .filter(|_| self.state != State::Stopped)
+    }
+
+    /// The endpoint that keeps its LOCATION reports however long it is silent: the one
+    /// that started the upload or run, while the arm is not STOPPED; otherwise the one
+    /// heard most recently, so that reports always go somewhere and a host with one
+    /// socket gets every report, as the manual has it.
+    pub(super) fn location_keeper(&self) -> Option<Endpoint> {
+        self.running_claimer().or_else(|| {
+            self.listeners
+                .iter()
+                .flatten()
+                .max_by_key(|l| l.heard_us)
+                .map(|l| l.to)
+        })
     }
 
     /// `from`, an owner endpoint whose command was executed, gets LOCATION reports from
     /// now on: it takes a free slot, or that of a listener silent for 5 s, or else that of
     /// the one heard least recently (never the claimer's while something runs).
     pub(super) fn listen(&mut self, from: Endpoint, now_us: u64) {
-        let keeper = self.location_keeper();
-        let protected = |l: &Listener| Some(l.to) == keeper;
+        // `from` is the one heard most recently from now on.
+        let keeper = self.running_claimer().unwrap_or(from);
+        let protected = |l: &Listener| l.to == keeper;
         for slot in self.listeners.iter_mut() {
             if slot.is_some_and(|l| now_us >= l.until_us(protected(&l))) {
                 *slot = None;
