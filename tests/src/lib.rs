@@ -34,30 +34,75 @@ pub fn limit_simulators(n: usize) {
     MAX_SIMULATORS.store(n.max(1), Ordering::Relaxed);
 }
 
-/// Simulators running now, and a wake-up for a free slot.
-static RUNNING: (Mutex<usize>, Condvar) = (Mutex::new(0), Condvar::new());
+/// Simulators running now in this test process.
+struct Running {
+    count: usize,
+    /// The test thread that runs its simulators alone ([`run_alone`]), if any.
+    alone: Option<std::thread::ThreadId>,
+}
+
+/// [`Running`], and a wake-up when a slot is freed or a test stops running alone.
+static RUNNING: (Mutex<Running>, Condvar) = (
+    Mutex::new(Running {
+        count: 0,
+        alone: None,
+    }),
+    Condvar::new(),
+);
 
 /// A slot among [`MAX_SIMULATORS`]; freed on drop.
 struct Slot;
 
 impl Slot {
     fn take() -> Slot {
-        let (count, freed) = &RUNNING;
-        let mut running = count.lock().unwrap_or_else(|e| e.into_inner());
-        while *running >= MAX_SIMULATORS.load(Ordering::Relaxed) {
-            running = freed.wait(running).unwrap_or_else(|e| e.into_inner());
+        let me = std::thread::current().id();
+        let (running, changed) = &RUNNING;
+        let mut running = running.lock().unwrap_or_else(|e| e.into_inner());
+        while running.count >= MAX_SIMULATORS.load(Ordering::Relaxed)
+            || running.alone.is_some_and(|alone| alone != me)
+        {
+            running = changed.wait(running).unwrap_or_else(|e| e.into_inner());
         }
-        *running += 1;
+        running.count += 1;
         Slot
     }
 }
 
 impl Drop for Slot {
     fn drop(&mut self) {
-        let (count, freed) = &RUNNING;
-        let mut running = count.lock().unwrap_or_else(|e| e.into_inner());
-        *running = running.saturating_sub(1);
-        freed.notify_one();
+        let (running, changed) = &RUNNING;
+        let mut running = running.lock().unwrap_or_else(|e| e.into_inner());
+        running.count = running.count.saturating_sub(1);
+        // Waiters wait for different things (a free slot, no simulator at all).
+        changed.notify_all();
+    }
+}
+
+/// While held, only the simulators this test thread starts run in this test process.
+pub struct Alone(());
+
+/// Waits until no simulator runs in this test process (call it before starting any), then
+/// lets only the calling thread start simulators until the guard drops: for a test that
+/// feeds a simulator in real time (its buffer runs dry if the CPU goes to a simulator
+/// another test overloads on purpose). The other tests of the binary wait; tests in other
+/// binaries run after it anyway (cargo test runs one binary at a time).
+pub fn run_alone() -> Alone {
+    let me = std::thread::current().id();
+    let (running, changed) = &RUNNING;
+    let mut running = running.lock().unwrap_or_else(|e| e.into_inner());
+    while running.count > 0 || running.alone.is_some() {
+        running = changed.wait(running).unwrap_or_else(|e| e.into_inner());
+    }
+    running.alone = Some(me);
+    Alone(())
+}
+
+impl Drop for Alone {
+    fn drop(&mut self) {
+        let (running, changed) = &RUNNING;
+        let mut running = running.lock().unwrap_or_else(|e| e.into_inner());
+        running.alone = None;
+        changed.notify_all();
     }
 }
 
