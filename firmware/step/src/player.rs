@@ -40,7 +40,8 @@ struct JointPlay {
     next: u64,
     /// Run tick at which period `next` starts.
     at: u64,
-    /// Run tick at which the pulse in progress falls; `u64::MAX`: STEP is low.
+    /// Run tick at which the pulse in progress falls; 0: STEP is low (a pulse rises at
+    /// tick 0 at the earliest and is at least one tick long).
     fall: u64,
     /// Run tick at which the timer enters its next half, where the board's stream raises
     /// its half/complete interrupt (the refill of the half it leaves).
@@ -48,11 +49,12 @@ struct JointPlay {
 }
 
 impl JointPlay {
+    /// All zeros (see [`StreamPlayer`]); nothing plays until `prime`.
     const IDLE: JointPlay = JointPlay {
         next: 0,
         at: 0,
-        fall: u64::MAX,
-        boundary: u64::MAX,
+        fall: 0,
+        boundary: 0,
     };
 }
 
@@ -71,8 +73,8 @@ pub struct Advance {
 /// timer's registers take) and double buffer, and where its timer is. `HALF` = periods
 /// per buffer half, as [`StepStreams`]'.
 ///
-/// All zero bytes but the play state: [`StreamPlayer::IDLE`] is small to copy into a
-/// static, and the buffers (`12 * 2 * HALF` bytes per joint) are zero.
+/// [`StreamPlayer::IDLE`] is all zero bytes, so that a static holding it (the buffers are
+/// `12 * 2 * HALF` bytes per joint) is `.bss`, not an image in flash copied at boot.
 #[derive(Debug)]
 pub struct StreamPlayer<const HALF: usize> {
     prelude: [[PulsePeriod; PRELUDE]; MAX_JOINTS],
@@ -192,14 +194,15 @@ impl<const HALF: usize> StreamPlayer<HALF> {
             // The earliest of: the pulse's fall, a DIR change, the next period's start
             // (a fall and a rise at one tick: the fall first, as a timer that ends one
             // period and starts the next).
+            let fall = if play.fall == 0 { u64::MAX } else { play.fall };
             let dir_at = dir.map_or(u64::MAX, |d| d.tick);
-            let next = play.fall.min(dir_at).min(play.at);
+            let next = fall.min(dir_at).min(play.at);
             if next > t {
                 break;
             }
-            if play.fall == next {
-                pins.step_low(j, play.fall);
-                self.joints[j].fall = u64::MAX;
+            if fall == next {
+                pins.step_low(j, fall);
+                self.joints[j].fall = 0;
             } else if let Some(DirChange { tick, positive }) = dir.filter(|_| dir_at == next) {
                 pins.set_direction(j, positive, tick);
                 streams.pop_dir_change(j);
@@ -271,7 +274,7 @@ impl<const HALF: usize> StreamPlayer<HALF> {
         self.advance(streams, t, pins);
         self.playing = false;
         for j in 0..MAX_JOINTS {
-            if self.joints[j].fall != u64::MAX {
+            if self.joints[j].fall != 0 {
                 pins.step_low(j, t);
             }
             let (first_unplayed, stale) = self.unplayed_from(j);
