@@ -106,12 +106,13 @@ async fn link_watch(stack: embassy_net::Stack<'static>) -> ! {
     arm_wiring::net::watch_link(stack, &BUS).await
 }
 
-/// Logs the pulses the step output emitted each time it comes to rest, so that a
-/// test can compare what left the "pins" with the positions the controller reports; and
-/// the Ethernet driver's error counters when they change.
+/// Logs the pulses the step output emitted (net, and rising edges) each time it comes to
+/// rest, so that a test can compare what left the "pins" with the positions the controller
+/// reports and the steps its trajectory asked for; and the Ethernet driver's error
+/// counters when they change.
 #[embassy_executor::task]
 async fn step_output_monitor() -> ! {
-    let mut logged = [0i32; arm_step::MAX_JOINTS];
+    let mut logged = ([0i32; arm_step::MAX_JOINTS], [0u32; arm_step::MAX_JOINTS]);
     let mut nic_errors = (0, 0);
     loop {
         embassy_time::Timer::after_millis(100).await;
@@ -128,17 +129,19 @@ async fn step_output_monitor() -> ! {
             nic_errors = errors;
         }
         let (running, late) = STEP.with_engine(|e| (e.is_running(), e.late_pulses()));
-        let pulses = step_out::LINES
-            .pulses
-            .each_ref()
-            .map(|p| p.load(Ordering::Relaxed));
-        if !running && pulses != logged {
+        let lines = &step_out::LINES;
+        let seen = (
+            lines.pulses.each_ref().map(|p| p.load(Ordering::Relaxed)),
+            lines.rising.each_ref().map(|r| r.load(Ordering::Relaxed)),
+        );
+        if !running && seen != logged {
             log::info!(
-                "step output at rest: pulses {:?}, late pulses {}",
-                pulses,
+                "step output at rest: pulses {:?}, rising edges {:?}, late pulses {}",
+                seen.0,
+                seen.1,
                 late
             );
-            logged = pulses;
+            logged = seen;
         }
     }
 }

@@ -21,14 +21,15 @@
 //! show them is late by up to one play interval.
 //!
 //! The STEP/DIR lines are a memory fake, [`StepLines`]: each rising edge moves that joint's
-//! pulse counter in its DIR direction, so the pulses "output" can be compared with the
-//! positions the controller reports. An emergency stop ([`StepBackend::stop`]) plays the
+//! pulse counter in its DIR direction (and counts in its edge counter), so the pulses
+//! "output" can be compared with the positions the controller reports and the steps the
+//! trajectory asked for (tests/tests/qemu.rs reads them from the log). An emergency stop ([`StepBackend::stop`]) plays the
 //! edges up to the stop's SYSCLK tick, cuts a pulse in progress, drops the rest (the
 //! positions keep only the pulses played, as the NUCLEO's unwind from its streams'
 //! positions) and lowers every STEP line before it returns.
 
 use core::mem::MaybeUninit;
-use core::sync::atomic::{AtomicI32, AtomicU8, Ordering};
+use core::sync::atomic::{AtomicI32, AtomicU8, AtomicU32, Ordering};
 
 use arm_core::hw::StepKick;
 use arm_core::{StepBackend, StepProgress, StepShared};
@@ -290,6 +291,8 @@ pub struct StepLines {
     pub dir: AtomicU8,
     /// Rising STEP edges per joint, +1 with DIR high, -1 with DIR low.
     pub pulses: [AtomicI32; MAX_JOINTS],
+    /// Rising STEP edges per joint.
+    pub rising: [AtomicU32; MAX_JOINTS],
 }
 
 /// The lines the player drives.
@@ -297,6 +300,7 @@ pub static LINES: StepLines = StepLines {
     step: AtomicU8::new(0),
     dir: AtomicU8::new(0),
     pulses: [const { AtomicI32::new(0) }; MAX_JOINTS],
+    rising: [const { AtomicU32::new(0) }; MAX_JOINTS],
 };
 
 /// [`TimedStepPins`] onto [`LINES`] (the edges' ticks only order them).
@@ -322,8 +326,9 @@ impl TimedStepPins for LineWriter {
         } else {
             -1
         };
-        if let Some(pulses) = LINES.pulses.get(joint) {
+        if let (Some(pulses), Some(rising)) = (LINES.pulses.get(joint), LINES.rising.get(joint)) {
             pulses.fetch_add(step, Ordering::Relaxed);
+            rising.fetch_add(1, Ordering::Relaxed);
         }
     }
 
