@@ -215,17 +215,29 @@ impl<const HALF: usize> StreamPlayer<HALF> {
                 self.joints[j].at = play.at + period.ticks();
                 self.joints[j].next = play.next + 1;
                 let n = play.next;
-                if n >= (PRELUDE + HALF) as u64 && (n - PRELUDE as u64).is_multiple_of(HALF as u64)
-                {
-                    // Entering a new half: the one before is free (the DMA has read it
-                    // all); the one entered was written before, so its end is known.
+                if n >= PRELUDE as u64 && (n - PRELUDE as u64).is_multiple_of(HALF as u64) {
+                    // Entering a half: the one before is free (the DMA has read it all),
+                    // except at the run's start (the prelude before it).
                     let entered = ((n - PRELUDE as u64) / HALF as u64 % 2) as usize;
-                    let freed = 1 - entered;
-                    let refill = streams.refill(j, freed, &mut self.buffers[j].periods[freed]);
-                    finished += refill.segments_finished;
+                    if n >= (PRELUDE + HALF) as u64 {
+                        let freed = 1 - entered;
+                        let refill = streams.refill(j, freed, &mut self.buffers[j].periods[freed]);
+                        finished += refill.segments_finished;
+                    }
+                    // The half entered was written before: its end is known.
                     let half = &self.buffers[j].periods[entered];
-                    self.joints[j].boundary =
-                        play.at + half.iter().map(PulsePeriod::ticks).sum::<u64>();
+                    let boundary = play.at + half.iter().map(PulsePeriod::ticks).sum::<u64>();
+                    self.joints[j].boundary = boundary;
+                    let quiet = half.iter().all(|period| period.high == 0);
+                    let dir_at = streams.next_dir_change(j).map_or(u64::MAX, |d| d.tick);
+                    if quiet && dir_at >= boundary {
+                        // No edge on this joint until the half's end (an idle joint's
+                        // fillers): its periods are played at once. Positions and a stop
+                        // see the same (they have no pulse), and the next refill is still
+                        // made at the boundary.
+                        self.joints[j].next = n + HALF as u64;
+                        self.joints[j].at = boundary;
+                    }
                 }
             }
         }
@@ -414,8 +426,9 @@ mod tests {
     }
 
     /// Segments that move every joint: reversals, pauses, fast and slow joints, gaps
-    /// longer than a 16-bit timer.
-    fn segments() -> Vec<Segment> {
+    /// longer than a 16-bit timer. `sparse`: only joint 0 moves in every segment, joint 3
+    /// in every fifth, the others never (idle joints' halves of fillers).
+    fn segments(sparse: bool) -> Vec<Segment> {
         let mut segments = Vec::new();
         let mut state = 0x9e37_79b9_u32;
         for k in 0..40u32 {
@@ -433,6 +446,13 @@ mod tests {
             }
             if k % 9 == 4 {
                 steps = [0; MAX_JOINTS];
+            }
+            if sparse {
+                for (j, s) in steps.iter_mut().enumerate() {
+                    if !(j == 0 || j == 3 && k % 5 == 0) {
+                        *s = 0;
+                    }
+                }
             }
             segments.push(Segment {
                 duration_us: 1_000 + (k % 5) * 700,
@@ -494,13 +514,22 @@ mod tests {
 
     #[test]
     fn plays_the_engines_edges_however_often_it_is_advanced() {
-        let segments = segments();
-        let oracle = engine_rises(&segments, 3_000);
-        let pulses: usize = oracle.iter().map(Vec::len).sum();
-        assert!(pulses > 10_000, "{pulses} pulses");
+        for sparse in [false, true] {
+            let segments = segments(sparse);
+            let oracle = engine_rises(&segments, 3_000);
+            let pulses: usize = oracle.iter().map(Vec::len).sum();
+            assert!(
+                pulses > if sparse { 500 } else { 10_000 },
+                "{pulses} pulses"
+            );
+            plays_as_the_engine(&segments, &oracle);
+        }
+    }
+
+    fn plays_as_the_engine(segments: &[Segment], oracle: &[Vec<u64>; MAX_JOINTS]) {
         for step in [0, 997, 20_000, 1_000_000] {
-            let (lines, positions) = play(&segments, 3_000, step);
-            assert_eq!(lines.rises, oracle, "advanced every {step} ticks");
+            let (lines, positions) = play(segments, 3_000, step);
+            assert_eq!(&lines.rises, oracle, "advanced every {step} ticks");
             assert_eq!(lines.pulses, positions, "advanced every {step} ticks");
             assert_eq!(lines.high, 0, "a STEP line left high");
             for j in 0..MAX_JOINTS {
@@ -514,7 +543,7 @@ mod tests {
 
     #[test]
     fn next_due_is_a_half_boundary_or_the_end() {
-        let segments = segments();
+        let segments = segments(false);
         let mut streams = StepStreams::<Q, HALF>::new(TIMING, MAX_PERIOD);
         for s in &segments[..Q] {
             streams.producer().push(*s).unwrap();
@@ -544,7 +573,12 @@ mod tests {
 
     #[test]
     fn a_stop_plays_up_to_its_tick_and_nothing_after() {
-        let segments = segments();
+        for sparse in [false, true] {
+            stops_as_the_engine(&segments(sparse));
+        }
+    }
+
+    fn stops_as_the_engine(segments: &[Segment]) {
         let oracle = engine_rises(&segments[..Q], 0);
         for stop_at in [0, 250, 1_000_000, 1_234_567, 1_500_000, 2_000_000] {
             let mut streams = StepStreams::<Q, HALF>::new(TIMING, MAX_PERIOD);
@@ -575,7 +609,12 @@ mod tests {
 
     #[test]
     fn positions_while_playing_count_the_played_pulses() {
-        let segments = segments();
+        for sparse in [false, true] {
+            positions_count_the_played_pulses(&segments(sparse));
+        }
+    }
+
+    fn positions_count_the_played_pulses(segments: &[Segment]) {
         let mut streams = StepStreams::<Q, HALF>::new(TIMING, MAX_PERIOD);
         for s in &segments[..Q] {
             streams.producer().push(*s).unwrap();
@@ -587,5 +626,30 @@ mod tests {
             player.advance(&mut streams, t, &mut lines);
             assert_eq!(player.positions(&streams), lines.pulses, "at {t}");
         }
+    }
+
+    #[test]
+    fn an_idle_joints_halves_are_played_whole() {
+        let segments = segments(true);
+        let mut streams = StepStreams::<Q, HALF>::new(TIMING, MAX_PERIOD);
+        for s in &segments[..Q] {
+            streams.producer().push(*s).unwrap();
+        }
+        let mut player = StreamPlayer::<HALF>::IDLE;
+        player.prime(&mut streams, 0);
+        let mut lines = Lines::default();
+        // (Past the prelude's two idle periods of 100 us.)
+        for t in (100_000..2_000_000).step_by(33_333) {
+            player.advance(&mut streams, t, &mut lines);
+            for j in [1, 2, 4, 5, 6, 7] {
+                let next = player.joints[j].next;
+                assert!(
+                    next >= PRELUDE as u64 && (next - PRELUDE as u64).is_multiple_of(HALF as u64),
+                    "joint {j} at {t}: period {next} is not the first of a half"
+                );
+            }
+        }
+        // Joints 0 and 3 moved meanwhile.
+        assert!(lines.rises[0].len() > 50 && lines.rises[3].len() > 10);
     }
 }
