@@ -88,11 +88,11 @@ pub const MAX_PERIOD_TICKS: [u32; MAX_JOINTS] = {
     ticks
 };
 
-/// Longest time between two plays while a run plays, SYSCLK cycles (1 ms): the lines
-/// and the positions the tasks read lag the present by at most this. A joint stepping
-/// slowly fills a half in long periods (64 pulses at 100 Hz: 0.64 s), which the NUCLEO's
-/// DMA plays live.
-pub const PLAY_INTERVAL_CYCLES: u64 = 1_000 * CYCLES_PER_US as u64;
+/// Longest time between two plays while a run plays, SYSCLK cycles (5 ms, as sim-host's
+/// step thread): the lines and the positions the tasks read lag the present by at most
+/// this. Without it they could lag by a half: a joint stepping slowly fills a half with
+/// long periods (64 pulses at 100 Hz: 0.64 s), which the NUCLEO's DMA plays live.
+pub const PLAY_INTERVAL_CYCLES: u64 = 5_000 * CYCLES_PER_US as u64;
 
 /// The producer and its buffers' bookkeeping.
 type Streams = StepStreams<STEP_QUEUE, HALF>;
