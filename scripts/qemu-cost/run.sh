@@ -3,7 +3,7 @@
 #  - one 12-point PENDING datagram, from the LAN9118 interrupt to its ACK written into the
 #    NIC's TX FIFO, and
 #  - one STOPPED during a run, from the LAN9118 interrupt to the step output stopped (the
-#    step interrupt lowering every STEP line).
+#    producer's stop, which plays the edges up to it, lowering every STEP line).
 #
 # Builds the firmware (`cargo qemu-fw`, the NUCLEO's release profile), runs it with one
 # instruction per translation block and the exec trace on (`-singlestep -d exec,nochain`,

@@ -24,7 +24,7 @@ use common::{
     Raw, out_of_order_names_the_missing_frame, pins_and_servo_pwm, raw_frames_are_refused,
     refusals_in_stopped, serial_round_trip, stop_mid_run, sweep,
 };
-use protocol::{Command, MAX_JOINTS, PointList, State, StatusCode, StatusFlags, Tag};
+use protocol::{Command, MAX_JOINTS, Point, PointList, State, StatusCode, StatusFlags, Tag};
 use system_tests::qemu::{FAULT_MARKERS, QemuBoard, echo, run_to_exit, unavailable};
 
 /// Skips the test, saying what it needs, when QEMU is not installed. The message goes to
@@ -53,6 +53,74 @@ fn position(board: &QemuBoard, arm: &Client) -> [i32; MAX_JOINTS] {
     arm.current_location(Duration::from_secs(3))
         .unwrap_or_else(|e| panic!("a LOCATION report: {e}\n{}", board.log()))
         .position
+}
+
+/// What the board's fake STEP lines saw since boot, per joint, as the last "step output
+/// at rest" line of its log says: the net pulses (rising edges signed by DIR) and the
+/// rising edges (no such line yet: none).
+fn lines_seen(log: &str) -> ([i32; MAX_JOINTS], [u32; MAX_JOINTS]) {
+    fn counts<T: std::str::FromStr>(list: &str) -> [T; MAX_JOINTS] {
+        let counts: Vec<T> = list
+            .split(',')
+            .map(|n| n.trim().parse().ok().expect("a count"))
+            .collect();
+        counts.try_into().ok().expect("one count per joint")
+    }
+    let Some(line) = log
+        .lines()
+        .rfind(|line| line.contains("step output at rest: pulses ["))
+    else {
+        return ([0; MAX_JOINTS], [0; MAX_JOINTS]);
+    };
+    let list = |after: &str| {
+        let (_, rest) = line.split_once(after).expect("the log line's format");
+        rest.split_once(']').expect("the log line's format").0
+    };
+    (counts(list("pulses [")), counts(list("rising edges [")))
+}
+
+/// Waits (3 s at most) until the STEP lines, at rest, have seen `moved` net pulses since
+/// boot (the edges played from the producer's buffers, signed by DIR) and rising edges
+/// that `rising_ok` accepts: what left the "pins" must be what the controller says it
+/// moved, and the steps the trajectory asked for.
+fn assert_lines_saw(
+    board: &QemuBoard,
+    moved: [i32; MAX_JOINTS],
+    rising_ok: impl Fn(&[u32; MAX_JOINTS]) -> bool,
+) {
+    let deadline = Instant::now() + Duration::from_secs(3);
+    loop {
+        let log = board.log();
+        let (pulses, rising) = lines_seen(&log);
+        if pulses == moved && rising_ok(&rising) {
+            return;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "the STEP lines saw {pulses:?} pulses ({rising:?} rising edges), the positions \
+             moved {moved:?}\n{log}"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+/// `to - from`, joint by joint.
+fn moved(from: [i32; MAX_JOINTS], to: [i32; MAX_JOINTS]) -> [i32; MAX_JOINTS] {
+    std::array::from_fn(|j| to[j] - from[j])
+}
+
+/// The steps (one pulse each) `points` ask of every joint from `start`: out and back
+/// counts both ways.
+fn steps_asked(start: [i32; MAX_JOINTS], points: &[Point]) -> [u32; MAX_JOINTS] {
+    let mut steps = [0; MAX_JOINTS];
+    let mut at = start;
+    for point in points {
+        for (j, steps) in steps.iter_mut().enumerate() {
+            *steps += point.position[j].abs_diff(at[j]);
+        }
+        at = point.position;
+    }
+    steps
 }
 
 fn refused(
@@ -143,7 +211,10 @@ fn run_reaches_the_last_point_and_executes_every_point() {
     assert_eq!(status.state, State::Stopped);
     assert_eq!(usize::from(status.executed), points.len());
     assert!(!status.flags.has(StatusFlags::UNDERRUN));
-    assert_eq!(position(&board, &arm)[..6], expected[..6]);
+    let end = position(&board, &arm);
+    assert_eq!(end[..6], expected[..6]);
+    let asked = steps_asked(start, &points);
+    assert_lines_saw(&board, moved(start, end), |rising| *rising == asked);
     assert!(
         report.total_time >= Duration::from_millis(1150),
         "{report:?}"
@@ -180,6 +251,9 @@ fn every_command_of_the_manual() {
         .unwrap_or_else(|e| panic!("RETURN: {e}\n{}", board.log()));
     assert_eq!(status.state, State::Stopped);
     assert_eq!(position(&board, &arm)[..3], [0, 0, 0]);
+    assert_lines_saw(&board, [-400, 300, -200, 0, 0, 0, 0, 0], |rising| {
+        *rising == [400, 300, 200, 0, 0, 0, 0, 0]
+    });
 
     // TOGGLE_ENABLE_PINS, PIN0/PIN1, gripper PWM.
     let enabled = arm
@@ -260,10 +334,10 @@ fn upload_streams_past_the_buffer_and_ends_exactly() {
     let status = report.final_status.unwrap();
     assert_eq!(usize::from(status.executed), points.len());
     assert!(!status.flags.has(StatusFlags::UNDERRUN), "{status:?}");
-    assert_eq!(
-        position(&board, &arm)[..2],
-        points.last().unwrap().position[..2]
-    );
+    let end = position(&board, &arm);
+    assert_eq!(end[..2], points.last().unwrap().position[..2]);
+    let asked = steps_asked([0; MAX_JOINTS], &points);
+    assert_lines_saw(&board, end, |rising| *rising == asked);
     board.assert_healthy();
 }
 
@@ -272,7 +346,9 @@ fn emergency_stop_mid_run_freezes_the_joints() {
     require_qemu!();
     let mut board = QemuBoard::start();
     let arm = Arc::new(board.connect_with(emulated()));
-    let points = sweep(position(&board, &arm), 6, 300, 3, 10_000);
+    let start = position(&board, &arm);
+    let points = sweep(start, 6, 300, 3, 10_000);
+    let asked = steps_asked(start, &points);
     let total = points.len();
     match stop_mid_run(&arm, points, Duration::from_millis(800)) {
         Err(Error::RunEnded {
@@ -288,6 +364,12 @@ fn emergency_stop_mid_run_freezes_the_joints() {
     let first = position(&board, &arm);
     std::thread::sleep(Duration::from_millis(300));
     assert_eq!(position(&board, &arm), first, "a joint moved after STOPPED");
+    assert_ne!(first, start, "nothing moved before the stop");
+    // Every joint had moved and none had finished; the pulses cut by the stop are
+    // neither counted nor played.
+    assert_lines_saw(&board, moved(start, first), |rising| {
+        (0..6).all(|j| rising[j] >= first[j].abs_diff(start[j]) && rising[j] < asked[j])
+    });
     board.assert_healthy();
 }
 
@@ -358,10 +440,10 @@ fn malformed_flood_during_a_run_changes_no_step() {
         !status.flags.has(StatusFlags::STOPPED_BY_HOST),
         "{status:?}"
     );
-    assert_eq!(
-        position(&board, &arm)[..6],
-        points.last().unwrap().position[..6]
-    );
+    let end = position(&board, &arm);
+    assert_eq!(end[..6], points.last().unwrap().position[..6]);
+    let asked = steps_asked([0; MAX_JOINTS], &points);
+    assert_lines_saw(&board, end, |rising| *rising == asked);
     board.assert_healthy();
 }
 
@@ -596,6 +678,8 @@ fn lossy_link_executes_the_same_steps_as_a_lossless_one() {
             .current_location(Duration::from_secs(3))
             .expect("LOCATION after the run")
             .position;
+        let asked = steps_asked([0; MAX_JOINTS], &points);
+        assert_lines_saw(&board, position, |rising| *rising == asked);
         board.assert_healthy();
         (report, position, points)
     };

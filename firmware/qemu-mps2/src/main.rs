@@ -3,7 +3,7 @@
 //!
 //! No board is attached to the machines this project is built on; this target runs the
 //! no_std firmware (executor on Cortex-M, critical sections, interrupts, embassy-net,
-//! arm-core's tasks and step engine) for real, over an emulated Ethernet link, in CI. The
+//! arm-core's tasks and arm-step's pulse producer) for real, over an emulated Ethernet link, in CI. The
 //! tasks, their wiring and their static allocation are the NUCLEO board's, from
 //! [`arm_wiring::controller_tasks!`]; only the chip-specific parts are here:
 //!
@@ -11,7 +11,7 @@
 //! |---|---|---|
 //! | Ethernet | STM32 MAC + LAN8742A, DMA | LAN9118 by PIO ([`lan9118`]) |
 //! | embassy-time | TIM5 | CMSDK timers 0 and 1 ([`time_driver`]) |
-//! | step timer | TIM2 compare, GPIO BSRR | dual timer one-shot, lines in memory ([`step_out`]) |
+//! | step output | arm-step's producer; joint timers + DMA play its buffers | the same producer; its buffers played in software (arm-step's `StreamPlayer`) at dual timer interrupts, lines in memory ([`step_out`]) |
 //! | serial pass-through | USART6 + DMA | CMSDK UART 1, interrupts ([`serial`]) |
 //! | gripper, PIN0/1, ENABLE | TIM15 PWM, GPIO | timed and logged fakes ([`devices`]) |
 //! | settings | flash (sequential-storage) | RAM |
@@ -106,12 +106,13 @@ async fn link_watch(stack: embassy_net::Stack<'static>) -> ! {
     arm_wiring::net::watch_link(stack, &BUS).await
 }
 
-/// Logs the pulses the step output emitted each time the engine comes to rest, so that a
-/// test can compare what left the "pins" with the positions the controller reports; and
-/// the Ethernet driver's error counters when they change.
+/// Logs the pulses the step output emitted (net, and rising edges) each time it comes to
+/// rest, so that a test can compare what left the "pins" with the positions the controller
+/// reports and the steps its trajectory asked for; and the Ethernet driver's error
+/// counters when they change.
 #[embassy_executor::task]
 async fn step_output_monitor() -> ! {
-    let mut logged = [0i32; arm_step::MAX_JOINTS];
+    let mut logged = ([0i32; arm_step::MAX_JOINTS], [0u32; arm_step::MAX_JOINTS]);
     let mut nic_errors = (0, 0);
     loop {
         embassy_time::Timer::after_millis(100).await;
@@ -128,17 +129,19 @@ async fn step_output_monitor() -> ! {
             nic_errors = errors;
         }
         let (running, late) = STEP.with_engine(|e| (e.is_running(), e.late_pulses()));
-        let pulses = step_out::LINES
-            .pulses
-            .each_ref()
-            .map(|p| p.load(Ordering::Relaxed));
-        if !running && pulses != logged {
+        let lines = &step_out::LINES;
+        let seen = (
+            lines.pulses.each_ref().map(|p| p.load(Ordering::Relaxed)),
+            lines.rising.each_ref().map(|r| r.load(Ordering::Relaxed)),
+        );
+        if !running && seen != logged {
             log::info!(
-                "step output at rest: pulses {:?}, late pulses {}",
-                pulses,
+                "step output at rest: pulses {:?}, rising edges {:?}, late pulses {}",
+                seen.0,
+                seen.1,
                 late
             );
-            logged = pulses;
+            logged = seen;
         }
     }
 }

@@ -29,7 +29,8 @@ pub extern "C" fn qemu_mark_frame_sent() {
     mark(2);
 }
 
-/// The step interrupt lowered every STEP line after a stop: the step output is stopped.
+/// A stop (`StepBackend::stop`, in the task that handles STOPPED, or the fault path) has
+/// lowered every STEP line: the step output is stopped.
 #[unsafe(no_mangle)]
 #[inline(never)]
 pub extern "C" fn qemu_mark_steps_stopped() {

@@ -1,35 +1,56 @@
-//! The step timer and the step output of the emulated board.
+//! The step output of the emulated board: arm-step's producer, as on the NUCLEO, played by
+//! a software model of the NUCLEO's joint timers and DMA streams.
 //!
-//! The CMSDK dual timer's first counter is a one-shot compare channel: loaded with the
-//! SYSCLK cycles to the engine's next deadline, it interrupts at zero, and the interrupt
-//! runs arm-core's [`on_step_timer`] exactly as the NUCLEO's TIM2 interrupt does (kicks pend
-//! it). Its time base is the time driver's 64-bit SYSCLK count, so step ticks are 40 ns.
+//! [`QemuSteps`] is this board's [`StepBackend`]: the same [`StepStreams`] (producer and
+//! per-joint double buffers of [`arm_step::PulsePeriod`]s, ARR/RCR/CCR1 values) as the
+//! NUCLEO's `BoardSteps`, with its buffer half ([`HALF`]), its prelude and its joint
+//! timers' ranges ([`MAX_PERIOD_TICKS`], the NUCLEO's in time). The producer fills the
+//! buffers and refills each half when the "stream" leaves it, exactly as the NUCLEO's
+//! refill interrupts do.
 //!
-//! The STEP/DIR lines are a memory fake, [`StepLines`]: the edges the engine writes set and
-//! clear bits in it, and each rising edge moves that joint's pulse counter in its DIR
-//! direction, so the pulses "output" can be compared with the engine's positions. Only this
-//! file and the pin writer are specific to the emulated board; the engine and its sharing
-//! with the tasks are arm-core's.
+//! What differs from the NUCLEO: mps2-an500 has no timer whose period and compare values a
+//! DMA can reload, so arm-step's [`StreamPlayer`] plays the buffers in software. The CMSDK
+//! dual timer's first counter (one-shot, on the time driver's 64-bit SYSCLK count: step
+//! ticks are 40 ns) interrupts where the NUCLEO's streams would raise their half-transfer /
+//! transfer-complete interrupts (a joint's timer entering a new half), at DIR changes, at
+//! the run's end, when kicked, and at least every [`PLAY_INTERVAL_CYCLES`] while a run
+//! plays (so that positions and lines lag the present by at most that). At each interrupt
+//! the player walks the periods that started since the last one and applies their edges
+//! to the fake STEP/DIR lines in tick order, then the refill writes the half just left.
+//! No interrupt per edge: the edges' ticks are the producer's, only the moment the lines
+//! show them is late by up to one play interval.
+//!
+//! The STEP/DIR lines are a memory fake, [`StepLines`]: each rising edge moves that joint's
+//! pulse counter in its DIR direction (and counts in its edge counter), so the pulses
+//! "output" can be compared with the positions the controller reports and the steps the
+//! trajectory asked for (tests/tests/qemu.rs reads them from the log). An emergency stop ([`StepBackend::stop`]) plays the
+//! edges up to the stop's SYSCLK tick, cuts a pulse in progress, drops the rest (the
+//! positions keep only the pulses played, as the NUCLEO's unwind from its streams'
+//! positions) and lowers every STEP line before it returns.
 
-use core::sync::atomic::{AtomicI32, AtomicU8, Ordering};
+use core::mem::MaybeUninit;
+use core::sync::atomic::{AtomicI32, AtomicU8, AtomicU32, Ordering};
 
-use arm_core::StepShared;
 use arm_core::hw::StepKick;
-use arm_core::on_step_timer;
-use arm_step::{JointMask, StepPins, StepTiming};
+use arm_core::{StepBackend, StepProgress, StepShared};
+use arm_step::{
+    MAX_JOINTS, NUCLEO_STEP_TIMER_MAX_PERIOD_TICKS, Segment, StepStreams, StepTiming, StreamPlayer,
+    TimedStepPins,
+};
 use cortex_m::peripheral::NVIC;
 
 use crate::mps2::{self, DUALTIMER, Irq, SYSCLK_HZ, write};
 use crate::time_driver::now_cycles;
 
-// Segments the engine holds on the interrupt's side (declared once, in arm-core).
+// Segments the producer holds on the interrupt's side (declared once, in arm-core).
 use arm_core::STEP_QUEUE;
 
 /// SYSCLK cycles per microsecond.
 const CYCLES_PER_US: u32 = SYSCLK_HZ / 1_000_000;
 
 /// Driver timing as the NUCLEO's default (opto-isolated drivers): 2.5 us STEP high,
-/// 2.5 us low, 5 us DIR setup.
+/// 2.5 us low, 5 us DIR setup. (The NUCLEO adds 5 us for its DIR interrupt's latency;
+/// here the player makes each DIR change at its tick, in order with the edges.)
 pub const STEP_TIMING: StepTiming = StepTiming {
     tick_hz: SYSCLK_HZ,
     pulse_width_ticks: 5 * CYCLES_PER_US / 2,
@@ -40,8 +61,209 @@ pub const STEP_TIMING: StepTiming = StepTiming {
 // The driver timing must leave room for the controller's advertised step rate.
 const _: () = assert!(STEP_TIMING.max_step_rate_hz() >= arm_core::config::BOARD_MAX_STEP_RATE_HZ);
 
-/// The step engine shared by the interrupt and the tasks.
-pub static STEP: StepShared<STEP_QUEUE> = StepShared::new(STEP_TIMING);
+/// Periods per buffer half: the NUCLEO's (declared once, with its reason, in arm-step).
+pub const HALF: usize = arm_step::NUCLEO_STEP_BUFFER_HALF;
+
+/// The NUCLEO's joint timer clock, which [`NUCLEO_STEP_TIMER_MAX_PERIOD_TICKS`] counts.
+const NUCLEO_STEP_TIMER_HZ: u64 = 200_000_000;
+
+/// The longest period of each joint's "timer": the NUCLEO's, in time (its 16-bit timers'
+/// 2^16 ticks at 200 MHz are 327.68 us, 8192 SYSCLK ticks here; its 32-bit ones' 21 s),
+/// so that gaps are split into the same periods and refills come as often as there.
+pub const MAX_PERIOD_TICKS: [u32; MAX_JOINTS] = {
+    let mut ticks = [0; MAX_JOINTS];
+    let mut j = 0;
+    while j < MAX_JOINTS {
+        #[allow(
+            clippy::indexing_slicing,
+            clippy::cast_possible_truncation,
+            reason = "const-evaluated: j < MAX_JOINTS; scaled down from a u32 (25 MHz < 200 MHz)"
+        )]
+        {
+            ticks[j] = (NUCLEO_STEP_TIMER_MAX_PERIOD_TICKS[j] as u64 * SYSCLK_HZ as u64
+                / NUCLEO_STEP_TIMER_HZ) as u32;
+        }
+        j += 1;
+    }
+    ticks
+};
+
+/// Longest time between two plays while a run plays, SYSCLK cycles (5 ms, as sim-host's
+/// step thread): the lines and the positions the tasks read lag the present by at most
+/// this. Without it they could lag by a half: a joint stepping slowly fills a half with
+/// long periods (64 pulses at 100 Hz: 0.64 s), which the NUCLEO's DMA plays live.
+pub const PLAY_INTERVAL_CYCLES: u64 = 5_000 * CYCLES_PER_US as u64;
+
+/// The producer and its buffers' bookkeeping.
+type Streams = StepStreams<STEP_QUEUE, HALF>;
+
+/// [`Streams`] once [`init`] has made them: not an `Option`, so that the static holding
+/// it is all zeros (`.bss`), as the NUCLEO's.
+pub struct StreamsSlot {
+    ready: bool,
+    value: MaybeUninit<Streams>,
+}
+
+impl StreamsSlot {
+    const EMPTY: StreamsSlot = StreamsSlot {
+        ready: false,
+        value: MaybeUninit::uninit(),
+    };
+
+    /// Builds the idle streams in the slot, once (in place: never on the stack).
+    fn init(&mut self) {
+        if !self.ready {
+            StepStreams::init_in_place(&mut self.value, STEP_TIMING, MAX_PERIOD_TICKS);
+            self.ready = true;
+        }
+    }
+
+    fn as_mut(&mut self) -> Option<&mut Streams> {
+        // SAFETY: `ready` is set only after `value` was written.
+        self.ready.then(|| unsafe { self.value.assume_init_mut() })
+    }
+
+    fn as_ref(&self) -> Option<&Streams> {
+        // SAFETY: as in `as_mut`.
+        self.ready.then(|| unsafe { self.value.assume_init_ref() })
+    }
+}
+
+/// This board's [`StepBackend`]: arm-step's producer and buffers, played by [`StreamPlayer`].
+pub struct QemuSteps {
+    streams: StreamsSlot,
+    player: StreamPlayer<HALF>,
+    /// SYSCLK cycle of the run's tick 0 (the "timers'" start), while a run plays.
+    origin: u64,
+    /// Segments finished while priming the run, reported with the next progress.
+    primed_finished: u32,
+}
+
+/// The backend shared by the tasks and the step interrupt. All zero bytes (the streams'
+/// slot is empty, the player idle): `.bss`.
+pub static STEP: StepShared<STEP_QUEUE, QemuSteps> = StepShared::with_backend(QemuSteps::new());
+
+impl QemuSteps {
+    /// Idle, without streams (set by [`init`]).
+    const fn new() -> Self {
+        QemuSteps {
+            streams: StreamsSlot::EMPTY,
+            player: StreamPlayer::IDLE,
+            origin: 0,
+            primed_finished: 0,
+        }
+    }
+
+    /// Whether a run is playing.
+    pub fn is_running(&self) -> bool {
+        self.player.is_playing()
+    }
+
+    /// Pulses the producer placed later than their ideal tick.
+    pub fn late_pulses(&self) -> u32 {
+        self.streams
+            .as_ref()
+            .map_or(0, |s| s.producer_ref().late_pulses())
+    }
+
+    /// The step interrupt's work at SYSCLK cycle `now`: plays every joint up to `now`
+    /// (edges, DIR changes, refills), ends the run at its end. Returns the cycle to play
+    /// at next (`None`: only when kicked) and the progress for the tasks.
+    fn play(&mut self, now: u64) -> (Option<u64>, StepProgress) {
+        let Some(streams) = self.streams.as_mut() else {
+            return (None, StepProgress::default());
+        };
+        if !self.player.is_playing() {
+            return (None, StepProgress::default());
+        }
+        let t = now.saturating_sub(self.origin);
+        let advance = self.player.advance(streams, t, &mut LineWriter);
+        let progress = StepProgress {
+            segments_finished: advance.segments_finished
+                + core::mem::take(&mut self.primed_finished),
+            ran_dry: advance.ended,
+        };
+        if !self.player.is_playing() {
+            // Every pulse of the run fell before its end.
+            return (None, progress);
+        }
+        let mut due = t.saturating_add(PLAY_INTERVAL_CYCLES);
+        if let Some(refill_or_end) = self.player.next_due(streams) {
+            due = due.min(refill_or_end);
+        }
+        if let Some(dir) = self.player.next_dir_change(streams) {
+            due = due.min(dir);
+        }
+        (Some(self.origin.saturating_add(due)), progress)
+    }
+}
+
+impl StepBackend for QemuSteps {
+    fn timing(&self) -> StepTiming {
+        STEP_TIMING
+    }
+
+    fn push(&mut self, segment: Segment) -> Result<(), Segment> {
+        match self.streams.as_mut() {
+            Some(streams) => streams.producer().push(segment),
+            None => Err(segment),
+        }
+    }
+
+    fn queued(&self) -> usize {
+        self.streams
+            .as_ref()
+            .map_or(0, |s| s.producer_ref().queued())
+    }
+
+    /// Primes every joint's prelude and buffer (the producer's work for the run's first
+    /// 2 * HALF periods) with the "timers" starting now; the kick that follows plays the
+    /// first DIR levels and arms the step timer.
+    fn start(&mut self, at_tick: u64) {
+        if self.player.is_playing() {
+            return;
+        }
+        let Some(streams) = self.streams.as_mut() else {
+            return;
+        };
+        let now = now_cycles();
+        let primed = self.player.prime(streams, at_tick.saturating_sub(now));
+        if primed.dir_overflow {
+            streams.producer().stop();
+            return;
+        }
+        self.origin = now;
+        self.primed_finished = primed.segments_finished;
+    }
+
+    /// Plays every edge up to now, cuts the pulses in progress, drops the rest and lowers
+    /// every STEP line: no STEP edge after this returns.
+    fn stop(&mut self) {
+        if let Some(streams) = self.streams.as_mut() {
+            let t = now_cycles().saturating_sub(self.origin);
+            self.player.stop(streams, t, &mut LineWriter);
+        }
+        self.primed_finished = 0;
+        disarm();
+        lower_every_step_line();
+    }
+
+    /// The pulses played so far (the producer's count less what is still in the
+    /// buffers), as on the NUCLEO; up to the last play.
+    fn positions(&self) -> [i32; MAX_JOINTS] {
+        self.streams
+            .as_ref()
+            .map_or([0; MAX_JOINTS], |s| self.player.positions(s))
+    }
+
+    fn set_positions(&mut self, positions: [i32; MAX_JOINTS]) -> bool {
+        !self.player.is_playing()
+            && self
+                .streams
+                .as_mut()
+                .is_some_and(|s| s.producer().set_positions(positions))
+    }
+}
 
 /// Dual timer registers (first counter).
 mod reg {
@@ -57,8 +279,8 @@ const CONTROL_ONE_SHOT_32: u32 = 1 | (1 << 1) | (1 << 5) | (1 << 7);
 /// Deadlines farther than this are armed at this distance and looked at again (the
 /// counter is 32 bits: 171 s).
 const MAX_ARMED_CYCLES: u64 = u32::MAX as u64;
-/// Engine polls in one interrupt before it pends itself again (as on the NUCLEO).
-const MAX_POLLS_PER_INTERRUPT: u32 = 8;
+/// Plays in one interrupt before it pends itself again (deadlines already past).
+const MAX_PLAYS_PER_INTERRUPT: u32 = 8;
 
 /// The STEP and DIR lines as memory: what a logic analyser on the NUCLEO would see, plus a
 /// signed count of the rising STEP edges per joint.
@@ -68,21 +290,24 @@ pub struct StepLines {
     /// Bit j = DIR line of joint j high (positive).
     pub dir: AtomicU8,
     /// Rising STEP edges per joint, +1 with DIR high, -1 with DIR low.
-    pub pulses: [AtomicI32; arm_step::MAX_JOINTS],
+    pub pulses: [AtomicI32; MAX_JOINTS],
+    /// Rising STEP edges per joint.
+    pub rising: [AtomicU32; MAX_JOINTS],
 }
 
-/// The lines the step interrupt writes.
+/// The lines the player drives.
 pub static LINES: StepLines = StepLines {
     step: AtomicU8::new(0),
     dir: AtomicU8::new(0),
-    pulses: [const { AtomicI32::new(0) }; arm_step::MAX_JOINTS],
+    pulses: [const { AtomicI32::new(0) }; MAX_JOINTS],
+    rising: [const { AtomicU32::new(0) }; MAX_JOINTS],
 };
 
-/// [`StepPins`] onto [`LINES`].
+/// [`TimedStepPins`] onto [`LINES`] (the edges' ticks only order them).
 struct LineWriter;
 
-impl StepPins for LineWriter {
-    fn set_direction(&mut self, joint: usize, positive: bool) {
+impl TimedStepPins for LineWriter {
+    fn set_direction(&mut self, joint: usize, positive: bool, _tick: u64) {
         let bit = 1u8 << (joint & 7);
         if positive {
             LINES.dir.fetch_or(bit, Ordering::Relaxed);
@@ -91,24 +316,33 @@ impl StepPins for LineWriter {
         }
     }
 
-    fn step_high(&mut self, joints: JointMask) {
-        let rising = joints & !LINES.step.fetch_or(joints, Ordering::Relaxed);
-        let dir = LINES.dir.load(Ordering::Relaxed);
-        for (j, pulses) in LINES.pulses.iter().enumerate() {
-            if rising & (1 << j) != 0 {
-                let step = if dir & (1 << j) != 0 { 1 } else { -1 };
-                pulses.fetch_add(step, Ordering::Relaxed);
-            }
+    fn step_high(&mut self, joint: usize, _tick: u64) {
+        let bit = 1u8 << (joint & 7);
+        if LINES.step.fetch_or(bit, Ordering::Relaxed) & bit != 0 {
+            return;
+        }
+        let step = if LINES.dir.load(Ordering::Relaxed) & bit != 0 {
+            1
+        } else {
+            -1
+        };
+        if let (Some(pulses), Some(rising)) = (LINES.pulses.get(joint), LINES.rising.get(joint)) {
+            pulses.fetch_add(step, Ordering::Relaxed);
+            rising.fetch_add(1, Ordering::Relaxed);
         }
     }
 
-    fn step_low(&mut self, joints: JointMask) {
-        LINES.step.fetch_and(!joints, Ordering::Relaxed);
-        if joints == 0xFF {
-            // Only a stop lowers every line at once.
-            crate::marks::step_output_stopped();
-        }
+    fn step_low(&mut self, joint: usize, _tick: u64) {
+        LINES
+            .step
+            .fetch_and(!(1u8 << (joint & 7)), Ordering::Relaxed);
     }
+}
+
+/// Every STEP line low: the step output is stopped (a stop, or the fault path).
+fn lower_every_step_line() {
+    LINES.step.store(0, Ordering::Relaxed);
+    crate::marks::step_output_stopped();
 }
 
 /// Handle on the step timer ([`StepKick`]).
@@ -127,18 +361,25 @@ impl StepKick for StepTimer {
     }
 }
 
-/// Stops the counter and enables its interrupt at the highest priority.
+/// Builds the idle streams, stops the counter and enables its interrupt at the highest
+/// priority.
 pub fn init() -> StepTimer {
-    write(DUALTIMER, reg::CONTROL, 0);
-    write(DUALTIMER, reg::INTCLR, 1);
+    STEP.with_engine(|steps| steps.streams.init());
+    disarm();
     mps2::enable(Irq::DualTimer, mps2::priority::STEP);
     StepTimer { _private: () }
 }
 
-/// Arms the counter for `deadline`; true if it has already passed (poll again now).
-fn arm(deadline: Option<u64>) -> bool {
+/// Stops the counter and clears its interrupt.
+fn disarm() {
     write(DUALTIMER, reg::CONTROL, 0);
     write(DUALTIMER, reg::INTCLR, 1);
+}
+
+/// Arms the counter for `deadline` (SYSCLK cycle); true if it has already passed (play
+/// again now).
+fn arm(deadline: Option<u64>) -> bool {
+    disarm();
     let Some(deadline) = deadline else {
         return false;
     };
@@ -152,10 +393,12 @@ fn arm(deadline: Option<u64>) -> bool {
     false
 }
 
-/// The step timer interrupt: a deadline, or a kick.
+/// The step timer interrupt: a half boundary, a DIR change, the run's end, the play
+/// interval, or a kick.
 pub fn on_interrupt() {
-    for _ in 0..MAX_POLLS_PER_INTERRUPT {
-        let next = on_step_timer(&STEP, now_cycles(), &mut LineWriter, &crate::BUS.step_wake);
+    for _ in 0..MAX_PLAYS_PER_INTERRUPT {
+        let now = now_cycles();
+        let next = STEP.on_interrupt(&crate::BUS.step_wake, |steps| steps.play(now));
         if !arm(next) {
             return;
         }

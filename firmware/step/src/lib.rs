@@ -3,7 +3,8 @@
 //! - [`PulseProducer`] / [`StepStreams`]: what the board runs. Each joint's STEP line is a
 //!   timer whose periods a DMA stream reloads from a double buffer; the producer computes
 //!   those periods (one division per segment, additions per pulse) when a buffer half is
-//!   freed. sim-host plays the same buffers in simulated time.
+//!   freed. Where there is no such timer (sim-host, the QEMU board), [`StreamPlayer`]
+//!   plays the same buffers in software, refilling at the same points.
 //! - [`StepEngine`]: edges made by an interrupt at each deadline, kept as the test oracle
 //!   (`tests/producer.rs` compares the two on more than 10 million pulses).
 //!
@@ -63,12 +64,14 @@ pub(crate) unsafe fn write_each<T: Copy, const N: usize>(array: *mut [T; N], val
 
 mod engine;
 mod joint;
+mod player;
 mod producer;
 mod ring;
 mod schedule;
 mod stream;
 
 pub use engine::StepEngine;
+pub use player::{Advance, StreamPlayer, TimedStepPins};
 pub use producer::{Filled, PulsePeriod, PulseProducer, sign_of};
 pub use stream::{DirChange, JointBuffer, PRELUDE, Refill, StepStreams};
 
