@@ -5,8 +5,8 @@
 //! ```text
 //!            Datagrams                                               StepPins
 //!   UDP <-> network_task --estop (STOPPED, first)--> trajectory_task     ^
-//!              ^   |     --inbox (everything else)-->   | Controller     | on_step_timer
-//!              |   |                                    | Outputs,       |   (ISR)
+//!              ^   |     --inbox (everything else)-->   | Controller     | step timer
+//!              |   |                                    | Outputs,       |   ISRs
 //!           outbox <----- ACK, STATUS, LOCATION --------+ Gripper,...  StepShared
 //!              ^   ^                                    |  \--stop/start-->  ^  |
 //!              |   |                          segments  v                    |  | step_wake
@@ -37,7 +37,7 @@ use crate::log_limit::{LogLimit, LogVerdict};
 use crate::outgoing::Outgoing;
 use crate::reports::ReportSettings;
 #[cfg(doc)]
-use crate::step_shared::{StepShared, on_step_timer};
+use crate::step_shared::StepShared;
 
 /// The mutex kind of every channel, signal and shared cell.
 pub type Cs = CriticalSectionRawMutex;
@@ -119,7 +119,7 @@ pub struct Bus {
     /// Segments cut from the trajectory buffer by `trajectory_task`; drained by
     /// `step_task` into the engine.
     pub segments: Channel<Cs, SegmentMsg, SEGMENT_QUEUE>,
-    /// Raised by the step interrupt ([`on_step_timer`]) when segments finished or the
+    /// Raised by the step interrupts (through [`StepShared`]) when segments finished or the
     /// engine ran dry; waited on by `step_task`.
     pub step_wake: Signal<Cs, ()>,
     /// Raised by `step_task` after it moved segments or was woken by the interrupt;

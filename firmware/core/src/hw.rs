@@ -51,11 +51,12 @@ pub trait Datagrams {
 }
 
 /// Asks the step timer for an interrupt as soon as possible (new segments, start, stop).
-/// The interrupt then runs [`arm_step::StepEngine::poll`].
+/// The interrupt then does the backend's timer work (the producer's DIR changes and run
+/// end on the board; [`arm_step::StepEngine::poll`] for the engine).
 pub trait StepKick {
     /// Requests an immediate step timer interrupt. Callable from any context.
     fn kick(&self);
-    /// Current step timer tick (same time base as `StepEngine::poll`).
+    /// Current step timer tick (the time base of the backend's ticks).
     fn now_tick(&self) -> u64;
 }
 

@@ -18,9 +18,10 @@
 //!    STOPPED overtook queued datagrams.
 //! 3. The controller hands buffered points to its [`Plant`] as segments
 //!    ([`Controller::pump`]), which the trajectory task's puts on `bus.segments`;
-//!    [`tasks::step_task`] (`tasks/step.rs`) pushes them into the engine in
-//!    [`StepShared`] (`step_shared.rs`: the engine shared with the step interrupts, whose
-//!    body is [`on_step_timer`]), which makes the pulses and reports progress back.
+//!    [`tasks::step_task`] (`tasks/step.rs`) pushes them into the step backend in
+//!    [`StepShared`] (`step_shared.rs`: the backend shared with the step interrupts; the
+//!    boards' and the simulator's is arm-step's DMA stream producer), which makes the
+//!    pulses and reports progress back.
 //! 4. Replies go out the other way: ACK, STATUS and state-change LOCATION onto
 //!    `bus.outbox`, encoded and addressed by [`ReportEncoder`] (`outgoing.rs`, with
 //!    [`ReportSettings`] from `reports.rs`), sent by the network task. Periodic LOCATION

@@ -40,8 +40,10 @@ impl StepPins for NoPins {
     fn step_low(&mut self, _joints: arm_step::JointMask) {}
 }
 
-/// What the tasks need from whatever makes the step pulses: [`StepEngine`] (edges made by
-/// an interrupt; the simulator) or the DMA streams' producer (the board). Called inside
+/// What the tasks need from whatever makes the step pulses: arm-step's DMA stream producer
+/// (the board's timers play its buffers; the QEMU board and the simulator play them in
+/// software with arm-step's `StreamPlayer`) or [`StepEngine`] (edges made by an interrupt
+/// per deadline: arm-core's own task tests, through [`on_step_timer`]). Called inside
 /// [`StepShared`]'s critical section: implementations must not block.
 pub trait StepBackend {
     /// Timer resolution and driver timing.
@@ -288,7 +290,8 @@ impl<const Q: usize> StepShared<Q> {
     }
 }
 
-/// What the step timer interrupt calls (board and simulator alike): emits the edges due
+/// The step timer interrupt's body for the default [`StepEngine`] backend (arm-core's
+/// task tests; the boards and the simulator use the producer): emits the edges due
 /// at `now_tick`, records finished segments and running dry for the tasks (waking
 /// `wake`, the bus's `step_wake`), and returns the tick to be called again at (`None`:
 /// only when kicked).
