@@ -1,7 +1,7 @@
 //! The step output of the emulated board: arm-step's producer, as on the NUCLEO, played by
 //! a software model of the NUCLEO's joint timers and DMA streams.
 //!
-//! [`QemuSteps`] is this board's [`StepBackend`]: the same [`StepStreams`] (producer and
+//! [`QemuSteps`] is this board's [`StepBackend`]: the same [`StepStreams`](arm_step::StepStreams) (producer and
 //! per-joint double buffers of [`arm_step::PulsePeriod`]s, ARR/RCR/CCR1 values) as the
 //! NUCLEO's `BoardSteps`, with its buffer half ([`HALF`]), its prelude and its joint
 //! timers' ranges ([`MAX_PERIOD_TICKS`], the NUCLEO's in time). The producer fills the
@@ -28,13 +28,12 @@
 //! positions keep only the pulses played, as the NUCLEO's unwind from its streams'
 //! positions) and lowers every STEP line before it returns.
 
-use core::mem::MaybeUninit;
 use core::sync::atomic::{AtomicI32, AtomicU8, AtomicU32, Ordering};
 
 use arm_core::hw::StepKick;
 use arm_core::{StepBackend, StepProgress, StepShared};
 use arm_step::{
-    MAX_JOINTS, NUCLEO_STEP_TIMER_MAX_PERIOD_TICKS, Segment, StepStreams, StepTiming, StreamPlayer,
+    MAX_JOINTS, NUCLEO_STEP_TIMER_MAX_PERIOD_TICKS, Segment, StepTiming, StreamPlayer, StreamsSlot,
     TimedStepPins,
 };
 use cortex_m::peripheral::NVIC;
@@ -94,44 +93,9 @@ pub const MAX_PERIOD_TICKS: [u32; MAX_JOINTS] = {
 /// long periods (64 pulses at 100 Hz: 0.64 s), which the NUCLEO's DMA plays live.
 pub const PLAY_INTERVAL_CYCLES: u64 = 5_000 * CYCLES_PER_US as u64;
 
-/// The producer and its buffers' bookkeeping.
-type Streams = StepStreams<STEP_QUEUE, HALF>;
-
-/// [`Streams`] once [`init`] has made them: not an `Option`, so that the static holding
-/// it is all zeros (`.bss`), as the NUCLEO's.
-pub struct StreamsSlot {
-    ready: bool,
-    value: MaybeUninit<Streams>,
-}
-
-impl StreamsSlot {
-    const EMPTY: StreamsSlot = StreamsSlot {
-        ready: false,
-        value: MaybeUninit::uninit(),
-    };
-
-    /// Builds the idle streams in the slot, once (in place: never on the stack).
-    fn init(&mut self) {
-        if !self.ready {
-            StepStreams::init_in_place(&mut self.value, STEP_TIMING, MAX_PERIOD_TICKS);
-            self.ready = true;
-        }
-    }
-
-    fn as_mut(&mut self) -> Option<&mut Streams> {
-        // SAFETY: `ready` is set only after `value` was written.
-        self.ready.then(|| unsafe { self.value.assume_init_mut() })
-    }
-
-    fn as_ref(&self) -> Option<&Streams> {
-        // SAFETY: as in `as_mut`.
-        self.ready.then(|| unsafe { self.value.assume_init_ref() })
-    }
-}
-
 /// This board's [`StepBackend`]: arm-step's producer and buffers, played by [`StreamPlayer`].
 pub struct QemuSteps {
-    streams: StreamsSlot,
+    streams: StreamsSlot<STEP_QUEUE, HALF>,
     player: StreamPlayer<HALF>,
     /// SYSCLK cycle of the run's tick 0 (the "timers'" start), while a run plays.
     origin: u64,
@@ -162,7 +126,7 @@ impl QemuSteps {
     /// Pulses the producer placed later than their ideal tick.
     pub fn late_pulses(&self) -> u32 {
         self.streams
-            .as_ref()
+            .get()
             .map_or(0, |s| s.producer_ref().late_pulses())
     }
 
@@ -170,7 +134,7 @@ impl QemuSteps {
     /// (edges, DIR changes, refills), ends the run at its end. Returns the cycle to play
     /// at next (`None`: only when kicked) and the progress for the tasks.
     fn play(&mut self, now: u64) -> (Option<u64>, StepProgress) {
-        let Some(streams) = self.streams.as_mut() else {
+        let Some(streams) = self.streams.get_mut() else {
             return (None, StepProgress::default());
         };
         if !self.player.is_playing() {
@@ -204,16 +168,11 @@ impl StepBackend for QemuSteps {
     }
 
     fn push(&mut self, segment: Segment) -> Result<(), Segment> {
-        match self.streams.as_mut() {
-            Some(streams) => streams.producer().push(segment),
-            None => Err(segment),
-        }
+        self.streams.push(segment)
     }
 
     fn queued(&self) -> usize {
-        self.streams
-            .as_ref()
-            .map_or(0, |s| s.producer_ref().queued())
+        self.streams.queued()
     }
 
     /// Primes every joint's prelude and buffer (the producer's work for the run's first
@@ -223,7 +182,7 @@ impl StepBackend for QemuSteps {
         if self.player.is_playing() {
             return;
         }
-        let Some(streams) = self.streams.as_mut() else {
+        let Some(streams) = self.streams.get_mut() else {
             return;
         };
         let now = now_cycles();
@@ -239,7 +198,7 @@ impl StepBackend for QemuSteps {
     /// Plays every edge up to now, cuts the pulses in progress, drops the rest and lowers
     /// every STEP line: no STEP edge after this returns.
     fn stop(&mut self) {
-        if let Some(streams) = self.streams.as_mut() {
+        if let Some(streams) = self.streams.get_mut() {
             let t = now_cycles().saturating_sub(self.origin);
             self.player.stop(streams, t, &mut LineWriter);
         }
@@ -252,7 +211,7 @@ impl StepBackend for QemuSteps {
     /// buffers), as on the NUCLEO; up to the last play.
     fn positions(&self) -> [i32; MAX_JOINTS] {
         self.streams
-            .as_ref()
+            .get()
             .map_or([0; MAX_JOINTS], |s| self.player.positions(s))
     }
 
@@ -260,7 +219,7 @@ impl StepBackend for QemuSteps {
         !self.player.is_playing()
             && self
                 .streams
-                .as_mut()
+                .get_mut()
                 .is_some_and(|s| s.producer().set_positions(positions))
     }
 }
@@ -364,7 +323,7 @@ impl StepKick for StepTimer {
 /// Builds the idle streams, stops the counter and enables its interrupt at the highest
 /// priority.
 pub fn init() -> StepTimer {
-    STEP.with_engine(|steps| steps.streams.init());
+    STEP.with_engine(|steps| steps.streams.init(STEP_TIMING, MAX_PERIOD_TICKS));
     disarm();
     mps2::enable(Irq::DualTimer, mps2::priority::STEP);
     StepTimer { _private: () }

@@ -73,7 +73,7 @@ mod stream;
 pub use engine::StepEngine;
 pub use player::{Advance, StreamPlayer, TimedStepPins};
 pub use producer::{Filled, PulsePeriod, PulseProducer, sign_of};
-pub use stream::{DirChange, JointBuffer, PRELUDE, Refill, StepStreams};
+pub use stream::{DirChange, JointBuffer, PRELUDE, Refill, StepStreams, StreamsSlot};
 
 /// Joints the engine drives.
 pub const MAX_JOINTS: usize = 8;

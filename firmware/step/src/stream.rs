@@ -19,7 +19,7 @@
 use core::mem::MaybeUninit;
 
 use crate::producer::{PulsePeriod, PulseProducer, sign_of};
-use crate::{MAX_JOINTS, StepTiming, write_each};
+use crate::{MAX_JOINTS, Segment, StepTiming, write_each};
 
 /// Periods the timer's registers take before the DMA starts: the first period goes into
 /// the active registers (through an update event), the second into the preload ones.
@@ -129,6 +129,58 @@ pub struct StepStreams<const Q: usize, const HALF: usize> {
     /// it, per joint: that period may still be in the timer's preload register.
     evicted: [[i8; 2]; MAX_JOINTS],
     dirs: [DirRing; MAX_JOINTS],
+}
+
+/// A static's place for [`StepStreams`], built in place once at boot
+/// ([`StreamsSlot::init`]). Not an `Option`: its `None` would use a niche of the streams'
+/// fields and not be all zeros, and the static holding it would go to `.data` (a 14 KiB
+/// image in flash, copied at boot) instead of `.bss`. The NUCLEO and the QEMU board hold
+/// their streams in one.
+pub struct StreamsSlot<const Q: usize, const HALF: usize> {
+    ready: bool,
+    value: MaybeUninit<StepStreams<Q, HALF>>,
+}
+
+impl<const Q: usize, const HALF: usize> StreamsSlot<Q, HALF> {
+    /// No streams yet: all zero bytes.
+    pub const EMPTY: Self = StreamsSlot {
+        ready: false,
+        value: MaybeUninit::uninit(),
+    };
+
+    /// Builds idle streams in the slot, once (in place: never on the stack).
+    pub fn init(&mut self, timing: StepTiming, max_period_ticks: [u32; MAX_JOINTS]) {
+        if !self.ready {
+            StepStreams::init_in_place(&mut self.value, timing, max_period_ticks);
+            self.ready = true;
+        }
+    }
+
+    /// The streams, once built.
+    pub fn get_mut(&mut self) -> Option<&mut StepStreams<Q, HALF>> {
+        // SAFETY: `ready` is set only after `value` was written.
+        self.ready.then(|| unsafe { self.value.assume_init_mut() })
+    }
+
+    /// The streams, once built, read-only.
+    pub fn get(&self) -> Option<&StepStreams<Q, HALF>> {
+        // SAFETY: as in `get_mut`.
+        self.ready.then(|| unsafe { self.value.assume_init_ref() })
+    }
+
+    /// Queues a segment in the producer; gives it back when it is full or the streams are
+    /// not built yet.
+    pub fn push(&mut self, segment: Segment) -> Result<(), Segment> {
+        match self.get_mut() {
+            Some(streams) => streams.producer().push(segment),
+            None => Err(segment),
+        }
+    }
+
+    /// Segments the producer holds.
+    pub fn queued(&self) -> usize {
+        self.get().map_or(0, |s| s.producer_ref().queued())
+    }
 }
 
 /// The idle value of one joint's share of every [`StepStreams`] field but the producer

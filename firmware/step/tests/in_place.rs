@@ -8,7 +8,7 @@ use core::mem::MaybeUninit;
 
 use arm_step::{
     JointBuffer, MAX_JOINTS, NUCLEO_STEP_TIMER_MAX_PERIOD_TICKS, PRELUDE, PulsePeriod, Refill,
-    Segment, StepStreams, StepTiming,
+    Segment, StepStreams, StepTiming, StreamsSlot,
 };
 use proptest::prelude::*;
 
@@ -220,6 +220,27 @@ fn in_place_streams_refill_like_new_ones() {
         NUCLEO_STEP_TIMER_MAX_PERIOD_TICKS,
         &[reversal.to_vec(), long.to_vec(), reversal.to_vec()],
     );
+}
+
+/// A `StreamsSlot` (a static's place for the streams, as the NUCLEO and the QEMU board keep
+/// them) holds nothing and takes no segment until `init`; after `init` it holds the same
+/// streams as `new` (once: a second `init` changes nothing). That an empty one is all zero
+/// bytes, so `.bss`, is what `scripts/fw-size.sh` checks (`.data` stays small).
+#[test]
+fn a_streams_slot_is_empty_until_init_then_holds_new_streams() {
+    let mut slot = Box::new(StreamsSlot::<QUEUE, HALF>::EMPTY);
+    assert!(slot.get().is_none());
+    assert_eq!(slot.queued(), 0);
+    let first = segment(1_000, [10, 0, 0, 0, 0, 0, 0, 0]);
+    assert_eq!(slot.push(first), Err(first), "no streams yet: given back");
+
+    slot.init(BOARD, NUCLEO_STEP_TIMER_MAX_PERIOD_TICKS);
+    let fresh = by_value(BOARD, NUCLEO_STEP_TIMER_MAX_PERIOD_TICKS);
+    assert_eq!(state(slot.get().expect("built")), state(&fresh));
+    assert_eq!(slot.push(first), Ok(()));
+    assert_eq!(slot.queued(), 1);
+    slot.init(BOARD, NUCLEO_STEP_TIMER_MAX_PERIOD_TICKS);
+    assert_eq!(slot.queued(), 1, "a second init keeps the streams");
 }
 
 proptest! {

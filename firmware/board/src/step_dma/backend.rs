@@ -1,14 +1,9 @@
 //! [`BoardSteps`], the board's [`StepBackend`]: arm-step's producer and the DMA buffers
 //! driving the joint timers, and [`STEP`], where the tasks and the step interrupts share it.
 
-use core::mem::MaybeUninit;
-
 use arm_core::StepShared;
 use arm_core::{StepBackend, StepProgress};
-use arm_step::{
-    DirChange, MAX_JOINTS, NUCLEO_STEP_TIMER_MAX_PERIOD_TICKS, PRELUDE, PulsePeriod, Segment,
-    StepStreams, StepTiming,
-};
+use arm_step::{DirChange, MAX_JOINTS, PRELUDE, PulsePeriod, Segment, StepTiming, StreamsSlot};
 
 use super::registers::{StreamPosition, joint_timer, load_joint, reg, stream_position};
 use super::stop::stop_all_step_outputs;
@@ -30,51 +25,11 @@ enum Run {
     },
 }
 
-/// The producer and its buffers' bookkeeping.
-type Streams = StepStreams<STEP_QUEUE, HALF>;
-
-/// [`Streams`] once [`super::init`] has made them. Not an `Option`: its `None` would use a niche
-/// of the streams' fields and not be all zeros, and the static holding it would go to
-/// .data (a 14 KiB image in flash, copied at boot) instead of .bss.
-pub struct StreamsSlot {
-    ready: bool,
-    value: MaybeUninit<Streams>,
-}
-
-impl StreamsSlot {
-    const EMPTY: StreamsSlot = StreamsSlot {
-        ready: false,
-        value: MaybeUninit::uninit(),
-    };
-
-    /// Builds the idle streams in the slot, once (in place: never on the stack).
-    pub(super) fn init(&mut self) {
-        if !self.ready {
-            StepStreams::init_in_place(
-                &mut self.value,
-                STEP_TIMING,
-                NUCLEO_STEP_TIMER_MAX_PERIOD_TICKS,
-            );
-            self.ready = true;
-        }
-    }
-
-    fn as_mut(&mut self) -> Option<&mut Streams> {
-        // SAFETY: `ready` is set only after `value` was written.
-        self.ready.then(|| unsafe { self.value.assume_init_mut() })
-    }
-
-    fn as_ref(&self) -> Option<&Streams> {
-        // SAFETY: as in `as_mut`.
-        self.ready.then(|| unsafe { self.value.assume_init_ref() })
-    }
-}
-
 /// The board's [`StepBackend`]: arm-step's producer and buffers driving the timers.
 pub struct BoardSteps {
-    /// Set by [`super::init`]; `None` before (so that the static is all zeros: .bss, not a
-    /// 14 KiB .data image copied from flash at boot).
-    pub(super) streams: StreamsSlot,
+    /// Built by [`super::init`] (an empty slot before, so that the static is all zeros:
+    /// .bss, not a 14 KiB .data image copied from flash at boot).
+    pub(super) streams: StreamsSlot<STEP_QUEUE, HALF>,
     run: Run,
     /// Per joint: the stream has transferred at least one period (it left the prelude).
     started: [bool; MAX_JOINTS],
@@ -110,16 +65,11 @@ impl StepBackend for BoardSteps {
     }
 
     fn push(&mut self, segment: Segment) -> Result<(), Segment> {
-        match self.streams.as_mut() {
-            Some(streams) => streams.producer().push(segment),
-            None => Err(segment),
-        }
+        self.streams.push(segment)
     }
 
     fn queued(&self) -> usize {
-        self.streams
-            .as_ref()
-            .map_or(0, |s| s.producer_ref().queued())
+        self.streams.queued()
     }
 
     /// Primes every joint's prelude and buffer (the producer's work for the run's first
@@ -128,7 +78,7 @@ impl StepBackend for BoardSteps {
         if self.run != Run::Idle {
             return;
         }
-        let Some(streams) = self.streams.as_mut() else {
+        let Some(streams) = self.streams.get_mut() else {
             return;
         };
         let now = step_timer::now_tick();
@@ -181,7 +131,7 @@ impl StepBackend for BoardSteps {
     )]
     fn stop(&mut self) {
         let stopped = stop_all_step_outputs();
-        let Some(streams) = self.streams.as_mut() else {
+        let Some(streams) = self.streams.get_mut() else {
             return;
         };
         if self.run != Run::Idle {
@@ -215,7 +165,7 @@ impl StepBackend for BoardSteps {
         reason = "joint < MAX_JOINTS (the DMA streams' numbers, or enumerate over [_; MAX_JOINTS]) and half < 2: the step path's arrays"
     )]
     fn positions(&self) -> [i32; MAX_JOINTS] {
-        let Some(streams) = self.streams.as_ref() else {
+        let Some(streams) = self.streams.get() else {
             return [0; MAX_JOINTS];
         };
         let mut positions = streams.producer_ref().positions();
@@ -245,7 +195,7 @@ impl StepBackend for BoardSteps {
         self.run == Run::Idle
             && self
                 .streams
-                .as_mut()
+                .get_mut()
                 .is_some_and(|s| s.producer().set_positions(positions))
     }
 }
@@ -270,7 +220,7 @@ impl BoardSteps {
         if self.run == Run::Idle {
             return StepProgress::default();
         }
-        let Some(streams) = self.streams.as_mut() else {
+        let Some(streams) = self.streams.get_mut() else {
             return StepProgress::default();
         };
         self.started[joint] = true;
@@ -299,7 +249,7 @@ impl BoardSteps {
         let Run::Running { origin } = self.run else {
             return StepProgress::default();
         };
-        let Some(streams) = self.streams.as_mut() else {
+        let Some(streams) = self.streams.get_mut() else {
             return StepProgress::default();
         };
         let at = now.saturating_sub(origin);
@@ -334,7 +284,7 @@ impl BoardSteps {
         let Run::Running { origin } = self.run else {
             return;
         };
-        let Some(streams) = self.streams.as_ref() else {
+        let Some(streams) = self.streams.get() else {
             return;
         };
         let mut next = u64::MAX;

@@ -184,7 +184,11 @@ pub fn init() {
         start,
         len
     );
-    STEP.with_engine(|steps| steps.streams.init());
+    STEP.with_engine(|steps| {
+        steps
+            .streams
+            .init(STEP_TIMING, arm_step::NUCLEO_STEP_TIMER_MAX_PERIOD_TICKS)
+    });
     pac::RCC.apb1lenr().modify(|w| {
         w.set_tim2en(true);
         w.set_tim3en(true);
