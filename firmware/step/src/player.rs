@@ -541,15 +541,21 @@ mod tests {
         }
     }
 
-    #[test]
-    fn next_due_is_a_half_boundary_or_the_end() {
-        let segments = segments(false);
+    /// Streams holding the first `Q` of `segments`, and a player that primed them at tick 0.
+    fn primed(segments: &[Segment]) -> (StepStreams<Q, HALF>, StreamPlayer<HALF>) {
         let mut streams = StepStreams::<Q, HALF>::new(TIMING, MAX_PERIOD);
         for s in &segments[..Q] {
             streams.producer().push(*s).unwrap();
         }
         let mut player = StreamPlayer::<HALF>::IDLE;
         player.prime(&mut streams, 0);
+        (streams, player)
+    }
+
+    #[test]
+    fn next_due_is_a_half_boundary_or_the_end() {
+        let segments = segments(false);
+        let (mut streams, mut player) = primed(&segments);
         // Just before the first boundary nothing is refilled; at it, the refill happens.
         let due = player.next_due(&streams).unwrap();
         let mut lines = Lines::default();
@@ -581,12 +587,7 @@ mod tests {
     fn stops_as_the_engine(segments: &[Segment]) {
         let oracle = engine_rises(&segments[..Q], 0);
         for stop_at in [0, 250, 1_000_000, 1_234_567, 1_500_000, 2_000_000] {
-            let mut streams = StepStreams::<Q, HALF>::new(TIMING, MAX_PERIOD);
-            for s in &segments[..Q] {
-                streams.producer().push(*s).unwrap();
-            }
-            let mut player = StreamPlayer::<HALF>::IDLE;
-            player.prime(&mut streams, 0);
+            let (mut streams, mut player) = primed(segments);
             let mut lines = Lines::default();
             player.advance(&mut streams, stop_at / 2, &mut lines);
             player.stop(&mut streams, stop_at, &mut lines);
@@ -615,12 +616,7 @@ mod tests {
     }
 
     fn positions_count_the_played_pulses(segments: &[Segment]) {
-        let mut streams = StepStreams::<Q, HALF>::new(TIMING, MAX_PERIOD);
-        for s in &segments[..Q] {
-            streams.producer().push(*s).unwrap();
-        }
-        let mut player = StreamPlayer::<HALF>::IDLE;
-        player.prime(&mut streams, 0);
+        let (mut streams, mut player) = primed(segments);
         let mut lines = Lines::default();
         for t in (0..3_000_000).step_by(77_777) {
             player.advance(&mut streams, t, &mut lines);
@@ -631,12 +627,7 @@ mod tests {
     #[test]
     fn an_idle_joints_halves_are_played_whole() {
         let segments = segments(true);
-        let mut streams = StepStreams::<Q, HALF>::new(TIMING, MAX_PERIOD);
-        for s in &segments[..Q] {
-            streams.producer().push(*s).unwrap();
-        }
-        let mut player = StreamPlayer::<HALF>::IDLE;
-        player.prime(&mut streams, 0);
+        let (mut streams, mut player) = primed(&segments);
         let mut lines = Lines::default();
         // (Past the prelude's two idle periods of 100 us.)
         for t in (100_000..2_000_000).step_by(33_333) {
