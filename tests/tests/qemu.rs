@@ -55,9 +55,10 @@ fn position(board: &QemuBoard, arm: &Client) -> [i32; MAX_JOINTS] {
         .position
 }
 
-/// What the board's fake STEP lines saw since boot, per joint, as the last "step output
-/// at rest" line of its log says: the net pulses (rising edges signed by DIR) and the
-/// rising edges (no such line yet: none).
+/// What the board's fake STEP lines saw since boot, per joint, as the last whole "step
+/// output at rest" line of its log says: the net pulses (rising edges signed by DIR) and
+/// the rising edges (no such line yet: none). A line still being written (no newline yet)
+/// is not read.
 fn lines_seen(log: &str) -> ([i32; MAX_JOINTS], [u32; MAX_JOINTS]) {
     fn counts<T: std::str::FromStr>(list: &str) -> [T; MAX_JOINTS] {
         let counts: Vec<T> = list
@@ -67,7 +68,8 @@ fn lines_seen(log: &str) -> ([i32; MAX_JOINTS], [u32; MAX_JOINTS]) {
         counts.try_into().ok().expect("one count per joint")
     }
     let Some(line) = log
-        .lines()
+        .split_inclusive('\n')
+        .filter(|line| line.ends_with('\n'))
         .rfind(|line| line.contains("step output at rest: pulses ["))
     else {
         return ([0; MAX_JOINTS], [0; MAX_JOINTS]);
@@ -77,6 +79,19 @@ fn lines_seen(log: &str) -> ([i32; MAX_JOINTS], [u32; MAX_JOINTS]) {
         rest.split_once(']').expect("the log line's format").0
     };
     (counts(list("pulses [")), counts(list("rising edges [")))
+}
+
+/// CI once read the log while the board was writing that line: the test panicked on the
+/// half line ("the log line's format") instead of reading the one before and retrying.
+#[test]
+fn a_line_being_written_is_not_read() {
+    let whole = "INFO step output at rest: pulses [3, -2, 0, 0, 0, 0, 0, 0], rising edges \
+                 [3, 4, 0, 0, 0, 0, 0, 0], late pulses 0\n";
+    let cut = "INFO step output at rest: pulses [5, -2, 0, 0, 0, 0, 0, 0], rising ed";
+    let expected = ([3, -2, 0, 0, 0, 0, 0, 0], [3, 4, 0, 0, 0, 0, 0, 0]);
+    assert_eq!(lines_seen(&format!("{whole}{cut}")), expected);
+    assert_eq!(lines_seen(whole), expected);
+    assert_eq!(lines_seen(cut), ([0; MAX_JOINTS], [0; MAX_JOINTS]));
 }
 
 /// Waits (3 s at most) until the STEP lines, at rest, have seen `moved` net pulses since
