@@ -1,12 +1,12 @@
 //! The step output of the emulated board: arm-step's producer, as on the NUCLEO, played by
 //! a software model of the NUCLEO's joint timers and DMA streams.
 //!
-//! [`QemuSteps`] is this board's [`StepBackend`]: the same [`StepStreams`](arm_step::StepStreams) (producer and
-//! per-joint double buffers of [`arm_step::PulsePeriod`]s, ARR/RCR/CCR1 values) as the
-//! NUCLEO's `BoardSteps`, with its buffer half ([`HALF`]), its prelude and its joint
-//! timers' ranges ([`MAX_PERIOD_TICKS`], the NUCLEO's in time). The producer fills the
-//! buffers and refills each half when the "stream" leaves it, exactly as the NUCLEO's
-//! refill interrupts do.
+//! [`QemuSteps`] is this board's [`StepBackend`]: the same
+//! [`StepStreams`](arm_step::StepStreams) (producer and per-joint double buffers of
+//! [`arm_step::PulsePeriod`]s, ARR/RCR/CCR1 values) as the NUCLEO's `BoardSteps`, with its
+//! buffer half ([`HALF`]), its prelude and its joint timers' ranges ([`MAX_PERIOD_TICKS`],
+//! the NUCLEO's in time). The producer fills the buffers and refills each half when the
+//! "stream" leaves it, exactly as the NUCLEO's refill interrupts do.
 //!
 //! What differs from the NUCLEO: mps2-an500 has no timer whose period and compare values a
 //! DMA can reload, so arm-step's [`StreamPlayer`] plays the buffers in software. The CMSDK
@@ -23,10 +23,10 @@
 //! The STEP/DIR lines are a memory fake, [`StepLines`]: each rising edge moves that joint's
 //! pulse counter in its DIR direction (and counts in its edge counter), so the pulses
 //! "output" can be compared with the positions the controller reports and the steps the
-//! trajectory asked for (tests/tests/qemu.rs reads them from the log). An emergency stop ([`StepBackend::stop`]) plays the
-//! edges up to the stop's SYSCLK tick, cuts a pulse in progress, drops the rest (the
-//! positions keep only the pulses played, as the NUCLEO's unwind from its streams'
-//! positions) and lowers every STEP line before it returns.
+//! trajectory asked for (tests/tests/qemu.rs reads them from the log). An emergency stop
+//! ([`StepBackend::stop`]) plays the edges up to the stop's SYSCLK tick, cuts a pulse in
+//! progress, drops the rest (the positions keep only the pulses played, as the NUCLEO's
+//! unwind from its streams' positions) and lowers every STEP line before it returns.
 
 use core::sync::atomic::{AtomicI32, AtomicU8, AtomicU32, Ordering};
 
