@@ -4,8 +4,11 @@
         arm.run(times, positions)
 
 Every call forwards to the armctl Rust library (the same client as the `armctl` tool).
-Waits release the GIL; Ctrl-C during a run sends STOPPED before KeyboardInterrupt
-propagates.
+Waits release the GIL. Motion calls stop what they started: a KeyboardInterrupt or any
+error in run(), run_file(), RunHandle.wait() or go_home(), and any exception leaving a
+`with` block while a run or RETURN of this connection may be under way, send STOPPED
+(resent every 100 ms until ACKed, 10 copies at most; a second Ctrl-C ends the wait; not
+ACKed: a RuntimeWarning) before the exception propagates.
 """
 
 from os import PathLike
@@ -110,9 +113,11 @@ class RunHandle:
     def done(self) -> bool: ...
     def wait(self, timeout: Optional[float] = None) -> RunReport:
         """Waits for the end (TimeoutError after `timeout` s; the run goes on). Raises
-        what ended the run early. Ctrl-C while waiting stops the arm."""
+        what ended the run early, after sending STOPPED. Ctrl-C while waiting stops the
+        arm (STOPPED resent until ACKed), then KeyboardInterrupt propagates."""
     def cancel(self) -> None:
-        """Sends STOPPED and waits for the run to end."""
+        """Sends STOPPED (resent until ACKed; NoReplyError if never) and waits for the
+        run to end."""
 
 class Locations(Iterator[Location]):
     def __iter__(self) -> "Locations": ...
@@ -120,7 +125,8 @@ class Locations(Iterator[Location]):
 
 class Arm:
     """A connection to one controller; a context manager that closes it (and stops a
-    run under way when the block ends by an exception)."""
+    run or RETURN it started that may be under way when the block ends by an exception:
+    STOPPED resent until ACKed, before the exception propagates)."""
 
     @property
     def address(self) -> str: ...
@@ -154,7 +160,9 @@ class Arm:
     def stop(self) -> None:
         """STOPPED: every joint stops at once, the trajectory is dropped."""
     def go_home(self, wait: bool = True, timeout: float = 600.0) -> None:
-        """RETURN: every joint to zero."""
+        """RETURN: every joint to zero; with `wait`, until the move ended (at most
+        `timeout` s). Ctrl-C or an error while waiting sends STOPPED (resent until ACKed),
+        then the exception propagates."""
     def set_location(self, positions: Any) -> None: ...
     def set_joints(self, joints: int) -> None: ...
     def pin(self, pin: int, high: bool) -> None: ...

@@ -9,22 +9,27 @@
 //!
 //! - every wait (an ACK, a run, a LOCATION report) releases the GIL, so other Python
 //!   threads run meanwhile;
-//! - a wait for a run wakes every [`SIGNAL_POLL`] to let Python handle signals: Ctrl-C
-//!   (KeyboardInterrupt) during a run sends STOPPED before it propagates;
-//! - leaving a `with armctl.connect(...)` block by an exception while a run is under way
-//!   sends STOPPED.
+//! - a wait for a run or a RETURN wakes every [`SIGNAL_POLL`] to let Python handle
+//!   signals: Ctrl-C (KeyboardInterrupt) during `run`, `run_file`, `RunHandle.wait` or
+//!   `go_home` sends STOPPED before it propagates, and so does any error that ends them
+//!   once the motion was sent (a stall, a lost link, a run ended early);
+//! - leaving a `with armctl.connect(...)` block by an exception while a run or a RETURN
+//!   this connection started may be under way sends STOPPED;
+//! - STOPPED is resent every 100 ms until the controller ACKs it, 10 copies at most
+//!   (`run::stop_arm`); a second Ctrl-C ends that wait; not ACKed, a RuntimeWarning says
+//!   so.
 //!
 //! The `.pyi` stub beside Cargo.toml (`armctl.pyi`) documents the API for Python users.
 
 use std::path::PathBuf;
-use std::sync::atomic::Ordering;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::time::Duration;
 
 use armctl::trajectory::{self, ArmConfig, Waypoints};
 use armctl::{Client, Options, RunOptions};
 use numpy::{PyArray1, PyReadonlyArray1, PyReadonlyArray2};
-use protocol::{Location, MAX_JOINTS, NetSettings, StatusReport};
+use protocol::{Location, MAX_JOINTS, NetSettings, State, StatusReport};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
@@ -51,7 +56,7 @@ use errors::{
     ArmctlError, NoReplyError, RefusedError, RunEndedError, StalledError, TrajectoryError,
     to_py_err, trajectory_err,
 };
-use run::{Locations, RunHandle, RunState};
+use run::{Locations, RunHandle, RunState, stop_arm};
 
 fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
     m.lock().unwrap_or_else(PoisonError::into_inner)
@@ -63,6 +68,9 @@ struct Arm {
     inner: Mutex<Option<Arc<Client>>>,
     /// Runs started here, to stop on an exception in a `with` block.
     runs: Mutex<Vec<Arc<RunState>>>,
+    /// A RETURN started here may still move the arm (not waited to its end): to stop on an
+    /// exception in a `with` block.
+    returning: AtomicBool,
 }
 
 impl Arm {
@@ -173,6 +181,33 @@ impl Arm {
     }
 }
 
+/// Waits until the controller is STOPPED (a RETURN ended), at most until `deadline`, with
+/// the GIL released, waking at least every [`SIGNAL_POLL`] for Python's signal handlers
+/// (a LOCATION report, sent at every state change, wakes it sooner). Whether it ended; the
+/// signal handler's exception (KeyboardInterrupt) or the client's error.
+fn wait_return(py: Python<'_>, arm: &Arc<Client>, deadline: std::time::Instant) -> PyResult<bool> {
+    let mut locations = arm.locations();
+    loop {
+        let client = arm.clone();
+        let status = py
+            .detach(move || client.status())
+            .map_err(|e| to_py_err(py, e))?;
+        if status.state == State::Stopped {
+            return Ok(true);
+        }
+        let now = std::time::Instant::now();
+        if now >= deadline {
+            return Ok(false);
+        }
+        let slice = SIGNAL_POLL.min(deadline - now);
+        locations = py.detach(move || {
+            let _ = locations.recv_timeout(slice);
+            locations
+        });
+        py.check_signals()?;
+    }
+}
+
 /// A trajectory `run` or `run_file` has read, before it meets the arm.
 struct WaypointRun {
     waypoints: Waypoints,
@@ -190,7 +225,8 @@ impl Arm {
     }
 
     /// Closes the connection; when the block is left by an exception (Ctrl-C included)
-    /// while a run started here is under way, sends STOPPED first.
+    /// while a run or a RETURN started here may be under way, sends STOPPED first (resent
+    /// until ACKed); the exception then propagates.
     #[pyo3(signature = (exc_type=None, _exc_value=None, _traceback=None))]
     fn __exit__(
         &self,
@@ -200,14 +236,19 @@ impl Arm {
         _traceback: Option<Bound<'_, PyAny>>,
     ) -> PyResult<bool> {
         let failed = exc_type.is_some_and(|t| !t.is_none());
-        let running = lock(&self.runs)
-            .iter()
-            .any(|r| !r.done.load(Ordering::SeqCst));
+        let mut moving = self.returning.load(Ordering::SeqCst);
+        for run in lock(&self.runs).iter() {
+            if !run.done.load(Ordering::SeqCst) {
+                // Its thread sends nothing more.
+                run.cancel.cancel();
+                moving = true;
+            }
+        }
         if failed
-            && running
+            && moving
             && let Ok(arm) = self.controller()
         {
-            let _ = py.detach(move || arm.stop());
+            stop_arm(py, &arm);
         }
         self.close();
         Ok(false)
@@ -351,15 +392,31 @@ impl Arm {
         self.call(py, |arm| arm.stop()).map(|_| ())
     }
 
-    /// RETURN: drives every joint to zero; with `wait`, until the move ended.
+    /// RETURN: drives every joint to zero; with `wait`, until the move ended (at most
+    /// `timeout` seconds). A KeyboardInterrupt or an error while waiting sends STOPPED
+    /// (resent until ACKed) before it propagates.
     #[pyo3(signature = (wait=true, timeout=600.0))]
     fn go_home(&self, py: Python<'_>, wait: bool, timeout: f64) -> PyResult<()> {
+        let arm = self.controller()?;
         self.call(py, |arm| arm.go_home())?;
-        if wait {
-            let timeout = Duration::from_secs_f64(timeout.max(0.0));
-            self.call(py, move |arm| arm.wait_stopped(timeout))?;
+        self.returning.store(true, Ordering::SeqCst);
+        if !wait {
+            return Ok(());
         }
-        Ok(())
+        let deadline = std::time::Instant::now() + Duration::from_secs_f64(timeout.clamp(0.0, 1e9));
+        match wait_return(py, &arm, deadline) {
+            Ok(ended) => {
+                if ended {
+                    self.returning.store(false, Ordering::SeqCst);
+                }
+                Ok(())
+            }
+            Err(e) => {
+                stop_arm(py, &arm);
+                self.returning.store(false, Ordering::SeqCst);
+                Err(e)
+            }
+        }
     }
 
     /// LOCATION_SETTING: declares where the joints are, in steps (calibration).
@@ -555,6 +612,7 @@ fn connect(
     Ok(Arm {
         inner: Mutex::new(Some(Arc::new(arm))),
         runs: Mutex::new(Vec::new()),
+        returning: AtomicBool::new(false),
     })
 }
 

@@ -1,12 +1,15 @@
 //! Runs on their own thread (`RunHandle`) and the LOCATION report iterator (`Locations`):
 //! every wait releases the GIL and wakes every `SIGNAL_POLL` for Python's signal handlers.
+//! [`stop_arm`] is the STOPPED every motion call and the `with` block send when an
+//! exception (KeyboardInterrupt included) leaves them.
 
+use std::ffi::CString;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{Receiver, RecvTimeoutError};
 use std::sync::{Arc, Condvar, Mutex, PoisonError};
 use std::time::{Duration, Instant};
 
-use armctl::{Client, Error, Progress, RunOptions, RunReport};
+use armctl::{Cancel, Client, Error, Progress, RunOptions, RunReport, StopOutcome, StopRetry};
 use protocol::Location;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
@@ -15,6 +18,31 @@ use crate::dicts::{location_dict, progress_dict, report_dict};
 use crate::errors::{ArmctlError, to_py_err};
 use crate::{SIGNAL_POLL, lock};
 
+/// STOPPED, resent until the controller ACKs it (every 100 ms, 10 copies at most), with
+/// the GIL released; a second Ctrl-C meanwhile ends the wait (the first copy has gone) and
+/// is returned beside the outcome. Not ACKed: a `RuntimeWarning` says so (the exception
+/// that led here still propagates).
+pub(crate) fn stop_arm(py: Python<'_>, arm: &Arc<Client>) -> (StopOutcome, Option<PyErr>) {
+    let client = arm.clone();
+    let (outcome, again) = py.detach(move || {
+        let mut again = None;
+        let outcome = client.stop_until_acked(&StopRetry::default(), || {
+            if let Err(e) = Python::attach(|py| py.check_signals()) {
+                again = Some(e);
+            }
+            again.is_some()
+        });
+        (outcome, again)
+    });
+    if !outcome.is_acked()
+        && let Ok(message) = CString::new(format!("armctl: {outcome}"))
+    {
+        let category = py.get_type::<pyo3::exceptions::PyRuntimeWarning>();
+        let _ = PyErr::warn(py, category.as_any(), &message, 1);
+    }
+    (outcome, again)
+}
+
 /// A run on its own thread: its progress, and its outcome once it ended.
 #[derive(Default)]
 pub(crate) struct RunState {
@@ -22,6 +50,8 @@ pub(crate) struct RunState {
     outcome: Mutex<Option<Result<RunReport, Error>>>,
     ended: Condvar,
     pub(crate) done: AtomicBool,
+    /// Ends the run thread's upload and waits (it sends nothing: STOPPED is [`stop_arm`]'s).
+    pub(crate) cancel: Cancel,
 }
 
 /// A trajectory run started by `Arm.run(..., wait=False)` (or `run_file`).
@@ -42,6 +72,10 @@ impl RunHandle {
         joints: usize,
     ) -> PyResult<RunHandle> {
         let state = Arc::new(RunState::default());
+        let options = RunOptions {
+            cancel: Some(state.cancel.clone()),
+            ..options
+        };
         let (thread_arm, thread_state) = (arm.clone(), state.clone());
         std::thread::Builder::new()
             .name("armctl-run".into())
@@ -63,7 +97,9 @@ impl RunHandle {
     }
 
     /// Waits for the end of the run with the GIL released, waking to check for signals.
-    /// A KeyboardInterrupt (or any signal handler's exception) stops the arm first.
+    /// A KeyboardInterrupt (or any signal handler's exception), and a run that ended in an
+    /// error (the arm may still move after a stall or a lost link), stop the arm first:
+    /// STOPPED resent until ACKed ([`stop_arm`]).
     pub(crate) fn wait_inner(&self, py: Python<'_>, timeout: Option<f64>) -> PyResult<Py<PyAny>> {
         let deadline = timeout.map(|s| Instant::now() + Duration::from_secs_f64(s.max(0.0)));
         loop {
@@ -87,7 +123,10 @@ impl RunHandle {
                     Ok(report) => {
                         report_dict(py, &report, self.joints).map(|d| d.into_any().unbind())
                     }
-                    Err(e) => Err(to_py_err(py, e)),
+                    Err(e) => {
+                        stop_arm(py, &self.arm);
+                        Err(to_py_err(py, e))
+                    }
                 };
                 let copy = match &result {
                     Ok(v) => Ok(v.clone_ref(py)),
@@ -97,9 +136,10 @@ impl RunHandle {
                 return result;
             }
             if let Err(interrupt) = py.check_signals() {
-                let arm = self.arm.clone();
-                // Stop first, then let the exception propagate.
-                let _ = py.detach(move || arm.stop());
+                // The run thread sends nothing more; the arm stops; then the exception
+                // propagates.
+                self.state.cancel.cancel();
+                stop_arm(py, &self.arm);
                 return Err(interrupt);
             }
             if deadline.is_some_and(|d| Instant::now() >= d) {
@@ -133,12 +173,16 @@ impl RunHandle {
         self.wait_inner(py, timeout)
     }
 
-    /// Sends STOPPED and waits for the run to end (its `wait()` then raises
-    /// RunEndedError with reason 'stopped').
+    /// Sends STOPPED (resent until ACKed) and waits for the run to end (its `wait()` then
+    /// raises RunEndedError with reason 'stopped').
     fn cancel(&self, py: Python<'_>) -> PyResult<()> {
-        let arm = self.arm.clone();
-        py.detach(move || arm.stop())
-            .map_err(|e| to_py_err(py, e))?;
+        let (outcome, again) = stop_arm(py, &self.arm);
+        if let Some(interrupt) = again {
+            return Err(interrupt);
+        }
+        if !outcome.is_acked() {
+            return Err(crate::errors::NoReplyError::new_err(outcome.to_string()));
+        }
         let state = self.state.clone();
         py.detach(move || {
             let guard = lock(&state.outcome);

@@ -22,6 +22,9 @@
 //! - [`Client`]: commands with retries and ACK checks; every refusal is an
 //!   [`Error::Refused`] whose message names the status and what to do about it.
 //! - [`Client::run_trajectory`]: the reliable upload (go-back-N window, flow control).
+//! - [`Cancel`] and [`Client::stop_until_acked`]: stopping what a call started (Ctrl-C):
+//!   the upload and the waits return [`Error::Interrupted`] soon after the token is set, and
+//!   STOPPED is resent until it is ACKed.
 //! - [`trajectory`]: JointTrajectory JSON and CSV files to checked [`protocol::Point`]s.
 //! - [`record`] and [`plot`]: recorded location reports as CSV, and SVG plots of them;
 //!   [`vcd`]: joint positions from a simulator trace (`sim-host --trace`), for the same plots.
@@ -29,6 +32,7 @@
 mod client;
 pub mod discover;
 mod error;
+mod interrupt;
 pub mod pcap;
 pub mod plot;
 pub mod pwm;
@@ -46,6 +50,7 @@ pub use client::{Client, Options};
 #[deprecated(since = "0.1.0", note = "renamed to `armctl::Client`")]
 pub type Controller = Client;
 pub use error::{Error, Result, RunEnd};
+pub use interrupt::{CANCEL_POLL, Cancel, StopOutcome, StopRetry};
 pub use rtt::{DEFAULT_MIN_RTO, DUPLICATE_WINDOW, RESEND_HORIZON, RttEstimator};
 pub use run::{DEFAULT_WINDOW, MAX_POINTS, MAX_WINDOW, Progress, RunOptions, RunReport, window_of};
 

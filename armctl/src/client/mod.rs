@@ -14,6 +14,7 @@ use protocol::{
 };
 
 use crate::error::{Error, Result};
+use crate::interrupt::{CANCEL_POLL, Cancel};
 use crate::pcap::PcapLog;
 use crate::rtt::{DEFAULT_MIN_RTO, RESEND_HORIZON, RttEstimator};
 
@@ -215,14 +216,20 @@ impl Client {
     pub fn exchange(&self, command: &Command<'_>) -> Result<Ack> {
         if matches!(command, Command::Stopped) {
             // STOPPED never waits behind an upload.
-            self.exchange_unlocked(command)
+            self.exchange_unlocked(command, None)
         } else {
             let _upload = lock(&self.upload);
-            self.exchange_unlocked(command)
+            self.exchange_unlocked(command, None)
         }
     }
 
-    pub(crate) fn exchange_unlocked(&self, command: &Command<'_>) -> Result<Ack> {
+    /// As [`Client::exchange`] without taking the upload lock; with `cancel`, every wait
+    /// for the ACK looks at it at least every [`CANCEL_POLL`] ([`Error::Interrupted`]).
+    pub(crate) fn exchange_unlocked(
+        &self,
+        command: &Command<'_>,
+        cancel: Option<&Cancel>,
+    ) -> Result<Ack> {
         let mut buf = [0u8; MAX_DATAGRAM];
         let seq = self.alloc_seq();
         let len = command.encode(seq, &mut buf)?;
@@ -244,7 +251,12 @@ impl Client {
             let deadline = sent_at + self.rto();
             loop {
                 let left = deadline.saturating_duration_since(Instant::now());
-                match waiter.rx.recv_timeout(left) {
+                let slice = match cancel {
+                    Some(cancel) if cancel.is_cancelled() => return Err(Error::Interrupted),
+                    Some(_) => left.min(CANCEL_POLL),
+                    None => left,
+                };
+                match waiter.rx.recv_timeout(slice) {
                     Ok(Event::Ack(_, ack)) if ack.acked_tag != tag as u8 => continue,
                     // Damaged on the way: send it again at once.
                     Ok(Event::Ack(_, ack)) if ack.status == StatusCode::BadCrc => break,
@@ -259,6 +271,8 @@ impl Client {
                         return Err(Error::ConnectionRefused { addr: self.addr });
                     }
                     Ok(Event::Refused) => continue,
+                    // A slice of the wait, not the whole of it: look at `cancel` again.
+                    Err(RecvTimeoutError::Timeout) if Instant::now() < deadline => continue,
                     Err(RecvTimeoutError::Timeout) => {
                         lock(&self.rtt).back_off();
                         break;
@@ -286,14 +300,24 @@ impl Client {
     /// report is lost: a resent frame would be taken for a duplicate and not answered).
     pub fn status(&self) -> Result<StatusReport> {
         let _upload = lock(&self.upload);
-        self.status_unlocked()
+        self.status_unlocked(None)
     }
 
-    pub(crate) fn status_unlocked(&self) -> Result<StatusReport> {
+    /// As [`Client::status`], every wait looking at `cancel` at least every
+    /// [`CANCEL_POLL`].
+    pub(crate) fn status_cancellable(&self, cancel: Option<&Cancel>) -> Result<StatusReport> {
+        let _upload = lock(&self.upload);
+        self.status_unlocked(cancel)
+    }
+
+    pub(crate) fn status_unlocked(&self, cancel: Option<&Cancel>) -> Result<StatusReport> {
         let reports = self.status_reports();
         for _ in 0..self.options.attempts {
-            check(Tag::Status, self.exchange_unlocked(&Command::Status)?)?;
-            if let Ok(status) = reports.recv_timeout(self.options.report_timeout) {
+            check(
+                Tag::Status,
+                self.exchange_unlocked(&Command::Status, cancel)?,
+            )?;
+            if let Ok(status) = recv_cancellable(&reports, self.options.report_timeout, cancel)? {
                 return Ok(status);
             }
         }
@@ -340,7 +364,9 @@ impl Client {
     }
 
     /// STOPPED: stops every step pulse at once and drops the buffer. Never waits behind an
-    /// upload.
+    /// upload. Resent as any command is (`Options::attempts`); to stop what a call started
+    /// on Ctrl-C, [`Client::stop_until_acked`] resends at a fixed interval, bounded, and
+    /// lets a second Ctrl-C end the wait.
     pub fn stop(&self) -> Result<Ack> {
         self.send(&Command::Stopped)
     }
@@ -461,15 +487,57 @@ impl Client {
     /// Polls STATUS until the controller is STOPPED (a run or RETURN finished), at most
     /// `timeout`. Returns the last STATUS.
     pub fn wait_stopped(&self, timeout: Duration) -> Result<StatusReport> {
+        self.wait_stopped_inner(timeout, None)
+    }
+
+    /// As [`Client::wait_stopped`], but returns [`Error::Interrupted`] within
+    /// [`CANCEL_POLL`] of `cancel` being set (it sends nothing itself: stop what you
+    /// started with [`Client::stop_until_acked`]).
+    pub fn wait_stopped_cancellable(
+        &self,
+        timeout: Duration,
+        cancel: &Cancel,
+    ) -> Result<StatusReport> {
+        self.wait_stopped_inner(timeout, Some(cancel))
+    }
+
+    fn wait_stopped_inner(
+        &self,
+        timeout: Duration,
+        cancel: Option<&Cancel>,
+    ) -> Result<StatusReport> {
         let deadline = Instant::now() + timeout;
         let locations = self.locations();
         loop {
-            let status = self.status()?;
+            let status = self.status_cancellable(cancel)?;
             if status.state == State::Stopped || Instant::now() >= deadline {
                 return Ok(status);
             }
             // A LOCATION report comes at once on a state change: wake up on it.
-            let _ = locations.recv_timeout(Duration::from_millis(100));
+            let _ = recv_cancellable(&locations, Duration::from_millis(100), cancel)?;
+        }
+    }
+}
+
+/// The next value of `rx` within `timeout` (`Ok(Err(..))` if none came), looking at
+/// `cancel` at least every [`CANCEL_POLL`]: [`Error::Interrupted`] once it is set.
+pub(crate) fn recv_cancellable<T>(
+    rx: &Receiver<T>,
+    timeout: Duration,
+    cancel: Option<&Cancel>,
+) -> Result<std::result::Result<T, RecvTimeoutError>> {
+    let Some(cancel) = cancel else {
+        return Ok(rx.recv_timeout(timeout));
+    };
+    let deadline = Instant::now() + timeout;
+    loop {
+        if cancel.is_cancelled() {
+            return Err(Error::Interrupted);
+        }
+        let left = deadline.saturating_duration_since(Instant::now());
+        match rx.recv_timeout(left.min(CANCEL_POLL)) {
+            Err(RecvTimeoutError::Timeout) if !left.is_zero() && Instant::now() < deadline => {}
+            other => return Ok(other),
         }
     }
 }

@@ -8,8 +8,9 @@ use protocol::{
     Command, Location, MAX_POINTS_PER_FRAME, Point, State, StatusFlags, StatusReport, Tag,
 };
 
-use crate::client::{Client, check, lock};
+use crate::client::{Client, check, lock, recv_cancellable};
 use crate::error::{Error, Result, RunEnd};
+use crate::interrupt::Cancel;
 
 mod upload;
 
@@ -48,6 +49,10 @@ pub struct RunOptions {
     /// Longest wait for the end of the run, from NEW; `None`: twice the trajectory's
     /// duration plus 10 s.
     pub completion_timeout: Option<Duration>,
+    /// Once set, the upload and the wait for the end return [`Error::Interrupted`] within
+    /// [`CANCEL_POLL`](crate::CANCEL_POLL) (no wait blocks longer without looking). Nothing
+    /// is sent then: the caller stops the arm ([`Client::stop_until_acked`]).
+    pub cancel: Option<Cancel>,
 }
 
 impl Default for RunOptions {
@@ -59,6 +64,7 @@ impl Default for RunOptions {
             wait: true,
             stall_timeout: Duration::from_secs(5),
             completion_timeout: None,
+            cancel: None,
         }
     }
 }
@@ -159,6 +165,9 @@ impl Client {
     ///
     /// Refused past [`MAX_POINTS`] points: split long trajectories yourself (the arm stops
     /// between uploads).
+    ///
+    /// With [`RunOptions::cancel`] set, returns [`Error::Interrupted`] soon after it is
+    /// cancelled, whether the upload is under way or the arm runs: send STOPPED then.
     pub fn run_trajectory(
         &self,
         points: &[Point],
@@ -187,15 +196,22 @@ impl Client {
             ..options.clone()
         };
         let duration_us: i64 = points.iter().map(|p| i64::from(p.duration)).sum();
+        let cancel = options.cancel.as_ref();
         let started = Instant::now();
         let locations = self.locations();
         let mut report = {
             let _upload = lock(&self.upload);
+            if cancel.is_some_and(Cancel::is_cancelled) {
+                return Err(Error::Interrupted);
+            }
             let ack = check(
                 Tag::New,
-                self.exchange_unlocked(&Command::New {
-                    count: total as u16,
-                })?,
+                self.exchange_unlocked(
+                    &Command::New {
+                        count: total as u16,
+                    },
+                    cancel,
+                )?,
             )?;
             let mut upload = Upload::new(self, &options, points, &ack, duration_us);
             upload.run(&mut progress)?;
@@ -212,7 +228,7 @@ impl Client {
             .unwrap_or(Duration::from_micros(duration_us as u64) * 2 + Duration::from_secs(10));
         let deadline = started + timeout;
         let status = loop {
-            let status = self.status()?;
+            let status = self.status_cancellable(cancel)?;
             progress(&Progress {
                 total,
                 sent: total,
@@ -223,7 +239,7 @@ impl Client {
             if status.state == State::Stopped {
                 // Confirmed by a second report: a late duplicate of an old one (a lossy
                 // link duplicates and delays) must not end the wait.
-                let again = self.status()?;
+                let again = self.status_cancellable(cancel)?;
                 if again.state == State::Stopped {
                     break again;
                 }
@@ -237,9 +253,11 @@ impl Client {
             }
             // Every state change sends a LOCATION at once: it ends this wait early.
             let until = Instant::now() + Duration::from_millis(100);
-            while let Ok(location) =
-                locations.recv_timeout(until.saturating_duration_since(Instant::now()))
-            {
+            while let Ok(location) = recv_cancellable(
+                &locations,
+                until.saturating_duration_since(Instant::now()),
+                cancel,
+            )? {
                 if location.state == State::Stopped as u8 {
                     break;
                 }
@@ -251,7 +269,7 @@ impl Client {
             while locations.try_recv().is_ok() {}
             let wait = Duration::from_micros(u64::from(status.upload_period_us) * 3)
                 .max(Duration::from_millis(100));
-            report.final_location = locations.recv_timeout(wait).ok();
+            report.final_location = recv_cancellable(&locations, wait, cancel)?.ok();
         }
         report.total_time = started.elapsed();
         let clean = !status.flags.has(StatusFlags::UNDERRUN)

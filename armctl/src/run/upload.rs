@@ -10,6 +10,7 @@ use protocol::{Command, MAX_DATAGRAM, Point, PointList, State, StatusCode, Tag};
 use super::{Progress, RunOptions, RunReport, run_ended};
 use crate::client::{Client, Event, lock};
 use crate::error::{Error, Result};
+use crate::interrupt::CANCEL_POLL;
 
 /// One frame of the upload.
 struct Outgoing {
@@ -374,8 +375,13 @@ impl Upload<'_, '_> {
 
     /// The run stopped under the upload: find out why.
     fn ended(&self) -> Error {
-        let status = self.controller.status_unlocked().ok();
-        run_ended(status.as_ref(), self.points.len())
+        match self
+            .controller
+            .status_unlocked(self.options.cancel.as_ref())
+        {
+            Err(Error::Interrupted) => Error::Interrupted,
+            status => run_ended(status.ok().as_ref(), self.points.len()),
+        }
     }
 
     /// Sends what the window, the credit and the back-off allow; returns when a probe is
@@ -428,6 +434,14 @@ impl Upload<'_, '_> {
         let total = self.points.len();
         let mut last_shown = Progress::default();
         loop {
+            if self
+                .options
+                .cancel
+                .as_ref()
+                .is_some_and(|c| c.is_cancelled())
+            {
+                return Err(Error::Interrupted);
+            }
             if self.last_progress.elapsed() > self.options.stall_timeout
                 || self.timeouts_in_a_row > MAX_TIMEOUTS_IN_A_ROW
                 || Instant::now() >= self.deadline
@@ -456,11 +470,13 @@ impl Upload<'_, '_> {
                 // Waiting for slots to drain: wake when the probe is due.
                 (None, None) => probe_due.unwrap_or(now + Duration::from_millis(2)),
             };
-            match self
-                .waiter
-                .rx
-                .recv_timeout(wake.saturating_duration_since(now))
-            {
+            let mut wait = wake.saturating_duration_since(now);
+            if self.options.cancel.is_some() {
+                // Look at the cancel token again soon (a timeout before `wake` is harmless:
+                // nothing is overdue yet, and the loop comes back here).
+                wait = wait.min(CANCEL_POLL);
+            }
+            match self.waiter.rx.recv_timeout(wait) {
                 Ok(Event::Ack(seq, ack)) => self.on_ack(seq, ack)?,
                 Ok(Event::Refused) if self.controller.fails_fast_when_refused() => {
                     return Err(Error::ConnectionRefused {

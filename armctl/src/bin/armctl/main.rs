@@ -10,6 +10,8 @@
 //!   `plot`, which need no controller.
 //!
 //! Every failure prints `error: ...` and exits with 1; clap exits with 2 on a usage error.
+//! SIGINT or SIGTERM during a command that moves the arm (`run`, `return`) sends STOPPED,
+//! prints `interrupted (SIGINT): STOPPED sent, ...` and exits 130 or 143 (`interrupt`).
 //! Library diagnostics (an upload's ACKs, timeouts, go-back-N resends) go through the `log`
 //! facade: `ARMCTL_TRACE=1` shows them all, `RUST_LOG` (e.g. `RUST_LOG=armctl=debug`)
 //! chooses more finely.
@@ -18,6 +20,7 @@ mod cli;
 mod connect;
 mod discover;
 mod frame;
+mod interrupt;
 mod net;
 mod plot;
 mod pwm;
@@ -43,7 +46,12 @@ fn main() -> ExitCode {
     if let Some(warning) = cli::resend_warning(cli.ack_timeout_ms, cli.attempts) {
         eprintln!("warning: {warning}");
     }
-    match execute(cli) {
+    let result = execute(cli);
+    if let Some(code) = interrupt::exit_code() {
+        // interrupt::finish said what was stopped.
+        return ExitCode::from(code);
+    }
+    match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(message) => {
             eprintln!("error: {message}");
@@ -73,7 +81,10 @@ fn execute(cli: Cli) -> CliResult {
         Cmd::Run(args) if args.dry_run => run::dry_run(args),
         _ => {
             let arm = connect::connect(&cli)?;
-            execute_online(&cli, &arm)
+            let result = execute_online(&cli, &arm);
+            // After a signal: STOPPED (unless the command sent it) and the line saying so.
+            interrupt::finish(&arm);
+            result
         }
     }
 }

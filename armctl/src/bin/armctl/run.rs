@@ -135,7 +135,8 @@ fn print_points_summary(points: &[Point]) {
 }
 
 /// Runs `run`: converts the file from the current position, uploads and runs it, and
-/// checks the final positions.
+/// checks the final positions. SIGINT or SIGTERM from the upload on: STOPPED
+/// (crate::interrupt).
 pub fn execute(arm: &Client, args: &RunArgs) -> CliResult {
     let status = arm.status().map_err(|e| e.to_string())?;
     if status.state != State::Stopped {
@@ -198,6 +199,8 @@ pub fn execute(arm: &Client, args: &RunArgs) -> CliResult {
         // 0: the controller's advertised window.
         window: args.window.map_or(0, usize::from),
         start_after: args.start_after,
+        // From here on a signal stops the arm rather than just ending the tool.
+        cancel: Some(crate::interrupt::watch()?),
         ..RunOptions::default()
     };
     let result = arm.run_trajectory(&points, &options, |p| {
@@ -209,7 +212,13 @@ pub fn execute(arm: &Client, args: &RunArgs) -> CliResult {
             p.state.name()
         ));
     });
-    bar.finish();
+    // Interrupted: STOPPED first, the recording and the display after.
+    let interrupted = crate::interrupt::stop_if_signalled(arm);
+    if interrupted {
+        bar.abandon();
+    } else {
+        bar.finish();
+    }
     if let Some((stop, handle)) = recording {
         // A last report or two after the end.
         std::thread::sleep(Duration::from_millis(50));
@@ -219,6 +228,10 @@ pub fn execute(arm: &Client, args: &RunArgs) -> CliResult {
             Ok(Err(e)) => eprintln!("warning: recording: {e}"),
             Err(_) => eprintln!("warning: the recording thread failed"),
         }
+    }
+    if interrupted {
+        // main prints what the STOPPED did and exits 130 or 143.
+        return Err("interrupted".into());
     }
     let report = result.map_err(|e| e.to_string())?;
     println!(

@@ -14,12 +14,14 @@ pub fn done(ack: armctl::Result<protocol::Ack>) -> CliResult {
     Ok(())
 }
 
-/// Runs `return`: RETURN, and with `wait` the wait for the move's end.
+/// Runs `return`: RETURN, and with `wait` the wait for the move's end. SIGINT or SIGTERM
+/// from the RETURN on: STOPPED (crate::interrupt).
 pub fn go_home(arm: &Client, wait: bool) -> CliResult {
+    let cancel = crate::interrupt::watch()?;
     done(arm.go_home())?;
     if wait {
         let status = arm
-            .wait_stopped(Duration::from_secs(600))
+            .wait_stopped_cancellable(Duration::from_secs(600), &cancel)
             .map_err(|e| e.to_string())?;
         println!("state {}", status.state.name());
     }
