@@ -10,7 +10,8 @@
 //!   `next_seq` and `buffered` are the controller's after the command; the ACK re-encodes
 //!   and decodes (state code one of the four);
 //! * OK only for a CRC-valid frame that decodes, or that matches an earlier accepted one
-//!   (a duplicate); a CRC-valid STOPPED is never NOT_OWNER, and a valid one is always OK;
+//!   (a duplicate); a CRC-valid STOPPED, whatever its data, is always OK, executed (never
+//!   a duplicate) and not remembered (issue 18);
 //! * a refused frame (status not OK) changes nothing: no plant call other than feeding
 //!   already-buffered points, no change of state or counters;
 //! * a frame that surely is a duplicate (same sender, seq, tag and CRC as a frame executed
@@ -332,7 +333,13 @@ impl Harness {
             return;
         }
         let key = (from, bytes[0], bytes[1], crc);
-        let (possibly_dup, surely_dup) = self.duplicate(&key);
+        // A CRC-valid STOPPED is never a duplicate and is not remembered (issue 18).
+        let is_stop = bytes[1] == Tag::Stopped as u8 && crc8(body) == crc;
+        let (possibly_dup, surely_dup) = if is_stop {
+            (false, false)
+        } else {
+            self.duplicate(&key)
+        };
         let owner_before = self.controller.owner().map(|o| o.ip);
         let r = self
             .controller
@@ -388,9 +395,7 @@ impl Harness {
         let decoded = Command::decode(bytes);
         if crc_ok && bytes[1] == Tag::Stopped as u8 {
             assert_ne!(status, StatusCode::NotOwner, "STOPPED refused as NOT_OWNER");
-            if bytes.len() == 3 {
-                assert_eq!(status, StatusCode::Ok, "a valid STOPPED refused");
-            }
+            assert_eq!(status, StatusCode::Ok, "a CRC-valid STOPPED refused");
         }
         if status == StatusCode::Ok {
             assert!(
@@ -444,7 +449,7 @@ impl Harness {
             assert!(r.location.is_some(), "no LOCATION for a state change");
         }
 
-        if status == StatusCode::Ok {
+        if status == StatusCode::Ok && !is_stop {
             self.accepted.push_back(Accepted {
                 key,
                 at_us: self.now_us,

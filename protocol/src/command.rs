@@ -299,11 +299,13 @@ impl<'a> Command<'a> {
                     _ => return Err(out_of_range(Field::NetSettings)),
                 }
             }
+            // The manual gives STOPPED no data; any is ignored (docs/PROTOCOL.md,
+            // section 4): an e-stop is never refused for its length.
+            Tag::Stopped => Command::Stopped,
             Tag::UsartRecv | Tag::Ack | Tag::DiscoverReply => {
                 return Err(err(DecodeErrorKind::WrongDirection));
             }
             Tag::Runing
-            | Tag::Stopped
             | Tag::UploadStart
             | Tag::UploadStop
             | Tag::PwmStop
@@ -318,7 +320,6 @@ impl<'a> Command<'a> {
                 exactly(0)?;
                 match tag {
                     Tag::Runing => Command::Runing,
-                    Tag::Stopped => Command::Stopped,
                     Tag::UploadStart => Command::UploadStart,
                     Tag::UploadStop => Command::UploadStop,
                     Tag::PwmStop => Command::PwmStop,

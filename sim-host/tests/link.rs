@@ -1,5 +1,5 @@
-//! Issue 14 over UDP, against the sim-host process: a refused or repeated STOPPED never
-//! stops a run (bug 1), a second tool on the owner's machine disturbs neither the upload
+//! Issue 14 over UDP, against the sim-host process: every CRC-valid STOPPED stops a run
+//! (issue 18 reversed bug 1's rule, under which one with data or repeated bytes did not), a second tool on the owner's machine disturbs neither the upload
 //! nor another tool's reports (bug 2), and a burst of a whole window is taken whole
 //! (bug 3). Every loop is bounded in count and time; traffic goes to 127.0.0.1 only.
 
@@ -76,67 +76,74 @@ fn seqs(client: &mut Client, n: usize) -> Vec<u8> {
         .collect()
 }
 
-/// Queues an upload and its RUNING back to back, then `stop` (a STOPPED that does
-/// nothing); the run must end by completion. Returns the final STATUS.
-fn run_with_a_stop_that_does_nothing(
+/// Starts a run of 12 points of 20 ms moving joint 0 by +5 steps each, from where it is,
+/// as `client` (NEW, PENDING, RUNING, each ACKed); lets it move for 40 ms, sends `stop`
+/// from `panel` (raw bytes, no ACK awaited), and returns the STATUS once the run has
+/// ended, and the steps joint 0 moved of the 60 planned.
+fn run_then_stop(
     client: &mut Client,
-    pts: &[Point],
-    stop: Vec<u8>,
-) -> protocol::StatusReport {
-    let s = seqs(client, 9);
-    let mut frames = vec![seq_frame(
-        s[0],
-        &Command::New {
-            count: pts.len() as u16,
-        },
-    )];
-    frames.push(seq_frame(s[1], &Command::Pending(PointList::Points(pts))));
-    for &seq in &s[2..8] {
-        frames.push(seq_frame(seq, &Command::Status));
-    }
-    frames.push(seq_frame(s[8], &Command::Runing));
-    frames.push((stop[0], stop));
-    let acks = burst(client, &frames, Duration::from_secs(3));
-    for seq in [s[0], s[1], s[8]] {
-        assert_eq!(
-            acks.get(&seq).map(|a| a.status),
-            Some(StatusCode::Ok),
-            "seq {seq}: {acks:?}"
-        );
-    }
-    client.wait_stopped(Duration::from_secs(5))
+    panel: &Client,
+    stop: &[u8],
+) -> (protocol::StatusReport, i32) {
+    // STATUS first: the client is the owner and a LOCATION listener.
+    client.status();
+    let start = client.location().position;
+    let targets: Vec<[i32; MAX_JOINTS]> = (1..=12)
+        .map(|i| {
+            let mut t = start;
+            t[0] += 5 * i;
+            t
+        })
+        .collect();
+    let pts = points_through(start, &targets, 20_000);
+    client.ok(&Command::New {
+        count: pts.len() as u16,
+    });
+    client.ok(&Command::Pending(PointList::Points(&pts)));
+    client.ok(&Command::Runing);
+    std::thread::sleep(Duration::from_millis(40));
+    panel.socket.send(stop).expect("send");
+    let status = client.wait_stopped(Duration::from_secs(5));
+    client.status();
+    let moved = client.location().position[0] - start[0];
+    (status, moved)
 }
 
+// Issue 18 reversed this test's rule (issue 14's bug 1: a STOPPED with data was
+// BAD_LENGTH and the same bytes again a duplicate, both "did nothing" and the test asserted
+// the run completed). Now every CRC-valid STOPPED stops; a bad CRC still does nothing.
 #[test]
-fn a_refused_or_repeated_stopped_never_stops_the_run_it_overtook() {
+fn every_crc_valid_stopped_stops_the_run_and_a_bad_crc_does_not() {
     let sim = Sim::start(&["--settings", temp_path("link-stop.txt").to_str().unwrap()]);
     let mut client = sim.client();
-    // 20 ms points: a loaded machine must not starve the simulated engine.
-    let pts = points(6, 20_000);
-    let mut stopped = 0;
-    const TRIES: usize = 8;
-    for _ in 0..TRIES {
-        // A STOPPED with one data byte: BAD_LENGTH, so it did nothing.
-        let seq = seqs(&mut client, 1)[0];
-        let status = run_with_a_stop_that_does_nothing(
-            &mut client,
-            &pts,
-            raw(seq, Tag::Stopped as u8, &[0]),
+    let panel = sim.client();
+    let stopped_early = |(status, moved): (protocol::StatusReport, i32)| {
+        status.flags.has(StatusFlags::STOPPED_BY_HOST) && moved < 60
+    };
+    // An e-stop panel's one fixed frame, sent at every stop, runs less than 2 s apart.
+    let fixed = raw(0x5a, Tag::Stopped as u8, &[]);
+    for round in 0..10 {
+        let outcome = run_then_stop(&mut client, &panel, &fixed);
+        assert!(
+            stopped_early(outcome),
+            "round {round}: identical bytes must stop: {outcome:?}"
         );
-        stopped += usize::from(status.flags.has(StatusFlags::STOPPED_BY_HOST));
-        assert_eq!(status.executed, 6, "{status:?}");
     }
-    for _ in 0..TRIES {
-        // A STOPPED executed before the upload, resent behind it: a duplicate.
-        let seq = seqs(&mut client, 1)[0];
-        let stop = encoded(seq, &Command::Stopped);
-        let acks = burst(&mut client, &[(seq, stop.clone())], Duration::from_secs(2));
-        assert_eq!(acks.get(&seq).map(|a| a.status), Some(StatusCode::Ok));
-        let status = run_with_a_stop_that_does_nothing(&mut client, &pts, stop);
-        stopped += usize::from(status.flags.has(StatusFlags::STOPPED_BY_HOST));
-        assert_eq!(status.executed, 6, "{status:?}");
+    for len in [1usize, 4] {
+        let stop = raw(0x60 + len as u8, Tag::Stopped as u8, &vec![0xee; len]);
+        let outcome = run_then_stop(&mut client, &panel, &stop);
+        assert!(
+            stopped_early(outcome),
+            "{len} data bytes must stop: {outcome:?}"
+        );
     }
-    assert_eq!(stopped, 0, "runs stopped by a STOPPED that did nothing");
+    let mut bad = raw(0x70, Tag::Stopped as u8, &[]);
+    *bad.last_mut().unwrap() ^= 0x01;
+    let (status, moved) = run_then_stop(&mut client, &panel, &bad);
+    assert!(
+        !status.flags.has(StatusFlags::STOPPED_BY_HOST) && moved == 60,
+        "a bad CRC stops nothing: {status:?}, moved {moved}"
+    );
 }
 
 #[test]

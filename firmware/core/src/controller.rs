@@ -6,20 +6,23 @@
 //! 1. **length**: fewer than 3 bytes: no reply at all.
 //! 2. **CRC**: `BAD_CRC`, ACKed to the sender with the frame's seq and tag. A frame with a
 //!    bad CRC never changes the owner.
-//! 3. **owner**: the first sender of a CRC-valid frame owns the controller; another
+//! 3. **STOPPED**: a CRC-valid STOPPED stops the arm and is ACKed `OK`, from any
+//!    sender, in any state, whatever its data (ignored); it is never a duplicate, takes
+//!    no owner and is not remembered (issue 18: a spurious stop is safe, an ignored one
+//!    is not). The checks below never see it.
+//! 4. **owner**: the first sender of a CRC-valid frame owns the controller; another
 //!    address takes over when the owner has been silent for 5 s and the state is not
 //!    RUNNING (an upload it had not started is dropped then: STATUS `more_flags` bit 0);
-//!    other senders get `NOT_OWNER` with zeros for state, next_seq, buffered and free,
-//!    except for tag STOPPED (anyone may stop the arm).
-//! 4. **duplicate**: a frame (sender, seq, tag, CRC) accepted within the last 2 s (and
+//!    other senders get `NOT_OWNER` with zeros for state, next_seq, buffered and free.
+//! 5. **duplicate**: a frame (sender, seq, tag, CRC) accepted within the last 2 s (and
 //!    among the last [`crate::config::DUPLICATE_MEMORY`] accepted) is ACKed `OK` again and
 //!    not executed ([`Response::executed`] is false).
-//! 5. **decode**: `UNKNOWN_TAG`, `BAD_LENGTH`, `INVALID_CONFIG`, `INVALID_POINT` (duration
+//! 6. **decode**: `UNKNOWN_TAG`, `BAD_LENGTH`, `INVALID_CONFIG`, `INVALID_POINT` (duration
 //!    under 1 us), `UNSUPPORTED` (a report tag from a host).
-//! 6. **state**: `BAD_STATE` when the command is not allowed in the current state
+//! 7. **state**: `BAD_STATE` when the command is not allowed in the current state
 //!    (docs/PROTOCOL.md, "Commands (host to controller)"; USART_SEND needs an open port
 //!    that may transmit; PENDING must come from the endpoint that sent the NEW).
-//! 7. **execute**: PENDING checks, in order: `OUT_OF_ORDER` (seq != `next_seq`),
+//! 8. **execute**: PENDING checks, in order: `OUT_OF_ORDER` (seq != `next_seq`),
 //!    `TOO_MANY_POINTS`, `INVALID_POINT` (step rate), `BUFFER_FULL`; every point of the
 //!    frame is checked before any is taken. USART_SEND: `BUFFER_FULL` when the serial
 //!    transmit queue has no room. USART_START: `INVALID_CONFIG` for settings the board's
@@ -389,19 +392,30 @@ impl<const CAP: usize> Controller<CAP> {
             });
             return response;
         }
+        // STOPPED (docs/PROTOCOL.md sections 4, 7 and 11, issue 18): a CRC-valid STOPPED
+        // always stops, from any sender, in any state, whatever its data, and is ACKed
+        // `OK`. It is never a duplicate (an e-stop panel repeats the same bytes; a
+        // spurious stop is safe, an ignored one is not), never takes the controller over
+        // and is not remembered (a stream of STOPPEDs cannot evict the frames whose
+        // copies must still be recognised).
+        if tag == Tag::Stopped as u8 {
+            if self.owner.is_some_and(|o| o.ip == from.ip) {
+                self.heard_from_owner(from, now_us);
+                self.listen(from, now_us);
+            }
+            self.stop_by_host(plant);
+            response.executed = true;
+            response.reply = reply(self, StatusCode::Ok);
+            return response;
+        }
         // 3. owner
         let from_owner = match self.owner {
             None => {
                 self.take_over(from, now_us, plant);
                 true
             }
-            Some(ref mut owner) if owner.ip == from.ip => {
-                owner.last_heard_us = now_us;
-                for listener in self.listeners.iter_mut().flatten() {
-                    if listener.to == from {
-                        listener.heard_us = now_us;
-                    }
-                }
+            Some(owner) if owner.ip == from.ip => {
+                self.heard_from_owner(from, now_us);
                 true
             }
             Some(owner)
@@ -411,7 +425,6 @@ impl<const CAP: usize> Controller<CAP> {
                 self.take_over(from, now_us, plant);
                 true
             }
-            Some(_) if tag == Tag::Stopped as u8 => false,
             Some(_) => {
                 // Tells a stranger nothing about the arm: zeros (docs/PROTOCOL.md, "Status codes").
                 response.reply = Some(Reply {
@@ -429,7 +442,7 @@ impl<const CAP: usize> Controller<CAP> {
                 return response;
             }
         };
-        // 4. duplicate
+        // 5. duplicate
         let key = FrameKey {
             from,
             seq,
@@ -440,7 +453,7 @@ impl<const CAP: usize> Controller<CAP> {
             response.reply = reply(self, StatusCode::Ok);
             return response;
         }
-        // 5. decode
+        // 6. decode
         let frame = match decoded {
             Ok(frame) => frame,
             Err(e) => {
@@ -448,7 +461,7 @@ impl<const CAP: usize> Controller<CAP> {
                 return response;
             }
         };
-        // 6. state and 7. execute
+        // 7. state and 8. execute
         let status = match self.execute(frame, from, plant, &mut response) {
             Ok(()) => {
                 self.executed(key, from_owner, now_us);
@@ -460,6 +473,19 @@ impl<const CAP: usize> Controller<CAP> {
         self.pump(plant);
         response.reply = reply(self, status);
         response
+    }
+
+    /// The owner (whose address `from` has) spoke at `now_us`: its silence and that of
+    /// the endpoint's LOCATION listener start again.
+    fn heard_from_owner(&mut self, from: Endpoint, now_us: u64) {
+        if let Some(owner) = self.owner.as_mut() {
+            owner.last_heard_us = now_us;
+        }
+        for listener in self.listeners.iter_mut().flatten() {
+            if listener.to == from {
+                listener.heard_us = now_us;
+            }
+        }
     }
 
     /// Bookkeeping for an executed frame. (A duplicate's seq was marked when the frame
@@ -571,6 +597,7 @@ impl<const CAP: usize> Controller<CAP> {
                 State::Running => {}
                 _ => return Err(StatusCode::BadState),
             },
+            // Handled in `check_and_execute` before the owner rule; never reaches here.
             Command::Stopped => self.stop_by_host(plant),
             Command::UploadStart => self.reports_on = true,
             Command::UploadStop => self.reports_on = false,

@@ -52,8 +52,8 @@
 //! A STOPPED overtakes the datagrams queued before it, but the result is that of arrival
 //! order: `Bus::route` stamps each datagram with the STOPPEDs put on `estop` before it
 //! arrived, and `trajectory_task` records which of those it took the controller executed
-//! ([`tasks::OvertakingStops`]; a refused STOPPED, say `BAD_LENGTH`, or a duplicate did
-//! nothing, so it stops nothing). A datagram that arrived before an executed STOPPED taken
+//! ([`tasks::OvertakingStops`]; since issue 18 every CRC-valid STOPPED is executed, so
+//! every one counts). A datagram that arrived before an executed STOPPED taken
 //! already was overtaken: it and the queued datagrams up to that STOPPED are handled as
 //! usual, each executed STOPPED applied again ([`Controller::stop_after_overtaken`]) right
 //! after the datagram it followed, all before any wait (a run one of them started never

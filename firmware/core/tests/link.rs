@@ -1,10 +1,11 @@
-//! Issue 14's link rules, sans-io: only an executed STOPPED stops (bug 1), the ordering
+//! Issue 14's link rules, sans-io: every CRC-valid STOPPED is executed (issue 18; was:
+//! only an executed STOPPED stops, bug 1), the ordering
 //! rule and the reports follow endpoints, not addresses (bug 2), and the smaller findings
 //! (NOT_OWNER tells nothing, hand-over drops an unstarted upload, the advertised window).
 
 mod common;
 
-use arm_core::config::{DUPLICATE_WINDOW_US, OWNER_TIMEOUT_US};
+use arm_core::config::OWNER_TIMEOUT_US;
 use arm_core::hw::Endpoint;
 use arm_core::tasks::OvertakingStops;
 use common::*;
@@ -28,27 +29,28 @@ const TOOL: Endpoint = Endpoint {
 // ---- Bug 1: only an executed STOPPED counts ----
 
 #[test]
-fn only_an_executed_stopped_says_it_was_executed() {
+fn every_crc_valid_stopped_is_executed() {
+    // Issue 18 reversed issue 14's rule here: a STOPPED with data was BAD_LENGTH and a
+    // repeat within 2 s a duplicate, both "not executed". Now every CRC-valid STOPPED is
+    // executed and ACKed OK.
     let mut s = Session::<16>::new(16);
     let r = s.send_raw(HOST, &raw(1, Tag::Stopped as u8, &[0]));
-    assert_eq!(
-        (r.reply.unwrap().ack.status, r.executed),
-        (BadLength, false)
-    );
+    assert_eq!((r.reply.unwrap().ack.status, r.executed), (Ok, true));
     let stop = frame(2, Command::Stopped);
     let r = s.send_raw(HOST, &stop);
     assert_eq!((r.reply.unwrap().ack.status, r.executed), (Ok, true));
     let r = s.send_raw(HOST, &stop);
     assert_eq!(
         (r.reply.unwrap().ack.status, r.executed),
-        (Ok, false),
-        "a duplicate is ACKed OK but not executed"
+        (Ok, true),
+        "the same bytes again are executed again, not a duplicate"
     );
-    s.now_us += DUPLICATE_WINDOW_US;
-    let r = s.send_raw(HOST, &stop);
-    assert!(r.executed, "after the window it is a new command");
     let r = s.send_raw(OTHER, &raw(3, Tag::Stopped as u8, &[]));
     assert!(r.executed, "a stranger's STOPPED is executed");
+    let mut bad = raw(4, Tag::Stopped as u8, &[]);
+    *bad.last_mut().unwrap() ^= 1;
+    let r = s.send_raw(OTHER, &bad);
+    assert_eq!((r.reply.unwrap().ack.status, r.executed), (BadCrc, false));
 }
 
 #[test]

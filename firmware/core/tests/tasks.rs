@@ -510,10 +510,13 @@ fn stopped_overtakes_queued_uploads() {
     let mut routed = 0;
     let sent = arm_core::bus::INBOX_QUEUE + 12;
     for seq in 0..sent as u8 {
+        // PIN0_ON: ACKed, no other report, so every ACK of the full inbox fits the
+        // outbox (the stranger's STOPPED no longer makes it the owner, issue 18, so these
+        // are executed rather than refused NOT_OWNER).
         let cmd = if seq == 0 {
             Command::New { count: 100 }
         } else {
-            Command::Status
+            Command::Pin0On
         };
         bus_route(&fx.bus, HOST, &frame(seq, cmd));
         routed += 1;
@@ -825,25 +828,6 @@ impl Rig {
         self.acks()
     }
 
-    /// Waits until the run of [`three_points`] ended: joint 0 at 30.
-    async fn until_three_points_ran(&self) {
-        until("the run's end", LIMIT, || {
-            self.drain();
-            self.step.positions()[0] == 30
-        })
-        .await;
-    }
-
-    /// `ack` is RUNING's (`seq`) ACK, OK in state RUNNING, and every point of
-    /// [`three_points`] ran.
-    fn assert_runing_ok_and_every_point_ran(&self, ack: &(u8, u8, StatusCode, State), seq: u8) {
-        assert_eq!(
-            *ack,
-            (seq, Tag::Runing as u8, StatusCode::Ok, State::Running)
-        );
-        assert_eq!(self.pins.borrow().position[0], 30, "every point ran");
-    }
-
     fn run(&self, driver: impl Future<Output = ()>) {
         let kick = TestKick::new(&self.clock);
         let mut controller = controller_32();
@@ -1034,10 +1018,14 @@ fn three_points() -> Vec<Point> {
         .collect()
 }
 
+// Issue 18 reversed issue 14's bug-1 rule. There, a STOPPED with data (BAD_LENGTH) or a
+// resent one (a duplicate within 2 s) "did nothing", and these tests asserted that the run
+// it overtook ran to its end. Now every CRC-valid STOPPED stops: the same scenarios must
+// end with the run stopped before its first pulse, the overtaken frames still ACKed as in
+// arrival order.
+
 #[test]
-fn a_refused_stopped_behind_queued_datagrams_does_not_stop_the_run() {
-    // Bug 1: a STOPPED with one data byte (BAD_LENGTH) overtook the queued upload and the
-    // task stopped the run it started anyway.
+fn a_stopped_with_data_behind_queued_datagrams_stops_the_run_they_start() {
     let rig = Rig::new();
     let pts = three_points();
     rig.route(&frame(1, Command::New { count: 3 }));
@@ -1049,47 +1037,47 @@ fn a_refused_stopped_behind_queued_datagrams_does_not_stop_the_run() {
     rig.route(&raw(9, Tag::Stopped as u8, &[0]));
     assert_eq!(rig.queued(), (1, 8));
     rig.run(async {
-        until("nine ACKs", LIMIT, || rig.acks().len() >= 9).await;
-        rig.until_three_points_ran().await;
-        let acks = rig.acks();
+        // 30 ms: longer than the start lead and the whole trajectory (3 ms).
+        let acks = rig.acks_after(9, 30).await;
         assert_eq!(
             acks[0],
-            (9, Tag::Stopped as u8, StatusCode::BadLength, State::Stopped),
-            "refused (handled first, before the upload)"
+            (9, Tag::Stopped as u8, StatusCode::Ok, State::Stopped),
+            "executed, handled first"
         );
-        rig.assert_runing_ok_and_every_point_ran(&acks[8], 8);
+        assert_eq!(acks[8].0, 8, "RUNING ACKed in arrival order");
+        assert_eq!(rig.pins.borrow().pulses, 0, "no STEP pulse, ever");
+        assert_eq!(rig.bus.report_settings().state, State::Stopped);
     });
 }
 
 #[test]
-fn a_resent_stopped_does_not_stop_a_fresh_run() {
-    // Bug 1: a retransmitted STOPPED (a duplicate within 2 s) overtook the next run's
-    // upload and stopped it.
+fn a_resent_stopped_stops_a_fresh_run() {
     let rig = Rig::new();
     let pts = three_points();
     let stop = frame(1, Command::Stopped);
     rig.route(&stop);
     rig.run(async {
         until("STOPPED's ACK", LIMIT, || !rig.acks().is_empty()).await;
-        // All queued before the task runs again; the resent STOPPED overtakes them.
+        // All queued before the task runs again; the same STOPPED bytes overtake them.
         rig.route(&frame(2, Command::New { count: 3 }));
         rig.route(&frame(3, Command::Pending(PointList::Points(&pts))));
         rig.route(&frame(4, Command::Runing));
         rig.route(&stop);
-        until("five ACKs", LIMIT, || rig.acks().len() >= 5).await;
-        rig.until_three_points_ran().await;
-        let acks = rig.acks();
-        assert_eq!(acks[1].0, 1, "the duplicate is handled first");
-        assert_eq!(acks[1].2, StatusCode::Ok, "and ACKed OK again");
-        rig.assert_runing_ok_and_every_point_ran(&acks[4], 4);
+        let acks = rig.acks_after(5, 30).await;
+        assert_eq!(
+            acks[1],
+            (1, Tag::Stopped as u8, StatusCode::Ok, State::Stopped),
+            "the repeat is handled first and executed"
+        );
+        assert_eq!(rig.pins.borrow().pulses, 0, "no STEP pulse, ever");
+        assert_eq!(rig.bus.report_settings().state, State::Stopped);
     });
 }
 
 #[test]
-fn an_executed_stopped_after_a_refused_one_stops_after_the_frames_between() {
-    // Arrival order: NEW, a refused STOPPED, PENDING, RUNING, STOPPED. The refused one
-    // does nothing, so PENDING and RUNING are taken (ACKs as in arrival order), and the
-    // real STOPPED cancels the run before any pulse.
+fn two_overtaking_stoppeds_each_stop_what_came_before_them() {
+    // Arrival order: NEW, STOPPED (with data), PENDING, RUNING, STOPPED. In that order
+    // the first STOPPED ends the upload, so PENDING and RUNING find the arm STOPPED.
     let rig = Rig::new();
     let pts = three_points();
     rig.route(&frame(1, Command::New { count: 3 }));
@@ -1099,15 +1087,15 @@ fn an_executed_stopped_after_a_refused_one_stops_after_the_frames_between() {
     rig.route(&frame(4, Command::Stopped));
     rig.run(async {
         let acks = rig.acks_after(5, 30).await;
-        use StatusCode::{BadLength, Ok};
-        assert_eq!(acks[0].2, BadLength);
-        assert_eq!(acks[1], (4, Tag::Stopped as u8, Ok, State::Stopped));
+        use StatusCode::{BadState, Ok};
         assert_eq!(
-            acks[2..],
+            acks,
             [
+                (9, Tag::Stopped as u8, Ok, State::Stopped),
+                (4, Tag::Stopped as u8, Ok, State::Stopped),
                 (1, Tag::New as u8, Ok, State::New),
-                (2, Tag::Pending as u8, Ok, State::Pending),
-                (3, Tag::Runing as u8, Ok, State::Running),
+                (2, Tag::Pending as u8, BadState, State::Stopped),
+                (3, Tag::Runing as u8, BadState, State::Stopped),
             ]
         );
         assert_eq!(rig.pins.borrow().pulses, 0, "no STEP pulse, ever");
@@ -1115,20 +1103,20 @@ fn an_executed_stopped_after_a_refused_one_stops_after_the_frames_between() {
     });
 }
 
-/// A STOPPED that does nothing: refused for its length, or a resend of one executed.
+/// A STOPPED the old rule ignored: one with data, or the same bytes as an earlier one.
 #[derive(Clone, Copy, Debug)]
-enum IdleStop {
-    /// STOPPED with this many data bytes (1..=4): BAD_LENGTH.
-    BadLength(usize),
-    /// The STOPPED executed before the upload, sent again (a duplicate).
-    Resent,
+enum OddStop {
+    /// STOPPED with this many data bytes (1..=4).
+    WithData(usize),
+    /// The STOPPED executed before the upload, sent again.
+    Repeated,
 }
 
-fn idle_stop() -> impl proptest::strategy::Strategy<Value = IdleStop> {
+fn odd_stop() -> impl proptest::strategy::Strategy<Value = OddStop> {
     use proptest::prelude::*;
     prop_oneof![
-        (1usize..=4).prop_map(IdleStop::BadLength),
-        Just(IdleStop::Resent)
+        (1usize..=4).prop_map(OddStop::WithData),
+        Just(OddStop::Repeated)
     ]
 }
 
@@ -1139,14 +1127,14 @@ proptest::proptest! {
         ..proptest::test_runner::Config::default()
     })]
 
-    /// Bug 1 at the task level: datagrams queued (an upload, STATUS polls, RUNING), then
-    /// STOPPEDs that do nothing, all before the trajectory task runs (so they overtake the
-    /// queue): the run must end by completion, every point run, never stopped.
+    /// At the task level: datagrams queued (an upload, STATUS polls, RUNING), then
+    /// STOPPEDs with data or repeated bytes, all before the trajectory task runs (so they
+    /// overtake the queue): the run they follow never makes a pulse.
     #[test]
-    fn stoppeds_that_do_nothing_never_stop_the_queued_run(
+    fn any_crc_valid_stopped_stops_the_queued_run(
         frames_of_points in 1usize..=3,
         polls in 0u8..=6,
-        stops in proptest::collection::vec(idle_stop(), 1..=3),
+        stops in proptest::collection::vec(odd_stop(), 1..=3),
     ) {
         let rig = Rig::new();
         let first_stop = frame(200, Command::Stopped);
@@ -1159,7 +1147,6 @@ proptest::proptest! {
         rig.run(async {
             until("the first STOPPED's ACK", LIMIT, || !rig.acks().is_empty()).await;
             let mut seq = 1u8;
-            let mut routed = 0;
             rig.route(&frame(seq, Command::New { count: n as u16 }));
             for pair in pts.chunks(2) {
                 seq += 1;
@@ -1170,34 +1157,29 @@ proptest::proptest! {
                 rig.route(&frame(seq, Command::Status));
             }
             seq += 1;
-            let runing_seq = seq;
             rig.route(&frame(seq, Command::Runing));
-            routed += usize::from(seq);
+            let mut routed = usize::from(seq);
             for (i, stop) in stops.iter().enumerate() {
                 match stop {
-                    IdleStop::BadLength(len) => {
+                    OddStop::WithData(len) => {
                         rig.route(&raw(100 + i as u8, Tag::Stopped as u8, &vec![0; *len]))
                     }
-                    IdleStop::Resent => rig.route(&first_stop),
+                    OddStop::Repeated => rig.route(&first_stop),
                 }
                 routed += 1;
             }
-            until("every ACK", LIMIT, || rig.acks().len() > routed).await;
-            until("the run's end", LIMIT, || {
-                rig.drain();
-                rig.bus.report_settings().state == State::Stopped
-                    && rig.step.positions()[0] == 4 * n as i32
-            })
-            .await;
-            let runing_ack = rig.acks().into_iter().find(|a| a.0 == runing_seq);
-            outcome = Some((runing_ack, rig.step.positions()[0], rig.pins.borrow().position[0]));
+            // Every ACK, then longer than the start lead and the whole run (6 ms).
+            let acks = rig.acks_after(routed + 1, 20).await;
+            let stop_acks = acks.iter().filter(|a| a.1 == Tag::Stopped as u8).count();
+            outcome = Some((
+                stop_acks,
+                rig.pins.borrow().pulses,
+                rig.bus.report_settings().state,
+            ));
         });
-        let (runing_ack, position, pins) = outcome.expect("the driver finished");
-        proptest::prop_assert_eq!(
-            runing_ack.map(|a| (a.2, a.3)),
-            Some((StatusCode::Ok, State::Running))
-        );
-        proptest::prop_assert_eq!((position, pins), (4 * n as i32, 4 * n as i64));
+        let (stop_acks, pulses, state) = outcome.expect("the driver finished");
+        proptest::prop_assert_eq!(stop_acks, stops.len() + 1);
+        proptest::prop_assert_eq!((pulses, state), (0, State::Stopped));
     }
 }
 
