@@ -7,6 +7,8 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use arm_core::config::{BOARD_MAX_STEP_RATE_HZ, BOARD_TRAJECTORY_CAPACITY};
+use arm_core::hw::Clock;
+use arm_core::ingress::HaltSteps;
 use arm_core::{Bus, StepShared, TrajectoryHw};
 use arm_core::{Controller, ControllerConfig};
 use arm_step::StepTiming;
@@ -78,7 +80,7 @@ impl Board {
         }
         let udp = match &options.tap {
             Some(_) => None,
-            None => Some(UdpDatagrams::bind(options.bind, probe.clone())?),
+            None => Some(UdpDatagrams::bind(options.bind)?),
         };
         if let Some(path) = &options.pcap {
             let local = match (udp.and_then(|u| u.local_addr().ok()), &options.ip) {
@@ -255,7 +257,11 @@ async fn network(socket: &'static SimSocket, bus: &'static Bus, clock: &'static 
     arm_core::tasks::network_task(socket, bus, clock).await
 }
 
+/// The step outputs' halt for the first look at each datagram ([`arm_core::ingress`]).
+pub type SimHalt = HaltSteps<'static, STEP_QUEUE, SimSteps<STEP_QUEUE>, SimStepKick>;
+
 #[embassy_executor::task]
+#[allow(clippy::too_many_arguments)]
 async fn network_over_tap(
     spawner: Spawner,
     iface: String,
@@ -263,13 +269,14 @@ async fn network_over_tap(
     faults: crate::faults::FaultConfig,
     bus: &'static Bus,
     clock: &'static SimClock,
+    halt: SimHalt,
 ) {
     let seed = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
         .map(|d| d.as_nanos() as u64)
         .unwrap_or(0x5EED);
     let mac = sim_mac(Some(&iface), protocol::PORT);
-    match crate::tap::start(spawner, &iface, address, mac, seed).await {
+    match crate::tap::start(spawner, &iface, address, mac, seed, (bus, halt, clock)).await {
         Ok(tap) => {
             let socket: &'static SimSocket =
                 Box::leak(Box::new(Faulty::new(SimNet::Tap(tap), faults)));
@@ -310,6 +317,12 @@ async fn trajectory(
 }
 
 static BUS: Bus = Bus::new();
+
+/// Datagrams the simulated controller's receive path shed so far: over their sender's
+/// share ([`arm_core::ingress`]).
+pub fn receive_shed() -> u32 {
+    BUS.shed()
+}
 static STEP: StaticCell<SimStepShared> = StaticCell::new();
 static CONTROLLER: StaticCell<SimController> = StaticCell::new();
 
@@ -414,10 +427,21 @@ fn spawn_tasks(spawner: Spawner, wiring: Wiring) {
                         std::process::exit(2)
                     });
                 let address = address.unwrap_or_else(|| stored_address(&board));
-                network_over_tap(spawner, iface.clone(), address, faults, bus, clock)
+                let halt = HaltSteps { step: shared, kick };
+                network_over_tap(spawner, iface.clone(), address, faults, bus, clock, halt)
                     .map(|t| spawner.spawn(t))
             }
             (None, Some(udp)) => {
+                // The socket reader's first look (issue 18): a STOPPED halts the steps in
+                // the reader thread itself, before any queue.
+                let halt = HaltSteps { step: shared, kick };
+                let first_look: crate::net::FirstLook = Box::new(move |from, bytes| {
+                    bus.receive_first(from, bytes, clock.now_us(), &halt)
+                });
+                if let Err(e) = udp.start(board.probe.clone(), bus, first_look) {
+                    log::error!("cannot start the socket reader: {e}");
+                    std::process::exit(2);
+                }
                 let socket: &'static SimSocket =
                     Box::leak(Box::new(Faulty::new(SimNet::Udp(udp), faults)));
                 network(socket, bus, clock).map(|t| spawner.spawn(t))

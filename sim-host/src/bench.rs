@@ -7,6 +7,10 @@
 //! - E-stop latency: from the moment the STOPPED datagram is read from the socket to the
 //!   moment the step engine is idle (measured inside the simulator), and the host's
 //!   STOPPED-to-ACK round trip; p50/p99 over repeated stops of a running trajectory.
+//! - E-stop under a flood (issue 18): a STOPPED from a third host while a stranger floods
+//!   the controller with valid and garbage datagrams, from its send to the engine idle
+//!   (p50/p90/max, lost), beside the same without the flood, and the owner's STATUS round
+//!   trips meanwhile ([`crate::flood`]).
 //! - CPU use of the controller's threads (executor, step timer, socket), idle and while a
 //!   6-joint trajectory runs, from /proc/self/task/*/stat, and of the whole process.
 
@@ -33,6 +37,12 @@ pub struct BenchOptions {
     /// Seconds of each CPU measurement.
     #[arg(long, default_value_t = 3.0)]
     pub cpu_seconds: f64,
+    /// STOPPEDs measured with and without a stranger's flood.
+    #[arg(long, default_value_t = 20)]
+    pub flood_stops: usize,
+    /// The stranger's flood, datagrams per second.
+    #[arg(long, default_value_t = 10_000)]
+    pub flood_hz: u32,
 }
 
 /// Threads that are the controller (not the benchmark's client).
@@ -160,6 +170,37 @@ pub fn run(sim: &SimOptions, bench: &BenchOptions) -> io::Result<()> {
         percentile_us(&round_trips, 0.50),
         percentile_us(&round_trips, 0.99)
     );
+
+    // E-stop under a flood.
+    println!(
+        "e-stop under a flood ({} single STOPPEDs from a third host, never resent, 20-80 ms into a 6-joint run; send -> step engine idle):",
+        bench.flood_stops.max(1)
+    );
+    for flood_hz in [0, bench.flood_hz, 5 * bench.flood_hz] {
+        let f = crate::flood::estop_under_flood(
+            addr,
+            &board.probe,
+            bench.flood_stops.max(1),
+            flood_hz,
+            crate::app::receive_shed,
+        )?;
+        let label = if flood_hz == 0 {
+            "idle".to_string()
+        } else {
+            format!("flood {:.0}/s", f.flood_rate_hz)
+        };
+        println!(
+            "  {label:<14} p50 {:>6.2} ms  p90 {:>6.2} ms  max {:>6.2} ms  lost {} of {}   owner STATUS p50 {:.2} ms max {:.2} ms   shed {}",
+            f.effect_ms(0.5),
+            f.effect_ms(0.9),
+            f.effect_ms(1.0),
+            f.lost,
+            f.effect.len() + f.lost,
+            f.status_ms(0.5),
+            f.status_ms(1.0),
+            f.shed
+        );
+    }
 
     // CPU use.
     let window = Duration::from_secs_f64(bench.cpu_seconds.max(0.5));

@@ -10,6 +10,7 @@
 pub mod clock;
 pub mod devices;
 pub mod faults;
+pub mod flood;
 pub mod net;
 pub mod options;
 pub mod probe;

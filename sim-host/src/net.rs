@@ -7,6 +7,7 @@ use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
 use arm_core::hw::{Datagrams, Endpoint};
+use arm_core::ingress::Ingress;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::channel::Channel;
 use protocol::MAX_DATAGRAM;
@@ -16,8 +17,9 @@ use crate::probe::Probe;
 
 /// Datagrams received and not yet taken by the network task: a host's whole window
 /// ([`arm_core::config::HOST_WINDOW`] = 32) plus 8 for other tools' commands, as the
-/// board's Ethernet ring. Beyond this the receiving thread waits and the kernel's socket
-/// buffer ([`SOCKET_RX_BYTES`]) holds the rest, as a NIC's ring would.
+/// board's Ethernet ring. The receiving thread never waits for room (issue 18): beyond
+/// this a datagram is shed (counted, logged once a second), so the thread keeps reading
+/// the socket and a STOPPED behind a flood is seen as soon as it arrives.
 const RX_QUEUE: usize = arm_core::bus::INBOX_QUEUE;
 
 /// Receive buffer asked of the kernel: two windows of full-size datagrams at the kernel's
@@ -36,12 +38,20 @@ pub struct Received {
     pub from: Endpoint,
 }
 
-/// [`Datagrams`] over a std UDP socket. A thread does the blocking receive and hands the
-/// datagrams to the executor through a channel; sends go straight to the socket (a UDP
-/// send to a local address does not block).
+/// What the receiving thread does with each datagram before it queues it: the
+/// controller's first look ([`arm_core::Bus::receive_first`]: a STOPPED halts the steps
+/// there and goes to the e-stop queue; others are admitted or shed by their sender's share).
+pub type FirstLook = Box<dyn Fn(Endpoint, &[u8]) -> Ingress + Send>;
+
+/// [`Datagrams`] over a std UDP socket. A thread does the blocking receive, gives each
+/// datagram its first look ([`FirstLook`]) and hands those admitted to the executor
+/// through a channel; sends go straight to the socket (a UDP send to a local address does
+/// not block).
 pub struct UdpDatagrams {
     socket: UdpSocket,
     received: Channel<CriticalSectionRawMutex, Received, RX_QUEUE>,
+    /// Admitted datagrams shed because `received` was full.
+    queue_full: std::sync::atomic::AtomicU32,
 }
 
 impl std::fmt::Debug for UdpDatagrams {
@@ -53,18 +63,36 @@ impl std::fmt::Debug for UdpDatagrams {
 }
 
 impl UdpDatagrams {
-    /// Binds `addr` and starts the receiving thread.
-    pub fn bind(addr: SocketAddrV4, probe: Arc<Probe>) -> std::io::Result<&'static UdpDatagrams> {
+    /// Binds `addr`; [`UdpDatagrams::start`] starts the receiving thread (until then the
+    /// kernel holds what arrives).
+    pub fn bind(addr: SocketAddrV4) -> std::io::Result<&'static UdpDatagrams> {
         let socket = UdpSocket::bind(addr)?;
         set_receive_buffer(&socket, SOCKET_RX_BYTES);
-        let datagrams: &'static UdpDatagrams = Box::leak(Box::new(UdpDatagrams {
+        Ok(Box::leak(Box::new(UdpDatagrams {
             socket,
             received: Channel::new(),
-        }));
+            queue_full: std::sync::atomic::AtomicU32::new(0),
+        })))
+    }
+
+    /// Starts the receiving thread, which gives every datagram `first_look` as it reads it.
+    /// A datagram it admits but cannot queue is shed, its slot of the sender's share given
+    /// back to `bus`.
+    pub fn start(
+        &'static self,
+        probe: Arc<Probe>,
+        bus: &'static arm_core::Bus,
+        first_look: FirstLook,
+    ) -> std::io::Result<()> {
         std::thread::Builder::new()
             .name("udp-rx".into())
-            .spawn(move || datagrams.receive_loop(&probe))?;
-        Ok(datagrams)
+            .spawn(move || self.receive_loop(&probe, bus, &first_look))?;
+        Ok(())
+    }
+
+    /// Admitted datagrams shed so far because the network task's queue was full.
+    pub fn queue_full(&self) -> u32 {
+        self.queue_full.load(std::sync::atomic::Ordering::Relaxed)
     }
 
     /// The bound address (the port, when bound to port 0).
@@ -72,10 +100,11 @@ impl UdpDatagrams {
         self.socket.local_addr()
     }
 
-    fn receive_loop(&self, probe: &Probe) {
+    fn receive_loop(&self, probe: &Probe, bus: &arm_core::Bus, first_look: &FirstLook) {
         // Bigger than any valid frame, so an oversized datagram is seen (and cut), not lost.
         let mut buf = vec![0u8; 2048];
         let mut failures = arm_core::LogLimit::new();
+        let mut full = arm_core::LogLimit::new();
         loop {
             let (len, from) = match self.socket.recv_from(&mut buf) {
                 Ok(r) => r,
@@ -92,13 +121,28 @@ impl UdpDatagrams {
                 }
             };
             let SocketAddr::V4(from) = from else { continue };
-            let bytes = buf[..len.min(MAX_DATAGRAM)].to_vec();
-            probe.datagram_received(&bytes, Instant::now());
+            let bytes = &buf[..len.min(MAX_DATAGRAM)];
+            probe.datagram_received(bytes, Instant::now());
+            let from = endpoint_of(from);
+            if first_look(from, bytes) != Ingress::Admit {
+                continue;
+            }
             let received = Received {
-                bytes,
-                from: endpoint_of(from),
+                bytes: bytes.to_vec(),
+                from,
             };
-            embassy_futures::block_on(self.received.send(received));
+            if self.received.try_send(received).is_err() {
+                bus.release(from.ip);
+                self.queue_full
+                    .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                if let arm_core::LogVerdict::Log { suppressed } =
+                    full.event(crate::simnet::log_time_us())
+                {
+                    log::warn!(
+                        "udp: receive queue full, a datagram was shed ({suppressed} more since the last such line)"
+                    );
+                }
+            }
         }
     }
 }

@@ -23,6 +23,8 @@ pub struct Probe {
     pub datagrams: AtomicU64,
     stop_received: Mutex<Option<Instant>>,
     estop_latencies: Mutex<Vec<Duration>>,
+    /// When the step engine last went idle (for latencies from a host's send).
+    last_engine_stop: Mutex<Option<Instant>>,
 }
 
 impl Probe {
@@ -35,6 +37,7 @@ impl Probe {
             datagrams: AtomicU64::new(0),
             stop_received: Mutex::new(None),
             estop_latencies: Mutex::new(Vec::new()),
+            last_engine_stop: Mutex::new(None),
         }
     }
 
@@ -62,12 +65,20 @@ impl Probe {
     pub fn engine_stopped(&self, at: Instant, t_ns: u64) {
         self.tracer
             .record_at(t_ns, Signal::EStop, Value::Bit(false));
+        if let Ok(mut last) = self.last_engine_stop.lock() {
+            *last = Some(at);
+        }
         let pending = self.stop_received.lock().ok().and_then(|mut p| p.take());
         if let Some(received) = pending
             && let Ok(mut latencies) = self.estop_latencies.lock()
         {
             latencies.push(at.saturating_duration_since(received));
         }
+    }
+
+    /// When the step engine last went idle, if it did.
+    pub fn last_engine_stop(&self) -> Option<Instant> {
+        self.last_engine_stop.lock().ok().and_then(|l| *l)
     }
 
     /// E-stop latencies measured so far, and clears them.

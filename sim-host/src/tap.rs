@@ -3,7 +3,12 @@
 
 use std::net::Ipv4Addr;
 
+use arm_core::Bus;
 use arm_core::hw::{Datagrams, Endpoint};
+use arm_core::ingress::GuardedDriver;
+
+use crate::app::SimHalt;
+use crate::clock::SimClock;
 use embassy_executor::Spawner;
 use embassy_net::udp::{PacketMetadata, RecvError, SendError, UdpSocket};
 use embassy_net::{Config, IpAddress, IpEndpoint, Ipv4Cidr, StackResources, StaticConfigV4};
@@ -69,8 +74,12 @@ impl std::fmt::Debug for TapDatagrams {
     }
 }
 
+/// The TAP device behind the controller's first look at each frame (issue 18): as the
+/// board's Ethernet driver, a STOPPED halts the steps before embassy-net sees it.
+pub type GuardedTap = GuardedDriver<'static, TunTapDevice, SimHalt, SimClock>;
+
 #[embassy_executor::task]
-async fn net_task(mut runner: embassy_net::Runner<'static, TunTapDevice>) -> ! {
+async fn net_task(mut runner: embassy_net::Runner<'static, GuardedTap>) -> ! {
     runner.run().await
 }
 
@@ -82,11 +91,14 @@ pub async fn start(
     address: TapAddress,
     mac: [u8; 6],
     seed: u64,
+    guard: (&'static Bus, SimHalt, &'static SimClock),
 ) -> Result<&'static TapDatagrams, String> {
     let mut device =
         TunTapDevice::new(iface).map_err(|e| format!("cannot open TAP {iface}: {e}"))?;
     // Its own MAC: several simulators on one bridge must not share one.
     device.set_hardware_address(mac);
+    let (bus, halt, clock) = guard;
+    let device = GuardedDriver::new(device, bus, halt, clock, protocol::PORT);
     let config = match address {
         TapAddress::Static(ip, prefix) => Config::ipv4_static(StaticConfigV4 {
             address: Ipv4Cidr::new(ip, prefix),

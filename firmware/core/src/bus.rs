@@ -21,7 +21,7 @@
 //! step task's wake-up are touched from the timer interrupt, and one kind of mutex for all
 //! keeps the rules simple.
 
-use core::cell::Cell;
+use core::cell::{Cell, RefCell};
 
 use arm_step::Segment;
 use embassy_sync::blocking_mutex::Mutex;
@@ -33,6 +33,7 @@ use protocol::{MAX_DATAGRAM, MAX_SERIAL_CHUNK, Tag, UartInit, crc8};
 
 use crate::config::HOST_WINDOW;
 use crate::hw::Endpoint;
+use crate::ingress::{SharedBudgets, SourceBudgets};
 use crate::log_limit::{LogLimit, LogVerdict};
 use crate::outgoing::Outgoing;
 use crate::reports::ReportSettings;
@@ -145,6 +146,9 @@ pub struct Bus {
     /// Frames dropped by [`Bus::send`] (full outbox) not yet logged: `network_task` logs
     /// them, at most once a second.
     outbox_drops: Mutex<Cs, Cell<u32>>,
+    /// Each source's share of the receive path, charged by [`Bus::receive_first`] (the
+    /// first reader of datagrams: [`crate::ingress`]).
+    pub(crate) budgets: SharedBudgets,
 }
 
 impl Default for Bus {
@@ -170,6 +174,7 @@ impl Bus {
             stops_routed: Mutex::new(Cell::new(0)),
             inbox_drops: Mutex::new(Cell::new((0, LogLimit::new()))),
             outbox_drops: Mutex::new(Cell::new(0)),
+            budgets: Mutex::new(RefCell::new(SourceBudgets::new())),
         }
     }
 
@@ -196,12 +201,28 @@ impl Bus {
         }
     }
 
+    /// Puts a CRC-valid STOPPED on `estop`, stamped like [`Bus::route`] does; a full
+    /// `estop` (already that many STOPPEDs waiting, so the controller stops anyway) drops
+    /// it. Never falls back to the inbox: a flood of STOPPEDs cannot crowd out other
+    /// hosts' commands.
+    pub fn route_stop(&self, mut datagram: Datagram) -> bool {
+        self.stops_routed.lock(|routed| {
+            datagram.stops_before = routed.get();
+            let queued = self.estop.try_send(datagram).is_ok();
+            if queued {
+                routed.set(routed.get().wrapping_add(1));
+            }
+            queued
+        })
+    }
+
     /// Routes a received datagram: a CRC-valid STOPPED to `estop` (to `inbox` if that
     /// is full), everything else to `inbox`. Never waits: a full inbox drops the datagram
     /// (the host resends it since no ACK came; the drops are counted and logged at most
     /// once a second, `now_us` being the arrival time). Stamps it with the STOPPEDs put on
     /// `estop` before it ([`Datagram::stops_before`]).
     pub fn route(&self, mut datagram: Datagram, now_us: u64) {
+        let from_ip = datagram.from.ip;
         // One critical section: stamps and queue order agree even if two tasks route.
         let queued = self.stops_routed.lock(|routed| {
             datagram.stops_before = routed.get();
@@ -219,6 +240,7 @@ impl Bus {
             self.inbox.try_send(datagram).is_ok()
         });
         if !queued {
+            self.release(from_ip);
             let verdict = self.inbox_drops.lock(|c| {
                 let (drops, mut limit) = c.get();
                 let verdict = limit.event(now_us);

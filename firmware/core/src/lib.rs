@@ -77,6 +77,7 @@ pub mod bus;
 pub mod config;
 pub mod controller;
 pub mod hw;
+pub mod ingress;
 pub mod link;
 pub mod log_limit;
 pub mod outgoing;

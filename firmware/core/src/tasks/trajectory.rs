@@ -156,6 +156,11 @@ where
             bus.step_progress.wait(),
         )
         .await;
+        // Taken from the inbox: its slot of the sender's share of the receive path is
+        // free again (crate::ingress).
+        if let Either3::Second(d) = &event {
+            bus.release(d.from.ip);
+        }
         let mut plant = TaskPlant {
             bus,
             step,

@@ -1,0 +1,295 @@
+//! The first look at a received datagram (issue 18; docs/PROTOCOL.md sections 4 and 7).
+//!
+//! Whatever reads datagrams first (the simulator's socket reader thread; on the boards and
+//! the simulator's TAP mode, the Ethernet driver's receive path, [`GuardedDriver`] with
+//! the `net-driver` feature) hands each one to [`Bus::receive_first`] before any queue:
+//!
+//! - a CRC-valid **STOPPED** halts the step outputs there and then ([`StepHalt`]: the step
+//!   backend's stop and a kick of its interrupt, as the trajectory task's own stop does)
+//!   and goes onto `bus.estop` for the controller's bookkeeping and ACK. It never waits
+//!   behind, or is dropped with, other traffic, and it is not counted against its sender;
+//! - anything else is admitted only within its sender's **fair share** ([`SourceBudgets`]:
+//!   per source address, at most [`SOURCE_SHARE`] datagrams admitted and not yet taken by
+//!   the controller), so one host's flood can never fill the queues behind (socket,
+//!   inbox), and the owner's commands wait behind at most a share of it. A host alone is
+//!   never slowed. What is shed is counted and logged at most once a second.
+//!
+//! Halting at the reader is what makes a STOPPED immune to a flood: the queues behind it
+//! may hold many datagrams of other hosts, but the pulses have stopped before the
+//! STOPPED joins any of them. The controller still handles it in its turn (first, from
+//! `estop`), so its state, flags and ACK are those of an ordinary STOPPED.
+
+use core::cell::RefCell;
+
+use embassy_sync::blocking_mutex::Mutex;
+use heapless::Vec;
+use protocol::{MAX_DATAGRAM, Tag, crc8};
+
+use crate::bus::{Bus, Cs, Datagram, is_stop};
+use crate::config::HOST_WINDOW;
+use crate::hw::{Endpoint, StepKick};
+use crate::log_limit::{LogLimit, LogVerdict};
+use crate::step_shared::{StepBackend, StepShared};
+
+#[cfg(feature = "net-driver")]
+mod driver;
+#[cfg(feature = "net-driver")]
+pub use driver::GuardedDriver;
+
+/// Source addresses whose share is tracked at once. A cell has a few hosts (the owner's
+/// machine, a panel, a second tool); a new address beyond these takes the slot of the one
+/// heard least recently, starting with its full share. 8 slots are 192 bytes.
+pub const INGRESS_SOURCES: usize = 8;
+
+/// Datagrams of one source address admitted and not yet handled (in the socket or the
+/// inbox) at most: a host's whole window ([`HOST_WINDOW`] = 32) plus 4 for its other
+/// tools' polls. The inbox holds [`crate::bus::INBOX_QUEUE`] = 40, so however one host
+/// floods, 4 slots stay free for the others and the owner's commands wait behind at most
+/// 36 of the flood's. A host alone is never slowed: its share comes back as fast as the
+/// controller handles its datagrams (work-conserving, unlike a fixed rate).
+pub const SOURCE_SHARE: u64 = HOST_WINDOW as u64 + 4;
+
+/// Share returned per second regardless of handling: an admitted datagram the network
+/// stack drops before the controller sees it (a full socket, a bad IP checksum) would
+/// otherwise hold its slot of the share forever. 1,000 a second heal a whole share in
+/// 36 ms, and add at most that to a flooder's throughput.
+pub const SHARE_HEAL_HZ: u64 = 1_000;
+
+/// Credit units per datagram: credit is kept in millionths of a datagram, so that the
+/// healing ([`SHARE_HEAL_HZ`] per second) is a whole number per microsecond.
+const CREDIT_PER_DATAGRAM: u64 = 1_000_000;
+
+/// What [`Bus::receive_first`] did with a datagram.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Ingress {
+    /// A CRC-valid STOPPED: the step outputs are halted and the frame is on `bus.estop`
+    /// (or, that queue being full of STOPPEDs already, dropped: the controller stops
+    /// anyway). The caller drops the datagram.
+    Stopped,
+    /// Within its sender's share: the caller passes it on (socket, inbox).
+    Admit,
+    /// Over its sender's share: the caller drops it (counted here).
+    Shed,
+}
+
+/// Stops every STEP output now, from wherever the datagram was read: no task runs
+/// between the STOPPED's arrival and the halt.
+pub trait StepHalt {
+    /// No step pulse after this returns (or, for a backend whose lines its interrupt
+    /// lowers, after the interrupt this kicks).
+    fn halt(&self);
+}
+
+/// [`StepHalt`] over the step backend the tasks share and the kick of its interrupt: what
+/// the trajectory task's own stop does to the steps.
+pub struct HaltSteps<'a, const Q: usize, B, K> {
+    /// The step backend.
+    pub step: &'a StepShared<Q, B>,
+    /// Its interrupt.
+    pub kick: &'a K,
+}
+
+impl<const Q: usize, B: StepBackend, K: StepKick> StepHalt for HaltSteps<'_, Q, B, K> {
+    fn halt(&self) {
+        self.step.stop();
+        self.kick.kick();
+    }
+}
+
+/// One tracked source's share.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+struct Source {
+    ip: [u8; 4],
+    /// Millionths of a datagram it may still have admitted.
+    credit: u64,
+    /// When `credit` was last healed; also when it was last heard.
+    at_us: u64,
+    in_use: bool,
+}
+
+/// The fair share of the receive path: per source address, datagrams admitted and not yet
+/// handled at most [`SOURCE_SHARE`] (returned by [`SourceBudgets::release`] as the
+/// controller takes each one, and healed at [`SHARE_HEAL_HZ`]), for [`INGRESS_SOURCES`]
+/// addresses; and the count of datagrams shed.
+#[derive(Clone, Copy, Debug)]
+pub struct SourceBudgets {
+    sources: [Source; INGRESS_SOURCES],
+    shed: u32,
+    log: LogLimit,
+}
+
+impl Default for SourceBudgets {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+const FULL_SHARE: u64 = SOURCE_SHARE * CREDIT_PER_DATAGRAM;
+
+impl SourceBudgets {
+    /// No source heard yet.
+    pub const fn new() -> Self {
+        SourceBudgets {
+            sources: [Source {
+                ip: [0; 4],
+                credit: 0,
+                at_us: 0,
+                in_use: false,
+            }; INGRESS_SOURCES],
+            shed: 0,
+            log: LogLimit::new(),
+        }
+    }
+
+    /// Whether a datagram from `ip` arriving at `now_us` is within its share (it then
+    /// holds one slot of it until [`SourceBudgets::release`]). A refusal is counted in
+    /// [`SourceBudgets::shed`] and returns the log verdict for it.
+    pub fn admit(&mut self, ip: [u8; 4], now_us: u64) -> Result<(), LogVerdict> {
+        let slot = match self.sources.iter().position(|s| s.in_use && s.ip == ip) {
+            Some(i) => i,
+            None => {
+                // A free slot, else the source heard least recently.
+                let i = self
+                    .sources
+                    .iter()
+                    .enumerate()
+                    .min_by_key(|(_, s)| (s.in_use, s.at_us))
+                    .map_or(0, |(i, _)| i);
+                if let Some(s) = self.sources.get_mut(i) {
+                    *s = Source {
+                        ip,
+                        credit: FULL_SHARE,
+                        at_us: now_us,
+                        in_use: true,
+                    };
+                }
+                i
+            }
+        };
+        let Some(source) = self.sources.get_mut(slot) else {
+            return Ok(());
+        };
+        let elapsed = now_us.saturating_sub(source.at_us);
+        source.credit = source
+            .credit
+            .saturating_add(elapsed.saturating_mul(SHARE_HEAL_HZ))
+            .min(FULL_SHARE);
+        source.at_us = source.at_us.max(now_us);
+        if source.credit >= CREDIT_PER_DATAGRAM {
+            source.credit -= CREDIT_PER_DATAGRAM;
+            Ok(())
+        } else {
+            self.shed = self.shed.wrapping_add(1);
+            Err(self.log.event(now_us))
+        }
+    }
+
+    /// The controller took (or a queue dropped) a datagram from `ip`: its slot of the
+    /// share is free again.
+    pub fn release(&mut self, ip: [u8; 4]) {
+        if let Some(s) = self.sources.iter_mut().find(|s| s.in_use && s.ip == ip) {
+            s.credit = s.credit.saturating_add(CREDIT_PER_DATAGRAM).min(FULL_SHARE);
+        }
+    }
+
+    /// Datagrams shed so far (wrapping).
+    pub fn shed(&self) -> u32 {
+        self.shed
+    }
+}
+
+/// The receive path's shares, in the [`Bus`] (filled by whoever reads datagrams first).
+pub type SharedBudgets = Mutex<Cs, RefCell<SourceBudgets>>;
+
+impl Bus {
+    /// The first look at a datagram from `from`, received at `now_us` (see the module
+    /// docs): a CRC-valid STOPPED is put on `estop` and `halt` stops the step outputs;
+    /// anything else is admitted or shed by its sender's share. Never waits.
+    pub fn receive_first(
+        &self,
+        from: Endpoint,
+        bytes: &[u8],
+        now_us: u64,
+        halt: &impl StepHalt,
+    ) -> Ingress {
+        if is_stop(bytes) {
+            // The controller ignores STOPPED's data: pass the canonical 3-byte frame, which
+            // fits whatever the datagram's length was.
+            let seq = bytes.first().copied().unwrap_or(0);
+            let body = [seq, Tag::Stopped as u8];
+            let mut frame: Vec<u8, MAX_DATAGRAM> = Vec::new();
+            let _ = frame.extend_from_slice(&body);
+            let _ = frame.push(crc8(&body));
+            self.route_stop(Datagram::new(from, frame));
+            halt.halt();
+            return Ingress::Stopped;
+        }
+        let verdict = self.budgets.lock(|b| b.borrow_mut().admit(from.ip, now_us));
+        match verdict {
+            Ok(()) => Ingress::Admit,
+            Err(log) => {
+                if let LogVerdict::Log { suppressed } = log {
+                    let [a, b, c, d] = from.ip;
+                    warn!(
+                        "receive: a datagram from {}.{}.{}.{} over its share was shed ({} more from any host since the last such line)",
+                        a, b, c, d, suppressed
+                    );
+                }
+                Ingress::Shed
+            }
+        }
+    }
+
+    /// A datagram from `ip` was taken by the controller, or dropped by a queue after
+    /// [`Bus::receive_first`] admitted it: its slot of the sender's share is free again.
+    pub fn release(&self, ip: [u8; 4]) {
+        self.budgets.lock(|b| b.borrow_mut().release(ip));
+    }
+
+    /// Datagrams [`Bus::receive_first`] shed so far (wrapping).
+    pub fn shed(&self) -> u32 {
+        self.budgets.lock(|b| b.borrow().shed())
+    }
+}
+
+/// Where an IPv4/UDP datagram to `port` sits in an Ethernet II frame: its sender and its
+/// payload. `None` for anything else (ARP, other ports, IP options beyond the header
+/// length, fragments), which the caller passes on untouched. The MAC has checked the
+/// frame's FCS; lengths are checked here, so a short or lying frame is never read past.
+pub fn udp_payload(frame: &[u8], port: u16) -> Option<(Endpoint, &[u8])> {
+    const ETH_HEADER: usize = 14;
+    let ethertype = frame.get(12..14)?;
+    if ethertype != [0x08, 0x00] {
+        return None;
+    }
+    let ip = frame.get(ETH_HEADER..)?;
+    let first = *ip.first()?;
+    let header_len = usize::from(first & 0x0F) * 4;
+    if first >> 4 != 4 || header_len < 20 {
+        return None;
+    }
+    let total_len = usize::from(u16::from_be_bytes([*ip.get(2)?, *ip.get(3)?]));
+    // Fragments (MF set or an offset) are not ours to read: smoltcp drops them too.
+    let fragment = u16::from_be_bytes([*ip.get(6)?, *ip.get(7)?]) & 0x3FFF;
+    if *ip.get(9)? != 17 || fragment != 0 || total_len < header_len {
+        return None;
+    }
+    let ip = ip.get(..total_len)?;
+    let src = ip.get(12..16)?;
+    let udp = ip.get(header_len..)?;
+    let src_port = u16::from_be_bytes([*udp.first()?, *udp.get(1)?]);
+    let dst_port = u16::from_be_bytes([*udp.get(2)?, *udp.get(3)?]);
+    let udp_len = usize::from(u16::from_be_bytes([*udp.get(4)?, *udp.get(5)?]));
+    if dst_port != port || udp_len < 8 {
+        return None;
+    }
+    let payload = udp.get(8..udp_len)?;
+    Some((
+        Endpoint {
+            ip: [*src.first()?, *src.get(1)?, *src.get(2)?, *src.get(3)?],
+            port: src_port,
+        },
+        payload,
+    ))
+}

@@ -1,0 +1,319 @@
+//! Issue 18, "nothing queued ahead of a STOPPED can delay it": the first look at a
+//! datagram ([`Bus::receive_first`], [`GuardedDriver`]) halts the steps for a CRC-valid
+//! STOPPED before any queue and gives each sending host a fair share of the receive path.
+//! Sans-io, on virtual time.
+
+mod common;
+
+use std::cell::Cell;
+use std::collections::VecDeque;
+use std::task::Context;
+
+use arm_core::Bus;
+use arm_core::hw::{Clock, Endpoint};
+use arm_core::ingress::{
+    GuardedDriver, Ingress, SHARE_HEAL_HZ, SOURCE_SHARE, SourceBudgets, StepHalt, udp_payload,
+};
+use common::*;
+use embassy_net_driver::{Capabilities, Driver, HardwareAddress, LinkState, RxToken, TxToken};
+use protocol::{Command, Tag, crc8};
+
+#[derive(Default)]
+struct CountingHalt(Cell<u32>);
+
+impl StepHalt for CountingHalt {
+    fn halt(&self) {
+        self.0.set(self.0.get() + 1);
+    }
+}
+
+struct FixedClock(Cell<u64>);
+
+impl Clock for FixedClock {
+    fn now_us(&self) -> u64 {
+        self.0.get()
+    }
+    async fn sleep_until(&self, _at_us: u64) {}
+}
+
+fn raw(seq: u8, tag: u8, data: &[u8]) -> Vec<u8> {
+    let mut bytes = vec![seq, tag];
+    bytes.extend_from_slice(data);
+    bytes.push(crc8(&bytes));
+    bytes
+}
+
+const FLOODER: Endpoint = Endpoint {
+    ip: [127, 0, 0, 9],
+    port: 50_000,
+};
+
+#[test]
+fn a_source_gets_its_share_back_as_its_datagrams_are_handled() {
+    let mut budgets = SourceBudgets::new();
+    let ip = FLOODER.ip;
+    for i in 0..SOURCE_SHARE {
+        assert!(
+            budgets.admit(ip, 1_000).is_ok(),
+            "datagram {i} of the share"
+        );
+    }
+    assert!(budgets.admit(ip, 1_000).is_err(), "beyond the share");
+    assert_eq!(budgets.shed(), 1);
+    // The controller took one: one more.
+    budgets.release(ip);
+    assert!(budgets.admit(ip, 1_000).is_ok());
+    assert!(budgets.admit(ip, 1_000).is_err());
+    // A host alone is never slowed: 100,000 datagrams in 10 ms, each handled in turn.
+    let mut budgets = SourceBudgets::new();
+    for i in 0..100_000u64 {
+        assert!(
+            budgets.admit(HOST.ip, 2_000 + i / 10).is_ok(),
+            "datagram {i}"
+        );
+        budgets.release(HOST.ip);
+    }
+    assert_eq!(budgets.shed(), 0);
+}
+
+#[test]
+fn a_share_lost_downstream_heals_with_time() {
+    let mut budgets = SourceBudgets::new();
+    for _ in 0..SOURCE_SHARE {
+        assert!(budgets.admit(HOST.ip, 0).is_ok());
+    }
+    // Never released (the stack dropped them): after a datagram's healing time, one more.
+    assert!(budgets.admit(HOST.ip, 0).is_err());
+    let one = 1_000_000 / SHARE_HEAL_HZ;
+    assert!(budgets.admit(HOST.ip, one).is_ok());
+    assert!(budgets.admit(HOST.ip, one).is_err());
+    assert!(budgets.admit(HOST.ip, one * (SOURCE_SHARE + 1)).is_ok());
+}
+
+#[test]
+fn one_hosts_flood_does_not_take_another_hosts_share() {
+    let mut budgets = SourceBudgets::new();
+    let mut owner_refused = 0;
+    // The flooder sends 20 datagrams every 100 us (200k/s), the controller handles 2 of
+    // them in that time; the owner sends one every 10 ms, handled at once.
+    for step in 0..10_000u64 {
+        let now = step * 100;
+        for _ in 0..20 {
+            let _ = budgets.admit(FLOODER.ip, now);
+        }
+        budgets.release(FLOODER.ip);
+        budgets.release(FLOODER.ip);
+        if step % 100 == 0 {
+            owner_refused += u32::from(budgets.admit(HOST.ip, now).is_err());
+            budgets.release(HOST.ip);
+        }
+    }
+    assert_eq!(owner_refused, 0);
+    assert!(
+        budgets.shed() > 170_000,
+        "the flood was shed: {}",
+        budgets.shed()
+    );
+}
+
+#[test]
+fn more_sources_than_slots_each_start_with_a_full_share() {
+    let mut budgets = SourceBudgets::new();
+    for host in 0..50u8 {
+        for _ in 0..SOURCE_SHARE {
+            assert!(budgets.admit([10, 0, 0, host], 5).is_ok(), "host {host}");
+        }
+    }
+    // The most recent 8 are still tracked: their shares are used up.
+    assert!(budgets.admit([10, 0, 0, 49], 5).is_err());
+}
+
+#[test]
+fn a_crc_valid_stopped_halts_at_once_and_goes_to_estop_whatever_the_senders_share() {
+    let bus = Bus::new();
+    let halt = CountingHalt::default();
+    // The flooder used up its share.
+    while bus.receive_first(FLOODER, &frame(1, Command::Status), 0, &halt) == Ingress::Admit {}
+    assert_eq!(
+        bus.receive_first(FLOODER, &frame(1, Command::Status), 0, &halt),
+        Ingress::Shed
+    );
+    for (i, data) in [&[][..], &[1], &[1, 2, 3, 4]].iter().enumerate() {
+        let stop = raw(40 + i as u8, Tag::Stopped as u8, data);
+        assert_eq!(
+            bus.receive_first(FLOODER, &stop, 0, &halt),
+            Ingress::Stopped
+        );
+        assert_eq!(halt.0.get(), i as u32 + 1, "halted before any queue");
+    }
+    // On estop, as the canonical 3-byte frame.
+    let first = bus.estop.try_receive().expect("queued");
+    assert_eq!(first.from, FLOODER);
+    assert_eq!(&first.bytes[..], &raw(40, Tag::Stopped as u8, &[])[..]);
+    assert_eq!(bus.inbox.len(), 0, "nothing in the inbox");
+    // A bad CRC is no STOPPED: not halted, judged by the share like anything else.
+    let mut bad = raw(50, Tag::Stopped as u8, &[]);
+    *bad.last_mut().unwrap() ^= 1;
+    assert_eq!(bus.receive_first(HOST, &bad, 0, &halt), Ingress::Admit);
+    assert_eq!(halt.0.get(), 3);
+}
+
+#[test]
+fn a_full_estop_drops_further_stoppeds_but_still_halts() {
+    let bus = Bus::new();
+    let halt = CountingHalt::default();
+    for seq in 0..20u8 {
+        assert_eq!(
+            bus.receive_first(FLOODER, &frame(seq, Command::Stopped), 0, &halt),
+            Ingress::Stopped
+        );
+    }
+    assert_eq!(halt.0.get(), 20);
+    assert_eq!(bus.estop.len(), arm_core::bus::ESTOP_QUEUE);
+    assert_eq!(bus.inbox.len(), 0, "STOPPEDs never crowd the inbox");
+}
+
+/// An Ethernet II / IPv4 / UDP frame from `from` to `port` carrying `payload`.
+fn udp_frame(from: Endpoint, port: u16, payload: &[u8]) -> Vec<u8> {
+    let mut f = vec![0x02, 0, 0, 0, 0, 1, 0x02, 0, 0, 0, 0, 2, 0x08, 0x00];
+    let total = 20 + 8 + payload.len();
+    f.extend_from_slice(&[0x45, 0, (total >> 8) as u8, total as u8, 0, 0, 0x40, 0]);
+    f.extend_from_slice(&[64, 17, 0, 0]);
+    f.extend_from_slice(&from.ip);
+    f.extend_from_slice(&[192, 168, 1, 30]);
+    let udp_len = 8 + payload.len();
+    f.extend_from_slice(&from.port.to_be_bytes());
+    f.extend_from_slice(&port.to_be_bytes());
+    f.extend_from_slice(&[(udp_len >> 8) as u8, udp_len as u8, 0, 0]);
+    f.extend_from_slice(payload);
+    f
+}
+
+#[test]
+fn udp_payload_finds_the_controllers_datagrams_and_nothing_else() {
+    let stop = frame(7, Command::Stopped);
+    let f = udp_frame(HOST, protocol::PORT, &stop);
+    assert_eq!(udp_payload(&f, protocol::PORT), Some((HOST, &stop[..])));
+    // Ethernet padding after the IP packet is not payload.
+    let mut padded = f.clone();
+    padded.extend_from_slice(&[0; 20]);
+    assert_eq!(
+        udp_payload(&padded, protocol::PORT),
+        Some((HOST, &stop[..]))
+    );
+    assert_eq!(
+        udp_payload(&udp_frame(HOST, 53, &stop), protocol::PORT),
+        None
+    );
+    let mut arp = f.clone();
+    arp[12..14].copy_from_slice(&[0x08, 0x06]);
+    assert_eq!(udp_payload(&arp, protocol::PORT), None);
+    let mut fragment = f.clone();
+    fragment[14 + 6] = 0x20; // more fragments
+    assert_eq!(udp_payload(&fragment, protocol::PORT), None);
+    let mut tcp = f.clone();
+    tcp[14 + 9] = 6;
+    assert_eq!(udp_payload(&tcp, protocol::PORT), None);
+    // Every truncation and every lying length field is refused or read within bounds.
+    for n in 0..f.len() {
+        assert!(udp_payload(&f[..n], protocol::PORT).is_none(), "{n} bytes");
+    }
+    for at in [16, 17, 14 + 24, 14 + 25] {
+        for v in [0u8, 1, 7, 0xff] {
+            let mut lying = f.clone();
+            lying[at] = v;
+            let _ = udp_payload(&lying, protocol::PORT);
+        }
+    }
+}
+
+/// A driver whose receive side yields queued frames.
+struct FakeEth {
+    frames: VecDeque<Vec<u8>>,
+}
+
+struct FakeRx(Vec<u8>);
+struct FakeTx;
+
+impl RxToken for FakeRx {
+    fn consume<R, F: FnOnce(&mut [u8]) -> R>(mut self, f: F) -> R {
+        f(&mut self.0)
+    }
+}
+
+impl TxToken for FakeTx {
+    fn consume<R, F: FnOnce(&mut [u8]) -> R>(self, len: usize, f: F) -> R {
+        f(&mut vec![0; len])
+    }
+}
+
+impl Driver for FakeEth {
+    type RxToken<'a> = FakeRx;
+    type TxToken<'a> = FakeTx;
+    fn receive(&mut self, _cx: &mut Context) -> Option<(FakeRx, FakeTx)> {
+        self.frames.pop_front().map(|f| (FakeRx(f), FakeTx))
+    }
+    fn transmit(&mut self, _cx: &mut Context) -> Option<FakeTx> {
+        Some(FakeTx)
+    }
+    fn link_state(&mut self, _cx: &mut Context) -> LinkState {
+        LinkState::Up
+    }
+    fn capabilities(&self) -> Capabilities {
+        Capabilities::default()
+    }
+    fn hardware_address(&self) -> HardwareAddress {
+        HardwareAddress::Ethernet([2, 0, 0, 0, 0, 1])
+    }
+}
+
+#[test]
+fn the_guarded_driver_halts_on_stopped_and_hides_it_and_shed_frames_from_the_stack() {
+    let bus = Bus::new();
+    let clock = FixedClock(Cell::new(1_000));
+    let status = frame(1, Command::Status);
+    let mut frames: VecDeque<Vec<u8>> = VecDeque::new();
+    // A flood beyond the flooder's burst, a STOPPED from a third host, an ARP, the owner.
+    for _ in 0..SOURCE_SHARE + 10 {
+        frames.push_back(udp_frame(FLOODER, protocol::PORT, &status));
+    }
+    let panel = Endpoint {
+        ip: [127, 0, 0, 3],
+        port: 7,
+    };
+    frames.push_back(udp_frame(
+        panel,
+        protocol::PORT,
+        &frame(9, Command::Stopped),
+    ));
+    let mut arp = udp_frame(HOST, protocol::PORT, &status);
+    arp[12..14].copy_from_slice(&[0x08, 0x06]);
+    frames.push_back(arp);
+    frames.push_back(udp_frame(HOST, protocol::PORT, &status));
+    let halt = CountingHalt::default();
+    let mut driver = GuardedDriver::new(FakeEth { frames }, &bus, &halt, &clock, protocol::PORT);
+    let waker = std::task::Waker::noop();
+    let mut cx = Context::from_waker(waker);
+    let mut seen = Vec::new();
+    while let Some((rx, _tx)) = driver.receive(&mut cx) {
+        seen.push(rx.consume(|frame| frame.len()));
+    }
+    let delivered = seen.iter().filter(|n| **n > 0).count();
+    let hidden = seen.iter().filter(|n| **n == 0).count();
+    assert_eq!(seen.len() as u64, SOURCE_SHARE + 13);
+    assert_eq!(hidden, 11, "10 shed + the STOPPED");
+    assert_eq!(
+        delivered as u64,
+        SOURCE_SHARE + 2,
+        "the burst, the ARP, the owner"
+    );
+    assert_eq!(halt.0.get(), 1);
+    assert_eq!(bus.estop.try_receive().map(|d| d.from), Ok(panel));
+    assert_eq!(bus.shed(), 10);
+}
+
+impl StepHalt for &CountingHalt {
+    fn halt(&self) {
+        (*self).halt();
+    }
+}
