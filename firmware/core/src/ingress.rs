@@ -55,6 +55,9 @@ pub const SOURCE_SHARE: u64 = HOST_WINDOW as u64 + 4;
 /// 36 ms, and add at most that to a flooder's throughput.
 pub const SHARE_HEAL_HZ: u64 = 1_000;
 
+/// The UDP port whose datagrams the first look judges: the controller's.
+pub const CONTROLLER_PORT: u16 = protocol::PORT;
+
 /// Credit units per datagram: credit is kept in millionths of a datagram, so that the
 /// healing ([`SHARE_HEAL_HZ`] per second) is a whole number per microsecond.
 const CREDIT_PER_DATAGRAM: u64 = 1_000_000;
@@ -258,38 +261,62 @@ impl Bus {
 /// length, fragments), which the caller passes on untouched. The MAC has checked the
 /// frame's FCS; lengths are checked here, so a short or lying frame is never read past.
 pub fn udp_payload(frame: &[u8], port: u16) -> Option<(Endpoint, &[u8])> {
-    const ETH_HEADER: usize = 14;
-    let ethertype = frame.get(12..14)?;
-    if ethertype != [0x08, 0x00] {
-        return None;
-    }
-    let ip = frame.get(ETH_HEADER..)?;
-    let first = *ip.first()?;
-    let header_len = usize::from(first & 0x0F) * 4;
-    if first >> 4 != 4 || header_len < 20 {
-        return None;
-    }
-    let total_len = usize::from(u16::from_be_bytes([*ip.get(2)?, *ip.get(3)?]));
+    /// Where the IPv4 header starts: after the Ethernet II header.
+    const IP_AT: usize = 14;
+    // The Ethernet II header and the fixed part of the IPv4 header (20 bytes), as one
+    // array taken apart by a pattern: no index can fail.
+    let (eth_ip, _) = frame.split_first_chunk::<{ IP_AT + 20 }>()?;
+    let [
+        ..,
+        type0,
+        type1,
+        version_ihl,
+        _tos,
+        len0,
+        len1,
+        _id0,
+        _id1,
+        frag0,
+        frag1,
+        _ttl,
+        protocol,
+        _sum0,
+        _sum1,
+        src0,
+        src1,
+        src2,
+        src3,
+        _dst0,
+        _dst1,
+        _dst2,
+        _dst3,
+    ] = *eth_ip;
+    let header_len = usize::from(version_ihl & 0x0F) * 4;
+    let total_len = usize::from(u16::from_be_bytes([len0, len1]));
     // Fragments (MF set or an offset) are not ours to read: smoltcp drops them too.
-    let fragment = u16::from_be_bytes([*ip.get(6)?, *ip.get(7)?]) & 0x3FFF;
-    if *ip.get(9)? != 17 || fragment != 0 || total_len < header_len {
+    let fragment = u16::from_be_bytes([frag0, frag1]) & 0x3FFF;
+    if [type0, type1] != [0x08, 0x00]
+        || version_ihl >> 4 != 4
+        || header_len < 20
+        || protocol != 17
+        || fragment != 0
+    {
         return None;
     }
-    let ip = ip.get(..total_len)?;
-    let src = ip.get(12..16)?;
-    let udp = ip.get(header_len..)?;
-    let src_port = u16::from_be_bytes([*udp.first()?, *udp.get(1)?]);
-    let dst_port = u16::from_be_bytes([*udp.get(2)?, *udp.get(3)?]);
-    let udp_len = usize::from(u16::from_be_bytes([*udp.get(4)?, *udp.get(5)?]));
-    if dst_port != port || udp_len < 8 {
+    let udp = frame
+        .get(IP_AT..IP_AT.checked_add(total_len)?)?
+        .get(header_len..)?;
+    let (&[sport0, sport1, dport0, dport1, ulen0, ulen1, _, _], _) =
+        udp.split_first_chunk::<8>()?;
+    let udp_len = usize::from(u16::from_be_bytes([ulen0, ulen1]));
+    if u16::from_be_bytes([dport0, dport1]) != port {
         return None;
     }
-    let payload = udp.get(8..udp_len)?;
     Some((
         Endpoint {
-            ip: [*src.first()?, *src.get(1)?, *src.get(2)?, *src.get(3)?],
-            port: src_port,
+            ip: [src0, src1, src2, src3],
+            port: u16::from_be_bytes([sport0, sport1]),
         },
-        payload,
+        udp.get(8..udp_len)?,
     ))
 }

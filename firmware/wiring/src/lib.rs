@@ -43,6 +43,7 @@ pub use adapters::{DatagramError, EmbassyClock, NetSocket, NoEncoders};
 pub mod __private {
     pub use arm_core;
     pub use embassy_net;
+    pub use embassy_sync::once_lock::OnceLock;
     pub use static_cell::StaticCell;
 }
 
@@ -74,8 +75,11 @@ pub mod __private {
 /// - `spawn_controller(spawner, controller_config, mac, hw)`, which puts the controller in
 ///   a static (with the Ethernet MAC address DISCOVER_REPLY reports) and spawns every task but the network's (trajectory, stepper, upload, serial):
 ///   the arm runs, and stops on its underrun rule, with or without a network;
-/// - `spawn_network(spawner, device, net_config, seed)`, which creates the stack and the
-///   bound socket ([`net`]) and spawns the stack's runner and the network task; it returns
+/// - `spawn_network(spawner, device, net_config, seed)`, which creates the stack (on the
+///   device behind arm-core's [`GuardedDriver`](arm_core::ingress::GuardedDriver): the
+///   receive path's first look, where a STOPPED halts the steps before any queue and each
+///   host gets its fair share) and the bound socket ([`net`]) and spawns the stack's
+///   runner and the network task; it returns
 ///   the stack (for the link watch, [`net::watch_link`]). A board calls it once its
 ///   Ethernet works (the NUCLEO waits for the PHY's clock), right after
 ///   `spawn_controller` or any time later: until then the bus simply holds no frames.
@@ -119,10 +123,34 @@ macro_rules! controller_tasks {
         /// The controller's socket, shared by the network task's two halves.
         static SOCKET: $crate::__private::StaticCell<$crate::NetSocket> =
             $crate::__private::StaticCell::new();
+        /// The step timer's kick, for the receive path's halt (set by `spawn_controller`).
+        static HALT_KICK: $crate::__private::OnceLock<&'static $kick> =
+            $crate::__private::OnceLock::new();
+
+        /// The receive path's halt (arm-core's `ingress`): what the trajectory task's stop
+        /// does to the steps, from the Ethernet driver's receive path.
+        pub struct BoardHalt;
+
+        impl $crate::__private::arm_core::ingress::StepHalt for BoardHalt {
+            fn halt(&self) {
+                $step.stop();
+                if let Some(kick) = HALT_KICK.try_get() {
+                    $crate::__private::arm_core::hw::StepKick::kick(*kick);
+                }
+            }
+        }
+
+        /// The board's Ethernet driver behind the receive path's first look.
+        pub type GuardedDevice = $crate::__private::arm_core::ingress::GuardedDriver<
+            'static,
+            $device,
+            BoardHalt,
+            $crate::EmbassyClock,
+        >;
 
         #[embassy_executor::task]
         async fn net_task(
-            mut runner: $crate::__private::embassy_net::Runner<'static, $device>,
+            mut runner: $crate::__private::embassy_net::Runner<'static, GuardedDevice>,
         ) -> ! {
             runner.run().await
         }
@@ -177,6 +205,7 @@ macro_rules! controller_tasks {
             );
             controller.set_mac(mac);
             let (kick, port) = (hw.kick, hw.serial);
+            let _ = HALT_KICK.init(kick);
             spawner.spawn(trajectory(controller, hw)?);
             spawner.spawn(stepper(kick)?);
             spawner.spawn(upload()?);
@@ -192,6 +221,13 @@ macro_rules! controller_tasks {
             net_config: $crate::__private::embassy_net::Config,
             seed: u64,
         ) -> Result<$crate::__private::embassy_net::Stack<'static>, embassy_executor::SpawnError> {
+            let device = $crate::__private::arm_core::ingress::GuardedDriver::new(
+                device,
+                &$bus,
+                BoardHalt,
+                &CLOCK,
+                $crate::__private::arm_core::ingress::CONTROLLER_PORT,
+            );
             let (stack, runner) = $crate::net::new_stack(device, net_config, seed);
             spawner.spawn(net_task(runner)?);
             let socket = SOCKET.init($crate::NetSocket::new($crate::net::bind_socket(stack)));
