@@ -184,22 +184,7 @@ pub fn run(sim: &SimOptions, bench: &BenchOptions) -> io::Result<()> {
             flood_hz,
             crate::app::receive_shed,
         )?;
-        let label = if flood_hz == 0 {
-            "idle".to_string()
-        } else {
-            format!("flood {:.0}/s", f.flood_rate_hz)
-        };
-        println!(
-            "  {label:<14} p50 {:>6.2} ms  p90 {:>6.2} ms  max {:>6.2} ms  lost {} of {}   owner STATUS p50 {:.2} ms max {:.2} ms   shed {}",
-            f.effect_ms(0.5),
-            f.effect_ms(0.9),
-            f.effect_ms(1.0),
-            f.lost,
-            f.effect.len() + f.lost,
-            f.status_ms(0.5),
-            f.status_ms(1.0),
-            f.shed
-        );
+        println!("  {}", f.line(flood_hz));
     }
 
     // CPU use.

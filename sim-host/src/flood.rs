@@ -2,13 +2,15 @@
 //! measurement behind `sim-host bench`'s "e-stop under a flood" lines and the flood test
 //! (`sim-host/tests/flood.rs`).
 //!
-//! Three hosts on loopback, each its own address: the owner (127.0.0.1, an armctl
-//! [`Client`]) runs a 6-joint trajectory and polls STATUS; a stranger (127.0.0.2) sends
+//! Three hosts, each its own address ([`Hosts`]; on loopback 127.0.0.1-3): the owner (an
+//! armctl [`Client`]) runs a 6-joint trajectory and polls STATUS; a stranger sends
 //! `flood_hz` datagrams a second, valid STATUS frames and garbage (bad CRCs, unknown tags)
-//! mixed; a panel (127.0.0.3) sends one STOPPED per run, never resent. For each STOPPED
-//! the figure is the time from its send to the simulated step engine going idle
-//! ([`Probe::last_engine_stop`]); one that has not stopped the engine 1 s later is lost.
-//! Every loop that sends is bounded in count and time, and everything stays on loopback.
+//! mixed; a panel sends one STOPPED per run, never resent. For each STOPPED the figure is
+//! the time from its send to its effect ([`Effect`]): inside the simulator, the step engine
+//! going idle ([`Probe::last_engine_stop`]); from outside (`sim-host flood` against the
+//! QEMU board), the STOPPED's ACK reaching the panel, after which the owner's STATUS must
+//! say STOPPED. One without its effect 1 s later is lost. Every loop that sends is bounded
+//! in count and time; the addresses are loopback or a test's own network namespace.
 
 use std::net::{SocketAddr, UdpSocket};
 use std::sync::Arc;
@@ -20,10 +22,36 @@ use protocol::{MAX_JOINTS, Point, Tag, crc8};
 
 use crate::probe::Probe;
 
-/// The stranger's address.
-pub const STRANGER_IP: [u8; 4] = [127, 0, 0, 2];
-/// The panel's address.
-pub const PANEL_IP: [u8; 4] = [127, 0, 0, 3];
+/// The three hosts' addresses.
+#[derive(Clone, Copy, Debug)]
+pub struct Hosts {
+    /// The owner's.
+    pub owner: std::net::Ipv4Addr,
+    /// The stranger's, which floods.
+    pub stranger: std::net::Ipv4Addr,
+    /// The panel's, which stops.
+    pub panel: std::net::Ipv4Addr,
+}
+
+impl Hosts {
+    /// 127.0.0.1, .2 and .3.
+    pub const LOOPBACK: Hosts = Hosts {
+        owner: std::net::Ipv4Addr::new(127, 0, 0, 1),
+        stranger: std::net::Ipv4Addr::new(127, 0, 0, 2),
+        panel: std::net::Ipv4Addr::new(127, 0, 0, 3),
+    };
+}
+
+/// What tells that a STOPPED took effect.
+#[derive(Clone, Copy, Debug)]
+pub enum Effect<'a> {
+    /// The simulated step engine went idle (in-process).
+    EngineIdle(&'a Probe),
+    /// Its ACK reached the panel, and then the owner's STATUS says STOPPED (any
+    /// controller, from outside: an upper bound of the time to the halt, which comes
+    /// before the ACK is queued).
+    Acked,
+}
 /// How long a STOPPED may take before it counts as lost.
 const LOST_AFTER: Duration = Duration::from_secs(1);
 /// The flood never runs longer than this, whatever happens to the measurement.
@@ -38,6 +66,9 @@ pub struct FloodFigures {
     pub effect: Vec<Duration>,
     /// STOPPEDs that had not stopped the engine 1 s after their send.
     pub lost: usize,
+    /// With [`Effect::Acked`]: STOPPEDs whose ACK never came but which stopped the run
+    /// (counted in `lost` too).
+    pub acks_lost: usize,
     /// The owner's STATUS round trips during the runs (armctl's, resends included).
     pub status_round_trips: Vec<Duration>,
     /// Datagrams the controller's receive path shed (over their sender's share).
@@ -68,8 +99,14 @@ fn quantile_ms(values: &[Duration], q: f64) -> f64 {
 
 /// The stranger: `rate_hz` datagrams a second to `to` until `stop`, in 1 ms batches, every
 /// fourth one valid (STATUS), the rest garbage; counts them in `sent`.
-fn flood(to: SocketAddr, rate_hz: u32, stop: &AtomicBool, sent: &AtomicU64) -> std::io::Result<()> {
-    let socket = UdpSocket::bind((std::net::Ipv4Addr::from(STRANGER_IP), 0))?;
+fn flood(
+    from: std::net::Ipv4Addr,
+    to: SocketAddr,
+    rate_hz: u32,
+    stop: &AtomicBool,
+    sent: &AtomicU64,
+) -> std::io::Result<()> {
+    let socket = UdpSocket::bind((from, 0))?;
     socket.set_nonblocking(true)?;
     let started = Instant::now();
     let mut next = started;
@@ -130,8 +167,8 @@ fn long_run() -> Vec<Point> {
 }
 
 /// `stops` runs, each stopped by one STOPPED from the panel 20..80 ms in, with the
-/// stranger flooding at `flood_hz` (0: no flood). `shed` reads the controller's count of
-/// shed datagrams.
+/// stranger flooding at `flood_hz` (0: no flood), on loopback, measured inside the
+/// simulator. `shed` reads the controller's count of shed datagrams.
 pub fn estop_under_flood(
     addr: SocketAddr,
     probe: &Probe,
@@ -139,16 +176,43 @@ pub fn estop_under_flood(
     flood_hz: u32,
     shed: impl Fn() -> u32,
 ) -> std::io::Result<FloodFigures> {
+    measure(
+        addr,
+        Hosts::LOOPBACK,
+        Effect::EngineIdle(probe),
+        stops,
+        flood_hz,
+        shed,
+    )
+}
+
+/// [`estop_under_flood`] with any hosts and effect.
+pub fn measure(
+    addr: SocketAddr,
+    hosts: Hosts,
+    effect: Effect<'_>,
+    stops: usize,
+    flood_hz: u32,
+    shed: impl Fn() -> u32,
+) -> std::io::Result<FloodFigures> {
     let to_io = |e: armctl::Error| std::io::Error::other(e.to_string());
-    let owner = Client::connect(addr).map_err(to_io)?;
+    let owner = Client::connect_with(
+        addr,
+        armctl::Options {
+            bind: Some(SocketAddr::from((hosts.owner, 0))),
+            ..armctl::Options::default()
+        },
+    )
+    .map_err(to_io)?;
     owner.set_joints(6).map_err(to_io)?;
-    let panel = UdpSocket::bind((std::net::Ipv4Addr::from(PANEL_IP), 0))?;
+    let panel = UdpSocket::bind((hosts.panel, 0))?;
+    panel.set_read_timeout(Some(Duration::from_millis(5)))?;
     let stop_flood = Arc::new(AtomicBool::new(false));
     let flood_sent = Arc::new(AtomicU64::new(0));
     let flooder = (flood_hz > 0).then(|| {
         let stop = stop_flood.clone();
         let sent = flood_sent.clone();
-        std::thread::spawn(move || flood(addr, flood_hz, &stop, &sent))
+        std::thread::spawn(move || flood(hosts.stranger, addr, flood_hz, &stop, &sent))
     });
     let shed_before = shed();
     let flood_started = Instant::now();
@@ -176,20 +240,46 @@ pub fn estop_under_flood(
             // The panel's fixed frame: a new run less than 2 s after the last stop.
             let body = [0x42, Tag::Stopped as u8];
             let stop = [body[0], body[1], crc8(&body)];
+            let mut reply = [0u8; 64];
+            while panel.recv_from(&mut reply).is_ok() {}
             let sent = Instant::now();
             panel.send_to(&stop, addr)?;
             let stopped = loop {
-                match probe.last_engine_stop() {
-                    Some(at) if at >= sent => break Some(at),
-                    _ if sent.elapsed() > LOST_AFTER => break None,
-                    _ => std::thread::sleep(Duration::from_micros(200)),
+                let seen = match effect {
+                    Effect::EngineIdle(probe) => {
+                        std::thread::sleep(Duration::from_micros(200));
+                        probe.last_engine_stop().filter(|at| *at >= sent)
+                    }
+                    // ACK (tag 0x14) of seq 0x42 acking STOPPED.
+                    Effect::Acked => match panel.recv_from(&mut reply) {
+                        Ok((n, _))
+                            if n >= 4
+                                && reply[0] == 0x42
+                                && reply[1] == Tag::Ack as u8
+                                && reply[2] == Tag::Stopped as u8 =>
+                        {
+                            Some(Instant::now())
+                        }
+                        _ => None,
+                    },
+                };
+                match seen {
+                    Some(at) => break Some(at),
+                    None if sent.elapsed() > LOST_AFTER => break None,
+                    None => {}
                 }
             };
             match stopped {
                 Some(at) => figures.effect.push(at - sent),
                 None => {
                     figures.lost += 1;
-                    log::warn!("flood: the STOPPED of round {round} was lost");
+                    let state = owner.status().map_err(to_io)?.state;
+                    if state == protocol::State::Stopped {
+                        figures.acks_lost += 1;
+                    }
+                    log::warn!(
+                        "flood: the STOPPED of round {round} had no effect in 1 s (state then {state:?})"
+                    );
                     owner.stop().map_err(to_io)?;
                 }
             }
@@ -197,6 +287,11 @@ pub fn estop_under_flood(
             let status = owner.status().map_err(to_io)?;
             figures.status_round_trips.push(polled.elapsed());
             if status.state != protocol::State::Stopped {
+                if stopped.is_some() {
+                    // ACKed but not stopped: as good as lost.
+                    figures.effect.pop();
+                    figures.lost += 1;
+                }
                 owner.stop().map_err(to_io)?;
             }
         }
@@ -213,4 +308,79 @@ pub fn estop_under_flood(
     figures.flood_rate_hz = flood_sent.load(Ordering::Relaxed) as f64 / seconds;
     figures.shed = shed().wrapping_sub(shed_before);
     Ok(figures)
+}
+
+/// Options of `sim-host flood`.
+#[derive(Clone, Debug, clap::Args)]
+pub struct FloodOptions {
+    /// The controller.
+    #[arg(long)]
+    pub controller: SocketAddr,
+    /// The owner's address (bound by its socket).
+    #[arg(long, default_value = "127.0.0.1")]
+    pub owner: std::net::Ipv4Addr,
+    /// The stranger's address.
+    #[arg(long, default_value = "127.0.0.2")]
+    pub stranger: std::net::Ipv4Addr,
+    /// The panel's address.
+    #[arg(long, default_value = "127.0.0.3")]
+    pub panel: std::net::Ipv4Addr,
+    /// Flood rates to measure at, datagrams per second (0: no flood).
+    #[arg(long, value_delimiter = ',', default_value = "0,10000")]
+    pub rates: Vec<u32>,
+    /// STOPPEDs per rate.
+    #[arg(long, default_value_t = 20)]
+    pub stops: usize,
+}
+
+/// `sim-host flood`: the figures of [`measure`] with [`Effect::Acked`], one line per rate.
+pub fn run(options: &FloodOptions) -> std::io::Result<()> {
+    let hosts = Hosts {
+        owner: options.owner,
+        stranger: options.stranger,
+        panel: options.panel,
+    };
+    println!(
+        "e-stop under a flood at {} ({} single STOPPEDs from {} per rate, never resent; send -> its ACK, then STATUS STOPPED):",
+        options.controller, options.stops, options.panel
+    );
+    for &rate in &options.rates {
+        let f = measure(
+            options.controller,
+            hosts,
+            Effect::Acked,
+            options.stops,
+            rate,
+            || 0,
+        )?;
+        println!("  {}", f.line(rate));
+    }
+    Ok(())
+}
+
+impl FloodFigures {
+    /// One line of figures for a flood of `flood_hz` (0: idle).
+    pub fn line(&self, flood_hz: u32) -> String {
+        let label = if flood_hz == 0 {
+            "idle".to_string()
+        } else {
+            format!("flood {:.0}/s", self.flood_rate_hz)
+        };
+        format!(
+            "{label:<14} p50 {:>6.2} ms  p90 {:>6.2} ms  max {:>6.2} ms  lost {} of {}{}   owner STATUS p50 {:.2} ms max {:.2} ms   shed {}",
+            self.effect_ms(0.5),
+            self.effect_ms(0.9),
+            self.effect_ms(1.0),
+            self.lost,
+            self.effect.len() + self.lost,
+            if self.acks_lost > 0 {
+                format!(" ({} stopped the arm, their ACK lost)", self.acks_lost)
+            } else {
+                String::new()
+            },
+            self.status_ms(0.5),
+            self.status_ms(1.0),
+            self.shed
+        )
+    }
 }

@@ -21,6 +21,7 @@ fn main() {
         None => sim_host::app::run(&cli.sim),
         Some(Command::Demo(demo)) => sim_host::demo::run(&cli.sim, demo),
         Some(Command::Bench(bench)) => sim_host::bench::run(&cli.sim, bench),
+        Some(Command::Flood(flood)) => sim_host::flood::run(flood),
     };
     if let Err(e) = result {
         eprintln!("sim-host: {e}");

@@ -29,6 +29,9 @@ pub enum Command {
     Demo(crate::demo::DemoOptions),
     /// Measure upload throughput, e-stop latency and CPU use of the simulated controller.
     Bench(crate::bench::BenchOptions),
+    /// Measure, from outside, STOPPEDs from a third host while a stranger floods a running
+    /// controller (this simulator's, or the QEMU board over TAP: tests/qemu/tap.sh).
+    Flood(crate::flood::FloodOptions),
 }
 
 /// Everything that configures the simulated controller.

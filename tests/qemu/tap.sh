@@ -8,7 +8,10 @@
 #  2. an e-stop from the second host: a run of the owner's, stopped by the other host,
 #     ends by STOPPED and the controller reports STOPPED;
 #  3. `armctl discover` (limited broadcast, inside the namespace) from the second host:
-#     the board's DISCOVER_REPLY carries its LAN9118 MAC and names the owner.
+#     the board's DISCOVER_REPLY carries its LAN9118 MAC and names the owner;
+#  4. e-stop under a flood (issue 18): a third host (10.0.2.4) floods the board while the
+#     second stops each of the owner's runs with one STOPPED, never resent (`sim-host
+#     flood`): none may be lost; the figures are printed. QEMU_FLOOD_RATES sets the rates.
 # Bounded in time; skips (exit 0, saying why) where root, namespaces, TAP or QEMU are
 # missing. Run by .ci/run.
 set -euo pipefail
@@ -27,9 +30,10 @@ need qemu-system-arm qemu-system-arm
 export CARGO_TARGET_DIR="${CARGO_TARGET_DIR:-$PWD/target}"
 target_dir=$CARGO_TARGET_DIR
 cargo qemu-fw --quiet
-cargo build --quiet --release -p armctl
+cargo build --quiet --release -p armctl -p sim-host
 elf="$target_dir/thumbv7em-none-eabihf/release/firmware-qemu"
 armctl="$target_dir/release/armctl"
+sim_host="$target_dir/release/sim-host"
 
 ns="armqemu-$$"
 work=$(mktemp -d)
@@ -41,14 +45,14 @@ cleanup() {
   rm -rf "$work"
 }
 trap cleanup EXIT
-netns_with_tap "$ns" 10.0.2.2/24 10.0.2.3/24
+netns_with_tap "$ns" 10.0.2.2/24 10.0.2.3/24 10.0.2.4/24
 # Broadcast DISCOVER (step 3) stays inside this namespace: the limited broadcast needs a
 # route, the TAP link; multicast only on lo.
 ip netns exec "$ns" ip link set lo multicast on
 ip netns exec "$ns" ip route add 224.0.0.0/4 dev lo
 ip netns exec "$ns" ip route add default dev tap0
 
-ip netns exec "$ns" timeout 120 qemu-system-arm -M mps2-an500 -display none -monitor none \
+ip netns exec "$ns" timeout 400 qemu-system-arm -M mps2-an500 -display none -monitor none \
   -semihosting-config enable=on,target=native -kernel "$elf" \
   -nic tap,ifname=tap0,script=no,downscript=no,model=lan9118 \
   -serial "file:$work/uart0.log" -serial null &
@@ -104,5 +108,14 @@ grep -qi "MAC $mac" "$work/uart0.log" || fail "DISCOVER_REPLY's MAC $mac is not 
 grep -q "owned by 10.0.2.2" <<<"$line" || fail "DISCOVER_REPLY does not name the owner: $line"
 owner status >/dev/null || fail "the owner lost the controller to a DISCOVER"
 echo "qemu/tap.sh: broadcast DISCOVER answered: $line"
+
+# 4. E-stop under a flood from a third host.
+ip netns exec "$ns" timeout 300 "$sim_host" flood --controller "$controller" \
+  --owner 10.0.2.2 --panel 10.0.2.3 --stranger 10.0.2.4 \
+  --rates "${QEMU_FLOOD_RATES:-0,2000,10000}" --stops 20 >"$work/flood.out" 2>&1 \
+  || fail "sim-host flood failed: $(cat "$work/flood.out")"
+sed 's/^/qemu\/tap.sh: /' "$work/flood.out"
+grep -E "lost [1-9]" "$work/flood.out" && fail "a STOPPED was lost under the flood"
+
 grep -qE "PANIC|HARDFAULT|FATAL" "$work/uart0.log" && fail "the firmware faulted"
 echo "qemu/tap.sh: ok"

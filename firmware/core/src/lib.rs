@@ -38,10 +38,15 @@
 //! `#[embassy_executor::task]`s.
 //!
 //! # The e-stop path
-//! `network_task` checks each datagram's tag and CRC as it arrives and puts a valid
-//! STOPPED on `bus.estop`, a separate queue; it never waits on a full queue (a full inbox
-//! drops the datagram, which the host resends), so a STOPPED is never stuck behind
-//! uploads. `trajectory_task` waits on `estop` first (biased select) and never waits on
+//! Whatever reads datagrams first (the Ethernet driver's receive path on the boards,
+//! through [`ingress::GuardedDriver`]; the simulator's socket reader) hands each to
+//! [`Bus::receive_first`] (`ingress.rs`, issue 18) before any queue: a CRC-valid STOPPED
+//! halts the step outputs right there ([`ingress::StepHalt`]) and goes onto `bus.estop`,
+//! a separate queue; any other datagram passes only within its sender's fair share of the
+//! receive path, so no flood fills the queues a STOPPED or the owner's commands wait in.
+//! `network_task` then routes what the socket gives it the same way (a valid STOPPED to
+//! `bus.estop`); it never waits on a full queue (a full inbox drops the datagram, which
+//! the host resends), so a STOPPED is never stuck behind uploads. `trajectory_task` waits on `estop` first (biased select) and never waits on
 //! output (a full outbox drops the frame), so a STOPPED is handled after at most the one
 //! command being handled: the controller then stops the engine in a critical section
 //! (no pulse after that), and kicks the step interrupt, which lowers the STEP lines.
