@@ -165,6 +165,7 @@ pub fn doc_frames() -> Vec<DocFrame> {
             0x18,
             Command::UploadPeriod { period_us: 20_000 },
         ),
+        command("ESTOP_RESET, seq 0x19", 0x19, Command::EstopReset),
         report(
             "ACK of the NEW above: OK, state NEW, next_seq 0x02, 0 buffered, 8192 free",
             0x01,
@@ -187,6 +188,18 @@ pub fn doc_frames() -> Vec<DocFrame> {
                 next_seq: 0x03,
                 buffered: 12,
                 free: 8_180,
+            }),
+        ),
+        report(
+            "ACK refusing a RUNING with seq 0x1a: ESTOP_LATCHED, state STOPPED",
+            0x1a,
+            Report::Ack(Ack {
+                acked_tag: 0x02,
+                status: StatusCode::EstopLatched,
+                state: State::Stopped,
+                next_seq: 0x00,
+                buffered: 0,
+                free: 8_192,
             }),
         ),
         report(

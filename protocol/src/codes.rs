@@ -133,6 +133,8 @@ wire_code! {
         Status = 0x15 => "STATUS",
         /// Location report period.
         UploadPeriod = 0x16 => "UPLOAD_PERIOD",
+        /// Clear the wired e-stop input's latch (refused while the input is open).
+        EstopReset = 0x17 => "ESTOP_RESET",
         /// Who is there? Answered by every controller, from any host (PROTOCOL.md,
         /// "Finding controllers and setting their address").
         Discover = 0x20 => "DISCOVER",
@@ -187,6 +189,9 @@ wire_code! {
         Unsupported = 10 => "UNSUPPORTED",
         /// A configuration value out of range.
         InvalidConfig = 11 => "INVALID_CONFIG",
+        /// RUNING or RETURN while the wired e-stop input is open or its latch is not yet
+        /// cleared (ESTOP_RESET); also ESTOP_RESET while the input is still open.
+        EstopLatched = 12 => "ESTOP_LATCHED",
     }
 }
 
@@ -214,6 +219,9 @@ impl StatusCode {
             Unsupported => "this frame only goes from controller to host",
             InvalidConfig => {
                 "a value is out of its range (PWM, serial, joint count, point count, upload period)"
+            }
+            EstopLatched => {
+                "the wired e-stop input was opened: close it, then clear the latch with ESTOP_RESET"
             }
         }
     }

@@ -68,6 +68,8 @@ pub enum Command<'a> {
     Discover,
     /// Store new network settings, applied after the next reset.
     NetSet(NetSettings),
+    /// Clear the wired e-stop input's latch (refused while the input is open).
+    EstopReset,
 }
 
 impl<'a> Command<'a> {
@@ -97,6 +99,7 @@ impl<'a> Command<'a> {
             Command::UploadPeriod { .. } => Tag::UploadPeriod,
             Command::Discover => Tag::Discover,
             Command::NetSet(_) => Tag::NetSet,
+            Command::EstopReset => Tag::EstopReset,
         }
     }
 
@@ -316,7 +319,8 @@ impl<'a> Command<'a> {
             | Tag::Pin1Off
             | Tag::Return
             | Tag::Status
-            | Tag::Discover => {
+            | Tag::Discover
+            | Tag::EstopReset => {
                 exactly(0)?;
                 match tag {
                     Tag::Runing => Command::Runing,
@@ -330,6 +334,7 @@ impl<'a> Command<'a> {
                     Tag::Pin1Off => Command::Pin1Off,
                     Tag::Return => Command::Return,
                     Tag::Discover => Command::Discover,
+                    Tag::EstopReset => Command::EstopReset,
                     _ => Command::Status,
                 }
             }

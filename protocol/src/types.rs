@@ -332,6 +332,12 @@ impl MoreFlags {
     /// An upload not yet running (state NEW or PENDING) was dropped when another host
     /// took the controller over after the owner's 5 s of silence. Cleared by the next NEW.
     pub const UPLOAD_DROPPED: u16 = 1 << 0;
+    /// The wired e-stop input is open now (always 0 on a controller without one).
+    pub const ESTOP_OPEN: u16 = 1 << 1;
+    /// The wired e-stop input has opened since its latch was last cleared: RUNING and
+    /// RETURN are refused with `ESTOP_LATCHED` until the input is closed and a host sends
+    /// ESTOP_RESET.
+    pub const ESTOP_LATCHED: u16 = 1 << 2;
 }
 
 flag_bits!(MoreFlags, u16);

@@ -84,7 +84,7 @@ fn state() -> impl Strategy<Value = State> {
 }
 
 fn status_code() -> impl Strategy<Value = StatusCode> {
-    (0u8..=11).prop_map(|b| StatusCode::from_u8(b).expect("0..=11 are all codes"))
+    (0u8..=12).prop_map(|b| StatusCode::from_u8(b).expect("0..=12 are all codes"))
 }
 
 fn pwm() -> impl Strategy<Value = Pwm> {
@@ -135,6 +135,7 @@ fn command() -> impl Strategy<Value = OwnedCommand> {
             .prop_map(|(position, state)| C::LocationSetting(Location { position, state })),
         Just(C::Status),
         limits::UPLOAD_PERIOD_US.prop_map(|period_us| C::UploadPeriod { period_us }),
+        Just(C::EstopReset),
     ];
     prop_oneof![
         prop::collection::vec(point(), 1..=MAX_POINTS_PER_FRAME).prop_map(OwnedCommand::Pending),

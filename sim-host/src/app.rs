@@ -413,6 +413,7 @@ fn spawn_tasks(spawner: Spawner, wiring: Wiring) {
         serial: board.serial,
         settings,
         encoders: board.encoders.clone(),
+        estop: None,
     };
     let spawned = [
         match (&options.tap, board.udp) {

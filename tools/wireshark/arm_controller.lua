@@ -33,7 +33,7 @@ local tag_names = {
     [0x0a] = "USART_SEND", [0x0b] = "USART_RECV", [0x0c] = "PIN0_ON", [0x0d] = "PIN0_OFF",
     [0x0e] = "PIN1_ON", [0x0f] = "PIN1_OFF", [0x10] = "TOGGLE_ENABLE_PINS",
     [0x11] = "RETURN", [0x12] = "JOINTS_COUNT", [0x13] = "LOCATION_SETTING/LOCATION",
-    [0x14] = "ACK", [0x15] = "STATUS", [0x16] = "UPLOAD_PERIOD",
+    [0x14] = "ACK", [0x15] = "STATUS", [0x16] = "UPLOAD_PERIOD", [0x17] = "ESTOP_RESET",
     [0x20] = "DISCOVER", [0x21] = "NET_SET", [0x22] = "DISCOVER_REPLY",
 }
 -- Names that depend on the direction.
@@ -45,7 +45,7 @@ local state_names = { [0] = "NEW", [1] = "PENDING", [2] = "RUNNING", [3] = "STOP
 local status_names = {
     [0] = "OK", [1] = "BAD_CRC", [2] = "UNKNOWN_TAG", [3] = "BAD_LENGTH", [4] = "BAD_STATE",
     [5] = "OUT_OF_ORDER", [6] = "TOO_MANY_POINTS", [7] = "INVALID_POINT", [8] = "BUFFER_FULL",
-    [9] = "NOT_OWNER", [10] = "UNSUPPORTED", [11] = "INVALID_CONFIG",
+    [9] = "NOT_OWNER", [10] = "UNSUPPORTED", [11] = "INVALID_CONFIG", [12] = "ESTOP_LATCHED",
 }
 
 local crc_status_names = { [0] = "Bad", [1] = "Good", [2] = "Unverified" }
@@ -454,7 +454,7 @@ local host_dissectors = {
     end,
 }
 -- Commands without data.
-for _, tag in ipairs({ 0x02, 0x03, 0x04, 0x05, 0x07, 0x09, 0x0c, 0x0d, 0x0e, 0x0f, 0x11, 0x15, 0x20 }) do
+for _, tag in ipairs({ 0x02, 0x03, 0x04, 0x05, 0x07, 0x09, 0x0c, 0x0d, 0x0e, 0x0f, 0x11, 0x15, 0x17, 0x20 }) do
     host_dissectors[tag] = function(tree, data, len)
         if len ~= 0 then return length_error(tree, data, "0", len) end
         return ""

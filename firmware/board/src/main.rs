@@ -367,6 +367,7 @@ async fn main(spawner: Spawner) -> ! {
             serial: serial_port,
             settings,
             encoders,
+            estop: None,
         },
     ));
 

@@ -19,7 +19,9 @@
 //!    not executed ([`Response::executed`] is false).
 //! 6. **decode**: `UNKNOWN_TAG`, `BAD_LENGTH`, `INVALID_CONFIG`, `INVALID_POINT` (duration
 //!    under 1 us), `UNSUPPORTED` (a report tag from a host).
-//! 7. **state**: `BAD_STATE` when the command is not allowed in the current state
+//! 7. **state**: `ESTOP_LATCHED` for RUNING and RETURN while the wired e-stop input's
+//!    latch is set, and for ESTOP_RESET while the input is open (see "The wired e-stop
+//!    input" below); `BAD_STATE` when the command is not allowed in the current state
 //!    (docs/PROTOCOL.md, "Commands (host to controller)"; USART_SEND needs an open port
 //!    that may transmit; PENDING must come from the endpoint that sent the NEW).
 //! 8. **execute**: PENDING checks, in order: `OUT_OF_ORDER` (seq != `next_seq`),
@@ -59,6 +61,18 @@
 //!   ([`Deferred::ReadEncoders`]) and [`Controller::begin_return`] plans and starts the
 //!   move. During it, PENDING is refused with `BAD_STATE` (the points are the
 //!   controller's own); STOPPED and LOCATION work as in any run.
+//!
+//! # The wired e-stop input
+//! [`Controller::estop_input`] is told when the board's normally-closed e-stop input
+//! opens or closes (the step outputs were stopped already, by the input's own handler:
+//! [`crate::estop_input`]). Opening does what a STOPPED does (state STOPPED, buffer and
+//! upload dropped, STATUS flag bit 7 as for a STOPPED, a LOCATION of the state change)
+//! and sets the latch (STATUS `more_flags` bit 2; bit 1 shows the input open now). While
+//! the latch is set RUNING and RETURN are refused with `ESTOP_LATCHED`, whether the
+//! input is still open or closed again; uploads (NEW, PENDING) and every other command
+//! work. ESTOP_RESET clears the latch once the input is closed (while it is open:
+//! `ESTOP_LATCHED`; with no latch: `OK`, nothing changes). Old hosts see state STOPPED
+//! and a RUNING refused.
 //!
 //! # Overtaken frames
 //! The tasks handle a STOPPED before datagrams queued ahead of it (the e-stop path in
@@ -586,6 +600,7 @@ impl<const CAP: usize> Controller<CAP> {
                     self.state = State::Pending;
                 }
             }
+            Command::Runing if self.estop_latched() => return Err(StatusCode::EstopLatched),
             Command::Runing => match self.state {
                 State::Pending => {
                     self.underrun = false;
@@ -639,6 +654,9 @@ impl<const CAP: usize> Controller<CAP> {
                 plant.set_enabled(self.enabled);
             }
             Command::Return => {
+                if self.estop_latched() {
+                    return Err(StatusCode::EstopLatched);
+                }
                 stopped_only(self)?;
                 self.buffer.clear();
                 self.return_plan = None;
@@ -664,6 +682,12 @@ impl<const CAP: usize> Controller<CAP> {
             Command::UploadPeriod { period_us } => self.upload_period_us = period_us,
             // Answered in `handle` before the owner rule; never reaches here.
             Command::Discover => {}
+            Command::EstopReset => {
+                if self.more_flags.has(MoreFlags::ESTOP_OPEN) {
+                    return Err(StatusCode::EstopLatched);
+                }
+                self.more_flags.set(MoreFlags::ESTOP_LATCHED, false);
+            }
             // Stored now, applied after the next reset (docs/PROTOCOL.md, "Finding controllers").
             Command::NetSet(net) => {
                 if self.state == State::Running {
@@ -689,6 +713,27 @@ impl<const CAP: usize> Controller<CAP> {
             self.stopped_by_host = true;
         }
         self.state = State::Stopped;
+    }
+
+    /// Whether the wired e-stop input's latch is set (RUNING and RETURN refused).
+    pub fn estop_latched(&self) -> bool {
+        self.more_flags.has(MoreFlags::ESTOP_LATCHED)
+    }
+
+    /// The wired e-stop input is now `open` (or closed). Opening does what a STOPPED does
+    /// (no further pulse, the trajectory dropped, state STOPPED) and sets the latch;
+    /// closing only records the level (the latch stays until ESTOP_RESET). Returns a
+    /// LOCATION report when the state changed (reports on). The caller applies every
+    /// opening, also one that closed again before it looked ([`crate::EStopSample`]).
+    pub fn estop_input(&mut self, open: bool, plant: &mut impl Plant) -> Option<Location> {
+        self.more_flags.set(MoreFlags::ESTOP_OPEN, open);
+        if !open {
+            return None;
+        }
+        self.more_flags.set(MoreFlags::ESTOP_LATCHED, true);
+        let before = self.state;
+        self.stop_by_host(plant);
+        (before != self.state && self.reports_on).then(|| self.location(plant))
     }
 
     /// Applies a STOPPED that arrived after the frame just handled but was handled before

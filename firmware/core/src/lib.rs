@@ -64,6 +64,15 @@
 //! after the datagram it followed, all before any wait (a run one of them started never
 //! emits a pulse: the engine starts [`step_shared::START_LEAD_US`] later, fed by the step task);
 //! a RETURN's encoder read is dropped, a settings write is done.
+//!
+//! # The wired e-stop input
+//! A normally-closed input (`estop_input.rs`, issue 18): the handler that sees it open (an
+//! interrupt above every other on the board) stops the step backend itself
+//! ([`EStopLine::edge`]: [`StepShared::halt`], no run may start while it is open), then
+//! wakes `trajectory_task` (through `bus.step_progress`), which, whatever woke it and
+//! before it handles anything else, applies it to the controller ([`Controller::estop_input`]:
+//! STOPPED, and a latch that refuses RUNING and RETURN with `ESTOP_LATCHED` until the
+//! input is closed and a host sends ESTOP_RESET).
 #![no_std]
 // Firmware code never panics on data from the network: no indexing, no unwrap, no
 // silently truncating cast (issue 12). Unit tests index and unwrap freely.
@@ -81,6 +90,7 @@ pub mod buffer;
 pub mod bus;
 pub mod config;
 pub mod controller;
+pub mod estop_input;
 pub mod hw;
 pub mod ingress;
 pub mod link;
@@ -101,6 +111,7 @@ pub use buffer::{StoredPoint, TrajectoryBuffer};
 pub use bus::{Bus, Datagram};
 pub use config::ControllerConfig;
 pub use controller::{Controller, Owner};
+pub use estop_input::{EStopLine, EStopSample};
 pub use log_limit::{LogLimit, LogVerdict};
 pub use outgoing::{Outgoing, ReportEncoder};
 pub use plan::{ReturnPlan, plan_return};

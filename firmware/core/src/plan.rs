@@ -15,11 +15,29 @@
 //! exceeds `amax * segment^2` by at most 2 steps (rounding of two positions).
 
 // `core` has no square root on no_std targets; libm's is correctly rounded.
+#[cfg(not(feature = "fpu-sqrt"))]
 use libm::sqrt;
 use protocol::MAX_JOINTS;
 
 use crate::buffer::StoredPoint;
 use crate::config::ControllerConfig;
+
+/// The square root by the FPU's `vsqrt.f64` (feature `fpu-sqrt`: Cortex-M7 boards built
+/// with `target-cpu=cortex-m7`, whose FPU has double precision): correctly rounded as IEEE
+/// 754 requires, so the same value as libm's, without libm's code and table (306 bytes).
+#[cfg(feature = "fpu-sqrt")]
+fn sqrt(x: f64) -> f64 {
+    let root: f64;
+    // SAFETY: one FPU instruction on the register the asm names; no memory, no stack.
+    unsafe {
+        core::arch::asm!(
+            "vsqrt.f64 d0, d0",
+            inout("d0") x => root,
+            options(pure, nomem, nostack)
+        )
+    };
+    root
+}
 
 /// Most points a RETURN may have: its count is reported where NEW's would be (u16).
 pub const MAX_RETURN_POINTS: u64 = protocol::limits::MAX_POINTS_PER_NEW as u64;

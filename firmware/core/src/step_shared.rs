@@ -116,6 +116,20 @@ pub struct StepState<B> {
     /// The engine was stopped outside the interrupt: the interrupt must lower every STEP
     /// line.
     lower_step_lines: bool,
+    /// The wired e-stop input is open ([`StepShared::halt`]): no run starts.
+    halted: bool,
+}
+
+impl<B: StepBackend> StepState<B> {
+    /// [`StepShared::stop`]'s work, inside the critical section.
+    fn stop(&mut self) {
+        self.engine.stop();
+        self.generation = self.generation.wrapping_add(1);
+        self.finished = 0;
+        self.ran_dry = false;
+        self.start_pending = false;
+        self.lower_step_lines = true;
+    }
 }
 
 /// What became of a segment offered to the engine.
@@ -156,6 +170,7 @@ impl<const Q: usize, B: StepBackend> StepShared<Q, B> {
                 ran_dry: false,
                 start_pending: false,
                 lower_step_lines: false,
+                halted: false,
             })),
         }
     }
@@ -211,15 +226,25 @@ impl<const Q: usize, B: StepBackend> StepShared<Q, B> {
     /// next interrupt lowers the STEP lines (kick it). Segments cut before now become
     /// stale; uncollected progress is dropped.
     pub fn stop(&self) {
+        self.inner.lock(|s| s.borrow_mut().stop())
+    }
+
+    /// The wired e-stop input opened ([`crate::estop_input`]): [`StepShared::stop`], and
+    /// no run starts ([`StepShared::start`] does nothing) until [`StepShared::release`],
+    /// whatever the tasks do meanwhile. For the input's edge handler (an interrupt on the
+    /// board): one critical section, no wait.
+    pub fn halt(&self) {
         self.inner.lock(|s| {
             let mut s = s.borrow_mut();
-            s.engine.stop();
-            s.generation = s.generation.wrapping_add(1);
-            s.finished = 0;
-            s.ran_dry = false;
-            s.start_pending = false;
-            s.lower_step_lines = true;
+            s.stop();
+            s.halted = true;
         })
+    }
+
+    /// The wired e-stop input closed: runs may start again (the controller still refuses
+    /// them until its latch is cleared).
+    pub fn release(&self) {
+        self.inner.lock(|s| s.borrow_mut().halted = false)
     }
 
     /// Offers a segment; starts the engine at `start_tick` if a start is pending.
@@ -241,10 +266,13 @@ impl<const Q: usize, B: StepBackend> StepShared<Q, B> {
     }
 
     /// Starts the engine at `start_tick` if it holds a segment, else as soon as one is
-    /// pushed.
+    /// pushed; nothing while halted ([`StepShared::halt`]).
     pub fn start(&self, start_tick: u64) {
         self.inner.lock(|s| {
             let mut s = s.borrow_mut();
+            if s.halted {
+                return;
+            }
             if s.engine.queued() > 0 {
                 s.engine.start(start_tick);
             } else {

@@ -501,7 +501,9 @@ fn lengths_and_directions_are_checked() {
         (raw(2, Tag::UsartSend as u8, &[0x55; 256]), BadLength),
         (raw(3, Tag::Ack as u8, &[0; 8]), Unsupported),
         (raw(4, Tag::UsartRecv as u8, &[0; 257]), Unsupported),
-        (raw(5, 0x17, &[]), UnknownTag),
+        // 0x17 is ESTOP_RESET (issue 18), without data.
+        (raw(5, 0x18, &[]), UnknownTag),
+        (raw(13, Tag::EstopReset as u8, &[0]), BadLength),
         (raw(6, 0xFF, &[]), UnknownTag),
         (raw(7, Tag::Pending as u8, &[0; 13 * 116]), BadLength),
         (raw(8, Tag::Status as u8, &[0]), BadLength),

@@ -312,6 +312,7 @@ fn test_hw<'a, E: Encoders>(
         serial,
         settings,
         encoders,
+        estop: None,
     }
 }
 
@@ -1227,4 +1228,134 @@ fn a_burst_of_a_whole_window_is_queued_whole_and_a_stopped_behind_it_goes_first(
             "the other tool's STATUS polls: {acks:?}"
         );
     });
+}
+
+/// Issue 18 part 3: the wired e-stop input. Its edge handler stops the steps itself (no
+/// task has run when `edge` returns); the trajectory task then latches the controller:
+/// RUNING refused ESTOP_LATCHED until the input is closed and ESTOP_RESET clears it,
+/// STATUS `more_flags` bits 1 (open) and 2 (latched), and a LOCATION in STOPPED.
+#[test]
+fn the_wired_input_stops_the_steps_at_once_and_the_task_latches_the_controller() {
+    use arm_core::EStopLine;
+    use protocol::MoreFlags;
+
+    let fx = Fixture::new();
+    let kick = TestKick::new(&fx.clock);
+    let mut controller = controller_32();
+    let socket = TestSocket::default();
+    let pins = RefCell::new(TestPins::default());
+    let line = EStopLine::new();
+    let hw = TrajectoryHw {
+        estop: Some(&line),
+        ..test_hw(
+            &kick,
+            &fx.outputs,
+            &fx.serial,
+            TestSettings(None),
+            NoEncoders,
+        )
+    };
+    let isr = step_interrupt(&kick, &fx.step, &pins, &fx.bus);
+    let tasks = join5(
+        network_task(&socket, &fx.bus, &fx.clock),
+        trajectory_task(&mut controller, &fx.bus, &fx.step, &fx.clock, hw),
+        step_task(&fx.bus, &fx.step, &kick),
+        upload_task(&fx.bus, &fx.step, &fx.clock),
+        join(serial_task(&fx.serial, &fx.bus, &fx.clock), isr),
+    );
+    let send = |seq: u8, cmd: Command<'_>| {
+        socket
+            .incoming
+            .borrow_mut()
+            .push_back((frame(seq, cmd), HOST));
+    };
+    let status = |seq: u8| {
+        socket.sent.borrow_mut().clear();
+        send(seq, Command::Status);
+        status_reply(&socket, LIMIT)
+    };
+    // One point of 10 s: joint 0 makes 10000 steps, 1 ms apart.
+    let long_run = |first_seq: u8| {
+        let pts = [Point::from_motion(
+            10_000_000,
+            &[0; MAX_JOINTS],
+            &[10_000, 0, 0, 0, 0, 0, 0, 0],
+        )];
+        send(first_seq, Command::New { count: 1 });
+        send(first_seq + 1, Command::Pending(PointList::Points(&pts)));
+    };
+    let driver = async {
+        long_run(1);
+        send(3, Command::Runing);
+        until("a few pulses", LIMIT, || pins.borrow().pulses >= 3).await;
+
+        line.edge(true, &fx.step, &kick, &fx.bus.step_progress);
+        // Stopped before any task ran again.
+        assert!(!fx.step.with_engine(|e| e.is_running()), "halted at once");
+        let pulses = pins.borrow().pulses;
+
+        let s = status(4).await;
+        assert_eq!(s.state, State::Stopped);
+        assert!(s.more_flags.has(MoreFlags::ESTOP_OPEN), "{s:?}");
+        assert!(s.more_flags.has(MoreFlags::ESTOP_LATCHED), "{s:?}");
+        assert!(s.flags.has(StatusFlags::STOPPED_BY_HOST));
+        assert_eq!(s.buffered, 0);
+        // The LOCATION of the state change, handled before the STATUS.
+        assert!(
+            decoded(&socket).iter().any(
+                |(_, _, r)| matches!(r, Report::Location(l) if l.state == State::Stopped as u8)
+            ),
+            "a LOCATION in STOPPED"
+        );
+
+        // Latched while open, and after closing until ESTOP_RESET.
+        let mut seq = 5;
+        for closed in [false, true] {
+            if closed {
+                line.edge(false, &fx.step, &kick, &fx.bus.step_progress);
+            }
+            long_run(seq);
+            for attempt in 0..3 {
+                send(seq + 2 + attempt, Command::Runing);
+            }
+            until("three RUNING ACKs", LIMIT, || {
+                last_ack(&socket, seq + 4).is_some()
+            })
+            .await;
+            for attempt in 0..3 {
+                let ack = last_ack(&socket, seq + 2 + attempt).expect("ACKed");
+                assert_eq!(ack.status, StatusCode::EstopLatched, "closed {closed}");
+            }
+            send(seq + 5, Command::EstopReset);
+            until("ESTOP_RESET's ACK", LIMIT, || {
+                last_ack(&socket, seq + 5).is_some()
+            })
+            .await;
+            let reset = last_ack(&socket, seq + 5).map(|a| a.status);
+            if closed {
+                assert_eq!(reset, Some(StatusCode::Ok));
+            } else {
+                assert_eq!(reset, Some(StatusCode::EstopLatched), "refused while open");
+            }
+            send(seq + 6, Command::Stopped);
+            seq += 7;
+        }
+        assert_eq!(pins.borrow().pulses, pulses, "no pulse while latched");
+        let s = status(seq).await;
+        assert_eq!(s.more_flags.0 & 0b110, 0, "closed, latch cleared");
+
+        // Cleared: a run works again.
+        long_run(seq + 1);
+        send(seq + 3, Command::Runing);
+        until("the RUNING's ACK", LIMIT, || {
+            last_ack(&socket, seq + 3).is_some()
+        })
+        .await;
+        assert_eq!(
+            last_ack(&socket, seq + 3).map(|a| a.status),
+            Some(StatusCode::Ok)
+        );
+        until("pulses again", LIMIT, || pins.borrow().pulses > pulses + 2).await;
+    };
+    block_on(select(tasks, driver));
 }

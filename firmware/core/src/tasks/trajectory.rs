@@ -10,6 +10,7 @@ use protocol::{MAX_JOINTS, Pwm, UartInit};
 use super::overtaken::{OvertakingStops, handle_overtaken};
 use crate::bus::{Bus, SegmentMsg};
 use crate::controller::Controller;
+use crate::estop_input::EStopLine;
 use crate::hw::{
     Clock, Encoders, Gripper, Outputs, SerialError, SerialPort, SettingsStore, StepKick,
 };
@@ -32,6 +33,9 @@ pub struct TrajectoryHw<'a, K, O, G, P, S, E> {
     pub settings: S,
     /// Absolute encoders.
     pub encoders: E,
+    /// The wired e-stop input, if the board has one ([`crate::estop_input`]; `None`:
+    /// STATUS shows it closed, nothing latches).
+    pub estop: Option<&'a EStopLine>,
 }
 
 /// [`Plant`] over the shared engine and the hardware.
@@ -106,7 +110,8 @@ impl<const Q: usize, B: StepBackend, K: StepKick, O: Outputs, G: Gripper, P: Ser
     }
 }
 
-/// Owns the [`Controller`]: handles datagrams (STOPPED from `bus.estop` first), sends
+/// Owns the [`Controller`]: handles datagrams (STOPPED from `bus.estop` first; the wired
+/// e-stop input's changes before any event), sends
 /// ACKs and reports, executes the effects on the hardware, feeds segments to the step
 /// task and ends runs when the engine runs dry. At start: loads the stored settings,
 /// takes the gripper timer clock for STATUS, and drives the ENABLE lines to their boot
@@ -135,6 +140,7 @@ where
         serial,
         mut settings,
         mut encoders,
+        estop,
     } = hw;
     match settings.load().await {
         Ok(Some(stored)) => controller.apply_settings(stored),
@@ -149,7 +155,8 @@ where
     // inbox datagram stamped with fewer arrived before them; only an executed one stops.
     let mut stops = OvertakingStops::new();
     loop {
-        // Biased: a waiting STOPPED is always taken first.
+        // Biased: a waiting STOPPED is always taken first. (The e-stop input wakes the
+        // task through `step_progress`; it is applied below before any event.)
         let event = select3(
             bus.estop.receive(),
             bus.inbox.receive(),
@@ -170,6 +177,9 @@ where
             gripper: &mut gripper,
             serial,
         };
+        // The input's stop came first (its handler stopped the steps already); whatever
+        // this event is, it is handled in the state that stop left.
+        apply_estop_input(controller, estop, bus, &mut plant);
         let response = match event {
             Either3::First(d) => {
                 let response = controller.handle(d.from, &d.bytes, clock.now_us(), &mut plant);
@@ -196,7 +206,10 @@ where
                 }
             }
             Some(Deferred::ReadEncoders) => {
-                let location = match encoders.read_joints(controller.joints()).await {
+                let read = encoders.read_joints(controller.joints()).await;
+                // An input opened during the read stops the RETURN before it moves.
+                apply_estop_input(controller, estop, bus, &mut plant);
+                let location = match read {
                     Ok(read) => controller.begin_return(read, &mut plant),
                     Err(fault) => {
                         warn!(
@@ -217,6 +230,26 @@ where
             bus.send(Outgoing::Location(location));
         }
         publish(bus, controller);
+    }
+}
+
+/// Brings the controller up to date with the wired e-stop input: every opening since the
+/// last look (also one closed again since) stops and latches it, then the level now.
+fn apply_estop_input<const CAP: usize>(
+    controller: &mut Controller<CAP>,
+    estop: Option<&EStopLine>,
+    bus: &Bus,
+    plant: &mut impl Plant,
+) {
+    let Some(line) = estop else { return };
+    let sample = line.take();
+    if sample.opened
+        && let Some(location) = controller.estop_input(true, plant)
+    {
+        bus.send(Outgoing::Location(location));
+    }
+    if !sample.open {
+        controller.estop_input(false, plant);
     }
 }
 
