@@ -19,6 +19,7 @@ use static_cell::StaticCell;
 
 use crate::clock::SimClock;
 use crate::devices::{FileSettings, OutputLevels, SimEncoders, SimGripper, SimOutputs};
+use crate::estop::SimEStopInput;
 use crate::net::{Faulty, UdpDatagrams};
 use crate::options::SimOptions;
 use crate::probe::Probe;
@@ -57,6 +58,9 @@ pub struct Board {
     pub probe: Arc<Probe>,
     /// The host UDP socket (`None` with `--tap`, whose socket opens on the executor).
     pub udp: Option<&'static UdpDatagrams>,
+    /// The wired e-stop input (`--estop-input`): open and close it here in-process, or
+    /// with SIGUSR1/SIGUSR2 from outside ([`crate::estop`]).
+    pub estop_input: Option<Arc<SimEStopInput>>,
 }
 
 impl Board {
@@ -98,6 +102,10 @@ impl Board {
             };
             open_capture(path, local)?;
         }
+        let kick = SimStepKick::new(clock);
+        let estop_input = options
+            .estop_input
+            .then(|| Arc::new(SimEStopInput::new(kick.clone(), tracer.clone())));
         Ok(Board {
             options: options.clone(),
             clock,
@@ -113,9 +121,10 @@ impl Board {
             )
             .with_bus(clock, options.encoder_fault_array()),
             settings: FileSettings::new(options.settings_path()),
-            kick: SimStepKick::new(clock),
+            kick,
             probe,
             udp,
+            estop_input,
         })
     }
 
@@ -345,6 +354,9 @@ fn wire(board: Board) -> io::Result<Wiring> {
     let controller = CONTROLLER
         .try_init(Controller::new(config))
         .ok_or_else(once)?;
+    if let Some(input) = &board.estop_input {
+        input.wire(step, &BUS.step_progress);
+    }
     let port = board.local_addr().map_or(protocol::PORT, |a| a.port());
     controller.set_mac(sim_mac(board.options.tap.as_deref(), port));
     log::info!(
@@ -413,7 +425,10 @@ fn spawn_tasks(spawner: Spawner, wiring: Wiring) {
         serial: board.serial,
         settings,
         encoders: board.encoders.clone(),
-        estop: None,
+        estop: board
+            .estop_input
+            .as_ref()
+            .map(|_| -> &'static arm_core::EStopLine { &crate::estop::LINE }),
     };
     let spawned = [
         match (&options.tap, board.udp) {
@@ -498,6 +513,12 @@ pub fn sim_mac(tap: Option<&str>, port: u16) -> [u8; 6] {
 /// Runs the controller on this thread until SIGINT/SIGTERM.
 pub fn run(options: &SimOptions) -> io::Result<()> {
     let board = Board::build(options)?;
+    // SIGUSR1/SIGUSR2 open and close the e-stop input: caught before the address is
+    // printed, so that a test may signal as soon as it knows where the simulator is.
+    let estop_signals = match &board.estop_input {
+        Some(input) => Some((crate::estop::Signals::catch()?, input.clone())),
+        None => None,
+    };
     if let Some(addr) = board.local_addr() {
         // The first line on stdout: scripts and tests read the port from it.
         println!("sim-host: listening on udp {addr}");
@@ -509,6 +530,10 @@ pub fn run(options: &SimOptions) -> io::Result<()> {
     }
     exit_on_signal(board.clone())?;
     let wiring = wire(board)?;
+    if let Some((signals, input)) = estop_signals {
+        signals.apply_to(input)?;
+        log::info!("e-stop input: closed; SIGUSR1 opens it, SIGUSR2 closes it");
+    }
     // The executor lives as long as the process: run() never returns.
     let executor: &'static mut Executor = Box::leak(Box::new(Executor::new()));
     executor.run(move |spawner| spawn_tasks(spawner, wiring))

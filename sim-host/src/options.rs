@@ -120,6 +120,12 @@ pub struct SimOptions {
     #[arg(long, value_name = "ADDR/PREFIX|dhcp")]
     pub ip: Option<String>,
 
+    /// Give the simulator the board's wired e-stop input, closed at start: SIGUSR1 opens
+    /// it (every STEP output stops at once; the controller latches in STOPPED), SIGUSR2
+    /// closes it (ESTOP_RESET then clears the latch). Without it STATUS shows no input.
+    #[arg(long)]
+    pub estop_input: bool,
+
     /// Give the step thread real-time priority (SCHED_FIFO; needs privileges).
     #[arg(long)]
     pub realtime: bool,

@@ -54,6 +54,8 @@ pub enum Signal {
     Pin1,
     /// High from the arrival of a STOPPED datagram until the step engine is idle.
     EStop,
+    /// The wired e-stop input (`--estop-input`): high while it is open.
+    EStopInput,
 }
 
 /// A traced value.
@@ -212,6 +214,7 @@ fn identifier(signal: Signal) -> String {
         Signal::Pin0 => 3 * TRACED_JOINTS + 6,
         Signal::Pin1 => 3 * TRACED_JOINTS + 7,
         Signal::EStop => 3 * TRACED_JOINTS + 8,
+        Signal::EStopInput => 3 * TRACED_JOINTS + 9,
     };
     // 94 printable characters: two-character codes are never needed for < 94 signals.
     char::from(b'!' + index as u8).to_string()
@@ -280,6 +283,12 @@ fn declarations() -> Vec<(Signal, &'static str, String, Value)> {
         (Signal::Pin0, "wire 1", "pin0", Value::Bit(false)),
         (Signal::Pin1, "wire 1", "pin1", Value::Bit(false)),
         (Signal::EStop, "wire 1", "estop", Value::Bit(false)),
+        (
+            Signal::EStopInput,
+            "wire 1",
+            "estop_input",
+            Value::Bit(false),
+        ),
     ];
     for (signal, kind, name, value) in gripper {
         all.push((signal, kind, name.to_string(), value));

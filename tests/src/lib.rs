@@ -293,6 +293,11 @@ impl SimHost {
             .unwrap_or_else(|e| panic!("connect to sim-host at {}: {e}", self.addr))
     }
 
+    /// Its process id (to signal it: `--estop-input` takes SIGUSR1 and SIGUSR2).
+    pub fn pid(&self) -> u32 {
+        self.child.as_ref().expect("sim-host still running").id()
+    }
+
     /// The simulator's log so far (warnings and errors).
     pub fn log(&self) -> String {
         std::fs::read_to_string(self.dir.join("sim-host.log")).unwrap_or_default()

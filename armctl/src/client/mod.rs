@@ -371,6 +371,13 @@ impl Client {
         self.send(&Command::Stopped)
     }
 
+    /// ESTOP_RESET: clears the latch of the controller's wired e-stop input once the input
+    /// is closed again (refused with `ESTOP_LATCHED` while it is open; `OK` and no effect
+    /// with nothing latched). Until then RUNING and RETURN are refused.
+    pub fn estop_reset(&self) -> Result<Ack> {
+        self.send(&Command::EstopReset)
+    }
+
     /// RETURN: moves every joint to zero. Returns when the controller accepted it; see
     /// [`Client::wait_stopped`] to wait for the end of the move.
     pub fn go_home(&self) -> Result<Ack> {

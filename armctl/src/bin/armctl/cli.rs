@@ -66,6 +66,9 @@ pub enum Cmd {
     Run(RunArgs),
     /// STOPPED: stop every joint at once and drop the trajectory.
     Stop,
+    /// ESTOP_RESET: clear the wired e-stop input's latch (once the input is closed again);
+    /// until then RUNING and RETURN are refused with ESTOP_LATCHED.
+    EstopReset,
     /// RETURN: move every joint to zero.
     Return {
         /// Wait until the move ends.

@@ -117,6 +117,8 @@ pub enum EncodeCmd {
         /// Microseconds.
         us: u32,
     },
+    /// ESTOP_RESET.
+    EstopReset,
 }
 
 /// Runs `frame decode` or `frame encode`: prints the JSON or the hex.
@@ -281,6 +283,7 @@ pub fn encode_frame(seq: u8, command: &EncodeCmd) -> Result<String, String> {
         }
         EncodeCmd::Status => Command::Status,
         EncodeCmd::UploadPeriod { us } => Command::UploadPeriod { period_us: *us },
+        EncodeCmd::EstopReset => Command::EstopReset,
     };
     let mut buf = [0u8; MAX_DATAGRAM];
     let len = command.encode(seq, &mut buf).map_err(|e| e.to_string())?;

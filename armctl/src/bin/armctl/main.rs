@@ -96,6 +96,7 @@ fn execute_online(cli: &Cli, arm: &armctl::Client) -> CliResult {
         Cmd::Watch { record, duration } => watch::execute(arm, record.as_deref(), *duration),
         Cmd::Run(args) => run::execute(arm, args),
         Cmd::Stop => single::done(arm.stop()),
+        Cmd::EstopReset => single::done(arm.estop_reset()),
         Cmd::Return { wait } => single::go_home(arm, *wait),
         Cmd::Joints { n } => single::done(arm.set_joints(*n)),
         Cmd::SetLocation { positions } => single::done(arm.set_location(positions)),

@@ -9,7 +9,7 @@ use armctl::record::Recorder;
 use armctl::trajectory::{self, ArmConfig};
 use armctl::{Client, RunOptions};
 use clap::Args;
-use protocol::{MAX_JOINTS, Point, State};
+use protocol::{MAX_JOINTS, MoreFlags, Point, State, StatusCode};
 
 use crate::CliResult;
 
@@ -143,6 +143,18 @@ pub fn execute(arm: &Client, args: &RunArgs) -> CliResult {
         return Err(format!(
             "the controller is {}: `armctl stop` first, or wait for the run to end",
             status.state.name()
+        ));
+    }
+    if status.more_flags.has(MoreFlags::ESTOP_LATCHED) {
+        // The upload would be taken, its RUNING refused, and the upload left behind.
+        return Err(format!(
+            "the controller's wired e-stop input is {} (ESTOP_LATCHED): {}",
+            if status.more_flags.has(MoreFlags::ESTOP_OPEN) {
+                "open"
+            } else {
+                "latched"
+            },
+            StatusCode::EstopLatched.advice()
         ));
     }
     let joints = usize::from(status.joints).clamp(1, 8);

@@ -1,7 +1,7 @@
 //! `armctl status`: the controller's STATUS, as text or JSON.
 
 use armctl::Client;
-use protocol::{StatusFlags, StatusReport};
+use protocol::{MoreFlags, StatusFlags, StatusReport};
 
 use crate::CliResult;
 
@@ -17,6 +17,23 @@ pub fn execute(arm: &Client, json: bool) -> CliResult {
         print_status(&status);
     }
     Ok(())
+}
+
+/// The wired e-stop input and its latch (STATUS `more_flags` bits 1 and 2; both 0 from a
+/// controller without the input).
+pub fn estop_line(s: &StatusReport) -> String {
+    let open = s.more_flags.has(MoreFlags::ESTOP_OPEN);
+    let latched = s.more_flags.has(MoreFlags::ESTOP_LATCHED);
+    let what = match (open, latched) {
+        (false, false) => "closed, not latched",
+        (false, true) => {
+            "closed, LATCHED: RUNING and RETURN refused until `armctl estop-reset` clears it"
+        }
+        (true, _) => {
+            "OPEN, LATCHED: RUNING and RETURN refused; close it, then `armctl estop-reset`"
+        }
+    };
+    format!("e-stop input     {what}")
 }
 
 fn print_status(s: &StatusReport) {
@@ -63,6 +80,7 @@ fn print_status(s: &StatusReport) {
         flag(StatusFlags::UNDERRUN),
         flag(StatusFlags::STOPPED_BY_HOST)
     );
+    println!("{}", estop_line(s));
     if s.more_flags.has(protocol::MoreFlags::UPLOAD_DROPPED) {
         println!("an unstarted upload was dropped when another host took the controller over");
     }

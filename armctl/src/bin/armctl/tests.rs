@@ -141,6 +141,26 @@ fn small_commands() {
         parse(&["serial", "--baud", "9600"]).command,
         Cmd::Serial { baud: 9600, .. }
     ));
+    assert!(matches!(parse(&["estop-reset"]).command, Cmd::EstopReset));
+}
+
+#[test]
+fn estop_reset_frame_and_the_status_line() {
+    assert_eq!(
+        encode(&["frame", "encode", "--seq", "25", "estop-reset"]),
+        "19178f"
+    );
+    let mut s = protocol::StatusReport::default();
+    assert_eq!(
+        crate::status::estop_line(&s),
+        "e-stop input     closed, not latched"
+    );
+    s.more_flags =
+        protocol::MoreFlags(protocol::MoreFlags::ESTOP_OPEN | protocol::MoreFlags::ESTOP_LATCHED);
+    assert!(crate::status::estop_line(&s).contains("OPEN, LATCHED"));
+    s.more_flags = protocol::MoreFlags(protocol::MoreFlags::ESTOP_LATCHED);
+    assert!(crate::status::estop_line(&s).contains("closed, LATCHED"));
+    assert!(crate::status::estop_line(&s).contains("armctl estop-reset"));
 }
 
 #[test]

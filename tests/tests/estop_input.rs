@@ -1,0 +1,169 @@
+//! Issue 18 part 3 from outside: `sim-host --estop-input`, its input opened with SIGUSR1
+//! and closed with SIGUSR2 (as a wire to the board's PC0 would be), driven with the
+//! `armctl` binary. Opened 1 s into `armctl run`, it ends the run with no STEP edge later
+//! than one step period after the input's edge (the VCD trace's `estop_input` wire); the
+//! latch holds across RUNING attempts (each refused ESTOP_LATCHED, sent with the armctl
+//! library) and `armctl run` refuses to upload, while open and after closing;
+//! `armctl estop-reset` is refused while open and clears the latch once closed;
+//! `armctl status` shows the input and the latch; then a run works again.
+
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use armctl::vcd;
+use protocol::{Command as Cmd, State, StatusCode};
+use system_tests::{SimHost, armctl_bin};
+
+/// Joint 0's step period in the long run (200 steps/s).
+const STEP_PERIOD_NS: u64 = 5_000_000;
+
+fn armctl(sim: &SimHost, args: &[&str]) -> (bool, String) {
+    let output = Command::new(armctl_bin())
+        .arg("--controller")
+        .arg(sim.addr.to_string())
+        .args(args)
+        .output()
+        .expect("run armctl");
+    let text = format!(
+        "{}{}",
+        String::from_utf8_lossy(&output.stdout),
+        String::from_utf8_lossy(&output.stderr)
+    );
+    (output.status.success(), text)
+}
+
+fn signal(sim: &SimHost, signal: i32) {
+    // SAFETY: kill(2) with the pid of a simulator this test started and has not reaped.
+    let sent = unsafe { libc::kill(sim.pid() as libc::pid_t, signal) };
+    assert_eq!(sent, 0, "kill({}, {signal})", sim.pid());
+}
+
+/// Polls `armctl status` until its e-stop line contains `want`.
+fn status_until(sim: &SimHost, want: &str) -> String {
+    let deadline = Instant::now() + Duration::from_secs(5);
+    loop {
+        let (ok, out) = armctl(sim, &["status"]);
+        assert!(ok, "{out}");
+        if out.contains(want) {
+            return out;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "status never showed {want:?}: {out}"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+#[test]
+fn the_wired_input_stops_armctl_run_latches_and_estop_reset_clears_it() {
+    let mut sim = SimHost::start_traced(&["--estop-input", "--joints", "1"]);
+    let dir = sim.dir().to_path_buf();
+    // 10 s of joint 0 at 200 steps/s.
+    let long = dir.join("long.csv");
+    std::fs::write(&long, "time_s,j0\n0,0\n10,2000\n").unwrap();
+    let short = dir.join("short.csv");
+    std::fs::write(&short, "time_s,j0\n0.3,0\n").unwrap();
+
+    let out = status_until(&sim, "e-stop input");
+    assert!(
+        out.contains("e-stop input     closed, not latched"),
+        "{out}"
+    );
+
+    let mut run = Command::new(armctl_bin())
+        .arg("--controller")
+        .arg(sim.addr.to_string())
+        .args(["run", long.to_str().unwrap(), "--quiet"])
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("armctl run");
+    std::thread::sleep(Duration::from_secs(1));
+    signal(&sim, libc::SIGUSR1);
+    let deadline = Instant::now() + Duration::from_secs(10);
+    let ended = loop {
+        if let Some(status) = run.try_wait().unwrap() {
+            break status;
+        }
+        assert!(Instant::now() < deadline, "armctl run did not end");
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    assert!(!ended.success(), "the run was cut short: {ended}");
+
+    let out = status_until(&sim, "OPEN, LATCHED");
+    assert!(out.contains("state            STOPPED"), "{out}");
+    let arm = sim.connect();
+    let runing_refused = |when: &str| {
+        for attempt in 0..3 {
+            let ack = arm.exchange(&Cmd::Runing).expect("an ACK");
+            assert_eq!(
+                (ack.status, ack.state),
+                (StatusCode::EstopLatched, State::Stopped),
+                "{when}, RUNING attempt {attempt}"
+            );
+        }
+        let (ok, out) = armctl(&sim, &["run", short.to_str().unwrap(), "--quiet"]);
+        assert!(
+            !ok && out.contains("ESTOP_LATCHED"),
+            "{when}: armctl run: {out}"
+        );
+    };
+    runing_refused("open");
+    let (ok, out) = armctl(&sim, &["estop-reset"]);
+    assert!(
+        !ok && out.contains("ESTOP_LATCHED"),
+        "not while open: {out}"
+    );
+
+    signal(&sim, libc::SIGUSR2);
+    status_until(&sim, "closed, LATCHED");
+    runing_refused("closed, not reset");
+    let (ok, out) = armctl(&sim, &["return"]);
+    assert!(!ok && out.contains("ESTOP_LATCHED"), "RETURN: {out}");
+
+    let (ok, out) = armctl(&sim, &["estop-reset"]);
+    assert!(ok, "{out}");
+    status_until(&sim, "closed, not latched");
+    let (ok, out) = armctl(&sim, &["run", short.to_str().unwrap(), "--quiet"]);
+    assert!(ok, "a run after the reset: {out}");
+    drop(arm);
+
+    sim.terminate();
+    let trace = vcd::read_changes(&sim.trace()).unwrap();
+    let input = &trace.changes["estop_input"];
+    let opened = input.iter().find(|(_, v)| v == "1").expect("opened").0;
+    let closed = input
+        .iter()
+        .rev()
+        .find(|(_, v)| v == "0")
+        .expect("closed")
+        .0;
+    let step0 = &trace.changes["step0"];
+    let last_edge = step0
+        .iter()
+        .filter(|(t, _)| *t <= closed)
+        .map(|(t, _)| *t)
+        .max()
+        .expect("STEP edges before the stop");
+    eprintln!(
+        "SIGUSR1 1 s into armctl run: input opened at {opened} ns, last STEP edge at {last_edge} ns ({} ns after; step period {STEP_PERIOD_NS} ns)",
+        last_edge.saturating_sub(opened)
+    );
+    assert!(
+        last_edge <= opened + STEP_PERIOD_NS,
+        "a STEP edge {} ns after the input opened",
+        last_edge - opened
+    );
+    assert!(
+        opened > 500_000_000,
+        "the input opened during the run: {opened} ns"
+    );
+    // The run after the reset moved (armctl checked its final position itself).
+    let after = trace
+        .rising_edges("step0")
+        .into_iter()
+        .filter(|t| *t > closed)
+        .count();
+    assert!(after > 0, "no pulse after the reset");
+}
