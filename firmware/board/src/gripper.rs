@@ -71,7 +71,7 @@ impl GripperPwm {
         // The channel has a complementary output: its main output enable gates both.
         regs.bdtr().modify(|w| w.set_moe(true));
 
-        interrupt::TIM15.set_priority(Priority::P1);
+        interrupt::TIM15.set_priority(Priority::P2);
         // SAFETY: the handler touches only TIM15's registers and UNLOADED_PULSES.
         unsafe { interrupt::TIM15.enable() };
         GripperPwm {

@@ -12,11 +12,17 @@
 //!
 //! | priority | what | why |
 //! |---|---|---|
-//! | P0 (highest) | TIM13: step clock ([`step_timer`]): DIR changes at reversals, end of run | a DIR change must come between a pulse's fall and the next pulse's setup |
-//! | P1 | DMA2 streams 0-7: STEP buffer refills ([`step_dma`]); TIM15: gripper burst reloads ([`gripper`]) | a half (64 periods) of slack; 128 PWM periods |
-//! | P2 | TIM12: embassy-time | task wake-ups |
-//! | P3 | Ethernet, USART6, DMA, flash, RNG | driver bookkeeping; their tasks wait anyway |
+//! | P0 (highest) | EXTI0: the wired e-stop input on PC0 ([`estop`]): every STEP output stopped, then the trajectory task woken | nothing may delay an e-stop; it preempts even a DIR change, which no longer matters once the run is stopped |
+//! | P1 | TIM13: step clock ([`step_timer`]): DIR changes at reversals, end of run | a DIR change must come between a pulse's fall and the next pulse's setup |
+//! | P2 | DMA2 streams 0-7: STEP buffer refills ([`step_dma`]); TIM15: gripper burst reloads ([`gripper`]) | a half (64 periods) of slack; 128 PWM periods |
+//! | P3 | TIM12: embassy-time | task wake-ups |
+//! | P4 | Ethernet, USART6, DMA, flash, RNG | driver bookkeeping; their tasks wait anyway |
 //! | thread mode | every task, one executor | see below |
+//!
+//! P0 is the e-stop input's alone; the others kept their order, one level lower each
+//! (issue 18). Critical sections mask every interrupt (`cortex-m`'s single-core
+//! implementation), the e-stop's too: its worst-case wait is the longest critical section
+//! (docs/BOARD.md, "Wired e-stop input").
 //!
 //! The tasks (arm-core's, each wrapped in an `#[embassy_executor::task]` by
 //! `arm_wiring::controller_tasks!`):
@@ -92,6 +98,7 @@
 
 mod clocks;
 mod encoder;
+mod estop;
 mod fault;
 mod gripper;
 mod late;
@@ -227,9 +234,9 @@ async fn watchdog(mut iwdg: IndependentWatchdog<'static, peripherals::IWDG1>) ->
 }
 
 /// Lowers every driver interrupt below the step and gripper timers (the drivers enable
-/// them at P0, the reset value).
+/// them at P0, the reset value, which is the e-stop input's alone).
 fn set_driver_priorities() {
-    interrupt::TIM8_BRK_TIM12.set_priority(Priority::P2);
+    interrupt::TIM8_BRK_TIM12.set_priority(Priority::P3);
     for irq in [
         interrupt::ETH,
         interrupt::USART6,
@@ -238,7 +245,7 @@ fn set_driver_priorities() {
         interrupt::FLASH,
         interrupt::RNG,
     ] {
-        irq.set_priority(Priority::P3);
+        irq.set_priority(Priority::P4);
     }
 }
 
@@ -249,9 +256,9 @@ async fn main(spawner: Spawner) -> ! {
     unsafe { BUS.init(Bus::new()) };
     let clock_source = clocks::probe_hse();
     let mut config = clocks::config(clock_source);
-    config.dma_interrupt_priority = Priority::P3;
-    config.bdma_interrupt_priority = Priority::P3;
-    config.mdma_interrupt_priority = Priority::P3;
+    config.dma_interrupt_priority = Priority::P4;
+    config.bdma_interrupt_priority = Priority::P4;
+    config.mdma_interrupt_priority = Priority::P4;
     let p = embassy_stm32::init(config);
     info!("arm controller starting");
     match clock_source {
@@ -298,6 +305,9 @@ async fn main(spawner: Spawner) -> ! {
         },
         clock: p.TIM13,
     });
+    // The wired e-stop input once the step outputs can be stopped (an input open at boot
+    // latches at once).
+    estop::start(p.PC0);
     // The joint timers and DMA2 streams are driven through their registers
     // (step_dma/); their handles are not used by anything else.
     let _step_hw = (
@@ -367,7 +377,7 @@ async fn main(spawner: Spawner) -> ! {
             serial: serial_port,
             settings,
             encoders,
-            estop: None,
+            estop: Some(&estop::LINE),
         },
     ));
 

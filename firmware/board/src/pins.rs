@@ -30,6 +30,7 @@
 //! | PIN0 / PIN1 | PG2 / PG3 | D49 / D50 | |
 //! | serial TX / RX | PC6 / PC7 = USART6 (AF7) | D16 / D21 | |
 //! | encoder bus TX / RX / DE | PC10 / PC11 / PB14 = UART4 (AF8) | - | RS-485, hardware DE; PB14 also lights LD3 (red) while sending |
+//! | wired e-stop input | PC0, input with pull-up, EXTI line 0 | A1 | normally-closed contact to GND (open or broken wire: high, stop); EXTI0 is a vector of its own; `estop.rs`, docs/BOARD.md "Wired e-stop input" |
 //!
 //! The STEP timers and alternate functions are from the STM32H743 datasheet's (DS12110)
 //! alternate-function table as embassy-stm32's generated pin traits give it (checked by

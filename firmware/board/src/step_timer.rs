@@ -6,9 +6,10 @@
 //! interrupt counts the wraps, and [`now_tick`] combines the count with the counter,
 //! correcting for a wrap whose interrupt has not run yet. Compare channel 1 is armed at
 //! the next event when it lies within the next half range; farther events are looked at
-//! again at each wrap. The interrupt runs at P0, above the DMA refills (P1), so a DIR
-//! change waits at most for a critical section (the longest is a refill's, ~2.5 us,
-//! covered by `step_dma::DIR_LATENCY_NS`).
+//! again at each wrap. The interrupt runs at P1, above the DMA refills (P2) and below only
+//! the wired e-stop input (P0, which stops the run anyway), so a DIR change waits at most
+//! for a critical section (the longest is a refill's, ~2.5 us, covered by
+//! `step_dma::DIR_LATENCY_NS`).
 //!
 //! TIM13 shares its interrupt vector with TIM8's update, which is unused (TIM8's update
 //! only requests DMA).
@@ -53,7 +54,7 @@ pub struct ClockMismatch {
     pub actual_hz: u32,
 }
 
-/// Starts TIM13 free-running and enables its interrupt at P0. `timer_clock_hz` is the APB1
+/// Starts TIM13 free-running and enables its interrupt at P1. `timer_clock_hz` is the APB1
 /// timer clock embassy configured; it must be the joint timers' [`STEP_TIMER_HZ`].
 pub fn start(timer_clock_hz: u32) -> Result<StepTimer, ClockMismatch> {
     if timer_clock_hz != STEP_TIMER_HZ {
@@ -69,7 +70,7 @@ pub fn start(timer_clock_hz: u32) -> Result<StepTimer, ClockMismatch> {
     regs.sr().write_value(pac::timer::regs::Sr1ch(0));
     regs.dier().write_value(pac::timer::regs::Dier1ch(DIER_UIE));
     regs.cr1().modify(|w| w.set_cen(true));
-    interrupt::TIM8_UP_TIM13.set_priority(Priority::P0);
+    interrupt::TIM8_UP_TIM13.set_priority(Priority::P1);
     // SAFETY: the handler touches TIM13's registers, CLOCK and STEP (critical sections).
     unsafe { interrupt::TIM8_UP_TIM13.enable() };
     Ok(StepTimer { _private: () })
@@ -153,6 +154,10 @@ fn program_compare() {
 pub struct StepTimer {
     _private: (),
 }
+
+/// The step clock's [`StepKick`] for the wired e-stop input's interrupt (`estop.rs`): its
+/// kick does nothing, so it needs no started clock.
+pub static STEP_TIMER: StepTimer = StepTimer { _private: () };
 
 impl StepKick for StepTimer {
     /// Nothing to do: a run is started and stopped by the backend itself (inside the

@@ -58,7 +58,7 @@ pub const HALF: usize = arm_step::NUCLEO_STEP_BUFFER_HALF;
 /// The joint timers' input clock (APB1 and APB2 timer clocks, `clocks.rs`).
 pub const STEP_TIMER_HZ: u32 = 200_000_000;
 
-/// Longest wait of a DIR change behind its tick: the step clock's interrupt at P0 can be
+/// Longest wait of a DIR change behind its tick: the step clock's interrupt at P1 can be
 /// held off by a critical section, the longest being a refill (one half: about 2.5 us at
 /// 400 MHz). Added to the driver's DIR setup time, so the driver still sees its setup.
 pub const DIR_LATENCY_NS: u32 = 5_000;
@@ -170,8 +170,8 @@ pub fn dma_buffer_region() -> (usize, usize) {
 }
 
 /// One-time set-up: clocks of the joint timers and DMA2, every timer's output forced
-/// inactive (STEP low) and enabled, DMAMUX routes, the streams' interrupts at P1 (below
-/// the step clock's P0, which makes the DIR changes). Call before the STEP pins are
+/// inactive (STEP low) and enabled, DMAMUX routes, the streams' interrupts at P2 (below
+/// the step clock's P1, which makes the DIR changes). Call before the STEP pins are
 /// switched to their timers.
 pub fn init() {
     // SAFETY: before any stream runs or any refill can touch them: `.sram1` is NOLOAD,
@@ -224,7 +224,7 @@ pub fn init() {
             .write(|w| w.set_dmareq_id(timer.request));
     }
     for irq in STREAM_IRQS {
-        irq.set_priority(Priority::P1);
+        irq.set_priority(Priority::P2);
         // SAFETY: the handlers below only touch STEP (critical section) and DMA2's flags.
         unsafe { irq.enable() };
     }
