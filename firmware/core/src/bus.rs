@@ -61,7 +61,13 @@ pub const INBOX_QUEUE: usize = HOST_WINDOW + 8;
 /// LOCATION, a STATUS and a USART_RECV, and a few LOCATIONs of state changes. When full,
 /// a frame is dropped (counted, logged at most once a second): the controller never
 /// waits to report. A slot holds the largest frame's content (USART_RECV, 255 bytes).
-pub const OUTBOX_QUEUE: usize = INBOX_QUEUE + ESTOP_QUEUE + 8;
+/// Plus [`ESTOP_ACK_RESERVE`], the slots only STOPPEDs' ACKs may take.
+pub const OUTBOX_QUEUE: usize = INBOX_QUEUE + ESTOP_QUEUE + 8 + ESTOP_ACK_RESERVE;
+
+/// Outbox slots only the ACKs of STOPPEDs may take: one per queued STOPPED
+/// ([`ESTOP_QUEUE`]). A flood's own ACKs (NOT_OWNER, BAD_CRC) may fill the rest of the
+/// outbox; a host that resends STOPPED until it is ACKed must still get its ACK.
+pub const ESTOP_ACK_RESERVE: usize = ESTOP_QUEUE;
 
 /// Segments between the trajectory task and the step task, on top of the engine's own
 /// queue: enough to refill the engine's queue in one go after a burst of short segments.
@@ -194,9 +200,12 @@ impl Bus {
     }
 
     /// Queues a frame to send; a full outbox drops it (counted; `network_task` logs the
-    /// count) rather than wait.
+    /// count) rather than wait. The last [`ESTOP_ACK_RESERVE`] slots are kept for the ACKs
+    /// of STOPPEDs.
     pub fn send(&self, out: Outgoing) {
-        if self.outbox.try_send(out).is_err() {
+        let stop_ack = matches!(out, Outgoing::Ack(r) if r.ack.acked_tag == Tag::Stopped as u8);
+        let room = stop_ack || self.outbox.free_capacity() > ESTOP_ACK_RESERVE;
+        if !room || self.outbox.try_send(out).is_err() {
             self.outbox_drops.lock(|c| c.set(c.get().saturating_add(1)));
         }
     }

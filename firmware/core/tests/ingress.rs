@@ -317,3 +317,35 @@ impl StepHalt for &CountingHalt {
         (*self).halt();
     }
 }
+
+#[test]
+fn a_stoppeds_ack_is_never_dropped_behind_a_full_outbox() {
+    use arm_core::Outgoing;
+    use arm_core::response::Reply;
+    use protocol::{Ack, State, StatusCode};
+    let bus = Bus::new();
+    let ack = |tag: Tag| Reply {
+        to: HOST,
+        seq: 3,
+        ack: Ack {
+            acked_tag: tag as u8,
+            status: StatusCode::Ok,
+            state: State::Stopped,
+            next_seq: 0,
+            buffered: 0,
+            free: 0,
+        },
+    };
+    // A flood's ACKs fill the outbox.
+    for _ in 0..arm_core::bus::OUTBOX_QUEUE + 5 {
+        bus.send(Outgoing::Ack(ack(Tag::Status)));
+    }
+    let reserve = arm_core::bus::ESTOP_ACK_RESERVE;
+    assert_eq!(bus.outbox.len(), arm_core::bus::OUTBOX_QUEUE - reserve);
+    assert_eq!(bus.take_outbox_drops(), 5 + reserve as u32);
+    for _ in 0..reserve {
+        bus.send(Outgoing::Ack(ack(Tag::Stopped)));
+    }
+    assert_eq!(bus.take_outbox_drops(), 0, "every STOPPED's ACK was kept");
+    assert_eq!(bus.outbox.len(), arm_core::bus::OUTBOX_QUEUE);
+}
