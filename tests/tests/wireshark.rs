@@ -524,6 +524,33 @@ fn a_resent_command_and_its_two_acks_pair_in_order() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// Issue 18: the controller ignores a STOPPED's data and stops all the same, so the
+/// dissector shows the data as ignored and raises no length error (it did before).
+#[test]
+fn a_stopped_with_data_is_no_length_error() {
+    if !have_wireshark("STOPPED with data") {
+        return;
+    }
+    let dir = scratch("stopped-data");
+    let pcap = dir.join("stopped.pcap");
+    let host: std::net::SocketAddr = "127.0.0.1:40000".parse().unwrap();
+    let controller: std::net::SocketAddr = format!("127.0.0.1:{}", protocol::PORT).parse().unwrap();
+    let log = armctl::pcap::PcapLog::create(&pcap).expect("create the capture");
+    let mut stop = vec![7, 0x03, 1, 2, 3, 4];
+    stop.push(crc8(&stop));
+    log.record(host, controller, &stop).unwrap();
+    drop(log);
+    let packets = dissect(&pcap, &["armctl.tag", "_ws.expert.message"], false, None);
+    assert_eq!(packets.len(), 1);
+    assert_eq!(
+        packets[0].get("_ws.expert.message"),
+        None,
+        "{:?}",
+        packets[0]
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 #[test]
 fn session_captures_pair_acks_and_mark_retransmissions() {
     if !have_wireshark("session captures") {

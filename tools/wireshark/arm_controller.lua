@@ -454,11 +454,17 @@ local host_dissectors = {
     end,
 }
 -- Commands without data.
-for _, tag in ipairs({ 0x02, 0x03, 0x04, 0x05, 0x07, 0x09, 0x0c, 0x0d, 0x0e, 0x0f, 0x11, 0x15, 0x17, 0x20 }) do
+for _, tag in ipairs({ 0x02, 0x04, 0x05, 0x07, 0x09, 0x0c, 0x0d, 0x0e, 0x0f, 0x11, 0x15, 0x17, 0x20 }) do
     host_dissectors[tag] = function(tree, data, len)
         if len ~= 0 then return length_error(tree, data, "0", len) end
         return ""
     end
+end
+-- STOPPED: any data is ignored by the controller, which stops all the same (PROTOCOL.md
+-- section 4, issue 18): shown, not flagged as a length error.
+host_dissectors[0x03] = function(tree, data, len)
+    if len > 0 then return string.format("(%d data bytes, ignored)", len) end
+    return ""
 end
 
 local controller_dissectors = {
