@@ -116,22 +116,7 @@ pub fn run(sim: &SimOptions, bench: &BenchOptions) -> io::Result<()> {
     }
 
     // E-stop latency.
-    let moving: Vec<Point> = {
-        let mut previous = [0; MAX_JOINTS];
-        (1..=300)
-            .map(|i| {
-                let mut target = [0; MAX_JOINTS];
-                for (j, t) in target.iter_mut().take(6).enumerate() {
-                    // 2..7 kHz per joint, alternating directions.
-                    let rate = 20 + 10 * j as i32;
-                    *t = if j % 2 == 0 { i * rate } else { -i * rate };
-                }
-                let p = Point::from_motion(10_000, &previous, &target);
-                previous = target;
-                p
-            })
-            .collect()
-    };
+    let moving = crate::flood::long_run();
     board.probe.take_estop_latencies();
     let mut round_trips = Vec::new();
     let mut pseudo_random = 0x2545_F491_4F6C_DD1Du64;

@@ -149,8 +149,9 @@ fn flood(
     Ok(())
 }
 
-/// A 6-joint run of 300 points of 10 ms (3 s; 2..7 kHz per joint) from zero.
-fn long_run() -> Vec<Point> {
+/// A 6-joint run of 300 points of 10 ms (3 s; 2..7 kHz per joint, alternating
+/// directions) from zero: what the e-stop measurements stop.
+pub fn long_run() -> Vec<Point> {
     let mut previous = [0; MAX_JOINTS];
     (1..=300)
         .map(|i| {

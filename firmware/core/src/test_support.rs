@@ -260,6 +260,14 @@ pub fn frame(seq: u8, cmd: Command<'_>) -> Vec<u8> {
     buf
 }
 
+/// A frame with any tag and data and a correct CRC (for lengths and tags no command has).
+pub fn raw(seq: u8, tag: u8, data: &[u8]) -> Vec<u8> {
+    let mut bytes = std::vec![seq, tag];
+    bytes.extend_from_slice(data);
+    bytes.push(protocol::crc8(&bytes));
+    bytes
+}
+
 /// A controller with the board's configuration but `capacity` points.
 pub fn controller<const CAP: usize>(capacity: usize) -> Controller<CAP> {
     Controller::new(ControllerConfig {

@@ -7,18 +7,10 @@ use arm_core::config::{DUPLICATE_MEMORY, DUPLICATE_WINDOW_US, OWNER_TIMEOUT_US};
 use arm_core::hw::{Endpoint, PersistentSettings};
 use common::*;
 use protocol::{
-    Command, Location, Point, Pwm, Report, State, StatusCode, StatusFlags, Tag, UartInit, crc8,
+    Command, Location, Point, Pwm, Report, State, StatusCode, StatusFlags, Tag, UartInit,
 };
 
 use StatusCode::*;
-
-/// A frame with any tag and data, with a correct CRC.
-fn raw(seq: u8, tag: u8, data: &[u8]) -> Vec<u8> {
-    let mut bytes = vec![seq, tag];
-    bytes.extend_from_slice(data);
-    bytes.push(crc8(&bytes));
-    bytes
-}
 
 fn status_of(r: &arm_core::Response) -> StatusCode {
     r.reply.expect("an ACK").ack.status

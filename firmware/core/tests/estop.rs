@@ -8,15 +8,7 @@ mod common;
 
 use arm_core::config::OWNER_TIMEOUT_US;
 use common::*;
-use protocol::{Command, State, StatusCode, StatusFlags, Tag, crc8};
-
-/// A frame with any tag and data, with a correct CRC.
-fn raw(seq: u8, tag: u8, data: &[u8]) -> Vec<u8> {
-    let mut bytes = vec![seq, tag];
-    bytes.extend_from_slice(data);
-    bytes.push(crc8(&bytes));
-    bytes
-}
+use protocol::{Command, State, StatusCode, StatusFlags, Tag};
 
 /// Starts a run of 50 points as the session's host and lets one segment run.
 fn start_run(s: &mut Session<64>) {

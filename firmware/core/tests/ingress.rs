@@ -16,7 +16,7 @@ use arm_core::ingress::{
 };
 use common::*;
 use embassy_net_driver::{Capabilities, Driver, HardwareAddress, LinkState, RxToken, TxToken};
-use protocol::{Command, Tag, crc8};
+use protocol::{Command, Tag};
 
 #[derive(Default)]
 struct CountingHalt(Cell<u32>);
@@ -34,13 +34,6 @@ impl Clock for FixedClock {
         self.0.get()
     }
     async fn sleep_until(&self, _at_us: u64) {}
-}
-
-fn raw(seq: u8, tag: u8, data: &[u8]) -> Vec<u8> {
-    let mut bytes = vec![seq, tag];
-    bytes.extend_from_slice(data);
-    bytes.push(crc8(&bytes));
-    bytes
 }
 
 const FLOODER: Endpoint = Endpoint {

@@ -9,16 +9,9 @@ use arm_core::config::OWNER_TIMEOUT_US;
 use arm_core::hw::Endpoint;
 use arm_core::tasks::OvertakingStops;
 use common::*;
-use protocol::{Command, State, StatusCode, Tag, crc8};
+use protocol::{Command, State, StatusCode, Tag};
 
 use StatusCode::*;
-
-fn raw(seq: u8, tag: u8, data: &[u8]) -> Vec<u8> {
-    let mut bytes = vec![seq, tag];
-    bytes.extend_from_slice(data);
-    bytes.push(crc8(&bytes));
-    bytes
-}
 
 /// A second tool on the owner's machine: same address, another port.
 const TOOL: Endpoint = Endpoint {

@@ -12,6 +12,7 @@ use arm_core::hw::{
     Clock, Datagrams, Encoders, Endpoint, Gripper, Outputs, PersistentSettings, SerialError,
     SerialPort, SettingsStore, StepKick,
 };
+use arm_core::test_support::raw;
 use arm_core::{
     Bus, Controller, ControllerConfig, StepShared, TrajectoryHw, network_task, on_step_timer,
     serial_task, step_task, trajectory_task, upload_task,
@@ -1002,14 +1003,6 @@ fn bus_route(bus: &Bus, from: Endpoint, bytes: &[u8]) {
         arm_core::Datagram::new(from, heapless::Vec::from_slice(bytes).unwrap()),
         0,
     );
-}
-
-/// A frame with any tag and data, with a correct CRC (for lengths no command has).
-fn raw(seq: u8, tag: u8, data: &[u8]) -> Vec<u8> {
-    let mut bytes = vec![seq, tag];
-    bytes.extend_from_slice(data);
-    bytes.push(protocol::crc8(&bytes));
-    bytes
 }
 
 /// Three 1 ms points of +10 steps on every joint: a run the tests can watch end.
