@@ -110,3 +110,53 @@ def test_an_exception_in_a_with_block_stops_a_go_home(sim_no_encoders):
     with armctl.connect(sim_no_encoders.address) as arm:
         here = assert_stopped_mid_move(arm)
         assert 0 < here[0] < 12000
+
+
+def rising_edges(vcd_path):
+    """Rising edges per wire name of a sim-host VCD trace, in trace nanoseconds."""
+    names, edges, now = {}, {}, 0
+    with open(vcd_path) as f:
+        for line in f:
+            parts = line.split()
+            if not parts:
+                continue
+            if parts[0] == "$var" and len(parts) >= 5:
+                names[parts[3]] = parts[4]
+            elif line.startswith("#"):
+                now = int(line[1:])
+            elif line[0] == "1" and line[1:].strip() in names:
+                edges.setdefault(names[line[1:].strip()], []).append(now)
+    return edges
+
+
+def test_ctrl_c_leaves_no_step_edge_100_ms_after_the_signal_5_of_5(tmp_path):
+    """The issue's criterion, read from the simulator's VCD trace: just before SIGINT the
+    test raises PIN0 from a second connection (its ACK is back before the signal), which
+    marks the signal on the trace's clock; no STEP edge may follow the mark by more than
+    100 ms. Five runs, each on a fresh traced simulator."""
+    for attempt in range(5):
+        trace = tmp_path / f"run{attempt}.vcd"
+        host = SimHost("--trace", str(trace))
+        try:
+            with armctl.connect(host.address) as arm, armctl.connect(host.address) as marker:
+                start, times, positions = long_ramp(arm)
+
+                def mark_then_interrupt():
+                    marker.pin(0, True)
+                    os.kill(os.getpid(), signal.SIGINT)
+
+                timer = threading.Timer(1.0, mark_then_interrupt)
+                timer.start()
+                with pytest.raises(KeyboardInterrupt):
+                    arm.run(times, positions)
+                timer.join()
+                assert_stopped_mid_move(arm)
+        finally:
+            host.close()
+        edges = rising_edges(trace)
+        mark = edges["pin0"][0]
+        steps = [t for name, ts in edges.items() if name.startswith("step") for t in ts]
+        assert steps, "STEP edges in the trace"
+        late_ms = (max(steps) - mark) / 1e6
+        print(f"run {attempt + 1}: last STEP edge {late_ms:.2f} ms after the signal")
+        assert late_ms <= 100.0, f"run {attempt + 1}: a STEP edge {late_ms:.1f} ms after SIGINT"
