@@ -69,9 +69,8 @@
 //! stay in AXI SRAM: with the D-cache on they are cache hits in the step interrupt, as
 //! fast as DTCM would be, without a second linker region to manage.
 //!
-//! Flash image: the big statics cost no flash: [`BUS`] (23 KiB) is built at run time
-//! ([`late::Late`]), the step producer's `STEP` (15 KiB) has an all-zero initial value
-//! (`.bss`), the others are `StaticCell`s.
+//! Flash image: the big statics cost no flash: [`BUS`] and the step producer's `STEP`
+//! (15 KiB) have all-zero initial values (`.bss`), the others are `StaticCell`s.
 //! `scripts/fw-size.sh` fails above 96 KiB (issue 9's budget; docs/BOARD.md has the history).
 //!
 //! # Faults, watchdog, boot
@@ -101,7 +100,6 @@ mod encoder;
 mod estop;
 mod fault;
 mod gripper;
-mod late;
 mod memory;
 mod net;
 mod pins;
@@ -135,7 +133,6 @@ use static_cell::StaticCell;
 use crate::clocks::ClockSource;
 use crate::encoder::{ModbusEncoders, Rs485};
 use crate::gripper::GripperPwm;
-use crate::late::Late;
 use crate::pins::{DirPins, OutputLines, OutputPins, StepPins};
 use crate::serial::BoardSerial;
 use crate::settings::FlashSettings;
@@ -159,10 +156,10 @@ pub const MAX_JOINTS: usize = protocol::MAX_JOINTS;
 /// Trajectory points buffered (arm-core's board figure: 80 s of 10 ms points).
 const CAP: usize = BOARD_TRAJECTORY_CAPACITY;
 
-/// The channels between the tasks (and the step interrupt), built at the start of `main`
-/// ([`Late`]: `Bus::new()` has non-zero bytes, which as a `const` initialiser would store
-/// all 23 KiB of it in flash).
-pub static BUS: Late<Bus> = Late::new();
+/// The channels between the tasks (and the step interrupt). `Bus::new()` is all zero
+/// bytes, so this plain static is `.bss` and costs no flash (`scripts/fw-size.sh` fails
+/// should a non-zero field ever put it in `.data`).
+pub static BUS: Bus = Bus::new();
 
 arm_wiring::controller_tasks! {
     device: net::Device,
@@ -251,9 +248,6 @@ fn set_driver_priorities() {
 
 #[embassy_executor::main]
 async fn main(spawner: Spawner) -> ! {
-    // SAFETY: first thing, before anything that can reach it (the step interrupt, the
-    // tasks).
-    unsafe { BUS.init(Bus::new()) };
     let clock_source = clocks::probe_hse();
     let mut config = clocks::config(clock_source);
     config.dma_interrupt_priority = Priority::P4;
