@@ -118,5 +118,7 @@ pub use plan::{ReturnPlan, plan_return};
 pub use plant::Plant;
 pub use reports::{LOCATION_LISTENERS, ReportSettings};
 pub use response::{Deferred, Discovery, Reply, Response};
-pub use step_shared::{STEP_QUEUE, StepBackend, StepProgress, StepShared, on_step_timer};
+#[cfg(feature = "test-support")]
+pub use step_shared::on_step_timer;
+pub use step_shared::{STEP_QUEUE, StepBackend, StepProgress, StepShared};
 pub use tasks::{TrajectoryHw, network_task, serial_task, step_task, trajectory_task, upload_task};

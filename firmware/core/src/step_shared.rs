@@ -5,7 +5,9 @@
 
 use core::cell::RefCell;
 
-use arm_step::{Segment, StepEngine, StepPins, StepTiming};
+#[cfg(any(test, feature = "test-support"))]
+use arm_step::StepPins;
+use arm_step::{Segment, StepEngine, StepTiming};
 use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::signal::Signal;
 use protocol::MAX_JOINTS;
@@ -32,8 +34,10 @@ pub fn us_to_ticks(us: u64, tick_hz: u32) -> u64 {
 
 /// Pins that do nothing: thread-level code stops the engine with these, and the next
 /// interrupt lowers the real STEP lines.
+#[cfg(any(test, feature = "test-support"))]
 struct NoPins;
 
+#[cfg(any(test, feature = "test-support"))]
 impl StepPins for NoPins {
     fn set_direction(&mut self, _joint: usize, _positive: bool) {}
     fn step_high(&mut self, _joints: arm_step::JointMask) {}
@@ -64,6 +68,9 @@ pub trait StepBackend {
     fn set_positions(&mut self, positions: [i32; MAX_JOINTS]) -> bool;
 }
 
+/// The test oracle's backend (arm-core's task tests; feature `test-support`): the boards
+/// and the simulator step through arm-step's producer instead.
+#[cfg(any(test, feature = "test-support"))]
 impl<const Q: usize> StepBackend for StepEngine<Q> {
     fn timing(&self) -> StepTiming {
         StepEngine::timing(self)
@@ -152,6 +159,7 @@ pub struct StepShared<const Q: usize, B = StepEngine<Q>> {
     inner: Mutex<Cs, RefCell<StepState<B>>>,
 }
 
+#[cfg(any(test, feature = "test-support"))]
 impl<const Q: usize> StepShared<Q> {
     /// An idle engine with this timing.
     pub const fn new(timing: StepTiming) -> Self {
@@ -293,6 +301,7 @@ impl<const Q: usize, B: StepBackend> StepShared<Q, B> {
     }
 }
 
+#[cfg(any(test, feature = "test-support"))]
 impl<const Q: usize> StepShared<Q> {
     /// The body of the step timer interrupt, see [`on_step_timer`].
     pub fn on_timer(
@@ -323,6 +332,7 @@ impl<const Q: usize> StepShared<Q> {
 /// at `now_tick`, records finished segments and running dry for the tasks (waking
 /// `wake`, the bus's `step_wake`), and returns the tick to be called again at (`None`:
 /// only when kicked).
+#[cfg(any(test, feature = "test-support"))]
 pub fn on_step_timer<const Q: usize>(
     shared: &StepShared<Q>,
     now_tick: u64,
