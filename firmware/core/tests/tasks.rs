@@ -39,12 +39,24 @@ const STRANGER: Endpoint = Endpoint {
     port: 50_001,
 };
 
-/// Real time since the test started, in microseconds; sleeping spins (block_on re-polls).
-struct TestClock(Instant);
+/// Virtual time, in microseconds: every reading advances it by 1 us, so time moves only
+/// as the tasks, the fake step interrupt and the test poll, at the same pace whatever the
+/// machine's load (issue 19: on wall-clock time a busy machine starved the simulated step
+/// timer, and a test saw BAD_STATE where a buffer was still full). Sleeping spins
+/// (block_on re-polls), each poll reading the clock.
+struct TestClock(Cell<u64>);
+
+impl TestClock {
+    fn new() -> Self {
+        TestClock(Cell::new(0))
+    }
+}
 
 impl Clock for TestClock {
     fn now_us(&self) -> u64 {
-        self.0.elapsed().as_micros() as u64
+        let now = self.0.get() + 1;
+        self.0.set(now);
+        now
     }
     fn sleep_until(&self, at_us: u64) -> impl Future<Output = ()> {
         poll_fn(move |cx| {
@@ -288,7 +300,7 @@ impl Fixture {
 
     fn new() -> Self {
         Fixture {
-            clock: TestClock(Instant::now()),
+            clock: TestClock::new(),
             bus: Bus::new(),
             step: StepShared::new(TIMING),
             serial: TestSerial::default(),
@@ -552,10 +564,10 @@ fn with_tasks<'a, F: Future<Output = ()>>(
     capacity: usize,
     socket: &'a TestSocket,
     pins: &'a RefCell<TestPins>,
-    driver: impl FnOnce(&'a StepShared<4>) -> F,
+    driver: impl FnOnce(&'a StepShared<4>, &'a TestClock) -> F,
 ) {
-    let clock = TestClock(Instant::now());
-    let kick = TestKick::new(&clock);
+    let clock: &'a TestClock = Box::leak(Box::new(TestClock::new()));
+    let kick = TestKick::new(clock);
     let bus = Bus::new();
     let step: &'a StepShared<4> = Box::leak(Box::new(StepShared::new(TIMING)));
     let mut controller = Controller::<16>::new(ControllerConfig {
@@ -566,19 +578,19 @@ fn with_tasks<'a, F: Future<Output = ()>>(
     let outputs = RefCell::new(TestOutputs::default());
     let isr = step_interrupt(&kick, step, pins, &bus);
     let tasks = join5(
-        network_task(socket, &bus, &clock),
+        network_task(socket, &bus, clock),
         trajectory_task(
             &mut controller,
             &bus,
             step,
-            &clock,
+            clock,
             test_hw(&kick, &outputs, &serial, TestSettings(None), NoEncoders),
         ),
         step_task(&bus, step, &kick),
-        upload_task(&bus, step, &clock),
-        join(serial_task(&serial, &bus, &clock), isr),
+        upload_task(&bus, step, clock),
+        join(serial_task(&serial, &bus, clock), isr),
     );
-    block_on(select(tasks, driver(step)));
+    block_on(select(tasks, driver(step, clock)));
 }
 
 /// Waits for the STATUS report the controller sends to the socket (cleared before the
@@ -619,7 +631,7 @@ fn streaming_through_a_small_buffer_and_underrun() {
             .borrow_mut()
             .push_back((frame(seq, cmd), HOST));
     };
-    with_tasks(4, socket, pins, |step| async move {
+    with_tasks(4, socket, pins, |step, clock| async move {
         // 24 points of 50 ms, +2 steps each on joint 0, through a 4-point buffer: the host
         // sends 2 points at a time, resending on BUFFER_FULL. (The buffer holds 150 ms or
         // more ahead: with 10 ms points, a loaded CI machine (load 5 on 2 cores) starved it
@@ -649,8 +661,8 @@ fn streaming_through_a_small_buffer_and_underrun() {
                 assert!(ack.buffered <= 4 && ack.free < 2);
                 refused += 1;
                 socket.sent.borrow_mut().clear();
-                let wait = Instant::now() + Duration::from_millis(1);
-                until("a while", limit, || Instant::now() > wait).await;
+                let wait = clock.now_us() + 1_000;
+                until("a while", limit, || clock.now_us() > wait).await;
             }
             seq += 1;
             if !running {
@@ -691,8 +703,8 @@ fn streaming_through_a_small_buffer_and_underrun() {
         send(seq + 1, Command::Pending(PointList::Points(&more)));
         send(seq + 2, Command::Runing);
         seq += 3;
-        let wait = Instant::now() + Duration::from_millis(30);
-        until("the underrun", limit, || Instant::now() > wait).await;
+        let wait = clock.now_us() + 30_000;
+        until("the underrun", limit, || clock.now_us() > wait).await;
         socket.sent.borrow_mut().clear();
         send(seq, Command::Status);
         let status = status_reply(socket, limit).await;
@@ -771,7 +783,7 @@ struct Rig {
 impl Rig {
     fn new() -> Self {
         Rig {
-            clock: TestClock(Instant::now()),
+            clock: TestClock::new(),
             bus: Bus::new(),
             step: StepShared::new(TIMING),
             pins: RefCell::new(TestPins::default()),
