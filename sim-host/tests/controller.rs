@@ -325,12 +325,14 @@ fn gripper_burst_and_pins_are_traced() {
         ccr1: 500,
         pulse_count: 20,
     }));
-    assert!(client.status().flags.has(StatusFlags::PWM_ACTIVE));
-    std::thread::sleep(Duration::from_millis(100));
-    assert!(
-        !client.status().flags.has(StatusFlags::PWM_ACTIVE),
-        "burst did not end"
-    );
+    // The burst ends by itself: STATUS says so within a bounded wait. (Asserting it active
+    // right after PWM_START raced the 20 ms burst on a loaded machine, issue 19; the trace
+    // below shows it on for exactly 20 ms.)
+    let deadline = Instant::now() + Duration::from_secs(3);
+    while client.status().flags.has(StatusFlags::PWM_ACTIVE) {
+        assert!(Instant::now() < deadline, "burst did not end");
+        std::thread::sleep(Duration::from_millis(5));
+    }
     client.ok(&Command::Pin0Off);
     client.ok(&Command::ToggleEnablePins { mask: Some(0b10) });
     sim.stop();
