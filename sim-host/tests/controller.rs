@@ -151,18 +151,7 @@ fn stopped_halts_the_pulses_at_once() {
     assert_eq!(vcd.joint_position(0), i64::from(stopped_at));
     // The estop wire: high from the STOPPED datagram's arrival until the engine is idle;
     // no STEP edge after it falls.
-    let estop = &vcd.changes["estop"];
-    let rise = estop
-        .iter()
-        .find(|(_, v)| v == "1")
-        .expect("estop marked")
-        .0;
-    let fall = estop
-        .iter()
-        .rev()
-        .find(|(_, v)| v == "0")
-        .expect("estop ends")
-        .0;
+    let (rise, fall) = vcd.high_span("estop").expect("estop marked, and its end");
     assert!(fall >= rise, "{rise} {fall}");
     let last_edge = *vcd.rising_edges("step0").last().unwrap();
     assert!(
@@ -337,14 +326,9 @@ fn gripper_burst_and_pins_are_traced() {
     client.ok(&Command::ToggleEnablePins { mask: Some(0b10) });
     sim.stop();
     let vcd = vcd::read_changes(&trace).unwrap();
-    let active = &vcd.changes["gripper_pwm_active"];
-    let on = active.iter().find(|(_, v)| v == "1").expect("PWM on").0;
-    let off = active
-        .iter()
-        .rev()
-        .find(|(_, v)| v == "0")
-        .expect("PWM off")
-        .0;
+    let (on, off) = vcd
+        .high_span("gripper_pwm_active")
+        .expect("PWM on, then off");
     assert_eq!(off - on, 20_000_000, "20 periods of 1 ms");
     assert_eq!(vcd.value_at("gripper_freq_hz", on), Some("r1000"));
     assert_eq!(vcd.rising_edges("pin0").len(), 1);

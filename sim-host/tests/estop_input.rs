@@ -135,18 +135,9 @@ fn the_wired_input_stops_a_run_within_a_step_period_latches_and_clears() {
 
     board.shut_down();
     let vcd = vcd::read_changes(&trace).unwrap();
-    let input_wire = &vcd.changes["estop_input"];
-    let opened = input_wire
-        .iter()
-        .find(|(_, v)| v == "1")
-        .expect("the input's opening is traced")
-        .0;
-    let closed = input_wire
-        .iter()
-        .rev()
-        .find(|(_, v)| v == "0")
-        .expect("and its closing")
-        .0;
+    let (opened, closed) = vcd
+        .high_span("estop_input")
+        .expect("the input's opening is traced, and its closing");
     assert!(closed > opened);
     let step0 = &vcd.changes["step0"];
     let last_edge = step0

@@ -131,14 +131,9 @@ fn the_wired_input_stops_armctl_run_latches_and_estop_reset_clears_it() {
 
     sim.terminate();
     let trace = vcd::read_changes(&sim.trace()).unwrap();
-    let input = &trace.changes["estop_input"];
-    let opened = input.iter().find(|(_, v)| v == "1").expect("opened").0;
-    let closed = input
-        .iter()
-        .rev()
-        .find(|(_, v)| v == "0")
-        .expect("closed")
-        .0;
+    let (opened, closed) = trace
+        .high_span("estop_input")
+        .expect("the input opened, then closed");
     let step0 = &trace.changes["step0"];
     let last_edge = step0
         .iter()

@@ -186,6 +186,15 @@ impl Changes {
         edges
     }
 
+    /// When wire `name` first went high and last went low: the span of a mark such as the
+    /// e-stop wires or the gripper's activity (`None` if it never did either).
+    pub fn high_span(&self, name: &str) -> Option<(u64, u64)> {
+        let changes = self.changes.get(name)?;
+        let rose = changes.iter().find(|(_, v)| v == "1")?.0;
+        let fell = changes.iter().rev().find(|(_, v)| v == "0")?.0;
+        Some((rose, fell))
+    }
+
     /// The value of `name` at `tick` (the last change at or before it).
     pub fn value_at(&self, name: &str, tick: u64) -> Option<&str> {
         self.changes

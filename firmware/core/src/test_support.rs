@@ -354,6 +354,16 @@ impl<const CAP: usize> Session<CAP> {
         self.expect(Command::Runing, StatusCode::Ok);
     }
 
+    /// A run that goes on until stopped: NEW of 50 points, 12 of them sent, RUNING, and one
+    /// segment run; asserts the arm is RUNNING.
+    pub fn start_endless_run(&mut self) {
+        let from = self.plant.positions;
+        self.start_run(50, &points(from, 12, 1));
+        self.plant.run(&mut self.controller, 1);
+        assert_eq!(self.controller.state(), protocol::State::Running);
+        assert!(self.plant.running);
+    }
+
     /// Sends PENDING with these points.
     pub fn pending(&mut self, pts: &[Point]) -> Ack {
         self.send(Command::Pending(PointList::Points(pts)))

@@ -10,16 +10,6 @@ use arm_core::config::OWNER_TIMEOUT_US;
 use common::*;
 use protocol::{Command, State, StatusCode, StatusFlags, Tag};
 
-/// Starts a run of 50 points as the session's host and lets one segment run.
-fn start_run(s: &mut Session<64>) {
-    let from = s.plant.positions;
-    // 50 announced, 12 sent: the run goes on until stopped.
-    s.start_run(50, &points(from, 12, 1));
-    s.plant.run(&mut s.controller, 1);
-    assert_eq!(s.controller.state(), State::Running);
-    assert!(s.plant.running);
-}
-
 #[test]
 fn the_same_stopped_bytes_stop_every_run_however_soon_they_repeat() {
     // An e-stop panel sends one fixed frame: same seq, same bytes, every time.
@@ -27,7 +17,7 @@ fn the_same_stopped_bytes_stop_every_run_however_soon_they_repeat() {
     let stop = raw(0x42, Tag::Stopped as u8, &[]);
     let mut s = Session::<64>::new(64);
     for round in 0..10 {
-        start_run(&mut s);
+        s.start_endless_run();
         let stops = s.plant.stops;
         let r = s.send_raw(panel, &stop);
         let ack = r.reply.expect("an ACK").ack;
@@ -50,7 +40,7 @@ fn the_owners_own_repeated_stopped_stops_too() {
     let mut s = Session::<64>::new(64);
     let stop = raw(0x99, Tag::Stopped as u8, &[]);
     for round in 0..3 {
-        start_run(&mut s);
+        s.start_endless_run();
         let r = s.send_raw(HOST, &stop);
         assert_eq!(r.reply.expect("an ACK").ack.status, StatusCode::Ok);
         assert_eq!(s.controller.state(), State::Stopped, "round {round}");
@@ -62,7 +52,7 @@ fn the_owners_own_repeated_stopped_stops_too() {
 fn a_stopped_with_data_stops_and_its_data_is_ignored() {
     for len in [1usize, 4, 200] {
         let mut s = Session::<64>::new(64);
-        start_run(&mut s);
+        s.start_endless_run();
         let data = vec![0xA5u8; len];
         let r = s.send_raw(OTHER, &raw(7, Tag::Stopped as u8, &data));
         let ack = r.reply.expect("an ACK").ack;
@@ -80,7 +70,7 @@ fn a_stopped_with_data_stops_and_its_data_is_ignored() {
 #[test]
 fn a_stopped_with_a_bad_crc_stops_nothing() {
     let mut s = Session::<64>::new(64);
-    start_run(&mut s);
+    s.start_endless_run();
     let mut bad = raw(7, Tag::Stopped as u8, &[]);
     *bad.last_mut().unwrap() ^= 0x01;
     let r = s.send_raw(OTHER, &bad);

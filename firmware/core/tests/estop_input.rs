@@ -17,16 +17,6 @@ use common::*;
 use embassy_sync::signal::Signal;
 use protocol::{Command, MAX_JOINTS, MoreFlags, State, StatusCode, StatusFlags};
 
-/// Starts a run of 50 points as the session's host and lets one segment run.
-fn start_run(s: &mut Session<64>) {
-    let from = s.plant.positions;
-    // 50 announced, 12 sent: the run goes on until stopped.
-    s.start_run(50, &points(from, 12, 1));
-    s.plant.run(&mut s.controller, 1);
-    assert_eq!(s.controller.state(), State::Running);
-    assert!(s.plant.running);
-}
-
 fn more_flags(s: &Session<64>) -> MoreFlags {
     s.controller.status(&s.plant).more_flags
 }
@@ -34,7 +24,7 @@ fn more_flags(s: &Session<64>) -> MoreFlags {
 #[test]
 fn opening_the_input_stops_a_run_and_latches() {
     let mut s = Session::<64>::new(64);
-    start_run(&mut s);
+    s.start_endless_run();
     let stops = s.plant.stops;
     let location = s.controller.estop_input(true, &mut s.plant);
     assert!(s.plant.stops > stops, "the engine was stopped");
@@ -69,7 +59,7 @@ fn opening_drops_an_upload_not_yet_running() {
 #[test]
 fn the_latch_refuses_runing_and_return_until_closed_and_reset() {
     let mut s = Session::<64>::new(64);
-    start_run(&mut s);
+    s.start_endless_run();
     s.controller.estop_input(true, &mut s.plant);
     // Open: an upload is taken, but it cannot run, however often the host asks.
     s.expect(Command::New { count: 12 }, StatusCode::Ok);
@@ -105,7 +95,7 @@ fn the_latch_refuses_runing_and_return_until_closed_and_reset() {
         more_flags(&s).0 & (MoreFlags::ESTOP_OPEN | MoreFlags::ESTOP_LATCHED),
         0
     );
-    start_run(&mut s);
+    s.start_endless_run();
     assert_eq!(s.plant.starts, 2);
     s.expect(Command::Stopped, StatusCode::Ok);
     s.expect(Command::Return, StatusCode::Ok);
@@ -115,7 +105,7 @@ fn the_latch_refuses_runing_and_return_until_closed_and_reset() {
 fn an_input_that_opened_and_closed_still_latches() {
     // The task applies every opening it finds (EStopSample::opened), then the level.
     let mut s = Session::<64>::new(64);
-    start_run(&mut s);
+    s.start_endless_run();
     s.controller.estop_input(true, &mut s.plant);
     s.controller.estop_input(false, &mut s.plant);
     assert_eq!(s.controller.state(), State::Stopped);
@@ -133,7 +123,7 @@ fn estop_reset_without_a_latch_is_ok_and_changes_nothing() {
     assert_eq!(ack.state, State::Stopped);
     assert_eq!(s.controller.status(&s.plant), before);
     // During a run too: the run goes on.
-    start_run(&mut s);
+    s.start_endless_run();
     s.expect(Command::EstopReset, StatusCode::Ok);
     assert_eq!(s.controller.state(), State::Running);
     assert!(s.plant.running);
@@ -171,7 +161,7 @@ fn an_input_opened_during_returns_encoder_read_stops_it_before_it_moves() {
 #[test]
 fn closing_alone_changes_no_state() {
     let mut s = Session::<64>::new(64);
-    start_run(&mut s);
+    s.start_endless_run();
     assert_eq!(s.controller.estop_input(false, &mut s.plant), None);
     assert_eq!(s.controller.state(), State::Running);
     assert!(!s.controller.estop_latched());
