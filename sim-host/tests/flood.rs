@@ -26,7 +26,7 @@ fn stoppeds_from_a_third_host_take_effect_under_a_strangers_flood() {
         f.effect_ms(1.0),
         f.lost,
         f.status_ms(1.0),
-        f.shed
+        f.shed.unwrap_or_default()
     );
     board.shut_down();
     let _ = std::fs::remove_dir_all(&scratch);
