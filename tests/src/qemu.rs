@@ -212,9 +212,16 @@ impl QemuBoard {
     pub fn log(&self) -> String {
         format!(
             "--- firmware log (UART 0) ---\n{}--- QEMU stderr ---\n{}",
-            std::fs::read_to_string(self.dir.join("uart0.log")).unwrap_or_default(),
+            self.firmware_log(),
             std::fs::read_to_string(self.dir.join("qemu.stderr")).unwrap_or_default()
         )
+    }
+
+    /// The firmware's log (UART 0) alone, as far as QEMU has written it: its last line may
+    /// still be being written (no newline yet). Read lines from this, not from
+    /// [`QemuBoard::log`], where the heading that follows would end such a half line.
+    pub fn firmware_log(&self) -> String {
+        std::fs::read_to_string(self.dir.join("uart0.log")).unwrap_or_default()
     }
 
     /// Panics with the log if the firmware faulted or QEMU is gone: a panic, a HardFault
