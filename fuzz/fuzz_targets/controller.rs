@@ -649,7 +649,7 @@ impl Harness {
         }
     }
 
-    /// The engine finishes some of its segments (the step task's report), or nothing.
+    /// The engine finishes some of its segments (the step interrupts' report), or nothing.
     fn progress(&mut self, batch: u8) {
         let before = self.status();
         if !self.plant.running || self.plant.queue.is_empty() {

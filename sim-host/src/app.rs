@@ -300,11 +300,6 @@ async fn network_over_tap(
 }
 
 #[embassy_executor::task]
-async fn step(bus: &'static Bus, step: &'static SimStepShared, kick: &'static SimStepKick) -> ! {
-    arm_core::tasks::step_task(bus, step, kick).await
-}
-
-#[embassy_executor::task]
 async fn upload(bus: &'static Bus, step: &'static SimStepShared, clock: &'static SimClock) -> ! {
     arm_core::tasks::upload_task(bus, step, clock).await
 }
@@ -377,7 +372,7 @@ fn wire(board: Board) -> io::Result<Wiring> {
             realtime: board.options.realtime,
         },
         move |now| {
-            step.on_interrupt(&BUS.step_wake, |steps| {
+            step.on_interrupt(&BUS.step_progress, |steps| {
                 let progress = steps.advance(now);
                 let played = crate::steptimer::Played {
                     running: steps.is_running(),
@@ -467,7 +462,6 @@ fn spawn_tasks(spawner: Spawner, wiring: Wiring) {
                 std::process::exit(2);
             }
         },
-        self::step(bus, shared, kick).map(|t| spawner.spawn(t)),
         upload(bus, shared, clock).map(|t| spawner.spawn(t)),
         serial(board.serial, bus, clock).map(|t| spawner.spawn(t)),
         trajectory(controller, bus, shared, clock, hw).map(|t| spawner.spawn(t)),

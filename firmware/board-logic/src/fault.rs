@@ -58,7 +58,7 @@ pub enum FaultKind {
     /// The watchdog task found a task hung (board-logic `watchdog`): the safe state now,
     /// rather than an IWDG reset that leaves the outputs to float.
     TaskHung {
-        /// Which heartbeat stopped (the board's list: 0 step task, 1 network task).
+        /// Which heartbeat stopped (the board's list: 0 trajectory task, 1 network task).
         task: u8,
     },
     /// An interrupt with no handler fired (cortex-m-rt's default handler would spin).

@@ -30,12 +30,11 @@
 //! - `network`: receives datagrams and routes them: a CRC-valid STOPPED goes to its own
 //!   queue, which the trajectory task drains first; sends ACKs and reports.
 //! - `trajectory`: owns the [`Controller`]: handles frames, drives pins, gripper and
-//!   serial port, cuts segments for the step engine.
-//! - `stepper`: moves segments into the step producer shared with the DMA refills and
-//!   relays their progress.
+//!   serial port, pushes segments into the step producer shared with the DMA refills
+//!   (which wake it as segments finish).
 //! - `upload`: LOCATION reports every upload period.
 //! - `serial`: the USART pass-through.
-//! - `watchdog` (this board's): feeds the IWDG while `stepper` and `network` live.
+//! - `watchdog` (this board's): feeds the IWDG while `trajectory` and `network` live.
 //!
 //! One thread-mode executor is enough: no task computes for long (a PENDING frame of 12
 //! points is decoded and checked in microseconds), the e-stop has its own queue, and
@@ -49,7 +48,7 @@
 //! The task wrappers, the controller's static, the UDP socket and its buffers come from
 //! [`arm_wiring::controller_tasks!`], shared with the QEMU board (`firmware/qemu-mps2`), so
 //! that the two cannot drift apart; this crate passes its types, and the watchdog's
-//! heartbeat wrappers of the step and network tasks.
+//! heartbeat wrappers of the trajectory and network tasks.
 //!
 //! # Memory and caches
 //! Every task, driver and buffer is a `static` (`StaticCell`), initialised once in `main`;
@@ -76,7 +75,7 @@
 //! # Faults, watchdog, boot
 //! - Panics, HardFaults and stray interrupts take one path ([`fault`]): steps and gripper
 //!   stopped, STEP low, drivers holding, a defmt line, reset.
-//! - The IWDG (1 s) is fed by the `watchdog` task only while the step task and the
+//! - The IWDG (1 s) is fed by the `watchdog` task only while the trajectory task and the
 //!   network task both show signs of life (board-logic's `watchdog` module).
 //! - Clocks: HSE from the ST-LINK if it starts within 10 ms, else HSI ([`clocks`]).
 //! - Network: brought up only once the PHY's reference clock runs, retried every 5 s;
@@ -173,7 +172,7 @@ arm_wiring::controller_tasks! {
     settings: FlashSettings,
     encoders: ModbusEncoders,
     // The watchdog feeds the IWDG only while these two futures are polled.
-    liveness: { stepper: crate::step_beating, network: crate::network_beating },
+    liveness: { trajectory: crate::trajectory_beating, network: crate::network_beating },
 }
 
 static KICK: StaticCell<StepTimer> = StaticCell::new();
@@ -183,16 +182,18 @@ static STEP_CLOCK: StaticCell<embassy_stm32::timer::low_level::Timer<'static, pe
     StaticCell::new();
 static SERIAL: StaticCell<BoardSerial> = StaticCell::new();
 
-/// Polls of the step task's future (watchdog liveness).
-static STEP_BEAT: Heartbeat = Heartbeat::new();
+/// Polls of the trajectory task's future (watchdog liveness): the task that feeds the
+/// step producer.
+static TRAJECTORY_BEAT: Heartbeat = Heartbeat::new();
 /// Polls of the network task's future, or of the bring-up loop until it starts.
 static NETWORK_BEAT: Heartbeat = Heartbeat::new();
 /// Names of the heartbeats, in [`Liveness`] order.
-const BEAT_NAMES: [&str; 2] = ["step task", "network task"];
+const BEAT_NAMES: [&str; 2] = ["trajectory task", "network task"];
 
-/// The step task's future, beating [`STEP_BEAT`] on every poll.
-fn step_beating<F: Future>(task: F) -> Beating<'static, F> {
-    Beating::new(&STEP_BEAT, task)
+/// The trajectory task's future, beating [`TRAJECTORY_BEAT`] on every poll (it is polled
+/// at every `step_progress`, also while it awaits a settings write or an encoder read).
+fn trajectory_beating<F: Future>(task: F) -> Beating<'static, F> {
+    Beating::new(&TRAJECTORY_BEAT, task)
 }
 
 /// The network task's future, beating [`NETWORK_BEAT`] on every poll (its socket wakes it
@@ -201,17 +202,18 @@ fn network_beating<F: Future>(task: F) -> Beating<'static, F> {
     Beating::new(&NETWORK_BEAT, task)
 }
 
-/// Feeds the IWDG while the step task and the network task both live. Every check period
-/// it wakes the step task (a spurious `step_wake` only makes it look at its queue again;
+/// Feeds the IWDG while the trajectory task and the network task both live. Every check
+/// period it wakes the trajectory task (a spurious `step_progress` only makes it look at
+/// the step producer's progress again;
 /// the network task wakes itself, see arm-wiring's socket adapter), then compares the
 /// heartbeats. A hung task takes the fault path (safe state, log, reset); a hung executor,
 /// where this task cannot run either, is reset by the IWDG.
 #[embassy_executor::task]
 async fn watchdog(mut iwdg: IndependentWatchdog<'static, peripherals::IWDG1>) -> ! {
-    let beats = || [STEP_BEAT.count(), NETWORK_BEAT.count()];
+    let beats = || [TRAJECTORY_BEAT.count(), NETWORK_BEAT.count()];
     let mut liveness = Liveness::new(beats());
     loop {
-        BUS.step_wake.signal(());
+        BUS.step_progress.signal(());
         Timer::after_millis(u64::from(CHECK_PERIOD_MS)).await;
         match liveness.check(beats()) {
             Verdict::Feed => iwdg.pet(),

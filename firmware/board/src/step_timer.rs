@@ -199,7 +199,7 @@ fn TIM8_UP_TIM13() {
             cell.set(state);
         });
         // The backend makes the due DIR changes or ends the run, and re-arms.
-        STEP.on_interrupt(&crate::BUS.step_wake, |steps| ((), steps.on_alarm(now)));
+        STEP.on_interrupt(&crate::BUS.step_progress, |steps| ((), steps.on_alarm(now)));
     }
     program_compare();
 }

@@ -5,25 +5,27 @@
 //! ```text
 //!            Datagrams                                               StepPins
 //!   UDP <-> network_task --estop (STOPPED, first)--> trajectory_task     ^
-//!              ^   |     --inbox (everything else)-->   | Controller     | step timer
-//!              |   |                                    | Outputs,       |   ISRs
+//!              ^   |     --inbox (everything else)-->   | Controller     | step
+//!              |   |                                    | Outputs,       | interrupts
 //!           outbox <----- ACK, STATUS, LOCATION --------+ Gripper,...  StepShared
-//!              ^   ^                                    |  \--stop/start-->  ^  |
-//!              |   |                          segments  v                    |  | step_wake
-//!              |   |                                  step_task --push-------'  |
-//!              |   |                                    | <---------------------'
-//!              |   |                      step_progress '--> trajectory_task
+//!              ^   ^                                    |--push, stop, start-->^ |
+//!              |   |                                    ^                        |
+//!              |   |                                    '---- step_progress -----'
 //!              |   '-- LOCATION (period) -- upload_task <-- reports, upload_changed
 //!              '------ USART_RECV --------- serial_task <-- serial_tx, serial_opened
 //! ```
 //!
-//! Every channel and signal uses [`CriticalSectionRawMutex`]: the step engine and the
-//! step task's wake-up are touched from the timer interrupt, and one kind of mutex for all
-//! keeps the rules simple.
+//! The trajectory task pushes segments into the step backend itself (in [`StepShared`]'s
+//! critical section) and the step interrupts wake it through `step_progress`: no task
+//! relays between them, so the motion held ahead of the pulses is the backend's whole
+//! queue ([`crate::step_shared::LOOKAHEAD_US`]).
+//!
+//! Every channel and signal uses [`CriticalSectionRawMutex`]: the step backend and the
+//! trajectory task's wake-up are touched from the step interrupts, and one kind of mutex
+//! for all keeps the rules simple.
 
 use core::cell::{Cell, RefCell};
 
-use arm_step::Segment;
 use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::channel::Channel;
@@ -33,10 +35,10 @@ use protocol::{MAX_DATAGRAM, MAX_SERIAL_CHUNK, Tag, UartInit, crc8};
 
 use crate::config::HOST_WINDOW;
 use crate::hw::Endpoint;
-use crate::ingress::{SharedBudgets, SourceBudgets};
 use crate::log_limit::{LogLimit, LogVerdict};
 use crate::outgoing::Outgoing;
 use crate::reports::ReportSettings;
+use crate::source_share::{SharedBudgets, SourceBudgets};
 #[cfg(doc)]
 use crate::step_shared::StepShared;
 
@@ -69,10 +71,6 @@ pub const OUTBOX_QUEUE: usize = INBOX_QUEUE + ESTOP_QUEUE + 8 + ESTOP_ACK_RESERV
 /// outbox; a host that resends STOPPED until it is ACKed must still get its ACK.
 pub const ESTOP_ACK_RESERVE: usize = ESTOP_QUEUE;
 
-/// Segments between the trajectory task and the step task, on top of the engine's own
-/// queue: enough to refill the engine's queue in one go after a burst of short segments.
-pub const SEGMENT_QUEUE: usize = 8;
-
 /// USART_SEND payloads waiting for the serial port: at 115200 baud four are 90 ms of
 /// line time; a full queue refuses USART_SEND with BUFFER_FULL.
 pub const SERIAL_TX_QUEUE: usize = 4;
@@ -100,17 +98,6 @@ impl Datagram {
     }
 }
 
-/// A segment on its way to the engine, tagged with the engine's stop count at the time it
-/// was cut: a segment cut before an emergency stop is dropped, not run.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub struct SegmentMsg {
-    /// [`StepShared::generation`] when the segment was cut.
-    pub generation: u32,
-    /// The segment.
-    pub segment: Segment,
-}
-
 /// The channels and signals that connect the tasks. Put one in a `static` (`new` is
 /// `const`) or a `StaticCell`.
 /// See the module docs for who sends what to whom.
@@ -123,15 +110,11 @@ pub struct Bus {
     /// Frames to send, from `trajectory_task`, `upload_task` and `serial_task`; drained by
     /// `network_task`.
     pub outbox: Channel<Cs, Outgoing, OUTBOX_QUEUE>,
-    /// Segments cut from the trajectory buffer by `trajectory_task`; drained by
-    /// `step_task` into the engine.
-    pub segments: Channel<Cs, SegmentMsg, SEGMENT_QUEUE>,
-    /// Raised by the step interrupts (through [`StepShared`]) when segments finished or the
-    /// engine ran dry; waited on by `step_task`.
-    pub step_wake: Signal<Cs, ()>,
-    /// Raised by `step_task` after it moved segments or was woken by the interrupt;
-    /// waited on by `trajectory_task`, which then collects the progress from
-    /// [`StepShared`] and feeds more segments.
+    /// Raised by the step interrupts (through [`StepShared::on_interrupt`]) when segments
+    /// finished or the backend ran dry, and by the wired e-stop input's handler; waited on
+    /// by `trajectory_task`, which then collects the progress from [`StepShared`] and
+    /// pushes more segments. (A spurious raise only makes it look again: the board's
+    /// watchdog raises it to see the task alive.)
     pub step_progress: Signal<Cs, ()>,
     /// USART_SEND payloads, from `trajectory_task`; drained by `serial_task`.
     pub serial_tx: Channel<Cs, Vec<u8, MAX_SERIAL_CHUNK>, SERIAL_TX_QUEUE>,
@@ -170,8 +153,6 @@ impl Bus {
             estop: Channel::new(),
             inbox: Channel::new(),
             outbox: Channel::new(),
-            segments: Channel::new(),
-            step_wake: Signal::new(),
             step_progress: Signal::new(),
             serial_tx: Channel::new(),
             serial_opened: Signal::new(),

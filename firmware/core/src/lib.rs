@@ -17,11 +17,12 @@
 //!    (`plant.rs`). `tasks/overtaken.rs` keeps the result that of arrival order when a
 //!    STOPPED overtook queued datagrams.
 //! 3. The controller hands buffered points to its [`Plant`] as segments
-//!    ([`Controller::pump`]), which the trajectory task's puts on `bus.segments`;
-//!    [`tasks::step_task`] (`tasks/step.rs`) pushes them into the step backend in
-//!    [`StepShared`] (`step_shared.rs`: the backend shared with the step interrupts; the
-//!    boards' and the simulator's is arm-step's DMA stream producer), which makes the
-//!    pulses and reports progress back.
+//!    ([`Controller::pump`]), which the trajectory task pushes straight into the step
+//!    backend in [`StepShared`] (`step_shared.rs`: the backend shared with the step
+//!    interrupts; the boards' and the simulator's is arm-step's DMA stream producer),
+//!    as many as its queue holds ([`step_shared::LOOKAHEAD_US`] of motion). The backend
+//!    makes the pulses, and its interrupts wake the trajectory task (`bus.step_progress`)
+//!    as segments finish.
 //! 4. Replies go out the other way: ACK, STATUS and state-change LOCATION onto
 //!    `bus.outbox`, encoded and addressed by [`ReportEncoder`] (`outgoing.rs`, with
 //!    [`ReportSettings`] from `reports.rs`), sent by the network task. Periodic LOCATION
@@ -50,7 +51,7 @@
 //! output (a full outbox drops the frame), so a STOPPED is handled after at most the one
 //! command being handled: the controller then stops the engine in a critical section
 //! (no pulse after that), and kicks the step interrupt, which lowers the STEP lines.
-//! Segments already cut for the engine are dropped by their stop count. The one wait in
+//! Segments queued in the engine are dropped with it. The one wait in
 //! the trajectory task is deferred work: a settings write (JOINTS_COUNT, only in STOPPED)
 //! or the encoder read of a RETURN (before it moves); nothing moves meanwhile.
 //!
@@ -62,7 +63,7 @@
 //! already was overtaken: it and the queued datagrams up to that STOPPED are handled as
 //! usual, each executed STOPPED applied again ([`Controller::stop_after_overtaken`]) right
 //! after the datagram it followed, all before any wait (a run one of them started never
-//! emits a pulse: the engine starts [`step_shared::START_LEAD_US`] later, fed by the step task);
+//! emits a pulse: the engine starts [`step_shared::START_LEAD_US`] later);
 //! a RETURN's encoder read is dropped, a settings write is done.
 //!
 //! # The wired e-stop input
@@ -101,6 +102,7 @@ pub mod plant;
 pub mod reports;
 pub mod response;
 pub mod serial;
+pub mod source_share;
 pub mod step_shared;
 pub mod tasks;
 #[cfg(feature = "test-support")]
@@ -120,5 +122,5 @@ pub use reports::{LOCATION_LISTENERS, ReportSettings};
 pub use response::{Deferred, Discovery, Reply, Response};
 #[cfg(feature = "test-support")]
 pub use step_shared::on_step_timer;
-pub use step_shared::{STEP_QUEUE, StepBackend, StepProgress, StepShared};
-pub use tasks::{TrajectoryHw, network_task, serial_task, step_task, trajectory_task, upload_task};
+pub use step_shared::{LOOKAHEAD_US, STEP_QUEUE, StepBackend, StepProgress, StepShared};
+pub use tasks::{TrajectoryHw, network_task, serial_task, trajectory_task, upload_task};

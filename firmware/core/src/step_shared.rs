@@ -9,19 +9,40 @@ use core::cell::RefCell;
 use arm_step::StepPins;
 use arm_step::{Segment, StepEngine, StepTiming};
 use embassy_sync::blocking_mutex::Mutex;
+// The mutex kind of the bus ([`crate::bus::Cs`]), named here directly: this module sits
+// below the bus (the ingress path halts the steps through it), so it imports nothing
+// from it.
+use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex as Cs;
 use embassy_sync::signal::Signal;
 use protocol::MAX_JOINTS;
 
-use crate::bus::{Cs, SegmentMsg};
 #[cfg(doc)]
 use crate::hw::StepKick;
 
-/// Segments the step backend holds on the interrupts' side (the engine's queue, or the
-/// board's DMA producer's): with the shortest common point (1 ms) that is 64 ms of motion,
-/// far more than the trajectory task's worst wake-up latency on the board; in the
-/// simulator at `--time-scale 20`, 64 points of 10 ms are 32 ms of real time, which covers
-/// a host scheduler hiccup. The board, the QEMU firmware and the simulator all use it.
-pub const STEP_QUEUE: usize = 64;
+/// Motion the step side holds ahead of the pulses being made, at least: the trajectory
+/// task may be kept from feeding it this long without the run running dry. On the board
+/// its worst wake-up latency is microseconds (nothing long runs during a run: a settings
+/// write needs STOPPED); the simulator runs on a desktop scheduler, where a thread on two
+/// loaded cores is delayed by tens of milliseconds (issue 19 measured runs ending early
+/// with 12.8 ms held). 100 ms covers that with room; an emergency stop drops whatever is
+/// held, so holding more never delays a stop.
+pub const LOOKAHEAD_US: u32 = 100_000;
+
+/// The shortest point for which [`LOOKAHEAD_US`] holds in full: the protocol's own
+/// examples and the fastest streams seen (armctl's 200 us resampling) use points of 200 us
+/// or more. Shorter points get [`STEP_QUEUE`] of them (a shorter span): the count bounds
+/// the RAM.
+pub const LOOKAHEAD_SHORTEST_POINT_US: u32 = 200;
+
+/// Segments the step backend holds on the interrupts' side (the board's DMA producer's
+/// queue, or the test oracle's): [`LOOKAHEAD_US`] of points of
+/// [`LOOKAHEAD_SHORTEST_POINT_US`], rounded up to a power of two. The trajectory task
+/// pushes every buffered point that fits, so with points this long or longer the step side
+/// always holds at least the lookahead (or the rest of the run). Each slot is 64 bytes:
+/// 32 KiB of the board's AXI SRAM. The board, the QEMU firmware and the simulator all use
+/// it.
+pub const STEP_QUEUE: usize =
+    ((LOOKAHEAD_US / LOOKAHEAD_SHORTEST_POINT_US) as usize).next_power_of_two();
 
 /// Time between the start of a run being decided and its first segment's start: leaves
 /// the step interrupt time to set the DIR lines (and a simulator's scheduler some slack).
@@ -111,8 +132,6 @@ pub struct StepProgress {
 pub struct StepState<B> {
     /// The engine (or other backend).
     pub engine: B,
-    /// Emergency stops so far: segments cut before the last stop are stale.
-    generation: u32,
     /// Segments finished since the trajectory task last collected.
     finished: u32,
     /// The engine ran dry since the trajectory task last collected.
@@ -131,24 +150,11 @@ impl<B: StepBackend> StepState<B> {
     /// [`StepShared::stop`]'s work, inside the critical section.
     fn stop(&mut self) {
         self.engine.stop();
-        self.generation = self.generation.wrapping_add(1);
         self.finished = 0;
         self.ran_dry = false;
         self.start_pending = false;
         self.lower_step_lines = true;
     }
-}
-
-/// What became of a segment offered to the engine.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum PushOutcome {
-    /// Queued in the engine.
-    Queued,
-    /// Cut before the last emergency stop: dropped.
-    Stale,
-    /// The engine's queue is full: offer it again later.
-    Full,
 }
 
 /// The step engine (or other [`StepBackend`]) shared between the step interrupts and the
@@ -173,7 +179,6 @@ impl<const Q: usize, B: StepBackend> StepShared<Q, B> {
         StepShared {
             inner: Mutex::new(RefCell::new(StepState {
                 engine: backend,
-                generation: 0,
                 finished: 0,
                 ran_dry: false,
                 start_pending: false,
@@ -190,7 +195,8 @@ impl<const Q: usize, B: StepBackend> StepShared<Q, B> {
 
     /// The body of a step interrupt other than the engine's timer (the board's DMA
     /// refills and run end): runs `f` on the backend in the critical section, records the
-    /// progress it reports and wakes `wake` (the bus's `step_wake`) if there is any.
+    /// progress it reports and wakes `wake` (the bus's `step_progress`, which the
+    /// trajectory task waits on) if there is any.
     /// Nothing is recorded for a run cut by a stop in the meantime (the caller's `f`
     /// sees the stopped backend).
     pub fn on_interrupt<R>(
@@ -225,14 +231,11 @@ impl<const Q: usize, B: StepBackend> StepShared<Q, B> {
         self.with_engine(|e| e.set_positions(positions))
     }
 
-    /// Emergency stops so far.
-    pub fn generation(&self) -> u32 {
-        self.inner.lock(|s| s.borrow().generation)
-    }
-
     /// Emergency stop: the engine drops every segment and emits no further pulse; the
-    /// next interrupt lowers the STEP lines (kick it). Segments cut before now become
-    /// stale; uncollected progress is dropped.
+    /// next interrupt lowers the STEP lines (kick it); uncollected progress is dropped.
+    /// Segments pushed afterwards wait for a [`StepShared::start`]: the only pusher is
+    /// the trajectory task, whose controller handles the stop (and drops them) before it
+    /// starts anything.
     pub fn stop(&self) {
         self.inner.lock(|s| s.borrow_mut().stop())
     }
@@ -255,21 +258,19 @@ impl<const Q: usize, B: StepBackend> StepShared<Q, B> {
         self.inner.lock(|s| s.borrow_mut().halted = false)
     }
 
-    /// Offers a segment; starts the engine at `start_tick` if a start is pending.
-    pub fn push(&self, msg: SegmentMsg, start_tick: u64) -> PushOutcome {
+    /// Queues a segment (false: the queue is full, offer it again when segments
+    /// finished); starts the engine at `start_tick` if a start is pending.
+    pub fn push(&self, segment: Segment, start_tick: u64) -> bool {
         self.inner.lock(|s| {
             let mut s = s.borrow_mut();
-            if msg.generation != s.generation {
-                return PushOutcome::Stale;
-            }
-            if s.engine.push(msg.segment).is_err() {
-                return PushOutcome::Full;
+            if s.engine.push(segment).is_err() {
+                return false;
             }
             if s.start_pending {
                 s.start_pending = false;
                 s.engine.start(start_tick);
             }
-            PushOutcome::Queued
+            true
         })
     }
 
@@ -330,7 +331,7 @@ impl<const Q: usize> StepShared<Q> {
 /// The step timer interrupt's body for the default [`StepEngine`] backend (arm-core's
 /// task tests; the boards and the simulator use the producer): emits the edges due
 /// at `now_tick`, records finished segments and running dry for the tasks (waking
-/// `wake`, the bus's `step_wake`), and returns the tick to be called again at (`None`:
+/// `wake`, the bus's `step_progress`), and returns the tick to be called again at (`None`:
 /// only when kicked).
 #[cfg(any(test, feature = "test-support"))]
 pub fn on_step_timer<const Q: usize>(

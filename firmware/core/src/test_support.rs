@@ -204,8 +204,8 @@ impl Plant for FakePlant {
 
 impl FakePlant {
     /// Runs up to `n` queued segments (if running), one at a time, reporting each to the
-    /// controller (which refills the queue in between, as the step task does while a
-    /// segment runs); the engine runs dry when it finishes its last queued segment.
+    /// controller (which refills the queue in between, as the trajectory task does while
+    /// a segment runs); the engine runs dry when it finishes its last queued segment.
     /// Returns the LOCATION the controller sent, if any.
     pub fn run<const CAP: usize>(
         &mut self,

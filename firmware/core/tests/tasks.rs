@@ -14,8 +14,8 @@ use arm_core::hw::{
 };
 use arm_core::test_support::raw;
 use arm_core::{
-    Bus, Controller, ControllerConfig, StepShared, TrajectoryHw, network_task, on_step_timer,
-    serial_task, step_task, trajectory_task, upload_task,
+    Bus, Controller, ControllerConfig, LOOKAHEAD_US, STEP_QUEUE, StepShared, TrajectoryHw,
+    network_task, on_step_timer, serial_task, trajectory_task, upload_task,
 };
 use arm_step::{JointMask, StepPins, StepTiming};
 use embassy_futures::block_on;
@@ -49,6 +49,11 @@ struct TestClock(Cell<u64>);
 impl TestClock {
     fn new() -> Self {
         TestClock(Cell::new(0))
+    }
+
+    /// The time now, without moving it.
+    fn peek_us(&self) -> u64 {
+        self.0.get()
     }
 }
 
@@ -121,7 +126,7 @@ async fn step_interrupt<const Q: usize>(
     loop {
         let now = kick.now_tick();
         if kick.kicked.replace(false) || deadline.is_some_and(|d| now >= d) {
-            deadline = on_step_timer(step, now, &mut *pins.borrow_mut(), &bus.step_wake);
+            deadline = on_step_timer(step, now, &mut *pins.borrow_mut(), &bus.step_progress);
         }
         yield_now().await;
     }
@@ -385,9 +390,9 @@ fn datagrams_in_acks_and_steps_out() {
     let tasks = join5(
         network_task(&socket, &fx.bus, &fx.clock),
         fx.trajectory_task(&mut controller, &kick, settings, NoEncoders),
-        step_task(&fx.bus, &fx.step, &kick),
         upload_task(&fx.bus, &fx.step, &fx.clock),
-        join(serial_task(&fx.serial, &fx.bus, &fx.clock), isr),
+        serial_task(&fx.serial, &fx.bus, &fx.clock),
+        isr,
     );
 
     let send = |seq: u8, cmd: Command<'_>, from: Endpoint| {
@@ -586,9 +591,9 @@ fn with_tasks<'a, F: Future<Output = ()>>(
             clock,
             test_hw(&kick, &outputs, &serial, TestSettings(None), NoEncoders),
         ),
-        step_task(&bus, step, &kick),
         upload_task(&bus, step, clock),
-        join(serial_task(&serial, &bus, clock), isr),
+        serial_task(&serial, &bus, clock),
+        isr,
     );
     block_on(select(tasks, driver(step, clock)));
 }
@@ -719,6 +724,134 @@ fn streaming_through_a_small_buffer_and_underrun() {
     });
 }
 
+/// The step timer interrupt of [`step_interrupt`], which also, once `hold.0` is set and
+/// reached, keeps every other task from running for `hold.1` us of step time (it makes the
+/// pulses due meanwhile without yielding): the trajectory task held off, as a busy desktop
+/// scheduler (or a long critical section on a board) would.
+async fn step_interrupt_holding<const Q: usize>(
+    kick: &TestKick<'_>,
+    step: &StepShared<Q>,
+    pins: &RefCell<TestPins>,
+    bus: &Bus,
+    hold: &Cell<(Option<u64>, u64)>,
+) {
+    let mut deadline: Option<u64> = None;
+    loop {
+        let now = kick.now_tick();
+        if kick.kicked.replace(false) || deadline.is_some_and(|d| now >= d) {
+            deadline = on_step_timer(step, now, &mut *pins.borrow_mut(), &bus.step_progress);
+        }
+        if let (Some(at), span) = hold.get()
+            && now >= at
+        {
+            hold.set((None, span));
+            while kick.clock.peek_us() < now + span {
+                let t = kick.now_tick();
+                if deadline.is_some_and(|d| t >= d) {
+                    deadline = on_step_timer(step, t, &mut *pins.borrow_mut(), &bus.step_progress);
+                }
+            }
+        }
+        yield_now().await;
+    }
+}
+
+/// Issue 19: runs uploaded whole before RUNING ended by underrun after a multiple of 64
+/// points when the trajectory task was delayed (a loaded machine): the step side held
+/// only 64 segments (12.8 ms of 200 us points) and a relay task stood between. Now the
+/// trajectory task pushes straight into the backend, whose queue holds LOOKAHEAD_US of
+/// such points: held off for most of that, mid-run, the run still executes every point.
+#[test]
+fn a_run_survives_the_trajectory_task_held_off_for_almost_the_lookahead() {
+    const POINTS: usize = 1_200;
+    const POINT_US: i32 = 200;
+    let clock: &TestClock = Box::leak(Box::new(TestClock::new()));
+    let kick = TestKick::new(clock);
+    let bus = Bus::new();
+    let step: &StepShared<STEP_QUEUE> = Box::leak(Box::new(StepShared::new(TIMING)));
+    let mut controller = Box::new(Controller::<POINTS>::new(ControllerConfig {
+        capacity: POINTS,
+        ..ControllerConfig::BOARD
+    }));
+    let socket = TestSocket::default();
+    let pins = RefCell::new(TestPins::default());
+    let serial = TestSerial::default();
+    let outputs = RefCell::new(TestOutputs::default());
+    let hold = Cell::new((None, 0));
+    let isr = step_interrupt_holding(&kick, step, &pins, &bus, &hold);
+    let tasks = join5(
+        network_task(&socket, &bus, clock),
+        trajectory_task(
+            &mut *controller,
+            &bus,
+            step,
+            clock,
+            test_hw(&kick, &outputs, &serial, TestSettings(None), NoEncoders),
+        ),
+        upload_task(&bus, step, clock),
+        serial_task(&serial, &bus, clock),
+        isr,
+    );
+    let send = |seq: u8, cmd: Command<'_>| {
+        socket
+            .incoming
+            .borrow_mut()
+            .push_back((frame(seq, cmd), HOST));
+    };
+    let driver = async {
+        let limit = Duration::from_secs(20);
+        let pts: Vec<Point> = (0..POINTS as i32)
+            .map(|k| {
+                Point::from_motion(
+                    POINT_US,
+                    &[k, 0, 0, 0, 0, 0, 0, 0],
+                    &[k + 1, 0, 0, 0, 0, 0, 0, 0],
+                )
+            })
+            .collect();
+        send(
+            1,
+            Command::New {
+                count: POINTS as u16,
+            },
+        );
+        let mut seq = 2u8;
+        for chunk in pts.chunks(protocol::MAX_POINTS_PER_FRAME) {
+            send(seq, Command::Pending(PointList::Points(chunk)));
+            until("PENDING's ACK", limit, || last_ack(&socket, seq).is_some()).await;
+            let ack = last_ack(&socket, seq).unwrap_or_else(|| unreachable!());
+            assert_eq!(ack.status, StatusCode::Ok, "PENDING {seq}");
+            seq = seq.wrapping_add(1);
+        }
+        send(seq, Command::Runing);
+        until("RUNING's ACK", limit, || last_ack(&socket, seq).is_some()).await;
+        // 20 ms into the run, the trajectory task is held off for 90% of the lookahead.
+        hold.set((
+            Some(clock.peek_us() + 20_000),
+            u64::from(LOOKAHEAD_US) * 9 / 10,
+        ));
+        until("the end of the run", limit, || {
+            decoded(&socket).iter().any(
+                |(_, _, r)| matches!(r, Report::Location(l) if l.state == State::Stopped as u8),
+            )
+        })
+        .await;
+        assert!(hold.get().0.is_none(), "the hold happened");
+        seq = seq.wrapping_add(1);
+        socket.sent.borrow_mut().clear();
+        send(seq, Command::Status);
+        let status = status_reply(&socket, limit).await;
+        assert_eq!(
+            (status.executed, status.expected),
+            (POINTS as u16, POINTS as u16),
+            "every point held was executed"
+        );
+        assert_eq!(status.flags.0 & StatusFlags::UNDERRUN, 0, "no underrun");
+        assert_eq!(pins.borrow().position[0], POINTS as i64);
+    };
+    block_on(select(tasks, driver));
+}
+
 /// Encoders that take a while to answer (a bus transaction): the trajectory task waits.
 struct SlowEncoders;
 
@@ -768,7 +901,7 @@ impl Encoders for CountingEncoders<'_> {
     }
 }
 
-/// The trajectory task, the step task and the step interrupt, with frames routed onto the
+/// The trajectory task and the step interrupt, with frames routed onto the
 /// bus as the network task would (`route`) before the trajectory task first runs; what
 /// the controller sends is collected from the outbox (`drain`).
 struct Rig {
@@ -862,7 +995,7 @@ impl Rig {
                     CountingEncoders(&self.encoder_reads),
                 ),
             ),
-            join(step_task(&self.bus, &self.step, &kick), isr),
+            isr,
         );
         block_on(select(tasks, driver));
     }
@@ -1264,9 +1397,9 @@ fn the_wired_input_stops_the_steps_at_once_and_the_task_latches_the_controller()
     let tasks = join5(
         network_task(&socket, &fx.bus, &fx.clock),
         trajectory_task(&mut controller, &fx.bus, &fx.step, &fx.clock, hw),
-        step_task(&fx.bus, &fx.step, &kick),
         upload_task(&fx.bus, &fx.step, &fx.clock),
-        join(serial_task(&fx.serial, &fx.bus, &fx.clock), isr),
+        serial_task(&fx.serial, &fx.bus, &fx.clock),
+        isr,
     );
     let send = |seq: u8, cmd: Command<'_>| {
         socket

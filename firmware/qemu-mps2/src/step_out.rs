@@ -357,7 +357,7 @@ fn arm(deadline: Option<u64>) -> bool {
 pub fn on_interrupt() {
     for _ in 0..MAX_PLAYS_PER_INTERRUPT {
         let now = now_cycles();
-        let next = STEP.on_interrupt(&crate::BUS.step_wake, |steps| steps.play(now));
+        let next = STEP.on_interrupt(&crate::BUS.step_progress, |steps| steps.play(now));
         if !arm(next) {
             return;
         }

@@ -62,18 +62,19 @@ pub mod __private {
 ///     serial: BoardSerial,          // arm_core::hw::SerialPort
 ///     settings: FlashSettings,      // arm_core::hw::SettingsStore
 ///     encoders: ModbusEncoders,     // arm_core::hw::Encoders (or NoEncoders)
-///     // Optional: wrappers of the step and network tasks' futures, e.g. to count their
-///     // polls for a watchdog; each is a path to `fn<F: Future>(F) -> impl Future<Output = F::Output>`.
-///     liveness: { stepper: step_beating, network: network_beating },
+///     // Optional: wrappers of the trajectory and network tasks' futures, e.g. to count
+///     // their polls for a watchdog; each is a path to `fn<F: Future>(F) -> impl Future<Output = F::Output>`.
+///     liveness: { trajectory: trajectory_beating, network: network_beating },
 /// }
 /// ```
 ///
 /// It defines, in the invoking module:
 /// - `BoardController` and `BoardTrajectoryHw`, the concrete controller and hardware types;
-/// - the tasks `net_task` (the stack's runner), `network`, `trajectory`, `stepper`,
-///   `upload` and `serial`, each a thin wrapper of arm-core's generic task;
+/// - the tasks `net_task` (the stack's runner), `network`, `trajectory` (which also feeds
+///   the step backend: no task relays segments), `upload` and `serial`, each a thin
+///   wrapper of arm-core's generic task;
 /// - `spawn_controller(spawner, controller_config, mac, hw)`, which puts the controller in
-///   a static (with the Ethernet MAC address DISCOVER_REPLY reports) and spawns every task but the network's (trajectory, stepper, upload, serial):
+///   a static (with the Ethernet MAC address DISCOVER_REPLY reports) and spawns every task but the network's (trajectory, upload, serial):
 ///   the arm runs, and stops on its underrun rule, with or without a network;
 /// - `spawn_network(spawner, device, net_config, seed)`, which creates the stack (on the
 ///   device behind arm-core's [`GuardedDriver`](arm_core::ingress::GuardedDriver): the
@@ -98,7 +99,7 @@ macro_rules! controller_tasks {
         serial: $serial:ty,
         settings: $settings:ty,
         encoders: $encoders:ty
-        $(, liveness: { stepper: $stepper_watch:path, network: $network_watch:path $(,)? })?
+        $(, liveness: { trajectory: $trajectory_watch:path, network: $network_watch:path $(,)? })?
         $(,)?
     ) => {
         /// The controller as this board instantiates it.
@@ -166,15 +167,9 @@ macro_rules! controller_tasks {
 
         #[embassy_executor::task]
         async fn trajectory(controller: &'static mut BoardController, hw: BoardTrajectoryHw) -> ! {
-            $crate::__private::arm_core::trajectory_task(controller, &$bus, &$step, &CLOCK, hw)
-                .await
-        }
-
-        #[embassy_executor::task]
-        async fn stepper(kick: &'static $kick) -> ! {
             $crate::__watched!(
-                ($($stepper_watch)?),
-                $crate::__private::arm_core::step_task(&$bus, &$step, kick)
+                ($($trajectory_watch)?),
+                $crate::__private::arm_core::trajectory_task(controller, &$bus, &$step, &CLOCK, hw)
             )
             .await
         }
@@ -190,8 +185,8 @@ macro_rules! controller_tasks {
         }
 
         /// Puts the controller in its static, with the board's Ethernet `mac` (which
-        /// DISCOVER_REPLY reports), and spawns the trajectory, stepper, upload and serial
-        /// tasks (the network's come from `spawn_network`).
+        /// DISCOVER_REPLY reports), and spawns the trajectory, upload and serial tasks (the
+        /// network's come from `spawn_network`).
         pub fn spawn_controller(
             spawner: &embassy_executor::Spawner,
             controller_config: $crate::__private::arm_core::ControllerConfig,
@@ -207,7 +202,6 @@ macro_rules! controller_tasks {
             let (kick, port) = (hw.kick, hw.serial);
             let _ = HALT_KICK.init(kick);
             spawner.spawn(trajectory(controller, hw)?);
-            spawner.spawn(stepper(kick)?);
             spawner.spawn(upload()?);
             spawner.spawn(serial(port)?);
             Ok(())

@@ -62,7 +62,7 @@ pub extern "C" fn step_cost_mark(case: u32) {
 
 /// The body of joint `joint`'s DMA stream interrupt, as the board runs it
 /// (`firmware/board/src/step_dma/refill.rs`): read and clear the flags, refill the half the DMA
-/// left, wake the step task when segments finished, arm the run's end once it is known.
+/// left, wake the trajectory task when segments finished, arm the run's end once it is known.
 #[unsafe(no_mangle)]
 #[inline(never)]
 pub extern "C" fn refill_isr(joint: usize) {

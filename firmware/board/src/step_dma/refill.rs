@@ -33,7 +33,7 @@ fn refill(joint: usize) {
     let half = usize::from(full_played);
     let in_half = next / HALF;
     let underrun = flags.teif(n) || (half_played && full_played) || in_half == half;
-    STEP.on_interrupt(&crate::BUS.step_wake, |steps| {
+    STEP.on_interrupt(&crate::BUS.step_progress, |steps| {
         if !half_played && !full_played {
             return ((), StepProgress::default());
         }

@@ -4,9 +4,9 @@
 //!
 //! * [`network_task`] (`network.rs`): socket in, [`Bus::route`] onto `estop`/`inbox`;
 //!   `outbox` out.
-//! * [`trajectory_task`] (`trajectory.rs`): owns the [`Controller`]; `overtaken.rs` keeps
-//!   the e-stop path's arrival order ([`OvertakingStops`]).
-//! * [`step_task`] (`step.rs`): `segments` into the engine ([`StepShared`]).
+//! * [`trajectory_task`] (`trajectory.rs`): owns the [`Controller`] and pushes its segments
+//!   into the step backend ([`StepShared`]), woken by the step interrupts; `overtaken.rs`
+//!   keeps the e-stop path's arrival order ([`OvertakingStops`]).
 //! * [`upload_task`] (`upload.rs`): periodic LOCATION.
 //! * [`serial_task`] (`serial.rs`): the USART pass-through.
 //!
@@ -19,13 +19,11 @@ use crate::{bus::Bus, controller::Controller, step_shared::StepShared};
 mod network;
 mod overtaken;
 mod serial;
-mod step;
 mod trajectory;
 mod upload;
 
 pub use network::network_task;
 pub use overtaken::{OvertakingStops, STOP_MEMORY};
 pub use serial::serial_task;
-pub use step::step_task;
 pub use trajectory::{TrajectoryHw, trajectory_task};
 pub use upload::upload_task;

@@ -14,7 +14,7 @@ use crate::response::Deferred;
 /// datagrams that arrived before the last executed STOPPED, in arrival order (same ACKs,
 /// same duplicate memory), applying each executed STOPPED after the datagram it followed
 /// ([`Controller::stop_after_overtaken`]). All without a wait: a run one of them starts
-/// is stopped before the step task can hand the engine a segment. Returns the deferred
+/// is stopped before its first pulse (the engine starts `START_LEAD_US` after RUNING). Returns the deferred
 /// work still to do: a settings write (an encoder read would start a cancelled RETURN).
 pub(super) fn handle_overtaken<const CAP: usize, C: Clock>(
     controller: &mut Controller<CAP>,

@@ -2,13 +2,16 @@
 //! ([`Plant`] over the shared step engine and the other devices) and waits for its
 //! deferred work.
 
+use core::future::Future;
+use core::pin::pin;
+
 use arm_step::Segment;
-use embassy_futures::select::{Either3, select3};
+use embassy_futures::select::{Either, Either3, select, select3};
 use heapless::Vec;
 use protocol::{MAX_JOINTS, Pwm, UartInit};
 
 use super::overtaken::{OvertakingStops, handle_overtaken};
-use crate::bus::{Bus, SegmentMsg};
+use crate::bus::Bus;
 use crate::controller::Controller;
 use crate::estop_input::EStopLine;
 use crate::hw::{
@@ -44,6 +47,8 @@ struct TaskPlant<'a, const Q: usize, B, K, O, G, P> {
     step: &'a StepShared<Q, B>,
     kick: &'a K,
     lead_ticks: u64,
+    /// Segments were pushed since the step interrupt was last kicked.
+    pushed: bool,
     outputs: &'a mut O,
     gripper: &'a mut G,
     serial: &'a P,
@@ -61,18 +66,16 @@ impl<const Q: usize, B: StepBackend, K: StepKick, O: Outputs, G: Gripper, P: Ser
     fn stop(&mut self) {
         self.step.stop();
         self.kick.kick();
-        self.bus.segments.clear();
-        // step_task may be waiting on step_wake with a segment the full engine refused;
-        // after a stop no segment finishes to wake it: wake it here, or it never takes
-        // the next run's segments.
-        self.bus.step_wake.signal(());
+        self.pushed = false;
     }
     fn push_segment(&mut self, segment: Segment) -> bool {
-        let msg = SegmentMsg {
-            generation: self.step.generation(),
-            segment,
-        };
-        self.bus.segments.try_send(msg).is_ok()
+        // Straight into the backend: a run pending on an empty queue starts with its
+        // first segment, START_LEAD_US from now.
+        let queued = self
+            .step
+            .push(segment, self.kick.now_tick() + self.lead_ticks);
+        self.pushed |= queued;
+        queued
     }
     fn start(&mut self) {
         self.step.start(self.kick.now_tick() + self.lead_ticks);
@@ -111,11 +114,11 @@ impl<const Q: usize, B: StepBackend, K: StepKick, O: Outputs, G: Gripper, P: Ser
 }
 
 /// Owns the [`Controller`]: handles datagrams (STOPPED from `bus.estop` first; the wired
-/// e-stop input's changes before any event), sends
-/// ACKs and reports, executes the effects on the hardware, feeds segments to the step
-/// task and ends runs when the engine runs dry. At start: loads the stored settings,
-/// takes the gripper timer clock for STATUS, and drives the ENABLE lines to their boot
-/// state (all holding).
+/// e-stop input's changes before any event), sends ACKs and reports, executes the effects
+/// on the hardware, pushes segments into the step backend (every buffered point that
+/// fits, whenever a segment finished: the lookahead is the backend's whole queue) and
+/// ends runs when it runs dry. At start: loads the stored settings, takes the gripper
+/// timer clock for STATUS, and drives the ENABLE lines to their boot state (all holding).
 pub async fn trajectory_task<const CAP: usize, const Q: usize, B, C, K, O, G, P, S, E>(
     controller: &mut Controller<CAP>,
     bus: &Bus,
@@ -173,6 +176,7 @@ where
             step,
             kick,
             lead_ticks,
+            pushed: false,
             outputs: &mut outputs,
             gripper: &mut gripper,
             serial,
@@ -201,12 +205,12 @@ where
         deliver(bus, &response);
         match response.deferred {
             Some(Deferred::SaveSettings(s)) => {
-                if let Err(e) = settings.save(&s).await {
+                if let Err(e) = answering_wakeups(bus, settings.save(&s)).await {
                     warn!("settings not saved: {:?}", debug_value!(e));
                 }
             }
             Some(Deferred::ReadEncoders) => {
-                let read = encoders.read_joints(controller.joints()).await;
+                let read = answering_wakeups(bus, encoders.read_joints(controller.joints())).await;
                 // An input opened during the read stops the RETURN before it moves.
                 apply_estop_input(controller, estop, bus, &mut plant);
                 let location = match read {
@@ -229,7 +233,31 @@ where
         if let Some(location) = controller.on_step_progress(finished, ran_dry, &mut plant) {
             bus.send(Outgoing::Location(location));
         }
+        if plant.pushed {
+            // A producer that was idle between refills takes the new segments now.
+            kick.kick();
+        }
         publish(bus, controller);
+    }
+}
+
+/// Awaits deferred work (a settings write, an encoder read) while still being polled at
+/// every `bus.step_progress` (the step interrupts', the e-stop input's and the board
+/// watchdog's wake-up): the watchdog sees the task alive through a flash erase, and a
+/// wake-up taken meanwhile is raised again for the main loop to act on.
+async fn answering_wakeups<F: Future>(bus: &Bus, work: F) -> F::Output {
+    let mut work = pin!(work);
+    let mut woken = false;
+    loop {
+        match select(work.as_mut(), bus.step_progress.wait()).await {
+            Either::First(out) => {
+                if woken {
+                    bus.step_progress.signal(());
+                }
+                return out;
+            }
+            Either::Second(()) => woken = true,
+        }
     }
 }
 
