@@ -299,25 +299,17 @@ async fn network_over_tap(
     }
 }
 
+/// The controller's tasks (trajectory, upload, serial): arm-core's `controller_task`, as
+/// the boards run it (arm-wiring's `controller_tasks!`).
 #[embassy_executor::task]
-async fn upload(bus: &'static Bus, step: &'static SimStepShared, clock: &'static SimClock) -> ! {
-    arm_core::tasks::upload_task(bus, step, clock).await
-}
-
-#[embassy_executor::task]
-async fn serial(port: &'static SimSerial, bus: &'static Bus, clock: &'static SimClock) -> ! {
-    arm_core::tasks::serial_task(port, bus, clock).await
-}
-
-#[embassy_executor::task]
-async fn trajectory(
+async fn controller(
     controller: &'static mut SimController,
     bus: &'static Bus,
     step: &'static SimStepShared,
     clock: &'static SimClock,
     hw: SimTrajectoryHw,
 ) -> ! {
-    arm_core::tasks::trajectory_task(controller, bus, step, clock, hw).await
+    arm_core::controller_task(controller, bus, step, clock, hw, &arm_core::Unwatched).await
 }
 
 static BUS: Bus = Bus::new();
@@ -462,9 +454,7 @@ fn spawn_tasks(spawner: Spawner, wiring: Wiring) {
                 std::process::exit(2);
             }
         },
-        upload(bus, shared, clock).map(|t| spawner.spawn(t)),
-        serial(board.serial, bus, clock).map(|t| spawner.spawn(t)),
-        trajectory(controller, bus, shared, clock, hw).map(|t| spawner.spawn(t)),
+        self::controller(controller, bus, shared, clock, hw).map(|t| spawner.spawn(t)),
     ];
     for result in spawned {
         if let Err(e) = result {

@@ -29,11 +29,12 @@
 //! - `net_task`: the embassy-net stack's runner.
 //! - `network`: receives datagrams and routes them: a CRC-valid STOPPED goes to its own
 //!   queue, which the trajectory task drains first; sends ACKs and reports.
-//! - `trajectory`: owns the [`Controller`]: handles frames, drives pins, gripper and
-//!   serial port, pushes segments into the step producer shared with the DMA refills
-//!   (which wake it as segments finish).
-//! - `upload`: LOCATION reports every upload period.
-//! - `serial`: the USART pass-through.
+//! - `run_controller`: arm-core's `controller_task`, three tasks in one future, wired as in
+//!   the QEMU board and the simulator: the trajectory task owns the [`Controller`]
+//!   (handles frames, drives pins, gripper and serial port, pushes segments into the step
+//!   producer shared with the DMA refills, which wake it as segments finish); the upload
+//!   task sends LOCATION reports every upload period; the serial task is the USART
+//!   pass-through.
 //! - `watchdog` (this board's): feeds the IWDG while `trajectory` and `network` live.
 //!
 //! One thread-mode executor is enough: no task computes for long (a PENDING frame of 12
@@ -172,7 +173,7 @@ arm_wiring::controller_tasks! {
     settings: FlashSettings,
     encoders: ModbusEncoders,
     // The watchdog feeds the IWDG only while these two futures are polled.
-    liveness: { trajectory: crate::trajectory_beating, network: crate::network_beating },
+    liveness: { trajectory: crate::TrajectoryBeat, network: crate::network_beating },
 }
 
 static KICK: StaticCell<StepTimer> = StaticCell::new();
@@ -190,10 +191,15 @@ static NETWORK_BEAT: Heartbeat = Heartbeat::new();
 /// Names of the heartbeats, in [`Liveness`] order.
 const BEAT_NAMES: [&str; 2] = ["trajectory task", "network task"];
 
-/// The trajectory task's future, beating [`TRAJECTORY_BEAT`] on every poll (it is polled
-/// at every `step_progress`, also while it awaits a settings write or an encoder read).
-fn trajectory_beating<F: Future>(task: F) -> Beating<'static, F> {
-    Beating::new(&TRAJECTORY_BEAT, task)
+/// Watches the trajectory task's future: beats [`TRAJECTORY_BEAT`] on every poll of it
+/// (it is polled at every `step_progress`, also while it awaits a settings write or an
+/// encoder read).
+struct TrajectoryBeat;
+
+impl arm_core::TaskWatch for TrajectoryBeat {
+    fn watch<F: Future>(&self, task: F) -> impl Future<Output = F::Output> {
+        Beating::new(&TRAJECTORY_BEAT, task)
+    }
 }
 
 /// The network task's future, beating [`NETWORK_BEAT`] on every poll (its socket wakes it

@@ -123,4 +123,7 @@ pub use response::{Deferred, Discovery, Reply, Response};
 #[cfg(feature = "test-support")]
 pub use step_shared::on_step_timer;
 pub use step_shared::{LOOKAHEAD_US, STEP_QUEUE, StepBackend, StepProgress, StepShared};
-pub use tasks::{TrajectoryHw, network_task, serial_task, trajectory_task, upload_task};
+pub use tasks::{
+    TaskWatch, TrajectoryHw, Unwatched, controller_task, network_task, serial_task,
+    trajectory_task, upload_task,
+};

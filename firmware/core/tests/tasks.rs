@@ -15,11 +15,12 @@ use arm_core::hw::{
 use arm_core::test_support::raw;
 use arm_core::{
     Bus, Controller, ControllerConfig, LOOKAHEAD_US, STEP_QUEUE, StepShared, TrajectoryHw,
-    network_task, on_step_timer, serial_task, trajectory_task, upload_task,
+    Unwatched, controller_task, network_task, on_step_timer, serial_task, trajectory_task,
+    upload_task,
 };
 use arm_step::{JointMask, StepPins, StepTiming};
 use embassy_futures::block_on;
-use embassy_futures::join::{join, join5};
+use embassy_futures::join::{join, join3, join5};
 use embassy_futures::select::select;
 use embassy_futures::yield_now;
 use protocol::{
@@ -564,7 +565,7 @@ fn stopped_overtakes_queued_uploads() {
     block_on(select(trajectory, driver));
 }
 
-/// Runs the five tasks and the fake interrupt around `driver`.
+/// Runs the tasks (as the boards wire them) and the fake interrupt around `driver`.
 fn with_tasks<'a, F: Future<Output = ()>>(
     capacity: usize,
     socket: &'a TestSocket,
@@ -582,17 +583,17 @@ fn with_tasks<'a, F: Future<Output = ()>>(
     let serial = TestSerial::default();
     let outputs = RefCell::new(TestOutputs::default());
     let isr = step_interrupt(&kick, step, pins, &bus);
-    let tasks = join5(
+    // The tasks as every board and the simulator wire them.
+    let tasks = join3(
         network_task(socket, &bus, clock),
-        trajectory_task(
+        controller_task(
             &mut controller,
             &bus,
             step,
             clock,
             test_hw(&kick, &outputs, &serial, TestSettings(None), NoEncoders),
+            &Unwatched,
         ),
-        upload_task(&bus, step, clock),
-        serial_task(&serial, &bus, clock),
         isr,
     );
     block_on(select(tasks, driver(step, clock)));
@@ -779,17 +780,17 @@ fn a_run_survives_the_trajectory_task_held_off_for_almost_the_lookahead() {
     let outputs = RefCell::new(TestOutputs::default());
     let hold = Cell::new((None, 0));
     let isr = step_interrupt_holding(&kick, step, &pins, &bus, &hold);
-    let tasks = join5(
+    // The tasks as every board and the simulator wire them.
+    let tasks = join3(
         network_task(&socket, &bus, clock),
-        trajectory_task(
+        controller_task(
             &mut *controller,
             &bus,
             step,
             clock,
             test_hw(&kick, &outputs, &serial, TestSettings(None), NoEncoders),
+            &Unwatched,
         ),
-        upload_task(&bus, step, clock),
-        serial_task(&serial, &bus, clock),
         isr,
     );
     let send = |seq: u8, cmd: Command<'_>| {
@@ -1394,11 +1395,16 @@ fn the_wired_input_stops_the_steps_at_once_and_the_task_latches_the_controller()
         )
     };
     let isr = step_interrupt(&kick, &fx.step, &pins, &fx.bus);
-    let tasks = join5(
+    let tasks = join3(
         network_task(&socket, &fx.bus, &fx.clock),
-        trajectory_task(&mut controller, &fx.bus, &fx.step, &fx.clock, hw),
-        upload_task(&fx.bus, &fx.step, &fx.clock),
-        serial_task(&fx.serial, &fx.bus, &fx.clock),
+        controller_task(
+            &mut controller,
+            &fx.bus,
+            &fx.step,
+            &fx.clock,
+            hw,
+            &Unwatched,
+        ),
         isr,
     );
     let send = |seq: u8, cmd: Command<'_>| {

@@ -62,19 +62,21 @@ pub mod __private {
 ///     serial: BoardSerial,          // arm_core::hw::SerialPort
 ///     settings: FlashSettings,      // arm_core::hw::SettingsStore
 ///     encoders: ModbusEncoders,     // arm_core::hw::Encoders (or NoEncoders)
-///     // Optional: wrappers of the trajectory and network tasks' futures, e.g. to count
-///     // their polls for a watchdog; each is a path to `fn<F: Future>(F) -> impl Future<Output = F::Output>`.
-///     liveness: { trajectory: trajectory_beating, network: network_beating },
+///     // Optional: what watches the trajectory task's future (an arm_core::TaskWatch value)
+///     // and the network task's (a path to `fn<F: Future>(F) -> impl Future<Output =
+///     // F::Output>`), e.g. to count their polls for a watchdog.
+///     liveness: { trajectory: TrajectoryBeat, network: network_beating },
 /// }
 /// ```
 ///
 /// It defines, in the invoking module:
 /// - `BoardController` and `BoardTrajectoryHw`, the concrete controller and hardware types;
-/// - the tasks `net_task` (the stack's runner), `network`, `trajectory` (which also feeds
-///   the step backend: no task relays segments), `upload` and `serial`, each a thin
-///   wrapper of arm-core's generic task;
+/// - the tasks `net_task` (the stack's runner), `network` and `run_controller` (arm-core's
+///   [`controller_task`](arm_core::controller_task): the trajectory task, which also
+///   feeds the step backend, the upload task and the serial task, as the simulator runs
+///   them too), each a thin wrapper of arm-core's generic function;
 /// - `spawn_controller(spawner, controller_config, mac, hw)`, which puts the controller in
-///   a static (with the Ethernet MAC address DISCOVER_REPLY reports) and spawns every task but the network's (trajectory, upload, serial):
+///   a static (with the Ethernet MAC address DISCOVER_REPLY reports) and spawns the `run_controller` task:
 ///   the arm runs, and stops on its underrun rule, with or without a network;
 /// - `spawn_network(spawner, device, net_config, seed)`, which creates the stack (on the
 ///   device behind arm-core's [`GuardedDriver`](arm_core::ingress::GuardedDriver): the
@@ -99,7 +101,7 @@ macro_rules! controller_tasks {
         serial: $serial:ty,
         settings: $settings:ty,
         encoders: $encoders:ty
-        $(, liveness: { trajectory: $trajectory_watch:path, network: $network_watch:path $(,)? })?
+        $(, liveness: { trajectory: $trajectory_watch:expr, network: $network_watch:path $(,)? })?
         $(,)?
     ) => {
         /// The controller as this board instantiates it.
@@ -165,28 +167,24 @@ macro_rules! controller_tasks {
             .await
         }
 
+        /// The controller's tasks (trajectory, upload, serial), wired by arm-core once for
+        /// every board and the simulator.
         #[embassy_executor::task]
-        async fn trajectory(controller: &'static mut BoardController, hw: BoardTrajectoryHw) -> ! {
-            $crate::__watched!(
-                ($($trajectory_watch)?),
-                $crate::__private::arm_core::trajectory_task(controller, &$bus, &$step, &CLOCK, hw)
+        async fn run_controller(controller: &'static mut BoardController, hw: BoardTrajectoryHw) -> ! {
+            $crate::__private::arm_core::controller_task(
+                controller,
+                &$bus,
+                &$step,
+                &CLOCK,
+                hw,
+                &$crate::__watch!($($trajectory_watch)?),
             )
             .await
         }
 
-        #[embassy_executor::task]
-        async fn upload() -> ! {
-            $crate::__private::arm_core::upload_task(&$bus, &$step, &CLOCK).await
-        }
-
-        #[embassy_executor::task]
-        async fn serial(port: &'static $serial) -> ! {
-            $crate::__private::arm_core::serial_task(port, &$bus, &CLOCK).await
-        }
-
         /// Puts the controller in its static, with the board's Ethernet `mac` (which
-        /// DISCOVER_REPLY reports), and spawns the trajectory, upload and serial tasks (the
-        /// network's come from `spawn_network`).
+        /// DISCOVER_REPLY reports), and spawns the `run_controller` task (the network's come
+        /// from `spawn_network`).
         pub fn spawn_controller(
             spawner: &embassy_executor::Spawner,
             controller_config: $crate::__private::arm_core::ControllerConfig,
@@ -199,11 +197,8 @@ macro_rules! controller_tasks {
                 controller_config,
             );
             controller.set_mac(mac);
-            let (kick, port) = (hw.kick, hw.serial);
-            let _ = HALT_KICK.init(kick);
-            spawner.spawn(trajectory(controller, hw)?);
-            spawner.spawn(upload()?);
-            spawner.spawn(serial(port)?);
+            let _ = HALT_KICK.init(hw.kick);
+            spawner.spawn(run_controller(controller, hw)?);
             Ok(())
         }
 
@@ -228,6 +223,19 @@ macro_rules! controller_tasks {
             spawner.spawn(network(socket)?);
             Ok(stack)
         }
+    };
+}
+
+/// The trajectory task's [`TaskWatch`](arm_core::TaskWatch) as [`controller_tasks!`]
+/// runs it: the board's `liveness` one, or none.
+#[doc(hidden)]
+#[macro_export]
+macro_rules! __watch {
+    () => {
+        $crate::__private::arm_core::Unwatched
+    };
+    ($watch:expr) => {
+        $watch
     };
 }
 

@@ -1,6 +1,8 @@
 //! The controller's async tasks, generic over the hardware traits ([`crate::hw`]), one file
 //! each. Binaries allocate a [`Bus`], a [`StepShared`] and a [`Controller`] in statics and
-//! wrap these functions in `#[embassy_executor::task]`s (they cannot be generic).
+//! spawn two `#[embassy_executor::task]`s (which cannot be generic): [`controller_task`]
+//! (`controller.rs`: the trajectory, upload and serial tasks below, wired once for every
+//! board and the simulator) and [`network_task`] behind their first look at datagrams.
 //!
 //! * [`network_task`] (`network.rs`): socket in, [`Bus::route`] onto `estop`/`inbox`;
 //!   `outbox` out.
@@ -16,12 +18,14 @@
 #[cfg(doc)]
 use crate::{bus::Bus, controller::Controller, step_shared::StepShared};
 
+mod controller;
 mod network;
 mod overtaken;
 mod serial;
 mod trajectory;
 mod upload;
 
+pub use controller::{TaskWatch, Unwatched, controller_task};
 pub use network::network_task;
 pub use overtaken::{OvertakingStops, STOP_MEMORY};
 pub use serial::serial_task;
