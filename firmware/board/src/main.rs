@@ -156,6 +156,10 @@ pub const MAX_JOINTS: usize = protocol::MAX_JOINTS;
 /// Trajectory points buffered (the profile's: 80 s of 10 ms points).
 const CAP: usize = step_dma::PROFILE.trajectory_capacity;
 
+/// The controller's configuration from the board's profile (a `const`: evaluated at compile
+/// time, no profile arithmetic in the image); the gripper's clock is set at boot.
+const CONTROLLER_CONFIG: ControllerConfig = step_dma::PROFILE.controller_config();
+
 /// The channels between the tasks (and the step interrupt). `Bus::new()` is all zero
 /// bytes, so this plain static is `.bss` and costs no flash (`scripts/fw-size.sh` fails
 /// should a non-zero field ever put it in `.data`).
@@ -352,7 +356,7 @@ async fn main(spawner: Spawner) -> ! {
     // The board's profile, with the gripper clock as measured at boot.
     let controller_config = ControllerConfig {
         pwm_timer_clock_hz: gripper.timer_clock_hz(),
-        ..step_dma::PROFILE.controller_config()
+        ..CONTROLLER_CONFIG
     };
     set_driver_priorities();
 

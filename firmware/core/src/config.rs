@@ -30,9 +30,6 @@ pub struct ControllerConfig {
     /// Highest step rate of one joint (STATUS `max_step_rate_hz`); points asking for more
     /// are refused with INVALID_POINT. Must not exceed the step engine's own limit.
     pub max_step_rate_hz: u32,
-    /// Steps per second of all joints together (STATUS `step_budget_hz`) at boot;
-    /// [`crate::Controller::set_step_budget_hz`] changes it.
-    pub step_budget_hz: u32,
     /// Trajectory points buffered; clamped to the storage's compile-time size.
     pub capacity: usize,
     /// Input clock of the gripper timer (STATUS `pwm_timer_clock_hz`).

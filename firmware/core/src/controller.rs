@@ -205,7 +205,6 @@ impl<const CAP: usize> Controller<CAP> {
     /// value on the stack) and apply the configuration it computes at run time.
     pub fn reconfigure(&mut self, config: ControllerConfig) {
         self.config = config;
-        self.step_budget_hz = config.step_budget_hz;
         self.buffer.set_capacity(config.capacity);
     }
 
@@ -217,7 +216,7 @@ impl<const CAP: usize> Controller<CAP> {
 
     /// Sets the steps per second of all joints together that points may ask for (STATUS
     /// `step_budget_hz`; 0: no limit beyond the per-joint one). Boot default:
-    /// [`ControllerConfig::step_budget_hz`] (the board profile's, [`crate::profile`]).
+    /// [`crate::profile::BOOT_STEP_BUDGET_HZ`] (every board profile's).
     pub fn set_step_budget_hz(&mut self, hz: u32) {
         self.step_budget_hz = hz;
     }

@@ -118,11 +118,11 @@ impl BoardProfile {
     }
 
     /// The controller's configuration on this board: its limits, buffer, gripper clock and
-    /// the default RETURN limits.
+    /// the default RETURN limits. (The step budget is not in it: the controller boots with
+    /// [`BOOT_STEP_BUDGET_HZ`], every profile's.)
     pub const fn controller_config(&self) -> ControllerConfig {
         ControllerConfig {
             max_step_rate_hz: self.max_step_rate_hz(),
-            step_budget_hz: self.step_budget_hz,
             capacity: self.trajectory_capacity,
             pwm_timer_clock_hz: self.pwm_timer_clock_hz,
             return_speed: [DEFAULT_RETURN_SPEED; MAX_JOINTS],
@@ -262,6 +262,20 @@ const _: () = {
         i += 1;
     }
 };
+/// The step budget every controller boots with (STATUS `step_budget_hz`): every profile's
+/// (checked below). Not a field of [`ControllerConfig`]: a constant costs the NUCLEO's flash
+/// nothing, the field 36 bytes of copies (scripts/fw-size.sh), and no board differs.
+pub const BOOT_STEP_BUDGET_HZ: u32 = NUCLEO_H743ZI2.step_budget_hz;
+const _: () = {
+    let mut i = 0;
+    while i < ALL.len() {
+        #[allow(clippy::indexing_slicing, reason = "const-evaluated: i < ALL.len()")]
+        let budget = ALL[i].step_budget_hz;
+        assert!(budget == BOOT_STEP_BUDGET_HZ);
+        i += 1;
+    }
+};
+
 // The drivers' figures give the rates the docs state: opto 200 kHz on the NUCLEO, TMC-class
 // the board's 1 MHz ceiling.
 const _: () = assert!(NUCLEO_H743ZI2.max_step_rate_hz() == 200_000);

@@ -73,6 +73,10 @@ pub static BUS: Bus = Bus::new();
 /// the same).
 const CAP: usize = step_out::PROFILE.trajectory_capacity;
 
+/// The controller's configuration from the board's profile (a `const`: evaluated at compile
+/// time, no profile arithmetic in the image); the gripper's clock is set at boot.
+const CONTROLLER_CONFIG: ControllerConfig = step_out::PROFILE.controller_config();
+
 /// The MAC address if the chip's EEPROM has none (QEMU loads one: 52:54:00:12:34:56 unless
 /// `-nic ...,mac=` says otherwise). Locally administered, unicast.
 const FALLBACK_MAC: [u8; 6] = [0x02, 0x00, 0x00, 0x00, 0x85, 0x10];
@@ -200,7 +204,7 @@ fn main() -> ! {
     // The board's profile, with the gripper's clock as it reports it.
     let controller_config = ControllerConfig {
         pwm_timer_clock_hz: gripper.timer_clock_hz(),
-        ..step_out::PROFILE.controller_config()
+        ..CONTROLLER_CONFIG
     };
     // No RNG on this board: the seed only varies TCP sequence numbers and DHCP ids.
     let seed = time_driver::now_cycles() ^ u64::from_le_bytes([a, b, c, d, e, f, 0x95, 0x18]);

@@ -73,6 +73,10 @@ pub const STEP_TIMER_HZ: u32 = PROFILE.step_timer_hz;
 /// which changes DIR, can be held off by a refill's critical section).
 pub const STEP_TIMING: StepTiming = PROFILE.step_timing();
 
+/// The longest period of each joint's timer (the profile's: 2^32 ticks for TIM2 and TIM5,
+/// 2^16 for the 16-bit ones).
+pub const MAX_PERIOD_TICKS: [u32; MAX_JOINTS] = PROFILE.step_timer_max_period_ticks;
+
 /// Every joint's DMA buffer. Written by the refills (inside [`STEP`]'s critical section,
 /// for the half the stream is not reading) and read by the DMA.
 struct Buffers(UnsafeCell<[JointBuffer<HALF>; MAX_JOINTS]>);
@@ -110,11 +114,7 @@ pub fn init() {
         start,
         len
     );
-    STEP.with_engine(|steps| {
-        steps
-            .streams
-            .init(STEP_TIMING, PROFILE.step_timer_max_period_ticks)
-    });
+    STEP.with_engine(|steps| steps.streams.init(STEP_TIMING, MAX_PERIOD_TICKS));
     pac::RCC.apb1lenr().modify(|w| {
         w.set_tim2en(true);
         w.set_tim3en(true);
