@@ -54,7 +54,7 @@ fn the_nucleos_per_joint_limit_is_the_simulators() {
 
 /// `hz` as the docs write a step rate: "200 kHz", "1 MHz".
 fn rate(hz: u32) -> String {
-    if hz % 1_000_000 == 0 {
+    if hz.is_multiple_of(1_000_000) {
         format!("{} MHz", hz / 1_000_000)
     } else {
         format!("{} kHz", hz / 1_000)
@@ -65,7 +65,7 @@ fn rate(hz: u32) -> String {
 fn time(ns: u32) -> String {
     match ns {
         ns if ns < 1_000 => format!("{ns} ns"),
-        ns if ns % 1_000 == 0 => format!("{} us", ns / 1_000),
+        ns if ns.is_multiple_of(1_000) => format!("{} us", ns / 1_000),
         ns => format!("{} us", f64::from(ns) / 1_000.0),
     }
 }
