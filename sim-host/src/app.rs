@@ -6,9 +6,9 @@ use std::net::SocketAddr;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 
-use arm_core::config::{BOARD_MAX_STEP_RATE_HZ, BOARD_TRAJECTORY_CAPACITY};
 use arm_core::hw::Clock;
 use arm_core::ingress::HaltSteps;
+use arm_core::profile::{self, BoardProfile};
 use arm_core::{Bus, StepShared, TrajectoryHw};
 use arm_core::{Controller, ControllerConfig};
 use arm_step::StepTiming;
@@ -200,51 +200,44 @@ pub fn init_logging(level: &str) {
 // ---------------------------------------------------------------------------------------
 // The firmware's tasks on the std executor.
 
+/// The simulator's profile (arm-core's `profile`): by default it is the NUCLEO-H743ZI2,
+/// with the same limits and figures; `--tick-hz` and `--buffer-capacity` deviate from it
+/// explicitly.
+pub const PROFILE: BoardProfile = profile::SIMULATOR;
+
 /// Trajectory points the simulator can buffer: the board's size, so that a host sees the
 /// same flow control; `--buffer-capacity` uses less of it.
-pub const TRAJECTORY_STORAGE: usize = BOARD_TRAJECTORY_CAPACITY;
+pub const TRAJECTORY_STORAGE: usize = PROFILE.trajectory_capacity;
 
 // Segments the step engine holds (the "interrupt side" queue): the board's, declared once
 // in arm-core, so the simulator has the same lookahead.
 use arm_core::STEP_QUEUE;
-
-/// STEP high time of the simulated drivers, ns (common drivers need 1-2.5 us).
-pub const PULSE_WIDTH_NS: u64 = 2_000;
-
-/// DIR setup time of the simulated drivers, ns.
-pub const DIR_SETUP_NS: u64 = 2_000;
-/// Least STEP low time between pulses: as long as the pulse (DM542/TB6600-class drivers).
-pub const STEP_LOW_NS: u64 = 2_000;
 
 /// The controller as the simulator builds it.
 pub type SimController = Controller<TRAJECTORY_STORAGE>;
 /// The step engine shared with the step thread.
 pub type SimStepShared = StepShared<STEP_QUEUE, SimSteps<STEP_QUEUE>>;
 
-/// The step timing for a step timer at `tick_hz`.
+/// The step timing for a step timer at `tick_hz`: the profile's drivers (the NUCLEO's
+/// opto-isolated ones, its DIR latency included), each time rounded up to whole ticks.
 pub fn step_timing(tick_hz: u32) -> StepTiming {
-    let ticks = |ns: u64| (ns * u64::from(tick_hz)).div_ceil(1_000_000_000).max(1) as u32;
-    StepTiming {
-        tick_hz,
-        pulse_width_ticks: ticks(PULSE_WIDTH_NS),
-        dir_setup_ticks: ticks(DIR_SETUP_NS),
-        step_low_ticks: ticks(STEP_LOW_NS),
-    }
+    PROFILE.step_timing_at(tick_hz)
 }
 
-/// The controller configuration for these options: the board's, with the simulator's
-/// gripper clock, the step rate its step timer allows and `--buffer-capacity`.
+/// The controller configuration for these options: the profile's, with the step rate its
+/// step timer allows (the profile's unless `--tick-hz` is too coarse for the drivers'
+/// times) and `--buffer-capacity`.
 pub fn controller_config(options: &SimOptions) -> ControllerConfig {
     let timing = step_timing(options.tick_hz);
     let capacity = options
         .buffer_capacity
         .unwrap_or(TRAJECTORY_STORAGE)
         .clamp(1, TRAJECTORY_STORAGE);
+    let config = PROFILE.controller_config();
     ControllerConfig {
-        max_step_rate_hz: BOARD_MAX_STEP_RATE_HZ.min(timing.max_step_rate_hz()),
+        max_step_rate_hz: config.max_step_rate_hz.min(timing.max_step_rate_hz()),
         capacity,
-        pwm_timer_clock_hz: crate::devices::PWM_TIMER_CLOCK_HZ,
-        ..ControllerConfig::BOARD
+        ..config
     }
 }
 

@@ -17,9 +17,9 @@ use crate::clock::SimClock;
 use crate::steppers::MotorState;
 use crate::vcd::{Signal, Tracer, Value};
 
-/// Input clock of the simulated gripper timer: the board's (TIM15, declared once in
-/// arm-core), so that a host computes the same PSC/ARR for the simulator as for the board.
-pub use arm_core::config::BOARD_PWM_TIMER_CLOCK_HZ as PWM_TIMER_CLOCK_HZ;
+/// The simulated gripper timer's input clock: the profile's (the NUCLEO's TIM15 at 200 MHz),
+/// so that a host computes the same PSC/ARR for both.
+pub const PWM_TIMER_CLOCK_HZ: u32 = crate::app::PROFILE.pwm_timer_clock_hz;
 
 /// Levels of PIN0/PIN1 and the ENABLE lines, for whoever looks (tests, the demo).
 #[derive(Debug, Default)]

@@ -49,8 +49,9 @@ pub struct SimOptions {
     #[arg(long)]
     pub buffer_capacity: Option<usize>,
 
-    /// Step timer frequency, ticks per simulated second.
-    #[arg(long, default_value_t = 1_000_000, value_parser = clap::value_parser!(u32).range(1_000..=1_000_000_000))]
+    /// Step timer frequency, ticks per simulated second (default: the NUCLEO's joint
+    /// timers' 200 MHz, the simulator's profile).
+    #[arg(long, default_value_t = crate::app::PROFILE.step_timer_hz, value_parser = clap::value_parser!(u32).range(1_000..=1_000_000_000))]
     pub tick_hz: u32,
 
     /// Simulated seconds per real second (10 = ten times faster than real time).

@@ -66,7 +66,8 @@ fn bad_frames_get_the_right_status() {
 /// commanded steps, and every pulse is where the step rule puts it.
 #[test]
 fn trace_pulses_match_the_commanded_steps() {
-    let (mut sim, trace) = Sim::start_traced("motion", &[]);
+    // A 1 MHz step timer (the default is the NUCLEO's 200 MHz): pulse times in whole us.
+    let (mut sim, trace) = Sim::start_traced("motion", &["--tick-hz", "1000000"]);
     let mut client = sim.client();
     let start = [0; MAX_JOINTS];
     let targets = [
@@ -525,8 +526,8 @@ fn a_lossy_link_still_runs_every_point_once() {
     assert_eq!(vcd.rising_edges("step0").len(), 1400);
 }
 
-/// At the board's step timer rate (200 MHz), pulse i of a segment still rises exactly at
-/// start + floor(i * D / N) ticks.
+/// At the board's step timer rate (200 MHz, the simulator's default, given explicitly here),
+/// pulse i of a segment still rises exactly at start + floor(i * D / N) ticks.
 #[test]
 fn a_200_mhz_step_timer_keeps_exact_pulse_times() {
     let (mut sim, trace) = Sim::start_traced("tick200", &["--tick-hz", "200000000"]);

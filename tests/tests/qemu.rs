@@ -166,8 +166,22 @@ fn status_over_emulated_ethernet() {
     let arm = board.connect_with(emulated());
     let status = arm.status().unwrap();
     assert_eq!(status.state, State::Stopped);
-    assert_eq!(usize::from(status.capacity), 8192, "{status:?}");
-    assert_eq!(status.pwm_timer_clock_hz, 25_000_000);
+    // The QEMU board's profile (arm_core::profile, checked against the docs in
+    // sim-host/tests/profile.rs).
+    let profile = arm_core::profile::QEMU_MPS2_AN500;
+    assert_eq!(
+        usize::from(status.capacity),
+        profile.trajectory_capacity,
+        "{status:?}"
+    );
+    assert_eq!(status.pwm_timer_clock_hz, profile.pwm_timer_clock_hz);
+    assert_eq!(status.max_step_rate_hz, profile.max_step_rate_hz());
+    assert_eq!(status.step_budget_hz, profile.step_budget_hz);
+    assert_eq!(
+        usize::from(status.window),
+        protocol::limits::HOST_WINDOW,
+        "{status:?}"
+    );
     assert_eq!(status.joints, 6);
     assert!(
         board.log().contains("LAN9118 id 0x01180001"),

@@ -110,7 +110,7 @@ mod step_timer;
 
 use core::future::Future;
 
-use arm_core::config::{BOARD_TRAJECTORY_CAPACITY, ControllerConfig};
+use arm_core::config::ControllerConfig;
 use arm_core::hw::Gripper;
 use arm_core::{Bus, TrajectoryHw};
 use board_logic::fault::FaultKind;
@@ -153,8 +153,12 @@ bind_interrupts!(
 /// Joints the board has STEP/DIR/ENABLE lines for.
 pub const MAX_JOINTS: usize = protocol::MAX_JOINTS;
 
-/// Trajectory points buffered (arm-core's board figure: 80 s of 10 ms points).
-const CAP: usize = BOARD_TRAJECTORY_CAPACITY;
+/// Trajectory points buffered (the profile's: 80 s of 10 ms points).
+const CAP: usize = step_dma::PROFILE.trajectory_capacity;
+
+/// The controller's configuration from the board's profile (a `const`: evaluated at compile
+/// time, no profile arithmetic in the image); the gripper's clock is set at boot.
+const CONTROLLER_CONFIG: ControllerConfig = step_dma::PROFILE.controller_config();
 
 /// The channels between the tasks (and the step interrupt). `Bus::new()` is all zero
 /// bytes, so this plain static is `.bss` and costs no flash (`scripts/fw-size.sh` fails
@@ -357,13 +361,11 @@ async fn main(spawner: Spawner) -> ! {
         };
     let encoders = ModbusEncoders::detect(Rs485::new(encoder_uart), persistent.joints).await;
 
+    // The board's profile, with the gripper clock as measured at boot.
     let controller_config = ControllerConfig {
         pwm_timer_clock_hz: gripper.timer_clock_hz(),
-        max_step_rate_hz: step_dma::MAX_STEP_RATE_HZ,
-        ..ControllerConfig::BOARD
+        ..CONTROLLER_CONFIG
     };
-    // The controller boots with arm-core's BOARD_STEP_BUDGET_HZ, which is this board's.
-    const _: () = assert!(step_dma::BOARD_STEP_BUDGET_HZ == arm_core::config::BOARD_STEP_BUDGET_HZ);
     set_driver_priorities();
 
     // Every task but the network's: the arm works (and stops on its underrun rule) with or

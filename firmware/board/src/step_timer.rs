@@ -9,7 +9,7 @@
 //! again at each wrap. The interrupt runs at P1, above the DMA refills (P2) and below only
 //! the wired e-stop input (P0, which stops the run anyway), so a DIR change waits at most
 //! for a critical section (the longest is a refill's, ~2.5 us, covered by
-//! `step_dma::DIR_LATENCY_NS`).
+//! the profile's `dir_latency_ns`, `step_dma::STEP_TIMING`).
 //!
 //! TIM13 shares its interrupt vector with TIM8's update, which is unused (TIM8's update
 //! only requests DMA).

@@ -130,7 +130,7 @@ pub struct Owner {
 /// The controller: state machine, trajectory buffer, owner and reliability rules.
 ///
 /// `CAP` is the trajectory buffer's compile-time size (see
-/// [`crate::config::BOARD_TRAJECTORY_CAPACITY`]); `config.capacity` may use less of it.
+/// [`crate::profile::BoardProfile::trajectory_capacity`]); `config.capacity` may use less of it.
 /// Construct it in a static (`new` is `const`): with 8192 points it is 300 KB.
 pub struct Controller<const CAP: usize> {
     config: ControllerConfig,
@@ -216,7 +216,7 @@ impl<const CAP: usize> Controller<CAP> {
 
     /// Sets the steps per second of all joints together that points may ask for (STATUS
     /// `step_budget_hz`; 0: no limit beyond the per-joint one). Boot default:
-    /// [`crate::config::BOARD_STEP_BUDGET_HZ`].
+    /// [`crate::profile::BOOT_STEP_BUDGET_HZ`] (every board profile's).
     pub fn set_step_budget_hz(&mut self, hz: u32) {
         self.step_budget_hz = hz;
     }

@@ -99,6 +99,7 @@ pub mod log_limit;
 pub mod outgoing;
 pub mod plan;
 pub mod plant;
+pub mod profile;
 pub mod reports;
 pub mod response;
 pub mod serial;

@@ -679,7 +679,7 @@ fn status_report_bytes_at_their_offsets() {
     let rate = s.controller.config().max_step_rate_hz;
     assert_eq!(&d[28..32], &rate.to_le_bytes());
     // Offset 32: the step rate budget of all joints together (issue 8).
-    let budget = arm_core::config::BOARD_STEP_BUDGET_HZ;
+    let budget = arm_core::profile::NUCLEO_H743ZI2.step_budget_hz;
     assert_eq!(&d[32..36], &budget.to_le_bytes(), "step budget");
 }
 

@@ -51,7 +51,7 @@ fn status_reports_the_budget() {
     let boot = Controller::<4>::new(ControllerConfig::BOARD);
     assert_eq!(
         boot.status(&s.plant).step_budget_hz,
-        arm_core::config::BOARD_STEP_BUDGET_HZ
+        arm_core::profile::NUCLEO_H743ZI2.step_budget_hz
     );
     s.expect(Command::Status, Ok);
 }

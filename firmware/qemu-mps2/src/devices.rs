@@ -40,8 +40,10 @@ impl Outputs for LoggedOutputs {
     }
 }
 
-/// The gripper timer's input clock: SYSCLK, as a CMSDK timer would count it.
-pub const GRIPPER_CLOCK_HZ: u32 = SYSCLK_HZ;
+/// The gripper timer's input clock: SYSCLK, as a CMSDK timer would count it (the
+/// profile's `pwm_timer_clock_hz`).
+pub const GRIPPER_CLOCK_HZ: u32 = crate::step_out::PROFILE.pwm_timer_clock_hz;
+const _: () = assert!(GRIPPER_CLOCK_HZ == SYSCLK_HZ);
 
 /// A gripper timer without an output pin: servo PWM runs until stopped; a counted burst
 /// ends by itself after its pulses' time, as the NUCLEO's one-pulse timer does.

@@ -54,7 +54,7 @@ mod uart;
 
 use core::sync::atomic::{AtomicBool, Ordering};
 
-use arm_core::config::{BOARD_TRAJECTORY_CAPACITY, ControllerConfig};
+use arm_core::config::ControllerConfig;
 use arm_core::hw::{Gripper, PersistentSettings};
 use arm_core::{Bus, TrajectoryHw};
 use arm_wiring::NoEncoders;
@@ -69,8 +69,13 @@ use crate::step_out::{STEP, StepTimer};
 /// The channels between the tasks (and the step interrupt).
 pub static BUS: Bus = Bus::new();
 
-/// Trajectory points buffered: the NUCLEO's figure, so that uploads behave the same.
-const CAP: usize = BOARD_TRAJECTORY_CAPACITY;
+/// Trajectory points buffered: the profile's (the NUCLEO's figure, so that uploads behave
+/// the same).
+const CAP: usize = step_out::PROFILE.trajectory_capacity;
+
+/// The controller's configuration from the board's profile (a `const`: evaluated at compile
+/// time, no profile arithmetic in the image); the gripper's clock is set at boot.
+const CONTROLLER_CONFIG: ControllerConfig = step_out::PROFILE.controller_config();
 
 /// The MAC address if the chip's EEPROM has none (QEMU loads one: 52:54:00:12:34:56 unless
 /// `-nic ...,mac=` says otherwise). Locally administered, unicast.
@@ -196,12 +201,10 @@ fn main() -> ! {
     log::info!("settings: {:?}", persistent);
 
     let gripper = TimedGripper::default();
+    // The board's profile, with the gripper's clock as it reports it.
     let controller_config = ControllerConfig {
         pwm_timer_clock_hz: gripper.timer_clock_hz(),
-        max_step_rate_hz: ControllerConfig::BOARD
-            .max_step_rate_hz
-            .min(step_out::STEP_TIMING.max_step_rate_hz()),
-        ..ControllerConfig::BOARD
+        ..CONTROLLER_CONFIG
     };
     // No RNG on this board: the seed only varies TCP sequence numbers and DHCP ids.
     let seed = time_driver::now_cycles() ^ u64::from_le_bytes([a, b, c, d, e, f, 0x95, 0x18]);

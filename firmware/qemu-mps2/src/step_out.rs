@@ -32,10 +32,8 @@ use core::sync::atomic::{AtomicI32, AtomicU8, AtomicU32, Ordering};
 
 use arm_core::hw::StepKick;
 use arm_core::{StepBackend, StepProgress, StepShared};
-use arm_step::{
-    MAX_JOINTS, NUCLEO_STEP_TIMER_MAX_PERIOD_TICKS, Segment, StepTiming, StreamPlayer, StreamsSlot,
-    TimedStepPins,
-};
+use arm_core::profile::BoardProfile;
+use arm_step::{MAX_JOINTS, Segment, StepTiming, StreamPlayer, StreamsSlot, TimedStepPins};
 use cortex_m::peripheral::NVIC;
 
 use crate::mps2::{self, DUALTIMER, Irq, SYSCLK_HZ, write};
@@ -47,45 +45,23 @@ use arm_core::STEP_QUEUE;
 /// SYSCLK cycles per microsecond.
 const CYCLES_PER_US: u32 = SYSCLK_HZ / 1_000_000;
 
-/// Driver timing as the NUCLEO's default (opto-isolated drivers): 2.5 us STEP high,
-/// 2.5 us low, 5 us DIR setup. (The NUCLEO adds 5 us for its DIR interrupt's latency;
-/// here the player makes each DIR change at its tick, in order with the edges.)
-pub const STEP_TIMING: StepTiming = StepTiming {
-    tick_hz: SYSCLK_HZ,
-    pulse_width_ticks: 5 * CYCLES_PER_US / 2,
-    dir_setup_ticks: 5 * CYCLES_PER_US,
-    step_low_ticks: 5 * CYCLES_PER_US / 2,
-};
+/// This board's profile (arm-core's `profile`: every per-board figure, with its reason).
+pub const PROFILE: BoardProfile = arm_core::profile::QEMU_MPS2_AN500;
 
-// The driver timing must leave room for the controller's advertised step rate.
-const _: () = assert!(STEP_TIMING.max_step_rate_hz() >= arm_core::config::BOARD_MAX_STEP_RATE_HZ);
+// The profile's step timer clock is SYSCLK, which the player and the time driver count.
+const _: () = assert!(PROFILE.step_timer_hz == SYSCLK_HZ);
 
-/// Periods per buffer half: the NUCLEO's (declared once, with its reason, in arm-step).
-pub const HALF: usize = arm_step::NUCLEO_STEP_BUFFER_HALF;
+/// The step timing: the NUCLEO's default drivers (opto-isolated: 2.5 us STEP high, 2.5 us
+/// low, 5 us DIR setup) on SYSCLK ticks. (The NUCLEO adds 5 us for its DIR interrupt's
+/// latency; here the player makes each DIR change at its tick, in order with the edges.)
+pub const STEP_TIMING: StepTiming = PROFILE.step_timing();
 
-/// The NUCLEO's joint timer clock, which [`NUCLEO_STEP_TIMER_MAX_PERIOD_TICKS`] counts.
-const NUCLEO_STEP_TIMER_HZ: u64 = 200_000_000;
+/// Periods per buffer half: the NUCLEO's (the profile's).
+pub const HALF: usize = PROFILE.step_buffer_half;
 
-/// The longest period of each joint's "timer": the NUCLEO's, in time (its 16-bit timers'
-/// 2^16 ticks at 200 MHz are 327.68 us, 8192 SYSCLK ticks here; its 32-bit ones' 21 s),
-/// so that gaps are split into the same periods and refills come as often as there.
-pub const MAX_PERIOD_TICKS: [u32; MAX_JOINTS] = {
-    let mut ticks = [0; MAX_JOINTS];
-    let mut j = 0;
-    while j < MAX_JOINTS {
-        #[allow(
-            clippy::indexing_slicing,
-            clippy::cast_possible_truncation,
-            reason = "const-evaluated: j < MAX_JOINTS; scaled down from a u32 (25 MHz < 200 MHz)"
-        )]
-        {
-            ticks[j] = (NUCLEO_STEP_TIMER_MAX_PERIOD_TICKS[j] as u64 * SYSCLK_HZ as u64
-                / NUCLEO_STEP_TIMER_HZ) as u32;
-        }
-        j += 1;
-    }
-    ticks
-};
+/// The longest period of each joint's "timer": the NUCLEO's, in time (the profile's), so
+/// that gaps are split into the same periods and refills come as often as there.
+pub const MAX_PERIOD_TICKS: [u32; MAX_JOINTS] = PROFILE.step_timer_max_period_ticks;
 
 /// Longest time between two plays while a run plays, SYSCLK cycles (5 ms, as sim-host's
 /// step thread): the lines and the positions the tasks read lag the present by at most

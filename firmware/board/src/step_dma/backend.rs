@@ -116,7 +116,7 @@ impl StepBackend for BoardSteps {
         // The step clock runs on; its tick at the joint timers' start is their tick 0.
         // It is read after the counters started, so the DIR alarms (on the step clock)
         // fire a few ticks late rather than early: never while STEP is still high (the
-        // DIR setup includes DIR_LATENCY_NS for this and the interrupt's latency).
+        // DIR setup includes the profile's dir_latency_ns for this and the interrupt's latency).
         let origin = step_timer::now_tick();
         self.run = Run::Running { origin };
         self.primed_finished = primed.segments_finished;

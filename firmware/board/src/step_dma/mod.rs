@@ -14,8 +14,8 @@
 //!
 //! DIR lines change at reversals only, when the joint's previous pulse has fallen, from
 //! the step clock's compare interrupt (`step_timer.rs`), and the producer places the next
-//! pulse no sooner than the DIR setup time (plus [`DIR_LATENCY_NS`] for the interrupt)
-//! after. The run ends at the producer's `run_end_tick`, also from the step clock.
+//! pulse no sooner than the DIR setup time (plus the profile's `dir_latency_ns` for the
+//! interrupt) after. The run ends at the producer's `run_end_tick`, also from the step clock.
 //!
 //! Safety: [`stop_all_step_outputs`] forces every STEP output inactive (OCxM = force
 //! inactive: the pin goes low at once, whatever the counter does), stops the counters and
@@ -29,7 +29,7 @@
 //! it (never DTCM), and MPU region 0 makes all of SRAM1 non-cacheable, so with the D-cache
 //! on the streams read what the refills wrote ([`dma_buffer_region`], `memory.rs`).
 //!
-//! Files: this one has the timing constants, the buffers and [`init`]; `registers.rs` the
+//! Files: this one has the board's profile (its figures, from arm-core's `profile`), the buffers and [`init`]; `registers.rs` the
 //! joint timers' and streams' registers (loading a run's prelude, where a stream stands);
 //! `backend.rs` [`STEP`] and its [`backend::BoardSteps`] (arm-core's `StepBackend`: start,
 //! stop, positions, the DIR alarm); `refill.rs` the streams' interrupts; `stop.rs`
@@ -37,6 +37,7 @@
 
 use core::cell::UnsafeCell;
 
+use arm_core::profile::{self, BoardProfile};
 use arm_step::{JointBuffer, MAX_JOINTS, StepTiming};
 use embassy_stm32::interrupt::{InterruptExt, Priority};
 use embassy_stm32::pac;
@@ -52,100 +53,29 @@ pub use stop::stop_all_step_outputs;
 use refill::STREAM_IRQS;
 use registers::{joint_timer, reg};
 
-/// Periods per buffer half (declared once, with its reason, in arm-step).
-pub const HALF: usize = arm_step::NUCLEO_STEP_BUFFER_HALF;
+/// This board's profile (arm-core's `profile`: every per-board figure, with its reason):
+/// `--features tmc-drivers` for TMC-class driver timing, otherwise the opto-isolated
+/// drivers' (safe for all).
+#[cfg(not(feature = "tmc-drivers"))]
+pub const PROFILE: BoardProfile = profile::NUCLEO_H743ZI2;
+/// This board's profile, built for TMC-class drivers.
+#[cfg(feature = "tmc-drivers")]
+pub const PROFILE: BoardProfile = profile::NUCLEO_H743ZI2_TMC;
+
+/// Periods per buffer half (the profile's).
+pub const HALF: usize = PROFILE.step_buffer_half;
 
 /// The joint timers' input clock (APB1 and APB2 timer clocks, `clocks.rs`).
-pub const STEP_TIMER_HZ: u32 = 200_000_000;
+pub const STEP_TIMER_HZ: u32 = PROFILE.step_timer_hz;
 
-/// Longest wait of a DIR change behind its tick: the step clock's interrupt at P1 can be
-/// held off by a critical section, the longest being a refill (one half: about 2.5 us at
-/// 400 MHz). Added to the driver's DIR setup time, so the driver still sees its setup.
-pub const DIR_LATENCY_NS: u32 = 5_000;
+/// The step timing of every joint: the profile's driver timing on [`STEP_TIMER_HZ`], its
+/// DIR setup lengthened by the profile's `dir_latency_ns` (the step clock's interrupt,
+/// which changes DIR, can be held off by a refill's critical section).
+pub const STEP_TIMING: StepTiming = PROFILE.step_timing();
 
-/// A driver's timing requirements (its datasheet's figures), in nanoseconds.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, defmt::Format)]
-pub struct DriverTiming {
-    /// Least STEP high time.
-    pub high_ns: u32,
-    /// Least STEP low time between pulses.
-    pub low_ns: u32,
-    /// Least time from a DIR change to the next rising STEP edge.
-    pub dir_setup_ns: u32,
-}
-
-impl DriverTiming {
-    #[cfg_attr(feature = "tmc-drivers", allow(dead_code))]
-    /// DM542, TB6600 and other opto-isolated drivers: 2.5 us high, 2.5 us low, 5 us DIR
-    /// setup (safe for DRV8825 and A4988 too). 200 kHz per joint.
-    pub const OPTO: DriverTiming = DriverTiming {
-        high_ns: 2_500,
-        low_ns: 2_500,
-        dir_setup_ns: 5_000,
-    };
-    #[cfg_attr(not(feature = "tmc-drivers"), allow(dead_code))]
-    /// TMC2209/TMC5160-class drivers: 100 ns high, 100 ns low, 20 ns DIR setup: 5 MHz by
-    /// the driver, 1 MHz by the board ([`BOARD_MAX_STEP_RATE_HZ`]).
-    pub const TMC: DriverTiming = DriverTiming {
-        high_ns: 100,
-        low_ns: 100,
-        dir_setup_ns: 20,
-    };
-
-    /// The step timing on the joint timers' clock (rounded up to whole ticks).
-    pub const fn step_timing(&self) -> StepTiming {
-        #[allow(
-            clippy::cast_possible_truncation,
-            reason = "const-evaluated for the drivers' figures: a few thousand ticks"
-        )]
-        const fn ticks(ns: u32) -> u32 {
-            ((ns as u64 * STEP_TIMER_HZ as u64).div_ceil(1_000_000_000)) as u32
-        }
-        StepTiming {
-            tick_hz: STEP_TIMER_HZ,
-            pulse_width_ticks: ticks(self.high_ns),
-            dir_setup_ticks: ticks(self.dir_setup_ns + DIR_LATENCY_NS),
-            step_low_ticks: ticks(self.low_ns),
-        }
-    }
-}
-
-/// The drivers this board is built for: `--features tmc-drivers` for TMC-class timing,
-/// otherwise the opto-isolated drivers' (safe for all).
-#[cfg(not(feature = "tmc-drivers"))]
-pub const DRIVER: DriverTiming = DriverTiming::OPTO;
-/// The drivers this board is built for.
-#[cfg(feature = "tmc-drivers")]
-pub const DRIVER: DriverTiming = DriverTiming::TMC;
-
-/// The step timing of every joint.
-pub const STEP_TIMING: StepTiming = DRIVER.step_timing();
-
-/// Per joint ceiling of the board, whatever the drivers allow: a period's DMA burst
-/// (three words into an APB timer, with eight streams sharing two DMA controllers) must
-/// finish within the shortest period; 1 us periods leave a wide margin. Also the
-/// ceiling of the CPU budget per joint (see [`BOARD_STEP_BUDGET_HZ`]).
-pub const BOARD_MAX_STEP_RATE_HZ: u32 = 1_000_000;
-
-/// Steps per second over all joints the board takes on: 8 x 500 kHz. At the measured
-/// 29.5 instructions per step (scripts/step-cost, the worst of its three trajectories),
-/// about 1.3 cycles each on the Cortex-M7 at 400 MHz, that is 4e6 * 29.5 * 1.3 / 400e6 =
-/// 38% of the CPU, leaving the rest to the network and the tasks. STATUS reports it at
-/// offset 32; points asking for more are refused (docs/PROTOCOL.md).
-pub const BOARD_STEP_BUDGET_HZ: u32 = arm_core::config::BOARD_STEP_BUDGET_HZ;
-
-/// Per joint maximum step rate: what the drivers allow, within the board's ceiling.
-pub const MAX_STEP_RATE_HZ: u32 = if STEP_TIMING.max_step_rate_hz() < BOARD_MAX_STEP_RATE_HZ {
-    STEP_TIMING.max_step_rate_hz()
-} else {
-    BOARD_MAX_STEP_RATE_HZ
-};
-
-// Opto drivers: 200 kHz per joint; TMC: the board's 1 MHz. Both above the protocol's
-// usual 100 kHz, and TMC timing gives every joint >= 500 kHz.
-const _: () = assert!(MAX_STEP_RATE_HZ >= 100_000);
-#[cfg(feature = "tmc-drivers")]
-const _: () = assert!(MAX_STEP_RATE_HZ >= 500_000);
+/// The longest period of each joint's timer (the profile's: 2^32 ticks for TIM2 and TIM5,
+/// 2^16 for the 16-bit ones).
+pub const MAX_PERIOD_TICKS: [u32; MAX_JOINTS] = PROFILE.step_timer_max_period_ticks;
 
 /// Every joint's DMA buffer. Written by the refills (inside [`STEP`]'s critical section,
 /// for the half the stream is not reading) and read by the DMA.
@@ -184,11 +114,7 @@ pub fn init() {
         start,
         len
     );
-    STEP.with_engine(|steps| {
-        steps
-            .streams
-            .init(STEP_TIMING, arm_step::NUCLEO_STEP_TIMER_MAX_PERIOD_TICKS)
-    });
+    STEP.with_engine(|steps| steps.streams.init(STEP_TIMING, MAX_PERIOD_TICKS));
     pac::RCC.apb1lenr().modify(|w| {
         w.set_tim2en(true);
         w.set_tim3en(true);

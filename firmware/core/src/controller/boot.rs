@@ -47,7 +47,7 @@ macro_rules! with_boot_fields {
         stopped_by_host: false,
         mac: [0; 6],
         booted_net: NetSettings::fixed([192, 168, 1, 30], 24, None),
-        step_budget_hz: crate::config::BOARD_STEP_BUDGET_HZ,
+        step_budget_hz: crate::profile::BOOT_STEP_BUDGET_HZ,
         )
     };
 }

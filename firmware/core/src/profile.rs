@@ -1,0 +1,303 @@
+//! One checked description per board: every figure that differs between the NUCLEO-H743ZI2
+//! (and its `tmc-drivers` build), QEMU's mps2-an500 and the simulator, in one place each
+//! (as Hubris keeps one `app-*.toml` per board).
+//!
+//! The board firmware, the QEMU firmware and sim-host read their [`BoardProfile`] and build
+//! their step timing ([`BoardProfile::step_timing`]) and controller configuration
+//! ([`BoardProfile::controller_config`]) from it; they declare none of these figures
+//! themselves. The figures a host sees (STATUS `max_step_rate_hz`, `step_budget_hz`,
+//! `capacity`, `pwm_timer_clock_hz`) come from here, and the tests check STATUS and the
+//! docs' tables (docs/PROTOCOL.md "Figures per board", docs/BOARD.md, README.md) against
+//! these constants (sim-host/tests/profile.rs, tests/tests/qemu.rs).
+//!
+//! Everything here is const-evaluated: the firmware images hold only the figures they use,
+//! and a profile that breaks a rule ([`BoardProfile::check`]) does not compile.
+//!
+//! Queue depths are not in the profiles: the ones between the tasks and the step producer
+//! (`STEP_QUEUE`, the bus's queues) and the host window ([`protocol::limits::HOST_WINDOW`])
+//! are the same on every board, declared once with their reasons where they are used.
+
+use arm_step::{MAX_JOINTS, StepTiming};
+
+use crate::config::{
+    ControllerConfig, DEFAULT_RETURN_ACCEL, DEFAULT_RETURN_SEGMENT_US, DEFAULT_RETURN_SPEED,
+};
+
+/// A driver's timing requirements (its datasheet's figures), in nanoseconds.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct DriverTiming {
+    /// Least STEP high time.
+    pub high_ns: u32,
+    /// Least STEP low time between pulses.
+    pub low_ns: u32,
+    /// Least time from a DIR change to the next rising STEP edge.
+    pub dir_setup_ns: u32,
+}
+
+impl DriverTiming {
+    /// DM542, TB6600 and other opto-isolated drivers: 2.5 us high, 2.5 us low, 5 us DIR
+    /// setup (safe for DRV8825 and A4988 too). 200 kHz per joint.
+    pub const OPTO: DriverTiming = DriverTiming {
+        high_ns: 2_500,
+        low_ns: 2_500,
+        dir_setup_ns: 5_000,
+    };
+
+    /// TMC2209/TMC5160-class drivers: 100 ns high, 100 ns low, 20 ns DIR setup: 5 MHz by
+    /// the driver, 1 MHz by the NUCLEO ([`BoardProfile::step_rate_ceiling_hz`]).
+    pub const TMC: DriverTiming = DriverTiming {
+        high_ns: 100,
+        low_ns: 100,
+        dir_setup_ns: 20,
+    };
+}
+
+/// Every per-board figure of the controller.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct BoardProfile {
+    /// The board's name, as the docs' tables head their columns.
+    pub name: &'static str,
+    /// Input clock of the joints' step timers, Hz: the resolution of every STEP edge.
+    pub step_timer_hz: u32,
+    /// The STEP/DIR drivers' timing this board is built for.
+    pub driver: DriverTiming,
+    /// Longest wait of a DIR change behind its tick, ns, added to the driver's DIR setup
+    /// time so that the driver still sees its setup.
+    pub dir_latency_ns: u32,
+    /// Per-joint step rate the board itself takes, whatever the drivers allow, Hz.
+    pub step_rate_ceiling_hz: u32,
+    /// Steps per second of all joints together the board takes on (STATUS
+    /// `step_budget_hz`, the controller's boot value).
+    pub step_budget_hz: u32,
+    /// Trajectory points buffered (STATUS `capacity`; the controller's compile-time size).
+    pub trajectory_capacity: usize,
+    /// Input clock of the gripper timer, Hz (STATUS `pwm_timer_clock_hz`).
+    pub pwm_timer_clock_hz: u32,
+    /// Periods per step DMA buffer half (the `HALF` of the board's `StepStreams`).
+    pub step_buffer_half: usize,
+    /// Longest period each joint's step timer makes, in its ticks.
+    pub step_timer_max_period_ticks: [u32; MAX_JOINTS],
+}
+
+/// `ns` in ticks of a `tick_hz` clock, rounded up (a driver's least time is never cut).
+#[allow(
+    clippy::cast_possible_truncation,
+    reason = "const-evaluated for the drivers' figures: at most a few thousand ticks"
+)]
+const fn ns_to_ticks(ns: u32, tick_hz: u32) -> u32 {
+    (ns as u64 * tick_hz as u64).div_ceil(1_000_000_000) as u32
+}
+
+impl BoardProfile {
+    /// The step timing of every joint on the board's step timer clock.
+    pub const fn step_timing(&self) -> StepTiming {
+        self.step_timing_at(self.step_timer_hz)
+    }
+
+    /// The board's driver timing on a step timer at `tick_hz` (the simulator's
+    /// `--tick-hz`): each figure rounded up to whole ticks.
+    pub const fn step_timing_at(&self, tick_hz: u32) -> StepTiming {
+        StepTiming {
+            tick_hz,
+            pulse_width_ticks: ns_to_ticks(self.driver.high_ns, tick_hz),
+            dir_setup_ticks: ns_to_ticks(self.driver.dir_setup_ns + self.dir_latency_ns, tick_hz),
+            step_low_ticks: ns_to_ticks(self.driver.low_ns, tick_hz),
+        }
+    }
+
+    /// Per-joint maximum step rate (STATUS `max_step_rate_hz`): what the drivers allow on
+    /// the step timer's clock, within the board's ceiling.
+    pub const fn max_step_rate_hz(&self) -> u32 {
+        let driver = self.step_timing().max_step_rate_hz();
+        if driver < self.step_rate_ceiling_hz {
+            driver
+        } else {
+            self.step_rate_ceiling_hz
+        }
+    }
+
+    /// The controller's configuration on this board: its limits, buffer, gripper clock and
+    /// the default RETURN limits. (The step budget is not in it: the controller boots with
+    /// [`BOOT_STEP_BUDGET_HZ`], every profile's.)
+    pub const fn controller_config(&self) -> ControllerConfig {
+        ControllerConfig {
+            max_step_rate_hz: self.max_step_rate_hz(),
+            capacity: self.trajectory_capacity,
+            pwm_timer_clock_hz: self.pwm_timer_clock_hz,
+            return_speed: [DEFAULT_RETURN_SPEED; MAX_JOINTS],
+            return_accel: [DEFAULT_RETURN_ACCEL; MAX_JOINTS],
+            return_segment_us: DEFAULT_RETURN_SEGMENT_US,
+        }
+    }
+
+    /// The rules every profile keeps (evaluated at compile time for each one below).
+    pub const fn check(&self) {
+        let timing = self.step_timing();
+        let max = self.max_step_rate_hz();
+        // Within what the drivers and the board (DMA, CPU) take.
+        assert!(max <= timing.max_step_rate_hz() && max <= self.step_rate_ceiling_hz);
+        // The protocol's usual 100 kHz per joint is always available.
+        assert!(max >= 100_000);
+        // One joint at its full rate fits in the budget of all joints.
+        assert!(self.step_budget_hz >= max);
+        // Every driver time is at least one tick: a pulse and a gap are always made.
+        assert!(timing.pulse_width_ticks >= 1 && timing.step_low_ticks >= 1);
+        assert!(timing.dir_setup_ticks >= 1);
+        // STATUS `capacity` is a u16; a buffer holds at least one point.
+        assert!(self.trajectory_capacity >= 1 && self.trajectory_capacity <= u16::MAX as usize);
+        assert!(self.step_buffer_half >= 2);
+        // A period of a 16-bit timer can hold the shortest pulse period and the DIR setup.
+        let mut j = 0;
+        while j < MAX_JOINTS {
+            #[allow(clippy::indexing_slicing, reason = "const-evaluated: j < MAX_JOINTS")]
+            let range = self.step_timer_max_period_ticks[j] as u64;
+            assert!(range >= timing.min_pulse_period_ticks());
+            assert!(range > timing.dir_setup_ticks as u64);
+            j += 1;
+        }
+        assert!(self.pwm_timer_clock_hz > 0);
+    }
+}
+
+/// The NUCLEO-H743ZI2 board firmware (`cargo fw`) with opto-isolated drivers.
+pub const NUCLEO_H743ZI2: BoardProfile = BoardProfile {
+    name: "NUCLEO-H743ZI2",
+    // The joint timers' input clock: APB1 and APB2 timer clocks at 200 MHz with the CPU at
+    // 400 MHz (firmware/board/src/clocks.rs; the step clock checks it at boot).
+    step_timer_hz: 200_000_000,
+    // The default build: opto-isolated drivers' timing is safe for all drivers.
+    driver: DriverTiming::OPTO,
+    // The step clock's interrupt at P1 that changes DIR can be held off by a critical
+    // section, the longest being a refill (one half: about 2.5 us at 400 MHz).
+    dir_latency_ns: 5_000,
+    // A period's DMA burst (three words into an APB timer, with eight streams sharing two
+    // DMA controllers) must finish within the shortest period; 1 us periods leave a wide
+    // margin. Also the ceiling of the CPU budget per joint (`step_budget_hz` / 8 joints
+    // would be 500 kHz; one joint may take more while the others rest).
+    step_rate_ceiling_hz: 1_000_000,
+    // 8 joints x 500 kHz. At the measured 29.5 instructions per step (scripts/step-cost,
+    // the worst of its three trajectories), about 1.3 cycles each on the Cortex-M7 at
+    // 400 MHz, that is 4e6 * 29.5 * 1.3 / 400e6 = 38% of the CPU, leaving the rest to the
+    // network and the tasks (docs/PROTOCOL.md, "Step rate budget").
+    step_budget_hz: 4_000_000,
+    // 8192 * 36 bytes = 288 KiB of the 512 KiB AXI SRAM, i.e. 80 s of 10 ms points, so a
+    // host streaming over a congested link has seconds of slack before an underrun.
+    trajectory_capacity: 8192,
+    // TIM15 (the gripper) counts at the APB timer clock, 200 MHz (the board passes its
+    // measured clock at boot anyway; the simulator uses this figure, so that a host
+    // computes the same PSC/ARR for both).
+    pwm_timer_clock_hz: 200_000_000,
+    // Declared with its reason in arm-step (the producer's benchmarks use it too).
+    step_buffer_half: arm_step::NUCLEO_STEP_BUFFER_HALF,
+    // TIM2 and TIM5 (32-bit) for joints 0-1, 16-bit timers for the others (arm-step).
+    step_timer_max_period_ticks: arm_step::NUCLEO_STEP_TIMER_MAX_PERIOD_TICKS,
+};
+
+/// The NUCLEO-H743ZI2 built with `--features tmc-drivers`: TMC-class driver timing, so the
+/// board's own 1 MHz ceiling is the limit; everything else is [`NUCLEO_H743ZI2`]'s.
+pub const NUCLEO_H743ZI2_TMC: BoardProfile = BoardProfile {
+    name: "NUCLEO-H743ZI2 tmc-drivers",
+    driver: DriverTiming::TMC,
+    ..NUCLEO_H743ZI2
+};
+
+/// The board firmware on QEMU's mps2-an500 (`cargo qemu-fw`): it emulates the NUCLEO's step
+/// hardware (producer, buffer halves, timer ranges in time) in software.
+pub const QEMU_MPS2_AN500: BoardProfile = BoardProfile {
+    name: "QEMU mps2-an500",
+    // The step "timers" count SYSCLK, the only clock of the emulated board (25 MHz: a
+    // step tick is 40 ns; firmware/qemu-mps2 checks it against its SYSCLK_HZ).
+    step_timer_hz: QEMU_SYSCLK_HZ,
+    // The NUCLEO's default drivers, so that the same trajectories are timed alike.
+    driver: DriverTiming::OPTO,
+    // The software player makes each DIR change at its tick, in order with the edges.
+    dir_latency_ns: 0,
+    // Its figure since it first ran: the steps are played in software on an emulated CPU
+    // whose speed is the host's, and CI's tests stay at or below 100 kHz per joint. (The
+    // driver timing would allow 198 kHz at 25 MHz: 2.5 us is 63 ticks.)
+    step_rate_ceiling_hz: 100_000,
+    // The NUCLEO's: uploads are refused alike.
+    step_budget_hz: NUCLEO_H743ZI2.step_budget_hz,
+    // The NUCLEO's, so that uploads (flow control) behave the same.
+    trajectory_capacity: NUCLEO_H743ZI2.trajectory_capacity,
+    // The gripper "timer" counts SYSCLK, as a CMSDK timer would.
+    pwm_timer_clock_hz: QEMU_SYSCLK_HZ,
+    // The NUCLEO's halves: refills come where they come there.
+    step_buffer_half: NUCLEO_H743ZI2.step_buffer_half,
+    // The NUCLEO's timer ranges in time (its 16-bit timers' 2^16 ticks at 200 MHz are
+    // 327.68 us, 8192 ticks here; its 32-bit ones' 21 s), so that gaps are split into the
+    // same periods and refills come as often as there.
+    step_timer_max_period_ticks: scaled_periods(
+        NUCLEO_H743ZI2.step_timer_max_period_ticks,
+        NUCLEO_H743ZI2.step_timer_hz,
+        QEMU_SYSCLK_HZ,
+    ),
+};
+
+/// mps2-an500's SYSCLK, which clocks every APB peripheral (timers, UARTs).
+const QEMU_SYSCLK_HZ: u32 = 25_000_000;
+
+/// The simulator (sim-host) by default: the NUCLEO-H743ZI2 with opto-isolated drivers, the
+/// same limits and figures, its step timer at the NUCLEO's 200 MHz too. Its options deviate
+/// explicitly (`--tick-hz`, `--buffer-capacity`).
+pub const SIMULATOR: BoardProfile = BoardProfile {
+    name: "sim-host",
+    ..NUCLEO_H743ZI2
+};
+
+/// Every profile, for the tests that check STATUS and the docs against them.
+pub const ALL: [&BoardProfile; 4] = [
+    &NUCLEO_H743ZI2,
+    &NUCLEO_H743ZI2_TMC,
+    &QEMU_MPS2_AN500,
+    &SIMULATOR,
+];
+
+const _: () = {
+    let mut i = 0;
+    while i < ALL.len() {
+        #[allow(clippy::indexing_slicing, reason = "const-evaluated: i < ALL.len()")]
+        ALL[i].check();
+        i += 1;
+    }
+};
+/// The step budget every controller boots with (STATUS `step_budget_hz`): every profile's
+/// (checked below). Not a field of [`ControllerConfig`]: a constant costs the NUCLEO's flash
+/// nothing, the field 36 bytes of copies (scripts/fw-size.sh), and no board differs.
+pub const BOOT_STEP_BUDGET_HZ: u32 = NUCLEO_H743ZI2.step_budget_hz;
+const _: () = {
+    let mut i = 0;
+    while i < ALL.len() {
+        #[allow(clippy::indexing_slicing, reason = "const-evaluated: i < ALL.len()")]
+        let budget = ALL[i].step_budget_hz;
+        assert!(budget == BOOT_STEP_BUDGET_HZ);
+        i += 1;
+    }
+};
+
+// The drivers' figures give the rates the docs state: opto 200 kHz on the NUCLEO, TMC-class
+// the board's 1 MHz ceiling.
+const _: () = assert!(NUCLEO_H743ZI2.max_step_rate_hz() == 200_000);
+const _: () = assert!(NUCLEO_H743ZI2_TMC.max_step_rate_hz() == 1_000_000);
+// The simulator is the NUCLEO.
+const _: () = assert!(SIMULATOR.max_step_rate_hz() == NUCLEO_H743ZI2.max_step_rate_hz());
+
+/// `ticks` of a `from_hz` clock in ticks of a `to_hz` clock (`to_hz <= from_hz`).
+#[allow(
+    clippy::cast_possible_truncation,
+    reason = "const-evaluated: scaled down from a u32 (to_hz <= from_hz)"
+)]
+const fn scaled_periods(ticks: [u32; MAX_JOINTS], from_hz: u32, to_hz: u32) -> [u32; MAX_JOINTS] {
+    assert!(to_hz <= from_hz);
+    let mut scaled = [0; MAX_JOINTS];
+    let mut j = 0;
+    while j < MAX_JOINTS {
+        #[allow(clippy::indexing_slicing, reason = "const-evaluated: j < MAX_JOINTS")]
+        {
+            scaled[j] = (ticks[j] as u64 * to_hz as u64 / from_hz as u64) as u32;
+        }
+        j += 1;
+    }
+    scaled
+}
