@@ -13,9 +13,10 @@
 //! Everything here is const-evaluated: the firmware images hold only the figures they use,
 //! and a profile that breaks a rule ([`BoardProfile::check`]) does not compile.
 //!
-//! Queue depths are not in the profiles: the ones between the tasks and the step producer
-//! (`STEP_QUEUE`, the bus's queues) and the host window ([`protocol::limits::HOST_WINDOW`])
-//! are the same on every board, declared once with their reasons where they are used.
+//! Queue depths are not in the profiles: the step producer's (`STEP_QUEUE`, sized in time:
+//! [`crate::step_shared::LOOKAHEAD_US`] of motion), the bus's queues and the host window
+//! ([`protocol::limits::HOST_WINDOW`]) are the same on every board, declared once with
+//! their reasons where they are used.
 
 use arm_step::{MAX_JOINTS, StepTiming};
 
