@@ -79,6 +79,10 @@ pub struct BoardProfile {
     pub step_buffer_half: usize,
     /// Longest period each joint's step timer makes, in its ticks.
     pub step_timer_max_period_ticks: [u32; MAX_JOINTS],
+    /// Shortest timer period the step outputs can be reloaded for, ns: where a DMA burst
+    /// loads each period, the burst of one update must land before the next update
+    /// (0: periods are played in software, any length works).
+    pub min_dma_period_ns: u32,
 }
 
 /// `ns` in ticks of a `tick_hz` clock, rounded up (a driver's least time is never cut).
@@ -99,12 +103,28 @@ impl BoardProfile {
     /// The board's driver timing on a step timer at `tick_hz` (the simulator's
     /// `--tick-hz`): each figure rounded up to whole ticks.
     pub const fn step_timing_at(&self, tick_hz: u32) -> StepTiming {
+        let pulse_width_ticks = ns_to_ticks(self.driver.high_ns, tick_hz);
+        // The least low time is lengthened where pulse + low would be a shorter period
+        // than the step DMA can reload (issue 20): then no two pulses of a joint, hence no
+        // period, are closer than that.
+        let driver_low = ns_to_ticks(self.driver.low_ns, tick_hz);
+        let dma_low =
+            ns_to_ticks(self.min_dma_period_ns, tick_hz).saturating_sub(pulse_width_ticks);
         StepTiming {
             tick_hz,
-            pulse_width_ticks: ns_to_ticks(self.driver.high_ns, tick_hz),
+            pulse_width_ticks,
             dir_setup_ticks: ns_to_ticks(self.driver.dir_setup_ns + self.dir_latency_ns, tick_hz),
-            step_low_ticks: ns_to_ticks(self.driver.low_ns, tick_hz),
+            step_low_ticks: if dma_low > driver_low {
+                dma_low
+            } else {
+                driver_low
+            },
         }
+    }
+
+    /// [`BoardProfile::min_dma_period_ns`] in step timer ticks (rounded up).
+    pub const fn min_dma_period_ticks(&self) -> u64 {
+        ns_to_ticks(self.min_dma_period_ns, self.step_timer_hz) as u64
     }
 
     /// Per-joint maximum step rate (STATUS `max_step_rate_hz`): what the drivers allow on
@@ -142,6 +162,9 @@ impl BoardProfile {
         assert!(max >= 100_000);
         // One joint at its full rate fits in the budget of all joints.
         assert!(self.step_budget_hz >= max);
+        // No pulse period is shorter than the step DMA reloads (the producer's other
+        // periods are never shorter than a pulse period: tests/profile_periods.rs).
+        assert!(timing.min_pulse_period_ticks() >= self.min_dma_period_ticks());
         // Every driver time is at least one tick: a pulse and a gap are always made.
         assert!(timing.pulse_width_ticks >= 1 && timing.step_low_ticks >= 1);
         assert!(timing.dir_setup_ticks >= 1);
@@ -193,6 +216,12 @@ pub const NUCLEO_H743ZI2: BoardProfile = BoardProfile {
     step_buffer_half: arm_step::NUCLEO_STEP_BUFFER_HALF,
     // TIM2 and TIM5 (32-bit) for joints 0-1, 16-bit timers for the others (arm-step).
     step_timer_max_period_ticks: arm_step::NUCLEO_STEP_TIMER_MAX_PERIOD_TICKS,
+    // The update's burst (three words into an APB timer) waits behind up to seven other
+    // streams' on DMA2 and the AHB/APB bridges: about 24 word transfers of ~10 bus cycles
+    // at 200 MHz, 1.2 us at worst; 1 us with the bursts of a 1 MHz joint rarely aligned.
+    // The opto drivers' 5 us periods are far above it; TMC timing (0.2 us) is raised to
+    // it, which is the board's 1 MHz ceiling anyway.
+    min_dma_period_ns: 1_000,
 };
 
 /// The NUCLEO-H743ZI2 built with `--features tmc-drivers`: TMC-class driver timing, so the
@@ -234,6 +263,8 @@ pub const QEMU_MPS2_AN500: BoardProfile = BoardProfile {
         NUCLEO_H743ZI2.step_timer_hz,
         QEMU_SYSCLK_HZ,
     ),
+    // The NUCLEO's floor, so that the same trajectories give the same periods.
+    min_dma_period_ns: NUCLEO_H743ZI2.min_dma_period_ns,
 };
 
 /// mps2-an500's SYSCLK, which clocks every APB peripheral (timers, UARTs).
