@@ -386,9 +386,24 @@ async fn main(spawner: Spawner) -> ! {
     ));
 
     // The IWDG stops while a debugger halts the core: a breakpoint does not reset the board.
-    embassy_stm32::pac::DBGMCU
-        .apb4fzr1()
-        .modify(|w| w.set_iwdg1(true));
+    let dbgmcu = embassy_stm32::pac::DBGMCU;
+    dbgmcu.apb4fzr1().modify(|w| w.set_iwdg1(true));
+    // So do the joints' step timers and the step clock (TIM13), or a halted core would
+    // leave the DMA replaying its buffers, pulsing forever (issue 20). A halt mid-pulse
+    // keeps that one pulse's line high until the core runs again.
+    dbgmcu.apb1lfzr1().modify(|w| {
+        w.set_tim2(true);
+        w.set_tim3(true);
+        w.set_tim4(true);
+        w.set_tim5(true);
+        w.set_tim13(true);
+    });
+    dbgmcu.apb2fzr1().modify(|w| {
+        w.set_tim1(true);
+        w.set_tim8(true);
+        w.set_tim16(true);
+        w.set_tim17(true);
+    });
     let mut iwdg = IndependentWatchdog::new(p.IWDG1, IWDG_TIMEOUT_MS * 1_000);
     iwdg.unleash();
     spawner.spawn(defmt::unwrap!(watchdog(iwdg)));
