@@ -6,6 +6,7 @@
 //!   writes, the tests with a recording fake).
 //! * [`watchdog`]: the liveness rule that decides whether the IWDG is fed.
 //! * [`clock`]: the bounded wait for HSE, with the HSI fallback decision.
+//! * [`flash_upkeep`]: the H7 flash's error flags and cache around each operation.
 //! * [`settings`]: the settings record, and its flash store that recovers from corruption
 //!   (on sequential-storage, tested with its mock flash and fault injection).
 //! * [`encoder`]: absolute multi-turn encoders over Modbus RTU (RS-485): frame codec, CRC,
@@ -25,6 +26,7 @@ extern crate std;
 pub mod clock;
 pub mod encoder;
 pub mod fault;
+pub mod flash_upkeep;
 pub mod gripper;
 pub mod net;
 pub mod settings;

@@ -17,15 +17,19 @@
 use core::mem::MaybeUninit;
 
 use arm_core::hw::PersistentSettings;
+use board_logic::flash_upkeep::{FlashUpkeep, UpkeptFlash};
 use board_logic::settings::{BootMarker, LoadOutcome, SettingsArea, must_erase_first};
 use defmt::{info, warn};
 use embassy_stm32::flash::{Async, Flash};
+use embassy_stm32::pac;
 
 /// First byte (offset from the start of flash) of the settings area: bank 2 sector 6.
 pub const SETTINGS_START: u32 = 0x1C_0000;
 /// End of the settings area: the end of flash (2 MiB). Two sectors, the least a
 /// sequential-storage map works with.
 pub const SETTINGS_END: u32 = 0x20_0000;
+// Bank2Upkeep clears bank 2's flags: the area must lie in bank 2 (the second MiB).
+const _: () = assert!(SETTINGS_START >= 0x10_0000 && SETTINGS_END <= 0x20_0000);
 
 /// Why settings could not be written.
 pub type StoreError = board_logic::settings::StoreError<embassy_stm32::flash::Error>;
@@ -53,16 +57,53 @@ fn write_mark(value: u32) {
     }
 }
 
+/// Start of the flash in the address space: offsets are from here.
+const FLASH_BASE: u32 = 0x0800_0000;
+
+/// Bank 2's upkeep around the HAL's operations (board-logic's `flash_upkeep`, issue 20).
+pub struct Bank2Upkeep;
+
+impl FlashUpkeep for Bank2Upkeep {
+    fn clear_errors(&self) {
+        // FLASH_CCR2: the H7 clears its status flags here only (RM0433, FLASH_CCR);
+        // embassy-stm32 writes FLASH_SR, which does nothing.
+        pac::FLASH
+            .bank(1)
+            .ccr()
+            .write_value(pac::flash::regs::Ccr(CCR_CLEAR_ALL));
+    }
+
+    fn changed(&self, from: u32, to: u32) {
+        // SAFETY: invalidating the D-cache lines of flash bytes that just changed, which
+        // nothing has written through the cache (flash is written by its controller only):
+        // no dirty data is lost. The SCB is only borrowed for this call.
+        unsafe {
+            let mut core = cortex_m::Peripherals::steal();
+            core.SCB.invalidate_dcache_by_address(
+                (FLASH_BASE + from) as usize,
+                to.saturating_sub(from) as usize,
+            );
+        }
+    }
+}
+
+/// FLASH_CCR's clear bits: EOP, WRPERR, PGSERR, STRBERR, INCERR, OPERR, RDPERR, RDSERR,
+/// SNECCERR, DBECCERR, CRCEND, CRCRDERR (bits 16-28 but 20, RM0433).
+const CCR_CLEAR_ALL: u32 = 0x1FEF_0000;
+
 /// [`arm_core::hw::SettingsStore`] on the internal flash.
 pub struct FlashSettings {
-    area: SettingsArea<Flash<'static, Async>>,
+    area: SettingsArea<UpkeptFlash<Flash<'static, Async>, Bank2Upkeep>>,
 }
 
 impl FlashSettings {
     /// Uses the settings area of `flash`.
     pub fn new(flash: Flash<'static, Async>) -> Self {
         FlashSettings {
-            area: SettingsArea::new(flash, SETTINGS_START..SETTINGS_END),
+            area: SettingsArea::new(
+                UpkeptFlash::new(flash, Bank2Upkeep),
+                SETTINGS_START..SETTINGS_END,
+            ),
         }
     }
 
