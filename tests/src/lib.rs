@@ -82,10 +82,13 @@ impl Drop for Slot {
 pub struct Alone(());
 
 /// Waits until no simulator runs in this test process (call it before starting any), then
-/// lets only the calling thread start simulators until the guard drops: for a test that
-/// feeds a simulator in real time (its buffer runs dry if the CPU goes to a simulator
-/// another test overloads on purpose). The other tests of the binary wait; tests in other
-/// binaries run after it anyway (cargo test runs one binary at a time).
+/// lets only the calling thread start simulators until the guard drops: for a test whose
+/// host side feeds a deliberately small buffer in real time, or measures a latency in
+/// milliseconds. The controller side no longer needs it (issue 19: the step side holds
+/// `arm_core::LOOKAHEAD_US` of motion, and a run uploaded whole never starves), but a host
+/// thread starved while another test overloads a simulator on purpose still underruns a
+/// 24-point buffer, as a real host would. The other tests of the binary wait; tests in
+/// other binaries run after it anyway (cargo test runs one binary at a time).
 pub fn run_alone() -> Alone {
     let me = std::thread::current().id();
     let (running, changed) = &RUNNING;
