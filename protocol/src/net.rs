@@ -50,9 +50,10 @@ impl NetSettings {
     };
 
     /// Whether a controller can use these settings: DHCP with every other field zero, or
-    /// a unicast address (not 0.0.0.0, loopback, multicast, broadcast or the subnet's own
-    /// network or broadcast address, for prefixes up to /30) with a prefix of 1..32 and a
-    /// gateway that is 0.0.0.0 or another address inside the subnet.
+    /// a unicast address (not in 0/8 "this network", loopback, multicast, 240/4 reserved
+    /// or broadcast, nor the subnet's own network or broadcast address, for prefixes up to
+    /// /30) with a prefix of 1..32 and a gateway that is 0.0.0.0 or another host address
+    /// inside the subnet (not its network or broadcast address).
     pub fn is_valid(&self) -> bool {
         if self.dhcp {
             return self.ip == [0; 4] && self.prefix_len == 0 && self.gateway == [0; 4];
@@ -62,18 +63,19 @@ impl NetSettings {
         }
         let ip = u32::from_be_bytes(self.ip);
         let [first, ..] = self.ip;
-        if ip == 0 || ip == u32::MAX || first == 127 || (224..=239).contains(&first) {
+        // 0/8, 127/8, 224/4 (multicast) and 240/4 (reserved, and the broadcast address).
+        if first == 0 || first == 127 || first >= 224 {
             return false;
         }
         let mask = u32::MAX << (32 - u32::from(self.prefix_len));
-        if self.prefix_len <= 30 {
-            let host = ip & !mask;
-            if host == 0 || host == !mask {
-                return false;
-            }
+        // The subnet's network and broadcast addresses are no host's (up to /30: /31 and
+        // /32 subnets have none).
+        let is_host = |a: u32| self.prefix_len > 30 || (a & !mask != 0 && a & !mask != !mask);
+        if !is_host(ip) {
+            return false;
         }
         let gateway = u32::from_be_bytes(self.gateway);
-        gateway == 0 || (gateway != ip && gateway & mask == ip & mask && gateway & !mask != !mask)
+        gateway == 0 || (gateway != ip && gateway & mask == ip & mask && is_host(gateway))
     }
 
     pub(crate) fn read(b: &[u8]) -> Option<NetSettings> {

@@ -71,6 +71,13 @@ fn net_set_refuses_unusable_settings() {
         NetSettings::fixed([10, 0, 0, 2], 33, None),
         NetSettings::fixed([10, 0, 0, 2], 24, Some([10, 0, 1, 1])),
         NetSettings::fixed([10, 0, 0, 2], 24, Some([10, 0, 0, 2])),
+        // Issue 21 F15: reserved (240/4), "this network" (0/8), and a gateway that is the
+        // subnet's network or broadcast address were accepted.
+        NetSettings::fixed([240, 0, 0, 1], 8, None),
+        NetSettings::fixed([254, 1, 1, 1], 24, None),
+        NetSettings::fixed([0, 1, 2, 3], 8, None),
+        NetSettings::fixed([10, 0, 0, 2], 24, Some([10, 0, 0, 0])),
+        NetSettings::fixed([10, 0, 0, 2], 24, Some([10, 0, 0, 255])),
         NetSettings {
             ip: [10, 0, 0, 2],
             ..NetSettings::DHCP
