@@ -391,7 +391,13 @@ impl<const CAP: usize> Controller<CAP> {
             ..
         }) = decoded
         {
-            response.reply = reply(self, StatusCode::BadCrc);
+            // The owner (or anyone while there is none) gets the usual fields; a stranger
+            // learns nothing about the arm: the NOT_OWNER zeros (issue 21 F9).
+            response.reply = if self.owner.is_none_or(|o| o.ip == from.ip) {
+                reply(self, StatusCode::BadCrc)
+            } else {
+                Some(blank_ack(from, seq, tag, StatusCode::BadCrc))
+            };
             return response;
         }
         // DISCOVER (docs/PROTOCOL.md, "Finding controllers and setting their address"):
@@ -440,19 +446,7 @@ impl<const CAP: usize> Controller<CAP> {
                 true
             }
             Some(_) => {
-                // Tells a stranger nothing about the arm: zeros (docs/PROTOCOL.md, "Status codes").
-                response.reply = Some(Reply {
-                    to: from,
-                    seq,
-                    ack: Ack {
-                        acked_tag: tag,
-                        status: StatusCode::NotOwner,
-                        state: State::New,
-                        next_seq: 0,
-                        buffered: 0,
-                        free: 0,
-                    },
-                });
+                response.reply = Some(blank_ack(from, seq, tag, StatusCode::NotOwner));
                 return response;
             }
         };
@@ -747,6 +741,23 @@ impl<const CAP: usize> Controller<CAP> {
         }
         self.stop_by_host(plant);
         self.reports_on.then(|| self.location(plant))
+    }
+}
+
+/// An ACK that tells a stranger nothing about the arm: state, next seq and buffer counts
+/// all zero (docs/PROTOCOL.md, "Status codes": NOT_OWNER, and BAD_CRC to a stranger).
+fn blank_ack(to: Endpoint, seq: u8, tag: u8, status: StatusCode) -> Reply {
+    Reply {
+        to,
+        seq,
+        ack: Ack {
+            acked_tag: tag,
+            status,
+            state: State::New,
+            next_seq: 0,
+            buffered: 0,
+            free: 0,
+        },
     }
 }
 

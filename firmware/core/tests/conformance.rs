@@ -709,3 +709,30 @@ fn a_resent_new_does_not_drop_the_upload_it_started() {
     assert_eq!((ack.status, ack.buffered, ack.next_seq), (Ok, 2, 22));
     assert_eq!(s.controller.state(), State::Pending);
 }
+
+/// Issue 21 F9: a BAD_CRC ACK to a stranger carried the real state, the uploader's next
+/// seq and the buffer counts, though a stranger is to learn nothing (section 8). The
+/// owner's own BAD_CRC still carries them (it resends and may need next_seq).
+#[test]
+fn a_bad_crc_tells_a_stranger_nothing_and_the_owner_everything() {
+    let mut s = Session::<16>::new(16);
+    s.expect(Command::New { count: 4 }, Ok);
+    assert_eq!(s.pending(&points([0; 8], 2, 1)).status, Ok);
+    let mut bad = frame(9, Command::Status);
+    *bad.last_mut().unwrap() ^= 1;
+    let stranger = s.send_raw(OTHER, &bad).reply.expect("an ACK").ack;
+    assert_eq!(stranger.status, BadCrc);
+    assert_eq!(
+        (
+            stranger.state,
+            stranger.next_seq,
+            stranger.buffered,
+            stranger.free
+        ),
+        (State::New, 0, 0, 0),
+        "nothing about the arm: the NOT_OWNER zeros"
+    );
+    let owner = s.send_raw(HOST, &bad).reply.expect("an ACK").ack;
+    assert_eq!(owner.status, BadCrc);
+    assert_eq!((owner.state, owner.buffered), (State::Pending, 2));
+}

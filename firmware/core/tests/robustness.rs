@@ -82,8 +82,11 @@ proptest! {
             prop_assert_eq!((reply.seq, reply.ack.acked_tag), (bytes[0], bytes[1]));
             let crc_ok = crc8(&bytes[..bytes.len() - 1]) == bytes[bytes.len() - 1];
             prop_assert_eq!(reply.ack.status == StatusCode::BadCrc, !crc_ok);
-            if reply.ack.status == StatusCode::NotOwner {
-                // A stranger learns nothing about the arm.
+            // A stranger learns nothing about the arm: NOT_OWNER, and (issue 21 F9) a
+            // BAD_CRC to anyone but the owner.
+            let stranger_bad_crc = reply.ack.status == StatusCode::BadCrc
+                && s.controller.owner().is_some_and(|o| o.ip != from.ip);
+            if reply.ack.status == StatusCode::NotOwner || stranger_bad_crc {
                 prop_assert_eq!(
                     (reply.ack.state as u8, reply.ack.next_seq, reply.ack.buffered, reply.ack.free),
                     (0, 0, 0, 0)
