@@ -116,6 +116,19 @@ impl fmt::Display for Error {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
             Error::Io(e) => write!(f, "network error: {e}"),
+            // NOT_OWNER's state is 0 whatever the arm does (a stranger learns nothing):
+            // no state is shown for it (issue 21 F10: "controller state NEW" misled).
+            Error::Refused {
+                command,
+                status: status @ StatusCode::NotOwner,
+                ..
+            } => write!(
+                f,
+                "{} refused with {}: {}",
+                command.name(),
+                status.name(),
+                status.advice()
+            ),
             Error::Refused {
                 command,
                 status,
@@ -246,5 +259,37 @@ impl Error {
             Error::Refused { status, .. } => Some(*status),
             _ => None,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Issue 21 F10: a NOT_OWNER ACK's state is 0 (a stranger learns nothing), which armctl
+    /// printed as "controller state NEW" whatever the arm was doing.
+    #[test]
+    fn not_owner_shows_no_state_and_other_refusals_do() {
+        let not_owner = Error::Refused {
+            command: Tag::Runing,
+            status: StatusCode::NotOwner,
+            state: State::New,
+        }
+        .to_string();
+        assert!(
+            not_owner.starts_with("RUNING refused with NOT_OWNER: "),
+            "{not_owner}"
+        );
+        assert!(!not_owner.contains("NEW"), "{not_owner}");
+        let bad_state = Error::Refused {
+            command: Tag::Runing,
+            status: StatusCode::BadState,
+            state: State::Running,
+        }
+        .to_string();
+        assert!(
+            bad_state.starts_with("RUNING refused with BAD_STATE (controller state RUNNING)"),
+            "{bad_state}"
+        );
     }
 }
