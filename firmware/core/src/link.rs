@@ -126,12 +126,47 @@ pub struct FrameKey {
     pub crc: u8,
 }
 
-/// The last [`DUPLICATE_MEMORY`] accepted frames, each remembered for
-/// [`DUPLICATE_WINDOW_US`].
+/// Endpoints (address and port) whose last [`DUPLICATE_MEMORY`] accepted frames are kept
+/// at once: the owner's machine runs the uploading tool and, beside it, a STATUS poller or
+/// a watcher (frames from other addresses are refused NOT_OWNER and never remembered). A
+/// fourth endpoint takes the memory of the one heard least recently.
+pub const DUPLICATE_ENDPOINTS: usize = 3;
+
+/// One remembered frame of an endpoint: its seq, tag and CRC, and when it was accepted.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+struct Remembered {
+    seq: u8,
+    tag: u8,
+    crc: u8,
+    at_us: u64,
+}
+
+/// One endpoint's last [`DUPLICATE_MEMORY`] accepted frames, a ring.
+#[derive(Clone, Copy, Debug)]
+struct EndpointFrames {
+    from: Option<Endpoint>,
+    /// When its last frame was remembered.
+    last_us: u64,
+    frames: [Option<Remembered>; DUPLICATE_MEMORY],
+    next: usize,
+}
+
+impl EndpointFrames {
+    const EMPTY: EndpointFrames = EndpointFrames {
+        from: None,
+        last_us: 0,
+        frames: [None; DUPLICATE_MEMORY],
+        next: 0,
+    };
+}
+
+/// Accepted frames, each remembered for [`DUPLICATE_WINDOW_US`]: of each of
+/// [`DUPLICATE_ENDPOINTS`] endpoints its last [`DUPLICATE_MEMORY`] (issue 21 F13: one
+/// memory of 64 shared by all let a poller's 70 STATUS frames evict the owner's TOGGLE,
+/// whose resend then ran twice). 3 x 64 frames of 16 bytes.
 #[derive(Clone, Debug)]
 pub struct RecentFrames {
-    entries: [Option<(FrameKey, u64)>; DUPLICATE_MEMORY],
-    next: usize,
+    endpoints: [EndpointFrames; DUPLICATE_ENDPOINTS],
 }
 
 impl Default for RecentFrames {
@@ -144,25 +179,56 @@ impl RecentFrames {
     /// Remembers nothing.
     pub const fn new() -> Self {
         RecentFrames {
-            entries: [None; DUPLICATE_MEMORY],
-            next: 0,
+            endpoints: [EndpointFrames::EMPTY; DUPLICATE_ENDPOINTS],
         }
     }
 
     /// Whether `key` was accepted within the window before `now_us`.
     pub fn contains(&self, key: &FrameKey, now_us: u64) -> bool {
-        self.entries
+        self.endpoints
             .iter()
-            .flatten()
-            .any(|(k, at)| k == key && now_us.saturating_sub(*at) < DUPLICATE_WINDOW_US)
+            .filter(|e| e.from == Some(key.from))
+            .flat_map(|e| e.frames.iter().flatten())
+            .any(|r| {
+                (r.seq, r.tag, r.crc) == (key.seq, key.tag, key.crc)
+                    && now_us.saturating_sub(r.at_us) < DUPLICATE_WINDOW_US
+            })
     }
 
-    /// Remembers an accepted frame, forgetting the oldest.
+    /// Remembers an accepted frame in its endpoint's ring (forgetting that endpoint's
+    /// oldest); a new endpoint takes the ring of the one heard least recently.
     pub fn remember(&mut self, key: FrameKey, now_us: u64) {
-        if let Some(slot) = self.entries.get_mut(self.next) {
-            *slot = Some((key, now_us));
+        let index = match self.endpoints.iter().position(|e| e.from == Some(key.from)) {
+            Some(i) => i,
+            None => {
+                let lru = self
+                    .endpoints
+                    .iter()
+                    .enumerate()
+                    .min_by_key(|(_, e)| (e.from.is_some(), e.last_us))
+                    .map_or(0, |(i, _)| i);
+                if let Some(e) = self.endpoints.get_mut(lru) {
+                    *e = EndpointFrames {
+                        from: Some(key.from),
+                        ..EndpointFrames::EMPTY
+                    };
+                }
+                lru
+            }
+        };
+        let Some(e) = self.endpoints.get_mut(index) else {
+            return;
+        };
+        e.last_us = now_us;
+        if let Some(slot) = e.frames.get_mut(e.next) {
+            *slot = Some(Remembered {
+                seq: key.seq,
+                tag: key.tag,
+                crc: key.crc,
+                at_us: now_us,
+            });
         }
-        self.next = (self.next + 1) % DUPLICATE_MEMORY;
+        e.next = (e.next + 1) % DUPLICATE_MEMORY;
     }
 }
 

@@ -377,3 +377,31 @@ fn a_pending_from_another_endpoint_than_the_uploader_is_refused() {
     let ack = s.send_raw(TOOL, &pending(2, &pts)).reply.unwrap().ack;
     assert_eq!(ack.status, Ok);
 }
+
+// ---- Issue 21 F13: the duplicate memory is per endpoint ----
+
+/// The owner's TOGGLE is ACKed but the ACK is lost; meanwhile a STATUS poller on the same
+/// machine (another port) has 70 frames accepted within 2 s. The owner's resend must still
+/// be recognised: with one shared memory of 64 frames it was forgotten and the TOGGLE ran
+/// twice (the drivers back where they were; 5 of 5 in the audit).
+#[test]
+fn another_tools_frames_never_evict_the_owners_from_the_duplicate_memory() {
+    let mut s = Session::<16>::new(16);
+    s.expect(Command::Status, Ok);
+    let toggle = frame(7, Command::ToggleEnablePins { mask: None });
+    let r = s.send_raw(HOST, &toggle);
+    assert_eq!(r.reply.unwrap().ack.status, Ok);
+    let enabled = s.controller.enabled();
+    for i in 0..70u32 {
+        s.now_us += 1_000;
+        let r = s.send_raw(TOOL, &frame(i as u8, Command::Status));
+        assert_eq!(r.reply.unwrap().ack.status, Ok, "poll {i}");
+    }
+    let r = s.send_raw(HOST, &toggle);
+    assert_eq!(r.reply.unwrap().ack.status, Ok);
+    assert_eq!(
+        s.controller.enabled(),
+        enabled,
+        "the resent TOGGLE is a duplicate: not executed again"
+    );
+}
