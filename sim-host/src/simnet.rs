@@ -127,6 +127,17 @@ pub(crate) fn log_time_us() -> u64 {
         .as_micros() as u64
 }
 
+/// The state an ACK tells, for the log of state changes: none for NOT_OWNER and BAD_CRC,
+/// whose state is 0 to a stranger whatever the arm does (issue 21 F11: a refused flood
+/// logged "state RUNNING -> NEW" and back for every datagram, 255 lines a second, outside
+/// the refusals' rate limit).
+fn reported_state(ack: &protocol::Ack) -> Option<u8> {
+    match ack.status {
+        protocol::StatusCode::NotOwner | protocol::StatusCode::BadCrc => None,
+        _ => Some(ack.state as u8),
+    }
+}
+
 /// The state the controller last reported, for logging its changes.
 static REPORTED_STATE: std::sync::atomic::AtomicU8 = std::sync::atomic::AtomicU8::new(u8::MAX);
 
@@ -161,7 +172,7 @@ fn log_sent(frame: &[u8], to: Endpoint) {
                     ),
                 }
             }
-            Some(ack.state as u8)
+            reported_state(&ack)
         }
         protocol::Report::Location(location) => Some(location.state),
         protocol::Report::Status(status) => Some(status.state as u8),
@@ -176,5 +187,37 @@ fn log_sent(frame: &[u8], to: Endpoint) {
             let name = protocol::State::name_of;
             log::info!("state {} -> {}", name(before), name(state));
         }
+    }
+}
+
+#[cfg(test)]
+mod log_tests {
+    use protocol::{Ack, State, StatusCode};
+
+    use super::reported_state;
+
+    fn ack(status: StatusCode, state: State) -> Ack {
+        Ack {
+            acked_tag: 0,
+            status,
+            state,
+            next_seq: 0,
+            buffered: 0,
+            free: 0,
+        }
+    }
+
+    #[test]
+    fn refusals_to_strangers_tell_no_state_to_the_log() {
+        assert_eq!(reported_state(&ack(StatusCode::NotOwner, State::New)), None);
+        assert_eq!(reported_state(&ack(StatusCode::BadCrc, State::New)), None);
+        assert_eq!(
+            reported_state(&ack(StatusCode::Ok, State::Running)),
+            Some(State::Running as u8)
+        );
+        assert_eq!(
+            reported_state(&ack(StatusCode::BadState, State::Pending)),
+            Some(State::Pending as u8)
+        );
     }
 }
