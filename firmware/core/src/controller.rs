@@ -40,7 +40,8 @@
 //! owner's endpoints (up to [`LOCATION_LISTENERS`]) whose commands were executed and that
 //! have not been silent for 5 s; the endpoint that started the upload or run (NEW,
 //! RETURN) or turned reports on (UPLOAD_START, UPLOAD_PERIOD) keeps them while anything
-//! runs, however long it is silent, and otherwise the endpoint heard most recently keeps
+//! runs, however long it is silent (and, when the run ends by itself, 5 s from the end:
+//! the end-of-run report reaches it), and otherwise the endpoint heard most recently keeps
 //! them (so a host with one socket gets every report, as the manual has it). The 5 s are
 //! checked each time a LOCATION is sent ([`ReportSettings::location_until_us`]), so a tool
 //! that went away stops getting them even while nobody speaks. So no tool takes another's reports: a watcher keeps
@@ -166,6 +167,9 @@ pub struct Controller<const CAP: usize> {
     /// (UPLOAD_START, UPLOAD_PERIOD): it keeps its LOCATION reports while anything runs,
     /// however long it is silent.
     location_claimer: Option<Endpoint>,
+    /// When the last datagram was handled: the time the controller knows outside
+    /// [`Controller::handle`] (a run's end is noticed without a clock).
+    last_handled_us: u64,
     /// Where USART_RECV reports go: the endpoint that sent USART_START.
     serial_to: Option<Endpoint>,
     /// STATUS `more_flags`.
@@ -359,6 +363,7 @@ impl<const CAP: usize> Controller<CAP> {
         plant: &mut impl Plant,
     ) -> Response {
         let before = self.state;
+        self.last_handled_us = self.last_handled_us.max(now_us);
         let mut response = self.check_and_execute(plant, now_us, from, datagram);
         // A state change (the command's, or a hand-over that dropped an upload before the
         // command was refused) is reported at once.

@@ -405,3 +405,53 @@ fn another_tools_frames_never_evict_the_owners_from_the_duplicate_memory() {
         "the resent TOGGLE is a duplicate: not executed again"
     );
 }
+
+// ---- Issue 21 F4: the end-of-run report reaches the endpoint that started the run ----
+
+/// Whether `to` gets a LOCATION sent now (listed, and its time not up).
+fn gets_location(s: &Session<16>, to: Endpoint) -> bool {
+    let settings = s.controller.report_settings();
+    settings
+        .location_to
+        .iter()
+        .zip(settings.location_until_us)
+        .any(|(l, until)| *l == Some(to) && s.now_us < until)
+}
+
+/// An uploader that starts a run of more than 5 s and then stays silent (it waits for the
+/// end-of-run LOCATION) while a poller on its machine sends STATUS every second: at the
+/// end the state is STOPPED, the poller was heard most recently, and the uploader, silent
+/// for over 5 s, got no end-of-run report (5 of 5 in the audit). It keeps its reports for
+/// 5 s after the run's end.
+#[test]
+fn a_silent_uploader_gets_the_end_of_run_report_while_another_tool_polls() {
+    let mut s = Session::<16>::new(16);
+    s.start_run(8, &points([0; 8], 8, 1));
+    for _ in 0..7 {
+        s.now_us += 1_000_000;
+        let r = s.send_raw(TOOL, &frame(1, Command::Status));
+        assert_eq!(r.reply.unwrap().ack.status, Ok);
+        assert!(
+            gets_location(&s, HOST),
+            "the uploader keeps reports while it runs"
+        );
+    }
+    let end = s
+        .plant
+        .run_to_end(&mut s.controller)
+        .expect("the end-of-run LOCATION");
+    assert_eq!(end.state, State::Stopped as u8);
+    assert!(
+        gets_location(&s, HOST),
+        "the end-of-run report goes to the uploader"
+    );
+    assert!(gets_location(&s, TOOL), "and to the poller");
+    // Afterwards the uploader's 5 s of silence count from the run's end.
+    s.now_us += OWNER_TIMEOUT_US + 1;
+    let r = s.send_raw(TOOL, &frame(2, Command::Status));
+    assert_eq!(r.reply.unwrap().ack.status, Ok);
+    assert!(
+        !gets_location(&s, HOST),
+        "a silent uploader's reports end 5 s after the run"
+    );
+}

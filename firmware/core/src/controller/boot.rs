@@ -36,6 +36,7 @@ macro_rules! with_boot_fields {
         owner: None,
         listeners: [None; LOCATION_LISTENERS],
         location_claimer: None,
+        last_handled_us: 0,
         serial_to: None,
         more_flags: MoreFlags(0),
         reports_on: true,

@@ -40,6 +40,24 @@ impl<const CAP: usize> Controller<CAP> {
             .filter(|_| self.state != State::Stopped)
     }
 
+    /// The run it claimed ended by itself (completion or underrun): the claimer, which
+    /// kept its reports however long it was silent, is counted as heard now (the last
+    /// datagram's time), so that the end-of-run report reaches it and its reports end 5 s
+    /// later unless it speaks (issue 21 F4: while another tool on its machine polled, a
+    /// silent uploader lost its reports the instant the run ended, its end-of-run report
+    /// with them).
+    pub(super) fn claimer_heard_at_run_end(&mut self) {
+        let Some(claimer) = self.location_claimer else {
+            return;
+        };
+        let now = self.last_handled_us;
+        for listener in self.listeners.iter_mut().flatten() {
+            if listener.to == claimer {
+                listener.heard_us = listener.heard_us.max(now);
+            }
+        }
+    }
+
     /// The endpoint that keeps its LOCATION reports however long it is silent: the one
     /// that started the upload or run, while the arm is not STOPPED; otherwise the one
     /// heard most recently, so that reports always go somewhere and a host with one

@@ -105,6 +105,7 @@ impl<const CAP: usize> Controller<CAP> {
             self.underrun = !complete;
             self.stopped_by_host = false;
             self.state = State::Stopped;
+            self.claimer_heard_at_run_end();
             return self.reports_on.then(|| self.location(plant));
         }
         self.pump(plant);
