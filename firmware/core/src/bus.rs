@@ -59,12 +59,15 @@ pub const ESTOP_QUEUE: usize = 4;
 /// up. Each slot is a [`Datagram`] (1472 bytes + 12): 40 slots are 58 KiB of RAM.
 pub const INBOX_QUEUE: usize = HOST_WINDOW + 8;
 
-/// Queued frames to send: the ACKs of a full inbox and of the e-stop queue (44), plus a
-/// LOCATION, a STATUS and a USART_RECV, and a few LOCATIONs of state changes. When full,
-/// a frame is dropped (counted, logged at most once a second): the controller never
-/// waits to report. A slot holds the largest frame's content (USART_RECV, 255 bytes).
-/// Plus [`ESTOP_ACK_RESERVE`], the slots only STOPPEDs' ACKs may take.
-pub const OUTBOX_QUEUE: usize = INBOX_QUEUE + ESTOP_QUEUE + 8 + ESTOP_ACK_RESERVE;
+/// Queued frames to send: two for each datagram of a full inbox (its ACK and its STATUS
+/// report, or the LOCATION of the state change it made: the trajectory task handles a
+/// burst without yielding, so they queue up before the network task sends any; issue 21
+/// F16: with one per datagram, a window of STATUS polls lost replies, also other tools'),
+/// the ACKs of the e-stop queue, plus a periodic LOCATION, a USART_RECV and a few more.
+/// When full, a frame is dropped (counted, logged at most once a second): the controller
+/// never waits to report. A slot holds the largest frame's content (USART_RECV, 255
+/// bytes). Plus [`ESTOP_ACK_RESERVE`], the slots only STOPPEDs' ACKs may take.
+pub const OUTBOX_QUEUE: usize = 2 * INBOX_QUEUE + ESTOP_QUEUE + 8 + ESTOP_ACK_RESERVE;
 
 /// Outbox slots only the ACKs of STOPPEDs may take: one per queued STOPPED
 /// ([`ESTOP_QUEUE`]). A flood's own ACKs (NOT_OWNER, BAD_CRC) may fill the rest of the

@@ -1369,6 +1369,38 @@ fn a_burst_of_a_whole_window_is_queued_whole_and_a_stopped_behind_it_goes_first(
     });
 }
 
+/// Issue 21 F16: a burst of the advertised window of STATUS polls (32), plus 8 from
+/// another tool, all queued before the trajectory task runs: each gets its ACK and its
+/// STATUS report. The outbox held 56 frames, fewer than the 80 these make, and dropped
+/// replies ("outbox full"), also other tools'.
+#[test]
+fn a_window_of_status_polls_gets_every_reply() {
+    use arm_core::config::HOST_WINDOW;
+    let rig = Rig::new();
+    let tool = Endpoint {
+        port: HOST.port + 1,
+        ..HOST
+    };
+    for seq in 0..HOST_WINDOW as u8 {
+        rig.route(&frame(seq, Command::Status));
+    }
+    for seq in 0..8 {
+        bus_route(&rig.bus, tool, &frame(seq, Command::Status));
+    }
+    assert_eq!(rig.bus.inbox_drops(), 0);
+    rig.run(async {
+        until("every ACK", LIMIT, || rig.acks().len() >= HOST_WINDOW + 8).await;
+        let statuses = rig
+            .sent
+            .borrow()
+            .iter()
+            .filter(|o| matches!(o, arm_core::Outgoing::Status(..)))
+            .count();
+        assert_eq!(statuses, HOST_WINDOW + 8, "a STATUS report for every poll");
+        assert_eq!(rig.bus.take_outbox_drops(), 0, "nothing dropped");
+    });
+}
+
 /// Issue 18 part 3: the wired e-stop input. Its edge handler stops the steps itself (no
 /// task has run when `edge` returns); the trajectory task then latches the controller:
 /// RUNING refused ESTOP_LATCHED until the input is closed and ESTOP_RESET clears it,
