@@ -375,14 +375,17 @@ impl Monitor {
         stream.write_all(&reply)?;
         let mut monitor = Monitor { stream };
         // The banner and the prompt.
-        let _ = monitor.read_to_prompt(Duration::from_secs(3));
+        let _ = monitor.read_to_prompt("", Duration::from_secs(3));
         Ok(monitor)
     }
 
-    fn read_to_prompt(&mut self, limit: Duration) -> String {
+    /// Reads until a prompt ends what came after `echo` (the command as the monitor echoes
+    /// it; empty: any prompt), or `limit`; the text after the echo.
+    fn read_to_prompt(&mut self, echo: &str, limit: Duration) -> String {
         let mut seen = Vec::new();
         let mut buf = [0u8; 4096];
         let deadline = Instant::now() + limit;
+        let after_echo = |text: &str| text.find(echo).map(|at| at + echo.len());
         while Instant::now() < deadline {
             if let Ok(n) = self.stream.read(&mut buf) {
                 if n == 0 {
@@ -390,15 +393,21 @@ impl Monitor {
                 }
                 seen.extend_from_slice(&buf[..n]);
                 // The prompt (`--plain`: no colours): "(monitor) " or the machine's name.
-                if seen.ends_with(b"(nucleo) ") || seen.ends_with(b"(monitor) ") {
+                // Output still queued from before (a banner, an answer that came late)
+                // precedes the echo and is dropped.
+                let text = String::from_utf8_lossy(&seen);
+                if (text.ends_with("(nucleo) ") || text.ends_with("(monitor) "))
+                    && after_echo(&text).is_some_and(|at| at < text.len())
+                {
                     break;
                 }
             }
         }
-        String::from_utf8_lossy(&seen).into_owned()
+        let text = String::from_utf8_lossy(&seen);
+        after_echo(&text).map_or_else(String::new, |at| text[at..].to_string())
     }
 
-    /// Runs `command`; its output (without the echoed command and the prompt).
+    /// Runs `command`; its output (without the echoed command), empty if none came.
     fn run(&mut self, command: &str) -> String {
         if self
             .stream
@@ -407,9 +416,7 @@ impl Monitor {
         {
             return String::new();
         }
-        let out = self.read_to_prompt(Duration::from_secs(10));
-        out.split_once('\n')
-            .map_or(out.clone(), |(_, rest)| rest.to_string())
+        self.read_to_prompt(command, Duration::from_secs(10))
     }
 
     /// `sysbus ReadBytes`: the bytes the monitor prints as `0x..` tokens.
