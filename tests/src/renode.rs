@@ -436,6 +436,8 @@ impl Monitor {
 pub struct RenodeBoard {
     /// The namespace's name (`ip netns`).
     pub ns: String,
+    /// When Renode was spawned (after waiting for this process's other boards).
+    pub spawned: Instant,
     /// From spawning Renode to the first STATUS answered.
     pub first_status_after: Duration,
     child: Option<Child>,
@@ -463,6 +465,7 @@ impl RenodeBoard {
         ip(&["netns", "add", &ns]);
         let mut board = RenodeBoard {
             ns,
+            spawned: Instant::now(),
             first_status_after: Duration::ZERO,
             child: None,
             dir,
@@ -507,6 +510,7 @@ impl RenodeBoard {
             });
         }
         let started = Instant::now();
+        board.spawned = started;
         board.child = Some(command.spawn().expect("start Renode"));
 
         // The TAP appears once Renode has run the script: give it the host addresses.

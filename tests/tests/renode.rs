@@ -14,18 +14,27 @@
 //! malformed flood after which STATUS and STOPPED are still answered.
 //!
 //! What they cannot cover yet: anything that makes steps. The STEP outputs are timers whose
-//! update events request DMA bursts (DCR/DMAR) from circular, double-buffered DMA2 streams
-//! (docs/BOARD.md, "Wiring"). Renode 1.15.3's STM32 timer raises no DMA request and has no
-//! DCR/DMAR burst, and its DMA model copies a transfer at once, with no circular,
-//! half-transfer or double-buffer mode; so a run started here never plays a period, the
-//! buffer halves are never handed back, and the run ends by the underrun rule (or not at all).
-//! Not run here for that reason: a run to its last point, an upload streamed past the
-//! 8192-point buffer while it plays, an e-stop mid-run and positions after it, RETURN, the
-//! gripper's counted burst, and the STEP/DIR edges against arm-step's oracle (tests/qemu.rs
-//! runs all of these on the QEMU port). They need C# models of the timer's DMA request and
-//! DCR/DMAR burst, DMAMUX1's request routing (channel 8 + j to DMA2 stream j), and the DMA
-//! stream's circular double-buffer mode with half/complete interrupts (RM0433 sections 15,
-//! 16 and 38-40), and the timer outputs as GPIO lines to count edges.
+//! update events request DMA bursts (DCR/DMAR) from circular DMA2 streams with half-transfer
+//! and transfer-complete interrupts (docs/BOARD.md, "Wiring"; `firmware/board/src/step_dma/`).
+//! Renode 1.15.3's `STM32_Timer` raises no DMA request and has no DCR/DMAR burst, DMAMUX1 is
+//! an unmodelled tag region in `stm32h743.repl`, and its `STM32DMA` copies a transfer at once
+//! when the stream is enabled, with no request pacing and no circular or half-transfer mode.
+//! So no STEP edge is ever made. Worse, the controller cannot tell: a 50-point run
+//! (`armctl run`, by hand) ended normally, no underrun, with LOCATION at the last point,
+//! because positions are the producer's count less the periods still in the buffers as the
+//! streams' NDTR says, and the run's end comes from the step clock (TIM13, whose compare
+//! interrupt the model does raise). Positions after a run prove nothing here, so these tests
+//! run none. Not run for that reason: a run to its last point, an upload streamed past the
+//! 8192-point buffer while it plays, an e-stop mid-run and the positions after it, RETURN,
+//! the gripper's counted burst, and the STEP/DIR edges against arm-step's oracle
+//! (tests/qemu.rs runs all of these on the QEMU port). They need C# models (loaded from
+//! `.cs` by the `.resc`) of: the timer's update DMA request (DIER.UDE) and DCR/DMAR burst
+//! (DBA 11 = ARR, DBL 2: ARR, RCR, CCR1 per update; RM0433 "TIMx DMA address for full
+//! transfer"); DMAMUX1 routing (channel 8 + j to DMA2 stream j, DMAREQ_ID the timer's UP
+//! request; RM0433 "DMAMUX"); the DMA stream paced by requests, circular over NDTR words,
+//! with HTIF/TCIF interrupts and a live NDTR (RM0433 "DMA"); PWM mode 1 / forced-inactive
+//! outputs on CH1 and TIM8's CH1N as GPIO lines to count edges; DIR (PD0-PD7) is plain GPIO
+//! and already observable.
 
 use std::net::{Ipv4Addr, UdpSocket};
 use std::time::{Duration, Instant};
@@ -103,7 +112,6 @@ fn position(board: &RenodeBoard, arm: &Client) -> [i32; protocol::MAX_JOINTS] {
 #[test]
 fn status_matches_the_nucleo_profile_and_the_boot_is_logged() {
     require_renode!();
-    let started = Instant::now();
     let mut board = RenodeBoard::start();
     note(&format!(
         "Renode start to the first STATUS answered: {:.1} s",
@@ -150,7 +158,7 @@ fn status_matches_the_nucleo_profile_and_the_boot_is_logged() {
     board.assert_healthy();
     note(&format!(
         "status test: {:.1} s",
-        started.elapsed().as_secs_f64()
+        board.spawned.elapsed().as_secs_f64()
     ));
 }
 
@@ -159,7 +167,6 @@ fn status_matches_the_nucleo_profile_and_the_boot_is_logged() {
 #[test]
 fn every_command_without_steps_gets_its_ack() {
     require_renode!();
-    let started = Instant::now();
     let mut board = RenodeBoard::start();
     let arm = board.connect_from(HOSTS[0], emulated());
 
@@ -224,7 +231,7 @@ fn every_command_without_steps_gets_its_ack() {
     board.assert_healthy();
     note(&format!(
         "commands test: {:.1} s",
-        started.elapsed().as_secs_f64()
+        board.spawned.elapsed().as_secs_f64()
     ));
 }
 
@@ -233,7 +240,6 @@ fn every_command_without_steps_gets_its_ack() {
 #[test]
 fn a_second_host_gets_not_owner_but_may_stop_and_discover() {
     require_renode!();
-    let started = Instant::now();
     let mut board = RenodeBoard::start();
     let owner = board.connect_from(HOSTS[0], emulated());
     owner.set_joints(2).unwrap();
@@ -284,7 +290,7 @@ fn a_second_host_gets_not_owner_but_may_stop_and_discover() {
     board.assert_healthy();
     note(&format!(
         "owner lock test: {:.1} s",
-        started.elapsed().as_secs_f64()
+        board.spawned.elapsed().as_secs_f64()
     ));
 }
 
@@ -293,7 +299,6 @@ fn a_second_host_gets_not_owner_but_may_stop_and_discover() {
 #[test]
 fn stopped_while_idle_and_while_points_are_pending() {
     require_renode!();
-    let started = Instant::now();
     let mut board = RenodeBoard::start();
     let arm = board.connect_from(HOSTS[0], emulated());
     arm.set_joints(2).unwrap();
@@ -328,7 +333,7 @@ fn stopped_while_idle_and_while_points_are_pending() {
     board.assert_healthy();
     note(&format!(
         "stopped test: {:.1} s",
-        started.elapsed().as_secs_f64()
+        board.spawned.elapsed().as_secs_f64()
     ));
 }
 
@@ -337,8 +342,8 @@ fn stopped_while_idle_and_while_points_are_pending() {
 fn flood(socket: &UdpSocket, count: usize) -> usize {
     let mut sent = 0;
     let mut state = 0x2545_f491_u32;
-    let started = Instant::now();
-    while sent < count && started.elapsed() < Duration::from_secs(60) {
+    let flooding = Instant::now();
+    while sent < count && flooding.elapsed() < Duration::from_secs(60) {
         state ^= state << 13;
         state ^= state >> 17;
         state ^= state << 5;
@@ -377,7 +382,6 @@ fn flood(socket: &UdpSocket, count: usize) -> usize {
 #[test]
 fn malformed_flood_leaves_the_controller_answering() {
     require_renode!();
-    let started = Instant::now();
     let mut board = RenodeBoard::start();
     let arm = board.connect_from(HOSTS[0], emulated());
     arm.set_joints(2).unwrap();
@@ -430,7 +434,7 @@ fn malformed_flood_leaves_the_controller_answering() {
          STATUS then answered in {:.0} ms; flood test: {:.1} s",
         flood_time.as_secs_f64(),
         status_after.as_secs_f64() * 1000.0,
-        started.elapsed().as_secs_f64()
+        board.spawned.elapsed().as_secs_f64()
     ));
 }
 
