@@ -9,6 +9,8 @@
 
 /// The firmware on QEMU's mps2-an500 (tests/tests/qemu.rs).
 pub mod qemu;
+/// The NUCLEO-H743ZI2 firmware itself on Renode (tests/tests/renode.rs).
+pub mod renode;
 
 use std::io::{BufRead, BufReader};
 use std::net::{SocketAddr, UdpSocket};

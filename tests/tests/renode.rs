@@ -1,0 +1,472 @@
+//! The NUCLEO-H743ZI2 firmware itself (the `cargo fw` ELF, the binary that goes on the
+//! board) on Renode 1.15.3's STM32H743 model, driven over its emulated Ethernet (the MAC's
+//! DMA descriptors, a LAN8742A on MDIO) through a TAP device inside a network namespace
+//! (`tests/src/renode.rs`; the model fixes are `tests/renode/nucleo-h743zi2.resc`).
+//!
+//! Needs Renode (`renode` on PATH or `RENODE`; the prebuilt one needs mono) and root (the
+//! namespace and the TAP); without them every test prints what it needs and passes.
+//! `.ci/run` installs mono and runs them with `RENODE=../shared/renode/renode`.
+//!
+//! What they cover: STATUS against the board's profile (`arm_core::profile::NUCLEO_H743ZI2`),
+//! the boot as the defmt log shows it, every command that moves no step with its ACK and the
+//! refusals, DISCOVER by broadcast (inside the namespace), the owner lock (a second host gets
+//! NOT_OWNER), STOPPED from any host while idle and with points pending, and a bounded
+//! malformed flood after which STATUS and STOPPED are still answered.
+//!
+//! What they cannot cover yet: anything that makes steps. The STEP outputs are timers whose
+//! update events request DMA bursts (DCR/DMAR) from circular DMA2 streams with half-transfer
+//! and transfer-complete interrupts (docs/BOARD.md, "Wiring"; `firmware/board/src/step_dma/`).
+//! Renode 1.15.3's `STM32_Timer` raises no DMA request and has no DCR/DMAR burst, DMAMUX1 is
+//! an unmodelled tag region in `stm32h743.repl`, and its `STM32DMA` copies a transfer at once
+//! when the stream is enabled, with no request pacing and no circular or half-transfer mode.
+//! So no STEP edge is ever made. Worse, the controller cannot tell: a 50-point run
+//! (`armctl run`, by hand) ended normally, no underrun, with LOCATION at the last point,
+//! because positions are the producer's count less the periods still in the buffers as the
+//! streams' NDTR says, and the run's end comes from the step clock (TIM13, whose compare
+//! interrupt the model does raise). Positions after a run prove nothing here, so these tests
+//! run none. Not run for that reason: a run to its last point, an upload streamed past the
+//! 8192-point buffer while it plays, an e-stop mid-run and the positions after it, RETURN,
+//! the gripper's counted burst, and the STEP/DIR edges against arm-step's oracle
+//! (tests/qemu.rs runs all of these on the QEMU port). They need C# models (loaded from
+//! `.cs` by the `.resc`) of: the timer's update DMA request (DIER.UDE) and DCR/DMAR burst
+//! (DBA 11 = ARR, DBL 2: ARR, RCR, CCR1 per update; RM0433 "TIMx DMA address for full
+//! transfer"); DMAMUX1 routing (channel 8 + j to DMA2 stream j, DMAREQ_ID the timer's UP
+//! request; RM0433 "DMAMUX"); the DMA stream paced by requests, circular over NDTR words,
+//! with HTIF/TCIF interrupts and a live NDTR (RM0433 "DMA"); PWM mode 1 / forced-inactive
+//! outputs on CH1 and TIM8's CH1N as GPIO lines to count edges; DIR (PD0-PD7) is plain GPIO
+//! and already observable.
+
+use std::net::{Ipv4Addr, UdpSocket};
+use std::time::{Duration, Instant};
+
+use armctl::{Client, Options};
+use protocol::{
+    Ack, Command, MAX_DATAGRAM, Point, PointList, Report, State, StatusCode, StatusFlags, Tag,
+};
+use system_tests::renode::{BOARD, HOSTS, RenodeBoard, unavailable};
+
+mod common;
+use common::{
+    Raw, out_of_order_names_the_missing_frame, pins_and_servo_pwm, raw_frames_are_refused,
+    refusals_in_stopped, sweep,
+};
+
+/// Skips the test, saying what it needs, when Renode (or root) is missing. The message goes
+/// to the real stderr (not the test harness's capture), so a passing skip is still seen.
+macro_rules! require_renode {
+    () => {
+        if let Some(reason) = unavailable() {
+            use std::io::Write;
+            let _ = writeln!(std::io::stderr().lock(), "{}: {reason}", module_path!());
+            return;
+        }
+    };
+}
+
+/// Prints a figure to the real stderr (seen without --nocapture, as .ci/run's log shows).
+fn note(text: &str) {
+    use std::io::Write;
+    let _ = writeln!(std::io::stderr().lock(), "renode: {text}");
+}
+
+/// Emulated time runs 2-3 times slower than wall time, and Renode stalls now and then:
+/// a long first wait for an ACK, many attempts.
+fn emulated() -> Options {
+    Options {
+        ack_timeout: Duration::from_millis(400),
+        min_ack_timeout: Duration::from_millis(50),
+        attempts: 20,
+        report_timeout: Duration::from_millis(1500),
+        ..Options::default()
+    }
+}
+
+fn refused(board: &RenodeBoard, result: armctl::Result<Ack>, status: StatusCode, what: &str) {
+    match result {
+        Err(e) if e.status() == Some(status) => {}
+        Err(e) => panic!(
+            "{what}: expected {}, got: {e}\n{}",
+            status.name(),
+            board.log()
+        ),
+        Ok(ack) => panic!("{what}: expected {}, got {ack:?}", status.name()),
+    }
+}
+
+/// A [`Raw`] socket from `host` inside the board's namespace.
+fn raw(board: &RenodeBoard, host: Ipv4Addr) -> Raw {
+    let socket = board.udp_socket(host);
+    socket.connect(BOARD).unwrap();
+    socket
+        .set_read_timeout(Some(Duration::from_millis(100)))
+        .unwrap();
+    Raw { socket }
+}
+
+fn position(board: &RenodeBoard, arm: &Client) -> [i32; protocol::MAX_JOINTS] {
+    arm.current_location(Duration::from_secs(5))
+        .unwrap_or_else(|e| panic!("a LOCATION report: {e}\n{}", board.log()))
+        .position
+}
+
+#[test]
+fn status_matches_the_nucleo_profile_and_the_boot_is_logged() {
+    require_renode!();
+    let mut board = RenodeBoard::start();
+    note(&format!(
+        "Renode start to the first STATUS answered: {:.1} s",
+        board.first_status_after.as_secs_f64()
+    ));
+    let arm = board.connect_from(HOSTS[0], emulated());
+    let status = arm.status().unwrap();
+    let profile = arm_core::profile::NUCLEO_H743ZI2;
+    assert_eq!(status.state, State::Stopped, "{status:?}");
+    assert_eq!(usize::from(status.capacity), profile.trajectory_capacity);
+    assert_eq!(status.capacity, 8192);
+    assert_eq!(status.max_step_rate_hz, profile.max_step_rate_hz());
+    assert_eq!(status.max_step_rate_hz, 200_000);
+    assert_eq!(status.step_budget_hz, profile.step_budget_hz);
+    assert_eq!(status.pwm_timer_clock_hz, profile.pwm_timer_clock_hz);
+    assert_eq!(status.pwm_timer_clock_hz, 200_000_000);
+    assert_eq!(
+        usize::from(status.window),
+        protocol::limits::HOST_WINDOW,
+        "{status:?}"
+    );
+    assert_eq!(status.window, 32);
+    assert_eq!(status.joints, 6, "erased settings: the default joint count");
+    assert_eq!(status.executed, 0);
+    assert!(!status.flags.has(StatusFlags::UNDERRUN), "{status:?}");
+
+    // The boot, in order, as the firmware's defmt log over RTT says it.
+    let log = board.firmware_log();
+    let mut from = 0;
+    for step in [
+        "arm controller starting",
+        "clock: HSE",
+        "settings:",
+        "encoders: none answers on UART4",
+        "watchdog: IWDG on",
+        "ethernet: link",
+        "listening on",
+    ] {
+        let at = log[from..]
+            .find(step)
+            .unwrap_or_else(|| panic!("no {step:?} after the line before in\n{}", board.log()));
+        from += at + step.len();
+    }
+    board.assert_healthy();
+    note(&format!(
+        "status test: {:.1} s",
+        board.spawned.elapsed().as_secs_f64()
+    ));
+}
+
+/// Every command that needs no step output, with the ACK it must get, as
+/// `tests/qemu.rs::every_command_of_the_manual` sends them.
+#[test]
+fn every_command_without_steps_gets_its_ack() {
+    require_renode!();
+    let mut board = RenodeBoard::start();
+    let arm = board.connect_from(HOSTS[0], emulated());
+
+    refusals_in_stopped(&arm, |result, status, what| {
+        refused(&board, result, status, what)
+    });
+
+    // JOINTS_COUNT (settings saved in the model's flash), LOCATION_SETTING, UPLOAD_PERIOD,
+    // UPLOAD_START/STOP.
+    arm.set_joints(3).unwrap();
+    assert_eq!(arm.status().unwrap().joints, 3);
+    arm.set_location(&[400, -300, 200]).unwrap();
+    assert_eq!(position(&board, &arm)[..3], [400, -300, 200]);
+    arm.upload_period(20_000).unwrap();
+    assert_eq!(arm.status().unwrap().upload_period_us, 20_000);
+    arm.reports(false).unwrap();
+    assert!(!arm.status().unwrap().flags.has(StatusFlags::REPORTS_ON));
+    arm.reports(true).unwrap();
+
+    // TOGGLE_ENABLE_PINS, PIN0/PIN1, the gripper's servo PWM (TIM15) started and stopped.
+    let enabled = arm
+        .status()
+        .unwrap()
+        .flags
+        .has(StatusFlags::DRIVERS_ENABLED);
+    arm.toggle_enable(None).unwrap();
+    let toggled = arm
+        .status()
+        .unwrap()
+        .flags
+        .has(StatusFlags::DRIVERS_ENABLED);
+    assert_ne!(toggled, enabled);
+    arm.toggle_enable(None).unwrap();
+    pins_and_servo_pwm(&arm);
+
+    // UART_INIT, USART_SEND, and closing (USART6; nothing on the line in the model).
+    arm.serial_open(protocol::UartInit {
+        baud_rate: 115_200,
+        ..protocol::UartInit::default()
+    })
+    .unwrap_or_else(|e| panic!("UART_INIT: {e}\n{}", board.log()));
+    assert!(arm.status().unwrap().flags.has(StatusFlags::SERIAL_OPEN));
+    arm.send(&Command::UsartSend(b"hello"))
+        .unwrap_or_else(|e| panic!("USART_SEND: {e}\n{}", board.log()));
+    arm.serial_close().unwrap();
+    assert!(!arm.status().unwrap().flags.has(StatusFlags::SERIAL_OPEN));
+
+    // Frames only a raw socket makes: BAD_CRC, UNKNOWN_TAG, BAD_LENGTH, OUT_OF_ORDER.
+    let here = position(&board, &arm);
+    let raw = raw(&board, HOSTS[0]);
+    raw_frames_are_refused(&raw);
+    out_of_order_names_the_missing_frame(&raw, here);
+    let ack = arm.stop().unwrap();
+    assert_eq!(ack.state, State::Stopped);
+    let status = arm.status().unwrap();
+    assert_eq!((status.state, status.buffered), (State::Stopped, 0));
+    assert_eq!(
+        position(&board, &arm)[..3],
+        [400, -300, 200],
+        "nothing moved"
+    );
+    board.assert_healthy();
+    note(&format!(
+        "commands test: {:.1} s",
+        board.spawned.elapsed().as_secs_f64()
+    ));
+}
+
+/// The owner lock over two host addresses on the link, STOPPED from the other host, and
+/// DISCOVER by subnet broadcast (it stays in the namespace).
+#[test]
+fn a_second_host_gets_not_owner_but_may_stop_and_discover() {
+    require_renode!();
+    let mut board = RenodeBoard::start();
+    let owner = board.connect_from(HOSTS[0], emulated());
+    owner.set_joints(2).unwrap();
+    owner.set_location(&[0, 0]).unwrap();
+    let other = board.open_from(HOSTS[1], emulated());
+    refused(
+        &board,
+        other.send(&Command::Status),
+        StatusCode::NotOwner,
+        "STATUS from a second host",
+    );
+    refused(
+        &board,
+        other.set_joints(3),
+        StatusCode::NotOwner,
+        "JOINTS_COUNT from a second host",
+    );
+    refused(
+        &board,
+        other.send(&Command::New { count: 1 }),
+        StatusCode::NotOwner,
+        "NEW from a second host",
+    );
+    assert_eq!(owner.status().unwrap().joints, 2);
+    // STOPPED is for anyone on the link (an e-stop panel).
+    let ack = other.stop().unwrap();
+    assert_eq!((ack.status, ack.state), (StatusCode::Ok, State::Stopped));
+
+    let found = board.in_netns(|| {
+        armctl::discover::discover(&armctl::discover::DiscoverOptions {
+            target: std::net::SocketAddrV4::new(Ipv4Addr::new(192, 168, 1, 255), BOARD.port()),
+            bind: Some(std::net::SocketAddrV4::new(HOSTS[1], 0)),
+            wait: Duration::from_millis(1500),
+            rounds: 3,
+        })
+    });
+    let found = found.unwrap_or_else(|e| panic!("DISCOVER: {e}\n{}", board.log()));
+    let reply = found
+        .iter()
+        .find(|f| f.from == BOARD)
+        .and_then(|f| f.reply)
+        .unwrap_or_else(|| panic!("no DISCOVER_REPLY from {BOARD}: {found:?}\n{}", board.log()));
+    assert_ne!(reply.mac, [0; 6], "{reply:?}");
+    assert_eq!(reply.net.ip, [192, 168, 1, 30], "{reply:?}");
+    assert_eq!((reply.joints, reply.state), (2, State::Stopped));
+    // Still the first host's.
+    owner.set_joints(2).unwrap();
+    board.assert_healthy();
+    note(&format!(
+        "owner lock test: {:.1} s",
+        board.spawned.elapsed().as_secs_f64()
+    ));
+}
+
+/// STOPPED while idle, and with a trajectory announced and points pending (not started):
+/// ACKed STOPPED, the points dropped, nothing moved.
+#[test]
+fn stopped_while_idle_and_while_points_are_pending() {
+    require_renode!();
+    let mut board = RenodeBoard::start();
+    let arm = board.connect_from(HOSTS[0], emulated());
+    arm.set_joints(2).unwrap();
+    arm.set_location(&[10, -10]).unwrap();
+
+    let ack = arm.stop().unwrap();
+    assert_eq!((ack.status, ack.state), (StatusCode::Ok, State::Stopped));
+
+    let points = sweep([10, -10, 0, 0, 0, 0, 0, 0], 2, 60, 1, 10_000);
+    arm.send(&Command::New {
+        count: u16::try_from(points.len()).unwrap(),
+    })
+    .unwrap();
+    for chunk in points.chunks(12) {
+        arm.send(&Command::Pending(PointList::Points(chunk)))
+            .unwrap_or_else(|e| panic!("PENDING: {e}\n{}", board.log()));
+    }
+    let status = arm.status().unwrap();
+    assert_eq!(usize::from(status.buffered), points.len(), "{status:?}");
+    let ack = arm.stop().unwrap();
+    assert_eq!((ack.status, ack.state), (StatusCode::Ok, State::Stopped));
+    let status = arm.status().unwrap();
+    assert_eq!((status.state, status.buffered), (State::Stopped, 0));
+    assert_eq!(position(&board, &arm)[..2], [10, -10]);
+    // A RUNING now has nothing to run.
+    refused(
+        &board,
+        arm.send(&Command::Runing),
+        StatusCode::BadState,
+        "RUNING after STOPPED dropped the points",
+    );
+    board.assert_healthy();
+    note(&format!(
+        "stopped test: {:.1} s",
+        board.spawned.elapsed().as_secs_f64()
+    ));
+}
+
+/// Malformed datagrams from a third host, `count` at most and for 60 s at most, paced so
+/// that they queue at the board rather than in the host's socket buffer.
+fn flood(socket: &UdpSocket, count: usize) -> usize {
+    let mut sent = 0;
+    let mut state = 0x2545_f491_u32;
+    let flooding = Instant::now();
+    while sent < count && flooding.elapsed() < Duration::from_secs(60) {
+        state ^= state << 13;
+        state ^= state >> 17;
+        state ^= state << 5;
+        let len = (state % 1400) as usize;
+        let mut bytes: Vec<u8> = (0..len).map(|i| (state >> (i % 24)) as u8).collect();
+        match sent % 5 {
+            // A valid-looking PENDING with a wrong CRC.
+            0 if len > 3 => bytes[1] = Tag::Pending as u8,
+            // A STOPPED with a wrong CRC (must stop nothing, and not count as one).
+            1 if len > 3 => {
+                bytes.truncate(3);
+                bytes[1] = Tag::Stopped as u8;
+                bytes[2] = !protocol::crc8(&bytes[..2]);
+            }
+            // Too short for a frame.
+            2 => bytes.truncate(1),
+            // A correct CRC over a PENDING of garbage length.
+            3 if len > 3 => {
+                bytes[1] = Tag::Pending as u8;
+                let crc = protocol::crc8(&bytes[..len - 1]);
+                bytes[len - 1] = crc;
+            }
+            _ => {}
+        }
+        let _ = socket.send_to(&bytes, BOARD);
+        sent += 1;
+        if sent % 20 == 0 {
+            std::thread::sleep(Duration::from_millis(10));
+        }
+    }
+    sent
+}
+
+/// 2000 malformed datagrams: the controller answers what it answers, stays up, its owner's
+/// STATUS is still answered, points pending survive, and a STOPPED is ACKed.
+#[test]
+fn malformed_flood_leaves_the_controller_answering() {
+    require_renode!();
+    let mut board = RenodeBoard::start();
+    let arm = board.connect_from(HOSTS[0], emulated());
+    arm.set_joints(2).unwrap();
+    let points: Vec<Point> = sweep([0; 8], 2, 24, 1, 10_000);
+    arm.send(&Command::New {
+        count: u16::try_from(points.len()).unwrap(),
+    })
+    .unwrap();
+    arm.send(&Command::Pending(PointList::Points(&points[..12])))
+        .unwrap();
+
+    let flooder = board.udp_socket(HOSTS[2]);
+    let _ = flooder.set_read_timeout(Some(Duration::from_millis(1)));
+    let flood_started = Instant::now();
+    let sent = flood(&flooder, 2000);
+    let flood_time = flood_started.elapsed();
+    // What came back to the flooder (refusals such as BAD_CRC, NOT_OWNER), for the note.
+    let mut answers = 0;
+    let mut buf = [0u8; MAX_DATAGRAM];
+    let drain_until = Instant::now() + Duration::from_secs(2);
+    while Instant::now() < drain_until {
+        if let Ok((n, _)) = flooder.recv_from(&mut buf)
+            && Report::decode(&buf[..n]).is_ok()
+        {
+            answers += 1;
+        }
+    }
+    assert_eq!(sent, 2000, "the flood was cut short by its time bound");
+
+    let answered = Instant::now();
+    let status = arm
+        .status()
+        .unwrap_or_else(|e| panic!("STATUS after the flood: {e}\n{}", board.log()));
+    let status_after = answered.elapsed();
+    assert_eq!(status.state, State::Pending, "{status:?}");
+    assert_eq!(
+        usize::from(status.buffered),
+        12,
+        "the pending points: {status:?}"
+    );
+    // The flood's bad-CRC STOPPED frames stopped nothing; the rest of the upload is taken.
+    arm.send(&Command::Pending(PointList::Points(&points[12..])))
+        .unwrap_or_else(|e| panic!("PENDING after the flood: {e}\n{}", board.log()));
+    let ack = arm.stop().unwrap();
+    assert_eq!((ack.status, ack.state), (StatusCode::Ok, State::Stopped));
+    assert_eq!(arm.status().unwrap().buffered, 0);
+    board.assert_healthy();
+    note(&format!(
+        "flood: {sent} malformed datagrams in {:.1} s, {answers} answers to the flooder, \
+         STATUS then answered in {:.0} ms; flood test: {:.1} s",
+        flood_time.as_secs_f64(),
+        status_after.as_secs_f64() * 1000.0,
+        board.spawned.elapsed().as_secs_f64()
+    ));
+}
+
+/// The defmt decoding the harness uses (no Renode needed): rzCOBS frames as defmt 1.x
+/// encodes them (its encoder's own examples).
+#[test]
+fn rzcobs_frames_decode() {
+    use system_tests::renode::rzcobs_decode;
+    let cases: &[(&[u8], &[u8])] = &[
+        (&[0x7f], &[0; 7]),
+        (&[0x01, 0x7e], &[0x01, 0, 0, 0, 0, 0, 0]),
+        (&[0x01, 0x7d], &[0, 0x01, 0, 0, 0, 0, 0]),
+        (
+            &[0x11, 0x22, 0x33, 0x44, 0x55, 0x66, 0x40],
+            &[0x11, 0x22, 0x33, 0x44, 0x55, 0x66, 0],
+        ),
+        (
+            &[0x11, 0x22, 0x33, 0x44, 0x55, 0x66, 0x77, 0x80],
+            &[0x11, 0x22, 0x33, 0x44, 0x55, 0x66, 0x77, 0],
+        ),
+        (&[0x7f, 0x7f], &[0; 14]),
+    ];
+    for (encoded, decoded) in cases {
+        assert_eq!(
+            rzcobs_decode(encoded).as_deref(),
+            Some(*decoded),
+            "{encoded:02x?}"
+        );
+    }
+    assert_eq!(
+        rzcobs_decode(&[0x01, 0x02, 0x83]),
+        None,
+        "too few stream bytes"
+    );
+}
