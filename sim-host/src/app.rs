@@ -209,9 +209,9 @@ pub const PROFILE: BoardProfile = profile::SIMULATOR;
 /// same flow control; `--buffer-capacity` uses less of it.
 pub const TRAJECTORY_STORAGE: usize = PROFILE.trajectory_capacity;
 
-// Segments the step engine holds (the "interrupt side" queue): the board's, declared once
-// in arm-core, so the simulator has the same lookahead.
-use arm_core::STEP_QUEUE;
+/// Segments the step engine holds (the "interrupt side" queue): the simulator profile's
+/// lookahead in time (100 ms: a desktop scheduler delays threads by tens of ms).
+pub const STEP_QUEUE: usize = arm_core::profile::SIMULATOR.step_queue();
 
 /// The controller as the simulator builds it.
 pub type SimController = Controller<TRAJECTORY_STORAGE>;

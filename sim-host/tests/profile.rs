@@ -176,10 +176,13 @@ fn status_and_docs_state_each_boards_profile() {
             "DIR latency added to the setup" => board.dir_latency_ns.to_string(),
             "per-joint ceiling of the board" => board.step_rate_ceiling_hz.to_string(),
             "periods per DMA buffer half" => board.step_buffer_half.to_string(),
+            "shortest step timer period (DMA reload)" => board.min_dma_period_ns.to_string(),
+            "motion held ahead of the pulses, us" => board.lookahead_us.to_string(),
+            "step queue, segments" => board.step_queue().to_string(),
             other => panic!("docs/PROTOCOL.md: unknown figure {other:?}"),
         }
     };
-    assert_eq!(table.len(), 9, "a row per figure");
+    assert_eq!(table.len(), 12, "a row per figure");
     for board in profile::ALL {
         for (figure, cells) in &table {
             let cell = cells

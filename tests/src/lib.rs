@@ -87,7 +87,7 @@ pub struct Alone(());
 /// lets only the calling thread start simulators until the guard drops: for a test whose
 /// host side feeds a deliberately small buffer in real time, or measures a latency in
 /// milliseconds. The controller side no longer needs it (issue 19: the step side holds
-/// `arm_core::LOOKAHEAD_US` of motion, and a run uploaded whole never starves), but a host
+/// its board profile's `lookahead_us` of motion, and a run uploaded whole never starves), but a host
 /// thread starved while another test overloads a simulator on purpose still underruns a
 /// 24-point buffer, as a real host would. The other tests of the binary wait; tests in
 /// other binaries run after it anyway (cargo test runs one binary at a time).

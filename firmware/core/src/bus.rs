@@ -18,7 +18,7 @@
 //! The trajectory task pushes segments into the step backend itself (in [`StepShared`]'s
 //! critical section) and the step interrupts wake it through `step_progress`: no task
 //! relays between them, so the motion held ahead of the pulses is the backend's whole
-//! queue ([`crate::step_shared::LOOKAHEAD_US`]).
+//! queue (the board profile's `lookahead_us`).
 //!
 //! Every channel and signal uses [`CriticalSectionRawMutex`]: the step backend and the
 //! trajectory task's wake-up are touched from the step interrupts, and one kind of mutex

@@ -20,7 +20,7 @@
 //!    ([`Controller::pump`]), which the trajectory task pushes straight into the step
 //!    backend in [`StepShared`] (`step_shared.rs`: the backend shared with the step
 //!    interrupts; the boards' and the simulator's is arm-step's DMA stream producer),
-//!    as many as its queue holds ([`step_shared::LOOKAHEAD_US`] of motion). The backend
+//!    as many as its queue holds (the board profile's `lookahead_us` of motion). The backend
 //!    makes the pulses, and its interrupts wake the trajectory task (`bus.step_progress`)
 //!    as segments finish.
 //! 4. Replies go out the other way: ACK, STATUS and state-change LOCATION onto
@@ -123,7 +123,7 @@ pub use reports::{LOCATION_LISTENERS, ReportSettings};
 pub use response::{Deferred, Discovery, Reply, Response};
 #[cfg(feature = "test-support")]
 pub use step_shared::on_step_timer;
-pub use step_shared::{LOOKAHEAD_US, STEP_QUEUE, StepBackend, StepProgress, StepShared};
+pub use step_shared::{StepBackend, StepProgress, StepShared};
 pub use tasks::{
     TaskWatch, TrajectoryHw, Unwatched, controller_task, network_task, serial_task,
     trajectory_task, upload_task,

@@ -13,8 +13,8 @@
 //! Everything here is const-evaluated: the firmware images hold only the figures they use,
 //! and a profile that breaks a rule ([`BoardProfile::check`]) does not compile.
 //!
-//! Queue depths are not in the profiles: the step producer's (`STEP_QUEUE`, sized in time:
-//! [`crate::step_shared::LOOKAHEAD_US`] of motion), the bus's queues and the host window
+//! The step producer's queue is sized in time per board ([`BoardProfile::lookahead_us`],
+//! [`BoardProfile::step_queue`]); the bus's queues and the host window
 //! ([`protocol::limits::HOST_WINDOW`]) are the same on every board, declared once with
 //! their reasons where they are used.
 
@@ -79,6 +79,10 @@ pub struct BoardProfile {
     pub step_buffer_half: usize,
     /// Longest period each joint's step timer makes, in its ticks.
     pub step_timer_max_period_ticks: [u32; MAX_JOINTS],
+    /// Motion the step side holds ahead of the pulses being made, at least, microseconds:
+    /// the trajectory task may be kept from feeding it this long without the run running
+    /// dry (issue 19). Sets the step producer's queue ([`BoardProfile::step_queue`]).
+    pub lookahead_us: u32,
     /// Shortest timer period the step outputs can be reloaded for, ns: where a DMA burst
     /// loads each period, the burst of one update must land before the next update
     /// (0: periods are played in software, any length works).
@@ -120,6 +124,12 @@ impl BoardProfile {
                 driver_low
             },
         }
+    }
+
+    /// Segments the step producer's queue holds: [`BoardProfile::lookahead_us`] of the
+    /// shortest common points ([`crate::step_shared::step_queue_for`]).
+    pub const fn step_queue(&self) -> usize {
+        crate::step_shared::step_queue_for(self.lookahead_us)
     }
 
     /// [`BoardProfile::min_dma_period_ns`] in step timer ticks (rounded up).
@@ -165,6 +175,8 @@ impl BoardProfile {
         // No pulse period is shorter than the step DMA reloads (the producer's other
         // periods are never shorter than a pulse period: tests/profile_periods.rs).
         assert!(timing.min_pulse_period_ticks() >= self.min_dma_period_ticks());
+        // At least 50 ms of motion ahead (issue 19's range: 50-100 ms).
+        assert!(self.lookahead_us >= 50_000);
         // Every driver time is at least one tick: a pulse and a gap are always made.
         assert!(timing.pulse_width_ticks >= 1 && timing.step_low_ticks >= 1);
         assert!(timing.dir_setup_ticks >= 1);
@@ -222,6 +234,11 @@ pub const NUCLEO_H743ZI2: BoardProfile = BoardProfile {
     // The opto drivers' 5 us periods are far above it; TMC timing (0.2 us) is raised to
     // it, which is the board's 1 MHz ceiling anyway.
     min_dma_period_ns: 1_000,
+    // Nothing long runs on the board during a run (a settings write needs STOPPED; the
+    // tasks' polls and interrupts take microseconds): 50 ms is hundreds of times its
+    // trajectory task's worst wake-up latency. 256 segments of 64 bytes, 16 KiB of the AXI
+    // SRAM, which the trajectory buffer mostly fills.
+    lookahead_us: 50_000,
 };
 
 /// The NUCLEO-H743ZI2 built with `--features tmc-drivers`: TMC-class driver timing, so the
@@ -265,6 +282,9 @@ pub const QEMU_MPS2_AN500: BoardProfile = BoardProfile {
     ),
     // The NUCLEO's floor, so that the same trajectories give the same periods.
     min_dma_period_ns: NUCLEO_H743ZI2.min_dma_period_ns,
+    // The emulated CPU runs on a host thread among others: the simulator's reason, and
+    // its 4 MiB of RAM hold it easily.
+    lookahead_us: SIMULATOR_LOOKAHEAD_US,
 };
 
 /// mps2-an500's SYSCLK, which clocks every APB peripheral (timers, UARTs).
@@ -275,8 +295,15 @@ const QEMU_SYSCLK_HZ: u32 = 25_000_000;
 /// explicitly (`--tick-hz`, `--buffer-capacity`).
 pub const SIMULATOR: BoardProfile = BoardProfile {
     name: "sim-host",
+    lookahead_us: SIMULATOR_LOOKAHEAD_US,
     ..NUCLEO_H743ZI2
 };
+
+/// The simulator's (and the QEMU board's) lookahead: it runs on a desktop scheduler, where
+/// a thread on two loaded cores is delayed by tens of milliseconds (issue 19 measured runs
+/// ending early with 12.8 ms held); 100 ms covers that with room. An emergency stop drops
+/// whatever is held, so holding more never delays a stop.
+const SIMULATOR_LOOKAHEAD_US: u32 = 100_000;
 
 /// Every profile, for the tests that check STATUS and the docs against them.
 pub const ALL: [&BoardProfile; 4] = [

@@ -19,30 +19,22 @@ use protocol::MAX_JOINTS;
 #[cfg(doc)]
 use crate::hw::StepKick;
 
-/// Motion the step side holds ahead of the pulses being made, at least: the trajectory
-/// task may be kept from feeding it this long without the run running dry. On the board
-/// its worst wake-up latency is microseconds (nothing long runs during a run: a settings
-/// write needs STOPPED); the simulator runs on a desktop scheduler, where a thread on two
-/// loaded cores is delayed by tens of milliseconds (issue 19 measured runs ending early
-/// with 12.8 ms held). 100 ms covers that with room; an emergency stop drops whatever is
-/// held, so holding more never delays a stop.
-pub const LOOKAHEAD_US: u32 = 100_000;
-
-/// The shortest point for which [`LOOKAHEAD_US`] holds in full: the protocol's own
+/// The shortest point for which a board's lookahead (its profile's `lookahead_us`, the
+/// motion the step side holds ahead of the pulses) holds in full: the protocol's own
 /// examples and the fastest streams seen (armctl's 200 us resampling) use points of 200 us
-/// or more. Shorter points get [`STEP_QUEUE`] of them (a shorter span): the count bounds
-/// the RAM.
+/// or more. Shorter points get the queue's count of them (a shorter span): the count
+/// bounds the RAM.
 pub const LOOKAHEAD_SHORTEST_POINT_US: u32 = 200;
 
 /// Segments the step backend holds on the interrupts' side (the board's DMA producer's
-/// queue, or the test oracle's): [`LOOKAHEAD_US`] of points of
-/// [`LOOKAHEAD_SHORTEST_POINT_US`], rounded up to a power of two. The trajectory task
-/// pushes every buffered point that fits, so with points this long or longer the step side
-/// always holds at least the lookahead (or the rest of the run). Each slot is 64 bytes:
-/// 32 KiB of the board's AXI SRAM. The board, the QEMU firmware and the simulator all use
-/// it.
-pub const STEP_QUEUE: usize =
-    ((LOOKAHEAD_US / LOOKAHEAD_SHORTEST_POINT_US) as usize).next_power_of_two();
+/// queue, or the test oracle's) for a lookahead of `lookahead_us`: that much motion of
+/// points of [`LOOKAHEAD_SHORTEST_POINT_US`], rounded up to a power of two. The trajectory
+/// task pushes every buffered point that fits, so with points this long or longer the
+/// step side always holds at least the lookahead (or the rest of the run). Each slot is
+/// 64 bytes. Each board's is `crate::profile::BoardProfile::step_queue`.
+pub const fn step_queue_for(lookahead_us: u32) -> usize {
+    ((lookahead_us / LOOKAHEAD_SHORTEST_POINT_US) as usize).next_power_of_two()
+}
 
 /// Time between the start of a run being decided and its first segment's start: leaves
 /// the step interrupt time to set the DIR lines (and a simulator's scheduler some slack).

@@ -14,9 +14,8 @@ use arm_core::hw::{
 };
 use arm_core::test_support::raw;
 use arm_core::{
-    Bus, Controller, ControllerConfig, LOOKAHEAD_US, STEP_QUEUE, StepShared, TrajectoryHw,
-    Unwatched, controller_task, network_task, on_step_timer, serial_task, trajectory_task,
-    upload_task,
+    Bus, Controller, ControllerConfig, StepShared, TrajectoryHw, Unwatched, controller_task,
+    network_task, on_step_timer, serial_task, trajectory_task, upload_task,
 };
 use arm_step::{JointMask, StepPins, StepTiming};
 use embassy_futures::block_on;
@@ -760,8 +759,9 @@ async fn step_interrupt_holding<const Q: usize>(
 /// Issue 19: runs uploaded whole before RUNING ended by underrun after a multiple of 64
 /// points when the trajectory task was delayed (a loaded machine): the step side held
 /// only 64 segments (12.8 ms of 200 us points) and a relay task stood between. Now the
-/// trajectory task pushes straight into the backend, whose queue holds LOOKAHEAD_US of
-/// such points: held off for most of that, mid-run, the run still executes every point.
+/// trajectory task pushes straight into the backend, whose queue holds the board's
+/// lookahead (its profile's; the NUCLEO's, the shortest, here) of such points: held off
+/// for most of that, mid-run, the run still executes every point.
 #[test]
 fn a_run_survives_the_trajectory_task_held_off_for_almost_the_lookahead() {
     const POINTS: usize = 1_200;
@@ -769,7 +769,8 @@ fn a_run_survives_the_trajectory_task_held_off_for_almost_the_lookahead() {
     let clock: &TestClock = Box::leak(Box::new(TestClock::new()));
     let kick = TestKick::new(clock);
     let bus = Bus::new();
-    let step: &StepShared<STEP_QUEUE> = Box::leak(Box::new(StepShared::new(TIMING)));
+    const BOARD: arm_core::profile::BoardProfile = arm_core::profile::NUCLEO_H743ZI2;
+    let step: &StepShared<{ BOARD.step_queue() }> = Box::leak(Box::new(StepShared::new(TIMING)));
     let mut controller = Box::new(Controller::<POINTS>::new(ControllerConfig {
         capacity: POINTS,
         ..ControllerConfig::BOARD
@@ -829,7 +830,7 @@ fn a_run_survives_the_trajectory_task_held_off_for_almost_the_lookahead() {
         // 20 ms into the run, the trajectory task is held off for 90% of the lookahead.
         hold.set((
             Some(clock.peek_us() + 20_000),
-            u64::from(LOOKAHEAD_US) * 9 / 10,
+            u64::from(BOARD.lookahead_us) * 9 / 10,
         ));
         until("the end of the run", limit, || {
             decoded(&socket).iter().any(

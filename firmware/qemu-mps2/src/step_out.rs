@@ -40,7 +40,6 @@ use crate::mps2::{self, DUALTIMER, Irq, SYSCLK_HZ, write};
 use crate::time_driver::now_cycles;
 
 // Segments the producer holds on the interrupt's side (declared once, in arm-core).
-use arm_core::STEP_QUEUE;
 
 /// SYSCLK cycles per microsecond.
 const CYCLES_PER_US: u32 = SYSCLK_HZ / 1_000_000;
@@ -58,6 +57,9 @@ pub const STEP_TIMING: StepTiming = PROFILE.step_timing();
 
 /// Periods per buffer half: the NUCLEO's (the profile's).
 pub const HALF: usize = PROFILE.step_buffer_half;
+
+/// Segments the step producer holds: the profile's lookahead in time.
+pub const STEP_QUEUE: usize = PROFILE.step_queue();
 
 /// The longest period of each joint's "timer": the NUCLEO's, in time (the profile's), so
 /// that gaps are split into the same periods and refills come as often as there.

@@ -7,11 +7,9 @@ use arm_step::{DirChange, MAX_JOINTS, PRELUDE, PulsePeriod, Segment, StepTiming,
 
 use super::registers::{StreamPosition, joint_timer, load_joint, reg, stream_position};
 use super::stop::stop_all_step_outputs;
-use super::{BUFFERS, HALF, STEP_TIMING};
-// Segments held on the interrupts' side (declared once, with its reason, in arm-core).
+use super::{BUFFERS, HALF, STEP_QUEUE, STEP_TIMING};
 use crate::pins;
 use crate::step_timer;
-use arm_core::STEP_QUEUE;
 
 /// What the board's step hardware is doing.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, defmt::Format)]

@@ -65,6 +65,10 @@ pub const PROFILE: BoardProfile = profile::NUCLEO_H743ZI2_TMC;
 /// Periods per buffer half (the profile's).
 pub const HALF: usize = PROFILE.step_buffer_half;
 
+/// Segments the step producer holds: the profile's lookahead in time (50 ms of 200 us
+/// points).
+pub const STEP_QUEUE: usize = PROFILE.step_queue();
+
 /// The joint timers' input clock (APB1 and APB2 timer clocks, `clocks.rs`).
 pub const STEP_TIMER_HZ: u32 = PROFILE.step_timer_hz;
 

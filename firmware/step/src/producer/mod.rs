@@ -63,7 +63,7 @@ pub struct PulseProducer<const QUEUE: usize> {
     /// Idle period of a joint that waits for segments while its run goes on: 100 us (at
     /// least two pulse periods). Two buffer halves of them (12.8 ms with 64-period
     /// halves) is how far such a joint commits ahead; the trajectory task keeps the queue far
-    /// more ahead (arm-core's `LOOKAHEAD_US`, 100 ms), so a segment pushed in time is never
+    /// more ahead (the board profile's `lookahead_us`, 50-100 ms), so a segment pushed in time is never
     /// late for it.
     idle_short: u32,
     /// Longest period each joint's timer can make.
