@@ -330,6 +330,27 @@ fn stopped_while_idle_and_while_points_are_pending() {
         StatusCode::BadState,
         "RUNING after STOPPED dropped the points",
     );
+    // Issue 19: the NUCLEO's per-joint limit, as the simulator takes it too
+    // (sim-host/tests/profile.rs): a point at exactly 200 kHz on joint 0 is taken, one
+    // step more in the same 10 ms is refused INVALID_POINT.
+    let limit = arm_core::profile::NUCLEO_H743ZI2.max_step_rate_hz();
+    let steps = i32::try_from(u64::from(limit) * 10_000 / 1_000_000).unwrap();
+    let at = [10, -10, 0, 0, 0, 0, 0, 0];
+    let end = [10 + steps, -10, 0, 0, 0, 0, 0, 0];
+    let at_limit = Point::from_motion(10_000, &at, &end);
+    let above = Point::from_motion(10_000, &end, &[11 + 2 * steps, -10, 0, 0, 0, 0, 0, 0]);
+    arm.send(&Command::New { count: 2 }).unwrap();
+    let ack = arm
+        .send(&Command::Pending(PointList::Points(&[at_limit])))
+        .unwrap_or_else(|e| panic!("a point at {limit} steps/s: {e}\n{}", board.log()));
+    assert_eq!((ack.status, ack.buffered), (StatusCode::Ok, 1));
+    refused(
+        &board,
+        arm.send(&Command::Pending(PointList::Points(&[above]))),
+        StatusCode::InvalidPoint,
+        "a point one step above the per-joint limit",
+    );
+    arm.stop().unwrap();
     board.assert_healthy();
     note(&format!(
         "stopped test: {:.1} s",
