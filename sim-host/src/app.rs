@@ -431,8 +431,8 @@ fn spawn_tasks(spawner: Spawner, wiring: Wiring) {
                 // The socket reader's first look (issue 18): a STOPPED halts the steps in
                 // the reader thread itself, before any queue.
                 let halt = HaltSteps { step: shared, kick };
-                let first_look: crate::net::FirstLook = Box::new(move |from, bytes| {
-                    bus.receive_first(from, bytes, clock.now_us(), &halt)
+                let first_look: crate::net::FirstLook = Box::new(move |from, bytes, to_group| {
+                    bus.receive_first(from, bytes, to_group, clock.now_us(), &halt)
                 });
                 if let Err(e) = udp.start(board.probe.clone(), bus, first_look) {
                     log::error!("cannot start the socket reader: {e}");

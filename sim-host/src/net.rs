@@ -40,8 +40,10 @@ pub struct Received {
 
 /// What the receiving thread does with each datagram before it queues it: the
 /// controller's first look ([`arm_core::Bus::receive_first`]: a STOPPED halts the steps
-/// there and goes to the e-stop queue; others are admitted or shed by their sender's share).
-pub type FirstLook = Box<dyn Fn(Endpoint, &[u8]) -> Ingress + Send>;
+/// there and goes to the e-stop queue; anything else sent to a broadcast or multicast
+/// address (the `bool`) but DISCOVER is ignored; others are admitted or shed by their
+/// sender's share).
+pub type FirstLook = Box<dyn Fn(Endpoint, &[u8], bool) -> Ingress + Send>;
 
 /// [`Datagrams`] over a std UDP socket. A thread does the blocking receive, gives each
 /// datagram its first look ([`FirstLook`]) and hands those admitted to the executor
@@ -68,6 +70,9 @@ impl UdpDatagrams {
     pub fn bind(addr: SocketAddrV4) -> std::io::Result<&'static UdpDatagrams> {
         let socket = UdpSocket::bind(addr)?;
         set_receive_buffer(&socket, SOCKET_RX_BYTES);
+        // Each datagram's destination address comes with it (recv_with_destination).
+        nix::sys::socket::setsockopt(&socket, nix::sys::socket::sockopt::Ipv4PacketInfo, &true)
+            .map_err(std::io::Error::from)?;
         Ok(Box::leak(Box::new(UdpDatagrams {
             socket,
             received: Channel::new(),
@@ -106,7 +111,7 @@ impl UdpDatagrams {
         let mut failures = arm_core::LogLimit::new();
         let mut full = arm_core::LogLimit::new();
         loop {
-            let (len, from) = match self.socket.recv_from(&mut buf) {
+            let (len, from, to_group) = match recv_with_destination(&self.socket, &mut buf) {
                 Ok(r) => r,
                 Err(e) => {
                     if let arm_core::LogVerdict::Log { suppressed } =
@@ -124,7 +129,7 @@ impl UdpDatagrams {
             let bytes = &buf[..len.min(MAX_DATAGRAM)];
             probe.datagram_received(bytes, Instant::now());
             let from = endpoint_of(from);
-            if first_look(from, bytes) != Ingress::Admit {
+            if first_look(from, bytes, to_group) != Ingress::Admit {
                 continue;
             }
             let received = Received {
@@ -154,6 +159,42 @@ fn set_receive_buffer(socket: &UdpSocket, bytes: usize) {
         Ok(granted) => log::debug!("udp: receive buffer {granted} bytes (asked {bytes})"),
         Err(e) => log::warn!("udp: cannot size the receive buffer: {e}"),
     }
+}
+
+/// Receives one datagram (blocking): its length, its sender, and whether it was sent to a
+/// broadcast or multicast address. The socket has IP_PKTINFO on: the header's destination
+/// (`ipi_addr`) is then compared with the local address it reached (`ipi_spec_dst`): they
+/// differ for a broadcast (255.255.255.255 or a subnet's), and a multicast destination is
+/// 224/4 (issue 21 F7; the boards see the destination MAC's group bit instead).
+pub fn recv_with_destination(
+    socket: &UdpSocket,
+    buf: &mut [u8],
+) -> std::io::Result<(usize, SocketAddr, bool)> {
+    use std::os::fd::AsRawFd;
+
+    use nix::sys::socket::{ControlMessageOwned, MsgFlags, SockaddrIn, recvmsg};
+    let mut iov = [std::io::IoSliceMut::new(buf)];
+    let mut space = nix::cmsg_space!(libc::in_pktinfo);
+    let msg = recvmsg::<SockaddrIn>(
+        socket.as_raw_fd(),
+        &mut iov,
+        Some(&mut space),
+        MsgFlags::empty(),
+    )
+    .map_err(std::io::Error::from)?;
+    let mut to_group = false;
+    for cmsg in msg.cmsgs().map_err(std::io::Error::from)? {
+        if let ControlMessageOwned::Ipv4PacketInfo(info) = cmsg {
+            let to = u32::from_be(info.ipi_addr.s_addr);
+            let local = u32::from_be(info.ipi_spec_dst.s_addr);
+            to_group = to >> 28 == 0xE || to != local;
+        }
+    }
+    let from = msg
+        .address
+        .map(|a| SocketAddr::V4(SocketAddrV4::new(a.ip(), a.port())))
+        .ok_or_else(|| std::io::Error::other("a datagram without a sender address"))?;
+    Ok((msg.bytes, from, to_group))
 }
 
 /// The [`Endpoint`] of a std address.
@@ -270,5 +311,29 @@ impl<D: Datagrams> Datagrams for Faulty<D> {
             self.inner.send(to, &bytes).await?;
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod destination_tests {
+    use std::net::{SocketAddrV4, UdpSocket};
+
+    use super::recv_with_destination;
+
+    /// A unicast datagram is not a group's; its sender and bytes come through. (Broadcast
+    /// runs only inside a network namespace: sim-host/tests/discover.sh sends one there.)
+    #[test]
+    fn a_unicast_datagram_is_not_sent_to_a_group() {
+        let rx = UdpSocket::bind(SocketAddrV4::new([127, 0, 0, 1].into(), 0)).unwrap();
+        nix::sys::socket::setsockopt(&rx, nix::sys::socket::sockopt::Ipv4PacketInfo, &true)
+            .unwrap();
+        let tx = UdpSocket::bind(SocketAddrV4::new([127, 0, 0, 1].into(), 0)).unwrap();
+        tx.send_to(b"abc", rx.local_addr().unwrap()).unwrap();
+        let mut buf = [0u8; 16];
+        let (n, from, to_group) = recv_with_destination(&rx, &mut buf).unwrap();
+        assert_eq!(
+            (&buf[..n], from, to_group),
+            (&b"abc"[..], tx.local_addr().unwrap(), false)
+        );
     }
 }

@@ -119,6 +119,55 @@ for target in "" "--to 192.168.7.255:8510"; do
 done
 echo "discover.sh: broadcast discovery found both controllers ($mac_a, $mac_b)"
 
+# 1b. Issue 21 F7: commands sent to a broadcast address are ignored (no ACK, nothing done),
+# a broadcast STOPPED is obeyed. 7 datagrams, each sent once.
+broadcast() { # broadcast ADDRESS HEX: one datagram with SO_BROADCAST from 192.168.7.1
+  in_ns timeout 10 python3 -c '
+import socket, sys
+s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+s.setsockopt(socket.SOL_SOCKET, socket.SO_BROADCAST, 1)
+s.bind(("192.168.7.1", 0))
+s.settimeout(0.5)
+s.sendto(bytes.fromhex(sys.argv[2]), (sys.argv[1], 8510))
+try:
+    print(s.recvfrom(64)[0].hex())
+except socket.timeout:
+    print("none")
+' "$1" "$2"
+}
+encode() { "$armctl" frame encode "$@" | grep -Eo '^([0-9a-f]{2} ?)+$' | tr -d ' '; }
+pin_on=$(encode --seq 1 pin0-on)
+period=$(encode --seq 2 upload-period 1000)
+# NET_SET 192.168.7.77/24 (armctl encodes no NET_SET by itself): seq 4, tag 0x21, CRC-8
+# (polynomial 0x07, check value 0xF4, docs/PROTOCOL.md section 2).
+net_set=$(python3 -c '
+body = bytes([4, 0x21, 0, 192, 168, 7, 77, 24, 0, 0, 0, 0])
+crc = 0
+for b in body:
+    crc ^= b
+    for _ in range(8):
+        crc = ((crc << 1) ^ 0x07) & 0xFF if crc & 0x80 else (crc << 1) & 0xFF
+print((body + bytes([crc])).hex())')
+[ -n "$pin_on" ] && [ -n "$period" ] || fail "armctl frame encode gave no bytes"
+for to in 255.255.255.255 192.168.7.255; do
+  for hex in "$pin_on" "$period" "$net_set"; do
+    reply=$(broadcast "$to" "$hex")
+    [ "$reply" = none ] || fail "a command to $to was answered: $reply"
+  done
+done
+for name in a b; do
+  if grep -q "PIN0 high" "$work/$name.out" "$work/$name.err"; then
+    fail "controller $name executed a broadcast PIN0_ON"
+  fi
+  grep -q "to a broadcast address was ignored" "$work/$name.out" "$work/$name.err" \
+    || fail "controller $name did not log the ignored broadcast"
+done
+reply=$(broadcast 255.255.255.255 "$(encode --seq 3 stopped)")
+[ "$reply" != none ] || fail "a broadcast STOPPED was not ACKed"
+grep -q "192.168.7.77" "$work/a.txt" "$work/b.txt" 2>/dev/null \
+  && fail "a broadcast NET_SET was stored"
+echo "discover.sh: broadcast PIN0_ON, UPLOAD_PERIOD and NET_SET ignored by both, a broadcast STOPPED ACKed"
+
 # 2. Discovery took no owner: the host at .200 takes controller a now.
 admin() { in_ns timeout 30 "$armctl" --bind 192.168.7.200:0 --controller 192.168.7.2:8510 "$@"; }
 admin status >/dev/null || fail "the host at .200 could not take controller a after discovery"

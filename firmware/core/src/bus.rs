@@ -141,6 +141,9 @@ pub struct Bus {
     /// Each source's share of the receive path, charged by [`Bus::receive_first`] (the
     /// first reader of datagrams: [`crate::ingress`]).
     pub(crate) budgets: SharedBudgets,
+    /// Datagrams [`Bus::receive_first`] ignored for their broadcast or multicast address,
+    /// and the limit on their log lines.
+    pub(crate) group_ignored: Mutex<Cs, Cell<(u32, LogLimit)>>,
 }
 
 impl Default for Bus {
@@ -165,6 +168,7 @@ impl Bus {
             inbox_drops: Mutex::new(Cell::new((0, LogLimit::new()))),
             outbox_drops: Mutex::new(Cell::new(0)),
             budgets: Mutex::new(RefCell::new(SourceBudgets::new())),
+            group_ignored: Mutex::new(Cell::new((0, LogLimit::new()))),
         }
     }
 

@@ -51,6 +51,26 @@ pub enum Ingress {
     Admit,
     /// Over its sender's share: the caller drops it (counted here).
     Shed,
+    /// Sent to a broadcast or multicast address and neither DISCOVER nor STOPPED: the
+    /// caller drops it (counted here; issue 21 F7). Broadcast is for finding controllers;
+    /// a stop is obeyed however it is addressed.
+    Ignored,
+}
+
+/// Whether an Ethernet frame was sent to a group (broadcast or multicast) address: the
+/// I/G bit of its destination MAC, which every broadcast and multicast IP datagram on the
+/// link carries, directed subnet broadcasts included.
+pub fn to_group(frame: &[u8]) -> bool {
+    frame.first().is_some_and(|b| b & 1 == 1)
+}
+
+/// Whether a datagram is a CRC-valid DISCOVER (whatever its length: the controller
+/// answers or refuses it by its own rules).
+fn is_discover(bytes: &[u8]) -> bool {
+    match bytes.split_last() {
+        Some((crc, body @ [_, tag, ..])) => *tag == Tag::Discover as u8 && crc8(body) == *crc,
+        _ => false,
+    }
 }
 
 /// Stops every STEP output now, from wherever the datagram was read: no task runs
@@ -78,13 +98,16 @@ impl<const Q: usize, B: StepBackend, K: StepKick> StepHalt for HaltSteps<'_, Q, 
 }
 
 impl Bus {
-    /// The first look at a datagram from `from`, received at `now_us` (see the module
-    /// docs): a CRC-valid STOPPED is put on `estop` and `halt` stops the step outputs;
-    /// anything else is admitted or shed by its sender's share. Never waits.
+    /// The first look at a datagram from `from`, received at `now_us` and sent to a
+    /// broadcast or multicast address if `to_group` (see the module docs): a CRC-valid
+    /// STOPPED is put on `estop` and `halt` stops the step outputs; anything else sent to
+    /// a group but DISCOVER is ignored; the rest is admitted or shed by its sender's
+    /// share. Never waits.
     pub fn receive_first(
         &self,
         from: Endpoint,
         bytes: &[u8],
+        to_group: bool,
         now_us: u64,
         halt: &impl StepHalt,
     ) -> Ingress {
@@ -99,6 +122,22 @@ impl Bus {
             self.route_stop(Datagram::new(from, frame));
             halt.halt();
             return Ingress::Stopped;
+        }
+        if to_group && !is_discover(bytes) {
+            let log = self.group_ignored.lock(|c| {
+                let (count, mut limit) = c.get();
+                let verdict = limit.event(now_us);
+                c.set((count.wrapping_add(1), limit));
+                verdict
+            });
+            if let LogVerdict::Log { suppressed } = log {
+                let [a, b, c, d] = from.ip;
+                warn!(
+                    "receive: a command from {}.{}.{}.{} to a broadcast address was ignored ({} more since the last such line)",
+                    a, b, c, d, suppressed
+                );
+            }
+            return Ingress::Ignored;
         }
         let verdict = self.budgets.lock(|b| b.borrow_mut().admit(from.ip, now_us));
         match verdict {
@@ -120,6 +159,12 @@ impl Bus {
     /// [`Bus::receive_first`] admitted it: its slot of the sender's share is free again.
     pub fn release(&self, ip: [u8; 4]) {
         self.budgets.lock(|b| b.borrow_mut().release(ip));
+    }
+
+    /// Datagrams [`Bus::receive_first`] ignored so far because they were sent to a
+    /// broadcast or multicast address (wrapping).
+    pub fn ignored_group_datagrams(&self) -> u32 {
+        self.group_ignored.lock(|c| c.get().0)
     }
 
     /// Datagrams [`Bus::receive_first`] shed so far (wrapping).

@@ -126,15 +126,17 @@ fn a_crc_valid_stopped_halts_at_once_and_goes_to_estop_whatever_the_senders_shar
     let bus = Bus::new();
     let halt = CountingHalt::default();
     // The flooder used up its share.
-    while bus.receive_first(FLOODER, &frame(1, Command::Status), 0, &halt) == Ingress::Admit {}
+    while bus.receive_first(FLOODER, &frame(1, Command::Status), false, 0, &halt) == Ingress::Admit
+    {
+    }
     assert_eq!(
-        bus.receive_first(FLOODER, &frame(1, Command::Status), 0, &halt),
+        bus.receive_first(FLOODER, &frame(1, Command::Status), false, 0, &halt),
         Ingress::Shed
     );
     for (i, data) in [&[][..], &[1], &[1, 2, 3, 4]].iter().enumerate() {
         let stop = raw(40 + i as u8, Tag::Stopped as u8, data);
         assert_eq!(
-            bus.receive_first(FLOODER, &stop, 0, &halt),
+            bus.receive_first(FLOODER, &stop, false, 0, &halt),
             Ingress::Stopped
         );
         assert_eq!(halt.0.get(), i as u32 + 1, "halted before any queue");
@@ -147,7 +149,10 @@ fn a_crc_valid_stopped_halts_at_once_and_goes_to_estop_whatever_the_senders_shar
     // A bad CRC is no STOPPED: not halted, judged by the share like anything else.
     let mut bad = raw(50, Tag::Stopped as u8, &[]);
     *bad.last_mut().unwrap() ^= 1;
-    assert_eq!(bus.receive_first(HOST, &bad, 0, &halt), Ingress::Admit);
+    assert_eq!(
+        bus.receive_first(HOST, &bad, false, 0, &halt),
+        Ingress::Admit
+    );
     assert_eq!(halt.0.get(), 3);
 }
 
@@ -157,7 +162,7 @@ fn a_full_estop_drops_further_stoppeds_but_still_halts() {
     let halt = CountingHalt::default();
     for seq in 0..20u8 {
         assert_eq!(
-            bus.receive_first(FLOODER, &frame(seq, Command::Stopped), 0, &halt),
+            bus.receive_first(FLOODER, &frame(seq, Command::Stopped), false, 0, &halt),
             Ingress::Stopped
         );
     }
@@ -341,4 +346,50 @@ fn a_stoppeds_ack_is_never_dropped_behind_a_full_outbox() {
     }
     assert_eq!(bus.take_outbox_drops(), 0, "every STOPPED's ACK was kept");
     assert_eq!(bus.outbox.len(), arm_core::bus::OUTBOX_QUEUE);
+}
+
+/// Issue 21 F7: commands sent to a broadcast (or multicast) address were executed: PIN0_ON,
+/// UPLOAD_PERIOD and NET_SET to 255.255.255.255 (a first NET_SET broadcast to fresh
+/// controllers was stored by all of them). Broadcast is for DISCOVER, and for STOPPED (a
+/// stop is never ignored, however it is addressed); anything else sent to a group address
+/// is hidden from the stack: no ACK, nothing done, counted.
+#[test]
+fn a_command_to_a_broadcast_address_is_ignored_but_discover_and_stopped_are_not() {
+    let bus = Bus::new();
+    let clock = FixedClock(Cell::new(1_000));
+    let to_all = |payload: &[u8]| {
+        let mut f = udp_frame(HOST, protocol::PORT, payload);
+        f[..6].copy_from_slice(&[0xFF; 6]);
+        f[30..34].copy_from_slice(&[255; 4]);
+        f
+    };
+    let mut multicast = udp_frame(HOST, protocol::PORT, &frame(4, Command::Status));
+    multicast[..6].copy_from_slice(&[0x01, 0x00, 0x5E, 0, 0, 1]);
+    let net = protocol::NetSettings::fixed([192, 168, 1, 40], 24, None);
+    let frames: VecDeque<Vec<u8>> = [
+        to_all(&frame(1, Command::Pin0On)),
+        to_all(&frame(2, Command::NetSet(net))),
+        to_all(&frame(3, Command::UploadPeriod { period_us: 1_000 })),
+        multicast,
+        to_all(&frame(5, Command::Discover)),
+        to_all(&frame(6, Command::Stopped)),
+        udp_frame(HOST, protocol::PORT, &frame(7, Command::Pin0On)),
+    ]
+    .into();
+    let halt = CountingHalt::default();
+    let mut driver = GuardedDriver::new(FakeEth { frames }, &bus, &halt, &clock, protocol::PORT);
+    let waker = std::task::Waker::noop();
+    let mut cx = Context::from_waker(waker);
+    let mut seen = Vec::new();
+    while let Some((rx, _tx)) = driver.receive(&mut cx) {
+        seen.push(rx.consume(|frame| frame.len()) > 0);
+    }
+    assert_eq!(
+        seen,
+        [false, false, false, false, true, false, true],
+        "PIN0_ON, NET_SET, UPLOAD_PERIOD and a multicast STATUS hidden; DISCOVER passed; \
+         STOPPED taken by the first look; a unicast PIN0_ON passed"
+    );
+    assert_eq!(halt.0.get(), 1, "the broadcast STOPPED stops");
+    assert_eq!(bus.ignored_group_datagrams(), 4);
 }

@@ -3,7 +3,7 @@
 
 use embassy_net_driver::{Capabilities, Driver, HardwareAddress, LinkState, RxToken};
 
-use super::{Ingress, StepHalt, udp_payload};
+use super::{Ingress, StepHalt, to_group, udp_payload};
 use crate::bus::Bus;
 use crate::hw::Clock;
 
@@ -55,9 +55,10 @@ impl<T: RxToken, H: StepHalt, C: Clock> RxToken for GuardedRx<'_, T, H, C> {
             port,
         } = self;
         rx.consume(|frame| {
+            let group = to_group(frame);
             let pass = match udp_payload(frame, port) {
                 Some((from, payload)) => {
-                    bus.receive_first(from, payload, clock.now_us(), halt) == Ingress::Admit
+                    bus.receive_first(from, payload, group, clock.now_us(), halt) == Ingress::Admit
                 }
                 None => true,
             };
