@@ -167,8 +167,9 @@ pub struct Controller<const CAP: usize> {
     /// (UPLOAD_START, UPLOAD_PERIOD): it keeps its LOCATION reports while anything runs,
     /// however long it is silent.
     location_claimer: Option<Endpoint>,
-    /// When the last datagram was handled: the time the controller knows outside
-    /// [`Controller::handle`] (a run's end is noticed without a clock).
+    /// The latest time the controller was told (by [`Controller::handle`] or
+    /// [`Controller::note_time`]): what it knows of "now" when a run ends, which it notices
+    /// without a clock.
     last_handled_us: u64,
     /// Where USART_RECV reports go: the endpoint that sent USART_START.
     serial_to: Option<Endpoint>,
@@ -272,7 +273,7 @@ impl<const CAP: usize> Controller<CAP> {
             location_to: self.listeners.map(|l| l.map(|l| l.to)),
             location_until_us: self
                 .listeners
-                .map(|l| l.map_or(0, |l| l.until_us(Some(l.to) == self.location_keeper()))),
+                .map(|l| l.map_or(0, |l| l.until_us(self.keep_of(l.to)))),
             serial_to: self.serial_to,
             reports_on: self.reports_on,
             upload_period_us: self.upload_period_us,
@@ -351,6 +352,13 @@ impl<const CAP: usize> Controller<CAP> {
                 free: saturate(self.buffer.free()),
             },
         }
+    }
+
+    /// The time now, for what the controller decides outside [`Controller::handle`]: when
+    /// a run ends by itself, its claimer's reports run 5 s (or a minute) from then. The
+    /// trajectory task calls it before [`Controller::on_step_progress`].
+    pub fn note_time(&mut self, now_us: u64) {
+        self.last_handled_us = self.last_handled_us.max(now_us);
     }
 
     /// Handles one datagram from `from` received at `now_us` (see the module docs for the

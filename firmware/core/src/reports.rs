@@ -25,15 +25,31 @@ pub(crate) struct Listener {
     pub(crate) heard_us: u64,
 }
 
+/// How long the endpoint heard most recently keeps its LOCATION reports while nothing
+/// runs and it is silent: a host with one socket that turned reports on and only listens
+/// keeps them (as under the manual) for a minute, not for ever, so that one datagram, a
+/// forged one too, buys a bounded volume of reports (issue 21 F6: at the default 10 ms
+/// period at most 6,000 LOCATION datagrams; docs/PROTOCOL.md section 1 gives the bound).
+pub const KEEPER_SILENCE_US: u64 = 60_000_000;
+
+/// How long a [`Listener`] keeps its reports without being heard.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Keep {
+    /// It started the upload or run under way: for as long as that lasts.
+    Running,
+    /// Nothing runs and it was heard most recently: [`KEEPER_SILENCE_US`].
+    Keeper,
+    /// Any other: [`OWNER_TIMEOUT_US`].
+    Other,
+}
+
 impl Listener {
-    /// When it stops getting LOCATION reports unless heard from again (`kept`: it started
-    /// the upload or run under way, or nothing runs and it was heard most recently, and
-    /// never does).
-    pub(crate) fn until_us(&self, kept: bool) -> u64 {
-        if kept {
-            u64::MAX
-        } else {
-            self.heard_us.saturating_add(OWNER_TIMEOUT_US)
+    /// When it stops getting LOCATION reports unless heard from again.
+    pub(crate) fn until_us(&self, keep: Keep) -> u64 {
+        match keep {
+            Keep::Running => u64::MAX,
+            Keep::Keeper => self.heard_us.saturating_add(KEEPER_SILENCE_US),
+            Keep::Other => self.heard_us.saturating_add(OWNER_TIMEOUT_US),
         }
     }
 }

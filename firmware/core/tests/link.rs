@@ -255,22 +255,30 @@ fn a_tool_gone_silent_gets_no_more_locations_even_if_no_command_follows() {
 #[test]
 fn a_lone_host_that_only_listens_keeps_its_locations() {
     // A host with one socket that turned reports on and then only listens, arm STOPPED:
-    // it is the endpoint heard most recently, so reports keep coming, as under the manual.
+    // it is the endpoint heard most recently, so reports keep coming, as under the manual,
+    // for a minute of its silence.
     let mut s = Session::<64>::new(64);
     s.send_raw(HOST, &frame(1, Command::UploadStart));
     s.now_us += 1_000;
     s.send_raw(TOOL, &frame(1, Command::Status));
+    // Issue 21 F6 bounded "keeps coming" to a minute of silence (it was for ever: one
+    // forged datagram bought reports without end).
+    use arm_core::reports::KEEPER_SILENCE_US;
     let settings = s.controller.report_settings();
-    let much_later = s.now_us + 60 * OWNER_TIMEOUT_US;
-    assert!(settings.location_goes_to(TOOL, much_later), "{settings:?}");
+    let later = s.now_us + KEEPER_SILENCE_US - 1;
+    assert!(settings.location_goes_to(TOOL, later), "{settings:?}");
     assert!(
-        !settings.location_goes_to(HOST, much_later),
+        !settings.location_goes_to(TOOL, later + 1),
+        "a minute of silence ends them: {settings:?}"
+    );
+    assert!(
+        !settings.location_goes_to(HOST, s.now_us + OWNER_TIMEOUT_US),
         "the other one, silent, is dropped: {settings:?}"
     );
     let mut s = Session::<64>::new(64);
     s.send_raw(HOST, &frame(1, Command::Status));
     let settings = s.controller.report_settings();
-    assert!(settings.location_goes_to(HOST, s.now_us + 60 * OWNER_TIMEOUT_US));
+    assert!(settings.location_goes_to(HOST, s.now_us + KEEPER_SILENCE_US - 1));
 }
 
 #[test]
@@ -453,5 +461,49 @@ fn a_silent_uploader_gets_the_end_of_run_report_while_another_tool_polls() {
     assert!(
         !gets_location(&s, HOST),
         "a silent uploader's reports end 5 s after the run"
+    );
+}
+
+// ---- Issue 21 F6: one datagram buys a bounded volume of reports ----
+
+/// One forged 3-byte STATUS to an unowned controller made the victim the owner and sent it
+/// LOCATION reports (about 92 a second) indefinitely: as the endpoint heard most recently
+/// it kept them however long it was silent. Now, while nothing runs, the endpoint heard
+/// most recently keeps them for a minute of silence (a host that only listens, as under
+/// the manual), any other for 5 s: one datagram buys at most a minute of reports.
+#[test]
+fn one_forged_datagram_buys_at_most_a_minute_of_reports() {
+    use arm_core::reports::KEEPER_SILENCE_US;
+    let mut s = Session::<16>::new(16);
+    let r = s.send_raw(HOST, &frame(1, Command::Status));
+    assert_eq!(r.reply.unwrap().ack.status, Ok);
+    assert!(gets_location(&s, HOST), "reports at once");
+    s.now_us += KEEPER_SILENCE_US - 1;
+    assert!(gets_location(&s, HOST), "for a minute");
+    s.now_us += 1;
+    assert!(!gets_location(&s, HOST), "and no longer");
+    // Speaking again brings them back.
+    let r = s.send_raw(HOST, &frame(2, Command::Status));
+    assert_eq!(r.reply.unwrap().ack.status, Ok);
+    assert!(gets_location(&s, HOST));
+}
+
+/// The end-of-run report reaches an uploader that stayed silent through a run longer than
+/// a minute with nobody else speaking: the run's end counts from when it ends (the
+/// trajectory task tells the controller the time), not from the uploader's last frame.
+#[test]
+fn a_long_silent_run_still_reports_its_end_to_its_uploader() {
+    let mut s = Session::<16>::new(16);
+    s.start_run(8, &points([0; 8], 8, 1));
+    s.now_us += 70_000_000;
+    s.controller.note_time(s.now_us);
+    let end = s
+        .plant
+        .run_to_end(&mut s.controller)
+        .expect("the end-of-run LOCATION");
+    assert_eq!(end.state, State::Stopped as u8);
+    assert!(
+        gets_location(&s, HOST),
+        "the end-of-run report goes to the uploader"
     );
 }

@@ -7,7 +7,7 @@ use super::{Controller, Owner};
 use crate::config::OWNER_TIMEOUT_US;
 use crate::hw::Endpoint;
 use crate::plant::Plant;
-use crate::reports::{LOCATION_LISTENERS, Listener};
+use crate::reports::{Keep, LOCATION_LISTENERS, Listener};
 
 impl<const CAP: usize> Controller<CAP> {
     /// The DISCOVER_REPLY for a host at `asker`: changes nothing.
@@ -58,18 +58,30 @@ impl<const CAP: usize> Controller<CAP> {
         }
     }
 
-    /// The endpoint that keeps its LOCATION reports however long it is silent: the one
-    /// that started the upload or run, while the arm is not STOPPED; otherwise the one
-    /// heard most recently, so that reports always go somewhere and a host with one
-    /// socket gets every report, as the manual has it.
-    pub(super) fn location_keeper(&self) -> Option<Endpoint> {
-        self.running_claimer().or_else(|| {
-            self.listeners
-                .iter()
-                .flatten()
-                .max_by_key(|l| l.heard_us)
-                .map(|l| l.to)
-        })
+    /// How long `to`, a listener, keeps its reports: for the whole run if it started the
+    /// upload or run under way; else, if nothing runs and it was heard most recently,
+    /// [`crate::reports::KEEPER_SILENCE_US`] (so that a host with one socket that only
+    /// listens gets its reports, as the manual has it, but one datagram buys a bounded
+    /// volume of them: issue 21 F6, it was for ever); else 5 s.
+    pub(super) fn keep_of(&self, to: Endpoint) -> Keep {
+        if let Some(claimer) = self.running_claimer() {
+            return if claimer == to {
+                Keep::Running
+            } else {
+                Keep::Other
+            };
+        }
+        let latest = self
+            .listeners
+            .iter()
+            .flatten()
+            .max_by_key(|l| l.heard_us)
+            .map(|l| l.to);
+        if latest == Some(to) {
+            Keep::Keeper
+        } else {
+            Keep::Other
+        }
     }
 
     /// `from`, an owner endpoint whose command was executed, gets LOCATION reports from
@@ -79,8 +91,14 @@ impl<const CAP: usize> Controller<CAP> {
         // `from` is the one heard most recently from now on.
         let keeper = self.running_claimer().unwrap_or(from);
         let protected = |l: &Listener| l.to == keeper;
+        let claimer = self.running_claimer();
+        let keep = |l: &Listener| match claimer {
+            Some(c) if c == l.to => Keep::Running,
+            _ if protected(l) => Keep::Keeper,
+            _ => Keep::Other,
+        };
         for slot in self.listeners.iter_mut() {
-            if slot.is_some_and(|l| now_us >= l.until_us(protected(&l))) {
+            if slot.is_some_and(|l| now_us >= l.until_us(keep(&l))) {
                 *slot = None;
             }
         }

@@ -230,6 +230,7 @@ where
             None => {}
         }
         let (finished, ran_dry) = step.take_progress();
+        controller.note_time(clock.now_us());
         if let Some(location) = controller.on_step_progress(finished, ran_dry, &mut plant) {
             bus.send(Outgoing::Location(location));
         }
