@@ -118,6 +118,51 @@ mod runs;
 /// Every ENABLE line: joints 0-7 and the gripper (bit 8).
 pub const ALL_DRIVERS: u16 = limits::ENABLE_MASK_BITS;
 
+/// DISCOVER replies sent per second at most (issue 21 F6: a 30-byte reply to a 3-byte
+/// request, to whatever address the request names, had no limit). Hosts looking for
+/// controllers ask once or twice; 10 a second leave room for a cell's worth of them.
+pub const DISCOVER_REPLIES_PER_S: u32 = 10;
+
+/// DISCOVER replies that may go out at once, before the rate applies: a few tools starting
+/// together.
+pub const DISCOVER_BURST: u32 = 10;
+
+/// The DISCOVER replies' budget: a token bucket of [`DISCOVER_BURST`] refilled at
+/// [`DISCOVER_REPLIES_PER_S`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct ReplyBudget {
+    /// Millionths of a reply available.
+    credit: u64,
+    at_us: u64,
+}
+
+impl ReplyBudget {
+    const FULL: u64 = DISCOVER_BURST as u64 * 1_000_000;
+
+    pub(crate) const fn new() -> Self {
+        ReplyBudget {
+            credit: Self::FULL,
+            at_us: 0,
+        }
+    }
+
+    /// Takes one reply's worth at `now_us`, if there is one.
+    pub(crate) fn take(&mut self, now_us: u64) -> bool {
+        let elapsed = now_us.saturating_sub(self.at_us);
+        self.at_us = self.at_us.max(now_us);
+        self.credit = self
+            .credit
+            .saturating_add(elapsed.saturating_mul(u64::from(DISCOVER_REPLIES_PER_S)))
+            .min(Self::FULL);
+        if self.credit >= 1_000_000 {
+            self.credit -= 1_000_000;
+            true
+        } else {
+            false
+        }
+    }
+}
+
 /// The host that owns the controller.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -167,6 +212,8 @@ pub struct Controller<const CAP: usize> {
     /// (UPLOAD_START, UPLOAD_PERIOD): it keeps its LOCATION reports while anything runs,
     /// however long it is silent.
     location_claimer: Option<Endpoint>,
+    /// What DISCOVER replies may still be sent ([`DISCOVER_REPLIES_PER_S`]).
+    discover_budget: ReplyBudget,
     /// The latest time the controller was told (by [`Controller::handle`] or
     /// [`Controller::note_time`]): what it knows of "now" when a run ends, which it notices
     /// without a clock.
@@ -418,6 +465,10 @@ impl<const CAP: usize> Controller<CAP> {
         // ACK; it changes nothing (no owner, no duplicate memory, no ordering mark, no
         // LOCATION listener).
         if tag == Tag::Discover as u8 && datagram.len() == protocol::FRAME_OVERHEAD {
+            // Beyond the budget: no reply at all (the host asks again).
+            if !self.discover_budget.take(now_us) {
+                return response;
+            }
             response.discovery = Some(Discovery {
                 to: from,
                 seq,

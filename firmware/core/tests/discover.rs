@@ -205,3 +205,34 @@ fn discovery_goes_to_the_asker_with_its_seq_and_leaves_the_report_counter() {
         "not a report: the report seq is untouched"
     );
 }
+
+/// Issue 21 F6: DISCOVER replies (30 bytes for a 3-byte request, to whatever address the
+/// request names) had no rate limit: a forged stream of DISCOVERs made the controller a
+/// 10x amplifier at any rate. Now at most DISCOVER_REPLIES_PER_S a second (a burst of
+/// DISCOVER_BURST first): a cell's hosts looking for controllers never come near it.
+#[test]
+fn discover_replies_are_rate_limited() {
+    use arm_core::controller::{DISCOVER_BURST, DISCOVER_REPLIES_PER_S};
+    let mut s = Session::<16>::new(16);
+    let answered = |s: &mut Session<16>, n: u32| {
+        (0..n)
+            .filter(|i| s.send_raw(OTHER, &discover(*i as u8)).discovery.is_some())
+            .count() as u32
+    };
+    assert_eq!(
+        answered(&mut s, 1_000),
+        DISCOVER_BURST,
+        "a burst, then nothing"
+    );
+    // A second later: a second's worth.
+    s.now_us += 1_000_000;
+    assert_eq!(
+        answered(&mut s, 1_000),
+        DISCOVER_REPLIES_PER_S.min(DISCOVER_BURST)
+    );
+    // A host asking once a second is always answered.
+    for _ in 0..10 {
+        s.now_us += 1_000_000;
+        assert_eq!(answered(&mut s, 1), 1);
+    }
+}

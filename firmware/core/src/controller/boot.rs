@@ -37,6 +37,7 @@ macro_rules! with_boot_fields {
         listeners: [None; LOCATION_LISTENERS],
         location_claimer: None,
         last_handled_us: 0,
+        discover_budget: super::ReplyBudget::new(),
         serial_to: None,
         more_flags: MoreFlags(0),
         reports_on: true,
