@@ -248,9 +248,7 @@ fn set_direction(joint: usize, positive: bool) {
     }
     let bit = 1u32 << joint;
     let bsrr = if positive { bit } else { bit << 16 };
-    pac::GPIOD
-        .bsrr()
-        .write_value(pac::gpio::regs::Bsrr(bsrr));
+    pac::GPIOD.bsrr().write_value(pac::gpio::regs::Bsrr(bsrr));
 }
 
 // ---- step_dma/backend.rs ----

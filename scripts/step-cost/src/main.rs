@@ -48,7 +48,7 @@ pub extern "C" fn harness_note_prelude(preludes: &[[PulsePeriod; PRELUDE]; MAX_J
     for (j, prelude) in preludes.iter().enumerate() {
         let mut sum = 0u64;
         for period in prelude {
-            sum += u64::from(period.ticks());
+            sum += period.ticks();
         }
         // SAFETY: single-threaded harness.
         unsafe { (*addr_of_mut!(PRELUDE_TICKS))[j] = sum };
@@ -91,7 +91,7 @@ pub extern "C" fn harness_ticks(joint: usize, half: usize, from: usize, to: usiz
     let buffer = unsafe { &(*BUFFERS.0.get())[joint & 7] };
     buffer.periods[half & 1][from..to]
         .iter()
-        .map(|p| u64::from(p.ticks()))
+        .map(PulsePeriod::ticks)
         .sum()
 }
 
@@ -316,7 +316,12 @@ fn measure(case: u32, duration_us: u32, steps: [i32; MAX_JOINTS]) -> u32 {
     // (Late pulses are expected: at 100 kHz a reversal's first pulse waits for the board's
     // 10 us DIR setup, its driver's 5 us plus the DIR interrupt's latency budget.)
     if positions != [0; MAX_JOINTS] {
-        hprintln!("case {}: positions {:?}, late pulses {}", case, positions, late);
+        hprintln!(
+            "case {}: positions {:?}, late pulses {}",
+            case,
+            positions,
+            late
+        );
         debug::exit(debug::EXIT_FAILURE);
     }
     let total = steps.iter().map(|n| n.unsigned_abs()).sum::<u32>() * SEGMENTS as u32;
@@ -356,12 +361,16 @@ fn main() -> ! {
     measure(5, 100_000, [100; MAX_JOINTS]);
     measure(6, 100_000, [100, 97, 89, 83, 79, 73, 71, 67]);
     debug::exit(debug::EXIT_SUCCESS);
-    loop {}
+    loop {
+        cortex_m::asm::wfi();
+    }
 }
 
 #[panic_handler]
 fn panic(info: &core::panic::PanicInfo) -> ! {
     hprintln!("panic: {}", info);
     debug::exit(debug::EXIT_FAILURE);
-    loop {}
+    loop {
+        cortex_m::asm::wfi();
+    }
 }
