@@ -216,9 +216,9 @@ fn recurse(depth: u32) -> u32 {
     recurse(depth + 1).wrapping_add(u32::from(frame[1]))
 }
 
-/// Runs arm-wiring's check of its assembly `memcpy`, `memmove`, `memset`, `memcmp` and u64
-/// division against their models, logs the outcome and ends the emulation: status 0 if
-/// every case matched, a failure otherwise.
+/// Runs arm-wiring's check of the linked `memcpy`, `memmove`, `memset`, `memcmp` and u64
+/// division (compiler-builtins') against their models, logs the outcome and ends the
+/// emulation: status 0 if every case matched, a failure otherwise.
 pub fn run_runtime_check() -> ! {
     let outcome = arm_wiring::runtime_check::check();
     log::info!(

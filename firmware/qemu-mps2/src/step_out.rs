@@ -31,8 +31,8 @@
 use core::sync::atomic::{AtomicI32, AtomicU8, AtomicU32, Ordering};
 
 use arm_core::hw::StepKick;
-use arm_core::{StepBackend, StepProgress, StepShared};
 use arm_core::profile::BoardProfile;
+use arm_core::{StepBackend, StepProgress, StepShared};
 use arm_step::{MAX_JOINTS, Segment, StepTiming, StreamPlayer, StreamsSlot, TimedStepPins};
 use cortex_m::peripheral::NVIC;
 

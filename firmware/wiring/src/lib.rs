@@ -26,12 +26,6 @@
 mod fmt;
 
 mod adapters;
-// Flash-lean run-time routines for the Cortex-M boards (assembly for ARMv7-M): memcpy,
-// memmove, memset and u64 division.
-#[cfg(all(target_arch = "arm", target_os = "none"))]
-mod div;
-#[cfg(all(target_arch = "arm", target_os = "none"))]
-mod mem;
 pub mod net;
 #[cfg(all(target_arch = "arm", target_os = "none"))]
 pub mod runtime_check;

@@ -1,5 +1,7 @@
-//! A self-check of this crate's assembly run-time routines (`mem.rs`, `div.rs`) against
-//! byte-by-byte and bit-by-bit models, on the target itself: the QEMU board runs it when
+//! A self-check of the run-time routines the boards link (compiler-builtins' `memcpy`,
+//! `memmove`, `memset`, `memcmp`, their ARM EABI entry points and `__aeabi_uldivmod`; until
+//! issue 20 this crate had hand-written assembly versions for flash) against byte-by-byte
+//! and bit-by-bit models, on the target itself: the QEMU board runs it when
 //! its command line asks (`-append check-runtime`, tests/tests/qemu.rs). Nothing calls it
 //! on the NUCLEO board, so it costs that image nothing.
 //!

@@ -10,7 +10,8 @@
 //! CPU involved. The stream is circular over [`HALF`]` * 2` periods; its half-transfer and
 //! transfer-complete interrupts ([`refill::refill`]) refill the half it just left with
 //! [`arm_step::StepStreams::refill`] (arm-step's producer). The CPU's whole share is the producer's
-//! arithmetic: 23 to 30 instructions per step (scripts/step-cost).
+//! arithmetic and the interrupts around it: 29 to 45 instructions per step at 100 kHz per
+//! joint (scripts/step-cost: the whole path, TIM13's wraps and DIR alarms included).
 //!
 //! DIR lines change at reversals only, when the joint's previous pulse has fallen, from
 //! the step clock's compare interrupt (`step_timer.rs`), and the producer places the next

@@ -1,0 +1,663 @@
+//! The NUCLEO board's step path, copied from the board crate with its registers moved into
+//! RAM (QEMU has no STM32 peripherals): the DMA2 stream interrupts' body
+//! (`firmware/board/src/step_dma/refill.rs`), the backend (`step_dma/backend.rs`: start,
+//! refill, the alarm, arming it, stop), the stream and timer register code
+//! (`step_dma/registers.rs`, `step_dma/stop.rs`), the step clock (`step_timer.rs`: TIM13's
+//! interrupt, `now_tick`, `arm`, `program_compare`) and the DIR lines
+//! (`pins.rs::set_direction`). Each function is the board's, line for line, except:
+//! - every register block is at a RAM address (`pac` below) instead of the chip's, through
+//!   the same stm32-metapac register types the board uses;
+//! - TIM13's SR is rc_w0 (writing 0 clears a flag, 1 leaves it): RAM cannot do that, so each
+//!   SR write is a read, an AND and a write ([`write_tim13_sr`]: two instructions more than
+//!   the board's single store, counted);
+//! - `defmt` logs (only on an underrun, which the harness fails on) are left out.
+//!
+//! The board's own crates do the rest as on the board: arm-core's `StepShared` (its
+//! critical section and progress), embassy-sync's `Signal` waking a task of a real
+//! embassy-executor (the trajectory task's stand-in in `main.rs`), cortex-m's single-core
+//! critical section, arm-step's producer. Keep this in step with the board's files.
+
+#![allow(clippy::indexing_slicing, clippy::cast_possible_truncation)]
+
+use core::cell::{Cell, UnsafeCell};
+use core::ptr::addr_of;
+
+use arm_core::profile::{self, BoardProfile};
+use arm_core::{STEP_QUEUE, StepBackend, StepProgress, StepShared};
+use arm_step::{
+    DirChange, JointBuffer, MAX_JOINTS, PRELUDE, PulsePeriod, Segment, StepTiming, StreamsSlot,
+};
+use embassy_sync::blocking_mutex::Mutex;
+use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
+use embassy_sync::signal::Signal;
+
+/// The register blocks, at RAM addresses (memory.x leaves 0x2030_0000.. to them).
+pub mod pac {
+    pub use stm32_metapac::{dma, gpio, timer};
+    /// DMA2 (the board's at 0x4002_0400).
+    pub const DMA2: dma::Dma = unsafe { dma::Dma::from_ptr(0x2030_0000usize as _) };
+    /// TIM13, the step clock (0x4000_1c00).
+    pub const TIM13: timer::Tim1ch = unsafe { timer::Tim1ch::from_ptr(0x2030_1000usize as _) };
+    /// GPIOD, the DIR lines (0x5802_0c00).
+    pub const GPIOD: gpio::Gpio = unsafe { gpio::Gpio::from_ptr(0x2030_2000usize as _) };
+    /// The joint timers (TIM2, TIM5, TIM3, TIM4, TIM1, TIM8, TIM16, TIM17): 0x400 apart.
+    pub const JOINT_TIMERS: usize = 0x2030_3000;
+    /// A stand-in for TIM8_UP_TIM13's NVIC line (44 on the H743): QEMU's NVIC has 32 on
+    /// mps2, so line 31 (never enabled: the harness reads its pending bit).
+    #[derive(Clone, Copy)]
+    pub struct Tim13Irq;
+    // SAFETY: 31 is an interrupt line of the emulated NVIC.
+    unsafe impl cortex_m::interrupt::InterruptNumber for Tim13Irq {
+        fn number(self) -> u16 {
+            31
+        }
+    }
+}
+
+// ---- step_dma/mod.rs ----
+
+/// The board's profile.
+pub const PROFILE: BoardProfile = profile::NUCLEO_H743ZI2;
+/// Periods per buffer half.
+pub const HALF: usize = PROFILE.step_buffer_half;
+/// The step timing of every joint.
+pub const STEP_TIMING: StepTiming = PROFILE.step_timing();
+/// The longest period of each joint's timer.
+pub const MAX_PERIOD_TICKS: [u32; MAX_JOINTS] = PROFILE.step_timer_max_period_ticks;
+
+/// Every joint's DMA buffer.
+pub struct Buffers(pub UnsafeCell<[JointBuffer<HALF>; MAX_JOINTS]>);
+// SAFETY: as on the board: every CPU access is inside STEP's critical section.
+unsafe impl Sync for Buffers {}
+/// The DMA buffers.
+pub static BUFFERS: Buffers = Buffers(UnsafeCell::new([JointBuffer::ZERO; MAX_JOINTS]));
+
+/// The bus's `step_progress` (arm-core's Bus), which the trajectory task waits on.
+pub static STEP_PROGRESS: Signal<CriticalSectionRawMutex, ()> = Signal::new();
+
+/// step_dma::init's part that the step path depends on.
+pub fn init() {
+    STEP.with_engine(|steps| steps.streams.init(STEP_TIMING, MAX_PERIOD_TICKS));
+}
+
+// ---- step_dma/registers.rs ----
+
+#[derive(Clone, Copy)]
+struct JointTimer {
+    base: *mut u32,
+}
+
+mod reg {
+    pub const CR1: usize = 0x00;
+    pub const DIER: usize = 0x0C;
+    pub const SR: usize = 0x10;
+    pub const EGR: usize = 0x14;
+    pub const CCMR1: usize = 0x18;
+    pub const CNT: usize = 0x24;
+    pub const ARR: usize = 0x2C;
+    pub const CCR1: usize = 0x34;
+    pub const DCR: usize = 0x48;
+    pub const DMAR: usize = 0x4C;
+    pub const CR1_CEN: u32 = 1 << 0;
+    pub const CR1_URS: u32 = 1 << 2;
+    pub const CR1_ARPE: u32 = 1 << 7;
+    pub const DIER_UDE: u32 = 1 << 8;
+    pub const EGR_UG: u32 = 1 << 0;
+    pub const CCMR1_OC1PE: u32 = 1 << 3;
+    pub const CCMR1_PWM1: u32 = 0b110 << 4;
+    pub const CCMR1_FORCE_INACTIVE: u32 = 0b100 << 4;
+    pub const DCR_ARR_RCR_CCR1: u32 = 11 | (2 << 8);
+}
+
+impl JointTimer {
+    fn write(self, offset: usize, value: u32) {
+        // SAFETY: a word of the RAM stand-in of this timer's block.
+        unsafe { self.base.byte_add(offset).write_volatile(value) }
+    }
+    fn dmar(self) -> u32 {
+        self.base as u32 + reg::DMAR as u32
+    }
+}
+
+/// The board's `joint_timer`: a match on the joint (the board's yields its timer's base,
+/// request and output kind; only the base is used on the step path).
+fn joint_timer(joint: usize) -> JointTimer {
+    let t = |n: usize| JointTimer {
+        base: (pac::JOINT_TIMERS + n * 0x400) as *mut u32,
+    };
+    match joint {
+        0 => t(0),
+        1 => t(1),
+        2 => t(2),
+        3 => t(3),
+        4 => t(4),
+        5 => t(5),
+        6 => t(6),
+        _ => t(7),
+    }
+}
+
+/// Words the stream moves per period (ARR, RCR, CCR1).
+pub const WORDS_PER_PERIOD: usize = 3;
+/// Words in one joint's whole circular buffer.
+pub const BUFFER_WORDS: usize = 2 * HALF * WORDS_PER_PERIOD;
+
+#[derive(Clone, Copy, Debug, Default)]
+struct StreamPosition {
+    next: usize,
+    other_half_played: bool,
+    preload_evicted: bool,
+}
+
+fn stream_position(joint: usize) -> StreamPosition {
+    let remaining = pac::DMA2.st(joint).ndtr().read().ndt() as usize;
+    let done = BUFFER_WORDS.saturating_sub(remaining) / WORDS_PER_PERIOD;
+    let flags = pac::DMA2.isr(joint / 4).read();
+    let n = joint % 4;
+    let next = done % (2 * HALF);
+    let preload = (next + 2 * HALF - 1) % (2 * HALF);
+    let unplayed_half = preload / HALF;
+    let (own_flag, other_flag) = if unplayed_half == 0 {
+        (flags.htif(n), flags.tcif(n))
+    } else {
+        (flags.tcif(n), flags.htif(n))
+    };
+    StreamPosition {
+        next,
+        other_half_played: other_flag,
+        preload_evicted: preload % HALF == HALF - 1 && !own_flag,
+    }
+}
+
+fn clear_stream_flags(joint: usize) {
+    let n = joint % 4;
+    pac::DMA2.ifcr(joint / 4).write(|w| {
+        w.set_feif(n, true);
+        w.set_dmeif(n, true);
+        w.set_teif(n, true);
+        w.set_htif(n, true);
+        w.set_tcif(n, true);
+    });
+}
+
+fn load_joint(joint: usize, prelude: &[PulsePeriod; PRELUDE]) {
+    let timer = joint_timer(joint);
+    let [first, second] = prelude;
+    timer.write(reg::CR1, reg::CR1_URS | reg::CR1_ARPE);
+    timer.write(reg::DIER, 0);
+    timer.write(reg::CNT, 0);
+    timer.write(reg::ARR, first.reload);
+    timer.write(reg::CCR1, first.high);
+    timer.write(reg::CCMR1, reg::CCMR1_OC1PE | reg::CCMR1_PWM1);
+    timer.write(reg::EGR, reg::EGR_UG);
+    timer.write(reg::ARR, second.reload);
+    timer.write(reg::CCR1, second.high);
+    timer.write(reg::SR, 0);
+    timer.write(reg::DCR, reg::DCR_ARR_RCR_CCR1);
+
+    let stream = pac::DMA2.st(joint);
+    stream.cr().modify(|w| w.set_en(false));
+    clear_stream_flags(joint);
+    stream.par().write_value(timer.dmar());
+    // SAFETY: only the address is taken.
+    let buffer = unsafe { addr_of!((*BUFFERS.0.get())[joint]) };
+    stream.m0ar().write_value(buffer as u32);
+    stream.ndtr().write(|w| w.set_ndt(BUFFER_WORDS as u16));
+    stream.cr().write(|w| {
+        w.set_dir(pac::dma::vals::Dir::MEMORY_TO_PERIPHERAL);
+        w.set_circ(true);
+        w.set_minc(true);
+        w.set_pinc(false);
+        w.set_psize(pac::dma::vals::Size::BITS32);
+        w.set_msize(pac::dma::vals::Size::BITS32);
+        w.set_pl(pac::dma::vals::Pl::VERY_HIGH);
+        w.set_htie(true);
+        w.set_tcie(true);
+        w.set_teie(true);
+    });
+    stream.cr().modify(|w| w.set_en(true));
+    timer.write(reg::DIER, reg::DIER_UDE);
+}
+
+// ---- step_dma/stop.rs ----
+
+fn stop_all_step_outputs() -> [StreamPosition; MAX_JOINTS] {
+    critical_section::with(|_| {
+        for joint in 0..MAX_JOINTS {
+            let timer = joint_timer(joint);
+            timer.write(reg::CCMR1, reg::CCMR1_FORCE_INACTIVE);
+        }
+        let mut positions = [StreamPosition::default(); MAX_JOINTS];
+        for (joint, position) in positions.iter_mut().enumerate() {
+            let timer = joint_timer(joint);
+            timer.write(reg::CR1, reg::CR1_URS | reg::CR1_ARPE);
+            timer.write(reg::DIER, 0);
+            pac::DMA2.st(joint).cr().modify(|w| w.set_en(false));
+            *position = stream_position(joint);
+            clear_stream_flags(joint);
+        }
+        positions
+    })
+}
+
+// ---- pins.rs ----
+
+fn set_direction(joint: usize, positive: bool) {
+    if joint >= MAX_JOINTS {
+        return;
+    }
+    let bit = 1u32 << joint;
+    let bsrr = if positive { bit } else { bit << 16 };
+    pac::GPIOD.bsrr().write_value(pac::gpio::regs::Bsrr(bsrr));
+}
+
+// ---- step_dma/backend.rs ----
+
+/// What the board's step hardware is doing.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Run {
+    /// Timers stopped.
+    Idle,
+    /// Timers running since step clock tick `origin`.
+    Running {
+        /// Step clock tick of the joint timers' tick 0.
+        origin: u64,
+    },
+}
+
+/// The board's `BoardSteps`.
+pub struct BoardSteps {
+    pub(crate) streams: StreamsSlot<STEP_QUEUE, HALF>,
+    pub(crate) run: Run,
+    started: [bool; MAX_JOINTS],
+    end_armed: bool,
+    primed_finished: u32,
+}
+
+/// The board's `STEP`.
+pub static STEP: StepShared<STEP_QUEUE, BoardSteps> = StepShared::with_backend(BoardSteps {
+    streams: StreamsSlot::EMPTY,
+    run: Run::Idle,
+    started: [false; MAX_JOINTS],
+    end_armed: false,
+    primed_finished: 0,
+});
+
+impl StepBackend for BoardSteps {
+    fn timing(&self) -> StepTiming {
+        STEP_TIMING
+    }
+
+    fn push(&mut self, segment: Segment) -> Result<(), Segment> {
+        self.streams.push(segment)
+    }
+
+    fn queued(&self) -> usize {
+        self.streams.queued()
+    }
+
+    fn start(&mut self, at_tick: u64) {
+        if self.run != Run::Idle {
+            return;
+        }
+        let Some(streams) = self.streams.get_mut() else {
+            return;
+        };
+        let now = now_tick();
+        let mut prelude = [[PulsePeriod::ZERO; PRELUDE]; MAX_JOINTS];
+        // SAFETY: inside STEP's critical section with every stream disabled.
+        let buffers = unsafe { &mut *BUFFERS.0.get() };
+        let [b0, b1, b2, b3, b4, b5, b6, b7] = buffers;
+        let primed = streams.prime(
+            at_tick.saturating_sub(now),
+            &mut prelude,
+            &mut [b0, b1, b2, b3, b4, b5, b6, b7],
+        );
+        if primed.dir_overflow {
+            streams.producer().stop();
+            return;
+        }
+        for joint in 0..MAX_JOINTS {
+            while let Some(change) = streams.next_dir_change(joint) {
+                if change.tick > 0 {
+                    break;
+                }
+                set_direction(joint, change.positive);
+                streams.pop_dir_change(joint);
+            }
+        }
+        for (joint, prelude) in prelude.iter().enumerate() {
+            load_joint(joint, prelude);
+        }
+        // (Not on the board: tells the harness how long the preludes play; not counted.)
+        crate::harness_note_prelude(&prelude);
+        for joint in 0..MAX_JOINTS {
+            let timer = joint_timer(joint);
+            timer.write(reg::CR1, reg::CR1_URS | reg::CR1_ARPE | reg::CR1_CEN);
+        }
+        let origin = now_tick();
+        self.run = Run::Running { origin };
+        self.primed_finished = primed.segments_finished;
+        self.started = [false; MAX_JOINTS];
+        self.end_armed = false;
+        self.arm_alarm();
+    }
+
+    fn stop(&mut self) {
+        let stopped = stop_all_step_outputs();
+        let Some(streams) = self.streams.get_mut() else {
+            return;
+        };
+        if self.run != Run::Idle {
+            // SAFETY: inside STEP's critical section, streams disabled.
+            let buffers = unsafe { &*BUFFERS.0.get() };
+            for (joint, position) in stopped.iter().enumerate() {
+                let first_unplayed = first_unplayed(self.started[joint], *position);
+                match first_unplayed {
+                    Some(index) if position.preload_evicted => {
+                        streams.unwind_evicted(joint, &buffers[joint], index / HALF)
+                    }
+                    _ => streams.unwind(
+                        joint,
+                        &buffers[joint],
+                        first_unplayed,
+                        position.other_half_played,
+                    ),
+                }
+            }
+        }
+        streams.producer().stop();
+        streams.clear_dir_changes();
+        self.run = Run::Idle;
+        disarm();
+    }
+
+    fn positions(&self) -> [i32; MAX_JOINTS] {
+        // (The board subtracts what the streams have not played; the harness asks only
+        // after the run.)
+        self.streams
+            .get()
+            .map_or([0; MAX_JOINTS], |s| s.producer_ref().positions())
+    }
+
+    fn set_positions(&mut self, positions: [i32; MAX_JOINTS]) -> bool {
+        self.run == Run::Idle
+            && self
+                .streams
+                .get_mut()
+                .is_some_and(|s| s.producer().set_positions(positions))
+    }
+}
+
+impl BoardSteps {
+    fn refill(&mut self, joint: usize, half: usize) -> StepProgress {
+        if self.run == Run::Idle {
+            return StepProgress::default();
+        }
+        let Some(streams) = self.streams.get_mut() else {
+            return StepProgress::default();
+        };
+        self.started[joint] = true;
+        // SAFETY: inside STEP's critical section; the stream reads the other half.
+        let buffer = unsafe { &mut (*BUFFERS.0.get())[joint] };
+        let refill = streams.refill(joint, half, &mut buffer.periods[half]);
+        if refill.dir_overflow {
+            self.stop();
+            return StepProgress {
+                segments_finished: 0,
+                ran_dry: true,
+            };
+        }
+        self.arm_alarm();
+        StepProgress {
+            segments_finished: refill.segments_finished
+                + core::mem::take(&mut self.primed_finished),
+            ran_dry: false,
+        }
+    }
+
+    fn on_alarm(&mut self, now: u64) -> StepProgress {
+        let Run::Running { origin } = self.run else {
+            return StepProgress::default();
+        };
+        let Some(streams) = self.streams.get_mut() else {
+            return StepProgress::default();
+        };
+        let at = now.saturating_sub(origin);
+        for joint in 0..MAX_JOINTS {
+            while let Some(DirChange { tick, positive }) = streams.next_dir_change(joint) {
+                if tick > at {
+                    break;
+                }
+                set_direction(joint, positive);
+                streams.pop_dir_change(joint);
+            }
+        }
+        if let Some(end) = streams.producer_ref().run_end_tick()
+            && at >= end
+        {
+            stop_all_step_outputs();
+            streams.producer().end_run();
+            self.run = Run::Idle;
+            disarm();
+            return StepProgress {
+                segments_finished: core::mem::take(&mut self.primed_finished),
+                ran_dry: true,
+            };
+        }
+        self.arm_alarm();
+        StepProgress::default()
+    }
+
+    fn arm_alarm(&mut self) {
+        let Run::Running { origin } = self.run else {
+            return;
+        };
+        let Some(streams) = self.streams.get() else {
+            return;
+        };
+        let mut next = u64::MAX;
+        for joint in 0..MAX_JOINTS {
+            if let Some(change) = streams.next_dir_change(joint) {
+                next = next.min(change.tick);
+            }
+        }
+        if let Some(end) = streams.producer_ref().run_end_tick() {
+            next = next.min(end);
+            self.end_armed = true;
+        }
+        if next != u64::MAX {
+            arm(origin + next);
+        }
+    }
+}
+
+fn first_unplayed(started: bool, at: StreamPosition) -> Option<usize> {
+    (started || at.next > 0).then_some((at.next + 2 * HALF - 1) % (2 * HALF))
+}
+
+// ---- step_dma/refill.rs ----
+
+fn refill(joint: usize) {
+    let n = joint % 4;
+    let flags = pac::DMA2.isr(joint / 4).read();
+    clear_stream_flags(joint);
+    let (half_played, full_played) = (flags.htif(n), flags.tcif(n));
+    let remaining = pac::DMA2.st(joint).ndtr().read().ndt() as usize;
+    let next = BUFFER_WORDS.saturating_sub(remaining) / WORDS_PER_PERIOD;
+    let half = usize::from(full_played);
+    let in_half = next / HALF;
+    let underrun = flags.teif(n) || (half_played && full_played) || in_half == half;
+    STEP.on_interrupt(&STEP_PROGRESS, |steps| {
+        if !half_played && !full_played {
+            return ((), StepProgress::default());
+        }
+        if underrun {
+            steps.stop();
+            return (
+                (),
+                StepProgress {
+                    segments_finished: 0,
+                    ran_dry: true,
+                },
+            );
+        }
+        ((), steps.refill(joint, half))
+    });
+}
+
+/// The DMA2 stream interrupt handlers (the board's `#[interrupt] fn DMA2_STREAMn`), in
+/// joint order: the harness calls them through this table as the NVIC would.
+pub static DMA2_STREAM_HANDLERS: [extern "C" fn(); MAX_JOINTS] = [
+    dma2_stream0,
+    dma2_stream1,
+    dma2_stream2,
+    dma2_stream3,
+    dma2_stream4,
+    dma2_stream5,
+    dma2_stream6,
+    dma2_stream7,
+];
+
+macro_rules! stream_handlers {
+    ($($name:ident = $joint:literal),*) => {$(
+        #[unsafe(no_mangle)]
+        extern "C" fn $name() {
+            refill($joint);
+        }
+    )*};
+}
+stream_handlers!(
+    dma2_stream0 = 0,
+    dma2_stream1 = 1,
+    dma2_stream2 = 2,
+    dma2_stream3 = 3,
+    dma2_stream4 = 4,
+    dma2_stream5 = 5,
+    dma2_stream6 = 6,
+    dma2_stream7 = 7
+);
+
+// ---- step_timer.rs ----
+
+#[derive(Clone, Copy)]
+struct ClockState {
+    wraps: u64,
+    alarm: u64,
+}
+
+static CLOCK: Mutex<CriticalSectionRawMutex, Cell<ClockState>> =
+    Mutex::new(Cell::new(ClockState {
+        wraps: 0,
+        alarm: u64::MAX,
+    }));
+
+/// Ticks per wrap of the 16-bit counter.
+pub const WRAP: u64 = 1 << 16;
+/// SR bits: update, CC1.
+pub const SR_UIF: u32 = 1 << 0;
+/// SR: compare 1.
+pub const SR_CC1IF: u32 = 1 << 1;
+const DIER_UIE: u32 = 1 << 0;
+/// DIER: compare 1 interrupt.
+pub const DIER_CC1IE: u32 = 1 << 1;
+
+/// TIM13's SR write with the hardware's rc_w0 effect (see the module's note).
+#[inline(always)]
+fn write_tim13_sr(value: u32) {
+    let sr = pac::TIM13.sr();
+    let now = sr.read().0;
+    sr.write_value(pac::timer::regs::Sr1ch(now & value));
+}
+
+/// The step clock's tick.
+pub fn now_tick() -> u64 {
+    CLOCK.lock(|cell| {
+        let state = cell.get();
+        let counter = u64::from(pac::TIM13.cnt().read().cnt());
+        let pending = pac::TIM13.sr().read().0 & SR_UIF != 0;
+        let wraps = state.wraps + u64::from(pending && counter < WRAP / 2);
+        cell.set(state);
+        wraps * WRAP + counter
+    })
+}
+
+fn arm(at: u64) {
+    CLOCK.lock(|cell| {
+        let mut state = cell.get();
+        state.alarm = at;
+        cell.set(state);
+    });
+    program_compare();
+}
+
+fn disarm() {
+    CLOCK.lock(|cell| {
+        let mut state = cell.get();
+        state.alarm = u64::MAX;
+        cell.set(state);
+    });
+    let regs = pac::TIM13;
+    regs.dier().write_value(pac::timer::regs::Dier1ch(DIER_UIE));
+}
+
+fn program_compare() {
+    let alarm = CLOCK.lock(|cell| {
+        let state = cell.get();
+        let alarm = state.alarm;
+        cell.set(state);
+        alarm
+    });
+    let regs = pac::TIM13;
+    let now = now_tick();
+    if alarm == u64::MAX {
+        regs.dier().write_value(pac::timer::regs::Dier1ch(DIER_UIE));
+        return;
+    }
+    if alarm <= now {
+        cortex_m::peripheral::NVIC::pend(pac::Tim13Irq);
+        return;
+    }
+    if alarm - now < WRAP / 2 {
+        regs.ccr(0).write(|w| w.set_ccr(alarm as u16));
+        write_tim13_sr(!SR_CC1IF & 0xFFFF);
+        regs.dier()
+            .write_value(pac::timer::regs::Dier1ch(DIER_UIE | DIER_CC1IE));
+        if now_tick() >= alarm {
+            cortex_m::peripheral::NVIC::pend(pac::Tim13Irq);
+        }
+    } else {
+        regs.dier().write_value(pac::timer::regs::Dier1ch(DIER_UIE));
+    }
+}
+
+/// The board's `#[interrupt] fn TIM8_UP_TIM13`.
+#[unsafe(no_mangle)]
+pub extern "C" fn tim8_up_tim13() {
+    let regs = pac::TIM13;
+    let flags = regs.sr().read().0;
+    write_tim13_sr(!(flags & (SR_UIF | SR_CC1IF)) & 0xFFFF);
+    if flags & SR_UIF != 0 {
+        CLOCK.lock(|cell| {
+            let mut state = cell.get();
+            state.wraps += 1;
+            cell.set(state);
+        });
+    }
+    let now = now_tick();
+    let alarm = CLOCK.lock(|cell| {
+        let state = cell.get();
+        let alarm = state.alarm;
+        cell.set(state);
+        alarm
+    });
+    if alarm <= now {
+        CLOCK.lock(|cell| {
+            let mut state = cell.get();
+            state.alarm = u64::MAX;
+            cell.set(state);
+        });
+        STEP.on_interrupt(&STEP_PROGRESS, |steps| ((), steps.on_alarm(now)));
+    }
+    program_compare();
+}
