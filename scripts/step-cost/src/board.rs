@@ -23,7 +23,7 @@ use core::cell::{Cell, UnsafeCell};
 use core::ptr::addr_of;
 
 use arm_core::profile::{self, BoardProfile};
-use arm_core::{STEP_QUEUE, StepBackend, StepProgress, StepShared};
+use arm_core::{StepBackend, StepProgress, StepShared};
 use arm_step::{
     DirChange, JointBuffer, MAX_JOINTS, PRELUDE, PulsePeriod, Segment, StepTiming, StreamsSlot,
 };
@@ -60,6 +60,8 @@ pub mod pac {
 pub const PROFILE: BoardProfile = profile::NUCLEO_H743ZI2;
 /// Periods per buffer half.
 pub const HALF: usize = PROFILE.step_buffer_half;
+/// Segments the step producer holds: the profile's lookahead, as on the board.
+pub const STEP_QUEUE: usize = PROFILE.step_queue();
 /// The step timing of every joint.
 pub const STEP_TIMING: StepTiming = PROFILE.step_timing();
 /// The longest period of each joint's timer.
