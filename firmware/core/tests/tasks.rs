@@ -122,14 +122,8 @@ async fn step_interrupt<const Q: usize>(
     pins: &RefCell<TestPins>,
     bus: &Bus,
 ) {
-    let mut deadline: Option<u64> = None;
-    loop {
-        let now = kick.now_tick();
-        if kick.kicked.replace(false) || deadline.is_some_and(|d| now >= d) {
-            deadline = on_step_timer(step, now, &mut *pins.borrow_mut(), &bus.step_progress);
-        }
-        yield_now().await;
-    }
+    // No hold ever set: the plain interrupt.
+    step_interrupt_holding(kick, step, pins, bus, &Cell::new((None, 0))).await
 }
 
 #[derive(Default)]
