@@ -150,10 +150,12 @@ impl Board {
         log::info!("motors: positions {positions:?}, pulses {pulses:?}");
         let serial = self.serial.counters();
         log::info!(
-            "serial: {} bytes written, {} received, {} dropped",
+            "serial: {} bytes written, {} received, {} dropped on receive, {} ACKed for sending \
+             and dropped by USART_STOP",
             serial.written.load(Ordering::Relaxed),
             serial.received.load(Ordering::Relaxed),
-            serial.dropped.load(Ordering::Relaxed)
+            serial.dropped.load(Ordering::Relaxed),
+            BUS.serial_tx_dropped()
         );
         let dir_while_high = self.motors.dir_while_high.load(Ordering::Relaxed);
         if dir_while_high > 0 {

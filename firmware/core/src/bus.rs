@@ -141,6 +141,9 @@ pub struct Bus {
     /// Each source's share of the receive path, charged by [`Bus::receive_first`] (the
     /// first reader of datagrams: [`crate::ingress`]).
     pub(crate) budgets: SharedBudgets,
+    /// USART_SEND bytes ACKed but dropped unsent by a USART_STOP (wrapping), counted by
+    /// `trajectory_task`.
+    serial_tx_dropped: Mutex<Cs, Cell<u32>>,
     /// Datagrams [`Bus::receive_first`] ignored for their broadcast or multicast address,
     /// and the limit on their log lines.
     pub(crate) group_ignored: Mutex<Cs, Cell<(u32, LogLimit)>>,
@@ -169,6 +172,7 @@ impl Bus {
             outbox_drops: Mutex::new(Cell::new(0)),
             budgets: Mutex::new(RefCell::new(SourceBudgets::new())),
             group_ignored: Mutex::new(Cell::new((0, LogLimit::new()))),
+            serial_tx_dropped: Mutex::new(Cell::new(0)),
         }
     }
 
@@ -180,6 +184,24 @@ impl Bus {
     /// Takes the count of frames dropped because the outbox was full since the last call.
     pub fn take_outbox_drops(&self) -> u32 {
         self.outbox_drops.lock(|c| c.replace(0))
+    }
+
+    /// USART_SEND bytes ACKed `OK` but dropped unsent because USART_STOP closed the port
+    /// first (wrapping): every byte ACKed is written, or counted here (issue 21 F18).
+    pub fn serial_tx_dropped(&self) -> u32 {
+        self.serial_tx_dropped.lock(|c| c.get())
+    }
+
+    /// Drops every queued USART_SEND payload, counting its bytes in
+    /// [`Bus::serial_tx_dropped`]; returns how many bytes.
+    pub fn drop_serial_tx(&self) -> u32 {
+        let mut bytes = 0u32;
+        while let Ok(chunk) = self.serial_tx.try_receive() {
+            bytes = bytes.saturating_add(u32::try_from(chunk.len()).unwrap_or(u32::MAX));
+        }
+        self.serial_tx_dropped
+            .lock(|c| c.set(c.get().wrapping_add(bytes)));
+        bytes
     }
 
     /// The report settings as last published.

@@ -1396,6 +1396,40 @@ fn a_window_of_status_polls_gets_every_reply() {
     });
 }
 
+/// Issue 21 F18: bytes of USART_SEND ACKed OK but not yet written when USART_STOP came
+/// were discarded, and nothing counted them (the simulator's summary said 0 dropped). The
+/// serial task does not run here, so all three sends are still queued at the stop: each
+/// byte is counted as dropped, and the count is the bus's.
+#[test]
+fn usart_stop_counts_the_acked_bytes_it_drops() {
+    let rig = Rig::new();
+    rig.route(&frame(
+        1,
+        Command::UsartStart(UartInit {
+            baud_rate: 115_200,
+            ..UartInit::default()
+        }),
+    ));
+    for seq in 2..5 {
+        rig.route(&frame(seq, Command::UsartSend(b"ping")));
+    }
+    rig.route(&frame(5, Command::UsartStop));
+    rig.run(async {
+        until("every ACK", LIMIT, || rig.acks().len() >= 5).await;
+        assert!(
+            rig.acks().iter().all(|a| a.2 == StatusCode::Ok),
+            "{:?}",
+            rig.acks()
+        );
+        assert_eq!(
+            rig.bus.serial_tx_dropped(),
+            12,
+            "3 x 4 bytes ACKed, never sent"
+        );
+        assert!(rig.bus.serial_tx.is_empty());
+    });
+}
+
 /// Issue 18 part 3: the wired e-stop input. Its edge handler stops the steps itself (no
 /// task has run when `edge` returns); the trajectory task then latches the controller:
 /// RUNING refused ESTOP_LATCHED until the input is closed and ESTOP_RESET clears it,

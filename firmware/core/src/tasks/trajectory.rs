@@ -102,7 +102,14 @@ impl<const Q: usize, B: StepBackend, K: StepKick, O: Outputs, G: Gripper, P: Ser
         Ok(())
     }
     fn serial_close(&mut self) {
-        self.bus.serial_tx.clear();
+        // Bytes ACKed but not yet written are dropped with the port, and counted.
+        let dropped = self.bus.drop_serial_tx();
+        if dropped > 0 {
+            warn!(
+                "USART_STOP: {} bytes ACKed but not yet sent were dropped",
+                dropped
+            );
+        }
         self.serial.close();
     }
     fn serial_send(&mut self, bytes: &[u8]) -> bool {
