@@ -133,7 +133,7 @@ fn stopped_halts_the_pulses_at_once() {
         client.ok(&Command::Pending(protocol::PointList::Points(chunk)));
     }
     client.ok(&Command::Runing);
-    std::thread::sleep(Duration::from_millis(300));
+    client.wait_moved(0, 101, Duration::from_secs(5));
     assert_eq!(client.status().state, State::Running);
     let ack = client.ok(&Command::Stopped);
     assert_eq!(ack.state, State::Stopped);

@@ -65,7 +65,7 @@ fn the_wired_input_stops_a_run_within_a_step_period_latches_and_clears() {
         client.ok(&Command::Pending(protocol::PointList::Points(chunk)));
     }
     client.ok(&Command::Runing);
-    std::thread::sleep(Duration::from_millis(300));
+    client.wait_moved(0, 11, Duration::from_secs(5));
     assert_eq!(client.status().state, State::Running);
 
     input.open();

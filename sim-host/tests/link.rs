@@ -77,7 +77,7 @@ fn seqs(client: &mut Client, n: usize) -> Vec<u8> {
 }
 
 /// Starts a run of 12 points of 20 ms moving joint 0 by +5 steps each, from where it is,
-/// as `client` (NEW, PENDING, RUNING, each ACKed); lets it move for 40 ms, sends `stop`
+/// as `client` (NEW, PENDING, RUNING, each ACKed); once it moved a point's worth, sends `stop`
 /// from `panel` (raw bytes, no ACK awaited), and returns the STATUS once the run has
 /// ended, and the steps joint 0 moved of the 60 planned.
 fn run_then_stop(
@@ -101,7 +101,8 @@ fn run_then_stop(
     });
     client.ok(&Command::Pending(PointList::Points(&pts)));
     client.ok(&Command::Runing);
-    std::thread::sleep(Duration::from_millis(40));
+    // Under way (a point's worth moved), observed rather than slept for (issue 19).
+    client.wait_moved(start[0], 5, Duration::from_secs(5));
     panel.socket.send(stop).expect("send");
     let status = client.wait_stopped(Duration::from_secs(5));
     client.status();

@@ -193,6 +193,23 @@ impl Client {
         }
     }
 
+    /// Waits until joint 0 has moved `steps` from `from` (LOCATION reports), at most
+    /// `timeout`: a run under way, observed, instead of a guessed sleep (issue 19).
+    pub fn wait_moved(&mut self, from: i32, steps: i32, timeout: Duration) -> Location {
+        let deadline = Instant::now() + timeout;
+        loop {
+            let location = self.location();
+            if (location.position[0] - from).abs() >= steps {
+                return location;
+            }
+            assert!(
+                Instant::now() < deadline,
+                "joint 0 at {} after {timeout:?}, expected {steps} steps from {from}",
+                location.position[0]
+            );
+        }
+    }
+
     /// Uploads `points` (NEW, then PENDING frames of up to 12, each ACKed OK), runs them
     /// and waits until STOPPED. The buffer must hold them all.
     pub fn run_points(&mut self, points: &[Point], timeout: Duration) -> StatusReport {
