@@ -56,6 +56,14 @@ pub(super) struct Upload<'a, 'p> {
     /// When the latest `free` arrived: slots drain from then on while running.
     free_since: Instant,
     executed: usize,
+    /// How fast the controller has been running the points, as seen from here: when
+    /// `executed` was first seen above 0 and what it was then, and the points' nominal
+    /// time over the real time they took (1.0 on a board; 4.0 for a simulator at
+    /// `--time-scale 4`). A BUFFER_FULL back-off waits for the slots to drain at that
+    /// pace, not at the points' nominal one (a simulator at 4x drained the buffer while
+    /// the upload waited four times too long; issue 19's runs under load).
+    drain_anchor: Option<(Instant, usize)>,
+    drain_speed: Option<f64>,
     runing_sent: bool,
     state: State,
     /// BUFFER_FULL back-off: resend from this frame once the instant has passed.
@@ -107,6 +115,8 @@ impl<'a, 'p> Upload<'a, 'p> {
             buffered: usize::from(ack.buffered),
             free_since: Instant::now(),
             executed: 0,
+            drain_anchor: None,
+            drain_speed: None,
             runing_sent: false,
             state: ack.state,
             resume: None,
@@ -235,10 +245,37 @@ impl Upload<'_, '_> {
             .iter()
             .map(|p| i64::from(p.duration))
             .sum();
+        // At the pace the controller has been running them (never slower than nominal:
+        // a controller that has fallen behind only costs BUFFER_FULL round trips).
+        let speed = self.drain_speed.unwrap_or(1.0).max(1.0);
+        let us = (us as f64 / speed) as i64;
         // A tenth more and a millisecond: the controller frees a slot only once the
         // point's last step is due, and its timer may run a little behind ours. Too early
         // costs one BUFFER_FULL round trip; too late lets the buffer run low.
         Duration::from_micros((us.clamp(500, 200_000) * 11 / 10 + 1_000) as u64)
+    }
+
+    /// `executed` grew to `now_executed`: updates the observed drain speed, once at least
+    /// 100 ms and a few points have passed since the anchor (shorter spans are noise).
+    fn observe_drain(&mut self, now_executed: usize) {
+        let now = Instant::now();
+        let Some((since, from)) = self.drain_anchor else {
+            if now_executed > 0 {
+                self.drain_anchor = Some((now, now_executed));
+            }
+            return;
+        };
+        let real = now.duration_since(since);
+        if real < Duration::from_millis(100) || now_executed < from + 4 {
+            return;
+        }
+        let end = now_executed.min(self.points.len());
+        let nominal_us: i64 = self.points[from.min(end)..end]
+            .iter()
+            .map(|p| i64::from(p.duration))
+            .sum();
+        self.drain_speed = Some(nominal_us as f64 / real.as_micros().max(1) as f64);
+        self.drain_anchor = Some((now, now_executed));
     }
 
     fn progress(&self) -> Progress {
@@ -312,6 +349,7 @@ impl Upload<'_, '_> {
                     if self.runing_sent {
                         let executed = self.acked_points.saturating_sub(self.buffered);
                         self.executed = self.executed.max(executed);
+                        self.observe_drain(self.executed);
                     }
                 }
             }
