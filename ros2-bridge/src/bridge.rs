@@ -390,6 +390,13 @@ impl Bridge {
                     let Ok(handle) = new_goal else { continue };
                     let Some(goal) = server.get_new_goal(handle) else { continue };
                     let position = goal.command.position;
+                    // Out of the configured range: rejected, so the client knows at once
+                    // (issue 22: it was accepted and aborted with `position nan`).
+                    if let Err(e) = gripper.duty(position) {
+                        log::warn!("gripper goal rejected: {e}");
+                        let _ = server.reject_goal(handle).await;
+                        continue;
+                    }
                     let Ok(accepted) = server.accept_goal(handle).await else { continue };
                     let Ok(executing) = server.start_executing_goal(accepted).await else { continue };
                     let applied = match gripper.duty(position) {

@@ -492,6 +492,18 @@ fn follow_joint_trajectory_goals_against_sim_host() {
             .async_request_result(gripper_goal)
             .await
             .expect("gripper result");
+        // Issue 22: a position outside the configured range was accepted and aborted
+        // with `position nan`; it is rejected now (the bridge's log names the range).
+        let (_, out_of_range) = gripper
+            .async_send_goal(GripperCommandGoal {
+                command: GripperCommand {
+                    position: 5.0,
+                    max_effort: 0.0,
+                },
+            })
+            .await
+            .expect("an answer to the out-of-range goal");
+        assert!(!out_of_range.accepted, "a gripper goal at 5 m is rejected");
         phase("gripper done");
         (
             success,
