@@ -417,6 +417,17 @@ impl Bridge {
                     let (status, reached) = match applied {
                         Ok(duty) => {
                             log::info!("gripper to {position} m: duty {duty:.4}");
+                            // Feedback (issue 22: there was none): the PWM is set, the servo
+                            // moving for `settle_ms` (a hobby servo reports nothing back).
+                            let moving = GripperCommandResult {
+                                position,
+                                effort: 0.0,
+                                stalled: false,
+                                reached_goal: false,
+                            };
+                            if let Err(e) = server.publish_feedback(executing.clone(), moving).await {
+                                log::warn!("gripper feedback: {e:?}");
+                            }
                             Timer::after(Duration::from_millis(gripper.settle_ms)).await;
                             (GoalEndStatus::Succeeded, true)
                         }

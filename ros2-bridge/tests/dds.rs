@@ -488,10 +488,26 @@ fn follow_joint_trajectory_goals_against_sim_host() {
             .await
             .expect("gripper goal");
         assert!(response.accepted);
-        let gripped = gripper
-            .async_request_result(gripper_goal)
-            .await
-            .expect("gripper result");
+        // Feedback while the servo settles, then the result (issue 22: no feedback came).
+        let gripper_feedback = gripper.feedback_stream(gripper_goal);
+        futures::pin_mut!(gripper_feedback);
+        let gripped = gripper.async_request_result(gripper_goal).fuse();
+        futures::pin_mut!(gripped);
+        let mut feedback_seen = Vec::new();
+        let gripped = loop {
+            futures::select! {
+                r = gripped => break r.expect("gripper result"),
+                f = gripper_feedback.select_next_some() => {
+                    feedback_seen.push(f.expect("gripper feedback"));
+                }
+            }
+        };
+        assert!(
+            feedback_seen
+                .iter()
+                .any(|f| (f.position - 0.04).abs() < 1e-9 && !f.reached_goal),
+            "gripper feedback: {feedback_seen:?}"
+        );
         // Issue 22: a position outside the configured range was accepted and aborted
         // with `position nan`; it is rejected now (the bridge's log names the range).
         let (_, out_of_range) = gripper
