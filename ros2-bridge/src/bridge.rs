@@ -425,7 +425,7 @@ impl Bridge {
                                 stalled: false,
                                 reached_goal: false,
                             };
-                            if let Err(e) = server.publish_feedback(executing.clone(), moving).await {
+                            if let Err(e) = server.publish_feedback(executing, moving).await {
                                 log::warn!("gripper feedback: {e:?}");
                             }
                             Timer::after(Duration::from_millis(gripper.settle_ms)).await;
