@@ -208,3 +208,30 @@ fn serial_bridges_stdin_and_stdout_and_watch_records() {
     // 10 ms reports for half a second.
     assert!(text.lines().count() > 20, "{text}");
 }
+
+/// Issue 23: `armctl watch | head` panicked with a backtrace when `head` closed the pipe.
+/// Now a closed stdout ends `watch` quietly: exit status 0, no panic on stderr.
+#[test]
+fn watch_into_a_closed_pipe_ends_quietly() {
+    use std::io::Read;
+    let sim = SimHost::start(&["--joints", "2"]);
+    let mut child = Command::new(armctl_bin())
+        .arg("--controller")
+        .arg(sim.addr.to_string())
+        .args(["watch", "--duration", "10"])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("run armctl watch");
+    // Read one line, as `head -1` would, then close the pipe.
+    let mut stdout = child.stdout.take().unwrap();
+    let mut first = [0u8; 1];
+    stdout
+        .read_exact(&mut first)
+        .expect("a first byte of output");
+    drop(stdout);
+    let output = child.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    assert!(output.status.success(), "{:?}: {stderr}", output.status);
+}

@@ -32,6 +32,7 @@ pub fn execute(arm: &Client, record: Option<&std::path::Path>, duration: Option<
     let started = Instant::now();
     let end = duration.map(|s| started + Duration::from_secs_f64(s.max(0.0)));
     let tty = std::io::stdout().is_terminal();
+    let mut out = std::io::stdout().lock();
     let mut last_print = Instant::now() - Duration::from_secs(1);
     let mut last_status = Instant::now();
     let mut seen = 0u64;
@@ -51,12 +52,16 @@ pub fn execute(arm: &Client, record: Option<&std::path::Path>, duration: Option<
                 if last_print.elapsed() >= Duration::from_millis(100) {
                     last_print = Instant::now();
                     let line = location_line(&location, joints);
-                    if tty {
-                        print!("\r{line}");
-                        let _ = std::io::stdout().flush();
+                    let written = if tty {
+                        write!(out, "\r{line}").and_then(|()| out.flush())
                     } else {
-                        println!("{line}");
+                        writeln!(out, "{line}")
+                    };
+                    // The reader went away (`armctl watch | head`): done, quietly.
+                    if closed(&written) {
+                        return Ok(());
                     }
+                    written.map_err(|e| format!("stdout: {e}"))?;
                 }
             }
             Err(mpsc::RecvTimeoutError::Timeout) => {}
@@ -68,9 +73,15 @@ pub fn execute(arm: &Client, record: Option<&std::path::Path>, duration: Option<
             arm.status().map_err(|e| e.to_string())?;
         }
     }
-    if tty {
-        println!();
+    let written = if tty { writeln!(out) } else { Ok(()) }
+        .and_then(|()| writeln!(out, "{seen} location reports"));
+    if closed(&written) {
+        return Ok(());
     }
-    println!("{seen} location reports");
-    Ok(())
+    written.map_err(|e| format!("stdout: {e}"))
+}
+
+/// Whether a write failed because the reader closed the pipe.
+fn closed(written: &std::io::Result<()>) -> bool {
+    matches!(written, Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe)
 }
