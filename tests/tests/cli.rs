@@ -235,3 +235,27 @@ fn watch_into_a_closed_pipe_ends_quietly() {
     assert!(!stderr.contains("panicked"), "{stderr}");
     assert!(output.status.success(), "{:?}: {stderr}", output.status);
 }
+
+/// Issue 23: `armctl set-location 1` set joint 0 to 1 and zeroed joints 1-5. Joints not
+/// given keep their positions now.
+#[test]
+fn set_location_of_the_first_joints_keeps_the_others() {
+    let sim = SimHost::start(&["--joints", "3"]);
+    let (ok, _, err) = armctl(Some(&sim), &["set-location", "10", "-20", "30"]);
+    assert!(ok, "{err}");
+    let (ok, _, err) = armctl(Some(&sim), &["set-location", "1"]);
+    assert!(ok, "{err}");
+    let (ok, out, err) = armctl(Some(&sim), &["watch", "--duration", "0.3"]);
+    assert!(ok, "{err}");
+    let last = out
+        .lines()
+        .rev()
+        .find(|l| l.contains(" j0 "))
+        .unwrap_or_else(|| panic!("a position line: {out}"));
+    let fields: Vec<&str> = last.split_whitespace().collect();
+    assert_eq!(
+        fields[1..],
+        ["j0", "1", "j1", "-20", "j2", "30"],
+        "joints 1 and 2 kept: {last}"
+    );
+}

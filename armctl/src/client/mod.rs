@@ -26,6 +26,11 @@ use receiver::{Shared, receive_loop};
 /// How long the receiver thread blocks in one `recv`, so that it notices a shutdown soon.
 const RECEIVER_POLL: Duration = Duration::from_millis(50);
 
+/// How long [`Client::set_location`] waits for the LOCATION report that gives the joints
+/// it leaves alone their positions: reports come every 10 ms by default, at most every
+/// second.
+const LOCATION_FOR_SET: Duration = Duration::from_millis(1_500);
+
 /// Timeouts and retry bounds of a [`Client`].
 #[derive(Clone, Debug)]
 pub struct Options {
@@ -390,7 +395,8 @@ impl Client {
     }
 
     /// LOCATION_SETTING: declares the current position of the joints in steps (the first
-    /// `positions.len()` joints; the others are set to 0).
+    /// `positions.len()` joints; the others keep theirs, read from a LOCATION report first,
+    /// which needs reports on).
     pub fn set_location(&self, positions: &[i32]) -> Result<Ack> {
         if positions.len() > MAX_JOINTS {
             return Err(Error::InvalidTrajectory(format!(
@@ -399,6 +405,22 @@ impl Client {
             )));
         }
         let mut location = Location::default();
+        if positions.len() < MAX_JOINTS {
+            // The joints not given keep their positions (issue 23: they were zeroed), read
+            // from a fresh LOCATION report.
+            location.position = self
+                .current_location(LOCATION_FOR_SET)
+                .map_err(|_| {
+                    Error::InvalidTrajectory(format!(
+                        "{} positions given: the others would keep theirs, but no LOCATION \
+                         report came in {:.1} s to tell them (reports off? UPLOAD_START, or \
+                         give a position for every joint)",
+                        positions.len(),
+                        LOCATION_FOR_SET.as_secs_f64()
+                    ))
+                })?
+                .position;
+        }
         location.position[..positions.len()].copy_from_slice(positions);
         self.send(&Command::LocationSetting(location))
     }

@@ -83,7 +83,7 @@ pub enum Cmd {
     },
     /// LOCATION_SETTING: declare the current joint positions, in steps.
     SetLocation {
-        /// Position of joint 0, 1, ... in steps.
+        /// Position of joint 0, 1, ... in steps; joints not given keep their positions.
         #[arg(required = true, num_args = 1..=8, allow_negative_numbers = true)]
         positions: Vec<i32>,
     },
