@@ -259,3 +259,29 @@ fn set_location_of_the_first_joints_keeps_the_others() {
         "joints 1 and 2 kept: {last}"
     );
 }
+
+/// Issue 23: `armctl plot -o x.png` wrote SVG into the .png. A name that is not .svg is
+/// refused before anything is written, naming the format.
+#[test]
+fn plot_refuses_an_output_that_is_not_svg() {
+    let dir = std::env::temp_dir().join(format!("armctl-plot-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let csv = dir.join("rec.csv");
+    std::fs::write(&csv, "time_s,state,j0\n0.0,3,0\n0.1,2,5\n").unwrap();
+    let png = dir.join("x.png");
+    let (ok, _, err) = armctl(
+        None,
+        &["plot", csv.to_str().unwrap(), "-o", png.to_str().unwrap()],
+    );
+    assert!(!ok, "a .png output was accepted");
+    assert!(err.contains("SVG") && err.contains(".svg"), "{err}");
+    assert!(!png.exists(), "nothing written");
+    // The same recording to a .svg is drawn.
+    let svg = dir.join("x.svg");
+    let (ok, _, err) = armctl(
+        None,
+        &["plot", csv.to_str().unwrap(), "-o", svg.to_str().unwrap()],
+    );
+    assert!(ok && svg.exists(), "{err}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

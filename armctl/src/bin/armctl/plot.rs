@@ -57,6 +57,16 @@ fn is_vcd(path: &std::path::Path) -> bool {
 
 /// `plot`: draws a recording or a trace to `args.output`; returns what to print.
 pub fn plot(args: &PlotArgs) -> Result<String, String> {
+    // The plot is SVG: a name promising another format would hold SVG bytes (issue 23:
+    // `-o x.png` did). No extension at all is taken as meant for SVG.
+    let extension = args.output.extension().and_then(|e| e.to_str());
+    if extension.is_some_and(|e| !e.eq_ignore_ascii_case("svg")) {
+        return Err(format!(
+            "{}: plot writes SVG; name the output .svg (convert it afterwards, e.g. with \
+             rsvg-convert, for a bitmap)",
+            args.output.display()
+        ));
+    }
     let commanded = match &args.trajectory {
         Some(path) => {
             let (waypoints, _) =
