@@ -48,6 +48,16 @@ class Status(TypedDict):
     upload_period_us: int
     pwm_timer_clock_hz: int
     max_step_rate_hz: int
+    window: int
+    """Datagrams the controller takes back to back (0: an older controller, assume 8)."""
+    step_budget_hz: int
+    """Steps per second of all joints together (0: an older controller)."""
+    more_flags: MoreFlags
+
+class MoreFlags(TypedDict):
+    upload_dropped: bool
+    estop_open: bool
+    estop_latched: bool
 
 class Location(TypedDict):
     positions: npt.NDArray[np.int32]
@@ -65,6 +75,7 @@ class Progress(TypedDict):
 class RunReport(TypedDict):
     points: int
     frames: int
+    window: int
     datagrams_sent: int
     retransmissions: int
     upload_time: float
@@ -143,7 +154,7 @@ class Arm:
         config: Optional[_Path] = None,
         wait: bool = True,
         segment_ms: float = 10.0,
-        window: int = 8,
+        window: Optional[int] = None,
     ) -> Union[RunReport, RunHandle]:
         """Runs through waypoints: `times` (N,) seconds, strictly increasing; `positions`
         (N, J) steps, or radians with a joint `config` file. Returns the report (wait) or
@@ -154,7 +165,7 @@ class Arm:
         config: Optional[_Path] = None,
         wait: bool = True,
         segment_ms: float = 10.0,
-        window: int = 8,
+        window: Optional[int] = None,
     ) -> Union[RunReport, RunHandle]:
         """Runs a JointTrajectory JSON (radians, with `config`) or CSV (steps) file."""
     def stop(self) -> None:

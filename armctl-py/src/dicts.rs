@@ -37,7 +37,19 @@ pub(crate) fn status_dict<'py>(py: Python<'py>, s: &StatusReport) -> PyResult<Bo
         "upload_period_us" => s.upload_period_us,
         "pwm_timer_clock_hz" => s.pwm_timer_clock_hz,
         "max_step_rate_hz" => s.max_step_rate_hz,
+        // Issue 23: the package's STATUS lacked these three.
+        "window" => s.window,
+        "step_budget_hz" => s.step_budget_hz,
     });
+    let more = PyDict::new(py);
+    for (name, bit) in [
+        ("upload_dropped", protocol::MoreFlags::UPLOAD_DROPPED),
+        ("estop_open", protocol::MoreFlags::ESTOP_OPEN),
+        ("estop_latched", protocol::MoreFlags::ESTOP_LATCHED),
+    ] {
+        more.set_item(name, s.more_flags.has(bit))?;
+    }
+    d.set_item("more_flags", more)?;
     Ok(d)
 }
 
@@ -86,6 +98,7 @@ pub(crate) fn report_dict<'py>(
     set_items!(d, {
         "points" => r.points,
         "frames" => r.frames,
+        "window" => r.window,
         "datagrams_sent" => r.datagrams_sent,
         "retransmissions" => r.retransmissions,
         "upload_time" => r.upload_time.as_secs_f64(),

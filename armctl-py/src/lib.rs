@@ -137,10 +137,13 @@ impl Arm {
         py: Python<'_>,
         run: WaypointRun,
         wait: bool,
-        window: usize,
+        window: Option<usize>,
     ) -> PyResult<Py<PyAny>> {
         let joints = run.waypoints.positions.first().map_or(0, Vec::len);
         let (status, location) = self.before_run(py)?;
+        // The window the controller advertises, as `armctl run` takes it (issue 23: the
+        // package used 8 where the CLI used the advertised 32).
+        let window = window.unwrap_or_else(|| armctl::window_of(&status));
         let arm_joints = usize::from(status.joints).clamp(1, MAX_JOINTS);
         if joints > arm_joints {
             return Err(TrajectoryError::new_err(match &run.file {
@@ -285,7 +288,7 @@ impl Arm {
     /// from where it is to the first waypoint (at t=0 it must be there already), and
     /// through the rest resampled into `segment_ms` points. `wait=False` returns a
     /// RunHandle at once.
-    #[pyo3(signature = (times, positions, config=None, wait=true, segment_ms=10.0, window=8))]
+    #[pyo3(signature = (times, positions, config=None, wait=true, segment_ms=10.0, window=None))]
     #[allow(clippy::too_many_arguments)]
     fn run(
         &self,
@@ -295,7 +298,7 @@ impl Arm {
         config: Option<PathBuf>,
         wait: bool,
         segment_ms: f64,
-        window: usize,
+        window: Option<usize>,
     ) -> PyResult<Py<PyAny>> {
         let numpy = py.import("numpy")?;
         let times = numpy.call_method1("ascontiguousarray", (times, "float64"))?;
@@ -366,7 +369,7 @@ impl Arm {
 
     /// Runs a trajectory file as `armctl run` does: JointTrajectory JSON (radians, needs
     /// `config`) or CSV (`time_s, steps...`).
-    #[pyo3(signature = (path, config=None, wait=true, segment_ms=10.0, window=8))]
+    #[pyo3(signature = (path, config=None, wait=true, segment_ms=10.0, window=None))]
     fn run_file(
         &self,
         py: Python<'_>,
@@ -374,7 +377,7 @@ impl Arm {
         config: Option<PathBuf>,
         wait: bool,
         segment_ms: f64,
-        window: usize,
+        window: Option<usize>,
     ) -> PyResult<Py<PyAny>> {
         let (waypoints, config) =
             trajectory::load_files(&path, config.as_deref()).map_err(trajectory_err)?;

@@ -37,6 +37,16 @@ def test_trajectory_from_numpy_ends_exactly(sim):
         times, positions = ramp(start, target, 0.6)
         report = arm.run(times, positions)
         assert report["points"] == 60
+        # The window the controller advertises, as `armctl run` uses (issue 23: it was 8),
+        # and STATUS's later fields (issue 23: missing).
+        status = arm.status()
+        assert report["window"] == status["window"] == 32
+        assert status["step_budget_hz"] == 4_000_000
+        assert status["more_flags"] == {
+            "upload_dropped": False,
+            "estop_open": False,
+            "estop_latched": False,
+        }
         np.testing.assert_array_equal(report["final_positions"], target)
         np.testing.assert_array_equal(arm.positions(), target)
         assert report["final_status"]["executed"] == 60
