@@ -435,6 +435,12 @@ impl Arm {
 
     /// PIN0/PIN1 high (`True`) or low.
     fn pin(&self, py: Python<'_>, pin: u8, high: bool) -> PyResult<()> {
+        // A wrong argument is a ValueError, not a "network error" (issue 23).
+        if pin > 1 {
+            return Err(PyValueError::new_err(format!(
+                "pin must be 0 or 1 (the controller has GPIO pins 0 and 1), not {pin}"
+            )));
+        }
         self.call(py, move |arm| arm.pin(pin, high)).map(|_| ())
     }
 
@@ -601,7 +607,9 @@ fn connect(
         bind,
         ..Options::default()
     };
-    let address = address.to_string();
+    // HOST alone gets the default port, as `armctl --controller` (issue 23: "127.0.0.1"
+    // without a port failed).
+    let address = armctl::controller_address(address);
     let arm = py
         .detach(move || -> armctl::Result<Client> {
             let arm = Client::open(address.as_str(), options)?;

@@ -217,3 +217,21 @@ def test_radians_with_a_joint_config_and_run_file(sim):
         report = arm.run_file(EXAMPLES / "wave.csv")
         np.testing.assert_array_equal(report["final_positions"][:3], [0, 0, 0])
         assert report["points"] == 200
+
+
+def test_connect_without_a_port_and_a_wrong_pin(sim):
+    """Issue 23: connect("127.0.0.1") failed for want of a port (the CLI takes 8510), and
+    pin(3) raised a "network error"."""
+    host, _port = sim.address.rsplit(":", 1)
+    # HOST alone means HOST:8510: connecting there reaches 8510 (nothing listens there in
+    # this test, unless something else does), not an address error.
+    try:
+        with armctl.connect(host) as arm:
+            assert arm.address.endswith(":8510")
+    except armctl.NoReplyError as e:
+        assert "127.0.0.1:8510" in str(e), str(e)
+    with armctl.connect(sim.address) as arm:
+        with pytest.raises(ValueError, match="pin must be 0 or 1"):
+            arm.pin(3, True)
+        arm.pin(1, True)
+        assert arm.status()["flags"]["pin1_high"]

@@ -77,4 +77,27 @@ pub fn logger(default_filter: &str) -> env_logger::Builder {
 /// The controller's UDP port, when an address names none.
 pub const DEFAULT_PORT: u16 = 8510;
 
+/// The controller address with the default port when `text` names none: `HOST`,
+/// `A.B.C.D`, `::1` or `[::1]` get `:8510`; `HOST:PORT` and `[V6]:PORT` are kept.
+pub fn controller_address(text: &str) -> String {
+    let text = text.trim();
+    if text.parse::<std::net::SocketAddr>().is_ok() {
+        return text.to_string();
+    }
+    if let Ok(ip) = text.parse::<std::net::IpAddr>() {
+        return std::net::SocketAddr::new(ip, DEFAULT_PORT).to_string();
+    }
+    if let Some(inner) = text.strip_prefix('[').and_then(|t| t.strip_suffix(']'))
+        && let Ok(ip) = inner.parse::<std::net::Ipv6Addr>()
+    {
+        return std::net::SocketAddr::new(ip.into(), DEFAULT_PORT).to_string();
+    }
+    match text.rsplit_once(':') {
+        Some((host, port)) if !host.contains(':') && port.parse::<u16>().is_ok() => {
+            text.to_string()
+        }
+        _ => format!("{text}:{}", DEFAULT_PORT),
+    }
+}
+
 pub use protocol;

@@ -183,29 +183,6 @@ impl SerialMode {
     }
 }
 
-/// The controller address with the default port when `text` names none: `HOST`,
-/// `A.B.C.D`, `::1` or `[::1]` get `:8510`; `HOST:PORT` and `[V6]:PORT` are kept.
-pub fn controller_address(text: &str) -> String {
-    let text = text.trim();
-    if text.parse::<std::net::SocketAddr>().is_ok() {
-        return text.to_string();
-    }
-    if let Ok(ip) = text.parse::<std::net::IpAddr>() {
-        return std::net::SocketAddr::new(ip, armctl::DEFAULT_PORT).to_string();
-    }
-    if let Some(inner) = text.strip_prefix('[').and_then(|t| t.strip_suffix(']'))
-        && let Ok(ip) = inner.parse::<std::net::Ipv6Addr>()
-    {
-        return std::net::SocketAddr::new(ip.into(), armctl::DEFAULT_PORT).to_string();
-    }
-    match text.rsplit_once(':') {
-        Some((host, port)) if !host.contains(':') && port.parse::<u16>().is_ok() => {
-            text.to_string()
-        }
-        _ => format!("{text}:{}", armctl::DEFAULT_PORT),
-    }
-}
-
 /// A warning when `--ack-timeout-ms` x `--attempts` reaches past the controller's
 /// duplicate window: the client then stops resending 1.8 s after the first copy.
 pub fn resend_warning(ack_timeout_ms: u64, attempts: u32) -> Option<String> {

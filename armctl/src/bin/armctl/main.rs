@@ -42,7 +42,7 @@ type CliResult = Result<(), String>;
 fn main() -> ExitCode {
     init_logging();
     let mut cli = Cli::parse();
-    cli.controller = cli::controller_address(&cli.controller);
+    cli.controller = armctl::controller_address(&cli.controller);
     if let Some(warning) = cli::resend_warning(cli.ack_timeout_ms, cli.attempts) {
         eprintln!("warning: {warning}");
     }

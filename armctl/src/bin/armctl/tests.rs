@@ -76,7 +76,7 @@ fn run_options() {
 
 #[test]
 fn controller_address_gets_the_default_port() {
-    use cli::controller_address as addr;
+    use armctl::controller_address as addr;
     assert_eq!(addr("192.168.1.30"), "192.168.1.30:8510");
     assert_eq!(addr("192.168.1.30:9000"), "192.168.1.30:9000");
     assert_eq!(addr("localhost"), "localhost:8510");
