@@ -139,7 +139,7 @@ impl fmt::Display for Error {
                 command.name(),
                 status.name(),
                 state.name(),
-                status.advice()
+                invalid_config_advice(*command, *status).unwrap_or(status.advice())
             ),
             Error::NoReply {
                 command,
@@ -262,9 +262,52 @@ impl Error {
     }
 }
 
+/// For INVALID_CONFIG, which field of the refused command is out of which range
+/// (docs/PROTOCOL.md; issue 23: the message named neither).
+fn invalid_config_advice(command: Tag, status: StatusCode) -> Option<&'static str> {
+    if status != StatusCode::InvalidConfig {
+        return None;
+    }
+    Some(match command {
+        Tag::PwmStart => {
+            "PSC and ARR must fit 16 bits (0..65535) and CCR1 must not exceed ARR; the output \
+             frequency is pwm_timer_clock_hz / ((PSC + 1)(ARR + 1))"
+        }
+        Tag::UsartStart => {
+            "BaudRate must be 300..4000000, WordLength 0 or 0x1000, StopBits 0 or 0x2000, \
+             Parity 0, 0x400 or 0x600, HwFlowCtl 0, OverSampling 0 or 0x8000"
+        }
+        Tag::UploadPeriod => "the period must be 1000..1000000 microseconds",
+        Tag::JointsCount => "the joint count must be 1..8",
+        Tag::New => "the point count must be 1..65535",
+        Tag::NetSet => {
+            "a unicast address (not 0.x, 127.x, 224-255.x, nor the subnet's network or \
+             broadcast address) with a prefix of 1..32 and a gateway inside the subnet, or DHCP"
+        }
+        _ => return None,
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Issue 23: INVALID_CONFIG named neither the field nor its range.
+    #[test]
+    fn invalid_config_names_the_field_and_its_range() {
+        let message = |command| {
+            Error::Refused {
+                command,
+                status: StatusCode::InvalidConfig,
+                state: State::Stopped,
+            }
+            .to_string()
+        };
+        assert!(message(Tag::PwmStart).contains("CCR1 must not exceed ARR"));
+        assert!(message(Tag::UsartStart).contains("BaudRate must be 300..4000000"));
+        assert!(message(Tag::UploadPeriod).contains("1000..1000000 microseconds"));
+        assert!(message(Tag::JointsCount).contains("1..8"));
+    }
 
     /// Issue 21 F10: a NOT_OWNER ACK's state is 0 (a stranger learns nothing), which armctl
     /// printed as "controller state NEW" whatever the arm was doing.
