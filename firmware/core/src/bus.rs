@@ -278,8 +278,13 @@ impl Bus {
 
 /// Whether a datagram is a CRC-valid STOPPED frame.
 pub fn is_stop(bytes: &[u8]) -> bool {
+    is_valid_frame_of(bytes, Tag::Stopped)
+}
+
+/// Whether a datagram is a CRC-valid frame with tag `tag`, whatever its length.
+pub fn is_valid_frame_of(bytes: &[u8], tag: Tag) -> bool {
     match bytes.split_last() {
-        Some((crc, body @ [_, tag, ..])) => *tag == Tag::Stopped as u8 && crc8(body) == *crc,
+        Some((crc, body @ [_, t, ..])) => *t == tag as u8 && crc8(body) == *crc,
         _ => false,
     }
 }

@@ -22,7 +22,7 @@
 use heapless::Vec;
 use protocol::{MAX_DATAGRAM, Tag, crc8};
 
-use crate::bus::{Bus, Datagram, is_stop};
+use crate::bus::{Bus, Datagram, is_stop, is_valid_frame_of};
 use crate::hw::{Endpoint, StepKick};
 use crate::log_limit::LogVerdict;
 // The fair share itself is sans-io and lives below the bus (which holds it).
@@ -62,15 +62,6 @@ pub enum Ingress {
 /// link carries, directed subnet broadcasts included.
 pub fn to_group(frame: &[u8]) -> bool {
     frame.first().is_some_and(|b| b & 1 == 1)
-}
-
-/// Whether a datagram is a CRC-valid DISCOVER (whatever its length: the controller
-/// answers or refuses it by its own rules).
-fn is_discover(bytes: &[u8]) -> bool {
-    match bytes.split_last() {
-        Some((crc, body @ [_, tag, ..])) => *tag == Tag::Discover as u8 && crc8(body) == *crc,
-        _ => false,
-    }
 }
 
 /// Stops every STEP output now, from wherever the datagram was read: no task runs
@@ -123,7 +114,9 @@ impl Bus {
             halt.halt();
             return Ingress::Stopped;
         }
-        if to_group && !is_discover(bytes) {
+        // A CRC-valid DISCOVER, whatever its length: the controller answers or refuses it
+        // by its own rules.
+        if to_group && !is_valid_frame_of(bytes, Tag::Discover) {
             let log = self.group_ignored.lock(|c| {
                 let (count, mut limit) = c.get();
                 let verdict = limit.event(now_us);
