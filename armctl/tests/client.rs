@@ -112,15 +112,22 @@ fn stop_from_another_thread_ends_the_run() {
     let fake = Fake::start(1000, Faults::default());
     let arm = Arc::new(Client::connect_with(fake.addr, options()).unwrap());
     let points = ramp(500, 1, 2000);
+    // The other thread stops once the run is seen executing: observed, not a guessed delay.
+    let (under_way, seen) = std::sync::mpsc::channel();
     let stopper = {
         let arm = arm.clone();
         std::thread::spawn(move || {
-            std::thread::sleep(Duration::from_millis(300));
+            seen.recv_timeout(Duration::from_secs(30))
+                .expect("the run executes points");
             arm.stop().unwrap()
         })
     };
     let err = arm
-        .run_trajectory(&points, &RunOptions::default(), |_| {})
+        .run_trajectory(&points, &RunOptions::default(), |p| {
+            if p.executed >= 10 {
+                let _ = under_way.send(());
+            }
+        })
         .unwrap_err();
     stopper.join().unwrap();
     match err {

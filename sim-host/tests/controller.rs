@@ -139,13 +139,8 @@ fn stopped_halts_the_pulses_at_once() {
     assert_eq!(ack.state, State::Stopped);
     let status = client.status();
     assert!(status.flags.has(StatusFlags::STOPPED_BY_HOST));
-    let stopped_at = client.location().position[0];
-    std::thread::sleep(Duration::from_millis(200));
-    assert_eq!(
-        client.location().position[0],
-        stopped_at,
-        "moved after STOPPED"
-    );
+    // 20 report periods (200 ms of the controller's clock) without a change.
+    let stopped_at = client.assert_stays_put(20)[0];
     assert!(stopped_at > 100 && stopped_at < 10_000, "{stopped_at}");
     sim.stop();
     let vcd = vcd::read_changes(&trace).unwrap();

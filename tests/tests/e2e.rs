@@ -7,12 +7,11 @@ use std::time::{Duration, Instant};
 
 use armctl::{Client, Error, Options, RunEnd, RunOptions};
 use common::{
-    Raw, datagram, loopback, out_of_order_names_the_missing_frame, pins_and_servo_pwm, position,
-    raw_frames_are_refused, refusals_in_stopped, serial_round_trip, stop_mid_run, sweep,
+    Raw, assert_stays_put, datagram, loopback, out_of_order_names_the_missing_frame,
+    pins_and_servo_pwm, position, raw_frames_are_refused, refusals_in_stopped,
+    run_reporting_progress, serial_round_trip, stop_mid_run, sweep,
 };
-use protocol::{
-    Command, Location, Point, PointList, Pwm, State, StatusCode, StatusFlags, Tag, UartInit,
-};
+use protocol::{Command, Point, PointList, Pwm, State, StatusCode, StatusFlags, Tag, UartInit};
 use system_tests::SimHost;
 
 fn refused(result: armctl::Result<protocol::Ack>, status: StatusCode, what: &str) -> Error {
@@ -252,14 +251,11 @@ fn another_host_is_not_the_owner_but_may_stop_the_arm() {
     }
     // Start a 2 s run as the owner; the other host stops it.
     let points = sweep(position(&arm), 2, 200, 1, 10_000);
-    let runner = {
-        let arm = arm.clone();
-        std::thread::spawn(move || arm.run_trajectory(&points, &RunOptions::default(), |_| {}))
-    };
-    std::thread::sleep(Duration::from_millis(500));
+    let runner = run_reporting_progress(&arm, points);
+    runner.wait_executed(5);
     let stranger = Client::open(sim.addr, other).unwrap();
     stranger.stop().expect("STOPPED from any host is obeyed");
-    match runner.join().unwrap() {
+    match runner.join() {
         Err(Error::RunEnded {
             reason: RunEnd::Stopped,
             ..
@@ -274,7 +270,7 @@ fn emergency_stop_mid_run_freezes_the_joints() {
     let arm = Arc::new(sim.connect_with(loopback()));
     let points = sweep(position(&arm), 6, 300, 3, 10_000);
     let total = points.len();
-    let result = stop_mid_run(&arm, points, Duration::from_millis(800));
+    let result = stop_mid_run(&arm, points, 20);
     let executed = match result {
         Err(Error::RunEnded {
             reason: RunEnd::Stopped,
@@ -287,18 +283,18 @@ fn emergency_stop_mid_run_freezes_the_joints() {
         }
         other => panic!("expected RunEnded(Stopped), got {other:?}"),
     };
-    // 0.8 s into a 3 s run of 10 ms points: well short of the end.
+    // Stopped once 20 of 300 points had run: well short of the end.
     assert!(executed > 0 && executed < total - 50, "executed {executed}");
     let status = arm.status().unwrap();
     assert_eq!(status.state, State::Stopped);
     assert!(status.flags.has(StatusFlags::STOPPED_BY_HOST));
     assert_eq!(status.buffered, 0);
-    // Nothing moves after the stop.
-    let first: Location = arm.current_location(Duration::from_secs(1)).unwrap();
-    std::thread::sleep(Duration::from_millis(300));
-    let later = arm.current_location(Duration::from_secs(1)).unwrap();
-    assert_eq!(first.position, later.position);
-    assert_eq!(later.state, State::Stopped as u8);
+    // Nothing moves after the stop: 30 report periods (300 ms of the controller's time).
+    assert_stays_put(&arm, 30);
+    assert_eq!(
+        arm.current_location(Duration::from_secs(1)).unwrap().state,
+        State::Stopped as u8
+    );
 }
 
 #[test]

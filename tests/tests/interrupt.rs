@@ -93,6 +93,19 @@ fn wait_running(arm: &Client, child: &mut Child) -> StatusReport {
     }
 }
 
+/// Waits until a LOCATION report shows the arm away from where it was (10 s at most): the
+/// run visibly under way.
+fn wait_moved(arm: &Client) {
+    let from = common::position(arm);
+    let deadline = Instant::now() + Duration::from_secs(10);
+    while common::position(arm) == from {
+        assert!(
+            Instant::now() < deadline,
+            "the arm never moved from {from:?}"
+        );
+    }
+}
+
 /// A CSV trajectory of 2 joints, `seconds` long: joint 0 out 1000 steps/s, joint 1 back
 /// 500 steps/s.
 fn long_csv(sim: &SimHost, seconds: u32) -> String {
@@ -162,9 +175,8 @@ fn interrupt_once(
         "the run was cut short: {status:?}"
     );
     // Where it stopped, and that it stays there.
-    let position = common::position(&arm);
-    std::thread::sleep(Duration::from_millis(200));
-    assert_eq!(common::position(&arm), position, "the arm still moves");
+    // 20 report periods (200 ms of the controller's clock) without a change.
+    let position = common::assert_stays_put(&arm, 20);
     drop(arm);
     sim.terminate();
 
@@ -362,7 +374,7 @@ fn run_then_go_silent(sim: &SimHost) -> (Proxy, Child, Instant) {
     let file = long_csv(sim, 10);
     let mut child = spawn_armctl(proxy.addr, &["run", &file, "--quiet"]);
     wait_running(&arm, &mut child);
-    std::thread::sleep(Duration::from_millis(200));
+    wait_moved(&arm);
     proxy.swallow.store(true, Ordering::SeqCst);
     let signalled = Instant::now();
     kill(&child, libc::SIGINT);

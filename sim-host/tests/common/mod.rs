@@ -210,6 +210,36 @@ impl Client {
         }
     }
 
+    /// Asserts that the next `reports` LOCATION reports all show the joints where the first
+    /// does: the arm stays put for that many of the controller's report periods, however
+    /// slow this machine is. Returns the position.
+    pub fn assert_stays_put(&mut self, reports: usize) -> [i32; MAX_JOINTS] {
+        let first = self.location();
+        for k in 1..reports {
+            let later = self.next_location();
+            assert_eq!(
+                later.position, first.position,
+                "a joint moved after the stop (report {k} of {reports})"
+            );
+        }
+        first.position
+    }
+
+    /// The next LOCATION report to arrive (2 s at most).
+    pub fn next_location(&mut self) -> Location {
+        let deadline = Instant::now() + Duration::from_secs(2);
+        loop {
+            let left = deadline
+                .checked_duration_since(Instant::now())
+                .expect("a LOCATION report");
+            match self.receive(left) {
+                Some((_, OwnedReport::Location(l))) => return l,
+                Some(other) => self.reports.push(other),
+                None => {}
+            }
+        }
+    }
+
     /// Uploads `points` (NEW, then PENDING frames of up to 12, each ACKed OK), runs them
     /// and waits until STOPPED. The buffer must hold them all.
     pub fn run_points(&mut self, points: &[Point], timeout: Duration) -> StatusReport {

@@ -227,23 +227,86 @@ pub fn pins_and_servo_pwm(arm: &armctl::Client) -> protocol::StatusReport {
     status
 }
 
-/// Runs `points` on a thread of its own, sends STOPPED after `delay` (its ACK must say
-/// STOPPED) and returns how the run ended.
+/// Runs `points` on a thread of its own and sends STOPPED once the controller has reported
+/// `after_executed` points executed (its ACK must say STOPPED); returns how the run ended.
+/// Observed progress, not a guessed delay: a loaded machine may take any time to get there.
 pub fn stop_mid_run(
     arm: &std::sync::Arc<armctl::Client>,
     points: Vec<Point>,
-    delay: Duration,
+    after_executed: usize,
 ) -> armctl::Result<armctl::RunReport> {
-    let runner = {
-        let arm = arm.clone();
-        std::thread::spawn(move || {
-            arm.run_trajectory(&points, &armctl::RunOptions::default(), |_| {})
-        })
-    };
-    std::thread::sleep(delay);
+    let runner = run_reporting_progress(arm, points);
+    runner.wait_executed(after_executed);
     let ack = arm.stop().unwrap();
     assert_eq!(ack.state, protocol::State::Stopped);
-    runner.join().unwrap()
+    runner.join()
+}
+
+/// A run on a thread of its own whose progress the test can wait for.
+pub struct ObservedRun {
+    executed: std::sync::mpsc::Receiver<usize>,
+    thread: std::thread::JoinHandle<armctl::Result<armctl::RunReport>>,
+}
+
+/// Starts `arm.run_trajectory(points)` on a thread of its own.
+pub fn run_reporting_progress(
+    arm: &std::sync::Arc<armctl::Client>,
+    points: Vec<Point>,
+) -> ObservedRun {
+    let (tx, executed) = std::sync::mpsc::channel();
+    let arm = arm.clone();
+    let thread = std::thread::spawn(move || {
+        arm.run_trajectory(&points, &armctl::RunOptions::default(), |p| {
+            let _ = tx.send(p.executed);
+        })
+    });
+    ObservedRun { executed, thread }
+}
+
+impl ObservedRun {
+    /// Waits until the controller has reported at least `count` points executed (30 s at
+    /// most; panics if the run ended first).
+    pub fn wait_executed(&self, count: usize) {
+        let deadline = Instant::now() + Duration::from_secs(30);
+        loop {
+            let left = deadline
+                .checked_duration_since(Instant::now())
+                .unwrap_or_else(|| panic!("fewer than {count} points executed after 30 s"));
+            match self.executed.recv_timeout(left) {
+                Ok(n) if n >= count => return,
+                Ok(_) => {}
+                Err(e) => panic!("the run ended before {count} points executed ({e})"),
+            }
+        }
+    }
+
+    /// How the run ended.
+    pub fn join(self) -> armctl::Result<armctl::RunReport> {
+        self.thread.join().unwrap()
+    }
+}
+
+/// Asserts that the next `reports` LOCATION reports (claimed for `arm`) all show the
+/// joints where the first of them does: the arm stays put for that many report periods
+/// of the controller's own clock (10 ms each by default), however slow this machine is.
+pub fn assert_stays_put(arm: &armctl::Client, reports: usize) -> [i32; MAX_JOINTS] {
+    let locations = arm.locations();
+    arm.claim_locations().expect("claim LOCATION reports");
+    let next = || {
+        locations
+            .recv_timeout(Duration::from_secs(5))
+            .expect("a LOCATION report")
+    };
+    let first = next();
+    for k in 1..reports {
+        let later = next();
+        assert_eq!(
+            later.position, first.position,
+            "a joint moved after the stop (report {k} of {reports})"
+        );
+        assert_eq!(later.state, first.state, "state changed (report {k})");
+    }
+    first.position
 }
 
 /// Client options for a simulator on loopback: a short first ACK wait, many tries.
