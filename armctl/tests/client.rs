@@ -278,6 +278,34 @@ fn the_advertised_window_is_used_by_default() {
     }
 }
 
+/// Issue 19's load test found RUNING overtaking a lost PENDING: RUNING is not ordered
+/// behind the upload (section 7), so armctl, sending it once the frames in flight would
+/// fill the buffer, started runs with 108 of 256 points and underran. The last PENDING
+/// before a full buffer is lost here: the run must still start with the buffer full.
+#[test]
+fn runing_waits_until_the_frames_that_fill_the_buffer_are_acked() {
+    // Datagram 0 is connect's STATUS, 1 the NEW, 2.. the PENDING frames: the fourth, the
+    // one that fills the 48 slots, is lost.
+    let fake = Fake::start(
+        48,
+        Faults {
+            drop_received: Some(5),
+            ..Faults::default()
+        },
+    );
+    let arm = Client::connect_with(fake.addr, options()).unwrap();
+    let points = ramp(120, 1, 10_000);
+    let report = arm
+        .run_trajectory(&points, &RunOptions::default(), |_| {})
+        .unwrap();
+    assert_eq!(fake.counters().taken, points);
+    assert_eq!(
+        fake.counters().received_at_start,
+        Some(48),
+        "points buffered when the run started: {report:?}"
+    );
+}
+
 /// One PENDING lost in the middle of a window: the frames after it are refused
 /// OUT_OF_ORDER, and the client goes back to `next_seq` at once instead of waiting for an
 /// ACK timeout.

@@ -65,3 +65,19 @@ fn stopped_wins_and_no_status_is_unknown() {
     assert_eq!(reason(&e), RunEnd::Stopped);
     assert_eq!(reason(&run_ended(None, 100)), RunEnd::Unknown);
 }
+
+/// Issue 19's load test: under 20 % loss each way the window halved down to one frame, so
+/// every later loss waited for an ACK timeout and a 4x run through 256 points underran
+/// (3 of 6 runs with two busy loops per core). It stops at four frames.
+#[test]
+fn losses_never_shrink_the_window_below_four_frames() {
+    let mut cwnd = 32.0;
+    for _ in 0..10 {
+        cwnd = upload::shrunk_window(cwnd, 32);
+    }
+    assert_eq!(cwnd, upload::MIN_LOSS_WINDOW as f64);
+    assert_eq!(upload::shrunk_window(32.0, 32), 16.0);
+    // A run asked for a smaller window keeps it.
+    assert_eq!(upload::shrunk_window(2.0, 2), 2.0);
+    assert_eq!(upload::shrunk_window(1.0, 1), 1.0);
+}

@@ -56,6 +56,8 @@ pub struct Counters {
     pub buffer_full: usize,
     /// Every point taken, in order.
     pub taken: Vec<Point>,
+    /// Points received when the first run started (RUNING taken).
+    pub received_at_start: Option<u16>,
 }
 
 struct Rng(u64);
@@ -265,11 +267,19 @@ impl Sim {
 
     fn handle(&mut self, datagram: &[u8], from: SocketAddr, link: &mut Link) {
         let now_us = u64::try_from(self.started.elapsed().as_micros()).unwrap_or(u64::MAX);
-        let received_before = self.controller.status(&self.plant).received;
+        let before = self.controller.status(&self.plant);
+        let received_before = before.received;
         let response = self
             .controller
             .handle(endpoint(from), datagram, now_us, &mut self.plant);
-        let received_after = self.controller.status(&self.plant).received;
+        let after = self.controller.status(&self.plant);
+        let received_after = after.received;
+        if before.state != protocol::State::Running
+            && after.state == protocol::State::Running
+            && self.counters.received_at_start.is_none()
+        {
+            self.counters.received_at_start = Some(after.received);
+        }
         if let Some(reply) = response.reply {
             match reply.ack.status {
                 StatusCode::OutOfOrder => self.counters.out_of_order += 1,
