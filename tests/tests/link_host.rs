@@ -48,8 +48,10 @@ fn sine_csv(path: &Path, joints: usize, seconds: u32) {
 #[test]
 fn lossy_run_at_four_times_real_time_through_256_points_ends_exactly() {
     // 2.56 s of motion in the buffer is 0.64 s at 4x: the upload must not share the CPU
-    // with the 50x overload test below (once seen under load: "underrun ... after 300 of
-    // 1200 points").
+    // with the 50x overload test below (beside it, 1 of 6 runs with two busy loops per
+    // core still underran after issue 19's armctl fix; alone, 20 of 20 passed). Before
+    // that fix it underran alone too ("after 300 of 1200 points"): RUNING overtook a lost
+    // PENDING and the run started with part of the buffer.
     let _alone = system_tests::run_alone();
     for seed in ["1", "2"] {
         let sim = SimHost::start(&[
