@@ -103,6 +103,7 @@ mod gripper;
 mod memory;
 mod net;
 mod pins;
+mod pre_init;
 mod serial;
 mod settings;
 mod step_dma;

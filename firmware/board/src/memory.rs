@@ -4,7 +4,7 @@
 //! cached write-through (MPU region 1): loads hit the cache, every store also reaches the
 //! RAM at once, so the settings marker surviving a reset (`settings.rs`) never misses a
 //! write still sitting in a dirty cache line. defmt's RTT control block and buffer are in
-//! SRAM1 (memory.x `.rtt`, copied there by [`__pre_init`](self) below): the probe writes
+//! SRAM1 (memory.x `.rtt`, copied there by `pre_init.rs`): the probe writes
 //! the read pointer behind the cache, and a CPU reading it from a cache line would see a
 //! full buffer forever (issue 20). The logger never waits for the probe either
 //! (defmt-rtt's `disable-blocking-mode`): a log line that does not fit is dropped, so no
@@ -35,37 +35,6 @@ use embassy_stm32::pac;
 
 use crate::net::{RX_PACKETS, TX_PACKETS};
 use crate::serial::{RX_RING_BYTES, TX_STAGING_BYTES};
-
-// Before RAM is initialised (cortex-m-rt calls `__pre_init` first thing after reset): clock
-// SRAM1 (RCC_AHB2ENR.SRAM1EN, bit 29, read back so the clock is on before the first access)
-// and copy defmt's RTT control block from flash into it (memory.x `.rtt`: `__sirtt` to
-// `__srtt..__ertt`). Assembly: no Rust may run before RAM is initialised.
-core::arch::global_asm!(
-    ".section .text.__pre_init,\"ax\",%progbits",
-    ".global __pre_init",
-    ".type __pre_init,%function",
-    ".thumb_func",
-    "__pre_init:",
-    "ldr r0, =0x580244DC",
-    "ldr r1, [r0]",
-    "orr r1, r1, #0x20000000",
-    "str r1, [r0]",
-    "ldr r1, [r0]",
-    "dsb",
-    "ldr r0, =__srtt",
-    "ldr r1, =__ertt",
-    "ldr r2, =__sirtt",
-    "1:",
-    "cmp r0, r1",
-    "bhs 2f",
-    "ldr r3, [r2], #4",
-    "str r3, [r0], #4",
-    "b 1b",
-    "2:",
-    "bx lr",
-    ".ltorg",
-    ".size __pre_init, . - __pre_init",
-);
 
 /// Start of AXI SRAM (memory.x `RAM`).
 const AXI_SRAM_BASE: u32 = 0x2400_0000;

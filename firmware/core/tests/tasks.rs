@@ -6,7 +6,6 @@ use std::cell::{Cell, RefCell};
 use std::collections::VecDeque;
 use std::future::{Future, poll_fn};
 use std::task::Poll;
-use std::time::{Duration, Instant};
 
 use arm_core::hw::{
     Clock, Datagrams, Encoders, Endpoint, Gripper, Outputs, PersistentSettings, SerialError,
@@ -26,9 +25,6 @@ use protocol::{
     Command, Frame, MAX_JOINTS, Point, PointList, Pwm, Report, State, StatusCode, StatusFlags, Tag,
     UartInit,
 };
-
-/// How long a test waits for what it expects before it fails.
-const LIMIT: Duration = Duration::from_secs(5);
 
 const HOST: Endpoint = Endpoint {
     ip: [127, 0, 0, 1],
@@ -155,7 +151,9 @@ impl StepPins for TestPins {
 #[derive(Default)]
 struct TestSocket {
     incoming: RefCell<VecDeque<(Vec<u8>, Endpoint)>>,
-    sent: RefCell<Vec<(Endpoint, Vec<u8>)>>,
+    /// Every datagram sent, kept for the test's lifetime (leaked once here, so that
+    /// decoding them again at every poll allocates nothing).
+    sent: RefCell<Vec<(Endpoint, &'static [u8])>>,
 }
 
 impl Datagrams for TestSocket {
@@ -174,7 +172,8 @@ impl Datagrams for TestSocket {
         })
     }
     fn send(&self, to: Endpoint, frame: &[u8]) -> impl Future<Output = Result<(), ()>> {
-        self.sent.borrow_mut().push((to, frame.to_vec()));
+        let kept: &'static [u8] = Box::leak(frame.to_vec().into_boxed_slice());
+        self.sent.borrow_mut().push((to, kept));
         std::future::ready(Ok(()))
     }
 }
@@ -342,11 +341,29 @@ fn decoded(socket: &TestSocket) -> Vec<(Endpoint, u8, Report<'static>)> {
         .borrow()
         .iter()
         .map(|(to, bytes)| {
-            let leaked: &'static [u8] = Box::leak(bytes.clone().into_boxed_slice());
-            let Frame { seq, body } = Report::decode(leaked).expect("a valid report");
+            let Frame { seq, body } = Report::decode(bytes).expect("a valid report");
             (*to, seq, body)
         })
         .collect()
+}
+
+/// Waits until a LOCATION report says STOPPED (the end of the run), looking only at the
+/// datagrams sent since the last poll: a long run sends many, and decoding them all at
+/// every poll made one test take 17 s.
+async fn until_stopped_reported(socket: &TestSocket) {
+    let mut seen = 0;
+    until("the end of the run", || {
+        let sent = socket.sent.borrow();
+        let ended = sent[seen.min(sent.len())..].iter().any(|(_, bytes)| {
+            matches!(
+                Report::decode(bytes),
+                Ok(Frame { body: Report::Location(l), .. }) if l.state == State::Stopped as u8
+            )
+        });
+        seen = sent.len();
+        ended
+    })
+    .await;
 }
 
 fn acks(socket: &TestSocket) -> Vec<(Endpoint, u8, StatusCode, State)> {
@@ -359,11 +376,23 @@ fn acks(socket: &TestSocket) -> Vec<(Endpoint, u8, StatusCode, State)> {
         .collect()
 }
 
-/// Waits (spinning the other futures) until `done` holds; panics after `limit`.
-async fn until(what: &str, limit: Duration, mut done: impl FnMut() -> bool) {
-    let start = Instant::now();
+/// Polls of [`until`] before it gives up: a hang guard counted in polls, not wall-clock
+/// time, so a loaded machine cannot trip it (issue 19: the 20 s guard fired on a run
+/// that needs a few hundred thousand polls when two busy loops per core slowed them).
+/// The longest wait here, a 240 ms run at one virtual microsecond per clock reading,
+/// takes under a million polls.
+const UNTIL_MAX_POLLS: u64 = 50_000_000;
+
+/// Waits (spinning the other futures) until `done` holds; panics after
+/// [`UNTIL_MAX_POLLS`] polls.
+async fn until(what: &str, mut done: impl FnMut() -> bool) {
+    let mut polls = 0u64;
     while !done() {
-        assert!(start.elapsed() < limit, "timed out waiting for {what}");
+        polls += 1;
+        assert!(
+            polls < UNTIL_MAX_POLLS,
+            "gave up waiting for {what} after {polls} polls"
+        );
         yield_now().await;
     }
 }
@@ -409,7 +438,7 @@ fn datagrams_in_acks_and_steps_out() {
         send(1, Command::New { count: 3 }, HOST);
         send(2, Command::Pending(PointList::Points(&pts)), HOST);
         send(3, Command::Runing, HOST);
-        until("three ACKs", LIMIT, || acks(&socket).len() >= 3).await;
+        until("three ACKs", || acks(&socket).len() >= 3).await;
         let a = acks(&socket);
         assert_eq!(
             a[..3],
@@ -419,7 +448,7 @@ fn datagrams_in_acks_and_steps_out() {
                 (HOST, 3, StatusCode::Ok, State::Running)
             ]
         );
-        until("the run to end", LIMIT, || {
+        until("the run to end", || {
             decoded(&socket).iter().any(
                 |(_, _, r)| matches!(r, Report::Location(l) if l.state == State::Stopped as u8),
             )
@@ -436,7 +465,7 @@ fn datagrams_in_acks_and_steps_out() {
 
         // LOCATION reports flow every period, to the owner, with consecutive seqs.
         let before = decoded(&socket).len();
-        until("periodic LOCATIONs", LIMIT, || {
+        until("periodic LOCATIONs", || {
             decoded(&socket).len() >= before + 3
         })
         .await;
@@ -450,23 +479,23 @@ fn datagrams_in_acks_and_steps_out() {
             "{reports:?}"
         );
         send(4, Command::UploadStop, HOST);
-        until("UPLOAD_STOP's ACK", LIMIT, || acks(&socket).len() >= 4).await;
+        until("UPLOAD_STOP's ACK", || acks(&socket).len() >= 4).await;
 
         // A long run (2 s, 1000 steps) stopped by a stranger: the pulses stop at once.
         let slow = Point::from_motion(2_000_000, &prev, &[1_030, -15, 0, 0, 0, 0, 0, 0]);
         send(5, Command::New { count: 1 }, HOST);
         send(6, Command::Pending(PointList::Points(&[slow])), HOST);
         send(7, Command::Runing, HOST);
-        until("some steps", LIMIT, || pins.borrow().position[0] > 60).await;
+        until("some steps", || pins.borrow().position[0] > 60).await;
         send(200, Command::Stopped, STRANGER);
-        until("STOPPED's ACK", LIMIT, || {
+        until("STOPPED's ACK", || {
             acks(&socket).iter().any(|a| a.0 == STRANGER)
         })
         .await;
         let stopped_at = pins.borrow().position[0];
         assert!(stopped_at < 1_030, "stopped before the end");
         let wait = fx.clock.now_us() + 50_000;
-        until("50 ms", LIMIT, || fx.clock.now_us() > wait).await;
+        until("50 ms", || fx.clock.now_us() > wait).await;
         assert_eq!(
             pins.borrow().position[0],
             stopped_at,
@@ -490,12 +519,12 @@ fn datagrams_in_acks_and_steps_out() {
             HOST,
         );
         send(9, Command::UsartSend(b"ping"), HOST);
-        until("the bytes written", LIMIT, || {
+        until("the bytes written", || {
             fx.serial.tx.borrow().as_slice() == b"ping"
         })
         .await;
         fx.serial.rx.borrow_mut().extend(b"pong".iter().copied());
-        until("USART_RECV", LIMIT, || {
+        until("USART_RECV", || {
             decoded(&socket)
                 .iter()
                 .any(|(to, _, r)| *to == HOST && matches!(r, Report::UsartRecv(b) if *b == b"pong"))
@@ -503,7 +532,7 @@ fn datagrams_in_acks_and_steps_out() {
         .await;
         // STATUS reports the joint count loaded from the settings store.
         send(10, Command::Status, HOST);
-        until("STATUS", LIMIT, || {
+        until("STATUS", || {
             decoded(&socket)
                 .iter()
                 .any(|(_, _, r)| matches!(r, Report::Status(s) if s.joints == 3))
@@ -594,8 +623,8 @@ fn with_tasks<'a, F: Future<Output = ()>>(
 
 /// Waits for the STATUS report the controller sends to the socket (cleared before the
 /// STATUS was sent) and returns it.
-async fn status_reply(socket: &TestSocket, limit: Duration) -> protocol::StatusReport {
-    until("STATUS", limit, || {
+async fn status_reply(socket: &TestSocket) -> protocol::StatusReport {
+    until("STATUS", || {
         decoded(socket)
             .iter()
             .any(|(_, _, r)| matches!(r, Report::Status(_)))
@@ -623,7 +652,6 @@ fn streaming_through_a_small_buffer_and_underrun() {
     let socket_owned = TestSocket::default();
     let pins_owned = RefCell::new(TestPins::default());
     let (socket, pins) = (&socket_owned, &pins_owned);
-    let limit = Duration::from_secs(10);
     let send = |seq: u8, cmd: Command<'_>| {
         socket
             .incoming
@@ -651,7 +679,7 @@ fn streaming_through_a_small_buffer_and_underrun() {
         for pair in pts.chunks(2) {
             loop {
                 send(seq, Command::Pending(PointList::Points(pair)));
-                until("the ACK", limit, || last_ack(socket, seq).is_some()).await;
+                until("the ACK", || last_ack(socket, seq).is_some()).await;
                 let ack = last_ack(socket, seq).unwrap_or_else(|| unreachable!());
                 if ack.status == StatusCode::Ok {
                     break;
@@ -661,30 +689,25 @@ fn streaming_through_a_small_buffer_and_underrun() {
                 refused += 1;
                 socket.sent.borrow_mut().clear();
                 let wait = clock.now_us() + 1_000;
-                until("a while", limit, || clock.now_us() > wait).await;
+                until("a while", || clock.now_us() > wait).await;
             }
             seq += 1;
             if !running {
                 send(seq, Command::Runing);
-                until("RUNING's ACK", limit, || last_ack(socket, seq).is_some()).await;
+                until("RUNING's ACK", || last_ack(socket, seq).is_some()).await;
                 seq += 1;
                 running = true;
             }
         }
         assert!(refused > 0, "the 4-point buffer pushed back");
         send(seq, Command::Status);
-        until("the end of the run", limit, || {
-            decoded(socket).iter().any(
-                |(_, _, r)| matches!(r, Report::Location(l) if l.state == State::Stopped as u8),
-            )
-        })
-        .await;
+        until_stopped_reported(socket).await;
         assert_eq!(pins.borrow().position[0], 48);
         assert_eq!(step.positions()[0], 48);
         seq += 1;
         socket.sent.borrow_mut().clear();
         send(seq, Command::Status);
-        let status = status_reply(socket, limit).await;
+        let status = status_reply(socket).await;
         assert_eq!((status.executed, status.expected), (24, 24));
         assert_eq!(status.flags.0 & protocol::StatusFlags::UNDERRUN, 0);
 
@@ -703,10 +726,10 @@ fn streaming_through_a_small_buffer_and_underrun() {
         send(seq + 2, Command::Runing);
         seq += 3;
         let wait = clock.now_us() + 30_000;
-        until("the underrun", limit, || clock.now_us() > wait).await;
+        until("the underrun", || clock.now_us() > wait).await;
         socket.sent.borrow_mut().clear();
         send(seq, Command::Status);
-        let status = status_reply(socket, limit).await;
+        let status = status_reply(socket).await;
         assert_eq!(status.state, State::Stopped);
         assert_ne!(status.flags.0 & protocol::StatusFlags::UNDERRUN, 0);
         assert_eq!((status.executed, status.expected), (2, 10));
@@ -795,7 +818,6 @@ fn a_run_survives_the_trajectory_task_held_off_for_almost_the_lookahead() {
             .push_back((frame(seq, cmd), HOST));
     };
     let driver = async {
-        let limit = Duration::from_secs(20);
         let pts: Vec<Point> = (0..POINTS as i32)
             .map(|k| {
                 Point::from_motion(
@@ -814,29 +836,24 @@ fn a_run_survives_the_trajectory_task_held_off_for_almost_the_lookahead() {
         let mut seq = 2u8;
         for chunk in pts.chunks(protocol::MAX_POINTS_PER_FRAME) {
             send(seq, Command::Pending(PointList::Points(chunk)));
-            until("PENDING's ACK", limit, || last_ack(&socket, seq).is_some()).await;
+            until("PENDING's ACK", || last_ack(&socket, seq).is_some()).await;
             let ack = last_ack(&socket, seq).unwrap_or_else(|| unreachable!());
             assert_eq!(ack.status, StatusCode::Ok, "PENDING {seq}");
             seq = seq.wrapping_add(1);
         }
         send(seq, Command::Runing);
-        until("RUNING's ACK", limit, || last_ack(&socket, seq).is_some()).await;
+        until("RUNING's ACK", || last_ack(&socket, seq).is_some()).await;
         // 20 ms into the run, the trajectory task is held off for 90% of the lookahead.
         hold.set((
             Some(clock.peek_us() + 20_000),
             u64::from(BOARD.lookahead_us) * 9 / 10,
         ));
-        until("the end of the run", limit, || {
-            decoded(&socket).iter().any(
-                |(_, _, r)| matches!(r, Report::Location(l) if l.state == State::Stopped as u8),
-            )
-        })
-        .await;
+        until_stopped_reported(&socket).await;
         assert!(hold.get().0.is_none(), "the hold happened");
         seq = seq.wrapping_add(1);
         socket.sent.borrow_mut().clear();
         send(seq, Command::Status);
-        let status = status_reply(&socket, limit).await;
+        let status = status_reply(&socket).await;
         assert_eq!(
             (status.executed, status.expected),
             (POINTS as u16, POINTS as u16),
@@ -956,7 +973,7 @@ impl Rig {
     /// Waits `ms` milliseconds of real time, the tasks running meanwhile.
     async fn wait_ms(&self, ms: u64) {
         let end = self.clock.now_us() + ms * 1_000;
-        until("the time to pass", Duration::from_secs(5), || {
+        until("the time to pass", || {
             self.drain();
             self.clock.now_us() > end
         })
@@ -966,7 +983,7 @@ impl Rig {
     /// Waits until `n` ACKs were sent, then `settle_ms` more, the tasks running; returns
     /// the ACKs.
     async fn acks_after(&self, n: usize, settle_ms: u64) -> Vec<(u8, u8, StatusCode, State)> {
-        until("the ACKs", LIMIT, || self.acks().len() >= n).await;
+        until("the ACKs", || self.acks().len() >= n).await;
         self.wait_ms(settle_ms).await;
         self.acks()
     }
@@ -1036,7 +1053,7 @@ fn stopped_cancels_the_run_of_the_frames_it_overtook() {
 
         // STATUS: stopped by the host (bit 7), nothing buffered.
         rig.route(&frame(5, Command::Status));
-        until("STATUS", LIMIT, || {
+        until("STATUS", || {
             rig.drain();
             rig.sent
                 .borrow()
@@ -1056,7 +1073,7 @@ fn stopped_cancels_the_run_of_the_frames_it_overtook() {
         // The host did not get RUNING's ACK and resends it: a duplicate, not run again.
         rig.sent.borrow_mut().clear();
         rig.route(&runing);
-        until("the resent RUNING's ACK", LIMIT, || !rig.acks().is_empty()).await;
+        until("the resent RUNING's ACK", || !rig.acks().is_empty()).await;
         rig.wait_ms(30).await;
         assert_eq!(
             rig.acks(),
@@ -1101,7 +1118,7 @@ fn stopped_cancels_a_return_it_overtook() {
         // A resent RETURN is a duplicate: not executed again.
         rig.sent.borrow_mut().clear();
         rig.route(&ret);
-        until("the resent RETURN's ACK", LIMIT, || !rig.acks().is_empty()).await;
+        until("the resent RETURN's ACK", || !rig.acks().is_empty()).await;
         rig.wait_ms(30).await;
         assert_eq!(rig.acks(), [(1, Tag::Return as u8, Ok, State::Stopped)]);
         assert_eq!(rig.encoder_reads.get(), 0);
@@ -1192,7 +1209,7 @@ fn a_resent_stopped_stops_a_fresh_run() {
     let stop = frame(1, Command::Stopped);
     rig.route(&stop);
     rig.run(async {
-        until("STOPPED's ACK", LIMIT, || !rig.acks().is_empty()).await;
+        until("STOPPED's ACK", || !rig.acks().is_empty()).await;
         // All queued before the task runs again; the same STOPPED bytes overtake them.
         rig.route(&frame(2, Command::New { count: 3 }));
         rig.route(&frame(3, Command::Pending(PointList::Points(&pts))));
@@ -1280,7 +1297,7 @@ proptest::proptest! {
         rig.route(&first_stop);
         let mut outcome = None;
         rig.run(async {
-            until("the first STOPPED's ACK", LIMIT, || !rig.acks().is_empty()).await;
+            until("the first STOPPED's ACK", || !rig.acks().is_empty()).await;
             let mut seq = 1u8;
             rig.route(&frame(seq, Command::New { count: n as u16 }));
             for pair in pts.chunks(2) {
@@ -1346,7 +1363,7 @@ fn a_burst_of_a_whole_window_is_queued_whole_and_a_stopped_behind_it_goes_first(
     assert_eq!(rig.bus.inbox.len(), HOST_WINDOW + 8);
     assert_eq!(rig.bus.estop.len(), 1);
     rig.run(async {
-        until("every ACK", LIMIT, || rig.acks().len() > HOST_WINDOW + 8).await;
+        until("every ACK", || rig.acks().len() > HOST_WINDOW + 8).await;
         let acks = rig.acks();
         assert_eq!(acks[0].0, 99, "the STOPPED first");
         assert_eq!(acks[1], (0, Tag::New as u8, StatusCode::Ok, State::New));
@@ -1384,7 +1401,7 @@ fn a_window_of_status_polls_gets_every_reply() {
     }
     assert_eq!(rig.bus.inbox_drops(), 0);
     rig.run(async {
-        until("every ACK", LIMIT, || rig.acks().len() >= HOST_WINDOW + 8).await;
+        until("every ACK", || rig.acks().len() >= HOST_WINDOW + 8).await;
         let statuses = rig
             .sent
             .borrow()
@@ -1415,7 +1432,7 @@ fn usart_stop_counts_the_acked_bytes_it_drops() {
     }
     rig.route(&frame(5, Command::UsartStop));
     rig.run(async {
-        until("every ACK", LIMIT, || rig.acks().len() >= 5).await;
+        until("every ACK", || rig.acks().len() >= 5).await;
         assert!(
             rig.acks().iter().all(|a| a.2 == StatusCode::Ok),
             "{:?}",
@@ -1477,7 +1494,7 @@ fn the_wired_input_stops_the_steps_at_once_and_the_task_latches_the_controller()
     let status = |seq: u8| {
         socket.sent.borrow_mut().clear();
         send(seq, Command::Status);
-        status_reply(&socket, LIMIT)
+        status_reply(&socket)
     };
     // One point of 10 s: joint 0 makes 10000 steps, 1 ms apart.
     let long_run = |first_seq: u8| {
@@ -1492,7 +1509,7 @@ fn the_wired_input_stops_the_steps_at_once_and_the_task_latches_the_controller()
     let driver = async {
         long_run(1);
         send(3, Command::Runing);
-        until("a few pulses", LIMIT, || pins.borrow().pulses >= 3).await;
+        until("a few pulses", || pins.borrow().pulses >= 3).await;
 
         line.edge(true, &fx.step, &kick, &fx.bus.step_progress);
         // Stopped before any task ran again.
@@ -1523,19 +1540,13 @@ fn the_wired_input_stops_the_steps_at_once_and_the_task_latches_the_controller()
             for attempt in 0..3 {
                 send(seq + 2 + attempt, Command::Runing);
             }
-            until("three RUNING ACKs", LIMIT, || {
-                last_ack(&socket, seq + 4).is_some()
-            })
-            .await;
+            until("three RUNING ACKs", || last_ack(&socket, seq + 4).is_some()).await;
             for attempt in 0..3 {
                 let ack = last_ack(&socket, seq + 2 + attempt).expect("ACKed");
                 assert_eq!(ack.status, StatusCode::EstopLatched, "closed {closed}");
             }
             send(seq + 5, Command::EstopReset);
-            until("ESTOP_RESET's ACK", LIMIT, || {
-                last_ack(&socket, seq + 5).is_some()
-            })
-            .await;
+            until("ESTOP_RESET's ACK", || last_ack(&socket, seq + 5).is_some()).await;
             let reset = last_ack(&socket, seq + 5).map(|a| a.status);
             if closed {
                 assert_eq!(reset, Some(StatusCode::Ok));
@@ -1552,15 +1563,12 @@ fn the_wired_input_stops_the_steps_at_once_and_the_task_latches_the_controller()
         // Cleared: a run works again.
         long_run(seq + 1);
         send(seq + 3, Command::Runing);
-        until("the RUNING's ACK", LIMIT, || {
-            last_ack(&socket, seq + 3).is_some()
-        })
-        .await;
+        until("the RUNING's ACK", || last_ack(&socket, seq + 3).is_some()).await;
         assert_eq!(
             last_ack(&socket, seq + 3).map(|a| a.status),
             Some(StatusCode::Ok)
         );
-        until("pulses again", LIMIT, || pins.borrow().pulses > pulses + 2).await;
+        until("pulses again", || pins.borrow().pulses > pulses + 2).await;
     };
     block_on(select(tasks, driver));
 }

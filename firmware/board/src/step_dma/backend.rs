@@ -5,7 +5,10 @@ use arm_core::StepShared;
 use arm_core::{StepBackend, StepProgress};
 use arm_step::{DirChange, MAX_JOINTS, PRELUDE, PulsePeriod, Segment, StepTiming, StreamsSlot};
 
-use super::registers::{StreamPosition, joint_timer, load_joint, reg, stream_position};
+use super::registers::{
+    StreamPosition, broken, configure_joint_timer, joint_timer, load_joint, reg, reset_joint_timer,
+    stream_position,
+};
 use super::stop::stop_all_step_outputs;
 use super::{BUFFERS, HALF, STEP_QUEUE, STEP_TIMING};
 use crate::pins;
@@ -105,6 +108,12 @@ impl StepBackend for BoardSteps {
             }
         }
         for (joint, prelude) in prelude.iter().enumerate() {
+            if broken(joint) {
+                defmt::warn!("joint {}: its timer's break had cleared the output", joint);
+            }
+            // A fresh timer for every run (issue 20): nothing left from the last one.
+            reset_joint_timer(joint);
+            configure_joint_timer(joint);
             load_joint(joint, prelude);
         }
         for joint in 0..MAX_JOINTS {

@@ -52,7 +52,7 @@ pub use backend::STEP;
 pub use stop::stop_all_step_outputs;
 
 use refill::STREAM_IRQS;
-use registers::{joint_timer, reg};
+use registers::{configure_joint_timer, joint_timer};
 
 /// This board's profile (arm-core's `profile`: every per-board figure, with its reason):
 /// `--features tmc-drivers` for TMC-class driver timing, otherwise the opto-isolated
@@ -104,6 +104,29 @@ pub fn dma_buffer_region() -> (usize, usize) {
     )
 }
 
+/// SYSCFG_CFGR (RM0433 SYSCFG register map: offset 0x18 from SYSCFG's base), which the
+/// PAC does not describe.
+const SYSCFG_CFGR_OFFSET: usize = 0x18;
+/// SYSCFG_CFGR.CM7L: the Cortex-M7 LOCKUP output drives the break input of TIM1, TIM8,
+/// TIM15, TIM16 and TIM17. Write-once: only a reset clears it.
+const SYSCFG_CFGR_CM7L: u32 = 1 << 6;
+
+/// Routes a core lockup (a fault while entering HardFault: no handler runs, the IWDG
+/// resets only after its timeout) to the break inputs: joints 4-7 (TIM1, TIM8, TIM16,
+/// TIM17) stop pulsing at once, in hardware. Joints 0-3 (TIM2-TIM5) have no break
+/// input: their streams replay until the IWDG resets the chip (docs/BOARD.md).
+fn route_lockup_to_timer_breaks() {
+    pac::RCC.apb4enr().modify(|w| w.set_syscfgen(true));
+    let cfgr = pac::SYSCFG
+        .as_ptr()
+        .cast::<u8>()
+        .wrapping_add(SYSCFG_CFGR_OFFSET)
+        .cast::<u32>();
+    // SAFETY: SYSCFG_CFGR of this chip; a volatile read-modify-write of one register
+    // before any timer runs.
+    unsafe { cfgr.write_volatile(cfgr.read_volatile() | SYSCFG_CFGR_CM7L) };
+}
+
 /// One-time set-up: clocks of the joint timers and DMA2, every timer's output forced
 /// inactive (STEP low) and enabled, DMAMUX routes, the streams' interrupts at P2 (below
 /// the step clock's P1, which makes the DIR changes). Call before the STEP pins are
@@ -134,26 +157,13 @@ pub fn init() {
     });
     pac::RCC.ahb1enr().modify(|w| w.set_dma2en(true));
     for joint in 0..MAX_JOINTS {
-        let timer = joint_timer(joint);
-        timer.write(reg::CR1, reg::CR1_URS | reg::CR1_ARPE);
-        timer.write(reg::PSC, 0);
-        timer.write(reg::CCMR1, reg::CCMR1_FORCE_INACTIVE);
-        timer.write(
-            reg::CCER,
-            if timer.complementary {
-                reg::CCER_CC1NE
-            } else {
-                reg::CCER_CC1E
-            },
-        );
-        if timer.has_moe {
-            timer.write(reg::BDTR, reg::BDTR_MOE);
-        }
+        configure_joint_timer(joint);
         // DMA2 stream `joint` is DMAMUX1 channel 8 + joint.
         pac::DMAMUX1
             .ccr(8 + joint)
-            .write(|w| w.set_dmareq_id(timer.request));
+            .write(|w| w.set_dmareq_id(joint_timer(joint).request));
     }
+    route_lockup_to_timer_breaks();
     for irq in STREAM_IRQS {
         irq.set_priority(Priority::P2);
         // SAFETY: the handlers below only touch STEP (critical section) and DMA2's flags.

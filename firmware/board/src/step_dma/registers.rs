@@ -24,6 +24,7 @@ pub(super) struct JointTimer {
 /// Register offsets common to every timer used (RM0433, timer register maps).
 pub(super) mod reg {
     pub const CR1: usize = 0x00;
+    pub const CR2: usize = 0x04;
     pub const DIER: usize = 0x0C;
     pub const SR: usize = 0x10;
     pub const EGR: usize = 0x14;
@@ -36,6 +37,8 @@ pub(super) mod reg {
     pub const BDTR: usize = 0x44;
     pub const DCR: usize = 0x48;
     pub const DMAR: usize = 0x4C;
+    /// Alternate function option register 1 (TIM1, TIM8, TIM16, TIM17 only).
+    pub const AF1: usize = 0x60;
 
     /// CR1: counter enable, update only on overflow (UG makes no DMA request), ARR
     /// preloaded.
@@ -55,6 +58,16 @@ pub(super) mod reg {
     pub const CCER_CC1NE: u32 = 1 << 2;
     /// BDTR: main output enable.
     pub const BDTR_MOE: u32 = 1 << 15;
+    /// BDTR: break enable, break active high, off-state in idle (MOE = 0) drives the
+    /// outputs to their idle level (CR2.OIS1/OIS1N = 0: low) instead of releasing them.
+    /// RM0433 "Using the break function": a break clears MOE at once, asynchronously,
+    /// with no CPU; SYSCFG_CFGR.CM7L feeds the Cortex-M7 lockup into it (`init`).
+    pub const BDTR_BKE: u32 = 1 << 12;
+    pub const BDTR_BKP: u32 = 1 << 13;
+    pub const BDTR_OSSI: u32 = 1 << 10;
+    /// AF1: the BKIN pin's input. Cleared: the pins that could be BKIN (PA6, PE15, ...)
+    /// are used otherwise or not wired; only the system break (lockup) may break.
+    pub const AF1_BKINE: u32 = 1 << 0;
     /// DCR: burst from ARR (0x2C / 4 = 11), three transfers (DBL = 2): ARR, RCR, CCR1.
     pub const DCR_ARR_RCR_CCR1: u32 = 11 | (2 << 8);
 }
@@ -103,6 +116,57 @@ pub(super) fn joint_timer(joint: usize) -> JointTimer {
         6 => t(pac::TIM16.as_ptr(), 110, true),
         _ => t(pac::TIM17.as_ptr(), 112, true),
     }
+}
+
+/// Puts joint `joint`'s timer through its RCC reset: every register back to its reset
+/// value, including state no register shows (a DMA burst cut in the middle, the prescaler
+/// and repetition counters), before [`configure_joint_timer`] and a run's prelude.
+pub(super) fn reset_joint_timer(joint: usize) {
+    let rcc = pac::RCC;
+    let pulse = |on: bool| match joint {
+        0 => rcc.apb1lrstr().modify(|w| w.set_tim2rst(on)),
+        1 => rcc.apb1lrstr().modify(|w| w.set_tim5rst(on)),
+        2 => rcc.apb1lrstr().modify(|w| w.set_tim3rst(on)),
+        3 => rcc.apb1lrstr().modify(|w| w.set_tim4rst(on)),
+        4 => rcc.apb2rstr().modify(|w| w.set_tim1rst(on)),
+        5 => rcc.apb2rstr().modify(|w| w.set_tim8rst(on)),
+        6 => rcc.apb2rstr().modify(|w| w.set_tim16rst(on)),
+        _ => rcc.apb2rstr().modify(|w| w.set_tim17rst(on)),
+    };
+    pulse(true);
+    pulse(false);
+}
+
+/// Joint `joint`'s timer at rest: counter stopped, no prescaler, STEP output forced
+/// inactive (low) and enabled; on the timers with a break input, the main output on,
+/// the lockup break armed, and the idle state low.
+pub(super) fn configure_joint_timer(joint: usize) {
+    let timer = joint_timer(joint);
+    timer.write(reg::CR1, reg::CR1_URS | reg::CR1_ARPE);
+    timer.write(reg::CR2, 0);
+    timer.write(reg::PSC, 0);
+    timer.write(reg::CCMR1, reg::CCMR1_FORCE_INACTIVE);
+    timer.write(
+        reg::CCER,
+        if timer.complementary {
+            reg::CCER_CC1NE
+        } else {
+            reg::CCER_CC1E
+        },
+    );
+    if timer.has_moe {
+        timer.write(reg::AF1, timer.read(reg::AF1) & !reg::AF1_BKINE);
+        timer.write(
+            reg::BDTR,
+            reg::BDTR_MOE | reg::BDTR_BKE | reg::BDTR_BKP | reg::BDTR_OSSI,
+        );
+    }
+}
+
+/// Whether joint `joint`'s timer has had a break (its main output cleared by hardware).
+pub(super) fn broken(joint: usize) -> bool {
+    let timer = joint_timer(joint);
+    timer.has_moe && timer.read(reg::BDTR) & reg::BDTR_MOE == 0
 }
 
 /// Words the stream moves per period (ARR, RCR, CCR1).
