@@ -514,6 +514,7 @@ pub fn run(options: &SimOptions) -> io::Result<()> {
         log::info!("e-stop input: closed; SIGUSR1 opens it, SIGUSR2 closes it");
     }
     // The executor lives as long as the process: run() never returns.
+    crate::steptimer::raise_nice("executor", crate::steptimer::EXECUTOR_NICE);
     let executor: &'static mut Executor = Box::leak(Box::new(Executor::new()));
     executor.run(move |spawner| spawn_tasks(spawner, wiring))
 }
@@ -549,6 +550,7 @@ pub fn start_in_background(options: &SimOptions) -> io::Result<Board> {
     std::thread::Builder::new()
         .name("executor".into())
         .spawn(move || {
+            crate::steptimer::raise_nice("executor", crate::steptimer::EXECUTOR_NICE);
             let executor: &'static mut Executor = Box::leak(Box::new(Executor::new()));
             executor.run(move |spawner| spawn_tasks(spawner, wiring))
         })?;

@@ -22,12 +22,15 @@ use crate::probe::Probe;
 /// the socket and a STOPPED behind a flood is seen as soon as it arrives.
 const RX_QUEUE: usize = arm_core::bus::INBOX_QUEUE;
 
-/// Receive buffer asked of the kernel: two windows of full-size datagrams at the kernel's
-/// cost per datagram (its buffer accounting charges the whole socket buffer of a
-/// datagram, about 2.3 KiB on loopback for 1472 bytes; 4 KiB leaves a margin):
-/// 2 x 40 x 4 KiB = 320 KiB. Linux caps it at `net.core.rmem_max` (usually 208 KiB,
-/// still 50 such datagrams); the kernel drops silently beyond it.
-const SOCKET_RX_BYTES: usize = 2 * RX_QUEUE * 4096;
+/// Receive buffer asked of the kernel: 4 MiB, the time the receiving thread (the board's
+/// receive interrupt, which silicon never deschedules) may lose to other work on a loaded
+/// PC before the kernel drops a datagram silently. The kernel charges about 768 B for a
+/// small datagram and 2.3 KiB for a full one on loopback, and doubles the size asked:
+/// 8 MiB holds ~10,000 small datagrams, 200 ms of a 50,000/s flood (issue 19: with 320 KiB,
+/// ~17 ms, two busy loops per core made the kernel drop 1-4 of 20 STOPPEDs in such a
+/// flood). Linux caps it at `net.core.rmem_max` (often 208 KiB; `.ci/run`'s machines
+/// 4 MiB); root may go past it (SO_RCVBUFFORCE, tried first).
+const SOCKET_RX_BYTES: usize = 4 << 20;
 
 /// A received datagram.
 #[derive(Clone, Debug)]
@@ -91,7 +94,14 @@ impl UdpDatagrams {
     ) -> std::io::Result<()> {
         std::thread::Builder::new()
             .name("udp-rx".into())
-            .spawn(move || self.receive_loop(&probe, bus, &first_look))?;
+            .spawn(move || {
+                // The board's receive interrupt: a STOPPED under a flood must be read
+                // before the socket's buffer overflows (issue 19: with two busy loops per
+                // core and the thread at normal priority, 2 of 20 were dropped by the
+                // kernel under a 50,000/s flood).
+                crate::steptimer::raise_nice("udp-rx", crate::steptimer::INTERRUPT_NICE);
+                self.receive_loop(&probe, bus, &first_look)
+            })?;
         Ok(())
     }
 
@@ -154,8 +164,10 @@ impl UdpDatagrams {
 
 /// Asks the kernel for a receive buffer of `bytes` (it may grant less: logged).
 fn set_receive_buffer(socket: &UdpSocket, bytes: usize) {
-    use nix::sys::socket::{getsockopt, setsockopt, sockopt::RcvBuf};
-    match setsockopt(socket, RcvBuf, &bytes).and_then(|()| getsockopt(socket, RcvBuf)) {
+    use nix::sys::socket::{getsockopt, setsockopt, sockopt::RcvBuf, sockopt::RcvBufForce};
+    let set =
+        setsockopt(socket, RcvBufForce, &bytes).or_else(|_| setsockopt(socket, RcvBuf, &bytes));
+    match set.and_then(|()| getsockopt(socket, RcvBuf)) {
         Ok(granted) => log::debug!("udp: receive buffer {granted} bytes (asked {bytes})"),
         Err(e) => log::warn!("udp: cannot size the receive buffer: {e}"),
     }

@@ -347,9 +347,33 @@ fn raise_priority(realtime: bool) {
                 std::io::Error::last_os_error()
             );
         }
+    }
+    raise_nice("step thread", INTERRUPT_NICE);
+}
+
+/// Nice level of the threads that play the board's interrupts (the step timers, the
+/// receive path's first look at each datagram): other work on a loaded PC delays them
+/// little, as interrupts preempt tasks on the board.
+pub const INTERRUPT_NICE: i32 = -10;
+
+/// Nice level of the executor's thread (the board's CPU running the tasks): above other
+/// work on the PC, which the board does not share its CPU with, below the interrupts.
+pub const EXECUTOR_NICE: i32 = -5;
+
+/// Sets the calling thread's nice level to `nice`, when permitted (root, or
+/// CAP_SYS_NICE); otherwise it keeps its priority and says so at debug level.
+pub fn raise_nice(what: &str, nice: i32) {
+    // SAFETY: setpriority on the calling thread's id, plain integer arguments.
+    let raised = unsafe {
         let tid = libc::syscall(libc::SYS_gettid) as libc::id_t;
-        if libc::setpriority(libc::PRIO_PROCESS, tid, -10) == 0 {
-            log::debug!("step thread: nice -10");
-        }
+        libc::setpriority(libc::PRIO_PROCESS, tid, nice) == 0
+    };
+    if raised {
+        log::debug!("{what}: nice {nice}");
+    } else {
+        log::debug!(
+            "{what}: nice {nice} refused ({}); normal priority",
+            std::io::Error::last_os_error()
+        );
     }
 }
