@@ -13,6 +13,7 @@
 //!   timeouts, and the read of every joint, generic over the bus.
 //! * [`gripper`]: the burst arithmetic of counted gripper pulses.
 //! * [`net`]: REF_CLK detection, autonegotiated link mode, the link-loss policy.
+//! * [`reset_cause`]: why the chip last reset, from RCC_RSR, logged at boot.
 #![no_std]
 #![warn(missing_docs)]
 // Tests index and unwrap freely: a failing test is meant to panic.
@@ -29,5 +30,6 @@ pub mod fault;
 pub mod flash_upkeep;
 pub mod gripper;
 pub mod net;
+pub mod reset_cause;
 pub mod settings;
 pub mod watchdog;

@@ -261,6 +261,14 @@ fn set_driver_priorities() {
 
 #[embassy_executor::main]
 async fn main(spawner: Spawner) -> ! {
+    // Why the last reset happened, read before anything else and cleared for the next
+    // boot (RCC_RSR keeps its flags across resets until RMVF).
+    let reset_rsr = embassy_stm32::pac::RCC.rsr().read().0;
+    embassy_stm32::pac::RCC
+        .rsr()
+        .write_value(embassy_stm32::pac::rcc::regs::Rsr(
+            board_logic::reset_cause::rsr::RMVF,
+        ));
     let clock_source = clocks::probe_hse();
     let mut config = clocks::config(clock_source);
     config.dma_interrupt_priority = Priority::P4;
@@ -268,6 +276,11 @@ async fn main(spawner: Spawner) -> ! {
     config.mdma_interrupt_priority = Priority::P4;
     let p = embassy_stm32::init(config);
     info!("arm controller starting");
+    info!(
+        "reset cause: {} (RCC_RSR {=u32:#x})",
+        board_logic::reset_cause::reset_cause(reset_rsr),
+        reset_rsr
+    );
     match clock_source {
         ClockSource::Hse => info!("clock: HSE 8 MHz (ST-LINK MCO)"),
         ClockSource::HsiFallback => warn!("clock: HSE missing, running on HSI"),
