@@ -17,4 +17,4 @@ pub mod goal;
 pub mod msgs;
 
 pub use bridge::{Bridge, Sample};
-pub use config::{BridgeConfig, GripperConfig};
+pub use config::{BridgeConfig, GripperConfig, RosDistro};
