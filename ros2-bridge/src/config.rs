@@ -299,14 +299,19 @@ mod tests {
     #[test]
     fn the_distro_comes_from_the_config_then_ros_distro_then_jazzy() {
         let plain = r#"{"joints": [{"name": "a", "max_step_rate_hz": 1}]}"#;
-        let kilted = r#"{"ros_distro": "kilted", "joints": [{"name": "a", "max_step_rate_hz": 1}]}"#;
+        let kilted =
+            r#"{"ros_distro": "kilted", "joints": [{"name": "a", "max_step_rate_hz": 1}]}"#;
         let distro = |text, env| BridgeConfig::parse_with_env(text, "c", env).map(|c| c.0.distro());
         assert_eq!(distro(plain, None), Ok(RosDistro::Jazzy));
         assert_eq!(distro(plain, Some("")), Ok(RosDistro::Jazzy));
         assert_eq!(distro(plain, Some("rolling")), Ok(RosDistro::Rolling));
         assert_eq!(distro(plain, Some("humble")), Ok(RosDistro::Humble));
         assert_eq!(distro(kilted, Some("humble")), Ok(RosDistro::Kilted));
-        assert!(distro(plain, Some("ardent")).unwrap_err().contains("ROS_DISTRO"));
+        assert!(
+            distro(plain, Some("ardent"))
+                .unwrap_err()
+                .contains("ROS_DISTRO")
+        );
         assert!(RosDistro::Kilted.control_msgs_6() && RosDistro::Rolling.control_msgs_6());
         assert!(!RosDistro::Jazzy.control_msgs_6() && !RosDistro::Humble.control_msgs_6());
         assert!(RosDistro::Jazzy.type_hashes() && !RosDistro::Humble.type_hashes());

@@ -284,7 +284,8 @@ pub struct FollowJointTrajectoryFeedback {
 impl Serialize for FollowJointTrajectoryFeedback {
     fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
         use serde::ser::SerializeStruct;
-        let fields = 9 + usize::from(self.index.is_some()) + usize::from(self.multi_dof_index.is_some());
+        let fields =
+            9 + usize::from(self.index.is_some()) + usize::from(self.multi_dof_index.is_some());
         let mut s = serializer.serialize_struct("FollowJointTrajectory_Feedback", fields)?;
         s.serialize_field("header", &self.header)?;
         s.serialize_field("joint_names", &self.joint_names)?;
@@ -415,10 +416,19 @@ mod tests {
         assert_eq!((six.index, six.multi_dof_index), (3, 0));
         assert_eq!(six.header, kilted.header);
         assert_eq!(six.joint_names, kilted.joint_names);
-        assert_eq!((six.desired, six.actual, six.error), (kilted.desired, kilted.actual, kilted.error));
+        assert_eq!(
+            (six.desired, six.actual, six.error),
+            (kilted.desired, kilted.actual, kilted.error)
+        );
         assert!(six.multi_dof_joint_names.is_empty());
-        assert_eq!(six.multi_dof_desired, MultiDofJointTrajectoryPoint::default());
-        assert_eq!(six.multi_dof_actual, MultiDofJointTrajectoryPoint::default());
+        assert_eq!(
+            six.multi_dof_desired,
+            MultiDofJointTrajectoryPoint::default()
+        );
+        assert_eq!(
+            six.multi_dof_actual,
+            MultiDofJointTrajectoryPoint::default()
+        );
         assert_eq!(six.multi_dof_error, MultiDofJointTrajectoryPoint::default());
         // The 5.x layout is what a 6.x reader cannot take: 8 bytes short.
         assert_eq!(bytes6.len(), bytes5.len() + 8);
