@@ -61,12 +61,19 @@ packages() {
   esac
 }
 
-# make_venv DISTRO: the cached venv with rclpy and control_msgs, or a reason on stderr
-# and status 1.
+# venv_stamp DISTRO: what the venv is built from (the wheels, the control_msgs build);
+# a cached venv with another stamp is built anew. Bump VENV_RECIPE when make_venv changes.
+VENV_RECIPE=1
+venv_stamp() {
+  (echo "$VENV_RECIPE"; packages "$1"; cat "$defs/CMakeLists.txt" "$defs/package.xml"
+    find "$defs/$1" -type f | sort | xargs cat) | sha256sum | cut -c1-16
+}
+
+# make_venv DISTRO: the cached venv with rclpy and control_msgs. Status 2: the wheels
+# cannot be installed (no registry: skip); 1: anything else failed.
 make_venv() {
   local distro=$1 venv=$venvs/$1 stamp build py pyinc npinc
-  stamp=$( (cat "$0"; packages "$distro"; cat "$defs/CMakeLists.txt" "$defs/package.xml";
-    find "$defs/$distro" -type f | sort | xargs cat) | sha256sum | cut -c1-16)
+  stamp=$(venv_stamp "$distro")
   if [ -f "$venv/.armctl-ready" ] && [ "$(cat "$venv/.armctl-ready")" = "$stamp" ]; then
     return 0
   fi
@@ -105,11 +112,11 @@ mkdir -p "$venvs"
 ready=()
 for distro in "${distros[@]}"; do
   status=0
-  reason=$(make_venv "$distro" 2>&1 >/dev/stderr) || status=$?
+  make_venv "$distro" || status=$?
   case $status in
     0) ready+=("$distro") ;;
-    2) echo "$reason" >&2; skip "no $distro venv: $(echo "$reason" | tail -1)" ;;
-    *) echo "$reason" >&2; echo "rclpy.sh: FAIL: the $distro venv: $(echo "$reason" | tail -1)"; exit 1 ;;
+    2) skip "no $distro venv: the wheels could not be installed from PyPI (see above)" ;;
+    *) echo "rclpy.sh: FAIL: building the $distro venv failed (see above)"; exit 1 ;;
   esac
 done
 
