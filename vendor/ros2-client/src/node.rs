@@ -528,7 +528,8 @@ pub struct Node {
   // Map keys are lists of local Subscriptions and Publishers.
   // Map values are lists of matched Publishers / Subscriptions.
   readers_to_remote_writers: Arc<Mutex<BTreeMap<GUID, BTreeSet<GUID>>>>,
-  writers_to_remote_readers: Arc<Mutex<BTreeMap<GUID, BTreeSet<GUID>>>>,
+  // armctl patch (vendor/NOTE-UPSTREAM.md): pub(crate), for Server::is_response_reader_matched.
+  pub(crate) writers_to_remote_readers: Arc<Mutex<BTreeMap<GUID, BTreeSet<GUID>>>>,
 
   // Keep track of ros_discovery_info
   external_nodes: Arc<Mutex<BTreeMap<Gid, Vec<NodeEntitiesInfo>>>>,

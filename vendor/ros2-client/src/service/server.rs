@@ -9,6 +9,8 @@ use rustdds::{rpc::*, *};
 #[allow(unused_imports)]
 use log::{debug, error, info, warn};
 use futures::{StreamExt, pin_mut, stream::FusedStream};
+use std::collections::{BTreeMap, BTreeSet};
+use std::sync::{Arc, Mutex};
 
 use crate::{
   error::{CreateResult, ReadError, ReadResult, WriteError, WriteResult},
@@ -30,6 +32,9 @@ where
   service_mapping: ServiceMapping,
   request_receiver: SimpleDataReaderR<RequestWrapper<Req>>,
   response_sender: DataWriterR<ResponseWrapper<Resp>>,
+  // armctl patch (vendor/NOTE-UPSTREAM.md): the node's map of local writers to the remote
+  // readers they matched, to tell whether a client's reply reader is matched yet.
+  writers_to_remote_readers: Arc<Mutex<BTreeMap<GUID, BTreeSet<GUID>>>>,
 }
 
 impl<Req, Resp> Server<Req, Resp>
@@ -65,7 +70,34 @@ where
       service_mapping,
       request_receiver,
       response_sender,
+      writers_to_remote_readers: Arc::clone(&node.writers_to_remote_readers),
     })
+  }
+
+  /// armctl patch (vendor/NOTE-UPSTREAM.md): whether the response writer has matched the
+  /// reply reader of the client that sent `request_id`. Only known for
+  /// `ServiceMapping::Enhanced`, where rmw_fastrtps (and ros2-client) put the client's
+  /// reply reader GUID in the request's related sample identity: `None` otherwise.
+  ///
+  /// A response written before the match is never delivered (a volatile writer sends
+  /// a newly matched reader only what it writes after the match), so a server should
+  /// wait briefly for the match, as rmw_fastrtps's `rmw_send_response` does (100 ms).
+  /// Needs a running Spinner (it keeps the match map).
+  pub fn is_response_reader_matched(&self, request_id: RmwRequestId) -> Option<bool> {
+    match self.service_mapping {
+      ServiceMapping::Enhanced => {
+        let reader = GUID::from(request_id.writer_gid);
+        Some(
+          self
+            .writers_to_remote_readers
+            .lock()
+            .unwrap()
+            .get(&self.response_sender.guid())
+            .is_some_and(|readers| readers.contains(&reader)),
+        )
+      }
+      _ => None,
+    }
   }
 
   /// Receive a request from Client.

@@ -66,7 +66,27 @@ use crate::no_security::SecurityPluginsHandle;
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(crate) enum TimedEvent {
   DeadlineMissedCheck,
+  // armctl patch (vendor/NOTE-UPSTREAM.md): ask `writer` again for the samples up to
+  // `up_to` it announced in a HEARTBEAT, if they have not come (attempt 1, 2, ...).
+  NackRepeat {
+    writer: GUID,
+    up_to: SequenceNumber,
+    attempt: u8,
+  },
 }
+
+// armctl patch (vendor/NOTE-UPSTREAM.md): a NACK (an ACKNACK asking for samples a
+// HEARTBEAT announced) that is not answered with the samples is sent again after
+// NACK_REPEAT_DELAY, then twice as long each time, NACK_REPEATS times at most.
+//
+// eProsima Fast DDS writers drop a NACK for a sample they have just sent to that reader
+// (the change is still "underway"), and do not answer the final-flagged ACKNACK with a
+// HEARTBEAT. A ROS 2 service client's first request, sent before this reader matched the
+// client's writer, then reached the reader only after the writer's next periodic
+// HEARTBEAT (3 s): the reader matched, sent its preemptive ACKNACK, got the HEARTBEAT
+// 1..1 and NACKed 1 within a millisecond of the DATA it had dropped (seen in a capture).
+const NACK_REPEAT_DELAY: std::time::Duration = std::time::Duration::from_millis(20);
+const NACK_REPEATS: u8 = 5;
 
 // Some pieces necessary to construct a reader.
 // These can be sent between threads, whereas a Reader cannot.
@@ -324,7 +344,67 @@ impl Reader {
         self.handle_requested_deadline_event();
         self.set_requested_deadline_check_timer(); // re-prime timer
       }
+      TimedEvent::NackRepeat {
+        writer,
+        up_to,
+        attempt,
+      } => self.repeat_nack(writer, up_to, attempt),
     }
+  }
+
+  // armctl patch (vendor/NOTE-UPSTREAM.md): schedules a NackRepeat (see NACK_REPEATS).
+  fn schedule_nack_repeat(&self, writer: GUID, up_to: SequenceNumber, attempt: u8) {
+    if attempt > NACK_REPEATS {
+      return;
+    }
+    self.timed_event_timer.borrow_mut().set_timeout(
+      NACK_REPEAT_DELAY * (1 << (attempt - 1)),
+      DpTimerEvent::Reader {
+        entity_id: self.my_guid.entity_id,
+        event: TimedEvent::NackRepeat {
+          writer,
+          up_to,
+          attempt,
+        },
+      },
+    );
+  }
+
+  // armctl patch (vendor/NOTE-UPSTREAM.md): NACKs again what is still missing up to
+  // `up_to`, without the final flag (the writer answers with a HEARTBEAT too).
+  fn repeat_nack(&mut self, writer: GUID, up_to: SequenceNumber, attempt: u8) {
+    let Some(mut writer_proxy) = self.matched_writers.remove(&writer) else {
+      return; // writer gone
+    };
+    let missing = writer_proxy.missing_seqnums(writer_proxy.all_ackable_before(), up_to);
+    if let Some(&first) = missing.first() {
+      let set = missing
+        .iter()
+        .copied()
+        .take_while(|sn| *sn < first + SequenceNumber::new(256))
+        .collect();
+      debug!(
+        "NACK repeat {attempt} topic={:?} writer={writer:?} missing from {first:?}",
+        self.topic_name
+      );
+      let acknack = AckNack {
+        reader_id: self.entity_id(),
+        writer_id: writer.entity_id,
+        reader_sn_state: SequenceNumberSet::from_base_and_set(first, &set),
+        count: writer_proxy.next_ack_nack_sequence_number(),
+      };
+      self.send_acknack_to(
+        BitFlags::<ACKNACK_Flags>::from_flag(ACKNACK_Flags::Endianness),
+        acknack,
+        InfoDestination {
+          guid_prefix: writer.prefix,
+        },
+        &writer_proxy.unicast_locator_list,
+        writer,
+      );
+      self.schedule_nack_repeat(writer, up_to, attempt + 1);
+    }
+    self.matched_writers.insert(writer, writer_proxy);
   }
 
   pub fn process_command(&mut self) {
@@ -1067,6 +1147,10 @@ impl Reader {
             reply_locators,
             writer_guid,
           );
+          // armctl patch (vendor/NOTE-UPSTREAM.md): ask again if the samples do not come.
+          if !missing_seqnums.is_empty() {
+            this.schedule_nack_repeat(writer_guid, heartbeat.last_sn, 1);
+          }
 
           return true;
         }
