@@ -235,8 +235,16 @@ impl Bridge {
             };
             Name::new(namespace, base).map_err(|e| format!("ROS name {full:?}: {e:?}"))
         };
-        let context = Context::with_options(ContextOptions::new().domain_id(self.config.domain_id))
-            .map_err(|e| format!("DDS: {e:?}"))?;
+        // Every reader and writer announces its type's RIHS01 hash (Jazzy and later).
+        let distro = self.config.distro();
+        let type_hash: ros2_client::TypeHashFn =
+            Arc::new(move |dds_type: &str| crate::typehash::dds_type_hash(distro, dds_type));
+        let context = Context::with_options(
+            ContextOptions::new()
+                .domain_id(self.config.domain_id)
+                .type_hash(type_hash),
+        )
+        .map_err(|e| format!("DDS: {e:?}"))?;
         let mut node = context
             .new_node(
                 NodeName::new(&self.config.namespace, &self.config.node_name)

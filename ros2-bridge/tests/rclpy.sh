@@ -134,8 +134,8 @@ for distro in "${ready[@]}"; do
     . tests/scripts/netns.sh
     lo_multicast
     export RMW_IMPLEMENTATION=rmw_fastrtps_cpp ROS_DOMAIN_ID=0 ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET
-    # Not done yet (issue 22): RIHS01 type hashes; their checks print KNOWN, not FAIL.
-    export ARMCTL_RCLPY_KNOWN=${ARMCTL_RCLPY_KNOWN-type hash}
+    # Checks of work not done yet print KNOWN, not FAIL (ARMCTL_RCLPY_KNOWN: none now).
+    export ARMCTL_RCLPY_KNOWN=${ARMCTL_RCLPY_KNOWN-}
     timeout 600 "$1" ros2-bridge/tests/rclpy/check_bridge.py --distro "$2" \
       --sim-host "$3/debug/sim-host" --bridge "$3/debug/armctl-ros2" \
       --config ros2-bridge/examples/bridge.json

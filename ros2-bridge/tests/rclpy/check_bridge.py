@@ -46,9 +46,8 @@ from trajectory_msgs.msg import JointTrajectoryPoint
 
 RESULTS = []
 
-# Checks of work not done yet (issue 22), by name prefix: their failures print KNOWN and do
-# not fail the run. ARMCTL_RCLPY_KNOWN="type hash" (rclpy.sh's default): the bridge
-# publishes no RIHS01 type hashes yet. Empty: every check counts.
+# Checks of work not done yet, by name prefix (ARMCTL_RCLPY_KNOWN, comma-separated): their
+# failures print KNOWN and do not fail the run. Empty (rclpy.sh's default): every check counts.
 KNOWN = [k.strip() for k in os.environ.get("ARMCTL_RCLPY_KNOWN", "").split(",") if k.strip()]
 
 

@@ -47,11 +47,18 @@ struct SecurityConfig {
   private_key_password: String,
 }
 
+/// armctl patch (vendor/NOTE-UPSTREAM.md): maps a DDS type name (e.g.
+/// `std_srvs::srv::dds_::Trigger_Request_`) to its ROS 2 type hash (`RIHS01_<hex>`), which
+/// the context announces in the USER_DATA of every reader and writer it creates for that
+/// type (`typehash=RIHS01_<hex>;`, as rmw_fastrtps and rmw_cyclonedds do since Iron).
+pub type TypeHashFn = Arc<dyn Fn(&str) -> Option<String> + Send + Sync>;
+
 /// Builder for configuring a `Context`
 pub struct ContextOptions {
   domain_id: u16,
   #[cfg(feature = "security")]
   security_config: Option<SecurityConfig>,
+  type_hash: Option<TypeHashFn>,
 }
 
 impl ContextOptions {
@@ -60,7 +67,14 @@ impl ContextOptions {
       domain_id: 0,
       #[cfg(feature = "security")]
       security_config: None,
+      type_hash: None,
     }
+  }
+
+  /// armctl patch (vendor/NOTE-UPSTREAM.md): announce type hashes (see [`TypeHashFn`]).
+  pub fn type_hash(mut self, type_hash: TypeHashFn) -> Self {
+    self.type_hash = Some(type_hash);
+    self
   }
 
   /// Set the DDS Domain Id.
@@ -132,7 +146,30 @@ impl Context {
       }
     }
 
-    Self::from_domain_participant(dpb.build()?)
+    let context = Self::from_domain_participant(dpb.build()?)?;
+    context.inner.lock().unwrap().type_hash = opt.type_hash;
+    Ok(context)
+  }
+
+  // armctl patch (vendor/NOTE-UPSTREAM.md): the DDS QoS of a new reader or writer on
+  // `topic`: `qos`, with the type hash in USER_DATA if the context has one for the type.
+  fn endpoint_qos(&self, topic: &Topic, qos: Option<QosProfile>) -> Option<QosPolicies> {
+    let qos = qos.map(QosPolicies::from);
+    let hash = {
+      let inner = self.inner.lock().unwrap();
+      inner
+        .type_hash
+        .as_ref()
+        .and_then(|f| f(topic.get_type().name()))
+    };
+    match hash {
+      Some(hash) => Some(
+        qos
+          .unwrap_or_default()
+          .with_user_data(format!("typehash={hash};").into_bytes()),
+      ),
+      None => qos,
+    }
   }
 
   /// Create a new Context from an existing [`DomainParticipant`].
@@ -246,7 +283,7 @@ impl Context {
   where
     M: Serialize,
   {
-    let dds_qos = qos.map(QosPolicies::from);
+    let dds_qos = self.endpoint_qos(topic, qos);
     let datawriter = self
       .get_ros_default_publisher()
       .create_datawriter_no_key(topic, dds_qos)?;
@@ -262,7 +299,7 @@ impl Context {
   where
     M: 'static,
   {
-    let dds_qos = qos.map(QosPolicies::from);
+    let dds_qos = self.endpoint_qos(topic, qos);
     let datareader = self
       .get_ros_default_subscriber()
       .create_simple_datareader_no_key(topic, dds_qos)?;
@@ -277,7 +314,7 @@ impl Context {
   where
     SA: SerializerAdapter<M>,
   {
-    let dds_qos = qos.map(QosPolicies::from);
+    let dds_qos = self.endpoint_qos(topic, qos);
     Ok(
       self
         .get_ros_default_publisher()
@@ -294,7 +331,7 @@ impl Context {
     M: 'static,
     DA: 'static + DeserializerAdapter<M>,
   {
-    let dds_qos = qos.map(QosPolicies::from);
+    let dds_qos = self.endpoint_qos(topic, qos);
     Ok(
       self
         .get_ros_default_subscriber()
@@ -341,6 +378,8 @@ struct ContextInner {
 
   ros_parameter_events_topic: Topic,
   ros_rosout_topic: Topic,
+  // armctl patch (vendor/NOTE-UPSTREAM.md)
+  type_hash: Option<TypeHashFn>,
 }
 
 impl ContextInner {
@@ -388,6 +427,7 @@ impl ContextInner {
       ros_default_subscriber,
       ros_parameter_events_topic,
       ros_rosout_topic,
+      type_hash: None,
     })
   }
 

@@ -204,7 +204,7 @@ pub mod dds {
 
   #[doc(inline)]
   pub use crate::context::{
-    Context, ContextOptions, DEFAULT_PUBLISHER_QOS, DEFAULT_SUBSCRIPTION_QOS,
+    Context, ContextOptions, TypeHashFn, DEFAULT_PUBLISHER_QOS, DEFAULT_SUBSCRIPTION_QOS,
   };
   #[doc(inline)]
   pub use crate::node::{
@@ -291,7 +291,7 @@ pub use dds::{
   ActionClient, ActionServer, AsyncActionServer, Client, Context, ContextOptions,
   DEFAULT_PUBLISHER_QOS, DEFAULT_SUBSCRIPTION_QOS, Node, NodeCreateError, NodeEvent,
   NodeLoggingHandle, ParameterError, Publisher, ReaderWait, RosoutRaw, Server, ServiceMapping,
-  Spinner, Subscription, WriterWait,
+  Spinner, Subscription, TypeHashFn, WriterWait,
 };
 #[cfg(all(feature = "zenoh", not(feature = "dds")))]
 #[doc(inline)]

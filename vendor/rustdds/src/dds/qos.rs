@@ -212,6 +212,7 @@ impl QosPolicyBuilder {
       data_representation: None,
       #[cfg(feature = "security")]
       property: None,
+      user_data: None, // armctl patch (vendor/NOTE-UPSTREAM.md)
     }
   }
 }
@@ -237,9 +238,26 @@ pub struct QosPolicies {
   pub(crate) data_representation: Option<policy::DataRepresentation>,
   #[cfg(feature = "security")]
   pub(crate) property: Option<policy::Property>,
+  // armctl patch (vendor/NOTE-UPSTREAM.md): the USER_DATA policy's octets, announced in
+  // the endpoint's SEDP data (PID_USER_DATA). Not part of QoS matching.
+  #[serde(default)]
+  pub(crate) user_data: Option<Vec<u8>>,
 }
 
 impl QosPolicies {
+  /// armctl patch (vendor/NOTE-UPSTREAM.md): these policies with USER_DATA `data`
+  /// (announced in the endpoint's SEDP data, e.g. ROS 2's `typehash=RIHS01_...;`).
+  #[must_use]
+  pub fn with_user_data(mut self, data: Vec<u8>) -> Self {
+    self.user_data = Some(data);
+    self
+  }
+
+  /// armctl patch (vendor/NOTE-UPSTREAM.md): the USER_DATA octets, if set.
+  pub fn user_data(&self) -> Option<&[u8]> {
+    self.user_data.as_deref()
+  }
+
   // TODO: rename this to "none", as this is already member of QosPolicies, so
   // context in implied
   pub fn qos_none() -> Self {
@@ -364,6 +382,7 @@ impl QosPolicies {
         .or(self.data_representation.clone()),
       #[cfg(feature = "security")]
       property: other.property.clone().or(self.property.clone()),
+      user_data: other.user_data.clone().or(self.user_data.clone()),
     }
   }
 
@@ -568,6 +587,8 @@ impl QosPolicies {
       data_representation,
       #[cfg(feature = "security")]
         property: _, // TODO: properties to parameter list?
+      // armctl patch (vendor/NOTE-UPSTREAM.md): USER_DATA is sent with the SEDP data.
+      user_data: _,
     } = self;
 
     macro_rules! emit {
@@ -740,6 +761,7 @@ impl QosPolicies {
       data_representation,
       #[cfg(feature = "security")]
       property,
+      user_data: None, // armctl patch (vendor/NOTE-UPSTREAM.md)
     })
   }
 }

@@ -670,7 +670,10 @@ impl DiscoveryDB {
       reader_proxy: ReaderProxy::from(reader_proxy),
       subscription_topic_data: subscription_data,
       content_filter,
-      user_data: Vec::new(),
+      // armctl patch (vendor/NOTE-UPSTREAM.md): USER_DATA from the reader's QoS.
+      user_data: crate::discovery::sedp_messages::user_data_parameter_value(
+        reader.qos_policy.user_data(),
+      ),
     }
   }
 

@@ -290,6 +290,7 @@ impl SubscriptionBuiltinTopicData {
 
       #[cfg(feature = "security")]
       property: None, // TODO: no property QoS?
+      user_data: None, // armctl patch (vendor/NOTE-UPSTREAM.md)
     }
   }
 
@@ -498,7 +499,7 @@ impl ParameterListable for DiscoveredReaderData {
           security_info,
         },
       content_filter,
-      user_data: _,
+      user_data,
     } = self;
 
     let mut pl = ParameterList::new();
@@ -552,6 +553,10 @@ impl ParameterListable for DiscoveredReaderData {
     emit!(PID_TOPIC_NAME, &topic_name.clone().into(), StringWithNul);
     emit!(PID_TYPE_NAME, &type_name.clone().into(), StringWithNul);
     pl.parameters.append(&mut qos.to_parameter_list(ctx)?);
+    // armctl patch (vendor/NOTE-UPSTREAM.md): the endpoint's USER_DATA, if any.
+    if !user_data.is_empty() {
+      pl.push(Parameter::new(ParameterId::PID_USER_DATA, user_data.clone()));
+    }
     emit_option!(
       PID_SERVICE_INSTANCE_NAME,
       &service_instance_name.clone().map(|e| e.into()),
@@ -738,6 +743,7 @@ impl PublicationBuiltinTopicData {
       data_representation: self.data_representation.clone(),
       #[cfg(feature = "security")]
       property: None, // TODO: no property Qos?
+      user_data: None, // armctl patch (vendor/NOTE-UPSTREAM.md)
     }
   }
 
@@ -810,8 +816,22 @@ impl DiscoveredWriterData {
       last_updated: Instant::now(),
       writer_proxy,
       publication_topic_data,
-      user_data: Vec::new(),
+      // armctl patch (vendor/NOTE-UPSTREAM.md): USER_DATA from the writer's QoS.
+      user_data: user_data_parameter_value(writer.qos().user_data()),
     }
+  }
+}
+
+/// armctl patch (vendor/NOTE-UPSTREAM.md): the PID_USER_DATA value (a CDR
+/// `sequence<octet>` in PL_CDR_LE, as SEDP is sent) for the USER_DATA octets, or nothing.
+pub(crate) fn user_data_parameter_value(data: Option<&[u8]>) -> Vec<u8> {
+  match data {
+    Some(data) if !data.is_empty() => {
+      let mut value = (data.len() as u32).to_le_bytes().to_vec();
+      value.extend_from_slice(data);
+      value
+    }
+    _ => Vec::new(),
   }
 }
 
@@ -956,7 +976,7 @@ impl ParameterListable for DiscoveredWriterData {
           #[cfg(feature = "security")]
           security_info,
         },
-      user_data: _,
+      user_data,
     } = self;
 
     let mut pl = ParameterList::new();
@@ -1010,6 +1030,10 @@ impl ParameterListable for DiscoveredWriterData {
     emit!(PID_TOPIC_NAME, &topic_name.clone().into(), StringWithNul);
     emit!(PID_TYPE_NAME, &type_name.clone().into(), StringWithNul);
     pl.parameters.append(&mut qos.to_parameter_list(ctx)?);
+    // armctl patch (vendor/NOTE-UPSTREAM.md): the endpoint's USER_DATA, if any.
+    if !user_data.is_empty() {
+      pl.push(Parameter::new(ParameterId::PID_USER_DATA, user_data.clone()));
+    }
     emit_option!(
       PID_SERVICE_INSTANCE_NAME,
       &service_instance_name.clone().map(|e| e.into()),
@@ -1099,6 +1123,7 @@ impl HasQoSPolicy for TopicBuiltinTopicData {
       data_representation: None, // Topic-level DATA_REPRESENTATION not tracked
       #[cfg(feature = "security")]
       property: None, // TODO: no property Qos?
+      user_data: None, // armctl patch (vendor/NOTE-UPSTREAM.md)
     }
   }
 }

@@ -36,6 +36,7 @@ impl ROSDiscoveryTopic {
     data_representation: None,
     #[cfg(feature = "security")]
     property: None,
+    user_data: None, // armctl patch (vendor/NOTE-UPSTREAM.md)
   };
 
   const TOPIC_NAME: &'static str = "ros_discovery_info";
@@ -75,6 +76,7 @@ impl ParameterEventsTopic {
     data_representation: None,
     #[cfg(feature = "security")]
     property: None,
+    user_data: None, // armctl patch (vendor/NOTE-UPSTREAM.md)
   };
 
   const TOPIC_NAME: &'static str = "rt/parameter_events";
@@ -120,6 +122,7 @@ impl RosOutTopic {
     data_representation: None,
     #[cfg(feature = "security")]
     property: None,
+    user_data: None, // armctl patch (vendor/NOTE-UPSTREAM.md)
   };
 
   const TOPIC_NAME: &'static str = "rt/rosout";
