@@ -318,12 +318,18 @@ impl Bridge {
             loop {
                 match estop_server.async_receive_request().await {
                     Ok((request, _)) => {
-                        log::info!("e-stop request {request:?}");
+                        let received = Instant::now();
                         let response = self.estop().await;
+                        let stopped = received.elapsed();
                         wait_reply_reader(&estop_server, request).await;
                         if let Err(e) = estop_server.async_send_response(request, response).await {
                             log::warn!("e-stop response: {e:?}");
                         }
+                        log::info!(
+                            "e-stop request {request:?} answered {:.1} ms after it was received (STOPPED acknowledged after {:.1} ms)",
+                            received.elapsed().as_secs_f64() * 1e3,
+                            stopped.as_secs_f64() * 1e3
+                        );
                     }
                     Err(e) => log::warn!("e-stop request: {e:?}"),
                 }
