@@ -235,8 +235,16 @@ impl Bridge {
             };
             Name::new(namespace, base).map_err(|e| format!("ROS name {full:?}: {e:?}"))
         };
-        let context = Context::with_options(ContextOptions::new().domain_id(self.config.domain_id))
-            .map_err(|e| format!("DDS: {e:?}"))?;
+        // Every reader and writer announces its type's RIHS01 hash (Jazzy and later).
+        let distro = self.config.distro();
+        let type_hash: ros2_client::TypeHashFn =
+            Arc::new(move |dds_type: &str| crate::typehash::dds_type_hash(distro, dds_type));
+        let context = Context::with_options(
+            ContextOptions::new()
+                .domain_id(self.config.domain_id)
+                .type_hash(type_hash),
+        )
+        .map_err(|e| format!("DDS: {e:?}"))?;
         let mut node = context
             .new_node(
                 NodeName::new(&self.config.namespace, &self.config.node_name)
@@ -310,10 +318,18 @@ impl Bridge {
             loop {
                 match estop_server.async_receive_request().await {
                     Ok((request, _)) => {
+                        let received = Instant::now();
                         let response = self.estop().await;
+                        let stopped = received.elapsed();
+                        wait_reply_reader(&estop_server, request).await;
                         if let Err(e) = estop_server.async_send_response(request, response).await {
                             log::warn!("e-stop response: {e:?}");
                         }
+                        log::info!(
+                            "e-stop request {request:?} answered {:.1} ms after it was received (STOPPED acknowledged after {:.1} ms)",
+                            received.elapsed().as_secs_f64() * 1e3,
+                            stopped.as_secs_f64() * 1e3
+                        );
                     }
                     Err(e) => log::warn!("e-stop request: {e:?}"),
                 }
@@ -455,6 +471,43 @@ impl Bridge {
                 },
             }
         }
+    }
+}
+
+/// How long a service answer waits at most for the client's reply reader to be matched.
+const REPLY_MATCH_WAIT: Duration = Duration::from_secs(1);
+
+/// Waits (bounded, polling every millisecond) until the server's reply writer has matched
+/// the reply reader of the client that sent `request`. A new rclpy client may send its
+/// first request as soon as *it* has matched the bridge's endpoints, before the bridge
+/// has discovered its reply reader; an answer written then is never delivered (a volatile
+/// writer sends a reader only what it writes after the match), and the client waits
+/// forever. rmw_fastrtps's own servers wait for the match the same way.
+async fn wait_reply_reader<Q: ros2_client::Message + 'static, A: ros2_client::Message + 'static>(
+    server: &ros2_client::Server<Q, A>,
+    request: ros2_client::service::RmwRequestId,
+) {
+    let start = Instant::now();
+    loop {
+        match server.is_response_reader_matched(request) {
+            Some(true) | None => break,
+            Some(false) if start.elapsed() >= REPLY_MATCH_WAIT => {
+                log::warn!(
+                    "service answer: the client's reply reader is still not matched after {} ms; answering anyway",
+                    start.elapsed().as_millis()
+                );
+                return;
+            }
+            Some(false) => {
+                Timer::after(Duration::from_millis(1)).await;
+            }
+        }
+    }
+    if start.elapsed() >= Duration::from_millis(1) {
+        log::info!(
+            "service answer waited {:.1} ms for the client's reply reader to be matched",
+            start.elapsed().as_secs_f64() * 1e3
+        );
     }
 }
 

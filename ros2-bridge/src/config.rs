@@ -59,6 +59,58 @@ pub struct BridgeConfig {
     /// The gripper servo; `None`: no GripperCommand action.
     #[serde(default)]
     pub gripper: Option<GripperConfig>,
+    /// The ROS 2 distribution whose message layouts and type hashes the bridge speaks;
+    /// absent: `ROS_DISTRO` from the environment, else Jazzy ([`BridgeConfig::parse`] fills
+    /// it in).
+    #[serde(default)]
+    pub ros_distro: Option<RosDistro>,
+}
+
+/// The ROS 2 distributions the bridge can speak. What differs between them on the wire:
+/// control_msgs 5.x (Humble, Iron, Jazzy) or 6.x (Kilted, Rolling: FollowJointTrajectory
+/// feedback has `index` and `multi_dof_index`), and type hashes in USER_DATA (Iron and
+/// later).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum RosDistro {
+    /// Humble Hawksbill: control_msgs 4.x/5.x feedback, no type hashes.
+    Humble,
+    /// Iron Irwini: control_msgs 5.x, type hashes.
+    Iron,
+    /// Jazzy Jalisco: control_msgs 5.x, type hashes.
+    Jazzy,
+    /// Kilted Kaiju: control_msgs 6.x, type hashes.
+    Kilted,
+    /// Rolling Ridley: control_msgs 6.x, type hashes.
+    Rolling,
+}
+
+impl RosDistro {
+    /// The names, as in `ROS_DISTRO` and the config.
+    pub const NAMES: &'static str = "humble, iron, jazzy, kilted, rolling";
+
+    /// From a `ROS_DISTRO`-style name.
+    pub fn from_name(name: &str) -> Option<RosDistro> {
+        Some(match name.trim().to_ascii_lowercase().as_str() {
+            "humble" => RosDistro::Humble,
+            "iron" => RosDistro::Iron,
+            "jazzy" => RosDistro::Jazzy,
+            "kilted" => RosDistro::Kilted,
+            "rolling" => RosDistro::Rolling,
+            _ => return None,
+        })
+    }
+
+    /// control_msgs 6.x layouts (FollowJointTrajectory feedback with `index` and
+    /// `multi_dof_index`).
+    pub fn control_msgs_6(self) -> bool {
+        matches!(self, RosDistro::Kilted | RosDistro::Rolling)
+    }
+
+    /// Publishes RIHS01 type hashes in USER_DATA (REP 2011: Iron and later).
+    pub fn type_hashes(self) -> bool {
+        !matches!(self, RosDistro::Humble)
+    }
 }
 
 /// A hobby servo on the gripper PWM: a position (gap, metres) maps linearly to a duty.
@@ -136,8 +188,30 @@ impl BridgeConfig {
     /// Parses and checks a config; `file` names it in messages. Returns the joint config
     /// as armctl takes it too.
     pub fn parse(text: &str, file: &str) -> Result<(BridgeConfig, ArmConfig), String> {
-        let config: BridgeConfig =
+        Self::parse_with_env(text, file, std::env::var("ROS_DISTRO").ok().as_deref())
+    }
+
+    /// [`BridgeConfig::parse`] with `ros_distro_env` in place of the environment's
+    /// `ROS_DISTRO`.
+    pub fn parse_with_env(
+        text: &str,
+        file: &str,
+        ros_distro_env: Option<&str>,
+    ) -> Result<(BridgeConfig, ArmConfig), String> {
+        let mut config: BridgeConfig =
             serde_json::from_str(text).map_err(|e| format!("{file}: cannot parse: {e}"))?;
+        if config.ros_distro.is_none() {
+            config.ros_distro = match ros_distro_env.filter(|d| !d.is_empty()) {
+                None => Some(RosDistro::Jazzy),
+                Some(name) => Some(RosDistro::from_name(name).ok_or_else(|| {
+                    format!(
+                        "ROS_DISTRO={name:?} is not a distribution the bridge knows ({}); \
+                         set ros_distro in {file}",
+                        RosDistro::NAMES
+                    )
+                })?),
+            };
+        }
         let arm = ArmConfig::parse(text, file).map_err(|e| e.to_string())?;
         let rates = [
             ("joint_state_rate_hz", config.joint_state_rate_hz),
@@ -185,6 +259,11 @@ impl BridgeConfig {
         Ok((config, arm))
     }
 
+    /// The ROS 2 distribution to speak (Jazzy if neither the config nor `ROS_DISTRO` says).
+    pub fn distro(&self) -> RosDistro {
+        self.ros_distro.unwrap_or(RosDistro::Jazzy)
+    }
+
     /// The ROS joint names, joint 0 first.
     pub fn joint_names(&self) -> Vec<String> {
         self.joints
@@ -218,6 +297,27 @@ mod tests {
     }
 
     #[test]
+    fn the_distro_comes_from_the_config_then_ros_distro_then_jazzy() {
+        let plain = r#"{"joints": [{"name": "a", "max_step_rate_hz": 1}]}"#;
+        let kilted =
+            r#"{"ros_distro": "kilted", "joints": [{"name": "a", "max_step_rate_hz": 1}]}"#;
+        let distro = |text, env| BridgeConfig::parse_with_env(text, "c", env).map(|c| c.0.distro());
+        assert_eq!(distro(plain, None), Ok(RosDistro::Jazzy));
+        assert_eq!(distro(plain, Some("")), Ok(RosDistro::Jazzy));
+        assert_eq!(distro(plain, Some("rolling")), Ok(RosDistro::Rolling));
+        assert_eq!(distro(plain, Some("humble")), Ok(RosDistro::Humble));
+        assert_eq!(distro(kilted, Some("humble")), Ok(RosDistro::Kilted));
+        assert!(
+            distro(plain, Some("ardent"))
+                .unwrap_err()
+                .contains("ROS_DISTRO")
+        );
+        assert!(RosDistro::Kilted.control_msgs_6() && RosDistro::Rolling.control_msgs_6());
+        assert!(!RosDistro::Jazzy.control_msgs_6() && !RosDistro::Humble.control_msgs_6());
+        assert!(RosDistro::Jazzy.type_hashes() && !RosDistro::Humble.type_hashes());
+    }
+
+    #[test]
     fn bad_configs_are_refused_with_what_is_wrong() {
         let nameless = r#"{"joints": [{"max_step_rate_hz": 1000}]}"#;
         assert!(
@@ -237,6 +337,12 @@ mod tests {
             BridgeConfig::parse(typo, "c")
                 .unwrap_err()
                 .contains("joint_state_hz")
+        );
+        let distro = r#"{"ros_distro": "foxy", "joints": [{"name": "a", "max_step_rate_hz": 1}]}"#;
+        assert!(
+            BridgeConfig::parse(distro, "c")
+                .unwrap_err()
+                .contains("unknown variant `foxy`")
         );
         let twice = r#"{"joints": [{"name": "a", "max_step_rate_hz": 1}, {"name": "a", "max_step_rate_hz": 1}]}"#;
         assert!(

@@ -5,7 +5,7 @@
 use armctl::protocol::{MAX_JOINTS, Point};
 use armctl::trajectory::{self, ArmConfig, ErrorKind, RosDuration};
 
-use crate::config::BridgeConfig;
+use crate::config::{BridgeConfig, RosDistro};
 use crate::msgs::{
     FollowJointTrajectoryFeedback, FollowJointTrajectoryGoal, FollowJointTrajectoryResult as R,
     Header, JointState, JointTrajectoryPoint, Time,
@@ -50,12 +50,27 @@ pub struct Plan {
     pub goal_tolerance_steps: [u32; MAX_JOINTS],
     /// Largest |desired - actual| while moving per config joint, radians (`None`: none).
     pub path_tolerance_rad: [Option<f64>; MAX_JOINTS],
+    /// `time_from_start` of each of the goal's points, microseconds (for the feedback's
+    /// `index`).
+    pub waypoint_times_us: Vec<i64>,
 }
 
 impl Plan {
     /// The last point: where the arm must end.
     pub fn end(&self) -> [i32; MAX_JOINTS] {
         self.points.last().map_or(self.start, |p| p.position)
+    }
+
+    /// The goal point the arm is heading to `elapsed_us` into the run: the first whose
+    /// `time_from_start` is not yet past (the last one once the run is over); control_msgs
+    /// 6.x feedback's `index`.
+    pub fn waypoint_index(&self, elapsed_us: i64) -> i32 {
+        let i = self
+            .waypoint_times_us
+            .iter()
+            .position(|&t| t >= elapsed_us)
+            .unwrap_or(self.waypoint_times_us.len().saturating_sub(1));
+        i32::try_from(i).unwrap_or(i32::MAX)
     }
 
     /// Total duration, microseconds.
@@ -182,6 +197,11 @@ pub fn plan(
             waypoints.positions[0][j] = Some(f64::from(current[j]));
         }
     }
+    let waypoint_times_us: Vec<i64> = trajectory
+        .points
+        .iter()
+        .map(|p| p.time_from_start.as_micros())
+        .collect();
     let goal_tolerance_steps = goal_tolerances(goal, config, arm, &names);
     let path_tolerance_rad = path_tolerances(goal, &names);
     // A lone point at time 0 (MoveIt sends one when the arm is already at the goal): the
@@ -194,6 +214,7 @@ pub fn plan(
             columns,
             goal_tolerance_steps,
             path_tolerance_rad,
+            waypoint_times_us,
         });
     }
     let points = trajectory::to_points(
@@ -212,6 +233,7 @@ pub fn plan(
         columns,
         goal_tolerance_steps,
         path_tolerance_rad,
+        waypoint_times_us,
     })
 }
 
@@ -340,6 +362,7 @@ pub fn feedback(
     actual: &[i32; MAX_JOINTS],
     elapsed_us: i64,
     stamp: Time,
+    distro: RosDistro,
 ) -> FollowJointTrajectoryFeedback {
     let time_from_start =
         crate::msgs::Duration::from_std(std::time::Duration::from_micros(elapsed_us.max(0) as u64));
@@ -372,6 +395,11 @@ pub fn feedback(
         desired: point(desired_rad),
         actual: point(actual_rad),
         error: point(error),
+        // control_msgs 6.x only: the goal point being executed; no multi-DOF points (0).
+        index: distro
+            .control_msgs_6()
+            .then(|| plan.waypoint_index(elapsed_us)),
+        multi_dof_index: distro.control_msgs_6().then_some(0),
         ..FollowJointTrajectoryFeedback::default()
     }
 }

@@ -8,6 +8,7 @@
 //! - [`goal`]: the decisions, without I/O (goal checks, result codes, messages).
 //! - [`bridge`]: the running node.
 //! - [`msgs`]: the ROS message types, field for field.
+//! - [`typehash`]: their RIHS01 type hashes (REP 2011), announced with every endpoint.
 //!
 //! docs/ROS2.md tells how to run it with MoveIt.
 
@@ -15,6 +16,7 @@ pub mod bridge;
 pub mod config;
 pub mod goal;
 pub mod msgs;
+pub mod typehash;
 
 pub use bridge::{Bridge, Sample};
-pub use config::{BridgeConfig, GripperConfig};
+pub use config::{BridgeConfig, GripperConfig, RosDistro};

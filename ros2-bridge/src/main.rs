@@ -11,7 +11,9 @@ const USAGE: &str = "usage: armctl-ros2 CONFIG.json [--controller HOST:PORT]\n\
 
 fn main() -> ExitCode {
     // With ARMCTL_TRACE, the armctl client's upload traces (ACKs, timeouts, resends) too.
-    armctl::logger("info,rustdds=warn,ros2_client=warn").init();
+    armctl::logger("info,rustdds=warn,ros2_client=warn")
+        .format_timestamp_millis()
+        .init();
     let mut args = std::env::args().skip(1);
     let mut config_path: Option<PathBuf> = None;
     let mut controller: Option<String> = None;

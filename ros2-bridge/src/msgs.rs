@@ -246,8 +246,14 @@ impl FollowJointTrajectoryResult {
     pub const GOAL_TOLERANCE_VIOLATED: i32 = -5;
 }
 
-/// `control_msgs/action/FollowJointTrajectory` feedback.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+/// `control_msgs/action/FollowJointTrajectory` feedback, in the layout of either
+/// control_msgs 5.x (Humble, Jazzy: `index` and `multi_dof_index` `None`) or 6.3+ (Kilted,
+/// Rolling: both `Some`, serialised after `error` and after `multi_dof_error`). Both have
+/// the same DDS type name, so the layout must be the reader's: a 6.x reader drops every
+/// 5.x sample and the other way round.
+///
+/// Deserialises the 5.x layout only (the indices stay `None`).
+#[derive(Clone, Debug, Default, PartialEq, Deserialize)]
 pub struct FollowJointTrajectoryFeedback {
     /// Stamp: when this feedback was made.
     pub header: Header,
@@ -259,6 +265,9 @@ pub struct FollowJointTrajectoryFeedback {
     pub actual: JointTrajectoryPoint,
     /// desired - actual.
     pub error: JointTrajectoryPoint,
+    /// control_msgs 6.x: the goal point being executed.
+    #[serde(skip)]
+    pub index: Option<i32>,
     /// Empty.
     pub multi_dof_joint_names: Vec<String>,
     /// Empty.
@@ -267,6 +276,34 @@ pub struct FollowJointTrajectoryFeedback {
     pub multi_dof_actual: MultiDofJointTrajectoryPoint,
     /// Empty.
     pub multi_dof_error: MultiDofJointTrajectoryPoint,
+    /// control_msgs 6.x: the multi-DOF point being executed (0: there are none).
+    #[serde(skip)]
+    pub multi_dof_index: Option<i32>,
+}
+
+impl Serialize for FollowJointTrajectoryFeedback {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        use serde::ser::SerializeStruct;
+        let fields =
+            9 + usize::from(self.index.is_some()) + usize::from(self.multi_dof_index.is_some());
+        let mut s = serializer.serialize_struct("FollowJointTrajectory_Feedback", fields)?;
+        s.serialize_field("header", &self.header)?;
+        s.serialize_field("joint_names", &self.joint_names)?;
+        s.serialize_field("desired", &self.desired)?;
+        s.serialize_field("actual", &self.actual)?;
+        s.serialize_field("error", &self.error)?;
+        if let Some(index) = self.index {
+            s.serialize_field("index", &index)?;
+        }
+        s.serialize_field("multi_dof_joint_names", &self.multi_dof_joint_names)?;
+        s.serialize_field("multi_dof_desired", &self.multi_dof_desired)?;
+        s.serialize_field("multi_dof_actual", &self.multi_dof_actual)?;
+        s.serialize_field("multi_dof_error", &self.multi_dof_error)?;
+        if let Some(index) = self.multi_dof_index {
+            s.serialize_field("multi_dof_index", &index)?;
+        }
+        s.end()
+    }
 }
 impl Message for FollowJointTrajectoryFeedback {}
 
@@ -318,3 +355,83 @@ pub struct TriggerResponse {
     pub message: String,
 }
 impl Message for TriggerResponse {}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use byteorder::LittleEndian;
+
+    /// control_msgs 6.3+'s feedback, field for field (as a Kilted reader decodes it).
+    #[derive(Debug, Deserialize)]
+    struct Feedback6 {
+        header: Header,
+        joint_names: Vec<String>,
+        desired: JointTrajectoryPoint,
+        actual: JointTrajectoryPoint,
+        error: JointTrajectoryPoint,
+        index: i32,
+        multi_dof_joint_names: Vec<String>,
+        multi_dof_desired: MultiDofJointTrajectoryPoint,
+        multi_dof_actual: MultiDofJointTrajectoryPoint,
+        multi_dof_error: MultiDofJointTrajectoryPoint,
+        multi_dof_index: i32,
+    }
+
+    fn sample() -> FollowJointTrajectoryFeedback {
+        let point = |x: f64| JointTrajectoryPoint {
+            positions: vec![x, -x],
+            time_from_start: Duration { sec: 1, nanosec: 5 },
+            ..JointTrajectoryPoint::default()
+        };
+        FollowJointTrajectoryFeedback {
+            header: Header {
+                stamp: Time { sec: 7, nanosec: 9 },
+                frame_id: String::new(),
+            },
+            joint_names: vec!["base".into(), "elbow".into()],
+            desired: point(0.5),
+            actual: point(0.25),
+            error: point(0.25),
+            ..FollowJointTrajectoryFeedback::default()
+        }
+    }
+
+    #[test]
+    fn feedback_has_the_layout_of_its_control_msgs_version() {
+        let jazzy = sample();
+        let bytes5 = cdr_encoding::to_vec::<_, LittleEndian>(&jazzy).unwrap();
+        let (back, used) =
+            cdr_encoding::from_bytes::<FollowJointTrajectoryFeedback, LittleEndian>(&bytes5)
+                .unwrap();
+        assert_eq!((back, used), (jazzy.clone(), bytes5.len()));
+
+        let kilted = FollowJointTrajectoryFeedback {
+            index: Some(3),
+            multi_dof_index: Some(0),
+            ..jazzy
+        };
+        let bytes6 = cdr_encoding::to_vec::<_, LittleEndian>(&kilted).unwrap();
+        let (six, used) = cdr_encoding::from_bytes::<Feedback6, LittleEndian>(&bytes6).unwrap();
+        assert_eq!(used, bytes6.len());
+        assert_eq!((six.index, six.multi_dof_index), (3, 0));
+        assert_eq!(six.header, kilted.header);
+        assert_eq!(six.joint_names, kilted.joint_names);
+        assert_eq!(
+            (six.desired, six.actual, six.error),
+            (kilted.desired, kilted.actual, kilted.error)
+        );
+        assert!(six.multi_dof_joint_names.is_empty());
+        assert_eq!(
+            six.multi_dof_desired,
+            MultiDofJointTrajectoryPoint::default()
+        );
+        assert_eq!(
+            six.multi_dof_actual,
+            MultiDofJointTrajectoryPoint::default()
+        );
+        assert_eq!(six.multi_dof_error, MultiDofJointTrajectoryPoint::default());
+        // The 5.x layout is what a 6.x reader cannot take: 8 bytes short.
+        assert_eq!(bytes6.len(), bytes5.len() + 8);
+        assert!(cdr_encoding::from_bytes::<Feedback6, LittleEndian>(&bytes5).is_err());
+    }
+}

@@ -154,7 +154,7 @@ impl Bridge {
                     let desired = plan.desired_steps(elapsed_us);
                     let actual = self.latest().map_or(plan.start, |s| s.location.position);
                     let feedback = goal::feedback(plan, &self.arm, &desired, &actual, elapsed_us,
-                        Time::from_system(SystemTime::now()));
+                        Time::from_system(SystemTime::now()), self.config.distro());
                     if let Err(e) = server.publish_feedback(executing.clone(), feedback).await {
                         log::warn!("feedback: {e:?}");
                     }
