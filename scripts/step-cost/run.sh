@@ -50,14 +50,32 @@ work="$(mktemp -d)"
 trap 'rm -rf "$work"' EXIT
 mkfifo "$work/trace"
 
+# The masked spans (issue 20): every `cpsid i` (a critical section's entry: every
+# interrupt held off, TIM13's DIR change too) and every `msr primask` (its exit, restoring
+# the state before) in the ELF, from llvm-tools' objdump (fail loudly without it).
+objdump_tool="$(rustc --print sysroot)/lib/rustlib/$(rustc -vV | sed -n 's/^host: //p')/bin/llvm-objdump"
+[ -x "$objdump_tool" ] || { echo "step-cost: $objdump_tool missing; run 'rustup component add llvm-tools'" >&2; exit 1; }
+"$objdump_tool" -d "$elf" | awk '
+  NF >= 2 && $NF == "i" && $(NF - 1) == "cpsid" { sub(":", "", $1); print "on", $1 }
+  NF >= 3 && $(NF - 1) == "primask," && $(NF - 2) == "msr" { sub(":", "", $1); print "off", $1 }' > "$work/mask_pcs"
+grep -q '^on ' "$work/mask_pcs" || { echo "step-cost: no cpsid found in $elf" >&2; exit 1; }
+
 # Trace lines: "Trace 0: 0x... [cs_base/pc/flags/cflags] symbol", one per instruction.
 # An interrupt is counted from the entry into step_cost_on_<kind> to the entry into
 # step_cost_off, leaving out the markers and the harness (harness_*). At each entry into
 # step_cost_case: one line "start refill tim13" (instructions) and, with --detail, the
 # functions by instructions.
-awk -v detail="$detail" '
-  function flush(   s) {
+awk -v detail="$detail" -v maskfile="$work/mask_pcs" '
+  BEGIN {
+    while ((getline line < maskfile) > 0) {
+      split(line, a, " "); pc = a[2]; sub(/^0+/, "", pc)
+      if (a[1] == "on") onpc[pc] = 1; else offpc[pc] = 1
+    }
+  }
+  function flush(   s, k) {
     printf "counts %d %d %d\n", c["start"], c["refill"], c["tim13"]
+    for (k in longest) printf "mask %s %d %s\n", k, longest[k], where[k]
+    delete longest; delete where
     if (detail != "") {
       for (s in sym) printf "fn %d %s\n", sym[s], s
       print "endfn"
@@ -68,6 +86,17 @@ awk -v detail="$detail" '
   $NF != prev && $NF == "step_cost_off" { on = 0 }
   $NF != prev && $NF == "step_cost_case" { flush() }
   on && $NF !~ /^(step_cost_|harness_)/ { c[kind]++; sym[$NF]++ }
+  # Masked spans inside the measured code: from a cpsid to the msr that ends the
+  # outermost critical section (nested ones restore "masked"), in instructions.
+  on {
+    split($4, f, "/"); pc = f[2]; sub(/^0+/, "", pc)
+    if (depth > 0) span++
+    if (pc in onpc) { if (depth++ == 0) { span = 1; from = $NF } }
+    else if ((pc in offpc) && depth > 0 && --depth == 0) {
+      if (span > longest[kind]) { longest[kind] = span; where[kind] = from }
+    }
+  }
+  !on { depth = 0 }
   { prev = $NF }' "$work/trace" > "$work/counts" &
 counter=$!
 
@@ -92,6 +121,24 @@ for i in 0 1 2 3 4 5; do
       -v rc="$refills" -v w="$wraps" -v al="$((compares + pended))" 'BEGIN {
     printf "%-37s %8.1f %8.1f %8.1f %8.1f   (%d; %d, %d, %d)\n", n, (a + r + t) / s, a / s, r / s, t / s, s, rc, w, al }'
 done
+# The longest masked span per section and trajectory, in instructions and in microseconds
+# at 400 MHz taking one instruction a cycle (the M7 may dual-issue; flash and bus waits
+# add cycles: a rough figure until the DWT measures it on the board, BOARD.md item 24).
+# Goal (issue 20): <= 1 us, so that a DIR change waits at most that long.
+echo
+echo "longest masked span (PRIMASK set: every interrupt held off, TIM13's DIR change too):"
+printf '%-37s %-8s %12s %9s   %s\n' "trajectory" "section" "instructions" "us@400MHz" "begins in"
+awk -v names="$(printf '%s|' "${names[@]}")" '
+  BEGIN { split(names, name, "|") }
+  /^counts/ { n++ }
+  /^mask / && n > 1 {
+    us = $3 / 400
+    printf "%-37s %-8s %12d %9.2f   %s%s\n", name[n - 1], $2, $3, us, $4, (us > 1 ? "  (over 1 us)" : "")
+  }' "$work/counts"
+worst=$(awk '/^counts/ { n++ } /^mask / && n > 1 && $3 > m { m = $3 } END { print m + 0 }' "$work/counts")
+[ "$worst" -gt 0 ] || { echo "step-cost: no masked span measured" >&2; exit 1; }
+awk -v w="$worst" 'BEGIN { printf "longest of all: %d instructions, %.2f us at 400 MHz (goal <= 1 us)\n", w, w / 400 }'
+
 if [ -n "$detail" ]; then
   awk '/^counts/ { n++ } /^fn / && n > 1 { printf "case %d %8d %s\n", n - 1, $2, $3 }' "$work/counts" \
     | sort -k2,2n -k3,3nr | awk '{ k = $2; if (seen[k]++ < 12) print }'

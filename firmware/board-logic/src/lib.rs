@@ -14,6 +14,7 @@
 //! * [`gripper`]: the burst arithmetic of counted gripper pulses.
 //! * [`net`]: REF_CLK detection, autonegotiated link mode, the link-loss policy.
 //! * [`reset_cause`]: why the chip last reset, from RCC_RSR, logged at boot.
+//! * [`step_clock`]: the step clock's 64-bit tick from TIM13's counter and its wraps.
 #![no_std]
 #![warn(missing_docs)]
 // Tests index and unwrap freely: a failing test is meant to panic.
@@ -32,4 +33,5 @@ pub mod gripper;
 pub mod net;
 pub mod reset_cause;
 pub mod settings;
+pub mod step_clock;
 pub mod watchdog;

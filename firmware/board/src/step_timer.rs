@@ -17,6 +17,7 @@
 use core::cell::Cell;
 
 use arm_core::hw::StepKick;
+use board_logic::step_clock::{self, WRAP};
 use embassy_stm32::interrupt::{InterruptExt, Priority};
 use embassy_stm32::{interrupt, pac};
 use embassy_sync::blocking_mutex::Mutex;
@@ -36,9 +37,6 @@ static CLOCK: Mutex<CriticalSectionRawMutex, Cell<ClockState>> =
         wraps: 0,
         alarm: u64::MAX,
     }));
-
-/// Ticks per wrap of the 16-bit counter.
-const WRAP: u64 = 1 << 16;
 
 /// SR bits: update, CC1.
 const SR_UIF: u32 = 1 << 0;
@@ -76,17 +74,17 @@ pub fn start(timer_clock_hz: u32) -> Result<StepTimer, ClockMismatch> {
     Ok(StepTimer { _private: () })
 }
 
-/// The step clock's tick (200 MHz, 64-bit: never wraps in practice).
+/// The step clock's tick (200 MHz, 64-bit: never wraps in practice). Right while TIM13's
+/// interrupt runs within a whole wrap (327.68 us) of each wrap (board-logic's
+/// `step_clock`: the update flag read before and after the counter).
 pub fn now_tick() -> u64 {
     CLOCK.lock(|cell| {
         let state = cell.get();
-        let counter = u64::from(pac::TIM13.cnt().read().cnt());
-        let pending = pac::TIM13.sr().read().0 & SR_UIF != 0;
-        // A wrap not counted yet shows as a pending update with a small counter (read
-        // first, so a wrap after the read leaves a large value).
-        let wraps = state.wraps + u64::from(pending && counter < WRAP / 2);
+        let pending_before = pac::TIM13.sr().read().0 & SR_UIF != 0;
+        let counter = pac::TIM13.cnt().read().cnt();
+        let pending_after = pac::TIM13.sr().read().0 & SR_UIF != 0;
         cell.set(state);
-        wraps * WRAP + counter
+        step_clock::extended_tick(state.wraps, pending_before, counter, pending_after)
     })
 }
 

@@ -576,11 +576,13 @@ fn write_tim13_sr(value: u32) {
 pub fn now_tick() -> u64 {
     CLOCK.lock(|cell| {
         let state = cell.get();
+        // board-logic's step_clock::extended_tick, inlined (this crate builds alone).
+        let pending_before = pac::TIM13.sr().read().0 & SR_UIF != 0;
         let counter = u64::from(pac::TIM13.cnt().read().cnt());
-        let pending = pac::TIM13.sr().read().0 & SR_UIF != 0;
-        let wraps = state.wraps + u64::from(pending && counter < WRAP / 2);
+        let pending_after = pac::TIM13.sr().read().0 & SR_UIF != 0;
         cell.set(state);
-        wraps * WRAP + counter
+        let uncounted = pending_before || (pending_after && counter < WRAP / 2);
+        (state.wraps + u64::from(uncounted)) * WRAP + counter
     })
 }
 
