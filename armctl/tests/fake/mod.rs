@@ -101,12 +101,23 @@ pub struct Fake {
     sim: Arc<Mutex<Sim>>,
     shutdown: Arc<AtomicBool>,
     thread: Option<JoinHandle<()>>,
+    /// This test binary's fakes run one at a time ([`ONE_AT_A_TIME`]); dropped last.
+    _turn: std::sync::MutexGuard<'static, ()>,
 }
+
+/// Held by each running fake. A fake runs its controller in real time, and the tests feed
+/// small buffers (a few hundred milliseconds of motion) in real time: a dozen of them side
+/// by side, on a loaded 2-core machine, starved each other's uploads into underruns
+/// (issue 19's soak: 2 of 3 runs of `cargo test` with two busy loops per core). One at a
+/// time, each has the margin its buffer gives.
+static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
 
 impl Fake {
     /// Starts a fake with `capacity` buffer slots and the given faults.
     pub fn start(capacity: usize, faults: Faults) -> Fake {
         assert!(capacity <= CAP, "the fake buffers at most {CAP} points");
+        // A test that failed while holding it poisons it; the next still runs.
+        let turn = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
         let socket = UdpSocket::bind("127.0.0.1:0").unwrap();
         socket
             .set_read_timeout(Some(Duration::from_millis(1)))
@@ -143,6 +154,7 @@ impl Fake {
             sim,
             shutdown,
             thread: Some(thread),
+            _turn: turn,
         }
     }
 
