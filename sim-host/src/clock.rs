@@ -4,7 +4,12 @@
 //! `Clock` trait, the step "interrupt" thread through [`SimClock::now_tick`]. So with a
 //! time scale of 10, a 2 s trajectory runs in 0.2 s of wall time and every pulse still
 //! lands on its exact tick in simulated time.
+//!
+//! A [`SimClock::virtual_time`] clock does not follow the wall clock at all: it stands
+//! still until its owner advances it ([`SimClock::advance_ns`]), so that a test drives the
+//! whole simulated controller on time it controls (`crate::virtual_board`, issue 19).
 
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
 use arm_core::hw::Clock;
@@ -19,6 +24,8 @@ pub struct SimClock {
     /// Time scale times [`SCALE_DEN`].
     scale_milli: u128,
     tick_hz: u32,
+    /// Virtual time: the simulated nanoseconds, advanced only by the test.
+    virtual_ns: Option<&'static AtomicU64>,
 }
 
 impl SimClock {
@@ -30,6 +37,28 @@ impl SimClock {
             origin: Instant::now(),
             scale_milli,
             tick_hz: tick_hz.max(1),
+            virtual_ns: None,
+        }
+    }
+
+    /// A clock at 0 that moves only when [`SimClock::advance_ns`] moves it (one small
+    /// leak per clock: tests make a handful).
+    pub fn virtual_time(tick_hz: u32) -> SimClock {
+        SimClock {
+            virtual_ns: Some(Box::leak(Box::new(AtomicU64::new(0)))),
+            ..SimClock::new(1.0, tick_hz)
+        }
+    }
+
+    /// Whether this clock is virtual.
+    pub fn is_virtual(&self) -> bool {
+        self.virtual_ns.is_some()
+    }
+
+    /// Moves a virtual clock on by `ns` (no effect on a real one).
+    pub fn advance_ns(&self, ns: u64) {
+        if let Some(now) = self.virtual_ns {
+            now.fetch_add(ns, Ordering::AcqRel);
         }
     }
 
@@ -51,7 +80,10 @@ impl SimClock {
 
     /// Simulated nanoseconds since boot.
     pub fn now_ns(&self) -> u64 {
-        self.sim_ns_at(Instant::now())
+        match self.virtual_ns {
+            Some(now) => now.load(Ordering::Acquire),
+            None => self.sim_ns_at(Instant::now()),
+        }
     }
 
     /// The real instant at which simulated time reaches `sim_ns` (rounded up).
@@ -89,6 +121,21 @@ impl Clock for SimClock {
     }
 
     async fn sleep_until(&self, at_us: u64) {
+        if self.is_virtual() {
+            // Ready once the test has moved the clock there; until then each poll asks to
+            // be polled again (the virtual board polls in a loop, advancing time).
+            let at_ns = at_us.saturating_mul(1000);
+            std::future::poll_fn(|cx| {
+                if self.now_ns() >= at_ns {
+                    std::task::Poll::Ready(())
+                } else {
+                    cx.waker().wake_by_ref();
+                    std::task::Poll::Pending
+                }
+            })
+            .await;
+            return;
+        }
         let target = self.real_instant_of_ns(at_us.saturating_mul(1000));
         loop {
             let now = Instant::now();

@@ -21,6 +21,7 @@ pub mod steppers;
 pub mod steptimer;
 pub mod tap;
 pub mod vcd;
+pub mod virtual_board;
 
 pub mod app;
 pub mod bench;

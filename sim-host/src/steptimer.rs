@@ -71,6 +71,14 @@ impl SimStepKick {
     }
 }
 
+impl SimStepKick {
+    /// Whether a kick came since the last call (and forgets it): the virtual board plays
+    /// the step hardware when kicked, as the step thread does.
+    pub fn take_kick(&self) -> bool {
+        self.shared.kick_at.swap(NO_KICK, Ordering::AcqRel) != NO_KICK
+    }
+}
+
 impl StepKick for SimStepKick {
     fn kick(&self) {
         let now = self.shared.clock.now_tick();

@@ -1,0 +1,309 @@
+//! The simulated controller on virtual time (issue 19): sim-host's own hardware models and
+//! the firmware's tasks, driven in this thread by `VirtualBoard`, whose clock moves only
+//! when the test moves it. No sleep, no socket, no deadline in wall-clock time: a loaded
+//! machine makes these tests slower, never different. The same checks as the process
+//! tests in `controller.rs` where those depend on the controller's timing (pulse times,
+//! a stop mid-run, a gripper burst's length).
+
+use std::path::PathBuf;
+
+use arm_core::hw::Endpoint;
+use armctl::vcd;
+use protocol::{
+    Command, Frame, Location, MAX_JOINTS, Point, PointList, Pwm, Report, State, StatusCode,
+    StatusFlags, StatusReport,
+};
+use sim_host::options::SimOptions;
+use sim_host::virtual_board::VirtualBoard;
+
+const HOST: Endpoint = Endpoint {
+    ip: [127, 0, 0, 1],
+    port: 50_000,
+};
+
+/// Simulated time a test allows for what it waits for (virtual: costs nothing if unused).
+const SECOND_NS: u64 = 1_000_000_000;
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("sim-host-virtual-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    dir.join(name)
+}
+
+/// A board with a 1 MHz step timer (pulse times in whole microseconds), traced to
+/// `NAME.vcd`, its settings in `NAME.txt`.
+fn board(name: &str, tick_hz: u32) -> (VirtualBoard, PathBuf) {
+    let mut options = SimOptions::defaults();
+    options.tick_hz = tick_hz;
+    options.settings = Some(scratch(&format!("{name}.txt")));
+    let _ = std::fs::remove_file(options.settings.as_ref().unwrap());
+    let trace = scratch(&format!("{name}.vcd"));
+    (VirtualBoard::new(&options, Some(&trace)).unwrap(), trace)
+}
+
+/// The host side: numbered commands, their ACKs found among what the board sent.
+struct Host {
+    seq: u8,
+    reports: Vec<(u8, Vec<u8>)>,
+}
+
+impl Host {
+    fn new() -> Host {
+        Host {
+            seq: 0,
+            reports: Vec::new(),
+        }
+    }
+
+    /// Sends `command` and runs the board until its ACK (100 ms of simulated time at most).
+    fn command(&mut self, board: &mut VirtualBoard, command: &Command<'_>) -> protocol::Ack {
+        let seq = self.seq;
+        self.seq = self.seq.wrapping_add(1);
+        let mut buf = [0u8; protocol::MAX_DATAGRAM];
+        let n = command.encode(seq, &mut buf).unwrap();
+        board.send(HOST, &buf[..n]);
+        let mut ack = None;
+        let tag = command.tag() as u8;
+        let reports = &mut self.reports;
+        let found = board.run_until(SECOND_NS / 10, |b| {
+            for (_, bytes) in b.sent() {
+                if let Ok(Frame {
+                    seq: s,
+                    body: Report::Ack(a),
+                }) = Report::decode(&bytes)
+                    && s == seq
+                    && a.acked_tag == tag
+                {
+                    ack = Some(a);
+                } else {
+                    reports.push((0, bytes));
+                }
+            }
+            ack.is_some()
+        });
+        assert!(found, "no ACK for {:?}", command.tag());
+        ack.unwrap()
+    }
+
+    fn ok(&mut self, board: &mut VirtualBoard, command: &Command<'_>) -> protocol::Ack {
+        let ack = self.command(board, command);
+        assert_eq!(ack.status, StatusCode::Ok, "{:?}: {ack:?}", command.tag());
+        ack
+    }
+
+    /// STATUS, and the report that follows its ACK.
+    fn status(&mut self, board: &mut VirtualBoard) -> StatusReport {
+        self.reports.clear();
+        self.ok(board, &Command::Status);
+        let mut status = self.find_status();
+        if status.is_none() {
+            board.run_until(SECOND_NS / 10, |b| {
+                for (_, bytes) in b.sent() {
+                    self.reports.push((0, bytes));
+                }
+                self.find_status().is_some()
+            });
+            status = self.find_status();
+        }
+        status.expect("a STATUS report")
+    }
+
+    fn find_status(&self) -> Option<StatusReport> {
+        self.reports
+            .iter()
+            .rev()
+            .find_map(|(_, bytes)| match Report::decode(bytes) {
+                Ok(Frame {
+                    body: Report::Status(s),
+                    ..
+                }) => Some(s),
+                _ => None,
+            })
+    }
+
+    /// Uploads and runs `points` (the buffer holds them all).
+    fn upload_and_run(&mut self, board: &mut VirtualBoard, points: &[Point]) {
+        self.ok(
+            board,
+            &Command::New {
+                count: points.len() as u16,
+            },
+        );
+        for chunk in points.chunks(protocol::MAX_POINTS_PER_FRAME) {
+            self.ok(board, &Command::Pending(PointList::Points(chunk)));
+        }
+        self.ok(board, &Command::Runing);
+    }
+}
+
+/// Runs the board until a LOCATION report says STOPPED (at most `limit_ns`).
+fn run_until_stopped(board: &mut VirtualBoard, limit_ns: u64) -> Location {
+    let mut last = None;
+    let stopped = board.run_until(limit_ns, |b| {
+        for (_, bytes) in b.sent() {
+            if let Ok(Frame {
+                body: Report::Location(l),
+                ..
+            }) = Report::decode(&bytes)
+                && l.state == State::Stopped as u8
+            {
+                last = Some(l);
+            }
+        }
+        last.is_some()
+    });
+    assert!(
+        stopped,
+        "the run did not end within {} ms",
+        limit_ns / 1_000_000
+    );
+    last.unwrap()
+}
+
+fn points_through(start: [i32; MAX_JOINTS], targets: &[[i32; MAX_JOINTS]], us: i32) -> Vec<Point> {
+    let mut previous = start;
+    targets
+        .iter()
+        .map(|t| {
+            let p = Point::from_motion(us, &previous, t);
+            previous = *t;
+            p
+        })
+        .collect()
+}
+
+#[test]
+fn status_on_virtual_time() {
+    let (mut board, _) = board("status", 1_000_000);
+    let mut host = Host::new();
+    let status = host.status(&mut board);
+    assert_eq!(status.state, State::Stopped);
+    assert_eq!(status.version, protocol::VERSION);
+    // Nothing took any wall-clock time to happen: the clock moved only in rounds.
+    assert!(
+        board.clock.now_ns() < SECOND_NS / 10,
+        "{} ns",
+        board.clock.now_ns()
+    );
+}
+
+#[test]
+fn trace_pulses_match_the_commanded_steps_on_virtual_time() {
+    let (mut board, trace) = board("motion", 1_000_000);
+    let mut host = Host::new();
+    let start = [0; MAX_JOINTS];
+    let targets = [
+        [100, -37, 0, 5, 1, 250, 0, 0],
+        [160, -37, 0, -5, 1, 100, 0, 0],
+        [150, 63, 0, 0, 2, 100, 0, 0],
+    ];
+    let points = points_through(start, &targets, 20_000);
+    host.upload_and_run(&mut board, &points);
+    let end = run_until_stopped(&mut board, SECOND_NS);
+    assert_eq!(end.position, targets[2]);
+    let status = host.status(&mut board);
+    assert_eq!(status.executed, 3);
+    assert!(!status.flags.has(StatusFlags::UNDERRUN));
+    board.finish_trace();
+
+    let vcd = vcd::read_changes(&trace).unwrap();
+    let mut expected = [0u64; MAX_JOINTS];
+    let mut previous = start;
+    for target in targets {
+        for j in 0..MAX_JOINTS {
+            expected[j] += (target[j] - previous[j]).unsigned_abs() as u64;
+        }
+        previous = target;
+    }
+    for j in 0..MAX_JOINTS {
+        assert_eq!(
+            vcd.rising_edges(&format!("step{j}")).len() as u64,
+            expected[j],
+            "joint {j}"
+        );
+        assert_eq!(vcd.joint_position(j), i64::from(targets[2][j]), "joint {j}");
+    }
+    // Joint 0: 100 pulses in 20 ms, pulse i at S + (i - 1) * 200 us; then 60 in 20 ms.
+    let edges = vcd.rising_edges("step0");
+    let first = edges[0];
+    for (i, edge) in edges.iter().take(100).enumerate() {
+        assert_eq!(edge - first, i as u64 * 200_000, "pulse {}", i + 1);
+    }
+    let start_ns = first - 200_000;
+    for (i, edge) in edges[100..160].iter().enumerate() {
+        let i = i as u64 + 1;
+        assert_eq!(
+            edge - start_ns,
+            20_000_000 + i * 20_000_000 / 60 / 1000 * 1000,
+            "pulse {i}"
+        );
+    }
+}
+
+#[test]
+fn stopped_mid_run_leaves_no_step_after_it_on_virtual_time() {
+    let (mut board, trace) = board("stop", 1_000_000);
+    let mut host = Host::new();
+    // 10 s of joint 0 at 1000 steps/s.
+    let targets: Vec<[i32; MAX_JOINTS]> =
+        (1..=100).map(|i| [i * 100, 0, 0, 0, 0, 0, 0, 0]).collect();
+    let points = points_through([0; MAX_JOINTS], &targets, 100_000);
+    host.upload_and_run(&mut board, &points);
+    // 250 ms of simulated time into the run, exactly.
+    board.run_for(250_000_000);
+    let before = board.motors.positions()[0];
+    assert!(
+        (240..=260).contains(&before),
+        "{before} steps after 250 ms at 1 kHz"
+    );
+    let ack = host.ok(&mut board, &Command::Stopped);
+    assert_eq!(ack.state, State::Stopped);
+    let acked_ns = board.clock.now_ns();
+    let stopped_at = board.motors.positions()[0];
+    // A whole simulated second later: not one step more.
+    board.run_for(SECOND_NS);
+    assert_eq!(board.motors.positions()[0], stopped_at);
+    let status = host.status(&mut board);
+    assert!(status.flags.has(StatusFlags::STOPPED_BY_HOST));
+    board.finish_trace();
+    let vcd = vcd::read_changes(&trace).unwrap();
+    assert_eq!(vcd.joint_position(0), stopped_at);
+    // The last edge of STEP came before the ACK of STOPPED (one round, 10 us, at most
+    // after the datagram was delivered), and the line is low.
+    let changes = &vcd.changes["step0"];
+    let (last_t, last_v) = changes.last().unwrap();
+    assert!(
+        *last_t <= acked_ns,
+        "STEP changed at {last_t} ns, after the ACK at {acked_ns}"
+    );
+    assert_eq!(last_v, "0", "STEP left high");
+}
+
+#[test]
+fn a_gripper_burst_lasts_exactly_its_pulses_on_virtual_time() {
+    let (mut board, trace) = board("gripper", 200_000_000);
+    let mut host = Host::new();
+    // 200 MHz / (200 * 1000) = 1 kHz; 20 pulses = 20 ms.
+    host.ok(
+        &mut board,
+        &Command::PwmStart(Pwm {
+            psc: 199,
+            arr: 999,
+            ccr1: 500,
+            pulse_count: 20,
+        }),
+    );
+    assert!(
+        host.status(&mut board).flags.has(StatusFlags::PWM_ACTIVE),
+        "on right after"
+    );
+    board.run_for(30_000_000);
+    assert!(
+        !host.status(&mut board).flags.has(StatusFlags::PWM_ACTIVE),
+        "off 30 ms later"
+    );
+    board.finish_trace();
+    let vcd = vcd::read_changes(&trace).unwrap();
+    let (on, off) = vcd.high_span("gripper_pwm_active").expect("on, then off");
+    assert_eq!(off - on, 20_000_000, "20 periods of 1 ms");
+}
