@@ -66,7 +66,16 @@ pub struct Board {
 impl Board {
     /// Builds the simulated hardware; binds the UDP socket unless `--tap` is given.
     pub fn build(options: &SimOptions) -> io::Result<Board> {
-        let clock = SimClock::new(options.time_scale, options.tick_hz);
+        Board::build_on(
+            options,
+            SimClock::new(options.time_scale, options.tick_hz),
+            true,
+        )
+    }
+
+    /// Builds the simulated hardware on `clock` (a virtual one for
+    /// [`crate::virtual_board`]), with the UDP socket only if `network` (and no `--tap`).
+    pub fn build_on(options: &SimOptions, clock: SimClock, network: bool) -> io::Result<Board> {
         let tracer = match &options.trace {
             Some(path) => {
                 let tracer = Tracer::create(path, clock)?;
@@ -84,6 +93,7 @@ impl Board {
         }
         let udp = match &options.tap {
             Some(_) => None,
+            None if !network => None,
             None => Some(UdpDatagrams::bind(options.bind)?),
         };
         if let Some(path) = &options.pcap {

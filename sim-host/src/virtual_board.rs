@@ -22,12 +22,10 @@ use std::task::{Context, Poll, Waker};
 use arm_core::hw::{Datagrams, Endpoint};
 use arm_core::{Bus, Controller, StepShared, TrajectoryHw};
 
-use crate::app::{STEP_QUEUE, controller_config, step_timing};
+use crate::app::{Board, STEP_QUEUE, controller_config, step_timing};
 use crate::clock::SimClock;
-use crate::devices::{FileSettings, OutputLevels, SimEncoders, SimGripper, SimOutputs};
 use crate::options::SimOptions;
-use crate::serial::{SerialKind, SimSerial};
-use crate::steppers::{MotorState, SimSteppers};
+use crate::steppers::MotorState;
 use crate::steptimer::{SimStepKick, SimSteps};
 use crate::vcd::Tracer;
 
@@ -94,44 +92,38 @@ impl VirtualBoard {
     /// `--joints`, `--buffer-capacity`, encoders and settings file), tracing to `trace`
     /// if given, on a virtual clock at 0.
     pub fn new(options: &SimOptions, trace: Option<&Path>) -> std::io::Result<VirtualBoard> {
-        let clock = SimClock::virtual_time(options.tick_hz);
-        let tracer = match trace {
-            Some(path) => Tracer::create(path, clock)?,
-            None => Tracer::disabled(),
-        };
-        let motors = Arc::new(MotorState::default());
-        let pins = SimSteppers::new(motors.clone(), tracer.clone(), clock);
+        // The simulator's own board (app.rs), on a virtual clock and without a socket.
+        let mut options = options.clone();
+        options.trace = trace.map(Path::to_path_buf);
+        options.pcap = None;
+        let board = Board::build_on(&options, SimClock::virtual_time(options.tick_hz), false)?;
+        let clock = board.clock;
         let timing = step_timing(options.tick_hz);
         let step: &'static VirtualSteps = Box::leak(Box::new(StepShared::with_backend(
-            SimSteps::new(timing, pins, clock),
+            SimSteps::new(timing, board.step_pins(), clock),
         )));
         let bus: &'static Bus = Box::leak(Box::new(Bus::new()));
         let socket: &'static VirtualSocket = Box::leak(Box::default());
-        let kick: &'static SimStepKick = Box::leak(Box::new(SimStepKick::new(clock)));
+        let kick: &'static SimStepKick = Box::leak(Box::new(board.kick.clone()));
         let clock_ref: &'static SimClock = Box::leak(Box::new(clock));
-        let serial: &'static SimSerial = SimSerial::create(SerialKind::None, clock)?;
         let config = arm_core::ControllerConfig {
-            capacity: controller_config(options).capacity.min(VIRTUAL_CAPACITY),
-            ..controller_config(options)
+            capacity: controller_config(&options).capacity.min(VIRTUAL_CAPACITY),
+            ..controller_config(&options)
         };
         let controller: &'static mut Controller<VIRTUAL_CAPACITY> =
             Box::leak(Box::new(Controller::new(config)));
-        let mut settings = FileSettings::new(options.settings_path());
+        let mut settings = board.settings.clone();
         settings.set_boot_joints(options.joints);
         let hw = TrajectoryHw {
             kick,
-            outputs: SimOutputs::new(Arc::new(OutputLevels::default()), tracer.clone()),
-            gripper: SimGripper::new(clock, tracer.clone()),
-            serial,
+            outputs: board.outputs(),
+            gripper: board.gripper.clone(),
+            serial: board.serial,
             settings,
-            encoders: SimEncoders::new(
-                motors.clone(),
-                options.encoder_offset_array(),
-                !options.no_encoders,
-            )
-            .with_bus(clock, options.encoder_fault_array()),
+            encoders: board.encoders.clone(),
             estop: None,
         };
+        let (motors, tracer) = (board.motors.clone(), board.tracer.clone());
         let tasks = async move {
             let controller = arm_core::controller_task(
                 controller,
