@@ -206,13 +206,15 @@ pub const NUCLEO_H743ZI2: BoardProfile = BoardProfile {
     driver: DriverTiming::OPTO,
     // The step clock's interrupt at P1 that changes DIR can be held off by a critical
     // section: scripts/step-cost measures the longest on the step path with interrupts
-    // masked, a refill of 8 joints at 1 kHz, 6,115 instructions (15.3 us at 400 MHz and
-    // one instruction a cycle; 4.8 us at 100 kHz), and TIM13's own handler up to the DIR
-    // write. 20 us covers it with a third to spare for bus waits (issue 20: it was 5 us,
-    // from an estimate of 2.5 us, so a DIR change behind a low-rate refill could come
-    // after the next pulse's setup had begun). Until the step path's critical sections
-    // leave TIM13 unmasked, this is what a reversal pays.
-    dir_latency_ns: 20_000,
+    // masked during a run: the positions read for each LOCATION report, 10,100
+    // instructions (25.3 us at 400 MHz and one instruction a cycle: a scan of every
+    // joint's unplayed periods), then a refill of 8 joints at 1 kHz, 6,119 (15.3 us), and
+    // TIM13's own handler up to the DIR write. 35 us covers it with a third to spare for
+    // bus waits (issue 20: it was 5 us, from an estimate of 2.5 us, so a DIR change behind
+    // such a span could come after the next pulse's setup had begun). Until the step
+    // path's critical sections leave TIM13 unmasked (or positions() is constant time),
+    // this is what a reversal pays.
+    dir_latency_ns: 35_000,
     // A period's DMA burst (three words into an APB timer, with eight streams sharing two
     // DMA controllers) must finish within the shortest period; 1 us periods leave a wide
     // margin. Also the ceiling of the CPU budget per joint (`step_budget_hz` / 8 joints

@@ -375,11 +375,30 @@ impl StepBackend for BoardSteps {
     }
 
     fn positions(&self) -> [i32; MAX_JOINTS] {
-        // (The board subtracts what the streams have not played; the harness asks only
-        // after the run.)
-        self.streams
-            .get()
-            .map_or([0; MAX_JOINTS], |s| s.producer_ref().positions())
+        let Some(streams) = self.streams.get() else {
+            return [0; MAX_JOINTS];
+        };
+        let mut positions = streams.producer_ref().positions();
+        if self.run != Run::Idle {
+            // SAFETY: inside STEP's critical section; only read.
+            let buffers = unsafe { &*BUFFERS.0.get() };
+            for (joint, position) in positions.iter_mut().enumerate() {
+                let at = stream_position(joint);
+                let first_unplayed = first_unplayed(self.started[joint], at);
+                *position -= match first_unplayed {
+                    Some(index) if at.preload_evicted => {
+                        streams.unplayed_evicted(joint, &buffers[joint], index / HALF)
+                    }
+                    _ => streams.unplayed_steps(
+                        joint,
+                        &buffers[joint],
+                        first_unplayed,
+                        at.other_half_played,
+                    ),
+                };
+            }
+        }
+        positions
     }
 
     fn set_positions(&mut self, positions: [i32; MAX_JOINTS]) -> bool {

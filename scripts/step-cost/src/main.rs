@@ -73,7 +73,8 @@ markers!(
     step_cost_on_start = 1u32,
     step_cost_on_refill = 2u32,
     step_cost_on_tim13 = 3u32,
-    step_cost_off = 4u32
+    step_cost_off = 4u32,
+    step_cost_on_positions = 5u32
 );
 
 /// Ends a case (run.sh prints what it counted since the previous one).
@@ -286,6 +287,12 @@ pub extern "C" fn harness_run() {
         } else {
             harness_set_now(refill);
             harness_refill(joint);
+            // A LOCATION report's read of the positions mid-run (the trajectory task's,
+            // every report period on the board): timed for its masked span only, not
+            // counted per step.
+            step_cost_on_positions();
+            black_box(STEP.positions());
+            step_cost_off();
         }
         harness_poll_tasks();
     }
@@ -314,7 +321,7 @@ fn measure(case: u32, duration_us: u32, steps: [i32; MAX_JOINTS]) -> u32 {
     });
     // Even segment count, reversing: every joint is back at 0 if every pulse was written.
     // (Late pulses are expected: at 100 kHz a reversal's first pulse waits for the board's
-    // 10 us DIR setup, its driver's 5 us plus the DIR interrupt's latency budget.)
+    // DIR setup: its driver's 5 us plus the profile's DIR interrupt latency budget.)
     if positions != [0; MAX_JOINTS] {
         hprintln!(
             "case {}: positions {:?}, late pulses {}",
