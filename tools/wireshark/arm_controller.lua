@@ -35,6 +35,7 @@ local tag_names = {
     [0x11] = "RETURN", [0x12] = "JOINTS_COUNT", [0x13] = "LOCATION_SETTING/LOCATION",
     [0x14] = "ACK", [0x15] = "STATUS", [0x16] = "UPLOAD_PERIOD", [0x17] = "ESTOP_RESET",
     [0x20] = "DISCOVER", [0x21] = "NET_SET", [0x22] = "DISCOVER_REPLY",
+    [0x30] = "AUTH", [0x31] = "HELLO", [0x32] = "SET_KEY", [0x33] = "HELLO_REPLY",
 }
 -- Names that depend on the direction.
 local host_names = { [0x13] = "LOCATION_SETTING", [0x15] = "STATUS request" }
@@ -46,6 +47,7 @@ local status_names = {
     [0] = "OK", [1] = "BAD_CRC", [2] = "UNKNOWN_TAG", [3] = "BAD_LENGTH", [4] = "BAD_STATE",
     [5] = "OUT_OF_ORDER", [6] = "TOO_MANY_POINTS", [7] = "INVALID_POINT", [8] = "BUFFER_FULL",
     [9] = "NOT_OWNER", [10] = "UNSUPPORTED", [11] = "INVALID_CONFIG", [12] = "ESTOP_LATCHED",
+    [13] = "AUTH_REQUIRED", [14] = "AUTH_FAILED",
 }
 
 local crc_status_names = { [0] = "Bad", [1] = "Good", [2] = "Unverified" }
