@@ -77,6 +77,9 @@ pub enum Error {
     },
     /// A trajectory the controller cannot take (too many points, none at all).
     InvalidTrajectory(String),
+    /// Authentication failed (docs/PROTOCOL.md section 13): no key set on the
+    /// controller, another key, or no key given.
+    Auth(String),
     /// The call's [`Cancel`](crate::Cancel) token was set (Ctrl-C in the tool): it returned
     /// without finishing, and sent no STOPPED. What it started may still run: stop it with
     /// [`Client::stop_until_acked`](crate::Client::stop_until_acked).
@@ -221,6 +224,7 @@ impl fmt::Display for Error {
                 waited.as_secs_f64()
             ),
             Error::InvalidTrajectory(why) => write!(f, "invalid trajectory: {why}"),
+            Error::Auth(why) => write!(f, "authentication: {why}"),
             Error::Interrupted => write!(
                 f,
                 "interrupted before the end (cancelled); what was started may still run \
