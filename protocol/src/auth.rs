@@ -1,11 +1,11 @@
 //! Optional authentication (docs/PROTOCOL.md section 13, issue 21): the AUTH envelope,
 //! its keyed BLAKE2s-128 MAC, the HELLO handshake's reply and the replay window.
 //!
-//! An envelope is an ordinary frame (tag 0x30, CRC-8 last) whose data is a session id, a
+//! An envelope is an ordinary frame (tag 0x50, CRC-8 last) whose data is a session id, a
 //! counter, a whole inner frame (seq, tag, data, CRC) and a 16-byte MAC:
 //!
 //! ```text
-//! | seq | 0x30 | session u32 | counter u64 | inner frame | mac [16] | crc |
+//! | seq | 0x50 | session u32 | counter u64 | inner frame | mac [16] | crc |
 //! ```
 //!
 //! The MAC is BLAKE2s keyed with the 32-byte key, 16 bytes of output, personalised with
@@ -113,7 +113,7 @@ fn same_mac(a: &[u8; MAC_LEN], b: &[u8]) -> bool {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum EnvelopeError {
-    /// Not tag 0x30, or too short to hold a header, an inner frame of 3 bytes and a MAC.
+    /// Not tag 0x50, or too short to hold a header, an inner frame of 3 bytes and a MAC.
     Malformed,
     /// The outer CRC does not match.
     BadCrc,
@@ -207,7 +207,7 @@ pub fn seal(
     Ok(needed)
 }
 
-/// What HELLO_REPLY (tag 0x33, only ever inside an envelope) tells a host.
+/// What HELLO_REPLY (tag 0x53, only ever inside an envelope) tells a host.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 #[cfg_attr(feature = "serde", derive(serde::Serialize))]

@@ -144,13 +144,13 @@ wire_code! {
         DiscoverReply = 0x22 => "DISCOVER_REPLY",
         /// An authenticated envelope around a whole frame, both directions
         /// (docs/PROTOCOL.md section 13, [`crate::auth`]).
-        Auth = 0x30 => "AUTH",
+        Auth = 0x50 => "AUTH",
         /// Open an authenticated session: a host nonce (answered with HELLO_REPLY).
-        Hello = 0x31 => "HELLO",
+        Hello = 0x51 => "HELLO",
         /// Set (32 bytes) or clear (no data) the controller's key.
-        SetKey = 0x32 => "SET_KEY",
+        SetKey = 0x52 => "SET_KEY",
         /// The answer to HELLO: nonce, epoch, session (controller to host, in an envelope).
-        HelloReply = 0x33 => "HELLO_REPLY",
+        HelloReply = 0x53 => "HELLO_REPLY",
     }
 }
 

@@ -130,16 +130,16 @@ def seal(inner):
     global session
     epoch, sid, counter = session
     session = (epoch, sid, counter + 1)
-    signed = bytes([inner[0], 0x30]) + struct.pack("<IQ", sid, counter + 1) + inner
+    signed = bytes([inner[0], 0x50]) + struct.pack("<IQ", sid, counter + 1) + inner
     body = signed + mac(b"armH2C01", epoch, signed)
     return body + bytes([crc8(body)])
 
 
-exchange(raw(0x32, KEY), "SET_KEY")
+exchange(raw(0x52, KEY), "SET_KEY")
 nonce = os.urandom(16)
-reply = exchange(raw(0x31, nonce), "HELLO")
+reply = exchange(raw(0x51, nonce), "HELLO")
 inner = reply[14:-17]
-if len(reply) < 31 or reply[1] != 0x30 or inner[1] != 0x33 or inner[2:18] != nonce:
+if len(reply) < 31 or reply[1] != 0x50 or inner[1] != 0x53 or inner[2:18] != nonce:
     sys.exit(f"no HELLO_REPLY: {reply.hex()}")
 epoch, sid = struct.unpack("<QI", inner[18:30])
 if mac(b"armC2H01", epoch, reply[:-17]) != reply[-17:-1]:
@@ -156,7 +156,7 @@ for r in range(repeats):
     authenticated.append(measured(seal(encode(*args)), "authenticated PENDING", "ack"))
     exchange(encode("stopped"), "STOPPED")
 # Clear the key again (sealed SET_KEY with no data).
-exchange(seal(raw(0x32)), "SET_KEY clear")
+exchange(seal(raw(0x52)), "SET_KEY clear")
 
 print("pending:", *pending)
 print("stopped:", *stopped)

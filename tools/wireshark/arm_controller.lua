@@ -35,7 +35,7 @@ local tag_names = {
     [0x11] = "RETURN", [0x12] = "JOINTS_COUNT", [0x13] = "LOCATION_SETTING/LOCATION",
     [0x14] = "ACK", [0x15] = "STATUS", [0x16] = "UPLOAD_PERIOD", [0x17] = "ESTOP_RESET",
     [0x20] = "DISCOVER", [0x21] = "NET_SET", [0x22] = "DISCOVER_REPLY",
-    [0x30] = "AUTH", [0x31] = "HELLO", [0x32] = "SET_KEY", [0x33] = "HELLO_REPLY",
+    [0x50] = "AUTH", [0x51] = "HELLO", [0x52] = "SET_KEY", [0x53] = "HELLO_REPLY",
 }
 -- Names that depend on the direction.
 local host_names = { [0x13] = "LOCATION_SETTING", [0x15] = "STATUS request" }
