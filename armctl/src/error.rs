@@ -121,9 +121,13 @@ impl fmt::Display for Error {
             Error::Io(e) => write!(f, "network error: {e}"),
             // NOT_OWNER's state is 0 whatever the arm does (a stranger learns nothing):
             // no state is shown for it (issue 21 F10: "controller state NEW" misled).
+            // So do the refusals of a keyed controller to a host without the key.
             Error::Refused {
                 command,
-                status: status @ StatusCode::NotOwner,
+                status:
+                    status @ (StatusCode::NotOwner
+                    | StatusCode::AuthRequired
+                    | StatusCode::AuthFailed),
                 ..
             } => write!(
                 f,
