@@ -125,9 +125,7 @@ impl fmt::Display for Error {
             Error::Refused {
                 command,
                 status:
-                    status @ (StatusCode::NotOwner
-                    | StatusCode::AuthRequired
-                    | StatusCode::AuthFailed),
+                    status @ (StatusCode::NotOwner | StatusCode::AuthRequired | StatusCode::AuthFailed),
                 ..
             } => write!(
                 f,

@@ -200,7 +200,12 @@ pub fn seal(
     w.u32(2, session);
     w.put(6, &counter.to_le_bytes());
     w.put(ENVELOPE_HEADER, inner);
-    let m = mac(key, direction, epoch, w.buf.get(..signed_len).unwrap_or_default());
+    let m = mac(
+        key,
+        direction,
+        epoch,
+        w.buf.get(..signed_len).unwrap_or_default(),
+    );
     w.put(signed_len, &m);
     let crc = crc8(w.buf.get(..needed - 1).unwrap_or_default());
     w.u8(needed - 1, crc);
@@ -346,7 +351,11 @@ mod tests {
         // The counter changed, CRC recomputed: the MAC no longer matches.
         buf[6] ^= 1;
         buf[n - 1] = crc8(&buf[..n - 1]);
-        assert!(!Envelope::open(&buf[..n]).unwrap().verify(&KEY, Direction::ToController, 9));
+        assert!(
+            !Envelope::open(&buf[..n])
+                .unwrap()
+                .verify(&KEY, Direction::ToController, 9)
+        );
         assert_eq!(Envelope::open(&buf[..5]), Err(EnvelopeError::Malformed));
     }
 

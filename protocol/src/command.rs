@@ -1,7 +1,7 @@
 //! [`Command`]: what a host sends, decoded from and encoded into a datagram.
 
-use crate::codec::{u8_at, u16_be, u32_le};
 use crate::auth::AuthKey;
+use crate::codec::{u8_at, u16_be, u32_le};
 use crate::codes::Tag;
 use crate::error::{DecodeError, DecodeErrorKind, EncodeError, ExpectedLen, Field};
 use crate::frame::{Frame, PointList, open, seal};

@@ -14,6 +14,11 @@ pub struct BridgeConfig {
     /// The controller, `host:port`.
     #[serde(default = "default_controller")]
     pub controller: String,
+    /// The controller's authentication key (docs/PROTOCOL.md section 13): a file of 64 hex
+    /// digits, as `armctl --key-file` takes (a relative path is from the working
+    /// directory). `None`: frames go plain, for a controller without a key.
+    #[serde(default)]
+    pub key_file: Option<std::path::PathBuf>,
     /// DDS domain (`ROS_DOMAIN_ID`).
     #[serde(default)]
     pub domain_id: u16,
@@ -215,6 +220,15 @@ mod tests {
         );
         assert!((gripper.duty(gripper.open_position).unwrap() - gripper.open_duty).abs() < 1e-12);
         assert!(gripper.duty(gripper.open_position + 0.01).is_err());
+    }
+
+    #[test]
+    fn a_key_file_is_taken_and_is_optional() {
+        let keyed = r#"{"key_file": "arm.key", "joints": [{"name": "a", "max_step_rate_hz": 1}]}"#;
+        let (config, _) = BridgeConfig::parse(keyed, "c").unwrap();
+        assert_eq!(config.key_file, Some(std::path::PathBuf::from("arm.key")));
+        let (example, _) = BridgeConfig::parse(EXAMPLE, "bridge.json").unwrap();
+        assert_eq!(example.key_file, None);
     }
 
     #[test]

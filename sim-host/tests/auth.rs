@@ -52,19 +52,30 @@ fn a_keyed_simulator_moves_for_the_key_holder_only() {
         Command::Status,
         Command::SetKey(None),
     ] {
-        assert_eq!(plain_status(&mut stranger, cmd), StatusCode::AuthRequired, "{cmd:?}");
+        assert_eq!(
+            plain_status(&mut stranger, cmd),
+            StatusCode::AuthRequired,
+            "{cmd:?}"
+        );
     }
     let arm = key_holder(&sim);
     let status = arm.status().expect("STATUS in a session");
     assert_eq!(status.state, State::Stopped);
-    assert_eq!(arm.current_location(Duration::from_secs(2)).unwrap().position[0], 0);
+    assert_eq!(
+        arm.current_location(Duration::from_secs(2))
+            .unwrap()
+            .position[0],
+        0
+    );
     assert_eq!(status.flags.0 & (1 << 3), 0, "PIN0 stayed low");
     // The key holder moves it.
     arm.run_trajectory(&pts, &RunOptions::default(), |_| {})
         .expect("the key holder's run");
     arm.wait_stopped(Duration::from_secs(10)).unwrap();
     assert_eq!(
-        arm.current_location(Duration::from_secs(2)).unwrap().position[0],
+        arm.current_location(Duration::from_secs(2))
+            .unwrap()
+            .position[0],
         300
     );
     // The stranger got no report meanwhile: its socket saw plain ACKs only.
@@ -80,7 +91,9 @@ fn a_replayed_envelope_is_refused_and_a_stranger_still_stops_a_run() {
     // A session by hand, to replay its bytes.
     let raw = sim.client();
     let mut buf = [0u8; MAX_DATAGRAM];
-    let n = Command::Hello { nonce: [9; 16] }.encode(1, &mut buf).unwrap();
+    let n = Command::Hello { nonce: [9; 16] }
+        .encode(1, &mut buf)
+        .unwrap();
     raw.socket.send(&buf[..n]).unwrap();
     raw.socket
         .set_read_timeout(Some(Duration::from_secs(2)))
@@ -95,8 +108,16 @@ fn a_replayed_envelope_is_refused_and_a_stranger_still_stops_a_run() {
         f[..n].to_vec()
     };
     let mut sealed = [0u8; MAX_DATAGRAM];
-    let m = seal(&KEY, Direction::ToController, hello.epoch, hello.session, 1, &pin, &mut sealed)
-        .unwrap();
+    let m = seal(
+        &KEY,
+        Direction::ToController,
+        hello.epoch,
+        hello.session,
+        1,
+        &pin,
+        &mut sealed,
+    )
+    .unwrap();
     let mut ack_of = |bytes: &[u8]| {
         raw.socket.send(bytes).unwrap();
         loop {
@@ -128,14 +149,23 @@ fn a_replayed_envelope_is_refused_and_a_stranger_still_stops_a_run() {
     let mut stranger = sim.client();
     let deadline = std::time::Instant::now() + Duration::from_secs(10);
     while arm.last_location().is_none_or(|l| l.position[0] < 20) {
-        assert!(std::time::Instant::now() < deadline, "the run never started");
+        assert!(
+            std::time::Instant::now() < deadline,
+            "the run never started"
+        );
         std::thread::sleep(Duration::from_millis(10));
     }
-    assert_eq!(plain_status(&mut stranger, Command::Stopped), StatusCode::Ok);
+    assert_eq!(
+        plain_status(&mut stranger, Command::Stopped),
+        StatusCode::Ok
+    );
     let _ = runner.join();
     let status = arm.wait_stopped(Duration::from_secs(5)).unwrap();
     assert_eq!(status.state, State::Stopped);
-    let at = arm.current_location(Duration::from_secs(2)).unwrap().position[0];
+    let at = arm
+        .current_location(Duration::from_secs(2))
+        .unwrap()
+        .position[0];
     assert!(at < 2_000, "stopped at {at}");
 }
 
@@ -155,7 +185,10 @@ fn clear_key_gives_the_controller_back_to_plain_hosts() {
     // And a key is set again the first time, plain, by the owner: armctl's SET_KEY.
     let arm = Armctl::connect(sim.addr).unwrap();
     arm.set_key(Some(KEY)).expect("the first key, plain");
-    assert_eq!(plain_status(&mut sim.client(), Command::Pin0Off), StatusCode::AuthRequired);
+    assert_eq!(
+        plain_status(&mut sim.client(), Command::Pin0Off),
+        StatusCode::AuthRequired
+    );
     arm.pin(0, false).expect("in a session of the new key");
     // Cleared with the key.
     arm.set_key(None).expect("cleared with the key");
@@ -175,6 +208,8 @@ fn without_a_key_the_simulator_is_unchanged() {
             ..Options::default()
         },
     );
-    let err = keyed.expect_err("no key set: the keyed client says so").to_string();
+    let err = keyed
+        .expect_err("no key set: the keyed client says so")
+        .to_string();
     assert!(err.contains("no key set"), "{err}");
 }

@@ -728,7 +728,11 @@ fn authenticated_captures_have_their_macs_checked_with_the_preferences_key() {
     let dir = scratch("auth");
     let key_hex = "5a".repeat(32);
     let settings = dir.join("settings.txt");
-    std::fs::write(&settings, format!("joints=6\nkey={key_hex}\nauth_epoch=9\n")).unwrap();
+    std::fs::write(
+        &settings,
+        format!("joints=6\nkey={key_hex}\nauth_epoch=9\n"),
+    )
+    .unwrap();
     let key_file = dir.join("arm.key");
     std::fs::write(&key_file, &key_hex).unwrap();
     let mut sim = SimHost::start(&["--settings", settings.to_str().unwrap()]);
@@ -760,7 +764,10 @@ fn authenticated_captures_have_their_macs_checked_with_the_preferences_key() {
             .output()
             .expect("run tshark");
         let stderr = String::from_utf8_lossy(&out.stderr);
-        assert!(out.status.success() && !stderr.contains("Lua"), "tshark: {stderr}");
+        assert!(
+            out.status.success() && !stderr.contains("Lua"),
+            "tshark: {stderr}"
+        );
         String::from_utf8_lossy(&out.stdout)
             .lines()
             .map(|l| {
@@ -778,7 +785,10 @@ fn authenticated_captures_have_their_macs_checked_with_the_preferences_key() {
     assert!(envelopes.len() >= 5, "{good:?}");
     for (tag, mac) in &envelopes {
         assert_eq!(mac, "1", "{tag}: MAC Good with the key: {good:?}");
-        assert!(tag.contains(','), "the inner frame's tag is shown too: {tag}");
+        assert!(
+            tag.contains(','),
+            "the inner frame's tag is shown too: {tag}"
+        );
     }
     let bad = macs(&"a5".repeat(32));
     assert!(

@@ -18,8 +18,13 @@ pub fn parse_key(text: &str) -> Result<AuthKey, String> {
         ));
     }
     for (i, b) in key.iter_mut().enumerate() {
-        *b = u8::from_str_radix(&hex[2 * i..2 * i + 2], 16)
-            .map_err(|_| format!("not a hex digit pair at {}: {:?}", 2 * i, &hex[2 * i..2 * i + 2]))?;
+        *b = u8::from_str_radix(&hex[2 * i..2 * i + 2], 16).map_err(|_| {
+            format!(
+                "not a hex digit pair at {}: {:?}",
+                2 * i,
+                &hex[2 * i..2 * i + 2]
+            )
+        })?;
     }
     Ok(AuthKey(key))
 }

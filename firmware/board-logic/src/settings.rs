@@ -212,10 +212,12 @@ impl<F: NorFlash> SettingsArea<F> {
             Some(net) => decode_net(settings, &net),
             None => settings,
         };
-        Ok(match self.fetch_record::<AUTH_RECORD_LEN>(&AUTH_KEY).await? {
-            Some(auth) => decode_auth(settings, &auth),
-            None => settings,
-        })
+        Ok(
+            match self.fetch_record::<AUTH_RECORD_LEN>(&AUTH_KEY).await? {
+                Some(auth) => decode_auth(settings, &auth),
+                None => settings,
+            },
+        )
     }
 
     /// The record stored under `key`, if any, read as `[u8; N]`'s own `Value` impl reads

@@ -208,12 +208,22 @@ mod tests {
         assert_eq!(s.accept(sa, 1, || true, a, 2), Err(AuthRefusal::Replayed));
         assert_eq!(s.accept(sb, 1, || true, b, 2), Ok(()));
         assert_eq!(s.accept(sb, 2, || false, b, 2), Err(AuthRefusal::BadMac));
-        assert_eq!(s.accept(sb, 2, || true, b, 2), Ok(()), "a bad MAC uses no counter");
-        assert_eq!(s.accept(99, 1, || true, a, 2), Err(AuthRefusal::UnknownSession));
+        assert_eq!(
+            s.accept(sb, 2, || true, b, 2),
+            Ok(()),
+            "a bad MAC uses no counter"
+        );
+        assert_eq!(
+            s.accept(99, 1, || true, a, 2),
+            Err(AuthRefusal::UnknownSession)
+        );
         assert_eq!(s.routes(None).session_of(b), Some(sb));
         for i in 0..AUTH_SESSIONS as u16 {
             s.open(Endpoint { port: 100 + i, ..a }, 10 + u64::from(i));
         }
-        assert_eq!(s.accept(sa, 2, || true, a, 30), Err(AuthRefusal::UnknownSession));
+        assert_eq!(
+            s.accept(sa, 2, || true, a, 30),
+            Err(AuthRefusal::UnknownSession)
+        );
     }
 }

@@ -290,7 +290,8 @@ impl<const CAP: usize> Controller<CAP> {
 
     /// The epoch [`Controller::begin_auth_epoch`] chose is stored: HELLO is answered.
     pub fn auth_epoch_stored(&mut self) {
-        self.sessions.start_epoch(u64::from(self.settings.auth_epoch));
+        self.sessions
+            .start_epoch(u64::from(self.settings.auth_epoch));
     }
 
     /// Whether a key is set.

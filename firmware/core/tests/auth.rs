@@ -53,9 +53,17 @@ fn forged_frames_without_the_key_move_nothing() {
         .enumerate()
         {
             let plain = frame(100 + i as u8, cmd);
-            assert_eq!(status_of(&mut s, from, &plain), StatusCode::AuthRequired, "{cmd:?}");
+            assert_eq!(
+                status_of(&mut s, from, &plain),
+                StatusCode::AuthRequired,
+                "{cmd:?}"
+            );
             let forged = forger.seal_with(WRONG_KEY, &plain);
-            assert_eq!(status_of(&mut s, from, &forged), StatusCode::AuthFailed, "{cmd:?}");
+            assert_eq!(
+                status_of(&mut s, from, &forged),
+                StatusCode::AuthFailed,
+                "{cmd:?}"
+            );
         }
     }
     assert!(s.plant.executed.is_empty() && s.plant.queue.is_empty());
@@ -112,7 +120,10 @@ fn stopped_from_a_stranger_still_stops_a_keyed_controller() {
     let mut s = keyed();
     s.start_endless_run();
     let stops = s.plant.stops;
-    assert_eq!(status_of(&mut s, OTHER, &frame(1, Command::Stopped)), StatusCode::Ok);
+    assert_eq!(
+        status_of(&mut s, OTHER, &frame(1, Command::Stopped)),
+        StatusCode::Ok
+    );
     assert_eq!(s.controller.state(), State::Stopped);
     assert!(s.plant.stops > stops);
     assert!(!s.plant.running);
@@ -173,7 +184,10 @@ fn a_frame_from_before_a_reset_never_verifies_after_it() {
     let stored: PersistentSettings = s.controller.settings();
     let mut rebooted = Session::<64>::new(64);
     rebooted.controller.apply_settings(stored);
-    let next = rebooted.controller.begin_auth_epoch().expect("a key is stored");
+    let next = rebooted
+        .controller
+        .begin_auth_epoch()
+        .expect("a key is stored");
     assert_eq!(next.auth_epoch, stored.auth_epoch + 1);
     // Before the epoch is stored, HELLO is refused.
     let r = rebooted.send_raw(HOST, &frame(1, Command::Hello { nonce: [3; 16] }));
@@ -183,7 +197,10 @@ fn a_frame_from_before_a_reset_never_verifies_after_it() {
     let again = rebooted.hello(KEY);
     assert_eq!(again.session, auth.session);
     assert_ne!(again.epoch, auth.epoch);
-    assert_eq!(status_of(&mut rebooted, HOST, &recorded), StatusCode::AuthFailed);
+    assert_eq!(
+        status_of(&mut rebooted, HOST, &recorded),
+        StatusCode::AuthFailed
+    );
     assert!(rebooted.plant.pins.is_empty());
 }
 
@@ -228,6 +245,10 @@ fn reports_go_sealed_to_sessions_only() {
     };
     let env = protocol::auth::Envelope::open(&buf[..n]).unwrap();
     assert!(env.verify(&KEY, protocol::auth::Direction::ToHost, routes.seal.epoch));
-    assert!(!env.verify(&KEY, protocol::auth::Direction::ToController, routes.seal.epoch));
+    assert!(!env.verify(
+        &KEY,
+        protocol::auth::Direction::ToController,
+        routes.seal.epoch
+    ));
     assert_eq!(env.inner, &frame_bytes[..]);
 }

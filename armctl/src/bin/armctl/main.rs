@@ -80,7 +80,10 @@ fn execute(cli: Cli) -> CliResult {
         Cmd::Net(net::NetCmd::Show) => net::show(&cli),
         Cmd::Run(args) if args.dry_run => run::dry_run(args),
         Cmd::Key(cli::KeyCmd::New) => {
-            println!("{}", armctl::auth::new_key_hex().map_err(|e| e.to_string())?);
+            println!(
+                "{}",
+                armctl::auth::new_key_hex().map_err(|e| e.to_string())?
+            );
             Ok(())
         }
         _ => {
