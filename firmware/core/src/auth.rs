@@ -10,7 +10,7 @@
 //! ([`protocol::auth::ReplayWindow`]), so two hosts holding the key never replay each
 //! other: each has its own session.
 
-use protocol::auth::{AuthKey, ReplayWindow};
+use protocol::auth::{AuthKey, MacKey, ReplayWindow};
 
 use crate::hw::Endpoint;
 
@@ -46,6 +46,8 @@ pub enum AuthRefusal {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Sessions {
+    /// The key, made ready for MACs (its key block compressed once, not per frame).
+    key: Option<MacKey>,
     epoch: u64,
     /// The epoch is stored: HELLO may be answered (a reset before the store would give
     /// the next boot the same epoch).
@@ -58,6 +60,7 @@ impl Sessions {
     /// No session, no epoch yet.
     pub const fn new() -> Self {
         Sessions {
+            key: None,
             epoch: 0,
             ready: false,
             next_id: 1,
@@ -65,13 +68,20 @@ impl Sessions {
         }
     }
 
-    /// Starts epoch `epoch` (stored): every session is dropped, HELLO is answered.
-    pub fn start_epoch(&mut self, epoch: u64) {
+    /// Starts epoch `epoch` (stored) with `key`: every session is dropped, HELLO is
+    /// answered.
+    pub fn start_epoch(&mut self, epoch: u64, key: &AuthKey) {
         *self = Sessions {
+            key: Some(MacKey::new(key)),
             epoch,
             ready: true,
             ..Sessions::new()
         };
+    }
+
+    /// The key made ready, once an epoch started.
+    pub fn mac_key(&self) -> Option<&MacKey> {
+        self.key.as_ref()
     }
 
     /// Drops every session and stops answering HELLO (the key was cleared).
@@ -142,10 +152,10 @@ impl Sessions {
         Ok(())
     }
 
-    /// The routes the network task seals with.
-    pub fn routes(&self, key: Option<AuthKey>) -> SealRoutes {
+    /// The routes the network task seals with (`keyed`: a key is set).
+    pub fn routes(&self, keyed: bool) -> SealRoutes {
         SealRoutes {
-            key: key.filter(|_| self.ready),
+            key: self.key.filter(|_| self.ready && keyed),
             epoch: self.epoch,
             sessions: self.slots.map(|s| s.map(|s| (s.endpoint, s.id))),
         }
@@ -162,8 +172,8 @@ impl Default for Sessions {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct SealRoutes {
-    /// The key; `None`: no key, frames go out plain, as before issue 21.
-    pub key: Option<AuthKey>,
+    /// The key made ready; `None`: no key, frames go out plain, as before issue 21.
+    pub key: Option<MacKey>,
     /// The boot epoch.
     pub epoch: u64,
     /// Each session's endpoint and id.
@@ -200,7 +210,7 @@ mod tests {
         };
         let b = Endpoint { port: 2, ..a };
         let mut s = Sessions::new();
-        s.start_epoch(3);
+        s.start_epoch(3, &AuthKey([1; 32]));
         let sa = s.open(a, 0);
         let sb = s.open(b, 0);
         assert_ne!(sa, sb);
@@ -217,7 +227,7 @@ mod tests {
             s.accept(99, 1, || true, a, 2),
             Err(AuthRefusal::UnknownSession)
         );
-        assert_eq!(s.routes(None).session_of(b), Some(sb));
+        assert_eq!(s.routes(true).session_of(b), Some(sb));
         for i in 0..AUTH_SESSIONS as u16 {
             s.open(Endpoint { port: 100 + i, ..a }, 10 + u64::from(i));
         }

@@ -290,8 +290,10 @@ impl<const CAP: usize> Controller<CAP> {
 
     /// The epoch [`Controller::begin_auth_epoch`] chose is stored: HELLO is answered.
     pub fn auth_epoch_stored(&mut self) {
-        self.sessions
-            .start_epoch(u64::from(self.settings.auth_epoch));
+        if let Some(key) = self.settings.key {
+            self.sessions
+                .start_epoch(u64::from(self.settings.auth_epoch), &key);
+        }
     }
 
     /// Whether a key is set.
@@ -351,7 +353,7 @@ impl<const CAP: usize> Controller<CAP> {
             reports_on: self.reports_on,
             upload_period_us: self.upload_period_us,
             state: self.state,
-            seal: self.sessions.routes(self.settings.key),
+            seal: self.sessions.routes(self.settings.key.is_some()),
         }
     }
 
@@ -594,7 +596,7 @@ impl<const CAP: usize> Controller<CAP> {
         now_us: u64,
         response: &mut Response,
     ) -> Option<&'d [u8]> {
-        use protocol::auth::{Direction, Envelope, EnvelopeError};
+        use protocol::auth::{Direction, Envelope};
         let [seq, tag, ..] = *datagram else {
             return None;
         };
@@ -606,9 +608,9 @@ impl<const CAP: usize> Controller<CAP> {
             == datagram.last().copied().unwrap_or(0);
         // No key: every frame as before issue 21 (an envelope is UNSUPPORTED, a HELLO
         // BAD_STATE, after the owner rule like any frame).
-        let Some(key) = self.settings.key else {
+        if self.settings.key.is_none() {
             return Some(datagram);
-        };
+        }
         if !crc_ok {
             // A stranger learns nothing (a key holder's frames are envelopes).
             return refuse(response, StatusCode::BadCrc);
@@ -645,16 +647,20 @@ impl<const CAP: usize> Controller<CAP> {
         if tag != Tag::Auth as u8 {
             return refuse(response, StatusCode::AuthRequired);
         }
-        let envelope = match Envelope::open(datagram) {
-            Ok(e) => e,
-            Err(EnvelopeError::BadInnerCrc) => return refuse(response, StatusCode::BadCrc),
-            Err(_) => return refuse(response, StatusCode::BadLength),
+        // The outer CRC was checked above; the inner frame's is checked when it is
+        // decoded (a damaged one is BAD_CRC there, as any frame).
+        let Ok(envelope) = Envelope::split(datagram) else {
+            return refuse(response, StatusCode::BadLength);
         };
         let epoch = self.sessions.epoch();
+        // No epoch started yet (it is being stored): no session either.
+        let Some(key) = self.sessions.mac_key().copied() else {
+            return refuse(response, StatusCode::AuthFailed);
+        };
         let verified = self.sessions.accept(
             envelope.session,
             envelope.counter,
-            || envelope.verify(&key, Direction::ToController, epoch),
+            || envelope.verify_with(&key, Direction::ToController, epoch),
             from,
             now_us,
         );
@@ -871,10 +877,10 @@ impl<const CAP: usize> Controller<CAP> {
             // stored before the next datagram is handled.
             Command::SetKey(key) => {
                 self.settings.key = key;
-                if key.is_some() {
+                if let Some(key) = key {
                     self.settings.auth_epoch = self.settings.auth_epoch.wrapping_add(1);
                     self.sessions
-                        .start_epoch(u64::from(self.settings.auth_epoch));
+                        .start_epoch(u64::from(self.settings.auth_epoch), &key);
                 } else {
                     self.sessions.close();
                 }

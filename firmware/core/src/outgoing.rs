@@ -61,7 +61,7 @@ impl Sealer {
         match routes.session_of(to) {
             Some(session) => {
                 self.counter += 1;
-                match protocol::auth::seal(
+                match protocol::auth::seal_with(
                     &key,
                     protocol::auth::Direction::ToHost,
                     routes.epoch,
