@@ -819,7 +819,8 @@ fn a_keyed_board_moves_for_the_key_holder_only() {
     let plain = board.connect_with(emulated());
     let start = position(&board, &plain);
     plain.set_key(Some(KEY)).expect("the first key, plain");
-    let stranger = board.connect_with(emulated());
+    // Opened without the STATUS that connecting sends: it would be refused.
+    let stranger = Client::open(board.addr, emulated()).unwrap();
     let points = sweep(start, 6, 40, 2, 10_000);
     match stranger.run_trajectory(&points, &RunOptions::default(), |_| {}) {
         Err(Error::Refused {
