@@ -860,10 +860,11 @@ fn a_keyed_board_moves_for_the_key_holder_only() {
         }
         panic!("no answer\n{}", board.log());
     };
+    let mut hello_frame = [0u8; 32];
     let n = Command::Hello { nonce: [7; 16] }
-        .encode(200, &mut buf)
+        .encode(200, &mut hello_frame)
         .unwrap();
-    let reply = answer(&buf[..n].to_vec(), &mut buf);
+    let reply = answer(&hello_frame[..n], &mut buf);
     let env = Envelope::open(&reply).expect("a HELLO_REPLY envelope");
     let hello = HelloReply::decode(env.inner).expect("HELLO_REPLY").body;
     assert!(env.verify(&KEY, Direction::ToHost, hello.epoch));

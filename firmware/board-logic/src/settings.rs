@@ -39,13 +39,13 @@ pub const AUTH_RECORD_LEN: usize = 4 + 4 + protocol::auth::KEY_LEN;
 
 /// The stored authentication record for `settings`.
 pub fn encode_auth(settings: &PersistentSettings) -> [u8; AUTH_RECORD_LEN] {
+    let [e0, e1, e2, e3] = settings.auth_epoch.to_le_bytes();
+    let head = [u8::from(settings.key.is_some()), 0, 0, 0, e0, e1, e2, e3];
+    let key = settings.key.map_or([0; protocol::auth::KEY_LEN], |k| k.0);
     let mut record = [0u8; AUTH_RECORD_LEN];
-    let (head, key) = record.split_at_mut(8);
-    if let Some(k) = settings.key {
-        head[0] = 1;
-        key.copy_from_slice(&k.0);
+    for (r, b) in record.iter_mut().zip(head.iter().chain(&key)) {
+        *r = *b;
     }
-    head[4..8].copy_from_slice(&settings.auth_epoch.to_le_bytes());
     record
 }
 
@@ -54,14 +54,12 @@ pub fn decode_auth(
     settings: PersistentSettings,
     record: &[u8; AUTH_RECORD_LEN],
 ) -> PersistentSettings {
-    let (head, key) = record.split_at(8);
-    let mut epoch = [0u8; 4];
-    epoch.copy_from_slice(&head[4..8]);
-    let mut k = [0u8; protocol::auth::KEY_LEN];
-    k.copy_from_slice(key);
+    let (head, key) = record.split_first_chunk::<8>().unwrap_or((&[0; 8], &[]));
+    let [flags, _, _, _, e0, e1, e2, e3] = *head;
+    let key: Option<[u8; protocol::auth::KEY_LEN]> = key.try_into().ok();
     PersistentSettings {
-        key: (head[0] & 1 != 0).then_some(protocol::auth::AuthKey(k)),
-        auth_epoch: u32::from_le_bytes(epoch),
+        key: key.filter(|_| flags & 1 != 0).map(protocol::auth::AuthKey),
+        auth_epoch: u32::from_le_bytes([e0, e1, e2, e3]),
         ..settings
     }
 }

@@ -228,8 +228,8 @@ mod tests {
             Err(AuthRefusal::UnknownSession)
         );
         assert_eq!(s.routes(true).session_of(b), Some(sb));
-        for i in 0..AUTH_SESSIONS as u16 {
-            s.open(Endpoint { port: 100 + i, ..a }, 10 + u64::from(i));
+        for port in (100u16..).take(AUTH_SESSIONS) {
+            s.open(Endpoint { port, ..a }, 10 + u64::from(port));
         }
         assert_eq!(
             s.accept(sa, 2, || true, a, 30),
