@@ -252,3 +252,15 @@ fn reports_go_sealed_to_sessions_only() {
     ));
     assert_eq!(env.inner, &frame_bytes[..]);
 }
+
+#[test]
+fn a_key_set_at_run_time_gates_plain_status_too() {
+    let mut s = Session::<64>::new(64);
+    s.expect(Command::Status, StatusCode::Ok);
+    s.expect(Command::SetKey(Some(KEY)), StatusCode::Ok);
+    let other_port = Endpoint { port: 5555, ..HOST };
+    assert_eq!(
+        status_of(&mut s, other_port, &frame(77, Command::Status)),
+        StatusCode::AuthRequired
+    );
+}
