@@ -433,6 +433,18 @@ impl Arm {
         self.call(py, move |arm| arm.set_joints(joints)).map(|_| ())
     }
 
+    /// SET_KEY (docs/PROTOCOL.md section 13): stores the key of `key_file` (64 hex digits)
+    /// in the controller, or clears it (`None`). The first key is set plain; a key set
+    /// already is changed or cleared only by a connection made with it (`key_file=`).
+    #[pyo3(signature = (key_file=None))]
+    fn set_key(&self, py: Python<'_>, key_file: Option<PathBuf>) -> PyResult<()> {
+        let key = key_file
+            .map(|path| armctl::auth::read_key_file(&path))
+            .transpose()
+            .map_err(PyValueError::new_err)?;
+        self.call(py, move |arm| arm.set_key(key)).map(|_| ())
+    }
+
     /// PIN0/PIN1 high (`True`) or low.
     fn pin(&self, py: Python<'_>, pin: u8, high: bool) -> PyResult<()> {
         // A wrong argument is a ValueError, not a "network error" (issue 23).
@@ -583,9 +595,10 @@ fn discover<'py>(
 }
 
 /// Connects to the controller at `address` (`host:port`) and checks that it answers a
-/// STATUS. `pcap`: write every datagram to this capture file.
+/// STATUS. `pcap`: write every datagram to this capture file. `key_file`: the controller's
+/// authentication key (64 hex digits; default `$ARMCTL_KEY_FILE`, as the `armctl` tool).
 #[pyfunction]
-#[pyo3(signature = (address="127.0.0.1:8510", *, ack_timeout=0.1, attempts=10, bind=None, pcap=None))]
+#[pyo3(signature = (address="127.0.0.1:8510", *, ack_timeout=0.1, attempts=10, bind=None, pcap=None, key_file=None))]
 fn connect(
     py: Python<'_>,
     address: &str,
@@ -593,7 +606,13 @@ fn connect(
     attempts: u32,
     bind: Option<&str>,
     pcap: Option<PathBuf>,
+    key_file: Option<PathBuf>,
 ) -> PyResult<Arm> {
+    let key_file = key_file.or_else(|| std::env::var_os("ARMCTL_KEY_FILE").map(PathBuf::from));
+    let key = key_file
+        .map(|path| armctl::auth::read_key_file(&path))
+        .transpose()
+        .map_err(PyValueError::new_err)?;
     let bind = bind
         .map(|b| b.parse())
         .transpose()
@@ -605,6 +624,7 @@ fn connect(
         ack_timeout: Duration::from_secs_f64(ack_timeout),
         attempts: attempts.max(1),
         bind,
+        key,
         ..Options::default()
     };
     // HOST alone gets the default port, as `armctl --controller` (issue 23: "127.0.0.1"

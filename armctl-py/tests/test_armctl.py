@@ -235,3 +235,26 @@ def test_connect_without_a_port_and_a_wrong_pin(sim):
             arm.pin(3, True)
         arm.pin(1, True)
         assert arm.status()["flags"]["pin1_high"]
+
+
+def test_a_keyed_controller_moves_for_the_key_holder_only(sim, tmp_path):
+    """Issue 21: with a key set, a connection without it is refused AUTH_REQUIRED and
+    moves nothing; one with key_file= runs a trajectory; the key is cleared with it."""
+    key_file = tmp_path / "arm.key"
+    key_file.write_text("7e" * 32 + "\n")
+    with armctl.connect(sim.address) as arm:
+        start = arm.positions()
+        arm.set_key(key_file)
+    with pytest.raises(armctl.RefusedError) as refused:
+        armctl.connect(sim.address)
+    assert "AUTH_REQUIRED" in str(refused.value)
+    with armctl.connect(sim.address, key_file=key_file) as arm:
+        assert (arm.positions() == start).all()
+        target = start.copy()
+        target[0] += 200
+        times, positions = ramp(start, target, 0.3)
+        arm.run(times, positions)
+        assert arm.positions()[0] == start[0] + 200
+        arm.set_key(None)
+    with armctl.connect(sim.address) as arm:
+        assert arm.status()["state"] == "STOPPED"

@@ -77,6 +77,9 @@ pub enum Error {
     },
     /// A trajectory the controller cannot take (too many points, none at all).
     InvalidTrajectory(String),
+    /// Authentication failed (docs/PROTOCOL.md section 13): no key set on the
+    /// controller, another key, or no key given.
+    Auth(String),
     /// The call's [`Cancel`](crate::Cancel) token was set (Ctrl-C in the tool): it returned
     /// without finishing, and sent no STOPPED. What it started may still run: stop it with
     /// [`Client::stop_until_acked`](crate::Client::stop_until_acked).
@@ -118,9 +121,11 @@ impl fmt::Display for Error {
             Error::Io(e) => write!(f, "network error: {e}"),
             // NOT_OWNER's state is 0 whatever the arm does (a stranger learns nothing):
             // no state is shown for it (issue 21 F10: "controller state NEW" misled).
+            // So do the refusals of a keyed controller to a host without the key.
             Error::Refused {
                 command,
-                status: status @ StatusCode::NotOwner,
+                status:
+                    status @ (StatusCode::NotOwner | StatusCode::AuthRequired | StatusCode::AuthFailed),
                 ..
             } => write!(
                 f,
@@ -221,6 +226,7 @@ impl fmt::Display for Error {
                 waited.as_secs_f64()
             ),
             Error::InvalidTrajectory(why) => write!(f, "invalid trajectory: {why}"),
+            Error::Auth(why) => write!(f, "authentication: {why}"),
             Error::Interrupted => write!(
                 f,
                 "interrupted before the end (cancelled); what was started may still run \

@@ -219,7 +219,8 @@ impl Client {
                         };
                     }
                     // "Port unreachable": the next copy may find the controller back.
-                    Ok(Event::Refused) | Err(RecvTimeoutError::Timeout) => {}
+                    Ok(Event::Refused | Event::Hello | Event::WrongKey)
+                    | Err(RecvTimeoutError::Timeout) => {}
                     Err(RecvTimeoutError::Disconnected) => break,
                 }
             }

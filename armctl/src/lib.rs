@@ -42,6 +42,7 @@ mod run;
 pub mod trajectory;
 pub mod vcd;
 
+pub use client::auth;
 pub use client::{Client, Options};
 
 /// The old name of [`Client`], kept so that integrators' code still builds. Renamed because

@@ -30,6 +30,10 @@ pub(crate) fn u32_le(b: &[u8], at: usize) -> u32 {
     u32::from_le_bytes(bytes_at(b, at))
 }
 
+pub(crate) fn u64_le(b: &[u8], at: usize) -> u64 {
+    u64::from_le_bytes(bytes_at(b, at))
+}
+
 pub(crate) fn i32_le(b: &[u8], at: usize) -> i32 {
     u32_le(b, at) as i32
 }

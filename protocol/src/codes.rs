@@ -142,6 +142,15 @@ wire_code! {
         NetSet = 0x21 => "NET_SET",
         /// The answer to DISCOVER (controller to host).
         DiscoverReply = 0x22 => "DISCOVER_REPLY",
+        /// An authenticated envelope around a whole frame, both directions
+        /// (docs/PROTOCOL.md section 13, [`crate::auth`]).
+        Auth = 0x50 => "AUTH",
+        /// Open an authenticated session: a host nonce (answered with HELLO_REPLY).
+        Hello = 0x51 => "HELLO",
+        /// Set (32 bytes) or clear (no data) the controller's key.
+        SetKey = 0x52 => "SET_KEY",
+        /// The answer to HELLO: nonce, epoch, session (controller to host, in an envelope).
+        HelloReply = 0x53 => "HELLO_REPLY",
     }
 }
 
@@ -192,6 +201,12 @@ wire_code! {
         /// RUNING or RETURN while the wired e-stop input is open or its latch is not yet
         /// cleared (ESTOP_RESET); also ESTOP_RESET while the input is still open.
         EstopLatched = 12 => "ESTOP_LATCHED",
+        /// The controller has a key and the frame was not in an envelope (only STOPPED,
+        /// DISCOVER and HELLO pass without one).
+        AuthRequired = 13 => "AUTH_REQUIRED",
+        /// An envelope that did not verify: wrong MAC (another key, or a controller reset
+        /// since HELLO), an unknown session, or a counter already used (a replay).
+        AuthFailed = 14 => "AUTH_FAILED",
     }
 }
 
@@ -222,6 +237,12 @@ impl StatusCode {
             }
             EstopLatched => {
                 "the wired e-stop input was opened: close it, then clear the latch with ESTOP_RESET"
+            }
+            AuthRequired => {
+                "the controller has a key: give the key (armctl --key-file) to send authenticated frames"
+            }
+            AuthFailed => {
+                "authentication failed: wrong key, or the controller was reset (open a new session with HELLO)"
             }
         }
     }

@@ -1,5 +1,6 @@
 //! [`Command`]: what a host sends, decoded from and encoded into a datagram.
 
+use crate::auth::AuthKey;
 use crate::codec::{u8_at, u16_be, u32_le};
 use crate::codes::Tag;
 use crate::error::{DecodeError, DecodeErrorKind, EncodeError, ExpectedLen, Field};
@@ -70,6 +71,13 @@ pub enum Command<'a> {
     NetSet(NetSettings),
     /// Clear the wired e-stop input's latch (refused while the input is open).
     EstopReset,
+    /// Open an authenticated session (docs/PROTOCOL.md section 13).
+    Hello {
+        /// Random bytes the HELLO_REPLY echoes.
+        nonce: [u8; crate::auth::NONCE_LEN],
+    },
+    /// Set the controller's key, or clear it (`None`, no data).
+    SetKey(Option<AuthKey>),
 }
 
 impl<'a> Command<'a> {
@@ -100,6 +108,8 @@ impl<'a> Command<'a> {
             Command::Discover => Tag::Discover,
             Command::NetSet(_) => Tag::NetSet,
             Command::EstopReset => Tag::EstopReset,
+            Command::Hello { .. } => Tag::Hello,
+            Command::SetKey(_) => Tag::SetKey,
         }
     }
 
@@ -116,6 +126,8 @@ impl<'a> Command<'a> {
             Command::LocationSetting(_) => size::LOCATION,
             Command::UploadPeriod { .. } => 4,
             Command::NetSet(_) => size::NET_SET,
+            Command::Hello { .. } => size::HELLO,
+            Command::SetKey(Some(_)) => crate::auth::KEY_LEN,
             _ => 0,
         }
     }
@@ -161,6 +173,8 @@ impl<'a> Command<'a> {
             Command::LocationSetting(loc) => loc.write(w, 0),
             Command::UploadPeriod { period_us } => w.u32(0, *period_us),
             Command::NetSet(net) => net.write(w, 0),
+            Command::Hello { nonce } => w.put(0, nonce),
+            Command::SetKey(Some(key)) => w.put(0, &key.0),
             _ => {}
         })
     }
@@ -305,7 +319,21 @@ impl<'a> Command<'a> {
             // The manual gives STOPPED no data; any is ignored (docs/PROTOCOL.md,
             // section 4): an e-stop is never refused for its length.
             Tag::Stopped => Command::Stopped,
-            Tag::UsartRecv | Tag::Ack | Tag::DiscoverReply => {
+            Tag::Hello => {
+                exactly(size::HELLO)?;
+                match data.try_into() {
+                    Ok(nonce) => Command::Hello { nonce },
+                    Err(_) => return Err(bad_len(ExpectedLen::Exactly(size::HELLO))),
+                }
+            }
+            Tag::SetKey => match data.try_into() {
+                Ok(key) => Command::SetKey(Some(AuthKey(key))),
+                Err(_) if data.is_empty() => Command::SetKey(None),
+                Err(_) => return Err(bad_len(ExpectedLen::Either(0, crate::auth::KEY_LEN))),
+            },
+            // An envelope is opened with `auth::Envelope` before its inner frame is
+            // decoded; as a command on its own it is not one.
+            Tag::UsartRecv | Tag::Ack | Tag::DiscoverReply | Tag::HelloReply | Tag::Auth => {
                 return Err(err(DecodeErrorKind::WrongDirection));
             }
             Tag::Runing

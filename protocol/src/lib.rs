@@ -16,6 +16,7 @@
 #[cfg(feature = "std")]
 extern crate std;
 
+pub mod auth;
 mod codec;
 mod codes;
 mod command;
@@ -78,4 +79,6 @@ pub mod size {
     pub const NET_SET: usize = 10;
     /// DISCOVER_REPLY data.
     pub const DISCOVER_REPLY: usize = 27;
+    /// HELLO data: the host's nonce.
+    pub const HELLO: usize = crate::auth::NONCE_LEN;
 }

@@ -112,7 +112,15 @@ impl Bridge {
     /// Connects to the controller, checks it has the configured joints, and asks for
     /// LOCATION reports at the JointState rate.
     pub fn connect(config: BridgeConfig, arm: ArmConfig) -> Result<Bridge, String> {
-        let controller = Client::connect(config.controller.as_str())
+        let key = match &config.key_file {
+            Some(path) => Some(armctl::auth::read_key_file(path)?),
+            None => None,
+        };
+        let options = armctl::Options {
+            key,
+            ..armctl::Options::default()
+        };
+        let controller = Client::connect_with(config.controller.as_str(), options)
             .map_err(|e| format!("controller {}: {e}", config.controller))?;
         let status = controller.status().map_err(|e| e.to_string())?;
         if usize::from(status.joints) < arm.joints.len() {

@@ -14,6 +14,11 @@ pub struct BridgeConfig {
     /// The controller, `host:port`.
     #[serde(default = "default_controller")]
     pub controller: String,
+    /// The controller's authentication key (docs/PROTOCOL.md section 13): a file of 64 hex
+    /// digits, as `armctl --key-file` takes (a relative path is from the working
+    /// directory). `None`: frames go plain, for a controller without a key.
+    #[serde(default)]
+    pub key_file: Option<std::path::PathBuf>,
     /// DDS domain (`ROS_DOMAIN_ID`).
     #[serde(default)]
     pub domain_id: u16,
@@ -315,6 +320,15 @@ mod tests {
         assert!(RosDistro::Kilted.control_msgs_6() && RosDistro::Rolling.control_msgs_6());
         assert!(!RosDistro::Jazzy.control_msgs_6() && !RosDistro::Humble.control_msgs_6());
         assert!(RosDistro::Jazzy.type_hashes() && !RosDistro::Humble.type_hashes());
+    }
+
+    #[test]
+    fn a_key_file_is_taken_and_is_optional() {
+        let keyed = r#"{"key_file": "arm.key", "joints": [{"name": "a", "max_step_rate_hz": 1}]}"#;
+        let (config, _) = BridgeConfig::parse(keyed, "c").unwrap();
+        assert_eq!(config.key_file, Some(std::path::PathBuf::from("arm.key")));
+        let (example, _) = BridgeConfig::parse(EXAMPLE, "bridge.json").unwrap();
+        assert_eq!(example.key_file, None);
     }
 
     #[test]

@@ -6,8 +6,10 @@ interval in the exec trace (counted by run.sh's awk) stands alone.
 Usage: drive.py ARMCTL HOST:PORT COUNTS_FILE REPEATS
 Prints "pending: <counts...>" and "stopped: <counts...>".
 """
+import hashlib
 import os
 import socket
+import struct
 import subprocess
 import sys
 import time
@@ -103,5 +105,59 @@ for r in range(repeats):
     time.sleep(0.5)
     stopped.append(measured(encode("stopped"), "STOPPED", "stop"))
 
+# Authentication (issue 21, docs/PROTOCOL.md section 13): the same 12-point PENDING in an
+# envelope (keyed BLAKE2s-128 over the epoch and the envelope), NIC interrupt to the sealed
+# ACK leaving the NIC: the envelope's cost is the difference.
+KEY = bytes(range(32))
+
+
+def raw(tag, data=b""):
+    global seq
+    body = bytes([seq, tag]) + data
+    seq = (seq + 1) % 256
+    return body + bytes([crc8(body)])
+
+
+def mac(direction, epoch, signed):
+    return hashlib.blake2s(struct.pack("<Q", epoch) + signed, digest_size=16, key=KEY,
+                           person=direction).digest()
+
+
+session = None
+
+
+def seal(inner):
+    global session
+    epoch, sid, counter = session
+    session = (epoch, sid, counter + 1)
+    signed = bytes([inner[0], 0x50]) + struct.pack("<IQ", sid, counter + 1) + inner
+    body = signed + mac(b"armH2C01", epoch, signed)
+    return body + bytes([crc8(body)])
+
+
+exchange(raw(0x52, KEY), "SET_KEY")
+nonce = os.urandom(16)
+reply = exchange(raw(0x51, nonce), "HELLO")
+inner = reply[14:-17]
+if len(reply) < 31 or reply[1] != 0x50 or inner[1] != 0x53 or inner[2:18] != nonce:
+    sys.exit(f"no HELLO_REPLY: {reply.hex()}")
+epoch, sid = struct.unpack("<QI", inner[18:30])
+if mac(b"armC2H01", epoch, reply[:-17]) != reply[-17:-1]:
+    sys.exit("HELLO_REPLY's MAC does not verify: the Rust and Python BLAKE2s disagree")
+session = (epoch, sid, 0)
+authenticated = []
+for r in range(repeats):
+    exchange(seal(encode("location-setting", "0", "0")), "LOCATION_SETTING")
+    exchange(seal(encode("new", "12")), "NEW")
+    args = ["pending", "--from", "0,0"]
+    for k in range(12):
+        args += [point, f"10000:{k + 1},{k + 1}"]
+    settle()
+    authenticated.append(measured(seal(encode(*args)), "authenticated PENDING", "ack"))
+    exchange(encode("stopped"), "STOPPED")
+# Clear the key again (sealed SET_KEY with no data).
+exchange(seal(raw(0x52)), "SET_KEY clear")
+
 print("pending:", *pending)
 print("stopped:", *stopped)
+print("authenticated:", *authenticated)

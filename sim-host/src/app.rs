@@ -130,7 +130,11 @@ impl Board {
                 !options.no_encoders,
             )
             .with_bus(clock, options.encoder_fault_array()),
-            settings: FileSettings::new(options.settings_path()),
+            settings: {
+                let mut settings = FileSettings::new(options.settings_path());
+                settings.set_clear_key(options.clear_key);
+                settings
+            },
             kick,
             probe,
             udp,

@@ -387,6 +387,7 @@ impl Encoders for SimEncoders {
 pub struct FileSettings {
     path: PathBuf,
     boot_joints: Option<u8>,
+    clear_key: bool,
 }
 
 impl FileSettings {
@@ -395,7 +396,14 @@ impl FileSettings {
         FileSettings {
             path,
             boot_joints: None,
+            clear_key: false,
         }
+    }
+
+    /// Makes `load` remove a stored key (and store that at once): `--clear-key`, the
+    /// simulator's user button held at reset (docs/PROTOCOL.md section 13).
+    pub fn set_clear_key(&mut self, clear: bool) {
+        self.clear_key = clear;
     }
 
     /// Makes `load` report this joint count (`--joints`), whatever the file says; saving
@@ -430,6 +438,11 @@ impl FileSettings {
         }
         let tmp = self.path.with_extension("tmp");
         std::fs::write(&tmp, format_settings(settings))?;
+        // It may hold the key: readable by its owner only.
+        {
+            use std::os::unix::fs::PermissionsExt;
+            std::fs::set_permissions(&tmp, std::fs::Permissions::from_mode(0o600))?;
+        }
         std::fs::rename(&tmp, &self.path)
     }
 }
@@ -438,10 +451,15 @@ impl FileSettings {
 pub fn format_settings(settings: &PersistentSettings) -> String {
     let [a, b, c, d] = settings.ip;
     let [e, f, g, h] = settings.gateway;
-    format!(
-        "# arm controller simulator settings (sim-host)\njoints={}\nip={a}.{b}.{c}.{d}\nprefix_len={}\ngateway={e}.{f}.{g}.{h}\ndhcp={}\n",
-        settings.joints, settings.prefix_len, settings.dhcp
-    )
+    let mut text = format!(
+        "# arm controller simulator settings (sim-host)\njoints={}\nip={a}.{b}.{c}.{d}\nprefix_len={}\ngateway={e}.{f}.{g}.{h}\ndhcp={}\nauth_epoch={}\n",
+        settings.joints, settings.prefix_len, settings.dhcp, settings.auth_epoch
+    );
+    if let Some(key) = settings.key {
+        let hex: String = key.0.iter().map(|b| format!("{b:02x}")).collect();
+        text.push_str(&format!("key={hex}\n"));
+    }
+    text
 }
 
 /// Parses the settings file; unknown keys are ignored, missing ones take their defaults.
@@ -486,6 +504,22 @@ pub fn parse_settings(text: &str) -> Result<PersistentSettings, String> {
             "dhcp" => {
                 settings.dhcp = value.parse().map_err(|_| format!("bad dhcp: {value}"))?;
             }
+            "auth_epoch" => {
+                settings.auth_epoch = value
+                    .parse()
+                    .map_err(|_| format!("bad auth_epoch: {value}"))?;
+            }
+            "key" => {
+                let bad = || "bad key: not 64 hex digits".to_string();
+                let mut key = [0u8; protocol::auth::KEY_LEN];
+                if value.len() != 2 * key.len() || !value.is_ascii() {
+                    return Err(bad());
+                }
+                for (i, b) in key.iter_mut().enumerate() {
+                    *b = u8::from_str_radix(&value[2 * i..2 * i + 2], 16).map_err(|_| bad())?;
+                }
+                settings.key = Some(protocol::auth::AuthKey(key));
+            }
             _ => {}
         }
     }
@@ -507,6 +541,21 @@ impl SettingsStore for FileSettings {
                 ..PersistentSettings::default()
             }),
             (loaded, None) => loaded,
+        };
+        let loaded = match loaded {
+            Some(stored) if self.clear_key && stored.key.is_some() => {
+                let cleared = PersistentSettings {
+                    key: None,
+                    ..stored
+                };
+                self.write(&cleared).map_err(|e| e.kind())?;
+                log::warn!(
+                    "settings: authentication key cleared (--clear-key) in {}",
+                    self.path.display()
+                );
+                Some(cleared)
+            }
+            loaded => loaded,
         };
         match &loaded {
             Some(s) => log::info!("settings: loaded {s:?} from {}", self.path.display()),
@@ -540,6 +589,8 @@ mod tests {
             prefix_len: 16,
             gateway: [10, 1, 0, 1],
             dhcp: true,
+            key: Some(protocol::auth::AuthKey([0xc3; 32])),
+            auth_epoch: 7,
         };
         assert_eq!(parse_settings(&format_settings(&settings)), Ok(settings));
         // A file from before NET_SET: a static address, no gateway.
@@ -548,6 +599,8 @@ mod tests {
             Ok(PersistentSettings {
                 gateway: [0; 4],
                 dhcp: false,
+                key: None,
+                auth_epoch: 0,
                 ..settings
             })
         );

@@ -96,6 +96,11 @@ pub struct SimOptions {
     #[arg(long, value_name = "FILE")]
     pub settings: Option<PathBuf>,
 
+    /// Remove the authentication key from the settings file at start (the simulator's
+    /// stand-in for the board's user button held at reset: docs/PROTOCOL.md section 13).
+    #[arg(long)]
+    pub clear_key: bool,
+
     /// Probability that a datagram is lost (each direction).
     #[arg(long, default_value_t = 0.0, value_parser = parse_probability)]
     pub loss: f64,

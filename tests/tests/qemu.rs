@@ -803,3 +803,163 @@ fn link_down_and_up_reach_the_stack_through_the_phy_interrupt() {
     assert_eq!(status.state, State::Stopped);
     board.assert_healthy();
 }
+
+/// Authentication on the board (issue 21, docs/PROTOCOL.md section 13): the first key set
+/// plain, then frames without it refused and nothing moved (QEMU's user network shows every
+/// host as 10.0.2.2: these forged frames even come from the owner's address), an envelope
+/// under another key or replayed refused, the key holder's run executed, a plain STOPPED
+/// still stops it, and the key cleared with the key.
+#[test]
+fn a_keyed_board_moves_for_the_key_holder_only() {
+    use protocol::auth::{AuthKey, Direction, Envelope, HelloReply, KEY_LEN, seal};
+    require_qemu!();
+    const KEY: AuthKey = AuthKey([0x3c; KEY_LEN]);
+    let mut board = QemuBoard::start();
+    let plain = board.connect_with(emulated());
+    let start = position(&board, &plain);
+    plain.set_key(Some(KEY)).expect("the first key, plain");
+    // Opened without the STATUS that connecting sends: it would be refused.
+    let stranger = Client::open(board.addr, emulated()).unwrap();
+    let points = sweep(start, 6, 40, 2, 10_000);
+    match stranger.run_trajectory(&points, &RunOptions::default(), |_| {}) {
+        Err(Error::Refused {
+            status: StatusCode::AuthRequired,
+            ..
+        }) => {}
+        other => panic!("a run without the key: {other:?}\n{}", board.log()),
+    }
+    for result in [
+        stranger.pin(0, true),
+        stranger.toggle_enable(None),
+        stranger.go_home(),
+    ] {
+        assert!(
+            matches!(
+                &result,
+                Err(Error::Refused {
+                    status: StatusCode::AuthRequired,
+                    ..
+                })
+            ),
+            "{result:?}"
+        );
+    }
+    // By hand: a session, an envelope under another key, and a replay.
+    let raw = UdpSocket::bind("127.0.0.1:0").unwrap();
+    raw.connect(board.addr).unwrap();
+    raw.set_read_timeout(Some(Duration::from_millis(500)))
+        .unwrap();
+    let mut buf = [0u8; protocol::MAX_DATAGRAM];
+    let answer = |bytes: &[u8], buf: &mut [u8]| -> Vec<u8> {
+        for _ in 0..10 {
+            raw.send(bytes).unwrap();
+            if let Ok(n) = raw.recv(buf) {
+                return buf[..n].to_vec();
+            }
+        }
+        panic!("no answer\n{}", board.log());
+    };
+    let mut hello_frame = [0u8; 32];
+    let n = Command::Hello { nonce: [7; 16] }
+        .encode(200, &mut hello_frame)
+        .unwrap();
+    let reply = answer(&hello_frame[..n], &mut buf);
+    let env = Envelope::open(&reply).expect("a HELLO_REPLY envelope");
+    let hello = HelloReply::decode(env.inner).expect("HELLO_REPLY").body;
+    assert!(env.verify(&KEY, Direction::ToHost, hello.epoch));
+    let ack_status = |reply: &[u8]| {
+        let inner = Envelope::open(reply).map_or(reply.to_vec(), |e| e.inner.to_vec());
+        match protocol::Report::decode(&inner).map(|f| f.body) {
+            Ok(protocol::Report::Ack(ack)) => ack.status,
+            other => panic!("not an ACK: {other:?}"),
+        }
+    };
+    let mut pin = [0u8; 8];
+    let n = Command::Pin1On.encode(201, &mut pin).unwrap();
+    let mut forged = [0u8; protocol::MAX_DATAGRAM];
+    let m = seal(
+        &AuthKey([0xc3; KEY_LEN]),
+        Direction::ToController,
+        hello.epoch,
+        hello.session,
+        1,
+        &pin[..n],
+        &mut forged,
+    )
+    .unwrap();
+    assert_eq!(
+        ack_status(&answer(&forged[..m], &mut buf)),
+        StatusCode::AuthFailed
+    );
+    let mut sealed = [0u8; protocol::MAX_DATAGRAM];
+    let m = seal(
+        &KEY,
+        Direction::ToController,
+        hello.epoch,
+        hello.session,
+        1,
+        &pin[..n],
+        &mut sealed,
+    )
+    .unwrap();
+    assert_eq!(ack_status(&answer(&sealed[..m], &mut buf)), StatusCode::Ok);
+    assert_eq!(
+        ack_status(&answer(&sealed[..m], &mut buf)),
+        StatusCode::AuthFailed,
+        "a replay"
+    );
+
+    let arm = Arc::new(board.connect_with(Options {
+        key: Some(KEY),
+        ..emulated()
+    }));
+    assert_eq!(
+        position(&board, &arm),
+        start,
+        "nothing moved without the key"
+    );
+    let status = arm.status().unwrap();
+    assert!(status.flags.has(StatusFlags::PIN1_HIGH) && !status.flags.has(StatusFlags::PIN0_HIGH));
+    let report = arm
+        .run_trajectory(&points, &RunOptions::default(), |_| {})
+        .unwrap_or_else(|e| panic!("the key holder's run: {e}\n{}", board.log()));
+    assert_eq!(
+        usize::from(report.final_status.unwrap().executed),
+        points.len()
+    );
+    let end = position(&board, &arm);
+    assert_eq!(end[..6], points.last().unwrap().position[..6]);
+    // A plain STOPPED, from a host without the key, stops the key holder's run.
+    let long = sweep(end, 6, 300, 3, 10_000);
+    let runner = {
+        let arm = arm.clone();
+        std::thread::spawn(move || arm.run_trajectory(&long, &RunOptions::default(), |_| {}))
+    };
+    let deadline = Instant::now() + Duration::from_secs(10);
+    while arm.last_location().is_none_or(|l| l.position == end) {
+        assert!(
+            Instant::now() < deadline,
+            "the run never started\n{}",
+            board.log()
+        );
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    assert_eq!(stranger.stop().unwrap().status, StatusCode::Ok);
+    assert!(
+        matches!(
+            runner.join().unwrap(),
+            Err(Error::RunEnded {
+                reason: RunEnd::Stopped,
+                ..
+            })
+        ),
+        "the run ended by the stranger's STOPPED"
+    );
+    let first = position(&board, &arm);
+    std::thread::sleep(Duration::from_millis(300));
+    assert_eq!(position(&board, &arm), first, "a joint moved after STOPPED");
+    // Cleared with the key: plain hosts work again.
+    arm.set_key(None).expect("cleared with the key");
+    stranger.pin(0, true).expect("plain again");
+    board.assert_healthy();
+}

@@ -715,3 +715,86 @@ fn session_captures_pair_acks_and_mark_retransmissions() {
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// Authentication (issue 21, docs/PROTOCOL.md section 13): a keyed simulator's session as
+/// `armctl --key-file` captures it. With the key in the dissector's preferences every
+/// envelope's MAC is Good (the Lua BLAKE2s agrees with the crate's), with another key Bad,
+/// and the inner frames are dissected as frames.
+#[test]
+fn authenticated_captures_have_their_macs_checked_with_the_preferences_key() {
+    if !have_wireshark("authenticated captures") {
+        return;
+    }
+    let dir = scratch("auth");
+    let key_hex = "5a".repeat(32);
+    let settings = dir.join("settings.txt");
+    std::fs::write(
+        &settings,
+        format!("joints=6\nkey={key_hex}\nauth_epoch=9\n"),
+    )
+    .unwrap();
+    let key_file = dir.join("arm.key");
+    std::fs::write(&key_file, &key_hex).unwrap();
+    let mut sim = SimHost::start(&["--settings", settings.to_str().unwrap()]);
+    let pcap = dir.join("armctl.pcap");
+    let out = Command::new(armctl_bin())
+        .args(["--controller", &sim.addr.to_string(), "--key-file"])
+        .arg(&key_file)
+        .arg("--pcap")
+        .arg(&pcap)
+        .args(["pin", "1", "on"])
+        .output()
+        .expect("run armctl");
+    assert!(
+        out.status.success(),
+        "armctl --key-file pin: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    sim.terminate();
+    let macs = |key: &str| -> Vec<(String, String)> {
+        let out = Command::new("tshark")
+            .arg("-r")
+            .arg(&pcap)
+            .arg("-X")
+            .arg(format!("lua_script:{DISSECTOR}"))
+            .args(["-d", &format!("udp.port=={},armctl", sim.addr.port())])
+            .args(["-o", &format!("armctl.key:{key}")])
+            .args(["-T", "fields", "-E", "occurrence=a", "-E", "aggregator=,"])
+            .args(["-e", "armctl.tag", "-e", "armctl.auth.mac.status"])
+            .output()
+            .expect("run tshark");
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            out.status.success() && !stderr.contains("Lua"),
+            "tshark: {stderr}"
+        );
+        String::from_utf8_lossy(&out.stdout)
+            .lines()
+            .map(|l| {
+                let (tag, mac) = l.split_once('\t').unwrap_or((l, ""));
+                (tag.to_string(), mac.to_string())
+            })
+            .collect()
+    };
+    let good = macs(&key_hex);
+    // HELLO (plain), then envelopes: HELLO_REPLY, STATUS and its ACK and report, PIN1_ON
+    // and its ACK (and LOCATION reports).
+    assert!(good.len() >= 6, "{good:?}");
+    assert!(good[0].0.starts_with("0x51"), "{good:?}");
+    let envelopes: Vec<_> = good.iter().filter(|(t, _)| t.starts_with("0x50")).collect();
+    assert!(envelopes.len() >= 5, "{good:?}");
+    for (tag, mac) in &envelopes {
+        assert_eq!(mac, "1", "{tag}: MAC Good with the key: {good:?}");
+        assert!(
+            tag.contains(','),
+            "the inner frame's tag is shown too: {tag}"
+        );
+    }
+    let bad = macs(&"a5".repeat(32));
+    assert!(
+        bad.iter()
+            .filter(|(t, _)| t.starts_with("0x50"))
+            .all(|(_, mac)| mac == "0"),
+        "{bad:?}"
+    );
+}

@@ -22,6 +22,9 @@ local armctl = Proto("armctl", "Arm controller protocol")
 local DEFAULT_PORT = 8510
 armctl.prefs.port = Pref.uint("Controller UDP port", DEFAULT_PORT,
     "UDP port the controller listens on: datagrams to it are commands, from it reports")
+armctl.prefs.key = Pref.string("Authentication key", "",
+    "The controllers' key, 64 hex digits (docs/PROTOCOL.md section 13): AUTH envelopes' " ..
+    "MACs are checked with it (the boot epoch is taken from the HELLO_REPLY seen before)")
 
 ----------------------------------------------------------------------------------------
 -- Value names
@@ -35,6 +38,7 @@ local tag_names = {
     [0x11] = "RETURN", [0x12] = "JOINTS_COUNT", [0x13] = "LOCATION_SETTING/LOCATION",
     [0x14] = "ACK", [0x15] = "STATUS", [0x16] = "UPLOAD_PERIOD", [0x17] = "ESTOP_RESET",
     [0x20] = "DISCOVER", [0x21] = "NET_SET", [0x22] = "DISCOVER_REPLY",
+    [0x50] = "AUTH", [0x51] = "HELLO", [0x52] = "SET_KEY", [0x53] = "HELLO_REPLY",
 }
 -- Names that depend on the direction.
 local host_names = { [0x13] = "LOCATION_SETTING", [0x15] = "STATUS request" }
@@ -46,6 +50,7 @@ local status_names = {
     [0] = "OK", [1] = "BAD_CRC", [2] = "UNKNOWN_TAG", [3] = "BAD_LENGTH", [4] = "BAD_STATE",
     [5] = "OUT_OF_ORDER", [6] = "TOO_MANY_POINTS", [7] = "INVALID_POINT", [8] = "BUFFER_FULL",
     [9] = "NOT_OWNER", [10] = "UNSUPPORTED", [11] = "INVALID_CONFIG", [12] = "ESTOP_LATCHED",
+    [13] = "AUTH_REQUIRED", [14] = "AUTH_FAILED",
 }
 
 local crc_status_names = { [0] = "Bad", [1] = "Good", [2] = "Unverified" }
@@ -80,6 +85,16 @@ local function status_flag(name, label, mask)
 end
 
 local f = {
+    -- authentication (PROTOCOL.md section 13)
+    auth_session = dec("uint32", "auth.session", "Session"),
+    auth_counter = dec("uint64", "auth.counter", "Counter"),
+    auth_inner = field("none", "auth.inner", "Inner frame"),
+    auth_mac = field("bytes", "auth.mac", "MAC (keyed BLAKE2s-128)"),
+    auth_mac_status = dec("uint8", "auth.mac.status", "MAC status",
+        { [0] = "Bad", [1] = "Good", [2] = "Unverified (no key in the preferences, or no HELLO_REPLY seen)" }),
+    hello_nonce = field("bytes", "hello.nonce", "Nonce"),
+    hello_epoch = dec("uint64", "hello.epoch", "Boot epoch"),
+    set_key = field("bytes", "set_key.key", "Key"),
     seq = dec("uint8", "seq", "Sequence number"),
     tag = hex("uint8", "tag", "Tag", tag_names),
     direction = dec("uint8", "direction", "Direction", direction_names),
@@ -202,8 +217,10 @@ local e = {
     no_ack = ProtoExpert.new("armctl.no_ack", "No ACK seen for this command",
         expert.group.SEQUENCE, expert.severity.NOTE),
 }
+e.bad_mac = ProtoExpert.new("armctl.bad_mac", "Authentication MAC does not verify",
+    expert.group.SECURITY, expert.severity.ERROR)
 armctl.experts = { e.bad_crc, e.too_short, e.bad_length, e.unknown_tag, e.wrong_direction,
-    e.refused, e.retransmission, e.no_ack, e.invalid_config, e.invalid_point }
+    e.refused, e.retransmission, e.no_ack, e.invalid_config, e.invalid_point, e.bad_mac }
 
 ----------------------------------------------------------------------------------------
 -- CRC-8/SMBUS: polynomial 0x07, init 0, no reflection, no final XOR. (Wireshark 4.0 runs
@@ -227,6 +244,108 @@ local function crc8(tvb, len)
 end
 
 ----------------------------------------------------------------------------------------
+-- Keyed BLAKE2s-128 (RFC 7693), the envelopes' MAC (PROTOCOL.md section 13). Words are
+-- kept as the `bit` library's signed 32-bit numbers; sums are wrapped with bit.tobit.
+
+local B2S_IV = {}
+for i, w in ipairs({ 0x6A09E667, 0xBB67AE85, 0x3C6EF372, 0xA54FF53A, 0x510E527F,
+    0x9B05688C, 0x1F83D9AB, 0x5BE0CD19 }) do B2S_IV[i] = bit.tobit(w) end
+local B2S_SIGMA = {
+    { 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15 },
+    { 14, 10, 4, 8, 9, 15, 13, 6, 1, 12, 0, 2, 11, 7, 5, 3 },
+    { 11, 8, 12, 0, 5, 2, 15, 13, 10, 14, 3, 6, 7, 1, 9, 4 },
+    { 7, 9, 3, 1, 13, 12, 11, 14, 2, 6, 5, 10, 4, 0, 15, 8 },
+    { 9, 0, 5, 7, 2, 4, 10, 15, 14, 1, 11, 12, 6, 8, 3, 13 },
+    { 2, 12, 6, 10, 0, 11, 8, 3, 4, 13, 7, 5, 15, 14, 1, 9 },
+    { 12, 5, 1, 15, 14, 13, 4, 10, 0, 7, 6, 3, 9, 2, 8, 11 },
+    { 13, 11, 7, 14, 12, 1, 3, 9, 5, 0, 15, 4, 8, 6, 2, 10 },
+    { 6, 15, 14, 9, 11, 3, 0, 8, 12, 2, 13, 7, 1, 4, 10, 5 },
+    { 10, 2, 8, 4, 7, 6, 1, 5, 15, 11, 9, 14, 3, 12, 13, 0 },
+}
+
+local function b2s_g(v, a, b, c, d, x, y)
+    v[a] = bit.tobit(v[a] + v[b] + x); v[d] = bit.ror(bit.bxor(v[d], v[a]), 16)
+    v[c] = bit.tobit(v[c] + v[d]);     v[b] = bit.ror(bit.bxor(v[b], v[c]), 12)
+    v[a] = bit.tobit(v[a] + v[b] + y); v[d] = bit.ror(bit.bxor(v[d], v[a]), 8)
+    v[c] = bit.tobit(v[c] + v[d]);     v[b] = bit.ror(bit.bxor(v[b], v[c]), 7)
+end
+
+-- Compresses the 64 bytes of `bytes` from index `at` (1-based; missing bytes are zero).
+local function b2s_compress(h, bytes, at, t, last)
+    local m = {}
+    for i = 0, 15 do
+        local w = 0
+        for k = 3, 0, -1 do w = w * 256 + (bytes[at + 4 * i + k] or 0) end
+        m[i] = bit.tobit(w)
+    end
+    local v = {}
+    for i = 1, 8 do v[i] = h[i]; v[i + 8] = B2S_IV[i] end
+    v[13] = bit.bxor(v[13], bit.tobit(t % 4294967296))
+    v[14] = bit.bxor(v[14], bit.tobit(math.floor(t / 4294967296)))
+    if last then v[15] = bit.bnot(v[15]) end
+    for r = 1, 10 do
+        local s = B2S_SIGMA[r]
+        b2s_g(v, 1, 5, 9, 13, m[s[1]], m[s[2]]);   b2s_g(v, 2, 6, 10, 14, m[s[3]], m[s[4]])
+        b2s_g(v, 3, 7, 11, 15, m[s[5]], m[s[6]]);  b2s_g(v, 4, 8, 12, 16, m[s[7]], m[s[8]])
+        b2s_g(v, 1, 6, 11, 16, m[s[9]], m[s[10]]); b2s_g(v, 2, 7, 12, 13, m[s[11]], m[s[12]])
+        b2s_g(v, 3, 8, 9, 14, m[s[13]], m[s[14]]); b2s_g(v, 4, 5, 10, 15, m[s[15]], m[s[16]])
+    end
+    for i = 1, 8 do h[i] = bit.bxor(h[i], v[i], v[i + 8]) end
+end
+
+local function le_word(bytes, at)
+    local w = 0
+    for k = 3, 0, -1 do w = w * 256 + bytes[at + k] end
+    return bit.tobit(w)
+end
+
+-- BLAKE2s with a 32-byte key, 16-byte output and an 8-byte personalisation, of `msg`
+-- (a table of byte values); returns the 16 bytes as a table.
+local function blake2s_mac(key, persona, msg)
+    local h = {}
+    for i = 1, 8 do h[i] = B2S_IV[i] end
+    h[1] = bit.bxor(h[1], 0x01012010)  -- fanout 1, depth 1, key 32 bytes, digest 16 bytes
+    h[7] = bit.bxor(h[7], le_word(persona, 1))
+    h[8] = bit.bxor(h[8], le_word(persona, 5))
+    local bytes = {}
+    for i = 1, 32 do bytes[i] = key[i] end
+    for i = 33, 64 do bytes[i] = 0 end
+    for i = 1, #msg do bytes[64 + i] = msg[i] end
+    local total = #bytes
+    local at = 1
+    while total - (at - 1) > 64 do
+        b2s_compress(h, bytes, at, at + 63, false)
+        at = at + 64
+    end
+    b2s_compress(h, bytes, at, total, true)
+    local out = {}
+    for i = 0, 15 do
+        out[i + 1] = bit.band(bit.rshift(h[math.floor(i / 4) + 1], 8 * (i % 4)), 0xff)
+    end
+    return out
+end
+
+local function key_bytes()
+    local hex = (armctl.prefs.key or ""):gsub("%s", "")
+    if #hex ~= 64 or hex:find("[^%x]") then return nil end
+    local key = {}
+    for i = 1, 32 do key[i] = tonumber(hex:sub(2 * i - 1, 2 * i), 16) end
+    return key
+end
+
+local function range_bytes(range, out)
+    out = out or {}
+    for i = 0, range:len() - 1 do out[#out + 1] = range(i, 1):uint() end
+    return out
+end
+
+local PERSONA_TO_CONTROLLER = { 0x61, 0x72, 0x6d, 0x48, 0x32, 0x43, 0x30, 0x31 } -- "armH2C01"
+local PERSONA_TO_HOST = { 0x61, 0x72, 0x6d, 0x43, 0x32, 0x48, 0x30, 0x31 }       -- "armC2H01"
+
+local epochs = {}        -- controller "ip:port" -> the 8 epoch bytes of its last HELLO_REPLY
+local hello_epoch = nil  -- set by the HELLO_REPLY dissector for the envelope around it
+
+----------------------------------------------------------------------------------------
 -- Pairing and retransmissions (filled on the first pass, shown on every pass)
 
 local analysis = {}     -- frame number -> { response_in, response_to, rtt, retransmission_of }
@@ -235,6 +354,7 @@ local commands = {}     -- "host ip:port|seq|tag" -> { crc, copies = { {frame, t
 local first_copy = {}   -- "host ip:port|seq|tag|crc" -> frame number of the first copy
 
 function armctl.init()
+    epochs = {}
     analysis = {}
     commands = {}
     first_copy = {}
@@ -453,6 +573,17 @@ local host_dissectors = {
         return string.format("%s/%d", tostring(data(1, 4):ipv4()), data(5, 1):uint())
     end,
 }
+host_dissectors[0x51] = function(tree, data, len)
+    if len ~= 16 then return length_error(tree, data, "16", len) end
+    tree:add(f.hello_nonce, data(0, 16))
+    return ""
+end
+host_dissectors[0x52] = function(tree, data, len)
+    if len == 0 then return "clear the key" end
+    if len ~= 32 then return length_error(tree, data, "0 or 32", len) end
+    tree:add(f.set_key, data(0, 32))
+    return "set a key"
+end
 -- Commands without data.
 for _, tag in ipairs({ 0x02, 0x04, 0x05, 0x07, 0x09, 0x0c, 0x0d, 0x0e, 0x0f, 0x11, 0x15, 0x17, 0x20 }) do
     host_dissectors[tag] = function(tree, data, len)
@@ -501,6 +632,14 @@ local controller_dissectors = {
         if len ~= 36 then return length_error(tree, data, "36", len) end
         dissect_status_report(tree, data)
         return state_names[data(4, 1):uint()] or "?"
+    end,
+    [0x53] = function(tree, data, len)
+        if len ~= 28 then return length_error(tree, data, "28", len) end
+        tree:add(f.hello_nonce, data(0, 16))
+        tree:add_le(f.hello_epoch, data(16, 8))
+        tree:add_le(f.auth_session, data(24, 4))
+        hello_epoch = range_bytes(data(16, 8))
+        return string.format("session %d", data(24, 4):le_uint())
     end,
     [0x22] = function(tree, data, len)
         if len ~= 27 then return length_error(tree, data, "27", len) end
@@ -559,6 +698,47 @@ local function analyse(pinfo, to_controller, seq, tag, crc, data, len)
             if not cmd_info.response_in then cmd_info.response_in = pinfo.number end
         end
     end
+end
+
+local last_info = ""
+
+-- An AUTH envelope (PROTOCOL.md section 13): its fields, the MAC checked with the key of
+-- the preferences and the controller's epoch, and the inner frame dissected as a frame.
+local function dissect_auth(tvb, pinfo, root, to_controller, len)
+    if len < 34 then
+        root:add_proto_expert_info(e.bad_length, "AUTH envelope shorter than 34 bytes")
+        return nil
+    end
+    root:add_le(f.auth_session, tvb(2, 4))
+    root:add_le(f.auth_counter, tvb(6, 8))
+    local inner_len = len - 31
+    local inner_item = root:add(f.auth_inner, tvb(14, inner_len))
+    local mac_item = root:add(f.auth_mac, tvb(len - 17, 16))
+    hello_epoch = nil
+    armctl.dissector(tvb(14, inner_len):tvb(), pinfo, inner_item)
+    local inner_info = last_info
+    local controller = to_controller and (tostring(pinfo.dst) .. ":" .. pinfo.dst_port)
+        or (tostring(pinfo.src) .. ":" .. pinfo.src_port)
+    if hello_epoch and not pinfo.visited then epochs[controller] = hello_epoch end
+    local epoch = hello_epoch or epochs[controller]
+    local key = key_bytes()
+    local status = 2
+    if key and epoch then
+        local msg = {}
+        for i = 1, 8 do msg[i] = epoch[i] end
+        range_bytes(tvb(0, len - 17), msg)
+        local mac = blake2s_mac(key, to_controller and PERSONA_TO_CONTROLLER or PERSONA_TO_HOST, msg)
+        status = 1
+        for i = 1, 16 do
+            if mac[i] ~= tvb(len - 17 + i - 1, 1):uint() then status = 0 end
+        end
+    end
+    mac_item:add(f.auth_mac_status, tvb(len - 17, 16), status):set_generated()
+    if status == 0 then
+        mac_item:add_proto_expert_info(e.bad_mac, "MAC does not verify with the key of the preferences")
+    end
+    local verdict_text = ({ [0] = "MAC BAD", [1] = "MAC ok", [2] = "MAC unverified" })[status]
+    return string.format("[%s] %s", verdict_text, inner_info)
 end
 
 local function show_analysis(tree, pinfo, to_controller)
@@ -626,7 +806,15 @@ function armctl.dissector(tvb, pinfo, tree)
     root:append_text(string.format(", %s, seq %d", name, seq))
     local summary
     verdict = crc_good and 0 or 1
-    if crc_good then
+    if crc_good and tag == 0x50 then
+        -- The inner frame's dissection fills in the verdict and Info; the envelope's own
+        -- fields and MAC wrap them.
+        local summary_auth = dissect_auth(tvb, pinfo, root, to_controller, len)
+        last_info = string.format("%s AUTH seq=%d %s", to_controller and "->" or "<-", seq,
+            summary_auth or "[bad length]")
+        pinfo.cols.info = last_info
+        return len
+    elseif crc_good then
         local dissectors = to_controller and host_dissectors or controller_dissectors
         local other = to_controller and controller_dissectors or host_dissectors
         local dissect = dissectors[tag]
@@ -659,6 +847,7 @@ function armctl.dissector(tvb, pinfo, tree)
     local a = analysis[pinfo.number]
     if a and a.retransmission_of then info = info .. " [retransmission]" end
     pinfo.cols.info = info
+    last_info = info
     return len
 end
 

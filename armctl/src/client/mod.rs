@@ -18,6 +18,7 @@ use crate::interrupt::{CANCEL_POLL, Cancel};
 use crate::pcap::PcapLog;
 use crate::rtt::{DEFAULT_MIN_RTO, RESEND_HORIZON, RttEstimator};
 
+pub mod auth;
 mod receiver;
 
 pub(crate) use receiver::{AckWaiter, Event, lock};
@@ -50,6 +51,10 @@ pub struct Options {
     /// system). The controller's owner is an IP address: another local address such as
     /// 127.0.0.2 is another host to it.
     pub bind: Option<SocketAddr>,
+    /// The controller's key (docs/PROTOCOL.md section 13): with it every frame but
+    /// STOPPED, DISCOVER and HELLO goes in an envelope, after a HELLO opened a session,
+    /// and only sealed reports (and plain refusals) are taken.
+    pub key: Option<protocol::auth::AuthKey>,
 }
 
 impl Default for Options {
@@ -60,6 +65,7 @@ impl Default for Options {
             attempts: 10,
             report_timeout: Duration::from_millis(300),
             bind: None,
+            key: None,
         }
     }
 }
@@ -131,6 +137,7 @@ impl Client {
         let rx_socket = socket.try_clone()?;
         rx_socket.set_read_timeout(Some(RECEIVER_POLL))?;
         let shared = Arc::new(Shared::default());
+        *lock(&shared.auth) = options.key.map(auth::HostAuth::new);
         let thread_shared = shared.clone();
         let receiver = std::thread::Builder::new()
             .name("armctl-rx".into())
@@ -182,7 +189,107 @@ impl Client {
         *lock(&self.shared.pcap) = Some(pcap);
     }
 
+    /// Sends `frame`, sealed in the session (opened first if need be) when a key is
+    /// given: each send, a resend too, gets a counter of its own.
     pub(crate) fn send_bytes(&self, frame: &[u8]) -> Result<()> {
+        let tag = frame.get(1).copied().unwrap_or(0);
+        let plain = [Tag::Stopped, Tag::Discover, Tag::Hello]
+            .iter()
+            .any(|t| *t as u8 == tag);
+        if plain || lock(&self.shared.auth).is_none() {
+            return self.send_datagram(frame);
+        }
+        let sealed = lock(&self.shared.auth).as_mut().and_then(|a| a.seal(frame));
+        let sealed = match sealed {
+            Some(sealed) => sealed,
+            None => {
+                self.hello()?;
+                lock(&self.shared.auth)
+                    .as_mut()
+                    .and_then(|a| a.seal(frame))
+                    .ok_or_else(|| Error::Auth("no session after HELLO".into()))?
+            }
+        };
+        self.send_datagram(&sealed)
+    }
+
+    /// Opens a session (HELLO), resending at most `attempts` times.
+    pub fn hello(&self) -> Result<()> {
+        let mut nonce = [0u8; protocol::auth::NONCE_LEN];
+        auth::getrandom(&mut nonce)?;
+        let seq = self.alloc_seq();
+        let mut buf = [0u8; MAX_DATAGRAM];
+        let len = Command::Hello { nonce }.encode(seq, &mut buf)?;
+        match lock(&self.shared.auth).as_mut() {
+            Some(a) => {
+                a.reset();
+                a.pending_nonce = Some(nonce);
+            }
+            None => return Err(Error::Auth("no key given (--key-file)".into())),
+        }
+        let mut waiter = self.waiter();
+        waiter.expect(seq);
+        let started = Instant::now();
+        for _ in 0..self.options.attempts {
+            self.send_datagram(&buf[..len])?;
+            let deadline = Instant::now() + self.rto();
+            loop {
+                let left = deadline.saturating_duration_since(Instant::now());
+                match waiter.rx.recv_timeout(left) {
+                    Ok(Event::Hello) => return Ok(()),
+                    Ok(Event::WrongKey) => {
+                        return Err(Error::Auth(
+                            "the controller's key is not this key (HELLO_REPLY does not verify)"
+                                .into(),
+                        ));
+                    }
+                    Ok(Event::Ack(_, ack)) if ack.acked_tag == Tag::Hello as u8 => {
+                        return Err(match ack.status {
+                            StatusCode::BadState => Error::Auth(
+                                "the controller has no key set (HELLO refused BAD_STATE); \
+                                 set one with `armctl key set`"
+                                    .into(),
+                            ),
+                            status => Error::Refused {
+                                command: Tag::Hello,
+                                status,
+                                state: ack.state,
+                            },
+                        });
+                    }
+                    Ok(Event::Refused) if self.fails_fast_when_refused() => {
+                        return Err(Error::ConnectionRefused { addr: self.addr });
+                    }
+                    Ok(_) => continue,
+                    Err(_) => break,
+                }
+            }
+        }
+        Err(Error::NoReply {
+            command: Tag::Hello,
+            attempts: self.options.attempts,
+            waited: started.elapsed(),
+            to: self.addr,
+        })
+    }
+
+    /// SET_KEY: stores `key` in the controller (`None`: clears it). The first key is
+    /// accepted plain (from the owner); a key set already is changed or cleared only in a
+    /// session of the current key (this client's `key`). The controller drops every
+    /// session: this client forgets its own and, with `key` set, takes it as its key.
+    pub fn set_key(&self, key: Option<protocol::auth::AuthKey>) -> Result<Ack> {
+        let ack = self.send(&Command::SetKey(key))?;
+        let mut auth = lock(&self.shared.auth);
+        *auth = key.map(auth::HostAuth::new);
+        Ok(ack)
+    }
+
+    /// Whether a key was given.
+    pub fn keyed(&self) -> bool {
+        lock(&self.shared.auth).is_some()
+    }
+
+    fn send_datagram(&self, frame: &[u8]) -> Result<()> {
         // Recorded before it leaves: the receiver thread may record the answer before
         // this thread returns from `send`, and a capture must keep the order on the wire.
         if let Some(pcap) = lock(&self.shared.pcap).as_ref() {
@@ -263,8 +370,21 @@ impl Client {
                 };
                 match waiter.rx.recv_timeout(slice) {
                     Ok(Event::Ack(_, ack)) if ack.acked_tag != tag as u8 => continue,
+                    // A HELLO's answer: only `hello` waits for those.
+                    Ok(Event::Hello | Event::WrongKey) => continue,
                     // Damaged on the way: send it again at once.
                     Ok(Event::Ack(_, ack)) if ack.status == StatusCode::BadCrc => break,
+                    // The session is gone (the controller was reset, or gave the slot
+                    // to another HELLO): open another, and resend in it. The inner frame
+                    // is the same, so a copy that did arrive is a duplicate there.
+                    Ok(Event::Ack(_, ack))
+                        if ack.status == StatusCode::AuthFailed && self.keyed() =>
+                    {
+                        if let Some(a) = lock(&self.shared.auth).as_mut() {
+                            a.reset();
+                        }
+                        break;
+                    }
                     Ok(Event::Ack(_, ack)) => {
                         if sent == 1 {
                             // Karn's rule: only a frame sent once times the round trip.

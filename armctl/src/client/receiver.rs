@@ -10,6 +10,7 @@ use std::time::Duration;
 
 use protocol::{Ack, Location, MAX_DATAGRAM, Report, StatusReport};
 
+use super::auth::Opened;
 use crate::pcap::PcapLog;
 
 /// What a waiter for ACKs hears from the receiver thread.
@@ -19,6 +20,10 @@ pub(crate) enum Event {
     Ack(u8, Ack),
     /// The system reported the controller's port unreachable (ICMP): nothing listens there.
     Refused,
+    /// The HELLO waited for opened a session.
+    Hello,
+    /// The HELLO_REPLY waited for does not verify: another key.
+    WrongKey,
 }
 
 /// Where the ACKs of a seq go.
@@ -41,6 +46,8 @@ pub(crate) struct Shared {
     pub(super) undecodable: AtomicU64,
     /// Where every datagram sent and received is written ([`Client::capture`]).
     pub(super) pcap: Mutex<Option<Arc<PcapLog>>>,
+    /// With a key: the session, and sealing and opening.
+    pub(super) auth: Mutex<Option<super::auth::HostAuth>>,
 }
 
 /// Locks a mutex even if a thread panicked while holding it: the data here (channel lists,
@@ -75,6 +82,29 @@ impl Shared {
     }
 
     fn deliver(&self, datagram: &[u8]) {
+        let opened = lock(&self.auth).as_mut().map(|a| a.open(datagram));
+        let inner;
+        let datagram = match opened {
+            None => datagram,
+            Some(Opened::Frame(bytes)) => {
+                inner = bytes;
+                &inner[..]
+            }
+            Some(Opened::Hello { seq }) | Some(Opened::WrongKey { seq }) => {
+                let event = match opened {
+                    Some(Opened::Hello { .. }) => Event::Hello,
+                    _ => Event::WrongKey,
+                };
+                if let Some((_, waiter)) = lock(&self.waiters).get(&seq) {
+                    let _ = waiter.send(event);
+                }
+                return;
+            }
+            Some(Opened::Dropped) => {
+                self.undecodable.fetch_add(1, Ordering::Relaxed);
+                return;
+            }
+        };
         let Ok(frame) = Report::decode(datagram) else {
             self.undecodable.fetch_add(1, Ordering::Relaxed);
             return;

@@ -582,7 +582,7 @@ impl Upload<'_, '_> {
                         addr: self.controller.addr(),
                     });
                 }
-                Ok(Event::Refused) => {}
+                Ok(Event::Refused | Event::Hello | Event::WrongKey) => {}
                 Err(RecvTimeoutError::Timeout) | Err(RecvTimeoutError::Disconnected) => {
                     let overdue = self.resume.is_none()
                         && self.base < self.next_send

@@ -30,6 +30,40 @@ pub const NET_KEY: u8 = 2;
 /// Bytes of the network record: `gateway[4]`, flags (bit 0: DHCP), reserved.
 pub const NET_RECORD_LEN: usize = 6;
 
+/// Map key of the authentication record (issue 21): the key and the boot epoch, beside
+/// the others so that a flash written before it loads with no key.
+pub const AUTH_KEY: u8 = 3;
+/// Bytes of the authentication record: flags (bit 0: a key is set), 3 reserved, the epoch
+/// (u32 LE), the key (zeros without one).
+pub const AUTH_RECORD_LEN: usize = 4 + 4 + protocol::auth::KEY_LEN;
+
+/// The stored authentication record for `settings`.
+pub fn encode_auth(settings: &PersistentSettings) -> [u8; AUTH_RECORD_LEN] {
+    let [e0, e1, e2, e3] = settings.auth_epoch.to_le_bytes();
+    let head = [u8::from(settings.key.is_some()), 0, 0, 0, e0, e1, e2, e3];
+    let key = settings.key.map_or([0; protocol::auth::KEY_LEN], |k| k.0);
+    let mut record = [0u8; AUTH_RECORD_LEN];
+    for (r, b) in record.iter_mut().zip(head.iter().chain(&key)) {
+        *r = *b;
+    }
+    record
+}
+
+/// `settings` with the key and epoch of a stored authentication record.
+pub fn decode_auth(
+    settings: PersistentSettings,
+    record: &[u8; AUTH_RECORD_LEN],
+) -> PersistentSettings {
+    let (head, key) = record.split_first_chunk::<8>().unwrap_or((&[0; 8], &[]));
+    let [flags, _, _, _, e0, e1, e2, e3] = *head;
+    let key: Option<[u8; protocol::auth::KEY_LEN]> = key.try_into().ok();
+    PersistentSettings {
+        key: key.filter(|_| flags & 1 != 0).map(protocol::auth::AuthKey),
+        auth_epoch: u32::from_le_bytes([e0, e1, e2, e3]),
+        ..settings
+    }
+}
+
 /// The stored record for `settings`.
 pub const fn encode(settings: &PersistentSettings) -> [u8; RECORD_LEN] {
     let [a, b, c, d] = settings.ip;
@@ -172,10 +206,16 @@ impl<F: NorFlash> SettingsArea<F> {
         &mut self,
         settings: PersistentSettings,
     ) -> Result<PersistentSettings, StoreError<F::Error>> {
-        Ok(match self.fetch_record::<NET_RECORD_LEN>(&NET_KEY).await? {
+        let settings = match self.fetch_record::<NET_RECORD_LEN>(&NET_KEY).await? {
             Some(net) => decode_net(settings, &net),
             None => settings,
-        })
+        };
+        Ok(
+            match self.fetch_record::<AUTH_RECORD_LEN>(&AUTH_KEY).await? {
+                Some(auth) => decode_auth(settings, &auth),
+                None => settings,
+            },
+        )
     }
 
     /// The record stored under `key`, if any, read as `[u8; N]`'s own `Value` impl reads
@@ -245,6 +285,13 @@ impl<F: NorFlash> SettingsArea<F> {
                 &NET_KEY,
                 &encode_net(settings).as_slice(),
             )
+            .await?;
+        self.map
+            .store_item::<&[u8]>(
+                &mut self.buffer.0,
+                &AUTH_KEY,
+                &encode_auth(settings).as_slice(),
+            )
             .await
     }
 
@@ -271,7 +318,31 @@ mod tests {
             prefix_len: 16,
             gateway: [10, 0, 0, 1],
             dhcp: false,
+            key: None,
+            auth_epoch: 0,
         }
+    }
+
+    #[test]
+    fn the_key_and_its_epoch_are_stored_and_an_older_flash_loads_without_a_key() {
+        let keyed = PersistentSettings {
+            key: Some(protocol::auth::AuthKey([9; protocol::auth::KEY_LEN])),
+            auth_epoch: 5,
+            ..custom()
+        };
+        let mut area = SettingsArea::new(Flash::default(), RANGE);
+        block_on(area.save(&keyed)).unwrap();
+        assert_eq!(block_on(area.load()), LoadOutcome::Stored(keyed));
+        let cleared = PersistentSettings { key: None, ..keyed };
+        block_on(area.save(&cleared)).unwrap();
+        assert_eq!(block_on(area.load()), LoadOutcome::Stored(cleared));
+        // A flash written before issue 21 has no authentication record: no key.
+        let mut old = SettingsArea::new(Flash::default(), RANGE);
+        let first: &[u8] = &encode(&custom());
+        let net: &[u8] = &encode_net(&custom());
+        block_on(old.map.store_item(&mut old.buffer.0, &SETTINGS_KEY, &first)).unwrap();
+        block_on(old.map.store_item(&mut old.buffer.0, &NET_KEY, &net)).unwrap();
+        assert_eq!(block_on(old.load()), LoadOutcome::Stored(custom()));
     }
 
     #[test]

@@ -366,6 +366,12 @@ async fn main(spawner: Spawner) -> ! {
     let serial_port = SERIAL.init(BoardSerial::new(uart, serial_rx, serial_tx));
 
     let mut settings = FlashSettings::new(Flash::new(p.FLASH, Irqs));
+    // The user button B1 (PC13; pressed = high, the NUCLEO's own pull-down) held at reset
+    // clears the authentication key (issue 21): the way back when the key is lost needs
+    // a hand on the board, never the network.
+    let user_button = embassy_stm32::gpio::Input::new(p.PC13, embassy_stm32::gpio::Pull::Down);
+    settings.set_clear_key(user_button.is_high());
+    drop(user_button);
     let persistent = settings.read().await.settings();
 
     let encoder_uart =

@@ -3,7 +3,7 @@
 //! Every pin is on a ST Zio connector (CN7-CN10), and none is one the board itself uses:
 //! the RMII Ethernet (PA1, PA2, PA7, PB13, PC1, PC4, PC5, PG11, PG13), the ST-LINK (PA13,
 //! PA14, PB3 SWD/SWO; PD8, PD9 virtual COM port; PH0 MCO), USB OTG (PA8-PA12, PG6, PG7),
-//! the green and yellow LEDs (PB0, PE1) and the user button (PC13) are all left alone. The
+//! the green and yellow LEDs (PB0, PE1) are left alone; the user button (PC13) is read once at boot (held: the authentication key is cleared, issue 21). The
 //! red LED's PB14 is the encoder bus's UART4_DE (AF8; `encoder.rs`): UART4's other DE pin,
 //! PA15, is joint 0's STEP.
 //!

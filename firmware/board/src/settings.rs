@@ -94,6 +94,9 @@ const CCR_CLEAR_ALL: u32 = 0x1FEF_0000;
 /// [`arm_core::hw::SettingsStore`] on the internal flash.
 pub struct FlashSettings {
     area: SettingsArea<UpkeptFlash<Flash<'static, Async>, Bank2Upkeep>>,
+    /// The user button (B1, PC13) was held at reset: the stored key is cleared at load
+    /// (docs/PROTOCOL.md section 13: the way back when the key is lost).
+    clear_key: bool,
 }
 
 impl FlashSettings {
@@ -104,7 +107,13 @@ impl FlashSettings {
                 UpkeptFlash::new(flash, Bank2Upkeep),
                 SETTINGS_START..SETTINGS_END,
             ),
+            clear_key: false,
         }
+    }
+
+    /// Clears a stored key at the next load (the user button held at reset).
+    pub fn set_clear_key(&mut self, clear: bool) {
+        self.clear_key = clear;
     }
 
     /// Reads the settings (marker set around the read, area erased first if the previous
@@ -130,6 +139,12 @@ impl arm_core::hw::SettingsStore for FlashSettings {
 
     async fn load(&mut self) -> Result<Option<PersistentSettings>, Self::Error> {
         Ok(match self.read().await {
+            LoadOutcome::Stored(s) if self.clear_key && s.key.is_some() => {
+                let cleared = PersistentSettings { key: None, ..s };
+                self.save(&cleared).await?;
+                warn!("settings: user button held at reset: authentication key cleared");
+                Some(cleared)
+            }
             LoadOutcome::Stored(s) => Some(s),
             _ => None,
         })

@@ -4,6 +4,12 @@
 //! Every datagram goes through these checks, in this order; the first that fails decides
 //! the ACK's status and nothing further is done:
 //! 1. **length**: fewer than 3 bytes: no reply at all.
+//! 1a. **authentication**, only with a key set (docs/PROTOCOL.md section 13,
+//!    `authenticate`): a plain frame with a wrong CRC is `BAD_CRC` with the NOT_OWNER
+//!    zeros; plain STOPPED and DISCOVER go on; HELLO opens a session (a HELLO_REPLY, no
+//!    ACK); an envelope whose MAC, session and counter verify is replaced by its inner
+//!    frame, which every check below then takes; anything else is `AUTH_REQUIRED` (plain)
+//!    or `AUTH_FAILED` (an envelope), with the NOT_OWNER zeros, before it can take the owner.
 //! 2. **CRC**: `BAD_CRC`, ACKed to the sender with the frame's seq and tag. A frame with a
 //!    bad CRC never changes the owner.
 //! 3. **STOPPED**: a CRC-valid STOPPED stops the arm and is ACKed `OK`, from any
@@ -101,6 +107,7 @@ use protocol::{
 };
 use protocol::{DecodeError, DecodeErrorKind};
 
+use crate::auth::Sessions;
 use crate::buffer::{StoredPoint, TrajectoryBuffer};
 use crate::config::{ControllerConfig, HOST_WINDOW, OWNER_TIMEOUT_US};
 use crate::hw::{EncoderFault, Endpoint, PersistentSettings};
@@ -108,7 +115,7 @@ use crate::link::{FrameKey, RecentFrames, UploadOrder};
 use crate::plan::ReturnPlan;
 use crate::plant::Plant;
 use crate::reports::{LOCATION_LISTENERS, Listener, ReportSettings};
-use crate::response::{Deferred, Discovery, Reply, Response};
+use crate::response::{Deferred, Discovery, HelloGrant, Reply, Response};
 use crate::uart::uart_frame;
 
 mod boot;
@@ -214,6 +221,11 @@ pub struct Controller<const CAP: usize> {
     location_claimer: Option<Endpoint>,
     /// What DISCOVER replies may still be sent ([`DISCOVER_REPLIES_PER_S`]).
     discover_budget: ReplyBudget,
+    /// What HELLO replies may still be sent (the same bound as DISCOVER's: a 62-byte
+    /// reply to a 19-byte request, to whatever address it names).
+    hello_budget: ReplyBudget,
+    /// Authenticated sessions (with a key set).
+    sessions: Sessions,
     /// The latest time the controller was told (by [`Controller::handle`] or
     /// [`Controller::note_time`]): what it knows of "now" when a run ends, which it notices
     /// without a clock.
@@ -273,6 +285,28 @@ impl<const CAP: usize> Controller<CAP> {
         self.step_budget_hz = hz;
     }
 
+    /// With a key stored: this boot's epoch (one more than the stored one), in the
+    /// settings to store before HELLO is answered ([`Controller::auth_epoch_stored`]).
+    /// `None` without a key.
+    pub fn begin_auth_epoch(&mut self) -> Option<PersistentSettings> {
+        self.settings.key?;
+        self.settings.auth_epoch = self.settings.auth_epoch.wrapping_add(1);
+        Some(self.settings)
+    }
+
+    /// The epoch [`Controller::begin_auth_epoch`] chose is stored: HELLO is answered.
+    pub fn auth_epoch_stored(&mut self) {
+        if let Some(key) = self.settings.key {
+            self.sessions
+                .start_epoch(u64::from(self.settings.auth_epoch), &key);
+        }
+    }
+
+    /// Whether a key is set.
+    pub fn keyed(&self) -> bool {
+        self.settings.key.is_some()
+    }
+
     /// The settings as they should be stored.
     pub fn settings(&self) -> PersistentSettings {
         self.settings
@@ -325,6 +359,7 @@ impl<const CAP: usize> Controller<CAP> {
             reports_on: self.reports_on,
             upload_period_us: self.upload_period_us,
             state: self.state,
+            seal: self.sessions.routes(self.settings.key.is_some()),
         }
     }
 
@@ -438,6 +473,16 @@ impl<const CAP: usize> Controller<CAP> {
     ) -> Response {
         let mut response = Response::default();
         // 1. length
+        if datagram.len() < protocol::FRAME_OVERHEAD {
+            return response;
+        }
+        // Authentication (docs/PROTOCOL.md section 13): with a key, an envelope that
+        // verifies is replaced by its inner frame; STOPPED and DISCOVER pass plain; HELLO
+        // is answered here; anything else is refused before it can take the owner.
+        let datagram = match self.authenticate(from, datagram, now_us, &mut response) {
+            Some(inner) => inner,
+            None => return response,
+        };
         let [seq, tag, .., crc] = *datagram else {
             return response;
         };
@@ -545,6 +590,90 @@ impl<const CAP: usize> Controller<CAP> {
         self.pump(plant);
         response.reply = reply(self, status);
         response
+    }
+
+    /// The authentication gate: the frame the checks below take (`datagram` itself, or
+    /// an envelope's inner frame), or `None` with `response` filled in (a refusal, or a
+    /// HELLO's answer).
+    fn authenticate<'d>(
+        &mut self,
+        from: Endpoint,
+        datagram: &'d [u8],
+        now_us: u64,
+        response: &mut Response,
+    ) -> Option<&'d [u8]> {
+        use protocol::auth::{Direction, Envelope};
+        let [seq, tag, ..] = *datagram else {
+            return None;
+        };
+        let refuse = |response: &mut Response, status| {
+            response.reply = Some(blank_ack(from, seq, tag, status));
+            None
+        };
+        let crc_ok = protocol::crc8(datagram.split_last().map_or(&[][..], |(_, b)| b))
+            == datagram.last().copied().unwrap_or(0);
+        // No key: every frame as before issue 21 (an envelope is UNSUPPORTED, a HELLO
+        // BAD_STATE, after the owner rule like any frame).
+        if self.settings.key.is_none() {
+            return Some(datagram);
+        }
+        if !crc_ok {
+            // A stranger learns nothing (a key holder's frames are envelopes).
+            return refuse(response, StatusCode::BadCrc);
+        }
+        if tag == Tag::Stopped as u8 || tag == Tag::Discover as u8 {
+            return Some(datagram);
+        }
+        if tag == Tag::Hello as u8 {
+            let Ok(protocol::Frame {
+                body: Command::Hello { nonce },
+                ..
+            }) = Command::decode(datagram)
+            else {
+                return refuse(response, StatusCode::BadLength);
+            };
+            if !self.sessions.ready() {
+                return refuse(response, StatusCode::BadState);
+            }
+            if !self.hello_budget.take(now_us) {
+                return None;
+            }
+            let session = self.sessions.open(from, now_us);
+            response.hello = Some(HelloGrant {
+                to: from,
+                seq,
+                reply: protocol::auth::HelloReply {
+                    nonce,
+                    epoch: self.sessions.epoch(),
+                    session,
+                },
+            });
+            return None;
+        }
+        if tag != Tag::Auth as u8 {
+            return refuse(response, StatusCode::AuthRequired);
+        }
+        // The outer CRC was checked above; the inner frame's is checked when it is
+        // decoded (a damaged one is BAD_CRC there, as any frame).
+        let Ok(envelope) = Envelope::split(datagram) else {
+            return refuse(response, StatusCode::BadLength);
+        };
+        let epoch = self.sessions.epoch();
+        // No epoch started yet (it is being stored): no session either.
+        let Some(key) = self.sessions.mac_key().copied() else {
+            return refuse(response, StatusCode::AuthFailed);
+        };
+        let verified = self.sessions.accept(
+            envelope.session,
+            envelope.counter,
+            || envelope.verify_with(&key, Direction::ToController, epoch),
+            from,
+            now_us,
+        );
+        match verified {
+            Ok(()) => Some(envelope.inner),
+            Err(_) => refuse(response, StatusCode::AuthFailed),
+        }
     }
 
     /// The owner (whose address `from` has) spoke at `now_us`: its silence and that of
@@ -745,6 +874,23 @@ impl<const CAP: usize> Controller<CAP> {
                     return Err(StatusCode::EstopLatched);
                 }
                 self.more_flags.set(MoreFlags::ESTOP_LATCHED, false);
+            }
+            // With a key it is answered by `authenticate`; without one (or inside an
+            // envelope) there is no session to open.
+            Command::Hello { .. } => return Err(StatusCode::BadState),
+            // With a key this arrived in an envelope (`authenticate` refuses it plain).
+            // A new key starts a new epoch (every session ends: the ACK goes plain);
+            // stored before the next datagram is handled.
+            Command::SetKey(key) => {
+                self.settings.key = key;
+                if let Some(key) = key {
+                    self.settings.auth_epoch = self.settings.auth_epoch.wrapping_add(1);
+                    self.sessions
+                        .start_epoch(u64::from(self.settings.auth_epoch), &key);
+                } else {
+                    self.sessions.close();
+                }
+                response.deferred = Some(Deferred::SaveSettings(self.settings));
             }
             // Stored now, applied after the next reset (docs/PROTOCOL.md, "Finding controllers").
             Command::NetSet(net) => {

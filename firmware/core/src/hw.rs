@@ -124,6 +124,13 @@ pub struct PersistentSettings {
     pub gateway: [u8; 4],
     /// Take the address from DHCP instead of `ip`/`prefix_len` (NET_SET).
     pub dhcp: bool,
+    /// The authentication key (SET_KEY; docs/PROTOCOL.md section 13), `None`: no key,
+    /// every frame is taken as before issue 21.
+    pub key: Option<protocol::auth::AuthKey>,
+    /// The boot epoch of the last boot with a key (one more at each such boot, stored
+    /// before any HELLO is answered): part of every MAC, so no frame of an earlier boot
+    /// verifies.
+    pub auth_epoch: u32,
 }
 
 impl PersistentSettings {
@@ -134,6 +141,8 @@ impl PersistentSettings {
         prefix_len: 24,
         gateway: [0; 4],
         dhcp: false,
+        key: None,
+        auth_epoch: 0,
     };
 
     /// The network part, as NET_SET and DISCOVER_REPLY carry it.

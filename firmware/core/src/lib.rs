@@ -87,6 +87,7 @@ extern crate std;
 // This must go first so that the other modules see its macros.
 mod fmt;
 
+pub mod auth;
 pub mod buffer;
 pub mod bus;
 pub mod config;

@@ -5,13 +5,80 @@ use protocol::{Location, MAX_SERIAL_CHUNK, Report, StatusReport, size};
 
 use crate::hw::Endpoint;
 use crate::reports::{LOCATION_LISTENERS, ReportSettings};
-use crate::response::{Discovery, Reply};
+use crate::response::{Discovery, HelloGrant, Reply};
 
 /// Where one encoded frame goes.
 pub type Destinations = Vec<Endpoint, LOCATION_LISTENERS>;
 
 /// Largest frame the controller sends: USART_RECV (257 data bytes) + seq, tag and CRC.
 pub const MAX_REPORT_FRAME: usize = size::USART_RECV + protocol::FRAME_OVERHEAD;
+
+/// Largest sealed frame: the largest report in an envelope.
+pub const MAX_SEALED_FRAME: usize = MAX_REPORT_FRAME + protocol::auth::ENVELOPE_OVERHEAD;
+
+/// Seals frames for the endpoints holding a session (with a key set), counting the
+/// controller's envelopes: one counter for every session, from 1 at boot (the epoch in
+/// the MAC tells boots apart), so each session sees its counters rise.
+#[derive(Clone, Debug, Default)]
+pub struct Sealer {
+    counter: u64,
+}
+
+/// How a frame goes to one endpoint.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Sealing {
+    /// As it is: no key (as before issue 21), a DISCOVER_REPLY, or an ACK to a host
+    /// without a session (a refusal: it says nothing about the arm).
+    Plain,
+    /// In an envelope of this many bytes, written to the sealing buffer.
+    Sealed(usize),
+    /// Not at all: a report, with a key set, to an endpoint without a session.
+    Withheld,
+}
+
+impl Sealer {
+    /// Starts counting at 1.
+    pub const fn new() -> Self {
+        Sealer { counter: 0 }
+    }
+
+    /// How `frame` (the encoding of `out`) goes to `to`; a sealed one is written to `buf`
+    /// ([`MAX_SEALED_FRAME`] bytes).
+    pub fn seal(
+        &mut self,
+        out: &Outgoing,
+        frame: &[u8],
+        to: Endpoint,
+        routes: &crate::auth::SealRoutes,
+        buf: &mut [u8],
+    ) -> Sealing {
+        let Some(key) = routes.key else {
+            return Sealing::Plain;
+        };
+        if matches!(out, Outgoing::Discovery(_)) {
+            return Sealing::Plain;
+        }
+        match routes.session_of(to) {
+            Some(session) => {
+                self.counter += 1;
+                match protocol::auth::seal_with(
+                    &key,
+                    protocol::auth::Direction::ToHost,
+                    routes.epoch,
+                    session,
+                    self.counter,
+                    frame,
+                    buf,
+                ) {
+                    Ok(n) => Sealing::Sealed(n),
+                    Err(_) => Sealing::Withheld,
+                }
+            }
+            None if matches!(out, Outgoing::Ack(_)) => Sealing::Plain,
+            None => Sealing::Withheld,
+        }
+    }
+}
 
 /// One frame to send.
 // Sized by USART_RECV's 255 bytes on purpose: channel slots hold the largest variant
@@ -30,6 +97,8 @@ pub enum Outgoing {
     UsartRecv(Vec<u8, MAX_SERIAL_CHUNK>),
     /// A DISCOVER_REPLY, to the DISCOVER's sender, with its seq.
     Discovery(Discovery),
+    /// A HELLO_REPLY, to the HELLO's sender, with its seq (sealed in its new session).
+    Hello(HelloGrant),
 }
 
 /// Encodes [`Outgoing`] frames. Reports (everything but ACKs) carry the controller's own
@@ -73,6 +142,9 @@ impl ReportEncoder {
             // Like an ACK: the asker's seq, not the report counter.
             return Some((one(d.to), d.reply.encode(d.seq, buf).ok()?));
         }
+        if let Outgoing::Hello(h) = out {
+            return Some((one(h.to), h.reply.encode(h.seq, buf).ok()?));
+        }
         let (to, seq, report) = match out {
             Outgoing::Ack(reply) => (one(reply.to), reply.seq, Report::Ack(reply.ack)),
             Outgoing::Status(to, s) => (one(*to), self.next_seq, Report::Status(*s)),
@@ -88,7 +160,7 @@ impl ReportEncoder {
                 self.next_seq,
                 Report::UsartRecv(bytes),
             ),
-            Outgoing::Discovery(_) => return None,
+            Outgoing::Discovery(_) | Outgoing::Hello(_) => return None,
         };
         let n = report.encode(seq, buf).ok()?;
         if !matches!(out, Outgoing::Ack(_)) {

@@ -75,6 +75,9 @@ pub struct ReportSettings {
     pub upload_period_us: u32,
     /// The trajectory state.
     pub state: State,
+    /// With a key: which endpoints hold a session, and what sealing needs (reports go to
+    /// those endpoints only, sealed).
+    pub seal: crate::auth::SealRoutes,
 }
 
 impl ReportSettings {
@@ -106,6 +109,7 @@ impl ReportSettings {
         reports_on: false,
         upload_period_us: 0,
         state: State::New,
+        seal: crate::auth::SealRoutes::NONE,
     };
 
     /// Boot values: reports on at the default period, nobody to send them to yet.

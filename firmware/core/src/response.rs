@@ -48,6 +48,21 @@ pub struct Response {
     pub executed: bool,
     /// The answer to a DISCOVER, for its sender (instead of an ACK).
     pub discovery: Option<Discovery>,
+    /// The answer to a HELLO, for its sender (instead of an ACK), sealed in the new
+    /// session.
+    pub hello: Option<HelloGrant>,
+}
+
+/// A HELLO_REPLY for the host that asked (docs/PROTOCOL.md section 13).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct HelloGrant {
+    /// The HELLO's sender.
+    pub to: Endpoint,
+    /// The HELLO's seq.
+    pub seq: u8,
+    /// Content.
+    pub reply: protocol::auth::HelloReply,
 }
 
 /// A DISCOVER_REPLY for the host that asked (docs/PROTOCOL.md, "Finding controllers and

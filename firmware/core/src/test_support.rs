@@ -306,6 +306,41 @@ pub struct Session<const CAP: usize> {
     pub seq: u8,
     /// Where [`Session::send`] sends from.
     pub from: Endpoint,
+    /// A session opened with HELLO: [`Session::send`] seals its frames.
+    pub auth: Option<HostAuth>,
+}
+
+/// A host's side of an authenticated session (docs/PROTOCOL.md section 13).
+#[derive(Clone, Copy, Debug)]
+pub struct HostAuth {
+    /// The key.
+    pub key: protocol::auth::AuthKey,
+    /// The controller's boot epoch (HELLO_REPLY).
+    pub epoch: u64,
+    /// The session (HELLO_REPLY).
+    pub session: u32,
+    /// The last counter used.
+    pub counter: u64,
+}
+
+impl HostAuth {
+    /// `inner` in an envelope with the next counter.
+    pub fn seal(&mut self, inner: &[u8]) -> Vec<u8> {
+        self.counter += 1;
+        let mut buf = std::vec![0u8; protocol::MAX_DATAGRAM];
+        let n = protocol::auth::seal(
+            &self.key,
+            protocol::auth::Direction::ToController,
+            self.epoch,
+            self.session,
+            self.counter,
+            inner,
+            &mut buf,
+        )
+        .expect("sealable");
+        buf.truncate(n);
+        buf
+    }
 }
 
 impl<const CAP: usize> Session<CAP> {
@@ -317,7 +352,29 @@ impl<const CAP: usize> Session<CAP> {
             now_us: 1_000,
             seq: 0,
             from: HOST,
+            auth: None,
         }
+    }
+
+    /// Opens a session with `key` by HELLO from [`Session::from`]: later frames are
+    /// sealed. Panics if the controller does not grant one.
+    pub fn hello(&mut self, key: protocol::auth::AuthKey) -> HostAuth {
+        self.seq = self.seq.wrapping_add(1);
+        let nonce = [self.seq; protocol::auth::NONCE_LEN];
+        let bytes = frame(self.seq, Command::Hello { nonce });
+        let grant = self
+            .send_raw(self.from, &bytes)
+            .hello
+            .expect("a HELLO_REPLY");
+        assert_eq!(grant.reply.nonce, nonce);
+        let auth = HostAuth {
+            key,
+            epoch: grant.reply.epoch,
+            session: grant.reply.session,
+            counter: 0,
+        };
+        self.auth = Some(auth);
+        auth
     }
 
     /// Sends raw bytes from `from`.
@@ -330,7 +387,10 @@ impl<const CAP: usize> Session<CAP> {
     /// Sends a command with the next seq; returns the ACK.
     pub fn send(&mut self, cmd: Command<'_>) -> Ack {
         self.seq = self.seq.wrapping_add(1);
-        let bytes = frame(self.seq, cmd);
+        let mut bytes = frame(self.seq, cmd);
+        if let Some(auth) = self.auth.as_mut() {
+            bytes = auth.seal(&bytes);
+        }
         self.send_raw(self.from, &bytes).reply.expect("an ACK").ack
     }
 

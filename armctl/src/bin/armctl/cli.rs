@@ -35,6 +35,10 @@ pub struct Cli {
     /// Local address to send from (e.g. 127.0.0.2:0 to act as another host).
     #[arg(long, global = true, env = "ARMCTL_BIND", value_name = "ADDR:PORT")]
     pub bind: Option<std::net::SocketAddr>,
+    /// The controller's authentication key: a file of 64 hex digits (docs/PROTOCOL.md
+    /// section 13). With it every frame but STOPPED goes authenticated.
+    #[arg(long, global = true, env = "ARMCTL_KEY_FILE", value_name = "FILE")]
+    pub key_file: Option<PathBuf>,
     /// Write every datagram sent and received to this pcap file (open it in Wireshark
     /// with tools/wireshark/arm_controller.lua).
     #[arg(long, global = true, value_name = "FILE")]
@@ -150,6 +154,25 @@ pub enum Cmd {
     Frame(FrameCmd),
     /// Draw a recorded run (CSV of LOCATION reports, or a sim-host VCD trace) as SVG.
     Plot(PlotArgs),
+    /// The authentication key (docs/PROTOCOL.md section 13).
+    #[command(subcommand)]
+    Key(KeyCmd),
+}
+
+/// `armctl key ...`.
+#[derive(Subcommand, Debug)]
+pub enum KeyCmd {
+    /// Print a new random key (64 hex digits) for a key file: `armctl key new > arm.key`.
+    New,
+    /// SET_KEY: store the key of FILE in the controller. The first time plain (as the
+    /// owner); to change a key set already, give the current one with --key-file.
+    Set {
+        /// The new key's file.
+        file: PathBuf,
+    },
+    /// SET_KEY with no key: the controller takes every frame plain again (needs the
+    /// current key, --key-file; lost: hold the user button at reset, or --clear-key).
+    Clear,
 }
 
 /// On or off.

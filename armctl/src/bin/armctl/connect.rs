@@ -13,6 +13,10 @@ pub fn connect(cli: &Cli) -> Result<Client, String> {
         ack_timeout: Duration::from_millis(cli.ack_timeout_ms.max(1)),
         attempts: cli.attempts.max(1),
         bind: cli.bind,
+        key: match &cli.key_file {
+            Some(path) => Some(armctl::auth::read_key_file(path)?),
+            None => None,
+        },
         ..Options::default()
     };
     let controller = Client::open(cli.controller.as_str(), options)

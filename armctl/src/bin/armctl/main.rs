@@ -79,6 +79,13 @@ fn execute(cli: Cli) -> CliResult {
         } => discover::execute(&cli, *to, *wait_ms, *rounds, *json),
         Cmd::Net(net::NetCmd::Show) => net::show(&cli),
         Cmd::Run(args) if args.dry_run => run::dry_run(args),
+        Cmd::Key(cli::KeyCmd::New) => {
+            println!(
+                "{}",
+                armctl::auth::new_key_hex().map_err(|e| e.to_string())?
+            );
+            Ok(())
+        }
         _ => {
             let arm = connect::connect(&cli)?;
             let result = execute_online(&cli, &arm);
@@ -113,9 +120,16 @@ fn execute_online(cli: &Cli, arm: &armctl::Client) -> CliResult {
         Cmd::Net(net::NetCmd::Set { ip, gateway, dhcp }) => {
             net::set(arm, ip.as_deref(), *gateway, *dhcp)
         }
-        Cmd::Frame(_) | Cmd::Plot { .. } | Cmd::Discover { .. } | Cmd::Net(net::NetCmd::Show) => {
-            Ok(())
+        Cmd::Key(cli::KeyCmd::Set { file }) => {
+            let key = armctl::auth::read_key_file(file)?;
+            single::done(arm.set_key(Some(key)))
         }
+        Cmd::Key(cli::KeyCmd::Clear) => single::done(arm.set_key(None)),
+        Cmd::Frame(_)
+        | Cmd::Plot { .. }
+        | Cmd::Discover { .. }
+        | Cmd::Net(net::NetCmd::Show)
+        | Cmd::Key(cli::KeyCmd::New) => Ok(()),
     }
 }
 

@@ -38,6 +38,8 @@ macro_rules! with_boot_fields {
         location_claimer: None,
         last_handled_us: 0,
         discover_budget: super::ReplyBudget::new(),
+        hello_budget: super::ReplyBudget::new(),
+        sessions: crate::auth::Sessions::new(),
         serial_to: None,
         more_flags: MoreFlags(0),
         reports_on: true,

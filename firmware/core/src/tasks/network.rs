@@ -7,7 +7,7 @@ use protocol::MAX_DATAGRAM;
 use crate::bus::{Bus, Datagram};
 use crate::hw::{Clock, Datagrams};
 use crate::log_limit::{LogLimit, LogVerdict};
-use crate::outgoing::{MAX_REPORT_FRAME, ReportEncoder};
+use crate::outgoing::{MAX_REPORT_FRAME, MAX_SEALED_FRAME, ReportEncoder, Sealer, Sealing};
 
 /// Receives datagrams and routes them ([`Bus::route`]), and sends what `bus.outbox`
 /// holds, both at once. ACKs and STATUS reports go to their requester, LOCATION and
@@ -39,6 +39,8 @@ pub async fn network_task<D: Datagrams, C: Clock>(socket: &D, bus: &Bus, clock: 
     let tx = async {
         let mut encoder = ReportEncoder::new();
         let mut buf = [0u8; MAX_REPORT_FRAME];
+        let mut sealer = Sealer::new();
+        let mut sealed = [0u8; MAX_SEALED_FRAME];
         let mut failures = LogLimit::new();
         let mut outbox_full = LogLimit::new();
         loop {
@@ -56,7 +58,13 @@ pub async fn network_task<D: Datagrams, C: Clock>(socket: &D, bus: &Bus, clock: 
                 continue;
             };
             for to in destinations {
-                if let Err(e) = socket.send(to, buf.get(..n).unwrap_or_default()).await
+                let frame = buf.get(..n).unwrap_or_default();
+                let bytes = match sealer.seal(&out, frame, to, &routes.seal, &mut sealed) {
+                    Sealing::Plain => frame,
+                    Sealing::Sealed(m) => sealed.get(..m).unwrap_or_default(),
+                    Sealing::Withheld => continue,
+                };
+                if let Err(e) = socket.send(to, bytes).await
                     && let LogVerdict::Log { suppressed } = failures.event(clock.now_us())
                 {
                     warn!(

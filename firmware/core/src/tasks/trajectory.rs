@@ -157,6 +157,17 @@ where
         Ok(None) => {}
         Err(e) => warn!("settings not loaded, using defaults: {:?}", debug_value!(e)),
     }
+    // With a key, this boot's epoch is stored before any HELLO is answered
+    // (docs/PROTOCOL.md section 13): a reset must never give two boots one epoch.
+    if let Some(next) = controller.begin_auth_epoch() {
+        match settings.save(&next).await {
+            Ok(()) => controller.auth_epoch_stored(),
+            Err(e) => warn!(
+                "auth epoch not stored, HELLO refused: {:?}",
+                debug_value!(e)
+            ),
+        }
+    }
     controller.set_pwm_timer_clock_hz(gripper.timer_clock_hz());
     outputs.set_enabled(controller.enabled());
     publish(bus, controller);
@@ -302,6 +313,9 @@ pub(super) fn deliver(bus: &Bus, response: &Response) {
     }
     if let Some(discovery) = response.discovery {
         bus.send(Outgoing::Discovery(discovery));
+    }
+    if let Some(hello) = response.hello {
+        bus.send(Outgoing::Hello(hello));
     }
 }
 
