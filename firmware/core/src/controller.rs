@@ -4,12 +4,13 @@
 //! Every datagram goes through these checks, in this order; the first that fails decides
 //! the ACK's status and nothing further is done:
 //! 1. **length**: fewer than 3 bytes: no reply at all.
-//! 1a. **authentication**, only with a key set (docs/PROTOCOL.md section 13,
-//!    `authenticate`): a plain frame with a wrong CRC is `BAD_CRC` with the NOT_OWNER
-//!    zeros; plain STOPPED and DISCOVER go on; HELLO opens a session (a HELLO_REPLY, no
-//!    ACK); an envelope whose MAC, session and counter verify is replaced by its inner
-//!    frame, which every check below then takes; anything else is `AUTH_REQUIRED` (plain)
-//!    or `AUTH_FAILED` (an envelope), with the NOT_OWNER zeros, before it can take the owner.
+//!    - then (1a) **authentication**, only with a key set (docs/PROTOCOL.md section 13,
+//!      `authenticate`): a plain frame with a wrong CRC is `BAD_CRC` with the NOT_OWNER
+//!      zeros; plain STOPPED and DISCOVER go on; HELLO opens a session (a HELLO_REPLY, no
+//!      ACK); an envelope whose MAC, session and counter verify is replaced by its inner
+//!      frame, which every check below then takes; anything else is `AUTH_REQUIRED`
+//!      (plain) or `AUTH_FAILED` (an envelope), with the NOT_OWNER zeros, before it can
+//!      take the owner.
 //! 2. **CRC**: `BAD_CRC`, ACKed to the sender with the frame's seq and tag. A frame with a
 //!    bad CRC never changes the owner.
 //! 3. **STOPPED**: a CRC-valid STOPPED stops the arm and is ACKed `OK`, from any
