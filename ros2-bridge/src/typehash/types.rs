@@ -1015,6 +1015,32 @@ pub(super) static COMMON: &[TypeDescription] = &[
         )],
     },
     TypeDescription {
+        name: "rmw_dds_common/msg/Gid",
+        fields: &[f("data", 51, 16, 0, "")],
+    },
+    TypeDescription {
+        name: "rmw_dds_common/msg/NodeEntitiesInfo",
+        fields: &[
+            f("node_namespace", 21, 0, 256, ""),
+            f("node_name", 21, 0, 256, ""),
+            f("reader_gid_seq", 145, 0, 0, "rmw_dds_common/msg/Gid"),
+            f("writer_gid_seq", 145, 0, 0, "rmw_dds_common/msg/Gid"),
+        ],
+    },
+    TypeDescription {
+        name: "rmw_dds_common/msg/ParticipantEntitiesInfo",
+        fields: &[
+            f("gid", 1, 0, 0, "rmw_dds_common/msg/Gid"),
+            f(
+                "node_entities_info_seq",
+                145,
+                0,
+                0,
+                "rmw_dds_common/msg/NodeEntitiesInfo",
+            ),
+        ],
+    },
+    TypeDescription {
         name: "rosgraph_msgs/msg/Clock",
         fields: &[f("clock", 1, 0, 0, "builtin_interfaces/msg/Time")],
     },
@@ -1528,6 +1554,18 @@ pub(super) static JAZZY_HASHES: &[(&str, &str)] = &[
         "RIHS01_7a0e8140a0b8d98308fa81a5403a766e610af29a239caf54b7553227906fc266",
     ),
     (
+        "rmw_dds_common/msg/Gid",
+        "RIHS01_ab6f21cfbb0a6dbb837161e1110c2051a2850ed9f9c53944d7115d9bcebedf71",
+    ),
+    (
+        "rmw_dds_common/msg/NodeEntitiesInfo",
+        "RIHS01_8ffef65ee2d088c63b1e8fcd31e800ba9fc8dbe0ee15ca60d1676de5218087a7",
+    ),
+    (
+        "rmw_dds_common/msg/ParticipantEntitiesInfo",
+        "RIHS01_91a0593bacdcc50ea9bdcf849a938b128412cc1ea821245c663bcd26f83c295e",
+    ),
+    (
         "rosgraph_msgs/msg/Clock",
         "RIHS01_692f7a66e93a3c83e71765d033b60349ba68023a8c689a79e48078bcb5c58564",
     ),
@@ -1882,6 +1920,18 @@ pub(super) static KILTED_HASHES: &[(&str, &str)] = &[
     (
         "rcl_interfaces/srv/SetParameters_Response",
         "RIHS01_7a0e8140a0b8d98308fa81a5403a766e610af29a239caf54b7553227906fc266",
+    ),
+    (
+        "rmw_dds_common/msg/Gid",
+        "RIHS01_ab6f21cfbb0a6dbb837161e1110c2051a2850ed9f9c53944d7115d9bcebedf71",
+    ),
+    (
+        "rmw_dds_common/msg/NodeEntitiesInfo",
+        "RIHS01_8ffef65ee2d088c63b1e8fcd31e800ba9fc8dbe0ee15ca60d1676de5218087a7",
+    ),
+    (
+        "rmw_dds_common/msg/ParticipantEntitiesInfo",
+        "RIHS01_91a0593bacdcc50ea9bdcf849a938b128412cc1ea821245c663bcd26f83c295e",
     ),
     (
         "rosgraph_msgs/msg/Clock",

@@ -188,6 +188,17 @@ class Checker:
             f"rq/{action}/_action/get_resultRequest", f"rr/{action}/_action/get_resultReply",
             f"rq/{action}/_action/cancel_goalRequest", f"rr/{action}/_action/cancel_goalReply",
         ]
+        # ros_discovery_info: one writer per participant (rclpy's, the bridge's), not tied
+        # to a node; every one must carry the same valid hash (the bridge's was INVALID
+        # until its participant-level writer got the hash at creation).
+        def discovery_writers():
+            eps = self.node.get_publishers_info_by_topic("ros_discovery_info", no_mangle=True)
+            return eps if len(eps) >= 2 else None
+        writers = wait_until(discovery_writers, 10, 0.1) or []
+        hashes = sorted({str(e.topic_type_hash) for e in writers})
+        check("type hash: ros_discovery_info, every participant's writer",
+              len(writers) >= 2 and len(hashes) == 1 and "INVALID" not in hashes[0],
+              f"{len(writers)} writers: {hashes}")
         # Make rclpy endpoints on the service topics too (clients), for their hashes.
         estop_client = self.node.create_client(Trigger, "/" + estop)
         self.fjt.wait_for_server(timeout_sec=10)

@@ -23,6 +23,8 @@ INTERFACES = [
     "rcl_interfaces/srv/GetParameters", "rcl_interfaces/srv/GetParameterTypes",
     "rcl_interfaces/srv/SetParameters", "rcl_interfaces/srv/SetParametersAtomically",
     "rcl_interfaces/srv/ListParameters", "rcl_interfaces/srv/DescribeParameters",
+    # ros2-client's participant-level writer (ros_discovery_info).
+    "rmw_dds_common/msg/ParticipantEntitiesInfo",
 ]
 
 

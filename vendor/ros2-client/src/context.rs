@@ -146,9 +146,12 @@ impl Context {
       }
     }
 
-    let context = Self::from_domain_participant(dpb.build()?)?;
-    context.inner.lock().unwrap().type_hash = opt.type_hash;
-    Ok(context)
+    // armctl patch (vendor/NOTE-UPSTREAM.md): the type hash is known before the
+    // participant-level ros_discovery_info writer is made, so it carries one too.
+    let i = ContextInner::from_domain_participant_hashed(dpb.build()?, opt.type_hash)?;
+    Ok(Context {
+      inner: Arc::new(Mutex::new(i)),
+    })
   }
 
   // armctl patch (vendor/NOTE-UPSTREAM.md): the DDS QoS of a new reader or writer on
@@ -387,6 +390,15 @@ impl ContextInner {
   pub fn from_domain_participant(
     domain_participant: DomainParticipant,
   ) -> CreateResult<ContextInner> {
+    Self::from_domain_participant_hashed(domain_participant, None)
+  }
+
+  // armctl patch (vendor/NOTE-UPSTREAM.md): as `from_domain_participant`, with the type
+  // hashes announced from the first writer (ros_discovery_info) on.
+  pub fn from_domain_participant_hashed(
+    domain_participant: DomainParticipant,
+    type_hash: Option<TypeHashFn>,
+  ) -> CreateResult<ContextInner> {
     let ros_default_publisher =
       domain_participant.create_publisher(&QosPolicies::from(DEFAULT_PUBLISHER_QOS))?;
     let ros_default_subscriber =
@@ -414,8 +426,17 @@ impl ContextInner {
       TopicKind::NoKey,
     )?;
 
-    let node_writer =
-      Publisher::new(ros_default_publisher.create_datawriter_no_key(&ros_discovery_topic, None)?);
+    let discovery_qos = type_hash
+      .as_ref()
+      .and_then(|f| f(builtin_topics::ros_discovery::TYPE_NAME))
+      .map(|hash| {
+        builtin_topics::ros_discovery::QOS_PUB
+          .clone()
+          .with_user_data(format!("typehash={hash};").into_bytes())
+      });
+    let node_writer = Publisher::new(
+      ros_default_publisher.create_datawriter_no_key(&ros_discovery_topic, discovery_qos)?,
+    );
 
     Ok(ContextInner {
       local_nodes: HashMap::new(),
@@ -427,7 +448,7 @@ impl ContextInner {
       ros_default_subscriber,
       ros_parameter_events_topic,
       ros_rosout_topic,
-      type_hash: None,
+      type_hash,
     })
   }
 
