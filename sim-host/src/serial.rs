@@ -26,6 +26,10 @@ use crate::clock::SimClock;
 /// Bytes received and not yet read: 16 frames of 255 bytes, like a deep DMA ring.
 const RX_CAPACITY: usize = 4096;
 
+/// Bytes the pty reader takes at a time before it waits for the line to have carried
+/// them: 64 byte times (5.6 ms at 115200 baud), far less than the ring holds.
+const PTY_CHUNK: usize = 64;
+
 /// Which simulated port.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum SerialKind {
@@ -158,15 +162,32 @@ impl SimSerial {
         }
     }
 
+    /// Reads the pty at the line's rate: each chunk of [`PTY_CHUNK`] bytes is taken only
+    /// once the line could have carried the one before (a byte time each, at the open
+    /// port's baud rate). Bytes written faster wait in the pty's own buffer, and the
+    /// writer blocks when it is full, as a device waits on a real line; the receive ring
+    /// sees no more than the board's UART would (issue 21 F18: read as fast as the pty
+    /// gave them, 10,200 bytes at once overran the 4 KiB ring and 6,104 were dropped).
     fn pty_reader(&self, master: BorrowedFd<'_>) {
-        let mut buf = [0u8; 512];
+        let mut buf = [0u8; PTY_CHUNK];
         loop {
             let mut ready = [PollFd::new(master, PollFlags::POLLIN)];
             if !matches!(poll(&mut ready, PollTimeout::from(1000u16)), Ok(n) if n > 0) {
                 continue;
             }
             match nix::unistd::read(master, &mut buf) {
-                Ok(n) if n > 0 => self.receive(&buf[..n]),
+                Ok(n) if n > 0 => {
+                    let started_ns = self.clock.now_ns();
+                    self.receive(&buf[..n]);
+                    if self.open.load(Ordering::Relaxed) {
+                        let busy_ns = n as u64 * self.byte_time_ns();
+                        let free_at = self.clock.real_instant_of_ns(started_ns + busy_ns);
+                        let wait = free_at.saturating_duration_since(std::time::Instant::now());
+                        if !wait.is_zero() {
+                            std::thread::sleep(wait);
+                        }
+                    }
+                }
                 // Nothing yet (non-blocking), or an error while no terminal is attached.
                 _ => std::thread::sleep(std::time::Duration::from_millis(10)),
             }

@@ -475,6 +475,58 @@ fn serial_pty_passes_bytes_both_ways() {
     assert_eq!(received, b"from the device");
 }
 
+/// Issue 21 F18: 10,200 bytes written to the pty at once (a device with a deep FIFO, or a
+/// terminal pasting a file) all arrive as USART_RECV at 115200 baud, none dropped: the
+/// simulated line carries them at its rate (the pty's own buffer holds the rest back, as
+/// a real device would wait), where the reader used to take them as fast as the pty gave
+/// them and overran the receive ring (478 of 10,200 lost).
+#[test]
+fn a_burst_on_the_pty_arrives_whole_at_the_line_rate() {
+    use std::io::Write;
+    let sim = Sim::start(&[
+        "--serial",
+        "pty",
+        "--settings",
+        temp_path("pty-burst.txt").to_str().unwrap(),
+    ]);
+    let path = sim
+        .banner
+        .iter()
+        .find_map(|l| l.strip_prefix("sim-host: serial pty "))
+        .expect("the pty path is printed")
+        .to_string();
+    let mut tty = std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .open(&path)
+        .expect("the pty opens");
+    let mut client = sim.client();
+    client.ok(&Command::UsartStart(UartInit {
+        baud_rate: 115_200,
+        ..UartInit::default()
+    }));
+    let sent: Vec<u8> = (0..10_200u32).map(|i| (i % 251) as u8).collect();
+    let writer = std::thread::spawn(move || {
+        tty.write_all(&sent).unwrap();
+        tty.flush().unwrap();
+        (tty, sent)
+    });
+    // 10,200 bytes at 11,520 a second take 0.89 s on the line; 20 s bounds a stall.
+    let deadline = Instant::now() + Duration::from_secs(20);
+    let mut received = Vec::new();
+    while received.len() < 10_200 {
+        let left = deadline
+            .checked_duration_since(Instant::now())
+            .unwrap_or_else(|| panic!("{} of 10200 bytes received", received.len()));
+        if let Some((_, OwnedReport::UsartRecv(bytes))) = client.receive(left) {
+            received.extend(bytes);
+        }
+    }
+    let (_tty, sent) = writer.join().unwrap();
+    assert_eq!(received.len(), sent.len());
+    assert!(received == sent, "bytes differ");
+}
+
 /// Over a link that loses, duplicates and reorders datagrams both ways, a streamed upload
 /// (armctl's go-back-N) still runs every point exactly once.
 #[test]
