@@ -103,6 +103,31 @@ pub fn discover(options: &DiscoverOptions) -> std::io::Result<Vec<Found>> {
     Ok(found)
 }
 
+/// A DISCOVER that could not be sent, said with what to do about it (issue 23: on a
+/// machine without a route for the broadcast, the system's "Network is unreachable" was
+/// all a user got).
+pub fn explain_send_error(e: &std::io::Error, target: SocketAddrV4) -> String {
+    let advice = match e.kind() {
+        std::io::ErrorKind::NetworkUnreachable | std::io::ErrorKind::HostUnreachable => {
+            if target.ip().is_broadcast() {
+                " (no route for 255.255.255.255: no interface is up with an IPv4 address and \
+                 a route; bring up the interface on the controllers' network, or send to \
+                 its own broadcast address, e.g. --to 192.168.1.255:8510, or --bind that \
+                 interface's address)"
+            } else {
+                " (no route to that address: check the interface and its address, or \
+                 --bind the interface on the controllers' network)"
+            }
+        }
+        std::io::ErrorKind::PermissionDenied if target.ip().is_broadcast() => {
+            " (the system refused a broadcast: a firewall rule, or a socket option \
+             this system does not allow)"
+        }
+        _ => "",
+    };
+    format!("DISCOVER to {target}: {e}{advice}")
+}
+
 /// What a datagram says about its sender: `Some(Some(reply))` a DISCOVER_REPLY,
 /// `Some(None)` an older controller's ACK to DISCOVER (`UNKNOWN_TAG`, or `NOT_OWNER` when
 /// another host owns it: a controller that knows DISCOVER never ACKs an intact one),
@@ -225,5 +250,29 @@ mod tests {
         assert_eq!(parse_cidr("10.0.0.2/24"), Ok(([10, 0, 0, 2], 24)));
         assert!(parse_cidr("10.0.0.2").is_err());
         assert!(parse_cidr("10.0.0.2/33").is_err());
+    }
+}
+
+#[cfg(test)]
+mod send_error_tests {
+    use super::*;
+
+    #[test]
+    fn an_unreachable_network_gets_advice() {
+        let e = std::io::Error::from(std::io::ErrorKind::NetworkUnreachable);
+        let broadcast = SocketAddrV4::new([255, 255, 255, 255].into(), 8510);
+        let text = explain_send_error(&e, broadcast);
+        assert!(
+            text.starts_with("DISCOVER to 255.255.255.255:8510: "),
+            "{text}"
+        );
+        assert!(text.contains("--to 192.168.1.255:8510"), "{text}");
+        let one = SocketAddrV4::new([10, 0, 0, 7].into(), 8510);
+        assert!(explain_send_error(&e, one).contains("no route to that address"));
+        let other = std::io::Error::other("boom");
+        assert_eq!(
+            explain_send_error(&other, one),
+            "DISCOVER to 10.0.0.7:8510: boom"
+        );
     }
 }

@@ -26,7 +26,7 @@ pub fn execute(
         wait: Duration::from_millis(wait_ms.max(1)),
         rounds,
     })
-    .map_err(|e| format!("DISCOVER to {to}: {e}"))?;
+    .map_err(|e| armctl::discover::explain_send_error(&e, to))?;
     if json {
         let list: Vec<serde_json::Value> = found
             .iter()
