@@ -17,10 +17,11 @@
 //! * a frame that surely is a duplicate (same sender, seq, tag and CRC as a frame executed
 //!   less than 2 s ago, with fewer than `DUPLICATE_MEMORY` accepted frames since) is ACKed
 //!   OK and changes nothing at all, engine pushes included;
-//! * the points taken are exactly the uploader's PENDING points, in order, none skipped:
+//! * the points taken are exactly the uploader's PENDING points, in order, none skipped
+//!   (only accepted commands, and commands other than PENDING refused for good, fill a gap):
 //!   a PENDING is taken only from the endpoint (address and port) whose NEW started the
 //!   upload, and only if every seq between the last frame taken (or the NEW) and its own
-//!   was used by a frame from that endpoint ACKed OK (another tool on the owner's address,
+//!   was used by a frame from that endpoint ACKed OK or refused for good (another tool on the owner's address,
 //!   endpoint 1, numbers its seqs on its own and must never fill the uploader's gaps);
 //! * a NOT_OWNER ACK carries zeros for state, next_seq, buffered and free; a STATUS
 //!   report goes to the endpoint that asked for it;
@@ -474,7 +475,7 @@ impl Harness {
             self.last_taken = None;
             self.run_kind = Some(RunKind::Upload);
         }
-        self.check_upload_order(from, bytes[0], status, &decoded, &before, &after);
+        self.check_upload_order(from, bytes[0], bytes[1], status, &decoded, &before, &after);
         if executed && let Ok(frame) = decoded {
             // After a hand-over that dropped an upload, the command met state STOPPED.
             let mut met = before;
@@ -487,10 +488,12 @@ impl Harness {
     }
 
     /// The points taken are exactly the uploader's PENDING points, in order, none skipped.
+    #[allow(clippy::too_many_arguments)]
     fn check_upload_order(
         &mut self,
         from: Endpoint,
         seq: u8,
+        raw_tag: u8,
         status: StatusCode,
         decoded: &std::result::Result<Frame<Command<'_>>, protocol::DecodeError>,
         before: &Snapshot,
@@ -533,11 +536,24 @@ impl Harness {
             }
             upload.last_taken_seq = seq;
             upload.accepted = [false; 256];
-        } else if status == StatusCode::Ok
-            && let Some(upload) = self.upload.as_mut()
+        } else if let Some(upload) = self.upload.as_mut()
             && upload.uploader == from
         {
-            upload.accepted[usize::from(seq)] = true;
+            // Accepted, or (issue 21 F12) a command other than PENDING refused for good:
+            // these bytes can never be accepted, and its seq does not hold up the upload.
+            let refused_for_good = raw_tag != Tag::Pending as u8
+                && matches!(
+                    status,
+                    StatusCode::UnknownTag
+                        | StatusCode::BadLength
+                        | StatusCode::InvalidConfig
+                        | StatusCode::Unsupported
+                        | StatusCode::InvalidPoint
+                        | StatusCode::TooManyPoints
+                );
+            if status == StatusCode::Ok || refused_for_good {
+                upload.accepted[usize::from(seq)] = true;
+            }
         }
     }
 

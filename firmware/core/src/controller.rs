@@ -575,7 +575,9 @@ impl<const CAP: usize> Controller<CAP> {
         let frame = match decoded {
             Ok(frame) => frame,
             Err(e) => {
-                response.reply = reply(self, e.status().unwrap_or(StatusCode::BadLength));
+                let status = e.status().unwrap_or(StatusCode::BadLength);
+                self.refused(key, status);
+                response.reply = reply(self, status);
                 return response;
             }
         };
@@ -586,7 +588,10 @@ impl<const CAP: usize> Controller<CAP> {
                 response.executed = true;
                 StatusCode::Ok
             }
-            Err(status) => status,
+            Err(status) => {
+                self.refused(key, status);
+                status
+            }
         };
         self.pump(plant);
         response.reply = reply(self, status);
@@ -687,6 +692,33 @@ impl<const CAP: usize> Controller<CAP> {
             if listener.to == from {
                 listener.heard_us = now_us;
             }
+        }
+    }
+
+    /// Bookkeeping for a CRC-valid frame of the owner refused after the duplicate check.
+    /// A command other than PENDING from the uploader that these bytes can never make
+    /// acceptable (malformed, or a setting the board cannot make: `UNKNOWN_TAG`,
+    /// `BAD_LENGTH`, `INVALID_CONFIG`, `UNSUPPORTED`, `INVALID_POINT`, `TOO_MANY_POINTS`)
+    /// fills its seq in the upload's order, as an accepted one does (issue 21 F12: its seq
+    /// stayed a gap, and a host resending from `next_seq` as section 7 says got the same
+    /// refusal and the same OUT_OF_ORDER for ever). A refusal that a resend can turn into
+    /// an acceptance (`BAD_STATE`, e.g. a RUNING that overtook its PENDING;
+    /// `ESTOP_LATCHED`; `BUFFER_FULL`) keeps the gap, so that the PENDING after it names
+    /// it and the host resends it; a refused PENDING keeps it too (its points were not
+    /// taken). Neither is remembered as a duplicate: a resend is checked again.
+    fn refused(&mut self, key: FrameKey, status: StatusCode) {
+        let final_for_these_bytes = matches!(
+            status,
+            StatusCode::UnknownTag
+                | StatusCode::BadLength
+                | StatusCode::InvalidConfig
+                | StatusCode::Unsupported
+                | StatusCode::InvalidPoint
+                | StatusCode::TooManyPoints
+        );
+        if final_for_these_bytes && self.uploader == Some(key.from) && key.tag != Tag::Pending as u8
+        {
+            self.order.mark(key.seq);
         }
     }
 

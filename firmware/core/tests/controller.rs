@@ -415,13 +415,77 @@ fn out_of_order_pending_names_the_missing_seq() {
     s.send_raw(HOST, &frame(101, Command::Status));
     let r = s.send_raw(HOST, &pending(102, &pts[0..3])).reply.unwrap();
     assert_eq!((r.ack.status, r.ack.next_seq), (Ok, 103));
-    // A refused command does not.
-    s.send_raw(HOST, &frame(103, Command::Return));
+    // A command refused for a reason a resend can change (RETURN while an upload is
+    // pending: BAD_STATE) does not fill it: the PENDING after it names it, and the host
+    // resends it (a RUNING that overtook its PENDING is accepted that way).
+    let r = s
+        .send_raw(HOST, &frame(103, Command::Return))
+        .reply
+        .unwrap();
+    assert_eq!(r.ack.status, BadState);
     let r = s.send_raw(HOST, &pending(104, &pts[3..6])).reply.unwrap();
     assert_eq!((r.ack.status, r.ack.next_seq), (OutOfOrder, 103));
     let r = s.send_raw(HOST, &pending(103, &pts[3..6])).reply.unwrap();
     assert_eq!((r.ack.status, r.ack.next_seq), (Ok, 104));
     assert_eq!(s.controller.buffered(), 6);
+    // One these bytes can never make acceptable fills it (issue 21 F12: it did not, and a
+    // host resending from next_seq as section 7 says looped).
+    let bad_pwm = Command::PwmStart(protocol::Pwm {
+        psc: 0,
+        arr: 10,
+        ccr1: 20,
+        pulse_count: 0,
+    });
+    let r = s.send_raw(HOST, &frame(104, bad_pwm)).reply.unwrap();
+    assert_eq!(r.ack.status, InvalidConfig);
+    let r = s.send_raw(HOST, &pending(105, &pts[6..9])).reply.unwrap();
+    assert_eq!((r.ack.status, r.ack.next_seq), (Ok, 106));
+    assert_eq!(s.controller.buffered(), 9);
+}
+
+/// Issue 21 F12: a command refused in the middle of an upload, from a host that follows
+/// section 7 (resend from the ACK's next_seq, unchanged): the upload goes on, no loop.
+#[test]
+fn a_refused_command_inside_an_upload_does_not_stall_it() {
+    let mut s = Session::<64>::new(64);
+    s.send_raw(HOST, &frame(10, Command::New { count: 6 }));
+    let pts = points([0; 8], 6, 1);
+    assert_eq!(
+        s.send_raw(HOST, &pending(11, &pts[0..3]))
+            .reply
+            .unwrap()
+            .ack
+            .status,
+        Ok
+    );
+    // A gripper setting the board cannot make (CCR1 > ARR): INVALID_CONFIG.
+    let bad_pwm = frame(
+        12,
+        Command::PwmStart(protocol::Pwm {
+            psc: 0,
+            arr: 10,
+            ccr1: 20,
+            pulse_count: 0,
+        }),
+    );
+    let r = s.send_raw(HOST, &bad_pwm).reply.unwrap();
+    assert_eq!(r.ack.status, InvalidConfig);
+    // The host goes on with its upload; at most a few rounds of section 7, never a loop.
+    let mut next = 13u8;
+    for round in 0..4 {
+        let r = s.send_raw(HOST, &pending(next, &pts[3..6])).reply.unwrap();
+        if r.ack.status == Ok {
+            assert_eq!(s.controller.buffered(), 6);
+            return;
+        }
+        assert_eq!(r.ack.status, OutOfOrder, "round {round}");
+        // Section 7: resend from next_seq, unchanged.
+        if r.ack.next_seq == 12 {
+            s.send_raw(HOST, &bad_pwm);
+        }
+        next = 13;
+    }
+    panic!("the upload never went on past the refused PWM_START");
 }
 
 #[test]
