@@ -79,8 +79,25 @@ fn the_wired_input_stops_armctl_run_latches_and_estop_reset_clears_it() {
         .stderr(Stdio::null())
         .spawn()
         .expect("armctl run");
-    // The run under way, as STATUS shows it (a guessed sleep here raced a loaded machine).
-    status_until(&sim, "state            RUNNING");
+    // The run under way and moving, as STATUS shows it: RUNNING with a point executed (a
+    // guessed 1 s sleep here raced a loaded machine; RUNNING alone once came before the
+    // first pulse).
+    let deadline = Instant::now() + Duration::from_secs(10);
+    loop {
+        let (ok, out) = armctl(&sim, &["status"]);
+        assert!(ok, "{out}");
+        let executed = out
+            .lines()
+            .find(|l| l.contains(" executed"))
+            .and_then(|l| l.split(" received, ").nth(1))
+            .and_then(|rest| rest.split(' ').next())
+            .and_then(|n| n.parse::<u32>().ok());
+        if out.contains("state            RUNNING") && executed.is_some_and(|n| n > 0) {
+            break;
+        }
+        assert!(Instant::now() < deadline, "the run never moved: {out}");
+        std::thread::sleep(Duration::from_millis(20));
+    }
     signal(&sim, libc::SIGUSR1);
     let deadline = Instant::now() + Duration::from_secs(10);
     let ended = loop {
