@@ -56,6 +56,11 @@ impl Sim {
         self.host.stop();
     }
 
+    /// What it logged so far.
+    pub fn log(&self) -> String {
+        self.host.log()
+    }
+
     /// A client socket talking to it.
     pub fn client(&self) -> Client {
         Client::new(self.addr)
