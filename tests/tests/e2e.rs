@@ -340,10 +340,10 @@ fn lossy_link_executes_the_same_steps_as_a_lossless_one() {
     assert_eq!(lossy_status.received, clean_status.received);
     assert!(!lossy_status.flags.has(StatusFlags::UNDERRUN));
     assert!(lossy.retransmissions > 0, "no loss seen: {lossy:?}");
-    assert!(
-        lossy.datagrams_sent > clean.datagrams_sent,
-        "{lossy:?}\n{clean:?}"
-    );
+    // The lossy link cost resends. (Not "more datagrams than the clean run": on a loaded
+    // machine the clean run resends too, its 40 ms ACK wait being wall-clock time; issue
+    // 19 soak: 30 and 30.)
+    assert!(lossy.datagrams_sent > lossy.frames, "{lossy:?}\n{clean:?}");
 }
 
 #[test]
