@@ -430,14 +430,14 @@ fn direction_changes_respect_the_setup_time() {
     assert!(checked >= 8 * 9, "{checked} direction changes");
 }
 
-#[test]
-fn serial_pty_passes_bytes_both_ways() {
-    use std::io::{Read, Write};
+/// A simulator with `--serial pty`, its pty opened, and a client that opened the port at
+/// 115200 baud.
+fn pty_sim(settings: &str) -> (Sim, std::fs::File, common::Client) {
     let sim = Sim::start(&[
         "--serial",
         "pty",
         "--settings",
-        temp_path("pty.txt").to_str().unwrap(),
+        temp_path(settings).to_str().unwrap(),
     ]);
     let path = sim
         .banner
@@ -445,7 +445,7 @@ fn serial_pty_passes_bytes_both_ways() {
         .find_map(|l| l.strip_prefix("sim-host: serial pty "))
         .expect("the pty path is printed")
         .to_string();
-    let mut tty = std::fs::OpenOptions::new()
+    let tty = std::fs::OpenOptions::new()
         .read(true)
         .write(true)
         .open(&path)
@@ -455,6 +455,13 @@ fn serial_pty_passes_bytes_both_ways() {
         baud_rate: 115_200,
         ..UartInit::default()
     }));
+    (sim, tty, client)
+}
+
+#[test]
+fn serial_pty_passes_bytes_both_ways() {
+    use std::io::{Read, Write};
+    let (_sim, mut tty, mut client) = pty_sim("pty.txt");
     // Host to device.
     client.ok(&Command::UsartSend(b"to the device\n"));
     let mut got = vec![0u8; 14];
@@ -483,30 +490,10 @@ fn serial_pty_passes_bytes_both_ways() {
 #[test]
 fn a_burst_on_the_pty_arrives_whole_at_the_line_rate() {
     use std::io::Write;
-    let sim = Sim::start(&[
-        "--serial",
-        "pty",
-        "--settings",
-        temp_path("pty-burst.txt").to_str().unwrap(),
-    ]);
-    let path = sim
-        .banner
-        .iter()
-        .find_map(|l| l.strip_prefix("sim-host: serial pty "))
-        .expect("the pty path is printed")
-        .to_string();
-    let mut tty = std::fs::OpenOptions::new()
-        .read(true)
-        .write(true)
-        .open(&path)
-        .expect("the pty opens");
-    let mut client = sim.client();
-    client.ok(&Command::UsartStart(UartInit {
-        baud_rate: 115_200,
-        ..UartInit::default()
-    }));
+    let (sim, tty, client) = pty_sim("pty-burst.txt");
     let sent: Vec<u8> = (0..10_200u32).map(|i| (i % 251) as u8).collect();
     let writer = std::thread::spawn(move || {
+        let mut tty = tty;
         tty.write_all(&sent).unwrap();
         tty.flush().unwrap();
         (tty, sent)
