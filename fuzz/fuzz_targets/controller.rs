@@ -541,16 +541,7 @@ impl Harness {
         {
             // Accepted, or (issue 21 F12) a command other than PENDING refused for good:
             // these bytes can never be accepted, and its seq does not hold up the upload.
-            let refused_for_good = raw_tag != Tag::Pending as u8
-                && matches!(
-                    status,
-                    StatusCode::UnknownTag
-                        | StatusCode::BadLength
-                        | StatusCode::InvalidConfig
-                        | StatusCode::Unsupported
-                        | StatusCode::InvalidPoint
-                        | StatusCode::TooManyPoints
-                );
+            let refused_for_good = raw_tag != Tag::Pending as u8 && status.refuses_for_good();
             if status == StatusCode::Ok || refused_for_good {
                 upload.accepted[usize::from(seq)] = true;
             }

@@ -211,6 +211,23 @@ wire_code! {
 }
 
 impl StatusCode {
+    /// A refusal these bytes can never turn into an acceptance, whatever the controller's
+    /// state (malformed, or a setting the board cannot make). Such a command other than
+    /// PENDING fills its seq in an upload's order (docs/PROTOCOL.md section 7, issue 21
+    /// F12); a refusal a resend can change (`BAD_STATE`, `ESTOP_LATCHED`, `BUFFER_FULL`)
+    /// does not.
+    pub const fn refuses_for_good(self) -> bool {
+        matches!(
+            self,
+            StatusCode::UnknownTag
+                | StatusCode::BadLength
+                | StatusCode::InvalidConfig
+                | StatusCode::Unsupported
+                | StatusCode::InvalidPoint
+                | StatusCode::TooManyPoints
+        )
+    }
+
     /// What a host should do about it.
     pub const fn advice(self) -> &'static str {
         use StatusCode::*;

@@ -696,10 +696,8 @@ impl<const CAP: usize> Controller<CAP> {
     }
 
     /// Bookkeeping for a CRC-valid frame of the owner refused after the duplicate check.
-    /// A command other than PENDING from the uploader that these bytes can never make
-    /// acceptable (malformed, or a setting the board cannot make: `UNKNOWN_TAG`,
-    /// `BAD_LENGTH`, `INVALID_CONFIG`, `UNSUPPORTED`, `INVALID_POINT`, `TOO_MANY_POINTS`)
-    /// fills its seq in the upload's order, as an accepted one does (issue 21 F12: its seq
+    /// A command other than PENDING from the uploader refused for good
+    /// ([`StatusCode::refuses_for_good`]: these bytes can never be accepted) fills its seq in the upload's order, as an accepted one does (issue 21 F12: its seq
     /// stayed a gap, and a host resending from `next_seq` as section 7 says got the same
     /// refusal and the same OUT_OF_ORDER for ever). A refusal that a resend can turn into
     /// an acceptance (`BAD_STATE`, e.g. a RUNING that overtook its PENDING;
@@ -707,16 +705,9 @@ impl<const CAP: usize> Controller<CAP> {
     /// it and the host resends it; a refused PENDING keeps it too (its points were not
     /// taken). Neither is remembered as a duplicate: a resend is checked again.
     fn refused(&mut self, key: FrameKey, status: StatusCode) {
-        let final_for_these_bytes = matches!(
-            status,
-            StatusCode::UnknownTag
-                | StatusCode::BadLength
-                | StatusCode::InvalidConfig
-                | StatusCode::Unsupported
-                | StatusCode::InvalidPoint
-                | StatusCode::TooManyPoints
-        );
-        if final_for_these_bytes && self.uploader == Some(key.from) && key.tag != Tag::Pending as u8
+        if status.refuses_for_good()
+            && self.uploader == Some(key.from)
+            && key.tag != Tag::Pending as u8
         {
             self.order.mark(key.seq);
         }
