@@ -80,6 +80,21 @@ pub enum ErrorKind {
         /// Shortest segment duration that fits, microseconds.
         min_segment_us: u64,
     },
+    /// More waypoints than one upload takes points (each span between two waypoints is
+    /// at least one point).
+    TooManyWaypoints {
+        /// Spans between waypoints (the arm's position at t = 0 counts as one when the
+        /// file starts later).
+        count: usize,
+    },
+    /// A plan that does not pass a waypoint at its time ([`check_waypoints`]).
+    ///
+    /// [`check_waypoints`]: super::check_waypoints
+    WaypointMissed {
+        /// The planned position and the waypoint's, steps, for the joint named; `None`: no
+        /// segment ends at the waypoint's time.
+        planned: Option<(i64, i64)>,
+    },
     /// A segment duration of 0.
     BadSegment,
 }
@@ -197,6 +212,20 @@ impl fmt::Display for TrajectoryError {
                 f,
                 "{count} points after resampling, one upload takes at most {MAX_POINTS}: \
                  use segments of {min_segment_us} us or longer"
+            ),
+            ErrorKind::TooManyWaypoints { count } => write!(
+                f,
+                "{count} spans between waypoints, one upload takes at most {MAX_POINTS} \
+                 points and every waypoint ends one: split the file into several runs"
+            ),
+            ErrorKind::WaypointMissed { planned: None } => f.write_str(
+                "no segment ends at this waypoint's time: the plan would pass it unchecked",
+            ),
+            ErrorKind::WaypointMissed {
+                planned: Some((planned, wanted)),
+            } => write!(
+                f,
+                "the plan is at {planned} steps at this waypoint's time, the file says {wanted}"
             ),
             ErrorKind::BadSegment => f.write_str("the segment duration must be at least 1 us"),
         }

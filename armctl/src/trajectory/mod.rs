@@ -6,8 +6,10 @@
 //!   [`ArmConfig`] (steps per radian, zero offset, limits, max step rate per joint).
 //! - CSV: `time_s, joint 0, joint 1, ...` with positions in steps (an optional header line).
 //!
-//! [`to_points`] resamples the waypoints at a fixed segment duration (the last segment may
-//! be shorter), rounds to whole steps, fills the timer hints with
+//! [`to_points`] resamples the waypoints into segments no longer than the duration asked
+//! for, each span between two waypoints cut into equal segments so that every waypoint is a
+//! segment's end (none is skipped, whatever the duration: [`check_waypoints`] proves it of
+//! the result), rounds to whole steps, fills the timer hints with
 //! [`Point::from_motion`](protocol::Point::from_motion),
 //! and refuses, naming the file, the point and time, the joint, the value and the limit,
 //! whatever breaks a joint's position limits or step rate.
@@ -43,7 +45,7 @@ pub use parse::{
     JointTrajectory, JointTrajectoryPoint, RosDuration, joint_trajectory_to_waypoints, parse_csv,
     parse_joint_trajectory,
 };
-pub use resample::to_points;
+pub use resample::{check_waypoints, to_points};
 
 /// Waypoints in steps, as read from a file.
 #[derive(Clone, Debug, PartialEq)]

@@ -1,15 +1,19 @@
-//! [`Waypoints`] to controller [`Point`]s: fixed-duration segments, linear or cubic Hermite
-//! between waypoints, checked against joint limits and step rates.
+//! [`Waypoints`] to controller [`Point`]s: segments that end on every waypoint and are no
+//! longer than the segment duration asked for, linear or cubic Hermite between waypoints,
+//! checked against joint limits and step rates; and [`check_waypoints`], which proves a
+//! plan passes every waypoint at its time.
 
 use protocol::{MAX_JOINTS, Point};
 
 use super::{ArmConfig, ErrorKind, TrajectoryError, Waypoints};
 use crate::run::MAX_POINTS;
 
-/// Resamples `waypoints` into points of `segment_us` (the last one may be shorter), from
-/// the arm's current position `current`, and checks every position against the joint
-/// limits of `config` and every segment against the lower of the joint's and the
-/// controller's (`controller_max_rate_hz`) step rate.
+/// Resamples `waypoints` into points from the arm's current position `current`: each span
+/// between two waypoints in the fewest equal segments no longer than `segment_us`, so every
+/// waypoint is a segment's end and is reached at its time (to the whole step). Checks every
+/// position against the joint limits of `config` and every segment against the lower of the
+/// joint's and the controller's (`controller_max_rate_hz`) step rate, and the result with
+/// [`check_waypoints`].
 pub fn to_points(
     waypoints: &Waypoints,
     current: &[i32; MAX_JOINTS],
@@ -105,27 +109,38 @@ pub fn to_points(
     if times.len() < 2 || total_us <= 0 {
         return Err(TrajectoryError::new(file, ErrorKind::TooShort));
     }
-    let segment = i64::from(segment_us);
-    let count = (total_us + segment - 1) / segment;
-    if count > MAX_POINTS as i64 {
-        let min_segment_us = (total_us as u64).div_ceil(MAX_POINTS as u64);
+    let intervals: Vec<i64> = times.windows(2).map(|t| t[1] - t[0]).collect();
+    if intervals.len() > MAX_POINTS {
         return Err(TrajectoryError::new(
             file,
-            ErrorKind::TooManyPoints {
-                count: count as usize,
-                min_segment_us,
+            ErrorKind::TooManyWaypoints {
+                count: intervals.len(),
             },
         ));
     }
-    let mut points = Vec::with_capacity(count as usize);
+    let count = points_for(&intervals, i64::from(segment_us));
+    if count > MAX_POINTS {
+        return Err(TrajectoryError::new(
+            file,
+            ErrorKind::TooManyPoints {
+                count,
+                min_segment_us: shortest_segment_that_fits(&intervals),
+            },
+        ));
+    }
+    let segment = i64::from(segment_us);
+    // Segment ends: every waypoint is one, and each span between two waypoints is cut into
+    // the fewest equal pieces no longer than `segment` (to the microsecond), so no waypoint
+    // falls inside a segment and is cut off.
+    let mut ends: Vec<(usize, i64)> = Vec::with_capacity(count);
+    for (w, &d) in intervals.iter().enumerate() {
+        let n = (d + segment - 1) / segment;
+        ends.extend((1..=n).map(|k| (w, times[w] + d * k / n)));
+    }
+    let mut points = Vec::with_capacity(count);
     let mut previous = *current;
     let mut previous_t = 0i64;
-    let mut w = 0usize;
-    for k in 1..=count {
-        let t = (k * segment).min(total_us);
-        while w + 2 < times.len() && times[w + 1] < t {
-            w += 1;
-        }
+    for (w, t) in ends {
         let (t0, t1) = (times[w], times[w + 1]);
         let f = (t - t0) as f64 / (t1 - t0) as f64;
         let segment_s = (t1 - t0) as f64 / 1e6;
@@ -182,7 +197,82 @@ pub fn to_points(
         previous = target;
         previous_t = t;
     }
+    check_waypoints(&points, waypoints, current)?;
     Ok(points)
+}
+
+/// Checks that `points`, run from `current`, pass every one of `waypoints` at its time:
+/// some point ends exactly at the waypoint's time, at its positions rounded to whole steps
+/// (joints the file leaves out: where they were). Returns how many waypoints were checked;
+/// the error names the first one missed, the joint and both positions.
+pub fn check_waypoints(
+    points: &[Point],
+    waypoints: &Waypoints,
+    current: &[i32; MAX_JOINTS],
+) -> Result<usize, TrajectoryError> {
+    let file = waypoints.file.as_str();
+    let mut ends = points.iter().scan(0i64, |t, p| {
+        *t += i64::from(p.duration);
+        Some((*t, p.position))
+    });
+    for (i, (&t, row)) in waypoints
+        .times_us
+        .iter()
+        .zip(&waypoints.positions)
+        .enumerate()
+    {
+        let reached = if t == 0 {
+            Some(*current)
+        } else {
+            ends.by_ref()
+                .find(|&(end, _)| end >= t)
+                .filter(|&(end, _)| end == t)
+                .map(|(_, position)| position)
+        };
+        let Some(position) = reached else {
+            return Err(
+                TrajectoryError::new(file, ErrorKind::WaypointMissed { planned: None })
+                    .at(i, t, None),
+            );
+        };
+        for (j, value) in row.iter().enumerate().take(MAX_JOINTS) {
+            let wanted = value.map_or(i64::from(current[j]), |v| v.round() as i64);
+            if i64::from(position[j]) != wanted {
+                return Err(TrajectoryError::new(
+                    file,
+                    ErrorKind::WaypointMissed {
+                        planned: Some((i64::from(position[j]), wanted)),
+                    },
+                )
+                .at(i, t, Some(j)));
+            }
+        }
+    }
+    Ok(waypoints.times_us.len())
+}
+
+/// Points the spans between waypoints (`intervals`, microseconds) take at segments of at
+/// most `segment_us`: each span in the fewest equal pieces.
+fn points_for(intervals: &[i64], segment_us: i64) -> usize {
+    intervals
+        .iter()
+        .map(|&d| ((d + segment_us - 1) / segment_us) as usize)
+        .sum()
+}
+
+/// The shortest segment duration (microseconds) at which `intervals` take at most
+/// [`MAX_POINTS`] points (the caller has checked that one point per span fits).
+fn shortest_segment_that_fits(intervals: &[i64]) -> u64 {
+    let (mut fits, mut too_short) = (intervals.iter().copied().max().unwrap_or(1).max(1), 0i64);
+    while fits - too_short > 1 {
+        let mid = too_short + (fits - too_short) / 2;
+        if points_for(intervals, mid) <= MAX_POINTS {
+            fits = mid;
+        } else {
+            too_short = mid;
+        }
+    }
+    fits as u64
 }
 
 /// The cubic Hermite curve from `p0` to `p1` at `f` in 0..=1, with the end tangents `m0`

@@ -1,5 +1,6 @@
 use super::*;
 use crate::run::MAX_POINTS;
+use protocol::Point;
 
 const CONFIG: &str = r#"{"joints": [
     {"name": "shoulder", "steps_per_radian": 1000.0, "zero_offset_steps": 100,
@@ -63,14 +64,105 @@ fn resampling_interpolates_linearly_and_keeps_the_end_exact() {
 }
 
 #[test]
-fn last_segment_is_shorter_when_the_duration_does_not_divide() {
+fn a_span_that_does_not_divide_is_cut_into_equal_segments() {
+    // Changed with issue 23 (waypoints kept): this was "the last segment is shorter"
+    // ([100, 100, 50] ms), which let a segment straddle a waypoint in longer files.
     let w = parse_csv("time_s,j0\n0,0\n0.25,100\n", "t.csv").unwrap();
     let config = ArmConfig::unlimited(1, 10_000);
     let points = to_points(&w, &[0; 8], 100_000, &config, None).unwrap();
     let durations: Vec<i32> = points.iter().map(|p| p.duration).collect();
-    assert_eq!(durations, vec![100_000, 100_000, 50_000]);
+    assert_eq!(durations, vec![83_333, 83_333, 83_334]);
     let positions: Vec<i32> = points.iter().map(|p| p.position[0]).collect();
-    assert_eq!(positions, vec![40, 80, 100]);
+    assert_eq!(positions, vec![33, 67, 100]);
+}
+
+/// Issue 23: with 10 ms segments a via point at 0.505 s fell inside a segment and its joint
+/// got no pulses, while the run reported success.
+#[test]
+fn a_via_point_between_segment_ends_is_reached_at_its_time() {
+    let w = parse_csv("0,0,0\n0.505,505,0\n1.0,0,7\n", "via.csv").unwrap();
+    let config = ArmConfig::unlimited(2, 100_000);
+    let points = to_points(&w, &[0; 8], 10_000, &config, None).unwrap();
+    let mut t = 0i64;
+    let at_via = points
+        .iter()
+        .find(|p| {
+            t += i64::from(p.duration);
+            t == 505_000
+        })
+        .expect("a segment ends at 0.505 s");
+    assert_eq!(at_via.position[0], 505);
+    assert!(points.iter().all(|p| p.duration <= 10_000));
+    assert_eq!(points.last().unwrap().position[..2], [0, 7]);
+    assert_eq!(check_waypoints(&points, &w, &[0; 8]), Ok(3));
+}
+
+/// Issue 23: `--segment-ms 1000` on wave.csv (a waypoint every 0.5 s) left joints 0 and 1
+/// still: every segment ended where they were at rest.
+#[test]
+fn segments_longer_than_the_waypoint_spacing_still_pass_every_waypoint() {
+    let wave = parse_csv(include_str!("../../examples/wave.csv"), "wave.csv").unwrap();
+    let points = to_points(
+        &wave,
+        &[0; 8],
+        1_000_000,
+        &ArmConfig::unlimited(3, 100_000),
+        None,
+    )
+    .unwrap();
+    let rows: Vec<[i32; 3]> = points
+        .iter()
+        .map(|p| [p.position[0], p.position[1], p.position[2]])
+        .collect();
+    assert_eq!(
+        rows,
+        vec![[800, -400, 200], [0, 0, 400], [-800, 400, 200], [0, 0, 0]]
+    );
+    assert!(points.iter().all(|p| p.duration == 500_000));
+}
+
+#[test]
+fn a_plan_that_skips_a_waypoint_is_refused_naming_it() {
+    let w = parse_csv("0,0\n0.5,100\n1.0,0\n", "skip.csv").unwrap();
+    // What fixed 1 s segments used to plan: one segment from 0 to 0, the via point lost.
+    let lost = [Point::from_motion(1_000_000, &[0; 8], &[0; 8])];
+    let err = check_waypoints(&lost, &w, &[0; 8]).unwrap_err();
+    assert_eq!(err.kind, ErrorKind::WaypointMissed { planned: None });
+    assert_eq!(err.point, Some(1));
+    assert!(
+        err.to_string()
+            .contains("waypoint 1 of the file (t = 0.500000 s)"),
+        "{err}"
+    );
+    // A segment ends at 0.5 s but in the wrong place.
+    let wrong = [
+        Point::from_motion(500_000, &[0; 8], &[90, 0, 0, 0, 0, 0, 0, 0]),
+        Point::from_motion(500_000, &[90, 0, 0, 0, 0, 0, 0, 0], &[0; 8]),
+    ];
+    let err = check_waypoints(&wrong, &w, &[0; 8]).unwrap_err();
+    assert_eq!(
+        err.kind,
+        ErrorKind::WaypointMissed {
+            planned: Some((90, 100))
+        }
+    );
+    assert_eq!(err.joint, Some(0));
+}
+
+#[test]
+fn more_waypoints_than_an_upload_takes_is_refused_before_resampling() {
+    let text: String = (0..=MAX_POINTS + 1)
+        .map(|k| format!("{},0\n", k as f64 * 0.001))
+        .collect();
+    let w = parse_csv(&text, "dense.csv").unwrap();
+    let err = to_points(&w, &[0; 8], 10_000, &ArmConfig::unlimited(1, 1000), None).unwrap_err();
+    assert_eq!(
+        err.kind,
+        ErrorKind::TooManyWaypoints {
+            count: MAX_POINTS + 1
+        }
+    );
+    assert!(err.to_string().contains("split the file"), "{err}");
 }
 
 #[test]

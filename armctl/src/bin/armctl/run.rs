@@ -58,7 +58,7 @@ pub const DEFAULT_MAX_STEP_RATE_HZ: u32 = 100_000;
 /// Runs `run --dry-run`: converts and checks the file, sends nothing.
 pub fn dry_run(args: &RunArgs) -> CliResult {
     let converted = convert(args, &[0; 8], None, Some(args.max_step_rate))?;
-    print_points_summary(&converted.points);
+    print_points_summary(&converted.points, converted.waypoints);
     println!(
         "step rates checked against {} (at most {} steps/s per joint, --max-step-rate)",
         if args.config.is_some() {
@@ -76,6 +76,9 @@ struct Converted {
     points: Vec<Point>,
     /// How messages name each joint: `joint 2 (elbow)`, or `joint 2` without a name.
     joint_names: Vec<String>,
+    /// The file's waypoints, each the end of one of `points` at its time
+    /// ([`trajectory::check_waypoints`]).
+    waypoints: usize,
 }
 
 /// The trajectory file as points, from `current`.
@@ -110,6 +113,8 @@ fn convert(
         controller_max_rate,
     )
     .map_err(|e| e.with_joint_names(&config).to_string())?;
+    let waypoints = trajectory::check_waypoints(&points, &waypoints, current)
+        .map_err(|e| e.with_joint_names(&config).to_string())?;
     let joint_names = (0..MAX_JOINTS)
         .map(
             |j| match config.joints.get(j).and_then(|c| c.name.as_ref()) {
@@ -121,13 +126,14 @@ fn convert(
     Ok(Converted {
         points,
         joint_names,
+        waypoints,
     })
 }
 
-fn print_points_summary(points: &[Point]) {
+fn print_points_summary(points: &[Point], waypoints: usize) {
     let us: i64 = points.iter().map(|p| i64::from(p.duration)).sum();
     println!(
-        "{} points, {:.3} s, ends at {:?}",
+        "{} points, {:.3} s, ends at {:?}; each of the {waypoints} waypoints is a point's end at its time",
         points.len(),
         us as f64 / 1e6,
         points.last().map(|p| p.position).unwrap_or_default()
@@ -164,13 +170,14 @@ pub fn execute(arm: &Client, args: &RunArgs) -> CliResult {
     let Converted {
         points,
         joint_names,
+        waypoints,
     } = convert(
         args,
         &current.position,
         Some(joints),
         Some(status.max_step_rate_hz),
     )?;
-    print_points_summary(&points);
+    print_points_summary(&points, waypoints);
 
     // Record from a thread that owns its own report stream.
     let recording = match &args.record {
@@ -274,8 +281,11 @@ pub fn execute(arm: &Client, args: &RunArgs) -> CliResult {
         .collect();
     if wrong.is_empty() {
         println!(
-            "final positions match the last point: {:?}",
-            &location.position[..joints]
+            // run_trajectory has checked that the controller executed every point, and it
+            // moves each exactly: every waypoint was passed at its time.
+            "final positions match the last point: {:?}; all {} points executed, so all {waypoints} waypoints were passed at their times",
+            &location.position[..joints],
+            points.len()
         );
         Ok(())
     } else {
