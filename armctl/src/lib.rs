@@ -26,6 +26,8 @@
 //!   the upload and the waits return [`Error::Interrupted`] soon after the token is set, and
 //!   STOPPED is resent until it is ACKed.
 //! - [`trajectory`]: JointTrajectory JSON and CSV files to checked [`protocol::Point`]s.
+//! - [`motion`]: point-to-point moves planned on the host (`armctl move`, `jog`), and
+//!   [`motion::Units`] (steps, degrees, radians).
 //! - [`record`] and [`plot`]: recorded location reports as CSV, and SVG plots of them;
 //!   [`vcd`]: joint positions from a simulator trace (`sim-host --trace`), for the same plots.
 
@@ -33,6 +35,7 @@ mod client;
 pub mod discover;
 mod error;
 mod interrupt;
+pub mod motion;
 pub mod pcap;
 pub mod plot;
 pub mod pwm;

@@ -6,6 +6,7 @@ use protocol::MAX_JOINTS;
 use serde::Deserialize;
 
 use super::{ErrorKind, TrajectoryError};
+use crate::motion::Units;
 
 /// One joint's calibration and limits.
 #[derive(Clone, Debug, Deserialize, PartialEq)]
@@ -28,6 +29,11 @@ pub struct JointConfig {
     pub max_steps: i32,
     /// Highest step rate of this joint, steps per second.
     pub max_step_rate_hz: u32,
+    /// Highest acceleration of this joint for moves planned on the host (`armctl move`,
+    /// `jog`), steps per second squared; without it, full rate in
+    /// [`DEFAULT_ACCEL_TIME_S`](crate::motion::DEFAULT_ACCEL_TIME_S).
+    #[serde(default)]
+    pub max_accel_steps_s2: Option<f64>,
 }
 
 fn default_steps_per_radian() -> f64 {
@@ -40,9 +46,13 @@ fn max_i32() -> i32 {
     i32::MAX
 }
 
-/// The joint config file: `{"joints": [ {...}, ... ]}` in joint order.
+/// The joint config file: `{"units": "deg", "joints": [ {...}, ... ]}` in joint order.
 #[derive(Clone, Debug, Deserialize, PartialEq)]
 pub struct ArmConfig {
+    /// The units the tools take and show positions in by default (`--units` overrides):
+    /// `steps` (the default), `deg` or `rad`.
+    #[serde(default)]
+    pub units: Units,
     /// Joint 0 first.
     pub joints: Vec<JointConfig>,
 }
@@ -73,6 +83,9 @@ impl ArmConfig {
             if joint.min_steps > joint.max_steps
                 || !joint.steps_per_radian.is_finite()
                 || joint.steps_per_radian == 0.0
+                || joint
+                    .max_accel_steps_s2
+                    .is_some_and(|a| !(a.is_finite() && a > 0.0))
             {
                 let name = joint
                     .name
@@ -81,8 +94,9 @@ impl ArmConfig {
                 return Err(TrajectoryError::new(
                     file,
                     ErrorKind::Parse(format!(
-                        "joint {j}{name}: min_steps must not exceed max_steps and \
-                         steps_per_radian must be a non-zero number"
+                        "joint {j}{name}: min_steps must not exceed max_steps, \
+                         steps_per_radian must be a non-zero number and max_accel_steps_s2 \
+                         (when given) a number above 0"
                     )),
                 ));
             }
@@ -93,6 +107,7 @@ impl ArmConfig {
     /// A config with no position limits and one step rate for `joints` joints.
     pub fn unlimited(joints: usize, max_step_rate_hz: u32) -> ArmConfig {
         ArmConfig {
+            units: Units::Steps,
             joints: (0..joints.min(MAX_JOINTS))
                 .map(|_| JointConfig {
                     name: None,
@@ -101,6 +116,7 @@ impl ArmConfig {
                     min_steps: i32::MIN,
                     max_steps: i32::MAX,
                     max_step_rate_hz,
+                    max_accel_steps_s2: None,
                 })
                 .collect(),
         }

@@ -4,7 +4,9 @@
 //! - JSON in the shape of ROS `trajectory_msgs/JointTrajectory`: `joint_names`, and
 //!   `points` with `positions` in radians and `time_from_start {sec, nanosec}`. It needs an
 //!   [`ArmConfig`] (steps per radian, zero offset, limits, max step rate per joint).
-//! - CSV: `time_s, joint 0, joint 1, ...` with positions in steps (an optional header line).
+//! - CSV: `time_s, joint 0, joint 1, ...` with positions in steps, or in the config's
+//!   `units` (degrees, radians); an optional header line. With a config, joints the file
+//!   leaves out hold their position.
 //!
 //! [`to_points`] resamples the waypoints into segments no longer than the duration asked
 //! for, each span between two waypoints cut into equal segments so that every waypoint is a
@@ -31,6 +33,8 @@
 //! points, linear or Hermite, with the limit checks), and the error type.
 
 use std::path::Path;
+
+use crate::motion::Units;
 
 mod config;
 mod error;
@@ -64,19 +68,38 @@ pub struct Waypoints {
 }
 
 /// Reads a trajectory file and, when given, the joint config file it is read with; the
-/// config is returned too, for the conversion to points.
+/// config is returned too, for the conversion to points. A CSV is in the config's `units`.
 pub fn load_files(
     path: &Path,
     config: Option<&Path>,
 ) -> Result<(Waypoints, Option<ArmConfig>), TrajectoryError> {
+    load_files_in(path, config, None)
+}
+
+/// As [`load_files`], a CSV in `units` when given (else the config's `units`, else steps).
+pub fn load_files_in(
+    path: &Path,
+    config: Option<&Path>,
+    units: Option<Units>,
+) -> Result<(Waypoints, Option<ArmConfig>), TrajectoryError> {
     let config = config.map(ArmConfig::load).transpose()?;
-    let waypoints = load(path, config.as_ref())?;
+    let waypoints = load_in(path, config.as_ref(), units)?;
     Ok((waypoints, config))
 }
 
 /// Reads a trajectory file: `.json` (JointTrajectory, needs `config`) or anything else as
-/// CSV in steps.
+/// CSV in the config's `units` (steps without a config).
 pub fn load(path: &Path, config: Option<&ArmConfig>) -> Result<Waypoints, TrajectoryError> {
+    load_in(path, config, None)
+}
+
+/// As [`load`], a CSV in `units` when given. With a config, a CSV may name fewer joints
+/// than it configures: the others hold their position.
+pub fn load_in(
+    path: &Path,
+    config: Option<&ArmConfig>,
+    units: Option<Units>,
+) -> Result<Waypoints, TrajectoryError> {
     let file = path.display().to_string();
     let text = std::fs::read_to_string(path)
         .map_err(|e| TrajectoryError::new(&file, ErrorKind::Read(e.to_string())))?;
@@ -94,6 +117,48 @@ pub fn load(path: &Path, config: Option<&ArmConfig>) -> Result<Waypoints, Trajec
         })?;
         parse_joint_trajectory(&text, &file, config)
     } else {
-        parse_csv(&text, &file)
+        let mut waypoints = parse_csv(&text, &file)?;
+        let units = units.or(config.map(|c| c.units)).unwrap_or_default();
+        match config {
+            Some(config) => csv_with_config(&mut waypoints, config, units)?,
+            None if units != Units::Steps => {
+                return Err(TrajectoryError::new(
+                    &file,
+                    ErrorKind::Parse(format!(
+                        "a CSV in {} needs a joint config (--config FILE)",
+                        units.name()
+                    )),
+                ));
+            }
+            None => {}
+        }
+        Ok(waypoints)
     }
+}
+
+/// A CSV read with a joint config: positions from `units` to steps, and rows padded to
+/// the config's joints (joints left out hold). More columns than joints configured is
+/// refused.
+fn csv_with_config(
+    waypoints: &mut Waypoints,
+    config: &ArmConfig,
+    units: Units,
+) -> Result<(), TrajectoryError> {
+    let columns = waypoints.positions.first().map_or(0, Vec::len);
+    if columns > config.joints.len() {
+        return Err(TrajectoryError::new(
+            &waypoints.file,
+            ErrorKind::WrongJointCount {
+                found: columns,
+                expected: config.joints.len(),
+            },
+        ));
+    }
+    for row in &mut waypoints.positions {
+        for (value, joint) in row.iter_mut().zip(&config.joints) {
+            *value = value.map(|v| units.to_steps(v, joint));
+        }
+        row.resize(config.joints.len(), None);
+    }
+    Ok(())
 }

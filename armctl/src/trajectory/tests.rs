@@ -522,3 +522,56 @@ fn the_shipped_examples_convert() {
     assert_eq!(points.len(), 200);
     assert_eq!(&points[49].position[..3], &[800, -400, 200]);
 }
+
+fn temp_file(name: &str, text: &str) -> std::path::PathBuf {
+    let dir = std::env::temp_dir().join(format!("armctl-traj-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join(name);
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+/// Issue 23: the README said a CSV may leave joints out, but with --config it was refused
+/// (2 positions, expected 3).
+#[test]
+fn a_csv_with_fewer_joints_than_the_config_holds_the_others() {
+    let config = ArmConfig::parse(
+        r#"{"joints": [{"max_step_rate_hz": 1000}, {"max_step_rate_hz": 1000},
+            {"max_step_rate_hz": 1000}]}"#,
+        "arm.json",
+    )
+    .unwrap();
+    let path = temp_file("partial.csv", "0.5,10,20\n1.0,0,0\n");
+    let w = load(&path, Some(&config)).unwrap();
+    assert_eq!(w.positions[0], vec![Some(10.0), Some(20.0), None]);
+    let points = to_points(&w, &[0, 0, 33, 0, 0, 0, 0, 0], 100_000, &config, None).unwrap();
+    assert!(points.iter().all(|p| p.position[2] == 33));
+    let wide = temp_file("wide.csv", "0.5,1,2,3,4\n");
+    let err = load(&wide, Some(&config)).unwrap_err();
+    assert_eq!(
+        err.kind,
+        ErrorKind::WrongJointCount {
+            found: 4,
+            expected: 3
+        }
+    );
+}
+
+#[test]
+fn a_csv_in_degrees_is_read_with_the_config_units() {
+    let config = ArmConfig::parse(
+        r#"{"units": "deg", "joints": [{"steps_per_radian": 1000, "zero_offset_steps": 5,
+            "max_step_rate_hz": 1000}]}"#,
+        "arm.json",
+    )
+    .unwrap();
+    let path = temp_file("deg.csv", "time_s,base\n1.0,90\n");
+    let w = load(&path, Some(&config)).unwrap();
+    let steps = w.positions[0][0].unwrap();
+    assert!((steps - (5.0 + 1000.0 * std::f64::consts::FRAC_PI_2)).abs() < 1e-9);
+    // --units overrides the config's.
+    let w = load_in(&path, Some(&config), Some(crate::motion::Units::Steps)).unwrap();
+    assert_eq!(w.positions[0][0], Some(90.0));
+    let err = load_in(&path, None, Some(crate::motion::Units::Rad)).unwrap_err();
+    assert!(err.to_string().contains("needs a joint config"), "{err}");
+}

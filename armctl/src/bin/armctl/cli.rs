@@ -7,6 +7,7 @@ use std::path::PathBuf;
 use clap::{Parser, Subcommand, ValueEnum};
 
 use crate::frame::FrameCmd;
+use crate::motion::{JogArgs, MoveArgs};
 use crate::net::NetCmd;
 use crate::plot::PlotArgs;
 use crate::pwm::PwmCmd;
@@ -78,6 +79,22 @@ pub enum Cmd {
         /// Wait until the move ends.
         #[arg(long)]
         wait: bool,
+    },
+    /// Move joints to positions (steps, or deg/rad with a config) on a speed profile
+    /// planned within each joint's limits; joints not given hold.
+    Move(MoveArgs),
+    /// Jog: `jog JOINT BY` moves one joint by an increment; `jog` alone jogs by keys (digits
+    /// choose a joint, arrows move it, Space stops, q quits).
+    Jog(JogArgs),
+    /// RETURN with progress: every joint to zero, a live position line, and a check that
+    /// all are there.
+    Home {
+        /// Joint config (names, units).
+        #[arg(long, value_name = "FILE")]
+        config: Option<PathBuf>,
+        /// Units of the positions shown: steps, deg or rad (default: the config's).
+        #[arg(long)]
+        units: Option<armctl::motion::Units>,
     },
     /// JOINTS_COUNT: set the number of joints (1..8).
     Joints {

@@ -21,6 +21,8 @@ mod connect;
 mod discover;
 mod frame;
 mod interrupt;
+mod jog_keys;
+mod motion;
 mod net;
 mod plot;
 mod pwm;
@@ -105,6 +107,9 @@ fn execute_online(cli: &Cli, arm: &armctl::Client) -> CliResult {
         Cmd::Stop => single::done(arm.stop()),
         Cmd::EstopReset => single::done(arm.estop_reset()),
         Cmd::Return { wait } => single::go_home(arm, *wait),
+        Cmd::Move(args) => motion::execute_move(arm, args),
+        Cmd::Jog(args) => motion::execute_jog(arm, args),
+        Cmd::Home { config, units } => motion::execute_home(arm, config.as_ref(), *units),
         Cmd::Joints { n } => single::done(arm.set_joints(*n)),
         Cmd::SetLocation { positions } => single::done(arm.set_location(positions)),
         Cmd::Enable { mask } => single::done(arm.toggle_enable(*mask)),

@@ -17,13 +17,17 @@ use crate::CliResult;
 #[derive(Args, Debug)]
 pub struct RunArgs {
     /// Trajectory file: `.json` (JointTrajectory, radians; needs --config) or CSV
-    /// (`time_s, steps...`).
+    /// (`time_s, positions...` in --units; with --config, joints left out hold).
     pub file: PathBuf,
     /// Joint config (JSON: steps_per_radian, zero_offset_steps, min/max_steps,
     /// max_step_rate_hz per joint).
     #[arg(long, value_name = "FILE")]
     pub config: Option<PathBuf>,
-    /// Segment duration in milliseconds.
+    /// Units of a CSV's positions: steps, deg or rad (default: the config's `units`, else
+    /// steps); degrees and radians need --config.
+    #[arg(long)]
+    pub units: Option<armctl::motion::Units>,
+    /// Longest segment duration in milliseconds (every waypoint also ends a segment).
     #[arg(long, default_value_t = 10.0)]
     pub segment_ms: f64,
     /// Frames in flight (1 = stop-and-wait, at most 32; default: the window the
@@ -89,7 +93,8 @@ fn convert(
     controller_max_rate: Option<u32>,
 ) -> Result<Converted, String> {
     let (waypoints, config) =
-        trajectory::load_files(&args.file, args.config.as_deref()).map_err(|e| e.to_string())?;
+        trajectory::load_files_in(&args.file, args.config.as_deref(), args.units)
+            .map_err(|e| e.to_string())?;
     let joints = waypoints.positions.first().map_or(0, Vec::len);
     if let Some(n) = controller_joints
         && joints > n

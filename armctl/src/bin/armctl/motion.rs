@@ -1,0 +1,368 @@
+//! `armctl move`, `jog` and `home`: the arm to a position, a joint by an increment (or by
+//! keys), and every joint to zero, each with its progress and a check of where it ended.
+//!
+//! Moves are planned on the host (`armctl::motion`): one trapezoidal profile for all
+//! joints, within each joint's step rate and acceleration (the joint config's, capped by the
+//! rate the controller advertises in STATUS) and position range (the config's). Positions
+//! are taken and shown in `--units` (steps, deg or rad; default: the config's `units`).
+//! SIGINT or SIGTERM during a move or a home: STOPPED (crate::interrupt).
+
+use std::path::PathBuf;
+use std::time::Duration;
+
+use armctl::motion::{JointLimit, MoveSpeed, TargetArg, Units, joint_index, targets_in_steps};
+use armctl::trajectory::ArmConfig;
+use armctl::{Client, RunOptions};
+use clap::Args;
+use protocol::{MAX_JOINTS, MoreFlags, State, StatusCode};
+
+use crate::CliResult;
+
+/// What `move` and `jog` share: the config, units and speed.
+#[derive(Args, Debug, Clone)]
+pub struct MotionArgs {
+    /// Joint config (JSON: names, units, steps_per_radian, zero_offset_steps, min/max_steps,
+    /// max_step_rate_hz, max_accel_steps_s2); without one, positions are in steps and only
+    /// the controller's step rate limits the move.
+    #[arg(long, value_name = "FILE")]
+    pub config: Option<PathBuf>,
+    /// Units of the positions given and shown: steps, deg or rad (default: the config's
+    /// `units`, else steps). Degrees and radians need a config.
+    #[arg(long)]
+    pub units: Option<Units>,
+    /// Percent of each joint's step rate the move may reach.
+    #[arg(long, default_value_t = 50, value_parser = clap::value_parser!(u8).range(1..=100))]
+    pub speed: u8,
+    /// Segment duration of the planned profile, milliseconds.
+    #[arg(long, default_value_t = 10.0)]
+    pub segment_ms: f64,
+}
+
+/// `move` options.
+#[derive(Args, Debug)]
+pub struct MoveArgs {
+    /// Targets: `VALUE ...` for joints 0, 1, ... in order, or `JOINT=VALUE` (JOINT an index
+    /// or a config name); joints not given hold.
+    #[arg(required = true, num_args = 1..=8, allow_negative_numbers = true)]
+    pub targets: Vec<TargetArg>,
+    /// The values are increments from where the arm is.
+    #[arg(long)]
+    pub relative: bool,
+    #[command(flatten)]
+    pub motion: MotionArgs,
+}
+
+/// `jog` options.
+#[derive(Args, Debug)]
+pub struct JogArgs {
+    /// The joint (index or config name); without it, jog by keys (needs a terminal).
+    pub joint: Option<String>,
+    /// The increment in `--units` (negative: the other way).
+    #[arg(allow_negative_numbers = true)]
+    pub by: Option<f64>,
+    /// The starting increment of each key press (default: 1 deg, 0.02 rad or 100 steps).
+    #[arg(long, value_name = "AMOUNT")]
+    pub increment: Option<f64>,
+    #[command(flatten)]
+    pub motion: MotionArgs,
+}
+
+/// The arm as a move sees it: joints, config, units, limits.
+pub struct Arm<'a> {
+    pub client: &'a Client,
+    /// Joints the controller drives.
+    pub joints: usize,
+    /// The config given, or one without limits (steps, the controller's rate).
+    pub config: ArmConfig,
+    pub units: Units,
+    limits: Vec<JointLimit>,
+    speed: MoveSpeed,
+    segment_us: u32,
+}
+
+impl<'a> Arm<'a> {
+    /// Reads STATUS (the arm must be STOPPED, with no e-stop latch) and the config.
+    pub fn new(client: &'a Client, args: &MotionArgs) -> Result<Arm<'a>, String> {
+        let status = client.status().map_err(|e| e.to_string())?;
+        if status.state != State::Stopped {
+            return Err(format!(
+                "the controller is {}: `armctl stop` first, or wait for the motion to end",
+                status.state.name()
+            ));
+        }
+        if status.more_flags.has(MoreFlags::ESTOP_LATCHED) {
+            return Err(format!(
+                "the controller's wired e-stop input is latched (ESTOP_LATCHED): {}",
+                StatusCode::EstopLatched.advice()
+            ));
+        }
+        let joints = usize::from(status.joints).clamp(1, MAX_JOINTS);
+        let config = match &args.config {
+            Some(path) => {
+                let config = ArmConfig::load(path).map_err(|e| e.to_string())?;
+                if config.joints.len() < joints {
+                    return Err(format!(
+                        "{}: {} joints configured, the controller drives {joints}",
+                        path.display(),
+                        config.joints.len()
+                    ));
+                }
+                config
+            }
+            None => ArmConfig::unlimited(joints, status.max_step_rate_hz),
+        };
+        let units = args.units.unwrap_or(config.units);
+        if units != Units::Steps && args.config.is_none() {
+            return Err(format!(
+                "--units {} needs a joint config (--config FILE: steps_per_radian, \
+                 zero_offset_steps per joint)",
+                units.name()
+            ));
+        }
+        if !(args.segment_ms.is_finite() && args.segment_ms > 0.0) {
+            return Err("--segment-ms must be above 0".into());
+        }
+        let mut limits = JointLimit::all(&config, Some(status.max_step_rate_hz));
+        limits.truncate(joints);
+        Ok(Arm {
+            client,
+            joints,
+            config,
+            units,
+            limits,
+            speed: MoveSpeed {
+                rate: f64::from(args.speed) / 100.0,
+                accel: 1.0,
+            },
+            segment_us: (args.segment_ms * 1000.0).round().clamp(1.0, 1e9) as u32,
+        })
+    }
+
+    /// The name a message gives joint `j`: its config name, else `joint j`.
+    pub fn joint_name(&self, j: usize) -> String {
+        match self.config.joints.get(j).and_then(|c| c.name.as_deref()) {
+            Some(name) => name.to_string(),
+            None => format!("joint {j}"),
+        }
+    }
+
+    /// `base 90.00 deg, elbow -3.20 deg`: positions in the arm's units.
+    pub fn positions_line(&self, position: &[i32; MAX_JOINTS]) -> String {
+        (0..self.joints)
+            .map(|j| {
+                format!(
+                    "{} {}",
+                    self.joint_name(j),
+                    self.units
+                        .show(i64::from(position[j]), &self.config.joints[j])
+                )
+            })
+            .collect::<Vec<_>>()
+            .join(", ")
+    }
+
+    /// Where the arm is.
+    pub fn position(&self) -> Result<[i32; MAX_JOINTS], String> {
+        self.client
+            .current_location(Duration::from_secs(2))
+            .map(|l| l.position)
+            .map_err(|e| e.to_string())
+    }
+
+    /// Targets from `args` in the arm's units, checked against the config's range (the
+    /// message names the joint, the value in units and the range).
+    pub fn targets(
+        &self,
+        args: &[TargetArg],
+        relative: bool,
+        current: &[i32; MAX_JOINTS],
+    ) -> Result<[i32; MAX_JOINTS], String> {
+        let target = targets_in_steps(
+            args,
+            self.units,
+            relative,
+            current,
+            self.joints,
+            &self.config,
+        )?;
+        for (j, limit) in self.limits.iter().enumerate() {
+            if target[j] < limit.min_steps || target[j] > limit.max_steps {
+                let joint = &self.config.joints[j];
+                return Err(format!(
+                    "{}: target {} is outside its range {} to {}",
+                    self.joint_name(j),
+                    self.units.show(i64::from(target[j]), joint),
+                    self.units.show(i64::from(limit.min_steps), joint),
+                    self.units.show(i64::from(limit.max_steps), joint),
+                ));
+            }
+        }
+        Ok(target)
+    }
+
+    /// Moves to `target` with a progress bar (unless `quiet`), then checks the arm is
+    /// there. `cancel` ends the move (the caller sends STOPPED).
+    pub fn move_to(
+        &self,
+        target: &[i32; MAX_JOINTS],
+        cancel: Option<armctl::Cancel>,
+        quiet: bool,
+    ) -> Result<[i32; MAX_JOINTS], String> {
+        let bar = if quiet {
+            indicatif::ProgressBar::hidden()
+        } else {
+            indicatif::ProgressBar::new(0)
+        };
+        bar.set_style(
+            indicatif::ProgressStyle::with_template("{spinner} {bar:40} {pos}/{len} points  {msg}")
+                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+        );
+        let options = RunOptions {
+            window: 0,
+            cancel,
+            ..RunOptions::default()
+        };
+        let report = self
+            .client
+            .move_to(
+                target,
+                &self.limits,
+                self.speed,
+                self.segment_us,
+                &options,
+                |p| {
+                    bar.set_length(p.total as u64);
+                    bar.set_position(p.executed as u64);
+                    bar.set_message(p.state.name());
+                },
+            )
+            .map_err(|e| e.to_string());
+        bar.finish_and_clear();
+        let report = report?;
+        let at = match report.and_then(|r| r.final_location) {
+            Some(location) => location.position,
+            None => self.position()?,
+        };
+        let wrong: Vec<String> = (0..self.joints)
+            .filter(|&j| at[j] != target[j])
+            .map(|j| {
+                let joint = &self.config.joints[j];
+                format!(
+                    "{} at {}, expected {}",
+                    self.joint_name(j),
+                    self.units.show(i64::from(at[j]), joint),
+                    self.units.show(i64::from(target[j]), joint)
+                )
+            })
+            .collect();
+        if wrong.is_empty() {
+            Ok(at)
+        } else {
+            Err(format!("the move ended elsewhere: {}", wrong.join("; ")))
+        }
+    }
+}
+
+/// Runs `move`.
+pub fn execute_move(client: &Client, args: &MoveArgs) -> CliResult {
+    let arm = Arm::new(client, &args.motion)?;
+    let current = arm.position()?;
+    let target = arm.targets(&args.targets, args.relative, &current)?;
+    if target == current {
+        println!("already there: {}", arm.positions_line(&current));
+        return Ok(());
+    }
+    let cancel = crate::interrupt::watch()?;
+    let result = arm.move_to(&target, Some(cancel), false);
+    if crate::interrupt::stop_if_signalled(client) {
+        return Err("interrupted".into());
+    }
+    println!("at {}", arm.positions_line(&result?));
+    Ok(())
+}
+
+/// Runs `jog`: one increment of one joint, or by keys.
+pub fn execute_jog(client: &Client, args: &JogArgs) -> CliResult {
+    let arm = Arm::new(client, &args.motion)?;
+    match (&args.joint, args.by) {
+        (Some(joint), Some(by)) => {
+            let j = joint_index(joint, arm.joints, Some(&arm.config))?;
+            let current = arm.position()?;
+            let target = arm.targets(
+                &[TargetArg {
+                    joint: Some(j.to_string()),
+                    value: by,
+                }],
+                true,
+                &current,
+            )?;
+            let cancel = crate::interrupt::watch()?;
+            let result = arm.move_to(&target, Some(cancel), true);
+            if crate::interrupt::stop_if_signalled(client) {
+                return Err("interrupted".into());
+            }
+            println!("at {}", arm.positions_line(&result?));
+            Ok(())
+        }
+        (Some(_), None) => {
+            Err("jog JOINT BY: give the increment too (or neither, for keys)".into())
+        }
+        (None, _) => crate::jog_keys::execute(&arm, args.increment),
+    }
+}
+
+/// Runs `home`: RETURN, a live position line until the arm is STOPPED, and the check that
+/// every joint is at zero.
+pub fn execute_home(client: &Client, config: Option<&PathBuf>, units: Option<Units>) -> CliResult {
+    let arm = Arm::new(
+        client,
+        &MotionArgs {
+            config: config.cloned(),
+            units,
+            speed: 100,
+            segment_ms: 10.0,
+        },
+    )?;
+    let cancel = crate::interrupt::watch()?;
+    let locations = client.locations();
+    client.go_home().map_err(|e| e.to_string())?;
+    let quiet = !console::Term::stdout().is_term();
+    let mut last = None;
+    let status = loop {
+        if let Ok(location) = locations.recv_timeout(Duration::from_millis(100)) {
+            if !quiet {
+                print!("\rhoming: {}   ", arm.positions_line(&location.position));
+                use std::io::Write;
+                let _ = std::io::stdout().flush();
+            }
+            last = Some(location.position);
+        }
+        if cancel.is_cancelled() {
+            crate::interrupt::stop_if_signalled(client);
+            return Err("interrupted".into());
+        }
+        let status = client.status().map_err(|e| e.to_string())?;
+        if status.state == State::Stopped {
+            break status;
+        }
+    };
+    if !quiet {
+        println!();
+    }
+    // The controller sends a LOCATION report at the state change; ask for a fresh one.
+    let at = arm.position().or_else(|e| last.ok_or(e))?;
+    let away: Vec<String> = (0..arm.joints)
+        .filter(|&j| at[j] != 0)
+        .map(|j| format!("{} at {} steps", arm.joint_name(j), at[j]))
+        .collect();
+    if away.is_empty() {
+        println!("home: {}", arm.positions_line(&at));
+        Ok(())
+    } else {
+        Err(format!(
+            "RETURN ended (state {}) with joints away from zero: {}",
+            status.state.name(),
+            away.join("; ")
+        ))
+    }
+}
