@@ -76,10 +76,12 @@ impl Units {
 
     /// `value` (a position of `joint` in steps) formatted in these units, with the unit.
     pub fn show(self, steps: i64, joint: &JointConfig) -> String {
+        // Rounded first, and `+ 0.0` turns -0.0 into 0.0: home never reads "-0.00 deg".
+        let rounded = |scale: f64| (self.from_steps(steps, joint) * scale).round() / scale + 0.0;
         match self {
             Units::Steps => format!("{steps} steps"),
-            Units::Deg => format!("{:.2} deg", self.from_steps(steps, joint)),
-            Units::Rad => format!("{:.4} rad", self.from_steps(steps, joint)),
+            Units::Deg => format!("{:.2} deg", rounded(100.0)),
+            Units::Rad => format!("{:.4} rad", rounded(10_000.0)),
         }
     }
 }
@@ -278,7 +280,9 @@ pub fn plan_move(
         return Ok(Vec::new());
     }
     for (j, limit) in limits.iter().enumerate().take(joints) {
-        if distance[j] > 0.0 && (limit.max_rate_hz == 0 || !(limit.max_accel > 0.0)) {
+        if distance[j] > 0.0
+            && (limit.max_rate_hz == 0 || limit.max_accel.is_nan() || limit.max_accel <= 0.0)
+        {
             return Err(MoveError::CannotMove { joint: j });
         }
     }

@@ -182,6 +182,7 @@ fn units_convert_with_the_calibration() {
     assert!((Units::Deg.to_steps(180.0, &j) - (50.0 + 1000.0 * std::f64::consts::PI)).abs() < 1e-9);
     assert!((Units::Deg.from_steps(1050, &j) - 1f64.to_degrees()).abs() < 1e-9);
     assert_eq!(Units::Deg.show(50, &j), "0.00 deg");
+    assert_eq!(Units::Deg.show(0, &joint(-1000.0, 0)), "0.00 deg");
     assert_eq!("degrees".parse::<Units>(), Ok(Units::Deg));
     assert!("furlongs".parse::<Units>().is_err());
 }

@@ -188,12 +188,21 @@ impl<'a> Arm<'a> {
         for (j, limit) in self.limits.iter().enumerate() {
             if target[j] < limit.min_steps || target[j] > limit.max_steps {
                 let joint = &self.config.joints[j];
+                let steps = |s: i32| match self.units {
+                    Units::Steps => String::new(),
+                    _ => format!(" ({s} steps)"),
+                };
                 return Err(format!(
-                    "{}: target {} is outside its range {} to {}",
+                    "{}: target {}{} is outside its range {} to {}{}",
                     self.joint_name(j),
                     self.units.show(i64::from(target[j]), joint),
+                    steps(target[j]),
                     self.units.show(i64::from(limit.min_steps), joint),
                     self.units.show(i64::from(limit.max_steps), joint),
+                    match self.units {
+                        Units::Steps => String::new(),
+                        _ => format!(" ({} to {} steps)", limit.min_steps, limit.max_steps),
+                    }
                 ));
             }
         }

@@ -1,0 +1,121 @@
+//! Issue 23: what a new user does first, with the `armctl` binary against the real
+//! sim-host: move the arm in degrees, jog a joint, home it, and run a 5-waypoint file in
+//! degrees whose via points must all be reached.
+
+use std::process::Command;
+
+use system_tests::{SimHost, armctl_bin};
+
+fn armctl(sim: &SimHost, args: &[&str]) -> (bool, String, String) {
+    let output = Command::new(armctl_bin())
+        .arg("--controller")
+        .arg(sim.addr.to_string())
+        .args(args)
+        .output()
+        .expect("run armctl");
+    (
+        output.status.success(),
+        String::from_utf8_lossy(&output.stdout).into_owned(),
+        String::from_utf8_lossy(&output.stderr).into_owned(),
+    )
+}
+
+/// 1000 steps per radian (17.45 steps a degree); the elbow is limited to +-45 degrees.
+const CONFIG: &str = r#"{"units": "deg", "joints": [
+    {"name": "base", "steps_per_radian": 1000, "max_step_rate_hz": 4000},
+    {"name": "elbow", "steps_per_radian": 1000, "min_steps": -785, "max_steps": 785,
+     "max_step_rate_hz": 2000, "max_accel_steps_s2": 20000},
+    {"name": "wrist", "steps_per_radian": -1000, "max_step_rate_hz": 4000}
+]}"#;
+
+#[test]
+fn move_jog_home_and_a_file_in_degrees() {
+    let sim = SimHost::start(&["--joints", "3"]);
+    let config = sim.dir().join("arm.json");
+    std::fs::write(&config, CONFIG).unwrap();
+    let config = config.to_str().unwrap();
+
+    // Move: base to 30 degrees, wrist to -10; the elbow holds. Positions are whole steps:
+    // 30 degrees is 523.6 steps, 524 shown back as 30.02 degrees.
+    let (ok, out, err) = armctl(
+        &sim,
+        &["move", "--config", config, "30", "elbow=0", "wrist=-10"],
+    );
+    assert!(ok, "{out}\n{err}");
+    assert!(
+        out.contains("at base 30.02 deg, elbow 0.00 deg, wrist -10.03 deg"),
+        "{out}"
+    );
+
+    // Jog the elbow by 5 degrees, twice, then back by 2.5.
+    for by in ["5", "5", "-2.5"] {
+        let (ok, out, err) = armctl(&sim, &["jog", "--config", config, "elbow", by]);
+        assert!(ok, "{out}\n{err}");
+    }
+    let (ok, out, _) = armctl(&sim, &["jog", "--config", config, "elbow", "0"]);
+    assert!(ok);
+    // Each jog rounds to whole steps (17.45 a degree): 87, 174, 130 steps = 7.45 degrees.
+    assert!(out.contains("elbow 7.45 deg"), "{out}");
+
+    // Beyond the elbow's range: refused before anything moves, naming joint and range.
+    let (ok, _, err) = armctl(&sim, &["move", "--config", config, "elbow=50"]);
+    assert!(!ok);
+    assert!(
+        err.contains(
+            "elbow: target 50.02 deg (873 steps) is outside its range -44.98 deg to 44.98 deg \
+             (-785 to 785 steps)"
+        ),
+        "{err}"
+    );
+
+    // Home: every joint back to 0, checked.
+    let (ok, out, err) = armctl(&sim, &["home", "--config", config]);
+    assert!(ok, "{out}\n{err}");
+    assert!(
+        out.contains("home: base 0.00 deg, elbow 0.00 deg, wrist 0.00 deg"),
+        "{out}"
+    );
+
+    // A 5-waypoint file in degrees (the config's units), from home, with via points that
+    // fall between 10 ms segment ends (0.505 s, 1.255 s).
+    let file = sim.dir().join("wave-deg.csv");
+    std::fs::write(
+        &file,
+        "time_s,base,elbow,wrist\n0,0,0,0\n0.505,20,10,-5\n1.255,-10,30,5\n1.8,15,-20,0\n2.4,0,0,0\n",
+    )
+    .unwrap();
+    let (ok, out, err) = armctl(
+        &sim,
+        &["run", file.to_str().unwrap(), "--config", config, "--quiet"],
+    );
+    assert!(ok, "{out}\n{err}");
+    assert!(
+        out.contains("each of the 5 waypoints is a point's end at its time"),
+        "{out}"
+    );
+    assert!(
+        out.contains("all 5 waypoints were passed at their times"),
+        "{out}"
+    );
+}
+
+#[test]
+fn move_without_a_config_is_in_steps_and_degrees_need_one() {
+    let sim = SimHost::start(&["--joints", "2"]);
+    let (ok, out, err) = armctl(&sim, &["move", "400", "-300"]);
+    assert!(ok, "{out}\n{err}");
+    assert!(
+        out.contains("at joint 0 400 steps, joint 1 -300 steps"),
+        "{out}"
+    );
+    let (ok, out, err) = armctl(&sim, &["move", "--relative", "1=50"]);
+    assert!(ok, "{out}\n{err}");
+    assert!(out.contains("joint 1 -250 steps"), "{out}");
+    let (ok, _, err) = armctl(&sim, &["move", "--units", "deg", "10"]);
+    assert!(!ok);
+    assert!(err.contains("--units deg needs a joint config"), "{err}");
+    // Jog by keys needs a terminal; the tool says what to do instead.
+    let (ok, _, err) = armctl(&sim, &["jog"]);
+    assert!(!ok);
+    assert!(err.contains("jog by keys needs a terminal"), "{err}");
+}
