@@ -12,7 +12,9 @@ ACKed: a RuntimeWarning) before the exception propagates.
 """
 
 from os import PathLike
-from typing import Any, Dict, Iterator, List, Optional, Tuple, TypedDict, Union
+from typing import (
+    Any, Dict, Iterator, List, Literal, Optional, Sequence, Tuple, TypedDict, Union, overload,
+)
 
 import numpy as np
 import numpy.typing as npt
@@ -21,6 +23,7 @@ PORT: int
 """The controller's UDP port, 8510."""
 
 _Path = Union[str, PathLike]
+_Units = Literal["steps", "deg", "rad"]
 
 class Flags(TypedDict):
     reports_on: bool
@@ -147,6 +150,31 @@ class Arm:
     def status(self) -> Status: ...
     def positions(self) -> npt.NDArray[np.int32]:
         """Joint positions in steps, one per joint in use."""
+    @overload
+    def run(
+        self,
+        times: npt.ArrayLike,
+        positions: npt.ArrayLike,
+        config: Optional[_Path] = None,
+        wait: Literal[True] = True,
+        segment_ms: float = 10.0,
+        window: Optional[int] = None,
+    ) -> RunReport:
+        """Runs through waypoints: `times` (N,) seconds, strictly increasing; `positions`
+        (N, J) steps, or radians with a joint `config` file. Returns the report (wait) or
+        a RunHandle (wait=False)."""
+    @overload
+    def run(
+        self,
+        times: npt.ArrayLike,
+        positions: npt.ArrayLike,
+        config: Optional[_Path] = None,
+        *,
+        wait: Literal[False],
+        segment_ms: float = 10.0,
+        window: Optional[int] = None,
+    ) -> RunHandle: ...
+    @overload
     def run(
         self,
         times: npt.ArrayLike,
@@ -155,10 +183,32 @@ class Arm:
         wait: bool = True,
         segment_ms: float = 10.0,
         window: Optional[int] = None,
-    ) -> Union[RunReport, RunHandle]:
-        """Runs through waypoints: `times` (N,) seconds, strictly increasing; `positions`
-        (N, J) steps, or radians with a joint `config` file. Returns the report (wait) or
-        a RunHandle (wait=False)."""
+    ) -> Union[RunReport, RunHandle]: ...
+    @overload
+    def run_file(
+        self,
+        path: _Path,
+        config: Optional[_Path] = None,
+        wait: Literal[True] = True,
+        segment_ms: float = 10.0,
+        window: Optional[int] = None,
+        units: Optional[_Units] = None,
+    ) -> RunReport:
+        """Runs a JointTrajectory JSON (radians, with `config`) or CSV file (in `units`,
+        default the config's `units`, else steps; joints the CSV leaves out hold). Every
+        waypoint ends a segment: none is skipped."""
+    @overload
+    def run_file(
+        self,
+        path: _Path,
+        config: Optional[_Path] = None,
+        *,
+        wait: Literal[False],
+        segment_ms: float = 10.0,
+        window: Optional[int] = None,
+        units: Optional[_Units] = None,
+    ) -> RunHandle: ...
+    @overload
     def run_file(
         self,
         path: _Path,
@@ -166,8 +216,46 @@ class Arm:
         wait: bool = True,
         segment_ms: float = 10.0,
         window: Optional[int] = None,
-    ) -> Union[RunReport, RunHandle]:
-        """Runs a JointTrajectory JSON (radians, with `config`) or CSV (steps) file."""
+        units: Optional[_Units] = None,
+    ) -> Union[RunReport, RunHandle]: ...
+    @overload
+    def move_to(
+        self,
+        targets: Sequence[Optional[float]],
+        config: Optional[_Path] = None,
+        units: Optional[_Units] = None,
+        speed: float = 0.5,
+        relative: bool = False,
+        segment_ms: float = 10.0,
+        wait: Literal[True] = True,
+    ) -> Optional[RunReport]:
+        """Moves joints to `targets` (joint 0 first, None holds) in `units` (default the
+        config's, else steps) on one speed profile within each joint's limits, at `speed`
+        (fraction of the step rate). None when already there."""
+    @overload
+    def move_to(
+        self,
+        targets: Sequence[Optional[float]],
+        config: Optional[_Path] = None,
+        units: Optional[_Units] = None,
+        speed: float = 0.5,
+        relative: bool = False,
+        segment_ms: float = 10.0,
+        *,
+        wait: Literal[False],
+    ) -> Optional[RunHandle]: ...
+    def jog(
+        self,
+        joint: Union[int, str],
+        by: float,
+        config: Optional[_Path] = None,
+        units: Optional[_Units] = None,
+        speed: float = 0.5,
+    ) -> Optional[RunReport]:
+        """Moves one joint (index, or name in `config`) by `by` in `units`."""
+    def home(self, timeout: float = 600.0) -> npt.NDArray[np.int32]:
+        """RETURN to its end, then the positions (all 0); raises if a joint ended
+        elsewhere."""
     def stop(self) -> None:
         """STOPPED: every joint stops at once, the trajectory is dropped."""
     def go_home(self, wait: bool = True, timeout: float = 600.0) -> None:

@@ -26,6 +26,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::time::Duration;
 
+use armctl::motion::{JointLimit, MoveSpeed, TargetArg, Units, plan_move, targets_in_steps};
 use armctl::trajectory::{self, ArmConfig, Waypoints};
 use armctl::{Client, Options, RunOptions};
 use numpy::{PyArray1, PyReadonlyArray1, PyReadonlyArray2};
@@ -172,6 +173,69 @@ impl Arm {
         )
         .map_err(trajectory_err)?;
         self.start_run(py, points, arm_joints, wait, window)
+    }
+
+    /// What `move_to` and `jog` share: targets (joint, value in `units`) from the arm's
+    /// position, planned within the config's (or the controller's) limits and run.
+    #[allow(clippy::too_many_arguments)]
+    fn move_joints(
+        &self,
+        py: Python<'_>,
+        targets: Vec<(usize, f64)>,
+        config: Option<PathBuf>,
+        units: Option<String>,
+        speed: f64,
+        relative: bool,
+        segment_ms: f64,
+        wait: bool,
+    ) -> PyResult<Option<Py<PyAny>>> {
+        let config = config
+            .map(|p| ArmConfig::load(&p))
+            .transpose()
+            .map_err(trajectory_err)?;
+        let units: Option<Units> = units
+            .map(|u| u.parse())
+            .transpose()
+            .map_err(PyValueError::new_err)?;
+        let units = units
+            .or(config.as_ref().map(|c| c.units))
+            .unwrap_or_default();
+        if units != Units::Steps && config.is_none() {
+            return Err(PyValueError::new_err(format!(
+                "units {:?} need a joint config (config=PATH)",
+                units.name()
+            )));
+        }
+        if !(segment_ms.is_finite() && segment_ms > 0.0) {
+            return Err(PyValueError::new_err("segment_ms must be above 0"));
+        }
+        let (status, location) = self.before_run(py)?;
+        let joints = usize::from(status.joints).clamp(1, MAX_JOINTS);
+        let config =
+            config.unwrap_or_else(|| ArmConfig::unlimited(joints, status.max_step_rate_hz));
+        let args: Vec<TargetArg> = targets
+            .into_iter()
+            .map(|(j, value)| TargetArg {
+                joint: Some(j.to_string()),
+                value,
+            })
+            .collect();
+        let target = targets_in_steps(&args, units, relative, &location.position, joints, &config)
+            .map_err(PyValueError::new_err)?;
+        let mut limits = JointLimit::all(&config, Some(status.max_step_rate_hz));
+        limits.truncate(joints);
+        let speed = MoveSpeed {
+            rate: speed,
+            accel: 1.0,
+        };
+        let segment_us = (segment_ms * 1000.0).round().clamp(1.0, 1e9) as u32;
+        let points = plan_move(&location.position, &target, &limits, speed, segment_us)
+            .map_err(|e| TrajectoryError::new_err(e.to_string()))?;
+        if points.is_empty() {
+            return Ok(None);
+        }
+        let window = armctl::window_of(&status);
+        self.start_run(py, points, joints, wait, window).map(Some)
     }
 
     /// STATUS and a fresh LOCATION: what converting a trajectory needs.
@@ -369,7 +433,8 @@ impl Arm {
 
     /// Runs a trajectory file as `armctl run` does: JointTrajectory JSON (radians, needs
     /// `config`) or CSV (`time_s, steps...`).
-    #[pyo3(signature = (path, config=None, wait=true, segment_ms=10.0, window=None))]
+    #[pyo3(signature = (path, config=None, wait=true, segment_ms=10.0, window=None, units=None))]
+    #[allow(clippy::too_many_arguments)]
     fn run_file(
         &self,
         py: Python<'_>,
@@ -378,9 +443,14 @@ impl Arm {
         wait: bool,
         segment_ms: f64,
         window: Option<usize>,
+        units: Option<String>,
     ) -> PyResult<Py<PyAny>> {
+        let units: Option<Units> = units
+            .map(|u| u.parse())
+            .transpose()
+            .map_err(PyValueError::new_err)?;
         let (waypoints, config) =
-            trajectory::load_files(&path, config.as_deref()).map_err(trajectory_err)?;
+            trajectory::load_files_in(&path, config.as_deref(), units).map_err(trajectory_err)?;
         let run = WaypointRun {
             waypoints,
             config,
@@ -388,6 +458,81 @@ impl Arm {
             segment_ms,
         };
         self.run_waypoints(py, run, wait, window)
+    }
+
+    /// Moves joints to `targets` (one value per joint from joint 0, `None` to hold, in
+    /// `units`: "steps", "deg" or "rad", default the config's) on one speed profile within
+    /// each joint's limits (the config's, capped by the controller's step rate), at `speed`
+    /// (a fraction of the step rate). `relative`: increments. Returns the run's report (a
+    /// RunHandle with `wait=False`), or None when the arm is already there.
+    #[pyo3(signature = (targets, config=None, units=None, speed=0.5, relative=false, segment_ms=10.0, wait=true))]
+    #[allow(clippy::too_many_arguments)]
+    fn move_to(
+        &self,
+        py: Python<'_>,
+        targets: Vec<Option<f64>>,
+        config: Option<PathBuf>,
+        units: Option<String>,
+        speed: f64,
+        relative: bool,
+        segment_ms: f64,
+        wait: bool,
+    ) -> PyResult<Option<Py<PyAny>>> {
+        let targets = targets
+            .into_iter()
+            .enumerate()
+            .filter_map(|(j, v)| v.map(|v| (j, v)))
+            .collect();
+        self.move_joints(
+            py, targets, config, units, speed, relative, segment_ms, wait,
+        )
+    }
+
+    /// Moves one joint (an index, or a name in `config`) by `by` (in `units`), as
+    /// `armctl jog JOINT BY` does. Returns the run's report, or None for a 0 increment.
+    #[pyo3(signature = (joint, by, config=None, units=None, speed=0.5))]
+    fn jog(
+        &self,
+        py: Python<'_>,
+        joint: Bound<'_, PyAny>,
+        by: f64,
+        config: Option<PathBuf>,
+        units: Option<String>,
+        speed: f64,
+    ) -> PyResult<Option<Py<PyAny>>> {
+        let j = match joint.extract::<usize>() {
+            Ok(j) => j,
+            Err(_) => {
+                let name: String = joint.extract().map_err(|_| {
+                    PyValueError::new_err("joint: an index or a name from the config")
+                })?;
+                let loaded = config
+                    .as_ref()
+                    .map(|p| ArmConfig::load(p))
+                    .transpose()
+                    .map_err(trajectory_err)?;
+                armctl::motion::joint_index(&name, MAX_JOINTS, loaded.as_ref())
+                    .map_err(PyValueError::new_err)?
+            }
+        };
+        self.move_joints(py, vec![(j, by)], config, units, speed, true, 10.0, true)
+    }
+
+    /// RETURN and its end (`go_home(wait=True)`), then where the joints are: all 0 unless
+    /// it was stopped. Raises if a joint ended elsewhere.
+    #[pyo3(signature = (timeout=600.0))]
+    fn home<'py>(&self, py: Python<'py>, timeout: f64) -> PyResult<Bound<'py, PyArray1<i32>>> {
+        self.go_home(py, true, timeout)?;
+        let (status, location) = self.before_run(py)?;
+        let joints = usize::from(status.joints).clamp(1, MAX_JOINTS);
+        if let Some(j) = (0..joints).find(|&j| location.position[j] != 0) {
+            return Err(ArmctlError::new_err(format!(
+                "RETURN ended (state {}) with joint {j} at {} steps, not 0",
+                status.state.name(),
+                location.position[j]
+            )));
+        }
+        Ok(PyArray1::from_slice(py, &location.position[..joints]))
     }
 
     /// STOPPED: stops every joint at once and drops the trajectory (obeyed from anyone).
