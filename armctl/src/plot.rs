@@ -97,6 +97,17 @@ struct Line {
 
 /// Draws the recording (and the commanded trajectory) as an SVG document.
 pub fn svg(samples: &[Sample], commanded: Option<&Commanded>, title: &str) -> String {
+    svg_named(samples, commanded, title, &[])
+}
+
+/// As [`svg`], the legend naming joint `j` `names[j]` where given (a joint config's
+/// names), else `joint j`.
+pub fn svg_named(
+    samples: &[Sample],
+    commanded: Option<&Commanded>,
+    title: &str,
+    names: &[String],
+) -> String {
     let joints = samples.iter().map(|s| s.position.len()).max().unwrap_or(0);
     let lines: Vec<Line> = (0..joints)
         .map(|joint| Line {
@@ -107,13 +118,23 @@ pub fn svg(samples: &[Sample], commanded: Option<&Commanded>, title: &str) -> St
                 .collect(),
         })
         .collect();
-    draw(&lines, commanded, title)
+    draw(&lines, commanded, title, names)
 }
 
 /// Draws a simulator trace (and the commanded trajectory) as an SVG document: the joints
 /// that stepped or are commanded (joint 0 when none did), each at most about two corners
 /// per bucket of its [`crate::vcd::Track`], ending exactly at its final position.
 pub fn trace_svg(trace: &Trace, commanded: Option<&Commanded>, title: &str) -> String {
+    trace_svg_named(trace, commanded, title, &[])
+}
+
+/// As [`trace_svg`], with joint names as [`svg_named`] takes them.
+pub fn trace_svg_named(
+    trace: &Trace,
+    commanded: Option<&Commanded>,
+    title: &str,
+    names: &[String],
+) -> String {
     let commanded_joints = commanded.map_or(0, |c| {
         c.positions
             .iter()
@@ -145,11 +166,11 @@ pub fn trace_svg(trace: &Trace, commanded: Option<&Commanded>, title: &str) -> S
             ],
         });
     }
-    draw(&lines, commanded, title)
+    draw(&lines, commanded, title, names)
 }
 
-fn draw(lines: &[Line], commanded: Option<&Commanded>, title: &str) -> String {
-    render(lines, commanded, title).unwrap_or_else(|e| {
+fn draw(lines: &[Line], commanded: Option<&Commanded>, title: &str, names: &[String]) -> String {
+    render(lines, commanded, title, names).unwrap_or_else(|e| {
         // Drawing into a String has no I/O; only a layout error could get here.
         format!(
             "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"{WIDTH}\" height=\"{HEIGHT}\"><text x=\"20\" y=\"40\">plot failed: {}</text></svg>\n",
@@ -209,6 +230,7 @@ fn render(
     lines: &[Line],
     commanded: Option<&Commanded>,
     title: &str,
+    names: &[String],
 ) -> Result<String, Box<dyn std::error::Error>> {
     let (times, positions) = bounds(lines, commanded);
     let mut out = String::new();
@@ -265,7 +287,12 @@ fn render(
             }
             chart
                 .draw_series(LineSeries::new(corners, colour.stroke_width(JOINT_WIDTH)))?
-                .label(format!("joint {j}"))
+                .label(
+                    names
+                        .get(j)
+                        .cloned()
+                        .unwrap_or_else(|| format!("joint {j}")),
+                )
                 .legend(move |(x, y)| {
                     PathElement::new([(x, y), (x + 20, y)], colour.stroke_width(3))
                 });

@@ -76,6 +76,15 @@ fn move_jog_home_and_a_file_in_degrees() {
         "{out}"
     );
 
+    // watch with the config: names and degrees.
+    let (ok, out, err) = armctl(&sim, &["watch", "--duration", "0.3", "--config", config]);
+    assert!(ok, "{out}\n{err}");
+    assert!(
+        out.lines()
+            .any(|l| l.contains("base") && l.contains("elbow") && l.contains("0.00 deg")),
+        "{out}"
+    );
+
     // A 5-waypoint file in degrees (the config's units), from home, with via points that
     // fall between 10 ms segment ends (0.505 s, 1.255 s).
     let file = sim.dir().join("wave-deg.csv");
@@ -97,6 +106,52 @@ fn move_jog_home_and_a_file_in_degrees() {
         out.contains("all 5 waypoints were passed at their times"),
         "{out}"
     );
+}
+
+/// Issue 23: `plot` on a trajectory file gave "state \"800\": number too large"; it now
+/// previews the points `run` would send, legend by the config's names; `check` is
+/// `run --dry-run`.
+#[test]
+fn plot_previews_a_trajectory_file_and_check_checks_it() {
+    let dir = std::env::temp_dir().join(format!("cli-motion-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let config = dir.join("arm.json");
+    std::fs::write(&config, CONFIG).unwrap();
+    let file = dir.join("deg.csv");
+    std::fs::write(&file, "time_s,base,elbow\n0,0,0\n0.505,20,10\n1.0,0,0\n").unwrap();
+    let svg = dir.join("preview.svg");
+    let output = Command::new(armctl_bin())
+        .args(["plot", file.to_str().unwrap(), "--config"])
+        .arg(&config)
+        .arg("-o")
+        .arg(&svg)
+        .output()
+        .unwrap();
+    let out = String::from_utf8_lossy(&output.stdout);
+    assert!(
+        output.status.success(),
+        "{out}{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    assert!(
+        out.contains("101 points, 1.000 s, every one of its 3 waypoints a point's end"),
+        "{out}"
+    );
+    let svg = std::fs::read_to_string(&svg).unwrap();
+    assert!(svg.contains("base") && svg.contains("elbow") && svg.contains("commanded"));
+
+    let output = Command::new(armctl_bin())
+        .args(["check", file.to_str().unwrap(), "--config"])
+        .arg(&config)
+        .output()
+        .unwrap();
+    let out = String::from_utf8_lossy(&output.stdout);
+    assert!(output.status.success(), "{out}");
+    assert!(
+        out.contains("each of the 3 waypoints is a point's end"),
+        "{out}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]

@@ -66,9 +66,19 @@ pub enum Cmd {
         /// Stop after this many seconds.
         #[arg(long, value_name = "S")]
         duration: Option<f64>,
+        /// Joint config: positions shown with the joints' names, in its units.
+        #[arg(long, value_name = "FILE")]
+        config: Option<PathBuf>,
+        /// Units of the positions shown with --config: steps, deg or rad (default: the
+        /// config's).
+        #[arg(long, requires = "config")]
+        units: Option<armctl::motion::Units>,
     },
     /// Upload and execute a trajectory file (JointTrajectory .json or CSV in steps).
     Run(RunArgs),
+    /// Convert and check a trajectory file without a controller (`run --dry-run`): points,
+    /// duration, every waypoint reached, limits and step rates.
+    Check(RunArgs),
     /// STOPPED: stop every joint at once and drop the trajectory.
     Stop,
     /// ESTOP_RESET: clear the wired e-stop input's latch (once the input is closed again);

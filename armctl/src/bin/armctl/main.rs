@@ -34,6 +34,7 @@ mod watch;
 
 use std::process::ExitCode;
 
+use armctl::trajectory::ArmConfig;
 use clap::Parser;
 
 use cli::{Cli, Cmd};
@@ -81,6 +82,7 @@ fn execute(cli: Cli) -> CliResult {
         } => discover::execute(&cli, *to, *wait_ms, *rounds, *json),
         Cmd::Net(net::NetCmd::Show) => net::show(&cli),
         Cmd::Run(args) if args.dry_run => run::dry_run(args),
+        Cmd::Check(args) => run::dry_run(args),
         Cmd::Key(cli::KeyCmd::New) => {
             println!(
                 "{}",
@@ -102,7 +104,22 @@ fn execute(cli: Cli) -> CliResult {
 fn execute_online(cli: &Cli, arm: &armctl::Client) -> CliResult {
     match &cli.command {
         Cmd::Status { json } => status::execute(arm, *json),
-        Cmd::Watch { record, duration } => watch::execute(arm, record.as_deref(), *duration),
+        Cmd::Watch {
+            record,
+            duration,
+            config,
+            units,
+        } => {
+            let shown = config
+                .as_deref()
+                .map(|path| {
+                    let config = ArmConfig::load(path).map_err(|e| e.to_string())?;
+                    let units = units.unwrap_or(config.units);
+                    Ok::<_, String>(watch::Shown { config, units })
+                })
+                .transpose()?;
+            watch::execute(arm, record.as_deref(), *duration, shown.as_ref())
+        }
         Cmd::Run(args) => run::execute(arm, args),
         Cmd::Stop => single::done(arm.stop()),
         Cmd::EstopReset => single::done(arm.estop_reset()),
@@ -131,6 +148,7 @@ fn execute_online(cli: &Cli, arm: &armctl::Client) -> CliResult {
         }
         Cmd::Key(cli::KeyCmd::Clear) => single::done(arm.set_key(None)),
         Cmd::Frame(_)
+        | Cmd::Check(_)
         | Cmd::Plot { .. }
         | Cmd::Discover { .. }
         | Cmd::Net(net::NetCmd::Show)

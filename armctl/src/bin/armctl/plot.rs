@@ -1,9 +1,11 @@
-//! `armctl plot`: a recording (CSV) or a simulator trace (VCD) drawn as SVG, no controller
-//! needed.
+//! `armctl plot`: a recording (CSV) or a simulator trace (VCD) drawn as SVG, or a
+//! trajectory file's preview (the points `run` would send); no controller needed.
 
 use std::path::PathBuf;
 
 use armctl::plot::{self, Commanded};
+use armctl::record::Sample;
+use armctl::trajectory::ArmConfig;
 use armctl::{record, trajectory, vcd};
 use clap::Args;
 use protocol::State;
@@ -13,15 +15,24 @@ use crate::CliResult;
 /// `plot` options.
 #[derive(Args, Debug)]
 pub struct PlotArgs {
-    /// Recording CSV written by `watch --record` or `run --record`, or a VCD trace written
-    /// by `sim-host --trace` (recognised by its `.vcd` name or `$` header).
+    /// Recording CSV written by `watch --record` or `run --record`, a VCD trace written by
+    /// `sim-host --trace` (recognised by its `.vcd` name or `$` header), or a trajectory
+    /// file (JointTrajectory .json, or a CSV whose header is not `time_s,state,...`): a
+    /// preview of the points `run` would send, from 0 or the file's first waypoint.
     pub recording: PathBuf,
     /// The commanded trajectory file to draw dashed.
     #[arg(long, value_name = "FILE")]
     pub trajectory: Option<PathBuf>,
-    /// Joint config, for a JointTrajectory .json.
+    /// Joint config: for a JointTrajectory .json or a CSV in degrees, and the joints'
+    /// names in the legend.
     #[arg(long, value_name = "FILE")]
     pub config: Option<PathBuf>,
+    /// Units of a trajectory CSV (as `run --units`).
+    #[arg(long)]
+    pub units: Option<armctl::motion::Units>,
+    /// Segment duration of a trajectory preview, milliseconds (as `run --segment-ms`).
+    #[arg(long, default_value_t = 10.0)]
+    pub segment_ms: f64,
     /// Seconds into the recording at which the trajectory starts (default: the first
     /// report in state RUNNING; for a trace, the first STEP pulse less the time the
     /// trajectory takes to its first step).
@@ -55,6 +66,88 @@ fn is_vcd(path: &std::path::Path) -> bool {
         .is_ok_and(|n| vcd::looks_like_vcd(&start[..n]))
 }
 
+/// Whether `path` is a trajectory file rather than a recording: a `.json`, or a CSV whose
+/// first line that is not a comment is not a recording's `time_s,state` header.
+fn is_trajectory(path: &std::path::Path) -> bool {
+    if path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("json"))
+    {
+        return true;
+    }
+    if path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("vcd"))
+    {
+        return false;
+    }
+    let Ok(text) = std::fs::read_to_string(path) else {
+        return false;
+    };
+    let Some(first) = text
+        .lines()
+        .map(str::trim)
+        .find(|l| !l.is_empty() && !l.starts_with('#'))
+    else {
+        return false;
+    };
+    let fields: Vec<&str> = first.split(',').map(str::trim).collect();
+    !(fields.len() >= 2 && fields[0] == "time_s" && fields[1] == "state") && !first.starts_with('$')
+}
+
+/// A trajectory file's preview: the points `run` would send (from the file's first
+/// waypoint when it is at t = 0, else from 0), drawn over the waypoints (dashed).
+fn preview(
+    args: &PlotArgs,
+    config: Option<&ArmConfig>,
+    title: &str,
+    names: &[String],
+) -> Result<(String, String), String> {
+    let waypoints =
+        trajectory::load_in(&args.recording, config, args.units).map_err(|e| e.to_string())?;
+    let joints = waypoints.positions.first().map_or(0, Vec::len);
+    let mut start = [0i32; protocol::MAX_JOINTS];
+    if waypoints.times_us.first() == Some(&0) {
+        for (j, p) in waypoints.positions[0].iter().enumerate().take(joints) {
+            start[j] = p.map_or(0, |p| p.round() as i32);
+        }
+    }
+    let config = config
+        .cloned()
+        .unwrap_or_else(|| ArmConfig::unlimited(joints, u32::MAX));
+    if !(args.segment_ms.is_finite() && args.segment_ms > 0.0) {
+        return Err("--segment-ms must be above 0".into());
+    }
+    let segment_us = (args.segment_ms * 1000.0).round().clamp(1.0, 1e9) as u32;
+    let points = trajectory::to_points(&waypoints, &start, segment_us, &config, None)
+        .map_err(|e| e.with_joint_names(&config).to_string())?;
+    let mut t = 0.0;
+    let mut samples = vec![Sample {
+        time_s: 0.0,
+        state: State::Running as u8,
+        position: start[..joints].to_vec(),
+    }];
+    for p in &points {
+        t += f64::from(p.duration) / 1e6;
+        samples.push(Sample {
+            time_s: t,
+            state: State::Running as u8,
+            position: p.position[..joints].to_vec(),
+        });
+    }
+    let commanded = Commanded::from_waypoints(&waypoints);
+    let summary = format!(
+        "preview of {}: {} points, {t:.3} s, every one of its {} waypoints a point's end",
+        args.recording.display(),
+        points.len(),
+        waypoints.times_us.len()
+    );
+    Ok((
+        plot::svg_named(&samples, Some(&commanded), title, names),
+        summary,
+    ))
+}
+
 /// `plot`: draws a recording or a trace to `args.output`; returns what to print.
 pub fn plot(args: &PlotArgs) -> Result<String, String> {
     // The plot is SVG: a name promising another format would hold SVG bytes (issue 23:
@@ -67,10 +160,23 @@ pub fn plot(args: &PlotArgs) -> Result<String, String> {
             args.output.display()
         ));
     }
+    let config = args
+        .config
+        .as_deref()
+        .map(ArmConfig::load)
+        .transpose()
+        .map_err(|e| e.to_string())?;
+    let names: Vec<String> = config.as_ref().map_or(Vec::new(), |c| {
+        c.joints
+            .iter()
+            .enumerate()
+            .map(|(j, joint)| joint.name.clone().unwrap_or_else(|| format!("joint {j}")))
+            .collect()
+    });
     let commanded = match &args.trajectory {
         Some(path) => {
-            let (waypoints, _) =
-                trajectory::load_files(path, args.config.as_deref()).map_err(|e| e.to_string())?;
+            let waypoints = trajectory::load_in(path, config.as_ref(), args.units)
+                .map_err(|e| e.to_string())?;
             Some(Commanded::from_waypoints(&waypoints))
         }
         None => None,
@@ -79,7 +185,9 @@ pub fn plot(args: &PlotArgs) -> Result<String, String> {
         .title
         .clone()
         .unwrap_or_else(|| args.recording.display().to_string());
-    let (svg, summary) = if is_vcd(&args.recording) {
+    let (svg, summary) = if is_trajectory(&args.recording) {
+        preview(args, config.as_ref(), &title, &names)?
+    } else if is_vcd(&args.recording) {
         let trace = vcd::read(&args.recording).map_err(|e| e.to_string())?;
         let commanded = commanded.map(|mut c| {
             // The trace has no "run started" mark: its first STEP pulse is the
@@ -108,7 +216,10 @@ pub fn plot(args: &PlotArgs) -> Result<String, String> {
                 moved.join("; ")
             }
         );
-        (plot::trace_svg(&trace, commanded.as_ref(), &title), summary)
+        (
+            plot::trace_svg_named(&trace, commanded.as_ref(), &title, &names),
+            summary,
+        )
     } else {
         let samples = record::read(&args.recording).map_err(|e| e.to_string())?;
         let commanded = commanded.map(|mut c| {
@@ -122,7 +233,10 @@ pub fn plot(args: &PlotArgs) -> Result<String, String> {
             c
         });
         let summary = format!("{} samples", samples.len());
-        (plot::svg(&samples, commanded.as_ref(), &title), summary)
+        (
+            plot::svg_named(&samples, commanded.as_ref(), &title, &names),
+            summary,
+        )
     };
     std::fs::write(&args.output, svg).map_err(|e| format!("{}: {e}", args.output.display()))?;
     Ok(format!("wrote {} ({summary})", args.output.display()))

@@ -5,22 +5,43 @@ use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
 use armctl::Client;
+use armctl::motion::Units;
 use armctl::record::{self, Recorder};
+use armctl::trajectory::ArmConfig;
 use protocol::Location;
 
 use crate::CliResult;
 
-fn location_line(location: &Location, joints: usize) -> String {
+/// How `watch` shows positions: `j0 1234` in steps, or with a joint config its names and
+/// units (`base 30.02 deg`).
+pub struct Shown {
+    pub config: ArmConfig,
+    pub units: Units,
+}
+
+fn location_line(location: &Location, joints: usize, shown: Option<&Shown>) -> String {
     let mut line = format!("{:<8}", record::state_name(location.state));
     for (j, p) in location.position.iter().take(joints).enumerate() {
-        line.push_str(&format!(" j{j} {p:>9}"));
+        match shown.and_then(|s| s.config.joints.get(j).map(|c| (s, c))) {
+            Some((shown, joint)) => {
+                let name = joint.name.clone().unwrap_or_else(|| format!("j{j}"));
+                let value = shown.units.show(i64::from(*p), joint);
+                line.push_str(&format!(" {name} {value:>13}"));
+            }
+            None => line.push_str(&format!(" j{j} {p:>9}")),
+        }
     }
     line
 }
 
 /// Runs `watch`: live positions on screen, optionally recorded, until the end of
 /// `duration` or Ctrl-C.
-pub fn execute(arm: &Client, record: Option<&std::path::Path>, duration: Option<f64>) -> CliResult {
+pub fn execute(
+    arm: &Client,
+    record: Option<&std::path::Path>,
+    duration: Option<f64>,
+    shown: Option<&Shown>,
+) -> CliResult {
     let status = arm.status().map_err(|e| e.to_string())?;
     let joints = usize::from(status.joints).clamp(1, 8);
     let locations = arm.locations();
@@ -51,7 +72,7 @@ pub fn execute(arm: &Client, record: Option<&std::path::Path>, duration: Option<
                 // At most 10 lines a second on screen, every state change included.
                 if last_print.elapsed() >= Duration::from_millis(100) {
                     last_print = Instant::now();
-                    let line = location_line(&location, joints);
+                    let line = location_line(&location, joints, shown);
                     let written = if tty {
                         write!(out, "\r{line}").and_then(|()| out.flush())
                     } else {
