@@ -92,7 +92,8 @@ fn is_trajectory(path: &std::path::Path) -> bool {
         return false;
     };
     let fields: Vec<&str> = first.split(',').map(str::trim).collect();
-    !(fields.len() >= 2 && fields[0] == "time_s" && fields[1] == "state") && !first.starts_with('$')
+    let recording = fields.len() >= 2 && fields[0] == "time_s" && fields[1] == "state";
+    !(recording || first.starts_with('$'))
 }
 
 /// A trajectory file's preview: the points `run` would send (from the file's first
