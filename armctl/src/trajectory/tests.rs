@@ -521,6 +521,13 @@ fn the_shipped_examples_convert() {
     .unwrap();
     assert_eq!(points.len(), 200);
     assert_eq!(&points[49].position[..3], &[800, -400, 200]);
+    // The README's first session: wave-deg.csv in degrees with arm.json.
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/wave-deg.csv");
+    let wave = load_in(&path, Some(&config), Some(crate::motion::Units::Deg)).unwrap();
+    let points = to_points(&wave, &[0; 8], 10_000, &config, Some(100_000)).unwrap();
+    assert_eq!(check_waypoints(&points, &wave, &[0; 8]), Ok(5));
+    // 30 degrees of base at 5093 steps/rad, at 0.8 s (point 79).
+    assert_eq!(points[79].position[0], 2667);
 }
 
 fn temp_file(name: &str, text: &str) -> std::path::PathBuf {
