@@ -3,11 +3,34 @@
 
 use protocol::Pwm;
 
+/// The slowest servo signal: a frame of 50 ms; slower, servos go limp between pulses.
+pub const SERVO_MIN_HZ: f64 = 20.0;
+/// The fastest servo signal: a period of 2.5 ms, the longest servo pulse (digital servos
+/// refresh at up to 333-400 Hz); faster, the pulse cannot fit the period.
+pub const SERVO_MAX_HZ: f64 = 400.0;
+/// The fastest stepper pulse train: 500 kHz is above the step input of any driver a
+/// gripper uses (opto-isolated inputs stop near 200 kHz); a faster one is a typo.
+pub const STEPPER_MAX_HZ: f64 = 500_000.0;
+
 /// Registers for `freq_hz` at `duty` (0..=1) from a timer clocked at `clock_hz`, with the
 /// finest duty resolution the 16-bit registers allow; `pulse_count` 0 is servo mode.
+/// Servo mode takes [`SERVO_MIN_HZ`] to [`SERVO_MAX_HZ`], a pulse train at most
+/// [`STEPPER_MAX_HZ`]: the message names the range.
 pub fn settings(clock_hz: u32, freq_hz: f64, duty: f64, pulse_count: i32) -> Result<Pwm, String> {
     if !(freq_hz.is_finite() && freq_hz > 0.0) {
         return Err(format!("frequency {freq_hz} Hz must be above 0"));
+    }
+    if pulse_count == 0 && !(SERVO_MIN_HZ..=SERVO_MAX_HZ).contains(&freq_hz) {
+        return Err(format!(
+            "servo frequency {freq_hz} Hz: servos take {SERVO_MIN_HZ} to {SERVO_MAX_HZ} Hz \
+             (50 Hz for most); for another signal use `pwm raw`"
+        ));
+    }
+    if pulse_count != 0 && freq_hz > STEPPER_MAX_HZ {
+        return Err(format!(
+            "stepper frequency {freq_hz} Hz: at most {STEPPER_MAX_HZ} Hz (the step input of \
+             a gripper's driver); for another signal use `pwm raw`"
+        ));
     }
     if !(0.0..=1.0).contains(&duty) {
         return Err(format!("duty {duty} must be between 0 and 1"));
@@ -37,6 +60,18 @@ pub fn settings(clock_hz: u32, freq_hz: f64, duty: f64, pulse_count: i32) -> Res
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Issue 23: a 100 MHz "servo" signal was accepted.
+    #[test]
+    fn signals_no_servo_or_stepper_takes_are_refused() {
+        let err = settings(240_000_000, 100e6, 0.075, 0).unwrap_err();
+        assert!(err.contains("servos take 20 to 400 Hz"), "{err}");
+        assert!(settings(240_000_000, 10.0, 0.075, 0).is_err());
+        assert!(settings(240_000_000, 333.0, 0.5, 0).is_ok());
+        let err = settings(240_000_000, 1e6, 0.5, 200).unwrap_err();
+        assert!(err.contains("at most 500000 Hz"), "{err}");
+        assert!(settings(240_000_000, 100_000.0, 0.5, -200).is_ok());
+    }
 
     #[test]
     fn servo_50_hz_at_7_5_percent() {
