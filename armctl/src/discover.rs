@@ -103,6 +103,58 @@ pub fn discover(options: &DiscoverOptions) -> std::io::Result<Vec<Found>> {
     Ok(found)
 }
 
+/// One interface's IPv4 address, as `discover --interface` uses it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct InterfaceV4 {
+    /// The interface's address: DISCOVER is sent from it.
+    pub address: std::net::Ipv4Addr,
+    /// Its network's broadcast address (address | !netmask): DISCOVER goes there.
+    pub broadcast: std::net::Ipv4Addr,
+}
+
+/// The first IPv4 address of interface `name`; the error lists the interfaces that have
+/// one (issue 23: a user on a machine with several networks had no way to choose).
+#[cfg(unix)]
+pub fn interface_v4(name: &str) -> Result<InterfaceV4, String> {
+    let addrs = nix::ifaddrs::getifaddrs().map_err(|e| format!("cannot list interfaces: {e}"))?;
+    let mut known: Vec<String> = Vec::new();
+    for ifa in addrs {
+        let (Some(address), Some(netmask)) = (
+            ifa.address
+                .as_ref()
+                .and_then(|a| a.as_sockaddr_in())
+                .map(|a| a.ip()),
+            ifa.netmask
+                .as_ref()
+                .and_then(|a| a.as_sockaddr_in())
+                .map(|a| a.ip()),
+        ) else {
+            continue;
+        };
+        if ifa.interface_name == name {
+            let broadcast = std::net::Ipv4Addr::from(address.to_bits() | !netmask.to_bits());
+            return Ok(InterfaceV4 { address, broadcast });
+        }
+        known.push(format!("{} ({address})", ifa.interface_name));
+    }
+    Err(format!(
+        "interface {name:?} has no IPv4 address; interfaces with one: {}",
+        if known.is_empty() {
+            "none".to_string()
+        } else {
+            known.join(", ")
+        }
+    ))
+}
+
+/// `--interface` needs getifaddrs: Unix only.
+#[cfg(not(unix))]
+pub fn interface_v4(name: &str) -> Result<InterfaceV4, String> {
+    Err(format!(
+        "--interface {name}: not on this system; use --bind ADDR:0 and --to BROADCAST:8510"
+    ))
+}
+
 /// A DISCOVER that could not be sent, said with what to do about it (issue 23: on a
 /// machine without a route for the broadcast, the system's "Network is unreachable" was
 /// all a user got).
@@ -111,12 +163,11 @@ pub fn explain_send_error(e: &std::io::Error, target: SocketAddrV4) -> String {
         std::io::ErrorKind::NetworkUnreachable | std::io::ErrorKind::HostUnreachable => {
             if target.ip().is_broadcast() {
                 " (no route for 255.255.255.255: no interface is up with an IPv4 address and \
-                 a route; bring up the interface on the controllers' network, or send to \
-                 its own broadcast address, e.g. --to 192.168.1.255:8510, or --bind that \
-                 interface's address)"
+                 a route; bring up the interface on the controllers' network, or name it: \
+                 --interface eth0 sends from its address to its broadcast address)"
             } else {
                 " (no route to that address: check the interface and its address, or \
-                 --bind the interface on the controllers' network)"
+                 --interface NAME for the one on the controllers' network)"
             }
         }
         std::io::ErrorKind::PermissionDenied if target.ip().is_broadcast() => {
@@ -258,6 +309,19 @@ mod send_error_tests {
     use super::*;
 
     #[test]
+    #[cfg(unix)]
+    fn the_loopback_interface_has_its_address_and_broadcast() {
+        let lo = interface_v4("lo").unwrap();
+        assert_eq!(lo.address, std::net::Ipv4Addr::LOCALHOST);
+        assert_eq!(lo.broadcast, std::net::Ipv4Addr::new(127, 255, 255, 255));
+        let err = interface_v4("no-such-if0").unwrap_err();
+        assert!(
+            err.contains("interfaces with one: ") && err.contains("lo (127.0.0.1)"),
+            "{err}"
+        );
+    }
+
+    #[test]
     fn an_unreachable_network_gets_advice() {
         let e = std::io::Error::from(std::io::ErrorKind::NetworkUnreachable);
         let broadcast = SocketAddrV4::new([255, 255, 255, 255].into(), 8510);
@@ -266,7 +330,7 @@ mod send_error_tests {
             text.starts_with("DISCOVER to 255.255.255.255:8510: "),
             "{text}"
         );
-        assert!(text.contains("--to 192.168.1.255:8510"), "{text}");
+        assert!(text.contains("--interface eth0"), "{text}");
         let one = SocketAddrV4::new([10, 0, 0, 7].into(), 8510);
         assert!(explain_send_error(&e, one).contains("no route to that address"));
         let other = std::io::Error::other("boom");

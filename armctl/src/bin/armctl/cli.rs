@@ -160,9 +160,14 @@ pub enum Cmd {
     /// Find controllers: DISCOVER to a broadcast address (or --to one controller). Every
     /// controller answers with its MAC, address, version, joints and owner; nothing changes.
     Discover {
-        /// Where DISCOVER goes: a broadcast address or one controller.
-        #[arg(long, default_value = "255.255.255.255:8510", value_name = "ADDR:PORT")]
-        to: std::net::SocketAddrV4,
+        /// Where DISCOVER goes: a broadcast address or one controller (default:
+        /// 255.255.255.255:8510, or the broadcast address of --interface).
+        #[arg(long, value_name = "ADDR:PORT")]
+        to: Option<std::net::SocketAddrV4>,
+        /// The interface on the controllers' network (e.g. eth0): DISCOVER is sent from its
+        /// IPv4 address to its network's broadcast address.
+        #[arg(long, value_name = "NAME")]
+        interface: Option<String>,
         /// Milliseconds to collect answers after each DISCOVER.
         #[arg(long, default_value_t = 300, value_name = "MS")]
         wait_ms: u64,

@@ -9,17 +9,26 @@ use crate::cli::Cli;
 /// `discover` (and `net show`): one line per controller that answered.
 pub fn execute(
     cli: &Cli,
-    to: std::net::SocketAddrV4,
+    to: Option<std::net::SocketAddrV4>,
+    interface: Option<&str>,
     wait_ms: u64,
     rounds: u32,
     json: bool,
 ) -> CliResult {
     use armctl::discover::{DiscoverOptions, mac_string, net_string};
+    use std::net::SocketAddrV4;
+    let interface = interface.map(armctl::discover::interface_v4).transpose()?;
     let bind = match cli.bind {
         Some(std::net::SocketAddr::V4(b)) => Some(b),
         Some(other) => return Err(format!("--bind {other}: DISCOVER is IPv4")),
-        None => None,
+        None => interface.map(|i| SocketAddrV4::new(i.address, 0)),
     };
+    let to = to.unwrap_or_else(|| {
+        SocketAddrV4::new(
+            interface.map_or(std::net::Ipv4Addr::BROADCAST, |i| i.broadcast),
+            protocol::PORT,
+        )
+    });
     let found = armctl::discover::discover(&DiscoverOptions {
         target: to,
         bind,

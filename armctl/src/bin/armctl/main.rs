@@ -76,10 +76,11 @@ fn execute(cli: Cli) -> CliResult {
         Cmd::Plot(args) => plot::execute(args),
         Cmd::Discover {
             to,
+            interface,
             wait_ms,
             rounds,
             json,
-        } => discover::execute(&cli, *to, *wait_ms, *rounds, *json),
+        } => discover::execute(&cli, *to, interface.as_deref(), *wait_ms, *rounds, *json),
         Cmd::Net(net::NetCmd::Show) => net::show(&cli),
         Cmd::Run(args) if args.dry_run => run::dry_run(args),
         Cmd::Check(args) => run::dry_run(args),

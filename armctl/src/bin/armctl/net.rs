@@ -33,7 +33,7 @@ pub fn show(cli: &Cli) -> CliResult {
         Ok(std::net::SocketAddr::V4(to)) => to,
         _ => return Err(format!("{}: give an IPv4 address:port", cli.controller)),
     };
-    crate::discover::execute(cli, to, 300, 3, false)
+    crate::discover::execute(cli, Some(to), None, 300, 3, false)
 }
 
 /// `net set`: NET_SET with a static address or DHCP, checked before it is sent.
