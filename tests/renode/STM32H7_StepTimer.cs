@@ -367,6 +367,7 @@ namespace Antmicro.Renode.Peripherals.Timers
             {
                 compareDone[i] = false;
             }
+            MatchAtZero();
             if((cr1 & CR1_UDIS) != 0)
             {
                 StartOfPeriodOutput(cycle);
@@ -401,6 +402,7 @@ namespace Antmicro.Renode.Peripherals.Timers
                 ccrActive[i] = ccr[i];
                 compareDone[i] = false;
             }
+            MatchAtZero();
             StartOfPeriodOutput(cycle);
             var requests = fromOverflow || (cr1 & CR1_URS) == 0;
             if(requests)
@@ -412,6 +414,21 @@ namespace Antmicro.Renode.Peripherals.Timers
                     RequestDma();
                 }
             }
+        }
+
+        // A compare value of 0 matches as the counter starts a period (CNT = 0 = CCRx): the
+        // step clock's alarm (TIM13) can have low bits 0.
+        private void MatchAtZero()
+        {
+            for(var i = 0; i < channels; i++)
+            {
+                if(ccrActive[i] == 0)
+                {
+                    compareDone[i] = true;
+                    sr |= 2u << i;
+                }
+            }
+            UpdateIrq();
         }
 
         // At CNT = 0: PWM mode 1 is active when CCR1 > 0 (CNT < CCR1).

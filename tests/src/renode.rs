@@ -432,6 +432,27 @@ impl Monitor {
     }
 }
 
+/// The recorder's file in the board's folder (`tests/renode/EdgeRecorder.cs`).
+const EDGES_FILE: &str = "edges.txt";
+
+/// One change of a line the step path's recorder watches (`tests/renode/step-path.resc`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Edge {
+    /// Renode's virtual time, nanoseconds since the machine started.
+    pub ns: u64,
+    /// 0-7: STEP of joint `line`; 8-15: DIR of joint `line - 8`; 16-23: joint `line - 16`'s
+    /// timer counting (CR1.CEN: its tick 0).
+    pub line: u8,
+    /// The level after the change.
+    pub high: bool,
+}
+
+/// The joint timers' clock in the emulator (`tests/renode/step-path.resc`: the stock
+/// description's 250 MHz, which TIM13, the step clock, also runs at). The firmware counts
+/// the same ticks as 200 MHz ones, so tick counts compare with arm-step's exactly; only
+/// virtual time runs 1.25 times faster than the chip's.
+pub const EMULATED_TIMER_HZ: u64 = 250_000_000;
+
 /// A running Renode with the board, in a namespace of its own; all removed on drop.
 pub struct RenodeBoard {
     /// The namespace's name (`ip netns`).
@@ -453,6 +474,17 @@ impl RenodeBoard {
     /// Starts Renode with the board (the ELF built or named by `RENODE_FIRMWARE`) and waits
     /// until it answers STATUS from [`HOSTS`]`[0]`.
     pub fn start() -> RenodeBoard {
+        Self::start_inner(false)
+    }
+
+    /// As [`RenodeBoard::start`], with the step path's models (`tests/renode/step-path.resc`:
+    /// the joint timers, DMAMUX1, DMA2 and an edge recorder on the STEP and DIR pins), so
+    /// that runs make STEP pulses; [`RenodeBoard::edges`] reads what the pins did.
+    pub fn start_with_step_path() -> RenodeBoard {
+        Self::start_inner(true)
+    }
+
+    fn start_inner(step_path: bool) -> RenodeBoard {
         let renode = renode_path().expect("Renode (check unavailable() first)");
         let elf_path = firmware_elf();
         let turn = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
@@ -476,8 +508,19 @@ impl RenodeBoard {
         };
         ip(&["-n", &board.ns, "link", "set", "lo", "up"]);
         let script = repo_root().join("tests/renode/nucleo-h743zi2.resc");
+        let models = repo_root().join("tests/renode");
+        let step_path = if step_path {
+            format!(
+                "$edges=@{}; $stepModels=@{}; include @{}; ",
+                board.dir.join(EDGES_FILE).display(),
+                models.display(),
+                models.join("step-path.resc").display()
+            )
+        } else {
+            String::new()
+        };
         let commands = format!(
-            "$elf=@{}; $tap=\"{TAP}\"; include @{}; start",
+            "$elf=@{}; $tap=\"{TAP}\"; include @{}; {step_path}start",
             elf_path.display(),
             script.display()
         );
@@ -665,6 +708,23 @@ impl RenodeBoard {
             }
         }
         rtt.1.clone()
+    }
+
+    /// Every edge the step path's recorder saw so far (boards started with
+    /// [`RenodeBoard::start_with_step_path`]), in time order: it is flushed through the
+    /// monitor first.
+    pub fn edges(&self) -> Vec<Edge> {
+        self.monitor("sysbus.stepRecorder Flush");
+        let text = std::fs::read_to_string(self.dir.join(EDGES_FILE)).unwrap_or_default();
+        text.lines()
+            .filter_map(|line| {
+                let mut fields = line.split_whitespace();
+                let ns = fields.next()?.parse().ok()?;
+                let line = fields.next()?.parse().ok()?;
+                let high = fields.next()? == "1";
+                Some(Edge { ns, line, high })
+            })
+            .collect()
     }
 
     /// The firmware's log and Renode's own output.

@@ -1,0 +1,468 @@
+//! STEP and DIR of the NUCLEO-H743ZI2 firmware itself (the `cargo fw` ELF) on Renode, with
+//! the step path's models (`tests/renode/step-path.resc`: the joint timers with their update
+//! DMA requests and DCR/DMAR burst, DMAMUX1, DMA2's circular streams with half/complete
+//! interrupts, all from RM0433; an edge recorder on the STEP and DIR pins). The QEMU tests'
+//! trajectories are uploaded over the emulated Ethernet (`tests/tests/qemu.rs`: the same
+//! sweeps), and what the pins did is compared with arm-step's oracle (`StepEngine`, which
+//! `firmware/step/tests/producer.rs` compares with the producer on 10 M pulses):
+//!
+//! - every rising STEP edge of every joint at the oracle's tick, counted from its own timer's
+//!   start (CR1.CEN), with one offset for all joints (the run's lead-in, which the firmware
+//!   picks); each pulse as wide as the profile says;
+//! - DIR changed only while STEP is low, after the joint's last pulse fell, and at least the
+//!   drivers' DIR setup before the next rise; the pulses signed by DIR sum to the move;
+//! - after an e-stop mid-run, the positions the board reports are the signed pulses its pins
+//!   made, the pulses made are the oracle's up to the stop, and nothing moves after.
+//!
+//! Times: the models make every timer edge at its exact tick in Renode's virtual time (ns),
+//! so the STEP comparison is exact. DIR is written by the CPU (TIM13's compare interrupt), so
+//! its time is the instruction's in Renode's CPU model (`PerformanceInMips`, not the
+//! Cortex-M7's pipeline): the DIR margins printed are the emulator's, not the chip's.
+//!
+//! Needs Renode (`renode` on PATH or `RENODE`; the prebuilt one needs mono) and root; without
+//! them every test prints what it needs and passes.
+
+mod common;
+
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use arm_core::profile::NUCLEO_H743ZI2;
+use arm_step::{JointMask, MAX_JOINTS, Segment, StepEngine, StepPins};
+use armctl::{Error, Options, RunEnd, RunOptions};
+use common::{assert_stays_put, stop_mid_run, sweep};
+use protocol::{Point, State, StatusFlags};
+use system_tests::renode::{EMULATED_TIMER_HZ, Edge, RenodeBoard, unavailable};
+
+/// Skips the test, saying what it needs, when Renode (or root) is missing.
+macro_rules! require_renode {
+    () => {
+        if let Some(reason) = unavailable() {
+            use std::io::Write;
+            let _ = writeln!(std::io::stderr().lock(), "{}: {reason}", module_path!());
+            return;
+        }
+    };
+}
+
+/// Prints a figure to the real stderr (seen without --nocapture).
+fn note(text: &str) {
+    use std::io::Write;
+    let _ = writeln!(std::io::stderr().lock(), "renode steps: {text}");
+}
+
+/// Joints the board drives with erased settings.
+const JOINTS: usize = 6;
+
+/// Virtual nanoseconds per timer tick in the emulator.
+const NS_PER_TICK: u64 = 1_000_000_000 / EMULATED_TIMER_HZ;
+
+fn emulated() -> Options {
+    Options {
+        ack_timeout: Duration::from_millis(400),
+        min_ack_timeout: Duration::from_millis(50),
+        attempts: 20,
+        report_timeout: Duration::from_millis(1500),
+        ..Options::default()
+    }
+}
+
+/// What one joint's lines did, in its timer's ticks from its (last) CR1.CEN.
+#[derive(Debug, Default)]
+struct Joint {
+    /// Virtual time of the timer's start (its tick 0).
+    start_ns: u64,
+    rises: Vec<u64>,
+    falls: Vec<u64>,
+    /// DIR changes (tick, possibly before the start: signed) and the level after.
+    dirs: Vec<(i64, bool)>,
+    /// DIR's level before the first change after the start.
+    dir_at_start: bool,
+    /// A STEP edge that was not on the timer's tick grid (ns since the start).
+    off_grid: Vec<u64>,
+    /// STEP high when the record ends.
+    high_at_end: bool,
+}
+
+/// The recorder's edges, also written to `RENODE_EDGES_COPY` if set (the board's folder goes
+/// with the board), as `<ns> <line> <level>` lines.
+fn recorded(board: &RenodeBoard) -> Vec<Edge> {
+    let edges = board.edges();
+    if let Some(path) = std::env::var_os("RENODE_EDGES_COPY") {
+        let text: String = edges
+            .iter()
+            .map(|e| format!("{} {} {}\n", e.ns, e.line, u8::from(e.high)))
+            .collect();
+        std::fs::write(path, text).expect("RENODE_EDGES_COPY");
+    }
+    edges
+}
+
+/// Splits the recorder's edges into joints, from each joint timer's last start.
+fn joints(edges: &[Edge]) -> [Joint; MAX_JOINTS] {
+    std::array::from_fn(|j| {
+        let start_ns = edges
+            .iter()
+            .filter(|e| usize::from(e.line) == 16 + j && e.high)
+            .map(|e| e.ns)
+            .next_back()
+            .unwrap_or(0);
+        let mut joint = Joint {
+            start_ns,
+            ..Joint::default()
+        };
+        let mut dir;
+        let mut high = false;
+        for e in edges {
+            let line = usize::from(e.line);
+            if line == 8 + j {
+                if e.ns <= start_ns {
+                    dir = e.high;
+                    joint.dir_at_start = dir;
+                } else {
+                    dir = e.high;
+                }
+                let tick = (i64::try_from(e.ns).unwrap() - i64::try_from(start_ns).unwrap())
+                    / i64::try_from(NS_PER_TICK).unwrap();
+                if e.ns > start_ns {
+                    joint.dirs.push((tick, dir));
+                }
+            }
+            if line == j && e.ns >= start_ns {
+                let since = e.ns - start_ns;
+                if since % NS_PER_TICK != 0 {
+                    joint.off_grid.push(since);
+                }
+                if e.high {
+                    joint.rises.push(since / NS_PER_TICK);
+                } else if high {
+                    joint.falls.push(since / NS_PER_TICK);
+                }
+                high = e.high;
+            }
+        }
+        joint.high_at_end = high;
+        joint
+    })
+}
+
+/// The net steps of `joint`: its rises signed by DIR at each (DIR high = positive).
+fn signed_pulses(joint: &Joint) -> i32 {
+    let mut dir = joint.dir_at_start;
+    let mut changes = joint.dirs.iter().peekable();
+    let mut net = 0;
+    for &rise in &joint.rises {
+        while let Some(&&(tick, level)) = changes.peek() {
+            if tick > i64::try_from(rise).unwrap() {
+                break;
+            }
+            dir = level;
+            changes.next();
+        }
+        net += if dir { 1 } else { -1 };
+    }
+    net
+}
+
+/// The segments the controller hands its step producer for `points` from `start` (arm-core's
+/// `runs.rs`: each point's duration and the step difference from the previous position).
+fn segments(start: [i32; MAX_JOINTS], points: &[Point]) -> Vec<Segment> {
+    let mut at = start;
+    points
+        .iter()
+        .map(|p| {
+            let steps = std::array::from_fn(|j| p.position[j] - at[j]);
+            at = p.position;
+            Segment {
+                duration_us: u32::try_from(p.duration).unwrap(),
+                steps,
+            }
+        })
+        .collect()
+}
+
+/// The rising edges arm-step's engine (the oracle) makes for `segments` from tick 0.
+fn oracle(segments: &[Segment]) -> [Vec<u64>; MAX_JOINTS] {
+    struct Rises {
+        now: u64,
+        rises: [Vec<u64>; MAX_JOINTS],
+    }
+    impl StepPins for Rises {
+        fn set_direction(&mut self, _joint: usize, _positive: bool) {}
+        fn step_high(&mut self, joints: JointMask) {
+            for (j, rises) in self.rises.iter_mut().enumerate() {
+                if joints & (1 << j) != 0 {
+                    rises.push(self.now);
+                }
+            }
+        }
+        fn step_low(&mut self, _joints: JointMask) {}
+    }
+    let mut engine = StepEngine::<64>::new(NUCLEO_H743ZI2.step_timing());
+    let mut pending = segments.iter().copied().peekable();
+    let mut fill = |engine: &mut StepEngine<64>| {
+        while engine.free_slots() > 0 {
+            let Some(s) = pending.next() else { break };
+            engine.push(s).unwrap();
+        }
+    };
+    fill(&mut engine);
+    engine.start(0);
+    let mut lines = Rises {
+        now: 0,
+        rises: Default::default(),
+    };
+    let mut deadline = Some(0);
+    while let Some(now) = deadline {
+        lines.now = now;
+        deadline = engine.poll(now, &mut lines).next_deadline;
+        fill(&mut engine);
+    }
+    lines.rises
+}
+
+/// The offset (ticks) that puts the oracle's first rise on the board's, from the first joint
+/// that moved.
+fn lead_in(board: &[Joint; MAX_JOINTS], oracle: &[Vec<u64>; MAX_JOINTS]) -> i64 {
+    (0..MAX_JOINTS)
+        .find_map(|j| {
+            let b = *board[j].rises.first()?;
+            let o = *oracle[j].first()?;
+            Some(i64::try_from(b).unwrap() - i64::try_from(o).unwrap())
+        })
+        .expect("no joint made a pulse")
+}
+
+/// Checks every joint's rises against the oracle's shifted by `offset`: all of them
+/// (`whole`), or the board's as a prefix of the oracle's (a run cut by a stop).
+fn assert_rises_match(
+    board: &[Joint; MAX_JOINTS],
+    oracle: &[Vec<u64>; MAX_JOINTS],
+    offset: i64,
+    whole: bool,
+) {
+    for j in 0..MAX_JOINTS {
+        let expected: Vec<u64> = oracle[j]
+            .iter()
+            .map(|&t| u64::try_from(i64::try_from(t).unwrap() + offset).unwrap())
+            .collect();
+        let got = &board[j].rises;
+        let compared = if whole { expected.len() } else { got.len() };
+        assert!(
+            got.len() == compared && compared <= expected.len(),
+            "joint {j}: {} rising edges on the pin, the oracle has {} ({})",
+            got.len(),
+            expected.len(),
+            if whole { "whole run" } else { "up to the stop" }
+        );
+        if let Some(k) = (0..compared).find(|&k| got[k] != expected[k]) {
+            panic!(
+                "joint {j}: rise {k} at tick {} on the pin, the oracle's at {} (offset {offset}); \
+                 pin {:?}.., oracle {:?}..",
+                got[k],
+                expected[k],
+                &got[k.saturating_sub(2)..(k + 3).min(got.len())],
+                &expected[k.saturating_sub(2)..(k + 3).min(expected.len())]
+            );
+        }
+    }
+}
+
+/// Pulse width and DIR timing on every joint; returns the smallest DIR setup seen (ticks
+/// from a DIR change to the next rise) and the smallest gap from a fall to a DIR change.
+fn assert_pulse_and_dir_timing(board: &[Joint; MAX_JOINTS]) -> (Option<i64>, Option<i64>) {
+    let timing = NUCLEO_H743ZI2.step_timing();
+    // The drivers' own setup (without the latency budget the producer adds for the
+    // interrupt): the least a driver needs.
+    let driver_setup = i64::from(NUCLEO_H743ZI2.driver.dir_setup_ns) * i64::from(timing.tick_hz)
+        / 1_000_000_000;
+    let (mut least_setup, mut least_after_fall) = (None::<i64>, None::<i64>);
+    for (j, joint) in board.iter().enumerate() {
+        assert!(
+            joint.off_grid.is_empty(),
+            "joint {j}: STEP edges off the timer's tick grid (ns after its start): {:?}",
+            &joint.off_grid[..joint.off_grid.len().min(5)]
+        );
+        assert!(!joint.high_at_end, "joint {j}: STEP left high");
+        assert_eq!(joint.falls.len(), joint.rises.len(), "joint {j}");
+        for (rise, fall) in joint.rises.iter().zip(&joint.falls) {
+            assert_eq!(
+                fall - rise,
+                u64::from(timing.pulse_width_ticks),
+                "joint {j}: pulse at tick {rise}"
+            );
+        }
+        for &(tick, _) in &joint.dirs {
+            let next_rise = joint
+                .rises
+                .iter()
+                .map(|&r| i64::try_from(r).unwrap())
+                .find(|&r| r > tick);
+            let last_fall = joint
+                .falls
+                .iter()
+                .map(|&f| i64::try_from(f).unwrap())
+                .rfind(|&f| f <= tick);
+            let last_rise = joint
+                .rises
+                .iter()
+                .map(|&r| i64::try_from(r).unwrap())
+                .rfind(|&r| r <= tick);
+            if let Some(rise) = last_rise {
+                let fall = last_fall.unwrap_or(-1);
+                assert!(
+                    fall >= rise,
+                    "joint {j}: DIR changed at tick {tick} while STEP was high (rose at {rise})"
+                );
+                least_after_fall = Some(least_after_fall.map_or(tick - fall, |m| m.min(tick - fall)));
+            }
+            if let Some(rise) = next_rise {
+                assert!(
+                    rise - tick >= driver_setup,
+                    "joint {j}: DIR changed at tick {tick}, {} ticks before the next rise (the \
+                     drivers need {driver_setup})",
+                    rise - tick
+                );
+                least_setup = Some(least_setup.map_or(rise - tick, |m| m.min(rise - tick)));
+            }
+        }
+    }
+    (least_setup, least_after_fall)
+}
+
+/// The steps `points` ask of every joint from `start` (out and back counts both ways).
+fn steps_asked(start: [i32; MAX_JOINTS], points: &[Point]) -> [usize; MAX_JOINTS] {
+    let mut steps = [0; MAX_JOINTS];
+    let mut at = start;
+    for point in points {
+        for (j, s) in steps.iter_mut().enumerate() {
+            *s += point.position[j].abs_diff(at[j]) as usize;
+        }
+        at = point.position;
+    }
+    steps
+}
+
+fn position(board: &RenodeBoard, arm: &armctl::Client) -> [i32; MAX_JOINTS] {
+    arm.current_location(Duration::from_secs(5))
+        .unwrap_or_else(|e| panic!("a LOCATION report: {e}\n{}", board.log()))
+        .position
+}
+
+fn ticks_us(ticks: i64) -> f64 {
+    // In the firmware's ticks (200 MHz on the chip).
+    ticks as f64 * 1e6 / f64::from(NUCLEO_H743ZI2.step_timer_hz)
+}
+
+/// The QEMU test's run (`run_reaches_the_last_point_and_executes_every_point`): 120 points of
+/// 10 ms, six joints out and back (one reversal each), from a set location.
+#[test]
+fn a_run_makes_the_oracles_edges_on_the_pins() {
+    require_renode!();
+    let mut board = RenodeBoard::start_with_step_path();
+    let arm = board.connect_from(system_tests::renode::HOSTS[0], emulated());
+    arm.set_location(&[100, -200, 300, 0, 0, 0]).unwrap();
+    let start = position(&board, &arm);
+    assert_eq!(&start[..3], &[100, -200, 300]);
+    let points = sweep(start, JOINTS, 120, 4, 10_000);
+    let began = Instant::now();
+    let report = arm
+        .run_trajectory(&points, &RunOptions::default(), |_| {})
+        .unwrap_or_else(|e| panic!("{e}\n{}", board.log()));
+    let status = report.final_status.unwrap();
+    assert_eq!(status.state, State::Stopped);
+    assert_eq!(usize::from(status.executed), points.len());
+    assert!(!status.flags.has(StatusFlags::UNDERRUN), "{status:?}");
+    let end = position(&board, &arm);
+    assert_eq!(end[..JOINTS], points.last().unwrap().position[..JOINTS]);
+    note(&format!(
+        "run of {} points ({} ms) took {:.1} s of wall time",
+        points.len(),
+        points.len() * 10,
+        began.elapsed().as_secs_f64()
+    ));
+
+    let edges = recorded(&board);
+    let pins = joints(&edges);
+    let asked = steps_asked(start, &points);
+    let oracle = oracle(&segments(start, &points));
+    for j in 0..MAX_JOINTS {
+        assert_eq!(oracle[j].len(), asked[j], "the oracle's pulses, joint {j}");
+    }
+    let counts: Vec<usize> = pins.iter().map(|p| p.rises.len()).collect();
+    note(&format!(
+        "rising STEP edges per joint {counts:?}, the oracle's {:?}",
+        oracle.iter().map(Vec::len).collect::<Vec<_>>()
+    ));
+    let offset = lead_in(&pins, &oracle);
+    assert_rises_match(&pins, &oracle, offset, true);
+    let (setup, after_fall) = assert_pulse_and_dir_timing(&pins);
+    for j in 0..MAX_JOINTS {
+        assert_eq!(signed_pulses(&pins[j]), end[j] - start[j], "joint {j}: net pulses");
+    }
+    let starts: Vec<u64> = pins.iter().map(|p| p.start_ns).collect();
+    let skew = starts.iter().max().unwrap() - starts.iter().min().unwrap();
+    note(&format!(
+        "every rise at the oracle's tick (lead-in {offset} ticks = {:.1} us); timers started \
+         within {skew} ns of each other; DIR changes: least setup before the next rise {:?} \
+         ticks ({:.1} us), least time after the last fall {:?} ticks ({:.1} us)",
+        ticks_us(offset),
+        setup,
+        ticks_us(setup.unwrap_or(0)),
+        after_fall,
+        ticks_us(after_fall.unwrap_or(0))
+    ));
+    board.assert_healthy();
+}
+
+/// The QEMU test's e-stop (`emergency_stop_mid_run_freezes_the_joints`): 300 points of 10 ms
+/// on six joints, STOPPED after 20 executed.
+#[test]
+fn positions_after_an_estop_are_the_pulses_the_pins_made() {
+    require_renode!();
+    let mut board = RenodeBoard::start_with_step_path();
+    let arm = Arc::new(board.connect_from(system_tests::renode::HOSTS[0], emulated()));
+    let start = position(&board, &arm);
+    let points = sweep(start, JOINTS, 300, 3, 10_000);
+    let asked = steps_asked(start, &points);
+    let total = points.len();
+    let oracle = oracle(&segments(start, &points));
+    match stop_mid_run(&arm, points, 20) {
+        Err(Error::RunEnded {
+            reason: RunEnd::Stopped,
+            executed: Some(n),
+            ..
+        }) => assert!(usize::from(n) < total - 50, "executed {n}"),
+        other => panic!("expected RunEnded(Stopped), got {other:?}\n{}", board.log()),
+    }
+    let status = arm.status().unwrap();
+    assert_eq!(status.state, State::Stopped);
+    assert!(status.flags.has(StatusFlags::STOPPED_BY_HOST));
+    let reported = assert_stays_put(&arm, 30);
+    assert_ne!(reported, start, "nothing moved before the stop");
+
+    let pins = joints(&recorded(&board));
+    let made: Vec<i32> = pins.iter().map(signed_pulses).collect();
+    let moved: Vec<i32> = (0..MAX_JOINTS).map(|j| reported[j] - start[j]).collect();
+    note(&format!(
+        "after the e-stop: reported moves {moved:?}, signed pulses on the pins {made:?}"
+    ));
+    assert_eq!(made, moved, "the positions reported are not the pulses made");
+    for j in 0..JOINTS {
+        assert!(pins[j].rises.len() < asked[j], "joint {j} finished");
+    }
+    let offset = lead_in(&pins, &oracle);
+    assert_rises_match(&pins, &oracle, offset, false);
+    assert_pulse_and_dir_timing(&pins);
+    // Nothing after: the record does not grow while the board keeps reporting.
+    let before = board.edges().len();
+    assert_stays_put(&arm, 10);
+    let after = board.edges();
+    assert_eq!(
+        after.len(),
+        before,
+        "edges after the stop: {:?}",
+        &after[before..]
+    );
+    board.assert_healthy();
+}
