@@ -76,8 +76,9 @@ fn find_on_path(name: &str) -> Option<PathBuf> {
         .find(|path| path.is_file())
 }
 
-/// `Some(reason)` when the tests cannot run here: they then skip, saying why.
-pub fn unavailable() -> Option<String> {
+/// `Some(reason)` when Renode itself cannot run here (no launcher, or no mono for the mono
+/// build): the tests that need no network (the step path's models alone) skip, saying why.
+pub fn renode_missing() -> Option<String> {
     let hint = ".ci/run installs mono-complete and runs these tests with \
                 RENODE=../shared/renode/renode";
     let Some(renode) = renode_path() else {
@@ -104,6 +105,16 @@ pub fn unavailable() -> Option<String> {
             "SKIPPED: this Renode build needs mono (Debian: apt-get install -y mono-complete); {hint}"
         ));
     }
+    None
+}
+
+/// `Some(reason)` when the tests cannot run here: they then skip, saying why.
+pub fn unavailable() -> Option<String> {
+    let hint = ".ci/run installs mono-complete and runs these tests with \
+                RENODE=../shared/renode/renode";
+    if let Some(reason) = renode_missing() {
+        return Some(reason);
+    }
     // SAFETY: geteuid has no preconditions.
     if unsafe { libc::geteuid() } != 0 {
         return Some(format!(
@@ -120,7 +131,7 @@ pub fn unavailable() -> Option<String> {
 }
 
 /// The repository root (this crate is `tests/`).
-fn repo_root() -> PathBuf {
+pub fn repo_root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
         .parent()
         .expect("tests/ has a parent")
@@ -474,17 +485,19 @@ impl RenodeBoard {
     /// Starts Renode with the board (the ELF built or named by `RENODE_FIRMWARE`) and waits
     /// until it answers STATUS from [`HOSTS`]`[0]`.
     pub fn start() -> RenodeBoard {
-        Self::start_inner(false)
+        Self::start_inner(None)
     }
 
     /// As [`RenodeBoard::start`], with the step path's models (`tests/renode/step-path.resc`:
     /// the joint timers, DMAMUX1, DMA2 and an edge recorder on the STEP and DIR pins), so
     /// that runs make STEP pulses; [`RenodeBoard::edges`] reads what the pins did.
-    pub fn start_with_step_path() -> RenodeBoard {
-        Self::start_inner(true)
+    /// `monitor_commands` (`;`-separated, may be empty) run after the models are in, before
+    /// the machine starts (e.g. a model property).
+    pub fn start_with_step_path(monitor_commands: &str) -> RenodeBoard {
+        Self::start_inner(Some(monitor_commands))
     }
 
-    fn start_inner(step_path: bool) -> RenodeBoard {
+    fn start_inner(step_path: Option<&str>) -> RenodeBoard {
         let renode = renode_path().expect("Renode (check unavailable() first)");
         let elf_path = firmware_elf();
         let turn = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
@@ -509,16 +522,15 @@ impl RenodeBoard {
         ip(&["-n", &board.ns, "link", "set", "lo", "up"]);
         let script = repo_root().join("tests/renode/nucleo-h743zi2.resc");
         let models = repo_root().join("tests/renode");
-        let step_path = if step_path {
+        let step_path = step_path.map_or_else(String::new, |extra| {
             format!(
-                "$edges=@{}; $stepModels=@{}; include @{}; ",
+                "$edges=@{}; $stepModels=@{}; include @{}; {extra}{}",
                 board.dir.join(EDGES_FILE).display(),
                 models.display(),
-                models.join("step-path.resc").display()
+                models.join("step-path.resc").display(),
+                if extra.is_empty() { "" } else { "; " }
             )
-        } else {
-            String::new()
-        };
+        });
         let commands = format!(
             "$elf=@{}; $tap=\"{TAP}\"; include @{}; {step_path}start",
             elf_path.display(),
