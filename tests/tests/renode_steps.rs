@@ -420,6 +420,66 @@ fn a_run_makes_the_oracles_edges_on_the_pins() {
     board.assert_healthy();
 }
 
+/// The QEMU test's long run (`upload_streams_past_the_buffer_and_ends_exactly`): two joints,
+/// 1.3 buffers (10,649 points of 1 ms) streamed while the run plays, every pulse checked
+/// against the oracle.
+#[test]
+fn an_upload_past_the_buffer_makes_the_oracles_edges() {
+    require_renode!();
+    let mut board = RenodeBoard::start_with_step_path("");
+    let arm = board.connect_from(system_tests::renode::HOSTS[0], emulated());
+    arm.set_joints(2).unwrap();
+    arm.set_location(&[0, 0]).unwrap();
+    let capacity = usize::from(arm.status().unwrap().capacity);
+    let start = [0; MAX_JOINTS];
+    let points = sweep(start, 2, capacity * 13 / 10, 1, 1_000);
+    let began = Instant::now();
+    // Renode runs the board 3-6 times slower than wall time here, and armctl's upload
+    // deadline is twice the trajectory's duration plus twice this (the buffer drains at the
+    // board's pace): generous, so that only a real stall fails.
+    let options = RunOptions {
+        stall_timeout: Duration::from_secs(60),
+        completion_timeout: Some(Duration::from_secs(400)),
+        ..RunOptions::default()
+    };
+    let report = arm
+        .run_trajectory(&points, &options, |_| {})
+        .unwrap_or_else(|e| panic!("{e}\n{}", board.log()));
+    let status = report.final_status.unwrap();
+    assert_eq!(usize::from(status.executed), points.len());
+    assert!(!status.flags.has(StatusFlags::UNDERRUN), "{status:?}");
+    let end = position(&board, &arm);
+    assert_eq!(end[..2], points.last().unwrap().position[..2]);
+    note(&format!(
+        "run of {} points of 1 ms streamed past the {capacity}-point buffer in {:.1} s of wall \
+         time",
+        points.len(),
+        began.elapsed().as_secs_f64()
+    ));
+    let pins = joints(&recorded(&board));
+    let oracle = oracle(&segments(start, &points));
+    let counts: Vec<usize> = pins.iter().map(|p| p.rises.len()).collect();
+    note(&format!(
+        "rising STEP edges per joint {counts:?}, the oracle's {:?}",
+        oracle.iter().map(Vec::len).collect::<Vec<_>>()
+    ));
+    let offset = lead_in(&pins, &oracle);
+    assert_rises_match(&pins, &oracle, offset, true);
+    let (setup, after_fall) = assert_pulse_and_dir_timing(&pins);
+    for j in 0..MAX_JOINTS {
+        assert_eq!(
+            signed_pulses(&pins[j]),
+            end[j] - start[j],
+            "joint {j}: net pulses"
+        );
+    }
+    note(&format!(
+        "every rise at the oracle's tick; DIR: least setup {setup:?} ticks, least after a fall \
+         {after_fall:?} ticks"
+    ));
+    board.assert_healthy();
+}
+
 /// The QEMU test's e-stop (`emergency_stop_mid_run_freezes_the_joints`) on the DMA model as
 /// RM0433 describes it ("DMA transfer suspension": a stream disabled by software sets its
 /// TCIF). It fails: the stop (`step_dma/stop.rs`) disables each stream and then reads its
