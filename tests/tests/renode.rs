@@ -13,28 +13,16 @@
 //! NOT_OWNER), STOPPED from any host while idle and with points pending, and a bounded
 //! malformed flood after which STATUS and STOPPED are still answered.
 //!
-//! What they cannot cover yet: anything that makes steps. The STEP outputs are timers whose
-//! update events request DMA bursts (DCR/DMAR) from circular DMA2 streams with half-transfer
-//! and transfer-complete interrupts (docs/BOARD.md, "Wiring"; `firmware/board/src/step_dma/`).
-//! Renode 1.15.3's `STM32_Timer` raises no DMA request and has no DCR/DMAR burst, DMAMUX1 is
-//! an unmodelled tag region in `stm32h743.repl`, and its `STM32DMA` copies a transfer at once
-//! when the stream is enabled, with no request pacing and no circular or half-transfer mode.
-//! So no STEP edge is ever made. Worse, the controller cannot tell: a 50-point run
-//! (`armctl run`, by hand) ended normally, no underrun, with LOCATION at the last point,
-//! because positions are the producer's count less the periods still in the buffers as the
-//! streams' NDTR says, and the run's end comes from the step clock (TIM13, whose compare
-//! interrupt the model does raise). Positions after a run prove nothing here, so these tests
-//! run none. Not run for that reason: a run to its last point, an upload streamed past the
-//! 8192-point buffer while it plays, an e-stop mid-run and the positions after it, RETURN,
-//! the gripper's counted burst, and the STEP/DIR edges against arm-step's oracle
-//! (tests/qemu.rs runs all of these on the QEMU port). They need C# models (loaded from
-//! `.cs` by the `.resc`) of: the timer's update DMA request (DIER.UDE) and DCR/DMAR burst
-//! (DBA 11 = ARR, DBL 2: ARR, RCR, CCR1 per update; RM0433 "TIMx DMA address for full
-//! transfer"); DMAMUX1 routing (channel 8 + j to DMA2 stream j, DMAREQ_ID the timer's UP
-//! request; RM0433 "DMAMUX"); the DMA stream paced by requests, circular over NDTR words,
-//! with HTIF/TCIF interrupts and a live NDTR (RM0433 "DMA"); PWM mode 1 / forced-inactive
-//! outputs on CH1 and TIM8's CH1N as GPIO lines to count edges; DIR (PD0-PD7) is plain GPIO
-//! and already observable.
+//! What they do not cover: anything that makes steps. On the stock models no STEP edge is
+//! made (Renode 1.15.3's `STM32_Timer` raises no DMA request and has no DCR/DMAR burst,
+//! DMAMUX1 is a tag region, its `STM32DMA` copies a whole block at once with no circular or
+//! half-transfer mode), yet a run ends "normally" with LOCATION at the last point: positions
+//! are the producer's count less what NDTR says is left. So this suite runs no run;
+//! `tests/renode_steps.rs` does, on models of the step path (`tests/renode/step-path.resc`:
+//! the joint timers and the step clock, DMAMUX1, DMA2, an edge recorder on the STEP and DIR
+//! pins), and compares the pins' edges with arm-step's oracle (docs/BOARD.md, "STEP and DIR
+//! on Renode"). Still not run on Renode: RETURN (it needs encoders on UART4) and the
+//! gripper's counted burst (TIM15 is the stock timer).
 
 use std::net::{Ipv4Addr, UdpSocket};
 use std::time::{Duration, Instant};

@@ -181,14 +181,32 @@ fn segments(start: [i32; MAX_JOINTS], points: &[Point]) -> Vec<Segment> {
         .collect()
 }
 
-/// The rising edges arm-step's engine (the oracle) makes for `segments` from tick 0.
-fn oracle(segments: &[Segment]) -> [Vec<u64>; MAX_JOINTS] {
+/// What arm-step's engine (the oracle) does for some segments from tick 0.
+struct Oracle {
+    /// Rising STEP edges per joint.
+    rises: [Vec<u64>; MAX_JOINTS],
+    /// DIR changes per joint (tick, level), the levels set at tick 0 included.
+    dirs: [Vec<(u64, bool)>; MAX_JOINTS],
+}
+
+impl std::ops::Index<usize> for Oracle {
+    type Output = Vec<u64>;
+    fn index(&self, joint: usize) -> &Vec<u64> {
+        &self.rises[joint]
+    }
+}
+
+/// The oracle's edges for `segments` from tick 0.
+fn oracle(segments: &[Segment]) -> Oracle {
     struct Rises {
         now: u64,
         rises: [Vec<u64>; MAX_JOINTS],
+        dirs: [Vec<(u64, bool)>; MAX_JOINTS],
     }
     impl StepPins for Rises {
-        fn set_direction(&mut self, _joint: usize, _positive: bool) {}
+        fn set_direction(&mut self, joint: usize, positive: bool) {
+            self.dirs[joint].push((self.now, positive));
+        }
         fn step_high(&mut self, joints: JointMask) {
             for (j, rises) in self.rises.iter_mut().enumerate() {
                 if joints & (1 << j) != 0 {
@@ -211,6 +229,7 @@ fn oracle(segments: &[Segment]) -> [Vec<u64>; MAX_JOINTS] {
     let mut lines = Rises {
         now: 0,
         rises: Default::default(),
+        dirs: Default::default(),
     };
     let mut deadline = Some(0);
     while let Some(now) = deadline {
@@ -218,12 +237,55 @@ fn oracle(segments: &[Segment]) -> [Vec<u64>; MAX_JOINTS] {
         deadline = engine.poll(now, &mut lines).next_deadline;
         fill(&mut engine);
     }
-    lines.rises
+    Oracle {
+        rises: lines.rises,
+        dirs: lines.dirs,
+    }
+}
+
+/// How late each DIR change on the pins came after the oracle's (ticks, the lead-in
+/// `offset` applied): the step clock's alarm and TIM13's interrupt as the emulator runs
+/// them. Panics if one came early or was missed. (least, greatest, count)
+fn dir_lateness(board: &[Joint; MAX_JOINTS], oracle: &Oracle, offset: i64) -> (i64, i64, usize) {
+    let (mut least, mut most, mut count) = (i64::MAX, i64::MIN, 0);
+    for (j, pins) in board.iter().enumerate() {
+        // The changes after tick 0 (those at 0 are made before the timers start).
+        let expected: Vec<(i64, bool)> = oracle.dirs[j]
+            .iter()
+            .filter(|(t, _)| *t > 0)
+            .map(|&(t, level)| (i64::try_from(t).unwrap() + offset, level))
+            .collect();
+        // The engine reports every call, the pins only changes: compare changes.
+        let mut level = pins.dir_at_start;
+        let expected: Vec<(i64, bool)> = expected
+            .into_iter()
+            .filter(|&(_, l)| {
+                let changed = l != level;
+                level = l;
+                changed
+            })
+            .collect();
+        assert_eq!(
+            pins.dirs.len(),
+            expected.len(),
+            "joint {j}: DIR changes on the pin {:?}, the oracle's {expected:?}",
+            pins.dirs
+        );
+        for (&(got, level), &(want, want_level)) in pins.dirs.iter().zip(&expected) {
+            assert_eq!(level, want_level, "joint {j}: DIR level at tick {got}");
+            let late = got - want;
+            assert!(late >= 0, "joint {j}: DIR changed {} ticks early", -late);
+            least = least.min(late);
+            most = most.max(late);
+            count += 1;
+        }
+    }
+    (least, most, count)
 }
 
 /// The offset (ticks) that puts the oracle's first rise on the board's, from the first joint
 /// that moved.
-fn lead_in(board: &[Joint; MAX_JOINTS], oracle: &[Vec<u64>; MAX_JOINTS]) -> i64 {
+fn lead_in(board: &[Joint; MAX_JOINTS], oracle: &Oracle) -> i64 {
     (0..MAX_JOINTS)
         .find_map(|j| {
             let b = *board[j].rises.first()?;
@@ -235,12 +297,7 @@ fn lead_in(board: &[Joint; MAX_JOINTS], oracle: &[Vec<u64>; MAX_JOINTS]) -> i64 
 
 /// Checks every joint's rises against the oracle's shifted by `offset`: all of them
 /// (`whole`), or the board's as a prefix of the oracle's (a run cut by a stop).
-fn assert_rises_match(
-    board: &[Joint; MAX_JOINTS],
-    oracle: &[Vec<u64>; MAX_JOINTS],
-    offset: i64,
-    whole: bool,
-) {
+fn assert_rises_match(board: &[Joint; MAX_JOINTS], oracle: &Oracle, offset: i64, whole: bool) {
     for j in 0..MAX_JOINTS {
         let expected: Vec<u64> = oracle[j]
             .iter()
@@ -350,6 +407,28 @@ fn position(board: &RenodeBoard, arm: &armctl::Client) -> [i32; MAX_JOINTS] {
         .position
 }
 
+/// No timer model handled an event after its time (`LateEvents`, read over the monitor).
+fn assert_no_late_events(board: &RenodeBoard) {
+    for timer in [
+        "stepTim2",
+        "stepTim5",
+        "stepTim3",
+        "stepTim4",
+        "stepTim1",
+        "stepTim8",
+        "stepTim16",
+        "stepTim17",
+        "stepClockTim13",
+    ] {
+        let answer = board.monitor(&format!("sysbus.{timer} LateEvents"));
+        let late = answer
+            .split_whitespace()
+            .find_map(|t| t.strip_prefix("0x"))
+            .and_then(|t| u64::from_str_radix(t, 16).ok());
+        assert_eq!(late, Some(0), "{timer} LateEvents: {answer:?}");
+    }
+}
+
 fn ticks_us(ticks: i64) -> f64 {
     // In the firmware's ticks (200 MHz on the chip).
     ticks as f64 * 1e6 / f64::from(NUCLEO_H743ZI2.step_timer_hz)
@@ -393,7 +472,7 @@ fn a_run_makes_the_oracles_edges_on_the_pins() {
     let counts: Vec<usize> = pins.iter().map(|p| p.rises.len()).collect();
     note(&format!(
         "rising STEP edges per joint {counts:?}, the oracle's {:?}",
-        oracle.iter().map(Vec::len).collect::<Vec<_>>()
+        oracle.rises.iter().map(Vec::len).collect::<Vec<_>>()
     ));
     let offset = lead_in(&pins, &oracle);
     assert_rises_match(&pins, &oracle, offset, true);
@@ -405,6 +484,14 @@ fn a_run_makes_the_oracles_edges_on_the_pins() {
             "joint {j}: net pulses"
         );
     }
+    let (least_late, most_late, dir_changes) = dir_lateness(&pins, &oracle, offset);
+    note(&format!(
+        "{dir_changes} DIR changes, each {least_late}..={most_late} ticks ({:.1}..={:.1} us) \
+         after the oracle's tick",
+        ticks_us(least_late),
+        ticks_us(most_late)
+    ));
+    assert_no_late_events(&board);
     let starts: Vec<u64> = pins.iter().map(|p| p.start_ns).collect();
     let skew = starts.iter().max().unwrap() - starts.iter().min().unwrap();
     note(&format!(
@@ -461,7 +548,7 @@ fn an_upload_past_the_buffer_makes_the_oracles_edges() {
     let counts: Vec<usize> = pins.iter().map(|p| p.rises.len()).collect();
     note(&format!(
         "rising STEP edges per joint {counts:?}, the oracle's {:?}",
-        oracle.iter().map(Vec::len).collect::<Vec<_>>()
+        oracle.rises.iter().map(Vec::len).collect::<Vec<_>>()
     ));
     let offset = lead_in(&pins, &oracle);
     assert_rises_match(&pins, &oracle, offset, true);
@@ -473,9 +560,12 @@ fn an_upload_past_the_buffer_makes_the_oracles_edges() {
             "joint {j}: net pulses"
         );
     }
+    let (least_late, most_late, dir_changes) = dir_lateness(&pins, &oracle, offset);
+    assert_no_late_events(&board);
     note(&format!(
         "every rise at the oracle's tick; DIR: least setup {setup:?} ticks, least after a fall \
-         {after_fall:?} ticks"
+         {after_fall:?} ticks; {dir_changes} DIR changes {least_late}..={most_late} ticks after \
+         the oracle's"
     ));
     board.assert_healthy();
 }
@@ -601,10 +691,11 @@ fn the_models_alone_pulse_at_arr_and_reload_from_a_circular_stream() {
         let (_, rest) = out
             .split_once(label)
             .unwrap_or_else(|| panic!("no {label:?} in Renode's output:\n{out}"));
+        // The first number after it: Renode's own log lines ("machine paused", from another
+        // thread) can come in between.
         let token = rest
             .split_whitespace()
-            .next()
-            .and_then(|t| t.strip_prefix("0x"))
+            .find_map(|t| t.strip_prefix("0x"))
             .unwrap_or_else(|| panic!("no value after {label:?}:\n{out}"));
         u64::from_str_radix(token, 16).unwrap()
     };
