@@ -7,7 +7,8 @@
 // memory-to-peripheral with MINC), "Circular mode" (NDTR and the addresses reload when NDTR
 // reaches 0, the stream stays enabled), "Double-buffer mode" (CT switches M0AR/M1AR at each
 // end), "DMA transfer suspension" (clearing EN stops the stream: NDTR keeps the items left,
-// and TCIF is set to say the transfer ended), "DMA interrupts" (HTIF when half the items of
+// and TCIF is set to say the transfer ended; the same text in RM0399 16.3.16 and RM0090
+// 10.3.14, and "DMA transfer completion" lists "the stream is disabled by software"), "DMA interrupts" (HTIF when half the items of
 // the block are transferred, TCIF at the end, each with its enable in SxCR), and the register
 // map (LISR/HISR, LIFCR/HIFCR, SxCR, SxNDTR, SxPAR, SxM0AR, SxM1AR, SxFCR).
 //
