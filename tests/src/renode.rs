@@ -303,8 +303,16 @@ pub fn defmt_line(info: &ElfInfo, frame: &[u8]) -> String {
         .get(2..10)
         .and_then(|t| t.try_into().ok())
         .map_or(0, u64::from_le_bytes);
+    // The arguments are not decoded; for errors and warnings their raw bytes follow, enough
+    // to tell a fault's kind (FaultKind's variant index first) without defmt-print.
+    let args = bytes.get(10..).unwrap_or_default();
+    let raw = if matches!(level.as_str(), "ERROR" | "WARN") && !args.is_empty() {
+        format!(" [args {args:02x?}]")
+    } else {
+        String::new()
+    };
     format!(
-        "{}.{:06} {level:<5} {text}",
+        "{}.{:06} {level:<5} {text}{raw}",
         micros / 1_000_000,
         micros % 1_000_000
     )
@@ -441,6 +449,46 @@ impl Monitor {
             .filter_map(|t| u8::from_str_radix(t, 16).ok())
             .collect()
     }
+}
+
+/// Malformed datagrams to the board (from a third host: `socket` bound to [`HOSTS`]`[2]`), `count` at most and for 60 s at most, paced so
+/// that they queue at the board rather than in the host's socket buffer.
+pub fn malformed_flood(socket: &UdpSocket, count: usize) -> usize {
+    let mut sent = 0;
+    let mut state = 0x2545_f491_u32;
+    let flooding = Instant::now();
+    while sent < count && flooding.elapsed() < Duration::from_secs(60) {
+        state ^= state << 13;
+        state ^= state >> 17;
+        state ^= state << 5;
+        let len = (state % 1400) as usize;
+        let mut bytes: Vec<u8> = (0..len).map(|i| (state >> (i % 24)) as u8).collect();
+        match sent % 5 {
+            // A valid-looking PENDING with a wrong CRC.
+            0 if len > 3 => bytes[1] = protocol::Tag::Pending as u8,
+            // A STOPPED with a wrong CRC (must stop nothing, and not count as one).
+            1 if len > 3 => {
+                bytes.truncate(3);
+                bytes[1] = protocol::Tag::Stopped as u8;
+                bytes[2] = !protocol::crc8(&bytes[..2]);
+            }
+            // Too short for a frame.
+            2 => bytes.truncate(1),
+            // A correct CRC over a PENDING of garbage length.
+            3 if len > 3 => {
+                bytes[1] = protocol::Tag::Pending as u8;
+                let crc = protocol::crc8(&bytes[..len - 1]);
+                bytes[len - 1] = crc;
+            }
+            _ => {}
+        }
+        let _ = socket.send_to(&bytes, BOARD);
+        sent += 1;
+        if sent % 20 == 0 {
+            std::thread::sleep(Duration::from_millis(10));
+        }
+    }
+    sent
 }
 
 /// The recorder's file in the board's folder (`tests/renode/EdgeRecorder.cs`).

@@ -30,9 +30,11 @@ use std::time::{Duration, Instant};
 use arm_core::profile::NUCLEO_H743ZI2;
 use arm_step::{JointMask, MAX_JOINTS, Segment, StepEngine, StepPins};
 use armctl::{Error, Options, RunEnd, RunOptions};
-use common::{assert_stays_put, stop_mid_run, sweep};
+use common::{assert_stays_put, run_reporting_progress, stop_mid_run, sweep};
 use protocol::{Point, State, StatusFlags};
-use system_tests::renode::{EMULATED_TIMER_HZ, Edge, RenodeBoard, unavailable};
+use system_tests::renode::{
+    EMULATED_TIMER_HZ, Edge, HOSTS, RenodeBoard, malformed_flood, unavailable,
+};
 
 /// Skips the test, saying what it needs, when Renode (or root) is missing.
 macro_rules! require_renode {
@@ -440,7 +442,7 @@ fn ticks_us(ticks: i64) -> f64 {
 fn a_run_makes_the_oracles_edges_on_the_pins() {
     require_renode!();
     let mut board = RenodeBoard::start_with_step_path("");
-    let arm = board.connect_from(system_tests::renode::HOSTS[0], emulated());
+    let arm = board.connect_from(HOSTS[0], emulated());
     arm.set_location(&[100, -200, 300, 0, 0, 0]).unwrap();
     let start = position(&board, &arm);
     assert_eq!(&start[..3], &[100, -200, 300]);
@@ -514,7 +516,7 @@ fn a_run_makes_the_oracles_edges_on_the_pins() {
 fn an_upload_past_the_buffer_makes_the_oracles_edges() {
     require_renode!();
     let mut board = RenodeBoard::start_with_step_path("");
-    let arm = board.connect_from(system_tests::renode::HOSTS[0], emulated());
+    let arm = board.connect_from(HOSTS[0], emulated());
     arm.set_joints(2).unwrap();
     arm.set_location(&[0, 0]).unwrap();
     let capacity = usize::from(arm.status().unwrap().capacity);
@@ -570,6 +572,95 @@ fn an_upload_past_the_buffer_makes_the_oracles_edges() {
     board.assert_healthy();
 }
 
+/// The QEMU test's flood (`malformed_flood_during_a_run_changes_no_step`): 200 points of
+/// 10 ms on six joints; once the run is under way a third host sends 2,000 malformed
+/// datagrams; every edge is still the oracle's. (Started before the run, as on QEMU, the
+/// flood kept the emulated board, 3-6 times slower than real time, from answering the
+/// owner's NEW within armctl's 2 s: the board sheds the flooder's excess, but every frame
+/// still costs the emulated MAC and CPU their time.)
+#[test]
+fn a_malformed_flood_during_a_run_changes_no_edge() {
+    require_renode!();
+    let mut board = RenodeBoard::start_with_step_path("");
+    let arm = Arc::new(board.connect_from(HOSTS[0], emulated()));
+    arm.set_location(&[0; JOINTS]).unwrap();
+    let start = [0; MAX_JOINTS];
+    let points = sweep(start, JOINTS, 200, 3, 10_000);
+    let oracle = oracle(&segments(start, &points));
+    let run = run_reporting_progress(&arm, points.clone());
+    run.wait_executed(5);
+    let socket = board.udp_socket(HOSTS[2]);
+    let sent = malformed_flood(&socket, 2_000);
+    let report = run
+        .join()
+        .unwrap_or_else(|e| panic!("{e}\n{}", board.log()));
+    let status = report.final_status.unwrap();
+    assert!(sent > 500, "only {sent} malformed datagrams sent");
+    assert_eq!(usize::from(status.executed), points.len());
+    assert!(
+        !status.flags.has(StatusFlags::STOPPED_BY_HOST) && !status.flags.has(StatusFlags::UNDERRUN),
+        "{status:?}"
+    );
+    let end = position(&board, &arm);
+    assert_eq!(end[..JOINTS], points.last().unwrap().position[..JOINTS]);
+    let pins = joints(&recorded(&board));
+    let offset = lead_in(&pins, &oracle);
+    assert_rises_match(&pins, &oracle, offset, true);
+    assert_pulse_and_dir_timing(&pins);
+    dir_lateness(&pins, &oracle, offset);
+    for j in 0..MAX_JOINTS {
+        assert_eq!(
+            signed_pulses(&pins[j]),
+            end[j] - start[j],
+            "joint {j}: net pulses"
+        );
+    }
+    assert_no_late_events(&board);
+    note(&format!(
+        "{sent} malformed datagrams during the run; rising edges {:?}, every one at the \
+         oracle's tick",
+        pins.iter().map(|p| p.rises.len()).collect::<Vec<_>>()
+    ));
+    board.assert_healthy();
+}
+
+/// The QEMU test's RETURN (`every_command_of_the_manual`): three joints from a set location
+/// back to zero, planned by the firmware (no encoders answer: it trusts the step count). The
+/// plan is the firmware's, so the pins are checked against the move: the pulses, their
+/// direction, their width and DIR's timing.
+///
+/// Renode 1.15.3 cannot run it: its Cortex-M7 lacks the FPv5 instruction VMINNM.F64 (and
+/// VMAXNM), which the planner's `f64::min` compiles to (`arm_core::plan`); the board takes a
+/// UsageFault (CFSR 0x10000, UNDEFINSTR, at 0x0801bc62 in the build measured), which ends in
+/// its DefaultHandler as `fault: UnexpectedInterrupt { irqn: -10 }`. The silicon has the
+/// instruction. Runs with `--ignored` on a Renode that does.
+#[test]
+#[ignore = "Renode 1.15.3's Cortex-M7 has no VMINNM/VMAXNM (FPv5): RETURN's planner faults with UNDEFINSTR there"]
+fn return_moves_the_pins_back_to_zero() {
+    require_renode!();
+    let mut board = RenodeBoard::start_with_step_path("");
+    let arm = board.connect_from(HOSTS[0], emulated());
+    arm.set_joints(3).unwrap();
+    arm.set_location(&[400, -300, 200]).unwrap();
+    arm.go_home().unwrap();
+    let status = arm
+        .wait_stopped(Duration::from_secs(120))
+        .unwrap_or_else(|e| panic!("RETURN: {e}\n{}", board.log()));
+    assert_eq!(status.state, State::Stopped);
+    assert_eq!(position(&board, &arm)[..3], [0, 0, 0]);
+    let pins = joints(&recorded(&board));
+    let rises: Vec<usize> = pins.iter().map(|p| p.rises.len()).collect();
+    let made: Vec<i32> = pins.iter().map(signed_pulses).collect();
+    assert_eq!(rises, [400, 300, 200, 0, 0, 0, 0, 0]);
+    assert_eq!(made, [-400, 300, -200, 0, 0, 0, 0, 0]);
+    assert_pulse_and_dir_timing(&pins);
+    assert_no_late_events(&board);
+    note(&format!(
+        "RETURN from [400, -300, 200]: rising edges {rises:?}, signed {made:?}"
+    ));
+    board.assert_healthy();
+}
+
 /// The QEMU test's e-stop (`emergency_stop_mid_run_freezes_the_joints`) on the DMA model as
 /// RM0433 describes it ("DMA transfer suspension": a stream disabled by software sets its
 /// TCIF). It fails: the stop (`step_dma/stop.rs`) disables each stream and then reads its
@@ -598,7 +689,7 @@ fn positions_after_an_estop_match_the_pins_if_a_disable_leaves_tcif_alone() {
 fn estop_positions_match_the_pins(monitor: &str) {
     require_renode!();
     let mut board = RenodeBoard::start_with_step_path(monitor);
-    let arm = Arc::new(board.connect_from(system_tests::renode::HOSTS[0], emulated()));
+    let arm = Arc::new(board.connect_from(HOSTS[0], emulated()));
     let start = position(&board, &arm);
     let points = sweep(start, JOINTS, 300, 3, 10_000);
     let asked = steps_asked(start, &points);
