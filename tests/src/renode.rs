@@ -76,8 +76,9 @@ fn find_on_path(name: &str) -> Option<PathBuf> {
         .find(|path| path.is_file())
 }
 
-/// `Some(reason)` when the tests cannot run here: they then skip, saying why.
-pub fn unavailable() -> Option<String> {
+/// `Some(reason)` when Renode itself cannot run here (no launcher, or no mono for the mono
+/// build): the tests that need no network (the step path's models alone) skip, saying why.
+pub fn renode_missing() -> Option<String> {
     let hint = ".ci/run installs mono-complete and runs these tests with \
                 RENODE=../shared/renode/renode";
     let Some(renode) = renode_path() else {
@@ -104,6 +105,16 @@ pub fn unavailable() -> Option<String> {
             "SKIPPED: this Renode build needs mono (Debian: apt-get install -y mono-complete); {hint}"
         ));
     }
+    None
+}
+
+/// `Some(reason)` when the tests cannot run here: they then skip, saying why.
+pub fn unavailable() -> Option<String> {
+    let hint = ".ci/run installs mono-complete and runs these tests with \
+                RENODE=../shared/renode/renode";
+    if let Some(reason) = renode_missing() {
+        return Some(reason);
+    }
     // SAFETY: geteuid has no preconditions.
     if unsafe { libc::geteuid() } != 0 {
         return Some(format!(
@@ -120,7 +131,7 @@ pub fn unavailable() -> Option<String> {
 }
 
 /// The repository root (this crate is `tests/`).
-fn repo_root() -> PathBuf {
+pub fn repo_root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
         .parent()
         .expect("tests/ has a parent")
@@ -292,8 +303,16 @@ pub fn defmt_line(info: &ElfInfo, frame: &[u8]) -> String {
         .get(2..10)
         .and_then(|t| t.try_into().ok())
         .map_or(0, u64::from_le_bytes);
+    // The arguments are not decoded; for errors and warnings their raw bytes follow, enough
+    // to tell a fault's kind (FaultKind's variant index first) without defmt-print.
+    let args = bytes.get(10..).unwrap_or_default();
+    let raw = if matches!(level.as_str(), "ERROR" | "WARN") && !args.is_empty() {
+        format!(" [args {args:02x?}]")
+    } else {
+        String::new()
+    };
     format!(
-        "{}.{:06} {level:<5} {text}",
+        "{}.{:06} {level:<5} {text}{raw}",
         micros / 1_000_000,
         micros % 1_000_000
     )
@@ -432,6 +451,67 @@ impl Monitor {
     }
 }
 
+/// Malformed datagrams to the board (from a third host: `socket` bound to [`HOSTS`]`[2]`), `count` at most and for 60 s at most, paced so
+/// that they queue at the board rather than in the host's socket buffer.
+pub fn malformed_flood(socket: &UdpSocket, count: usize) -> usize {
+    let mut sent = 0;
+    let mut state = 0x2545_f491_u32;
+    let flooding = Instant::now();
+    while sent < count && flooding.elapsed() < Duration::from_secs(60) {
+        state ^= state << 13;
+        state ^= state >> 17;
+        state ^= state << 5;
+        let len = (state % 1400) as usize;
+        let mut bytes: Vec<u8> = (0..len).map(|i| (state >> (i % 24)) as u8).collect();
+        match sent % 5 {
+            // A valid-looking PENDING with a wrong CRC.
+            0 if len > 3 => bytes[1] = protocol::Tag::Pending as u8,
+            // A STOPPED with a wrong CRC (must stop nothing, and not count as one).
+            1 if len > 3 => {
+                bytes.truncate(3);
+                bytes[1] = protocol::Tag::Stopped as u8;
+                bytes[2] = !protocol::crc8(&bytes[..2]);
+            }
+            // Too short for a frame.
+            2 => bytes.truncate(1),
+            // A correct CRC over a PENDING of garbage length.
+            3 if len > 3 => {
+                bytes[1] = protocol::Tag::Pending as u8;
+                let crc = protocol::crc8(&bytes[..len - 1]);
+                bytes[len - 1] = crc;
+            }
+            _ => {}
+        }
+        let _ = socket.send_to(&bytes, BOARD);
+        sent += 1;
+        if sent % 20 == 0 {
+            std::thread::sleep(Duration::from_millis(10));
+        }
+    }
+    sent
+}
+
+/// The recorder's file in the board's folder (`tests/renode/EdgeRecorder.cs`).
+const EDGES_FILE: &str = "edges.txt";
+
+/// One change of a line the step path's recorder watches (`tests/renode/step-path.resc`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Edge {
+    /// Renode's virtual time, nanoseconds since the machine started.
+    pub ns: u64,
+    /// 0-7: STEP of joint `line`; 8-15: DIR of joint `line - 8`; 16-23: joint `line - 16`'s
+    /// timer counting (CR1.CEN: its tick 0).
+    pub line: u8,
+    /// The level after the change.
+    pub high: bool,
+}
+
+/// The joint timers' clock in the emulator (`tests/renode/step-path.resc`: the stock
+/// description's 250 MHz, which TIM13, the step clock, also runs at). The firmware counts
+/// the same ticks as 200 MHz ones, so tick counts compare with arm-step's exactly; only
+/// virtual time runs 1.25 times faster than the chip's.
+pub const EMULATED_TIMER_HZ: u64 = 250_000_000;
+
 /// A running Renode with the board, in a namespace of its own; all removed on drop.
 pub struct RenodeBoard {
     /// The namespace's name (`ip netns`).
@@ -453,6 +533,19 @@ impl RenodeBoard {
     /// Starts Renode with the board (the ELF built or named by `RENODE_FIRMWARE`) and waits
     /// until it answers STATUS from [`HOSTS`]`[0]`.
     pub fn start() -> RenodeBoard {
+        Self::start_inner(None)
+    }
+
+    /// As [`RenodeBoard::start`], with the step path's models (`tests/renode/step-path.resc`:
+    /// the joint timers, DMAMUX1, DMA2 and an edge recorder on the STEP and DIR pins), so
+    /// that runs make STEP pulses; [`RenodeBoard::edges`] reads what the pins did.
+    /// `monitor_commands` (`;`-separated, may be empty) run after the models are in, before
+    /// the machine starts (e.g. a model property).
+    pub fn start_with_step_path(monitor_commands: &str) -> RenodeBoard {
+        Self::start_inner(Some(monitor_commands))
+    }
+
+    fn start_inner(step_path: Option<&str>) -> RenodeBoard {
         let renode = renode_path().expect("Renode (check unavailable() first)");
         let elf_path = firmware_elf();
         let turn = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
@@ -476,8 +569,18 @@ impl RenodeBoard {
         };
         ip(&["-n", &board.ns, "link", "set", "lo", "up"]);
         let script = repo_root().join("tests/renode/nucleo-h743zi2.resc");
+        let models = repo_root().join("tests/renode");
+        let step_path = step_path.map_or_else(String::new, |extra| {
+            format!(
+                "$edges=@{}; $stepModels=@{}; include @{}; {extra}{}",
+                board.dir.join(EDGES_FILE).display(),
+                models.display(),
+                models.join("step-path.resc").display(),
+                if extra.is_empty() { "" } else { "; " }
+            )
+        });
         let commands = format!(
-            "$elf=@{}; $tap=\"{TAP}\"; include @{}; start",
+            "$elf=@{}; $tap=\"{TAP}\"; include @{}; {step_path}start",
             elf_path.display(),
             script.display()
         );
@@ -665,6 +768,23 @@ impl RenodeBoard {
             }
         }
         rtt.1.clone()
+    }
+
+    /// Every edge the step path's recorder saw so far (boards started with
+    /// [`RenodeBoard::start_with_step_path`]), in time order: it is flushed through the
+    /// monitor first.
+    pub fn edges(&self) -> Vec<Edge> {
+        self.monitor("sysbus.stepRecorder Flush");
+        let text = std::fs::read_to_string(self.dir.join(EDGES_FILE)).unwrap_or_default();
+        text.lines()
+            .filter_map(|line| {
+                let mut fields = line.split_whitespace();
+                let ns = fields.next()?.parse().ok()?;
+                let line = fields.next()?.parse().ok()?;
+                let high = fields.next()? == "1";
+                Some(Edge { ns, line, high })
+            })
+            .collect()
     }
 
     /// The firmware's log and Renode's own output.

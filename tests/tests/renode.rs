@@ -13,37 +13,26 @@
 //! NOT_OWNER), STOPPED from any host while idle and with points pending, and a bounded
 //! malformed flood after which STATUS and STOPPED are still answered.
 //!
-//! What they cannot cover yet: anything that makes steps. The STEP outputs are timers whose
-//! update events request DMA bursts (DCR/DMAR) from circular DMA2 streams with half-transfer
-//! and transfer-complete interrupts (docs/BOARD.md, "Wiring"; `firmware/board/src/step_dma/`).
-//! Renode 1.15.3's `STM32_Timer` raises no DMA request and has no DCR/DMAR burst, DMAMUX1 is
-//! an unmodelled tag region in `stm32h743.repl`, and its `STM32DMA` copies a transfer at once
-//! when the stream is enabled, with no request pacing and no circular or half-transfer mode.
-//! So no STEP edge is ever made. Worse, the controller cannot tell: a 50-point run
-//! (`armctl run`, by hand) ended normally, no underrun, with LOCATION at the last point,
-//! because positions are the producer's count less the periods still in the buffers as the
-//! streams' NDTR says, and the run's end comes from the step clock (TIM13, whose compare
-//! interrupt the model does raise). Positions after a run prove nothing here, so these tests
-//! run none. Not run for that reason: a run to its last point, an upload streamed past the
-//! 8192-point buffer while it plays, an e-stop mid-run and the positions after it, RETURN,
-//! the gripper's counted burst, and the STEP/DIR edges against arm-step's oracle
-//! (tests/qemu.rs runs all of these on the QEMU port). They need C# models (loaded from
-//! `.cs` by the `.resc`) of: the timer's update DMA request (DIER.UDE) and DCR/DMAR burst
-//! (DBA 11 = ARR, DBL 2: ARR, RCR, CCR1 per update; RM0433 "TIMx DMA address for full
-//! transfer"); DMAMUX1 routing (channel 8 + j to DMA2 stream j, DMAREQ_ID the timer's UP
-//! request; RM0433 "DMAMUX"); the DMA stream paced by requests, circular over NDTR words,
-//! with HTIF/TCIF interrupts and a live NDTR (RM0433 "DMA"); PWM mode 1 / forced-inactive
-//! outputs on CH1 and TIM8's CH1N as GPIO lines to count edges; DIR (PD0-PD7) is plain GPIO
-//! and already observable.
+//! What they do not cover: anything that makes steps. On the stock models no STEP edge is
+//! made (Renode 1.15.3's `STM32_Timer` raises no DMA request and has no DCR/DMAR burst,
+//! DMAMUX1 is a tag region, its `STM32DMA` copies a whole block at once with no circular or
+//! half-transfer mode), yet a run ends "normally" with LOCATION at the last point: positions
+//! are the producer's count less what NDTR says is left. So this suite runs no run;
+//! `tests/renode_steps.rs` does, on models of the step path (`tests/renode/step-path.resc`:
+//! the joint timers and the step clock, DMAMUX1, DMA2, an edge recorder on the STEP and DIR
+//! pins), and compares the pins' edges with arm-step's oracle (docs/BOARD.md, "STEP and DIR
+//! on Renode"). Still not run on Renode: RETURN (Renode 1.15.3's Cortex-M7 has no VMINNM, which
+//! the planner uses: `renode_steps.rs` has the test, ignored) and the gripper's counted burst
+//! (TIM15 is the stock timer).
 
-use std::net::{Ipv4Addr, UdpSocket};
+use std::net::Ipv4Addr;
 use std::time::{Duration, Instant};
 
 use armctl::{Client, Options};
 use protocol::{
-    Ack, Command, MAX_DATAGRAM, Point, PointList, Report, State, StatusCode, StatusFlags, Tag,
+    Ack, Command, MAX_DATAGRAM, Point, PointList, Report, State, StatusCode, StatusFlags,
 };
-use system_tests::renode::{BOARD, HOSTS, RenodeBoard, unavailable};
+use system_tests::renode::{BOARD, HOSTS, RenodeBoard, malformed_flood, unavailable};
 
 mod common;
 use common::{
@@ -358,46 +347,6 @@ fn stopped_while_idle_and_while_points_are_pending() {
     ));
 }
 
-/// Malformed datagrams from a third host, `count` at most and for 60 s at most, paced so
-/// that they queue at the board rather than in the host's socket buffer.
-fn flood(socket: &UdpSocket, count: usize) -> usize {
-    let mut sent = 0;
-    let mut state = 0x2545_f491_u32;
-    let flooding = Instant::now();
-    while sent < count && flooding.elapsed() < Duration::from_secs(60) {
-        state ^= state << 13;
-        state ^= state >> 17;
-        state ^= state << 5;
-        let len = (state % 1400) as usize;
-        let mut bytes: Vec<u8> = (0..len).map(|i| (state >> (i % 24)) as u8).collect();
-        match sent % 5 {
-            // A valid-looking PENDING with a wrong CRC.
-            0 if len > 3 => bytes[1] = Tag::Pending as u8,
-            // A STOPPED with a wrong CRC (must stop nothing, and not count as one).
-            1 if len > 3 => {
-                bytes.truncate(3);
-                bytes[1] = Tag::Stopped as u8;
-                bytes[2] = !protocol::crc8(&bytes[..2]);
-            }
-            // Too short for a frame.
-            2 => bytes.truncate(1),
-            // A correct CRC over a PENDING of garbage length.
-            3 if len > 3 => {
-                bytes[1] = Tag::Pending as u8;
-                let crc = protocol::crc8(&bytes[..len - 1]);
-                bytes[len - 1] = crc;
-            }
-            _ => {}
-        }
-        let _ = socket.send_to(&bytes, BOARD);
-        sent += 1;
-        if sent % 20 == 0 {
-            std::thread::sleep(Duration::from_millis(10));
-        }
-    }
-    sent
-}
-
 /// 2000 malformed datagrams: the controller answers what it answers, stays up, its owner's
 /// STATUS is still answered, points pending survive, and a STOPPED is ACKed.
 #[test]
@@ -417,7 +366,7 @@ fn malformed_flood_leaves_the_controller_answering() {
     let flooder = board.udp_socket(HOSTS[2]);
     let _ = flooder.set_read_timeout(Some(Duration::from_millis(1)));
     let flood_started = Instant::now();
-    let sent = flood(&flooder, 2000);
+    let sent = malformed_flood(&flooder, 2000);
     let flood_time = flood_started.elapsed();
     // What came back to the flooder (refusals such as BAD_CRC, NOT_OWNER), for the note.
     let mut answers = 0;

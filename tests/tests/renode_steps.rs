@@ -1,0 +1,993 @@
+//! STEP and DIR of the NUCLEO-H743ZI2 firmware itself (the `cargo fw` ELF) on Renode, with
+//! the step path's models (`tests/renode/step-path.resc`: the joint timers with their update
+//! DMA requests and DCR/DMAR burst, DMAMUX1, DMA2's circular streams with half/complete
+//! interrupts, all from RM0433; an edge recorder on the STEP and DIR pins). The QEMU tests'
+//! trajectories are uploaded over the emulated Ethernet (`tests/tests/qemu.rs`: the same
+//! sweeps), and what the pins did is compared with arm-step's oracle (`StepEngine`, which
+//! `firmware/step/tests/producer.rs` compares with the producer on 10 M pulses):
+//!
+//! - every rising STEP edge of every joint at the oracle's tick, counted from its own timer's
+//!   start (CR1.CEN), with one offset for all joints (the run's lead-in, which the firmware
+//!   picks); each pulse as wide as the profile says;
+//! - DIR changed only while STEP is low, after the joint's last pulse fell, and at least the
+//!   drivers' DIR setup before the next rise; the pulses signed by DIR sum to the move;
+//! - after an e-stop mid-run, the positions the board reports are the signed pulses its pins
+//!   made, the pulses made are the oracle's up to the stop, and nothing moves after.
+//!
+//! Times: the models make every timer edge at its exact tick in Renode's virtual time (ns),
+//! so the STEP comparison is exact. DIR is written by the CPU (TIM13's compare interrupt), so
+//! its time is the instruction's in Renode's CPU model (`PerformanceInMips`, not the
+//! Cortex-M7's pipeline): the DIR margins printed are the emulator's, not the chip's.
+//!
+//! Needs Renode (`renode` on PATH or `RENODE`; the prebuilt one needs mono) and root; without
+//! them every test prints what it needs and passes.
+
+mod common;
+
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use arm_core::profile::NUCLEO_H743ZI2;
+use arm_step::{JointMask, MAX_JOINTS, Segment, StepEngine, StepPins};
+use armctl::{Error, Options, RunEnd, RunOptions};
+use common::{assert_stays_put, run_reporting_progress, stop_mid_run, sweep};
+use protocol::{Point, State, StatusFlags};
+use system_tests::renode::{
+    EMULATED_TIMER_HZ, Edge, HOSTS, RenodeBoard, malformed_flood, unavailable,
+};
+
+/// Skips the test, saying what it needs, when Renode (or root) is missing.
+macro_rules! require_renode {
+    () => {
+        if let Some(reason) = unavailable() {
+            use std::io::Write;
+            let _ = writeln!(std::io::stderr().lock(), "{}: {reason}", module_path!());
+            return;
+        }
+    };
+}
+
+/// Prints a figure to the real stderr (seen without --nocapture).
+fn note(text: &str) {
+    use std::io::Write;
+    let _ = writeln!(std::io::stderr().lock(), "renode steps: {text}");
+}
+
+/// Joints the board drives with erased settings.
+const JOINTS: usize = 6;
+
+/// Virtual nanoseconds per timer tick in the emulator.
+const NS_PER_TICK: u64 = 1_000_000_000 / EMULATED_TIMER_HZ;
+
+fn emulated() -> Options {
+    Options {
+        ack_timeout: Duration::from_millis(400),
+        min_ack_timeout: Duration::from_millis(50),
+        attempts: 20,
+        report_timeout: Duration::from_millis(1500),
+        ..Options::default()
+    }
+}
+
+/// What one joint's lines did, in its timer's ticks from its (last) CR1.CEN.
+#[derive(Debug, Default)]
+struct Joint {
+    /// Virtual time of the timer's start (its tick 0).
+    start_ns: u64,
+    rises: Vec<u64>,
+    falls: Vec<u64>,
+    /// DIR changes (tick, possibly before the start: signed) and the level after.
+    dirs: Vec<(i64, bool)>,
+    /// DIR's level before the first change after the start.
+    dir_at_start: bool,
+    /// A STEP edge that was not on the timer's tick grid (ns since the start).
+    off_grid: Vec<u64>,
+    /// STEP high when the record ends.
+    high_at_end: bool,
+}
+
+/// The recorder's edges, also written to `RENODE_EDGES_COPY` if set (the board's folder goes
+/// with the board), as `<ns> <line> <level>` lines.
+fn recorded(board: &RenodeBoard) -> Vec<Edge> {
+    let edges = board.edges();
+    if let Some(path) = std::env::var_os("RENODE_EDGES_COPY") {
+        let text: String = edges
+            .iter()
+            .map(|e| format!("{} {} {}\n", e.ns, e.line, u8::from(e.high)))
+            .collect();
+        std::fs::write(path, text).expect("RENODE_EDGES_COPY");
+    }
+    edges
+}
+
+/// Splits the recorder's edges into joints, from each joint timer's last start.
+fn joints(edges: &[Edge]) -> [Joint; MAX_JOINTS] {
+    std::array::from_fn(|j| {
+        let start_ns = edges
+            .iter()
+            .filter(|e| usize::from(e.line) == 16 + j && e.high)
+            .map(|e| e.ns)
+            .next_back()
+            .unwrap_or(0);
+        let mut joint = Joint {
+            start_ns,
+            ..Joint::default()
+        };
+        let mut dir;
+        let mut high = false;
+        for e in edges {
+            let line = usize::from(e.line);
+            if line == 8 + j {
+                if e.ns <= start_ns {
+                    dir = e.high;
+                    joint.dir_at_start = dir;
+                } else {
+                    dir = e.high;
+                }
+                let tick = (i64::try_from(e.ns).unwrap() - i64::try_from(start_ns).unwrap())
+                    / i64::try_from(NS_PER_TICK).unwrap();
+                if e.ns > start_ns {
+                    joint.dirs.push((tick, dir));
+                }
+            }
+            if line == j && e.ns >= start_ns {
+                let since = e.ns - start_ns;
+                if since % NS_PER_TICK != 0 {
+                    joint.off_grid.push(since);
+                }
+                if e.high {
+                    joint.rises.push(since / NS_PER_TICK);
+                } else if high {
+                    joint.falls.push(since / NS_PER_TICK);
+                }
+                high = e.high;
+            }
+        }
+        joint.high_at_end = high;
+        joint
+    })
+}
+
+/// The net steps of `joint`: its rises signed by DIR at each (DIR high = positive).
+fn signed_pulses(joint: &Joint) -> i32 {
+    let mut dir = joint.dir_at_start;
+    let mut changes = joint.dirs.iter().peekable();
+    let mut net = 0;
+    for &rise in &joint.rises {
+        while let Some(&&(tick, level)) = changes.peek() {
+            if tick > i64::try_from(rise).unwrap() {
+                break;
+            }
+            dir = level;
+            changes.next();
+        }
+        net += if dir { 1 } else { -1 };
+    }
+    net
+}
+
+/// The segments the controller hands its step producer for `points` from `start` (arm-core's
+/// `runs.rs`: each point's duration and the step difference from the previous position).
+fn segments(start: [i32; MAX_JOINTS], points: &[Point]) -> Vec<Segment> {
+    let mut at = start;
+    points
+        .iter()
+        .map(|p| {
+            let steps = std::array::from_fn(|j| p.position[j] - at[j]);
+            at = p.position;
+            Segment {
+                duration_us: u32::try_from(p.duration).unwrap(),
+                steps,
+            }
+        })
+        .collect()
+}
+
+/// What arm-step's engine (the oracle) does for some segments from tick 0.
+struct Oracle {
+    /// Rising STEP edges per joint.
+    rises: [Vec<u64>; MAX_JOINTS],
+    /// DIR changes per joint (tick, level), the levels set at tick 0 included.
+    dirs: [Vec<(u64, bool)>; MAX_JOINTS],
+}
+
+impl std::ops::Index<usize> for Oracle {
+    type Output = Vec<u64>;
+    fn index(&self, joint: usize) -> &Vec<u64> {
+        &self.rises[joint]
+    }
+}
+
+/// The oracle's edges for `segments` from tick 0.
+fn oracle(segments: &[Segment]) -> Oracle {
+    struct Rises {
+        now: u64,
+        rises: [Vec<u64>; MAX_JOINTS],
+        dirs: [Vec<(u64, bool)>; MAX_JOINTS],
+    }
+    impl StepPins for Rises {
+        fn set_direction(&mut self, joint: usize, positive: bool) {
+            self.dirs[joint].push((self.now, positive));
+        }
+        fn step_high(&mut self, joints: JointMask) {
+            for (j, rises) in self.rises.iter_mut().enumerate() {
+                if joints & (1 << j) != 0 {
+                    rises.push(self.now);
+                }
+            }
+        }
+        fn step_low(&mut self, _joints: JointMask) {}
+    }
+    let mut engine = StepEngine::<64>::new(NUCLEO_H743ZI2.step_timing());
+    let mut pending = segments.iter().copied().peekable();
+    let mut fill = |engine: &mut StepEngine<64>| {
+        while engine.free_slots() > 0 {
+            let Some(s) = pending.next() else { break };
+            engine.push(s).unwrap();
+        }
+    };
+    fill(&mut engine);
+    engine.start(0);
+    let mut lines = Rises {
+        now: 0,
+        rises: Default::default(),
+        dirs: Default::default(),
+    };
+    let mut deadline = Some(0);
+    while let Some(now) = deadline {
+        lines.now = now;
+        deadline = engine.poll(now, &mut lines).next_deadline;
+        fill(&mut engine);
+    }
+    Oracle {
+        rises: lines.rises,
+        dirs: lines.dirs,
+    }
+}
+
+/// How late each DIR change on the pins came after the oracle's (ticks, the lead-in
+/// `offset` applied): the step clock's alarm and TIM13's interrupt as the emulator runs
+/// them. Panics if one came early or was missed. (least, greatest, count)
+fn dir_lateness(board: &[Joint; MAX_JOINTS], oracle: &Oracle, offset: i64) -> (i64, i64, usize) {
+    let (mut least, mut most, mut count) = (i64::MAX, i64::MIN, 0);
+    for (j, pins) in board.iter().enumerate() {
+        // The changes after tick 0 (those at 0 are made before the timers start).
+        let expected: Vec<(i64, bool)> = oracle.dirs[j]
+            .iter()
+            .filter(|(t, _)| *t > 0)
+            .map(|&(t, level)| (i64::try_from(t).unwrap() + offset, level))
+            .collect();
+        // The engine reports every call, the pins only changes: compare changes.
+        let mut level = pins.dir_at_start;
+        let expected: Vec<(i64, bool)> = expected
+            .into_iter()
+            .filter(|&(_, l)| {
+                let changed = l != level;
+                level = l;
+                changed
+            })
+            .collect();
+        assert_eq!(
+            pins.dirs.len(),
+            expected.len(),
+            "joint {j}: DIR changes on the pin {:?}, the oracle's {expected:?}",
+            pins.dirs
+        );
+        for (&(got, level), &(want, want_level)) in pins.dirs.iter().zip(&expected) {
+            assert_eq!(level, want_level, "joint {j}: DIR level at tick {got}");
+            let late = got - want;
+            assert!(late >= 0, "joint {j}: DIR changed {} ticks early", -late);
+            least = least.min(late);
+            most = most.max(late);
+            count += 1;
+        }
+    }
+    (least, most, count)
+}
+
+/// The offset (ticks) that puts the oracle's first rise on the board's, from the first joint
+/// that moved.
+fn lead_in(board: &[Joint; MAX_JOINTS], oracle: &Oracle) -> i64 {
+    (0..MAX_JOINTS)
+        .find_map(|j| {
+            let b = *board[j].rises.first()?;
+            let o = *oracle[j].first()?;
+            Some(i64::try_from(b).unwrap() - i64::try_from(o).unwrap())
+        })
+        .expect("no joint made a pulse")
+}
+
+/// Checks every joint's rises against the oracle's shifted by `offset`: all of them
+/// (`whole`), or the board's as a prefix of the oracle's (a run cut by a stop).
+fn assert_rises_match(board: &[Joint; MAX_JOINTS], oracle: &Oracle, offset: i64, whole: bool) {
+    for j in 0..MAX_JOINTS {
+        let expected: Vec<u64> = oracle[j]
+            .iter()
+            .map(|&t| u64::try_from(i64::try_from(t).unwrap() + offset).unwrap())
+            .collect();
+        let got = &board[j].rises;
+        let compared = if whole { expected.len() } else { got.len() };
+        assert!(
+            got.len() == compared && compared <= expected.len(),
+            "joint {j}: {} rising edges on the pin, the oracle has {} ({})",
+            got.len(),
+            expected.len(),
+            if whole { "whole run" } else { "up to the stop" }
+        );
+        if let Some(k) = (0..compared).find(|&k| got[k] != expected[k]) {
+            panic!(
+                "joint {j}: rise {k} at tick {} on the pin, the oracle's at {} (offset {offset}); \
+                 pin {:?}.., oracle {:?}..",
+                got[k],
+                expected[k],
+                &got[k.saturating_sub(2)..(k + 3).min(got.len())],
+                &expected[k.saturating_sub(2)..(k + 3).min(expected.len())]
+            );
+        }
+    }
+}
+
+/// Pulse width and DIR timing on every joint; returns the smallest DIR setup seen (ticks
+/// from a DIR change to the next rise) and the smallest gap from a fall to a DIR change.
+fn assert_pulse_and_dir_timing(board: &[Joint; MAX_JOINTS]) -> (Option<i64>, Option<i64>) {
+    let timing = NUCLEO_H743ZI2.step_timing();
+    // The drivers' own setup (without the latency budget the producer adds for the
+    // interrupt): the least a driver needs.
+    let driver_setup =
+        i64::from(NUCLEO_H743ZI2.driver.dir_setup_ns) * i64::from(timing.tick_hz) / 1_000_000_000;
+    let (mut least_setup, mut least_after_fall) = (None::<i64>, None::<i64>);
+    for (j, joint) in board.iter().enumerate() {
+        assert!(
+            joint.off_grid.is_empty(),
+            "joint {j}: STEP edges off the timer's tick grid (ns after its start): {:?}",
+            &joint.off_grid[..joint.off_grid.len().min(5)]
+        );
+        assert!(!joint.high_at_end, "joint {j}: STEP left high");
+        assert_eq!(joint.falls.len(), joint.rises.len(), "joint {j}");
+        for (rise, fall) in joint.rises.iter().zip(&joint.falls) {
+            assert_eq!(
+                fall - rise,
+                u64::from(timing.pulse_width_ticks),
+                "joint {j}: pulse at tick {rise}"
+            );
+        }
+        for &(tick, _) in &joint.dirs {
+            let next_rise = joint
+                .rises
+                .iter()
+                .map(|&r| i64::try_from(r).unwrap())
+                .find(|&r| r > tick);
+            let last_fall = joint
+                .falls
+                .iter()
+                .map(|&f| i64::try_from(f).unwrap())
+                .rfind(|&f| f <= tick);
+            let last_rise = joint
+                .rises
+                .iter()
+                .map(|&r| i64::try_from(r).unwrap())
+                .rfind(|&r| r <= tick);
+            if let Some(rise) = last_rise {
+                let fall = last_fall.unwrap_or(-1);
+                assert!(
+                    fall >= rise,
+                    "joint {j}: DIR changed at tick {tick} while STEP was high (rose at {rise})"
+                );
+                least_after_fall =
+                    Some(least_after_fall.map_or(tick - fall, |m| m.min(tick - fall)));
+            }
+            if let Some(rise) = next_rise {
+                assert!(
+                    rise - tick >= driver_setup,
+                    "joint {j}: DIR changed at tick {tick}, {} ticks before the next rise (the \
+                     drivers need {driver_setup})",
+                    rise - tick
+                );
+                least_setup = Some(least_setup.map_or(rise - tick, |m| m.min(rise - tick)));
+            }
+        }
+    }
+    (least_setup, least_after_fall)
+}
+
+/// The steps `points` ask of every joint from `start` (out and back counts both ways).
+fn steps_asked(start: [i32; MAX_JOINTS], points: &[Point]) -> [usize; MAX_JOINTS] {
+    let mut steps = [0; MAX_JOINTS];
+    let mut at = start;
+    for point in points {
+        for (j, s) in steps.iter_mut().enumerate() {
+            *s += point.position[j].abs_diff(at[j]) as usize;
+        }
+        at = point.position;
+    }
+    steps
+}
+
+fn position(board: &RenodeBoard, arm: &armctl::Client) -> [i32; MAX_JOINTS] {
+    arm.current_location(Duration::from_secs(5))
+        .unwrap_or_else(|e| panic!("a LOCATION report: {e}\n{}", board.log()))
+        .position
+}
+
+/// No timer model handled an event after its time (`LateEvents`, read over the monitor).
+fn assert_no_late_events(board: &RenodeBoard) {
+    for timer in [
+        "stepTim2",
+        "stepTim5",
+        "stepTim3",
+        "stepTim4",
+        "stepTim1",
+        "stepTim8",
+        "stepTim16",
+        "stepTim17",
+        "stepClockTim13",
+    ] {
+        let answer = board.monitor(&format!("sysbus.{timer} LateEvents"));
+        let late = answer
+            .split_whitespace()
+            .find_map(|t| t.strip_prefix("0x"))
+            .and_then(|t| u64::from_str_radix(t, 16).ok());
+        assert_eq!(late, Some(0), "{timer} LateEvents: {answer:?}");
+    }
+}
+
+fn ticks_us(ticks: i64) -> f64 {
+    // In the firmware's ticks (200 MHz on the chip).
+    ticks as f64 * 1e6 / f64::from(NUCLEO_H743ZI2.step_timer_hz)
+}
+
+/// The QEMU test's run (`run_reaches_the_last_point_and_executes_every_point`): 120 points of
+/// 10 ms, six joints out and back (one reversal each), from a set location.
+#[test]
+fn a_run_makes_the_oracles_edges_on_the_pins() {
+    require_renode!();
+    let mut board = RenodeBoard::start_with_step_path("");
+    let arm = board.connect_from(HOSTS[0], emulated());
+    arm.set_location(&[100, -200, 300, 0, 0, 0]).unwrap();
+    let start = position(&board, &arm);
+    assert_eq!(&start[..3], &[100, -200, 300]);
+    let points = sweep(start, JOINTS, 120, 4, 10_000);
+    let began = Instant::now();
+    let report = arm
+        .run_trajectory(&points, &RunOptions::default(), |_| {})
+        .unwrap_or_else(|e| panic!("{e}\n{}", board.log()));
+    let status = report.final_status.unwrap();
+    assert_eq!(status.state, State::Stopped);
+    assert_eq!(usize::from(status.executed), points.len());
+    assert!(!status.flags.has(StatusFlags::UNDERRUN), "{status:?}");
+    let end = position(&board, &arm);
+    assert_eq!(end[..JOINTS], points.last().unwrap().position[..JOINTS]);
+    note(&format!(
+        "run of {} points ({} ms) took {:.1} s of wall time",
+        points.len(),
+        points.len() * 10,
+        began.elapsed().as_secs_f64()
+    ));
+
+    let edges = recorded(&board);
+    let pins = joints(&edges);
+    let asked = steps_asked(start, &points);
+    let oracle = oracle(&segments(start, &points));
+    for j in 0..MAX_JOINTS {
+        assert_eq!(oracle[j].len(), asked[j], "the oracle's pulses, joint {j}");
+    }
+    let counts: Vec<usize> = pins.iter().map(|p| p.rises.len()).collect();
+    note(&format!(
+        "rising STEP edges per joint {counts:?}, the oracle's {:?}",
+        oracle.rises.iter().map(Vec::len).collect::<Vec<_>>()
+    ));
+    let offset = lead_in(&pins, &oracle);
+    assert_rises_match(&pins, &oracle, offset, true);
+    let (setup, after_fall) = assert_pulse_and_dir_timing(&pins);
+    for j in 0..MAX_JOINTS {
+        assert_eq!(
+            signed_pulses(&pins[j]),
+            end[j] - start[j],
+            "joint {j}: net pulses"
+        );
+    }
+    let (least_late, most_late, dir_changes) = dir_lateness(&pins, &oracle, offset);
+    note(&format!(
+        "{dir_changes} DIR changes, each {least_late}..={most_late} ticks ({:.1}..={:.1} us) \
+         after the oracle's tick",
+        ticks_us(least_late),
+        ticks_us(most_late)
+    ));
+    assert_no_late_events(&board);
+    let starts: Vec<u64> = pins.iter().map(|p| p.start_ns).collect();
+    let skew = starts.iter().max().unwrap() - starts.iter().min().unwrap();
+    note(&format!(
+        "every rise at the oracle's tick (lead-in {offset} ticks = {:.1} us); timers started \
+         within {skew} ns of each other; DIR changes: least setup before the next rise {:?} \
+         ticks ({:.1} us), least time after the last fall {:?} ticks ({:.1} us)",
+        ticks_us(offset),
+        setup,
+        ticks_us(setup.unwrap_or(0)),
+        after_fall,
+        ticks_us(after_fall.unwrap_or(0))
+    ));
+    board.assert_healthy();
+}
+
+/// Abrupt reversals: joint 0 goes 10 steps forward, 10 back, ... in 400 points of 1 ms (10
+/// kHz, a reversal every millisecond), so the step clock's DIR alarms fall everywhere in
+/// TIM13's wrap. Every DIR change must come within the profile's latency budget
+/// (`dir_latency_ns`, which the producer adds to the drivers' DIR setup before the next
+/// pulse) and before the next rise, and the pulses signed by DIR must sum to the move.
+///
+/// It fails: the step clock (`step_timer.rs`, `program_compare`) arms TIM13's compare only for
+/// an alarm less than half a wrap away and otherwise looks again at the next wrap, by which
+/// time an alarm that was between half and one wrap away has passed: it fires up to half a
+/// wrap late (32,768 ticks, 164 us at 200 MHz), against a 35 us budget. Seen in the other
+/// tests' DIR lateness too (32,705 and 27,955 ticks in two runs, 282-745 in others).
+#[test]
+#[ignore = "DIR alarms can fire up to half a TIM13 wrap (164 us) late: step_timer.rs arms the compare only within half a wrap; a firmware fix is needed; run with --ignored to see it"]
+fn abrupt_reversals_change_dir_within_the_budget() {
+    require_renode!();
+    let mut board = RenodeBoard::start_with_step_path("");
+    let arm = board.connect_from(HOSTS[0], emulated());
+    arm.set_location(&[0; JOINTS]).unwrap();
+    let start = [0; MAX_JOINTS];
+    let mut at = start;
+    let points: Vec<Point> = (0..400)
+        .map(|k| {
+            let mut to = at;
+            to[0] += if k % 2 == 0 { 10 } else { -10 };
+            let point = Point::from_motion(1_000, &at, &to);
+            at = to;
+            point
+        })
+        .collect();
+    let report = arm
+        .run_trajectory(&points, &RunOptions::default(), |_| {})
+        .unwrap_or_else(|e| panic!("{e}\n{}", board.log()));
+    assert_eq!(
+        usize::from(report.final_status.unwrap().executed),
+        points.len()
+    );
+    let pins = joints(&recorded(&board));
+    let oracle = oracle(&segments(start, &points));
+    let offset = lead_in(&pins, &oracle);
+    assert_rises_match(&pins, &oracle, offset, true);
+    // DIR lateness against the oracle's DIR ticks, each change.
+    let budget = i64::from(NUCLEO_H743ZI2.dir_latency_ns) * i64::from(NUCLEO_H743ZI2.step_timer_hz)
+        / 1_000_000_000;
+    let expected: Vec<i64> = oracle.dirs[0]
+        .iter()
+        .filter(|(t, _)| *t > 0)
+        .map(|&(t, _)| i64::try_from(t).unwrap() + offset)
+        .collect();
+    let late: Vec<i64> = pins[0]
+        .dirs
+        .iter()
+        .zip(&expected)
+        .map(|(&(got, _), &want)| got - want)
+        .collect();
+    let over = late.iter().filter(|&&l| l > budget).count();
+    let worst = late.iter().copied().max().unwrap_or(0);
+    let made = signed_pulses(&pins[0]);
+    note(&format!(
+        "{} reversals: DIR {}..={} ticks after the oracle's ({:.1} us at worst), {over} over the \
+         {budget}-tick budget; net pulses on the pin {made}, the move 0",
+        late.len(),
+        late.iter().copied().min().unwrap_or(0),
+        worst,
+        ticks_us(worst)
+    ));
+    assert_eq!(pins[0].dirs.len(), expected.len(), "DIR changes");
+    assert_eq!(
+        over, 0,
+        "DIR changes later than the budget (worst {worst} ticks)"
+    );
+    assert_eq!(made, 0, "pulses in the wrong direction");
+    assert_pulse_and_dir_timing(&pins);
+    board.assert_healthy();
+}
+
+/// The QEMU test's long run (`upload_streams_past_the_buffer_and_ends_exactly`): two joints,
+/// 1.3 buffers (10,649 points of 1 ms) streamed while the run plays, every pulse checked
+/// against the oracle.
+#[test]
+fn an_upload_past_the_buffer_makes_the_oracles_edges() {
+    require_renode!();
+    let mut board = RenodeBoard::start_with_step_path("");
+    let arm = board.connect_from(HOSTS[0], emulated());
+    arm.set_joints(2).unwrap();
+    arm.set_location(&[0, 0]).unwrap();
+    let capacity = usize::from(arm.status().unwrap().capacity);
+    let start = [0; MAX_JOINTS];
+    let points = sweep(start, 2, capacity * 13 / 10, 1, 1_000);
+    let began = Instant::now();
+    // Renode runs the board 3-6 times slower than wall time here, and armctl's upload
+    // deadline is twice the trajectory's duration plus twice this (the buffer drains at the
+    // board's pace): generous, so that only a real stall fails.
+    let options = RunOptions {
+        stall_timeout: Duration::from_secs(60),
+        completion_timeout: Some(Duration::from_secs(400)),
+        ..RunOptions::default()
+    };
+    let report = arm
+        .run_trajectory(&points, &options, |_| {})
+        .unwrap_or_else(|e| panic!("{e}\n{}", board.log()));
+    let status = report.final_status.unwrap();
+    assert_eq!(usize::from(status.executed), points.len());
+    assert!(!status.flags.has(StatusFlags::UNDERRUN), "{status:?}");
+    let end = position(&board, &arm);
+    assert_eq!(end[..2], points.last().unwrap().position[..2]);
+    note(&format!(
+        "run of {} points of 1 ms streamed past the {capacity}-point buffer in {:.1} s of wall \
+         time",
+        points.len(),
+        began.elapsed().as_secs_f64()
+    ));
+    let pins = joints(&recorded(&board));
+    let oracle = oracle(&segments(start, &points));
+    let counts: Vec<usize> = pins.iter().map(|p| p.rises.len()).collect();
+    note(&format!(
+        "rising STEP edges per joint {counts:?}, the oracle's {:?}",
+        oracle.rises.iter().map(Vec::len).collect::<Vec<_>>()
+    ));
+    let offset = lead_in(&pins, &oracle);
+    assert_rises_match(&pins, &oracle, offset, true);
+    let (setup, after_fall) = assert_pulse_and_dir_timing(&pins);
+    for j in 0..MAX_JOINTS {
+        assert_eq!(
+            signed_pulses(&pins[j]),
+            end[j] - start[j],
+            "joint {j}: net pulses"
+        );
+    }
+    let (least_late, most_late, dir_changes) = dir_lateness(&pins, &oracle, offset);
+    assert_no_late_events(&board);
+    note(&format!(
+        "every rise at the oracle's tick; DIR: least setup {setup:?} ticks, least after a fall \
+         {after_fall:?} ticks; {dir_changes} DIR changes {least_late}..={most_late} ticks after \
+         the oracle's"
+    ));
+    board.assert_healthy();
+}
+
+/// The QEMU test's flood (`malformed_flood_during_a_run_changes_no_step`): 200 points of
+/// 10 ms on six joints; once the run is under way a third host sends 2,000 malformed
+/// datagrams; every edge is still the oracle's. (Started before the run, as on QEMU, the
+/// flood kept the emulated board, 3-6 times slower than real time, from answering the
+/// owner's NEW within armctl's 2 s: the board sheds the flooder's excess, but every frame
+/// still costs the emulated MAC and CPU their time.)
+#[test]
+fn a_malformed_flood_during_a_run_changes_no_edge() {
+    require_renode!();
+    let mut board = RenodeBoard::start_with_step_path("");
+    let arm = Arc::new(board.connect_from(HOSTS[0], emulated()));
+    arm.set_location(&[0; JOINTS]).unwrap();
+    let start = [0; MAX_JOINTS];
+    let points = sweep(start, JOINTS, 200, 3, 10_000);
+    let oracle = oracle(&segments(start, &points));
+    let run = run_reporting_progress(&arm, points.clone());
+    run.wait_executed(5);
+    let socket = board.udp_socket(HOSTS[2]);
+    let sent = malformed_flood(&socket, 2_000);
+    let report = run
+        .join()
+        .unwrap_or_else(|e| panic!("{e}\n{}", board.log()));
+    let status = report.final_status.unwrap();
+    assert!(sent > 500, "only {sent} malformed datagrams sent");
+    assert_eq!(usize::from(status.executed), points.len());
+    assert!(
+        !status.flags.has(StatusFlags::STOPPED_BY_HOST) && !status.flags.has(StatusFlags::UNDERRUN),
+        "{status:?}"
+    );
+    let end = position(&board, &arm);
+    assert_eq!(end[..JOINTS], points.last().unwrap().position[..JOINTS]);
+    let pins = joints(&recorded(&board));
+    let offset = lead_in(&pins, &oracle);
+    assert_rises_match(&pins, &oracle, offset, true);
+    assert_pulse_and_dir_timing(&pins);
+    dir_lateness(&pins, &oracle, offset);
+    for j in 0..MAX_JOINTS {
+        assert_eq!(
+            signed_pulses(&pins[j]),
+            end[j] - start[j],
+            "joint {j}: net pulses"
+        );
+    }
+    assert_no_late_events(&board);
+    note(&format!(
+        "{sent} malformed datagrams during the run; rising edges {:?}, every one at the \
+         oracle's tick",
+        pins.iter().map(|p| p.rises.len()).collect::<Vec<_>>()
+    ));
+    board.assert_healthy();
+}
+
+/// The QEMU test's RETURN (`every_command_of_the_manual`): three joints from a set location
+/// back to zero, planned by the firmware (no encoders answer: it trusts the step count). The
+/// plan is the firmware's, so the pins are checked against the move: the pulses, their
+/// direction, their width and DIR's timing.
+///
+/// Renode 1.15.3 cannot run it: its Cortex-M7 lacks the FPv5 instruction VMINNM.F64 (and
+/// VMAXNM), which the planner's `f64::min` compiles to (`arm_core::plan`); the board takes a
+/// UsageFault (CFSR 0x10000, UNDEFINSTR, at 0x0801bc62 in the build measured), which ends in
+/// its DefaultHandler as `fault: UnexpectedInterrupt { irqn: -10 }`. The silicon has the
+/// instruction. Runs with `--ignored` on a Renode that does.
+#[test]
+#[ignore = "Renode 1.15.3's Cortex-M7 has no VMINNM/VMAXNM (FPv5): RETURN's planner faults with UNDEFINSTR there"]
+fn return_moves_the_pins_back_to_zero() {
+    require_renode!();
+    let mut board = RenodeBoard::start_with_step_path("");
+    let arm = board.connect_from(HOSTS[0], emulated());
+    arm.set_joints(3).unwrap();
+    arm.set_location(&[400, -300, 200]).unwrap();
+    arm.go_home().unwrap();
+    let status = arm
+        .wait_stopped(Duration::from_secs(120))
+        .unwrap_or_else(|e| panic!("RETURN: {e}\n{}", board.log()));
+    assert_eq!(status.state, State::Stopped);
+    assert_eq!(position(&board, &arm)[..3], [0, 0, 0]);
+    let pins = joints(&recorded(&board));
+    let rises: Vec<usize> = pins.iter().map(|p| p.rises.len()).collect();
+    let made: Vec<i32> = pins.iter().map(signed_pulses).collect();
+    assert_eq!(rises, [400, 300, 200, 0, 0, 0, 0, 0]);
+    assert_eq!(made, [-400, 300, -200, 0, 0, 0, 0, 0]);
+    assert_pulse_and_dir_timing(&pins);
+    assert_no_late_events(&board);
+    note(&format!(
+        "RETURN from [400, -300, 200]: rising edges {rises:?}, signed {made:?}"
+    ));
+    board.assert_healthy();
+}
+
+/// The QEMU test's e-stop (`emergency_stop_mid_run_freezes_the_joints`) on the DMA model as
+/// RM0433 describes it ("DMA transfer suspension": a stream disabled by software sets its
+/// TCIF). It fails: the stop (`step_dma/stop.rs`) disables each stream and then reads its
+/// flags (`stream_position`) to unwind the unplayed periods, takes that TCIF for "half 1
+/// played and not refilled", and reports positions a half buffer of periods ahead of the
+/// pins on the joints whose unplayed period was in half 0 (measured: joint 0 reported 124
+/// with 60 pulses made, joint 4 322 with 301; joints 1-3 and 5 right). Left to the firmware
+/// (read the flags before clearing EN, or wait for EN = 0 and ignore the TCIF it caused),
+/// and to check on silicon: the same disable-then-read order as here.
+#[test]
+#[ignore = "the e-stop's positions are wrong on the RM0433 DMA model (TCIF set by the stop's own disable): a firmware fix is needed; run with --ignored to see it"]
+fn positions_after_an_estop_are_the_pulses_the_pins_made() {
+    estop_positions_match_the_pins("");
+}
+
+/// The same e-stop with the DMA model's TCIF-on-disable turned off: what the firmware's
+/// unwinding assumes. The positions then match the pins exactly, which shows the rest of the
+/// stop path (stream positions from NDTR, the unwind, no pulse after the stop) right.
+#[test]
+fn positions_after_an_estop_match_the_pins_if_a_disable_leaves_tcif_alone() {
+    estop_positions_match_the_pins("sysbus.stepDma2 TransferCompleteOnDisable false");
+}
+
+/// 300 points of 10 ms on six joints, STOPPED after 20 executed; `monitor` configures the
+/// models.
+fn estop_positions_match_the_pins(monitor: &str) {
+    require_renode!();
+    let mut board = RenodeBoard::start_with_step_path(monitor);
+    let arm = Arc::new(board.connect_from(HOSTS[0], emulated()));
+    let start = position(&board, &arm);
+    let points = sweep(start, JOINTS, 300, 3, 10_000);
+    let asked = steps_asked(start, &points);
+    let total = points.len();
+    let oracle = oracle(&segments(start, &points));
+    match stop_mid_run(&arm, points, 20) {
+        Err(Error::RunEnded {
+            reason: RunEnd::Stopped,
+            executed: Some(n),
+            ..
+        }) => assert!(usize::from(n) < total - 50, "executed {n}"),
+        other => panic!("expected RunEnded(Stopped), got {other:?}\n{}", board.log()),
+    }
+    let status = arm.status().unwrap();
+    assert_eq!(status.state, State::Stopped);
+    assert!(status.flags.has(StatusFlags::STOPPED_BY_HOST));
+    let reported = assert_stays_put(&arm, 30);
+    assert_ne!(reported, start, "nothing moved before the stop");
+
+    let pins = joints(&recorded(&board));
+    let made: Vec<i32> = pins.iter().map(signed_pulses).collect();
+    let moved: Vec<i32> = (0..MAX_JOINTS).map(|j| reported[j] - start[j]).collect();
+    note(&format!(
+        "after the e-stop: reported moves {moved:?}, signed pulses on the pins {made:?}"
+    ));
+    assert_eq!(
+        made, moved,
+        "the positions reported are not the pulses made"
+    );
+    for j in 0..JOINTS {
+        assert!(pins[j].rises.len() < asked[j], "joint {j} finished");
+    }
+    let offset = lead_in(&pins, &oracle);
+    assert_rises_match(&pins, &oracle, offset, false);
+    assert_pulse_and_dir_timing(&pins);
+    // Nothing after: the record does not grow while the board keeps reporting.
+    let before = board.edges().len();
+    assert_stays_put(&arm, 10);
+    let after = board.edges();
+    assert_eq!(
+        after.len(),
+        before,
+        "edges after the stop: {:?}",
+        &after[before..]
+    );
+    board.assert_healthy();
+}
+
+/// The step path's models alone, without firmware (`tests/renode/step-models-check.resc`,
+/// the CPU halted, registers written from the monitor): a timer pulsing at its ARR, a timer
+/// reloaded through its DCR/DMAR burst by a circular DMA2 stream routed by DMAMUX1 (the
+/// periods repeat in buffer order, the half-transfer and transfer-complete flags come and come
+/// again, NDTR counts down by whole bursts), and TIM8's CH1N stopping when MOE is cleared.
+/// Needs Renode only (no root, no network).
+#[test]
+fn the_models_alone_pulse_at_arr_and_reload_from_a_circular_stream() {
+    if let Some(reason) = system_tests::renode::renode_missing() {
+        use std::io::Write;
+        let _ = writeln!(std::io::stderr().lock(), "{}: {reason}", module_path!());
+        return;
+    }
+    let renode = system_tests::renode::renode_path().expect("checked");
+    // Not named renode-*: Renode deletes such folders in its temp folder at start-up.
+    let dir = std::env::temp_dir().join(format!("system-tests-models-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(dir.join("tmp")).unwrap();
+    let models = system_tests::renode::repo_root().join("tests/renode");
+    let edges_file = dir.join("edges.txt");
+    let output = std::process::Command::new("timeout")
+        .args(["-k", "5", "300"])
+        .arg(&renode)
+        .args(["--disable-xwt", "--plain", "--console", "-e"])
+        .arg(format!(
+            "$edges=@{}; $stepModels=@{}; include @{}; quit",
+            edges_file.display(),
+            models.display(),
+            models.join("step-models-check.resc").display()
+        ))
+        .env("TMPDIR", dir.join("tmp"))
+        .current_dir(&dir)
+        .stdin(std::process::Stdio::null())
+        .output()
+        .expect("run Renode");
+    let out = String::from_utf8_lossy(&output.stdout).to_string();
+    let text = std::fs::read_to_string(&edges_file).unwrap_or_default();
+    let _ = std::fs::remove_dir_all(&dir);
+    assert!(out.contains("done"), "the script did not finish:\n{out}");
+    // The hex number the monitor printed right after the line `label`.
+    let value = |label: &str| -> u64 {
+        let (_, rest) = out
+            .split_once(label)
+            .unwrap_or_else(|| panic!("no {label:?} in Renode's output:\n{out}"));
+        // The first number after it: Renode's own log lines ("machine paused", from another
+        // thread) can come in between.
+        let token = rest
+            .split_whitespace()
+            .find_map(|t| t.strip_prefix("0x"))
+            .unwrap_or_else(|| panic!("no value after {label:?}:\n{out}"));
+        u64::from_str_radix(token, 16).unwrap()
+    };
+    let edges: Vec<(u64, u8, bool)> = text
+        .lines()
+        .filter_map(|l| {
+            let mut f = l.split_whitespace();
+            Some((
+                f.next()?.parse().ok()?,
+                f.next()?.parse().ok()?,
+                f.next()? == "1",
+            ))
+        })
+        .collect();
+    // (rise tick, width ticks) of the pulses on recorder line `line`.
+    let pulses = |line: u8| -> Vec<(u64, u64)> {
+        let mut rises = Vec::new();
+        let mut open = None;
+        for &(ns, l, high) in &edges {
+            if l != line {
+                continue;
+            }
+            match (high, open) {
+                (true, None) => open = Some(ns),
+                (false, Some(at)) => {
+                    rises.push((at / NS_PER_TICK, (ns - at) / NS_PER_TICK));
+                    open = None;
+                }
+                _ => {}
+            }
+        }
+        rises
+    };
+    const END_TICKS: u64 = 40_000 / NS_PER_TICK;
+
+    // 1. TIM2: ARR 99, CCR1 10.
+    let tim2 = pulses(0);
+    assert!(
+        (100..=101).contains(&tim2.len()),
+        "TIM2: {} pulses",
+        tim2.len()
+    );
+    for (k, &(rise, width)) in tim2.iter().enumerate() {
+        assert_eq!((rise, width), (100 * k as u64, 10), "TIM2 pulse {k}");
+    }
+
+    // 2. TIM3: the prelude (99/10 active, 149/15 preloaded), then the buffer's four periods
+    //    (199/20, 299/30, 399/40, 499/no pulse) round and round.
+    let mut expected = vec![(0, 10), (100, 15)];
+    let cycle = [(200, 20), (300, 30), (400, 40), (500, 0)];
+    let mut at = 250;
+    'fill: loop {
+        for (length, high) in cycle {
+            if at >= END_TICKS {
+                break 'fill;
+            }
+            if high > 0 {
+                expected.push((at, high));
+            }
+            at += length;
+        }
+    }
+    let tim3 = pulses(2);
+    assert_eq!(tim3, expected, "TIM3's pulses from the circular stream");
+    for when in ["20 us", "40 us"] {
+        // Stream 2's HTIF (bit 20) and TCIF (bit 21), the second time after they were cleared.
+        let lisr = value(&format!("LISR at {when}:"));
+        let ndtr = value(&format!("NDTR at {when}:"));
+        assert_eq!((lisr >> 20) & 3, 3, "DMA2 LISR at {when}: {lisr:#x}\n{out}");
+        assert!(
+            (1..=12).contains(&ndtr) && ndtr % 3 == 0,
+            "NDTR at {when}: {ndtr}\n{out}"
+        );
+    }
+    let updates = value("TIM3 update events:");
+    let requests = value("TIM3 DMA requests:");
+    let dmar = value("TIM3 DMAR writes:");
+    let late = value("TIM3 late events:");
+    assert_eq!(
+        updates,
+        requests + 1,
+        "update events (the first is EGR.UG, no request)"
+    );
+    assert_eq!(
+        dmar,
+        3 * requests,
+        "three DMAR writes per request (ARR, RCR, CCR1)"
+    );
+    assert_eq!(late, 0, "events handled after their time");
+    // One request per overflow: every period start after the first, up to the end (an
+    // overflow at the end's very instant may or may not be in).
+    let mut starts = vec![100, 250];
+    let mut at = 250;
+    'periods: loop {
+        for (length, _) in cycle {
+            at += length;
+            if at > END_TICKS {
+                break 'periods;
+            }
+            starts.push(at);
+        }
+    }
+    let overflows = starts.iter().filter(|&&t| t < END_TICKS).count() as u64;
+    assert!(
+        requests == overflows || requests == overflows + 1,
+        "{requests} DMA requests for {overflows} overflows"
+    );
+
+    // 3. TIM8 CH1N: 5 ticks every 50 until MOE is cleared at 20 us, nothing after.
+    let tim8 = pulses(5);
+    assert!(tim8.len() >= 99, "TIM8 CH1N: {} pulses", tim8.len());
+    for (k, &(rise, width)) in tim8.iter().enumerate() {
+        if rise * NS_PER_TICK == 20_000 {
+            continue; // the update event at the instant MOE is cleared: a zero-width glitch
+        }
+        assert_eq!((rise, width), (50 * k as u64, 5), "TIM8 CH1N pulse {k}");
+        assert!(
+            rise * NS_PER_TICK < 20_000,
+            "TIM8 CH1N pulsed after MOE was cleared"
+        );
+    }
+    note(&format!(
+        "models alone: TIM2 {} pulses at ARR 99, TIM3 {} pulses from a 4-period circular stream \
+         ({requests} DMA requests, {dmar} DMAR writes), TIM8 CH1N {} pulses until MOE off",
+        tim2.len(),
+        tim3.len(),
+        tim8.len()
+    ));
+}
