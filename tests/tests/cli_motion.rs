@@ -174,3 +174,83 @@ fn move_without_a_config_is_in_steps_and_degrees_need_one() {
     assert!(!ok);
     assert!(err.contains("jog by keys needs a terminal"), "{err}");
 }
+
+/// Issue 23: `armctl jog` by keys, in a terminal (`script` gives it one): a digit chooses
+/// the joint, `+` and `-` move it, `]` doubles the increment, `q` ends. Each key waits for
+/// the line that shows the previous move ended (what the user sees), not for a time.
+#[test]
+fn jog_by_keys_in_a_terminal() {
+    use std::io::{Read, Write};
+    use std::process::Stdio;
+    use std::sync::mpsc;
+    use std::time::{Duration, Instant};
+
+    if Command::new("script").arg("--version").output().is_err() {
+        eprintln!("SKIPPED: needs util-linux `script` (a terminal for the key reader)");
+        return;
+    }
+    let sim = SimHost::start(&["--joints", "2"]);
+    let command = format!("{} --controller {} jog", armctl_bin().display(), sim.addr);
+    let mut child = Command::new("script")
+        .args(["-qec", &command, "/dev/null"])
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("script");
+    let mut stdout = child.stdout.take().unwrap();
+    let (tx, rx) = mpsc::channel::<String>();
+    std::thread::spawn(move || {
+        let mut buf = [0u8; 4096];
+        while let Ok(n) = stdout.read(&mut buf) {
+            if n == 0 {
+                break;
+            }
+            let _ = tx.send(String::from_utf8_lossy(&buf[..n]).into_owned());
+        }
+    });
+    let mut seen = String::new();
+    // Hang guard only: each wait ends as soon as the line shows up.
+    let mut wait_for = |text: &str| {
+        let deadline = Instant::now() + Duration::from_secs(60);
+        loop {
+            // The last line drawn (lines are redrawn after a carriage return).
+            let last = seen
+                .rsplit('\r')
+                .find(|l| !l.trim().is_empty())
+                .unwrap_or("");
+            if last.contains(text) && !last.contains("(moving)") {
+                return;
+            }
+            let left = deadline.saturating_duration_since(Instant::now());
+            assert!(!left.is_zero(), "no {text:?} in:\n{seen}");
+            if let Ok(chunk) = rx.recv_timeout(left) {
+                seen.push_str(&chunk);
+            }
+        }
+    };
+    let mut stdin = child.stdin.take().unwrap();
+    let mut key = |k: &str| {
+        stdin.write_all(k.as_bytes()).unwrap();
+        stdin.flush().unwrap();
+    };
+    wait_for("joint 0 by 100 steps");
+    key("1");
+    wait_for("joint 1 by 100 steps");
+    key("+");
+    wait_for("joint 1 100 steps");
+    key("]");
+    wait_for("joint 1 by 200 steps");
+    key("-");
+    wait_for("joint 1 -100 steps");
+    key("q");
+    let deadline = Instant::now() + Duration::from_secs(30);
+    let status = loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            break status;
+        }
+        assert!(Instant::now() < deadline, "jog did not end after q");
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    assert!(status.success(), "{seen}");
+}
