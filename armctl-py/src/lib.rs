@@ -160,10 +160,8 @@ impl Arm {
         let config = run
             .config
             .unwrap_or_else(|| ArmConfig::unlimited(joints, status.max_step_rate_hz));
-        if !(run.segment_ms.is_finite() && run.segment_ms > 0.0) {
-            return Err(PyValueError::new_err("segment_ms must be above 0"));
-        }
-        let segment_us = (run.segment_ms * 1000.0).round().clamp(1.0, 1e9) as u32;
+        let segment_us =
+            trajectory::segment_us(run.segment_ms, "segment_ms").map_err(PyValueError::new_err)?;
         let points = trajectory::to_points(
             &run.waypoints,
             &location.position,
@@ -193,11 +191,7 @@ impl Arm {
             .map(|p| ArmConfig::load(&p))
             .transpose()
             .map_err(trajectory_err)?;
-        let units: Option<Units> = units
-            .map(|u| u.parse())
-            .transpose()
-            .map_err(PyValueError::new_err)?;
-        let units = units
+        let units = parse_units(units)?
             .or(config.as_ref().map(|c| c.units))
             .unwrap_or_default();
         if units != Units::Steps && config.is_none() {
@@ -206,9 +200,8 @@ impl Arm {
                 units.name()
             )));
         }
-        if !(segment_ms.is_finite() && segment_ms > 0.0) {
-            return Err(PyValueError::new_err("segment_ms must be above 0"));
-        }
+        let segment_us =
+            trajectory::segment_us(segment_ms, "segment_ms").map_err(PyValueError::new_err)?;
         let (status, location) = self.before_run(py)?;
         let joints = usize::from(status.joints).clamp(1, MAX_JOINTS);
         let config =
@@ -228,7 +221,6 @@ impl Arm {
             rate: speed,
             accel: 1.0,
         };
-        let segment_us = (segment_ms * 1000.0).round().clamp(1.0, 1e9) as u32;
         let points = plan_move(&location.position, &target, &limits, speed, segment_us)
             .map_err(|e| TrajectoryError::new_err(e.to_string()))?;
         if points.is_empty() {
@@ -273,6 +265,14 @@ fn wait_return(py: Python<'_>, arm: &Arc<Client>, deadline: std::time::Instant) 
         });
         py.check_signals()?;
     }
+}
+
+/// `units="deg"` and the like as [`Units`]; a ValueError names the accepted ones.
+fn parse_units(units: Option<String>) -> PyResult<Option<Units>> {
+    units
+        .map(|u| u.parse())
+        .transpose()
+        .map_err(PyValueError::new_err)
 }
 
 /// A trajectory `run` or `run_file` has read, before it meets the arm.
@@ -445,10 +445,7 @@ impl Arm {
         window: Option<usize>,
         units: Option<String>,
     ) -> PyResult<Py<PyAny>> {
-        let units: Option<Units> = units
-            .map(|u| u.parse())
-            .transpose()
-            .map_err(PyValueError::new_err)?;
+        let units = parse_units(units)?;
         let (waypoints, config) =
             trajectory::load_files_in(&path, config.as_deref(), units).map_err(trajectory_err)?;
         let run = WaypointRun {

@@ -51,6 +51,15 @@ pub use parse::{
 };
 pub use resample::{check_waypoints, to_points};
 
+/// A segment duration given in milliseconds (`--segment-ms`, Python's `segment_ms`) as
+/// microseconds, 1 us at least; the error names the option.
+pub fn segment_us(segment_ms: f64, option: &str) -> Result<u32, String> {
+    if !(segment_ms.is_finite() && segment_ms > 0.0) {
+        return Err(format!("{option} must be above 0, not {segment_ms}"));
+    }
+    Ok((segment_ms * 1000.0).round().clamp(1.0, 1e9) as u32)
+}
+
 /// Waypoints in steps, as read from a file.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Waypoints {

@@ -67,6 +67,30 @@ pub struct JogArgs {
     pub motion: MotionArgs,
 }
 
+/// Whether the arm may start a motion (`run`, `move`, `jog`, `home`): STOPPED, and no
+/// latched e-stop input (the upload would be taken, its RUNING refused, and the upload
+/// left behind); the error says what to do.
+pub fn ready_to_move(status: &protocol::StatusReport) -> Result<(), String> {
+    if status.state != State::Stopped {
+        return Err(format!(
+            "the controller is {}: `armctl stop` first, or wait for the run to end",
+            status.state.name()
+        ));
+    }
+    if status.more_flags.has(MoreFlags::ESTOP_LATCHED) {
+        return Err(format!(
+            "the controller's wired e-stop input is {} (ESTOP_LATCHED): {}",
+            if status.more_flags.has(MoreFlags::ESTOP_OPEN) {
+                "open"
+            } else {
+                "latched"
+            },
+            StatusCode::EstopLatched.advice()
+        ));
+    }
+    Ok(())
+}
+
 /// The arm as a move sees it: joints, config, units, limits.
 pub struct Arm<'a> {
     pub client: &'a Client,
@@ -84,18 +108,7 @@ impl<'a> Arm<'a> {
     /// Reads STATUS (the arm must be STOPPED, with no e-stop latch) and the config.
     pub fn new(client: &'a Client, args: &MotionArgs) -> Result<Arm<'a>, String> {
         let status = client.status().map_err(|e| e.to_string())?;
-        if status.state != State::Stopped {
-            return Err(format!(
-                "the controller is {}: `armctl stop` first, or wait for the motion to end",
-                status.state.name()
-            ));
-        }
-        if status.more_flags.has(MoreFlags::ESTOP_LATCHED) {
-            return Err(format!(
-                "the controller's wired e-stop input is latched (ESTOP_LATCHED): {}",
-                StatusCode::EstopLatched.advice()
-            ));
-        }
+        ready_to_move(&status)?;
         let joints = usize::from(status.joints).clamp(1, MAX_JOINTS);
         let config = match &args.config {
             Some(path) => {
@@ -119,9 +132,7 @@ impl<'a> Arm<'a> {
                 units.name()
             ));
         }
-        if !(args.segment_ms.is_finite() && args.segment_ms > 0.0) {
-            return Err("--segment-ms must be above 0".into());
-        }
+        let segment_us = armctl::trajectory::segment_us(args.segment_ms, "--segment-ms")?;
         let mut limits = JointLimit::all(&config, Some(status.max_step_rate_hz));
         limits.truncate(joints);
         Ok(Arm {
@@ -134,7 +145,7 @@ impl<'a> Arm<'a> {
                 rate: f64::from(args.speed) / 100.0,
                 accel: 1.0,
             },
-            segment_us: (args.segment_ms * 1000.0).round().clamp(1.0, 1e9) as u32,
+            segment_us,
         })
     }
 

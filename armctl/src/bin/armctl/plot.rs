@@ -116,10 +116,7 @@ fn preview(
     let config = config
         .cloned()
         .unwrap_or_else(|| ArmConfig::unlimited(joints, u32::MAX));
-    if !(args.segment_ms.is_finite() && args.segment_ms > 0.0) {
-        return Err("--segment-ms must be above 0".into());
-    }
-    let segment_us = (args.segment_ms * 1000.0).round().clamp(1.0, 1e9) as u32;
+    let segment_us = trajectory::segment_us(args.segment_ms, "--segment-ms")?;
     let points = trajectory::to_points(&waypoints, &start, segment_us, &config, None)
         .map_err(|e| e.with_joint_names(&config).to_string())?;
     let mut t = 0.0;

@@ -9,7 +9,7 @@ use armctl::record::Recorder;
 use armctl::trajectory::{self, ArmConfig};
 use armctl::{Client, RunOptions};
 use clap::Args;
-use protocol::{MAX_JOINTS, MoreFlags, Point, State, StatusCode};
+use protocol::{MAX_JOINTS, Point};
 
 use crate::CliResult;
 
@@ -106,10 +106,7 @@ fn convert(
     }
     let config = config
         .unwrap_or_else(|| ArmConfig::unlimited(joints, controller_max_rate.unwrap_or(u32::MAX)));
-    if !(args.segment_ms.is_finite() && args.segment_ms > 0.0) {
-        return Err("--segment-ms must be above 0".into());
-    }
-    let segment_us = (args.segment_ms * 1000.0).round().clamp(1.0, 1e9) as u32;
+    let segment_us = trajectory::segment_us(args.segment_ms, "--segment-ms")?;
     let points = trajectory::to_points(
         &waypoints,
         current,
@@ -150,24 +147,7 @@ fn print_points_summary(points: &[Point], waypoints: usize) {
 /// (crate::interrupt).
 pub fn execute(arm: &Client, args: &RunArgs) -> CliResult {
     let status = arm.status().map_err(|e| e.to_string())?;
-    if status.state != State::Stopped {
-        return Err(format!(
-            "the controller is {}: `armctl stop` first, or wait for the run to end",
-            status.state.name()
-        ));
-    }
-    if status.more_flags.has(MoreFlags::ESTOP_LATCHED) {
-        // The upload would be taken, its RUNING refused, and the upload left behind.
-        return Err(format!(
-            "the controller's wired e-stop input is {} (ESTOP_LATCHED): {}",
-            if status.more_flags.has(MoreFlags::ESTOP_OPEN) {
-                "open"
-            } else {
-                "latched"
-            },
-            StatusCode::EstopLatched.advice()
-        ));
-    }
+    crate::motion::ready_to_move(&status)?;
     let joints = usize::from(status.joints).clamp(1, 8);
     let current = arm
         .current_location(Duration::from_secs(2))
