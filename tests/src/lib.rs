@@ -193,6 +193,38 @@ pub struct SimHost {
     slot: Option<Slot>,
 }
 
+/// Whether a simulator that has printed its address answers: DISCOVER (which changes
+/// nothing: no owner, no session) every [`READY_POLL`] until a datagram comes back, for
+/// [`START_TIMEOUT`] at most. Under the issue 19 soak's load a test's first command,
+/// sent as soon as the address was printed, went unanswered for its whole 1.2 s of
+/// retries (sim-host's `auth.rs`): the process had bound its socket but not yet run.
+fn answers(addr: SocketAddr) -> bool {
+    let Ok(socket) = std::net::UdpSocket::bind("127.0.0.1:0") else {
+        return false;
+    };
+    let mut frame = [0u8; 3];
+    let Ok(n) = protocol::Command::Discover.encode(0, &mut frame) else {
+        return false;
+    };
+    let _ = socket.set_read_timeout(Some(READY_POLL));
+    let mut buf = [0u8; protocol::MAX_DATAGRAM];
+    // Bounded in count (and so in time): one DISCOVER per poll.
+    let polls = (START_TIMEOUT.as_millis() / READY_POLL.as_millis()) as usize;
+    for _ in 0..polls {
+        let asked = Instant::now();
+        let _ = socket.send_to(&frame[..n], addr);
+        if socket.recv_from(&mut buf).is_ok() {
+            return true;
+        }
+        // An error that came sooner than the poll: wait out the rest of it.
+        std::thread::sleep(READY_POLL.saturating_sub(asked.elapsed()));
+    }
+    false
+}
+
+/// How often [`answers`] asks a starting simulator.
+const READY_POLL: Duration = Duration::from_millis(100);
+
 impl SimHost {
     /// Starts a sim-host with extra arguments (`--joints`, `--loss` ...) on a free port and
     /// waits until it listens.
@@ -264,7 +296,7 @@ impl SimHost {
             for _ in lines {}
         });
         match listening.recv_timeout(START_TIMEOUT) {
-            Ok((Ok(addr), banner)) => SimHost {
+            Ok((Ok(addr), banner)) if answers(addr) => SimHost {
                 addr,
                 banner,
                 child: Some(child),
@@ -278,6 +310,10 @@ impl SimHost {
                 let _ = std::fs::remove_dir_all(&dir);
                 match outcome {
                     Ok((Err(e), _)) => panic!("sim-host printed a bad address ({e}): {log}"),
+                    Ok((Ok(addr), _)) => panic!(
+                        "sim-host listens on {addr} but answered no DISCOVER within \
+                         {START_TIMEOUT:?} (exit: {status:?}): {log}"
+                    ),
                     _ => panic!(
                         "sim-host did not say where it listens within {START_TIMEOUT:?} \
                          (exit: {status:?}): {log}"
