@@ -128,6 +128,12 @@ pub struct StepStreams<const Q: usize, const HALF: usize> {
     /// Position change of the last period a half held before its latest refill wrote over
     /// it, per joint: that period may still be in the timer's preload register.
     evicted: [[i8; 2]; MAX_JOINTS],
+    /// Running sums of each half, per joint: element `i` is the signed pulses of the half's
+    /// periods `0..=i`, written with the half ([`StepStreams::refill`]). They make
+    /// [`StepStreams::unplayed_steps`] constant time: a LOCATION report reads the positions
+    /// inside the step lock, which a walk over every joint's unplayed periods held for
+    /// 10,100 instructions (issue 20, `scripts/step-cost`).
+    sums: [[[i16; HALF]; 2]; MAX_JOINTS],
     dirs: [DirRing; MAX_JOINTS],
 }
 
@@ -198,6 +204,7 @@ macro_rules! with_idle_joint_fields {
             marks_clean: [false; 2],
             last_sign: [0; 2],
             evicted: [0; 2],
+            sums: [[0; HALF]; 2],
             dirs: DirRing::EMPTY,
         )
     };
@@ -222,7 +229,10 @@ macro_rules! write_joint_fields {
 }
 
 impl<const Q: usize, const HALF: usize> StepStreams<Q, HALF> {
-    const FITS: () = assert!(dir_queue_len(HALF) <= DIR_RING && HALF > 0);
+    const FITS: () = assert!(
+        dir_queue_len(HALF) <= DIR_RING && HALF > 0 && HALF <= i16::MAX as usize,
+        "a half's DIR changes fit the ring and its pulse count fits the i16 running sums"
+    );
 
     /// Idle streams.
     pub const fn new(timing: StepTiming, max_period_ticks: [u32; MAX_JOINTS]) -> Self {
@@ -350,6 +360,7 @@ impl<const Q: usize, const HALF: usize> StepStreams<Q, HALF> {
             });
         self.half_idle[j][h] = filled.uniform_idle;
         self.last_sign[j][h] = filled.last_sign;
+        self.sum_half(j, h, periods);
         Refill {
             segments_finished: filled.segments_finished,
             dir_overflow: overflow,
@@ -416,7 +427,9 @@ impl<const Q: usize, const HALF: usize> StepStreams<Q, HALF> {
     /// started, or `None` if the second prelude period has not either (the DMA has not
     /// transferred anything). The rest of that period's half is unplayed, and so is the
     /// other half unless `other_half_played` (its refill interrupt is still pending: it
-    /// holds periods that already played).
+    /// holds periods that already played). Constant time: it reads the running sums the
+    /// refills wrote, not `periods` (kept in the signature: the callers hold the buffer
+    /// these sums describe).
     #[allow(
         clippy::indexing_slicing,
         reason = "the joint number is masked to 0..MAX_JOINTS; h = index / HALF < 2 (index < 2 * HALF), from <= HALF, the halves' length; PRELUDE - 1 < PRELUDE"
@@ -429,18 +442,16 @@ impl<const Q: usize, const HALF: usize> StepStreams<Q, HALF> {
         other_half_played: bool,
     ) -> i32 {
         let j = joint & (MAX_JOINTS - 1);
-        let signs = &self.signs[j];
-        // Signed pulses of half `h` from period `from` on. Every half's first pulse is
-        // marked, so the sign before `from` is the last mark before it.
+        let _ = periods;
+        let sums = &self.sums[j];
+        // Signed pulses of half `h` from period `from` (0..=HALF) on: the half's total less
+        // those before `from`, from the running sums its refill wrote.
         let sum = |h: usize, from: usize| {
-            let start = signs[h][..from].iter().rev().find(|&&m| m != 0).copied();
-            sign_of(
-                &periods.periods[h][from..],
-                &signs[h][from..],
-                start.unwrap_or(1),
-            )
-            .map(i32::from)
-            .sum::<i32>()
+            let total = i32::from(sums[h][HALF - 1]);
+            match from.checked_sub(1) {
+                Some(before) => total - i32::from(sums[h][before.min(HALF - 1)]),
+                None => total,
+            }
         };
         match first_unplayed {
             None => i32::from(self.prelude_deltas[j][PRELUDE - 1]) + sum(0, 0) + sum(1, 0),
@@ -456,10 +467,148 @@ impl<const Q: usize, const HALF: usize> StepStreams<Q, HALF> {
         }
     }
 
+    /// Writes the running sums of `joint`'s half `half` (`periods`, just filled): the
+    /// signed pulses of periods `0..=i`, each pulse's sign the last mark at or before it
+    /// (every half's first pulse is marked).
+    #[allow(
+        clippy::indexing_slicing,
+        clippy::cast_possible_truncation,
+        reason = "j < MAX_JOINTS and h < 2 (the caller masks them), i < HALF; |sum| <= HALF <= i16::MAX (FITS)"
+    )]
+    fn sum_half(&mut self, j: usize, h: usize, periods: &[PulsePeriod; HALF]) {
+        let signs = &self.signs[j][h];
+        let sums = &mut self.sums[j][h];
+        let mut sign = 1i16;
+        let mut sum = 0i16;
+        for i in 0..HALF {
+            if signs[i] != 0 {
+                sign = i16::from(signs[i]);
+            }
+            if periods[i].high != 0 {
+                sum += sign;
+            }
+            sums[i] = sum;
+        }
+    }
+
     /// Drops every queued DIR change (after a stop).
     pub fn clear_dir_changes(&mut self) {
         for dirs in &mut self.dirs {
             dirs.len = 0;
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    extern crate std;
+    use std::boxed::Box;
+    use std::vec;
+
+    use super::*;
+
+    const HALF: usize = 8;
+    const TIMING: StepTiming = StepTiming {
+        tick_hz: 10_000_000,
+        pulse_width_ticks: 20,
+        dir_setup_ticks: 50,
+        step_low_ticks: 20,
+    };
+
+    /// The scan `unplayed_steps` did before it kept running sums (issue 20): the signed
+    /// pulses of `joint`'s buffer from `first_unplayed` on, walked period by period.
+    fn scanned<const Q: usize>(
+        streams: &StepStreams<Q, HALF>,
+        joint: usize,
+        periods: &JointBuffer<HALF>,
+        first_unplayed: Option<usize>,
+        other_half_played: bool,
+    ) -> i32 {
+        let signs = &streams.signs[joint];
+        let sum = |h: usize, from: usize| {
+            let start = signs[h][..from].iter().rev().find(|&&m| m != 0).copied();
+            sign_of(
+                &periods.periods[h][from..],
+                &signs[h][from..],
+                start.unwrap_or(1),
+            )
+            .map(i32::from)
+            .sum::<i32>()
+        };
+        match first_unplayed {
+            None => i32::from(streams.prelude_deltas[joint][PRELUDE - 1]) + sum(0, 0) + sum(1, 0),
+            Some(index) => {
+                let (h, i) = (index / HALF, index % HALF);
+                if other_half_played {
+                    sum(h, i)
+                } else {
+                    sum(h, i) + sum(1 - h, 0)
+                }
+            }
+        }
+    }
+
+    /// Every joint's unplayed pulses, at every place a stream can stand, equal the scan's
+    /// after the prime and after each refill of a run that reverses within halves (marks
+    /// in the middle of a half) and has idle stretches.
+    #[test]
+    fn unplayed_steps_equal_the_scan_at_every_index() {
+        let mut streams = Box::new(StepStreams::<16, HALF>::new(TIMING, [1 << 16; MAX_JOINTS]));
+        // 40 us segments: 5-12 pulses each, so a half of 8 periods holds reversals.
+        for (n, steps) in [5, -7, 12, -3, 0, 9, -12, 4, -1, 6].into_iter().enumerate() {
+            let mut joints = [0i32; MAX_JOINTS];
+            for (j, s) in joints.iter_mut().enumerate() {
+                *s = if j % 2 == 0 {
+                    steps
+                } else {
+                    -steps / (1 + n as i32 % 3)
+                };
+            }
+            let segment = Segment {
+                duration_us: 40,
+                steps: joints,
+            };
+            assert!(streams.producer().push(segment).is_ok());
+        }
+        let mut prelude = [[PulsePeriod::ZERO; PRELUDE]; MAX_JOINTS];
+        let mut buffers: [JointBuffer<HALF>; MAX_JOINTS] =
+            core::array::from_fn(|_| JointBuffer::ZERO);
+        {
+            let [b0, b1, b2, b3, b4, b5, b6, b7] = &mut buffers;
+            streams.prime(100, &mut prelude, &mut [b0, b1, b2, b3, b4, b5, b6, b7]);
+        }
+        let check = |streams: &StepStreams<16, HALF>, buffers: &[JointBuffer<HALF>]| {
+            for (joint, buffer) in buffers.iter().enumerate() {
+                let mut places = vec![None];
+                places.extend((0..2 * HALF).map(Some));
+                for first in places {
+                    for other in [false, true] {
+                        assert_eq!(
+                            streams.unplayed_steps(joint, buffer, first, other),
+                            scanned(streams, joint, buffer, first, other),
+                            "joint {joint}, first unplayed {first:?}, other half played {other}"
+                        );
+                    }
+                }
+                for half in 0..2 {
+                    assert_eq!(
+                        streams.unplayed_evicted(joint, buffer, half),
+                        i32::from(streams.evicted[joint][half])
+                            + scanned(streams, joint, buffer, Some(0), false)
+                    );
+                }
+            }
+        };
+        check(&streams, &buffers);
+        let mut pulses = 0;
+        for round in 0..40 {
+            let half = round % 2;
+            for (joint, buffer) in buffers.iter_mut().enumerate() {
+                streams.refill(joint, half, &mut buffer.periods[half]);
+                pulses += buffer.periods[half].iter().filter(|p| p.high != 0).count();
+            }
+            check(&streams, &buffers);
+        }
+        assert!(pulses > 100, "the run wrote pulses: {pulses}");
     }
 }
