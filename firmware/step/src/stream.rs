@@ -18,6 +18,7 @@
 
 use core::mem::MaybeUninit;
 
+use crate::dir_queue::DirQueues;
 use crate::producer::{PulsePeriod, PulseProducer, sign_of};
 use crate::{MAX_JOINTS, Segment, StepTiming, write_each};
 
@@ -32,7 +33,7 @@ const fn dir_queue_len(half: usize) -> usize {
 }
 
 /// DIR ring capacity: enough for halves of up to 64 periods.
-const DIR_RING: usize = dir_queue_len(64);
+pub(crate) const DIR_RING: usize = dir_queue_len(64);
 
 /// A DIR change to make at `tick` (stream ticks).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -289,6 +290,34 @@ impl<const Q: usize, const HALF: usize> StepStreams<Q, HALF> {
         prelude: &mut [[PulsePeriod; PRELUDE]; MAX_JOINTS],
         buffers: &mut [&mut JointBuffer<HALF>; MAX_JOINTS],
     ) -> Refill {
+        self.prime_inner(at_tick, prelude, buffers, None)
+    }
+
+    /// [`StepStreams::prime`], with the DIR changes queued in `dirs` (cleared first: its
+    /// consumer must not run meanwhile) instead of this value's own queues: for a consumer
+    /// that reads them without the lock around these streams (the NUCLEO's step clock).
+    pub fn prime_shared(
+        &mut self,
+        at_tick: u64,
+        prelude: &mut [[PulsePeriod; PRELUDE]; MAX_JOINTS],
+        buffers: &mut [&mut JointBuffer<HALF>; MAX_JOINTS],
+        dirs: &DirQueues,
+    ) -> Refill {
+        dirs.clear();
+        self.prime_inner(at_tick, prelude, buffers, Some(dirs))
+    }
+
+    #[allow(
+        clippy::indexing_slicing,
+        reason = "joint enumerates [_; MAX_JOINTS] arrays, the length of the per-joint ones indexed"
+    )]
+    fn prime_inner(
+        &mut self,
+        at_tick: u64,
+        prelude: &mut [[PulsePeriod; PRELUDE]; MAX_JOINTS],
+        buffers: &mut [&mut JointBuffer<HALF>; MAX_JOINTS],
+        shared: Option<&DirQueues>,
+    ) -> Refill {
         for dirs in &mut self.dirs {
             dirs.len = 0;
         }
@@ -301,7 +330,10 @@ impl<const Q: usize, const HALF: usize> StepStreams<Q, HALF> {
             let filled = self
                 .producer
                 .fill(joint, prelude, &mut signs, &mut |tick, positive| {
-                    overflow |= !dirs.push(tick, positive)
+                    overflow |= !match shared {
+                        Some(queues) => queues.push(joint, tick, positive),
+                        None => dirs.push(tick, positive),
+                    }
                 });
             for (delta, sign) in self.prelude_deltas[joint]
                 .iter_mut()
@@ -313,7 +345,7 @@ impl<const Q: usize, const HALF: usize> StepStreams<Q, HALF> {
             outcome.segments_finished += filled.segments_finished;
             outcome.dir_overflow |= overflow;
             for (half, periods) in buffer.periods.iter_mut().enumerate() {
-                let r = self.refill(joint, half, periods);
+                let r = self.refill_inner(joint, half, periods, shared);
                 outcome.segments_finished += r.segments_finished;
                 outcome.dir_overflow |= r.dir_overflow;
             }
@@ -333,6 +365,34 @@ impl<const Q: usize, const HALF: usize> StepStreams<Q, HALF> {
         joint: usize,
         half: usize,
         periods: &mut [PulsePeriod; HALF],
+    ) -> Refill {
+        self.refill_inner(joint, half, periods, None)
+    }
+
+    /// [`StepStreams::refill`], with the DIR changes queued in `dirs` (see
+    /// [`StepStreams::prime_shared`]).
+    #[inline]
+    pub fn refill_shared(
+        &mut self,
+        joint: usize,
+        half: usize,
+        periods: &mut [PulsePeriod; HALF],
+        dirs: &DirQueues,
+    ) -> Refill {
+        self.refill_inner(joint, half, periods, Some(dirs))
+    }
+
+    #[inline]
+    #[allow(
+        clippy::indexing_slicing,
+        reason = "the joint number is masked to 0..MAX_JOINTS and the half to 0..2, the arrays' lengths"
+    )]
+    fn refill_inner(
+        &mut self,
+        joint: usize,
+        half: usize,
+        periods: &mut [PulsePeriod; HALF],
+        shared: Option<&DirQueues>,
     ) -> Refill {
         let j = joint & (MAX_JOINTS - 1);
         let h = half & 1;
@@ -356,7 +416,10 @@ impl<const Q: usize, const HALF: usize> StepStreams<Q, HALF> {
         let filled = self
             .producer
             .fill(j, periods, signs, &mut |tick, positive| {
-                overflow |= !dirs.push(tick, positive)
+                overflow |= !match shared {
+                    Some(queues) => queues.push(j, tick, positive),
+                    None => dirs.push(tick, positive),
+                }
             });
         self.half_idle[j][h] = filled.uniform_idle;
         self.last_sign[j][h] = filled.last_sign;
@@ -406,6 +469,20 @@ impl<const Q: usize, const HALF: usize> StepStreams<Q, HALF> {
     pub fn unwind_evicted(&mut self, joint: usize, periods: &JointBuffer<HALF>, half: usize) {
         let steps = self.unplayed_evicted(joint, periods, half);
         self.producer.unwind(joint & (MAX_JOINTS - 1), steps);
+    }
+
+    /// After a start that was cut before the timers started (the board's e-stop input
+    /// opening during it): takes back every pulse written for `joint`, the prelude's first
+    /// period's too.
+    #[allow(
+        clippy::indexing_slicing,
+        reason = "the joint number is masked to 0..MAX_JOINTS"
+    )]
+    pub fn unwind_unstarted(&mut self, joint: usize, periods: &JointBuffer<HALF>) {
+        let j = joint & (MAX_JOINTS - 1);
+        let steps =
+            i32::from(self.prelude_deltas[j][0]) + self.unplayed_steps(j, periods, None, false);
+        self.producer.unwind(j, steps);
     }
 
     /// The unplayed pulses in the case of [`StepStreams::unwind_evicted`].
@@ -610,5 +687,54 @@ mod tests {
             check(&streams, &buffers);
         }
         assert!(pulses > 100, "the run wrote pulses: {pulses}");
+    }
+
+    /// The shared queues get the same DIR changes, in the same order, as the streams' own.
+    #[test]
+    fn shared_dir_queues_get_the_changes_of_the_own_ones() {
+        let make = || {
+            let mut streams = Box::new(StepStreams::<16, HALF>::new(TIMING, [1 << 16; MAX_JOINTS]));
+            for steps in [5, -7, 12, -3, 0, 9, -12, 4, -1, 6] {
+                let segment = Segment {
+                    duration_us: 40,
+                    steps: [steps, -steps, steps / 2, 0, 1, -1, steps, 3],
+                };
+                assert!(streams.producer().push(segment).is_ok());
+            }
+            streams
+        };
+        let (mut own, mut shared) = (make(), make());
+        let queues = DirQueues::new();
+        let mut prelude = [[PulsePeriod::ZERO; PRELUDE]; MAX_JOINTS];
+        let mut a: [JointBuffer<HALF>; MAX_JOINTS] = core::array::from_fn(|_| JointBuffer::ZERO);
+        let mut b: [JointBuffer<HALF>; MAX_JOINTS] = core::array::from_fn(|_| JointBuffer::ZERO);
+        {
+            let [a0, a1, a2, a3, a4, a5, a6, a7] = &mut a;
+            own.prime(100, &mut prelude, &mut [a0, a1, a2, a3, a4, a5, a6, a7]);
+            let [b0, b1, b2, b3, b4, b5, b6, b7] = &mut b;
+            shared.prime_shared(
+                100,
+                &mut prelude,
+                &mut [b0, b1, b2, b3, b4, b5, b6, b7],
+                &queues,
+            );
+        }
+        let mut changes = 0;
+        for round in 0..30 {
+            let half = round % 2;
+            for joint in 0..MAX_JOINTS {
+                own.refill(joint, half, &mut a[joint].periods[half]);
+                shared.refill_shared(joint, half, &mut b[joint].periods[half], &queues);
+                assert_eq!(a[joint].periods[half], b[joint].periods[half]);
+                while let Some(change) = own.next_dir_change(joint) {
+                    assert_eq!(queues.peek(joint), Some(change), "joint {joint}");
+                    own.pop_dir_change(joint);
+                    queues.pop(joint);
+                    changes += 1;
+                }
+                assert_eq!(queues.peek(joint), None);
+            }
+        }
+        assert!(changes > 20, "the run reversed: {changes} DIR changes");
     }
 }
