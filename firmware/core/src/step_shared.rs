@@ -13,6 +13,7 @@ use embassy_sync::blocking_mutex::Mutex;
 // below the bus (the ingress path halts the steps through it), so it imports nothing
 // from it.
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex as Cs;
+use embassy_sync::blocking_mutex::raw::RawMutex;
 use embassy_sync::signal::Signal;
 use protocol::MAX_JOINTS;
 
@@ -150,11 +151,14 @@ impl<B: StepBackend> StepState<B> {
 }
 
 /// The step engine (or other [`StepBackend`]) shared between the step interrupts and the
-/// tasks: `Mutex<CriticalSectionRawMutex, RefCell<..>>` around it plus the bookkeeping
-/// that must change atomically with it (stop count, finished segments, ran dry). `Q`:
-/// the engine's queue when the backend is the default [`StepEngine`].
-pub struct StepShared<const Q: usize, B = StepEngine<Q>> {
-    inner: Mutex<Cs, RefCell<StepState<B>>>,
+/// tasks: `Mutex<M, RefCell<..>>` around it plus the bookkeeping that must change
+/// atomically with it (stop count, finished segments, ran dry). `Q`: the engine's queue
+/// when the backend is the default [`StepEngine`]. `M`: the lock, by default a critical
+/// section (every interrupt masked); the NUCLEO's masks only the interrupts at or below
+/// its step refills (BASEPRI), so that its DIR changes and e-stop input, which never
+/// take this lock, are never held off by it (issue 20).
+pub struct StepShared<const Q: usize, B = StepEngine<Q>, M = Cs> {
+    inner: Mutex<M, RefCell<StepState<B>>>,
 }
 
 #[cfg(any(test, feature = "test-support"))]
@@ -165,7 +169,7 @@ impl<const Q: usize> StepShared<Q> {
     }
 }
 
-impl<const Q: usize, B: StepBackend> StepShared<Q, B> {
+impl<const Q: usize, B: StepBackend, M: RawMutex> StepShared<Q, B, M> {
     /// Shares `backend` (idle).
     pub const fn with_backend(backend: B) -> Self {
         StepShared {

@@ -40,16 +40,20 @@ use core::cell::UnsafeCell;
 
 use arm_core::profile::{self, BoardProfile};
 use arm_step::{JointBuffer, MAX_JOINTS, StepTiming};
-use embassy_stm32::interrupt::{InterruptExt, Priority};
+use embassy_stm32::interrupt::InterruptExt;
 use embassy_stm32::pac;
 
 mod backend;
+mod lock;
 mod refill;
 mod registers;
+mod service;
 mod stop;
 
-pub use backend::STEP;
-pub use stop::stop_all_step_outputs;
+pub use backend::{DIRS, STEP};
+pub use lock::{DIR_PRIORITY, STEP_LOCK_PRIORITY};
+pub use service::SERVICE_IRQ;
+pub use stop::{kill_handled, kill_step_outputs, stop_all_step_outputs};
 
 use refill::STREAM_IRQS;
 use registers::{configure_joint_timer, joint_timer};
@@ -82,11 +86,11 @@ pub const STEP_TIMING: StepTiming = PROFILE.step_timing();
 /// 2^16 for the 16-bit ones).
 pub const MAX_PERIOD_TICKS: [u32; MAX_JOINTS] = PROFILE.step_timer_max_period_ticks;
 
-/// Every joint's DMA buffer. Written by the refills (inside [`STEP`]'s critical section,
+/// Every joint's DMA buffer. Written by the refills (inside [`STEP`]'s lock,
 /// for the half the stream is not reading) and read by the DMA.
 struct Buffers(UnsafeCell<[JointBuffer<HALF>; MAX_JOINTS]>);
 
-// SAFETY: every CPU access happens inside STEP's critical section; the DMA reads the other
+// SAFETY: every CPU access happens inside STEP's lock; the DMA reads the other
 // half (the refill checks where the stream is before it writes).
 unsafe impl Sync for Buffers {}
 
@@ -128,9 +132,9 @@ fn route_lockup_to_timer_breaks() {
 }
 
 /// One-time set-up: clocks of the joint timers and DMA2, every timer's output forced
-/// inactive (STEP low) and enabled, DMAMUX routes, the streams' interrupts at P2 (below
-/// the step clock's P1, which makes the DIR changes). Call before the STEP pins are
-/// switched to their timers.
+/// inactive (STEP low) and enabled, DMAMUX routes, the streams' and the step service's
+/// interrupts at P2 (the step lock's level, below the step clock's P1, which makes the
+/// DIR changes). Call before the STEP pins are switched to their timers.
 pub fn init() {
     // SAFETY: before any stream runs or any refill can touch them: `.sram1` is NOLOAD,
     // so the buffers are zeroed here, not by the reset handler.
@@ -165,8 +169,9 @@ pub fn init() {
     }
     route_lockup_to_timer_breaks();
     for irq in STREAM_IRQS {
-        irq.set_priority(Priority::P2);
-        // SAFETY: the handlers below only touch STEP (critical section) and DMA2's flags.
+        irq.set_priority(STEP_LOCK_PRIORITY);
+        // SAFETY: the handlers only touch STEP (its lock, at their level) and DMA2's flags.
         unsafe { irq.enable() };
     }
+    service::init();
 }
