@@ -54,16 +54,26 @@ impl DirQueue {
         }
     }
 
+    // Indices stay below INDEX_SPAN: a conditional subtraction, not a division (the
+    // refills and the DIR interrupt run these).
     fn len(head: u32, tail: u32) -> u32 {
-        (tail + INDEX_SPAN - head) % INDEX_SPAN
+        if tail >= head {
+            tail - head
+        } else {
+            tail + INDEX_SPAN - head
+        }
     }
 
     fn slot(index: u32) -> usize {
-        (index % RING) as usize * 2
+        (if index >= RING { index - RING } else { index }) as usize * 2
     }
 
     fn next(index: u32) -> u32 {
-        (index + 1) % INDEX_SPAN
+        if index + 1 == INDEX_SPAN {
+            0
+        } else {
+            index + 1
+        }
     }
 }
 
@@ -142,10 +152,19 @@ impl DirQueues {
 
     /// The earliest queued change of any joint (its tick), read from either side: a
     /// consumer running meanwhile can only make the true earliest later.
+    #[allow(clippy::indexing_slicing, reason = "slot() < 2 * DIR_RING - 1")]
     pub fn earliest(&self) -> Option<u64> {
-        (0..MAX_JOINTS)
-            .filter_map(|joint| self.peek(joint).map(|change| change.tick))
-            .min()
+        let mut earliest = u64::MAX;
+        for q in &self.joints {
+            let head = q.head.load(Ordering::Relaxed);
+            if head != q.tail.load(Ordering::Acquire) {
+                let at = DirQueue::slot(head);
+                let low = q.words[at].load(Ordering::Relaxed);
+                let high = q.words[at + 1].load(Ordering::Relaxed) & !LEVEL;
+                earliest = earliest.min((u64::from(high) << 32) | u64::from(low));
+            }
+        }
+        (earliest != u64::MAX).then_some(earliest)
     }
 
     /// Drops every queued change. Only while the consumer does not run (see the module

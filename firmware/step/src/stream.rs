@@ -107,6 +107,17 @@ impl DirRing {
     }
 }
 
+/// How a buffer half's running sums are kept ([`StepStreams::unplayed_steps`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum HalfSums {
+    /// In the half's `sums` table.
+    Table,
+    /// Every period is a pulse of this sign (one straight cruise wrote the half).
+    Every(i8),
+    /// No period holds a pulse.
+    NoPulse,
+}
+
 /// The producer and every joint's buffer bookkeeping. `Q` = segments held, `HALF` =
 /// periods per buffer half.
 #[derive(Debug)]
@@ -135,6 +146,9 @@ pub struct StepStreams<const Q: usize, const HALF: usize> {
     /// inside the step lock, which a walk over every joint's unplayed periods held for
     /// 10,100 instructions (issue 20, `scripts/step-cost`).
     sums: [[[i16; HALF]; 2]; MAX_JOINTS],
+    /// Per joint and half: how to read its sums without `sums` where a refill could say
+    /// it more cheaply (the common refills write no sums).
+    half_sums: [[HalfSums; 2]; MAX_JOINTS],
     dirs: [DirRing; MAX_JOINTS],
 }
 
@@ -206,6 +220,7 @@ macro_rules! with_idle_joint_fields {
             last_sign: [0; 2],
             evicted: [0; 2],
             sums: [[0; HALF]; 2],
+            half_sums: [HalfSums::NoPulse; 2],
             dirs: DirRing::EMPTY,
         )
     };
@@ -423,7 +438,15 @@ impl<const Q: usize, const HALF: usize> StepStreams<Q, HALF> {
             });
         self.half_idle[j][h] = filled.uniform_idle;
         self.last_sign[j][h] = filled.last_sign;
-        self.sum_half(j, h, periods);
+        self.half_sums[j][h] = if cruise {
+            // Every period a pulse of the first mark's sign: no sums needed.
+            HalfSums::Every(self.signs[j][h][0])
+        } else if filled.pulses == 0 {
+            HalfSums::NoPulse
+        } else {
+            self.sum_half(j, h, periods);
+            HalfSums::Table
+        };
         Refill {
             segments_finished: filled.segments_finished,
             dir_overflow: overflow,
@@ -521,9 +544,23 @@ impl<const Q: usize, const HALF: usize> StepStreams<Q, HALF> {
         let j = joint & (MAX_JOINTS - 1);
         let _ = periods;
         let sums = &self.sums[j];
+        let half_sums = &self.half_sums[j];
         // Signed pulses of half `h` from period `from` (0..=HALF) on: the half's total less
-        // those before `from`, from the running sums its refill wrote.
+        // those before `from`, from the running sums its refill wrote (or, for a half of
+        // one straight cruise, one pulse per period).
+        #[allow(
+            clippy::cast_possible_wrap,
+            clippy::cast_possible_truncation,
+            reason = "HALF - from <= HALF <= i16::MAX (FITS)"
+        )]
         let sum = |h: usize, from: usize| {
+            match half_sums[h] {
+                HalfSums::Every(sign) => {
+                    return i32::from(sign) * HALF.saturating_sub(from) as i32;
+                }
+                HalfSums::NoPulse => return 0,
+                HalfSums::Table => {}
+            }
             let total = i32::from(sums[h][HALF - 1]);
             match from.checked_sub(1) {
                 Some(before) => total - i32::from(sums[h][before.min(HALF - 1)]),
@@ -558,12 +595,9 @@ impl<const Q: usize, const HALF: usize> StepStreams<Q, HALF> {
         let mut sign = 1i16;
         let mut sum = 0i16;
         for i in 0..HALF {
-            if signs[i] != 0 {
-                sign = i16::from(signs[i]);
-            }
-            if periods[i].high != 0 {
-                sum += sign;
-            }
+            let mark = i16::from(signs[i]);
+            sign = if mark != 0 { mark } else { sign };
+            sum += if periods[i].high != 0 { sign } else { 0 };
             sums[i] = sum;
         }
     }
