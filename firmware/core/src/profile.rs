@@ -220,11 +220,12 @@ pub const NUCLEO_H743ZI2: BoardProfile = BoardProfile {
     // margin. Also the ceiling of the CPU budget per joint (`step_budget_hz` / 8 joints
     // would be 500 kHz; one joint may take more while the others rest).
     step_rate_ceiling_hz: 1_000_000,
-    // 8 joints x 500 kHz. At the measured 31.3 instructions per step (scripts/step-cost,
+    // 8 joints x 500 kHz. At the measured 42.4 instructions per step (scripts/step-cost,
     // the whole step path with 8 joints at distinct rates, the worse of its 8-joint
-    // trajectories), about 1.3 cycles each on the Cortex-M7 at 400 MHz, that is
-    // 4e6 * 31.3 * 1.3 / 400e6 = 41% of the CPU, leaving the rest to the
-    // network and the tasks (docs/PROTOCOL.md, "Step rate budget").
+    // trajectories, after issue 20's BASEPRI lock and running sums), about 1.3 cycles each
+    // on the Cortex-M7 at 400 MHz, that is 4e6 * 42.4 * 1.3 / 400e6 = 55% of the CPU,
+    // leaving the rest to the network and the tasks (docs/PROTOCOL.md, "Step rate
+    // budget"; it was 31.3 and 41%).
     step_budget_hz: 4_000_000,
     // 8192 * 36 bytes = 288 KiB of the 512 KiB AXI SRAM, i.e. 80 s of 10 ms points, so a
     // host streaming over a congested link has seconds of slack before an underrun.

@@ -1,7 +1,8 @@
 //! The step backend shared between the step interrupts and the tasks ([`StepShared`]):
-//! the engine (or the board's DMA producer, any [`StepBackend`]) behind one critical
-//! section, with the bookkeeping that must change with it (stop count, finished segments,
-//! ran dry), and the step timer interrupt's body [`on_step_timer`].
+//! the engine (or the board's DMA producer, any [`StepBackend`]) behind one lock (a
+//! critical section by default; the NUCLEO's is BASEPRI-based), with the bookkeeping that
+//! must change with it (stop count, finished segments, ran dry), and the step timer
+//! interrupt's body [`on_step_timer`].
 
 use core::cell::RefCell;
 
@@ -62,7 +63,7 @@ impl StepPins for NoPins {
 /// (the board's timers play its buffers; the QEMU board and the simulator play them in
 /// software with arm-step's `StreamPlayer`) or [`StepEngine`] (edges made by an interrupt
 /// per deadline: arm-core's own task tests, through [`on_step_timer`]). Called inside
-/// [`StepShared`]'s critical section: implementations must not block.
+/// [`StepShared`]'s lock: implementations must not block.
 pub trait StepBackend {
     /// Timer resolution and driver timing.
     fn timing(&self) -> StepTiming;
@@ -140,7 +141,7 @@ pub struct StepState<B> {
 }
 
 impl<B: StepBackend> StepState<B> {
-    /// [`StepShared::stop`]'s work, inside the critical section.
+    /// [`StepShared::stop`]'s work, inside the lock.
     fn stop(&mut self) {
         self.engine.stop();
         self.finished = 0;
@@ -184,13 +185,13 @@ impl<const Q: usize, B: StepBackend, M: RawMutex> StepShared<Q, B, M> {
         }
     }
 
-    /// Runs `f` on the backend inside the critical section (inspection, simulators).
+    /// Runs `f` on the backend inside the lock (inspection, simulators).
     pub fn with_engine<R>(&self, f: impl FnOnce(&mut B) -> R) -> R {
         self.inner.lock(|s| f(&mut s.borrow_mut().engine))
     }
 
     /// The body of a step interrupt other than the engine's timer (the board's DMA
-    /// refills and run end): runs `f` on the backend in the critical section, records the
+    /// refills and run end): runs `f` on the backend in the lock, records the
     /// progress it reports and wakes `wake` (the bus's `step_progress`, which the
     /// trajectory task waits on) if there is any.
     /// Nothing is recorded for a run cut by a stop in the meantime (the caller's `f`
@@ -239,7 +240,8 @@ impl<const Q: usize, B: StepBackend, M: RawMutex> StepShared<Q, B, M> {
     /// The wired e-stop input opened ([`crate::estop_input`]): [`StepShared::stop`], and
     /// no run starts ([`StepShared::start`] does nothing) until [`StepShared::release`],
     /// whatever the tasks do meanwhile. For the input's edge handler (an interrupt on the
-    /// board): one critical section, no wait.
+    /// board; on the NUCLEO, whose lock its e-stop interrupt may not take, the step
+    /// service interrupt that interrupt pends): one lock, no wait.
     pub fn halt(&self) {
         self.inner.lock(|s| {
             let mut s = s.borrow_mut();

@@ -10,20 +10,27 @@
 //! CPU involved. The stream is circular over [`HALF`]` * 2` periods; its half-transfer and
 //! transfer-complete interrupts ([`refill::refill`]) refill the half it just left with
 //! [`arm_step::StepStreams::refill`] (arm-step's producer). The CPU's whole share is the producer's
-//! arithmetic and the interrupts around it: 29 to 45 instructions per step at 100 kHz per
-//! joint (scripts/step-cost: the whole path, TIM13's wraps and DIR alarms included).
+//! arithmetic and the interrupts around it: 38 to 54 instructions per step at 100 kHz per
+//! joint (scripts/step-cost: the whole path, TIM13's wraps, DIR alarms and the step
+//! service included).
 //!
 //! DIR lines change at reversals only, when the joint's previous pulse has fallen, from
 //! the step clock's compare interrupt (`step_timer.rs`), and the producer places the next
 //! pulse no sooner than the DIR setup time (plus the profile's `dir_latency_ns` for the
-//! interrupt) after. The run ends at the producer's `run_end_tick`, also from the step clock.
+//! interrupt) after. No step-path section holds that interrupt off (issue 20): the lock
+//! around [`STEP`] is BASEPRI at P2 (`lock.rs`), below it, and the interrupt takes its DIR
+//! changes from [`DIRS`] (arm-step's lock-free queues) without the lock. The run ends at
+//! the producer's `run_end_tick`: the step clock sees it and pends the step service
+//! (`service.rs`, P2), which ends it under the lock.
 //!
 //! Safety: [`stop_all_step_outputs`] forces every STEP output inactive (OCxM = force
 //! inactive: the pin goes low at once, whatever the counter does), stops the counters and
-//! disables the streams, for the emergency stop, the end of a run, an underrun (a stream
+//! disables the streams, for STOPPED, the end of a run, an underrun (a stream
 //! that reaches a half its interrupt has not refilled: [`refill::refill`] sees both halves
 //! played, or the stream already back in the half it is about to write) and the fault
-//! path. The interrupts are bounded: a refill writes one half and returns; nothing
+//! path; the wired e-stop input's interrupt, above the step lock, makes the same writes
+//! with [`kill_step_outputs`] and leaves the rest to the step service (`crate::estop`'s
+//! header has every interleaving). The interrupts are bounded: a refill writes one half and returns; nothing
 //! re-pends itself, so no step path can starve the tasks.
 //!
 //! Memory: the buffers are a static in SRAM1 (`.sram1`, zeroed by [`init`]): DMA2 reaches
@@ -32,9 +39,10 @@
 //!
 //! Files: this one has the board's profile (its figures, from arm-core's `profile`), the buffers and [`init`]; `registers.rs` the
 //! joint timers' and streams' registers (loading a run's prelude, where a stream stands);
-//! `backend.rs` [`STEP`] and its [`backend::BoardSteps`] (arm-core's `StepBackend`: start,
-//! stop, positions, the DIR alarm); `refill.rs` the streams' interrupts; `stop.rs`
-//! [`stop_all_step_outputs`].
+//! `backend.rs` [`STEP`], [`DIRS`] and its [`backend::BoardSteps`] (arm-core's
+//! `StepBackend`: start, stop, positions, the run's end); `lock.rs` the step lock;
+//! `refill.rs` the streams' interrupts; `service.rs` the step service interrupt; `stop.rs`
+//! [`stop_all_step_outputs`] and [`kill_step_outputs`].
 
 use core::cell::UnsafeCell;
 
@@ -79,7 +87,8 @@ pub const STEP_TIMER_HZ: u32 = PROFILE.step_timer_hz;
 
 /// The step timing of every joint: the profile's driver timing on [`STEP_TIMER_HZ`], its
 /// DIR setup lengthened by the profile's `dir_latency_ns` (the step clock's interrupt,
-/// which changes DIR, can be held off by a refill's critical section).
+/// which changes DIR, can be held off by a short critical section and runs its own
+/// joints one after the other).
 pub const STEP_TIMING: StepTiming = PROFILE.step_timing();
 
 /// The longest period of each joint's timer (the profile's: 2^32 ticks for TIM2 and TIM5,
