@@ -90,8 +90,9 @@ pub fn start(_pin: Peri<'static, peripherals::PC0>) {
     exti.ftsr(0).modify(|w| w.set_line(PIN, true));
     exti.imr(0).modify(|w| w.set_line(PIN, true));
     interrupt::EXTI0.set_priority(Priority::P0);
-    // SAFETY: the handler touches EXTI's pending bit, GPIOC's input and STEP, LINE and the
-    // bus's signal (critical sections).
+    // SAFETY: the handler touches EXTI's pending bit, GPIOC's input, the step outputs'
+    // registers (kill_step_outputs) and two atomics, and pends the step service; it
+    // never takes the step lock.
     unsafe { interrupt::EXTI0.enable() };
     // An edge before the interrupt was enabled is pending and runs the handler; a level
     // that did not change is read here.

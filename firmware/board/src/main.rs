@@ -42,7 +42,8 @@
 //! points is decoded and checked in microseconds), the e-stop has its own queue, and
 //! everything with a deadline below a millisecond is an interrupt. STEP pulses are made by
 //! timer hardware fed by DMA ([`step_dma`]); an emergency stop forces every STEP output
-//! low and stops the timers and streams inside the critical section that handles it.
+//! low and stops the timers and streams (under the step lock; the wired e-stop input's
+//! interrupt, above that lock, with register writes alone, `step_dma::kill_step_outputs`).
 //!
 //! Network input can never panic or block: arm-core decodes it with the `protocol` crate
 //! and answers every error with an ACK status; queues that are full drop rather than wait.

@@ -205,9 +205,8 @@ pub struct StepTimer {
 pub static STEP_TIMER: StepTimer = StepTimer { _private: () };
 
 impl StepKick for StepTimer {
-    /// Nothing to do: a run is started and stopped by the backend itself (inside the
-    /// critical section that starts or stops it), and new segments are picked up by the
-    /// next refill.
+    /// Nothing to do: a run is started and stopped by the backend itself (under the step
+    /// lock that starts or stops it), and new segments are picked up by the next refill.
     fn kick(&self) {}
 
     fn now_tick(&self) -> u64 {

@@ -187,7 +187,7 @@ impl StepBackend for BoardSteps {
             return;
         };
         if self.run != Run::Idle {
-            // SAFETY: inside STEP's critical section, streams disabled.
+            // SAFETY: inside STEP's lock, streams disabled.
             let buffers = unsafe { &*BUFFERS.0.get() };
             for (joint, position) in stopped.iter().enumerate() {
                 let first_unplayed = first_unplayed(self.started[joint], *position);
@@ -223,7 +223,7 @@ impl StepBackend for BoardSteps {
         };
         let mut positions = streams.producer_ref().positions();
         if self.run != Run::Idle {
-            // SAFETY: inside STEP's critical section; only read.
+            // SAFETY: inside STEP's lock; only read.
             let buffers = unsafe { &*BUFFERS.0.get() };
             for (joint, position) in positions.iter_mut().enumerate() {
                 let at = stream_position(joint);
@@ -277,7 +277,7 @@ impl BoardSteps {
             return StepProgress::default();
         };
         self.started[joint] = true;
-        // SAFETY: inside STEP's critical section; the stream reads the other half (checked
+        // SAFETY: inside STEP's lock; the stream reads the other half (checked
         // by the caller).
         let buffer = unsafe { &mut (*BUFFERS.0.get())[joint] };
         let refill = streams.refill_shared(joint, half, &mut buffer.periods[half], &DIRS);
