@@ -27,11 +27,14 @@
 //!    streams (their NDTR and half flags, which the kill leaves alone: a refill that ran
 //!    in between consumed its flag and wrote its half, and that half then counts as
 //!    unplayed, which it is).
-//! 2. *A run's start under way (thread mode or P2, in the lock).* The start loads each
-//!    timer and then starts the counters, each in a short critical section that first
-//!    checks `KILL`, which the kill sets before its first write. A kill before a section:
-//!    the section writes nothing and the start is taken back (every pulse written unwound,
-//!    the run idle). A kill after the counters started: case 1. It cannot come inside a
+//! 2. *A run's start under way (thread mode, in the lock, in pieces).* While the joints'
+//!    buffers are primed (a piece per joint, the lock let go between them) no timer is
+//!    touched: the service's halt, which may come between two pieces, takes back what the
+//!    primed joints wrote and leaves the run idle. The last piece loads each timer and
+//!    then starts the counters, each in a short critical section that first checks
+//!    `KILL`, which the kill sets before its first write. A kill before a section: the
+//!    section writes nothing and the start is taken back (every pulse written unwound, the
+//!    run idle). A kill after the counters started: case 1. It cannot come inside a
 //!    section.
 //! 3. *A stop, an underrun or the run's end in progress (in the lock).* Their
 //!    `stop_all_step_outputs` makes the same writes as the kill: the outputs stay off;

@@ -207,10 +207,10 @@ pub const NUCLEO_H743ZI2: BoardProfile = BoardProfile {
     // The step clock's interrupt at P1 makes the DIR changes. Since issue 20 no step-path
     // section masks it (the step lock is BASEPRI at P2; the DIR changes come from
     // lock-free queues, firmware/board/src/step_dma/lock.rs): what can hold it off is a
-    // critical section (PRIMASK), the longest 164 instructions (scripts/step-cost, the
+    // critical section (PRIMASK), the longest 167 instructions (scripts/step-cost, the
     // run's start loading a timer), and the handler itself makes up to eight DIR changes
     // in joint order, its longest run 884 instructions (8 joints reversing together at
-    // 100 kHz). 1,048 instructions at 1.3 cycles each at 400 MHz is 3.4 us; 4 us covers
+    // 100 kHz). 1,051 instructions at 1.3 cycles each at 400 MHz is 3.4 us; 4 us covers
     // it (flash wait states on a cold I-cache are not counted: bring-up check 24 measures
     // the span with the DWT). It was 35 us while the critical sections masked it (the
     // positions read for a LOCATION report, 25.3 us), and 5 us from an estimate before.

@@ -72,7 +72,19 @@ pub trait StepBackend {
     /// Segments held.
     fn queued(&self) -> usize;
     /// Starts running the queue at `at_tick` (step timer ticks, [`StepKick::now_tick`]).
+    /// A backend whose start is long may only begin it here and leave the rest to
+    /// [`StepBackend::continue_start`] (see [`StepBackend::starting`]).
     fn start(&mut self, at_tick: u64);
+    /// Whether a start begun by [`StepBackend::start`] has pieces left:
+    /// [`StepShared`] then calls [`StepBackend::continue_start`], each call in a lock of its
+    /// own, until it has none (or a stop in between ended it), so that no lock is held for
+    /// a whole start (the NUCLEO primes every joint's buffers: up to 228 us, issue 20).
+    /// Default: a start is done at once.
+    fn starting(&self) -> bool {
+        false
+    }
+    /// The next piece of a start ([`StepBackend::starting`]).
+    fn continue_start(&mut self) {}
     /// Emergency stop: no pulse after this returns (or, for an engine whose lines the
     /// next interrupt lowers, after that interrupt); the queue is dropped; positions
     /// keep the pulses made.
@@ -259,7 +271,7 @@ impl<const Q: usize, B: StepBackend, M: RawMutex> StepShared<Q, B, M> {
     /// Queues a segment (false: the queue is full, offer it again when segments
     /// finished); starts the engine at `start_tick` if a start is pending.
     pub fn push(&self, segment: Segment, start_tick: u64) -> bool {
-        self.inner.lock(|s| {
+        let pushed = self.inner.lock(|s| {
             let mut s = s.borrow_mut();
             if s.engine.push(segment).is_err() {
                 return false;
@@ -269,7 +281,9 @@ impl<const Q: usize, B: StepBackend, M: RawMutex> StepShared<Q, B, M> {
                 s.engine.start(start_tick);
             }
             true
-        })
+        });
+        self.finish_start();
+        pushed
     }
 
     /// Starts the engine at `start_tick` if it holds a segment, else as soon as one is
@@ -285,7 +299,22 @@ impl<const Q: usize, B: StepBackend, M: RawMutex> StepShared<Q, B, M> {
             } else {
                 s.start_pending = true;
             }
-        })
+        });
+        self.finish_start();
+    }
+
+    /// The rest of a start the backend does in pieces ([`StepBackend::starting`]), one lock
+    /// each: between two, the interrupts that take the lock run (a halt among them, which
+    /// stops the backend and so ends the start).
+    fn finish_start(&self) {
+        while self.inner.lock(|s| {
+            let mut s = s.borrow_mut();
+            if !s.engine.starting() {
+                return false;
+            }
+            s.engine.continue_start();
+            true
+        }) {}
     }
 
     /// Collects the progress since the last call: segments finished, ran dry.

@@ -333,37 +333,87 @@ impl<const Q: usize, const HALF: usize> StepStreams<Q, HALF> {
         buffers: &mut [&mut JointBuffer<HALF>; MAX_JOINTS],
         shared: Option<&DirQueues>,
     ) -> Refill {
+        self.prime_begin(at_tick);
+        let mut outcome = Refill::default();
+        for (joint, (prelude, buffer)) in prelude.iter_mut().zip(buffers.iter_mut()).enumerate() {
+            let r = self.prime_joint_inner(joint, prelude, buffer, shared);
+            outcome.segments_finished += r.segments_finished;
+            outcome.dir_overflow |= r.dir_overflow;
+        }
+        outcome
+    }
+
+    /// [`StepStreams::prime_shared`] in pieces, so that whoever serialises these streams
+    /// with a lock need not hold it for the whole start (the NUCLEO's run start, issue 20):
+    /// this begins the run (every joint's DIR queue cleared, `dirs` too, whose consumer
+    /// must not run meanwhile), then [`StepStreams::prime_joint_shared`] primes each
+    /// joint, in any lock sections, in joint order. Between the pieces the producer may be
+    /// pushed to, and a joint not primed yet has written nothing of the run (its position
+    /// is the producer's); a primed joint's pulses have not played
+    /// ([`StepStreams::unstarted_steps`]). The same periods and DIR changes as
+    /// `prime_shared` (tested).
+    pub fn prime_begin_shared(&mut self, at_tick: u64, dirs: &DirQueues) {
+        dirs.clear();
+        self.prime_begin(at_tick);
+    }
+
+    /// One joint's piece of [`StepStreams::prime_begin_shared`]: fills `prelude` (for its
+    /// timer's registers) and both halves of `buffer`, its DIR changes queued in `dirs`.
+    pub fn prime_joint_shared(
+        &mut self,
+        joint: usize,
+        prelude: &mut [PulsePeriod; PRELUDE],
+        buffer: &mut JointBuffer<HALF>,
+        dirs: &DirQueues,
+    ) -> Refill {
+        self.prime_joint_inner(joint, prelude, buffer, Some(dirs))
+    }
+
+    fn prime_begin(&mut self, at_tick: u64) {
         for dirs in &mut self.dirs {
             dirs.len = 0;
         }
         self.producer.start_new_clock(at_tick);
-        let mut outcome = Refill::default();
-        for (joint, (prelude, buffer)) in prelude.iter_mut().zip(buffers.iter_mut()).enumerate() {
-            let dirs = &mut self.dirs[joint];
-            let mut overflow = false;
-            let mut signs = [0i8; PRELUDE];
-            let filled = self
-                .producer
-                .fill(joint, prelude, &mut signs, &mut |tick, positive| {
-                    overflow |= !match shared {
-                        Some(queues) => queues.push(joint, tick, positive),
-                        None => dirs.push(tick, positive),
-                    }
-                });
-            for (delta, sign) in self.prelude_deltas[joint]
-                .iter_mut()
-                .zip(sign_of(prelude, &signs, 1))
-            {
-                *delta = sign;
-            }
-            self.prelude[joint] = *prelude;
-            outcome.segments_finished += filled.segments_finished;
-            outcome.dir_overflow |= overflow;
-            for (half, periods) in buffer.periods.iter_mut().enumerate() {
-                let r = self.refill_inner(joint, half, periods, shared);
-                outcome.segments_finished += r.segments_finished;
-                outcome.dir_overflow |= r.dir_overflow;
-            }
+    }
+
+    #[allow(
+        clippy::indexing_slicing,
+        reason = "the joint number is masked to 0..MAX_JOINTS, the per-joint arrays' length"
+    )]
+    fn prime_joint_inner(
+        &mut self,
+        joint: usize,
+        prelude: &mut [PulsePeriod; PRELUDE],
+        buffer: &mut JointBuffer<HALF>,
+        shared: Option<&DirQueues>,
+    ) -> Refill {
+        let joint = joint & (MAX_JOINTS - 1);
+        let dirs = &mut self.dirs[joint];
+        let mut overflow = false;
+        let mut signs = [0i8; PRELUDE];
+        let filled = self
+            .producer
+            .fill(joint, prelude, &mut signs, &mut |tick, positive| {
+                overflow |= !match shared {
+                    Some(queues) => queues.push(joint, tick, positive),
+                    None => dirs.push(tick, positive),
+                }
+            });
+        for (delta, sign) in self.prelude_deltas[joint]
+            .iter_mut()
+            .zip(sign_of(prelude, &signs, 1))
+        {
+            *delta = sign;
+        }
+        self.prelude[joint] = *prelude;
+        let mut outcome = Refill {
+            segments_finished: filled.segments_finished,
+            dir_overflow: overflow,
+        };
+        for (half, periods) in buffer.periods.iter_mut().enumerate() {
+            let r = self.refill_inner(joint, half, periods, shared);
+            outcome.segments_finished += r.segments_finished;
+            outcome.dir_overflow |= r.dir_overflow;
         }
         outcome
     }
@@ -502,10 +552,20 @@ impl<const Q: usize, const HALF: usize> StepStreams<Q, HALF> {
         reason = "the joint number is masked to 0..MAX_JOINTS"
     )]
     pub fn unwind_unstarted(&mut self, joint: usize, periods: &JointBuffer<HALF>) {
+        let steps = self.unstarted_steps(joint, periods);
+        self.producer.unwind(joint & (MAX_JOINTS - 1), steps);
+    }
+
+    /// Every pulse written for `joint` since the run's start (its prelude and both halves
+    /// of `periods`), when none has played: what [`StepStreams::unwind_unstarted`] takes
+    /// back, and what a joint primed but not started holds.
+    #[allow(
+        clippy::indexing_slicing,
+        reason = "the joint number is masked to 0..MAX_JOINTS"
+    )]
+    pub fn unstarted_steps(&self, joint: usize, periods: &JointBuffer<HALF>) -> i32 {
         let j = joint & (MAX_JOINTS - 1);
-        let steps =
-            i32::from(self.prelude_deltas[j][0]) + self.unplayed_steps(j, periods, None, false);
-        self.producer.unwind(j, steps);
+        i32::from(self.prelude_deltas[j][0]) + self.unplayed_steps(j, periods, None, false)
     }
 
     /// The unplayed pulses in the case of [`StepStreams::unwind_evicted`].
@@ -770,5 +830,61 @@ mod tests {
             }
         }
         assert!(changes > 20, "the run reversed: {changes} DIR changes");
+    }
+
+    /// Priming joint by joint gives the same periods, preludes, DIR changes and outcome as
+    /// priming at once. (A segment pushed between two pieces would reach the joints primed
+    /// before it as late segments do in a run: after their idle periods. On the board only
+    /// the trajectory task pushes, and it is the one running the pieces.)
+    #[test]
+    fn priming_in_pieces_equals_priming_at_once() {
+        let segments = [5, -7, 12, -3, 0, 9].map(|steps| Segment {
+            duration_us: 40,
+            steps: [steps, -steps, steps / 2, 0, 1, -1, steps, 3],
+        });
+        let make = || {
+            let mut streams = Box::new(StepStreams::<16, HALF>::new(TIMING, [1 << 16; MAX_JOINTS]));
+            for segment in &segments {
+                assert!(streams.producer().push(*segment).is_ok());
+            }
+            streams
+        };
+        let (mut whole, mut pieces) = (make(), make());
+        let (q1, q2) = (DirQueues::new(), DirQueues::new());
+        let mut p1 = [[PulsePeriod::ZERO; PRELUDE]; MAX_JOINTS];
+        let mut p2 = [[PulsePeriod::ZERO; PRELUDE]; MAX_JOINTS];
+        let mut a: [JointBuffer<HALF>; MAX_JOINTS] = core::array::from_fn(|_| JointBuffer::ZERO);
+        let mut b: [JointBuffer<HALF>; MAX_JOINTS] = core::array::from_fn(|_| JointBuffer::ZERO);
+        let at_once = {
+            let [a0, a1, a2, a3, a4, a5, a6, a7] = &mut a;
+            whole.prime_shared(100, &mut p1, &mut [a0, a1, a2, a3, a4, a5, a6, a7], &q1)
+        };
+        pieces.prime_begin_shared(100, &q2);
+        let mut in_pieces = Refill::default();
+        for joint in 0..MAX_JOINTS {
+            let r = pieces.prime_joint_shared(joint, &mut p2[joint], &mut b[joint], &q2);
+            in_pieces.segments_finished += r.segments_finished;
+            in_pieces.dir_overflow |= r.dir_overflow;
+        }
+        assert_eq!(at_once, in_pieces);
+        assert_eq!(p1, p2);
+        for joint in 0..MAX_JOINTS {
+            assert_eq!(a[joint].periods, b[joint].periods, "joint {joint}");
+            while let Some(change) = q1.peek(joint) {
+                assert_eq!(q2.peek(joint), Some(change));
+                q1.pop(joint);
+                q2.pop(joint);
+            }
+            assert_eq!(q2.peek(joint), None);
+            assert_eq!(
+                whole.unstarted_steps(joint, &a[joint]),
+                pieces.unstarted_steps(joint, &b[joint])
+            );
+            assert_eq!(
+                whole.unstarted_steps(joint, &a[joint]),
+                whole.producer_ref().positions()[joint],
+                "nothing played: every pulse written is unstarted"
+            );
+        }
     }
 }

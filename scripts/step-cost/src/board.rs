@@ -374,6 +374,11 @@ fn set_direction(joint: usize, positive: bool) {
 pub enum Run {
     /// Timers stopped.
     Idle,
+    /// A run's start under way: joints below `next` primed.
+    Priming {
+        /// The next joint to prime.
+        next: usize,
+    },
     /// Timers running since step clock tick `origin`.
     Running {
         /// Step clock tick of the joint timers' tick 0.
@@ -387,6 +392,7 @@ pub struct BoardSteps {
     pub(crate) run: Run,
     started: [bool; MAX_JOINTS],
     primed_finished: u32,
+    prelude: [[PulsePeriod; PRELUDE]; MAX_JOINTS],
 }
 
 /// The board's `STEP`.
@@ -396,6 +402,7 @@ pub static STEP: StepShared<STEP_QUEUE, BoardSteps, StepLock> =
         run: Run::Idle,
         started: [false; MAX_JOINTS],
         primed_finished: 0,
+        prelude: [[PulsePeriod::ZERO; PRELUDE]; MAX_JOINTS],
     });
 
 /// The board's `DIRS`.
@@ -422,19 +429,31 @@ impl StepBackend for BoardSteps {
             return;
         };
         let now = now_tick();
-        let mut prelude = [[PulsePeriod::ZERO; PRELUDE]; MAX_JOINTS];
-        // SAFETY: inside STEP's lock with every stream disabled.
-        let buffers = unsafe { &mut *BUFFERS.0.get() };
-        let [b0, b1, b2, b3, b4, b5, b6, b7] = buffers;
-        let primed = streams.prime_shared(
-            at_tick.saturating_sub(now),
-            &mut prelude,
-            &mut [b0, b1, b2, b3, b4, b5, b6, b7],
-            &DIRS,
-        );
-        if primed.dir_overflow {
-            streams.producer().stop();
-            DIRS.clear();
+        streams.prime_begin_shared(at_tick.saturating_sub(now), &DIRS);
+        self.primed_finished = 0;
+        self.run = Run::Priming { next: 0 };
+    }
+
+    fn starting(&self) -> bool {
+        matches!(self.run, Run::Priming { .. })
+    }
+
+    fn continue_start(&mut self) {
+        let Run::Priming { next } = self.run else {
+            return;
+        };
+        let Some(streams) = self.streams.get_mut() else {
+            return;
+        };
+        if next < MAX_JOINTS {
+            // SAFETY: inside STEP's lock with every stream disabled.
+            let buffer = unsafe { &mut (*BUFFERS.0.get())[next] };
+            let primed = streams.prime_joint_shared(next, &mut self.prelude[next], buffer, &DIRS);
+            self.primed_finished += primed.segments_finished;
+            self.run = Run::Priming { next: next + 1 };
+            if primed.dir_overflow {
+                self.stop();
+            }
             return;
         }
         for joint in 0..MAX_JOINTS {
@@ -449,7 +468,7 @@ impl StepBackend for BoardSteps {
         // (The board's `broken` check with its warning: a register read per joint, left
         // out with the log.)
         let mut origin = None;
-        let loaded = prelude.iter().enumerate().all(|(joint, prelude)| {
+        let loaded = self.prelude.iter().enumerate().all(|(joint, prelude)| {
             unless_killed(|| {
                 reset_joint_timer(joint);
                 configure_joint_timer(joint);
@@ -457,7 +476,7 @@ impl StepBackend for BoardSteps {
             })
         });
         // (Not on the board: tells the harness how long the preludes play; not counted.)
-        crate::harness_note_prelude(&prelude);
+        crate::harness_note_prelude(&self.prelude);
         if loaded {
             unless_killed(|| {
                 for joint in 0..MAX_JOINTS {
@@ -468,16 +487,11 @@ impl StepBackend for BoardSteps {
             });
         }
         let Some(origin) = origin else {
-            for (joint, buffer) in buffers.iter().enumerate() {
-                streams.unwind_unstarted(joint, buffer);
-            }
-            streams.producer().stop();
-            DIRS.clear();
+            self.stop();
             return;
         };
         start_run(origin);
         self.run = Run::Running { origin };
-        self.primed_finished = primed.segments_finished;
         self.started = [false; MAX_JOINTS];
         self.arm_alarm();
     }
@@ -487,7 +501,13 @@ impl StepBackend for BoardSteps {
         let Some(streams) = self.streams.get_mut() else {
             return;
         };
-        if self.run != Run::Idle {
+        if let Run::Priming { next } = self.run {
+            // SAFETY: inside STEP's lock, streams disabled.
+            let buffers = unsafe { &*BUFFERS.0.get() };
+            for (joint, buffer) in buffers.iter().enumerate().take(next) {
+                streams.unwind_unstarted(joint, buffer);
+            }
+        } else if self.run != Run::Idle {
             // SAFETY: inside STEP's lock, streams disabled.
             let buffers = unsafe { &*BUFFERS.0.get() };
             for (joint, position) in stopped.iter().enumerate() {
@@ -516,7 +536,13 @@ impl StepBackend for BoardSteps {
             return [0; MAX_JOINTS];
         };
         let mut positions = streams.producer_ref().positions();
-        if self.run != Run::Idle {
+        if let Run::Priming { next } = self.run {
+            // SAFETY: inside STEP's lock; only read.
+            let buffers = unsafe { &*BUFFERS.0.get() };
+            for (joint, buffer) in buffers.iter().enumerate().take(next) {
+                positions[joint] -= streams.unstarted_steps(joint, buffer);
+            }
+        } else if self.run != Run::Idle {
             // SAFETY: inside STEP's lock; only read.
             let buffers = unsafe { &*BUFFERS.0.get() };
             for (joint, position) in positions.iter_mut().enumerate() {
@@ -549,7 +575,7 @@ impl StepBackend for BoardSteps {
 
 impl BoardSteps {
     fn refill(&mut self, joint: usize, half: usize) -> StepProgress {
-        if self.run == Run::Idle {
+        if !matches!(self.run, Run::Running { .. }) {
             return StepProgress::default();
         }
         let Some(streams) = self.streams.get_mut() else {
@@ -599,7 +625,7 @@ impl BoardSteps {
     }
 
     fn arm_alarm(&mut self) {
-        if self.run == Run::Idle {
+        if !matches!(self.run, Run::Running { .. }) {
             return;
         }
         let Some(streams) = self.streams.get() else {

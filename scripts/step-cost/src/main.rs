@@ -266,7 +266,7 @@ pub extern "C" fn harness_run() {
     harness_poll_tasks();
     let origin = match STEP.with_engine(|s| s.run) {
         Run::Running { origin } => origin,
-        Run::Idle => {
+        Run::Idle | Run::Priming { .. } => {
             hprintln!("the run did not start");
             debug::exit(debug::EXIT_FAILURE);
             return;

@@ -25,6 +25,12 @@ use crate::step_timer;
 enum Run {
     /// Timers stopped, STEP outputs forced low.
     Idle,
+    /// A run's start under way, one joint's buffers per piece (timers stopped): joints
+    /// below `next` are primed.
+    Priming {
+        /// The next joint to prime (`MAX_JOINTS`: all primed, the timers start next).
+        next: usize,
+    },
     /// Timers running since step clock tick `origin`.
     Running {
         /// Step clock tick at which the joint timers started (their tick 0).
@@ -42,6 +48,8 @@ pub struct BoardSteps {
     started: [bool; MAX_JOINTS],
     /// Segments finished while priming the run, reported with the next progress.
     primed_finished: u32,
+    /// The preludes primed for the run's start (for the timers' registers).
+    prelude: [[PulsePeriod; PRELUDE]; MAX_JOINTS],
 }
 
 /// The backend shared by the tasks and the step interrupts. Its initial value is all zero
@@ -66,6 +74,7 @@ impl BoardSteps {
             run: Run::Idle,
             started: [false; MAX_JOINTS],
             primed_finished: 0,
+            prelude: [[PulsePeriod::ZERO; PRELUDE]; MAX_JOINTS],
         }
     }
 }
@@ -83,19 +92,14 @@ impl StepBackend for BoardSteps {
         self.streams.queued()
     }
 
-    /// Primes every joint's prelude and buffer (the producer's work for the run's first
-    /// 2 * HALF periods), sets the first DIR levels and starts all timers together.
+    /// Begins a run's start: the producer's new run from `at_tick` (the DIR queues
+    /// cleared); the pieces follow ([`BoardSteps::continue_start`]).
     ///
     /// Under the step lock (BASEPRI: the DIR interrupt and the e-stop input run on). The
-    /// timers are loaded joint by joint and then started, each step a critical section of
-    /// under a hundred instructions that first checks [`KILL`]: the e-stop input's
-    /// interrupt may come anywhere in between, and once it has forced the outputs off,
-    /// none of them may be turned on again. If it came, the start is taken back: nothing
-    /// played (no counter ran), so every pulse written is unwound and the run stays idle.
-    #[allow(
-        clippy::indexing_slicing,
-        reason = "joint < MAX_JOINTS (enumerate over [_; MAX_JOINTS]): the step path's arrays"
-    )]
+    /// start is split so that no lock section holds the refills, embassy-time and the
+    /// drivers off for the whole priming (issue 20: up to 228 us for 8 joints at 1 kHz in
+    /// one section): one joint's prelude and buffer halves per piece, then one piece that
+    /// loads and starts the timers.
     fn start(&mut self, at_tick: u64) {
         if self.run != Run::Idle {
             return;
@@ -103,22 +107,49 @@ impl StepBackend for BoardSteps {
         let Some(streams) = self.streams.get_mut() else {
             return;
         };
+        // The segments start this long after the timers' tick 0 (the time the priming
+        // takes comes out of the run's start lead, START_LEAD_US).
         let now = step_timer::now_tick();
-        let mut prelude = [[PulsePeriod::ZERO; PRELUDE]; MAX_JOINTS];
-        // SAFETY: inside STEP's lock with every stream disabled (Idle): no one else
-        // touches the buffers.
-        let buffers = unsafe { &mut *BUFFERS.0.get() };
-        let [b0, b1, b2, b3, b4, b5, b6, b7] = buffers;
         // The step clock is disarmed while idle: it does not read DIRS, which this clears.
-        let primed = streams.prime_shared(
-            at_tick.saturating_sub(now),
-            &mut prelude,
-            &mut [b0, b1, b2, b3, b4, b5, b6, b7],
-            &DIRS,
-        );
-        if primed.dir_overflow {
-            streams.producer().stop();
-            DIRS.clear();
+        streams.prime_begin_shared(at_tick.saturating_sub(now), &DIRS);
+        self.primed_finished = 0;
+        self.run = Run::Priming { next: 0 };
+    }
+
+    fn starting(&self) -> bool {
+        matches!(self.run, Run::Priming { .. })
+    }
+
+    /// The next piece of the start: one joint primed, or, once all are, the first DIR
+    /// levels set and every timer loaded and started.
+    ///
+    /// The timers are loaded joint by joint and then started, each step a critical
+    /// section of under two hundred instructions that first checks [`KILL`]: the e-stop
+    /// input's interrupt may come anywhere in between, and once it has forced the outputs
+    /// off, none of them may be turned on again. If it came, the start is taken back:
+    /// nothing played (no counter ran), so every pulse written is unwound and the run
+    /// stays idle.
+    #[allow(
+        clippy::indexing_slicing,
+        reason = "joint < MAX_JOINTS (checked, or enumerate over [_; MAX_JOINTS]): the step path's arrays"
+    )]
+    fn continue_start(&mut self) {
+        let Run::Priming { next } = self.run else {
+            return;
+        };
+        let Some(streams) = self.streams.get_mut() else {
+            return;
+        };
+        if next < MAX_JOINTS {
+            // SAFETY: inside STEP's lock with every stream disabled (not running): no one
+            // else touches the buffers.
+            let buffer = unsafe { &mut (*BUFFERS.0.get())[next] };
+            let primed = streams.prime_joint_shared(next, &mut self.prelude[next], buffer, &DIRS);
+            self.primed_finished += primed.segments_finished;
+            self.run = Run::Priming { next: next + 1 };
+            if primed.dir_overflow {
+                self.stop();
+            }
             return;
         }
         // DIR levels for tick 0 (the run's start): now, before any pulse, as the queues'
@@ -138,7 +169,7 @@ impl StepBackend for BoardSteps {
             }
         }
         let mut origin = None;
-        let loaded = prelude.iter().enumerate().all(|(joint, prelude)| {
+        let loaded = self.prelude.iter().enumerate().all(|(joint, prelude)| {
             unless_killed(|| {
                 // A fresh timer for every run (issue 20): nothing left from the last one.
                 reset_joint_timer(joint);
@@ -163,16 +194,11 @@ impl StepBackend for BoardSteps {
         let Some(origin) = origin else {
             // The e-stop input opened during the start: its interrupt forced every output
             // off; no counter ran, so nothing played.
-            for (joint, buffer) in buffers.iter().enumerate() {
-                streams.unwind_unstarted(joint, buffer);
-            }
-            streams.producer().stop();
-            DIRS.clear();
+            self.stop();
             return;
         };
         step_timer::start_run(origin);
         self.run = Run::Running { origin };
-        self.primed_finished = primed.segments_finished;
         self.started = [false; MAX_JOINTS];
         self.arm_alarm();
     }
@@ -186,7 +212,14 @@ impl StepBackend for BoardSteps {
         let Some(streams) = self.streams.get_mut() else {
             return;
         };
-        if self.run != Run::Idle {
+        if let Run::Priming { next } = self.run {
+            // SAFETY: inside STEP's lock, streams disabled.
+            let buffers = unsafe { &*BUFFERS.0.get() };
+            // No timer ran: every pulse written for the joints primed so far is unplayed.
+            for (joint, buffer) in buffers.iter().enumerate().take(next) {
+                streams.unwind_unstarted(joint, buffer);
+            }
+        } else if self.run != Run::Idle {
             // SAFETY: inside STEP's lock, streams disabled.
             let buffers = unsafe { &*BUFFERS.0.get() };
             for (joint, position) in stopped.iter().enumerate() {
@@ -222,7 +255,13 @@ impl StepBackend for BoardSteps {
             return [0; MAX_JOINTS];
         };
         let mut positions = streams.producer_ref().positions();
-        if self.run != Run::Idle {
+        if let Run::Priming { next } = self.run {
+            // SAFETY: inside STEP's lock; only read.
+            let buffers = unsafe { &*BUFFERS.0.get() };
+            for (joint, buffer) in buffers.iter().enumerate().take(next) {
+                positions[joint] -= streams.unstarted_steps(joint, buffer);
+            }
+        } else if self.run != Run::Idle {
             // SAFETY: inside STEP's lock; only read.
             let buffers = unsafe { &*BUFFERS.0.get() };
             for (joint, position) in positions.iter_mut().enumerate() {
@@ -270,7 +309,7 @@ impl BoardSteps {
         reason = "joint < MAX_JOINTS (the DMA streams' numbers, or enumerate over [_; MAX_JOINTS]) and half < 2: the step path's arrays"
     )]
     pub(super) fn refill(&mut self, joint: usize, half: usize) -> StepProgress {
-        if self.run == Run::Idle {
+        if !matches!(self.run, Run::Running { .. }) {
             return StepProgress::default();
         }
         let Some(streams) = self.streams.get_mut() else {
@@ -327,7 +366,7 @@ impl BoardSteps {
 
     /// Hands the step clock the earliest queued DIR change and the run's end (if known).
     fn arm_alarm(&mut self) {
-        if self.run == Run::Idle {
+        if !matches!(self.run, Run::Running { .. }) {
             return;
         }
         let Some(streams) = self.streams.get() else {
