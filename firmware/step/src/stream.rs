@@ -114,6 +114,14 @@ enum HalfSums {
     Table,
     /// Every period is a pulse of this sign (one straight cruise wrote the half).
     Every(i8),
+    /// Every pulse has this sign, and bit `i` of `pulses` is set if period `i` holds one
+    /// (halves of up to 64 periods whose marks are all of one sign).
+    OneSign {
+        /// The pulses' sign.
+        sign: i8,
+        /// Which periods hold a pulse.
+        pulses: u64,
+    },
     /// No period holds a pulse.
     NoPulse,
 }
@@ -493,6 +501,8 @@ impl<const Q: usize, const HALF: usize> StepStreams<Q, HALF> {
             HalfSums::Every(self.signs[j][h][0])
         } else if filled.pulses == 0 {
             HalfSums::NoPulse
+        } else if let Some(one_sign) = self.one_sign(j, h, periods) {
+            one_sign
         } else {
             self.sum_half(j, h, periods);
             HalfSums::Table
@@ -619,6 +629,10 @@ impl<const Q: usize, const HALF: usize> StepStreams<Q, HALF> {
                     return i32::from(sign) * HALF.saturating_sub(from) as i32;
                 }
                 HalfSums::NoPulse => return 0,
+                HalfSums::OneSign { sign, pulses } => {
+                    let after = pulses.checked_shr(from as u32).unwrap_or(0);
+                    return i32::from(sign) * after.count_ones() as i32;
+                }
                 HalfSums::Table => {}
             }
             let total = i32::from(sums[h][HALF - 1]);
@@ -639,6 +653,48 @@ impl<const Q: usize, const HALF: usize> StepStreams<Q, HALF> {
                 }
             }
         }
+    }
+
+    /// `joint`'s half `half` (`periods`, just filled) as [`HalfSums::OneSign`], if its
+    /// marks are all of one sign and it has at most 64 periods: cheaper to write than the
+    /// running sums (a bit per period, the marks read four at a time), and as exact.
+    /// `None`: both signs marked (a reversal inside the half, or the period closed from
+    /// the half before), or a half too long for the bit mask.
+    #[allow(
+        clippy::indexing_slicing,
+        clippy::cast_sign_loss,
+        reason = "j < MAX_JOINTS and h < 2 (the caller masks them), i < HALF <= 64; the marks' bytes are read as bits"
+    )]
+    fn one_sign(&self, j: usize, h: usize, periods: &[PulsePeriod; HALF]) -> Option<HalfSums> {
+        if HALF > 64 {
+            return None;
+        }
+        let signs = &self.signs[j][h];
+        // Marks are -1 (0xFF), 0 or +1 (0x01): a byte with bit 0 and not bit 7 is +1.
+        let (mut positive, mut negative) = (0u32, 0u32);
+        for four in signs.chunks_exact(4) {
+            let w =
+                u32::from_le_bytes([four[0] as u8, four[1] as u8, four[2] as u8, four[3] as u8]);
+            positive |= w & !(w >> 7) & 0x0101_0101;
+            negative |= w & 0x8080_8080;
+        }
+        for &mark in signs.chunks_exact(4).remainder() {
+            positive |= u32::from(mark > 0);
+            negative |= u32::from(mark < 0);
+        }
+        if positive != 0 && negative != 0 {
+            return None;
+        }
+        let mut pulses = 0u64;
+        for (i, period) in periods.iter().enumerate() {
+            if period.high != 0 {
+                pulses |= 1 << i;
+            }
+        }
+        // The half's first pulse is marked with the sign of all of them.
+        let first = pulses.trailing_zeros() as usize;
+        let sign = *signs.get(first)?;
+        (sign != 0).then_some(HalfSums::OneSign { sign, pulses })
     }
 
     /// Writes the running sums of `joint`'s half `half` (`periods`, just filled): the
@@ -726,7 +782,11 @@ mod tests {
     fn unplayed_steps_equal_the_scan_at_every_index() {
         let mut streams = Box::new(StepStreams::<16, HALF>::new(TIMING, [1 << 16; MAX_JOINTS]));
         // 40 us segments: 5-12 pulses each, so a half of 8 periods holds reversals.
-        for (n, steps) in [5, -7, 12, -3, 0, 9, -12, 4, -1, 6].into_iter().enumerate() {
+        // Then two long segments (200 us, 30 pulses): halves of one straight cruise.
+        for (n, steps) in [5, -7, 12, -3, 0, 9, -12, 4, -1, 6, 30, -30]
+            .into_iter()
+            .enumerate()
+        {
             let mut joints = [0i32; MAX_JOINTS];
             for (j, s) in joints.iter_mut().enumerate() {
                 *s = if j % 2 == 0 {
@@ -736,7 +796,7 @@ mod tests {
                 };
             }
             let segment = Segment {
-                duration_us: 40,
+                duration_us: if steps.abs() >= 30 { 200 } else { 40 },
                 steps: joints,
             };
             assert!(streams.producer().push(segment).is_ok());
@@ -772,15 +832,24 @@ mod tests {
         };
         check(&streams, &buffers);
         let mut pulses = 0;
+        // Which ways of keeping the sums the run went through: all four must be checked.
+        let mut kinds = [false; 4];
         for round in 0..40 {
             let half = round % 2;
             for (joint, buffer) in buffers.iter_mut().enumerate() {
                 streams.refill(joint, half, &mut buffer.periods[half]);
                 pulses += buffer.periods[half].iter().filter(|p| p.high != 0).count();
+                kinds[match streams.half_sums[joint][half] {
+                    HalfSums::Table => 0,
+                    HalfSums::Every(_) => 1,
+                    HalfSums::OneSign { .. } => 2,
+                    HalfSums::NoPulse => 3,
+                }] = true;
             }
             check(&streams, &buffers);
         }
         assert!(pulses > 100, "the run wrote pulses: {pulses}");
+        assert_eq!(kinds, [true; 4], "table, every, one sign, no pulse");
     }
 
     /// The shared queues get the same DIR changes, in the same order, as the streams' own.
