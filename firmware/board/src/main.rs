@@ -12,17 +12,18 @@
 //!
 //! | priority | what | why |
 //! |---|---|---|
-//! | P0 (highest) | EXTI0: the wired e-stop input on PC0 ([`estop`]): every STEP output stopped, then the trajectory task woken | nothing may delay an e-stop; it preempts even a DIR change, which no longer matters once the run is stopped |
-//! | P1 | TIM13: step clock ([`step_timer`]): DIR changes at reversals, end of run | a DIR change must come between a pulse's fall and the next pulse's setup |
-//! | P2 | DMA2 streams 0-7: STEP buffer refills ([`step_dma`]); TIM15: gripper burst reloads ([`gripper`]) | a half (64 periods) of slack; 128 PWM periods |
+//! | P0 (highest) | EXTI0: the wired e-stop input on PC0 ([`estop`]): every STEP output stopped (register writes), then the step service pended | nothing may delay an e-stop; it preempts even a DIR change, which no longer matters once the run is stopped |
+//! | P1 | TIM13: step clock ([`step_timer`]): DIR changes at reversals (from lock-free queues), the run's end handed to the step service | a DIR change must come between a pulse's fall and the next pulse's setup |
+//! | P2 | DMA2 streams 0-7: STEP buffer refills ([`step_dma`]); TIM7's vector: the step service (run end, the e-stop's halt); TIM15: gripper burst reloads ([`gripper`]) | a half (64 periods) of slack; 128 PWM periods |
 //! | P3 | TIM12: embassy-time | task wake-ups |
 //! | P4 | Ethernet, USART6, DMA, flash, RNG | driver bookkeeping; their tasks wait anyway |
 //! | thread mode | every task, one executor | see below |
 //!
 //! P0 is the e-stop input's alone; the others kept their order, one level lower each
 //! (issue 18). Critical sections mask every interrupt (`cortex-m`'s single-core
-//! implementation), the e-stop's too: its worst-case wait is the longest critical section
-//! (docs/BOARD.md, "Wired e-stop input").
+//! implementation), the e-stop's and the DIR changes' too, so the ones left are short;
+//! the step path's lock (`step_dma::STEP`) is BASEPRI at P2 instead (issue 20): it holds
+//! off P2 and below and never P0 or P1, which never take it.
 //!
 //! The tasks (arm-core's, each wrapped in an `#[embassy_executor::task]` by
 //! `arm_wiring::controller_tasks!`):
@@ -41,7 +42,8 @@
 //! points is decoded and checked in microseconds), the e-stop has its own queue, and
 //! everything with a deadline below a millisecond is an interrupt. STEP pulses are made by
 //! timer hardware fed by DMA ([`step_dma`]); an emergency stop forces every STEP output
-//! low and stops the timers and streams inside the critical section that handles it.
+//! low and stops the timers and streams (under the step lock; the wired e-stop input's
+//! interrupt, above that lock, with register writes alone, `step_dma::kill_step_outputs`).
 //!
 //! Network input can never panic or block: arm-core decodes it with the `protocol` crate
 //! and answers every error with an ACK status; queues that are full drop rather than wait.

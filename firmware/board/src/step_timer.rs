@@ -6,10 +6,28 @@
 //! interrupt counts the wraps, and [`now_tick`] combines the count with the counter,
 //! correcting for a wrap whose interrupt has not run yet. Compare channel 1 is armed at
 //! the next event when it lies within the next half range; farther events are looked at
-//! again at each wrap. The interrupt runs at P1, above the DMA refills (P2) and below only
-//! the wired e-stop input (P0, which stops the run anyway), so a DIR change waits at most
-//! for a critical section (the longest is a refill's, ~2.5 us, covered by
-//! the profile's `dir_latency_ns`, `step_dma::STEP_TIMING`).
+//! again at each wrap.
+//!
+//! **DIR never late, by construction (issue 20).** The interrupt runs at P1, above the DMA
+//! refills (P2) and below only the wired e-stop input (P0, which stops the run anyway).
+//! It never takes the step lock (`step_dma::STEP`, a BASEPRI lock that masks P2 and
+//! below, so no step-path section holds this interrupt off): the DIR changes come from
+//! `step_dma::DIRS`, a lock-free ring per joint that the refills publish into
+//! (arm-step's `DirQueues`), and the run's end, which needs the producer, is handed to the
+//! step service interrupt (`step_dma::SERVICE_IRQ`, P2) by pending it. What this interrupt
+//! shares with the step path is [`CLOCK`] (wraps, alarm, the run's origin and end), behind
+//! a critical section of a few dozen instructions (every access below is one such
+//! section, `program_compare` included, so that the compare register is never programmed
+//! from a stale alarm).
+//!
+//! Who moves the alarm, and why no DIR change is missed: the producer side (refills, the
+//! run's start, the service) only ever moves it *earlier* ([`arm`]: the earliest queued DIR
+//! change or the run's end), from a minimum it read from the queues; this interrupt only
+//! consumes changes that are due and then sets it to the earliest one left. A producer
+//! that read the queues before this interrupt consumed an entry arms at a tick already
+//! made: one spurious interrupt, which finds nothing due and re-arms. [`disarm`] (a stop)
+//! sets it to none; until the next [`arm`] this interrupt does not look at the queues, so
+//! the stop may clear them.
 //!
 //! TIM13 shares its interrupt vector with TIM8's update, which is unused (TIM8's update
 //! only requests DMA).
@@ -18,24 +36,36 @@ use core::cell::Cell;
 
 use arm_core::hw::StepKick;
 use board_logic::step_clock::{self, WRAP};
-use embassy_stm32::interrupt::{InterruptExt, Priority};
+use embassy_stm32::interrupt::InterruptExt;
 use embassy_stm32::{interrupt, pac};
 use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 
-use crate::step_dma::{STEP, STEP_TIMER_HZ};
+use arm_step::{DirChange, MAX_JOINTS};
 
-/// Wraps of TIM13 counted, and the armed alarm (step clock tick, `u64::MAX`: none).
+use crate::pins;
+use crate::step_dma::{DIRS, SERVICE_IRQ, STEP_TIMER_HZ};
+
+/// Wraps of TIM13 counted, the armed alarm, and the run the alarms are for.
 #[derive(Clone, Copy)]
 struct ClockState {
     wraps: u64,
+    /// Step clock tick of the next look at the DIR queues and the run's end; `u64::MAX`:
+    /// none.
     alarm: u64,
+    /// Step clock tick of the run's tick 0 (the joint timers' start): the DIR changes'
+    /// and the end's ticks are relative to it.
+    origin: u64,
+    /// The run's end, run ticks (the producer's `run_end_tick`); `u64::MAX`: not known.
+    end: u64,
 }
 
 static CLOCK: Mutex<CriticalSectionRawMutex, Cell<ClockState>> =
     Mutex::new(Cell::new(ClockState {
         wraps: 0,
         alarm: u64::MAX,
+        origin: 0,
+        end: u64::MAX,
     }));
 
 /// SR bits: update, CC1.
@@ -52,7 +82,7 @@ pub struct ClockMismatch {
     pub actual_hz: u32,
 }
 
-/// Starts TIM13 free-running and enables its interrupt at P1. `timer_clock_hz` is the APB1
+/// Starts TIM13 free-running and enables its interrupt at P1 (`step_dma::DIR_PRIORITY`). `timer_clock_hz` is the APB1
 /// timer clock embassy configured; it must be the joint timers' [`STEP_TIMER_HZ`].
 pub fn start(timer_clock_hz: u32) -> Result<StepTimer, ClockMismatch> {
     if timer_clock_hz != STEP_TIMER_HZ {
@@ -68,8 +98,10 @@ pub fn start(timer_clock_hz: u32) -> Result<StepTimer, ClockMismatch> {
     regs.sr().write_value(pac::timer::regs::Sr1ch(0));
     regs.dier().write_value(pac::timer::regs::Dier1ch(DIER_UIE));
     regs.cr1().modify(|w| w.set_cen(true));
-    interrupt::TIM8_UP_TIM13.set_priority(Priority::P1);
-    // SAFETY: the handler touches TIM13's registers, CLOCK and STEP (critical sections).
+    interrupt::TIM8_UP_TIM13.set_priority(crate::step_dma::DIR_PRIORITY);
+    // SAFETY: the handler touches TIM13's registers, CLOCK (critical sections), the DIR
+    // queues (lock-free, as their consumer) and the DIR pins; it pends the service
+    // interrupt. It never takes the step lock.
     unsafe { interrupt::TIM8_UP_TIM13.enable() };
     Ok(StepTimer { _private: () })
 }
@@ -78,56 +110,71 @@ pub fn start(timer_clock_hz: u32) -> Result<StepTimer, ClockMismatch> {
 /// interrupt runs within a whole wrap (327.68 us) of each wrap (board-logic's
 /// `step_clock`: the update flag read before and after the counter).
 pub fn now_tick() -> u64 {
-    CLOCK.lock(|cell| {
-        let state = cell.get();
-        let pending_before = pac::TIM13.sr().read().0 & SR_UIF != 0;
-        let counter = pac::TIM13.cnt().read().cnt();
-        let pending_after = pac::TIM13.sr().read().0 & SR_UIF != 0;
-        cell.set(state);
-        step_clock::extended_tick(state.wraps, pending_before, counter, pending_after)
-    })
+    CLOCK.lock(|cell| tick_at(cell.get().wraps))
 }
 
-/// Arms the alarm at step clock tick `at` (replacing any earlier one).
-pub fn arm(at: u64) {
+/// The tick from `wraps` counted and the counter (inside [`CLOCK`]'s critical section).
+fn tick_at(wraps: u64) -> u64 {
+    let pending_before = pac::TIM13.sr().read().0 & SR_UIF != 0;
+    let counter = pac::TIM13.cnt().read().cnt();
+    let pending_after = pac::TIM13.sr().read().0 & SR_UIF != 0;
+    step_clock::extended_tick(wraps, pending_before, counter, pending_after)
+}
+
+/// A run's timers started at step clock tick `origin`: no alarm yet, end unknown.
+pub fn start_run(origin: u64) {
     CLOCK.lock(|cell| {
         let mut state = cell.get();
-        state.alarm = at;
+        state.origin = origin;
+        state.alarm = u64::MAX;
+        state.end = u64::MAX;
         cell.set(state);
     });
-    program_compare();
 }
 
-/// No alarm.
+/// The producer side's alarm: `earliest_dir` (the earliest queued DIR change, run ticks)
+/// and `end` (the run's end if known, run ticks, which replaces the one known before).
+/// The alarm only moves earlier (see the module header).
+pub fn arm(earliest_dir: Option<u64>, end: Option<u64>) {
+    CLOCK.lock(|cell| {
+        let mut state = cell.get();
+        state.end = end.unwrap_or(u64::MAX);
+        let next = earliest_dir.unwrap_or(u64::MAX).min(state.end);
+        if next != u64::MAX {
+            state.alarm = state.alarm.min(state.origin.saturating_add(next));
+        }
+        cell.set(state);
+        program_compare(state);
+    });
+}
+
+/// No alarm (the run stopped or ended): the interrupt no longer looks at the DIR queues.
 pub fn disarm() {
     CLOCK.lock(|cell| {
         let mut state = cell.get();
         state.alarm = u64::MAX;
+        state.end = u64::MAX;
         cell.set(state);
+        pac::TIM13
+            .dier()
+            .write_value(pac::timer::regs::Dier1ch(DIER_UIE));
     });
-    let regs = pac::TIM13;
-    regs.dier().write_value(pac::timer::regs::Dier1ch(DIER_UIE));
 }
 
 /// Sets CC1 for the alarm if it is less than half a wrap away; pends the interrupt if it
-/// is due already.
+/// is due already. Inside [`CLOCK`]'s critical section, with its state.
 #[allow(
     clippy::cast_possible_truncation,
     reason = "the compare value is the alarm's low 16 bits: TIM13's counter wraps at 2^16"
 )]
-fn program_compare() {
-    let alarm = CLOCK.lock(|cell| {
-        let state = cell.get();
-        let alarm = state.alarm;
-        cell.set(state);
-        alarm
-    });
+fn program_compare(state: ClockState) {
     let regs = pac::TIM13;
-    let now = now_tick();
+    let alarm = state.alarm;
     if alarm == u64::MAX {
         regs.dier().write_value(pac::timer::regs::Dier1ch(DIER_UIE));
         return;
     }
+    let now = tick_at(state.wraps);
     if alarm <= now {
         cortex_m::peripheral::NVIC::pend(pac::Interrupt::TIM8_UP_TIM13);
         return;
@@ -138,7 +185,7 @@ fn program_compare() {
             .write_value(pac::timer::regs::Sr1ch(!SR_CC1IF & 0xFFFF));
         regs.dier()
             .write_value(pac::timer::regs::Dier1ch(DIER_UIE | DIER_CC1IE));
-        if now_tick() >= alarm {
+        if tick_at(state.wraps) >= alarm {
             cortex_m::peripheral::NVIC::pend(pac::Interrupt::TIM8_UP_TIM13);
         }
     } else {
@@ -158,9 +205,8 @@ pub struct StepTimer {
 pub static STEP_TIMER: StepTimer = StepTimer { _private: () };
 
 impl StepKick for StepTimer {
-    /// Nothing to do: a run is started and stopped by the backend itself (inside the
-    /// critical section that starts or stops it), and new segments are picked up by the
-    /// next refill.
+    /// Nothing to do: a run is started and stopped by the backend itself (under the step
+    /// lock that starts or stops it), and new segments are picked up by the next refill.
     fn kick(&self) {}
 
     fn now_tick(&self) -> u64 {
@@ -176,28 +222,48 @@ fn TIM8_UP_TIM13() {
     regs.sr().write_value(pac::timer::regs::Sr1ch(
         !(flags & (SR_UIF | SR_CC1IF)) & 0xFFFF,
     ));
-    if flags & SR_UIF != 0 {
-        CLOCK.lock(|cell| {
-            let mut state = cell.get();
+    // Count the wrap; take the alarm if it is due (none until re-armed below).
+    let due = CLOCK.lock(|cell| {
+        let mut state = cell.get();
+        if flags & SR_UIF != 0 {
             state.wraps += 1;
-            cell.set(state);
-        });
-    }
-    let now = now_tick();
-    let alarm = CLOCK.lock(|cell| {
-        let state = cell.get();
-        let alarm = state.alarm;
+        }
+        let now = tick_at(state.wraps);
+        let due = state.alarm <= now;
+        if due {
+            state.alarm = u64::MAX;
+        }
         cell.set(state);
-        alarm
+        due.then_some((now, state.origin, state.end))
     });
-    if alarm <= now {
+    if let Some((now, origin, end)) = due {
+        // The DIR changes that are due, from the lock-free queues: nothing the step path
+        // does can hold this off (module header).
+        let at = now.saturating_sub(origin);
+        for joint in 0..MAX_JOINTS {
+            while let Some(DirChange { tick, positive }) = DIRS.peek(joint) {
+                if tick > at {
+                    break;
+                }
+                pins::set_direction(joint, positive);
+                DIRS.pop(joint);
+            }
+        }
+        let mut next = DIRS.earliest().unwrap_or(u64::MAX);
+        if end <= at {
+            // The run's end needs the producer: the service interrupt (P2) takes the step
+            // lock, checks that nothing was pushed since, and stops the run.
+            cortex_m::peripheral::NVIC::pend(SERVICE_IRQ);
+        } else {
+            next = next.min(end);
+        }
         CLOCK.lock(|cell| {
             let mut state = cell.get();
-            state.alarm = u64::MAX;
+            if next != u64::MAX {
+                state.alarm = state.alarm.min(origin.saturating_add(next));
+            }
             cell.set(state);
         });
-        // The backend makes the due DIR changes or ends the run, and re-arms.
-        STEP.on_interrupt(&crate::BUS.step_progress, |steps| ((), steps.on_alarm(now)));
     }
-    program_compare();
+    CLOCK.lock(|cell| program_compare(cell.get()));
 }

@@ -71,10 +71,10 @@ impl EStopLine {
     /// closing lets runs start again ([`StepShared::release`]). Then the level is
     /// recorded and the trajectory task woken with `wake` (the bus's `step_progress`).
     /// Callable from any context; never waits.
-    pub fn edge<const Q: usize, B: StepBackend>(
+    pub fn edge<const Q: usize, B: StepBackend, M: embassy_sync::blocking_mutex::raw::RawMutex>(
         &self,
         open: bool,
-        step: &StepShared<Q, B>,
+        step: &StepShared<Q, B, M>,
         kick: &impl StepKick,
         wake: &Signal<Cs, ()>,
     ) {

@@ -74,14 +74,22 @@ pub trait StepHalt {
 
 /// [`StepHalt`] over the step backend the tasks share and the kick of its interrupt: what
 /// the trajectory task's own stop does to the steps.
-pub struct HaltSteps<'a, const Q: usize, B, K> {
+pub struct HaltSteps<
+    'a,
+    const Q: usize,
+    B,
+    K,
+    M = embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex,
+> {
     /// The step backend.
-    pub step: &'a StepShared<Q, B>,
+    pub step: &'a StepShared<Q, B, M>,
     /// Its interrupt.
     pub kick: &'a K,
 }
 
-impl<const Q: usize, B: StepBackend, K: StepKick> StepHalt for HaltSteps<'_, Q, B, K> {
+impl<const Q: usize, B: StepBackend, K: StepKick, M: embassy_sync::blocking_mutex::raw::RawMutex>
+    StepHalt for HaltSteps<'_, Q, B, K, M>
+{
     fn halt(&self) {
         self.step.stop();
         self.kick.kick();

@@ -49,7 +49,7 @@
 //! `bus.estop`); it never waits on a full queue (a full inbox drops the datagram, which
 //! the host resends), so a STOPPED is never stuck behind uploads. `trajectory_task` waits on `estop` first (biased select) and never waits on
 //! output (a full outbox drops the frame), so a STOPPED is handled after at most the one
-//! command being handled: the controller then stops the engine in a critical section
+//! command being handled: the controller then stops the engine under the step lock
 //! (no pulse after that), and kicks the step interrupt, which lowers the STEP lines.
 //! Segments queued in the engine are dropped with it. The one wait in
 //! the trajectory task is deferred work: a settings write (JOINTS_COUNT, only in STOPPED)

@@ -204,27 +204,28 @@ pub const NUCLEO_H743ZI2: BoardProfile = BoardProfile {
     step_timer_hz: 200_000_000,
     // The default build: opto-isolated drivers' timing is safe for all drivers.
     driver: DriverTiming::OPTO,
-    // The step clock's interrupt at P1 that changes DIR can be held off by a critical
-    // section: scripts/step-cost measures the longest on the step path with interrupts
-    // masked during a run: the positions read for each LOCATION report, 10,100
-    // instructions (25.3 us at 400 MHz and one instruction a cycle: a scan of every
-    // joint's unplayed periods), then a refill of 8 joints at 1 kHz, 6,119 (15.3 us), and
-    // TIM13's own handler up to the DIR write. 35 us covers it with a third to spare for
-    // bus waits (issue 20: it was 5 us, from an estimate of 2.5 us, so a DIR change behind
-    // such a span could come after the next pulse's setup had begun). Until the step
-    // path's critical sections leave TIM13 unmasked (or positions() is constant time),
-    // this is what a reversal pays.
-    dir_latency_ns: 35_000,
+    // The step clock's interrupt at P1 makes the DIR changes. Since issue 20 no step-path
+    // section masks it (the step lock is BASEPRI at P2; the DIR changes come from
+    // lock-free queues, firmware/board/src/step_dma/lock.rs): what can hold it off is a
+    // critical section (PRIMASK), the longest 167 instructions (scripts/step-cost, the
+    // run's start loading a timer), and the handler itself makes up to eight DIR changes
+    // in joint order, its longest run 884 instructions (8 joints reversing together at
+    // 100 kHz). 1,051 instructions at 1.3 cycles each at 400 MHz is 3.4 us; 4 us covers
+    // it (flash wait states on a cold I-cache are not counted: bring-up check 24 measures
+    // the span with the DWT). It was 35 us while the critical sections masked it (the
+    // positions read for a LOCATION report, 25.3 us), and 5 us from an estimate before.
+    dir_latency_ns: 4_000,
     // A period's DMA burst (three words into an APB timer, with eight streams sharing two
     // DMA controllers) must finish within the shortest period; 1 us periods leave a wide
     // margin. Also the ceiling of the CPU budget per joint (`step_budget_hz` / 8 joints
     // would be 500 kHz; one joint may take more while the others rest).
     step_rate_ceiling_hz: 1_000_000,
-    // 8 joints x 500 kHz. At the measured 31.3 instructions per step (scripts/step-cost,
+    // 8 joints x 500 kHz. At the measured 42.4 instructions per step (scripts/step-cost,
     // the whole step path with 8 joints at distinct rates, the worse of its 8-joint
-    // trajectories), about 1.3 cycles each on the Cortex-M7 at 400 MHz, that is
-    // 4e6 * 31.3 * 1.3 / 400e6 = 41% of the CPU, leaving the rest to the
-    // network and the tasks (docs/PROTOCOL.md, "Step rate budget").
+    // trajectories, after issue 20's BASEPRI lock and running sums), about 1.3 cycles each
+    // on the Cortex-M7 at 400 MHz, that is 4e6 * 42.4 * 1.3 / 400e6 = 55% of the CPU,
+    // leaving the rest to the network and the tasks (docs/PROTOCOL.md, "Step rate
+    // budget"; it was 31.3 and 41%).
     step_budget_hz: 4_000_000,
     // 8192 * 36 bytes = 288 KiB of the 512 KiB AXI SRAM, i.e. 80 s of 10 ms points, so a
     // host streaming over a congested link has seconds of slack before an underrun.

@@ -1,7 +1,8 @@
 //! The step backend shared between the step interrupts and the tasks ([`StepShared`]):
-//! the engine (or the board's DMA producer, any [`StepBackend`]) behind one critical
-//! section, with the bookkeeping that must change with it (stop count, finished segments,
-//! ran dry), and the step timer interrupt's body [`on_step_timer`].
+//! the engine (or the board's DMA producer, any [`StepBackend`]) behind one lock (a
+//! critical section by default; the NUCLEO's is BASEPRI-based), with the bookkeeping that
+//! must change with it (stop count, finished segments, ran dry), and the step timer
+//! interrupt's body [`on_step_timer`].
 
 use core::cell::RefCell;
 
@@ -13,6 +14,7 @@ use embassy_sync::blocking_mutex::Mutex;
 // below the bus (the ingress path halts the steps through it), so it imports nothing
 // from it.
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex as Cs;
+use embassy_sync::blocking_mutex::raw::RawMutex;
 use embassy_sync::signal::Signal;
 use protocol::MAX_JOINTS;
 
@@ -61,7 +63,7 @@ impl StepPins for NoPins {
 /// (the board's timers play its buffers; the QEMU board and the simulator play them in
 /// software with arm-step's `StreamPlayer`) or [`StepEngine`] (edges made by an interrupt
 /// per deadline: arm-core's own task tests, through [`on_step_timer`]). Called inside
-/// [`StepShared`]'s critical section: implementations must not block.
+/// [`StepShared`]'s lock: implementations must not block.
 pub trait StepBackend {
     /// Timer resolution and driver timing.
     fn timing(&self) -> StepTiming;
@@ -70,7 +72,19 @@ pub trait StepBackend {
     /// Segments held.
     fn queued(&self) -> usize;
     /// Starts running the queue at `at_tick` (step timer ticks, [`StepKick::now_tick`]).
+    /// A backend whose start is long may only begin it here and leave the rest to
+    /// [`StepBackend::continue_start`] (see [`StepBackend::starting`]).
     fn start(&mut self, at_tick: u64);
+    /// Whether a start begun by [`StepBackend::start`] has pieces left:
+    /// [`StepShared`] then calls [`StepBackend::continue_start`], each call in a lock of its
+    /// own, until it has none (or a stop in between ended it), so that no lock is held for
+    /// a whole start (the NUCLEO primes every joint's buffers: up to 228 us, issue 20).
+    /// Default: a start is done at once.
+    fn starting(&self) -> bool {
+        false
+    }
+    /// The next piece of a start ([`StepBackend::starting`]).
+    fn continue_start(&mut self) {}
     /// Emergency stop: no pulse after this returns (or, for an engine whose lines the
     /// next interrupt lowers, after that interrupt); the queue is dropped; positions
     /// keep the pulses made.
@@ -139,7 +153,7 @@ pub struct StepState<B> {
 }
 
 impl<B: StepBackend> StepState<B> {
-    /// [`StepShared::stop`]'s work, inside the critical section.
+    /// [`StepShared::stop`]'s work, inside the lock.
     fn stop(&mut self) {
         self.engine.stop();
         self.finished = 0;
@@ -150,11 +164,14 @@ impl<B: StepBackend> StepState<B> {
 }
 
 /// The step engine (or other [`StepBackend`]) shared between the step interrupts and the
-/// tasks: `Mutex<CriticalSectionRawMutex, RefCell<..>>` around it plus the bookkeeping
-/// that must change atomically with it (stop count, finished segments, ran dry). `Q`:
-/// the engine's queue when the backend is the default [`StepEngine`].
-pub struct StepShared<const Q: usize, B = StepEngine<Q>> {
-    inner: Mutex<Cs, RefCell<StepState<B>>>,
+/// tasks: `Mutex<M, RefCell<..>>` around it plus the bookkeeping that must change
+/// atomically with it (stop count, finished segments, ran dry). `Q`: the engine's queue
+/// when the backend is the default [`StepEngine`]. `M`: the lock, by default a critical
+/// section (every interrupt masked); the NUCLEO's masks only the interrupts at or below
+/// its step refills (BASEPRI), so that its DIR changes and e-stop input, which never
+/// take this lock, are never held off by it (issue 20).
+pub struct StepShared<const Q: usize, B = StepEngine<Q>, M = Cs> {
+    inner: Mutex<M, RefCell<StepState<B>>>,
 }
 
 #[cfg(any(test, feature = "test-support"))]
@@ -165,7 +182,7 @@ impl<const Q: usize> StepShared<Q> {
     }
 }
 
-impl<const Q: usize, B: StepBackend> StepShared<Q, B> {
+impl<const Q: usize, B: StepBackend, M: RawMutex> StepShared<Q, B, M> {
     /// Shares `backend` (idle).
     pub const fn with_backend(backend: B) -> Self {
         StepShared {
@@ -180,13 +197,13 @@ impl<const Q: usize, B: StepBackend> StepShared<Q, B> {
         }
     }
 
-    /// Runs `f` on the backend inside the critical section (inspection, simulators).
+    /// Runs `f` on the backend inside the lock (inspection, simulators).
     pub fn with_engine<R>(&self, f: impl FnOnce(&mut B) -> R) -> R {
         self.inner.lock(|s| f(&mut s.borrow_mut().engine))
     }
 
     /// The body of a step interrupt other than the engine's timer (the board's DMA
-    /// refills and run end): runs `f` on the backend in the critical section, records the
+    /// refills and run end): runs `f` on the backend in the lock, records the
     /// progress it reports and wakes `wake` (the bus's `step_progress`, which the
     /// trajectory task waits on) if there is any.
     /// Nothing is recorded for a run cut by a stop in the meantime (the caller's `f`
@@ -235,7 +252,8 @@ impl<const Q: usize, B: StepBackend> StepShared<Q, B> {
     /// The wired e-stop input opened ([`crate::estop_input`]): [`StepShared::stop`], and
     /// no run starts ([`StepShared::start`] does nothing) until [`StepShared::release`],
     /// whatever the tasks do meanwhile. For the input's edge handler (an interrupt on the
-    /// board): one critical section, no wait.
+    /// board; on the NUCLEO, whose lock its e-stop interrupt may not take, the step
+    /// service interrupt that interrupt pends): one lock, no wait.
     pub fn halt(&self) {
         self.inner.lock(|s| {
             let mut s = s.borrow_mut();
@@ -253,7 +271,7 @@ impl<const Q: usize, B: StepBackend> StepShared<Q, B> {
     /// Queues a segment (false: the queue is full, offer it again when segments
     /// finished); starts the engine at `start_tick` if a start is pending.
     pub fn push(&self, segment: Segment, start_tick: u64) -> bool {
-        self.inner.lock(|s| {
+        let pushed = self.inner.lock(|s| {
             let mut s = s.borrow_mut();
             if s.engine.push(segment).is_err() {
                 return false;
@@ -263,7 +281,9 @@ impl<const Q: usize, B: StepBackend> StepShared<Q, B> {
                 s.engine.start(start_tick);
             }
             true
-        })
+        });
+        self.finish_start();
+        pushed
     }
 
     /// Starts the engine at `start_tick` if it holds a segment, else as soon as one is
@@ -279,7 +299,22 @@ impl<const Q: usize, B: StepBackend> StepShared<Q, B> {
             } else {
                 s.start_pending = true;
             }
-        })
+        });
+        self.finish_start();
+    }
+
+    /// The rest of a start the backend does in pieces ([`StepBackend::starting`]), one lock
+    /// each: between two, the interrupts that take the lock run (a halt among them, which
+    /// stops the backend and so ends the start).
+    fn finish_start(&self) {
+        while self.inner.lock(|s| {
+            let mut s = s.borrow_mut();
+            if !s.engine.starting() {
+                return false;
+            }
+            s.engine.continue_start();
+            true
+        }) {}
     }
 
     /// Collects the progress since the last call: segments finished, ran dry.

@@ -62,6 +62,7 @@ pub(crate) unsafe fn write_each<T: Copy, const N: usize>(array: *mut [T; N], val
     }
 }
 
+mod dir_queue;
 mod engine;
 mod joint;
 mod player;
@@ -70,6 +71,7 @@ mod ring;
 mod schedule;
 mod stream;
 
+pub use dir_queue::DirQueues;
 pub use engine::StepEngine;
 pub use player::{Advance, StreamPlayer, TimedStepPins};
 pub use producer::{Filled, PulsePeriod, PulseProducer, sign_of};

@@ -18,6 +18,7 @@
 
 use core::mem::MaybeUninit;
 
+use crate::dir_queue::DirQueues;
 use crate::producer::{PulsePeriod, PulseProducer, sign_of};
 use crate::{MAX_JOINTS, Segment, StepTiming, write_each};
 
@@ -32,7 +33,7 @@ const fn dir_queue_len(half: usize) -> usize {
 }
 
 /// DIR ring capacity: enough for halves of up to 64 periods.
-const DIR_RING: usize = dir_queue_len(64);
+pub(crate) const DIR_RING: usize = dir_queue_len(64);
 
 /// A DIR change to make at `tick` (stream ticks).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -106,6 +107,25 @@ impl DirRing {
     }
 }
 
+/// How a buffer half's running sums are kept ([`StepStreams::unplayed_steps`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum HalfSums {
+    /// In the half's `sums` table.
+    Table,
+    /// Every period is a pulse of this sign (one straight cruise wrote the half).
+    Every(i8),
+    /// Every pulse has this sign, and bit `i` of `pulses` is set if period `i` holds one
+    /// (halves of up to 64 periods whose marks are all of one sign).
+    OneSign {
+        /// The pulses' sign.
+        sign: i8,
+        /// Which periods hold a pulse.
+        pulses: u64,
+    },
+    /// No period holds a pulse.
+    NoPulse,
+}
+
 /// The producer and every joint's buffer bookkeeping. `Q` = segments held, `HALF` =
 /// periods per buffer half.
 #[derive(Debug)]
@@ -128,6 +148,15 @@ pub struct StepStreams<const Q: usize, const HALF: usize> {
     /// Position change of the last period a half held before its latest refill wrote over
     /// it, per joint: that period may still be in the timer's preload register.
     evicted: [[i8; 2]; MAX_JOINTS],
+    /// Running sums of each half, per joint: element `i` is the signed pulses of the half's
+    /// periods `0..=i`, written with the half ([`StepStreams::refill`]). They make
+    /// [`StepStreams::unplayed_steps`] constant time: a LOCATION report reads the positions
+    /// inside the step lock, which a walk over every joint's unplayed periods held for
+    /// 10,100 instructions (issue 20, `scripts/step-cost`).
+    sums: [[[i16; HALF]; 2]; MAX_JOINTS],
+    /// Per joint and half: how to read its sums without `sums` where a refill could say
+    /// it more cheaply (the common refills write no sums).
+    half_sums: [[HalfSums; 2]; MAX_JOINTS],
     dirs: [DirRing; MAX_JOINTS],
 }
 
@@ -198,6 +227,8 @@ macro_rules! with_idle_joint_fields {
             marks_clean: [false; 2],
             last_sign: [0; 2],
             evicted: [0; 2],
+            sums: [[0; HALF]; 2],
+            half_sums: [HalfSums::NoPulse; 2],
             dirs: DirRing::EMPTY,
         )
     };
@@ -222,7 +253,10 @@ macro_rules! write_joint_fields {
 }
 
 impl<const Q: usize, const HALF: usize> StepStreams<Q, HALF> {
-    const FITS: () = assert!(dir_queue_len(HALF) <= DIR_RING && HALF > 0);
+    const FITS: () = assert!(
+        dir_queue_len(HALF) <= DIR_RING && HALF > 0 && HALF <= i16::MAX as usize,
+        "a half's DIR changes fit the ring and its pulse count fits the i16 running sums"
+    );
 
     /// Idle streams.
     pub const fn new(timing: StepTiming, max_period_ticks: [u32; MAX_JOINTS]) -> Self {
@@ -279,34 +313,115 @@ impl<const Q: usize, const HALF: usize> StepStreams<Q, HALF> {
         prelude: &mut [[PulsePeriod; PRELUDE]; MAX_JOINTS],
         buffers: &mut [&mut JointBuffer<HALF>; MAX_JOINTS],
     ) -> Refill {
+        self.prime_inner(at_tick, prelude, buffers, None)
+    }
+
+    /// [`StepStreams::prime`], with the DIR changes queued in `dirs` (cleared first: its
+    /// consumer must not run meanwhile) instead of this value's own queues: for a consumer
+    /// that reads them without the lock around these streams (the NUCLEO's step clock).
+    pub fn prime_shared(
+        &mut self,
+        at_tick: u64,
+        prelude: &mut [[PulsePeriod; PRELUDE]; MAX_JOINTS],
+        buffers: &mut [&mut JointBuffer<HALF>; MAX_JOINTS],
+        dirs: &DirQueues,
+    ) -> Refill {
+        dirs.clear();
+        self.prime_inner(at_tick, prelude, buffers, Some(dirs))
+    }
+
+    #[allow(
+        clippy::indexing_slicing,
+        reason = "joint enumerates [_; MAX_JOINTS] arrays, the length of the per-joint ones indexed"
+    )]
+    fn prime_inner(
+        &mut self,
+        at_tick: u64,
+        prelude: &mut [[PulsePeriod; PRELUDE]; MAX_JOINTS],
+        buffers: &mut [&mut JointBuffer<HALF>; MAX_JOINTS],
+        shared: Option<&DirQueues>,
+    ) -> Refill {
+        self.prime_begin(at_tick);
+        let mut outcome = Refill::default();
+        for (joint, (prelude, buffer)) in prelude.iter_mut().zip(buffers.iter_mut()).enumerate() {
+            let r = self.prime_joint_inner(joint, prelude, buffer, shared);
+            outcome.segments_finished += r.segments_finished;
+            outcome.dir_overflow |= r.dir_overflow;
+        }
+        outcome
+    }
+
+    /// [`StepStreams::prime_shared`] in pieces, so that whoever serialises these streams
+    /// with a lock need not hold it for the whole start (the NUCLEO's run start, issue 20):
+    /// this begins the run (every joint's DIR queue cleared, `dirs` too, whose consumer
+    /// must not run meanwhile), then [`StepStreams::prime_joint_shared`] primes each
+    /// joint, in any lock sections, in joint order. Between the pieces the producer may be
+    /// pushed to, and a joint not primed yet has written nothing of the run (its position
+    /// is the producer's); a primed joint's pulses have not played
+    /// ([`StepStreams::unstarted_steps`]). The same periods and DIR changes as
+    /// `prime_shared` (tested).
+    pub fn prime_begin_shared(&mut self, at_tick: u64, dirs: &DirQueues) {
+        dirs.clear();
+        self.prime_begin(at_tick);
+    }
+
+    /// One joint's piece of [`StepStreams::prime_begin_shared`]: fills `prelude` (for its
+    /// timer's registers) and both halves of `buffer`, its DIR changes queued in `dirs`.
+    pub fn prime_joint_shared(
+        &mut self,
+        joint: usize,
+        prelude: &mut [PulsePeriod; PRELUDE],
+        buffer: &mut JointBuffer<HALF>,
+        dirs: &DirQueues,
+    ) -> Refill {
+        self.prime_joint_inner(joint, prelude, buffer, Some(dirs))
+    }
+
+    fn prime_begin(&mut self, at_tick: u64) {
         for dirs in &mut self.dirs {
             dirs.len = 0;
         }
         self.producer.start_new_clock(at_tick);
-        let mut outcome = Refill::default();
-        for (joint, (prelude, buffer)) in prelude.iter_mut().zip(buffers.iter_mut()).enumerate() {
-            let dirs = &mut self.dirs[joint];
-            let mut overflow = false;
-            let mut signs = [0i8; PRELUDE];
-            let filled = self
-                .producer
-                .fill(joint, prelude, &mut signs, &mut |tick, positive| {
-                    overflow |= !dirs.push(tick, positive)
-                });
-            for (delta, sign) in self.prelude_deltas[joint]
-                .iter_mut()
-                .zip(sign_of(prelude, &signs, 1))
-            {
-                *delta = sign;
-            }
-            self.prelude[joint] = *prelude;
-            outcome.segments_finished += filled.segments_finished;
-            outcome.dir_overflow |= overflow;
-            for (half, periods) in buffer.periods.iter_mut().enumerate() {
-                let r = self.refill(joint, half, periods);
-                outcome.segments_finished += r.segments_finished;
-                outcome.dir_overflow |= r.dir_overflow;
-            }
+    }
+
+    #[allow(
+        clippy::indexing_slicing,
+        reason = "the joint number is masked to 0..MAX_JOINTS, the per-joint arrays' length"
+    )]
+    fn prime_joint_inner(
+        &mut self,
+        joint: usize,
+        prelude: &mut [PulsePeriod; PRELUDE],
+        buffer: &mut JointBuffer<HALF>,
+        shared: Option<&DirQueues>,
+    ) -> Refill {
+        let joint = joint & (MAX_JOINTS - 1);
+        let dirs = &mut self.dirs[joint];
+        let mut overflow = false;
+        let mut signs = [0i8; PRELUDE];
+        let filled = self
+            .producer
+            .fill(joint, prelude, &mut signs, &mut |tick, positive| {
+                overflow |= !match shared {
+                    Some(queues) => queues.push(joint, tick, positive),
+                    None => dirs.push(tick, positive),
+                }
+            });
+        for (delta, sign) in self.prelude_deltas[joint]
+            .iter_mut()
+            .zip(sign_of(prelude, &signs, 1))
+        {
+            *delta = sign;
+        }
+        self.prelude[joint] = *prelude;
+        let mut outcome = Refill {
+            segments_finished: filled.segments_finished,
+            dir_overflow: overflow,
+        };
+        for (half, periods) in buffer.periods.iter_mut().enumerate() {
+            let r = self.refill_inner(joint, half, periods, shared);
+            outcome.segments_finished += r.segments_finished;
+            outcome.dir_overflow |= r.dir_overflow;
         }
         outcome
     }
@@ -323,6 +438,34 @@ impl<const Q: usize, const HALF: usize> StepStreams<Q, HALF> {
         joint: usize,
         half: usize,
         periods: &mut [PulsePeriod; HALF],
+    ) -> Refill {
+        self.refill_inner(joint, half, periods, None)
+    }
+
+    /// [`StepStreams::refill`], with the DIR changes queued in `dirs` (see
+    /// [`StepStreams::prime_shared`]).
+    #[inline]
+    pub fn refill_shared(
+        &mut self,
+        joint: usize,
+        half: usize,
+        periods: &mut [PulsePeriod; HALF],
+        dirs: &DirQueues,
+    ) -> Refill {
+        self.refill_inner(joint, half, periods, Some(dirs))
+    }
+
+    #[inline]
+    #[allow(
+        clippy::indexing_slicing,
+        reason = "the joint number is masked to 0..MAX_JOINTS and the half to 0..2, the arrays' lengths"
+    )]
+    fn refill_inner(
+        &mut self,
+        joint: usize,
+        half: usize,
+        periods: &mut [PulsePeriod; HALF],
+        shared: Option<&DirQueues>,
     ) -> Refill {
         let j = joint & (MAX_JOINTS - 1);
         let h = half & 1;
@@ -346,10 +489,24 @@ impl<const Q: usize, const HALF: usize> StepStreams<Q, HALF> {
         let filled = self
             .producer
             .fill(j, periods, signs, &mut |tick, positive| {
-                overflow |= !dirs.push(tick, positive)
+                overflow |= !match shared {
+                    Some(queues) => queues.push(j, tick, positive),
+                    None => dirs.push(tick, positive),
+                }
             });
         self.half_idle[j][h] = filled.uniform_idle;
         self.last_sign[j][h] = filled.last_sign;
+        self.half_sums[j][h] = if cruise {
+            // Every period a pulse of the first mark's sign: no sums needed.
+            HalfSums::Every(self.signs[j][h][0])
+        } else if filled.pulses == 0 {
+            HalfSums::NoPulse
+        } else if let Some(one_sign) = self.one_sign(j, h, periods) {
+            one_sign
+        } else {
+            self.sum_half(j, h, periods);
+            HalfSums::Table
+        };
         Refill {
             segments_finished: filled.segments_finished,
             dir_overflow: overflow,
@@ -397,6 +554,30 @@ impl<const Q: usize, const HALF: usize> StepStreams<Q, HALF> {
         self.producer.unwind(joint & (MAX_JOINTS - 1), steps);
     }
 
+    /// After a start that was cut before the timers started (the board's e-stop input
+    /// opening during it): takes back every pulse written for `joint`, the prelude's first
+    /// period's too.
+    #[allow(
+        clippy::indexing_slicing,
+        reason = "the joint number is masked to 0..MAX_JOINTS"
+    )]
+    pub fn unwind_unstarted(&mut self, joint: usize, periods: &JointBuffer<HALF>) {
+        let steps = self.unstarted_steps(joint, periods);
+        self.producer.unwind(joint & (MAX_JOINTS - 1), steps);
+    }
+
+    /// Every pulse written for `joint` since the run's start (its prelude and both halves
+    /// of `periods`), when none has played: what [`StepStreams::unwind_unstarted`] takes
+    /// back, and what a joint primed but not started holds.
+    #[allow(
+        clippy::indexing_slicing,
+        reason = "the joint number is masked to 0..MAX_JOINTS"
+    )]
+    pub fn unstarted_steps(&self, joint: usize, periods: &JointBuffer<HALF>) -> i32 {
+        let j = joint & (MAX_JOINTS - 1);
+        i32::from(self.prelude_deltas[j][0]) + self.unplayed_steps(j, periods, None, false)
+    }
+
     /// The unplayed pulses in the case of [`StepStreams::unwind_evicted`].
     #[allow(
         clippy::indexing_slicing,
@@ -416,7 +597,9 @@ impl<const Q: usize, const HALF: usize> StepStreams<Q, HALF> {
     /// started, or `None` if the second prelude period has not either (the DMA has not
     /// transferred anything). The rest of that period's half is unplayed, and so is the
     /// other half unless `other_half_played` (its refill interrupt is still pending: it
-    /// holds periods that already played).
+    /// holds periods that already played). Constant time: it reads the running sums the
+    /// refills wrote, not `periods` (kept in the signature: the callers hold the buffer
+    /// these sums describe).
     #[allow(
         clippy::indexing_slicing,
         reason = "the joint number is masked to 0..MAX_JOINTS; h = index / HALF < 2 (index < 2 * HALF), from <= HALF, the halves' length; PRELUDE - 1 < PRELUDE"
@@ -429,18 +612,34 @@ impl<const Q: usize, const HALF: usize> StepStreams<Q, HALF> {
         other_half_played: bool,
     ) -> i32 {
         let j = joint & (MAX_JOINTS - 1);
-        let signs = &self.signs[j];
-        // Signed pulses of half `h` from period `from` on. Every half's first pulse is
-        // marked, so the sign before `from` is the last mark before it.
+        let _ = periods;
+        let sums = &self.sums[j];
+        let half_sums = &self.half_sums[j];
+        // Signed pulses of half `h` from period `from` (0..=HALF) on: the half's total less
+        // those before `from`, from the running sums its refill wrote (or, for a half of
+        // one straight cruise, one pulse per period).
+        #[allow(
+            clippy::cast_possible_wrap,
+            clippy::cast_possible_truncation,
+            reason = "HALF - from <= HALF <= i16::MAX (FITS)"
+        )]
         let sum = |h: usize, from: usize| {
-            let start = signs[h][..from].iter().rev().find(|&&m| m != 0).copied();
-            sign_of(
-                &periods.periods[h][from..],
-                &signs[h][from..],
-                start.unwrap_or(1),
-            )
-            .map(i32::from)
-            .sum::<i32>()
+            match half_sums[h] {
+                HalfSums::Every(sign) => {
+                    return i32::from(sign) * HALF.saturating_sub(from) as i32;
+                }
+                HalfSums::NoPulse => return 0,
+                HalfSums::OneSign { sign, pulses } => {
+                    let after = pulses.checked_shr(from as u32).unwrap_or(0);
+                    return i32::from(sign) * after.count_ones() as i32;
+                }
+                HalfSums::Table => {}
+            }
+            let total = i32::from(sums[h][HALF - 1]);
+            match from.checked_sub(1) {
+                Some(before) => total - i32::from(sums[h][before.min(HALF - 1)]),
+                None => total,
+            }
         };
         match first_unplayed {
             None => i32::from(self.prelude_deltas[j][PRELUDE - 1]) + sum(0, 0) + sum(1, 0),
@@ -456,10 +655,305 @@ impl<const Q: usize, const HALF: usize> StepStreams<Q, HALF> {
         }
     }
 
+    /// `joint`'s half `half` (`periods`, just filled) as [`HalfSums::OneSign`], if its
+    /// marks are all of one sign and it has at most 64 periods: cheaper to write than the
+    /// running sums (a bit per period, the marks read four at a time), and as exact.
+    /// `None`: both signs marked (a reversal inside the half, or the period closed from
+    /// the half before), or a half too long for the bit mask.
+    #[allow(
+        clippy::indexing_slicing,
+        clippy::cast_sign_loss,
+        reason = "j < MAX_JOINTS and h < 2 (the caller masks them), i < HALF <= 64; the marks' bytes are read as bits"
+    )]
+    fn one_sign(&self, j: usize, h: usize, periods: &[PulsePeriod; HALF]) -> Option<HalfSums> {
+        if HALF > 64 {
+            return None;
+        }
+        let signs = &self.signs[j][h];
+        // Marks are -1 (0xFF), 0 or +1 (0x01): a byte with bit 0 and not bit 7 is +1.
+        let (mut positive, mut negative) = (0u32, 0u32);
+        for four in signs.chunks_exact(4) {
+            let w =
+                u32::from_le_bytes([four[0] as u8, four[1] as u8, four[2] as u8, four[3] as u8]);
+            positive |= w & !(w >> 7) & 0x0101_0101;
+            negative |= w & 0x8080_8080;
+        }
+        for &mark in signs.chunks_exact(4).remainder() {
+            positive |= u32::from(mark > 0);
+            negative |= u32::from(mark < 0);
+        }
+        if positive != 0 && negative != 0 {
+            return None;
+        }
+        let mut pulses = 0u64;
+        for (i, period) in periods.iter().enumerate() {
+            if period.high != 0 {
+                pulses |= 1 << i;
+            }
+        }
+        // The half's first pulse is marked with the sign of all of them.
+        let first = pulses.trailing_zeros() as usize;
+        let sign = *signs.get(first)?;
+        (sign != 0).then_some(HalfSums::OneSign { sign, pulses })
+    }
+
+    /// Writes the running sums of `joint`'s half `half` (`periods`, just filled): the
+    /// signed pulses of periods `0..=i`, each pulse's sign the last mark at or before it
+    /// (every half's first pulse is marked).
+    #[allow(
+        clippy::indexing_slicing,
+        clippy::cast_possible_truncation,
+        reason = "j < MAX_JOINTS and h < 2 (the caller masks them), i < HALF; |sum| <= HALF <= i16::MAX (FITS)"
+    )]
+    fn sum_half(&mut self, j: usize, h: usize, periods: &[PulsePeriod; HALF]) {
+        let signs = &self.signs[j][h];
+        let sums = &mut self.sums[j][h];
+        let mut sign = 1i16;
+        let mut sum = 0i16;
+        for i in 0..HALF {
+            let mark = i16::from(signs[i]);
+            sign = if mark != 0 { mark } else { sign };
+            sum += if periods[i].high != 0 { sign } else { 0 };
+            sums[i] = sum;
+        }
+    }
+
     /// Drops every queued DIR change (after a stop).
     pub fn clear_dir_changes(&mut self) {
         for dirs in &mut self.dirs {
             dirs.len = 0;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    extern crate std;
+    use std::boxed::Box;
+    use std::vec;
+
+    use super::*;
+
+    const HALF: usize = 8;
+    const TIMING: StepTiming = StepTiming {
+        tick_hz: 10_000_000,
+        pulse_width_ticks: 20,
+        dir_setup_ticks: 50,
+        step_low_ticks: 20,
+    };
+
+    /// The scan `unplayed_steps` did before it kept running sums (issue 20): the signed
+    /// pulses of `joint`'s buffer from `first_unplayed` on, walked period by period.
+    fn scanned<const Q: usize>(
+        streams: &StepStreams<Q, HALF>,
+        joint: usize,
+        periods: &JointBuffer<HALF>,
+        first_unplayed: Option<usize>,
+        other_half_played: bool,
+    ) -> i32 {
+        let signs = &streams.signs[joint];
+        let sum = |h: usize, from: usize| {
+            let start = signs[h][..from].iter().rev().find(|&&m| m != 0).copied();
+            sign_of(
+                &periods.periods[h][from..],
+                &signs[h][from..],
+                start.unwrap_or(1),
+            )
+            .map(i32::from)
+            .sum::<i32>()
+        };
+        match first_unplayed {
+            None => i32::from(streams.prelude_deltas[joint][PRELUDE - 1]) + sum(0, 0) + sum(1, 0),
+            Some(index) => {
+                let (h, i) = (index / HALF, index % HALF);
+                if other_half_played {
+                    sum(h, i)
+                } else {
+                    sum(h, i) + sum(1 - h, 0)
+                }
+            }
+        }
+    }
+
+    /// Every joint's unplayed pulses, at every place a stream can stand, equal the scan's
+    /// after the prime and after each refill of a run that reverses within halves (marks
+    /// in the middle of a half) and has idle stretches.
+    #[test]
+    fn unplayed_steps_equal_the_scan_at_every_index() {
+        let mut streams = Box::new(StepStreams::<16, HALF>::new(TIMING, [1 << 16; MAX_JOINTS]));
+        // 40 us segments: 5-12 pulses each, so a half of 8 periods holds reversals.
+        // Then two long segments (200 us, 30 pulses): halves of one straight cruise.
+        for (n, steps) in [5, -7, 12, -3, 0, 9, -12, 4, -1, 6, 30, -30]
+            .into_iter()
+            .enumerate()
+        {
+            let mut joints = [0i32; MAX_JOINTS];
+            for (j, s) in joints.iter_mut().enumerate() {
+                *s = if j % 2 == 0 {
+                    steps
+                } else {
+                    -steps / (1 + n as i32 % 3)
+                };
+            }
+            let segment = Segment {
+                duration_us: if steps.abs() >= 30 { 200 } else { 40 },
+                steps: joints,
+            };
+            assert!(streams.producer().push(segment).is_ok());
+        }
+        let mut prelude = [[PulsePeriod::ZERO; PRELUDE]; MAX_JOINTS];
+        let mut buffers: [JointBuffer<HALF>; MAX_JOINTS] =
+            core::array::from_fn(|_| JointBuffer::ZERO);
+        {
+            let [b0, b1, b2, b3, b4, b5, b6, b7] = &mut buffers;
+            streams.prime(100, &mut prelude, &mut [b0, b1, b2, b3, b4, b5, b6, b7]);
+        }
+        let check = |streams: &StepStreams<16, HALF>, buffers: &[JointBuffer<HALF>]| {
+            for (joint, buffer) in buffers.iter().enumerate() {
+                let mut places = vec![None];
+                places.extend((0..2 * HALF).map(Some));
+                for first in places {
+                    for other in [false, true] {
+                        assert_eq!(
+                            streams.unplayed_steps(joint, buffer, first, other),
+                            scanned(streams, joint, buffer, first, other),
+                            "joint {joint}, first unplayed {first:?}, other half played {other}"
+                        );
+                    }
+                }
+                for half in 0..2 {
+                    assert_eq!(
+                        streams.unplayed_evicted(joint, buffer, half),
+                        i32::from(streams.evicted[joint][half])
+                            + scanned(streams, joint, buffer, Some(0), false)
+                    );
+                }
+            }
+        };
+        check(&streams, &buffers);
+        let mut pulses = 0;
+        // Which ways of keeping the sums the run went through: all four must be checked.
+        let mut kinds = [false; 4];
+        for round in 0..40 {
+            let half = round % 2;
+            for (joint, buffer) in buffers.iter_mut().enumerate() {
+                streams.refill(joint, half, &mut buffer.periods[half]);
+                pulses += buffer.periods[half].iter().filter(|p| p.high != 0).count();
+                kinds[match streams.half_sums[joint][half] {
+                    HalfSums::Table => 0,
+                    HalfSums::Every(_) => 1,
+                    HalfSums::OneSign { .. } => 2,
+                    HalfSums::NoPulse => 3,
+                }] = true;
+            }
+            check(&streams, &buffers);
+        }
+        assert!(pulses > 100, "the run wrote pulses: {pulses}");
+        assert_eq!(kinds, [true; 4], "table, every, one sign, no pulse");
+    }
+
+    /// The shared queues get the same DIR changes, in the same order, as the streams' own.
+    #[test]
+    fn shared_dir_queues_get_the_changes_of_the_own_ones() {
+        let make = || {
+            let mut streams = Box::new(StepStreams::<16, HALF>::new(TIMING, [1 << 16; MAX_JOINTS]));
+            for steps in [5, -7, 12, -3, 0, 9, -12, 4, -1, 6] {
+                let segment = Segment {
+                    duration_us: 40,
+                    steps: [steps, -steps, steps / 2, 0, 1, -1, steps, 3],
+                };
+                assert!(streams.producer().push(segment).is_ok());
+            }
+            streams
+        };
+        let (mut own, mut shared) = (make(), make());
+        let queues = DirQueues::new();
+        let mut prelude = [[PulsePeriod::ZERO; PRELUDE]; MAX_JOINTS];
+        let mut a: [JointBuffer<HALF>; MAX_JOINTS] = core::array::from_fn(|_| JointBuffer::ZERO);
+        let mut b: [JointBuffer<HALF>; MAX_JOINTS] = core::array::from_fn(|_| JointBuffer::ZERO);
+        {
+            let [a0, a1, a2, a3, a4, a5, a6, a7] = &mut a;
+            own.prime(100, &mut prelude, &mut [a0, a1, a2, a3, a4, a5, a6, a7]);
+            let [b0, b1, b2, b3, b4, b5, b6, b7] = &mut b;
+            shared.prime_shared(
+                100,
+                &mut prelude,
+                &mut [b0, b1, b2, b3, b4, b5, b6, b7],
+                &queues,
+            );
+        }
+        let mut changes = 0;
+        for round in 0..30 {
+            let half = round % 2;
+            for joint in 0..MAX_JOINTS {
+                own.refill(joint, half, &mut a[joint].periods[half]);
+                shared.refill_shared(joint, half, &mut b[joint].periods[half], &queues);
+                assert_eq!(a[joint].periods[half], b[joint].periods[half]);
+                while let Some(change) = own.next_dir_change(joint) {
+                    assert_eq!(queues.peek(joint), Some(change), "joint {joint}");
+                    own.pop_dir_change(joint);
+                    queues.pop(joint);
+                    changes += 1;
+                }
+                assert_eq!(queues.peek(joint), None);
+            }
+        }
+        assert!(changes > 20, "the run reversed: {changes} DIR changes");
+    }
+
+    /// Priming joint by joint gives the same periods, preludes, DIR changes and outcome as
+    /// priming at once. (A segment pushed between two pieces would reach the joints primed
+    /// before it as late segments do in a run: after their idle periods. On the board only
+    /// the trajectory task pushes, and it is the one running the pieces.)
+    #[test]
+    fn priming_in_pieces_equals_priming_at_once() {
+        let segments = [5, -7, 12, -3, 0, 9].map(|steps| Segment {
+            duration_us: 40,
+            steps: [steps, -steps, steps / 2, 0, 1, -1, steps, 3],
+        });
+        let make = || {
+            let mut streams = Box::new(StepStreams::<16, HALF>::new(TIMING, [1 << 16; MAX_JOINTS]));
+            for segment in &segments {
+                assert!(streams.producer().push(*segment).is_ok());
+            }
+            streams
+        };
+        let (mut whole, mut pieces) = (make(), make());
+        let (q1, q2) = (DirQueues::new(), DirQueues::new());
+        let mut p1 = [[PulsePeriod::ZERO; PRELUDE]; MAX_JOINTS];
+        let mut p2 = [[PulsePeriod::ZERO; PRELUDE]; MAX_JOINTS];
+        let mut a: [JointBuffer<HALF>; MAX_JOINTS] = core::array::from_fn(|_| JointBuffer::ZERO);
+        let mut b: [JointBuffer<HALF>; MAX_JOINTS] = core::array::from_fn(|_| JointBuffer::ZERO);
+        let at_once = {
+            let [a0, a1, a2, a3, a4, a5, a6, a7] = &mut a;
+            whole.prime_shared(100, &mut p1, &mut [a0, a1, a2, a3, a4, a5, a6, a7], &q1)
+        };
+        pieces.prime_begin_shared(100, &q2);
+        let mut in_pieces = Refill::default();
+        for joint in 0..MAX_JOINTS {
+            let r = pieces.prime_joint_shared(joint, &mut p2[joint], &mut b[joint], &q2);
+            in_pieces.segments_finished += r.segments_finished;
+            in_pieces.dir_overflow |= r.dir_overflow;
+        }
+        assert_eq!(at_once, in_pieces);
+        assert_eq!(p1, p2);
+        for joint in 0..MAX_JOINTS {
+            assert_eq!(a[joint].periods, b[joint].periods, "joint {joint}");
+            while let Some(change) = q1.peek(joint) {
+                assert_eq!(q2.peek(joint), Some(change));
+                q1.pop(joint);
+                q2.pop(joint);
+            }
+            assert_eq!(q2.peek(joint), None);
+            assert_eq!(
+                whole.unstarted_steps(joint, &a[joint]),
+                pieces.unstarted_steps(joint, &b[joint])
+            );
+            assert_eq!(
+                whole.unstarted_steps(joint, &a[joint]),
+                whole.producer_ref().positions()[joint],
+                "nothing played: every pulse written is unstarted"
+            );
         }
     }
 }

@@ -1,39 +1,46 @@
 //! The NUCLEO board's step path, copied from the board crate with its registers moved into
 //! RAM (QEMU has no STM32 peripherals): the DMA2 stream interrupts' body
 //! (`firmware/board/src/step_dma/refill.rs`), the backend (`step_dma/backend.rs`: start,
-//! refill, the alarm, arming it, stop), the stream and timer register code
-//! (`step_dma/registers.rs`, `step_dma/stop.rs`), the step clock (`step_timer.rs`: TIM13's
-//! interrupt, `now_tick`, `arm`, `program_compare`) and the DIR lines
-//! (`pins.rs::set_direction`). Each function is the board's, line for line, except:
+//! refill, the service's run end, arming the alarm, stop), the step lock
+//! (`step_dma/lock.rs`: BASEPRI), the step service interrupt (`step_dma/service.rs`), the
+//! stream and timer register code (`step_dma/registers.rs`, `step_dma/stop.rs`), the step
+//! clock (`step_timer.rs`: TIM13's interrupt with the lock-free DIR changes, `now_tick`,
+//! `arm`, `program_compare`) and the DIR lines (`pins.rs::set_direction`). Each function is
+//! the board's, line for line, except:
 //! - every register block is at a RAM address (`pac` below) instead of the chip's, through
 //!   the same stm32-metapac register types the board uses;
 //! - TIM13's SR is rc_w0 (writing 0 clears a flag, 1 leaves it): RAM cannot do that, so each
 //!   SR write is a read, an AND and a write ([`write_tim13_sr`]: two instructions more than
 //!   the board's single store, counted);
-//! - `defmt` logs (only on an underrun, which the harness fails on) are left out.
+//! - `defmt` logs (only on an underrun, which the harness fails on) are left out;
+//! - the service interrupt's e-stop part (`estop::service`: one atomic swap when no edge
+//!   came) is left out: the harness has no e-stop input;
+//! - the RCC reset of a joint timer writes a RAM stand-in of RCC.
 //!
-//! The board's own crates do the rest as on the board: arm-core's `StepShared` (its
-//! critical section and progress), embassy-sync's `Signal` waking a task of a real
-//! embassy-executor (the trajectory task's stand-in in `main.rs`), cortex-m's single-core
-//! critical section, arm-step's producer. Keep this in step with the board's files.
+//! The board's own crates do the rest as on the board: arm-core's `StepShared` (its lock
+//! and progress), embassy-sync's `Signal` waking a task of a real embassy-executor (the
+//! trajectory task's stand-in in `main.rs`), cortex-m's single-core critical section,
+//! arm-step's producer and DIR queues. Keep this in step with the board's files.
 
 #![allow(clippy::indexing_slicing, clippy::cast_possible_truncation)]
 
 use core::cell::{Cell, UnsafeCell};
 use core::ptr::addr_of;
+use core::sync::atomic::{AtomicBool, Ordering, compiler_fence};
 
 use arm_core::profile::{self, BoardProfile};
 use arm_core::{StepBackend, StepProgress, StepShared};
 use arm_step::{
-    DirChange, JointBuffer, MAX_JOINTS, PRELUDE, PulsePeriod, Segment, StepTiming, StreamsSlot,
+    DirChange, DirQueues, JointBuffer, MAX_JOINTS, PRELUDE, PulsePeriod, Segment, StepTiming,
+    StreamsSlot,
 };
 use embassy_sync::blocking_mutex::Mutex;
-use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
+use embassy_sync::blocking_mutex::raw::{CriticalSectionRawMutex, RawMutex};
 use embassy_sync::signal::Signal;
 
 /// The register blocks, at RAM addresses (memory.x leaves 0x2030_0000.. to them).
 pub mod pac {
-    pub use stm32_metapac::{dma, gpio, timer};
+    pub use stm32_metapac::{dma, gpio, rcc, timer};
     /// DMA2 (the board's at 0x4002_0400).
     pub const DMA2: dma::Dma = unsafe { dma::Dma::from_ptr(0x2030_0000usize as _) };
     /// TIM13, the step clock (0x4000_1c00).
@@ -42,6 +49,8 @@ pub mod pac {
     pub const GPIOD: gpio::Gpio = unsafe { gpio::Gpio::from_ptr(0x2030_2000usize as _) };
     /// The joint timers (TIM2, TIM5, TIM3, TIM4, TIM1, TIM8, TIM16, TIM17): 0x400 apart.
     pub const JOINT_TIMERS: usize = 0x2030_3000;
+    /// RCC (0x5802_4400), for the joint timers' resets.
+    pub const RCC: rcc::Rcc = unsafe { rcc::Rcc::from_ptr(0x2030_5000usize as _) };
     /// A stand-in for TIM8_UP_TIM13's NVIC line (44 on the H743): QEMU's NVIC has 32 on
     /// mps2, so line 31 (never enabled: the harness reads its pending bit).
     #[derive(Clone, Copy)]
@@ -50,6 +59,16 @@ pub mod pac {
     unsafe impl cortex_m::interrupt::InterruptNumber for Tim13Irq {
         fn number(self) -> u16 {
             31
+        }
+    }
+    /// A stand-in for the step service's line (TIM7, 55 on the H743): line 30, never
+    /// enabled either.
+    #[derive(Clone, Copy)]
+    pub struct ServiceIrq;
+    // SAFETY: 30 is an interrupt line of the emulated NVIC.
+    unsafe impl cortex_m::interrupt::InterruptNumber for ServiceIrq {
+        fn number(self) -> u16 {
+            30
         }
     }
 }
@@ -69,13 +88,39 @@ pub const MAX_PERIOD_TICKS: [u32; MAX_JOINTS] = PROFILE.step_timer_max_period_ti
 
 /// Every joint's DMA buffer.
 pub struct Buffers(pub UnsafeCell<[JointBuffer<HALF>; MAX_JOINTS]>);
-// SAFETY: as on the board: every CPU access is inside STEP's critical section.
+// SAFETY: as on the board: every CPU access is inside STEP's lock.
 unsafe impl Sync for Buffers {}
 /// The DMA buffers.
 pub static BUFFERS: Buffers = Buffers(UnsafeCell::new([JointBuffer::ZERO; MAX_JOINTS]));
 
 /// The bus's `step_progress` (arm-core's Bus), which the trajectory task waits on.
 pub static STEP_PROGRESS: Signal<CriticalSectionRawMutex, ()> = Signal::new();
+
+// ---- step_dma/lock.rs ----
+
+/// The DIR interrupt's priority (the board's `DIR_PRIORITY`, P1 with 4 priority bits).
+pub const DIR_PRIORITY: u8 = 0x10;
+/// The step lock's level (the board's `STEP_LOCK_PRIORITY`, P2).
+pub const STEP_LOCK_PRIORITY: u8 = 0x20;
+
+/// The board's `StepLock`: BASEPRI raised to P2 while held.
+pub struct StepLock(());
+
+// SAFETY: as on the board (here every context is the harness's one thread).
+unsafe impl RawMutex for StepLock {
+    const INIT: Self = StepLock(());
+
+    fn lock<R>(&self, f: impl FnOnce() -> R) -> R {
+        let old = cortex_m::register::basepri::read();
+        cortex_m::register::basepri_max::write(STEP_LOCK_PRIORITY);
+        compiler_fence(Ordering::SeqCst);
+        let r = f();
+        compiler_fence(Ordering::SeqCst);
+        // SAFETY: restores the caller's mask.
+        unsafe { cortex_m::register::basepri::write(old) };
+        r
+    }
+}
 
 /// step_dma::init's part that the step path depends on.
 pub fn init() {
@@ -87,19 +132,26 @@ pub fn init() {
 #[derive(Clone, Copy)]
 struct JointTimer {
     base: *mut u32,
+    has_moe: bool,
+    complementary: bool,
 }
 
 mod reg {
     pub const CR1: usize = 0x00;
+    pub const CR2: usize = 0x04;
     pub const DIER: usize = 0x0C;
     pub const SR: usize = 0x10;
     pub const EGR: usize = 0x14;
     pub const CCMR1: usize = 0x18;
+    pub const CCER: usize = 0x20;
     pub const CNT: usize = 0x24;
+    pub const PSC: usize = 0x28;
     pub const ARR: usize = 0x2C;
     pub const CCR1: usize = 0x34;
+    pub const BDTR: usize = 0x44;
     pub const DCR: usize = 0x48;
     pub const DMAR: usize = 0x4C;
+    pub const AF1: usize = 0x60;
     pub const CR1_CEN: u32 = 1 << 0;
     pub const CR1_URS: u32 = 1 << 2;
     pub const CR1_ARPE: u32 = 1 << 7;
@@ -108,6 +160,13 @@ mod reg {
     pub const CCMR1_OC1PE: u32 = 1 << 3;
     pub const CCMR1_PWM1: u32 = 0b110 << 4;
     pub const CCMR1_FORCE_INACTIVE: u32 = 0b100 << 4;
+    pub const CCER_CC1E: u32 = 1 << 0;
+    pub const CCER_CC1NE: u32 = 1 << 2;
+    pub const BDTR_MOE: u32 = 1 << 15;
+    pub const BDTR_BKE: u32 = 1 << 12;
+    pub const BDTR_BKP: u32 = 1 << 13;
+    pub const BDTR_OSSI: u32 = 1 << 10;
+    pub const AF1_BKINE: u32 = 1 << 0;
     pub const DCR_ARR_RCR_CCR1: u32 = 11 | (2 << 8);
 }
 
@@ -116,26 +175,76 @@ impl JointTimer {
         // SAFETY: a word of the RAM stand-in of this timer's block.
         unsafe { self.base.byte_add(offset).write_volatile(value) }
     }
+    fn read(self, offset: usize) -> u32 {
+        // SAFETY: as in `write`.
+        unsafe { self.base.byte_add(offset).read_volatile() }
+    }
     fn dmar(self) -> u32 {
         self.base as u32 + reg::DMAR as u32
     }
 }
 
-/// The board's `joint_timer`: a match on the joint (the board's yields its timer's base,
-/// request and output kind; only the base is used on the step path).
+/// The board's `joint_timer`: a match on the joint (the board's also yields its DMA
+/// request, used only at boot).
 fn joint_timer(joint: usize) -> JointTimer {
-    let t = |n: usize| JointTimer {
+    let t = |n: usize, has_moe| JointTimer {
         base: (pac::JOINT_TIMERS + n * 0x400) as *mut u32,
+        has_moe,
+        complementary: false,
     };
     match joint {
-        0 => t(0),
-        1 => t(1),
-        2 => t(2),
-        3 => t(3),
-        4 => t(4),
-        5 => t(5),
-        6 => t(6),
-        _ => t(7),
+        0 => t(0, false),
+        1 => t(1, false),
+        2 => t(2, false),
+        3 => t(3, false),
+        4 => t(4, true),
+        5 => JointTimer {
+            complementary: true,
+            ..t(5, true)
+        },
+        6 => t(6, true),
+        _ => t(7, true),
+    }
+}
+
+/// The board's `reset_joint_timer` (on the RAM stand-in of RCC).
+fn reset_joint_timer(joint: usize) {
+    let rcc = pac::RCC;
+    let pulse = |on: bool| match joint {
+        0 => rcc.apb1lrstr().modify(|w| w.set_tim2rst(on)),
+        1 => rcc.apb1lrstr().modify(|w| w.set_tim5rst(on)),
+        2 => rcc.apb1lrstr().modify(|w| w.set_tim3rst(on)),
+        3 => rcc.apb1lrstr().modify(|w| w.set_tim4rst(on)),
+        4 => rcc.apb2rstr().modify(|w| w.set_tim1rst(on)),
+        5 => rcc.apb2rstr().modify(|w| w.set_tim8rst(on)),
+        6 => rcc.apb2rstr().modify(|w| w.set_tim16rst(on)),
+        _ => rcc.apb2rstr().modify(|w| w.set_tim17rst(on)),
+    };
+    pulse(true);
+    pulse(false);
+}
+
+/// The board's `configure_joint_timer`.
+fn configure_joint_timer(joint: usize) {
+    let timer = joint_timer(joint);
+    timer.write(reg::CR1, reg::CR1_URS | reg::CR1_ARPE);
+    timer.write(reg::CR2, 0);
+    timer.write(reg::PSC, 0);
+    timer.write(reg::CCMR1, reg::CCMR1_FORCE_INACTIVE);
+    timer.write(
+        reg::CCER,
+        if timer.complementary {
+            reg::CCER_CC1NE
+        } else {
+            reg::CCER_CC1E
+        },
+    );
+    if timer.has_moe {
+        timer.write(reg::AF1, timer.read(reg::AF1) & !reg::AF1_BKINE);
+        timer.write(
+            reg::BDTR,
+            reg::BDTR_MOE | reg::BDTR_BKE | reg::BDTR_BKP | reg::BDTR_OSSI,
+        );
     }
 }
 
@@ -223,23 +332,28 @@ fn load_joint(joint: usize, prelude: &[PulsePeriod; PRELUDE]) {
 
 // ---- step_dma/stop.rs ----
 
+static KILL: AtomicBool = AtomicBool::new(false);
+
+fn outputs_off() {
+    for joint in 0..MAX_JOINTS {
+        joint_timer(joint).write(reg::CCMR1, reg::CCMR1_FORCE_INACTIVE);
+    }
+    for joint in 0..MAX_JOINTS {
+        let timer = joint_timer(joint);
+        timer.write(reg::CR1, reg::CR1_URS | reg::CR1_ARPE);
+        timer.write(reg::DIER, 0);
+        pac::DMA2.st(joint).cr().modify(|w| w.set_en(false));
+    }
+}
+
 fn stop_all_step_outputs() -> [StreamPosition; MAX_JOINTS] {
-    critical_section::with(|_| {
-        for joint in 0..MAX_JOINTS {
-            let timer = joint_timer(joint);
-            timer.write(reg::CCMR1, reg::CCMR1_FORCE_INACTIVE);
-        }
-        let mut positions = [StreamPosition::default(); MAX_JOINTS];
-        for (joint, position) in positions.iter_mut().enumerate() {
-            let timer = joint_timer(joint);
-            timer.write(reg::CR1, reg::CR1_URS | reg::CR1_ARPE);
-            timer.write(reg::DIER, 0);
-            pac::DMA2.st(joint).cr().modify(|w| w.set_en(false));
-            *position = stream_position(joint);
-            clear_stream_flags(joint);
-        }
-        positions
-    })
+    outputs_off();
+    let mut positions = [StreamPosition::default(); MAX_JOINTS];
+    for (joint, position) in positions.iter_mut().enumerate() {
+        *position = stream_position(joint);
+        clear_stream_flags(joint);
+    }
+    positions
 }
 
 // ---- pins.rs ----
@@ -260,6 +374,11 @@ fn set_direction(joint: usize, positive: bool) {
 pub enum Run {
     /// Timers stopped.
     Idle,
+    /// A run's start under way: joints below `next` primed.
+    Priming {
+        /// The next joint to prime.
+        next: usize,
+    },
     /// Timers running since step clock tick `origin`.
     Running {
         /// Step clock tick of the joint timers' tick 0.
@@ -272,18 +391,22 @@ pub struct BoardSteps {
     pub(crate) streams: StreamsSlot<STEP_QUEUE, HALF>,
     pub(crate) run: Run,
     started: [bool; MAX_JOINTS],
-    end_armed: bool,
     primed_finished: u32,
+    prelude: [[PulsePeriod; PRELUDE]; MAX_JOINTS],
 }
 
 /// The board's `STEP`.
-pub static STEP: StepShared<STEP_QUEUE, BoardSteps> = StepShared::with_backend(BoardSteps {
-    streams: StreamsSlot::EMPTY,
-    run: Run::Idle,
-    started: [false; MAX_JOINTS],
-    end_armed: false,
-    primed_finished: 0,
-});
+pub static STEP: StepShared<STEP_QUEUE, BoardSteps, StepLock> =
+    StepShared::with_backend(BoardSteps {
+        streams: StreamsSlot::EMPTY,
+        run: Run::Idle,
+        started: [false; MAX_JOINTS],
+        primed_finished: 0,
+        prelude: [[PulsePeriod::ZERO; PRELUDE]; MAX_JOINTS],
+    });
+
+/// The board's `DIRS`.
+pub static DIRS: DirQueues = DirQueues::new();
 
 impl StepBackend for BoardSteps {
     fn timing(&self) -> StepTiming {
@@ -306,42 +429,70 @@ impl StepBackend for BoardSteps {
             return;
         };
         let now = now_tick();
-        let mut prelude = [[PulsePeriod::ZERO; PRELUDE]; MAX_JOINTS];
-        // SAFETY: inside STEP's critical section with every stream disabled.
-        let buffers = unsafe { &mut *BUFFERS.0.get() };
-        let [b0, b1, b2, b3, b4, b5, b6, b7] = buffers;
-        let primed = streams.prime(
-            at_tick.saturating_sub(now),
-            &mut prelude,
-            &mut [b0, b1, b2, b3, b4, b5, b6, b7],
-        );
-        if primed.dir_overflow {
-            streams.producer().stop();
+        streams.prime_begin_shared(at_tick.saturating_sub(now), &DIRS);
+        self.primed_finished = 0;
+        self.run = Run::Priming { next: 0 };
+    }
+
+    fn starting(&self) -> bool {
+        matches!(self.run, Run::Priming { .. })
+    }
+
+    fn continue_start(&mut self) {
+        let Run::Priming { next } = self.run else {
+            return;
+        };
+        let Some(streams) = self.streams.get_mut() else {
+            return;
+        };
+        if next < MAX_JOINTS {
+            // SAFETY: inside STEP's lock with every stream disabled.
+            let buffer = unsafe { &mut (*BUFFERS.0.get())[next] };
+            let primed = streams.prime_joint_shared(next, &mut self.prelude[next], buffer, &DIRS);
+            self.primed_finished += primed.segments_finished;
+            self.run = Run::Priming { next: next + 1 };
+            if primed.dir_overflow {
+                self.stop();
+            }
             return;
         }
         for joint in 0..MAX_JOINTS {
-            while let Some(change) = streams.next_dir_change(joint) {
+            while let Some(change) = DIRS.peek(joint) {
                 if change.tick > 0 {
                     break;
                 }
                 set_direction(joint, change.positive);
-                streams.pop_dir_change(joint);
+                DIRS.pop(joint);
             }
         }
-        for (joint, prelude) in prelude.iter().enumerate() {
-            load_joint(joint, prelude);
-        }
+        // (The board's `broken` check with its warning: a register read per joint, left
+        // out with the log.)
+        let mut origin = None;
+        let loaded = self.prelude.iter().enumerate().all(|(joint, prelude)| {
+            unless_killed(|| {
+                reset_joint_timer(joint);
+                configure_joint_timer(joint);
+                load_joint(joint, prelude);
+            })
+        });
         // (Not on the board: tells the harness how long the preludes play; not counted.)
-        crate::harness_note_prelude(&prelude);
-        for joint in 0..MAX_JOINTS {
-            let timer = joint_timer(joint);
-            timer.write(reg::CR1, reg::CR1_URS | reg::CR1_ARPE | reg::CR1_CEN);
+        crate::harness_note_prelude(&self.prelude);
+        if loaded {
+            unless_killed(|| {
+                for joint in 0..MAX_JOINTS {
+                    let timer = joint_timer(joint);
+                    timer.write(reg::CR1, reg::CR1_URS | reg::CR1_ARPE | reg::CR1_CEN);
+                }
+                origin = Some(now_tick());
+            });
         }
-        let origin = now_tick();
+        let Some(origin) = origin else {
+            self.stop();
+            return;
+        };
+        start_run(origin);
         self.run = Run::Running { origin };
-        self.primed_finished = primed.segments_finished;
         self.started = [false; MAX_JOINTS];
-        self.end_armed = false;
         self.arm_alarm();
     }
 
@@ -350,8 +501,14 @@ impl StepBackend for BoardSteps {
         let Some(streams) = self.streams.get_mut() else {
             return;
         };
-        if self.run != Run::Idle {
-            // SAFETY: inside STEP's critical section, streams disabled.
+        if let Run::Priming { next } = self.run {
+            // SAFETY: inside STEP's lock, streams disabled.
+            let buffers = unsafe { &*BUFFERS.0.get() };
+            for (joint, buffer) in buffers.iter().enumerate().take(next) {
+                streams.unwind_unstarted(joint, buffer);
+            }
+        } else if self.run != Run::Idle {
+            // SAFETY: inside STEP's lock, streams disabled.
             let buffers = unsafe { &*BUFFERS.0.get() };
             for (joint, position) in stopped.iter().enumerate() {
                 let first_unplayed = first_unplayed(self.started[joint], *position);
@@ -369,9 +526,9 @@ impl StepBackend for BoardSteps {
             }
         }
         streams.producer().stop();
-        streams.clear_dir_changes();
         self.run = Run::Idle;
         disarm();
+        DIRS.clear();
     }
 
     fn positions(&self) -> [i32; MAX_JOINTS] {
@@ -379,8 +536,14 @@ impl StepBackend for BoardSteps {
             return [0; MAX_JOINTS];
         };
         let mut positions = streams.producer_ref().positions();
-        if self.run != Run::Idle {
-            // SAFETY: inside STEP's critical section; only read.
+        if let Run::Priming { next } = self.run {
+            // SAFETY: inside STEP's lock; only read.
+            let buffers = unsafe { &*BUFFERS.0.get() };
+            for (joint, buffer) in buffers.iter().enumerate().take(next) {
+                positions[joint] -= streams.unstarted_steps(joint, buffer);
+            }
+        } else if self.run != Run::Idle {
+            // SAFETY: inside STEP's lock; only read.
             let buffers = unsafe { &*BUFFERS.0.get() };
             for (joint, position) in positions.iter_mut().enumerate() {
                 let at = stream_position(joint);
@@ -412,16 +575,16 @@ impl StepBackend for BoardSteps {
 
 impl BoardSteps {
     fn refill(&mut self, joint: usize, half: usize) -> StepProgress {
-        if self.run == Run::Idle {
+        if !matches!(self.run, Run::Running { .. }) {
             return StepProgress::default();
         }
         let Some(streams) = self.streams.get_mut() else {
             return StepProgress::default();
         };
         self.started[joint] = true;
-        // SAFETY: inside STEP's critical section; the stream reads the other half.
+        // SAFETY: inside STEP's lock; the stream reads the other half.
         let buffer = unsafe { &mut (*BUFFERS.0.get())[joint] };
-        let refill = streams.refill(joint, half, &mut buffer.periods[half]);
+        let refill = streams.refill_shared(joint, half, &mut buffer.periods[half], &DIRS);
         if refill.dir_overflow {
             self.stop();
             return StepProgress {
@@ -437,7 +600,7 @@ impl BoardSteps {
         }
     }
 
-    fn on_alarm(&mut self, now: u64) -> StepProgress {
+    fn on_service(&mut self, now: u64) -> StepProgress {
         let Run::Running { origin } = self.run else {
             return StepProgress::default();
         };
@@ -445,15 +608,6 @@ impl BoardSteps {
             return StepProgress::default();
         };
         let at = now.saturating_sub(origin);
-        for joint in 0..MAX_JOINTS {
-            while let Some(DirChange { tick, positive }) = streams.next_dir_change(joint) {
-                if tick > at {
-                    break;
-                }
-                set_direction(joint, positive);
-                streams.pop_dir_change(joint);
-            }
-        }
         if let Some(end) = streams.producer_ref().run_end_tick()
             && at >= end
         {
@@ -471,26 +625,24 @@ impl BoardSteps {
     }
 
     fn arm_alarm(&mut self) {
-        let Run::Running { origin } = self.run else {
+        if !matches!(self.run, Run::Running { .. }) {
             return;
-        };
+        }
         let Some(streams) = self.streams.get() else {
             return;
         };
-        let mut next = u64::MAX;
-        for joint in 0..MAX_JOINTS {
-            if let Some(change) = streams.next_dir_change(joint) {
-                next = next.min(change.tick);
-            }
-        }
-        if let Some(end) = streams.producer_ref().run_end_tick() {
-            next = next.min(end);
-            self.end_armed = true;
-        }
-        if next != u64::MAX {
-            arm(origin + next);
-        }
+        arm(DIRS.earliest(), streams.producer_ref().run_end_tick());
     }
+}
+
+fn unless_killed(enable: impl FnOnce()) -> bool {
+    critical_section::with(|_| {
+        if KILL.load(Ordering::SeqCst) {
+            return false;
+        }
+        enable();
+        true
+    })
 }
 
 fn first_unplayed(started: bool, at: StreamPosition) -> Option<usize> {
@@ -559,18 +711,30 @@ stream_handlers!(
     dma2_stream7 = 7
 );
 
+// ---- step_dma/service.rs ----
+
+/// The board's `#[interrupt] fn TIM7` (the step service), less `estop::service`.
+#[unsafe(no_mangle)]
+pub extern "C" fn tim7() {
+    STEP.on_interrupt(&STEP_PROGRESS, |steps| ((), steps.on_service(now_tick())));
+}
+
 // ---- step_timer.rs ----
 
 #[derive(Clone, Copy)]
 struct ClockState {
     wraps: u64,
     alarm: u64,
+    origin: u64,
+    end: u64,
 }
 
 static CLOCK: Mutex<CriticalSectionRawMutex, Cell<ClockState>> =
     Mutex::new(Cell::new(ClockState {
         wraps: 0,
         alarm: u64::MAX,
+        origin: 0,
+        end: u64::MAX,
     }));
 
 /// Ticks per wrap of the 16-bit counter.
@@ -593,50 +757,61 @@ fn write_tim13_sr(value: u32) {
 
 /// The step clock's tick.
 pub fn now_tick() -> u64 {
-    CLOCK.lock(|cell| {
-        let state = cell.get();
-        // board-logic's step_clock::extended_tick, inlined (this crate builds alone).
-        let pending_before = pac::TIM13.sr().read().0 & SR_UIF != 0;
-        let counter = u64::from(pac::TIM13.cnt().read().cnt());
-        let pending_after = pac::TIM13.sr().read().0 & SR_UIF != 0;
-        cell.set(state);
-        let uncounted = pending_before || (pending_after && counter < WRAP / 2);
-        (state.wraps + u64::from(uncounted)) * WRAP + counter
-    })
+    CLOCK.lock(|cell| tick_at(cell.get().wraps))
 }
 
-fn arm(at: u64) {
+fn tick_at(wraps: u64) -> u64 {
+    // board-logic's step_clock::extended_tick, inlined (this crate builds alone).
+    let pending_before = pac::TIM13.sr().read().0 & SR_UIF != 0;
+    let counter = u64::from(pac::TIM13.cnt().read().cnt());
+    let pending_after = pac::TIM13.sr().read().0 & SR_UIF != 0;
+    let uncounted = pending_before || (pending_after && counter < WRAP / 2);
+    (wraps + u64::from(uncounted)) * WRAP + counter
+}
+
+fn start_run(origin: u64) {
     CLOCK.lock(|cell| {
         let mut state = cell.get();
-        state.alarm = at;
+        state.origin = origin;
+        state.alarm = u64::MAX;
+        state.end = u64::MAX;
         cell.set(state);
     });
-    program_compare();
+}
+
+fn arm(earliest_dir: Option<u64>, end: Option<u64>) {
+    CLOCK.lock(|cell| {
+        let mut state = cell.get();
+        state.end = end.unwrap_or(u64::MAX);
+        let next = earliest_dir.unwrap_or(u64::MAX).min(state.end);
+        if next != u64::MAX {
+            state.alarm = state.alarm.min(state.origin.saturating_add(next));
+        }
+        cell.set(state);
+        program_compare(state);
+    });
 }
 
 fn disarm() {
     CLOCK.lock(|cell| {
         let mut state = cell.get();
         state.alarm = u64::MAX;
+        state.end = u64::MAX;
         cell.set(state);
+        pac::TIM13
+            .dier()
+            .write_value(pac::timer::regs::Dier1ch(DIER_UIE));
     });
-    let regs = pac::TIM13;
-    regs.dier().write_value(pac::timer::regs::Dier1ch(DIER_UIE));
 }
 
-fn program_compare() {
-    let alarm = CLOCK.lock(|cell| {
-        let state = cell.get();
-        let alarm = state.alarm;
-        cell.set(state);
-        alarm
-    });
+fn program_compare(state: ClockState) {
     let regs = pac::TIM13;
-    let now = now_tick();
+    let alarm = state.alarm;
     if alarm == u64::MAX {
         regs.dier().write_value(pac::timer::regs::Dier1ch(DIER_UIE));
         return;
     }
+    let now = tick_at(state.wraps);
     if alarm <= now {
         cortex_m::peripheral::NVIC::pend(pac::Tim13Irq);
         return;
@@ -646,7 +821,7 @@ fn program_compare() {
         write_tim13_sr(!SR_CC1IF & 0xFFFF);
         regs.dier()
             .write_value(pac::timer::regs::Dier1ch(DIER_UIE | DIER_CC1IE));
-        if now_tick() >= alarm {
+        if tick_at(state.wraps) >= alarm {
             cortex_m::peripheral::NVIC::pend(pac::Tim13Irq);
         }
     } else {
@@ -660,27 +835,43 @@ pub extern "C" fn tim8_up_tim13() {
     let regs = pac::TIM13;
     let flags = regs.sr().read().0;
     write_tim13_sr(!(flags & (SR_UIF | SR_CC1IF)) & 0xFFFF);
-    if flags & SR_UIF != 0 {
-        CLOCK.lock(|cell| {
-            let mut state = cell.get();
+    let due = CLOCK.lock(|cell| {
+        let mut state = cell.get();
+        if flags & SR_UIF != 0 {
             state.wraps += 1;
-            cell.set(state);
-        });
-    }
-    let now = now_tick();
-    let alarm = CLOCK.lock(|cell| {
-        let state = cell.get();
-        let alarm = state.alarm;
+        }
+        let now = tick_at(state.wraps);
+        let due = state.alarm <= now;
+        if due {
+            state.alarm = u64::MAX;
+        }
         cell.set(state);
-        alarm
+        due.then_some((now, state.origin, state.end))
     });
-    if alarm <= now {
+    if let Some((now, origin, end)) = due {
+        let at = now.saturating_sub(origin);
+        for joint in 0..MAX_JOINTS {
+            while let Some(DirChange { tick, positive }) = DIRS.peek(joint) {
+                if tick > at {
+                    break;
+                }
+                set_direction(joint, positive);
+                DIRS.pop(joint);
+            }
+        }
+        let mut next = DIRS.earliest().unwrap_or(u64::MAX);
+        if end <= at {
+            cortex_m::peripheral::NVIC::pend(pac::ServiceIrq);
+        } else {
+            next = next.min(end);
+        }
         CLOCK.lock(|cell| {
             let mut state = cell.get();
-            state.alarm = u64::MAX;
+            if next != u64::MAX {
+                state.alarm = state.alarm.min(origin.saturating_add(next));
+            }
             cell.set(state);
         });
-        STEP.on_interrupt(&STEP_PROGRESS, |steps| ((), steps.on_alarm(now)));
     }
-    program_compare();
+    CLOCK.lock(|cell| program_compare(cell.get()));
 }

@@ -1,5 +1,6 @@
 //! Runs the NUCLEO board's whole step path (`board.rs`: its DMA2 stream interrupts, TIM13's
-//! interrupt with the DIR changes, wraps and the run's end, the run's start) over fixed
+//! interrupt with the DIR changes and wraps, the step service interrupt that ends the run,
+//! the run's start) over fixed
 //! trajectories, with the hardware's part simulated in functions named `harness_*`: when
 //! each stream's half-transfer/transfer-complete interrupt comes (from the periods the
 //! refills wrote), TIM13's counter, wraps and compare matches. An instruction trace (QEMU
@@ -37,8 +38,9 @@ static mut HALF_START: [u64; MAX_JOINTS] = [0; MAX_JOINTS];
 static mut PLAYING: [usize; MAX_JOINTS] = [0; MAX_JOINTS];
 /// Per joint: ticks of the prelude (its two periods), noted by the run's start.
 static mut PRELUDE_TICKS: [u64; MAX_JOINTS] = [0; MAX_JOINTS];
-/// Interrupts run in the current case: refills, TIM13 (wraps, compares, pended).
-static mut COUNTS: [u32; 4] = [0; 4];
+/// Interrupts run in the current case: TIM13 (wraps, compares, pended), refills, the step
+/// service.
+static mut COUNTS: [u32; 5] = [0; 5];
 
 /// Called by the run's start (board.rs) with the preludes it loaded: the harness's note of
 /// how long they play (not the board's; not counted).
@@ -74,7 +76,8 @@ markers!(
     step_cost_on_refill = 2u32,
     step_cost_on_tim13 = 3u32,
     step_cost_off = 4u32,
-    step_cost_on_positions = 5u32
+    step_cost_on_positions = 5u32,
+    step_cost_on_service = 6u32
 );
 
 /// Ends a case (run.sh prints what it counted since the previous one).
@@ -139,17 +142,29 @@ pub extern "C" fn harness_tim13(flags: u32) {
     harness_pended();
 }
 
-/// Runs TIM13's interrupt as long as the step path pends it.
+/// Runs TIM13's interrupt as long as the step path pends it, then the step service if
+/// it was pended (TIM13, P1, comes first, as on the board).
 #[unsafe(no_mangle)]
 #[inline(never)]
 pub extern "C" fn harness_pended() {
-    while NVIC::is_pending(pac::Tim13Irq) {
-        NVIC::unpend(pac::Tim13Irq);
-        // SAFETY: single-threaded harness.
-        unsafe { COUNTS[2] += 1 };
-        step_cost_on_tim13();
-        board::tim8_up_tim13();
-        step_cost_off();
+    loop {
+        if NVIC::is_pending(pac::Tim13Irq) {
+            NVIC::unpend(pac::Tim13Irq);
+            // SAFETY: single-threaded harness.
+            unsafe { COUNTS[2] += 1 };
+            step_cost_on_tim13();
+            board::tim8_up_tim13();
+            step_cost_off();
+        } else if NVIC::is_pending(pac::ServiceIrq) {
+            NVIC::unpend(pac::ServiceIrq);
+            // SAFETY: single-threaded harness.
+            unsafe { COUNTS[4] += 1 };
+            step_cost_on_service();
+            board::tim7();
+            step_cost_off();
+        } else {
+            break;
+        }
     }
 }
 
@@ -251,7 +266,7 @@ pub extern "C" fn harness_run() {
     harness_poll_tasks();
     let origin = match STEP.with_engine(|s| s.run) {
         Run::Running { origin } => origin,
-        Run::Idle => {
+        Run::Idle | Run::Priming { .. } => {
             hprintln!("the run did not start");
             debug::exit(debug::EXIT_FAILURE);
             return;
@@ -302,7 +317,7 @@ pub extern "C" fn harness_run() {
 /// `steps[j]` pulses per joint per segment; returns the steps made.
 fn measure(case: u32, duration_us: u32, steps: [i32; MAX_JOINTS]) -> u32 {
     // SAFETY: single-threaded harness.
-    unsafe { COUNTS = [0; 4] };
+    unsafe { COUNTS = [0; 5] };
     for k in 0..SEGMENTS {
         let sign = if k % 2 == 0 { 1 } else { -1 };
         let segment = Segment {
@@ -333,18 +348,19 @@ fn measure(case: u32, duration_us: u32, steps: [i32; MAX_JOINTS]) -> u32 {
     }
     let total = steps.iter().map(|n| n.unsigned_abs()).sum::<u32>() * SEGMENTS as u32;
     // SAFETY: single-threaded harness.
-    let [wraps, compares, pended, refills] = unsafe { COUNTS };
+    let [wraps, compares, pended, refills, services] = unsafe { COUNTS };
     step_cost_case(case);
     if case > 0 {
         hprintln!(
-            "case {} steps {} refills {} wraps {} compares {} pended {} late {}",
+            "case {} steps {} refills {} wraps {} compares {} pended {} late {} services {}",
             case,
             total,
             refills,
             wraps,
             compares,
             pended,
-            late
+            late,
+            services
         );
     }
     total
@@ -352,6 +368,13 @@ fn measure(case: u32, duration_us: u32, steps: [i32; MAX_JOINTS]) -> u32 {
 
 #[entry]
 fn main() -> ! {
+    // For run.sh: whether the step lock's BASEPRI level masks the DIR interrupt (NVIC
+    // priorities: a lower number is more urgent; BASEPRI masks its level and below).
+    hprintln!(
+        "levels step-lock {} dir {}",
+        board::STEP_LOCK_PRIORITY,
+        board::DIR_PRIORITY
+    );
     board::init();
     harness_spawn(trajectory_task);
     harness_poll_tasks();

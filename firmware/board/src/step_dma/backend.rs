@@ -1,15 +1,21 @@
 //! [`BoardSteps`], the board's [`StepBackend`]: arm-step's producer and the DMA buffers
-//! driving the joint timers, and [`STEP`], where the tasks and the step interrupts share it.
+//! driving the joint timers, and [`STEP`], where the tasks and the step interrupts share it
+//! behind the step lock (`lock.rs`: BASEPRI at P2, which leaves the DIR interrupt and the
+//! e-stop input running). The DIR changes the producer writes go to [`DIRS`], which the
+//! step clock's interrupt reads without the lock.
 
 use arm_core::StepShared;
 use arm_core::{StepBackend, StepProgress};
-use arm_step::{DirChange, MAX_JOINTS, PRELUDE, PulsePeriod, Segment, StepTiming, StreamsSlot};
+use core::sync::atomic::Ordering;
 
+use arm_step::{DirQueues, MAX_JOINTS, PRELUDE, PulsePeriod, Segment, StepTiming, StreamsSlot};
+
+use super::lock::StepLock;
 use super::registers::{
     StreamPosition, broken, configure_joint_timer, joint_timer, load_joint, reg, reset_joint_timer,
     stream_position,
 };
-use super::stop::stop_all_step_outputs;
+use super::stop::{KILL, stop_all_step_outputs};
 use super::{BUFFERS, HALF, STEP_QUEUE, STEP_TIMING};
 use crate::pins;
 use crate::step_timer;
@@ -19,6 +25,12 @@ use crate::step_timer;
 enum Run {
     /// Timers stopped, STEP outputs forced low.
     Idle,
+    /// A run's start under way, one joint's buffers per piece (timers stopped): joints
+    /// below `next` are primed.
+    Priming {
+        /// The next joint to prime (`MAX_JOINTS`: all primed, the timers start next).
+        next: usize,
+    },
     /// Timers running since step clock tick `origin`.
     Running {
         /// Step clock tick at which the joint timers started (their tick 0).
@@ -34,10 +46,10 @@ pub struct BoardSteps {
     run: Run,
     /// Per joint: the stream has transferred at least one period (it left the prelude).
     started: [bool; MAX_JOINTS],
-    /// The run's end (timeline ticks) has been handed to the step clock.
-    end_armed: bool,
     /// Segments finished while priming the run, reported with the next progress.
     primed_finished: u32,
+    /// The preludes primed for the run's start (for the timers' registers).
+    prelude: [[PulsePeriod; PRELUDE]; MAX_JOINTS],
 }
 
 /// The backend shared by the tasks and the step interrupts. Its initial value is all zero
@@ -45,7 +57,14 @@ pub struct BoardSteps {
 /// it is `.bss`, with nothing in flash and nothing built at boot: `scripts/fw-size.sh` fails
 /// if a non-zero byte ever sends its 15 KiB to `.data`. (Built at run time it would pass
 /// through `main`'s stack twice: a 31 KB frame.)
-pub static STEP: StepShared<STEP_QUEUE, BoardSteps> = StepShared::with_backend(BoardSteps::new());
+pub static STEP: StepShared<STEP_QUEUE, BoardSteps, StepLock> =
+    StepShared::with_backend(BoardSteps::new());
+
+/// Every joint's DIR changes, from the producer (refills and the run's start, under the
+/// step lock) to the step clock's interrupt (TIM13, which makes them without the lock):
+/// arm-step's lock-free queues. The run's start also consumes the changes at tick 0,
+/// before it arms the step clock; a stop clears them after disarming it.
+pub static DIRS: DirQueues = DirQueues::new();
 
 impl BoardSteps {
     /// Idle, without streams (set by [`super::init`]).
@@ -54,8 +73,8 @@ impl BoardSteps {
             streams: StreamsSlot::EMPTY,
             run: Run::Idle,
             started: [false; MAX_JOINTS],
-            end_armed: false,
             primed_finished: 0,
+            prelude: [[PulsePeriod::ZERO; PRELUDE]; MAX_JOINTS],
         }
     }
 }
@@ -73,8 +92,14 @@ impl StepBackend for BoardSteps {
         self.streams.queued()
     }
 
-    /// Primes every joint's prelude and buffer (the producer's work for the run's first
-    /// 2 * HALF periods), sets the first DIR levels and starts all timers together.
+    /// Begins a run's start: the producer's new run from `at_tick` (the DIR queues
+    /// cleared); the pieces follow ([`BoardSteps::continue_start`]).
+    ///
+    /// Under the step lock (BASEPRI: the DIR interrupt and the e-stop input run on). The
+    /// start is split so that no lock section holds the refills, embassy-time and the
+    /// drivers off for the whole priming (issue 20: up to 228 us for 8 joints at 1 kHz in
+    /// one section): one joint's prelude and buffer halves per piece, then one piece that
+    /// loads and starts the timers.
     fn start(&mut self, at_tick: u64) {
         if self.run != Run::Idle {
             return;
@@ -82,53 +107,99 @@ impl StepBackend for BoardSteps {
         let Some(streams) = self.streams.get_mut() else {
             return;
         };
+        // The segments start this long after the timers' tick 0 (the time the priming
+        // takes comes out of the run's start lead, START_LEAD_US).
         let now = step_timer::now_tick();
-        let mut prelude = [[PulsePeriod::ZERO; PRELUDE]; MAX_JOINTS];
-        // SAFETY: inside STEP's critical section with every stream disabled (Idle): no
-        // one else touches the buffers.
-        let buffers = unsafe { &mut *BUFFERS.0.get() };
-        let [b0, b1, b2, b3, b4, b5, b6, b7] = buffers;
-        let primed = streams.prime(
-            at_tick.saturating_sub(now),
-            &mut prelude,
-            &mut [b0, b1, b2, b3, b4, b5, b6, b7],
-        );
-        if primed.dir_overflow {
-            streams.producer().stop();
+        // The step clock is disarmed while idle: it does not read DIRS, which this clears.
+        streams.prime_begin_shared(at_tick.saturating_sub(now), &DIRS);
+        self.primed_finished = 0;
+        self.run = Run::Priming { next: 0 };
+    }
+
+    fn starting(&self) -> bool {
+        matches!(self.run, Run::Priming { .. })
+    }
+
+    /// The next piece of the start: one joint primed, or, once all are, the first DIR
+    /// levels set and every timer loaded and started.
+    ///
+    /// The timers are loaded joint by joint and then started, each step a critical
+    /// section of under two hundred instructions that first checks [`KILL`]: the e-stop
+    /// input's interrupt may come anywhere in between, and once it has forced the outputs
+    /// off, none of them may be turned on again. If it came, the start is taken back:
+    /// nothing played (no counter ran), so every pulse written is unwound and the run
+    /// stays idle.
+    #[allow(
+        clippy::indexing_slicing,
+        reason = "joint < MAX_JOINTS (checked, or enumerate over [_; MAX_JOINTS]): the step path's arrays"
+    )]
+    fn continue_start(&mut self) {
+        let Run::Priming { next } = self.run else {
+            return;
+        };
+        let Some(streams) = self.streams.get_mut() else {
+            return;
+        };
+        if next < MAX_JOINTS {
+            // SAFETY: inside STEP's lock with every stream disabled (not running): no one
+            // else touches the buffers.
+            let buffer = unsafe { &mut (*BUFFERS.0.get())[next] };
+            let primed = streams.prime_joint_shared(next, &mut self.prelude[next], buffer, &DIRS);
+            self.primed_finished += primed.segments_finished;
+            self.run = Run::Priming { next: next + 1 };
+            if primed.dir_overflow {
+                self.stop();
+            }
             return;
         }
-        // DIR levels for tick 0 (the run's start): now, before any pulse.
+        // DIR levels for tick 0 (the run's start): now, before any pulse, as the queues'
+        // consumer (the step clock is not armed yet).
         for joint in 0..MAX_JOINTS {
-            while let Some(change) = streams.next_dir_change(joint) {
+            while let Some(change) = DIRS.peek(joint) {
                 if change.tick > 0 {
                     break;
                 }
                 pins::set_direction(joint, change.positive);
-                streams.pop_dir_change(joint);
+                DIRS.pop(joint);
             }
         }
-        for (joint, prelude) in prelude.iter().enumerate() {
+        for joint in 0..MAX_JOINTS {
             if broken(joint) {
                 defmt::warn!("joint {}: its timer's break had cleared the output", joint);
             }
-            // A fresh timer for every run (issue 20): nothing left from the last one.
-            reset_joint_timer(joint);
-            configure_joint_timer(joint);
-            load_joint(joint, prelude);
         }
-        for joint in 0..MAX_JOINTS {
-            let timer = joint_timer(joint);
-            timer.write(reg::CR1, reg::CR1_URS | reg::CR1_ARPE | reg::CR1_CEN);
+        let mut origin = None;
+        let loaded = self.prelude.iter().enumerate().all(|(joint, prelude)| {
+            unless_killed(|| {
+                // A fresh timer for every run (issue 20): nothing left from the last one.
+                reset_joint_timer(joint);
+                configure_joint_timer(joint);
+                load_joint(joint, prelude);
+            })
+        });
+        if loaded {
+            unless_killed(|| {
+                for joint in 0..MAX_JOINTS {
+                    let timer = joint_timer(joint);
+                    timer.write(reg::CR1, reg::CR1_URS | reg::CR1_ARPE | reg::CR1_CEN);
+                }
+                // The step clock runs on; its tick at the joint timers' start is their
+                // tick 0. It is read after the counters started, so the DIR alarms (on
+                // the step clock) fire a few ticks late rather than early: never while
+                // STEP is still high (the DIR setup includes the profile's
+                // dir_latency_ns for this and the interrupt's latency).
+                origin = Some(step_timer::now_tick());
+            });
         }
-        // The step clock runs on; its tick at the joint timers' start is their tick 0.
-        // It is read after the counters started, so the DIR alarms (on the step clock)
-        // fire a few ticks late rather than early: never while STEP is still high (the
-        // DIR setup includes the profile's dir_latency_ns for this and the interrupt's latency).
-        let origin = step_timer::now_tick();
+        let Some(origin) = origin else {
+            // The e-stop input opened during the start: its interrupt forced every output
+            // off; no counter ran, so nothing played.
+            self.stop();
+            return;
+        };
+        step_timer::start_run(origin);
         self.run = Run::Running { origin };
-        self.primed_finished = primed.segments_finished;
         self.started = [false; MAX_JOINTS];
-        self.end_armed = false;
         self.arm_alarm();
     }
 
@@ -141,8 +212,15 @@ impl StepBackend for BoardSteps {
         let Some(streams) = self.streams.get_mut() else {
             return;
         };
-        if self.run != Run::Idle {
-            // SAFETY: inside STEP's critical section, streams disabled.
+        if let Run::Priming { next } = self.run {
+            // SAFETY: inside STEP's lock, streams disabled.
+            let buffers = unsafe { &*BUFFERS.0.get() };
+            // No timer ran: every pulse written for the joints primed so far is unplayed.
+            for (joint, buffer) in buffers.iter().enumerate().take(next) {
+                streams.unwind_unstarted(joint, buffer);
+            }
+        } else if self.run != Run::Idle {
+            // SAFETY: inside STEP's lock, streams disabled.
             let buffers = unsafe { &*BUFFERS.0.get() };
             for (joint, position) in stopped.iter().enumerate() {
                 let first_unplayed = first_unplayed(self.started[joint], *position);
@@ -160,9 +238,10 @@ impl StepBackend for BoardSteps {
             }
         }
         streams.producer().stop();
-        streams.clear_dir_changes();
         self.run = Run::Idle;
+        // Disarmed first: from here on the step clock's interrupt does not read DIRS.
         step_timer::disarm();
+        DIRS.clear();
     }
 
     /// The pulses played so far: the producer's count less what the streams have not
@@ -176,8 +255,14 @@ impl StepBackend for BoardSteps {
             return [0; MAX_JOINTS];
         };
         let mut positions = streams.producer_ref().positions();
-        if self.run != Run::Idle {
-            // SAFETY: inside STEP's critical section; only read.
+        if let Run::Priming { next } = self.run {
+            // SAFETY: inside STEP's lock; only read.
+            let buffers = unsafe { &*BUFFERS.0.get() };
+            for (joint, buffer) in buffers.iter().enumerate().take(next) {
+                positions[joint] -= streams.unstarted_steps(joint, buffer);
+            }
+        } else if self.run != Run::Idle {
+            // SAFETY: inside STEP's lock; only read.
             let buffers = unsafe { &*BUFFERS.0.get() };
             for (joint, position) in positions.iter_mut().enumerate() {
                 let at = stream_position(joint);
@@ -224,17 +309,17 @@ impl BoardSteps {
         reason = "joint < MAX_JOINTS (the DMA streams' numbers, or enumerate over [_; MAX_JOINTS]) and half < 2: the step path's arrays"
     )]
     pub(super) fn refill(&mut self, joint: usize, half: usize) -> StepProgress {
-        if self.run == Run::Idle {
+        if !matches!(self.run, Run::Running { .. }) {
             return StepProgress::default();
         }
         let Some(streams) = self.streams.get_mut() else {
             return StepProgress::default();
         };
         self.started[joint] = true;
-        // SAFETY: inside STEP's critical section; the stream reads the other half (checked
+        // SAFETY: inside STEP's lock; the stream reads the other half (checked
         // by the caller).
         let buffer = unsafe { &mut (*BUFFERS.0.get())[joint] };
-        let refill = streams.refill(joint, half, &mut buffer.periods[half]);
+        let refill = streams.refill_shared(joint, half, &mut buffer.periods[half], &DIRS);
         if refill.dir_overflow {
             self.stop();
             return StepProgress {
@@ -250,9 +335,11 @@ impl BoardSteps {
         }
     }
 
-    /// The step clock's alarm: makes the DIR changes that are due and ends the run when
-    /// its end is reached. `now` = step clock tick.
-    pub fn on_alarm(&mut self, now: u64) -> StepProgress {
+    /// The step service interrupt's work (`service.rs`), pended by the step clock when the
+    /// run's end it was given has come: ends the run if nothing was pushed since (every
+    /// pulse played, the last segment over), else hands the step clock the new end.
+    /// `now` = step clock tick.
+    pub fn on_service(&mut self, now: u64) -> StepProgress {
         let Run::Running { origin } = self.run else {
             return StepProgress::default();
         };
@@ -260,15 +347,6 @@ impl BoardSteps {
             return StepProgress::default();
         };
         let at = now.saturating_sub(origin);
-        for joint in 0..MAX_JOINTS {
-            while let Some(DirChange { tick, positive }) = streams.next_dir_change(joint) {
-                if tick > at {
-                    break;
-                }
-                pins::set_direction(joint, positive);
-                streams.pop_dir_change(joint);
-            }
-        }
         if let Some(end) = streams.producer_ref().run_end_tick()
             && at >= end
         {
@@ -286,28 +364,29 @@ impl BoardSteps {
         StepProgress::default()
     }
 
-    /// Arms the step clock at the earliest pending DIR change or the run's end.
+    /// Hands the step clock the earliest queued DIR change and the run's end (if known).
     fn arm_alarm(&mut self) {
-        let Run::Running { origin } = self.run else {
+        if !matches!(self.run, Run::Running { .. }) {
             return;
-        };
+        }
         let Some(streams) = self.streams.get() else {
             return;
         };
-        let mut next = u64::MAX;
-        for joint in 0..MAX_JOINTS {
-            if let Some(change) = streams.next_dir_change(joint) {
-                next = next.min(change.tick);
-            }
-        }
-        if let Some(end) = streams.producer_ref().run_end_tick() {
-            next = next.min(end);
-            self.end_armed = true;
-        }
-        if next != u64::MAX {
-            step_timer::arm(origin + next);
-        }
+        step_timer::arm(DIRS.earliest(), streams.producer_ref().run_end_tick());
     }
+}
+
+/// Runs `enable` (writes that turn a timer or stream on) in a critical section, unless the
+/// e-stop input's interrupt has forced the outputs off ([`KILL`]); false if it had. Inside
+/// the section the interrupt cannot come, so an output is never turned on after it.
+fn unless_killed(enable: impl FnOnce()) -> bool {
+    critical_section::with(|_| {
+        if KILL.load(Ordering::SeqCst) {
+            return false;
+        }
+        enable();
+        true
+    })
 }
 
 /// The first period of a stream that has not started, from where it stands (`None`: the

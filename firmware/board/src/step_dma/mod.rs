@@ -10,20 +10,27 @@
 //! CPU involved. The stream is circular over [`HALF`]` * 2` periods; its half-transfer and
 //! transfer-complete interrupts ([`refill::refill`]) refill the half it just left with
 //! [`arm_step::StepStreams::refill`] (arm-step's producer). The CPU's whole share is the producer's
-//! arithmetic and the interrupts around it: 29 to 45 instructions per step at 100 kHz per
-//! joint (scripts/step-cost: the whole path, TIM13's wraps and DIR alarms included).
+//! arithmetic and the interrupts around it: 38 to 54 instructions per step at 100 kHz per
+//! joint (scripts/step-cost: the whole path, TIM13's wraps, DIR alarms and the step
+//! service included).
 //!
 //! DIR lines change at reversals only, when the joint's previous pulse has fallen, from
 //! the step clock's compare interrupt (`step_timer.rs`), and the producer places the next
 //! pulse no sooner than the DIR setup time (plus the profile's `dir_latency_ns` for the
-//! interrupt) after. The run ends at the producer's `run_end_tick`, also from the step clock.
+//! interrupt) after. No step-path section holds that interrupt off (issue 20): the lock
+//! around [`STEP`] is BASEPRI at P2 (`lock.rs`), below it, and the interrupt takes its DIR
+//! changes from [`DIRS`] (arm-step's lock-free queues) without the lock. The run ends at
+//! the producer's `run_end_tick`: the step clock sees it and pends the step service
+//! (`service.rs`, P2), which ends it under the lock.
 //!
 //! Safety: [`stop_all_step_outputs`] forces every STEP output inactive (OCxM = force
 //! inactive: the pin goes low at once, whatever the counter does), stops the counters and
-//! disables the streams, for the emergency stop, the end of a run, an underrun (a stream
+//! disables the streams, for STOPPED, the end of a run, an underrun (a stream
 //! that reaches a half its interrupt has not refilled: [`refill::refill`] sees both halves
 //! played, or the stream already back in the half it is about to write) and the fault
-//! path. The interrupts are bounded: a refill writes one half and returns; nothing
+//! path; the wired e-stop input's interrupt, above the step lock, makes the same writes
+//! with [`kill_step_outputs`] and leaves the rest to the step service (`crate::estop`'s
+//! header has every interleaving). The interrupts are bounded: a refill writes one half and returns; nothing
 //! re-pends itself, so no step path can starve the tasks.
 //!
 //! Memory: the buffers are a static in SRAM1 (`.sram1`, zeroed by [`init`]): DMA2 reaches
@@ -32,24 +39,29 @@
 //!
 //! Files: this one has the board's profile (its figures, from arm-core's `profile`), the buffers and [`init`]; `registers.rs` the
 //! joint timers' and streams' registers (loading a run's prelude, where a stream stands);
-//! `backend.rs` [`STEP`] and its [`backend::BoardSteps`] (arm-core's `StepBackend`: start,
-//! stop, positions, the DIR alarm); `refill.rs` the streams' interrupts; `stop.rs`
-//! [`stop_all_step_outputs`].
+//! `backend.rs` [`STEP`], [`DIRS`] and its [`backend::BoardSteps`] (arm-core's
+//! `StepBackend`: start, stop, positions, the run's end); `lock.rs` the step lock;
+//! `refill.rs` the streams' interrupts; `service.rs` the step service interrupt; `stop.rs`
+//! [`stop_all_step_outputs`] and [`kill_step_outputs`].
 
 use core::cell::UnsafeCell;
 
 use arm_core::profile::{self, BoardProfile};
 use arm_step::{JointBuffer, MAX_JOINTS, StepTiming};
-use embassy_stm32::interrupt::{InterruptExt, Priority};
+use embassy_stm32::interrupt::InterruptExt;
 use embassy_stm32::pac;
 
 mod backend;
+mod lock;
 mod refill;
 mod registers;
+mod service;
 mod stop;
 
-pub use backend::STEP;
-pub use stop::stop_all_step_outputs;
+pub use backend::{DIRS, STEP};
+pub use lock::{DIR_PRIORITY, STEP_LOCK_PRIORITY};
+pub use service::SERVICE_IRQ;
+pub use stop::{kill_handled, kill_step_outputs, stop_all_step_outputs};
 
 use refill::STREAM_IRQS;
 use registers::{configure_joint_timer, joint_timer};
@@ -75,18 +87,19 @@ pub const STEP_TIMER_HZ: u32 = PROFILE.step_timer_hz;
 
 /// The step timing of every joint: the profile's driver timing on [`STEP_TIMER_HZ`], its
 /// DIR setup lengthened by the profile's `dir_latency_ns` (the step clock's interrupt,
-/// which changes DIR, can be held off by a refill's critical section).
+/// which changes DIR, can be held off by a short critical section and runs its own
+/// joints one after the other).
 pub const STEP_TIMING: StepTiming = PROFILE.step_timing();
 
 /// The longest period of each joint's timer (the profile's: 2^32 ticks for TIM2 and TIM5,
 /// 2^16 for the 16-bit ones).
 pub const MAX_PERIOD_TICKS: [u32; MAX_JOINTS] = PROFILE.step_timer_max_period_ticks;
 
-/// Every joint's DMA buffer. Written by the refills (inside [`STEP`]'s critical section,
+/// Every joint's DMA buffer. Written by the refills (inside [`STEP`]'s lock,
 /// for the half the stream is not reading) and read by the DMA.
 struct Buffers(UnsafeCell<[JointBuffer<HALF>; MAX_JOINTS]>);
 
-// SAFETY: every CPU access happens inside STEP's critical section; the DMA reads the other
+// SAFETY: every CPU access happens inside STEP's lock; the DMA reads the other
 // half (the refill checks where the stream is before it writes).
 unsafe impl Sync for Buffers {}
 
@@ -128,9 +141,9 @@ fn route_lockup_to_timer_breaks() {
 }
 
 /// One-time set-up: clocks of the joint timers and DMA2, every timer's output forced
-/// inactive (STEP low) and enabled, DMAMUX routes, the streams' interrupts at P2 (below
-/// the step clock's P1, which makes the DIR changes). Call before the STEP pins are
-/// switched to their timers.
+/// inactive (STEP low) and enabled, DMAMUX routes, the streams' and the step service's
+/// interrupts at P2 (the step lock's level, below the step clock's P1, which makes the
+/// DIR changes). Call before the STEP pins are switched to their timers.
 pub fn init() {
     // SAFETY: before any stream runs or any refill can touch them: `.sram1` is NOLOAD,
     // so the buffers are zeroed here, not by the reset handler.
@@ -165,8 +178,9 @@ pub fn init() {
     }
     route_lockup_to_timer_breaks();
     for irq in STREAM_IRQS {
-        irq.set_priority(Priority::P2);
-        // SAFETY: the handlers below only touch STEP (critical section) and DMA2's flags.
+        irq.set_priority(STEP_LOCK_PRIORITY);
+        // SAFETY: the handlers only touch STEP (its lock, at their level) and DMA2's flags.
         unsafe { irq.enable() };
     }
+    service::init();
 }

@@ -2,6 +2,7 @@
 //! trajectory, upload and serial tasks over one set of hardware, as one future.
 
 use core::future::Future;
+use embassy_sync::blocking_mutex::raw::RawMutex;
 
 use embassy_futures::select::{Either3, select3};
 
@@ -36,16 +37,17 @@ impl TaskWatch for Unwatched {
 ///
 /// One future for the three: a wake-up of any polls all three, each cheap when it has
 /// nothing to do (a channel, a signal or a timer not due).
-pub async fn controller_task<const CAP: usize, const Q: usize, B, C, K, O, G, P, S, E>(
+pub async fn controller_task<const CAP: usize, const Q: usize, B, M, C, K, O, G, P, S, E>(
     controller: &mut Controller<CAP>,
     bus: &Bus,
-    step: &StepShared<Q, B>,
+    step: &StepShared<Q, B, M>,
     clock: &C,
     hw: TrajectoryHw<'_, K, O, G, P, S, E>,
     watch: &impl TaskWatch,
 ) -> !
 where
     B: StepBackend,
+    M: RawMutex,
     C: Clock,
     K: StepKick,
     O: Outputs,

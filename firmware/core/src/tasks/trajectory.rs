@@ -4,6 +4,7 @@
 
 use core::future::Future;
 use core::pin::pin;
+use embassy_sync::blocking_mutex::raw::RawMutex;
 
 use arm_step::Segment;
 use embassy_futures::select::{Either, Either3, select, select3};
@@ -42,9 +43,9 @@ pub struct TrajectoryHw<'a, K, O, G, P, S, E> {
 }
 
 /// [`Plant`] over the shared engine and the hardware.
-struct TaskPlant<'a, const Q: usize, B, K, O, G, P> {
+struct TaskPlant<'a, const Q: usize, B, M, K, O, G, P> {
     bus: &'a Bus,
-    step: &'a StepShared<Q, B>,
+    step: &'a StepShared<Q, B, M>,
     kick: &'a K,
     lead_ticks: u64,
     /// Segments were pushed since the step interrupt was last kicked.
@@ -54,8 +55,15 @@ struct TaskPlant<'a, const Q: usize, B, K, O, G, P> {
     serial: &'a P,
 }
 
-impl<const Q: usize, B: StepBackend, K: StepKick, O: Outputs, G: Gripper, P: SerialPort> Plant
-    for TaskPlant<'_, Q, B, K, O, G, P>
+impl<
+    const Q: usize,
+    B: StepBackend,
+    M: RawMutex,
+    K: StepKick,
+    O: Outputs,
+    G: Gripper,
+    P: SerialPort,
+> Plant for TaskPlant<'_, Q, B, M, K, O, G, P>
 {
     fn positions(&self) -> [i32; MAX_JOINTS] {
         self.step.positions()
@@ -126,15 +134,16 @@ impl<const Q: usize, B: StepBackend, K: StepKick, O: Outputs, G: Gripper, P: Ser
 /// fits, whenever a segment finished: the lookahead is the backend's whole queue) and
 /// ends runs when it runs dry. At start: loads the stored settings, takes the gripper
 /// timer clock for STATUS, and drives the ENABLE lines to their boot state (all holding).
-pub async fn trajectory_task<const CAP: usize, const Q: usize, B, C, K, O, G, P, S, E>(
+pub async fn trajectory_task<const CAP: usize, const Q: usize, B, M, C, K, O, G, P, S, E>(
     controller: &mut Controller<CAP>,
     bus: &Bus,
-    step: &StepShared<Q, B>,
+    step: &StepShared<Q, B, M>,
     clock: &C,
     hw: TrajectoryHw<'_, K, O, G, P, S, E>,
 ) -> !
 where
     B: StepBackend,
+    M: RawMutex,
     C: Clock,
     K: StepKick,
     O: Outputs,

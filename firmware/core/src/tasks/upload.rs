@@ -1,6 +1,7 @@
 //! The upload task: periodic LOCATION reports.
 
 use embassy_futures::select::{Either, select};
+use embassy_sync::blocking_mutex::raw::RawMutex;
 
 use crate::bus::Bus;
 use crate::hw::Clock;
@@ -11,9 +12,9 @@ use crate::step_shared::{StepBackend, StepShared};
 /// upload period while reports are on and an owner exists. The period restarts when the
 /// trajectory task changes it. (LOCATION reports on state changes are sent by the
 /// trajectory task itself, with the state of that instant.)
-pub async fn upload_task<const Q: usize, B: StepBackend, C: Clock>(
+pub async fn upload_task<const Q: usize, B: StepBackend, M: RawMutex, C: Clock>(
     bus: &Bus,
-    step: &StepShared<Q, B>,
+    step: &StepShared<Q, B, M>,
     clock: &C,
 ) -> ! {
     let mut next = clock.now_us();
