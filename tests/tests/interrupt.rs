@@ -146,6 +146,10 @@ fn interrupt_once(
     let started = Instant::now();
     let mut child = spawn_armctl(sim.addr, &args);
     wait_running(&arm, &mut child);
+    // Moving, not only RUNNING: under the issue 19 soak's load armctl's start took the
+    // whole second, the signal came as RETURN began, and no step had been made in the
+    // 100 ms before it ("the arm was not moving").
+    wait_moved(&arm);
     std::thread::sleep(SIGNAL_AFTER.saturating_sub(started.elapsed()));
     // The mark on the trace's clock: the ACK is back before the signal goes.
     arm.pin(0, true).expect("PIN0_ON");
