@@ -1,9 +1,10 @@
 //! The safety stop: every STEP output low, every counter and stream stopped.
 
 use arm_step::MAX_JOINTS;
-use embassy_stm32::pac;
 
-use super::registers::{StreamPosition, clear_stream_flags, joint_timer, reg, stream_position};
+use super::registers::{
+    StreamPosition, clear_stream_flags, disable_stream, joint_timer, reg, stream_position,
+};
 
 /// Stops every step timer and DMA stream and forces every STEP output low, in one
 /// critical section: no STEP edge after this returns. For the emergency stop, the end of
@@ -21,7 +22,9 @@ pub fn stop_all_step_outputs() -> [StreamPosition; MAX_JOINTS] {
             let timer = joint_timer(joint);
             timer.write(reg::CR1, reg::CR1_URS | reg::CR1_ARPE);
             timer.write(reg::DIER, 0);
-            pac::DMA2.st(joint).cr().modify(|w| w.set_en(false));
+            // Not a bare EN clear: that sets TCIF, which stream_position would read as
+            // "half 1 played" (disable_stream).
+            disable_stream(joint);
             *position = stream_position(joint);
             clear_stream_flags(joint);
         }
