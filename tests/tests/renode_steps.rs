@@ -738,22 +738,23 @@ fn return_moves_the_pins_back_to_zero() {
 
 /// The QEMU test's e-stop (`emergency_stop_mid_run_freezes_the_joints`) on the DMA model as
 /// RM0433 describes it ("DMA transfer suspension": a stream disabled by software sets its
-/// TCIF). It fails: the stop (`step_dma/stop.rs`) disables each stream and then reads its
-/// flags (`stream_position`) to unwind the unplayed periods, takes that TCIF for "half 1
-/// played and not refilled", and reports positions a half buffer of periods ahead of the
-/// pins on the joints whose unplayed period was in half 0 (measured: joint 0 reported 124
-/// with 60 pulses made, joint 4 322 with 301; joints 1-3 and 5 right). Left to the firmware
-/// (read the flags before clearing EN, or wait for EN = 0 and ignore the TCIF it caused),
-/// and to check on silicon: the same disable-then-read order as here.
+/// TCIF). It failed before the stop (`step_dma/stop.rs`, `registers.rs`'s `disable_stream`)
+/// cleared the TCIF its own disable set: read as "half 1 played and not refilled", it left
+/// the positions a half buffer of periods ahead of the pins on the joints whose unplayed
+/// period was in half 0 (measured: joint 0 reported 124 with 60 pulses made, joint 4 322
+/// with 301). Then, once in nine runs, joints a step ahead of their pins: a period that
+/// started after the outputs were all forced low and before the later joints' counters
+/// stopped, counted with no edge; the stop now stops each counter before forcing its
+/// output. To check on silicon: bring-up item 27.
 #[test]
-#[ignore = "the e-stop's positions are wrong on the RM0433 DMA model (TCIF set by the stop's own disable): a firmware fix is needed; run with --ignored to see it"]
 fn positions_after_an_estop_are_the_pulses_the_pins_made() {
     estop_positions_match_the_pins("");
 }
 
-/// The same e-stop with the DMA model's TCIF-on-disable turned off: what the firmware's
-/// unwinding assumes. The positions then match the pins exactly, which shows the rest of the
-/// stop path (stream positions from NDTR, the unwind, no pulse after the stop) right.
+/// The same e-stop with the DMA model's TCIF-on-disable turned off (a DMA that leaves TCIF
+/// alone, as the firmware assumed before `disable_stream`): the stop must be right either
+/// way, and this one exercises the rest of the stop path (stream positions from NDTR, the
+/// unwind, no pulse after the stop) without the disable's TCIF.
 #[test]
 fn positions_after_an_estop_match_the_pins_if_a_disable_leaves_tcif_alone() {
     estop_positions_match_the_pins("sysbus.stepDma2 TransferCompleteOnDisable false");
