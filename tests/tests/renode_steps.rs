@@ -59,6 +59,11 @@ const JOINTS: usize = 6;
 /// Virtual nanoseconds per timer tick in the emulator.
 const NS_PER_TICK: u64 = 1_000_000_000 / EMULATED_TIMER_HZ;
 
+/// The emulated CPU at the instruction rate the profile's DIR budget assumes (the Cortex-M7
+/// at 400 MHz, one instruction a cycle: `dir_latency_ns`'s reason), for the tests that hold
+/// DIR timing to that budget. Renode's default is 100 MIPS.
+const CHIP_MIPS: &str = "sysbus.cpu PerformanceInMips 400";
+
 fn emulated() -> Options {
     Options {
         ack_timeout: Duration::from_millis(400),
@@ -515,16 +520,24 @@ fn a_run_makes_the_oracles_edges_on_the_pins() {
 /// (`dir_latency_ns`, which the producer adds to the drivers' DIR setup before the next
 /// pulse) and before the next rise, and the pulses signed by DIR must sum to the move.
 ///
-/// It fails: the step clock (`step_timer.rs`, `program_compare`) arms TIM13's compare only for
-/// an alarm less than half a wrap away and otherwise looks again at the next wrap, by which
-/// time an alarm that was between half and one wrap away has passed: it fires up to half a
-/// wrap late (32,768 ticks, 164 us at 200 MHz), against a 35 us budget. Seen in the other
-/// tests' DIR lateness too (32,705 and 27,955 ticks in two runs, 282-745 in others).
+/// It failed while the step clock (`step_timer.rs`, `program_compare`) armed TIM13's compare
+/// only for an alarm less than half a wrap away and otherwise looked again at the next wrap,
+/// by which time an alarm between half and one wrap away had passed: DIR up to half a wrap
+/// (32,768 ticks, 164 us at 200 MHz) late against a 35 us budget, 151-154 of 399 reversals
+/// over it, net +2 or +4 pulses for a move of 0. The compare is now armed for any alarm less
+/// than a whole wrap away (board-logic's `step_clock::compare_for`, with its host test).
+///
+/// Run at [`CHIP_MIPS`]: the budget is the chip's (a masked span's instructions at 400 MHz);
+/// at Renode's default 100 MIPS every masked span lasts four times as long in virtual time:
+/// 12 of 399 DIR changes came 12,042-12,057 ticks late, one every 32 points, where a buffer
+/// half (64 periods, 10 a point) ends on a reversal and its refill's critical section holds
+/// TIM13 off (not the LOCATION reports: the same without them). At 400 MIPS the worst was
+/// 2,639 ticks. The firmware before the fix fails at either speed (400 MIPS: 151 over,
+/// net +2).
 #[test]
-#[ignore = "DIR alarms can fire up to half a TIM13 wrap (164 us) late: step_timer.rs arms the compare only within half a wrap; a firmware fix is needed; run with --ignored to see it"]
 fn abrupt_reversals_change_dir_within_the_budget() {
     require_renode!();
-    let mut board = RenodeBoard::start_with_step_path("");
+    let mut board = RenodeBoard::start_with_step_path(CHIP_MIPS);
     let arm = board.connect_from(HOSTS[0], emulated());
     arm.set_location(&[0; JOINTS]).unwrap();
     let start = [0; MAX_JOINTS];
@@ -738,22 +751,23 @@ fn return_moves_the_pins_back_to_zero() {
 
 /// The QEMU test's e-stop (`emergency_stop_mid_run_freezes_the_joints`) on the DMA model as
 /// RM0433 describes it ("DMA transfer suspension": a stream disabled by software sets its
-/// TCIF). It fails: the stop (`step_dma/stop.rs`) disables each stream and then reads its
-/// flags (`stream_position`) to unwind the unplayed periods, takes that TCIF for "half 1
-/// played and not refilled", and reports positions a half buffer of periods ahead of the
-/// pins on the joints whose unplayed period was in half 0 (measured: joint 0 reported 124
-/// with 60 pulses made, joint 4 322 with 301; joints 1-3 and 5 right). Left to the firmware
-/// (read the flags before clearing EN, or wait for EN = 0 and ignore the TCIF it caused),
-/// and to check on silicon: the same disable-then-read order as here.
+/// TCIF). It failed before the stop (`step_dma/stop.rs`, `registers.rs`'s `disable_stream`)
+/// cleared the TCIF its own disable set: read as "half 1 played and not refilled", it left
+/// the positions a half buffer of periods ahead of the pins on the joints whose unplayed
+/// period was in half 0 (measured: joint 0 reported 124 with 60 pulses made, joint 4 322
+/// with 301). Then, once in nine runs, joints a step ahead of their pins: a period that
+/// started after the outputs were all forced low and before the later joints' counters
+/// stopped, counted with no edge; the stop now stops each counter before forcing its
+/// output. To check on silicon: bring-up item 27.
 #[test]
-#[ignore = "the e-stop's positions are wrong on the RM0433 DMA model (TCIF set by the stop's own disable): a firmware fix is needed; run with --ignored to see it"]
 fn positions_after_an_estop_are_the_pulses_the_pins_made() {
     estop_positions_match_the_pins("");
 }
 
-/// The same e-stop with the DMA model's TCIF-on-disable turned off: what the firmware's
-/// unwinding assumes. The positions then match the pins exactly, which shows the rest of the
-/// stop path (stream positions from NDTR, the unwind, no pulse after the stop) right.
+/// The same e-stop with the DMA model's TCIF-on-disable turned off (a DMA that leaves TCIF
+/// alone, as the firmware assumed before `disable_stream`): the stop must be right either
+/// way, and this one exercises the rest of the stop path (stream positions from NDTR, the
+/// unwind, no pulse after the stop) without the disable's TCIF.
 #[test]
 fn positions_after_an_estop_match_the_pins_if_a_disable_leaves_tcif_alone() {
     estop_positions_match_the_pins("sysbus.stepDma2 TransferCompleteOnDisable false");

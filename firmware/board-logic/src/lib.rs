@@ -14,7 +14,10 @@
 //! * [`gripper`]: the burst arithmetic of counted gripper pulses.
 //! * [`net`]: REF_CLK detection, autonegotiated link mode, the link-loss policy.
 //! * [`reset_cause`]: why the chip last reset, from RCC_RSR, logged at boot.
-//! * [`step_clock`]: the step clock's 64-bit tick from TIM13's counter and its wraps.
+//! * [`step_clock`]: the step clock's 64-bit tick from TIM13's counter and its wraps, and
+//!   the rule for arming its compare for an alarm.
+//! * [`step_stream`]: where a step DMA stream stands (NDTR and flags), and which TCIF a
+//!   stream's disable set.
 #![no_std]
 #![warn(missing_docs)]
 // Tests index and unwrap freely: a failing test is meant to panic.
@@ -34,4 +37,5 @@ pub mod net;
 pub mod reset_cause;
 pub mod settings;
 pub mod step_clock;
+pub mod step_stream;
 pub mod watchdog;

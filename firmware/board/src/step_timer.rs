@@ -5,8 +5,10 @@
 //! TIM13 is a 16-bit timer free-running over its whole range (328 us): its update
 //! interrupt counts the wraps, and [`now_tick`] combines the count with the counter,
 //! correcting for a wrap whose interrupt has not run yet. Compare channel 1 is armed at
-//! the next event when it lies within the next half range; farther events are looked at
-//! again at each wrap.
+//! the next event (the alarm's low 16 bits) when it is less than a whole wrap away; farther
+//! events are looked at again at each wrap, which comes before them (board-logic's
+//! `step_clock::compare_for` has the rule and its host test; armed only within half a wrap
+//! until the Renode step tests, an alarm fired up to half a wrap, 164 us, late).
 //!
 //! **DIR never late, by construction (issue 20).** The interrupt runs at P1, above the DMA
 //! refills (P2) and below only the wired e-stop input (P0, which stops the run anyway).
@@ -35,7 +37,7 @@
 use core::cell::Cell;
 
 use arm_core::hw::StepKick;
-use board_logic::step_clock::{self, WRAP};
+use board_logic::step_clock::{self, Compare};
 use embassy_stm32::interrupt::InterruptExt;
 use embassy_stm32::{interrupt, pac};
 use embassy_sync::blocking_mutex::Mutex;
@@ -161,12 +163,10 @@ pub fn disarm() {
     });
 }
 
-/// Sets CC1 for the alarm if it is less than half a wrap away; pends the interrupt if it
-/// is due already. Inside [`CLOCK`]'s critical section, with its state.
-#[allow(
-    clippy::cast_possible_truncation,
-    reason = "the compare value is the alarm's low 16 bits: TIM13's counter wraps at 2^16"
-)]
+/// Sets CC1 for the alarm by board-logic's `step_clock::compare_for` (the rule and why it
+/// is never late: there): the alarm's low 16 bits whenever it is less than a whole wrap
+/// away, otherwise nothing until a wrap's interrupt calls this again; pends the interrupt
+/// if the alarm is due already. Inside [`CLOCK`]'s critical section, with its state.
 fn program_compare(state: ClockState) {
     let regs = pac::TIM13;
     let alarm = state.alarm;
@@ -175,22 +175,24 @@ fn program_compare(state: ClockState) {
         return;
     }
     let now = tick_at(state.wraps);
-    if alarm <= now {
-        cortex_m::peripheral::NVIC::pend(pac::Interrupt::TIM8_UP_TIM13);
-        return;
-    }
-    if alarm - now < WRAP / 2 {
-        regs.ccr(0).write(|w| w.set_ccr(alarm as u16));
-        regs.sr()
-            .write_value(pac::timer::regs::Sr1ch(!SR_CC1IF & 0xFFFF));
-        regs.dier()
-            .write_value(pac::timer::regs::Dier1ch(DIER_UIE | DIER_CC1IE));
-        if tick_at(state.wraps) >= alarm {
-            cortex_m::peripheral::NVIC::pend(pac::Interrupt::TIM8_UP_TIM13);
+    match step_clock::compare_for(alarm, now) {
+        Compare::Due => cortex_m::peripheral::NVIC::pend(pac::Interrupt::TIM8_UP_TIM13),
+        Compare::Match(value) => {
+            regs.ccr(0).write(|w| w.set_ccr(value));
+            regs.sr()
+                .write_value(pac::timer::regs::Sr1ch(!SR_CC1IF & 0xFFFF));
+            regs.dier()
+                .write_value(pac::timer::regs::Dier1ch(DIER_UIE | DIER_CC1IE));
+            // The counter may have passed the value before CCR1 took it (it would match
+            // only a wrap later).
+            if tick_at(state.wraps) >= alarm {
+                cortex_m::peripheral::NVIC::pend(pac::Interrupt::TIM8_UP_TIM13);
+            }
         }
-    } else {
-        // Looked at again at the next wrap.
-        regs.dier().write_value(pac::timer::regs::Dier1ch(DIER_UIE));
+        Compare::AfterWrap => {
+            // Looked at again at the next wrap, which comes before the alarm.
+            regs.dier().write_value(pac::timer::regs::Dier1ch(DIER_UIE));
+        }
     }
 }
 

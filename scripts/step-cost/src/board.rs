@@ -336,13 +336,31 @@ static KILL: AtomicBool = AtomicBool::new(false);
 
 fn outputs_off() {
     for joint in 0..MAX_JOINTS {
-        joint_timer(joint).write(reg::CCMR1, reg::CCMR1_FORCE_INACTIVE);
-    }
-    for joint in 0..MAX_JOINTS {
         let timer = joint_timer(joint);
         timer.write(reg::CR1, reg::CR1_URS | reg::CR1_ARPE);
-        timer.write(reg::DIER, 0);
-        pac::DMA2.st(joint).cr().modify(|w| w.set_en(false));
+        timer.write(reg::CCMR1, reg::CCMR1_FORCE_INACTIVE);
+    }
+    for joint in 0..MAX_JOINTS {
+        joint_timer(joint).write(reg::DIER, 0);
+        disable_stream(joint);
+    }
+}
+
+// registers.rs's disable_stream, with board-logic's step_stream::tcif_from_disable inlined.
+fn disable_stream(joint: usize) {
+    let stream = pac::DMA2.st(joint);
+    let n = joint % 4;
+    let ndtr = stream.ndtr().read().ndt();
+    let tcif = pac::DMA2.isr(joint / 4).read().tcif(n);
+    stream.cr().modify(|w| w.set_en(false));
+    for _ in 0..1_000 {
+        if !stream.cr().read().en() {
+            break;
+        }
+    }
+    let ndtr_after = stream.ndtr().read().ndt();
+    if !tcif && ndtr_after <= ndtr {
+        pac::DMA2.ifcr(joint / 4).write(|w| w.set_tcif(n, true));
     }
 }
 
@@ -816,7 +834,8 @@ fn program_compare(state: ClockState) {
         cortex_m::peripheral::NVIC::pend(pac::Tim13Irq);
         return;
     }
-    if alarm - now < WRAP / 2 {
+    // board-logic's step_clock::compare_for: armed whenever less than a whole wrap away.
+    if alarm - now < WRAP {
         regs.ccr(0).write(|w| w.set_ccr(alarm as u16));
         write_tim13_sr(!SR_CC1IF & 0xFFFF);
         regs.dier()

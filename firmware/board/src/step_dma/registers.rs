@@ -4,6 +4,7 @@
 use core::ptr::addr_of;
 
 use arm_step::{MAX_JOINTS, PRELUDE, PulsePeriod};
+use board_logic::step_stream;
 use embassy_stm32::pac;
 
 use super::{BUFFERS, HALF};
@@ -170,45 +171,52 @@ pub(super) fn broken(joint: usize) -> bool {
 }
 
 /// Words the stream moves per period (ARR, RCR, CCR1).
-pub(super) const WORDS_PER_PERIOD: usize = 3;
+pub(super) use board_logic::step_stream::WORDS_PER_PERIOD;
 /// Words in one joint's whole circular buffer.
 pub(super) const BUFFER_WORDS: usize = 2 * HALF * WORDS_PER_PERIOD;
 
-/// Where a stream stood when it was stopped.
-#[derive(Clone, Copy, Debug, Default)]
-pub struct StreamPosition {
-    /// Index (0..2*HALF) of the next period the stream would have transferred.
-    pub next: usize,
-    /// The half other than the one of the first unplayed period (`next - 1`, in the
-    /// preload register) was played and not refilled yet (its interrupt was pending).
-    pub other_half_played: bool,
-    /// The first unplayed period (`next - 1`) is the last of its half and that half was
-    /// refilled since: the period lives on only in the preload register.
-    pub preload_evicted: bool,
-}
+/// Where a stream stood when it was stopped (board-logic's `step_stream`).
+pub use board_logic::step_stream::StreamPosition;
 
-/// Where joint `joint`'s stream stands (running or stopped).
+/// Where joint `joint`'s stream stands (running, or stopped by [`disable_stream`]):
+/// board-logic's `step_stream::stream_position` of its NDTR and flags.
 pub(super) fn stream_position(joint: usize) -> StreamPosition {
     let remaining = pac::DMA2.st(joint).ndtr().read().ndt() as usize;
-    let done = BUFFER_WORDS.saturating_sub(remaining) / WORDS_PER_PERIOD;
     let flags = pac::DMA2.isr(joint / 4).read();
     let n = joint % 4;
-    let next = done % (2 * HALF);
-    // The first unplayed period is the one in the preload register (next - 1); the other
-    // half than its own is stale if its refill is still pending (HT: half 0 played, TC:
-    // half 1 played).
-    let preload = (next + 2 * HALF - 1) % (2 * HALF);
-    let unplayed_half = preload / HALF;
-    let (own_flag, other_flag) = if unplayed_half == 0 {
-        (flags.htif(n), flags.tcif(n))
-    } else {
-        (flags.tcif(n), flags.htif(n))
-    };
-    StreamPosition {
-        next,
-        other_half_played: other_flag,
-        // The half's end was read (its flag was raised); not pending any more: refilled.
-        preload_evicted: preload % HALF == HALF - 1 && !own_flag,
+    step_stream::stream_position::<HALF>(remaining, flags.htif(n), flags.tcif(n))
+}
+
+/// Reads of EN after clearing it before [`disable_stream`] gives up waiting: the transfer
+/// under way is one word (direct mode), tens of cycles even behind other bus masters; the
+/// bound only keeps the stop (also a fault handler's) from hanging on a broken stream.
+const DISABLE_WAIT_READS: u32 = 1_000;
+
+/// Disables joint `joint`'s stream (its timer already stopped: no new request) and leaves
+/// its flags as its transfers set them, for [`stream_position`].
+///
+/// RM0433 (Rev 7) 15.3, "DMA transfer suspension": clearing EN lets the transfer under way
+/// complete, then sets TCIF "to indicate the end of transfer", then EN reads 0 and NDTR
+/// holds the items left. Read after that, TCIF would say "half 1 played, not refilled" when
+/// it was not, and the stop would keep half 1's pulses as made (Renode's RM0433 DMA model:
+/// joint 0 +124 reported for +60 made). So NDTR and TCIF are read before EN is cleared, and
+/// once EN reads 0 a TCIF that no transfer set (board-logic's
+/// `step_stream::tcif_from_disable`) is cleared; HTIF is never set by a disable.
+pub(super) fn disable_stream(joint: usize) {
+    let stream = pac::DMA2.st(joint);
+    let n = joint % 4;
+    // NDTR before TCIF: see tcif_from_disable.
+    let ndtr = stream.ndtr().read().ndt();
+    let tcif = pac::DMA2.isr(joint / 4).read().tcif(n);
+    stream.cr().modify(|w| w.set_en(false));
+    for _ in 0..DISABLE_WAIT_READS {
+        if !stream.cr().read().en() {
+            break;
+        }
+    }
+    let ndtr_after = stream.ndtr().read().ndt();
+    if step_stream::tcif_from_disable(step_stream::BeforeDisable { ndtr, tcif }, ndtr_after) {
+        pac::DMA2.ifcr(joint / 4).write(|w| w.set_tcif(n, true));
     }
 }
 

@@ -11,27 +11,38 @@
 use core::sync::atomic::{AtomicBool, Ordering};
 
 use arm_step::MAX_JOINTS;
-use embassy_stm32::pac;
 
-use super::registers::{StreamPosition, clear_stream_flags, joint_timer, reg, stream_position};
+use super::registers::{
+    StreamPosition, clear_stream_flags, disable_stream, joint_timer, reg, stream_position,
+};
 
 /// Set by [`kill_step_outputs`] (the e-stop input opened) until the service interrupt has
 /// halted the step backend under the step lock (`super::service`). While set, no
 /// timer or stream is enabled.
 pub(super) static KILL: AtomicBool = AtomicBool::new(false);
 
-/// Every STEP output forced inactive (the pin goes low at once, whatever the counter
-/// does), then every counter, update DMA request and stream stopped.
+/// Every joint's counter stopped and its STEP output forced inactive (the pin goes low at
+/// once, whatever the counter does), then every update DMA request and stream stopped.
 fn outputs_off() {
-    // Outputs first: forced inactive is immediate.
-    for joint in 0..MAX_JOINTS {
-        joint_timer(joint).write(reg::CCMR1, reg::CCMR1_FORCE_INACTIVE);
-    }
+    // Each joint's counter stopped, then its output forced inactive, before the next
+    // joint's: two stores per joint. The counter first, so that no period starts once the
+    // output is forced: a period started there would be counted as played (the stream
+    // moved on) with no rising edge (Renode: joints 3-5 one step ahead of their pins when
+    // the outputs were all forced first and the counters stopped after, joint by joint,
+    // between DMA reads). A pulse under way when the counter stops has risen, and ends at
+    // the force, one store later.
     for joint in 0..MAX_JOINTS {
         let timer = joint_timer(joint);
         timer.write(reg::CR1, reg::CR1_URS | reg::CR1_ARPE);
-        timer.write(reg::DIER, 0);
-        pac::DMA2.st(joint).cr().modify(|w| w.set_en(false));
+        timer.write(reg::CCMR1, reg::CCMR1_FORCE_INACTIVE);
+    }
+    for joint in 0..MAX_JOINTS {
+        joint_timer(joint).write(reg::DIER, 0);
+        // Not a bare EN clear: that sets TCIF, which stream_position would read as "half 1
+        // played" (disable_stream). Made twice when the e-stop input's stop preempts this
+        // one: the second finds the stream off and its flags as the first left them, or
+        // clears the TCIF the first one's disable set once the first one resumes.
+        disable_stream(joint);
     }
 }
 
