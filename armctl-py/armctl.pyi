@@ -53,6 +53,14 @@ class Status(TypedDict):
     step_budget_hz: int
     """Steps per second of all joints together (0: an older controller)."""
     more_flags: MoreFlags
+    enabled: Optional[Enabled]
+    """Each driver's ENABLE (None: an older controller, which reports only
+    flags['drivers_enabled'], "any")."""
+
+class Enabled(TypedDict):
+    joints: List[bool]
+    """One per joint in use: True holding, False limp."""
+    gripper: bool
 
 class MoreFlags(TypedDict):
     upload_dropped: bool
@@ -177,6 +185,14 @@ class Arm:
     def set_location(self, positions: Any) -> None: ...
     def set_joints(self, joints: int) -> None: ...
     def pin(self, pin: int, high: bool) -> None: ...
+    def enable(self, joints: Optional[List[int]] = None, *, gripper: Optional[bool] = None) -> None:
+        """SET_ENABLE: enable (holding) the drivers of `joints` (0-7), and the gripper's
+        with gripper=True; no `joints`: every driver (the gripper too unless
+        gripper=False). Only while STOPPED; the other drivers keep their state."""
+        ...
+    def disable(self, joints: Optional[List[int]] = None, *, gripper: Optional[bool] = None) -> None:
+        """SET_ENABLE: disable (limp) the drivers of `joints`, as enable()."""
+        ...
     def set_key(self, key_file: Optional[_Path] = None) -> None:
         """SET_KEY: store the key of `key_file` (64 hex digits) in the controller, or
         clear it (None). The first key is set plain; a key set already only by a

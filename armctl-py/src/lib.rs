@@ -445,6 +445,35 @@ impl Arm {
         self.call(py, move |arm| arm.set_key(key)).map(|_| ())
     }
 
+    /// SET_ENABLE: enables (holding torque) the drivers of `joints` (0-7) and, with
+    /// `gripper=True`, the gripper's; with no `joints`, every driver (gripper included
+    /// unless `gripper=False`). The others are left as they are. Only while STOPPED.
+    #[pyo3(signature = (joints=None, *, gripper=None))]
+    fn enable(
+        &self,
+        py: Python<'_>,
+        joints: Option<Vec<i64>>,
+        gripper: Option<bool>,
+    ) -> PyResult<()> {
+        let mask = enable_mask(joints, gripper)?;
+        self.call(py, move |arm| arm.set_enable(mask, true))
+            .map(|_| ())
+    }
+
+    /// SET_ENABLE: disables (limp: the joints can be moved by hand) the drivers of
+    /// `joints` and, with `gripper=True`, the gripper's; with no `joints`, every driver.
+    #[pyo3(signature = (joints=None, *, gripper=None))]
+    fn disable(
+        &self,
+        py: Python<'_>,
+        joints: Option<Vec<i64>>,
+        gripper: Option<bool>,
+    ) -> PyResult<()> {
+        let mask = enable_mask(joints, gripper)?;
+        self.call(py, move |arm| arm.set_enable(mask, false))
+            .map(|_| ())
+    }
+
     /// PIN0/PIN1 high (`True`) or low.
     fn pin(&self, py: Python<'_>, pin: u8, high: bool) -> PyResult<()> {
         // A wrong argument is a ValueError, not a "network error" (issue 23).
@@ -672,4 +701,29 @@ fn armctl_py(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("TrajectoryError", py.get_type::<TrajectoryError>())?;
     m.add("PORT", protocol::PORT)?;
     Ok(())
+}
+
+/// The ENABLE mask (bits 0-7 joints, bit 8 gripper) of `enable`/`disable`'s arguments.
+fn enable_mask(joints: Option<Vec<i64>>, gripper: Option<bool>) -> PyResult<u16> {
+    const GRIPPER: u16 = 1 << 8;
+    let Some(joints) = joints else {
+        return Ok(if gripper == Some(false) {
+            0xFF
+        } else {
+            protocol::limits::ENABLE_MASK_BITS
+        });
+    };
+    let mut mask = if gripper == Some(true) { GRIPPER } else { 0 };
+    for j in joints {
+        match u8::try_from(j) {
+            Ok(j) if usize::from(j) < protocol::MAX_JOINTS => mask |= 1 << j,
+            _ => {
+                return Err(PyValueError::new_err(format!(
+                    "joint {j} does not exist: joints are 0..{}",
+                    protocol::MAX_JOINTS - 1
+                )));
+            }
+        }
+    }
+    Ok(mask)
 }

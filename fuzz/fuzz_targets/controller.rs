@@ -652,6 +652,12 @@ impl Harness {
                     "TOGGLE_ENABLE_PINS accepted in {was:?}"
                 );
             }
+            Command::SetEnable { mask, enable } => {
+                assert_eq!(was, State::Stopped, "SET_ENABLE accepted in {was:?}");
+                let drivers = after.status.drivers_enabled().expect("per-driver enables");
+                let want = if *enable { drivers & mask } else { !drivers & mask };
+                assert_eq!(want, *mask, "SET_ENABLE left a masked driver unchanged");
+            }
             Command::Status => {
                 let (_, report) = r.status.expect("no STATUS report for STATUS");
                 assert_eq!(report.state, is);

@@ -166,6 +166,22 @@ pub fn doc_frames() -> Vec<DocFrame> {
             Command::UploadPeriod { period_us: 20_000 },
         ),
         command("ESTOP_RESET, seq 0x19", 0x19, Command::EstopReset),
+        command(
+            "SET_ENABLE, seq 0x1b, disable joints 0 and 1 (mask 0x0003)",
+            0x1b,
+            Command::SetEnable {
+                mask: 0x0003,
+                enable: false,
+            },
+        ),
+        command(
+            "SET_ENABLE, seq 0x1c, enable every driver (mask 0x01ff)",
+            0x1c,
+            Command::SetEnable {
+                mask: 0x01ff,
+                enable: true,
+            },
+        ),
         report(
             "ACK of the NEW above: OK, state NEW, next_seq 0x02, 0 buffered, 8192 free",
             0x01,

@@ -135,6 +135,9 @@ wire_code! {
         UploadPeriod = 0x16 => "UPLOAD_PERIOD",
         /// Clear the wired e-stop input's latch (refused while the input is open).
         EstopReset = 0x17 => "ESTOP_RESET",
+        /// Enable or disable the masked drivers explicitly (issue 23; TOGGLE_ENABLE_PINS
+        /// stays for old hosts).
+        SetEnable = 0x18 => "SET_ENABLE",
         /// Who is there? Answered by every controller, from any host (PROTOCOL.md,
         /// "Finding controllers and setting their address").
         Discover = 0x20 => "DISCOVER",

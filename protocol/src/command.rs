@@ -1,7 +1,7 @@
 //! [`Command`]: what a host sends, decoded from and encoded into a datagram.
 
 use crate::auth::AuthKey;
-use crate::codec::{u8_at, u16_be, u32_le};
+use crate::codec::{u8_at, u16_be, u16_le, u32_le};
 use crate::codes::Tag;
 use crate::error::{DecodeError, DecodeErrorKind, EncodeError, ExpectedLen, Field};
 use crate::frame::{Frame, PointList, open, seal};
@@ -78,6 +78,14 @@ pub enum Command<'a> {
     },
     /// Set the controller's key, or clear it (`None`, no data).
     SetKey(Option<AuthKey>),
+    /// Enable (`enable`) or disable the masked drivers, leaving the others as they are
+    /// (issue 23: an explicit form beside TOGGLE_ENABLE_PINS).
+    SetEnable {
+        /// Bits 0-7 joints, bit 8 gripper (little-endian on the wire, unlike TOGGLE's).
+        mask: u16,
+        /// `true`: holding; `false`: limp.
+        enable: bool,
+    },
 }
 
 impl<'a> Command<'a> {
@@ -110,6 +118,7 @@ impl<'a> Command<'a> {
             Command::EstopReset => Tag::EstopReset,
             Command::Hello { .. } => Tag::Hello,
             Command::SetKey(_) => Tag::SetKey,
+            Command::SetEnable { .. } => Tag::SetEnable,
         }
     }
 
@@ -128,6 +137,7 @@ impl<'a> Command<'a> {
             Command::NetSet(_) => size::NET_SET,
             Command::Hello { .. } => size::HELLO,
             Command::SetKey(Some(_)) => crate::auth::KEY_LEN,
+            Command::SetEnable { .. } => size::SET_ENABLE,
             _ => 0,
         }
     }
@@ -175,6 +185,10 @@ impl<'a> Command<'a> {
             Command::NetSet(net) => net.write(w, 0),
             Command::Hello { nonce } => w.put(0, nonce),
             Command::SetKey(Some(key)) => w.put(0, &key.0),
+            Command::SetEnable { mask, enable } => {
+                w.u16(0, *mask);
+                w.u8(2, u8::from(*enable));
+            }
             _ => {}
         })
     }
@@ -282,6 +296,19 @@ impl<'a> Command<'a> {
                 }
                 _ => return Err(bad_len(ExpectedLen::Either(0, 2))),
             },
+            Tag::SetEnable => {
+                exactly(size::SET_ENABLE)?;
+                let mask = u16_le(data, 0);
+                if mask & !limits::ENABLE_MASK_BITS != 0 {
+                    return Err(out_of_range(Field::EnableMask));
+                }
+                let enable = match u8_at(data, 2) {
+                    0 => false,
+                    1 => true,
+                    _ => return Err(out_of_range(Field::EnableAction)),
+                };
+                Command::SetEnable { mask, enable }
+            }
             Tag::JointsCount => {
                 exactly(1)?;
                 let joints = u8_at(data, 0);

@@ -98,6 +98,8 @@ pub enum Field {
     NetSettings,
     /// DISCOVER_REPLY's owner state (0..2).
     Owner,
+    /// SET_ENABLE's action (0 disable, 1 enable).
+    EnableAction,
 }
 
 impl DecodeError {
@@ -146,6 +148,9 @@ impl fmt::Display for Field {
                 "network settings must be DHCP, or a unicast address with a prefix of 1..32 and a gateway inside its subnet",
             ),
             Field::Owner => f.write_str("unknown owner state"),
+            Field::EnableAction => {
+                f.write_str("SET_ENABLE action must be 0 (disable) or 1 (enable)")
+            }
         }
     }
 }

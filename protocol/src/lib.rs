@@ -79,6 +79,8 @@ pub mod size {
     pub const NET_SET: usize = 10;
     /// DISCOVER_REPLY data.
     pub const DISCOVER_REPLY: usize = 27;
+    /// SET_ENABLE data: mask (u16 little-endian), action (u8).
+    pub const SET_ENABLE: usize = 3;
     /// HELLO data: the host's nonce.
     pub const HELLO: usize = crate::auth::NONCE_LEN;
 }

@@ -798,3 +798,64 @@ fn authenticated_captures_have_their_macs_checked_with_the_preferences_key() {
         "{bad:?}"
     );
 }
+
+/// Issue 23's frames (not in the shared golden file): SET_ENABLE's mask and action, and
+/// STATUS `more_flags` with each driver's ENABLE.
+#[test]
+fn issue_23_frames_decode_in_wireshark() {
+    if !have_wireshark("issue 23 frames") {
+        return;
+    }
+    let dir = scratch("issue23");
+    let pcap = dir.join("issue23.pcap");
+    let host: std::net::SocketAddr = "127.0.0.1:40000".parse().unwrap();
+    let controller: std::net::SocketAddr = format!("127.0.0.1:{}", protocol::PORT).parse().unwrap();
+    let log = armctl::pcap::PcapLog::create(&pcap).expect("create the capture");
+    let mut buf = [0u8; protocol::MAX_DATAGRAM];
+    let n = Cmd::SetEnable {
+        mask: 0x0103,
+        enable: false,
+    }
+    .encode(0x1b, &mut buf)
+    .unwrap();
+    log.record(host, controller, &buf[..n]).unwrap();
+    let status = protocol::StatusReport {
+        state: protocol::State::Stopped,
+        more_flags: protocol::MoreFlags(protocol::MoreFlags::of_enabled(0x1FC)),
+        ..protocol::StatusReport::default()
+    };
+    let n = Report::Status(status).encode(0x1c, &mut buf).unwrap();
+    log.record(controller, host, &buf[..n]).unwrap();
+    drop(log);
+    let packets = dissect(
+        &pcap,
+        &[
+            "armctl.tag",
+            "armctl.enable.mask",
+            "armctl.enable.action",
+            "armctl.verdict",
+            "armctl.status.more_flags.enables_reported",
+            "armctl.status.more_flags.gripper_enabled",
+            "armctl.status.joints_enabled",
+        ],
+        false,
+        None,
+    );
+    assert_eq!(packets.len(), 2);
+    let p = &packets[0];
+    assert_eq!(numbers(&p["armctl.tag"]), [0x18], "{p:?}");
+    assert_eq!(numbers(&p["armctl.enable.mask"]), [0x0103], "{p:?}");
+    assert_eq!(numbers(&p["armctl.enable.action"]), [0], "{p:?}");
+    assert_eq!(numbers(&p["armctl.verdict"]), [0], "{p:?}");
+    let p = &packets[1];
+    assert_eq!(
+        p["armctl.status.more_flags.enables_reported"], "1",
+        "{p:?}"
+    );
+    assert_eq!(
+        p["armctl.status.more_flags.gripper_enabled"], "1",
+        "{p:?}"
+    );
+    assert_eq!(numbers(&p["armctl.status.joints_enabled"]), [0xFC], "{p:?}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

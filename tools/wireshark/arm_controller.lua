@@ -37,6 +37,7 @@ local tag_names = {
     [0x0e] = "PIN1_ON", [0x0f] = "PIN1_OFF", [0x10] = "TOGGLE_ENABLE_PINS",
     [0x11] = "RETURN", [0x12] = "JOINTS_COUNT", [0x13] = "LOCATION_SETTING/LOCATION",
     [0x14] = "ACK", [0x15] = "STATUS", [0x16] = "UPLOAD_PERIOD", [0x17] = "ESTOP_RESET",
+    [0x18] = "SET_ENABLE",
     [0x20] = "DISCOVER", [0x21] = "NET_SET", [0x22] = "DISCOVER_REPLY",
     [0x50] = "AUTH", [0x51] = "HELLO", [0x52] = "SET_KEY", [0x53] = "HELLO_REPLY",
 }
@@ -58,6 +59,7 @@ local direction_names = { [0] = "host to controller", [1] = "controller to host"
 local uart_mode_names = { [0] = "both directions", [1] = "receive only", [2] = "transmit only" }
 local owner_names = { [0] = "no owner", [1] = "owned", [2] = "owned by the asking host" }
 local addr_mode_names = { [0] = "static", [1] = "DHCP" }
+local enable_action_names = { [0] = "disable (limp)", [1] = "enable (holding)" }
 
 ----------------------------------------------------------------------------------------
 -- Fields
@@ -128,6 +130,7 @@ local f = {
     usart_len = dec("uint8", "usart.len", "Length"),
     usart_data = field("bytes", "usart.data", "Serial bytes"),
     enable_mask = hex("uint16", "enable.mask", "Enable mask"),
+    enable_action = dec("uint8", "enable.action", "Action", enable_action_names),
     joints = dec("uint8", "joints", "Joints"),
     upload_period = dec("uint32", "upload_period_us", "Upload period (us)"),
 
@@ -163,6 +166,12 @@ local f = {
     st_executed = dec("uint16", "status.executed", "Points executed"),
     st_capacity = dec("uint16", "status.capacity", "Buffer capacity"),
     st_more_flags = hex("uint16", "status.more_flags", "More flags (offset 18)"),
+    st_more_dropped = field("bool", "status.more_flags.upload_dropped", "Unstarted upload dropped at a hand-over", 16, nil, 0x0001),
+    st_more_estop_open = field("bool", "status.more_flags.estop_open", "Wired e-stop input open", 16, nil, 0x0002),
+    st_more_estop_latched = field("bool", "status.more_flags.estop_latched", "E-stop latch set", 16, nil, 0x0004),
+    st_more_enables = field("bool", "status.more_flags.enables_reported", "Per-driver enables reported (issue 23)", 16, nil, 0x0008),
+    st_more_gripper = field("bool", "status.more_flags.gripper_enabled", "Gripper driver enabled", 16, nil, 0x0010),
+    st_joints_enabled = hex("uint16", "status.joints_enabled", "Joint drivers enabled (bit j = joint j)"),
     st_upload_period = dec("uint32", "status.upload_period_us", "Upload period (us)"),
     st_pwm_clock = dec("uint32", "status.pwm_timer_clock_hz", "PWM timer clock (Hz)"),
     st_max_rate = dec("uint32", "status.max_step_rate_hz", "Max step rate (steps/s)"),
@@ -435,8 +444,17 @@ local function dissect_status_report(tree, data)
     end
     -- u16 fields from offset 6, then u32 fields from offset 20.
     for i, field in ipairs({ f.st_window, f.st_buffered, f.st_expected, f.st_received,
-        f.st_executed, f.st_capacity, f.st_more_flags }) do
+        f.st_executed, f.st_capacity }) do
         tree:add_le(field, data(4 + 2 * i, 2))
+    end
+    local more = tree:add_le(f.st_more_flags, data(18, 2))
+    for _, bit in ipairs({ f.st_more_dropped, f.st_more_estop_open, f.st_more_estop_latched,
+        f.st_more_enables, f.st_more_gripper }) do
+        more:add_le(bit, data(18, 2))
+    end
+    -- Bits 8-15: joints 0-7, meaningful only with bit 3 (an older controller sends 0).
+    if bit.band(data(18, 2):le_uint(), 0x0008) ~= 0 then
+        more:add(f.st_joints_enabled, data(19, 1), data(19, 1):uint())
     end
     for i, field in ipairs({ f.st_upload_period, f.st_pwm_clock, f.st_max_rate, f.st_word32 }) do
         tree:add_le(field, data(16 + 4 * i, 4))
@@ -545,6 +563,15 @@ local host_dissectors = {
         tree:add(f.enable_mask, data(0, 2))
         if data(0, 2):uint() > 0x01FF then out_of_range(tree, "enable mask may only use bits 0-8") end
         return string.format("mask 0x%04x", data(0, 2):uint())
+    end,
+    [0x18] = function(tree, data, len)
+        if len ~= 3 then return length_error(tree, data, "3", len) end
+        tree:add_le(f.enable_mask, data(0, 2))
+        tree:add(f.enable_action, data(2, 1))
+        local mask, action = data(0, 2):le_uint(), data(2, 1):uint()
+        if mask > 0x01FF then out_of_range(tree, "enable mask may only use bits 0-8") end
+        if action > 1 then out_of_range(tree, "SET_ENABLE action must be 0 (disable) or 1 (enable)") end
+        return string.format("%s mask 0x%04x", action == 1 and "enable" or "disable", mask)
     end,
     [0x12] = function(tree, data, len)
         if len ~= 1 then return length_error(tree, data, "1", len) end

@@ -568,6 +568,14 @@ impl Client {
         self.send(&Command::ToggleEnablePins { mask })
     }
 
+    /// SET_ENABLE: enables (`enable`, holding) or disables (limp) the drivers of `mask`
+    /// (bits 0-7 joints, bit 8 gripper), leaving the others as they are; idempotent,
+    /// unlike [`Client::toggle_enable`]. Only while STOPPED. An older controller answers
+    /// `UNKNOWN_TAG` (docs/PROTOCOL.md, SET_ENABLE).
+    pub fn set_enable(&self, mask: u16, enable: bool) -> Result<Ack> {
+        self.send(&Command::SetEnable { mask, enable })
+    }
+
     /// PWM_START: gripper PWM, servo (`pulse_count` 0) or stepper mode.
     pub fn pwm_start(&self, pwm: Pwm) -> Result<Ack> {
         self.send(&Command::PwmStart(pwm))

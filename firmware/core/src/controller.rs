@@ -414,7 +414,7 @@ impl<const CAP: usize> Controller<CAP> {
             received: saturate(self.received as usize),
             executed: saturate(self.executed as usize),
             capacity: saturate(self.buffer.capacity()),
-            more_flags: self.more_flags,
+            more_flags: MoreFlags(self.more_flags.0 | MoreFlags::of_enabled(self.enabled)),
             upload_period_us: self.upload_period_us,
             pwm_timer_clock_hz: self.config.pwm_timer_clock_hz,
             max_step_rate_hz: self.config.max_step_rate_hz,
@@ -862,6 +862,19 @@ impl<const CAP: usize> Controller<CAP> {
             Command::ToggleEnablePins { mask } => {
                 stopped_only(self)?;
                 self.enabled ^= mask.unwrap_or(ALL_DRIVERS) & ALL_DRIVERS;
+                plant.set_enabled(self.enabled);
+            }
+            // Explicit, so that sending it twice (a resend after the duplicate window, a
+            // second tool) never undoes it; only while STOPPED, as TOGGLE: a joint made
+            // limp mid-run loses its steps.
+            Command::SetEnable { mask, enable } => {
+                stopped_only(self)?;
+                let mask = mask & ALL_DRIVERS;
+                if enable {
+                    self.enabled |= mask;
+                } else {
+                    self.enabled &= !mask;
+                }
                 plant.set_enabled(self.enabled);
             }
             Command::Return => {

@@ -493,8 +493,10 @@ fn lengths_and_directions_are_checked() {
         (raw(2, Tag::UsartSend as u8, &[0x55; 256]), BadLength),
         (raw(3, Tag::Ack as u8, &[0; 8]), Unsupported),
         (raw(4, Tag::UsartRecv as u8, &[0; 257]), Unsupported),
-        // 0x17 is ESTOP_RESET (issue 18), without data.
-        (raw(5, 0x18, &[]), UnknownTag),
+        // 0x17 is ESTOP_RESET (issue 18), without data; 0x18 SET_ENABLE (issue 23), 3
+        // bytes.
+        (raw(5, 0x1F, &[]), UnknownTag),
+        (raw(14, Tag::SetEnable as u8, &[]), BadLength),
         (raw(13, Tag::EstopReset as u8, &[0]), BadLength),
         (raw(6, 0xFF, &[]), UnknownTag),
         (raw(7, Tag::Pending as u8, &[0; 13 * 116]), BadLength),
@@ -672,7 +674,9 @@ fn status_report_bytes_at_their_offsets() {
     assert_eq!(&d[12..14], &3u16.to_le_bytes(), "received");
     assert_eq!(&d[14..16], &0u16.to_le_bytes(), "executed");
     assert_eq!(&d[16..18], &20u16.to_le_bytes(), "capacity");
-    assert_eq!(&d[18..20], &[0, 0], "more_flags");
+    // more_flags: bit 3 (per-driver enables reported, issue 23), bit 4 the gripper's
+    // ENABLE, bits 8-15 the joints': all enabled at boot.
+    assert_eq!(&d[18..20], &[0b0001_1000, 0xFF], "more_flags");
     assert_eq!(&d[20..24], &0x0001_2345u32.to_le_bytes(), "period");
     let clock = s.controller.config().pwm_timer_clock_hz;
     assert_eq!(&d[24..28], &clock.to_le_bytes());

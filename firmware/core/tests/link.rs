@@ -344,7 +344,8 @@ fn hand_over_drops_an_unstarted_upload_and_says_so() {
     // A new upload clears the flag.
     s.send_raw(OTHER, &frame(3, Command::New { count: 1 }));
     let r = s.send_raw(OTHER, &frame(4, Command::Status));
-    assert_eq!(r.status.unwrap().1.more_flags.0, 0);
+    let more = r.status.unwrap().1.more_flags;
+    assert!(!more.has(protocol::MoreFlags::UPLOAD_DROPPED));
 }
 
 #[test]

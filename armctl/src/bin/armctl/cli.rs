@@ -91,8 +91,24 @@ pub enum Cmd {
         #[arg(required = true, num_args = 1..=8, allow_negative_numbers = true)]
         positions: Vec<i32>,
     },
-    /// TOGGLE_ENABLE_PINS: toggle driver ENABLE lines (all, or the masked ones).
+    /// SET_ENABLE: enable (holding torque) the drivers of JOINTS, every driver when none
+    /// is given; the others are left as they are. Sending it twice changes nothing more.
     Enable {
+        /// Joints (0-7) and `gripper`, e.g. `0 1 gripper` or `0,1`; `all` or none: every
+        /// driver.
+        #[arg(value_parser = crate::enable::parse_driver, value_delimiter = ',')]
+        joints: Vec<u16>,
+    },
+    /// SET_ENABLE: disable (make limp: the joint can be moved by hand) the drivers of
+    /// JOINTS, every driver when none is given; the others are left as they are.
+    Disable {
+        /// Joints (0-7) and `gripper`, e.g. `2 3` or `2,3`; `all` or none: every driver.
+        #[arg(value_parser = crate::enable::parse_driver, value_delimiter = ',')]
+        joints: Vec<u16>,
+    },
+    /// TOGGLE_ENABLE_PINS: toggle driver ENABLE lines (all, or the masked ones), for
+    /// controllers older than SET_ENABLE.
+    ToggleEnable {
         /// Bits 0-7 joints, bit 8 gripper (decimal or 0x hex).
         #[arg(long, value_parser = parse_mask)]
         mask: Option<u16>,

@@ -19,6 +19,7 @@
 mod cli;
 mod connect;
 mod discover;
+mod enable;
 mod frame;
 mod interrupt;
 mod net;
@@ -107,7 +108,9 @@ fn execute_online(cli: &Cli, arm: &armctl::Client) -> CliResult {
         Cmd::Return { wait } => single::go_home(arm, *wait),
         Cmd::Joints { n } => single::done(arm.set_joints(*n)),
         Cmd::SetLocation { positions } => single::done(arm.set_location(positions)),
-        Cmd::Enable { mask } => single::done(arm.toggle_enable(*mask)),
+        Cmd::Enable { joints } => enable::execute(arm, joints, true),
+        Cmd::Disable { joints } => enable::execute(arm, joints, false),
+        Cmd::ToggleEnable { mask } => single::done(arm.toggle_enable(*mask)),
         Cmd::Pin { pin, level } => single::done(arm.pin(*pin, *level == cli::OnOff::On)),
         Cmd::Pwm(command) => pwm::execute(arm, command),
         Cmd::Serial {

@@ -80,6 +80,7 @@ fn print_status(s: &StatusReport) {
         flag(StatusFlags::UNDERRUN),
         flag(StatusFlags::STOPPED_BY_HOST)
     );
+    println!("{}", crate::enable::drivers_line(s));
     println!("{}", estop_line(s));
     if s.more_flags.has(protocol::MoreFlags::UPLOAD_DROPPED) {
         println!("an unstarted upload was dropped when another host took the controller over");
