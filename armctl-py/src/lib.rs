@@ -445,6 +445,13 @@ impl Arm {
         self.call(py, move |arm| arm.set_key(key)).map(|_| ())
     }
 
+    /// RELEASE: gives the controller up (only while STOPPED), so that another host may
+    /// take it at once; this connection's next command takes it back unless another
+    /// host's came first.
+    fn release(&self, py: Python<'_>) -> PyResult<()> {
+        self.call(py, move |arm| arm.release()).map(|_| ())
+    }
+
     /// SET_ENABLE: enables (holding torque) the drivers of `joints` (0-7) and, with
     /// `gripper=True`, the gripper's; with no `joints`, every driver (gripper included
     /// unless `gripper=False`). The others are left as they are. Only while STOPPED.

@@ -93,9 +93,12 @@ def test_refusals_raise_refused_error_with_the_status(sim):
         assert refused.value.command == "JOINTS_COUNT"
         assert refused.value.state == "RUNNING"
         assert isinstance(refused.value, armctl.ArmctlError)
-        # Another host (address 127.0.0.2) may not drive an owned controller.
+        # Another host (address 127.0.0.2) may read STATUS (issue 23) but not drive
+        # an owned controller.
+        stranger = armctl.connect(sim.address, bind="127.0.0.2:0")
+        assert stranger.status()["state"] == "RUNNING"
         with pytest.raises(armctl.RefusedError) as other:
-            armctl.connect(sim.address, bind="127.0.0.2:0")
+            stranger.pin(0, True)
         assert other.value.status == "NOT_OWNER"
         handle.cancel()
 

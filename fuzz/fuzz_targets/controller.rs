@@ -369,6 +369,40 @@ impl Harness {
             self.upload = None;
         }
 
+        // A read-only STATUS (issue 23) from a host that does not own the controller:
+        // answered (or, beyond its budget, not at all) and nothing taken or changed; it
+        // is not remembered, so it is no duplicate later.
+        let plain_status = matches!(
+            Command::decode(bytes).map(|f| f.body),
+            Ok(Command::Status | Command::StatusWith(_))
+        );
+        if plain_status
+            && owner_before != Some(from.ip)
+            && (r.answer_seq.is_some() || r.reply.is_none())
+        {
+            assert_eq!(
+                self.controller.owner().map(|o| o.ip),
+                owner_before,
+                "a read-only STATUS took the controller"
+            );
+            assert_eq!(
+                after.without_feeding(),
+                before.without_feeding(),
+                "a read-only STATUS changed something"
+            );
+            if let Some(reply) = r.reply {
+                assert_eq!((reply.to, reply.ack.status), (from, StatusCode::Ok));
+                let a = reply.ack;
+                assert_eq!(
+                    (a.next_seq, a.buffered, a.free),
+                    (0, 0, 0),
+                    "a read-only STATUS told the next seq or the buffer"
+                );
+                assert_eq!(r.answer_seq, Some(bytes[0]));
+                assert_eq!(r.status.map(|(to, _)| to), Some(from));
+            }
+            return;
+        }
         // Exactly one ACK, to the sender, for this frame.
         let reply = r.reply.expect("no ACK for a datagram of 3 bytes or more");
         assert_eq!(reply.to, from);
@@ -456,7 +490,10 @@ impl Harness {
             assert!(r.location.is_some(), "no LOCATION for a state change");
         }
 
-        if status == StatusCode::Ok && !is_stop {
+        // A RELEASE from a host that does not own the controller is OK and not
+        // remembered (it must never take the controller): no duplicate later.
+        let release_by_other = bytes[1] == Tag::Release as u8 && owner_before != Some(from.ip);
+        if status == StatusCode::Ok && !is_stop && !release_by_other {
             self.accepted.push_back(Accepted {
                 key,
                 at_us: self.now_us,
@@ -655,10 +692,18 @@ impl Harness {
             Command::SetEnable { mask, enable } => {
                 assert_eq!(was, State::Stopped, "SET_ENABLE accepted in {was:?}");
                 let drivers = after.status.drivers_enabled().expect("per-driver enables");
-                let want = if *enable { drivers & mask } else { !drivers & mask };
+                let want = if *enable {
+                    drivers & mask
+                } else {
+                    !drivers & mask
+                };
                 assert_eq!(want, *mask, "SET_ENABLE left a masked driver unchanged");
             }
-            Command::Status => {
+            Command::Release => {
+                assert_eq!(was, State::Stopped, "RELEASE accepted in {was:?}");
+                assert_eq!(self.controller.owner(), None, "RELEASE left an owner");
+            }
+            Command::Status | Command::StatusWith(_) => {
                 let (_, report) = r.status.expect("no STATUS report for STATUS");
                 assert_eq!(report.state, is);
             }

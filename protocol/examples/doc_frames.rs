@@ -175,6 +175,15 @@ pub fn doc_frames() -> Vec<DocFrame> {
             },
         ),
         command(
+            "STATUS, seq 0x1d, look only, with a LOCATION (request byte 0x03)",
+            0x1d,
+            Command::StatusWith(protocol::StatusAsk {
+                location: true,
+                look_only: true,
+            }),
+        ),
+        command("RELEASE, seq 0x1e", 0x1e, Command::Release),
+        command(
             "SET_ENABLE, seq 0x1c, enable every driver (mask 0x01ff)",
             0x1c,
             Command::SetEnable {

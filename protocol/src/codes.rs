@@ -138,6 +138,8 @@ wire_code! {
         /// Enable or disable the masked drivers explicitly (issue 23; TOGGLE_ENABLE_PINS
         /// stays for old hosts).
         SetEnable = 0x18 => "SET_ENABLE",
+        /// The owner gives the controller up: any host may take it at once (issue 23).
+        Release = 0x19 => "RELEASE",
         /// Who is there? Answered by every controller, from any host (PROTOCOL.md,
         /// "Finding controllers and setting their address").
         Discover = 0x20 => "DISCOVER",
@@ -249,7 +251,7 @@ impl StatusCode {
             }
             BufferFull => "the trajectory buffer is full: resend when the ACK's `free` allows",
             NotOwner => {
-                "another host owns the controller: wait 5 s after it goes quiet, or have it release the arm"
+                "another host owns the controller: wait 5 s after it goes quiet, or have it release the arm (RELEASE, `armctl release`)"
             }
             Unsupported => "this frame only goes from controller to host",
             InvalidConfig => {

@@ -78,6 +78,11 @@ pub enum Command<'a> {
     },
     /// Set the controller's key, or clear it (`None`, no data).
     SetKey(Option<AuthKey>),
+    /// Give the controller up (the owner only): any host may take it at once.
+    Release,
+    /// STATUS with its request byte (issue 23): what else to answer, and whether a host
+    /// that does not own the controller wants only to look.
+    StatusWith(StatusAsk),
     /// Enable (`enable`) or disable the masked drivers, leaving the others as they are
     /// (issue 23: an explicit form beside TOGGLE_ENABLE_PINS).
     SetEnable {
@@ -86,6 +91,44 @@ pub enum Command<'a> {
         /// `true`: holding; `false`: limp.
         enable: bool,
     },
+}
+
+/// STATUS's request byte (docs/PROTOCOL.md, STATUS): plain STATUS (no data) asks for
+/// neither.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+pub struct StatusAsk {
+    /// Bit 0: a LOCATION report (positions and state) to the asker too, right after the
+    /// STATUS report.
+    pub location: bool,
+    /// Bit 1: only look: from a host that does not own the controller, answered read-only
+    /// even when the controller is free (it never makes the asker the owner).
+    pub look_only: bool,
+}
+
+impl StatusAsk {
+    /// Bit 0.
+    pub const LOCATION: u8 = 1 << 0;
+    /// Bit 1.
+    pub const LOOK_ONLY: u8 = 1 << 1;
+
+    /// The byte on the wire.
+    pub const fn byte(self) -> u8 {
+        (if self.location { Self::LOCATION } else { 0 })
+            | (if self.look_only { Self::LOOK_ONLY } else { 0 })
+    }
+
+    /// The request of a byte, `None` with other bits set.
+    pub const fn from_byte(b: u8) -> Option<StatusAsk> {
+        if b & !(Self::LOCATION | Self::LOOK_ONLY) != 0 {
+            return None;
+        }
+        Some(StatusAsk {
+            location: b & Self::LOCATION != 0,
+            look_only: b & Self::LOOK_ONLY != 0,
+        })
+    }
 }
 
 impl<'a> Command<'a> {
@@ -119,6 +162,8 @@ impl<'a> Command<'a> {
             Command::Hello { .. } => Tag::Hello,
             Command::SetKey(_) => Tag::SetKey,
             Command::SetEnable { .. } => Tag::SetEnable,
+            Command::Release => Tag::Release,
+            Command::StatusWith(_) => Tag::Status,
         }
     }
 
@@ -138,6 +183,7 @@ impl<'a> Command<'a> {
             Command::Hello { .. } => size::HELLO,
             Command::SetKey(Some(_)) => crate::auth::KEY_LEN,
             Command::SetEnable { .. } => size::SET_ENABLE,
+            Command::StatusWith(_) => 1,
             _ => 0,
         }
     }
@@ -189,6 +235,7 @@ impl<'a> Command<'a> {
                 w.u16(0, *mask);
                 w.u8(2, u8::from(*enable));
             }
+            Command::StatusWith(ask) => w.u8(0, ask.byte()),
             _ => {}
         })
     }
@@ -363,6 +410,10 @@ impl<'a> Command<'a> {
             Tag::UsartRecv | Tag::Ack | Tag::DiscoverReply | Tag::HelloReply | Tag::Auth => {
                 return Err(err(DecodeErrorKind::WrongDirection));
             }
+            Tag::Status if data.len() == 1 => match StatusAsk::from_byte(u8_at(data, 0)) {
+                Some(ask) => Command::StatusWith(ask),
+                None => return Err(out_of_range(Field::StatusAsk)),
+            },
             Tag::Runing
             | Tag::UploadStart
             | Tag::UploadStop
@@ -375,7 +426,8 @@ impl<'a> Command<'a> {
             | Tag::Return
             | Tag::Status
             | Tag::Discover
-            | Tag::EstopReset => {
+            | Tag::EstopReset
+            | Tag::Release => {
                 exactly(0)?;
                 match tag {
                     Tag::Runing => Command::Runing,
@@ -390,6 +442,7 @@ impl<'a> Command<'a> {
                     Tag::Return => Command::Return,
                     Tag::Discover => Command::Discover,
                     Tag::EstopReset => Command::EstopReset,
+                    Tag::Release => Command::Release,
                     _ => Command::Status,
                 }
             }

@@ -100,6 +100,8 @@ pub enum Field {
     Owner,
     /// SET_ENABLE's action (0 disable, 1 enable).
     EnableAction,
+    /// STATUS's request byte (bits 0 and 1 only).
+    StatusAsk,
 }
 
 impl DecodeError {
@@ -148,6 +150,7 @@ impl fmt::Display for Field {
                 "network settings must be DHCP, or a unicast address with a prefix of 1..32 and a gateway inside its subnet",
             ),
             Field::Owner => f.write_str("unknown owner state"),
+            Field::StatusAsk => f.write_str("STATUS request byte may only use bits 0-1"),
             Field::EnableAction => {
                 f.write_str("SET_ENABLE action must be 0 (disable) or 1 (enable)")
             }

@@ -28,7 +28,7 @@ mod report;
 mod types;
 
 pub use codes::{State, StatusCode, Tag};
-pub use command::Command;
+pub use command::{Command, StatusAsk};
 pub use error::{DecodeError, DecodeErrorKind, EncodeError, ExpectedLen, Field};
 pub use frame::{Frame, PointList, PointsIter, crc8};
 pub use limits::DEFAULT_WINDOW;

@@ -89,3 +89,44 @@ fn status_more_flags_carry_each_drivers_enable_old_hosts_see_36_bytes() {
     assert_eq!(old.drivers_enabled(), None);
     assert_eq!(MoreFlags::of_enabled(0), MoreFlags::ENABLES_REPORTED);
 }
+
+#[test]
+fn status_takes_one_request_byte_and_release_none() {
+    use protocol::StatusAsk;
+    assert_eq!(Tag::Release as u8, 0x19);
+    let look = StatusAsk {
+        location: true,
+        look_only: true,
+    };
+    let bytes = encode(Command::StatusWith(look), 0x1d);
+    assert_eq!(&bytes[..3], &[0x1d, 0x15, 0x03]);
+    assert_eq!(
+        Command::decode(&bytes).unwrap().body,
+        Command::StatusWith(look)
+    );
+    // No data: the plain STATUS of old hosts, unchanged.
+    assert_eq!(
+        Command::decode(&with_crc(vec![1, 0x15])).unwrap().body,
+        Command::Status
+    );
+    let kind = |data: &[u8]| {
+        Command::decode(&with_crc([&[1, 0x15][..], data].concat()))
+            .unwrap_err()
+            .kind
+    };
+    assert_eq!(kind(&[0x04]), DecodeErrorKind::OutOfRange(Field::StatusAsk));
+    assert!(matches!(kind(&[0, 0]), DecodeErrorKind::BadLength { .. }));
+    for b in 0..=3u8 {
+        assert_eq!(StatusAsk::from_byte(b).map(StatusAsk::byte), Some(b));
+    }
+    let release = encode(Command::Release, 0x1e);
+    assert_eq!(&release[..2], &[0x1e, 0x19]);
+    assert_eq!(release.len(), 3);
+    assert_eq!(Command::decode(&release).unwrap().body, Command::Release);
+    assert!(matches!(
+        Command::decode(&with_crc(vec![1, 0x19, 0]))
+            .unwrap_err()
+            .kind,
+        DecodeErrorKind::BadLength { .. }
+    ));
+}

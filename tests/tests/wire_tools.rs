@@ -52,3 +52,45 @@ fn enable_and_disable_are_explicit_and_status_shows_each_driver() {
     assert!(!ok, "{out}");
     assert!(err.contains("joint numbers 0-7"), "{err}");
 }
+
+fn armctl_from(sim: &SimHost, bind: &str, args: &[&str]) -> (bool, String, String) {
+    let mut all = vec!["--bind", bind];
+    all.extend_from_slice(args);
+    armctl(sim, &all)
+}
+
+#[test]
+fn a_second_host_reads_status_and_positions_and_is_told_who_owns_the_arm_until_release() {
+    let sim = SimHost::start(&["--joints", "3"]);
+    // The first host takes the controller and declares positions.
+    let (ok, out, err) = armctl_from(&sim, "127.0.0.1:0", &["set-location", "5", "-6", "7"]);
+    assert!(ok, "{out}\n{err}");
+    // A second host reads STATUS and the positions, read-only.
+    let (ok, out, err) = armctl_from(&sim, "127.0.0.2:0", &["status"]);
+    assert!(ok, "{out}\n{err}");
+    assert!(out.contains("state            STOPPED"), "{out}");
+    assert!(out.contains("    0                 5  enabled"), "{out}");
+    assert!(out.contains("    1                -6  enabled"), "{out}");
+    assert!(out.contains("    2                 7  enabled"), "{out}");
+    assert!(out.contains("read-only"), "{out}");
+    let (ok, out, _) = armctl_from(&sim, "127.0.0.2:0", &["status", "--json"]);
+    assert!(ok);
+    let json: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(json["positions"], serde_json::json!([5, -6, 7]), "{out}");
+    assert_eq!(json["read_only"], true);
+    // Its commands are refused, and the message names the owner.
+    let (ok, out, err) = armctl_from(&sim, "127.0.0.2:0", &["pin", "0", "on"]);
+    assert!(!ok, "{out}");
+    assert!(err.contains("NOT_OWNER"), "{err}");
+    assert!(err.contains("owned by 127.0.0.1"), "{err}");
+    // The owner releases; the second host takes the controller at once.
+    let (ok, out, err) = armctl_from(&sim, "127.0.0.1:0", &["release"]);
+    assert!(ok, "{out}\n{err}");
+    assert!(out.contains("released"), "{out}");
+    let (ok, out, err) = armctl_from(&sim, "127.0.0.2:0", &["pin", "0", "on"]);
+    assert!(ok, "{out}\n{err}");
+    // Now the first host is the stranger.
+    let (ok, _, err) = armctl_from(&sim, "127.0.0.1:0", &["pin", "0", "off"]);
+    assert!(!ok);
+    assert!(err.contains("owned by 127.0.0.2"), "{err}");
+}

@@ -826,10 +826,21 @@ fn issue_23_frames_decode_in_wireshark() {
     };
     let n = Report::Status(status).encode(0x1c, &mut buf).unwrap();
     log.record(controller, host, &buf[..n]).unwrap();
+    let n = Cmd::StatusWith(protocol::StatusAsk {
+        location: true,
+        look_only: true,
+    })
+    .encode(0x1d, &mut buf)
+    .unwrap();
+    log.record(host, controller, &buf[..n]).unwrap();
+    let n = Cmd::Release.encode(0x1e, &mut buf).unwrap();
+    log.record(host, controller, &buf[..n]).unwrap();
     drop(log);
     let packets = dissect(
         &pcap,
         &[
+            "armctl.status.ask.location",
+            "armctl.status.ask.look_only",
             "armctl.tag",
             "armctl.enable.mask",
             "armctl.enable.action",
@@ -841,21 +852,23 @@ fn issue_23_frames_decode_in_wireshark() {
         false,
         None,
     );
-    assert_eq!(packets.len(), 2);
+    assert_eq!(packets.len(), 4);
     let p = &packets[0];
     assert_eq!(numbers(&p["armctl.tag"]), [0x18], "{p:?}");
     assert_eq!(numbers(&p["armctl.enable.mask"]), [0x0103], "{p:?}");
     assert_eq!(numbers(&p["armctl.enable.action"]), [0], "{p:?}");
     assert_eq!(numbers(&p["armctl.verdict"]), [0], "{p:?}");
     let p = &packets[1];
-    assert_eq!(
-        p["armctl.status.more_flags.enables_reported"], "1",
-        "{p:?}"
-    );
-    assert_eq!(
-        p["armctl.status.more_flags.gripper_enabled"], "1",
-        "{p:?}"
-    );
+    assert_eq!(p["armctl.status.more_flags.enables_reported"], "1", "{p:?}");
+    assert_eq!(p["armctl.status.more_flags.gripper_enabled"], "1", "{p:?}");
     assert_eq!(numbers(&p["armctl.status.joints_enabled"]), [0xFC], "{p:?}");
+    let p = &packets[2];
+    assert_eq!(numbers(&p["armctl.tag"]), [0x15], "{p:?}");
+    assert_eq!(p["armctl.status.ask.location"], "1", "{p:?}");
+    assert_eq!(p["armctl.status.ask.look_only"], "1", "{p:?}");
+    assert_eq!(numbers(&p["armctl.verdict"]), [0], "{p:?}");
+    let p = &packets[3];
+    assert_eq!(numbers(&p["armctl.tag"]), [0x19], "{p:?}");
+    assert_eq!(numbers(&p["armctl.verdict"]), [0], "{p:?}");
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -37,7 +37,7 @@ local tag_names = {
     [0x0e] = "PIN1_ON", [0x0f] = "PIN1_OFF", [0x10] = "TOGGLE_ENABLE_PINS",
     [0x11] = "RETURN", [0x12] = "JOINTS_COUNT", [0x13] = "LOCATION_SETTING/LOCATION",
     [0x14] = "ACK", [0x15] = "STATUS", [0x16] = "UPLOAD_PERIOD", [0x17] = "ESTOP_RESET",
-    [0x18] = "SET_ENABLE",
+    [0x18] = "SET_ENABLE", [0x19] = "RELEASE",
     [0x20] = "DISCOVER", [0x21] = "NET_SET", [0x22] = "DISCOVER_REPLY",
     [0x50] = "AUTH", [0x51] = "HELLO", [0x52] = "SET_KEY", [0x53] = "HELLO_REPLY",
 }
@@ -131,6 +131,9 @@ local f = {
     usart_data = field("bytes", "usart.data", "Serial bytes"),
     enable_mask = hex("uint16", "enable.mask", "Enable mask"),
     enable_action = dec("uint8", "enable.action", "Action", enable_action_names),
+    status_ask = hex("uint8", "status.ask", "Request byte"),
+    status_ask_location = field("bool", "status.ask.location", "Also a LOCATION report", 8, nil, 0x01),
+    status_ask_look = field("bool", "status.ask.look_only", "Look only (never takes the controller)", 8, nil, 0x02),
     joints = dec("uint8", "joints", "Joints"),
     upload_period = dec("uint32", "upload_period_us", "Upload period (us)"),
 
@@ -612,11 +615,26 @@ host_dissectors[0x52] = function(tree, data, len)
     return "set a key"
 end
 -- Commands without data.
-for _, tag in ipairs({ 0x02, 0x04, 0x05, 0x07, 0x09, 0x0c, 0x0d, 0x0e, 0x0f, 0x11, 0x15, 0x17, 0x20 }) do
+for _, tag in ipairs({ 0x02, 0x04, 0x05, 0x07, 0x09, 0x0c, 0x0d, 0x0e, 0x0f, 0x11, 0x17, 0x19, 0x20 }) do
     host_dissectors[tag] = function(tree, data, len)
         if len ~= 0 then return length_error(tree, data, "0", len) end
         return ""
     end
+end
+-- STATUS: no data (old hosts), or the request byte (issue 23): bit 0 a LOCATION too, bit 1
+-- look only.
+host_dissectors[0x15] = function(tree, data, len)
+    if len == 0 then return "" end
+    if len ~= 1 then return length_error(tree, data, "0 or 1", len) end
+    local ask = tree:add(f.status_ask, data(0, 1))
+    ask:add(f.status_ask_location, data(0, 1))
+    ask:add(f.status_ask_look, data(0, 1))
+    local b = data(0, 1):uint()
+    if b > 3 then out_of_range(tree, "STATUS request byte may only use bits 0-1") end
+    local parts = {}
+    if bit.band(b, 1) ~= 0 then parts[#parts + 1] = "with LOCATION" end
+    if bit.band(b, 2) ~= 0 then parts[#parts + 1] = "look only" end
+    return table.concat(parts, ", ")
 end
 -- STOPPED: any data is ignored by the controller, which stops all the same (PROTOCOL.md
 -- section 4, issue 18): shown, not flagged as a length error.

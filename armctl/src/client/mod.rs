@@ -20,6 +20,8 @@ use crate::rtt::{DEFAULT_MIN_RTO, RESEND_HORIZON, RttEstimator};
 
 pub mod auth;
 mod receiver;
+mod wire_tools;
+pub use wire_tools::Glance;
 
 pub(crate) use receiver::{AckWaiter, Event, lock};
 use receiver::{Shared, receive_loop};
@@ -566,14 +568,6 @@ impl Client {
     /// 0-7 joints, bit 8 gripper).
     pub fn toggle_enable(&self, mask: Option<u16>) -> Result<Ack> {
         self.send(&Command::ToggleEnablePins { mask })
-    }
-
-    /// SET_ENABLE: enables (`enable`, holding) or disables (limp) the drivers of `mask`
-    /// (bits 0-7 joints, bit 8 gripper), leaving the others as they are; idempotent,
-    /// unlike [`Client::toggle_enable`]. Only while STOPPED. An older controller answers
-    /// `UNKNOWN_TAG` (docs/PROTOCOL.md, SET_ENABLE).
-    pub fn set_enable(&self, mask: u16, enable: bool) -> Result<Ack> {
-        self.send(&Command::SetEnable { mask, enable })
     }
 
     /// PWM_START: gripper PWM, servo (`pulse_count` 0) or stepper mode.

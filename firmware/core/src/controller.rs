@@ -17,6 +17,13 @@
 //!    sender, in any state, whatever its data (ignored); it is never a duplicate, takes
 //!    no owner and is not remembered (issue 18: a spurious stop is safe, an ignored one
 //!    is not). The checks below never see it.
+//!    - then (3a) **STATUS and RELEASE from a host that does not own the controller**
+//!      (issue 23, `not_owner_status_or_release`): STATUS while another host holds the
+//!      controller (or asking only to look) is answered read-only, with the request's seq,
+//!      the NOT_OWNER zeros in the ACK and nothing taken, at most
+//!      [`DISCOVER_REPLIES_PER_S`] a second; RELEASE is `OK` with nothing done when
+//!      nobody holds it (it never takes the controller) and goes on to `NOT_OWNER`
+//!      otherwise.
 //! 4. **owner**: the first sender of a CRC-valid frame owns the controller; another
 //!    address takes over when the owner has been silent for 5 s and the state is not
 //!    RUNNING (an upload it had not started is dropped then: STATUS `more_flags` bit 0);
@@ -225,6 +232,10 @@ pub struct Controller<const CAP: usize> {
     /// What HELLO replies may still be sent (the same bound as DISCOVER's: a 62-byte
     /// reply to a 19-byte request, to whatever address it names).
     hello_budget: ReplyBudget,
+    /// What read-only STATUS answers to hosts that do not own the controller may still
+    /// be sent (the same bound as DISCOVER's: issue 23's read-only STATUS is a 39-byte
+    /// report, and a 39-byte LOCATION when asked, to a 4-byte request).
+    glance_budget: ReplyBudget,
     /// Authenticated sessions (with a key set).
     sessions: Sessions,
     /// The latest time the controller was told (by [`Controller::handle`] or
@@ -538,6 +549,14 @@ impl<const CAP: usize> Controller<CAP> {
             response.reply = reply(self, StatusCode::Ok);
             return response;
         }
+        // Read-only STATUS and RELEASE from a host that does not own the controller
+        // (docs/PROTOCOL.md section 1, issue 23): answered before the owner rule, taking
+        // nothing.
+        if self.owner.is_none_or(|o| o.ip != from.ip)
+            && let Some(done) = self.not_owner_status_or_release(from, datagram, now_us, plant)
+        {
+            return done;
+        }
         // 3. owner
         let from_owner = match self.owner {
             None => {
@@ -721,7 +740,8 @@ impl<const CAP: usize> Controller<CAP> {
         if self.uploader == Some(key.from) {
             self.order.mark(key.seq);
         }
-        if !from_owner {
+        // RELEASE ended the ownership: its sender gets nothing more.
+        if !from_owner || key.tag == Tag::Release as u8 {
             return;
         }
         let claims_location = [Tag::New, Tag::Return, Tag::UploadStart, Tag::UploadPeriod]
@@ -903,6 +923,19 @@ impl<const CAP: usize> Controller<CAP> {
                 }
             }
             Command::Status => response.status = Some((from, self.status(plant))),
+            Command::StatusWith(ask) => {
+                response.status = Some((from, self.status(plant)));
+                if ask.location {
+                    response.asked_location = Some((from, self.location(plant)));
+                }
+            }
+            // The owner gives the controller up: no owner, no report destinations (the
+            // next host to speak takes it, as at boot). Only while STOPPED: an upload or
+            // run of the owner's would otherwise pass to whoever speaks next.
+            Command::Release => {
+                stopped_only(self)?;
+                self.release();
+            }
             Command::UploadPeriod { period_us } => self.upload_period_us = period_us,
             // Answered in `handle` before the owner rule; never reaches here.
             Command::Discover => {}
@@ -939,6 +972,76 @@ impl<const CAP: usize> Controller<CAP> {
             }
         }
         Ok(())
+    }
+
+    /// RELEASE's execution: the controller has no owner and sends reports to no one.
+    fn release(&mut self) {
+        self.owner = None;
+        self.listeners = [None; LOCATION_LISTENERS];
+        self.location_claimer = None;
+        self.serial_to = None;
+        self.uploader = None;
+    }
+
+    /// STATUS and RELEASE from `from`, a host that does not own the controller (none may,
+    /// or another does): the response, or `None` to go on with the owner rule.
+    ///
+    /// * STATUS is answered read-only (issue 23) when another host owns the controller
+    ///   (and has not lost it: silent 5 s with the arm not running), or whatever the owner
+    ///   when the request byte asks only to look: an ACK `OK` with the arm's state and the
+    ///   NOT_OWNER zeros (no next seq, no buffer counts), the STATUS report (and the
+    ///   LOCATION asked for), all with the request's own seq. It takes nothing: no owner,
+    ///   no owner's timer, no duplicate memory, no ordering mark, no report destination;
+    ///   at most [`DISCOVER_REPLIES_PER_S`] a second after a burst of [`DISCOVER_BURST`]
+    ///   (beyond that: no answer at all).
+    /// * RELEASE never takes the controller: with no owner (or one that lost it) it is
+    ///   `OK` and does nothing (the RELEASE that freed it, resent because its ACK was
+    ///   lost, must not take it back); with another owner it is `NOT_OWNER`.
+    fn not_owner_status_or_release(
+        &mut self,
+        from: Endpoint,
+        datagram: &[u8],
+        now_us: u64,
+        plant: &mut impl Plant,
+    ) -> Option<Response> {
+        let [seq, tag, ..] = *datagram else {
+            return None;
+        };
+        let held_by_other = self.owner.is_some_and(|o| {
+            self.state == State::Running
+                || now_us.saturating_sub(o.last_heard_us) < OWNER_TIMEOUT_US
+        });
+        let mut response = Response::default();
+        if tag == Tag::Release as u8 {
+            if held_by_other {
+                return None;
+            }
+            response.reply = Some(self.ack(from, seq, tag, StatusCode::Ok));
+            return Some(response);
+        }
+        if tag != Tag::Status as u8 {
+            return None;
+        }
+        let ask = match Command::decode(datagram).map(|f| f.body) {
+            Ok(Command::Status) => protocol::StatusAsk::default(),
+            Ok(Command::StatusWith(ask)) => ask,
+            _ => return None,
+        };
+        if !held_by_other && !ask.look_only {
+            return None;
+        }
+        if !self.glance_budget.take(now_us) {
+            return Some(response);
+        }
+        let mut ack = blank_ack(from, seq, tag, StatusCode::Ok);
+        ack.ack.state = self.state;
+        response.reply = Some(ack);
+        response.status = Some((from, self.status(plant)));
+        if ask.location {
+            response.asked_location = Some((from, self.location(plant)));
+        }
+        response.answer_seq = Some(seq);
+        Some(response)
     }
 
     /// STOPPED's execution: no further pulse, the trajectory dropped, state STOPPED.

@@ -115,3 +115,188 @@ fn status_reports_each_drivers_enable_in_more_flags() {
     assert_eq!(old.drivers_enabled(), None);
     let _ = (Report::Status(st), Tag::Status, State::Stopped);
 }
+
+const RELEASE: u8 = 0x19;
+
+/// The owner's clock moves on by `us` (its silence grows).
+fn wait(s: &mut Session<64>, us: u64) {
+    s.now_us += us;
+}
+
+#[test]
+fn a_stranger_reads_status_without_taking_the_controller() {
+    let mut s = Session::<64>::new(64);
+    s.expect(Command::Status, Ok);
+    s.start_endless_run();
+    let r = s.send_raw(OTHER, &frame(7, Command::Status));
+    let ack = r.reply.expect("an ACK").ack;
+    assert_eq!(ack.status, Ok, "STATUS is readable by any host (issue 23)");
+    assert_eq!(ack.state, State::Running);
+    // Nothing that helps forge a frame: no next seq, no buffer counts in the ACK.
+    assert_eq!((ack.next_seq, ack.buffered, ack.free), (0, 0, 0));
+    let (to, report) = r.status.expect("a STATUS report for the stranger");
+    assert_eq!(to, OTHER);
+    assert_eq!(report.state, State::Running);
+    // The owner stays, and the stranger's other commands are still refused.
+    assert_eq!(s.controller.owner().map(|o| o.ip), Some(HOST.ip));
+    let r = s.send_raw(OTHER, &frame(8, Command::Pin0On));
+    assert_eq!(r.reply.unwrap().ack.status, NotOwner);
+    // The stranger's STATUS is not remembered: asking again with the same bytes is
+    // answered again.
+    let r = s.send_raw(OTHER, &frame(7, Command::Status));
+    assert!(r.status.is_some());
+    // A stranger's STATUS refreshes nothing of the owner's: after 5 s of the owner's
+    // silence (the arm stopped), the stranger can take over as before.
+    s.expect(Command::Stopped, Ok);
+    wait(&mut s, arm_core::config::OWNER_TIMEOUT_US);
+    let r = s.send_raw(OTHER, &frame(9, Command::Pin0On));
+    assert_eq!(r.reply.unwrap().ack.status, Ok);
+    assert_eq!(s.controller.owner().map(|o| o.ip), Some(OTHER.ip));
+}
+
+#[test]
+fn release_hands_the_controller_over_at_once_and_a_resend_does_not_take_it_back() {
+    let mut s = Session::<64>::new(64);
+    s.expect(Command::Status, Ok);
+    let r = s.send_raw(OTHER, &frame(1, Command::New { count: 1 }));
+    assert_eq!(r.reply.unwrap().ack.status, NotOwner);
+    // RELEASE (0x19, no data) from the owner.
+    let release = raw(40, RELEASE, &[]);
+    let r = s.send_raw(HOST, &release);
+    assert_eq!(r.reply.unwrap().ack.status, Ok);
+    assert_eq!(s.controller.owner(), None);
+    // Its ACK was lost: the same bytes again are OK and take nothing.
+    let r = s.send_raw(HOST, &release);
+    assert_eq!(r.reply.unwrap().ack.status, Ok);
+    assert_eq!(s.controller.owner(), None);
+    // Another host takes the controller at once, no 5 s wait.
+    let r = s.send_raw(OTHER, &frame(2, Command::New { count: 1 }));
+    assert_eq!(r.reply.unwrap().ack.status, Ok);
+    assert_eq!(s.controller.owner().map(|o| o.ip), Some(OTHER.ip));
+    // A late copy of the old owner's RELEASE: NOT_OWNER, the new owner keeps it.
+    let r = s.send_raw(HOST, &release);
+    assert_eq!(r.reply.unwrap().ack.status, NotOwner);
+    assert_eq!(s.controller.owner().map(|o| o.ip), Some(OTHER.ip));
+    // Another's RELEASE never releases.
+    let r = s.send_raw(HOST, &raw(41, RELEASE, &[]));
+    assert_eq!(r.reply.unwrap().ack.status, NotOwner);
+    assert_eq!(s.controller.owner().map(|o| o.ip), Some(OTHER.ip));
+}
+
+#[test]
+fn release_only_while_stopped_and_without_data() {
+    let mut s = Session::<64>::new(64);
+    s.start_endless_run();
+    assert_eq!(send_raw_cmd(&mut s, RELEASE, &[]), BadState);
+    assert_eq!(s.controller.owner().map(|o| o.ip), Some(HOST.ip));
+    s.expect(Command::Stopped, Ok);
+    assert_eq!(send_raw_cmd(&mut s, RELEASE, &[0]), BadLength);
+    assert_eq!(s.controller.owner().map(|o| o.ip), Some(HOST.ip));
+    assert_eq!(send_raw_cmd(&mut s, RELEASE, &[]), Ok);
+    assert_eq!(s.controller.owner(), None);
+    // No LOCATION goes anywhere once released.
+    assert_eq!(
+        s.controller.report_settings().location_to,
+        [None; arm_core::reports::LOCATION_LISTENERS]
+    );
+}
+
+fn status_with(seq: u8, ask: protocol::StatusAsk) -> Vec<u8> {
+    frame(seq, Command::StatusWith(ask))
+}
+
+#[test]
+fn status_asks_for_a_location_and_a_look_only_status_never_takes_a_free_controller() {
+    use protocol::StatusAsk;
+    let mut s = Session::<64>::new(64);
+    s.plant.positions = [11, -22, 33, 0, 0, 0, 0, 0];
+    let look = StatusAsk {
+        location: true,
+        look_only: true,
+    };
+    // Nobody owns it: a look-only STATUS is answered and takes nothing.
+    let r = s.send_raw(OTHER, &status_with(5, look));
+    assert_eq!(r.reply.unwrap().ack.status, Ok);
+    assert_eq!(s.controller.owner(), None);
+    assert_eq!(
+        r.answer_seq,
+        Some(5),
+        "the asker's own seq, not the report counter"
+    );
+    let (to, location) = r.asked_location.expect("the LOCATION asked for");
+    assert_eq!(to, OTHER);
+    assert_eq!(location.position[..3], [11, -22, 33]);
+    // The same from the owner-to-be without look_only takes it, and gets its reports
+    // with the report counter (no answer_seq).
+    let ask = StatusAsk {
+        location: true,
+        look_only: false,
+    };
+    let r = s.send_raw(HOST, &status_with(6, ask));
+    assert_eq!(s.controller.owner().map(|o| o.ip), Some(HOST.ip));
+    assert_eq!(r.answer_seq, None);
+    assert!(r.status.is_some() && r.asked_location.is_some());
+    // The owner's look_only changes nothing for it: it is the owner.
+    let r = s.send_raw(HOST, &status_with(7, look));
+    assert_eq!(r.answer_seq, None);
+    assert_eq!(r.reply.unwrap().ack.status, Ok);
+    // A request byte with other bits: INVALID_CONFIG (to the owner, as any command).
+    let r = s.send_raw(HOST, &raw(8, Tag::Status as u8, &[0x04]));
+    assert_eq!(r.reply.unwrap().ack.status, InvalidConfig);
+}
+
+#[test]
+fn read_only_answers_are_bounded_like_discover() {
+    let mut s = Session::<64>::new(64);
+    s.expect(Command::Status, Ok);
+    let burst = arm_core::DISCOVER_BURST as usize;
+    let answered = (0..burst + 5)
+        .filter(|i| {
+            let r = s.send_raw(OTHER, &frame(*i as u8, Command::Status));
+            r.reply.is_some()
+        })
+        .count();
+    assert_eq!(answered, burst, "a burst, then nothing");
+    // A second later: DISCOVER_REPLIES_PER_S more.
+    s.now_us += 1_000_000;
+    let again = (0..20)
+        .filter(|i| {
+            s.send_raw(OTHER, &frame(*i, Command::Status))
+                .reply
+                .is_some()
+        })
+        .count();
+    assert_eq!(again, arm_core::DISCOVER_REPLIES_PER_S as usize);
+    // The owner is never limited.
+    for _ in 0..30 {
+        s.expect(Command::Status, Ok);
+    }
+}
+
+#[test]
+fn a_read_only_answer_carries_the_askers_seq_and_leaves_the_report_counter_alone() {
+    use arm_core::{Answer, AnswerReport, Outgoing, ReportEncoder};
+    let mut enc = ReportEncoder::new();
+    let routes = Session::<64>::new(64).controller.report_settings();
+    let mut buf = [0u8; 64];
+    let out = Outgoing::Answer(Answer {
+        to: OTHER,
+        seq: Some(0x77),
+        report: AnswerReport::Status(protocol::StatusReport::default()),
+    });
+    let (to, n) = enc.encode(&out, &routes, 0, &mut buf).unwrap();
+    assert_eq!(to.as_slice(), &[OTHER]);
+    assert_eq!(buf[0], 0x77);
+    assert!(matches!(
+        Report::decode(&buf[..n]).unwrap().body,
+        Report::Status(_)
+    ));
+    assert_eq!(enc.next_seq(), 0, "the counter did not move");
+    let out = Outgoing::Answer(Answer {
+        to: HOST,
+        seq: None,
+        report: AnswerReport::Location(protocol::Location::default()),
+    });
+    enc.encode(&out, &routes, 0, &mut buf).unwrap();
+    assert_eq!((buf[0], enc.next_seq()), (0, 1));
+}

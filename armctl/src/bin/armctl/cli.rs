@@ -51,7 +51,8 @@ pub struct Cli {
 /// The commands.
 #[derive(Subcommand, Debug)]
 pub enum Cmd {
-    /// Print the controller's STATUS.
+    /// Print the controller's STATUS, each joint's position and driver: from any host
+    /// (read-only when another owns the controller), never taking the controller.
     Status {
         /// As JSON.
         #[arg(long)]
@@ -70,6 +71,9 @@ pub enum Cmd {
     Run(RunArgs),
     /// STOPPED: stop every joint at once and drop the trajectory.
     Stop,
+    /// RELEASE: give the controller up (only while STOPPED), so that another host may take
+    /// it at once instead of after 5 s of silence.
+    Release,
     /// ESTOP_RESET: clear the wired e-stop input's latch (once the input is closed again);
     /// until then RUNING and RETURN are refused with ESTOP_LATCHED.
     EstopReset,

@@ -23,6 +23,7 @@ mod enable;
 mod frame;
 mod interrupt;
 mod net;
+mod owner;
 mod plot;
 mod pwm;
 mod run;
@@ -88,8 +89,10 @@ fn execute(cli: Cli) -> CliResult {
             Ok(())
         }
         _ => {
-            let arm = connect::connect(&cli)?;
-            let result = execute_online(&cli, &arm);
+            let arm = connect::connect(&cli)
+                .map_err(|e| owner::explain_not_owner(e, &cli.controller, cli.bind))?;
+            let result = execute_online(&cli, &arm)
+                .map_err(|e| owner::explain_not_owner(e, &cli.controller, cli.bind));
             // After a signal: STOPPED (unless the command sent it) and the line saying so.
             interrupt::finish(&arm);
             result
@@ -104,6 +107,7 @@ fn execute_online(cli: &Cli, arm: &armctl::Client) -> CliResult {
         Cmd::Watch { record, duration } => watch::execute(arm, record.as_deref(), *duration),
         Cmd::Run(args) => run::execute(arm, args),
         Cmd::Stop => single::done(arm.stop()),
+        Cmd::Release => owner::release(arm),
         Cmd::EstopReset => single::done(arm.estop_reset()),
         Cmd::Return { wait } => single::go_home(arm, *wait),
         Cmd::Joints { n } => single::done(arm.set_joints(*n)),

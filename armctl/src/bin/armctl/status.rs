@@ -5,18 +5,56 @@ use protocol::{MoreFlags, StatusFlags, StatusReport};
 
 use crate::CliResult;
 
-/// Runs `status`.
+/// Runs `status`: STATUS with a LOCATION, look-only (issue 23: from any host, never
+/// taking the controller).
 pub fn execute(arm: &Client, json: bool) -> CliResult {
-    let status = arm.status().map_err(|e| e.to_string())?;
+    let glance = arm.glance(true).map_err(|e| e.to_string())?;
+    let status = glance.status;
     if json {
+        // The STATUS fields as before, plus `positions` (null when none came) and
+        // `read_only`.
+        let mut value = serde_json::to_value(status).map_err(|e| e.to_string())?;
+        if let Some(map) = value.as_object_mut() {
+            let joints = usize::from(status.joints).min(protocol::MAX_JOINTS);
+            map.insert(
+                "positions".into(),
+                glance
+                    .location
+                    .map_or(serde_json::Value::Null, |l| l.position[..joints].into()),
+            );
+            map.insert("read_only".into(), glance.read_only.into());
+        }
         println!(
             "{}",
-            serde_json::to_string_pretty(&status).map_err(|e| e.to_string())?
+            serde_json::to_string_pretty(&value).map_err(|e| e.to_string())?
         );
     } else {
         print_status(&status);
+        println!("{}", positions_block(&status, glance.location.as_ref()));
+        if glance.read_only {
+            println!("(read-only: another host owns the controller, or nobody does)");
+        }
     }
     Ok(())
+}
+
+/// One line per joint in use: its position in steps and its driver.
+pub fn positions_block(s: &StatusReport, location: Option<&protocol::Location>) -> String {
+    let Some(location) = location else {
+        return "positions        unknown (no LOCATION came: an older controller?)".into();
+    };
+    let enabled = s.drivers_enabled();
+    let joints = usize::from(s.joints).min(protocol::MAX_JOINTS);
+    let mut lines = vec!["joint  position (steps)  driver".to_string()];
+    for (j, p) in location.position.iter().enumerate().take(joints) {
+        let driver = match enabled {
+            Some(mask) if mask & (1 << j) != 0 => "enabled",
+            Some(_) => "disabled",
+            None => "?",
+        };
+        lines.push(format!("{j:>5}  {p:>16}  {driver}"));
+    }
+    lines.join("\n")
 }
 
 /// The wired e-stop input and its latch (STATUS `more_flags` bits 1 and 2; both 0 from a

@@ -39,6 +39,7 @@ macro_rules! with_boot_fields {
         last_handled_us: 0,
         discover_budget: super::ReplyBudget::new(),
         hello_budget: super::ReplyBudget::new(),
+        glance_budget: super::ReplyBudget::new(),
         sessions: crate::auth::Sessions::new(),
         serial_to: None,
         more_flags: MoreFlags(0),
