@@ -57,6 +57,14 @@ class Status(TypedDict):
     """Each driver's ENABLE (None: an older controller, which reports only
     flags['drivers_enabled'], "any")."""
 
+class JointLimits(TypedDict):
+    min: int
+    """Lowest position, steps (-2147483648: none)."""
+    max: int
+    """Highest position, steps (2147483647: none)."""
+    max_rate_hz: int
+    """Most steps per second (0: the controller's own limit only)."""
+
 class Enabled(TypedDict):
     joints: List[bool]
     """One per joint in use: True holding, False limp."""
@@ -185,6 +193,22 @@ class Arm:
     def set_location(self, positions: Any) -> None: ...
     def set_joints(self, joints: int) -> None: ...
     def pin(self, pin: int, high: bool) -> None: ...
+    def limits(self) -> List[JointLimits]:
+        """LIMITS_GET: the limits kept on the controller, one dict per joint 0-7."""
+        ...
+    def set_limits(
+        self,
+        joint: int,
+        *,
+        min: Optional[int] = None,
+        max: Optional[int] = None,
+        max_rate_hz: Optional[int] = None,
+    ) -> None:
+        """LIMITS_SET: joint's position range (steps) and step rate (0: the controller's
+        own only), kept across power cycles and enforced by the controller on every point,
+        RETURN and set_location. Arguments not given keep their value. Only while
+        STOPPED."""
+        ...
     def release(self) -> None:
         """RELEASE: give the controller up (only while STOPPED): another host may take it
         at once instead of after 5 s of silence."""

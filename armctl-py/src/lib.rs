@@ -445,6 +445,58 @@ impl Arm {
         self.call(py, move |arm| arm.set_key(key)).map(|_| ())
     }
 
+    /// LIMITS_GET: every joint's limits kept on the controller, a list of 8 dicts
+    /// (`min`, `max` in steps, `max_rate_hz`, 0: the controller's own limit only).
+    fn limits<'py>(&self, py: Python<'py>) -> PyResult<Vec<Bound<'py, PyDict>>> {
+        let report = self.call(py, |arm| arm.limits())?;
+        report
+            .joints
+            .iter()
+            .map(|l| {
+                let d = PyDict::new(py);
+                d.set_item("min", l.min)?;
+                d.set_item("max", l.max)?;
+                d.set_item("max_rate_hz", l.max_rate_hz)?;
+                Ok(d)
+            })
+            .collect()
+    }
+
+    /// LIMITS_SET: joint `joint`'s position range (steps) and step rate, kept by the
+    /// controller across power cycles and enforced on every point, RETURN and
+    /// set_location; arguments not given keep their value. Only while STOPPED.
+    #[pyo3(signature = (joint, *, min=None, max=None, max_rate_hz=None))]
+    fn set_limits(
+        &self,
+        py: Python<'_>,
+        joint: u8,
+        min: Option<i32>,
+        max: Option<i32>,
+        max_rate_hz: Option<u32>,
+    ) -> PyResult<()> {
+        if usize::from(joint) >= MAX_JOINTS {
+            return Err(PyValueError::new_err(format!(
+                "joint {joint} does not exist: joints are 0..{}",
+                MAX_JOINTS - 1
+            )));
+        }
+        let current = self.call(py, |arm| arm.limits())?;
+        let old = current.joints[usize::from(joint)];
+        let new = protocol::JointLimits {
+            min: min.unwrap_or(old.min),
+            max: max.unwrap_or(old.max),
+            max_rate_hz: max_rate_hz.unwrap_or(old.max_rate_hz),
+        };
+        if !new.is_valid() {
+            return Err(PyValueError::new_err(format!(
+                "joint {joint}: min {} is above max {}",
+                new.min, new.max
+            )));
+        }
+        self.call(py, move |arm| arm.set_limits(joint, new))
+            .map(|_| ())
+    }
+
     /// RELEASE: gives the controller up (only while STOPPED), so that another host may
     /// take it at once; this connection's next command takes it back unless another
     /// host's came first.

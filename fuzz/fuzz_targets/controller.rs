@@ -699,6 +699,19 @@ impl Harness {
                 };
                 assert_eq!(want, *mask, "SET_ENABLE left a masked driver unchanged");
             }
+            Command::LimitsSet(set) => {
+                assert_eq!(was, State::Stopped, "LIMITS_SET accepted in {was:?}");
+                assert!(
+                    matches!(r.deferred, Some(Deferred::SaveSettings(s))
+                        if s.limits[usize::from(set.joint)] == set.limits),
+                    "{:?}",
+                    r.deferred
+                );
+            }
+            Command::LimitsGet => {
+                let (_, report) = r.limits.expect("no LIMITS report for LIMITS_GET");
+                assert_eq!(report.joints, self.controller.settings().limits);
+            }
             Command::Release => {
                 assert_eq!(was, State::Stopped, "RELEASE accepted in {was:?}");
                 assert_eq!(self.controller.owner(), None, "RELEASE left an owner");

@@ -184,6 +184,19 @@ pub fn doc_frames() -> Vec<DocFrame> {
         ),
         command("RELEASE, seq 0x1e", 0x1e, Command::Release),
         command(
+            "LIMITS_SET, seq 0x1f, joint 1: -16000..16000 steps, 4000 steps/s",
+            0x1f,
+            Command::LimitsSet(protocol::LimitsSet {
+                joint: 1,
+                limits: protocol::JointLimits {
+                    min: -16_000,
+                    max: 16_000,
+                    max_rate_hz: 4_000,
+                },
+            }),
+        ),
+        command("LIMITS_GET, seq 0x20", 0x20, Command::LimitsGet),
+        command(
             "SET_ENABLE, seq 0x1c, enable every driver (mask 0x01ff)",
             0x1c,
             Command::SetEnable {
@@ -241,6 +254,11 @@ pub fn doc_frames() -> Vec<DocFrame> {
             Report::UsartRecv(b"ok\r\n"),
         ),
         report(
+            "LIMITS report, seq 0x2c: joint 1 limited, the last refusal: PENDING seq 0x21, point 3, joint 1 above its max (16100 against 16000)",
+            0x2c,
+            Report::Limits(limits_example()),
+        ),
+        report(
             "STATUS report, seq 0x17",
             0x17,
             Report::Status(StatusReport {
@@ -262,6 +280,28 @@ pub fn doc_frames() -> Vec<DocFrame> {
             }),
         ),
     ]
+}
+
+/// The LIMITS report of the example: joint 1 limited, the others not.
+fn limits_example() -> protocol::LimitsReport {
+    let mut joints = [protocol::JointLimits::NONE; MAX_JOINTS];
+    joints[1] = protocol::JointLimits {
+        min: -16_000,
+        max: 16_000,
+        max_rate_hz: 4_000,
+    };
+    protocol::LimitsReport {
+        joints,
+        last_refusal: protocol::Refusal {
+            seq: 0x21,
+            tag: 0x01,
+            point: 3,
+            joint: 1,
+            reason: protocol::RefusalReason::AboveMax,
+            value: 16_100,
+            limit: 16_000,
+        },
+    }
 }
 
 #[allow(dead_code)] // The test includes this file for `doc_frames` alone.

@@ -140,6 +140,13 @@ wire_code! {
         SetEnable = 0x18 => "SET_ENABLE",
         /// The owner gives the controller up: any host may take it at once (issue 23).
         Release = 0x19 => "RELEASE",
+        /// Set one joint's position range and step rate, kept across power cycles
+        /// (issue 23).
+        LimitsSet = 0x1a => "LIMITS_SET",
+        /// Ask for the LIMITS report.
+        LimitsGet = 0x1b => "LIMITS_GET",
+        /// Every joint's limits and the last refusal (controller to host).
+        Limits = 0x1c => "LIMITS",
         /// Who is there? Answered by every controller, from any host (PROTOCOL.md,
         /// "Finding controllers and setting their address").
         Discover = 0x20 => "DISCOVER",

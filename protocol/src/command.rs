@@ -5,6 +5,7 @@ use crate::codec::{u8_at, u16_be, u16_le, u32_le};
 use crate::codes::Tag;
 use crate::error::{DecodeError, DecodeErrorKind, EncodeError, ExpectedLen, Field};
 use crate::frame::{Frame, PointList, open, seal};
+use crate::joint_limits::{JointLimits, LimitsSet};
 use crate::net::NetSettings;
 use crate::types::{Location, Pwm, UartInit};
 use crate::{FRAME_OVERHEAD, MAX_POINTS_PER_FRAME, MAX_SERIAL_CHUNK, limits, size};
@@ -80,6 +81,10 @@ pub enum Command<'a> {
     SetKey(Option<AuthKey>),
     /// Give the controller up (the owner only): any host may take it at once.
     Release,
+    /// Set one joint's limits (issue 23).
+    LimitsSet(LimitsSet),
+    /// Ask for the LIMITS report.
+    LimitsGet,
     /// STATUS with its request byte (issue 23): what else to answer, and whether a host
     /// that does not own the controller wants only to look.
     StatusWith(StatusAsk),
@@ -163,6 +168,8 @@ impl<'a> Command<'a> {
             Command::SetKey(_) => Tag::SetKey,
             Command::SetEnable { .. } => Tag::SetEnable,
             Command::Release => Tag::Release,
+            Command::LimitsSet(_) => Tag::LimitsSet,
+            Command::LimitsGet => Tag::LimitsGet,
             Command::StatusWith(_) => Tag::Status,
         }
     }
@@ -184,6 +191,7 @@ impl<'a> Command<'a> {
             Command::SetKey(Some(_)) => crate::auth::KEY_LEN,
             Command::SetEnable { .. } => size::SET_ENABLE,
             Command::StatusWith(_) => 1,
+            Command::LimitsSet(_) => size::LIMITS_SET,
             _ => 0,
         }
     }
@@ -236,6 +244,10 @@ impl<'a> Command<'a> {
                 w.u8(2, u8::from(*enable));
             }
             Command::StatusWith(ask) => w.u8(0, ask.byte()),
+            Command::LimitsSet(set) => {
+                w.put(0, &[set.joint, 0, 0, 0]);
+                set.limits.write(w, 4);
+            }
             _ => {}
         })
     }
@@ -407,8 +419,24 @@ impl<'a> Command<'a> {
             },
             // An envelope is opened with `auth::Envelope` before its inner frame is
             // decoded; as a command on its own it is not one.
-            Tag::UsartRecv | Tag::Ack | Tag::DiscoverReply | Tag::HelloReply | Tag::Auth => {
+            Tag::UsartRecv
+            | Tag::Ack
+            | Tag::DiscoverReply
+            | Tag::HelloReply
+            | Tag::Auth
+            | Tag::Limits => {
                 return Err(err(DecodeErrorKind::WrongDirection));
+            }
+            Tag::LimitsSet => {
+                exactly(size::LIMITS_SET)?;
+                let set = LimitsSet {
+                    joint: u8_at(data, 0),
+                    limits: JointLimits::read(data, 4),
+                };
+                if usize::from(set.joint) >= crate::MAX_JOINTS || !set.limits.is_valid() {
+                    return Err(out_of_range(Field::JointLimits));
+                }
+                Command::LimitsSet(set)
             }
             Tag::Status if data.len() == 1 => match StatusAsk::from_byte(u8_at(data, 0)) {
                 Some(ask) => Command::StatusWith(ask),
@@ -427,7 +455,8 @@ impl<'a> Command<'a> {
             | Tag::Status
             | Tag::Discover
             | Tag::EstopReset
-            | Tag::Release => {
+            | Tag::Release
+            | Tag::LimitsGet => {
                 exactly(0)?;
                 match tag {
                     Tag::Runing => Command::Runing,
@@ -443,6 +472,7 @@ impl<'a> Command<'a> {
                     Tag::Discover => Command::Discover,
                     Tag::EstopReset => Command::EstopReset,
                     Tag::Release => Command::Release,
+                    Tag::LimitsGet => Command::LimitsGet,
                     _ => Command::Status,
                 }
             }

@@ -102,6 +102,8 @@ pub enum Field {
     EnableAction,
     /// STATUS's request byte (bits 0 and 1 only).
     StatusAsk,
+    /// LIMITS_SET's joint (0-7) or range (min above max).
+    JointLimits,
 }
 
 impl DecodeError {
@@ -151,6 +153,9 @@ impl fmt::Display for Field {
             ),
             Field::Owner => f.write_str("unknown owner state"),
             Field::StatusAsk => f.write_str("STATUS request byte may only use bits 0-1"),
+            Field::JointLimits => {
+                f.write_str("LIMITS_SET needs a joint of 0-7 and min not above max")
+            }
             Field::EnableAction => {
                 f.write_str("SET_ENABLE action must be 0 (disable) or 1 (enable)")
             }

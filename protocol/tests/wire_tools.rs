@@ -130,3 +130,85 @@ fn status_takes_one_request_byte_and_release_none() {
         DecodeErrorKind::BadLength { .. }
     ));
 }
+
+#[test]
+fn limits_set_get_and_the_limits_report() {
+    use protocol::{JointLimits, LimitsReport, LimitsSet, Refusal, RefusalReason};
+    assert_eq!(
+        (
+            Tag::LimitsSet as u8,
+            Tag::LimitsGet as u8,
+            Tag::Limits as u8
+        ),
+        (0x1a, 0x1b, 0x1c)
+    );
+    let set = LimitsSet {
+        joint: 1,
+        limits: JointLimits {
+            min: -16_000,
+            max: 16_000,
+            max_rate_hz: 4_000,
+        },
+    };
+    let bytes = encode(Command::LimitsSet(set), 0x1f);
+    assert_eq!(bytes.len(), 3 + 16);
+    assert_eq!(&bytes[2..6], &[1, 0, 0, 0]);
+    assert_eq!(&bytes[6..10], &(-16_000i32).to_le_bytes());
+    assert_eq!(&bytes[10..14], &16_000i32.to_le_bytes());
+    assert_eq!(&bytes[14..18], &4_000u32.to_le_bytes());
+    assert_eq!(
+        Command::decode(&bytes).unwrap().body,
+        Command::LimitsSet(set)
+    );
+    // Joint 8, min above max: INVALID_CONFIG; other lengths: BAD_LENGTH.
+    let mut bad = bytes[..18].to_vec();
+    bad[2] = 8;
+    assert_eq!(
+        Command::decode(&with_crc(bad)).unwrap_err().kind,
+        DecodeErrorKind::OutOfRange(Field::JointLimits)
+    );
+    let mut bad = bytes[..18].to_vec();
+    bad[6..10].copy_from_slice(&20_000i32.to_le_bytes());
+    assert_eq!(
+        Command::decode(&with_crc(bad)).unwrap_err().kind,
+        DecodeErrorKind::OutOfRange(Field::JointLimits)
+    );
+    assert!(matches!(
+        Command::decode(&with_crc(bytes[..17].to_vec()))
+            .unwrap_err()
+            .kind,
+        DecodeErrorKind::BadLength { .. }
+    ));
+    assert_eq!(
+        Command::decode(&with_crc(vec![3, 0x1b])).unwrap().body,
+        Command::LimitsGet
+    );
+    // The report: 8 x 12 bytes of limits, then the refusal (16 bytes).
+    let mut joints = [JointLimits::NONE; 8];
+    joints[1] = set.limits;
+    let report = LimitsReport {
+        joints,
+        last_refusal: Refusal {
+            seq: 0x21,
+            tag: 0x01,
+            point: 3,
+            joint: 1,
+            reason: RefusalReason::AboveMax,
+            value: 16_100,
+            limit: 16_000,
+        },
+    };
+    let mut buf = [0u8; 200];
+    let n = Report::Limits(report).encode(0x2c, &mut buf).unwrap();
+    assert_eq!(n, 3 + 112);
+    assert_eq!(&buf[2 + 96..2 + 101], &[0x21, 0x01, 3, 1, 2]);
+    assert_eq!(
+        Report::decode(&buf[..n]).unwrap().body,
+        Report::Limits(report)
+    );
+    // A host may not send the report.
+    assert_eq!(
+        Command::decode(&buf[..n]).unwrap_err().kind,
+        DecodeErrorKind::WrongDirection
+    );
+}

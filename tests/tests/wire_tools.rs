@@ -94,3 +94,74 @@ fn a_second_host_reads_status_and_positions_and_is_told_who_owns_the_arm_until_r
     assert!(!ok);
     assert!(err.contains("owned by 127.0.0.2"), "{err}");
 }
+
+#[test]
+fn limits_set_with_armctl_config_are_kept_enforced_and_explained() {
+    let dir = std::env::temp_dir().join(format!("wire-tools-limits-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let settings = dir.join("settings.txt");
+    let settings_arg = settings.to_str().unwrap();
+    let sim = SimHost::start(&["--joints", "2", "--settings", settings_arg]);
+    let (ok, out, err) = armctl(
+        &sim,
+        &[
+            "config", "set", "--joint", "1", "--min", "-100", "--max", "100",
+        ],
+    );
+    assert!(ok, "{out}\n{err}");
+    assert!(out.contains("joint 1 -100..100 steps"), "{out}");
+    let (ok, out, err) = armctl(
+        &sim,
+        &["config", "set", "--joint", "1", "--max-rate", "2000"],
+    );
+    assert!(ok, "{out}\n{err}");
+    assert!(
+        out.contains("joint 1 -100..100 steps, at most 2000 steps/s"),
+        "options not given keep their value: {out}"
+    );
+    // A CSV run without --config past the range: refused by the controller, and the
+    // message names the point, the joint and the limit.
+    let csv = dir.join("far.csv");
+    std::fs::write(&csv, "time_s,j0,j1\n0,0,0\n1,0,150\n").unwrap();
+    let (ok, out, err) = armctl(&sim, &["run", csv.to_str().unwrap(), "--quiet"]);
+    assert!(!ok, "{out}");
+    assert!(err.contains("INVALID_POINT"), "{err}");
+    assert!(
+        err.contains("joint 1: position above the joint's max (") && err.contains("against 100)"),
+        "{err}"
+    );
+    // The refused upload stays PENDING (the points before it were taken): STOP first.
+    let (ok, _, err) = armctl(&sim, &["stop"]);
+    assert!(ok, "{err}");
+    // set-location outside the range: refused, and said why.
+    let (ok, _, err) = armctl(&sim, &["set-location", "0", "500"]);
+    assert!(!ok);
+    assert!(err.contains("LOCATION_SETTING seq"), "{err}");
+    assert!(err.contains("(500 against 100)"), "{err}");
+    // Kept across a restart of the controller.
+    drop(sim);
+    let text = std::fs::read_to_string(&settings).unwrap();
+    assert!(text.contains("limit.1=-100,100,2000"), "{text}");
+    let sim = SimHost::start(&["--joints", "2", "--settings", settings_arg]);
+    let (ok, out, err) = armctl(&sim, &["config", "get"]);
+    assert!(ok, "{out}\n{err}");
+    assert!(
+        out.contains("    1  -100..100 steps, at most 2000 steps/s"),
+        "{out}"
+    );
+    assert!(
+        out.contains("    0  any position, the controller's max step rate"),
+        "{out}"
+    );
+    let (ok, out, _) = armctl(&sim, &["config", "get", "--json"]);
+    assert!(ok);
+    let json: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(json["joints"][1]["max"], 100, "{out}");
+    let (ok, _, err) = armctl(&sim, &["config", "set", "--joint", "1", "--min", "200"]);
+    assert!(!ok);
+    assert!(err.contains("min 200 is above max 100"), "{err}");
+    let (ok, out, err) = armctl(&sim, &["config", "set", "--joint", "1", "--clear"]);
+    assert!(ok, "{out}\n{err}");
+    assert!(out.contains("joint 1 any position"), "{out}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

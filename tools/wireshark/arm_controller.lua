@@ -37,7 +37,8 @@ local tag_names = {
     [0x0e] = "PIN1_ON", [0x0f] = "PIN1_OFF", [0x10] = "TOGGLE_ENABLE_PINS",
     [0x11] = "RETURN", [0x12] = "JOINTS_COUNT", [0x13] = "LOCATION_SETTING/LOCATION",
     [0x14] = "ACK", [0x15] = "STATUS", [0x16] = "UPLOAD_PERIOD", [0x17] = "ESTOP_RESET",
-    [0x18] = "SET_ENABLE", [0x19] = "RELEASE",
+    [0x18] = "SET_ENABLE", [0x19] = "RELEASE", [0x1a] = "LIMITS_SET", [0x1b] = "LIMITS_GET",
+    [0x1c] = "LIMITS",
     [0x20] = "DISCOVER", [0x21] = "NET_SET", [0x22] = "DISCOVER_REPLY",
     [0x50] = "AUTH", [0x51] = "HELLO", [0x52] = "SET_KEY", [0x53] = "HELLO_REPLY",
 }
@@ -59,6 +60,10 @@ local direction_names = { [0] = "host to controller", [1] = "controller to host"
 local uart_mode_names = { [0] = "both directions", [1] = "receive only", [2] = "transmit only" }
 local owner_names = { [0] = "no owner", [1] = "owned", [2] = "owned by the asking host" }
 local addr_mode_names = { [0] = "static", [1] = "DHCP" }
+local refusal_names = {
+    [0] = "nothing refused", [1] = "below min", [2] = "above max", [3] = "over the joint's max rate",
+    [4] = "over max_step_rate_hz", [5] = "over step_budget_hz", [6] = "duration or step count",
+}
 local enable_action_names = { [0] = "disable (limp)", [1] = "enable (holding)" }
 
 ----------------------------------------------------------------------------------------
@@ -132,6 +137,17 @@ local f = {
     enable_mask = hex("uint16", "enable.mask", "Enable mask"),
     enable_action = dec("uint8", "enable.action", "Action", enable_action_names),
     status_ask = hex("uint8", "status.ask", "Request byte"),
+    limits_joint = dec("uint8", "limits.joint", "Joint"),
+    limits_min = dec("int32", "limits.min", "Min (steps)"),
+    limits_max = dec("int32", "limits.max", "Max (steps)"),
+    limits_rate = dec("uint32", "limits.max_rate_hz", "Max rate (steps/s, 0 = the controller's)"),
+    refusal_seq = dec("uint8", "limits.refusal.seq", "Last refused frame's seq"),
+    refusal_tag = hex("uint8", "limits.refusal.tag", "Last refused frame's tag", tag_names),
+    refusal_point = dec("uint8", "limits.refusal.point", "Point in the frame"),
+    refusal_joint = dec("uint8", "limits.refusal.joint", "Joint (255 = all)"),
+    refusal_reason = dec("uint8", "limits.refusal.reason", "Reason", refusal_names),
+    refusal_value = dec("int32", "limits.refusal.value", "Value asked"),
+    refusal_limit = dec("int32", "limits.refusal.limit", "Limit broken"),
     status_ask_location = field("bool", "status.ask.location", "Also a LOCATION report", 8, nil, 0x01),
     status_ask_look = field("bool", "status.ask.look_only", "Look only (never takes the controller)", 8, nil, 0x02),
     joints = dec("uint8", "joints", "Joints"),
@@ -576,6 +592,18 @@ local host_dissectors = {
         if action > 1 then out_of_range(tree, "SET_ENABLE action must be 0 (disable) or 1 (enable)") end
         return string.format("%s mask 0x%04x", action == 1 and "enable" or "disable", mask)
     end,
+    [0x1a] = function(tree, data, len)
+        if len ~= 16 then return length_error(tree, data, "16", len) end
+        tree:add(f.limits_joint, data(0, 1))
+        local min, max = data(4, 4):le_int(), data(8, 4):le_int()
+        tree:add_le(f.limits_min, data(4, 4), min)
+        tree:add_le(f.limits_max, data(8, 4), max)
+        tree:add_le(f.limits_rate, data(12, 4))
+        if data(0, 1):uint() > 7 then out_of_range(tree, "LIMITS_SET needs a joint of 0-7") end
+        if min > max then out_of_range(tree, "LIMITS_SET: min above max") end
+        return string.format("joint %d: %d..%d steps, %d steps/s", data(0, 1):uint(), min, max,
+            data(12, 4):le_uint())
+    end,
     [0x12] = function(tree, data, len)
         if len ~= 1 then return length_error(tree, data, "1", len) end
         tree:add(f.joints, data(0, 1))
@@ -615,7 +643,7 @@ host_dissectors[0x52] = function(tree, data, len)
     return "set a key"
 end
 -- Commands without data.
-for _, tag in ipairs({ 0x02, 0x04, 0x05, 0x07, 0x09, 0x0c, 0x0d, 0x0e, 0x0f, 0x11, 0x17, 0x19, 0x20 }) do
+for _, tag in ipairs({ 0x02, 0x04, 0x05, 0x07, 0x09, 0x0c, 0x0d, 0x0e, 0x0f, 0x11, 0x17, 0x19, 0x1b, 0x20 }) do
     host_dissectors[tag] = function(tree, data, len)
         if len ~= 0 then return length_error(tree, data, "0", len) end
         return ""
@@ -672,6 +700,26 @@ local controller_dissectors = {
         tree:add(f.usart_len, data(0, 1))
         if n > 0 then tree:add(f.usart_data, data(1, n)) end
         return n .. " bytes"
+    end,
+    [0x1c] = function(tree, data, len)
+        if len ~= 112 then return length_error(tree, data, "112", len) end
+        for j = 0, 7 do
+            local at = 12 * j
+            local sub = tree:add(armctl, data(at, 12), string.format("Joint %d: %d..%d steps, %d steps/s",
+                j, data(at, 4):le_int(), data(at + 4, 4):le_int(), data(at + 8, 4):le_uint()))
+            sub:add_le(f.limits_min, data(at, 4), data(at, 4):le_int())
+            sub:add_le(f.limits_max, data(at + 4, 4), data(at + 4, 4):le_int())
+            sub:add_le(f.limits_rate, data(at + 8, 4))
+        end
+        local r = tree:add(armctl, data(96, 16), "Last refusal")
+        r:add(f.refusal_seq, data(96, 1))
+        r:add(f.refusal_tag, data(97, 1))
+        r:add(f.refusal_point, data(98, 1))
+        r:add(f.refusal_joint, data(99, 1))
+        r:add(f.refusal_reason, data(100, 1))
+        r:add_le(f.refusal_value, data(104, 4), data(104, 4):le_int())
+        r:add_le(f.refusal_limit, data(108, 4), data(108, 4):le_int())
+        return refusal_names[data(100, 1):uint()] or "?"
     end,
     [0x15] = function(tree, data, len)
         if len ~= 36 then return length_error(tree, data, "36", len) end

@@ -3,7 +3,10 @@
 
 use std::time::{Duration, Instant};
 
-use protocol::{Ack, Command, Location, StatusAsk, StatusCode, StatusReport, Tag};
+use protocol::{
+    Ack, Command, JointLimits, LimitsReport, LimitsSet, Location, StatusAsk, StatusCode,
+    StatusReport, Tag,
+};
 
 use super::{Client, check};
 use crate::error::{Error, Result};
@@ -79,6 +82,45 @@ impl Client {
             command: Tag::Status,
             attempts: self.options.attempts,
         })
+    }
+}
+
+impl Client {
+    /// LIMITS_GET: every joint's limits on the controller and the last point it refused
+    /// for one (issue 23). An older controller answers `UNKNOWN_TAG`.
+    pub fn limits(&self) -> Result<LimitsReport> {
+        let _upload = super::lock(&self.upload);
+        let (tx, rx) = std::sync::mpsc::channel();
+        super::lock(&self.shared.limits).push(tx);
+        for _ in 0..self.options.attempts {
+            check(
+                Tag::LimitsGet,
+                self.exchange_unlocked(&Command::LimitsGet, None)?,
+            )?;
+            if let Ok(report) = rx.recv_timeout(self.options.report_timeout) {
+                return Ok(report);
+            }
+        }
+        Err(Error::NoReport {
+            command: Tag::LimitsGet,
+            attempts: self.options.attempts,
+        })
+    }
+
+    /// LIMITS_SET: joint `joint`'s position range and step rate (0: none of its own),
+    /// kept by the controller across power cycles; only while STOPPED. Refused here when
+    /// min is above max or the joint does not exist (the controller would refuse it with
+    /// INVALID_CONFIG).
+    pub fn set_limits(&self, joint: u8, limits: JointLimits) -> Result<Ack> {
+        if usize::from(joint) >= protocol::MAX_JOINTS || !limits.is_valid() {
+            return Err(Error::InvalidTrajectory(format!(
+                "joint {joint}: limits need a joint of 0-{} and min ({}) not above max ({})",
+                protocol::MAX_JOINTS - 1,
+                limits.min,
+                limits.max
+            )));
+        }
+        self.send(&Command::LimitsSet(LimitsSet { joint, limits }))
     }
 }
 

@@ -110,8 +110,8 @@
 
 use protocol::NetSettings;
 use protocol::{
-    Ack, Command, Frame, Location, MAX_JOINTS, MAX_POINTS_PER_FRAME, MoreFlags, State, StatusCode,
-    StatusFlags, StatusReport, Tag, UartMode, limits,
+    Ack, Command, Frame, LimitsReport, Location, MAX_JOINTS, MAX_POINTS_PER_FRAME, MoreFlags,
+    Refusal, State, StatusCode, StatusFlags, StatusReport, Tag, UartMode, limits,
 };
 use protocol::{DecodeError, DecodeErrorKind};
 
@@ -259,6 +259,8 @@ pub struct Controller<const CAP: usize> {
     booted_net: NetSettings,
     /// Steps per second of all joints together that points may ask for (0: no limit).
     step_budget_hz: u32,
+    /// The last INVALID_POINT for a limit (the LIMITS report's detail, issue 23).
+    last_refusal: Refusal,
 }
 
 impl<const CAP: usize> Controller<CAP> {
@@ -267,12 +269,20 @@ impl<const CAP: usize> Controller<CAP> {
         self.mac = mac;
     }
 
-    /// Applies stored settings (at boot); an out-of-range joint count keeps the default.
+    /// Applies stored settings (at boot); an out-of-range joint count keeps the default,
+    /// a joint range with min above max is no limit.
     pub fn apply_settings(&mut self, settings: PersistentSettings) {
         self.settings = settings;
         self.booted_net = settings.net();
         if !limits::JOINTS.contains(&settings.joints) {
             self.settings.joints = limits::DEFAULT_JOINTS;
+        }
+        // A stored range that cannot be met (never written by LIMITS_SET, which refuses
+        // it) is no limit rather than one no point could meet.
+        for l in self.settings.limits.iter_mut() {
+            if !l.is_valid() {
+                *l = protocol::JointLimits::NONE;
+            }
         }
     }
 
@@ -811,10 +821,19 @@ impl<const CAP: usize> Controller<CAP> {
                 // Every point is checked before any is taken.
                 let mut admitted = [StoredPoint::default(); MAX_POINTS_PER_FRAME];
                 let mut previous = self.received_end;
-                for (slot, point) in admitted.iter_mut().zip(points.iter()) {
-                    *slot = self
-                        .admit(&previous, &point)
-                        .ok_or(StatusCode::InvalidPoint)?;
+                for (i, (slot, point)) in admitted.iter_mut().zip(points.iter()).enumerate() {
+                    *slot = match self.admit(&previous, &point) {
+                        Ok(stored) => stored,
+                        Err(refusal) => {
+                            self.last_refusal = Refusal {
+                                seq: frame.seq,
+                                tag: Tag::Pending as u8,
+                                point: u8::try_from(i).unwrap_or(u8::MAX),
+                                ..refusal
+                            };
+                            return Err(StatusCode::InvalidPoint);
+                        }
+                    };
                     previous = slot.position;
                 }
                 if n > self.buffer.free() {
@@ -902,6 +921,16 @@ impl<const CAP: usize> Controller<CAP> {
                     return Err(StatusCode::EstopLatched);
                 }
                 stopped_only(self)?;
+                // Every joint in use must be allowed at 0 (LIMITS_SET): refused before
+                // anything moves.
+                if let Some(refusal) = self.outside_limits(&[0; MAX_JOINTS]) {
+                    self.last_refusal = Refusal {
+                        seq: frame.seq,
+                        tag: Tag::Return as u8,
+                        ..refusal
+                    };
+                    return Err(StatusCode::InvalidPoint);
+                }
                 self.buffer.clear();
                 self.return_plan = None;
                 self.return_pending = true;
@@ -918,9 +947,39 @@ impl<const CAP: usize> Controller<CAP> {
             }
             Command::LocationSetting(location) => {
                 stopped_only(self)?;
+                // A position outside a joint's range (LIMITS_SET) is refused: the limits
+                // or the calibration are wrong (widen the limits first if the arm is
+                // really there).
+                if let Some(refusal) = self.outside_limits(&location.position) {
+                    self.last_refusal = Refusal {
+                        seq: frame.seq,
+                        tag: Tag::Location as u8,
+                        ..refusal
+                    };
+                    return Err(StatusCode::InvalidPoint);
+                }
                 if !plant.set_positions(location.position) {
                     return Err(StatusCode::BadState);
                 }
+            }
+            // Kept across power cycles as JOINTS_COUNT; only while STOPPED, so that no
+            // point already taken was admitted under other limits.
+            Command::LimitsSet(set) => {
+                stopped_only(self)?;
+                let Some(slot) = self.settings.limits.get_mut(usize::from(set.joint)) else {
+                    return Err(StatusCode::InvalidConfig);
+                };
+                *slot = set.limits;
+                response.deferred = Some(Deferred::SaveSettings(self.settings));
+            }
+            Command::LimitsGet => {
+                response.limits = Some((
+                    from,
+                    LimitsReport {
+                        joints: self.settings.limits,
+                        last_refusal: self.last_refusal,
+                    },
+                ));
             }
             Command::Status => response.status = Some((from, self.status(plant))),
             Command::StatusWith(ask) => {

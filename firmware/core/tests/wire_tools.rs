@@ -300,3 +300,186 @@ fn a_read_only_answer_carries_the_askers_seq_and_leaves_the_report_counter_alone
     enc.encode(&out, &routes, 0, &mut buf).unwrap();
     assert_eq!((buf[0], enc.next_seq()), (0, 1));
 }
+
+const LIMITS_SET: u8 = 0x1a;
+const LIMITS_GET: u8 = 0x1b;
+
+/// LIMITS_SET's data: joint u8, 3 reserved bytes, min i32, max i32, max_rate_hz u32 (all
+/// little-endian).
+fn limits_set(joint: u8, min: i32, max: i32, rate: u32) -> Vec<u8> {
+    let mut d = vec![joint, 0, 0, 0];
+    d.extend_from_slice(&min.to_le_bytes());
+    d.extend_from_slice(&max.to_le_bytes());
+    d.extend_from_slice(&rate.to_le_bytes());
+    d
+}
+
+/// A point of 10 ms that moves every joint in use to `to` (the others stay).
+fn point_to(from: [i32; 8], to: [i32; 8]) -> protocol::Point {
+    protocol::Point::from_motion(10_000, &from, &to)
+}
+
+#[test]
+fn limits_are_set_stored_and_enforced_at_pending() {
+    let mut s = Session::<64>::new(64);
+    // Joint 1: -100..100 steps, 2000 steps/s at most.
+    s.seq = s.seq.wrapping_add(1);
+    let r = s.send_raw(
+        HOST,
+        &raw(s.seq, LIMITS_SET, &limits_set(1, -100, 100, 2_000)),
+    );
+    assert_eq!(r.reply.unwrap().ack.status, Ok);
+    assert!(
+        matches!(r.deferred, Some(arm_core::Deferred::SaveSettings(_))),
+        "kept across power cycles, as JOINTS_COUNT"
+    );
+    // A refused PENDING leaves its seq a gap (section 7): each try starts with a NEW.
+    let try_point = |s: &mut Session<64>, p: protocol::Point| {
+        s.expect(Command::New { count: 3 }, Ok);
+        let status = s.pending(&[p]).status;
+        (status, s.controller.buffered())
+    };
+    // 150 is above joint 1's max: the frame is refused, nothing taken.
+    let over = point_to([0; 8], [0, 150, 0, 0, 0, 0, 0, 0]);
+    assert_eq!(try_point(&mut s, over), (InvalidPoint, 0));
+    // -101 is below the min.
+    let under = point_to([0; 8], [0, -101, 0, 0, 0, 0, 0, 0]);
+    assert_eq!(try_point(&mut s, under), (InvalidPoint, 0));
+    // 30 steps in 10 ms is 3000 steps/s, over the joint's 2000 (the board takes 200k).
+    let fast = point_to([0; 8], [0, 30, 0, 0, 0, 0, 0, 0]);
+    assert_eq!(try_point(&mut s, fast), (InvalidPoint, 0));
+    // Within everything: taken; the other joints are not limited.
+    let fine = point_to([0; 8], [1_000, 20, 0, 0, 0, 0, 0, 0]);
+    assert_eq!(try_point(&mut s, fine), (Ok, 1));
+    // Only while STOPPED.
+    s.seq = s.seq.wrapping_add(1);
+    let r = s.send_raw(HOST, &raw(s.seq, LIMITS_SET, &limits_set(1, -5, 5, 0)));
+    assert_eq!(r.reply.unwrap().ack.status, BadState);
+}
+
+#[test]
+fn limits_refuse_bad_input_and_apply_to_return_and_location_setting() {
+    let mut s = Session::<64>::new(64);
+    let set = |s: &mut Session<64>, data: &[u8]| send_raw_cmd(s, LIMITS_SET, data);
+    // Joint 8 does not exist; min above max; wrong lengths.
+    assert_eq!(set(&mut s, &limits_set(8, 0, 1, 0)), InvalidConfig);
+    assert_eq!(set(&mut s, &limits_set(0, 10, -10, 0)), InvalidConfig);
+    assert_eq!(set(&mut s, &limits_set(0, 0, 1, 0)[..15]), BadLength);
+    assert_eq!(send_raw_cmd(&mut s, LIMITS_GET, &[0]), BadLength);
+    // Joint 0 may not reach 0: RETURN is refused before anything moves.
+    assert_eq!(set(&mut s, &limits_set(0, 100, 1_000, 0)), Ok);
+    s.set_location([500, 0, 0, 0, 0, 0, 0, 0]);
+    s.expect(Command::Return, InvalidPoint);
+    assert_eq!(s.controller.state(), State::Stopped);
+    // LOCATION_SETTING outside a joint's range: refused (widen the limits first).
+    let outside = protocol::Location {
+        position: [50, 0, 0, 0, 0, 0, 0, 0],
+        state: 0,
+    };
+    s.expect(Command::LocationSetting(outside), InvalidPoint);
+    assert_eq!(s.plant.positions[0], 500);
+    // The whole range again (i32::MIN..=i32::MAX, no rate of its own): RETURN works.
+    assert_eq!(set(&mut s, &limits_set(0, i32::MIN, i32::MAX, 0)), Ok);
+    s.expect(Command::Return, Ok);
+}
+
+#[test]
+fn limits_get_reports_every_joint_and_names_the_last_refusal() {
+    use protocol::{JointLimits, LimitsSet, RefusalReason};
+    let mut s = Session::<64>::new(64);
+    let limits = JointLimits {
+        min: -100,
+        max: 100,
+        max_rate_hz: 2_000,
+    };
+    s.expect(Command::LimitsSet(LimitsSet { joint: 2, limits }), Ok);
+    s.expect(Command::New { count: 2 }, Ok);
+    let ok = point_to([0; 8], [0, 0, 10, 0, 0, 0, 0, 0]);
+    let over = point_to([0, 0, 10, 0, 0, 0, 0, 0], [0, 0, 120, 0, 0, 0, 0, 0]);
+    assert_eq!(s.pending(&[ok, over]).status, InvalidPoint);
+    let refused_seq = s.seq;
+    s.seq = s.seq.wrapping_add(1);
+    let r = s.send_raw(HOST, &frame(s.seq, Command::LimitsGet));
+    assert_eq!(r.reply.unwrap().ack.status, Ok);
+    let (to, report) = r.limits.expect("a LIMITS report");
+    assert_eq!(to, HOST);
+    assert_eq!(report.joints[2], limits);
+    assert_eq!(report.joints[0], JointLimits::NONE);
+    let refusal = report.last_refusal;
+    assert_eq!(
+        (refusal.seq, refusal.tag, refusal.point, refusal.joint),
+        (refused_seq, Tag::Pending as u8, 1, 2),
+        "the second point of that PENDING, joint 2"
+    );
+    assert_eq!(
+        (refusal.reason, refusal.value, refusal.limit),
+        (RefusalReason::AboveMax, 120, 100)
+    );
+    // A rate: 30 steps in 10 ms = 3000 steps/s against the joint's 2000.
+    s.expect(Command::New { count: 1 }, Ok);
+    let fast = point_to([0; 8], [0, 0, 30, 0, 0, 0, 0, 0]);
+    assert_eq!(s.pending(&[fast]).status, InvalidPoint);
+    s.seq = s.seq.wrapping_add(1);
+    let r = s.send_raw(HOST, &frame(s.seq, Command::LimitsGet));
+    let refusal = r.limits.unwrap().1.last_refusal;
+    assert_eq!(
+        (refusal.joint, refusal.reason, refusal.value, refusal.limit),
+        (2, RefusalReason::JointRate, 3_000, 2_000)
+    );
+    // The limits are kept in the settings the board stores.
+    assert_eq!(s.controller.settings().limits[2], limits);
+}
+
+#[test]
+fn stored_limits_apply_at_boot_and_an_impossible_range_is_none() {
+    use protocol::JointLimits;
+    let mut s = Session::<64>::new(64);
+    let mut stored = arm_core::hw::PersistentSettings::DEFAULT;
+    stored.limits[0] = JointLimits {
+        min: 0,
+        max: 50,
+        max_rate_hz: 0,
+    };
+    stored.limits[1] = JointLimits {
+        min: 10,
+        max: -10,
+        max_rate_hz: 0,
+    };
+    s.controller.apply_settings(stored);
+    assert_eq!(s.controller.settings().limits[0], stored.limits[0]);
+    assert_eq!(s.controller.settings().limits[1], JointLimits::NONE);
+    s.expect(Command::New { count: 1 }, Ok);
+    let over = point_to([0; 8], [60, 0, 0, 0, 0, 0, 0, 0]);
+    assert_eq!(s.pending(&[over]).status, InvalidPoint);
+}
+
+#[test]
+fn return_moves_no_joint_faster_than_its_own_limit() {
+    use protocol::{JointLimits, LimitsSet};
+    let mut s = Session::<64>::new(64);
+    let slow = JointLimits {
+        max_rate_hz: 500,
+        ..JointLimits::NONE
+    };
+    s.expect(
+        Command::LimitsSet(LimitsSet {
+            joint: 0,
+            limits: slow,
+        }),
+        Ok,
+    );
+    s.set_location([2_000, 2_000, 0, 0, 0, 0, 0, 0]);
+    s.expect(Command::Return, Ok);
+    s.controller.begin_return(None, &mut s.plant);
+    s.plant.run_to_end(&mut s.controller);
+    assert_eq!(s.plant.positions[..2], [0, 0]);
+    for seg in &s.plant.executed {
+        let rate =
+            |steps: i32| u64::from(steps.unsigned_abs()) * 1_000_000 / u64::from(seg.duration_us);
+        assert!(
+            rate(seg.steps[0]) <= 500,
+            "joint 0 at {} steps/s",
+            rate(seg.steps[0])
+        );
+    }
+}

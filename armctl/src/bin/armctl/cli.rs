@@ -6,6 +6,7 @@ use std::path::PathBuf;
 
 use clap::{Parser, Subcommand, ValueEnum};
 
+use crate::config::ConfigCmd;
 use crate::frame::FrameCmd;
 use crate::net::NetCmd;
 use crate::plot::PlotArgs;
@@ -177,6 +178,10 @@ pub enum Cmd {
     /// The authentication key (docs/PROTOCOL.md section 13).
     #[command(subcommand)]
     Key(KeyCmd),
+    /// The limits kept on the controller: each joint's position range and step rate
+    /// (LIMITS_GET, LIMITS_SET), enforced on every point, RETURN and set-location.
+    #[command(subcommand)]
+    Config(ConfigCmd),
 }
 
 /// `armctl key ...`.

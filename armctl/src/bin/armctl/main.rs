@@ -17,6 +17,7 @@
 //! chooses more finely.
 
 mod cli;
+mod config;
 mod connect;
 mod discover;
 mod enable;
@@ -92,7 +93,8 @@ fn execute(cli: Cli) -> CliResult {
             let arm = connect::connect(&cli)
                 .map_err(|e| owner::explain_not_owner(e, &cli.controller, cli.bind))?;
             let result = execute_online(&cli, &arm)
-                .map_err(|e| owner::explain_not_owner(e, &cli.controller, cli.bind));
+                .map_err(|e| owner::explain_not_owner(e, &cli.controller, cli.bind))
+                .map_err(|e| config::explain_invalid_point(e, &arm));
             // After a signal: STOPPED (unless the command sent it) and the line saying so.
             interrupt::finish(&arm);
             result
@@ -132,6 +134,7 @@ fn execute_online(cli: &Cli, arm: &armctl::Client) -> CliResult {
             single::done(arm.set_key(Some(key)))
         }
         Cmd::Key(cli::KeyCmd::Clear) => single::done(arm.set_key(None)),
+        Cmd::Config(command) => config::execute(arm, command),
         Cmd::Frame(_)
         | Cmd::Plot { .. }
         | Cmd::Discover { .. }

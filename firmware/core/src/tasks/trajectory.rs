@@ -314,6 +314,13 @@ pub(super) fn deliver(bus: &Bus, response: &Response) {
         })),
         (None, _) => {}
     }
+    if let Some((to, limits)) = response.limits {
+        bus.send(Outgoing::Answer(Answer {
+            to,
+            seq: None,
+            report: AnswerReport::Limits(limits),
+        }));
+    }
     if let Some((to, location)) = response.asked_location {
         bus.send(Outgoing::Answer(Answer {
             to,
