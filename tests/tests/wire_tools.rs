@@ -78,6 +78,14 @@ fn a_second_host_reads_status_and_positions_and_is_told_who_owns_the_arm_until_r
     let json: serde_json::Value = serde_json::from_str(&out).unwrap();
     assert_eq!(json["positions"], serde_json::json!([5, -6, 7]), "{out}");
     assert_eq!(json["read_only"], true);
+    // It can watch too, polling read-only.
+    let (ok, out, err) = armctl_from(&sim, "127.0.0.2:0", &["watch", "--duration", "1"]);
+    assert!(ok, "{out}\n{err}");
+    assert!(err.contains("read-only"), "{err}");
+    assert!(
+        out.contains("STOPPED  j0         5 j1        -6 j2         7"),
+        "{out}"
+    );
     // Its commands are refused, and the message names the owner.
     let (ok, out, err) = armctl_from(&sim, "127.0.0.2:0", &["pin", "0", "on"]);
     assert!(!ok, "{out}");
@@ -164,4 +172,73 @@ fn limits_set_with_armctl_config_are_kept_enforced_and_explained() {
     assert!(ok, "{out}\n{err}");
     assert!(out.contains("joint 1 any position"), "{out}");
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn status_with_a_config_names_each_joint_with_its_position_and_driver() {
+    let sim = SimHost::start(&["--joints", "3"]);
+    let config = sim.dir().join("arm.json");
+    std::fs::write(
+        &config,
+        r#"{"joints": [
+            {"name": "base", "steps_per_radian": 1000, "max_step_rate_hz": 5000},
+            {"name": "shoulder", "steps_per_radian": 1000, "zero_offset_steps": 100, "max_step_rate_hz": 5000},
+            {"name": "elbow", "steps_per_radian": 1000, "max_step_rate_hz": 5000}
+        ]}"#,
+    )
+    .unwrap();
+    let (ok, out, err) = armctl(&sim, &["set-location", "0", "1671", "-500"]);
+    assert!(ok, "{out}\n{err}");
+    let (ok, out, err) = armctl(&sim, &["disable", "2"]);
+    assert!(ok, "{out}\n{err}");
+    let (ok, out, err) = armctl(&sim, &["status", "--config", config.to_str().unwrap()]);
+    assert!(ok, "{out}\n{err}");
+    // (1671 - 100) / 1000 rad = 90.0 degrees.
+    assert!(
+        out.contains("    1  shoulder               1671     90.0  enabled"),
+        "{out}"
+    );
+    assert!(
+        out.contains("    0  base                      0      0.0  enabled"),
+        "{out}"
+    );
+    assert!(
+        out.contains("    2  elbow                  -500    -28.6  disabled"),
+        "{out}"
+    );
+    let (ok, out, _) = armctl(
+        &sim,
+        &["status", "--json", "--config", config.to_str().unwrap()],
+    );
+    assert!(ok);
+    let json: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(
+        json["joint_names"],
+        serde_json::json!(["base", "shoulder", "elbow"]),
+        "{out}"
+    );
+    assert_eq!(
+        json["positions"],
+        serde_json::json!([0, 1671, -500]),
+        "{out}"
+    );
+    // The config's limits pushed to the controller, then read back with the names.
+    let (ok, out, err) = armctl(&sim, &["config", "push", config.to_str().unwrap()]);
+    assert!(ok, "{out}\n{err}");
+    assert!(
+        out.contains("joint 1 shoulder: any position, at most 5000 steps/s"),
+        "{out}"
+    );
+    let (ok, out, err) = armctl(
+        &sim,
+        &["config", "get", "--config", config.to_str().unwrap()],
+    );
+    assert!(ok, "{out}\n{err}");
+    assert!(
+        out.contains("    2 elbow  any position, at most 5000 steps/s"),
+        "{out}"
+    );
+    let (ok, _, err) = armctl(&sim, &["status", "--config", "/nonexistent/arm.json"]);
+    assert!(!ok);
+    assert!(err.contains("/nonexistent/arm.json"), "{err}");
 }

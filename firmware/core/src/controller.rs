@@ -50,7 +50,8 @@
 //! seqs on its own).
 //!
 //! # Who gets which report
-//! The ACK and a STATUS report go to the command's sender. LOCATION goes to each of the
+//! The ACK and a STATUS report go to the command's sender, and so do the LOCATION a
+//! STATUS's request byte asks for and the LIMITS report of LIMITS_GET (issue 23). LOCATION goes to each of the
 //! owner's endpoints (up to [`LOCATION_LISTENERS`]) whose commands were executed and that
 //! have not been silent for 5 s; the endpoint that started the upload or run (NEW,
 //! RETURN) or turned reports on (UPLOAD_START, UPLOAD_PERIOD) keeps them while anything

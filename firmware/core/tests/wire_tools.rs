@@ -483,3 +483,30 @@ fn return_moves_no_joint_faster_than_its_own_limit() {
         );
     }
 }
+
+#[test]
+fn with_a_key_a_plain_status_is_still_refused_and_a_key_holder_reads_read_only() {
+    use protocol::auth::{AuthKey, KEY_LEN};
+    const KEY: AuthKey = AuthKey([0x5a; KEY_LEN]);
+    let mut s = Session::<64>::new(64);
+    s.expect(Command::SetKey(Some(KEY)), Ok);
+    s.hello(KEY);
+    s.expect(Command::Status, Ok);
+    // A host without the key: AUTH_REQUIRED, as before issue 23 (section 13 unchanged).
+    let r = s.send_raw(OTHER, &frame(3, Command::Status));
+    assert_eq!(r.reply.unwrap().ack.status, AuthRequired);
+    assert!(r.status.is_none());
+    let r = s.send_raw(OTHER, &raw(4, RELEASE, &[]));
+    assert_eq!(r.reply.unwrap().ack.status, AuthRequired);
+    // Another key holder (its own session, another address): read-only.
+    let mut other = Session::<64>::new(64);
+    std::mem::swap(&mut other.controller, &mut s.controller);
+    other.now_us = s.now_us;
+    other.from = OTHER;
+    other.seq = 50;
+    other.hello(KEY);
+    let ack = other.send(Command::Status);
+    assert_eq!((ack.status, ack.next_seq, ack.free), (Ok, 0, 0));
+    assert_eq!(other.controller.owner().map(|o| o.ip), Some(HOST.ip));
+    assert_eq!(other.send(Command::Pin0On).status, NotOwner);
+}

@@ -58,6 +58,9 @@ pub enum Cmd {
         /// As JSON.
         #[arg(long)]
         json: bool,
+        /// A joint config (the `run --config` file): joint names and positions in degrees.
+        #[arg(long, value_name = "FILE")]
+        config: Option<PathBuf>,
     },
     /// Print live positions and state (Ctrl-C ends).
     Watch {

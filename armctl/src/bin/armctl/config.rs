@@ -16,6 +16,16 @@ pub enum ConfigCmd {
         /// As JSON.
         #[arg(long)]
         json: bool,
+        /// A joint config (the `run --config` file): joint names.
+        #[arg(long, value_name = "FILE")]
+        config: Option<std::path::PathBuf>,
+    },
+    /// LIMITS_SET for every joint of a joint config (the `run --config` file): its
+    /// min_steps, max_steps and max_step_rate_hz, so that the controller enforces them
+    /// whatever host drives it (only while STOPPED).
+    Push {
+        /// The joint config.
+        file: std::path::PathBuf,
     },
     /// LIMITS_SET: one joint's position range and step rate, kept by the controller
     /// across power cycles and enforced on every point, RETURN and set-location (only
@@ -42,7 +52,18 @@ pub enum ConfigCmd {
 /// Runs `config get` or `config set`.
 pub fn execute(arm: &Client, command: &ConfigCmd) -> CliResult {
     match command {
-        ConfigCmd::Get { json } => {
+        ConfigCmd::Get { json, config } => {
+            let names = config
+                .as_deref()
+                .map(armctl::trajectory::ArmConfig::load)
+                .transpose()
+                .map_err(|e| e.to_string())?
+                .map(|c| {
+                    c.joints
+                        .iter()
+                        .map(|j| j.name.clone().unwrap_or_else(|| "-".into()))
+                        .collect::<Vec<_>>()
+                });
             let report = arm.limits().map_err(|e| explain_old(e, Tag::LimitsGet))?;
             if *json {
                 println!(
@@ -50,8 +71,28 @@ pub fn execute(arm: &Client, command: &ConfigCmd) -> CliResult {
                     serde_json::to_string_pretty(&report).map_err(|e| e.to_string())?
                 );
             } else {
-                print!("{}", limits_table(&report, None));
+                print!("{}", limits_table(&report, names.as_deref()));
             }
+            Ok(())
+        }
+        ConfigCmd::Push { file } => {
+            let config = armctl::trajectory::ArmConfig::load(file).map_err(|e| e.to_string())?;
+            for (j, joint) in config.joints.iter().enumerate().take(protocol::MAX_JOINTS) {
+                let limits = JointLimits {
+                    min: joint.min_steps,
+                    max: joint.max_steps,
+                    max_rate_hz: joint.max_step_rate_hz,
+                };
+                let j = u8::try_from(j).unwrap_or(u8::MAX);
+                arm.set_limits(j, limits)
+                    .map_err(|e| format!("joint {j}: {}", explain_old(e, Tag::LimitsSet)))?;
+                let name = joint.name.as_deref().unwrap_or("-");
+                println!("joint {j} {name}: {}", describe(&limits));
+            }
+            println!(
+                "OK: {} joints' limits kept on the controller",
+                config.joints.len()
+            );
             Ok(())
         }
         ConfigCmd::Set {

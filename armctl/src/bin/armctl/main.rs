@@ -105,7 +105,7 @@ fn execute(cli: Cli) -> CliResult {
 /// The commands that talk to the controller at `--controller`.
 fn execute_online(cli: &Cli, arm: &armctl::Client) -> CliResult {
     match &cli.command {
-        Cmd::Status { json } => status::execute(arm, *json),
+        Cmd::Status { json, config } => status::execute(arm, *json, config.as_deref()),
         Cmd::Watch { record, duration } => watch::execute(arm, record.as_deref(), *duration),
         Cmd::Run(args) => run::execute(arm, args),
         Cmd::Stop => single::done(arm.stop()),
