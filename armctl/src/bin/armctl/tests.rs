@@ -286,6 +286,45 @@ fn golden_hex(name: &str) -> String {
         .to_string()
 }
 
+/// Issue 23's frames encode as docs/PROTOCOL.md shows them.
+#[test]
+fn encode_issue_23_frames_as_the_protocol_document_shows() {
+    assert_eq!(
+        encode(&[
+            "frame",
+            "encode",
+            "--seq",
+            "27",
+            "set-enable",
+            "3",
+            "--disable"
+        ]),
+        "1b18030000e7"
+    );
+    assert_eq!(
+        encode(&["frame", "encode", "--seq", "30", "release"]),
+        "1e19ce"
+    );
+    assert_eq!(
+        encode(&[
+            "frame",
+            "encode",
+            "--seq",
+            "31",
+            "limits-set",
+            "1",
+            "-16000",
+            "16000",
+            "4000"
+        ]),
+        "1f1a0100000080c1ffff803e0000a00f0000fd"
+    );
+    assert_eq!(
+        encode(&["frame", "encode", "--seq", "32", "limits-get"]),
+        "201bef"
+    );
+}
+
 #[test]
 fn encode_matches_golden_frames() {
     let seq_of = |name: &str| -> String {
