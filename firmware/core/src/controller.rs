@@ -1076,7 +1076,13 @@ impl<const CAP: usize> Controller<CAP> {
             if held_by_other {
                 return None;
             }
-            response.reply = Some(self.ack(from, seq, tag, StatusCode::Ok));
+            // A malformed one is refused as any frame is (BAD_LENGTH), taking nothing
+            // either.
+            let status = match Command::decode(datagram) {
+                Ok(_) => StatusCode::Ok,
+                Err(e) => e.status().unwrap_or(StatusCode::BadLength),
+            };
+            response.reply = Some(self.ack(from, seq, tag, status));
             return Some(response);
         }
         if tag != Tag::Status as u8 {

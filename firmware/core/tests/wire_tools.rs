@@ -169,6 +169,11 @@ fn release_hands_the_controller_over_at_once_and_a_resend_does_not_take_it_back(
     let r = s.send_raw(HOST, &release);
     assert_eq!(r.reply.unwrap().ack.status, Ok);
     assert_eq!(s.controller.owner(), None);
+    // A malformed RELEASE from a host that does not own it: BAD_LENGTH, nothing taken
+    // (found by the controller fuzz target).
+    let r = s.send_raw(OTHER, &raw(42, RELEASE, &[1, 2, 3]));
+    assert_eq!(r.reply.unwrap().ack.status, BadLength);
+    assert_eq!(s.controller.owner(), None);
     // Another host takes the controller at once, no 5 s wait.
     let r = s.send_raw(OTHER, &frame(2, Command::New { count: 1 }));
     assert_eq!(r.reply.unwrap().ack.status, Ok);
