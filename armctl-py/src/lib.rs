@@ -275,8 +275,14 @@ impl Arm {
     }
 
     /// Joint positions in steps (numpy int32 array, one per joint in use), from a fresh
-    /// LOCATION report.
+    /// LOCATION report: the one a STATUS asks for (issue 23: from any host, read-only
+    /// when another owns the controller), or, from an older controller, a periodic one.
     fn positions<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray1<i32>>> {
+        let glance = self.call(py, |arm| arm.glance(false))?;
+        if let Some(location) = glance.location {
+            let joints = usize::from(glance.status.joints).clamp(1, MAX_JOINTS);
+            return Ok(PyArray1::from_slice(py, &location.position[..joints]));
+        }
         let (status, location) = self.before_run(py)?;
         let joints = usize::from(status.joints).clamp(1, MAX_JOINTS);
         Ok(PyArray1::from_slice(py, &location.position[..joints]))

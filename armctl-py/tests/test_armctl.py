@@ -287,6 +287,13 @@ def test_enable_disable_release_and_limits(sim):
             arm.set_location([0, 500])
         assert refused.value.status == "INVALID_POINT"
         arm.set_limits(1, min=-2**31, max=2**31 - 1, max_rate_hz=0)
+        arm.set_location([12, -34])
+        # Another host reads the positions without owning the controller.
+        watcher = armctl.connect(sim.address, bind="127.0.0.3:0")
+        assert list(watcher.positions()[:2]) == [12, -34]
+        with pytest.raises(armctl.RefusedError) as other_refused:
+            watcher.pin(0, True)
+        assert other_refused.value.status == "NOT_OWNER"
         arm.release()
         # Another host takes the controller at once.
         other = armctl.connect(sim.address, bind="127.0.0.2:0")
