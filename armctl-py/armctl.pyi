@@ -56,6 +56,22 @@ class Status(TypedDict):
     step_budget_hz: int
     """Steps per second of all joints together (0: an older controller)."""
     more_flags: MoreFlags
+    enabled: Optional[Enabled]
+    """Each driver's ENABLE (None: an older controller, which reports only
+    flags['drivers_enabled'], "any")."""
+
+class JointLimits(TypedDict):
+    min: int
+    """Lowest position, steps (-2147483648: none)."""
+    max: int
+    """Highest position, steps (2147483647: none)."""
+    max_rate_hz: int
+    """Most steps per second (0: the controller's own limit only)."""
+
+class Enabled(TypedDict):
+    joints: List[bool]
+    """One per joint in use: True holding, False limp."""
+    gripper: bool
 
 class MoreFlags(TypedDict):
     upload_dropped: bool
@@ -265,6 +281,34 @@ class Arm:
     def set_location(self, positions: Any) -> None: ...
     def set_joints(self, joints: int) -> None: ...
     def pin(self, pin: int, high: bool) -> None: ...
+    def limits(self) -> List[JointLimits]:
+        """LIMITS_GET: the limits kept on the controller, one dict per joint 0-7."""
+        ...
+    def set_limits(
+        self,
+        joint: int,
+        *,
+        min: Optional[int] = None,
+        max: Optional[int] = None,
+        max_rate_hz: Optional[int] = None,
+    ) -> None:
+        """LIMITS_SET: joint's position range (steps) and step rate (0: the controller's
+        own only), kept across power cycles and enforced by the controller on every point,
+        RETURN and set_location. Arguments not given keep their value. Only while
+        STOPPED."""
+        ...
+    def release(self) -> None:
+        """RELEASE: give the controller up (only while STOPPED): another host may take it
+        at once instead of after 5 s of silence."""
+        ...
+    def enable(self, joints: Optional[List[int]] = None, *, gripper: Optional[bool] = None) -> None:
+        """SET_ENABLE: enable (holding) the drivers of `joints` (0-7), and the gripper's
+        with gripper=True; no `joints`: every driver (the gripper too unless
+        gripper=False). Only while STOPPED; the other drivers keep their state."""
+        ...
+    def disable(self, joints: Optional[List[int]] = None, *, gripper: Optional[bool] = None) -> None:
+        """SET_ENABLE: disable (limp) the drivers of `joints`, as enable()."""
+        ...
     def set_key(self, key_file: Optional[_Path] = None) -> None:
         """SET_KEY: store the key of `key_file` (64 hex digits) in the controller, or
         clear it (None). The first key is set plain; a key set already only by a

@@ -50,6 +50,20 @@ pub(crate) fn status_dict<'py>(py: Python<'py>, s: &StatusReport) -> PyResult<Bo
         more.set_item(name, s.more_flags.has(bit))?;
     }
     d.set_item("more_flags", more)?;
+    // Each driver's ENABLE (issue 23, STATUS more_flags bits 3, 4, 8-15); None from a
+    // controller that does not report them.
+    match s.drivers_enabled() {
+        Some(mask) => {
+            let enabled = PyDict::new(py);
+            let joints: Vec<bool> = (0..usize::from(s.joints).min(MAX_JOINTS))
+                .map(|j| mask & (1 << j) != 0)
+                .collect();
+            enabled.set_item("joints", joints)?;
+            enabled.set_item("gripper", mask & 0x100 != 0)?;
+            d.set_item("enabled", enabled)?;
+        }
+        None => d.set_item("enabled", py.None())?,
+    }
     Ok(d)
 }
 

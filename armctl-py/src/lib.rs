@@ -339,8 +339,14 @@ impl Arm {
     }
 
     /// Joint positions in steps (numpy int32 array, one per joint in use), from a fresh
-    /// LOCATION report.
+    /// LOCATION report: the one a STATUS asks for (issue 23: from any host, read-only
+    /// when another owns the controller), or, from an older controller, a periodic one.
     fn positions<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray1<i32>>> {
+        let glance = self.call(py, |arm| arm.glance(false))?;
+        if let Some(location) = glance.location {
+            let joints = usize::from(glance.status.joints).clamp(1, MAX_JOINTS);
+            return Ok(PyArray1::from_slice(py, &location.position[..joints]));
+        }
         let (status, location) = self.before_run(py)?;
         let joints = usize::from(status.joints).clamp(1, MAX_JOINTS);
         Ok(PyArray1::from_slice(py, &location.position[..joints]))
@@ -587,6 +593,94 @@ impl Arm {
         self.call(py, move |arm| arm.set_key(key)).map(|_| ())
     }
 
+    /// LIMITS_GET: every joint's limits kept on the controller, a list of 8 dicts
+    /// (`min`, `max` in steps, `max_rate_hz`, 0: the controller's own limit only).
+    fn limits<'py>(&self, py: Python<'py>) -> PyResult<Vec<Bound<'py, PyDict>>> {
+        let report = self.call(py, |arm| arm.limits())?;
+        report
+            .joints
+            .iter()
+            .map(|l| {
+                let d = PyDict::new(py);
+                d.set_item("min", l.min)?;
+                d.set_item("max", l.max)?;
+                d.set_item("max_rate_hz", l.max_rate_hz)?;
+                Ok(d)
+            })
+            .collect()
+    }
+
+    /// LIMITS_SET: joint `joint`'s position range (steps) and step rate, kept by the
+    /// controller across power cycles and enforced on every point, RETURN and
+    /// set_location; arguments not given keep their value. Only while STOPPED.
+    #[pyo3(signature = (joint, *, min=None, max=None, max_rate_hz=None))]
+    fn set_limits(
+        &self,
+        py: Python<'_>,
+        joint: u8,
+        min: Option<i32>,
+        max: Option<i32>,
+        max_rate_hz: Option<u32>,
+    ) -> PyResult<()> {
+        if usize::from(joint) >= MAX_JOINTS {
+            return Err(PyValueError::new_err(format!(
+                "joint {joint} does not exist: joints are 0..{}",
+                MAX_JOINTS - 1
+            )));
+        }
+        let current = self.call(py, |arm| arm.limits())?;
+        let old = current.joints[usize::from(joint)];
+        let new = protocol::JointLimits {
+            min: min.unwrap_or(old.min),
+            max: max.unwrap_or(old.max),
+            max_rate_hz: max_rate_hz.unwrap_or(old.max_rate_hz),
+        };
+        if !new.is_valid() {
+            return Err(PyValueError::new_err(format!(
+                "joint {joint}: min {} is above max {}",
+                new.min, new.max
+            )));
+        }
+        self.call(py, move |arm| arm.set_limits(joint, new))
+            .map(|_| ())
+    }
+
+    /// RELEASE: gives the controller up (only while STOPPED), so that another host may
+    /// take it at once; this connection's next command takes it back unless another
+    /// host's came first.
+    fn release(&self, py: Python<'_>) -> PyResult<()> {
+        self.call(py, move |arm| arm.release()).map(|_| ())
+    }
+
+    /// SET_ENABLE: enables (holding torque) the drivers of `joints` (0-7) and, with
+    /// `gripper=True`, the gripper's; with no `joints`, every driver (gripper included
+    /// unless `gripper=False`). The others are left as they are. Only while STOPPED.
+    #[pyo3(signature = (joints=None, *, gripper=None))]
+    fn enable(
+        &self,
+        py: Python<'_>,
+        joints: Option<Vec<i64>>,
+        gripper: Option<bool>,
+    ) -> PyResult<()> {
+        let mask = enable_mask(joints, gripper)?;
+        self.call(py, move |arm| arm.set_enable(mask, true))
+            .map(|_| ())
+    }
+
+    /// SET_ENABLE: disables (limp: the joints can be moved by hand) the drivers of
+    /// `joints` and, with `gripper=True`, the gripper's; with no `joints`, every driver.
+    #[pyo3(signature = (joints=None, *, gripper=None))]
+    fn disable(
+        &self,
+        py: Python<'_>,
+        joints: Option<Vec<i64>>,
+        gripper: Option<bool>,
+    ) -> PyResult<()> {
+        let mask = enable_mask(joints, gripper)?;
+        self.call(py, move |arm| arm.set_enable(mask, false))
+            .map(|_| ())
+    }
+
     /// PIN0/PIN1 high (`True`) or low.
     fn pin(&self, py: Python<'_>, pin: u8, high: bool) -> PyResult<()> {
         // A wrong argument is a ValueError, not a "network error" (issue 23).
@@ -814,4 +908,29 @@ fn armctl_py(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("TrajectoryError", py.get_type::<TrajectoryError>())?;
     m.add("PORT", protocol::PORT)?;
     Ok(())
+}
+
+/// The ENABLE mask (bits 0-7 joints, bit 8 gripper) of `enable`/`disable`'s arguments.
+fn enable_mask(joints: Option<Vec<i64>>, gripper: Option<bool>) -> PyResult<u16> {
+    const GRIPPER: u16 = 1 << 8;
+    let Some(joints) = joints else {
+        return Ok(if gripper == Some(false) {
+            0xFF
+        } else {
+            protocol::limits::ENABLE_MASK_BITS
+        });
+    };
+    let mut mask = if gripper == Some(true) { GRIPPER } else { 0 };
+    for j in joints {
+        match u8::try_from(j) {
+            Ok(j) if usize::from(j) < protocol::MAX_JOINTS => mask |= 1 << j,
+            _ => {
+                return Err(PyValueError::new_err(format!(
+                    "joint {j} does not exist: joints are 0..{}",
+                    protocol::MAX_JOINTS - 1
+                )));
+            }
+        }
+    }
+    Ok(mask)
 }

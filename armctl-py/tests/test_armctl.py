@@ -93,9 +93,12 @@ def test_refusals_raise_refused_error_with_the_status(sim):
         assert refused.value.command == "JOINTS_COUNT"
         assert refused.value.state == "RUNNING"
         assert isinstance(refused.value, armctl.ArmctlError)
-        # Another host (address 127.0.0.2) may not drive an owned controller.
+        # Another host (address 127.0.0.2) may read STATUS (issue 23) but not drive
+        # an owned controller.
+        stranger = armctl.connect(sim.address, bind="127.0.0.2:0")
+        assert stranger.status()["state"] == "RUNNING"
         with pytest.raises(armctl.RefusedError) as other:
-            armctl.connect(sim.address, bind="127.0.0.2:0")
+            stranger.pin(0, True)
         assert other.value.status == "NOT_OWNER"
         handle.cancel()
 
@@ -258,3 +261,40 @@ def test_a_keyed_controller_moves_for_the_key_holder_only(sim, tmp_path):
         arm.set_key(None)
     with armctl.connect(sim.address) as arm:
         assert arm.status()["state"] == "STOPPED"
+
+
+def test_enable_disable_release_and_limits(sim):
+    """Issue 23: explicit per-joint enable, RELEASE, limits on the controller."""
+    with armctl.connect(sim.address) as arm:
+        arm.disable([0, 1])
+        arm.disable([0, 1])
+        enabled = arm.status()["enabled"]
+        assert enabled is not None
+        assert enabled["joints"][:2] == [False, False]
+        assert all(enabled["joints"][2:]) and enabled["gripper"]
+        arm.enable()
+        assert all(arm.status()["enabled"]["joints"])
+        with pytest.raises(ValueError):
+            arm.enable([9])
+        arm.set_limits(1, min=-100, max=100, max_rate_hz=2000)
+        limits = arm.limits()
+        assert limits[1] == {"min": -100, "max": 100, "max_rate_hz": 2000}
+        arm.set_limits(1, max=50)
+        assert arm.limits()[1]["max"] == 50
+        with pytest.raises(ValueError):
+            arm.set_limits(1, min=60)
+        with pytest.raises(armctl.RefusedError) as refused:
+            arm.set_location([0, 500])
+        assert refused.value.status == "INVALID_POINT"
+        arm.set_limits(1, min=-2**31, max=2**31 - 1, max_rate_hz=0)
+        arm.set_location([12, -34])
+        # Another host reads the positions without owning the controller.
+        watcher = armctl.connect(sim.address, bind="127.0.0.3:0")
+        assert list(watcher.positions()[:2]) == [12, -34]
+        with pytest.raises(armctl.RefusedError) as other_refused:
+            watcher.pin(0, True)
+        assert other_refused.value.status == "NOT_OWNER"
+        arm.release()
+        # Another host takes the controller at once.
+        other = armctl.connect(sim.address, bind="127.0.0.2:0")
+        other.pin(0, True)

@@ -286,6 +286,10 @@ fn invalid_config_advice(command: Tag, status: StatusCode) -> Option<&'static st
         Tag::UploadPeriod => "the period must be 1000..1000000 microseconds",
         Tag::JointsCount => "the joint count must be 1..8",
         Tag::New => "the point count must be 1..65535",
+        Tag::ToggleEnablePins | Tag::SetEnable => {
+            "the mask may only use bits 0-8 (joints 0-7, gripper 8) and the action must be \
+             enable or disable"
+        }
         Tag::NetSet => {
             "a unicast address (not 0.x, 127.x, 224-255.x, nor the subnet's network or \
              broadcast address) with a prefix of 1..32 and a gateway inside the subnet, or DHCP"

@@ -369,6 +369,40 @@ impl Harness {
             self.upload = None;
         }
 
+        // A read-only STATUS (issue 23) from a host that does not own the controller:
+        // answered (or, beyond its budget, not at all) and nothing taken or changed; it
+        // is not remembered, so it is no duplicate later.
+        let plain_status = matches!(
+            Command::decode(bytes).map(|f| f.body),
+            Ok(Command::Status | Command::StatusWith(_))
+        );
+        if plain_status
+            && owner_before != Some(from.ip)
+            && (r.answer_seq.is_some() || r.reply.is_none())
+        {
+            assert_eq!(
+                self.controller.owner().map(|o| o.ip),
+                owner_before,
+                "a read-only STATUS took the controller"
+            );
+            assert_eq!(
+                after.without_feeding(),
+                before.without_feeding(),
+                "a read-only STATUS changed something"
+            );
+            if let Some(reply) = r.reply {
+                assert_eq!((reply.to, reply.ack.status), (from, StatusCode::Ok));
+                let a = reply.ack;
+                assert_eq!(
+                    (a.next_seq, a.buffered, a.free),
+                    (0, 0, 0),
+                    "a read-only STATUS told the next seq or the buffer"
+                );
+                assert_eq!(r.answer_seq, Some(bytes[0]));
+                assert_eq!(r.status.map(|(to, _)| to), Some(from));
+            }
+            return;
+        }
         // Exactly one ACK, to the sender, for this frame.
         let reply = r.reply.expect("no ACK for a datagram of 3 bytes or more");
         assert_eq!(reply.to, from);
@@ -418,8 +452,18 @@ impl Harness {
             }
         }
         if (status != StatusCode::Ok || (surely_dup && crc_ok)) && !dropped_at_hand_over {
+            // Issue 21 F12: a command other than PENDING refused for good from the
+            // uploader fills its seq in the upload's order, so next_seq may move past it;
+            // nothing else may change.
+            let mut after_cmp = after.without_feeding();
+            let fills_its_seq = status.refuses_for_good()
+                && bytes[1] != Tag::Pending as u8
+                && self.upload.as_ref().is_some_and(|u| u.uploader == from);
+            if fills_its_seq {
+                after_cmp.next_seq = before.next_seq;
+            }
             assert_eq!(
-                after.without_feeding(),
+                after_cmp,
                 before.without_feeding(),
                 "a frame ACKed {status:?} changed something"
             );
@@ -456,7 +500,10 @@ impl Harness {
             assert!(r.location.is_some(), "no LOCATION for a state change");
         }
 
-        if status == StatusCode::Ok && !is_stop {
+        // A RELEASE from a host that does not own the controller is OK and not
+        // remembered (it must never take the controller): no duplicate later.
+        let release_by_other = bytes[1] == Tag::Release as u8 && owner_before != Some(from.ip);
+        if status == StatusCode::Ok && !is_stop && !release_by_other {
             self.accepted.push_back(Accepted {
                 key,
                 at_us: self.now_us,
@@ -652,7 +699,34 @@ impl Harness {
                     "TOGGLE_ENABLE_PINS accepted in {was:?}"
                 );
             }
-            Command::Status => {
+            Command::SetEnable { mask, enable } => {
+                assert_eq!(was, State::Stopped, "SET_ENABLE accepted in {was:?}");
+                let drivers = after.status.drivers_enabled().expect("per-driver enables");
+                let want = if *enable {
+                    drivers & mask
+                } else {
+                    !drivers & mask
+                };
+                assert_eq!(want, *mask, "SET_ENABLE left a masked driver unchanged");
+            }
+            Command::LimitsSet(set) => {
+                assert_eq!(was, State::Stopped, "LIMITS_SET accepted in {was:?}");
+                assert!(
+                    matches!(r.deferred, Some(Deferred::SaveSettings(s))
+                        if s.limits[usize::from(set.joint)] == set.limits),
+                    "{:?}",
+                    r.deferred
+                );
+            }
+            Command::LimitsGet => {
+                let (_, report) = r.limits.expect("no LIMITS report for LIMITS_GET");
+                assert_eq!(report.joints, self.controller.settings().limits);
+            }
+            Command::Release => {
+                assert_eq!(was, State::Stopped, "RELEASE accepted in {was:?}");
+                assert_eq!(self.controller.owner(), None, "RELEASE left an owner");
+            }
+            Command::Status | Command::StatusWith(_) => {
                 let (_, report) = r.status.expect("no STATUS report for STATUS");
                 assert_eq!(report.state, is);
             }

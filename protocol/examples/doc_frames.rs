@@ -166,6 +166,44 @@ pub fn doc_frames() -> Vec<DocFrame> {
             Command::UploadPeriod { period_us: 20_000 },
         ),
         command("ESTOP_RESET, seq 0x19", 0x19, Command::EstopReset),
+        command(
+            "SET_ENABLE, seq 0x1b, disable joints 0 and 1 (mask 0x0003)",
+            0x1b,
+            Command::SetEnable {
+                mask: 0x0003,
+                enable: false,
+            },
+        ),
+        command(
+            "STATUS, seq 0x1d, look only, with a LOCATION (request byte 0x03)",
+            0x1d,
+            Command::StatusWith(protocol::StatusAsk {
+                location: true,
+                look_only: true,
+            }),
+        ),
+        command("RELEASE, seq 0x1e", 0x1e, Command::Release),
+        command(
+            "LIMITS_SET, seq 0x1f, joint 1: -16000..16000 steps, 4000 steps/s",
+            0x1f,
+            Command::LimitsSet(protocol::LimitsSet {
+                joint: 1,
+                limits: protocol::JointLimits {
+                    min: -16_000,
+                    max: 16_000,
+                    max_rate_hz: 4_000,
+                },
+            }),
+        ),
+        command("LIMITS_GET, seq 0x20", 0x20, Command::LimitsGet),
+        command(
+            "SET_ENABLE, seq 0x1c, enable every driver (mask 0x01ff)",
+            0x1c,
+            Command::SetEnable {
+                mask: 0x01ff,
+                enable: true,
+            },
+        ),
         report(
             "ACK of the NEW above: OK, state NEW, next_seq 0x02, 0 buffered, 8192 free",
             0x01,
@@ -216,6 +254,11 @@ pub fn doc_frames() -> Vec<DocFrame> {
             Report::UsartRecv(b"ok\r\n"),
         ),
         report(
+            "LIMITS report, seq 0x2c: joint 1 limited, the last refusal: PENDING seq 0x21, point 3, joint 1 above its max (16100 against 16000)",
+            0x2c,
+            Report::Limits(limits_example()),
+        ),
+        report(
             "STATUS report, seq 0x17",
             0x17,
             Report::Status(StatusReport {
@@ -237,6 +280,28 @@ pub fn doc_frames() -> Vec<DocFrame> {
             }),
         ),
     ]
+}
+
+/// The LIMITS report of the example: joint 1 limited, the others not.
+fn limits_example() -> protocol::LimitsReport {
+    let mut joints = [protocol::JointLimits::NONE; MAX_JOINTS];
+    joints[1] = protocol::JointLimits {
+        min: -16_000,
+        max: 16_000,
+        max_rate_hz: 4_000,
+    };
+    protocol::LimitsReport {
+        joints,
+        last_refusal: protocol::Refusal {
+            seq: 0x21,
+            tag: 0x01,
+            point: 3,
+            joint: 1,
+            reason: protocol::RefusalReason::AboveMax,
+            value: 16_100,
+            limit: 16_000,
+        },
+    }
 }
 
 #[allow(dead_code)] // The test includes this file for `doc_frames` alone.

@@ -135,6 +135,18 @@ wire_code! {
         UploadPeriod = 0x16 => "UPLOAD_PERIOD",
         /// Clear the wired e-stop input's latch (refused while the input is open).
         EstopReset = 0x17 => "ESTOP_RESET",
+        /// Enable or disable the masked drivers explicitly (issue 23; TOGGLE_ENABLE_PINS
+        /// stays for old hosts).
+        SetEnable = 0x18 => "SET_ENABLE",
+        /// The owner gives the controller up: any host may take it at once (issue 23).
+        Release = 0x19 => "RELEASE",
+        /// Set one joint's position range and step rate, kept across power cycles
+        /// (issue 23).
+        LimitsSet = 0x1a => "LIMITS_SET",
+        /// Ask for the LIMITS report.
+        LimitsGet = 0x1b => "LIMITS_GET",
+        /// Every joint's limits and the last refusal (controller to host).
+        Limits = 0x1c => "LIMITS",
         /// Who is there? Answered by every controller, from any host (PROTOCOL.md,
         /// "Finding controllers and setting their address").
         Discover = 0x20 => "DISCOVER",
@@ -246,7 +258,7 @@ impl StatusCode {
             }
             BufferFull => "the trajectory buffer is full: resend when the ACK's `free` allows",
             NotOwner => {
-                "another host owns the controller: wait 5 s after it goes quiet, or have it release the arm"
+                "another host owns the controller: wait 5 s after it goes quiet, or have it release the arm (RELEASE, `armctl release`)"
             }
             Unsupported => "this frame only goes from controller to host",
             InvalidConfig => {

@@ -1,10 +1,11 @@
 //! [`Command`]: what a host sends, decoded from and encoded into a datagram.
 
 use crate::auth::AuthKey;
-use crate::codec::{u8_at, u16_be, u32_le};
+use crate::codec::{u8_at, u16_be, u16_le, u32_le};
 use crate::codes::Tag;
 use crate::error::{DecodeError, DecodeErrorKind, EncodeError, ExpectedLen, Field};
 use crate::frame::{Frame, PointList, open, seal};
+use crate::joint_limits::{JointLimits, LimitsSet};
 use crate::net::NetSettings;
 use crate::types::{Location, Pwm, UartInit};
 use crate::{FRAME_OVERHEAD, MAX_POINTS_PER_FRAME, MAX_SERIAL_CHUNK, limits, size};
@@ -78,6 +79,61 @@ pub enum Command<'a> {
     },
     /// Set the controller's key, or clear it (`None`, no data).
     SetKey(Option<AuthKey>),
+    /// Give the controller up (the owner only): any host may take it at once.
+    Release,
+    /// Set one joint's limits (issue 23).
+    LimitsSet(LimitsSet),
+    /// Ask for the LIMITS report.
+    LimitsGet,
+    /// STATUS with its request byte (issue 23): what else to answer, and whether a host
+    /// that does not own the controller wants only to look.
+    StatusWith(StatusAsk),
+    /// Enable (`enable`) or disable the masked drivers, leaving the others as they are
+    /// (issue 23: an explicit form beside TOGGLE_ENABLE_PINS).
+    SetEnable {
+        /// Bits 0-7 joints, bit 8 gripper (little-endian on the wire, unlike TOGGLE's).
+        mask: u16,
+        /// `true`: holding; `false`: limp.
+        enable: bool,
+    },
+}
+
+/// STATUS's request byte (docs/PROTOCOL.md, STATUS): plain STATUS (no data) asks for
+/// neither.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+pub struct StatusAsk {
+    /// Bit 0: a LOCATION report (positions and state) to the asker too, right after the
+    /// STATUS report.
+    pub location: bool,
+    /// Bit 1: only look: from a host that does not own the controller, answered read-only
+    /// even when the controller is free (it never makes the asker the owner).
+    pub look_only: bool,
+}
+
+impl StatusAsk {
+    /// Bit 0.
+    pub const LOCATION: u8 = 1 << 0;
+    /// Bit 1.
+    pub const LOOK_ONLY: u8 = 1 << 1;
+
+    /// The byte on the wire.
+    pub const fn byte(self) -> u8 {
+        (if self.location { Self::LOCATION } else { 0 })
+            | (if self.look_only { Self::LOOK_ONLY } else { 0 })
+    }
+
+    /// The request of a byte, `None` with other bits set.
+    pub const fn from_byte(b: u8) -> Option<StatusAsk> {
+        if b & !(Self::LOCATION | Self::LOOK_ONLY) != 0 {
+            return None;
+        }
+        Some(StatusAsk {
+            location: b & Self::LOCATION != 0,
+            look_only: b & Self::LOOK_ONLY != 0,
+        })
+    }
 }
 
 impl<'a> Command<'a> {
@@ -110,6 +166,11 @@ impl<'a> Command<'a> {
             Command::EstopReset => Tag::EstopReset,
             Command::Hello { .. } => Tag::Hello,
             Command::SetKey(_) => Tag::SetKey,
+            Command::SetEnable { .. } => Tag::SetEnable,
+            Command::Release => Tag::Release,
+            Command::LimitsSet(_) => Tag::LimitsSet,
+            Command::LimitsGet => Tag::LimitsGet,
+            Command::StatusWith(_) => Tag::Status,
         }
     }
 
@@ -128,6 +189,9 @@ impl<'a> Command<'a> {
             Command::NetSet(_) => size::NET_SET,
             Command::Hello { .. } => size::HELLO,
             Command::SetKey(Some(_)) => crate::auth::KEY_LEN,
+            Command::SetEnable { .. } => size::SET_ENABLE,
+            Command::StatusWith(_) => 1,
+            Command::LimitsSet(_) => size::LIMITS_SET,
             _ => 0,
         }
     }
@@ -175,6 +239,15 @@ impl<'a> Command<'a> {
             Command::NetSet(net) => net.write(w, 0),
             Command::Hello { nonce } => w.put(0, nonce),
             Command::SetKey(Some(key)) => w.put(0, &key.0),
+            Command::SetEnable { mask, enable } => {
+                w.u16(0, *mask);
+                w.u8(2, u8::from(*enable));
+            }
+            Command::StatusWith(ask) => w.u8(0, ask.byte()),
+            Command::LimitsSet(set) => {
+                w.put(0, &[set.joint, 0, 0, 0]);
+                set.limits.write(w, 4);
+            }
             _ => {}
         })
     }
@@ -282,6 +355,19 @@ impl<'a> Command<'a> {
                 }
                 _ => return Err(bad_len(ExpectedLen::Either(0, 2))),
             },
+            Tag::SetEnable => {
+                exactly(size::SET_ENABLE)?;
+                let mask = u16_le(data, 0);
+                if mask & !limits::ENABLE_MASK_BITS != 0 {
+                    return Err(out_of_range(Field::EnableMask));
+                }
+                let enable = match u8_at(data, 2) {
+                    0 => false,
+                    1 => true,
+                    _ => return Err(out_of_range(Field::EnableAction)),
+                };
+                Command::SetEnable { mask, enable }
+            }
             Tag::JointsCount => {
                 exactly(1)?;
                 let joints = u8_at(data, 0);
@@ -333,9 +419,29 @@ impl<'a> Command<'a> {
             },
             // An envelope is opened with `auth::Envelope` before its inner frame is
             // decoded; as a command on its own it is not one.
-            Tag::UsartRecv | Tag::Ack | Tag::DiscoverReply | Tag::HelloReply | Tag::Auth => {
+            Tag::UsartRecv
+            | Tag::Ack
+            | Tag::DiscoverReply
+            | Tag::HelloReply
+            | Tag::Auth
+            | Tag::Limits => {
                 return Err(err(DecodeErrorKind::WrongDirection));
             }
+            Tag::LimitsSet => {
+                exactly(size::LIMITS_SET)?;
+                let set = LimitsSet {
+                    joint: u8_at(data, 0),
+                    limits: JointLimits::read(data, 4),
+                };
+                if usize::from(set.joint) >= crate::MAX_JOINTS || !set.limits.is_valid() {
+                    return Err(out_of_range(Field::JointLimits));
+                }
+                Command::LimitsSet(set)
+            }
+            Tag::Status if data.len() == 1 => match StatusAsk::from_byte(u8_at(data, 0)) {
+                Some(ask) => Command::StatusWith(ask),
+                None => return Err(out_of_range(Field::StatusAsk)),
+            },
             Tag::Runing
             | Tag::UploadStart
             | Tag::UploadStop
@@ -348,7 +454,9 @@ impl<'a> Command<'a> {
             | Tag::Return
             | Tag::Status
             | Tag::Discover
-            | Tag::EstopReset => {
+            | Tag::EstopReset
+            | Tag::Release
+            | Tag::LimitsGet => {
                 exactly(0)?;
                 match tag {
                     Tag::Runing => Command::Runing,
@@ -363,6 +471,8 @@ impl<'a> Command<'a> {
                     Tag::Return => Command::Return,
                     Tag::Discover => Command::Discover,
                     Tag::EstopReset => Command::EstopReset,
+                    Tag::Release => Command::Release,
+                    Tag::LimitsGet => Command::LimitsGet,
                     _ => Command::Status,
                 }
             }

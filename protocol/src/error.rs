@@ -98,6 +98,12 @@ pub enum Field {
     NetSettings,
     /// DISCOVER_REPLY's owner state (0..2).
     Owner,
+    /// SET_ENABLE's action (0 disable, 1 enable).
+    EnableAction,
+    /// STATUS's request byte (bits 0 and 1 only).
+    StatusAsk,
+    /// LIMITS_SET's joint (0-7) or range (min above max).
+    JointLimits,
 }
 
 impl DecodeError {
@@ -146,6 +152,13 @@ impl fmt::Display for Field {
                 "network settings must be DHCP, or a unicast address with a prefix of 1..32 and a gateway inside its subnet",
             ),
             Field::Owner => f.write_str("unknown owner state"),
+            Field::StatusAsk => f.write_str("STATUS request byte may only use bits 0-1"),
+            Field::JointLimits => {
+                f.write_str("LIMITS_SET needs a joint of 0-7 and min not above max")
+            }
+            Field::EnableAction => {
+                f.write_str("SET_ENABLE action must be 0 (disable) or 1 (enable)")
+            }
         }
     }
 }

@@ -22,15 +22,17 @@ mod codes;
 mod command;
 mod error;
 mod frame;
+mod joint_limits;
 pub mod limits;
 mod net;
 mod report;
 mod types;
 
 pub use codes::{State, StatusCode, Tag};
-pub use command::Command;
+pub use command::{Command, StatusAsk};
 pub use error::{DecodeError, DecodeErrorKind, EncodeError, ExpectedLen, Field};
 pub use frame::{Frame, PointList, PointsIter, crc8};
+pub use joint_limits::{JointLimits, LimitsReport, LimitsSet, Refusal, RefusalReason};
 pub use limits::DEFAULT_WINDOW;
 pub use net::{DiscoverReply, NetSettings, OwnerState};
 pub use report::Report;
@@ -79,6 +81,12 @@ pub mod size {
     pub const NET_SET: usize = 10;
     /// DISCOVER_REPLY data.
     pub const DISCOVER_REPLY: usize = 27;
+    /// SET_ENABLE data: mask (u16 little-endian), action (u8).
+    pub const SET_ENABLE: usize = 3;
+    /// LIMITS_SET data: joint, 3 reserved, min, max, max_rate_hz.
+    pub const LIMITS_SET: usize = 16;
+    /// LIMITS report data: 8 joints' limits (12 bytes each), the last refusal (16).
+    pub const LIMITS: usize = 12 * crate::MAX_JOINTS + 16;
     /// HELLO data: the host's nonce.
     pub const HELLO: usize = crate::auth::NONCE_LEN;
 }

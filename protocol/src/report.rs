@@ -5,6 +5,7 @@ use crate::codec::{u8_at, u16_le};
 use crate::codes::{State, StatusCode, Tag};
 use crate::error::{DecodeError, DecodeErrorKind, EncodeError, ExpectedLen, Field};
 use crate::frame::{Frame, open, seal};
+use crate::joint_limits::LimitsReport;
 use crate::types::{Ack, Location, StatusReport};
 use crate::{FRAME_OVERHEAD, MAX_SERIAL_CHUNK, size};
 
@@ -21,6 +22,8 @@ pub enum Report<'a> {
     UsartRecv(&'a [u8]),
     /// Controller status.
     Status(StatusReport),
+    /// Every joint's limits and the last refusal (the answer to LIMITS_GET).
+    Limits(LimitsReport),
 }
 
 impl<'a> Report<'a> {
@@ -31,6 +34,7 @@ impl<'a> Report<'a> {
             Report::Location(_) => Tag::Location,
             Report::UsartRecv(_) => Tag::UsartRecv,
             Report::Status(_) => Tag::Status,
+            Report::Limits(_) => Tag::Limits,
         }
     }
 
@@ -41,6 +45,7 @@ impl<'a> Report<'a> {
             Report::Location(_) => size::LOCATION,
             Report::UsartRecv(_) => size::USART_RECV,
             Report::Status(_) => size::STATUS,
+            Report::Limits(_) => size::LIMITS,
         }
     }
 
@@ -65,6 +70,7 @@ impl<'a> Report<'a> {
                 w.put(1, bytes);
             }
             Report::Status(status) => status.write(w, 0),
+            Report::Limits(limits) => limits.write(w, 0),
         })
     }
 
@@ -128,6 +134,10 @@ impl<'a> Report<'a> {
                     StatusReport::read(data)
                         .ok_or(err(DecodeErrorKind::OutOfRange(Field::State)))?,
                 )
+            }
+            Some(Tag::Limits) => {
+                exactly(size::LIMITS)?;
+                Report::Limits(LimitsReport::read(data))
             }
             Some(_) => return Err(err(DecodeErrorKind::WrongDirection)),
         };

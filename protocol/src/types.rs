@@ -338,6 +338,25 @@ impl MoreFlags {
     /// RETURN are refused with `ESTOP_LATCHED` until the input is closed and a host sends
     /// ESTOP_RESET.
     pub const ESTOP_LATCHED: u16 = 1 << 2;
+    /// This controller reports each driver's ENABLE: bit 4 the gripper's and bits 8-15
+    /// joints 0-7 (issue 23). Clear from an older controller, whose bits 4 and 8-15 are 0
+    /// and mean nothing: [`StatusReport::drivers_enabled`] is `None` then.
+    pub const ENABLES_REPORTED: u16 = 1 << 3;
+    /// The gripper driver is enabled (with [`MoreFlags::ENABLES_REPORTED`]).
+    pub const GRIPPER_ENABLED: u16 = 1 << 4;
+    /// Shift of the joints' ENABLE bits: joint j is bit `JOINTS_ENABLED_SHIFT + j`.
+    pub const JOINTS_ENABLED_SHIFT: u32 = 8;
+
+    /// The bits that report `enabled` (bits 0-7 joints, bit 8 gripper, as the ENABLE
+    /// masks), [`MoreFlags::ENABLES_REPORTED`] included.
+    pub const fn of_enabled(enabled: u16) -> u16 {
+        let gripper = if enabled & 0x100 != 0 {
+            Self::GRIPPER_ENABLED
+        } else {
+            0
+        };
+        Self::ENABLES_REPORTED | gripper | ((enabled & 0xFF) << Self::JOINTS_ENABLED_SHIFT)
+    }
 }
 
 flag_bits!(MoreFlags, u16);
@@ -384,6 +403,22 @@ pub struct StatusReport {
 }
 
 impl StatusReport {
+    /// Each driver's ENABLE (bits 0-7 joints, bit 8 gripper, as the ENABLE masks), from
+    /// `more_flags`; `None` from a controller that does not report them (bit 3 clear:
+    /// only `flags` bit 1, "any driver enabled", is known then).
+    pub const fn drivers_enabled(&self) -> Option<u16> {
+        let m = self.more_flags.0;
+        if m & MoreFlags::ENABLES_REPORTED == 0 {
+            return None;
+        }
+        let gripper = if m & MoreFlags::GRIPPER_ENABLED != 0 {
+            0x100
+        } else {
+            0
+        };
+        Some(gripper | (m >> MoreFlags::JOINTS_ENABLED_SHIFT))
+    }
+
     pub(crate) fn read(b: &[u8]) -> Option<StatusReport> {
         Some(StatusReport {
             version: [u8_at(b, 0), u8_at(b, 1), u8_at(b, 2)],

@@ -459,6 +459,15 @@ pub fn format_settings(settings: &PersistentSettings) -> String {
         let hex: String = key.0.iter().map(|b| format!("{b:02x}")).collect();
         text.push_str(&format!("key={hex}\n"));
     }
+    // LIMITS_SET (issue 23): `limit.J=min,max,max_rate_hz`, only for joints with limits.
+    for (j, l) in settings.limits.iter().enumerate() {
+        if *l != protocol::JointLimits::NONE {
+            text.push_str(&format!(
+                "limit.{j}={},{},{}\n",
+                l.min, l.max, l.max_rate_hz
+            ));
+        }
+    }
     text
 }
 
@@ -519,6 +528,26 @@ pub fn parse_settings(text: &str) -> Result<PersistentSettings, String> {
                     *b = u8::from_str_radix(&value[2 * i..2 * i + 2], 16).map_err(|_| bad())?;
                 }
                 settings.key = Some(protocol::auth::AuthKey(key));
+            }
+            other if other.starts_with("limit.") => {
+                let bad = || format!("bad {other}: give limit.J=min,max,max_rate_hz, J 0-7");
+                let joint: usize = other["limit.".len()..].parse().map_err(|_| bad())?;
+                let fields: Vec<&str> = value.split(',').map(str::trim).collect();
+                let [min, max, rate] = fields[..] else {
+                    return Err(bad());
+                };
+                let limits = protocol::JointLimits {
+                    min: min.parse().map_err(|_| bad())?,
+                    max: max.parse().map_err(|_| bad())?,
+                    max_rate_hz: rate.parse().map_err(|_| bad())?,
+                };
+                if !limits.is_valid() {
+                    return Err(format!(
+                        "{other}: min {} is above max {}",
+                        limits.min, limits.max
+                    ));
+                }
+                *settings.limits.get_mut(joint).ok_or_else(bad)? = limits;
             }
             _ => {}
         }
@@ -591,8 +620,22 @@ mod tests {
             dhcp: true,
             key: Some(protocol::auth::AuthKey([0xc3; 32])),
             auth_epoch: 7,
+            limits: [protocol::JointLimits::NONE; protocol::MAX_JOINTS],
         };
         assert_eq!(parse_settings(&format_settings(&settings)), Ok(settings));
+        // LIMITS_SET's limits (issue 23) round-trip too.
+        let mut limited = settings;
+        limited.limits[3] = protocol::JointLimits {
+            min: -16_000,
+            max: 16_000,
+            max_rate_hz: 4_000,
+        };
+        let text = format_settings(&limited);
+        assert!(text.contains("limit.3=-16000,16000,4000\n"), "{text}");
+        assert_eq!(parse_settings(&text), Ok(limited));
+        assert!(parse_settings("limit.8=0,1,0\n").is_err());
+        assert!(parse_settings("limit.0=5,-5,0\n").is_err());
+        assert!(parse_settings("limit.0=5,6\n").is_err());
         // A file from before NET_SET: a static address, no gateway.
         assert_eq!(
             parse_settings("joints=4\nip=10.1.2.3\nprefix_len=16\n"),

@@ -180,6 +180,10 @@ fn log_sent(frame: &[u8], to: Endpoint) {
             log::debug!("-> {} USART_RECV {} bytes", show(to), bytes.len());
             None
         }
+        protocol::Report::Limits(_) => {
+            log::debug!("-> {} LIMITS", show(to));
+            None
+        }
     };
     if let Some(state) = state {
         let before = REPORTED_STATE.swap(state, Ordering::Relaxed);

@@ -170,7 +170,7 @@ echo "discover.sh: broadcast PIN0_ON, UPLOAD_PERIOD and NET_SET ignored by both,
 
 # 2. Discovery took no owner: the host at .200 takes controller a now.
 admin() { in_ns timeout 30 "$armctl" --bind 192.168.7.200:0 --controller 192.168.7.2:8510 "$@"; }
-admin status >/dev/null || fail "the host at .200 could not take controller a after discovery"
+admin reports on >/dev/null || fail "the host at .200 could not take controller a after discovery"
 out=$(discover --to 192.168.7.2:8510)
 expect "owned by 192.168.7.200" "$(line_of 192.168.7.2 "$out")" "owner after .200's STATUS"
 

@@ -40,13 +40,24 @@ fn discover_answers_any_host_and_net_set_is_stored_for_the_next_reset() {
     assert!(out.contains("6 joints") && out.contains("STOPPED"), "{out}");
     assert!(out.contains("owned by 127.0.0.1"), "{out}");
     assert!(out.contains("1 controller(s) answered"), "{out}");
-    // Discovery changed nothing: 127.0.0.2 is still not the owner.
+    // Discovery changed nothing: 127.0.0.2 is still not the owner (its STATUS is
+    // answered read-only since issue 23, its commands refused).
     let (ok, out) = armctl(&["--bind", "127.0.0.2:0", "--controller", &to, "status"]);
+    assert!(ok && out.contains("read-only"), "{out}");
+    let (ok, out) = armctl(&[
+        "--bind",
+        "127.0.0.2:0",
+        "--controller",
+        &to,
+        "pin",
+        "0",
+        "on",
+    ]);
     assert!(!ok && out.contains("NOT_OWNER"), "{out}");
     let (_, out) = armctl(&["discover", "--to", &to]);
     assert!(out.contains("owned by this host"), "{out}");
 
-    // NET_SET from another host: NOT_OWNER (its STATUS is refused first).
+    // NET_SET from another host: NOT_OWNER.
     let (ok, out) = armctl(&[
         "--bind",
         "127.0.0.2:0",

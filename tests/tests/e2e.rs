@@ -244,13 +244,16 @@ fn another_host_is_not_the_owner_but_may_stop_the_arm() {
         bind: Some("127.0.0.2:0".parse().unwrap()),
         ..loopback()
     };
-    match Client::connect_with(sim.addr, other.clone()) {
+    // Its STATUS is answered read-only (issue 23); its commands are refused.
+    let stranger = Client::connect_with(sim.addr, other.clone()).expect("read-only STATUS");
+    match stranger.send(&protocol::Command::UploadStart) {
         Err(e) => {
             assert_eq!(e.status(), Some(StatusCode::NotOwner), "{e}");
             assert!(e.to_string().contains("another host owns the controller"));
         }
         Ok(_) => panic!("a second host was answered as the owner"),
     }
+    drop(stranger);
     // Start a 2 s run as the owner; the other host stops it.
     let points = sweep(position(&arm), 2, 200, 1, 10_000);
     let runner = run_reporting_progress(&arm, points);

@@ -234,6 +234,8 @@ fn expect_report(frame: &protocol::Frame<Report<'_>>, e: &mut Expected) {
             e.one("armctl.status.pwm_timer_clock_hz", s.pwm_timer_clock_hz);
             e.one("armctl.status.max_step_rate_hz", s.max_step_rate_hz);
         }
+        // Not in the shared golden file (issue 23): issue_23_frames_decode_in_wireshark.
+        Report::Limits(_) => {}
     }
 }
 
@@ -797,4 +799,127 @@ fn authenticated_captures_have_their_macs_checked_with_the_preferences_key() {
             .all(|(_, mac)| mac == "0"),
         "{bad:?}"
     );
+}
+
+/// Issue 23's frames (not in the shared golden file): SET_ENABLE's mask and action, and
+/// STATUS `more_flags` with each driver's ENABLE.
+#[test]
+fn issue_23_frames_decode_in_wireshark() {
+    if !have_wireshark("issue 23 frames") {
+        return;
+    }
+    let dir = scratch("issue23");
+    let pcap = dir.join("issue23.pcap");
+    let host: std::net::SocketAddr = "127.0.0.1:40000".parse().unwrap();
+    let controller: std::net::SocketAddr = format!("127.0.0.1:{}", protocol::PORT).parse().unwrap();
+    let log = armctl::pcap::PcapLog::create(&pcap).expect("create the capture");
+    let mut buf = [0u8; protocol::MAX_DATAGRAM];
+    let n = Cmd::SetEnable {
+        mask: 0x0103,
+        enable: false,
+    }
+    .encode(0x1b, &mut buf)
+    .unwrap();
+    log.record(host, controller, &buf[..n]).unwrap();
+    let status = protocol::StatusReport {
+        state: protocol::State::Stopped,
+        more_flags: protocol::MoreFlags(protocol::MoreFlags::of_enabled(0x1FC)),
+        ..protocol::StatusReport::default()
+    };
+    let n = Report::Status(status).encode(0x1c, &mut buf).unwrap();
+    log.record(controller, host, &buf[..n]).unwrap();
+    let n = Cmd::StatusWith(protocol::StatusAsk {
+        location: true,
+        look_only: true,
+    })
+    .encode(0x1d, &mut buf)
+    .unwrap();
+    log.record(host, controller, &buf[..n]).unwrap();
+    let n = Cmd::Release.encode(0x1e, &mut buf).unwrap();
+    log.record(host, controller, &buf[..n]).unwrap();
+    let set = protocol::LimitsSet {
+        joint: 1,
+        limits: protocol::JointLimits {
+            min: -16_000,
+            max: 16_000,
+            max_rate_hz: 4_000,
+        },
+    };
+    let n = Cmd::LimitsSet(set).encode(0x1f, &mut buf).unwrap();
+    log.record(host, controller, &buf[..n]).unwrap();
+    let mut joints = [protocol::JointLimits::NONE; protocol::MAX_JOINTS];
+    joints[1] = set.limits;
+    let limits = protocol::LimitsReport {
+        joints,
+        last_refusal: protocol::Refusal {
+            seq: 0x21,
+            tag: 0x01,
+            point: 3,
+            joint: 1,
+            reason: protocol::RefusalReason::AboveMax,
+            value: 16_100,
+            limit: 16_000,
+        },
+    };
+    let n = Report::Limits(limits).encode(0x2c, &mut buf).unwrap();
+    log.record(controller, host, &buf[..n]).unwrap();
+    drop(log);
+    let packets = dissect(
+        &pcap,
+        &[
+            "armctl.status.ask.location",
+            "armctl.status.ask.look_only",
+            "armctl.limits.joint",
+            "armctl.limits.min",
+            "armctl.limits.max",
+            "armctl.limits.max_rate_hz",
+            "armctl.limits.refusal.reason",
+            "armctl.limits.refusal.value",
+            "armctl.tag",
+            "armctl.enable.mask",
+            "armctl.enable.action",
+            "armctl.verdict",
+            "armctl.status.more_flags.enables_reported",
+            "armctl.status.more_flags.gripper_enabled",
+            "armctl.status.joints_enabled",
+        ],
+        false,
+        None,
+    );
+    assert_eq!(packets.len(), 6);
+    let p = &packets[0];
+    assert_eq!(numbers(&p["armctl.tag"]), [0x18], "{p:?}");
+    assert_eq!(numbers(&p["armctl.enable.mask"]), [0x0103], "{p:?}");
+    assert_eq!(numbers(&p["armctl.enable.action"]), [0], "{p:?}");
+    assert_eq!(numbers(&p["armctl.verdict"]), [0], "{p:?}");
+    let p = &packets[1];
+    assert_eq!(p["armctl.status.more_flags.enables_reported"], "1", "{p:?}");
+    assert_eq!(p["armctl.status.more_flags.gripper_enabled"], "1", "{p:?}");
+    assert_eq!(numbers(&p["armctl.status.joints_enabled"]), [0xFC], "{p:?}");
+    let p = &packets[2];
+    assert_eq!(numbers(&p["armctl.tag"]), [0x15], "{p:?}");
+    assert_eq!(p["armctl.status.ask.location"], "1", "{p:?}");
+    assert_eq!(p["armctl.status.ask.look_only"], "1", "{p:?}");
+    assert_eq!(numbers(&p["armctl.verdict"]), [0], "{p:?}");
+    let p = &packets[3];
+    assert_eq!(numbers(&p["armctl.tag"]), [0x19], "{p:?}");
+    assert_eq!(numbers(&p["armctl.verdict"]), [0], "{p:?}");
+    let p = &packets[4];
+    assert_eq!(numbers(&p["armctl.tag"]), [0x1a], "{p:?}");
+    assert_eq!(numbers(&p["armctl.limits.joint"]), [1], "{p:?}");
+    assert_eq!(numbers(&p["armctl.limits.min"]), [-16_000], "{p:?}");
+    assert_eq!(numbers(&p["armctl.limits.max"]), [16_000], "{p:?}");
+    assert_eq!(numbers(&p["armctl.limits.max_rate_hz"]), [4_000], "{p:?}");
+    assert_eq!(numbers(&p["armctl.verdict"]), [0], "{p:?}");
+    let p = &packets[5];
+    assert_eq!(numbers(&p["armctl.tag"]), [0x1c], "{p:?}");
+    let mins = numbers(&p["armctl.limits.min"]);
+    assert_eq!((mins.len(), mins[1]), (8, -16_000), "{p:?}");
+    assert_eq!(numbers(&p["armctl.limits.refusal.reason"]), [2], "{p:?}");
+    assert_eq!(
+        numbers(&p["armctl.limits.refusal.value"]),
+        [16_100],
+        "{p:?}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
 }

@@ -37,6 +37,8 @@ local tag_names = {
     [0x0e] = "PIN1_ON", [0x0f] = "PIN1_OFF", [0x10] = "TOGGLE_ENABLE_PINS",
     [0x11] = "RETURN", [0x12] = "JOINTS_COUNT", [0x13] = "LOCATION_SETTING/LOCATION",
     [0x14] = "ACK", [0x15] = "STATUS", [0x16] = "UPLOAD_PERIOD", [0x17] = "ESTOP_RESET",
+    [0x18] = "SET_ENABLE", [0x19] = "RELEASE", [0x1a] = "LIMITS_SET", [0x1b] = "LIMITS_GET",
+    [0x1c] = "LIMITS",
     [0x20] = "DISCOVER", [0x21] = "NET_SET", [0x22] = "DISCOVER_REPLY",
     [0x50] = "AUTH", [0x51] = "HELLO", [0x52] = "SET_KEY", [0x53] = "HELLO_REPLY",
 }
@@ -58,6 +60,11 @@ local direction_names = { [0] = "host to controller", [1] = "controller to host"
 local uart_mode_names = { [0] = "both directions", [1] = "receive only", [2] = "transmit only" }
 local owner_names = { [0] = "no owner", [1] = "owned", [2] = "owned by the asking host" }
 local addr_mode_names = { [0] = "static", [1] = "DHCP" }
+local refusal_names = {
+    [0] = "nothing refused", [1] = "below min", [2] = "above max", [3] = "over the joint's max rate",
+    [4] = "over max_step_rate_hz", [5] = "over step_budget_hz", [6] = "duration or step count",
+}
+local enable_action_names = { [0] = "disable (limp)", [1] = "enable (holding)" }
 
 ----------------------------------------------------------------------------------------
 -- Fields
@@ -128,6 +135,21 @@ local f = {
     usart_len = dec("uint8", "usart.len", "Length"),
     usart_data = field("bytes", "usart.data", "Serial bytes"),
     enable_mask = hex("uint16", "enable.mask", "Enable mask"),
+    enable_action = dec("uint8", "enable.action", "Action", enable_action_names),
+    status_ask = hex("uint8", "status.ask", "Request byte"),
+    limits_joint = dec("uint8", "limits.joint", "Joint"),
+    limits_min = dec("int32", "limits.min", "Min (steps)"),
+    limits_max = dec("int32", "limits.max", "Max (steps)"),
+    limits_rate = dec("uint32", "limits.max_rate_hz", "Max rate (steps/s, 0 = the controller's)"),
+    refusal_seq = dec("uint8", "limits.refusal.seq", "Last refused frame's seq"),
+    refusal_tag = hex("uint8", "limits.refusal.tag", "Last refused frame's tag", tag_names),
+    refusal_point = dec("uint8", "limits.refusal.point", "Point in the frame"),
+    refusal_joint = dec("uint8", "limits.refusal.joint", "Joint (255 = all)"),
+    refusal_reason = dec("uint8", "limits.refusal.reason", "Reason", refusal_names),
+    refusal_value = dec("int32", "limits.refusal.value", "Value asked"),
+    refusal_limit = dec("int32", "limits.refusal.limit", "Limit broken"),
+    status_ask_location = field("bool", "status.ask.location", "Also a LOCATION report", 8, nil, 0x01),
+    status_ask_look = field("bool", "status.ask.look_only", "Look only (never takes the controller)", 8, nil, 0x02),
     joints = dec("uint8", "joints", "Joints"),
     upload_period = dec("uint32", "upload_period_us", "Upload period (us)"),
 
@@ -163,6 +185,12 @@ local f = {
     st_executed = dec("uint16", "status.executed", "Points executed"),
     st_capacity = dec("uint16", "status.capacity", "Buffer capacity"),
     st_more_flags = hex("uint16", "status.more_flags", "More flags (offset 18)"),
+    st_more_dropped = field("bool", "status.more_flags.upload_dropped", "Unstarted upload dropped at a hand-over", 16, nil, 0x0001),
+    st_more_estop_open = field("bool", "status.more_flags.estop_open", "Wired e-stop input open", 16, nil, 0x0002),
+    st_more_estop_latched = field("bool", "status.more_flags.estop_latched", "E-stop latch set", 16, nil, 0x0004),
+    st_more_enables = field("bool", "status.more_flags.enables_reported", "Per-driver enables reported (issue 23)", 16, nil, 0x0008),
+    st_more_gripper = field("bool", "status.more_flags.gripper_enabled", "Gripper driver enabled", 16, nil, 0x0010),
+    st_joints_enabled = hex("uint16", "status.joints_enabled", "Joint drivers enabled (bit j = joint j)"),
     st_upload_period = dec("uint32", "status.upload_period_us", "Upload period (us)"),
     st_pwm_clock = dec("uint32", "status.pwm_timer_clock_hz", "PWM timer clock (Hz)"),
     st_max_rate = dec("uint32", "status.max_step_rate_hz", "Max step rate (steps/s)"),
@@ -435,8 +463,17 @@ local function dissect_status_report(tree, data)
     end
     -- u16 fields from offset 6, then u32 fields from offset 20.
     for i, field in ipairs({ f.st_window, f.st_buffered, f.st_expected, f.st_received,
-        f.st_executed, f.st_capacity, f.st_more_flags }) do
+        f.st_executed, f.st_capacity }) do
         tree:add_le(field, data(4 + 2 * i, 2))
+    end
+    local more = tree:add_le(f.st_more_flags, data(18, 2))
+    for _, bit in ipairs({ f.st_more_dropped, f.st_more_estop_open, f.st_more_estop_latched,
+        f.st_more_enables, f.st_more_gripper }) do
+        more:add_le(bit, data(18, 2))
+    end
+    -- Bits 8-15: joints 0-7, meaningful only with bit 3 (an older controller sends 0).
+    if bit.band(data(18, 2):le_uint(), 0x0008) ~= 0 then
+        more:add(f.st_joints_enabled, data(19, 1), data(19, 1):uint())
     end
     for i, field in ipairs({ f.st_upload_period, f.st_pwm_clock, f.st_max_rate, f.st_word32 }) do
         tree:add_le(field, data(16 + 4 * i, 4))
@@ -546,6 +583,27 @@ local host_dissectors = {
         if data(0, 2):uint() > 0x01FF then out_of_range(tree, "enable mask may only use bits 0-8") end
         return string.format("mask 0x%04x", data(0, 2):uint())
     end,
+    [0x18] = function(tree, data, len)
+        if len ~= 3 then return length_error(tree, data, "3", len) end
+        tree:add_le(f.enable_mask, data(0, 2))
+        tree:add(f.enable_action, data(2, 1))
+        local mask, action = data(0, 2):le_uint(), data(2, 1):uint()
+        if mask > 0x01FF then out_of_range(tree, "enable mask may only use bits 0-8") end
+        if action > 1 then out_of_range(tree, "SET_ENABLE action must be 0 (disable) or 1 (enable)") end
+        return string.format("%s mask 0x%04x", action == 1 and "enable" or "disable", mask)
+    end,
+    [0x1a] = function(tree, data, len)
+        if len ~= 16 then return length_error(tree, data, "16", len) end
+        tree:add(f.limits_joint, data(0, 1))
+        local min, max = data(4, 4):le_int(), data(8, 4):le_int()
+        tree:add_le(f.limits_min, data(4, 4), min)
+        tree:add_le(f.limits_max, data(8, 4), max)
+        tree:add_le(f.limits_rate, data(12, 4))
+        if data(0, 1):uint() > 7 then out_of_range(tree, "LIMITS_SET needs a joint of 0-7") end
+        if min > max then out_of_range(tree, "LIMITS_SET: min above max") end
+        return string.format("joint %d: %d..%d steps, %d steps/s", data(0, 1):uint(), min, max,
+            data(12, 4):le_uint())
+    end,
     [0x12] = function(tree, data, len)
         if len ~= 1 then return length_error(tree, data, "1", len) end
         tree:add(f.joints, data(0, 1))
@@ -585,11 +643,26 @@ host_dissectors[0x52] = function(tree, data, len)
     return "set a key"
 end
 -- Commands without data.
-for _, tag in ipairs({ 0x02, 0x04, 0x05, 0x07, 0x09, 0x0c, 0x0d, 0x0e, 0x0f, 0x11, 0x15, 0x17, 0x20 }) do
+for _, tag in ipairs({ 0x02, 0x04, 0x05, 0x07, 0x09, 0x0c, 0x0d, 0x0e, 0x0f, 0x11, 0x17, 0x19, 0x1b, 0x20 }) do
     host_dissectors[tag] = function(tree, data, len)
         if len ~= 0 then return length_error(tree, data, "0", len) end
         return ""
     end
+end
+-- STATUS: no data (old hosts), or the request byte (issue 23): bit 0 a LOCATION too, bit 1
+-- look only.
+host_dissectors[0x15] = function(tree, data, len)
+    if len == 0 then return "" end
+    if len ~= 1 then return length_error(tree, data, "0 or 1", len) end
+    local ask = tree:add(f.status_ask, data(0, 1))
+    ask:add(f.status_ask_location, data(0, 1))
+    ask:add(f.status_ask_look, data(0, 1))
+    local b = data(0, 1):uint()
+    if b > 3 then out_of_range(tree, "STATUS request byte may only use bits 0-1") end
+    local parts = {}
+    if bit.band(b, 1) ~= 0 then parts[#parts + 1] = "with LOCATION" end
+    if bit.band(b, 2) ~= 0 then parts[#parts + 1] = "look only" end
+    return table.concat(parts, ", ")
 end
 -- STOPPED: any data is ignored by the controller, which stops all the same (PROTOCOL.md
 -- section 4, issue 18): shown, not flagged as a length error.
@@ -627,6 +700,26 @@ local controller_dissectors = {
         tree:add(f.usart_len, data(0, 1))
         if n > 0 then tree:add(f.usart_data, data(1, n)) end
         return n .. " bytes"
+    end,
+    [0x1c] = function(tree, data, len)
+        if len ~= 112 then return length_error(tree, data, "112", len) end
+        for j = 0, 7 do
+            local at = 12 * j
+            local sub = tree:add(armctl, data(at, 12), string.format("Joint %d: %d..%d steps, %d steps/s",
+                j, data(at, 4):le_int(), data(at + 4, 4):le_int(), data(at + 8, 4):le_uint()))
+            sub:add_le(f.limits_min, data(at, 4), data(at, 4):le_int())
+            sub:add_le(f.limits_max, data(at + 4, 4), data(at + 4, 4):le_int())
+            sub:add_le(f.limits_rate, data(at + 8, 4))
+        end
+        local r = tree:add(armctl, data(96, 16), "Last refusal")
+        r:add(f.refusal_seq, data(96, 1))
+        r:add(f.refusal_tag, data(97, 1))
+        r:add(f.refusal_point, data(98, 1))
+        r:add(f.refusal_joint, data(99, 1))
+        r:add(f.refusal_reason, data(100, 1))
+        r:add_le(f.refusal_value, data(104, 4), data(104, 4):le_int())
+        r:add_le(f.refusal_limit, data(108, 4), data(108, 4):le_int())
+        return refusal_names[data(100, 1):uint()] or "?"
     end,
     [0x15] = function(tree, data, len)
         if len ~= 36 then return length_error(tree, data, "36", len) end

@@ -8,7 +8,7 @@ use std::sync::mpsc::{self, Receiver, Sender};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::time::Duration;
 
-use protocol::{Ack, Location, MAX_DATAGRAM, Report, StatusReport};
+use protocol::{Ack, LimitsReport, Location, MAX_DATAGRAM, Report, StatusReport};
 
 use super::auth::Opened;
 use crate::pcap::PcapLog;
@@ -40,6 +40,8 @@ pub(crate) struct Shared {
     pub(super) locations: Mutex<Vec<Sender<Location>>>,
     pub(super) serial: Mutex<Vec<Sender<Vec<u8>>>>,
     pub(super) statuses: Mutex<Vec<Sender<StatusReport>>>,
+    /// LIMITS reports (the answers to LIMITS_GET, issue 23).
+    pub(super) limits: Mutex<Vec<Sender<LimitsReport>>>,
     pub(super) last_location: Mutex<Option<Location>>,
     pub(super) last_status: Mutex<Option<StatusReport>>,
     /// Datagrams that did not decode as a report.
@@ -124,6 +126,7 @@ impl Shared {
                 *lock(&self.last_status) = Some(status);
                 fan_out(&self.statuses, &status);
             }
+            Report::Limits(limits) => fan_out(&self.limits, &limits),
         }
     }
 }

@@ -37,6 +37,68 @@ pub const AUTH_KEY: u8 = 3;
 /// (u32 LE), the key (zeros without one).
 pub const AUTH_RECORD_LEN: usize = 4 + 4 + protocol::auth::KEY_LEN;
 
+/// Map keys of the limits records (LIMITS_SET, issue 23): joints 0-3, then 4-7. Two
+/// records of four joints, not one of eight, so that every item (key, record and item
+/// header, read in whole 32-byte flash words) fits [`ItemBuffer`]'s 64 bytes: a map read
+/// meets every item on the way, and one that does not fit is taken for corruption. Beside
+/// the others, so that a flash written before them loads with no limits.
+pub const LIMITS_KEYS: [u8; 2] = [4, 5];
+/// Joints per limits record.
+pub const LIMITS_PER_RECORD: usize = protocol::MAX_JOINTS / LIMITS_KEYS.len();
+/// Bytes of one limits record: per joint min (i32 LE), max (i32 LE), max_rate_hz (u32 LE).
+pub const LIMITS_RECORD_LEN: usize = 12 * LIMITS_PER_RECORD;
+// 1 key byte + the record, in whole 32-byte words, within the item buffer.
+const _: () = assert!((1 + LIMITS_RECORD_LEN).div_ceil(32) * 32 <= 64);
+const _: () = assert!(LIMITS_PER_RECORD * LIMITS_KEYS.len() == protocol::MAX_JOINTS);
+
+/// The stored limits record `half` (0: joints 0-3, 1: joints 4-7) for `settings`.
+pub fn encode_limits(settings: &PersistentSettings, half: usize) -> [u8; LIMITS_RECORD_LEN] {
+    let mut record = [0u8; LIMITS_RECORD_LEN];
+    let joints = settings.limits.iter().skip(half * LIMITS_PER_RECORD);
+    for (chunk, l) in record.chunks_exact_mut(12).zip(joints) {
+        let words = [
+            l.min.to_le_bytes(),
+            l.max.to_le_bytes(),
+            l.max_rate_hz.to_le_bytes(),
+        ];
+        for (out, b) in chunk.iter_mut().zip(words.iter().flatten()) {
+            *out = *b;
+        }
+    }
+    record
+}
+
+/// `settings` with the joints of limits record `half`; a range with min above max (not
+/// written by this firmware) is no limit.
+pub fn decode_limits(
+    settings: PersistentSettings,
+    half: usize,
+    record: &[u8; LIMITS_RECORD_LEN],
+) -> PersistentSettings {
+    let mut limits = settings.limits;
+    let joints = limits.iter_mut().skip(half * LIMITS_PER_RECORD);
+    for (l, chunk) in joints.zip(record.chunks_exact(12)) {
+        let word = |i: usize| {
+            let mut w = [0u8; 4];
+            for (o, b) in w.iter_mut().zip(chunk.iter().skip(4 * i)) {
+                *o = *b;
+            }
+            w
+        };
+        let read = protocol::JointLimits {
+            min: i32::from_le_bytes(word(0)),
+            max: i32::from_le_bytes(word(1)),
+            max_rate_hz: u32::from_le_bytes(word(2)),
+        };
+        *l = if read.is_valid() {
+            read
+        } else {
+            protocol::JointLimits::NONE
+        };
+    }
+    PersistentSettings { limits, ..settings }
+}
+
 /// The stored authentication record for `settings`.
 pub fn encode_auth(settings: &PersistentSettings) -> [u8; AUTH_RECORD_LEN] {
     let [e0, e1, e2, e3] = settings.auth_epoch.to_le_bytes();
@@ -210,12 +272,16 @@ impl<F: NorFlash> SettingsArea<F> {
             Some(net) => decode_net(settings, &net),
             None => settings,
         };
-        Ok(
-            match self.fetch_record::<AUTH_RECORD_LEN>(&AUTH_KEY).await? {
-                Some(auth) => decode_auth(settings, &auth),
-                None => settings,
-            },
-        )
+        let mut settings = match self.fetch_record::<AUTH_RECORD_LEN>(&AUTH_KEY).await? {
+            Some(auth) => decode_auth(settings, &auth),
+            None => settings,
+        };
+        for (half, key) in LIMITS_KEYS.iter().enumerate() {
+            if let Some(record) = self.fetch_record::<LIMITS_RECORD_LEN>(key).await? {
+                settings = decode_limits(settings, half, &record);
+            }
+        }
+        Ok(settings)
     }
 
     /// The record stored under `key`, if any, read as `[u8; N]`'s own `Value` impl reads
@@ -292,7 +358,17 @@ impl<F: NorFlash> SettingsArea<F> {
                 &AUTH_KEY,
                 &encode_auth(settings).as_slice(),
             )
-            .await
+            .await?;
+        for (half, key) in LIMITS_KEYS.iter().enumerate() {
+            self.map
+                .store_item::<&[u8]>(
+                    &mut self.buffer.0,
+                    key,
+                    &encode_limits(settings, half).as_slice(),
+                )
+                .await?;
+        }
+        Ok(())
     }
 
     /// The flash back (tests inspect it).
@@ -320,7 +396,46 @@ mod tests {
             dhcp: false,
             key: None,
             auth_epoch: 0,
+            limits: [protocol::JointLimits::NONE; protocol::MAX_JOINTS],
         }
+    }
+
+    #[test]
+    fn limits_are_stored_in_two_records_and_an_older_flash_loads_without_them() {
+        let mut limited = custom();
+        limited.limits[1] = protocol::JointLimits {
+            min: -16_000,
+            max: 16_000,
+            max_rate_hz: 5_000,
+        };
+        limited.limits[7] = protocol::JointLimits {
+            min: i32::MIN,
+            max: 0,
+            max_rate_hz: 0,
+        };
+        let mut area = SettingsArea::new(Flash::default(), RANGE);
+        block_on(area.save(&limited)).unwrap();
+        assert_eq!(block_on(area.load()), LoadOutcome::Stored(limited));
+        // Saved again and again (the map rewrites each item): still loads.
+        for _ in 0..20 {
+            block_on(area.save(&limited)).unwrap();
+        }
+        assert_eq!(block_on(area.load()), LoadOutcome::Stored(limited));
+        // A flash written before LIMITS_SET: no limits records, no limits.
+        let mut old = SettingsArea::new(Flash::default(), RANGE);
+        let first: &[u8] = &encode(&custom());
+        let net: &[u8] = &encode_net(&custom());
+        let auth: &[u8] = &encode_auth(&custom());
+        block_on(old.map.store_item(&mut old.buffer.0, &SETTINGS_KEY, &first)).unwrap();
+        block_on(old.map.store_item(&mut old.buffer.0, &NET_KEY, &net)).unwrap();
+        block_on(old.map.store_item(&mut old.buffer.0, &AUTH_KEY, &auth)).unwrap();
+        assert_eq!(block_on(old.load()), LoadOutcome::Stored(custom()));
+        // A record with min above max is no limit.
+        let mut bad = encode_limits(&limited, 0);
+        bad[12..16].copy_from_slice(&5i32.to_le_bytes());
+        bad[16..20].copy_from_slice(&(-5i32).to_le_bytes());
+        let decoded = decode_limits(custom(), 0, &bad);
+        assert_eq!(decoded.limits[1], protocol::JointLimits::NONE);
     }
 
     #[test]

@@ -17,6 +17,13 @@
 //!    sender, in any state, whatever its data (ignored); it is never a duplicate, takes
 //!    no owner and is not remembered (issue 18: a spurious stop is safe, an ignored one
 //!    is not). The checks below never see it.
+//!    - then (3a) **STATUS and RELEASE from a host that does not own the controller**
+//!      (issue 23, `not_owner_status_or_release`): STATUS while another host holds the
+//!      controller (or asking only to look) is answered read-only, with the request's seq,
+//!      the NOT_OWNER zeros in the ACK and nothing taken, at most
+//!      [`DISCOVER_REPLIES_PER_S`] a second; RELEASE is `OK` with nothing done when
+//!      nobody holds it (it never takes the controller) and goes on to `NOT_OWNER`
+//!      otherwise.
 //! 4. **owner**: the first sender of a CRC-valid frame owns the controller; another
 //!    address takes over when the owner has been silent for 5 s and the state is not
 //!    RUNNING (an upload it had not started is dropped then: STATUS `more_flags` bit 0);
@@ -43,7 +50,8 @@
 //! seqs on its own).
 //!
 //! # Who gets which report
-//! The ACK and a STATUS report go to the command's sender. LOCATION goes to each of the
+//! The ACK and a STATUS report go to the command's sender, and so do the LOCATION a
+//! STATUS's request byte asks for and the LIMITS report of LIMITS_GET (issue 23). LOCATION goes to each of the
 //! owner's endpoints (up to [`LOCATION_LISTENERS`]) whose commands were executed and that
 //! have not been silent for 5 s; the endpoint that started the upload or run (NEW,
 //! RETURN) or turned reports on (UPLOAD_START, UPLOAD_PERIOD) keeps them while anything
@@ -103,8 +111,8 @@
 
 use protocol::NetSettings;
 use protocol::{
-    Ack, Command, Frame, Location, MAX_JOINTS, MAX_POINTS_PER_FRAME, MoreFlags, State, StatusCode,
-    StatusFlags, StatusReport, Tag, UartMode, limits,
+    Ack, Command, Frame, LimitsReport, Location, MAX_JOINTS, MAX_POINTS_PER_FRAME, MoreFlags,
+    Refusal, State, StatusCode, StatusFlags, StatusReport, Tag, UartMode, limits,
 };
 use protocol::{DecodeError, DecodeErrorKind};
 
@@ -225,6 +233,10 @@ pub struct Controller<const CAP: usize> {
     /// What HELLO replies may still be sent (the same bound as DISCOVER's: a 62-byte
     /// reply to a 19-byte request, to whatever address it names).
     hello_budget: ReplyBudget,
+    /// What read-only STATUS answers to hosts that do not own the controller may still
+    /// be sent (the same bound as DISCOVER's: issue 23's read-only STATUS is a 39-byte
+    /// report, and a 39-byte LOCATION when asked, to a 4-byte request).
+    glance_budget: ReplyBudget,
     /// Authenticated sessions (with a key set).
     sessions: Sessions,
     /// The latest time the controller was told (by [`Controller::handle`] or
@@ -248,6 +260,8 @@ pub struct Controller<const CAP: usize> {
     booted_net: NetSettings,
     /// Steps per second of all joints together that points may ask for (0: no limit).
     step_budget_hz: u32,
+    /// The last INVALID_POINT for a limit (the LIMITS report's detail, issue 23).
+    last_refusal: Refusal,
 }
 
 impl<const CAP: usize> Controller<CAP> {
@@ -256,12 +270,20 @@ impl<const CAP: usize> Controller<CAP> {
         self.mac = mac;
     }
 
-    /// Applies stored settings (at boot); an out-of-range joint count keeps the default.
+    /// Applies stored settings (at boot); an out-of-range joint count keeps the default,
+    /// a joint range with min above max is no limit.
     pub fn apply_settings(&mut self, settings: PersistentSettings) {
         self.settings = settings;
         self.booted_net = settings.net();
         if !limits::JOINTS.contains(&settings.joints) {
             self.settings.joints = limits::DEFAULT_JOINTS;
+        }
+        // A stored range that cannot be met (never written by LIMITS_SET, which refuses
+        // it) is no limit rather than one no point could meet.
+        for l in self.settings.limits.iter_mut() {
+            if !l.is_valid() {
+                *l = protocol::JointLimits::NONE;
+            }
         }
     }
 
@@ -414,7 +436,7 @@ impl<const CAP: usize> Controller<CAP> {
             received: saturate(self.received as usize),
             executed: saturate(self.executed as usize),
             capacity: saturate(self.buffer.capacity()),
-            more_flags: self.more_flags,
+            more_flags: MoreFlags(self.more_flags.0 | MoreFlags::of_enabled(self.enabled)),
             upload_period_us: self.upload_period_us,
             pwm_timer_clock_hz: self.config.pwm_timer_clock_hz,
             max_step_rate_hz: self.config.max_step_rate_hz,
@@ -537,6 +559,14 @@ impl<const CAP: usize> Controller<CAP> {
             response.executed = true;
             response.reply = reply(self, StatusCode::Ok);
             return response;
+        }
+        // Read-only STATUS and RELEASE from a host that does not own the controller
+        // (docs/PROTOCOL.md section 1, issue 23): answered before the owner rule, taking
+        // nothing.
+        if self.owner.is_none_or(|o| o.ip != from.ip)
+            && let Some(done) = self.not_owner_status_or_release(from, datagram, now_us, plant)
+        {
+            return done;
         }
         // 3. owner
         let from_owner = match self.owner {
@@ -721,7 +751,8 @@ impl<const CAP: usize> Controller<CAP> {
         if self.uploader == Some(key.from) {
             self.order.mark(key.seq);
         }
-        if !from_owner {
+        // RELEASE ended the ownership: its sender gets nothing more.
+        if !from_owner || key.tag == Tag::Release as u8 {
             return;
         }
         let claims_location = [Tag::New, Tag::Return, Tag::UploadStart, Tag::UploadPeriod]
@@ -791,10 +822,19 @@ impl<const CAP: usize> Controller<CAP> {
                 // Every point is checked before any is taken.
                 let mut admitted = [StoredPoint::default(); MAX_POINTS_PER_FRAME];
                 let mut previous = self.received_end;
-                for (slot, point) in admitted.iter_mut().zip(points.iter()) {
-                    *slot = self
-                        .admit(&previous, &point)
-                        .ok_or(StatusCode::InvalidPoint)?;
+                for (i, (slot, point)) in admitted.iter_mut().zip(points.iter()).enumerate() {
+                    *slot = match self.admit(&previous, &point) {
+                        Ok(stored) => stored,
+                        Err(refusal) => {
+                            self.last_refusal = Refusal {
+                                seq: frame.seq,
+                                tag: Tag::Pending as u8,
+                                point: u8::try_from(i).unwrap_or(u8::MAX),
+                                ..refusal
+                            };
+                            return Err(StatusCode::InvalidPoint);
+                        }
+                    };
                     previous = slot.position;
                 }
                 if n > self.buffer.free() {
@@ -864,11 +904,34 @@ impl<const CAP: usize> Controller<CAP> {
                 self.enabled ^= mask.unwrap_or(ALL_DRIVERS) & ALL_DRIVERS;
                 plant.set_enabled(self.enabled);
             }
+            // Explicit, so that sending it twice (a resend after the duplicate window, a
+            // second tool) never undoes it; only while STOPPED, as TOGGLE: a joint made
+            // limp mid-run loses its steps.
+            Command::SetEnable { mask, enable } => {
+                stopped_only(self)?;
+                let mask = mask & ALL_DRIVERS;
+                if enable {
+                    self.enabled |= mask;
+                } else {
+                    self.enabled &= !mask;
+                }
+                plant.set_enabled(self.enabled);
+            }
             Command::Return => {
                 if self.estop_latched() {
                     return Err(StatusCode::EstopLatched);
                 }
                 stopped_only(self)?;
+                // Every joint in use must be allowed at 0 (LIMITS_SET): refused before
+                // anything moves.
+                if let Some(refusal) = self.outside_limits(&[0; MAX_JOINTS]) {
+                    self.last_refusal = Refusal {
+                        seq: frame.seq,
+                        tag: Tag::Return as u8,
+                        ..refusal
+                    };
+                    return Err(StatusCode::InvalidPoint);
+                }
                 self.buffer.clear();
                 self.return_plan = None;
                 self.return_pending = true;
@@ -885,11 +948,54 @@ impl<const CAP: usize> Controller<CAP> {
             }
             Command::LocationSetting(location) => {
                 stopped_only(self)?;
+                // A position outside a joint's range (LIMITS_SET) is refused: the limits
+                // or the calibration are wrong (widen the limits first if the arm is
+                // really there).
+                if let Some(refusal) = self.outside_limits(&location.position) {
+                    self.last_refusal = Refusal {
+                        seq: frame.seq,
+                        tag: Tag::Location as u8,
+                        ..refusal
+                    };
+                    return Err(StatusCode::InvalidPoint);
+                }
                 if !plant.set_positions(location.position) {
                     return Err(StatusCode::BadState);
                 }
             }
+            // Kept across power cycles as JOINTS_COUNT; only while STOPPED, so that no
+            // point already taken was admitted under other limits.
+            Command::LimitsSet(set) => {
+                stopped_only(self)?;
+                let Some(slot) = self.settings.limits.get_mut(usize::from(set.joint)) else {
+                    return Err(StatusCode::InvalidConfig);
+                };
+                *slot = set.limits;
+                response.deferred = Some(Deferred::SaveSettings(self.settings));
+            }
+            Command::LimitsGet => {
+                response.limits = Some((
+                    from,
+                    LimitsReport {
+                        joints: self.settings.limits,
+                        last_refusal: self.last_refusal,
+                    },
+                ));
+            }
             Command::Status => response.status = Some((from, self.status(plant))),
+            Command::StatusWith(ask) => {
+                response.status = Some((from, self.status(plant)));
+                if ask.location {
+                    response.asked_location = Some((from, self.location(plant)));
+                }
+            }
+            // The owner gives the controller up: no owner, no report destinations (the
+            // next host to speak takes it, as at boot). Only while STOPPED: an upload or
+            // run of the owner's would otherwise pass to whoever speaks next.
+            Command::Release => {
+                stopped_only(self)?;
+                self.release();
+            }
             Command::UploadPeriod { period_us } => self.upload_period_us = period_us,
             // Answered in `handle` before the owner rule; never reaches here.
             Command::Discover => {}
@@ -926,6 +1032,82 @@ impl<const CAP: usize> Controller<CAP> {
             }
         }
         Ok(())
+    }
+
+    /// RELEASE's execution: the controller has no owner and sends reports to no one.
+    fn release(&mut self) {
+        self.owner = None;
+        self.listeners = [None; LOCATION_LISTENERS];
+        self.location_claimer = None;
+        self.serial_to = None;
+        self.uploader = None;
+    }
+
+    /// STATUS and RELEASE from `from`, a host that does not own the controller (none may,
+    /// or another does): the response, or `None` to go on with the owner rule.
+    ///
+    /// * STATUS is answered read-only (issue 23) when another host owns the controller
+    ///   (and has not lost it: silent 5 s with the arm not running), or whatever the owner
+    ///   when the request byte asks only to look: an ACK `OK` with the arm's state and the
+    ///   NOT_OWNER zeros (no next seq, no buffer counts), the STATUS report (and the
+    ///   LOCATION asked for), all with the request's own seq. It takes nothing: no owner,
+    ///   no owner's timer, no duplicate memory, no ordering mark, no report destination;
+    ///   at most [`DISCOVER_REPLIES_PER_S`] a second after a burst of [`DISCOVER_BURST`]
+    ///   (beyond that: no answer at all).
+    /// * RELEASE never takes the controller: with no owner (or one that lost it) it is
+    ///   `OK` and does nothing (the RELEASE that freed it, resent because its ACK was
+    ///   lost, must not take it back); with another owner it is `NOT_OWNER`.
+    fn not_owner_status_or_release(
+        &mut self,
+        from: Endpoint,
+        datagram: &[u8],
+        now_us: u64,
+        plant: &mut impl Plant,
+    ) -> Option<Response> {
+        let [seq, tag, ..] = *datagram else {
+            return None;
+        };
+        let held_by_other = self.owner.is_some_and(|o| {
+            self.state == State::Running
+                || now_us.saturating_sub(o.last_heard_us) < OWNER_TIMEOUT_US
+        });
+        let mut response = Response::default();
+        if tag == Tag::Release as u8 {
+            if held_by_other {
+                return None;
+            }
+            // A malformed one is refused as any frame is (BAD_LENGTH), taking nothing
+            // either.
+            let status = match Command::decode(datagram) {
+                Ok(_) => StatusCode::Ok,
+                Err(e) => e.status().unwrap_or(StatusCode::BadLength),
+            };
+            response.reply = Some(self.ack(from, seq, tag, status));
+            return Some(response);
+        }
+        if tag != Tag::Status as u8 {
+            return None;
+        }
+        let ask = match Command::decode(datagram).map(|f| f.body) {
+            Ok(Command::Status) => protocol::StatusAsk::default(),
+            Ok(Command::StatusWith(ask)) => ask,
+            _ => return None,
+        };
+        if !held_by_other && !ask.look_only {
+            return None;
+        }
+        if !self.glance_budget.take(now_us) {
+            return Some(response);
+        }
+        let mut ack = blank_ack(from, seq, tag, StatusCode::Ok);
+        ack.ack.state = self.state;
+        response.reply = Some(ack);
+        response.status = Some((from, self.status(plant)));
+        if ask.location {
+            response.asked_location = Some((from, self.location(plant)));
+        }
+        response.answer_seq = Some(seq);
+        Some(response)
     }
 
     /// STOPPED's execution: no further pulse, the trajectory dropped, state STOPPED.

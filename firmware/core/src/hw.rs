@@ -131,6 +131,9 @@ pub struct PersistentSettings {
     /// before any HELLO is answered): part of every MAC, so no frame of an earlier boot
     /// verifies.
     pub auth_epoch: u32,
+    /// Each joint's position range and step rate (LIMITS_SET, issue 23); no limit by
+    /// default.
+    pub limits: [protocol::JointLimits; protocol::MAX_JOINTS],
 }
 
 impl PersistentSettings {
@@ -143,6 +146,7 @@ impl PersistentSettings {
         dhcp: false,
         key: None,
         auth_epoch: 0,
+        limits: [protocol::JointLimits::NONE; protocol::MAX_JOINTS],
     };
 
     /// The network part, as NET_SET and DISCOVER_REPLY carry it.

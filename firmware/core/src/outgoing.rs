@@ -1,7 +1,7 @@
 //! Frames the controller sends, and their encoding with the controller's own report seq.
 
 use heapless::Vec;
-use protocol::{Location, MAX_SERIAL_CHUNK, Report, StatusReport, size};
+use protocol::{LimitsReport, Location, MAX_SERIAL_CHUNK, Report, StatusReport, size};
 
 use crate::hw::Endpoint;
 use crate::reports::{LOCATION_LISTENERS, ReportSettings};
@@ -12,6 +12,9 @@ pub type Destinations = Vec<Endpoint, LOCATION_LISTENERS>;
 
 /// Largest frame the controller sends: USART_RECV (257 data bytes) + seq, tag and CRC.
 pub const MAX_REPORT_FRAME: usize = size::USART_RECV + protocol::FRAME_OVERHEAD;
+
+// The LIMITS report (issue 23) fits the buffer sized for USART_RECV.
+const _: () = assert!(size::LIMITS + protocol::FRAME_OVERHEAD <= MAX_REPORT_FRAME);
 
 /// Largest sealed frame: the largest report in an envelope.
 pub const MAX_SEALED_FRAME: usize = MAX_REPORT_FRAME + protocol::auth::ENVELOPE_OVERHEAD;
@@ -99,6 +102,35 @@ pub enum Outgoing {
     Discovery(Discovery),
     /// A HELLO_REPLY, to the HELLO's sender, with its seq (sealed in its new session).
     Hello(HelloGrant),
+    /// A STATUS or LOCATION report for one endpoint (the asker of a STATUS), with the
+    /// asker's seq or the report counter.
+    Answer(Answer),
+}
+
+/// A report for the endpoint that asked for it ([`Outgoing::Answer`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Answer {
+    /// The asker.
+    pub to: Endpoint,
+    /// `Some`: the asker's own seq (a read-only answer to a host that does not own the
+    /// controller: the report counter is none of its business); `None`: the report
+    /// counter, as every report to the owner.
+    pub seq: Option<u8>,
+    /// What it gets.
+    pub report: AnswerReport,
+}
+
+/// What an [`Answer`] carries.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum AnswerReport {
+    /// A STATUS report.
+    Status(StatusReport),
+    /// A LOCATION report.
+    Location(Location),
+    /// A LIMITS report (the answer to LIMITS_GET).
+    Limits(LimitsReport),
 }
 
 /// Encodes [`Outgoing`] frames. Reports (everything but ACKs) carry the controller's own
@@ -148,6 +180,15 @@ impl ReportEncoder {
         let (to, seq, report) = match out {
             Outgoing::Ack(reply) => (one(reply.to), reply.seq, Report::Ack(reply.ack)),
             Outgoing::Status(to, s) => (one(*to), self.next_seq, Report::Status(*s)),
+            Outgoing::Answer(a) => (
+                one(a.to),
+                a.seq.unwrap_or(self.next_seq),
+                match a.report {
+                    AnswerReport::Status(s) => Report::Status(s),
+                    AnswerReport::Location(l) => Report::Location(l),
+                    AnswerReport::Limits(l) => Report::Limits(l),
+                },
+            ),
             Outgoing::Location(l) => {
                 let to: Destinations = routes.location_destinations(now_us).collect();
                 if to.is_empty() {
@@ -163,7 +204,8 @@ impl ReportEncoder {
             Outgoing::Discovery(_) | Outgoing::Hello(_) => return None,
         };
         let n = report.encode(seq, buf).ok()?;
-        if !matches!(out, Outgoing::Ack(_)) {
+        let own_seq = matches!(out, Outgoing::Answer(a) if a.seq.is_some());
+        if !matches!(out, Outgoing::Ack(_)) && !own_seq {
             self.next_seq = self.next_seq.wrapping_add(1);
         }
         Some((to, n))

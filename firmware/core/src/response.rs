@@ -1,7 +1,7 @@
 //! What [`crate::Controller::handle`] returns: the ACK ([`Reply`]), reports, and the
 //! work left to the caller ([`Deferred`]), all in one [`Response`].
 
-use protocol::{Ack, DiscoverReply, Location, StatusReport};
+use protocol::{Ack, DiscoverReply, LimitsReport, Location, StatusReport};
 
 use crate::hw::{Endpoint, PersistentSettings};
 #[cfg(doc)]
@@ -41,6 +41,15 @@ pub struct Response {
     /// A LOCATION report: the state changed (only while reports are on). It goes to
     /// [`ReportSettings::location_to`].
     pub location: Option<Location>,
+    /// A LOCATION report for the asker alone: STATUS's request byte asked for one (bit 0,
+    /// issue 23), whether reports are on or not.
+    pub asked_location: Option<(Endpoint, Location)>,
+    /// A LIMITS report for the endpoint that sent LIMITS_GET (issue 23).
+    pub limits: Option<(Endpoint, LimitsReport)>,
+    /// `Some(seq)`: [`Response::status`] and [`Response::asked_location`] are a read-only
+    /// answer to a host that does not own the controller (docs/PROTOCOL.md section 1,
+    /// issue 23) and carry its request's seq, not the controller's report counter.
+    pub answer_seq: Option<u8>,
     /// Work left to the caller.
     pub deferred: Option<Deferred>,
     /// The command was executed: ACKed `OK` and not a duplicate. Only an executed STOPPED

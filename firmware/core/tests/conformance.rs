@@ -26,8 +26,11 @@ fn a_host_keeps_ownership_by_sending_status() {
     for i in 0..5u8 {
         s.now_us += OWNER_TIMEOUT_US - 1_000_000;
         s.expect(Command::Status, Ok);
-        let r = s.send_raw(OTHER, &frame(100 + i, Command::Status));
+        let r = s.send_raw(OTHER, &frame(100 + i, Command::UploadStart));
         assert_eq!(status_of(&r), NotOwner, "round {i}");
+        // Its STATUS is answered read-only (issue 23), taking nothing.
+        let r = s.send_raw(OTHER, &frame(100 + i, Command::Status));
+        assert_eq!((status_of(&r), r.answer_seq), (Ok, Some(100 + i)));
     }
     assert_eq!(s.controller.owner().map(|o| o.ip), Some(HOST.ip));
 }
@@ -39,7 +42,7 @@ fn a_refused_frame_from_the_owner_also_counts_as_sending() {
     s.now_us += OWNER_TIMEOUT_US - 1_000_000;
     s.expect(Command::Runing, BadState);
     s.now_us += 1_500_000;
-    let r = s.send_raw(OTHER, &frame(1, Command::Status));
+    let r = s.send_raw(OTHER, &frame(1, Command::UploadStart));
     assert_eq!(status_of(&r), NotOwner, "owner spoke 1.5 s ago");
 }
 
@@ -80,9 +83,12 @@ fn a_strangers_stopped_does_not_fill_a_gap_in_the_upload() {
     let r = s.send_raw(OTHER, &frame(13, Command::Stopped));
     assert_eq!(status_of(&r), Ok);
     s.send_raw(HOST, &frame(14, Command::New { count: 4 }));
-    // 15 lost, a stranger's frame with 15 is refused (NOT_OWNER): it fills nothing.
-    let r = s.send_raw(OTHER, &frame(15, Command::Status));
+    // 15 lost, a stranger's frame with 15 is refused (NOT_OWNER): it fills nothing;
+    // nor does its STATUS with 15, answered read-only (issue 23).
+    let r = s.send_raw(OTHER, &frame(15, Command::UploadStart));
     assert_eq!(status_of(&r), NotOwner);
+    let r = s.send_raw(OTHER, &frame(15, Command::Status));
+    assert_eq!((status_of(&r), r.answer_seq), (Ok, Some(15)));
     let r = s.send_raw(HOST, &pending(16, &points([0; 8], 1, 1)));
     let ack = r.reply.expect("an ACK").ack;
     assert_eq!((ack.status, ack.next_seq), (OutOfOrder, 15));
@@ -493,12 +499,17 @@ fn lengths_and_directions_are_checked() {
         (raw(2, Tag::UsartSend as u8, &[0x55; 256]), BadLength),
         (raw(3, Tag::Ack as u8, &[0; 8]), Unsupported),
         (raw(4, Tag::UsartRecv as u8, &[0; 257]), Unsupported),
-        // 0x17 is ESTOP_RESET (issue 18), without data.
-        (raw(5, 0x18, &[]), UnknownTag),
+        // 0x17 is ESTOP_RESET (issue 18), without data; 0x18 SET_ENABLE (issue 23), 3
+        // bytes.
+        (raw(5, 0x1F, &[]), UnknownTag),
+        (raw(14, Tag::SetEnable as u8, &[]), BadLength),
         (raw(13, Tag::EstopReset as u8, &[0]), BadLength),
         (raw(6, 0xFF, &[]), UnknownTag),
         (raw(7, Tag::Pending as u8, &[0; 13 * 116]), BadLength),
-        (raw(8, Tag::Status as u8, &[0]), BadLength),
+        // STATUS takes one request byte (issue 23): bits 0-1 only.
+        (raw(8, Tag::Status as u8, &[0, 0]), BadLength),
+        (raw(15, Tag::Status as u8, &[0x04]), InvalidConfig),
+        (raw(16, Tag::Status as u8, &[0x01]), Ok),
         (raw(9, Tag::ToggleEnablePins as u8, &[1]), BadLength),
         (
             raw(10, Tag::UploadPeriod as u8, &[0x10, 0x27, 0]),
@@ -672,7 +683,9 @@ fn status_report_bytes_at_their_offsets() {
     assert_eq!(&d[12..14], &3u16.to_le_bytes(), "received");
     assert_eq!(&d[14..16], &0u16.to_le_bytes(), "executed");
     assert_eq!(&d[16..18], &20u16.to_le_bytes(), "capacity");
-    assert_eq!(&d[18..20], &[0, 0], "more_flags");
+    // more_flags: bit 3 (per-driver enables reported, issue 23), bit 4 the gripper's
+    // ENABLE, bits 8-15 the joints': all enabled at boot.
+    assert_eq!(&d[18..20], &[0b0001_1000, 0xFF], "more_flags");
     assert_eq!(&d[20..24], &0x0001_2345u32.to_le_bytes(), "period");
     let clock = s.controller.config().pwm_timer_clock_hz;
     assert_eq!(&d[24..28], &clock.to_le_bytes());

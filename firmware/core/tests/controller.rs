@@ -349,8 +349,15 @@ fn owner_rule() {
     );
     // After 5 s of silence, not running, another host takes over.
     s.now_us += OWNER_TIMEOUT_US - 100;
-    let r = s.send_raw(OTHER, &frame(2, Command::Status)).reply.unwrap();
+    let r = s
+        .send_raw(OTHER, &frame(2, Command::UploadStart))
+        .reply
+        .unwrap();
     assert_eq!(r.ack.status, NotOwner);
+    // Its STATUS is answered read-only (issue 23) and takes nothing.
+    let r = s.send_raw(OTHER, &frame(2, Command::Status));
+    assert_eq!(r.answer_seq, Some(2));
+    assert_eq!(s.controller.owner().map(|o| o.ip), Some(HOST.ip));
     s.now_us += 100;
     let r = s.send_raw(OTHER, &frame(3, Command::Status)).reply.unwrap();
     assert_eq!(r.ack.status, Ok);
@@ -358,7 +365,10 @@ fn owner_rule() {
         s.controller.report_settings().location_to,
         [Some(OTHER), None, None, None]
     );
-    let r = s.send_raw(HOST, &frame(50, Command::Status)).reply.unwrap();
+    let r = s
+        .send_raw(HOST, &frame(50, Command::UploadStart))
+        .reply
+        .unwrap();
     assert_eq!(r.ack.status, NotOwner);
 }
 
@@ -367,8 +377,14 @@ fn no_takeover_while_running() {
     let mut s = Session::<16>::new(16);
     s.start_run(2, &points([0; 8], 2, 1));
     s.now_us += 10 * OWNER_TIMEOUT_US;
-    let r = s.send_raw(OTHER, &frame(3, Command::Status)).reply.unwrap();
+    let r = s
+        .send_raw(OTHER, &frame(3, Command::UploadStart))
+        .reply
+        .unwrap();
     assert_eq!(r.ack.status, NotOwner);
+    // Read-only STATUS (issue 23): answered, takes nothing.
+    let r = s.send_raw(OTHER, &frame(3, Command::Status));
+    assert_eq!((r.reply.unwrap().ack.status, r.answer_seq), (Ok, Some(3)));
     s.plant.run_to_end(&mut s.controller);
     assert_eq!(s.controller.state(), State::Stopped);
     let r = s.send_raw(OTHER, &frame(4, Command::Status)).reply.unwrap();

@@ -302,7 +302,7 @@ fn a_not_owner_ack_tells_nothing() {
     s.send_raw(HOST, &frame(1, Command::New { count: 4 }));
     s.send_raw(HOST, &pending(2, &pts));
     let ack = s
-        .send_raw(OTHER, &frame(5, Command::Status))
+        .send_raw(OTHER, &frame(5, Command::UploadStart))
         .reply
         .unwrap()
         .ack;
@@ -310,6 +310,18 @@ fn a_not_owner_ack_tells_nothing() {
     assert_eq!(
         (ack.state as u8, ack.next_seq, ack.buffered, ack.free),
         (0, 0, 0, 0),
+        "{ack:?}"
+    );
+    // A read-only STATUS's ACK (issue 23) shows the state, never the next seq or the
+    // buffer counts.
+    let ack = s
+        .send_raw(OTHER, &frame(5, Command::Status))
+        .reply
+        .unwrap()
+        .ack;
+    assert_eq!(
+        (ack.status, ack.state, ack.next_seq, ack.buffered, ack.free),
+        (Ok, protocol::State::Pending, 0, 0, 0),
         "{ack:?}"
     );
 }
@@ -344,7 +356,8 @@ fn hand_over_drops_an_unstarted_upload_and_says_so() {
     // A new upload clears the flag.
     s.send_raw(OTHER, &frame(3, Command::New { count: 1 }));
     let r = s.send_raw(OTHER, &frame(4, Command::Status));
-    assert_eq!(r.status.unwrap().1.more_flags.0, 0);
+    let more = r.status.unwrap().1.more_flags;
+    assert!(!more.has(protocol::MoreFlags::UPLOAD_DROPPED));
 }
 
 #[test]

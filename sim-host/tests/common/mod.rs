@@ -82,6 +82,7 @@ pub enum OwnedReport {
     Location(Location),
     UsartRecv(Vec<u8>),
     Status(StatusReport),
+    Limits(protocol::LimitsReport),
 }
 
 impl Client {
@@ -117,6 +118,7 @@ impl Client {
             Report::Location(l) => OwnedReport::Location(l),
             Report::UsartRecv(b) => OwnedReport::UsartRecv(b.to_vec()),
             Report::Status(s) => OwnedReport::Status(s),
+            Report::Limits(l) => OwnedReport::Limits(l),
         };
         Some((frame.seq, report))
     }

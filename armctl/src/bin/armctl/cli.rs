@@ -6,6 +6,7 @@ use std::path::PathBuf;
 
 use clap::{Parser, Subcommand, ValueEnum};
 
+use crate::config::ConfigCmd;
 use crate::frame::FrameCmd;
 use crate::motion::{JogArgs, MoveArgs};
 use crate::net::NetCmd;
@@ -52,11 +53,15 @@ pub struct Cli {
 /// The commands.
 #[derive(Subcommand, Debug)]
 pub enum Cmd {
-    /// Print the controller's STATUS.
+    /// Print the controller's STATUS, each joint's position and driver: from any host
+    /// (read-only when another owns the controller), never taking the controller.
     Status {
         /// As JSON.
         #[arg(long)]
         json: bool,
+        /// A joint config (the `run --config` file): joint names and positions in degrees.
+        #[arg(long, value_name = "FILE")]
+        config: Option<PathBuf>,
     },
     /// Print live positions and state (Ctrl-C ends).
     Watch {
@@ -81,6 +86,9 @@ pub enum Cmd {
     Check(RunArgs),
     /// STOPPED: stop every joint at once and drop the trajectory.
     Stop,
+    /// RELEASE: give the controller up (only while STOPPED), so that another host may take
+    /// it at once instead of after 5 s of silence.
+    Release,
     /// ESTOP_RESET: clear the wired e-stop input's latch (once the input is closed again);
     /// until then RUNING and RETURN are refused with ESTOP_LATCHED.
     EstopReset,
@@ -118,8 +126,24 @@ pub enum Cmd {
         #[arg(required = true, num_args = 1..=8, allow_negative_numbers = true)]
         positions: Vec<i32>,
     },
-    /// TOGGLE_ENABLE_PINS: toggle driver ENABLE lines (all, or the masked ones).
+    /// SET_ENABLE: enable (holding torque) the drivers of JOINTS, every driver when none
+    /// is given; the others are left as they are. Sending it twice changes nothing more.
     Enable {
+        /// Joints (0-7) and `gripper`, e.g. `0 1 gripper` or `0,1`; `all` or none: every
+        /// driver.
+        #[arg(value_parser = crate::enable::parse_driver, value_delimiter = ',')]
+        joints: Vec<u16>,
+    },
+    /// SET_ENABLE: disable (make limp: the joint can be moved by hand) the drivers of
+    /// JOINTS, every driver when none is given; the others are left as they are.
+    Disable {
+        /// Joints (0-7) and `gripper`, e.g. `2 3` or `2,3`; `all` or none: every driver.
+        #[arg(value_parser = crate::enable::parse_driver, value_delimiter = ',')]
+        joints: Vec<u16>,
+    },
+    /// TOGGLE_ENABLE_PINS: toggle driver ENABLE lines (all, or the masked ones), for
+    /// controllers older than SET_ENABLE.
+    ToggleEnable {
         /// Bits 0-7 joints, bit 8 gripper (decimal or 0x hex).
         #[arg(long, value_parser = parse_mask)]
         mask: Option<u16>,
@@ -189,6 +213,10 @@ pub enum Cmd {
     /// The authentication key (docs/PROTOCOL.md section 13).
     #[command(subcommand)]
     Key(KeyCmd),
+    /// The limits kept on the controller: each joint's position range and step rate
+    /// (LIMITS_GET, LIMITS_SET), enforced on every point, RETURN and set-location.
+    #[command(subcommand)]
+    Config(ConfigCmd),
 }
 
 /// `armctl key ...`.

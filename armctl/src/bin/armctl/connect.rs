@@ -30,6 +30,8 @@ pub fn connect(cli: &Cli) -> Result<Client, String> {
         // Anyone may stop the arm: no STATUS first, which another host's controller
         // would refuse (NOT_OWNER).
         Cmd::Stop => Ok(controller),
+        // `status` asks itself, look-only: it never takes the controller (issue 23).
+        Cmd::Status { .. } => Ok(controller),
         // As Client::connect_with: check that the controller answers.
         _ => match controller.status() {
             Ok(_) => Ok(controller),

@@ -119,6 +119,32 @@ pub enum EncodeCmd {
     },
     /// ESTOP_RESET.
     EstopReset,
+    /// SET_ENABLE MASK (issue 23): `--disable` for limp, else holding.
+    SetEnable {
+        /// Mask, bits 0-7 joints, 8 gripper (decimal or 0x hex).
+        #[arg(value_parser = parse_mask)]
+        mask: u16,
+        /// Disable (limp) instead of enable.
+        #[arg(long)]
+        disable: bool,
+    },
+    /// RELEASE (issue 23).
+    Release,
+    /// LIMITS_SET JOINT MIN MAX MAX_RATE_HZ (issue 23).
+    LimitsSet {
+        /// Joint, 0-7.
+        joint: u8,
+        /// Lowest position, steps.
+        #[arg(allow_negative_numbers = true)]
+        min: i32,
+        /// Highest position, steps.
+        #[arg(allow_negative_numbers = true)]
+        max: i32,
+        /// Steps per second (0: the controller's own only).
+        max_rate_hz: u32,
+    },
+    /// LIMITS_GET (issue 23).
+    LimitsGet,
 }
 
 /// Runs `frame decode` or `frame encode`: prints the JSON or the hex.
@@ -284,6 +310,25 @@ pub fn encode_frame(seq: u8, command: &EncodeCmd) -> Result<String, String> {
         EncodeCmd::Status => Command::Status,
         EncodeCmd::UploadPeriod { us } => Command::UploadPeriod { period_us: *us },
         EncodeCmd::EstopReset => Command::EstopReset,
+        EncodeCmd::SetEnable { mask, disable } => Command::SetEnable {
+            mask: *mask,
+            enable: !*disable,
+        },
+        EncodeCmd::Release => Command::Release,
+        EncodeCmd::LimitsSet {
+            joint,
+            min,
+            max,
+            max_rate_hz,
+        } => Command::LimitsSet(protocol::LimitsSet {
+            joint: *joint,
+            limits: protocol::JointLimits {
+                min: *min,
+                max: *max,
+                max_rate_hz: *max_rate_hz,
+            },
+        }),
+        EncodeCmd::LimitsGet => Command::LimitsGet,
     };
     let mut buf = [0u8; MAX_DATAGRAM];
     let len = command.encode(seq, &mut buf).map_err(|e| e.to_string())?;

@@ -17,13 +17,16 @@
 //! chooses more finely.
 
 mod cli;
+mod config;
 mod connect;
 mod discover;
+mod enable;
 mod frame;
 mod interrupt;
 mod jog_keys;
 mod motion;
 mod net;
+mod owner;
 mod plot;
 mod pwm;
 mod run;
@@ -92,8 +95,11 @@ fn execute(cli: Cli) -> CliResult {
             Ok(())
         }
         _ => {
-            let arm = connect::connect(&cli)?;
-            let result = execute_online(&cli, &arm);
+            let arm = connect::connect(&cli)
+                .map_err(|e| owner::explain_not_owner(e, &cli.controller, cli.bind))?;
+            let result = execute_online(&cli, &arm)
+                .map_err(|e| owner::explain_not_owner(e, &cli.controller, cli.bind))
+                .map_err(|e| config::explain_invalid_point(e, &arm));
             // After a signal: STOPPED (unless the command sent it) and the line saying so.
             interrupt::finish(&arm);
             result
@@ -104,7 +110,7 @@ fn execute(cli: Cli) -> CliResult {
 /// The commands that talk to the controller at `--controller`.
 fn execute_online(cli: &Cli, arm: &armctl::Client) -> CliResult {
     match &cli.command {
-        Cmd::Status { json } => status::execute(arm, *json),
+        Cmd::Status { json, config } => status::execute(arm, *json, config.as_deref()),
         Cmd::Watch {
             record,
             duration,
@@ -123,6 +129,7 @@ fn execute_online(cli: &Cli, arm: &armctl::Client) -> CliResult {
         }
         Cmd::Run(args) => run::execute(arm, args),
         Cmd::Stop => single::done(arm.stop()),
+        Cmd::Release => owner::release(arm),
         Cmd::EstopReset => single::done(arm.estop_reset()),
         Cmd::Return { wait } => single::go_home(arm, *wait),
         Cmd::Move(args) => motion::execute_move(arm, args),
@@ -130,7 +137,9 @@ fn execute_online(cli: &Cli, arm: &armctl::Client) -> CliResult {
         Cmd::Home { config, units } => motion::execute_home(arm, config.as_ref(), *units),
         Cmd::Joints { n } => single::done(arm.set_joints(*n)),
         Cmd::SetLocation { positions } => single::done(arm.set_location(positions)),
-        Cmd::Enable { mask } => single::done(arm.toggle_enable(*mask)),
+        Cmd::Enable { joints } => enable::execute(arm, joints, true),
+        Cmd::Disable { joints } => enable::execute(arm, joints, false),
+        Cmd::ToggleEnable { mask } => single::done(arm.toggle_enable(*mask)),
         Cmd::Pin { pin, level } => single::done(arm.pin(*pin, *level == cli::OnOff::On)),
         Cmd::Pwm(command) => pwm::execute(arm, command),
         Cmd::Serial {
@@ -148,6 +157,7 @@ fn execute_online(cli: &Cli, arm: &armctl::Client) -> CliResult {
             single::done(arm.set_key(Some(key)))
         }
         Cmd::Key(cli::KeyCmd::Clear) => single::done(arm.set_key(None)),
+        Cmd::Config(command) => config::execute(arm, command),
         Cmd::Frame(_)
         | Cmd::Check(_)
         | Cmd::Plot { .. }

@@ -5,18 +5,92 @@ use protocol::{MoreFlags, StatusFlags, StatusReport};
 
 use crate::CliResult;
 
-/// Runs `status`.
-pub fn execute(arm: &Client, json: bool) -> CliResult {
-    let status = arm.status().map_err(|e| e.to_string())?;
+/// Runs `status`: STATUS with a LOCATION, look-only (issue 23: from any host, never
+/// taking the controller).
+pub fn execute(arm: &Client, json: bool, config: Option<&std::path::Path>) -> CliResult {
+    let config = config
+        .map(armctl::trajectory::ArmConfig::load)
+        .transpose()
+        .map_err(|e| e.to_string())?;
+    let glance = arm.glance(true).map_err(|e| e.to_string())?;
+    let status = glance.status;
     if json {
+        // The STATUS fields as before, plus `positions` (null when none came) and
+        // `read_only`.
+        let mut value = serde_json::to_value(status).map_err(|e| e.to_string())?;
+        if let Some(map) = value.as_object_mut() {
+            let joints = usize::from(status.joints).min(protocol::MAX_JOINTS);
+            map.insert(
+                "positions".into(),
+                glance
+                    .location
+                    .map_or(serde_json::Value::Null, |l| l.position[..joints].into()),
+            );
+            map.insert("read_only".into(), glance.read_only.into());
+            if let Some(config) = &config {
+                let names: Vec<serde_json::Value> = config
+                    .joints
+                    .iter()
+                    .take(joints)
+                    .map(|j| j.name.clone().map_or(serde_json::Value::Null, Into::into))
+                    .collect();
+                map.insert("joint_names".into(), names.into());
+            }
+        }
         println!(
             "{}",
-            serde_json::to_string_pretty(&status).map_err(|e| e.to_string())?
+            serde_json::to_string_pretty(&value).map_err(|e| e.to_string())?
         );
     } else {
         print_status(&status);
+        println!(
+            "{}",
+            positions_block(&status, glance.location.as_ref(), config.as_ref())
+        );
+        if glance.read_only {
+            println!("(read-only: another host owns the controller, or nobody does)");
+        }
     }
     Ok(())
+}
+
+/// One line per joint in use: its position in steps and its driver; with a joint config,
+/// its name and its position in degrees too.
+pub fn positions_block(
+    s: &StatusReport,
+    location: Option<&protocol::Location>,
+    config: Option<&armctl::trajectory::ArmConfig>,
+) -> String {
+    let Some(location) = location else {
+        return "positions        unknown (no LOCATION came: an older controller?)".into();
+    };
+    let enabled = s.drivers_enabled();
+    let joints = usize::from(s.joints).min(protocol::MAX_JOINTS);
+    let mut lines = vec![match config {
+        Some(_) => "joint  name                  steps  degrees  driver".to_string(),
+        None => "joint  position (steps)  driver".to_string(),
+    }];
+    for (j, p) in location.position.iter().enumerate().take(joints) {
+        let driver = match enabled {
+            Some(mask) if mask & (1 << j) != 0 => "enabled",
+            Some(_) => "disabled",
+            None => "?",
+        };
+        let line = match config.map(|c| c.joints.get(j)) {
+            Some(Some(joint)) => {
+                let name = joint.name.as_deref().unwrap_or("-");
+                let degrees = (f64::from(*p) - f64::from(joint.zero_offset_steps))
+                    / joint.steps_per_radian
+                    * 180.0
+                    / std::f64::consts::PI;
+                format!("{j:>5}  {name:<16} {p:>10} {degrees:>8.1}  {driver}")
+            }
+            Some(None) => format!("{j:>5}  {:<16} {p:>10} {:>8}  {driver}", "-", "-"),
+            None => format!("{j:>5}  {p:>16}  {driver}"),
+        };
+        lines.push(line);
+    }
+    lines.join("\n")
 }
 
 /// The wired e-stop input and its latch (STATUS `more_flags` bits 1 and 2; both 0 from a
@@ -80,6 +154,7 @@ fn print_status(s: &StatusReport) {
         flag(StatusFlags::UNDERRUN),
         flag(StatusFlags::STOPPED_BY_HOST)
     );
+    println!("{}", crate::enable::drivers_line(s));
     println!("{}", estop_line(s));
     if s.more_flags.has(protocol::MoreFlags::UPLOAD_DROPPED) {
         println!("an unstarted upload was dropped when another host took the controller over");

@@ -111,15 +111,38 @@ fn small_commands() {
     assert_eq!(positions, vec![1, -2, 300]);
     refused(&["set-location"]);
     refused(&["set-location", "1", "2", "3", "4", "5", "6", "7", "8", "9"]);
+    // Issue 23: `enable` and `disable` are explicit (SET_ENABLE); the toggle is
+    // `toggle-enable`.
     assert!(matches!(
-        parse(&["enable", "--mask", "0x1ff"]).command,
-        Cmd::Enable { mask: Some(0x1FF) }
+        parse(&["toggle-enable", "--mask", "0x1ff"]).command,
+        Cmd::ToggleEnable { mask: Some(0x1FF) }
     ));
     assert!(matches!(
-        parse(&["enable"]).command,
-        Cmd::Enable { mask: None }
+        parse(&["toggle-enable"]).command,
+        Cmd::ToggleEnable { mask: None }
     ));
-    assert!(refused(&["enable", "--mask", "0x200"]).contains("bits above 8"));
+    assert!(refused(&["toggle-enable", "--mask", "0x200"]).contains("bits above 8"));
+    let drivers = |args: &[&str]| match parse(args).command {
+        Cmd::Enable { joints } | Cmd::Disable { joints } => crate::enable::mask_of(&joints),
+        other => panic!("{other:?}"),
+    };
+    assert_eq!(drivers(&["enable"]), 0x1FF);
+    assert_eq!(drivers(&["disable"]), 0x1FF);
+    assert_eq!(drivers(&["disable", "0", "1"]), 0x003);
+    assert_eq!(drivers(&["enable", "2,5", "gripper"]), 0x124);
+    assert_eq!(drivers(&["enable", "all"]), 0x1FF);
+    assert!(matches!(
+        parse(&["disable", "3"]).command,
+        Cmd::Disable { .. }
+    ));
+    assert!(refused(&["enable", "8"]).contains("joint numbers 0-7"));
+    assert!(refused(&["disable", "--mask", "3"]).contains("--mask"));
+    assert_eq!(
+        crate::enable::describe(0x103),
+        "joints 0, 1 and the gripper"
+    );
+    assert_eq!(crate::enable::describe(0x004), "joint 2");
+    assert_eq!(crate::enable::describe(0x1FF), "every driver");
     assert!(matches!(
         parse(&["pin", "1", "on"]).command,
         Cmd::Pin {
@@ -261,6 +284,45 @@ fn golden_hex(name: &str) -> String {
         .as_str()
         .unwrap()
         .to_string()
+}
+
+/// Issue 23's frames encode as docs/PROTOCOL.md shows them.
+#[test]
+fn encode_issue_23_frames_as_the_protocol_document_shows() {
+    assert_eq!(
+        encode(&[
+            "frame",
+            "encode",
+            "--seq",
+            "27",
+            "set-enable",
+            "3",
+            "--disable"
+        ]),
+        "1b18030000e7"
+    );
+    assert_eq!(
+        encode(&["frame", "encode", "--seq", "30", "release"]),
+        "1e19ce"
+    );
+    assert_eq!(
+        encode(&[
+            "frame",
+            "encode",
+            "--seq",
+            "31",
+            "limits-set",
+            "1",
+            "-16000",
+            "16000",
+            "4000"
+        ]),
+        "1f1a0100000080c1ffff803e0000a00f0000fd"
+    );
+    assert_eq!(
+        encode(&["frame", "encode", "--seq", "32", "limits-get"]),
+        "201bef"
+    );
 }
 
 #[test]

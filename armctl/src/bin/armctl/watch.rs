@@ -12,6 +12,11 @@ use protocol::Location;
 
 use crate::CliResult;
 
+/// How often a watch from a host that does not own the controller asks for a read-only
+/// STATUS: 5 a second, half the controller's budget for such answers (10 a second after a
+/// burst of 10, docs/PROTOCOL.md section 1), so that two such watchers fit.
+const READ_ONLY_POLL: Duration = Duration::from_millis(200);
+
 /// How `watch` shows positions: `j0 1234` in steps, or with a joint config its names and
 /// units (`base 30.02 deg`).
 pub struct Shown {
@@ -45,8 +50,20 @@ pub fn execute(
     let status = arm.status().map_err(|e| e.to_string())?;
     let joints = usize::from(status.joints).clamp(1, 8);
     let locations = arm.locations();
-    // LOCATION reports go to the tool that asked last: this one, from now on.
-    arm.claim_locations().map_err(|e| e.to_string())?;
+    // LOCATION reports go to the tool that asked last: this one, from now on. Another
+    // host owns the controller: poll a read-only STATUS with a LOCATION instead (issue
+    // 23), within the controller's budget for such answers.
+    let read_only = match arm.claim_locations() {
+        Ok(()) => false,
+        Err(e) if e.status() == Some(protocol::StatusCode::NotOwner) => {
+            eprintln!(
+                "read-only: another host owns the controller; polling STATUS every {} ms",
+                READ_ONLY_POLL.as_millis()
+            );
+            true
+        }
+        Err(e) => return Err(e.to_string()),
+    };
     let mut recorder = record
         .map(|path| Recorder::create(path, joints).map_err(|e| format!("{}: {e}", path.display())))
         .transpose()?;
@@ -61,7 +78,19 @@ pub fn execute(
         if end.is_some_and(|e| Instant::now() >= e) {
             break;
         }
-        match locations.recv_timeout(Duration::from_millis(200)) {
+        let next = if read_only {
+            std::thread::sleep(READ_ONLY_POLL);
+            match arm.glance(true) {
+                Ok(armctl::Glance {
+                    location: Some(location),
+                    ..
+                }) => Ok(location),
+                _ => Err(mpsc::RecvTimeoutError::Timeout),
+            }
+        } else {
+            locations.recv_timeout(Duration::from_millis(200))
+        };
+        match next {
             Ok(location) => {
                 seen += 1;
                 if let Some(r) = recorder.as_mut() {
@@ -89,7 +118,7 @@ pub fn execute(
             Err(mpsc::RecvTimeoutError::Disconnected) => break,
         }
         // STATUS now and then keeps this host the owner (reports go to the owner).
-        if last_status.elapsed() >= Duration::from_secs(1) {
+        if !read_only && last_status.elapsed() >= Duration::from_secs(1) {
             last_status = Instant::now();
             arm.status().map_err(|e| e.to_string())?;
         }

@@ -39,6 +39,7 @@ macro_rules! with_boot_fields {
         last_handled_us: 0,
         discover_budget: super::ReplyBudget::new(),
         hello_budget: super::ReplyBudget::new(),
+        glance_budget: super::ReplyBudget::new(),
         sessions: crate::auth::Sessions::new(),
         serial_to: None,
         more_flags: MoreFlags(0),
@@ -52,6 +53,15 @@ macro_rules! with_boot_fields {
         mac: [0; 6],
         booted_net: NetSettings::fixed([192, 168, 1, 30], 24, None),
         step_budget_hz: crate::profile::BOOT_STEP_BUDGET_HZ,
+        last_refusal: protocol::Refusal {
+            seq: 0,
+            tag: 0,
+            point: 0,
+            joint: 0,
+            reason: protocol::RefusalReason::None,
+            value: 0,
+            limit: 0,
+        },
         )
     };
 }

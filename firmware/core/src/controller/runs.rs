@@ -2,7 +2,7 @@
 //! read and plan (see "Runs, reports and flags" in [`crate::controller`]).
 
 use arm_step::Segment;
-use protocol::{Location, MAX_JOINTS, State};
+use protocol::{Location, MAX_JOINTS, Refusal, RefusalReason, State};
 
 use super::Controller;
 use crate::buffer::StoredPoint;
@@ -12,42 +12,127 @@ use crate::plant::Plant;
 
 impl<const CAP: usize> Controller<CAP> {
     /// The stored form of `point` after `previous`, if it obeys docs/PROTOCOL.md ("Point",
-    /// "Step rate budget"): for every joint in use, at most `max_step_rate_hz` steps per
+    /// "Step rate budget", LIMITS_SET): for every joint in use, an end position inside
+    /// its range, at most its own and the controller's `max_step_rate_hz` steps per
     /// second and a step count that fits a segment, and all joints together at most
-    /// `step_budget_hz` steps per second. Joints not in use keep their previous position.
+    /// `step_budget_hz` steps per second; else why not (`seq`, `tag` and `point` left 0
+    /// for the caller). Joints not in use keep their previous position.
     pub(super) fn admit(
         &self,
         previous: &[i32; MAX_JOINTS],
         point: &protocol::Point,
-    ) -> Option<StoredPoint> {
-        let duration = u32::try_from(point.duration).ok().filter(|d| *d >= 1)?;
+    ) -> Result<StoredPoint, Refusal> {
+        let refusal = |joint: usize, reason, value: i64, limit: i64| Refusal {
+            joint: u8::try_from(joint).unwrap_or(u8::MAX),
+            reason,
+            value: saturate_i32(value),
+            limit: saturate_i32(limit),
+            ..Refusal::default()
+        };
+        let Some(duration) = u32::try_from(point.duration).ok().filter(|d| *d >= 1) else {
+            return Err(refusal(
+                0,
+                RefusalReason::Duration,
+                point.duration.into(),
+                1,
+            ));
+        };
         let joints = usize::from(self.settings.joints).min(MAX_JOINTS);
         let mut position = *previous;
         let mut total_steps = 0u64;
-        for (j, (p, &to)) in position
+        let board_hz = self.config.max_step_rate_hz;
+        for (j, ((p, &to), limits)) in position
             .iter_mut()
             .zip(&point.position)
+            .zip(&self.settings.limits)
             .enumerate()
             .take(joints)
         {
+            if to < limits.min {
+                return Err(refusal(
+                    j,
+                    RefusalReason::BelowMin,
+                    to.into(),
+                    limits.min.into(),
+                ));
+            }
+            if to > limits.max {
+                return Err(refusal(
+                    j,
+                    RefusalReason::AboveMax,
+                    to.into(),
+                    limits.max.into(),
+                ));
+            }
             let steps = point.steps(previous, j).unsigned_abs();
             total_steps += steps;
-            // steps < 2^33 and duration < 2^31: both products fit u64.
-            let too_fast =
-                steps * 1_000_000 > u64::from(self.config.max_step_rate_hz) * u64::from(duration);
-            if too_fast || steps > i32::MAX as u64 {
-                return None;
+            if steps > i32::MAX as u64 {
+                return Err(refusal(
+                    j,
+                    RefusalReason::Duration,
+                    i64::MAX,
+                    i32::MAX.into(),
+                ));
+            }
+            // steps < 2^31 and duration < 2^31: the products fit u64.
+            let rate_hz = limits.rate_hz(board_hz);
+            if steps * 1_000_000 > u64::from(rate_hz) * u64::from(duration) {
+                let reason = if rate_hz < board_hz {
+                    RefusalReason::JointRate
+                } else {
+                    RefusalReason::BoardRate
+                };
+                let asked = steps * 1_000_000 / u64::from(duration);
+                return Err(refusal(
+                    j,
+                    reason,
+                    i64::try_from(asked).unwrap_or(i64::MAX),
+                    rate_hz.into(),
+                ));
             }
             *p = to;
         }
-        // total_steps < 2^36: the product fits u64.
+        // total_steps < 2^34: the product fits u64.
         let budget = u64::from(self.step_budget_hz);
         if budget > 0 && total_steps * 1_000_000 > budget * u64::from(duration) {
-            return None;
+            let asked = total_steps * 1_000_000 / u64::from(duration);
+            return Err(Refusal {
+                joint: u8::MAX,
+                ..refusal(
+                    0,
+                    RefusalReason::StepBudget,
+                    i64::try_from(asked).unwrap_or(i64::MAX),
+                    i64::from(self.step_budget_hz),
+                )
+            });
         }
-        Some(StoredPoint {
+        Ok(StoredPoint {
             duration_us: duration,
             position,
+        })
+    }
+
+    /// The first joint in use whose range `position` leaves, as a refusal (RETURN's
+    /// target, LOCATION_SETTING's positions).
+    pub(super) fn outside_limits(&self, position: &[i32; MAX_JOINTS]) -> Option<Refusal> {
+        let joints = usize::from(self.settings.joints).min(MAX_JOINTS);
+        let (j, (&p, limits)) = position
+            .iter()
+            .zip(&self.settings.limits)
+            .enumerate()
+            .take(joints)
+            .find(|(_, (p, l))| !l.contains(**p))?;
+        let (reason, limit) = if p < limits.min {
+            (RefusalReason::BelowMin, limits.min)
+        } else {
+            (RefusalReason::AboveMax, limits.max)
+        };
+        Some(Refusal {
+            joint: u8::try_from(j).unwrap_or(u8::MAX),
+            reason,
+            value: p,
+            limit,
+            ..Refusal::default()
         })
     }
 
@@ -164,7 +249,12 @@ impl<const CAP: usize> Controller<CAP> {
                 start = corrected;
             }
         }
-        let plan = plan_return(start, self.settings.joints, &self.config);
+        // Each joint's own rate limit (LIMITS_SET) bounds its RETURN speed too.
+        let mut config = self.config;
+        for (speed, limits) in config.return_speed.iter_mut().zip(&self.settings.limits) {
+            *speed = (*speed).min(limits.rate_hz(self.config.max_step_rate_hz));
+        }
+        let plan = plan_return(start, self.settings.joints, &config);
         self.buffer.clear();
         self.expected = plan.total_points();
         self.received = 0;
@@ -180,4 +270,8 @@ impl<const CAP: usize> Controller<CAP> {
         plant.start();
         None
     }
+}
+
+fn saturate_i32(v: i64) -> i32 {
+    i32::try_from(v).unwrap_or(if v < 0 { i32::MIN } else { i32::MAX })
 }

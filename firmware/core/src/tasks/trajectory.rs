@@ -18,7 +18,7 @@ use crate::estop_input::EStopLine;
 use crate::hw::{
     Clock, Encoders, Gripper, Outputs, SerialError, SerialPort, SettingsStore, StepKick,
 };
-use crate::outgoing::Outgoing;
+use crate::outgoing::{Answer, AnswerReport, Outgoing};
 use crate::plant::Plant;
 use crate::response::{Deferred, Response};
 use crate::step_shared::{START_LEAD_US, StepBackend, StepShared, us_to_ticks};
@@ -314,8 +314,28 @@ pub(super) fn deliver(bus: &Bus, response: &Response) {
     if let Some(reply) = response.reply {
         bus.send(Outgoing::Ack(reply));
     }
-    if let Some((to, status)) = response.status {
-        bus.send(Outgoing::Status(to, status));
+    match (response.status, response.answer_seq) {
+        (Some((to, status)), None) => bus.send(Outgoing::Status(to, status)),
+        (Some((to, status)), Some(seq)) => bus.send(Outgoing::Answer(Answer {
+            to,
+            seq: Some(seq),
+            report: AnswerReport::Status(status),
+        })),
+        (None, _) => {}
+    }
+    if let Some((to, limits)) = response.limits {
+        bus.send(Outgoing::Answer(Answer {
+            to,
+            seq: None,
+            report: AnswerReport::Limits(limits),
+        }));
+    }
+    if let Some((to, location)) = response.asked_location {
+        bus.send(Outgoing::Answer(Answer {
+            to,
+            seq: response.answer_seq,
+            report: AnswerReport::Location(location),
+        }));
     }
     if let Some(location) = response.location {
         bus.send(Outgoing::Location(location));

@@ -1,0 +1,213 @@
+//! `armctl config get` and `armctl config set`: the limits on the controller (LIMITS_GET,
+//! LIMITS_SET; docs/PROTOCOL.md, issue 23), and what an INVALID_POINT broke.
+
+use armctl::Client;
+use clap::Subcommand;
+use protocol::{JointLimits, LimitsReport, RefusalReason, Tag};
+
+use crate::CliResult;
+
+/// `armctl config ...`.
+#[derive(Subcommand, Debug)]
+pub enum ConfigCmd {
+    /// LIMITS_GET: every joint's position range and step rate on the controller, and the
+    /// last point it refused for one.
+    Get {
+        /// As JSON.
+        #[arg(long)]
+        json: bool,
+        /// A joint config (the `run --config` file): joint names.
+        #[arg(long, value_name = "FILE")]
+        config: Option<std::path::PathBuf>,
+    },
+    /// LIMITS_SET for every joint of a joint config (the `run --config` file): its
+    /// min_steps, max_steps and max_step_rate_hz, so that the controller enforces them
+    /// whatever host drives it (only while STOPPED).
+    Push {
+        /// The joint config.
+        file: std::path::PathBuf,
+    },
+    /// LIMITS_SET: one joint's position range and step rate, kept by the controller
+    /// across power cycles and enforced on every point, RETURN and set-location (only
+    /// while STOPPED). Options not given keep their value.
+    Set {
+        /// The joint, 0-7.
+        #[arg(long, value_parser = clap::value_parser!(u8).range(0..=7))]
+        joint: u8,
+        /// Lowest position, steps.
+        #[arg(long, allow_negative_numbers = true)]
+        min: Option<i32>,
+        /// Highest position, steps.
+        #[arg(long, allow_negative_numbers = true)]
+        max: Option<i32>,
+        /// Most steps per second of this joint (0: the controller's own limit only).
+        #[arg(long, value_name = "HZ")]
+        max_rate: Option<u32>,
+        /// Remove the joint's limits (the whole range, no rate of its own).
+        #[arg(long, conflicts_with_all = ["min", "max", "max_rate"])]
+        clear: bool,
+    },
+}
+
+/// Runs `config get` or `config set`.
+pub fn execute(arm: &Client, command: &ConfigCmd) -> CliResult {
+    match command {
+        ConfigCmd::Get { json, config } => {
+            let names = config
+                .as_deref()
+                .map(armctl::trajectory::ArmConfig::load)
+                .transpose()
+                .map_err(|e| e.to_string())?
+                .map(|c| {
+                    c.joints
+                        .iter()
+                        .map(|j| j.name.clone().unwrap_or_else(|| "-".into()))
+                        .collect::<Vec<_>>()
+                });
+            let report = arm.limits().map_err(|e| explain_old(e, Tag::LimitsGet))?;
+            if *json {
+                println!(
+                    "{}",
+                    serde_json::to_string_pretty(&report).map_err(|e| e.to_string())?
+                );
+            } else {
+                print!("{}", limits_table(&report, names.as_deref()));
+            }
+            Ok(())
+        }
+        ConfigCmd::Push { file } => {
+            let config = armctl::trajectory::ArmConfig::load(file).map_err(|e| e.to_string())?;
+            for (j, joint) in config.joints.iter().enumerate().take(protocol::MAX_JOINTS) {
+                let limits = JointLimits {
+                    min: joint.min_steps,
+                    max: joint.max_steps,
+                    max_rate_hz: joint.max_step_rate_hz,
+                };
+                let j = u8::try_from(j).unwrap_or(u8::MAX);
+                arm.set_limits(j, limits)
+                    .map_err(|e| format!("joint {j}: {}", explain_old(e, Tag::LimitsSet)))?;
+                let name = joint.name.as_deref().unwrap_or("-");
+                println!("joint {j} {name}: {}", describe(&limits));
+            }
+            println!(
+                "OK: {} joints' limits kept on the controller",
+                config.joints.len()
+            );
+            Ok(())
+        }
+        ConfigCmd::Set {
+            joint,
+            min,
+            max,
+            max_rate,
+            clear,
+        } => {
+            let current = arm.limits().map_err(|e| explain_old(e, Tag::LimitsGet))?;
+            let old = current.joints[usize::from(*joint)];
+            let new = if *clear {
+                JointLimits::NONE
+            } else {
+                JointLimits {
+                    min: min.unwrap_or(old.min),
+                    max: max.unwrap_or(old.max),
+                    max_rate_hz: max_rate.unwrap_or(old.max_rate_hz),
+                }
+            };
+            if !new.is_valid() {
+                return Err(format!(
+                    "joint {joint}: min {} is above max {}",
+                    new.min, new.max
+                ));
+            }
+            let ack = arm
+                .set_limits(*joint, new)
+                .map_err(|e| explain_old(e, Tag::LimitsSet))?;
+            println!(
+                "OK (state {}): joint {joint} {}",
+                ack.state.name(),
+                describe(&new)
+            );
+            Ok(())
+        }
+    }
+}
+
+/// An older controller's UNKNOWN_TAG, explained.
+fn explain_old(e: armctl::Error, tag: Tag) -> String {
+    match e.status() {
+        Some(protocol::StatusCode::UnknownTag) => format!(
+            "{e}\nthis controller predates {} ({:#04x}): it keeps no limits (the host's \
+             --config limits still apply to `armctl run`)",
+            tag.name(),
+            tag as u8
+        ),
+        _ => e.to_string(),
+    }
+}
+
+/// A joint's limits in words.
+pub fn describe(l: &JointLimits) -> String {
+    let range = match (l.min, l.max) {
+        (i32::MIN, i32::MAX) => "any position".to_string(),
+        (i32::MIN, max) => format!("up to {max} steps"),
+        (min, i32::MAX) => format!("from {min} steps"),
+        (min, max) => format!("{min}..{max} steps"),
+    };
+    let rate = match l.max_rate_hz {
+        0 => "the controller's max step rate".to_string(),
+        hz => format!("at most {hz} steps/s"),
+    };
+    format!("{range}, {rate}")
+}
+
+/// One line per joint, then the last refusal. `names`: the joints' names from a config.
+pub fn limits_table(report: &LimitsReport, names: Option<&[String]>) -> String {
+    let mut out = String::from("joint  limits\n");
+    for (j, l) in report.joints.iter().enumerate() {
+        let name = names
+            .and_then(|n| n.get(j))
+            .map_or(String::new(), |n| format!(" {n}"));
+        out.push_str(&format!("{j:>5}{name}  {}\n", describe(l)));
+    }
+    if let Some(line) = refusal_line(report) {
+        out.push_str(&format!("{line}\n"));
+    }
+    out
+}
+
+/// The last refusal in words, if there was one.
+pub fn refusal_line(report: &LimitsReport) -> Option<String> {
+    let r = report.last_refusal;
+    if r.reason == RefusalReason::None {
+        return None;
+    }
+    let what = match Tag::from_u8(r.tag) {
+        Some(Tag::Pending) => format!("PENDING seq {:#04x}, point {}", r.seq, r.point),
+        Some(tag) => format!("{} seq {:#04x}", tag.name(), r.seq),
+        None => format!("tag {:#04x} seq {:#04x}", r.tag, r.seq),
+    };
+    let joint = if r.joint == u8::MAX {
+        "all joints".to_string()
+    } else {
+        format!("joint {}", r.joint)
+    };
+    Some(format!(
+        "last refused: {what}: {joint}: {} ({} against {})",
+        r.reason.describe(),
+        r.value,
+        r.limit
+    ))
+}
+
+/// `message` with what the controller says it refused, when it is an INVALID_POINT and
+/// the controller keeps limits (an older one answers LIMITS_GET with UNKNOWN_TAG: the
+/// message stays as it is).
+pub fn explain_invalid_point(message: String, arm: &Client) -> String {
+    if !message.contains("INVALID_POINT") {
+        return message;
+    }
+    match arm.limits().ok().as_ref().and_then(refusal_line) {
+        Some(line) => format!("{message}\nthe controller says: {line}"),
+        None => message,
+    }
+}

@@ -1,0 +1,131 @@
+//! Issue 23's wire-side commands on the client: SET_ENABLE, RELEASE, and STATUS with its
+//! request byte (a LOCATION to the asker; look only), each docs/PROTOCOL.md section 4.
+
+use std::time::{Duration, Instant};
+
+use protocol::{
+    Ack, Command, JointLimits, LimitsReport, LimitsSet, Location, StatusAsk, StatusCode,
+    StatusReport, Tag,
+};
+
+use super::{Client, check};
+use crate::error::{Error, Result};
+
+/// What a STATUS with a request byte brought back.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Glance {
+    /// The STATUS report.
+    pub status: StatusReport,
+    /// The LOCATION asked for; `None` from a controller older than the request byte
+    /// (it refused it, and a plain STATUS was asked instead) or if it was lost.
+    pub location: Option<Location>,
+    /// Whether the controller answered read-only: another host owns it (or, looking
+    /// only, nobody does). `false` from an older controller.
+    pub read_only: bool,
+}
+
+impl Client {
+    /// SET_ENABLE: enables (`enable`, holding) or disables (limp) the drivers of `mask`
+    /// (bits 0-7 joints, bit 8 gripper), leaving the others as they are; idempotent,
+    /// unlike [`Client::toggle_enable`]. Only while STOPPED. An older controller answers
+    /// `UNKNOWN_TAG` (docs/PROTOCOL.md, SET_ENABLE).
+    pub fn set_enable(&self, mask: u16, enable: bool) -> Result<Ack> {
+        self.send(&Command::SetEnable { mask, enable })
+    }
+
+    /// RELEASE: gives the controller up (only while STOPPED): the next host to speak takes
+    /// it at once. This client's next command takes it back, unless another's came first.
+    pub fn release(&self) -> Result<Ack> {
+        self.send(&Command::Release)
+    }
+
+    /// STATUS with a LOCATION (the positions), from any host: the owner's STATUS as
+    /// ever; another host's is answered read-only (docs/PROTOCOL.md section 1). With
+    /// `look_only`, it never makes this host the owner, even of a free controller. An
+    /// older controller refuses the request byte (`BAD_LENGTH`): a plain STATUS then, no
+    /// positions.
+    pub fn glance(&self, look_only: bool) -> Result<Glance> {
+        let _upload = super::lock(&self.upload);
+        let ask = StatusAsk {
+            location: true,
+            look_only,
+        };
+        let reports = self.status_reports();
+        let locations = self.locations();
+        for _ in 0..self.options.attempts {
+            let ack = self.exchange_unlocked(&Command::StatusWith(ask), None)?;
+            if ack.status == StatusCode::BadLength {
+                let status = self.status_unlocked(None)?;
+                return Ok(Glance {
+                    status,
+                    location: None,
+                    read_only: false,
+                });
+            }
+            let ack = check(Tag::Status, ack)?;
+            // A read-only answer's ACK has the NOT_OWNER zeros; the owner's has its
+            // buffer's free slots (capacity > 0).
+            let read_only = ack.free == 0 && ack.buffered == 0 && ack.next_seq == 0;
+            let Ok(status) = reports.recv_timeout(self.options.report_timeout) else {
+                continue;
+            };
+            // The LOCATION comes right after the STATUS; any LOCATION from now on is as
+            // fresh.
+            let location = recv_within(&locations, self.options.report_timeout);
+            return Ok(Glance {
+                status,
+                location,
+                read_only: read_only && status.capacity > 0,
+            });
+        }
+        Err(Error::NoReport {
+            command: Tag::Status,
+            attempts: self.options.attempts,
+        })
+    }
+}
+
+impl Client {
+    /// LIMITS_GET: every joint's limits on the controller and the last point it refused
+    /// for one (issue 23). An older controller answers `UNKNOWN_TAG`.
+    pub fn limits(&self) -> Result<LimitsReport> {
+        let _upload = super::lock(&self.upload);
+        let (tx, rx) = std::sync::mpsc::channel();
+        super::lock(&self.shared.limits).push(tx);
+        for _ in 0..self.options.attempts {
+            check(
+                Tag::LimitsGet,
+                self.exchange_unlocked(&Command::LimitsGet, None)?,
+            )?;
+            if let Ok(report) = rx.recv_timeout(self.options.report_timeout) {
+                return Ok(report);
+            }
+        }
+        Err(Error::NoReport {
+            command: Tag::LimitsGet,
+            attempts: self.options.attempts,
+        })
+    }
+
+    /// LIMITS_SET: joint `joint`'s position range and step rate (0: none of its own),
+    /// kept by the controller across power cycles; only while STOPPED. Refused here when
+    /// min is above max or the joint does not exist (the controller would refuse it with
+    /// INVALID_CONFIG).
+    pub fn set_limits(&self, joint: u8, limits: JointLimits) -> Result<Ack> {
+        if usize::from(joint) >= protocol::MAX_JOINTS || !limits.is_valid() {
+            return Err(Error::InvalidTrajectory(format!(
+                "joint {joint}: limits need a joint of 0-{} and min ({}) not above max ({})",
+                protocol::MAX_JOINTS - 1,
+                limits.min,
+                limits.max
+            )));
+        }
+        self.send(&Command::LimitsSet(LimitsSet { joint, limits }))
+    }
+}
+
+fn recv_within<T>(rx: &std::sync::mpsc::Receiver<T>, timeout: Duration) -> Option<T> {
+    let deadline = Instant::now() + timeout;
+    rx.recv_timeout(deadline.saturating_duration_since(Instant::now()))
+        .ok()
+}
