@@ -662,9 +662,11 @@ fn session_captures_pair_acks_and_mark_retransmissions() {
         pins[0].get("frame.number"),
         "the resend points at the first copy"
     );
+    // The last one: the harness's readiness DISCOVER (before this host owned anything)
+    // is answered first in the simulator's capture.
     let shown = packets
         .iter()
-        .find(|p| p.get("armctl.tag").is_some_and(|t| t == "0x22"))
+        .rfind(|p| p.get("armctl.tag").is_some_and(|t| t == "0x22"))
         .expect("the DISCOVER_REPLY in the capture");
     let [a, b, c, d] = reply.net.ip;
     let [e, f, g, h] = reply.owner_ip;
