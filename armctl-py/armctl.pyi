@@ -317,6 +317,14 @@ class Arm:
     def pwm_servo(self, duty: float, freq: float = 50.0) -> None: ...
     def pwm_stepper(self, pulses: int, freq: float = 1000.0) -> None: ...
     def pwm_stop(self) -> None: ...
+    def serial_open(self, baud: int = 115200) -> None:
+        """USART_START at `baud` (8N1); what the port receives is kept for serial_read."""
+    def serial_write(self, data: bytes) -> None:
+        """USART_SEND: `data` to the serial port, in order."""
+    def serial_read(self, timeout: float = 1.0) -> bytes:
+        """What the port received: waits up to `timeout` s for the first bytes."""
+    def serial_close(self) -> None:
+        """USART_STOP."""
     def net_set(self, ip: Optional[str] = None, gateway: Optional[str] = None, dhcp: bool = False) -> None:
         """NET_SET: store 'A.B.C.D/P' (with an optional gateway) or DHCP; used from the
         controller's next reset. Owner only, not while running (RefusedError)."""

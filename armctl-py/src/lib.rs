@@ -72,6 +72,9 @@ struct Arm {
     /// A RETURN started here may still move the arm (not waited to its end): to stop on an
     /// exception in a `with` block.
     returning: AtomicBool,
+    /// What the serial port received since `serial_open` (its stream subscribed before
+    /// the USART_START went, so nothing that comes back at once is missed).
+    serial: Mutex<Option<std::sync::mpsc::Receiver<Vec<u8>>>>,
 }
 
 impl Arm {
@@ -745,6 +748,75 @@ impl Arm {
         self.call(py, move |arm| arm.net_set(net)).map(|_| ())
     }
 
+    /// USART_START: opens the controller's pass-through serial port at `baud` (8N1), as
+    /// `armctl serial --baud` does; what it receives from then on is kept for
+    /// `serial_read`. A baud rate the controller refuses raises RefusedError
+    /// (INVALID_CONFIG, 300 to 4,000,000).
+    #[pyo3(signature = (baud=115_200))]
+    fn serial_open(&self, py: Python<'_>, baud: u32) -> PyResult<()> {
+        let arm = self.controller()?;
+        *lock(&self.serial) = Some(arm.serial_rx());
+        self.call(py, move |arm| {
+            arm.serial_open(protocol::UartInit {
+                baud_rate: baud,
+                ..protocol::UartInit::default()
+            })
+        })
+        .map(|_| ())
+    }
+
+    /// USART_SEND: writes `data` to the serial port (in frames of 255 bytes, in order).
+    fn serial_write(&self, py: Python<'_>, data: Vec<u8>) -> PyResult<()> {
+        self.call(py, move |arm| arm.serial_send(&data))
+    }
+
+    /// What the serial port received: waits up to `timeout` seconds for the first bytes,
+    /// then returns them with whatever else has arrived (b"" if nothing came). Raises
+    /// ArmctlError if the port was not opened with `serial_open`.
+    #[pyo3(signature = (timeout=1.0))]
+    fn serial_read(&self, py: Python<'_>, timeout: f64) -> PyResult<Vec<u8>> {
+        let deadline = std::time::Instant::now() + Duration::from_secs_f64(timeout.clamp(0.0, 1e9));
+        // Taken out while waiting (the wait releases the GIL; a lock held meanwhile could
+        // block another Python thread that holds it), put back after.
+        let Some(mut rx) = lock(&self.serial).take() else {
+            return Err(ArmctlError::new_err("serial_read before serial_open"));
+        };
+        let mut data = Vec::new();
+        let result = loop {
+            let slice =
+                SIGNAL_POLL.min(deadline.saturating_duration_since(std::time::Instant::now()));
+            let (back, first) = py.detach(move || {
+                let first = rx.recv_timeout(slice);
+                (rx, first)
+            });
+            rx = back;
+            if let Ok(chunk) = first {
+                data.extend_from_slice(&chunk);
+                while let Ok(more) = rx.try_recv() {
+                    data.extend_from_slice(&more);
+                }
+                break Ok(data);
+            }
+            if let Err(e) = py.check_signals() {
+                break Err(e);
+            }
+            if std::time::Instant::now() >= deadline {
+                break Ok(data);
+            }
+        };
+        let mut slot = lock(&self.serial);
+        if slot.is_none() {
+            *slot = Some(rx);
+        }
+        result
+    }
+
+    /// USART_STOP: closes the serial port.
+    fn serial_close(&self, py: Python<'_>) -> PyResult<()> {
+        *lock(&self.serial) = None;
+        self.call(py, |arm| arm.serial_close()).map(|_| ())
+    }
+
     /// PWM_STOP: gripper output off at once.
     fn pwm_stop(&self, py: Python<'_>) -> PyResult<()> {
         self.call(py, |arm| arm.pwm_stop()).map(|_| ())
@@ -880,6 +952,7 @@ fn connect(
         inner: Mutex::new(Some(Arc::new(arm))),
         runs: Mutex::new(Vec::new()),
         returning: AtomicBool::new(false),
+        serial: Mutex::new(None),
     })
 }
 

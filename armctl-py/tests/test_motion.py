@@ -37,3 +37,21 @@ def test_move_in_degrees_with_a_config_and_its_limits(sim, tmp_path):
         with pytest.raises(ValueError, match="units"):
             arm.move_to([1.0], config=config, units="furlongs")
         arm.home()
+
+
+def test_serial_pass_through(sim):
+    """Issue 23: the Python package had no serial port (sim-host's is a loopback)."""
+    with armctl.connect(sim.address) as arm:
+        with pytest.raises(armctl.ArmctlError, match="before serial_open"):
+            arm.serial_read(timeout=0.1)
+        arm.serial_open(115200)
+        arm.serial_write(b"G28\n")
+        received = b""
+        for _ in range(20):  # bounded: the loopback answers within its line time
+            received += arm.serial_read(timeout=0.5)
+            if received == b"G28\n":
+                break
+        assert received == b"G28\n"
+        with pytest.raises(armctl.RefusedError):
+            arm.serial_open(12)
+        arm.serial_close()
