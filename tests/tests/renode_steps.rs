@@ -30,7 +30,7 @@ use std::time::{Duration, Instant};
 use arm_core::profile::NUCLEO_H743ZI2;
 use arm_step::{JointMask, MAX_JOINTS, Segment, StepEngine, StepPins};
 use armctl::{Error, Options, RunEnd, RunOptions};
-use common::{assert_stays_put, run_reporting_progress, stop_mid_run, sweep};
+use common::{assert_stays_put, run_reporting_progress_with, stop_mid_run, sweep};
 use protocol::{Point, State, StatusFlags};
 use system_tests::renode::{
     EMULATED_TIMER_HZ, Edge, HOSTS, RenodeBoard, malformed_flood, unavailable,
@@ -675,7 +675,16 @@ fn a_malformed_flood_during_a_run_changes_no_edge() {
     let start = [0; MAX_JOINTS];
     let points = sweep(start, JOINTS, 200, 3, 10_000);
     let oracle = oracle(&segments(start, &points));
-    let run = run_reporting_progress(&arm, points.clone());
+    // armctl's default wait for the run's end is wall time: twice the trajectory (2 s)
+    // plus 10 s. The emulated board runs 3-6 times slower than real time, slower still
+    // while it takes the flood's frames and on a loaded machine: past 14 s the wait
+    // failed ("upload stalled at 200 of 200 points") with the run still playing
+    // (STATUS: RUNNING, executed rising). Generous, so that only a real stall fails.
+    let options = RunOptions {
+        completion_timeout: Some(Duration::from_secs(120)),
+        ..RunOptions::default()
+    };
+    let run = run_reporting_progress_with(&arm, points.clone(), options);
     run.wait_executed(5);
     let socket = board.udp_socket(HOSTS[2]);
     let sent = malformed_flood(&socket, 2_000);

@@ -253,10 +253,19 @@ pub fn run_reporting_progress(
     arm: &std::sync::Arc<armctl::Client>,
     points: Vec<Point>,
 ) -> ObservedRun {
+    run_reporting_progress_with(arm, points, armctl::RunOptions::default())
+}
+
+/// [`run_reporting_progress`] with `options` (an emulator's longer waits).
+pub fn run_reporting_progress_with(
+    arm: &std::sync::Arc<armctl::Client>,
+    points: Vec<Point>,
+    options: armctl::RunOptions,
+) -> ObservedRun {
     let (tx, executed) = std::sync::mpsc::channel();
     let arm = arm.clone();
     let thread = std::thread::spawn(move || {
-        arm.run_trajectory(&points, &armctl::RunOptions::default(), |p| {
+        arm.run_trajectory(&points, &options, |p| {
             let _ = tx.send(p.executed);
         })
     });
