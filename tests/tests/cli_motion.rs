@@ -254,3 +254,27 @@ fn jog_by_keys_in_a_terminal() {
     };
     assert!(status.success(), "{seen}");
 }
+
+/// A run the controller refuses part-way (a point past a limit kept on the controller) left
+/// it in PENDING with the points before it buffered, and the next `run` or `move` was
+/// refused ("the controller is PENDING"). The tool now drops the partial upload (STOPPED)
+/// and says so.
+#[test]
+fn a_refused_upload_leaves_the_controller_stopped() {
+    let sim = SimHost::start(&["--joints", "1"]);
+    let (ok, out, err) = armctl(&sim, &["config", "set", "--joint", "0", "--max", "100"]);
+    assert!(ok, "{out}\n{err}");
+    let file = sim.dir().join("past.csv");
+    std::fs::write(&file, "0,0\n0.5,90\n1.0,200\n").unwrap();
+    let (ok, _, err) = armctl(&sim, &["run", file.to_str().unwrap(), "--quiet"]);
+    assert!(!ok);
+    assert!(err.contains("INVALID_POINT"), "{err}");
+    assert!(err.contains("STOPPED sent"), "{err}");
+    let (ok, out, err) = armctl(&sim, &["status", "--json"]);
+    assert!(ok, "{err}");
+    let status: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(status["state"], "Stopped", "{out}");
+    // The next motion is taken.
+    let (ok, out, err) = armctl(&sim, &["move", "50"]);
+    assert!(ok, "{out}\n{err}");
+}

@@ -91,6 +91,24 @@ pub fn ready_to_move(status: &protocol::StatusReport) -> Result<(), String> {
     Ok(())
 }
 
+/// After a failed upload: a controller left in PENDING (points taken before the one it
+/// refused) is sent STOPPED, which drops them, so that the next motion is taken; the
+/// message says so. Otherwise `message` as it is.
+pub fn drop_partial_upload(client: &Client, message: String) -> String {
+    match client.status() {
+        Ok(status) if status.state == State::Pending => match client.stop() {
+            Ok(_) => format!(
+                "{message}\nSTOPPED sent: the points taken before were dropped, the controller \
+                 is STOPPED"
+            ),
+            Err(e) => format!(
+                "{message}\nthe controller is left in PENDING (STOPPED failed: {e}): `armctl stop`"
+            ),
+        },
+        _ => message,
+    }
+}
+
 /// The arm as a move sees it: joints, config, units, limits.
 pub struct Arm<'a> {
     pub client: &'a Client,
@@ -258,7 +276,7 @@ impl<'a> Arm<'a> {
             )
             .map_err(|e| e.to_string());
         bar.finish_and_clear();
-        let report = report?;
+        let report = report.map_err(|e| drop_partial_upload(self.client, e))?;
         let at = match report.and_then(|r| r.final_location) {
             Some(location) => location.position,
             None => self.position()?,

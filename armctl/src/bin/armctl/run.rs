@@ -237,7 +237,7 @@ pub fn execute(arm: &Client, args: &RunArgs) -> CliResult {
         // main prints what the STOPPED did and exits 130 or 143.
         return Err("interrupted".into());
     }
-    let report = result.map_err(|e| e.to_string())?;
+    let report = result.map_err(|e| crate::motion::drop_partial_upload(arm, e.to_string()))?;
     println!(
         "uploaded {} points in {} frames, window {} ({} datagrams, {} resent, {} out of order, {} buffer full, {} timeouts) in {:.3} s; run took {:.3} s",
         report.points,
