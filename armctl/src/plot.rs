@@ -1,5 +1,7 @@
-//! SVG plots (drawn with plotters) of a recorded run (LOCATION reports, or a simulator trace): joint positions
-//! (steps) over time, one colour per joint, with the commanded trajectory dashed when given.
+//! SVG and PNG plots (drawn with plotters) of a recorded run (LOCATION reports, or a
+//! simulator trace): joint positions (steps) over time, one colour per joint, with the
+//! commanded trajectory dashed when given. A PNG's text is drawn with DejaVu Sans, built in
+//! (`assets/`, its licence beside it): a bitmap has no viewer to pick a font.
 
 use std::ops::Range;
 
@@ -19,8 +21,11 @@ const X_LABEL_AREA: u32 = 45;
 const Y_LABEL_AREA: u32 = 75;
 /// About this many labelled ticks per axis (plotters picks round values).
 const TICKS: usize = 8;
-/// A generic family: the SVG names it and the viewer picks the font (no font files here).
+/// A generic family: the SVG names it and the viewer picks the font; for a PNG it is
+/// [`FONT_FILE`], registered under this name.
 const FONT: &str = "sans-serif";
+/// The font a PNG's text is drawn with.
+static FONT_FILE: &[u8] = include_bytes!("../assets/DejaVuSans.ttf");
 /// Line widths (px): the recording over its commanded trajectory.
 const JOINT_WIDTH: u32 = 2;
 const COMMANDED_WIDTH: u32 = 1;
@@ -108,8 +113,13 @@ pub fn svg_named(
     title: &str,
     names: &[String],
 ) -> String {
+    draw(&sample_lines(samples), commanded, title, names)
+}
+
+/// One line per joint of a recording.
+fn sample_lines(samples: &[Sample]) -> Vec<Line> {
     let joints = samples.iter().map(|s| s.position.len()).max().unwrap_or(0);
-    let lines: Vec<Line> = (0..joints)
+    (0..joints)
         .map(|joint| Line {
             joint,
             points: samples
@@ -117,8 +127,18 @@ pub fn svg_named(
                 .filter_map(|s| s.position.get(joint).map(|&p| (s.time_s, f64::from(p))))
                 .collect(),
         })
-        .collect();
-    draw(&lines, commanded, title, names)
+        .collect()
+}
+
+/// As [`svg_named`], a PNG written to `path`.
+pub fn png_named(
+    path: &std::path::Path,
+    samples: &[Sample],
+    commanded: Option<&Commanded>,
+    title: &str,
+    names: &[String],
+) -> Result<(), String> {
+    render_png(path, &sample_lines(samples), commanded, title, names)
 }
 
 /// Draws a simulator trace (and the commanded trajectory) as an SVG document: the joints
@@ -135,6 +155,28 @@ pub fn trace_svg_named(
     title: &str,
     names: &[String],
 ) -> String {
+    draw(&trace_lines(trace, commanded), commanded, title, names)
+}
+
+/// As [`trace_svg_named`], a PNG written to `path`.
+pub fn trace_png_named(
+    path: &std::path::Path,
+    trace: &Trace,
+    commanded: Option<&Commanded>,
+    title: &str,
+    names: &[String],
+) -> Result<(), String> {
+    render_png(
+        path,
+        &trace_lines(trace, commanded),
+        commanded,
+        title,
+        names,
+    )
+}
+
+/// The lines of a trace: the joints that stepped or are commanded.
+fn trace_lines(trace: &Trace, commanded: Option<&Commanded>) -> Vec<Line> {
     let commanded_joints = commanded.map_or(0, |c| {
         c.positions
             .iter()
@@ -166,7 +208,7 @@ pub fn trace_svg_named(
             ],
         });
     }
-    draw(&lines, commanded, title, names)
+    lines
 }
 
 fn draw(lines: &[Line], commanded: Option<&Commanded>, title: &str, names: &[String]) -> String {
@@ -232,10 +274,54 @@ fn render(
     title: &str,
     names: &[String],
 ) -> Result<String, Box<dyn std::error::Error>> {
-    let (times, positions) = bounds(lines, commanded);
     let mut out = String::new();
+    render_on(
+        SVGBackend::with_string(&mut out, (WIDTH, HEIGHT)).into_drawing_area(),
+        lines,
+        commanded,
+        title,
+        names,
+    )?;
+    Ok(out)
+}
+
+/// Draws the plot as PNG into `path` ([`FONT_FILE`] for its text).
+fn render_png(
+    path: &std::path::Path,
+    lines: &[Line],
+    commanded: Option<&Commanded>,
+    title: &str,
+    names: &[String],
+) -> Result<(), String> {
+    render_on(
+        BitMapBackend::new(path, (WIDTH, HEIGHT)).into_drawing_area(),
+        lines,
+        commanded,
+        title,
+        names,
+    )
+    .map_err(|e| format!("{}: {e}", path.display()))
+}
+
+fn render_on<DB: DrawingBackend>(
+    root: DrawingArea<DB, plotters::coord::Shift>,
+    lines: &[Line],
+    commanded: Option<&Commanded>,
+    title: &str,
+    names: &[String],
+) -> Result<(), Box<dyn std::error::Error>>
+where
+    DB::ErrorType: 'static,
+{
+    // Text is laid out with the font's metrics, for the SVG too (it names the family).
+    static REGISTERED: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    let registered = *REGISTERED
+        .get_or_init(|| plotters::style::register_font(FONT, FontStyle::Normal, FONT_FILE).is_ok());
+    if !registered {
+        return Err("the built-in font cannot be read".into());
+    }
+    let (times, positions) = bounds(lines, commanded);
     {
-        let root = SVGBackend::with_string(&mut out, (WIDTH, HEIGHT)).into_drawing_area();
         root.fill(&WHITE)?;
         let mut chart = ChartBuilder::on(&root)
             .caption(title, (FONT, 20))
@@ -315,7 +401,7 @@ fn render(
             .draw()?;
         root.present()?;
     }
-    Ok(out)
+    Ok(())
 }
 
 /// The colour of a joint's lines.

@@ -263,10 +263,12 @@ fn set_location_of_the_first_joints_keeps_the_others() {
     );
 }
 
-/// Issue 23: `armctl plot -o x.png` wrote SVG into the .png. A name that is not .svg is
-/// refused before anything is written, naming the format.
+/// Issue 23: `armctl plot -o x.png` wrote SVG into the .png. It now writes a PNG (the
+/// format follows the name); a name that is neither .svg nor .png is refused before
+/// anything is written. Changed with issue 23's PNG output: this test asserted that a .png
+/// was refused (the interim rule, while plots were SVG only).
 #[test]
-fn plot_refuses_an_output_that_is_not_svg() {
+fn plot_writes_the_format_its_output_is_named() {
     let dir = std::env::temp_dir().join(format!("armctl-plot-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let csv = dir.join("rec.csv");
@@ -276,15 +278,24 @@ fn plot_refuses_an_output_that_is_not_svg() {
         None,
         &["plot", csv.to_str().unwrap(), "-o", png.to_str().unwrap()],
     );
-    assert!(!ok, "a .png output was accepted");
-    assert!(err.contains("SVG") && err.contains(".svg"), "{err}");
-    assert!(!png.exists(), "nothing written");
-    // The same recording to a .svg is drawn.
+    assert!(ok, "{err}");
+    let bytes = std::fs::read(&png).unwrap();
+    assert_eq!(&bytes[..8], b"\x89PNG\r\n\x1a\n", "a PNG file");
+    let jpg = dir.join("x.jpg");
+    let (ok, _, err) = armctl(
+        None,
+        &["plot", csv.to_str().unwrap(), "-o", jpg.to_str().unwrap()],
+    );
+    assert!(!ok, "a .jpg output was accepted");
+    assert!(err.contains(".svg or .png"), "{err}");
+    assert!(!jpg.exists(), "nothing written");
+    // The same recording to a .svg is SVG.
     let svg = dir.join("x.svg");
     let (ok, _, err) = armctl(
         None,
         &["plot", csv.to_str().unwrap(), "-o", svg.to_str().unwrap()],
     );
-    assert!(ok && svg.exists(), "{err}");
+    assert!(ok, "{err}");
+    assert!(std::fs::read_to_string(&svg).unwrap().contains("<svg"));
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -100,10 +100,11 @@ fn is_trajectory(path: &std::path::Path) -> bool {
 /// waypoint when it is at t = 0, else from 0), drawn over the waypoints (dashed).
 fn preview(
     args: &PlotArgs,
+    output: &Output<'_>,
     config: Option<&ArmConfig>,
     title: &str,
     names: &[String],
-) -> Result<(String, String), String> {
+) -> Result<String, String> {
     let waypoints =
         trajectory::load_in(&args.recording, config, args.units).map_err(|e| e.to_string())?;
     let joints = waypoints.positions.first().map_or(0, Vec::len);
@@ -140,24 +141,69 @@ fn preview(
         points.len(),
         waypoints.times_us.len()
     );
-    Ok((
-        plot::svg_named(&samples, Some(&commanded), title, names),
-        summary,
-    ))
+    output.samples(&samples, Some(&commanded), title, names)?;
+    Ok(summary)
+}
+
+/// Where the plot goes, and as what.
+struct Output<'a> {
+    path: &'a std::path::Path,
+    /// A PNG (the name ends in .png), else SVG.
+    png: bool,
+}
+
+impl Output<'_> {
+    /// Writes a recording's plot.
+    fn samples(
+        &self,
+        samples: &[Sample],
+        commanded: Option<&Commanded>,
+        title: &str,
+        names: &[String],
+    ) -> Result<(), String> {
+        if self.png {
+            plot::png_named(self.path, samples, commanded, title, names)
+        } else {
+            self.write_svg(plot::svg_named(samples, commanded, title, names))
+        }
+    }
+
+    /// Writes a trace's plot.
+    fn trace(
+        &self,
+        trace: &vcd::Trace,
+        commanded: Option<&Commanded>,
+        title: &str,
+        names: &[String],
+    ) -> Result<(), String> {
+        if self.png {
+            plot::trace_png_named(self.path, trace, commanded, title, names)
+        } else {
+            self.write_svg(plot::trace_svg_named(trace, commanded, title, names))
+        }
+    }
+
+    fn write_svg(&self, svg: String) -> Result<(), String> {
+        std::fs::write(self.path, svg).map_err(|e| format!("{}: {e}", self.path.display()))
+    }
 }
 
 /// `plot`: draws a recording or a trace to `args.output`; returns what to print.
 pub fn plot(args: &PlotArgs) -> Result<String, String> {
-    // The plot is SVG: a name promising another format would hold SVG bytes (issue 23:
-    // `-o x.png` did). No extension at all is taken as meant for SVG.
+    // The format follows the name (issue 23: `-o x.png` wrote SVG bytes): .png is a PNG,
+    // .svg or no extension SVG; anything else is refused before anything is written.
     let extension = args.output.extension().and_then(|e| e.to_str());
-    if extension.is_some_and(|e| !e.eq_ignore_ascii_case("svg")) {
+    let png = extension.is_some_and(|e| e.eq_ignore_ascii_case("png"));
+    if extension.is_some_and(|e| !e.eq_ignore_ascii_case("svg")) && !png {
         return Err(format!(
-            "{}: plot writes SVG; name the output .svg (convert it afterwards, e.g. with \
-             rsvg-convert, for a bitmap)",
+            "{}: plot writes SVG or PNG; name the output .svg or .png",
             args.output.display()
         ));
     }
+    let output = Output {
+        path: &args.output,
+        png,
+    };
     let config = args
         .config
         .as_deref()
@@ -183,8 +229,8 @@ pub fn plot(args: &PlotArgs) -> Result<String, String> {
         .title
         .clone()
         .unwrap_or_else(|| args.recording.display().to_string());
-    let (svg, summary) = if is_trajectory(&args.recording) {
-        preview(args, config.as_ref(), &title, &names)?
+    let summary = if is_trajectory(&args.recording) {
+        preview(args, &output, config.as_ref(), &title, &names)?
     } else if is_vcd(&args.recording) {
         let trace = vcd::read(&args.recording).map_err(|e| e.to_string())?;
         let commanded = commanded.map(|mut c| {
@@ -214,10 +260,8 @@ pub fn plot(args: &PlotArgs) -> Result<String, String> {
                 moved.join("; ")
             }
         );
-        (
-            plot::trace_svg_named(&trace, commanded.as_ref(), &title, &names),
-            summary,
-        )
+        output.trace(&trace, commanded.as_ref(), &title, &names)?;
+        summary
     } else {
         let samples = record::read(&args.recording).map_err(|e| e.to_string())?;
         let commanded = commanded.map(|mut c| {
@@ -231,11 +275,8 @@ pub fn plot(args: &PlotArgs) -> Result<String, String> {
             c
         });
         let summary = format!("{} samples", samples.len());
-        (
-            plot::svg_named(&samples, commanded.as_ref(), &title, &names),
-            summary,
-        )
+        output.samples(&samples, commanded.as_ref(), &title, &names)?;
+        summary
     };
-    std::fs::write(&args.output, svg).map_err(|e| format!("{}: {e}", args.output.display()))?;
     Ok(format!("wrote {} ({summary})", args.output.display()))
 }
