@@ -36,17 +36,35 @@ impl<W: Write> std::fmt::Debug for Recorder<W> {
 impl Recorder<io::BufWriter<std::fs::File>> {
     /// Creates (or truncates) a recording file for `joints` joints.
     pub fn create(path: &Path, joints: usize) -> io::Result<Self> {
-        Recorder::new(io::BufWriter::new(std::fs::File::create(path)?), joints)
+        Recorder::create_named(path, joints, &[])
+    }
+
+    /// As [`Recorder::create`], with joint names in the header ([`Recorder::new_named`]).
+    pub fn create_named(path: &Path, joints: usize, names: &[String]) -> io::Result<Self> {
+        Recorder::new_named(
+            io::BufWriter::new(std::fs::File::create(path)?),
+            joints,
+            names,
+        )
     }
 }
 
 impl<W: Write> Recorder<W> {
     /// Writes the header; time counts from now.
-    pub fn new(mut out: W, joints: usize) -> io::Result<Self> {
+    pub fn new(out: W, joints: usize) -> io::Result<Self> {
+        Recorder::new_named(out, joints, &[])
+    }
+
+    /// As [`Recorder::new`], the header naming joint `j` `names[j]` where given (a joint
+    /// config's names; commas become `_`), else `jN`.
+    pub fn new_named(mut out: W, joints: usize, names: &[String]) -> io::Result<Self> {
         let joints = joints.clamp(1, MAX_JOINTS);
         write!(out, "time_s,state")?;
         for j in 0..joints {
-            write!(out, ",j{j}")?;
+            match names.get(j) {
+                Some(name) => write!(out, ",{}", name.replace([',', '\n', '\r'], "_"))?,
+                None => write!(out, ",j{j}")?,
+            }
         }
         writeln!(out)?;
         Ok(Recorder {

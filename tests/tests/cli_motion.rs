@@ -93,11 +93,27 @@ fn move_jog_home_and_a_file_in_degrees() {
         "time_s,base,elbow,wrist\n0,0,0,0\n0.505,20,10,-5\n1.255,-10,30,5\n1.8,15,-20,0\n2.4,0,0,0\n",
     )
     .unwrap();
+    let record = sim.dir().join("rec.csv");
     let (ok, out, err) = armctl(
         &sim,
-        &["run", file.to_str().unwrap(), "--config", config, "--quiet"],
+        &[
+            "run",
+            file.to_str().unwrap(),
+            "--config",
+            config,
+            "--quiet",
+            "--record",
+            record.to_str().unwrap(),
+        ],
     );
     assert!(ok, "{out}\n{err}");
+    // The recording names the joints as the config does.
+    let recorded = std::fs::read_to_string(&record).unwrap();
+    assert!(
+        recorded.starts_with("time_s,state,base,elbow,wrist\n"),
+        "{}",
+        recorded.lines().next().unwrap_or("")
+    );
     assert!(
         out.contains("each of the 5 waypoints is a point's end at its time"),
         "{out}"

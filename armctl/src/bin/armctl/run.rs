@@ -83,6 +83,8 @@ struct Converted {
     /// The file's waypoints, each the end of one of `points` at its time
     /// ([`trajectory::check_waypoints`]).
     waypoints: usize,
+    /// The joint config's names for a recording's header (empty without a config).
+    config_names: Vec<String>,
 }
 
 /// The trajectory file as points, from `current`.
@@ -117,6 +119,16 @@ fn convert(
     .map_err(|e| e.with_joint_names(&config).to_string())?;
     let waypoints = trajectory::check_waypoints(&points, &waypoints, current)
         .map_err(|e| e.with_joint_names(&config).to_string())?;
+    let config_names = if args.config.is_some() {
+        config
+            .joints
+            .iter()
+            .enumerate()
+            .map(|(j, c)| c.name.clone().unwrap_or_else(|| format!("j{j}")))
+            .collect()
+    } else {
+        Vec::new()
+    };
     let joint_names = (0..MAX_JOINTS)
         .map(
             |j| match config.joints.get(j).and_then(|c| c.name.as_ref()) {
@@ -129,6 +141,7 @@ fn convert(
         points,
         joint_names,
         waypoints,
+        config_names,
     })
 }
 
@@ -156,6 +169,7 @@ pub fn execute(arm: &Client, args: &RunArgs) -> CliResult {
         points,
         joint_names,
         waypoints,
+        config_names,
     } = convert(
         args,
         &current.position,
@@ -167,8 +181,8 @@ pub fn execute(arm: &Client, args: &RunArgs) -> CliResult {
     // Record from a thread that owns its own report stream.
     let recording = match &args.record {
         Some(path) => {
-            let mut recorder =
-                Recorder::create(path, joints).map_err(|e| format!("{}: {e}", path.display()))?;
+            let mut recorder = Recorder::create_named(path, joints, &config_names)
+                .map_err(|e| format!("{}: {e}", path.display()))?;
             let locations = arm.locations();
             let (stop_tx, stop_rx) = mpsc::channel::<()>();
             let handle = std::thread::spawn(move || -> std::io::Result<()> {

@@ -65,7 +65,18 @@ pub fn execute(
         Err(e) => return Err(e.to_string()),
     };
     let mut recorder = record
-        .map(|path| Recorder::create(path, joints).map_err(|e| format!("{}: {e}", path.display())))
+        .map(|path| {
+            let names: Vec<String> = shown.map_or(Vec::new(), |s| {
+                s.config
+                    .joints
+                    .iter()
+                    .enumerate()
+                    .map(|(j, c)| c.name.clone().unwrap_or_else(|| format!("j{j}")))
+                    .collect()
+            });
+            Recorder::create_named(path, joints, &names)
+                .map_err(|e| format!("{}: {e}", path.display()))
+        })
         .transpose()?;
     let started = Instant::now();
     let end = duration.map(|s| started + Duration::from_secs_f64(s.max(0.0)));
