@@ -104,6 +104,16 @@ impl ArmConfig {
         Ok(config)
     }
 
+    /// Each configured joint's short name: its `name`, else `jN` (recording headers, plot
+    /// legends, `watch` lines).
+    pub fn short_names(&self) -> Vec<String> {
+        self.joints
+            .iter()
+            .enumerate()
+            .map(|(j, c)| c.name.clone().unwrap_or_else(|| format!("j{j}")))
+            .collect()
+    }
+
     /// A config with no position limits and one step rate for `joints` joints.
     pub fn unlimited(joints: usize, max_step_rate_hz: u32) -> ArmConfig {
         ArmConfig {

@@ -210,13 +210,7 @@ pub fn plot(args: &PlotArgs) -> Result<String, String> {
         .map(ArmConfig::load)
         .transpose()
         .map_err(|e| e.to_string())?;
-    let names: Vec<String> = config.as_ref().map_or(Vec::new(), |c| {
-        c.joints
-            .iter()
-            .enumerate()
-            .map(|(j, joint)| joint.name.clone().unwrap_or_else(|| format!("joint {j}")))
-            .collect()
-    });
+    let names = config.as_ref().map_or(Vec::new(), ArmConfig::short_names);
     let commanded = match &args.trajectory {
         Some(path) => {
             let waypoints = trajectory::load_in(path, config.as_ref(), args.units)

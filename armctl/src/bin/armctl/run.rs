@@ -120,12 +120,7 @@ fn convert(
     let waypoints = trajectory::check_waypoints(&points, &waypoints, current)
         .map_err(|e| e.with_joint_names(&config).to_string())?;
     let config_names = if args.config.is_some() {
-        config
-            .joints
-            .iter()
-            .enumerate()
-            .map(|(j, c)| c.name.clone().unwrap_or_else(|| format!("j{j}")))
-            .collect()
+        config.short_names()
     } else {
         Vec::new()
     };

@@ -66,14 +66,7 @@ pub fn execute(
     };
     let mut recorder = record
         .map(|path| {
-            let names: Vec<String> = shown.map_or(Vec::new(), |s| {
-                s.config
-                    .joints
-                    .iter()
-                    .enumerate()
-                    .map(|(j, c)| c.name.clone().unwrap_or_else(|| format!("j{j}")))
-                    .collect()
-            });
+            let names = shown.map_or(Vec::new(), |s| s.config.short_names());
             Recorder::create_named(path, joints, &names)
                 .map_err(|e| format!("{}: {e}", path.display()))
         })
