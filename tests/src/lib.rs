@@ -193,6 +193,21 @@ pub struct SimHost {
     slot: Option<Slot>,
 }
 
+/// Runs the armctl binary with `args` (with `--controller` set to `sim`'s address when
+/// given); whether it succeeded, its stdout and its stderr.
+pub fn run_armctl(sim: Option<&SimHost>, args: &[&str]) -> (bool, String, String) {
+    let mut command = Command::new(armctl_bin());
+    if let Some(sim) = sim {
+        command.arg("--controller").arg(sim.addr.to_string());
+    }
+    let output = command.args(args).output().expect("run armctl");
+    (
+        output.status.success(),
+        String::from_utf8_lossy(&output.stdout).into_owned(),
+        String::from_utf8_lossy(&output.stderr).into_owned(),
+    )
+}
+
 /// Whether a simulator that has printed its address answers: DISCOVER (which changes
 /// nothing: no owner, no session) every [`READY_POLL`] until a datagram comes back, for
 /// [`START_TIMEOUT`] at most. Under the issue 19 soak's load a test's first command,

@@ -5,16 +5,7 @@ use std::process::Command;
 use system_tests::{SimHost, armctl_bin};
 
 fn armctl(sim: Option<&SimHost>, args: &[&str]) -> (bool, String, String) {
-    let mut command = Command::new(armctl_bin());
-    if let Some(sim) = sim {
-        command.arg("--controller").arg(sim.addr.to_string());
-    }
-    let output = command.args(args).output().expect("run armctl");
-    (
-        output.status.success(),
-        String::from_utf8_lossy(&output.stdout).into_owned(),
-        String::from_utf8_lossy(&output.stderr).into_owned(),
-    )
+    system_tests::run_armctl(sim, args)
 }
 
 #[test]

@@ -7,17 +7,7 @@ use std::process::Command;
 use system_tests::{SimHost, armctl_bin};
 
 fn armctl(sim: &SimHost, args: &[&str]) -> (bool, String, String) {
-    let output = Command::new(armctl_bin())
-        .arg("--controller")
-        .arg(sim.addr.to_string())
-        .args(args)
-        .output()
-        .expect("run armctl");
-    (
-        output.status.success(),
-        String::from_utf8_lossy(&output.stdout).into_owned(),
-        String::from_utf8_lossy(&output.stderr).into_owned(),
-    )
+    system_tests::run_armctl(Some(sim), args)
 }
 
 /// 1000 steps per radian (17.45 steps a degree); the elbow is limited to +-45 degrees.

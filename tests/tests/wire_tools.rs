@@ -1,22 +1,10 @@
 //! Issue 23's wire-side tools through the `armctl` binary against the real sim-host:
 //! `enable`/`disable` (SET_ENABLE) and the drivers' state in `status`.
 
-use std::process::Command;
-
-use system_tests::{SimHost, armctl_bin};
+use system_tests::SimHost;
 
 fn armctl(sim: &SimHost, args: &[&str]) -> (bool, String, String) {
-    let output = Command::new(armctl_bin())
-        .arg("--controller")
-        .arg(sim.addr.to_string())
-        .args(args)
-        .output()
-        .expect("run armctl");
-    (
-        output.status.success(),
-        String::from_utf8_lossy(&output.stdout).into_owned(),
-        String::from_utf8_lossy(&output.stderr).into_owned(),
-    )
+    system_tests::run_armctl(Some(sim), args)
 }
 
 #[test]
