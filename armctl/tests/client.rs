@@ -158,6 +158,23 @@ fn no_controller_gives_no_reply() {
     assert!(matches!(err, Error::NoReply { attempts: 3, .. }), "{err}");
 }
 
+/// Issue 19's soak: at loopback round trips the 10 attempts of a command were spread over
+/// about 0.6 s (3 ms doubling to the 100 ms ceiling), so a controller that stopped reading
+/// for longer than that (a settings write; a board erasing a flash sector) made the host
+/// give up a command the controller then did. However short the round trip, a command is
+/// waited for `Options::give_up_after` at least.
+#[test]
+fn a_controller_that_pauses_for_a_second_is_waited_for() {
+    let fake = Fake::start(64, Faults::default());
+    let arm = Client::connect_with(fake.addr, Options::default()).unwrap();
+    for _ in 0..20 {
+        arm.status().unwrap();
+    }
+    fake.pause_next(Duration::from_millis(1000));
+    let status = arm.status();
+    assert!(status.is_ok(), "{}", status.unwrap_err());
+}
+
 #[test]
 fn a_window_larger_than_the_controller_inbox_backs_off() {
     // The controller drops whatever of a burst exceeds 4 datagrams; the client asks for

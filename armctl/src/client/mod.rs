@@ -34,6 +34,15 @@ const RECEIVER_POLL: Duration = Duration::from_millis(50);
 /// second.
 const LOCATION_FOR_SET: Duration = Duration::from_millis(1_500);
 
+/// The least time a command is waited for by default. At loopback and LAN round trips
+/// the 10 attempts, from a 3 ms wait doubling to 100 ms, span only about 0.6 s: a
+/// controller that stops reading for longer (a board erasing a flash sector to keep its
+/// settings, a simulator on a host whose disk is saturated) would be given up on although
+/// it does the command once it reads its queue. 1.5 s covers such pauses and stays inside
+/// the [`RESEND_HORIZON`], so the wait ends about when the last copy could still be
+/// recognised as a duplicate.
+pub const GIVE_UP_AFTER: Duration = Duration::from_millis(1500);
+
 /// Timeouts and retry bounds of a [`Client`].
 #[derive(Clone, Debug)]
 pub struct Options {
@@ -47,6 +56,10 @@ pub struct Options {
     /// count, no copy of a command leaves later than [`RESEND_HORIZON`] after its first, so
     /// that the controller's 2 s duplicate window recognises every copy (exactly once).
     pub attempts: u32,
+    /// The least time a command is waited for before [`Error::NoReply`], however short the
+    /// measured round trip: the last copy's wait is stretched to it (no further copy is
+    /// sent). See [`GIVE_UP_AFTER`].
+    pub give_up_after: Duration,
     /// How long to wait for a STATUS report after its ACK before asking again.
     pub report_timeout: Duration,
     /// Local address to send from (default: 127.0.0.1 or any address, port chosen by the
@@ -65,6 +78,7 @@ impl Default for Options {
             ack_timeout: Duration::from_millis(100),
             min_ack_timeout: DEFAULT_MIN_RTO,
             attempts: 10,
+            give_up_after: GIVE_UP_AFTER,
             report_timeout: Duration::from_millis(300),
             bind: None,
             key: None,
@@ -232,9 +246,12 @@ impl Client {
         let mut waiter = self.waiter();
         waiter.expect(seq);
         let started = Instant::now();
-        for _ in 0..self.options.attempts {
+        for attempt in 1..=self.options.attempts {
             self.send_datagram(&buf[..len])?;
-            let deadline = Instant::now() + self.rto();
+            let mut deadline = Instant::now() + self.rto();
+            if attempt == self.options.attempts {
+                deadline = deadline.max(started + self.options.give_up_after);
+            }
             loop {
                 let left = deadline.saturating_duration_since(Instant::now());
                 match waiter.rx.recv_timeout(left) {
@@ -362,7 +379,10 @@ impl Client {
             self.send_bytes(frame)?;
             sent += 1;
             let sent_at = Instant::now();
-            let deadline = sent_at + self.rto();
+            let mut deadline = sent_at + self.rto();
+            if sent == self.options.attempts {
+                deadline = deadline.max(started + self.options.give_up_after);
+            }
             loop {
                 let left = deadline.saturating_duration_since(Instant::now());
                 let slice = match cancel {

@@ -100,6 +100,8 @@ pub struct Fake {
     pub addr: SocketAddr,
     sim: Arc<Mutex<Sim>>,
     shutdown: Arc<AtomicBool>,
+    /// A pause the controller takes when the next datagram arrives ([`Fake::pause_next`]).
+    pause: Arc<Mutex<Option<Duration>>>,
     thread: Option<JoinHandle<()>>,
     /// This test binary's fakes run one at a time ([`ONE_AT_A_TIME`]); dropped last.
     _turn: std::sync::MutexGuard<'static, ()>,
@@ -144,18 +146,28 @@ impl Fake {
             window: faults.window,
         }));
         let shutdown = Arc::new(AtomicBool::new(false));
+        let pause = Arc::new(Mutex::new(None));
         let thread = {
             let sim = sim.clone();
             let shutdown = shutdown.clone();
-            std::thread::spawn(move || serve(socket, sim, shutdown, faults))
+            let pause = pause.clone();
+            std::thread::spawn(move || serve(socket, sim, shutdown, pause, faults))
         };
         Fake {
             addr,
             sim,
             shutdown,
+            pause,
             thread: Some(thread),
             _turn: turn,
         }
+    }
+
+    /// The controller stops reading for `pause` when the next datagram arrives (a board
+    /// busy erasing a flash sector, a stalled process): what arrives meanwhile waits in
+    /// its socket, as in a network stack's buffers, and is then taken in order.
+    pub fn pause_next(&self, pause: Duration) {
+        *self.pause.lock().unwrap() = Some(pause);
     }
 
     pub fn counters(&self) -> Counters {
@@ -203,7 +215,13 @@ impl Link {
     }
 }
 
-fn serve(socket: UdpSocket, sim: Arc<Mutex<Sim>>, shutdown: Arc<AtomicBool>, faults: Faults) {
+fn serve(
+    socket: UdpSocket,
+    sim: Arc<Mutex<Sim>>,
+    shutdown: Arc<AtomicBool>,
+    pause: Arc<Mutex<Option<Duration>>>,
+    faults: Faults,
+) {
     let mut link = Link {
         socket: socket.try_clone().unwrap(),
         rng: Rng(faults.seed.max(1)),
@@ -221,6 +239,10 @@ fn serve(socket: UdpSocket, sim: Arc<Mutex<Sim>>, shutdown: Arc<AtomicBool>, fau
         let mut burst = Vec::new();
         if let Ok((n, from)) = socket.recv_from(&mut buf) {
             burst.push((buf[..n].to_vec(), from));
+            let paused = pause.lock().unwrap().take();
+            if let Some(pause) = paused {
+                std::thread::sleep(pause);
+            }
             socket.set_nonblocking(true).unwrap();
             while let Ok((n, from)) = socket.recv_from(&mut buf) {
                 burst.push((buf[..n].to_vec(), from));
