@@ -195,6 +195,98 @@ fn clear_key_gives_the_controller_back_to_plain_hosts() {
     sim.client().ok(&Command::Pin1On);
 }
 
+/// docs/PROTOCOL.md section 13: "A host whose session is gone (reset, or its slot taken)
+/// gets AUTH_FAILED and says HELLO again; armctl does so by itself." It did not: the
+/// refusal's ACK names the envelope's tag (AUTH), not the inner command's, and armctl's
+/// wait skipped it as the answer to something else, so every copy went in the dead
+/// session and the command ended `NoReply` (issue 19's soak: `clear_key_...`, after a
+/// resent HELLO had replaced the session armctl had just taken).
+#[test]
+fn a_host_whose_session_was_taken_says_hello_again() {
+    let settings = keyed_settings("auth-taken");
+    let sim = Sim::start(&["--settings", settings.to_str().unwrap()]);
+    let arm = key_holder(&sim);
+    arm.pin(0, true).unwrap();
+    // As many other key holders as the controller keeps sessions: the least recently
+    // used slot, the first host's, goes.
+    let others: Vec<Armctl> = (0..arm_core::auth::AUTH_SESSIONS)
+        .map(|_| {
+            let other = Armctl::open(
+                sim.addr,
+                Options {
+                    key: Some(KEY),
+                    ..Options::default()
+                },
+            )
+            .unwrap();
+            other.hello().expect("another key holder's HELLO");
+            other
+        })
+        .collect();
+    arm.pin(0, false)
+        .expect("the first host, its session gone, says HELLO again");
+    assert_eq!(others.len(), arm_core::auth::AUTH_SESSIONS);
+}
+
+/// The same, in the middle of an upload that streams through a small buffer: the frames
+/// in flight are refused `AUTH_FAILED`, armctl says HELLO once and resends them in the new
+/// session, and every point runs (before, the upload resent them in the dead session until
+/// it stalled).
+#[test]
+fn an_upload_whose_session_was_taken_goes_on_in_a_new_one() {
+    let settings = keyed_settings("auth-taken-upload");
+    // 24 points of 25 ms held: 600 ms of motion to take the new HELLO and the resends in.
+    let sim = Sim::start(&[
+        "--settings",
+        settings.to_str().unwrap(),
+        "--buffer-capacity",
+        "24",
+    ]);
+    let arm = std::sync::Arc::new(key_holder(&sim));
+    let targets: Vec<[i32; 8]> = (1..=80)
+        .map(|i| [i * 20, -i * 10, 0, 0, 0, 0, 0, 0])
+        .collect();
+    let points = points_through([0; 8], &targets, 25_000);
+    let executed = std::sync::Arc::new(std::sync::atomic::AtomicUsize::new(0));
+    let runner = {
+        let (arm, executed, points) = (arm.clone(), executed.clone(), points.clone());
+        std::thread::spawn(move || {
+            arm.run_trajectory(&points, &RunOptions::default(), |p| {
+                executed.store(p.executed, std::sync::atomic::Ordering::Relaxed);
+            })
+        })
+    };
+    let deadline = std::time::Instant::now() + Duration::from_secs(20);
+    while executed.load(std::sync::atomic::Ordering::Relaxed) < 10 {
+        assert!(
+            std::time::Instant::now() < deadline,
+            "the run never started"
+        );
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    let others: Vec<Armctl> = (0..arm_core::auth::AUTH_SESSIONS)
+        .map(|_| {
+            let other = Armctl::open(
+                sim.addr,
+                Options {
+                    key: Some(KEY),
+                    ..Options::default()
+                },
+            )
+            .unwrap();
+            other.hello().expect("another key holder's HELLO");
+            other
+        })
+        .collect();
+    let report = runner
+        .join()
+        .unwrap()
+        .expect("the run goes on in a new session");
+    let status = report.final_status.unwrap();
+    assert_eq!(usize::from(status.executed), points.len(), "{status:?}");
+    assert_eq!(others.len(), arm_core::auth::AUTH_SESSIONS);
+}
+
 #[test]
 fn without_a_key_the_simulator_is_unchanged() {
     let sim = Sim::start(&[]);

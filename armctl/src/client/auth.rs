@@ -67,10 +67,10 @@ pub(crate) enum Opened {
     /// A verified envelope's inner frame, or a plain frame the host may take unsealed.
     Frame(Vec<u8>),
     /// The HELLO_REPLY of the pending HELLO, verified: the session is open.
-    Hello { seq: u8 },
+    Hello,
     /// A HELLO_REPLY whose MAC does not verify under this key: the controller holds
     /// another key.
-    WrongKey { seq: u8 },
+    WrongKey,
     /// Forged, replayed or plain where a seal is required: dropped.
     Dropped,
 }
@@ -87,6 +87,11 @@ impl HostAuth {
     }
 
     /// Forgets the session (the controller was reset, or took it back).
+    /// The session frames are sealed in now: the controller's epoch and session id.
+    pub(crate) fn session(&self) -> Option<(u64, u32)> {
+        self.session
+    }
+
     pub(crate) fn reset(&mut self) {
         self.session = None;
         self.rx = ReplayWindow::new();
@@ -144,13 +149,13 @@ impl HostAuth {
             if !envelope.verify(&self.key, Direction::ToHost, reply.epoch)
                 || envelope.session != reply.session
             {
-                return Opened::WrongKey { seq: hello.seq };
+                return Opened::WrongKey;
             }
             self.pending_nonce = None;
             self.session = Some((reply.epoch, reply.session));
             self.rx = ReplayWindow::new();
             self.rx.accept(envelope.counter);
-            return Opened::Hello { seq: hello.seq };
+            return Opened::Hello;
         }
         let Some((epoch, session)) = self.session else {
             return Opened::Dropped;

@@ -34,6 +34,26 @@ const RECEIVER_POLL: Duration = Duration::from_millis(50);
 /// second.
 const LOCATION_FOR_SET: Duration = Duration::from_millis(1_500);
 
+/// The session (epoch, id) a frame was sealed in; `None` for a frame sent plain.
+pub(crate) type SealedIn = Option<(u64, u32)>;
+
+/// Registration for the answers to a HELLO ([`Client::hello`]); removed when dropped.
+struct HelloWaiter<'a>(Receiver<Event>, &'a Shared);
+
+impl<'a> HelloWaiter<'a> {
+    fn new(shared: &'a Shared) -> Self {
+        let (tx, rx) = mpsc::channel();
+        *lock(&shared.hello) = Some(tx);
+        HelloWaiter(rx, shared)
+    }
+}
+
+impl Drop for HelloWaiter<'_> {
+    fn drop(&mut self) {
+        *lock(&self.1.hello) = None;
+    }
+}
+
 /// The least time a command is waited for by default. At loopback and LAN round trips
 /// the 10 attempts, from a 3 ms wait doubling to 100 ms, span only about 0.6 s: a
 /// controller that stops reading for longer (a board erasing a flash sector to keep its
@@ -206,34 +226,58 @@ impl Client {
     }
 
     /// Sends `frame`, sealed in the session (opened first if need be) when a key is
-    /// given: each send, a resend too, gets a counter of its own.
-    pub(crate) fn send_bytes(&self, frame: &[u8]) -> Result<()> {
+    /// given: each send, a resend too, gets a counter of its own. Returns the session it
+    /// was sealed in (`None`: sent plain), for [`Client::session_lost`].
+    pub(crate) fn send_bytes(&self, frame: &[u8]) -> Result<SealedIn> {
         let tag = frame.get(1).copied().unwrap_or(0);
         let plain = [Tag::Stopped, Tag::Discover, Tag::Hello]
             .iter()
             .any(|t| *t as u8 == tag);
         if plain || lock(&self.shared.auth).is_none() {
-            return self.send_datagram(frame);
+            self.send_datagram(frame)?;
+            return Ok(None);
         }
-        let sealed = lock(&self.shared.auth).as_mut().and_then(|a| a.seal(frame));
-        let sealed = match sealed {
+        let seal = |auth: &mut Option<auth::HostAuth>| {
+            auth.as_mut()
+                .and_then(|a| Some((a.session()?, a.seal(frame)?)))
+        };
+        let sealed = seal(&mut lock(&self.shared.auth));
+        let (session, sealed) = match sealed {
             Some(sealed) => sealed,
             None => {
                 self.hello()?;
-                lock(&self.shared.auth)
-                    .as_mut()
-                    .and_then(|a| a.seal(frame))
+                seal(&mut lock(&self.shared.auth))
                     .ok_or_else(|| Error::Auth("no session after HELLO".into()))?
             }
         };
-        self.send_datagram(&sealed)
+        self.send_datagram(&sealed)?;
+        Ok(Some(session))
+    }
+
+    /// An envelope sealed in `sealed_in` was refused `AUTH_FAILED` (docs/PROTOCOL.md
+    /// section 13: the controller was reset, or gave the session's slot to another HELLO):
+    /// the session is dropped, so that the next send says HELLO again. Refusals of
+    /// envelopes from a session already replaced change nothing (a window of frames in
+    /// flight is refused frame by frame, and must not make a HELLO each).
+    pub(crate) fn session_lost(&self, sealed_in: SealedIn) {
+        let mut auth = lock(&self.shared.auth);
+        if let Some(a) = auth.as_mut()
+            && sealed_in.is_some()
+            && a.session() == sealed_in
+        {
+            a.reset();
+        }
     }
 
     /// Opens a session (HELLO), resending at most `attempts` times.
     pub fn hello(&self) -> Result<()> {
         let mut nonce = [0u8; protocol::auth::NONCE_LEN];
         auth::getrandom(&mut nonce)?;
-        let seq = self.alloc_seq();
+        // A HELLO takes no seq of this client's sequence: the controller leaves HELLO out
+        // of the upload's order, so a seq allocated here in the middle of an upload (a
+        // session lost and opened again) was a gap before the next PENDING, refused
+        // OUT_OF_ORDER for ever. Its answers are matched by tag and nonce instead.
+        let seq = self.next_seq.load(Ordering::Relaxed);
         let mut buf = [0u8; MAX_DATAGRAM];
         let len = Command::Hello { nonce }.encode(seq, &mut buf)?;
         match lock(&self.shared.auth).as_mut() {
@@ -243,8 +287,7 @@ impl Client {
             }
             None => return Err(Error::Auth("no key given (--key-file)".into())),
         }
-        let mut waiter = self.waiter();
-        waiter.expect(seq);
+        let waiter = HelloWaiter::new(&self.shared);
         let started = Instant::now();
         for attempt in 1..=self.options.attempts {
             self.send_datagram(&buf[..len])?;
@@ -254,7 +297,7 @@ impl Client {
             }
             loop {
                 let left = deadline.saturating_duration_since(Instant::now());
-                match waiter.rx.recv_timeout(left) {
+                match waiter.0.recv_timeout(left) {
                     Ok(Event::Hello) => return Ok(()),
                     Ok(Event::WrongKey) => {
                         return Err(Error::Auth(
@@ -376,7 +419,7 @@ impl Client {
             if sent > 0 && started.elapsed() >= RESEND_HORIZON {
                 break;
             }
-            self.send_bytes(frame)?;
+            let sealed_in = self.send_bytes(frame)?;
             sent += 1;
             let sent_at = Instant::now();
             let mut deadline = sent_at + self.rto();
@@ -391,22 +434,22 @@ impl Client {
                     None => left,
                 };
                 match waiter.rx.recv_timeout(slice) {
+                    // The session is gone (the controller was reset, or gave the slot
+                    // to another HELLO): its refusal names the envelope's tag, AUTH. Open
+                    // another session, and resend in it. The inner frame is the same, so
+                    // a copy that did arrive is a duplicate there.
+                    Ok(Event::Ack(_, ack))
+                        if ack.status == StatusCode::AuthFailed
+                            && ack.acked_tag == Tag::Auth as u8 =>
+                    {
+                        self.session_lost(sealed_in);
+                        break;
+                    }
                     Ok(Event::Ack(_, ack)) if ack.acked_tag != tag as u8 => continue,
                     // A HELLO's answer: only `hello` waits for those.
                     Ok(Event::Hello | Event::WrongKey) => continue,
                     // Damaged on the way: send it again at once.
                     Ok(Event::Ack(_, ack)) if ack.status == StatusCode::BadCrc => break,
-                    // The session is gone (the controller was reset, or gave the slot
-                    // to another HELLO): open another, and resend in it. The inner frame
-                    // is the same, so a copy that did arrive is a duplicate there.
-                    Ok(Event::Ack(_, ack))
-                        if ack.status == StatusCode::AuthFailed && self.keyed() =>
-                    {
-                        if let Some(a) = lock(&self.shared.auth).as_mut() {
-                            a.reset();
-                        }
-                        break;
-                    }
                     Ok(Event::Ack(_, ack)) => {
                         if sent == 1 {
                             // Karn's rule: only a frame sent once times the round trip.

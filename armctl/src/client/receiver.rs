@@ -50,6 +50,10 @@ pub(crate) struct Shared {
     pub(super) pcap: Mutex<Option<Arc<PcapLog>>>,
     /// With a key: the session, and sealing and opening.
     pub(super) auth: Mutex<Option<super::auth::HostAuth>>,
+    /// Where the answers to the HELLO under way go (HELLO_REPLY, or an ACK refusing the
+    /// HELLO): matched by tag and nonce, not by seq, because a HELLO takes no seq of its
+    /// own ([`super::Client::hello`]).
+    pub(super) hello: Mutex<Option<AckSender>>,
 }
 
 /// Locks a mutex even if a thread panicked while holding it: the data here (channel lists,
@@ -81,6 +85,9 @@ impl Shared {
         for (_, waiter) in lock(&self.waiters).values() {
             let _ = waiter.send(Event::Refused);
         }
+        if let Some(waiter) = lock(&self.hello).as_ref() {
+            let _ = waiter.send(Event::Refused);
+        }
     }
 
     fn deliver(&self, datagram: &[u8]) {
@@ -92,12 +99,12 @@ impl Shared {
                 inner = bytes;
                 &inner[..]
             }
-            Some(Opened::Hello { seq }) | Some(Opened::WrongKey { seq }) => {
+            Some(Opened::Hello) | Some(Opened::WrongKey) => {
                 let event = match opened {
-                    Some(Opened::Hello { .. }) => Event::Hello,
+                    Some(Opened::Hello) => Event::Hello,
                     _ => Event::WrongKey,
                 };
-                if let Some((_, waiter)) = lock(&self.waiters).get(&seq) {
+                if let Some(waiter) = lock(&self.hello).as_ref() {
                     let _ = waiter.send(event);
                 }
                 return;
@@ -112,6 +119,11 @@ impl Shared {
             return;
         };
         match frame.body {
+            Report::Ack(ack) if ack.acked_tag == protocol::Tag::Hello as u8 => {
+                if let Some(waiter) = lock(&self.hello).as_ref() {
+                    let _ = waiter.send(Event::Ack(frame.seq, ack));
+                }
+            }
             Report::Ack(ack) => {
                 if let Some((_, waiter)) = lock(&self.waiters).get(&frame.seq) {
                     let _ = waiter.send(Event::Ack(frame.seq, ack));

@@ -24,6 +24,8 @@ struct Outgoing {
     sent_at: Instant,
     /// Transmissions so far.
     sends: u32,
+    /// The session its latest copy was sealed in (with a key).
+    sealed_in: crate::client::SealedIn,
 }
 
 /// The upload in progress.
@@ -226,6 +228,7 @@ impl Upload<'_, '_> {
             acked: false,
             sent_at: Instant::now(),
             sends: 0,
+            sealed_in: None,
         });
         Ok(())
     }
@@ -233,7 +236,7 @@ impl Upload<'_, '_> {
     /// Sends `frames[next_send]`, unchanged if it was sent before.
     fn send_next(&mut self) -> Result<()> {
         let frame = &mut self.frames[self.next_send];
-        self.controller.send_bytes(&frame.bytes)?;
+        frame.sealed_in = self.controller.send_bytes(&frame.bytes)?;
         frame.sent_at = Instant::now();
         frame.sends += 1;
         self.report.datagrams_sent += 1;
@@ -248,7 +251,7 @@ impl Upload<'_, '_> {
     /// duplicate the controller re-ACKs).
     fn send_out_of_turn(&mut self, i: usize) -> Result<()> {
         let frame = &mut self.frames[i];
-        self.controller.send_bytes(&frame.bytes)?;
+        frame.sealed_in = self.controller.send_bytes(&frame.bytes)?;
         frame.sent_at = Instant::now();
         frame.sends += 1;
         self.report.datagrams_sent += 1;
@@ -355,6 +358,15 @@ impl Upload<'_, '_> {
     }
 
     fn on_ack(&mut self, seq: u8, ack: protocol::Ack) -> Result<()> {
+        if ack.status == StatusCode::AuthFailed && ack.acked_tag == Tag::Auth as u8 {
+            // An envelope refused: its session is gone (the refusal names the envelope's
+            // tag). The next send says HELLO again; the frame goes again when its wait
+            // runs out, in the new session, where a copy that did arrive is a duplicate.
+            if let Some(frame) = self.frames[self.base..].iter().find(|f| f.seq == seq) {
+                self.controller.session_lost(frame.sealed_in);
+            }
+            return Ok(());
+        }
         let Some(i) = self.frames[self.base..]
             .iter()
             .position(|f| f.seq == seq && f.tag as u8 == ack.acked_tag)

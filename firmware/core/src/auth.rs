@@ -10,7 +10,7 @@
 //! ([`protocol::auth::ReplayWindow`]), so two hosts holding the key never replay each
 //! other: each has its own session.
 
-use protocol::auth::{AuthKey, MacKey, ReplayWindow};
+use protocol::auth::{AuthKey, MacKey, NONCE_LEN, ReplayWindow};
 
 use crate::hw::Endpoint;
 
@@ -26,6 +26,8 @@ struct Session {
     id: u32,
     /// The endpoint its last verified frame came from: its replies and reports go there.
     endpoint: Endpoint,
+    /// The nonce of the HELLO that opened it: a copy of that HELLO is a resend.
+    nonce: [u8; NONCE_LEN],
     window: ReplayWindow,
     last_used_us: u64,
 }
@@ -99,9 +101,24 @@ impl Sessions {
         self.ready
     }
 
-    /// Grants a new session to `from` at `now_us` (the slot used least recently goes).
-    pub fn open(&mut self, from: Endpoint, now_us: u64) -> u32 {
-        // A second HELLO from an endpoint ends its earlier session: its replies must be
+    /// Grants a session to `from` for a HELLO with `nonce` at `now_us` (the slot used
+    /// least recently goes).
+    ///
+    /// A copy of the HELLO that opened `from`'s session (same endpoint, same nonce: a host
+    /// resends its HELLO when the reply is slow) gets that session again. Opening another
+    /// one left the host, which had taken the first reply, sealing in a session that was
+    /// gone: `AUTH_FAILED` for its next command, and a HELLO more (issue 19's soak).
+    pub fn open(&mut self, from: Endpoint, nonce: [u8; NONCE_LEN], now_us: u64) -> u32 {
+        if let Some(s) = self
+            .slots
+            .iter_mut()
+            .flatten()
+            .find(|s| s.endpoint == from && s.nonce == nonce)
+        {
+            s.last_used_us = now_us;
+            return s.id;
+        }
+        // Another HELLO from an endpoint ends its earlier session: its replies must be
         // sealed in the new one, which the host now expects.
         for slot in self.slots.iter_mut() {
             if slot.is_some_and(|s| s.endpoint == from) {
@@ -113,6 +130,7 @@ impl Sessions {
         let session = Session {
             id,
             endpoint: from,
+            nonce,
             window: ReplayWindow::new(),
             last_used_us: now_us,
         };
@@ -211,8 +229,8 @@ mod tests {
         let b = Endpoint { port: 2, ..a };
         let mut s = Sessions::new();
         s.start_epoch(3, &AuthKey([1; 32]));
-        let sa = s.open(a, 0);
-        let sb = s.open(b, 0);
+        let sa = s.open(a, [1; NONCE_LEN], 0);
+        let sb = s.open(b, [2; NONCE_LEN], 0);
         assert_ne!(sa, sb);
         assert_eq!(s.accept(sa, 1, || true, a, 1), Ok(()));
         assert_eq!(s.accept(sa, 1, || true, a, 2), Err(AuthRefusal::Replayed));
@@ -229,11 +247,41 @@ mod tests {
         );
         assert_eq!(s.routes(true).session_of(b), Some(sb));
         for port in (100u16..).take(AUTH_SESSIONS) {
-            s.open(Endpoint { port, ..a }, 10 + u64::from(port));
+            s.open(Endpoint { port, ..a }, [3; NONCE_LEN], 10 + u64::from(port));
         }
         assert_eq!(
             s.accept(sa, 2, || true, a, 30),
             Err(AuthRefusal::UnknownSession)
         );
+    }
+
+    #[test]
+    fn a_resent_hello_gets_the_session_it_opened_and_a_new_one_replaces_it() {
+        let a = Endpoint {
+            ip: [127, 0, 0, 1],
+            port: 1,
+        };
+        let mut s = Sessions::new();
+        s.start_epoch(3, &AuthKey([1; 32]));
+        let first = s.open(a, [7; NONCE_LEN], 0);
+        assert_eq!(s.accept(first, 1, || true, a, 1), Ok(()));
+        // The same HELLO again (its reply was slow): the same session, its counters kept.
+        assert_eq!(s.open(a, [7; NONCE_LEN], 2), first);
+        assert_eq!(s.accept(first, 2, || true, a, 3), Ok(()));
+        assert_eq!(
+            s.accept(first, 1, || true, a, 3),
+            Err(AuthRefusal::Replayed)
+        );
+        // The same nonce from another endpoint is another host's HELLO.
+        let b = Endpoint { port: 2, ..a };
+        assert_ne!(s.open(b, [7; NONCE_LEN], 4), first);
+        // A new HELLO from the endpoint ends its session.
+        let second = s.open(a, [8; NONCE_LEN], 5);
+        assert_ne!(second, first);
+        assert_eq!(
+            s.accept(first, 3, || true, a, 6),
+            Err(AuthRefusal::UnknownSession)
+        );
+        assert_eq!(s.accept(second, 1, || true, a, 6), Ok(()));
     }
 }

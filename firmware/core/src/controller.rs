@@ -674,7 +674,7 @@ impl<const CAP: usize> Controller<CAP> {
             if !self.hello_budget.take(now_us) {
                 return None;
             }
-            let session = self.sessions.open(from, now_us);
+            let session = self.sessions.open(from, nonce, now_us);
             response.hello = Some(HelloGrant {
                 to: from,
                 seq,
