@@ -263,6 +263,27 @@ def test_a_keyed_controller_moves_for_the_key_holder_only(sim, tmp_path):
         assert arm.status()["state"] == "STOPPED"
 
 
+def test_a_refused_upload_leaves_the_controller_stopped(sim):
+    """Issue 23's follow-up: a point past a limit kept on the controller is refused
+    INVALID_POINT after the points before it were taken; the controller must not be left
+    in PENDING with them (the next run would be refused), as `armctl run` ensures."""
+    with armctl.connect(sim.address) as arm:
+        arm.set_limits(1, min=-1000, max=50)
+        times = np.arange(400) * 0.01
+        # Joint 1 passes its limit of 50 after 200 points, several frames into the upload.
+        positions = np.zeros((400, 2), dtype=np.int32)
+        positions[:, 1] = np.arange(400) // 4
+        with pytest.raises(armctl.RefusedError) as refused:
+            arm.run(times, positions)
+        assert refused.value.status == "INVALID_POINT"
+        assert arm.status()["state"] == "STOPPED"
+        # The next motion is taken.
+        positions[:, 1] = np.minimum(positions[:, 1], 50)
+        report = arm.run(times, positions)
+        assert report["final_positions"][1] == 50
+        arm.set_limits(1, min=-2**31, max=2**31 - 1, max_rate_hz=0)
+
+
 def test_enable_disable_release_and_limits(sim):
     """Issue 23: explicit per-joint enable, RELEASE, limits on the controller."""
     with armctl.connect(sim.address) as arm:

@@ -581,8 +581,12 @@ impl Harness {
                     upload.last_taken_seq
                 );
             }
+            // The controller keeps the marks of later seqs (a command refused for good
+            // ahead of a late PENDING still fills its seq): forget only those passed.
+            for d in 1..=gap {
+                upload.accepted[usize::from(upload.last_taken_seq.wrapping_add(d))] = false;
+            }
             upload.last_taken_seq = seq;
-            upload.accepted = [false; 256];
         } else if let Some(upload) = self.upload.as_mut()
             && upload.uploader == from
         {

@@ -443,6 +443,66 @@ fn ticks_us(ticks: i64) -> f64 {
 
 /// The QEMU test's run (`run_reaches_the_last_point_and_executes_every_point`): 120 points of
 /// 10 ms, six joints out and back (one reversal each), from a set location.
+/// What a whole run's pins showed against the oracle, once every check passed.
+struct RunEdges {
+    pins: [Joint; MAX_JOINTS],
+    oracle: Oracle,
+    /// Lead-in: the oracle's ticks shifted onto the board's.
+    offset: i64,
+    /// Least DIR setup before the next rise, least time after the last fall (ticks).
+    setup: Option<i64>,
+    after_fall: Option<i64>,
+    /// DIR changes, and how late the least and the most late came after the oracle's.
+    dir_changes: usize,
+    least_late: i64,
+    most_late: i64,
+}
+
+impl RunEdges {
+    fn counts(&self) -> Vec<usize> {
+        self.pins.iter().map(|p| p.rises.len()).collect()
+    }
+
+    fn oracle_counts(&self) -> Vec<usize> {
+        self.oracle.rises.iter().map(Vec::len).collect()
+    }
+}
+
+/// The checks every whole run gets: each rise at the oracle's tick, pulse width and DIR
+/// timing, the pulses signed by DIR summing to the move from `start` to `end`, DIR changes
+/// within the budget, and no event the models saw late.
+fn assert_run_is_the_oracles(
+    board: &RenodeBoard,
+    start: [i32; MAX_JOINTS],
+    end: [i32; MAX_JOINTS],
+    points: &[Point],
+) -> RunEdges {
+    let pins = joints(&recorded(board));
+    let oracle = oracle(&segments(start, points));
+    let offset = lead_in(&pins, &oracle);
+    assert_rises_match(&pins, &oracle, offset, true);
+    let (setup, after_fall) = assert_pulse_and_dir_timing(&pins);
+    for j in 0..MAX_JOINTS {
+        assert_eq!(
+            signed_pulses(&pins[j]),
+            end[j] - start[j],
+            "joint {j}: net pulses"
+        );
+    }
+    let (least_late, most_late, dir_changes) = dir_lateness(&pins, &oracle, offset);
+    assert_no_late_events(board);
+    RunEdges {
+        pins,
+        oracle,
+        offset,
+        setup,
+        after_fall,
+        dir_changes,
+        least_late,
+        most_late,
+    }
+}
+
 #[test]
 fn a_run_makes_the_oracles_edges_on_the_pins() {
     require_renode!();
@@ -469,36 +529,30 @@ fn a_run_makes_the_oracles_edges_on_the_pins() {
         began.elapsed().as_secs_f64()
     ));
 
-    let edges = recorded(&board);
-    let pins = joints(&edges);
     let asked = steps_asked(start, &points);
-    let oracle = oracle(&segments(start, &points));
-    for j in 0..MAX_JOINTS {
-        assert_eq!(oracle[j].len(), asked[j], "the oracle's pulses, joint {j}");
-    }
-    let counts: Vec<usize> = pins.iter().map(|p| p.rises.len()).collect();
-    note(&format!(
-        "rising STEP edges per joint {counts:?}, the oracle's {:?}",
-        oracle.rises.iter().map(Vec::len).collect::<Vec<_>>()
-    ));
-    let offset = lead_in(&pins, &oracle);
-    assert_rises_match(&pins, &oracle, offset, true);
-    let (setup, after_fall) = assert_pulse_and_dir_timing(&pins);
-    for j in 0..MAX_JOINTS {
+    let run = assert_run_is_the_oracles(&board, start, end, &points);
+    for (j, asked) in asked.iter().enumerate() {
         assert_eq!(
-            signed_pulses(&pins[j]),
-            end[j] - start[j],
-            "joint {j}: net pulses"
+            run.oracle[j].len(),
+            *asked,
+            "the oracle's pulses, joint {j}"
         );
     }
-    let (least_late, most_late, dir_changes) = dir_lateness(&pins, &oracle, offset);
     note(&format!(
-        "{dir_changes} DIR changes, each {least_late}..={most_late} ticks ({:.1}..={:.1} us) \
-         after the oracle's tick",
-        ticks_us(least_late),
-        ticks_us(most_late)
+        "rising STEP edges per joint {:?}, the oracle's {:?}",
+        run.counts(),
+        run.oracle_counts()
     ));
-    assert_no_late_events(&board);
+    let (offset, setup, after_fall) = (run.offset, run.setup, run.after_fall);
+    note(&format!(
+        "{} DIR changes, each {}..={} ticks ({:.1}..={:.1} us) after the oracle's tick",
+        run.dir_changes,
+        run.least_late,
+        run.most_late,
+        ticks_us(run.least_late),
+        ticks_us(run.most_late)
+    ));
+    let pins = run.pins;
     let starts: Vec<u64> = pins.iter().map(|p| p.start_ns).collect();
     let skew = starts.iter().max().unwrap() - starts.iter().min().unwrap();
     note(&format!(
@@ -633,29 +687,16 @@ fn an_upload_past_the_buffer_makes_the_oracles_edges() {
         points.len(),
         began.elapsed().as_secs_f64()
     ));
-    let pins = joints(&recorded(&board));
-    let oracle = oracle(&segments(start, &points));
-    let counts: Vec<usize> = pins.iter().map(|p| p.rises.len()).collect();
+    let run = assert_run_is_the_oracles(&board, start, end, &points);
     note(&format!(
-        "rising STEP edges per joint {counts:?}, the oracle's {:?}",
-        oracle.rises.iter().map(Vec::len).collect::<Vec<_>>()
+        "rising STEP edges per joint {:?}, the oracle's {:?}",
+        run.counts(),
+        run.oracle_counts()
     ));
-    let offset = lead_in(&pins, &oracle);
-    assert_rises_match(&pins, &oracle, offset, true);
-    let (setup, after_fall) = assert_pulse_and_dir_timing(&pins);
-    for j in 0..MAX_JOINTS {
-        assert_eq!(
-            signed_pulses(&pins[j]),
-            end[j] - start[j],
-            "joint {j}: net pulses"
-        );
-    }
-    let (least_late, most_late, dir_changes) = dir_lateness(&pins, &oracle, offset);
-    assert_no_late_events(&board);
     note(&format!(
-        "every rise at the oracle's tick; DIR: least setup {setup:?} ticks, least after a fall \
-         {after_fall:?} ticks; {dir_changes} DIR changes {least_late}..={most_late} ticks after \
-         the oracle's"
+        "every rise at the oracle's tick; DIR: least setup {:?} ticks, least after a fall \
+         {:?} ticks; {} DIR changes {}..={} ticks after the oracle's",
+        run.setup, run.after_fall, run.dir_changes, run.least_late, run.most_late
     ));
     board.assert_healthy();
 }
@@ -674,7 +715,6 @@ fn a_malformed_flood_during_a_run_changes_no_edge() {
     arm.set_location(&[0; JOINTS]).unwrap();
     let start = [0; MAX_JOINTS];
     let points = sweep(start, JOINTS, 200, 3, 10_000);
-    let oracle = oracle(&segments(start, &points));
     // armctl's default wait for the run's end is wall time: twice the trajectory (2 s)
     // plus 10 s. The emulated board runs 3-6 times slower than real time, slower still
     // while it takes the flood's frames and on a loaded machine: past 14 s the wait
@@ -700,23 +740,11 @@ fn a_malformed_flood_during_a_run_changes_no_edge() {
     );
     let end = position(&board, &arm);
     assert_eq!(end[..JOINTS], points.last().unwrap().position[..JOINTS]);
-    let pins = joints(&recorded(&board));
-    let offset = lead_in(&pins, &oracle);
-    assert_rises_match(&pins, &oracle, offset, true);
-    assert_pulse_and_dir_timing(&pins);
-    dir_lateness(&pins, &oracle, offset);
-    for j in 0..MAX_JOINTS {
-        assert_eq!(
-            signed_pulses(&pins[j]),
-            end[j] - start[j],
-            "joint {j}: net pulses"
-        );
-    }
-    assert_no_late_events(&board);
+    let run = assert_run_is_the_oracles(&board, start, end, &points);
     note(&format!(
         "{sent} malformed datagrams during the run; rising edges {:?}, every one at the \
          oracle's tick",
-        pins.iter().map(|p| p.rises.len()).collect::<Vec<_>>()
+        run.counts()
     ));
     board.assert_healthy();
 }
