@@ -287,6 +287,33 @@ fn an_upload_whose_session_was_taken_goes_on_in_a_new_one() {
     assert_eq!(others.len(), arm_core::auth::AUTH_SESSIONS);
 }
 
+/// HELLO is answered at most 10 times a second after a burst of 10 (docs/PROTOCOL.md
+/// section 13). A key holder that had measured a loopback round trip resent its HELLO
+/// every 3 ms, 10 copies in 30 ms, all while the budget was spent, then waited out its
+/// 1.5 s for nothing: `NoReply` for HELLO (issue 19's soak, in the test above, when the
+/// other key holders' HELLOs had spent the budget). The copies now back off as any
+/// command's do, so some of them come after the budget refills.
+#[test]
+fn a_hello_past_the_reply_budget_is_answered_later() {
+    let settings = keyed_settings("auth-budget");
+    let sim = Sim::start(&["--settings", settings.to_str().unwrap()]);
+    let arm = key_holder(&sim);
+    for _ in 0..20 {
+        arm.pin(0, true).unwrap();
+    }
+    // Spend the budget: HELLOs from another endpoint, 12 in a burst (bounded).
+    let raw = sim.client();
+    let mut buf = [0u8; MAX_DATAGRAM];
+    for i in 0..12u8 {
+        let n = Command::Hello { nonce: [i; 16] }
+            .encode(i, &mut buf)
+            .unwrap();
+        raw.socket.send(&buf[..n]).unwrap();
+    }
+    arm.hello().expect("a HELLO after the budget was spent");
+    arm.pin(0, false).unwrap();
+}
+
 #[test]
 fn without_a_key_the_simulator_is_unchanged() {
     let sim = Sim::start(&[]);

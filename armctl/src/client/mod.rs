@@ -323,7 +323,13 @@ impl Client {
                         return Err(Error::ConnectionRefused { addr: self.addr });
                     }
                     Ok(_) => continue,
-                    Err(_) => break,
+                    // The controller answers HELLO at most 10 times a second: copies
+                    // back off as any command's do, so that some come after its budget
+                    // refills (3 ms apart, all 10 fell in one spent budget).
+                    Err(_) => {
+                        lock(&self.rtt).back_off();
+                        break;
+                    }
                 }
             }
         }
