@@ -523,7 +523,19 @@ impl Harness {
             self.run_kind = Some(RunKind::Upload);
         }
         self.check_upload_order(from, bytes[0], bytes[1], status, &decoded, &before, &after);
-        if executed && let Ok(frame) = decoded {
+        if release_by_other && status == StatusCode::Ok {
+            // ACKed OK (a host whose owner fell silent may always say so) but done nothing:
+            // the silent owner stays recorded until a host takes over.
+            assert_eq!(
+                self.controller.owner().map(|o| o.ip),
+                owner_before,
+                "a RELEASE from a host that does not own the controller changed the owner"
+            );
+        }
+        if executed
+            && !release_by_other
+            && let Ok(frame) = decoded
+        {
             // After a hand-over that dropped an upload, the command met state STOPPED.
             let mut met = before;
             if dropped_at_hand_over {
