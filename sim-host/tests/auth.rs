@@ -32,6 +32,25 @@ fn key_holder(sim: &Sim) -> Armctl {
     .expect("the key holder connects")
 }
 
+/// As many other key holders as the controller keeps sessions, each with a session of its
+/// own: the slot used least recently before them is gone. Kept alive by the caller.
+fn take_every_session(sim: &Sim) -> Vec<Armctl> {
+    (0..arm_core::auth::AUTH_SESSIONS)
+        .map(|_| {
+            let other = Armctl::open(
+                sim.addr,
+                Options {
+                    key: Some(KEY),
+                    ..Options::default()
+                },
+            )
+            .unwrap();
+            other.hello().expect("another key holder's HELLO");
+            other
+        })
+        .collect()
+}
+
 fn plain_status(stranger: &mut Client, cmd: Command<'_>) -> StatusCode {
     stranger.command(&cmd).status
 }
@@ -209,20 +228,7 @@ fn a_host_whose_session_was_taken_says_hello_again() {
     arm.pin(0, true).unwrap();
     // As many other key holders as the controller keeps sessions: the least recently
     // used slot, the first host's, goes.
-    let others: Vec<Armctl> = (0..arm_core::auth::AUTH_SESSIONS)
-        .map(|_| {
-            let other = Armctl::open(
-                sim.addr,
-                Options {
-                    key: Some(KEY),
-                    ..Options::default()
-                },
-            )
-            .unwrap();
-            other.hello().expect("another key holder's HELLO");
-            other
-        })
-        .collect();
+    let others = take_every_session(&sim);
     arm.pin(0, false)
         .expect("the first host, its session gone, says HELLO again");
     assert_eq!(others.len(), arm_core::auth::AUTH_SESSIONS);
@@ -264,20 +270,7 @@ fn an_upload_whose_session_was_taken_goes_on_in_a_new_one() {
         );
         std::thread::sleep(Duration::from_millis(5));
     }
-    let others: Vec<Armctl> = (0..arm_core::auth::AUTH_SESSIONS)
-        .map(|_| {
-            let other = Armctl::open(
-                sim.addr,
-                Options {
-                    key: Some(KEY),
-                    ..Options::default()
-                },
-            )
-            .unwrap();
-            other.hello().expect("another key holder's HELLO");
-            other
-        })
-        .collect();
+    let others = take_every_session(&sim);
     let report = runner
         .join()
         .unwrap()
