@@ -62,6 +62,62 @@ static ELF: Mutex<Option<PathBuf>> = Mutex::new(None);
 /// Substrings of a decoded log line that mean the firmware failed (`firmware/board/src/fault.rs`).
 pub const FAULT_MARKERS: [&str; 3] = ["fault:", "panic", "PANIC"];
 
+/// One headless Renode run of a script, without the board (models checked on their own).
+/// Its scratch folder (Renode's `TMPDIR`, files the script writes) goes when it is dropped.
+pub struct ScriptRun {
+    /// What Renode printed (the monitor's answers, `echo` lines).
+    pub out: String,
+    /// The scratch folder the script ran in.
+    pub dir: PathBuf,
+}
+
+impl ScriptRun {
+    /// Runs Renode (bounded to 300 s) with `commands` (`-e`; they end in `quit`), made from
+    /// the scratch folder's path. Call after [`renode_missing`] said Renode is there.
+    pub fn run(tag: &str, commands: impl FnOnce(&Path) -> String) -> ScriptRun {
+        let renode = renode_path().expect("Renode (check renode_missing() first)");
+        // Not named renode-*: Renode deletes such folders in its temp folder at start-up.
+        let dir = std::env::temp_dir().join(format!("system-tests-{tag}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(dir.join("tmp")).expect("scratch directory");
+        let output = Command::new("timeout")
+            .args(["-k", "5", "300"])
+            .arg(&renode)
+            .args(["--disable-xwt", "--plain", "--console", "-e"])
+            .arg(commands(&dir))
+            .env("TMPDIR", dir.join("tmp"))
+            .current_dir(&dir)
+            .stdin(Stdio::null())
+            .output()
+            .expect("run Renode");
+        ScriptRun {
+            out: String::from_utf8_lossy(&output.stdout).into_owned(),
+            dir,
+        }
+    }
+
+    /// The first hex number (`0x..`) Renode printed after the text `label` (an `echo`).
+    pub fn value_after(&self, label: &str) -> u64 {
+        let out = &self.out;
+        let (_, rest) = out
+            .split_once(label)
+            .unwrap_or_else(|| panic!("no {label:?} in Renode's output:\n{out}"));
+        // The first number after it: Renode's own log lines ("machine paused", from another
+        // thread) can come in between.
+        let token = rest
+            .split_whitespace()
+            .find_map(|t| t.strip_prefix("0x"))
+            .unwrap_or_else(|| panic!("no value after {label:?}:\n{out}"));
+        u64::from_str_radix(token, 16).unwrap_or_else(|e| panic!("{token}: {e}\n{out}"))
+    }
+}
+
+impl Drop for ScriptRun {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.dir);
+    }
+}
+
 /// The `renode` launcher: `RENODE`, else `renode` on PATH.
 pub fn renode_path() -> Option<PathBuf> {
     if let Some(path) = std::env::var_os("RENODE") {
@@ -580,8 +636,9 @@ impl RenodeBoard {
             )
         });
         let commands = format!(
-            "$elf=@{}; $tap=\"{TAP}\"; include @{}; {step_path}start",
+            "$elf=@{}; $tap=\"{TAP}\"; $models=@{}; include @{}; {step_path}start",
             elf_path.display(),
+            models.display(),
             script.display()
         );
         let log = std::fs::File::create(board.dir.join("renode.log")).expect("Renode log file");

@@ -32,7 +32,9 @@ use armctl::{Client, Options};
 use protocol::{
     Ack, Command, MAX_DATAGRAM, Point, PointList, Report, State, StatusCode, StatusFlags,
 };
-use system_tests::renode::{BOARD, HOSTS, RenodeBoard, malformed_flood, unavailable};
+use system_tests::renode::{
+    BOARD, HOSTS, RenodeBoard, ScriptRun, malformed_flood, renode_missing, repo_root, unavailable,
+};
 
 mod common;
 use common::{
@@ -434,5 +436,39 @@ fn rzcobs_frames_decode() {
         rzcobs_decode(&[0x01, 0x02, 0x83]),
         None,
         "too few stream bytes"
+    );
+}
+
+/// embassy-time's driver timer (TIM12, the stock model with the fix of
+/// `tests/renode/time-driver-timer.resc`) matches a compare value of 0, as the chip does. The
+/// stock model never did: one wake-up in 65,536 never came, every timer of the firmware
+/// stopped with it and the IWDG reset the board (an `an_upload_past_the_buffer...` run in
+/// about ten, and on CI). Needs Renode only (no root, no network).
+#[test]
+fn the_time_drivers_timer_matches_a_compare_value_of_zero() {
+    if let Some(reason) = renode_missing() {
+        use std::io::Write;
+        let _ = writeln!(std::io::stderr().lock(), "{}: {reason}", module_path!());
+        return;
+    }
+    let models = repo_root().join("tests/renode");
+    let run = ScriptRun::run("time-driver-timer", |_| {
+        format!(
+            "$models=@{}; include @{}; quit",
+            models.display(),
+            models.join("time-driver-timer-check.resc").display()
+        )
+    });
+    assert!(
+        run.out.contains("done"),
+        "the script did not finish:\n{}",
+        run.out
+    );
+    let status = run.value_after("TIM12 SR with CCR2 0:");
+    note(&format!("TIM12 with CCR2 0, after 1 ms: SR {status:#x}"));
+    assert_ne!(
+        status & 0b100,
+        0,
+        "CC2IF never set with CCR2 = 0: the compare at 0 does not match"
     );
 }

@@ -877,45 +877,19 @@ fn the_models_alone_pulse_at_arr_and_reload_from_a_circular_stream() {
         let _ = writeln!(std::io::stderr().lock(), "{}: {reason}", module_path!());
         return;
     }
-    let renode = system_tests::renode::renode_path().expect("checked");
-    // Not named renode-*: Renode deletes such folders in its temp folder at start-up.
-    let dir = std::env::temp_dir().join(format!("system-tests-models-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(dir.join("tmp")).unwrap();
     let models = system_tests::renode::repo_root().join("tests/renode");
-    let edges_file = dir.join("edges.txt");
-    let output = std::process::Command::new("timeout")
-        .args(["-k", "5", "300"])
-        .arg(&renode)
-        .args(["--disable-xwt", "--plain", "--console", "-e"])
-        .arg(format!(
+    let run = system_tests::renode::ScriptRun::run("models", |dir| {
+        format!(
             "$edges=@{}; $stepModels=@{}; include @{}; quit",
-            edges_file.display(),
+            dir.join("edges.txt").display(),
             models.display(),
             models.join("step-models-check.resc").display()
-        ))
-        .env("TMPDIR", dir.join("tmp"))
-        .current_dir(&dir)
-        .stdin(std::process::Stdio::null())
-        .output()
-        .expect("run Renode");
-    let out = String::from_utf8_lossy(&output.stdout).to_string();
-    let text = std::fs::read_to_string(&edges_file).unwrap_or_default();
-    let _ = std::fs::remove_dir_all(&dir);
+        )
+    });
+    let out = &run.out;
+    let text = std::fs::read_to_string(run.dir.join("edges.txt")).unwrap_or_default();
     assert!(out.contains("done"), "the script did not finish:\n{out}");
-    // The hex number the monitor printed right after the line `label`.
-    let value = |label: &str| -> u64 {
-        let (_, rest) = out
-            .split_once(label)
-            .unwrap_or_else(|| panic!("no {label:?} in Renode's output:\n{out}"));
-        // The first number after it: Renode's own log lines ("machine paused", from another
-        // thread) can come in between.
-        let token = rest
-            .split_whitespace()
-            .find_map(|t| t.strip_prefix("0x"))
-            .unwrap_or_else(|| panic!("no value after {label:?}:\n{out}"));
-        u64::from_str_radix(token, 16).unwrap()
-    };
+    let value = |label: &str| run.value_after(label);
     let edges: Vec<(u64, u8, bool)> = text
         .lines()
         .filter_map(|l| {
