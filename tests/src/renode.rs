@@ -59,8 +59,9 @@ static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
 /// The ELF, built once per test process.
 static ELF: Mutex<Option<PathBuf>> = Mutex::new(None);
 
-/// Substrings of a decoded log line that mean the firmware failed (`firmware/board/src/fault.rs`).
-pub const FAULT_MARKERS: [&str; 3] = ["fault:", "panic", "PANIC"];
+/// Substrings of a decoded log line that mean the firmware failed: the fault path
+/// (`firmware/board/src/fault.rs`) and the watchdog task's stall line (a check 100 ms late).
+pub const FAULT_MARKERS: [&str; 4] = ["fault:", "panic", "PANIC", "ms late: the executor"];
 
 /// One headless Renode run of a script, without the board (models checked on their own).
 /// Its scratch folder (Renode's `TMPDIR`, files the script writes) goes when it is dropped.

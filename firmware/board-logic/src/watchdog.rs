@@ -23,6 +23,20 @@ pub const IWDG_TIMEOUT_MS: u32 = 1_000;
 /// late check does not cost a reset.
 pub const CHECK_PERIOD_MS: u32 = 250;
 
+/// A check that wakes this much after it was due says the executor or the time driver
+/// stalled (nothing else delays a timer wake-up by milliseconds): the watchdog task logs it
+/// with its size. The IWDG resets only after three quarters of a second more, so without
+/// this line a stall that misses the reset leaves no trace; 100 ms is ten times the longest
+/// thing a task does without yielding (see [`IWDG_TIMEOUT_MS`]) and a tenth of the timeout.
+pub const LATE_CHECK_LOG_MS: u64 = 100;
+
+/// How many milliseconds after `due_ms` a check that woke at `woke_ms` came, if that is
+/// worth a log line ([`LATE_CHECK_LOG_MS`] or more).
+pub fn late_check(due_ms: u64, woke_ms: u64) -> Option<u64> {
+    let late = woke_ms.saturating_sub(due_ms);
+    (late >= LATE_CHECK_LOG_MS).then_some(late)
+}
+
 /// Consecutive failed checks that are tolerated before the IWDG is left to expire: a task
 /// busy for one period (a burst of frames) is not a hang.
 pub const MISSED_CHECKS_ALLOWED: u32 = 1;
@@ -161,6 +175,16 @@ mod tests {
         assert_eq!(l.check([2, 2]), Verdict::Late { index: 0 });
         assert_eq!(l.check([2, 3]), Verdict::Hung { index: 0 });
         assert!(!l.check([2, 3]).feed());
+    }
+
+    #[test]
+    fn a_check_late_by_a_tenth_of_the_timeout_is_logged() {
+        assert_eq!(late_check(1_000, 1_000), None);
+        assert_eq!(late_check(1_000, 1_099), None);
+        assert_eq!(late_check(1_000, 1_100), Some(100));
+        assert_eq!(late_check(1_000, 1_640), Some(640));
+        // A clock read before the due time (a wake-up counted early) is not late.
+        assert_eq!(late_check(1_000, 900), None);
     }
 
     #[test]

@@ -119,7 +119,7 @@ use arm_core::{Bus, TrajectoryHw};
 use board_logic::fault::FaultKind;
 use board_logic::net::RETRY_SECONDS;
 use board_logic::watchdog::{
-    Beating, CHECK_PERIOD_MS, Heartbeat, IWDG_TIMEOUT_MS, Liveness, Verdict,
+    Beating, CHECK_PERIOD_MS, Heartbeat, IWDG_TIMEOUT_MS, Liveness, Verdict, late_check,
 };
 use defmt::{error, info, warn};
 use defmt_rtt as _;
@@ -130,7 +130,7 @@ use embassy_stm32::rng::Rng;
 use embassy_stm32::usart::Uart;
 use embassy_stm32::wdg::IndependentWatchdog;
 use embassy_stm32::{Peri, bind_interrupts, dma, eth, flash, interrupt, peripherals, rng, usart};
-use embassy_time::Timer;
+use embassy_time::{Duration, Instant, Timer};
 use static_cell::StaticCell;
 
 use crate::clocks::ClockSource;
@@ -227,7 +227,14 @@ async fn watchdog(mut iwdg: IndependentWatchdog<'static, peripherals::IWDG1>) ->
     let mut liveness = Liveness::new(beats());
     loop {
         BUS.step_progress.signal(());
-        Timer::after_millis(u64::from(CHECK_PERIOD_MS)).await;
+        let due = Instant::now() + Duration::from_millis(u64::from(CHECK_PERIOD_MS));
+        Timer::at(due).await;
+        if let Some(late) = late_check(due.as_millis(), Instant::now().as_millis()) {
+            warn!(
+                "watchdog: check {=u64} ms late: the executor or the time driver stalled",
+                late
+            );
+        }
         match liveness.check(beats()) {
             Verdict::Feed => iwdg.pet(),
             Verdict::Late { index } => {
