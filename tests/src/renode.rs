@@ -73,28 +73,42 @@ pub struct ScriptRun {
 }
 
 impl ScriptRun {
-    /// Runs Renode (bounded to 300 s) with `commands` (`-e`; they end in `quit`), made from
-    /// the scratch folder's path. Call after [`renode_missing`] said Renode is there.
-    pub fn run(tag: &str, commands: impl FnOnce(&Path) -> String) -> ScriptRun {
-        let renode = renode_path().expect("Renode (check renode_missing() first)");
+    /// Runs Renode (bounded to 300 s) on `tests/renode/<script>` with `$models` set to that
+    /// folder and the `vars` (`$name=value; ` each, made from the scratch folder's path)
+    /// before it, then `quit`. Without Renode: says what it needs on the real stderr (a
+    /// passing skip is still seen) and returns `None`.
+    pub fn run(script: &str, vars: impl FnOnce(&Path) -> String) -> Option<ScriptRun> {
+        if let Some(reason) = renode_missing() {
+            let _ = writeln!(std::io::stderr().lock(), "{script}: {reason}");
+            return None;
+        }
+        let renode = renode_path()?;
+        let models = repo_root().join("tests/renode");
         // Not named renode-*: Renode deletes such folders in its temp folder at start-up.
+        let tag = script.trim_end_matches(".resc");
         let dir = std::env::temp_dir().join(format!("system-tests-{tag}-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
         std::fs::create_dir_all(dir.join("tmp")).expect("scratch directory");
+        let commands = format!(
+            "$models=@{}; {}include @{}; quit",
+            models.display(),
+            vars(&dir),
+            models.join(script).display()
+        );
         let output = Command::new("timeout")
             .args(["-k", "5", "300"])
             .arg(&renode)
             .args(["--disable-xwt", "--plain", "--console", "-e"])
-            .arg(commands(&dir))
+            .arg(commands)
             .env("TMPDIR", dir.join("tmp"))
             .current_dir(&dir)
             .stdin(Stdio::null())
             .output()
             .expect("run Renode");
-        ScriptRun {
+        Some(ScriptRun {
             out: String::from_utf8_lossy(&output.stdout).into_owned(),
             dir,
-        }
+        })
     }
 
     /// The first hex number (`0x..`) Renode printed after the text `label` (an `echo`).
@@ -629,9 +643,8 @@ impl RenodeBoard {
         let models = repo_root().join("tests/renode");
         let step_path = step_path.map_or_else(String::new, |extra| {
             format!(
-                "$edges=@{}; $stepModels=@{}; include @{}; {extra}{}",
+                "$edges=@{}; include @{}; {extra}{}",
                 board.dir.join(EDGES_FILE).display(),
-                models.display(),
                 models.join("step-path.resc").display(),
                 if extra.is_empty() { "" } else { "; " }
             )

@@ -32,9 +32,7 @@ use armctl::{Client, Options};
 use protocol::{
     Ack, Command, MAX_DATAGRAM, Point, PointList, Report, State, StatusCode, StatusFlags,
 };
-use system_tests::renode::{
-    BOARD, HOSTS, RenodeBoard, ScriptRun, malformed_flood, renode_missing, repo_root, unavailable,
-};
+use system_tests::renode::{BOARD, HOSTS, RenodeBoard, ScriptRun, malformed_flood, unavailable};
 
 mod common;
 use common::{
@@ -446,19 +444,9 @@ fn rzcobs_frames_decode() {
 /// about ten, and on CI). Needs Renode only (no root, no network).
 #[test]
 fn the_time_drivers_timer_matches_a_compare_value_of_zero() {
-    if let Some(reason) = renode_missing() {
-        use std::io::Write;
-        let _ = writeln!(std::io::stderr().lock(), "{}: {reason}", module_path!());
+    let Some(run) = ScriptRun::run("time-driver-timer-check.resc", |_| String::new()) else {
         return;
-    }
-    let models = repo_root().join("tests/renode");
-    let run = ScriptRun::run("time-driver-timer", |_| {
-        format!(
-            "$models=@{}; include @{}; quit",
-            models.display(),
-            models.join("time-driver-timer-check.resc").display()
-        )
-    });
+    };
     assert!(
         run.out.contains("done"),
         "the script did not finish:\n{}",
