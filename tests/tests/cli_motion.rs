@@ -284,3 +284,52 @@ fn a_refused_upload_leaves_the_controller_stopped() {
     let (ok, out, err) = armctl(&sim, &["move", "50"]);
     assert!(ok, "{out}\n{err}");
 }
+
+/// The 6-axis example config the issue 31 user had (armctl/examples/arm.json).
+fn example_config() -> String {
+    concat!(env!("CARGO_MANIFEST_DIR"), "/../armctl/examples/arm.json").to_string()
+}
+
+/// Issue 31: `time_s,elbow,base` (row `1.0,400,-700`) with arm.json moved joint 0 by +400
+/// and joint 1 by -700, exited 0 and said the positions matched; the elbow did not move.
+/// Columns map by header name now, and a name that is no joint is refused before sending.
+#[test]
+fn csv_columns_are_joints_by_header_name() {
+    let sim = SimHost::start(&["--joints", "6"]);
+    let config = example_config();
+    let file = sim.dir().join("named.csv");
+    std::fs::write(&file, "time_s,elbow,base\n1.0,400,-700\n").unwrap();
+    let (ok, out, err) = armctl(
+        &sim,
+        &[
+            "run",
+            file.to_str().unwrap(),
+            "--config",
+            &config,
+            "--quiet",
+        ],
+    );
+    assert!(ok, "{out}\n{err}");
+    assert!(
+        out.contains("final positions match the last point: [-700, 0, 400, 0, 0, 0]"),
+        "{out}"
+    );
+    let typo = sim.dir().join("typo.csv");
+    std::fs::write(&typo, "time_s,elbw,base\n2.0,0,0\n").unwrap();
+    let (ok, out, err) = armctl(
+        &sim,
+        &[
+            "run",
+            typo.to_str().unwrap(),
+            "--config",
+            &config,
+            "--quiet",
+        ],
+    );
+    assert!(!ok, "{out}");
+    assert!(err.contains("\"elbw\", is not a joint"), "{err}");
+    // Nothing moved.
+    let (ok, out, err) = armctl(&sim, &["move", "--config", &config, "base=-700"]);
+    assert!(ok, "{out}\n{err}");
+    assert!(out.contains("already there"), "{out}");
+}
