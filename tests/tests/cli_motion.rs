@@ -333,3 +333,53 @@ fn csv_columns_are_joints_by_header_name() {
     assert!(ok, "{out}\n{err}");
     assert!(out.contains("already there"), "{out}");
 }
+
+/// Issue 31: after `armctl config push`, `armctl move 0=5000` without --config was refused
+/// INVALID_POINT ("27625 against 20000 steps/s") although a slower plan fits: the planner
+/// knew only STATUS's max step rate. move, jog and home now read the limits the controller
+/// keeps (LIMITS_GET) and plan within them, range included.
+#[test]
+fn move_without_a_config_plans_within_the_limits_the_controller_keeps() {
+    let sim = SimHost::start(&["--joints", "6"]);
+    let (ok, out, err) = armctl(&sim, &["config", "push", &example_config()]);
+    assert!(ok, "{out}\n{err}");
+    let (ok, out, err) = armctl(&sim, &["move", "0=5000"]);
+    assert!(ok, "{out}\n{err}");
+    assert!(out.contains("at joint 0 5000 steps"), "{out}");
+    let (ok, out, err) = armctl(&sim, &["jog", "1", "-300"]);
+    assert!(ok, "{out}\n{err}");
+    assert!(out.contains("joint 1 -300 steps"), "{out}");
+    // The base's range on the controller is -16000..16000: refused before sending.
+    let (ok, out, err) = armctl(&sim, &["move", "0=20000"]);
+    assert!(!ok, "{out}");
+    assert!(
+        err.contains(
+            "joint 0: target 20000 steps is outside its range -16000 steps to 16000 steps"
+        ),
+        "{err}"
+    );
+    let (ok, out, err) = armctl(&sim, &["home"]);
+    assert!(ok, "{out}\n{err}");
+}
+
+/// Issue 31: a move refused at its first PENDING left the controller in NEW, and the next
+/// command failed ("`armctl stop` first"); only an upload refused later (PENDING) was
+/// dropped. Every refused upload now leaves the controller STOPPED.
+#[test]
+fn an_upload_refused_at_its_first_frame_leaves_the_controller_stopped() {
+    let sim = SimHost::start(&["--joints", "1"]);
+    let (ok, out, err) = armctl(&sim, &["config", "set", "--joint", "0", "--max", "100"]);
+    assert!(ok, "{out}\n{err}");
+    let file = sim.dir().join("first.csv");
+    std::fs::write(&file, "0,0\n0.01,150\n").unwrap();
+    let (ok, _, err) = armctl(&sim, &["run", file.to_str().unwrap(), "--quiet"]);
+    assert!(!ok);
+    assert!(err.contains("INVALID_POINT"), "{err}");
+    assert!(err.contains("STOPPED sent"), "{err}");
+    let (ok, out, err) = armctl(&sim, &["status", "--json"]);
+    assert!(ok, "{err}");
+    let status: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(status["state"], "Stopped", "{out}");
+    let (ok, out, err) = armctl(&sim, &["move", "50"]);
+    assert!(ok, "{out}\n{err}");
+}

@@ -641,3 +641,34 @@ fn a_csv_header_that_names_no_joint_is_refused() {
     let err = load_in(&path, Some(&config), None).unwrap_err().to_string();
     assert!(err.contains("\"j6\", is not a joint"), "{err}");
 }
+
+/// Issue 31: the limits a controller keeps narrow a config's (range overlap, lower rate;
+/// a kept rate of 0 is none of its own).
+#[test]
+fn a_config_within_the_controllers_kept_limits() {
+    use protocol::JointLimits;
+    let config = ArmConfig::unlimited(2, 100_000).within(&[
+        JointLimits {
+            min: -16_000,
+            max: 16_000,
+            max_rate_hz: 20_000,
+        },
+        JointLimits::NONE,
+    ]);
+    assert_eq!(
+        (config.joints[0].min_steps, config.joints[0].max_steps),
+        (-16_000, 16_000)
+    );
+    assert_eq!(config.joints[0].max_step_rate_hz, 20_000);
+    assert_eq!(config.joints[1], ArmConfig::unlimited(2, 100_000).joints[1]);
+    let narrow = config.within(&[JointLimits {
+        min: 0,
+        max: 50_000,
+        max_rate_hz: 30_000,
+    }]);
+    assert_eq!(
+        (narrow.joints[0].min_steps, narrow.joints[0].max_steps),
+        (0, 16_000)
+    );
+    assert_eq!(narrow.joints[0].max_step_rate_hz, 20_000);
+}

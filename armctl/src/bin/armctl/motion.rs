@@ -3,7 +3,8 @@
 //!
 //! Moves are planned on the host (`armctl::motion`): one trapezoidal profile for all
 //! joints, within each joint's step rate and acceleration (the joint config's, capped by the
-//! rate the controller advertises in STATUS) and position range (the config's). Positions
+//! rate the controller advertises in STATUS) and position range (the config's), and
+//! within the limits the controller keeps (LIMITS_GET), config or not. Positions
 //! are taken and shown in `--units` (steps, deg or rad; default: the config's `units`).
 //! SIGINT or SIGTERM during a move or a home: STOPPED (crate::interrupt).
 
@@ -91,20 +92,35 @@ pub fn ready_to_move(status: &protocol::StatusReport) -> Result<(), String> {
     Ok(())
 }
 
-/// After a failed upload: a controller left in PENDING (points taken before the one it
-/// refused) is sent STOPPED, which drops them, so that the next motion is taken; the
+/// The limits the controller keeps (LIMITS_GET), or `None` from a controller that
+/// predates them (UNKNOWN_TAG).
+pub fn kept_limits(client: &Client) -> Result<Option<protocol::LimitsReport>, String> {
+    match client.limits() {
+        Ok(report) => Ok(Some(report)),
+        Err(e) if e.status() == Some(StatusCode::UnknownTag) => Ok(None),
+        Err(e) => Err(format!("reading the controller's limits: {e}")),
+    }
+}
+
+/// After a failed upload: a controller left in NEW (refused at the first frame) or in
+/// PENDING (points taken before the one it refused) is sent STOPPED, which drops the
+/// upload, so that the next motion is taken (issue 31: NEW was left as it was); the
 /// message says so. Otherwise `message` as it is.
 pub fn drop_partial_upload(client: &Client, message: String) -> String {
     match client.status() {
-        Ok(status) if status.state == State::Pending => match client.stop() {
-            Ok(_) => format!(
-                "{message}\nSTOPPED sent: the points taken before were dropped, the controller \
-                 is STOPPED"
-            ),
-            Err(e) => format!(
-                "{message}\nthe controller is left in PENDING (STOPPED failed: {e}): `armctl stop`"
-            ),
-        },
+        Ok(status) if matches!(status.state, State::New | State::Pending) => {
+            let left = status.state.name();
+            match client.stop() {
+                Ok(_) => format!(
+                    "{message}\nSTOPPED sent: the upload (state {left}) was dropped with the \
+                     points taken before, the controller is STOPPED"
+                ),
+                Err(e) => format!(
+                    "{message}\nthe controller is left in {left} (STOPPED failed: {e}): \
+                     `armctl stop`"
+                ),
+            }
+        }
         _ => message,
     }
 }
@@ -141,6 +157,11 @@ impl<'a> Arm<'a> {
                 config
             }
             None => ArmConfig::unlimited(joints, status.max_step_rate_hz),
+        };
+        // Within what the controller keeps too: it refuses the rest (issue 31).
+        let config = match kept_limits(client)? {
+            Some(kept) => config.within(&kept.joints),
+            None => config,
         };
         let units = args.units.unwrap_or(config.units);
         if units != Units::Steps && args.config.is_none() {
