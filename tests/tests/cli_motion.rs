@@ -383,3 +383,26 @@ fn an_upload_refused_at_its_first_frame_leaves_the_controller_stopped() {
     let (ok, out, err) = armctl(&sim, &["move", "50"]);
     assert!(ok, "{out}\n{err}");
 }
+
+/// Issue 31: `config get --json` could not be pushed back ("missing field
+/// `max_step_rate_hz`"). It round-trips now: what `get --json` prints, `push` restores.
+#[test]
+fn config_get_json_pushes_back() {
+    let sim = SimHost::start(&["--joints", "6"]);
+    let (ok, out, err) = armctl(&sim, &["config", "push", &example_config()]);
+    assert!(ok, "{out}\n{err}");
+    let (ok, saved, err) = armctl(&sim, &["config", "get", "--json"]);
+    assert!(ok, "{err}");
+    let file = sim.dir().join("kept.json");
+    std::fs::write(&file, &saved).unwrap();
+    let (ok, out, err) = armctl(&sim, &["config", "set", "--joint", "2", "--clear"]);
+    assert!(ok, "{out}\n{err}");
+    let (ok, out, err) = armctl(&sim, &["config", "push", file.to_str().unwrap()]);
+    assert!(ok, "{out}\n{err}");
+    let (ok, again, err) = armctl(&sim, &["config", "get", "--json"]);
+    assert!(ok, "{err}");
+    let joints =
+        |text: &str| serde_json::from_str::<serde_json::Value>(text).unwrap()["joints"].clone();
+    assert_eq!(joints(&again), joints(&saved), "{again}");
+    assert_eq!(joints(&again)[2]["max"], 12000, "{again}");
+}

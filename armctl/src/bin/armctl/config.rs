@@ -22,9 +22,10 @@ pub enum ConfigCmd {
     },
     /// LIMITS_SET for every joint of a joint config (the `run --config` file): its
     /// min_steps, max_steps and max_step_rate_hz, so that the controller enforces them
-    /// whatever host drives it (only while STOPPED).
+    /// whatever host drives it (only while STOPPED). FILE may also be what `config get
+    /// --json` printed: the limits it shows are put back.
     Push {
-        /// The joint config.
+        /// The joint config, or a `config get --json` output.
         file: std::path::PathBuf,
     },
     /// LIMITS_SET: one joint's position range and step rate, kept by the controller
@@ -76,23 +77,14 @@ pub fn execute(arm: &Client, command: &ConfigCmd) -> CliResult {
             Ok(())
         }
         ConfigCmd::Push { file } => {
-            let config = armctl::trajectory::ArmConfig::load(file).map_err(|e| e.to_string())?;
-            for (j, joint) in config.joints.iter().enumerate().take(protocol::MAX_JOINTS) {
-                let limits = JointLimits {
-                    min: joint.min_steps,
-                    max: joint.max_steps,
-                    max_rate_hz: joint.max_step_rate_hz,
-                };
+            let joints = pushed_limits(file)?;
+            for (j, (name, limits)) in joints.iter().enumerate().take(protocol::MAX_JOINTS) {
                 let j = u8::try_from(j).unwrap_or(u8::MAX);
-                arm.set_limits(j, limits)
+                arm.set_limits(j, *limits)
                     .map_err(|e| format!("joint {j}: {}", explain_old(e, Tag::LimitsSet)))?;
-                let name = joint.name.as_deref().unwrap_or("-");
-                println!("joint {j} {name}: {}", describe(&limits));
+                println!("joint {j} {name}: {}", describe(limits));
             }
-            println!(
-                "OK: {} joints' limits kept on the controller",
-                config.joints.len()
-            );
+            println!("OK: {} joints' limits kept on the controller", joints.len());
             Ok(())
         }
         ConfigCmd::Set {
@@ -130,6 +122,63 @@ pub fn execute(arm: &Client, command: &ConfigCmd) -> CliResult {
             Ok(())
         }
     }
+}
+
+/// What `config get --json` prints, as `config push` reads it back: the joints' limits
+/// (the last refusal, also printed, is left alone).
+#[derive(serde::Deserialize)]
+struct KeptLimits {
+    joints: Vec<JointLimits>,
+}
+
+/// The limits `config push FILE` sends, joint 0 first, each with the name it is shown
+/// with: from a joint config (`min_steps`, `max_steps`, `max_step_rate_hz`), or from what
+/// `config get --json` printed (`min`, `max`, `max_rate_hz`; issue 31: it was refused,
+/// "missing field `max_step_rate_hz`").
+fn pushed_limits(file: &std::path::Path) -> Result<Vec<(String, JointLimits)>, String> {
+    let text = std::fs::read_to_string(file).map_err(|e| format!("{}: {e}", file.display()))?;
+    let value: serde_json::Value = serde_json::from_str(&text)
+        .map_err(|e| format!("{}: cannot parse: {e}", file.display()))?;
+    let from_get = value
+        .pointer("/joints/0")
+        .is_some_and(|joint| joint.get("max_rate_hz").is_some());
+    if !from_get {
+        let config = armctl::trajectory::ArmConfig::parse(&text, &file.display().to_string())
+            .map_err(|e| e.to_string())?;
+        return Ok(config
+            .joints
+            .iter()
+            .map(|joint| {
+                (
+                    joint.name.clone().unwrap_or_else(|| "-".into()),
+                    JointLimits {
+                        min: joint.min_steps,
+                        max: joint.max_steps,
+                        max_rate_hz: joint.max_step_rate_hz,
+                    },
+                )
+            })
+            .collect());
+    }
+    let kept: KeptLimits = serde_json::from_value(value)
+        .map_err(|e| format!("{}: cannot parse: {e}", file.display()))?;
+    if kept.joints.is_empty() || kept.joints.len() > protocol::MAX_JOINTS {
+        return Err(format!(
+            "{}: {} joints: 1 to {}",
+            file.display(),
+            kept.joints.len(),
+            protocol::MAX_JOINTS
+        ));
+    }
+    if let Some(j) = kept.joints.iter().position(|l| !l.is_valid()) {
+        return Err(format!(
+            "{}: joint {j}: min {} is above max {}",
+            file.display(),
+            kept.joints[j].min,
+            kept.joints[j].max
+        ));
+    }
+    Ok(kept.joints.into_iter().map(|l| ("-".into(), l)).collect())
 }
 
 /// An older controller's UNKNOWN_TAG, explained.
