@@ -204,7 +204,9 @@ fn serial_bridges_stdin_and_stdout_and_watch_records() {
 }
 
 /// Issue 23: `armctl watch | head` panicked with a backtrace when `head` closed the pipe.
-/// Now a closed stdout ends `watch` quietly: exit status 0, no panic on stderr.
+/// Now a closed stdout ends `watch` quietly: no panic, nothing on stderr. Changed with
+/// issue 31 (every command ends as other Unix tools do): the exit status was 0, it is now
+/// death by SIGPIPE.
 #[test]
 fn watch_into_a_closed_pipe_ends_quietly() {
     use std::io::Read;
@@ -226,8 +228,14 @@ fn watch_into_a_closed_pipe_ends_quietly() {
     drop(stdout);
     let output = child.wait_with_output().unwrap();
     let stderr = String::from_utf8_lossy(&output.stderr);
-    assert!(!stderr.contains("panicked"), "{stderr}");
-    assert!(output.status.success(), "{:?}: {stderr}", output.status);
+    assert!(stderr.is_empty(), "{stderr}");
+    use std::os::unix::process::ExitStatusExt;
+    assert_eq!(
+        output.status.signal(),
+        Some(13),
+        "{:?}: {stderr}",
+        output.status
+    );
 }
 
 /// Issue 23: `armctl set-location 1` set joint 0 to 1 and zeroed joints 1-5. Joints not
@@ -289,4 +297,40 @@ fn plot_writes_the_format_its_output_is_named() {
     assert!(ok, "{err}");
     assert!(std::fs::read_to_string(&svg).unwrap().contains("<svg"));
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Issue 31: `armctl status | head -n 1` panicked ("failed printing to stdout: Broken
+/// pipe", 9 of 20 tries). A closed stdout now ends every command quietly, as it ends other
+/// Unix tools: killed by SIGPIPE (141 in a shell), nothing on stderr. The pipe's reader is
+/// closed before the tool starts, so every run meets it (no race with `head`).
+/// Changed with it: watch_into_a_closed_pipe_ends_quietly expected exit status 0.
+#[test]
+fn a_closed_stdout_ends_every_command_quietly() {
+    use std::os::unix::process::ExitStatusExt;
+    let sim = SimHost::start(&["--joints", "2"]);
+    let commands: [&[&str]; 4] = [
+        &["status"],
+        &["status", "--json"],
+        &["config", "get"],
+        &["frame", "decode", "0912055c"],
+    ];
+    for args in commands {
+        let (reader, writer) = std::io::pipe().unwrap();
+        drop(reader);
+        let output = Command::new(armctl_bin())
+            .arg("--controller")
+            .arg(sim.addr.to_string())
+            .args(args)
+            .stdout(writer)
+            .output()
+            .expect("run armctl");
+        let stderr = String::from_utf8_lossy(&output.stderr);
+        assert!(stderr.is_empty(), "{args:?}: {stderr}");
+        assert_eq!(
+            output.status.signal(),
+            Some(13),
+            "{args:?}: {:?} (SIGPIPE expected)",
+            output.status
+        );
+    }
 }

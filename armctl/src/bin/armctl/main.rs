@@ -10,11 +10,30 @@
 //!   `plot`, which need no controller.
 //!
 //! Every failure prints `error: ...` and exits with 1; clap exits with 2 on a usage error.
+//! A closed stdout (`armctl status | head -n 1`) ends the tool quietly, killed by SIGPIPE,
+//! once the command has finished (`out`).
 //! SIGINT or SIGTERM during a command that moves the arm (`run`, `return`) sends STOPPED,
 //! prints `interrupted (SIGINT): STOPPED sent, ...` and exits 130 or 143 (`interrupt`).
 //! Library diagnostics (an upload's ACKs, timeouts, go-back-N resends) go through the `log`
 //! facade: `ARMCTL_TRACE=1` shows them all, `RUST_LOG` (e.g. `RUST_LOG=armctl=debug`)
 //! chooses more finely.
+
+// std's `print!`, `println!` and `eprintln!` panic when the stream is a closed pipe
+// (`armctl status | head -n 1`, issue 31). These, defined before the modules and so used
+// by all of them, write through `out` instead (stderr: errors ignored, nothing to tell).
+macro_rules! print {
+    ($($arg:tt)*) => { $crate::out::write(format_args!($($arg)*)) };
+}
+macro_rules! println {
+    () => { $crate::out::write(format_args!("\n")) };
+    ($($arg:tt)*) => { $crate::out::write(format_args!("{}\n", format_args!($($arg)*))) };
+}
+macro_rules! eprintln {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        let _ = writeln!(std::io::stderr(), $($arg)*);
+    }};
+}
 
 mod cli;
 mod config;
@@ -26,6 +45,7 @@ mod interrupt;
 mod jog_keys;
 mod motion;
 mod net;
+mod out;
 mod owner;
 mod plot;
 mod pwm;
@@ -58,7 +78,8 @@ fn main() -> ExitCode {
         return ExitCode::from(code);
     }
     match result {
-        Ok(()) => ExitCode::SUCCESS,
+        // Killed by SIGPIPE when stdout's reader went away (crate::out).
+        Ok(()) => out::success(),
         Err(message) => {
             eprintln!("error: {message}");
             ExitCode::FAILURE

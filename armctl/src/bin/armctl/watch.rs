@@ -112,10 +112,9 @@ pub fn execute(
                         writeln!(out, "{line}")
                     };
                     // The reader went away (`armctl watch | head`): done, quietly.
-                    if closed(&written) {
+                    if crate::out::closed(&written) {
                         return Ok(());
                     }
-                    written.map_err(|e| format!("stdout: {e}"))?;
                 }
             }
             Err(mpsc::RecvTimeoutError::Timeout) => {}
@@ -129,13 +128,7 @@ pub fn execute(
     }
     let written = if tty { writeln!(out) } else { Ok(()) }
         .and_then(|()| writeln!(out, "{seen} location reports"));
-    if closed(&written) {
-        return Ok(());
-    }
-    written.map_err(|e| format!("stdout: {e}"))
-}
-
-/// Whether a write failed because the reader closed the pipe.
-fn closed(written: &std::io::Result<()>) -> bool {
-    matches!(written, Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe)
+    // A closed pipe or a failed write: main ends the tool as it should (crate::out).
+    crate::out::closed(&written);
+    Ok(())
 }
