@@ -334,3 +334,64 @@ fn a_closed_stdout_ends_every_command_quietly() {
         );
     }
 }
+
+/// Issue 31: `armctl key new > arm.key` left the key readable by everyone. Key files are
+/// written 0600 now: by `key new -o FILE`, and a regular file on stdout is made 0600; a
+/// key file readable by group or others given with --key-file gets a warning.
+#[test]
+fn key_files_are_private() {
+    use std::os::unix::fs::PermissionsExt;
+    let sim = SimHost::start(&["--joints", "2"]);
+    let mode =
+        |path: &std::path::Path| std::fs::metadata(path).unwrap().permissions().mode() & 0o777;
+    let written = sim.dir().join("written.key");
+    let (ok, out, err) = armctl(None, &["key", "new", "-o", written.to_str().unwrap()]);
+    assert!(ok, "{out}\n{err}");
+    assert_eq!(mode(&written), 0o600);
+    assert_eq!(std::fs::read_to_string(&written).unwrap().trim().len(), 64);
+    // Not over an existing file (a key lost is a controller locked out).
+    let (ok, _, err) = armctl(None, &["key", "new", "-o", written.to_str().unwrap()]);
+    assert!(!ok);
+    assert!(err.contains("exists"), "{err}");
+
+    // `armctl key new > redirected.key`, the file made by the shell 0644.
+    let redirected = sim.dir().join("redirected.key");
+    let file = std::fs::File::create(&redirected).unwrap();
+    file.set_permissions(std::fs::Permissions::from_mode(0o644))
+        .unwrap();
+    let output = Command::new(armctl_bin())
+        .args(["key", "new"])
+        .stdout(file)
+        .output()
+        .unwrap();
+    assert!(output.status.success(), "{output:?}");
+    assert_eq!(mode(&redirected), 0o600);
+    assert_eq!(
+        std::fs::read_to_string(&redirected).unwrap().trim().len(),
+        64
+    );
+
+    // The key set on the controller, then used from a file anyone can read: a warning.
+    let (ok, out, err) = armctl(Some(&sim), &["key", "set", written.to_str().unwrap()]);
+    assert!(ok, "{out}\n{err}");
+    assert!(!err.contains("warning"), "{err}");
+    let loose = sim.dir().join("loose.key");
+    std::fs::copy(&written, &loose).unwrap();
+    std::fs::set_permissions(&loose, std::fs::Permissions::from_mode(0o644)).unwrap();
+    let (ok, out, err) = armctl(
+        Some(&sim),
+        &["--key-file", loose.to_str().unwrap(), "status"],
+    );
+    assert!(ok, "{out}\n{err}");
+    assert!(
+        err.contains("warning:")
+            && err.contains("loose.key is readable by group or others (mode 644)"),
+        "{err}"
+    );
+    let (ok, out, err) = armctl(
+        Some(&sim),
+        &["--key-file", written.to_str().unwrap(), "status"],
+    );
+    assert!(ok, "{out}\n{err}");
+    assert!(!err.contains("warning"), "{err}");
+}

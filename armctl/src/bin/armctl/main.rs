@@ -43,6 +43,7 @@ mod enable;
 mod frame;
 mod interrupt;
 mod jog_keys;
+mod key;
 mod motion;
 mod net;
 mod out;
@@ -108,13 +109,7 @@ fn execute(cli: Cli) -> CliResult {
         Cmd::Net(net::NetCmd::Show) => net::show(&cli),
         Cmd::Run(args) if args.dry_run => run::dry_run(args),
         Cmd::Check(args) => run::dry_run(args),
-        Cmd::Key(cli::KeyCmd::New) => {
-            println!(
-                "{}",
-                armctl::auth::new_key_hex().map_err(|e| e.to_string())?
-            );
-            Ok(())
-        }
+        Cmd::Key(cli::KeyCmd::New { output }) => key::new(output.as_deref()),
         _ => {
             let arm = connect::connect(&cli)
                 .map_err(|e| owner::explain_not_owner(e, &cli.controller, cli.bind))?;
@@ -174,7 +169,7 @@ fn execute_online(cli: &Cli, arm: &armctl::Client) -> CliResult {
             net::set(arm, ip.as_deref(), *gateway, *dhcp)
         }
         Cmd::Key(cli::KeyCmd::Set { file }) => {
-            let key = armctl::auth::read_key_file(file)?;
+            let key = key::read(file)?;
             single::done(arm.set_key(Some(key)))
         }
         Cmd::Key(cli::KeyCmd::Clear) => single::done(arm.set_key(None)),
@@ -184,7 +179,7 @@ fn execute_online(cli: &Cli, arm: &armctl::Client) -> CliResult {
         | Cmd::Plot { .. }
         | Cmd::Discover { .. }
         | Cmd::Net(net::NetCmd::Show)
-        | Cmd::Key(cli::KeyCmd::New) => Ok(()),
+        | Cmd::Key(cli::KeyCmd::New { .. }) => Ok(()),
     }
 }
 
