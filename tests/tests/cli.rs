@@ -133,8 +133,10 @@ fn stop_works_from_a_host_that_does_not_own_the_controller() {
     // This process (127.0.0.1) becomes the owner.
     let owner = sim.connect();
     owner.pin(0, true).unwrap();
-    // armctl from 127.0.0.2 can read STATUS and stop, nothing else.
+    // armctl from 127.0.0.2 can read STATUS and stop, nothing else. The owner speaks
+    // before each (a loaded machine once took 5 s between two of them: ownership passed).
     let other = |args: &[&str]| {
+        owner.status().unwrap();
         let output = Command::new(armctl_bin())
             .arg("--controller")
             .arg(sim.addr.to_string())
@@ -153,6 +155,18 @@ fn stop_works_from_a_host_that_does_not_own_the_controller() {
     let (ok, err) = other(&["pin", "0", "on"]);
     assert!(!ok);
     assert!(err.contains("NOT_OWNER"), "{err}");
+    // Issue 31: `move` from another host said "UPLOAD_PERIOD refused with NOT_OWNER" (the
+    // first command it sends that needs the owner); it names the command run now.
+    let (ok, err) = other(&["move", "10"]);
+    assert!(!ok);
+    assert!(
+        err.starts_with("error: move refused with NOT_OWNER"),
+        "{err}"
+    );
+    assert!(!err.contains("UPLOAD_PERIOD"), "{err}");
+    let (ok, err) = other(&["config", "set", "--joint", "0", "--max", "5"]);
+    assert!(!ok);
+    assert!(err.contains("config set refused with NOT_OWNER"), "{err}");
     let (ok, err) = other(&["stop"]);
     assert!(ok, "{err}");
 }

@@ -59,7 +59,7 @@ mod watch;
 use std::process::ExitCode;
 
 use armctl::trajectory::ArmConfig;
-use clap::Parser;
+use clap::{CommandFactory, FromArgMatches};
 
 use cli::{Cli, Cmd};
 
@@ -68,12 +68,15 @@ type CliResult = Result<(), String>;
 
 fn main() -> ExitCode {
     init_logging();
-    let mut cli = Cli::parse();
+    // As Cli::parse(), keeping the matches for the name of the command run.
+    let matches = Cli::command().get_matches();
+    let mut cli = Cli::from_arg_matches(&matches).unwrap_or_else(|e| e.exit());
+    let command = command_name(&matches);
     cli.controller = armctl::controller_address(&cli.controller);
     if let Some(warning) = cli::resend_warning(cli.ack_timeout_ms, cli.attempts) {
         eprintln!("warning: {warning}");
     }
-    let result = execute(cli);
+    let result = execute(cli, &command);
     if let Some(code) = interrupt::exit_code() {
         // interrupt::finish said what was stopped.
         return ExitCode::from(code);
@@ -94,8 +97,23 @@ fn init_logging() {
     armctl::logger("warn").init();
 }
 
-/// The commands that need no controller, then the others over one connection.
-fn execute(cli: Cli) -> CliResult {
+/// The command run as the user typed it: `move`, `config set` (subcommands two deep).
+fn command_name(matches: &clap::ArgMatches) -> String {
+    let mut words = Vec::new();
+    let mut at = matches;
+    while let Some((name, sub)) = at.subcommand() {
+        words.push(name);
+        if words.len() == 2 {
+            break;
+        }
+        at = sub;
+    }
+    words.join(" ")
+}
+
+/// The commands that need no controller, then the others over one connection. `command`
+/// (as the user typed it) names what was refused.
+fn execute(cli: Cli, command: &str) -> CliResult {
     match &cli.command {
         Cmd::Frame(command) => frame::execute(command),
         Cmd::Plot(args) => plot::execute(args),
@@ -112,9 +130,9 @@ fn execute(cli: Cli) -> CliResult {
         Cmd::Key(cli::KeyCmd::New { output }) => key::new(output.as_deref()),
         _ => {
             let arm = connect::connect(&cli)
-                .map_err(|e| owner::explain_not_owner(e, &cli.controller, cli.bind))?;
+                .map_err(|e| owner::explain_not_owner(e, command, &cli.controller, cli.bind))?;
             let result = execute_online(&cli, &arm)
-                .map_err(|e| owner::explain_not_owner(e, &cli.controller, cli.bind))
+                .map_err(|e| owner::explain_not_owner(e, command, &cli.controller, cli.bind))
                 .map_err(|e| config::explain_invalid_point(e, &arm));
             // After a signal: STOPPED (unless the command sent it) and the line saying so.
             interrupt::finish(&arm);

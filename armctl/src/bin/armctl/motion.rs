@@ -98,7 +98,7 @@ pub fn kept_limits(client: &Client) -> Result<Option<protocol::LimitsReport>, St
     match client.limits() {
         Ok(report) => Ok(Some(report)),
         Err(e) if e.status() == Some(StatusCode::UnknownTag) => Ok(None),
-        Err(e) => Err(format!("reading the controller's limits: {e}")),
+        Err(e) => Err(e.to_string()),
     }
 }
 

@@ -534,3 +534,25 @@ fn decode_errors_are_the_decode_error_message() {
     .unwrap_err();
     assert!(wrong.contains("other way"), "{wrong}");
 }
+
+/// Issue 31: a NOT_OWNER refusal names the command the user ran, not the frame refused.
+#[test]
+fn not_owner_names_the_command_run() {
+    use crate::owner::name_the_command;
+    assert_eq!(
+        name_the_command(
+            "UPLOAD_PERIOD refused with NOT_OWNER: another host owns the controller",
+            "move"
+        ),
+        "move refused with NOT_OWNER: another host owns the controller"
+    );
+    assert_eq!(
+        name_the_command(
+            "joint 0: LIMITS_SET refused with NOT_OWNER: x",
+            "config push"
+        ),
+        "joint 0: config push refused with NOT_OWNER: x"
+    );
+    let other = "PENDING refused with INVALID_POINT (controller state NEW): y";
+    assert_eq!(name_the_command(other, "run"), other);
+}
