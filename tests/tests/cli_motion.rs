@@ -406,3 +406,51 @@ fn config_get_json_pushes_back() {
     assert_eq!(joints(&again), joints(&saved), "{again}");
     assert_eq!(joints(&again)[2]["max"], 12000, "{again}");
 }
+
+/// Issue 31: refusals name the joint by its config name, the point's time, the user's
+/// units, and for a rate the slow-down that fits: from the host's own check, and from the
+/// controller's (INVALID_POINT, explained from LIMITS_GET and the points sent).
+#[test]
+fn refusals_name_the_joint_the_time_the_units_and_the_slow_down() {
+    let sim = SimHost::start(&["--joints", "3"]);
+    let config = sim.dir().join("arm.json");
+    std::fs::write(&config, CONFIG).unwrap();
+    let config = config.to_str().unwrap();
+    // 30 degrees of base (524 steps) in 0.1 s: 5236 steps/s against the config's 4000.
+    let fast = sim.dir().join("fast.csv");
+    std::fs::write(&fast, "time_s,base\n0,0\n0.1,30\n").unwrap();
+    let (ok, out, err) = armctl(&sim, &["run", fast.to_str().unwrap(), "--config", config]);
+    assert!(!ok, "{out}");
+    assert!(err.contains("joint 0 (base)"), "{err}");
+    assert!(err.contains("(t = 0.010000 s)"), "{err}");
+    assert!(
+        err.contains("deg/s) exceeds the limit of 4000 steps/s (229.18 deg/s)"),
+        "{err}"
+    );
+    assert!(err.contains("needs 1.3x longer"), "{err}");
+
+    // Within the config (4000 steps/s) but over the 1000 the controller keeps: 30
+    // degrees in 0.3 s is 1745 steps/s. The controller refuses; the tool says where.
+    let (ok, out, err) = armctl(
+        &sim,
+        &["config", "set", "--joint", "0", "--max-rate", "1000"],
+    );
+    assert!(ok, "{out}\n{err}");
+    let slow = sim.dir().join("slow.csv");
+    std::fs::write(&slow, "time_s,base\n0,0\n0.3,30\n").unwrap();
+    let (ok, out, err) = armctl(
+        &sim,
+        &["run", slow.to_str().unwrap(), "--config", config, "--quiet"],
+    );
+    assert!(!ok, "{out}");
+    assert!(err.contains("INVALID_POINT"), "{err}");
+    assert!(err.contains("joint 0 (base)"), "{err}");
+    assert!(err.contains("t = 0."), "{err}");
+    assert!(err.contains("deg/s"), "{err}");
+    assert!(
+        err.contains("its max rate 1000 steps/s (57.30 deg/s)"),
+        "{err}"
+    );
+    assert!(err.contains("needs 1.7x longer"), "{err}");
+    assert!(err.contains("STOPPED sent"), "{err}");
+}

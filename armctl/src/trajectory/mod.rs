@@ -45,7 +45,7 @@ mod resample;
 mod tests;
 
 pub use config::{ArmConfig, JointConfig};
-pub use error::{ErrorKind, TrajectoryError};
+pub use error::{ErrorKind, JointShown, TrajectoryError, slow_down};
 pub use parse::{
     JointTrajectory, JointTrajectoryPoint, RosDuration, joint_trajectory_to_waypoints, parse_csv,
     parse_csv_with, parse_joint_trajectory,

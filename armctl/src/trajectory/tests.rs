@@ -672,3 +672,38 @@ fn a_config_within_the_controllers_kept_limits() {
     );
     assert_eq!(narrow.joints[0].max_step_rate_hz, 20_000);
 }
+
+/// Issue 31: a refusal names the joint by its config name, the point's time, the values
+/// in the user's units as well as steps, and for a step rate the slow-down that fits.
+#[test]
+fn refusals_speak_the_users_units_and_say_how_much_slower() {
+    // As above: 150 steps in a 50 ms segment, 3000 steps/s against 2000.
+    let text = trajectory(&[point(0, 0, 0.0, 0.0), point(0, 100_000_000, 0.3, 0.0)].join(","));
+    let w = parse_joint_trajectory(&text, "fast.json", &config()).unwrap();
+    let err = to_points(&w, &[100, 0, 0, 0, 0, 0, 0, 0], 50_000, &config(), None).unwrap_err();
+    let message = err
+        .in_units(&config(), crate::motion::Units::Deg)
+        .to_string();
+    assert!(message.contains("joint 0 (shoulder)"), "{message}");
+    assert!(message.contains("(t = 0.050000 s)"), "{message}");
+    // 3000 steps/s at 1000 steps/rad: 171.9 deg/s; the limit 2000: 114.6 deg/s.
+    assert!(
+        message.contains(
+            "3000 steps/s (171.89 deg/s) exceeds the limit of 2000 steps/s (114.59 deg/s)"
+        ),
+        "{message}"
+    );
+    assert!(message.contains("needs 1.5x longer"), "{message}");
+    let low = parse_csv("0,100,0\n1,-2101,0\n", "low.csv").unwrap();
+    let err = to_points(&low, &[100, 0, 0, 0, 0, 0, 0, 0], 10_000, &config(), None).unwrap_err();
+    let message = err
+        .in_units(&config(), crate::motion::Units::Deg)
+        .to_string();
+    // Positions from the zero offset (100 steps): -2101 steps is -126.11 deg.
+    assert!(
+        message.contains(
+            "position -2101 steps (-126.11 deg) is below the minimum -2000 steps (-120.32 deg)"
+        ),
+        "{message}"
+    );
+}

@@ -2,8 +2,10 @@
 //! LIMITS_SET; docs/PROTOCOL.md, issue 23), and what an INVALID_POINT broke.
 
 use armctl::Client;
+use armctl::motion::Units;
+use armctl::trajectory::ArmConfig;
 use clap::Subcommand;
-use protocol::{JointLimits, LimitsReport, RefusalReason, Tag};
+use protocol::{JointLimits, LimitsReport, MAX_JOINTS, Point, Refusal, RefusalReason, Tag};
 
 use crate::CliResult;
 
@@ -248,15 +250,132 @@ pub fn refusal_line(report: &LimitsReport) -> Option<String> {
     ))
 }
 
+/// An upload as sent, to tell which of its points the controller refused.
+pub struct Sent<'a> {
+    /// Where the arm was when it began, steps.
+    pub from: [i32; MAX_JOINTS],
+    /// The points, in order.
+    pub points: &'a [Point],
+    /// The joints' names and calibration (without a config: unnamed, in steps).
+    pub config: &'a ArmConfig,
+    /// The units the user gave positions in.
+    pub units: Units,
+}
+
 /// `message` with what the controller says it refused, when it is an INVALID_POINT and
 /// the controller keeps limits (an older one answers LIMITS_GET with UNKNOWN_TAG: the
-/// message stays as it is).
-pub fn explain_invalid_point(message: String, arm: &Client) -> String {
-    if !message.contains("INVALID_POINT") {
+/// message stays as it is). With the upload `sent`, the refused point is found in it:
+/// its time, the joint's config name, the values in the user's units and, for a rate,
+/// how much slower it must go (issue 31).
+pub fn explain_invalid_point(message: String, arm: &Client, sent: Option<&Sent<'_>>) -> String {
+    const SAYS: &str = "the controller says: ";
+    if !message.contains("INVALID_POINT") || message.contains(SAYS) {
         return message;
     }
-    match arm.limits().ok().as_ref().and_then(refusal_line) {
-        Some(line) => format!("{message}\nthe controller says: {line}"),
+    let Some(report) = arm.limits().ok() else {
+        return message;
+    };
+    let line = sent
+        .and_then(|sent| refused_point(&report.last_refusal, sent))
+        .or_else(|| refusal_line(&report));
+    match line {
+        Some(line) => format!("{message}\n{SAYS}{line}"),
         None => message,
     }
+}
+
+/// The refused point of an upload `sent`, in words, when the refusal is of a PENDING and
+/// a point of `sent` breaks its limit: the first such point (every point before it was
+/// taken, under the same limits).
+pub fn refused_point(r: &Refusal, sent: &Sent<'_>) -> Option<String> {
+    if Tag::from_u8(r.tag) != Some(Tag::Pending) {
+        return None;
+    }
+    let joint = usize::from(r.joint);
+    let steps = |i: usize, j: usize| {
+        let before = if i == 0 {
+            sent.from[j]
+        } else {
+            sent.points[i - 1].position[j]
+        };
+        (i64::from(sent.points[i].position[j]) - i64::from(before)).unsigned_abs()
+    };
+    // steps / duration > limit, in integers.
+    let over = |steps: u64, i: usize| {
+        u128::from(steps) * 1_000_000
+            > u128::from(r.limit.max(0).unsigned_abs())
+                * u128::from(sent.points[i].duration.max(0).unsigned_abs())
+    };
+    let found = (0..sent.points.len()).find(|&i| match r.reason {
+        RefusalReason::BelowMin | RefusalReason::AboveMax => {
+            joint < MAX_JOINTS && sent.points[i].position[joint] == r.value
+        }
+        RefusalReason::JointRate | RefusalReason::BoardRate => {
+            joint < MAX_JOINTS && over(steps(i, joint), i)
+        }
+        RefusalReason::StepBudget => over((0..MAX_JOINTS).map(|j| steps(i, j)).sum(), i),
+        RefusalReason::Duration | RefusalReason::None => false,
+    })?;
+    // The point's end: the time the arm is at its positions.
+    let t: i64 = sent.points[..=found]
+        .iter()
+        .map(|p| i64::from(p.duration))
+        .sum();
+    let at = format!(
+        "point {found} of the upload, ending at t = {:.6} s (PENDING seq {:#04x}, point {} of \
+         the frame)",
+        t as f64 / 1e6,
+        r.seq,
+        r.point
+    );
+    let calibration = sent.config.joints.get(joint);
+    let name = match calibration.and_then(|c| c.name.as_deref()) {
+        Some(name) => format!("joint {joint} ({name})"),
+        None => format!("joint {joint}"),
+    };
+    let position = |steps: i32| match (sent.units, calibration) {
+        (Units::Steps, _) | (_, None) => format!("{steps} steps"),
+        (units, Some(c)) => format!("{steps} steps ({})", units.show(i64::from(steps), c)),
+    };
+    let rate = |hz: i32| match (sent.units, calibration) {
+        (Units::Steps, _) | (_, None) => format!("{hz} steps/s"),
+        (units, Some(c)) => format!(
+            "{hz} steps/s ({:.2} {}/s)",
+            units.distance_from_steps(f64::from(hz), c).abs(),
+            units.name()
+        ),
+    };
+    let slower = || armctl::trajectory::slow_down(f64::from(r.value), f64::from(r.limit));
+    Some(match r.reason {
+        RefusalReason::BelowMin => format!(
+            "{at}: {name}: position {} is below its min {}",
+            position(r.value),
+            position(r.limit)
+        ),
+        RefusalReason::AboveMax => format!(
+            "{at}: {name}: position {} is above its max {}",
+            position(r.value),
+            position(r.limit)
+        ),
+        RefusalReason::JointRate => format!(
+            "{at}: {name}: {} is above its max rate {}: it needs {} longer",
+            rate(r.value),
+            rate(r.limit),
+            slower()
+        ),
+        RefusalReason::BoardRate => format!(
+            "{at}: {name}: {} is above the controller's max_step_rate_hz {}: it needs {} \
+             longer",
+            rate(r.value),
+            rate(r.limit),
+            slower()
+        ),
+        _ => format!(
+            "{at}: all joints together: {} steps/s is above the controller's step_budget_hz \
+             {} steps/s: it needs {} longer",
+            r.value,
+            r.limit,
+            slower()
+        ),
+    })
 }

@@ -133,7 +133,7 @@ fn execute(cli: Cli, command: &str) -> CliResult {
                 .map_err(|e| owner::explain_not_owner(e, command, &cli.controller, cli.bind))?;
             let result = execute_online(&cli, &arm)
                 .map_err(|e| owner::explain_not_owner(e, command, &cli.controller, cli.bind))
-                .map_err(|e| config::explain_invalid_point(e, &arm));
+                .map_err(|e| config::explain_invalid_point(e, &arm, None));
             // After a signal: STOPPED (unless the command sent it) and the line saying so.
             interrupt::finish(&arm);
             result

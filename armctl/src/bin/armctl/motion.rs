@@ -11,7 +11,9 @@
 use std::path::PathBuf;
 use std::time::Duration;
 
-use armctl::motion::{JointLimit, MoveSpeed, TargetArg, Units, joint_index, targets_in_steps};
+use armctl::motion::{
+    JointLimit, MoveSpeed, TargetArg, Units, joint_index, plan_move, targets_in_steps,
+};
 use armctl::trajectory::ArmConfig;
 use armctl::{Client, RunOptions};
 use clap::Args;
@@ -110,10 +112,15 @@ pub fn drop_partial_upload(client: &Client, message: String) -> String {
     match client.status() {
         Ok(status) if matches!(status.state, State::New | State::Pending) => {
             let left = status.state.name();
+            let dropped = if status.state == State::New {
+                "nothing had been taken"
+            } else {
+                "with the points taken before"
+            };
             match client.stop() {
                 Ok(_) => format!(
-                    "{message}\nSTOPPED sent: the upload (state {left}) was dropped with the \
-                     points taken before, the controller is STOPPED"
+                    "{message}\nSTOPPED sent: the upload was dropped (state {left}: {dropped}), \
+                     the controller is STOPPED"
                 ),
                 Err(e) => format!(
                     "{message}\nthe controller is left in {left} (STOPPED failed: {e}): \
@@ -281,23 +288,33 @@ impl<'a> Arm<'a> {
             cancel,
             ..RunOptions::default()
         };
-        let report = self
-            .client
-            .move_to(
-                target,
-                &self.limits,
-                self.speed,
-                self.segment_us,
-                &options,
-                |p| {
+        // As Client::move_to, keeping the points: a refusal says which one it was.
+        let from = self.position()?;
+        let points = plan_move(&from, target, &self.limits, self.speed, self.segment_us)
+            .map_err(|e| format!("invalid trajectory: {e}"))?;
+        let report = if points.is_empty() {
+            Ok(None)
+        } else {
+            self.client
+                .run_trajectory(&points, &options, |p| {
                     bar.set_length(p.total as u64);
                     bar.set_position(p.executed as u64);
                     bar.set_message(p.state.name());
-                },
-            )
-            .map_err(|e| e.to_string());
+                })
+                .map(Some)
+        };
         bar.finish_and_clear();
-        let report = report.map_err(|e| drop_partial_upload(self.client, e))?;
+        let report = report.map_err(|e| {
+            let sent = crate::config::Sent {
+                from,
+                points: &points,
+                config: &self.config,
+                units: self.units,
+            };
+            let message =
+                crate::config::explain_invalid_point(e.to_string(), self.client, Some(&sent));
+            drop_partial_upload(self.client, message)
+        })?;
         let at = match report.and_then(|r| r.final_location) {
             Some(location) => location.position,
             None => self.position()?,
