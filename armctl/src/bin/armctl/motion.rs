@@ -109,6 +109,10 @@ pub fn kept_limits(client: &Client) -> Result<Option<protocol::LimitsReport>, St
 /// upload, so that the next motion is taken (issue 31: NEW was left as it was); the
 /// message says so. Otherwise `message` as it is.
 pub fn drop_partial_upload(client: &Client, message: String) -> String {
+    // Another host's now (it took the controller over): its upload is not ours to stop.
+    if message.contains("NOT_OWNER") || message.contains("AUTH_") {
+        return message;
+    }
     match client.status() {
         Ok(status) if matches!(status.state, State::New | State::Pending) => {
             let left = status.state.name();
