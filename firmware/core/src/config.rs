@@ -41,6 +41,25 @@ pub struct ControllerConfig {
     pub return_accel: [u32; MAX_JOINTS],
     /// RETURN: length of each generated point, microseconds.
     pub return_segment_us: u32,
+    /// What a stop (STOPPED, the wired e-stop input) does to a servo PWM on the gripper
+    /// timer; a counted burst is always cut (issue 30).
+    pub servo_on_stop: ServoOnStop,
+}
+
+/// What a stop (STOPPED, the wired e-stop input) does to a servo PWM (PWM_START with
+/// `PluseCount` 0) on the gripper timer (issue 30; docs/PROTOCOL.md, PWM_START). A counted
+/// burst (a stepper gripper) is motion and every stop cuts it; a servo's PWM is a held
+/// position, and cutting it makes most hobby servos go limp, so that a closed gripper
+/// drops its part. Either can be right for a given arm, so it is a board setting.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum ServoOnStop {
+    /// The servo PWM keeps its duty through a stop (the gripper keeps holding; STATUS flag
+    /// bit 6 stays set); PWM_STOP still cuts it. The default.
+    #[default]
+    Hold,
+    /// A stop cuts the servo PWM too, as PWM_STOP does (STATUS flag bit 6 clear).
+    Cut,
 }
 
 impl ControllerConfig {
