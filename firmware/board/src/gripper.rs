@@ -16,8 +16,21 @@
 //!   periods; the interrupt at the end of burst k (burst k + 1 is running) loads the size
 //!   of burst k + 2 into RCR, or sets one-pulse mode when k + 1 is the last. It has at
 //!   least 128 periods to do so.
+//!
+//! # Stops (issue 30)
+//! A STOPPED or the wired e-stop input stops the gripper as the joints: the controller cuts
+//! a counted burst (and a servo PWM under `ServoOnStop::Cut`) through [`Gripper::stop`].
+//! The wired input's own interrupt (EXTI0, P0) does not wait for that: [`kill_on_estop`]
+//! stops the counter and forces the output low right there, with two register writes, when
+//! [`CUT_ON_ESTOP`] says what runs is to be cut. It may preempt [`Gripper::start`]
+//! before its critical section and be undone by it; the controller's stop, which follows
+//! the same opening before the trajectory task handles anything else, then cuts it.
 
 use core::cell::Cell;
+use core::sync::atomic::{AtomicBool, Ordering};
+
+use arm_core::config::ServoOnStop;
+use arm_core::hw::Gripper;
 
 use board_logic::gripper::{next_burst, rcr_for};
 use embassy_stm32::gpio::{Level, Output, OutputType, Speed};
@@ -39,20 +52,28 @@ const SR_UPDATE: u32 = 1 << 0;
 /// Pulses of the current stepper-mode run not yet loaded into the repetition counter.
 static UNLOADED_PULSES: Mutex<CriticalSectionRawMutex, Cell<u32>> = Mutex::new(Cell::new(0));
 
+/// What runs is cut by the wired e-stop input's interrupt ([`kill_on_estop`]): a counted
+/// burst, or a servo PWM under [`ServoOnStop::Cut`]. Set by `start`, cleared by `stop`.
+static CUT_ON_ESTOP: AtomicBool = AtomicBool::new(false);
+
 /// The gripper timer ([`arm_core::hw::Gripper`]).
 pub struct GripperPwm {
     _timer: Timer<'static, TIM15>,
     _pin: PwmPin<'static, TIM15, Ch1>,
     dir: Output<'static>,
     clock_hz: u32,
+    servo_on_stop: ServoOnStop,
 }
 
 impl GripperPwm {
     /// Takes TIM15, its channel 1 pin and the DIR pin; the output stays low until `start`.
+    /// `servo_on_stop` is the controller's (`ControllerConfig::servo_on_stop`), for the
+    /// wired e-stop input's own cut ([`kill_on_estop`]).
     pub fn new(
         tim: Peri<'static, TIM15>,
         pwm_pin: Peri<'static, PE5>,
         dir_pin: Peri<'static, PE4>,
+        servo_on_stop: ServoOnStop,
     ) -> Self {
         let timer = Timer::new(tim);
         let clock_hz = timer.get_clock_frequency().0;
@@ -79,11 +100,27 @@ impl GripperPwm {
             _pin: pin,
             dir,
             clock_hz,
+            servo_on_stop,
         }
     }
 }
 
-impl arm_core::hw::Gripper for GripperPwm {
+/// The wired e-stop input's cut, from its interrupt (EXTI0, P0, after the STEP outputs):
+/// when what runs is to be cut ([`CUT_ON_ESTOP`]), the counter stopped and the output
+/// forced low at once: two register writes, no critical section (nothing that writes
+/// these registers runs outside one, and P0 preempts everything else). The burst's
+/// bookkeeping is reset by the controller's [`Gripper::stop`] that follows.
+pub fn kill_on_estop() {
+    if !CUT_ON_ESTOP.load(Ordering::SeqCst) {
+        return;
+    }
+    let regs = pac::TIM15;
+    regs.cr1().modify(|w| w.set_cen(false));
+    regs.ccmr_output()
+        .modify(|w| w.set_ocm(0, pac::timer::vals::Ocm::FORCE_INACTIVE));
+}
+
+impl Gripper for GripperPwm {
     fn timer_clock_hz(&self) -> u32 {
         self.clock_hz
     }
@@ -110,7 +147,9 @@ impl arm_core::hw::Gripper for GripperPwm {
         self.dir.set_level(Level::from(pwm.pulse_count >= 0));
 
         let pulses = pwm.pulse_count.unsigned_abs();
+        let cut = pulses != 0 || self.servo_on_stop == ServoOnStop::Cut;
         critical_section::with(|cs| {
+            CUT_ON_ESTOP.store(cut, Ordering::SeqCst);
             let unloaded = UNLOADED_PULSES.borrow(cs);
             if pulses == 0 {
                 // Servo mode: run until stopped.
@@ -150,6 +189,7 @@ impl arm_core::hw::Gripper for GripperPwm {
     fn stop(&mut self) {
         let regs = pac::TIM15;
         critical_section::with(|cs| {
+            CUT_ON_ESTOP.store(false, Ordering::SeqCst);
             regs.cr1().modify(|w| w.set_cen(false));
             regs.dier().write(|w| w.set_uie(false));
             regs.ccmr_output()
