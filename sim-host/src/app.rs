@@ -113,16 +113,22 @@ impl Board {
             open_capture(path, local)?;
         }
         let kick = SimStepKick::new(clock);
-        let estop_input = options
-            .estop_input
-            .then(|| Arc::new(SimEStopInput::new(kick.clone(), tracer.clone())));
+        let gripper = SimGripper::new(clock, tracer.clone());
+        let estop_input = options.estop_input.then(|| {
+            Arc::new(SimEStopInput::new(
+                kick.clone(),
+                tracer.clone(),
+                gripper.clone(),
+                options.servo_on_stop.into(),
+            ))
+        });
         Ok(Board {
             options: options.clone(),
             clock,
             tracer: tracer.clone(),
             motors: motors.clone(),
             levels: Arc::new(OutputLevels::default()),
-            gripper: SimGripper::new(clock, tracer),
+            gripper,
             serial,
             encoders: SimEncoders::new(
                 motors,
@@ -253,6 +259,7 @@ pub fn controller_config(options: &SimOptions) -> ControllerConfig {
     ControllerConfig {
         max_step_rate_hz: config.max_step_rate_hz.min(timing.max_step_rate_hz()),
         capacity,
+        servo_on_stop: options.servo_on_stop.into(),
         ..config
     }
 }
