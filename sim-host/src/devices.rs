@@ -135,11 +135,11 @@ impl SimGripper {
             .record_guarded(t_ns, Signal::GripperDuty, Value::Real(0.0), guard);
     }
 
-    /// The wired e-stop input's own cut, from the thread that saw the edge (as the
-    /// board's EXTI0 cuts TIM15): a counted burst that runs, or a servo PWM under
-    /// [`ServoOnStop::Cut`], stopped now. The controller's stop for the same opening
-    /// follows and makes the same decision.
-    pub fn cut_on_estop(&self, servo_on_stop: ServoOnStop) {
+    /// A stop's own cut, from the thread that saw it (the wired input's, or the socket
+    /// reader's for a STOPPED), as the board's EXTI0 and receive path cut TIM15: a counted
+    /// burst that runs, or a servo PWM under [`ServoOnStop::Cut`], stopped now. The
+    /// controller's stop for the same stop follows and makes the same decision.
+    pub fn cut_at_stop(&self, servo_on_stop: ServoOnStop) {
         let running = self.status().pwm;
         let cut =
             running.is_some_and(|pwm| pwm.pulse_count != 0 || servo_on_stop == ServoOnStop::Cut);

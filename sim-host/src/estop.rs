@@ -112,7 +112,7 @@ impl SimEStopInput {
             Some(w) => {
                 LINE.edge(open, w.step, &self.kick, w.wake);
                 if open {
-                    self.gripper.cut_on_estop(self.servo_on_stop);
+                    self.gripper.cut_at_stop(self.servo_on_stop);
                 }
             }
             None => log::warn!("e-stop input changed before the controller was wired: ignored"),

@@ -6,7 +6,7 @@
 //! output forced inactive first, then counters and streams stopped). The rest needs the
 //! step lock, which this interrupt, above the lock's level, must never take (issue 20:
 //! the lock is BASEPRI at P2, so that it never holds this interrupt or the DIR changes
-//! off), then stops a gripper burst the same way ([`crate::gripper::kill_on_estop`]:
+//! off), then stops a gripper burst the same way ([`crate::gripper::cut_at_stop`]:
 //! counter stopped, output forced low; a servo PWM only under `ServoOnStop::Cut`; issue
 //! 30). It pends the step service interrupt (P2), whose [`service`] halts the step
 //! backend ([`arm_core::EStopLine::edge`] -> `StepShared::halt` -> `BoardSteps::stop`:
@@ -100,7 +100,7 @@ pub fn start(_pin: Peri<'static, peripherals::PC0>) {
     exti.imr(0).modify(|w| w.set_line(PIN, true));
     interrupt::EXTI0.set_priority(Priority::P0);
     // SAFETY: the handler touches EXTI's pending bit, GPIOC's input, the step outputs'
-    // registers (kill_step_outputs), TIM15's CR1 and CCMR1 (kill_on_estop) and three
+    // registers (kill_step_outputs), TIM15's CR1 and CCMR1 (cut_at_stop) and three
     // atomics, and pends the step service; it never takes the step lock.
     unsafe { interrupt::EXTI0.enable() };
     // An edge before the interrupt was enabled is pending and runs the handler; a level
@@ -120,7 +120,7 @@ fn EXTI0() {
     if is_open() {
         crate::step_dma::kill_step_outputs();
         // Then the gripper's burst (issue 30): after the STEP lines, two register writes.
-        crate::gripper::kill_on_estop();
+        crate::gripper::cut_at_stop();
         OPENED.store(true, Ordering::SeqCst);
     }
     EDGE.store(true, Ordering::SeqCst);

@@ -20,11 +20,14 @@
 //! # Stops (issue 30)
 //! A STOPPED or the wired e-stop input stops the gripper as the joints: the controller cuts
 //! a counted burst (and a servo PWM under `ServoOnStop::Cut`) through [`Gripper::stop`].
-//! The wired input's own interrupt (EXTI0, P0) does not wait for that: [`kill_on_estop`]
-//! stops the counter and forces the output low right there, with two register writes, when
-//! [`CUT_ON_ESTOP`] says what runs is to be cut. It may preempt [`Gripper::start`]
-//! before its critical section and be undone by it; the controller's stop, which follows
-//! the same opening before the trajectory task handles anything else, then cuts it.
+//! Where the steps are halted before any task runs, [`cut_at_stop`] cuts the gripper too:
+//! the wired input's interrupt (EXTI0, P0, right after the STEP outputs) and the receive
+//! path's halt of a STOPPED (`arm_wiring::controller_tasks!`'s `halt_also`). It stops the
+//! counter and forces the output low, two register writes, when [`CUT_AT_STOP`] says what
+//! runs is to be cut. From EXTI0 it may preempt [`Gripper::start`] before that start's
+//! critical section and be undone by it; the controller's stop for the same opening,
+//! applied before the trajectory task handles anything else, then cuts it.
+//!
 
 use core::cell::Cell;
 use core::sync::atomic::{AtomicBool, Ordering};
@@ -52,9 +55,9 @@ const SR_UPDATE: u32 = 1 << 0;
 /// Pulses of the current stepper-mode run not yet loaded into the repetition counter.
 static UNLOADED_PULSES: Mutex<CriticalSectionRawMutex, Cell<u32>> = Mutex::new(Cell::new(0));
 
-/// What runs is cut by the wired e-stop input's interrupt ([`kill_on_estop`]): a counted
-/// burst, or a servo PWM under [`ServoOnStop::Cut`]. Set by `start`, cleared by `stop`.
-static CUT_ON_ESTOP: AtomicBool = AtomicBool::new(false);
+/// What runs is cut by a stop's own cut ([`cut_at_stop`]): a counted burst, or a servo PWM
+/// under [`ServoOnStop::Cut`]. Set by `start`, cleared by `stop`.
+static CUT_AT_STOP: AtomicBool = AtomicBool::new(false);
 
 /// The gripper timer ([`arm_core::hw::Gripper`]).
 pub struct GripperPwm {
@@ -67,8 +70,8 @@ pub struct GripperPwm {
 
 impl GripperPwm {
     /// Takes TIM15, its channel 1 pin and the DIR pin; the output stays low until `start`.
-    /// `servo_on_stop` is the controller's (`ControllerConfig::servo_on_stop`), for the
-    /// wired e-stop input's own cut ([`kill_on_estop`]).
+    /// `servo_on_stop` is the controller's (`ControllerConfig::servo_on_stop`), for a
+    /// stop's own cut ([`cut_at_stop`]).
     pub fn new(
         tim: Peri<'static, TIM15>,
         pwm_pin: Peri<'static, PE5>,
@@ -105,19 +108,21 @@ impl GripperPwm {
     }
 }
 
-/// The wired e-stop input's cut, from its interrupt (EXTI0, P0, after the STEP outputs):
-/// when what runs is to be cut ([`CUT_ON_ESTOP`]), the counter stopped and the output
-/// forced low at once: two register writes, no critical section (nothing that writes
-/// these registers runs outside one, and P0 preempts everything else). The burst's
-/// bookkeeping is reset by the controller's [`Gripper::stop`] that follows.
-pub fn kill_on_estop() {
-    if !CUT_ON_ESTOP.load(Ordering::SeqCst) {
+/// A stop's own cut of the gripper, before the controller's (see "Stops" above): when what
+/// runs is to be cut ([`CUT_AT_STOP`]), the counter stopped and the output forced low at
+/// once. A short critical section, as every other write of these registers (the burst
+/// reloads' interrupt at P2 writes CR1 too); from EXTI0, at P0, it masks nothing more. The
+/// burst's bookkeeping is reset by the controller's [`Gripper::stop`] that follows.
+pub fn cut_at_stop() {
+    if !CUT_AT_STOP.load(Ordering::SeqCst) {
         return;
     }
     let regs = pac::TIM15;
-    regs.cr1().modify(|w| w.set_cen(false));
-    regs.ccmr_output()
-        .modify(|w| w.set_ocm(0, pac::timer::vals::Ocm::FORCE_INACTIVE));
+    critical_section::with(|_| {
+        regs.cr1().modify(|w| w.set_cen(false));
+        regs.ccmr_output()
+            .modify(|w| w.set_ocm(0, pac::timer::vals::Ocm::FORCE_INACTIVE));
+    });
 }
 
 impl Gripper for GripperPwm {
@@ -149,7 +154,7 @@ impl Gripper for GripperPwm {
         let pulses = pwm.pulse_count.unsigned_abs();
         let cut = pulses != 0 || self.servo_on_stop == ServoOnStop::Cut;
         critical_section::with(|cs| {
-            CUT_ON_ESTOP.store(cut, Ordering::SeqCst);
+            CUT_AT_STOP.store(cut, Ordering::SeqCst);
             let unloaded = UNLOADED_PULSES.borrow(cs);
             if pulses == 0 {
                 // Servo mode: run until stopped.
@@ -189,7 +194,7 @@ impl Gripper for GripperPwm {
     fn stop(&mut self) {
         let regs = pac::TIM15;
         critical_section::with(|cs| {
-            CUT_ON_ESTOP.store(false, Ordering::SeqCst);
+            CUT_AT_STOP.store(false, Ordering::SeqCst);
             regs.cr1().modify(|w| w.set_cen(false));
             regs.dier().write(|w| w.set_uie(false));
             regs.ccmr_output()

@@ -179,6 +179,8 @@ arm_wiring::controller_tasks! {
     serial: BoardSerial,
     settings: FlashSettings,
     encoders: ModbusEncoders,
+    // A STOPPED cuts a gripper burst where it is first seen, as the steps (issue 30).
+    halt_also: crate::gripper::cut_at_stop,
     // The watchdog feeds the IWDG only while these two futures are polled.
     liveness: { trajectory: crate::TrajectoryBeat, network: crate::network_beating },
 }
