@@ -141,8 +141,7 @@ impl SimGripper {
     /// controller's stop for the same stop follows and makes the same decision.
     pub fn cut_at_stop(&self, servo_on_stop: ServoOnStop) {
         let running = self.status().pwm;
-        let cut =
-            running.is_some_and(|pwm| pwm.pulse_count != 0 || servo_on_stop == ServoOnStop::Cut);
+        let cut = running.is_some_and(|pwm| servo_on_stop.cuts(pwm.pulse_count));
         if cut && self.is_active() {
             self.clone().stop();
         }

@@ -152,7 +152,7 @@ impl Gripper for GripperPwm {
         self.dir.set_level(Level::from(pwm.pulse_count >= 0));
 
         let pulses = pwm.pulse_count.unsigned_abs();
-        let cut = pulses != 0 || self.servo_on_stop == ServoOnStop::Cut;
+        let cut = self.servo_on_stop.cuts(pwm.pulse_count);
         critical_section::with(|cs| {
             CUT_AT_STOP.store(cut, Ordering::SeqCst);
             let unloaded = UNLOADED_PULSES.borrow(cs);

@@ -62,6 +62,14 @@ pub enum ServoOnStop {
     Cut,
 }
 
+impl ServoOnStop {
+    /// Whether a stop cuts a gripper output started with this `pulse_count` (PWM_START):
+    /// the one rule the controller, the board's interrupts and the simulator apply.
+    pub const fn cuts(self, pulse_count: i32) -> bool {
+        pulse_count != 0 || matches!(self, ServoOnStop::Cut)
+    }
+}
+
 impl ControllerConfig {
     /// The NUCLEO-H743ZI2 board's configuration (its profile's,
     /// [`crate::profile::NUCLEO_H743ZI2`]).
@@ -71,5 +79,21 @@ impl ControllerConfig {
 impl Default for ControllerConfig {
     fn default() -> Self {
         Self::BOARD
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_stop_cuts_every_burst_and_a_servo_only_under_cut() {
+        for pulses in [1, -1, 8000, i32::MIN, i32::MAX] {
+            assert!(ServoOnStop::Hold.cuts(pulses));
+            assert!(ServoOnStop::Cut.cuts(pulses));
+        }
+        assert!(!ServoOnStop::Hold.cuts(0));
+        assert!(ServoOnStop::Cut.cuts(0));
+        assert_eq!(ServoOnStop::default(), ServoOnStop::Hold);
     }
 }

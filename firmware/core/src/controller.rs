@@ -121,7 +121,7 @@ use protocol::{DecodeError, DecodeErrorKind};
 
 use crate::auth::Sessions;
 use crate::buffer::{StoredPoint, TrajectoryBuffer};
-use crate::config::{ControllerConfig, HOST_WINDOW, OWNER_TIMEOUT_US, ServoOnStop};
+use crate::config::{ControllerConfig, HOST_WINDOW, OWNER_TIMEOUT_US};
 use crate::hw::{EncoderFault, Endpoint, PersistentSettings};
 use crate::link::{FrameKey, RecentFrames, UploadOrder};
 use crate::plan::ReturnPlan;
@@ -214,9 +214,9 @@ pub struct Controller<const CAP: usize> {
     fed_end: [i32; MAX_JOINTS],
     /// RETURN accepted, waiting for the encoder reading.
     return_pending: bool,
-    /// The gripper output was last started in servo mode (PWM_START with `PluseCount` 0):
-    /// a stop leaves it running under [`ServoOnStop::Hold`]. A counted burst is cut.
-    gripper_servo: bool,
+    /// `PluseCount` of the last PWM_START (0: a servo PWM): what a stop does to the gripper
+    /// output ([`crate::config::ServoOnStop::cuts`]).
+    gripper_pulse_count: i32,
     /// RETURN running: its remaining points.
     return_plan: Option<ReturnPlan>,
     /// Why the last RETURN was refused after its ACK (an encoder did not answer); cleared
@@ -874,7 +874,7 @@ impl<const CAP: usize> Controller<CAP> {
             Command::UploadStart => self.reports_on = true,
             Command::UploadStop => self.reports_on = false,
             Command::PwmStart(pwm) => {
-                self.gripper_servo = pwm.pulse_count == 0;
+                self.gripper_pulse_count = pwm.pulse_count;
                 plant.gripper_start(&pwm);
             }
             Command::PwmStop => plant.gripper_stop(),
@@ -1139,8 +1139,8 @@ impl<const CAP: usize> Controller<CAP> {
     /// [`ControllerConfig::servo_on_stop`] says (held by default). STATUS flag bit 6
     /// reads the output, so it tells which.
     fn stop_gripper(&mut self, plant: &mut impl Plant) {
-        let hold = self.gripper_servo && self.config.servo_on_stop == ServoOnStop::Hold;
-        if !hold && plant.gripper_active() {
+        let cut = self.config.servo_on_stop.cuts(self.gripper_pulse_count);
+        if cut && plant.gripper_active() {
             plant.gripper_stop();
         }
     }
