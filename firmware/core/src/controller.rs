@@ -1137,10 +1137,12 @@ impl<const CAP: usize> Controller<CAP> {
 
     /// A stop's effect on the gripper (issue 30): a counted burst is cut; a servo PWM as
     /// [`ControllerConfig::servo_on_stop`] says (held by default). STATUS flag bit 6
-    /// reads the output, so it tells which.
+    /// reads the output, so it tells which. Called whether or not the output still runs:
+    /// a board whose interrupt already cut the timer ([`crate::ingress::StepHalt`], the
+    /// wired input's handler) has its burst bookkeeping reset here, and stopping an idle
+    /// output is harmless.
     fn stop_gripper(&mut self, plant: &mut impl Plant) {
-        let cut = self.config.servo_on_stop.cuts(self.gripper_pulse_count);
-        if cut && plant.gripper_active() {
+        if self.config.servo_on_stop.cuts(self.gripper_pulse_count) {
             plant.gripper_stop();
         }
     }

@@ -172,3 +172,19 @@ fn a_stopped_that_overtook_a_pwm_start_cuts_the_burst_it_started() {
     s.controller.stop_after_overtaken(&mut s.plant);
     assert_eq!(s.plant.gripper, Some(SERVO));
 }
+
+#[test]
+fn a_burst_an_interrupt_already_cut_is_still_stopped_by_the_controller() {
+    // The board's wired-input interrupt and receive path stop the timer itself before the
+    // controller sees the stop: the controller's Gripper::stop must still come, to reset
+    // the burst's bookkeeping (pulses not yet loaded, the reload interrupt).
+    for stop in STOPS {
+        let mut s = session(ServoOnStop::Hold);
+        s.expect(Command::PwmStart(BURST), StatusCode::Ok);
+        s.plant.gripper = None; // the interrupt's cut
+        let calls = s.plant.gripper_calls;
+        apply(stop, &mut s);
+        assert_eq!(s.plant.gripper_calls, calls + 1, "{stop:?}");
+        assert!(!pwm_active(&s));
+    }
+}
