@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU8, AtomicU16, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 
+use arm_core::config::ServoOnStop;
 use arm_core::hw::{
     Clock, EncoderFault, Encoders, Gripper, Outputs, PersistentSettings, SettingsStore,
 };
@@ -132,6 +133,18 @@ impl SimGripper {
         );
         self.tracer
             .record_guarded(t_ns, Signal::GripperDuty, Value::Real(0.0), guard);
+    }
+
+    /// A stop's own cut, from the thread that saw it (the wired input's, or the socket
+    /// reader's for a STOPPED), as the board's EXTI0 and receive path cut TIM15: a counted
+    /// burst that runs, or a servo PWM under [`ServoOnStop::Cut`], stopped now. The
+    /// controller's stop for the same stop follows and makes the same decision.
+    pub fn cut_at_stop(&self, servo_on_stop: ServoOnStop) {
+        let running = self.status().pwm;
+        let cut = running.is_some_and(|pwm| servo_on_stop.cuts(pwm.pulse_count));
+        if cut && self.is_active() {
+            self.clone().stop();
+        }
     }
 
     /// Ends a burst whose time is over (bookkeeping only; the trace has the end already).

@@ -313,6 +313,18 @@ fn every_command_of_the_manual() {
     while arm.status().unwrap().flags.has(StatusFlags::PWM_ACTIVE) {
         assert!(Instant::now() < deadline, "burst did not end");
     }
+    // Issue 30: a STOPPED from another host cuts a burst (8000 pulses at 1 kHz: 8 s) before
+    // it is ACKed; STATUS bit 6 is clear at once.
+    let long = armctl::pwm::settings(status.pwm_timer_clock_hz, 1000.0, 0.5, 8000).unwrap();
+    arm.pwm_start(long).unwrap();
+    assert!(arm.status().unwrap().flags.has(StatusFlags::PWM_ACTIVE));
+    let panel = Raw::new("127.0.0.1:0", board.addr);
+    let ack = panel.command(0x42, &Command::Stopped);
+    assert_eq!(ack.map(|a| a.status), Some(StatusCode::Ok));
+    assert!(
+        !arm.status().unwrap().flags.has(StatusFlags::PWM_ACTIVE),
+        "the burst is cut by the STOPPED"
+    );
 
     // UART_INIT, USART_SEND, USART_RECV through the CMSDK UART and QEMU's chardev, with
     // the test as a loopback device on the line.

@@ -12,7 +12,7 @@
 //!
 //! | priority | what | why |
 //! |---|---|---|
-//! | P0 (highest) | EXTI0: the wired e-stop input on PC0 ([`estop`]): every STEP output stopped (register writes), then the step service pended | nothing may delay an e-stop; it preempts even a DIR change, which no longer matters once the run is stopped |
+//! | P0 (highest) | EXTI0: the wired e-stop input on PC0 ([`estop`]): every STEP output stopped (register writes), a gripper burst cut (two more), then the step service pended | nothing may delay an e-stop; it preempts even a DIR change, which no longer matters once the run is stopped |
 //! | P1 | TIM13: step clock ([`step_timer`]): DIR changes at reversals (from lock-free queues), the run's end handed to the step service | a DIR change must come between a pulse's fall and the next pulse's setup |
 //! | P2 | DMA2 streams 0-7: STEP buffer refills ([`step_dma`]); TIM7's vector: the step service (run end, the e-stop's halt); TIM15: gripper burst reloads ([`gripper`]) | a half (64 periods) of slack; 128 PWM periods |
 //! | P3 | TIM12: embassy-time | task wake-ups |
@@ -179,6 +179,8 @@ arm_wiring::controller_tasks! {
     serial: BoardSerial,
     settings: FlashSettings,
     encoders: ModbusEncoders,
+    // A STOPPED cuts a gripper burst where it is first seen, as the steps (issue 30).
+    halt_also: crate::gripper::cut_at_stop,
     // The watchdog feeds the IWDG only while these two futures are polled.
     liveness: { trajectory: crate::TrajectoryBeat, network: crate::network_beating },
 }
@@ -358,7 +360,7 @@ async fn main(spawner: Spawner) -> ! {
             p.PE3.into(),
         ],
     });
-    let gripper = GripperPwm::new(p.TIM15, p.PE5, p.PE4);
+    let gripper = GripperPwm::new(p.TIM15, p.PE5, p.PE4, CONTROLLER_CONFIG.servo_on_stop);
 
     let uart = match Uart::new(
         p.USART6,

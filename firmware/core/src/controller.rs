@@ -71,6 +71,9 @@
 //!   STOPPED command (bit 7; also set by a STOPPED that drops an upload in NEW or
 //!   PENDING, while a STOPPED in state STOPPED leaves both bits alone). Both bits are
 //!   cleared when a run starts, so they tell how the last run ended.
+//! * Every stop (STOPPED, the wired e-stop input) also cuts a counted gripper burst, and a
+//!   servo PWM as [`ControllerConfig::servo_on_stop`] says (held by default; issue 30).
+//!   STATUS flag bit 6 reads the gripper output, so it tells which.
 //! * A LOCATION is produced at every state change while reports are on (UPLOAD_STOP
 //!   turns all LOCATION reports off, the periodic ones and these).
 //! * RETURN is accepted at once (ACK state RUNNING); the encoders are read by the caller
@@ -211,6 +214,9 @@ pub struct Controller<const CAP: usize> {
     fed_end: [i32; MAX_JOINTS],
     /// RETURN accepted, waiting for the encoder reading.
     return_pending: bool,
+    /// `PluseCount` of the last PWM_START (0: a servo PWM): what a stop does to the gripper
+    /// output ([`crate::config::ServoOnStop::cuts`]).
+    gripper_pulse_count: i32,
     /// RETURN running: its remaining points.
     return_plan: Option<ReturnPlan>,
     /// Why the last RETURN was refused after its ACK (an encoder did not answer); cleared
@@ -867,7 +873,10 @@ impl<const CAP: usize> Controller<CAP> {
             Command::Stopped => self.stop_by_host(plant),
             Command::UploadStart => self.reports_on = true,
             Command::UploadStop => self.reports_on = false,
-            Command::PwmStart(pwm) => plant.gripper_start(&pwm),
+            Command::PwmStart(pwm) => {
+                self.gripper_pulse_count = pwm.pulse_count;
+                plant.gripper_start(&pwm);
+            }
             Command::PwmStop => plant.gripper_stop(),
             Command::UsartStart(init) => {
                 // Settings the board's USART cannot make are refused here, before the
@@ -1113,6 +1122,7 @@ impl<const CAP: usize> Controller<CAP> {
     /// STOPPED's execution: no further pulse, the trajectory dropped, state STOPPED.
     fn stop_by_host(&mut self, plant: &mut impl Plant) {
         plant.stop();
+        self.stop_gripper(plant);
         self.buffer.clear();
         self.return_plan = None;
         self.return_pending = false;
@@ -1123,6 +1133,18 @@ impl<const CAP: usize> Controller<CAP> {
             self.stopped_by_host = true;
         }
         self.state = State::Stopped;
+    }
+
+    /// A stop's effect on the gripper (issue 30): a counted burst is cut; a servo PWM as
+    /// [`ControllerConfig::servo_on_stop`] says (held by default). STATUS flag bit 6
+    /// reads the output, so it tells which. Called whether or not the output still runs:
+    /// a board whose interrupt already cut the timer ([`crate::ingress::StepHalt`], the
+    /// wired input's handler) has its burst bookkeeping reset here, and stopping an idle
+    /// output is harmless.
+    fn stop_gripper(&mut self, plant: &mut impl Plant) {
+        if self.config.servo_on_stop.cuts(self.gripper_pulse_count) {
+            plant.gripper_stop();
+        }
     }
 
     /// Whether the wired e-stop input's latch is set (RUNING and RETURN refused).
@@ -1148,11 +1170,15 @@ impl<const CAP: usize> Controller<CAP> {
 
     /// Applies a STOPPED that arrived after the frame just handled but was handled before
     /// it (see "Overtaken frames" in the module docs): what STOPPED's execution does,
-    /// without an ACK, and nothing when the state is STOPPED already. Call it right after
+    /// without an ACK; when the state is STOPPED already, only its effect on the gripper
+    /// (a burst that frame started is cut). Call it right after
     /// [`Controller::handle`], with no wait in between, so that a run that frame started
     /// never emits a pulse. Returns a LOCATION report when the state changed (reports on).
     pub fn stop_after_overtaken(&mut self, plant: &mut impl Plant) -> Option<Location> {
         if self.state == State::Stopped {
+            // The frame may have started the gripper (PWM_START): the stop that followed
+            // it cuts that as any stop does.
+            self.stop_gripper(plant);
             return None;
         }
         self.stop_by_host(plant);

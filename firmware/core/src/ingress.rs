@@ -65,7 +65,8 @@ pub fn to_group(frame: &[u8]) -> bool {
 }
 
 /// Stops every STEP output now, from wherever the datagram was read: no task runs
-/// between the STOPPED's arrival and the halt.
+/// between the STOPPED's arrival and the halt. A board may cut a gripper burst here too
+/// (issue 30; the controller cuts it anyway when it handles the STOPPED).
 pub trait StepHalt {
     /// No step pulse after this returns (or, for a backend whose lines its interrupt
     /// lowers, after the interrupt this kicks).

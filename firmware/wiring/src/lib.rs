@@ -56,6 +56,9 @@ pub mod __private {
 ///     serial: BoardSerial,          // arm_core::hw::SerialPort
 ///     settings: FlashSettings,      // arm_core::hw::SettingsStore
 ///     encoders: ModbusEncoders,     // arm_core::hw::Encoders (or NoEncoders)
+///     // Optional: a `fn()` the receive path's halt of a STOPPED calls after the steps', e.g.
+///     // to cut a gripper burst at once (issue 30); callable from thread mode.
+///     halt_also: gripper::cut_at_stop,
 ///     // Optional: what watches the trajectory task's future (an arm_core::TaskWatch value)
 ///     // and the network task's (a path to `fn<F: Future>(F) -> impl Future<Output =
 ///     // F::Output>`), e.g. to count their polls for a watchdog.
@@ -95,6 +98,7 @@ macro_rules! controller_tasks {
         serial: $serial:ty,
         settings: $settings:ty,
         encoders: $encoders:ty
+        $(, halt_also: $halt_also:path)?
         $(, liveness: { trajectory: $trajectory_watch:expr, network: $network_watch:path $(,)? })?
         $(,)?
     ) => {
@@ -125,7 +129,8 @@ macro_rules! controller_tasks {
             $crate::__private::OnceLock::new();
 
         /// The receive path's halt (arm-core's `ingress`): what the trajectory task's stop
-        /// does to the steps, from the Ethernet driver's receive path.
+        /// does to the steps, from the Ethernet driver's receive path (and the board's
+        /// `halt_also`, if it has one, after them).
         pub struct BoardHalt;
 
         impl $crate::__private::arm_core::ingress::StepHalt for BoardHalt {
@@ -134,6 +139,7 @@ macro_rules! controller_tasks {
                 if let Some(kick) = HALT_KICK.try_get() {
                     $crate::__private::arm_core::hw::StepKick::kick(*kick);
                 }
+                $($halt_also();)?
             }
         }
 

@@ -28,6 +28,7 @@ macro_rules! with_boot_fields {
         received_end: [0; MAX_JOINTS],
         fed_end: [0; MAX_JOINTS],
         return_pending: false,
+        gripper_pulse_count: 0,
         return_plan: None,
         return_fault: None,
         order: UploadOrder::new(),
