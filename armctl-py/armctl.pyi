@@ -9,6 +9,15 @@ error in run(), run_file(), RunHandle.wait() or go_home(), and any exception lea
 `with` block while a run or RETURN of this connection may be under way, send STOPPED
 (resent every 100 ms until ACKed, 10 copies at most; a second Ctrl-C ends the wait; not
 ACKed: a RuntimeWarning) before the exception propagates.
+
+SIGTERM and SIGHUP (systemd, `docker stop`, `kill`, a closed terminal): from connect()
+on, armctl's handler sends STOPPED to every controller with a run or RETURN of this
+process under way (resent until ACKed; a second signal ends the wait), prints
+`armctl: SIGTERM: STOPPED sent, ...` on stderr, then the process dies of the signal as
+it would have without armctl (no exception, no `finally`: exit status -15 / 143). It is
+installed only where the handler is still SIG_DFL, and only from the main thread: a
+handler of your own, set before or after connect(), is kept; raise from it (e.g.
+sys.exit) and the motion call or `with` block sends STOPPED as for any exception.
 """
 
 from os import PathLike
@@ -368,4 +377,6 @@ def connect(
     key_file: Optional[_Path] = None,
 ) -> Arm:
     """Connects and checks the controller answers STATUS (NoReplyError otherwise).
-    `pcap`: write every datagram to this capture file (for Wireshark)."""
+    `pcap`: write every datagram to this capture file (for Wireshark). From the main
+    thread, installs armctl's SIGTERM/SIGHUP handler where none is set (see the module's
+    doc)."""

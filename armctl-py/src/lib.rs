@@ -4,8 +4,8 @@
 //! conversion as the `armctl` tool); this crate only converts between Python and Rust
 //! values and decides how blocking calls behave in Python. This file holds the `Arm` class,
 //! `connect`, `discover` and the module; `errors.rs` the exceptions, `dicts.rs` the report
-//! dicts, `run.rs` runs in the background and the LOCATION iterator. How blocking calls
-//! behave:
+//! dicts, `run.rs` runs in the background and the LOCATION iterator, `signals.rs` the
+//! SIGTERM and SIGHUP handler. How blocking calls behave:
 //!
 //! - every wait (an ACK, a run, a LOCATION report) releases the GIL, so other Python
 //!   threads run meanwhile;
@@ -17,7 +17,9 @@
 //!   this connection started may be under way sends STOPPED;
 //! - STOPPED is resent every 100 ms until the controller ACKs it, 10 copies at most
 //!   (`run::stop_arm`); a second Ctrl-C ends that wait; not ACKed, a RuntimeWarning says
-//!   so.
+//!   so;
+//! - SIGTERM and SIGHUP: from `connect()` on, armctl's handler (`signals.rs`) stops every
+//!   run or RETURN of this process under way, then the process dies of the signal.
 //!
 //! The `.pyi` stub beside Cargo.toml (`armctl.pyi`) documents the API for Python users.
 
@@ -51,6 +53,7 @@ macro_rules! set_items {
 mod dicts;
 mod errors;
 mod run;
+mod signals;
 
 use dicts::status_dict;
 use errors::{
@@ -58,6 +61,7 @@ use errors::{
     to_py_err, trajectory_err,
 };
 use run::{Locations, RunHandle, RunState, stop_arm};
+use signals::MotionKind;
 
 fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
     m.lock().unwrap_or_else(PoisonError::into_inner)
@@ -71,7 +75,7 @@ struct Arm {
     runs: Mutex<Vec<Arc<RunState>>>,
     /// A RETURN started here may still move the arm (not waited to its end): to stop on an
     /// exception in a `with` block.
-    returning: AtomicBool,
+    returning: Arc<AtomicBool>,
     /// What the serial port received since `serial_open` (its stream subscribed before
     /// the USART_START went, so nothing that comes back at once is missed).
     serial: Mutex<Option<std::sync::mpsc::Receiver<Vec<u8>>>>,
@@ -125,8 +129,9 @@ impl Arm {
             window,
             ..RunOptions::default()
         };
-        let handle = RunHandle::start(arm, points, options, joints)?;
+        let handle = RunHandle::start(arm.clone(), points, options, joints)?;
         lock(&self.runs).push(handle.state.clone());
+        signals::register(py, &arm, MotionKind::Run(handle.state.clone()));
         if wait {
             handle.wait_inner(py, None)
         } else {
@@ -554,6 +559,7 @@ impl Arm {
         let arm = self.controller()?;
         self.call(py, |arm| arm.go_home())?;
         self.returning.store(true, Ordering::SeqCst);
+        signals::register(py, &arm, MotionKind::Return(self.returning.clone()));
         if !wait {
             return Ok(());
         }
@@ -948,10 +954,13 @@ fn connect(
             Ok(arm)
         })
         .map_err(|e| to_py_err(py, e))?;
+    // SIGTERM and SIGHUP stop the arm from here on (issue 30; connect is usually called
+    // from the main thread, the only one that may set signal handlers).
+    signals::install(py);
     Ok(Arm {
         inner: Mutex::new(Some(Arc::new(arm))),
         runs: Mutex::new(Vec::new()),
-        returning: AtomicBool::new(false),
+        returning: Arc::new(AtomicBool::new(false)),
         serial: Mutex::new(None),
     })
 }

@@ -86,6 +86,24 @@ def python_child():
             child.wait()
 
 
+def rising_edges(vcd_path, level="1"):
+    """Rising edges (falling with level="0") per wire name of a sim-host VCD trace, in trace
+    nanoseconds."""
+    names, edges, now = {}, {}, 0
+    with open(vcd_path) as f:
+        for line in f:
+            parts = line.split()
+            if not parts:
+                continue
+            if parts[0] == "$var" and len(parts) >= 5:
+                names[parts[3]] = parts[4]
+            elif line.startswith("#"):
+                now = int(line[1:])
+            elif line[0] == level and line[1:].strip() in names:
+                edges.setdefault(names[line[1:].strip()], []).append(now)
+    return edges
+
+
 def wait_for_line(process: subprocess.Popen, text: str, timeout: float = 20.0) -> str:
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
