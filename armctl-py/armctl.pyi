@@ -8,7 +8,9 @@ Waits release the GIL. Motion calls stop what they started: a KeyboardInterrupt 
 error in run(), run_file(), RunHandle.wait() or go_home(), and any exception leaving a
 `with` block while a run or RETURN of this connection may be under way, send STOPPED
 (resent every 100 ms until ACKed, 10 copies at most; a second Ctrl-C ends the wait; not
-ACKed: a RuntimeWarning) before the exception propagates.
+ACKed: a RuntimeWarning) before the exception propagates. A run that fails by itself
+(a refused upload, a stall, a lost link) sends STOPPED from its own thread even when
+nobody waits for it (wait=False).
 
 SIGTERM and SIGHUP (systemd, `docker stop`, `kill`, a closed terminal): from connect()
 on, armctl's handler sends STOPPED to every controller with a run or RETURN of this
@@ -184,10 +186,14 @@ class Arm:
         wait: Literal[True] = True,
         segment_ms: float = 10.0,
         window: Optional[int] = None,
+        units: Optional[_Units] = None,
     ) -> RunReport:
         """Runs through waypoints: `times` (N,) seconds, strictly increasing; `positions`
-        (N, J) steps, or radians with a joint `config` file. Returns the report (wait) or
-        a RunHandle (wait=False)."""
+        (N, J) in `units`: default the joint `config` file's `units` when it states them,
+        else radians with a config (a JointTrajectory's) and steps without; "deg" and
+        "rad" need a config. With a config, joints the arrays leave out hold, and a
+        refusal names the joint as the config does and gives positions in `units` too.
+        Returns the report (wait) or a RunHandle (wait=False)."""
     @overload
     def run(
         self,
@@ -198,6 +204,7 @@ class Arm:
         wait: Literal[False],
         segment_ms: float = 10.0,
         window: Optional[int] = None,
+        units: Optional[_Units] = None,
     ) -> RunHandle: ...
     @overload
     def run(
@@ -208,6 +215,7 @@ class Arm:
         wait: bool = True,
         segment_ms: float = 10.0,
         window: Optional[int] = None,
+        units: Optional[_Units] = None,
     ) -> Union[RunReport, RunHandle]: ...
     @overload
     def run_file(

@@ -28,7 +28,9 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::time::Duration;
 
-use armctl::motion::{JointLimit, MoveSpeed, TargetArg, Units, plan_move, targets_in_steps};
+use armctl::motion::{
+    JointLimit, MoveSpeed, TargetArg, Units, check_targets, plan_move, targets_in_steps,
+};
 use armctl::trajectory::{self, ArmConfig, Waypoints};
 use armctl::{Client, Options, RunOptions};
 use numpy::{PyArray1, PyReadonlyArray1, PyReadonlyArray2};
@@ -165,6 +167,7 @@ impl Arm {
                 ),
             }));
         }
+        let given = run.config.is_some();
         let config = run
             .config
             .unwrap_or_else(|| ArmConfig::unlimited(joints, status.max_step_rate_hz));
@@ -177,7 +180,10 @@ impl Arm {
             &config,
             Some(status.max_step_rate_hz),
         )
-        .map_err(trajectory_err)?;
+        .map_err(|e| match given {
+            true => errors::trajectory_err_in(e, &config, run.units),
+            false => trajectory_err(e),
+        })?;
         self.start_run(py, points, arm_joints, wait, window)
     }
 
@@ -225,6 +231,9 @@ impl Arm {
             .map_err(PyValueError::new_err)?;
         let mut limits = JointLimit::all(&config, Some(status.max_step_rate_hz));
         limits.truncate(joints);
+        // Issue 31: the message names the joint and gives the target in the user's units,
+        // as `armctl move` does (plan_move's own check speaks steps and joint numbers).
+        check_targets(&target, &limits, &config, units).map_err(TrajectoryError::new_err)?;
         let speed = MoveSpeed {
             rate: speed,
             accel: 1.0,
@@ -275,6 +284,39 @@ fn wait_return(py: Python<'_>, arm: &Arc<Client>, deadline: std::time::Instant) 
     }
 }
 
+/// What `run`'s arrays are in (issue 31: a config's `"units": "deg"` was read as radians):
+/// `units=`, else the config's `units` when its file states them, else radians with a
+/// config (Python's rule from before configs had units, a JointTrajectory's) and steps
+/// without. Degrees and radians without a config are a ValueError.
+fn array_units(
+    py: Python<'_>,
+    units: Option<Units>,
+    path: Option<&std::path::Path>,
+    config: Option<&ArmConfig>,
+) -> PyResult<Units> {
+    let (Some(path), Some(config)) = (path, config) else {
+        return match units {
+            Some(u) if u != Units::Steps => Err(PyValueError::new_err(format!(
+                "units {:?} need a joint config (config=PATH)",
+                u.name()
+            ))),
+            _ => Ok(Units::Steps),
+        };
+    };
+    if let Some(units) = units {
+        return Ok(units);
+    }
+    // ArmConfig reads a missing `units` as steps; whether the file says so is asked of
+    // Python's json (the file was just parsed, so it is valid JSON).
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| TrajectoryError::new_err(format!("{}: cannot read: {e}", path.display())))?;
+    let stated = py
+        .import("json")?
+        .call_method1("loads", (text,))?
+        .contains("units")?;
+    Ok(if stated { config.units } else { Units::Rad })
+}
+
 /// `units="deg"` and the like as [`Units`]; a ValueError names the accepted ones.
 fn parse_units(units: Option<String>) -> PyResult<Option<Units>> {
     units
@@ -288,6 +330,8 @@ struct WaypointRun {
     waypoints: Waypoints,
     /// The joint config, if one was given (else every joint at the arm's step rate).
     config: Option<ArmConfig>,
+    /// What the positions were given in (for messages).
+    units: Units,
     /// The file they were read from (`run_file`), for errors; `None` for numpy arrays.
     file: Option<PathBuf>,
     segment_ms: f64,
@@ -361,12 +405,13 @@ impl Arm {
     }
 
     /// Runs a trajectory through waypoints: `times` (N,) seconds from the start,
-    /// strictly increasing; `positions` (N, J) in steps, or in radians with `config` (a
-    /// joint config JSON file: steps_per_radian, zero_offset_steps, limits). The arm moves
+    /// strictly increasing; `positions` (N, J) in `units`, by default the `config`'s (a
+    /// joint config JSON file: units, steps_per_radian, zero_offset_steps, limits) when
+    /// it states them, else radians with a config and steps without. The arm moves
     /// from where it is to the first waypoint (at t=0 it must be there already), and
     /// through the rest resampled into `segment_ms` points. `wait=False` returns a
     /// RunHandle at once.
-    #[pyo3(signature = (times, positions, config=None, wait=true, segment_ms=10.0, window=None))]
+    #[pyo3(signature = (times, positions, config=None, wait=true, segment_ms=10.0, window=None, units=None))]
     #[allow(clippy::too_many_arguments)]
     fn run(
         &self,
@@ -377,7 +422,9 @@ impl Arm {
         wait: bool,
         segment_ms: f64,
         window: Option<usize>,
+        units: Option<String>,
     ) -> PyResult<Py<PyAny>> {
+        let units = parse_units(units)?;
         let numpy = py.import("numpy")?;
         let times = numpy.call_method1("ascontiguousarray", (times, "float64"))?;
         let positions = numpy.call_method1("ascontiguousarray", (positions, "float64"))?;
@@ -401,10 +448,13 @@ impl Arm {
                 "{joints} joints: 1 to {MAX_JOINTS}"
             )));
         }
-        let config = config
-            .map(|path| ArmConfig::load(&path))
+        let loaded = config
+            .as_deref()
+            .map(ArmConfig::load)
             .transpose()
             .map_err(trajectory_err)?;
+        let units = array_units(py, units, config.as_deref(), loaded.as_ref())?;
+        let config = loaded;
         let mut times_us = Vec::with_capacity(n);
         for &t in times.iter() {
             if !t.is_finite() {
@@ -419,13 +469,16 @@ impl Arm {
                 if !v.is_finite() {
                     return Err(PyValueError::new_err("positions must be finite"));
                 }
-                // Radians to steps as armctl reads a JointTrajectory with this config.
+                // As armctl reads a CSV (a JointTrajectory: radians) with this config; a
+                // joint past the config's is in steps.
                 steps.push(Some(match &config {
-                    Some(c) => c.joints.get(j).map_or(v, |jc| {
-                        f64::from(jc.zero_offset_steps) + v * jc.steps_per_radian
-                    }),
+                    Some(c) => c.joints.get(j).map_or(v, |jc| units.to_steps(v, jc)),
                     None => v,
                 }));
+            }
+            // Joints of the config the arrays leave out hold, as in a CSV.
+            if let Some(c) = &config {
+                steps.resize(steps.len().max(c.joints.len()), None);
             }
             rows.push(steps);
         }
@@ -439,6 +492,7 @@ impl Arm {
         let run = WaypointRun {
             waypoints,
             config,
+            units,
             file: None,
             segment_ms,
         };
@@ -462,9 +516,20 @@ impl Arm {
         let units = parse_units(units)?;
         let (waypoints, config) =
             trajectory::load_files_in(&path, config.as_deref(), units).map_err(trajectory_err)?;
+        // What the file's positions are in, for messages: a JointTrajectory's radians, a
+        // CSV's `units` (else the config's).
+        let is_json = path
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("json"));
+        let units = match units {
+            _ if is_json => Units::Rad,
+            Some(units) => units,
+            None => config.as_ref().map(|c| c.units).unwrap_or_default(),
+        };
         let run = WaypointRun {
             waypoints,
             config,
+            units,
             file: Some(path),
             segment_ms,
         };
