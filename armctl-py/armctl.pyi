@@ -175,8 +175,15 @@ class Arm:
     def __exit__(self, exc_type: Any = None, exc_value: Any = None, traceback: Any = None) -> bool: ...
     def close(self) -> None: ...
     def status(self) -> Status: ...
+    @overload
     def positions(self) -> npt.NDArray[np.int32]:
         """Joint positions in steps, one per joint in use."""
+    @overload
+    def positions(
+        self, config: Optional[_Path] = None, units: Optional[_Units] = None,
+    ) -> Union[npt.NDArray[np.int32], npt.NDArray[np.float64]]:
+        """With a joint `config`: in `units` (default the config's `units`), float64, as
+        `armctl watch --config` shows them; int32 steps when the units are steps."""
     @overload
     def run(
         self,
@@ -286,9 +293,17 @@ class Arm:
         speed: float = 0.5,
     ) -> Optional[RunReport]:
         """Moves one joint (index, or name in `config`) by `by` in `units`."""
+    @overload
     def home(self, timeout: float = 600.0) -> npt.NDArray[np.int32]:
         """RETURN to its end, then the positions (all 0); raises if a joint ended
         elsewhere."""
+    @overload
+    def home(
+        self, timeout: float = 600.0, config: Optional[_Path] = None,
+        units: Optional[_Units] = None,
+    ) -> Union[npt.NDArray[np.int32], npt.NDArray[np.float64]]:
+        """With a joint `config`: positions and the message in `units` (default the
+        config's), joints by name, as `armctl home --config`."""
     def stop(self) -> None:
         """STOPPED: every joint stops at once, the trajectory is dropped."""
     def go_home(self, wait: bool = True, timeout: float = 600.0) -> None:

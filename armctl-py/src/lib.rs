@@ -5,7 +5,9 @@
 //! values and decides how blocking calls behave in Python. This file holds the `Arm` class,
 //! `connect`, `discover` and the module; `errors.rs` the exceptions, `dicts.rs` the report
 //! dicts, `run.rs` runs in the background and the LOCATION iterator, `signals.rs` the
-//! SIGTERM and SIGHUP handler. How blocking calls behave:
+//! SIGTERM and SIGHUP handler, `units.rs` the config's units. This file is long because
+//! the `Arm` class is one `#[pymethods]` block (one per class without pyo3's
+//! `multiple-pymethods` feature) of thin forwarding methods. How blocking calls behave:
 //!
 //! - every wait (an ACK, a run, a LOCATION report) releases the GIL, so other Python
 //!   threads run meanwhile;
@@ -33,7 +35,7 @@ use armctl::motion::{
 };
 use armctl::trajectory::{self, ArmConfig, Waypoints};
 use armctl::{Client, Options, RunOptions};
-use numpy::{PyArray1, PyReadonlyArray1, PyReadonlyArray2};
+use numpy::{PyReadonlyArray1, PyReadonlyArray2};
 use protocol::{Location, MAX_JOINTS, NetSettings, State, StatusReport};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
@@ -56,6 +58,7 @@ mod dicts;
 mod errors;
 mod run;
 mod signals;
+mod units;
 
 use dicts::status_dict;
 use errors::{
@@ -64,6 +67,7 @@ use errors::{
 };
 use run::{Locations, RunHandle, RunState, stop_arm};
 use signals::MotionKind;
+use units::{array_units, parse_units, positions_array, shown_in};
 
 fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
     m.lock().unwrap_or_else(PoisonError::into_inner)
@@ -284,47 +288,6 @@ fn wait_return(py: Python<'_>, arm: &Arc<Client>, deadline: std::time::Instant) 
     }
 }
 
-/// What `run`'s arrays are in (issue 31: a config's `"units": "deg"` was read as radians):
-/// `units=`, else the config's `units` when its file states them, else radians with a
-/// config (Python's rule from before configs had units, a JointTrajectory's) and steps
-/// without. Degrees and radians without a config are a ValueError.
-fn array_units(
-    py: Python<'_>,
-    units: Option<Units>,
-    path: Option<&std::path::Path>,
-    config: Option<&ArmConfig>,
-) -> PyResult<Units> {
-    let (Some(path), Some(config)) = (path, config) else {
-        return match units {
-            Some(u) if u != Units::Steps => Err(PyValueError::new_err(format!(
-                "units {:?} need a joint config (config=PATH)",
-                u.name()
-            ))),
-            _ => Ok(Units::Steps),
-        };
-    };
-    if let Some(units) = units {
-        return Ok(units);
-    }
-    // ArmConfig reads a missing `units` as steps; whether the file says so is asked of
-    // Python's json (the file was just parsed, so it is valid JSON).
-    let text = std::fs::read_to_string(path)
-        .map_err(|e| TrajectoryError::new_err(format!("{}: cannot read: {e}", path.display())))?;
-    let stated = py
-        .import("json")?
-        .call_method1("loads", (text,))?
-        .contains("units")?;
-    Ok(if stated { config.units } else { Units::Rad })
-}
-
-/// `units="deg"` and the like as [`Units`]; a ValueError names the accepted ones.
-fn parse_units(units: Option<String>) -> PyResult<Option<Units>> {
-    units
-        .map(|u| u.parse())
-        .transpose()
-        .map_err(PyValueError::new_err)
-}
-
 /// A trajectory `run` or `run_file` has read, before it meets the arm.
 struct WaypointRun {
     waypoints: Waypoints,
@@ -390,18 +353,35 @@ impl Arm {
         status_dict(py, &status)
     }
 
-    /// Joint positions in steps (numpy int32 array, one per joint in use), from a fresh
-    /// LOCATION report: the one a STATUS asks for (issue 23: from any host, read-only
-    /// when another owns the controller), or, from an older controller, a periodic one.
-    fn positions<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray1<i32>>> {
+    /// Joint positions (one per joint in use) from a fresh LOCATION report: the one a
+    /// STATUS asks for (issue 23: from any host, read-only when another owns the
+    /// controller), or, from an older controller, a periodic one. In steps (numpy int32);
+    /// with a `config`, in `units` (default its `units`; float64), as `armctl watch
+    /// --config` shows them (issue 31).
+    #[pyo3(signature = (config=None, units=None))]
+    fn positions<'py>(
+        &self,
+        py: Python<'py>,
+        config: Option<PathBuf>,
+        units: Option<String>,
+    ) -> PyResult<Bound<'py, PyAny>> {
+        let shown = shown_in(config, units)?;
         let glance = self.call(py, |arm| arm.glance(false))?;
         if let Some(location) = glance.location {
             let joints = usize::from(glance.status.joints).clamp(1, MAX_JOINTS);
-            return Ok(PyArray1::from_slice(py, &location.position[..joints]));
+            return Ok(positions_array(
+                py,
+                &location.position[..joints],
+                shown.as_ref(),
+            ));
         }
         let (status, location) = self.before_run(py)?;
         let joints = usize::from(status.joints).clamp(1, MAX_JOINTS);
-        Ok(PyArray1::from_slice(py, &location.position[..joints]))
+        Ok(positions_array(
+            py,
+            &location.position[..joints],
+            shown.as_ref(),
+        ))
     }
 
     /// Runs a trajectory through waypoints: `times` (N,) seconds from the start,
@@ -595,20 +575,43 @@ impl Arm {
     }
 
     /// RETURN and its end (`go_home(wait=True)`), then where the joints are: all 0 unless
-    /// it was stopped. Raises if a joint ended elsewhere.
-    #[pyo3(signature = (timeout=600.0))]
-    fn home<'py>(&self, py: Python<'py>, timeout: f64) -> PyResult<Bound<'py, PyArray1<i32>>> {
+    /// it was stopped. Raises if a joint ended elsewhere. With a `config`, positions and
+    /// the message in `units` (default its `units`) and the joints by name, as `armctl
+    /// home --config` (issue 31).
+    #[pyo3(signature = (timeout=600.0, config=None, units=None))]
+    fn home<'py>(
+        &self,
+        py: Python<'py>,
+        timeout: f64,
+        config: Option<PathBuf>,
+        units: Option<String>,
+    ) -> PyResult<Bound<'py, PyAny>> {
+        let shown = shown_in(config, units)?;
         self.go_home(py, true, timeout)?;
         let (status, location) = self.before_run(py)?;
         let joints = usize::from(status.joints).clamp(1, MAX_JOINTS);
         if let Some(j) = (0..joints).find(|&j| location.position[j] != 0) {
+            let at = location.position[j];
+            let (joint, at) = match shown
+                .as_ref()
+                .and_then(|(c, u)| Some((c, u, c.joints.get(j)?)))
+            {
+                Some((config, units, jc)) => (
+                    armctl::motion::joint_label(config, j),
+                    format!("{} ({at} steps)", units.show(i64::from(at), jc)),
+                ),
+                None => (format!("joint {j}"), format!("{at} steps")),
+            };
             return Err(ArmctlError::new_err(format!(
-                "RETURN ended (state {}) with joint {j} at {} steps, not 0",
+                "RETURN ended (state {}) with {joint} at {at}, not at its zero (0 steps)",
                 status.state.name(),
-                location.position[j]
             )));
         }
-        Ok(PyArray1::from_slice(py, &location.position[..joints]))
+        Ok(positions_array(
+            py,
+            &location.position[..joints],
+            shown.as_ref(),
+        ))
     }
 
     /// STOPPED: stops every joint at once and drops the trajectory (obeyed from anyone).

@@ -91,3 +91,13 @@ def test_run_takes_the_configs_units(sim, tmp_path):
             arm.run(times, np.array([[0.0, 0.0], [0.0, 50.0]]), config=config)
         with pytest.raises(ValueError, match="need a joint config"):
             arm.run(times, np.array([[0.0], [10.0]]), units="deg")
+        # Shown in the config's units, as `armctl watch --config` and `home --config`.
+        arm.move_to([30, 10], config=config)
+        np.testing.assert_allclose(arm.positions(config=config)[:2], [30.02, 10.03], atol=0.01)
+        np.testing.assert_allclose(arm.positions(config=config, units="rad")[:2], [0.524, 0.175])
+        np.testing.assert_array_equal(arm.positions(config=config, units="steps")[:2], [524, 175])
+        with pytest.raises(ValueError, match="need a joint config"):
+            arm.positions(units="deg")
+        home = arm.home(config=config)
+        assert home.dtype == np.float64
+        np.testing.assert_array_equal(home, np.zeros(6))
