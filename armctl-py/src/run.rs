@@ -53,7 +53,8 @@ pub(crate) struct RunState {
     /// The run thread's own STOPPED after the run failed was ACKed (nobody else need send
     /// one).
     stopped: AtomicBool,
-    /// Ends the run thread's upload and waits (it sends nothing: STOPPED is [`stop_arm`]'s).
+    /// Ends the run thread's upload and waits (it then sends nothing: the canceller sends
+    /// STOPPED, [`stop_arm`]).
     pub(crate) cancel: Cancel,
 }
 
