@@ -1,5 +1,7 @@
 //! The module's exceptions, and the armctl errors as them (fields as attributes).
 
+use armctl::motion::Units;
+use armctl::trajectory::{ArmConfig, ErrorKind};
 use armctl::{Error, trajectory};
 use pyo3::create_exception;
 use pyo3::exceptions::PyException;
@@ -90,4 +92,34 @@ pub(crate) fn to_py_err(py: Python<'_>, error: Error) -> PyErr {
 
 pub(crate) fn trajectory_err(e: trajectory::TrajectoryError) -> PyErr {
     TrajectoryError::new_err(e.to_string())
+}
+
+/// A trajectory refused with a joint config (issue 31): the joint named as the config
+/// names it, and a position out of range given in `units` too (the error speaks steps).
+pub(crate) fn trajectory_err_in(
+    e: trajectory::TrajectoryError,
+    config: &ArmConfig,
+    units: Units,
+) -> PyErr {
+    let joint = e.joint.and_then(|j| config.joints.get(j));
+    let in_units = match (&e.kind, joint) {
+        (ErrorKind::BelowMin { value, limit } | ErrorKind::AboveMax { value, limit }, Some(j))
+            if units != Units::Steps =>
+        {
+            format!(
+                " ({} against a limit of {})",
+                units.show(*value, j),
+                units.show(i64::from(*limit), j)
+            )
+        }
+        (ErrorKind::StartMismatch { current, start }, Some(j)) if units != Units::Steps => {
+            format!(
+                " (starts at {}, the arm is at {})",
+                units.show(*start, j),
+                units.show(i64::from(*current), j)
+            )
+        }
+        _ => String::new(),
+    };
+    TrajectoryError::new_err(format!("{}{in_units}", e.with_joint_names(config)))
 }

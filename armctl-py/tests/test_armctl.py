@@ -284,6 +284,26 @@ def test_a_refused_upload_leaves_the_controller_stopped(sim):
         arm.set_limits(1, min=-2**31, max=2**31 - 1, max_rate_hz=0)
 
 
+def test_a_refused_upload_of_a_run_nobody_waits_for_leaves_the_controller_stopped(sim):
+    """Issue 31: every tool leaves the controller STOPPED after a refused upload. A
+    wait=False run whose handle is never waited (the script goes on, or leaves its `with`
+    block normally) left it PENDING with the points taken before the refusal."""
+    with armctl.connect(sim.address) as arm:
+        arm.set_limits(1, min=-1000, max=50)
+        times = np.arange(400) * 0.01
+        positions = np.zeros((400, 2), dtype=np.int32)
+        positions[:, 1] = np.arange(400) // 4
+        handle = arm.run(times, positions, wait=False)
+        deadline = time.monotonic() + 20
+        while not handle.done:
+            assert time.monotonic() < deadline, "the refused run never ended"
+            time.sleep(0.01)
+        assert arm.status()["state"] == "STOPPED"
+        arm.set_limits(1, min=-2**31, max=2**31 - 1, max_rate_hz=0)
+        with pytest.raises(armctl.RefusedError):
+            handle.wait()
+
+
 def test_enable_disable_release_and_limits(sim):
     """Issue 23: explicit per-joint enable, RELEASE, limits on the controller."""
     with armctl.connect(sim.address) as arm:

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 import armctl
-from conftest import SimHost
+from conftest import SimHost, rising_edges
 
 
 @pytest.fixture
@@ -110,23 +110,6 @@ def test_an_exception_in_a_with_block_stops_a_go_home(sim_no_encoders):
     with armctl.connect(sim_no_encoders.address) as arm:
         here = assert_stopped_mid_move(arm)
         assert 0 < here[0] < 12000
-
-
-def rising_edges(vcd_path):
-    """Rising edges per wire name of a sim-host VCD trace, in trace nanoseconds."""
-    names, edges, now = {}, {}, 0
-    with open(vcd_path) as f:
-        for line in f:
-            parts = line.split()
-            if not parts:
-                continue
-            if parts[0] == "$var" and len(parts) >= 5:
-                names[parts[3]] = parts[4]
-            elif line.startswith("#"):
-                now = int(line[1:])
-            elif line[0] == "1" and line[1:].strip() in names:
-                edges.setdefault(names[line[1:].strip()], []).append(now)
-    return edges
 
 
 def test_ctrl_c_leaves_no_step_edge_100_ms_after_the_signal_5_of_5(tmp_path):

@@ -12,7 +12,8 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use armctl::motion::{
-    JointLimit, MoveSpeed, TargetArg, Units, joint_index, plan_move, targets_in_steps,
+    JointLimit, MoveSpeed, TargetArg, Units, check_targets, joint_index, joint_label, plan_move,
+    targets_in_steps,
 };
 use armctl::trajectory::ArmConfig;
 use armctl::{Client, RunOptions};
@@ -201,10 +202,7 @@ impl<'a> Arm<'a> {
 
     /// The name a message gives joint `j`: its config name, else `joint j`.
     pub fn joint_name(&self, j: usize) -> String {
-        match self.config.joints.get(j).and_then(|c| c.name.as_deref()) {
-            Some(name) => name.to_string(),
-            None => format!("joint {j}"),
-        }
+        joint_label(&self.config, j)
     }
 
     /// `base 90.00 deg, elbow -3.20 deg`: positions in the arm's units.
@@ -246,27 +244,7 @@ impl<'a> Arm<'a> {
             self.joints,
             &self.config,
         )?;
-        for (j, limit) in self.limits.iter().enumerate() {
-            if target[j] < limit.min_steps || target[j] > limit.max_steps {
-                let joint = &self.config.joints[j];
-                let steps = |s: i32| match self.units {
-                    Units::Steps => String::new(),
-                    _ => format!(" ({s} steps)"),
-                };
-                return Err(format!(
-                    "{}: target {}{} is outside its range {} to {}{}",
-                    self.joint_name(j),
-                    self.units.show(i64::from(target[j]), joint),
-                    steps(target[j]),
-                    self.units.show(i64::from(limit.min_steps), joint),
-                    self.units.show(i64::from(limit.max_steps), joint),
-                    match self.units {
-                        Units::Steps => String::new(),
-                        _ => format!(" ({} to {} steps)", limit.min_steps, limit.max_steps),
-                    }
-                ));
-            }
-        }
+        check_targets(&target, &self.limits, &self.config, self.units)?;
         Ok(target)
     }
 
