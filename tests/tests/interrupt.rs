@@ -1,4 +1,4 @@
-//! Host tools stop what they started (issue 18): SIGINT or SIGTERM during `armctl run` or
+//! Host tools stop what they started (issue 18): SIGINT, SIGTERM or SIGHUP during `armctl run` or
 //! `armctl return --wait` sends STOPPED, resent until it is ACKed (every 100 ms, 10 tries
 //! at most), says so on stderr and exits 130 (SIGINT) or 143 (SIGTERM); a second signal
 //! while the STOPPED is being resent ends the tool at once.
@@ -296,6 +296,23 @@ fn sigterm_during_armctl_run_stops_the_arm_and_exits_143() {
         libc::SIGTERM,
     );
     report("armctl run, SIGTERM", 0, 1, &stopped);
+    assert!(stopped.last_step <= LAST_STEP_AFTER_SIGNAL);
+}
+
+#[test]
+fn sighup_during_armctl_run_stops_the_arm_and_exits_129() {
+    // A closed terminal or `systemctl reload` (issue 30): the tool stops what it started,
+    // as for SIGTERM. Before, SIGHUP ended armctl at once and the run went on.
+    let _alone = system_tests::run_alone();
+    let stopped = interrupt_once(
+        &["--joints", "2"],
+        |sim, _| {
+            let file = long_csv(sim, 4);
+            vec!["run".into(), file, "--quiet".into()]
+        },
+        libc::SIGHUP,
+    );
+    report("armctl run, SIGHUP", 0, 1, &stopped);
     assert!(stopped.last_step <= LAST_STEP_AFTER_SIGNAL);
 }
 

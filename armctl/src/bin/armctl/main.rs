@@ -12,7 +12,7 @@
 //! Every failure prints `error: ...` and exits with 1; clap exits with 2 on a usage error.
 //! A closed stdout (`armctl status | head -n 1`) ends the tool quietly, killed by SIGPIPE,
 //! once the command has finished (`out`).
-//! SIGINT or SIGTERM during a command that moves the arm (`run`, `return`) sends STOPPED,
+//! SIGINT, SIGTERM or SIGHUP during a command that moves the arm (`run`, `return`) sends STOPPED,
 //! prints `interrupted (SIGINT): STOPPED sent, ...` and exits 130 or 143 (`interrupt`).
 //! Library diagnostics (an upload's ACKs, timeouts, go-back-N resends) go through the `log`
 //! facade: `ARMCTL_TRACE=1` shows them all, `RUST_LOG` (e.g. `RUST_LOG=armctl=debug`)

@@ -6,7 +6,7 @@
 //! rate the controller advertises in STATUS) and position range (the config's), and
 //! within the limits the controller keeps (LIMITS_GET), config or not. Positions
 //! are taken and shown in `--units` (steps, deg or rad; default: the config's `units`).
-//! SIGINT or SIGTERM during a move or a home: STOPPED (crate::interrupt).
+//! SIGINT, SIGTERM or SIGHUP during a move or a home: STOPPED (crate::interrupt).
 
 use std::path::PathBuf;
 use std::time::Duration;

@@ -158,7 +158,7 @@ fn print_points_summary(points: &[Point], waypoints: usize) {
 }
 
 /// Runs `run`: converts the file from the current position, uploads and runs it, and
-/// checks the final positions. SIGINT or SIGTERM from the upload on: STOPPED
+/// checks the final positions. SIGINT, SIGTERM or SIGHUP from the upload on: STOPPED
 /// (crate::interrupt).
 pub fn execute(arm: &Client, args: &RunArgs) -> CliResult {
     let status = arm.status().map_err(|e| e.to_string())?;
