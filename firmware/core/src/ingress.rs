@@ -27,7 +27,9 @@ use crate::hw::{Endpoint, StepKick};
 use crate::log_limit::LogVerdict;
 // The fair share itself is sans-io and lives below the bus (which holds it).
 pub use crate::source_share::{
-    INGRESS_SOURCES, SHARE_HEAL_HZ, SOURCE_SHARE, SharedBudgets, SourceBudgets,
+    INGRESS_SOURCES, SHARE_HEAL_HZ, SOURCE_SHARE, SharedBudgets, SourceBudgets, STRANGER_POOL,
+    TRUSTED_SOURCES,
+    TrustedSources,
 };
 use crate::step_shared::{StepBackend, StepShared};
 
@@ -160,6 +162,12 @@ impl Bus {
     /// [`Bus::receive_first`] admitted it: its slot of the sender's share is free again.
     pub fn release(&self, ip: [u8; 4]) {
         self.budgets.lock(|b| b.borrow_mut().release(ip));
+    }
+
+    /// From now on, datagrams from `trusted` (the owner's address and, with a key, those of
+    /// the sessions that proved it) take the reserved share of the receive path.
+    pub fn set_trusted(&self, trusted: TrustedSources) {
+        self.budgets.lock(|b| b.borrow_mut().set_trusted(trusted));
     }
 
     /// Datagrams [`Bus::receive_first`] ignored so far because they were sent to a

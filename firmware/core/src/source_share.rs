@@ -8,6 +8,7 @@ use embassy_sync::blocking_mutex::Mutex;
 // The bus's mutex kind ([`crate::bus::Cs`]), named directly: this module sits below the bus.
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex as Cs;
 
+use crate::auth::AUTH_SESSIONS;
 use crate::config::HOST_WINDOW;
 use crate::log_limit::{LogLimit, LogVerdict};
 
@@ -24,6 +25,12 @@ pub const INGRESS_SOURCES: usize = 8;
 /// controller handles its datagrams (work-conserving, unlike a fixed rate).
 pub const SOURCE_SHARE: u64 = HOST_WINDOW as u64 + 4;
 
+/// Datagrams of all the untrusted sources together admitted and not yet handled at most
+/// while someone is trusted (issue 30): what the inbox ([`crate::bus::INBOX_QUEUE`] = 40)
+/// holds beyond the trusted class's [`SOURCE_SHARE`], so however many strangers flood, the
+/// owner's window always fits and its commands wait behind at most these 4 of theirs.
+pub const STRANGER_POOL: u64 = crate::bus::INBOX_QUEUE as u64 - SOURCE_SHARE;
+
 /// Share returned per second regardless of handling: an admitted datagram the network
 /// stack drops before the controller sees it (a full socket, a bad IP checksum) would
 /// otherwise hold its slot of the share forever. 1,000 a second heal a whole share in
@@ -33,6 +40,45 @@ pub const SHARE_HEAL_HZ: u64 = 1_000;
 /// Credit units per datagram: credit is kept in millionths of a datagram, so that the
 /// healing ([`SHARE_HEAL_HZ`] per second) is a whole number per microsecond.
 const CREDIT_PER_DATAGRAM: u64 = 1_000_000;
+
+/// Addresses of the trusted class at most: the owner's and one per authenticated session.
+pub const TRUSTED_SOURCES: usize = 1 + AUTH_SESSIONS;
+
+/// The source addresses whose datagrams take the reserved share: the owner's and, with a
+/// key, those of the sessions that sent a valid envelope. Published by the trajectory
+/// task after every event ([`crate::Bus::set_trusted`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct TrustedSources {
+    ips: [Option<[u8; 4]>; TRUSTED_SOURCES],
+}
+
+impl TrustedSources {
+    /// Nobody: no owner, no session.
+    pub const NONE: TrustedSources = TrustedSources {
+        ips: [None; TRUSTED_SOURCES],
+    };
+
+    /// Adds `ip` (once; beyond [`TRUSTED_SOURCES`] addresses it is not added).
+    pub fn add(&mut self, ip: [u8; 4]) {
+        if self.contains(ip) {
+            return;
+        }
+        if let Some(free) = self.ips.iter_mut().find(|s| s.is_none()) {
+            *free = Some(ip);
+        }
+    }
+
+    /// Whether datagrams from `ip` take the reserved share.
+    pub fn contains(&self, ip: [u8; 4]) -> bool {
+        self.ips.contains(&Some(ip))
+    }
+
+    /// Whether nobody is trusted.
+    pub fn is_empty(&self) -> bool {
+        self.ips.iter().all(Option::is_none)
+    }
+}
 
 /// One tracked source's share.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -52,6 +98,7 @@ struct Source {
 #[derive(Clone, Copy, Debug)]
 pub struct SourceBudgets {
     sources: [Source; INGRESS_SOURCES],
+    trusted: TrustedSources,
     shed: u32,
     log: LogLimit,
 }
@@ -74,6 +121,7 @@ impl SourceBudgets {
                 at_us: 0,
                 in_use: false,
             }; INGRESS_SOURCES],
+            trusted: TrustedSources::NONE,
             shed: 0,
             log: LogLimit::new(),
         }
@@ -128,6 +176,11 @@ impl SourceBudgets {
         if let Some(s) = self.sources.iter_mut().find(|s| s.in_use && s.ip == ip) {
             s.credit = s.credit.saturating_add(CREDIT_PER_DATAGRAM).min(FULL_SHARE);
         }
+    }
+
+    /// From now on, datagrams from `trusted` take the reserved share.
+    pub fn set_trusted(&mut self, trusted: TrustedSources) {
+        self.trusted = trusted;
     }
 
     /// Datagrams shed so far (wrapping).
