@@ -27,9 +27,8 @@ use crate::hw::{Endpoint, StepKick};
 use crate::log_limit::LogVerdict;
 // The fair share itself is sans-io and lives below the bus (which holds it).
 pub use crate::source_share::{
-    INGRESS_SOURCES, SHARE_HEAL_HZ, SOURCE_SHARE, SharedBudgets, SourceBudgets, STRANGER_POOL,
-    TRUSTED_SOURCES,
-    TrustedSources,
+    INGRESS_SOURCES, SHARE_HEAL_AFTER_US, SHARE_HEAL_HZ, SOURCE_SHARE, STRANGER_POOL,
+    STRANGER_SHARE, SharedBudgets, SourceBudgets, TRUSTED_SOURCES, TrustedSources,
 };
 use crate::step_shared::{StepBackend, StepShared};
 

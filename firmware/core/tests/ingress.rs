@@ -12,8 +12,8 @@ use std::task::Context;
 use arm_core::Bus;
 use arm_core::hw::{Clock, Endpoint};
 use arm_core::ingress::{
-    GuardedDriver, Ingress, SHARE_HEAL_HZ, SOURCE_SHARE, STRANGER_POOL, SourceBudgets, StepHalt,
-    TrustedSources, udp_payload,
+    GuardedDriver, Ingress, SHARE_HEAL_AFTER_US, SHARE_HEAL_HZ, SOURCE_SHARE, STRANGER_POOL,
+    STRANGER_SHARE, SourceBudgets, StepHalt, TrustedSources, udp_payload,
 };
 use common::*;
 use embassy_net_driver::{Capabilities, Driver, HardwareAddress, LinkState, RxToken, TxToken};
@@ -70,18 +70,47 @@ fn a_source_gets_its_share_back_as_its_datagrams_are_handled() {
     assert_eq!(budgets.shed(), 0);
 }
 
+/// Issue 30 changed when a share heals: only after [`SHARE_HEAL_AFTER_US`] without a
+/// release (before, all the time, which let a flood the controller kept busy past its
+/// share; see `a_busy_share_does_not_heal`).
 #[test]
 fn a_share_lost_downstream_heals_with_time() {
     let mut budgets = SourceBudgets::new();
     for _ in 0..SOURCE_SHARE {
         assert!(budgets.admit(HOST.ip, 0).is_ok());
     }
-    // Never released (the stack dropped them): after a datagram's healing time, one more.
+    // Never released (the stack dropped them): after the stall and a datagram's healing
+    // time, one more.
     assert!(budgets.admit(HOST.ip, 0).is_err());
     let one = 1_000_000 / SHARE_HEAL_HZ;
-    assert!(budgets.admit(HOST.ip, one).is_ok());
-    assert!(budgets.admit(HOST.ip, one).is_err());
-    assert!(budgets.admit(HOST.ip, one * (SOURCE_SHARE + 1)).is_ok());
+    assert!(budgets.admit(HOST.ip, SHARE_HEAL_AFTER_US).is_err());
+    let healed = SHARE_HEAL_AFTER_US + one;
+    assert!(budgets.admit(HOST.ip, healed).is_ok());
+    assert!(budgets.admit(HOST.ip, healed).is_err());
+    assert!(
+        budgets
+            .admit(HOST.ip, healed + one * (SOURCE_SHARE + 1))
+            .is_ok()
+    );
+}
+
+/// A share the controller keeps releasing never heals: it bounds what is really queued.
+#[test]
+fn a_busy_share_does_not_heal() {
+    let mut budgets = SourceBudgets::new();
+    let mut admitted = 0u64;
+    // Floods for 1 s; the controller takes one every 100 us.
+    for step in 0..10_000u64 {
+        for _ in 0..10 {
+            admitted += u64::from(budgets.admit(FLOODER.ip, step * 100).is_ok());
+        }
+        budgets.release(FLOODER.ip);
+    }
+    assert_eq!(
+        admitted,
+        10_000 + SOURCE_SHARE - 1,
+        "what was taken, and one share"
+    );
 }
 
 #[test]
@@ -175,16 +204,55 @@ fn many_strangers_never_starve_the_owner() {
     assert!(strangers_handled > 19_000, "{strangers_handled}");
 }
 
+/// Issue 30 reversed this test's old rule ("more sources than slots each start with a full
+/// share": 50 addresses were each admitted 36 at once). Now however many addresses send,
+/// the strangers together are admitted the pool: the whole inbox while nobody is trusted,
+/// [`STRANGER_POOL`] once the owner is, whose own share stays whole.
 #[test]
-fn more_sources_than_slots_each_start_with_a_full_share() {
-    let mut budgets = SourceBudgets::new();
-    for host in 0..50u8 {
-        for _ in 0..SOURCE_SHARE {
-            assert!(budgets.admit([10, 0, 0, host], 5).is_ok(), "host {host}");
+fn more_sources_than_slots_never_pass_the_pool() {
+    let flood = |budgets: &mut SourceBudgets| {
+        let mut admitted = 0;
+        for host in 0..50u8 {
+            for _ in 0..SOURCE_SHARE {
+                admitted += u64::from(budgets.admit([10, 0, 0, host], 5).is_ok());
+            }
         }
+        admitted
+    };
+    let mut budgets = SourceBudgets::new();
+    assert_eq!(flood(&mut budgets), arm_core::bus::INBOX_QUEUE as u64);
+    let mut budgets = SourceBudgets::new();
+    let mut owner = TrustedSources::NONE;
+    owner.add(HOST.ip);
+    budgets.set_trusted(owner);
+    assert_eq!(flood(&mut budgets), STRANGER_POOL);
+    for i in 0..SOURCE_SHARE {
+        assert!(budgets.admit(HOST.ip, 5).is_ok(), "the owner's {i}");
     }
-    // The most recent 8 are still tracked: their shares are used up.
-    assert!(budgets.admit([10, 0, 0, 49], 5).is_err());
+    assert!(budgets.admit(HOST.ip, 5).is_err());
+}
+
+/// One stranger alone never takes the whole pool from another, and an address that
+/// becomes trusted takes what it has in flight out of the pool.
+#[test]
+fn a_stranger_gets_half_the_pool_and_takes_its_count_along_when_trusted() {
+    let mut budgets = SourceBudgets::new();
+    let mut owner = TrustedSources::NONE;
+    owner.add(HOST.ip);
+    budgets.set_trusted(owner);
+    let other = [10, 0, 0, 2];
+    let admitted = (0..10)
+        .filter(|_| budgets.admit(FLOODER.ip, 5).is_ok())
+        .count() as u64;
+    assert_eq!(admitted, STRANGER_SHARE);
+    assert!(budgets.admit(other, 5).is_ok(), "room for another stranger");
+    owner.add(FLOODER.ip);
+    budgets.set_trusted(owner);
+    // The flooder's two left the pool: the other has its own share whole.
+    for _ in 0..STRANGER_SHARE - 1 {
+        assert!(budgets.admit(other, 5).is_ok());
+    }
+    assert!(budgets.admit(other, 5).is_err(), "its own share");
 }
 
 #[test]
