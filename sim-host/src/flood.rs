@@ -60,6 +60,9 @@ pub struct Flood {
     pub rate_hz: Option<u32>,
     /// Valid STATUS only (issue 30's strangers); else every fourth, the rest garbage.
     pub valid_only: bool,
+    /// The flood and the owner's polls last at least this long (past the STOPPEDs' runs),
+    /// so that the polls are many.
+    pub hold: Duration,
 }
 
 impl Flood {
@@ -68,6 +71,7 @@ impl Flood {
         sources: 0,
         rate_hz: Some(0),
         valid_only: false,
+        hold: Duration::ZERO,
     };
 
     /// Issue 18's: one stranger, `rate_hz` datagrams a second, valid and garbage mixed.
@@ -76,15 +80,18 @@ impl Flood {
             sources: 1,
             rate_hz: Some(rate_hz),
             valid_only: false,
+            hold: Duration::ZERO,
         }
     }
 
-    /// Issue 30's: `sources` strangers, valid STATUS as fast as their sockets send.
+    /// Issue 30's: `sources` strangers, valid STATUS as fast as their sockets send, for
+    /// 20 s at least (200 polls of the owner's).
     pub const fn many(sources: u8) -> Flood {
         Flood {
             sources,
             rate_hz: None,
             valid_only: true,
+            hold: Duration::from_secs(20),
         }
     }
 
@@ -139,6 +146,9 @@ pub struct FloodFigures {
     pub polls_lost: usize,
     /// The flood's source addresses.
     pub sources: u8,
+    /// Datagrams the kernel dropped at the controller's socket meanwhile (its buffer
+    /// full: the socket reader fell behind), from /proc/net/udp; `None` where unreadable.
+    pub kernel_drops: Option<u64>,
     /// Datagrams the controller's receive path shed (over their sender's share); `None`
     /// when measured from outside, where the count cannot be read.
     pub shed: Option<u32>,
@@ -398,6 +408,7 @@ pub fn measure(
         std::thread::spawn(move || poll_status(hosts.owner, addr, &stop))
     };
     let shed_before = shed.as_ref().map(|read| read());
+    let kernel_drops_before = kernel_drops(addr);
     let flood_started = Instant::now();
     let mut figures = FloodFigures::default();
     let run = long_run();
@@ -480,6 +491,10 @@ pub fn measure(
         }
         Ok(())
     })();
+    // The measurement's length, not a wait for the controller: the polls go on meanwhile.
+    while result.is_ok() && flood_started.elapsed() < flood.hold {
+        std::thread::sleep(Duration::from_millis(50));
+    }
     stop_flood.store(true, Ordering::Relaxed);
     for flooder in flooders {
         flooder
@@ -494,6 +509,9 @@ pub fn measure(
     figures.polls = polls.iter().flatten().copied().collect();
     figures.polls_lost = polls.iter().filter(|p| p.is_none()).count();
     figures.sources = if flood.is_none() { 0 } else { flood.sources };
+    figures.kernel_drops = kernel_drops(addr)
+        .zip(kernel_drops_before)
+        .map(|(after, before)| after.saturating_sub(before));
     let seconds = flood_started.elapsed().as_secs_f64();
     figures.flood_rate_hz = flood_sent.load(Ordering::Relaxed) as f64 / seconds;
     figures.shed = shed
@@ -501,6 +519,25 @@ pub fn measure(
         .zip(shed_before)
         .map(|(read, before)| read().wrapping_sub(before));
     Ok(figures)
+}
+
+/// The kernel's count of datagrams dropped at the UDP socket bound to `addr` on this
+/// machine (the last field of its /proc/net/udp line), if there is one.
+fn kernel_drops(addr: SocketAddr) -> Option<u64> {
+    let SocketAddr::V4(addr) = addr else {
+        return None;
+    };
+    // The local address as /proc shows it: the IP's bytes as a little-endian hex word.
+    let local = format!(
+        "{:08X}:{:04X}",
+        u32::from_le_bytes(addr.ip().octets()),
+        addr.port()
+    );
+    let table = std::fs::read_to_string("/proc/net/udp").ok()?;
+    table
+        .lines()
+        .find(|line| line.split_whitespace().nth(1) == Some(local.as_str()))
+        .and_then(|line| line.split_whitespace().last()?.parse().ok())
 }
 
 /// Options of `sim-host flood`.
@@ -578,7 +615,7 @@ impl FloodFigures {
             n => format!("{n} srcs {:.0}/s", self.flood_rate_hz),
         };
         format!(
-            "{label:<22} STOPPED p50 {:>6.2} ms  p90 {:>6.2} ms  max {:>6.2} ms  lost {} of {}{}   owner's 10 Hz polls p50 {:.2} ms  p90 {:.2} ms  max {:.2} ms  lost {} of {}   owner STATUS in runs max {:.2} ms   shed {}",
+            "{label:<22} STOPPED p50 {:>6.2} ms  p90 {:>6.2} ms  max {:>6.2} ms  lost {} of {}{}   owner's 10 Hz polls p50 {:.2} ms  p90 {:.2} ms  max {:.2} ms  lost {} of {}   owner STATUS in runs max {:.2} ms   shed {}{}",
             self.effect_ms(0.5),
             self.effect_ms(0.9),
             self.effect_ms(1.0),
@@ -597,7 +634,9 @@ impl FloodFigures {
             self.status_ms(1.0),
             self.shed
                 .map_or("n/a (not readable from outside)".to_string(), |n| n
-                    .to_string())
+                    .to_string()),
+            self.kernel_drops
+                .map_or(String::new(), |n| format!("   kernel dropped {n}"))
         )
     }
 }

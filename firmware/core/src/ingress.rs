@@ -8,11 +8,14 @@
 //!   backend's stop and a kick of its interrupt, as the trajectory task's own stop does)
 //!   and goes onto `bus.estop` for the controller's bookkeeping and ACK. It never waits
 //!   behind, or is dropped with, other traffic, and it is not counted against its sender;
-//! - anything else is admitted only within its sender's **fair share** ([`SourceBudgets`]:
-//!   per source address, at most [`SOURCE_SHARE`] datagrams admitted and not yet taken by
-//!   the controller), so one host's flood can never fill the queues behind (socket,
-//!   inbox), and the owner's commands wait behind at most a share of it. A host alone is
-//!   never slowed. What is shed is counted and logged at most once a second.
+//! - anything else is admitted only within its **fair share** by class ([`SourceBudgets`],
+//!   issue 30): the owner's address and the sessions that proved the key
+//!   ([`TrustedSources`], published by the trajectory task) have [`SOURCE_SHARE`]
+//!   datagrams admitted and not yet taken by the controller reserved; all other addresses
+//!   together [`STRANGER_POOL`], each [`STRANGER_SHARE`]. So no flood, from however many
+//!   addresses, can fill the queues behind (socket, inbox), and the owner's commands wait
+//!   behind at most the pool. A host alone is never slowed. What is shed is counted and
+//!   logged at most once a second.
 //!
 //! Halting at the reader is what makes a STOPPED immune to a flood: the queues behind it
 //! may hold many datagrams of other hosts, but the pulses have stopped before the

@@ -19,10 +19,12 @@
 //! whole inbox, each at most [`SOURCE_SHARE`], so the first host's window is taken whole.
 //!
 //! A class's count goes down as the controller takes its datagrams (work-conserving: a
-//! host alone is never slowed), and heals with time for those lost downstream. A release
-//! counts against the class the address is in at that moment; an address that becomes
-//! trusted takes its remembered count along, and one that stops being trusted leaves its
-//! count in the trusted class, to heal ([`SHARE_HEAL_HZ`]: 36 ms at most).
+//! host alone is never slowed), and heals with time for those lost downstream once
+//! nothing of it was taken for a while ([`SHARE_HEAL_AFTER_US`]). A release counts
+//! against the class the address is in at that moment: an address that becomes trusted
+//! takes its remembered count along; one that stops being trusted (a new owner after 5 s
+//! of silence, or RELEASE, so seldom with anything in flight) leaves its count in the
+//! trusted class until it heals, and its releases go to the pool, which saturates at zero.
 
 use core::cell::RefCell;
 
