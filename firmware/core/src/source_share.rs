@@ -40,7 +40,7 @@ use crate::log_limit::{LogLimit, LogVerdict};
 /// Untrusted source addresses whose own share is remembered at once: a cell has a few
 /// hosts (a panel, a monitor, a second tool). A new address beyond these takes the slot of
 /// the one heard least recently, starting with nothing in flight; the pool still bounds
-/// them all ([`STRANGER_POOL`]). 8 slots are 192 bytes.
+/// them all ([`STRANGER_POOL`]). 8 slots are 320 bytes (all the shares, 448).
 pub const INGRESS_SOURCES: usize = 8;
 
 /// Datagrams of the trusted class admitted and not yet handled (in the socket or the
