@@ -30,6 +30,8 @@ struct Session {
     nonce: [u8; NONCE_LEN],
     window: ReplayWindow,
     last_used_us: u64,
+    /// A valid envelope came in it: its host holds the key (a HELLO alone needs none).
+    proved: bool,
 }
 
 /// Why an envelope was refused (each is `AUTH_FAILED` on the wire).
@@ -133,6 +135,7 @@ impl Sessions {
             nonce,
             window: ReplayWindow::new(),
             last_used_us: now_us,
+            proved: false,
         };
         let slot = self
             .slots
@@ -167,7 +170,18 @@ impl Sessions {
         s.window.accept(counter);
         s.endpoint = from;
         s.last_used_us = now_us;
+        s.proved = true;
         Ok(())
+    }
+
+    /// The addresses of the sessions that sent a valid envelope (issue 30: they share the
+    /// owner's reserved part of the receive path, [`crate::source_share`]).
+    pub fn proven_ips(&self) -> impl Iterator<Item = [u8; 4]> + '_ {
+        self.slots
+            .iter()
+            .flatten()
+            .filter(|s| s.proved)
+            .map(|s| s.endpoint.ip)
     }
 
     /// The routes the network task seals with (`keyed`: a key is set).

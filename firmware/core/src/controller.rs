@@ -361,6 +361,20 @@ impl<const CAP: usize> Controller<CAP> {
         self.owner
     }
 
+    /// The addresses whose datagrams take the reserved share of the receive path (issue
+    /// 30, [`crate::source_share`]): the owner's and, with a key, those of the sessions
+    /// that sent a valid envelope.
+    pub fn trusted_sources(&self) -> crate::source_share::TrustedSources {
+        let mut trusted = crate::source_share::TrustedSources::NONE;
+        if let Some(owner) = self.owner {
+            trusted.add(owner.ip);
+        }
+        if self.settings.key.is_some() {
+            self.sessions.proven_ips().for_each(|ip| trusted.add(ip));
+        }
+        trusted
+    }
+
     /// The endpoint whose NEW started the current upload (its frames alone count for the
     /// ordering rule).
     pub fn uploader(&self) -> Option<Endpoint> {

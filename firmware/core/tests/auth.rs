@@ -264,3 +264,27 @@ fn a_key_set_at_run_time_gates_plain_status_too() {
         StatusCode::AuthRequired
     );
 }
+
+/// Issue 30: the receive path's reserved share goes to the owner's address and to the
+/// addresses of sessions that sent a valid envelope; a HELLO alone needs no key and
+/// earns nothing.
+#[test]
+fn sessions_that_proved_the_key_are_trusted_by_the_receive_path() {
+    let mut s = keyed();
+    let trusted = |s: &Session<64>| s.controller.trusted_sources();
+    assert!(trusted(&s).contains(HOST.ip), "the owner");
+    s.from = OTHER;
+    s.hello(KEY);
+    assert!(!trusted(&s).contains(OTHER.ip), "a HELLO alone");
+    s.send(Command::Status);
+    assert!(trusted(&s).contains(OTHER.ip), "a valid envelope");
+    // Without a key: the owner alone, and nobody after RELEASE.
+    let mut plain = Session::<64>::new(64);
+    assert!(plain.controller.trusted_sources().is_empty());
+    plain.expect(Command::Status, StatusCode::Ok);
+    let _ = plain.send_raw(OTHER, &frame(7, Command::Status));
+    assert!(plain.controller.trusted_sources().contains(HOST.ip));
+    assert!(!plain.controller.trusted_sources().contains(OTHER.ip));
+    plain.expect(Command::Release, StatusCode::Ok);
+    assert!(plain.controller.trusted_sources().is_empty());
+}

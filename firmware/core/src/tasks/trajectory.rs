@@ -348,11 +348,13 @@ pub(super) fn deliver(bus: &Bus, response: &Response) {
     }
 }
 
-/// Copies the report settings out for the other tasks; wakes the upload task when its
-/// settings changed.
+/// Copies the report settings, and the addresses the receive path trusts, out for the
+/// other tasks; wakes the upload task when its settings changed.
 pub(super) fn publish<const CAP: usize>(bus: &Bus, controller: &Controller<CAP>) {
     let new = controller.report_settings();
     let old = bus.reports.lock(|c| c.replace(new));
+    // Who takes the reserved share of the receive path (issue 30, crate::source_share).
+    bus.set_trusted(controller.trusted_sources());
     if old.reports_on != new.reports_on || old.upload_period_us != new.upload_period_us {
         bus.upload_changed.signal(());
     }
