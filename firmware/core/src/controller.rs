@@ -192,7 +192,6 @@ impl ReplyBudget {
 /// A command whose settings are being saved ([`Deferred::SaveSettings`]): nothing of it
 /// applies, and no ACK goes out, until the save's result is known.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 struct PendingSave {
     /// The command (its sender, seq, tag and CRC: the ACK, the duplicate memory).
     frame: FrameKey,
