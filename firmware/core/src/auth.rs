@@ -51,7 +51,8 @@ pub const HELLO_REPLIES_PER_SOURCE_PER_S: u32 = 4;
 
 /// HELLO replies to one source address at once, before its rate applies: as many as
 /// there are proven sessions, so that every tool on one host can start together.
-pub const HELLO_SOURCE_BURST: u32 = AUTH_SESSIONS as u32;
+pub const HELLO_SOURCE_BURST: u32 = 8;
+const _: () = assert!(HELLO_SOURCE_BURST as usize == AUTH_SESSIONS);
 
 /// HELLO replies a second in all (and at once): what bounds the 62-byte replies to
 /// 19-byte requests a flood from many (forged) addresses can draw, at 8 KB/s. Above the
@@ -436,6 +437,8 @@ impl SealRoutes {
 }
 
 #[cfg(test)]
+// Small test counts and wrapping nonce bytes.
+#[allow(clippy::cast_possible_truncation)]
 mod tests {
     use super::*;
 
