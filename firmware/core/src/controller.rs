@@ -100,7 +100,11 @@
 //! # Effects
 //! What must happen synchronously (the step engine, pins, gripper, serial port) goes
 //! through the [`Plant`] trait; what needs waiting (flash, encoders) comes back as a
-//! [`Deferred`] in the [`Response`].
+//! [`Deferred`] in the [`Response`]. A command that writes flash (JOINTS_COUNT,
+//! LIMITS_SET, SET_KEY, NET_SET; only while STOPPED, one at a time) changes nothing and
+//! gets no ACK in its response: the caller saves [`Deferred::SaveSettings`], then
+//! [`Controller::settings_saved`] applies it and gives the ACK, `OK` or `SAVE_FAILED`
+//! (issue 30: the ACK went out `OK` before the save, whose failure was only logged).
 //!
 //! # Layout
 //! This file is the state machine proper: the checks above in their order
