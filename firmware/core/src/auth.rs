@@ -216,14 +216,17 @@ impl Sessions {
     /// answered. (Session ids go on counting: a reply of the ended sessions never names a
     /// new one.)
     pub fn start_epoch(&mut self, epoch: u64, key: &AuthKey) {
-        *self = Sessions {
-            key: Some(MacKey::new(key)),
-            epoch,
-            ready: true,
-            next_id: self.next_id,
-            budget: self.budget,
-            ..Sessions::new()
-        };
+        self.key = Some(MacKey::new(key));
+        self.epoch = epoch;
+        self.ready = true;
+        self.drop_sessions();
+    }
+
+    /// Every session dropped, in place (the tables are a few KB: no copy of them on the
+    /// stack).
+    fn drop_sessions(&mut self) {
+        self.proven.fill(None);
+        self.unproven.fill(None);
     }
 
     /// The key made ready, once an epoch started.
@@ -233,11 +236,10 @@ impl Sessions {
 
     /// Drops every session and stops answering HELLO (the key was cleared).
     pub fn close(&mut self) {
-        *self = Sessions {
-            next_id: self.next_id,
-            budget: self.budget,
-            ..Sessions::new()
-        };
+        self.key = None;
+        self.epoch = 0;
+        self.ready = false;
+        self.drop_sessions();
     }
 
     /// The epoch in the MACs.
