@@ -344,9 +344,18 @@ impl Harness {
             self.duplicate(&key)
         };
         let owner_before = self.controller.owner().map(|o| o.ip);
-        let r = self
+        let mut r = self
             .controller
             .handle(from, bytes, self.now_us, &mut self.plant);
+        // A command that writes flash: no ACK until its save ended (issue 30), which the
+        // trajectory task does next; here it succeeds at once.
+        if let Some(Deferred::SaveSettings(_)) = r.deferred {
+            assert_eq!(r.reply, None, "an ACK before the save");
+            // (The state it was taken in: a hand-over may have dropped an upload first.)
+            assert_eq!(self.controller.state(), State::Stopped, "a save while not STOPPED");
+            r.reply = self.controller.settings_saved(true, self.now_us);
+            r.executed = r.reply.is_some_and(|a| a.ack.status == StatusCode::Ok);
+        }
         let after = self.snapshot();
         // A new owner (the old one silent 5 s, not running) takes over with any CRC-valid
         // frame, even one it then refuses; an upload the old owner had not started is
@@ -733,6 +742,10 @@ impl Harness {
                     "{:?}",
                     r.deferred
                 );
+            }
+            // Flash writes only while STOPPED (issue 30).
+            Command::SetKey(_) | Command::NetSet(_) => {
+                assert_eq!(was, State::Stopped, "{cmd:?} accepted in {was:?}");
             }
             Command::LimitsGet => {
                 let (_, report) = r.limits.expect("no LIMITS report for LIMITS_GET");

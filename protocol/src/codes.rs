@@ -219,6 +219,9 @@ wire_code! {
         /// An envelope that did not verify: wrong MAC (another key, or a controller reset
         /// since HELLO), an unknown session, or a counter already used (a replay).
         AuthFailed = 14 => "AUTH_FAILED",
+        /// A command that writes the settings to flash (JOINTS_COUNT, LIMITS_SET, SET_KEY,
+        /// NET_SET) whose save failed: nothing changed (issue 30).
+        SaveFailed = 15 => "SAVE_FAILED",
     }
 }
 
@@ -272,6 +275,9 @@ impl StatusCode {
             }
             AuthFailed => {
                 "authentication failed: wrong key, or the controller was reset (open a new session with HELLO)"
+            }
+            SaveFailed => {
+                "the controller could not save its settings to flash: nothing changed; retry, and if it keeps failing the flash needs looking at (see the board's log)"
             }
         }
     }

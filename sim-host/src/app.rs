@@ -379,6 +379,8 @@ fn wire(board: Board) -> io::Result<Wiring> {
     }
     let port = board.local_addr().map_or(protocol::PORT, |a| a.port());
     controller.set_mac(sim_mac(board.options.tap.as_deref(), port));
+    // The board draws these from its RNG: the epochs of keys set (issue 30).
+    controller.set_entropy(os_random_u64());
     log::info!(
         "controller: {} trajectory points, step timer {} Hz (pulse {} ticks, DIR setup {} ticks), max {} steps/s per joint, time scale {}",
         config.capacity,
@@ -598,4 +600,22 @@ pub fn start_in_background(options: &SimOptions) -> io::Result<Board> {
             executor.run(move |spawner| spawn_tasks(spawner, wiring))
         })?;
     Ok(observed)
+}
+
+/// 64 random bits from the OS (its RNG: /dev/urandom), as the board's RNG gives them; the
+/// time and process id if that cannot be read (not random, but never the same twice on one
+/// machine).
+fn os_random_u64() -> u64 {
+    use std::io::Read;
+    let mut bytes = [0u8; 8];
+    match std::fs::File::open("/dev/urandom").and_then(|mut f| f.read_exact(&mut bytes)) {
+        Ok(()) => u64::from_le_bytes(bytes),
+        Err(e) => {
+            log::warn!("no OS random bits ({e}): key epochs start from the time");
+            let nanos = std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map_or(0, |d| d.as_nanos() as u64);
+            nanos ^ (u64::from(std::process::id()) << 40)
+        }
+    }
 }

@@ -46,6 +46,8 @@ pub(crate) struct Shared {
     pub(super) last_status: Mutex<Option<StatusReport>>,
     /// Datagrams that did not decode as a report.
     pub(super) undecodable: AtomicU64,
+    /// ACKs `AUTH_FAILED` received (an envelope refused: its session was gone).
+    pub(super) auth_failed: AtomicU64,
     /// Where every datagram sent and received is written ([`Client::capture`]).
     pub(super) pcap: Mutex<Option<Arc<PcapLog>>>,
     /// With a key: the session, and sealing and opening.
@@ -125,6 +127,9 @@ impl Shared {
                 }
             }
             Report::Ack(ack) => {
+                if ack.status == protocol::StatusCode::AuthFailed {
+                    self.auth_failed.fetch_add(1, Ordering::Relaxed);
+                }
                 if let Some((_, waiter)) = lock(&self.waiters).get(&frame.seq) {
                     let _ = waiter.send(Event::Ack(frame.seq, ack));
                 }

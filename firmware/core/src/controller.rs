@@ -103,7 +103,11 @@
 //! # Effects
 //! What must happen synchronously (the step engine, pins, gripper, serial port) goes
 //! through the [`Plant`] trait; what needs waiting (flash, encoders) comes back as a
-//! [`Deferred`] in the [`Response`].
+//! [`Deferred`] in the [`Response`]. A command that writes flash (JOINTS_COUNT,
+//! LIMITS_SET, SET_KEY, NET_SET; only while STOPPED, one at a time) changes nothing and
+//! gets no ACK in its response: the caller saves [`Deferred::SaveSettings`], then
+//! [`Controller::settings_saved`] applies it and gives the ACK, `OK` or `SAVE_FAILED`
+//! (issue 30: the ACK went out `OK` before the save, whose failure was only logged).
 //!
 //! # Layout
 //! This file is the state machine proper: the checks above in their order
@@ -146,22 +150,32 @@ pub const DISCOVER_REPLIES_PER_S: u32 = 10;
 /// together.
 pub const DISCOVER_BURST: u32 = 10;
 
-/// The DISCOVER replies' budget: a token bucket of [`DISCOVER_BURST`] refilled at
-/// [`DISCOVER_REPLIES_PER_S`].
+/// A reply budget: a token bucket of `burst` replies refilled at `per_s` a second (the
+/// DISCOVER replies': [`DISCOVER_BURST`] at [`DISCOVER_REPLIES_PER_S`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub(crate) struct ReplyBudget {
     /// Millionths of a reply available.
     credit: u64,
     at_us: u64,
+    per_s: u32,
+    /// Millionths of a reply at most.
+    full: u64,
 }
 
 impl ReplyBudget {
-    const FULL: u64 = DISCOVER_BURST as u64 * 1_000_000;
-
+    /// DISCOVER's budget (and the read-only STATUS answers').
     pub(crate) const fn new() -> Self {
+        Self::with(DISCOVER_REPLIES_PER_S, DISCOVER_BURST)
+    }
+
+    /// `burst` replies at once, `per_s` a second after that; full.
+    pub(crate) const fn with(per_s: u32, burst: u32) -> Self {
         ReplyBudget {
-            credit: Self::FULL,
+            credit: burst as u64 * 1_000_000,
             at_us: 0,
+            per_s,
+            full: burst as u64 * 1_000_000,
         }
     }
 
@@ -171,8 +185,8 @@ impl ReplyBudget {
         self.at_us = self.at_us.max(now_us);
         self.credit = self
             .credit
-            .saturating_add(elapsed.saturating_mul(u64::from(DISCOVER_REPLIES_PER_S)))
-            .min(Self::FULL);
+            .saturating_add(elapsed.saturating_mul(u64::from(self.per_s)))
+            .min(self.full);
         if self.credit >= 1_000_000 {
             self.credit -= 1_000_000;
             true
@@ -180,6 +194,17 @@ impl ReplyBudget {
             false
         }
     }
+}
+
+/// A command whose settings are being saved ([`Deferred::SaveSettings`]): nothing of it
+/// applies, and no ACK goes out, until the save's result is known.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct PendingSave {
+    /// The command (its sender, seq, tag and CRC: the ACK, the duplicate memory).
+    frame: FrameKey,
+    from_owner: bool,
+    /// The settings it stores, applied once stored.
+    settings: PersistentSettings,
 }
 
 /// The host that owns the controller.
@@ -236,15 +261,20 @@ pub struct Controller<const CAP: usize> {
     location_claimer: Option<Endpoint>,
     /// What DISCOVER replies may still be sent ([`DISCOVER_REPLIES_PER_S`]).
     discover_budget: ReplyBudget,
-    /// What HELLO replies may still be sent (the same bound as DISCOVER's: a 62-byte
-    /// reply to a 19-byte request, to whatever address it names).
-    hello_budget: ReplyBudget,
     /// What read-only STATUS answers to hosts that do not own the controller may still
     /// be sent (the same bound as DISCOVER's: issue 23's read-only STATUS is a 39-byte
     /// report, and a 39-byte LOCATION when asked, to a 4-byte request).
     glance_budget: ReplyBudget,
     /// Authenticated sessions (with a key set).
     sessions: Sessions,
+    /// Random bits from the board (its RNG, at boot): the epochs of keys set
+    /// ([`crate::auth::epoch_base`]).
+    entropy: u64,
+    /// Keys set since boot (each draws another epoch base from `entropy`).
+    keys_set: u32,
+    /// A command that writes flash, accepted and waiting for its save: its ACK goes out
+    /// with the save's result ([`Controller::settings_saved`]).
+    saving: Option<PendingSave>,
     /// The latest time the controller was told (by [`Controller::handle`] or
     /// [`Controller::note_time`]): what it knows of "now" when a run ends, which it notices
     /// without a clock.
@@ -314,21 +344,56 @@ impl<const CAP: usize> Controller<CAP> {
         self.step_budget_hz = hz;
     }
 
+    /// Gives the controller random bits (at boot, from the board's RNG; the simulator's
+    /// OS): a key set later starts its epochs at a random place
+    /// ([`crate::auth::epoch_base`]), never again at 1.
+    pub fn set_entropy(&mut self, entropy: u64) {
+        self.entropy = entropy;
+    }
+
     /// With a key stored: this boot's epoch (one more than the stored one), in the
     /// settings to store before HELLO is answered ([`Controller::auth_epoch_stored`]).
     /// `None` without a key.
     pub fn begin_auth_epoch(&mut self) -> Option<PersistentSettings> {
         self.settings.key?;
-        self.settings.auth_epoch = self.settings.auth_epoch.wrapping_add(1);
+        self.settings.auth_epoch = crate::auth::next_epoch(self.settings.auth_epoch);
         Some(self.settings)
     }
 
     /// The epoch [`Controller::begin_auth_epoch`] chose is stored: HELLO is answered.
     pub fn auth_epoch_stored(&mut self) {
         if let Some(key) = self.settings.key {
-            self.sessions
-                .start_epoch(u64::from(self.settings.auth_epoch), &key);
+            self.sessions.start_epoch(self.settings.auth_epoch, &key);
         }
+    }
+
+    /// The save of the settings [`Deferred::SaveSettings`] asked for ended (`saved`: it
+    /// succeeded) at `now_us`: the command applies (`OK`) or did nothing (`SAVE_FAILED`),
+    /// and this is its ACK. `None` when no save was asked for.
+    pub fn settings_saved(&mut self, saved: bool, now_us: u64) -> Option<Reply> {
+        let pending = self.saving.take()?;
+        let FrameKey { from, seq, tag, .. } = pending.frame;
+        self.last_handled_us = self.last_handled_us.max(now_us);
+        if !saved {
+            self.refused(pending.frame, StatusCode::SaveFailed);
+            return Some(self.ack(from, seq, tag, StatusCode::SaveFailed));
+        }
+        self.settings = pending.settings;
+        // A new key starts a new epoch (every session ends: the ACK goes plain); no key,
+        // no sessions.
+        if tag == Tag::SetKey as u8 {
+            match self.settings.key {
+                Some(key) => self.sessions.start_epoch(self.settings.auth_epoch, &key),
+                None => self.sessions.close(),
+            }
+        }
+        self.executed(pending.frame, pending.from_owner, now_us);
+        Some(self.ack(from, seq, tag, StatusCode::Ok))
+    }
+
+    /// Whether a save is under way ([`Controller::settings_saved`] not called yet).
+    pub fn saving(&self) -> bool {
+        self.saving.is_some()
     }
 
     /// Whether a key is set.
@@ -634,6 +699,15 @@ impl<const CAP: usize> Controller<CAP> {
         // 7. state and 8. execute
         let status = match self.execute(frame, from, plant, &mut response) {
             Ok(()) => {
+                // Flash is written first: the ACK waits for the save (settings_saved).
+                if let Some(Deferred::SaveSettings(settings)) = response.deferred {
+                    self.saving = Some(PendingSave {
+                        frame: key,
+                        from_owner,
+                        settings,
+                    });
+                    return response;
+                }
                 self.executed(key, from_owner, now_us);
                 response.executed = true;
                 StatusCode::Ok
@@ -691,10 +765,8 @@ impl<const CAP: usize> Controller<CAP> {
             if !self.sessions.ready() {
                 return refuse(response, StatusCode::BadState);
             }
-            if !self.hello_budget.take(now_us) {
-                return None;
-            }
-            let session = self.sessions.open(from, nonce, now_us);
+            // Past the budget of HELLO's source address: no reply at all (it asks again).
+            let session = self.sessions.hello(from, nonce, now_us)?;
             response.hello = Some(HelloGrant {
                 to: from,
                 seq,
@@ -797,6 +869,16 @@ impl<const CAP: usize> Controller<CAP> {
         let stopped_only = |c: &Self| {
             if c.state == State::Stopped {
                 Ok(())
+            } else {
+                Err(StatusCode::BadState)
+            }
+        };
+        // A command that writes flash (JOINTS_COUNT, LIMITS_SET, SET_KEY, NET_SET): only
+        // while STOPPED (issue 30: the save, a sector erase of up to 2 s on the board,
+        // holds the trajectory task), and one at a time.
+        let flash_only = |c: &Self| {
+            if c.saving.is_none() {
+                stopped_only(c)
             } else {
                 Err(StatusCode::BadState)
             }
@@ -965,9 +1047,12 @@ impl<const CAP: usize> Controller<CAP> {
                 response.deferred = Some(Deferred::ReadEncoders);
             }
             Command::JointsCount(joints) => {
-                stopped_only(self)?;
-                self.settings.joints = joints;
-                response.deferred = Some(Deferred::SaveSettings(self.settings));
+                flash_only(self)?;
+                let settings = PersistentSettings {
+                    joints,
+                    ..self.settings
+                };
+                response.deferred = Some(Deferred::SaveSettings(settings));
             }
             Command::LocationSetting(location) => {
                 stopped_only(self)?;
@@ -989,12 +1074,13 @@ impl<const CAP: usize> Controller<CAP> {
             // Kept across power cycles as JOINTS_COUNT; only while STOPPED, so that no
             // point already taken was admitted under other limits.
             Command::LimitsSet(set) => {
-                stopped_only(self)?;
-                let Some(slot) = self.settings.limits.get_mut(usize::from(set.joint)) else {
+                flash_only(self)?;
+                let mut settings = self.settings;
+                let Some(slot) = settings.limits.get_mut(usize::from(set.joint)) else {
                     return Err(StatusCode::InvalidConfig);
                 };
                 *slot = set.limits;
-                response.deferred = Some(Deferred::SaveSettings(self.settings));
+                response.deferred = Some(Deferred::SaveSettings(settings));
             }
             Command::LimitsGet => {
                 response.limits = Some((
@@ -1032,26 +1118,26 @@ impl<const CAP: usize> Controller<CAP> {
             // envelope) there is no session to open.
             Command::Hello { .. } => return Err(StatusCode::BadState),
             // With a key this arrived in an envelope (`authenticate` refuses it plain).
-            // A new key starts a new epoch (every session ends: the ACK goes plain);
-            // stored before the next datagram is handled.
+            // A new key starts a new epoch, at a random place (issue 30: a key set again
+            // never repeats its epochs); every session ends once it is stored.
             Command::SetKey(key) => {
-                self.settings.key = key;
-                if let Some(key) = key {
-                    self.settings.auth_epoch = self.settings.auth_epoch.wrapping_add(1);
-                    self.sessions
-                        .start_epoch(u64::from(self.settings.auth_epoch), &key);
-                } else {
-                    self.sessions.close();
+                flash_only(self)?;
+                let mut settings = PersistentSettings {
+                    key,
+                    ..self.settings
+                };
+                if key.is_some() {
+                    settings.auth_epoch = crate::auth::epoch_base(self.entropy, self.keys_set);
+                    self.keys_set = self.keys_set.wrapping_add(1);
                 }
-                response.deferred = Some(Deferred::SaveSettings(self.settings));
+                response.deferred = Some(Deferred::SaveSettings(settings));
             }
             // Stored now, applied after the next reset (docs/PROTOCOL.md, "Finding controllers").
             Command::NetSet(net) => {
-                if self.state == State::Running {
-                    return Err(StatusCode::BadState);
-                }
-                self.settings.set_net(net);
-                response.deferred = Some(Deferred::SaveSettings(self.settings));
+                flash_only(self)?;
+                let mut settings = self.settings;
+                settings.set_net(net);
+                response.deferred = Some(Deferred::SaveSettings(settings));
             }
         }
         Ok(())

@@ -53,7 +53,8 @@
 //! command being handled: the controller then stops the engine under the step lock
 //! (no pulse after that), and kicks the step interrupt, which lowers the STEP lines.
 //! Segments queued in the engine are dropped with it. The one wait in
-//! the trajectory task is deferred work: a settings write (JOINTS_COUNT, only in STOPPED)
+//! the trajectory task is deferred work: a settings write (JOINTS_COUNT, LIMITS_SET,
+//! SET_KEY, NET_SET: only in STOPPED since issue 30, and the command's ACK waits for it)
 //! or the encoder read of a RETURN (before it moves); nothing moves meanwhile.
 //!
 //! A STOPPED overtakes the datagrams queued before it, but the result is that of arrival

@@ -61,7 +61,13 @@ impl Sealer {
         if matches!(out, Outgoing::Discovery(_)) {
             return Sealing::Plain;
         }
-        match routes.session_of(to) {
+        // A HELLO_REPLY goes in the session it grants: unproven (issue 30), so no route
+        // has it yet, and an endpoint's earlier session may still have one.
+        let session = match out {
+            Outgoing::Hello(h) => Some(h.reply.session),
+            _ => routes.session_of(to),
+        };
+        match session {
             Some(session) => {
                 self.counter += 1;
                 match protocol::auth::seal_with(

@@ -72,7 +72,7 @@ pub mod __private {
 ///   [`controller_task`](arm_core::controller_task): the trajectory task, which also
 ///   feeds the step backend, the upload task and the serial task, as the simulator runs
 ///   them too), each a thin wrapper of arm-core's generic function;
-/// - `spawn_controller(spawner, controller_config, mac, hw)`, which puts the controller in
+/// - `spawn_controller(spawner, controller_config, mac, entropy, hw)`, which puts the controller in
 ///   a static (with the Ethernet MAC address DISCOVER_REPLY reports) and spawns the `run_controller` task:
 ///   the arm runs, and stops on its underrun rule, with or without a network;
 /// - `spawn_network(spawner, device, net_config, seed)`, which creates the stack (on the
@@ -183,12 +183,14 @@ macro_rules! controller_tasks {
         }
 
         /// Puts the controller in its static, with the board's Ethernet `mac` (which
-        /// DISCOVER_REPLY reports), and spawns the `run_controller` task (the network's come
-        /// from `spawn_network`).
+        /// DISCOVER_REPLY reports) and `entropy` (random bits, from the board's RNG where
+        /// it has one: the epochs of keys set, issue 30), and spawns the `run_controller`
+        /// task (the network's come from `spawn_network`).
         pub fn spawn_controller(
             spawner: &embassy_executor::Spawner,
             controller_config: $crate::__private::arm_core::ControllerConfig,
             mac: [u8; 6],
+            entropy: u64,
             hw: BoardTrajectoryHw,
         ) -> Result<(), embassy_executor::SpawnError> {
             // Built in place: 300 KB never pass through the stack.
@@ -197,6 +199,7 @@ macro_rules! controller_tasks {
                 controller_config,
             );
             controller.set_mac(mac);
+            controller.set_entropy(entropy);
             let _ = HALT_KICK.init(hw.kick);
             spawner.spawn(run_controller(controller, hw)?);
             Ok(())

@@ -231,9 +231,19 @@ where
         publish(bus, controller);
         deliver(bus, &response);
         match response.deferred {
+            // Only while STOPPED (the controller refuses the commands otherwise): the
+            // erase holds this task, and nothing runs meanwhile. The command's ACK says
+            // how the save went.
             Some(Deferred::SaveSettings(s)) => {
-                if let Err(e) = answering_wakeups(bus, settings.save(&s)).await {
+                let saved = answering_wakeups(bus, settings.save(&s)).await;
+                if let Err(e) = &saved {
                     warn!("settings not saved: {:?}", debug_value!(e));
+                }
+                let ack = controller.settings_saved(saved.is_ok(), clock.now_us());
+                // Published first: a new key's ACK goes out plain (its sessions ended).
+                publish(bus, controller);
+                if let Some(ack) = ack {
+                    bus.send(Outgoing::Ack(ack));
                 }
             }
             Some(Deferred::ReadEncoders) => {
