@@ -659,6 +659,7 @@ fn the_relay_passes_on_everything_the_board_sends_as_it_comes() {
         .unwrap();
     let started = Instant::now();
     let (mut round, mut slowest) = (0u32, Duration::ZERO);
+    let mut trips = Vec::new();
     while started.elapsed() < TALK_FOR {
         let sent = Instant::now();
         client.send(&round.to_be_bytes()).unwrap();
@@ -671,9 +672,17 @@ fn the_relay_passes_on_everything_the_board_sends_as_it_comes() {
                 break;
             }
         }
-        slowest = slowest.max(sent.elapsed());
+        let trip = sent.elapsed();
+        slowest = slowest.max(trip);
+        trips.push(trip);
         round += 1;
     }
+    trips.sort();
+    println!(
+        "relay round trips ({round}): p50 {:?} p90 {:?} max {slowest:?}",
+        trips[trips.len() / 2],
+        trips[trips.len() * 9 / 10]
+    );
     drop(relay);
     stop.store(true, Ordering::Relaxed);
     fake_board.join().unwrap();
