@@ -122,11 +122,15 @@ fn limits_set_with_armctl_config_are_kept_enforced_and_explained() {
     let (ok, out, err) = armctl(&sim, &["run", csv.to_str().unwrap(), "--quiet"]);
     assert!(!ok, "{out}");
     assert!(err.contains("INVALID_POINT"), "{err}");
+    // Issue 31: the point found among those sent, named by time, joint and limit.
     assert!(
-        err.contains("joint 1: position above the joint's max (") && err.contains("against 100)"),
+        err.contains("ending at t = ")
+            && err.contains("joint 1: position 101 steps is above its max 100 steps"),
         "{err}"
     );
-    // The refused upload stays PENDING (the points before it were taken): STOP first.
+    // Issue 31: the tool leaves the controller STOPPED after the refusal (it was left
+    // PENDING, the points before taken, and the next command failed until `armctl stop`).
+    assert!(err.contains("STOPPED sent: the upload was dropped"), "{err}");
     let (ok, _, err) = armctl(&sim, &["stop"]);
     assert!(ok, "{err}");
     // set-location outside the range: refused, and said why.
