@@ -180,6 +180,7 @@ pub fn doc_frames() -> Vec<DocFrame> {
             Command::StatusWith(protocol::StatusAsk {
                 location: true,
                 look_only: true,
+                stop_cause: false,
             }),
         ),
         command("RELEASE, seq 0x1e", 0x1e, Command::Release),
@@ -196,6 +197,15 @@ pub fn doc_frames() -> Vec<DocFrame> {
             }),
         ),
         command("LIMITS_GET, seq 0x20", 0x20, Command::LimitsGet),
+        command(
+            "STATUS, seq 0x22, with the STOP_CAUSE report (request byte 0x04)",
+            0x22,
+            Command::StatusWith(protocol::StatusAsk {
+                location: false,
+                look_only: false,
+                stop_cause: true,
+            }),
+        ),
         command(
             "SET_ENABLE, seq 0x1c, enable every driver (mask 0x01ff)",
             0x1c,
@@ -257,6 +267,15 @@ pub fn doc_frames() -> Vec<DocFrame> {
             "LIMITS report, seq 0x2c: joint 1 limited, the last refusal: PENDING seq 0x21, point 3, joint 1 above its max (16100 against 16000)",
             0x2c,
             Report::Limits(limits_example()),
+        ),
+        report(
+            "STOP_CAUSE report, seq 0x2d: the last run ended by a STOPPED from 127.0.0.2, port 40001",
+            0x2d,
+            Report::StopCause(protocol::StopReport {
+                from_ip: [127, 0, 0, 2],
+                from_port: 40_001,
+                ..protocol::StopReport::of(protocol::StopCause::Stopped)
+            }),
         ),
         report(
             "STATUS report, seq 0x17",

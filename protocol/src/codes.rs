@@ -82,6 +82,7 @@ macro_rules! wire_code {
         }
     };
 }
+pub(crate) use wire_code;
 
 wire_code! {
     /// A frame's tag byte: the command or report it carries. Its name is the command's
@@ -147,6 +148,9 @@ wire_code! {
         LimitsGet = 0x1b => "LIMITS_GET",
         /// Every joint's limits and the last refusal (controller to host).
         Limits = 0x1c => "LIMITS",
+        /// What ended the last run and who sent the STOPPED (controller to host; asked
+        /// for with STATUS's request byte, bit 2; issue 31).
+        StopCause = 0x1d => "STOP_CAUSE",
         /// Who is there? Answered by every controller, from any host (PROTOCOL.md,
         /// "Finding controllers and setting their address").
         Discover = 0x20 => "DISCOVER",

@@ -195,6 +195,7 @@ fn report_fields(report: &Report<'_>) -> Value {
         }),
         // Not in the shared golden file (issue 23): protocol/tests/wire_tools.rs.
         Report::Limits(l) => json!({ "limits": format!("{l:?}") }),
+        Report::StopCause(s) => json!({ "stop_cause": format!("{s:?}") }),
     }
 }
 
@@ -433,6 +434,8 @@ fn vectors_cover_every_command_and_report() {
         .filter(|t| !matches!(t, Tag::Auth | Tag::Hello | Tag::SetKey | Tag::HelloReply))
         // Issue 23's wire tools as well: protocol/tests/wire_tools.rs.
         .filter(|t| !ISSUE_23_TAGS.contains(t))
+        // Issue 31's STOP_CAUSE report as well: protocol/tests/stop_cause.rs.
+        .filter(|t| *t != Tag::StopCause)
         .filter(|t| !commands.contains(t))
         .map(Tag::name)
         .collect();

@@ -66,11 +66,14 @@
 //! with one socket gets everything, as the manual has it.
 //!
 //! # Runs, reports and flags
-//! * A run starts with RUNING (or RETURN) and ends in STOPPED three ways: every point
-//!   ran (completion), the engine ran dry first (underrun: STATUS flag bit 5), or a
-//!   STOPPED command (bit 7; also set by a STOPPED that drops an upload in NEW or
-//!   PENDING, while a STOPPED in state STOPPED leaves both bits alone). Both bits are
-//!   cleared when a run starts, so they tell how the last run ended.
+//! * A run starts with RUNING (or RETURN) and ends in STOPPED in one of these ways, the
+//!   **stop cause** (issue 31; STATUS `more_flags` bits 5-7, the STOP_CAUSE report): every
+//!   point ran (COMPLETE), the engine ran dry first (UNDERRUN: also STATUS flag bit 5), a
+//!   STOPPED command (STOPPED, with its sender: also bit 7), the wired e-stop input
+//!   (ESTOP_INPUT: also bit 7, as before issue 31), or RETURN's encoder read failed
+//!   (FAULT, with the joint). A STOPPED or the input dropping an upload in NEW or PENDING
+//!   sets it too, while one in state STOPPED leaves it alone. A run's start sets it back
+//!   to COMPLETE, so it tells how the last run ended.
 //! * A LOCATION is produced at every state change while reports are on (UPLOAD_STOP
 //!   turns all LOCATION reports off, the periodic ones and these).
 //! * RETURN is accepted at once (ACK state RUNNING); the encoders are read by the caller
@@ -112,7 +115,8 @@
 use protocol::NetSettings;
 use protocol::{
     Ack, Command, Frame, LimitsReport, Location, MAX_JOINTS, MAX_POINTS_PER_FRAME, MoreFlags,
-    Refusal, State, StatusCode, StatusFlags, StatusReport, Tag, UartMode, limits,
+    Refusal, State, StatusCode, StatusFlags, StatusReport, StopCause, StopReport, Tag, UartMode,
+    limits,
 };
 use protocol::{DecodeError, DecodeErrorKind};
 
@@ -252,8 +256,12 @@ pub struct Controller<const CAP: usize> {
     enabled: u16,
     pins: [bool; 2],
     serial: Option<UartMode>,
-    underrun: bool,
-    stopped_by_host: bool,
+    /// What ended the last run (STATUS `flags` bits 5 and 7, `more_flags` bits 5-7, the
+    /// STOP_CAUSE report; issue 31).
+    stop: StopReport,
+    /// The sender of the last STOPPED executed: the cause of a stop applied after
+    /// overtaken frames ([`Controller::stop_after_overtaken`]).
+    last_stopper: Option<Endpoint>,
     /// Ethernet MAC, for DISCOVER_REPLY.
     mac: [u8; 6],
     /// The network settings loaded at boot (the ones in use); NET_SET stores others.
@@ -422,9 +430,14 @@ impl<const CAP: usize> Controller<CAP> {
         flags.set(StatusFlags::SERIAL_OPEN, self.serial.is_some());
         flags.set(StatusFlags::PIN0_HIGH, self.pins[0]);
         flags.set(StatusFlags::PIN1_HIGH, self.pins[1]);
-        flags.set(StatusFlags::UNDERRUN, self.underrun);
+        let cause = self.stop.cause.unwrap_or(StopCause::Complete);
+        flags.set(StatusFlags::UNDERRUN, cause == StopCause::Underrun);
         flags.set(StatusFlags::PWM_ACTIVE, plant.gripper_active());
-        flags.set(StatusFlags::STOPPED_BY_HOST, self.stopped_by_host);
+        // Bit 7 means "a stop" to old hosts: the wired input's too, as before issue 31.
+        flags.set(
+            StatusFlags::STOPPED_BY_HOST,
+            matches!(cause, StopCause::Stopped | StopCause::EstopInput),
+        );
         StatusReport {
             version: protocol::VERSION,
             joints: self.settings.joints,
@@ -436,7 +449,11 @@ impl<const CAP: usize> Controller<CAP> {
             received: saturate(self.received as usize),
             executed: saturate(self.executed as usize),
             capacity: saturate(self.buffer.capacity()),
-            more_flags: MoreFlags(self.more_flags.0 | MoreFlags::of_enabled(self.enabled)),
+            more_flags: MoreFlags(
+                self.more_flags.0
+                    | MoreFlags::of_enabled(self.enabled)
+                    | MoreFlags::of_stop_cause(cause),
+            ),
             upload_period_us: self.upload_period_us,
             pwm_timer_clock_hz: self.config.pwm_timer_clock_hz,
             max_step_rate_hz: self.config.max_step_rate_hz,
@@ -555,7 +572,8 @@ impl<const CAP: usize> Controller<CAP> {
                 self.heard_from_owner(from, now_us);
                 self.listen(from, now_us);
             }
-            self.stop_by_host(plant);
+            self.last_stopper = Some(from);
+            self.stop_by_host(plant, Some(from));
             response.executed = true;
             response.reply = reply(self, StatusCode::Ok);
             return response;
@@ -854,8 +872,7 @@ impl<const CAP: usize> Controller<CAP> {
             Command::Runing if self.estop_latched() => return Err(StatusCode::EstopLatched),
             Command::Runing => match self.state {
                 State::Pending => {
-                    self.underrun = false;
-                    self.stopped_by_host = false;
+                    self.stop = StopReport::COMPLETE;
                     self.state = State::Running;
                     self.pump(plant);
                     plant.start();
@@ -864,7 +881,7 @@ impl<const CAP: usize> Controller<CAP> {
                 _ => return Err(StatusCode::BadState),
             },
             // Handled in `check_and_execute` before the owner rule; never reaches here.
-            Command::Stopped => self.stop_by_host(plant),
+            Command::Stopped => self.stop_by_host(plant, Some(from)),
             Command::UploadStart => self.reports_on = true,
             Command::UploadStop => self.reports_on = false,
             Command::PwmStart(pwm) => plant.gripper_start(&pwm),
@@ -936,8 +953,7 @@ impl<const CAP: usize> Controller<CAP> {
                 self.return_plan = None;
                 self.return_pending = true;
                 self.return_fault = None;
-                self.underrun = false;
-                self.stopped_by_host = false;
+                self.stop = StopReport::COMPLETE;
                 self.state = State::Running;
                 response.deferred = Some(Deferred::ReadEncoders);
             }
@@ -987,6 +1003,9 @@ impl<const CAP: usize> Controller<CAP> {
                 response.status = Some((from, self.status(plant)));
                 if ask.location {
                     response.asked_location = Some((from, self.location(plant)));
+                }
+                if ask.stop_cause {
+                    response.asked_stop = Some((from, self.stop));
                 }
             }
             // The owner gives the controller up: no owner, no report destinations (the
@@ -1106,23 +1125,39 @@ impl<const CAP: usize> Controller<CAP> {
         if ask.location {
             response.asked_location = Some((from, self.location(plant)));
         }
+        if ask.stop_cause {
+            response.asked_stop = Some((from, self.stop));
+        }
         response.answer_seq = Some(seq);
         Some(response)
     }
 
     /// STOPPED's execution: no further pulse, the trajectory dropped, state STOPPED.
-    fn stop_by_host(&mut self, plant: &mut impl Plant) {
+    /// `by`: the STOPPED's sender; `None`: the wired e-stop input.
+    fn stop_by_host(&mut self, plant: &mut impl Plant, by: Option<Endpoint>) {
         plant.stop();
         self.buffer.clear();
         self.return_plan = None;
         self.return_pending = false;
-        // Bits 5 and 7 tell how the last trajectory ended: a STOPPED with none under way
-        // (already STOPPED) leaves them alone.
+        // The cause tells how the last trajectory ended: a stop with none under way
+        // (already STOPPED) leaves it alone.
         if self.state != State::Stopped {
-            self.underrun = false;
-            self.stopped_by_host = true;
+            self.stop = match by {
+                Some(from) => StopReport {
+                    from_ip: from.ip,
+                    from_port: from.port,
+                    ..StopReport::of(StopCause::Stopped)
+                },
+                None => StopReport::of(StopCause::EstopInput),
+            };
         }
         self.state = State::Stopped;
+    }
+
+    /// What ended the last run, and who sent the STOPPED if one did (the STOP_CAUSE
+    /// report, issue 31).
+    pub fn stop_report(&self) -> StopReport {
+        self.stop
     }
 
     /// Whether the wired e-stop input's latch is set (RUNING and RETURN refused).
@@ -1142,7 +1177,7 @@ impl<const CAP: usize> Controller<CAP> {
         }
         self.more_flags.set(MoreFlags::ESTOP_LATCHED, true);
         let before = self.state;
-        self.stop_by_host(plant);
+        self.stop_by_host(plant, None);
         (before != self.state && self.reports_on).then(|| self.location(plant))
     }
 
@@ -1155,7 +1190,7 @@ impl<const CAP: usize> Controller<CAP> {
         if self.state == State::Stopped {
             return None;
         }
-        self.stop_by_host(plant);
+        self.stop_by_host(plant, self.last_stopper);
         self.reports_on.then(|| self.location(plant))
     }
 }

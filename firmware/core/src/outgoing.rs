@@ -1,7 +1,7 @@
 //! Frames the controller sends, and their encoding with the controller's own report seq.
 
 use heapless::Vec;
-use protocol::{LimitsReport, Location, MAX_SERIAL_CHUNK, Report, StatusReport, size};
+use protocol::{LimitsReport, Location, MAX_SERIAL_CHUNK, Report, StatusReport, StopReport, size};
 
 use crate::hw::Endpoint;
 use crate::reports::{LOCATION_LISTENERS, ReportSettings};
@@ -131,6 +131,8 @@ pub enum AnswerReport {
     Location(Location),
     /// A LIMITS report (the answer to LIMITS_GET).
     Limits(LimitsReport),
+    /// A STOP_CAUSE report (STATUS's request byte, bit 2).
+    StopCause(StopReport),
 }
 
 /// Encodes [`Outgoing`] frames. Reports (everything but ACKs) carry the controller's own
@@ -187,6 +189,7 @@ impl ReportEncoder {
                     AnswerReport::Status(s) => Report::Status(s),
                     AnswerReport::Location(l) => Report::Location(l),
                     AnswerReport::Limits(l) => Report::Limits(l),
+                    AnswerReport::StopCause(s) => Report::StopCause(s),
                 },
             ),
             Outgoing::Location(l) => {

@@ -2,7 +2,7 @@
 //! read and plan (see "Runs, reports and flags" in [`crate::controller`]).
 
 use arm_step::Segment;
-use protocol::{Location, MAX_JOINTS, Refusal, RefusalReason, State};
+use protocol::{Location, MAX_JOINTS, Refusal, RefusalReason, State, StopCause, StopReport};
 
 use super::Controller;
 use crate::buffer::StoredPoint;
@@ -187,8 +187,11 @@ impl<const CAP: usize> Controller<CAP> {
             plant.stop();
             self.buffer.clear();
             self.return_plan = None;
-            self.underrun = !complete;
-            self.stopped_by_host = false;
+            self.stop = StopReport::of(if complete {
+                StopCause::Complete
+            } else {
+                StopCause::Underrun
+            });
             self.state = State::Stopped;
             self.claimer_heard_at_run_end();
             return self.reports_on.then(|| self.location(plant));
@@ -212,8 +215,10 @@ impl<const CAP: usize> Controller<CAP> {
         self.expected = 0;
         self.received = 0;
         self.executed = 0;
-        self.underrun = false;
-        self.stopped_by_host = false;
+        self.stop = StopReport {
+            detail: fault.joint,
+            ..StopReport::of(StopCause::Fault)
+        };
         self.return_fault = Some(fault);
         self.state = State::Stopped;
         self.reports_on.then(|| self.location(plant))
