@@ -258,7 +258,7 @@ impl StatusCode {
             OutOfOrder => "a PENDING frame was lost: resend from the ACK's next_seq",
             TooManyPoints => "more points than NEW announced: send NEW with the right count",
             InvalidPoint => {
-                "a point asks for more than the controller's max step rate, or has a duration under 1 us"
+                "a point asks for more than the controller's max step rate or a joint's limits, has a duration under 1 us, or moves a joint whose driver is disabled (LIMITS_GET says which)"
             }
             BufferFull => "the trajectory buffer is full: resend when the ACK's `free` allows",
             NotOwner => {

@@ -88,6 +88,11 @@ pub enum RefusalReason {
     StepBudget = 5,
     /// The point's duration is under 1 us (`value`), or its step count does not fit.
     Duration = 6,
+    /// The point moves a joint whose driver is disabled (limp, SET_ENABLE or
+    /// TOGGLE_ENABLE_PINS): its steps would go to a driver that ignores them while the
+    /// controller counts them (issue 31). `value` is the position asked, `limit` where the
+    /// joint is.
+    JointDisabled = 7,
 }
 
 impl RefusalReason {
@@ -100,6 +105,7 @@ impl RefusalReason {
             4 => RefusalReason::BoardRate,
             5 => RefusalReason::StepBudget,
             6 => RefusalReason::Duration,
+            7 => RefusalReason::JointDisabled,
             _ => RefusalReason::None,
         }
     }
@@ -114,6 +120,7 @@ impl RefusalReason {
             RefusalReason::BoardRate => "steps/s above the controller's max_step_rate_hz",
             RefusalReason::StepBudget => "steps/s of all joints above step_budget_hz",
             RefusalReason::Duration => "duration under 1 us or too many steps",
+            RefusalReason::JointDisabled => "moves a joint whose driver is disabled (limp)",
         }
     }
 }

@@ -27,8 +27,10 @@ fn enable_and_disable_are_explicit_and_status_shows_each_driver() {
     let (ok, out, _) = armctl(&sim, &["status", "--json"]);
     assert!(ok);
     let json: serde_json::Value = serde_json::from_str(&out).unwrap();
-    // bit 3 (reported), bit 4 (gripper), bits 8-15: joints 2-7 enabled.
-    assert_eq!(json["more_flags"], 0xFC18, "{out}");
+    // bit 3 (reported), bit 4 (gripper), bits 8-15: joints 2-7 enabled; bits 5-7 the
+    // stop cause (issue 31): 1, COMPLETE.
+    assert_eq!(json["more_flags"], 0xFC38, "{out}");
+    assert_eq!(json["stop_cause"], "COMPLETE", "{out}");
     let (ok, out, err) = armctl(&sim, &["enable"]);
     assert!(ok, "{out}\n{err}");
     assert!(out.contains("every driver enabled"), "{out}");
@@ -229,4 +231,35 @@ fn status_with_a_config_names_each_joint_with_its_position_and_driver() {
     let (ok, _, err) = armctl(&sim, &["status", "--config", "/nonexistent/arm.json"]);
     assert!(!ok);
     assert!(err.contains("/nonexistent/arm.json"), "{err}");
+}
+
+/// Issue 31: after `armctl disable 1`, `move 1=500` was accepted, STATUS showed joint 1 at
+/// 500 and every pulse went to a disabled driver. The controller refuses it now
+/// (INVALID_POINT) and the tool names the joint from the LIMITS report's last refusal.
+#[test]
+fn a_limp_joint_is_not_moved_and_the_refusal_names_it() {
+    let sim = SimHost::start(&["--joints", "2"]);
+    let (ok, out, err) = armctl(&sim, &["disable", "1"]);
+    assert!(ok, "{out}\n{err}");
+    let (ok, out, err) = armctl(&sim, &["move", "1=500"]);
+    assert!(!ok, "a limp joint moved: {out}\n{err}");
+    assert!(err.contains("INVALID_POINT"), "{err}");
+    assert!(
+        err.contains("joint 1: moves a joint whose driver is disabled (limp)"),
+        "{err}"
+    );
+    let (ok, out, _) = armctl(&sim, &["status"]);
+    assert!(ok);
+    assert!(out.contains("    1                 0  disabled"), "{out}");
+    assert!(
+        out.contains("state            STOPPED"),
+        "the refused upload dropped: {out}"
+    );
+    // The other joint still moves; enabled again, joint 1 does too.
+    let (ok, out, err) = armctl(&sim, &["move", "0=40"]);
+    assert!(ok, "{out}\n{err}");
+    let (ok, out, err) = armctl(&sim, &["enable", "1"]);
+    assert!(ok, "{out}\n{err}");
+    let (ok, out, err) = armctl(&sim, &["move", "1=500"]);
+    assert!(ok, "{out}\n{err}");
 }

@@ -941,7 +941,11 @@ impl<const CAP: usize> Controller<CAP> {
                 stopped_only(self)?;
                 // Every joint in use must be allowed at 0 (LIMITS_SET): refused before
                 // anything moves.
-                if let Some(refusal) = self.outside_limits(&[0; MAX_JOINTS]) {
+                // A limp joint away from 0 would not move (issue 31): refused the same way.
+                let refused = self
+                    .outside_limits(&[0; MAX_JOINTS])
+                    .or_else(|| self.limp_and_away(&plant.positions(), &[0; MAX_JOINTS]));
+                if let Some(refusal) = refused {
                     self.last_refusal = Refusal {
                         seq: frame.seq,
                         tag: Tag::Return as u8,

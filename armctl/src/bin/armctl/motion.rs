@@ -92,17 +92,19 @@ pub fn ready_to_move(status: &protocol::StatusReport) -> Result<(), String> {
 }
 
 /// After a failed upload: a controller left in PENDING (points taken before the one it
-/// refused) is sent STOPPED, which drops them, so that the next motion is taken; the
-/// message says so. Otherwise `message` as it is.
+/// refused) or in NEW (its first point refused, as a limp joint's always is: issue 31) is
+/// sent STOPPED, which drops the upload, so that the next motion is taken; the message
+/// says so. Otherwise `message` as it is.
 pub fn drop_partial_upload(client: &Client, message: String) -> String {
     match client.status() {
-        Ok(status) if status.state == State::Pending => match client.stop() {
+        Ok(status) if matches!(status.state, State::Pending | State::New) => match client.stop() {
             Ok(_) => format!(
-                "{message}\nSTOPPED sent: the points taken before were dropped, the controller \
-                 is STOPPED"
+                "{message}\nSTOPPED sent: the upload (and any points taken before) was dropped, \
+                 the controller is STOPPED"
             ),
             Err(e) => format!(
-                "{message}\nthe controller is left in PENDING (STOPPED failed: {e}): `armctl stop`"
+                "{message}\nthe controller is left in {} (STOPPED failed: {e}): `armctl stop`",
+                status.state.name()
             ),
         },
         _ => message,

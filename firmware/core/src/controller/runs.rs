@@ -65,6 +65,17 @@ impl<const CAP: usize> Controller<CAP> {
                 ));
             }
             let steps = point.steps(previous, j).unsigned_abs();
+            // A limp joint does not move (issue 31): its steps would reach a disabled
+            // driver while the controller counts them, and STATUS would show it where it
+            // is not.
+            if steps > 0 && self.enabled & (1 << j) == 0 {
+                return Err(refusal(
+                    j,
+                    RefusalReason::JointDisabled,
+                    to.into(),
+                    previous.get(j).copied().unwrap_or(0).into(),
+                ));
+            }
             total_steps += steps;
             if steps > i32::MAX as u64 {
                 return Err(refusal(
@@ -109,6 +120,29 @@ impl<const CAP: usize> Controller<CAP> {
         Ok(StoredPoint {
             duration_us: duration,
             position,
+        })
+    }
+
+    /// The first joint in use whose driver is disabled and that is not at `target`, as a
+    /// refusal (RETURN: a limp joint does not move, issue 31).
+    pub(super) fn limp_and_away(
+        &self,
+        from: &[i32; MAX_JOINTS],
+        target: &[i32; MAX_JOINTS],
+    ) -> Option<Refusal> {
+        let joints = usize::from(self.settings.joints).min(MAX_JOINTS);
+        let (j, (&at, &to)) = from
+            .iter()
+            .zip(target)
+            .enumerate()
+            .take(joints)
+            .find(|(j, (at, to))| self.enabled & (1 << j) == 0 && at != to)?;
+        Some(Refusal {
+            joint: u8::try_from(j).unwrap_or(u8::MAX),
+            reason: RefusalReason::JointDisabled,
+            value: to,
+            limit: at,
+            ..Refusal::default()
         })
     }
 
