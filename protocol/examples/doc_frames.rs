@@ -198,6 +198,19 @@ pub fn doc_frames() -> Vec<DocFrame> {
         ),
         command("LIMITS_GET, seq 0x20", 0x20, Command::LimitsGet),
         command(
+            "ACCEL_SET, seq 0x23, joint 0: 100000 steps/s²",
+            0x23,
+            Command::AccelSet {
+                joint: 0,
+                max_accel_steps_s2: 100_000,
+            },
+        ),
+        command(
+            "LIMITS_GET, seq 0x24, with the accelerations (request byte 0x01)",
+            0x24,
+            Command::LimitsGetWithAccel,
+        ),
+        command(
             "STATUS, seq 0x22, with the STOP_CAUSE report (request byte 0x04)",
             0x22,
             Command::StatusWith(protocol::StatusAsk {
@@ -310,6 +323,7 @@ fn limits_example() -> protocol::LimitsReport {
         max_rate_hz: 4_000,
     };
     protocol::LimitsReport {
+        max_accel: None,
         joints,
         last_refusal: protocol::Refusal {
             seq: 0x21,

@@ -151,6 +151,8 @@ wire_code! {
         /// What ended the last run and who sent the STOPPED (controller to host; asked
         /// for with STATUS's request byte, bit 2; issue 31).
         StopCause = 0x1d => "STOP_CAUSE",
+        /// Set one joint's most acceleration, steps/s², kept with its limits (issue 31).
+        AccelSet = 0x1e => "ACCEL_SET",
         /// Who is there? Answered by every controller, from any host (PROTOCOL.md,
         /// "Finding controllers and setting their address").
         Discover = 0x20 => "DISCOVER",

@@ -85,6 +85,17 @@ pub enum Command<'a> {
     LimitsSet(LimitsSet),
     /// Ask for the LIMITS report.
     LimitsGet,
+    /// LIMITS_GET with its request byte 0x01 (issue 31): the LIMITS report with each
+    /// joint's `max_accel_steps_s2` after the 112 bytes.
+    LimitsGetWithAccel,
+    /// Set one joint's most acceleration (issue 31), kept with its limits.
+    AccelSet {
+        /// The joint, 0-7.
+        joint: u8,
+        /// Most steps/s² between consecutive segments (docs/PROTOCOL.md, ACCEL_SET);
+        /// 0: none.
+        max_accel_steps_s2: u32,
+    },
     /// STATUS with its request byte (issue 23): what else to answer, and whether a host
     /// that does not own the controller wants only to look.
     StatusWith(StatusAsk),
@@ -97,6 +108,9 @@ pub enum Command<'a> {
         enable: bool,
     },
 }
+
+/// LIMITS_GET's request byte (issue 31): the LIMITS report with the accelerations.
+const LIMITS_WITH_ACCEL: u8 = 0x01;
 
 /// STATUS's request byte (docs/PROTOCOL.md, STATUS): plain STATUS (no data) asks for
 /// neither.
@@ -176,7 +190,8 @@ impl<'a> Command<'a> {
             Command::SetEnable { .. } => Tag::SetEnable,
             Command::Release => Tag::Release,
             Command::LimitsSet(_) => Tag::LimitsSet,
-            Command::LimitsGet => Tag::LimitsGet,
+            Command::LimitsGet | Command::LimitsGetWithAccel => Tag::LimitsGet,
+            Command::AccelSet { .. } => Tag::AccelSet,
             Command::StatusWith(_) => Tag::Status,
         }
     }
@@ -199,6 +214,8 @@ impl<'a> Command<'a> {
             Command::SetEnable { .. } => size::SET_ENABLE,
             Command::StatusWith(_) => 1,
             Command::LimitsSet(_) => size::LIMITS_SET,
+            Command::LimitsGetWithAccel => 1,
+            Command::AccelSet { .. } => size::ACCEL_SET,
             _ => 0,
         }
     }
@@ -254,6 +271,14 @@ impl<'a> Command<'a> {
             Command::LimitsSet(set) => {
                 w.put(0, &[set.joint, 0, 0, 0]);
                 set.limits.write(w, 4);
+            }
+            Command::LimitsGetWithAccel => w.u8(0, LIMITS_WITH_ACCEL),
+            Command::AccelSet {
+                joint,
+                max_accel_steps_s2,
+            } => {
+                w.put(0, &[*joint, 0, 0, 0]);
+                w.u32(4, *max_accel_steps_s2);
             }
             _ => {}
         })
@@ -446,6 +471,21 @@ impl<'a> Command<'a> {
                 }
                 Command::LimitsSet(set)
             }
+            Tag::AccelSet => {
+                exactly(size::ACCEL_SET)?;
+                let joint = u8_at(data, 0);
+                if usize::from(joint) >= crate::MAX_JOINTS {
+                    return Err(out_of_range(Field::JointLimits));
+                }
+                Command::AccelSet {
+                    joint,
+                    max_accel_steps_s2: u32_le(data, 4),
+                }
+            }
+            Tag::LimitsGet if data.len() == 1 => match u8_at(data, 0) {
+                LIMITS_WITH_ACCEL => Command::LimitsGetWithAccel,
+                _ => return Err(out_of_range(Field::LimitsAsk)),
+            },
             Tag::Status if data.len() == 1 => match StatusAsk::from_byte(u8_at(data, 0)) {
                 Some(ask) => Command::StatusWith(ask),
                 None => return Err(out_of_range(Field::StatusAsk)),

@@ -49,7 +49,7 @@ impl<'a> Report<'a> {
             Report::Location(_) => size::LOCATION,
             Report::UsartRecv(_) => size::USART_RECV,
             Report::Status(_) => size::STATUS,
-            Report::Limits(_) => size::LIMITS,
+            Report::Limits(limits) => limits.data_len(),
             Report::StopCause(_) => size::STOP_CAUSE,
         }
     }
@@ -142,7 +142,12 @@ impl<'a> Report<'a> {
                 )
             }
             Some(Tag::Limits) => {
-                exactly(size::LIMITS)?;
+                if data.len() != size::LIMITS && data.len() != size::LIMITS_WITH_ACCEL {
+                    return Err(err(DecodeErrorKind::BadLength {
+                        expected: ExpectedLen::Either(size::LIMITS, size::LIMITS_WITH_ACCEL),
+                        found: data.len(),
+                    }));
+                }
                 Report::Limits(LimitsReport::read(data))
             }
             Some(Tag::StopCause) => {

@@ -1,4 +1,4 @@
-//! Issue 31's stop cause on the wire: STATUS `more_flags` bits 5-7, STATUS's request byte
+//! Issue 31 on the wire (ACCEL_SET at the end): the stop cause: STATUS `more_flags` bits 5-7, STATUS's request byte
 //! bit 2 and the STOP_CAUSE report (docs/PROTOCOL.md, STATUS "What ended the last run").
 
 use protocol::{Command, MoreFlags, Report, StatusAsk, StatusReport, StopCause, StopReport, Tag};
@@ -73,4 +73,60 @@ fn status_request_bit_2_asks_for_the_stop_cause() {
     assert_eq!(back, ask);
     assert_eq!(StatusAsk::from_byte(0x07).map(|a| a.byte()), Some(0x07));
     assert_eq!(StatusAsk::from_byte(0x08), None, "bit 3 is not defined");
+}
+
+/// Issue 31's ACCEL_SET and LIMITS_GET's request byte: the LIMITS report with the
+/// accelerations after its 112 bytes, and the 112 bytes alone for old hosts.
+#[test]
+fn accel_set_and_the_limits_report_with_accelerations() {
+    let mut buf = [0u8; 256];
+    let set = Command::AccelSet {
+        joint: 2,
+        max_accel_steps_s2: 100_000,
+    };
+    let n = set.encode(0x23, &mut buf).unwrap();
+    assert_eq!(
+        &buf[..n - 1],
+        &[0x23, 0x1e, 2, 0, 0, 0, 0xa0, 0x86, 0x01, 0]
+    );
+    assert_eq!(Command::decode(&buf[..n]).unwrap().body, set);
+    let bad = protocol_frame(0x1e, &[8, 0, 0, 0, 1, 0, 0, 0]);
+    assert_eq!(
+        Command::decode(&bad).unwrap_err().status(),
+        Some(protocol::StatusCode::InvalidConfig)
+    );
+    let n = Command::LimitsGetWithAccel.encode(0x24, &mut buf).unwrap();
+    assert_eq!(&buf[..n - 1], &[0x24, 0x1b, 0x01]);
+    assert_eq!(
+        Command::decode(&buf[..n]).unwrap().body,
+        Command::LimitsGetWithAccel
+    );
+    let other = protocol_frame(0x1b, &[0x02]);
+    assert_eq!(
+        Command::decode(&other).unwrap_err().status(),
+        Some(protocol::StatusCode::InvalidConfig)
+    );
+    let mut accel = [0u32; protocol::MAX_JOINTS];
+    accel[2] = 100_000;
+    let report = protocol::LimitsReport {
+        max_accel: Some(accel),
+        ..protocol::LimitsReport::default()
+    };
+    let n = Report::Limits(report).encode(0x2e, &mut buf).unwrap();
+    assert_eq!(n, protocol::size::LIMITS_WITH_ACCEL + 3);
+    assert_eq!(&buf[2 + 112 + 8..2 + 112 + 12], &100_000u32.to_le_bytes());
+    assert_eq!(
+        Report::decode(&buf[..n]).unwrap().body,
+        Report::Limits(report)
+    );
+    let plain = protocol::LimitsReport {
+        max_accel: None,
+        ..report
+    };
+    let n = Report::Limits(plain).encode(0x2f, &mut buf).unwrap();
+    assert_eq!(n, protocol::size::LIMITS + 3, "old hosts' 112 bytes");
+    assert_eq!(
+        Report::decode(&buf[..n]).unwrap().body,
+        Report::Limits(plain)
+    );
 }

@@ -189,6 +189,7 @@ fn limits_set_get_and_the_limits_report() {
     let mut joints = [JointLimits::NONE; 8];
     joints[1] = set.limits;
     let report = LimitsReport {
+        max_accel: None,
         joints,
         last_refusal: Refusal {
             seq: 0x21,

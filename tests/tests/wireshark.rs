@@ -854,6 +854,7 @@ fn issue_23_frames_decode_in_wireshark() {
     let mut joints = [protocol::JointLimits::NONE; protocol::MAX_JOINTS];
     joints[1] = set.limits;
     let limits = protocol::LimitsReport {
+        max_accel: None,
         joints,
         last_refusal: protocol::Refusal {
             seq: 0x21,
@@ -964,6 +965,24 @@ fn issue_31_stop_cause_decodes_in_wireshark() {
     };
     let n = Report::StopCause(stop).encode(0x32, &mut buf).unwrap();
     log.record(controller, host, &buf[..n]).unwrap();
+    // ACCEL_SET and the LIMITS report with the accelerations.
+    let n = Cmd::AccelSet {
+        joint: 2,
+        max_accel_steps_s2: 100_000,
+    }
+    .encode(0x33, &mut buf)
+    .unwrap();
+    log.record(host, controller, &buf[..n]).unwrap();
+    let n = Cmd::LimitsGetWithAccel.encode(0x34, &mut buf).unwrap();
+    log.record(host, controller, &buf[..n]).unwrap();
+    let mut accel = [0u32; protocol::MAX_JOINTS];
+    accel[2] = 100_000;
+    let limits = protocol::LimitsReport {
+        max_accel: Some(accel),
+        ..protocol::LimitsReport::default()
+    };
+    let n = Report::Limits(limits).encode(0x35, &mut buf).unwrap();
+    log.record(controller, host, &buf[..n]).unwrap();
     drop(log);
     let packets = dissect(
         &pcap,
@@ -975,11 +994,29 @@ fn issue_31_stop_cause_decodes_in_wireshark() {
             "armctl.stop.cause",
             "armctl.stop.from_ip",
             "armctl.stop.from_port",
+            "armctl.limits.joint",
+            "armctl.limits.max_accel_steps_s2",
+            "armctl.limits.ask",
         ],
         false,
         None,
     );
-    assert_eq!(packets.len(), 3);
+    assert_eq!(packets.len(), 6);
+    let p = &packets[3];
+    assert_eq!(numbers(&p["armctl.tag"]), [0x1e], "{p:?}");
+    assert_eq!(numbers(&p["armctl.limits.joint"]), [2], "{p:?}");
+    assert_eq!(
+        numbers(&p["armctl.limits.max_accel_steps_s2"]),
+        [100_000],
+        "{p:?}"
+    );
+    assert_eq!(numbers(&p["armctl.verdict"]), [0], "{p:?}");
+    let p = &packets[4];
+    assert_eq!(numbers(&p["armctl.limits.ask"]), [1], "{p:?}");
+    assert_eq!(numbers(&p["armctl.verdict"]), [0], "{p:?}");
+    let p = &packets[5];
+    let accel = numbers(&p["armctl.limits.max_accel_steps_s2"]);
+    assert_eq!((accel.len(), accel[2]), (8, 100_000), "{p:?}");
     let p = &packets[0];
     assert_eq!(numbers(&p["armctl.tag"]), [0x15], "{p:?}");
     assert_eq!(p["armctl.status.ask.stop_cause"], "1", "{p:?}");

@@ -38,7 +38,7 @@ local tag_names = {
     [0x11] = "RETURN", [0x12] = "JOINTS_COUNT", [0x13] = "LOCATION_SETTING/LOCATION",
     [0x14] = "ACK", [0x15] = "STATUS", [0x16] = "UPLOAD_PERIOD", [0x17] = "ESTOP_RESET",
     [0x18] = "SET_ENABLE", [0x19] = "RELEASE", [0x1a] = "LIMITS_SET", [0x1b] = "LIMITS_GET",
-    [0x1c] = "LIMITS", [0x1d] = "STOP_CAUSE",
+    [0x1c] = "LIMITS", [0x1d] = "STOP_CAUSE", [0x1e] = "ACCEL_SET",
     [0x20] = "DISCOVER", [0x21] = "NET_SET", [0x22] = "DISCOVER_REPLY",
     [0x50] = "AUTH", [0x51] = "HELLO", [0x52] = "SET_KEY", [0x53] = "HELLO_REPLY",
 }
@@ -147,6 +147,8 @@ local f = {
     limits_min = dec("int32", "limits.min", "Min (steps)"),
     limits_max = dec("int32", "limits.max", "Max (steps)"),
     limits_rate = dec("uint32", "limits.max_rate_hz", "Max rate (steps/s, 0 = the controller's)"),
+    limits_accel = dec("uint32", "limits.max_accel_steps_s2", "Max acceleration (steps/s², 0 = none)"),
+    limits_ask = hex("uint8", "limits.ask", "LIMITS_GET request byte (0x01: with the accelerations)"),
     refusal_seq = dec("uint8", "limits.refusal.seq", "Last refused frame's seq"),
     refusal_tag = hex("uint8", "limits.refusal.tag", "Last refused frame's tag", tag_names),
     refusal_point = dec("uint8", "limits.refusal.point", "Point in the frame"),
@@ -604,6 +606,22 @@ local host_dissectors = {
         if action > 1 then out_of_range(tree, "SET_ENABLE action must be 0 (disable) or 1 (enable)") end
         return string.format("%s mask 0x%04x", action == 1 and "enable" or "disable", mask)
     end,
+    -- ACCEL_SET (issue 31): joint, 3 reserved, max_accel_steps_s2.
+    [0x1e] = function(tree, data, len)
+        if len ~= 8 then return length_error(tree, data, "8", len) end
+        tree:add(f.limits_joint, data(0, 1))
+        tree:add_le(f.limits_accel, data(4, 4))
+        if data(0, 1):uint() > 7 then out_of_range(tree, "ACCEL_SET needs a joint of 0-7") end
+        return string.format("joint %d: %d steps/s²", data(0, 1):uint(), data(4, 4):le_uint())
+    end,
+    -- LIMITS_GET: no data (old hosts), or the request byte 0x01 (issue 31).
+    [0x1b] = function(tree, data, len)
+        if len == 0 then return "" end
+        if len ~= 1 then return length_error(tree, data, "0 or 1", len) end
+        tree:add(f.limits_ask, data(0, 1))
+        if data(0, 1):uint() ~= 1 then out_of_range(tree, "LIMITS_GET request byte must be 0x01") end
+        return "with the accelerations"
+    end,
     [0x1a] = function(tree, data, len)
         if len ~= 16 then return length_error(tree, data, "16", len) end
         tree:add(f.limits_joint, data(0, 1))
@@ -655,7 +673,7 @@ host_dissectors[0x52] = function(tree, data, len)
     return "set a key"
 end
 -- Commands without data.
-for _, tag in ipairs({ 0x02, 0x04, 0x05, 0x07, 0x09, 0x0c, 0x0d, 0x0e, 0x0f, 0x11, 0x17, 0x19, 0x1b, 0x20 }) do
+for _, tag in ipairs({ 0x02, 0x04, 0x05, 0x07, 0x09, 0x0c, 0x0d, 0x0e, 0x0f, 0x11, 0x17, 0x19, 0x20 }) do
     host_dissectors[tag] = function(tree, data, len)
         if len ~= 0 then return length_error(tree, data, "0", len) end
         return ""
@@ -716,7 +734,13 @@ local controller_dissectors = {
         return n .. " bytes"
     end,
     [0x1c] = function(tree, data, len)
-        if len ~= 112 then return length_error(tree, data, "112", len) end
+        if len ~= 112 and len ~= 144 then return length_error(tree, data, "112 or 144", len) end
+        -- 144: each joint's max acceleration after the 112 bytes (issue 31).
+        if len == 144 then
+            for j = 0, 7 do
+                tree:add_le(f.limits_accel, data(112 + 4 * j, 4))
+            end
+        end
         for j = 0, 7 do
             local at = 12 * j
             local sub = tree:add(armctl, data(at, 12), string.format("Joint %d: %d..%d steps, %d steps/s",

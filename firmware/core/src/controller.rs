@@ -211,6 +211,10 @@ pub struct Controller<const CAP: usize> {
     executed: u32,
     /// End position of the last point received (the next point's previous position).
     received_end: [i32; MAX_JOINTS],
+    /// The last point received as a segment: each joint's steps and its duration (0 at
+    /// NEW: the trajectory starts from rest). The acceleration check's previous rate
+    /// (ACCEL_SET, issue 31).
+    received_last: crate::controller::runs::LastSegment,
     /// End position of the last point handed to the engine.
     fed_end: [i32; MAX_JOINTS],
     /// RETURN accepted, waiting for the encoder reading.
@@ -813,6 +817,7 @@ impl<const CAP: usize> Controller<CAP> {
                 self.received = 0;
                 self.executed = 0;
                 self.received_end = plant.positions();
+                self.received_last = runs::LastSegment::REST;
                 self.fed_end = self.received_end;
                 self.order.restart(frame.seq);
                 self.uploader = Some(from);
@@ -840,8 +845,15 @@ impl<const CAP: usize> Controller<CAP> {
                 // Every point is checked before any is taken.
                 let mut admitted = [StoredPoint::default(); MAX_POINTS_PER_FRAME];
                 let mut previous = self.received_end;
+                let mut last = self.received_last;
                 for (i, (slot, point)) in admitted.iter_mut().zip(points.iter()).enumerate() {
-                    *slot = match self.admit(&previous, &point) {
+                    // The trajectory's last point must bring every joint to rest.
+                    let ends = self.received as usize + i + 1 >= self.expected as usize;
+                    let checked = self.admit(&previous, &point).and_then(|stored| {
+                        self.within_accel(&mut last, &previous, &stored, ends)
+                            .map(|()| stored)
+                    });
+                    *slot = match checked {
                         Ok(stored) => stored,
                         Err(refusal) => {
                             self.last_refusal = Refusal {
@@ -864,6 +876,7 @@ impl<const CAP: usize> Controller<CAP> {
                         self.received += 1;
                     }
                 }
+                self.received_last = last;
                 self.order.take(frame.seq);
                 if self.state == State::New {
                     self.state = State::Pending;
@@ -993,14 +1006,29 @@ impl<const CAP: usize> Controller<CAP> {
                 *slot = set.limits;
                 response.deferred = Some(Deferred::SaveSettings(self.settings));
             }
-            Command::LimitsGet => {
+            Command::LimitsGet | Command::LimitsGetWithAccel => {
+                let with_accel = matches!(frame.body, Command::LimitsGetWithAccel);
                 response.limits = Some((
                     from,
                     LimitsReport {
                         joints: self.settings.limits,
                         last_refusal: self.last_refusal,
+                        max_accel: with_accel.then_some(self.settings.max_accel),
                     },
                 ));
+            }
+            // Kept with the limits, under the same rule: only while STOPPED, so that no
+            // point already taken was admitted under another acceleration (issue 31).
+            Command::AccelSet {
+                joint,
+                max_accel_steps_s2,
+            } => {
+                stopped_only(self)?;
+                let Some(slot) = self.settings.max_accel.get_mut(usize::from(joint)) else {
+                    return Err(StatusCode::InvalidConfig);
+                };
+                *slot = max_accel_steps_s2;
+                response.deferred = Some(Deferred::SaveSettings(self.settings));
             }
             Command::Status => response.status = Some((from, self.status(plant))),
             Command::StatusWith(ask) => {

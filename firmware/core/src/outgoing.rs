@@ -13,8 +13,9 @@ pub type Destinations = Vec<Endpoint, LOCATION_LISTENERS>;
 /// Largest frame the controller sends: USART_RECV (257 data bytes) + seq, tag and CRC.
 pub const MAX_REPORT_FRAME: usize = size::USART_RECV + protocol::FRAME_OVERHEAD;
 
-// The LIMITS report (issue 23) fits the buffer sized for USART_RECV.
-const _: () = assert!(size::LIMITS + protocol::FRAME_OVERHEAD <= MAX_REPORT_FRAME);
+// The LIMITS report (issue 23), with the accelerations too (issue 31), fits the buffer
+// sized for USART_RECV.
+const _: () = assert!(size::LIMITS_WITH_ACCEL + protocol::FRAME_OVERHEAD <= MAX_REPORT_FRAME);
 
 /// Largest sealed frame: the largest report in an envelope.
 pub const MAX_SEALED_FRAME: usize = MAX_REPORT_FRAME + protocol::auth::ENVELOPE_OVERHEAD;

@@ -50,6 +50,7 @@ macro_rules! with_boot_fields {
         serial: None,
         stop: protocol::StopReport::COMPLETE,
         last_stopper: None,
+        received_last: super::runs::LastSegment::REST,
         mac: [0; 6],
         booted_net: NetSettings::fixed([192, 168, 1, 30], 24, None),
         step_budget_hz: crate::profile::BOOT_STEP_BUDGET_HZ,
