@@ -160,6 +160,41 @@ impl Client {
         })
     }
 
+    /// LIMITS_GET with its request byte (issue 31): the LIMITS report with each joint's
+    /// `max_accel_steps_s2` (`max_accel` is `Some`). A controller older than issue 31
+    /// refuses the byte (`BAD_LENGTH`): the plain report then, `max_accel` `None`.
+    pub fn limits_with_accel(&self) -> Result<LimitsReport> {
+        let _upload = super::lock(&self.upload);
+        let (tx, rx) = std::sync::mpsc::channel();
+        super::lock(&self.shared.limits).push(tx);
+        let mut command = Command::LimitsGetWithAccel;
+        for _ in 0..self.options.attempts {
+            let ack = self.exchange_unlocked(&command, None)?;
+            if ack.status == StatusCode::BadLength && command == Command::LimitsGetWithAccel {
+                command = Command::LimitsGet;
+                continue;
+            }
+            check(Tag::LimitsGet, ack)?;
+            if let Ok(report) = rx.recv_timeout(self.options.report_timeout) {
+                return Ok(report);
+            }
+        }
+        Err(Error::NoReport {
+            command: Tag::LimitsGet,
+            attempts: self.options.attempts,
+        })
+    }
+
+    /// ACCEL_SET (issue 31): joint `joint`'s most acceleration, steps/s² (0: none), kept
+    /// by the controller with its limits; only while STOPPED. An older controller answers
+    /// `UNKNOWN_TAG`.
+    pub fn set_accel(&self, joint: u8, max_accel_steps_s2: u32) -> Result<Ack> {
+        self.send(&Command::AccelSet {
+            joint,
+            max_accel_steps_s2,
+        })
+    }
+
     /// LIMITS_SET: joint `joint`'s position range and step rate (0: none of its own),
     /// kept by the controller across power cycles; only while STOPPED. Refused here when
     /// min is above max or the joint does not exist (the controller would refuse it with

@@ -87,6 +87,7 @@ fn execute(cli: Cli) -> CliResult {
         Cmd::Net(net::NetCmd::Show) => net::show(&cli),
         Cmd::Run(args) if args.dry_run => run::dry_run(args),
         Cmd::Check(args) => run::dry_run(args),
+        Cmd::Config(config::ConfigCmd::Init(args)) => config::init(args),
         Cmd::Key(cli::KeyCmd::New) => {
             println!(
                 "{}",
