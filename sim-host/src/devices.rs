@@ -665,6 +665,7 @@ mod tests {
                 dhcp: false,
                 key: None,
                 auth_epoch: 0,
+                max_accel: [0; protocol::MAX_JOINTS],
                 ..settings
             })
         );
