@@ -172,6 +172,13 @@ fn print_status(s: &StatusReport) {
         flag(StatusFlags::PIN1_HIGH),
         flag(StatusFlags::PWM_ACTIVE)
     );
+    // Kept as it was: scripts grep it (scripts/lookahead-soak.sh, step-load); the stop
+    // cause line (issue 31) follows the block.
+    println!(
+        "last run ended by underrun {}  by STOPPED {}",
+        flag(StatusFlags::UNDERRUN),
+        flag(StatusFlags::STOPPED_BY_HOST)
+    );
     println!("{}", crate::enable::drivers_line(s));
     println!("{}", estop_line(s));
     if s.more_flags.has(protocol::MoreFlags::UPLOAD_DROPPED) {
