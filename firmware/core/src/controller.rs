@@ -39,7 +39,8 @@
 //!    (docs/PROTOCOL.md, "Commands (host to controller)"; USART_SEND needs an open port
 //!    that may transmit; PENDING must come from the endpoint that sent the NEW).
 //! 8. **execute**: PENDING checks, in order: `OUT_OF_ORDER` (seq != `next_seq`),
-//!    `TOO_MANY_POINTS`, `INVALID_POINT` (step rate), `BUFFER_FULL`; every point of the
+//!    `TOO_MANY_POINTS`, `INVALID_POINT` (range, a limp joint moved, step rate, step
+//!    budget, then acceleration: issues 23 and 31), `BUFFER_FULL`; every point of the
 //!    frame is checked before any is taken. USART_SEND: `BUFFER_FULL` when the serial
 //!    transmit queue has no room. USART_START: `INVALID_CONFIG` for settings the board's
 //!    USART cannot make ([`crate::uart::uart_frame`]), or when the port cannot apply them.
