@@ -70,6 +70,10 @@ class Status(TypedDict):
     enabled: Optional[Enabled]
     """Each driver's ENABLE (None: an older controller, which reports only
     flags['drivers_enabled'], "any")."""
+    stop_cause: Optional[str]
+    """What ended the last run (issue 31): 'COMPLETE', 'STOPPED', 'ESTOP_INPUT', 'UNDERRUN', 'FAULT' (later 'LIMIT_SWITCH', 'HOLD'); None from an older controller."""
+    stopped_by: Optional[str]
+    """From `Arm.status()`: the STOPPED's sender ('127.0.0.2:40001') when stop_cause is 'STOPPED' and the controller tells; else None."""
 
 class JointLimits(TypedDict):
     min: int
@@ -133,7 +137,9 @@ class RunEndedError(ArmctlError):
     """A run ended before every point ran."""
 
     reason: str
-    """'stopped', 'underrun', 'starved' or 'unknown'."""
+    """'stopped', 'estop_input', 'fault', 'underrun', 'starved' or 'unknown'."""
+    stopped_by: Optional[str]
+    """For 'stopped': the STOPPED's sender ('127.0.0.2:40001') if the controller said (issue 31)."""
     executed: Optional[int]
     received: Optional[int]
     """Points the controller had received: more than `executed` means points were still buffered."""

@@ -29,7 +29,7 @@ create_exception!(
     armctl,
     RunEndedError,
     ArmctlError,
-    "A run ended before every point ran: `.reason` is 'stopped', 'underrun', 'starved' or 'unknown'; `.executed` and `.total` count points."
+    "A run ended before every point ran: `.reason` is 'stopped', 'estop_input', 'fault', 'underrun', 'starved' or 'unknown'; `.stopped_by` the STOPPED's sender ('127.0.0.2:40001') if the controller said; `.executed` and `.total` count points."
 );
 create_exception!(
     armctl,
@@ -71,6 +71,7 @@ pub(crate) fn to_py_err(py: Python<'_>, error: Error) -> PyErr {
             executed,
             received,
             total,
+            stopped_by,
         } => {
             let err = RunEndedError::new_err(message);
             let value = err.value(py);
@@ -78,6 +79,8 @@ pub(crate) fn to_py_err(py: Python<'_>, error: Error) -> PyErr {
             let _ = value.setattr("executed", executed);
             let _ = value.setattr("received", received);
             let _ = value.setattr("total", total);
+            // Who sent the STOPPED ("127.0.0.2:40001"), if the controller said (issue 31).
+            let _ = value.setattr("stopped_by", stopped_by.map(|a| a.to_string()));
             err
         }
         Error::Stalled { .. } => StalledError::new_err(message),

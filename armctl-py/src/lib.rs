@@ -347,10 +347,19 @@ impl Arm {
         Ok(self.controller()?.addr().to_string())
     }
 
-    /// The controller's STATUS report as a dict.
+    /// The controller's STATUS report as a dict. After a run ended by a STOPPED,
+    /// `stopped_by` is its sender ("127.0.0.2:40001") when the controller tells (issue 31:
+    /// one more look-only STATUS, asking for the STOP_CAUSE report).
     fn status<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         let status = self.call(py, |arm| arm.status())?;
-        status_dict(py, &status)
+        let d = status_dict(py, &status)?;
+        if status.stop_cause() == Some(protocol::StopCause::Stopped) {
+            let (_, stop) = self.call(py, |arm| arm.stop_report())?;
+            if let Some(from) = armctl::stopped_by(stop.as_ref()) {
+                d.set_item("stopped_by", from.to_string())?;
+            }
+        }
+        Ok(d)
     }
 
     /// Joint positions (one per joint in use) from a fresh LOCATION report: the one a

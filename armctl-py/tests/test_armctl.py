@@ -75,7 +75,11 @@ def test_run_handle_progress_wait_and_cancel(sim):
             handle.wait(timeout=10)
         assert ended.value.reason == "stopped"
         assert ended.value.executed < ended.value.total
-        assert arm.status()["flags"]["stopped_by_host"]
+        status = arm.status()
+        assert status["flags"]["stopped_by_host"]
+        # Issue 31: the cause, and the STOPPED's sender (this host).
+        assert status["stop_cause"] == "STOPPED"
+        assert status["stopped_by"] is not None and status["stopped_by"].startswith("127.0.0.1:")
 
 
 def test_refusals_raise_refused_error_with_the_status(sim):

@@ -48,7 +48,7 @@ use libfuzzer_sys::arbitrary::{Result, Unstructured};
 use libfuzzer_sys::fuzz_target;
 use protocol::{
     Ack, Command, Frame, Location, MAX_DATAGRAM, MAX_JOINTS, Point, PointList, Pwm, Report, State,
-    StatusCode, StatusFlags, StatusReport, Tag, UartInit, crc8,
+    StatusCode, StatusFlags, StatusReport, StopCause, Tag, UartInit, crc8,
 };
 
 /// Compile-time trajectory buffer size (the run-time capacity is 1..=64, from the input).
@@ -682,6 +682,20 @@ impl Harness {
                     before.status.buffered + n,
                     "points buffered"
                 );
+                // Issue 31: a point that moves a joint whose driver is disabled is never
+                // taken.
+                let enabled = before.status.drivers_enabled().unwrap_or(0x1FF);
+                let joints = usize::from(before.status.joints).min(MAX_JOINTS);
+                let mut previous = self.host_end;
+                for point in points.iter() {
+                    for j in 0..joints {
+                        assert!(
+                            point.position[j] == previous[j] || enabled & (1 << j) != 0,
+                            "a point moving limp joint {j} was taken"
+                        );
+                    }
+                    previous = point.position;
+                }
                 if let Some(last) = points.iter().last() {
                     self.last_taken = Some(last.position);
                     self.host_end = last.position;
@@ -697,6 +711,10 @@ impl Harness {
             Command::Stopped => {
                 assert_eq!(is, State::Stopped);
                 assert!(!self.plant.running && self.plant.queue.is_empty());
+                // Issue 31: a STOPPED that ended something is its cause.
+                if was != State::Stopped {
+                    assert_eq!(after.status.stop_cause(), Some(StopCause::Stopped));
+                }
             }
             Command::Return => {
                 assert_eq!(was, State::Stopped, "RETURN accepted in {was:?}");
@@ -819,6 +837,13 @@ impl Harness {
             "underrun flag vs points run: {after:?}"
         );
         assert!(!after.flags.has(StatusFlags::STOPPED_BY_HOST));
+        // Issue 31: the stop cause says the same.
+        let cause = if underrun {
+            StopCause::Underrun
+        } else {
+            StopCause::Complete
+        };
+        assert_eq!(after.stop_cause(), Some(cause), "stop cause: {after:?}");
         if underrun {
             return;
         }

@@ -82,6 +82,7 @@ macro_rules! wire_code {
         }
     };
 }
+pub(crate) use wire_code;
 
 wire_code! {
     /// A frame's tag byte: the command or report it carries. Its name is the command's
@@ -147,6 +148,11 @@ wire_code! {
         LimitsGet = 0x1b => "LIMITS_GET",
         /// Every joint's limits and the last refusal (controller to host).
         Limits = 0x1c => "LIMITS",
+        /// What ended the last run and who sent the STOPPED (controller to host; asked
+        /// for with STATUS's request byte, bit 2; issue 31).
+        StopCause = 0x1d => "STOP_CAUSE",
+        /// Set one joint's most acceleration, steps/s², kept with its limits (issue 31).
+        AccelSet = 0x1e => "ACCEL_SET",
         /// Who is there? Answered by every controller, from any host (PROTOCOL.md,
         /// "Finding controllers and setting their address").
         Discover = 0x20 => "DISCOVER",
@@ -257,7 +263,7 @@ impl StatusCode {
             OutOfOrder => "a PENDING frame was lost: resend from the ACK's next_seq",
             TooManyPoints => "more points than NEW announced: send NEW with the right count",
             InvalidPoint => {
-                "a point asks for more than the controller's max step rate, or has a duration under 1 us"
+                "a point asks for more than the controller's max step rate or a joint's limits, has a duration under 1 us, or moves a joint whose driver is disabled (LIMITS_GET says which)"
             }
             BufferFull => "the trajectory buffer is full: resend when the ACK's `free` allows",
             NotOwner => {

@@ -26,6 +26,7 @@ mod joint_limits;
 pub mod limits;
 mod net;
 mod report;
+mod stop_cause;
 mod types;
 
 pub use codes::{State, StatusCode, Tag};
@@ -36,6 +37,7 @@ pub use joint_limits::{JointLimits, LimitsReport, LimitsSet, Refusal, RefusalRea
 pub use limits::DEFAULT_WINDOW;
 pub use net::{DiscoverReply, NetSettings, OwnerState};
 pub use report::Report;
+pub use stop_cause::{StopCause, StopReport};
 pub use types::{
     Ack, Location, MoreFlags, Point, Pwm, StatusFlags, StatusReport, UartInit, UartMode,
 };
@@ -87,6 +89,14 @@ pub mod size {
     pub const LIMITS_SET: usize = 16;
     /// LIMITS report data: 8 joints' limits (12 bytes each), the last refusal (16).
     pub const LIMITS: usize = 12 * crate::MAX_JOINTS + 16;
+    /// LIMITS report data when LIMITS_GET asks for the accelerations too (issue 31): the
+    /// 112 bytes, then each joint's `max_accel_steps_s2` (u32).
+    pub const LIMITS_WITH_ACCEL: usize = LIMITS + 4 * crate::MAX_JOINTS;
+    /// ACCEL_SET data: joint, 3 reserved, max_accel_steps_s2 (u32).
+    pub const ACCEL_SET: usize = 8;
+    /// STOP_CAUSE report data: cause, detail, 2 reserved, the STOPPED's sender address
+    /// and port, 2 reserved.
+    pub const STOP_CAUSE: usize = 12;
     /// HELLO data: the host's nonce.
     pub const HELLO: usize = crate::auth::NONCE_LEN;
 }

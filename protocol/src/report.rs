@@ -6,6 +6,7 @@ use crate::codes::{State, StatusCode, Tag};
 use crate::error::{DecodeError, DecodeErrorKind, EncodeError, ExpectedLen, Field};
 use crate::frame::{Frame, open, seal};
 use crate::joint_limits::LimitsReport;
+use crate::stop_cause::StopReport;
 use crate::types::{Ack, Location, StatusReport};
 use crate::{FRAME_OVERHEAD, MAX_SERIAL_CHUNK, size};
 
@@ -24,6 +25,8 @@ pub enum Report<'a> {
     Status(StatusReport),
     /// Every joint's limits and the last refusal (the answer to LIMITS_GET).
     Limits(LimitsReport),
+    /// What ended the last run (asked for with STATUS's request byte, bit 2; issue 31).
+    StopCause(StopReport),
 }
 
 impl<'a> Report<'a> {
@@ -35,6 +38,7 @@ impl<'a> Report<'a> {
             Report::UsartRecv(_) => Tag::UsartRecv,
             Report::Status(_) => Tag::Status,
             Report::Limits(_) => Tag::Limits,
+            Report::StopCause(_) => Tag::StopCause,
         }
     }
 
@@ -45,7 +49,8 @@ impl<'a> Report<'a> {
             Report::Location(_) => size::LOCATION,
             Report::UsartRecv(_) => size::USART_RECV,
             Report::Status(_) => size::STATUS,
-            Report::Limits(_) => size::LIMITS,
+            Report::Limits(limits) => limits.data_len(),
+            Report::StopCause(_) => size::STOP_CAUSE,
         }
     }
 
@@ -71,6 +76,7 @@ impl<'a> Report<'a> {
             }
             Report::Status(status) => status.write(w, 0),
             Report::Limits(limits) => limits.write(w, 0),
+            Report::StopCause(stop) => stop.write(w, 0),
         })
     }
 
@@ -136,8 +142,17 @@ impl<'a> Report<'a> {
                 )
             }
             Some(Tag::Limits) => {
-                exactly(size::LIMITS)?;
+                if data.len() != size::LIMITS && data.len() != size::LIMITS_WITH_ACCEL {
+                    return Err(err(DecodeErrorKind::BadLength {
+                        expected: ExpectedLen::Either(size::LIMITS, size::LIMITS_WITH_ACCEL),
+                        found: data.len(),
+                    }));
+                }
                 Report::Limits(LimitsReport::read(data))
+            }
+            Some(Tag::StopCause) => {
+                exactly(size::STOP_CAUSE)?;
+                Report::StopCause(StopReport::read(data))
             }
             Some(_) => return Err(err(DecodeErrorKind::WrongDirection)),
         };

@@ -97,6 +97,7 @@ fn status_takes_one_request_byte_and_release_none() {
     let look = StatusAsk {
         location: true,
         look_only: true,
+        stop_cause: false,
     };
     let bytes = encode(Command::StatusWith(look), 0x1d);
     assert_eq!(&bytes[..3], &[0x1d, 0x15, 0x03]);
@@ -114,9 +115,10 @@ fn status_takes_one_request_byte_and_release_none() {
             .unwrap_err()
             .kind
     };
-    assert_eq!(kind(&[0x04]), DecodeErrorKind::OutOfRange(Field::StatusAsk));
+    // Bit 2 (the STOP_CAUSE report) is defined since issue 31: bit 3 is the first not.
+    assert_eq!(kind(&[0x08]), DecodeErrorKind::OutOfRange(Field::StatusAsk));
     assert!(matches!(kind(&[0, 0]), DecodeErrorKind::BadLength { .. }));
-    for b in 0..=3u8 {
+    for b in 0..=7u8 {
         assert_eq!(StatusAsk::from_byte(b).map(StatusAsk::byte), Some(b));
     }
     let release = encode(Command::Release, 0x1e);
@@ -187,6 +189,7 @@ fn limits_set_get_and_the_limits_report() {
     let mut joints = [JointLimits::NONE; 8];
     joints[1] = set.limits;
     let report = LimitsReport {
+        max_accel: None,
         joints,
         last_refusal: Refusal {
             seq: 0x21,

@@ -184,6 +184,10 @@ fn log_sent(frame: &[u8], to: Endpoint) {
             log::debug!("-> {} LIMITS", show(to));
             None
         }
+        protocol::Report::StopCause(stop) => {
+            log::debug!("-> {} STOP_CAUSE {:?}", show(to), stop.cause);
+            None
+        }
     };
     if let Some(state) = state {
         let before = REPORTED_STATE.swap(state, Ordering::Relaxed);

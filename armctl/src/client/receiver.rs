@@ -42,6 +42,8 @@ pub(crate) struct Shared {
     pub(super) statuses: Mutex<Vec<Sender<StatusReport>>>,
     /// LIMITS reports (the answers to LIMITS_GET, issue 23).
     pub(super) limits: Mutex<Vec<Sender<LimitsReport>>>,
+    /// STOP_CAUSE reports (STATUS's request byte bit 2, issue 31).
+    pub(super) stops: Mutex<Vec<Sender<protocol::StopReport>>>,
     pub(super) last_location: Mutex<Option<Location>>,
     pub(super) last_status: Mutex<Option<StatusReport>>,
     /// Datagrams that did not decode as a report.
@@ -144,6 +146,7 @@ impl Shared {
                 fan_out(&self.statuses, &status);
             }
             Report::Limits(limits) => fan_out(&self.limits, &limits),
+            Report::StopCause(stop) => fan_out(&self.stops, &stop),
         }
     }
 }

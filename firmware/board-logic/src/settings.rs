@@ -53,6 +53,41 @@ pub const LIMITS_RECORD_LEN: usize = 12 * LIMITS_PER_RECORD;
 const _: () = assert!((1 + LIMITS_RECORD_LEN).div_ceil(32) * 32 <= 64);
 const _: () = assert!(LIMITS_PER_RECORD * LIMITS_KEYS.len() == protocol::MAX_JOINTS);
 
+/// Map key of the acceleration record (ACCEL_SET, issue 31): each joint's
+/// `max_accel_steps_s2`, beside the others so that a flash written before it loads with
+/// none (0).
+pub const ACCEL_KEY: u8 = 6;
+/// Bytes of the acceleration record: joints 0-7, u32 LE each.
+pub const ACCEL_RECORD_LEN: usize = 4 * protocol::MAX_JOINTS;
+// 1 key byte + the record, in whole 32-byte words, within the item buffer.
+const _: () = assert!((1 + ACCEL_RECORD_LEN).div_ceil(32) * 32 <= 64);
+
+/// The stored acceleration record for `settings`.
+pub fn encode_accel(settings: &PersistentSettings) -> [u8; ACCEL_RECORD_LEN] {
+    let mut record = [0u8; ACCEL_RECORD_LEN];
+    for (chunk, a) in record.chunks_exact_mut(4).zip(&settings.max_accel) {
+        chunk.copy_from_slice(&a.to_le_bytes());
+    }
+    record
+}
+
+/// `settings` with the acceleration record's values.
+pub fn decode_accel(
+    settings: PersistentSettings,
+    record: &[u8; ACCEL_RECORD_LEN],
+) -> PersistentSettings {
+    let mut max_accel = settings.max_accel;
+    for (a, chunk) in max_accel.iter_mut().zip(record.chunks_exact(4)) {
+        let mut w = [0u8; 4];
+        w.copy_from_slice(chunk);
+        *a = u32::from_le_bytes(w);
+    }
+    PersistentSettings {
+        max_accel,
+        ..settings
+    }
+}
+
 /// The stored limits record `half` (0: joints 0-3, 1: joints 4-7) for `settings`.
 pub fn encode_limits(settings: &PersistentSettings, half: usize) -> [u8; LIMITS_RECORD_LEN] {
     let mut record = [0u8; LIMITS_RECORD_LEN];
@@ -283,6 +318,9 @@ impl<F: NorFlash> SettingsArea<F> {
                 settings = decode_limits(settings, half, &record);
             }
         }
+        if let Some(record) = self.fetch_record::<ACCEL_RECORD_LEN>(&ACCEL_KEY).await? {
+            settings = decode_accel(settings, &record);
+        }
         Ok(settings)
     }
 
@@ -370,6 +408,13 @@ impl<F: NorFlash> SettingsArea<F> {
                 )
                 .await?;
         }
+        self.map
+            .store_item::<&[u8]>(
+                &mut self.buffer.0,
+                &ACCEL_KEY,
+                &encode_accel(settings).as_slice(),
+            )
+            .await?;
         Ok(())
     }
 
@@ -399,7 +444,32 @@ mod tests {
             key: None,
             auth_epoch: 0,
             limits: [protocol::JointLimits::NONE; protocol::MAX_JOINTS],
+            max_accel: [0; protocol::MAX_JOINTS],
         }
+    }
+
+    /// Issue 31: each joint's max acceleration is kept; a flash written before it (with
+    /// the limits records, without the acceleration record) loads with none.
+    #[test]
+    fn accelerations_are_stored_and_an_older_flash_loads_without_them() {
+        let mut fast = custom();
+        fast.max_accel[0] = 100_000;
+        fast.max_accel[7] = 1;
+        let mut area = SettingsArea::new(Flash::default(), RANGE);
+        block_on(area.save(&fast)).unwrap();
+        assert_eq!(block_on(area.load()), LoadOutcome::Stored(fast));
+        let mut old = SettingsArea::new(Flash::default(), RANGE);
+        let first: &[u8] = &encode(&custom());
+        let net: &[u8] = &encode_net(&custom());
+        let auth: &[u8] = &encode_auth(&custom());
+        block_on(old.map.store_item(&mut old.buffer.0, &SETTINGS_KEY, &first)).unwrap();
+        block_on(old.map.store_item(&mut old.buffer.0, &NET_KEY, &net)).unwrap();
+        block_on(old.map.store_item(&mut old.buffer.0, &AUTH_KEY, &auth)).unwrap();
+        for (half, key) in LIMITS_KEYS.iter().enumerate() {
+            let limits: &[u8] = &encode_limits(&custom(), half);
+            block_on(old.map.store_item(&mut old.buffer.0, key, &limits)).unwrap();
+        }
+        assert_eq!(block_on(old.load()), LoadOutcome::Stored(custom()));
     }
 
     #[test]

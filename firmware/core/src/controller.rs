@@ -39,7 +39,8 @@
 //!    (docs/PROTOCOL.md, "Commands (host to controller)"; USART_SEND needs an open port
 //!    that may transmit; PENDING must come from the endpoint that sent the NEW).
 //! 8. **execute**: PENDING checks, in order: `OUT_OF_ORDER` (seq != `next_seq`),
-//!    `TOO_MANY_POINTS`, `INVALID_POINT` (step rate), `BUFFER_FULL`; every point of the
+//!    `TOO_MANY_POINTS`, `INVALID_POINT` (range, a limp joint moved, step rate, step
+//!    budget, then acceleration: issues 23 and 31), `BUFFER_FULL`; every point of the
 //!    frame is checked before any is taken. USART_SEND: `BUFFER_FULL` when the serial
 //!    transmit queue has no room. USART_START: `INVALID_CONFIG` for settings the board's
 //!    USART cannot make ([`crate::uart::uart_frame`]), or when the port cannot apply them.
@@ -66,11 +67,14 @@
 //! with one socket gets everything, as the manual has it.
 //!
 //! # Runs, reports and flags
-//! * A run starts with RUNING (or RETURN) and ends in STOPPED three ways: every point
-//!   ran (completion), the engine ran dry first (underrun: STATUS flag bit 5), or a
-//!   STOPPED command (bit 7; also set by a STOPPED that drops an upload in NEW or
-//!   PENDING, while a STOPPED in state STOPPED leaves both bits alone). Both bits are
-//!   cleared when a run starts, so they tell how the last run ended.
+//! * A run starts with RUNING (or RETURN) and ends in STOPPED in one of these ways, the
+//!   **stop cause** (issue 31; STATUS `more_flags` bits 5-7, the STOP_CAUSE report): every
+//!   point ran (COMPLETE), the engine ran dry first (UNDERRUN: also STATUS flag bit 5), a
+//!   STOPPED command (STOPPED, with its sender: also bit 7), the wired e-stop input
+//!   (ESTOP_INPUT: also bit 7, as before issue 31), or RETURN's encoder read failed
+//!   (FAULT, with the joint). A STOPPED or the input dropping an upload in NEW or PENDING
+//!   sets it too, while one in state STOPPED leaves it alone. A run's start sets it back
+//!   to COMPLETE, so it tells how the last run ended.
 //! * Every stop (STOPPED, the wired e-stop input) also cuts a counted gripper burst, and a
 //!   servo PWM as [`ControllerConfig::servo_on_stop`] says (held by default; issue 30).
 //!   STATUS flag bit 6 reads the gripper output, so it tells which.
@@ -119,7 +123,8 @@
 use protocol::NetSettings;
 use protocol::{
     Ack, Command, Frame, LimitsReport, Location, MAX_JOINTS, MAX_POINTS_PER_FRAME, MoreFlags,
-    Refusal, State, StatusCode, StatusFlags, StatusReport, Tag, UartMode, limits,
+    Refusal, State, StatusCode, StatusFlags, StatusReport, StopCause, StopReport, Tag, UartMode,
+    limits,
 };
 use protocol::{DecodeError, DecodeErrorKind};
 
@@ -235,6 +240,10 @@ pub struct Controller<const CAP: usize> {
     executed: u32,
     /// End position of the last point received (the next point's previous position).
     received_end: [i32; MAX_JOINTS],
+    /// The last point received as a segment: each joint's steps and its duration (0 at
+    /// NEW: the trajectory starts from rest). The acceleration check's previous rate
+    /// (ACCEL_SET, issue 31).
+    received_last: crate::controller::runs::LastSegment,
     /// End position of the last point handed to the engine.
     fed_end: [i32; MAX_JOINTS],
     /// RETURN accepted, waiting for the encoder reading.
@@ -288,8 +297,12 @@ pub struct Controller<const CAP: usize> {
     enabled: u16,
     pins: [bool; 2],
     serial: Option<UartMode>,
-    underrun: bool,
-    stopped_by_host: bool,
+    /// What ended the last run (STATUS `flags` bits 5 and 7, `more_flags` bits 5-7, the
+    /// STOP_CAUSE report; issue 31).
+    stop: StopReport,
+    /// The sender of the last STOPPED executed: the cause of a stop applied after
+    /// overtaken frames ([`Controller::stop_after_overtaken`]).
+    last_stopper: Option<Endpoint>,
     /// Ethernet MAC, for DISCOVER_REPLY.
     mac: [u8; 6],
     /// The network settings loaded at boot (the ones in use); NET_SET stores others.
@@ -507,9 +520,14 @@ impl<const CAP: usize> Controller<CAP> {
         flags.set(StatusFlags::SERIAL_OPEN, self.serial.is_some());
         flags.set(StatusFlags::PIN0_HIGH, self.pins[0]);
         flags.set(StatusFlags::PIN1_HIGH, self.pins[1]);
-        flags.set(StatusFlags::UNDERRUN, self.underrun);
+        let cause = self.stop.cause.unwrap_or(StopCause::Complete);
+        flags.set(StatusFlags::UNDERRUN, cause == StopCause::Underrun);
         flags.set(StatusFlags::PWM_ACTIVE, plant.gripper_active());
-        flags.set(StatusFlags::STOPPED_BY_HOST, self.stopped_by_host);
+        // Bit 7 means "a stop" to old hosts: the wired input's too, as before issue 31.
+        flags.set(
+            StatusFlags::STOPPED_BY_HOST,
+            matches!(cause, StopCause::Stopped | StopCause::EstopInput),
+        );
         StatusReport {
             version: protocol::VERSION,
             joints: self.settings.joints,
@@ -521,7 +539,11 @@ impl<const CAP: usize> Controller<CAP> {
             received: saturate(self.received as usize),
             executed: saturate(self.executed as usize),
             capacity: saturate(self.buffer.capacity()),
-            more_flags: MoreFlags(self.more_flags.0 | MoreFlags::of_enabled(self.enabled)),
+            more_flags: MoreFlags(
+                self.more_flags.0
+                    | MoreFlags::of_enabled(self.enabled)
+                    | MoreFlags::of_stop_cause(cause),
+            ),
             upload_period_us: self.upload_period_us,
             pwm_timer_clock_hz: self.config.pwm_timer_clock_hz,
             max_step_rate_hz: self.config.max_step_rate_hz,
@@ -640,7 +662,8 @@ impl<const CAP: usize> Controller<CAP> {
                 self.heard_from_owner(from, now_us);
                 self.listen(from, now_us);
             }
-            self.stop_by_host(plant);
+            self.last_stopper = Some(from);
+            self.stop_by_host(plant, Some(from));
             response.executed = true;
             response.reply = reply(self, StatusCode::Ok);
             return response;
@@ -897,6 +920,7 @@ impl<const CAP: usize> Controller<CAP> {
                 self.received = 0;
                 self.executed = 0;
                 self.received_end = plant.positions();
+                self.received_last = runs::LastSegment::REST;
                 self.fed_end = self.received_end;
                 self.order.restart(frame.seq);
                 self.uploader = Some(from);
@@ -924,8 +948,15 @@ impl<const CAP: usize> Controller<CAP> {
                 // Every point is checked before any is taken.
                 let mut admitted = [StoredPoint::default(); MAX_POINTS_PER_FRAME];
                 let mut previous = self.received_end;
+                let mut last = self.received_last;
                 for (i, (slot, point)) in admitted.iter_mut().zip(points.iter()).enumerate() {
-                    *slot = match self.admit(&previous, &point) {
+                    // The trajectory's last point must bring every joint to rest.
+                    let ends = self.received as usize + i + 1 >= self.expected as usize;
+                    let checked = self.admit(&previous, &point).and_then(|stored| {
+                        self.within_accel(&mut last, &previous, &stored, ends)
+                            .map(|()| stored)
+                    });
+                    *slot = match checked {
                         Ok(stored) => stored,
                         Err(refusal) => {
                             self.last_refusal = Refusal {
@@ -948,6 +979,7 @@ impl<const CAP: usize> Controller<CAP> {
                         self.received += 1;
                     }
                 }
+                self.received_last = last;
                 self.order.take(frame.seq);
                 if self.state == State::New {
                     self.state = State::Pending;
@@ -956,8 +988,7 @@ impl<const CAP: usize> Controller<CAP> {
             Command::Runing if self.estop_latched() => return Err(StatusCode::EstopLatched),
             Command::Runing => match self.state {
                 State::Pending => {
-                    self.underrun = false;
-                    self.stopped_by_host = false;
+                    self.stop = StopReport::COMPLETE;
                     self.state = State::Running;
                     self.pump(plant);
                     plant.start();
@@ -966,7 +997,7 @@ impl<const CAP: usize> Controller<CAP> {
                 _ => return Err(StatusCode::BadState),
             },
             // Handled in `check_and_execute` before the owner rule; never reaches here.
-            Command::Stopped => self.stop_by_host(plant),
+            Command::Stopped => self.stop_by_host(plant, Some(from)),
             Command::UploadStart => self.reports_on = true,
             Command::UploadStop => self.reports_on = false,
             Command::PwmStart(pwm) => {
@@ -1029,7 +1060,11 @@ impl<const CAP: usize> Controller<CAP> {
                 stopped_only(self)?;
                 // Every joint in use must be allowed at 0 (LIMITS_SET): refused before
                 // anything moves.
-                if let Some(refusal) = self.outside_limits(&[0; MAX_JOINTS]) {
+                // A limp joint away from 0 would not move (issue 31): refused the same way.
+                let refused = self
+                    .outside_limits(&[0; MAX_JOINTS])
+                    .or_else(|| self.limp_and_away(&plant.positions(), &[0; MAX_JOINTS]));
+                if let Some(refusal) = refused {
                     self.last_refusal = Refusal {
                         seq: frame.seq,
                         tag: Tag::Return as u8,
@@ -1041,8 +1076,7 @@ impl<const CAP: usize> Controller<CAP> {
                 self.return_plan = None;
                 self.return_pending = true;
                 self.return_fault = None;
-                self.underrun = false;
-                self.stopped_by_host = false;
+                self.stop = StopReport::COMPLETE;
                 self.state = State::Running;
                 response.deferred = Some(Deferred::ReadEncoders);
             }
@@ -1082,20 +1116,40 @@ impl<const CAP: usize> Controller<CAP> {
                 *slot = set.limits;
                 response.deferred = Some(Deferred::SaveSettings(settings));
             }
-            Command::LimitsGet => {
+            Command::LimitsGet | Command::LimitsGetWithAccel => {
+                let with_accel = matches!(frame.body, Command::LimitsGetWithAccel);
                 response.limits = Some((
                     from,
                     LimitsReport {
                         joints: self.settings.limits,
                         last_refusal: self.last_refusal,
+                        max_accel: with_accel.then_some(self.settings.max_accel),
                     },
                 ));
+            }
+            // Kept with the limits, under the same rule: only while STOPPED, so that no
+            // point already taken was admitted under another acceleration (issue 31), and a
+            // command that writes flash: taken, and ACKed, once the save succeeded (issue 30).
+            Command::AccelSet {
+                joint,
+                max_accel_steps_s2,
+            } => {
+                flash_only(self)?;
+                let mut settings = self.settings;
+                let Some(slot) = settings.max_accel.get_mut(usize::from(joint)) else {
+                    return Err(StatusCode::InvalidConfig);
+                };
+                *slot = max_accel_steps_s2;
+                response.deferred = Some(Deferred::SaveSettings(settings));
             }
             Command::Status => response.status = Some((from, self.status(plant))),
             Command::StatusWith(ask) => {
                 response.status = Some((from, self.status(plant)));
                 if ask.location {
                     response.asked_location = Some((from, self.location(plant)));
+                }
+                if ask.stop_cause {
+                    response.asked_stop = Some((from, self.stop));
                 }
             }
             // The owner gives the controller up: no owner, no report destinations (the
@@ -1215,22 +1269,32 @@ impl<const CAP: usize> Controller<CAP> {
         if ask.location {
             response.asked_location = Some((from, self.location(plant)));
         }
+        if ask.stop_cause {
+            response.asked_stop = Some((from, self.stop));
+        }
         response.answer_seq = Some(seq);
         Some(response)
     }
 
     /// STOPPED's execution: no further pulse, the trajectory dropped, state STOPPED.
-    fn stop_by_host(&mut self, plant: &mut impl Plant) {
+    /// `by`: the STOPPED's sender; `None`: the wired e-stop input.
+    fn stop_by_host(&mut self, plant: &mut impl Plant, by: Option<Endpoint>) {
         plant.stop();
         self.stop_gripper(plant);
         self.buffer.clear();
         self.return_plan = None;
         self.return_pending = false;
-        // Bits 5 and 7 tell how the last trajectory ended: a STOPPED with none under way
-        // (already STOPPED) leaves them alone.
+        // The cause tells how the last trajectory ended: a stop with none under way
+        // (already STOPPED) leaves it alone.
         if self.state != State::Stopped {
-            self.underrun = false;
-            self.stopped_by_host = true;
+            self.stop = match by {
+                Some(from) => StopReport {
+                    from_ip: from.ip,
+                    from_port: from.port,
+                    ..StopReport::of(StopCause::Stopped)
+                },
+                None => StopReport::of(StopCause::EstopInput),
+            };
         }
         self.state = State::Stopped;
     }
@@ -1245,6 +1309,12 @@ impl<const CAP: usize> Controller<CAP> {
         if self.config.servo_on_stop.cuts(self.gripper_pulse_count) {
             plant.gripper_stop();
         }
+    }
+
+    /// What ended the last run, and who sent the STOPPED if one did (the STOP_CAUSE
+    /// report, issue 31).
+    pub fn stop_report(&self) -> StopReport {
+        self.stop
     }
 
     /// Whether the wired e-stop input's latch is set (RUNING and RETURN refused).
@@ -1264,7 +1334,7 @@ impl<const CAP: usize> Controller<CAP> {
         }
         self.more_flags.set(MoreFlags::ESTOP_LATCHED, true);
         let before = self.state;
-        self.stop_by_host(plant);
+        self.stop_by_host(plant, None);
         (before != self.state && self.reports_on).then(|| self.location(plant))
     }
 
@@ -1281,7 +1351,7 @@ impl<const CAP: usize> Controller<CAP> {
             self.stop_gripper(plant);
             return None;
         }
-        self.stop_by_host(plant);
+        self.stop_by_host(plant, self.last_stopper);
         self.reports_on.then(|| self.location(plant))
     }
 }

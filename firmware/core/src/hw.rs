@@ -135,6 +135,9 @@ pub struct PersistentSettings {
     /// Each joint's position range and step rate (LIMITS_SET, issue 23); no limit by
     /// default.
     pub limits: [protocol::JointLimits; protocol::MAX_JOINTS],
+    /// Each joint's most acceleration, steps/s² (ACCEL_SET, issue 31); 0: none (the
+    /// default, and what settings stored before it load with).
+    pub max_accel: [u32; protocol::MAX_JOINTS],
 }
 
 impl PersistentSettings {
@@ -148,6 +151,7 @@ impl PersistentSettings {
         key: None,
         auth_epoch: 0,
         limits: [protocol::JointLimits::NONE; protocol::MAX_JOINTS],
+        max_accel: [0; protocol::MAX_JOINTS],
     };
 
     /// The network part, as NET_SET and DISCOVER_REPLY carry it.

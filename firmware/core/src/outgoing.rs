@@ -1,7 +1,7 @@
 //! Frames the controller sends, and their encoding with the controller's own report seq.
 
 use heapless::Vec;
-use protocol::{LimitsReport, Location, MAX_SERIAL_CHUNK, Report, StatusReport, size};
+use protocol::{LimitsReport, Location, MAX_SERIAL_CHUNK, Report, StatusReport, StopReport, size};
 
 use crate::hw::Endpoint;
 use crate::reports::{LOCATION_LISTENERS, ReportSettings};
@@ -13,8 +13,9 @@ pub type Destinations = Vec<Endpoint, LOCATION_LISTENERS>;
 /// Largest frame the controller sends: USART_RECV (257 data bytes) + seq, tag and CRC.
 pub const MAX_REPORT_FRAME: usize = size::USART_RECV + protocol::FRAME_OVERHEAD;
 
-// The LIMITS report (issue 23) fits the buffer sized for USART_RECV.
-const _: () = assert!(size::LIMITS + protocol::FRAME_OVERHEAD <= MAX_REPORT_FRAME);
+// The LIMITS report (issue 23), with the accelerations too (issue 31), fits the buffer
+// sized for USART_RECV.
+const _: () = assert!(size::LIMITS_WITH_ACCEL + protocol::FRAME_OVERHEAD <= MAX_REPORT_FRAME);
 
 /// Largest sealed frame: the largest report in an envelope.
 pub const MAX_SEALED_FRAME: usize = MAX_REPORT_FRAME + protocol::auth::ENVELOPE_OVERHEAD;
@@ -137,6 +138,8 @@ pub enum AnswerReport {
     Location(Location),
     /// A LIMITS report (the answer to LIMITS_GET).
     Limits(LimitsReport),
+    /// A STOP_CAUSE report (STATUS's request byte, bit 2).
+    StopCause(StopReport),
 }
 
 /// Encodes [`Outgoing`] frames. Reports (everything but ACKs) carry the controller's own
@@ -193,6 +196,7 @@ impl ReportEncoder {
                     AnswerReport::Status(s) => Report::Status(s),
                     AnswerReport::Location(l) => Report::Location(l),
                     AnswerReport::Limits(l) => Report::Limits(l),
+                    AnswerReport::StopCause(s) => Report::StopCause(s),
                 },
             ),
             Outgoing::Location(l) => {

@@ -1,7 +1,7 @@
 //! What [`crate::Controller::handle`] returns: the ACK ([`Reply`]), reports, and the
 //! work left to the caller ([`Deferred`]), all in one [`Response`].
 
-use protocol::{Ack, DiscoverReply, LimitsReport, Location, StatusReport};
+use protocol::{Ack, DiscoverReply, LimitsReport, Location, StatusReport, StopReport};
 
 use crate::hw::{Endpoint, PersistentSettings};
 #[cfg(doc)]
@@ -44,9 +44,13 @@ pub struct Response {
     /// A LOCATION report for the asker alone: STATUS's request byte asked for one (bit 0,
     /// issue 23), whether reports are on or not.
     pub asked_location: Option<(Endpoint, Location)>,
+    /// A STOP_CAUSE report for the asker alone: STATUS's request byte asked for one (bit
+    /// 2, issue 31).
+    pub asked_stop: Option<(Endpoint, StopReport)>,
     /// A LIMITS report for the endpoint that sent LIMITS_GET (issue 23).
     pub limits: Option<(Endpoint, LimitsReport)>,
-    /// `Some(seq)`: [`Response::status`] and [`Response::asked_location`] are a read-only
+    /// `Some(seq)`: [`Response::status`], [`Response::asked_location`] and
+    /// [`Response::asked_stop`] are a read-only
     /// answer to a host that does not own the controller (docs/PROTOCOL.md section 1,
     /// issue 23) and carry its request's seq, not the controller's report counter.
     pub answer_seq: Option<u8>,

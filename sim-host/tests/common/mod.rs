@@ -83,6 +83,7 @@ pub enum OwnedReport {
     UsartRecv(Vec<u8>),
     Status(StatusReport),
     Limits(protocol::LimitsReport),
+    StopCause(protocol::StopReport),
 }
 
 impl Client {
@@ -119,6 +120,7 @@ impl Client {
             Report::UsartRecv(b) => OwnedReport::UsartRecv(b.to_vec()),
             Report::Status(s) => OwnedReport::Status(s),
             Report::Limits(l) => OwnedReport::Limits(l),
+            Report::StopCause(s) => OwnedReport::StopCause(s),
         };
         Some((frame.seq, report))
     }

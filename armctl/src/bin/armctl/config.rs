@@ -1,5 +1,8 @@
 //! `armctl config get` and `armctl config set`: the limits on the controller (LIMITS_GET,
-//! LIMITS_SET; docs/PROTOCOL.md, issue 23), and what an INVALID_POINT broke.
+//! LIMITS_SET; docs/PROTOCOL.md, issue 23) and each joint's acceleration (ACCEL_SET,
+//! issue 31), and what an INVALID_POINT broke; `armctl config init`: an arm description
+//! (the joint config file armctl, Python and the bridge all read) from the drive's
+//! figures.
 
 use armctl::Client;
 use armctl::motion::Units;
@@ -22,10 +25,15 @@ pub enum ConfigCmd {
         #[arg(long, value_name = "FILE")]
         config: Option<std::path::PathBuf>,
     },
+    /// Writes an arm description (a joint config: `run --config`, `config push`, the
+    /// ROS 2 bridge) from the drive's figures, every joint alike (edit the file for joints
+    /// that differ). Needs no controller.
+    Init(InitArgs),
     /// LIMITS_SET for every joint of a joint config (the `run --config` file): its
-    /// min_steps, max_steps and max_step_rate_hz, so that the controller enforces them
+    /// min_steps, max_steps and max_step_rate_hz, and ACCEL_SET for its
+    /// max_accel_steps_s2 (none when absent), so that the controller enforces them
     /// whatever host drives it (only while STOPPED). FILE may also be what `config get
-    /// --json` printed: the limits it shows are put back.
+    /// --json` printed: the limits and accelerations it shows are put back.
     Push {
         /// The joint config, or a `config get --json` output.
         file: std::path::PathBuf,
@@ -52,9 +60,124 @@ pub enum ConfigCmd {
     },
 }
 
-/// Runs `config get` or `config set`.
+/// `armctl config init`'s figures.
+#[derive(clap::Args, Debug)]
+pub struct InitArgs {
+    /// Joints, 1-8.
+    #[arg(long, default_value_t = 6, value_parser = clap::value_parser!(u8).range(1..=8))]
+    pub joints: u8,
+    /// Motor full steps (pulses) per revolution.
+    #[arg(long, default_value_t = 200.0)]
+    pub pulses_per_rev: f64,
+    /// Driver microsteps per full step.
+    #[arg(long, default_value_t = 16.0)]
+    pub microsteps: f64,
+    /// Motor revolutions per joint revolution.
+    #[arg(long, default_value_t = 1.0)]
+    pub gear_ratio: f64,
+    /// Lowest joint position, degrees.
+    #[arg(long, default_value_t = -180.0, allow_negative_numbers = true)]
+    pub min_deg: f64,
+    /// Highest joint position, degrees.
+    #[arg(long, default_value_t = 180.0, allow_negative_numbers = true)]
+    pub max_deg: f64,
+    /// Most joint speed, degrees per second.
+    #[arg(long, default_value_t = 90.0)]
+    pub max_rate_deg_s: f64,
+    /// Most joint acceleration, degrees per second².
+    #[arg(long, default_value_t = 360.0)]
+    pub max_accel_deg_s2: f64,
+    /// Joint names, comma-separated (default j0, j1, ...).
+    #[arg(long, value_delimiter = ',')]
+    pub names: Vec<String>,
+    /// The units the tools show positions in: steps, deg or rad.
+    #[arg(long, default_value = "deg")]
+    pub units: String,
+    /// Where to write it (default: standard output).
+    #[arg(long, short, value_name = "FILE")]
+    pub output: Option<std::path::PathBuf>,
+}
+
+/// `armctl config init`: the description as JSON, in the joint config's format.
+pub fn init(args: &InitArgs) -> CliResult {
+    let text = description(args)?;
+    // Read back as every tool will read it: what is written loads.
+    armctl::trajectory::ArmConfig::parse(&text, "config init").map_err(|e| e.to_string())?;
+    match &args.output {
+        Some(path) => {
+            std::fs::write(path, &text).map_err(|e| format!("{}: {e}", path.display()))?;
+            eprintln!("wrote {}", path.display());
+        }
+        None => print!("{text}"),
+    }
+    Ok(())
+}
+
+/// The joint config text for `args`.
+pub fn description(args: &InitArgs) -> Result<String, String> {
+    let steps_per_rev = args.pulses_per_rev * args.microsteps * args.gear_ratio;
+    if !(steps_per_rev.is_finite() && steps_per_rev != 0.0) {
+        return Err(
+            "pulses per revolution, microsteps and gear ratio must give a non-zero number of steps"
+                .into(),
+        );
+    }
+    if !["steps", "deg", "rad"].contains(&args.units.as_str()) {
+        return Err(format!("--units {}: steps, deg or rad", args.units));
+    }
+    if args.min_deg > args.max_deg {
+        return Err(format!(
+            "--min-deg {} is above --max-deg {}",
+            args.min_deg, args.max_deg
+        ));
+    }
+    let steps_per_radian = steps_per_rev / std::f64::consts::TAU;
+    let steps_per_deg = (steps_per_rev / 360.0).abs();
+    let steps = |deg: f64| (deg * steps_per_rev / 360.0).round();
+    let (min, max) = if steps_per_rev > 0.0 {
+        (steps(args.min_deg), steps(args.max_deg))
+    } else {
+        (steps(args.max_deg), steps(args.min_deg))
+    };
+    if !(min >= f64::from(i32::MIN) && max <= f64::from(i32::MAX)) {
+        return Err(format!("the range is {min}..{max} steps: beyond i32"));
+    }
+    let rate = (args.max_rate_deg_s * steps_per_deg).round();
+    let accel = (args.max_accel_deg_s2 * steps_per_deg).round();
+    if !(rate >= 1.0 && rate <= f64::from(u32::MAX) && accel >= 1.0 && accel <= f64::from(u32::MAX))
+    {
+        return Err(format!(
+            "--max-rate-deg-s and --max-accel-deg-s2 give {rate} steps/s and {accel} steps/s²: at least 1, and within u32"
+        ));
+    }
+    let joints: Vec<serde_json::Value> = (0..usize::from(args.joints))
+        .map(|j| {
+            let name = args
+                .names
+                .get(j)
+                .cloned()
+                .unwrap_or_else(|| format!("j{j}"));
+            serde_json::json!({
+                "name": name,
+                "steps_per_radian": steps_per_radian,
+                "zero_offset_steps": 0,
+                "min_steps": min as i64,
+                "max_steps": max as i64,
+                "max_step_rate_hz": rate as u64,
+                "max_accel_steps_s2": accel as u64,
+            })
+        })
+        .collect();
+    let value = serde_json::json!({ "units": args.units, "joints": joints });
+    let mut text = serde_json::to_string_pretty(&value).map_err(|e| e.to_string())?;
+    text.push('\n');
+    Ok(text)
+}
+
+/// Runs `config get`, `push` or `set` (`init` needs no controller: [`init`]).
 pub fn execute(arm: &Client, command: &ConfigCmd) -> CliResult {
     match command {
+        ConfigCmd::Init(args) => init(args),
         ConfigCmd::Get { json, config } => {
             let names = config
                 .as_deref()
@@ -67,7 +190,11 @@ pub fn execute(arm: &Client, command: &ConfigCmd) -> CliResult {
                         .map(|j| j.name.clone().unwrap_or_else(|| "-".into()))
                         .collect::<Vec<_>>()
                 });
-            let report = arm.limits().map_err(|e| explain_old(e, Tag::LimitsGet))?;
+            // With each joint's acceleration (issue 31; `max_accel` null from an older
+            // controller): the JSON gains one field, the rest is as before.
+            let report = arm
+                .limits_with_accel()
+                .map_err(|e| explain_old(e, Tag::LimitsGet))?;
             if *json {
                 println!(
                     "{}",
@@ -80,11 +207,29 @@ pub fn execute(arm: &Client, command: &ConfigCmd) -> CliResult {
         }
         ConfigCmd::Push { file } => {
             let joints = pushed_limits(file)?;
-            for (j, (name, limits)) in joints.iter().enumerate().take(protocol::MAX_JOINTS) {
+            for (j, (name, limits, accel)) in joints.iter().enumerate().take(protocol::MAX_JOINTS) {
                 let j = u8::try_from(j).unwrap_or(u8::MAX);
                 arm.set_limits(j, *limits)
                     .map_err(|e| format!("joint {j}: {}", explain_old(e, Tag::LimitsSet)))?;
                 println!("joint {j} {name}: {}", describe(limits));
+                // The acceleration (issue 31): the file's, none when the file has none; a
+                // `config get --json` of an older controller (max_accel null) sends none.
+                let Some(accel) = *accel else { continue };
+                match arm.set_accel(j, accel) {
+                    Ok(_) if accel > 0 => {
+                        println!("joint {j} {name}: at most {accel} steps/s²")
+                    }
+                    Ok(_) => {}
+                    // An older controller keeps no acceleration: say so when the file has one.
+                    Err(e) if e.status() == Some(protocol::StatusCode::UnknownTag) => {
+                        if accel > 0 {
+                            eprintln!(
+                                "warning: joint {j}: the controller keeps no acceleration (older than issue 31): max_accel_steps_s2 not enforced there"
+                            );
+                        }
+                    }
+                    Err(e) => return Err(format!("joint {j}: ACCEL_SET: {e}")),
+                }
             }
             println!("OK: {} joints' limits kept on the controller", joints.len());
             Ok(())
@@ -131,13 +276,20 @@ pub fn execute(arm: &Client, command: &ConfigCmd) -> CliResult {
 #[derive(serde::Deserialize)]
 struct KeptLimits {
     joints: Vec<JointLimits>,
+    /// Each joint's acceleration (issue 31); absent or null from an older controller.
+    #[serde(default)]
+    max_accel: Option<Vec<u32>>,
 }
+
+/// One joint `config push` sends: its shown name, limits, and acceleration (`None`: no
+/// ACCEL_SET is sent; `Some(0)`: none kept).
+type PushedJoint = (String, JointLimits, Option<u32>);
 
 /// The limits `config push FILE` sends, joint 0 first, each with the name it is shown
 /// with: from a joint config (`min_steps`, `max_steps`, `max_step_rate_hz`), or from what
 /// `config get --json` printed (`min`, `max`, `max_rate_hz`; issue 31: it was refused,
 /// "missing field `max_step_rate_hz`").
-fn pushed_limits(file: &std::path::Path) -> Result<Vec<(String, JointLimits)>, String> {
+fn pushed_limits(file: &std::path::Path) -> Result<Vec<PushedJoint>, String> {
     let text = std::fs::read_to_string(file).map_err(|e| format!("{}: {e}", file.display()))?;
     let value: serde_json::Value = serde_json::from_str(&text)
         .map_err(|e| format!("{}: cannot parse: {e}", file.display()))?;
@@ -158,6 +310,11 @@ fn pushed_limits(file: &std::path::Path) -> Result<Vec<(String, JointLimits)>, S
                         max: joint.max_steps,
                         max_rate_hz: joint.max_step_rate_hz,
                     },
+                    Some(
+                        joint
+                            .max_accel_steps_s2
+                            .map_or(0, |a| a.round().clamp(1.0, f64::from(u32::MAX)) as u32),
+                    ),
                 )
             })
             .collect());
@@ -180,7 +337,16 @@ fn pushed_limits(file: &std::path::Path) -> Result<Vec<(String, JointLimits)>, S
             kept.joints[j].max
         ));
     }
-    Ok(kept.joints.into_iter().map(|l| ("-".into(), l)).collect())
+    let accel = kept.max_accel;
+    Ok(kept
+        .joints
+        .into_iter()
+        .enumerate()
+        .map(|(j, l)| {
+            let a = accel.as_ref().map(|a| a.get(j).copied().unwrap_or(0));
+            ("-".into(), l, a)
+        })
+        .collect())
 }
 
 /// An older controller's UNKNOWN_TAG, explained.
@@ -218,7 +384,12 @@ pub fn limits_table(report: &LimitsReport, names: Option<&[String]>) -> String {
         let name = names
             .and_then(|n| n.get(j))
             .map_or(String::new(), |n| format!(" {n}"));
-        out.push_str(&format!("{j:>5}{name}  {}\n", describe(l)));
+        let accel = match report.max_accel.map(|a| a.get(j).copied().unwrap_or(0)) {
+            Some(0) => ", no acceleration limit".to_string(),
+            Some(a) => format!(", at most {a} steps/s²"),
+            None => String::new(),
+        };
+        out.push_str(&format!("{j:>5}{name}  {}{accel}\n", describe(l)));
     }
     if let Some(line) = refusal_line(report) {
         out.push_str(&format!("{line}\n"));
@@ -307,14 +478,16 @@ pub fn refused_point(r: &Refusal, sent: &Sent<'_>) -> Option<String> {
                 * u128::from(sent.points[i].duration.max(0).unsigned_abs())
     };
     let found = (0..sent.points.len()).find(|&i| match r.reason {
-        RefusalReason::BelowMin | RefusalReason::AboveMax => {
+        RefusalReason::BelowMin | RefusalReason::AboveMax | RefusalReason::JointDisabled => {
             joint < MAX_JOINTS && sent.points[i].position[joint] == r.value
         }
         RefusalReason::JointRate | RefusalReason::BoardRate => {
             joint < MAX_JOINTS && over(steps(i, joint), i)
         }
         RefusalReason::StepBudget => over((0..MAX_JOINTS).map(|j| steps(i, j)).sum(), i),
-        RefusalReason::Duration | RefusalReason::None => false,
+        // The controller's acceleration is between segments' midpoints (PROTOCOL.md,
+        // ACCEL_SET): the LIMITS report's own words are given for it.
+        RefusalReason::Acceleration | RefusalReason::Duration | RefusalReason::None => false,
     })?;
     // The point's end: the time the arm is at its positions.
     let t: i64 = sent.points[..=found]
@@ -369,6 +542,11 @@ pub fn refused_point(r: &Refusal, sent: &Sent<'_>) -> Option<String> {
             rate(r.value),
             rate(r.limit),
             slower()
+        ),
+        RefusalReason::JointDisabled => format!(
+            "{at}: {name}: its driver is disabled (limp): moving it to {} would count steps \
+             it does not make (`armctl enable {joint}` first)",
+            position(r.value)
         ),
         _ => format!(
             "{at}: all joints together: {} steps/s is above the controller's step_budget_hz \

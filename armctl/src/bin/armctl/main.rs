@@ -127,6 +127,7 @@ fn execute(cli: Cli, command: &str) -> CliResult {
         Cmd::Net(net::NetCmd::Show) => net::show(&cli),
         Cmd::Run(args) if args.dry_run => run::dry_run(args),
         Cmd::Check(args) => run::dry_run(args),
+        Cmd::Config(config::ConfigCmd::Init(args)) => config::init(args),
         Cmd::Key(cli::KeyCmd::New { output }) => key::new(output.as_deref()),
         _ => {
             let arm = connect::connect(&cli)

@@ -78,6 +78,7 @@ pub fn execute(
     let mut last_print = Instant::now() - Duration::from_secs(1);
     let mut last_status = Instant::now();
     let mut seen = 0u64;
+    let mut last_state = None;
     loop {
         if end.is_some_and(|e| Instant::now() >= e) {
             break;
@@ -97,6 +98,27 @@ pub fn execute(
         match next {
             Ok(location) => {
                 seen += 1;
+                // A run just ended: say what ended it (issue 31), on a line of its own.
+                let ended = location.state == protocol::State::Stopped as u8
+                    && last_state == Some(protocol::State::Running as u8);
+                last_state = Some(location.state);
+                if ended {
+                    let why = match arm.stop_report() {
+                        Ok((status, stop)) => armctl::stop_cause_text(&status, stop.as_ref()),
+                        Err(e) => format!("unknown ({e})"),
+                    };
+                    let line = location_line(&location, joints, shown);
+                    let written = if tty {
+                        write!(out, "\r{line}\nrun ended: {why}\n")
+                    } else {
+                        writeln!(out, "{line}\nrun ended: {why}")
+                    }
+                    .and_then(|()| out.flush());
+                    if crate::out::closed(&written) {
+                        return Ok(());
+                    }
+                    written.map_err(|e| format!("stdout: {e}"))?;
+                }
                 if let Some(r) = recorder.as_mut() {
                     r.record(&location)
                         .and_then(|()| r.flush())

@@ -347,6 +347,13 @@ pub(super) fn deliver(bus: &Bus, response: &Response) {
             report: AnswerReport::Location(location),
         }));
     }
+    if let Some((to, stop)) = response.asked_stop {
+        bus.send(Outgoing::Answer(Answer {
+            to,
+            seq: response.answer_seq,
+            report: AnswerReport::StopCause(stop),
+        }));
+    }
     if let Some(location) = response.location {
         bus.send(Outgoing::Location(location));
     }
