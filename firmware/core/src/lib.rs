@@ -95,6 +95,7 @@ pub mod bus;
 pub mod config;
 pub mod controller;
 pub mod estop_input;
+pub mod homing;
 pub mod hw;
 pub mod ingress;
 pub mod link;
@@ -108,6 +109,7 @@ pub mod response;
 pub mod serial;
 pub mod source_share;
 pub mod step_shared;
+pub mod switches;
 pub mod tasks;
 #[cfg(feature = "test-support")]
 pub mod test_support;
