@@ -81,6 +81,8 @@ pub enum Command<'a> {
     SetKey(Option<AuthKey>),
     /// Give the controller up (the owner only): any host may take it at once.
     Release,
+    /// Clear the hard-limit latch (issue 33; no data).
+    Unlock,
     /// Set one joint's limits (issue 23).
     LimitsSet(LimitsSet),
     /// Ask for the LIMITS report.
@@ -168,6 +170,7 @@ impl<'a> Command<'a> {
             Command::SetKey(_) => Tag::SetKey,
             Command::SetEnable { .. } => Tag::SetEnable,
             Command::Release => Tag::Release,
+            Command::Unlock => Tag::Unlock,
             Command::LimitsSet(_) => Tag::LimitsSet,
             Command::LimitsGet => Tag::LimitsGet,
             Command::StatusWith(_) => Tag::Status,
@@ -456,6 +459,7 @@ impl<'a> Command<'a> {
             | Tag::Discover
             | Tag::EstopReset
             | Tag::Release
+            | Tag::Unlock
             | Tag::LimitsGet => {
                 exactly(0)?;
                 match tag {
@@ -472,6 +476,7 @@ impl<'a> Command<'a> {
                     Tag::Discover => Command::Discover,
                     Tag::EstopReset => Command::EstopReset,
                     Tag::Release => Command::Release,
+                    Tag::Unlock => Command::Unlock,
                     Tag::LimitsGet => Command::LimitsGet,
                     _ => Command::Status,
                 }

@@ -426,6 +426,12 @@ impl Limits {
         if let Some((joint, side)) = self.latched {
             return Err(LimitRefusal::Latched { joint, side });
         }
+        self.check_direction(steps)
+    }
+
+    /// [`Self::check_move`] without the latch: only whether a joint would go further
+    /// into an active limit switch (points uploaded while latched, to run after unlock).
+    pub fn check_direction(&self, steps: &[i64]) -> Result<(), LimitRefusal> {
         for ((joint, &s), active) in (0u8..).zip(steps).zip(&self.active) {
             let Some(side) = Side::of_steps(s) else {
                 continue;
