@@ -1040,6 +1040,9 @@ impl<const CAP: usize> Controller<CAP> {
                 if self.estop_latched() {
                     return Err(StatusCode::EstopLatched);
                 }
+                if self.hard_limits.latched().is_some() {
+                    return Err(StatusCode::LimitLatched);
+                }
                 stopped_only(self)?;
                 // Towards zero, which may be further into a limit switch still active.
                 let mut steps = [0i64; MAX_JOINTS];

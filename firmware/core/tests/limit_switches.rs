@@ -38,6 +38,8 @@ fn a_limit_trip_stops_the_run_and_latches_until_unlock() {
         assert_eq!(ack.state, State::Pending, "attempt {attempt}");
         assert!(!s.plant.running);
     }
+    // The latch is named before the state (PENDING would be BAD_STATE for RETURN).
+    s.expect(Command::Return, StatusCode::LimitLatched);
     s.expect(Command::Stopped, StatusCode::Ok);
     s.expect(Command::Return, StatusCode::LimitLatched);
     // A second trip while latched keeps the first one's name.
