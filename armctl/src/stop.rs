@@ -42,6 +42,15 @@ pub fn stop_cause_text(status: &StatusReport, stop: Option<&StopReport>) -> Stri
             ),
             None => cause.describe().into(),
         },
+        StopCause::LimitSwitch => match stop.filter(|s| s.cause == Some(StopCause::LimitSwitch)) {
+            Some(s) => format!(
+                "the {} limit switch of joint {} tripped (latched: `armctl unlock`, then \
+                     move away from it)",
+                if s.detail & 0x80 != 0 { "max" } else { "min" },
+                s.detail & 0x7f
+            ),
+            None => cause.describe().into(),
+        },
         _ => cause.describe().into(),
     }
 }

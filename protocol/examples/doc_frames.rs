@@ -166,6 +166,7 @@ pub fn doc_frames() -> Vec<DocFrame> {
             Command::UploadPeriod { period_us: 20_000 },
         ),
         command("ESTOP_RESET, seq 0x19", 0x19, Command::EstopReset),
+        command("UNLOCK, seq 0x21", 0x21, Command::Unlock),
         command(
             "SET_ENABLE, seq 0x1b, disable joints 0 and 1 (mask 0x0003)",
             0x1b,
@@ -261,6 +262,18 @@ pub fn doc_frames() -> Vec<DocFrame> {
                 next_seq: 0x00,
                 buffered: 0,
                 free: 8_192,
+            }),
+        ),
+        report(
+            "ACK refusing a RUNING with seq 0x20: LIMIT_LATCHED, state PENDING",
+            0x20,
+            Report::Ack(Ack {
+                acked_tag: 0x02,
+                status: StatusCode::LimitLatched,
+                state: State::Pending,
+                next_seq: 0x03,
+                buffered: 12,
+                free: 8_180,
             }),
         ),
         report(

@@ -160,6 +160,9 @@ wire_code! {
         NetSet = 0x21 => "NET_SET",
         /// The answer to DISCOVER (controller to host).
         DiscoverReply = 0x22 => "DISCOVER_REPLY",
+        /// Clear the hard-limit latch after a limit switch tripped (issue 33); then only
+        /// motion away from a switch still active is accepted.
+        Unlock = 0x25 => "UNLOCK",
         /// An authenticated envelope around a whole frame, both directions
         /// (docs/PROTOCOL.md section 13, [`crate::auth`]).
         Auth = 0x50 => "AUTH",
@@ -228,6 +231,10 @@ wire_code! {
         /// A command that writes the settings to flash (JOINTS_COUNT, LIMITS_SET, SET_KEY,
         /// NET_SET) whose save failed: nothing changed (issue 30).
         SaveFailed = 15 => "SAVE_FAILED",
+        /// A limit switch tripped (issue 33): RUNING and RETURN are refused until a host
+        /// sends UNLOCK; after it, points moving a joint further into a limit switch still
+        /// active are refused with this code too.
+        LimitLatched = 16 => "LIMIT_LATCHED",
     }
 }
 
@@ -281,6 +288,9 @@ impl StatusCode {
             }
             AuthFailed => {
                 "authentication failed: wrong key, or the controller was reset (open a new session with HELLO)"
+            }
+            LimitLatched => {
+                "a limit switch tripped: `armctl unlock`, then move that joint away from the switch (motion further in is refused while it is active)"
             }
             SaveFailed => {
                 "the controller could not save its settings to flash: nothing changed; retry, and if it keeps failing the flash needs looking at (see the board's log)"

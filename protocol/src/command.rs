@@ -81,6 +81,8 @@ pub enum Command<'a> {
     SetKey(Option<AuthKey>),
     /// Give the controller up (the owner only): any host may take it at once.
     Release,
+    /// Clear the hard-limit latch (issue 33; no data).
+    Unlock,
     /// Set one joint's limits (issue 23).
     LimitsSet(LimitsSet),
     /// Ask for the LIMITS report.
@@ -189,6 +191,7 @@ impl<'a> Command<'a> {
             Command::SetKey(_) => Tag::SetKey,
             Command::SetEnable { .. } => Tag::SetEnable,
             Command::Release => Tag::Release,
+            Command::Unlock => Tag::Unlock,
             Command::LimitsSet(_) => Tag::LimitsSet,
             Command::LimitsGet | Command::LimitsGetWithAccel => Tag::LimitsGet,
             Command::AccelSet { .. } => Tag::AccelSet,
@@ -504,6 +507,7 @@ impl<'a> Command<'a> {
             | Tag::Discover
             | Tag::EstopReset
             | Tag::Release
+            | Tag::Unlock
             | Tag::LimitsGet => {
                 exactly(0)?;
                 match tag {
@@ -520,6 +524,7 @@ impl<'a> Command<'a> {
                     Tag::Discover => Command::Discover,
                     Tag::EstopReset => Command::EstopReset,
                     Tag::Release => Command::Release,
+                    Tag::Unlock => Command::Unlock,
                     Tag::LimitsGet => Command::LimitsGet,
                     _ => Command::Status,
                 }

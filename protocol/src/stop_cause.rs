@@ -22,7 +22,8 @@ crate::codes::wire_code! {
         /// The controller found a fault: RETURN's absolute encoder of joint `detail` did
         /// not answer properly (nothing moved).
         Fault = 5 => "FAULT",
-        /// Reserved: a limit switch (no board has one yet).
+        /// A limit switch tripped (issue 33): `detail` is the joint in bits 0-6, bit 7 set
+        /// for its max side (no board wires the switches yet).
         LimitSwitch = 6 => "LIMIT_SWITCH",
         /// Reserved: a hold (not made yet).
         Hold = 7 => "HOLD",
@@ -52,7 +53,9 @@ pub struct StopReport {
     /// What ended the last run; `None`: a cause byte this crate does not know (a newer
     /// controller's).
     pub cause: Option<StopCause>,
-    /// For [`StopCause::Fault`]: the joint whose encoder failed; 0 otherwise.
+    /// For [`StopCause::Fault`]: the joint whose encoder failed; for
+    /// [`StopCause::LimitSwitch`]: the joint (bits 0-6) and the side (bit 7: max); 0
+    /// otherwise.
     pub detail: u8,
     /// For [`StopCause::Stopped`]: the sender's IPv4 address; zeros otherwise.
     pub from_ip: [u8; 4],

@@ -140,7 +140,9 @@ fn command_fields(cmd: &Command<'_>) -> Value {
         // Not in the shared golden file either (issue 23).
         Command::SetEnable { mask, enable } => json!({ "mask": mask, "enable": enable }),
         Command::StatusWith(ask) => json!({ "ask": ask.byte() }),
-        Command::Release | Command::LimitsGet | Command::LimitsGetWithAccel => json!({}),
+        Command::Release | Command::LimitsGet | Command::LimitsGetWithAccel | Command::Unlock => {
+            json!({})
+        }
         Command::AccelSet {
             joint,
             max_accel_steps_s2,
@@ -438,8 +440,9 @@ fn vectors_cover_every_command_and_report() {
         .filter(|t| !matches!(t, Tag::Auth | Tag::Hello | Tag::SetKey | Tag::HelloReply))
         // Issue 23's wire tools as well: protocol/tests/wire_tools.rs.
         .filter(|t| !ISSUE_23_TAGS.contains(t))
-        // Issue 31's STOP_CAUSE report and ACCEL_SET as well: protocol/tests/stop_cause.rs.
-        .filter(|t| !matches!(t, Tag::StopCause | Tag::AccelSet))
+        // Issue 31's STOP_CAUSE report and ACCEL_SET, issue 33's UNLOCK as well:
+        // protocol/tests/stop_cause.rs, protocol/tests/switches.rs.
+        .filter(|t| !matches!(t, Tag::StopCause | Tag::AccelSet | Tag::Unlock))
         .filter(|t| !commands.contains(t))
         .map(Tag::name)
         .collect();

@@ -451,6 +451,8 @@ fn spawn_tasks(spawner: Spawner, wiring: Wiring) {
             .estop_input
             .as_ref()
             .map(|_| -> &'static arm_core::EStopLine { &crate::estop::LINE }),
+        // The simulator's switch model is to come (issue 33): no switches yet.
+        switches: None,
     };
     let sim_halt = || SimHalt {
         steps: HaltSteps { step: shared, kick },

@@ -122,6 +122,7 @@ impl VirtualBoard {
             settings,
             encoders: board.encoders.clone(),
             estop: None,
+            switches: None,
         };
         let (motors, tracer) = (board.motors.clone(), board.tracer.clone());
         let tasks = async move {

@@ -39,7 +39,7 @@ local tag_names = {
     [0x14] = "ACK", [0x15] = "STATUS", [0x16] = "UPLOAD_PERIOD", [0x17] = "ESTOP_RESET",
     [0x18] = "SET_ENABLE", [0x19] = "RELEASE", [0x1a] = "LIMITS_SET", [0x1b] = "LIMITS_GET",
     [0x1c] = "LIMITS", [0x1d] = "STOP_CAUSE", [0x1e] = "ACCEL_SET",
-    [0x20] = "DISCOVER", [0x21] = "NET_SET", [0x22] = "DISCOVER_REPLY",
+    [0x20] = "DISCOVER", [0x21] = "NET_SET", [0x22] = "DISCOVER_REPLY", [0x25] = "UNLOCK",
     [0x50] = "AUTH", [0x51] = "HELLO", [0x52] = "SET_KEY", [0x53] = "HELLO_REPLY",
 }
 -- Names that depend on the direction.
@@ -53,6 +53,7 @@ local status_names = {
     [5] = "OUT_OF_ORDER", [6] = "TOO_MANY_POINTS", [7] = "INVALID_POINT", [8] = "BUFFER_FULL",
     [9] = "NOT_OWNER", [10] = "UNSUPPORTED", [11] = "INVALID_CONFIG", [12] = "ESTOP_LATCHED",
     [13] = "AUTH_REQUIRED", [14] = "AUTH_FAILED", [15] = "SAVE_FAILED",
+    [16] = "LIMIT_LATCHED",
 }
 
 local crc_status_names = { [0] = "Bad", [1] = "Good", [2] = "Unverified" }

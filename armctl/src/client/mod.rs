@@ -580,6 +580,14 @@ impl Client {
         self.send(&Command::EstopReset)
     }
 
+    /// UNLOCK (issue 33): clears the latch a limit switch set (RUNING and RETURN refused
+    /// with `LIMIT_LATCHED` until then). While that switch is still active, points moving
+    /// its joint further into it are refused with `LIMIT_LATCHED`; moving away is accepted.
+    /// `OK` and no effect with nothing latched.
+    pub fn unlock(&self) -> Result<Ack> {
+        self.send(&Command::Unlock)
+    }
+
     /// RETURN: moves every joint to zero. Returns when the controller accepted it; see
     /// [`Client::wait_stopped`] to wait for the end of the move.
     pub fn go_home(&self) -> Result<Ack> {

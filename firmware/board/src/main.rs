@@ -419,6 +419,7 @@ async fn main(spawner: Spawner) -> ! {
             settings,
             encoders,
             estop: Some(&estop::LINE),
+            switches: None,
         },
     ));
 

@@ -292,6 +292,9 @@ pub struct Controller<const CAP: usize> {
     serial_to: Option<Endpoint>,
     /// STATUS `more_flags`.
     more_flags: MoreFlags,
+    /// The limit switches' latch and "away only" rule (issue 33; never set on a board
+    /// without limit switches: nothing changes for it).
+    hard_limits: crate::switches::Limits,
     reports_on: bool,
     upload_period_us: u32,
     enabled: u16,
@@ -968,6 +971,14 @@ impl<const CAP: usize> Controller<CAP> {
                             return Err(StatusCode::InvalidPoint);
                         }
                     };
+                    // After an unlock, never further into a limit switch still active.
+                    let mut steps = [0i64; MAX_JOINTS];
+                    for ((s, &to), &from) in steps.iter_mut().zip(&slot.position).zip(&previous) {
+                        *s = i64::from(to) - i64::from(from);
+                    }
+                    if self.hard_limits.check_direction(&steps).is_err() {
+                        return Err(StatusCode::LimitLatched);
+                    }
                     previous = slot.position;
                 }
                 if n > self.buffer.free() {
@@ -986,6 +997,9 @@ impl<const CAP: usize> Controller<CAP> {
                 }
             }
             Command::Runing if self.estop_latched() => return Err(StatusCode::EstopLatched),
+            Command::Runing if self.hard_limits.latched().is_some() => {
+                return Err(StatusCode::LimitLatched);
+            }
             Command::Runing => match self.state {
                 State::Pending => {
                     self.stop = StopReport::COMPLETE;
@@ -1057,7 +1071,18 @@ impl<const CAP: usize> Controller<CAP> {
                 if self.estop_latched() {
                     return Err(StatusCode::EstopLatched);
                 }
+                if self.hard_limits.latched().is_some() {
+                    return Err(StatusCode::LimitLatched);
+                }
                 stopped_only(self)?;
+                // Towards zero, which may be further into a limit switch still active.
+                let mut steps = [0i64; MAX_JOINTS];
+                for (s, &p) in steps.iter_mut().zip(&plant.positions()) {
+                    *s = -i64::from(p);
+                }
+                if self.hard_limits.check_move(&steps).is_err() {
+                    return Err(StatusCode::LimitLatched);
+                }
                 // Every joint in use must be allowed at 0 (LIMITS_SET): refused before
                 // anything moves.
                 // A limp joint away from 0 would not move (issue 31): refused the same way.
@@ -1162,6 +1187,7 @@ impl<const CAP: usize> Controller<CAP> {
             Command::UploadPeriod { period_us } => self.upload_period_us = period_us,
             // Answered in `handle` before the owner rule; never reaches here.
             Command::Discover => {}
+            Command::Unlock => self.hard_limits.unlock(),
             Command::EstopReset => {
                 if self.more_flags.has(MoreFlags::ESTOP_OPEN) {
                     return Err(StatusCode::EstopLatched);
@@ -1336,6 +1362,40 @@ impl<const CAP: usize> Controller<CAP> {
         let before = self.state;
         self.stop_by_host(plant, None);
         (before != self.state && self.reports_on).then(|| self.location(plant))
+    }
+
+    /// A limit switch's event (issue 33, [`crate::switches`]): a trip does what a STOPPED
+    /// does (the caller's edge handler has halted the step outputs already, as the wired
+    /// e-stop's does) and latches (RUNING and RETURN refused `LIMIT_LATCHED` until
+    /// UNLOCK); a release lifts the "away only" rule. Returns a LOCATION report when the
+    /// state changed (reports on).
+    pub fn limit_switch(
+        &mut self,
+        event: crate::switches::SwitchEvent,
+        plant: &mut impl Plant,
+    ) -> Option<Location> {
+        if !self.hard_limits.on_event(event) {
+            return None;
+        }
+        let before = self.state;
+        self.stop_by_host(plant, None);
+        // The stop cause names the switch (issue 31's STOP_CAUSE, detail: the joint, bit 7
+        // for the max side), as stop_by_host's does the input's when a run was cut.
+        if before != State::Stopped
+            && let crate::switches::SwitchEvent::LimitTripped { joint, side, .. } = event
+        {
+            let max = matches!(side, crate::switches::Side::Max);
+            self.stop = StopReport {
+                detail: (joint & 0x7f) | if max { 0x80 } else { 0 },
+                ..StopReport::of(StopCause::LimitSwitch)
+            };
+        }
+        (before != self.state && self.reports_on).then(|| self.location(plant))
+    }
+
+    /// The limit switches' latch and which are active (STATUS's limit detail).
+    pub fn hard_limits(&self) -> &crate::switches::Limits {
+        &self.hard_limits
     }
 
     /// Applies a STOPPED that arrived after the frame just handled but was handled before

@@ -94,6 +94,24 @@ impl EStopLine {
         wake.signal(());
     }
 
+    /// Lifts a halt another stop set ([`crate::switch_line::SwitchLine::resume`]) unless
+    /// this input is open now; under this line's lock, so an opening cannot slip between
+    /// the look and the release.
+    pub fn release_unless_open<
+        const Q: usize,
+        B: StepBackend,
+        M: embassy_sync::blocking_mutex::raw::RawMutex,
+    >(
+        &self,
+        step: &StepShared<Q, B, M>,
+    ) {
+        self.state.lock(|s| {
+            if !s.get().open {
+                step.release();
+            }
+        });
+    }
+
     /// Whether the input is open now.
     pub fn is_open(&self) -> bool {
         self.state.lock(|s| s.get().open)

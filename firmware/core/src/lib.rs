@@ -29,6 +29,10 @@
 //!    comes from [`tasks::upload_task`] (`tasks/upload.rs`), USART_RECV from
 //!    [`tasks::serial_task`] (`tasks/serial.rs`, batching in `serial.rs`).
 //!
+//! Limit and home switches (issue 33): `switches.rs` (debounce, the hard-limit latch),
+//! `switch_line.rs` (edge handler and trajectory task, as `estop_input.rs`), `homing.rs`
+//! (the homing cycle, sans-io; not yet run by a task).
+//!
 //! Also: `config.rs` (capacities and board defaults), `hw.rs` (the hardware traits the
 //! tasks are generic over), `uart.rs` (the USART_START settings the controller accepts:
 //! the board's, for the simulator too), `log_limit.rs` (at most one log line a second),
@@ -95,6 +99,7 @@ pub mod bus;
 pub mod config;
 pub mod controller;
 pub mod estop_input;
+pub mod homing;
 pub mod hw;
 pub mod ingress;
 pub mod link;
@@ -108,6 +113,8 @@ pub mod response;
 pub mod serial;
 pub mod source_share;
 pub mod step_shared;
+pub mod switch_line;
+pub mod switches;
 pub mod tasks;
 #[cfg(feature = "test-support")]
 pub mod test_support;

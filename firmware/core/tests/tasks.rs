@@ -324,6 +324,7 @@ fn test_hw<'a, E: Encoders>(
         settings,
         encoders,
         estop: None,
+        switches: None,
     }
 }
 
@@ -1569,6 +1570,134 @@ fn the_wired_input_stops_the_steps_at_once_and_the_task_latches_the_controller()
             Some(StatusCode::Ok)
         );
         until("pulses again", || pins.borrow().pulses > pulses + 2).await;
+    };
+    block_on(select(tasks, driver));
+}
+
+/// Issue 33: a limit switch. Its edge handler (`SwitchLine::edge`) stops the steps itself
+/// (no task has run when it returns); the trajectory task then latches the controller:
+/// RUNING refused LIMIT_LATCHED; after UNLOCK, an upload further into the switch is
+/// refused and one away from it runs; once the switch has read released for its debounce
+/// time, further in is accepted again.
+#[test]
+fn a_limit_switch_stops_the_steps_at_once_and_the_task_latches_until_unlock() {
+    use arm_core::switch_line::SwitchLine;
+    use arm_core::switches::{InputConfig, Switch, SwitchConfig};
+
+    let fx = Fixture::new();
+    let kick = TestKick::new(&fx.clock);
+    let mut controller = controller_32();
+    let socket = TestSocket::default();
+    let pins = RefCell::new(TestPins::default());
+    let mut config = SwitchConfig::NONE;
+    // Normally closed, pull-up: active reads high. 2 ms debounce.
+    config.inputs[0].max = InputConfig {
+        fitted: true,
+        active_high: true,
+        debounce_us: 2_000,
+    };
+    let line = SwitchLine::new(config);
+    let hw = TrajectoryHw {
+        switches: Some(&line),
+        ..test_hw(
+            &kick,
+            &fx.outputs,
+            &fx.serial,
+            TestSettings(None),
+            NoEncoders,
+        )
+    };
+    let isr = step_interrupt(&kick, &fx.step, &pins, &fx.bus);
+    let tasks = join3(
+        network_task(&socket, &fx.bus, &fx.clock),
+        controller_task(
+            &mut controller,
+            &fx.bus,
+            &fx.step,
+            &fx.clock,
+            hw,
+            &Unwatched,
+        ),
+        isr,
+    );
+    let send = |seq: u8, cmd: Command<'_>| {
+        socket
+            .incoming
+            .borrow_mut()
+            .push_back((frame(seq, cmd), HOST));
+    };
+    // One point of `steps` on joint 0 from `from`, 1 ms a step.
+    let upload = |first_seq: u8, from: i32, steps: i32| {
+        let mut a = [0; MAX_JOINTS];
+        let mut b = [0; MAX_JOINTS];
+        a[0] = from;
+        b[0] = from + steps;
+        let pts = [Point::from_motion(steps.abs() * 1_000, &a, &b)];
+        send(first_seq, Command::New { count: 1 });
+        send(first_seq + 1, Command::Pending(PointList::Points(&pts)));
+    };
+    let acked = |seq: u8| last_ack(&socket, seq).map(|a| a.status);
+    let driver = async {
+        upload(1, 0, 10_000);
+        send(3, Command::Runing);
+        until("a few pulses", || pins.borrow().pulses >= 3).await;
+
+        let at = fx.clock.peek_us();
+        let position = fx.step.positions()[0];
+        line.edge(
+            0,
+            Switch::Max,
+            true,
+            position,
+            at,
+            &fx.step,
+            &kick,
+            &fx.bus.step_progress,
+        );
+        assert!(!fx.step.with_engine(|e| e.is_running()), "halted at once");
+        let pulses = pins.borrow().pulses;
+
+        upload(4, position, -5);
+        send(6, Command::Runing);
+        until("RUNING's ACK", || acked(6).is_some()).await;
+        assert_eq!(acked(6), Some(StatusCode::LimitLatched));
+        assert_eq!(pins.borrow().pulses, pulses, "no pulse while latched");
+
+        send(7, Command::Unlock);
+        until("UNLOCK's ACK", || acked(7).is_some()).await;
+        assert_eq!(acked(7), Some(StatusCode::Ok));
+        // Further in: refused at PENDING.
+        upload(8, position, 5);
+        until("PENDING's ACK", || acked(9).is_some()).await;
+        assert_eq!(acked(9), Some(StatusCode::LimitLatched));
+        // Away: taken and run.
+        upload(10, position, -5);
+        send(12, Command::Runing);
+        until("RUNING's ACK", || acked(12).is_some()).await;
+        assert_eq!(acked(12), Some(StatusCode::Ok));
+        until("jogged away", || fx.step.positions()[0] == position - 5).await;
+
+        // The switch opens; after its debounce time further in is accepted again.
+        let opened = fx.clock.peek_us();
+        line.edge(
+            0,
+            Switch::Max,
+            false,
+            position - 3,
+            opened,
+            &fx.step,
+            &kick,
+            &fx.bus.step_progress,
+        );
+        until("debounced", || fx.clock.peek_us() > opened + 2_000).await;
+        fx.bus.step_progress.signal(());
+        until("released", || {
+            fx.clock.peek_us() > opened + 4_000 && !line.is_active(0, Switch::Max)
+        })
+        .await;
+        upload(13, position - 5, 5);
+        until("PENDING's ACK", || acked(14).is_some()).await;
+        assert_eq!(acked(14), Some(StatusCode::Ok));
     };
     block_on(select(tasks, driver));
 }

@@ -228,6 +228,7 @@ fn main() -> ! {
             // QEMU's mps2-an500 has no input a test could open (README, "On an emulated
             // board"): STATUS shows the wired e-stop input closed.
             estop: None,
+            switches: None,
         },
     )
     // The LAN9118 is up as soon as `Lan9118::new` returned: the network starts at once.

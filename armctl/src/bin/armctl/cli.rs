@@ -92,6 +92,9 @@ pub enum Cmd {
     /// ESTOP_RESET: clear the wired e-stop input's latch (once the input is closed again);
     /// until then RUNING and RETURN are refused with ESTOP_LATCHED.
     EstopReset,
+    /// UNLOCK: clear the latch a limit switch set; then only motion away from a switch
+    /// still active is accepted, until it opens.
+    Unlock,
     /// RETURN: move every joint to zero.
     Return {
         /// Wait until the move ends.

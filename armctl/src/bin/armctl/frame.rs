@@ -119,6 +119,8 @@ pub enum EncodeCmd {
     },
     /// ESTOP_RESET.
     EstopReset,
+    /// UNLOCK (issue 33).
+    Unlock,
     /// SET_ENABLE MASK (issue 23): `--disable` for limp, else holding.
     SetEnable {
         /// Mask, bits 0-7 joints, 8 gripper (decimal or 0x hex).
@@ -310,6 +312,7 @@ pub fn encode_frame(seq: u8, command: &EncodeCmd) -> Result<String, String> {
         EncodeCmd::Status => Command::Status,
         EncodeCmd::UploadPeriod { us } => Command::UploadPeriod { period_us: *us },
         EncodeCmd::EstopReset => Command::EstopReset,
+        EncodeCmd::Unlock => Command::Unlock,
         EncodeCmd::SetEnable { mask, disable } => Command::SetEnable {
             mask: *mask,
             enable: !*disable,

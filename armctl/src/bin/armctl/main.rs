@@ -166,6 +166,7 @@ fn execute_online(cli: &Cli, arm: &armctl::Client) -> CliResult {
         Cmd::Stop => single::done(arm.stop()),
         Cmd::Release => owner::release(arm),
         Cmd::EstopReset => single::done(arm.estop_reset()),
+        Cmd::Unlock => single::done(arm.unlock()),
         Cmd::Return { wait } => single::go_home(arm, *wait),
         Cmd::Move(args) => motion::execute_move(arm, args),
         Cmd::Jog(args) => motion::execute_jog(arm, args),

@@ -168,6 +168,15 @@ fn small_commands() {
 }
 
 #[test]
+fn unlock_command_and_frame() {
+    assert!(matches!(parse(&["unlock"]).command, Cmd::Unlock));
+    assert_eq!(
+        encode(&["frame", "encode", "--seq", "33", "unlock"]),
+        format!("2125{:02x}", protocol::crc8(&[0x21, 0x25]))
+    );
+}
+
+#[test]
 fn estop_reset_frame_and_the_status_line() {
     assert_eq!(
         encode(&["frame", "encode", "--seq", "25", "estop-reset"]),

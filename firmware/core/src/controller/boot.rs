@@ -46,6 +46,7 @@ macro_rules! with_boot_fields {
         saving: None,
         serial_to: None,
         more_flags: MoreFlags(0),
+        hard_limits: crate::switches::Limits::new(),
         reports_on: true,
         upload_period_us: limits::DEFAULT_UPLOAD_PERIOD_US,
         enabled: ALL_DRIVERS,

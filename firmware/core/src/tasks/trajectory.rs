@@ -22,6 +22,7 @@ use crate::outgoing::{Answer, AnswerReport, Outgoing};
 use crate::plant::Plant;
 use crate::response::{Deferred, Response};
 use crate::step_shared::{START_LEAD_US, StepBackend, StepShared, us_to_ticks};
+use crate::switch_line::SwitchLine;
 
 /// The hardware the trajectory task drives besides the step engine.
 pub struct TrajectoryHw<'a, K, O, G, P, S, E> {
@@ -40,6 +41,9 @@ pub struct TrajectoryHw<'a, K, O, G, P, S, E> {
     /// The wired e-stop input, if the board has one ([`crate::estop_input`]; `None`:
     /// STATUS shows it closed, nothing latches).
     pub estop: Option<&'a EStopLine>,
+    /// The limit and home switches, if the board has them ([`crate::switch_line`];
+    /// `None`: nothing latches on a limit).
+    pub switches: Option<&'a SwitchLine>,
 }
 
 /// [`Plant`] over the shared engine and the hardware.
@@ -160,6 +164,7 @@ where
         mut settings,
         mut encoders,
         estop,
+        switches,
     } = hw;
     match settings.load().await {
         Ok(Some(stored)) => controller.apply_settings(stored),
@@ -209,8 +214,18 @@ where
             serial,
         };
         // The input's stop came first (its handler stopped the steps already); whatever
-        // this event is, it is handled in the state that stop left.
+        // this event is, it is handled in the state that stop left. Likewise a limit
+        // switch's.
         apply_estop_input(controller, estop, bus, &mut plant);
+        apply_switches(
+            controller,
+            switches,
+            estop,
+            step,
+            bus,
+            clock.now_us(),
+            &mut plant,
+        );
         let response = match event {
             Either3::First(d) => {
                 let response = controller.handle(d.from, &d.bytes, clock.now_us(), &mut plant);
@@ -317,6 +332,28 @@ fn apply_estop_input<const CAP: usize>(
     if !sample.open {
         controller.estop_input(false, plant);
     }
+}
+
+/// Brings the controller up to date with the switch inputs: each limit trip stops and
+/// latches it (its edge handler halted the steps already), each release lifts the "away
+/// only" rule; then the line's halt is lifted (the latch refuses runs from here on).
+fn apply_switches<const CAP: usize, const Q: usize, B: StepBackend, M: RawMutex>(
+    controller: &mut Controller<CAP>,
+    switches: Option<&SwitchLine>,
+    estop: Option<&EStopLine>,
+    step: &StepShared<Q, B, M>,
+    bus: &Bus,
+    now_us: u64,
+    plant: &mut impl Plant,
+) {
+    let Some(line) = switches else { return };
+    line.poll(now_us);
+    while let Some(event) = line.take() {
+        if let Some(location) = controller.limit_switch(event, plant) {
+            bus.send(Outgoing::Location(location));
+        }
+    }
+    line.resume(step, estop);
 }
 
 /// Queues what a handled datagram produced.
