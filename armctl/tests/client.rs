@@ -26,6 +26,26 @@ fn options() -> Options {
     }
 }
 
+/// A periodic LOCATION that does not come within the client's wait after a run (a busy
+/// host or controller; `lossless_run_...` failed so once under load, `final_location`
+/// None): the client asks for one with STATUS instead of reporting none.
+#[test]
+fn the_final_location_is_asked_for_when_no_periodic_report_comes() {
+    let faults = Faults {
+        quiet_when_stopped: true,
+        ..Faults::default()
+    };
+    let (_fake, arm) = connected(64, faults);
+    let points = ramp(20, 10, 3000);
+    let report = arm
+        .run_trajectory(&points, &RunOptions::default(), |_| {})
+        .unwrap();
+    assert_eq!(
+        report.final_location.expect("a final LOCATION").position,
+        points.last().unwrap().position
+    );
+}
+
 #[test]
 fn lossless_run_executes_every_point_in_order() {
     let (fake, arm) = connected(64, Faults::default());

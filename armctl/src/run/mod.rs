@@ -283,6 +283,11 @@ impl Client {
             let wait = Duration::from_micros(u64::from(status.upload_period_us) * 3)
                 .max(Duration::from_millis(100));
             report.final_location = recv_cancellable(&locations, wait, cancel)?.ok();
+            // None came in time (a busy host or controller delays the periodic report past
+            // the wait): ask for one (STATUS with a LOCATION), rather than report none.
+            if report.final_location.is_none() {
+                report.final_location = self.glance(false).ok().and_then(|g| g.location);
+            }
         }
         report.total_time = started.elapsed();
         let clean = !status.flags.has(StatusFlags::UNDERRUN)

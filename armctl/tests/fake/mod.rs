@@ -41,6 +41,10 @@ pub struct Faults {
     pub window: u16,
     /// Drops the received datagram with this index (0 = the first), once.
     pub drop_received: Option<usize>,
+    /// No periodic LOCATION once the controller is STOPPED after a run (as a report
+    /// delayed on a busy host or controller past a client's wait): only state changes'
+    /// and asked-for ones.
+    pub quiet_when_stopped: bool,
 }
 
 /// What the fake counted.
@@ -92,6 +96,7 @@ struct Sim {
     counters: Counters,
     last_report: Instant,
     fall_behind_after: Option<u16>,
+    quiet_when_stopped: bool,
     window: u16,
 }
 
@@ -143,6 +148,7 @@ impl Fake {
             counters: Counters::default(),
             last_report: Instant::now(),
             fall_behind_after: faults.fall_behind_after,
+            quiet_when_stopped: faults.quiet_when_stopped,
             window: faults.window,
         }));
         let shutdown = Arc::new(AtomicBool::new(false));
@@ -347,6 +353,10 @@ impl Sim {
         if let Some(location) = response.location {
             self.send_location(location, link);
         }
+        // The LOCATION a STATUS asked for (request byte bit 0), to the asker.
+        if let Some((to, location)) = response.asked_location {
+            self.send_report(&Report::Location(location), address(to), link);
+        }
         if response.deferred == Some(Deferred::ReadEncoders)
             && let Some(location) = self.controller.begin_return(None, &mut self.plant)
         {
@@ -398,7 +408,10 @@ impl Sim {
         }
         let settings = self.controller.report_settings();
         let period = Duration::from_micros(u64::from(settings.upload_period_us));
-        if settings.reports_on && now.duration_since(self.last_report) >= period {
+        let quiet = self.quiet_when_stopped
+            && self.controller.state() == protocol::State::Stopped
+            && self.controller.status(&self.plant).executed > 0;
+        if settings.reports_on && !quiet && now.duration_since(self.last_report) >= period {
             self.last_report = now;
             let location = self.controller.location(&self.plant);
             self.send_location(location, link);
