@@ -33,8 +33,10 @@ use crate::step_shared::{StepBackend, StepShared};
 
 #[cfg(feature = "net-driver")]
 mod driver;
+mod peek;
 #[cfg(feature = "net-driver")]
 pub use driver::GuardedDriver;
+pub use peek::{MAX_RING, RingPeek, RxRingCounters, stop_in_frame};
 
 /// The UDP port whose datagrams the first look judges: the controller's.
 pub const CONTROLLER_PORT: u16 = protocol::PORT;
@@ -171,6 +173,30 @@ impl Bus {
     /// Datagrams [`Bus::receive_first`] shed so far (wrapping).
     pub fn shed(&self) -> u32 {
         self.budgets.lock(|b| b.borrow().shed())
+    }
+
+    /// The board's receive interrupt saw the MAC drop `dropped` frames and find the ring
+    /// full `full` times, and halted the steps for `stops` STOPPEDs, since its last call
+    /// (added, wrapping; see [`RxRingCounters`]).
+    pub fn count_rx_ring(&self, dropped: u32, full: u32, stops: u32) {
+        self.rx_ring.lock(|c| {
+            let RxRingCounters {
+                dropped: d,
+                full: f,
+                stops: s,
+            } = c.get();
+            c.set(RxRingCounters {
+                dropped: d.wrapping_add(dropped),
+                full: f.wrapping_add(full),
+                stops: s.wrapping_add(stops),
+            });
+        });
+    }
+
+    /// What the board's receive interrupt counted so far ([`Bus::count_rx_ring`]); all
+    /// zero on a controller without one (the simulator).
+    pub fn rx_ring(&self) -> RxRingCounters {
+        self.rx_ring.lock(|c| c.get())
     }
 }
 
