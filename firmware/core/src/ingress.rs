@@ -14,6 +14,11 @@
 //!   inbox), and the owner's commands wait behind at most a share of it. A host alone is
 //!   never slowed. What is shed is counted and logged at most once a second.
 //!
+//! On the boards the Ethernet receive interrupt looks first (issue 30 part 4, `peek.rs`):
+//! it halts for a STOPPED the moment its frame lands in the receive ring, before the
+//! runner (in thread mode, behind the ring) gets to it; the runner's look here then
+//! routes it for the controller.
+//!
 //! Halting at the reader is what makes a STOPPED immune to a flood: the queues behind it
 //! may hold many datagrams of other hosts, but the pulses have stopped before the
 //! STOPPED joins any of them. The controller still handles it in its turn (first, from
