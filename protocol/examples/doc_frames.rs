@@ -180,6 +180,7 @@ pub fn doc_frames() -> Vec<DocFrame> {
             Command::StatusWith(protocol::StatusAsk {
                 location: true,
                 look_only: true,
+                counters: false,
             }),
         ),
         command("RELEASE, seq 0x1e", 0x1e, Command::Release),

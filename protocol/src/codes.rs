@@ -154,6 +154,9 @@ wire_code! {
         NetSet = 0x21 => "NET_SET",
         /// The answer to DISCOVER (controller to host).
         DiscoverReply = 0x22 => "DISCOVER_REPLY",
+        /// The receive path's counters, asked for by STATUS's request byte bit 2
+        /// (controller to host; issue 30).
+        RxCounters = 0x24 => "RX_COUNTERS",
         /// An authenticated envelope around a whole frame, both directions
         /// (docs/PROTOCOL.md section 13, [`crate::auth`]).
         Auth = 0x50 => "AUTH",

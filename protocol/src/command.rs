@@ -110,6 +110,9 @@ pub struct StatusAsk {
     /// Bit 1: only look: from a host that does not own the controller, answered read-only
     /// even when the controller is free (it never makes the asker the owner).
     pub look_only: bool,
+    /// Bit 2: an RX_COUNTERS report (the receive path's drops) to the asker too, after
+    /// the STATUS report and the LOCATION (issue 30).
+    pub counters: bool,
 }
 
 impl StatusAsk {
@@ -117,21 +120,25 @@ impl StatusAsk {
     pub const LOCATION: u8 = 1 << 0;
     /// Bit 1.
     pub const LOOK_ONLY: u8 = 1 << 1;
+    /// Bit 2.
+    pub const COUNTERS: u8 = 1 << 2;
 
     /// The byte on the wire.
     pub const fn byte(self) -> u8 {
         (if self.location { Self::LOCATION } else { 0 })
             | (if self.look_only { Self::LOOK_ONLY } else { 0 })
+            | (if self.counters { Self::COUNTERS } else { 0 })
     }
 
     /// The request of a byte, `None` with other bits set.
     pub const fn from_byte(b: u8) -> Option<StatusAsk> {
-        if b & !(Self::LOCATION | Self::LOOK_ONLY) != 0 {
+        if b & !(Self::LOCATION | Self::LOOK_ONLY | Self::COUNTERS) != 0 {
             return None;
         }
         Some(StatusAsk {
             location: b & Self::LOCATION != 0,
             look_only: b & Self::LOOK_ONLY != 0,
+            counters: b & Self::COUNTERS != 0,
         })
     }
 }
@@ -424,7 +431,8 @@ impl<'a> Command<'a> {
             | Tag::DiscoverReply
             | Tag::HelloReply
             | Tag::Auth
-            | Tag::Limits => {
+            | Tag::Limits
+            | Tag::RxCounters => {
                 return Err(err(DecodeErrorKind::WrongDirection));
             }
             Tag::LimitsSet => {

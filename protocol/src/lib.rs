@@ -26,6 +26,7 @@ mod joint_limits;
 pub mod limits;
 mod net;
 mod report;
+mod rx_counters;
 mod types;
 
 pub use codes::{State, StatusCode, Tag};
@@ -36,6 +37,7 @@ pub use joint_limits::{JointLimits, LimitsReport, LimitsSet, Refusal, RefusalRea
 pub use limits::DEFAULT_WINDOW;
 pub use net::{DiscoverReply, NetSettings, OwnerState};
 pub use report::Report;
+pub use rx_counters::RxCounters;
 pub use types::{
     Ack, Location, MoreFlags, Point, Pwm, StatusFlags, StatusReport, UartInit, UartMode,
 };
@@ -87,6 +89,8 @@ pub mod size {
     pub const LIMITS_SET: usize = 16;
     /// LIMITS report data: 8 joints' limits (12 bytes each), the last refusal (16).
     pub const LIMITS: usize = 12 * crate::MAX_JOINTS + 16;
+    /// RX_COUNTERS data: six u32 counters.
+    pub const RX_COUNTERS: usize = 24;
     /// HELLO data: the host's nonce.
     pub const HELLO: usize = crate::auth::NONCE_LEN;
 }

@@ -6,6 +6,7 @@ use crate::codes::{State, StatusCode, Tag};
 use crate::error::{DecodeError, DecodeErrorKind, EncodeError, ExpectedLen, Field};
 use crate::frame::{Frame, open, seal};
 use crate::joint_limits::LimitsReport;
+use crate::rx_counters::RxCounters;
 use crate::types::{Ack, Location, StatusReport};
 use crate::{FRAME_OVERHEAD, MAX_SERIAL_CHUNK, size};
 
@@ -24,6 +25,8 @@ pub enum Report<'a> {
     Status(StatusReport),
     /// Every joint's limits and the last refusal (the answer to LIMITS_GET).
     Limits(LimitsReport),
+    /// The receive path's counters (STATUS's request byte bit 2).
+    RxCounters(RxCounters),
 }
 
 impl<'a> Report<'a> {
@@ -35,6 +38,7 @@ impl<'a> Report<'a> {
             Report::UsartRecv(_) => Tag::UsartRecv,
             Report::Status(_) => Tag::Status,
             Report::Limits(_) => Tag::Limits,
+            Report::RxCounters(_) => Tag::RxCounters,
         }
     }
 
@@ -46,6 +50,7 @@ impl<'a> Report<'a> {
             Report::UsartRecv(_) => size::USART_RECV,
             Report::Status(_) => size::STATUS,
             Report::Limits(_) => size::LIMITS,
+            Report::RxCounters(_) => size::RX_COUNTERS,
         }
     }
 
@@ -71,6 +76,7 @@ impl<'a> Report<'a> {
             }
             Report::Status(status) => status.write(w, 0),
             Report::Limits(limits) => limits.write(w, 0),
+            Report::RxCounters(counters) => counters.write(w, 0),
         })
     }
 
@@ -138,6 +144,10 @@ impl<'a> Report<'a> {
             Some(Tag::Limits) => {
                 exactly(size::LIMITS)?;
                 Report::Limits(LimitsReport::read(data))
+            }
+            Some(Tag::RxCounters) => {
+                exactly(size::RX_COUNTERS)?;
+                Report::RxCounters(RxCounters::read(data))
             }
             Some(_) => return Err(err(DecodeErrorKind::WrongDirection)),
         };

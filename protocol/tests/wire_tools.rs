@@ -97,6 +97,7 @@ fn status_takes_one_request_byte_and_release_none() {
     let look = StatusAsk {
         location: true,
         look_only: true,
+        counters: false,
     };
     let bytes = encode(Command::StatusWith(look), 0x1d);
     assert_eq!(&bytes[..3], &[0x1d, 0x15, 0x03]);
@@ -114,9 +115,10 @@ fn status_takes_one_request_byte_and_release_none() {
             .unwrap_err()
             .kind
     };
-    assert_eq!(kind(&[0x04]), DecodeErrorKind::OutOfRange(Field::StatusAsk));
+    // Bit 2 asks for RX_COUNTERS since issue 30 (this asserted 0x04 refused before).
+    assert_eq!(kind(&[0x08]), DecodeErrorKind::OutOfRange(Field::StatusAsk));
     assert!(matches!(kind(&[0, 0]), DecodeErrorKind::BadLength { .. }));
-    for b in 0..=3u8 {
+    for b in 0..=7u8 {
         assert_eq!(StatusAsk::from_byte(b).map(StatusAsk::byte), Some(b));
     }
     let release = encode(Command::Release, 0x1e);

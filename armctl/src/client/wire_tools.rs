@@ -49,6 +49,7 @@ impl Client {
         let ask = StatusAsk {
             location: true,
             look_only,
+            counters: false,
         };
         let reports = self.status_reports();
         let locations = self.locations();

@@ -988,6 +988,9 @@ impl<const CAP: usize> Controller<CAP> {
                 if ask.location {
                     response.asked_location = Some((from, self.location(plant)));
                 }
+                if ask.counters {
+                    response.asked_counters = Some(from);
+                }
             }
             // The owner gives the controller up: no owner, no report destinations (the
             // next host to speak takes it, as at boot). Only while STOPPED: an upload or
@@ -1105,6 +1108,9 @@ impl<const CAP: usize> Controller<CAP> {
         response.status = Some((from, self.status(plant)));
         if ask.location {
             response.asked_location = Some((from, self.location(plant)));
+        }
+        if ask.counters {
+            response.asked_counters = Some(from);
         }
         response.answer_seq = Some(seq);
         Some(response)

@@ -203,6 +203,20 @@ impl Bus {
     pub fn rx_ring(&self) -> RxRingCounters {
         self.rx_ring.lock(|c| c.get())
     }
+
+    /// The receive path's counters as the RX_COUNTERS report tells them (docs/PROTOCOL.md,
+    /// STATUS's request byte bit 2).
+    pub fn rx_counters(&self) -> protocol::RxCounters {
+        let ring = self.rx_ring();
+        protocol::RxCounters {
+            ring_dropped: ring.dropped,
+            ring_full: ring.full,
+            interrupt_stops: ring.stops,
+            shed: self.shed(),
+            inbox_dropped: self.inbox_drops(),
+            group_ignored: self.ignored_group_datagrams(),
+        }
+    }
 }
 
 /// Where an IPv4/UDP datagram to `port` sits in an Ethernet II frame: its sender and its

@@ -131,6 +131,8 @@ pub enum AnswerReport {
     Location(Location),
     /// A LIMITS report (the answer to LIMITS_GET).
     Limits(LimitsReport),
+    /// An RX_COUNTERS report (STATUS's request byte bit 2, issue 30).
+    RxCounters(protocol::RxCounters),
 }
 
 /// Encodes [`Outgoing`] frames. Reports (everything but ACKs) carry the controller's own
@@ -187,6 +189,7 @@ impl ReportEncoder {
                     AnswerReport::Status(s) => Report::Status(s),
                     AnswerReport::Location(l) => Report::Location(l),
                     AnswerReport::Limits(l) => Report::Limits(l),
+                    AnswerReport::RxCounters(c) => Report::RxCounters(c),
                 },
             ),
             Outgoing::Location(l) => {

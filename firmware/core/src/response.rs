@@ -44,6 +44,9 @@ pub struct Response {
     /// A LOCATION report for the asker alone: STATUS's request byte asked for one (bit 0,
     /// issue 23), whether reports are on or not.
     pub asked_location: Option<(Endpoint, Location)>,
+    /// An RX_COUNTERS report for the asker alone: STATUS's request byte asked for one
+    /// (bit 2, issue 30). The counters are the bus's: the caller fills them in.
+    pub asked_counters: Option<Endpoint>,
     /// A LIMITS report for the endpoint that sent LIMITS_GET (issue 23).
     pub limits: Option<(Endpoint, LimitsReport)>,
     /// `Some(seq)`: [`Response::status`] and [`Response::asked_location`] are a read-only

@@ -506,9 +506,10 @@ fn lengths_and_directions_are_checked() {
         (raw(13, Tag::EstopReset as u8, &[0]), BadLength),
         (raw(6, 0xFF, &[]), UnknownTag),
         (raw(7, Tag::Pending as u8, &[0; 13 * 116]), BadLength),
-        // STATUS takes one request byte (issue 23): bits 0-1 only.
+        // STATUS takes one request byte (issue 23): bits 0-2 only (bit 2, RX_COUNTERS,
+        // since issue 30).
         (raw(8, Tag::Status as u8, &[0, 0]), BadLength),
-        (raw(15, Tag::Status as u8, &[0x04]), InvalidConfig),
+        (raw(15, Tag::Status as u8, &[0x08]), InvalidConfig),
         (raw(16, Tag::Status as u8, &[0x01]), Ok),
         (raw(9, Tag::ToggleEnablePins as u8, &[1]), BadLength),
         (

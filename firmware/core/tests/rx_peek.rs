@@ -212,3 +212,46 @@ fn the_ring_counters_add_up_and_wrap() {
     bus.count_rx_ring(u32::MAX, 0, 0);
     assert_eq!(bus.rx_ring().dropped, 4);
 }
+
+/// STATUS's request byte bit 2 (issue 30): the asker gets an RX_COUNTERS report too, from
+/// the owner's STATUS and from a stranger's read-only one alike, with the bus's counts.
+#[test]
+fn status_bit_2_asks_for_the_receive_counters() {
+    use protocol::StatusAsk;
+    let mut s = Session::<64>::new(64);
+    let ask = StatusAsk {
+        location: false,
+        look_only: false,
+        counters: true,
+    };
+    let r = s.send_raw(HOST, &frame(1, Command::StatusWith(ask)));
+    assert_eq!(r.reply.unwrap().ack.status, protocol::StatusCode::Ok);
+    assert!(r.status.is_some());
+    assert_eq!(r.asked_counters, Some(HOST));
+    assert_eq!(r.answer_seq, None, "the owner's: the report counter");
+    // A stranger while the owner is present: read-only, with its own seq.
+    let r = s.send_raw(OTHER, &frame(9, Command::StatusWith(ask)));
+    assert_eq!(r.asked_counters, Some(OTHER));
+    assert_eq!(r.answer_seq, Some(9));
+    // Without the bit: none, as before.
+    let r = s.send_raw(HOST, &frame(2, Command::Status));
+    assert_eq!(r.asked_counters, None);
+    // What the report carries: the board's ring counts and the first look's.
+    let bus = Bus::new();
+    bus.count_rx_ring(7, 2, 1);
+    let halt = CountingHalt::default();
+    for _ in 0..3 {
+        bus.receive_first(STRANGER, &frame(1, Command::Status), true, 0, &halt);
+    }
+    let c = bus.rx_counters();
+    assert_eq!(
+        (
+            c.ring_dropped,
+            c.ring_full,
+            c.interrupt_stops,
+            c.group_ignored
+        ),
+        (7, 2, 1, 3)
+    );
+    assert_eq!((c.shed, c.inbox_dropped), (0, 0));
+}

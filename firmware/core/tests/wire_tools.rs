@@ -218,6 +218,7 @@ fn status_asks_for_a_location_and_a_look_only_status_never_takes_a_free_controll
     let look = StatusAsk {
         location: true,
         look_only: true,
+        counters: false,
     };
     // Nobody owns it: a look-only STATUS is answered and takes nothing.
     let r = s.send_raw(OTHER, &status_with(5, look));
@@ -236,6 +237,7 @@ fn status_asks_for_a_location_and_a_look_only_status_never_takes_a_free_controll
     let ask = StatusAsk {
         location: true,
         look_only: false,
+        counters: false,
     };
     let r = s.send_raw(HOST, &status_with(6, ask));
     assert_eq!(s.controller.owner().map(|o| o.ip), Some(HOST.ip));
@@ -245,8 +247,9 @@ fn status_asks_for_a_location_and_a_look_only_status_never_takes_a_free_controll
     let r = s.send_raw(HOST, &status_with(7, look));
     assert_eq!(r.answer_seq, None);
     assert_eq!(r.reply.unwrap().ack.status, Ok);
-    // A request byte with other bits: INVALID_CONFIG (to the owner, as any command).
-    let r = s.send_raw(HOST, &raw(8, Tag::Status as u8, &[0x04]));
+    // A request byte with other bits: INVALID_CONFIG (to the owner, as any command). Bit
+    // 2 asks for RX_COUNTERS since issue 30 (this sent 0x04 before).
+    let r = s.send_raw(HOST, &raw(8, Tag::Status as u8, &[0x08]));
     assert_eq!(r.reply.unwrap().ack.status, InvalidConfig);
 }
 

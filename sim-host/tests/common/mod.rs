@@ -83,6 +83,7 @@ pub enum OwnedReport {
     UsartRecv(Vec<u8>),
     Status(StatusReport),
     Limits(protocol::LimitsReport),
+    RxCounters(protocol::RxCounters),
 }
 
 impl Client {
@@ -119,6 +120,7 @@ impl Client {
             Report::UsartRecv(b) => OwnedReport::UsartRecv(b.to_vec()),
             Report::Status(s) => OwnedReport::Status(s),
             Report::Limits(l) => OwnedReport::Limits(l),
+            Report::RxCounters(c) => OwnedReport::RxCounters(c),
         };
         Some((frame.seq, report))
     }
