@@ -183,6 +183,15 @@ pub fn doc_frames() -> Vec<DocFrame> {
                 counters: false,
             }),
         ),
+        command(
+            "STATUS, seq 0x20, with the receive counters (request byte 0x04)",
+            0x20,
+            Command::StatusWith(protocol::StatusAsk {
+                location: false,
+                look_only: false,
+                counters: true,
+            }),
+        ),
         command("RELEASE, seq 0x1e", 0x1e, Command::Release),
         command(
             "LIMITS_SET, seq 0x1f, joint 1: -16000..16000 steps, 4000 steps/s",
@@ -258,6 +267,18 @@ pub fn doc_frames() -> Vec<DocFrame> {
             "LIMITS report, seq 0x2c: joint 1 limited, the last refusal: PENDING seq 0x21, point 3, joint 1 above its max (16100 against 16000)",
             0x2c,
             Report::Limits(limits_example()),
+        ),
+        report(
+            "RX_COUNTERS report, seq 0x2d: the MAC dropped 12 frames (the ring full 3 times), 20 STOPPEDs halted in the receive interrupt, 5,000 datagrams shed",
+            0x2d,
+            Report::RxCounters(protocol::RxCounters {
+                ring_dropped: 12,
+                ring_full: 3,
+                interrupt_stops: 20,
+                shed: 5_000,
+                inbox_dropped: 0,
+                group_ignored: 0,
+            }),
         ),
         report(
             "STATUS report, seq 0x17",
