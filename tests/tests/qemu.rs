@@ -22,7 +22,8 @@ use std::time::{Duration, Instant};
 use armctl::{Client, Error, Options, RunEnd, RunOptions};
 use common::{
     Raw, assert_stays_put, out_of_order_names_the_missing_frame, pins_and_servo_pwm,
-    raw_frames_are_refused, refusals_in_stopped, serial_round_trip, stop_mid_run, sweep,
+    raw_frames_are_refused, refusals_in_stopped, rx_counters_after_stops, serial_round_trip,
+    stop_mid_run, sweep,
 };
 use protocol::{Command, MAX_JOINTS, Point, PointList, State, StatusCode, StatusFlags, Tag};
 use system_tests::qemu::{FAULT_MARKERS, QemuBoard, echo, run_to_exit, unavailable};
@@ -988,67 +989,13 @@ fn a_keyed_board_moves_for_the_key_holder_only() {
 fn the_receive_interrupt_halts_for_stopped_and_rx_counters_tell_it() {
     require_qemu!();
     let mut board = QemuBoard::start();
-    let socket = UdpSocket::bind("127.0.0.1:0").unwrap();
-    socket.connect(board.addr).unwrap();
-    socket
-        .set_read_timeout(Some(Duration::from_millis(100)))
-        .unwrap();
-    let mut buf = [0u8; protocol::MAX_DATAGRAM];
-    let frame = |seq: u8, command: Command| {
-        let mut out = [0u8; 16];
-        let n = command.encode(seq, &mut out).unwrap();
-        out[..n].to_vec()
-    };
-    // Sends `frame` until a report `pick` accepts comes back: bounded, 30 x 1 s.
-    let mut ask = |frame: &[u8], pick: &dyn Fn(protocol::Report) -> bool| -> bool {
-        for _ in 0..30 {
-            socket.send(frame).unwrap();
-            let until = Instant::now() + Duration::from_secs(1);
-            while Instant::now() < until {
-                let Ok(n) = socket.recv(&mut buf) else {
-                    continue;
-                };
-                if protocol::Report::decode(&buf[..n]).is_ok_and(|f| pick(f.body)) {
-                    return true;
-                }
-            }
-        }
-        false
-    };
-    let stops: u32 = 5;
-    for seq in 0..stops {
-        let stop = frame(seq as u8, Command::Stopped);
-        assert!(
-            ask(
-                &stop,
-                &|r| matches!(r, protocol::Report::Ack(a) if a.acked_tag == Tag::Stopped as u8)
-            ),
-            "STOPPED {seq} ACKed"
-        );
-    }
-    let counters = std::cell::Cell::new(None);
-    let status = frame(
-        0x40,
-        Command::StatusWith(protocol::StatusAsk {
-            location: false,
-            look_only: true,
-            counters: true,
-        }),
-    );
-    assert!(
-        ask(&status, &|r| match r {
-            protocol::Report::RxCounters(c) => {
-                counters.set(Some(c));
-                true
-            }
-            _ => false,
-        }),
-        "RX_COUNTERS answered"
-    );
-    let c = counters.get().unwrap();
+    let raw = Raw::new("127.0.0.1:0", board.addr);
+    let stops = 5;
+    let c = rx_counters_after_stops(&raw, stops)
+        .unwrap_or_else(|| panic!("STOPPEDs ACKed and RX_COUNTERS answered\n{}", board.log()));
     println!("qemu: RX_COUNTERS after {stops} STOPPEDs: {c:?}");
     assert!(
-        c.interrupt_stops >= stops,
+        c.interrupt_stops >= u32::from(stops),
         "the interrupt halted for every STOPPED ACKed: {c:?}"
     );
     board.assert_healthy();

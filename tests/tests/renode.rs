@@ -37,7 +37,7 @@ use system_tests::renode::{BOARD, HOSTS, RenodeBoard, ScriptRun, malformed_flood
 mod common;
 use common::{
     Raw, out_of_order_names_the_missing_frame, pins_and_servo_pwm, raw_frames_are_refused,
-    refusals_in_stopped, sweep,
+    refusals_in_stopped, rx_counters_after_stops, sweep,
 };
 
 /// Skips the test, saying what it needs, when Renode (or root) is missing. The message goes
@@ -459,4 +459,26 @@ fn the_time_drivers_timer_matches_a_compare_value_of_zero() {
         0,
         "CC2IF never set with CCR2 = 0: the compare at 0 does not match"
     );
+}
+
+/// Issue 30 part 4 on the NUCLEO firmware: the ETH interrupt (`net::RxPeek`) looks at each
+/// receive descriptor the DMA filled and halts the steps for a STOPPED there; RX_COUNTERS
+/// (STATUS's request byte bit 2) tells how many it halted for and what the MAC dropped.
+/// Every STOPPED ACKed was seen by the interrupt first (the ACK comes from the runner's
+/// path, after it).
+#[test]
+fn the_eth_interrupt_halts_for_stopped_and_rx_counters_tell_it() {
+    require_renode!();
+    let mut board = RenodeBoard::start();
+    let raw = raw(&board, HOSTS[1]);
+    let stops = 5;
+    let c = rx_counters_after_stops(&raw, stops)
+        .unwrap_or_else(|| panic!("STOPPEDs ACKed and RX_COUNTERS answered\n{}", board.log()));
+    note(&format!("RX_COUNTERS after {stops} STOPPEDs: {c:?}"));
+    assert!(
+        c.interrupt_stops >= u32::from(stops),
+        "the ETH interrupt halted for every STOPPED ACKed: {c:?}\n{}",
+        board.log()
+    );
+    board.assert_healthy();
 }
