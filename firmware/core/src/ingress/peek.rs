@@ -35,7 +35,8 @@ pub fn stop_in_frame(frame: &[u8], port: u16) -> bool {
 }
 
 /// Receive buffers the interrupt keeps track of: at most 64 (one bit each). The NUCLEO's
-/// ring has 40 (`RX_PACKETS`); the QEMU board's 8.
+/// ring has 40 (`RX_PACKETS`); the QEMU board's 8 (`RX_RING`; its interrupt fills them
+/// itself, so it needs no [`RingPeek`]).
 pub const MAX_RING: usize = 64;
 
 /// Which receive buffers of a ring of `n` the interrupt has looked at since the MAC (or
