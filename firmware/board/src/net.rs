@@ -35,7 +35,7 @@ use embassy_stm32::{Peri, pac, peripherals};
 use embassy_time::{Duration, Instant, Timer};
 
 use arm_core::config::HOST_WINDOW;
-use arm_core::ingress::{CONTROLLER_PORT, MAX_RING, RingPeek, StepHalt, stop_in_frame};
+use arm_core::ingress::{CONTROLLER_PORT, MAX_RING, RingPeek, StepHalt, stop_signature};
 use embassy_stm32::interrupt::typelevel::{ETH as EthIrq, Handler};
 
 use crate::Irqs;
@@ -208,7 +208,7 @@ fn find_receive_ring() {
 }
 
 /// State only the `ETH` interrupt touches (it never preempts itself).
-struct EthInterruptOnly(UnsafeCell<RingPeek>);
+struct EthInterruptOnly(UnsafeCell<RingPeek<RX_PACKETS>>);
 
 // SAFETY: only `RxPeek::on_interrupt` uses it, and an interrupt never preempts itself.
 unsafe impl Sync for EthInterruptOnly {}
@@ -220,8 +220,9 @@ static PEEK: EthInterruptOnly = EthInterruptOnly(UnsafeCell::new(RingPeek::new()
 ///
 /// At P4, the lowest level: the e-stop input, the DIR changes, the step refills and the
 /// time driver all preempt it, and it takes no lock they wait for but the step lock of
-/// the halt itself (as the runner's look did). Its cost is 40 descriptor reads, and per
-/// new frame the header parse (~100 instructions) and, for a STOPPED only, its CRC.
+/// the halt itself (as the runner's look did). Its cost is 40 descriptor reads and, per
+/// frame waiting in the ring, the header parse (tens of instructions) and, for a STOPPED
+/// only, its CRC.
 pub struct RxPeek;
 
 impl Handler<EthIrq> for RxPeek {
@@ -240,7 +241,9 @@ impl Handler<EthIrq> for RxPeek {
     }
 }
 
-/// Looks at each newly filled receive buffer; halts the steps for a STOPPED. How many.
+/// Looks at every receive buffer the driver owns (see `RingPeek` for why every one, not
+/// only those seen filled: a buffer given back while the ring was full is refilled at
+/// once); halts the steps for a STOPPED. How many new STOPPEDs.
 fn peek_filled_buffers() -> u32 {
     let descriptors = RX_DESCRIPTORS.load(Ordering::Acquire) as usize;
     let buffers = RX_BUFFERS.load(Ordering::Relaxed) as usize;
@@ -253,9 +256,11 @@ fn peek_filled_buffers() -> u32 {
     for i in 0..RX_PACKETS {
         // SAFETY: descriptor `i` of the ring `find_receive_ring` checked; volatile.
         let rdes3 = unsafe { core::ptr::read_volatile((descriptors + i * 16 + 12) as *const u32) };
-        if !ring.newly_filled(i, rdes3 & RDES3_OWN == 0)
-            || rdes3 & (RDES3_FD | RDES3_LD | RDES3_ES | RDES3_CTXT) != RDES3_FD | RDES3_LD
-        {
+        if rdes3 & RDES3_OWN != 0 {
+            ring.given_back(i);
+            continue;
+        }
+        if rdes3 & (RDES3_FD | RDES3_LD | RDES3_ES | RDES3_CTXT) != RDES3_FD | RDES3_LD {
             continue;
         }
         // The frame's bytes are read after its descriptor said it is complete.
@@ -270,9 +275,11 @@ fn peek_filled_buffers() -> u32 {
                 len.min(RX_BUFFER_BYTES),
             )
         };
-        if stop_in_frame(frame, CONTROLLER_PORT) {
+        if let Some(signature) = stop_signature(frame, CONTROLLER_PORT) {
             crate::BoardHalt.halt();
-            stops += 1;
+            if ring.stop_at(i, signature) {
+                stops += 1;
+            }
         }
     }
     stops

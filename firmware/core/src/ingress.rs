@@ -41,7 +41,7 @@ mod driver;
 mod peek;
 #[cfg(feature = "net-driver")]
 pub use driver::GuardedDriver;
-pub use peek::{MAX_RING, RingPeek, RxRingCounters, stop_in_frame};
+pub use peek::{MAX_RING, RingPeek, RxRingCounters, StopSignature, stop_in_frame, stop_signature};
 
 /// The UDP port whose datagrams the first look judges: the controller's.
 pub const CONTROLLER_PORT: u16 = protocol::PORT;

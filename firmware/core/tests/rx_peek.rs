@@ -10,7 +10,8 @@ use std::cell::Cell;
 use arm_core::Bus;
 use arm_core::hw::Endpoint;
 use arm_core::ingress::{
-    Ingress, MAX_RING, RingPeek, RxRingCounters, StepHalt, stop_in_frame, udp_payload,
+    Ingress, MAX_RING, RingPeek, RxRingCounters, StepHalt, stop_in_frame, stop_signature,
+    udp_payload,
 };
 use common::*;
 use protocol::auth::{AuthKey, Direction, seal};
@@ -158,40 +159,36 @@ fn bad_frames_never_panic_and_agree_with_the_runners_look() {
 }
 
 #[test]
-fn each_filled_buffer_is_looked_at_once_per_fill() {
-    let mut ring = RingPeek::new();
-    // The MAC fills 0 and 1: both new, once.
-    assert!(ring.newly_filled(0, true));
-    assert!(ring.newly_filled(1, true));
-    assert!(!ring.newly_filled(0, true));
-    assert!(!ring.newly_filled(1, true));
-    assert!(!ring.newly_filled(2, false));
-    // The runner gives 0 back; the MAC fills it again: new again.
-    assert!(!ring.newly_filled(0, false));
-    assert!(ring.newly_filled(0, true));
-    assert!(!ring.newly_filled(1, true));
-    // The whole ring goes round: each buffer once per fill.
-    for round in 0..3 {
-        for i in 0..MAX_RING {
-            assert!(
-                !ring.newly_filled(i, false),
-                "round {round} buffer {i} given back"
-            );
-        }
-        for i in 0..MAX_RING {
-            assert!(
-                ring.newly_filled(i, true),
-                "round {round} buffer {i} filled"
-            );
-            assert!(
-                !ring.newly_filled(i, true),
-                "round {round} buffer {i} again"
-            );
-        }
-    }
-    // Beyond what it tracks: never looked at, never a panic.
-    for i in [MAX_RING, MAX_RING + 1, usize::MAX] {
-        assert!(!ring.newly_filled(i, true));
+fn each_stopped_is_counted_once_per_buffer_it_lands_in() {
+    let a = udp_frame(HOST, PORT, &frame(1, Command::Stopped));
+    let b = udp_frame(STRANGER, PORT, &frame(1, Command::Stopped));
+    let sig = |f: &[u8]| stop_signature(f, PORT).expect("a STOPPED");
+    assert_ne!(sig(&a), sig(&b), "another sender's STOPPED is another");
+    assert_ne!(
+        sig(&a),
+        sig(&udp_frame(HOST, PORT, &frame(2, Command::Stopped))),
+        "another seq is another"
+    );
+    assert_eq!(
+        stop_signature(&udp_frame(HOST, PORT, &frame(1, Command::Status)), PORT),
+        None
+    );
+    let mut ring = RingPeek::<40>::new();
+    // The interrupt looks at buffer 3 three times while the runner is busy: one count.
+    assert!(ring.stop_at(3, sig(&a)));
+    assert!(!ring.stop_at(3, sig(&a)));
+    assert!(!ring.stop_at(3, sig(&a)));
+    // The runner gave buffer 3 back and the MAC filled it with another STOPPED before
+    // the interrupt saw it empty (a full ring, Renode's synchronous refill): counted.
+    assert!(ring.stop_at(3, sig(&b)));
+    // Given back, then the same bytes again (a panel's fixed frame): counted again.
+    ring.given_back(3);
+    assert!(ring.stop_at(3, sig(&b)));
+    // Buffers are independent; beyond the ring: never counted, never a panic.
+    assert!(ring.stop_at(4, sig(&b)));
+    for i in [40, MAX_RING, usize::MAX] {
+        assert!(!ring.stop_at(i, sig(&a)));
+        ring.given_back(i);
     }
 }
 

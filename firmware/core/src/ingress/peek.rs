@@ -18,8 +18,8 @@
 //! gets no early look (verifying its MAC needs the controller's sessions) and stops the
 //! arm when the controller handles it, as before.
 //!
-//! [`RingPeek`] says which buffers are newly filled, from what the interrupt reads of the
-//! ring's ownership bits: sans-io, so the bookkeeping is tested on the host.
+//! [`RingPeek`] counts each STOPPED once however often the interrupt looks at its buffer:
+//! sans-io, so the bookkeeping is tested on the host.
 //! [`RxRingCounters`] holds what the boards count about their receive ring (frames the MAC
 //! dropped for want of a free buffer, the times it found none, STOPPEDs the interrupt
 //! halted for).
@@ -34,53 +34,72 @@ pub fn stop_in_frame(frame: &[u8], port: u16) -> bool {
     udp_payload(frame, port).is_some_and(|(_, payload)| is_stop(payload))
 }
 
-/// Receive buffers the interrupt keeps track of: at most 64 (one bit each). The NUCLEO's
-/// ring has 40 (`RX_PACKETS`); the QEMU board's 8 (`RX_RING`; its interrupt fills them
-/// itself, so it needs no [`RingPeek`]).
+/// Receive buffers the interrupt keeps track of: at most 64. The NUCLEO's ring has 40
+/// (`RX_PACKETS`); the QEMU board's 8 (`RX_RING`; its interrupt fills them itself, so it
+/// needs no [`RingPeek`]).
 pub const MAX_RING: usize = 64;
 
-/// Which receive buffers of a ring of `n` the interrupt has looked at since the MAC (or
-/// the board's interrupt, on a chip without DMA) last filled them.
-///
-/// The interrupt reads each buffer's ownership and calls [`RingPeek::newly_filled`]: a
-/// buffer the driver owns (filled, not yet taken by the runner) and not looked at yet is
-/// to be looked at now; a buffer the hardware owns again (the runner gave it back) is
-/// forgotten. Each fill raises the interrupt and the runner gives a buffer back only in
-/// thread mode, below it, so a fill is seen before its buffer can go round again; should
-/// the interrupt ever be held off that long, the runner's own look still halts for the
-/// STOPPED (later, as before this).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct RingPeek {
-    /// Bit `i`: buffer `i` was seen filled and looked at.
-    seen: u64,
+/// What tells two STOPPEDs apart: sender address and port, seq and CRC.
+pub type StopSignature = u64;
+
+/// The [`StopSignature`] of an Ethernet II frame carrying a CRC-valid STOPPED to UDP
+/// `port` ([`stop_in_frame`]), `None` for any other frame.
+pub fn stop_signature(frame: &[u8], port: u16) -> Option<StopSignature> {
+    let (from, payload) = udp_payload(frame, port)?;
+    if !is_stop(payload) {
+        return None;
+    }
+    let [a, b, c, d] = from.ip;
+    let [p0, p1] = from.port.to_be_bytes();
+    let seq = payload.first().copied().unwrap_or(0);
+    let crc = payload.last().copied().unwrap_or(0);
+    Some(u64::from_be_bytes([a, b, c, d, p0, p1, seq, crc]))
 }
 
-impl Default for RingPeek {
+/// Which STOPPEDs in a receive ring of `N` buffers the interrupt has halted for.
+///
+/// The interrupt looks at every buffer the driver owns (filled, not yet taken by the
+/// runner) each time it runs, not only at those it saw filled: when the ring was full,
+/// the runner's giving a buffer back lets the MAC fill it again at once, before the
+/// interrupt ran (on Renode within the runner's own register write), so "seen filled
+/// before" does not mean "the same frame". The halt is idempotent; this keeps the count
+/// right: a STOPPED is counted once per buffer it lands in ([`RingPeek::stop_at`]), and a
+/// buffer the hardware owns again is forgotten ([`RingPeek::given_back`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct RingPeek<const N: usize> {
+    /// The STOPPED last counted in each buffer.
+    counted: [Option<StopSignature>; N],
+}
+
+impl<const N: usize> Default for RingPeek<N> {
     fn default() -> Self {
         Self::new()
     }
 }
 
-impl RingPeek {
-    /// Nothing looked at yet.
+impl<const N: usize> RingPeek<N> {
+    /// Nothing counted yet.
     pub const fn new() -> Self {
-        RingPeek { seen: 0 }
+        RingPeek { counted: [None; N] }
     }
 
-    /// Buffer `index` is `filled` (owned by the driver, holding a frame) or not (owned by
-    /// the hardware): whether to look at its frame now. An index at or beyond
-    /// [`MAX_RING`] is never looked at.
-    pub fn newly_filled(&mut self, index: usize, filled: bool) -> bool {
-        let Some(bit) = u32::try_from(index).ok().and_then(|i| 1u64.checked_shl(i)) else {
-            return false;
-        };
-        let new = filled && self.seen & bit == 0;
-        if filled {
-            self.seen |= bit;
-        } else {
-            self.seen &= !bit;
+    /// Buffer `index` is the hardware's again (the runner took its frame).
+    pub fn given_back(&mut self, index: usize) {
+        if let Some(c) = self.counted.get_mut(index) {
+            *c = None;
         }
-        new
+    }
+
+    /// Buffer `index` holds the STOPPED `signature` (the caller halts the steps either
+    /// way): whether it is a new one, to count.
+    pub fn stop_at(&mut self, index: usize, signature: StopSignature) -> bool {
+        match self.counted.get_mut(index) {
+            Some(c) if *c != Some(signature) => {
+                *c = Some(signature);
+                true
+            }
+            _ => false,
+        }
     }
 }
 
