@@ -8,7 +8,18 @@ Waits release the GIL. Motion calls stop what they started: a KeyboardInterrupt 
 error in run(), run_file(), RunHandle.wait() or go_home(), and any exception leaving a
 `with` block while a run or RETURN of this connection may be under way, send STOPPED
 (resent every 100 ms until ACKed, 10 copies at most; a second Ctrl-C ends the wait; not
-ACKed: a RuntimeWarning) before the exception propagates.
+ACKed: a RuntimeWarning) before the exception propagates. A run that fails by itself
+(a refused upload, a stall, a lost link) sends STOPPED from its own thread even when
+nobody waits for it (wait=False).
+
+SIGTERM and SIGHUP (systemd, `docker stop`, `kill`, a closed terminal): from connect()
+on, armctl's handler sends STOPPED to every controller with a run or RETURN of this
+process under way (resent until ACKed; a second signal ends the wait), prints
+`armctl: SIGTERM: STOPPED sent, ...` on stderr, then the process dies of the signal as
+it would have without armctl (no exception, no `finally`: exit status -15 / 143). It is
+installed only where the handler is still SIG_DFL, and only from the main thread: a
+handler of your own, set before or after connect(), is kept; raise from it (e.g.
+sys.exit) and the motion call or `with` block sends STOPPED as for any exception.
 """
 
 from os import PathLike
@@ -59,6 +70,10 @@ class Status(TypedDict):
     enabled: Optional[Enabled]
     """Each driver's ENABLE (None: an older controller, which reports only
     flags['drivers_enabled'], "any")."""
+    stop_cause: Optional[str]
+    """What ended the last run (issue 31): 'COMPLETE', 'STOPPED', 'ESTOP_INPUT', 'UNDERRUN', 'FAULT' (later 'LIMIT_SWITCH', 'HOLD'); None from an older controller."""
+    stopped_by: Optional[str]
+    """From `Arm.status()`: the STOPPED's sender ('127.0.0.2:40001') when stop_cause is 'STOPPED' and the controller tells; else None."""
 
 class JointLimits(TypedDict):
     min: int
@@ -122,7 +137,9 @@ class RunEndedError(ArmctlError):
     """A run ended before every point ran."""
 
     reason: str
-    """'stopped', 'underrun', 'starved' or 'unknown'."""
+    """'stopped', 'estop_input', 'fault', 'underrun', 'starved' or 'unknown'."""
+    stopped_by: Optional[str]
+    """For 'stopped': the STOPPED's sender ('127.0.0.2:40001') if the controller said (issue 31)."""
     executed: Optional[int]
     received: Optional[int]
     """Points the controller had received: more than `executed` means points were still buffered."""
@@ -164,8 +181,15 @@ class Arm:
     def __exit__(self, exc_type: Any = None, exc_value: Any = None, traceback: Any = None) -> bool: ...
     def close(self) -> None: ...
     def status(self) -> Status: ...
+    @overload
     def positions(self) -> npt.NDArray[np.int32]:
         """Joint positions in steps, one per joint in use."""
+    @overload
+    def positions(
+        self, config: Optional[_Path] = None, units: Optional[_Units] = None,
+    ) -> Union[npt.NDArray[np.int32], npt.NDArray[np.float64]]:
+        """With a joint `config`: in `units` (default the config's `units`), float64, as
+        `armctl watch --config` shows them; int32 steps when the units are steps."""
     @overload
     def run(
         self,
@@ -175,10 +199,14 @@ class Arm:
         wait: Literal[True] = True,
         segment_ms: float = 10.0,
         window: Optional[int] = None,
+        units: Optional[_Units] = None,
     ) -> RunReport:
         """Runs through waypoints: `times` (N,) seconds, strictly increasing; `positions`
-        (N, J) steps, or radians with a joint `config` file. Returns the report (wait) or
-        a RunHandle (wait=False)."""
+        (N, J) in `units`: default the joint `config` file's `units` when it states them,
+        else radians with a config (a JointTrajectory's) and steps without; "deg" and
+        "rad" need a config. With a config, joints the arrays leave out hold, and a
+        refusal names the joint as the config does and gives positions in `units` too.
+        Returns the report (wait) or a RunHandle (wait=False)."""
     @overload
     def run(
         self,
@@ -189,6 +217,7 @@ class Arm:
         wait: Literal[False],
         segment_ms: float = 10.0,
         window: Optional[int] = None,
+        units: Optional[_Units] = None,
     ) -> RunHandle: ...
     @overload
     def run(
@@ -199,6 +228,7 @@ class Arm:
         wait: bool = True,
         segment_ms: float = 10.0,
         window: Optional[int] = None,
+        units: Optional[_Units] = None,
     ) -> Union[RunReport, RunHandle]: ...
     @overload
     def run_file(
@@ -269,9 +299,17 @@ class Arm:
         speed: float = 0.5,
     ) -> Optional[RunReport]:
         """Moves one joint (index, or name in `config`) by `by` in `units`."""
+    @overload
     def home(self, timeout: float = 600.0) -> npt.NDArray[np.int32]:
         """RETURN to its end, then the positions (all 0); raises if a joint ended
         elsewhere."""
+    @overload
+    def home(
+        self, timeout: float = 600.0, config: Optional[_Path] = None,
+        units: Optional[_Units] = None,
+    ) -> Union[npt.NDArray[np.int32], npt.NDArray[np.float64]]:
+        """With a joint `config`: positions and the message in `units` (default the
+        config's), joints by name, as `armctl home --config`."""
     def stop(self) -> None:
         """STOPPED: every joint stops at once, the trajectory is dropped."""
     def go_home(self, wait: bool = True, timeout: float = 600.0) -> None:
@@ -368,4 +406,6 @@ def connect(
     key_file: Optional[_Path] = None,
 ) -> Arm:
     """Connects and checks the controller answers STATUS (NoReplyError otherwise).
-    `pcap`: write every datagram to this capture file (for Wireshark)."""
+    `pcap`: write every datagram to this capture file (for Wireshark). From the main
+    thread, installs armctl's SIGTERM/SIGHUP handler where none is set (see the module's
+    doc)."""

@@ -50,6 +50,14 @@ pub(crate) fn status_dict<'py>(py: Python<'py>, s: &StatusReport) -> PyResult<Bo
         more.set_item(name, s.more_flags.has(bit))?;
     }
     d.set_item("more_flags", more)?;
+    // What ended the last run (issue 31, more_flags bits 5-7): "COMPLETE", "STOPPED",
+    // "ESTOP_INPUT", "UNDERRUN", "FAULT", ...; None from an older controller (then only
+    // flags "underrun" and "stopped_by_host" tell). `Arm.status()` fills `stopped_by`.
+    match s.stop_cause() {
+        Some(cause) => d.set_item("stop_cause", cause.name())?,
+        None => d.set_item("stop_cause", py.None())?,
+    }
+    d.set_item("stopped_by", py.None())?;
     // Each driver's ENABLE (issue 23, STATUS more_flags bits 3, 4, 8-15); None from a
     // controller that does not report them.
     match s.drivers_enabled() {

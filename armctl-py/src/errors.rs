@@ -1,5 +1,7 @@
 //! The module's exceptions, and the armctl errors as them (fields as attributes).
 
+use armctl::motion::Units;
+use armctl::trajectory::{ArmConfig, ErrorKind};
 use armctl::{Error, trajectory};
 use pyo3::create_exception;
 use pyo3::exceptions::PyException;
@@ -27,7 +29,7 @@ create_exception!(
     armctl,
     RunEndedError,
     ArmctlError,
-    "A run ended before every point ran: `.reason` is 'stopped', 'underrun', 'starved' or 'unknown'; `.executed` and `.total` count points."
+    "A run ended before every point ran: `.reason` is 'stopped', 'estop_input', 'fault', 'underrun', 'starved' or 'unknown'; `.stopped_by` the STOPPED's sender ('127.0.0.2:40001') if the controller said; `.executed` and `.total` count points."
 );
 create_exception!(
     armctl,
@@ -69,6 +71,7 @@ pub(crate) fn to_py_err(py: Python<'_>, error: Error) -> PyErr {
             executed,
             received,
             total,
+            stopped_by,
         } => {
             let err = RunEndedError::new_err(message);
             let value = err.value(py);
@@ -76,6 +79,8 @@ pub(crate) fn to_py_err(py: Python<'_>, error: Error) -> PyErr {
             let _ = value.setattr("executed", executed);
             let _ = value.setattr("received", received);
             let _ = value.setattr("total", total);
+            // Who sent the STOPPED ("127.0.0.2:40001"), if the controller said (issue 31).
+            let _ = value.setattr("stopped_by", stopped_by.map(|a| a.to_string()));
             err
         }
         Error::Stalled { .. } => StalledError::new_err(message),
@@ -90,4 +95,34 @@ pub(crate) fn to_py_err(py: Python<'_>, error: Error) -> PyErr {
 
 pub(crate) fn trajectory_err(e: trajectory::TrajectoryError) -> PyErr {
     TrajectoryError::new_err(e.to_string())
+}
+
+/// A trajectory refused with a joint config (issue 31): the joint named as the config
+/// names it, and a position out of range given in `units` too (the error speaks steps).
+pub(crate) fn trajectory_err_in(
+    e: trajectory::TrajectoryError,
+    config: &ArmConfig,
+    units: Units,
+) -> PyErr {
+    let joint = e.joint.and_then(|j| config.joints.get(j));
+    let in_units = match (&e.kind, joint) {
+        (ErrorKind::BelowMin { value, limit } | ErrorKind::AboveMax { value, limit }, Some(j))
+            if units != Units::Steps =>
+        {
+            format!(
+                " ({} against a limit of {})",
+                units.show(*value, j),
+                units.show(i64::from(*limit), j)
+            )
+        }
+        (ErrorKind::StartMismatch { current, start }, Some(j)) if units != Units::Steps => {
+            format!(
+                " (starts at {}, the arm is at {})",
+                units.show(*start, j),
+                units.show(i64::from(*current), j)
+            )
+        }
+        _ => String::new(),
+    };
+    TrajectoryError::new_err(format!("{}{in_units}", e.with_joint_names(config)))
 }

@@ -4,8 +4,10 @@
 //! conversion as the `armctl` tool); this crate only converts between Python and Rust
 //! values and decides how blocking calls behave in Python. This file holds the `Arm` class,
 //! `connect`, `discover` and the module; `errors.rs` the exceptions, `dicts.rs` the report
-//! dicts, `run.rs` runs in the background and the LOCATION iterator. How blocking calls
-//! behave:
+//! dicts, `run.rs` runs in the background and the LOCATION iterator, `signals.rs` the
+//! SIGTERM and SIGHUP handler, `units.rs` the config's units. This file is long because
+//! the `Arm` class is one `#[pymethods]` block (one per class without pyo3's
+//! `multiple-pymethods` feature) of thin forwarding methods. How blocking calls behave:
 //!
 //! - every wait (an ACK, a run, a LOCATION report) releases the GIL, so other Python
 //!   threads run meanwhile;
@@ -17,7 +19,9 @@
 //!   this connection started may be under way sends STOPPED;
 //! - STOPPED is resent every 100 ms until the controller ACKs it, 10 copies at most
 //!   (`run::stop_arm`); a second Ctrl-C ends that wait; not ACKed, a RuntimeWarning says
-//!   so.
+//!   so;
+//! - SIGTERM and SIGHUP: from `connect()` on, armctl's handler (`signals.rs`) stops every
+//!   run or RETURN of this process under way, then the process dies of the signal.
 //!
 //! The `.pyi` stub beside Cargo.toml (`armctl.pyi`) documents the API for Python users.
 
@@ -26,10 +30,12 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::time::Duration;
 
-use armctl::motion::{JointLimit, MoveSpeed, TargetArg, Units, plan_move, targets_in_steps};
+use armctl::motion::{
+    JointLimit, MoveSpeed, TargetArg, Units, check_targets, plan_move, targets_in_steps,
+};
 use armctl::trajectory::{self, ArmConfig, Waypoints};
 use armctl::{Client, Options, RunOptions};
-use numpy::{PyArray1, PyReadonlyArray1, PyReadonlyArray2};
+use numpy::{PyReadonlyArray1, PyReadonlyArray2};
 use protocol::{Location, MAX_JOINTS, NetSettings, State, StatusReport};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
@@ -51,6 +57,8 @@ macro_rules! set_items {
 mod dicts;
 mod errors;
 mod run;
+mod signals;
+mod units;
 
 use dicts::status_dict;
 use errors::{
@@ -58,6 +66,8 @@ use errors::{
     to_py_err, trajectory_err,
 };
 use run::{Locations, RunHandle, RunState, stop_arm};
+use signals::MotionKind;
+use units::{array_units, parse_units, positions_array, shown_in};
 
 fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
     m.lock().unwrap_or_else(PoisonError::into_inner)
@@ -71,7 +81,7 @@ struct Arm {
     runs: Mutex<Vec<Arc<RunState>>>,
     /// A RETURN started here may still move the arm (not waited to its end): to stop on an
     /// exception in a `with` block.
-    returning: AtomicBool,
+    returning: Arc<AtomicBool>,
     /// What the serial port received since `serial_open` (its stream subscribed before
     /// the USART_START went, so nothing that comes back at once is missed).
     serial: Mutex<Option<std::sync::mpsc::Receiver<Vec<u8>>>>,
@@ -125,8 +135,9 @@ impl Arm {
             window,
             ..RunOptions::default()
         };
-        let handle = RunHandle::start(arm, points, options, joints)?;
+        let handle = RunHandle::start(arm.clone(), points, options, joints)?;
         lock(&self.runs).push(handle.state.clone());
+        signals::register(py, &arm, MotionKind::Run(handle.state.clone()));
         if wait {
             handle.wait_inner(py, None)
         } else {
@@ -160,6 +171,7 @@ impl Arm {
                 ),
             }));
         }
+        let given = run.config.is_some();
         let config = run
             .config
             .unwrap_or_else(|| ArmConfig::unlimited(joints, status.max_step_rate_hz));
@@ -172,7 +184,10 @@ impl Arm {
             &config,
             Some(status.max_step_rate_hz),
         )
-        .map_err(trajectory_err)?;
+        .map_err(|e| match given {
+            true => errors::trajectory_err_in(e, &config, run.units),
+            false => trajectory_err(e),
+        })?;
         self.start_run(py, points, arm_joints, wait, window)
     }
 
@@ -220,6 +235,9 @@ impl Arm {
             .map_err(PyValueError::new_err)?;
         let mut limits = JointLimit::all(&config, Some(status.max_step_rate_hz));
         limits.truncate(joints);
+        // Issue 31: the message names the joint and gives the target in the user's units,
+        // as `armctl move` does (plan_move's own check speaks steps and joint numbers).
+        check_targets(&target, &limits, &config, units).map_err(TrajectoryError::new_err)?;
         let speed = MoveSpeed {
             rate: speed,
             accel: 1.0,
@@ -270,19 +288,13 @@ fn wait_return(py: Python<'_>, arm: &Arc<Client>, deadline: std::time::Instant) 
     }
 }
 
-/// `units="deg"` and the like as [`Units`]; a ValueError names the accepted ones.
-fn parse_units(units: Option<String>) -> PyResult<Option<Units>> {
-    units
-        .map(|u| u.parse())
-        .transpose()
-        .map_err(PyValueError::new_err)
-}
-
 /// A trajectory `run` or `run_file` has read, before it meets the arm.
 struct WaypointRun {
     waypoints: Waypoints,
     /// The joint config, if one was given (else every joint at the arm's step rate).
     config: Option<ArmConfig>,
+    /// What the positions were given in (for messages).
+    units: Units,
     /// The file they were read from (`run_file`), for errors; `None` for numpy arrays.
     file: Option<PathBuf>,
     segment_ms: f64,
@@ -335,33 +347,60 @@ impl Arm {
         Ok(self.controller()?.addr().to_string())
     }
 
-    /// The controller's STATUS report as a dict.
+    /// The controller's STATUS report as a dict. After a run ended by a STOPPED,
+    /// `stopped_by` is its sender ("127.0.0.2:40001") when the controller tells (issue 31:
+    /// one more look-only STATUS, asking for the STOP_CAUSE report).
     fn status<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         let status = self.call(py, |arm| arm.status())?;
-        status_dict(py, &status)
+        let d = status_dict(py, &status)?;
+        if status.stop_cause() == Some(protocol::StopCause::Stopped) {
+            let (_, stop) = self.call(py, |arm| arm.stop_report())?;
+            if let Some(from) = armctl::stopped_by(stop.as_ref()) {
+                d.set_item("stopped_by", from.to_string())?;
+            }
+        }
+        Ok(d)
     }
 
-    /// Joint positions in steps (numpy int32 array, one per joint in use), from a fresh
-    /// LOCATION report: the one a STATUS asks for (issue 23: from any host, read-only
-    /// when another owns the controller), or, from an older controller, a periodic one.
-    fn positions<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray1<i32>>> {
+    /// Joint positions (one per joint in use) from a fresh LOCATION report: the one a
+    /// STATUS asks for (issue 23: from any host, read-only when another owns the
+    /// controller), or, from an older controller, a periodic one. In steps (numpy int32);
+    /// with a `config`, in `units` (default its `units`; float64), as `armctl watch
+    /// --config` shows them (issue 31).
+    #[pyo3(signature = (config=None, units=None))]
+    fn positions<'py>(
+        &self,
+        py: Python<'py>,
+        config: Option<PathBuf>,
+        units: Option<String>,
+    ) -> PyResult<Bound<'py, PyAny>> {
+        let shown = shown_in(config, units)?;
         let glance = self.call(py, |arm| arm.glance(false))?;
         if let Some(location) = glance.location {
             let joints = usize::from(glance.status.joints).clamp(1, MAX_JOINTS);
-            return Ok(PyArray1::from_slice(py, &location.position[..joints]));
+            return Ok(positions_array(
+                py,
+                &location.position[..joints],
+                shown.as_ref(),
+            ));
         }
         let (status, location) = self.before_run(py)?;
         let joints = usize::from(status.joints).clamp(1, MAX_JOINTS);
-        Ok(PyArray1::from_slice(py, &location.position[..joints]))
+        Ok(positions_array(
+            py,
+            &location.position[..joints],
+            shown.as_ref(),
+        ))
     }
 
     /// Runs a trajectory through waypoints: `times` (N,) seconds from the start,
-    /// strictly increasing; `positions` (N, J) in steps, or in radians with `config` (a
-    /// joint config JSON file: steps_per_radian, zero_offset_steps, limits). The arm moves
+    /// strictly increasing; `positions` (N, J) in `units`, by default the `config`'s (a
+    /// joint config JSON file: units, steps_per_radian, zero_offset_steps, limits) when
+    /// it states them, else radians with a config and steps without. The arm moves
     /// from where it is to the first waypoint (at t=0 it must be there already), and
     /// through the rest resampled into `segment_ms` points. `wait=False` returns a
     /// RunHandle at once.
-    #[pyo3(signature = (times, positions, config=None, wait=true, segment_ms=10.0, window=None))]
+    #[pyo3(signature = (times, positions, config=None, wait=true, segment_ms=10.0, window=None, units=None))]
     #[allow(clippy::too_many_arguments)]
     fn run(
         &self,
@@ -372,7 +411,9 @@ impl Arm {
         wait: bool,
         segment_ms: f64,
         window: Option<usize>,
+        units: Option<String>,
     ) -> PyResult<Py<PyAny>> {
+        let units = parse_units(units)?;
         let numpy = py.import("numpy")?;
         let times = numpy.call_method1("ascontiguousarray", (times, "float64"))?;
         let positions = numpy.call_method1("ascontiguousarray", (positions, "float64"))?;
@@ -396,10 +437,13 @@ impl Arm {
                 "{joints} joints: 1 to {MAX_JOINTS}"
             )));
         }
-        let config = config
-            .map(|path| ArmConfig::load(&path))
+        let loaded = config
+            .as_deref()
+            .map(ArmConfig::load)
             .transpose()
             .map_err(trajectory_err)?;
+        let units = array_units(py, units, config.as_deref(), loaded.as_ref())?;
+        let config = loaded;
         let mut times_us = Vec::with_capacity(n);
         for &t in times.iter() {
             if !t.is_finite() {
@@ -414,13 +458,16 @@ impl Arm {
                 if !v.is_finite() {
                     return Err(PyValueError::new_err("positions must be finite"));
                 }
-                // Radians to steps as armctl reads a JointTrajectory with this config.
+                // As armctl reads a CSV (a JointTrajectory: radians) with this config; a
+                // joint past the config's is in steps.
                 steps.push(Some(match &config {
-                    Some(c) => c.joints.get(j).map_or(v, |jc| {
-                        f64::from(jc.zero_offset_steps) + v * jc.steps_per_radian
-                    }),
+                    Some(c) => c.joints.get(j).map_or(v, |jc| units.to_steps(v, jc)),
                     None => v,
                 }));
+            }
+            // Joints of the config the arrays leave out hold, as in a CSV.
+            if let Some(c) = &config {
+                steps.resize(steps.len().max(c.joints.len()), None);
             }
             rows.push(steps);
         }
@@ -434,6 +481,7 @@ impl Arm {
         let run = WaypointRun {
             waypoints,
             config,
+            units,
             file: None,
             segment_ms,
         };
@@ -457,9 +505,20 @@ impl Arm {
         let units = parse_units(units)?;
         let (waypoints, config) =
             trajectory::load_files_in(&path, config.as_deref(), units).map_err(trajectory_err)?;
+        // What the file's positions are in, for messages: a JointTrajectory's radians, a
+        // CSV's `units` (else the config's).
+        let is_json = path
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("json"));
+        let units = match units {
+            _ if is_json => Units::Rad,
+            Some(units) => units,
+            None => config.as_ref().map(|c| c.units).unwrap_or_default(),
+        };
         let run = WaypointRun {
             waypoints,
             config,
+            units,
             file: Some(path),
             segment_ms,
         };
@@ -525,20 +584,43 @@ impl Arm {
     }
 
     /// RETURN and its end (`go_home(wait=True)`), then where the joints are: all 0 unless
-    /// it was stopped. Raises if a joint ended elsewhere.
-    #[pyo3(signature = (timeout=600.0))]
-    fn home<'py>(&self, py: Python<'py>, timeout: f64) -> PyResult<Bound<'py, PyArray1<i32>>> {
+    /// it was stopped. Raises if a joint ended elsewhere. With a `config`, positions and
+    /// the message in `units` (default its `units`) and the joints by name, as `armctl
+    /// home --config` (issue 31).
+    #[pyo3(signature = (timeout=600.0, config=None, units=None))]
+    fn home<'py>(
+        &self,
+        py: Python<'py>,
+        timeout: f64,
+        config: Option<PathBuf>,
+        units: Option<String>,
+    ) -> PyResult<Bound<'py, PyAny>> {
+        let shown = shown_in(config, units)?;
         self.go_home(py, true, timeout)?;
         let (status, location) = self.before_run(py)?;
         let joints = usize::from(status.joints).clamp(1, MAX_JOINTS);
         if let Some(j) = (0..joints).find(|&j| location.position[j] != 0) {
+            let at = location.position[j];
+            let (joint, at) = match shown
+                .as_ref()
+                .and_then(|(c, u)| Some((c, u, c.joints.get(j)?)))
+            {
+                Some((config, units, jc)) => (
+                    armctl::motion::joint_label(config, j),
+                    format!("{} ({at} steps)", units.show(i64::from(at), jc)),
+                ),
+                None => (format!("joint {j}"), format!("{at} steps")),
+            };
             return Err(ArmctlError::new_err(format!(
-                "RETURN ended (state {}) with joint {j} at {} steps, not 0",
+                "RETURN ended (state {}) with {joint} at {at}, not at its zero (0 steps)",
                 status.state.name(),
-                location.position[j]
             )));
         }
-        Ok(PyArray1::from_slice(py, &location.position[..joints]))
+        Ok(positions_array(
+            py,
+            &location.position[..joints],
+            shown.as_ref(),
+        ))
     }
 
     /// STOPPED: stops every joint at once and drops the trajectory (obeyed from anyone).
@@ -554,6 +636,7 @@ impl Arm {
         let arm = self.controller()?;
         self.call(py, |arm| arm.go_home())?;
         self.returning.store(true, Ordering::SeqCst);
+        signals::register(py, &arm, MotionKind::Return(self.returning.clone()));
         if !wait {
             return Ok(());
         }
@@ -948,10 +1031,13 @@ fn connect(
             Ok(arm)
         })
         .map_err(|e| to_py_err(py, e))?;
+    // SIGTERM and SIGHUP stop the arm from here on (issue 30; connect is usually called
+    // from the main thread, the only one that may set signal handlers).
+    signals::install(py);
     Ok(Arm {
         inner: Mutex::new(Some(Arc::new(arm))),
         runs: Mutex::new(Vec::new()),
-        returning: AtomicBool::new(false),
+        returning: Arc::new(AtomicBool::new(false)),
         serial: Mutex::new(None),
     })
 }

@@ -50,7 +50,11 @@ pub(crate) struct RunState {
     outcome: Mutex<Option<Result<RunReport, Error>>>,
     ended: Condvar,
     pub(crate) done: AtomicBool,
-    /// Ends the run thread's upload and waits (it sends nothing: STOPPED is [`stop_arm`]'s).
+    /// The run thread's own STOPPED after the run failed was ACKed (nobody else need send
+    /// one).
+    stopped: AtomicBool,
+    /// Ends the run thread's upload and waits (it then sends nothing: the canceller sends
+    /// STOPPED, [`stop_arm`]).
     pub(crate) cancel: Cancel,
 }
 
@@ -83,6 +87,18 @@ impl RunHandle {
                 let result = thread_arm.run_trajectory(&points, &options, |p| {
                     *lock(&thread_state.progress) = *p;
                 });
+                // Issue 31: a refused upload (or a stall, a lost link) must not leave the
+                // controller PENDING or moving when nobody waits for this run (wait=False,
+                // the handle dropped): STOPPED from here. Not after our own cancel: its
+                // caller sends it. Bounded (10 copies, 1 s), so it is always seen through.
+                if let Err(e) = &result
+                    && !matches!(e, Error::Interrupted)
+                {
+                    let outcome = thread_arm.stop_until_acked(&StopRetry::default(), || false);
+                    thread_state
+                        .stopped
+                        .store(outcome.is_acked(), Ordering::SeqCst);
+                }
                 *lock(&thread_state.outcome) = Some(result);
                 thread_state.done.store(true, Ordering::SeqCst);
                 thread_state.ended.notify_all();
@@ -124,7 +140,9 @@ impl RunHandle {
                         report_dict(py, &report, self.joints).map(|d| d.into_any().unbind())
                     }
                     Err(e) => {
-                        stop_arm(py, &self.arm);
+                        if !self.state.stopped.load(Ordering::SeqCst) {
+                            stop_arm(py, &self.arm);
+                        }
                         Err(to_py_err(py, e))
                     }
                 };

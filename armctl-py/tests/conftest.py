@@ -2,6 +2,12 @@
 
 The simulator binary is $SIM_HOST_BIN, else target/debug/sim-host of this repository
 ($CARGO_TARGET_DIR respected), built with `cargo build -p sim-host` when missing.
+
+The tests run from any directory (issue 31). From the repository root, a Python without
+the package installed imports the Rust crate's folder `armctl/` as a namespace package
+("module 'armctl' has no attribute 'connect'" in every test): `installed_armctl` stops the
+run at once with what to do instead. Child Pythons start in a directory of their own, so
+that `python -c` (which puts its working directory first on sys.path) never sees it.
 """
 
 import os
@@ -16,6 +22,34 @@ import time
 import pytest
 
 ROOT = pathlib.Path(__file__).resolve().parents[2]
+
+
+def installed_armctl():
+    """The armctl extension module, or a clear error if `import armctl` finds nothing or
+    something else (the crate folder as a namespace package, from the repository root)."""
+    what_to_do = (
+        f"it is not installed in this Python ({sys.executable}). Install it "
+        f"(python3 -m pip install ./armctl-py), or run the tests with the Python that has "
+        f"it (.ci/run: target/armctl-py-venv/bin/python -m pytest armctl-py/tests); the "
+        f"tests run from any directory.")
+    try:
+        import armctl
+    except ImportError as e:
+        raise ImportError(f"{e}: {what_to_do}") from e
+    if not hasattr(armctl, "connect"):
+        where = list(getattr(armctl, "__path__", [])) or getattr(armctl, "__file__", "?")
+        raise ImportError(f"`import armctl` found {where}, not the armctl Python package: "
+                          f"{what_to_do}")
+    return armctl
+
+
+try:
+    installed_armctl()
+except ImportError as e:
+    pytest.exit(str(e), returncode=4)
+
+# The working directory of child Pythons: not the caller's (see the module's doc).
+CHILD_CWD = tempfile.gettempdir()
 
 
 def sim_host_bin() -> pathlib.Path:
@@ -74,7 +108,7 @@ def python_child():
     children = []
 
     def start(script: str, *args: str) -> subprocess.Popen:
-        child = subprocess.Popen([sys.executable, "-c", script, *args],
+        child = subprocess.Popen([sys.executable, "-c", script, *args], cwd=CHILD_CWD,
                                  stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         children.append(child)
         return child
@@ -84,6 +118,24 @@ def python_child():
         if child.poll() is None:
             child.kill()
             child.wait()
+
+
+def rising_edges(vcd_path, level="1"):
+    """Rising edges (falling with level="0") per wire name of a sim-host VCD trace, in trace
+    nanoseconds."""
+    names, edges, now = {}, {}, 0
+    with open(vcd_path) as f:
+        for line in f:
+            parts = line.split()
+            if not parts:
+                continue
+            if parts[0] == "$var" and len(parts) >= 5:
+                names[parts[3]] = parts[4]
+            elif line.startswith("#"):
+                now = int(line[1:])
+            elif line[0] == level and line[1:].strip() in names:
+                edges.setdefault(names[line[1:].strip()], []).append(now)
+    return edges
 
 
 def wait_for_line(process: subprocess.Popen, text: str, timeout: float = 20.0) -> str:

@@ -75,7 +75,11 @@ def test_run_handle_progress_wait_and_cancel(sim):
             handle.wait(timeout=10)
         assert ended.value.reason == "stopped"
         assert ended.value.executed < ended.value.total
-        assert arm.status()["flags"]["stopped_by_host"]
+        status = arm.status()
+        assert status["flags"]["stopped_by_host"]
+        # Issue 31: the cause, and the STOPPED's sender (this host).
+        assert status["stop_cause"] == "STOPPED"
+        assert status["stopped_by"] is not None and status["stopped_by"].startswith("127.0.0.1:")
 
 
 def test_refusals_raise_refused_error_with_the_status(sim):
@@ -282,6 +286,26 @@ def test_a_refused_upload_leaves_the_controller_stopped(sim):
         report = arm.run(times, positions)
         assert report["final_positions"][1] == 50
         arm.set_limits(1, min=-2**31, max=2**31 - 1, max_rate_hz=0)
+
+
+def test_a_refused_upload_of_a_run_nobody_waits_for_leaves_the_controller_stopped(sim):
+    """Issue 31: every tool leaves the controller STOPPED after a refused upload. A
+    wait=False run whose handle is never waited (the script goes on, or leaves its `with`
+    block normally) left it PENDING with the points taken before the refusal."""
+    with armctl.connect(sim.address) as arm:
+        arm.set_limits(1, min=-1000, max=50)
+        times = np.arange(400) * 0.01
+        positions = np.zeros((400, 2), dtype=np.int32)
+        positions[:, 1] = np.arange(400) // 4
+        handle = arm.run(times, positions, wait=False)
+        deadline = time.monotonic() + 20
+        while not handle.done:
+            assert time.monotonic() < deadline, "the refused run never ended"
+            time.sleep(0.01)
+        assert arm.status()["state"] == "STOPPED"
+        arm.set_limits(1, min=-2**31, max=2**31 - 1, max_rate_hz=0)
+        with pytest.raises(armctl.RefusedError):
+            handle.wait()
 
 
 def test_enable_disable_release_and_limits(sim):

@@ -10,6 +10,8 @@ import sys
 
 import pytest
 
+from conftest import CHILD_CWD
+
 README = pathlib.Path(__file__).resolve().parents[1] / "README.md"
 STUBS = pathlib.Path(__file__).resolve().parents[1]
 
@@ -38,6 +40,7 @@ def test_mypy_accepts_the_readme_snippets(tmp_path):
 def test_the_readme_snippet_runs_twice(sim):
     code = snippets()[0].replace('"127.0.0.1:8510"', repr(sim.address))
     for run in range(2):
-        child = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+        child = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                               timeout=120, cwd=CHILD_CWD)
         assert child.returncode == 0, f"run {run + 1}:\n{child.stdout}{child.stderr}"
         assert "[0 0 0 0 0 0]" in child.stdout, child.stdout

@@ -65,6 +65,9 @@ pub enum Error {
         received: Option<u16>,
         /// Points in the trajectory.
         total: usize,
+        /// For [`RunEnd::Stopped`]: who sent the STOPPED, if the controller said (issue 31:
+        /// the STOP_CAUSE report; `None` from an older controller).
+        stopped_by: Option<std::net::SocketAddrV4>,
     },
     /// An upload made no progress for too long (every ACK lost, or the buffer never drained).
     Stalled {
@@ -89,8 +92,14 @@ pub enum Error {
 /// Why a run ended early.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum RunEnd {
-    /// Someone sent STOPPED (this host or any other).
+    /// Someone sent STOPPED (this host or any other; `stopped_by` says who when the
+    /// controller tells), or, from a controller older than issue 31, the wired e-stop
+    /// input opened.
     Stopped,
+    /// The wired e-stop input opened (issue 31: a controller that tells it apart).
+    EstopInput,
+    /// The controller found a fault (RETURN's encoder read).
+    Fault,
     /// The buffer ran dry before every point had arrived: every point received had run
     /// (STATUS `received` = `executed` < total), so the upload came too slowly.
     Underrun,
@@ -103,11 +112,14 @@ pub enum RunEnd {
 }
 
 impl RunEnd {
-    /// The reason as one lower-case word (`stopped`, `underrun`, `starved`, `unknown`): what
+    /// The reason as one lower-case word (`stopped`, `estop_input`, `fault`, `underrun`,
+    /// `starved`, `unknown`): what
     /// the Python package's `RunEndedError.reason` says.
     pub fn name(self) -> &'static str {
         match self {
             RunEnd::Stopped => "stopped",
+            RunEnd::EstopInput => "estop_input",
+            RunEnd::Fault => "fault",
             RunEnd::Underrun => "underrun",
             RunEnd::Starved => "starved",
             RunEnd::Unknown => "unknown",
@@ -188,22 +200,35 @@ impl fmt::Display for Error {
                 executed,
                 received,
                 total,
+                stopped_by,
             } => {
-                let why = match reason {
-                    RunEnd::Stopped => "STOPPED was sent (by this host or another)",
-                    RunEnd::Underrun => {
+                let by;
+                let why = match (reason, stopped_by) {
+                    (RunEnd::Stopped, Some(from)) => {
+                        by = format!("STOPPED was sent by {from}");
+                        by.as_str()
+                    }
+                    (RunEnd::Stopped, None) => {
+                        "STOPPED was sent (by this host or another), or the wired e-stop \
+                         input opened (the controller does not say which)"
+                    }
+                    (RunEnd::EstopInput, _) => {
+                        "the wired e-stop input opened (close it, then `armctl estop-reset`)"
+                    }
+                    (RunEnd::Fault, _) => "the controller found a fault",
+                    (RunEnd::Underrun, _) => {
                         "the trajectory buffer ran dry before every point had arrived \
                          (underrun; every point received had run): the upload was too slow; \
                          use a larger window, longer segments, or let RUNING wait for a \
                          full buffer (no --start-after)"
                     }
-                    RunEnd::Starved => {
+                    (RunEnd::Starved, _) => {
                         "the controller reported an underrun although it had points left \
                          to run: it fell behind feeding its step engine (a controller \
                          fault, not the upload's; on the simulator, a loaded machine or a \
                          high --time-scale)"
                     }
-                    RunEnd::Unknown => "the controller left the upload",
+                    (RunEnd::Unknown, _) => "the controller left the upload",
                 };
                 match (executed, received) {
                     (Some(n), Some(r)) => write!(

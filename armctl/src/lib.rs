@@ -42,6 +42,7 @@ pub mod pwm;
 pub mod record;
 mod rtt;
 mod run;
+mod stop;
 pub mod trajectory;
 pub mod vcd;
 
@@ -57,6 +58,7 @@ pub use error::{Error, Result, RunEnd};
 pub use interrupt::{CANCEL_POLL, Cancel, StopOutcome, StopRetry};
 pub use rtt::{DEFAULT_MIN_RTO, DUPLICATE_WINDOW, RESEND_HORIZON, RttEstimator};
 pub use run::{DEFAULT_WINDOW, MAX_POINTS, MAX_WINDOW, Progress, RunOptions, RunReport, window_of};
+pub use stop::{stop_cause_text, stopped_by};
 
 /// Whether `ARMCTL_TRACE` is set: a program that installs a logger then shows every record
 /// of the `armctl` target (an upload's ACKs at `trace`, timeouts and go-back-N resends at

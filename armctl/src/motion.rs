@@ -493,5 +493,50 @@ pub fn targets_in_steps(
     Ok(target)
 }
 
+/// The name a message gives joint `j`: its name in `config`, else `joint j`.
+pub fn joint_label(config: &ArmConfig, j: usize) -> String {
+    match config.joints.get(j).and_then(|c| c.name.as_deref()) {
+        Some(name) => name.to_string(),
+        None => format!("joint {j}"),
+    }
+}
+
+/// Checks `target` (steps) against each joint's range in `limits`; the message names the
+/// joint as the config does and gives the target and the range in `units` (and in steps
+/// beside them), as the user gave them (`armctl move`, `jog`; Python `move_to`, `jog`).
+pub fn check_targets(
+    target: &[i32; MAX_JOINTS],
+    limits: &[JointLimit],
+    config: &ArmConfig,
+    units: Units,
+) -> Result<(), String> {
+    for (j, limit) in limits.iter().enumerate() {
+        if target[j] >= limit.min_steps && target[j] <= limit.max_steps {
+            continue;
+        }
+        let Some(joint) = config.joints.get(j) else {
+            return Err(format!(
+                "joint {j}: target {} steps is outside its range {} to {} steps",
+                target[j], limit.min_steps, limit.max_steps
+            ));
+        };
+        let (in_steps, range_in_steps) = match units {
+            Units::Steps => (String::new(), String::new()),
+            _ => (
+                format!(" ({} steps)", target[j]),
+                format!(" ({} to {} steps)", limit.min_steps, limit.max_steps),
+            ),
+        };
+        return Err(format!(
+            "{}: target {}{in_steps} is outside its range {} to {}{range_in_steps}",
+            joint_label(config, j),
+            units.show(i64::from(target[j]), joint),
+            units.show(i64::from(limit.min_steps), joint),
+            units.show(i64::from(limit.max_steps), joint),
+        ));
+    }
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests;

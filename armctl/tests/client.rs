@@ -232,6 +232,7 @@ fn a_controller_that_falls_behind_is_not_blamed_on_the_upload() {
             executed: Some(executed),
             received: Some(received),
             total: 1000,
+            stopped_by: None,
         } => assert!(
             *executed >= 50 && received > executed && *received < 1000,
             "{err}"
@@ -261,6 +262,7 @@ fn an_upload_slower_than_the_run_is_reported_as_such() {
             executed: Some(executed),
             received: Some(received),
             total: 2000,
+            stopped_by: None,
         } => assert_eq!(executed, received, "{err}"),
         other => panic!("expected RunEnded(Underrun), got {other:?}"),
     }

@@ -48,7 +48,7 @@ use libfuzzer_sys::arbitrary::{Result, Unstructured};
 use libfuzzer_sys::fuzz_target;
 use protocol::{
     Ack, Command, Frame, Location, MAX_DATAGRAM, MAX_JOINTS, Point, PointList, Pwm, Report, State,
-    StatusCode, StatusFlags, StatusReport, Tag, UartInit, crc8,
+    StatusCode, StatusFlags, StatusReport, StopCause, Tag, UartInit, crc8,
 };
 
 /// Compile-time trajectory buffer size (the run-time capacity is 1..=64, from the input).
@@ -344,9 +344,18 @@ impl Harness {
             self.duplicate(&key)
         };
         let owner_before = self.controller.owner().map(|o| o.ip);
-        let r = self
+        let mut r = self
             .controller
             .handle(from, bytes, self.now_us, &mut self.plant);
+        // A command that writes flash: no ACK until its save ended (issue 30), which the
+        // trajectory task does next; here it succeeds at once.
+        if let Some(Deferred::SaveSettings(_)) = r.deferred {
+            assert_eq!(r.reply, None, "an ACK before the save");
+            // (The state it was taken in: a hand-over may have dropped an upload first.)
+            assert_eq!(self.controller.state(), State::Stopped, "a save while not STOPPED");
+            r.reply = self.controller.settings_saved(true, self.now_us);
+            r.executed = r.reply.is_some_and(|a| a.ack.status == StatusCode::Ok);
+        }
         let after = self.snapshot();
         // A new owner (the old one silent 5 s, not running) takes over with any CRC-valid
         // frame, even one it then refuses; an upload the old owner had not started is
@@ -673,6 +682,20 @@ impl Harness {
                     before.status.buffered + n,
                     "points buffered"
                 );
+                // Issue 31: a point that moves a joint whose driver is disabled is never
+                // taken.
+                let enabled = before.status.drivers_enabled().unwrap_or(0x1FF);
+                let joints = usize::from(before.status.joints).min(MAX_JOINTS);
+                let mut previous = self.host_end;
+                for point in points.iter() {
+                    for j in 0..joints {
+                        assert!(
+                            point.position[j] == previous[j] || enabled & (1 << j) != 0,
+                            "a point moving limp joint {j} was taken"
+                        );
+                    }
+                    previous = point.position;
+                }
                 if let Some(last) = points.iter().last() {
                     self.last_taken = Some(last.position);
                     self.host_end = last.position;
@@ -688,6 +711,10 @@ impl Harness {
             Command::Stopped => {
                 assert_eq!(is, State::Stopped);
                 assert!(!self.plant.running && self.plant.queue.is_empty());
+                // Issue 31: a STOPPED that ended something is its cause.
+                if was != State::Stopped {
+                    assert_eq!(after.status.stop_cause(), Some(StopCause::Stopped));
+                }
             }
             Command::Return => {
                 assert_eq!(was, State::Stopped, "RETURN accepted in {was:?}");
@@ -733,6 +760,10 @@ impl Harness {
                     "{:?}",
                     r.deferred
                 );
+            }
+            // Flash writes only while STOPPED (issue 30).
+            Command::SetKey(_) | Command::NetSet(_) => {
+                assert_eq!(was, State::Stopped, "{cmd:?} accepted in {was:?}");
             }
             Command::LimitsGet => {
                 let (_, report) = r.limits.expect("no LIMITS report for LIMITS_GET");
@@ -806,6 +837,13 @@ impl Harness {
             "underrun flag vs points run: {after:?}"
         );
         assert!(!after.flags.has(StatusFlags::STOPPED_BY_HOST));
+        // Issue 31: the stop cause says the same.
+        let cause = if underrun {
+            StopCause::Underrun
+        } else {
+            StopCause::Complete
+        };
+        assert_eq!(after.stop_cause(), Some(cause), "stop cause: {after:?}");
         if underrun {
             return;
         }

@@ -180,16 +180,8 @@ pub fn doc_frames() -> Vec<DocFrame> {
             Command::StatusWith(protocol::StatusAsk {
                 location: true,
                 look_only: true,
+                stop_cause: false,
                 counters: false,
-            }),
-        ),
-        command(
-            "STATUS, seq 0x20, with the receive counters (request byte 0x04)",
-            0x20,
-            Command::StatusWith(protocol::StatusAsk {
-                location: false,
-                look_only: false,
-                counters: true,
             }),
         ),
         command("RELEASE, seq 0x1e", 0x1e, Command::Release),
@@ -206,6 +198,49 @@ pub fn doc_frames() -> Vec<DocFrame> {
             }),
         ),
         command("LIMITS_GET, seq 0x20", 0x20, Command::LimitsGet),
+        command(
+            "ACCEL_SET, seq 0x23, joint 0: 100000 steps/s²",
+            0x23,
+            Command::AccelSet {
+                joint: 0,
+                max_accel_steps_s2: 100_000,
+            },
+        ),
+        command(
+            "LIMITS_GET, seq 0x24, with the accelerations (request byte 0x01)",
+            0x24,
+            Command::LimitsGetWithAccel,
+        ),
+        command(
+            "STATUS, seq 0x22, with the STOP_CAUSE report (request byte 0x04)",
+            0x22,
+            Command::StatusWith(protocol::StatusAsk {
+                location: false,
+                look_only: false,
+                stop_cause: true,
+                counters: false,
+            }),
+        ),
+        command(
+            "STATUS, seq 0x25, with the receive counters (request byte 0x08)",
+            0x25,
+            Command::StatusWith(protocol::StatusAsk {
+                location: false,
+                look_only: false,
+                stop_cause: false,
+                counters: true,
+            }),
+        ),
+        command(
+            "STATUS, seq 0x26, with the STOP_CAUSE and the receive counters (request byte 0x0c)",
+            0x26,
+            Command::StatusWith(protocol::StatusAsk {
+                location: false,
+                look_only: false,
+                stop_cause: true,
+                counters: true,
+            }),
+        ),
         command(
             "SET_ENABLE, seq 0x1c, enable every driver (mask 0x01ff)",
             0x1c,
@@ -269,8 +304,17 @@ pub fn doc_frames() -> Vec<DocFrame> {
             Report::Limits(limits_example()),
         ),
         report(
-            "RX_COUNTERS report, seq 0x2d: the MAC dropped 12 frames (the ring full 3 times), 20 STOPPEDs halted in the receive interrupt, 5,000 datagrams shed",
+            "STOP_CAUSE report, seq 0x2d: the last run ended by a STOPPED from 127.0.0.2, port 40001",
             0x2d,
+            Report::StopCause(protocol::StopReport {
+                from_ip: [127, 0, 0, 2],
+                from_port: 40_001,
+                ..protocol::StopReport::of(protocol::StopCause::Stopped)
+            }),
+        ),
+        report(
+            "RX_COUNTERS report, seq 0x2e: the MAC dropped 12 frames (the ring full 3 times), 20 STOPPEDs halted in the receive interrupt, 5,000 datagrams shed",
+            0x2e,
             Report::RxCounters(protocol::RxCounters {
                 ring_dropped: 12,
                 ring_full: 3,
@@ -313,6 +357,7 @@ fn limits_example() -> protocol::LimitsReport {
         max_rate_hz: 4_000,
     };
     protocol::LimitsReport {
+        max_accel: None,
         joints,
         last_refusal: protocol::Refusal {
             seq: 0x21,

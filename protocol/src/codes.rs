@@ -82,6 +82,7 @@ macro_rules! wire_code {
         }
     };
 }
+pub(crate) use wire_code;
 
 wire_code! {
     /// A frame's tag byte: the command or report it carries. Its name is the command's
@@ -147,6 +148,11 @@ wire_code! {
         LimitsGet = 0x1b => "LIMITS_GET",
         /// Every joint's limits and the last refusal (controller to host).
         Limits = 0x1c => "LIMITS",
+        /// What ended the last run and who sent the STOPPED (controller to host; asked
+        /// for with STATUS's request byte, bit 2; issue 31).
+        StopCause = 0x1d => "STOP_CAUSE",
+        /// Set one joint's most acceleration, steps/s², kept with its limits (issue 31).
+        AccelSet = 0x1e => "ACCEL_SET",
         /// Who is there? Answered by every controller, from any host (PROTOCOL.md,
         /// "Finding controllers and setting their address").
         Discover = 0x20 => "DISCOVER",
@@ -154,7 +160,7 @@ wire_code! {
         NetSet = 0x21 => "NET_SET",
         /// The answer to DISCOVER (controller to host).
         DiscoverReply = 0x22 => "DISCOVER_REPLY",
-        /// The receive path's counters, asked for by STATUS's request byte bit 2
+        /// The receive path's counters, asked for by STATUS's request byte bit 3
         /// (controller to host; issue 30).
         RxCounters = 0x24 => "RX_COUNTERS",
         /// An authenticated envelope around a whole frame, both directions
@@ -222,6 +228,9 @@ wire_code! {
         /// An envelope that did not verify: wrong MAC (another key, or a controller reset
         /// since HELLO), an unknown session, or a counter already used (a replay).
         AuthFailed = 14 => "AUTH_FAILED",
+        /// A command that writes the settings to flash (JOINTS_COUNT, LIMITS_SET, SET_KEY,
+        /// NET_SET) whose save failed: nothing changed (issue 30).
+        SaveFailed = 15 => "SAVE_FAILED",
     }
 }
 
@@ -257,7 +266,7 @@ impl StatusCode {
             OutOfOrder => "a PENDING frame was lost: resend from the ACK's next_seq",
             TooManyPoints => "more points than NEW announced: send NEW with the right count",
             InvalidPoint => {
-                "a point asks for more than the controller's max step rate, or has a duration under 1 us"
+                "a point asks for more than the controller's max step rate or a joint's limits, has a duration under 1 us, or moves a joint whose driver is disabled (LIMITS_GET says which)"
             }
             BufferFull => "the trajectory buffer is full: resend when the ACK's `free` allows",
             NotOwner => {
@@ -275,6 +284,9 @@ impl StatusCode {
             }
             AuthFailed => {
                 "authentication failed: wrong key, or the controller was reset (open a new session with HELLO)"
+            }
+            SaveFailed => {
+                "the controller could not save its settings to flash: nothing changed; retry, and if it keeps failing the flash needs looking at (see the board's log)"
             }
         }
     }

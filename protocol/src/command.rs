@@ -85,6 +85,17 @@ pub enum Command<'a> {
     LimitsSet(LimitsSet),
     /// Ask for the LIMITS report.
     LimitsGet,
+    /// LIMITS_GET with its request byte 0x01 (issue 31): the LIMITS report with each
+    /// joint's `max_accel_steps_s2` after the 112 bytes.
+    LimitsGetWithAccel,
+    /// Set one joint's most acceleration (issue 31), kept with its limits.
+    AccelSet {
+        /// The joint, 0-7.
+        joint: u8,
+        /// Most steps/s² between consecutive segments (docs/PROTOCOL.md, ACCEL_SET);
+        /// 0: none.
+        max_accel_steps_s2: u32,
+    },
     /// STATUS with its request byte (issue 23): what else to answer, and whether a host
     /// that does not own the controller wants only to look.
     StatusWith(StatusAsk),
@@ -98,6 +109,9 @@ pub enum Command<'a> {
     },
 }
 
+/// LIMITS_GET's request byte (issue 31): the LIMITS report with the accelerations.
+const LIMITS_WITH_ACCEL: u8 = 0x01;
+
 /// STATUS's request byte (docs/PROTOCOL.md, STATUS): plain STATUS (no data) asks for
 /// neither.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
@@ -110,8 +124,12 @@ pub struct StatusAsk {
     /// Bit 1: only look: from a host that does not own the controller, answered read-only
     /// even when the controller is free (it never makes the asker the owner).
     pub look_only: bool,
-    /// Bit 2: an RX_COUNTERS report (the receive path's drops) to the asker too, after
-    /// the STATUS report and the LOCATION (issue 30).
+    /// Bit 2: a STOP_CAUSE report (what ended the last run, who sent the STOPPED) to the
+    /// asker too, after the STATUS report and the LOCATION (issue 31).
+    pub stop_cause: bool,
+    /// Bit 3: an RX_COUNTERS report (the receive path's drops) to the asker too, last:
+    /// after the STATUS report, the LOCATION and the STOP_CAUSE (issue 30; bit 2 went to
+    /// issue 31's STOP_CAUSE first).
     pub counters: bool,
 }
 
@@ -121,23 +139,27 @@ impl StatusAsk {
     /// Bit 1.
     pub const LOOK_ONLY: u8 = 1 << 1;
     /// Bit 2.
-    pub const COUNTERS: u8 = 1 << 2;
+    pub const STOP_CAUSE: u8 = 1 << 2;
+    /// Bit 3.
+    pub const COUNTERS: u8 = 1 << 3;
 
     /// The byte on the wire.
     pub const fn byte(self) -> u8 {
         (if self.location { Self::LOCATION } else { 0 })
             | (if self.look_only { Self::LOOK_ONLY } else { 0 })
+            | (if self.stop_cause { Self::STOP_CAUSE } else { 0 })
             | (if self.counters { Self::COUNTERS } else { 0 })
     }
 
     /// The request of a byte, `None` with other bits set.
     pub const fn from_byte(b: u8) -> Option<StatusAsk> {
-        if b & !(Self::LOCATION | Self::LOOK_ONLY | Self::COUNTERS) != 0 {
+        if b & !(Self::LOCATION | Self::LOOK_ONLY | Self::STOP_CAUSE | Self::COUNTERS) != 0 {
             return None;
         }
         Some(StatusAsk {
             location: b & Self::LOCATION != 0,
             look_only: b & Self::LOOK_ONLY != 0,
+            stop_cause: b & Self::STOP_CAUSE != 0,
             counters: b & Self::COUNTERS != 0,
         })
     }
@@ -176,7 +198,8 @@ impl<'a> Command<'a> {
             Command::SetEnable { .. } => Tag::SetEnable,
             Command::Release => Tag::Release,
             Command::LimitsSet(_) => Tag::LimitsSet,
-            Command::LimitsGet => Tag::LimitsGet,
+            Command::LimitsGet | Command::LimitsGetWithAccel => Tag::LimitsGet,
+            Command::AccelSet { .. } => Tag::AccelSet,
             Command::StatusWith(_) => Tag::Status,
         }
     }
@@ -199,6 +222,8 @@ impl<'a> Command<'a> {
             Command::SetEnable { .. } => size::SET_ENABLE,
             Command::StatusWith(_) => 1,
             Command::LimitsSet(_) => size::LIMITS_SET,
+            Command::LimitsGetWithAccel => 1,
+            Command::AccelSet { .. } => size::ACCEL_SET,
             _ => 0,
         }
     }
@@ -254,6 +279,14 @@ impl<'a> Command<'a> {
             Command::LimitsSet(set) => {
                 w.put(0, &[set.joint, 0, 0, 0]);
                 set.limits.write(w, 4);
+            }
+            Command::LimitsGetWithAccel => w.u8(0, LIMITS_WITH_ACCEL),
+            Command::AccelSet {
+                joint,
+                max_accel_steps_s2,
+            } => {
+                w.put(0, &[*joint, 0, 0, 0]);
+                w.u32(4, *max_accel_steps_s2);
             }
             _ => {}
         })
@@ -432,6 +465,7 @@ impl<'a> Command<'a> {
             | Tag::HelloReply
             | Tag::Auth
             | Tag::Limits
+            | Tag::StopCause
             | Tag::RxCounters => {
                 return Err(err(DecodeErrorKind::WrongDirection));
             }
@@ -446,6 +480,21 @@ impl<'a> Command<'a> {
                 }
                 Command::LimitsSet(set)
             }
+            Tag::AccelSet => {
+                exactly(size::ACCEL_SET)?;
+                let joint = u8_at(data, 0);
+                if usize::from(joint) >= crate::MAX_JOINTS {
+                    return Err(out_of_range(Field::JointLimits));
+                }
+                Command::AccelSet {
+                    joint,
+                    max_accel_steps_s2: u32_le(data, 4),
+                }
+            }
+            Tag::LimitsGet if data.len() == 1 => match u8_at(data, 0) {
+                LIMITS_WITH_ACCEL => Command::LimitsGetWithAccel,
+                _ => return Err(out_of_range(Field::LimitsAsk)),
+            },
             Tag::Status if data.len() == 1 => match StatusAsk::from_byte(u8_at(data, 0)) {
                 Some(ask) => Command::StatusWith(ask),
                 None => return Err(out_of_range(Field::StatusAsk)),

@@ -102,8 +102,10 @@ pub enum Field {
     EnableAction,
     /// STATUS's request byte (bits 0 and 1 only).
     StatusAsk,
-    /// LIMITS_SET's joint (0-7) or range (min above max).
+    /// LIMITS_SET's joint (0-7) or range (min above max); ACCEL_SET's joint.
     JointLimits,
+    /// LIMITS_GET's request byte (bit 0 only).
+    LimitsAsk,
 }
 
 impl DecodeError {
@@ -152,10 +154,11 @@ impl fmt::Display for Field {
                 "network settings must be DHCP, or a unicast address with a prefix of 1..32 and a gateway inside its subnet",
             ),
             Field::Owner => f.write_str("unknown owner state"),
-            Field::StatusAsk => f.write_str("STATUS request byte may only use bits 0-2"),
+            Field::StatusAsk => f.write_str("STATUS request byte may only use bits 0-3"),
             Field::JointLimits => {
                 f.write_str("LIMITS_SET needs a joint of 0-7 and min not above max")
             }
+            Field::LimitsAsk => f.write_str("LIMITS_GET request byte may only use bit 0"),
             Field::EnableAction => {
                 f.write_str("SET_ENABLE action must be 0 (disable) or 1 (enable)")
             }

@@ -88,6 +88,15 @@ pub enum RefusalReason {
     StepBudget = 5,
     /// The point's duration is under 1 us (`value`), or its step count does not fit.
     Duration = 6,
+    /// The change of the joint's rate between two consecutive segments exceeds its
+    /// `max_accel_steps_s2` (ACCEL_SET, issue 31; `value` the acceleration asked, `limit`
+    /// the most). docs/PROTOCOL.md, ACCEL_SET, defines it.
+    Acceleration = 8,
+    /// The point moves a joint whose driver is disabled (limp, SET_ENABLE or
+    /// TOGGLE_ENABLE_PINS): its steps would go to a driver that ignores them while the
+    /// controller counts them (issue 31). `value` is the position asked, `limit` where the
+    /// joint is.
+    JointDisabled = 7,
 }
 
 impl RefusalReason {
@@ -100,6 +109,8 @@ impl RefusalReason {
             4 => RefusalReason::BoardRate,
             5 => RefusalReason::StepBudget,
             6 => RefusalReason::Duration,
+            7 => RefusalReason::JointDisabled,
+            8 => RefusalReason::Acceleration,
             _ => RefusalReason::None,
         }
     }
@@ -114,6 +125,8 @@ impl RefusalReason {
             RefusalReason::BoardRate => "steps/s above the controller's max_step_rate_hz",
             RefusalReason::StepBudget => "steps/s of all joints above step_budget_hz",
             RefusalReason::Duration => "duration under 1 us or too many steps",
+            RefusalReason::JointDisabled => "moves a joint whose driver is disabled (limp)",
+            RefusalReason::Acceleration => "steps/s² above the joint's max acceleration",
         }
     }
 }
@@ -148,6 +161,9 @@ pub struct LimitsReport {
     pub joints: [JointLimits; MAX_JOINTS],
     /// The last point refused for a limit since boot (`reason` None: none).
     pub last_refusal: Refusal,
+    /// Each joint's `max_accel_steps_s2` (ACCEL_SET; 0: none), when LIMITS_GET asked for
+    /// them (issue 31: 32 more bytes); `None`: the 112-byte report of old hosts.
+    pub max_accel: Option<[u32; MAX_JOINTS]>,
 }
 
 impl LimitsReport {
@@ -168,6 +184,22 @@ impl LimitsReport {
                 value: i32_le(b, at + 8),
                 limit: i32_le(b, at + 12),
             },
+            max_accel: (b.len() >= crate::size::LIMITS_WITH_ACCEL).then(|| {
+                let mut accel = [0u32; MAX_JOINTS];
+                for (j, a) in accel.iter_mut().enumerate() {
+                    *a = u32_le(b, crate::size::LIMITS + 4 * j);
+                }
+                accel
+            }),
+        }
+    }
+
+    /// Bytes of data: with the accelerations or without.
+    pub fn data_len(&self) -> usize {
+        if self.max_accel.is_some() {
+            crate::size::LIMITS_WITH_ACCEL
+        } else {
+            crate::size::LIMITS
         }
     }
 
@@ -183,6 +215,11 @@ impl LimitsReport {
         );
         w.u32(at + 8, r.value as u32);
         w.u32(at + 12, r.limit as u32);
+        if let Some(accel) = self.max_accel {
+            for (j, a) in accel.iter().enumerate() {
+                w.u32(at + 16 + 4 * j, *a);
+            }
+        }
     }
 }
 

@@ -27,6 +27,7 @@ pub mod limits;
 mod net;
 mod report;
 mod rx_counters;
+mod stop_cause;
 mod types;
 
 pub use codes::{State, StatusCode, Tag};
@@ -38,6 +39,7 @@ pub use limits::DEFAULT_WINDOW;
 pub use net::{DiscoverReply, NetSettings, OwnerState};
 pub use report::Report;
 pub use rx_counters::RxCounters;
+pub use stop_cause::{StopCause, StopReport};
 pub use types::{
     Ack, Location, MoreFlags, Point, Pwm, StatusFlags, StatusReport, UartInit, UartMode,
 };
@@ -89,6 +91,14 @@ pub mod size {
     pub const LIMITS_SET: usize = 16;
     /// LIMITS report data: 8 joints' limits (12 bytes each), the last refusal (16).
     pub const LIMITS: usize = 12 * crate::MAX_JOINTS + 16;
+    /// LIMITS report data when LIMITS_GET asks for the accelerations too (issue 31): the
+    /// 112 bytes, then each joint's `max_accel_steps_s2` (u32).
+    pub const LIMITS_WITH_ACCEL: usize = LIMITS + 4 * crate::MAX_JOINTS;
+    /// ACCEL_SET data: joint, 3 reserved, max_accel_steps_s2 (u32).
+    pub const ACCEL_SET: usize = 8;
+    /// STOP_CAUSE report data: cause, detail, 2 reserved, the STOPPED's sender address
+    /// and port, 2 reserved.
+    pub const STOP_CAUSE: usize = 12;
     /// RX_COUNTERS data: six u32 counters.
     pub const RX_COUNTERS: usize = 24;
     /// HELLO data: the host's nonce.

@@ -7,6 +7,7 @@ use crate::error::{DecodeError, DecodeErrorKind, EncodeError, ExpectedLen, Field
 use crate::frame::{Frame, open, seal};
 use crate::joint_limits::LimitsReport;
 use crate::rx_counters::RxCounters;
+use crate::stop_cause::StopReport;
 use crate::types::{Ack, Location, StatusReport};
 use crate::{FRAME_OVERHEAD, MAX_SERIAL_CHUNK, size};
 
@@ -25,7 +26,9 @@ pub enum Report<'a> {
     Status(StatusReport),
     /// Every joint's limits and the last refusal (the answer to LIMITS_GET).
     Limits(LimitsReport),
-    /// The receive path's counters (STATUS's request byte bit 2).
+    /// What ended the last run (asked for with STATUS's request byte, bit 2; issue 31).
+    StopCause(StopReport),
+    /// The receive path's counters (STATUS's request byte bit 3; issue 30).
     RxCounters(RxCounters),
 }
 
@@ -38,6 +41,7 @@ impl<'a> Report<'a> {
             Report::UsartRecv(_) => Tag::UsartRecv,
             Report::Status(_) => Tag::Status,
             Report::Limits(_) => Tag::Limits,
+            Report::StopCause(_) => Tag::StopCause,
             Report::RxCounters(_) => Tag::RxCounters,
         }
     }
@@ -49,7 +53,8 @@ impl<'a> Report<'a> {
             Report::Location(_) => size::LOCATION,
             Report::UsartRecv(_) => size::USART_RECV,
             Report::Status(_) => size::STATUS,
-            Report::Limits(_) => size::LIMITS,
+            Report::Limits(limits) => limits.data_len(),
+            Report::StopCause(_) => size::STOP_CAUSE,
             Report::RxCounters(_) => size::RX_COUNTERS,
         }
     }
@@ -76,6 +81,7 @@ impl<'a> Report<'a> {
             }
             Report::Status(status) => status.write(w, 0),
             Report::Limits(limits) => limits.write(w, 0),
+            Report::StopCause(stop) => stop.write(w, 0),
             Report::RxCounters(counters) => counters.write(w, 0),
         })
     }
@@ -142,8 +148,17 @@ impl<'a> Report<'a> {
                 )
             }
             Some(Tag::Limits) => {
-                exactly(size::LIMITS)?;
+                if data.len() != size::LIMITS && data.len() != size::LIMITS_WITH_ACCEL {
+                    return Err(err(DecodeErrorKind::BadLength {
+                        expected: ExpectedLen::Either(size::LIMITS, size::LIMITS_WITH_ACCEL),
+                        found: data.len(),
+                    }));
+                }
                 Report::Limits(LimitsReport::read(data))
+            }
+            Some(Tag::StopCause) => {
+                exactly(size::STOP_CAUSE)?;
+                Report::StopCause(StopReport::read(data))
             }
             Some(Tag::RxCounters) => {
                 exactly(size::RX_COUNTERS)?;

@@ -1,5 +1,5 @@
 //! RX_COUNTERS (0x24, controller to host; issue 30 part 4): what the controller's receive
-//! path dropped or did, asked for by bit 2 of STATUS's request byte (docs/PROTOCOL.md,
+//! path dropped or did, asked for by bit 3 of STATUS's request byte (docs/PROTOCOL.md,
 //! STATUS and RX_COUNTERS). A report of its own rather than STATUS fields: every host
 //! decodes STATUS as exactly 36 bytes, so it cannot grow, and these counters are for a
 //! person looking into lost frames, not for every poll.

@@ -346,6 +346,16 @@ impl MoreFlags {
     pub const GRIPPER_ENABLED: u16 = 1 << 4;
     /// Shift of the joints' ENABLE bits: joint j is bit `JOINTS_ENABLED_SHIFT + j`.
     pub const JOINTS_ENABLED_SHIFT: u32 = 8;
+    /// Bits 5-7: what ended the last run, a [`crate::StopCause`] byte (issue 31); 0 from
+    /// an older controller (not reported).
+    pub const STOP_CAUSE_MASK: u16 = 0b111 << Self::STOP_CAUSE_SHIFT;
+    /// Shift of [`MoreFlags::STOP_CAUSE_MASK`].
+    pub const STOP_CAUSE_SHIFT: u32 = 5;
+
+    /// The bits that report `cause`.
+    pub const fn of_stop_cause(cause: crate::StopCause) -> u16 {
+        ((cause as u16) << Self::STOP_CAUSE_SHIFT) & Self::STOP_CAUSE_MASK
+    }
 
     /// The bits that report `enabled` (bits 0-7 joints, bit 8 gripper, as the ENABLE
     /// masks), [`MoreFlags::ENABLES_REPORTED`] included.
@@ -417,6 +427,14 @@ impl StatusReport {
             0
         };
         Some(gripper | (m >> MoreFlags::JOINTS_ENABLED_SHIFT))
+    }
+
+    /// What ended the last run (`more_flags` bits 5-7, issue 31); `None` from a
+    /// controller that does not report it (bits 5-7 all 0): then only `flags` bits 5
+    /// (underrun) and 7 (STOPPED, or the wired e-stop input) are known.
+    pub const fn stop_cause(&self) -> Option<crate::StopCause> {
+        let byte = (self.more_flags.0 & MoreFlags::STOP_CAUSE_MASK) >> MoreFlags::STOP_CAUSE_SHIFT;
+        crate::StopCause::from_u8(byte as u8)
     }
 
     pub(crate) fn read(b: &[u8]) -> Option<StatusReport> {

@@ -140,7 +140,11 @@ fn command_fields(cmd: &Command<'_>) -> Value {
         // Not in the shared golden file either (issue 23).
         Command::SetEnable { mask, enable } => json!({ "mask": mask, "enable": enable }),
         Command::StatusWith(ask) => json!({ "ask": ask.byte() }),
-        Command::Release | Command::LimitsGet => json!({}),
+        Command::Release | Command::LimitsGet | Command::LimitsGetWithAccel => json!({}),
+        Command::AccelSet {
+            joint,
+            max_accel_steps_s2,
+        } => json!({ "joint": joint, "max_accel_steps_s2": max_accel_steps_s2 }),
         Command::LimitsSet(set) => json!({
             "joint": set.joint,
             "min": set.limits.min,
@@ -195,6 +199,7 @@ fn report_fields(report: &Report<'_>) -> Value {
         }),
         // Not in the shared golden file (issue 23): protocol/tests/wire_tools.rs.
         Report::Limits(l) => json!({ "limits": format!("{l:?}") }),
+        Report::StopCause(s) => json!({ "stop_cause": format!("{s:?}") }),
         // Nor this (issue 30): protocol/tests/rx_counters.rs.
         Report::RxCounters(c) => json!({ "rx_counters": format!("{c:?}") }),
     }
@@ -435,6 +440,8 @@ fn vectors_cover_every_command_and_report() {
         .filter(|t| !matches!(t, Tag::Auth | Tag::Hello | Tag::SetKey | Tag::HelloReply))
         // Issue 23's wire tools as well: protocol/tests/wire_tools.rs.
         .filter(|t| !ISSUE_23_TAGS.contains(t))
+        // Issue 31's STOP_CAUSE report and ACCEL_SET as well: protocol/tests/stop_cause.rs.
+        .filter(|t| !matches!(t, Tag::StopCause | Tag::AccelSet))
         // Issue 30's RX_COUNTERS report as well: protocol/tests/rx_counters.rs.
         .filter(|t| *t != Tag::RxCounters)
         .filter(|t| !commands.contains(t))

@@ -97,6 +97,7 @@ fn status_takes_one_request_byte_and_release_none() {
     let look = StatusAsk {
         location: true,
         look_only: true,
+        stop_cause: false,
         counters: false,
     };
     let bytes = encode(Command::StatusWith(look), 0x1d);
@@ -115,10 +116,12 @@ fn status_takes_one_request_byte_and_release_none() {
             .unwrap_err()
             .kind
     };
-    // Bit 2 asks for RX_COUNTERS since issue 30 (this asserted 0x04 refused before).
-    assert_eq!(kind(&[0x08]), DecodeErrorKind::OutOfRange(Field::StatusAsk));
+    // Bit 2 (the STOP_CAUSE report) is defined since issue 31 and bit 3 (RX_COUNTERS)
+    // since issue 30: bit 4 is the first not (this asserted 0x08 refused before).
+    assert_eq!(kind(&[0x10]), DecodeErrorKind::OutOfRange(Field::StatusAsk));
+    assert_eq!(kind(&[0x80]), DecodeErrorKind::OutOfRange(Field::StatusAsk));
     assert!(matches!(kind(&[0, 0]), DecodeErrorKind::BadLength { .. }));
-    for b in 0..=7u8 {
+    for b in 0..=15u8 {
         assert_eq!(StatusAsk::from_byte(b).map(StatusAsk::byte), Some(b));
     }
     let release = encode(Command::Release, 0x1e);
@@ -189,6 +192,7 @@ fn limits_set_get_and_the_limits_report() {
     let mut joints = [JointLimits::NONE; 8];
     joints[1] = set.limits;
     let report = LimitsReport {
+        max_accel: None,
         joints,
         last_refusal: Refusal {
             seq: 0x21,

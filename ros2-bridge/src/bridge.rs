@@ -12,7 +12,8 @@
 //! ```
 //!
 //! The FollowJointTrajectory action (goal, streaming, feedback, cancel, result) is in
-//! `bridge/trajectory.rs`.
+//! `bridge/trajectory.rs`; the joint_states stream (newest sample first) in
+//! `bridge/joint_states.rs`.
 
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::mpsc;
@@ -38,6 +39,7 @@ use crate::msgs::{
     GripperCommandGoal, GripperCommandResult, Time, TriggerRequest, TriggerResponse,
 };
 
+mod joint_states;
 mod trajectory;
 
 type TrajectoryServer = AsyncActionServer<
@@ -59,8 +61,9 @@ const RESULT_WAIT: Duration = Duration::from_secs(10);
 /// 1 ms to 1 s; the bridge asks for 1 ms to 1 s).
 const STALE_LOCATION: Duration = Duration::from_millis(1500);
 
-/// LOCATION reports queued for joint_states at most; older ones are dropped (a stale
-/// joint state is worse than a missing one).
+/// LOCATION reports queued for joint_states at most; older ones are dropped, and the
+/// publisher takes the newest of those queued (`bridge/joint_states.rs`): a stale joint
+/// state is worse than a missing one.
 const SAMPLE_QUEUE: usize = 64;
 
 /// One LOCATION report and the host clock when it arrived.
@@ -309,19 +312,20 @@ impl Bridge {
             .map_err(|e| format!("e-stop service: {e:?}"))?;
         let spinner = node.spinner().map_err(|e| format!("spinner: {e:?}"))?;
 
-        let publish_joint_states = async {
-            while let Ok(sample) = samples.recv().await {
-                let state = goal::joint_state(
-                    &self.names,
-                    &self.arm,
-                    &sample.location.position,
-                    Time::from_system(sample.stamp),
-                );
+        let publish_joint_states = joint_states::publish_samples(&samples, |sample: Sample| {
+            let state = goal::joint_state(
+                &self.names,
+                &self.arm,
+                &sample.location.position,
+                Time::from_system(sample.stamp),
+            );
+            let joint_states = &joint_states;
+            async move {
                 if let Err(e) = joint_states.async_publish(state).await {
                     log::warn!("joint_states: {e:?}");
                 }
             }
-        };
+        });
         let serve_estop = async {
             loop {
                 match estop_server.async_receive_request().await {

@@ -61,6 +61,11 @@ pub struct BridgeConfig {
     /// The arm's joints, joint 0 first (armctl's joint config entries; `name` is the ROS
     /// joint name).
     pub joints: Vec<armctl::trajectory::JointConfig>,
+    /// armctl's display units (`steps`, `deg`, `rad`; issue 31: one file for armctl and
+    /// the bridge, which refused armctl's with "unknown field `units`"). Understood and
+    /// unused: ROS always speaks radians.
+    #[serde(default)]
+    pub units: armctl::motion::Units,
     /// The gripper servo; `None`: no GripperCommand action.
     #[serde(default)]
     pub gripper: Option<GripperConfig>,
@@ -320,6 +325,31 @@ mod tests {
         assert!(RosDistro::Kilted.control_msgs_6() && RosDistro::Rolling.control_msgs_6());
         assert!(!RosDistro::Jazzy.control_msgs_6() && !RosDistro::Humble.control_msgs_6());
         assert!(RosDistro::Jazzy.type_hashes() && !RosDistro::Humble.type_hashes());
+    }
+
+    /// Issue 31: the bridge refused armctl's joint config file ("unknown field `units`");
+    /// one file now serves both.
+    #[test]
+    fn armctl_s_config_file_is_taken() {
+        let armctl_file = r#"{"units": "deg", "joints": [
+            {"name": "base", "steps_per_radian": 5093.0, "min_steps": -16000, "max_steps": 16000,
+             "max_step_rate_hz": 20000, "max_accel_steps_s2": 40000}
+        ]}"#;
+        let (config, arm) = BridgeConfig::parse(armctl_file, "arm.json").unwrap();
+        assert_eq!(config.units, armctl::motion::Units::Deg);
+        assert_eq!(
+            arm,
+            ArmConfig::parse(armctl_file, "arm.json").unwrap_or_else(|e| panic!("{e}"))
+        );
+        let (_, arm) = BridgeConfig::load(std::path::Path::new(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../armctl/examples/arm.json"
+        )))
+        .unwrap();
+        assert_eq!(arm.joints.len(), 6);
+        // Other unknown fields are still refused (a typo must not pass silently).
+        let typo = r#"{"unit": "deg", "joints": [{"name": "a", "max_step_rate_hz": 1}]}"#;
+        assert!(BridgeConfig::parse(typo, "c").unwrap_err().contains("unit"));
     }
 
     #[test]

@@ -6,8 +6,9 @@ use std::net::SocketAddr;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 
+use arm_core::config::ServoOnStop;
 use arm_core::hw::Clock;
-use arm_core::ingress::HaltSteps;
+use arm_core::ingress::{HaltSteps, StepHalt};
 use arm_core::profile::{self, BoardProfile};
 use arm_core::{Bus, StepShared, TrajectoryHw};
 use arm_core::{Controller, ControllerConfig};
@@ -113,16 +114,22 @@ impl Board {
             open_capture(path, local)?;
         }
         let kick = SimStepKick::new(clock);
-        let estop_input = options
-            .estop_input
-            .then(|| Arc::new(SimEStopInput::new(kick.clone(), tracer.clone())));
+        let gripper = SimGripper::new(clock, tracer.clone());
+        let estop_input = options.estop_input.then(|| {
+            Arc::new(SimEStopInput::new(
+                kick.clone(),
+                tracer.clone(),
+                gripper.clone(),
+                options.servo_on_stop.into(),
+            ))
+        });
         Ok(Board {
             options: options.clone(),
             clock,
             tracer: tracer.clone(),
             motors: motors.clone(),
             levels: Arc::new(OutputLevels::default()),
-            gripper: SimGripper::new(clock, tracer),
+            gripper,
             serial,
             encoders: SimEncoders::new(
                 motors,
@@ -253,6 +260,7 @@ pub fn controller_config(options: &SimOptions) -> ControllerConfig {
     ControllerConfig {
         max_step_rate_hz: config.max_step_rate_hz.min(timing.max_step_rate_hz()),
         capacity,
+        servo_on_stop: options.servo_on_stop.into(),
         ..config
     }
 }
@@ -275,8 +283,24 @@ async fn network(socket: &'static SimSocket, bus: &'static Bus, clock: &'static 
     arm_core::tasks::network_task(socket, bus, clock).await
 }
 
-/// The step outputs' halt for the first look at each datagram ([`arm_core::ingress`]).
-pub type SimHalt = HaltSteps<'static, STEP_QUEUE, SimSteps<STEP_QUEUE>, SimStepKick>;
+/// The halt for the first look at each datagram ([`arm_core::ingress`]): the step
+/// outputs', then a gripper burst's (and a servo's under `--servo-on-stop cut`), as the
+/// board's receive path cuts them (issue 30).
+pub struct SimHalt {
+    /// The steps.
+    pub steps: HaltSteps<'static, STEP_QUEUE, SimSteps<STEP_QUEUE>, SimStepKick>,
+    /// The gripper timer.
+    pub gripper: SimGripper,
+    /// Whether a servo PWM is cut too.
+    pub servo_on_stop: ServoOnStop,
+}
+
+impl StepHalt for SimHalt {
+    fn halt(&self) {
+        self.steps.halt();
+        self.gripper.cut_at_stop(self.servo_on_stop);
+    }
+}
 
 #[embassy_executor::task]
 #[allow(clippy::too_many_arguments)]
@@ -355,6 +379,8 @@ fn wire(board: Board) -> io::Result<Wiring> {
     }
     let port = board.local_addr().map_or(protocol::PORT, |a| a.port());
     controller.set_mac(sim_mac(board.options.tap.as_deref(), port));
+    // The board draws these from its RNG: the epochs of keys set (issue 30).
+    controller.set_entropy(os_random_u64());
     log::info!(
         "controller: {} trajectory points, step timer {} Hz (pulse {} ticks, DIR setup {} ticks), max {} steps/s per joint, time scale {}",
         config.capacity,
@@ -426,6 +452,11 @@ fn spawn_tasks(spawner: Spawner, wiring: Wiring) {
             .as_ref()
             .map(|_| -> &'static arm_core::EStopLine { &crate::estop::LINE }),
     };
+    let sim_halt = || SimHalt {
+        steps: HaltSteps { step: shared, kick },
+        gripper: board.gripper.clone(),
+        servo_on_stop: options.servo_on_stop.into(),
+    };
     let spawned = [
         match (&options.tap, board.udp) {
             (Some(iface), _) => {
@@ -439,14 +470,14 @@ fn spawn_tasks(spawner: Spawner, wiring: Wiring) {
                         std::process::exit(2)
                     });
                 let address = address.unwrap_or_else(|| stored_address(&board));
-                let halt = HaltSteps { step: shared, kick };
+                let halt = sim_halt();
                 network_over_tap(spawner, iface.clone(), address, faults, bus, clock, halt)
                     .map(|t| spawner.spawn(t))
             }
             (None, Some(udp)) => {
                 // The socket reader's first look (issue 18): a STOPPED halts the steps in
                 // the reader thread itself, before any queue.
-                let halt = HaltSteps { step: shared, kick };
+                let halt = sim_halt();
                 let first_look: crate::net::FirstLook = Box::new(move |from, bytes, to_group| {
                     bus.receive_first(from, bytes, to_group, clock.now_us(), &halt)
                 });
@@ -569,4 +600,22 @@ pub fn start_in_background(options: &SimOptions) -> io::Result<Board> {
             executor.run(move |spawner| spawn_tasks(spawner, wiring))
         })?;
     Ok(observed)
+}
+
+/// 64 random bits from the OS (its RNG: /dev/urandom), as the board's RNG gives them; the
+/// time and process id if that cannot be read (not random, but never the same twice on one
+/// machine).
+fn os_random_u64() -> u64 {
+    use std::io::Read;
+    let mut bytes = [0u8; 8];
+    match std::fs::File::open("/dev/urandom").and_then(|mut f| f.read_exact(&mut bytes)) {
+        Ok(()) => u64::from_le_bytes(bytes),
+        Err(e) => {
+            log::warn!("no OS random bits ({e}): key epochs start from the time");
+            let nanos = std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map_or(0, |d| d.as_nanos() as u64);
+            nanos ^ (u64::from(std::process::id()) << 40)
+        }
+    }
 }

@@ -10,7 +10,8 @@
 //! - E-stop under a flood (issue 18): a STOPPED from a third host while a stranger floods
 //!   the controller with valid and garbage datagrams, from its send to the engine idle
 //!   (p50/p90/max, lost), beside the same without the flood, and the owner's STATUS round
-//!   trips meanwhile ([`crate::flood`]).
+//!   trips and 10 Hz polls meanwhile (p50/p90/max, lost); then 20 strangers flooding valid
+//!   STATUS as fast as loopback carries (issue 30; [`crate::flood`]).
 //! - CPU use of the controller's threads (executor, step timer, socket), idle and while a
 //!   6-joint trajectory runs, from /proc/self/task/*/stat, and of the whole process.
 
@@ -43,6 +44,10 @@ pub struct BenchOptions {
     /// The stranger's flood, datagrams per second.
     #[arg(long, default_value_t = 10_000)]
     pub flood_hz: u32,
+    /// Strangers (127.0.0.10 and on) flooding valid STATUS as fast as their sockets send
+    /// (issue 30), the last flood measured.
+    #[arg(long, default_value_t = 20)]
+    pub flood_sources: u8,
 }
 
 /// Threads that are the controller (not the benchmark's client).
@@ -161,15 +166,21 @@ pub fn run(sim: &SimOptions, bench: &BenchOptions) -> io::Result<()> {
         "e-stop under a flood ({} single STOPPEDs from a third host, never resent, 20-80 ms into a 6-joint run; send -> step engine idle):",
         bench.flood_stops.max(1)
     );
-    for flood_hz in [0, bench.flood_hz, 5 * bench.flood_hz] {
+    use crate::flood::Flood;
+    for flood in [
+        Flood::NONE,
+        Flood::one(bench.flood_hz),
+        Flood::one(5 * bench.flood_hz),
+        Flood::many(bench.flood_sources),
+    ] {
         let f = crate::flood::estop_under_flood(
             addr,
             &board.probe,
             bench.flood_stops.max(1),
-            flood_hz,
+            flood,
             crate::app::receive_shed,
         )?;
-        println!("  {}", f.line(flood_hz));
+        println!("  {}", f.line());
     }
 
     // CPU use.

@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU8, AtomicU16, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 
+use arm_core::config::ServoOnStop;
 use arm_core::hw::{
     Clock, EncoderFault, Encoders, Gripper, Outputs, PersistentSettings, SettingsStore,
 };
@@ -132,6 +133,18 @@ impl SimGripper {
         );
         self.tracer
             .record_guarded(t_ns, Signal::GripperDuty, Value::Real(0.0), guard);
+    }
+
+    /// A stop's own cut, from the thread that saw it (the wired input's, or the socket
+    /// reader's for a STOPPED), as the board's EXTI0 and receive path cut TIM15: a counted
+    /// burst that runs, or a servo PWM under [`ServoOnStop::Cut`], stopped now. The
+    /// controller's stop for the same stop follows and makes the same decision.
+    pub fn cut_at_stop(&self, servo_on_stop: ServoOnStop) {
+        let running = self.status().pwm;
+        let cut = running.is_some_and(|pwm| servo_on_stop.cuts(pwm.pulse_count));
+        if cut && self.is_active() {
+            self.clone().stop();
+        }
     }
 
     /// Ends a burst whose time is over (bookkeeping only; the trace has the end already).
@@ -468,6 +481,12 @@ pub fn format_settings(settings: &PersistentSettings) -> String {
             ));
         }
     }
+    // ACCEL_SET (issue 31): `accel.J=steps/s²`, only for joints with one.
+    for (j, a) in settings.max_accel.iter().enumerate() {
+        if *a != 0 {
+            text.push_str(&format!("accel.{j}={a}\n"));
+        }
+    }
     text
 }
 
@@ -549,6 +568,12 @@ pub fn parse_settings(text: &str) -> Result<PersistentSettings, String> {
                 }
                 *settings.limits.get_mut(joint).ok_or_else(bad)? = limits;
             }
+            other if other.starts_with("accel.") => {
+                let bad = || format!("bad {other}: give accel.J=steps/s², J 0-7");
+                let joint: usize = other["accel.".len()..].parse().map_err(|_| bad())?;
+                let accel: u32 = value.parse().map_err(|_| bad())?;
+                *settings.max_accel.get_mut(joint).ok_or_else(bad)? = accel;
+            }
             _ => {}
         }
     }
@@ -621,8 +646,17 @@ mod tests {
             key: Some(protocol::auth::AuthKey([0xc3; 32])),
             auth_epoch: 7,
             limits: [protocol::JointLimits::NONE; protocol::MAX_JOINTS],
+            max_accel: [0, 50_000, 0, 0, 0, 0, 0, 1],
         };
         assert_eq!(parse_settings(&format_settings(&settings)), Ok(settings));
+        // A file written before ACCEL_SET (issue 31) loads with none.
+        let old = format_settings(&settings)
+            .replace("accel.1=50000\n", "")
+            .replace("accel.7=1\n", "");
+        assert_eq!(
+            parse_settings(&old).map(|s| s.max_accel),
+            Ok([0; protocol::MAX_JOINTS])
+        );
         // LIMITS_SET's limits (issue 23) round-trip too.
         let mut limited = settings;
         limited.limits[3] = protocol::JointLimits {
@@ -644,6 +678,7 @@ mod tests {
                 dhcp: false,
                 key: None,
                 auth_epoch: 0,
+                max_accel: [0; protocol::MAX_JOINTS],
                 ..settings
             })
         );

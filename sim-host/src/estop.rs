@@ -4,7 +4,9 @@
 //! interrupt: [`SimEStopInput::open`] stops the step outputs right there, in the calling
 //! thread ([`arm_core::EStopLine::edge`]: the shared step backend's emergency stop, which
 //! plays the edges up to that instant and cuts the rest, then a kick of the step thread),
-//! before any task runs; then the trajectory task, woken, puts the controller in STOPPED
+//! before any task runs, and cuts a gripper burst (a servo PWM only with `--servo-on-stop
+//! cut`) as the board's interrupt does (issue 30); then the trajectory task, woken, puts
+//! the controller in STOPPED
 //! and latches it (RUNING and RETURN refused `ESTOP_LATCHED` until the input is closed and
 //! a host sends ESTOP_RESET).
 //!
@@ -23,7 +25,10 @@ use arm_core::bus::Cs;
 use embassy_sync::signal::Signal as Wake;
 use signal_hook::consts::{SIGUSR1, SIGUSR2};
 
+use arm_core::config::ServoOnStop;
+
 use crate::app::SimStepShared;
+use crate::devices::SimGripper;
 use crate::steptimer::SimStepKick;
 use crate::vcd::{Signal, Tracer, Value};
 
@@ -42,6 +47,10 @@ pub struct SimEStopInput {
     wired: OnceLock<Wired>,
     kick: SimStepKick,
     tracer: Tracer,
+    /// The gripper timer, cut at the edge as the board's EXTI0 cuts TIM15.
+    gripper: SimGripper,
+    /// Whether that cut includes a servo PWM.
+    servo_on_stop: ServoOnStop,
     /// Serialises changes from several threads (a test and the signal thread).
     changing: Mutex<()>,
 }
@@ -55,13 +64,21 @@ impl std::fmt::Debug for SimEStopInput {
 }
 
 impl SimEStopInput {
-    /// A closed input that kicks `kick`'s step thread and traces into `tracer`.
-    pub fn new(kick: SimStepKick, tracer: Tracer) -> SimEStopInput {
+    /// A closed input that kicks `kick`'s step thread, cuts `gripper` (a servo PWM too
+    /// under [`ServoOnStop::Cut`]) and traces into `tracer`.
+    pub fn new(
+        kick: SimStepKick,
+        tracer: Tracer,
+        gripper: SimGripper,
+        servo_on_stop: ServoOnStop,
+    ) -> SimEStopInput {
         tracer.record(Signal::EStopInput, Value::Bit(false));
         SimEStopInput {
             wired: OnceLock::new(),
             kick,
             tracer,
+            gripper,
+            servo_on_stop,
             changing: Mutex::new(()),
         }
     }
@@ -92,11 +109,18 @@ impl SimEStopInput {
         let _changing = self.changing.lock();
         self.tracer.record(Signal::EStopInput, Value::Bit(open));
         match self.wired.get() {
-            Some(w) => LINE.edge(open, w.step, &self.kick, w.wake),
+            Some(w) => {
+                LINE.edge(open, w.step, &self.kick, w.wake);
+                if open {
+                    self.gripper.cut_at_stop(self.servo_on_stop);
+                }
+            }
             None => log::warn!("e-stop input changed before the controller was wired: ignored"),
         }
         if open {
-            log::warn!("e-stop input open: step outputs stopped, controller latched");
+            log::warn!(
+                "e-stop input open: step outputs and gripper burst stopped, controller latched"
+            );
         } else {
             log::warn!("e-stop input closed: ESTOP_RESET clears the latch");
         }

@@ -1,11 +1,14 @@
-//! A STOPPED from a third host while a stranger floods the controller (issue 18): the
-//! measurement behind `sim-host bench`'s "e-stop under a flood" lines and the flood test
+//! A STOPPED from a third host while strangers flood the controller (issues 18 and 30): the
+//! measurement behind `sim-host bench`'s "e-stop under a flood" lines and the flood tests
 //! (`sim-host/tests/flood.rs`).
 //!
-//! Three hosts, each its own address ([`Hosts`]; on loopback 127.0.0.1-3): the owner (an
-//! armctl [`Client`]) runs a 6-joint trajectory and polls STATUS; a stranger sends
-//! `flood_hz` datagrams a second, valid STATUS frames and garbage (bad CRCs, unknown tags)
-//! mixed; a panel sends one STOPPED per run, never resent. For each STOPPED the figure is
+//! The hosts, each its own address ([`Hosts`]; on loopback the owner 127.0.0.1, the panel
+//! 127.0.0.3, the strangers 127.0.0.10 and on): the owner (an armctl [`Client`]) runs a
+//! 6-joint trajectory, and a second socket of its address polls STATUS at 10 Hz
+//! throughout, each poll sent once (answered within 1 s, or lost); the strangers
+//! ([`Flood`]) send datagrams, from one address valid STATUS frames and garbage (bad CRCs,
+//! unknown tags) mixed at a given rate (issue 18), or from many addresses valid STATUS as
+//! fast as their sockets send (issue 30); a panel sends one STOPPED per run, never resent. For each STOPPED the figure is
 //! the time from its send to its effect ([`Effect`]): inside the simulator, the step engine
 //! going idle ([`Probe::last_engine_stop`]); from outside (`sim-host flood` against the
 //! QEMU board), the STOPPED's ACK reaching the panel, after which the owner's STATUS must
@@ -22,25 +25,94 @@ use protocol::{MAX_JOINTS, Point, Tag, crc8};
 
 use crate::probe::Probe;
 
-/// The three hosts' addresses.
+mod traffic;
+use traffic::{kernel_drops, poll_status, send_flood};
+
+/// The hosts' addresses.
 #[derive(Clone, Copy, Debug)]
 pub struct Hosts {
     /// The owner's.
     pub owner: std::net::Ipv4Addr,
-    /// The stranger's, which floods.
+    /// The first stranger's, which flood (the others follow it: .10, .11, ...).
     pub stranger: std::net::Ipv4Addr,
     /// The panel's, which stops.
     pub panel: std::net::Ipv4Addr,
 }
 
 impl Hosts {
-    /// 127.0.0.1, .2 and .3.
+    /// The owner 127.0.0.1, the panel 127.0.0.3, the strangers 127.0.0.10 and on.
     pub const LOOPBACK: Hosts = Hosts {
         owner: std::net::Ipv4Addr::new(127, 0, 0, 1),
-        stranger: std::net::Ipv4Addr::new(127, 0, 0, 2),
+        stranger: std::net::Ipv4Addr::new(127, 0, 0, 10),
         panel: std::net::Ipv4Addr::new(127, 0, 0, 3),
     };
+
+    /// The `i`th stranger's address.
+    fn stranger(&self, i: u8) -> std::net::Ipv4Addr {
+        std::net::Ipv4Addr::from(u32::from(self.stranger).wrapping_add(u32::from(i)))
+    }
 }
+
+/// The strangers' flood.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Flood {
+    /// Source addresses (0: no flood), consecutive from [`Hosts::stranger`].
+    pub sources: u8,
+    /// Datagrams a second from all of them; `None`: as fast as their sockets send, from
+    /// [`UNTHROTTLED_SENDERS`] threads (the highest rate loopback carries here).
+    pub rate_hz: Option<u32>,
+    /// Valid STATUS only (issue 30's strangers); else every fourth, the rest garbage.
+    pub valid_only: bool,
+    /// The flood and the owner's polls last at least this long (past the STOPPEDs' runs),
+    /// so that the polls are many.
+    pub hold: Duration,
+}
+
+impl Flood {
+    /// No flood.
+    pub const NONE: Flood = Flood {
+        sources: 0,
+        rate_hz: Some(0),
+        valid_only: false,
+        hold: Duration::ZERO,
+    };
+
+    /// Issue 18's: one stranger, `rate_hz` datagrams a second, valid and garbage mixed.
+    pub const fn one(rate_hz: u32) -> Flood {
+        Flood {
+            sources: 1,
+            rate_hz: Some(rate_hz),
+            valid_only: false,
+            hold: Duration::ZERO,
+        }
+    }
+
+    /// Issue 30's: `sources` strangers, valid STATUS as fast as their sockets send, for
+    /// 20 s at least (200 polls of the owner's).
+    pub const fn many(sources: u8) -> Flood {
+        Flood {
+            sources,
+            rate_hz: None,
+            valid_only: true,
+            hold: Duration::from_secs(20),
+        }
+    }
+
+    fn is_none(&self) -> bool {
+        self.sources == 0 || self.rate_hz == Some(0)
+    }
+}
+
+/// Threads that send an unthrottled flood: the machines have 2 cores, which the
+/// controller's threads share.
+pub const UNTHROTTLED_SENDERS: usize = 2;
+
+/// An unthrottled flood never sends more than this many datagrams (a bound besides
+/// [`FLOOD_LIMIT`]).
+const FLOOD_MAX_DATAGRAMS: u64 = 100_000_000;
+
+/// The owner's STATUS polls: every 100 ms (10 Hz).
+const POLL_PERIOD: Duration = Duration::from_millis(100);
 
 /// What tells that a STOPPED took effect.
 #[derive(Clone, Copy, Debug)]
@@ -71,6 +143,15 @@ pub struct FloodFigures {
     pub acks_lost: usize,
     /// The owner's STATUS round trips during the runs (armctl's, resends included).
     pub status_round_trips: Vec<Duration>,
+    /// The owner's 10 Hz polls answered: each one's send to its ACK (never resent).
+    pub polls: Vec<Duration>,
+    /// The owner's polls not answered within 1 s.
+    pub polls_lost: usize,
+    /// The flood's source addresses.
+    pub sources: u8,
+    /// Datagrams the kernel dropped at the controller's socket meanwhile (its buffer
+    /// full: the socket reader fell behind), from /proc/net/udp; `None` where unreadable.
+    pub kernel_drops: Option<u64>,
     /// Datagrams the controller's receive path shed (over their sender's share); `None`
     /// when measured from outside, where the count cannot be read.
     pub shed: Option<u32>,
@@ -86,6 +167,11 @@ impl FloodFigures {
     pub fn status_ms(&self, q: f64) -> f64 {
         quantile_ms(&self.status_round_trips, q)
     }
+
+    /// `q` quantile of the owner's answered 10 Hz polls, milliseconds (NaN if none).
+    pub fn poll_ms(&self, q: f64) -> f64 {
+        quantile_ms(&self.polls, q)
+    }
 }
 
 fn quantile_ms(values: &[Duration], q: f64) -> f64 {
@@ -96,58 +182,6 @@ fn quantile_ms(values: &[Duration], q: f64) -> f64 {
     }
     let i = ((sorted.len() - 1) as f64 * q).round() as usize;
     sorted[i.min(sorted.len() - 1)].as_secs_f64() * 1e3
-}
-
-/// The stranger: `rate_hz` datagrams a second to `to` until `stop`, in 1 ms batches, every
-/// fourth one valid (STATUS), the rest garbage; counts them in `sent`.
-fn flood(
-    from: std::net::Ipv4Addr,
-    to: SocketAddr,
-    rate_hz: u32,
-    stop: &AtomicBool,
-    sent: &AtomicU64,
-) -> std::io::Result<()> {
-    let socket = UdpSocket::bind((from, 0))?;
-    socket.set_nonblocking(true)?;
-    let started = Instant::now();
-    let mut next = started;
-    let mut n: u64 = 0;
-    let mut junk = 0x9E37_79B9_7F4A_7C15u64;
-    let mut buf = [0u8; 2048];
-    while !stop.load(Ordering::Relaxed) && started.elapsed() < FLOOD_LIMIT {
-        next += Duration::from_millis(1);
-        let due = u64::from(rate_hz) * next.duration_since(started).as_micros() as u64 / 1_000_000;
-        while n < due {
-            let seq = n as u8;
-            let frame: Vec<u8> = if n.is_multiple_of(4) {
-                let body = [seq, Tag::Status as u8];
-                vec![body[0], body[1], crc8(&body)]
-            } else {
-                junk ^= junk << 13;
-                junk ^= junk >> 7;
-                junk ^= junk << 17;
-                let len = 3 + (junk % 60) as usize;
-                let mut f: Vec<u8> = (0..len).map(|i| (junk >> (i % 8 * 8)) as u8).collect();
-                // Never a STOPPED (the stranger floods, the panel stops) and never a
-                // valid CRC: garbage.
-                if f[1] == Tag::Stopped as u8 {
-                    f[1] = 0x7f;
-                }
-                let last = f.len() - 1;
-                f[last] = crc8(&f[..last]) ^ 0x5a;
-                f
-            };
-            let _ = socket.send_to(&frame, to);
-            n += 1;
-            sent.fetch_add(1, Ordering::Relaxed);
-        }
-        // Its own answers (NOT_OWNER, BAD_CRC ACKs) are read and dropped.
-        while socket.recv_from(&mut buf).is_ok() {}
-        if let Some(wait) = next.checked_duration_since(Instant::now()) {
-            std::thread::sleep(wait);
-        }
-    }
-    Ok(())
 }
 
 /// A 6-joint run of 300 points of 10 ms (3 s; 2..7 kHz per joint, alternating
@@ -169,13 +203,13 @@ pub fn long_run() -> Vec<Point> {
 }
 
 /// `stops` runs, each stopped by one STOPPED from the panel 20..80 ms in, with the
-/// stranger flooding at `flood_hz` (0: no flood), on loopback, measured inside the
-/// simulator. `shed` reads the controller's count of shed datagrams.
+/// strangers' `flood`, on loopback, measured inside the simulator. `shed` reads the
+/// controller's count of shed datagrams.
 pub fn estop_under_flood(
     addr: SocketAddr,
     probe: &Probe,
     stops: usize,
-    flood_hz: u32,
+    flood: Flood,
     shed: impl Fn() -> u32,
 ) -> std::io::Result<FloodFigures> {
     measure(
@@ -183,7 +217,7 @@ pub fn estop_under_flood(
         Hosts::LOOPBACK,
         Effect::EngineIdle(probe),
         stops,
-        flood_hz,
+        flood,
         Some(shed),
     )
 }
@@ -195,7 +229,7 @@ pub fn measure(
     hosts: Hosts,
     effect: Effect<'_>,
     stops: usize,
-    flood_hz: u32,
+    flood: Flood,
     shed: Option<impl Fn() -> u32>,
 ) -> std::io::Result<FloodFigures> {
     let to_io = |e: armctl::Error| std::io::Error::other(e.to_string());
@@ -212,12 +246,41 @@ pub fn measure(
     panel.set_read_timeout(Some(Duration::from_millis(5)))?;
     let stop_flood = Arc::new(AtomicBool::new(false));
     let flood_sent = Arc::new(AtomicU64::new(0));
-    let flooder = (flood_hz > 0).then(|| {
-        let stop = stop_flood.clone();
-        let sent = flood_sent.clone();
-        std::thread::spawn(move || flood(hosts.stranger, addr, flood_hz, &stop, &sent))
-    });
+    let mut flooders = Vec::new();
+    if !flood.is_none() {
+        let strangers: Vec<std::net::Ipv4Addr> =
+            (0..flood.sources).map(|i| hosts.stranger(i)).collect();
+        if strangers.contains(&hosts.owner) || strangers.contains(&hosts.panel) {
+            return Err(std::io::Error::other(
+                "the strangers' addresses include the owner's or the panel's",
+            ));
+        }
+        let threads = if flood.rate_hz.is_none() {
+            UNTHROTTLED_SENDERS.min(strangers.len())
+        } else {
+            1
+        };
+        let mut sockets: Vec<Vec<UdpSocket>> = (0..threads).map(|_| Vec::new()).collect();
+        for (i, ip) in strangers.iter().enumerate() {
+            let socket = UdpSocket::bind((*ip, 0))?;
+            socket.set_nonblocking(true)?;
+            sockets[i % threads].push(socket);
+        }
+        for group in sockets {
+            let stop = stop_flood.clone();
+            let sent = flood_sent.clone();
+            flooders.push(std::thread::spawn(move || {
+                send_flood(&group, addr, flood.rate_hz, flood.valid_only, &stop, &sent)
+            }));
+        }
+    }
+    let stop_polls = Arc::new(AtomicBool::new(false));
+    let poller = {
+        let stop = stop_polls.clone();
+        std::thread::spawn(move || poll_status(hosts.owner, addr, &stop))
+    };
     let shed_before = shed.as_ref().map(|read| read());
+    let kernel_drops_before = kernel_drops(addr);
     let flood_started = Instant::now();
     let mut figures = FloodFigures::default();
     let run = long_run();
@@ -300,13 +363,27 @@ pub fn measure(
         }
         Ok(())
     })();
+    // The measurement's length, not a wait for the controller: the polls go on meanwhile.
+    while result.is_ok() && flood_started.elapsed() < flood.hold {
+        std::thread::sleep(Duration::from_millis(50));
+    }
     stop_flood.store(true, Ordering::Relaxed);
-    if let Some(flooder) = flooder {
+    for flooder in flooders {
         flooder
             .join()
-            .map_err(|_| std::io::Error::other("the flooder panicked"))??;
+            .map_err(|_| std::io::Error::other("a flooder panicked"))?;
     }
+    stop_polls.store(true, Ordering::Relaxed);
+    let polls = poller
+        .join()
+        .map_err(|_| std::io::Error::other("the poller panicked"))??;
     result?;
+    figures.polls = polls.iter().flatten().copied().collect();
+    figures.polls_lost = polls.iter().filter(|p| p.is_none()).count();
+    figures.sources = if flood.is_none() { 0 } else { flood.sources };
+    figures.kernel_drops = kernel_drops(addr)
+        .zip(kernel_drops_before)
+        .map(|(after, before)| after.saturating_sub(before));
     let seconds = flood_started.elapsed().as_secs_f64();
     figures.flood_rate_hz = flood_sent.load(Ordering::Relaxed) as f64 / seconds;
     figures.shed = shed
@@ -322,21 +399,33 @@ pub struct FloodOptions {
     /// The controller.
     #[arg(long)]
     pub controller: SocketAddr,
-    /// The owner's address (bound by its socket).
+    /// The owner's address (bound by its sockets).
     #[arg(long, default_value = "127.0.0.1")]
     pub owner: std::net::Ipv4Addr,
-    /// The stranger's address.
-    #[arg(long, default_value = "127.0.0.2")]
+    /// The first stranger's address (the others follow it).
+    #[arg(long, default_value = "127.0.0.10")]
     pub stranger: std::net::Ipv4Addr,
     /// The panel's address.
     #[arg(long, default_value = "127.0.0.3")]
     pub panel: std::net::Ipv4Addr,
-    /// Flood rates to measure at, datagrams per second (0: no flood).
-    #[arg(long, value_delimiter = ',', default_value = "0,10000")]
-    pub rates: Vec<u32>,
+    /// Flood rates to measure at, datagrams per second from one stranger, valid and
+    /// garbage mixed (0: no flood); `max`: `--sources` strangers sending valid STATUS as
+    /// fast as their sockets send.
+    #[arg(long, value_delimiter = ',', default_value = "0,10000,max", value_parser = parse_rate)]
+    pub rates: Vec<Option<u32>>,
+    /// Strangers flooding at the `max` rate.
+    #[arg(long, default_value_t = 20)]
+    pub sources: u8,
     /// STOPPEDs per rate.
     #[arg(long, default_value_t = 20)]
     pub stops: usize,
+}
+
+fn parse_rate(s: &str) -> Result<Option<u32>, String> {
+    if s == "max" {
+        return Ok(None);
+    }
+    s.parse().map(Some).map_err(|e| format!("{s}: {e}"))
 }
 
 /// `sim-host flood`: the figures of [`measure`] with [`Effect::Acked`], one line per rate.
@@ -347,19 +436,24 @@ pub fn run(options: &FloodOptions) -> std::io::Result<()> {
         panel: options.panel,
     };
     println!(
-        "e-stop under a flood at {} ({} single STOPPEDs from {} per rate, never resent; send -> its ACK, then STATUS STOPPED):",
+        "e-stop under a flood at {} ({} single STOPPEDs from {} per rate, never resent; send -> its ACK, then STATUS STOPPED; the owner's 10 Hz polls, never resent):",
         options.controller, options.stops, options.panel
     );
     for &rate in &options.rates {
+        let flood = match rate {
+            Some(0) => Flood::NONE,
+            Some(rate) => Flood::one(rate),
+            None => Flood::many(options.sources),
+        };
         let f = measure(
             options.controller,
             hosts,
             Effect::Acked,
             options.stops,
-            rate,
+            flood,
             None::<fn() -> u32>,
         )?;
-        println!("  {}", f.line(rate));
+        println!("  {}", f.line());
         let counters = crate::rx_counters::read(options.controller, options.panel);
         println!("    {}", crate::rx_counters::line(counters));
     }
@@ -367,15 +461,16 @@ pub fn run(options: &FloodOptions) -> std::io::Result<()> {
 }
 
 impl FloodFigures {
-    /// One line of figures for a flood of `flood_hz` (0: idle).
-    pub fn line(&self, flood_hz: u32) -> String {
-        let label = if flood_hz == 0 {
-            "idle".to_string()
-        } else {
-            format!("flood {:.0}/s", self.flood_rate_hz)
+    /// One line of figures: the STOPPEDs', the owner's STATUS round trips in the runs and
+    /// its 10 Hz polls.
+    pub fn line(&self) -> String {
+        let label = match self.sources {
+            0 => "idle".to_string(),
+            1 => format!("flood {:.0}/s", self.flood_rate_hz),
+            n => format!("{n} srcs {:.0}/s", self.flood_rate_hz),
         };
         format!(
-            "{label:<14} p50 {:>6.2} ms  p90 {:>6.2} ms  max {:>6.2} ms  lost {} of {}{}   owner STATUS p50 {:.2} ms max {:.2} ms   shed {}",
+            "{label:<22} STOPPED p50 {:>6.2} ms  p90 {:>6.2} ms  max {:>6.2} ms  lost {} of {}{}   owner's 10 Hz polls p50 {:.2} ms  p90 {:.2} ms  max {:.2} ms  lost {} of {}   owner STATUS in runs max {:.2} ms   shed {}{}",
             self.effect_ms(0.5),
             self.effect_ms(0.9),
             self.effect_ms(1.0),
@@ -386,11 +481,17 @@ impl FloodFigures {
             } else {
                 String::new()
             },
-            self.status_ms(0.5),
+            self.poll_ms(0.5),
+            self.poll_ms(0.9),
+            self.poll_ms(1.0),
+            self.polls_lost,
+            self.polls.len() + self.polls_lost,
             self.status_ms(1.0),
             self.shed
                 .map_or("n/a (not readable from outside)".to_string(), |n| n
-                    .to_string())
+                    .to_string()),
+            self.kernel_drops
+                .map_or(String::new(), |n| format!("   kernel dropped {n}"))
         )
     }
 }

@@ -3,6 +3,7 @@
 use std::net::SocketAddrV4;
 use std::path::PathBuf;
 
+use arm_core::config::ServoOnStop;
 use clap::{Args, Parser, Subcommand};
 
 use crate::devices::EncoderFaultMode;
@@ -132,6 +133,13 @@ pub struct SimOptions {
     #[arg(long)]
     pub estop_input: bool,
 
+    /// What a stop (STOPPED, the wired e-stop input) does to a servo PWM on the gripper
+    /// timer: `hold` keeps its duty (the board's default: a limp servo gripper drops its
+    /// part), `cut` stops it as PWM_STOP does. A counted burst is cut either way (issue 30;
+    /// docs/PROTOCOL.md, PWM_START).
+    #[arg(long, value_enum, default_value_t = ServoOnStopOption::Hold)]
+    pub servo_on_stop: ServoOnStopOption,
+
     /// Give the step thread real-time priority (SCHED_FIFO; needs privileges).
     #[arg(long)]
     pub realtime: bool,
@@ -140,6 +148,25 @@ pub struct SimOptions {
     /// has per-edge deadlines to spin for (it plays DMA buffers in simulated time).
     #[arg(long, default_value_t = 20, value_parser = clap::value_parser!(u64).range(0..=10_000))]
     pub spin_us: u64,
+}
+
+/// `--servo-on-stop`: arm-core's [`ServoOnStop`] on the command line.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
+pub enum ServoOnStopOption {
+    /// The servo PWM keeps its duty through a stop.
+    #[default]
+    Hold,
+    /// A stop cuts the servo PWM too.
+    Cut,
+}
+
+impl From<ServoOnStopOption> for ServoOnStop {
+    fn from(option: ServoOnStopOption) -> ServoOnStop {
+        match option {
+            ServoOnStopOption::Hold => ServoOnStop::Hold,
+            ServoOnStopOption::Cut => ServoOnStop::Cut,
+        }
+    }
 }
 
 impl SimOptions {

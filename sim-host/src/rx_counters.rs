@@ -1,6 +1,6 @@
 //! Reads a controller's receive-path counters from outside: a look-only STATUS whose
 //! request byte asks for the RX_COUNTERS report (docs/PROTOCOL.md, STATUS's request byte
-//! bit 2; issue 30). `sim-host flood` prints them after each rate, so the frames a board's
+//! bit 3; issue 30). `sim-host flood` prints them after each rate, so the frames a board's
 //! MAC dropped with its ring full are seen beside the e-stop figures.
 
 use std::net::{Ipv4Addr, SocketAddr, UdpSocket};
@@ -22,6 +22,7 @@ pub fn read(controller: SocketAddr, from: Ipv4Addr) -> Option<RxCounters> {
     let ask = StatusAsk {
         location: false,
         look_only: true,
+        stop_cause: false,
         counters: true,
     };
     let mut request = [0u8; 8];

@@ -184,6 +184,10 @@ fn log_sent(frame: &[u8], to: Endpoint) {
             log::debug!("-> {} LIMITS", show(to));
             None
         }
+        protocol::Report::StopCause(stop) => {
+            log::debug!("-> {} STOP_CAUSE {:?}", show(to), stop.cause);
+            None
+        }
         protocol::Report::RxCounters(_) => {
             log::debug!("-> {} RX_COUNTERS", show(to));
             None

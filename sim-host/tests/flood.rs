@@ -10,14 +10,15 @@
 use std::time::Duration;
 
 use sim_host::app::{receive_shed, start_for_client};
-use sim_host::flood::estop_under_flood;
+use sim_host::flood::{Flood, estop_under_flood};
 use sim_host::options::SimOptions;
 
 #[test]
 fn stoppeds_from_a_third_host_take_effect_under_a_strangers_flood() {
     let (board, addr, scratch) =
         start_for_client(&SimOptions::defaults(), "flood-test").expect("simulator");
-    let f = estop_under_flood(addr, &board.probe, 20, 50_000, receive_shed).expect("measured");
+    let f = estop_under_flood(addr, &board.probe, 20, Flood::one(50_000), receive_shed)
+        .expect("measured");
     println!(
         "flood {:.0}/s: STOPPED send -> engine idle p50 {:.2} ms p90 {:.2} ms max {:.2} ms, lost {} of 20; owner STATUS max {:.2} ms; shed {}",
         f.flood_rate_hz,

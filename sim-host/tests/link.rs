@@ -207,6 +207,15 @@ fn a_second_tool_on_the_owners_machine_disturbs_neither_upload_nor_reports() {
         .map(|w| w[1] - w[0])
         .max()
         .unwrap_or_default();
+    let mut holes: Vec<Duration> = arrivals.windows(2).map(|w| w[1] - w[0]).collect();
+    holes.sort();
+    println!(
+        "uploader's LOCATION intervals over {} reports: p50 {:?} p90 {:?} max {:?}",
+        arrivals.len(),
+        holes[holes.len() / 2],
+        holes[holes.len() * 9 / 10],
+        longest_hole
+    );
     // 10 ms reports; a loaded test machine may delay some, never by 0.3 s.
     assert!(
         longest_hole < Duration::from_millis(300),

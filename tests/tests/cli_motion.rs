@@ -284,3 +284,173 @@ fn a_refused_upload_leaves_the_controller_stopped() {
     let (ok, out, err) = armctl(&sim, &["move", "50"]);
     assert!(ok, "{out}\n{err}");
 }
+
+/// The 6-axis example config the issue 31 user had (armctl/examples/arm.json).
+fn example_config() -> String {
+    concat!(env!("CARGO_MANIFEST_DIR"), "/../armctl/examples/arm.json").to_string()
+}
+
+/// Issue 31: `time_s,elbow,base` (row `1.0,400,-700`) with arm.json moved joint 0 by +400
+/// and joint 1 by -700, exited 0 and said the positions matched; the elbow did not move.
+/// Columns map by header name now, and a name that is no joint is refused before sending.
+#[test]
+fn csv_columns_are_joints_by_header_name() {
+    let sim = SimHost::start(&["--joints", "6"]);
+    let config = example_config();
+    let file = sim.dir().join("named.csv");
+    std::fs::write(&file, "time_s,elbow,base\n1.0,400,-700\n").unwrap();
+    let (ok, out, err) = armctl(
+        &sim,
+        &[
+            "run",
+            file.to_str().unwrap(),
+            "--config",
+            &config,
+            "--quiet",
+        ],
+    );
+    assert!(ok, "{out}\n{err}");
+    assert!(
+        out.contains("final positions match the last point: [-700, 0, 400, 0, 0, 0]"),
+        "{out}"
+    );
+    let typo = sim.dir().join("typo.csv");
+    std::fs::write(&typo, "time_s,elbw,base\n2.0,0,0\n").unwrap();
+    let (ok, out, err) = armctl(
+        &sim,
+        &[
+            "run",
+            typo.to_str().unwrap(),
+            "--config",
+            &config,
+            "--quiet",
+        ],
+    );
+    assert!(!ok, "{out}");
+    assert!(err.contains("\"elbw\", is not a joint"), "{err}");
+    // Nothing moved.
+    let (ok, out, err) = armctl(&sim, &["move", "--config", &config, "base=-700"]);
+    assert!(ok, "{out}\n{err}");
+    assert!(out.contains("already there"), "{out}");
+}
+
+/// Issue 31: after `armctl config push`, `armctl move 0=5000` without --config was refused
+/// INVALID_POINT ("27625 against 20000 steps/s") although a slower plan fits: the planner
+/// knew only STATUS's max step rate. move, jog and home now read the limits the controller
+/// keeps (LIMITS_GET) and plan within them, range included.
+#[test]
+fn move_without_a_config_plans_within_the_limits_the_controller_keeps() {
+    let sim = SimHost::start(&["--joints", "6"]);
+    let (ok, out, err) = armctl(&sim, &["config", "push", &example_config()]);
+    assert!(ok, "{out}\n{err}");
+    let (ok, out, err) = armctl(&sim, &["move", "0=5000"]);
+    assert!(ok, "{out}\n{err}");
+    assert!(out.contains("at joint 0 5000 steps"), "{out}");
+    let (ok, out, err) = armctl(&sim, &["jog", "1", "-300"]);
+    assert!(ok, "{out}\n{err}");
+    assert!(out.contains("joint 1 -300 steps"), "{out}");
+    // The base's range on the controller is -16000..16000: refused before sending.
+    let (ok, out, err) = armctl(&sim, &["move", "0=20000"]);
+    assert!(!ok, "{out}");
+    assert!(
+        err.contains(
+            "joint 0: target 20000 steps is outside its range -16000 steps to 16000 steps"
+        ),
+        "{err}"
+    );
+    let (ok, out, err) = armctl(&sim, &["home"]);
+    assert!(ok, "{out}\n{err}");
+}
+
+/// Issue 31: a move refused at its first PENDING left the controller in NEW, and the next
+/// command failed ("`armctl stop` first"); only an upload refused later (PENDING) was
+/// dropped. Every refused upload now leaves the controller STOPPED.
+#[test]
+fn an_upload_refused_at_its_first_frame_leaves_the_controller_stopped() {
+    let sim = SimHost::start(&["--joints", "1"]);
+    let (ok, out, err) = armctl(&sim, &["config", "set", "--joint", "0", "--max", "100"]);
+    assert!(ok, "{out}\n{err}");
+    let file = sim.dir().join("first.csv");
+    std::fs::write(&file, "0,0\n0.01,150\n").unwrap();
+    let (ok, _, err) = armctl(&sim, &["run", file.to_str().unwrap(), "--quiet"]);
+    assert!(!ok);
+    assert!(err.contains("INVALID_POINT"), "{err}");
+    assert!(err.contains("STOPPED sent"), "{err}");
+    let (ok, out, err) = armctl(&sim, &["status", "--json"]);
+    assert!(ok, "{err}");
+    let status: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(status["state"], "Stopped", "{out}");
+    let (ok, out, err) = armctl(&sim, &["move", "50"]);
+    assert!(ok, "{out}\n{err}");
+}
+
+/// Issue 31: `config get --json` could not be pushed back ("missing field
+/// `max_step_rate_hz`"). It round-trips now: what `get --json` prints, `push` restores.
+#[test]
+fn config_get_json_pushes_back() {
+    let sim = SimHost::start(&["--joints", "6"]);
+    let (ok, out, err) = armctl(&sim, &["config", "push", &example_config()]);
+    assert!(ok, "{out}\n{err}");
+    let (ok, saved, err) = armctl(&sim, &["config", "get", "--json"]);
+    assert!(ok, "{err}");
+    let file = sim.dir().join("kept.json");
+    std::fs::write(&file, &saved).unwrap();
+    let (ok, out, err) = armctl(&sim, &["config", "set", "--joint", "2", "--clear"]);
+    assert!(ok, "{out}\n{err}");
+    let (ok, out, err) = armctl(&sim, &["config", "push", file.to_str().unwrap()]);
+    assert!(ok, "{out}\n{err}");
+    let (ok, again, err) = armctl(&sim, &["config", "get", "--json"]);
+    assert!(ok, "{err}");
+    let joints =
+        |text: &str| serde_json::from_str::<serde_json::Value>(text).unwrap()["joints"].clone();
+    assert_eq!(joints(&again), joints(&saved), "{again}");
+    assert_eq!(joints(&again)[2]["max"], 12000, "{again}");
+}
+
+/// Issue 31: refusals name the joint by its config name, the point's time, the user's
+/// units, and for a rate the slow-down that fits: from the host's own check, and from the
+/// controller's (INVALID_POINT, explained from LIMITS_GET and the points sent).
+#[test]
+fn refusals_name_the_joint_the_time_the_units_and_the_slow_down() {
+    let sim = SimHost::start(&["--joints", "3"]);
+    let config = sim.dir().join("arm.json");
+    std::fs::write(&config, CONFIG).unwrap();
+    let config = config.to_str().unwrap();
+    // 30 degrees of base (524 steps) in 0.1 s: 5236 steps/s against the config's 4000.
+    let fast = sim.dir().join("fast.csv");
+    std::fs::write(&fast, "time_s,base\n0,0\n0.1,30\n").unwrap();
+    let (ok, out, err) = armctl(&sim, &["run", fast.to_str().unwrap(), "--config", config]);
+    assert!(!ok, "{out}");
+    assert!(err.contains("joint 0 (base)"), "{err}");
+    assert!(err.contains("(t = 0.010000 s)"), "{err}");
+    assert!(
+        err.contains("deg/s) exceeds the limit of 4000 steps/s (229.18 deg/s)"),
+        "{err}"
+    );
+    assert!(err.contains("needs 1.3x longer"), "{err}");
+
+    // Within the config (4000 steps/s) but over the 1000 the controller keeps: 30
+    // degrees in 0.3 s is 1745 steps/s. The controller refuses; the tool says where.
+    let (ok, out, err) = armctl(
+        &sim,
+        &["config", "set", "--joint", "0", "--max-rate", "1000"],
+    );
+    assert!(ok, "{out}\n{err}");
+    let slow = sim.dir().join("slow.csv");
+    std::fs::write(&slow, "time_s,base\n0,0\n0.3,30\n").unwrap();
+    let (ok, out, err) = armctl(
+        &sim,
+        &["run", slow.to_str().unwrap(), "--config", config, "--quiet"],
+    );
+    assert!(!ok, "{out}");
+    assert!(err.contains("INVALID_POINT"), "{err}");
+    assert!(err.contains("joint 0 (base)"), "{err}");
+    assert!(err.contains("t = 0."), "{err}");
+    assert!(err.contains("deg/s"), "{err}");
+    assert!(
+        err.contains("its max rate 1000 steps/s (57.30 deg/s)"),
+        "{err}"
+    );
+    assert!(err.contains("needs 1.7x longer"), "{err}");
+    assert!(err.contains("STOPPED sent"), "{err}");
+}

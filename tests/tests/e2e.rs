@@ -260,13 +260,24 @@ fn another_host_is_not_the_owner_but_may_stop_the_arm() {
     runner.wait_executed(5);
     let stranger = Client::open(sim.addr, other).unwrap();
     stranger.stop().expect("STOPPED from any host is obeyed");
+    // Issue 31: the run's error names the stranger (before, "by this host or another").
+    let stranger_addr = stranger.local_addr().expect("bound");
     match runner.join() {
         Err(Error::RunEnded {
             reason: RunEnd::Stopped,
+            stopped_by,
             ..
-        }) => {}
+        }) => assert_eq!(
+            stopped_by.map(std::net::SocketAddr::V4),
+            Some(stranger_addr),
+            "the STOPPED's sender"
+        ),
         other => panic!("expected the run to end by STOPPED, got {other:?}"),
     }
+    let (status, stop) = arm.stop_report().expect("STATUS with the stop cause");
+    assert_eq!(status.stop_cause(), Some(protocol::StopCause::Stopped));
+    let text = armctl::stop_cause_text(&status, stop.as_ref());
+    assert_eq!(text, format!("a STOPPED from {stranger_addr}"));
 }
 
 #[test]

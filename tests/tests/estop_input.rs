@@ -76,7 +76,7 @@ fn the_wired_input_stops_armctl_run_latches_and_estop_reset_clears_it() {
         .arg(sim.addr.to_string())
         .args(["run", long.to_str().unwrap(), "--quiet"])
         .stdout(Stdio::null())
-        .stderr(Stdio::null())
+        .stderr(Stdio::piped())
         .spawn()
         .expect("armctl run");
     // The run under way and moving, as STATUS shows it: RUNNING with a point executed (a
@@ -108,9 +108,18 @@ fn the_wired_input_stops_armctl_run_latches_and_estop_reset_clears_it() {
         std::thread::sleep(Duration::from_millis(20));
     };
     assert!(!ended.success(), "the run was cut short: {ended}");
+    // Issue 31: the run says the wired input ended it (before: "STOPPED was sent (by
+    // this host or another)"), and so does STATUS.
+    let mut stderr = String::new();
+    std::io::Read::read_to_string(&mut run.stderr.take().expect("piped"), &mut stderr).unwrap();
+    assert!(stderr.contains("wired e-stop input opened"), "{stderr}");
 
     let out = status_until(&sim, "OPEN, LATCHED");
     assert!(out.contains("state            STOPPED"), "{out}");
+    assert!(
+        out.contains("last run ended   the wired e-stop input opened"),
+        "{out}"
+    );
     let arm = sim.connect();
     let runing_refused = |when: &str| {
         for attempt in 0..3 {

@@ -225,8 +225,9 @@ fn dry_run_checks_step_rates_without_a_controller() {
     let dir = std::env::temp_dir().join(format!("link-host-dry-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let file = dir.join("fast.csv");
-    // 3,000 steps in 10 ms on joint 1: 300,000 steps/s.
-    std::fs::write(&file, "time_s,a,b\n0,0,0\n0.01,10,3000\n").unwrap();
+    // 3,000 steps in 10 ms on joint 1: 300,000 steps/s. (The header was `time_s,a,b`
+    // until issue 31: a CSV's columns are joints by name now, and `a` names none.)
+    std::fs::write(&file, "time_s,j0,j1\n0,0,0\n0.01,10,3000\n").unwrap();
     let path = file.to_str().unwrap();
     let out = armctl(&["run", path, "--dry-run"]);
     let stderr = text(&out.stderr);

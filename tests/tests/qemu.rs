@@ -314,6 +314,18 @@ fn every_command_of_the_manual() {
     while arm.status().unwrap().flags.has(StatusFlags::PWM_ACTIVE) {
         assert!(Instant::now() < deadline, "burst did not end");
     }
+    // Issue 30: a STOPPED from another host cuts a burst (8000 pulses at 1 kHz: 8 s) before
+    // it is ACKed; STATUS bit 6 is clear at once.
+    let long = armctl::pwm::settings(status.pwm_timer_clock_hz, 1000.0, 0.5, 8000).unwrap();
+    arm.pwm_start(long).unwrap();
+    assert!(arm.status().unwrap().flags.has(StatusFlags::PWM_ACTIVE));
+    let panel = Raw::new("127.0.0.1:0", board.addr);
+    let ack = panel.command(0x42, &Command::Stopped);
+    assert_eq!(ack.map(|a| a.status), Some(StatusCode::Ok));
+    assert!(
+        !arm.status().unwrap().flags.has(StatusFlags::PWM_ACTIVE),
+        "the burst is cut by the STOPPED"
+    );
 
     // UART_INIT, USART_SEND, USART_RECV through the CMSDK UART and QEMU's chardev, with
     // the test as a loopback device on the line.
@@ -659,28 +671,57 @@ fn the_relay_passes_on_everything_the_board_sends_as_it_comes() {
         .set_read_timeout(Some(Duration::from_millis(50)))
         .unwrap();
     let started = Instant::now();
-    let (mut round, mut slowest) = (0u32, Duration::ZERO);
+    let (mut round, mut slowest, mut unanswered) = (0u32, Duration::ZERO, 0u32);
+    // Round trips of the rounds started in the second half: a relay that falls behind has
+    // its backlog (and their delay) grow with time.
+    let (mut trips, mut late_trips) = (Vec::new(), Vec::new());
     while started.elapsed() < TALK_FOR {
         let sent = Instant::now();
+        let second_half = started.elapsed() >= TALK_FOR / 2;
         client.send(&round.to_be_bytes()).unwrap();
         let mut buf = [0u8; 64];
         // Generous: a relay that keeps up answers within milliseconds.
-        while sent.elapsed() < Duration::from_secs(2) {
+        let answered = loop {
+            if sent.elapsed() >= Duration::from_secs(3) {
+                break false;
+            }
             if let Ok(n) = client.recv(&mut buf)
                 && buf[..n] == round.to_be_bytes()
             {
-                break;
+                break true;
             }
+        };
+        let trip = sent.elapsed();
+        unanswered += u32::from(!answered);
+        slowest = slowest.max(trip);
+        trips.push(trip);
+        if second_half {
+            late_trips.push(trip);
         }
-        slowest = slowest.max(sent.elapsed());
         round += 1;
     }
+    trips.sort();
+    late_trips.sort();
+    let median_late = late_trips.get(late_trips.len() / 2).copied();
+    println!(
+        "relay round trips ({round}): p50 {:?} p90 {:?} max {slowest:?}; second half p50 {median_late:?}",
+        trips[trips.len() / 2],
+        trips[trips.len() * 9 / 10]
+    );
     drop(relay);
     stop.store(true, Ordering::Relaxed);
     fake_board.join().unwrap();
+    // Not the slowest round trip (it was asserted < 1 s): on a busy machine one took 222 ms
+    // here while QEMU tests ran beside it, against p50 35 us. A relay that falls behind
+    // delays most rounds, and the more the later: the median of the second half's rounds
+    // (35 us here) must stay under 100 ms, and every round be answered within 3 s.
+    assert_eq!(
+        unanswered, 0,
+        "{unanswered} of {round} rounds unanswered in 3 s"
+    );
     assert!(
-        slowest < Duration::from_secs(1),
-        "a round trip through the relay took {slowest:?} ({round} round trips): it falls behind"
+        median_late.is_some_and(|m| m < Duration::from_millis(100)),
+        "the second half's round trips through the relay: median {median_late:?} ({round} round trips): it falls behind"
     );
 }
 

@@ -27,8 +27,10 @@ fn enable_and_disable_are_explicit_and_status_shows_each_driver() {
     let (ok, out, _) = armctl(&sim, &["status", "--json"]);
     assert!(ok);
     let json: serde_json::Value = serde_json::from_str(&out).unwrap();
-    // bit 3 (reported), bit 4 (gripper), bits 8-15: joints 2-7 enabled.
-    assert_eq!(json["more_flags"], 0xFC18, "{out}");
+    // bit 3 (reported), bit 4 (gripper), bits 8-15: joints 2-7 enabled; bits 5-7 the
+    // stop cause (issue 31): 1, COMPLETE.
+    assert_eq!(json["more_flags"], 0xFC38, "{out}");
+    assert_eq!(json["stop_cause"], "COMPLETE", "{out}");
     let (ok, out, err) = armctl(&sim, &["enable"]);
     assert!(ok, "{out}\n{err}");
     assert!(out.contains("every driver enabled"), "{out}");
@@ -122,11 +124,18 @@ fn limits_set_with_armctl_config_are_kept_enforced_and_explained() {
     let (ok, out, err) = armctl(&sim, &["run", csv.to_str().unwrap(), "--quiet"]);
     assert!(!ok, "{out}");
     assert!(err.contains("INVALID_POINT"), "{err}");
+    // Issue 31: the point found among those sent, named by time, joint and limit.
     assert!(
-        err.contains("joint 1: position above the joint's max (") && err.contains("against 100)"),
+        err.contains("ending at t = ")
+            && err.contains("joint 1: position 101 steps is above its max 100 steps"),
         "{err}"
     );
-    // The refused upload stays PENDING (the points before it were taken): STOP first.
+    // Issue 31: the tool leaves the controller STOPPED after the refusal (it was left
+    // PENDING, the points before taken, and the next command failed until `armctl stop`).
+    assert!(
+        err.contains("STOPPED sent: the upload was dropped"),
+        "{err}"
+    );
     let (ok, _, err) = armctl(&sim, &["stop"]);
     assert!(ok, "{err}");
     // set-location outside the range: refused, and said why.
@@ -229,4 +238,107 @@ fn status_with_a_config_names_each_joint_with_its_position_and_driver() {
     let (ok, _, err) = armctl(&sim, &["status", "--config", "/nonexistent/arm.json"]);
     assert!(!ok);
     assert!(err.contains("/nonexistent/arm.json"), "{err}");
+}
+
+/// Issue 31: after `armctl disable 1`, `move 1=500` was accepted, STATUS showed joint 1 at
+/// 500 and every pulse went to a disabled driver. The controller refuses it now
+/// (INVALID_POINT) and the tool names the joint from the LIMITS report's last refusal.
+#[test]
+fn a_limp_joint_is_not_moved_and_the_refusal_names_it() {
+    let sim = SimHost::start(&["--joints", "2"]);
+    let (ok, out, err) = armctl(&sim, &["disable", "1"]);
+    assert!(ok, "{out}\n{err}");
+    let (ok, out, err) = armctl(&sim, &["move", "1=500"]);
+    assert!(!ok, "a limp joint moved: {out}\n{err}");
+    assert!(err.contains("INVALID_POINT"), "{err}");
+    // The point found among those sent (tools31's refusals), the joint named.
+    assert!(
+        err.contains("joint 1: its driver is disabled (limp)")
+            && err.contains("`armctl enable 1` first"),
+        "{err}"
+    );
+    let (ok, out, _) = armctl(&sim, &["status"]);
+    assert!(ok);
+    assert!(out.contains("    1                 0  disabled"), "{out}");
+    assert!(
+        out.contains("state            STOPPED"),
+        "the refused upload dropped: {out}"
+    );
+    // The other joint still moves; enabled again, joint 1 does too.
+    let (ok, out, err) = armctl(&sim, &["move", "0=40"]);
+    assert!(ok, "{out}\n{err}");
+    let (ok, out, err) = armctl(&sim, &["enable", "1"]);
+    assert!(ok, "{out}\n{err}");
+    let (ok, out, err) = armctl(&sim, &["move", "1=500"]);
+    assert!(ok, "{out}\n{err}");
+}
+
+/// Issue 31: `armctl config init` writes an arm description from the drive's figures;
+/// `config push` keeps its limits and acceleration on the controller, `config get --json`
+/// reads them back (`max_accel`, one field more), and the controller refuses a point
+/// over the acceleration.
+#[test]
+fn config_init_push_and_get_round_trip_the_acceleration() {
+    let sim = SimHost::start(&["--joints", "2"]);
+    let file = sim.dir().join("arm.json");
+    let (ok, out, err) = system_tests::run_armctl(
+        None,
+        &[
+            "config",
+            "init",
+            "--joints",
+            "2",
+            "--pulses-per-rev",
+            "200",
+            "--microsteps",
+            "16",
+            "--gear-ratio",
+            "5",
+            "--min-deg",
+            "-90",
+            "--max-deg",
+            "90",
+            "--max-rate-deg-s",
+            "45",
+            "--max-accel-deg-s2",
+            "90",
+            "--names",
+            "base,shoulder",
+            "-o",
+            file.to_str().unwrap(),
+        ],
+    );
+    assert!(ok, "{out}\n{err}");
+    let written: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&file).unwrap()).unwrap();
+    let j1 = &written["joints"][1];
+    // 200 * 16 * 5 = 16000 steps per revolution.
+    assert_eq!(j1["name"], "shoulder", "{written}");
+    assert_eq!(j1["min_steps"], -4000, "{written}");
+    assert_eq!(j1["max_steps"], 4000, "{written}");
+    assert_eq!(j1["max_step_rate_hz"], 2000, "{written}");
+    assert_eq!(j1["max_accel_steps_s2"], 4000, "{written}");
+    assert_eq!(written["units"], "deg");
+    let (ok, out, err) = armctl(&sim, &["config", "push", file.to_str().unwrap()]);
+    assert!(ok, "{out}\n{err}");
+    assert!(
+        out.contains("joint 1 shoulder: at most 4000 steps/s²"),
+        "{out}"
+    );
+    let (ok, out, err) = armctl(&sim, &["config", "get", "--json"]);
+    assert!(ok, "{out}\n{err}");
+    let report: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(report["max_accel"][1], 4000, "{out}");
+    assert_eq!(report["joints"][1]["max"], 4000, "{out}");
+    // A 1 s file run that jumps to full rate at once: refused by the controller (a CSV
+    // run without --config is checked against nothing on the host).
+    let csv = sim.dir().join("jump.csv");
+    std::fs::write(&csv, "time_s,j0,j1\n0,0,0\n0.01,0,20\n1,0,1000\n").unwrap();
+    let (ok, _, err) = armctl(&sim, &["run", csv.to_str().unwrap(), "--quiet"]);
+    assert!(!ok);
+    assert!(err.contains("INVALID_POINT"), "{err}");
+    assert!(
+        err.contains("joint 1: steps/s² above the joint's max acceleration"),
+        "{err}"
+    );
 }

@@ -38,7 +38,7 @@ local tag_names = {
     [0x11] = "RETURN", [0x12] = "JOINTS_COUNT", [0x13] = "LOCATION_SETTING/LOCATION",
     [0x14] = "ACK", [0x15] = "STATUS", [0x16] = "UPLOAD_PERIOD", [0x17] = "ESTOP_RESET",
     [0x18] = "SET_ENABLE", [0x19] = "RELEASE", [0x1a] = "LIMITS_SET", [0x1b] = "LIMITS_GET",
-    [0x1c] = "LIMITS",
+    [0x1c] = "LIMITS", [0x1d] = "STOP_CAUSE", [0x1e] = "ACCEL_SET",
     [0x20] = "DISCOVER", [0x21] = "NET_SET", [0x22] = "DISCOVER_REPLY",
     [0x24] = "RX_COUNTERS",
     [0x50] = "AUTH", [0x51] = "HELLO", [0x52] = "SET_KEY", [0x53] = "HELLO_REPLY",
@@ -53,7 +53,7 @@ local status_names = {
     [0] = "OK", [1] = "BAD_CRC", [2] = "UNKNOWN_TAG", [3] = "BAD_LENGTH", [4] = "BAD_STATE",
     [5] = "OUT_OF_ORDER", [6] = "TOO_MANY_POINTS", [7] = "INVALID_POINT", [8] = "BUFFER_FULL",
     [9] = "NOT_OWNER", [10] = "UNSUPPORTED", [11] = "INVALID_CONFIG", [12] = "ESTOP_LATCHED",
-    [13] = "AUTH_REQUIRED", [14] = "AUTH_FAILED",
+    [13] = "AUTH_REQUIRED", [14] = "AUTH_FAILED", [15] = "SAVE_FAILED",
 }
 
 local crc_status_names = { [0] = "Bad", [1] = "Good", [2] = "Unverified" }
@@ -64,6 +64,12 @@ local addr_mode_names = { [0] = "static", [1] = "DHCP" }
 local refusal_names = {
     [0] = "nothing refused", [1] = "below min", [2] = "above max", [3] = "over the joint's max rate",
     [4] = "over max_step_rate_hz", [5] = "over step_budget_hz", [6] = "duration or step count",
+    [7] = "the joint's driver is disabled", [8] = "over the joint's max acceleration",
+}
+-- What ended the last run (STATUS more_flags bits 5-7, the STOP_CAUSE report; issue 31).
+local stop_cause_names = {
+    [0] = "not reported (older controller)", [1] = "COMPLETE", [2] = "STOPPED",
+    [3] = "ESTOP_INPUT", [4] = "UNDERRUN", [5] = "FAULT", [6] = "LIMIT_SWITCH", [7] = "HOLD",
 }
 local enable_action_names = { [0] = "disable (limp)", [1] = "enable (holding)" }
 
@@ -142,6 +148,8 @@ local f = {
     limits_min = dec("int32", "limits.min", "Min (steps)"),
     limits_max = dec("int32", "limits.max", "Max (steps)"),
     limits_rate = dec("uint32", "limits.max_rate_hz", "Max rate (steps/s, 0 = the controller's)"),
+    limits_accel = dec("uint32", "limits.max_accel_steps_s2", "Max acceleration (steps/s², 0 = none)"),
+    limits_ask = hex("uint8", "limits.ask", "LIMITS_GET request byte (0x01: with the accelerations)"),
     refusal_seq = dec("uint8", "limits.refusal.seq", "Last refused frame's seq"),
     refusal_tag = hex("uint8", "limits.refusal.tag", "Last refused frame's tag", tag_names),
     refusal_point = dec("uint8", "limits.refusal.point", "Point in the frame"),
@@ -151,7 +159,12 @@ local f = {
     refusal_limit = dec("int32", "limits.refusal.limit", "Limit broken"),
     status_ask_location = field("bool", "status.ask.location", "Also a LOCATION report", 8, nil, 0x01),
     status_ask_look = field("bool", "status.ask.look_only", "Look only (never takes the controller)", 8, nil, 0x02),
-    status_ask_counters = field("bool", "status.ask.counters", "Also an RX_COUNTERS report", 8, nil, 0x04),
+    status_ask_stop = field("bool", "status.ask.stop_cause", "Also a STOP_CAUSE report", 8, nil, 0x04),
+    status_ask_counters = field("bool", "status.ask.counters", "Also an RX_COUNTERS report", 8, nil, 0x08),
+    stop_cause = dec("uint8", "stop.cause", "What ended the last run", stop_cause_names),
+    stop_detail = dec("uint8", "stop.detail", "Detail (FAULT: the joint)"),
+    stop_ip = field("ipv4", "stop.from_ip", "STOPPED's sender"),
+    stop_port = dec("uint16", "stop.from_port", "STOPPED's sender port"),
     rx_ring_dropped = dec("uint32", "rx.ring_dropped", "Frames the MAC dropped (ring full)"),
     rx_ring_full = dec("uint32", "rx.ring_full", "Times the ring was full"),
     rx_interrupt_stops = dec("uint32", "rx.interrupt_stops", "STOPPEDs halted in the receive interrupt"),
@@ -198,6 +211,7 @@ local f = {
     st_more_estop_latched = field("bool", "status.more_flags.estop_latched", "E-stop latch set", 16, nil, 0x0004),
     st_more_enables = field("bool", "status.more_flags.enables_reported", "Per-driver enables reported (issue 23)", 16, nil, 0x0008),
     st_more_gripper = field("bool", "status.more_flags.gripper_enabled", "Gripper driver enabled", 16, nil, 0x0010),
+    st_more_stop_cause = field("uint16", "status.more_flags.stop_cause", "What ended the last run (issue 31)", base.DEC, stop_cause_names, 0x00e0),
     st_joints_enabled = hex("uint16", "status.joints_enabled", "Joint drivers enabled (bit j = joint j)"),
     st_upload_period = dec("uint32", "status.upload_period_us", "Upload period (us)"),
     st_pwm_clock = dec("uint32", "status.pwm_timer_clock_hz", "PWM timer clock (Hz)"),
@@ -476,7 +490,7 @@ local function dissect_status_report(tree, data)
     end
     local more = tree:add_le(f.st_more_flags, data(18, 2))
     for _, bit in ipairs({ f.st_more_dropped, f.st_more_estop_open, f.st_more_estop_latched,
-        f.st_more_enables, f.st_more_gripper }) do
+        f.st_more_enables, f.st_more_gripper, f.st_more_stop_cause }) do
         more:add_le(bit, data(18, 2))
     end
     -- Bits 8-15: joints 0-7, meaningful only with bit 3 (an older controller sends 0).
@@ -600,6 +614,22 @@ local host_dissectors = {
         if action > 1 then out_of_range(tree, "SET_ENABLE action must be 0 (disable) or 1 (enable)") end
         return string.format("%s mask 0x%04x", action == 1 and "enable" or "disable", mask)
     end,
+    -- ACCEL_SET (issue 31): joint, 3 reserved, max_accel_steps_s2.
+    [0x1e] = function(tree, data, len)
+        if len ~= 8 then return length_error(tree, data, "8", len) end
+        tree:add(f.limits_joint, data(0, 1))
+        tree:add_le(f.limits_accel, data(4, 4))
+        if data(0, 1):uint() > 7 then out_of_range(tree, "ACCEL_SET needs a joint of 0-7") end
+        return string.format("joint %d: %d steps/s²", data(0, 1):uint(), data(4, 4):le_uint())
+    end,
+    -- LIMITS_GET: no data (old hosts), or the request byte 0x01 (issue 31).
+    [0x1b] = function(tree, data, len)
+        if len == 0 then return "" end
+        if len ~= 1 then return length_error(tree, data, "0 or 1", len) end
+        tree:add(f.limits_ask, data(0, 1))
+        if data(0, 1):uint() ~= 1 then out_of_range(tree, "LIMITS_GET request byte must be 0x01") end
+        return "with the accelerations"
+    end,
     [0x1a] = function(tree, data, len)
         if len ~= 16 then return length_error(tree, data, "16", len) end
         tree:add(f.limits_joint, data(0, 1))
@@ -651,27 +681,31 @@ host_dissectors[0x52] = function(tree, data, len)
     return "set a key"
 end
 -- Commands without data.
-for _, tag in ipairs({ 0x02, 0x04, 0x05, 0x07, 0x09, 0x0c, 0x0d, 0x0e, 0x0f, 0x11, 0x17, 0x19, 0x1b, 0x20 }) do
+for _, tag in ipairs({ 0x02, 0x04, 0x05, 0x07, 0x09, 0x0c, 0x0d, 0x0e, 0x0f, 0x11, 0x17, 0x19, 0x20 }) do
     host_dissectors[tag] = function(tree, data, len)
         if len ~= 0 then return length_error(tree, data, "0", len) end
         return ""
     end
 end
 -- STATUS: no data (old hosts), or the request byte (issue 23): bit 0 a LOCATION too, bit 1
--- look only; bit 2 an RX_COUNTERS report too (issue 30).
+-- look only; bit 2 a STOP_CAUSE report too (issue 31); bit 3 an RX_COUNTERS report too
+-- (issue 30). The reports follow the STATUS in that order: LOCATION, STOP_CAUSE,
+-- RX_COUNTERS.
 host_dissectors[0x15] = function(tree, data, len)
     if len == 0 then return "" end
     if len ~= 1 then return length_error(tree, data, "0 or 1", len) end
     local ask = tree:add(f.status_ask, data(0, 1))
     ask:add(f.status_ask_location, data(0, 1))
     ask:add(f.status_ask_look, data(0, 1))
+    ask:add(f.status_ask_stop, data(0, 1))
     ask:add(f.status_ask_counters, data(0, 1))
     local b = data(0, 1):uint()
-    if b > 7 then out_of_range(tree, "STATUS request byte may only use bits 0-2") end
+    if b > 15 then out_of_range(tree, "STATUS request byte may only use bits 0-3") end
     local parts = {}
     if bit.band(b, 1) ~= 0 then parts[#parts + 1] = "with LOCATION" end
     if bit.band(b, 2) ~= 0 then parts[#parts + 1] = "look only" end
-    if bit.band(b, 4) ~= 0 then parts[#parts + 1] = "with RX_COUNTERS" end
+    if bit.band(b, 4) ~= 0 then parts[#parts + 1] = "with STOP_CAUSE" end
+    if bit.band(b, 8) ~= 0 then parts[#parts + 1] = "with RX_COUNTERS" end
     return table.concat(parts, ", ")
 end
 -- STOPPED: any data is ignored by the controller, which stops all the same (PROTOCOL.md
@@ -712,7 +746,13 @@ local controller_dissectors = {
         return n .. " bytes"
     end,
     [0x1c] = function(tree, data, len)
-        if len ~= 112 then return length_error(tree, data, "112", len) end
+        if len ~= 112 and len ~= 144 then return length_error(tree, data, "112 or 144", len) end
+        -- 144: each joint's max acceleration after the 112 bytes (issue 31).
+        if len == 144 then
+            for j = 0, 7 do
+                tree:add_le(f.limits_accel, data(112 + 4 * j, 4))
+            end
+        end
         for j = 0, 7 do
             local at = 12 * j
             local sub = tree:add(armctl, data(at, 12), string.format("Joint %d: %d..%d steps, %d steps/s",
@@ -730,6 +770,20 @@ local controller_dissectors = {
         r:add_le(f.refusal_value, data(104, 4), data(104, 4):le_int())
         r:add_le(f.refusal_limit, data(108, 4), data(108, 4):le_int())
         return refusal_names[data(100, 1):uint()] or "?"
+    end,
+    [0x1d] = function(tree, data, len)
+        if len ~= 12 then return length_error(tree, data, "12", len) end
+        local cause = data(0, 1):uint()
+        tree:add(f.stop_cause, data(0, 1))
+        tree:add(f.stop_detail, data(1, 1))
+        tree:add(f.stop_ip, data(4, 4))
+        tree:add_le(f.stop_port, data(8, 2))
+        local name = stop_cause_names[cause] or "?"
+        if cause == 2 then
+            return string.format("%s from %s:%d", name, tostring(data(4, 4):ipv4()), data(8, 2):le_uint())
+        end
+        if cause == 5 then return string.format("%s (joint %d)", name, data(1, 1):uint()) end
+        return name
     end,
     [0x15] = function(tree, data, len)
         if len ~= 36 then return length_error(tree, data, "36", len) end

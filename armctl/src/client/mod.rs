@@ -559,6 +559,12 @@ impl Client {
         self.shared.undecodable.load(Ordering::Relaxed)
     }
 
+    /// ACKs `AUTH_FAILED` received: envelopes refused because their session was gone (the
+    /// controller was reset, or gave the session's slot away), each answered by a HELLO.
+    pub fn auth_failures(&self) -> u64 {
+        self.shared.auth_failed.load(Ordering::Relaxed)
+    }
+
     /// STOPPED: stops every step pulse at once and drops the buffer. Never waits behind an
     /// upload. Resent as any command is (`Options::attempts`); to stop what a call started
     /// on Ctrl-C, [`Client::stop_until_acked`] resends at a fixed interval, bounded, and

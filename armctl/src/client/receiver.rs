@@ -42,10 +42,14 @@ pub(crate) struct Shared {
     pub(super) statuses: Mutex<Vec<Sender<StatusReport>>>,
     /// LIMITS reports (the answers to LIMITS_GET, issue 23).
     pub(super) limits: Mutex<Vec<Sender<LimitsReport>>>,
+    /// STOP_CAUSE reports (STATUS's request byte bit 2, issue 31).
+    pub(super) stops: Mutex<Vec<Sender<protocol::StopReport>>>,
     pub(super) last_location: Mutex<Option<Location>>,
     pub(super) last_status: Mutex<Option<StatusReport>>,
     /// Datagrams that did not decode as a report.
     pub(super) undecodable: AtomicU64,
+    /// ACKs `AUTH_FAILED` received (an envelope refused: its session was gone).
+    pub(super) auth_failed: AtomicU64,
     /// Where every datagram sent and received is written ([`Client::capture`]).
     pub(super) pcap: Mutex<Option<Arc<PcapLog>>>,
     /// With a key: the session, and sealing and opening.
@@ -125,6 +129,9 @@ impl Shared {
                 }
             }
             Report::Ack(ack) => {
+                if ack.status == protocol::StatusCode::AuthFailed {
+                    self.auth_failed.fetch_add(1, Ordering::Relaxed);
+                }
                 if let Some((_, waiter)) = lock(&self.waiters).get(&frame.seq) {
                     let _ = waiter.send(Event::Ack(frame.seq, ack));
                 }
@@ -139,8 +146,9 @@ impl Shared {
                 fan_out(&self.statuses, &status);
             }
             Report::Limits(limits) => fan_out(&self.limits, &limits),
+            Report::StopCause(stop) => fan_out(&self.stops, &stop),
             // Asked for only by tools that read the wire themselves (STATUS's request
-            // byte bit 2): the client asks for none.
+            // byte bit 3, issue 30): the client asks for none.
             Report::RxCounters(_) => {}
         }
     }

@@ -5,7 +5,7 @@ use std::time::{Duration, Instant};
 
 use protocol::{
     Ack, Command, JointLimits, LimitsReport, LimitsSet, Location, StatusAsk, StatusCode,
-    StatusReport, Tag,
+    StatusReport, StopReport, Tag,
 };
 
 use super::{Client, check};
@@ -49,6 +49,7 @@ impl Client {
         let ask = StatusAsk {
             location: true,
             look_only,
+            stop_cause: false,
             counters: false,
         };
         let reports = self.status_reports();
@@ -87,6 +88,58 @@ impl Client {
 }
 
 impl Client {
+    /// What ended the last run and who sent the STOPPED (issue 31): STATUS with request
+    /// byte bit 2 (look only, from any host), answered with the STATUS and a STOP_CAUSE
+    /// report. The report is `None` from a controller older than issue 31 (it refuses the
+    /// bit: `INVALID_CONFIG`, or `BAD_LENGTH` before issue 23; the STATUS then comes from
+    /// a plain STATUS) or if it was lost.
+    pub fn stop_report(&self) -> Result<(StatusReport, Option<StopReport>)> {
+        let _upload = super::lock(&self.upload);
+        self.stop_report_unlocked(None)
+    }
+
+    /// As [`Client::stop_report`], every wait looking at `cancel`.
+    pub(crate) fn stop_report_cancellable(
+        &self,
+        cancel: Option<&crate::Cancel>,
+    ) -> Result<(StatusReport, Option<StopReport>)> {
+        let _upload = super::lock(&self.upload);
+        self.stop_report_unlocked(cancel)
+    }
+
+    pub(crate) fn stop_report_unlocked(
+        &self,
+        cancel: Option<&crate::Cancel>,
+    ) -> Result<(StatusReport, Option<StopReport>)> {
+        let ask = StatusAsk {
+            look_only: true,
+            stop_cause: true,
+            ..StatusAsk::default()
+        };
+        let reports = self.status_reports();
+        let (tx, stops) = std::sync::mpsc::channel();
+        super::lock(&self.shared.stops).push(tx);
+        for _ in 0..self.options.attempts {
+            let ack = self.exchange_unlocked(&Command::StatusWith(ask), cancel)?;
+            if matches!(
+                ack.status,
+                StatusCode::InvalidConfig | StatusCode::BadLength
+            ) {
+                return Ok((self.status_unlocked(cancel)?, None));
+            }
+            check(Tag::Status, ack)?;
+            let Ok(status) = reports.recv_timeout(self.options.report_timeout) else {
+                continue;
+            };
+            // The STOP_CAUSE report comes right after the STATUS.
+            return Ok((status, recv_within(&stops, self.options.report_timeout)));
+        }
+        Err(Error::NoReport {
+            command: Tag::Status,
+            attempts: self.options.attempts,
+        })
+    }
+
     /// LIMITS_GET: every joint's limits on the controller and the last point it refused
     /// for one (issue 23). An older controller answers `UNKNOWN_TAG`.
     pub fn limits(&self) -> Result<LimitsReport> {
@@ -105,6 +158,41 @@ impl Client {
         Err(Error::NoReport {
             command: Tag::LimitsGet,
             attempts: self.options.attempts,
+        })
+    }
+
+    /// LIMITS_GET with its request byte (issue 31): the LIMITS report with each joint's
+    /// `max_accel_steps_s2` (`max_accel` is `Some`). A controller older than issue 31
+    /// refuses the byte (`BAD_LENGTH`): the plain report then, `max_accel` `None`.
+    pub fn limits_with_accel(&self) -> Result<LimitsReport> {
+        let _upload = super::lock(&self.upload);
+        let (tx, rx) = std::sync::mpsc::channel();
+        super::lock(&self.shared.limits).push(tx);
+        let mut command = Command::LimitsGetWithAccel;
+        for _ in 0..self.options.attempts {
+            let ack = self.exchange_unlocked(&command, None)?;
+            if ack.status == StatusCode::BadLength && command == Command::LimitsGetWithAccel {
+                command = Command::LimitsGet;
+                continue;
+            }
+            check(Tag::LimitsGet, ack)?;
+            if let Ok(report) = rx.recv_timeout(self.options.report_timeout) {
+                return Ok(report);
+            }
+        }
+        Err(Error::NoReport {
+            command: Tag::LimitsGet,
+            attempts: self.options.attempts,
+        })
+    }
+
+    /// ACCEL_SET (issue 31): joint `joint`'s most acceleration, steps/s² (0: none), kept
+    /// by the controller with its limits; only while STOPPED. An older controller answers
+    /// `UNKNOWN_TAG`.
+    pub fn set_accel(&self, joint: u8, max_accel_steps_s2: u32) -> Result<Ack> {
+        self.send(&Command::AccelSet {
+            joint,
+            max_accel_steps_s2,
         })
     }
 

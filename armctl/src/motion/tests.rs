@@ -232,3 +232,32 @@ fn limits_come_from_the_config_capped_by_the_controller() {
     };
     assert_eq!(JointLimit::from_config(&j, None).max_accel, 123.0);
 }
+
+/// Issue 31: one range check for `armctl move` and Python's `move_to`, naming the joint as
+/// the config does and speaking the user's units.
+#[test]
+fn a_target_out_of_range_is_named_and_shown_in_the_users_units() {
+    let config = ArmConfig::parse(
+        r#"{"units": "deg", "joints": [{"steps_per_radian": 1000, "max_step_rate_hz": 4000},
+            {"name": "elbow", "steps_per_radian": 1000, "max_step_rate_hz": 4000,
+             "min_steps": -785, "max_steps": 785}]}"#,
+        "arm.json",
+    )
+    .unwrap();
+    let limits = JointLimit::all(&config, None);
+    let mut target = [0; MAX_JOINTS];
+    assert_eq!(check_targets(&target, &limits, &config, Units::Deg), Ok(()));
+    target[1] = 873;
+    assert_eq!(
+        check_targets(&target, &limits, &config, Units::Deg),
+        Err(
+            "elbow: target 50.02 deg (873 steps) is outside its range -44.98 deg to 44.98 deg \
+             (-785 to 785 steps)"
+                .into()
+        )
+    );
+    assert_eq!(
+        check_targets(&target, &limits, &config, Units::Steps),
+        Err("elbow: target 873 steps is outside its range -785 steps to 785 steps".into())
+    );
+}

@@ -5,7 +5,8 @@
 use std::time::{Duration, Instant};
 
 use protocol::{
-    Command, Location, MAX_POINTS_PER_FRAME, Point, State, StatusFlags, StatusReport, Tag,
+    Command, Location, MAX_POINTS_PER_FRAME, Point, State, StatusFlags, StatusReport, StopCause,
+    StopReport, Tag,
 };
 
 use crate::client::{Client, check, lock, recv_cancellable};
@@ -113,28 +114,40 @@ pub struct RunReport {
     pub final_location: Option<Location>,
 }
 
-/// The error for a run that stopped early, from the STATUS after it.
-fn run_ended(status: Option<&StatusReport>, total: usize) -> Error {
+/// The error for a run that stopped early, from the STATUS after it and the STOP_CAUSE
+/// report (issue 31; `None` from an older controller).
+fn run_ended(status: Option<&StatusReport>, total: usize, stop: Option<&StopReport>) -> Error {
     // Received versus executed (PROTOCOL.md, "How the last run ended"): an underrun with
     // points received and not run, or with every point received, is the controller falling
     // behind its own buffer; only one that ran everything it had received, short of the
     // total, is an upload that came too slowly.
-    let reason = match status {
-        Some(s) if s.flags.has(StatusFlags::STOPPED_BY_HOST) => RunEnd::Stopped,
-        Some(s)
-            if s.flags.has(StatusFlags::UNDERRUN)
-                && (s.received > s.executed || usize::from(s.received) >= total) =>
-        {
+    let underrun = |s: &StatusReport| {
+        if s.received > s.executed || usize::from(s.received) >= total {
             RunEnd::Starved
+        } else {
+            RunEnd::Underrun
         }
-        Some(s) if s.flags.has(StatusFlags::UNDERRUN) => RunEnd::Underrun,
-        _ => RunEnd::Unknown,
+    };
+    let reason = match status {
+        // The stop cause (issue 31) first; the flags of an older controller otherwise.
+        Some(s) => match s.stop_cause() {
+            Some(StopCause::Stopped) => RunEnd::Stopped,
+            Some(StopCause::EstopInput) => RunEnd::EstopInput,
+            Some(StopCause::Fault) => RunEnd::Fault,
+            Some(StopCause::Underrun) => underrun(s),
+            Some(_) => RunEnd::Unknown,
+            None if s.flags.has(StatusFlags::STOPPED_BY_HOST) => RunEnd::Stopped,
+            None if s.flags.has(StatusFlags::UNDERRUN) => underrun(s),
+            None => RunEnd::Unknown,
+        },
+        None => RunEnd::Unknown,
     };
     Error::RunEnded {
         reason,
         executed: status.map(|s| s.executed),
         received: status.map(|s| s.received),
         total,
+        stopped_by: crate::stopped_by(stop),
     }
 }
 
@@ -274,11 +287,17 @@ impl Client {
         report.total_time = started.elapsed();
         let clean = !status.flags.has(StatusFlags::UNDERRUN)
             && !status.flags.has(StatusFlags::STOPPED_BY_HOST)
+            && status.stop_cause().is_none_or(|c| c == StopCause::Complete)
             && usize::from(status.executed) == total;
         if clean {
             Ok(report)
         } else {
-            Err(run_ended(Some(&status), total))
+            // Who stopped it, if the controller tells (issue 31).
+            let stop = self
+                .stop_report_cancellable(cancel)
+                .ok()
+                .and_then(|(_, s)| s);
+            Err(run_ended(Some(&status), total, stop.as_ref()))
         }
     }
 }

@@ -11,7 +11,7 @@ fn ended(flags: u8, received: u16, executed: u16, total: usize) -> Error {
         executed,
         ..StatusReport::default()
     };
-    run_ended(Some(&status), total)
+    run_ended(Some(&status), total, None)
 }
 
 fn reason(e: &Error) -> RunEnd {
@@ -63,7 +63,39 @@ fn stopped_wins_and_no_status_is_unknown() {
         100,
     );
     assert_eq!(reason(&e), RunEnd::Stopped);
-    assert_eq!(reason(&run_ended(None, 100)), RunEnd::Unknown);
+    assert_eq!(reason(&run_ended(None, 100, None)), RunEnd::Unknown);
+}
+
+/// Issue 31: a wired e-stop and a STOPPED from 127.0.0.2 both read "STOPPED was sent (by
+/// this host or another)". With the stop cause the run's error names the input, or the
+/// STOPPED's sender.
+#[test]
+fn the_stop_cause_names_the_input_or_the_stoppeds_sender() {
+    let status = |cause| StatusReport {
+        state: State::Stopped,
+        flags: StatusFlags(StatusFlags::STOPPED_BY_HOST),
+        more_flags: protocol::MoreFlags(protocol::MoreFlags::of_stop_cause(cause)),
+        received: 50,
+        executed: 10,
+        ..StatusReport::default()
+    };
+    let e = run_ended(Some(&status(StopCause::EstopInput)), 100, None);
+    assert_eq!(reason(&e), RunEnd::EstopInput);
+    assert!(e.to_string().contains("wired e-stop input opened"), "{e}");
+    let stop = StopReport {
+        from_ip: [127, 0, 0, 2],
+        from_port: 40_001,
+        ..StopReport::of(StopCause::Stopped)
+    };
+    let e = run_ended(Some(&status(StopCause::Stopped)), 100, Some(&stop));
+    assert_eq!(reason(&e), RunEnd::Stopped);
+    assert!(
+        e.to_string()
+            .contains("STOPPED was sent by 127.0.0.2:40001"),
+        "{e}"
+    );
+    let e = run_ended(Some(&status(StopCause::Underrun)), 100, None);
+    assert_eq!(reason(&e), RunEnd::Starved, "received > executed");
 }
 
 /// Issue 19's load test: under 20 % loss each way the window halved down to one frame, so

@@ -480,7 +480,19 @@ impl Upload<'_, '_> {
             .status_unlocked(self.options.cancel.as_ref())
         {
             Err(Error::Interrupted) => Error::Interrupted,
-            status => run_ended(status.ok().as_ref(), self.points.len()),
+            status => {
+                let status = status.ok();
+                // Who stopped it, if the controller tells (issue 31).
+                let stop = status
+                    .filter(|s| s.stop_cause() == Some(protocol::StopCause::Stopped))
+                    .and_then(|_| {
+                        self.controller
+                            .stop_report_unlocked(self.options.cancel.as_ref())
+                            .ok()
+                    })
+                    .and_then(|(_, stop)| stop);
+                run_ended(status.as_ref(), self.points.len(), stop.as_ref())
+            }
         }
     }
 

@@ -114,6 +114,22 @@ impl ArmConfig {
             .collect()
     }
 
+    /// This config within the limits a controller keeps (LIMITS_GET, joint 0 first): each
+    /// joint's range the overlap of both (empty when they do not overlap: min above max,
+    /// every target refused), its step rate the lower of both (a kept rate of 0 is none).
+    /// Plans made with it are not refused for a kept limit (issue 31).
+    pub fn within(&self, kept: &[protocol::JointLimits]) -> ArmConfig {
+        let mut config = self.clone();
+        for (joint, kept) in config.joints.iter_mut().zip(kept) {
+            joint.min_steps = joint.min_steps.max(kept.min);
+            joint.max_steps = joint.max_steps.min(kept.max);
+            if kept.max_rate_hz != 0 {
+                joint.max_step_rate_hz = joint.max_step_rate_hz.min(kept.max_rate_hz);
+            }
+        }
+        config
+    }
+
     /// A config with no position limits and one step rate for `joints` joints.
     pub fn unlimited(joints: usize, max_step_rate_hz: u32) -> ArmConfig {
         ArmConfig {

@@ -2,7 +2,8 @@
 
 use std::fmt;
 
-use super::ArmConfig;
+use super::{ArmConfig, JointConfig};
+use crate::motion::Units;
 use crate::run::MAX_POINTS;
 
 /// Why a trajectory file was refused: where, and what.
@@ -17,10 +18,21 @@ pub struct TrajectoryError {
     pub time_s: Option<f64>,
     /// The joint.
     pub joint: Option<usize>,
-    /// The joint's name in the joint config, when it has one (boxed: a small error).
-    pub joint_name: Option<Box<str>>,
+    /// How the message shows the joint: its config name, and the user's units (boxed: a
+    /// small error). Set by [`Self::with_joint_names`] and [`Self::in_units`].
+    pub shown: Option<Box<JointShown>>,
     /// What is wrong.
     pub kind: ErrorKind,
+}
+
+/// How a [`TrajectoryError`] shows its joint.
+#[derive(Clone, Debug, PartialEq)]
+pub struct JointShown {
+    /// The joint's name in the joint config, when it has one.
+    pub name: Option<String>,
+    /// The units the user gave positions in, other than steps, with the joint's
+    /// calibration: positions and rates are shown in them too (issue 31).
+    pub units: Option<(Units, JointConfig)>,
 }
 
 /// What is wrong with a trajectory.
@@ -106,7 +118,7 @@ impl TrajectoryError {
             point: None,
             time_s: None,
             joint: None,
-            joint_name: None,
+            shown: None,
             kind,
         }
     }
@@ -124,15 +136,45 @@ impl TrajectoryError {
     }
 
     /// Names the joint after `config` (its `name`), for the message.
-    pub fn with_joint_names(mut self, config: &ArmConfig) -> TrajectoryError {
-        if let Some(j) = self.joint {
-            self.joint_name = config
-                .joints
-                .get(j)
-                .and_then(|c| c.name.as_deref())
-                .map(Box::from);
+    pub fn with_joint_names(self, config: &ArmConfig) -> TrajectoryError {
+        self.in_units(config, Units::Steps)
+    }
+
+    /// Names the joint after `config` and shows values in `units` as well as in steps
+    /// (issue 31: refusals speak the user's units).
+    pub fn in_units(mut self, config: &ArmConfig, units: Units) -> TrajectoryError {
+        if let Some(joint) = self.joint.and_then(|j| config.joints.get(j)) {
+            self.shown = Some(Box::new(JointShown {
+                name: joint.name.clone(),
+                units: (units != Units::Steps).then(|| (units, joint.clone())),
+            }));
         }
         self
+    }
+
+    /// The user's units and the joint's calibration, when they are not steps.
+    fn units(&self) -> Option<&(Units, JointConfig)> {
+        self.shown.as_deref().and_then(|s| s.units.as_ref())
+    }
+
+    /// ` (30.02 deg)`: `steps`, a position, in the user's units; empty in steps.
+    fn position_in_units(&self, steps: i64) -> String {
+        match self.units() {
+            Some((units, joint)) => format!(" ({})", units.show(steps, joint)),
+            None => String::new(),
+        }
+    }
+
+    /// ` (114.59 deg/s)`: `steps_per_s` in the user's units; empty in steps.
+    fn rate_in_units(&self, steps_per_s: f64) -> String {
+        match self.units() {
+            Some((units, joint)) => format!(
+                " ({:.2} {}/s)",
+                units.distance_from_steps(steps_per_s, joint).abs(),
+                units.name()
+            ),
+            None => String::new(),
+        }
     }
 
     /// Whether `point` counts resampled segments (`--segment-ms`) rather than the file's
@@ -157,7 +199,7 @@ impl fmt::Display for TrajectoryError {
         }
         if let Some(j) = self.joint {
             write!(f, ", joint {j}")?;
-            if let Some(name) = &self.joint_name {
+            if let Some(name) = self.shown.as_deref().and_then(|s| s.name.as_ref()) {
                 write!(f, " ({name})")?;
             }
         }
@@ -178,27 +220,34 @@ impl fmt::Display for TrajectoryError {
             ErrorKind::TooShort => {
                 f.write_str("a trajectory needs two waypoints at different times")
             }
-            ErrorKind::BelowMin { value, limit } => {
-                write!(
-                    f,
-                    "position {value} steps is below the minimum {limit} steps"
-                )
-            }
-            ErrorKind::AboveMax { value, limit } => {
-                write!(
-                    f,
-                    "position {value} steps is above the maximum {limit} steps"
-                )
-            }
+            ErrorKind::BelowMin { value, limit } => write!(
+                f,
+                "position {value} steps{} is below the minimum {limit} steps{}",
+                self.position_in_units(*value),
+                self.position_in_units(i64::from(*limit))
+            ),
+            ErrorKind::AboveMax { value, limit } => write!(
+                f,
+                "position {value} steps{} is above the maximum {limit} steps{}",
+                self.position_in_units(*value),
+                self.position_in_units(i64::from(*limit))
+            ),
             ErrorKind::StepRate {
                 steps,
                 duration_us,
                 limit_hz,
-            } => write!(
-                f,
-                "{steps} steps in {duration_us} us = {:.0} steps/s exceeds the limit of {limit_hz} steps/s: slow the trajectory down",
-                *steps as f64 * 1e6 / f64::from(*duration_us)
-            ),
+            } => {
+                let rate = *steps as f64 * 1e6 / f64::from(*duration_us);
+                write!(
+                    f,
+                    "{steps} steps in {duration_us} us = {rate:.0} steps/s{} exceeds the limit \
+                     of {limit_hz} steps/s{}: slow the trajectory down, it needs {} longer \
+                     here",
+                    self.rate_in_units(rate),
+                    self.rate_in_units(f64::from(*limit_hz)),
+                    slow_down(rate, f64::from(*limit_hz))
+                )
+            }
             ErrorKind::StartMismatch { current, start } => write!(
                 f,
                 "the trajectory starts at {start} steps at t = 0 but the arm is at {current} \
@@ -233,3 +282,12 @@ impl fmt::Display for TrajectoryError {
 }
 
 impl std::error::Error for TrajectoryError {}
+
+/// `2.3x`: how many times longer a motion at `rate` must take to keep within `limit`,
+/// rounded up to a tenth (so that it fits).
+pub fn slow_down(rate: f64, limit: f64) -> String {
+    if limit <= 0.0 {
+        return "a limit above 0 (it has none), and so infinitely".into();
+    }
+    format!("{:.1}x", (rate / limit * 10.0).ceil() / 10.0)
+}

@@ -5,8 +5,9 @@
 //!   `points` with `positions` in radians and `time_from_start {sec, nanosec}`. It needs an
 //!   [`ArmConfig`] (steps per radian, zero offset, limits, max step rate per joint).
 //! - CSV: `time_s, joint 0, joint 1, ...` with positions in steps, or in the config's
-//!   `units` (degrees, radians); an optional header line. With a config, joints the file
-//!   leaves out hold their position.
+//!   `units` (degrees, radians); an optional header line whose columns name the joints
+//!   (the config's names, `jN` or `N`, in any order; another name is refused). Joints
+//!   the file leaves out hold their position.
 //!
 //! [`to_points`] resamples the waypoints into segments no longer than the duration asked
 //! for, each span between two waypoints cut into equal segments so that every waypoint is a
@@ -44,10 +45,10 @@ mod resample;
 mod tests;
 
 pub use config::{ArmConfig, JointConfig};
-pub use error::{ErrorKind, TrajectoryError};
+pub use error::{ErrorKind, JointShown, TrajectoryError, slow_down};
 pub use parse::{
     JointTrajectory, JointTrajectoryPoint, RosDuration, joint_trajectory_to_waypoints, parse_csv,
-    parse_joint_trajectory,
+    parse_csv_with, parse_joint_trajectory,
 };
 pub use resample::{check_waypoints, to_points};
 
@@ -126,7 +127,7 @@ pub fn load_in(
         })?;
         parse_joint_trajectory(&text, &file, config)
     } else {
-        let mut waypoints = parse_csv(&text, &file)?;
+        let mut waypoints = parse_csv_with(&text, &file, config)?;
         let units = units.or(config.map(|c| c.units)).unwrap_or_default();
         match config {
             Some(config) => csv_with_config(&mut waypoints, config, units)?,

@@ -138,8 +138,107 @@ pub fn joint_trajectory_to_waypoints(
 }
 
 /// Parses CSV rows `time_s, steps joint 0, steps joint 1, ...` (a first line that is not
-/// numbers is a header; `#` starts a comment line).
+/// numbers is a header; `#` starts a comment line). A header's joint columns are named
+/// `j0`, `j1`, ... or `0`, `1`, ..., in any order (joints left out hold); any other name
+/// is refused, naming it (a config's names need [`parse_csv_with`]).
 pub fn parse_csv(text: &str, file: &str) -> Result<Waypoints, TrajectoryError> {
+    parse_csv_with(text, file, None)
+}
+
+/// As [`parse_csv`], a header's columns also named after `config`'s joints (issue 31:
+/// `time_s,elbow,base` moved joints 0 and 1, in the file's order). Without a header the
+/// columns are joints 0, 1, ... in order.
+pub fn parse_csv_with(
+    text: &str,
+    file: &str,
+    config: Option<&ArmConfig>,
+) -> Result<Waypoints, TrajectoryError> {
+    let (mut waypoints, header) = parse_csv_table(text, file)?;
+    if let Some(header) = header {
+        let columns = header
+            .iter()
+            .enumerate()
+            .map(|(c, name)| column_joint(name, c + 2, file, config))
+            .collect::<Result<Vec<usize>, _>>()?;
+        for (c, &j) in columns.iter().enumerate() {
+            if let Some(first) = columns[..c].iter().position(|&k| k == j) {
+                return Err(TrajectoryError::new(
+                    file,
+                    ErrorKind::Parse(format!(
+                        "columns {} ({:?}) and {} ({:?}) are both joint {j}",
+                        first + 2,
+                        header[first],
+                        c + 2,
+                        header[c]
+                    )),
+                ));
+            }
+        }
+        let width = columns.iter().max().map_or(0, |&j| j + 1);
+        for row in &mut waypoints.positions {
+            let mut mapped = vec![None; width];
+            for (&j, value) in columns.iter().zip(row.iter()) {
+                mapped[j] = *value;
+            }
+            *row = mapped;
+        }
+    }
+    Ok(waypoints)
+}
+
+/// The joint a CSV header's column `name` (column number `column`, from 1) stands for: a
+/// name of `config`'s joints, `jN` or `N`.
+fn column_joint(
+    name: &str,
+    column: usize,
+    file: &str,
+    config: Option<&ArmConfig>,
+) -> Result<usize, TrajectoryError> {
+    if let Some(j) = config.and_then(|c| {
+        c.joints
+            .iter()
+            .position(|jc| jc.name.as_deref() == Some(name))
+    }) {
+        return Ok(j);
+    }
+    let index = name
+        .strip_prefix(['j', 'J'])
+        .unwrap_or(name)
+        .parse::<usize>()
+        .ok();
+    let joints = config.map_or(MAX_JOINTS, |c| c.joints.len());
+    match index {
+        Some(j) if j < joints => Ok(j),
+        _ => {
+            let names: Vec<&str> = config
+                .map(|c| c.joints.iter().filter_map(|j| j.name.as_deref()).collect())
+                .unwrap_or_default();
+            let known = if names.is_empty() {
+                format!("name the columns j0 to j{}", joints - 1)
+            } else {
+                format!(
+                    "the config's joints are {}; j0 to j{} also name joints by index",
+                    names.join(", "),
+                    joints - 1
+                )
+            };
+            Err(TrajectoryError::new(
+                file,
+                ErrorKind::Parse(format!(
+                    "column {column} of the header, {name:?}, is not a joint ({known})"
+                )),
+            ))
+        }
+    }
+}
+
+/// The CSV's rows in the file's column order, and its header's joint column names (the
+/// time column left out), when it has a header.
+fn parse_csv_table(
+    text: &str,
+    file: &str,
+) -> Result<(Waypoints, Option<Vec<String>>), TrajectoryError> {
+    let mut header = None;
     let mut waypoints = Waypoints {
         file: file.to_string(),
         times_us: Vec::new(),
@@ -172,6 +271,7 @@ pub fn parse_csv(text: &str, file: &str) -> Result<Waypoints, TrajectoryError> {
             Err(_) if waypoints.times_us.is_empty() && joints.is_none() => {
                 // The header.
                 joints = Some(fields.len().saturating_sub(1));
+                header = Some(fields.iter().skip(1).map(|f| f.to_string()).collect());
                 continue;
             }
             Err(e) => {
@@ -215,7 +315,7 @@ pub fn parse_csv(text: &str, file: &str) -> Result<Waypoints, TrajectoryError> {
             .push(numbers[1..].iter().map(|&p| Some(p)).collect());
     }
     check_times(&waypoints)?;
-    Ok(waypoints)
+    Ok((waypoints, header))
 }
 
 fn check_times(waypoints: &Waypoints) -> Result<(), TrajectoryError> {

@@ -572,7 +572,10 @@ fn a_csv_in_degrees_is_read_with_the_config_units() {
         "arm.json",
     )
     .unwrap();
-    let path = temp_file("deg.csv", "time_s,base\n1.0,90\n");
+    // Changed with issue 31 (CSV columns by header name): the header was `time_s,base`
+    // for this config without names, read by position; a name the config lacks is now
+    // refused.
+    let path = temp_file("deg.csv", "time_s,j0\n1.0,90\n");
     let w = load(&path, Some(&config)).unwrap();
     let steps = w.positions[0][0].unwrap();
     assert!((steps - (5.0 + 1000.0 * std::f64::consts::FRAC_PI_2)).abs() < 1e-9);
@@ -581,4 +584,126 @@ fn a_csv_in_degrees_is_read_with_the_config_units() {
     assert_eq!(w.positions[0][0], Some(90.0));
     let err = load_in(&path, None, Some(crate::motion::Units::Rad)).unwrap_err();
     assert!(err.to_string().contains("needs a joint config"), "{err}");
+}
+
+/// Issue 31: `time_s,elbow,base` (row `1.0,400,-700`) with arm.json moved joint 0 by +400
+/// and joint 1 by -700, and the elbow stayed; JSON files mapped by name. CSV columns map
+/// by header name now.
+#[test]
+fn csv_columns_map_by_header_name() {
+    let config = ArmConfig::parse(include_str!("../../examples/arm.json"), "arm.json").unwrap();
+    let path = temp_file("named.csv", "time_s,elbow,base\n1.0,400,-700\n");
+    let w = load_in(&path, Some(&config), Some(crate::motion::Units::Steps)).unwrap();
+    assert_eq!(
+        w.positions[0],
+        vec![Some(-700.0), None, Some(400.0), None, None, None]
+    );
+    // jN and bare indices, in any order, with a config or without.
+    let w = parse_csv("time_s,j2,0\n0.5,7,-3\n", "idx.csv").unwrap();
+    assert_eq!(w.positions[0], vec![Some(-3.0), None, Some(7.0)]);
+    let path = temp_file("mixed.csv", "t,wrist_3,J1\n0.5,10,20\n");
+    let w = load_in(&path, Some(&config), Some(crate::motion::Units::Steps)).unwrap();
+    assert_eq!(
+        w.positions[0],
+        vec![None, Some(20.0), None, None, None, Some(10.0)]
+    );
+    // Without a header: by position, as before.
+    let w = parse_csv("0.5,1,2\n", "plain.csv").unwrap();
+    assert_eq!(w.positions[0], vec![Some(1.0), Some(2.0)]);
+}
+
+/// Issue 31: a header name that is not a joint is refused, naming it and the names that
+/// are; so is a joint given twice, and an index past the config's joints.
+#[test]
+fn a_csv_header_that_names_no_joint_is_refused() {
+    let config = ArmConfig::parse(include_str!("../../examples/arm.json"), "arm.json").unwrap();
+    let path = temp_file("typo.csv", "time_s,elbw,base\n1.0,400,-700\n");
+    let err = load_in(&path, Some(&config), None).unwrap_err().to_string();
+    assert!(
+        err.contains("column 2 of the header, \"elbw\", is not a joint"),
+        "{err}"
+    );
+    assert!(err.contains("base, shoulder, elbow, wrist_1"), "{err}");
+    let err = parse_csv("time_s,base\n1.0,400\n", "t.csv")
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("\"base\", is not a joint (name the columns j0 to j7)"),
+        "{err}"
+    );
+    let path = temp_file("twice.csv", "time_s,base,j0\n1.0,1,2\n");
+    let err = load_in(&path, Some(&config), None).unwrap_err().to_string();
+    assert!(
+        err.contains("columns 2 (\"base\") and 3 (\"j0\") are both joint 0"),
+        "{err}"
+    );
+    let path = temp_file("past.csv", "time_s,j6\n1.0,1\n");
+    let err = load_in(&path, Some(&config), None).unwrap_err().to_string();
+    assert!(err.contains("\"j6\", is not a joint"), "{err}");
+}
+
+/// Issue 31: the limits a controller keeps narrow a config's (range overlap, lower rate;
+/// a kept rate of 0 is none of its own).
+#[test]
+fn a_config_within_the_controllers_kept_limits() {
+    use protocol::JointLimits;
+    let config = ArmConfig::unlimited(2, 100_000).within(&[
+        JointLimits {
+            min: -16_000,
+            max: 16_000,
+            max_rate_hz: 20_000,
+        },
+        JointLimits::NONE,
+    ]);
+    assert_eq!(
+        (config.joints[0].min_steps, config.joints[0].max_steps),
+        (-16_000, 16_000)
+    );
+    assert_eq!(config.joints[0].max_step_rate_hz, 20_000);
+    assert_eq!(config.joints[1], ArmConfig::unlimited(2, 100_000).joints[1]);
+    let narrow = config.within(&[JointLimits {
+        min: 0,
+        max: 50_000,
+        max_rate_hz: 30_000,
+    }]);
+    assert_eq!(
+        (narrow.joints[0].min_steps, narrow.joints[0].max_steps),
+        (0, 16_000)
+    );
+    assert_eq!(narrow.joints[0].max_step_rate_hz, 20_000);
+}
+
+/// Issue 31: a refusal names the joint by its config name, the point's time, the values
+/// in the user's units as well as steps, and for a step rate the slow-down that fits.
+#[test]
+fn refusals_speak_the_users_units_and_say_how_much_slower() {
+    // As above: 150 steps in a 50 ms segment, 3000 steps/s against 2000.
+    let text = trajectory(&[point(0, 0, 0.0, 0.0), point(0, 100_000_000, 0.3, 0.0)].join(","));
+    let w = parse_joint_trajectory(&text, "fast.json", &config()).unwrap();
+    let err = to_points(&w, &[100, 0, 0, 0, 0, 0, 0, 0], 50_000, &config(), None).unwrap_err();
+    let message = err
+        .in_units(&config(), crate::motion::Units::Deg)
+        .to_string();
+    assert!(message.contains("joint 0 (shoulder)"), "{message}");
+    assert!(message.contains("(t = 0.050000 s)"), "{message}");
+    // 3000 steps/s at 1000 steps/rad: 171.9 deg/s; the limit 2000: 114.6 deg/s.
+    assert!(
+        message.contains(
+            "3000 steps/s (171.89 deg/s) exceeds the limit of 2000 steps/s (114.59 deg/s)"
+        ),
+        "{message}"
+    );
+    assert!(message.contains("needs 1.5x longer"), "{message}");
+    let low = parse_csv("0,100,0\n1,-2101,0\n", "low.csv").unwrap();
+    let err = to_points(&low, &[100, 0, 0, 0, 0, 0, 0, 0], 10_000, &config(), None).unwrap_err();
+    let message = err
+        .in_units(&config(), crate::motion::Units::Deg)
+        .to_string();
+    // Positions from the zero offset (100 steps): -2101 steps is -126.11 deg.
+    assert!(
+        message.contains(
+            "position -2101 steps (-126.11 deg) is below the minimum -2000 steps (-120.32 deg)"
+        ),
+        "{message}"
+    );
 }

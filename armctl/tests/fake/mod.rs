@@ -303,9 +303,13 @@ impl Sim {
         let now_us = u64::try_from(self.started.elapsed().as_micros()).unwrap_or(u64::MAX);
         let before = self.controller.status(&self.plant);
         let received_before = before.received;
-        let response = self
-            .controller
-            .handle(endpoint(from), datagram, now_us, &mut self.plant);
+        let mut response =
+            self.controller
+                .handle(endpoint(from), datagram, now_us, &mut self.plant);
+        // A settings write: stored at once (in memory), then its ACK.
+        if let Some(Deferred::SaveSettings(_)) = response.deferred {
+            response.reply = self.controller.settings_saved(true, now_us);
+        }
         let after = self.controller.status(&self.plant);
         let received_after = after.received;
         if before.state != protocol::State::Running

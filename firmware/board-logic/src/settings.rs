@@ -33,7 +33,9 @@ pub const NET_RECORD_LEN: usize = 6;
 /// Map key of the authentication record (issue 21): the key and the boot epoch, beside
 /// the others so that a flash written before it loads with no key.
 pub const AUTH_KEY: u8 = 3;
-/// Bytes of the authentication record: flags (bit 0: a key is set), 3 reserved, the epoch
+/// Bytes of the authentication record: flags (bit 0: a key is set), the epoch's bits 32-55
+/// (3 bytes LE; reserved and 0 before issue 30, whose epochs start at a random 56-bit
+/// place: a record written before then loads as the same epoch), the epoch's bits 0-31
 /// (u32 LE), the key (zeros without one).
 pub const AUTH_RECORD_LEN: usize = 4 + 4 + protocol::auth::KEY_LEN;
 
@@ -50,6 +52,41 @@ pub const LIMITS_RECORD_LEN: usize = 12 * LIMITS_PER_RECORD;
 // 1 key byte + the record, in whole 32-byte words, within the item buffer.
 const _: () = assert!((1 + LIMITS_RECORD_LEN).div_ceil(32) * 32 <= 64);
 const _: () = assert!(LIMITS_PER_RECORD * LIMITS_KEYS.len() == protocol::MAX_JOINTS);
+
+/// Map key of the acceleration record (ACCEL_SET, issue 31): each joint's
+/// `max_accel_steps_s2`, beside the others so that a flash written before it loads with
+/// none (0).
+pub const ACCEL_KEY: u8 = 6;
+/// Bytes of the acceleration record: joints 0-7, u32 LE each.
+pub const ACCEL_RECORD_LEN: usize = 4 * protocol::MAX_JOINTS;
+// 1 key byte + the record, in whole 32-byte words, within the item buffer.
+const _: () = assert!((1 + ACCEL_RECORD_LEN).div_ceil(32) * 32 <= 64);
+
+/// The stored acceleration record for `settings`.
+pub fn encode_accel(settings: &PersistentSettings) -> [u8; ACCEL_RECORD_LEN] {
+    let mut record = [0u8; ACCEL_RECORD_LEN];
+    for (chunk, a) in record.chunks_exact_mut(4).zip(&settings.max_accel) {
+        chunk.copy_from_slice(&a.to_le_bytes());
+    }
+    record
+}
+
+/// `settings` with the acceleration record's values.
+pub fn decode_accel(
+    settings: PersistentSettings,
+    record: &[u8; ACCEL_RECORD_LEN],
+) -> PersistentSettings {
+    let mut max_accel = settings.max_accel;
+    for (a, chunk) in max_accel.iter_mut().zip(record.chunks_exact(4)) {
+        let mut w = [0u8; 4];
+        w.copy_from_slice(chunk);
+        *a = u32::from_le_bytes(w);
+    }
+    PersistentSettings {
+        max_accel,
+        ..settings
+    }
+}
 
 /// The stored limits record `half` (0: joints 0-3, 1: joints 4-7) for `settings`.
 pub fn encode_limits(settings: &PersistentSettings, half: usize) -> [u8; LIMITS_RECORD_LEN] {
@@ -101,8 +138,8 @@ pub fn decode_limits(
 
 /// The stored authentication record for `settings`.
 pub fn encode_auth(settings: &PersistentSettings) -> [u8; AUTH_RECORD_LEN] {
-    let [e0, e1, e2, e3] = settings.auth_epoch.to_le_bytes();
-    let head = [u8::from(settings.key.is_some()), 0, 0, 0, e0, e1, e2, e3];
+    let [e0, e1, e2, e3, e4, e5, e6, _] = settings.auth_epoch.to_le_bytes();
+    let head = [u8::from(settings.key.is_some()), e4, e5, e6, e0, e1, e2, e3];
     let key = settings.key.map_or([0; protocol::auth::KEY_LEN], |k| k.0);
     let mut record = [0u8; AUTH_RECORD_LEN];
     for (r, b) in record.iter_mut().zip(head.iter().chain(&key)) {
@@ -117,11 +154,11 @@ pub fn decode_auth(
     record: &[u8; AUTH_RECORD_LEN],
 ) -> PersistentSettings {
     let (head, key) = record.split_first_chunk::<8>().unwrap_or((&[0; 8], &[]));
-    let [flags, _, _, _, e0, e1, e2, e3] = *head;
+    let [flags, e4, e5, e6, e0, e1, e2, e3] = *head;
     let key: Option<[u8; protocol::auth::KEY_LEN]> = key.try_into().ok();
     PersistentSettings {
         key: key.filter(|_| flags & 1 != 0).map(protocol::auth::AuthKey),
-        auth_epoch: u32::from_le_bytes([e0, e1, e2, e3]),
+        auth_epoch: u64::from_le_bytes([e0, e1, e2, e3, e4, e5, e6, 0]),
         ..settings
     }
 }
@@ -281,6 +318,9 @@ impl<F: NorFlash> SettingsArea<F> {
                 settings = decode_limits(settings, half, &record);
             }
         }
+        if let Some(record) = self.fetch_record::<ACCEL_RECORD_LEN>(&ACCEL_KEY).await? {
+            settings = decode_accel(settings, &record);
+        }
         Ok(settings)
     }
 
@@ -368,6 +408,13 @@ impl<F: NorFlash> SettingsArea<F> {
                 )
                 .await?;
         }
+        self.map
+            .store_item::<&[u8]>(
+                &mut self.buffer.0,
+                &ACCEL_KEY,
+                &encode_accel(settings).as_slice(),
+            )
+            .await?;
         Ok(())
     }
 
@@ -397,7 +444,32 @@ mod tests {
             key: None,
             auth_epoch: 0,
             limits: [protocol::JointLimits::NONE; protocol::MAX_JOINTS],
+            max_accel: [0; protocol::MAX_JOINTS],
         }
+    }
+
+    /// Issue 31: each joint's max acceleration is kept; a flash written before it (with
+    /// the limits records, without the acceleration record) loads with none.
+    #[test]
+    fn accelerations_are_stored_and_an_older_flash_loads_without_them() {
+        let mut fast = custom();
+        fast.max_accel[0] = 100_000;
+        fast.max_accel[7] = 1;
+        let mut area = SettingsArea::new(Flash::default(), RANGE);
+        block_on(area.save(&fast)).unwrap();
+        assert_eq!(block_on(area.load()), LoadOutcome::Stored(fast));
+        let mut old = SettingsArea::new(Flash::default(), RANGE);
+        let first: &[u8] = &encode(&custom());
+        let net: &[u8] = &encode_net(&custom());
+        let auth: &[u8] = &encode_auth(&custom());
+        block_on(old.map.store_item(&mut old.buffer.0, &SETTINGS_KEY, &first)).unwrap();
+        block_on(old.map.store_item(&mut old.buffer.0, &NET_KEY, &net)).unwrap();
+        block_on(old.map.store_item(&mut old.buffer.0, &AUTH_KEY, &auth)).unwrap();
+        for (half, key) in LIMITS_KEYS.iter().enumerate() {
+            let limits: &[u8] = &encode_limits(&custom(), half);
+            block_on(old.map.store_item(&mut old.buffer.0, key, &limits)).unwrap();
+        }
+        assert_eq!(block_on(old.load()), LoadOutcome::Stored(custom()));
     }
 
     #[test]
@@ -458,6 +530,29 @@ mod tests {
         block_on(old.map.store_item(&mut old.buffer.0, &SETTINGS_KEY, &first)).unwrap();
         block_on(old.map.store_item(&mut old.buffer.0, &NET_KEY, &net)).unwrap();
         assert_eq!(block_on(old.load()), LoadOutcome::Stored(custom()));
+    }
+
+    /// Issue 30: a key's epochs start at a random 56-bit place; the record keeps bits
+    /// 32-55 in the bytes that were reserved (0), so an older record reads as before.
+    #[test]
+    fn a_56_bit_epoch_is_stored_and_an_older_auth_record_reads_as_before() {
+        let keyed = PersistentSettings {
+            key: Some(protocol::auth::AuthKey([9; protocol::auth::KEY_LEN])),
+            auth_epoch: 0x00AB_CDEF_1234_5678,
+            ..custom()
+        };
+        let mut area = SettingsArea::new(Flash::default(), RANGE);
+        block_on(area.save(&keyed)).unwrap();
+        assert_eq!(block_on(area.load()), LoadOutcome::Stored(keyed));
+        // The layout before issue 30: flags, 3 reserved zeros, epoch u32 LE, key.
+        let mut old = [0u8; AUTH_RECORD_LEN];
+        old[0] = 1;
+        old[4..8].copy_from_slice(&7u32.to_le_bytes());
+        old[8..].copy_from_slice(&[9; protocol::auth::KEY_LEN]);
+        let read = decode_auth(custom(), &old);
+        assert_eq!(read.auth_epoch, 7);
+        assert_eq!(read.key, keyed.key);
+        assert_eq!(encode_auth(&read), old, "written back the same way");
     }
 
     #[test]

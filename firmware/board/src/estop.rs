@@ -6,7 +6,9 @@
 //! output forced inactive first, then counters and streams stopped). The rest needs the
 //! step lock, which this interrupt, above the lock's level, must never take (issue 20:
 //! the lock is BASEPRI at P2, so that it never holds this interrupt or the DIR changes
-//! off): it pends the step service interrupt (P2), whose [`service`] halts the step
+//! off), then stops a gripper burst the same way ([`crate::gripper::cut_at_stop`]:
+//! counter stopped, output forced low; a servo PWM only under `ServoOnStop::Cut`; issue
+//! 30). It pends the step service interrupt (P2), whose [`service`] halts the step
 //! backend ([`arm_core::EStopLine::edge`] -> `StepShared::halt` -> `BoardSteps::stop`:
 //! positions unwound to the pulses played, no run allowed to start until the input
 //! closes) and wakes the trajectory task, which puts the controller in STOPPED and latches
@@ -48,6 +50,10 @@
 //!    at that moment. An opening after that read pends the service again, whose halt
 //!    comes before any thread-mode code (P2); `KILL` is set again by that opening.
 //! 6. *The fault path.* It masks every interrupt and stops the outputs itself.
+//! 7. *The gripper.* The kill cuts a burst the timer runs; a `start` it preempted before
+//!    that start's critical section may start it again, and the controller's stop for
+//!    the same opening, applied before the trajectory task handles anything else, cuts
+//!    it then (`gripper.rs`, "Stops").
 
 use core::sync::atomic::{AtomicBool, Ordering};
 
@@ -94,8 +100,8 @@ pub fn start(_pin: Peri<'static, peripherals::PC0>) {
     exti.imr(0).modify(|w| w.set_line(PIN, true));
     interrupt::EXTI0.set_priority(Priority::P0);
     // SAFETY: the handler touches EXTI's pending bit, GPIOC's input, the step outputs'
-    // registers (kill_step_outputs) and two atomics, and pends the step service; it
-    // never takes the step lock.
+    // registers (kill_step_outputs), TIM15's CR1 and CCMR1 (cut_at_stop) and three
+    // atomics, and pends the step service; it never takes the step lock.
     unsafe { interrupt::EXTI0.enable() };
     // An edge before the interrupt was enabled is pending and runs the handler; a level
     // that did not change is read here.
@@ -113,6 +119,8 @@ fn EXTI0() {
     pac::EXTI.pr(0).write(|w| w.set_line(PIN, true));
     if is_open() {
         crate::step_dma::kill_step_outputs();
+        // Then the gripper's burst (issue 30): after the STEP lines, two register writes.
+        crate::gripper::cut_at_stop();
         OPENED.store(true, Ordering::SeqCst);
     }
     EDGE.store(true, Ordering::SeqCst);

@@ -16,8 +16,24 @@
 //!   periods; the interrupt at the end of burst k (burst k + 1 is running) loads the size
 //!   of burst k + 2 into RCR, or sets one-pulse mode when k + 1 is the last. It has at
 //!   least 128 periods to do so.
+//!
+//! # Stops (issue 30)
+//! A STOPPED or the wired e-stop input stops the gripper as the joints: the controller cuts
+//! a counted burst (and a servo PWM under `ServoOnStop::Cut`) through [`Gripper::stop`].
+//! Where the steps are halted before any task runs, [`cut_at_stop`] cuts the gripper too:
+//! the wired input's interrupt (EXTI0, P0, right after the STEP outputs) and the receive
+//! path's halt of a STOPPED (`arm_wiring::controller_tasks!`'s `halt_also`). It stops the
+//! counter and forces the output low, two register writes, when [`CUT_AT_STOP`] says what
+//! runs is to be cut. From EXTI0 it may preempt [`Gripper::start`] before that start's
+//! critical section and be undone by it; the controller's stop for the same opening,
+//! applied before the trajectory task handles anything else, then cuts it.
+//!
 
 use core::cell::Cell;
+use core::sync::atomic::{AtomicBool, Ordering};
+
+use arm_core::config::ServoOnStop;
+use arm_core::hw::Gripper;
 
 use board_logic::gripper::{next_burst, rcr_for};
 use embassy_stm32::gpio::{Level, Output, OutputType, Speed};
@@ -39,20 +55,28 @@ const SR_UPDATE: u32 = 1 << 0;
 /// Pulses of the current stepper-mode run not yet loaded into the repetition counter.
 static UNLOADED_PULSES: Mutex<CriticalSectionRawMutex, Cell<u32>> = Mutex::new(Cell::new(0));
 
+/// What runs is cut by a stop's own cut ([`cut_at_stop`]): a counted burst, or a servo PWM
+/// under [`ServoOnStop::Cut`]. Set by `start`, cleared by `stop`.
+static CUT_AT_STOP: AtomicBool = AtomicBool::new(false);
+
 /// The gripper timer ([`arm_core::hw::Gripper`]).
 pub struct GripperPwm {
     _timer: Timer<'static, TIM15>,
     _pin: PwmPin<'static, TIM15, Ch1>,
     dir: Output<'static>,
     clock_hz: u32,
+    servo_on_stop: ServoOnStop,
 }
 
 impl GripperPwm {
     /// Takes TIM15, its channel 1 pin and the DIR pin; the output stays low until `start`.
+    /// `servo_on_stop` is the controller's (`ControllerConfig::servo_on_stop`), for a
+    /// stop's own cut ([`cut_at_stop`]).
     pub fn new(
         tim: Peri<'static, TIM15>,
         pwm_pin: Peri<'static, PE5>,
         dir_pin: Peri<'static, PE4>,
+        servo_on_stop: ServoOnStop,
     ) -> Self {
         let timer = Timer::new(tim);
         let clock_hz = timer.get_clock_frequency().0;
@@ -79,11 +103,29 @@ impl GripperPwm {
             _pin: pin,
             dir,
             clock_hz,
+            servo_on_stop,
         }
     }
 }
 
-impl arm_core::hw::Gripper for GripperPwm {
+/// A stop's own cut of the gripper, before the controller's (see "Stops" above): when what
+/// runs is to be cut ([`CUT_AT_STOP`]), the counter stopped and the output forced low at
+/// once. A short critical section, as every other write of these registers (the burst
+/// reloads' interrupt at P2 writes CR1 too); from EXTI0, at P0, it masks nothing more. The
+/// burst's bookkeeping is reset by the controller's [`Gripper::stop`] that follows.
+pub fn cut_at_stop() {
+    if !CUT_AT_STOP.load(Ordering::SeqCst) {
+        return;
+    }
+    let regs = pac::TIM15;
+    critical_section::with(|_| {
+        regs.cr1().modify(|w| w.set_cen(false));
+        regs.ccmr_output()
+            .modify(|w| w.set_ocm(0, pac::timer::vals::Ocm::FORCE_INACTIVE));
+    });
+}
+
+impl Gripper for GripperPwm {
     fn timer_clock_hz(&self) -> u32 {
         self.clock_hz
     }
@@ -110,7 +152,9 @@ impl arm_core::hw::Gripper for GripperPwm {
         self.dir.set_level(Level::from(pwm.pulse_count >= 0));
 
         let pulses = pwm.pulse_count.unsigned_abs();
+        let cut = self.servo_on_stop.cuts(pwm.pulse_count);
         critical_section::with(|cs| {
+            CUT_AT_STOP.store(cut, Ordering::SeqCst);
             let unloaded = UNLOADED_PULSES.borrow(cs);
             if pulses == 0 {
                 // Servo mode: run until stopped.
@@ -150,6 +194,7 @@ impl arm_core::hw::Gripper for GripperPwm {
     fn stop(&mut self) {
         let regs = pac::TIM15;
         critical_section::with(|cs| {
+            CUT_AT_STOP.store(false, Ordering::SeqCst);
             regs.cr1().modify(|w| w.set_cen(false));
             regs.dier().write(|w| w.set_uie(false));
             regs.ccmr_output()

@@ -12,7 +12,7 @@
 //!
 //! | priority | what | why |
 //! |---|---|---|
-//! | P0 (highest) | EXTI0: the wired e-stop input on PC0 ([`estop`]): every STEP output stopped (register writes), then the step service pended | nothing may delay an e-stop; it preempts even a DIR change, which no longer matters once the run is stopped |
+//! | P0 (highest) | EXTI0: the wired e-stop input on PC0 ([`estop`]): every STEP output stopped (register writes), a gripper burst cut (two more), then the step service pended | nothing may delay an e-stop; it preempts even a DIR change, which no longer matters once the run is stopped |
 //! | P1 | TIM13: step clock ([`step_timer`]): DIR changes at reversals (from lock-free queues), the run's end handed to the step service | a DIR change must come between a pulse's fall and the next pulse's setup |
 //! | P2 | DMA2 streams 0-7: STEP buffer refills ([`step_dma`]); TIM7's vector: the step service (run end, the e-stop's halt); TIM15: gripper burst reloads ([`gripper`]) | a half (64 periods) of slack; 128 PWM periods |
 //! | P3 | TIM12: embassy-time | task wake-ups |
@@ -180,6 +180,8 @@ arm_wiring::controller_tasks! {
     serial: BoardSerial,
     settings: FlashSettings,
     encoders: ModbusEncoders,
+    // A STOPPED cuts a gripper burst where it is first seen, as the steps (issue 30).
+    halt_also: crate::gripper::cut_at_stop,
     // The watchdog feeds the IWDG only while these two futures are polled.
     liveness: { trajectory: crate::TrajectoryBeat, network: crate::network_beating },
 }
@@ -359,7 +361,7 @@ async fn main(spawner: Spawner) -> ! {
             p.PE3.into(),
         ],
     });
-    let gripper = GripperPwm::new(p.TIM15, p.PE5, p.PE4);
+    let gripper = GripperPwm::new(p.TIM15, p.PE5, p.PE4, CONTROLLER_CONFIG.servo_on_stop);
 
     let uart = match Uart::new(
         p.USART6,
@@ -398,12 +400,18 @@ async fn main(spawner: Spawner) -> ! {
     };
     set_driver_priorities();
 
+    // The chip's RNG: the epochs of keys set (issue 30: a key set again after the settings
+    // were lost starts at a random epoch, never at 1 again), and the TCP/IP stack's seed.
+    let mut rng = Rng::new(p.RNG, Irqs);
+    let entropy = rng.next_u64();
+
     // Every task but the network's: the arm works (and stops on its underrun rule) with or
     // without a network.
     defmt::unwrap!(spawn_controller(
         &spawner,
         controller_config,
         net::mac_address(),
+        entropy,
         TrajectoryHw {
             kick,
             outputs,
@@ -454,7 +462,7 @@ async fn main(spawner: Spawner) -> ! {
         mdc: p.PC1,
     };
     // The TCP/IP stack wants a random seed (initial sequence numbers, DHCP transaction IDs).
-    let seed = Rng::new(p.RNG, Irqs).next_u64();
+    let seed = rng.next_u64();
     while !net::phy_clock_present(eth_pins.ref_clk.reborrow()) {
         warn!(
             "ethernet: no RMII reference clock (PHY missing or dead): no network, retry in {} s",

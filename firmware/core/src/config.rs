@@ -41,6 +41,33 @@ pub struct ControllerConfig {
     pub return_accel: [u32; MAX_JOINTS],
     /// RETURN: length of each generated point, microseconds.
     pub return_segment_us: u32,
+    /// What a stop (STOPPED, the wired e-stop input) does to a servo PWM on the gripper
+    /// timer; a counted burst is always cut (issue 30).
+    pub servo_on_stop: ServoOnStop,
+}
+
+/// What a stop (STOPPED, the wired e-stop input) does to a servo PWM (PWM_START with
+/// `PluseCount` 0) on the gripper timer (issue 30; docs/PROTOCOL.md, PWM_START). A counted
+/// burst (a stepper gripper) is motion and every stop cuts it; a servo's PWM is a held
+/// position, and cutting it makes most hobby servos go limp, so that a closed gripper
+/// drops its part. Either can be right for a given arm, so it is a board setting.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum ServoOnStop {
+    /// The servo PWM keeps its duty through a stop (the gripper keeps holding; STATUS flag
+    /// bit 6 stays set); PWM_STOP still cuts it. The default.
+    #[default]
+    Hold,
+    /// A stop cuts the servo PWM too, as PWM_STOP does (STATUS flag bit 6 clear).
+    Cut,
+}
+
+impl ServoOnStop {
+    /// Whether a stop cuts a gripper output started with this `pulse_count` (PWM_START):
+    /// the one rule the controller, the board's interrupts and the simulator apply.
+    pub const fn cuts(self, pulse_count: i32) -> bool {
+        pulse_count != 0 || matches!(self, ServoOnStop::Cut)
+    }
 }
 
 impl ControllerConfig {
@@ -52,5 +79,21 @@ impl ControllerConfig {
 impl Default for ControllerConfig {
     fn default() -> Self {
         Self::BOARD
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_stop_cuts_every_burst_and_a_servo_only_under_cut() {
+        for pulses in [1, -1, 8000, i32::MIN, i32::MAX] {
+            assert!(ServoOnStop::Hold.cuts(pulses));
+            assert!(ServoOnStop::Cut.cuts(pulses));
+        }
+        assert!(!ServoOnStop::Hold.cuts(0));
+        assert!(ServoOnStop::Cut.cuts(0));
+        assert_eq!(ServoOnStop::default(), ServoOnStop::Hold);
     }
 }

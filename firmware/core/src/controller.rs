@@ -39,7 +39,8 @@
 //!    (docs/PROTOCOL.md, "Commands (host to controller)"; USART_SEND needs an open port
 //!    that may transmit; PENDING must come from the endpoint that sent the NEW).
 //! 8. **execute**: PENDING checks, in order: `OUT_OF_ORDER` (seq != `next_seq`),
-//!    `TOO_MANY_POINTS`, `INVALID_POINT` (step rate), `BUFFER_FULL`; every point of the
+//!    `TOO_MANY_POINTS`, `INVALID_POINT` (range, a limp joint moved, step rate, step
+//!    budget, then acceleration: issues 23 and 31), `BUFFER_FULL`; every point of the
 //!    frame is checked before any is taken. USART_SEND: `BUFFER_FULL` when the serial
 //!    transmit queue has no room. USART_START: `INVALID_CONFIG` for settings the board's
 //!    USART cannot make ([`crate::uart::uart_frame`]), or when the port cannot apply them.
@@ -66,11 +67,17 @@
 //! with one socket gets everything, as the manual has it.
 //!
 //! # Runs, reports and flags
-//! * A run starts with RUNING (or RETURN) and ends in STOPPED three ways: every point
-//!   ran (completion), the engine ran dry first (underrun: STATUS flag bit 5), or a
-//!   STOPPED command (bit 7; also set by a STOPPED that drops an upload in NEW or
-//!   PENDING, while a STOPPED in state STOPPED leaves both bits alone). Both bits are
-//!   cleared when a run starts, so they tell how the last run ended.
+//! * A run starts with RUNING (or RETURN) and ends in STOPPED in one of these ways, the
+//!   **stop cause** (issue 31; STATUS `more_flags` bits 5-7, the STOP_CAUSE report): every
+//!   point ran (COMPLETE), the engine ran dry first (UNDERRUN: also STATUS flag bit 5), a
+//!   STOPPED command (STOPPED, with its sender: also bit 7), the wired e-stop input
+//!   (ESTOP_INPUT: also bit 7, as before issue 31), or RETURN's encoder read failed
+//!   (FAULT, with the joint). A STOPPED or the input dropping an upload in NEW or PENDING
+//!   sets it too, while one in state STOPPED leaves it alone. A run's start sets it back
+//!   to COMPLETE, so it tells how the last run ended.
+//! * Every stop (STOPPED, the wired e-stop input) also cuts a counted gripper burst, and a
+//!   servo PWM as [`ControllerConfig::servo_on_stop`] says (held by default; issue 30).
+//!   STATUS flag bit 6 reads the gripper output, so it tells which.
 //! * A LOCATION is produced at every state change while reports are on (UPLOAD_STOP
 //!   turns all LOCATION reports off, the periodic ones and these).
 //! * RETURN is accepted at once (ACK state RUNNING); the encoders are read by the caller
@@ -100,7 +107,11 @@
 //! # Effects
 //! What must happen synchronously (the step engine, pins, gripper, serial port) goes
 //! through the [`Plant`] trait; what needs waiting (flash, encoders) comes back as a
-//! [`Deferred`] in the [`Response`].
+//! [`Deferred`] in the [`Response`]. A command that writes flash (JOINTS_COUNT,
+//! LIMITS_SET, SET_KEY, NET_SET; only while STOPPED, one at a time) changes nothing and
+//! gets no ACK in its response: the caller saves [`Deferred::SaveSettings`], then
+//! [`Controller::settings_saved`] applies it and gives the ACK, `OK` or `SAVE_FAILED`
+//! (issue 30: the ACK went out `OK` before the save, whose failure was only logged).
 //!
 //! # Layout
 //! This file is the state machine proper: the checks above in their order
@@ -112,7 +123,8 @@
 use protocol::NetSettings;
 use protocol::{
     Ack, Command, Frame, LimitsReport, Location, MAX_JOINTS, MAX_POINTS_PER_FRAME, MoreFlags,
-    Refusal, State, StatusCode, StatusFlags, StatusReport, Tag, UartMode, limits,
+    Refusal, State, StatusCode, StatusFlags, StatusReport, StopCause, StopReport, Tag, UartMode,
+    limits,
 };
 use protocol::{DecodeError, DecodeErrorKind};
 
@@ -143,22 +155,32 @@ pub const DISCOVER_REPLIES_PER_S: u32 = 10;
 /// together.
 pub const DISCOVER_BURST: u32 = 10;
 
-/// The DISCOVER replies' budget: a token bucket of [`DISCOVER_BURST`] refilled at
-/// [`DISCOVER_REPLIES_PER_S`].
+/// A reply budget: a token bucket of `burst` replies refilled at `per_s` a second (the
+/// DISCOVER replies': [`DISCOVER_BURST`] at [`DISCOVER_REPLIES_PER_S`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub(crate) struct ReplyBudget {
     /// Millionths of a reply available.
     credit: u64,
     at_us: u64,
+    per_s: u32,
+    /// Millionths of a reply at most.
+    full: u64,
 }
 
 impl ReplyBudget {
-    const FULL: u64 = DISCOVER_BURST as u64 * 1_000_000;
-
+    /// DISCOVER's budget (and the read-only STATUS answers').
     pub(crate) const fn new() -> Self {
+        Self::with(DISCOVER_REPLIES_PER_S, DISCOVER_BURST)
+    }
+
+    /// `burst` replies at once, `per_s` a second after that; full.
+    pub(crate) const fn with(per_s: u32, burst: u32) -> Self {
         ReplyBudget {
-            credit: Self::FULL,
+            credit: burst as u64 * 1_000_000,
             at_us: 0,
+            per_s,
+            full: burst as u64 * 1_000_000,
         }
     }
 
@@ -168,8 +190,8 @@ impl ReplyBudget {
         self.at_us = self.at_us.max(now_us);
         self.credit = self
             .credit
-            .saturating_add(elapsed.saturating_mul(u64::from(DISCOVER_REPLIES_PER_S)))
-            .min(Self::FULL);
+            .saturating_add(elapsed.saturating_mul(u64::from(self.per_s)))
+            .min(self.full);
         if self.credit >= 1_000_000 {
             self.credit -= 1_000_000;
             true
@@ -177,6 +199,17 @@ impl ReplyBudget {
             false
         }
     }
+}
+
+/// A command whose settings are being saved ([`Deferred::SaveSettings`]): nothing of it
+/// applies, and no ACK goes out, until the save's result is known.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct PendingSave {
+    /// The command (its sender, seq, tag and CRC: the ACK, the duplicate memory).
+    frame: FrameKey,
+    from_owner: bool,
+    /// The settings it stores, applied once stored.
+    settings: PersistentSettings,
 }
 
 /// The host that owns the controller.
@@ -207,10 +240,17 @@ pub struct Controller<const CAP: usize> {
     executed: u32,
     /// End position of the last point received (the next point's previous position).
     received_end: [i32; MAX_JOINTS],
+    /// The last point received as a segment: each joint's steps and its duration (0 at
+    /// NEW: the trajectory starts from rest). The acceleration check's previous rate
+    /// (ACCEL_SET, issue 31).
+    received_last: crate::controller::runs::LastSegment,
     /// End position of the last point handed to the engine.
     fed_end: [i32; MAX_JOINTS],
     /// RETURN accepted, waiting for the encoder reading.
     return_pending: bool,
+    /// `PluseCount` of the last PWM_START (0: a servo PWM): what a stop does to the gripper
+    /// output ([`crate::config::ServoOnStop::cuts`]).
+    gripper_pulse_count: i32,
     /// RETURN running: its remaining points.
     return_plan: Option<ReturnPlan>,
     /// Why the last RETURN was refused after its ACK (an encoder did not answer); cleared
@@ -230,15 +270,20 @@ pub struct Controller<const CAP: usize> {
     location_claimer: Option<Endpoint>,
     /// What DISCOVER replies may still be sent ([`DISCOVER_REPLIES_PER_S`]).
     discover_budget: ReplyBudget,
-    /// What HELLO replies may still be sent (the same bound as DISCOVER's: a 62-byte
-    /// reply to a 19-byte request, to whatever address it names).
-    hello_budget: ReplyBudget,
     /// What read-only STATUS answers to hosts that do not own the controller may still
     /// be sent (the same bound as DISCOVER's: issue 23's read-only STATUS is a 39-byte
     /// report, and a 39-byte LOCATION when asked, to a 4-byte request).
     glance_budget: ReplyBudget,
     /// Authenticated sessions (with a key set).
     sessions: Sessions,
+    /// Random bits from the board (its RNG, at boot): the epochs of keys set
+    /// ([`crate::auth::epoch_base`]).
+    entropy: u64,
+    /// Keys set since boot (each draws another epoch base from `entropy`).
+    keys_set: u32,
+    /// A command that writes flash, accepted and waiting for its save: its ACK goes out
+    /// with the save's result ([`Controller::settings_saved`]).
+    saving: Option<PendingSave>,
     /// The latest time the controller was told (by [`Controller::handle`] or
     /// [`Controller::note_time`]): what it knows of "now" when a run ends, which it notices
     /// without a clock.
@@ -252,8 +297,12 @@ pub struct Controller<const CAP: usize> {
     enabled: u16,
     pins: [bool; 2],
     serial: Option<UartMode>,
-    underrun: bool,
-    stopped_by_host: bool,
+    /// What ended the last run (STATUS `flags` bits 5 and 7, `more_flags` bits 5-7, the
+    /// STOP_CAUSE report; issue 31).
+    stop: StopReport,
+    /// The sender of the last STOPPED executed: the cause of a stop applied after
+    /// overtaken frames ([`Controller::stop_after_overtaken`]).
+    last_stopper: Option<Endpoint>,
     /// Ethernet MAC, for DISCOVER_REPLY.
     mac: [u8; 6],
     /// The network settings loaded at boot (the ones in use); NET_SET stores others.
@@ -308,21 +357,56 @@ impl<const CAP: usize> Controller<CAP> {
         self.step_budget_hz = hz;
     }
 
+    /// Gives the controller random bits (at boot, from the board's RNG; the simulator's
+    /// OS): a key set later starts its epochs at a random place
+    /// ([`crate::auth::epoch_base`]), never again at 1.
+    pub fn set_entropy(&mut self, entropy: u64) {
+        self.entropy = entropy;
+    }
+
     /// With a key stored: this boot's epoch (one more than the stored one), in the
     /// settings to store before HELLO is answered ([`Controller::auth_epoch_stored`]).
     /// `None` without a key.
     pub fn begin_auth_epoch(&mut self) -> Option<PersistentSettings> {
         self.settings.key?;
-        self.settings.auth_epoch = self.settings.auth_epoch.wrapping_add(1);
+        self.settings.auth_epoch = crate::auth::next_epoch(self.settings.auth_epoch);
         Some(self.settings)
     }
 
     /// The epoch [`Controller::begin_auth_epoch`] chose is stored: HELLO is answered.
     pub fn auth_epoch_stored(&mut self) {
         if let Some(key) = self.settings.key {
-            self.sessions
-                .start_epoch(u64::from(self.settings.auth_epoch), &key);
+            self.sessions.start_epoch(self.settings.auth_epoch, &key);
         }
+    }
+
+    /// The save of the settings [`Deferred::SaveSettings`] asked for ended (`saved`: it
+    /// succeeded) at `now_us`: the command applies (`OK`) or did nothing (`SAVE_FAILED`),
+    /// and this is its ACK. `None` when no save was asked for.
+    pub fn settings_saved(&mut self, saved: bool, now_us: u64) -> Option<Reply> {
+        let pending = self.saving.take()?;
+        let FrameKey { from, seq, tag, .. } = pending.frame;
+        self.last_handled_us = self.last_handled_us.max(now_us);
+        if !saved {
+            self.refused(pending.frame, StatusCode::SaveFailed);
+            return Some(self.ack(from, seq, tag, StatusCode::SaveFailed));
+        }
+        self.settings = pending.settings;
+        // A new key starts a new epoch (every session ends: the ACK goes plain); no key,
+        // no sessions.
+        if tag == Tag::SetKey as u8 {
+            match self.settings.key {
+                Some(key) => self.sessions.start_epoch(self.settings.auth_epoch, &key),
+                None => self.sessions.close(),
+            }
+        }
+        self.executed(pending.frame, pending.from_owner, now_us);
+        Some(self.ack(from, seq, tag, StatusCode::Ok))
+    }
+
+    /// Whether a save is under way ([`Controller::settings_saved`] not called yet).
+    pub fn saving(&self) -> bool {
+        self.saving.is_some()
     }
 
     /// Whether a key is set.
@@ -353,6 +437,20 @@ impl<const CAP: usize> Controller<CAP> {
     /// The owner, if any host has spoken.
     pub fn owner(&self) -> Option<Owner> {
         self.owner
+    }
+
+    /// The addresses whose datagrams take the reserved share of the receive path (issue
+    /// 30, [`crate::source_share`]): the owner's and, with a key, those of the sessions
+    /// that sent a valid envelope.
+    pub fn trusted_sources(&self) -> crate::source_share::TrustedSources {
+        let mut trusted = crate::source_share::TrustedSources::NONE;
+        if let Some(owner) = self.owner {
+            trusted.add(owner.ip);
+        }
+        if self.settings.key.is_some() {
+            self.sessions.proven_ips().for_each(|ip| trusted.add(ip));
+        }
+        trusted
     }
 
     /// The endpoint whose NEW started the current upload (its frames alone count for the
@@ -422,9 +520,14 @@ impl<const CAP: usize> Controller<CAP> {
         flags.set(StatusFlags::SERIAL_OPEN, self.serial.is_some());
         flags.set(StatusFlags::PIN0_HIGH, self.pins[0]);
         flags.set(StatusFlags::PIN1_HIGH, self.pins[1]);
-        flags.set(StatusFlags::UNDERRUN, self.underrun);
+        let cause = self.stop.cause.unwrap_or(StopCause::Complete);
+        flags.set(StatusFlags::UNDERRUN, cause == StopCause::Underrun);
         flags.set(StatusFlags::PWM_ACTIVE, plant.gripper_active());
-        flags.set(StatusFlags::STOPPED_BY_HOST, self.stopped_by_host);
+        // Bit 7 means "a stop" to old hosts: the wired input's too, as before issue 31.
+        flags.set(
+            StatusFlags::STOPPED_BY_HOST,
+            matches!(cause, StopCause::Stopped | StopCause::EstopInput),
+        );
         StatusReport {
             version: protocol::VERSION,
             joints: self.settings.joints,
@@ -436,7 +539,11 @@ impl<const CAP: usize> Controller<CAP> {
             received: saturate(self.received as usize),
             executed: saturate(self.executed as usize),
             capacity: saturate(self.buffer.capacity()),
-            more_flags: MoreFlags(self.more_flags.0 | MoreFlags::of_enabled(self.enabled)),
+            more_flags: MoreFlags(
+                self.more_flags.0
+                    | MoreFlags::of_enabled(self.enabled)
+                    | MoreFlags::of_stop_cause(cause),
+            ),
             upload_period_us: self.upload_period_us,
             pwm_timer_clock_hz: self.config.pwm_timer_clock_hz,
             max_step_rate_hz: self.config.max_step_rate_hz,
@@ -555,7 +662,8 @@ impl<const CAP: usize> Controller<CAP> {
                 self.heard_from_owner(from, now_us);
                 self.listen(from, now_us);
             }
-            self.stop_by_host(plant);
+            self.last_stopper = Some(from);
+            self.stop_by_host(plant, Some(from));
             response.executed = true;
             response.reply = reply(self, StatusCode::Ok);
             return response;
@@ -614,6 +722,15 @@ impl<const CAP: usize> Controller<CAP> {
         // 7. state and 8. execute
         let status = match self.execute(frame, from, plant, &mut response) {
             Ok(()) => {
+                // Flash is written first: the ACK waits for the save (settings_saved).
+                if let Some(Deferred::SaveSettings(settings)) = response.deferred {
+                    self.saving = Some(PendingSave {
+                        frame: key,
+                        from_owner,
+                        settings,
+                    });
+                    return response;
+                }
                 self.executed(key, from_owner, now_us);
                 response.executed = true;
                 StatusCode::Ok
@@ -671,10 +788,8 @@ impl<const CAP: usize> Controller<CAP> {
             if !self.sessions.ready() {
                 return refuse(response, StatusCode::BadState);
             }
-            if !self.hello_budget.take(now_us) {
-                return None;
-            }
-            let session = self.sessions.open(from, nonce, now_us);
+            // Past the budget of HELLO's source address: no reply at all (it asks again).
+            let session = self.sessions.hello(from, nonce, now_us)?;
             response.hello = Some(HelloGrant {
                 to: from,
                 seq,
@@ -781,6 +896,16 @@ impl<const CAP: usize> Controller<CAP> {
                 Err(StatusCode::BadState)
             }
         };
+        // A command that writes flash (JOINTS_COUNT, LIMITS_SET, SET_KEY, NET_SET): only
+        // while STOPPED (issue 30: the save, a sector erase of up to 2 s on the board,
+        // holds the trajectory task), and one at a time.
+        let flash_only = |c: &Self| {
+            if c.saving.is_none() {
+                stopped_only(c)
+            } else {
+                Err(StatusCode::BadState)
+            }
+        };
         match frame.body {
             Command::New { count } => {
                 if self.state == State::Running {
@@ -795,6 +920,7 @@ impl<const CAP: usize> Controller<CAP> {
                 self.received = 0;
                 self.executed = 0;
                 self.received_end = plant.positions();
+                self.received_last = runs::LastSegment::REST;
                 self.fed_end = self.received_end;
                 self.order.restart(frame.seq);
                 self.uploader = Some(from);
@@ -822,8 +948,15 @@ impl<const CAP: usize> Controller<CAP> {
                 // Every point is checked before any is taken.
                 let mut admitted = [StoredPoint::default(); MAX_POINTS_PER_FRAME];
                 let mut previous = self.received_end;
+                let mut last = self.received_last;
                 for (i, (slot, point)) in admitted.iter_mut().zip(points.iter()).enumerate() {
-                    *slot = match self.admit(&previous, &point) {
+                    // The trajectory's last point must bring every joint to rest.
+                    let ends = self.received as usize + i + 1 >= self.expected as usize;
+                    let checked = self.admit(&previous, &point).and_then(|stored| {
+                        self.within_accel(&mut last, &previous, &stored, ends)
+                            .map(|()| stored)
+                    });
+                    *slot = match checked {
                         Ok(stored) => stored,
                         Err(refusal) => {
                             self.last_refusal = Refusal {
@@ -846,6 +979,7 @@ impl<const CAP: usize> Controller<CAP> {
                         self.received += 1;
                     }
                 }
+                self.received_last = last;
                 self.order.take(frame.seq);
                 if self.state == State::New {
                     self.state = State::Pending;
@@ -854,8 +988,7 @@ impl<const CAP: usize> Controller<CAP> {
             Command::Runing if self.estop_latched() => return Err(StatusCode::EstopLatched),
             Command::Runing => match self.state {
                 State::Pending => {
-                    self.underrun = false;
-                    self.stopped_by_host = false;
+                    self.stop = StopReport::COMPLETE;
                     self.state = State::Running;
                     self.pump(plant);
                     plant.start();
@@ -864,10 +997,13 @@ impl<const CAP: usize> Controller<CAP> {
                 _ => return Err(StatusCode::BadState),
             },
             // Handled in `check_and_execute` before the owner rule; never reaches here.
-            Command::Stopped => self.stop_by_host(plant),
+            Command::Stopped => self.stop_by_host(plant, Some(from)),
             Command::UploadStart => self.reports_on = true,
             Command::UploadStop => self.reports_on = false,
-            Command::PwmStart(pwm) => plant.gripper_start(&pwm),
+            Command::PwmStart(pwm) => {
+                self.gripper_pulse_count = pwm.pulse_count;
+                plant.gripper_start(&pwm);
+            }
             Command::PwmStop => plant.gripper_stop(),
             Command::UsartStart(init) => {
                 // Settings the board's USART cannot make are refused here, before the
@@ -924,7 +1060,11 @@ impl<const CAP: usize> Controller<CAP> {
                 stopped_only(self)?;
                 // Every joint in use must be allowed at 0 (LIMITS_SET): refused before
                 // anything moves.
-                if let Some(refusal) = self.outside_limits(&[0; MAX_JOINTS]) {
+                // A limp joint away from 0 would not move (issue 31): refused the same way.
+                let refused = self
+                    .outside_limits(&[0; MAX_JOINTS])
+                    .or_else(|| self.limp_and_away(&plant.positions(), &[0; MAX_JOINTS]));
+                if let Some(refusal) = refused {
                     self.last_refusal = Refusal {
                         seq: frame.seq,
                         tag: Tag::Return as u8,
@@ -936,15 +1076,17 @@ impl<const CAP: usize> Controller<CAP> {
                 self.return_plan = None;
                 self.return_pending = true;
                 self.return_fault = None;
-                self.underrun = false;
-                self.stopped_by_host = false;
+                self.stop = StopReport::COMPLETE;
                 self.state = State::Running;
                 response.deferred = Some(Deferred::ReadEncoders);
             }
             Command::JointsCount(joints) => {
-                stopped_only(self)?;
-                self.settings.joints = joints;
-                response.deferred = Some(Deferred::SaveSettings(self.settings));
+                flash_only(self)?;
+                let settings = PersistentSettings {
+                    joints,
+                    ..self.settings
+                };
+                response.deferred = Some(Deferred::SaveSettings(settings));
             }
             Command::LocationSetting(location) => {
                 stopped_only(self)?;
@@ -966,27 +1108,48 @@ impl<const CAP: usize> Controller<CAP> {
             // Kept across power cycles as JOINTS_COUNT; only while STOPPED, so that no
             // point already taken was admitted under other limits.
             Command::LimitsSet(set) => {
-                stopped_only(self)?;
-                let Some(slot) = self.settings.limits.get_mut(usize::from(set.joint)) else {
+                flash_only(self)?;
+                let mut settings = self.settings;
+                let Some(slot) = settings.limits.get_mut(usize::from(set.joint)) else {
                     return Err(StatusCode::InvalidConfig);
                 };
                 *slot = set.limits;
-                response.deferred = Some(Deferred::SaveSettings(self.settings));
+                response.deferred = Some(Deferred::SaveSettings(settings));
             }
-            Command::LimitsGet => {
+            Command::LimitsGet | Command::LimitsGetWithAccel => {
+                let with_accel = matches!(frame.body, Command::LimitsGetWithAccel);
                 response.limits = Some((
                     from,
                     LimitsReport {
                         joints: self.settings.limits,
                         last_refusal: self.last_refusal,
+                        max_accel: with_accel.then_some(self.settings.max_accel),
                     },
                 ));
+            }
+            // Kept with the limits, under the same rule: only while STOPPED, so that no
+            // point already taken was admitted under another acceleration (issue 31), and a
+            // command that writes flash: taken, and ACKed, once the save succeeded (issue 30).
+            Command::AccelSet {
+                joint,
+                max_accel_steps_s2,
+            } => {
+                flash_only(self)?;
+                let mut settings = self.settings;
+                let Some(slot) = settings.max_accel.get_mut(usize::from(joint)) else {
+                    return Err(StatusCode::InvalidConfig);
+                };
+                *slot = max_accel_steps_s2;
+                response.deferred = Some(Deferred::SaveSettings(settings));
             }
             Command::Status => response.status = Some((from, self.status(plant))),
             Command::StatusWith(ask) => {
                 response.status = Some((from, self.status(plant)));
                 if ask.location {
                     response.asked_location = Some((from, self.location(plant)));
+                }
+                if ask.stop_cause {
+                    response.asked_stop = Some((from, self.stop));
                 }
                 if ask.counters {
                     response.asked_counters = Some(from);
@@ -1012,26 +1175,26 @@ impl<const CAP: usize> Controller<CAP> {
             // envelope) there is no session to open.
             Command::Hello { .. } => return Err(StatusCode::BadState),
             // With a key this arrived in an envelope (`authenticate` refuses it plain).
-            // A new key starts a new epoch (every session ends: the ACK goes plain);
-            // stored before the next datagram is handled.
+            // A new key starts a new epoch, at a random place (issue 30: a key set again
+            // never repeats its epochs); every session ends once it is stored.
             Command::SetKey(key) => {
-                self.settings.key = key;
-                if let Some(key) = key {
-                    self.settings.auth_epoch = self.settings.auth_epoch.wrapping_add(1);
-                    self.sessions
-                        .start_epoch(u64::from(self.settings.auth_epoch), &key);
-                } else {
-                    self.sessions.close();
+                flash_only(self)?;
+                let mut settings = PersistentSettings {
+                    key,
+                    ..self.settings
+                };
+                if key.is_some() {
+                    settings.auth_epoch = crate::auth::epoch_base(self.entropy, self.keys_set);
+                    self.keys_set = self.keys_set.wrapping_add(1);
                 }
-                response.deferred = Some(Deferred::SaveSettings(self.settings));
+                response.deferred = Some(Deferred::SaveSettings(settings));
             }
             // Stored now, applied after the next reset (docs/PROTOCOL.md, "Finding controllers").
             Command::NetSet(net) => {
-                if self.state == State::Running {
-                    return Err(StatusCode::BadState);
-                }
-                self.settings.set_net(net);
-                response.deferred = Some(Deferred::SaveSettings(self.settings));
+                flash_only(self)?;
+                let mut settings = self.settings;
+                settings.set_net(net);
+                response.deferred = Some(Deferred::SaveSettings(settings));
             }
         }
         Ok(())
@@ -1109,6 +1272,9 @@ impl<const CAP: usize> Controller<CAP> {
         if ask.location {
             response.asked_location = Some((from, self.location(plant)));
         }
+        if ask.stop_cause {
+            response.asked_stop = Some((from, self.stop));
+        }
         if ask.counters {
             response.asked_counters = Some(from);
         }
@@ -1117,18 +1283,44 @@ impl<const CAP: usize> Controller<CAP> {
     }
 
     /// STOPPED's execution: no further pulse, the trajectory dropped, state STOPPED.
-    fn stop_by_host(&mut self, plant: &mut impl Plant) {
+    /// `by`: the STOPPED's sender; `None`: the wired e-stop input.
+    fn stop_by_host(&mut self, plant: &mut impl Plant, by: Option<Endpoint>) {
         plant.stop();
+        self.stop_gripper(plant);
         self.buffer.clear();
         self.return_plan = None;
         self.return_pending = false;
-        // Bits 5 and 7 tell how the last trajectory ended: a STOPPED with none under way
-        // (already STOPPED) leaves them alone.
+        // The cause tells how the last trajectory ended: a stop with none under way
+        // (already STOPPED) leaves it alone.
         if self.state != State::Stopped {
-            self.underrun = false;
-            self.stopped_by_host = true;
+            self.stop = match by {
+                Some(from) => StopReport {
+                    from_ip: from.ip,
+                    from_port: from.port,
+                    ..StopReport::of(StopCause::Stopped)
+                },
+                None => StopReport::of(StopCause::EstopInput),
+            };
         }
         self.state = State::Stopped;
+    }
+
+    /// A stop's effect on the gripper (issue 30): a counted burst is cut; a servo PWM as
+    /// [`ControllerConfig::servo_on_stop`] says (held by default). STATUS flag bit 6
+    /// reads the output, so it tells which. Called whether or not the output still runs:
+    /// a board whose interrupt already cut the timer ([`crate::ingress::StepHalt`], the
+    /// wired input's handler) has its burst bookkeeping reset here, and stopping an idle
+    /// output is harmless.
+    fn stop_gripper(&mut self, plant: &mut impl Plant) {
+        if self.config.servo_on_stop.cuts(self.gripper_pulse_count) {
+            plant.gripper_stop();
+        }
+    }
+
+    /// What ended the last run, and who sent the STOPPED if one did (the STOP_CAUSE
+    /// report, issue 31).
+    pub fn stop_report(&self) -> StopReport {
+        self.stop
     }
 
     /// Whether the wired e-stop input's latch is set (RUNING and RETURN refused).
@@ -1148,20 +1340,24 @@ impl<const CAP: usize> Controller<CAP> {
         }
         self.more_flags.set(MoreFlags::ESTOP_LATCHED, true);
         let before = self.state;
-        self.stop_by_host(plant);
+        self.stop_by_host(plant, None);
         (before != self.state && self.reports_on).then(|| self.location(plant))
     }
 
     /// Applies a STOPPED that arrived after the frame just handled but was handled before
     /// it (see "Overtaken frames" in the module docs): what STOPPED's execution does,
-    /// without an ACK, and nothing when the state is STOPPED already. Call it right after
+    /// without an ACK; when the state is STOPPED already, only its effect on the gripper
+    /// (a burst that frame started is cut). Call it right after
     /// [`Controller::handle`], with no wait in between, so that a run that frame started
     /// never emits a pulse. Returns a LOCATION report when the state changed (reports on).
     pub fn stop_after_overtaken(&mut self, plant: &mut impl Plant) -> Option<Location> {
         if self.state == State::Stopped {
+            // The frame may have started the gripper (PWM_START): the stop that followed
+            // it cuts that as any stop does.
+            self.stop_gripper(plant);
             return None;
         }
-        self.stop_by_host(plant);
+        self.stop_by_host(plant, self.last_stopper);
         self.reports_on.then(|| self.location(plant))
     }
 }

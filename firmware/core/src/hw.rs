@@ -129,11 +129,15 @@ pub struct PersistentSettings {
     pub key: Option<protocol::auth::AuthKey>,
     /// The boot epoch of the last boot with a key (one more at each such boot, stored
     /// before any HELLO is answered): part of every MAC, so no frame of an earlier boot
-    /// verifies.
-    pub auth_epoch: u32,
+    /// verifies. A key's first epoch is random ([`crate::auth::epoch_base`], issue 30);
+    /// within [`crate::auth::AUTH_EPOCH_BITS`].
+    pub auth_epoch: u64,
     /// Each joint's position range and step rate (LIMITS_SET, issue 23); no limit by
     /// default.
     pub limits: [protocol::JointLimits; protocol::MAX_JOINTS],
+    /// Each joint's most acceleration, steps/s² (ACCEL_SET, issue 31); 0: none (the
+    /// default, and what settings stored before it load with).
+    pub max_accel: [u32; protocol::MAX_JOINTS],
 }
 
 impl PersistentSettings {
@@ -147,6 +151,7 @@ impl PersistentSettings {
         key: None,
         auth_epoch: 0,
         limits: [protocol::JointLimits::NONE; protocol::MAX_JOINTS],
+        max_accel: [0; protocol::MAX_JOINTS],
     };
 
     /// The network part, as NET_SET and DISCOVER_REPLY carry it.

@@ -8,11 +8,14 @@
 //!   backend's stop and a kick of its interrupt, as the trajectory task's own stop does)
 //!   and goes onto `bus.estop` for the controller's bookkeeping and ACK. It never waits
 //!   behind, or is dropped with, other traffic, and it is not counted against its sender;
-//! - anything else is admitted only within its sender's **fair share** ([`SourceBudgets`]:
-//!   per source address, at most [`SOURCE_SHARE`] datagrams admitted and not yet taken by
-//!   the controller), so one host's flood can never fill the queues behind (socket,
-//!   inbox), and the owner's commands wait behind at most a share of it. A host alone is
-//!   never slowed. What is shed is counted and logged at most once a second.
+//! - anything else is admitted only within its **fair share** by class ([`SourceBudgets`],
+//!   issue 30): the owner's address and the sessions that proved the key
+//!   ([`TrustedSources`], published by the trajectory task) have [`SOURCE_SHARE`]
+//!   datagrams admitted and not yet taken by the controller reserved; all other addresses
+//!   together [`STRANGER_POOL`], each [`STRANGER_SHARE`]. So no flood, from however many
+//!   addresses, can fill the queues behind (socket, inbox), and the owner's commands wait
+//!   behind at most the pool. A host alone is never slowed. What is shed is counted and
+//!   logged at most once a second.
 //!
 //! On the boards the Ethernet receive interrupt looks first (issue 30 part 4, `peek.rs`):
 //! it halts for a STOPPED the moment its frame lands in the receive ring, before the
@@ -32,7 +35,8 @@ use crate::hw::{Endpoint, StepKick};
 use crate::log_limit::LogVerdict;
 // The fair share itself is sans-io and lives below the bus (which holds it).
 pub use crate::source_share::{
-    INGRESS_SOURCES, SHARE_HEAL_HZ, SOURCE_SHARE, SharedBudgets, SourceBudgets,
+    INGRESS_SOURCES, SHARE_HEAL_AFTER_US, SHARE_HEAL_HZ, SOURCE_SHARE, STRANGER_POOL,
+    STRANGER_SHARE, SharedBudgets, SourceBudgets, TRUSTED_SOURCES, TrustedSources,
 };
 use crate::step_shared::{StepBackend, StepShared};
 
@@ -72,7 +76,8 @@ pub fn to_group(frame: &[u8]) -> bool {
 }
 
 /// Stops every STEP output now, from wherever the datagram was read: no task runs
-/// between the STOPPED's arrival and the halt.
+/// between the STOPPED's arrival and the halt. A board may cut a gripper burst here too
+/// (issue 30; the controller cuts it anyway when it handles the STOPPED).
 pub trait StepHalt {
     /// No step pulse after this returns (or, for a backend whose lines its interrupt
     /// lowers, after the interrupt this kicks).
@@ -167,6 +172,12 @@ impl Bus {
     /// [`Bus::receive_first`] admitted it: its slot of the sender's share is free again.
     pub fn release(&self, ip: [u8; 4]) {
         self.budgets.lock(|b| b.borrow_mut().release(ip));
+    }
+
+    /// From now on, datagrams from `trusted` (the owner's address and, with a key, those of
+    /// the sessions that proved it) take the reserved share of the receive path.
+    pub fn set_trusted(&self, trusted: TrustedSources) {
+        self.budgets.lock(|b| b.borrow_mut().set_trusted(trusted));
     }
 
     /// Datagrams [`Bus::receive_first`] ignored so far because they were sent to a

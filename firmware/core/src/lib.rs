@@ -43,8 +43,9 @@
 //! through [`ingress::GuardedDriver`]; the simulator's socket reader) hands each to
 //! [`Bus::receive_first`] (`ingress.rs`, issue 18) before any queue: a CRC-valid STOPPED
 //! halts the step outputs right there ([`ingress::StepHalt`]) and goes onto `bus.estop`,
-//! a separate queue; any other datagram passes only within its sender's fair share of the
-//! receive path, so no flood fills the queues a STOPPED or the owner's commands wait in.
+//! a separate queue; any other datagram passes only within its class's fair share of the
+//! receive path (`source_share.rs`: the owner's reserved, strangers pooled), so no flood,
+//! from however many addresses, fills the queues a STOPPED or the owner's commands wait in.
 //! `network_task` then routes what the socket gives it the same way (a valid STOPPED to
 //! `bus.estop`); it never waits on a full queue (a full inbox drops the datagram, which
 //! the host resends), so a STOPPED is never stuck behind uploads. `trajectory_task` waits on `estop` first (biased select) and never waits on
@@ -52,7 +53,8 @@
 //! command being handled: the controller then stops the engine under the step lock
 //! (no pulse after that), and kicks the step interrupt, which lowers the STEP lines.
 //! Segments queued in the engine are dropped with it. The one wait in
-//! the trajectory task is deferred work: a settings write (JOINTS_COUNT, only in STOPPED)
+//! the trajectory task is deferred work: a settings write (JOINTS_COUNT, LIMITS_SET,
+//! SET_KEY, NET_SET: only in STOPPED since issue 30, and the command's ACK waits for it)
 //! or the encoder read of a RETURN (before it moves); nothing moves meanwhile.
 //!
 //! A STOPPED overtakes the datagrams queued before it, but the result is that of arrival

@@ -1,7 +1,7 @@
 //! Frames the controller sends, and their encoding with the controller's own report seq.
 
 use heapless::Vec;
-use protocol::{LimitsReport, Location, MAX_SERIAL_CHUNK, Report, StatusReport, size};
+use protocol::{LimitsReport, Location, MAX_SERIAL_CHUNK, Report, StatusReport, StopReport, size};
 
 use crate::hw::Endpoint;
 use crate::reports::{LOCATION_LISTENERS, ReportSettings};
@@ -13,8 +13,9 @@ pub type Destinations = Vec<Endpoint, LOCATION_LISTENERS>;
 /// Largest frame the controller sends: USART_RECV (257 data bytes) + seq, tag and CRC.
 pub const MAX_REPORT_FRAME: usize = size::USART_RECV + protocol::FRAME_OVERHEAD;
 
-// The LIMITS report (issue 23) fits the buffer sized for USART_RECV.
-const _: () = assert!(size::LIMITS + protocol::FRAME_OVERHEAD <= MAX_REPORT_FRAME);
+// The LIMITS report (issue 23), with the accelerations too (issue 31), fits the buffer
+// sized for USART_RECV.
+const _: () = assert!(size::LIMITS_WITH_ACCEL + protocol::FRAME_OVERHEAD <= MAX_REPORT_FRAME);
 
 /// Largest sealed frame: the largest report in an envelope.
 pub const MAX_SEALED_FRAME: usize = MAX_REPORT_FRAME + protocol::auth::ENVELOPE_OVERHEAD;
@@ -61,7 +62,13 @@ impl Sealer {
         if matches!(out, Outgoing::Discovery(_)) {
             return Sealing::Plain;
         }
-        match routes.session_of(to) {
+        // A HELLO_REPLY goes in the session it grants: unproven (issue 30), so no route
+        // has it yet, and an endpoint's earlier session may still have one.
+        let session = match out {
+            Outgoing::Hello(h) => Some(h.reply.session),
+            _ => routes.session_of(to),
+        };
+        match session {
             Some(session) => {
                 self.counter += 1;
                 match protocol::auth::seal_with(
@@ -131,7 +138,9 @@ pub enum AnswerReport {
     Location(Location),
     /// A LIMITS report (the answer to LIMITS_GET).
     Limits(LimitsReport),
-    /// An RX_COUNTERS report (STATUS's request byte bit 2, issue 30).
+    /// A STOP_CAUSE report (STATUS's request byte, bit 2).
+    StopCause(StopReport),
+    /// An RX_COUNTERS report (STATUS's request byte bit 3, issue 30).
     RxCounters(protocol::RxCounters),
 }
 
@@ -189,6 +198,7 @@ impl ReportEncoder {
                     AnswerReport::Status(s) => Report::Status(s),
                     AnswerReport::Location(l) => Report::Location(l),
                     AnswerReport::Limits(l) => Report::Limits(l),
+                    AnswerReport::StopCause(s) => Report::StopCause(s),
                     AnswerReport::RxCounters(c) => Report::RxCounters(c),
                 },
             ),

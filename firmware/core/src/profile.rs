@@ -22,6 +22,7 @@ use arm_step::{MAX_JOINTS, StepTiming};
 
 use crate::config::{
     ControllerConfig, DEFAULT_RETURN_ACCEL, DEFAULT_RETURN_SEGMENT_US, DEFAULT_RETURN_SPEED,
+    ServoOnStop,
 };
 
 /// A driver's timing requirements (its datasheet's figures), in nanoseconds.
@@ -159,6 +160,7 @@ impl BoardProfile {
             return_speed: [DEFAULT_RETURN_SPEED; MAX_JOINTS],
             return_accel: [DEFAULT_RETURN_ACCEL; MAX_JOINTS],
             return_segment_us: DEFAULT_RETURN_SEGMENT_US,
+            servo_on_stop: ServoOnStop::Hold,
         }
     }
 

@@ -1,7 +1,7 @@
 //! What [`crate::Controller::handle`] returns: the ACK ([`Reply`]), reports, and the
 //! work left to the caller ([`Deferred`]), all in one [`Response`].
 
-use protocol::{Ack, DiscoverReply, LimitsReport, Location, StatusReport};
+use protocol::{Ack, DiscoverReply, LimitsReport, Location, StatusReport, StopReport};
 
 use crate::hw::{Endpoint, PersistentSettings};
 #[cfg(doc)]
@@ -44,14 +44,19 @@ pub struct Response {
     /// A LOCATION report for the asker alone: STATUS's request byte asked for one (bit 0,
     /// issue 23), whether reports are on or not.
     pub asked_location: Option<(Endpoint, Location)>,
+    /// A STOP_CAUSE report for the asker alone: STATUS's request byte asked for one (bit
+    /// 2, issue 31).
+    pub asked_stop: Option<(Endpoint, StopReport)>,
     /// An RX_COUNTERS report for the asker alone: STATUS's request byte asked for one
-    /// (bit 2, issue 30). The counters are the bus's: the caller fills them in.
+    /// (bit 3, issue 30), sent after the STOP_CAUSE. The counters are the bus's: the
+    /// caller fills them in.
     pub asked_counters: Option<Endpoint>,
     /// A LIMITS report for the endpoint that sent LIMITS_GET (issue 23).
     pub limits: Option<(Endpoint, LimitsReport)>,
-    /// `Some(seq)`: [`Response::status`] and [`Response::asked_location`] are a read-only
-    /// answer to a host that does not own the controller (docs/PROTOCOL.md section 1,
-    /// issue 23) and carry its request's seq, not the controller's report counter.
+    /// `Some(seq)`: [`Response::status`], [`Response::asked_location`],
+    /// [`Response::asked_stop`] and [`Response::asked_counters`] are a read-only answer
+    /// to a host that does not own the controller (docs/PROTOCOL.md section 1, issue 23)
+    /// and carry its request's seq, not the controller's report counter.
     pub answer_seq: Option<u8>,
     /// Work left to the caller.
     pub deferred: Option<Deferred>,

@@ -308,6 +308,9 @@ pub struct Session<const CAP: usize> {
     pub from: Endpoint,
     /// A session opened with HELLO: [`Session::send`] seals its frames.
     pub auth: Option<HostAuth>,
+    /// Settings saves fail ([`Session::send_raw`] completes each save the controller asks
+    /// for: with this, as a failed one).
+    pub saves_fail: bool,
 }
 
 /// A host's side of an authenticated session (docs/PROTOCOL.md section 13).
@@ -353,6 +356,7 @@ impl<const CAP: usize> Session<CAP> {
             seq: 0,
             from: HOST,
             auth: None,
+            saves_fail: false,
         }
     }
 
@@ -377,11 +381,21 @@ impl<const CAP: usize> Session<CAP> {
         auth
     }
 
-    /// Sends raw bytes from `from`.
+    /// Sends raw bytes from `from`. A settings save the controller asks for is done at
+    /// once (failing with [`Session::saves_fail`]) and the response gets its ACK, as the
+    /// trajectory task sends it; the deferred save stays in the response.
     pub fn send_raw(&mut self, from: Endpoint, bytes: &[u8]) -> Response {
         self.now_us += 10;
-        self.controller
-            .handle(from, bytes, self.now_us, &mut self.plant)
+        let mut response = self
+            .controller
+            .handle(from, bytes, self.now_us, &mut self.plant);
+        if let Some(crate::response::Deferred::SaveSettings(_)) = response.deferred {
+            assert!(response.reply.is_none(), "an ACK before the save");
+            response.reply = self
+                .controller
+                .settings_saved(!self.saves_fail, self.now_us);
+        }
+        response
     }
 
     /// Sends a command with the next seq; returns the ACK.

@@ -161,7 +161,9 @@ fn the_key_is_set_once_plain_then_changed_or_cleared_only_with_it() {
         panic!("the key is stored: {r:?}");
     };
     assert_eq!(saved.key, Some(KEY));
-    assert_eq!(saved.auth_epoch, 1);
+    // A random first epoch (issue 30; it was 1, and a key set again after the settings
+    // were lost repeated its epochs): this controller's entropy is 0.
+    assert_eq!(saved.auth_epoch, arm_core::auth::epoch_base(0, 0));
     // Plain, it cannot be replaced any more, not even by the owner.
     let r = s.send_raw(HOST, &frame(2, Command::SetKey(Some(WRONG_KEY))));
     assert_eq!(r.reply.unwrap().ack.status, StatusCode::AuthRequired);
@@ -206,7 +208,10 @@ fn a_frame_from_before_a_reset_never_verifies_after_it() {
 
 #[test]
 fn reports_go_sealed_to_sessions_only() {
-    let s = keyed();
+    let mut s = keyed();
+    // Routed once the session proved the key (issue 30: a HELLO alone proves nothing).
+    assert_eq!(s.controller.report_settings().seal.session_of(HOST), None);
+    s.expect(Command::Pin0On, StatusCode::Ok);
     let routes = s.controller.report_settings();
     assert_eq!(routes.seal.session_of(HOST), Some(s.auth.unwrap().session));
     assert_eq!(routes.seal.session_of(OTHER), None);
@@ -263,4 +268,28 @@ fn a_key_set_at_run_time_gates_plain_status_too() {
         status_of(&mut s, other_port, &frame(77, Command::Status)),
         StatusCode::AuthRequired
     );
+}
+
+/// Issue 30: the receive path's reserved share goes to the owner's address and to the
+/// addresses of sessions that sent a valid envelope; a HELLO alone needs no key and
+/// earns nothing.
+#[test]
+fn sessions_that_proved_the_key_are_trusted_by_the_receive_path() {
+    let mut s = keyed();
+    let trusted = |s: &Session<64>| s.controller.trusted_sources();
+    assert!(trusted(&s).contains(HOST.ip), "the owner");
+    s.from = OTHER;
+    s.hello(KEY);
+    assert!(!trusted(&s).contains(OTHER.ip), "a HELLO alone");
+    s.send(Command::Status);
+    assert!(trusted(&s).contains(OTHER.ip), "a valid envelope");
+    // Without a key: the owner alone, and nobody after RELEASE.
+    let mut plain = Session::<64>::new(64);
+    assert!(plain.controller.trusted_sources().is_empty());
+    plain.expect(Command::Status, StatusCode::Ok);
+    let _ = plain.send_raw(OTHER, &frame(7, Command::Status));
+    assert!(plain.controller.trusted_sources().contains(HOST.ip));
+    assert!(!plain.controller.trusted_sources().contains(OTHER.ip));
+    plain.expect(Command::Release, StatusCode::Ok);
+    assert!(plain.controller.trusted_sources().is_empty());
 }

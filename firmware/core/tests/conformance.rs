@@ -506,10 +506,14 @@ fn lengths_and_directions_are_checked() {
         (raw(13, Tag::EstopReset as u8, &[0]), BadLength),
         (raw(6, 0xFF, &[]), UnknownTag),
         (raw(7, Tag::Pending as u8, &[0; 13 * 116]), BadLength),
-        // STATUS takes one request byte (issue 23): bits 0-2 only (bit 2, RX_COUNTERS,
-        // since issue 30).
+        // STATUS takes one request byte (issue 23): bits 0-3 only (bit 2, the STOP_CAUSE
+        // report, since issue 31; bit 3, RX_COUNTERS, since issue 30). 0x10 is the first
+        // unknown bit (this sent 0x08 before RX_COUNTERS took bit 3).
         (raw(8, Tag::Status as u8, &[0, 0]), BadLength),
-        (raw(15, Tag::Status as u8, &[0x08]), InvalidConfig),
+        (raw(15, Tag::Status as u8, &[0x10]), InvalidConfig),
+        (raw(17, Tag::Status as u8, &[0x04]), Ok),
+        (raw(18, Tag::Status as u8, &[0x08]), Ok),
+        (raw(19, Tag::Status as u8, &[0x0c]), Ok),
         (raw(16, Tag::Status as u8, &[0x01]), Ok),
         (raw(9, Tag::ToggleEnablePins as u8, &[1]), BadLength),
         (
@@ -685,8 +689,9 @@ fn status_report_bytes_at_their_offsets() {
     assert_eq!(&d[14..16], &0u16.to_le_bytes(), "executed");
     assert_eq!(&d[16..18], &20u16.to_le_bytes(), "capacity");
     // more_flags: bit 3 (per-driver enables reported, issue 23), bit 4 the gripper's
-    // ENABLE, bits 8-15 the joints': all enabled at boot.
-    assert_eq!(&d[18..20], &[0b0001_1000, 0xFF], "more_flags");
+    // ENABLE, bits 8-15 the joints': all enabled at boot; bits 5-7 the stop cause
+    // (issue 31): 1, COMPLETE (no run cut short).
+    assert_eq!(&d[18..20], &[0b0011_1000, 0xFF], "more_flags");
     assert_eq!(&d[20..24], &0x0001_2345u32.to_le_bytes(), "period");
     let clock = s.controller.config().pwm_timer_clock_hz;
     assert_eq!(&d[24..28], &clock.to_le_bytes());

@@ -210,15 +210,17 @@ fn the_ring_counters_add_up_and_wrap() {
     assert_eq!(bus.rx_ring().dropped, 4);
 }
 
-/// STATUS's request byte bit 2 (issue 30): the asker gets an RX_COUNTERS report too, from
-/// the owner's STATUS and from a stranger's read-only one alike, with the bus's counts.
+/// STATUS's request byte bit 3 (issue 30; bit 2 is issue 31's STOP_CAUSE): the asker gets
+/// an RX_COUNTERS report too, from the owner's STATUS and from a stranger's read-only one
+/// alike, with the bus's counts; with bit 2 as well, both reports.
 #[test]
-fn status_bit_2_asks_for_the_receive_counters() {
+fn status_bit_3_asks_for_the_receive_counters() {
     use protocol::StatusAsk;
     let mut s = Session::<64>::new(64);
     let ask = StatusAsk {
         location: false,
         look_only: false,
+        stop_cause: false,
         counters: true,
     };
     let r = s.send_raw(HOST, &frame(1, Command::StatusWith(ask)));
@@ -233,6 +235,23 @@ fn status_bit_2_asks_for_the_receive_counters() {
     // Without the bit: none, as before.
     let r = s.send_raw(HOST, &frame(2, Command::Status));
     assert_eq!(r.asked_counters, None);
+    // Bit 2 alone is the STOP_CAUSE's; bits 2 and 3 (0x0c) ask for both.
+    let stop_only = StatusAsk {
+        stop_cause: true,
+        counters: false,
+        ..ask
+    };
+    let r = s.send_raw(HOST, &frame(3, Command::StatusWith(stop_only)));
+    assert!(r.asked_stop.is_some());
+    assert_eq!(r.asked_counters, None);
+    let both = StatusAsk {
+        stop_cause: true,
+        ..ask
+    };
+    assert_eq!(both.byte(), 0x0c);
+    let r = s.send_raw(HOST, &frame(4, Command::StatusWith(both)));
+    assert!(r.asked_stop.is_some());
+    assert_eq!(r.asked_counters, Some(HOST));
     // What the report carries: the board's ring counts and the first look's.
     let bus = Bus::new();
     bus.count_rx_ring(7, 2, 1);

@@ -218,6 +218,7 @@ fn status_asks_for_a_location_and_a_look_only_status_never_takes_a_free_controll
     let look = StatusAsk {
         location: true,
         look_only: true,
+        stop_cause: false,
         counters: false,
     };
     // Nobody owns it: a look-only STATUS is answered and takes nothing.
@@ -237,6 +238,7 @@ fn status_asks_for_a_location_and_a_look_only_status_never_takes_a_free_controll
     let ask = StatusAsk {
         location: true,
         look_only: false,
+        stop_cause: false,
         counters: false,
     };
     let r = s.send_raw(HOST, &status_with(6, ask));
@@ -247,9 +249,10 @@ fn status_asks_for_a_location_and_a_look_only_status_never_takes_a_free_controll
     let r = s.send_raw(HOST, &status_with(7, look));
     assert_eq!(r.answer_seq, None);
     assert_eq!(r.reply.unwrap().ack.status, Ok);
-    // A request byte with other bits: INVALID_CONFIG (to the owner, as any command). Bit
-    // 2 asks for RX_COUNTERS since issue 30 (this sent 0x04 before).
-    let r = s.send_raw(HOST, &raw(8, Tag::Status as u8, &[0x08]));
+    // A request byte with other bits: INVALID_CONFIG (to the owner, as any command).
+    // Bit 2 asks for the STOP_CAUSE report since issue 31 and bit 3 for RX_COUNTERS
+    // since issue 30: bit 4 is the first unknown (this sent 0x08 before).
+    let r = s.send_raw(HOST, &raw(8, Tag::Status as u8, &[0x10]));
     assert_eq!(r.reply.unwrap().ack.status, InvalidConfig);
 }
 
@@ -373,7 +376,11 @@ fn limits_refuse_bad_input_and_apply_to_return_and_location_setting() {
     assert_eq!(set(&mut s, &limits_set(8, 0, 1, 0)), InvalidConfig);
     assert_eq!(set(&mut s, &limits_set(0, 10, -10, 0)), InvalidConfig);
     assert_eq!(set(&mut s, &limits_set(0, 0, 1, 0)[..15]), BadLength);
-    assert_eq!(send_raw_cmd(&mut s, LIMITS_GET, &[0]), BadLength);
+    // LIMITS_GET takes one request byte since issue 31 (0x01: with the accelerations);
+    // another value is INVALID_CONFIG (it was BAD_LENGTH), two bytes BAD_LENGTH.
+    assert_eq!(send_raw_cmd(&mut s, LIMITS_GET, &[0]), InvalidConfig);
+    assert_eq!(send_raw_cmd(&mut s, LIMITS_GET, &[1, 0]), BadLength);
+    assert_eq!(send_raw_cmd(&mut s, LIMITS_GET, &[1]), Ok);
     // Joint 0 may not reach 0: RETURN is refused before anything moves.
     assert_eq!(set(&mut s, &limits_set(0, 100, 1_000, 0)), Ok);
     s.set_location([500, 0, 0, 0, 0, 0, 0, 0]);

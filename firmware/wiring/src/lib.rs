@@ -56,6 +56,9 @@ pub mod __private {
 ///     serial: BoardSerial,          // arm_core::hw::SerialPort
 ///     settings: FlashSettings,      // arm_core::hw::SettingsStore
 ///     encoders: ModbusEncoders,     // arm_core::hw::Encoders (or NoEncoders)
+///     // Optional: a `fn()` the receive path's halt of a STOPPED calls after the steps', e.g.
+///     // to cut a gripper burst at once (issue 30); callable from thread mode.
+///     halt_also: gripper::cut_at_stop,
 ///     // Optional: what watches the trajectory task's future (an arm_core::TaskWatch value)
 ///     // and the network task's (a path to `fn<F: Future>(F) -> impl Future<Output =
 ///     // F::Output>`), e.g. to count their polls for a watchdog.
@@ -69,7 +72,7 @@ pub mod __private {
 ///   [`controller_task`](arm_core::controller_task): the trajectory task, which also
 ///   feeds the step backend, the upload task and the serial task, as the simulator runs
 ///   them too), each a thin wrapper of arm-core's generic function;
-/// - `spawn_controller(spawner, controller_config, mac, hw)`, which puts the controller in
+/// - `spawn_controller(spawner, controller_config, mac, entropy, hw)`, which puts the controller in
 ///   a static (with the Ethernet MAC address DISCOVER_REPLY reports) and spawns the `run_controller` task:
 ///   the arm runs, and stops on its underrun rule, with or without a network;
 /// - `spawn_network(spawner, device, net_config, seed)`, which creates the stack (on the
@@ -95,6 +98,7 @@ macro_rules! controller_tasks {
         serial: $serial:ty,
         settings: $settings:ty,
         encoders: $encoders:ty
+        $(, halt_also: $halt_also:path)?
         $(, liveness: { trajectory: $trajectory_watch:expr, network: $network_watch:path $(,)? })?
         $(,)?
     ) => {
@@ -125,7 +129,8 @@ macro_rules! controller_tasks {
             $crate::__private::OnceLock::new();
 
         /// The receive path's halt (arm-core's `ingress`): what the trajectory task's stop
-        /// does to the steps, from the Ethernet driver's receive path.
+        /// does to the steps, from the Ethernet driver's receive path (and the board's
+        /// `halt_also`, if it has one, after them).
         pub struct BoardHalt;
 
         impl $crate::__private::arm_core::ingress::StepHalt for BoardHalt {
@@ -134,6 +139,7 @@ macro_rules! controller_tasks {
                 if let Some(kick) = HALT_KICK.try_get() {
                     $crate::__private::arm_core::hw::StepKick::kick(*kick);
                 }
+                $($halt_also();)?
             }
         }
 
@@ -177,12 +183,14 @@ macro_rules! controller_tasks {
         }
 
         /// Puts the controller in its static, with the board's Ethernet `mac` (which
-        /// DISCOVER_REPLY reports), and spawns the `run_controller` task (the network's come
-        /// from `spawn_network`).
+        /// DISCOVER_REPLY reports) and `entropy` (random bits, from the board's RNG where
+        /// it has one: the epochs of keys set, issue 30), and spawns the `run_controller`
+        /// task (the network's come from `spawn_network`).
         pub fn spawn_controller(
             spawner: &embassy_executor::Spawner,
             controller_config: $crate::__private::arm_core::ControllerConfig,
             mac: [u8; 6],
+            entropy: u64,
             hw: BoardTrajectoryHw,
         ) -> Result<(), embassy_executor::SpawnError> {
             // Built in place: 300 KB never pass through the stack.
@@ -191,6 +199,7 @@ macro_rules! controller_tasks {
                 controller_config,
             );
             controller.set_mac(mac);
+            controller.set_entropy(entropy);
             let _ = HALT_KICK.init(hw.kick);
             spawner.spawn(run_controller(controller, hw)?);
             Ok(())

@@ -83,6 +83,7 @@ pub enum OwnedReport {
     UsartRecv(Vec<u8>),
     Status(StatusReport),
     Limits(protocol::LimitsReport),
+    StopCause(protocol::StopReport),
     RxCounters(protocol::RxCounters),
 }
 
@@ -120,6 +121,7 @@ impl Client {
             Report::UsartRecv(b) => OwnedReport::UsartRecv(b.to_vec()),
             Report::Status(s) => OwnedReport::Status(s),
             Report::Limits(l) => OwnedReport::Limits(l),
+            Report::StopCause(s) => OwnedReport::StopCause(s),
             Report::RxCounters(c) => OwnedReport::RxCounters(c),
         };
         Some((frame.seq, report))

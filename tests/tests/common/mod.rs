@@ -80,7 +80,7 @@ impl Raw {
 }
 
 /// Issue 30 part 4: `stops` single STOPPEDs from `raw`, each sent until ACKed, then a
-/// look-only STATUS asking for RX_COUNTERS (request byte bit 2): the counters it gets.
+/// look-only STATUS asking for RX_COUNTERS (request byte bit 3): the counters it gets.
 /// `None` if a STOPPED or the report never comes. Bounded: 10 exchanges per STOPPED, 30
 /// tries of 1 s for the report.
 pub fn rx_counters_after_stops(raw: &Raw, stops: u8) -> Option<protocol::RxCounters> {
@@ -90,6 +90,7 @@ pub fn rx_counters_after_stops(raw: &Raw, stops: u8) -> Option<protocol::RxCount
     let ask = protocol::Command::StatusWith(protocol::StatusAsk {
         location: false,
         look_only: true,
+        stop_cause: false,
         counters: true,
     });
     let mut request = [0u8; 8];

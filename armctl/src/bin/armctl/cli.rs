@@ -222,8 +222,13 @@ pub enum Cmd {
 /// `armctl key ...`.
 #[derive(Subcommand, Debug)]
 pub enum KeyCmd {
-    /// Print a new random key (64 hex digits) for a key file: `armctl key new > arm.key`.
-    New,
+    /// A new random key (64 hex digits) for a key file: `armctl key new -o arm.key` (or
+    /// `> arm.key`); the file is made readable by its owner alone (0600).
+    New {
+        /// Write it to this file (created 0600; an existing file is not overwritten).
+        #[arg(short, long, value_name = "FILE")]
+        output: Option<PathBuf>,
+    },
     /// SET_KEY: store the key of FILE in the controller. The first time plain (as the
     /// owner); to change a key set already, give the current one with --key-file.
     Set {

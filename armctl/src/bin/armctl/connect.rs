@@ -14,7 +14,7 @@ pub fn connect(cli: &Cli) -> Result<Client, String> {
         attempts: cli.attempts.max(1),
         bind: cli.bind,
         key: match &cli.key_file {
-            Some(path) => Some(armctl::auth::read_key_file(path)?),
+            Some(path) => Some(crate::key::read(path)?),
             None => None,
         },
         ..Options::default()

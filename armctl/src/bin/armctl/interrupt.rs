@@ -1,5 +1,6 @@
-//! SIGINT (Ctrl-C) and SIGTERM during a command that moves the arm (`run`, `return`): the
-//! tool stops what it started, says so, and exits 130 (SIGINT) or 143 (SIGTERM).
+//! SIGINT (Ctrl-C), SIGTERM and SIGHUP (a closed terminal) during a command that moves the
+//! arm (`run`, `return`, `move`, ...): the tool stops what it started, says so, and exits 128
+//! plus the signal's number (130 SIGINT, 143 SIGTERM, 129 SIGHUP), as a shell reports it.
 //!
 //! - [`watch`] is called just before the command sends what starts the motion; until then
 //!   a signal ends the tool as usual (nothing to stop). From then on signal-hook's handler
@@ -20,7 +21,7 @@ use std::sync::{Mutex, OnceLock, PoisonError};
 use std::time::Duration;
 
 use armctl::{Cancel, Client, StopOutcome, StopRetry};
-use signal_hook::consts::{SIGINT, SIGTERM};
+use signal_hook::consts::{SIGHUP, SIGINT, SIGTERM};
 use signal_hook::iterator::Signals;
 
 /// What the signals thread and the command's flow share.
@@ -42,14 +43,14 @@ static WATCH: OnceLock<Watch> = OnceLock::new();
 /// How long the signals thread leaves the flow to end by itself after a second signal.
 const SECOND_SIGNAL_GRACE: Duration = Duration::from_millis(100);
 
-/// Starts handling SIGINT and SIGTERM (once per process): the token the motion's calls
+/// Starts handling SIGINT, SIGTERM and SIGHUP (once per process): the token the motion's calls
 /// look at ([`armctl::RunOptions::cancel`], [`Client::wait_stopped_cancellable`]).
 pub fn watch() -> Result<Cancel, String> {
     if let Some(watch) = WATCH.get() {
         return Ok(watch.cancel.clone());
     }
-    let mut signals = Signals::new([SIGINT, SIGTERM])
-        .map_err(|e| format!("cannot handle SIGINT and SIGTERM: {e}"))?;
+    let mut signals = Signals::new([SIGINT, SIGTERM, SIGHUP])
+        .map_err(|e| format!("cannot handle SIGINT, SIGTERM and SIGHUP: {e}"))?;
     let watch = WATCH.get_or_init(|| Watch {
         cancel: Cancel::new(),
         signal: AtomicI32::new(0),
@@ -102,6 +103,7 @@ fn signal_name(signal: i32) -> &'static str {
     match signal {
         SIGINT => "SIGINT",
         SIGTERM => "SIGTERM",
+        SIGHUP => "SIGHUP",
         _ => "a signal",
     }
 }

@@ -10,11 +10,30 @@
 //!   `plot`, which need no controller.
 //!
 //! Every failure prints `error: ...` and exits with 1; clap exits with 2 on a usage error.
-//! SIGINT or SIGTERM during a command that moves the arm (`run`, `return`) sends STOPPED,
+//! A closed stdout (`armctl status | head -n 1`) ends the tool quietly, killed by SIGPIPE,
+//! once the command has finished (`out`).
+//! SIGINT, SIGTERM or SIGHUP during a command that moves the arm (`run`, `return`) sends STOPPED,
 //! prints `interrupted (SIGINT): STOPPED sent, ...` and exits 130 or 143 (`interrupt`).
 //! Library diagnostics (an upload's ACKs, timeouts, go-back-N resends) go through the `log`
 //! facade: `ARMCTL_TRACE=1` shows them all, `RUST_LOG` (e.g. `RUST_LOG=armctl=debug`)
 //! chooses more finely.
+
+// std's `print!`, `println!` and `eprintln!` panic when the stream is a closed pipe
+// (`armctl status | head -n 1`, issue 31). These, defined before the modules and so used
+// by all of them, write through `out` instead (stderr: errors ignored, nothing to tell).
+macro_rules! print {
+    ($($arg:tt)*) => { $crate::out::write(format_args!($($arg)*)) };
+}
+macro_rules! println {
+    () => { $crate::out::write(format_args!("\n")) };
+    ($($arg:tt)*) => { $crate::out::write(format_args!("{}\n", format_args!($($arg)*))) };
+}
+macro_rules! eprintln {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        let _ = writeln!(std::io::stderr(), $($arg)*);
+    }};
+}
 
 mod cli;
 mod config;
@@ -24,8 +43,10 @@ mod enable;
 mod frame;
 mod interrupt;
 mod jog_keys;
+mod key;
 mod motion;
 mod net;
+mod out;
 mod owner;
 mod plot;
 mod pwm;
@@ -38,7 +59,7 @@ mod watch;
 use std::process::ExitCode;
 
 use armctl::trajectory::ArmConfig;
-use clap::Parser;
+use clap::{CommandFactory, FromArgMatches};
 
 use cli::{Cli, Cmd};
 
@@ -47,18 +68,22 @@ type CliResult = Result<(), String>;
 
 fn main() -> ExitCode {
     init_logging();
-    let mut cli = Cli::parse();
+    // As Cli::parse(), keeping the matches for the name of the command run.
+    let matches = Cli::command().get_matches();
+    let mut cli = Cli::from_arg_matches(&matches).unwrap_or_else(|e| e.exit());
+    let command = command_name(&matches);
     cli.controller = armctl::controller_address(&cli.controller);
     if let Some(warning) = cli::resend_warning(cli.ack_timeout_ms, cli.attempts) {
         eprintln!("warning: {warning}");
     }
-    let result = execute(cli);
+    let result = execute(cli, &command);
     if let Some(code) = interrupt::exit_code() {
         // interrupt::finish said what was stopped.
         return ExitCode::from(code);
     }
     match result {
-        Ok(()) => ExitCode::SUCCESS,
+        // Killed by SIGPIPE when stdout's reader went away (crate::out).
+        Ok(()) => out::success(),
         Err(message) => {
             eprintln!("error: {message}");
             ExitCode::FAILURE
@@ -72,8 +97,23 @@ fn init_logging() {
     armctl::logger("warn").init();
 }
 
-/// The commands that need no controller, then the others over one connection.
-fn execute(cli: Cli) -> CliResult {
+/// The command run as the user typed it: `move`, `config set` (subcommands two deep).
+fn command_name(matches: &clap::ArgMatches) -> String {
+    let mut words = Vec::new();
+    let mut at = matches;
+    while let Some((name, sub)) = at.subcommand() {
+        words.push(name);
+        if words.len() == 2 {
+            break;
+        }
+        at = sub;
+    }
+    words.join(" ")
+}
+
+/// The commands that need no controller, then the others over one connection. `command`
+/// (as the user typed it) names what was refused.
+fn execute(cli: Cli, command: &str) -> CliResult {
     match &cli.command {
         Cmd::Frame(command) => frame::execute(command),
         Cmd::Plot(args) => plot::execute(args),
@@ -87,19 +127,14 @@ fn execute(cli: Cli) -> CliResult {
         Cmd::Net(net::NetCmd::Show) => net::show(&cli),
         Cmd::Run(args) if args.dry_run => run::dry_run(args),
         Cmd::Check(args) => run::dry_run(args),
-        Cmd::Key(cli::KeyCmd::New) => {
-            println!(
-                "{}",
-                armctl::auth::new_key_hex().map_err(|e| e.to_string())?
-            );
-            Ok(())
-        }
+        Cmd::Config(config::ConfigCmd::Init(args)) => config::init(args),
+        Cmd::Key(cli::KeyCmd::New { output }) => key::new(output.as_deref()),
         _ => {
             let arm = connect::connect(&cli)
-                .map_err(|e| owner::explain_not_owner(e, &cli.controller, cli.bind))?;
+                .map_err(|e| owner::explain_not_owner(e, command, &cli.controller, cli.bind))?;
             let result = execute_online(&cli, &arm)
-                .map_err(|e| owner::explain_not_owner(e, &cli.controller, cli.bind))
-                .map_err(|e| config::explain_invalid_point(e, &arm));
+                .map_err(|e| owner::explain_not_owner(e, command, &cli.controller, cli.bind))
+                .map_err(|e| config::explain_invalid_point(e, &arm, None));
             // After a signal: STOPPED (unless the command sent it) and the line saying so.
             interrupt::finish(&arm);
             result
@@ -153,7 +188,7 @@ fn execute_online(cli: &Cli, arm: &armctl::Client) -> CliResult {
             net::set(arm, ip.as_deref(), *gateway, *dhcp)
         }
         Cmd::Key(cli::KeyCmd::Set { file }) => {
-            let key = armctl::auth::read_key_file(file)?;
+            let key = key::read(file)?;
             single::done(arm.set_key(Some(key)))
         }
         Cmd::Key(cli::KeyCmd::Clear) => single::done(arm.set_key(None)),
@@ -163,7 +198,7 @@ fn execute_online(cli: &Cli, arm: &armctl::Client) -> CliResult {
         | Cmd::Plot { .. }
         | Cmd::Discover { .. }
         | Cmd::Net(net::NetCmd::Show)
-        | Cmd::Key(cli::KeyCmd::New) => Ok(()),
+        | Cmd::Key(cli::KeyCmd::New { .. }) => Ok(()),
     }
 }
 

@@ -3,14 +3,18 @@
 //!
 //! Moves are planned on the host (`armctl::motion`): one trapezoidal profile for all
 //! joints, within each joint's step rate and acceleration (the joint config's, capped by the
-//! rate the controller advertises in STATUS) and position range (the config's). Positions
+//! rate the controller advertises in STATUS) and position range (the config's), and
+//! within the limits the controller keeps (LIMITS_GET), config or not. Positions
 //! are taken and shown in `--units` (steps, deg or rad; default: the config's `units`).
-//! SIGINT or SIGTERM during a move or a home: STOPPED (crate::interrupt).
+//! SIGINT, SIGTERM or SIGHUP during a move or a home: STOPPED (crate::interrupt).
 
 use std::path::PathBuf;
 use std::time::Duration;
 
-use armctl::motion::{JointLimit, MoveSpeed, TargetArg, Units, joint_index, targets_in_steps};
+use armctl::motion::{
+    JointLimit, MoveSpeed, TargetArg, Units, check_targets, joint_index, joint_label, plan_move,
+    targets_in_steps,
+};
 use armctl::trajectory::ArmConfig;
 use armctl::{Client, RunOptions};
 use clap::Args;
@@ -91,20 +95,44 @@ pub fn ready_to_move(status: &protocol::StatusReport) -> Result<(), String> {
     Ok(())
 }
 
-/// After a failed upload: a controller left in PENDING (points taken before the one it
-/// refused) is sent STOPPED, which drops them, so that the next motion is taken; the
+/// The limits the controller keeps (LIMITS_GET), or `None` from a controller that
+/// predates them (UNKNOWN_TAG).
+pub fn kept_limits(client: &Client) -> Result<Option<protocol::LimitsReport>, String> {
+    match client.limits() {
+        Ok(report) => Ok(Some(report)),
+        Err(e) if e.status() == Some(StatusCode::UnknownTag) => Ok(None),
+        Err(e) => Err(e.to_string()),
+    }
+}
+
+/// After a failed upload: a controller left in NEW (refused at the first frame) or in
+/// PENDING (points taken before the one it refused) is sent STOPPED, which drops the
+/// upload, so that the next motion is taken (issue 31: NEW was left as it was); the
 /// message says so. Otherwise `message` as it is.
 pub fn drop_partial_upload(client: &Client, message: String) -> String {
+    // Another host's now (it took the controller over): its upload is not ours to stop.
+    if message.contains("NOT_OWNER") || message.contains("AUTH_") {
+        return message;
+    }
     match client.status() {
-        Ok(status) if status.state == State::Pending => match client.stop() {
-            Ok(_) => format!(
-                "{message}\nSTOPPED sent: the points taken before were dropped, the controller \
-                 is STOPPED"
-            ),
-            Err(e) => format!(
-                "{message}\nthe controller is left in PENDING (STOPPED failed: {e}): `armctl stop`"
-            ),
-        },
+        Ok(status) if matches!(status.state, State::New | State::Pending) => {
+            let left = status.state.name();
+            let dropped = if status.state == State::New {
+                "nothing had been taken"
+            } else {
+                "with the points taken before"
+            };
+            match client.stop() {
+                Ok(_) => format!(
+                    "{message}\nSTOPPED sent: the upload was dropped (state {left}: {dropped}), \
+                     the controller is STOPPED"
+                ),
+                Err(e) => format!(
+                    "{message}\nthe controller is left in {left} (STOPPED failed: {e}): \
+                     `armctl stop`"
+                ),
+            }
+        }
         _ => message,
     }
 }
@@ -142,6 +170,11 @@ impl<'a> Arm<'a> {
             }
             None => ArmConfig::unlimited(joints, status.max_step_rate_hz),
         };
+        // Within what the controller keeps too: it refuses the rest (issue 31).
+        let config = match kept_limits(client)? {
+            Some(kept) => config.within(&kept.joints),
+            None => config,
+        };
         let units = args.units.unwrap_or(config.units);
         if units != Units::Steps && args.config.is_none() {
             return Err(format!(
@@ -169,10 +202,7 @@ impl<'a> Arm<'a> {
 
     /// The name a message gives joint `j`: its config name, else `joint j`.
     pub fn joint_name(&self, j: usize) -> String {
-        match self.config.joints.get(j).and_then(|c| c.name.as_deref()) {
-            Some(name) => name.to_string(),
-            None => format!("joint {j}"),
-        }
+        joint_label(&self.config, j)
     }
 
     /// `base 90.00 deg, elbow -3.20 deg`: positions in the arm's units.
@@ -214,27 +244,7 @@ impl<'a> Arm<'a> {
             self.joints,
             &self.config,
         )?;
-        for (j, limit) in self.limits.iter().enumerate() {
-            if target[j] < limit.min_steps || target[j] > limit.max_steps {
-                let joint = &self.config.joints[j];
-                let steps = |s: i32| match self.units {
-                    Units::Steps => String::new(),
-                    _ => format!(" ({s} steps)"),
-                };
-                return Err(format!(
-                    "{}: target {}{} is outside its range {} to {}{}",
-                    self.joint_name(j),
-                    self.units.show(i64::from(target[j]), joint),
-                    steps(target[j]),
-                    self.units.show(i64::from(limit.min_steps), joint),
-                    self.units.show(i64::from(limit.max_steps), joint),
-                    match self.units {
-                        Units::Steps => String::new(),
-                        _ => format!(" ({} to {} steps)", limit.min_steps, limit.max_steps),
-                    }
-                ));
-            }
-        }
+        check_targets(&target, &self.limits, &self.config, self.units)?;
         Ok(target)
     }
 
@@ -260,23 +270,33 @@ impl<'a> Arm<'a> {
             cancel,
             ..RunOptions::default()
         };
-        let report = self
-            .client
-            .move_to(
-                target,
-                &self.limits,
-                self.speed,
-                self.segment_us,
-                &options,
-                |p| {
+        // As Client::move_to, keeping the points: a refusal says which one it was.
+        let from = self.position()?;
+        let points = plan_move(&from, target, &self.limits, self.speed, self.segment_us)
+            .map_err(|e| format!("invalid trajectory: {e}"))?;
+        let report = if points.is_empty() {
+            Ok(None)
+        } else {
+            self.client
+                .run_trajectory(&points, &options, |p| {
                     bar.set_length(p.total as u64);
                     bar.set_position(p.executed as u64);
                     bar.set_message(p.state.name());
-                },
-            )
-            .map_err(|e| e.to_string());
+                })
+                .map(Some)
+        };
         bar.finish_and_clear();
-        let report = report.map_err(|e| drop_partial_upload(self.client, e))?;
+        let report = report.map_err(|e| {
+            let sent = crate::config::Sent {
+                from,
+                points: &points,
+                config: &self.config,
+                units: self.units,
+            };
+            let message =
+                crate::config::explain_invalid_point(e.to_string(), self.client, Some(&sent));
+            drop_partial_upload(self.client, message)
+        })?;
         let at = match report.and_then(|r| r.final_location) {
             Some(location) => location.position,
             None => self.position()?,

@@ -26,10 +26,19 @@ pub fn release(arm: &Client) -> CliResult {
 
 /// `message` with who owns the controller at `controller` appended, when it is a
 /// NOT_OWNER refusal and the controller tells (an older one without DISCOVER does not).
-pub fn explain_not_owner(message: String, controller: &str, bind: Option<SocketAddr>) -> String {
+/// The refusal names `command`, the command the user ran, not the frame refused (issue
+/// 31: `move` said "UPLOAD_PERIOD refused", the first frame it sends that needs the
+/// owner).
+pub fn explain_not_owner(
+    message: String,
+    command: &str,
+    controller: &str,
+    bind: Option<SocketAddr>,
+) -> String {
     if !message.contains("NOT_OWNER") {
         return message;
     }
+    let message = name_the_command(&message, command);
     match owner_of(controller, bind) {
         Some(ip) => format!(
             "{message}\nthe controller is owned by {ip}: it passes to another host when \
@@ -38,6 +47,22 @@ pub fn explain_not_owner(message: String, controller: &str, bind: Option<SocketA
         ),
         None => message,
     }
+}
+
+/// `LIMITS_GET refused with NOT_OWNER: ...` as `move refused with NOT_OWNER: ...`: the
+/// frame's name before the refusal replaced by `command`.
+pub fn name_the_command(message: &str, command: &str) -> String {
+    const REFUSED: &str = " refused with NOT_OWNER";
+    let Some(at) = message.find(REFUSED) else {
+        return message.to_string();
+    };
+    let start = message[..at]
+        .rfind(|c: char| !(c.is_ascii_uppercase() || c == '_'))
+        .map_or(0, |i| i + 1);
+    if start == at || command.is_empty() {
+        return message.to_string();
+    }
+    format!("{}{command}{}", &message[..start], &message[at..])
 }
 
 /// The owner's address as DISCOVER_REPLY gives it, if a controller answers and has one.

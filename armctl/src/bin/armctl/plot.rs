@@ -118,8 +118,9 @@ fn preview(
         .cloned()
         .unwrap_or_else(|| ArmConfig::unlimited(joints, u32::MAX));
     let segment_us = trajectory::segment_us(args.segment_ms, "--segment-ms")?;
+    let units = args.units.unwrap_or(config.units);
     let points = trajectory::to_points(&waypoints, &start, segment_us, &config, None)
-        .map_err(|e| e.with_joint_names(&config).to_string())?;
+        .map_err(|e| e.in_units(&config, units).to_string())?;
     let mut t = 0.0;
     let mut samples = vec![Sample {
         time_s: 0.0,

@@ -85,6 +85,10 @@ struct Converted {
     waypoints: usize,
     /// The joint config's names for a recording's header (empty without a config).
     config_names: Vec<String>,
+    /// The joint config (without one: unnamed joints in steps) and the file's units, for
+    /// a refusal's message.
+    config: ArmConfig,
+    units: armctl::motion::Units,
 }
 
 /// The trajectory file as points, from `current`.
@@ -108,6 +112,7 @@ fn convert(
     }
     let config = config
         .unwrap_or_else(|| ArmConfig::unlimited(joints, controller_max_rate.unwrap_or(u32::MAX)));
+    let units = args.units.unwrap_or(config.units);
     let segment_us = trajectory::segment_us(args.segment_ms, "--segment-ms")?;
     let points = trajectory::to_points(
         &waypoints,
@@ -116,9 +121,9 @@ fn convert(
         &config,
         controller_max_rate,
     )
-    .map_err(|e| e.with_joint_names(&config).to_string())?;
+    .map_err(|e| e.in_units(&config, units).to_string())?;
     let waypoints = trajectory::check_waypoints(&points, &waypoints, current)
-        .map_err(|e| e.with_joint_names(&config).to_string())?;
+        .map_err(|e| e.in_units(&config, units).to_string())?;
     let config_names = if args.config.is_some() {
         config.short_names()
     } else {
@@ -137,6 +142,8 @@ fn convert(
         joint_names,
         waypoints,
         config_names,
+        config,
+        units,
     })
 }
 
@@ -151,7 +158,7 @@ fn print_points_summary(points: &[Point], waypoints: usize) {
 }
 
 /// Runs `run`: converts the file from the current position, uploads and runs it, and
-/// checks the final positions. SIGINT or SIGTERM from the upload on: STOPPED
+/// checks the final positions. SIGINT, SIGTERM or SIGHUP from the upload on: STOPPED
 /// (crate::interrupt).
 pub fn execute(arm: &Client, args: &RunArgs) -> CliResult {
     let status = arm.status().map_err(|e| e.to_string())?;
@@ -165,6 +172,8 @@ pub fn execute(arm: &Client, args: &RunArgs) -> CliResult {
         joint_names,
         waypoints,
         config_names,
+        config,
+        units,
     } = convert(
         args,
         &current.position,
@@ -246,7 +255,16 @@ pub fn execute(arm: &Client, args: &RunArgs) -> CliResult {
         // main prints what the STOPPED did and exits 130 or 143.
         return Err("interrupted".into());
     }
-    let report = result.map_err(|e| crate::motion::drop_partial_upload(arm, e.to_string()))?;
+    let report = result.map_err(|e| {
+        let sent = crate::config::Sent {
+            from: current.position,
+            points: &points,
+            config: &config,
+            units,
+        };
+        let message = crate::config::explain_invalid_point(e.to_string(), arm, Some(&sent));
+        crate::motion::drop_partial_upload(arm, message)
+    })?;
     println!(
         "uploaded {} points in {} frames, window {} ({} datagrams, {} resent, {} out of order, {} buffer full, {} timeouts) in {:.3} s; run took {:.3} s",
         report.points,

@@ -48,9 +48,17 @@ pub fn execute(arm: &Client, baud: u32, mode: u32, keep_open: bool) -> CliResult
     let mut last_status = Instant::now();
     let mut eof_at: Option<Instant> = None;
     loop {
+        let mut reader_gone = false;
         while let Ok(bytes) = rx.try_recv() {
-            stdout.write_all(&bytes).map_err(|e| e.to_string())?;
-            stdout.flush().map_err(|e| e.to_string())?;
+            let written = stdout.write_all(&bytes).and_then(|()| stdout.flush());
+            // A closed pipe ends the bridge (and main, the tool: crate::out).
+            if crate::out::closed(&written) {
+                reader_gone = true;
+                break;
+            }
+        }
+        if reader_gone {
+            break;
         }
         match rx_in.recv_timeout(Duration::from_millis(10)) {
             Ok(Some(bytes)) => arm.serial_send(&bytes).map_err(|e| e.to_string())?,

@@ -14,7 +14,7 @@ pub fn done(ack: armctl::Result<protocol::Ack>) -> CliResult {
     Ok(())
 }
 
-/// Runs `return`: RETURN, and with `wait` the wait for the move's end. SIGINT or SIGTERM
+/// Runs `return`: RETURN, and with `wait` the wait for the move's end. SIGINT, SIGTERM or SIGHUP
 /// from the RETURN on: STOPPED (crate::interrupt).
 pub fn go_home(arm: &Client, wait: bool) -> CliResult {
     let cancel = crate::interrupt::watch()?;

@@ -14,6 +14,9 @@ pub fn execute(arm: &Client, json: bool, config: Option<&std::path::Path>) -> Cl
         .map_err(|e| e.to_string())?;
     let glance = arm.glance(true).map_err(|e| e.to_string())?;
     let status = glance.status;
+    // What ended the last run and who sent the STOPPED (issue 31); `None` from an older
+    // controller, or if the report was lost.
+    let stop = arm.stop_report().ok().and_then(|(_, stop)| stop);
     if json {
         // The STATUS fields as before, plus `positions` (null when none came) and
         // `read_only`.
@@ -27,6 +30,19 @@ pub fn execute(arm: &Client, json: bool, config: Option<&std::path::Path>) -> Cl
                     .map_or(serde_json::Value::Null, |l| l.position[..joints].into()),
             );
             map.insert("read_only".into(), glance.read_only.into());
+            // Issue 31: the cause's name (null from an older controller) and the
+            // STOPPED's sender ("127.0.0.2:40001", null when none or not told).
+            map.insert(
+                "stop_cause".into(),
+                status
+                    .stop_cause()
+                    .map_or(serde_json::Value::Null, |c| c.name().into()),
+            );
+            map.insert(
+                "stopped_by".into(),
+                armctl::stopped_by(stop.as_ref())
+                    .map_or(serde_json::Value::Null, |a| a.to_string().into()),
+            );
             if let Some(config) = &config {
                 let names: Vec<serde_json::Value> = config
                     .joints
@@ -43,6 +59,7 @@ pub fn execute(arm: &Client, json: bool, config: Option<&std::path::Path>) -> Cl
         );
     } else {
         print_status(&status);
+        println!("{}", stop_line(&status, stop.as_ref()));
         println!(
             "{}",
             positions_block(&status, glance.location.as_ref(), config.as_ref())
@@ -91,6 +108,12 @@ pub fn positions_block(
         lines.push(line);
     }
     lines.join("\n")
+}
+
+/// What ended the last run (issue 31: STATUS `more_flags` bits 5-7 and the STOP_CAUSE
+/// report; the older flags from an older controller).
+pub fn stop_line(s: &StatusReport, stop: Option<&protocol::StopReport>) -> String {
+    format!("last run ended   {}", armctl::stop_cause_text(s, stop))
 }
 
 /// The wired e-stop input and its latch (STATUS `more_flags` bits 1 and 2; both 0 from a
@@ -149,6 +172,8 @@ fn print_status(s: &StatusReport) {
         flag(StatusFlags::PIN1_HIGH),
         flag(StatusFlags::PWM_ACTIVE)
     );
+    // Kept as it was: scripts grep it (scripts/lookahead-soak.sh, step-load); the stop
+    // cause line (issue 31) follows the block.
     println!(
         "last run ended by underrun {}  by STOPPED {}",
         flag(StatusFlags::UNDERRUN),

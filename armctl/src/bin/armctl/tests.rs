@@ -534,3 +534,87 @@ fn decode_errors_are_the_decode_error_message() {
     .unwrap_err();
     assert!(wrong.contains("other way"), "{wrong}");
 }
+
+/// Issue 31: a NOT_OWNER refusal names the command the user ran, not the frame refused.
+#[test]
+fn not_owner_names_the_command_run() {
+    use crate::owner::name_the_command;
+    assert_eq!(
+        name_the_command(
+            "UPLOAD_PERIOD refused with NOT_OWNER: another host owns the controller",
+            "move"
+        ),
+        "move refused with NOT_OWNER: another host owns the controller"
+    );
+    assert_eq!(
+        name_the_command(
+            "joint 0: LIMITS_SET refused with NOT_OWNER: x",
+            "config push"
+        ),
+        "joint 0: config push refused with NOT_OWNER: x"
+    );
+    let other = "PENDING refused with INVALID_POINT (controller state NEW): y";
+    assert_eq!(name_the_command(other, "run"), other);
+}
+
+/// Issue 31: the controller's refusal (LIMITS_GET's last refusal) is found among the
+/// points sent: its time, the joint's config name, the user's units, the slow-down.
+#[test]
+fn a_controllers_refusal_is_told_in_the_users_terms() {
+    use crate::config::{Sent, refused_point};
+    use armctl::motion::Units;
+    use armctl::trajectory::ArmConfig;
+    use protocol::{Point, Refusal, RefusalReason, Tag};
+    let config = ArmConfig::parse(
+        r#"{"joints": [{"name": "base", "steps_per_radian": 1000, "max_step_rate_hz": 9000}]}"#,
+        "arm.json",
+    )
+    .unwrap();
+    let at = |p: i32| [p, 0, 0, 0, 0, 0, 0, 0];
+    let points = [
+        Point::from_motion(10_000, &at(0), &at(50)),
+        Point::from_motion(10_000, &at(50), &at(150)),
+    ];
+    let sent = Sent {
+        from: at(0),
+        points: &points,
+        config: &config,
+        units: Units::Deg,
+    };
+    let refusal = Refusal {
+        seq: 0x21,
+        tag: Tag::Pending as u8,
+        point: 1,
+        joint: 0,
+        reason: RefusalReason::AboveMax,
+        value: 150,
+        limit: 100,
+    };
+    let line = refused_point(&refusal, &sent).unwrap();
+    assert!(
+        line.starts_with("point 1 of the upload, ending at t = 0.020000 s (PENDING seq 0x21"),
+        "{line}"
+    );
+    assert!(
+        line.contains(
+            "joint 0 (base): position 150 steps (8.59 deg) is above its max 100 steps (5.73 deg)"
+        ),
+        "{line}"
+    );
+    // 100 steps in 10 ms against 4000 steps/s.
+    let rate = Refusal {
+        reason: RefusalReason::JointRate,
+        value: 10_000,
+        limit: 4000,
+        ..refusal
+    };
+    let line = refused_point(&rate, &sent).unwrap();
+    assert!(line.starts_with("point 0 of the upload"), "{line}");
+    assert!(line.contains("it needs 2.5x longer"), "{line}");
+    // Not a PENDING: not found among the points.
+    let other = Refusal {
+        tag: Tag::Return as u8,
+        ..refusal
+    };
+    assert_eq!(refused_point(&other, &sent), None);
+}

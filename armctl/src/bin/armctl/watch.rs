@@ -78,6 +78,7 @@ pub fn execute(
     let mut last_print = Instant::now() - Duration::from_secs(1);
     let mut last_status = Instant::now();
     let mut seen = 0u64;
+    let mut last_state = None;
     loop {
         if end.is_some_and(|e| Instant::now() >= e) {
             break;
@@ -97,6 +98,27 @@ pub fn execute(
         match next {
             Ok(location) => {
                 seen += 1;
+                // A run just ended: say what ended it (issue 31), on a line of its own.
+                let ended = location.state == protocol::State::Stopped as u8
+                    && last_state == Some(protocol::State::Running as u8);
+                last_state = Some(location.state);
+                if ended {
+                    let why = match arm.stop_report() {
+                        Ok((status, stop)) => armctl::stop_cause_text(&status, stop.as_ref()),
+                        Err(e) => format!("unknown ({e})"),
+                    };
+                    let line = location_line(&location, joints, shown);
+                    let written = if tty {
+                        write!(out, "\r{line}\nrun ended: {why}\n")
+                    } else {
+                        writeln!(out, "{line}\nrun ended: {why}")
+                    }
+                    .and_then(|()| out.flush());
+                    if crate::out::closed(&written) {
+                        return Ok(());
+                    }
+                    written.map_err(|e| format!("stdout: {e}"))?;
+                }
                 if let Some(r) = recorder.as_mut() {
                     r.record(&location)
                         .and_then(|()| r.flush())
@@ -112,10 +134,9 @@ pub fn execute(
                         writeln!(out, "{line}")
                     };
                     // The reader went away (`armctl watch | head`): done, quietly.
-                    if closed(&written) {
+                    if crate::out::closed(&written) {
                         return Ok(());
                     }
-                    written.map_err(|e| format!("stdout: {e}"))?;
                 }
             }
             Err(mpsc::RecvTimeoutError::Timeout) => {}
@@ -129,13 +150,7 @@ pub fn execute(
     }
     let written = if tty { writeln!(out) } else { Ok(()) }
         .and_then(|()| writeln!(out, "{seen} location reports"));
-    if closed(&written) {
-        return Ok(());
-    }
-    written.map_err(|e| format!("stdout: {e}"))
-}
-
-/// Whether a write failed because the reader closed the pipe.
-fn closed(written: &std::io::Result<()>) -> bool {
-    matches!(written, Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe)
+    // A closed pipe or a failed write: main ends the tool as it should (crate::out).
+    crate::out::closed(&written);
+    Ok(())
 }

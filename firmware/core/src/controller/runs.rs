@@ -2,7 +2,7 @@
 //! read and plan (see "Runs, reports and flags" in [`crate::controller`]).
 
 use arm_step::Segment;
-use protocol::{Location, MAX_JOINTS, Refusal, RefusalReason, State};
+use protocol::{Location, MAX_JOINTS, Refusal, RefusalReason, State, StopCause, StopReport};
 
 use super::Controller;
 use crate::buffer::StoredPoint;
@@ -65,6 +65,17 @@ impl<const CAP: usize> Controller<CAP> {
                 ));
             }
             let steps = point.steps(previous, j).unsigned_abs();
+            // A limp joint does not move (issue 31): its steps would reach a disabled
+            // driver while the controller counts them, and STATUS would show it where it
+            // is not.
+            if steps > 0 && self.enabled & (1 << j) == 0 {
+                return Err(refusal(
+                    j,
+                    RefusalReason::JointDisabled,
+                    to.into(),
+                    previous.get(j).copied().unwrap_or(0).into(),
+                ));
+            }
             total_steps += steps;
             if steps > i32::MAX as u64 {
                 return Err(refusal(
@@ -109,6 +120,29 @@ impl<const CAP: usize> Controller<CAP> {
         Ok(StoredPoint {
             duration_us: duration,
             position,
+        })
+    }
+
+    /// The first joint in use whose driver is disabled and that is not at `target`, as a
+    /// refusal (RETURN: a limp joint does not move, issue 31).
+    pub(super) fn limp_and_away(
+        &self,
+        from: &[i32; MAX_JOINTS],
+        target: &[i32; MAX_JOINTS],
+    ) -> Option<Refusal> {
+        let joints = usize::from(self.settings.joints).min(MAX_JOINTS);
+        let (j, (&at, &to)) = from
+            .iter()
+            .zip(target)
+            .enumerate()
+            .take(joints)
+            .find(|(j, (at, to))| self.enabled & (1 << j) == 0 && at != to)?;
+        Some(Refusal {
+            joint: u8::try_from(j).unwrap_or(u8::MAX),
+            reason: RefusalReason::JointDisabled,
+            value: to,
+            limit: at,
+            ..Refusal::default()
         })
     }
 
@@ -187,8 +221,11 @@ impl<const CAP: usize> Controller<CAP> {
             plant.stop();
             self.buffer.clear();
             self.return_plan = None;
-            self.underrun = !complete;
-            self.stopped_by_host = false;
+            self.stop = StopReport::of(if complete {
+                StopCause::Complete
+            } else {
+                StopCause::Underrun
+            });
             self.state = State::Stopped;
             self.claimer_heard_at_run_end();
             return self.reports_on.then(|| self.location(plant));
@@ -212,8 +249,10 @@ impl<const CAP: usize> Controller<CAP> {
         self.expected = 0;
         self.received = 0;
         self.executed = 0;
-        self.underrun = false;
-        self.stopped_by_host = false;
+        self.stop = StopReport {
+            detail: fault.joint,
+            ..StopReport::of(StopCause::Fault)
+        };
         self.return_fault = Some(fault);
         self.state = State::Stopped;
         self.reports_on.then(|| self.location(plant))
@@ -274,4 +313,123 @@ impl<const CAP: usize> Controller<CAP> {
 
 fn saturate_i32(v: i64) -> i32 {
     i32::try_from(v).unwrap_or(if v < 0 { i32::MIN } else { i32::MAX })
+}
+
+/// The last point taken, as a segment: what the acceleration check (ACCEL_SET, issue 31)
+/// compares the next one with.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct LastSegment {
+    /// Each joint's steps (signed).
+    steps: [i32; MAX_JOINTS],
+    /// Its duration; 0: rest (a trajectory's start).
+    duration_us: u32,
+}
+
+impl LastSegment {
+    /// At rest: before a trajectory's first point.
+    pub const REST: LastSegment = LastSegment {
+        steps: [0; MAX_JOINTS],
+        duration_us: 0,
+    };
+}
+
+/// The acceleration, steps/s², from a segment of `s0` steps in `d0` us to one of `s1` in
+/// `d1` (docs/PROTOCOL.md, ACCEL_SET): the change of rate over the time between the two
+/// segments' midpoints, less one step of rounding in each segment's rate. A duration of
+/// 0 is rest (rate 0, no length). 0 when within the rounding.
+fn acceleration(s0: i32, d0: u32, s1: i32, d1: u32) -> u128 {
+    let (s0, d0, s1, d1) = (
+        i128::from(s0),
+        i128::from(d0),
+        i128::from(s1),
+        i128::from(d1),
+    );
+    // (|s1/d1 - s0/d0| - 1/d0 - 1/d1) / ((d0 + d1)/2) steps/us², as 2 * excess /
+    // denominator with both exact integers (times d0*d1). A rest side has no rounding and
+    // no length.
+    let (excess, denominator) = match (d0, d1) {
+        (0, 0) => return 0,
+        (0, d) => (s1.abs() - 1, d * d),
+        (d, 0) => (s0.abs() - 1, d * d),
+        _ => ((s1 * d0 - s0 * d1).abs() - d0 - d1, d0 * d1 * (d0 + d1)),
+    };
+    if excess <= 0 || denominator <= 0 {
+        return 0;
+    }
+    // steps/us² to steps/s²: 1e12. excess < 2^64 and 2e12 < 2^41: no overflow.
+    (excess as u128 * 2_000_000_000_000) / denominator as u128
+}
+
+impl<const CAP: usize> Controller<CAP> {
+    /// Whether `stored`, after `previous` and the segment `last`, keeps every joint in use
+    /// within its `max_accel_steps_s2` (ACCEL_SET, issue 31); `ends`: it is the
+    /// trajectory's last point, which must also come to rest. Updates `last` to it.
+    pub(super) fn within_accel(
+        &self,
+        last: &mut LastSegment,
+        previous: &[i32; MAX_JOINTS],
+        stored: &StoredPoint,
+        ends: bool,
+    ) -> Result<(), Refusal> {
+        let mut steps = [0i32; MAX_JOINTS];
+        for ((s, &to), &from) in steps.iter_mut().zip(&stored.position).zip(previous) {
+            *s = saturate_i32(i64::from(to) - i64::from(from));
+        }
+        let d = stored.duration_us;
+        let joints = usize::from(self.settings.joints).min(MAX_JOINTS);
+        for (j, ((&max, &s1), &s0)) in self
+            .settings
+            .max_accel
+            .iter()
+            .zip(&steps)
+            .zip(&last.steps)
+            .enumerate()
+            .take(joints)
+        {
+            if max == 0 {
+                continue;
+            }
+            let mut asked = acceleration(s0, last.duration_us, s1, d);
+            if ends {
+                asked = asked.max(acceleration(s1, d, 0, 0));
+            }
+            if asked > u128::from(max) {
+                return Err(Refusal {
+                    joint: u8::try_from(j).unwrap_or(u8::MAX),
+                    reason: RefusalReason::Acceleration,
+                    value: i32::try_from(asked).unwrap_or(i32::MAX),
+                    limit: i32::try_from(max).unwrap_or(i32::MAX),
+                    ..Refusal::default()
+                });
+            }
+        }
+        *last = LastSegment {
+            steps,
+            duration_us: d,
+        };
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::acceleration;
+
+    #[test]
+    fn the_worked_example_of_protocol_md() {
+        // 10 ms segments of +5, +15 and +30 steps from rest.
+        assert_eq!(acceleration(0, 0, 5, 10_000), 80_000);
+        assert_eq!(acceleration(5, 10_000, 15, 10_000), 80_000);
+        assert_eq!(acceleration(15, 10_000, 30, 10_000), 130_000);
+        // Coming to rest after the +30: (30 - 1) steps in 5 ms.
+        assert_eq!(acceleration(30, 10_000, 0, 0), 580_000);
+        // An instant reversal at 10,000 steps/s: 2,000,000 less the rounding.
+        assert_eq!(acceleration(100, 10_000, -100, 10_000), 1_980_000);
+        // Steady motion, and a step of rounding: none.
+        assert_eq!(acceleration(100, 10_000, 100, 10_000), 0);
+        assert_eq!(acceleration(100, 10_000, 101, 10_000), 0);
+        // The extremes do not overflow.
+        assert!(acceleration(i32::MIN, 1, i32::MAX, 1) > 0);
+        assert!(acceleration(i32::MAX, u32::MAX, i32::MIN, u32::MAX) > 0);
+    }
 }

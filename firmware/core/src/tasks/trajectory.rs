@@ -231,9 +231,19 @@ where
         publish(bus, controller);
         deliver(bus, &response);
         match response.deferred {
+            // Only while STOPPED (the controller refuses the commands otherwise): the
+            // erase holds this task, and nothing runs meanwhile. The command's ACK says
+            // how the save went.
             Some(Deferred::SaveSettings(s)) => {
-                if let Err(e) = answering_wakeups(bus, settings.save(&s)).await {
+                let saved = answering_wakeups(bus, settings.save(&s)).await;
+                if let Err(e) = &saved {
                     warn!("settings not saved: {:?}", debug_value!(e));
+                }
+                let ack = controller.settings_saved(saved.is_ok(), clock.now_us());
+                // Published first: a new key's ACK goes out plain (its sessions ended).
+                publish(bus, controller);
+                if let Some(ack) = ack {
+                    bus.send(Outgoing::Ack(ack));
                 }
             }
             Some(Deferred::ReadEncoders) => {
@@ -337,6 +347,13 @@ pub(super) fn deliver(bus: &Bus, response: &Response) {
             report: AnswerReport::Location(location),
         }));
     }
+    if let Some((to, stop)) = response.asked_stop {
+        bus.send(Outgoing::Answer(Answer {
+            to,
+            seq: response.answer_seq,
+            report: AnswerReport::StopCause(stop),
+        }));
+    }
     if let Some(to) = response.asked_counters {
         bus.send(Outgoing::Answer(Answer {
             to,
@@ -355,11 +372,13 @@ pub(super) fn deliver(bus: &Bus, response: &Response) {
     }
 }
 
-/// Copies the report settings out for the other tasks; wakes the upload task when its
-/// settings changed.
+/// Copies the report settings, and the addresses the receive path trusts, out for the
+/// other tasks; wakes the upload task when its settings changed.
 pub(super) fn publish<const CAP: usize>(bus: &Bus, controller: &Controller<CAP>) {
     let new = controller.report_settings();
     let old = bus.reports.lock(|c| c.replace(new));
+    // Who takes the reserved share of the receive path (issue 30, crate::source_share).
+    bus.set_trusted(controller.trusted_sources());
     if old.reports_on != new.reports_on || old.upload_period_us != new.upload_period_us {
         bus.upload_changed.signal(());
     }
