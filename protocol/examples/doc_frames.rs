@@ -182,6 +182,7 @@ pub fn doc_frames() -> Vec<DocFrame> {
                 location: true,
                 look_only: true,
                 stop_cause: false,
+                counters: false,
             }),
         ),
         command("RELEASE, seq 0x1e", 0x1e, Command::Release),
@@ -218,6 +219,27 @@ pub fn doc_frames() -> Vec<DocFrame> {
                 location: false,
                 look_only: false,
                 stop_cause: true,
+                counters: false,
+            }),
+        ),
+        command(
+            "STATUS, seq 0x25, with the receive counters (request byte 0x08)",
+            0x25,
+            Command::StatusWith(protocol::StatusAsk {
+                location: false,
+                look_only: false,
+                stop_cause: false,
+                counters: true,
+            }),
+        ),
+        command(
+            "STATUS, seq 0x26, with the STOP_CAUSE and the receive counters (request byte 0x0c)",
+            0x26,
+            Command::StatusWith(protocol::StatusAsk {
+                location: false,
+                look_only: false,
+                stop_cause: true,
+                counters: true,
             }),
         ),
         command(
@@ -301,6 +323,18 @@ pub fn doc_frames() -> Vec<DocFrame> {
                 from_ip: [127, 0, 0, 2],
                 from_port: 40_001,
                 ..protocol::StopReport::of(protocol::StopCause::Stopped)
+            }),
+        ),
+        report(
+            "RX_COUNTERS report, seq 0x2e: the MAC dropped 12 frames (the ring full 3 times), 20 STOPPEDs halted in the receive interrupt, 5,000 datagrams shed",
+            0x2e,
+            Report::RxCounters(protocol::RxCounters {
+                ring_dropped: 12,
+                ring_full: 3,
+                interrupt_stops: 20,
+                shed: 5_000,
+                inbox_dropped: 0,
+                group_ignored: 0,
             }),
         ),
         report(

@@ -160,6 +160,9 @@ wire_code! {
         NetSet = 0x21 => "NET_SET",
         /// The answer to DISCOVER (controller to host).
         DiscoverReply = 0x22 => "DISCOVER_REPLY",
+        /// The receive path's counters, asked for by STATUS's request byte bit 3
+        /// (controller to host; issue 30).
+        RxCounters = 0x24 => "RX_COUNTERS",
         /// Clear the hard-limit latch after a limit switch tripped (issue 33); then only
         /// motion away from a switch still active is accepted.
         Unlock = 0x25 => "UNLOCK",

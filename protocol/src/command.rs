@@ -129,6 +129,10 @@ pub struct StatusAsk {
     /// Bit 2: a STOP_CAUSE report (what ended the last run, who sent the STOPPED) to the
     /// asker too, after the STATUS report and the LOCATION (issue 31).
     pub stop_cause: bool,
+    /// Bit 3: an RX_COUNTERS report (the receive path's drops) to the asker too, last:
+    /// after the STATUS report, the LOCATION and the STOP_CAUSE (issue 30; bit 2 went to
+    /// issue 31's STOP_CAUSE first).
+    pub counters: bool,
 }
 
 impl StatusAsk {
@@ -138,23 +142,27 @@ impl StatusAsk {
     pub const LOOK_ONLY: u8 = 1 << 1;
     /// Bit 2.
     pub const STOP_CAUSE: u8 = 1 << 2;
+    /// Bit 3.
+    pub const COUNTERS: u8 = 1 << 3;
 
     /// The byte on the wire.
     pub const fn byte(self) -> u8 {
         (if self.location { Self::LOCATION } else { 0 })
             | (if self.look_only { Self::LOOK_ONLY } else { 0 })
             | (if self.stop_cause { Self::STOP_CAUSE } else { 0 })
+            | (if self.counters { Self::COUNTERS } else { 0 })
     }
 
     /// The request of a byte, `None` with other bits set.
     pub const fn from_byte(b: u8) -> Option<StatusAsk> {
-        if b & !(Self::LOCATION | Self::LOOK_ONLY | Self::STOP_CAUSE) != 0 {
+        if b & !(Self::LOCATION | Self::LOOK_ONLY | Self::STOP_CAUSE | Self::COUNTERS) != 0 {
             return None;
         }
         Some(StatusAsk {
             location: b & Self::LOCATION != 0,
             look_only: b & Self::LOOK_ONLY != 0,
             stop_cause: b & Self::STOP_CAUSE != 0,
+            counters: b & Self::COUNTERS != 0,
         })
     }
 }
@@ -460,7 +468,8 @@ impl<'a> Command<'a> {
             | Tag::HelloReply
             | Tag::Auth
             | Tag::Limits
-            | Tag::StopCause => {
+            | Tag::StopCause
+            | Tag::RxCounters => {
                 return Err(err(DecodeErrorKind::WrongDirection));
             }
             Tag::LimitsSet => {

@@ -26,6 +26,7 @@ mod joint_limits;
 pub mod limits;
 mod net;
 mod report;
+mod rx_counters;
 mod stop_cause;
 mod types;
 
@@ -37,6 +38,7 @@ pub use joint_limits::{JointLimits, LimitsReport, LimitsSet, Refusal, RefusalRea
 pub use limits::DEFAULT_WINDOW;
 pub use net::{DiscoverReply, NetSettings, OwnerState};
 pub use report::Report;
+pub use rx_counters::RxCounters;
 pub use stop_cause::{StopCause, StopReport};
 pub use types::{
     Ack, Location, MoreFlags, Point, Pwm, StatusFlags, StatusReport, UartInit, UartMode,
@@ -97,6 +99,8 @@ pub mod size {
     /// STOP_CAUSE report data: cause, detail, 2 reserved, the STOPPED's sender address
     /// and port, 2 reserved.
     pub const STOP_CAUSE: usize = 12;
+    /// RX_COUNTERS data: six u32 counters.
+    pub const RX_COUNTERS: usize = 24;
     /// HELLO data: the host's nonce.
     pub const HELLO: usize = crate::auth::NONCE_LEN;
 }

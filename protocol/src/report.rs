@@ -6,6 +6,7 @@ use crate::codes::{State, StatusCode, Tag};
 use crate::error::{DecodeError, DecodeErrorKind, EncodeError, ExpectedLen, Field};
 use crate::frame::{Frame, open, seal};
 use crate::joint_limits::LimitsReport;
+use crate::rx_counters::RxCounters;
 use crate::stop_cause::StopReport;
 use crate::types::{Ack, Location, StatusReport};
 use crate::{FRAME_OVERHEAD, MAX_SERIAL_CHUNK, size};
@@ -27,6 +28,8 @@ pub enum Report<'a> {
     Limits(LimitsReport),
     /// What ended the last run (asked for with STATUS's request byte, bit 2; issue 31).
     StopCause(StopReport),
+    /// The receive path's counters (STATUS's request byte bit 3; issue 30).
+    RxCounters(RxCounters),
 }
 
 impl<'a> Report<'a> {
@@ -39,6 +42,7 @@ impl<'a> Report<'a> {
             Report::Status(_) => Tag::Status,
             Report::Limits(_) => Tag::Limits,
             Report::StopCause(_) => Tag::StopCause,
+            Report::RxCounters(_) => Tag::RxCounters,
         }
     }
 
@@ -51,6 +55,7 @@ impl<'a> Report<'a> {
             Report::Status(_) => size::STATUS,
             Report::Limits(limits) => limits.data_len(),
             Report::StopCause(_) => size::STOP_CAUSE,
+            Report::RxCounters(_) => size::RX_COUNTERS,
         }
     }
 
@@ -77,6 +82,7 @@ impl<'a> Report<'a> {
             Report::Status(status) => status.write(w, 0),
             Report::Limits(limits) => limits.write(w, 0),
             Report::StopCause(stop) => stop.write(w, 0),
+            Report::RxCounters(counters) => counters.write(w, 0),
         })
     }
 
@@ -153,6 +159,10 @@ impl<'a> Report<'a> {
             Some(Tag::StopCause) => {
                 exactly(size::STOP_CAUSE)?;
                 Report::StopCause(StopReport::read(data))
+            }
+            Some(Tag::RxCounters) => {
+                exactly(size::RX_COUNTERS)?;
+                Report::RxCounters(RxCounters::read(data))
             }
             Some(_) => return Err(err(DecodeErrorKind::WrongDirection)),
         };

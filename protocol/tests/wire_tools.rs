@@ -98,6 +98,7 @@ fn status_takes_one_request_byte_and_release_none() {
         location: true,
         look_only: true,
         stop_cause: false,
+        counters: false,
     };
     let bytes = encode(Command::StatusWith(look), 0x1d);
     assert_eq!(&bytes[..3], &[0x1d, 0x15, 0x03]);
@@ -115,10 +116,12 @@ fn status_takes_one_request_byte_and_release_none() {
             .unwrap_err()
             .kind
     };
-    // Bit 2 (the STOP_CAUSE report) is defined since issue 31: bit 3 is the first not.
-    assert_eq!(kind(&[0x08]), DecodeErrorKind::OutOfRange(Field::StatusAsk));
+    // Bit 2 (the STOP_CAUSE report) is defined since issue 31 and bit 3 (RX_COUNTERS)
+    // since issue 30: bit 4 is the first not (this asserted 0x08 refused before).
+    assert_eq!(kind(&[0x10]), DecodeErrorKind::OutOfRange(Field::StatusAsk));
+    assert_eq!(kind(&[0x80]), DecodeErrorKind::OutOfRange(Field::StatusAsk));
     assert!(matches!(kind(&[0, 0]), DecodeErrorKind::BadLength { .. }));
-    for b in 0..=7u8 {
+    for b in 0..=15u8 {
         assert_eq!(StatusAsk::from_byte(b).map(StatusAsk::byte), Some(b));
     }
     let release = encode(Command::Release, 0x1e);

@@ -454,6 +454,8 @@ pub fn run(options: &FloodOptions) -> std::io::Result<()> {
             None::<fn() -> u32>,
         )?;
         println!("  {}", f.line());
+        let counters = crate::rx_counters::read(options.controller, options.panel);
+        println!("    {}", crate::rx_counters::line(counters));
     }
     Ok(())
 }

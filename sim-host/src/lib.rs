@@ -15,6 +15,7 @@ pub mod flood;
 pub mod net;
 pub mod options;
 pub mod probe;
+pub mod rx_counters;
 pub mod serial;
 pub mod simnet;
 pub mod steppers;

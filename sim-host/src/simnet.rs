@@ -188,6 +188,10 @@ fn log_sent(frame: &[u8], to: Endpoint) {
             log::debug!("-> {} STOP_CAUSE {:?}", show(to), stop.cause);
             None
         }
+        protocol::Report::RxCounters(_) => {
+            log::debug!("-> {} RX_COUNTERS", show(to));
+            None
+        }
     };
     if let Some(state) = state {
         let before = REPORTED_STATE.swap(state, Ordering::Relaxed);

@@ -22,7 +22,8 @@ use std::time::{Duration, Instant};
 use armctl::{Client, Error, Options, RunEnd, RunOptions};
 use common::{
     Raw, assert_stays_put, out_of_order_names_the_missing_frame, pins_and_servo_pwm,
-    raw_frames_are_refused, refusals_in_stopped, serial_round_trip, stop_mid_run, sweep,
+    raw_frames_are_refused, refusals_in_stopped, rx_counters_after_stops, serial_round_trip,
+    stop_mid_run, sweep,
 };
 use protocol::{Command, MAX_JOINTS, Point, PointList, State, StatusCode, StatusFlags, Tag};
 use system_tests::qemu::{FAULT_MARKERS, QemuBoard, echo, run_to_exit, unavailable};
@@ -1017,5 +1018,26 @@ fn a_keyed_board_moves_for_the_key_holder_only() {
     // Cleared with the key: plain hosts work again.
     arm.set_key(None).expect("cleared with the key");
     stranger.pin(0, true).expect("plain again");
+    board.assert_healthy();
+}
+
+/// Issue 30 part 4: the LAN9118's interrupt looks at each frame as it moves it into the
+/// receive ring and halts the steps for a STOPPED there; RX_COUNTERS (STATUS's request
+/// byte bit 2) tells how many it halted for and what the ring dropped. Every STOPPED the
+/// board ACKs was seen by the interrupt first (the ACK comes from the runner's path,
+/// after it), so the count is at least the STOPPEDs ACKed.
+#[test]
+fn the_receive_interrupt_halts_for_stopped_and_rx_counters_tell_it() {
+    require_qemu!();
+    let mut board = QemuBoard::start();
+    let raw = Raw::new("127.0.0.1:0", board.addr);
+    let stops = 5;
+    let c = rx_counters_after_stops(&raw, stops)
+        .unwrap_or_else(|| panic!("STOPPEDs ACKed and RX_COUNTERS answered\n{}", board.log()));
+    println!("qemu: RX_COUNTERS after {stops} STOPPEDs: {c:?}");
+    assert!(
+        c.interrupt_stops >= u32::from(stops),
+        "the interrupt halted for every STOPPED ACKed: {c:?}"
+    );
     board.assert_healthy();
 }

@@ -26,18 +26,19 @@
 //! (TIM15 is the stock timer).
 
 use std::net::Ipv4Addr;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use armctl::{Client, Options};
 use protocol::{
-    Ack, Command, MAX_DATAGRAM, Point, PointList, Report, State, StatusCode, StatusFlags,
+    Ack, Command, MAX_DATAGRAM, Point, PointList, Report, State, StatusCode, StatusFlags, Tag,
 };
 use system_tests::renode::{BOARD, HOSTS, RenodeBoard, ScriptRun, malformed_flood, unavailable};
 
 mod common;
 use common::{
     Raw, out_of_order_names_the_missing_frame, pins_and_servo_pwm, raw_frames_are_refused,
-    refusals_in_stopped, sweep,
+    refusals_in_stopped, rx_counters_after_stops, sweep,
 };
 
 /// Skips the test, saying what it needs, when Renode (or root) is missing. The message goes
@@ -459,4 +460,143 @@ fn the_time_drivers_timer_matches_a_compare_value_of_zero() {
         0,
         "CC2IF never set with CCR2 = 0: the compare at 0 does not match"
     );
+}
+
+/// Issue 30 part 4 on the NUCLEO firmware: the ETH interrupt (`net::RxPeek`) looks at each
+/// receive descriptor the DMA filled and halts the steps for a STOPPED there; RX_COUNTERS
+/// (STATUS's request byte bit 2) tells how many it halted for and what the MAC dropped.
+/// Every STOPPED ACKed was seen by the interrupt first (the ACK comes from the runner's
+/// path, after it).
+#[test]
+fn the_eth_interrupt_halts_for_stopped_and_rx_counters_tell_it() {
+    require_renode!();
+    let mut board = RenodeBoard::start();
+    let raw = raw(&board, HOSTS[1]);
+    let stops = 5;
+    let c = rx_counters_after_stops(&raw, stops)
+        .unwrap_or_else(|| panic!("STOPPEDs ACKed and RX_COUNTERS answered\n{}", board.log()));
+    note(&format!("RX_COUNTERS after {stops} STOPPEDs: {c:?}"));
+    assert!(
+        c.interrupt_stops >= u32::from(stops),
+        "the ETH interrupt halted for every STOPPED ACKed: {c:?}\n{}",
+        board.log()
+    );
+    board.assert_healthy();
+}
+
+/// Issue 30 part 4, measured on the NUCLEO firmware: a stranger floods valid STATUS as
+/// fast as it can send while the owner uploads 12-point PENDINGs back to back, and a
+/// third host sends 20 single STOPPEDs (never resent). Every STOPPED that reached the
+/// receive ring took effect in the ETH interrupt, before its ACK: RX_COUNTERS
+/// `interrupt_stops` rose by at least the STOPPEDs ACKed. A STOPPED the MAC dropped with
+/// the ring full (the flood outruns the runner; `ring full` counts those times) never
+/// reaches the board: the host resends it (armctl after 100 ms). Prints send -> ACK (wall
+/// clock: Renode's virtual time runs slower), the STOPPEDs lost as singles and the
+/// receive counters; asserts no time.
+#[test]
+fn every_stopped_takes_effect_under_a_flood_while_the_owner_uploads() {
+    require_renode!();
+    let mut board = RenodeBoard::start();
+    let arm = board.connect_from(HOSTS[0], emulated());
+    arm.set_joints(6).unwrap();
+    let panel = raw(&board, HOSTS[1]);
+    let before = rx_counters_after_stops(&panel, 0)
+        .unwrap_or_else(|| panic!("RX_COUNTERS\n{}", board.log()));
+    let done = AtomicBool::new(false);
+    let flooder = board.udp_socket(HOSTS[2]);
+    flooder.connect(BOARD).unwrap();
+    let mut status = [0u8; 8];
+    let n = Command::Status.encode(1, &mut status).unwrap();
+    let points: Vec<Point> = sweep([0; 8], 6, 8000, 1, 10_000);
+    let (sent, acks) = std::thread::scope(|scope| {
+        let flood = scope.spawn(|| {
+            let started = Instant::now();
+            let mut sent = 0u32;
+            while !done.load(Ordering::Relaxed)
+                && sent < 2_000_000
+                && started.elapsed() < Duration::from_secs(120)
+            {
+                let _ = flooder.send(&status[..n]);
+                sent += 1;
+            }
+            (sent, started.elapsed())
+        });
+        let upload = scope.spawn(|| {
+            let _ = arm.send(&Command::New {
+                count: u16::try_from(points.len()).unwrap(),
+            });
+            for chunk in points.chunks(12) {
+                if done.load(Ordering::Relaxed)
+                    || arm
+                        .send(&Command::Pending(PointList::Points(chunk)))
+                        .is_err()
+                {
+                    break;
+                }
+            }
+        });
+        let mut acks = Vec::new();
+        let mut buf = [0u8; MAX_DATAGRAM];
+        for seq in 0..20u8 {
+            let mut stop = [0u8; 8];
+            let len = Command::Stopped.encode(seq, &mut stop).unwrap();
+            let sent_at = Instant::now();
+            panel.socket.send(&stop[..len]).unwrap();
+            let mut acked = None;
+            while acked.is_none() && sent_at.elapsed() < Duration::from_secs(5) {
+                if let Ok(got) = panel.socket.recv(&mut buf)
+                    && let Ok(frame) = Report::decode(&buf[..got])
+                    && let Report::Ack(ack) = frame.body
+                    && frame.seq == seq
+                    && ack.acked_tag == Tag::Stopped as u8
+                {
+                    acked = Some(sent_at.elapsed());
+                }
+            }
+            acks.push(acked);
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        done.store(true, Ordering::Relaxed);
+        let _ = upload.join();
+        (flood.join().unwrap(), acks)
+    });
+    let after = rx_counters_after_stops(&panel, 0)
+        .unwrap_or_else(|| panic!("RX_COUNTERS after\n{}", board.log()));
+    let mut ms: Vec<f64> = acks
+        .iter()
+        .flatten()
+        .map(|d| d.as_secs_f64() * 1e3)
+        .collect();
+    ms.sort_by(f64::total_cmp);
+    let q = |p: f64| {
+        ms.get(((ms.len() as f64 - 1.0) * p).round() as usize)
+            .copied()
+            .unwrap_or(f64::NAN)
+    };
+    note(&format!(
+        "e-stop under a flood: {} STATUS in {:.1} s ({:.0}/s) from {}; 20 single STOPPEDs from {}: \
+         ACKed {} (send -> ACK p50 {:.1} ms, p90 {:.1}, max {:.1}, wall clock), lost as singles {}; \
+         the ETH interrupt halted for {}; ring dropped {}, ring full {}, shed {}, inbox dropped {}",
+        sent.0,
+        sent.1.as_secs_f64(),
+        f64::from(sent.0) / sent.1.as_secs_f64(),
+        HOSTS[2],
+        HOSTS[1],
+        ms.len(),
+        q(0.5),
+        q(0.9),
+        q(1.0),
+        20 - ms.len(),
+        after.interrupt_stops - before.interrupt_stops,
+        after.ring_dropped - before.ring_dropped,
+        after.ring_full - before.ring_full,
+        after.shed - before.shed,
+        after.inbox_dropped - before.inbox_dropped,
+    ));
+    assert!(
+        after.interrupt_stops - before.interrupt_stops >= u32::try_from(ms.len()).unwrap(),
+        "every STOPPED ACKed was halted for in the ETH interrupt: before {before:?}, after {after:?}\n{}",
+        board.log()
+    );
+    board.assert_healthy();
 }

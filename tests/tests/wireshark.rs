@@ -237,6 +237,8 @@ fn expect_report(frame: &protocol::Frame<Report<'_>>, e: &mut Expected) {
         // Not in the shared golden file (issues 23 and 31): issue_23_frames_decode_in_wireshark,
         // issue_31_stop_cause_decodes_in_wireshark.
         Report::Limits(_) | Report::StopCause(_) => {}
+        // Issue 30, after the golden file: protocol/tests/rx_counters.rs.
+        Report::RxCounters(_) => {}
     }
 }
 
@@ -1032,4 +1034,95 @@ fn issue_31_stop_cause_decodes_in_wireshark() {
     assert_eq!(numbers(&p["armctl.stop.cause"]), [2], "{p:?}");
     assert_eq!(p["armctl.stop.from_ip"], "127.0.0.2", "{p:?}");
     assert_eq!(numbers(&p["armctl.stop.from_port"]), [40_001], "{p:?}");
+}
+
+/// Issue 30's RX_COUNTERS beside issue 31's STOP_CAUSE: STATUS's request byte bit 3 (bit 2
+/// is the STOP_CAUSE's), both asked in one STATUS (0x0c), the replies in the controller's
+/// order (STATUS, STOP_CAUSE, RX_COUNTERS), and bit 4, the first unknown, refused.
+#[test]
+fn issue_30_rx_counters_decode_in_wireshark() {
+    if !have_wireshark("issue 30 frames") {
+        return;
+    }
+    let dir = scratch("issue30");
+    let pcap = dir.join("issue30.pcap");
+    let host: std::net::SocketAddr = "127.0.0.1:40000".parse().unwrap();
+    let controller: std::net::SocketAddr = format!("127.0.0.1:{}", protocol::PORT).parse().unwrap();
+    let log = armctl::pcap::PcapLog::create(&pcap).expect("create the capture");
+    let mut buf = [0u8; protocol::MAX_DATAGRAM];
+    let n = Cmd::StatusWith(protocol::StatusAsk {
+        stop_cause: true,
+        counters: true,
+        ..protocol::StatusAsk::default()
+    })
+    .encode(0x40, &mut buf)
+    .unwrap();
+    assert_eq!(buf[2], 0x0c);
+    log.record(host, controller, &buf[..n]).unwrap();
+    let n = Report::Status(protocol::StatusReport::default())
+        .encode(0x41, &mut buf)
+        .unwrap();
+    log.record(controller, host, &buf[..n]).unwrap();
+    let n = Report::StopCause(protocol::StopReport::of(protocol::StopCause::Complete))
+        .encode(0x42, &mut buf)
+        .unwrap();
+    log.record(controller, host, &buf[..n]).unwrap();
+    let counters = protocol::RxCounters {
+        ring_dropped: 12,
+        ring_full: 3,
+        interrupt_stops: 20,
+        shed: 5_000,
+        inbox_dropped: 7,
+        group_ignored: 1,
+    };
+    let n = Report::RxCounters(counters).encode(0x43, &mut buf).unwrap();
+    log.record(controller, host, &buf[..n]).unwrap();
+    let mut unknown = vec![0x44, protocol::Tag::Status as u8, 0x10];
+    unknown.push(crc8(&unknown));
+    log.record(host, controller, &unknown).unwrap();
+    drop(log);
+    let packets = dissect(
+        &pcap,
+        &[
+            "armctl.tag",
+            "armctl.verdict",
+            "armctl.status.ask.location",
+            "armctl.status.ask.look_only",
+            "armctl.status.ask.stop_cause",
+            "armctl.status.ask.counters",
+            "armctl.stop.cause",
+            "armctl.rx.ring_dropped",
+            "armctl.rx.ring_full",
+            "armctl.rx.interrupt_stops",
+            "armctl.rx.shed",
+            "armctl.rx.inbox_dropped",
+            "armctl.rx.group_ignored",
+        ],
+        false,
+        None,
+    );
+    assert_eq!(packets.len(), 5);
+    let p = &packets[0];
+    assert_eq!(numbers(&p["armctl.tag"]), [0x15], "{p:?}");
+    assert_eq!(p["armctl.status.ask.location"], "0", "{p:?}");
+    assert_eq!(p["armctl.status.ask.look_only"], "0", "{p:?}");
+    assert_eq!(p["armctl.status.ask.stop_cause"], "1", "{p:?}");
+    assert_eq!(p["armctl.status.ask.counters"], "1", "{p:?}");
+    assert_eq!(numbers(&p["armctl.verdict"]), [0], "{p:?}");
+    let p = &packets[2];
+    assert_eq!(numbers(&p["armctl.tag"]), [0x1d], "{p:?}");
+    assert_eq!(numbers(&p["armctl.stop.cause"]), [1], "{p:?}");
+    let p = &packets[3];
+    assert_eq!(numbers(&p["armctl.tag"]), [0x24], "{p:?}");
+    assert_eq!(numbers(&p["armctl.rx.ring_dropped"]), [12], "{p:?}");
+    assert_eq!(numbers(&p["armctl.rx.ring_full"]), [3], "{p:?}");
+    assert_eq!(numbers(&p["armctl.rx.interrupt_stops"]), [20], "{p:?}");
+    assert_eq!(numbers(&p["armctl.rx.shed"]), [5_000], "{p:?}");
+    assert_eq!(numbers(&p["armctl.rx.inbox_dropped"]), [7], "{p:?}");
+    assert_eq!(numbers(&p["armctl.rx.group_ignored"]), [1], "{p:?}");
+    // Bit 4 is no request: INVALID_CONFIG.
+    let p = &packets[4];
+    assert_eq!(numbers(&p["armctl.tag"]), [0x15], "{p:?}");
+    assert_eq!(numbers(&p["armctl.verdict"]), [11], "{p:?}");
+    let _ = std::fs::remove_dir_all(&dir);
 }

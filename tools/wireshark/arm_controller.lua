@@ -39,7 +39,8 @@ local tag_names = {
     [0x14] = "ACK", [0x15] = "STATUS", [0x16] = "UPLOAD_PERIOD", [0x17] = "ESTOP_RESET",
     [0x18] = "SET_ENABLE", [0x19] = "RELEASE", [0x1a] = "LIMITS_SET", [0x1b] = "LIMITS_GET",
     [0x1c] = "LIMITS", [0x1d] = "STOP_CAUSE", [0x1e] = "ACCEL_SET",
-    [0x20] = "DISCOVER", [0x21] = "NET_SET", [0x22] = "DISCOVER_REPLY", [0x25] = "UNLOCK",
+    [0x20] = "DISCOVER", [0x21] = "NET_SET", [0x22] = "DISCOVER_REPLY",
+    [0x24] = "RX_COUNTERS", [0x25] = "UNLOCK",
     [0x50] = "AUTH", [0x51] = "HELLO", [0x52] = "SET_KEY", [0x53] = "HELLO_REPLY",
 }
 -- Names that depend on the direction.
@@ -160,10 +161,17 @@ local f = {
     status_ask_location = field("bool", "status.ask.location", "Also a LOCATION report", 8, nil, 0x01),
     status_ask_look = field("bool", "status.ask.look_only", "Look only (never takes the controller)", 8, nil, 0x02),
     status_ask_stop = field("bool", "status.ask.stop_cause", "Also a STOP_CAUSE report", 8, nil, 0x04),
+    status_ask_counters = field("bool", "status.ask.counters", "Also an RX_COUNTERS report", 8, nil, 0x08),
     stop_cause = dec("uint8", "stop.cause", "What ended the last run", stop_cause_names),
     stop_detail = dec("uint8", "stop.detail", "Detail (FAULT: the joint)"),
     stop_ip = field("ipv4", "stop.from_ip", "STOPPED's sender"),
     stop_port = dec("uint16", "stop.from_port", "STOPPED's sender port"),
+    rx_ring_dropped = dec("uint32", "rx.ring_dropped", "Frames the MAC dropped (ring full)"),
+    rx_ring_full = dec("uint32", "rx.ring_full", "Times the ring was full"),
+    rx_interrupt_stops = dec("uint32", "rx.interrupt_stops", "STOPPEDs halted in the receive interrupt"),
+    rx_shed = dec("uint32", "rx.shed", "Datagrams over their sender's share"),
+    rx_inbox_dropped = dec("uint32", "rx.inbox_dropped", "Datagrams dropped by a full inbox"),
+    rx_group_ignored = dec("uint32", "rx.group_ignored", "Datagrams to a broadcast address ignored"),
     joints = dec("uint8", "joints", "Joints"),
     upload_period = dec("uint32", "upload_period_us", "Upload period (us)"),
 
@@ -681,7 +689,9 @@ for _, tag in ipairs({ 0x02, 0x04, 0x05, 0x07, 0x09, 0x0c, 0x0d, 0x0e, 0x0f, 0x1
     end
 end
 -- STATUS: no data (old hosts), or the request byte (issue 23): bit 0 a LOCATION too, bit 1
--- look only; bit 2 a STOP_CAUSE report too (issue 31).
+-- look only; bit 2 a STOP_CAUSE report too (issue 31); bit 3 an RX_COUNTERS report too
+-- (issue 30). The reports follow the STATUS in that order: LOCATION, STOP_CAUSE,
+-- RX_COUNTERS.
 host_dissectors[0x15] = function(tree, data, len)
     if len == 0 then return "" end
     if len ~= 1 then return length_error(tree, data, "0 or 1", len) end
@@ -689,12 +699,14 @@ host_dissectors[0x15] = function(tree, data, len)
     ask:add(f.status_ask_location, data(0, 1))
     ask:add(f.status_ask_look, data(0, 1))
     ask:add(f.status_ask_stop, data(0, 1))
+    ask:add(f.status_ask_counters, data(0, 1))
     local b = data(0, 1):uint()
-    if b > 7 then out_of_range(tree, "STATUS request byte may only use bits 0-2") end
+    if b > 15 then out_of_range(tree, "STATUS request byte may only use bits 0-3") end
     local parts = {}
     if bit.band(b, 1) ~= 0 then parts[#parts + 1] = "with LOCATION" end
     if bit.band(b, 2) ~= 0 then parts[#parts + 1] = "look only" end
     if bit.band(b, 4) ~= 0 then parts[#parts + 1] = "with STOP_CAUSE" end
+    if bit.band(b, 8) ~= 0 then parts[#parts + 1] = "with RX_COUNTERS" end
     return table.concat(parts, ", ")
 end
 -- STOPPED: any data is ignored by the controller, which stops all the same (PROTOCOL.md
@@ -791,6 +803,16 @@ local controller_dissectors = {
         if len ~= 27 then return length_error(tree, data, "27", len) end
         dissect_discover_reply(tree, data)
         return tostring(data(6, 4):ipv4())
+    end,
+    [0x24] = function(tree, data, len)
+        if len ~= 24 then return length_error(tree, data, "24", len) end
+        tree:add_le(f.rx_ring_dropped, data(0, 4))
+        tree:add_le(f.rx_ring_full, data(4, 4))
+        tree:add_le(f.rx_interrupt_stops, data(8, 4))
+        tree:add_le(f.rx_shed, data(12, 4))
+        tree:add_le(f.rx_inbox_dropped, data(16, 4))
+        tree:add_le(f.rx_group_ignored, data(20, 4))
+        return string.format("ring dropped %d", data(0, 4):le_uint())
     end,
 }
 

@@ -147,6 +147,9 @@ impl Shared {
             }
             Report::Limits(limits) => fan_out(&self.limits, &limits),
             Report::StopCause(stop) => fan_out(&self.stops, &stop),
+            // Asked for only by tools that read the wire themselves (STATUS's request
+            // byte bit 3, issue 30): the client asks for none.
+            Report::RxCounters(_) => {}
         }
     }
 }

@@ -50,6 +50,7 @@ impl Client {
             location: true,
             look_only,
             stop_cause: false,
+            counters: false,
         };
         let reports = self.status_reports();
         let locations = self.locations();

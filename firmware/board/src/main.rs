@@ -16,7 +16,7 @@
 //! | P1 | TIM13: step clock ([`step_timer`]): DIR changes at reversals (from lock-free queues), the run's end handed to the step service | a DIR change must come between a pulse's fall and the next pulse's setup |
 //! | P2 | DMA2 streams 0-7: STEP buffer refills ([`step_dma`]); TIM7's vector: the step service (run end, the e-stop's halt); TIM15: gripper burst reloads ([`gripper`]) | a half (64 periods) of slack; 128 PWM periods |
 //! | P3 | TIM12: embassy-time | task wake-ups |
-//! | P4 | Ethernet, USART6, DMA, flash, RNG | driver bookkeeping; their tasks wait anyway |
+//! | P4 | Ethernet (and its look at STOPPED in each received frame, `net::RxPeek`), USART6, DMA, flash, RNG | driver bookkeeping; their tasks wait anyway. The Ethernet look halts the steps for a STOPPED within microseconds of its frame landing, whatever thread mode does (issue 30 part 4); at P4 it never holds off P0-P3 |
 //! | thread mode | every task, one executor | see below |
 //!
 //! P0 is the e-stop input's alone; the others kept their order, one level lower each
@@ -144,7 +144,8 @@ use crate::step_timer::StepTimer;
 bind_interrupts!(
     /// Interrupt handlers of the embassy drivers.
     pub struct Irqs {
-        ETH => eth::InterruptHandler;
+        // Ours first: it reads the DMA's status before embassy's clears every flag set.
+        ETH => net::RxPeek, eth::InterruptHandler;
         RNG => rng::InterruptHandler<peripherals::RNG>;
         FLASH => flash::InterruptHandler;
         USART6 => usart::InterruptHandler<peripherals::USART6>;

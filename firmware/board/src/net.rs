@@ -14,9 +14,16 @@
 //!
 //! The MAC's descriptors and packet buffers ([`PacketQueue`]) are in SRAM1, non-cacheable
 //! (see `memory.rs`): the Ethernet DMA cannot reach DTCM and does not see the D-cache.
+//!
+//! [`RxPeek`] is the second half of the `ETH` interrupt (after embassy's, which wakes the
+//! runner): it looks at every receive buffer the DMA has just filled and halts the steps
+//! for a STOPPED there (arm-core's `ingress::stop_in_frame`; issue 30 part 4), whatever
+//! thread mode is doing, and counts the frames the MAC dropped because the ring was full.
 
+use core::cell::UnsafeCell;
 use core::future::Future;
 use core::pin::Pin;
+use core::sync::atomic::{AtomicU32, Ordering, fence};
 use core::task::Context;
 
 use board_logic::net::{LinkMode, REF_CLK_SAMPLES, link_mode, ref_clock_running};
@@ -28,6 +35,8 @@ use embassy_stm32::{Peri, pac, peripherals};
 use embassy_time::{Duration, Instant, Timer};
 
 use arm_core::config::HOST_WINDOW;
+use arm_core::ingress::{CONTROLLER_PORT, MAX_RING, RingPeek, StepHalt, stop_signature};
+use embassy_stm32::interrupt::typelevel::{ETH as EthIrq, Handler};
 
 use crate::Irqs;
 
@@ -114,7 +123,7 @@ pub fn device(
     packets: &'static mut PacketQueue<TX_PACKETS, RX_PACKETS>,
 ) -> Device {
     let phy = Lan8742a::new(Sma::new(pins.sma, pins.mdio, pins.mdc));
-    Ethernet::new_with_phy(
+    let device = Ethernet::new_with_phy(
         packets,
         pins.eth,
         Irqs,
@@ -127,7 +136,153 @@ pub fn device(
         pins.tx_en,
         mac_address(),
         phy,
-    )
+    );
+    find_receive_ring();
+    // The DMA's "receive buffer unavailable" raises the interrupt too (an abnormal one),
+    // so that the frames the MAC drops meanwhile are counted ([`RxPeek`]).
+    pac::ETH.ethernet_dma().dmacier().modify(|w| {
+        w.set_rbue(true);
+        w.set_aie(true);
+    });
+    device
+}
+
+/// Bytes of each receive buffer: embassy-stm32 0.6's `RX_BUFFER_SIZE` (private to it):
+/// descriptor `i` always gets buffer `i` of one array, so buffer `i` is at
+/// `first + i * RX_BUFFER_BYTES` ([`find_receive_ring`] checks that on every descriptor).
+const RX_BUFFER_BYTES: usize = 1536;
+/// SRAM1, where `memory.rs` puts the ring: a buffer address outside it is not believed.
+const SRAM1: core::ops::Range<usize> = 0x3000_0000..0x3002_0000;
+/// Receive descriptor bits (RM0433 "Receive normal descriptor (write-back format)"): the
+/// DMA owns it; context descriptor; first and last descriptor of a frame; error summary;
+/// frame length.
+const RDES3_OWN: u32 = 1 << 31;
+const RDES3_CTXT: u32 = 1 << 30;
+const RDES3_FD: u32 = 1 << 29;
+const RDES3_LD: u32 = 1 << 28;
+const RDES3_ES: u32 = 1 << 15;
+const RDES3_PL: u32 = 0x7FFF;
+/// The receive descriptor ring's address, 0 until [`find_receive_ring`] found it.
+static RX_DESCRIPTORS: AtomicU32 = AtomicU32::new(0);
+/// The first receive buffer's address, 0 until [`find_receive_ring`] found the ring.
+static RX_BUFFERS: AtomicU32 = AtomicU32::new(0);
+
+const _: () = assert!(
+    RX_PACKETS <= MAX_RING,
+    "RingPeek tracks at most MAX_RING buffers"
+);
+
+/// Finds where embassy's driver put the receive descriptors (the DMA's list address) and
+/// their buffers (each descriptor in read format holds its buffer's address, which the
+/// write-back overwrites: read them now, before the link is up), for [`RxPeek`]. Leaves
+/// the interrupt's look off, with a log line, if the layout is not the expected one.
+fn find_receive_ring() {
+    let dma = pac::ETH.ethernet_dma();
+    let descriptors = dma.dmacrx_dlar().read().0;
+    let ring = usize::from(dma.dmacrx_rlr().read().rdrl()) + 1;
+    let word = |i: usize, w: usize| {
+        // SAFETY: within the descriptor ring the DMA was given (`ring` descriptors of 16
+        // bytes at `descriptors`, embassy's `rx_desc`), a volatile read of a word.
+        unsafe { core::ptr::read_volatile((descriptors as usize + i * 16 + w * 4) as *const u32) }
+    };
+    let mut first = None;
+    let mut consistent = ring == RX_PACKETS;
+    for i in 0..ring {
+        if word(i, 3) & RDES3_OWN == 0 {
+            continue; // written back already: its address is gone
+        }
+        let at = (word(i, 0) as usize).wrapping_sub(i * RX_BUFFER_BYTES);
+        consistent &= *first.get_or_insert(at) == at;
+    }
+    match first {
+        Some(at)
+            if consistent
+                && SRAM1.contains(&at)
+                && at + RX_PACKETS * RX_BUFFER_BYTES <= SRAM1.end =>
+        {
+            RX_BUFFERS.store(u32::try_from(at).unwrap_or(0), Ordering::Relaxed);
+            RX_DESCRIPTORS.store(descriptors, Ordering::Release);
+        }
+        _ => warn!("ethernet: receive ring not as expected: no STOPPED look in the interrupt"),
+    }
+}
+
+/// State only the `ETH` interrupt touches (it never preempts itself).
+struct EthInterruptOnly(UnsafeCell<RingPeek<RX_PACKETS>>);
+
+// SAFETY: only `RxPeek::on_interrupt` uses it, and an interrupt never preempts itself.
+unsafe impl Sync for EthInterruptOnly {}
+
+static PEEK: EthInterruptOnly = EthInterruptOnly(UnsafeCell::new(RingPeek::new()));
+
+/// The `ETH` interrupt's look at STOPPED (bound after embassy's handler, whose
+/// flag-clearing `modify` is left to run after this one reads the status; see `main.rs`).
+///
+/// At P4, the lowest level: the e-stop input, the DIR changes, the step refills and the
+/// time driver all preempt it, and it takes no lock they wait for but the step lock of
+/// the halt itself (as the runner's look did). Its cost is 40 descriptor reads and, per
+/// frame waiting in the ring, the header parse (tens of instructions) and, for a STOPPED
+/// only, its CRC.
+pub struct RxPeek;
+
+impl Handler<EthIrq> for RxPeek {
+    unsafe fn on_interrupt() {
+        let dma = pac::ETH.ethernet_dma();
+        // Reading these counters clears them (RM0433): each drop is counted once.
+        let full = u32::from(dma.dmacsr().read().rbu());
+        let missed = pac::ETH.ethernet_mtl().mtlrx_qmpocr().read();
+        let dropped = u32::from(missed.ovfpktcnt())
+            + u32::from(missed.mispktcnt())
+            + u32::from(dma.dmacmfcr().read().mfc());
+        let stops = peek_filled_buffers();
+        if dropped | full | stops != 0 {
+            crate::BUS.count_rx_ring(dropped, full, stops);
+        }
+    }
+}
+
+/// Looks at every receive buffer the driver owns (see `RingPeek` for why every one, not
+/// only those seen filled: a buffer given back while the ring was full is refilled at
+/// once); halts the steps for a STOPPED. How many new STOPPEDs.
+fn peek_filled_buffers() -> u32 {
+    let descriptors = RX_DESCRIPTORS.load(Ordering::Acquire) as usize;
+    let buffers = RX_BUFFERS.load(Ordering::Relaxed) as usize;
+    if descriptors == 0 {
+        return 0;
+    }
+    // SAFETY: see `EthInterruptOnly`.
+    let ring = unsafe { &mut *PEEK.0.get() };
+    let mut stops = 0;
+    for i in 0..RX_PACKETS {
+        // SAFETY: descriptor `i` of the ring `find_receive_ring` checked; volatile.
+        let rdes3 = unsafe { core::ptr::read_volatile((descriptors + i * 16 + 12) as *const u32) };
+        if rdes3 & RDES3_OWN != 0 {
+            ring.given_back(i);
+            continue;
+        }
+        if rdes3 & (RDES3_FD | RDES3_LD | RDES3_ES | RDES3_CTXT) != RDES3_FD | RDES3_LD {
+            continue;
+        }
+        // The frame's bytes are read after its descriptor said it is complete.
+        fence(Ordering::SeqCst);
+        let len = (rdes3 & RDES3_PL) as usize;
+        // SAFETY: buffer `i` (`RX_BUFFER_BYTES` in SRAM1, checked by `find_receive_ring`)
+        // is the driver's while its descriptor says so: the DMA no longer writes it, and
+        // the runner only reads it, in thread mode, below this interrupt. Read-only here.
+        let frame = unsafe {
+            core::slice::from_raw_parts(
+                (buffers + i * RX_BUFFER_BYTES) as *const u8,
+                len.min(RX_BUFFER_BYTES),
+            )
+        };
+        if let Some(signature) = stop_signature(frame, CONTROLLER_PORT) {
+            crate::BoardHalt.halt();
+            if ring.stop_at(i, signature) {
+                stops += 1;
+            }
+        }
+    }
+    stops
 }
 
 /// The LAN8742A's MDIO address on the NUCLEO-H743ZI2 (PHYAD0 strapped low).

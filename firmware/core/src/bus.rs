@@ -147,6 +147,9 @@ pub struct Bus {
     /// Datagrams [`Bus::receive_first`] ignored for their broadcast or multicast address,
     /// and the limit on their log lines.
     pub(crate) group_ignored: Mutex<Cs, Cell<(u32, LogLimit)>>,
+    /// What the board's receive interrupt counts about its ring
+    /// ([`crate::ingress::RxRingCounters`]).
+    pub(crate) rx_ring: Mutex<Cs, Cell<crate::ingress::RxRingCounters>>,
 }
 
 impl Default for Bus {
@@ -173,6 +176,7 @@ impl Bus {
             budgets: Mutex::new(RefCell::new(SourceBudgets::new())),
             group_ignored: Mutex::new(Cell::new((0, LogLimit::new()))),
             serial_tx_dropped: Mutex::new(Cell::new(0)),
+            rx_ring: Mutex::new(Cell::new(crate::ingress::RxRingCounters::ZERO)),
         }
     }
 

@@ -1176,6 +1176,9 @@ impl<const CAP: usize> Controller<CAP> {
                 if ask.stop_cause {
                     response.asked_stop = Some((from, self.stop));
                 }
+                if ask.counters {
+                    response.asked_counters = Some(from);
+                }
             }
             // The owner gives the controller up: no owner, no report destinations (the
             // next host to speak takes it, as at boot). Only while STOPPED: an upload or
@@ -1297,6 +1300,9 @@ impl<const CAP: usize> Controller<CAP> {
         }
         if ask.stop_cause {
             response.asked_stop = Some((from, self.stop));
+        }
+        if ask.counters {
+            response.asked_counters = Some(from);
         }
         response.answer_seq = Some(seq);
         Some(response)

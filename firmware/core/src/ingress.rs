@@ -17,6 +17,11 @@
 //!   behind at most the pool. A host alone is never slowed. What is shed is counted and
 //!   logged at most once a second.
 //!
+//! On the boards the Ethernet receive interrupt looks first (issue 30 part 4, `peek.rs`):
+//! it halts for a STOPPED the moment its frame lands in the receive ring, before the
+//! runner (in thread mode, behind the ring) gets to it; the runner's look here then
+//! routes it for the controller.
+//!
 //! Halting at the reader is what makes a STOPPED immune to a flood: the queues behind it
 //! may hold many datagrams of other hosts, but the pulses have stopped before the
 //! STOPPED joins any of them. The controller still handles it in its turn (first, from
@@ -37,8 +42,10 @@ use crate::step_shared::{StepBackend, StepShared};
 
 #[cfg(feature = "net-driver")]
 mod driver;
+mod peek;
 #[cfg(feature = "net-driver")]
 pub use driver::GuardedDriver;
+pub use peek::{MAX_RING, RingPeek, RxRingCounters, StopSignature, stop_in_frame, stop_signature};
 
 /// The UDP port whose datagrams the first look judges: the controller's.
 pub const CONTROLLER_PORT: u16 = protocol::PORT;
@@ -182,6 +189,44 @@ impl Bus {
     /// Datagrams [`Bus::receive_first`] shed so far (wrapping).
     pub fn shed(&self) -> u32 {
         self.budgets.lock(|b| b.borrow().shed())
+    }
+
+    /// The board's receive interrupt saw the MAC drop `dropped` frames and find the ring
+    /// full `full` times, and halted the steps for `stops` STOPPEDs, since its last call
+    /// (added, wrapping; see [`RxRingCounters`]).
+    pub fn count_rx_ring(&self, dropped: u32, full: u32, stops: u32) {
+        self.rx_ring.lock(|c| {
+            let RxRingCounters {
+                dropped: d,
+                full: f,
+                stops: s,
+            } = c.get();
+            c.set(RxRingCounters {
+                dropped: d.wrapping_add(dropped),
+                full: f.wrapping_add(full),
+                stops: s.wrapping_add(stops),
+            });
+        });
+    }
+
+    /// What the board's receive interrupt counted so far ([`Bus::count_rx_ring`]); all
+    /// zero on a controller without one (the simulator).
+    pub fn rx_ring(&self) -> RxRingCounters {
+        self.rx_ring.lock(|c| c.get())
+    }
+
+    /// The receive path's counters as the RX_COUNTERS report tells them (docs/PROTOCOL.md,
+    /// STATUS's request byte bit 2).
+    pub fn rx_counters(&self) -> protocol::RxCounters {
+        let ring = self.rx_ring();
+        protocol::RxCounters {
+            ring_dropped: ring.dropped,
+            ring_full: ring.full,
+            interrupt_stops: ring.stops,
+            shed: self.shed(),
+            inbox_dropped: self.inbox_drops(),
+            group_ignored: self.ignored_group_datagrams(),
+        }
     }
 }
 

@@ -140,6 +140,8 @@ pub enum AnswerReport {
     Limits(LimitsReport),
     /// A STOP_CAUSE report (STATUS's request byte, bit 2).
     StopCause(StopReport),
+    /// An RX_COUNTERS report (STATUS's request byte bit 3, issue 30).
+    RxCounters(protocol::RxCounters),
 }
 
 /// Encodes [`Outgoing`] frames. Reports (everything but ACKs) carry the controller's own
@@ -197,6 +199,7 @@ impl ReportEncoder {
                     AnswerReport::Location(l) => Report::Location(l),
                     AnswerReport::Limits(l) => Report::Limits(l),
                     AnswerReport::StopCause(s) => Report::StopCause(s),
+                    AnswerReport::RxCounters(c) => Report::RxCounters(c),
                 },
             ),
             Outgoing::Location(l) => {

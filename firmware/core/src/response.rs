@@ -47,12 +47,16 @@ pub struct Response {
     /// A STOP_CAUSE report for the asker alone: STATUS's request byte asked for one (bit
     /// 2, issue 31).
     pub asked_stop: Option<(Endpoint, StopReport)>,
+    /// An RX_COUNTERS report for the asker alone: STATUS's request byte asked for one
+    /// (bit 3, issue 30), sent after the STOP_CAUSE. The counters are the bus's: the
+    /// caller fills them in.
+    pub asked_counters: Option<Endpoint>,
     /// A LIMITS report for the endpoint that sent LIMITS_GET (issue 23).
     pub limits: Option<(Endpoint, LimitsReport)>,
-    /// `Some(seq)`: [`Response::status`], [`Response::asked_location`] and
-    /// [`Response::asked_stop`] are a read-only
-    /// answer to a host that does not own the controller (docs/PROTOCOL.md section 1,
-    /// issue 23) and carry its request's seq, not the controller's report counter.
+    /// `Some(seq)`: [`Response::status`], [`Response::asked_location`],
+    /// [`Response::asked_stop`] and [`Response::asked_counters`] are a read-only answer
+    /// to a host that does not own the controller (docs/PROTOCOL.md section 1, issue 23)
+    /// and carry its request's seq, not the controller's report counter.
     pub answer_seq: Option<u8>,
     /// Work left to the caller.
     pub deferred: Option<Deferred>,

@@ -1414,6 +1414,48 @@ fn a_window_of_status_polls_gets_every_reply() {
     });
 }
 
+/// STATUS's request byte 0x0d (bit 0 LOCATION, bit 2 STOP_CAUSE of issue 31, bit 3
+/// RX_COUNTERS of issue 30): the replies go out in docs/PROTOCOL.md's order, ACK, STATUS,
+/// LOCATION, STOP_CAUSE, RX_COUNTERS (the merge that moved RX_COUNTERS to bit 3).
+#[test]
+fn status_replies_go_out_in_the_documented_order() {
+    use arm_core::{AnswerReport, Outgoing};
+    let rig = Rig::new();
+    let ask = protocol::StatusAsk {
+        location: true,
+        look_only: false,
+        stop_cause: true,
+        counters: true,
+    };
+    assert_eq!(ask.byte(), 0x0d);
+    rig.route(&frame(0, Command::StatusWith(ask)));
+    let name = |o: &Outgoing| match o {
+        Outgoing::Ack(_) => Some("ACK"),
+        Outgoing::Status(..) => Some("STATUS"),
+        Outgoing::Answer(a) => Some(match a.report {
+            AnswerReport::Status(_) => "STATUS",
+            AnswerReport::Location(_) => "LOCATION",
+            AnswerReport::Limits(_) => "LIMITS",
+            AnswerReport::StopCause(_) => "STOP_CAUSE",
+            AnswerReport::RxCounters(_) => "RX_COUNTERS",
+        }),
+        // The periodic stream is not an answer.
+        _ => None,
+    };
+    rig.run(async {
+        until("the replies", || {
+            rig.drain();
+            rig.sent.borrow().iter().filter_map(name).count() >= 5
+        })
+        .await;
+        let sent: Vec<&str> = rig.sent.borrow().iter().filter_map(name).collect();
+        assert_eq!(
+            sent,
+            ["ACK", "STATUS", "LOCATION", "STOP_CAUSE", "RX_COUNTERS"]
+        );
+    });
+}
+
 /// Issue 21 F18: bytes of USART_SEND ACKed OK but not yet written when USART_STOP came
 /// were discarded, and nothing counted them (the simulator's summary said 0 dropped). The
 /// serial task does not run here, so all three sends are still queued at the stop: each

@@ -12,12 +12,21 @@
 //!
 //! Interrupts (IRQ line active high, push-pull): RX status FIFO level (a frame arrived),
 //! TX data FIFO available (room for a frame that did not fit), PHY (link change), and the
-//! RX/TX error flags. The handler acknowledges what it saw and wakes the stack; all FIFO
-//! work happens in the runner task. A frame with errors, or longer than the driver's
-//! buffer, is read and dropped (counted), never handed up.
+//! RX/TX error flags. The handler acknowledges what it saw and wakes the stack. A frame
+//! with errors, or longer than the driver's buffer, is read and dropped (counted), never
+//! handed up.
+//!
+//! Receive goes through a ring of [`RX_RING`] buffers, as the NUCLEO's DMA ring (issue 30
+//! part 4): the interrupt moves each frame from the chip's FIFO into the next free buffer
+//! and looks at it there (arm-core's `ingress::stop_in_frame`): a STOPPED halts the steps
+//! within microseconds of its arrival, whatever thread mode does. The runner takes frames
+//! from the ring as before. With the ring full the interrupt leaves frames in the chip
+//! (counted: `full`) and turns its receive interrupt off until the runner frees a buffer;
+//! what the chip's own FIFO then cannot hold it drops (its RX_DROP counter).
 
+use core::cell::UnsafeCell;
 use core::ptr::{read_volatile, write_volatile};
-use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
+use core::sync::atomic::{AtomicBool, AtomicU32, AtomicUsize, Ordering};
 use core::task::Context;
 
 use embassy_net_driver::{Capabilities, HardwareAddress, LinkState};
@@ -67,6 +76,9 @@ mod reg {
     pub const TX_FIFO_INF: usize = 0x80;
     /// Power management; bit 0 = device ready.
     pub const PMT_CTRL: usize = 0x84;
+    /// Frames the chip dropped for want of room in its RX FIFO (clears on read; QEMU's
+    /// model reads 0).
+    pub const RX_DROP: usize = 0xA0;
     /// MAC CSR command: busy (31), read (30), MAC register index (7:0).
     pub const MAC_CSR_CMD: usize = 0xA4;
     /// MAC CSR data.
@@ -237,10 +249,37 @@ fn refresh_link() -> Result<bool, InitError> {
     Ok(up)
 }
 
+/// Receive buffers between the interrupt and the runner: a burst of 8 frames taken from
+/// the chip while thread mode is busy (the chip's FIFO holds more behind them); 8 x 1514
+/// bytes of this board's 4 MiB of RAM.
+pub const RX_RING: usize = 8;
+
+const _: () = assert!(RX_RING <= arm_core::ingress::MAX_RING);
+
+/// The receive ring: the interrupt fills buffer `filled % RX_RING` and then counts it in
+/// `filled`; the runner reads buffer `taken % RX_RING` while `taken != filled` and then
+/// counts it in `taken`. Single producer (the Ethernet interrupt, which never preempts
+/// itself), single consumer (the runner): a buffer is only ever touched by one side.
+struct RxRing {
+    frames: UnsafeCell<[[u8; MTU]; RX_RING]>,
+    lens: [AtomicUsize; RX_RING],
+    filled: AtomicUsize,
+    taken: AtomicUsize,
+}
+
+// SAFETY: see `RxRing`: the counters hand each buffer from one side to the other.
+unsafe impl Sync for RxRing {}
+
+static RX: RxRing = RxRing {
+    frames: UnsafeCell::new([[0; MTU]; RX_RING]),
+    lens: [const { AtomicUsize::new(0) }; RX_RING],
+    filled: AtomicUsize::new(0),
+    taken: AtomicUsize::new(0),
+};
+
 /// The chip, brought up and ready for the stack.
 pub struct Lan9118 {
     mac_address: [u8; 6],
-    rx: [u8; MTU],
     tx: [u8; MTU],
 }
 
@@ -287,7 +326,6 @@ impl Lan9118 {
         write(reg::IRQ_CFG, IRQ_CFG_ENABLED);
         Ok(Lan9118 {
             mac_address,
-            rx: [0; MTU],
             tx: [0; MTU],
         })
     }
@@ -302,9 +340,9 @@ impl Lan9118 {
         self.mac_address
     }
 
-    /// Pops the next good frame into `self.rx`; its length. Frames with errors or longer
+    /// Pops the next good frame into `rx`; its length. Frames with errors or longer
     /// than [`MTU`] are read and dropped.
-    fn pop_frame(&mut self) -> Option<usize> {
+    fn pop_frame(rx: &mut [u8; MTU]) -> Option<usize> {
         loop {
             let statuses = (read(reg::RX_FIFO_INF) >> 16) & 0xFF;
             if statuses == 0 {
@@ -323,7 +361,7 @@ impl Lan9118 {
                 RX_DROPPED.fetch_add(1, Ordering::Relaxed);
                 continue;
             }
-            let mut chunks = self.rx.chunks_mut(4);
+            let mut chunks = rx.chunks_mut(4);
             for _ in 0..words {
                 let word = read(reg::RX_DATA_FIFO).to_le_bytes();
                 // The last word(s) hold the FCS: nothing to copy once the buffer ends.
@@ -357,14 +395,74 @@ impl Lan9118 {
     }
 }
 
-/// A received frame, already out of the FIFO.
-pub struct RxToken<'a> {
-    frame: &'a mut [u8],
+/// Moves frames from the chip into the ring while it has room, looking at each
+/// (interrupt only); a STOPPED halts the steps. With the ring full, turns the receive
+/// interrupt off (the runner turns it on again as it frees a buffer), or the chip's
+/// level-triggered line would hold the CPU here.
+fn fill_ring() {
+    let (mut full, mut stops) = (0, 0);
+    loop {
+        let filled = RX.filled.load(Ordering::Relaxed);
+        if filled.wrapping_sub(RX.taken.load(Ordering::Acquire)) >= RX_RING {
+            if (read(reg::RX_FIFO_INF) >> 16) & 0xFF != 0 {
+                full += 1;
+            }
+            write(reg::INT_EN, read(reg::INT_EN) & !(int::RSFL | int::RXE));
+            break;
+        }
+        let slot = filled % RX_RING;
+        // SAFETY: buffer `slot` is not the runner's (`filled - taken < RX_RING`), and only
+        // this interrupt fills buffers.
+        let Some(rx) = (unsafe { (*RX.frames.get()).get_mut(slot) }) else {
+            break;
+        };
+        let Some(len) = Lan9118::pop_frame(rx) else {
+            break;
+        };
+        if rx.get(..len).is_some_and(|frame| {
+            arm_core::ingress::stop_in_frame(frame, arm_core::ingress::CONTROLLER_PORT)
+        }) {
+            arm_core::ingress::StepHalt::halt(&crate::BoardHalt);
+            stops += 1;
+        }
+        if let Some(l) = RX.lens.get(slot) {
+            l.store(len, Ordering::Relaxed);
+        }
+        RX.filled.store(filled.wrapping_add(1), Ordering::Release);
+    }
+    let dropped = read(reg::RX_DROP);
+    if dropped | full | stops != 0 {
+        crate::BUS.count_rx_ring(dropped, full, stops);
+    }
 }
 
-impl embassy_net_driver::RxToken for RxToken<'_> {
+/// A received frame, in the ring.
+pub struct RxToken {
+    slot: usize,
+}
+
+impl embassy_net_driver::RxToken for RxToken {
     fn consume<R, F: FnOnce(&mut [u8]) -> R>(self, f: F) -> R {
-        f(self.frame)
+        let len = RX
+            .lens
+            .get(self.slot)
+            .map_or(0, |l| l.load(Ordering::Relaxed));
+        // SAFETY: buffer `slot` is the runner's until `taken` moves past it (below); the
+        // interrupt does not touch it meanwhile.
+        let frame = unsafe { (*RX.frames.get()).get_mut(self.slot) };
+        let result = f(frame
+            .and_then(|frame| frame.get_mut(..len))
+            .unwrap_or_default());
+        RX.taken.fetch_add(1, Ordering::Release);
+        // A buffer is free: let the interrupt move what waits in the chip (pended, as the
+        // chip raises RSFL only when a frame arrives).
+        critical_section::with(|_| {
+            write(reg::INT_EN, read(reg::INT_EN) | int::RSFL | int::RXE);
+        });
+        if (read(reg::RX_FIFO_INF) >> 16) & 0xFF != 0 {
+            cortex_m::peripheral::NVIC::pend(crate::mps2::Irq::Ethernet);
+        }
+        result
     }
 }
 
@@ -404,19 +502,25 @@ impl embassy_net_driver::TxToken for TxToken<'_> {
 }
 
 impl embassy_net_driver::Driver for Lan9118 {
-    type RxToken<'a> = RxToken<'a>;
+    type RxToken<'a> = RxToken;
     type TxToken<'a> = TxToken<'a>;
 
-    fn receive(&mut self, cx: &mut Context) -> Option<(RxToken<'_>, TxToken<'_>)> {
+    fn receive(&mut self, cx: &mut Context) -> Option<(RxToken, TxToken<'_>)> {
         // Register first: a frame arriving after the check below wakes this context.
         RX_WAKER.register(cx.waker());
         if !Self::tx_room(cx) {
             return None;
         }
-        let len = self.pop_frame()?;
-        // Always `Some`: `pop_frame` only returns lengths up to MTU, the buffer's length.
-        let frame = self.rx.get_mut(..len)?;
-        Some((RxToken { frame }, TxToken { buf: &mut self.tx }))
+        let taken = RX.taken.load(Ordering::Relaxed);
+        if RX.filled.load(Ordering::Acquire) == taken {
+            return None;
+        }
+        Some((
+            RxToken {
+                slot: taken % RX_RING,
+            },
+            TxToken { buf: &mut self.tx },
+        ))
     }
 
     fn transmit(&mut self, cx: &mut Context) -> Option<TxToken<'_>> {
@@ -450,7 +554,8 @@ pub fn on_interrupt() {
     crate::marks::qemu_mark_nic_irq();
     let pending = read(reg::INT_STS) & read(reg::INT_EN);
     write(reg::INT_STS, pending);
-    if pending & (int::RSFL | int::RXE) != 0 {
+    if pending & (int::RSFL | int::RXE) != 0 || (read(reg::RX_FIFO_INF) >> 16) & 0xFF != 0 {
+        fill_ring();
         RX_WAKER.wake();
     }
     if pending & int::TDFA != 0 {

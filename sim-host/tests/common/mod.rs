@@ -84,6 +84,7 @@ pub enum OwnedReport {
     Status(StatusReport),
     Limits(protocol::LimitsReport),
     StopCause(protocol::StopReport),
+    RxCounters(protocol::RxCounters),
 }
 
 impl Client {
@@ -121,6 +122,7 @@ impl Client {
             Report::Status(s) => OwnedReport::Status(s),
             Report::Limits(l) => OwnedReport::Limits(l),
             Report::StopCause(s) => OwnedReport::StopCause(s),
+            Report::RxCounters(c) => OwnedReport::RxCounters(c),
         };
         Some((frame.seq, report))
     }

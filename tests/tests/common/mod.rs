@@ -79,6 +79,40 @@ impl Raw {
     }
 }
 
+/// Issue 30 part 4: `stops` single STOPPEDs from `raw`, each sent until ACKed, then a
+/// look-only STATUS asking for RX_COUNTERS (request byte bit 3): the counters it gets.
+/// `None` if a STOPPED or the report never comes. Bounded: 10 exchanges per STOPPED, 30
+/// tries of 1 s for the report.
+pub fn rx_counters_after_stops(raw: &Raw, stops: u8) -> Option<protocol::RxCounters> {
+    for seq in 0..stops {
+        (0..10).find_map(|_| raw.command(seq, &protocol::Command::Stopped))?;
+    }
+    let ask = protocol::Command::StatusWith(protocol::StatusAsk {
+        location: false,
+        look_only: true,
+        stop_cause: false,
+        counters: true,
+    });
+    let mut request = [0u8; 8];
+    let n = ask.encode(0x40, &mut request).unwrap();
+    let mut buf = [0u8; MAX_DATAGRAM];
+    for _ in 0..30 {
+        raw.socket.send(&request[..n]).unwrap();
+        let deadline = std::time::Instant::now() + Duration::from_secs(1);
+        while std::time::Instant::now() < deadline {
+            let Ok(got) = raw.socket.recv(&mut buf) else {
+                continue;
+            };
+            if let Ok(frame) = Report::decode(&buf[..got])
+                && let Report::RxCounters(counters) = frame.body
+            {
+                return Some(counters);
+            }
+        }
+    }
+    None
+}
+
 /// A datagram from parts with a correct CRC.
 pub fn datagram(seq: u8, tag: u8, data: &[u8]) -> Vec<u8> {
     let mut bytes = vec![seq, tag];

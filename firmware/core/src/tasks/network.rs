@@ -17,12 +17,25 @@ pub async fn network_task<D: Datagrams, C: Clock>(socket: &D, bus: &Bus, clock: 
     let rx = async {
         let mut buf = [0u8; MAX_DATAGRAM];
         let mut failures = LogLimit::new();
+        // Frames the board's MAC dropped for want of a receive buffer, as last logged.
+        let mut ring_dropped = bus.rx_ring().dropped;
+        let mut ring_full = LogLimit::new();
         loop {
             match socket.recv(&mut buf).await {
                 Ok((n, from)) => {
                     let bytes =
                         Vec::from_slice(buf.get(..n).unwrap_or_default()).unwrap_or_default();
                     bus.route(Datagram::new(from, bytes), clock.now_us());
+                    let dropped = bus.rx_ring().dropped;
+                    let new = dropped.wrapping_sub(ring_dropped);
+                    if let LogVerdict::Log { suppressed } = ring_full.events(new, clock.now_us()) {
+                        warn!(
+                            "receive ring full: {} frames dropped by the MAC since the last such line ({} in all)",
+                            suppressed.saturating_add(new),
+                            dropped
+                        );
+                    }
+                    ring_dropped = dropped;
                 }
                 Err(e) => {
                     if let LogVerdict::Log { suppressed } = failures.event(clock.now_us()) {

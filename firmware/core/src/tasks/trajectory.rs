@@ -391,6 +391,13 @@ pub(super) fn deliver(bus: &Bus, response: &Response) {
             report: AnswerReport::StopCause(stop),
         }));
     }
+    if let Some(to) = response.asked_counters {
+        bus.send(Outgoing::Answer(Answer {
+            to,
+            seq: response.answer_seq,
+            report: AnswerReport::RxCounters(bus.rx_counters()),
+        }));
+    }
     if let Some(location) = response.location {
         bus.send(Outgoing::Location(location));
     }
