@@ -70,12 +70,14 @@ mod producer;
 mod ring;
 mod schedule;
 mod stream;
+mod warp;
 
 pub use dir_queue::DirQueues;
 pub use engine::StepEngine;
 pub use player::{Advance, StreamPlayer, TimedStepPins};
 pub use producer::{Filled, PulsePeriod, PulseProducer, sign_of};
 pub use stream::{DirChange, JointBuffer, PRELUDE, Refill, StepStreams, StreamsSlot};
+pub use warp::{MAX_RATE, RATE_ONE, WARP_PHASES, Warp, WarpError, ramp_for};
 
 /// Joints the engine drives.
 pub const MAX_JOINTS: usize = 8;
