@@ -66,7 +66,7 @@ fn max_implied_accel(rises: &[u64], from: u64, to: u64) -> f64 {
     let ticks: Vec<u64> = rises
         .iter()
         .copied()
-        .filter(|&t| t >= from && t < to)
+        .filter(|t| (from..to).contains(t))
         .collect();
     ticks
         .windows(3)
@@ -110,7 +110,7 @@ fn a_hold_stops_within_the_acceleration_and_the_resume_ends_on_the_points() {
     let held: Vec<u64> = joint0
         .iter()
         .copied()
-        .filter(|&t| t > hold && t < resume)
+        .filter(|&t| (hold + 1..resume).contains(&t))
         .collect();
     let last = *held.last().expect("steps after the hold");
     let to_standstill = (last - hold) as f64 / HZ as f64;
@@ -122,7 +122,10 @@ fn a_hold_stops_within_the_acceleration_and_the_resume_ends_on_the_points() {
     let joint1 = rise_ticks(&pins, 1);
     // Joint 1 reverses at 2.5 s of the path: check it where the path is smooth.
     let ratio1 = max_implied_accel(&joint1, ORIGIN + HZ, hold + HZ / 2) / f64::from(ACCEL);
-    let held1 = joint1.iter().filter(|&&t| t > hold && t < resume).count();
+    let held1 = joint1
+        .iter()
+        .filter(|&&t| (hold + 1..resume).contains(&t))
+        .count();
     println!(
         "hold at 2 s: last step {to_standstill:.4} s after it (warp at rest after {:.4} s), \
          {} steps after the hold (v^2/2a = 400; joint 1: {held1}, path ratio 100), \
@@ -171,7 +174,7 @@ fn an_override_slows_and_speeds_within_the_acceleration() {
     // At 30 %: 1,200 steps/s, from 1.14 s (0.14 s of ramp) to 2.5 s.
     let slow = joint0
         .iter()
-        .filter(|&&t| t >= ORIGIN + 3 * HZ / 2 && t < ORIGIN + 5 * HZ / 2)
+        .filter(|&&t| (ORIGIN + 3 * HZ / 2..ORIGIN + 5 * HZ / 2).contains(&t))
         .count();
     let end = *joint0.last().expect("pulses") as f64 / HZ as f64;
     println!(
