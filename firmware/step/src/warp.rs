@@ -238,10 +238,21 @@ impl Warp {
 
     /// The first controller tick at which trajectory time reaches `trajectory_tick`
     /// (`u64::MAX`: never, the warp ends held before it).
+    ///
+    /// Inlined to the identity test alone: the producer's refill calls it per pulse, and an
+    /// unwarped run must not pay for the search (scripts/step-cost).
+    #[inline(always)]
     pub fn controller_tick(&self, trajectory_tick: u64) -> u64 {
         if self.identity {
-            return trajectory_tick;
+            trajectory_tick
+        } else {
+            self.warped_tick(trajectory_tick)
         }
+    }
+
+    /// [`Warp::controller_tick`] through the phases.
+    #[inline(never)]
+    fn warped_tick(&self, trajectory_tick: u64) -> u64 {
         let want = u128::from(trajectory_tick) * PER_TICK;
         let held = self.phases.get(..self.len).unwrap_or_default();
         for (i, phase) in held.iter().enumerate() {
