@@ -250,9 +250,9 @@ impl Warp {
         }
     }
 
-    /// [`Warp::controller_tick`] through the phases.
+    /// [`Warp::controller_tick`] through the phases (whatever `is_identity` says).
     #[inline(never)]
-    fn warped_tick(&self, trajectory_tick: u64) -> u64 {
+    pub(crate) fn warped_tick(&self, trajectory_tick: u64) -> u64 {
         let want = u128::from(trajectory_tick) * PER_TICK;
         let held = self.phases.get(..self.len).unwrap_or_default();
         for (i, phase) in held.iter().enumerate() {

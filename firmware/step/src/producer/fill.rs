@@ -55,7 +55,7 @@ impl<const QUEUE: usize> PulseProducer<QUEUE> {
             if s.next_rise == u64::MAX {
                 if s.remaining > 0 {
                     if s.fast
-                        && self.warp.is_identity()
+                        && !s.warped
                         && s.open_delta == s.sign
                         && s.earliest <= s.base + u64::from(s.ideal)
                         && s.whole >= self.min_period
@@ -72,7 +72,12 @@ impl<const QUEUE: usize> PulseProducer<QUEUE> {
                     }
                     s.cruising = false;
                     // Trajectory time: the warp says when it comes.
-                    let ideal = self.warp.controller_tick(s.take_ideal());
+                    let ideal = s.take_ideal();
+                    let ideal = if s.warped {
+                        self.warp.warped_tick(ideal)
+                    } else {
+                        ideal
+                    };
                     let rise = if s.earliest > ideal {
                         self.late_pulses = self.late_pulses.wrapping_add(1);
                         s.earliest

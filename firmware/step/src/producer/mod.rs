@@ -203,6 +203,7 @@ impl<const QUEUE: usize> PulseProducer<QUEUE> {
             self.warp = warp;
             for joint in &mut self.joints {
                 joint.cruising = false;
+                joint.warped = !warp.is_identity();
             }
         }
         !self.running
