@@ -8,6 +8,10 @@
 //! - [`StepEngine`]: edges made by an interrupt at each deadline, kept as the test oracle
 //!   (`tests/producer.rs` compares the two on more than 10 million pulses).
 //!
+//! Both take a [`Warp`] (HOLD, RESUME, speed override: a monotone map from controller to
+//! trajectory time): pulses are placed on trajectory time by the rule below and rise when
+//! the warp reaches them (see `warp.rs`).
+//!
 //! The rule both follow:
 //!
 //! The trajectory is handed over as [`Segment`]s (a duration and a signed step count per

@@ -51,12 +51,20 @@
 //! [`crate::StepEngine`] (the oracle) and [`crate::PulseProducer`] take the same warp
 //! (`set_warp`, before a run) and map each pulse's ideal tick through it at the one place
 //! they compute it; the producer's cruise fast path is left while a warp is set, and segment
-//! and run ends are mapped alike, so the two agree pulse for pulse (tests/producer.rs,
-//! `producer_matches_engine_under_warp`). Left for issue 32: changing the warp during a run
-//! (a change must lie after every pulse the producer has already written: its horizon),
-//! dropping phases that are over (the list is fixed, [`WARP_PHASES`]), the cost of the map on
-//! the board's refill path (a phase scan and u128 arithmetic per pulse, only while warped),
-//! and the protocol's HOLD, RESUME and OVERRIDE.
+//! and run ends are mapped alike, so the two agree pulse for pulse (tests/producer.rs: half
+//! of its random cases carry holds, resumes and override changes). A run's `at_tick` is on
+//! trajectory time under a warp (the tests start a run at the first trajectory tick the warp
+//! reaches at or after the controller tick they mean). Unwarped runs cost a per-joint flag
+//! test per pulse in the producer (scripts/step-cost, README).
+//!
+//! Left for issue 32: changing the warp during a run (a change must lie after every edge
+//! already committed: the engine's scheduled edges, the producer's written periods and
+//! computed next rise; then both take it at the same tick), dropping phases that are over
+//! (the list is fixed, [`WARP_PHASES`]), the map's cost while warped (a phase scan and u128
+//! arithmetic per pulse, a ~40-step search on a ramp: fine on the host, to be measured on
+//! the board, or made incremental per joint), the acceleration budget between path and warp
+//! (above), the board's per-run clock restart (`start_new_clock`: the warp must move with it),
+//! and the controller's and protocol's HOLD, RESUME and OVERRIDE.
 
 /// A rate of 100 %: trajectory time runs as fast as controller time.
 pub const RATE_ONE: u64 = 1 << 16;
