@@ -219,7 +219,7 @@ impl Warp {
                 ramp: if goal > here.rate { slope } else { -slope },
                 ..here
             };
-            steady.start = at + ticks;
+            steady.start = at.saturating_add(ticks);
             steady.at = here.at + ramping.gained(ticks);
             if let Some(slot) = self.phases.get_mut(next) {
                 *slot = ramping;
