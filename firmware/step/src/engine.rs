@@ -3,7 +3,9 @@
 use crate::joint::Joint;
 use crate::ring::SegmentRing;
 use crate::schedule::{Edges, at_most_two};
-use crate::{ALL_JOINTS, JointMask, MAX_JOINTS, Poll, Segment, StepPins, StepTiming, US_PER_S};
+use crate::{
+    ALL_JOINTS, JointMask, MAX_JOINTS, Poll, Segment, StepPins, StepTiming, US_PER_S, Warp,
+};
 
 /// The set bits of a joint mask, lowest first.
 #[derive(Clone, Copy)]
@@ -110,6 +112,9 @@ pub struct StepEngine<const QUEUE: usize> {
     head_end: u64,
     queue_end: QueueEnd,
     late_pulses: u32,
+    /// Trajectory time to controller time: pulses and segment ends are placed on
+    /// trajectory ticks and happen when the warp reaches them (HOLD, RESUME, override).
+    warp: Warp,
 }
 
 impl<const QUEUE: usize> StepEngine<QUEUE> {
@@ -140,7 +145,22 @@ impl<const QUEUE: usize> StepEngine<QUEUE> {
                 frac: 0,
             },
             late_pulses: 0,
+            warp: Warp::IDENTITY,
         }
+    }
+
+    /// Sets the time warp of the runs to come (ticks on the run's clock); refused (false)
+    /// while running.
+    pub fn set_warp(&mut self, warp: Warp) -> bool {
+        if !self.running {
+            self.warp = warp;
+        }
+        !self.running
+    }
+
+    /// The time warp.
+    pub fn warp(&self) -> &Warp {
+        &self.warp
     }
 
     /// The timing this engine was built with.
@@ -161,7 +181,7 @@ impl<const QUEUE: usize> StepEngine<QUEUE> {
         self.queue_end = end;
         self.pushed = true;
         if self.running && self.ring.len() == 1 {
-            self.head_end = self.origin + end.tick;
+            self.head_end = self.warp.controller_tick(self.origin + end.tick);
         }
         Ok(())
     }
@@ -310,7 +330,7 @@ impl<const QUEUE: usize> StepEngine<QUEUE> {
             next = next.min(self.head_end);
         } else {
             while let Some(front) = self.ring.front() {
-                let end = self.origin + front.end_tick;
+                let end = self.warp.controller_tick(self.origin + front.end_tick);
                 if end > now {
                     next = next.min(end);
                     break;
@@ -343,7 +363,7 @@ impl<const QUEUE: usize> StepEngine<QUEUE> {
     /// Absolute end tick of the oldest held segment, `u64::MAX` if none.
     fn front_end(&self) -> u64 {
         match self.ring.front() {
-            Some(front) => self.origin + front.end_tick,
+            Some(front) => self.warp.controller_tick(self.origin + front.end_tick),
             None => u64::MAX,
         }
     }
@@ -356,7 +376,8 @@ impl<const QUEUE: usize> StepEngine<QUEUE> {
         };
         joint.earliest = now + self.low_ticks;
         if joint.remaining > 0 {
-            self.edges.set(j, joint.next_rise(&mut self.late_pulses));
+            self.edges
+                .set(j, joint.next_rise(&mut self.late_pulses, &self.warp));
             return;
         }
         if let Some(slot) = self.ring.get_mut(joint.slot) {
@@ -400,7 +421,8 @@ impl<const QUEUE: usize> StepEngine<QUEUE> {
                     u64::from(slot.duration_us) * self.tick_hz,
                     steps,
                 );
-                self.edges.set(j, joint.next_rise(&mut self.late_pulses));
+                self.edges
+                    .set(j, joint.next_rise(&mut self.late_pulses, &self.warp));
                 self.waiting &= !bit;
                 return;
             }

@@ -1,5 +1,7 @@
 //! One joint's walk through the segment queue and its pulse timing.
 
+use crate::Warp;
+
 /// Where one joint is: which segment it works on, its STEP line's next edge, and the
 /// incremental pulse clock of that segment.
 ///
@@ -83,13 +85,15 @@ impl Joint {
         self.ideal += u64::from(carry);
     }
 
-    /// Tick of the next rising edge: the ideal tick, or `earliest` if the STEP/DIR timing
+    /// Tick of the next rising edge: the ideal tick (through `warp`), or `earliest` if the STEP/DIR timing
     /// does not allow it: a delayed pulse, counted in `late`, never a dropped one.
     #[inline(always)]
-    pub fn next_rise(&self, late: &mut u32) -> u64 {
-        let is_late = self.earliest > self.ideal;
+    pub fn next_rise(&self, late: &mut u32, warp: &Warp) -> u64 {
+        // The ideal tick is trajectory time: the warp says when it comes.
+        let ideal = warp.controller_tick(self.ideal);
+        let is_late = self.earliest > ideal;
         *late = late.wrapping_add(u32::from(is_late));
-        if is_late { self.earliest } else { self.ideal }
+        if is_late { self.earliest } else { ideal }
     }
 
     /// Books a rising edge made now.
@@ -143,8 +147,14 @@ mod tests {
         assert_eq!(joint.ideal, 110);
         let mut late = 0;
         joint.earliest = 105;
-        assert_eq!((joint.next_rise(&mut late), late), (110, 0));
+        assert_eq!(
+            (joint.next_rise(&mut late, &Warp::IDENTITY), late),
+            (110, 0)
+        );
         joint.earliest = 111;
-        assert_eq!((joint.next_rise(&mut late), late), (111, 1));
+        assert_eq!(
+            (joint.next_rise(&mut late, &Warp::IDENTITY), late),
+            (111, 1)
+        );
     }
 }

@@ -8,6 +8,10 @@
 //! - [`StepEngine`]: edges made by an interrupt at each deadline, kept as the test oracle
 //!   (`tests/producer.rs` compares the two on more than 10 million pulses).
 //!
+//! Both take a [`Warp`] (HOLD, RESUME, speed override: a monotone map from controller to
+//! trajectory time): pulses are placed on trajectory time by the rule below and rise when
+//! the warp reaches them (see `warp.rs`).
+//!
 //! The rule both follow:
 //!
 //! The trajectory is handed over as [`Segment`]s (a duration and a signed step count per
@@ -70,12 +74,14 @@ mod producer;
 mod ring;
 mod schedule;
 mod stream;
+mod warp;
 
 pub use dir_queue::DirQueues;
 pub use engine::StepEngine;
 pub use player::{Advance, StreamPlayer, TimedStepPins};
 pub use producer::{Filled, PulsePeriod, PulseProducer, sign_of};
 pub use stream::{DirChange, JointBuffer, PRELUDE, Refill, StepStreams, StreamsSlot};
+pub use warp::{MAX_RATE, RATE_ONE, WARP_PHASES, Warp, WarpError, ramp_for};
 
 /// Joints the engine drives.
 pub const MAX_JOINTS: usize = 8;

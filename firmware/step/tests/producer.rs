@@ -12,7 +12,10 @@
 
 mod common;
 
-use arm_step::{MAX_JOINTS, PulsePeriod, PulseProducer, Segment, StepEngine, StepTiming, sign_of};
+use arm_step::{
+    MAX_JOINTS, MAX_RATE, PulsePeriod, PulseProducer, RATE_ONE, Segment, StepEngine, StepTiming,
+    Warp, ramp_for, sign_of,
+};
 use common::Recorder;
 use proptest::prelude::*;
 
@@ -37,6 +40,8 @@ struct Case {
     runs: Vec<(Vec<Segment>, u64, u64)>,
     /// Fill sizes, cycled.
     halves: Vec<usize>,
+    /// The time warp both take (holds, resumes, override changes), or the identity.
+    warp: Warp,
 }
 
 /// xorshift64*.
@@ -80,7 +85,7 @@ fn random_case(rng: &mut Rng) -> Case {
         2 => rng.range(2, 2_000) as u32,
         _ => rng.range(500, 100_000) as u32,
     });
-    let runs = (0..rng.range(1, 2))
+    let runs: Vec<_> = (0..rng.range(1, 2))
         .map(|_| {
             let count = rng.range(1, QUEUE as u64) as usize;
             // A rate scale per run: mostly reachable, sometimes far over the pins' limit.
@@ -118,12 +123,49 @@ fn random_case(rng: &mut Rng) -> Case {
     let halves = (0..rng.range(1, 4))
         .map(|_| rng.range(1, 80) as usize)
         .collect();
+    // Drawn last, so that the rest of a seed's case is what it was before warps.
+    let warp = random_warp(rng, tick_hz, &runs);
     Case {
         timing,
         max_period,
         runs,
         halves,
+        warp,
     }
+}
+
+/// Half the cases: one to six rate changes (holds, resumes, overrides of 10-200 %) from the
+/// first run's start over about its length, with ramps of 1 us to the run's length for a
+/// full 0-100 % swing; the last change leaves the rate above 0 (the runs end).
+fn random_warp(rng: &mut Rng, tick_hz: u32, runs: &[(Vec<Segment>, u64, u64)]) -> Warp {
+    let mut warp = Warp::IDENTITY;
+    if rng.below(2) == 0 {
+        return warp;
+    }
+    let (segments, first, _) = &runs[0];
+    let span_us: u64 = segments.iter().map(|s| u64::from(s.duration_us)).sum();
+    let span = span_us * u64::from(tick_hz) / 1_000_000;
+    let changes = rng.range(1, 6);
+    let mut at = *first;
+    for i in 0..changes {
+        at += rng.below(2 * span / changes + 1);
+        let mut target = match rng.below(4) {
+            0 => 0,
+            1 => rng.range(RATE_ONE / 10, RATE_ONE),
+            2 => rng.range(RATE_ONE, MAX_RATE),
+            _ => RATE_ONE,
+        };
+        if i + 1 == changes && target == 0 {
+            target = RATE_ONE;
+        }
+        // A full swing in `swing_us`: accel / speed = 1 / swing (module header of warp).
+        let swing_us = rng.range(1, span_us.max(1));
+        let accel = (1_000_000_000 / swing_us) as u32;
+        let ramp = ramp_for(accel.max(1), 1_000, tick_hz);
+        warp.change_rate(at, target, ramp)
+            .expect("at most 6 changes, rates in range");
+    }
+    warp
 }
 
 /// Each joint's changes in time order; at one tick a fall, then a DIR change (made when
@@ -142,21 +184,29 @@ fn sort_lines(lines: &mut [Vec<Line>]) {
 type Lines = (Vec<Vec<Line>>, u32, [i32; MAX_JOINTS]);
 
 /// The engine's line changes per joint, its late pulses and positions, the tick at which
-/// each run started (each starts after the previous one ran dry) and where it ran dry.
-fn engine_lines(case: &Case) -> (Lines, Vec<u64>, Vec<u64>) {
+/// each run started (each starts after the previous one ran dry: its origin on trajectory
+/// time, its stream's start on controller time) and where it ran dry.
+fn engine_lines(case: &Case) -> (Lines, Vec<(u64, u64)>, Vec<u64>) {
     let mut starts = Vec::new();
     let mut ends = Vec::new();
     let mut engine = StepEngine::<QUEUE>::new(case.timing);
+    assert!(engine.set_warp(case.warp));
     let mut pins = Recorder::default();
     let mut lines = vec![Vec::new(); MAX_JOINTS];
     let mut last_end = 0;
     for (segments, start, lead) in &case.runs {
         let start = *start.max(&(last_end + lead));
-        starts.push(start);
+        // The run's segments start on trajectory time: at the first trajectory tick the
+        // warp reaches at or after controller tick `start`.
+        let origin = match start {
+            0 => 0,
+            _ => case.warp.trajectory_tick(start - 1) + 1,
+        };
+        starts.push((origin, start - lead));
         for segment in segments {
             assert!(engine.push(*segment).is_ok());
         }
-        engine.start(start);
+        engine.start(origin);
         let mut now = start - lead;
         loop {
             pins.now = now;
@@ -188,19 +238,21 @@ fn engine_lines(case: &Case) -> (Lines, Vec<u64>, Vec<u64>) {
 
 /// The producer's line changes per joint (periods played back from each stream's start),
 /// its late pulses and positions; also checks that the buffers say what the positions say.
-fn producer_lines(case: &Case, run_starts: &[u64], run_ends: &[u64]) -> Lines {
+fn producer_lines(case: &Case, run_starts: &[(u64, u64)], run_ends: &[u64]) -> Lines {
     let mut producer = PulseProducer::<QUEUE>::new(case.timing, case.max_period);
+    assert!(producer.set_warp(case.warp));
     let mut lines: Vec<Vec<Line>> = vec![Vec::new(); MAX_JOINTS];
     let mut periods = [PulsePeriod::ZERO; 80];
     let mut deltas;
     let mut fills = 0usize;
     let mut moved = [0i32; MAX_JOINTS];
-    for (((segments, _, lead), &start), &end) in case.runs.iter().zip(run_starts).zip(run_ends) {
+    for (((segments, _, _), &(origin, stream)), &end) in
+        case.runs.iter().zip(run_starts).zip(run_ends)
+    {
         for segment in segments {
             assert!(producer.push(*segment).is_ok());
         }
-        let stream = start - lead;
-        producer.start(start, stream);
+        producer.start(origin, stream);
         // Every joint is filled in turn, a half at a time, until it idles: its last pulse
         // is written.
         let mut at = [stream; MAX_JOINTS];
@@ -316,6 +368,7 @@ fn producer_matches_engine_on_10m_pulses() {
     let mut pulses = 0u64;
     let mut late = 0u64;
     let mut cases = 0u64;
+    let (mut warped_cases, mut warped_pulses) = (0u64, 0u64);
     while pulses < target {
         let case_seed = seed.wrapping_add(cases.wrapping_mul(0x9e37_79b9_7f4a_7c15)) | 1;
         let case = random_case(&mut Rng(case_seed));
@@ -323,15 +376,21 @@ fn producer_matches_engine_on_10m_pulses() {
             Ok((n, l)) => {
                 pulses += n;
                 late += l;
+                if !case.warp.is_identity() {
+                    warped_cases += 1;
+                    warped_pulses += n;
+                }
             }
             Err(e) => panic!("case seed {case_seed:#x} ({case:?}):\n{e}"),
         }
         cases += 1;
     }
     println!(
-        "producer == engine on {pulses} pulses ({late} of them late) in {cases} cases ({:.1} s)",
+        "producer == engine on {pulses} pulses ({late} of them late) in {cases} cases, \
+         {warped_pulses} pulses in {warped_cases} cases under a warp ({:.1} s)",
         started.elapsed().as_secs_f64()
     );
+    assert!(warped_pulses > 0, "the warped cases moved");
     assert!(pulses >= target);
 }
 

@@ -55,6 +55,7 @@ impl<const QUEUE: usize> PulseProducer<QUEUE> {
             if s.next_rise == u64::MAX {
                 if s.remaining > 0 {
                     if s.fast
+                        && !s.warped
                         && s.open_delta == s.sign
                         && s.earliest <= s.base + u64::from(s.ideal)
                         && s.whole >= self.min_period
@@ -70,7 +71,13 @@ impl<const QUEUE: usize> PulseProducer<QUEUE> {
                         continue;
                     }
                     s.cruising = false;
+                    // Trajectory time: the warp says when it comes.
                     let ideal = s.take_ideal();
+                    let ideal = if s.warped {
+                        self.warp.warped_tick(ideal)
+                    } else {
+                        ideal
+                    };
                     let rise = if s.earliest > ideal {
                         self.late_pulses = self.late_pulses.wrapping_add(1);
                         s.earliest
@@ -400,7 +407,8 @@ impl<const QUEUE: usize> PulseProducer<QUEUE> {
             // Each waiting joint's `seek_at` is the fall of its last pulse. The run goes
             // on (a push before this tick continues it); the owner ends it here.
             let last_fall = self.joints.iter().map(|j| j.seek_at).max().unwrap_or(0);
-            self.run_end = (self.origin + self.queue_end.tick).max(last_fall);
+            let end = self.warp.controller_tick(self.origin + self.queue_end.tick);
+            self.run_end = end.max(last_fall);
         }
         finished
     }

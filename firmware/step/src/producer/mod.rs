@@ -31,7 +31,7 @@
 
 use crate::engine::QueueEnd;
 use crate::ring::SegmentRing;
-use crate::{MAX_JOINTS, Segment, StepTiming, US_PER_S, write_each};
+use crate::{MAX_JOINTS, Segment, StepTiming, US_PER_S, Warp, write_each};
 
 mod fill;
 mod joint_stream;
@@ -78,6 +78,9 @@ pub struct PulseProducer<const QUEUE: usize> {
     run_end: u64,
     joints: [JointStream; MAX_JOINTS],
     late_pulses: u32,
+    /// Trajectory time to controller time, as [`crate::StepEngine`]'s: each pulse's ideal
+    /// tick and the run's end go through it; the cruise fast path only runs unwarped.
+    warp: Warp,
 }
 
 const fn gcd(mut a: u64, mut b: u64) -> u64 {
@@ -146,6 +149,7 @@ macro_rules! with_idle_fields {
             origin: 0,
             run_end: u64::MAX,
             late_pulses: 0,
+            warp: Warp::IDENTITY,
         )
     }};
 }
@@ -190,6 +194,24 @@ impl<const QUEUE: usize> PulseProducer<QUEUE> {
             write_each(&raw mut (*producer).joints, JointStream::IDLE);
             with_idle_fields!(timing, max_period_ticks, write_fields!(producer));
         }
+    }
+
+    /// Sets the time warp of the runs to come (ticks on the run's clock, as the engine's
+    /// [`crate::StepEngine::set_warp`]); refused (false) while running.
+    pub fn set_warp(&mut self, warp: Warp) -> bool {
+        if !self.running {
+            self.warp = warp;
+            for joint in &mut self.joints {
+                joint.cruising = false;
+                joint.warped = !warp.is_identity();
+            }
+        }
+        !self.running
+    }
+
+    /// The time warp.
+    pub fn warp(&self) -> &Warp {
+        &self.warp
     }
 
     /// The timing this producer was built with.
