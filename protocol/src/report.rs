@@ -5,6 +5,7 @@ use crate::codec::{u8_at, u16_le};
 use crate::codes::{State, StatusCode, Tag};
 use crate::error::{DecodeError, DecodeErrorKind, EncodeError, ExpectedLen, Field};
 use crate::frame::{Frame, open, seal};
+use crate::joint_desc::JointDescSet;
 use crate::joint_limits::LimitsReport;
 use crate::stop_cause::StopReport;
 use crate::types::{Ack, Location, StatusReport};
@@ -27,6 +28,9 @@ pub enum Report<'a> {
     Limits(LimitsReport),
     /// What ended the last run (asked for with STATUS's request byte, bit 2; issue 31).
     StopCause(StopReport),
+    /// One joint's description, the answer to JOINT_DESC_GET (issue 31); the same data
+    /// as JOINT_DESC_SET.
+    JointDesc(JointDescSet),
 }
 
 impl<'a> Report<'a> {
@@ -39,6 +43,7 @@ impl<'a> Report<'a> {
             Report::Status(_) => Tag::Status,
             Report::Limits(_) => Tag::Limits,
             Report::StopCause(_) => Tag::StopCause,
+            Report::JointDesc(_) => Tag::JointDesc,
         }
     }
 
@@ -51,6 +56,7 @@ impl<'a> Report<'a> {
             Report::Status(_) => size::STATUS,
             Report::Limits(limits) => limits.data_len(),
             Report::StopCause(_) => size::STOP_CAUSE,
+            Report::JointDesc(_) => size::JOINT_DESC_SET,
         }
     }
 
@@ -77,6 +83,7 @@ impl<'a> Report<'a> {
             Report::Status(status) => status.write(w, 0),
             Report::Limits(limits) => limits.write(w, 0),
             Report::StopCause(stop) => stop.write(w, 0),
+            Report::JointDesc(set) => set.write(w, 0),
         })
     }
 
@@ -153,6 +160,13 @@ impl<'a> Report<'a> {
             Some(Tag::StopCause) => {
                 exactly(size::STOP_CAUSE)?;
                 Report::StopCause(StopReport::read(data))
+            }
+            Some(Tag::JointDesc) => {
+                exactly(size::JOINT_DESC_SET)?;
+                Report::JointDesc(
+                    JointDescSet::read(data)
+                        .ok_or(err(DecodeErrorKind::OutOfRange(Field::JointDesc)))?,
+                )
             }
             Some(_) => return Err(err(DecodeErrorKind::WrongDirection)),
         };

@@ -145,6 +145,9 @@ fn command_fields(cmd: &Command<'_>) -> Value {
             joint,
             max_accel_steps_s2,
         } => json!({ "joint": joint, "max_accel_steps_s2": max_accel_steps_s2 }),
+        // Issue 31's arm description: protocol/tests/joint_desc.rs.
+        Command::JointDescSet(set) => json!({ "joint_desc": format!("{set:?}") }),
+        Command::JointDescGet { joint } => json!({ "joint": joint }),
         Command::LimitsSet(set) => json!({
             "joint": set.joint,
             "min": set.limits.min,
@@ -200,6 +203,7 @@ fn report_fields(report: &Report<'_>) -> Value {
         // Not in the shared golden file (issue 23): protocol/tests/wire_tools.rs.
         Report::Limits(l) => json!({ "limits": format!("{l:?}") }),
         Report::StopCause(s) => json!({ "stop_cause": format!("{s:?}") }),
+        Report::JointDesc(d) => json!({ "joint_desc": format!("{d:?}") }),
     }
 }
 
@@ -440,6 +444,8 @@ fn vectors_cover_every_command_and_report() {
         .filter(|t| !ISSUE_23_TAGS.contains(t))
         // Issue 31's STOP_CAUSE report and ACCEL_SET as well: protocol/tests/stop_cause.rs.
         .filter(|t| !matches!(t, Tag::StopCause | Tag::AccelSet))
+        // Issue 31's arm description as well: protocol/tests/joint_desc.rs.
+        .filter(|t| !matches!(t, Tag::JointDescSet | Tag::JointDescGet | Tag::JointDesc))
         .filter(|t| !commands.contains(t))
         .map(Tag::name)
         .collect();

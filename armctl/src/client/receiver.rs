@@ -44,6 +44,8 @@ pub(crate) struct Shared {
     pub(super) limits: Mutex<Vec<Sender<LimitsReport>>>,
     /// STOP_CAUSE reports (STATUS's request byte bit 2, issue 31).
     pub(super) stops: Mutex<Vec<Sender<protocol::StopReport>>>,
+    /// JOINT_DESC reports' subscribers (issue 31).
+    pub(super) descs: Mutex<Vec<Sender<protocol::JointDescSet>>>,
     pub(super) last_location: Mutex<Option<Location>>,
     pub(super) last_status: Mutex<Option<StatusReport>>,
     /// Datagrams that did not decode as a report.
@@ -147,6 +149,7 @@ impl Shared {
             }
             Report::Limits(limits) => fan_out(&self.limits, &limits),
             Report::StopCause(stop) => fan_out(&self.stops, &stop),
+            Report::JointDesc(desc) => fan_out(&self.descs, &desc),
         }
     }
 }

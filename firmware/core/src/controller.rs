@@ -1142,6 +1142,24 @@ impl<const CAP: usize> Controller<CAP> {
                 *slot = max_accel_steps_s2;
                 response.deferred = Some(Deferred::SaveSettings(settings));
             }
+            // The arm's description (issue 31): kept for the hosts, never used here; kept
+            // with the limits under their rule (STOPPED only, ACKed after the save) so a
+            // host never reads a description half-way through a config push's run.
+            Command::JointDescSet(set) => {
+                flash_only(self)?;
+                let mut settings = self.settings;
+                let Some(slot) = settings.desc.get_mut(usize::from(set.joint)) else {
+                    return Err(StatusCode::InvalidConfig);
+                };
+                *slot = set.desc;
+                response.deferred = Some(Deferred::SaveSettings(settings));
+            }
+            Command::JointDescGet { joint } => {
+                let Some(desc) = self.settings.desc.get(usize::from(joint)) else {
+                    return Err(StatusCode::InvalidConfig);
+                };
+                response.joint_desc = Some((from, protocol::JointDescSet { joint, desc: *desc }));
+            }
             Command::Status => response.status = Some((from, self.status(plant))),
             Command::StatusWith(ask) => {
                 response.status = Some((from, self.status(plant)));

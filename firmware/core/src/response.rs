@@ -1,7 +1,9 @@
 //! What [`crate::Controller::handle`] returns: the ACK ([`Reply`]), reports, and the
 //! work left to the caller ([`Deferred`]), all in one [`Response`].
 
-use protocol::{Ack, DiscoverReply, LimitsReport, Location, StatusReport, StopReport};
+use protocol::{
+    Ack, DiscoverReply, JointDescSet, LimitsReport, Location, StatusReport, StopReport,
+};
 
 use crate::hw::{Endpoint, PersistentSettings};
 #[cfg(doc)]
@@ -49,6 +51,8 @@ pub struct Response {
     pub asked_stop: Option<(Endpoint, StopReport)>,
     /// A LIMITS report for the endpoint that sent LIMITS_GET (issue 23).
     pub limits: Option<(Endpoint, LimitsReport)>,
+    /// A JOINT_DESC report for the endpoint that sent JOINT_DESC_GET (issue 31).
+    pub joint_desc: Option<(Endpoint, JointDescSet)>,
     /// `Some(seq)`: [`Response::status`], [`Response::asked_location`] and
     /// [`Response::asked_stop`] are a read-only
     /// answer to a host that does not own the controller (docs/PROTOCOL.md section 1,

@@ -340,6 +340,13 @@ pub(super) fn deliver(bus: &Bus, response: &Response) {
             report: AnswerReport::Limits(limits),
         }));
     }
+    if let Some((to, desc)) = response.joint_desc {
+        bus.send(Outgoing::Answer(Answer {
+            to,
+            seq: None,
+            report: AnswerReport::JointDesc(desc),
+        }));
+    }
     if let Some((to, location)) = response.asked_location {
         bus.send(Outgoing::Answer(Answer {
             to,
