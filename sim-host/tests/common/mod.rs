@@ -84,6 +84,7 @@ pub enum OwnedReport {
     Status(StatusReport),
     Limits(protocol::LimitsReport),
     StopCause(protocol::StopReport),
+    JointDesc(protocol::JointDescSet),
 }
 
 impl Client {
@@ -121,6 +122,7 @@ impl Client {
             Report::Status(s) => OwnedReport::Status(s),
             Report::Limits(l) => OwnedReport::Limits(l),
             Report::StopCause(s) => OwnedReport::StopCause(s),
+            Report::JointDesc(d) => OwnedReport::JointDesc(d),
         };
         Some((frame.seq, report))
     }
