@@ -10,6 +10,10 @@ use crate::hw::{Endpoint, PersistentSettings};
 use crate::reports::ReportSettings;
 
 /// Work that needs waiting, left to the caller (the trajectory task).
+// The settings (440 bytes since issue 31's joint descriptions) ride by value: no heap to
+// box them in, and a Deferred is returned once per datagram and handled at once by the
+// trajectory task, never queued, so the size is one stack copy, not a channel's slots.
+#[allow(clippy::large_enum_variant)]
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum Deferred {
