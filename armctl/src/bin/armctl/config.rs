@@ -197,15 +197,19 @@ pub fn execute(arm: &Client, command: &ConfigCmd) -> CliResult {
                 .map_err(|e| explain_old(e, Tag::LimitsGet))?;
             // Each joint's description (issue 31; none from an older controller).
             let descs = kept_descs(arm)?;
+            // Named as the controller names them, when it names any.
             let names = names.or_else(|| {
-                descs.as_ref().map(|d| {
-                    d.iter()
-                        .map(|d| match d.name() {
-                            "" => "-".to_string(),
-                            n => n.to_string(),
-                        })
-                        .collect()
-                })
+                descs
+                    .as_ref()
+                    .filter(|d| d.iter().any(|d| !d.name().is_empty()))
+                    .map(|d| {
+                        d.iter()
+                            .map(|d| match d.name() {
+                                "" => "-".to_string(),
+                                n => n.to_string(),
+                            })
+                            .collect()
+                    })
             });
             if *json {
                 let mut value = serde_json::to_value(report).map_err(|e| e.to_string())?;
