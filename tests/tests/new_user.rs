@@ -1,5 +1,5 @@
 //! Issue 31's scripted new user: `armctl config init` for a degrees arm, `config push`,
-//! then `move`, `jog` and `run` of a CSV with shuffled named columns, each WITHOUT
+//! then `move`, `jog`, `run` of a CSV with shuffled named columns and `home`, each WITHOUT
 //! `--config` (armctl reads the names, units and limits the controller keeps: JOINT_DESC
 //! and LIMITS), each ending at the right positions, checked against the controller's
 //! LOCATION after each step and against the simulator's VCD trace at the end (every pulse
@@ -124,12 +124,22 @@ fn config_init_push_then_move_jog_run_without_config() {
     assert!(err.contains("shoulder") && err.contains("deg"), "{err}");
     assert_eq!(positions(&sim), [1000, -200]);
 
-    // The trace: every pulse of the three motions (each monotone per joint) and where
+    // home, named and in degrees too.
+    let (ok, out, err) = armctl(&sim, &["home"]);
+    assert!(ok, "{out}\n{err}");
+    assert!(
+        out.contains("home: base 0.00 deg, shoulder 0.00 deg"),
+        "{out}"
+    );
+    assert_eq!(positions(&sim), [0, 0]);
+
+    // The trace: every pulse of the four motions (each monotone per joint) and where
     // they end.
     sim.terminate();
     let trace = vcd::read(&sim.trace()).unwrap_or_else(|e| panic!("{e}\n{}", sim.log()));
-    assert_eq!(trace.positions(2), vec![1000, -200]);
-    // base: 0 -> 2000 (move), -> 1000 (run); shoulder: 0 -> -1000 -> -600 -> -200.
-    assert_eq!(trace.joints[0].steps, 2000 + 1000);
-    assert_eq!(trace.joints[1].steps, 1000 + 400 + 400);
+    assert_eq!(trace.positions(2), vec![0, 0]);
+    // base: 0 -> 2000 (move), -> 1000 (run), -> 0 (home); shoulder: 0 -> -1000 (move)
+    // -> -600 (jog) -> -200 (run) -> 0 (home).
+    assert_eq!(trace.joints[0].steps, 2000 + 1000 + 1000);
+    assert_eq!(trace.joints[1].steps, 1000 + 400 + 400 + 200);
 }
