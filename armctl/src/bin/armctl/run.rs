@@ -177,8 +177,10 @@ pub fn described_without_config(
     if !no_config {
         return Ok(None);
     }
+    // The error as is: it already names the subcommand run (a NOT_OWNER says "move
+    // refused with NOT_OWNER", as the first command that needs the owner would).
     arm.described_arm(joints, max_rate_hz)
-        .map_err(|e| format!("reading the controller's arm description: {e}"))
+        .map_err(|e| e.to_string())
 }
 
 /// Runs `run`: converts the file from the current position, uploads and runs it, and
