@@ -1266,6 +1266,25 @@ impl<const CAP: usize> Controller<CAP> {
             response.reply = Some(self.ack(from, seq, tag, status));
             return Some(response);
         }
+        // JOINT_DESC_GET (issue 31) is read-only from any host, as a look-only STATUS: the
+        // arm's description is for every host (Python's positions(), a watcher) and
+        // reading it must not take a free controller.
+        if tag == Tag::JointDescGet as u8 {
+            let Ok(Command::JointDescGet { joint }) = Command::decode(datagram).map(|f| f.body)
+            else {
+                return None;
+            };
+            if !self.glance_budget.take(now_us) {
+                return Some(response);
+            }
+            let desc = self.settings.desc.get(usize::from(joint)).copied()?;
+            let mut ack = blank_ack(from, seq, tag, StatusCode::Ok);
+            ack.ack.state = self.state;
+            response.reply = Some(ack);
+            response.joint_desc = Some((from, protocol::JointDescSet { joint, desc }));
+            response.answer_seq = Some(seq);
+            return Some(response);
+        }
         if tag != Tag::Status as u8 {
             return None;
         }

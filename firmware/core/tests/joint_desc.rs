@@ -89,3 +89,36 @@ fn bad_descriptions_are_refused_and_change_nothing() {
     );
     assert_eq!(r.joint_desc, None);
 }
+
+/// Any host may read the description, and reading it never takes the controller: from a
+/// host that does not own it (another does, or none does) JOINT_DESC_GET is answered
+/// read-only with the request's seq, as a look-only STATUS.
+#[test]
+fn any_host_reads_the_description_without_taking_the_controller() {
+    let mut s = Session::<64>::new(64);
+    s.seq = s.seq.wrapping_add(1);
+    let r = s.send_raw(HOST, &frame(s.seq, Command::JointDescSet(shoulder())));
+    let Some(Deferred::SaveSettings(saved)) = r.deferred else {
+        panic!("saved: {:?}", r.deferred)
+    };
+    let mut fresh = Session::<64>::new(64);
+    fresh.controller.apply_settings(saved);
+    // No owner yet: a reader gets the description and the controller stays free.
+    let r = fresh.send_raw(OTHER, &frame(0x40, Command::JointDescGet { joint: 1 }));
+    assert_eq!(r.reply.map(|r| r.ack.status), Some(StatusCode::Ok));
+    assert_eq!(r.joint_desc.map(|d| d.1), Some(shoulder()));
+    assert_eq!(r.answer_seq, Some(0x40));
+    assert_eq!(
+        fresh.controller.owner(),
+        None,
+        "reading took the controller"
+    );
+    // With an owner: still answered to the other host; the owner keeps it.
+    fresh.expect(Command::Status, StatusCode::Ok);
+    let owner = fresh.controller.owner();
+    assert!(owner.is_some());
+    let r = fresh.send_raw(OTHER, &frame(0x41, Command::JointDescGet { joint: 1 }));
+    assert_eq!(r.reply.map(|r| r.ack.status), Some(StatusCode::Ok));
+    assert_eq!(r.joint_desc.map(|d| d.1), Some(shoulder()));
+    assert_eq!(fresh.controller.owner(), owner);
+}

@@ -343,7 +343,8 @@ pub(super) fn deliver(bus: &Bus, response: &Response) {
     if let Some((to, desc)) = response.joint_desc {
         bus.send(Outgoing::Answer(Answer {
             to,
-            seq: None,
+            // A read-only answer to another host carries its request's seq.
+            seq: response.answer_seq,
             report: AnswerReport::JointDesc(desc),
         }));
     }
