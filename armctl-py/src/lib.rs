@@ -205,16 +205,18 @@ impl Arm {
         segment_ms: f64,
         wait: bool,
     ) -> PyResult<Option<Py<PyAny>>> {
-        let config = config
-            .map(|p| ArmConfig::load(&p))
-            .transpose()
-            .map_err(trajectory_err)?;
+        let config = match config {
+            Some(p) => Some(ArmConfig::load(&p).map_err(trajectory_err)?),
+            // No config: the arm the controller describes, if it does (issue 31).
+            None => self.described(py)?,
+        };
         let units = parse_units(units)?
             .or(config.as_ref().map(|c| c.units))
             .unwrap_or_default();
         if units != Units::Steps && config.is_none() {
             return Err(PyValueError::new_err(format!(
-                "units {:?} need a joint config (config=PATH)",
+                "units {:?} need a joint config (config=PATH, or one kept on the controller: \
+                 armctl config push FILE)",
                 units.name()
             )));
         }
@@ -252,6 +254,16 @@ impl Arm {
     }
 
     /// STATUS and a fresh LOCATION: what converting a trajectory needs.
+    /// The arm the controller describes (issue 31: names, units, scale, limits), for a
+    /// call given no config; `None` when it describes none (or predates issue 31).
+    fn described(&self, py: Python<'_>) -> PyResult<Option<ArmConfig>> {
+        self.call(py, |arm| {
+            let status = arm.status()?;
+            let joints = usize::from(status.joints).clamp(1, MAX_JOINTS);
+            arm.described_arm(joints, status.max_step_rate_hz)
+        })
+    }
+
     fn before_run(&self, py: Python<'_>) -> PyResult<(StatusReport, Location)> {
         self.call(py, |arm| {
             let status = arm.status()?;
@@ -374,7 +386,17 @@ impl Arm {
         config: Option<PathBuf>,
         units: Option<String>,
     ) -> PyResult<Bound<'py, PyAny>> {
-        let shown = shown_in(config, units)?;
+        let shown = match config {
+            Some(config) => shown_in(Some(config), units)?,
+            // No config: the controller's description, if it keeps one (issue 31).
+            None => match self.described(py)? {
+                Some(described) => {
+                    let units = parse_units(units)?.unwrap_or(described.units);
+                    (units != Units::Steps).then_some((described, units))
+                }
+                None => shown_in(None, units)?,
+            },
+        };
         let glance = self.call(py, |arm| arm.glance(false))?;
         if let Some(location) = glance.location {
             let joints = usize::from(glance.status.joints).clamp(1, MAX_JOINTS);
@@ -442,8 +464,18 @@ impl Arm {
             .map(ArmConfig::load)
             .transpose()
             .map_err(trajectory_err)?;
-        let units = array_units(py, units, config.as_deref(), loaded.as_ref())?;
-        let config = loaded;
+        let described = match &loaded {
+            Some(_) => None,
+            // No config: the arm the controller describes, in its units (issue 31).
+            None => self.described(py)?,
+        };
+        let (units, config) = match described {
+            Some(d) => (units.unwrap_or(d.units), Some(d)),
+            None => (
+                array_units(py, units, config.as_deref(), loaded.as_ref())?,
+                loaded,
+            ),
+        };
         let mut times_us = Vec::with_capacity(n);
         for &t in times.iter() {
             if !t.is_finite() {

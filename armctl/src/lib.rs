@@ -32,6 +32,7 @@
 //!   [`vcd`]: joint positions from a simulator trace (`sim-host --trace`), for the same plots.
 
 mod client;
+pub mod described;
 pub mod discover;
 mod error;
 mod interrupt;

@@ -765,6 +765,24 @@ impl Harness {
             Command::SetKey(_) | Command::NetSet(_) => {
                 assert_eq!(was, State::Stopped, "{cmd:?} accepted in {was:?}");
             }
+            // The arm's description (issue 31): a flash write, and read back as kept.
+            Command::JointDescSet(set) => {
+                assert_eq!(was, State::Stopped, "JOINT_DESC_SET accepted in {was:?}");
+                assert!(
+                    matches!(r.deferred, Some(Deferred::SaveSettings(s))
+                        if s.desc[usize::from(set.joint)] == set.desc),
+                    "{:?}",
+                    r.deferred
+                );
+            }
+            Command::JointDescGet { joint } => {
+                let (_, report) = r.joint_desc.expect("no JOINT_DESC report for JOINT_DESC_GET");
+                assert_eq!(report.joint, *joint);
+                assert_eq!(
+                    report.desc,
+                    self.controller.settings().desc[usize::from(*joint)]
+                );
+            }
             Command::LimitsGet => {
                 let (_, report) = r.limits.expect("no LIMITS report for LIMITS_GET");
                 assert_eq!(report.joints, self.controller.settings().limits);

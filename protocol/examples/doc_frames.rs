@@ -208,6 +208,21 @@ pub fn doc_frames() -> Vec<DocFrame> {
             },
         ),
         command(
+            "JOINT_DESC_SET, seq 0x25, joint 1 \"shoulder\", degrees, zero at 0, 16000 steps per turn",
+            0x25,
+            Command::JointDescSet(shoulder()),
+        ),
+        command(
+            "JOINT_DESC_GET, seq 0x26, joint 1",
+            0x26,
+            Command::JointDescGet { joint: 1 },
+        ),
+        report(
+            "JOINT_DESC report, seq 0x30, joint 1",
+            0x30,
+            Report::JointDesc(shoulder()),
+        ),
+        command(
             "LIMITS_GET, seq 0x24, with the accelerations (request byte 0x01)",
             0x24,
             Command::LimitsGetWithAccel,
@@ -388,5 +403,19 @@ fn limits_example() -> protocol::LimitsReport {
 fn main() {
     for frame in doc_frames() {
         println!("{}:\n```text\n{}\n```\n", frame.caption, frame.hex_block());
+    }
+}
+
+/// PROTOCOL.md's JOINT_DESC example: joint 1 "shoulder" in degrees, 16000 steps per turn
+/// (16000 / 2π steps per radian).
+fn shoulder() -> protocol::JointDescSet {
+    protocol::JointDescSet {
+        joint: 1,
+        desc: protocol::JointDesc {
+            name_bytes: *b"shoulder\0\0\0\0\0\0\0\0",
+            unit: protocol::JointUnit::Degrees,
+            zero_offset_steps: 0,
+            scale_bits: (16000.0 / core::f64::consts::TAU).to_bits(),
+        },
     }
 }

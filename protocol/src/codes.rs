@@ -153,6 +153,9 @@ wire_code! {
         StopCause = 0x1d => "STOP_CAUSE",
         /// Set one joint's most acceleration, steps/s², kept with its limits (issue 31).
         AccelSet = 0x1e => "ACCEL_SET",
+        /// Set one joint's description: name, units, scale (issue 31), kept with its
+        /// limits.
+        JointDescSet = 0x1f => "JOINT_DESC_SET",
         /// Who is there? Answered by every controller, from any host (PROTOCOL.md,
         /// "Finding controllers and setting their address").
         Discover = 0x20 => "DISCOVER",
@@ -160,12 +163,16 @@ wire_code! {
         NetSet = 0x21 => "NET_SET",
         /// The answer to DISCOVER (controller to host).
         DiscoverReply = 0x22 => "DISCOVER_REPLY",
+        /// Ask for one joint's JOINT_DESC report (issue 31; any host, read-only).
+        JointDescGet = 0x23 => "JOINT_DESC_GET",
         /// The receive path's counters, asked for by STATUS's request byte bit 3
         /// (controller to host; issue 30).
         RxCounters = 0x24 => "RX_COUNTERS",
         /// Clear the hard-limit latch after a limit switch tripped (issue 33); then only
         /// motion away from a switch still active is accepted.
         Unlock = 0x25 => "UNLOCK",
+        /// One joint's description (controller to host; issue 31).
+        JointDesc = 0x26 => "JOINT_DESC",
         /// An authenticated envelope around a whole frame, both directions
         /// (docs/PROTOCOL.md section 13, [`crate::auth`]).
         Auth = 0x50 => "AUTH",

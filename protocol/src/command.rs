@@ -5,6 +5,7 @@ use crate::codec::{u8_at, u16_be, u16_le, u32_le};
 use crate::codes::Tag;
 use crate::error::{DecodeError, DecodeErrorKind, EncodeError, ExpectedLen, Field};
 use crate::frame::{Frame, PointList, open, seal};
+use crate::joint_desc::JointDescSet;
 use crate::joint_limits::{JointLimits, LimitsSet};
 use crate::net::NetSettings;
 use crate::types::{Location, Pwm, UartInit};
@@ -97,6 +98,13 @@ pub enum Command<'a> {
         /// Most steps/s² between consecutive segments (docs/PROTOCOL.md, ACCEL_SET);
         /// 0: none.
         max_accel_steps_s2: u32,
+    },
+    /// Set one joint's description: name, units, scale (issue 31), kept with its limits.
+    JointDescSet(JointDescSet),
+    /// Ask for one joint's JOINT_DESC report (issue 31; read-only, any host).
+    JointDescGet {
+        /// The joint, 0-7.
+        joint: u8,
     },
     /// STATUS with its request byte (issue 23): what else to answer, and whether a host
     /// that does not own the controller wants only to look.
@@ -203,6 +211,8 @@ impl<'a> Command<'a> {
             Command::LimitsSet(_) => Tag::LimitsSet,
             Command::LimitsGet | Command::LimitsGetWithAccel => Tag::LimitsGet,
             Command::AccelSet { .. } => Tag::AccelSet,
+            Command::JointDescSet(_) => Tag::JointDescSet,
+            Command::JointDescGet { .. } => Tag::JointDescGet,
             Command::StatusWith(_) => Tag::Status,
         }
     }
@@ -227,6 +237,8 @@ impl<'a> Command<'a> {
             Command::LimitsSet(_) => size::LIMITS_SET,
             Command::LimitsGetWithAccel => 1,
             Command::AccelSet { .. } => size::ACCEL_SET,
+            Command::JointDescSet(_) => size::JOINT_DESC_SET,
+            Command::JointDescGet { .. } => size::JOINT_DESC_GET,
             _ => 0,
         }
     }
@@ -291,6 +303,8 @@ impl<'a> Command<'a> {
                 w.put(0, &[*joint, 0, 0, 0]);
                 w.u32(4, *max_accel_steps_s2);
             }
+            Command::JointDescSet(set) => set.write(w, 0),
+            Command::JointDescGet { joint } => w.u8(0, *joint),
             _ => {}
         })
     }
@@ -469,7 +483,8 @@ impl<'a> Command<'a> {
             | Tag::Auth
             | Tag::Limits
             | Tag::StopCause
-            | Tag::RxCounters => {
+            | Tag::RxCounters
+            | Tag::JointDesc => {
                 return Err(err(DecodeErrorKind::WrongDirection));
             }
             Tag::LimitsSet => {
@@ -493,6 +508,21 @@ impl<'a> Command<'a> {
                     joint,
                     max_accel_steps_s2: u32_le(data, 4),
                 }
+            }
+            Tag::JointDescSet => {
+                exactly(size::JOINT_DESC_SET)?;
+                match JointDescSet::read(data) {
+                    Some(set) => Command::JointDescSet(set),
+                    None => return Err(out_of_range(Field::JointDesc)),
+                }
+            }
+            Tag::JointDescGet => {
+                exactly(size::JOINT_DESC_GET)?;
+                let joint = u8_at(data, 0);
+                if usize::from(joint) >= crate::MAX_JOINTS {
+                    return Err(out_of_range(Field::JointDesc));
+                }
+                Command::JointDescGet { joint }
             }
             Tag::LimitsGet if data.len() == 1 => match u8_at(data, 0) {
                 LIMITS_WITH_ACCEL => Command::LimitsGetWithAccel,

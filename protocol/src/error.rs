@@ -106,6 +106,8 @@ pub enum Field {
     JointLimits,
     /// LIMITS_GET's request byte (bit 0 only).
     LimitsAsk,
+    /// JOINT_DESC_SET's or JOINT_DESC_GET's joint (0-7), unit, name or scale.
+    JointDesc,
 }
 
 impl DecodeError {
@@ -159,6 +161,10 @@ impl fmt::Display for Field {
                 f.write_str("LIMITS_SET needs a joint of 0-7 and min not above max")
             }
             Field::LimitsAsk => f.write_str("LIMITS_GET request byte may only use bit 0"),
+            Field::JointDesc => f.write_str(
+                "JOINT_DESC needs a joint of 0-7, a unit of 0-3, a UTF-8 name of at most \
+                 16 bytes padded with zeros and a finite scale",
+            ),
             Field::EnableAction => {
                 f.write_str("SET_ENABLE action must be 0 (disable) or 1 (enable)")
             }

@@ -22,6 +22,7 @@ mod codes;
 mod command;
 mod error;
 mod frame;
+mod joint_desc;
 mod joint_limits;
 pub mod limits;
 mod net;
@@ -34,6 +35,7 @@ pub use codes::{State, StatusCode, Tag};
 pub use command::{Command, StatusAsk};
 pub use error::{DecodeError, DecodeErrorKind, EncodeError, ExpectedLen, Field};
 pub use frame::{Frame, PointList, PointsIter, crc8};
+pub use joint_desc::{JointDesc, JointDescSet, JointUnit, NAME_LEN as JOINT_NAME_LEN};
 pub use joint_limits::{JointLimits, LimitsReport, LimitsSet, Refusal, RefusalReason};
 pub use limits::DEFAULT_WINDOW;
 pub use net::{DiscoverReply, NetSettings, OwnerState};
@@ -96,6 +98,13 @@ pub mod size {
     pub const LIMITS_WITH_ACCEL: usize = LIMITS + 4 * crate::MAX_JOINTS;
     /// ACCEL_SET data: joint, 3 reserved, max_accel_steps_s2 (u32).
     pub const ACCEL_SET: usize = 8;
+    /// One joint's description (issue 31): name 16, unit, 3 reserved, zero offset i32,
+    /// scale f64.
+    pub const JOINT_DESC: usize = 32;
+    /// JOINT_DESC_SET data and the JOINT_DESC report's: joint, 3 reserved, description.
+    pub const JOINT_DESC_SET: usize = 4 + JOINT_DESC;
+    /// JOINT_DESC_GET data: the joint.
+    pub const JOINT_DESC_GET: usize = 1;
     /// STOP_CAUSE report data: cause, detail, 2 reserved, the STOPPED's sender address
     /// and port, 2 reserved.
     pub const STOP_CAUSE: usize = 12;

@@ -5,6 +5,7 @@ use crate::codec::{u8_at, u16_le};
 use crate::codes::{State, StatusCode, Tag};
 use crate::error::{DecodeError, DecodeErrorKind, EncodeError, ExpectedLen, Field};
 use crate::frame::{Frame, open, seal};
+use crate::joint_desc::JointDescSet;
 use crate::joint_limits::LimitsReport;
 use crate::rx_counters::RxCounters;
 use crate::stop_cause::StopReport;
@@ -30,6 +31,9 @@ pub enum Report<'a> {
     StopCause(StopReport),
     /// The receive path's counters (STATUS's request byte bit 3; issue 30).
     RxCounters(RxCounters),
+    /// One joint's description, the answer to JOINT_DESC_GET (issue 31); the same data
+    /// as JOINT_DESC_SET.
+    JointDesc(JointDescSet),
 }
 
 impl<'a> Report<'a> {
@@ -43,6 +47,7 @@ impl<'a> Report<'a> {
             Report::Limits(_) => Tag::Limits,
             Report::StopCause(_) => Tag::StopCause,
             Report::RxCounters(_) => Tag::RxCounters,
+            Report::JointDesc(_) => Tag::JointDesc,
         }
     }
 
@@ -56,6 +61,7 @@ impl<'a> Report<'a> {
             Report::Limits(limits) => limits.data_len(),
             Report::StopCause(_) => size::STOP_CAUSE,
             Report::RxCounters(_) => size::RX_COUNTERS,
+            Report::JointDesc(_) => size::JOINT_DESC_SET,
         }
     }
 
@@ -83,6 +89,7 @@ impl<'a> Report<'a> {
             Report::Limits(limits) => limits.write(w, 0),
             Report::StopCause(stop) => stop.write(w, 0),
             Report::RxCounters(counters) => counters.write(w, 0),
+            Report::JointDesc(set) => set.write(w, 0),
         })
     }
 
@@ -163,6 +170,13 @@ impl<'a> Report<'a> {
             Some(Tag::RxCounters) => {
                 exactly(size::RX_COUNTERS)?;
                 Report::RxCounters(RxCounters::read(data))
+            }
+            Some(Tag::JointDesc) => {
+                exactly(size::JOINT_DESC_SET)?;
+                Report::JointDesc(
+                    JointDescSet::read(data)
+                        .ok_or(err(DecodeErrorKind::OutOfRange(Field::JointDesc)))?,
+                )
             }
             Some(_) => return Err(err(DecodeErrorKind::WrongDirection)),
         };

@@ -147,6 +147,9 @@ fn command_fields(cmd: &Command<'_>) -> Value {
             joint,
             max_accel_steps_s2,
         } => json!({ "joint": joint, "max_accel_steps_s2": max_accel_steps_s2 }),
+        // Issue 31's arm description: protocol/tests/joint_desc.rs.
+        Command::JointDescSet(set) => json!({ "joint_desc": format!("{set:?}") }),
+        Command::JointDescGet { joint } => json!({ "joint": joint }),
         Command::LimitsSet(set) => json!({
             "joint": set.joint,
             "min": set.limits.min,
@@ -204,6 +207,7 @@ fn report_fields(report: &Report<'_>) -> Value {
         Report::StopCause(s) => json!({ "stop_cause": format!("{s:?}") }),
         // Nor this (issue 30): protocol/tests/rx_counters.rs.
         Report::RxCounters(c) => json!({ "rx_counters": format!("{c:?}") }),
+        Report::JointDesc(d) => json!({ "joint_desc": format!("{d:?}") }),
     }
 }
 
@@ -447,6 +451,8 @@ fn vectors_cover_every_command_and_report() {
         .filter(|t| !matches!(t, Tag::StopCause | Tag::AccelSet | Tag::Unlock))
         // Issue 30's RX_COUNTERS report as well: protocol/tests/rx_counters.rs.
         .filter(|t| *t != Tag::RxCounters)
+        // Issue 31's arm description as well: protocol/tests/joint_desc.rs.
+        .filter(|t| !matches!(t, Tag::JointDescSet | Tag::JointDescGet | Tag::JointDesc))
         .filter(|t| !commands.contains(t))
         .map(Tag::name)
         .collect();

@@ -114,7 +114,7 @@ impl std::fmt::Debug for Bridge {
 impl Bridge {
     /// Connects to the controller, checks it has the configured joints, and asks for
     /// LOCATION reports at the JointState rate.
-    pub fn connect(config: BridgeConfig, arm: ArmConfig) -> Result<Bridge, String> {
+    pub fn connect(mut config: BridgeConfig, mut arm: ArmConfig) -> Result<Bridge, String> {
         let key = match &config.key_file {
             Some(path) => Some(armctl::auth::read_key_file(path)?),
             None => None,
@@ -132,6 +132,25 @@ impl Bridge {
                 status.joints,
                 arm.joints.len()
             ));
+        }
+        // Joints the file leaves unnamed take the names the controller keeps (issue 31:
+        // `armctl config push`); a controller older than that names none.
+        if config.joint_names().iter().any(String::is_empty) {
+            let described: Vec<String> = (0..config.joints.len().min(armctl::protocol::MAX_JOINTS))
+                .map_while(|j| {
+                    controller
+                        .joint_desc(u8::try_from(j).unwrap_or(u8::MAX))
+                        .ok()
+                })
+                .map(|d| d.name().to_string())
+                .collect();
+            if config.name_unnamed(&described) > 0 {
+                for (joint, name) in arm.joints.iter_mut().zip(config.joint_names()) {
+                    if joint.name.is_none() && !name.is_empty() {
+                        joint.name = Some(name);
+                    }
+                }
+            }
         }
         let period_us = (1e6 / config.joint_state_rate_hz).round() as u32;
         controller

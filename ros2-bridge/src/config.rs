@@ -274,6 +274,20 @@ impl BridgeConfig {
         self.ros_distro.unwrap_or(RosDistro::Jazzy)
     }
 
+    /// Names the joints the file leaves unnamed with `described` (joint 0 first: the
+    /// names the controller keeps, JOINT_DESC, issue 31; "" for none). A name the file
+    /// gives wins. Returns how many were named.
+    pub fn name_unnamed(&mut self, described: &[String]) -> usize {
+        let mut named = 0;
+        for (joint, name) in self.joints.iter_mut().zip(described) {
+            if joint.name.as_deref().unwrap_or("").is_empty() && !name.is_empty() {
+                joint.name = Some(name.clone());
+                named += 1;
+            }
+        }
+        named
+    }
+
     /// The ROS joint names, joint 0 first.
     pub fn joint_names(&self) -> Vec<String> {
         self.joints
@@ -288,6 +302,24 @@ mod tests {
     use super::*;
 
     const EXAMPLE: &str = include_str!("../examples/bridge.json");
+
+    /// Issue 31: a joint the bridge's file leaves unnamed takes the controller's name;
+    /// a name in the file wins, and "" (not described) names nothing.
+    #[test]
+    fn unnamed_joints_take_the_controller_s_names() {
+        let (mut config, _) = BridgeConfig::parse(EXAMPLE, "bridge.json").unwrap();
+        config.joints[1].name = None;
+        config.joints[2].name = None;
+        let described: Vec<String> = ["x", "shoulder", ""]
+            .iter()
+            .map(|s| s.to_string())
+            .collect();
+        assert_eq!(config.name_unnamed(&described), 1);
+        let names = config.joint_names();
+        assert_eq!(names[0], "base", "the file's name wins");
+        assert_eq!(names[1], "shoulder");
+        assert_eq!(names[2], "", "not described: still unnamed");
+    }
 
     #[test]
     fn the_example_parses() {

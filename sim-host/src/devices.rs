@@ -487,6 +487,20 @@ pub fn format_settings(settings: &PersistentSettings) -> String {
             text.push_str(&format!("accel.{j}={a}\n"));
         }
     }
+    // JOINT_DESC_SET (issue 31): `desc.J=unit,zero_offset_steps,scale,name in hex` (the
+    // name may hold any UTF-8, a line break or '=' included), only for described joints.
+    // The scale prints as the shortest decimal that reads back to the same f64.
+    for (j, d) in settings.desc.iter().enumerate() {
+        if *d != protocol::JointDesc::NONE {
+            let name: String = d.name().bytes().map(|b| format!("{b:02x}")).collect();
+            text.push_str(&format!(
+                "desc.{j}={},{},{:?},{name}\n",
+                d.unit,
+                d.zero_offset_steps,
+                d.scale()
+            ));
+        }
+    }
     text
 }
 
@@ -574,6 +588,32 @@ pub fn parse_settings(text: &str) -> Result<PersistentSettings, String> {
                 let accel: u32 = value.parse().map_err(|_| bad())?;
                 *settings.max_accel.get_mut(joint).ok_or_else(bad)? = accel;
             }
+            other if other.starts_with("desc.") => {
+                let bad = || {
+                    format!("bad {other}: give desc.J=unit,zero_offset_steps,scale,name_hex, J 0-7")
+                };
+                let joint: usize = other["desc.".len()..].parse().map_err(|_| bad())?;
+                let fields: Vec<&str> = value.splitn(4, ',').collect();
+                let [unit, zero, scale, name] = fields.as_slice() else {
+                    return Err(bad());
+                };
+                let unit = protocol::JointUnit::from_name(unit).ok_or_else(bad)?;
+                let zero: i32 = zero.parse().map_err(|_| bad())?;
+                let scale: f64 = scale.parse().map_err(|_| bad())?;
+                let bytes = (0..name.len())
+                    .step_by(2)
+                    .map(|i| {
+                        name.get(i..i + 2)
+                            .and_then(|h| u8::from_str_radix(h, 16).ok())
+                    })
+                    .collect::<Option<Vec<u8>>>()
+                    .ok_or_else(bad)?;
+                let name = String::from_utf8(bytes).map_err(|_| bad())?;
+                let desc = protocol::JointDesc::new(&name, unit, zero, scale)
+                    .filter(protocol::JointDesc::is_valid)
+                    .ok_or_else(bad)?;
+                *settings.desc.get_mut(joint).ok_or_else(bad)? = desc;
+            }
             _ => {}
         }
     }
@@ -647,8 +687,30 @@ mod tests {
             auth_epoch: 7,
             limits: [protocol::JointLimits::NONE; protocol::MAX_JOINTS],
             max_accel: [0, 50_000, 0, 0, 0, 0, 0, 1],
+            desc: [protocol::JointDesc::NONE; protocol::MAX_JOINTS],
         };
         assert_eq!(parse_settings(&format_settings(&settings)), Ok(settings));
+        // JOINT_DESC_SET's descriptions (issue 31) round-trip exactly, any name included;
+        // a file without them loads with none.
+        let mut described = settings;
+        described.desc[1] = protocol::JointDesc::new(
+            "shoulder",
+            protocol::JointUnit::Degrees,
+            -3,
+            16000.0 / std::f64::consts::TAU,
+        )
+        .unwrap();
+        described.desc[6] =
+            protocol::JointDesc::new("a=b,\nc", protocol::JointUnit::Millimetres, 0, 0.1).unwrap();
+        let text = format_settings(&described);
+        assert!(
+            text.contains("desc.1=deg,-3,2546.47908947032") && text.contains(",73686f756c646572\n"),
+            "{text}"
+        );
+        assert_eq!(parse_settings(&text), Ok(described));
+        assert!(parse_settings("desc.8=deg,0,1.0,61\n").is_err());
+        assert!(parse_settings("desc.0=furlong,0,1.0,61\n").is_err());
+        assert!(parse_settings("desc.0=deg,0,1.0,6\n").is_err());
         // A file written before ACCEL_SET (issue 31) loads with none.
         let old = format_settings(&settings)
             .replace("accel.1=50000\n", "")
@@ -679,6 +741,7 @@ mod tests {
                 key: None,
                 auth_epoch: 0,
                 max_accel: [0; protocol::MAX_JOINTS],
+                desc: [protocol::JointDesc::NONE; protocol::MAX_JOINTS],
                 ..settings
             })
         );

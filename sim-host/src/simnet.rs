@@ -180,6 +180,10 @@ fn log_sent(frame: &[u8], to: Endpoint) {
             log::debug!("-> {} USART_RECV {} bytes", show(to), bytes.len());
             None
         }
+        protocol::Report::JointDesc(d) => {
+            log::debug!("-> {} JOINT_DESC joint {}", show(to), d.joint);
+            None
+        }
         protocol::Report::Limits(_) => {
             log::debug!("-> {} LIMITS", show(to));
             None

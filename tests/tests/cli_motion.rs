@@ -337,7 +337,8 @@ fn csv_columns_are_joints_by_header_name() {
 /// Issue 31: after `armctl config push`, `armctl move 0=5000` without --config was refused
 /// INVALID_POINT ("27625 against 20000 steps/s") although a slower plan fits: the planner
 /// knew only STATUS's max step rate. move, jog and home now read the limits the controller
-/// keeps (LIMITS_GET) and plan within them, range included.
+/// keeps (LIMITS_GET) and plan within them, range included. Since config push also keeps
+/// the joints' names (JOINT_DESC, issue 31), they name the joints by them.
 #[test]
 fn move_without_a_config_plans_within_the_limits_the_controller_keeps() {
     let sim = SimHost::start(&["--joints", "6"]);
@@ -345,17 +346,15 @@ fn move_without_a_config_plans_within_the_limits_the_controller_keeps() {
     assert!(ok, "{out}\n{err}");
     let (ok, out, err) = armctl(&sim, &["move", "0=5000"]);
     assert!(ok, "{out}\n{err}");
-    assert!(out.contains("at joint 0 5000 steps"), "{out}");
+    assert!(out.contains("at base 5000 steps"), "{out}");
     let (ok, out, err) = armctl(&sim, &["jog", "1", "-300"]);
     assert!(ok, "{out}\n{err}");
-    assert!(out.contains("joint 1 -300 steps"), "{out}");
+    assert!(out.contains("shoulder -300 steps"), "{out}");
     // The base's range on the controller is -16000..16000: refused before sending.
     let (ok, out, err) = armctl(&sim, &["move", "0=20000"]);
     assert!(!ok, "{out}");
     assert!(
-        err.contains(
-            "joint 0: target 20000 steps is outside its range -16000 steps to 16000 steps"
-        ),
+        err.contains("base: target 20000 steps is outside its range -16000 steps to 16000 steps"),
         "{err}"
     );
     let (ok, out, err) = armctl(&sim, &["home"]);

@@ -334,7 +334,12 @@ fn config_init_push_and_get_round_trip_the_acceleration() {
     // run without --config is checked against nothing on the host).
     let csv = sim.dir().join("jump.csv");
     std::fs::write(&csv, "time_s,j0,j1\n0,0,0\n0.01,0,20\n1,0,1000\n").unwrap();
-    let (ok, _, err) = armctl(&sim, &["run", csv.to_str().unwrap(), "--quiet"]);
+    // In steps: since config push keeps the arm's units on the controller (issue 31), a
+    // CSV without --config is in its degrees unless --units says otherwise.
+    let (ok, _, err) = armctl(
+        &sim,
+        &["run", csv.to_str().unwrap(), "--quiet", "--units", "steps"],
+    );
     assert!(!ok);
     assert!(err.contains("INVALID_POINT"), "{err}");
     assert!(

@@ -236,7 +236,8 @@ fn expect_report(frame: &protocol::Frame<Report<'_>>, e: &mut Expected) {
         }
         // Not in the shared golden file (issues 23 and 31): issue_23_frames_decode_in_wireshark,
         // issue_31_stop_cause_decodes_in_wireshark.
-        Report::Limits(_) | Report::StopCause(_) => {}
+        // Issue 31's JOINT_DESC: issue_31_joint_description_decodes_in_wireshark.
+        Report::Limits(_) | Report::StopCause(_) | Report::JointDesc(_) => {}
         // Issue 30, after the golden file: protocol/tests/rx_counters.rs.
         Report::RxCounters(_) => {}
     }
@@ -1125,4 +1126,75 @@ fn issue_30_rx_counters_decode_in_wireshark() {
     assert_eq!(numbers(&p["armctl.tag"]), [0x15], "{p:?}");
     assert_eq!(numbers(&p["armctl.verdict"]), [11], "{p:?}");
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Issue 31's arm description: JOINT_DESC_SET, JOINT_DESC_GET and the JOINT_DESC report
+/// decode field by field (PROTOCOL.md's worked example), and a joint of 8 is flagged.
+#[test]
+fn issue_31_joint_description_decodes_in_wireshark() {
+    if !have_wireshark("issue 31 joint description") {
+        return;
+    }
+    let dir = scratch("issue31desc");
+    let pcap = dir.join("desc.pcap");
+    let host: std::net::SocketAddr = "127.0.0.1:40000".parse().unwrap();
+    let controller: std::net::SocketAddr = format!("127.0.0.1:{}", protocol::PORT).parse().unwrap();
+    let log = armctl::pcap::PcapLog::create(&pcap).expect("create the capture");
+    let mut buf = [0u8; protocol::MAX_DATAGRAM];
+    let set = protocol::JointDescSet {
+        joint: 1,
+        desc: protocol::JointDesc::new(
+            "shoulder",
+            protocol::JointUnit::Degrees,
+            -5,
+            16000.0 / std::f64::consts::TAU,
+        )
+        .unwrap(),
+    };
+    let n = Cmd::JointDescSet(set).encode(0x25, &mut buf).unwrap();
+    log.record(host, controller, &buf[..n]).unwrap();
+    let n = Cmd::JointDescGet { joint: 1 }
+        .encode(0x26, &mut buf)
+        .unwrap();
+    log.record(host, controller, &buf[..n]).unwrap();
+    let n = Report::JointDesc(set).encode(0x30, &mut buf).unwrap();
+    log.record(controller, host, &buf[..n]).unwrap();
+    // JOINT_DESC_GET for joint 8: out of range.
+    let mut bad = vec![0x27, 0x23, 8];
+    bad.push(protocol::crc8(&bad));
+    log.record(host, controller, &bad).unwrap();
+    drop(log);
+    let packets = dissect(
+        &pcap,
+        &[
+            "armctl.tag",
+            "armctl.verdict",
+            "armctl.limits.joint",
+            "armctl.desc.name",
+            "armctl.desc.unit",
+            "armctl.desc.zero_offset_steps",
+            "armctl.desc.scale",
+        ],
+        false,
+        None,
+    );
+    assert_eq!(packets.len(), 4);
+    for p in [&packets[0], &packets[2]] {
+        assert_eq!(p["armctl.desc.name"], "shoulder", "{p:?}");
+        assert_eq!(numbers(&p["armctl.desc.unit"]), [1], "{p:?}");
+        assert_eq!(numbers(&p["armctl.desc.zero_offset_steps"]), [-5], "{p:?}");
+        let scale: f64 = p["armctl.desc.scale"].parse().unwrap();
+        assert!((scale - 2546.479089).abs() < 1e-5, "{p:?}");
+        assert_eq!(numbers(&p["armctl.limits.joint"]), [1], "{p:?}");
+    }
+    assert_eq!(numbers(&packets[0]["armctl.tag"]), [0x1f]);
+    assert_eq!(numbers(&packets[0]["armctl.verdict"]), [0]);
+    assert_eq!(numbers(&packets[1]["armctl.tag"]), [0x23]);
+    assert_eq!(numbers(&packets[1]["armctl.verdict"]), [0]);
+    assert_eq!(numbers(&packets[2]["armctl.tag"]), [0x26]);
+    assert_eq!(
+        numbers(&packets[3]["armctl.verdict"]),
+        [11],
+        "joint 8: INVALID_CONFIG"
+    );
 }

@@ -38,14 +38,17 @@ local tag_names = {
     [0x11] = "RETURN", [0x12] = "JOINTS_COUNT", [0x13] = "LOCATION_SETTING/LOCATION",
     [0x14] = "ACK", [0x15] = "STATUS", [0x16] = "UPLOAD_PERIOD", [0x17] = "ESTOP_RESET",
     [0x18] = "SET_ENABLE", [0x19] = "RELEASE", [0x1a] = "LIMITS_SET", [0x1b] = "LIMITS_GET",
-    [0x1c] = "LIMITS", [0x1d] = "STOP_CAUSE", [0x1e] = "ACCEL_SET",
+    [0x1c] = "LIMITS", [0x1d] = "STOP_CAUSE", [0x1e] = "ACCEL_SET", [0x1f] = "JOINT_DESC_SET",
     [0x20] = "DISCOVER", [0x21] = "NET_SET", [0x22] = "DISCOVER_REPLY",
-    [0x24] = "RX_COUNTERS", [0x25] = "UNLOCK",
+    [0x23] = "JOINT_DESC_GET", [0x24] = "RX_COUNTERS", [0x25] = "UNLOCK", [0x26] = "JOINT_DESC",
     [0x50] = "AUTH", [0x51] = "HELLO", [0x52] = "SET_KEY", [0x53] = "HELLO_REPLY",
 }
 -- Names that depend on the direction.
 local host_names = { [0x13] = "LOCATION_SETTING", [0x15] = "STATUS request" }
 local controller_names = { [0x13] = "LOCATION", [0x15] = "STATUS report" }
+
+-- JOINT_DESC's unit byte (issue 31).
+local desc_unit_names = { [0] = "steps", [1] = "deg", [2] = "rad", [3] = "mm" }
 
 local state_names = { [0] = "NEW", [1] = "PENDING", [2] = "RUNNING", [3] = "STOPPED" }
 
@@ -150,6 +153,10 @@ local f = {
     limits_max = dec("int32", "limits.max", "Max (steps)"),
     limits_rate = dec("uint32", "limits.max_rate_hz", "Max rate (steps/s, 0 = the controller's)"),
     limits_accel = dec("uint32", "limits.max_accel_steps_s2", "Max acceleration (steps/s², 0 = none)"),
+    desc_name = field("stringz", "desc.name", "Joint name"),
+    desc_unit = dec("uint8", "desc.unit", "Units", desc_unit_names),
+    desc_zero = dec("int32", "desc.zero_offset_steps", "Zero offset (steps)"),
+    desc_scale = field("double", "desc.scale", "Scale (steps per radian, per mm or per step; 0 = none)"),
     limits_ask = hex("uint8", "limits.ask", "LIMITS_GET request byte (0x01: with the accelerations)"),
     refusal_seq = dec("uint8", "limits.refusal.seq", "Last refused frame's seq"),
     refusal_tag = hex("uint8", "limits.refusal.tag", "Last refused frame's tag", tag_names),
@@ -549,6 +556,21 @@ local function length_error(tree, range, expected, found)
     return nil
 end
 
+-- JOINT_DESC_SET's data and the JOINT_DESC report's (issue 31): joint, 3 reserved, name
+-- (16 bytes, UTF-8, zero padded), unit, 3 reserved, zero offset i32, scale f64.
+local function dissect_joint_desc(tree, data)
+    local joint, unit = data(0, 1):uint(), data(20, 1):uint()
+    tree:add(f.limits_joint, data(0, 1))
+    tree:add(f.desc_name, data(4, 16))
+    tree:add(f.desc_unit, data(20, 1))
+    tree:add_le(f.desc_zero, data(24, 4), data(24, 4):le_int())
+    tree:add_le(f.desc_scale, data(28, 8))
+    if joint > 7 then out_of_range(tree, "JOINT_DESC needs a joint of 0-7") end
+    if unit > 3 then out_of_range(tree, "JOINT_DESC unit must be 0-3") end
+    return string.format("joint %d \"%s\": %s, %g steps per unit", joint,
+        data(4, 16):stringz(), desc_unit_names[unit] or "?", data(28, 8):le_float())
+end
+
 local host_dissectors = {
     [0x00] = function(tree, data, len)
         if len ~= 2 then return length_error(tree, data, "2", len) end
@@ -622,6 +644,18 @@ local host_dissectors = {
         tree:add_le(f.limits_accel, data(4, 4))
         if data(0, 1):uint() > 7 then out_of_range(tree, "ACCEL_SET needs a joint of 0-7") end
         return string.format("joint %d: %d steps/s²", data(0, 1):uint(), data(4, 4):le_uint())
+    end,
+    -- JOINT_DESC_SET (issue 31): joint, 3 reserved, the description.
+    [0x1f] = function(tree, data, len)
+        if len ~= 36 then return length_error(tree, data, "36", len) end
+        return dissect_joint_desc(tree, data)
+    end,
+    -- JOINT_DESC_GET (issue 31): the joint.
+    [0x23] = function(tree, data, len)
+        if len ~= 1 then return length_error(tree, data, "1", len) end
+        tree:add(f.limits_joint, data(0, 1))
+        if data(0, 1):uint() > 7 then out_of_range(tree, "JOINT_DESC_GET needs a joint of 0-7") end
+        return string.format("joint %d", data(0, 1):uint())
     end,
     -- LIMITS_GET: no data (old hosts), or the request byte 0x01 (issue 31).
     [0x1b] = function(tree, data, len)
@@ -790,6 +824,11 @@ local controller_dissectors = {
         if len ~= 36 then return length_error(tree, data, "36", len) end
         dissect_status_report(tree, data)
         return state_names[data(4, 1):uint()] or "?"
+    end,
+    -- JOINT_DESC (issue 31): JOINT_DESC_SET's data.
+    [0x26] = function(tree, data, len)
+        if len ~= 36 then return length_error(tree, data, "36", len) end
+        return dissect_joint_desc(tree, data)
     end,
     [0x53] = function(tree, data, len)
         if len ~= 28 then return length_error(tree, data, "28", len) end

@@ -44,6 +44,8 @@ pub(crate) struct Shared {
     pub(super) limits: Mutex<Vec<Sender<LimitsReport>>>,
     /// STOP_CAUSE reports (STATUS's request byte bit 2, issue 31).
     pub(super) stops: Mutex<Vec<Sender<protocol::StopReport>>>,
+    /// JOINT_DESC reports' subscribers (issue 31).
+    pub(super) descs: Mutex<Vec<Sender<protocol::JointDescSet>>>,
     pub(super) last_location: Mutex<Option<Location>>,
     pub(super) last_status: Mutex<Option<StatusReport>>,
     /// Datagrams that did not decode as a report.
@@ -150,6 +152,7 @@ impl Shared {
             // Asked for only by tools that read the wire themselves (STATUS's request
             // byte bit 3, issue 30): the client asks for none.
             Report::RxCounters(_) => {}
+            Report::JointDesc(desc) => fan_out(&self.descs, &desc),
         }
     }
 }

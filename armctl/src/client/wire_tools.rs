@@ -196,6 +196,48 @@ impl Client {
         })
     }
 
+    /// JOINT_DESC_GET (issue 31): joint `joint`'s description (name, units, scale) as the
+    /// controller keeps it; any host that may ask LIMITS_GET may ask. An older controller
+    /// answers `UNKNOWN_TAG` ([`Error::Refused`]).
+    pub fn joint_desc(&self, joint: u8) -> Result<protocol::JointDesc> {
+        let _upload = super::lock(&self.upload);
+        let (tx, rx) = std::sync::mpsc::channel();
+        super::lock(&self.shared.descs).push(tx);
+        let command = Command::JointDescGet { joint };
+        for _ in 0..self.options.attempts {
+            check(Tag::JointDescGet, self.exchange_unlocked(&command, None)?)?;
+            let deadline = std::time::Instant::now() + self.options.report_timeout;
+            // Another thread's report for another joint may come first: skip it.
+            while let Some(left) = deadline.checked_duration_since(std::time::Instant::now()) {
+                match rx.recv_timeout(left) {
+                    Ok(report) if report.joint == joint => return Ok(report.desc),
+                    Ok(_) => {}
+                    Err(_) => break,
+                }
+            }
+        }
+        Err(Error::NoReport {
+            command: Tag::JointDescGet,
+            attempts: self.options.attempts,
+        })
+    }
+
+    /// JOINT_DESC_SET (issue 31): joint `joint`'s description, kept by the controller with
+    /// its limits; only while STOPPED, ACKed after the save. An older controller answers
+    /// `UNKNOWN_TAG`.
+    pub fn set_joint_desc(&self, joint: u8, desc: protocol::JointDesc) -> Result<Ack> {
+        if usize::from(joint) >= protocol::MAX_JOINTS || !desc.is_valid() {
+            return Err(Error::InvalidTrajectory(format!(
+                "joint {joint}: a description needs a joint of 0-{} and a finite scale",
+                protocol::MAX_JOINTS - 1
+            )));
+        }
+        self.send(&Command::JointDescSet(protocol::JointDescSet {
+            joint,
+            desc,
+        }))
+    }
+
     /// LIMITS_SET: joint `joint`'s position range and step rate (0: none of its own),
     /// kept by the controller across power cycles; only while STOPPED. Refused here when
     /// min is above max or the joint does not exist (the controller would refuse it with

@@ -62,6 +62,74 @@ pub const ACCEL_RECORD_LEN: usize = 4 * protocol::MAX_JOINTS;
 // 1 key byte + the record, in whole 32-byte words, within the item buffer.
 const _: () = assert!((1 + ACCEL_RECORD_LEN).div_ceil(32) * 32 <= 64);
 
+/// Map keys of the description records (JOINT_DESC_SET, issue 31): joints 0-1, 2-3, 4-5,
+/// 6-7. Two joints a record so that each item fits [`ItemBuffer`]'s 64 bytes (as the
+/// limits records); beside the others, so that a flash written before them loads with no
+/// description.
+pub const DESC_KEYS: [u8; 4] = [7, 8, 9, 10];
+/// Joints per description record.
+pub const DESC_PER_RECORD: usize = protocol::MAX_JOINTS / DESC_KEYS.len();
+/// Bytes of one joint's description in flash: name (16), unit (1), zero offset (i32 LE),
+/// scale (f64 bits, u64 LE); the wire's reserved bytes are not stored.
+const DESC_LEN: usize = protocol::JOINT_NAME_LEN + 1 + 4 + 8;
+/// Bytes of one description record.
+pub const DESC_RECORD_LEN: usize = DESC_LEN * DESC_PER_RECORD;
+// 1 key byte + the record, in whole 32-byte words, within the item buffer.
+const _: () = assert!((1 + DESC_RECORD_LEN).div_ceil(32) * 32 <= 64);
+const _: () = assert!(DESC_PER_RECORD * DESC_KEYS.len() == protocol::MAX_JOINTS);
+
+/// The stored description record `part` (joints `2 * part`, `2 * part + 1`) for `settings`.
+pub fn encode_desc(settings: &PersistentSettings, part: usize) -> [u8; DESC_RECORD_LEN] {
+    let mut record = [0u8; DESC_RECORD_LEN];
+    let joints = settings.desc.iter().skip(part * DESC_PER_RECORD);
+    for (chunk, d) in record.chunks_exact_mut(DESC_LEN).zip(joints) {
+        let (name, rest) = chunk.split_at_mut(protocol::JOINT_NAME_LEN);
+        name.copy_from_slice(&d.name_bytes);
+        let (unit, rest) = rest.split_at_mut(1);
+        unit.copy_from_slice(&[d.unit as u8]);
+        let (zero, scale) = rest.split_at_mut(4);
+        zero.copy_from_slice(&d.zero_offset_steps.to_le_bytes());
+        scale.copy_from_slice(&d.scale_bits.to_le_bytes());
+    }
+    record
+}
+
+/// `settings` with the description record `part`'s joints. A joint whose stored bytes are
+/// not a valid description (an unknown unit) loads with none.
+pub fn decode_desc(
+    settings: PersistentSettings,
+    part: usize,
+    record: &[u8; DESC_RECORD_LEN],
+) -> PersistentSettings {
+    let mut desc = settings.desc;
+    let slots = desc.iter_mut().skip(part * DESC_PER_RECORD);
+    for (d, chunk) in slots.zip(record.chunks_exact(DESC_LEN)) {
+        let (name, rest) = chunk.split_at(protocol::JOINT_NAME_LEN);
+        let (unit, rest) = rest.split_at(1);
+        let (zero, scale) = rest.split_at(4);
+        let mut name_bytes = [0u8; protocol::JOINT_NAME_LEN];
+        name_bytes.copy_from_slice(name);
+        let mut z = [0u8; 4];
+        z.copy_from_slice(zero);
+        let mut s = [0u8; 8];
+        s.copy_from_slice(scale);
+        let loaded = unit
+            .first()
+            .and_then(|u| protocol::JointUnit::from_u8(*u))
+            .map(|unit| protocol::JointDesc {
+                name_bytes,
+                unit,
+                zero_offset_steps: i32::from_le_bytes(z),
+                scale_bits: u64::from_le_bytes(s),
+            });
+        *d = match loaded {
+            Some(l) if l.is_valid() => l,
+            _ => protocol::JointDesc::NONE,
+        };
+    }
+    PersistentSettings { desc, ..settings }
+}
+
 /// The stored acceleration record for `settings`.
 pub fn encode_accel(settings: &PersistentSettings) -> [u8; ACCEL_RECORD_LEN] {
     let mut record = [0u8; ACCEL_RECORD_LEN];
@@ -236,6 +304,9 @@ pub const fn must_erase_first(marker: u32) -> bool {
 struct ItemBuffer([u8; 64]);
 
 /// What a load found.
+// The settings by value (440 bytes with issue 31's joint descriptions): no heap, and a
+// load happens once at boot, returned straight to its caller.
+#[allow(clippy::large_enum_variant)]
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum LoadOutcome {
@@ -320,6 +391,11 @@ impl<F: NorFlash> SettingsArea<F> {
         }
         if let Some(record) = self.fetch_record::<ACCEL_RECORD_LEN>(&ACCEL_KEY).await? {
             settings = decode_accel(settings, &record);
+        }
+        for (part, key) in DESC_KEYS.iter().enumerate() {
+            if let Some(record) = self.fetch_record::<DESC_RECORD_LEN>(key).await? {
+                settings = decode_desc(settings, part, &record);
+            }
         }
         Ok(settings)
     }
@@ -415,6 +491,15 @@ impl<F: NorFlash> SettingsArea<F> {
                 &encode_accel(settings).as_slice(),
             )
             .await?;
+        for (part, key) in DESC_KEYS.iter().enumerate() {
+            self.map
+                .store_item::<&[u8]>(
+                    &mut self.buffer.0,
+                    key,
+                    &encode_desc(settings, part).as_slice(),
+                )
+                .await?;
+        }
         Ok(())
     }
 
@@ -445,7 +530,50 @@ mod tests {
             auth_epoch: 0,
             limits: [protocol::JointLimits::NONE; protocol::MAX_JOINTS],
             max_accel: [0; protocol::MAX_JOINTS],
+            desc: [protocol::JointDesc::NONE; protocol::MAX_JOINTS],
         }
+    }
+
+    /// Issue 31: each joint's description (name, units, scale) is kept; a flash written
+    /// before it (every other record, no description records) loads with none.
+    #[test]
+    fn descriptions_are_stored_and_an_older_flash_loads_without_them() {
+        let mut described = custom();
+        described.desc[0] =
+            protocol::JointDesc::new("base", protocol::JointUnit::Degrees, -7, 2546.5).unwrap();
+        described.desc[7] = protocol::JointDesc::new(
+            "sixteen_bytes_ok",
+            protocol::JointUnit::Millimetres,
+            0,
+            80.0,
+        )
+        .unwrap();
+        described.max_accel[3] = 9;
+        let mut area = SettingsArea::new(Flash::default(), RANGE);
+        block_on(area.save(&described)).unwrap();
+        assert_eq!(block_on(area.load()), LoadOutcome::Stored(described));
+        // Saved again and again (each save writes every record): the map keeps up.
+        for round in 0..20 {
+            described.desc[1] = protocol::JointDesc::new(
+                "elbow",
+                protocol::JointUnit::Radians,
+                round,
+                1000.0 + f64::from(round),
+            )
+            .unwrap();
+            block_on(area.save(&described)).unwrap();
+        }
+        assert_eq!(block_on(area.load()), LoadOutcome::Stored(described));
+        let mut old = SettingsArea::new(Flash::default(), RANGE);
+        let first: &[u8] = &encode(&custom());
+        let net: &[u8] = &encode_net(&custom());
+        let auth: &[u8] = &encode_auth(&custom());
+        let accel: &[u8] = &encode_accel(&custom());
+        block_on(old.map.store_item(&mut old.buffer.0, &SETTINGS_KEY, &first)).unwrap();
+        block_on(old.map.store_item(&mut old.buffer.0, &NET_KEY, &net)).unwrap();
+        block_on(old.map.store_item(&mut old.buffer.0, &AUTH_KEY, &auth)).unwrap();
+        block_on(old.map.store_item(&mut old.buffer.0, &ACCEL_KEY, &accel)).unwrap();
+        assert_eq!(block_on(old.load()), LoadOutcome::Stored(custom()));
     }
 
     /// Issue 31: each joint's max acceleration is kept; a flash written before it (with

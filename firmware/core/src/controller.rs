@@ -1167,6 +1167,24 @@ impl<const CAP: usize> Controller<CAP> {
                 *slot = max_accel_steps_s2;
                 response.deferred = Some(Deferred::SaveSettings(settings));
             }
+            // The arm's description (issue 31): kept for the hosts, never used here; kept
+            // with the limits under their rule (STOPPED only, ACKed after the save) so a
+            // host never reads a description half-way through a config push's run.
+            Command::JointDescSet(set) => {
+                flash_only(self)?;
+                let mut settings = self.settings;
+                let Some(slot) = settings.desc.get_mut(usize::from(set.joint)) else {
+                    return Err(StatusCode::InvalidConfig);
+                };
+                *slot = set.desc;
+                response.deferred = Some(Deferred::SaveSettings(settings));
+            }
+            Command::JointDescGet { joint } => {
+                let Some(desc) = self.settings.desc.get(usize::from(joint)) else {
+                    return Err(StatusCode::InvalidConfig);
+                };
+                response.joint_desc = Some((from, protocol::JointDescSet { joint, desc: *desc }));
+            }
             Command::Status => response.status = Some((from, self.status(plant))),
             Command::StatusWith(ask) => {
                 response.status = Some((from, self.status(plant)));
@@ -1275,6 +1293,25 @@ impl<const CAP: usize> Controller<CAP> {
                 Err(e) => e.status().unwrap_or(StatusCode::BadLength),
             };
             response.reply = Some(self.ack(from, seq, tag, status));
+            return Some(response);
+        }
+        // JOINT_DESC_GET (issue 31) is read-only from any host, as a look-only STATUS: the
+        // arm's description is for every host (Python's positions(), a watcher) and
+        // reading it must not take a free controller.
+        if tag == Tag::JointDescGet as u8 {
+            let Ok(Command::JointDescGet { joint }) = Command::decode(datagram).map(|f| f.body)
+            else {
+                return None;
+            };
+            if !self.glance_budget.take(now_us) {
+                return Some(response);
+            }
+            let desc = self.settings.desc.get(usize::from(joint)).copied()?;
+            let mut ack = blank_ack(from, seq, tag, StatusCode::Ok);
+            ack.ack.state = self.state;
+            response.reply = Some(ack);
+            response.joint_desc = Some((from, protocol::JointDescSet { joint, desc }));
+            response.answer_seq = Some(seq);
             return Some(response);
         }
         if tag != Tag::Status as u8 {

@@ -138,6 +138,10 @@ pub struct PersistentSettings {
     /// Each joint's most acceleration, steps/s² (ACCEL_SET, issue 31); 0: none (the
     /// default, and what settings stored before it load with).
     pub max_accel: [u32; protocol::MAX_JOINTS],
+    /// Each joint's description: name, units, scale (JOINT_DESC_SET, issue 31), kept for
+    /// the hosts and never used by the controller; none by default and in settings stored
+    /// before it.
+    pub desc: [protocol::JointDesc; protocol::MAX_JOINTS],
 }
 
 impl PersistentSettings {
@@ -152,6 +156,7 @@ impl PersistentSettings {
         auth_epoch: 0,
         limits: [protocol::JointLimits::NONE; protocol::MAX_JOINTS],
         max_accel: [0; protocol::MAX_JOINTS],
+        desc: [protocol::JointDesc::NONE; protocol::MAX_JOINTS],
     };
 
     /// The network part, as NET_SET and DISCOVER_REPLY carry it.

@@ -16,6 +16,7 @@ pub const MAX_REPORT_FRAME: usize = size::USART_RECV + protocol::FRAME_OVERHEAD;
 // The LIMITS report (issue 23), with the accelerations too (issue 31), fits the buffer
 // sized for USART_RECV.
 const _: () = assert!(size::LIMITS_WITH_ACCEL + protocol::FRAME_OVERHEAD <= MAX_REPORT_FRAME);
+const _: () = assert!(size::JOINT_DESC_SET + protocol::FRAME_OVERHEAD <= MAX_REPORT_FRAME);
 
 /// Largest sealed frame: the largest report in an envelope.
 pub const MAX_SEALED_FRAME: usize = MAX_REPORT_FRAME + protocol::auth::ENVELOPE_OVERHEAD;
@@ -142,6 +143,8 @@ pub enum AnswerReport {
     StopCause(StopReport),
     /// An RX_COUNTERS report (STATUS's request byte bit 3, issue 30).
     RxCounters(protocol::RxCounters),
+    /// A JOINT_DESC report (the answer to JOINT_DESC_GET, issue 31).
+    JointDesc(protocol::JointDescSet),
 }
 
 /// Encodes [`Outgoing`] frames. Reports (everything but ACKs) carry the controller's own
@@ -200,6 +203,7 @@ impl ReportEncoder {
                     AnswerReport::Limits(l) => Report::Limits(l),
                     AnswerReport::StopCause(s) => Report::StopCause(s),
                     AnswerReport::RxCounters(c) => Report::RxCounters(c),
+                    AnswerReport::JointDesc(d) => Report::JointDesc(d),
                 },
             ),
             Outgoing::Location(l) => {

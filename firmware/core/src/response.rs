@@ -1,13 +1,19 @@
 //! What [`crate::Controller::handle`] returns: the ACK ([`Reply`]), reports, and the
 //! work left to the caller ([`Deferred`]), all in one [`Response`].
 
-use protocol::{Ack, DiscoverReply, LimitsReport, Location, StatusReport, StopReport};
+use protocol::{
+    Ack, DiscoverReply, JointDescSet, LimitsReport, Location, StatusReport, StopReport,
+};
 
 use crate::hw::{Endpoint, PersistentSettings};
 #[cfg(doc)]
 use crate::reports::ReportSettings;
 
 /// Work that needs waiting, left to the caller (the trajectory task).
+// The settings (440 bytes since issue 31's joint descriptions) ride by value: no heap to
+// box them in, and a Deferred is returned once per datagram and handled at once by the
+// trajectory task, never queued, so the size is one stack copy, not a channel's slots.
+#[allow(clippy::large_enum_variant)]
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum Deferred {
@@ -53,6 +59,8 @@ pub struct Response {
     pub asked_counters: Option<Endpoint>,
     /// A LIMITS report for the endpoint that sent LIMITS_GET (issue 23).
     pub limits: Option<(Endpoint, LimitsReport)>,
+    /// A JOINT_DESC report for the endpoint that sent JOINT_DESC_GET (issue 31).
+    pub joint_desc: Option<(Endpoint, JointDescSet)>,
     /// `Some(seq)`: [`Response::status`], [`Response::asked_location`],
     /// [`Response::asked_stop`] and [`Response::asked_counters`] are a read-only answer
     /// to a host that does not own the controller (docs/PROTOCOL.md section 1, issue 23)

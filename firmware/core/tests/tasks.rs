@@ -1438,6 +1438,7 @@ fn status_replies_go_out_in_the_documented_order() {
             AnswerReport::Limits(_) => "LIMITS",
             AnswerReport::StopCause(_) => "STOP_CAUSE",
             AnswerReport::RxCounters(_) => "RX_COUNTERS",
+            AnswerReport::JointDesc(_) => "JOINT_DESC",
         }),
         // The periodic stream is not an answer.
         _ => None,

@@ -85,6 +85,7 @@ pub enum OwnedReport {
     Limits(protocol::LimitsReport),
     StopCause(protocol::StopReport),
     RxCounters(protocol::RxCounters),
+    JointDesc(protocol::JointDescSet),
 }
 
 impl Client {
@@ -123,6 +124,7 @@ impl Client {
             Report::Limits(l) => OwnedReport::Limits(l),
             Report::StopCause(s) => OwnedReport::StopCause(s),
             Report::RxCounters(c) => OwnedReport::RxCounters(c),
+            Report::JointDesc(d) => OwnedReport::JointDesc(d),
         };
         Some((frame.seq, report))
     }

@@ -195,13 +195,36 @@ pub fn execute(arm: &Client, command: &ConfigCmd) -> CliResult {
             let report = arm
                 .limits_with_accel()
                 .map_err(|e| explain_old(e, Tag::LimitsGet))?;
+            // Each joint's description (issue 31; none from an older controller).
+            let descs = kept_descs(arm)?;
+            // Named as the controller names them, when it names any.
+            let names = names.or_else(|| {
+                descs
+                    .as_ref()
+                    .filter(|d| d.iter().any(|d| !d.name().is_empty()))
+                    .map(|d| {
+                        d.iter()
+                            .map(|d| match d.name() {
+                                "" => "-".to_string(),
+                                n => n.to_string(),
+                            })
+                            .collect()
+                    })
+            });
             if *json {
+                let mut value = serde_json::to_value(report).map_err(|e| e.to_string())?;
+                if let Some(object) = value.as_object_mut() {
+                    object.insert("joint_desc".into(), desc_json(descs.as_deref()));
+                }
                 println!(
                     "{}",
-                    serde_json::to_string_pretty(&report).map_err(|e| e.to_string())?
+                    serde_json::to_string_pretty(&value).map_err(|e| e.to_string())?
                 );
             } else {
                 print!("{}", limits_table(&report, names.as_deref()));
+                if let Some(descs) = &descs {
+                    print!("{}", desc_table(descs));
+                }
             }
             Ok(())
         }
@@ -229,6 +252,34 @@ pub fn execute(arm: &Client, command: &ConfigCmd) -> CliResult {
                         }
                     }
                     Err(e) => return Err(format!("joint {j}: ACCEL_SET: {e}")),
+                }
+            }
+            // The description (issue 31): names, units, scale, so that any host reads
+            // the same arm without a file.
+            if let Some(descs) = pushed_descs(file)? {
+                for (j, desc) in descs.iter().enumerate().take(protocol::MAX_JOINTS) {
+                    let j = u8::try_from(j).unwrap_or(u8::MAX);
+                    match arm.set_joint_desc(j, *desc) {
+                        Ok(_) => {}
+                        Err(e) if e.status() == Some(protocol::StatusCode::UnknownTag) => {
+                            eprintln!(
+                                "warning: the controller keeps no names or units (older than \
+                                 issue 31): other hosts need this file (--config)"
+                            );
+                            break;
+                        }
+                        Err(e) => return Err(format!("joint {j}: JOINT_DESC_SET: {e}")),
+                    }
+                    if desc.is_described() {
+                        println!(
+                            "joint {j} {}: {} ({} steps per {}, zero at {} steps)",
+                            desc.name(),
+                            desc.unit,
+                            desc.scale(),
+                            scale_unit(desc.unit),
+                            desc.zero_offset_steps
+                        );
+                    }
                 }
             }
             println!("OK: {} joints' limits kept on the controller", joints.len());
@@ -347,6 +398,133 @@ fn pushed_limits(file: &std::path::Path) -> Result<Vec<PushedJoint>, String> {
             ("-".into(), l, a)
         })
         .collect())
+}
+
+/// Each joint's description the controller keeps (issue 31), joint 0 first; `None` from a
+/// controller older than issue 31.
+fn kept_descs(arm: &Client) -> Result<Option<Vec<protocol::JointDesc>>, String> {
+    let mut descs = Vec::with_capacity(protocol::MAX_JOINTS);
+    for j in 0..protocol::MAX_JOINTS as u8 {
+        match arm.joint_desc(j) {
+            Ok(d) => descs.push(d),
+            Err(e) if e.status() == Some(protocol::StatusCode::UnknownTag) => return Ok(None),
+            Err(e) => return Err(format!("joint {j}: JOINT_DESC_GET: {e}")),
+        }
+    }
+    Ok(Some(descs))
+}
+
+/// What a description's scale counts steps per.
+fn scale_unit(unit: protocol::JointUnit) -> &'static str {
+    match unit {
+        protocol::JointUnit::Degrees | protocol::JointUnit::Radians => "radian",
+        protocol::JointUnit::Millimetres => "mm",
+        protocol::JointUnit::Steps => "step",
+    }
+}
+
+/// `config get --json`'s `joint_desc`: one object per joint (null from an older
+/// controller), as `config push` reads it back.
+fn desc_json(descs: Option<&[protocol::JointDesc]>) -> serde_json::Value {
+    match descs {
+        None => serde_json::Value::Null,
+        Some(descs) => descs
+            .iter()
+            .map(|d| {
+                serde_json::json!({
+                    "name": d.name(),
+                    "unit": d.unit.name(),
+                    "zero_offset_steps": d.zero_offset_steps,
+                    "scale": d.scale(),
+                })
+            })
+            .collect(),
+    }
+}
+
+/// The descriptions as `config get` shows them, described joints only.
+fn desc_table(descs: &[protocol::JointDesc]) -> String {
+    let mut out = String::new();
+    for (j, d) in descs.iter().enumerate().filter(|(_, d)| d.is_described()) {
+        out.push_str(&format!(
+            "joint {j} {}: {}, {} steps per {}, zero at {} steps\n",
+            match d.name() {
+                "" => "-",
+                n => n,
+            },
+            d.unit,
+            d.scale(),
+            scale_unit(d.unit),
+            d.zero_offset_steps
+        ));
+    }
+    if out.is_empty() {
+        out.push_str("no joint described (armctl config push FILE stores names and units)\n");
+    }
+    out
+}
+
+/// One joint of `config get --json`'s `joint_desc`.
+#[derive(serde::Deserialize)]
+struct KeptDesc {
+    name: String,
+    unit: String,
+    zero_offset_steps: i32,
+    scale: f64,
+}
+
+/// The descriptions `config push FILE` sends (issue 31): from a joint config (names, its
+/// units, `zero_offset_steps`, `steps_per_radian`), or `config get --json`'s `joint_desc`
+/// (`None` when it is null or absent: nothing sent).
+fn pushed_descs(file: &std::path::Path) -> Result<Option<Vec<protocol::JointDesc>>, String> {
+    let text = std::fs::read_to_string(file).map_err(|e| format!("{}: {e}", file.display()))?;
+    let value: serde_json::Value = serde_json::from_str(&text)
+        .map_err(|e| format!("{}: cannot parse: {e}", file.display()))?;
+    let from_get = value
+        .pointer("/joints/0")
+        .is_some_and(|joint| joint.get("max_rate_hz").is_some());
+    if !from_get {
+        let config = armctl::trajectory::ArmConfig::parse(&text, &file.display().to_string())
+            .map_err(|e| e.to_string())?;
+        return config
+            .joints
+            .iter()
+            .enumerate()
+            .map(|(j, joint)| {
+                armctl::described::desc_of(j, joint, config.units)
+                    .map_err(|e| format!("{}: {e}", file.display()))
+            })
+            .collect::<Result<Vec<_>, _>>()
+            .map(Some);
+    }
+    let Some(kept) = value.get("joint_desc").filter(|v| !v.is_null()) else {
+        return Ok(None);
+    };
+    let kept: Vec<KeptDesc> = serde_json::from_value(kept.clone())
+        .map_err(|e| format!("{}: joint_desc: cannot parse: {e}", file.display()))?;
+    kept.iter()
+        .enumerate()
+        .map(|(j, d)| {
+            let unit = protocol::JointUnit::from_name(&d.unit).ok_or_else(|| {
+                format!(
+                    "{}: joint {j}: unit {:?}: steps, deg, rad or mm",
+                    file.display(),
+                    d.unit
+                )
+            })?;
+            protocol::JointDesc::new(&d.name, unit, d.zero_offset_steps, d.scale)
+                .filter(protocol::JointDesc::is_valid)
+                .ok_or_else(|| {
+                    format!(
+                        "{}: joint {j}: name {:?} over {} bytes or scale not a number",
+                        file.display(),
+                        d.name,
+                        protocol::JOINT_NAME_LEN
+                    )
+                })
+        })
+        .collect::<Result<Vec<_>, _>>()
+        .map(Some)
 }
 
 /// An older controller's UNKNOWN_TAG, explained.

@@ -168,18 +168,27 @@ impl<'a> Arm<'a> {
                 }
                 config
             }
-            None => ArmConfig::unlimited(joints, status.max_step_rate_hz),
+            // The arm the controller describes (issue 31), else steps without limits.
+            None => {
+                crate::run::described_without_config(client, true, joints, status.max_step_rate_hz)?
+                    .unwrap_or_else(|| ArmConfig::unlimited(joints, status.max_step_rate_hz))
+            }
         };
+        // A described arm converts units as a config does.
+        let described = args.config.is_none()
+            && (config.units != Units::Steps
+                || config.joints.iter().any(|j| j.steps_per_radian != 1.0));
         // Within what the controller keeps too: it refuses the rest (issue 31).
         let config = match kept_limits(client)? {
             Some(kept) => config.within(&kept.joints),
             None => config,
         };
         let units = args.units.unwrap_or(config.units);
-        if units != Units::Steps && args.config.is_none() {
+        if units != Units::Steps && args.config.is_none() && !described {
             return Err(format!(
                 "--units {} needs a joint config (--config FILE: steps_per_radian, \
-                 zero_offset_steps per joint)",
+                 zero_offset_steps per joint), or one kept on the controller (armctl config \
+                 push FILE)",
                 units.name()
             ));
         }

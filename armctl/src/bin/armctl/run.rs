@@ -61,7 +61,7 @@ pub const DEFAULT_MAX_STEP_RATE_HZ: u32 = 100_000;
 
 /// Runs `run --dry-run`: converts and checks the file, sends nothing.
 pub fn dry_run(args: &RunArgs) -> CliResult {
-    let converted = convert(args, &[0; 8], None, Some(args.max_step_rate))?;
+    let converted = convert(args, &[0; 8], None, Some(args.max_step_rate), None)?;
     print_points_summary(&converted.points, converted.waypoints);
     println!(
         "step rates checked against {} (at most {} steps/s per joint, --max-step-rate)",
@@ -91,16 +91,25 @@ struct Converted {
     units: armctl::motion::Units,
 }
 
-/// The trajectory file as points, from `current`.
+/// The trajectory file as points, from `current`. `described`: the arm the controller
+/// describes (issue 31), taken when no `--config` is given.
 fn convert(
     args: &RunArgs,
     current: &[i32; 8],
     controller_joints: Option<usize>,
     controller_max_rate: Option<u32>,
+    described: Option<ArmConfig>,
 ) -> Result<Converted, String> {
-    let (waypoints, config) =
-        trajectory::load_files_in(&args.file, args.config.as_deref(), args.units)
-            .map_err(|e| e.to_string())?;
+    let named = args.config.is_some() || described.is_some();
+    let (waypoints, config) = match described.filter(|_| args.config.is_none()) {
+        Some(described) => {
+            let waypoints = trajectory::load_in(&args.file, Some(&described), args.units)
+                .map_err(|e| e.to_string())?;
+            (waypoints, Some(described))
+        }
+        None => trajectory::load_files_in(&args.file, args.config.as_deref(), args.units)
+            .map_err(|e| e.to_string())?,
+    };
     let joints = waypoints.positions.first().map_or(0, Vec::len);
     if let Some(n) = controller_joints
         && joints > n
@@ -124,7 +133,7 @@ fn convert(
     .map_err(|e| e.in_units(&config, units).to_string())?;
     let waypoints = trajectory::check_waypoints(&points, &waypoints, current)
         .map_err(|e| e.in_units(&config, units).to_string())?;
-    let config_names = if args.config.is_some() {
+    let config_names = if named {
         config.short_names()
     } else {
         Vec::new()
@@ -157,6 +166,23 @@ fn print_points_summary(points: &[Point], waypoints: usize) {
     );
 }
 
+/// Without `--config`, the arm the controller describes (issue 31: names, units, scale,
+/// limits); `None` with a config, or from a controller that describes none.
+pub fn described_without_config(
+    arm: &Client,
+    no_config: bool,
+    joints: usize,
+    max_rate_hz: u32,
+) -> Result<Option<ArmConfig>, String> {
+    if !no_config {
+        return Ok(None);
+    }
+    // The error as is: it already names the subcommand run (a NOT_OWNER says "move
+    // refused with NOT_OWNER", as the first command that needs the owner would).
+    arm.described_arm(joints, max_rate_hz)
+        .map_err(|e| e.to_string())
+}
+
 /// Runs `run`: converts the file from the current position, uploads and runs it, and
 /// checks the final positions. SIGINT, SIGTERM or SIGHUP from the upload on: STOPPED
 /// (crate::interrupt).
@@ -179,6 +205,7 @@ pub fn execute(arm: &Client, args: &RunArgs) -> CliResult {
         &current.position,
         Some(joints),
         Some(status.max_step_rate_hz),
+        described_without_config(arm, args.config.is_none(), joints, status.max_step_rate_hz)?,
     )?;
     print_points_summary(&points, waypoints);
 

@@ -377,6 +377,14 @@ pub(super) fn deliver(bus: &Bus, response: &Response) {
             report: AnswerReport::Limits(limits),
         }));
     }
+    if let Some((to, desc)) = response.joint_desc {
+        bus.send(Outgoing::Answer(Answer {
+            to,
+            // A read-only answer to another host carries its request's seq.
+            seq: response.answer_seq,
+            report: AnswerReport::JointDesc(desc),
+        }));
+    }
     if let Some((to, location)) = response.asked_location {
         bus.send(Outgoing::Answer(Answer {
             to,
