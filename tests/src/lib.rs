@@ -208,6 +208,43 @@ pub fn run_armctl(sim: Option<&SimHost>, args: &[&str]) -> (bool, String, String
     )
 }
 
+/// `armctl config init` of the scripted users' degrees arm (`new_user.rs`, `wire_tools.rs`):
+/// 2 joints `base,shoulder`, 200 pulses a turn, 16 microsteps, gear 5 (16000 steps a turn,
+/// 44.44 steps a degree), +-90 degrees, 45 degrees/s, `max_accel_deg_s2`, written to `file`.
+/// Whether it succeeded, its stdout and its stderr.
+pub fn config_init_degrees_arm(
+    file: &std::path::Path,
+    max_accel_deg_s2: &str,
+) -> (bool, String, String) {
+    run_armctl(
+        None,
+        &[
+            "config",
+            "init",
+            "--joints",
+            "2",
+            "--pulses-per-rev",
+            "200",
+            "--microsteps",
+            "16",
+            "--gear-ratio",
+            "5",
+            "--min-deg",
+            "-90",
+            "--max-deg",
+            "90",
+            "--max-rate-deg-s",
+            "45",
+            "--max-accel-deg-s2",
+            max_accel_deg_s2,
+            "--names",
+            "base,shoulder",
+            "-o",
+            file.to_str().expect("a UTF-8 path"),
+        ],
+    )
+}
+
 /// Whether a simulator that has printed its address answers: DISCOVER (which changes
 /// nothing: no owner, no session) every [`READY_POLL`] until a datagram comes back, for
 /// [`START_TIMEOUT`] at most. Under the issue 19 soak's load a test's first command,

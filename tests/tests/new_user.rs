@@ -26,33 +26,7 @@ fn config_init_push_then_move_jog_run_without_config() {
     let file = sim.dir().join("arm.json");
     // 200 * 16 * 5 = 16000 steps per revolution: 44.44 steps a degree; +-90 degrees is
     // +-4000 steps, 45 degrees/s 2000 steps/s.
-    let (ok, out, err) = system_tests::run_armctl(
-        None,
-        &[
-            "config",
-            "init",
-            "--joints",
-            "2",
-            "--pulses-per-rev",
-            "200",
-            "--microsteps",
-            "16",
-            "--gear-ratio",
-            "5",
-            "--min-deg",
-            "-90",
-            "--max-deg",
-            "90",
-            "--max-rate-deg-s",
-            "45",
-            "--max-accel-deg-s2",
-            "9000",
-            "--names",
-            "base,shoulder",
-            "-o",
-            file.to_str().unwrap(),
-        ],
-    );
+    let (ok, out, err) = system_tests::config_init_degrees_arm(&file, "9000");
     assert!(ok, "{out}\n{err}");
     let (ok, out, err) = armctl(&sim, &["config", "push", file.to_str().unwrap()]);
     assert!(ok, "{out}\n{err}");

@@ -281,33 +281,7 @@ fn a_limp_joint_is_not_moved_and_the_refusal_names_it() {
 fn config_init_push_and_get_round_trip_the_acceleration() {
     let sim = SimHost::start(&["--joints", "2"]);
     let file = sim.dir().join("arm.json");
-    let (ok, out, err) = system_tests::run_armctl(
-        None,
-        &[
-            "config",
-            "init",
-            "--joints",
-            "2",
-            "--pulses-per-rev",
-            "200",
-            "--microsteps",
-            "16",
-            "--gear-ratio",
-            "5",
-            "--min-deg",
-            "-90",
-            "--max-deg",
-            "90",
-            "--max-rate-deg-s",
-            "45",
-            "--max-accel-deg-s2",
-            "90",
-            "--names",
-            "base,shoulder",
-            "-o",
-            file.to_str().unwrap(),
-        ],
-    );
+    let (ok, out, err) = system_tests::config_init_degrees_arm(&file, "90");
     assert!(ok, "{out}\n{err}");
     let written: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&file).unwrap()).unwrap();
