@@ -63,6 +63,12 @@ static ELF: Mutex<Option<PathBuf>> = Mutex::new(None);
 /// (`firmware/board/src/fault.rs`) and the watchdog task's stall line (a check 100 ms late).
 pub const FAULT_MARKERS: [&str; 4] = ["fault:", "panic", "PANIC", "ms late: the executor"];
 
+/// Where the firmware keeps its settings: the last two 128 KiB sectors of flash bank 2
+/// (`firmware/board/src/settings.rs`, `SETTINGS_START`), loaded as erased flash before each
+/// board starts.
+const SETTINGS_SECTORS: u32 = 0x081C_0000;
+const SETTINGS_SECTORS_LEN: usize = 0x4_0000;
+
 /// One headless Renode run of a script, without the board (models checked on their own).
 /// Its scratch folder (Renode's `TMPDIR`, files the script writes) goes when it is dropped.
 pub struct ScriptRun {
@@ -649,11 +655,19 @@ impl RenodeBoard {
                 if extra.is_empty() { "" } else { "; " }
             )
         });
+        // The settings sectors as the chip leaves them erased (0xFF): Renode 1.15.3's flash
+        // banks start as zeros, which sequential-storage reads as a corrupt area, so every
+        // save failed here (only logged until issue 30; since then the command is refused
+        // SAVE_FAILED, as it should be on a chip whose flash fails).
+        let erased = board.dir.join("erased-settings.bin");
+        std::fs::write(&erased, vec![0xFF_u8; SETTINGS_SECTORS_LEN])
+            .expect("erased settings image");
         let commands = format!(
-            "$elf=@{}; $tap=\"{TAP}\"; $models=@{}; include @{}; {step_path}start",
+            "$elf=@{}; $tap=\"{TAP}\"; $models=@{}; include @{}; sysbus LoadBinary @{} {SETTINGS_SECTORS:#x}; {step_path}start",
             elf_path.display(),
             models.display(),
-            script.display()
+            script.display(),
+            erased.display()
         );
         let log = std::fs::File::create(board.dir.join("renode.log")).expect("Renode log file");
         let mut command = Command::new("ip");
