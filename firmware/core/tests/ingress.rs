@@ -307,18 +307,7 @@ fn a_full_estop_drops_further_stoppeds_but_still_halts() {
 
 /// An Ethernet II / IPv4 / UDP frame from `from` to `port` carrying `payload`.
 fn udp_frame(from: Endpoint, port: u16, payload: &[u8]) -> Vec<u8> {
-    let mut f = vec![0x02, 0, 0, 0, 0, 1, 0x02, 0, 0, 0, 0, 2, 0x08, 0x00];
-    let total = 20 + 8 + payload.len();
-    f.extend_from_slice(&[0x45, 0, (total >> 8) as u8, total as u8, 0, 0, 0x40, 0]);
-    f.extend_from_slice(&[64, 17, 0, 0]);
-    f.extend_from_slice(&from.ip);
-    f.extend_from_slice(&[192, 168, 1, 30]);
-    let udp_len = 8 + payload.len();
-    f.extend_from_slice(&from.port.to_be_bytes());
-    f.extend_from_slice(&port.to_be_bytes());
-    f.extend_from_slice(&[(udp_len >> 8) as u8, udp_len as u8, 0, 0]);
-    f.extend_from_slice(payload);
-    f
+    udp_frame_to([0x02, 0, 0, 0, 0, 1], from, port, payload)
 }
 
 #[test]

@@ -22,24 +22,6 @@ const STRANGER: Endpoint = Endpoint {
     port: 40_000,
 };
 
-/// An Ethernet II / IPv4 / UDP frame from `from` to `port` carrying `payload`, sent to
-/// `dst_mac`.
-fn udp_frame_to(dst_mac: [u8; 6], from: Endpoint, port: u16, payload: &[u8]) -> Vec<u8> {
-    let mut f = dst_mac.to_vec();
-    f.extend_from_slice(&[0x02, 0, 0, 0, 0, 2, 0x08, 0x00]);
-    let total = 20 + 8 + payload.len();
-    f.extend_from_slice(&[0x45, 0, (total >> 8) as u8, total as u8, 0, 0, 0x40, 0]);
-    f.extend_from_slice(&[64, 17, 0, 0]);
-    f.extend_from_slice(&from.ip);
-    f.extend_from_slice(&[192, 168, 1, 30]);
-    let udp_len = 8 + payload.len();
-    f.extend_from_slice(&from.port.to_be_bytes());
-    f.extend_from_slice(&port.to_be_bytes());
-    f.extend_from_slice(&[(udp_len >> 8) as u8, udp_len as u8, 0, 0]);
-    f.extend_from_slice(payload);
-    f
-}
-
 fn udp_frame(from: Endpoint, port: u16, payload: &[u8]) -> Vec<u8> {
     udp_frame_to([0x02, 0, 0, 0, 0, 1], from, port, payload)
 }
