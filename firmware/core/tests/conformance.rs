@@ -501,9 +501,10 @@ fn lengths_and_directions_are_checked() {
         (raw(4, Tag::UsartRecv as u8, &[0; 257]), Unsupported),
         // 0x17 is ESTOP_RESET (issue 18), without data; 0x18 SET_ENABLE (issue 23), 3
         // bytes.
-        // 0x1f is JOINT_DESC_SET since issue 31 (36 bytes): 0x27 is still unused (0x25 is UNLOCK, 0x26 JOINT_DESC).
+        // 0x1f is JOINT_DESC_SET since issue 31 (36 bytes). 0x27-0x33 are being given out to
+        // issues 32-34 (hold, homing, diagnostics): 0x4f, below the key's 0x50-0x53, stays unused.
         (raw(5, 0x1F, &[]), BadLength),
-        (raw(18, 0x27, &[]), UnknownTag),
+        (raw(18, 0x4f, &[]), UnknownTag),
         (raw(14, Tag::SetEnable as u8, &[]), BadLength),
         (raw(13, Tag::EstopReset as u8, &[0]), BadLength),
         (raw(6, 0xFF, &[]), UnknownTag),
