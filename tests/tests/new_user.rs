@@ -63,6 +63,28 @@ fn config_init_push_then_move_jog_run_without_config() {
     );
     assert_eq!(positions(&sim), [2000, -1000]);
 
+    // status and watch without --config: the names and degrees the controller keeps, as
+    // move shows them (JOINT_DESC_GET, read-only: any host may look).
+    let (ok, out, err) = armctl(&sim, &["status"]);
+    assert!(ok, "{out}\n{err}");
+    assert!(
+        out.contains("joint  name                  steps  degrees  driver")
+            && out.contains("    0  base                   2000     45.0  enabled")
+            && out.contains("    1  shoulder              -1000    -22.5  enabled"),
+        "{out}"
+    );
+    let (ok, out, err) = armctl(&sim, &["status", "--json"]);
+    assert!(ok, "{out}\n{err}");
+    let json: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(json["joint_names"], serde_json::json!(["base", "shoulder"]));
+    let (ok, out, err) = armctl(&sim, &["watch", "--duration", "0.3"]);
+    assert!(ok, "{out}\n{err}");
+    assert!(
+        out.lines()
+            .any(|l| l.contains("base     45.00 deg shoulder    -22.50 deg")),
+        "{out}"
+    );
+
     // jog the shoulder by 9 degrees (400 steps).
     let (ok, out, err) = armctl(&sim, &["jog", "shoulder", "9"]);
     assert!(ok, "{out}\n{err}");
