@@ -3,7 +3,15 @@
 //! `--config` (armctl reads the names, units and limits the controller keeps: JOINT_DESC
 //! and LIMITS), each ending at the right positions, checked against the controller's
 //! LOCATION after each step and against the simulator's VCD trace at the end (every pulse
-//! of every step counted); and limit refusals that name the joint and the units.
+//! of every step counted); and limit refusals that name the joint and the units. `status`
+//! and `watch` show the same names and degrees without `--config`.
+//!
+//! The same user's other tools, where what they need is: Python's `run()` in degrees in
+//! armctl-py/tests/test_described.py (maturin, pytest); the ROS goal (a
+//! FollowJointTrajectory through a bridge whose file lists no joints) in
+//! ros2-bridge/tests/dds.rs `a_new_user_s_goal_with_the_arm_the_controller_keeps`, which runs
+//! only in the private network namespace ros2-bridge/tests/dds.sh creates (DDS multicasts;
+//! .ci/run runs it).
 
 use armctl::{Client, vcd};
 use system_tests::SimHost;
