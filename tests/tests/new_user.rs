@@ -92,6 +92,14 @@ fn config_init_push_then_move_jog_run_without_config() {
             .any(|l| l.contains("base     45.00 deg shoulder    -22.50 deg")),
         "{out}"
     );
+    // From another host too, which only looks (read-only STATUS and JOINT_DESC_GET).
+    let (ok, out, err) = armctl(&sim, &["--bind", "127.0.0.2:0", "status"]);
+    assert!(ok, "{out}\n{err}");
+    assert!(
+        out.contains("    1  shoulder              -1000    -22.5  enabled")
+            && out.contains("(read-only: another host owns the controller"),
+        "{out}"
+    );
 
     // jog the shoulder by 9 degrees (400 steps).
     let (ok, out, err) = armctl(&sim, &["jog", "shoulder", "9"]);
