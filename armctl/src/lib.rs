@@ -39,6 +39,7 @@ mod interrupt;
 pub mod motion;
 pub mod pcap;
 pub mod plot;
+pub mod push;
 pub mod pwm;
 pub mod record;
 mod rtt;

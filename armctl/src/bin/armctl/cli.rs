@@ -60,6 +60,7 @@ pub enum Cmd {
         #[arg(long)]
         json: bool,
         /// A joint config (the `run --config` file): joint names and positions in degrees.
+        /// Without it: the names and units the controller keeps (`config push`), if any.
         #[arg(long, value_name = "FILE")]
         config: Option<PathBuf>,
     },
@@ -71,7 +72,8 @@ pub enum Cmd {
         /// Stop after this many seconds.
         #[arg(long, value_name = "S")]
         duration: Option<f64>,
-        /// Joint config: positions shown with the joints' names, in its units.
+        /// Joint config: positions shown with the joints' names, in its units. Without it:
+        /// the names and units the controller keeps (`config push`), if any.
         #[arg(long, value_name = "FILE")]
         config: Option<PathBuf>,
         /// Units of the positions shown with --config: steps, deg or rad (default: the

@@ -152,14 +152,14 @@ fn execute_online(cli: &Cli, arm: &armctl::Client) -> CliResult {
             config,
             units,
         } => {
-            let shown = config
-                .as_deref()
-                .map(|path| {
+            let shown = match config.as_deref() {
+                Some(path) => {
                     let config = ArmConfig::load(path).map_err(|e| e.to_string())?;
                     let units = units.unwrap_or(config.units);
-                    Ok::<_, String>(watch::Shown { config, units })
-                })
-                .transpose()?;
+                    Some(watch::Shown { config, units })
+                }
+                None => watch::described(arm)?,
+            };
             watch::execute(arm, record.as_deref(), *duration, shown.as_ref())
         }
         Cmd::Run(args) => run::execute(arm, args),
