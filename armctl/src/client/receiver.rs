@@ -152,6 +152,8 @@ impl Shared {
             // Asked for only by tools that read the wire themselves (STATUS's request
             // byte bit 3, issue 30): the client asks for none.
             Report::RxCounters(_) => {}
+            // Asked for only by `armctl diag`, which reads the wire itself (bit 6).
+            Report::Diag(_) => {}
             Report::JointDesc(desc) => fan_out(&self.descs, &desc),
         }
     }

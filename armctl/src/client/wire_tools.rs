@@ -51,6 +51,7 @@ impl Client {
             look_only,
             stop_cause: false,
             counters: false,
+            diag: false,
         };
         let reports = self.status_reports();
         let locations = self.locations();
