@@ -152,8 +152,11 @@ pub struct Bus {
     pub(crate) rx_ring: Mutex<Cs, Cell<crate::ingress::RxRingCounters>>,
     /// Where the DIAG report's counters come from: the board's reader of its own timing
     /// counters ([`Bus::set_diag_source`], [`crate::diag`]); `None`: not measured.
-    diag_source: Mutex<Cs, Cell<Option<fn() -> protocol::Diag>>>,
+    diag_source: Mutex<Cs, Cell<Option<DiagSource>>>,
 }
+
+/// A board's reader of its timing counters for the DIAG report ([`Bus::set_diag_source`]).
+pub type DiagSource = fn() -> protocol::Diag;
 
 impl Default for Bus {
     fn default() -> Self {
@@ -187,7 +190,7 @@ impl Bus {
     /// The board reads its timing counters with `read` (issue 34; a plain function: the
     /// counters are the board's statics, [`crate::diag`]). Until it is called, DIAG says
     /// "not measured" ([`protocol::Diag::NOT_MEASURED`]).
-    pub fn set_diag_source(&self, read: fn() -> protocol::Diag) {
+    pub fn set_diag_source(&self, read: DiagSource) {
         self.diag_source.lock(|c| c.set(Some(read)));
     }
 

@@ -170,12 +170,21 @@ impl StepBackend for BoardSteps {
         }
         let mut origin = None;
         let loaded = self.prelude.iter().enumerate().all(|(joint, prelude)| {
-            unless_killed(|| {
+            let mut configured = true;
+            let unkilled = unless_killed(|| {
                 // A fresh timer for every run (issue 20): nothing left from the last one.
                 reset_joint_timer(joint);
-                configure_joint_timer(joint);
-                load_joint(joint, prelude);
-            })
+                match configure_joint_timer(joint) {
+                    Ok(()) => load_joint(joint, prelude),
+                    // Fails loudly (issue 34): no run on a timer that did not take its
+                    // output enable or break; stopped as for a kill during the start.
+                    Err(e) => {
+                        defmt::error!("step timer not configured, run not started: {}", e);
+                        configured = false;
+                    }
+                }
+            });
+            unkilled && configured
         });
         if loaded {
             unless_killed(|| {
@@ -192,8 +201,9 @@ impl StepBackend for BoardSteps {
             });
         }
         let Some(origin) = origin else {
-            // The e-stop input opened during the start: its interrupt forced every output
-            // off; no counter ran, so nothing played.
+            // The e-stop input opened during the start (its interrupt forced every output
+            // off), or a timer did not take its configuration: no counter ran, so nothing
+            // played.
             self.stop();
             return;
         };

@@ -170,7 +170,10 @@ pub fn init() {
     });
     pac::RCC.ahb1enr().modify(|w| w.set_dma2en(true));
     for joint in 0..MAX_JOINTS {
-        configure_joint_timer(joint);
+        if let Err(e) = configure_joint_timer(joint) {
+            // safe: boot-time bring-up, not network input (issue 34: fails loudly).
+            defmt::panic!("step timer did not take its configuration: {}", e);
+        }
         // DMA2 stream `joint` is DMAMUX1 channel 8 + joint.
         pac::DMAMUX1
             .ccr(8 + joint)
