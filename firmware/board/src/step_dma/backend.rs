@@ -175,6 +175,19 @@ impl StepBackend for BoardSteps {
                 // A fresh timer for every run (issue 20): nothing left from the last one.
                 reset_joint_timer(joint);
                 match configure_joint_timer(joint) {
+                    // The switch from forced-inactive to PWM (load_joint) relies on the
+                    // first period having no pulse: one there would rise at the switch,
+                    // before the timers start together (issue 34; arm-step's streams test
+                    // the_first_prelude_period_has_no_pulse shows the producer never
+                    // makes one). Checked, not assumed: the run is refused.
+                    Ok(()) if prelude[0].high != 0 => {
+                        defmt::error!(
+                            "joint {} prelude starts with a pulse ({} ticks): run not started",
+                            joint,
+                            prelude[0].high
+                        );
+                        configured = false;
+                    }
                     Ok(()) => load_joint(joint, prelude),
                     // Fails loudly (issue 34): no run on a timer that did not take its
                     // output enable or break; stopped as for a kill during the start.
