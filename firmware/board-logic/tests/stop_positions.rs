@@ -144,8 +144,10 @@ fn stop_at(case: Case, stop: Stop) -> ([i32; MAX_JOINTS], [i32; MAX_JOINTS]) {
             if active.high != 0 {
                 made[j] += sign;
             }
-            if !deferred && !(last && case.cut) && (!last || case.isr_ran) && (dma.htif || dma.tcif)
-            {
+            // The refill interrupt runs for every update event but the last, and for that
+            // one if it ran before the stop (never for a cut burst: the stop came first).
+            let refill_ran = !last || (case.isr_ran && !case.cut);
+            if !deferred && refill_ran && (dma.htif || dma.tcif) {
                 // refill.rs: HT names half 0, TC half 1 (both: an underrun, never here).
                 assert!(!(dma.htif && dma.tcif), "underrun in the model");
                 let half = usize::from(dma.tcif);
