@@ -118,9 +118,10 @@ impl DmaSlack {
 
     /// A refill looked at its timer: `reload` is the playing period's ARR (from the buffer
     /// at [`DmaSlack::playing`]), `counter` the timer's counter. The ticks to the next
-    /// update event are `reload + 1 - counter`: a lower bound where the period repeats
-    /// (RCR), whose count the timer does not show. A counter past its reload (a period
-    /// read wrongly, racing an update event) counts as 0.
+    /// update event are `reload + 1 - counter` (arm-step never repeats a period: RCR is
+    /// always 0). The look comes after the burst landed, so the burst's own slack was at
+    /// least this. A counter past its reload (a period read wrongly, racing an update
+    /// event) counts as 0.
     pub fn sampled(&mut self, reload: u32, counter: u32) {
         let slack = reload.saturating_add(1).saturating_sub(counter);
         self.min_ticks = self.min_ticks.min(slack);
