@@ -150,7 +150,13 @@ pub struct Bus {
     /// What the board's receive interrupt counts about its ring
     /// ([`crate::ingress::RxRingCounters`]).
     pub(crate) rx_ring: Mutex<Cs, Cell<crate::ingress::RxRingCounters>>,
+    /// Where the DIAG report's counters come from: the board's reader of its own timing
+    /// counters ([`Bus::set_diag_source`], [`crate::diag`]); `None`: not measured.
+    diag_source: Mutex<Cs, Cell<Option<DiagSource>>>,
 }
+
+/// A board's reader of its timing counters for the DIAG report ([`Bus::set_diag_source`]).
+pub type DiagSource = fn() -> protocol::Diag;
 
 impl Default for Bus {
     fn default() -> Self {
@@ -177,6 +183,23 @@ impl Bus {
             group_ignored: Mutex::new(Cell::new((0, LogLimit::new()))),
             serial_tx_dropped: Mutex::new(Cell::new(0)),
             rx_ring: Mutex::new(Cell::new(crate::ingress::RxRingCounters::ZERO)),
+            diag_source: Mutex::new(Cell::new(None)),
+        }
+    }
+
+    /// The board reads its timing counters with `read` (issue 34; a plain function: the
+    /// counters are the board's statics, [`crate::diag`]). Until it is called, DIAG says
+    /// "not measured" ([`protocol::Diag::NOT_MEASURED`]).
+    pub fn set_diag_source(&self, read: DiagSource) {
+        self.diag_source.lock(|c| c.set(Some(read)));
+    }
+
+    /// The DIAG report's counters: the board's, or "not measured" without a source. The
+    /// source runs outside the bus's lock (it may take a critical section of its own).
+    pub fn diag(&self) -> protocol::Diag {
+        match self.diag_source.lock(|c| c.get()) {
+            Some(read) => read(),
+            None => protocol::Diag::NOT_MEASURED,
         }
     }
 

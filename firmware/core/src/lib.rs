@@ -98,6 +98,7 @@ pub mod buffer;
 pub mod bus;
 pub mod config;
 pub mod controller;
+pub mod diag;
 pub mod estop_input;
 pub mod homing;
 pub mod hw;

@@ -64,6 +64,15 @@ pub enum Cmd {
         #[arg(long, value_name = "FILE")]
         config: Option<PathBuf>,
     },
+    /// Print the controller's own counters (issue 34): the longest span with interrupts
+    /// masked and where it was opened, DIR lateness, the least step DMA slack, RX ring
+    /// overflows and shed datagrams. From any host, never taking the controller; the
+    /// simulator says "not measured" for what only a board measures.
+    Diag {
+        /// As JSON.
+        #[arg(long)]
+        json: bool,
+    },
     /// Print live positions and state (Ctrl-C ends).
     Watch {
         /// Also write every LOCATION report to this CSV file (for `plot`).

@@ -32,6 +32,8 @@ pub fn connect(cli: &Cli) -> Result<Client, String> {
         Cmd::Stop => Ok(controller),
         // `status` asks itself, look-only: it never takes the controller (issue 23).
         Cmd::Status { .. } => Ok(controller),
+        // So does `diag` (issue 34).
+        Cmd::Diag { .. } => Ok(controller),
         // As Client::connect_with: check that the controller answers.
         _ => match controller.status() {
             Ok(_) => Ok(controller),

@@ -38,6 +38,7 @@ macro_rules! eprintln {
 mod cli;
 mod config;
 mod connect;
+mod diag;
 mod discover;
 mod enable;
 mod frame;
@@ -146,6 +147,7 @@ fn execute(cli: Cli, command: &str) -> CliResult {
 fn execute_online(cli: &Cli, arm: &armctl::Client) -> CliResult {
     match &cli.command {
         Cmd::Status { json, config } => status::execute(arm, *json, config.as_deref()),
+        Cmd::Diag { json } => diag::execute(arm, *json),
         Cmd::Watch {
             record,
             duration,
