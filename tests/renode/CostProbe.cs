@@ -29,6 +29,7 @@
 //   exc N INSTR ENTRIES P  per exception number N (0 thread mode), its priority byte
 //   blk N PC INSTR         instructions per exception and block address
 //   span LEN OPENER CTX K  the longest span per opener block (K: p PRIMASK, b BASEPRI)
+//   in OPENER PC INSTR     the blocks inside that longest span, per opener
 //   busy N LEN             the longest busy run per exception
 //   dir LATE INSTR         per DIR change in TIM13: ticks late, instructions since entry
 //
@@ -81,7 +82,7 @@ namespace Antmicro.Renode.Peripherals.Miscellaneous
             {
                 throw new RecoverableException("no Cortex-M CPU");
             }
-            exc.Clear(); blocks.Clear(); spans.Clear(); busy.Clear(); dirs.Clear(); handlers.Clear();
+            exc.Clear(); blocks.Clear(); spans.Clear(); spanInside.Clear(); busy.Clear(); dirs.Clear(); handlers.Clear();
             for(var n = 0u; n < prio.Length; n++)
             {
                 prio[n] = n < 16 ? 0 : machine.SystemBus.ReadByte(0xE000E400 + (n - 16));
@@ -126,6 +127,13 @@ namespace Antmicro.Renode.Peripherals.Miscellaneous
                     foreach(var s in spans)
                     {
                         w.Write($"span {s.Value.Item1} 0x{s.Key:x} {s.Value.Item2} {s.Value.Item3}\n");
+                    }
+                    foreach(var s in spanInside)
+                    {
+                        foreach(var b in s.Value)
+                        {
+                            w.Write($"in 0x{s.Key:x} 0x{b.Key:x} {b.Value}\n");
+                        }
                     }
                     foreach(var b in busy)
                     {
@@ -178,8 +186,11 @@ namespace Antmicro.Renode.Peripherals.Miscellaneous
                         spanOpener = lastPc;
                         spanCtx = lastIpsr;
                         spanKind = primask != 0 ? "p" : "b";
+                        spanBlocks = new Dictionary<ulong, ulong>();
                     }
                     spanLen += size;
+                    spanBlocks.TryGetValue(pc & 0xFFFFFFFF, out var inside);
+                    spanBlocks[pc & 0xFFFFFFFF] = inside + size;
                 }
                 else if(inSpan)
                 {
@@ -187,6 +198,7 @@ namespace Antmicro.Renode.Peripherals.Miscellaneous
                     if(!spans.TryGetValue(spanOpener, out var old) || old.Item1 < spanLen)
                     {
                         spans[spanOpener] = Tuple.Create(spanLen, spanCtx, spanKind);
+                        spanInside[spanOpener] = spanBlocks;
                     }
                 }
 
@@ -264,6 +276,9 @@ namespace Antmicro.Renode.Peripherals.Miscellaneous
         private readonly Dictionary<uint, ulong[]> exc = new Dictionary<uint, ulong[]>();
         private readonly Dictionary<ulong, ulong> blocks = new Dictionary<ulong, ulong>();
         private readonly Dictionary<ulong, Tuple<ulong, uint, string>> spans = new Dictionary<ulong, Tuple<ulong, uint, string>>();
+        // Per opener: the blocks of its longest span and their instructions.
+        private readonly Dictionary<ulong, Dictionary<ulong, ulong>> spanInside = new Dictionary<ulong, Dictionary<ulong, ulong>>();
+        private Dictionary<ulong, ulong> spanBlocks = new Dictionary<ulong, ulong>();
         private readonly Dictionary<uint, ulong> busy = new Dictionary<uint, ulong>();
         private readonly List<Tuple<uint, ulong>> dirs = new List<Tuple<uint, ulong>>();
         private readonly Dictionary<uint, uint> handlers = new Dictionary<uint, uint>();

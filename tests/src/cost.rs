@@ -63,6 +63,8 @@ pub struct Counts {
     pub blocks: Vec<(u32, u32, u64)>,
     /// The longest span per opener.
     pub spans: Vec<Span>,
+    /// Per opener: the blocks inside its longest span (block address, instructions).
+    pub inside: HashMap<u32, Vec<(u32, u64)>>,
     /// Per exception at or above TIM13's priority, its longest run.
     pub busy: HashMap<u32, u64>,
     /// Per DIR change inside TIM13: its counter minus its compare (ticks of the model's
@@ -94,6 +96,13 @@ impl Counts {
                     context: num(3) as u32,
                     primask: f[4] == "p",
                 }),
+                Some("in") if f.len() == 4 => {
+                    counts
+                        .inside
+                        .entry(hex(f[1]))
+                        .or_default()
+                        .push((hex(f[2]), num(3)));
+                }
                 Some("busy") => {
                     counts.busy.insert(num(1) as u32, num(2));
                 }
@@ -136,10 +145,21 @@ impl Counts {
         list
     }
 
+    /// The functions inside the longest span opened by `opener`, most instructions first.
+    pub fn inside(&self, symbols: &Symbols, opener: u32) -> Vec<(String, u64)> {
+        let mut by: HashMap<String, u64> = HashMap::new();
+        for &(pc, count) in self.inside.get(&opener).into_iter().flatten() {
+            *by.entry(symbols.name(pc)).or_default() += count;
+        }
+        let mut list: Vec<_> = by.into_iter().collect();
+        list.sort_by(|a, b| b.1.cmp(&a.1).then_with(|| a.0.cmp(&b.0)));
+        list
+    }
+
     /// The spans that mask the DIR interrupt, longest first.
     pub fn spans_longest_first(&self) -> Vec<Span> {
         let mut spans = self.spans.clone();
-        spans.sort_by(|a, b| b.instructions.cmp(&a.instructions));
+        spans.sort_by_key(|s| std::cmp::Reverse(s.instructions));
         spans
     }
 }

@@ -35,8 +35,7 @@ use common::{run_reporting_progress_with, sweep};
 use protocol::Point;
 use system_tests::cost::{self, Counts, Symbols};
 use system_tests::renode::{
-    EMULATED_TIMER_HZ, HOSTS, RenodeBoard, firmware_elf, malformed_flood, repo_root,
-    unavailable,
+    EMULATED_TIMER_HZ, HOSTS, RenodeBoard, firmware_elf, malformed_flood, repo_root, unavailable,
 };
 
 /// Skips the test, saying what it needs, when Renode (or root) is missing.
@@ -128,7 +127,10 @@ fn per_step(board: &RenodeBoard, symbols: &Symbols, name: &str, steps: [i32; MAX
     let arm = board.connect_from(HOSTS[0], emulated());
     arm.set_location(&[0; JOINTS]).unwrap();
     let points = reversing(steps);
-    let total: u64 = steps.iter().map(|&s| u64::from(s.unsigned_abs()) * 10).sum();
+    let total: u64 = steps
+        .iter()
+        .map(|&s| u64::from(s.unsigned_abs()) * 10)
+        .sum();
     let counts = measured(board, || {
         let report = arm
             .run_trajectory(&points, &RunOptions::default(), |_| {})
@@ -261,7 +263,7 @@ fn masked_spans_and_dir_lateness_under_a_flood_and_1khz_reports() {
     ));
     let mut by_exception: Vec<(u32, (u64, u64, u8))> =
         counts.exceptions.iter().map(|(&n, &e)| (n, e)).collect();
-    by_exception.sort_by(|a, b| b.1.0.cmp(&a.1.0));
+    by_exception.sort_by_key(|e| std::cmp::Reverse(e.1.0));
     for (n, (instructions, entries, priority)) in &by_exception {
         note(&format!(
             "  {:<34} priority {priority:#04x}: {instructions:>10} instructions, {entries:>7} entries",
@@ -270,7 +272,9 @@ fn masked_spans_and_dir_lateness_under_a_flood_and_1khz_reports() {
     }
     let spans = counts.spans_longest_first();
     assert!(!spans.is_empty(), "no masked span seen");
-    note("longest spans with the DIR interrupt masked (instructions; us at 400 MHz, a lower bound; opened in):");
+    note(
+        "longest spans with the DIR interrupt masked (instructions; us at 400 MHz, a lower bound; opened in):",
+    );
     let mut shown: HashMap<String, ()> = HashMap::new();
     for span in &spans {
         let opener = symbols.name(span.opener);
@@ -285,6 +289,15 @@ fn masked_spans_and_dir_lateness_under_a_flood_and_1khz_reports() {
             cost::exception_name(span.context),
             short(&opener)
         ));
+        if shown.len() <= 6 {
+            let inside: Vec<String> = counts
+                .inside(&symbols, span.opener)
+                .iter()
+                .take(4)
+                .map(|(f, c)| format!("{c} {}", short(f)))
+                .collect();
+            note(&format!("         inside: {}", inside.join("; ")));
+        }
         if shown.len() >= 15 {
             break;
         }
@@ -293,7 +306,11 @@ fn masked_spans_and_dir_lateness_under_a_flood_and_1khz_reports() {
     note(&format!(
         "longest: {longest} instructions, {:.2} us at 400 MHz (goal <= 1 us: 400){}",
         longest as f64 / CPU_MHZ,
-        if longest > 400 { "  (over the goal)" } else { "" }
+        if longest > 400 {
+            "  (over the goal)"
+        } else {
+            ""
+        }
     ));
     for (n, run) in &counts.busy {
         note(&format!(
