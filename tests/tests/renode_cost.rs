@@ -345,6 +345,12 @@ fn masked_spans_and_dir_lateness_under_a_flood_and_1khz_reports() {
         longest <= MASKED_SPAN_GOAL,
         "a span of {longest} instructions masks the DIR interrupt (goal {MASKED_SPAN_GOAL})"
     );
+    // Virtual time at the chip's instruction rate, not the host's speed.
+    let worst_ns = f64::from(worst) * ns_per_tick;
+    assert!(
+        worst_ns <= f64::from(NUCLEO_H743ZI2.dir_latency_ns),
+        "a DIR write came {worst_ns:.0} ns after its compare, over dir_latency_ns"
+    );
     board.assert_healthy();
 }
 
