@@ -306,6 +306,12 @@ fn masked_spans_and_dir_lateness_under_a_flood_and_1khz_reports() {
             break;
         }
     }
+    let basepri = spans.iter().filter(|s| !s.primask).count();
+    note(&format!(
+        "spans masking TIM13 through BASEPRI: {basepri} (the step lock's BASEPRI is at P2, \
+         below TIM13's P1 and EXTI0's P0); all the others are PRIMASK, which holds EXTI0 \
+         (the e-stop input) off too"
+    ));
     let longest = spans[0].instructions;
     note(&format!(
         "longest: {longest} instructions, {:.2} us at 400 MHz (goal <= 1 us: 400){}",
