@@ -26,6 +26,7 @@
 //
 // `Dump(path)` writes what was counted since `Start` as lines the harness parses:
 //   dirprio P              TIM13's priority byte
+//   executed N             the CPU's own count of instructions between Start and Stop
 //   exc N INSTR ENTRIES P  per exception number N (0 thread mode), its priority byte
 //   blk N PC INSTR         instructions per exception and block address
 //   span LEN OPENER CTX K  the longest span per opener block (K: p PRIMASK, b BASEPRI)
@@ -94,6 +95,8 @@ namespace Antmicro.Renode.Peripherals.Miscellaneous
                 handlers[n] = machine.SystemBus.ReadDoubleWord(vtor + 4 * n) & ~1u;
             }
             inSpan = false; inBusy = false; lastPc = 0; lastIpsr = 0; sinceDirEntry = 0;
+            executedAtStart = cpu.ExecutedInstructions;
+            executedAtStop = executedAtStart;
             cpu.SetHookAtBlockBegin(OnBlock);
             armed = true;
         }
@@ -104,6 +107,7 @@ namespace Antmicro.Renode.Peripherals.Miscellaneous
             if(cpu != null)
             {
                 cpu.SetHookAtBlockBegin(null);
+                executedAtStop = cpu.ExecutedInstructions;
             }
             armed = false;
         }
@@ -116,6 +120,7 @@ namespace Antmicro.Renode.Peripherals.Miscellaneous
                 using(var w = new StreamWriter(path, false))
                 {
                     w.Write($"dirprio {dirPrio}\n");
+                    w.Write($"executed {executedAtStop - executedAtStart}\n");
                     foreach(var e in exc)
                     {
                         w.Write($"exc {e.Key} {e.Value[0]} {e.Value[1]} {Priority(e.Key)}\n");
@@ -270,6 +275,7 @@ namespace Antmicro.Renode.Peripherals.Miscellaneous
         private readonly object sync = new object();
         private CortexM cpu;
         private bool armed;
+        private ulong executedAtStart, executedAtStop;
         private int dirPrio;
         // Priority bytes per exception number, read from the NVIC at Start.
         private readonly int[] prio = new int[16 + 160];

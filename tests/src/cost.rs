@@ -57,6 +57,9 @@ pub struct Span {
 pub struct Counts {
     /// TIM13's priority byte in the NVIC.
     pub dir_priority: u8,
+    /// The CPU's own count of instructions executed while the probe was armed (Renode's
+    /// `ExecutedInstructions`): the check that the probe's block sizes are instructions.
+    pub executed: u64,
     /// Per exception number: instructions, entries, priority byte.
     pub exceptions: HashMap<u32, (u64, u64, u8)>,
     /// (exception, block address) -> instructions.
@@ -82,6 +85,7 @@ impl Counts {
             let num = |i: usize| f.get(i).and_then(|s| s.parse::<u64>().ok()).unwrap_or(0);
             match f.first().copied() {
                 Some("dirprio") => counts.dir_priority = num(1) as u8,
+                Some("executed") => counts.executed = num(1),
                 Some("exc") => {
                     counts
                         .exceptions
@@ -121,6 +125,11 @@ impl Counts {
     /// Times exception `n` was entered.
     pub fn entries(&self, n: u32) -> u64 {
         self.exceptions.get(&n).map_or(0, |e| e.1)
+    }
+
+    /// Instructions the probe counted, all exceptions and thread mode.
+    pub fn total(&self) -> u64 {
+        self.exceptions.values().map(|e| e.0).sum()
     }
 
     /// Instructions of the step path's interrupts (TIM13, the service, DMA2's streams).

@@ -100,6 +100,20 @@ fn measured(board: &RenodeBoard, f: impl FnOnce()) -> Counts {
         "the probe counted nothing:\n{text}\n{}",
         board.log()
     );
+    // The probe's block sizes are instructions: its sum agrees with the CPU's own count
+    // (a few blocks run between the reads and the hook's (un)setting).
+    let ratio = counts.total() as f64 / counts.executed.max(1) as f64;
+    note(&format!(
+        "the probe counted {} instructions, the CPU {} ({ratio:.4})",
+        counts.total(),
+        counts.executed
+    ));
+    assert!(
+        (0.98..=1.02).contains(&ratio),
+        "the probe's count {} is not the CPU's {}",
+        counts.total(),
+        counts.executed
+    );
     counts
 }
 
