@@ -112,6 +112,7 @@ pub mod profile;
 pub mod reports;
 pub mod response;
 pub mod serial;
+pub mod slot_queue;
 pub mod source_share;
 pub mod step_shared;
 pub mod switch_line;
