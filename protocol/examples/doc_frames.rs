@@ -183,6 +183,7 @@ pub fn doc_frames() -> Vec<DocFrame> {
                 look_only: true,
                 stop_cause: false,
                 counters: false,
+                motion: false,
             }),
         ),
         command("RELEASE, seq 0x1e", 0x1e, Command::Release),
@@ -234,6 +235,7 @@ pub fn doc_frames() -> Vec<DocFrame> {
                 location: false,
                 look_only: false,
                 stop_cause: true,
+                motion: false,
                 counters: false,
             }),
         ),
@@ -243,6 +245,7 @@ pub fn doc_frames() -> Vec<DocFrame> {
             Command::StatusWith(protocol::StatusAsk {
                 location: false,
                 look_only: false,
+                motion: false,
                 stop_cause: false,
                 counters: true,
             }),
@@ -252,6 +255,7 @@ pub fn doc_frames() -> Vec<DocFrame> {
             0x26,
             Command::StatusWith(protocol::StatusAsk {
                 location: false,
+                motion: false,
                 look_only: false,
                 stop_cause: true,
                 counters: true,

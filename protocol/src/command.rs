@@ -109,6 +109,15 @@ pub enum Command<'a> {
     /// STATUS with its request byte (issue 23): what else to answer, and whether a host
     /// that does not own the controller wants only to look.
     StatusWith(StatusAsk),
+    /// Decelerate along the path to a standstill and wait (issue 32).
+    Hold,
+    /// Accelerate back after a HOLD (issue 32).
+    Resume,
+    /// Set the speed override (issue 32).
+    Override {
+        /// Percent, 1..200.
+        percent: u8,
+    },
     /// Enable (`enable`) or disable the masked drivers, leaving the others as they are
     /// (issue 23: an explicit form beside TOGGLE_ENABLE_PINS).
     SetEnable {
@@ -141,6 +150,9 @@ pub struct StatusAsk {
     /// after the STATUS report, the LOCATION and the STOP_CAUSE (issue 30; bit 2 went to
     /// issue 31's STOP_CAUSE first).
     pub counters: bool,
+    /// Bit 4: a MOTION report (override, hold, ramp; issue 32) to the asker too, after
+    /// all of those.
+    pub motion: bool,
 }
 
 impl StatusAsk {
@@ -152,6 +164,8 @@ impl StatusAsk {
     pub const STOP_CAUSE: u8 = 1 << 2;
     /// Bit 3.
     pub const COUNTERS: u8 = 1 << 3;
+    /// Bit 4.
+    pub const MOTION: u8 = 1 << 4;
 
     /// The byte on the wire.
     pub const fn byte(self) -> u8 {
@@ -159,11 +173,13 @@ impl StatusAsk {
             | (if self.look_only { Self::LOOK_ONLY } else { 0 })
             | (if self.stop_cause { Self::STOP_CAUSE } else { 0 })
             | (if self.counters { Self::COUNTERS } else { 0 })
+            | (if self.motion { Self::MOTION } else { 0 })
     }
 
     /// The request of a byte, `None` with other bits set.
     pub const fn from_byte(b: u8) -> Option<StatusAsk> {
-        if b & !(Self::LOCATION | Self::LOOK_ONLY | Self::STOP_CAUSE | Self::COUNTERS) != 0 {
+        let known = Self::LOCATION | Self::LOOK_ONLY | Self::STOP_CAUSE | Self::COUNTERS;
+        if b & !(known | Self::MOTION) != 0 {
             return None;
         }
         Some(StatusAsk {
@@ -171,6 +187,7 @@ impl StatusAsk {
             look_only: b & Self::LOOK_ONLY != 0,
             stop_cause: b & Self::STOP_CAUSE != 0,
             counters: b & Self::COUNTERS != 0,
+            motion: b & Self::MOTION != 0,
         })
     }
 }
@@ -208,6 +225,9 @@ impl<'a> Command<'a> {
             Command::SetEnable { .. } => Tag::SetEnable,
             Command::Release => Tag::Release,
             Command::Unlock => Tag::Unlock,
+            Command::Hold => Tag::Hold,
+            Command::Resume => Tag::Resume,
+            Command::Override { .. } => Tag::Override,
             Command::LimitsSet(_) => Tag::LimitsSet,
             Command::LimitsGet | Command::LimitsGetWithAccel => Tag::LimitsGet,
             Command::AccelSet { .. } => Tag::AccelSet,
@@ -239,6 +259,7 @@ impl<'a> Command<'a> {
             Command::AccelSet { .. } => size::ACCEL_SET,
             Command::JointDescSet(_) => size::JOINT_DESC_SET,
             Command::JointDescGet { .. } => size::JOINT_DESC_GET,
+            Command::Override { .. } => size::OVERRIDE,
             _ => 0,
         }
     }
@@ -305,6 +326,7 @@ impl<'a> Command<'a> {
             }
             Command::JointDescSet(set) => set.write(w, 0),
             Command::JointDescGet { joint } => w.u8(0, *joint),
+            Command::Override { percent } => w.u8(0, *percent),
             _ => {}
         })
     }
@@ -484,6 +506,7 @@ impl<'a> Command<'a> {
             | Tag::Limits
             | Tag::StopCause
             | Tag::RxCounters
+            | Tag::Motion
             | Tag::JointDesc => {
                 return Err(err(DecodeErrorKind::WrongDirection));
             }
@@ -516,6 +539,14 @@ impl<'a> Command<'a> {
                     None => return Err(out_of_range(Field::JointDesc)),
                 }
             }
+            Tag::Override => {
+                exactly(size::OVERRIDE)?;
+                let percent = u8_at(data, 0);
+                if !(crate::OVERRIDE_MIN_PERCENT..=crate::OVERRIDE_MAX_PERCENT).contains(&percent) {
+                    return Err(out_of_range(Field::Override));
+                }
+                Command::Override { percent }
+            }
             Tag::JointDescGet => {
                 exactly(size::JOINT_DESC_GET)?;
                 let joint = u8_at(data, 0);
@@ -547,6 +578,8 @@ impl<'a> Command<'a> {
             | Tag::EstopReset
             | Tag::Release
             | Tag::Unlock
+            | Tag::Hold
+            | Tag::Resume
             | Tag::LimitsGet => {
                 exactly(0)?;
                 match tag {
@@ -564,6 +597,8 @@ impl<'a> Command<'a> {
                     Tag::EstopReset => Command::EstopReset,
                     Tag::Release => Command::Release,
                     Tag::Unlock => Command::Unlock,
+                    Tag::Hold => Command::Hold,
+                    Tag::Resume => Command::Resume,
                     Tag::LimitsGet => Command::LimitsGet,
                     _ => Command::Status,
                 }

@@ -240,6 +240,8 @@ fn expect_report(frame: &protocol::Frame<Report<'_>>, e: &mut Expected) {
         Report::Limits(_) | Report::StopCause(_) | Report::JointDesc(_) => {}
         // Issue 30, after the golden file: protocol/tests/rx_counters.rs.
         Report::RxCounters(_) => {}
+        // Issue 32's MOTION: issue_32_motion_frames_decode_in_wireshark.
+        Report::Motion(_) => {}
     }
 }
 
@@ -1054,6 +1056,7 @@ fn issue_30_rx_counters_decode_in_wireshark() {
     let n = Cmd::StatusWith(protocol::StatusAsk {
         stop_cause: true,
         counters: true,
+        motion: false,
         ..protocol::StatusAsk::default()
     })
     .encode(0x40, &mut buf)

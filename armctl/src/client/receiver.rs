@@ -44,6 +44,8 @@ pub(crate) struct Shared {
     pub(super) limits: Mutex<Vec<Sender<LimitsReport>>>,
     /// STOP_CAUSE reports (STATUS's request byte bit 2, issue 31).
     pub(super) stops: Mutex<Vec<Sender<protocol::StopReport>>>,
+    /// MOTION reports (STATUS's request byte bit 4, issue 32).
+    pub(super) motions: Mutex<Vec<Sender<protocol::MotionReport>>>,
     /// JOINT_DESC reports' subscribers (issue 31).
     pub(super) descs: Mutex<Vec<Sender<protocol::JointDescSet>>>,
     pub(super) last_location: Mutex<Option<Location>>,
@@ -153,6 +155,7 @@ impl Shared {
             // byte bit 3, issue 30): the client asks for none.
             Report::RxCounters(_) => {}
             Report::JointDesc(desc) => fan_out(&self.descs, &desc),
+            Report::Motion(motion) => fan_out(&self.motions, &motion),
         }
     }
 }

@@ -145,6 +145,8 @@ pub enum AnswerReport {
     RxCounters(protocol::RxCounters),
     /// A JOINT_DESC report (the answer to JOINT_DESC_GET, issue 31).
     JointDesc(protocol::JointDescSet),
+    /// A MOTION report (STATUS's request byte bit 4, issue 32).
+    Motion(protocol::MotionReport),
 }
 
 /// Encodes [`Outgoing`] frames. Reports (everything but ACKs) carry the controller's own
@@ -203,6 +205,7 @@ impl ReportEncoder {
                     AnswerReport::Limits(l) => Report::Limits(l),
                     AnswerReport::StopCause(s) => Report::StopCause(s),
                     AnswerReport::RxCounters(c) => Report::RxCounters(c),
+                    AnswerReport::Motion(m) => Report::Motion(m),
                     AnswerReport::JointDesc(d) => Report::JointDesc(d),
                 },
             ),

@@ -57,6 +57,9 @@ pub struct Response {
     /// (bit 3, issue 30), sent after the STOP_CAUSE. The counters are the bus's: the
     /// caller fills them in.
     pub asked_counters: Option<Endpoint>,
+    /// A MOTION report for the asker alone: STATUS's request byte asked for one (bit 4,
+    /// issue 32), sent last.
+    pub asked_motion: Option<(Endpoint, protocol::MotionReport)>,
     /// A LIMITS report for the endpoint that sent LIMITS_GET (issue 23).
     pub limits: Option<(Endpoint, LimitsReport)>,
     /// A JOINT_DESC report for the endpoint that sent JOINT_DESC_GET (issue 31).

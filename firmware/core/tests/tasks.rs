@@ -1426,6 +1426,7 @@ fn status_replies_go_out_in_the_documented_order() {
         look_only: false,
         stop_cause: true,
         counters: true,
+        motion: false,
     };
     assert_eq!(ask.byte(), 0x0d);
     rig.route(&frame(0, Command::StatusWith(ask)));
@@ -1439,6 +1440,7 @@ fn status_replies_go_out_in_the_documented_order() {
             AnswerReport::StopCause(_) => "STOP_CAUSE",
             AnswerReport::RxCounters(_) => "RX_COUNTERS",
             AnswerReport::JointDesc(_) => "JOINT_DESC",
+            AnswerReport::Motion(_) => "MOTION",
         }),
         // The periodic stream is not an answer.
         _ => None,

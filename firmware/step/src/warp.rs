@@ -351,6 +351,23 @@ impl Warp {
         phase.rate_after(tick - phase.start) / RAMP_SCALE
     }
 
+    /// Whether the rate is changing at controller tick `tick` (a ramp's phase holds it).
+    pub fn ramping(&self, tick: u64) -> bool {
+        self.phase_at(tick).ramp != 0
+    }
+
+    /// A steady `rate` (`RATE_ONE` = 100 %) from controller tick `from`, trajectory time
+    /// being controller time before it: what a run started with an override takes
+    /// ([`Warp::IDENTITY`] itself at 100 %, keeping the unwarped fast paths).
+    pub fn steady(from: u64, rate: u64) -> Result<Warp, WarpError> {
+        let mut warp = Warp::IDENTITY;
+        if rate != RATE_ONE {
+            // A slope so steep the ramp takes no tick: a step to `rate` at `from`.
+            warp.change_rate(from, rate, i64::MAX as u64)?;
+        }
+        Ok(warp)
+    }
+
     /// The phase that holds `tick` (the first one for ticks before it).
     fn phase_at(&self, tick: u64) -> Phase {
         let held = self.phases.get(..self.len).unwrap_or_default();

@@ -86,6 +86,8 @@ pub enum OwnedReport {
     StopCause(protocol::StopReport),
     RxCounters(protocol::RxCounters),
     JointDesc(protocol::JointDescSet),
+    /// MOTION (issue 32).
+    Motion(protocol::MotionReport),
 }
 
 impl Client {
@@ -125,6 +127,7 @@ impl Client {
             Report::StopCause(s) => OwnedReport::StopCause(s),
             Report::RxCounters(c) => OwnedReport::RxCounters(c),
             Report::JointDesc(d) => OwnedReport::JointDesc(d),
+            Report::Motion(m) => OwnedReport::Motion(m),
         };
         Some((frame.seq, report))
     }
