@@ -183,13 +183,22 @@ fn override_above_100_is_refused_where_a_joint_would_break_a_limit() {
         (report.refused_joint, report.refused_limit),
         (0, Some(OverrideLimit::Rate))
     );
-    // Acceleration: joint 1 ramps from rest to 1,000 steps/s in 10 ms: 180,000 steps/s^2
-    // as ACCEL_SET defines it ((10 - 1) steps in 10 ms, from rest over half of it);
-    // allowed 190,000: 1.02^2 fits, 1.03^2 does not.
+    // Acceleration: joint 1 speeds up by 10 steps each 10 ms point from 1 (80,000
+    // steps/s^2 between points as ACCEL_SET defines it); allowed 84,000: 1.02^2 fits,
+    // 1.03^2 does not.
     let mut s = Session::<64>::new(64);
-    accel_set(&mut s, 1, 190_000);
+    accel_set(&mut s, 1, 84_000);
     accel_set(&mut s, 0, 1_000_000);
-    s.start_run(50, &cruise([0; MAX_JOINTS], 12, 40));
+    let mut at = [0; MAX_JOINTS];
+    let speeding: Vec<Point> = (0..12)
+        .map(|i| {
+            let before = at;
+            at[0] += 40;
+            at[1] += 1 + 10 * i;
+            Point::from_motion(10_000, &before, &at)
+        })
+        .collect();
+    s.start_run(50, &speeding);
     s.expect(Command::Override { percent: 102 }, StatusCode::Ok);
     s.expect(
         Command::Override { percent: 103 },

@@ -53,13 +53,22 @@ pub fn rate_of(percent: u8) -> u64 {
 
 impl<const CAP: usize> Controller<CAP> {
     /// Each joint's fastest rate (steps/s) and sharpest acceleration (steps/s^2, between
-    /// consecutive points) over the points held, the first from where the joints are now.
+    /// consecutive points) over the points held. The oldest held point only starts the
+    /// differences: where it begins is the end of a point already finished, which the
+    /// buffer no longer holds (the joints' positions are no stand-in: the step side
+    /// finishes a segment when its pulses are written, a few milliseconds before they are
+    /// played, and the differences from them would make a point look several times as
+    /// fast). With one point held: from the positions. The acceleration is that between
+    /// consecutive differences (a first one has none before it: not from rest, which the
+    /// trajectory's first point already was checked from).
     fn held_rates(&self, plant: &impl Plant) -> ([u64; MAX_JOINTS], [u128; MAX_JOINTS]) {
         let mut speed = [0u64; MAX_JOINTS];
         let mut accel = [0u128; MAX_JOINTS];
-        let mut previous = plant.positions();
+        let (mut previous, mut i) = match (self.buffer.held(0), self.buffer.held(1)) {
+            (Some(first), Some(_)) => (first.position, 1),
+            _ => (plant.positions(), 0),
+        };
         let mut last = ([0i32; MAX_JOINTS], 0u32);
-        let mut i = 0;
         while let Some(point) = self.buffer.held(i) {
             i += 1;
             let d = point.duration_us.max(1);
@@ -74,7 +83,9 @@ impl<const CAP: usize> Controller<CAP> {
                     *s = (*s).max(rate);
                 }
                 let before = last.0.get(j).copied().unwrap_or(0);
-                if let Some(a) = accel.get_mut(j) {
+                if let Some(a) = accel.get_mut(j)
+                    && last.1 != 0
+                {
                     *a = (*a).max(acceleration(before, last.1, steps, d));
                 }
                 if let Some(s) = last.0.get_mut(j) {
