@@ -328,7 +328,7 @@ class Arm:
     def override(self, percent: int) -> None:
         """OVERRIDE (issue 32): run at `percent` of the planned speed (1..200), ramped in
         for the run under way and kept for later runs; above 100 % only where every
-        joint's rate and acceleration allow (else ControllerError OVERRIDE_REFUSED)."""
+        joint's rate and acceleration allow (else RefusedError OVERRIDE_REFUSED)."""
     def go_home(self, wait: bool = True, timeout: float = 600.0) -> None:
         """RETURN: every joint to zero; with `wait`, until the move ended (at most
         `timeout` s). Ctrl-C or an error while waiting sends STOPPED (resent until ACKed),

@@ -697,7 +697,7 @@ impl Arm {
 
     /// OVERRIDE (issue 32): run at `percent` of the planned speed (1..200), ramped in for
     /// the run under way and kept for the runs to come. Above 100 % only where every
-    /// joint's rate and acceleration allow (else a ControllerError OVERRIDE_REFUSED).
+    /// joint's rate and acceleration allow (else a RefusedError OVERRIDE_REFUSED).
     #[pyo3(name = "override")]
     fn set_override(&self, py: Python<'_>, percent: u8) -> PyResult<()> {
         let percent = check_speed(Some(percent))?.unwrap_or(100);
