@@ -69,11 +69,14 @@
 //! tests/producer.rs applies random holds, resumes and overrides mid-run to both at the
 //! same tick and compares them pulse for pulse.
 //!
-//! Left for issue 32: the map's cost while warped (a phase scan and u128
-//! arithmetic per pulse, a ~40-step search on a ramp: fine on the host, to be measured on
-//! the board, or made incremental per joint), the acceleration budget between path and warp
-//! (above), the board's per-run clock restart (`start_new_clock`: the warp must move with it),
-//! and the controller's and protocol's HOLD, RESUME and OVERRIDE.
+//! The controller's HOLD, RESUME and OVERRIDE drive it through arm-core's `StepBackend`
+//! (`change_rate`, `set_start_rate`: the simulator's backend keeps the warp on the run's
+//! clock, which restarts at 0 every run, as the board's does).
+//!
+//! Left for issue 32: the map's cost while warped (a phase scan and u128 arithmetic per
+//! pulse, a ~40-step search on a ramp: fine on the host, to be measured on the board before
+//! the NUCLEO's backend takes it, or made incremental per joint), the acceleration budget
+//! between path and warp (above), and the NUCLEO's and QEMU's backends.
 
 /// A rate of 100 %: trajectory time runs as fast as controller time.
 pub const RATE_ONE: u64 = 1 << 16;

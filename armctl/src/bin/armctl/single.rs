@@ -33,7 +33,7 @@ pub fn set_override(arm: &Client, percent: u8) -> CliResult {
                 ),
                 _ => "a joint would go over a limit".to_owned(),
             };
-            Err(format!("OVERRIDE {percent} % refused: {why}").into())
+            Err(format!("OVERRIDE {percent} % refused: {why}"))
         }
         other => done(other),
     }
