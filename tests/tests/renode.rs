@@ -493,7 +493,8 @@ fn the_eth_interrupt_halts_for_stopped_and_rx_counters_tell_it() {
 /// Renode takes (about a thousand of a million reached the board), and the host's queue
 /// to the TAP drops some of the STOPPEDs before the board (one in 20 in the run measured:
 /// 19 landed, 19 halted for, 18 ACKed, on the firmware before the interrupt made room in
-/// the ring too). `renode_steps.rs` has the paced flood with runs and a keyed owner.
+/// the ring too; after it, one run: 18 landed, 17 halted for and ACKed; docs/BOARD.md, "A
+/// STOPPED under a flood"). `renode_steps.rs` has the paced flood with runs and a keyed owner.
 /// Prints send -> ACK (wall clock: Renode's virtual time runs slower), the STOPPEDs lost
 /// as singles and the receive counters; asserts no time.
 #[test]
