@@ -620,7 +620,9 @@ impl RenodeBoard {
 
     /// As [`RenodeBoard::start`], with the step path's models (`tests/renode/step-path.resc`:
     /// the joint timers, DMAMUX1, DMA2 and an edge recorder on the STEP and DIR pins), so
-    /// that runs make STEP pulses; [`RenodeBoard::edges`] reads what the pins did.
+    /// that runs make STEP pulses; [`RenodeBoard::edges`] reads what the pins did, and when
+    /// each STOPPED datagram reached the MAC ([`STOPPED_LANDED`]: the recorder is connected
+    /// to the switch in promiscuous mode).
     /// `monitor_commands` (`;`-separated, may be empty) run after the models are in, before
     /// the machine starts (e.g. a model property).
     pub fn start_with_step_path(monitor_commands: &str) -> RenodeBoard {

@@ -12,7 +12,10 @@
 //! - DIR changed only while STEP is low, after the joint's last pulse fell, and at least the
 //!   drivers' DIR setup before the next rise; the pulses signed by DIR sum to the move;
 //! - after an e-stop mid-run, the positions the board reports are the signed pulses its pins
-//!   made, the pulses made are the oracle's up to the stop, and nothing moves after.
+//!   made, the pulses made are the oracle's up to the stop, and nothing moves after;
+//! - under a STATUS flood while a keyed owner streams, each of 20 single STOPPEDs halts the
+//!   arm; the time from its landing at the MAC (the recorder is also a probe on the switch)
+//!   to the last STEP edge is printed (issue 30).
 //!
 //! Times: the models make every timer edge at its exact tick in Renode's virtual time (ns),
 //! so the STEP comparison is exact. DIR is written by the CPU (TIM13's compare interrupt), so
