@@ -15,16 +15,26 @@
 // this recorder brings up to date first (SyncTime) when it is called on the CPU's thread
 // from a register write.
 //
+// It is also a network probe (issue 30): connected to the board's switch in promiscuous mode
+// (`connector Connect sysbus.stepRecorder switch; switch EnablePromiscuousMode
+// sysbus.stepRecorder`), it gets every frame at the virtual time the switch hands it to the
+// board's MAC too, and records each UDP datagram to `StopPort` that is a STOPPED frame
+// (tag 0x03 as the payload's second byte; CRC not checked) as input `StopInput`, level 1: the
+// moment a STOPPED landed, to compare with the last STEP edge after it.
+//
 using System;
 using System.IO;
 using Antmicro.Renode.Core;
+using Antmicro.Renode.Core.Structure;
+using Antmicro.Renode.Network;
+using Antmicro.Renode.Peripherals.Network;
 using Antmicro.Renode.Exceptions;
 using Antmicro.Renode.Logging;
 using Antmicro.Renode.Peripherals.Bus;
 
 namespace Antmicro.Renode.Peripherals.Miscellaneous
 {
-    public class EdgeRecorder : IDoubleWordPeripheral, IKnownSize, IGPIOReceiver
+    public class EdgeRecorder : IDoubleWordPeripheral, IKnownSize, IGPIOReceiver, IMACInterface
     {
         public EdgeRecorder(IMachine machine)
         {
@@ -71,6 +81,11 @@ namespace Antmicro.Renode.Peripherals.Miscellaneous
 
         public void OnGPIO(int number, bool value)
         {
+            Record(number, value);
+        }
+
+        private void Record(int number, bool value)
+        {
             if(machine.SystemBus.TryGetCurrentCPU(out var cpu) && cpu.OnPossessedThread)
             {
                 cpu.SyncTime();
@@ -85,6 +100,46 @@ namespace Antmicro.Renode.Peripherals.Miscellaneous
 
         public void Reset()
         {
+        }
+
+        /// The input number a STOPPED datagram's landing is recorded as.
+        public int StopInput { get; set; } = 32;
+
+        /// The controller's UDP port.
+        public int StopPort { get; set; } = 8510;
+
+        /// Never sends; any address (promiscuous mode receives all).
+        public MACAddress MAC { get; set; }
+
+        public event Action<EthernetFrame> FrameReady
+        {
+            add { }
+            remove { }
+        }
+
+        public void ReceiveFrame(EthernetFrame frame)
+        {
+            if(IsStopped(frame.Bytes))
+            {
+                Record(StopInput, true);
+            }
+        }
+
+        /// An IPv4 UDP datagram to StopPort whose payload's second byte is STOPPED's tag.
+        private bool IsStopped(byte[] b)
+        {
+            if(b.Length < 14 + 20 + 8 + 3 || b[12] != 0x08 || b[13] != 0x00 || b[23] != 17)
+            {
+                return false;
+            }
+            var udp = 14 + (b[14] & 0xF) * 4;
+            if(b.Length < udp + 8 + 3)
+            {
+                return false;
+            }
+            var port = (b[udp + 2] << 8) | b[udp + 3];
+            var payload = ((b[udp + 4] << 8) | b[udp + 5]) - 8;
+            return port == StopPort && payload >= 3 && payload <= 8 && b[udp + 8 + 1] == 0x03;
         }
 
         public long Size => 0x10;

@@ -577,11 +577,16 @@ pub struct Edge {
     /// Renode's virtual time, nanoseconds since the machine started.
     pub ns: u64,
     /// 0-7: STEP of joint `line`; 8-15: DIR of joint `line - 8`; 16-23: joint `line - 16`'s
-    /// timer counting (CR1.CEN: its tick 0).
+    /// timer counting (CR1.CEN: its tick 0); [`STOPPED_LANDED`]: a STOPPED datagram reached
+    /// the board's MAC (the switch handed it over).
     pub line: u8,
     /// The level after the change.
     pub high: bool,
 }
+
+/// The [`Edge::line`] of a STOPPED datagram landing at the board's MAC: the recorder is also
+/// a probe on the switch (promiscuous), `tests/renode/EdgeRecorder.cs`.
+pub const STOPPED_LANDED: u8 = 32;
 
 /// The joint timers' clock in the emulator (`tests/renode/step-path.resc`: the stock
 /// description's 250 MHz, which TIM13, the step clock, also runs at). The firmware counts
@@ -615,7 +620,9 @@ impl RenodeBoard {
 
     /// As [`RenodeBoard::start`], with the step path's models (`tests/renode/step-path.resc`:
     /// the joint timers, DMAMUX1, DMA2 and an edge recorder on the STEP and DIR pins), so
-    /// that runs make STEP pulses; [`RenodeBoard::edges`] reads what the pins did.
+    /// that runs make STEP pulses; [`RenodeBoard::edges`] reads what the pins did, and when
+    /// each STOPPED datagram reached the MAC ([`STOPPED_LANDED`]: the recorder is connected
+    /// to the switch in promiscuous mode).
     /// `monitor_commands` (`;`-separated, may be empty) run after the models are in, before
     /// the machine starts (e.g. a model property).
     pub fn start_with_step_path(monitor_commands: &str) -> RenodeBoard {
@@ -649,7 +656,8 @@ impl RenodeBoard {
         let models = repo_root().join("tests/renode");
         let step_path = step_path.map_or_else(String::new, |extra| {
             format!(
-                "$edges=@{}; include @{}; {extra}{}",
+                "$edges=@{}; include @{}; connector Connect sysbus.stepRecorder switch; \
+                 switch EnablePromiscuousMode sysbus.stepRecorder; {extra}{}",
                 board.dir.join(EDGES_FILE).display(),
                 models.join("step-path.resc").display(),
                 if extra.is_empty() { "" } else { "; " }

@@ -12,7 +12,10 @@
 //! - DIR changed only while STEP is low, after the joint's last pulse fell, and at least the
 //!   drivers' DIR setup before the next rise; the pulses signed by DIR sum to the move;
 //! - after an e-stop mid-run, the positions the board reports are the signed pulses its pins
-//!   made, the pulses made are the oracle's up to the stop, and nothing moves after.
+//!   made, the pulses made are the oracle's up to the stop, and nothing moves after;
+//! - under a STATUS flood while a keyed owner streams, each of 20 single STOPPEDs halts the
+//!   arm; the time from its landing at the MAC (the recorder is also a probe on the switch)
+//!   to the last STEP edge is printed (issue 30).
 //!
 //! Times: the models make every timer edge at its exact tick in Renode's virtual time (ns),
 //! so the STEP comparison is exact. DIR is written by the CPU (TIM13's compare interrupt), so
@@ -33,7 +36,8 @@ use armctl::{Error, Options, RunEnd, RunOptions};
 use common::{assert_stays_put, run_reporting_progress_with, stop_mid_run, sweep};
 use protocol::{Point, State, StatusFlags};
 use system_tests::renode::{
-    EMULATED_TIMER_HZ, Edge, HOSTS, RenodeBoard, malformed_flood, unavailable,
+    BOARD, EMULATED_TIMER_HZ, Edge, HOSTS, RenodeBoard, STOPPED_LANDED, malformed_flood,
+    unavailable,
 };
 
 /// Skips the test, saying what it needs, when Renode (or root) is missing.
@@ -1006,4 +1010,253 @@ fn the_models_alone_pulse_at_arr_and_reload_from_a_circular_stream() {
         tim3.len(),
         tim8.len()
     ));
+}
+
+/// Issue 30 part 4 on the NUCLEO firmware, with steps: the owner, keyed, streams a long
+/// trajectory in full windows (RUNING after four frames, the rest uploaded while it runs), a
+/// stranger floods valid STATUS as fast as it can send, and a third host (an e-stop panel)
+/// sends one STOPPED per run, never resent; 20 runs. Every single STOPPED takes effect: the
+/// arm is STOPPED afterwards (STATUS from the panel) and its STEP lines go quiet. The frame's
+/// landing at the board's MAC is the recorder's ([`STOPPED_LANDED`]), so a STOPPED lost
+/// before the board (the host's TAP queue) is told from one the board missed, and an ACK lost
+/// on the way back (counted, printed) from a STOPPED that did not take effect.
+///
+/// Prints, in Renode's virtual time, the time from each STOPPED landing to the last STEP edge
+/// any joint made after it (p50, p90, max over the 20), and the receive counters; asserts the
+/// emulated time only with a generous bound (10 ms: the chip's interrupt takes microseconds).
+#[test]
+fn every_single_stopped_halts_the_arm_under_a_flood_while_the_keyed_owner_streams() {
+    use protocol::auth::{AuthKey, KEY_LEN};
+    use protocol::{Command, MAX_DATAGRAM, Report, Tag};
+    use std::sync::atomic::{AtomicBool, Ordering};
+    require_renode!();
+    const KEY: AuthKey = AuthKey([0x5a; KEY_LEN]);
+    const STOPS: u8 = 20;
+    // The flood: bursts of 5 every 20 ms of wall time (`RENODE_FLOOD_BURST` changes the
+    // 5): ~240 datagrams/s, ~1,300 per second of the board's virtual time (printed). About
+    // the most the emulator carries while the owner is still answered: each frame costs it
+    // a Python hook per Ethernet register write (`nucleo-h743zi2.resc`), and its virtual
+    // time slows down with the rate. Unpaced (~100k/s from one socket) the board's virtual
+    // time advanced 12 ms in 10 s of wall time; at ~900/s (20 per 20 ms) and ~3,000/s the
+    // owner's STATUS got no ACK within armctl's 2 s of wall time (the board's 50-100 ms).
+    let flood_burst: u64 = std::env::var("RENODE_FLOOD_BURST")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(5);
+    const FLOOD_PERIOD: Duration = Duration::from_millis(20);
+    let mips = std::env::var("RENODE_FLOOD_MIPS").unwrap_or_else(|_| "100".into());
+    let mut board =
+        RenodeBoard::start_with_step_path(&format!("sysbus.cpu PerformanceInMips {mips}"));
+    let panel = board.udp_socket(HOSTS[1]);
+    panel.connect(BOARD).unwrap();
+    panel
+        .set_read_timeout(Some(Duration::from_millis(50)))
+        .unwrap();
+    let panel = common::Raw { socket: panel };
+    // Counted while the arm has no key: a keyed arm answers plain STATUS AUTH_REQUIRED
+    // (only STOPPED, DISCOVER and HELLO pass plain), and armctl does not read RX_COUNTERS.
+    let before = common::rx_counters_after_stops(&panel, 0)
+        .unwrap_or_else(|| panic!("RX_COUNTERS\n{}", board.log()));
+    board
+        .connect_from(HOSTS[0], emulated())
+        .set_key(Some(KEY))
+        .unwrap_or_else(|e| panic!("SET_KEY: {e}\n{}", board.log()));
+    // Under the flood the board's virtual time runs 10-40 times slower than wall time:
+    // a command is given up only after 30 s (copies still end 2 s after the first).
+    let arm = Arc::new(board.connect_from(
+        HOSTS[0],
+        Options {
+            key: Some(KEY),
+            give_up_after: Duration::from_secs(30),
+            ..emulated()
+        },
+    ));
+    let flooder = board.udp_socket(HOSTS[2]);
+    flooder.connect(BOARD).unwrap();
+    let mut status_frame = [0u8; 8];
+    let status_len = Command::Status.encode(1, &mut status_frame).unwrap();
+    let done = AtomicBool::new(false);
+    // Datagrams flooded so far, and when the first and the last STOPPED went out.
+    let flooded = std::sync::atomic::AtomicU64::new(0);
+    let mut flooded_at_stops = Vec::new();
+    let options = RunOptions {
+        start_after: Some(48),
+        stall_timeout: Duration::from_secs(60),
+        completion_timeout: Some(Duration::from_secs(300)),
+        ..RunOptions::default()
+    };
+    struct Try {
+        acked: bool,
+        halted: bool,
+    }
+    let (flood, tries) = std::thread::scope(|scope| {
+        let flood = scope.spawn(|| {
+            let started = Instant::now();
+            let mut sent = 0u64;
+            while !done.load(Ordering::Relaxed)
+                && sent < 5_000_000
+                && started.elapsed() < Duration::from_secs(600)
+            {
+                for _ in 0..flood_burst {
+                    let _ = flooder.send(&status_frame[..status_len]);
+                }
+                sent += flood_burst;
+                flooded.store(sent, Ordering::Relaxed);
+                std::thread::sleep(FLOOD_PERIOD);
+            }
+            (sent, started.elapsed())
+        });
+        // Whatever happens below (a panic too), the flood ends with the tries.
+        struct EndsTheFlood<'a>(&'a AtomicBool);
+        impl Drop for EndsTheFlood<'_> {
+            fn drop(&mut self) {
+                self.0.store(true, Ordering::Relaxed);
+            }
+        }
+        let _ends_the_flood = EndsTheFlood(&done);
+        let mut tries = Vec::new();
+        for k in 0..STOPS {
+            let here = (0..5)
+                .find_map(|_| {
+                    arm.current_location(Duration::from_secs(5))
+                        .inspect_err(|e| note(&format!("try {k}: LOCATION: {e}")))
+                        .ok()
+                })
+                .unwrap_or_else(|| panic!("try {k}: no LOCATION\n{}", board.log()))
+                .position;
+            // 12 s of motion, 100 keyed PENDINGs: uploaded while it runs.
+            let points = sweep(here, JOINTS, 1200, 2, 10_000);
+            let (progress, executed) = std::sync::mpsc::channel();
+            let run = {
+                let (arm, options) = (arm.clone(), options.clone());
+                std::thread::spawn(move || {
+                    arm.run_trajectory(&points, &options, |p| {
+                        let _ = progress.send(p.executed);
+                    })
+                })
+            };
+            // Under way: 5 points executed (or the run ended: said, and the try fails).
+            if !executed.iter().any(|n| n >= 5) {
+                note(&format!("try {k}: the run ended first: {:?}", run.join()));
+                tries.push(Try {
+                    acked: false,
+                    halted: false,
+                });
+                continue;
+            }
+            let mut stop = [0u8; 8];
+            let len = Command::Stopped.encode(100 + k, &mut stop).unwrap();
+            panel.socket.send(&stop[..len]).unwrap();
+            flooded_at_stops.push(flooded.load(Ordering::Relaxed));
+            let mut buf = [0u8; MAX_DATAGRAM];
+            let sent_at = Instant::now();
+            let mut acked = false;
+            while !acked && sent_at.elapsed() < Duration::from_secs(3) {
+                if let Ok(got) = panel.socket.recv(&mut buf)
+                    && let Ok(frame) = Report::decode(&buf[..got])
+                    && let Report::Ack(ack) = frame.body
+                {
+                    acked = frame.seq == 100 + k && ack.acked_tag == Tag::Stopped as u8;
+                }
+            }
+            // The owner's view (the panel has no key): its STATUS is answered whatever the
+            // flood (the owner's reserved share of the receive path).
+            let halted = arm.status().is_ok_and(|s| s.state == State::Stopped);
+            if !halted {
+                // Missed: the owner stops the run (resent until ACKed) for the next try.
+                let _ = arm.stop();
+            }
+            let _ = run.join();
+            tries.push(Try { acked, halted });
+        }
+        drop(_ends_the_flood);
+        (flood.join().unwrap(), tries)
+    });
+    arm.set_key(None)
+        .unwrap_or_else(|e| panic!("clearing the key: {e}\n{}", board.log()));
+    let after = common::rx_counters_after_stops(&panel, 0)
+        .unwrap_or_else(|| panic!("RX_COUNTERS after\n{}", board.log()));
+    let edges = recorded(&board);
+    // From each STOPPED landing to the last STEP edge after it: the edges that follow it
+    // without a 20 ms gap (a running joint steps every few ms; the next run starts later).
+    let quiet_ns = 20_000_000;
+    let landings: Vec<u64> = edges
+        .iter()
+        .filter(|e| e.line == STOPPED_LANDED)
+        .map(|e| e.ns)
+        .collect();
+    let mut to_last_edge: Vec<f64> = landings
+        .iter()
+        .map(|&landed| {
+            let mut last = landed;
+            for e in edges.iter().filter(|e| e.line < 8 && e.ns > landed) {
+                if e.ns - last > quiet_ns {
+                    break;
+                }
+                last = e.ns;
+            }
+            (last - landed) as f64 / 1e3
+        })
+        .collect();
+    to_last_edge.sort_by(f64::total_cmp);
+    let q = |p: f64| {
+        to_last_edge
+            .get(((to_last_edge.len() as f64 - 1.0) * p).round() as usize)
+            .copied()
+            .unwrap_or(f64::NAN)
+    };
+    let halted = tries.iter().filter(|t| t.halted).count();
+    let acked = tries.iter().filter(|t| t.acked).count();
+    // The flood's rate in virtual time: datagrams sent between the first and the last
+    // STOPPED over the virtual time between their landings.
+    let virtual_rate = match (
+        landings.first(),
+        landings.last(),
+        flooded_at_stops.first(),
+        flooded_at_stops.last(),
+    ) {
+        (Some(&a), Some(&b), Some(&x), Some(&y)) if b > a => {
+            (y - x) as f64 / ((b - a) as f64 / 1e9)
+        }
+        _ => f64::NAN,
+    };
+    note(&format!(
+        "e-stop under a flood: {} STATUS in {:.1} s ({:.0}/s wall, {virtual_rate:.0}/s of \
+         virtual time) from {}; {STOPS} single \
+         STOPPEDs from {}, each into a keyed owner's streamed run: landed at the MAC {}, \
+         halted the arm {halted}, ACKed {acked}; STOPPED landing -> last STEP edge (virtual \
+         time) p50 {:.1} us, p90 {:.1}, max {:.1}; the ETH interrupt halted for {}; ring \
+         dropped {}, ring full {}, shed {}, inbox dropped {}; missed: {:?}",
+        flood.0,
+        flood.1.as_secs_f64(),
+        flood.0 as f64 / flood.1.as_secs_f64(),
+        HOSTS[2],
+        HOSTS[1],
+        landings.len(),
+        q(0.5),
+        q(0.9),
+        q(1.0),
+        after.interrupt_stops - before.interrupt_stops,
+        after.ring_dropped - before.ring_dropped,
+        after.ring_full - before.ring_full,
+        after.shed - before.shed,
+        after.inbox_dropped - before.inbox_dropped,
+        tries
+            .iter()
+            .enumerate()
+            .filter(|(_, t)| !t.halted)
+            .map(|(k, _)| k)
+            .collect::<Vec<_>>(),
+    ));
+    assert_eq!(
+        halted,
+        usize::from(STOPS),
+        "every single STOPPED halted the arm\n{}",
+        board.log()
+    );
+    assert!(
+        q(1.0) < 10_000.0,
+        "the last STEP edge within 10 ms of virtual time after a STOPPED landed"
+    );
+    board.assert_healthy();
 }

@@ -54,6 +54,72 @@ fn scratch(name: &str) -> PathBuf {
     dir
 }
 
+/// A capture written by hand through armctl's pcap writer: datagrams between a host
+/// (127.0.0.1:40000) and the controller's port, in a scratch folder of its own, which goes
+/// with it (kept when the test failed, beside the failure). One builder for the tests
+/// that each wrote this out.
+struct HandCapture {
+    dir: PathBuf,
+    pcap: PathBuf,
+    log: Option<armctl::pcap::PcapLog>,
+}
+
+impl HandCapture {
+    const HOST: &str = "127.0.0.1:40000";
+
+    /// A new capture `file` in the scratch folder `name`.
+    fn new(name: &str, file: &str) -> HandCapture {
+        let dir = scratch(name);
+        let pcap = dir.join(file);
+        let log = armctl::pcap::PcapLog::create(&pcap).expect("create the capture");
+        HandCapture {
+            dir,
+            pcap,
+            log: Some(log),
+        }
+    }
+
+    fn record(&self, from: std::net::SocketAddr, to: std::net::SocketAddr, datagram: &[u8]) {
+        self.log
+            .as_ref()
+            .expect("the capture is still open")
+            .record(from, to, datagram)
+            .unwrap();
+    }
+
+    fn ends() -> (std::net::SocketAddr, std::net::SocketAddr) {
+        let host = Self::HOST.parse().unwrap();
+        let controller = format!("127.0.0.1:{}", protocol::PORT).parse().unwrap();
+        (host, controller)
+    }
+
+    /// A datagram from the host to the controller.
+    fn to_controller(&self, datagram: &[u8]) {
+        let (host, controller) = Self::ends();
+        self.record(host, controller, datagram);
+    }
+
+    /// A datagram from the controller to the host.
+    fn to_host(&self, datagram: &[u8]) {
+        let (host, controller) = Self::ends();
+        self.record(controller, host, datagram);
+    }
+
+    /// Closes the file; its path, for tshark.
+    fn finish(&mut self) -> PathBuf {
+        self.log = None;
+        self.pcap.clone()
+    }
+}
+
+impl Drop for HandCapture {
+    fn drop(&mut self) {
+        if !std::thread::panicking() {
+            let _ = std::fs::remove_dir_all(&self.dir);
+        }
+    }
+}
+
 /// The packets of `pcap` as tshark with the dissector shows them: one map of field name to
 /// value (all occurrences, comma separated) per packet. `two_pass`: analysis that needs
 /// later frames (an ACK's frame number in its command). `port`: the controller's UDP port
@@ -453,7 +519,6 @@ fn golden_frames_decode_in_wireshark_as_in_the_protocol_crate() {
         "wireshark: {} golden frames, {checked_fields} decoded fields equal to the protocol crate's",
         vectors.len()
     );
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// Sends `frame` from `socket` and waits (bounded) for its ACK.
@@ -480,11 +545,7 @@ fn a_resent_command_and_its_two_acks_pair_in_order() {
     if !have_wireshark("resend pairing") {
         return;
     }
-    let dir = scratch("resend");
-    let pcap = dir.join("resend.pcap");
-    let host: std::net::SocketAddr = "127.0.0.1:40000".parse().unwrap();
-    let controller: std::net::SocketAddr = format!("127.0.0.1:{}", protocol::PORT).parse().unwrap();
-    let log = armctl::pcap::PcapLog::create(&pcap).expect("create the capture");
+    let mut capture = HandCapture::new("resend", "resend.pcap");
     let mut pin1_on = vec![123, 0x0e];
     pin1_on.push(crc8(&pin1_on));
     let ack = protocol::Report::Ack(protocol::Ack {
@@ -498,11 +559,11 @@ fn a_resent_command_and_its_two_acks_pair_in_order() {
     let mut ack_frame = [0u8; 16];
     let n = ack.encode(123, &mut ack_frame).expect("encode ACK");
     // Frames 1, 2: the command and its resend; 3, 4: the two ACKs.
-    log.record(host, controller, &pin1_on).unwrap();
-    log.record(host, controller, &pin1_on).unwrap();
-    log.record(controller, host, &ack_frame[..n]).unwrap();
-    log.record(controller, host, &ack_frame[..n]).unwrap();
-    drop(log);
+    capture.to_controller(&pin1_on);
+    capture.to_controller(&pin1_on);
+    capture.to_host(&ack_frame[..n]);
+    capture.to_host(&ack_frame[..n]);
+    let pcap = capture.finish();
 
     let fields = [
         "frame.number",
@@ -531,7 +592,6 @@ fn a_resent_command_and_its_two_acks_pair_in_order() {
         ],
         "(response_in, response_to, retransmission) of frames 1-4"
     );
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// Issue 18: the controller ignores a STOPPED's data and stops all the same, so the
@@ -541,15 +601,11 @@ fn a_stopped_with_data_is_no_length_error() {
     if !have_wireshark("STOPPED with data") {
         return;
     }
-    let dir = scratch("stopped-data");
-    let pcap = dir.join("stopped.pcap");
-    let host: std::net::SocketAddr = "127.0.0.1:40000".parse().unwrap();
-    let controller: std::net::SocketAddr = format!("127.0.0.1:{}", protocol::PORT).parse().unwrap();
-    let log = armctl::pcap::PcapLog::create(&pcap).expect("create the capture");
+    let mut capture = HandCapture::new("stopped-data", "stopped.pcap");
     let mut stop = vec![7, 0x03, 1, 2, 3, 4];
     stop.push(crc8(&stop));
-    log.record(host, controller, &stop).unwrap();
-    drop(log);
+    capture.to_controller(&stop);
+    let pcap = capture.finish();
     let packets = dissect(&pcap, &["armctl.tag", "_ws.expert.message"], false, None);
     assert_eq!(packets.len(), 1);
     assert_eq!(
@@ -558,7 +614,6 @@ fn a_stopped_with_data_is_no_length_error() {
         "{:?}",
         packets[0]
     );
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
@@ -725,7 +780,6 @@ fn session_captures_pair_acks_and_mark_retransmissions() {
             .all(|p| p.contains_key("armctl.response_in")),
         "every command in armctl's capture got its ACK: {packets:?}"
     );
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// Authentication (issue 21, docs/PROTOCOL.md section 13): a keyed simulator's session as
@@ -818,11 +872,7 @@ fn issue_23_frames_decode_in_wireshark() {
     if !have_wireshark("issue 23 frames") {
         return;
     }
-    let dir = scratch("issue23");
-    let pcap = dir.join("issue23.pcap");
-    let host: std::net::SocketAddr = "127.0.0.1:40000".parse().unwrap();
-    let controller: std::net::SocketAddr = format!("127.0.0.1:{}", protocol::PORT).parse().unwrap();
-    let log = armctl::pcap::PcapLog::create(&pcap).expect("create the capture");
+    let mut capture = HandCapture::new("issue23", "issue23.pcap");
     let mut buf = [0u8; protocol::MAX_DATAGRAM];
     let n = Cmd::SetEnable {
         mask: 0x0103,
@@ -830,14 +880,14 @@ fn issue_23_frames_decode_in_wireshark() {
     }
     .encode(0x1b, &mut buf)
     .unwrap();
-    log.record(host, controller, &buf[..n]).unwrap();
+    capture.to_controller(&buf[..n]);
     let status = protocol::StatusReport {
         state: protocol::State::Stopped,
         more_flags: protocol::MoreFlags(protocol::MoreFlags::of_enabled(0x1FC)),
         ..protocol::StatusReport::default()
     };
     let n = Report::Status(status).encode(0x1c, &mut buf).unwrap();
-    log.record(controller, host, &buf[..n]).unwrap();
+    capture.to_host(&buf[..n]);
     let n = Cmd::StatusWith(protocol::StatusAsk {
         location: true,
         look_only: true,
@@ -845,9 +895,9 @@ fn issue_23_frames_decode_in_wireshark() {
     })
     .encode(0x1d, &mut buf)
     .unwrap();
-    log.record(host, controller, &buf[..n]).unwrap();
+    capture.to_controller(&buf[..n]);
     let n = Cmd::Release.encode(0x1e, &mut buf).unwrap();
-    log.record(host, controller, &buf[..n]).unwrap();
+    capture.to_controller(&buf[..n]);
     let set = protocol::LimitsSet {
         joint: 1,
         limits: protocol::JointLimits {
@@ -857,7 +907,7 @@ fn issue_23_frames_decode_in_wireshark() {
         },
     };
     let n = Cmd::LimitsSet(set).encode(0x1f, &mut buf).unwrap();
-    log.record(host, controller, &buf[..n]).unwrap();
+    capture.to_controller(&buf[..n]);
     let mut joints = [protocol::JointLimits::NONE; protocol::MAX_JOINTS];
     joints[1] = set.limits;
     let limits = protocol::LimitsReport {
@@ -874,8 +924,8 @@ fn issue_23_frames_decode_in_wireshark() {
         },
     };
     let n = Report::Limits(limits).encode(0x2c, &mut buf).unwrap();
-    log.record(controller, host, &buf[..n]).unwrap();
-    drop(log);
+    capture.to_host(&buf[..n]);
+    let pcap = capture.finish();
     let packets = dissect(
         &pcap,
         &[
@@ -933,7 +983,6 @@ fn issue_23_frames_decode_in_wireshark() {
         [16_100],
         "{p:?}"
     );
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// Issue 31's stop cause: STATUS `more_flags` bits 5-7, STATUS's request byte bit 2 and
@@ -943,11 +992,7 @@ fn issue_31_stop_cause_decodes_in_wireshark() {
     if !have_wireshark("issue 31 frames") {
         return;
     }
-    let dir = scratch("issue31");
-    let pcap = dir.join("issue31.pcap");
-    let host: std::net::SocketAddr = "127.0.0.1:40000".parse().unwrap();
-    let controller: std::net::SocketAddr = format!("127.0.0.1:{}", protocol::PORT).parse().unwrap();
-    let log = armctl::pcap::PcapLog::create(&pcap).expect("create the capture");
+    let mut capture = HandCapture::new("issue31", "issue31.pcap");
     let mut buf = [0u8; protocol::MAX_DATAGRAM];
     let n = Cmd::StatusWith(protocol::StatusAsk {
         stop_cause: true,
@@ -955,7 +1000,7 @@ fn issue_31_stop_cause_decodes_in_wireshark() {
     })
     .encode(0x30, &mut buf)
     .unwrap();
-    log.record(host, controller, &buf[..n]).unwrap();
+    capture.to_controller(&buf[..n]);
     let status = protocol::StatusReport {
         state: protocol::State::Stopped,
         more_flags: protocol::MoreFlags(protocol::MoreFlags::of_stop_cause(
@@ -964,14 +1009,14 @@ fn issue_31_stop_cause_decodes_in_wireshark() {
         ..protocol::StatusReport::default()
     };
     let n = Report::Status(status).encode(0x31, &mut buf).unwrap();
-    log.record(controller, host, &buf[..n]).unwrap();
+    capture.to_host(&buf[..n]);
     let stop = protocol::StopReport {
         from_ip: [127, 0, 0, 2],
         from_port: 40_001,
         ..protocol::StopReport::of(protocol::StopCause::Stopped)
     };
     let n = Report::StopCause(stop).encode(0x32, &mut buf).unwrap();
-    log.record(controller, host, &buf[..n]).unwrap();
+    capture.to_host(&buf[..n]);
     // ACCEL_SET and the LIMITS report with the accelerations.
     let n = Cmd::AccelSet {
         joint: 2,
@@ -979,9 +1024,9 @@ fn issue_31_stop_cause_decodes_in_wireshark() {
     }
     .encode(0x33, &mut buf)
     .unwrap();
-    log.record(host, controller, &buf[..n]).unwrap();
+    capture.to_controller(&buf[..n]);
     let n = Cmd::LimitsGetWithAccel.encode(0x34, &mut buf).unwrap();
-    log.record(host, controller, &buf[..n]).unwrap();
+    capture.to_controller(&buf[..n]);
     let mut accel = [0u32; protocol::MAX_JOINTS];
     accel[2] = 100_000;
     let limits = protocol::LimitsReport {
@@ -989,8 +1034,8 @@ fn issue_31_stop_cause_decodes_in_wireshark() {
         ..protocol::LimitsReport::default()
     };
     let n = Report::Limits(limits).encode(0x35, &mut buf).unwrap();
-    log.record(controller, host, &buf[..n]).unwrap();
-    drop(log);
+    capture.to_host(&buf[..n]);
+    let pcap = capture.finish();
     let packets = dissect(
         &pcap,
         &[
@@ -1050,11 +1095,7 @@ fn issue_30_rx_counters_decode_in_wireshark() {
     if !have_wireshark("issue 30 frames") {
         return;
     }
-    let dir = scratch("issue30");
-    let pcap = dir.join("issue30.pcap");
-    let host: std::net::SocketAddr = "127.0.0.1:40000".parse().unwrap();
-    let controller: std::net::SocketAddr = format!("127.0.0.1:{}", protocol::PORT).parse().unwrap();
-    let log = armctl::pcap::PcapLog::create(&pcap).expect("create the capture");
+    let mut capture = HandCapture::new("issue30", "issue30.pcap");
     let mut buf = [0u8; protocol::MAX_DATAGRAM];
     let n = Cmd::StatusWith(protocol::StatusAsk {
         stop_cause: true,
@@ -1064,15 +1105,15 @@ fn issue_30_rx_counters_decode_in_wireshark() {
     .encode(0x40, &mut buf)
     .unwrap();
     assert_eq!(buf[2], 0x0c);
-    log.record(host, controller, &buf[..n]).unwrap();
+    capture.to_controller(&buf[..n]);
     let n = Report::Status(protocol::StatusReport::default())
         .encode(0x41, &mut buf)
         .unwrap();
-    log.record(controller, host, &buf[..n]).unwrap();
+    capture.to_host(&buf[..n]);
     let n = Report::StopCause(protocol::StopReport::of(protocol::StopCause::Complete))
         .encode(0x42, &mut buf)
         .unwrap();
-    log.record(controller, host, &buf[..n]).unwrap();
+    capture.to_host(&buf[..n]);
     let counters = protocol::RxCounters {
         ring_dropped: 12,
         ring_full: 3,
@@ -1082,11 +1123,11 @@ fn issue_30_rx_counters_decode_in_wireshark() {
         group_ignored: 1,
     };
     let n = Report::RxCounters(counters).encode(0x43, &mut buf).unwrap();
-    log.record(controller, host, &buf[..n]).unwrap();
+    capture.to_host(&buf[..n]);
     let mut unknown = vec![0x44, protocol::Tag::Status as u8, 0x80];
     unknown.push(crc8(&unknown));
-    log.record(host, controller, &unknown).unwrap();
-    drop(log);
+    capture.to_controller(&unknown);
+    let pcap = capture.finish();
     let packets = dissect(
         &pcap,
         &[
@@ -1130,7 +1171,6 @@ fn issue_30_rx_counters_decode_in_wireshark() {
     let p = &packets[4];
     assert_eq!(numbers(&p["armctl.tag"]), [0x15], "{p:?}");
     assert_eq!(numbers(&p["armctl.verdict"]), [11], "{p:?}");
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// Issue 34's DIAG: STATUS's request byte bit 6 (what `armctl diag` sends, 0x4a), the
@@ -1233,11 +1273,7 @@ fn issue_31_joint_description_decodes_in_wireshark() {
     if !have_wireshark("issue 31 joint description") {
         return;
     }
-    let dir = scratch("issue31desc");
-    let pcap = dir.join("desc.pcap");
-    let host: std::net::SocketAddr = "127.0.0.1:40000".parse().unwrap();
-    let controller: std::net::SocketAddr = format!("127.0.0.1:{}", protocol::PORT).parse().unwrap();
-    let log = armctl::pcap::PcapLog::create(&pcap).expect("create the capture");
+    let mut capture = HandCapture::new("issue31desc", "desc.pcap");
     let mut buf = [0u8; protocol::MAX_DATAGRAM];
     let set = protocol::JointDescSet {
         joint: 1,
@@ -1250,18 +1286,18 @@ fn issue_31_joint_description_decodes_in_wireshark() {
         .unwrap(),
     };
     let n = Cmd::JointDescSet(set).encode(0x25, &mut buf).unwrap();
-    log.record(host, controller, &buf[..n]).unwrap();
+    capture.to_controller(&buf[..n]);
     let n = Cmd::JointDescGet { joint: 1 }
         .encode(0x26, &mut buf)
         .unwrap();
-    log.record(host, controller, &buf[..n]).unwrap();
+    capture.to_controller(&buf[..n]);
     let n = Report::JointDesc(set).encode(0x30, &mut buf).unwrap();
-    log.record(controller, host, &buf[..n]).unwrap();
+    capture.to_host(&buf[..n]);
     // JOINT_DESC_GET for joint 8: out of range.
     let mut bad = vec![0x27, 0x23, 8];
     bad.push(protocol::crc8(&bad));
-    log.record(host, controller, &bad).unwrap();
-    drop(log);
+    capture.to_controller(&bad);
+    let pcap = capture.finish();
     let packets = dissect(
         &pcap,
         &[

@@ -16,7 +16,7 @@
 //! | P1 | TIM13: step clock ([`step_timer`]): DIR changes at reversals (from lock-free queues), the run's end handed to the step service | a DIR change must come between a pulse's fall and the next pulse's setup |
 //! | P2 | DMA2 streams 0-7: STEP buffer refills ([`step_dma`]); TIM7's vector: the step service (run end, the e-stop's halt); TIM15: gripper burst reloads ([`gripper`]) | a half (64 periods) of slack; 128 PWM periods |
 //! | P3 | TIM12: embassy-time | task wake-ups |
-//! | P4 | Ethernet (and its look at STOPPED in each received frame, `net::RxPeek`), USART6, DMA, flash, RNG | driver bookkeeping; their tasks wait anyway. The Ethernet look halts the steps for a STOPPED within microseconds of its frame landing, whatever thread mode does (issue 30 part 4); at P4 it never holds off P0-P3 |
+//! | P4 | Ethernet (and its look at STOPPED in each received frame, `net::RxPeek`), USART6, DMA, flash, RNG | driver bookkeeping; their tasks wait anyway. The Ethernet look halts the steps for a STOPPED within microseconds of its frame landing, whatever thread mode does (issue 30 part 4), and keeps two receive descriptors free by dropping the oldest frames the runner has not taken, so none lands in a full ring; at P4 it never holds off P0-P3 |
 //! | thread mode | every task, one executor | see below |
 //!
 //! P0 is the e-stop input's alone; the others kept their order, one level lower each

@@ -180,6 +180,13 @@ impl Bus {
         self.budgets.lock(|b| b.borrow_mut().set_trusted(trusted));
     }
 
+    /// Whether datagrams from `ip` take the reserved share now (the owner's address and,
+    /// with a key, those of the sessions that proved it): the board's receive interrupt
+    /// never drops theirs to make room in its ring.
+    pub fn is_trusted(&self, ip: [u8; 4]) -> bool {
+        self.budgets.lock(|b| b.borrow().is_trusted(ip))
+    }
+
     /// Datagrams [`Bus::receive_first`] ignored so far because they were sent to a
     /// broadcast or multicast address (wrapping).
     pub fn ignored_group_datagrams(&self) -> u32 {

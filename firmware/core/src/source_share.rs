@@ -307,6 +307,11 @@ impl SourceBudgets {
         }
     }
 
+    /// Whether datagrams from `ip` take the reserved share now.
+    pub fn is_trusted(&self, ip: [u8; 4]) -> bool {
+        self.trusted.contains(ip)
+    }
+
     /// From now on, datagrams from `trusted` take the reserved share. An address that
     /// joins it takes its remembered datagrams in flight from the strangers' pool along.
     pub fn set_trusted(&mut self, trusted: TrustedSources) {

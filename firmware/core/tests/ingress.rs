@@ -139,6 +139,21 @@ fn one_hosts_flood_does_not_take_another_hosts_share() {
     );
 }
 
+/// The board's receive interrupt asks the bus whom it may not drop to make room in its
+/// ring (`firmware/board/src/net.rs` `make_room`): the trusted class, as published.
+#[test]
+fn the_trusted_class_is_told_to_the_receive_interrupt() {
+    let bus = Bus::new();
+    assert!(!bus.is_trusted(HOST.ip), "nobody is trusted at first");
+    let mut trusted = TrustedSources::NONE;
+    trusted.add(HOST.ip);
+    bus.set_trusted(trusted);
+    assert!(bus.is_trusted(HOST.ip));
+    assert!(!bus.is_trusted([127, 0, 0, 10]));
+    bus.set_trusted(TrustedSources::NONE);
+    assert!(!bus.is_trusted(HOST.ip), "the owner gone");
+}
+
 /// Issue 30: 20 strangers (127.0.0.10-29) flooding valid STATUS at 200,000 datagrams a
 /// second starved the owner: the share was per address over 8 least-recently-heard slots
 /// and each new address started with 36 of the inbox's 40, so the strangers, taking slots

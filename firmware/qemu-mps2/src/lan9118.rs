@@ -423,6 +423,7 @@ fn fill_ring() {
             arm_core::ingress::stop_in_frame(frame, arm_core::ingress::CONTROLLER_PORT)
         }) {
             arm_core::ingress::StepHalt::halt(&crate::BoardHalt);
+            crate::step_out::note_stop_seen();
             stops += 1;
         }
         if let Some(l) = RX.lens.get(slot) {

@@ -119,6 +119,7 @@ async fn link_watch(stack: embassy_net::Stack<'static>) -> ! {
 async fn step_output_monitor() -> ! {
     let mut logged = ([0i32; arm_step::MAX_JOINTS], [0u32; arm_step::MAX_JOINTS]);
     let mut nic_errors = (0, 0);
+    let mut stops_logged = 0;
     loop {
         embassy_time::Timer::after_millis(100).await;
         let errors = (
@@ -134,6 +135,18 @@ async fn step_output_monitor() -> ! {
             nic_errors = errors;
         }
         let (running, late) = STEP.with_engine(|e| (e.is_running(), e.late_pulses()));
+        // Issue 30's figure, once per STOPPED the receive interrupt saw, at rest: from the
+        // interrupt taking its frame to the last STEP rise after it (0: none after it).
+        let times = critical_section::with(|cs| step_out::STOP_TIMES.borrow(cs).get());
+        if !running && times.stops != stops_logged {
+            let cycles = times.last_rise.saturating_sub(times.stop_seen);
+            log::info!(
+                "STOPPED frame to the last STEP edge: {} us (stop {})",
+                cycles / u64::from(mps2::SYSCLK_HZ / 1_000_000),
+                times.stops
+            );
+            stops_logged = times.stops;
+        }
         let lines = &step_out::LINES;
         let seen = (
             lines.pulses.each_ref().map(|p| p.load(Ordering::Relaxed)),

@@ -240,6 +240,39 @@ pub static LINES: StepLines = StepLines {
     rising: [const { AtomicU32::new(0) }; MAX_JOINTS],
 };
 
+/// When the receive interrupt last halted for a STOPPED and when a STEP line last rose,
+/// in SYSCLK cycles (issue 30's figure: a STOPPED's frame to the last STEP edge after it;
+/// `main.rs`'s monitor logs it). Written by interrupts; read in thread mode.
+pub static STOP_TIMES: critical_section::Mutex<core::cell::Cell<StopTimes>> =
+    critical_section::Mutex::new(core::cell::Cell::new(StopTimes {
+        stop_seen: 0,
+        last_rise: 0,
+        stops: 0,
+    }));
+
+/// See [`STOP_TIMES`].
+#[derive(Clone, Copy)]
+pub struct StopTimes {
+    /// The receive interrupt took the last STOPPED's frame from the chip (cycles).
+    pub stop_seen: u64,
+    /// The last rising STEP edge (cycles).
+    pub last_rise: u64,
+    /// STOPPEDs seen so far.
+    pub stops: u32,
+}
+
+/// The receive interrupt found a STOPPED in a frame (now).
+pub fn note_stop_seen() {
+    let now = now_cycles();
+    critical_section::with(|cs| {
+        let cell = STOP_TIMES.borrow(cs);
+        let mut t = cell.get();
+        t.stop_seen = now;
+        t.stops = t.stops.wrapping_add(1);
+        cell.set(t);
+    });
+}
+
 /// [`TimedStepPins`] onto [`LINES`] (the edges' ticks only order them).
 struct LineWriter;
 
@@ -267,6 +300,13 @@ impl TimedStepPins for LineWriter {
             pulses.fetch_add(step, Ordering::Relaxed);
             rising.fetch_add(1, Ordering::Relaxed);
         }
+        let now = now_cycles();
+        critical_section::with(|cs| {
+            let cell = STOP_TIMES.borrow(cs);
+            let mut t = cell.get();
+            t.last_rise = now;
+            cell.set(t);
+        });
     }
 
     fn step_low(&mut self, joint: usize, _tick: u64) {

@@ -17,7 +17,8 @@ pub async fn network_task<D: Datagrams, C: Clock>(socket: &D, bus: &Bus, clock: 
     let rx = async {
         let mut buf = [0u8; MAX_DATAGRAM];
         let mut failures = LogLimit::new();
-        // Frames the board's MAC dropped for want of a receive buffer, as last logged.
+        // Frames the board dropped with its receive ring full (the MAC for want of a
+        // descriptor, or the NUCLEO's interrupt making room: the oldest), as last logged.
         let mut ring_dropped = bus.rx_ring().dropped;
         let mut ring_full = LogLimit::new();
         loop {
@@ -30,7 +31,7 @@ pub async fn network_task<D: Datagrams, C: Clock>(socket: &D, bus: &Bus, clock: 
                     let new = dropped.wrapping_sub(ring_dropped);
                     if let LogVerdict::Log { suppressed } = ring_full.events(new, clock.now_us()) {
                         warn!(
-                            "receive ring full: {} frames dropped by the MAC since the last such line ({} in all)",
+                            "receive ring full: {} frames dropped since the last such line ({} in all)",
                             suppressed.saturating_add(new),
                             dropped
                         );
