@@ -183,6 +183,7 @@ pub fn doc_frames() -> Vec<DocFrame> {
                 look_only: true,
                 stop_cause: false,
                 counters: false,
+                switches: false,
             }),
         ),
         command("RELEASE, seq 0x1e", 0x1e, Command::Release),
@@ -235,6 +236,7 @@ pub fn doc_frames() -> Vec<DocFrame> {
                 look_only: false,
                 stop_cause: true,
                 counters: false,
+                switches: false,
             }),
         ),
         command(
@@ -245,6 +247,7 @@ pub fn doc_frames() -> Vec<DocFrame> {
                 look_only: false,
                 stop_cause: false,
                 counters: true,
+                switches: false,
             }),
         ),
         command(
@@ -255,6 +258,7 @@ pub fn doc_frames() -> Vec<DocFrame> {
                 look_only: false,
                 stop_cause: true,
                 counters: true,
+                switches: false,
             }),
         ),
         command(

@@ -173,6 +173,18 @@ wire_code! {
         Unlock = 0x25 => "UNLOCK",
         /// One joint's description (controller to host; issue 31).
         JointDesc = 0x26 => "JOINT_DESC",
+        /// Run the homing cycle on the home switches (issue 33; no data; RETURN is
+        /// unchanged).
+        Home = 0x2c => "HOME",
+        /// Set one joint's homing settings, kept with its limits (issue 33).
+        HomingSet = 0x2d => "HOMING_SET",
+        /// Ask for one joint's HOMING report (issue 33; read-only, any host).
+        HomingGet = 0x2e => "HOMING_GET",
+        /// One joint's homing settings (controller to host; issue 33).
+        Homing = 0x2f => "HOMING",
+        /// The homing cycle's progress and the switch inputs (controller to host; asked
+        /// for with STATUS's request byte, bit 5; issue 33).
+        Switches = 0x30 => "SWITCHES",
         /// An authenticated envelope around a whole frame, both directions
         /// (docs/PROTOCOL.md section 13, [`crate::auth`]).
         Auth = 0x50 => "AUTH",
@@ -245,6 +257,10 @@ wire_code! {
         /// sends UNLOCK; after it, points moving a joint further into a limit switch still
         /// active are refused with this code too.
         LimitLatched = 16 => "LIMIT_LATCHED",
+        /// HOME refused: no joint in use is set to home on a switch (HOMING_SET), or the
+        /// controller has no switch inputs (issue 33). How a cycle ended is in the
+        /// SWITCHES report.
+        HomingFailed = 20 => "HOMING_FAILED",
     }
 }
 
@@ -301,6 +317,9 @@ impl StatusCode {
             }
             LimitLatched => {
                 "a limit switch tripped: `armctl unlock`, then move that joint away from the switch (motion further in is refused while it is active)"
+            }
+            HomingFailed => {
+                "no joint is set to home on a switch, or the controller has no switch inputs: HOMING_SET each joint (armctl homing set), or home by RETURN"
             }
             SaveFailed => {
                 "the controller could not save its settings to flash: nothing changed; retry, and if it keeps failing the flash needs looking at (see the board's log)"

@@ -5,6 +5,7 @@ use crate::codec::{u8_at, u16_be, u16_le, u32_le};
 use crate::codes::Tag;
 use crate::error::{DecodeError, DecodeErrorKind, EncodeError, ExpectedLen, Field};
 use crate::frame::{Frame, PointList, open, seal};
+use crate::homing::HomingSet;
 use crate::joint_desc::JointDescSet;
 use crate::joint_limits::{JointLimits, LimitsSet};
 use crate::net::NetSettings;
@@ -106,6 +107,15 @@ pub enum Command<'a> {
         /// The joint, 0-7.
         joint: u8,
     },
+    /// Run the homing cycle on the home switches (issue 33; no data).
+    Home,
+    /// Set one joint's homing settings (issue 33), kept with its limits.
+    HomingSet(HomingSet),
+    /// Ask for one joint's HOMING report (issue 33; read-only, any host).
+    HomingGet {
+        /// The joint, 0-7.
+        joint: u8,
+    },
     /// STATUS with its request byte (issue 23): what else to answer, and whether a host
     /// that does not own the controller wants only to look.
     StatusWith(StatusAsk),
@@ -141,6 +151,9 @@ pub struct StatusAsk {
     /// after the STATUS report, the LOCATION and the STOP_CAUSE (issue 30; bit 2 went to
     /// issue 31's STOP_CAUSE first).
     pub counters: bool,
+    /// Bit 5: a SWITCHES report (the homing cycle's progress, the switch inputs) to the
+    /// asker too, after the others (issue 33).
+    pub switches: bool,
 }
 
 impl StatusAsk {
@@ -152,6 +165,8 @@ impl StatusAsk {
     pub const STOP_CAUSE: u8 = 1 << 2;
     /// Bit 3.
     pub const COUNTERS: u8 = 1 << 3;
+    /// Bit 5 (bit 4 is issue 32's).
+    pub const SWITCHES: u8 = 1 << 5;
 
     /// The byte on the wire.
     pub const fn byte(self) -> u8 {
@@ -159,11 +174,18 @@ impl StatusAsk {
             | (if self.look_only { Self::LOOK_ONLY } else { 0 })
             | (if self.stop_cause { Self::STOP_CAUSE } else { 0 })
             | (if self.counters { Self::COUNTERS } else { 0 })
+            | (if self.switches { Self::SWITCHES } else { 0 })
     }
 
     /// The request of a byte, `None` with other bits set.
     pub const fn from_byte(b: u8) -> Option<StatusAsk> {
-        if b & !(Self::LOCATION | Self::LOOK_ONLY | Self::STOP_CAUSE | Self::COUNTERS) != 0 {
+        if b & !(Self::LOCATION
+            | Self::LOOK_ONLY
+            | Self::STOP_CAUSE
+            | Self::COUNTERS
+            | Self::SWITCHES)
+            != 0
+        {
             return None;
         }
         Some(StatusAsk {
@@ -171,6 +193,7 @@ impl StatusAsk {
             look_only: b & Self::LOOK_ONLY != 0,
             stop_cause: b & Self::STOP_CAUSE != 0,
             counters: b & Self::COUNTERS != 0,
+            switches: b & Self::SWITCHES != 0,
         })
     }
 }
@@ -214,6 +237,9 @@ impl<'a> Command<'a> {
             Command::JointDescSet(_) => Tag::JointDescSet,
             Command::JointDescGet { .. } => Tag::JointDescGet,
             Command::StatusWith(_) => Tag::Status,
+            Command::Home => Tag::Home,
+            Command::HomingSet(_) => Tag::HomingSet,
+            Command::HomingGet { .. } => Tag::HomingGet,
         }
     }
 
@@ -239,6 +265,8 @@ impl<'a> Command<'a> {
             Command::AccelSet { .. } => size::ACCEL_SET,
             Command::JointDescSet(_) => size::JOINT_DESC_SET,
             Command::JointDescGet { .. } => size::JOINT_DESC_GET,
+            Command::HomingSet(_) => size::HOMING_SET,
+            Command::HomingGet { .. } => size::HOMING_GET,
             _ => 0,
         }
     }
@@ -305,6 +333,8 @@ impl<'a> Command<'a> {
             }
             Command::JointDescSet(set) => set.write(w, 0),
             Command::JointDescGet { joint } => w.u8(0, *joint),
+            Command::HomingSet(set) => set.write(w, 0),
+            Command::HomingGet { joint } => w.u8(0, *joint),
             _ => {}
         })
     }
@@ -484,7 +514,9 @@ impl<'a> Command<'a> {
             | Tag::Limits
             | Tag::StopCause
             | Tag::RxCounters
-            | Tag::JointDesc => {
+            | Tag::JointDesc
+            | Tag::Homing
+            | Tag::Switches => {
                 return Err(err(DecodeErrorKind::WrongDirection));
             }
             Tag::LimitsSet => {
@@ -524,6 +556,21 @@ impl<'a> Command<'a> {
                 }
                 Command::JointDescGet { joint }
             }
+            Tag::HomingSet => {
+                exactly(size::HOMING_SET)?;
+                match HomingSet::read(data) {
+                    Some(set) => Command::HomingSet(set),
+                    None => return Err(out_of_range(Field::Homing)),
+                }
+            }
+            Tag::HomingGet => {
+                exactly(size::HOMING_GET)?;
+                let joint = u8_at(data, 0);
+                if usize::from(joint) >= crate::MAX_JOINTS {
+                    return Err(out_of_range(Field::Homing));
+                }
+                Command::HomingGet { joint }
+            }
             Tag::LimitsGet if data.len() == 1 => match u8_at(data, 0) {
                 LIMITS_WITH_ACCEL => Command::LimitsGetWithAccel,
                 _ => return Err(out_of_range(Field::LimitsAsk)),
@@ -547,6 +594,7 @@ impl<'a> Command<'a> {
             | Tag::EstopReset
             | Tag::Release
             | Tag::Unlock
+            | Tag::Home
             | Tag::LimitsGet => {
                 exactly(0)?;
                 match tag {
@@ -564,6 +612,7 @@ impl<'a> Command<'a> {
                     Tag::EstopReset => Command::EstopReset,
                     Tag::Release => Command::Release,
                     Tag::Unlock => Command::Unlock,
+                    Tag::Home => Command::Home,
                     Tag::LimitsGet => Command::LimitsGet,
                     _ => Command::Status,
                 }

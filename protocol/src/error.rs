@@ -108,6 +108,10 @@ pub enum Field {
     LimitsAsk,
     /// JOINT_DESC_SET's or JOINT_DESC_GET's joint (0-7), unit, name or scale.
     JointDesc,
+    /// HOMING_SET's or HOMING_GET's joint (0-7), flags (bits 0-2), or settings that cannot
+    /// run (a zero rate, back-off or travel on an enabled joint); the HOMING or SWITCHES
+    /// report's codes.
+    Homing,
 }
 
 impl DecodeError {
@@ -168,6 +172,10 @@ impl fmt::Display for Field {
             Field::EnableAction => {
                 f.write_str("SET_ENABLE action must be 0 (disable) or 1 (enable)")
             }
+            Field::Homing => f.write_str(
+                "HOMING_SET needs a joint of 0-7, flags in bits 0-2 and, when enabled, \
+                 non-zero rates, back-off and travel",
+            ),
         }
     }
 }

@@ -5,6 +5,7 @@ use crate::codec::{u8_at, u16_le};
 use crate::codes::{State, StatusCode, Tag};
 use crate::error::{DecodeError, DecodeErrorKind, EncodeError, ExpectedLen, Field};
 use crate::frame::{Frame, open, seal};
+use crate::homing::{HomingSet, SwitchesReport};
 use crate::joint_desc::JointDescSet;
 use crate::joint_limits::LimitsReport;
 use crate::rx_counters::RxCounters;
@@ -34,6 +35,12 @@ pub enum Report<'a> {
     /// One joint's description, the answer to JOINT_DESC_GET (issue 31); the same data
     /// as JOINT_DESC_SET.
     JointDesc(JointDescSet),
+    /// One joint's homing settings, the answer to HOMING_GET (issue 33); the same data as
+    /// HOMING_SET.
+    Homing(HomingSet),
+    /// The homing cycle's progress and the switch inputs (STATUS's request byte bit 5;
+    /// issue 33).
+    Switches(SwitchesReport),
 }
 
 impl<'a> Report<'a> {
@@ -48,6 +55,8 @@ impl<'a> Report<'a> {
             Report::StopCause(_) => Tag::StopCause,
             Report::RxCounters(_) => Tag::RxCounters,
             Report::JointDesc(_) => Tag::JointDesc,
+            Report::Homing(_) => Tag::Homing,
+            Report::Switches(_) => Tag::Switches,
         }
     }
 
@@ -62,6 +71,8 @@ impl<'a> Report<'a> {
             Report::StopCause(_) => size::STOP_CAUSE,
             Report::RxCounters(_) => size::RX_COUNTERS,
             Report::JointDesc(_) => size::JOINT_DESC_SET,
+            Report::Homing(_) => size::HOMING_SET,
+            Report::Switches(_) => size::SWITCHES,
         }
     }
 
@@ -90,6 +101,8 @@ impl<'a> Report<'a> {
             Report::StopCause(stop) => stop.write(w, 0),
             Report::RxCounters(counters) => counters.write(w, 0),
             Report::JointDesc(set) => set.write(w, 0),
+            Report::Homing(set) => set.write(w, 0),
+            Report::Switches(switches) => switches.write(w, 0),
         })
     }
 
@@ -176,6 +189,19 @@ impl<'a> Report<'a> {
                 Report::JointDesc(
                     JointDescSet::read(data)
                         .ok_or(err(DecodeErrorKind::OutOfRange(Field::JointDesc)))?,
+                )
+            }
+            Some(Tag::Homing) => {
+                exactly(size::HOMING_SET)?;
+                Report::Homing(
+                    HomingSet::read(data).ok_or(err(DecodeErrorKind::OutOfRange(Field::Homing)))?,
+                )
+            }
+            Some(Tag::Switches) => {
+                exactly(size::SWITCHES)?;
+                Report::Switches(
+                    SwitchesReport::read(data)
+                        .ok_or(err(DecodeErrorKind::OutOfRange(Field::Homing)))?,
                 )
             }
             Some(_) => return Err(err(DecodeErrorKind::WrongDirection)),

@@ -150,6 +150,10 @@ fn command_fields(cmd: &Command<'_>) -> Value {
         // Issue 31's arm description: protocol/tests/joint_desc.rs.
         Command::JointDescSet(set) => json!({ "joint_desc": format!("{set:?}") }),
         Command::JointDescGet { joint } => json!({ "joint": joint }),
+        // Issue 33's homing: protocol/tests/homing.rs.
+        Command::HomingSet(set) => json!({ "homing": format!("{set:?}") }),
+        Command::HomingGet { joint } => json!({ "joint": joint }),
+        Command::Home => json!({}),
         Command::LimitsSet(set) => json!({
             "joint": set.joint,
             "min": set.limits.min,
@@ -208,6 +212,9 @@ fn report_fields(report: &Report<'_>) -> Value {
         // Nor this (issue 30): protocol/tests/rx_counters.rs.
         Report::RxCounters(c) => json!({ "rx_counters": format!("{c:?}") }),
         Report::JointDesc(d) => json!({ "joint_desc": format!("{d:?}") }),
+        // Issue 33: protocol/tests/homing.rs.
+        Report::Homing(h) => json!({ "homing": format!("{h:?}") }),
+        Report::Switches(s) => json!({ "switches": format!("{s:?}") }),
     }
 }
 
@@ -453,6 +460,13 @@ fn vectors_cover_every_command_and_report() {
         .filter(|t| *t != Tag::RxCounters)
         // Issue 31's arm description as well: protocol/tests/joint_desc.rs.
         .filter(|t| !matches!(t, Tag::JointDescSet | Tag::JointDescGet | Tag::JointDesc))
+        // Issue 33's homing as well: protocol/tests/homing.rs.
+        .filter(|t| {
+            !matches!(
+                t,
+                Tag::Home | Tag::HomingSet | Tag::HomingGet | Tag::Homing | Tag::Switches
+            )
+        })
         .filter(|t| !commands.contains(t))
         .map(Tag::name)
         .collect();
