@@ -87,9 +87,12 @@ pub(crate) fn to_py_err(py: Python<'_>, error: Error) -> PyErr {
         Error::InvalidTrajectory(_) => TrajectoryError::new_err(message),
         // A run thread whose wait a KeyboardInterrupt ended (the arm was stopped then); an
         // authentication failure (no key on the controller, another key).
-        Error::Io(_) | Error::Encode(_) | Error::Interrupted | Error::Auth(_) => {
-            ArmctlError::new_err(message)
-        }
+        Error::Io(_)
+        | Error::Encode(_)
+        | Error::Interrupted
+        | Error::Auth(_)
+        | Error::HomingFailed(_)
+        | Error::HomingTimedOut { .. } => ArmctlError::new_err(message),
     }
 }
 

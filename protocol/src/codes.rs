@@ -178,7 +178,7 @@ wire_code! {
         Home = 0x2c => "HOME",
         /// Set one joint's homing settings, kept with its limits (issue 33).
         HomingSet = 0x2d => "HOMING_SET",
-        /// Ask for one joint's HOMING report (issue 33; read-only, any host).
+        /// Ask for one joint's HOMING report (issue 33; the owner, as LIMITS_GET).
         HomingGet = 0x2e => "HOMING_GET",
         /// One joint's homing settings (controller to host; issue 33).
         Homing = 0x2f => "HOMING",

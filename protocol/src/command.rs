@@ -111,7 +111,7 @@ pub enum Command<'a> {
     Home,
     /// Set one joint's homing settings (issue 33), kept with its limits.
     HomingSet(HomingSet),
-    /// Ask for one joint's HOMING report (issue 33; read-only, any host).
+    /// Ask for one joint's HOMING report (issue 33; the owner, as LIMITS_GET).
     HomingGet {
         /// The joint, 0-7.
         joint: u8,

@@ -19,6 +19,8 @@ use crate::pcap::PcapLog;
 use crate::rtt::{DEFAULT_MIN_RTO, RESEND_HORIZON, RttEstimator};
 
 pub mod auth;
+mod homing;
+pub use homing::Homed;
 mod receiver;
 mod wire_tools;
 pub use wire_tools::Glance;

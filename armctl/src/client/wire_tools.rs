@@ -51,6 +51,7 @@ impl Client {
             look_only,
             stop_cause: false,
             counters: false,
+            switches: false,
         };
         let reports = self.status_reports();
         let locations = self.locations();
@@ -255,7 +256,7 @@ impl Client {
     }
 }
 
-fn recv_within<T>(rx: &std::sync::mpsc::Receiver<T>, timeout: Duration) -> Option<T> {
+pub(super) fn recv_within<T>(rx: &std::sync::mpsc::Receiver<T>, timeout: Duration) -> Option<T> {
     let deadline = Instant::now() + timeout;
     rx.recv_timeout(deadline.saturating_duration_since(Instant::now()))
         .ok()

@@ -531,6 +531,7 @@ mod tests {
             limits: [protocol::JointLimits::NONE; protocol::MAX_JOINTS],
             max_accel: [0; protocol::MAX_JOINTS],
             desc: [protocol::JointDesc::NONE; protocol::MAX_JOINTS],
+            homing: [protocol::HomingSettings::NONE; protocol::MAX_JOINTS],
         }
     }
 

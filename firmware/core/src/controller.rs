@@ -140,6 +140,7 @@ use crate::response::{Deferred, Discovery, HelloGrant, Reply, Response};
 use crate::uart::uart_frame;
 
 mod boot;
+mod homing_run;
 mod owner;
 mod runs;
 
@@ -295,6 +296,8 @@ pub struct Controller<const CAP: usize> {
     /// The limit switches' latch and "away only" rule (issue 33; never set on a board
     /// without limit switches: nothing changes for it).
     hard_limits: crate::switches::Limits,
+    /// The homing cycle on the home switches (issue 33, `homing_run.rs`).
+    homing: homing_run::HomingRun,
     reports_on: bool,
     upload_period_us: u32,
     enabled: u16,
@@ -1197,6 +1200,9 @@ impl<const CAP: usize> Controller<CAP> {
                 if ask.counters {
                     response.asked_counters = Some(from);
                 }
+                if ask.switches {
+                    response.asked_switches = Some((from, self.switches_report()));
+                }
             }
             // The owner gives the controller up: no owner, no report destinations (the
             // next host to speak takes it, as at boot). Only while STOPPED: an upload or
@@ -1209,6 +1215,39 @@ impl<const CAP: usize> Controller<CAP> {
             // Answered in `handle` before the owner rule; never reaches here.
             Command::Discover => {}
             Command::Unlock => self.hard_limits.unlock(),
+            // Issue 33: the homing cycle (controller/homing_run.rs); RETURN is unchanged.
+            Command::Home => {
+                if self.estop_latched() {
+                    return Err(StatusCode::EstopLatched);
+                }
+                if self.hard_limits.latched().is_some() {
+                    return Err(StatusCode::LimitLatched);
+                }
+                stopped_only(self)?;
+                self.start_homing(plant)?;
+            }
+            // Kept with the limits, as LIMITS_SET.
+            Command::HomingSet(set) => {
+                flash_only(self)?;
+                let mut settings = self.settings;
+                let Some(slot) = settings.homing.get_mut(usize::from(set.joint)) else {
+                    return Err(StatusCode::InvalidConfig);
+                };
+                *slot = set.settings;
+                response.deferred = Some(Deferred::SaveSettings(settings));
+            }
+            Command::HomingGet { joint } => {
+                let Some(settings) = self.settings.homing.get(usize::from(joint)) else {
+                    return Err(StatusCode::InvalidConfig);
+                };
+                response.homing = Some((
+                    from,
+                    protocol::HomingSet {
+                        joint,
+                        settings: *settings,
+                    },
+                ));
+            }
             Command::EstopReset => {
                 if self.more_flags.has(MoreFlags::ESTOP_OPEN) {
                     return Err(StatusCode::EstopLatched);
@@ -1341,6 +1380,9 @@ impl<const CAP: usize> Controller<CAP> {
         if ask.counters {
             response.asked_counters = Some(from);
         }
+        if ask.switches {
+            response.asked_switches = Some((from, self.switches_report()));
+        }
         response.answer_seq = Some(seq);
         Some(response)
     }
@@ -1349,6 +1391,7 @@ impl<const CAP: usize> Controller<CAP> {
     /// `by`: the STOPPED's sender; `None`: the wired e-stop input.
     fn stop_by_host(&mut self, plant: &mut impl Plant, by: Option<Endpoint>) {
         plant.stop();
+        self.abort_homing();
         self.stop_gripper(plant);
         self.buffer.clear();
         self.return_plan = None;
@@ -1417,6 +1460,14 @@ impl<const CAP: usize> Controller<CAP> {
         event: crate::switches::SwitchEvent,
         plant: &mut impl Plant,
     ) -> Option<Location> {
+        // A home switch's: the homing cycle's (controller/homing_run.rs).
+        if matches!(
+            event,
+            crate::switches::SwitchEvent::HomeActive { .. }
+                | crate::switches::SwitchEvent::HomeReleased { .. }
+        ) {
+            return self.home_switch(event, plant);
+        }
         if !self.hard_limits.on_event(event) {
             return None;
         }

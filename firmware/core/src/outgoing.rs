@@ -145,6 +145,10 @@ pub enum AnswerReport {
     RxCounters(protocol::RxCounters),
     /// A JOINT_DESC report (the answer to JOINT_DESC_GET, issue 31).
     JointDesc(protocol::JointDescSet),
+    /// A HOMING report (the answer to HOMING_GET, issue 33).
+    Homing(protocol::HomingSet),
+    /// A SWITCHES report (STATUS's request byte bit 5, issue 33).
+    Switches(protocol::SwitchesReport),
 }
 
 /// Encodes [`Outgoing`] frames. Reports (everything but ACKs) carry the controller's own
@@ -204,6 +208,8 @@ impl ReportEncoder {
                     AnswerReport::StopCause(s) => Report::StopCause(s),
                     AnswerReport::RxCounters(c) => Report::RxCounters(c),
                     AnswerReport::JointDesc(d) => Report::JointDesc(d),
+                    AnswerReport::Homing(h) => Report::Homing(h),
+                    AnswerReport::Switches(s) => Report::Switches(s),
                 },
             ),
             Outgoing::Location(l) => {

@@ -1426,6 +1426,7 @@ fn status_replies_go_out_in_the_documented_order() {
         look_only: false,
         stop_cause: true,
         counters: true,
+        switches: false,
     };
     assert_eq!(ask.byte(), 0x0d);
     rig.route(&frame(0, Command::StatusWith(ask)));

@@ -86,6 +86,8 @@ pub enum OwnedReport {
     StopCause(protocol::StopReport),
     RxCounters(protocol::RxCounters),
     JointDesc(protocol::JointDescSet),
+    Homing(protocol::HomingSet),
+    Switches(protocol::SwitchesReport),
 }
 
 impl Client {
@@ -125,6 +127,8 @@ impl Client {
             Report::StopCause(s) => OwnedReport::StopCause(s),
             Report::RxCounters(c) => OwnedReport::RxCounters(c),
             Report::JointDesc(d) => OwnedReport::JointDesc(d),
+            Report::Homing(h) => OwnedReport::Homing(h),
+            Report::Switches(s) => OwnedReport::Switches(s),
         };
         Some((frame.seq, report))
     }

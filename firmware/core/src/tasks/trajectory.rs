@@ -183,6 +183,7 @@ where
         }
     }
     controller.set_pwm_timer_clock_hz(gripper.timer_clock_hz());
+    controller.set_switches_fitted(switches.is_some_and(SwitchLine::any_fitted));
     outputs.set_enabled(controller.enabled());
     publish(bus, controller);
     let lead_ticks = us_to_ticks(u64::from(START_LEAD_US), step.timing().tick_hz);
@@ -404,6 +405,20 @@ pub(super) fn deliver(bus: &Bus, response: &Response) {
             to,
             seq: response.answer_seq,
             report: AnswerReport::RxCounters(bus.rx_counters()),
+        }));
+    }
+    if let Some((to, switches)) = response.asked_switches {
+        bus.send(Outgoing::Answer(Answer {
+            to,
+            seq: response.answer_seq,
+            report: AnswerReport::Switches(switches),
+        }));
+    }
+    if let Some((to, homing)) = response.homing {
+        bus.send(Outgoing::Answer(Answer {
+            to,
+            seq: None,
+            report: AnswerReport::Homing(homing),
         }));
     }
     if let Some(location) = response.location {
