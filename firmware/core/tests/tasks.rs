@@ -1440,6 +1440,8 @@ fn status_replies_go_out_in_the_documented_order() {
             AnswerReport::StopCause(_) => "STOP_CAUSE",
             AnswerReport::RxCounters(_) => "RX_COUNTERS",
             AnswerReport::JointDesc(_) => "JOINT_DESC",
+            AnswerReport::Homing(_) => "HOMING",
+            AnswerReport::Switches(_) => "SWITCHES",
         }),
         // The periodic stream is not an answer.
         _ => None,
