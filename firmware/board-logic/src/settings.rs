@@ -159,7 +159,10 @@ pub fn encode_homing(settings: &PersistentSettings, part: usize) -> [u8; HOMING_
             h.offset.to_le_bytes(),
         ];
         let head = [h.flags(), h.order];
-        for (out, b) in chunk.iter_mut().zip(head.iter().chain(words.iter().flatten())) {
+        for (out, b) in chunk
+            .iter_mut()
+            .zip(head.iter().chain(words.iter().flatten()))
+        {
             *out = *b;
         }
     }
@@ -706,7 +709,10 @@ mod tests {
         let LoadOutcome::Stored(loaded) = block_on(old.load()) else {
             panic!("the old record loads");
         };
-        assert_eq!(loaded.homing, [protocol::HomingSettings::NONE; protocol::MAX_JOINTS]);
+        assert_eq!(
+            loaded.homing,
+            [protocol::HomingSettings::NONE; protocol::MAX_JOINTS]
+        );
         // A record whose joint cannot run (seek rate 0) loads with none for it.
         let mut record = encode_homing(&homed, 0);
         record[2..6].copy_from_slice(&[0; 4]);
