@@ -95,7 +95,7 @@ impl<const CAP: usize> Controller<CAP> {
     pub fn switches_report(&self) -> SwitchesReport {
         let limits = &self.hard_limits;
         let mask = |side| {
-            (0..MAX_JOINTS as u8)
+            (0u8..8)
                 .filter(|&j| limits.is_active(j, side))
                 .fold(0u8, |m, j| m | bit(j))
         };
@@ -115,7 +115,8 @@ impl<const CAP: usize> Controller<CAP> {
 
     /// HOME's execution (the caller checked the latches and STOPPED): starts the cycle.
     pub(super) fn start_homing(&mut self, plant: &mut impl Plant) -> Result<(), StatusCode> {
-        let joints = self.settings.joints.min(MAX_JOINTS as u8);
+        // MAX_JOINTS is 8: a joint count of at most 8 fits the u8 bit masks.
+        let joints = self.settings.joints.min(8);
         let settings = self.settings.homing.map(|s| joint_settings(&s));
         let any = settings.iter().take(usize::from(joints)).any(|s| s.enabled);
         if !self.homing.fitted || !any {
@@ -140,9 +141,7 @@ impl<const CAP: usize> Controller<CAP> {
     /// ended (reports on).
     fn homing_act(&mut self, mut action: HomingAction, plant: &mut impl Plant) -> Option<Location> {
         loop {
-            let Some(cycle) = self.homing.cycle.as_mut() else {
-                return None;
-            };
+            let cycle = self.homing.cycle.as_mut()?;
             if let Some(joint) = cycle.joint() {
                 self.homing.joint = joint;
             }
