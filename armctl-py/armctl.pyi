@@ -301,8 +301,9 @@ class Arm:
         """Moves one joint (index, or name in `config`) by `by` in `units`."""
     @overload
     def home(self, timeout: float = 600.0) -> npt.NDArray[np.int32]:
-        """RETURN to its end, then the positions (all 0); raises if a joint ended
-        elsewhere."""
+        """Homes on the switches when the arm has them (HOME, issue 33; raises naming
+        the joint if the cycle fails), else RETURN to its end; then the positions (after
+        RETURN all 0; raises if a joint ended elsewhere)."""
     @overload
     def home(
         self, timeout: float = 600.0, config: Optional[_Path] = None,
@@ -310,6 +311,11 @@ class Arm:
     ) -> Union[npt.NDArray[np.int32], npt.NDArray[np.float64]]:
         """With a joint `config`: positions and the message in `units` (default the
         config's), joints by name, as `armctl home --config`."""
+    def switches(self) -> Optional[Dict[str, Any]]:
+        """The SWITCHES report (issue 33): `phase` ("never", "homing", "homed",
+        "failed"), `joint`, `error`, masks `homed`, `home_active`, `min_active`,
+        `max_active`, and `latched` (None or {"joint", "side"}); None from an older
+        controller."""
     def stop(self) -> None:
         """STOPPED: every joint stops at once, the trajectory is dropped."""
     def go_home(self, wait: bool = True, timeout: float = 600.0) -> None:
