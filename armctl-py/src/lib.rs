@@ -277,9 +277,7 @@ impl Arm {
 /// at Python's signals in between; an error names the joint a failed cycle stopped at.
 fn wait_homing(py: Python<'_>, arm: &Client, deadline: std::time::Instant) -> PyResult<()> {
     loop {
-        let report = py
-            .detach(|| arm.switches())
-            .map_err(|e| to_py_err(py, e))?;
+        let report = py.detach(|| arm.switches()).map_err(|e| to_py_err(py, e))?;
         match report.map(|r| (r.phase, r)) {
             Some((protocol::HomingPhase::Homed, _)) => return Ok(()),
             Some((protocol::HomingPhase::Failed, r)) => {

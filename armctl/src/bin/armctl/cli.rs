@@ -95,6 +95,9 @@ pub enum Cmd {
     /// UNLOCK: clear the latch a limit switch set; then only motion away from a switch
     /// still active is accepted, until it opens.
     Unlock,
+    /// Each joint's homing on its home switch (HOMING_GET, HOMING_SET; `home` runs it).
+    #[command(subcommand)]
+    Homing(crate::homing::HomingCmd),
     /// RETURN: move every joint to zero.
     Return {
         /// Wait until the move ends.
@@ -107,8 +110,10 @@ pub enum Cmd {
     /// Jog: `jog JOINT BY` moves one joint by an increment; `jog` alone jogs by keys (digits
     /// choose a joint, arrows move it, Space stops, q quits).
     Jog(JogArgs),
-    /// RETURN with progress: every joint to zero, a live position line, and a check that
-    /// all are there.
+    /// Home the arm: on the home switches when it has them (HOME: each joint set with
+    /// `homing set` seeks its switch, backs off, approaches slowly and takes its offset),
+    /// otherwise RETURN with progress: every joint to zero, a live position line, and a
+    /// check that all are there.
     Home {
         /// Joint config (names, units).
         #[arg(long, value_name = "FILE")]

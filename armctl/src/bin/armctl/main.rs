@@ -41,6 +41,7 @@ mod connect;
 mod discover;
 mod enable;
 mod frame;
+mod homing;
 mod interrupt;
 mod jog_keys;
 mod key;
@@ -167,6 +168,7 @@ fn execute_online(cli: &Cli, arm: &armctl::Client) -> CliResult {
         Cmd::Release => owner::release(arm),
         Cmd::EstopReset => single::done(arm.estop_reset()),
         Cmd::Unlock => single::done(arm.unlock()),
+        Cmd::Homing(command) => homing::execute(arm, command),
         Cmd::Return { wait } => single::go_home(arm, *wait),
         Cmd::Move(args) => motion::execute_move(arm, args),
         Cmd::Jog(args) => motion::execute_jog(arm, args),
