@@ -613,6 +613,10 @@ local function dissect_homing(tree, data)
     tree:add_le(f.homing_offset, data(20, 4), data(20, 4):le_int())
     if joint > 7 then out_of_range(tree, "HOMING_SET needs a joint of 0-7") end
     if flags > 7 then out_of_range(tree, "HOMING_SET flags may only use bits 0-2") end
+    if bit.band(flags, 1) ~= 0 and (data(4, 4):le_uint() == 0 or data(8, 4):le_uint() == 0
+        or data(12, 4):le_uint() == 0 or data(16, 4):le_uint() == 0) then
+        out_of_range(tree, "HOMING_SET needs non-zero rates, back-off and travel on an enabled joint")
+    end
     if bit.band(flags, 1) == 0 then return string.format("joint %d: not homed", joint) end
     local side = "min"
     if bit.band(flags, 2) ~= 0 then side = "max" end
