@@ -376,8 +376,8 @@ fn wire(board: Board) -> io::Result<Wiring> {
         .then(|| &*Box::leak(Box::new(SwitchLine::new(model.config()))));
     let mut backend =
         SimSteps::new(timing, board.step_pins(), board.clock).with_probe(board.probe.clone());
-    if switches.is_some() {
-        backend = backend.with_switches(model);
+    if let Some(line) = switches {
+        backend = backend.with_switches(model, line);
     }
     let step: &'static SimStepShared = STEP
         .try_init(StepShared::with_backend(backend))

@@ -27,6 +27,7 @@ use crate::clock::SimClock;
 use crate::probe::Probe;
 use crate::steppers::SimSteppers;
 use crate::switches::{SwitchEdge, SwitchModel};
+use arm_core::switch_line::SwitchLine;
 
 /// How the step thread runs.
 #[derive(Clone, Copy, Debug)]
@@ -114,8 +115,9 @@ pub struct SimSteps<const Q: usize> {
     primed_finished: u32,
     /// Told when an emergency stop has stopped the run (the e-stop latency's end).
     probe: Option<Arc<Probe>>,
-    /// The joints' switches (issue 33), if any: looked at each STEP edge.
-    switches: Option<SwitchModel>,
+    /// The joints' switches (issue 33), if any: looked at each STEP edge; with the
+    /// switch line whose mask says which limit does not halt.
+    switches: Option<(SwitchModel, &'static SwitchLine)>,
 }
 
 impl<const Q: usize> std::fmt::Debug for SimSteps<Q> {
@@ -133,12 +135,16 @@ impl<const Q: usize> std::fmt::Debug for SimSteps<Q> {
 struct Stamped<'a> {
     pins: &'a mut SimSteppers,
     origin: u64,
-    switches: Option<&'a mut SwitchModel>,
+    switches: Option<(&'a mut SwitchModel, &'static SwitchLine)>,
     halt: Option<u64>,
 }
 
 impl<'a> Stamped<'a> {
-    fn new(pins: &'a mut SimSteppers, origin: u64, switches: Option<&'a mut SwitchModel>) -> Self {
+    fn new(
+        pins: &'a mut SimSteppers,
+        origin: u64,
+        switches: Option<(&'a mut SwitchModel, &'static SwitchLine)>,
+    ) -> Self {
         Stamped {
             pins,
             origin,
@@ -152,9 +158,12 @@ impl TimedStepPins for Stamped<'_> {
     fn step_high(&mut self, joint: usize, tick: u64) {
         self.pins.set_tick(self.origin + tick);
         self.pins.step_high(1 << joint);
-        if let Some(model) = self.switches.as_deref_mut() {
+        if let Some((model, line)) = self.switches.as_mut() {
             let motor = self.pins.motors().position[joint].load(Ordering::Relaxed);
-            if model.moved(joint, motor, self.origin + tick) && self.halt.is_none() {
+            if let Some(side) = model.moved(joint, motor, self.origin + tick)
+                && self.halt.is_none()
+                && !line.is_masked(joint as u8, side)
+            {
                 self.halt = Some(tick);
             }
         }
@@ -192,9 +201,9 @@ impl<const Q: usize> SimSteps<Q> {
         }
     }
 
-    /// Gives the joints `model`'s switches (issue 33).
-    pub fn with_switches(mut self, model: SwitchModel) -> SimSteps<Q> {
-        self.switches = Some(model);
+    /// Gives the joints `model`'s switches (issue 33), whose edges go to `line`.
+    pub fn with_switches(mut self, model: SwitchModel, line: &'static SwitchLine) -> SimSteps<Q> {
+        self.switches = Some((model, line));
         self
     }
 
@@ -203,7 +212,7 @@ impl<const Q: usize> SimSteps<Q> {
     pub fn take_switch_edges(&mut self) -> Vec<SwitchEdge> {
         self.switches
             .as_mut()
-            .map_or_else(Vec::new, SwitchModel::take_edges)
+            .map_or_else(Vec::new, |(model, _)| model.take_edges())
     }
 
     /// Tells `probe` when an emergency stop has stopped a run.
@@ -223,7 +232,11 @@ impl<const Q: usize> SimSteps<Q> {
         let Some(origin) = self.origin else {
             return StepProgress::default();
         };
-        let mut pins = Stamped::new(&mut self.pins, origin, self.switches.as_mut());
+        let mut pins = Stamped::new(
+                &mut self.pins,
+                origin,
+                self.switches.as_mut().map(|(m, l)| (m, *l)),
+            );
         let (advance, halt) =
             self.player
                 .advance_halting(&mut self.streams, now.saturating_sub(origin), &mut pins);
@@ -288,7 +301,11 @@ impl<const Q: usize> StepBackend for SimSteps<Q> {
         self.player.stop(
             &mut self.streams,
             now.saturating_sub(origin),
-            &mut Stamped::new(&mut self.pins, origin, self.switches.as_mut()),
+            &mut Stamped::new(
+                &mut self.pins,
+                origin,
+                self.switches.as_mut().map(|(m, l)| (m, *l)),
+            ),
         );
         self.primed_finished = 0;
         if let Some(probe) = &self.probe {
@@ -305,7 +322,7 @@ impl<const Q: usize> StepBackend for SimSteps<Q> {
 
     fn set_positions(&mut self, positions: [i32; MAX_JOINTS]) -> bool {
         let set = self.origin.is_none() && self.streams.producer().set_positions(positions);
-        if set && let Some(model) = &mut self.switches {
+        if set && let Some((model, _)) = &mut self.switches {
             model.counts_set(positions, self.pins.motors().positions());
         }
         set

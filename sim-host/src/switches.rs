@@ -12,7 +12,8 @@
 //! changes, records the edge ([`SwitchEdge`], with the joint's step count and the instant).
 //! A limit switch closing asks the player to halt at that tick
 //! ([`arm_step::HaltingStepPins`]): no STEP edge on any joint after it, as the board's
-//! EXTI handler halting the step timers. The step thread then hands every recorded edge
+//! EXTI handler halting the step timers; unless the switch line masks it (the homing
+//! cycle's switch when it is also the limit, [`arm_core::switch_line::SwitchLine::set_mask`]). The step thread then hands every recorded edge
 //! to the same switch path the board's EXTI handler uses ([`arm_core::switch_line::SwitchLine::edge`]),
 //! outside the step backend's lock.
 
@@ -148,23 +149,30 @@ impl SwitchModel {
     }
 
     /// Joint `joint`'s motor now stands at `motor` pulses, after an edge at `tick`:
-    /// records the inputs whose level changed. Returns `true` if a limit switch closed.
-    pub fn moved(&mut self, joint: usize, motor: i64, tick: u64) -> bool {
+    /// records the inputs whose level changed. Returns the side of a limit switch that
+    /// closed, if one did.
+    pub fn moved(&mut self, joint: usize, motor: i64, tick: u64) -> Option<Side> {
         let (Some(model), Some(levels)) = (self.joints.get(joint), self.levels.get_mut(joint))
         else {
-            return false;
+            return None;
         };
         let pressed = model.pressed(model.start + motor);
         let fitted = model.fitted();
         let count = i32::try_from(motor + self.count_offset[joint]).unwrap_or(i32::MAX);
-        let mut tripped = false;
+        let mut tripped = None;
         for switch in Switch::ALL {
             let level = *pressed.at(switch);
             if !*fitted.at(switch) || *levels.at(switch) == level {
                 continue;
             }
             *levels.at_mut(switch) = level;
-            tripped |= level && switch != Switch::Home;
+            if level {
+                match switch {
+                    Switch::Min => tripped = Some(Side::Min),
+                    Switch::Max => tripped = Some(Side::Max),
+                    Switch::Home => {}
+                }
+            }
             self.edges.push(SwitchEdge {
                 joint: joint as u8,
                 switch,
@@ -219,9 +227,9 @@ mod tests {
         assert_eq!(boot.len(), 3);
         assert!(boot.iter().all(|e| !e.level));
         // Down to the home switch at physical 0: motor -50.
-        assert!(!model.moved(0, -49, 10));
+        assert_eq!(model.moved(0, -49, 10), None);
         assert!(model.take_edges().is_empty());
-        assert!(!model.moved(0, -50, 11), "the home switch is no limit");
+        assert_eq!(model.moved(0, -50, 11), None, "the home switch is no limit");
         assert_eq!(
             model.take_edges(),
             [SwitchEdge {
@@ -232,9 +240,9 @@ mod tests {
                 tick: 11
             }]
         );
-        assert!(model.moved(0, -70, 12), "the min limit at -20");
+        assert_eq!(model.moved(0, -70, 12), Some(Side::Min), "the min limit at -20");
         model.counts_set([7, 0, 0, 0, 0, 0, 0, 0], [-70, 0, 0, 0, 0, 0, 0, 0]);
-        assert!(!model.moved(0, -69, 13));
+        assert_eq!(model.moved(0, -69, 13), None);
         let released = model.take_edges();
         assert_eq!(
             released.last().map(|e| (e.level, e.count)),

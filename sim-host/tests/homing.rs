@@ -30,10 +30,12 @@ fn settings(max_travel_steps: u32) -> HomingSettings {
         switch_is_limit: false,
         order: 0,
         seek_rate_hz: 4_000,
-        approach_rate_hz: 400,
-        // More than the seek runs on past the switch before its stop (the simulator's step
-        // thread sees edges every few ms: tens of steps at the seek rate).
-        backoff_steps: 400,
+        approach_rate_hz: 2_000,
+        // More than the seek runs on past the switch before its stop: the simulator's step
+        // thread sees edges every few ms and the task reacts after it, 16 steps per real
+        // ms at this seek rate and time scale, so a machine ten times busier still stops
+        // within it.
+        backoff_steps: 2_000,
         max_travel_steps,
         offset: OFFSET,
     }
@@ -91,6 +93,7 @@ fn homing_from_random_positions_ends_at_the_switch_plus_offset_to_the_step() {
     options.time_scale = 4.0;
     options.positions = vec![(0, START)];
     options.home_switches = vec![(0, SWITCH, arm_core::switches::Side::Min)];
+    sim_host::app::init_logging("warn,arm_core=debug");
     let board = sim_host::app::start_in_background(&options).expect("the simulator starts");
     let mut client = Client::new(board.local_addr().expect("a UDP socket"));
     let physical = || START + board.motors.positions()[0];
@@ -138,7 +141,12 @@ fn homing_from_random_positions_ends_at_the_switch_plus_offset_to_the_step() {
             state: 0,
         }));
         let report = home(&mut client);
-        assert_eq!(report.phase, HomingPhase::Homed, "run {run}: {report:?}");
+        assert_eq!(
+            report.phase,
+            HomingPhase::Homed,
+            "run {run} from physical {target}: {report:?}, now at physical {}",
+            physical()
+        );
         assert_eq!(report.homed & 1, 1);
         count = client.location().position[0];
         let expected = physical() - SWITCH + i64::from(OFFSET);

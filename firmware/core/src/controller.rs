@@ -1391,7 +1391,7 @@ impl<const CAP: usize> Controller<CAP> {
     /// `by`: the STOPPED's sender; `None`: the wired e-stop input.
     fn stop_by_host(&mut self, plant: &mut impl Plant, by: Option<Endpoint>) {
         plant.stop();
-        self.abort_homing();
+        self.abort_homing(plant);
         self.stop_gripper(plant);
         self.buffer.clear();
         self.return_plan = None;

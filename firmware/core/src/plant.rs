@@ -42,4 +42,10 @@ pub trait Plant {
     fn serial_close(&mut self);
     /// Queues bytes for the serial port; `false` when the queue has no room.
     fn serial_send(&mut self, bytes: &[u8]) -> bool;
+    /// The limit switch whose trips must not halt the steps now (issue 33: the one the
+    /// homing cycle homes on, when it is also the limit; `None`: every limit halts). Set
+    /// before the move that may reach it starts. Default: no switches, nothing to do.
+    fn set_limit_mask(&mut self, mask: Option<(u8, crate::switches::Side)>) {
+        let _ = mask;
+    }
 }

@@ -145,7 +145,14 @@ impl<const CAP: usize> Controller<CAP> {
             if let Some(joint) = cycle.joint() {
                 self.homing.joint = joint;
             }
-            self.hard_limits.set_mask(cycle.masked_limit());
+            debug!(
+                "homing: {:?} at {:?}",
+                debug_value!(action),
+                debug_value!(plant.positions()[0])
+            );
+            let mask = cycle.masked_limit();
+            self.hard_limits.set_mask(mask);
+            plant.set_limit_mask(mask);
             action = match action {
                 HomingAction::Move {
                     joint,
@@ -206,6 +213,7 @@ impl<const CAP: usize> Controller<CAP> {
     ) -> Option<Location> {
         self.homing.cycle = None;
         self.hard_limits.set_mask(None);
+        plant.set_limit_mask(None);
         plant.stop();
         if let Some(error) = error {
             let (joint, failure) = failure(error);
@@ -226,6 +234,7 @@ impl<const CAP: usize> Controller<CAP> {
 
     /// The step backend ran dry during the cycle: the move ended.
     pub(super) fn homing_ran_dry(&mut self, plant: &mut impl Plant) -> Option<Location> {
+        debug!("homing: the move ran dry");
         let cycle = self.homing.cycle.as_mut()?;
         let joint = cycle.joint()?;
         let count = plant.positions().get(usize::from(joint)).copied()?;
@@ -262,11 +271,12 @@ impl<const CAP: usize> Controller<CAP> {
 
     /// A stop from outside (STOPPED, the e-stop input, a limit switch) during the cycle:
     /// it fails naming the joint it was homing.
-    pub(super) fn abort_homing(&mut self) {
+    pub(super) fn abort_homing(&mut self, plant: &mut impl Plant) {
         let Some(mut cycle) = self.homing.cycle.take() else {
             return;
         };
         self.hard_limits.set_mask(None);
+        plant.set_limit_mask(None);
         if let Some(error) = cycle.abort() {
             let (joint, failure) = failure(error);
             self.homing.phase = HomingPhase::Failed;

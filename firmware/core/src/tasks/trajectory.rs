@@ -57,6 +57,8 @@ struct TaskPlant<'a, const Q: usize, B, M, K, O, G, P> {
     outputs: &'a mut O,
     gripper: &'a mut G,
     serial: &'a P,
+    /// The switch inputs (their mask, issue 33).
+    switches: Option<&'a SwitchLine>,
 }
 
 impl<
@@ -128,6 +130,11 @@ impl<
         match Vec::from_slice(bytes) {
             Ok(v) => self.bus.serial_tx.try_send(v).is_ok(),
             Err(_) => false,
+        }
+    }
+    fn set_limit_mask(&mut self, mask: Option<(u8, crate::switches::Side)>) {
+        if let Some(line) = self.switches {
+            line.set_mask(mask);
         }
     }
 }
@@ -213,6 +220,7 @@ where
             outputs: &mut outputs,
             gripper: &mut gripper,
             serial,
+            switches,
         };
         // The input's stop came first (its handler stopped the steps already); whatever
         // this event is, it is handled in the state that stop left. Likewise a limit
