@@ -233,10 +233,10 @@ impl<const Q: usize> SimSteps<Q> {
             return StepProgress::default();
         };
         let mut pins = Stamped::new(
-                &mut self.pins,
-                origin,
-                self.switches.as_mut().map(|(m, l)| (m, *l)),
-            );
+            &mut self.pins,
+            origin,
+            self.switches.as_mut().map(|(m, l)| (m, *l)),
+        );
         let (advance, halt) =
             self.player
                 .advance_halting(&mut self.streams, now.saturating_sub(origin), &mut pins);

@@ -240,7 +240,11 @@ mod tests {
                 tick: 11
             }]
         );
-        assert_eq!(model.moved(0, -70, 12), Some(Side::Min), "the min limit at -20");
+        assert_eq!(
+            model.moved(0, -70, 12),
+            Some(Side::Min),
+            "the min limit at -20"
+        );
         model.counts_set([7, 0, 0, 0, 0, 0, 0, 0], [-70, 0, 0, 0, 0, 0, 0, 0]);
         assert_eq!(model.moved(0, -69, 13), None);
         let released = model.take_edges();

@@ -93,7 +93,6 @@ fn homing_from_random_positions_ends_at_the_switch_plus_offset_to_the_step() {
     options.time_scale = 4.0;
     options.positions = vec![(0, START)];
     options.home_switches = vec![(0, SWITCH, arm_core::switches::Side::Min)];
-    sim_host::app::init_logging("warn,arm_core=debug");
     let board = sim_host::app::start_in_background(&options).expect("the simulator starts");
     let mut client = Client::new(board.local_addr().expect("a UDP socket"));
     let physical = || START + board.motors.positions()[0];

@@ -87,7 +87,11 @@ fn a_home_switch_that_is_the_limit_homes_and_still_guards_the_end() {
     );
     client.ok(&Command::New { count: 1 });
     let ack = client.command(&Command::Pending(protocol::PointList::Points(&further)));
-    assert_eq!(ack.status, StatusCode::LimitLatched, "further into the switch");
+    assert_eq!(
+        ack.status,
+        StatusCode::LimitLatched,
+        "further into the switch"
+    );
     client.ok(&Command::Stopped);
     let away: Vec<[i32; MAX_JOINTS]> = (1..=30)
         .map(|i| [count + 10 * i, 0, 0, 0, 0, 0, 0, 0])
