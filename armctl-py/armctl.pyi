@@ -311,6 +311,13 @@ class Arm:
     ) -> Union[npt.NDArray[np.int32], npt.NDArray[np.float64]]:
         """With a joint `config`: positions and the message in `units` (default the
         config's), joints by name, as `armctl home --config`."""
+    def set_homing(
+        self, joint: int, max_travel_steps: int, towards: Literal["min", "max"] = "min",
+        seek_rate_hz: int = 2000, approach_rate_hz: int = 200, backoff_steps: int = 400,
+        offset: int = 0, order: int = 0, switch_is_limit: bool = False, enabled: bool = True,
+    ) -> None:
+        """HOMING_SET (issue 33): the joint homes on its home switch; `home()` runs the
+        cycle. Kept across power cycles; only while STOPPED."""
     def switches(self) -> Optional[Dict[str, Any]]:
         """The SWITCHES report (issue 33): `phase` ("never", "homing", "homed",
         "failed"), `joint`, `error`, masks `homed`, `home_active`, `min_active`,

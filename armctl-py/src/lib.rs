@@ -709,6 +709,51 @@ impl Arm {
         ))
     }
 
+    /// HOMING_SET (issue 33): joint `joint` homes on its home switch on the `towards`
+    /// side ("min" or "max"), seeking at `seek_rate_hz` within `max_travel_steps`, backing
+    /// off `backoff_steps` and approaching at `approach_rate_hz`; its count at the switch
+    /// becomes `offset`. Kept across power cycles; only while STOPPED. `enabled=False`:
+    /// the joint does not home (HOME uses the others; none: `home()` uses RETURN).
+    #[pyo3(signature = (joint, max_travel_steps, towards="min", seek_rate_hz=2000, approach_rate_hz=200, backoff_steps=400, offset=0, order=0, switch_is_limit=false, enabled=true))]
+    #[allow(clippy::too_many_arguments)] // each a keyword of the Python call
+    fn set_homing(
+        &self,
+        py: Python<'_>,
+        joint: u8,
+        max_travel_steps: u32,
+        towards: &str,
+        seek_rate_hz: u32,
+        approach_rate_hz: u32,
+        backoff_steps: u32,
+        offset: i32,
+        order: u8,
+        switch_is_limit: bool,
+        enabled: bool,
+    ) -> PyResult<()> {
+        let towards_max = match towards {
+            "min" => false,
+            "max" => true,
+            other => {
+                return Err(PyValueError::new_err(format!(
+                    "towards must be \"min\" or \"max\", not {other:?}"
+                )));
+            }
+        };
+        let settings = protocol::HomingSettings {
+            enabled,
+            towards_max,
+            switch_is_limit,
+            order,
+            seek_rate_hz,
+            approach_rate_hz,
+            backoff_steps,
+            max_travel_steps,
+            offset,
+        };
+        self.call(py, move |arm| arm.set_homing(joint, settings))
+            .map(|_| ())
+    }
+
     /// The SWITCHES report (issue 33) as a dict: `phase` ("never", "homing", "homed",
     /// "failed"), `joint`, `error` (None or its text), `homed` (mask), `home_active`,
     /// `min_active`, `max_active` (masks), `latched` (None or {"joint", "side"}); None
