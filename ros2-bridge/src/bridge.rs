@@ -326,9 +326,18 @@ impl Bridge {
                 &name(&self.config.estop_service)?,
                 &ServiceTypeName::new("std_srvs", "Trigger"),
                 service_qos.clone(),
-                service_qos,
+                service_qos.clone(),
             )
             .map_err(|e| format!("e-stop service: {e:?}"))?;
+        let home_server = node
+            .create_server::<TriggerRequest, TriggerResponse>(
+                ServiceMapping::Enhanced,
+                &name(&self.config.home_service)?,
+                &ServiceTypeName::new("std_srvs", "Trigger"),
+                service_qos.clone(),
+                service_qos,
+            )
+            .map_err(|e| format!("home service: {e:?}"))?;
         let spinner = node.spinner().map_err(|e| format!("spinner: {e:?}"))?;
 
         let publish_joint_states = joint_states::publish_samples(&samples, |sample: Sample| {
@@ -366,6 +375,21 @@ impl Bridge {
                 }
             }
         };
+        // Issue 33: homing, one request at a time (a second waits for the first's answer).
+        let serve_home = async {
+            loop {
+                match home_server.async_receive_request().await {
+                    Ok((request, _)) => {
+                        let response = self.home().await;
+                        wait_reply_reader(&home_server, request).await;
+                        if let Err(e) = home_server.async_send_response(request, response).await {
+                            log::warn!("home response: {e:?}");
+                        }
+                    }
+                    Err(e) => log::warn!("home request: {e:?}"),
+                }
+            }
+        };
         let serve_gripper = async {
             match &gripper_server {
                 Some(server) => self.serve_gripper(server).await,
@@ -383,6 +407,7 @@ impl Bridge {
                 self.serve_trajectories(&trajectory_server),
                 serve_gripper,
                 serve_estop,
+                serve_home,
             );
         };
         async_io::block_on(async {
@@ -413,6 +438,30 @@ impl Bridge {
             None => TriggerResponse {
                 success: false,
                 message: "STOPPED failed: internal error".into(),
+            },
+        }
+    }
+
+    /// Homes the arm, as the home service's answer: on its switches when it has them
+    /// (HOME, waiting up to 10 minutes for the cycle), else RETURN (not waited for).
+    async fn home(&self) -> TriggerResponse {
+        let controller = self.controller.clone();
+        match off_thread(move || controller.home(std::time::Duration::from_secs(600))).await {
+            Some(Ok(armctl::Homed::OnSwitches(report))) => TriggerResponse {
+                success: true,
+                message: format!("homed on the switches (joints {:#04x})", report.homed),
+            },
+            Some(Ok(armctl::Homed::ByReturn)) => TriggerResponse {
+                success: true,
+                message: "no switch set to home: RETURN sent".into(),
+            },
+            Some(Err(e)) => TriggerResponse {
+                success: false,
+                message: format!("homing failed: {e}"),
+            },
+            None => TriggerResponse {
+                success: false,
+                message: "homing failed: internal error".into(),
             },
         }
     }

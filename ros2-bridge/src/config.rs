@@ -37,6 +37,10 @@ pub struct BridgeConfig {
     /// The `std_srvs/Trigger` service that sends STOPPED.
     #[serde(default = "default_estop_service")]
     pub estop_service: String,
+    /// The `std_srvs/Trigger` service that homes the arm (issue 33): on its home switches
+    /// when it has them (HOME, answered when the cycle ended), by RETURN otherwise.
+    #[serde(default = "default_home_service")]
+    pub home_service: String,
     /// The JointState topic.
     #[serde(default = "default_joint_states_topic")]
     pub joint_states_topic: String,
@@ -178,6 +182,7 @@ defaults! {
     default_action_name: String = String::from("/arm_controller/follow_joint_trajectory");
     default_gripper_action_name: String = String::from("/gripper_controller/gripper_cmd");
     default_estop_service: String = String::from("/arm_controller/estop");
+    default_home_service: String = String::from("/arm_controller/home");
     default_joint_states_topic: String = String::from("/joint_states");
     default_joint_state_rate_hz: f64 = 50.0;
     default_feedback_rate_hz: f64 = 30.0;
