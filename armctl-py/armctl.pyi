@@ -321,8 +321,9 @@ class Arm:
         """Moves one joint (index, or name in `config`) by `by` in `units`."""
     @overload
     def home(self, timeout: float = 600.0) -> npt.NDArray[np.int32]:
-        """RETURN to its end, then the positions (all 0); raises if a joint ended
-        elsewhere."""
+        """Homes on the switches when the arm has them (HOME, issue 33; raises naming
+        the joint if the cycle fails), else RETURN to its end; then the positions (after
+        RETURN all 0; raises if a joint ended elsewhere)."""
     @overload
     def home(
         self, timeout: float = 600.0, config: Optional[_Path] = None,
@@ -330,6 +331,18 @@ class Arm:
     ) -> Union[npt.NDArray[np.int32], npt.NDArray[np.float64]]:
         """With a joint `config`: positions and the message in `units` (default the
         config's), joints by name, as `armctl home --config`."""
+    def set_homing(
+        self, joint: int, max_travel_steps: int, towards: Literal["min", "max"] = "min",
+        seek_rate_hz: int = 2000, approach_rate_hz: int = 200, backoff_steps: int = 400,
+        offset: int = 0, order: int = 0, switch_is_limit: bool = False, enabled: bool = True,
+    ) -> None:
+        """HOMING_SET (issue 33): the joint homes on its home switch; `home()` runs the
+        cycle. Kept across power cycles; only while STOPPED."""
+    def switches(self) -> Optional[Dict[str, Any]]:
+        """The SWITCHES report (issue 33): `phase` ("never", "homing", "homed",
+        "failed"), `joint`, `error`, masks `homed`, `home_active`, `min_active`,
+        `max_active`, and `latched` (None or {"joint", "side"}); None from an older
+        controller."""
     def stop(self) -> None:
         """STOPPED: every joint stops at once, the trajectory is dropped."""
     def hold(self) -> None:

@@ -93,9 +93,12 @@ pub(crate) fn to_py_err_said(py: Python<'_>, error: Error, message: String) -> P
         Error::InvalidTrajectory(_) => TrajectoryError::new_err(message),
         // A run thread whose wait a KeyboardInterrupt ended (the arm was stopped then); an
         // authentication failure (no key on the controller, another key).
-        Error::Io(_) | Error::Encode(_) | Error::Interrupted | Error::Auth(_) => {
-            ArmctlError::new_err(message)
-        }
+        Error::Io(_)
+        | Error::Encode(_)
+        | Error::Interrupted
+        | Error::Auth(_)
+        | Error::HomingFailed(_)
+        | Error::HomingTimedOut { .. } => ArmctlError::new_err(message),
     }
 }
 

@@ -277,6 +277,32 @@ impl Arm {
     }
 }
 
+/// Waits for the homing cycle's end (the SWITCHES report, polled every 20 ms), looking
+/// at Python's signals in between; an error names the joint a failed cycle stopped at.
+fn wait_homing(py: Python<'_>, arm: &Client, deadline: std::time::Instant) -> PyResult<()> {
+    loop {
+        let report = py.detach(|| arm.switches()).map_err(|e| to_py_err(py, e))?;
+        match report.map(|r| (r.phase, r)) {
+            Some((protocol::HomingPhase::Homed, _)) => return Ok(()),
+            Some((protocol::HomingPhase::Failed, r)) => {
+                return Err(to_py_err(py, armctl::Error::HomingFailed(r)));
+            }
+            None => return Err(ArmctlError::new_err("no SWITCHES report")),
+            _ => {}
+        }
+        if std::time::Instant::now() >= deadline {
+            return Err(to_py_err(
+                py,
+                armctl::Error::HomingTimedOut {
+                    waited: Duration::ZERO,
+                },
+            ));
+        }
+        py.check_signals()?;
+        py.detach(|| std::thread::sleep(Duration::from_millis(20)));
+    }
+}
+
 /// Waits until the controller is STOPPED (a RETURN ended), at most until `deadline`, with
 /// the GIL released, waking at least every [`SIGNAL_POLL`] for Python's signal handlers
 /// (a LOCATION report, sent at every state change, wakes it sooner). Whether it ended; the
@@ -640,10 +666,13 @@ impl Arm {
         self.move_joints(py, vec![(j, by)], config, units, speed, true, 10.0, true)
     }
 
-    /// RETURN and its end (`go_home(wait=True)`), then where the joints are: all 0 unless
-    /// it was stopped. Raises if a joint ended elsewhere. With a `config`, positions and
-    /// the message in `units` (default its `units`) and the joints by name, as `armctl
-    /// home --config` (issue 31).
+    /// Homes the arm and returns where the joints are. On the home switches when the arm
+    /// has them (HOME, issue 33: waits for the cycle's end, at most `timeout` seconds;
+    /// raises naming the joint when it fails); otherwise RETURN and its end
+    /// (`go_home(wait=True)`): all 0 unless it was stopped, and raises if a joint ended
+    /// elsewhere. With a `config`, positions and the message in `units` (default its
+    /// `units`) and the joints by name, as `armctl home --config` (issue 31). A
+    /// KeyboardInterrupt while homing sends STOPPED before it propagates.
     #[pyo3(signature = (timeout=600.0, config=None, units=None))]
     fn home<'py>(
         &self,
@@ -653,6 +682,31 @@ impl Arm {
         units: Option<String>,
     ) -> PyResult<Bound<'py, PyAny>> {
         let shown = shown_in(config, units)?;
+        let arm = self.controller()?;
+        let started = py.detach(|| arm.start_homing());
+        match started {
+            Ok(_) => {
+                let deadline =
+                    std::time::Instant::now() + Duration::from_secs_f64(timeout.clamp(0.0, 1e9));
+                if let Err(e) = wait_homing(py, &arm, deadline) {
+                    stop_arm(py, &arm);
+                    return Err(e);
+                }
+                let (status, location) = self.before_run(py)?;
+                let joints = usize::from(status.joints).clamp(1, MAX_JOINTS);
+                return Ok(positions_array(
+                    py,
+                    &location.position[..joints],
+                    shown.as_ref(),
+                ));
+            }
+            // No joint set to home, no switches, or a controller older than issue 33.
+            Err(armctl::Error::Refused {
+                status: protocol::StatusCode::HomingFailed | protocol::StatusCode::UnknownTag,
+                ..
+            }) => {}
+            Err(e) => return Err(to_py_err(py, e)),
+        }
         self.go_home(py, true, timeout)?;
         let (status, location) = self.before_run(py)?;
         let joints = usize::from(status.joints).clamp(1, MAX_JOINTS);
@@ -678,6 +732,85 @@ impl Arm {
             &location.position[..joints],
             shown.as_ref(),
         ))
+    }
+
+    /// HOMING_SET (issue 33): joint `joint` homes on its home switch on the `towards`
+    /// side ("min" or "max"), seeking at `seek_rate_hz` within `max_travel_steps`, backing
+    /// off `backoff_steps` and approaching at `approach_rate_hz`; its count at the switch
+    /// becomes `offset`. Kept across power cycles; only while STOPPED. `enabled=False`:
+    /// the joint does not home (HOME uses the others; none: `home()` uses RETURN).
+    #[pyo3(signature = (joint, max_travel_steps, towards="min", seek_rate_hz=2000, approach_rate_hz=200, backoff_steps=400, offset=0, order=0, switch_is_limit=false, enabled=true))]
+    #[allow(clippy::too_many_arguments)] // each a keyword of the Python call
+    fn set_homing(
+        &self,
+        py: Python<'_>,
+        joint: u8,
+        max_travel_steps: u32,
+        towards: &str,
+        seek_rate_hz: u32,
+        approach_rate_hz: u32,
+        backoff_steps: u32,
+        offset: i32,
+        order: u8,
+        switch_is_limit: bool,
+        enabled: bool,
+    ) -> PyResult<()> {
+        let towards_max = match towards {
+            "min" => false,
+            "max" => true,
+            other => {
+                return Err(PyValueError::new_err(format!(
+                    "towards must be \"min\" or \"max\", not {other:?}"
+                )));
+            }
+        };
+        let settings = protocol::HomingSettings {
+            enabled,
+            towards_max,
+            switch_is_limit,
+            order,
+            seek_rate_hz,
+            approach_rate_hz,
+            backoff_steps,
+            max_travel_steps,
+            offset,
+        };
+        self.call(py, move |arm| arm.set_homing(joint, settings))
+            .map(|_| ())
+    }
+
+    /// The SWITCHES report (issue 33) as a dict: `phase` ("never", "homing", "homed",
+    /// "failed"), `joint`, `error` (None or its text), `homed` (mask), `home_active`,
+    /// `min_active`, `max_active` (masks), `latched` (None or {"joint", "side"}); None
+    /// from a controller older than issue 33.
+    fn switches<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyDict>>> {
+        let Some(s) = self.call(py, |arm| arm.switches())? else {
+            return Ok(None);
+        };
+        let d = PyDict::new(py);
+        let phase = match s.phase {
+            protocol::HomingPhase::Never => "never",
+            protocol::HomingPhase::Homing => "homing",
+            protocol::HomingPhase::Homed => "homed",
+            protocol::HomingPhase::Failed => "failed",
+        };
+        d.set_item("phase", phase)?;
+        d.set_item("joint", s.joint)?;
+        d.set_item("error", s.error.map(|e| e.text()))?;
+        d.set_item("homed", s.homed)?;
+        d.set_item("home_active", s.home_active)?;
+        d.set_item("min_active", s.min_active)?;
+        d.set_item("max_active", s.max_active)?;
+        match s.latched {
+            Some(l) => {
+                let latched = PyDict::new(py);
+                latched.set_item("joint", l & 0x7f)?;
+                latched.set_item("side", if l & 0x80 != 0 { "max" } else { "min" })?;
+                d.set_item("latched", latched)?;
+            }
+            None => d.set_item("latched", py.None())?,
+        }
+        Ok(Some(d))
     }
 
     /// STOPPED: stops every joint at once and drops the trajectory (obeyed from anyone).

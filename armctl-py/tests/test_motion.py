@@ -101,3 +101,27 @@ def test_run_takes_the_configs_units(sim, tmp_path):
         home = arm.home(config=config)
         assert home.dtype == np.float64
         np.testing.assert_array_equal(home, np.zeros(6))
+
+
+def test_home_on_switches_with_the_simulators_switch_model():
+    """Issue 33: home() homes on the switch once set_homing() set a joint (the count at
+    the switch is the offset), RETURN before; switches() says homed; a failed cycle
+    raises naming the joint."""
+    from conftest import SimHost
+
+    host = SimHost("--joints", "2", "--position", "0:600", "--home-switch", "0:0")
+    try:
+        with armctl.connect(host.address) as arm:
+            np.testing.assert_array_equal(arm.home(), [0, 0])  # RETURN: nothing to move
+            assert arm.switches()["phase"] == "never"
+            arm.set_homing(0, max_travel_steps=2000, offset=10, seek_rate_hz=4000)
+            at = arm.home()
+            assert 10 <= at[0] <= 40, at  # the approach stops a few steps past the switch
+            report = arm.switches()
+            assert report["phase"] == "homed" and report["homed"] == 1, report
+            arm.jog(0, 1500)
+            arm.set_homing(0, max_travel_steps=100)
+            with pytest.raises(armctl.ArmctlError, match="homing failed on joint 0: the seek travelled its maximum"):
+                arm.home()
+    finally:
+        host.close()

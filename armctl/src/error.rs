@@ -83,6 +83,14 @@ pub enum Error {
     /// Authentication failed (docs/PROTOCOL.md section 13): no key set on the
     /// controller, another key, or no key given.
     Auth(String),
+    /// A homing cycle on the switches failed (issue 33): the SWITCHES report names the
+    /// joint and why.
+    HomingFailed(protocol::SwitchesReport),
+    /// A homing cycle did not end within the time given.
+    HomingTimedOut {
+        /// How long it waited.
+        waited: Duration,
+    },
     /// The call's [`Cancel`](crate::Cancel) token was set (Ctrl-C in the tool): it returned
     /// without finishing, and sent no STOPPED. What it started may still run: stop it with
     /// [`Client::stop_until_acked`](crate::Client::stop_until_acked).
@@ -252,6 +260,19 @@ impl fmt::Display for Error {
             ),
             Error::InvalidTrajectory(why) => write!(f, "invalid trajectory: {why}"),
             Error::Auth(why) => write!(f, "authentication: {why}"),
+            Error::HomingFailed(report) => write!(
+                f,
+                "homing failed on joint {}: {}",
+                report.joint,
+                report
+                    .error
+                    .map_or("the controller did not say why", |e| e.text())
+            ),
+            Error::HomingTimedOut { waited } => write!(
+                f,
+                "homing did not end in {:.1} s (`armctl stop` stops it)",
+                waited.as_secs_f64()
+            ),
             Error::Interrupted => write!(
                 f,
                 "interrupted before the end (cancelled); what was started may still run \

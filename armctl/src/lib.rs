@@ -49,7 +49,7 @@ pub mod trajectory;
 pub mod vcd;
 
 pub use client::auth;
-pub use client::{Client, Diagnosis, GIVE_UP_AFTER, Glance, Options};
+pub use client::{Client, Diagnosis, GIVE_UP_AFTER, Glance, Homed, Options};
 
 /// The old name of [`Client`], kept so that integrators' code still builds. Renamed because
 /// it clashed with `arm_core::Controller` (the controller's state machine) in code that

@@ -209,6 +209,17 @@ pub fn doc_frames() -> Vec<DocFrame> {
             }),
         ),
         command(
+            "HOMING_SET, seq 0x22: joint 0 towards min, seek 2000 steps/s, back-off and approach 200 steps/s, back-off 400 steps, travel 20000 steps, offset 100",
+            0x22,
+            Command::HomingSet(homing_example()),
+        ),
+        command(
+            "HOMING_GET, seq 0x23, joint 0",
+            0x23,
+            Command::HomingGet { joint: 0 },
+        ),
+        command("HOME, seq 0x24", 0x24, Command::Home),
+        command(
             "SET_ENABLE, seq 0x1b, disable joints 0 and 1 (mask 0x0003)",
             0x1b,
             Command::SetEnable {
@@ -226,6 +237,7 @@ pub fn doc_frames() -> Vec<DocFrame> {
                 counters: false,
                 diag: false,
                 motion: false,
+                switches: false,
             }),
         ),
         command("RELEASE, seq 0x1e", 0x1e, Command::Release),
@@ -280,6 +292,7 @@ pub fn doc_frames() -> Vec<DocFrame> {
                 motion: false,
                 counters: false,
                 diag: false,
+                switches: false,
             }),
         ),
         command(
@@ -292,6 +305,7 @@ pub fn doc_frames() -> Vec<DocFrame> {
                 stop_cause: false,
                 counters: true,
                 diag: false,
+                switches: false,
             }),
         ),
         command(
@@ -304,6 +318,7 @@ pub fn doc_frames() -> Vec<DocFrame> {
                 stop_cause: true,
                 counters: true,
                 diag: false,
+                switches: false,
             }),
         ),
         command(
@@ -348,6 +363,25 @@ pub fn doc_frames() -> Vec<DocFrame> {
                 next_seq: 0x00,
                 buffered: 0,
                 free: 8_192,
+            }),
+        ),
+        report(
+            "HOMING report (the answer to HOMING_GET), report seq 0x31",
+            0x31,
+            Report::Homing(homing_example()),
+        ),
+        report(
+            "SWITCHES report, report seq 0x32: homing failed on joint 2 (the seek travelled its maximum), joints 0 and 1 homed, joint 2's max limit pressed and latched",
+            0x32,
+            Report::Switches(protocol::SwitchesReport {
+                phase: protocol::HomingPhase::Failed,
+                joint: 2,
+                error: Some(protocol::HomingFailure::SeekTravel),
+                homed: 0b011,
+                home_active: 0,
+                min_active: 0,
+                max_active: 0b100,
+                latched: Some(0x82),
             }),
         ),
         report(
@@ -479,6 +513,24 @@ fn limits_example() -> protocol::LimitsReport {
 fn main() {
     for frame in doc_frames() {
         println!("{}:\n```text\n{}\n```\n", frame.caption, frame.hex_block());
+    }
+}
+
+/// PROTOCOL.md's HOMING_SET example (issue 33): joint 0 homes towards its min side.
+fn homing_example() -> protocol::HomingSet {
+    protocol::HomingSet {
+        joint: 0,
+        settings: protocol::HomingSettings {
+            enabled: true,
+            towards_max: false,
+            switch_is_limit: false,
+            order: 0,
+            seek_rate_hz: 2_000,
+            approach_rate_hz: 200,
+            backoff_steps: 400,
+            max_travel_steps: 20_000,
+            offset: 100,
+        },
     }
 }
 

@@ -186,6 +186,18 @@ wire_code! {
         /// The override, hold and ramp state (controller to host; asked for with
         /// STATUS's request byte bit 4; issue 32).
         Motion = 0x2a => "MOTION",
+        /// Run the homing cycle on the home switches (issue 33; no data; RETURN is
+        /// unchanged).
+        Home = 0x2c => "HOME",
+        /// Set one joint's homing settings, kept with its limits (issue 33).
+        HomingSet = 0x2d => "HOMING_SET",
+        /// Ask for one joint's HOMING report (issue 33; the owner, as LIMITS_GET).
+        HomingGet = 0x2e => "HOMING_GET",
+        /// One joint's homing settings (controller to host; issue 33).
+        Homing = 0x2f => "HOMING",
+        /// The homing cycle's progress and the switch inputs (controller to host; asked
+        /// for with STATUS's request byte, bit 5; issue 33).
+        Switches = 0x30 => "SWITCHES",
         /// An authenticated envelope around a whole frame, both directions
         /// (docs/PROTOCOL.md section 13, [`crate::auth`]).
         Auth = 0x50 => "AUTH",
@@ -261,6 +273,10 @@ wire_code! {
         /// OVERRIDE above 100 % where a joint's step rate or acceleration does not allow
         /// it (the MOTION report names the joint and the limit; issue 32).
         OverrideRefused = 17 => "OVERRIDE_REFUSED",
+        /// HOME refused: no joint in use is set to home on a switch (HOMING_SET), or the
+        /// controller has no switch inputs (issue 33). How a cycle ended is in the
+        /// SWITCHES report.
+        HomingFailed = 20 => "HOMING_FAILED",
     }
 }
 
@@ -320,6 +336,9 @@ impl StatusCode {
             }
             OverrideRefused => {
                 "the run is too fast for that override: a joint's step rate or acceleration would go over its limit (STATUS's MOTION report names the joint); ask 100 % or less"
+            }
+            HomingFailed => {
+                "no joint is set to home on a switch, or the controller has no switch inputs: HOMING_SET each joint (armctl homing set), or home by RETURN"
             }
             SaveFailed => {
                 "the controller could not save its settings to flash: nothing changed; retry, and if it keeps failing the flash needs looking at (see the board's log)"

@@ -5,6 +5,7 @@ use crate::codec::{u8_at, u16_be, u16_le, u32_le};
 use crate::codes::Tag;
 use crate::error::{DecodeError, DecodeErrorKind, EncodeError, ExpectedLen, Field};
 use crate::frame::{Frame, PointList, open, seal};
+use crate::homing::HomingSet;
 use crate::joint_desc::JointDescSet;
 use crate::joint_limits::{JointLimits, LimitsSet};
 use crate::net::NetSettings;
@@ -106,6 +107,15 @@ pub enum Command<'a> {
         /// The joint, 0-7.
         joint: u8,
     },
+    /// Run the homing cycle on the home switches (issue 33; no data).
+    Home,
+    /// Set one joint's homing settings (issue 33), kept with its limits.
+    HomingSet(HomingSet),
+    /// Ask for one joint's HOMING report (issue 33; the owner, as LIMITS_GET).
+    HomingGet {
+        /// The joint, 0-7.
+        joint: u8,
+    },
     /// STATUS with its request byte (issue 23): what else to answer, and whether a host
     /// that does not own the controller wants only to look.
     StatusWith(StatusAsk),
@@ -156,6 +166,9 @@ pub struct StatusAsk {
     /// Bit 4: a MOTION report (override, hold, ramp; issue 32) to the asker too, after
     /// the RX_COUNTERS and before the DIAG.
     pub motion: bool,
+    /// Bit 5: a SWITCHES report (the homing cycle's progress, the switch inputs) to the
+    /// asker too, after the others (issue 33).
+    pub switches: bool,
 }
 
 impl StatusAsk {
@@ -171,6 +184,8 @@ impl StatusAsk {
     pub const DIAG: u8 = 1 << 6;
     /// Bit 4.
     pub const MOTION: u8 = 1 << 4;
+    /// Bit 5 (bit 4 is issue 32's).
+    pub const SWITCHES: u8 = 1 << 5;
 
     /// The byte on the wire.
     pub const fn byte(self) -> u8 {
@@ -180,6 +195,7 @@ impl StatusAsk {
             | (if self.counters { Self::COUNTERS } else { 0 })
             | (if self.diag { Self::DIAG } else { 0 })
             | (if self.motion { Self::MOTION } else { 0 })
+            | (if self.switches { Self::SWITCHES } else { 0 })
     }
 
     /// The request of a byte, `None` with other bits set.
@@ -189,6 +205,7 @@ impl StatusAsk {
             | Self::STOP_CAUSE
             | Self::COUNTERS
             | Self::MOTION
+            | Self::SWITCHES
             | Self::DIAG;
         if b & !known != 0 {
             return None;
@@ -200,6 +217,7 @@ impl StatusAsk {
             counters: b & Self::COUNTERS != 0,
             diag: b & Self::DIAG != 0,
             motion: b & Self::MOTION != 0,
+            switches: b & Self::SWITCHES != 0,
         })
     }
 }
@@ -246,6 +264,9 @@ impl<'a> Command<'a> {
             Command::JointDescSet(_) => Tag::JointDescSet,
             Command::JointDescGet { .. } => Tag::JointDescGet,
             Command::StatusWith(_) => Tag::Status,
+            Command::Home => Tag::Home,
+            Command::HomingSet(_) => Tag::HomingSet,
+            Command::HomingGet { .. } => Tag::HomingGet,
         }
     }
 
@@ -272,6 +293,8 @@ impl<'a> Command<'a> {
             Command::JointDescSet(_) => size::JOINT_DESC_SET,
             Command::JointDescGet { .. } => size::JOINT_DESC_GET,
             Command::Override { .. } => size::OVERRIDE,
+            Command::HomingSet(_) => size::HOMING_SET,
+            Command::HomingGet { .. } => size::HOMING_GET,
             _ => 0,
         }
     }
@@ -339,6 +362,8 @@ impl<'a> Command<'a> {
             Command::JointDescSet(set) => set.write(w, 0),
             Command::JointDescGet { joint } => w.u8(0, *joint),
             Command::Override { percent } => w.u8(0, *percent),
+            Command::HomingSet(set) => set.write(w, 0),
+            Command::HomingGet { joint } => w.u8(0, *joint),
             _ => {}
         })
     }
@@ -521,6 +546,9 @@ impl<'a> Command<'a> {
             | Tag::Diag
             | Tag::Motion
             | Tag::JointDesc => {
+            | Tag::JointDesc
+            | Tag::Homing
+            | Tag::Switches => {
                 return Err(err(DecodeErrorKind::WrongDirection));
             }
             Tag::LimitsSet => {
@@ -568,6 +596,21 @@ impl<'a> Command<'a> {
                 }
                 Command::JointDescGet { joint }
             }
+            Tag::HomingSet => {
+                exactly(size::HOMING_SET)?;
+                match HomingSet::read(data) {
+                    Some(set) => Command::HomingSet(set),
+                    None => return Err(out_of_range(Field::Homing)),
+                }
+            }
+            Tag::HomingGet => {
+                exactly(size::HOMING_GET)?;
+                let joint = u8_at(data, 0);
+                if usize::from(joint) >= crate::MAX_JOINTS {
+                    return Err(out_of_range(Field::Homing));
+                }
+                Command::HomingGet { joint }
+            }
             Tag::LimitsGet if data.len() == 1 => match u8_at(data, 0) {
                 LIMITS_WITH_ACCEL => Command::LimitsGetWithAccel,
                 _ => return Err(out_of_range(Field::LimitsAsk)),
@@ -593,6 +636,7 @@ impl<'a> Command<'a> {
             | Tag::Unlock
             | Tag::Hold
             | Tag::Resume
+            | Tag::Home
             | Tag::LimitsGet => {
                 exactly(0)?;
                 match tag {
@@ -612,6 +656,7 @@ impl<'a> Command<'a> {
                     Tag::Unlock => Command::Unlock,
                     Tag::Hold => Command::Hold,
                     Tag::Resume => Command::Resume,
+                    Tag::Home => Command::Home,
                     Tag::LimitsGet => Command::LimitsGet,
                     _ => Command::Status,
                 }

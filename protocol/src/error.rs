@@ -110,6 +110,10 @@ pub enum Field {
     JointDesc,
     /// OVERRIDE's percent (1..200).
     Override,
+    /// HOMING_SET's or HOMING_GET's joint (0-7), flags (bits 0-2), or settings that cannot
+    /// run (a zero rate, back-off or travel on an enabled joint); the HOMING or SWITCHES
+    /// report's codes.
+    Homing,
 }
 
 impl DecodeError {
@@ -158,7 +162,7 @@ impl fmt::Display for Field {
                 "network settings must be DHCP, or a unicast address with a prefix of 1..32 and a gateway inside its subnet",
             ),
             Field::Owner => f.write_str("unknown owner state"),
-            Field::StatusAsk => f.write_str("STATUS request byte may only use bits 0-4 and 6"),
+            Field::StatusAsk => f.write_str("STATUS request byte may only use bits 0-6"),
             Field::Override => f.write_str("OVERRIDE percent must be 1..200"),
             Field::JointLimits => {
                 f.write_str("LIMITS_SET needs a joint of 0-7 and min not above max")
@@ -171,6 +175,10 @@ impl fmt::Display for Field {
             Field::EnableAction => {
                 f.write_str("SET_ENABLE action must be 0 (disable) or 1 (enable)")
             }
+            Field::Homing => f.write_str(
+                "HOMING_SET needs a joint of 0-7, flags in bits 0-2 and, when enabled, \
+                 non-zero rates, back-off and travel",
+            ),
         }
     }
 }

@@ -23,6 +23,7 @@ mod command;
 mod diag;
 mod error;
 mod frame;
+mod homing;
 mod joint_desc;
 mod joint_limits;
 pub mod limits;
@@ -38,6 +39,7 @@ pub use command::{Command, StatusAsk};
 pub use diag::Diag;
 pub use error::{DecodeError, DecodeErrorKind, EncodeError, ExpectedLen, Field};
 pub use frame::{Frame, PointList, PointsIter, crc8};
+pub use homing::{HomingFailure, HomingPhase, HomingSet, HomingSettings, SwitchesReport};
 pub use joint_desc::{JointDesc, JointDescSet, JointUnit, NAME_LEN as JOINT_NAME_LEN};
 pub use joint_limits::{JointLimits, LimitsReport, LimitsSet, Refusal, RefusalReason};
 pub use limits::DEFAULT_WINDOW;
@@ -124,6 +126,13 @@ pub mod size {
     /// MOTION report data: factor, flags, rate (u16), last controlled stop, refused joint
     /// and limit, 1 reserved.
     pub const MOTION: usize = 8;
+    /// HOMING_SET data and the HOMING report's: joint, flags, order, 1 reserved, four u32
+    /// (seek and approach rates, back-off, max travel), offset i32 (issue 33).
+    pub const HOMING_SET: usize = 24;
+    /// HOMING_GET data: the joint.
+    pub const HOMING_GET: usize = 1;
+    /// SWITCHES report data: phase, joint, error, homed, home/min/max pressed, latched.
+    pub const SWITCHES: usize = 8;
     /// HELLO data: the host's nonce.
     pub const HELLO: usize = crate::auth::NONCE_LEN;
 }

@@ -6,6 +6,7 @@ use crate::codes::{State, StatusCode, Tag};
 use crate::diag::Diag;
 use crate::error::{DecodeError, DecodeErrorKind, EncodeError, ExpectedLen, Field};
 use crate::frame::{Frame, open, seal};
+use crate::homing::{HomingSet, SwitchesReport};
 use crate::joint_desc::JointDescSet;
 use crate::joint_limits::LimitsReport;
 use crate::motion::MotionReport;
@@ -40,6 +41,12 @@ pub enum Report<'a> {
     /// One joint's description, the answer to JOINT_DESC_GET (issue 31); the same data
     /// as JOINT_DESC_SET.
     JointDesc(JointDescSet),
+    /// One joint's homing settings, the answer to HOMING_GET (issue 33); the same data as
+    /// HOMING_SET.
+    Homing(HomingSet),
+    /// The homing cycle's progress and the switch inputs (STATUS's request byte bit 5;
+    /// issue 33).
+    Switches(SwitchesReport),
 }
 
 impl<'a> Report<'a> {
@@ -56,6 +63,8 @@ impl<'a> Report<'a> {
             Report::Diag(_) => Tag::Diag,
             Report::Motion(_) => Tag::Motion,
             Report::JointDesc(_) => Tag::JointDesc,
+            Report::Homing(_) => Tag::Homing,
+            Report::Switches(_) => Tag::Switches,
         }
     }
 
@@ -72,6 +81,8 @@ impl<'a> Report<'a> {
             Report::Diag(_) => size::DIAG,
             Report::Motion(_) => size::MOTION,
             Report::JointDesc(_) => size::JOINT_DESC_SET,
+            Report::Homing(_) => size::HOMING_SET,
+            Report::Switches(_) => size::SWITCHES,
         }
     }
 
@@ -102,6 +113,8 @@ impl<'a> Report<'a> {
             Report::Diag(diag) => diag.write(w, 0),
             Report::Motion(motion) => motion.write(w, 0),
             Report::JointDesc(set) => set.write(w, 0),
+            Report::Homing(set) => set.write(w, 0),
+            Report::Switches(switches) => switches.write(w, 0),
         })
     }
 
@@ -196,6 +209,19 @@ impl<'a> Report<'a> {
                 Report::JointDesc(
                     JointDescSet::read(data)
                         .ok_or(err(DecodeErrorKind::OutOfRange(Field::JointDesc)))?,
+                )
+            }
+            Some(Tag::Homing) => {
+                exactly(size::HOMING_SET)?;
+                Report::Homing(
+                    HomingSet::read(data).ok_or(err(DecodeErrorKind::OutOfRange(Field::Homing)))?,
+                )
+            }
+            Some(Tag::Switches) => {
+                exactly(size::SWITCHES)?;
+                Report::Switches(
+                    SwitchesReport::read(data)
+                        .ok_or(err(DecodeErrorKind::OutOfRange(Field::Homing)))?,
                 )
             }
             Some(_) => return Err(err(DecodeErrorKind::WrongDirection)),

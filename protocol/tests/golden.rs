@@ -153,6 +153,10 @@ fn command_fields(cmd: &Command<'_>) -> Value {
         // Not in the shared golden file either (issue 32): protocol/tests/motion.rs.
         Command::Hold | Command::Resume => json!({}),
         Command::Override { percent } => json!({ "percent": percent }),
+        // Issue 33's homing: protocol/tests/homing.rs.
+        Command::HomingSet(set) => json!({ "homing": format!("{set:?}") }),
+        Command::HomingGet { joint } => json!({ "joint": joint }),
+        Command::Home => json!({}),
         Command::LimitsSet(set) => json!({
             "joint": set.joint,
             "min": set.limits.min,
@@ -215,6 +219,9 @@ fn report_fields(report: &Report<'_>) -> Value {
         Report::JointDesc(d) => json!({ "joint_desc": format!("{d:?}") }),
         // Nor this (issue 32): protocol/tests/motion.rs.
         Report::Motion(m) => json!({ "motion": format!("{m:?}") }),
+        // Issue 33: protocol/tests/homing.rs.
+        Report::Homing(h) => json!({ "homing": format!("{h:?}") }),
+        Report::Switches(s) => json!({ "switches": format!("{s:?}") }),
     }
 }
 
@@ -462,8 +469,22 @@ fn vectors_cover_every_command_and_report() {
         .filter(|t| *t != Tag::Diag)
         // Issue 31's arm description as well: protocol/tests/joint_desc.rs.
         .filter(|t| !matches!(t, Tag::JointDescSet | Tag::JointDescGet | Tag::JointDesc))
-        // Issue 32's HOLD, RESUME, OVERRIDE and MOTION as well: protocol/tests/motion.rs.
-        .filter(|t| !matches!(t, Tag::Hold | Tag::Resume | Tag::Override | Tag::Motion))
+        // Issue 32's HOLD, RESUME, OVERRIDE and MOTION as well: protocol/tests/motion.rs;
+        // issue 33's homing: protocol/tests/homing.rs.
+        .filter(|t| {
+            !matches!(
+                t,
+                Tag::Hold
+                    | Tag::Resume
+                    | Tag::Override
+                    | Tag::Motion
+                    | Tag::Home
+                    | Tag::HomingSet
+                    | Tag::HomingGet
+                    | Tag::Homing
+                    | Tag::Switches
+            )
+        })
         .filter(|t| !commands.contains(t))
         .map(Tag::name)
         .collect();

@@ -16,6 +16,7 @@ fn the_request_byte_bit_3_asks_for_rx_counters() {
         counters: true,
         diag: false,
         motion: false,
+        switches: false,
     };
     assert_eq!(ask.byte(), 0x0a);
     let mut buf = [0u8; 8];

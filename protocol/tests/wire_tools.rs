@@ -101,6 +101,7 @@ fn status_takes_one_request_byte_and_release_none() {
         counters: false,
         diag: false,
         motion: false,
+        switches: false,
     };
     let bytes = encode(Command::StatusWith(look), 0x1d);
     assert_eq!(&bytes[..3], &[0x1d, 0x15, 0x03]);

@@ -339,7 +339,7 @@ impl Bridge {
                 &name(&self.config.estop_service)?,
                 &ServiceTypeName::new("std_srvs", "Trigger"),
                 service_qos.clone(),
-                service_qos,
+                service_qos.clone(),
             )
             .map_err(|e| format!("e-stop service: {e:?}"))?;
         // HOLD and RESUME (issue 32): the same Trigger type and QoS as the e-stop's.
@@ -358,6 +358,15 @@ impl Bridge {
         };
         let hold_server = trigger(&self.config.hold_service, "hold")?;
         let resume_server = trigger(&self.config.resume_service, "resume")?;
+        let home_server = node
+            .create_server::<TriggerRequest, TriggerResponse>(
+                ServiceMapping::Enhanced,
+                &name(&self.config.home_service)?,
+                &ServiceTypeName::new("std_srvs", "Trigger"),
+                service_qos.clone(),
+                service_qos,
+            )
+            .map_err(|e| format!("home service: {e:?}"))?;
         let spinner = node.spinner().map_err(|e| format!("spinner: {e:?}"))?;
 
         let publish_joint_states = joint_states::publish_samples(&samples, |sample: Sample| {
@@ -402,6 +411,21 @@ impl Bridge {
             self.controller.clone(),
             Client::resume,
         );
+        // Issue 33: homing, one request at a time (a second waits for the first's answer).
+        let serve_home = async {
+            loop {
+                match home_server.async_receive_request().await {
+                    Ok((request, _)) => {
+                        let response = self.home().await;
+                        wait_reply_reader(&home_server, request).await;
+                        if let Err(e) = home_server.async_send_response(request, response).await {
+                            log::warn!("home response: {e:?}");
+                        }
+                    }
+                    Err(e) => log::warn!("home request: {e:?}"),
+                }
+            }
+        };
         let serve_gripper = async {
             match &gripper_server {
                 Some(server) => self.serve_gripper(server).await,
@@ -421,6 +445,7 @@ impl Bridge {
                 serve_estop,
                 serve_hold,
                 serve_resume,
+                serve_home,
             );
         };
         async_io::block_on(async {
@@ -451,6 +476,30 @@ impl Bridge {
             None => TriggerResponse {
                 success: false,
                 message: "STOPPED failed: internal error".into(),
+            },
+        }
+    }
+
+    /// Homes the arm, as the home service's answer: on its switches when it has them
+    /// (HOME, waiting up to 10 minutes for the cycle), else RETURN (not waited for).
+    async fn home(&self) -> TriggerResponse {
+        let controller = self.controller.clone();
+        match off_thread(move || controller.home(std::time::Duration::from_secs(600))).await {
+            Some(Ok(armctl::Homed::OnSwitches(report))) => TriggerResponse {
+                success: true,
+                message: format!("homed on the switches (joints {:#04x})", report.homed),
+            },
+            Some(Ok(armctl::Homed::ByReturn)) => TriggerResponse {
+                success: true,
+                message: "no switch set to home: RETURN sent".into(),
+            },
+            Some(Err(e)) => TriggerResponse {
+                success: false,
+                message: format!("homing failed: {e}"),
+            },
+            None => TriggerResponse {
+                success: false,
+                message: "homing failed: internal error".into(),
             },
         }
     }

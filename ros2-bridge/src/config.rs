@@ -44,6 +44,10 @@ pub struct BridgeConfig {
     /// The `std_srvs/Trigger` service that sends RESUME (issue 32).
     #[serde(default = "default_resume_service")]
     pub resume_service: String,
+    /// The `std_srvs/Trigger` service that homes the arm (issue 33): on its home switches
+    /// when it has them (HOME, answered when the cycle ended), by RETURN otherwise.
+    #[serde(default = "default_home_service")]
+    pub home_service: String,
     /// The JointState topic.
     #[serde(default = "default_joint_states_topic")]
     pub joint_states_topic: String,
@@ -190,6 +194,7 @@ defaults! {
     default_estop_service: String = String::from("/arm_controller/estop");
     default_hold_service: String = String::from("/arm_controller/hold");
     default_resume_service: String = String::from("/arm_controller/resume");
+    default_home_service: String = String::from("/arm_controller/home");
     default_joint_states_topic: String = String::from("/joint_states");
     default_joint_state_rate_hz: f64 = 50.0;
     default_feedback_rate_hz: f64 = 30.0;

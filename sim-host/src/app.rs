@@ -10,6 +10,7 @@ use arm_core::config::ServoOnStop;
 use arm_core::hw::Clock;
 use arm_core::ingress::{HaltSteps, StepHalt};
 use arm_core::profile::{self, BoardProfile};
+use arm_core::switch_line::SwitchLine;
 use arm_core::{Bus, StepShared, TrajectoryHw};
 use arm_core::{Controller, ControllerConfig};
 use arm_step::StepTiming;
@@ -360,16 +361,26 @@ struct Wiring {
     board: Board,
     step: &'static SimStepShared,
     controller: &'static mut SimController,
+    /// The switch inputs, with `--home-switch`/`--limit-switch` (issue 33).
+    switches: Option<&'static SwitchLine>,
 }
 
 fn wire(board: Board) -> io::Result<Wiring> {
     let once = || io::Error::other("the simulated controller runs once per process");
     let config = controller_config(&board.options);
     let timing = step_timing(board.options.tick_hz);
+    let model = board.options.switch_model();
+    // The switch path the board's EXTI handler feeds, fed by the step thread (issue 33).
+    let switches: Option<&'static SwitchLine> = model
+        .any()
+        .then(|| &*Box::leak(Box::new(SwitchLine::new(model.config()))));
+    let mut backend =
+        SimSteps::new(timing, board.step_pins(), board.clock).with_probe(board.probe.clone());
+    if let Some(line) = switches {
+        backend = backend.with_switches(model, line);
+    }
     let step: &'static SimStepShared = STEP
-        .try_init(StepShared::with_backend(
-            SimSteps::new(timing, board.step_pins(), board.clock).with_probe(board.probe.clone()),
-        ))
+        .try_init(StepShared::with_backend(backend))
         .ok_or_else(once)?;
     let controller = CONTROLLER
         .try_init(Controller::new(config))
@@ -392,6 +403,8 @@ fn wire(board: Board) -> io::Result<Wiring> {
     );
 
     // The step timers and DMA streams, played in simulated time.
+    let kick = board.kick.clone();
+    let clock = board.clock;
     crate::steptimer::spawn_step_thread(
         &board.kick,
         board.probe.clone(),
@@ -399,21 +412,40 @@ fn wire(board: Board) -> io::Result<Wiring> {
             realtime: board.options.realtime,
         },
         move |now| {
-            step.on_interrupt(&BUS.step_progress, |steps| {
+            let (played, edges) = step.on_interrupt(&BUS.step_progress, |steps| {
                 let progress = steps.advance(now);
                 let played = crate::steptimer::Played {
                     running: steps.is_running(),
                     due: steps.next_due(),
                     ended: progress.ran_dry,
                 };
-                (played, progress)
-            })
+                ((played, steps.take_switch_edges()), progress)
+            });
+            // The switch edges the played steps made, as the board's EXTI handler sees
+            // them: outside the backend's lock (a limit's halt takes it).
+            if let Some(line) = switches {
+                for e in edges {
+                    let at_us = clock.tick_to_ns(e.tick) / 1_000;
+                    line.edge(
+                        e.joint,
+                        e.switch,
+                        e.level,
+                        e.count,
+                        at_us,
+                        step,
+                        &kick,
+                        &BUS.step_progress,
+                    );
+                }
+            }
+            played
         },
     )?;
     Ok(Wiring {
         board,
         step,
         controller,
+        switches,
     })
 }
 
@@ -422,6 +454,7 @@ fn spawn_tasks(spawner: Spawner, wiring: Wiring) {
         board,
         step: shared,
         controller,
+        switches,
     } = wiring;
     let bus: &'static Bus = &BUS;
     let clock: &'static SimClock = Box::leak(Box::new(board.clock));
@@ -451,8 +484,7 @@ fn spawn_tasks(spawner: Spawner, wiring: Wiring) {
             .estop_input
             .as_ref()
             .map(|_| -> &'static arm_core::EStopLine { &crate::estop::LINE }),
-        // The simulator's switch model is to come (issue 33): no switches yet.
-        switches: None,
+        switches,
     };
     let sim_halt = || SimHalt {
         steps: HaltSteps { step: shared, kick },

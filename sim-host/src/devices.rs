@@ -501,6 +501,22 @@ pub fn format_settings(settings: &PersistentSettings) -> String {
             ));
         }
     }
+    // HOMING_SET (issue 33): `homing.J=flags,order,seek_hz,approach_hz,backoff,travel,
+    // offset` (flags as on the wire), only for joints set.
+    for (j, h) in settings.homing.iter().enumerate() {
+        if *h != protocol::HomingSettings::NONE {
+            text.push_str(&format!(
+                "homing.{j}={},{},{},{},{},{},{}\n",
+                h.flags(),
+                h.order,
+                h.seek_rate_hz,
+                h.approach_rate_hz,
+                h.backoff_steps,
+                h.max_travel_steps,
+                h.offset
+            ));
+        }
+    }
     text
 }
 
@@ -581,6 +597,39 @@ pub fn parse_settings(text: &str) -> Result<PersistentSettings, String> {
                     ));
                 }
                 *settings.limits.get_mut(joint).ok_or_else(bad)? = limits;
+            }
+            other if other.starts_with("homing.") => {
+                let bad = || {
+                    format!(
+                        "bad {other}: give homing.J=flags,order,seek_hz,approach_hz,backoff,travel,offset, J 0-7"
+                    )
+                };
+                let joint: usize = other["homing.".len()..].parse().map_err(|_| bad())?;
+                let v: Vec<i64> = value
+                    .split(',')
+                    .map(|f| f.trim().parse::<i64>())
+                    .collect::<Result<_, _>>()
+                    .map_err(|_| bad())?;
+                let [flags, order, seek, approach, backoff, travel, offset] = v[..] else {
+                    return Err(bad());
+                };
+                let u32_of = |x: i64| u32::try_from(x).map_err(|_| bad());
+                let flags = u8::try_from(flags).map_err(|_| bad())?;
+                let homing = protocol::HomingSettings {
+                    enabled: flags & 1 != 0,
+                    towards_max: flags & 2 != 0,
+                    switch_is_limit: flags & 4 != 0,
+                    order: u8::try_from(order).map_err(|_| bad())?,
+                    seek_rate_hz: u32_of(seek)?,
+                    approach_rate_hz: u32_of(approach)?,
+                    backoff_steps: u32_of(backoff)?,
+                    max_travel_steps: u32_of(travel)?,
+                    offset: i32::try_from(offset).map_err(|_| bad())?,
+                };
+                if flags > 7 || !homing.is_valid() {
+                    return Err(bad());
+                }
+                *settings.homing.get_mut(joint).ok_or_else(bad)? = homing;
             }
             other if other.starts_with("accel.") => {
                 let bad = || format!("bad {other}: give accel.J=steps/s², J 0-7");
@@ -688,6 +737,7 @@ mod tests {
             limits: [protocol::JointLimits::NONE; protocol::MAX_JOINTS],
             max_accel: [0, 50_000, 0, 0, 0, 0, 0, 1],
             desc: [protocol::JointDesc::NONE; protocol::MAX_JOINTS],
+            homing: [protocol::HomingSettings::NONE; protocol::MAX_JOINTS],
         };
         assert_eq!(parse_settings(&format_settings(&settings)), Ok(settings));
         // JOINT_DESC_SET's descriptions (issue 31) round-trip exactly, any name included;
@@ -708,6 +758,26 @@ mod tests {
             "{text}"
         );
         assert_eq!(parse_settings(&text), Ok(described));
+        // HOMING_SET's settings (issue 33) round-trip too.
+        let mut homed = described;
+        homed.homing[2] = protocol::HomingSettings {
+            enabled: true,
+            towards_max: true,
+            switch_is_limit: false,
+            order: 3,
+            seek_rate_hz: 2_000,
+            approach_rate_hz: 100,
+            backoff_steps: 40,
+            max_travel_steps: 30_000,
+            offset: -12,
+        };
+        let text = format_settings(&homed);
+        assert!(
+            text.contains("homing.2=3,3,2000,100,40,30000,-12\n"),
+            "{text}"
+        );
+        assert_eq!(parse_settings(&text), Ok(homed));
+        assert!(parse_settings("homing.2=1,0,0,100,40,30000,0\n").is_err());
         assert!(parse_settings("desc.8=deg,0,1.0,61\n").is_err());
         assert!(parse_settings("desc.0=furlong,0,1.0,61\n").is_err());
         assert!(parse_settings("desc.0=deg,0,1.0,6\n").is_err());
@@ -742,6 +812,7 @@ mod tests {
                 auth_epoch: 0,
                 max_accel: [0; protocol::MAX_JOINTS],
                 desc: [protocol::JointDesc::NONE; protocol::MAX_JOINTS],
+                homing: [protocol::HomingSettings::NONE; protocol::MAX_JOINTS],
                 ..settings
             })
         );

@@ -20,6 +20,7 @@ pub mod serial;
 pub mod simnet;
 pub mod steppers;
 pub mod steptimer;
+pub mod switches;
 pub mod tap;
 pub mod vcd;
 pub mod virtual_board;

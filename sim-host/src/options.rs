@@ -82,6 +82,24 @@ pub struct SimOptions {
     #[arg(long = "encoder-offset", value_name = "J:STEPS", value_parser = parse_encoder_offset)]
     pub encoder_offsets: Vec<(usize, i64)>,
 
+    /// Where joint J physically is at boot, in steps, while its step count starts at 0
+    /// (repeatable; issue 33's switch model: the home and limit switches below are at
+    /// physical positions).
+    #[arg(long = "position", value_name = "J:STEPS", value_parser = parse_encoder_offset)]
+    pub positions: Vec<(usize, i64)>,
+
+    /// Give joint J a home switch, pressed when the joint is at or beyond physical STEPS
+    /// towards `min` (the default) or `max` (repeatable). Wired normally closed: the
+    /// controller sees it as an input reading high when pressed.
+    #[arg(long = "home-switch", value_name = "J:STEPS[:min|max]", value_parser = parse_home_switch)]
+    pub home_switches: Vec<(usize, i64, arm_core::switches::Side)>,
+
+    /// Give joint J limit switches: min pressed at or below physical MIN, max at or above
+    /// MAX (repeatable). A limit closing stops every joint at that step edge and latches
+    /// the controller until UNLOCK.
+    #[arg(long = "limit-switch", value_name = "J:MIN:MAX", value_parser = parse_limit_switch)]
+    pub limit_switches: Vec<(usize, i64, i64)>,
+
     /// Make joint J's simulated Modbus encoder misbehave (repeatable): `silent` never
     /// answers, `crc` answers with a bad CRC, `exception` refuses the request. RETURN then
     /// ends in STOPPED without moving.
@@ -199,6 +217,11 @@ impl SimOptions {
             .join(format!("settings-{}.txt", self.bind.port()))
     }
 
+    /// The joints' physical model and switches (issue 33).
+    pub fn switch_model(&self) -> crate::switches::SwitchModel {
+        crate::switches::model_of(&self.positions, &self.home_switches, &self.limit_switches)
+    }
+
     /// Encoder offsets per joint.
     pub fn encoder_offset_array(&self) -> [i64; arm_step::MAX_JOINTS] {
         let mut offsets = [0; arm_step::MAX_JOINTS];
@@ -245,6 +268,34 @@ fn parse_encoder_fault(s: &str) -> Result<(usize, EncoderFaultMode), String> {
     let mode = <EncoderFaultMode as clap::ValueEnum>::from_str(kind, true)
         .map_err(|_| format!("bad encoder fault {kind}: silent, crc or exception"))?;
     Ok((joint, mode))
+}
+
+fn parse_home_switch(s: &str) -> Result<(usize, i64, arm_core::switches::Side), String> {
+    let (joint, rest) = parse_joint_value(s, "STEPS[:min|max]")?;
+    let (steps, side) = match rest.split_once(':') {
+        Some((steps, side)) => (steps, side),
+        None => (rest, "min"),
+    };
+    let steps: i64 = steps.parse().map_err(|_| format!("bad steps: {steps}"))?;
+    let side = match side {
+        "min" => arm_core::switches::Side::Min,
+        "max" => arm_core::switches::Side::Max,
+        other => return Err(format!("bad side {other}: min or max")),
+    };
+    Ok((joint, steps, side))
+}
+
+fn parse_limit_switch(s: &str) -> Result<(usize, i64, i64), String> {
+    let (joint, rest) = parse_joint_value(s, "MIN:MAX")?;
+    let (min, max) = rest
+        .split_once(':')
+        .ok_or_else(|| format!("expected J:MIN:MAX, got {s}"))?;
+    let min: i64 = min.parse().map_err(|_| format!("bad min: {min}"))?;
+    let max: i64 = max.parse().map_err(|_| format!("bad max: {max}"))?;
+    if min >= max {
+        return Err(format!("min {min} is not below max {max}"));
+    }
+    Ok((joint, min, max))
 }
 
 fn parse_probability(s: &str) -> Result<f64, String> {
@@ -304,6 +355,28 @@ mod tests {
         assert_eq!(cli.sim.faults().loss, 0.1);
         assert_eq!(cli.sim.time_scale, 10.0);
         assert!(Cli::try_parse_from(["sim-host", "--loss", "2"]).is_err());
+        let cli = Cli::parse_from([
+            "sim-host",
+            "--position",
+            "1:-40",
+            "--home-switch",
+            "1:-100",
+            "--home-switch",
+            "2:30:max",
+            "--limit-switch",
+            "1:-500:400",
+        ]);
+        assert_eq!(cli.sim.positions, [(1, -40)]);
+        assert_eq!(
+            cli.sim.home_switches,
+            [
+                (1, -100, arm_core::switches::Side::Min),
+                (2, 30, arm_core::switches::Side::Max)
+            ]
+        );
+        assert_eq!(cli.sim.limit_switches, [(1, -500, 400)]);
+        assert!(Cli::try_parse_from(["sim-host", "--limit-switch", "1:5:5"]).is_err());
+        assert!(Cli::try_parse_from(["sim-host", "--home-switch", "1:5:up"]).is_err());
         assert!(Cli::try_parse_from(["sim-host", "--encoder-offset", "8:1"]).is_err());
         assert!(Cli::try_parse_from(["sim-host", "--joints", "9"]).is_err());
     }

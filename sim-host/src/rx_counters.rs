@@ -26,6 +26,7 @@ pub fn read(controller: SocketAddr, from: Ipv4Addr) -> Option<RxCounters> {
         counters: true,
         diag: false,
         motion: false,
+        switches: false,
     };
     let mut request = [0u8; 8];
     let mut reply = [0u8; protocol::MAX_DATAGRAM];

@@ -188,6 +188,14 @@ fn log_sent(frame: &[u8], to: Endpoint) {
             log::debug!("-> {} LIMITS", show(to));
             None
         }
+        protocol::Report::Homing(h) => {
+            log::debug!("-> {} HOMING joint {}", show(to), h.joint);
+            None
+        }
+        protocol::Report::Switches(s) => {
+            log::debug!("-> {} SWITCHES {:?}", show(to), s);
+            None
+        }
         protocol::Report::StopCause(stop) => {
             log::debug!("-> {} STOP_CAUSE {:?}", show(to), stop.cause);
             None

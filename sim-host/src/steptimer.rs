@@ -19,13 +19,15 @@ use std::time::{Duration, Instant};
 use arm_core::hw::StepKick;
 use arm_core::{StepBackend, StepProgress};
 use arm_step::{
-    MAX_JOINTS, NUCLEO_STEP_TIMER_MAX_PERIOD_TICKS, Segment, StepPins, StepStreams, StepTiming,
-    StreamPlayer, TimedStepPins,
+    HaltingStepPins, MAX_JOINTS, NUCLEO_STEP_TIMER_MAX_PERIOD_TICKS, Segment, StepPins,
+    StepStreams, StepTiming, StreamPlayer, TimedStepPins,
 };
 
 use crate::clock::SimClock;
 use crate::probe::Probe;
 use crate::steppers::SimSteppers;
+use crate::switches::{SwitchEdge, SwitchModel};
+use arm_core::switch_line::SwitchLine;
 
 /// How the step thread runs.
 #[derive(Clone, Copy, Debug)]
@@ -113,6 +115,9 @@ pub struct SimSteps<const Q: usize> {
     primed_finished: u32,
     /// Told when an emergency stop has stopped the run (the e-stop latency's end).
     probe: Option<Arc<Probe>>,
+    /// The joints' switches (issue 33), if any: looked at each STEP edge; with the
+    /// switch line whose mask says which limit does not halt.
+    switches: Option<(SwitchModel, &'static SwitchLine)>,
 }
 
 impl<const Q: usize> std::fmt::Debug for SimSteps<Q> {
@@ -125,15 +130,43 @@ impl<const Q: usize> std::fmt::Debug for SimSteps<Q> {
 
 /// The simulated drivers as the player's lines: each change stamped with its step clock
 /// tick (the run's tick plus its origin).
+/// With switches, each rise moves the joint's physical model; a limit switch closing asks
+/// the player to halt at that (run) tick.
 struct Stamped<'a> {
     pins: &'a mut SimSteppers,
     origin: u64,
+    switches: Option<(&'a mut SwitchModel, &'static SwitchLine)>,
+    halt: Option<u64>,
+}
+
+impl<'a> Stamped<'a> {
+    fn new(
+        pins: &'a mut SimSteppers,
+        origin: u64,
+        switches: Option<(&'a mut SwitchModel, &'static SwitchLine)>,
+    ) -> Self {
+        Stamped {
+            pins,
+            origin,
+            switches,
+            halt: None,
+        }
+    }
 }
 
 impl TimedStepPins for Stamped<'_> {
     fn step_high(&mut self, joint: usize, tick: u64) {
         self.pins.set_tick(self.origin + tick);
         self.pins.step_high(1 << joint);
+        if let Some((model, line)) = self.switches.as_mut() {
+            let motor = self.pins.motors().position[joint].load(Ordering::Relaxed);
+            if let Some(side) = model.moved(joint, motor, self.origin + tick)
+                && self.halt.is_none()
+                && !line.is_masked(joint as u8, side)
+            {
+                self.halt = Some(tick);
+            }
+        }
     }
 
     fn step_low(&mut self, joint: usize, tick: u64) {
@@ -144,6 +177,12 @@ impl TimedStepPins for Stamped<'_> {
     fn set_direction(&mut self, joint: usize, positive: bool, tick: u64) {
         self.pins.set_tick(self.origin + tick);
         self.pins.set_direction(joint, positive);
+    }
+}
+
+impl HaltingStepPins for Stamped<'_> {
+    fn halt_tick(&self) -> Option<u64> {
+        self.halt
     }
 }
 
@@ -158,7 +197,22 @@ impl<const Q: usize> SimSteps<Q> {
             origin: None,
             primed_finished: 0,
             probe: None,
+            switches: None,
         }
+    }
+
+    /// Gives the joints `model`'s switches (issue 33), whose edges go to `line`.
+    pub fn with_switches(mut self, model: SwitchModel, line: &'static SwitchLine) -> SimSteps<Q> {
+        self.switches = Some((model, line));
+        self
+    }
+
+    /// The switch edges the played STEP edges made since the last call (for the switch
+    /// path, outside the step backend's lock).
+    pub fn take_switch_edges(&mut self) -> Vec<SwitchEdge> {
+        self.switches
+            .as_mut()
+            .map_or_else(Vec::new, |(model, _)| model.take_edges())
     }
 
     /// Tells `probe` when an emergency stop has stopped a run.
@@ -178,15 +232,20 @@ impl<const Q: usize> SimSteps<Q> {
         let Some(origin) = self.origin else {
             return StepProgress::default();
         };
-        let advance = self.player.advance(
-            &mut self.streams,
-            now.saturating_sub(origin),
-            &mut Stamped {
-                pins: &mut self.pins,
-                origin,
-            },
+        let mut pins = Stamped::new(
+            &mut self.pins,
+            origin,
+            self.switches.as_mut().map(|(m, l)| (m, *l)),
         );
-        if advance.ended {
+        let (advance, halt) =
+            self.player
+                .advance_halting(&mut self.streams, now.saturating_sub(origin), &mut pins);
+        if let Some(halt) = halt {
+            // A limit switch closed at `halt`: nothing after it is played, on any joint
+            // (the switch path halts the shared backend next, outside this lock).
+            self.player.stop(&mut self.streams, halt, &mut pins);
+            self.origin = None;
+        } else if advance.ended {
             self.origin = None;
         }
         StepProgress {
@@ -242,10 +301,11 @@ impl<const Q: usize> StepBackend for SimSteps<Q> {
         self.player.stop(
             &mut self.streams,
             now.saturating_sub(origin),
-            &mut Stamped {
-                pins: &mut self.pins,
+            &mut Stamped::new(
+                &mut self.pins,
                 origin,
-            },
+                self.switches.as_mut().map(|(m, l)| (m, *l)),
+            ),
         );
         self.primed_finished = 0;
         if let Some(probe) = &self.probe {
@@ -261,7 +321,11 @@ impl<const Q: usize> StepBackend for SimSteps<Q> {
     }
 
     fn set_positions(&mut self, positions: [i32; MAX_JOINTS]) -> bool {
-        self.origin.is_none() && self.streams.producer().set_positions(positions)
+        let set = self.origin.is_none() && self.streams.producer().set_positions(positions);
+        if set && let Some((model, _)) = &mut self.switches {
+            model.counts_set(positions, self.pins.motors().positions());
+        }
+        set
     }
 
     /// The board's producer takes the warp on the run's clock (from the run's start, as

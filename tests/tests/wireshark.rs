@@ -310,6 +310,8 @@ fn expect_report(frame: &protocol::Frame<Report<'_>>, e: &mut Expected) {
         Report::Diag(_) => {}
         // Issue 32's MOTION: issue_32_motion_frames_decode_in_wireshark.
         Report::Motion(_) => {}
+        // Issue 33: issue_33_homing_decodes_in_wireshark.
+        Report::Homing(_) | Report::Switches(_) => {}
     }
 }
 
@@ -1418,4 +1420,124 @@ fn issue_32_motion_frames_decode_in_wireshark() {
         packets[5]
     );
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Issue 33: HOME, HOMING_SET, HOMING_GET, the HOMING and SWITCHES reports, STATUS's
+/// request bit 5 and HOMING_FAILED decode in Wireshark with their fields; a HOMING_SET
+/// with a seek rate of 0 is flagged INVALID_CONFIG.
+#[test]
+fn issue_33_homing_decodes_in_wireshark() {
+    if !have_wireshark("issue 33 homing") {
+        return;
+    }
+    let dir = scratch("issue33homing");
+    let pcap = dir.join("homing.pcap");
+    let host: std::net::SocketAddr = "127.0.0.1:40000".parse().unwrap();
+    let controller: std::net::SocketAddr = format!("127.0.0.1:{}", protocol::PORT).parse().unwrap();
+    let log = armctl::pcap::PcapLog::create(&pcap).expect("create the capture");
+    let mut buf = [0u8; protocol::MAX_DATAGRAM];
+    let set = protocol::HomingSet {
+        joint: 2,
+        settings: protocol::HomingSettings {
+            enabled: true,
+            towards_max: true,
+            switch_is_limit: false,
+            order: 1,
+            seek_rate_hz: 2_000,
+            approach_rate_hz: 200,
+            backoff_steps: 400,
+            max_travel_steps: 20_000,
+            offset: -100,
+        },
+    };
+    let record = |from, to, n: usize, buf: &[u8]| log.record(from, to, &buf[..n]).unwrap();
+    let n = Cmd::HomingSet(set).encode(0x22, &mut buf).unwrap();
+    record(host, controller, n, &buf);
+    let n = Cmd::HomingGet { joint: 2 }.encode(0x23, &mut buf).unwrap();
+    record(host, controller, n, &buf);
+    let n = Report::Homing(set).encode(0x31, &mut buf).unwrap();
+    record(controller, host, n, &buf);
+    let n = Cmd::Home.encode(0x24, &mut buf).unwrap();
+    record(host, controller, n, &buf);
+    let n = Cmd::StatusWith(protocol::StatusAsk {
+        switches: true,
+        ..protocol::StatusAsk::default()
+    })
+    .encode(0x25, &mut buf)
+    .unwrap();
+    record(host, controller, n, &buf);
+    let switches = protocol::SwitchesReport {
+        phase: protocol::HomingPhase::Failed,
+        joint: 2,
+        error: Some(protocol::HomingFailure::SeekTravel),
+        homed: 0b011,
+        home_active: 0,
+        min_active: 0,
+        max_active: 0b100,
+        latched: Some(0x82),
+    };
+    let n = Report::Switches(switches).encode(0x32, &mut buf).unwrap();
+    record(controller, host, n, &buf);
+    let n = Report::Ack(protocol::Ack {
+        acked_tag: 0x2c,
+        status: protocol::StatusCode::HomingFailed,
+        state: protocol::State::Stopped,
+        next_seq: 0,
+        buffered: 0,
+        free: 100,
+    })
+    .encode(0x24, &mut buf)
+    .unwrap();
+    record(controller, host, n, &buf);
+    // HOMING_SET with a seek rate of 0 on an enabled joint.
+    let n = Cmd::HomingSet(set).encode(0x26, &mut buf).unwrap();
+    let mut bad = buf[..n].to_vec();
+    bad[6..10].copy_from_slice(&[0; 4]);
+    let last = bad.len() - 1;
+    bad[last] = protocol::crc8(&bad[..last]);
+
+    log.record(host, controller, &bad).unwrap();
+    drop(log);
+    let packets = dissect(
+        &pcap,
+        &[
+            "armctl.tag",
+            "armctl.verdict",
+            "armctl.homing.joint",
+            "armctl.homing.flags",
+            "armctl.homing.seek_rate_hz",
+            "armctl.homing.offset",
+            "armctl.status.ask.switches",
+            "armctl.switches.phase",
+            "armctl.switches.error",
+            "armctl.switches.latched",
+            "armctl.ack.status",
+        ],
+        false,
+        None,
+    );
+    assert_eq!(packets.len(), 8);
+    for p in [&packets[0], &packets[2]] {
+        assert_eq!(numbers(&p["armctl.homing.joint"]), [2], "{p:?}");
+        assert_eq!(numbers(&p["armctl.homing.flags"]), [0x03], "{p:?}");
+        assert_eq!(numbers(&p["armctl.homing.seek_rate_hz"]), [2000], "{p:?}");
+        assert_eq!(numbers(&p["armctl.homing.offset"]), [-100], "{p:?}");
+    }
+    assert_eq!(numbers(&packets[1]["armctl.homing.joint"]), [2]);
+    assert_eq!(numbers(&packets[3]["armctl.tag"]), [0x2c]);
+    assert_eq!(numbers(&packets[3]["armctl.verdict"]), [0]);
+    assert!(
+        ["True", "1"].contains(&packets[4]["armctl.status.ask.switches"].as_str()),
+        "{:?}",
+        packets[4]
+    );
+    assert_eq!(numbers(&packets[5]["armctl.switches.phase"]), [3]);
+    assert_eq!(numbers(&packets[5]["armctl.switches.error"]), [1]);
+    assert_eq!(numbers(&packets[5]["armctl.switches.latched"]), [0x82]);
+    assert_eq!(numbers(&packets[6]["armctl.ack.status"]), [20]);
+    assert_eq!(
+        numbers(&packets[7]["armctl.verdict"]),
+        [11],
+        "seek rate 0: INVALID_CONFIG"
+    );
 }

@@ -42,6 +42,8 @@ local tag_names = {
     [0x20] = "DISCOVER", [0x21] = "NET_SET", [0x22] = "DISCOVER_REPLY",
     [0x23] = "JOINT_DESC_GET", [0x24] = "RX_COUNTERS", [0x25] = "UNLOCK", [0x26] = "JOINT_DESC",
     [0x27] = "HOLD", [0x28] = "RESUME", [0x29] = "OVERRIDE", [0x2a] = "MOTION", [0x32] = "DIAG",
+    [0x2c] = "HOME", [0x2d] = "HOMING_SET", [0x2e] = "HOMING_GET", [0x2f] = "HOMING",
+    [0x30] = "SWITCHES",
     [0x50] = "AUTH", [0x51] = "HELLO", [0x52] = "SET_KEY", [0x53] = "HELLO_REPLY",
 }
 -- Names that depend on the direction.
@@ -58,7 +60,14 @@ local status_names = {
     [5] = "OUT_OF_ORDER", [6] = "TOO_MANY_POINTS", [7] = "INVALID_POINT", [8] = "BUFFER_FULL",
     [9] = "NOT_OWNER", [10] = "UNSUPPORTED", [11] = "INVALID_CONFIG", [12] = "ESTOP_LATCHED",
     [13] = "AUTH_REQUIRED", [14] = "AUTH_FAILED", [15] = "SAVE_FAILED",
-    [16] = "LIMIT_LATCHED", [17] = "OVERRIDE_REFUSED",
+    [16] = "LIMIT_LATCHED", [17] = "OVERRIDE_REFUSED", [20] = "HOMING_FAILED",
+}
+
+-- The SWITCHES report's phase and error bytes (issue 33).
+local homing_phase_names = { [0] = "never homed", [1] = "homing", [2] = "homed", [3] = "failed" }
+local homing_error_names = {
+    [0] = "none", [1] = "seek travelled its maximum", [2] = "switch still pressed after back-off",
+    [3] = "approach missed the switch", [4] = "aborted", [5] = "bad settings",
 }
 -- MOTION's last controlled stop and refused limit (issue 32).
 local controlled_stop_names = { [0] = "NONE", [1] = "HOLD" }
@@ -185,6 +194,25 @@ local f = {
     motion_last_stop = dec("uint8", "motion.last_stop", "Last controlled stop", controlled_stop_names),
     motion_refused_joint = dec("uint8", "motion.refused_joint", "Last OVERRIDE refused: joint (255 none)"),
     motion_refused_limit = dec("uint8", "motion.refused_limit", "... the limit", override_limit_names),
+    status_ask_switches = field("bool", "status.ask.switches", "Also a SWITCHES report", 8, nil, 0x20),
+    -- HOMING_SET / HOMING (issue 33)
+    homing_joint = dec("uint8", "homing.joint", "Joint"),
+    homing_flags = hex("uint8", "homing.flags", "Flags (bit 0 enabled, 1 towards max, 2 switch is the limit)"),
+    homing_order = dec("uint8", "homing.order", "Order"),
+    homing_seek = dec("uint32", "homing.seek_rate_hz", "Seek rate (steps/s)"),
+    homing_approach = dec("uint32", "homing.approach_rate_hz", "Back-off and approach rate (steps/s)"),
+    homing_backoff = dec("uint32", "homing.backoff_steps", "Back-off (steps)"),
+    homing_travel = dec("uint32", "homing.max_travel_steps", "Max seek travel (steps)"),
+    homing_offset = dec("int32", "homing.offset", "Count at the switch (steps)"),
+    -- SWITCHES (issue 33)
+    sw_phase = dec("uint8", "switches.phase", "Homing", homing_phase_names),
+    sw_joint = dec("uint8", "switches.joint", "Joint homing or failed"),
+    sw_error = dec("uint8", "switches.error", "Failure", homing_error_names),
+    sw_homed = hex("uint8", "switches.homed", "Joints homed"),
+    sw_home = hex("uint8", "switches.home_active", "Home switches pressed"),
+    sw_min = hex("uint8", "switches.min_active", "Min limits pressed"),
+    sw_max = hex("uint8", "switches.max_active", "Max limits pressed"),
+    sw_latched = hex("uint8", "switches.latched", "Latched limit (joint | 0x80 max; 0xff none)"),
     stop_cause = dec("uint8", "stop.cause", "What ended the last run", stop_cause_names),
     stop_detail = dec("uint8", "stop.detail", "Detail (FAULT: the joint)"),
     stop_ip = field("ipv4", "stop.from_ip", "STOPPED's sender"),
@@ -596,6 +624,31 @@ local function dissect_joint_desc(tree, data)
         data(4, 16):stringz(), desc_unit_names[unit] or "?", data(28, 8):le_float())
 end
 
+-- HOMING_SET's data and the HOMING report's (issue 33): joint, flags, order, reserved, seek
+-- rate, approach rate, back-off, max travel (u32 each), offset (i32).
+local function dissect_homing(tree, data)
+    local joint, flags = data(0, 1):uint(), data(1, 1):uint()
+    tree:add(f.homing_joint, data(0, 1))
+    tree:add(f.homing_flags, data(1, 1))
+    tree:add(f.homing_order, data(2, 1))
+    tree:add_le(f.homing_seek, data(4, 4))
+    tree:add_le(f.homing_approach, data(8, 4))
+    tree:add_le(f.homing_backoff, data(12, 4))
+    tree:add_le(f.homing_travel, data(16, 4))
+    tree:add_le(f.homing_offset, data(20, 4), data(20, 4):le_int())
+    if joint > 7 then out_of_range(tree, "HOMING_SET needs a joint of 0-7") end
+    if flags > 7 then out_of_range(tree, "HOMING_SET flags may only use bits 0-2") end
+    if bit.band(flags, 1) ~= 0 and (data(4, 4):le_uint() == 0 or data(8, 4):le_uint() == 0
+        or data(12, 4):le_uint() == 0 or data(16, 4):le_uint() == 0) then
+        out_of_range(tree, "HOMING_SET needs non-zero rates, back-off and travel on an enabled joint")
+    end
+    if bit.band(flags, 1) == 0 then return string.format("joint %d: not homed", joint) end
+    local side = "min"
+    if bit.band(flags, 2) ~= 0 then side = "max" end
+    return string.format("joint %d: towards %s at %d steps/s, offset %d", joint, side,
+        data(4, 4):le_uint(), data(20, 4):le_int())
+end
+
 local host_dissectors = {
     [0x00] = function(tree, data, len)
         if len ~= 2 then return length_error(tree, data, "2", len) end
@@ -748,9 +801,19 @@ host_dissectors[0x52] = function(tree, data, len)
     tree:add(f.set_key, data(0, 32))
     return "set a key"
 end
+host_dissectors[0x2d] = function(tree, data, len)
+    if len ~= 24 then return length_error(tree, data, "24", len) end
+    return dissect_homing(tree, data)
+end
+host_dissectors[0x2e] = function(tree, data, len)
+    if len ~= 1 then return length_error(tree, data, "1", len) end
+    tree:add(f.homing_joint, data(0, 1))
+    if data(0, 1):uint() > 7 then out_of_range(tree, "HOMING_GET needs a joint of 0-7") end
+    return "joint " .. data(0, 1):uint()
+end
 -- Commands without data.
-for _, tag in ipairs({ 0x02, 0x04, 0x05, 0x07, 0x09, 0x0c, 0x0d, 0x0e, 0x0f, 0x11, 0x17, 0x19, 0x20,
-    0x27, 0x28 }) do
+for _, tag in ipairs({ 0x02, 0x04, 0x05, 0x07, 0x09, 0x0c, 0x0d, 0x0e, 0x0f, 0x11, 0x17, 0x19, 0x20, 0x25,
+    0x27, 0x28, 0x2c }) do
     host_dissectors[tag] = function(tree, data, len)
         if len ~= 0 then return length_error(tree, data, "0", len) end
         return ""
@@ -769,9 +832,10 @@ host_dissectors[0x15] = function(tree, data, len)
     ask:add(f.status_ask_stop, data(0, 1))
     ask:add(f.status_ask_counters, data(0, 1))
     ask:add(f.status_ask_motion, data(0, 1))
+    ask:add(f.status_ask_switches, data(0, 1))
     ask:add(f.status_ask_diag, data(0, 1))
     local b = data(0, 1):uint()
-    if bit.band(b, 0xa0) ~= 0 then out_of_range(tree, "STATUS request byte may only use bits 0-4 and 6") end
+    if bit.band(b, 0x80) ~= 0 then out_of_range(tree, "STATUS request byte may only use bits 0-6") end
     local parts = {}
     if bit.band(b, 1) ~= 0 then parts[#parts + 1] = "with LOCATION" end
     if bit.band(b, 2) ~= 0 then parts[#parts + 1] = "look only" end
@@ -779,6 +843,7 @@ host_dissectors[0x15] = function(tree, data, len)
     if bit.band(b, 8) ~= 0 then parts[#parts + 1] = "with RX_COUNTERS" end
     if bit.band(b, 16) ~= 0 then parts[#parts + 1] = "with MOTION" end
     if bit.band(b, 0x40) ~= 0 then parts[#parts + 1] = "with DIAG" end
+    if bit.band(b, 0x20) ~= 0 then parts[#parts + 1] = "with SWITCHES" end
     return table.concat(parts, ", ")
 end
 -- STOPPED: any data is ignored by the controller, which stops all the same (PROTOCOL.md
@@ -862,6 +927,35 @@ local controller_dissectors = {
         if len ~= 36 then return length_error(tree, data, "36", len) end
         dissect_status_report(tree, data)
         return state_names[data(4, 1):uint()] or "?"
+    end,
+    -- HOMING (issue 33): HOMING_SET's data.
+    [0x2f] = function(tree, data, len)
+        if len ~= 24 then return length_error(tree, data, "24", len) end
+        return dissect_homing(tree, data)
+    end,
+    -- SWITCHES (issue 33): the homing cycle and the switch inputs.
+    [0x30] = function(tree, data, len)
+        if len ~= 8 then return length_error(tree, data, "8", len) end
+        tree:add(f.sw_phase, data(0, 1))
+        tree:add(f.sw_joint, data(1, 1))
+        tree:add(f.sw_error, data(2, 1))
+        tree:add(f.sw_homed, data(3, 1))
+        tree:add(f.sw_home, data(4, 1))
+        tree:add(f.sw_min, data(5, 1))
+        tree:add(f.sw_max, data(6, 1))
+        tree:add(f.sw_latched, data(7, 1))
+        local text = homing_phase_names[data(0, 1):uint()] or "?"
+        if data(0, 1):uint() == 3 then
+            text = string.format("%s: joint %d, %s", text, data(1, 1):uint(),
+                homing_error_names[data(2, 1):uint()] or "?")
+        end
+        local latched = data(7, 1):uint()
+        if latched ~= 0xff then
+            local side = "min"
+            if bit.band(latched, 0x80) ~= 0 then side = "max" end
+            text = string.format("%s; latched on joint %d %s limit", text, bit.band(latched, 0x7f), side)
+        end
+        return text
     end,
     -- JOINT_DESC (issue 31): JOINT_DESC_SET's data.
     [0x26] = function(tree, data, len)

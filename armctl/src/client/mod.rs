@@ -20,6 +20,8 @@ use crate::rtt::{DEFAULT_MIN_RTO, RESEND_HORIZON, RttEstimator};
 
 pub mod auth;
 mod motion_control;
+mod homing;
+pub use homing::Homed;
 mod receiver;
 mod wire_tools;
 pub use wire_tools::{Diagnosis, Glance};

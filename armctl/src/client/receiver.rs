@@ -52,6 +52,10 @@ pub(crate) struct Shared {
     pub(super) motions: Mutex<Vec<Sender<protocol::MotionReport>>>,
     /// JOINT_DESC reports' subscribers (issue 31).
     pub(super) descs: Mutex<Vec<Sender<protocol::JointDescSet>>>,
+    /// HOMING reports' subscribers (issue 33).
+    pub(super) homings: Mutex<Vec<Sender<protocol::HomingSet>>>,
+    /// SWITCHES reports' subscribers (STATUS's request byte bit 5, issue 33).
+    pub(super) switches: Mutex<Vec<Sender<protocol::SwitchesReport>>>,
     pub(super) last_location: Mutex<Option<Location>>,
     pub(super) last_status: Mutex<Option<StatusReport>>,
     /// Datagrams that did not decode as a report.
@@ -160,6 +164,8 @@ impl Shared {
             Report::Diag(diag) => fan_out(&self.diags, &diag),
             Report::JointDesc(desc) => fan_out(&self.descs, &desc),
             Report::Motion(motion) => fan_out(&self.motions, &motion),
+            Report::Homing(homing) => fan_out(&self.homings, &homing),
+            Report::Switches(switches) => fan_out(&self.switches, &switches),
         }
     }
 }

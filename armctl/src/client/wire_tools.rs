@@ -65,6 +65,7 @@ impl Client {
             counters: false,
             diag: false,
             motion: false,
+            switches: false,
         };
         let reports = self.status_reports();
         let locations = self.locations();

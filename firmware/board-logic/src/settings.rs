@@ -130,6 +130,84 @@ pub fn decode_desc(
     PersistentSettings { desc, ..settings }
 }
 
+/// Map keys of the homing records (HOMING_SET, issue 33): joints 0-1, 2-3, 4-5, 6-7, two
+/// joints a record as the descriptions; beside the others, so that a flash written before
+/// them loads with no homing.
+pub const HOMING_KEYS: [u8; 4] = [13, 14, 15, 16];
+/// Joints per homing record.
+pub const HOMING_PER_RECORD: usize = protocol::MAX_JOINTS / HOMING_KEYS.len();
+/// Bytes of one joint's homing in flash: flags, order, then seek and approach rates,
+/// back-off, max travel (u32 LE) and offset (i32 LE); the wire's reserved byte is not
+/// stored.
+const HOMING_LEN: usize = 2 + 5 * 4;
+/// Bytes of one homing record.
+pub const HOMING_RECORD_LEN: usize = HOMING_LEN * HOMING_PER_RECORD;
+// 1 key byte + the record, in whole 32-byte words, within the item buffer.
+const _: () = assert!((1 + HOMING_RECORD_LEN).div_ceil(32) * 32 <= 64);
+const _: () = assert!(HOMING_PER_RECORD * HOMING_KEYS.len() == protocol::MAX_JOINTS);
+
+/// The stored homing record `part` (joints `2 * part`, `2 * part + 1`) for `settings`.
+pub fn encode_homing(settings: &PersistentSettings, part: usize) -> [u8; HOMING_RECORD_LEN] {
+    let mut record = [0u8; HOMING_RECORD_LEN];
+    let joints = settings.homing.iter().skip(part * HOMING_PER_RECORD);
+    for (chunk, h) in record.chunks_exact_mut(HOMING_LEN).zip(joints) {
+        let words = [
+            h.seek_rate_hz.to_le_bytes(),
+            h.approach_rate_hz.to_le_bytes(),
+            h.backoff_steps.to_le_bytes(),
+            h.max_travel_steps.to_le_bytes(),
+            h.offset.to_le_bytes(),
+        ];
+        let head = [h.flags(), h.order];
+        for (out, b) in chunk
+            .iter_mut()
+            .zip(head.iter().chain(words.iter().flatten()))
+        {
+            *out = *b;
+        }
+    }
+    record
+}
+
+/// `settings` with the homing record `part`'s joints; a joint whose stored bytes cannot
+/// run (unknown flags, a zero rate) loads with none.
+pub fn decode_homing(
+    settings: PersistentSettings,
+    part: usize,
+    record: &[u8; HOMING_RECORD_LEN],
+) -> PersistentSettings {
+    let mut homing = settings.homing;
+    let slots = homing.iter_mut().skip(part * HOMING_PER_RECORD);
+    for (h, chunk) in slots.zip(record.chunks_exact(HOMING_LEN)) {
+        let byte = |i: usize| chunk.get(i).copied().unwrap_or(0);
+        let word = |i: usize| {
+            let mut w = [0u8; 4];
+            for (o, b) in w.iter_mut().zip(chunk.iter().skip(2 + 4 * i)) {
+                *o = *b;
+            }
+            w
+        };
+        let flags = byte(0);
+        let read = protocol::HomingSettings {
+            enabled: flags & 1 != 0,
+            towards_max: flags & 2 != 0,
+            switch_is_limit: flags & 4 != 0,
+            order: byte(1),
+            seek_rate_hz: u32::from_le_bytes(word(0)),
+            approach_rate_hz: u32::from_le_bytes(word(1)),
+            backoff_steps: u32::from_le_bytes(word(2)),
+            max_travel_steps: u32::from_le_bytes(word(3)),
+            offset: i32::from_le_bytes(word(4)),
+        };
+        *h = if flags & !7 == 0 && read.is_valid() {
+            read
+        } else {
+            protocol::HomingSettings::NONE
+        };
+    }
+    PersistentSettings { homing, ..settings }
+}
+
 /// The stored acceleration record for `settings`.
 pub fn encode_accel(settings: &PersistentSettings) -> [u8; ACCEL_RECORD_LEN] {
     let mut record = [0u8; ACCEL_RECORD_LEN];
@@ -397,6 +475,11 @@ impl<F: NorFlash> SettingsArea<F> {
                 settings = decode_desc(settings, part, &record);
             }
         }
+        for (part, key) in HOMING_KEYS.iter().enumerate() {
+            if let Some(record) = self.fetch_record::<HOMING_RECORD_LEN>(key).await? {
+                settings = decode_homing(settings, part, &record);
+            }
+        }
         Ok(settings)
     }
 
@@ -500,6 +583,15 @@ impl<F: NorFlash> SettingsArea<F> {
                 )
                 .await?;
         }
+        for (part, key) in HOMING_KEYS.iter().enumerate() {
+            self.map
+                .store_item::<&[u8]>(
+                    &mut self.buffer.0,
+                    key,
+                    &encode_homing(settings, part).as_slice(),
+                )
+                .await?;
+        }
         Ok(())
     }
 
@@ -531,6 +623,7 @@ mod tests {
             limits: [protocol::JointLimits::NONE; protocol::MAX_JOINTS],
             max_accel: [0; protocol::MAX_JOINTS],
             desc: [protocol::JointDesc::NONE; protocol::MAX_JOINTS],
+            homing: [protocol::HomingSettings::NONE; protocol::MAX_JOINTS],
         }
     }
 
@@ -574,6 +667,57 @@ mod tests {
         block_on(old.map.store_item(&mut old.buffer.0, &AUTH_KEY, &auth)).unwrap();
         block_on(old.map.store_item(&mut old.buffer.0, &ACCEL_KEY, &accel)).unwrap();
         assert_eq!(block_on(old.load()), LoadOutcome::Stored(custom()));
+    }
+
+    /// Issue 33: each joint's homing settings are kept (keys 13-16), saved again and
+    /// again; a flash written before them loads with none; stored bytes that cannot run
+    /// load as none.
+    #[test]
+    fn homing_is_stored_and_an_older_flash_loads_without_it() {
+        let mut homed = custom();
+        homed.homing[0] = protocol::HomingSettings {
+            enabled: true,
+            towards_max: false,
+            switch_is_limit: true,
+            order: 2,
+            seek_rate_hz: 3_000,
+            approach_rate_hz: 150,
+            backoff_steps: 321,
+            max_travel_steps: 50_000,
+            offset: -77,
+        };
+        homed.homing[7] = protocol::HomingSettings {
+            towards_max: true,
+            offset: i32::MIN,
+            ..homed.homing[0]
+        };
+        let mut area = SettingsArea::new(Flash::default(), RANGE);
+        block_on(area.save(&homed)).unwrap();
+        assert_eq!(block_on(area.load()), LoadOutcome::Stored(homed));
+        for round in 0..20 {
+            homed.homing[3] = protocol::HomingSettings {
+                order: round,
+                ..homed.homing[0]
+            };
+            block_on(area.save(&homed)).unwrap();
+        }
+        assert_eq!(block_on(area.load()), LoadOutcome::Stored(homed));
+        // Before issue 33: no homing records.
+        let mut old = SettingsArea::new(Flash::default(), RANGE);
+        let first: &[u8] = &encode(&custom());
+        block_on(old.map.store_item(&mut old.buffer.0, &SETTINGS_KEY, &first)).unwrap();
+        let LoadOutcome::Stored(loaded) = block_on(old.load()) else {
+            panic!("the old record loads");
+        };
+        assert_eq!(
+            loaded.homing,
+            [protocol::HomingSettings::NONE; protocol::MAX_JOINTS]
+        );
+        // A record whose joint cannot run (seek rate 0) loads with none for it.
+        let mut record = encode_homing(&homed, 0);
+        record[2..6].copy_from_slice(&[0; 4]);
+        let decoded = decode_homing(custom(), 0, &record);
+        assert_eq!(decoded.homing[0], protocol::HomingSettings::NONE);
     }
 
     /// Issue 31: each joint's max acceleration is kept; a flash written before it (with

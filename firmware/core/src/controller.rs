@@ -141,6 +141,7 @@ use crate::uart::uart_frame;
 
 mod boot;
 mod motion;
+mod homing_run;
 mod owner;
 mod runs;
 
@@ -296,6 +297,8 @@ pub struct Controller<const CAP: usize> {
     /// The limit switches' latch and "away only" rule (issue 33; never set on a board
     /// without limit switches: nothing changes for it).
     hard_limits: crate::switches::Limits,
+    /// The homing cycle on the home switches (issue 33, `homing_run.rs`).
+    homing: homing_run::HomingRun,
     reports_on: bool,
     upload_period_us: u32,
     enabled: u16,
@@ -1222,6 +1225,9 @@ impl<const CAP: usize> Controller<CAP> {
                 if ask.motion {
                     response.asked_motion = Some((from, self.motion_report(plant)));
                 }
+                if ask.switches {
+                    response.asked_switches = Some((from, self.switches_report()));
+                }
                 if ask.diag {
                     response.asked_diag = Some(from);
                 }
@@ -1240,6 +1246,39 @@ impl<const CAP: usize> Controller<CAP> {
             // Answered in `handle` before the owner rule; never reaches here.
             Command::Discover => {}
             Command::Unlock => self.hard_limits.unlock(),
+            // Issue 33: the homing cycle (controller/homing_run.rs); RETURN is unchanged.
+            Command::Home => {
+                if self.estop_latched() {
+                    return Err(StatusCode::EstopLatched);
+                }
+                if self.hard_limits.latched().is_some() {
+                    return Err(StatusCode::LimitLatched);
+                }
+                stopped_only(self)?;
+                self.start_homing(plant)?;
+            }
+            // Kept with the limits, as LIMITS_SET.
+            Command::HomingSet(set) => {
+                flash_only(self)?;
+                let mut settings = self.settings;
+                let Some(slot) = settings.homing.get_mut(usize::from(set.joint)) else {
+                    return Err(StatusCode::InvalidConfig);
+                };
+                *slot = set.settings;
+                response.deferred = Some(Deferred::SaveSettings(settings));
+            }
+            Command::HomingGet { joint } => {
+                let Some(settings) = self.settings.homing.get(usize::from(joint)) else {
+                    return Err(StatusCode::InvalidConfig);
+                };
+                response.homing = Some((
+                    from,
+                    protocol::HomingSet {
+                        joint,
+                        settings: *settings,
+                    },
+                ));
+            }
             Command::EstopReset => {
                 if self.more_flags.has(MoreFlags::ESTOP_OPEN) {
                     return Err(StatusCode::EstopLatched);
@@ -1375,6 +1414,9 @@ impl<const CAP: usize> Controller<CAP> {
         if ask.motion {
             response.asked_motion = Some((from, self.motion_report(plant)));
         }
+        if ask.switches {
+            response.asked_switches = Some((from, self.switches_report()));
+        }
         if ask.diag {
             response.asked_diag = Some(from);
         }
@@ -1386,6 +1428,7 @@ impl<const CAP: usize> Controller<CAP> {
     /// `by`: the STOPPED's sender; `None`: the wired e-stop input.
     fn stop_by_host(&mut self, plant: &mut impl Plant, by: Option<Endpoint>) {
         plant.stop();
+        self.abort_homing(plant);
         self.stop_gripper(plant);
         self.buffer.clear();
         self.return_plan = None;
@@ -1454,6 +1497,14 @@ impl<const CAP: usize> Controller<CAP> {
         event: crate::switches::SwitchEvent,
         plant: &mut impl Plant,
     ) -> Option<Location> {
+        // A home switch's: the homing cycle's (controller/homing_run.rs).
+        if matches!(
+            event,
+            crate::switches::SwitchEvent::HomeActive { .. }
+                | crate::switches::SwitchEvent::HomeReleased { .. }
+        ) {
+            return self.home_switch(event, plant);
+        }
         if !self.hard_limits.on_event(event) {
             return None;
         }

@@ -142,6 +142,9 @@ pub struct PersistentSettings {
     /// the hosts and never used by the controller; none by default and in settings stored
     /// before it.
     pub desc: [protocol::JointDesc; protocol::MAX_JOINTS],
+    /// Each joint's homing on its home switch (HOMING_SET, issue 33), kept with its
+    /// limits; none by default and in settings stored before it.
+    pub homing: [protocol::HomingSettings; protocol::MAX_JOINTS],
 }
 
 impl PersistentSettings {
@@ -157,6 +160,7 @@ impl PersistentSettings {
         limits: [protocol::JointLimits::NONE; protocol::MAX_JOINTS],
         max_accel: [0; protocol::MAX_JOINTS],
         desc: [protocol::JointDesc::NONE; protocol::MAX_JOINTS],
+        homing: [protocol::HomingSettings::NONE; protocol::MAX_JOINTS],
     };
 
     /// The network part, as NET_SET and DISCOVER_REPLY carry it.

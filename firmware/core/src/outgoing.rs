@@ -149,6 +149,10 @@ pub enum AnswerReport {
     JointDesc(protocol::JointDescSet),
     /// A MOTION report (STATUS's request byte bit 4, issue 32).
     Motion(protocol::MotionReport),
+    /// A HOMING report (the answer to HOMING_GET, issue 33).
+    Homing(protocol::HomingSet),
+    /// A SWITCHES report (STATUS's request byte bit 5, issue 33).
+    Switches(protocol::SwitchesReport),
 }
 
 /// Encodes [`Outgoing`] frames. Reports (everything but ACKs) carry the controller's own
@@ -210,6 +214,8 @@ impl ReportEncoder {
                     AnswerReport::Diag(d) => Report::Diag(d),
                     AnswerReport::Motion(m) => Report::Motion(m),
                     AnswerReport::JointDesc(d) => Report::JointDesc(d),
+                    AnswerReport::Homing(h) => Report::Homing(h),
+                    AnswerReport::Switches(s) => Report::Switches(s),
                 },
             ),
             Outgoing::Location(l) => {

@@ -56,4 +56,10 @@ pub trait Plant {
     fn rate_now(&self) -> Option<(u64, bool)> {
         None
     }
+    /// The limit switch whose trips must not halt the steps now (issue 33: the one the
+    /// homing cycle homes on, when it is also the limit; `None`: every limit halts). Set
+    /// before the move that may reach it starts. Default: no switches, nothing to do.
+    fn set_limit_mask(&mut self, mask: Option<(u8, crate::switches::Side)>) {
+        let _ = mask;
+    }
 }

@@ -68,6 +68,11 @@ pub struct Response {
     pub limits: Option<(Endpoint, LimitsReport)>,
     /// A JOINT_DESC report for the endpoint that sent JOINT_DESC_GET (issue 31).
     pub joint_desc: Option<(Endpoint, JointDescSet)>,
+    /// A HOMING report for the endpoint that sent HOMING_GET (issue 33).
+    pub homing: Option<(Endpoint, protocol::HomingSet)>,
+    /// A SWITCHES report for the asker alone: STATUS's request byte asked for one (bit 5,
+    /// issue 33), sent last.
+    pub asked_switches: Option<(Endpoint, protocol::SwitchesReport)>,
     /// `Some(seq)`: [`Response::status`], [`Response::asked_location`],
     /// [`Response::asked_stop`], [`Response::asked_counters`] and [`Response::asked_diag`]
     /// are a read-only answer

@@ -24,7 +24,7 @@ use crate::bus::Cs;
 use crate::estop_input::EStopLine;
 use crate::hw::StepKick;
 use crate::step_shared::{StepBackend, StepShared};
-use crate::switches::{Switch, SwitchBank, SwitchConfig, SwitchEvent};
+use crate::switches::{Side, Switch, SwitchBank, SwitchConfig, SwitchEvent};
 
 /// Switch events queued between two looks of the trajectory task: every input (8 joints x
 /// 3) changing twice (activation and release) before the task runs, which a task woken
@@ -38,6 +38,9 @@ struct State {
     first_trip: Option<SwitchEvent>,
     /// The halt is this line's (a trip not yet handed to the controller).
     halting: bool,
+    /// The limit whose trips do not halt (the homing cycle's switch, when it is also the
+    /// limit; [`SwitchLine::set_mask`]).
+    mask: Option<(u8, Side)>,
 }
 
 /// The switch inputs, shared by the edge handler and the trajectory task. Put one in a
@@ -55,6 +58,7 @@ impl SwitchLine {
                 events: Deque::new(),
                 first_trip: None,
                 halting: false,
+                mask: None,
             })),
         }
     }
@@ -68,6 +72,20 @@ impl SwitchLine {
     pub fn is_active(&self, joint: u8, switch: Switch) -> bool {
         self.state
             .lock(|s| s.borrow().bank.is_active(joint, switch))
+    }
+
+    /// The limit whose trips must not halt the steps (issue 33: the switch the homing
+    /// cycle homes on, when it is also that side's limit; the controller sets it through
+    /// its plant before the move that may reach it). Its trips are still handed to the
+    /// controller, whose hard limits mask them the same way.
+    pub fn set_mask(&self, mask: Option<(u8, Side)>) {
+        self.state.lock(|s| s.borrow_mut().mask = mask);
+    }
+
+    /// Whether a trip of `joint`'s `side` limit is masked now ([`Self::set_mask`]): a
+    /// simulator's model halting its own step playback asks.
+    pub fn is_masked(&self, joint: u8, side: Side) -> bool {
+        self.state.lock(|s| s.borrow().mask == Some((joint, side)))
     }
 
     /// The edge handler's work: `joint`'s `switch` reads `level` at `at_us`, the joint's
@@ -87,20 +105,30 @@ impl SwitchLine {
     ) {
         let event = self.state.lock(|s| {
             let mut s = s.borrow_mut();
-            let event = s.bank.edge(joint, switch, level, position, at_us)?;
-            if matches!(event, SwitchEvent::LimitTripped { .. }) {
+            let mut event = s.bank.edge(joint, switch, level, position, at_us)?;
+            let halts = match event {
+                // Masked at its edge: masked for good, whenever the controller takes it
+                // (the homing cycle may have moved on to another joint by then).
+                SwitchEvent::LimitTripped { joint, side, .. } if s.mask == Some((joint, side)) => {
+                    event = SwitchEvent::LimitMasked { joint, side };
+                    false
+                }
+                SwitchEvent::LimitTripped { .. } => true,
+                _ => false,
+            };
+            if halts {
                 s.halting = true;
                 if s.first_trip.is_none() {
                     s.first_trip = Some(event);
-                    return Some(event);
+                    return Some((event, true));
                 }
             }
             // A full queue drops the event (never the first trip, kept above).
             let _ = s.events.push_back(event);
-            Some(event)
+            Some((event, halts))
         });
-        if let Some(event) = event {
-            if matches!(event, SwitchEvent::LimitTripped { .. }) {
+        if let Some((_, halts)) = event {
+            if halts {
                 step.halt();
                 kick.kick();
             }

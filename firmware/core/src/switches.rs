@@ -173,6 +173,16 @@ pub enum SwitchEvent {
         /// When, microseconds of the controller clock.
         at_us: u64,
     },
+    /// A limit switch became active while masked at its edge (issue 33: the switch the
+    /// homing cycle homes on, when it is also the limit; [`crate::switch_line::SwitchLine::set_mask`]):
+    /// active (the "away only" rule holds), but no stop and no latch, whenever the
+    /// controller gets to it. Made by the switch line from a [`SwitchEvent::LimitTripped`].
+    LimitMasked {
+        /// The joint (0-based).
+        joint: u8,
+        /// The end of travel.
+        side: Side,
+    },
     /// A limit switch has read inactive for its debounce time.
     LimitReleased {
         /// The joint (0-based).
@@ -388,6 +398,12 @@ impl Limits {
     pub fn on_event(&mut self, event: SwitchEvent) -> bool {
         match event {
             SwitchEvent::LimitTripped { joint, side, .. } => self.trip(joint, side),
+            SwitchEvent::LimitMasked { joint, side } => {
+                if let Some(a) = self.active.get_mut(usize::from(joint)) {
+                    *a.at_mut(side.switch()) = true;
+                }
+                false
+            }
             SwitchEvent::LimitReleased { joint, side } => {
                 self.release(joint, side);
                 false

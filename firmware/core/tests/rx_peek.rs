@@ -206,6 +206,7 @@ fn status_bit_3_asks_for_the_receive_counters() {
         counters: true,
         diag: false,
         motion: false,
+        switches: false,
     };
     let r = s.send_raw(HOST, &frame(1, Command::StatusWith(ask)));
     assert_eq!(r.reply.unwrap().ack.status, protocol::StatusCode::Ok);

@@ -1428,6 +1428,7 @@ fn status_replies_go_out_in_the_documented_order() {
         counters: true,
         diag: false,
         motion: false,
+        switches: false,
     };
     assert_eq!(ask.byte(), 0x0d);
     rig.route(&frame(0, Command::StatusWith(ask)));
@@ -1443,6 +1444,8 @@ fn status_replies_go_out_in_the_documented_order() {
             AnswerReport::Diag(_) => "DIAG",
             AnswerReport::JointDesc(_) => "JOINT_DESC",
             AnswerReport::Motion(_) => "MOTION",
+            AnswerReport::Homing(_) => "HOMING",
+            AnswerReport::Switches(_) => "SWITCHES",
         }),
         // The periodic stream is not an answer.
         _ => None,

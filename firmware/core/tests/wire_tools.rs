@@ -222,6 +222,7 @@ fn status_asks_for_a_location_and_a_look_only_status_never_takes_a_free_controll
         counters: false,
         diag: false,
         motion: false,
+        switches: false,
     };
     // Nobody owns it: a look-only STATUS is answered and takes nothing.
     let r = s.send_raw(OTHER, &status_with(5, look));
@@ -244,6 +245,7 @@ fn status_asks_for_a_location_and_a_look_only_status_never_takes_a_free_controll
         motion: false,
         counters: false,
         diag: false,
+        switches: false,
     };
     let r = s.send_raw(HOST, &status_with(6, ask));
     assert_eq!(s.controller.owner().map(|o| o.ip), Some(HOST.ip));

@@ -78,7 +78,7 @@ mod warp;
 
 pub use dir_queue::DirQueues;
 pub use engine::StepEngine;
-pub use player::{Advance, StreamPlayer, TimedStepPins};
+pub use player::{Advance, HaltingStepPins, StreamPlayer, TimedStepPins};
 pub use producer::{Filled, PulsePeriod, PulseProducer, sign_of};
 pub use stream::{DirChange, JointBuffer, PRELUDE, Refill, StepStreams, StreamsSlot};
 pub use warp::{MAX_RATE, RATE_ONE, WARP_PHASES, Warp, WarpError, ramp_for};

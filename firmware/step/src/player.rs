@@ -22,7 +22,7 @@ use crate::{DirChange, MAX_JOINTS};
 
 /// The STEP and DIR lines a [`StreamPlayer`] drives: every change comes with its tick
 /// (run ticks: the streams' tick 0 is the run's start). Changes of one joint come in
-/// tick order; joints are played one after the other.
+/// tick order; [`StreamPlayer::advance`] plays the joints one after the other, [`StreamPlayer::advance_halting`] all in tick order.
 pub trait TimedStepPins {
     /// Joint `joint`'s STEP line rises at `tick`.
     fn step_high(&mut self, joint: usize, tick: u64);
@@ -30,6 +30,13 @@ pub trait TimedStepPins {
     fn step_low(&mut self, joint: usize, tick: u64);
     /// Joint `joint`'s DIR line is set at `tick` (true = positive steps).
     fn set_direction(&mut self, joint: usize, positive: bool, tick: u64);
+}
+
+/// [`TimedStepPins`] that may ask [`StreamPlayer::advance_halting`] to play nothing after
+/// a tick (a limit switch the played edges closed).
+pub trait HaltingStepPins: TimedStepPins {
+    /// The tick after which nothing is to be played, once known.
+    fn halt_tick(&self) -> Option<u64>;
 }
 
 /// Where one joint's software timer is.
@@ -175,11 +182,6 @@ impl<const HALF: usize> StreamPlayer<HALF> {
     }
 
     /// Plays joint `j` up to run tick `t`; returns segments finished by its refills.
-    #[allow(
-        clippy::indexing_slicing,
-        clippy::cast_possible_truncation,
-        reason = "j < MAX_JOINTS (the callers' loops); the half is 0 or 1 (reduced modulo 2)"
-    )]
     fn play_joint<const Q: usize>(
         &mut self,
         streams: &mut StepStreams<Q, HALF>,
@@ -188,60 +190,130 @@ impl<const HALF: usize> StreamPlayer<HALF> {
         pins: &mut impl TimedStepPins,
     ) -> u32 {
         let mut finished = 0;
-        loop {
-            let play = self.joints[j];
-            let dir = streams.next_dir_change(j);
-            // The earliest of: the pulse's fall, a DIR change, the next period's start
-            // (a fall and a rise at one tick: the fall first, as a timer that ends one
-            // period and starts the next).
-            let fall = if play.fall == 0 { u64::MAX } else { play.fall };
-            let dir_at = dir.map_or(u64::MAX, |d| d.tick);
-            let next = fall.min(dir_at).min(play.at);
-            if next > t {
-                break;
+        while self.next_event(streams, j) <= t {
+            finished += self.play_event(streams, j, pins);
+        }
+        finished
+    }
+
+    /// Run tick of joint `j`'s next change: the earliest of the pulse's fall, a DIR
+    /// change, the next period's start.
+    #[allow(
+        clippy::indexing_slicing,
+        reason = "j < MAX_JOINTS (the callers' loops)"
+    )]
+    fn next_event<const Q: usize>(&self, streams: &StepStreams<Q, HALF>, j: usize) -> u64 {
+        let play = self.joints[j];
+        let fall = if play.fall == 0 { u64::MAX } else { play.fall };
+        let dir_at = streams.next_dir_change(j).map_or(u64::MAX, |d| d.tick);
+        fall.min(dir_at).min(play.at)
+    }
+
+    /// Plays joint `j`'s next change ([`Self::next_event`]); returns segments finished by
+    /// its refill, if it made one.
+    #[allow(
+        clippy::indexing_slicing,
+        clippy::cast_possible_truncation,
+        reason = "j < MAX_JOINTS (the callers' loops); the half is 0 or 1 (reduced modulo 2)"
+    )]
+    fn play_event<const Q: usize>(
+        &mut self,
+        streams: &mut StepStreams<Q, HALF>,
+        j: usize,
+        pins: &mut impl TimedStepPins,
+    ) -> u32 {
+        let mut finished = 0;
+        let play = self.joints[j];
+        let dir = streams.next_dir_change(j);
+        // The earliest of: the pulse's fall, a DIR change, the next period's start
+        // (a fall and a rise at one tick: the fall first, as a timer that ends one
+        // period and starts the next).
+        let fall = if play.fall == 0 { u64::MAX } else { play.fall };
+        let dir_at = dir.map_or(u64::MAX, |d| d.tick);
+        let next = fall.min(dir_at).min(play.at);
+        if fall == next {
+            pins.step_low(j, fall);
+            self.joints[j].fall = 0;
+        } else if let Some(DirChange { tick, positive }) = dir.filter(|_| dir_at == next) {
+            pins.set_direction(j, positive, tick);
+            streams.pop_dir_change(j);
+        } else {
+            let period = self.period(j, play.next);
+            if period.high != 0 {
+                pins.step_high(j, play.at);
+                self.joints[j].fall = play.at + u64::from(period.high);
             }
-            if fall == next {
-                pins.step_low(j, fall);
-                self.joints[j].fall = 0;
-            } else if let Some(DirChange { tick, positive }) = dir.filter(|_| dir_at == next) {
-                pins.set_direction(j, positive, tick);
-                streams.pop_dir_change(j);
-            } else {
-                let period = self.period(j, play.next);
-                if period.high != 0 {
-                    pins.step_high(j, play.at);
-                    self.joints[j].fall = play.at + u64::from(period.high);
+            self.joints[j].at = play.at + period.ticks();
+            self.joints[j].next = play.next + 1;
+            let n = play.next;
+            if n >= PRELUDE as u64 && (n - PRELUDE as u64).is_multiple_of(HALF as u64) {
+                // Entering a half: the one before is free (the DMA has read it all),
+                // except at the run's start (the prelude before it).
+                let entered = ((n - PRELUDE as u64) / HALF as u64 % 2) as usize;
+                if n >= (PRELUDE + HALF) as u64 {
+                    let freed = 1 - entered;
+                    let refill = streams.refill(j, freed, &mut self.buffers[j].periods[freed]);
+                    finished += refill.segments_finished;
                 }
-                self.joints[j].at = play.at + period.ticks();
-                self.joints[j].next = play.next + 1;
-                let n = play.next;
-                if n >= PRELUDE as u64 && (n - PRELUDE as u64).is_multiple_of(HALF as u64) {
-                    // Entering a half: the one before is free (the DMA has read it all),
-                    // except at the run's start (the prelude before it).
-                    let entered = ((n - PRELUDE as u64) / HALF as u64 % 2) as usize;
-                    if n >= (PRELUDE + HALF) as u64 {
-                        let freed = 1 - entered;
-                        let refill = streams.refill(j, freed, &mut self.buffers[j].periods[freed]);
-                        finished += refill.segments_finished;
-                    }
-                    // The half entered was written before: its end is known.
-                    let half = &self.buffers[j].periods[entered];
-                    let boundary = play.at + half.iter().map(PulsePeriod::ticks).sum::<u64>();
-                    self.joints[j].boundary = boundary;
-                    let quiet = half.iter().all(|period| period.high == 0);
-                    let dir_at = streams.next_dir_change(j).map_or(u64::MAX, |d| d.tick);
-                    if quiet && dir_at >= boundary {
-                        // No edge on this joint until the half's end (an idle joint's
-                        // fillers): its periods are played at once. Positions and a stop
-                        // see the same (they have no pulse), and the next refill is still
-                        // made at the boundary.
-                        self.joints[j].next = n + HALF as u64;
-                        self.joints[j].at = boundary;
-                    }
+                // The half entered was written before: its end is known.
+                let half = &self.buffers[j].periods[entered];
+                let boundary = play.at + half.iter().map(PulsePeriod::ticks).sum::<u64>();
+                self.joints[j].boundary = boundary;
+                let quiet = half.iter().all(|period| period.high == 0);
+                let dir_at = streams.next_dir_change(j).map_or(u64::MAX, |d| d.tick);
+                if quiet && dir_at >= boundary {
+                    // No edge on this joint until the half's end (an idle joint's
+                    // fillers): its periods are played at once. Positions and a stop
+                    // see the same (they have no pulse), and the next refill is still
+                    // made at the boundary.
+                    self.joints[j].next = n + HALF as u64;
+                    self.joints[j].at = boundary;
                 }
             }
         }
         finished
+    }
+
+    /// [`Self::advance`] with every joint's changes played in tick order (the earliest
+    /// change of any joint first), asking `pins` after each whether to stop early
+    /// ([`HaltingStepPins::halt_tick`]): a model whose inputs depend on the joints'
+    /// positions (the simulator's limit switches, issue 33) then plays nothing after
+    /// the tick a switch closed at, on any joint. Returns what [`Self::advance`] does and
+    /// the halt tick if `pins` asked for one; the owner then [`Self::stop`]s at it (which
+    /// plays nothing more: every change up to it is played, and none after).
+    pub fn advance_halting<const Q: usize>(
+        &mut self,
+        streams: &mut StepStreams<Q, HALF>,
+        t: u64,
+        pins: &mut impl HaltingStepPins,
+    ) -> (Advance, Option<u64>) {
+        if !self.playing {
+            return (Advance::default(), None);
+        }
+        let end = streams.producer_ref().run_end_tick();
+        let mut until = end.map_or(t, |end| t.min(end));
+        let mut advance = Advance::default();
+        let mut halt = None;
+        loop {
+            if let Some(h) = pins.halt_tick() {
+                halt = Some(h);
+                until = until.min(h);
+            }
+            let next = (0..MAX_JOINTS)
+                .map(|j| (self.next_event(streams, j), j))
+                .min()
+                .filter(|&(at, _)| at <= until);
+            let Some((_, j)) = next else { break };
+            advance.segments_finished += self.play_event(streams, j, pins);
+        }
+        if let Some(end) = streams.producer_ref().run_end_tick()
+            && t.min(halt.unwrap_or(u64::MAX)) >= end
+        {
+            streams.producer().end_run();
+            self.playing = false;
+            advance.ended = true;
+        }
+        (advance, halt)
     }
 
     /// Run tick at which the player must be advanced next: the first half boundary (a
@@ -364,6 +436,15 @@ mod tests {
         dir: JointMask,
         pulses: [i32; MAX_JOINTS],
         last: [u64; MAX_JOINTS],
+        /// Ask for a halt at the rise that makes this joint's pulse count this.
+        halt_at_rise: Option<(usize, usize)>,
+        halt: Option<u64>,
+    }
+
+    impl HaltingStepPins for Lines {
+        fn halt_tick(&self) -> Option<u64> {
+            self.halt
+        }
     }
 
     impl Lines {
@@ -384,6 +465,9 @@ mod tests {
             self.high |= 1 << joint;
             self.pulses[joint] += if self.dir & (1 << joint) != 0 { 1 } else { -1 };
             self.rises[joint].push(tick);
+            if self.halt.is_none() && self.halt_at_rise == Some((joint, self.rises[joint].len())) {
+                self.halt = Some(tick);
+            }
         }
         fn step_low(&mut self, joint: usize, tick: u64) {
             self.at(joint, tick);
@@ -480,6 +564,16 @@ mod tests {
     /// Plays `segments` from run tick `at`, pushing them as the queue frees slots and
     /// advancing in steps of `step` ticks (or at each `next_due` if `step` is 0).
     fn play(segments: &[Segment], at: u64, step: u64) -> (Lines, [i32; MAX_JOINTS]) {
+        play_with(segments, at, step, false)
+    }
+
+    /// [`play`], through [`StreamPlayer::advance_halting`] if `halting` (no halt asked).
+    fn play_with(
+        segments: &[Segment],
+        at: u64,
+        step: u64,
+        halting: bool,
+    ) -> (Lines, [i32; MAX_JOINTS]) {
         let mut streams = StepStreams::<Q, HALF>::new(TIMING, MAX_PERIOD);
         let mut player = StreamPlayer::<HALF>::IDLE;
         let mut pending = segments.iter();
@@ -502,7 +596,13 @@ mod tests {
                 t + step
             };
             t = next;
-            let advance = player.advance(&mut streams, t, &mut lines);
+            let advance = if halting {
+                let (advance, halt) = player.advance_halting(&mut streams, t, &mut lines);
+                assert_eq!(halt, None);
+                advance
+            } else {
+                player.advance(&mut streams, t, &mut lines)
+            };
             fill(&mut streams);
             if advance.ended {
                 let positions = streams.producer_ref().positions();
@@ -523,6 +623,47 @@ mod tests {
                 "{pulses} pulses"
             );
             plays_as_the_engine(&segments, &oracle);
+        }
+    }
+
+    #[test]
+    fn advance_halting_without_a_halt_plays_the_engines_edges() {
+        for sparse in [false, true] {
+            let segments = segments(sparse);
+            let oracle = engine_rises(&segments, 3_000);
+            for step in [0, 997, 1_000_000] {
+                let (lines, positions) = play_with(&segments, 3_000, step, true);
+                assert_eq!(&lines.rises, &oracle, "advanced every {step} ticks");
+                assert_eq!(lines.pulses, positions, "advanced every {step} ticks");
+            }
+        }
+    }
+
+    /// Issue 33's limit stop in the simulator: a halt asked at one joint's edge plays no
+    /// edge of any joint after that tick, however far the advance was asked to go (joint
+    /// by joint, a later joint's edges would have been played past it).
+    #[test]
+    fn advance_halting_plays_nothing_after_the_halt_on_any_joint() {
+        let segments = segments(false);
+        let oracle = engine_rises(&segments[..Q], 0);
+        for (joint, rise) in [(0, 5), (3, 40), (7, 100), (2, 1)] {
+            let (mut streams, mut player) = primed(&segments);
+            let mut lines = Lines {
+                halt_at_rise: Some((joint, rise)),
+                ..Lines::default()
+            };
+            let (_, halt) = player.advance_halting(&mut streams, 10_000_000, &mut lines);
+            let halt = halt.expect("the halt was asked for");
+            assert_eq!(halt, oracle[joint][rise - 1], "joint {joint}'s rise {rise}");
+            player.stop(&mut streams, halt, &mut lines);
+            for (j, rises) in oracle.iter().enumerate() {
+                let expected: Vec<u64> = rises.iter().copied().filter(|&r| r <= halt).collect();
+                assert_eq!(lines.rises[j], expected, "halt at {halt}, joint {j}");
+                assert!(lines.last[j] <= halt);
+            }
+            assert_eq!(lines.high, 0);
+            assert_eq!(player.positions(&streams), lines.pulses);
+            assert_eq!(streams.producer_ref().positions(), lines.pulses);
         }
     }
 

@@ -89,6 +89,8 @@ pub enum OwnedReport {
     JointDesc(protocol::JointDescSet),
     /// MOTION (issue 32).
     Motion(protocol::MotionReport),
+    Homing(protocol::HomingSet),
+    Switches(protocol::SwitchesReport),
 }
 
 impl Client {
@@ -130,6 +132,8 @@ impl Client {
             Report::Diag(d) => OwnedReport::Diag(d),
             Report::JointDesc(d) => OwnedReport::JointDesc(d),
             Report::Motion(m) => OwnedReport::Motion(m),
+            Report::Homing(h) => OwnedReport::Homing(h),
+            Report::Switches(s) => OwnedReport::Switches(s),
         };
         Some((frame.seq, report))
     }

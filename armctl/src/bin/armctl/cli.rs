@@ -118,6 +118,9 @@ pub enum Cmd {
         #[arg(value_parser = clap::value_parser!(u8).range(1..=200))]
         percent: u8,
     },
+    /// Each joint's homing on its home switch (HOMING_GET, HOMING_SET; `home` runs it).
+    #[command(subcommand)]
+    Homing(crate::homing::HomingCmd),
     /// RETURN: move every joint to zero.
     Return {
         /// Wait until the move ends.
@@ -130,8 +133,10 @@ pub enum Cmd {
     /// Jog: `jog JOINT BY` moves one joint by an increment; `jog` alone jogs by keys (digits
     /// choose a joint, arrows move it, Space stops, q quits).
     Jog(JogArgs),
-    /// RETURN with progress: every joint to zero, a live position line, and a check that
-    /// all are there.
+    /// Home the arm: on the home switches when it has them (HOME: each joint set with
+    /// `homing set` seeks its switch, backs off, approaches slowly and takes its offset),
+    /// otherwise RETURN with progress: every joint to zero, a live position line, and a
+    /// check that all are there.
     Home {
         /// Joint config (names, units).
         #[arg(long, value_name = "FILE")]

@@ -42,6 +42,7 @@ mod diag;
 mod discover;
 mod enable;
 mod frame;
+mod homing;
 mod interrupt;
 mod jog_keys;
 mod key;
@@ -172,6 +173,7 @@ fn execute_online(cli: &Cli, arm: &armctl::Client) -> CliResult {
         Cmd::Hold => single::done(arm.hold()),
         Cmd::Resume => single::done(arm.resume()),
         Cmd::Override { percent } => single::set_override(arm, *percent),
+        Cmd::Homing(command) => homing::execute(arm, command),
         Cmd::Return { wait } => single::go_home(arm, *wait),
         Cmd::Move(args) => motion::execute_move(arm, args),
         Cmd::Jog(args) => motion::execute_jog(arm, args),

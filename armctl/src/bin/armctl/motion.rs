@@ -378,8 +378,10 @@ pub fn execute_jog(client: &Client, args: &JogArgs) -> CliResult {
     }
 }
 
-/// Runs `home`: RETURN, a live position line until the arm is STOPPED, and the check that
-/// every joint is at zero.
+/// Runs `home`: on the home switches when the arm has them (HOME, issue 33: a live
+/// position line until the cycle ends, then its result naming the joint that failed), else
+/// RETURN, a live position line until the arm is STOPPED, and the check that every joint
+/// is at zero.
 pub fn execute_home(client: &Client, config: Option<&PathBuf>, units: Option<Units>) -> CliResult {
     let arm = Arm::new(
         client,
@@ -392,7 +394,18 @@ pub fn execute_home(client: &Client, config: Option<&PathBuf>, units: Option<Uni
     )?;
     let cancel = crate::interrupt::watch()?;
     let locations = client.locations();
-    client.go_home().map_err(|e| e.to_string())?;
+    let on_switches = match client.start_homing() {
+        Ok(_) => true,
+        // No joint set to home, no switches, or a controller older than issue 33.
+        Err(armctl::Error::Refused {
+            status: protocol::StatusCode::HomingFailed | protocol::StatusCode::UnknownTag,
+            ..
+        }) => false,
+        Err(e) => return Err(e.to_string()),
+    };
+    if !on_switches {
+        client.go_home().map_err(|e| e.to_string())?;
+    }
     let quiet = !console::Term::stdout().is_term();
     let mut last = None;
     let status = loop {
@@ -418,6 +431,26 @@ pub fn execute_home(client: &Client, config: Option<&PathBuf>, units: Option<Uni
     }
     // The controller sends a LOCATION report at the state change; ask for a fresh one.
     let at = arm.position().or_else(|e| last.ok_or(e))?;
+    if on_switches {
+        let report = client
+            .switches()
+            .map_err(|e| e.to_string())?
+            .ok_or("no SWITCHES report")?;
+        return match report.phase {
+            protocol::HomingPhase::Homed => {
+                println!("homed on the switches: {}", arm.positions_line(&at));
+                Ok(())
+            }
+            _ => Err(format!(
+                "homing failed on {}: {}",
+                arm.joint_name(usize::from(report.joint)),
+                report.error.map_or(
+                    "stopped (STOPPED, a limit switch or the e-stop input)",
+                    |e| { e.text() }
+                )
+            )),
+        };
+    }
     let away: Vec<String> = (0..arm.joints)
         .filter(|&j| at[j] != 0)
         .map(|j| format!("{} at {} steps", arm.joint_name(j), at[j]))

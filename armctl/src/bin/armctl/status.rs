@@ -74,6 +74,19 @@ pub fn execute(arm: &Client, json: bool, config: Option<&std::path::Path>) -> Cl
     } else {
         print_status(&status);
         println!("{}", stop_line(&status, stop.as_ref()));
+        // Issue 33: the switches, when the controller has any or has homed (an older
+        // controller refuses the request bit: nothing printed).
+        if let Ok(Some(switches)) = arm.switches() {
+            let names = config.as_ref().map(|c| {
+                c.joints
+                    .iter()
+                    .map(|j| j.name.clone())
+                    .collect::<Vec<Option<String>>>()
+            });
+            if let Some(line) = switches_line(&switches, names.as_deref()) {
+                println!("{line}");
+            }
+        }
         println!(
             "{}",
             positions_block(&status, glance.location.as_ref(), config.as_ref(), units)
@@ -131,6 +144,44 @@ pub fn positions_block(
         lines.push(line);
     }
     lines.join("\n")
+}
+
+/// The limit switch latch and the homing cycle (issue 33, the SWITCHES report), `None`
+/// when there is nothing to say (never homed, nothing pressed, not latched). `names`:
+/// the joint config's names, to name the joint with.
+pub fn switches_line(
+    s: &protocol::SwitchesReport,
+    names: Option<&[Option<String>]>,
+) -> Option<String> {
+    let name = |j: u8| {
+        names
+            .and_then(|n| n.get(usize::from(j)).cloned().flatten())
+            .map_or(format!("joint {j}"), |n| format!("joint {j} ({n})"))
+    };
+    let mut parts = Vec::new();
+    if let Some(l) = s.latched {
+        let side = if l & 0x80 != 0 { "max" } else { "min" };
+        parts.push(format!(
+            "LATCHED on the {side} limit of {}: `armctl unlock`, then move away from it",
+            name(l & 0x7f)
+        ));
+    }
+    for (mask, what) in [(s.min_active, "min"), (s.max_active, "max")] {
+        for j in (0..8u8).filter(|j| mask & (1 << j) != 0) {
+            parts.push(format!("{what} limit of {} pressed", name(j)));
+        }
+    }
+    match s.phase {
+        protocol::HomingPhase::Never => {}
+        protocol::HomingPhase::Homing => parts.push(format!("homing {}", name(s.joint))),
+        protocol::HomingPhase::Homed => parts.push(format!("homed (joints {:#04x})", s.homed)),
+        protocol::HomingPhase::Failed => parts.push(format!(
+            "homing failed on {}: {}",
+            name(s.joint),
+            s.error.map_or("?", |e| e.text())
+        )),
+    }
+    (!parts.is_empty()).then(|| format!("switches         {}", parts.join("; ")))
 }
 
 /// What ended the last run (issue 31: STATUS `more_flags` bits 5-7 and the STOP_CAUSE

@@ -176,6 +176,43 @@ fn unlock_command_and_frame() {
     );
 }
 
+/// Issue 33: `status` names a latched limit's joint (with its config name) and side, and
+/// the homing cycle's result; nothing when there is nothing to say.
+#[test]
+fn the_switches_line_names_the_latched_limit_and_the_homing() {
+    use protocol::{HomingFailure, HomingPhase, SwitchesReport};
+    assert_eq!(
+        crate::status::switches_line(&SwitchesReport::default(), None),
+        None
+    );
+    let latched = SwitchesReport {
+        latched: Some(0x82),
+        max_active: 0b100,
+        ..SwitchesReport::default()
+    };
+    let names = [None, None, Some("elbow".to_string())];
+    let line = crate::status::switches_line(&latched, Some(&names)).unwrap();
+    assert!(
+        line.contains("LATCHED on the max limit of joint 2 (elbow)"),
+        "{line}"
+    );
+    assert!(
+        line.contains("max limit of joint 2 (elbow) pressed"),
+        "{line}"
+    );
+    let failed = SwitchesReport {
+        phase: HomingPhase::Failed,
+        joint: 1,
+        error: Some(HomingFailure::SeekTravel),
+        ..SwitchesReport::default()
+    };
+    let line = crate::status::switches_line(&failed, None).unwrap();
+    assert!(
+        line.contains("homing failed on joint 1: the seek travelled its maximum"),
+        "{line}"
+    );
+}
+
 #[test]
 fn hold_resume_override_and_run_speed() {
     assert!(matches!(parse(&["hold"]).command, Cmd::Hold));

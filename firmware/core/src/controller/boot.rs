@@ -47,6 +47,7 @@ macro_rules! with_boot_fields {
         serial_to: None,
         more_flags: MoreFlags(0),
         hard_limits: crate::switches::Limits::new(),
+        homing: super::homing_run::HomingRun::IDLE,
         reports_on: true,
         upload_period_us: limits::DEFAULT_UPLOAD_PERIOD_US,
         enabled: ALL_DRIVERS,

@@ -211,6 +211,14 @@ impl<const CAP: usize> Controller<CAP> {
         ran_dry: bool,
         plant: &mut impl Plant,
     ) -> Option<Location> {
+        if self.homing() {
+            // A homing move is one segment of its own (controller/homing_run.rs).
+            return if ran_dry {
+                self.homing_ran_dry(plant)
+            } else {
+                None
+            };
+        }
         let done = self.buffer.finish(finished as usize);
         self.executed = self
             .executed

@@ -57,6 +57,8 @@ struct TaskPlant<'a, const Q: usize, B, M, K, O, G, P> {
     outputs: &'a mut O,
     gripper: &'a mut G,
     serial: &'a P,
+    /// The switch inputs (their mask, issue 33).
+    switches: Option<&'a SwitchLine>,
 }
 
 impl<
@@ -144,6 +146,11 @@ impl<
     fn rate_now(&self) -> Option<(u64, bool)> {
         self.step.rate_now(self.kick.now_tick())
     }
+    fn set_limit_mask(&mut self, mask: Option<(u8, crate::switches::Side)>) {
+        if let Some(line) = self.switches {
+            line.set_mask(mask);
+        }
+    }
 }
 
 /// Owns the [`Controller`]: handles datagrams (STOPPED from `bus.estop` first; the wired
@@ -197,6 +204,7 @@ where
         }
     }
     controller.set_pwm_timer_clock_hz(gripper.timer_clock_hz());
+    controller.set_switches_fitted(switches.is_some_and(SwitchLine::any_fitted));
     outputs.set_enabled(controller.enabled());
     publish(bus, controller);
     let lead_ticks = us_to_ticks(u64::from(START_LEAD_US), step.timing().tick_hz);
@@ -226,6 +234,7 @@ where
             outputs: &mut outputs,
             gripper: &mut gripper,
             serial,
+            switches,
         };
         // The input's stop came first (its handler stopped the steps already); whatever
         // this event is, it is handled in the state that stop left. Likewise a limit
@@ -427,11 +436,25 @@ pub(super) fn deliver(bus: &Bus, response: &Response) {
             report: AnswerReport::Motion(motion),
         }));
     }
+    if let Some((to, switches)) = response.asked_switches {
+        bus.send(Outgoing::Answer(Answer {
+            to,
+            seq: response.answer_seq,
+            report: AnswerReport::Switches(switches),
+        }));
+    }
     if let Some(to) = response.asked_diag {
         bus.send(Outgoing::Answer(Answer {
             to,
             seq: response.answer_seq,
             report: AnswerReport::Diag(bus.diag()),
+        }));
+    }
+    if let Some((to, homing)) = response.homing {
+        bus.send(Outgoing::Answer(Answer {
+            to,
+            seq: None,
+            report: AnswerReport::Homing(homing),
         }));
     }
     if let Some(location) = response.location {
