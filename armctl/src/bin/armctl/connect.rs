@@ -32,6 +32,9 @@ pub fn connect(cli: &Cli) -> Result<Client, String> {
         Cmd::Stop => Ok(controller),
         // `status` asks itself, look-only: it never takes the controller (issue 23).
         Cmd::Status { .. } => Ok(controller),
+        // The pendant shows a controller that does not answer (yet), or another host's,
+        // read-only.
+        Cmd::Serve(_) => Ok(controller),
         // As Client::connect_with: check that the controller answers.
         _ => match controller.status() {
             Ok(_) => Ok(controller),

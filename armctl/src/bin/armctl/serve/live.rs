@@ -1,0 +1,377 @@
+//! What every page shows, kept once: the controller's latest STATUS and LOCATION, the arm's
+//! names and units, the run in progress and its commanded points. One poller thread reads
+//! the controller (LOCATION reports as the owner, read-only STATUS otherwise); each page's
+//! event stream waits on [`Live`] and sends a snapshot whenever it changes, or every
+//! [`Live::wait`] timeout, so that a page sees the controller go silent.
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Condvar, Mutex, MutexGuard};
+use std::time::{Duration, Instant};
+
+use armctl::Client;
+use armctl::motion::Units;
+use armctl::trajectory::ArmConfig;
+use protocol::{Location, MAX_JOINTS, MoreFlags, State, StatusCode, StatusFlags, StatusReport};
+use serde_json::{Value, json};
+
+/// Silence after which the page says the controller stops answering: ten report periods at
+/// the default 10 ms, and four of the read-only polls.
+pub const STALE_AFTER: Duration = Duration::from_millis(1000);
+
+/// How often the owner's poller asks STATUS when no run is in progress (the flags, the
+/// buffer, the e-stop input): 4 a second, and it keeps this host the owner.
+const STATUS_EVERY: Duration = Duration::from_millis(250);
+
+/// How often a read-only pendant asks its look-only STATUS: as `armctl watch` does, half
+/// the controller's budget for such answers (docs/PROTOCOL.md section 1).
+const READ_ONLY_POLL: Duration = Duration::from_millis(200);
+
+/// How often a read-only pendant asks who owns the controller (DISCOVER), and tries to
+/// take it once it is free.
+const OWNER_EVERY: Duration = Duration::from_secs(5);
+
+/// The run whose positions the page plots: the points' end times and positions.
+#[derive(Clone, Debug, Default)]
+pub struct PlotRun {
+    /// Distinguishes runs: a page that has this one does not need it again.
+    pub id: u64,
+    /// What started it: `run FILE`, `jog base +1 deg`.
+    pub what: String,
+    /// Each commanded point's end, milliseconds from the start (the first is the start).
+    pub t_ms: Vec<f64>,
+    /// The commanded positions (steps) at those times, one row per time.
+    pub commanded: Vec<Vec<i32>>,
+}
+
+/// The motion in progress (a run or a jog) and how it ended.
+#[derive(Clone, Debug, Default)]
+pub struct RunView {
+    pub active: bool,
+    pub total: usize,
+    pub sent: usize,
+    pub acked: usize,
+    pub executed: usize,
+    pub started: Option<Instant>,
+    /// When it ended: the plot takes reports until [`PLOT_TAIL`] after.
+    pub ended: Option<Instant>,
+}
+
+/// How long after a run's end its plot still takes the positions reported: the arm
+/// settles, the last reports arrive.
+pub const PLOT_TAIL: Duration = Duration::from_millis(500);
+
+/// The shared snapshot.
+#[derive(Debug, Default)]
+pub struct Snapshot {
+    /// Bumped on every change; a page's stream sends when it moved.
+    pub version: u64,
+    /// When the controller last answered.
+    pub seen: Option<Instant>,
+    pub status: Option<StatusReport>,
+    pub location: Option<Location>,
+    pub stop_text: String,
+    pub read_only: bool,
+    /// Who owns the controller when this pendant does not (from DISCOVER).
+    pub owner: Option<String>,
+    pub config: Option<ArmConfig>,
+    pub run: RunView,
+    pub plot: PlotRun,
+    /// The last action's outcome, for every page: `jog base: at 10.00 deg`.
+    pub message: String,
+    /// Whether the last message is an error.
+    pub error: bool,
+    /// Whether the controller takes HOLD, RESUME and OVERRIDE (issue 32).
+    pub hold_available: bool,
+    /// Whether moving the arm needs the token (served on a non-loopback address).
+    pub token_needed: bool,
+}
+
+/// The snapshot and the wake-up of every page's stream.
+#[derive(Debug, Default)]
+pub struct Live {
+    snapshot: Mutex<Snapshot>,
+    changed: Condvar,
+    next_run: std::sync::atomic::AtomicU64,
+}
+
+impl Live {
+    /// The snapshot, locked (a poisoned lock is taken as it is: it holds plain data).
+    pub fn lock(&self) -> MutexGuard<'_, Snapshot> {
+        self.snapshot
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+    }
+
+    /// Changes the snapshot and wakes every stream.
+    pub fn update(&self, change: impl FnOnce(&mut Snapshot)) {
+        let mut s = self.lock();
+        change(&mut s);
+        s.version = s.version.wrapping_add(1);
+        drop(s);
+        self.changed.notify_all();
+    }
+
+    /// Waits until the version differs from `seen`, at most `timeout`; the version now.
+    pub fn wait(&self, seen: u64, timeout: Duration) -> u64 {
+        let s = self.lock();
+        let (s, _) = self
+            .changed
+            .wait_timeout_while(s, timeout, |s| s.version == seen)
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        s.version
+    }
+
+    /// A new run id.
+    pub fn new_run_id(&self) -> u64 {
+        self.next_run.fetch_add(1, Ordering::Relaxed) + 1
+    }
+
+    /// Records an action's outcome for every page.
+    pub fn say(&self, message: impl Into<String>, error: bool) {
+        let message = message.into();
+        self.update(|s| {
+            s.message = message;
+            s.error = error;
+        });
+    }
+}
+
+impl Snapshot {
+    /// The joints in use.
+    pub fn joints(&self) -> usize {
+        self.status
+            .map_or(0, |s| usize::from(s.joints))
+            .min(MAX_JOINTS)
+    }
+
+    /// The snapshot as the page's JSON.
+    pub fn to_json(&self, now: Instant) -> Value {
+        let joints = self.joints();
+        let age = self.seen.map(|t| now.saturating_duration_since(t));
+        let config = self.config.as_ref();
+        let units = config.map_or(Units::Steps, |c| c.units);
+        let names: Vec<String> = (0..joints)
+            .map(|j| {
+                config
+                    .and_then(|c| c.joints.get(j))
+                    .and_then(|c| c.name.clone())
+                    .unwrap_or_else(|| format!("j{j}"))
+            })
+            .collect();
+        let steps: Vec<i32> = self
+            .location
+            .map(|l| l.position[..joints].to_vec())
+            .unwrap_or_default();
+        let shown: Vec<String> = steps
+            .iter()
+            .enumerate()
+            .map(|(j, p)| match config.and_then(|c| c.joints.get(j)) {
+                Some(joint) => units.show(i64::from(*p), joint),
+                None => format!("{p} steps"),
+            })
+            .collect();
+        let status = self.status.map(|s| {
+            let flag = |bit| s.flags.has(bit);
+            json!({
+                "state": s.state.name(),
+                "version": format!("{}.{}.{}", s.version[0], s.version[1], s.version[2]),
+                "buffered": s.buffered,
+                "capacity": s.capacity,
+                "expected": s.expected,
+                "received": s.received,
+                "executed": s.executed,
+                "reports_on": flag(StatusFlags::REPORTS_ON),
+                "drivers_enabled": flag(StatusFlags::DRIVERS_ENABLED),
+                "enabled_mask": s.drivers_enabled(),
+                "serial_open": flag(StatusFlags::SERIAL_OPEN),
+                "pwm_active": flag(StatusFlags::PWM_ACTIVE),
+                "estop_open": s.more_flags.has(MoreFlags::ESTOP_OPEN),
+                "estop_latched": s.more_flags.has(MoreFlags::ESTOP_LATCHED),
+                "report_period_us": s.upload_period_us,
+            })
+        });
+        // The LOCATION's state is newer than the last STATUS during a run.
+        let state = self
+            .location
+            .map(|l| State::name_of(l.state))
+            .or(self.status.map(|s| s.state.name()));
+        json!({
+            "connected": age.is_some_and(|a| a < STALE_AFTER),
+            "age_ms": age.map(|a| a.as_millis() as u64),
+            "state": state,
+            "status": status,
+            "joints": joints,
+            "names": names,
+            "units": units.name(),
+            "steps": steps,
+            "shown": shown,
+            "stop_cause": self.stop_text,
+            "read_only": self.read_only,
+            "owner": self.owner,
+            "run": {
+                "id": self.plot.id,
+                "what": self.plot.what,
+                "active": self.run.active,
+                "total": self.run.total,
+                "sent": self.run.sent,
+                "acked": self.run.acked,
+                "executed": self.run.executed,
+                // The time on the plot's axis; none once the run's tail is over.
+                "t_ms": self.run.started
+                    .filter(|_| self.run.ended.is_none_or(|e| now.saturating_duration_since(e) < PLOT_TAIL))
+                    .map(|t| now.saturating_duration_since(t).as_secs_f64() * 1e3),
+            },
+            "message": self.message,
+            "error": self.error,
+            "hold_available": self.hold_available,
+            "token_needed": self.token_needed,
+        })
+    }
+
+    /// The plot's commanded points as JSON (the `run` event).
+    pub fn plot_json(&self) -> Value {
+        json!({
+            "id": self.plot.id,
+            "what": self.plot.what,
+            "t_ms": self.plot.t_ms,
+            "commanded": self.plot.commanded,
+        })
+    }
+}
+
+/// The arm as the controller describes it (names, units), else `joints` unnamed joints in
+/// steps.
+pub fn arm_config(arm: &Client, status: &StatusReport) -> ArmConfig {
+    let joints = usize::from(status.joints).clamp(1, MAX_JOINTS);
+    match arm.described_arm(joints, status.max_step_rate_hz) {
+        Ok(Some(config)) => config,
+        _ => ArmConfig::unlimited(joints, status.max_step_rate_hz),
+    }
+}
+
+/// Reads the controller for the pages until `quit` is set: LOCATION reports as the
+/// owner (STATUS every [`STATUS_EVERY`] between runs), a look-only STATUS every
+/// [`READ_ONLY_POLL`] when another host owns it.
+pub fn poll(arm: &Client, live: &Live, quit: &AtomicBool) {
+    let locations = arm.locations();
+    let mut read_only = false;
+    let mut claimed = false;
+    let mut last_status = Instant::now() - STATUS_EVERY;
+    let mut last_owner_check = Instant::now() - OWNER_EVERY;
+    let mut last_state: Option<State> = None;
+    let mut joints_described = 0u8;
+    while !quit.load(Ordering::Relaxed) {
+        if !claimed && (!read_only || last_owner_check.elapsed() >= OWNER_EVERY) {
+            match arm.claim_locations() {
+                Ok(()) => {
+                    claimed = true;
+                    read_only = false;
+                    live.update(|s| {
+                        s.read_only = false;
+                        s.owner = None;
+                    });
+                }
+                Err(e) if e.status() == Some(StatusCode::NotOwner) => read_only = true,
+                Err(_) => std::thread::sleep(READ_ONLY_POLL),
+            }
+        }
+        let status = if read_only {
+            if last_owner_check.elapsed() >= OWNER_EVERY {
+                last_owner_check = Instant::now();
+                let owner = owner_of(arm);
+                live.update(|s| {
+                    s.read_only = true;
+                    s.owner = owner;
+                });
+            }
+            std::thread::sleep(READ_ONLY_POLL);
+            match arm.glance(true) {
+                Ok(glance) => {
+                    live.update(|s| {
+                        s.seen = Some(Instant::now());
+                        s.status = Some(glance.status);
+                        if glance.location.is_some() {
+                            s.location = glance.location;
+                        }
+                    });
+                    Some(glance.status)
+                }
+                Err(_) => None,
+            }
+        } else {
+            if let Ok(location) = locations.recv_timeout(Duration::from_millis(50)) {
+                live.update(|s| {
+                    s.seen = Some(Instant::now());
+                    s.location = Some(location);
+                });
+            }
+            let running = live.lock().run.active;
+            if running {
+                // STATUS waits behind an upload: the run's own STATUS reports instead.
+                arm.last_status()
+            } else if last_status.elapsed() >= STATUS_EVERY {
+                last_status = Instant::now();
+                match arm.status() {
+                    Ok(status) => {
+                        live.update(|s| {
+                            s.seen = Some(Instant::now());
+                            s.status = Some(status);
+                        });
+                        Some(status)
+                    }
+                    Err(e) if e.status() == Some(StatusCode::NotOwner) => {
+                        // Another host took the controller over.
+                        claimed = false;
+                        read_only = true;
+                        None
+                    }
+                    Err(_) => {
+                        // Silent: ask for the reports again once it answers (a restarted
+                        // controller sends them to nobody).
+                        claimed = false;
+                        None
+                    }
+                }
+            } else {
+                None
+            }
+        };
+        let Some(status) = status else { continue };
+        if status.joints != joints_described {
+            joints_described = status.joints;
+            let config = arm_config(arm, &status);
+            live.update(|s| s.config = Some(config));
+        }
+        // A run just ended, or the first look: what ended the last run.
+        let state = status.state;
+        if last_state != Some(state) && state == State::Stopped && !live.lock().run.active {
+            let text = match arm.stop_report() {
+                Ok((status, stop)) => armctl::stop_cause_text(&status, stop.as_ref()),
+                Err(e) => format!("unknown ({e})"),
+            };
+            live.update(|s| s.stop_text = text);
+        }
+        last_state = Some(state);
+    }
+}
+
+/// The host that owns the controller, as DISCOVER tells (`192.168.1.5`, `nobody`); `None`
+/// when it does not answer DISCOVER.
+fn owner_of(arm: &Client) -> Option<String> {
+    let std::net::SocketAddr::V4(target) = arm.addr() else {
+        return None;
+    };
+    let found = armctl::discover::discover(&armctl::discover::DiscoverOptions {
+        target,
+        bind: None,
+        wait: Duration::from_millis(200),
+        rounds: 1,
+    })
+    .ok()?;
+    let reply = found.first()?.reply?;
+    Some(match reply.owner {
+        protocol::OwnerState::Free => "nobody".into(),
+        protocol::OwnerState::Asker => "this pendant".into(),
+        protocol::OwnerState::Other => std::net::Ipv4Addr::from(reply.owner_ip).to_string(),
+    })
+}
