@@ -11,6 +11,8 @@
 pub mod qemu;
 /// The NUCLEO-H743ZI2 firmware itself on Renode (tests/tests/renode.rs).
 pub mod renode;
+/// Headless Chromium over WebDriver for the pendant's tests (tests/tests/pendant.rs).
+pub mod webdriver;
 
 use std::io::{BufRead, BufReader};
 use std::net::{SocketAddr, UdpSocket};

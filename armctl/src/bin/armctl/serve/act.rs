@@ -237,7 +237,10 @@ impl Pendant {
         let path = self.dir.join(format!("trajectory.{ext}"));
         std::fs::write(&path, body).map_err(|e| format!("{}: {e}", path.display()))?;
         *lock(&self.checked) = None;
-        let converted = self.convert(&path, None)?;
+        // Messages name the file as the page chose it, not the copy kept here.
+        let converted = self
+            .convert(&path, None)
+            .map_err(|e| e.replace(&path.display().to_string(), name))?;
         *lock(&self.checked) = Some(path);
         Ok(format!(
             "{name}: {}",

@@ -258,7 +258,8 @@ pub fn poll(arm: &Client, live: &Live, quit: &AtomicBool) {
     let mut claimed = false;
     let mut last_status = Instant::now() - STATUS_EVERY;
     let mut last_owner_check = Instant::now() - OWNER_EVERY;
-    let mut last_state: Option<State> = None;
+    let mut last_state: Option<u8> = None;
+    let mut was_active = false;
     let mut joints_described = 0u8;
     while !quit.load(Ordering::Relaxed) {
         if !claimed && (!read_only || last_owner_check.elapsed() >= OWNER_EVERY) {
@@ -336,22 +337,35 @@ pub fn poll(arm: &Client, live: &Live, quit: &AtomicBool) {
                 None
             }
         };
-        let Some(status) = status else { continue };
-        if status.joints != joints_described {
+        if let Some(status) = status
+            && status.joints != joints_described
+        {
             joints_described = status.joints;
             let config = arm_config(arm, &status);
             live.update(|s| s.config = Some(config));
         }
-        // A run just ended, or the first look: what ended the last run.
-        let state = status.state;
-        if last_state != Some(state) && state == State::Stopped && !live.lock().run.active {
+        // A run or a move just ended, or the first look: what ended the last run. The
+        // LOCATION's state is the newest (STATUS is not asked during a run).
+        let (state, active) = {
+            let s = live.lock();
+            let state = s
+                .location
+                .map(|l| l.state)
+                .or(s.status.map(|st| st.state as u8));
+            (state, s.run.active)
+        };
+        let stopped = state == Some(State::Stopped as u8);
+        if stopped && !active && (last_state != state || was_active) {
             let text = match arm.stop_report() {
                 Ok((status, stop)) => armctl::stop_cause_text(&status, stop.as_ref()),
                 Err(e) => format!("unknown ({e})"),
             };
             live.update(|s| s.stop_text = text);
         }
-        last_state = Some(state);
+        if state.is_some() {
+            last_state = state;
+        }
+        was_active = active;
     }
 }
 
