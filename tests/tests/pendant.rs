@@ -466,3 +466,82 @@ fn click_to_stopped_benchmark() {
         page.text("body")
     );
 }
+
+#[test]
+fn another_hosts_controller_is_shown_read_only_with_its_owner() {
+    if !browser_or_skip("another_hosts_controller_is_shown_read_only") {
+        return;
+    }
+    let _alone = system_tests::run_alone();
+    let sim = described_sim();
+    // `config push` (from 127.0.0.1) gives it up, then 127.0.0.2 owns the controller, and keeps it (STATUS every 500 ms, well inside the
+    // 5 s after which a silent owner loses it) until the test ends.
+    let owner = sim.connect_with(armctl::Options {
+        bind: Some("127.0.0.2:0".parse().unwrap()),
+        ..armctl::Options::default()
+    });
+    let (ok, out, err) = run_armctl(Some(&sim), &["release"]);
+    assert!(ok, "release: {out}{err}");
+    owner.status().expect("127.0.0.2 takes the controller");
+    let done = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let keeper = {
+        let done = std::sync::Arc::clone(&done);
+        std::thread::spawn(move || {
+            // Bounded: at most 120 STATUS (a minute).
+            for _ in 0..120 {
+                if done.load(std::sync::atomic::Ordering::Relaxed) {
+                    break;
+                }
+                let _ = owner.status();
+                std::thread::sleep(Duration::from_millis(500));
+            }
+        })
+    };
+    let pendant = Pendant::start(&sim);
+    let driver = Driver::start();
+    let page = open(&driver, &pendant.url);
+    assert!(
+        page.wait_for(
+            "return snap.read_only && snap.owner === '127.0.0.2' \
+             && getComputedStyle(document.getElementById('readonly')).display === 'block'",
+            PAGE_WAIT
+        ),
+        "not read-only with the owner named: {}",
+        page.text("body")
+    );
+    assert_eq!(page.text("#owner"), "127.0.0.2");
+    // Names and units from the descriptions, which any host may read.
+    assert!(
+        page.wait_for(
+            "return [...document.querySelectorAll('#joints tr .name')].map(e => e.textContent).join() === 'base,shoulder'",
+            PAGE_WAIT
+        ),
+        "{}",
+        page.text("body")
+    );
+    assert_eq!(shown_positions(&page), ["0.00 deg", "0.00 deg"]);
+    let disabled: Vec<bool> = serde_json::from_value(
+        page.eval("return [...document.querySelectorAll('button.moves')].map(b => b.disabled)"),
+    )
+    .unwrap();
+    assert!(
+        disabled.iter().all(|d| *d),
+        "buttons that move: {disabled:?}"
+    );
+    // The endpoint refuses too, saying why.
+    let answer: serde_json::Value =
+        serde_json::from_value(page.eval(
+            "return await fetch('/api/jog?joint=0&by=1', {method: 'POST'}).then(r => r.json())",
+        ))
+        .unwrap();
+    assert_eq!(answer["ok"], false, "{answer}");
+    assert!(
+        answer["message"]
+            .as_str()
+            .unwrap_or_default()
+            .contains("read-only: 127.0.0.2 owns the controller"),
+        "{answer}"
+    );
+    done.store(true, std::sync::atomic::Ordering::Relaxed);
+    let _ = keeper.join();
+}

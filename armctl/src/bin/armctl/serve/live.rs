@@ -240,13 +240,39 @@ impl Snapshot {
 }
 
 /// The arm as the controller describes it (names, units), else `joints` unnamed joints in
-/// steps.
+/// steps. From a host that does not own the controller the limits (LIMITS_GET) are not
+/// told, but the descriptions are (JOINT_DESC_GET, read-only from any host): names and
+/// units then, without limits (a read-only pendant moves nothing).
 pub fn arm_config(arm: &Client, status: &StatusReport) -> ArmConfig {
     let joints = usize::from(status.joints).clamp(1, MAX_JOINTS);
+    let mut config = ArmConfig::unlimited(joints, status.max_step_rate_hz);
     match arm.described_arm(joints, status.max_step_rate_hz) {
-        Ok(Some(config)) => config,
-        _ => ArmConfig::unlimited(joints, status.max_step_rate_hz),
+        Ok(Some(described)) => return described,
+        Ok(None) => return config,
+        Err(_) => {}
     }
+    let mut described = false;
+    let mut units = None;
+    for (j, joint) in config.joints.iter_mut().enumerate() {
+        let Ok(desc) = arm.joint_desc(u8::try_from(j).unwrap_or(0)) else {
+            continue;
+        };
+        if desc.is_described() {
+            if !described {
+                described = true;
+                units = Some(armctl::described::units_of(desc.unit));
+            }
+            joint.name = (!desc.name().is_empty()).then(|| desc.name().to_string());
+            if desc.scale() != 0.0 {
+                joint.steps_per_radian = desc.scale();
+            }
+            joint.zero_offset_steps = desc.zero_offset_steps;
+        }
+    }
+    if let Some(units) = units {
+        config.units = units;
+    }
+    config
 }
 
 /// Reads the controller for the pages until `quit` is set: LOCATION reports as the
