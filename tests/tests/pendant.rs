@@ -375,7 +375,10 @@ fn the_pendant_in_a_browser_shows_jogs_stops_and_loses_the_simulator() {
 /// Clicks the benchmark makes.
 const BENCH_CLICKS: usize = 40;
 
+/// A benchmark, not a check: `.ci/run` runs it with `--ignored --nocapture` to print its
+/// figures.
 #[test]
+#[ignore = "a benchmark: cargo test -p system-tests --test pendant -- --ignored --nocapture"]
 fn click_to_stopped_benchmark() {
     if !browser_or_skip("click_to_stopped_benchmark") {
         return;

@@ -40,8 +40,8 @@ pub struct Pendant {
     job: Mutex<Option<Cancel>>,
     /// Where uploaded trajectory files are kept (a directory of this process).
     dir: PathBuf,
-    /// The last file checked: what `run` runs.
-    checked: Mutex<Option<PathBuf>>,
+    /// The last file checked (kept here, and its name in the page): what `run` runs.
+    checked: Mutex<Option<(PathBuf, String)>>,
 }
 
 fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
@@ -241,7 +241,7 @@ impl Pendant {
         let converted = self
             .convert(&path, None)
             .map_err(|e| e.replace(&path.display().to_string(), name))?;
-        *lock(&self.checked) = Some(path);
+        *lock(&self.checked) = Some((path, name.to_string()));
         Ok(format!(
             "{name}: {}",
             crate::run::points_summary(&converted.points, converted.waypoints)
@@ -289,7 +289,7 @@ impl Pendant {
 
     /// Runs the trajectory checked last, converted again from where the arm is now.
     pub fn run(self: &Arc<Self>) -> Result<String, String> {
-        let Some(path) = lock(&self.checked).clone() else {
+        let Some((path, name)) = lock(&self.checked).clone() else {
             return Err("choose a trajectory file first (it is checked before it runs)".into());
         };
         self.may_move()?;
@@ -297,7 +297,7 @@ impl Pendant {
         if let Some(status) = status {
             crate::motion::ready_to_move(&status)?;
         }
-        self.start_job("run".into(), move |me, cancel| {
+        self.start_job(format!("run {name}"), move |me, cancel| {
             let current = me
                 .arm
                 .current_location(Duration::from_secs(2))
