@@ -62,12 +62,18 @@ struct Pendant {
 
 impl Pendant {
     fn start(sim: &SimHost) -> Pendant {
+        Pendant::start_with(sim, &[])
+    }
+
+    /// With global options `extra` (`--key-file FILE`).
+    fn start_with(sim: &SimHost, extra: &[&str]) -> Pendant {
         let pcap = sim.dir().join("pendant.pcap");
         let mut child = Command::new(armctl_bin())
             .arg("--controller")
             .arg(sim.addr.to_string())
             .arg("--pcap")
             .arg(&pcap)
+            .args(extra)
             .args(["serve", "--listen", "127.0.0.1:0"])
             .stdin(Stdio::null())
             .stdout(Stdio::piped())
@@ -319,7 +325,44 @@ fn the_pendant_in_a_browser_shows_jogs_stops_and_loses_the_simulator() {
         .unwrap_or_else(|| {
             panic!("no STOPPED on the wire after the click at {click:.4}: {stops:?}")
         });
+
+    // The key: Escape sends STOPPED too.
+    let before = stops_on_the_wire(&pendant.pcap).len();
+    page.type_into("body", "\u{E00C}");
+    let deadline = Instant::now() + PAGE_WAIT;
+    while stops_on_the_wire(&pendant.pcap).len() == before && Instant::now() < deadline {
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    assert!(
+        stops_on_the_wire(&pendant.pcap).len() > before,
+        "Escape sent no STOPPED"
+    );
+
+    // Disable and enable the drivers; home.
+    page.click("#disable");
+    assert!(
+        page.wait_for("return (snap.status.enabled_mask & 3) === 0", PAGE_WAIT),
+        "disable: {}",
+        page.text("body")
+    );
+    page.click("#enable");
+    assert!(
+        page.wait_for("return (snap.status.enabled_mask & 3) === 3", PAGE_WAIT),
+        "enable: {}",
+        page.text("body")
+    );
+    // The home's mark on the trace: its steps are not the e-stop's.
+    arm.pin(1, true).expect("PIN1_ON");
     drop(arm);
+    page.click("#home");
+    assert!(
+        page.wait_for(
+            "return snap.state === 'STOPPED' && snap.steps[0] === 0 && snap.steps[1] === 0",
+            PAGE_WAIT
+        ),
+        "home: {}",
+        page.text("body")
+    );
 
     // The simulator goes: both pages say so.
     sim.terminate();
@@ -344,7 +387,12 @@ fn the_pendant_in_a_browser_shows_jogs_stops_and_loses_the_simulator() {
         jog_steps >= 89,
         "shoulder steps before the run's stop: {jog_steps}"
     );
-    let last = (0..2).flat_map(steps).max().expect("STEP edges");
+    let home = *trace.rising_edges("pin1").last().expect("the PIN1 mark");
+    let last = (0..2)
+        .flat_map(steps)
+        .filter(|&t| t < home)
+        .max()
+        .expect("STEP edges");
     // The STOPPED read by the simulator (its estop wire), the first after the mark.
     let estop = trace
         .rising_edges("estop")
@@ -547,4 +595,39 @@ fn another_hosts_controller_is_shown_read_only_with_its_owner() {
     );
     done.store(true, std::sync::atomic::Ordering::Relaxed);
     let _ = keeper.join();
+}
+
+#[test]
+fn a_keyed_controller_is_driven_through_the_key() {
+    if !browser_or_skip("a_keyed_controller_is_driven_through_the_key") {
+        return;
+    }
+    let _alone = system_tests::run_alone();
+    let sim = described_sim();
+    let key = sim.dir().join("arm.key");
+    let (ok, out, err) = run_armctl(None, &["key", "new", "-o", key.to_str().unwrap()]);
+    assert!(ok, "key new: {out}{err}");
+    let (ok, out, err) = run_armctl(Some(&sim), &["key", "set", key.to_str().unwrap()]);
+    assert!(ok, "key set: {out}{err}");
+    let pendant = Pendant::start_with(&sim, &["--key-file", key.to_str().unwrap()]);
+    let driver = Driver::start();
+    let page = open(&driver, &pendant.url);
+    assert!(!page.eval("return snap.read_only").as_bool().unwrap_or(true));
+    page.click("tr[data-joint='0'] .jog-plus");
+    assert!(
+        page.wait_for("return snap.steps[0] === 44 && !snap.run.active", PAGE_WAIT),
+        "the keyed jog: {}",
+        page.text("body")
+    );
+    // (A keyed controller refuses plain frames but STOPPED: the jog went sealed.) The
+    // e-stop goes plain, as it may.
+    page.click("#estop");
+    assert!(
+        page.wait_for(
+            "return snap.message === 'STOPPED: every joint stopped'",
+            PAGE_WAIT
+        ),
+        "{}",
+        page.text("body")
+    );
 }

@@ -67,6 +67,7 @@ impl Pendant {
         }
         match sent {
             Ok(_) => {
+                self.live.update(|s| s.stop_stale = true);
                 self.live.say("STOPPED: every joint stopped", false);
                 Ok("STOPPED".into())
             }

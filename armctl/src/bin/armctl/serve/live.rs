@@ -82,6 +82,8 @@ pub struct Snapshot {
     pub error: bool,
     /// Whether the controller takes HOLD, RESUME and OVERRIDE (issue 32).
     pub hold_available: bool,
+    /// Whether the stop cause is to be asked again (a STOPPED was sent).
+    pub stop_stale: bool,
     /// Whether moving the arm needs the token (served on a non-loopback address).
     pub token_needed: bool,
 }
@@ -372,21 +374,24 @@ pub fn poll(arm: &Client, live: &Live, quit: &AtomicBool) {
         }
         // A run or a move just ended, or the first look: what ended the last run. The
         // LOCATION's state is the newest (STATUS is not asked during a run).
-        let (state, active) = {
+        let (state, active, stale) = {
             let s = live.lock();
             let state = s
                 .location
                 .map(|l| l.state)
                 .or(s.status.map(|st| st.state as u8));
-            (state, s.run.active)
+            (state, s.run.active, s.stop_stale)
         };
         let stopped = state == Some(State::Stopped as u8);
-        if stopped && !active && (last_state != state || was_active) {
+        if stopped && !active && (last_state != state || was_active || stale) {
             let text = match arm.stop_report() {
                 Ok((status, stop)) => armctl::stop_cause_text(&status, stop.as_ref()),
                 Err(e) => format!("unknown ({e})"),
             };
-            live.update(|s| s.stop_text = text);
+            live.update(|s| {
+                s.stop_text = text;
+                s.stop_stale = false;
+            });
         }
         if state.is_some() {
             last_state = state;
