@@ -7,6 +7,8 @@
 //! and `armctl` next to the test executable (`current_exe()/../../`), brought up to date
 //! with `cargo build -p <package>` once per test process.
 
+/// `armctl serve` and its page in the browser tests (tests/tests/pendant.rs).
+pub mod pendant;
 /// The firmware on QEMU's mps2-an500 (tests/tests/qemu.rs).
 pub mod qemu;
 /// The NUCLEO-H743ZI2 firmware itself on Renode (tests/tests/renode.rs).
