@@ -420,3 +420,72 @@ fn owner_of(arm: &Client) -> Option<String> {
         protocol::OwnerState::Other => std::net::Ipv4Addr::from(reply.owner_ip).to_string(),
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn two_joints_in_degrees() -> Snapshot {
+        let mut config = ArmConfig::unlimited(2, 4000);
+        config.units = Units::Deg;
+        for (joint, name) in config.joints.iter_mut().zip(["base", "shoulder"]) {
+            joint.name = Some(name.into());
+            // 4.5 steps a degree.
+            joint.steps_per_radian = 4.5 * 180.0 / std::f64::consts::PI;
+        }
+        let status = StatusReport {
+            joints: 2,
+            state: State::Stopped,
+            ..StatusReport::default()
+        };
+        let mut position = [0; MAX_JOINTS];
+        position[..2].copy_from_slice(&[9, -45]);
+        Snapshot {
+            status: Some(status),
+            location: Some(Location {
+                position,
+                state: State::Running as u8,
+            }),
+            config: Some(config),
+            ..Snapshot::default()
+        }
+    }
+
+    #[test]
+    fn positions_by_name_in_the_arms_units_and_the_newest_state() {
+        let now = Instant::now();
+        let mut s = two_joints_in_degrees();
+        s.seen = Some(now);
+        let v = s.to_json(now);
+        assert_eq!(v["names"], json!(["base", "shoulder"]));
+        assert_eq!(v["units"], "deg");
+        assert_eq!(v["steps"], json!([9, -45]));
+        assert_eq!(v["shown"], json!(["2.00 deg", "-10.00 deg"]));
+        // The LOCATION's state is newer than the last STATUS's.
+        assert_eq!(v["state"], "RUNNING");
+        assert_eq!(v["connected"], true);
+    }
+
+    #[test]
+    fn a_silent_controller_is_not_answering() {
+        let now = Instant::now();
+        let mut s = two_joints_in_degrees();
+        assert_eq!(s.to_json(now)["connected"], false, "never answered");
+        s.seen = Some(now);
+        assert_eq!(s.to_json(now + STALE_AFTER / 2)["connected"], true);
+        assert_eq!(s.to_json(now + STALE_AFTER)["connected"], false);
+    }
+
+    #[test]
+    fn the_plot_takes_positions_until_the_tail_after_the_run() {
+        let now = Instant::now();
+        let mut s = two_joints_in_degrees();
+        s.run.started = Some(now);
+        let at =
+            |s: &Snapshot, ms| s.to_json(now + Duration::from_millis(ms))["run"]["t_ms"].as_f64();
+        assert_eq!(at(&s, 250), Some(250.0));
+        s.run.ended = Some(now + Duration::from_secs(1));
+        assert_eq!(at(&s, 1_400), Some(1_400.0));
+        assert_eq!(at(&s, 1_000 + PLOT_TAIL.as_millis() as u64), None);
+    }
+}
