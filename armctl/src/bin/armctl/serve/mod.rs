@@ -111,7 +111,11 @@ pub fn execute(arm: Client, args: &ServeArgs) -> CliResult {
         let pendant = Arc::clone(&pendant);
         std::thread::spawn(move || {
             for stream in listener.incoming() {
-                let Ok(stream) = stream else { continue };
+                let Ok(stream) = stream else {
+                    // Out of file descriptors, say: not a busy loop.
+                    std::thread::sleep(Duration::from_millis(50));
+                    continue;
+                };
                 if count.fetch_add(1, Ordering::Relaxed) >= MAX_CONNECTIONS {
                     count.fetch_sub(1, Ordering::Relaxed);
                     let mut stream = stream;
