@@ -91,7 +91,7 @@ impl Pendant {
         Ok(())
     }
 
-    /// ESTOP_RESET, RETURN (home), SET_ENABLE: one frame and its ACK.
+    /// ESTOP_RESET, UNLOCK, RETURN (home), SET_ENABLE: one frame and its ACK.
     pub fn simple(&self, what: &str, enable: Option<bool>) -> Result<String, String> {
         self.may_move()?;
         if lock(&self.job).is_some() {
@@ -103,6 +103,10 @@ impl Pendant {
                 .arm
                 .estop_reset()
                 .map(|_| "ESTOP_RESET: latch cleared".to_string()),
+            ("unlock", _) => self
+                .arm
+                .unlock()
+                .map(|_| "UNLOCK: the limit switch's latch cleared".to_string()),
             ("enable", Some(on)) => {
                 let joints = self.live.lock().joints().max(1);
                 let mask = (1u16 << joints) - 1;

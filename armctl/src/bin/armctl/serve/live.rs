@@ -187,6 +187,8 @@ impl Snapshot {
                 "enabled_mask": s.drivers_enabled(),
                 "serial_open": flag(StatusFlags::SERIAL_OPEN),
                 "pwm_active": flag(StatusFlags::PWM_ACTIVE),
+                "pin0_high": flag(StatusFlags::PIN0_HIGH),
+                "pin1_high": flag(StatusFlags::PIN1_HIGH),
                 "estop_open": s.more_flags.has(MoreFlags::ESTOP_OPEN),
                 "estop_latched": s.more_flags.has(MoreFlags::ESTOP_LATCHED),
                 "report_period_us": s.upload_period_us,

@@ -214,7 +214,7 @@ fn act_on(pendant: &Arc<Pendant>, action: &str, request: &http::Request) -> Resu
     };
     match action {
         "stop" => pendant.stop(),
-        "home" | "estop-reset" => pendant.simple(action, None),
+        "home" | "estop-reset" | "unlock" => pendant.simple(action, None),
         "enable" => pendant.simple("enable", Some(request.param("on") != Some("0"))),
         "jog" => {
             let joint = number("joint")?;
