@@ -42,19 +42,20 @@ pub struct Pendant {
 
 impl Pendant {
     pub fn start(sim: &SimHost) -> Pendant {
-        Pendant::start_with(sim, &[])
+        Pendant::start_with(sim, &[], &[])
     }
 
-    /// With global options `extra` (`--key-file FILE`).
-    pub fn start_with(sim: &SimHost, extra: &[&str]) -> Pendant {
+    /// With global options `global` (`--key-file FILE`) and serve's `options`.
+    pub fn start_with(sim: &SimHost, global: &[&str], options: &[&str]) -> Pendant {
         let pcap = sim.dir().join("pendant.pcap");
         let mut child = Command::new(armctl_bin())
             .arg("--controller")
             .arg(sim.addr.to_string())
             .arg("--pcap")
             .arg(&pcap)
-            .args(extra)
+            .args(global)
             .args(["serve", "--listen", "127.0.0.1:0"])
+            .args(options)
             .stdin(Stdio::null())
             .stdout(Stdio::piped())
             .stderr(Stdio::inherit())

@@ -328,8 +328,8 @@ fn another_hosts_controller_is_shown_read_only_with_its_owner() {
 }
 
 #[test]
-fn a_keyed_controller_is_driven_through_the_key() {
-    if !browser_or_skip("a_keyed_controller_is_driven_through_the_key") {
+fn a_keyed_controller_is_driven_through_the_key_and_the_token() {
+    if !browser_or_skip("a_keyed_controller_is_driven_through_the_key_and_the_token") {
         return;
     }
     let _alone = system_tests::run_alone();
@@ -339,9 +339,29 @@ fn a_keyed_controller_is_driven_through_the_key() {
     assert!(ok, "key new: {out}{err}");
     let (ok, out, err) = run_armctl(Some(&sim), &["key", "set", key.to_str().unwrap()]);
     assert!(ok, "key set: {out}{err}");
-    let pendant = Pendant::start_with(&sim, &["--key-file", key.to_str().unwrap()]);
+    // Served with the token required (as beyond loopback): the printed URL carries it.
+    let pendant = Pendant::start_with(
+        &sim,
+        &["--key-file", key.to_str().unwrap()],
+        &["--require-token"],
+    );
+    assert!(pendant.url.contains("?token="), "{}", pendant.url);
     let driver = Driver::start();
     let page = open(&driver, &pendant.url);
+    // Without the token, nothing that moves the arm.
+    let answer: serde_json::Value =
+        serde_json::from_value(page.eval(
+            "return await fetch('/api/jog?joint=0&by=1', {method: 'POST'}).then(r => r.json())",
+        ))
+        .unwrap();
+    assert_eq!(answer["ok"], false, "{answer}");
+    assert!(
+        answer["message"]
+            .as_str()
+            .unwrap_or_default()
+            .contains("needs the token"),
+        "{answer}"
+    );
     assert!(!page.eval("return snap.read_only").as_bool().unwrap_or(true));
     page.click("tr[data-joint='0'] .jog-plus");
     assert!(

@@ -59,11 +59,14 @@ pub struct ServeArgs {
     /// moves the arm.
     #[arg(long, default_value = "127.0.0.1:8520", value_name = "ADDR:PORT")]
     pub listen: SocketAddr,
+    /// Ask for the token on loopback too (a machine other users share).
+    #[arg(long)]
+    pub require_token: bool,
 }
 
-/// The token moving the arm needs when the page is served beyond loopback.
-fn token_for(listen: &SocketAddr) -> Result<Option<String>, String> {
-    if listen.ip().is_loopback() {
+/// The token moving the arm needs when the page is served beyond loopback (or `required`).
+fn token_for(listen: &SocketAddr, required: bool) -> Result<Option<String>, String> {
+    if listen.ip().is_loopback() && !required {
         return Ok(None);
     }
     armctl::auth::new_key_hex()
@@ -82,7 +85,7 @@ impl Drop for Slot {
 
 /// Runs `serve` until SIGINT, SIGTERM or SIGHUP (a motion in progress is then STOPPED).
 pub fn execute(arm: Client, args: &ServeArgs) -> CliResult {
-    let token = token_for(&args.listen)?;
+    let token = token_for(&args.listen, args.require_token)?;
     let listener =
         TcpListener::bind(args.listen).map_err(|e| format!("--listen {}: {e}", args.listen))?;
     let local = listener.local_addr().map_err(|e| e.to_string())?;
@@ -277,15 +280,13 @@ mod tests {
     use super::*;
 
     #[test]
-    fn a_token_only_beyond_loopback() {
+    fn a_token_only_beyond_loopback_or_when_required() {
         for loopback in ["127.0.0.1:8520", "127.0.0.2:0", "[::1]:8520"] {
-            assert_eq!(
-                token_for(&loopback.parse().unwrap()),
-                Ok(None),
-                "{loopback}"
-            );
+            let at = loopback.parse().unwrap();
+            assert_eq!(token_for(&at, false), Ok(None), "{loopback}");
+            assert!(token_for(&at, true).unwrap().is_some(), "{loopback}");
         }
-        let token = token_for(&"0.0.0.0:8520".parse().unwrap()).unwrap();
+        let token = token_for(&"0.0.0.0:8520".parse().unwrap(), false).unwrap();
         assert_eq!(token.map(|t| t.len()), Some(32));
     }
 }
