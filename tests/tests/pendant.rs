@@ -119,6 +119,12 @@ fn the_pendant_in_a_browser_shows_jogs_stops_and_loses_the_simulator() {
     std::thread::sleep(Duration::from_millis(1000));
     let rate = (events(&page) - e0) / t0.elapsed().as_secs_f64();
     println!("page updates during the run: {rate:.0} per second (report period 10 ms)");
+    // The plot has the run: its 600 points and the start, and the positions executed so far.
+    let (commanded, executed): (usize, usize) =
+        serde_json::from_value(page.eval("return [plotRun.commanded.length, executed.length]"))
+            .unwrap();
+    assert_eq!(commanded, 601);
+    assert!(executed > 10, "{executed} executed positions plotted");
     if std::env::var_os("PENDANT_SCREENSHOT").is_some() {
         let path = PathBuf::from(std::env::var_os("PENDANT_SCREENSHOT").unwrap());
         page.screenshot(&path);
