@@ -1,6 +1,7 @@
-//! The little HTTP/1.1 the pendant needs, on std's TCP: one request per connection
-//! (`Connection: close`), a parsed request line, query and body, and responses, among them
-//! a server-sent event stream. Parsing is sans-io ([`parse_head`]) and bounded: a request
+//! The little HTTP/1.1 the pendant needs, on std's TCP: requests one after another on a
+//! kept-alive connection (no pipelining: browsers do not), a parsed request line, query and
+//! body, and responses, among them a server-sent event stream. Keeping connections alive
+//! keeps the e-stop's request off a new connection and a new thread. Parsing is sans-io ([`parse_head`]) and bounded: a request
 //! too large or malformed gets a 4xx, never a panic.
 
 use std::io::{Read, Write};
@@ -14,7 +15,8 @@ pub const MAX_HEAD: usize = 8 * 1024;
 /// bytes, so 4 MiB is ample).
 pub const MAX_BODY: usize = 4 * 1024 * 1024;
 
-/// How long a client may take to send its request before the connection is dropped.
+/// How long a client may take to send its request, or keep an idle connection, before the
+/// connection is dropped.
 pub const READ_TIMEOUT: Duration = Duration::from_secs(10);
 
 /// A request: method, path, query parameters (decoded) and body.
@@ -45,6 +47,8 @@ pub enum HttpError {
     HeadTooLarge,
     /// The body is longer than [`MAX_BODY`] (413).
     BodyTooLarge,
+    /// The connection ended (or idled out) before a request began: nothing to answer.
+    Closed,
 }
 
 impl HttpError {
@@ -54,6 +58,7 @@ impl HttpError {
             HttpError::Malformed => "400 Bad Request",
             HttpError::HeadTooLarge => "431 Request Header Fields Too Large",
             HttpError::BodyTooLarge => "413 Payload Too Large",
+            HttpError::Closed => "400 Bad Request",
         }
     }
 }
@@ -137,6 +142,7 @@ pub fn read_request(stream: &mut impl Read) -> Result<Request, HttpError> {
             return Err(HttpError::HeadTooLarge);
         }
         match stream.read(&mut chunk) {
+            Ok(0) | Err(_) if buf.is_empty() => return Err(HttpError::Closed),
             Ok(0) | Err(_) => return Err(HttpError::Malformed),
             Ok(n) => buf.extend_from_slice(&chunk[..n]),
         }
@@ -168,7 +174,7 @@ fn find_blank_line(buf: &[u8]) -> Option<usize> {
     buf.windows(4).position(|w| w == b"\r\n\r\n")
 }
 
-/// Writes a whole response and ends the exchange (`Connection: close`).
+/// Writes a whole response; the connection stays open for the next request.
 pub fn respond(
     stream: &mut impl Write,
     status: &str,
@@ -178,7 +184,7 @@ pub fn respond(
     write!(
         stream,
         "HTTP/1.1 {status}\r\nContent-Type: {content_type}\r\nContent-Length: {}\r\n\
-         Cache-Control: no-store\r\nConnection: close\r\n\r\n",
+         Cache-Control: no-store\r\nConnection: keep-alive\r\n\r\n",
         body.len()
     )?;
     stream.write_all(body)?;
@@ -233,6 +239,7 @@ mod tests {
 
     #[test]
     fn bad_requests_are_errors_not_panics() {
+        assert_eq!(read_request(&mut &b""[..]), Err(HttpError::Closed));
         for raw in [
             &b"\r\n\r\n"[..],
             b"GET\r\n\r\n",

@@ -156,32 +156,54 @@ pub fn execute(arm: Client, args: &ServeArgs) -> CliResult {
     std::process::exit(130);
 }
 
-/// One connection: one request, its answer (or the event stream).
+/// One connection: requests and their answers until it closes, idles out or becomes an
+/// event stream.
 fn serve_one(mut stream: TcpStream, pendant: &Arc<Pendant>, token: Option<&str>) {
     let _ = stream.set_read_timeout(Some(http::READ_TIMEOUT));
     let _ = stream.set_nodelay(true);
-    let request = match http::read_request(&mut stream) {
-        Ok(r) => r,
-        Err(e) => {
-            let _ = http::respond(&mut stream, e.status(), "text/plain", e.status().as_bytes());
+    loop {
+        let request = match http::read_request(&mut stream) {
+            Ok(r) => r,
+            Err(http::HttpError::Closed) => return,
+            Err(e) => {
+                let _ = http::respond(&mut stream, e.status(), "text/plain", e.status().as_bytes());
+                return;
+            }
+        };
+        if request.method == "GET" && request.path == "/api/events" {
+            events(stream, &pendant.live);
             return;
         }
-    };
-    match (request.method.as_str(), request.path.as_str()) {
-        ("GET", "/" | "/index.html") => {
-            let _ = http::respond(
-                &mut stream,
-                "200 OK",
-                "text/html; charset=utf-8",
-                PAGE.as_bytes(),
-            );
+        if answer(&mut stream, &request, pendant, token).is_err() {
+            return;
         }
+    }
+}
+
+/// The answer to one request.
+fn answer(
+    stream: &mut TcpStream,
+    request: &http::Request,
+    pendant: &Arc<Pendant>,
+    token: Option<&str>,
+) -> std::io::Result<()> {
+    match (request.method.as_str(), request.path.as_str()) {
+        ("GET", "/" | "/index.html") => http::respond(
+            stream,
+            "200 OK",
+            "text/html; charset=utf-8",
+            PAGE.as_bytes(),
+        ),
         ("GET", "/api/state") => {
             let value = pendant.live.lock().to_json(Instant::now());
-            let _ = http::respond_json(&mut stream, "200 OK", &value);
+            http::respond_json(stream, "200 OK", &value)
         }
-        ("GET", "/api/events") => events(stream, &pendant.live),
         ("POST", path) if path.starts_with("/api/") => {
+            // When the request was read (ms since the epoch): the benchmark splits the
+            // click-to-STOPPED latency into the browser's part and the server's.
+            let received_ms = std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map_or(0.0, |d| d.as_secs_f64() * 1e3);
             let action = &path["/api/".len()..];
             // STOPPED from anyone, as the controller takes it; the rest needs the token.
             let allowed =
@@ -189,20 +211,21 @@ fn serve_one(mut stream: TcpStream, pendant: &Arc<Pendant>, token: Option<&str>)
             let result = if !allowed {
                 Err("this command needs the token printed when `armctl serve` started (the page's URL ?token=...)".to_string())
             } else {
-                act_on(pendant, action, &request)
+                act_on(pendant, action, request)
             };
             let (status, value) = match result {
-                Ok(message) => ("200 OK", json!({"ok": true, "message": message})),
+                Ok(message) => (
+                    "200 OK",
+                    json!({"ok": true, "message": message, "received_ms": received_ms}),
+                ),
                 Err(message) if !allowed => {
                     ("403 Forbidden", json!({"ok": false, "message": message}))
                 }
                 Err(message) => ("409 Conflict", json!({"ok": false, "message": message})),
             };
-            let _ = http::respond_json(&mut stream, status, &value);
+            http::respond_json(stream, status, &value)
         }
-        _ => {
-            let _ = http::respond(&mut stream, "404 Not Found", "text/plain", b"not found");
-        }
+        _ => http::respond(stream, "404 Not Found", "text/plain", b"not found"),
     }
 }
 
