@@ -245,7 +245,17 @@ impl Pendant {
         // Messages name the file as the page chose it, not the copy kept here.
         let converted = self
             .convert(&path, None)
-            .map_err(|e| e.replace(&path.display().to_string(), name))?;
+            .map_err(|e| {
+                let e = e.replace(&path.display().to_string(), name);
+                if e.contains("--config FILE") {
+                    // The page takes no config: the controller's description stands for it.
+                    format!(
+                        "{e}; for the pendant, store the arm's description on the controller: `armctl config push ARM.json`"
+                    )
+                } else {
+                    e
+                }
+            })?;
         *lock(&self.checked) = Some((path, name.to_string()));
         Ok(format!(
             "{name}: {}",
