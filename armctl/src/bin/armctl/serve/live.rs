@@ -318,14 +318,10 @@ pub fn poll(arm: &Client, live: &Live, quit: &AtomicBool) {
             std::thread::sleep(READ_ONLY_POLL);
             match arm.glance(true) {
                 Ok(glance) => {
-                    live.update(|s| {
-                        s.seen = Some(Instant::now());
-                        s.status = Some(glance.status);
-                        if glance.location.is_some() {
-                            s.location = glance.location;
-                        }
-                    });
-                    Some(glance.status)
+                    if glance.location.is_some() {
+                        live.update(|s| s.location = glance.location);
+                    }
+                    Some((glance.status, true))
                 }
                 Err(_) => None,
             }
@@ -339,17 +335,11 @@ pub fn poll(arm: &Client, live: &Live, quit: &AtomicBool) {
             let running = live.lock().run.active;
             if running {
                 // STATUS waits behind an upload: the run's own STATUS reports instead.
-                arm.last_status()
+                arm.last_status().map(|status| (status, false))
             } else if last_status.elapsed() >= STATUS_EVERY {
                 last_status = Instant::now();
                 match arm.status() {
-                    Ok(status) => {
-                        live.update(|s| {
-                            s.seen = Some(Instant::now());
-                            s.status = Some(status);
-                        });
-                        Some(status)
-                    }
+                    Ok(status) => Some((status, true)),
                     Err(e) if e.status() == Some(StatusCode::NotOwner) => {
                         // Another host took the controller over.
                         claimed = false;
@@ -367,12 +357,22 @@ pub fn poll(arm: &Client, live: &Live, quit: &AtomicBool) {
                 None
             }
         };
-        if let Some(status) = status
-            && status.joints != joints_described
-        {
-            joints_described = status.joints;
-            let config = arm_config(arm, &status);
-            live.update(|s| s.config = Some(config));
+        // A fresh STATUS (`true`; the run's last one otherwise), published with the arm's
+        // description when the joints change, so that no page shows joints without names.
+        if let Some((status, fresh)) = status {
+            let config = (status.joints != joints_described).then(|| {
+                joints_described = status.joints;
+                arm_config(arm, &status)
+            });
+            live.update(|s| {
+                if fresh {
+                    s.seen = Some(Instant::now());
+                }
+                s.status = Some(status);
+                if let Some(config) = config {
+                    s.config = Some(config);
+                }
+            });
         }
         // A run or a move just ended, or the first look: what ended the last run. The
         // LOCATION's state is the newest (STATUS is not asked during a run).
