@@ -128,7 +128,12 @@ impl Pendant {
         result
     }
 
-    /// Hold, resume or the override (issue 32).
+    /// Hold, resume or the override (issue 32). Until the controller and the client have
+    /// HOLD 0x27, RESUME 0x28 and OVERRIDE 0x29 this refuses with [`HOLD_NEEDED`], and
+    /// the page keeps the buttons disabled with that tooltip. Wiring them: send the
+    /// command here (STOPPED stays the e-stop), set `Snapshot::hold_available` from what
+    /// the controller answers (`UNKNOWN_TAG`: an older one), and show the hold and speed
+    /// factor in `Snapshot::to_json` from its report.
     pub fn in_flight(&self, what: InFlight) -> Result<String, String> {
         let _ = what;
         Err(HOLD_NEEDED.into())
