@@ -182,3 +182,55 @@ pub fn trajectory(dir: &Path, seconds: u32, shoulder: u32) -> PathBuf {
     .unwrap();
     path
 }
+
+/// One request to the pendant at `url` (`http://127.0.0.1:PORT/...`): `method path` with
+/// `body`; the status code and the body. Bounded by a 20 s read timeout.
+pub fn request(url: &str, method: &str, path: &str, body: &[u8]) -> (u16, String) {
+    use std::io::{Read, Write};
+    let host = url
+        .trim_start_matches("http://")
+        .split('/')
+        .next()
+        .unwrap_or_default();
+    let mut stream = std::net::TcpStream::connect(host).expect("connect to the pendant");
+    stream
+        .set_read_timeout(Some(Duration::from_secs(20)))
+        .unwrap();
+    write!(
+        stream,
+        "{method} {path} HTTP/1.1\r\nHost: {host}\r\nContent-Length: {}\r\n\r\n",
+        body.len()
+    )
+    .unwrap();
+    stream.write_all(body).unwrap();
+    // The answer's head, then as many bytes as Content-Length says (the connection stays
+    // open: keep-alive).
+    let mut raw = Vec::new();
+    let mut chunk = [0u8; 4096];
+    loop {
+        let n = stream.read(&mut chunk).unwrap_or(0);
+        raw.extend_from_slice(&chunk[..n]);
+        let text = String::from_utf8_lossy(&raw).into_owned();
+        if let Some((head, rest)) = text.split_once("\r\n\r\n") {
+            let length = head
+                .to_ascii_lowercase()
+                .lines()
+                .find_map(|l| {
+                    l.strip_prefix("content-length:")
+                        .map(|v| v.trim().parse().unwrap_or(0))
+                })
+                .unwrap_or(0usize);
+            if rest.len() >= length || n == 0 {
+                let status = head
+                    .split(' ')
+                    .nth(1)
+                    .and_then(|s| s.parse().ok())
+                    .unwrap_or(0);
+                return (status, rest.to_string());
+            }
+        }
+        if n == 0 {
+            return (0, text);
+        }
+    }
+}

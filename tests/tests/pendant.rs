@@ -15,7 +15,10 @@
 //! (`pendant_bench.rs`) prints the click to STOPPED latency's p50 and p99 over many clicks
 //! and the page's update rate during a run: figures, not gates.
 //!
-//! Without Chromium and chromedriver the tests say so and pass (plain `cargo test` on a
+//! `bad_requests_get_errors_and_leave_the_run_alone` needs no browser: malformed, oversized
+//! and refused requests during a run each get an error, and the run ends with every point.
+//!
+//! Without Chromium and chromedriver the browser tests say so and pass (plain `cargo test` on a
 //! machine without them); `.ci/run` installs them and sets PENDANT_REQUIRED=1, which turns
 //! the skip into a failure.
 
@@ -386,4 +389,87 @@ fn a_keyed_controller_is_driven_through_the_key_and_the_token() {
         "{}",
         page.text("body")
     );
+}
+
+/// Bad requests from the network (no browser needed): each gets an error, none stops the
+/// server or disturbs the run in progress, which ends with every point executed.
+#[test]
+fn bad_requests_get_errors_and_leave_the_run_alone() {
+    let _alone = system_tests::run_alone();
+    let sim = described_sim();
+    let pendant = Pendant::start(&sim);
+    let url = pendant.url.as_str();
+    // The page is ready once the arm is known.
+    let deadline = Instant::now() + PAGE_WAIT;
+    while !system_tests::pendant::request(url, "GET", "/api/state", b"")
+        .1
+        .contains("\"base\"")
+    {
+        assert!(Instant::now() < deadline, "the pendant never knew the arm");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let file = std::fs::read(trajectory(sim.dir(), 3, 0)).unwrap();
+    let (status, body) =
+        system_tests::pendant::request(url, "POST", "/api/check?name=t.csv", &file);
+    assert_eq!(status, 200, "{body}");
+    let (status, body) = system_tests::pendant::request(url, "POST", "/api/run", b"");
+    assert_eq!(status, 200, "{body}");
+
+    let host = url.trim_start_matches("http://").trim_end_matches('/');
+    let raw = |bytes: &[u8]| -> String {
+        use std::io::{Read, Write};
+        let mut s = std::net::TcpStream::connect(host).unwrap();
+        s.set_read_timeout(Some(Duration::from_secs(20))).unwrap();
+        let _ = s.write_all(bytes);
+        let _ = s.shutdown(std::net::Shutdown::Write);
+        let mut answer = String::new();
+        let _ = s.read_to_string(&mut answer);
+        answer.lines().next().unwrap_or_default().to_string()
+    };
+    assert!(raw(b"GARBAGE\r\n\r\n").contains("400"));
+    assert!(raw(b"\xff\xfe\x00 / HTTP/1.1\r\n\r\n").contains("400"));
+    assert!(
+        raw(format!("GET /{} HTTP/1.1\r\n\r\n", "a".repeat(10_000)).as_bytes()).contains("431")
+    );
+    assert!(
+        raw(b"POST /api/check?name=x.csv HTTP/1.1\r\nContent-Length: 99999999\r\n\r\n")
+            .contains("413")
+    );
+    assert!(raw(b"POST /api/check HTTP/1.1\r\nContent-Length: 50\r\n\r\nshort").contains("400"));
+    // A client that opens a connection and says nothing holds one thread, nothing else.
+    let _silent = std::net::TcpStream::connect(host).unwrap();
+    for (path, body) in [
+        ("/api/jog?joint=0&by=NaN", &b""[..]),
+        ("/api/jog?joint=99&by=1", b""),
+        ("/api/jog?joint=-1&by=1", b""),
+        ("/api/jog?joint=0&by=1", b""),
+        ("/api/override?percent=abc", b""),
+        ("/api/check?name=evil.exe", b"x"),
+        ("/api/check?name=x.csv", b"\x00\x01\x02not,a\ncsv"),
+        ("/api/check?name=x.json", b"{\"joint_names\": 5}"),
+        ("/api/nothing", b""),
+    ] {
+        let (status, answer) = system_tests::pendant::request(url, "POST", path, body);
+        assert!(
+            (400..500).contains(&status) && answer.contains("\"ok\":false"),
+            "{path}: {status} {answer}"
+        );
+    }
+    assert_eq!(
+        system_tests::pendant::request(url, "GET", "/nowhere", b"").0,
+        404
+    );
+    // The run ends on its own, every point executed.
+    let deadline = Instant::now() + Duration::from_secs(30);
+    loop {
+        let (_, state) = system_tests::pendant::request(url, "GET", "/api/state", b"");
+        if state.contains("300 points executed") {
+            break;
+        }
+        assert!(
+            Instant::now() < deadline && !state.contains("\"error\":true"),
+            "the run did not end with every point executed: {state}"
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
 }
