@@ -83,6 +83,18 @@ class JointLimits(TypedDict):
     max_rate_hz: int
     """Most steps per second (0: the controller's own limit only)."""
 
+class JointDescription(TypedDict):
+    name: str
+    """The joint's name ('' when none)."""
+    unit: str
+    """'steps', 'deg', 'rad' or 'mm': the units hosts show it in."""
+    zero_offset: int
+    """Step position of the unit's 0."""
+    scale: float
+    """Steps per radian (deg, rad), per mm (mm) or per step; 0.0: not described."""
+    described: bool
+    """Whether a description is kept (a scale given)."""
+
 class Enabled(TypedDict):
     joints: List[bool]
     """One per joint in use: True holding, False limp."""
@@ -334,6 +346,30 @@ class Arm:
         own only), kept across power cycles and enforced by the controller on every point,
         RETURN and set_location. Arguments not given keep their value. Only while
         STOPPED."""
+        ...
+    def joint_description(self, joint: int) -> JointDescription:
+        """JOINT_DESC_GET: what the controller keeps of `joint` (issue 31). Any host may
+        ask."""
+        ...
+    def set_joint_description(
+        self,
+        joint: int,
+        *,
+        name: Optional[str] = None,
+        unit: Optional[str] = None,
+        zero_offset: Optional[int] = None,
+        scale: Optional[float] = None,
+    ) -> None:
+        """JOINT_DESC_SET: change what the controller keeps of `joint` (the arguments
+        given; the rest as kept): its name (16 bytes at most), unit ('steps', 'deg', 'rad',
+        'mm'), zero offset (steps) and scale (steps per radian, per mm or 1; 0 clears the
+        description). Every host then names and shows it alike. Only while STOPPED."""
+        ...
+    def push_config(self, path: _Path) -> List[str]:
+        """What `armctl config push PATH` does (the same code): the joint config's (or a
+        `config get --json` output's) limits, accelerations and descriptions kept on the
+        controller. Returns the lines the CLI prints for them; a controller older than
+        issue 31 gives UserWarnings. Only while STOPPED."""
         ...
     def release(self) -> None:
         """RELEASE: give the controller up (only while STOPPED): another host may take it

@@ -47,6 +47,12 @@ create_exception!(
 /// The Python exception for an armctl error, with its fields as attributes.
 pub(crate) fn to_py_err(py: Python<'_>, error: Error) -> PyErr {
     let message = error.to_string();
+    to_py_err_said(py, error, message)
+}
+
+/// As [`to_py_err`], its message `message` (the error with what it happened to, e.g. the
+/// joint of a push).
+pub(crate) fn to_py_err_said(py: Python<'_>, error: Error, message: String) -> PyErr {
     match error {
         Error::Refused {
             command,

@@ -54,6 +54,7 @@ macro_rules! set_items {
     };
 }
 
+mod described;
 mod dicts;
 mod errors;
 mod run;
@@ -761,6 +762,62 @@ impl Arm {
         }
         self.call(py, move |arm| arm.set_limits(joint, new))
             .map(|_| ())
+    }
+
+    /// JOINT_DESC_GET: the description the controller keeps of `joint` (issue 31), a
+    /// dict: `name`, `unit` (steps, deg, rad, mm), `zero_offset` (steps), `scale` (steps
+    /// per radian, per mm or per step), `described` (False: none kept). Any host may ask.
+    fn joint_description<'py>(&self, py: Python<'py>, joint: u8) -> PyResult<Bound<'py, PyDict>> {
+        let desc = self.call(py, move |arm| arm.joint_desc(joint))?;
+        described::desc_dict(py, &desc)
+    }
+
+    /// JOINT_DESC_SET: changes what the controller keeps of `joint` (issue 31), the
+    /// arguments given (the rest as kept), so that every host (armctl, Python, the ROS
+    /// bridge) names and shows it alike. `scale`: steps per radian (deg, rad), per mm or 1
+    /// (steps); 0 clears the description. Only while STOPPED.
+    #[pyo3(signature = (joint, *, name=None, unit=None, zero_offset=None, scale=None))]
+    fn set_joint_description(
+        &self,
+        py: Python<'_>,
+        joint: u8,
+        name: Option<String>,
+        unit: Option<String>,
+        zero_offset: Option<i32>,
+        scale: Option<f64>,
+    ) -> PyResult<()> {
+        if usize::from(joint) >= MAX_JOINTS {
+            return Err(PyValueError::new_err(format!(
+                "joint {joint} does not exist: joints are 0..{}",
+                MAX_JOINTS - 1
+            )));
+        }
+        let old = self.call(py, move |arm| arm.joint_desc(joint))?;
+        let desc = described::changed(
+            joint,
+            &old,
+            name.as_deref(),
+            unit.as_deref(),
+            zero_offset,
+            scale,
+        )?;
+        self.call(py, move |arm| arm.set_joint_desc(joint, desc))
+            .map(|_| ())
+    }
+
+    /// What `armctl config push PATH` does (armctl::push, one code for both): the joint
+    /// config's (or a `config get --json` output's) limits, accelerations and
+    /// descriptions kept on the controller, only while STOPPED. Returns the lines the CLI
+    /// prints for them; a controller older than issue 31 gives UserWarnings.
+    fn push_config(&self, py: Python<'_>, path: PathBuf) -> PyResult<Vec<String>> {
+        let pushed = armctl::push::PushedArm::load(&path).map_err(PyValueError::new_err)?;
+        let arm = self.controller()?;
+        let (said, result) = py.detach(move || {
+            let mut said = Vec::new();
+            let result = arm.push_arm(&pushed, |s| said.push(s));
+            (said, result)
+        });
+        described::push_result(py, said, result)
     }
 
     /// RELEASE: gives the controller up (only while STOPPED), so that another host may

@@ -52,20 +52,9 @@ impl Client {
     /// than issue 31 (`UNKNOWN_TAG`): callers fall back to steps. A joint's rate of its
     /// own of 0 is `max_rate_hz` (the controller's).
     pub fn described_arm(&self, joints: usize, max_rate_hz: u32) -> Result<Option<ArmConfig>> {
-        let joints = joints.clamp(1, MAX_JOINTS);
-        let mut descs = Vec::with_capacity(joints);
-        for j in 0..joints {
-            let j = u8::try_from(j).unwrap_or(u8::MAX);
-            match self.joint_desc(j) {
-                Ok(d) => descs.push(d),
-                Err(e) if e.status() == Some(StatusCode::UnknownTag) => return Ok(None),
-                Err(e) => return Err(e),
-            }
-        }
-        let Some(first) = descs.iter().find(|d| d.is_described()) else {
+        let Some((units, descs)) = self.joint_descs(joints)? else {
             return Ok(None);
         };
-        let units = units_of(first.unit);
         let limits = self.limits_with_accel()?;
         let joints = descs
             .iter()
@@ -78,11 +67,7 @@ impl Client {
                     .filter(|a| *a != 0);
                 JointConfig {
                     name: (!d.name().is_empty()).then(|| d.name().to_string()),
-                    steps_per_radian: if d.is_described() && d.scale() != 0.0 {
-                        d.scale()
-                    } else {
-                        1.0
-                    },
+                    steps_per_radian: scale_of(d),
                     zero_offset_steps: d.zero_offset_steps,
                     min_steps: kept.min,
                     max_steps: kept.max,
@@ -96,5 +81,57 @@ impl Client {
             })
             .collect();
         Ok(Some(ArmConfig { units, joints }))
+    }
+
+    /// The names, units and scale the controller keeps for its first `joints` joints, for
+    /// showing positions only (`armctl status`, `watch`): JOINT_DESC_GET alone, which any
+    /// host may ask without taking the controller (LIMITS_GET is the owner's), so the
+    /// limits are left open (any position, the rate 0). `Ok(None)` as for
+    /// [`Client::described_arm`].
+    pub fn described_names(&self, joints: usize) -> Result<Option<ArmConfig>> {
+        let Some((units, descs)) = self.joint_descs(joints)? else {
+            return Ok(None);
+        };
+        let joints = descs
+            .iter()
+            .map(|d| JointConfig {
+                name: (!d.name().is_empty()).then(|| d.name().to_string()),
+                steps_per_radian: scale_of(d),
+                zero_offset_steps: d.zero_offset_steps,
+                min_steps: i32::MIN,
+                max_steps: i32::MAX,
+                max_step_rate_hz: 0,
+                max_accel_steps_s2: None,
+            })
+            .collect();
+        Ok(Some(ArmConfig { units, joints }))
+    }
+
+    /// JOINT_DESC_GET for joints 0 to `joints - 1`, with the units of the first described
+    /// one; `None` when none is described or the controller is older than issue 31.
+    fn joint_descs(&self, joints: usize) -> Result<Option<(Units, Vec<JointDesc>)>> {
+        let joints = joints.clamp(1, MAX_JOINTS);
+        let mut descs = Vec::with_capacity(joints);
+        for j in 0..joints {
+            let j = u8::try_from(j).unwrap_or(u8::MAX);
+            match self.joint_desc(j) {
+                Ok(d) => descs.push(d),
+                Err(e) if e.status() == Some(StatusCode::UnknownTag) => return Ok(None),
+                Err(e) => return Err(e),
+            }
+        }
+        let Some(first) = descs.iter().find(|d| d.is_described()) else {
+            return Ok(None);
+        };
+        Ok(Some((units_of(first.unit), descs)))
+    }
+}
+
+/// A joint's steps per radian as described; 1 (steps shown as they are) when it is not.
+fn scale_of(d: &JointDesc) -> f64 {
+    if d.is_described() && d.scale() != 0.0 {
+        d.scale()
+    } else {
+        1.0
     }
 }

@@ -39,6 +39,7 @@ mod interrupt;
 pub mod motion;
 pub mod pcap;
 pub mod plot;
+pub mod push;
 pub mod pwm;
 pub mod record;
 mod rtt;
@@ -48,7 +49,7 @@ pub mod trajectory;
 pub mod vcd;
 
 pub use client::auth;
-pub use client::{Client, GIVE_UP_AFTER, Glance, Options};
+pub use client::{Client, Diagnosis, GIVE_UP_AFTER, Glance, Options};
 
 /// The old name of [`Client`], kept so that integrators' code still builds. Renamed because
 /// it clashed with `arm_core::Controller` (the controller's state machine) in code that

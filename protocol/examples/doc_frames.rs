@@ -183,6 +183,7 @@ pub fn doc_frames() -> Vec<DocFrame> {
                 look_only: true,
                 stop_cause: false,
                 counters: false,
+                diag: false,
             }),
         ),
         command("RELEASE, seq 0x1e", 0x1e, Command::Release),
@@ -235,6 +236,7 @@ pub fn doc_frames() -> Vec<DocFrame> {
                 look_only: false,
                 stop_cause: true,
                 counters: false,
+                diag: false,
             }),
         ),
         command(
@@ -245,6 +247,7 @@ pub fn doc_frames() -> Vec<DocFrame> {
                 look_only: false,
                 stop_cause: false,
                 counters: true,
+                diag: false,
             }),
         ),
         command(
@@ -255,6 +258,7 @@ pub fn doc_frames() -> Vec<DocFrame> {
                 look_only: false,
                 stop_cause: true,
                 counters: true,
+                diag: false,
             }),
         ),
         command(
@@ -350,6 +354,32 @@ pub fn doc_frames() -> Vec<DocFrame> {
                 shed: 5_000,
                 inbox_dropped: 0,
                 group_ignored: 0,
+            }),
+        ),
+        command(
+            "STATUS, seq 0x31, look only, with the receive counters and DIAG (request byte 0x4a: what `armctl diag` sends)",
+            0x31,
+            Command::StatusWith(protocol::StatusAsk {
+                location: false,
+                look_only: true,
+                stop_cause: false,
+                counters: true,
+                diag: true,
+            }),
+        ),
+        report(
+            "DIAG report, seq 0x2f: a NUCLEO (400 MHz CPU, 200 MHz step clock) whose longest masked span was 812 cycles (2.03 us) opened at 0x08012345, 96,000 spans; the latest DIR change 37 ticks (185 ns) after its compare, 24 changes; the least DMA slack 4,321 ticks (21.6 us) over 51,200 refills",
+            0x2f,
+            Report::Diag(protocol::Diag {
+                cpu_hz: 400_000_000,
+                masked_max_cycles: 812,
+                masked_opener: 0x0801_2345,
+                masked_spans: 96_000,
+                step_hz: 200_000_000,
+                dir_late_max_ticks: 37,
+                dir_writes: 24,
+                dma_slack_min_ticks: 4_321,
+                dma_refills: 51_200,
             }),
         ),
         report(

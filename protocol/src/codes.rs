@@ -173,6 +173,9 @@ wire_code! {
         Unlock = 0x25 => "UNLOCK",
         /// One joint's description (controller to host; issue 31).
         JointDesc = 0x26 => "JOINT_DESC",
+        /// The board's own timing counters, asked for by STATUS's request byte bit 6
+        /// (controller to host; issue 34).
+        Diag = 0x32 => "DIAG",
         /// An authenticated envelope around a whole frame, both directions
         /// (docs/PROTOCOL.md section 13, [`crate::auth`]).
         Auth = 0x50 => "AUTH",

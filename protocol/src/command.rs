@@ -141,6 +141,9 @@ pub struct StatusAsk {
     /// after the STATUS report, the LOCATION and the STOP_CAUSE (issue 30; bit 2 went to
     /// issue 31's STOP_CAUSE first).
     pub counters: bool,
+    /// Bit 6: a DIAG report (the board's own timing counters) to the asker too, after
+    /// every other report this byte asks for (issue 34; bits 4-5 are other issues').
+    pub diag: bool,
 }
 
 impl StatusAsk {
@@ -152,6 +155,8 @@ impl StatusAsk {
     pub const STOP_CAUSE: u8 = 1 << 2;
     /// Bit 3.
     pub const COUNTERS: u8 = 1 << 3;
+    /// Bit 6.
+    pub const DIAG: u8 = 1 << 6;
 
     /// The byte on the wire.
     pub const fn byte(self) -> u8 {
@@ -159,11 +164,14 @@ impl StatusAsk {
             | (if self.look_only { Self::LOOK_ONLY } else { 0 })
             | (if self.stop_cause { Self::STOP_CAUSE } else { 0 })
             | (if self.counters { Self::COUNTERS } else { 0 })
+            | (if self.diag { Self::DIAG } else { 0 })
     }
 
     /// The request of a byte, `None` with other bits set.
     pub const fn from_byte(b: u8) -> Option<StatusAsk> {
-        if b & !(Self::LOCATION | Self::LOOK_ONLY | Self::STOP_CAUSE | Self::COUNTERS) != 0 {
+        let known =
+            Self::LOCATION | Self::LOOK_ONLY | Self::STOP_CAUSE | Self::COUNTERS | Self::DIAG;
+        if b & !known != 0 {
             return None;
         }
         Some(StatusAsk {
@@ -171,6 +179,7 @@ impl StatusAsk {
             look_only: b & Self::LOOK_ONLY != 0,
             stop_cause: b & Self::STOP_CAUSE != 0,
             counters: b & Self::COUNTERS != 0,
+            diag: b & Self::DIAG != 0,
         })
     }
 }
@@ -484,6 +493,7 @@ impl<'a> Command<'a> {
             | Tag::Limits
             | Tag::StopCause
             | Tag::RxCounters
+            | Tag::Diag
             | Tag::JointDesc => {
                 return Err(err(DecodeErrorKind::WrongDirection));
             }

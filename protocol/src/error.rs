@@ -156,7 +156,7 @@ impl fmt::Display for Field {
                 "network settings must be DHCP, or a unicast address with a prefix of 1..32 and a gateway inside its subnet",
             ),
             Field::Owner => f.write_str("unknown owner state"),
-            Field::StatusAsk => f.write_str("STATUS request byte may only use bits 0-3"),
+            Field::StatusAsk => f.write_str("STATUS request byte may only use bits 0-3 and 6"),
             Field::JointLimits => {
                 f.write_str("LIMITS_SET needs a joint of 0-7 and min not above max")
             }

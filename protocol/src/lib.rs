@@ -20,6 +20,7 @@ pub mod auth;
 mod codec;
 mod codes;
 mod command;
+mod diag;
 mod error;
 mod frame;
 mod joint_desc;
@@ -33,6 +34,7 @@ mod types;
 
 pub use codes::{State, StatusCode, Tag};
 pub use command::{Command, StatusAsk};
+pub use diag::Diag;
 pub use error::{DecodeError, DecodeErrorKind, EncodeError, ExpectedLen, Field};
 pub use frame::{Frame, PointList, PointsIter, crc8};
 pub use joint_desc::{JointDesc, JointDescSet, JointUnit, NAME_LEN as JOINT_NAME_LEN};
@@ -110,6 +112,8 @@ pub mod size {
     pub const STOP_CAUSE: usize = 12;
     /// RX_COUNTERS data: six u32 counters.
     pub const RX_COUNTERS: usize = 24;
+    /// DIAG data: nine 32-bit counters and clocks (issue 34).
+    pub const DIAG: usize = 36;
     /// HELLO data: the host's nonce.
     pub const HELLO: usize = crate::auth::NONCE_LEN;
 }

@@ -3,6 +3,7 @@
 
 use crate::codec::{u8_at, u16_le};
 use crate::codes::{State, StatusCode, Tag};
+use crate::diag::Diag;
 use crate::error::{DecodeError, DecodeErrorKind, EncodeError, ExpectedLen, Field};
 use crate::frame::{Frame, open, seal};
 use crate::joint_desc::JointDescSet;
@@ -31,6 +32,8 @@ pub enum Report<'a> {
     StopCause(StopReport),
     /// The receive path's counters (STATUS's request byte bit 3; issue 30).
     RxCounters(RxCounters),
+    /// The board's own timing counters (STATUS's request byte bit 6, issue 34).
+    Diag(Diag),
     /// One joint's description, the answer to JOINT_DESC_GET (issue 31); the same data
     /// as JOINT_DESC_SET.
     JointDesc(JointDescSet),
@@ -47,6 +50,7 @@ impl<'a> Report<'a> {
             Report::Limits(_) => Tag::Limits,
             Report::StopCause(_) => Tag::StopCause,
             Report::RxCounters(_) => Tag::RxCounters,
+            Report::Diag(_) => Tag::Diag,
             Report::JointDesc(_) => Tag::JointDesc,
         }
     }
@@ -61,6 +65,7 @@ impl<'a> Report<'a> {
             Report::Limits(limits) => limits.data_len(),
             Report::StopCause(_) => size::STOP_CAUSE,
             Report::RxCounters(_) => size::RX_COUNTERS,
+            Report::Diag(_) => size::DIAG,
             Report::JointDesc(_) => size::JOINT_DESC_SET,
         }
     }
@@ -89,6 +94,7 @@ impl<'a> Report<'a> {
             Report::Limits(limits) => limits.write(w, 0),
             Report::StopCause(stop) => stop.write(w, 0),
             Report::RxCounters(counters) => counters.write(w, 0),
+            Report::Diag(diag) => diag.write(w, 0),
             Report::JointDesc(set) => set.write(w, 0),
         })
     }
@@ -170,6 +176,10 @@ impl<'a> Report<'a> {
             Some(Tag::RxCounters) => {
                 exactly(size::RX_COUNTERS)?;
                 Report::RxCounters(RxCounters::read(data))
+            }
+            Some(Tag::Diag) => {
+                exactly(size::DIAG)?;
+                Report::Diag(Diag::read(data))
             }
             Some(Tag::JointDesc) => {
                 exactly(size::JOINT_DESC_SET)?;

@@ -14,6 +14,7 @@ fn the_request_byte_bit_3_asks_for_rx_counters() {
         look_only: true,
         stop_cause: false,
         counters: true,
+        diag: false,
     };
     assert_eq!(ask.byte(), 0x0a);
     let mut buf = [0u8; 8];

@@ -99,6 +99,7 @@ fn status_takes_one_request_byte_and_release_none() {
         look_only: true,
         stop_cause: false,
         counters: false,
+        diag: false,
     };
     let bytes = encode(Command::StatusWith(look), 0x1d);
     assert_eq!(&bytes[..3], &[0x1d, 0x15, 0x03]);

@@ -126,6 +126,19 @@ impl Bridge {
         let controller = Client::connect_with(config.controller.as_str(), options)
             .map_err(|e| format!("controller {}: {e}", config.controller))?;
         let status = controller.status().map_err(|e| e.to_string())?;
+        // A config without joints: the arm the controller keeps (issue 31, `armctl config
+        // push`), its names the ROS joint names.
+        if arm.joints.is_empty() {
+            arm = controller
+                .described_arm(usize::from(status.joints), status.max_step_rate_hz)
+                .map_err(|e| format!("reading the arm the controller keeps: {e}"))?
+                .ok_or_else(|| {
+                    "the config lists no joints and the controller keeps no arm description: \
+                     push one (`armctl config push ARM.json`) or list `joints` in the config"
+                        .to_string()
+                })?;
+            config.take_described(&arm)?;
+        }
         if usize::from(status.joints) < arm.joints.len() {
             return Err(format!(
                 "the controller has {} joints, the config {}",

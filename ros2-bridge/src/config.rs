@@ -59,7 +59,10 @@ pub struct BridgeConfig {
     #[serde(default)]
     pub goal_tolerance_steps: u32,
     /// The arm's joints, joint 0 first (armctl's joint config entries; `name` is the ROS
-    /// joint name).
+    /// joint name). Empty or absent: the arm the controller keeps (issue 31: names, units,
+    /// scale, limits and accelerations from `armctl config push`), read when the bridge
+    /// connects ([`crate::Bridge::connect`]).
+    #[serde(default)]
     pub joints: Vec<armctl::trajectory::JointConfig>,
     /// armctl's display units (`steps`, `deg`, `rad`; issue 31: one file for armctl and
     /// the bridge, which refused armctl's with "unknown field `units`"). Understood and
@@ -222,7 +225,15 @@ impl BridgeConfig {
                 })?),
             };
         }
-        let arm = ArmConfig::parse(text, file).map_err(|e| e.to_string())?;
+        // No joints: the controller's, filled in by Bridge::connect (issue 31).
+        let arm = if config.joints.is_empty() {
+            ArmConfig {
+                units: config.units,
+                joints: Vec::new(),
+            }
+        } else {
+            ArmConfig::parse(text, file).map_err(|e| e.to_string())?
+        };
         let rates = [
             ("joint_state_rate_hz", config.joint_state_rate_hz),
             ("feedback_rate_hz", config.feedback_rate_hz),
@@ -288,6 +299,34 @@ impl BridgeConfig {
         named
     }
 
+    /// Takes the arm the controller keeps (`described`, from
+    /// [`armctl::Client::described_arm`]) as the joints of a config that lists none. Every
+    /// joint needs a name, the ROS joint name: an error names the first without one.
+    pub fn take_described(&mut self, described: &ArmConfig) -> Result<(), String> {
+        for (j, joint) in described.joints.iter().enumerate() {
+            let name = joint.name.as_deref().unwrap_or("");
+            if name.is_empty() {
+                return Err(format!(
+                    "the config lists no joints and the controller keeps no name for joint \
+                     {j} (ROS needs one): push an arm description with names (`armctl \
+                     config push ARM.json`) or list `joints` in the config"
+                ));
+            }
+            if described.joints[..j]
+                .iter()
+                .any(|o| o.name.as_deref() == Some(name))
+            {
+                return Err(format!(
+                    "the controller keeps the joint name {name:?} twice: push an arm \
+                     description with distinct names (`armctl config push ARM.json`)"
+                ));
+            }
+        }
+        self.joints = described.joints.clone();
+        self.units = described.units;
+        Ok(())
+    }
+
     /// The ROS joint names, joint 0 first.
     pub fn joint_names(&self) -> Vec<String> {
         self.joints
@@ -319,6 +358,40 @@ mod tests {
         assert_eq!(names[0], "base", "the file's name wins");
         assert_eq!(names[1], "shoulder");
         assert_eq!(names[2], "", "not described: still unnamed");
+    }
+
+    /// Issue 31: a bridge file without `joints` takes the arm the controller keeps (it
+    /// was refused "missing field `joints`"); that arm's joints need ROS names.
+    #[test]
+    fn a_file_without_joints_takes_the_controller_s_arm() {
+        let (mut config, arm) =
+            BridgeConfig::parse(r#"{"controller": "127.0.0.1:9"}"#, "bridge.json")
+                .unwrap_or_else(|e| panic!("{e}"));
+        assert!(config.joints.is_empty() && arm.joints.is_empty());
+        let kept = ArmConfig::parse(
+            r#"{"units": "deg", "joints": [
+                {"name": "base", "steps_per_radian": 2546.5, "max_step_rate_hz": 2000},
+                {"name": "shoulder", "steps_per_radian": 2546.5, "max_step_rate_hz": 2000}
+            ]}"#,
+            "kept",
+        )
+        .unwrap();
+        config.take_described(&kept).unwrap();
+        assert_eq!(config.joint_names(), ["base", "shoulder"]);
+        assert_eq!(config.units, armctl::motion::Units::Deg);
+        let mut unnamed = kept.clone();
+        unnamed.joints[1].name = None;
+        let mut fresh = config.clone();
+        fresh.joints.clear();
+        assert!(
+            fresh
+                .take_described(&unnamed)
+                .unwrap_err()
+                .contains("no name for joint 1"),
+        );
+        let mut twice = kept;
+        twice.joints[1].name = Some("base".into());
+        assert!(fresh.take_described(&twice).unwrap_err().contains("twice"));
     }
 
     #[test]

@@ -2,6 +2,7 @@
 //! and the controller points it becomes, where the trajectory wants the joints at a time,
 //! whether a run ended at the goal, and JointState/feedback messages from LOCATION reports.
 
+use armctl::motion::Units;
 use armctl::protocol::{MAX_JOINTS, Point};
 use armctl::trajectory::{self, ArmConfig, ErrorKind, RosDuration};
 
@@ -106,6 +107,16 @@ pub fn radians(arm: &ArmConfig, j: usize, steps: f64) -> f64 {
     (steps - f64::from(joint.zero_offset_steps)) / joint.steps_per_radian
 }
 
+/// The units a refusal shows values in besides steps, with the joint's name (issue 31:
+/// ROS goal errors said "joint 1" and steps only): the arm's (`units` of the file or the
+/// controller's description), else radians, the goal's own.
+fn refusal_units(arm: &ArmConfig) -> Units {
+    match arm.units {
+        Units::Steps => Units::Rad,
+        units => units,
+    }
+}
+
 /// Checks `goal` against the config and the arm's position `current` (steps) and turns it
 /// into controller points: joint names known and not repeated (INVALID_JOINTS), a first
 /// point at time 0 within `start_tolerance_rad` of where the arm is, positions within the
@@ -170,10 +181,11 @@ pub fn plan(
             .collect(),
     };
     let source = "goal";
+    let units = refusal_units(arm);
     let mut waypoints = trajectory::joint_trajectory_to_waypoints(&converted, source, arm)
         .map_err(|e| match e.kind {
-            ErrorKind::UnknownJoint(_) => Refusal::joints(e.to_string()),
-            _ => Refusal::goal(e.to_string()),
+            ErrorKind::UnknownJoint(_) => Refusal::joints(e.in_units(arm, units).to_string()),
+            _ => Refusal::goal(e.in_units(arm, units).to_string()),
         })?;
     // MoveIt's first point is the start state at time 0: within the tolerance of where
     // the arm is, it is taken as exactly there (whole steps).
@@ -224,7 +236,7 @@ pub fn plan(
         arm,
         controller_max_rate_hz,
     )
-    .map_err(|e| Refusal::goal(e.to_string()))?;
+    .map_err(|e| Refusal::goal(e.in_units(arm, units).to_string()))?;
 
     Ok(Plan {
         points,
@@ -504,6 +516,16 @@ mod tests {
         );
         let refusal = refuse(&far);
         assert_says(&refusal.message, "above the maximum");
+        // Issue 31: the joint's name and the goal's radians as well as steps (it said
+        // "joint 1: position 10186 steps is above the maximum 8000 steps").
+        assert_says(&refusal.message, "joint 1 (shoulder)");
+        assert_says(&refusal.message, "10186 steps (2.0000 rad)");
+        assert_says(&refusal.message, "8000 steps (1.5708 rad)");
+        // An arm in degrees (the file's `units`, or the controller's description): degrees.
+        let mut arm = setup().1;
+        arm.units = Units::Deg;
+        let refusal = plan(&far, &setup().0, &arm, &[0; 8], None).unwrap_err();
+        assert_says(&refusal.message, "10186 steps (114.59 deg)");
     }
 
     #[test]

@@ -685,6 +685,112 @@ fn a_moveit_goal_with_velocities_ends_exactly_at_the_goal() {
     );
 }
 
+/// Issue 31's scripted new user (tests/tests/new_user.rs), its ROS goal: `armctl config
+/// init` for a degrees arm, `config push`, then a bridge whose file lists no joints (it
+/// reads the names, scale and limits the controller keeps) and a FollowJointTrajectory
+/// goal to 45 and -22.5 degrees, its joints named in another order than the arm's; it ends
+/// there, in the LOCATION and in the simulator's trace. A goal beyond the shoulder's
+/// range is refused naming the joint and its degrees, and moves nothing.
+#[test]
+#[ignore = "DDS multicasts: runs only in a private network namespace, via ros2-bridge/tests/dds.sh as root (.ci/run runs it)"]
+fn a_new_user_s_goal_with_the_arm_the_controller_keeps() {
+    let Some(_serial) = dds_turn("a_new_user_s_goal_with_the_arm_the_controller_keeps") else {
+        return;
+    };
+    let domain = 45;
+    let mut sim = SimHost::start_traced(&["--joints", "2"]);
+    let file = sim.dir().join("arm.json");
+    let (ok, out, err) = system_tests::config_init_degrees_arm(&file, "9000");
+    assert!(ok, "{out}\n{err}");
+    let (ok, out, err) =
+        system_tests::run_armctl(Some(&sim), &["config", "push", file.to_str().unwrap()]);
+    assert!(ok, "{out}\n{err}");
+
+    let bridge_file = serde_json::json!({
+        "controller": sim.addr.to_string(),
+        "domain_id": domain,
+    });
+    let (config, arm) = BridgeConfig::parse(&bridge_file.to_string(), "bridge.json")
+        .unwrap_or_else(|e| panic!("{e}"));
+    assert!(arm.joints.is_empty(), "the file lists no joints");
+    let bridge = Arc::new(Bridge::connect(config, arm).unwrap_or_else(|e| panic!("{e}")));
+    let kept = bridge.arm().clone();
+    assert_eq!(kept.short_names(), ["base", "shoulder"]);
+    assert_eq!(kept.units, armctl::motion::Units::Deg);
+    // 200 * 16 * 5 steps a revolution.
+    assert_eq!(
+        kept.joints[1].steps_per_radian,
+        16000.0 / std::f64::consts::TAU
+    );
+    let (stop, stop_rx) = async_channel::bounded(1);
+    let thread = {
+        let bridge = bridge.clone();
+        std::thread::spawn(move || bridge.run(stop_rx))
+    };
+
+    let (_context, mut node) = node(domain, "new_user");
+    let client = trajectory_client(&mut node);
+    // shoulder first: ROS names the joints, in any order. A smooth 2 s reach, at rest at
+    // both ends, as MoveIt sends one (the arm keeps 45 deg/s and 9000 deg/s²).
+    let target = [(-22.5f64).to_radians(), 45f64.to_radians()];
+    let duration_s = 2.0;
+    let reach: Vec<JointTrajectoryPoint> = (0..=10)
+        .map(|k| {
+            let f = f64::from(k) / 10.0;
+            let s = 3.0 * f * f - 2.0 * f * f * f;
+            let ds = (6.0 * f - 6.0 * f * f) / duration_s;
+            point(
+                (f * duration_s * 1000.0) as u64,
+                &target.map(|t| t * s),
+                &target.map(|t| t * ds),
+            )
+        })
+        .collect();
+    let names = ["shoulder".to_string(), "base".to_string()];
+    // From there, the shoulder to 100 degrees: beyond its 90.
+    let far = vec![
+        point(0, &target, &[]),
+        point(4000, &[100f64.to_radians(), target[1]], &[]),
+    ];
+    let (reached, refused) = with_node(&mut node, async |node: &Node| {
+        wait_for(node, "goal", client.goal_client()).await;
+        wait_for(node, "result", client.result_client()).await;
+        let reached = run_goal(&client, goal(&names, reach), None, None).await;
+        let refused = run_goal(&client, goal(&names, far), None, None).await;
+        (reached, refused)
+    });
+    let result = reached.result.as_ref().unwrap();
+    assert_eq!(
+        reached.status,
+        Some(GoalStatusEnum::Succeeded),
+        "{result:?}"
+    );
+    // 45 degrees is 2000 steps, -22.5 degrees -1000.
+    let end = bridge.latest().expect("a LOCATION").location.position;
+    println!("new user's ROS goal ended at {:?} steps", &end[..2]);
+    assert_eq!(end[..2], [2000, -1000]);
+    // Accepted and aborted at once: the result's error string says why.
+    assert_eq!(refused.status, Some(GoalStatusEnum::Aborted), "{refused:?}");
+    let why = refused.result.as_ref().unwrap();
+    println!("the far goal: {} {}", why.error_code, why.error_string);
+    assert_eq!(why.error_code, FollowJointTrajectoryResult::INVALID_GOAL);
+    assert!(
+        why.error_string.contains("shoulder") && why.error_string.contains("deg"),
+        "{why:?}"
+    );
+    let end = bridge.latest().expect("a LOCATION").location.position;
+    assert_eq!(end[..2], [2000, -1000], "the refused goal moved nothing");
+
+    let _ = stop.try_send(());
+    thread.join().unwrap().unwrap();
+    sim.terminate();
+    let trace = armctl::vcd::read(&sim.trace()).unwrap_or_else(|e| panic!("{e}\n{}", sim.log()));
+    assert_eq!(trace.positions(2), vec![2000, -1000]);
+    // Each joint monotone: every pulse of the one reach.
+    assert_eq!(trace.joints[0].steps, 2000);
+    assert_eq!(trace.joints[1].steps, 1000);
+}
+
 #[test]
 #[ignore = "DDS multicasts: runs only in a private network namespace, via ros2-bridge/tests/dds.sh as root (.ci/run runs it)"]
 fn joint_states_rate_and_values_match_location() {

@@ -24,6 +24,7 @@ pub fn read(controller: SocketAddr, from: Ipv4Addr) -> Option<RxCounters> {
         look_only: true,
         stop_cause: false,
         counters: true,
+        diag: false,
     };
     let mut request = [0u8; 8];
     let mut reply = [0u8; protocol::MAX_DATAGRAM];

@@ -196,6 +196,10 @@ fn log_sent(frame: &[u8], to: Endpoint) {
             log::debug!("-> {} RX_COUNTERS", show(to));
             None
         }
+        protocol::Report::Diag(_) => {
+            log::debug!("-> {} DIAG", show(to));
+            None
+        }
     };
     if let Some(state) = state {
         let before = REPORTED_STATE.swap(state, Ordering::Relaxed);

@@ -7,6 +7,8 @@
 //! and `armctl` next to the test executable (`current_exe()/../../`), brought up to date
 //! with `cargo build -p <package>` once per test process.
 
+/// What the firmware itself executes on Renode, from the CPU probe (tests/tests/renode_cost.rs).
+pub mod cost;
 /// `armctl serve` and its page in the browser tests (tests/tests/pendant.rs).
 pub mod pendant;
 /// The firmware on QEMU's mps2-an500 (tests/tests/qemu.rs).

@@ -872,6 +872,11 @@ impl RenodeBoard {
             .collect()
     }
 
+    /// The board's scratch folder (Renode's working directory; gone with the board).
+    pub fn dir(&self) -> &Path {
+        &self.dir
+    }
+
     /// The firmware's log and Renode's own output.
     pub fn log(&self) -> String {
         format!(

@@ -409,3 +409,34 @@ fn key_files_are_private() {
     assert!(ok, "{out}\n{err}");
     assert!(!err.contains("warning"), "{err}");
 }
+
+/// Issue 34: `armctl diag` against the simulator: the DIAG report comes (request byte bit
+/// 6) and says "not measured" for the board's timing (the simulator has no cycle counter
+/// or step timers: its figures are its own, none made up), with the receive path's
+/// counters beside it; `--json` carries the raw report. The look-only STATUS never takes
+/// the controller.
+#[test]
+fn diag_against_the_simulator_says_what_it_does_not_measure() {
+    let sim = SimHost::start(&["--joints", "2"]);
+    let (ok, out, err) = armctl(Some(&sim), &["diag"]);
+    assert!(ok, "{out}\n{err}");
+    println!("armctl diag (simulator):\n{out}");
+    for what in ["masked spans:", "DIR changes:", "step DMA slack:"] {
+        let line = out
+            .lines()
+            .find(|l| l.starts_with(what))
+            .unwrap_or_else(|| panic!("{what}\n{out}"));
+        assert!(line.ends_with("not measured on this controller"), "{out}");
+    }
+    assert!(
+        out.contains("receive path:   RX ring full 0 times"),
+        "{out}"
+    );
+    let (ok, out, err) = armctl(Some(&sim), &["diag", "--json"]);
+    assert!(ok, "{out}\n{err}");
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(v["diag"]["cpu_hz"], 0, "{v}");
+    assert_eq!(v["diag"]["step_hz"], 0, "{v}");
+    assert_eq!(v["masked_max_ns"], serde_json::Value::Null, "{v}");
+    assert_eq!(v["rx_counters"]["shed"], 0, "{v}");
+}

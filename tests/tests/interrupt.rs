@@ -300,8 +300,9 @@ fn sigint_one_second_into_armctl_return_wait_leaves_no_step_100_ms_later_5_of_5(
     }
 }
 
-#[test]
-fn sigterm_during_armctl_run_stops_the_arm_and_exits_143() {
+/// `armctl run` signalled `signal` (named `name` in the report): stopped by the tool, as
+/// for SIGINT, and the tool dies of it (exit 128 + signal, checked by [`interrupt_once`]).
+fn signal_during_armctl_run(signal: i32, name: &str) {
     let _alone = system_tests::run_alone();
     let stopped = interrupt_once(
         &["--joints", "2"],
@@ -309,27 +310,22 @@ fn sigterm_during_armctl_run_stops_the_arm_and_exits_143() {
             let file = long_csv(sim, 4);
             vec!["run".into(), file, "--quiet".into()]
         },
-        libc::SIGTERM,
+        signal,
     );
-    report("armctl run, SIGTERM", 0, 1, &stopped);
+    report(&format!("armctl run, {name}"), 0, 1, &stopped);
     assert!(stopped.last_step <= LAST_STEP_AFTER_SIGNAL);
+}
+
+#[test]
+fn sigterm_during_armctl_run_stops_the_arm_and_exits_143() {
+    signal_during_armctl_run(libc::SIGTERM, "SIGTERM");
 }
 
 #[test]
 fn sighup_during_armctl_run_stops_the_arm_and_exits_129() {
     // A closed terminal or `systemctl reload` (issue 30): the tool stops what it started,
     // as for SIGTERM. Before, SIGHUP ended armctl at once and the run went on.
-    let _alone = system_tests::run_alone();
-    let stopped = interrupt_once(
-        &["--joints", "2"],
-        |sim, _| {
-            let file = long_csv(sim, 4);
-            vec!["run".into(), file, "--quiet".into()]
-        },
-        libc::SIGHUP,
-    );
-    report("armctl run, SIGHUP", 0, 1, &stopped);
-    assert!(stopped.last_step <= LAST_STEP_AFTER_SIGNAL);
+    signal_during_armctl_run(libc::SIGHUP, "SIGHUP");
 }
 
 /// A proxy between armctl and a simulator that forwards both ways until `swallow` is set,

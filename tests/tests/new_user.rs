@@ -3,7 +3,15 @@
 //! `--config` (armctl reads the names, units and limits the controller keeps: JOINT_DESC
 //! and LIMITS), each ending at the right positions, checked against the controller's
 //! LOCATION after each step and against the simulator's VCD trace at the end (every pulse
-//! of every step counted); and limit refusals that name the joint and the units.
+//! of every step counted); and limit refusals that name the joint and the units. `status`
+//! and `watch` show the same names and degrees without `--config`.
+//!
+//! The same user's other tools, where what they need is: Python's `run()` in degrees in
+//! armctl-py/tests/test_described.py (maturin, pytest); the ROS goal (a
+//! FollowJointTrajectory through a bridge whose file lists no joints) in
+//! ros2-bridge/tests/dds.rs `a_new_user_s_goal_with_the_arm_the_controller_keeps`, which runs
+//! only in the private network namespace ros2-bridge/tests/dds.sh creates (DDS multicasts;
+//! .ci/run runs it).
 
 use armctl::{Client, vcd};
 use system_tests::SimHost;
@@ -62,6 +70,36 @@ fn config_init_push_then_move_jog_run_without_config() {
         "{out}"
     );
     assert_eq!(positions(&sim), [2000, -1000]);
+
+    // status and watch without --config: the names and degrees the controller keeps, as
+    // move shows them (JOINT_DESC_GET, read-only: any host may look).
+    let (ok, out, err) = armctl(&sim, &["status"]);
+    assert!(ok, "{out}\n{err}");
+    assert!(
+        out.contains("joint  name                  steps  degrees  driver")
+            && out.contains("    0  base                   2000     45.0  enabled")
+            && out.contains("    1  shoulder              -1000    -22.5  enabled"),
+        "{out}"
+    );
+    let (ok, out, err) = armctl(&sim, &["status", "--json"]);
+    assert!(ok, "{out}\n{err}");
+    let json: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(json["joint_names"], serde_json::json!(["base", "shoulder"]));
+    let (ok, out, err) = armctl(&sim, &["watch", "--duration", "0.3"]);
+    assert!(ok, "{out}\n{err}");
+    assert!(
+        out.lines()
+            .any(|l| l.contains("base     45.00 deg shoulder    -22.50 deg")),
+        "{out}"
+    );
+    // From another host too, which only looks (read-only STATUS and JOINT_DESC_GET).
+    let (ok, out, err) = armctl(&sim, &["--bind", "127.0.0.2:0", "status"]);
+    assert!(ok, "{out}\n{err}");
+    assert!(
+        out.contains("    1  shoulder              -1000    -22.5  enabled")
+            && out.contains("(read-only: another host owns the controller"),
+        "{out}"
+    );
 
     // jog the shoulder by 9 degrees (400 steps).
     let (ok, out, err) = armctl(&sim, &["jog", "shoulder", "9"]);

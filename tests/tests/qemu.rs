@@ -1041,3 +1041,21 @@ fn the_receive_interrupt_halts_for_stopped_and_rx_counters_tell_it() {
     );
     board.assert_healthy();
 }
+
+/// Issue 34: the QEMU board measures none of the board's timing (QEMU's Cortex-M7 has no
+/// DWT cycle counter and the board plays its STEP lines in software): its DIAG report says
+/// "not measured" (clocks of 0), honestly, beside its receive path's own counters.
+#[test]
+fn the_qemu_board_says_its_timing_is_not_measured() {
+    require_qemu!();
+    let mut board = QemuBoard::start();
+    let arm = Client::open(board.addr, emulated())
+        .unwrap_or_else(|e| panic!("open: {e}\n{}", board.log()));
+    let d = arm
+        .diag()
+        .unwrap_or_else(|e| panic!("DIAG: {e}\n{}", board.log()))
+        .unwrap_or_else(|| panic!("the board refused DIAG\n{}", board.log()));
+    println!("qemu: DIAG {:?}, RX_COUNTERS {:?}", d.diag, d.rx);
+    assert_eq!(d.diag, protocol::Diag::NOT_MEASURED);
+    board.assert_healthy();
+}

@@ -240,6 +240,8 @@ fn expect_report(frame: &protocol::Frame<Report<'_>>, e: &mut Expected) {
         Report::Limits(_) | Report::StopCause(_) | Report::JointDesc(_) => {}
         // Issue 30, after the golden file: protocol/tests/rx_counters.rs.
         Report::RxCounters(_) => {}
+        // Issue 34: issue_34_diag_decodes_in_wireshark.
+        Report::Diag(_) => {}
     }
 }
 
@@ -1124,6 +1126,99 @@ fn issue_30_rx_counters_decode_in_wireshark() {
     // Bit 4 is no request: INVALID_CONFIG.
     let p = &packets[4];
     assert_eq!(numbers(&p["armctl.tag"]), [0x15], "{p:?}");
+    assert_eq!(numbers(&p["armctl.verdict"]), [11], "{p:?}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Issue 34's DIAG: STATUS's request byte bit 6 (what `armctl diag` sends, 0x4a), the
+/// report field by field (PROTOCOL.md's worked example), and bit 7 still refused.
+#[test]
+fn issue_34_diag_decodes_in_wireshark() {
+    if !have_wireshark("issue 34 frames") {
+        return;
+    }
+    let dir = scratch("issue34");
+    let pcap = dir.join("issue34.pcap");
+    let host: std::net::SocketAddr = "127.0.0.1:40000".parse().unwrap();
+    let controller: std::net::SocketAddr = format!("127.0.0.1:{}", protocol::PORT).parse().unwrap();
+    let log = armctl::pcap::PcapLog::create(&pcap).expect("create the capture");
+    let mut buf = [0u8; protocol::MAX_DATAGRAM];
+    let n = Cmd::StatusWith(protocol::StatusAsk {
+        look_only: true,
+        counters: true,
+        diag: true,
+        ..protocol::StatusAsk::default()
+    })
+    .encode(0x31, &mut buf)
+    .unwrap();
+    assert_eq!(buf[2], 0x4a);
+    log.record(host, controller, &buf[..n]).unwrap();
+    let diag = protocol::Diag {
+        cpu_hz: 400_000_000,
+        masked_max_cycles: 812,
+        masked_opener: 0x0801_2345,
+        masked_spans: 96_000,
+        step_hz: 200_000_000,
+        dir_late_max_ticks: -3,
+        dir_writes: 24,
+        dma_slack_min_ticks: 4_321,
+        dma_refills: 51_200,
+    };
+    let n = Report::Diag(diag).encode(0x2f, &mut buf).unwrap();
+    log.record(controller, host, &buf[..n]).unwrap();
+    let mut unknown = vec![0x44, protocol::Tag::Status as u8, 0xc0];
+    unknown.push(crc8(&unknown));
+    log.record(host, controller, &unknown).unwrap();
+    drop(log);
+    let packets = dissect(
+        &pcap,
+        &[
+            "armctl.tag",
+            "armctl.verdict",
+            "armctl.status.ask.look_only",
+            "armctl.status.ask.counters",
+            "armctl.status.ask.diag",
+            "armctl.diag.cpu_hz",
+            "armctl.diag.masked_max_cycles",
+            "armctl.diag.masked_opener",
+            "armctl.diag.masked_spans",
+            "armctl.diag.step_hz",
+            "armctl.diag.dir_late_max_ticks",
+            "armctl.diag.dir_writes",
+            "armctl.diag.dma_slack_min_ticks",
+            "armctl.diag.dma_refills",
+        ],
+        false,
+        None,
+    );
+    assert_eq!(packets.len(), 3);
+    let p = &packets[0];
+    assert_eq!(numbers(&p["armctl.tag"]), [0x15], "{p:?}");
+    assert_eq!(p["armctl.status.ask.look_only"], "1", "{p:?}");
+    assert_eq!(p["armctl.status.ask.counters"], "1", "{p:?}");
+    assert_eq!(p["armctl.status.ask.diag"], "1", "{p:?}");
+    assert_eq!(numbers(&p["armctl.verdict"]), [0], "{p:?}");
+    let p = &packets[1];
+    assert_eq!(numbers(&p["armctl.tag"]), [0x32], "{p:?}");
+    assert_eq!(numbers(&p["armctl.diag.cpu_hz"]), [400_000_000], "{p:?}");
+    assert_eq!(numbers(&p["armctl.diag.masked_max_cycles"]), [812], "{p:?}");
+    assert_eq!(
+        numbers(&p["armctl.diag.masked_opener"]),
+        [0x0801_2345],
+        "{p:?}"
+    );
+    assert_eq!(numbers(&p["armctl.diag.masked_spans"]), [96_000], "{p:?}");
+    assert_eq!(numbers(&p["armctl.diag.step_hz"]), [200_000_000], "{p:?}");
+    assert_eq!(p["armctl.diag.dir_late_max_ticks"], "-3", "{p:?}");
+    assert_eq!(numbers(&p["armctl.diag.dir_writes"]), [24], "{p:?}");
+    assert_eq!(
+        numbers(&p["armctl.diag.dma_slack_min_ticks"]),
+        [4_321],
+        "{p:?}"
+    );
+    assert_eq!(numbers(&p["armctl.diag.dma_refills"]), [51_200], "{p:?}");
+    // Bit 7 is no request: INVALID_CONFIG.
+    let p = &packets[2];
     assert_eq!(numbers(&p["armctl.verdict"]), [11], "{p:?}");
     let _ = std::fs::remove_dir_all(&dir);
 }

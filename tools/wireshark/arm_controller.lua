@@ -40,7 +40,7 @@ local tag_names = {
     [0x18] = "SET_ENABLE", [0x19] = "RELEASE", [0x1a] = "LIMITS_SET", [0x1b] = "LIMITS_GET",
     [0x1c] = "LIMITS", [0x1d] = "STOP_CAUSE", [0x1e] = "ACCEL_SET", [0x1f] = "JOINT_DESC_SET",
     [0x20] = "DISCOVER", [0x21] = "NET_SET", [0x22] = "DISCOVER_REPLY",
-    [0x23] = "JOINT_DESC_GET", [0x24] = "RX_COUNTERS", [0x25] = "UNLOCK", [0x26] = "JOINT_DESC",
+    [0x23] = "JOINT_DESC_GET", [0x24] = "RX_COUNTERS", [0x25] = "UNLOCK", [0x26] = "JOINT_DESC", [0x32] = "DIAG",
     [0x50] = "AUTH", [0x51] = "HELLO", [0x52] = "SET_KEY", [0x53] = "HELLO_REPLY",
 }
 -- Names that depend on the direction.
@@ -169,6 +169,7 @@ local f = {
     status_ask_look = field("bool", "status.ask.look_only", "Look only (never takes the controller)", 8, nil, 0x02),
     status_ask_stop = field("bool", "status.ask.stop_cause", "Also a STOP_CAUSE report", 8, nil, 0x04),
     status_ask_counters = field("bool", "status.ask.counters", "Also an RX_COUNTERS report", 8, nil, 0x08),
+    status_ask_diag = field("bool", "status.ask.diag", "Also a DIAG report", 8, nil, 0x40),
     stop_cause = dec("uint8", "stop.cause", "What ended the last run", stop_cause_names),
     stop_detail = dec("uint8", "stop.detail", "Detail (FAULT: the joint)"),
     stop_ip = field("ipv4", "stop.from_ip", "STOPPED's sender"),
@@ -179,6 +180,15 @@ local f = {
     rx_shed = dec("uint32", "rx.shed", "Datagrams over their sender's share"),
     rx_inbox_dropped = dec("uint32", "rx.inbox_dropped", "Datagrams dropped by a full inbox"),
     rx_group_ignored = dec("uint32", "rx.group_ignored", "Datagrams to a broadcast address ignored"),
+    diag_cpu_hz = dec("uint32", "diag.cpu_hz", "Cycle counter clock (Hz, 0 = not measured)"),
+    diag_masked_max = dec("uint32", "diag.masked_max_cycles", "Longest masked span (CPU cycles)"),
+    diag_masked_opener = hex("uint32", "diag.masked_opener", "Code address that opened it"),
+    diag_masked_spans = dec("uint32", "diag.masked_spans", "Masked spans measured"),
+    diag_step_hz = dec("uint32", "diag.step_hz", "Step clock (Hz, 0 = not measured)"),
+    diag_dir_late = dec("int32", "diag.dir_late_max_ticks", "Latest DIR change after its compare (step ticks)"),
+    diag_dir_writes = dec("uint32", "diag.dir_writes", "DIR changes written"),
+    diag_dma_slack = dec("uint32", "diag.dma_slack_min_ticks", "Least DMA slack before an update event (step ticks)"),
+    diag_dma_refills = dec("uint32", "diag.dma_refills", "Refills measured"),
     joints = dec("uint8", "joints", "Joints"),
     upload_period = dec("uint32", "upload_period_us", "Upload period (us)"),
 
@@ -724,8 +734,8 @@ for _, tag in ipairs({ 0x02, 0x04, 0x05, 0x07, 0x09, 0x0c, 0x0d, 0x0e, 0x0f, 0x1
 end
 -- STATUS: no data (old hosts), or the request byte (issue 23): bit 0 a LOCATION too, bit 1
 -- look only; bit 2 a STOP_CAUSE report too (issue 31); bit 3 an RX_COUNTERS report too
--- (issue 30). The reports follow the STATUS in that order: LOCATION, STOP_CAUSE,
--- RX_COUNTERS.
+-- (issue 30); bit 6 a DIAG report too (issue 34). The reports follow the STATUS in that
+-- order: LOCATION, STOP_CAUSE, RX_COUNTERS, DIAG.
 host_dissectors[0x15] = function(tree, data, len)
     if len == 0 then return "" end
     if len ~= 1 then return length_error(tree, data, "0 or 1", len) end
@@ -734,13 +744,15 @@ host_dissectors[0x15] = function(tree, data, len)
     ask:add(f.status_ask_look, data(0, 1))
     ask:add(f.status_ask_stop, data(0, 1))
     ask:add(f.status_ask_counters, data(0, 1))
+    ask:add(f.status_ask_diag, data(0, 1))
     local b = data(0, 1):uint()
-    if b > 15 then out_of_range(tree, "STATUS request byte may only use bits 0-3") end
+    if bit.band(b, 0xb0) ~= 0 then out_of_range(tree, "STATUS request byte may only use bits 0-3 and 6") end
     local parts = {}
     if bit.band(b, 1) ~= 0 then parts[#parts + 1] = "with LOCATION" end
     if bit.band(b, 2) ~= 0 then parts[#parts + 1] = "look only" end
     if bit.band(b, 4) ~= 0 then parts[#parts + 1] = "with STOP_CAUSE" end
     if bit.band(b, 8) ~= 0 then parts[#parts + 1] = "with RX_COUNTERS" end
+    if bit.band(b, 0x40) ~= 0 then parts[#parts + 1] = "with DIAG" end
     return table.concat(parts, ", ")
 end
 -- STOPPED: any data is ignored by the controller, which stops all the same (PROTOCOL.md
@@ -852,6 +864,22 @@ local controller_dissectors = {
         tree:add_le(f.rx_inbox_dropped, data(16, 4))
         tree:add_le(f.rx_group_ignored, data(20, 4))
         return string.format("ring dropped %d", data(0, 4):le_uint())
+    end,
+    -- DIAG (issue 34): the board's own timing; clocks of 0: not measured.
+    [0x32] = function(tree, data, len)
+        if len ~= 36 then return length_error(tree, data, "36", len) end
+        tree:add_le(f.diag_cpu_hz, data(0, 4))
+        tree:add_le(f.diag_masked_max, data(4, 4))
+        tree:add_le(f.diag_masked_opener, data(8, 4))
+        tree:add_le(f.diag_masked_spans, data(12, 4))
+        tree:add_le(f.diag_step_hz, data(16, 4))
+        tree:add_le(f.diag_dir_late, data(20, 4))
+        tree:add_le(f.diag_dir_writes, data(24, 4))
+        tree:add_le(f.diag_dma_slack, data(28, 4))
+        tree:add_le(f.diag_dma_refills, data(32, 4))
+        local cpu_hz = data(0, 4):le_uint()
+        if cpu_hz == 0 then return "masked spans not measured" end
+        return string.format("masked max %d cycles", data(4, 4):le_uint())
     end,
 }
 

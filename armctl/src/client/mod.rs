@@ -21,7 +21,7 @@ use crate::rtt::{DEFAULT_MIN_RTO, RESEND_HORIZON, RttEstimator};
 pub mod auth;
 mod receiver;
 mod wire_tools;
-pub use wire_tools::Glance;
+pub use wire_tools::{Diagnosis, Glance};
 
 pub(crate) use receiver::{AckWaiter, Event, lock};
 use receiver::{Shared, receive_loop};

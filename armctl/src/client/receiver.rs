@@ -44,6 +44,10 @@ pub(crate) struct Shared {
     pub(super) limits: Mutex<Vec<Sender<LimitsReport>>>,
     /// STOP_CAUSE reports (STATUS's request byte bit 2, issue 31).
     pub(super) stops: Mutex<Vec<Sender<protocol::StopReport>>>,
+    /// RX_COUNTERS reports (STATUS's request byte bit 3, issue 30), for `Client::diag`.
+    pub(super) rx_counters: Mutex<Vec<Sender<protocol::RxCounters>>>,
+    /// DIAG reports (STATUS's request byte bit 6, issue 34), for `Client::diag`.
+    pub(super) diags: Mutex<Vec<Sender<protocol::Diag>>>,
     /// JOINT_DESC reports' subscribers (issue 31).
     pub(super) descs: Mutex<Vec<Sender<protocol::JointDescSet>>>,
     pub(super) last_location: Mutex<Option<Location>>,
@@ -149,9 +153,9 @@ impl Shared {
             }
             Report::Limits(limits) => fan_out(&self.limits, &limits),
             Report::StopCause(stop) => fan_out(&self.stops, &stop),
-            // Asked for only by tools that read the wire themselves (STATUS's request
-            // byte bit 3, issue 30): the client asks for none.
-            Report::RxCounters(_) => {}
+            // Asked for by `Client::diag` (STATUS's request byte bits 3 and 6).
+            Report::RxCounters(counters) => fan_out(&self.rx_counters, &counters),
+            Report::Diag(diag) => fan_out(&self.diags, &diag),
             Report::JointDesc(desc) => fan_out(&self.descs, &desc),
         }
     }

@@ -24,6 +24,18 @@ pub struct Glance {
     pub read_only: bool,
 }
 
+/// What [`Client::diag`] brought back: the controller's own counters.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Diagnosis {
+    /// The STATUS report that came with them.
+    pub status: StatusReport,
+    /// The receive path's counters (RX ring overflows, shed datagrams, ...).
+    pub rx: protocol::RxCounters,
+    /// The board's timing (masked spans, DIR lateness, DMA slack); clocks of 0: not
+    /// measured on this controller.
+    pub diag: protocol::Diag,
+}
+
 impl Client {
     /// SET_ENABLE: enables (`enable`, holding) or disables (limp) the drivers of `mask`
     /// (bits 0-7 joints, bit 8 gripper), leaving the others as they are; idempotent,
@@ -51,6 +63,7 @@ impl Client {
             look_only,
             stop_cause: false,
             counters: false,
+            diag: false,
         };
         let reports = self.status_reports();
         let locations = self.locations();
@@ -133,6 +146,51 @@ impl Client {
             };
             // The STOP_CAUSE report comes right after the STATUS.
             return Ok((status, recv_within(&stops, self.options.report_timeout)));
+        }
+        Err(Error::NoReport {
+            command: Tag::Status,
+            attempts: self.options.attempts,
+        })
+    }
+
+    /// The controller's own timing and receive counters (issue 34, `armctl diag`): a
+    /// look-only STATUS with request byte bits 3 and 6 (0x4a, from any host, never taking
+    /// the controller), answered with the STATUS, RX_COUNTERS and DIAG reports.
+    /// `Ok(None)`: a controller older than issue 34 (it refuses bit 6 with
+    /// `INVALID_CONFIG`, or the byte with `BAD_LENGTH`). A lost report is asked again.
+    pub fn diag(&self) -> Result<Option<Diagnosis>> {
+        let _upload = super::lock(&self.upload);
+        let ask = StatusAsk {
+            look_only: true,
+            counters: true,
+            diag: true,
+            ..StatusAsk::default()
+        };
+        let reports = self.status_reports();
+        let (tx, counters) = std::sync::mpsc::channel();
+        super::lock(&self.shared.rx_counters).push(tx);
+        let (tx, diags) = std::sync::mpsc::channel();
+        super::lock(&self.shared.diags).push(tx);
+        for _ in 0..self.options.attempts {
+            let ack = self.exchange_unlocked(&Command::StatusWith(ask), None)?;
+            if matches!(
+                ack.status,
+                StatusCode::InvalidConfig | StatusCode::BadLength
+            ) {
+                return Ok(None);
+            }
+            check(Tag::Status, ack)?;
+            let Ok(status) = reports.recv_timeout(self.options.report_timeout) else {
+                continue;
+            };
+            // RX_COUNTERS, then DIAG, right after the STATUS.
+            let (Some(rx), Some(diag)) = (
+                recv_within(&counters, self.options.report_timeout),
+                recv_within(&diags, self.options.report_timeout),
+            ) else {
+                continue;
+            };
+            return Ok(Some(Diagnosis { status, rx, diag }));
         }
         Err(Error::NoReport {
             command: Tag::Status,

@@ -74,9 +74,59 @@ pub fn compare_for(alarm: u64, now: u64) -> Compare {
     }
 }
 
+/// The timer bus whose clock is wrong ([`check_timer_clocks`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum TimerBus {
+    /// APB1's timer clock: TIM2-TIM5 (joints 0-3) and TIM13 (the step clock).
+    Apb1,
+    /// APB2's timer clock: TIM1, TIM8, TIM16, TIM17 (joints 4-7).
+    Apb2,
+}
+
+/// A timer bus whose timer clock is not the step clock's rate: every period and pulse its
+/// joints make would be off by the ratio.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct ClockMismatch {
+    /// Which bus.
+    pub bus: TimerBus,
+    /// The clock its timers actually get.
+    pub actual_hz: u32,
+}
+
+/// Both timer buses must clock their timers at `step_hz` (issue 34: APB1 was checked,
+/// APB2, which clocks joints 4-7, was not). APB1 first.
+pub fn check_timer_clocks(apb1_hz: u32, apb2_hz: u32, step_hz: u32) -> Result<(), ClockMismatch> {
+    for (bus, actual_hz) in [(TimerBus::Apb1, apb1_hz), (TimerBus::Apb2, apb2_hz)] {
+        if actual_hz != step_hz {
+            return Err(ClockMismatch { bus, actual_hz });
+        }
+    }
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn both_timer_buses_are_checked() {
+        const HZ: u32 = 200_000_000;
+        assert_eq!(check_timer_clocks(HZ, HZ, HZ), Ok(()));
+        // APB2 at half (its prescaler changed alone): joints 4-7 would run at half speed.
+        assert_eq!(
+            check_timer_clocks(HZ, HZ / 2, HZ),
+            Err(ClockMismatch {
+                bus: TimerBus::Apb2,
+                actual_hz: HZ / 2
+            })
+        );
+        assert_eq!(
+            check_timer_clocks(HZ / 2, HZ, HZ).map_err(|e| e.bus),
+            Err(TimerBus::Apb1)
+        );
+    }
 
     #[test]
     fn a_wrap_pending_since_before_the_read_counts_whatever_the_counter() {

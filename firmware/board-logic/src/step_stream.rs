@@ -43,7 +43,13 @@ pub fn stream_position<const HALF: usize>(
     tcif: bool,
 ) -> StreamPosition {
     let buffer_words = 2 * HALF * WORDS_PER_PERIOD;
-    let done = buffer_words.saturating_sub(remaining) / WORDS_PER_PERIOD;
+    // A burst cut short (the stop clears the timer's DMA request between its transfers)
+    // counts as transferred: its update event came, so the period in the preload register
+    // then started and made its pulse (issue 34: floored, the stop counted one step short
+    // with 100 ns pulses). Rounded up.
+    let moved = buffer_words.saturating_sub(remaining);
+    let done = moved.div_ceil(WORDS_PER_PERIOD);
+    let cut = !moved.is_multiple_of(WORDS_PER_PERIOD);
     let next = done % (2 * HALF);
     // The first unplayed period is the one in the preload register (next - 1); the other
     // half than its own is stale if its refill is still pending (HT: half 0 played, TC:
@@ -59,7 +65,9 @@ pub fn stream_position<const HALF: usize>(
         next,
         other_half_played: other_flag,
         // The half's end was read (its flag was raised); not pending any more: refilled.
-        preload_evicted: preload % HALF == HALF - 1 && !own_flag,
+        // Not after a cut burst: that burst never finished reading the half's end, so its
+        // flag was never raised, and the half was not refilled.
+        preload_evicted: preload % HALF == HALF - 1 && !own_flag && !cut,
     }
 }
 
@@ -103,11 +111,14 @@ mod tests {
             stream_position::<HALF>(WORDS - WORDS_PER_PERIOD, false, false).next,
             1
         );
-        // A burst cut short counts as not transferred.
+        // A burst cut short counts as transferred: its update event started the preload's
+        // period (issue 34; this asserted 1, "not transferred", before).
         assert_eq!(
             stream_position::<HALF>(WORDS - WORDS_PER_PERIOD - 1, false, false).next,
-            1
+            2
         );
+        // Cut in the buffer's last period: back at 0.
+        assert_eq!(stream_position::<HALF>(2, false, false).next, 0);
         assert_eq!(
             stream_position::<HALF>(WORDS_PER_PERIOD, false, false).next,
             2 * HALF - 1

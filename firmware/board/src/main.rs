@@ -21,7 +21,8 @@
 //!
 //! P0 is the e-stop input's alone; the others kept their order, one level lower each
 //! (issue 18). Critical sections mask every interrupt (`cortex-m`'s single-core
-//! implementation), the e-stop's and the DIR changes' too, so the ones left are short;
+//! implementation, timed by [`diag`] for the DIAG report: the longest one and where it was
+//! opened, `armctl diag`), the e-stop's and the DIR changes' too, so the ones left are short;
 //! the step path's lock (`step_dma::STEP`) is BASEPRI at P2 instead (issue 20): it holds
 //! off P2 and below and never P0 or P1, which never take it.
 //!
@@ -98,6 +99,7 @@
 #![no_main]
 
 mod clocks;
+mod diag;
 mod encoder;
 mod estop;
 mod fault;
@@ -299,7 +301,11 @@ async fn main(spawner: Spawner) -> ! {
     }
     // Caches before any DMA starts: every DMA buffer is in non-cacheable SRAM1.
     match cortex_m::Peripherals::take() {
-        Some(mut core) => memory::enable_caches(&mut core.MPU, &mut core.SCB, &mut core.CPUID),
+        Some(mut core) => {
+            memory::enable_caches(&mut core.MPU, &mut core.SCB, &mut core.CPUID);
+            // The DIAG report's cycle counter (issue 34): masked spans from here on.
+            diag::start(&mut core.DCB, &mut core.DWT);
+        }
         None => warn!("core peripherals already taken: caches left off"),
     }
     let Some(dma_buffers) = memory::take_dma_buffers() else {
@@ -500,11 +506,13 @@ fn start_steps(hw: StepHardware) -> &'static StepTimer {
     hw.step.into_timer_outputs();
     hw.dir.configure();
     let step_clock = STEP_CLOCK.init(embassy_stm32::timer::low_level::Timer::new(hw.clock));
-    match step_timer::start(step_clock.get_clock_frequency().0) {
+    // APB2's timer clock (joints 4-7), read as embassy set it: TIM1's.
+    let apb2_timer_hz = embassy_stm32::rcc::frequency::<peripherals::TIM1>().0;
+    match step_timer::start(step_clock.get_clock_frequency().0, apb2_timer_hz) {
         Ok(kick) => KICK.init(kick),
         Err(e) => defmt::panic!(
             // safe: boot-time bring-up, not network input
-            "step timer clock is not {} Hz: {}",
+            "a step timer clock is not {} Hz: {}",
             step_dma::STEP_TIMER_HZ,
             e
         ),

@@ -77,21 +77,16 @@ const SR_CC1IF: u32 = 1 << 1;
 const DIER_UIE: u32 = 1 << 0;
 const DIER_CC1IE: u32 = 1 << 1;
 
-/// Why the step clock cannot start.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, defmt::Format)]
-pub struct ClockMismatch {
-    /// The clock the timers actually get.
-    pub actual_hz: u32,
-}
+/// Why the step clock cannot start: a timer bus whose timer clock is not
+/// [`STEP_TIMER_HZ`] (board-logic's `step_clock::check_timer_clocks`).
+pub use board_logic::step_clock::ClockMismatch;
 
-/// Starts TIM13 free-running and enables its interrupt at P1 (`step_dma::DIR_PRIORITY`). `timer_clock_hz` is the APB1
-/// timer clock embassy configured; it must be the joint timers' [`STEP_TIMER_HZ`].
-pub fn start(timer_clock_hz: u32) -> Result<StepTimer, ClockMismatch> {
-    if timer_clock_hz != STEP_TIMER_HZ {
-        return Err(ClockMismatch {
-            actual_hz: timer_clock_hz,
-        });
-    }
+/// Starts TIM13 free-running and enables its interrupt at P1 (`step_dma::DIR_PRIORITY`).
+/// `apb1_timer_hz` and `apb2_timer_hz` are the timer clocks embassy configured (TIM13 and
+/// joints 0-3 on APB1, joints 4-7 on APB2; issue 34: APB2 was not checked); both must be
+/// the joint timers' [`STEP_TIMER_HZ`].
+pub fn start(apb1_timer_hz: u32, apb2_timer_hz: u32) -> Result<StepTimer, ClockMismatch> {
+    step_clock::check_timer_clocks(apb1_timer_hz, apb2_timer_hz, STEP_TIMER_HZ)?;
     pac::RCC.apb1lenr().modify(|w| w.set_tim13en(true));
     let regs = pac::TIM13;
     regs.psc().write_value(0);
@@ -248,6 +243,8 @@ fn TIM8_UP_TIM13() {
                     break;
                 }
                 pins::set_direction(joint, positive);
+                // The DIAG report's DIR lateness: the counter against the due tick.
+                crate::diag::dir_written(regs.cnt().read().cnt(), origin.saturating_add(tick));
                 DIRS.pop(joint);
             }
         }

@@ -22,13 +22,15 @@
 //!
 //! Every channel and signal uses [`CriticalSectionRawMutex`]: the step backend and the
 //! trajectory task's wake-up are touched from the step interrupts, and one kind of mutex
-//! for all keeps the rules simple.
+//! for all keeps the rules simple. Those critical sections mask the DIR changes and the
+//! e-stop input too, so the queues of datagrams and frames are [`SlotQueue`]s, whose
+//! critical sections move slot numbers while the values are copied with interrupts on
+//! (issue 34: embassy-sync's `Channel` copied a 1.5 KB datagram inside one, 9.5 us).
 
 use core::cell::{Cell, RefCell};
 
 use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
-use embassy_sync::channel::Channel;
 use embassy_sync::signal::Signal;
 use heapless::Vec;
 use protocol::{MAX_DATAGRAM, MAX_SERIAL_CHUNK, Tag, UartInit, crc8};
@@ -38,6 +40,7 @@ use crate::hw::Endpoint;
 use crate::log_limit::{LogLimit, LogVerdict};
 use crate::outgoing::Outgoing;
 use crate::reports::ReportSettings;
+use crate::slot_queue::SlotQueue;
 use crate::source_share::{SharedBudgets, SourceBudgets};
 #[cfg(doc)]
 use crate::step_shared::StepShared;
@@ -107,12 +110,12 @@ impl Datagram {
 pub struct Bus {
     /// CRC-valid STOPPED frames, routed here by `network_task`; drained by
     /// `trajectory_task` before anything else (the e-stop path).
-    pub estop: Channel<Cs, Datagram, ESTOP_QUEUE>,
+    pub estop: SlotQueue<Datagram, ESTOP_QUEUE>,
     /// Every other datagram, from `network_task`; drained by `trajectory_task`.
-    pub inbox: Channel<Cs, Datagram, INBOX_QUEUE>,
+    pub inbox: SlotQueue<Datagram, INBOX_QUEUE>,
     /// Frames to send, from `trajectory_task`, `upload_task` and `serial_task`; drained by
     /// `network_task`.
-    pub outbox: Channel<Cs, Outgoing, OUTBOX_QUEUE>,
+    pub outbox: SlotQueue<Outgoing, OUTBOX_QUEUE>,
     /// Raised by the step interrupts (through [`StepShared::on_interrupt`]) when segments
     /// finished or the backend ran dry, and by the wired e-stop input's handler; waited on
     /// by `trajectory_task`, which then collects the progress from [`StepShared`] and
@@ -120,7 +123,7 @@ pub struct Bus {
     /// watchdog raises it to see the task alive.)
     pub step_progress: Signal<Cs, ()>,
     /// USART_SEND payloads, from `trajectory_task`; drained by `serial_task`.
-    pub serial_tx: Channel<Cs, Vec<u8, MAX_SERIAL_CHUNK>, SERIAL_TX_QUEUE>,
+    pub serial_tx: SlotQueue<Vec<u8, MAX_SERIAL_CHUNK>, SERIAL_TX_QUEUE>,
     /// The serial port was opened with these settings, by `trajectory_task`; taken by
     /// `serial_task`'s reader.
     pub serial_opened: Signal<Cs, UartInit>,
@@ -150,7 +153,13 @@ pub struct Bus {
     /// What the board's receive interrupt counts about its ring
     /// ([`crate::ingress::RxRingCounters`]).
     pub(crate) rx_ring: Mutex<Cs, Cell<crate::ingress::RxRingCounters>>,
+    /// Where the DIAG report's counters come from: the board's reader of its own timing
+    /// counters ([`Bus::set_diag_source`], [`crate::diag`]); `None`: not measured.
+    diag_source: Mutex<Cs, Cell<Option<DiagSource>>>,
 }
+
+/// A board's reader of its timing counters for the DIAG report ([`Bus::set_diag_source`]).
+pub type DiagSource = fn() -> protocol::Diag;
 
 impl Default for Bus {
     fn default() -> Self {
@@ -162,11 +171,11 @@ impl Bus {
     /// Empty channels, boot report settings.
     pub const fn new() -> Self {
         Bus {
-            estop: Channel::new(),
-            inbox: Channel::new(),
-            outbox: Channel::new(),
+            estop: SlotQueue::new(),
+            inbox: SlotQueue::new(),
+            outbox: SlotQueue::new(),
             step_progress: Signal::new(),
-            serial_tx: Channel::new(),
+            serial_tx: SlotQueue::new(),
             serial_opened: Signal::new(),
             reports: Mutex::new(Cell::new(ReportSettings::UNPUBLISHED)),
             upload_changed: Signal::new(),
@@ -177,6 +186,23 @@ impl Bus {
             group_ignored: Mutex::new(Cell::new((0, LogLimit::new()))),
             serial_tx_dropped: Mutex::new(Cell::new(0)),
             rx_ring: Mutex::new(Cell::new(crate::ingress::RxRingCounters::ZERO)),
+            diag_source: Mutex::new(Cell::new(None)),
+        }
+    }
+
+    /// The board reads its timing counters with `read` (issue 34; a plain function: the
+    /// counters are the board's statics, [`crate::diag`]). Until it is called, DIAG says
+    /// "not measured" ([`protocol::Diag::NOT_MEASURED`]).
+    pub fn set_diag_source(&self, read: DiagSource) {
+        self.diag_source.lock(|c| c.set(Some(read)));
+    }
+
+    /// The DIAG report's counters: the board's, or "not measured" without a source. The
+    /// source runs outside the bus's lock (it may take a critical section of its own).
+    pub fn diag(&self) -> protocol::Diag {
+        match self.diag_source.lock(|c| c.get()) {
+            Some(read) => read(),
+            None => protocol::Diag::NOT_MEASURED,
         }
     }
 
@@ -228,15 +254,17 @@ impl Bus {
     /// `estop` (already that many STOPPEDs waiting, so the controller stops anyway) drops
     /// it. Never falls back to the inbox: a flood of STOPPEDs cannot crowd out other
     /// hosts' commands.
-    pub fn route_stop(&self, mut datagram: Datagram) -> bool {
+    pub fn route_stop(&self, datagram: Datagram) -> bool {
+        // Copied into its slot with interrupts on; stamped and queued in one critical
+        // section.
+        let Ok(filled) = self.estop.try_fill(datagram) else {
+            return false;
+        };
         self.stops_routed.lock(|routed| {
-            datagram.stops_before = routed.get();
-            let queued = self.estop.try_send(datagram).is_ok();
-            if queued {
-                routed.set(routed.get().wrapping_add(1));
-            }
-            queued
-        })
+            filled.commit_with(|d| d.stops_before = routed.get());
+            routed.set(routed.get().wrapping_add(1));
+        });
+        true
     }
 
     /// Routes a received datagram: a CRC-valid STOPPED to `estop` (to `inbox` if that
@@ -244,24 +272,34 @@ impl Bus {
     /// (the host resends it since no ACK came; the drops are counted and logged at most
     /// once a second, `now_us` being the arrival time). Stamps it with the STOPPEDs put on
     /// `estop` before it ([`Datagram::stops_before`]).
-    pub fn route(&self, mut datagram: Datagram, now_us: u64) {
+    pub fn route(&self, datagram: Datagram, now_us: u64) {
         let from_ip = datagram.from.ip;
-        // One critical section: stamps and queue order agree even if two tasks route.
-        let queued = self.stops_routed.lock(|routed| {
-            datagram.stops_before = routed.get();
-            let datagram = if is_stop(&datagram.bytes) {
-                match self.estop.try_send(datagram) {
-                    Ok(()) => {
+        // The datagram is copied into a slot with interrupts on (issue 34); the stamp and
+        // the slot's place in its queue are set in one critical section, so that stamps
+        // and queue order agree even if two tasks route.
+        let filled = if is_stop(&datagram.bytes) {
+            match self.estop.try_fill(datagram) {
+                Ok(filled) => Ok((Some(filled), None)),
+                Err(d) => self.inbox.try_fill(d).map(|f| (None, Some(f))),
+            }
+        } else {
+            self.inbox.try_fill(datagram).map(|f| (None, Some(f)))
+        };
+        let queued = match filled {
+            Ok((stop, other)) => {
+                self.stops_routed.lock(|routed| {
+                    if let Some(stop) = stop {
+                        stop.commit_with(|d| d.stops_before = routed.get());
                         routed.set(routed.get().wrapping_add(1));
-                        return true;
                     }
-                    Err(embassy_sync::channel::TrySendError::Full(d)) => d,
-                }
-            } else {
-                datagram
-            };
-            self.inbox.try_send(datagram).is_ok()
-        });
+                    if let Some(other) = other {
+                        other.commit_with(|d| d.stops_before = routed.get());
+                    }
+                });
+                true
+            }
+            Err(_) => false,
+        };
         if !queued {
             self.release(from_ip);
             let verdict = self.inbox_drops.lock(|c| {

@@ -1197,6 +1197,9 @@ impl<const CAP: usize> Controller<CAP> {
                 if ask.counters {
                     response.asked_counters = Some(from);
                 }
+                if ask.diag {
+                    response.asked_diag = Some(from);
+                }
             }
             // The owner gives the controller up: no owner, no report destinations (the
             // next host to speak takes it, as at boot). Only while STOPPED: an upload or
@@ -1340,6 +1343,9 @@ impl<const CAP: usize> Controller<CAP> {
         }
         if ask.counters {
             response.asked_counters = Some(from);
+        }
+        if ask.diag {
+            response.asked_diag = Some(from);
         }
         response.answer_seq = Some(seq);
         Some(response)

@@ -143,6 +143,8 @@ pub enum AnswerReport {
     StopCause(StopReport),
     /// An RX_COUNTERS report (STATUS's request byte bit 3, issue 30).
     RxCounters(protocol::RxCounters),
+    /// A DIAG report (STATUS's request byte bit 6, issue 34).
+    Diag(protocol::Diag),
     /// A JOINT_DESC report (the answer to JOINT_DESC_GET, issue 31).
     JointDesc(protocol::JointDescSet),
 }
@@ -203,6 +205,7 @@ impl ReportEncoder {
                     AnswerReport::Limits(l) => Report::Limits(l),
                     AnswerReport::StopCause(s) => Report::StopCause(s),
                     AnswerReport::RxCounters(c) => Report::RxCounters(c),
+                    AnswerReport::Diag(d) => Report::Diag(d),
                     AnswerReport::JointDesc(d) => Report::JointDesc(d),
                 },
             ),

@@ -206,17 +206,21 @@ pub const NUCLEO_H743ZI2: BoardProfile = BoardProfile {
     step_timer_hz: 200_000_000,
     // The default build: opto-isolated drivers' timing is safe for all drivers.
     driver: DriverTiming::OPTO,
-    // The step clock's interrupt at P1 makes the DIR changes. Since issue 20 no step-path
-    // section masks it (the step lock is BASEPRI at P2; the DIR changes come from
-    // lock-free queues, firmware/board/src/step_dma/lock.rs): what can hold it off is a
-    // critical section (PRIMASK), the longest 167 instructions (scripts/step-cost, the
-    // run's start loading a timer), and the handler itself makes up to eight DIR changes
-    // in joint order, its longest run 884 instructions (8 joints reversing together at
-    // 100 kHz). 1,051 instructions at 1.3 cycles each at 400 MHz is 3.4 us; 4 us covers
-    // it (flash wait states on a cold I-cache are not counted: bring-up check 24 measures
-    // the span with the DWT). It was 35 us while the critical sections masked it (the
-    // positions read for a LOCATION report, 25.3 us), and 5 us from an estimate before.
-    dir_latency_ns: 4_000,
+    // The step clock's interrupt at P1 makes the DIR changes. No step-path section masks
+    // it (issue 20: the step lock is BASEPRI at P2); what can hold it off is a critical
+    // section (PRIMASK) anywhere in the firmware. Measured on the `cargo fw` ELF itself
+    // on Renode (issue 34, tests/tests/renode_cost.rs: 8 joints reversing together, 1 kHz
+    // LOCATION reports, a flood of 2,000 datagrams), in instructions: the longest span
+    // masking it 372 (a task's poll; 3,809 before the bus's slot queues and 1,097 before
+    // the logger stopped masking), and the handler's own run before its last DIR write
+    // 429 (563 in all). 801 instructions at 1.3 cycles each at 400 MHz, plus the 12
+    // cycles of exception entry, is 2.6 us; 3 us covers it. The latest DIR write measured
+    // there came 1.07 us after its compare (TIM13 CNT - CCR1, the emulator at one
+    // instruction a cycle). Flash wait states on a cold I-cache are not counted (bring-up
+    // check 24 measures the span with the DWT). It was 4 us from the step path's copy
+    // under QEMU, 35 us while the step path's critical sections masked it, and 5 us from
+    // an estimate before.
+    dir_latency_ns: 3_000,
     // A period's DMA burst (three words into an APB timer, with eight streams sharing two
     // DMA controllers) must finish within the shortest period; 1 us periods leave a wide
     // margin. Also the ceiling of the CPU budget per joint (`step_budget_hz` / 8 joints

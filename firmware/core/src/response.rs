@@ -57,12 +57,17 @@ pub struct Response {
     /// (bit 3, issue 30), sent after the STOP_CAUSE. The counters are the bus's: the
     /// caller fills them in.
     pub asked_counters: Option<Endpoint>,
+    /// A DIAG report for the asker alone: STATUS's request byte asked for one (bit 6,
+    /// issue 34), sent last. The counters are the board's ([`crate::bus::Bus::diag`]):
+    /// the caller fills them in.
+    pub asked_diag: Option<Endpoint>,
     /// A LIMITS report for the endpoint that sent LIMITS_GET (issue 23).
     pub limits: Option<(Endpoint, LimitsReport)>,
     /// A JOINT_DESC report for the endpoint that sent JOINT_DESC_GET (issue 31).
     pub joint_desc: Option<(Endpoint, JointDescSet)>,
     /// `Some(seq)`: [`Response::status`], [`Response::asked_location`],
-    /// [`Response::asked_stop`] and [`Response::asked_counters`] are a read-only answer
+    /// [`Response::asked_stop`], [`Response::asked_counters`] and [`Response::asked_diag`]
+    /// are a read-only answer
     /// to a host that does not own the controller (docs/PROTOCOL.md section 1, issue 23)
     /// and carry its request's seq, not the controller's report counter.
     pub answer_seq: Option<u8>,

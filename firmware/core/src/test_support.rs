@@ -28,6 +28,25 @@ pub const OTHER: Endpoint = Endpoint {
     port: 40_001,
 };
 
+/// The gripper burst of issue 30 (a stop stops the gripper): 8000 pulses at 1 kHz (8 s)
+/// on the 200 MHz gripper timer. One value for the controller's tests and the
+/// simulator's (`sim-host/tests/gripper_trials`).
+pub const GRIPPER_BURST: Pwm = Pwm {
+    psc: 199,
+    arr: 999,
+    ccr1: 500,
+    pulse_count: 8000,
+};
+
+/// A 50 Hz hobby-servo signal, 1.5 ms pulse, on the 200 MHz gripper timer: the PWM a stop
+/// holds by default (issue 30). Shared as [`GRIPPER_BURST`] is.
+pub const GRIPPER_SERVO: Pwm = Pwm {
+    psc: 199,
+    arr: 19_999,
+    ccr1: 1_500,
+    pulse_count: 0,
+};
+
 /// A step engine and peripherals that record what they are told. Segments pushed wait in
 /// `queue` until the test runs them with [`run`].
 #[derive(Debug)]

@@ -12,21 +12,9 @@ use arm_core::config::ServoOnStop;
 use common::*;
 use protocol::{Command, Pwm, State, StatusCode, StatusFlags, Tag};
 
-/// The burst: 8000 pulses at 1 kHz (8 s) on a 200 MHz timer.
-const BURST: Pwm = Pwm {
-    psc: 199,
-    arr: 999,
-    ccr1: 500,
-    pulse_count: 8000,
-};
-
-/// A 50 Hz hobby-servo signal, 1.5 ms pulse (200 MHz timer).
-const SERVO: Pwm = Pwm {
-    psc: 199,
-    arr: 19_999,
-    ccr1: 1_500,
-    pulse_count: 0,
-};
+/// The burst and a servo signal (one value with sim-host's gripper trials).
+const BURST: Pwm = arm_core::test_support::GRIPPER_BURST;
+const SERVO: Pwm = arm_core::test_support::GRIPPER_SERVO;
 
 fn pwm_active(s: &Session<64>) -> bool {
     s.controller

@@ -204,6 +204,7 @@ fn status_bit_3_asks_for_the_receive_counters() {
         look_only: false,
         stop_cause: false,
         counters: true,
+        diag: false,
     };
     let r = s.send_raw(HOST, &frame(1, Command::StatusWith(ask)));
     assert_eq!(r.reply.unwrap().ack.status, protocol::StatusCode::Ok);

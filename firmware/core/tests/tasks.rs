@@ -1426,6 +1426,7 @@ fn status_replies_go_out_in_the_documented_order() {
         look_only: false,
         stop_cause: true,
         counters: true,
+        diag: false,
     };
     assert_eq!(ask.byte(), 0x0d);
     rig.route(&frame(0, Command::StatusWith(ask)));
@@ -1438,6 +1439,7 @@ fn status_replies_go_out_in_the_documented_order() {
             AnswerReport::Limits(_) => "LIMITS",
             AnswerReport::StopCause(_) => "STOP_CAUSE",
             AnswerReport::RxCounters(_) => "RX_COUNTERS",
+            AnswerReport::Diag(_) => "DIAG",
             AnswerReport::JointDesc(_) => "JOINT_DESC",
         }),
         // The periodic stream is not an answer.
@@ -1453,6 +1455,60 @@ fn status_replies_go_out_in_the_documented_order() {
         assert_eq!(
             sent,
             ["ACK", "STATUS", "LOCATION", "STOP_CAUSE", "RX_COUNTERS"]
+        );
+    });
+}
+
+/// Issue 34: request byte 0x4d adds bit 6, the DIAG report, after every other reply
+/// (docs/PROTOCOL.md's order), with the bus's source: "not measured" on a bus no board
+/// gave one (this rig, like the simulator).
+#[test]
+fn the_diag_report_goes_out_last() {
+    use arm_core::{AnswerReport, Outgoing};
+    let rig = Rig::new();
+    let ask = protocol::StatusAsk {
+        location: true,
+        look_only: false,
+        stop_cause: true,
+        counters: true,
+        diag: true,
+    };
+    assert_eq!(ask.byte(), 0x4d);
+    rig.route(&frame(0, Command::StatusWith(ask)));
+    let name = |o: &Outgoing| match o {
+        Outgoing::Ack(_) => Some("ACK"),
+        Outgoing::Status(..) => Some("STATUS"),
+        Outgoing::Answer(a) => Some(match a.report {
+            AnswerReport::Status(_) => "STATUS",
+            AnswerReport::Location(_) => "LOCATION",
+            AnswerReport::Limits(_) => "LIMITS",
+            AnswerReport::StopCause(_) => "STOP_CAUSE",
+            AnswerReport::RxCounters(_) => "RX_COUNTERS",
+            AnswerReport::Diag(d) => {
+                assert_eq!(d, protocol::Diag::NOT_MEASURED);
+                "DIAG"
+            }
+            AnswerReport::JointDesc(_) => "JOINT_DESC",
+        }),
+        _ => None,
+    };
+    rig.run(async {
+        until("the replies", || {
+            rig.drain();
+            rig.sent.borrow().iter().filter_map(name).count() >= 6
+        })
+        .await;
+        let sent: Vec<&str> = rig.sent.borrow().iter().filter_map(name).collect();
+        assert_eq!(
+            sent,
+            [
+                "ACK",
+                "STATUS",
+                "LOCATION",
+                "STOP_CAUSE",
+                "RX_COUNTERS",
+                "DIAG"
+            ]
         );
     });
 }

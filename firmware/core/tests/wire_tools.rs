@@ -220,6 +220,7 @@ fn status_asks_for_a_location_and_a_look_only_status_never_takes_a_free_controll
         look_only: true,
         stop_cause: false,
         counters: false,
+        diag: false,
     };
     // Nobody owns it: a look-only STATUS is answered and takes nothing.
     let r = s.send_raw(OTHER, &status_with(5, look));
@@ -240,6 +241,7 @@ fn status_asks_for_a_location_and_a_look_only_status_never_takes_a_free_controll
         look_only: false,
         stop_cause: false,
         counters: false,
+        diag: false,
     };
     let r = s.send_raw(HOST, &status_with(6, ask));
     assert_eq!(s.controller.owner().map(|o| o.ip), Some(HOST.ip));

@@ -171,3 +171,28 @@ proptest! {
         prop_assert_eq!(positions, played);
     }
 }
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 128, ..ProptestConfig::default() })]
+
+    /// Issue 34: the board switches each STEP output from forced-inactive to PWM with the
+    /// prelude's first period in the active registers (`load_joint`): a pulse there would
+    /// rise at the switch, before the timers start together. The first period never has
+    /// one, whatever the segments and wherever they start (tick 0 included), both
+    /// directions; the board also checks it at each run's start (a run refused, logged).
+    #[test]
+    fn the_first_prelude_period_has_no_pulse(
+        steps in prop::array::uniform8(-40i32..=40),
+        durations in prop::collection::vec(50u32..=2_000, 1..=QUEUE),
+        at_tick in prop_oneof![Just(0u64), 0u64..5_000],
+    ) {
+        let (mut streams, mut prelude, mut buffers) = queued(&segments(steps, &durations));
+        let mut it = buffers.iter_mut();
+        let mut all: [&mut JointBuffer<HALF>; MAX_JOINTS] =
+            core::array::from_fn(|_| it.next().expect("eight buffers"));
+        streams.prime(at_tick, &mut prelude, &mut all);
+        for (j, p) in prelude.iter().enumerate() {
+            prop_assert_eq!(p[0].high, 0, "joint {} prelude {:?}", j, p);
+        }
+    }
+}

@@ -85,6 +85,7 @@ pub enum OwnedReport {
     Limits(protocol::LimitsReport),
     StopCause(protocol::StopReport),
     RxCounters(protocol::RxCounters),
+    Diag(protocol::Diag),
     JointDesc(protocol::JointDescSet),
 }
 
@@ -124,6 +125,7 @@ impl Client {
             Report::Limits(l) => OwnedReport::Limits(l),
             Report::StopCause(s) => OwnedReport::StopCause(s),
             Report::RxCounters(c) => OwnedReport::RxCounters(c),
+            Report::Diag(d) => OwnedReport::Diag(d),
             Report::JointDesc(d) => OwnedReport::JointDesc(d),
         };
         Some((frame.seq, report))

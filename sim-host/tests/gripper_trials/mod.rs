@@ -30,21 +30,9 @@ pub const QUIET_NS: u64 = 100_000_000;
 /// defect: 8 s of pulses until PWM_STOP) still fails.
 pub const QUIET_BOUND_NS: u64 = 1_000_000_000;
 
-/// The burst: 8000 pulses at 1 kHz (8 s) on the 200 MHz gripper timer.
-const BURST: Pwm = Pwm {
-    psc: 199,
-    arr: 999,
-    ccr1: 500,
-    pulse_count: 8000,
-};
-
-/// A 50 Hz hobby-servo signal, 1.5 ms pulse.
-const SERVO: Pwm = Pwm {
-    psc: 199,
-    arr: 19_999,
-    ccr1: 1_500,
-    pulse_count: 0,
-};
+/// The burst and a servo signal (one value with arm-core's gripper tests).
+const BURST: Pwm = arm_core::test_support::GRIPPER_BURST;
+const SERVO: Pwm = arm_core::test_support::GRIPPER_SERVO;
 
 /// How one try was stopped.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

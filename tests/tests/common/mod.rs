@@ -92,6 +92,7 @@ pub fn rx_counters_after_stops(raw: &Raw, stops: u8) -> Option<protocol::RxCount
         look_only: true,
         stop_cause: false,
         counters: true,
+        diag: false,
     });
     let mut request = [0u8; 8];
     let n = ask.encode(0x40, &mut request).unwrap();

@@ -61,8 +61,18 @@ pub enum Cmd {
         #[arg(long)]
         json: bool,
         /// A joint config (the `run --config` file): joint names and positions in degrees.
+        /// Without it: the names and units the controller keeps (`config push`), if any.
         #[arg(long, value_name = "FILE")]
         config: Option<PathBuf>,
+    },
+    /// Print the controller's own counters (issue 34): the longest span with interrupts
+    /// masked and where it was opened, DIR lateness, the least step DMA slack, RX ring
+    /// overflows and shed datagrams. From any host, never taking the controller; the
+    /// simulator says "not measured" for what only a board measures.
+    Diag {
+        /// As JSON.
+        #[arg(long)]
+        json: bool,
     },
     /// Print live positions and state (Ctrl-C ends).
     Watch {
@@ -72,7 +82,8 @@ pub enum Cmd {
         /// Stop after this many seconds.
         #[arg(long, value_name = "S")]
         duration: Option<f64>,
-        /// Joint config: positions shown with the joints' names, in its units.
+        /// Joint config: positions shown with the joints' names, in its units. Without it:
+        /// the names and units the controller keeps (`config push`), if any.
         #[arg(long, value_name = "FILE")]
         config: Option<PathBuf>,
         /// Units of the positions shown with --config: steps, deg or rad (default: the

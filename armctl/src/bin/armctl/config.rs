@@ -6,6 +6,7 @@
 
 use armctl::Client;
 use armctl::motion::Units;
+use armctl::push::{Pushed, PushedArm, describe_limits, scale_unit};
 use armctl::trajectory::ArmConfig;
 use clap::Subcommand;
 use protocol::{JointLimits, LimitsReport, MAX_JOINTS, Point, Refusal, RefusalReason, Tag};
@@ -229,60 +230,25 @@ pub fn execute(arm: &Client, command: &ConfigCmd) -> CliResult {
             Ok(())
         }
         ConfigCmd::Push { file } => {
-            let joints = pushed_limits(file)?;
-            for (j, (name, limits, accel)) in joints.iter().enumerate().take(protocol::MAX_JOINTS) {
-                let j = u8::try_from(j).unwrap_or(u8::MAX);
-                arm.set_limits(j, *limits)
-                    .map_err(|e| format!("joint {j}: {}", explain_old(e, Tag::LimitsSet)))?;
-                println!("joint {j} {name}: {}", describe(limits));
-                // The acceleration (issue 31): the file's, none when the file has none; a
-                // `config get --json` of an older controller (max_accel null) sends none.
-                let Some(accel) = *accel else { continue };
-                match arm.set_accel(j, accel) {
-                    Ok(_) if accel > 0 => {
-                        println!("joint {j} {name}: at most {accel} steps/s²")
-                    }
-                    Ok(_) => {}
-                    // An older controller keeps no acceleration: say so when the file has one.
-                    Err(e) if e.status() == Some(protocol::StatusCode::UnknownTag) => {
-                        if accel > 0 {
-                            eprintln!(
-                                "warning: joint {j}: the controller keeps no acceleration (older than issue 31): max_accel_steps_s2 not enforced there"
-                            );
-                        }
-                    }
-                    Err(e) => return Err(format!("joint {j}: ACCEL_SET: {e}")),
-                }
-            }
-            // The description (issue 31): names, units, scale, so that any host reads
-            // the same arm without a file.
-            if let Some(descs) = pushed_descs(file)? {
-                for (j, desc) in descs.iter().enumerate().take(protocol::MAX_JOINTS) {
-                    let j = u8::try_from(j).unwrap_or(u8::MAX);
-                    match arm.set_joint_desc(j, *desc) {
-                        Ok(_) => {}
-                        Err(e) if e.status() == Some(protocol::StatusCode::UnknownTag) => {
-                            eprintln!(
-                                "warning: the controller keeps no names or units (older than \
-                                 issue 31): other hosts need this file (--config)"
-                            );
-                            break;
-                        }
-                        Err(e) => return Err(format!("joint {j}: JOINT_DESC_SET: {e}")),
-                    }
-                    if desc.is_described() {
-                        println!(
-                            "joint {j} {}: {} ({} steps per {}, zero at {} steps)",
-                            desc.name(),
-                            desc.unit,
-                            desc.scale(),
-                            scale_unit(desc.unit),
-                            desc.zero_offset_steps
-                        );
-                    }
-                }
-            }
-            println!("OK: {} joints' limits kept on the controller", joints.len());
+            // One reading and one sending for every tool (armctl::push; Python's
+            // Arm.push_config).
+            let pushed = PushedArm::load(file)?;
+            arm.push_arm(&pushed, |said| match said {
+                Pushed::Kept(line) => println!("{line}"),
+                Pushed::Warning(line) => eprintln!("warning: {line}"),
+            })
+            .map_err(|e| match e.command {
+                Tag::LimitsSet => format!(
+                    "joint {}: {}",
+                    e.joint,
+                    explain_old(e.error, Tag::LimitsSet)
+                ),
+                _ => e.to_string(),
+            })?;
+            println!(
+                "OK: {} joints' limits kept on the controller",
+                pushed.joints.len()
+            );
             Ok(())
         }
         ConfigCmd::Set {
@@ -315,89 +281,11 @@ pub fn execute(arm: &Client, command: &ConfigCmd) -> CliResult {
             println!(
                 "OK (state {}): joint {joint} {}",
                 ack.state.name(),
-                describe(&new)
+                describe_limits(&new)
             );
             Ok(())
         }
     }
-}
-
-/// What `config get --json` prints, as `config push` reads it back: the joints' limits
-/// (the last refusal, also printed, is left alone).
-#[derive(serde::Deserialize)]
-struct KeptLimits {
-    joints: Vec<JointLimits>,
-    /// Each joint's acceleration (issue 31); absent or null from an older controller.
-    #[serde(default)]
-    max_accel: Option<Vec<u32>>,
-}
-
-/// One joint `config push` sends: its shown name, limits, and acceleration (`None`: no
-/// ACCEL_SET is sent; `Some(0)`: none kept).
-type PushedJoint = (String, JointLimits, Option<u32>);
-
-/// The limits `config push FILE` sends, joint 0 first, each with the name it is shown
-/// with: from a joint config (`min_steps`, `max_steps`, `max_step_rate_hz`), or from what
-/// `config get --json` printed (`min`, `max`, `max_rate_hz`; issue 31: it was refused,
-/// "missing field `max_step_rate_hz`").
-fn pushed_limits(file: &std::path::Path) -> Result<Vec<PushedJoint>, String> {
-    let text = std::fs::read_to_string(file).map_err(|e| format!("{}: {e}", file.display()))?;
-    let value: serde_json::Value = serde_json::from_str(&text)
-        .map_err(|e| format!("{}: cannot parse: {e}", file.display()))?;
-    let from_get = value
-        .pointer("/joints/0")
-        .is_some_and(|joint| joint.get("max_rate_hz").is_some());
-    if !from_get {
-        let config = armctl::trajectory::ArmConfig::parse(&text, &file.display().to_string())
-            .map_err(|e| e.to_string())?;
-        return Ok(config
-            .joints
-            .iter()
-            .map(|joint| {
-                (
-                    joint.name.clone().unwrap_or_else(|| "-".into()),
-                    JointLimits {
-                        min: joint.min_steps,
-                        max: joint.max_steps,
-                        max_rate_hz: joint.max_step_rate_hz,
-                    },
-                    Some(
-                        joint
-                            .max_accel_steps_s2
-                            .map_or(0, |a| a.round().clamp(1.0, f64::from(u32::MAX)) as u32),
-                    ),
-                )
-            })
-            .collect());
-    }
-    let kept: KeptLimits = serde_json::from_value(value)
-        .map_err(|e| format!("{}: cannot parse: {e}", file.display()))?;
-    if kept.joints.is_empty() || kept.joints.len() > protocol::MAX_JOINTS {
-        return Err(format!(
-            "{}: {} joints: 1 to {}",
-            file.display(),
-            kept.joints.len(),
-            protocol::MAX_JOINTS
-        ));
-    }
-    if let Some(j) = kept.joints.iter().position(|l| !l.is_valid()) {
-        return Err(format!(
-            "{}: joint {j}: min {} is above max {}",
-            file.display(),
-            kept.joints[j].min,
-            kept.joints[j].max
-        ));
-    }
-    let accel = kept.max_accel;
-    Ok(kept
-        .joints
-        .into_iter()
-        .enumerate()
-        .map(|(j, l)| {
-            let a = accel.as_ref().map(|a| a.get(j).copied().unwrap_or(0));
-            ("-".into(), l, a)
-        })
-        .collect())
 }
 
 /// Each joint's description the controller keeps (issue 31), joint 0 first; `None` from a
@@ -412,15 +300,6 @@ fn kept_descs(arm: &Client) -> Result<Option<Vec<protocol::JointDesc>>, String> 
         }
     }
     Ok(Some(descs))
-}
-
-/// What a description's scale counts steps per.
-fn scale_unit(unit: protocol::JointUnit) -> &'static str {
-    match unit {
-        protocol::JointUnit::Degrees | protocol::JointUnit::Radians => "radian",
-        protocol::JointUnit::Millimetres => "mm",
-        protocol::JointUnit::Steps => "step",
-    }
 }
 
 /// `config get --json`'s `joint_desc`: one object per joint (null from an older
@@ -464,69 +343,6 @@ fn desc_table(descs: &[protocol::JointDesc]) -> String {
     out
 }
 
-/// One joint of `config get --json`'s `joint_desc`.
-#[derive(serde::Deserialize)]
-struct KeptDesc {
-    name: String,
-    unit: String,
-    zero_offset_steps: i32,
-    scale: f64,
-}
-
-/// The descriptions `config push FILE` sends (issue 31): from a joint config (names, its
-/// units, `zero_offset_steps`, `steps_per_radian`), or `config get --json`'s `joint_desc`
-/// (`None` when it is null or absent: nothing sent).
-fn pushed_descs(file: &std::path::Path) -> Result<Option<Vec<protocol::JointDesc>>, String> {
-    let text = std::fs::read_to_string(file).map_err(|e| format!("{}: {e}", file.display()))?;
-    let value: serde_json::Value = serde_json::from_str(&text)
-        .map_err(|e| format!("{}: cannot parse: {e}", file.display()))?;
-    let from_get = value
-        .pointer("/joints/0")
-        .is_some_and(|joint| joint.get("max_rate_hz").is_some());
-    if !from_get {
-        let config = armctl::trajectory::ArmConfig::parse(&text, &file.display().to_string())
-            .map_err(|e| e.to_string())?;
-        return config
-            .joints
-            .iter()
-            .enumerate()
-            .map(|(j, joint)| {
-                armctl::described::desc_of(j, joint, config.units)
-                    .map_err(|e| format!("{}: {e}", file.display()))
-            })
-            .collect::<Result<Vec<_>, _>>()
-            .map(Some);
-    }
-    let Some(kept) = value.get("joint_desc").filter(|v| !v.is_null()) else {
-        return Ok(None);
-    };
-    let kept: Vec<KeptDesc> = serde_json::from_value(kept.clone())
-        .map_err(|e| format!("{}: joint_desc: cannot parse: {e}", file.display()))?;
-    kept.iter()
-        .enumerate()
-        .map(|(j, d)| {
-            let unit = protocol::JointUnit::from_name(&d.unit).ok_or_else(|| {
-                format!(
-                    "{}: joint {j}: unit {:?}: steps, deg, rad or mm",
-                    file.display(),
-                    d.unit
-                )
-            })?;
-            protocol::JointDesc::new(&d.name, unit, d.zero_offset_steps, d.scale)
-                .filter(protocol::JointDesc::is_valid)
-                .ok_or_else(|| {
-                    format!(
-                        "{}: joint {j}: name {:?} over {} bytes or scale not a number",
-                        file.display(),
-                        d.name,
-                        protocol::JOINT_NAME_LEN
-                    )
-                })
-        })
-        .collect::<Result<Vec<_>, _>>()
-        .map(Some)
-}
-
 /// An older controller's UNKNOWN_TAG, explained.
 fn explain_old(e: armctl::Error, tag: Tag) -> String {
     match e.status() {
@@ -538,21 +354,6 @@ fn explain_old(e: armctl::Error, tag: Tag) -> String {
         ),
         _ => e.to_string(),
     }
-}
-
-/// A joint's limits in words.
-pub fn describe(l: &JointLimits) -> String {
-    let range = match (l.min, l.max) {
-        (i32::MIN, i32::MAX) => "any position".to_string(),
-        (i32::MIN, max) => format!("up to {max} steps"),
-        (min, i32::MAX) => format!("from {min} steps"),
-        (min, max) => format!("{min}..{max} steps"),
-    };
-    let rate = match l.max_rate_hz {
-        0 => "the controller's max step rate".to_string(),
-        hz => format!("at most {hz} steps/s"),
-    };
-    format!("{range}, {rate}")
 }
 
 /// One line per joint, then the last refusal. `names`: the joints' names from a config.
@@ -567,7 +368,7 @@ pub fn limits_table(report: &LimitsReport, names: Option<&[String]>) -> String {
             Some(a) => format!(", at most {a} steps/s²"),
             None => String::new(),
         };
-        out.push_str(&format!("{j:>5}{name}  {}{accel}\n", describe(l)));
+        out.push_str(&format!("{j:>5}{name}  {}{accel}\n", describe_limits(l)));
     }
     if let Some(line) = refusal_line(report) {
         out.push_str(&format!("{line}\n"));

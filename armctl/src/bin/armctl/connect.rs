@@ -32,6 +32,8 @@ pub fn connect(cli: &Cli) -> Result<Client, String> {
         Cmd::Stop => Ok(controller),
         // `status` asks itself, look-only: it never takes the controller (issue 23).
         Cmd::Status { .. } => Ok(controller),
+        // So does `diag` (issue 34).
+        Cmd::Diag { .. } => Ok(controller),
         // The pendant shows a controller that does not answer (yet), or another host's,
         // read-only.
         Cmd::Serve(_) => Ok(controller),

@@ -38,6 +38,7 @@ macro_rules! eprintln {
 mod cli;
 mod config;
 mod connect;
+mod diag;
 mod discover;
 mod enable;
 mod frame;
@@ -151,20 +152,21 @@ fn execute(cli: Cli, command: &str) -> CliResult {
 fn execute_online(cli: &Cli, arm: &armctl::Client) -> CliResult {
     match &cli.command {
         Cmd::Status { json, config } => status::execute(arm, *json, config.as_deref()),
+        Cmd::Diag { json } => diag::execute(arm, *json),
         Cmd::Watch {
             record,
             duration,
             config,
             units,
         } => {
-            let shown = config
-                .as_deref()
-                .map(|path| {
+            let shown = match config.as_deref() {
+                Some(path) => {
                     let config = ArmConfig::load(path).map_err(|e| e.to_string())?;
                     let units = units.unwrap_or(config.units);
-                    Ok::<_, String>(watch::Shown { config, units })
-                })
-                .transpose()?;
+                    Some(watch::Shown { config, units })
+                }
+                None => watch::described(arm)?,
+            };
             watch::execute(arm, record.as_deref(), *duration, shown.as_ref())
         }
         Cmd::Run(args) => run::execute(arm, args),

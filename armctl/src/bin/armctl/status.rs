@@ -1,6 +1,7 @@
 //! `armctl status`: the controller's STATUS, as text or JSON.
 
 use armctl::Client;
+use armctl::motion::Units;
 use protocol::{MoreFlags, StatusFlags, StatusReport};
 
 use crate::CliResult;
@@ -14,6 +15,19 @@ pub fn execute(arm: &Client, json: bool, config: Option<&std::path::Path>) -> Cl
         .map_err(|e| e.to_string())?;
     let glance = arm.glance(true).map_err(|e| e.to_string())?;
     let status = glance.status;
+    // Without --config, the names and units the controller keeps (issue 31: `armctl
+    // config push`), as move and run show them; steps when it keeps none, or cannot say.
+    // The file's positions are in degrees as before; the controller's in its units.
+    let (config, units) = match config {
+        Some(config) => (Some(config), Units::Deg),
+        None => match arm.described_names(usize::from(status.joints)) {
+            Ok(Some(described)) => {
+                let units = described.units;
+                (Some(described), units)
+            }
+            _ => (None, Units::Steps),
+        },
+    };
     // What ended the last run and who sent the STOPPED (issue 31); `None` from an older
     // controller, or if the report was lost.
     let stop = arm.stop_report().ok().and_then(|(_, stop)| stop);
@@ -62,7 +76,7 @@ pub fn execute(arm: &Client, json: bool, config: Option<&std::path::Path>) -> Cl
         println!("{}", stop_line(&status, stop.as_ref()));
         println!(
             "{}",
-            positions_block(&status, glance.location.as_ref(), config.as_ref())
+            positions_block(&status, glance.location.as_ref(), config.as_ref(), units)
         );
         if glance.read_only {
             println!("(read-only: another host owns the controller, or nobody does)");
@@ -72,11 +86,12 @@ pub fn execute(arm: &Client, json: bool, config: Option<&std::path::Path>) -> Cl
 }
 
 /// One line per joint in use: its position in steps and its driver; with a joint config,
-/// its name and its position in degrees too.
+/// its name and its position in `units` too (the steps column again for steps).
 pub fn positions_block(
     s: &StatusReport,
     location: Option<&protocol::Location>,
     config: Option<&armctl::trajectory::ArmConfig>,
+    units: Units,
 ) -> String {
     let Some(location) = location else {
         return "positions        unknown (no LOCATION came: an older controller?)".into();
@@ -84,7 +99,14 @@ pub fn positions_block(
     let enabled = s.drivers_enabled();
     let joints = usize::from(s.joints).min(protocol::MAX_JOINTS);
     let mut lines = vec![match config {
-        Some(_) => "joint  name                  steps  degrees  driver".to_string(),
+        Some(_) => format!(
+            "joint  name                  steps  {:>7}  driver",
+            match units {
+                Units::Deg => "degrees",
+                Units::Rad => "radians",
+                Units::Steps => "steps",
+            }
+        ),
         None => "joint  position (steps)  driver".to_string(),
     }];
     for (j, p) in location.position.iter().enumerate().take(joints) {
@@ -96,11 +118,12 @@ pub fn positions_block(
         let line = match config.map(|c| c.joints.get(j)) {
             Some(Some(joint)) => {
                 let name = joint.name.as_deref().unwrap_or("-");
-                let degrees = (f64::from(*p) - f64::from(joint.zero_offset_steps))
-                    / joint.steps_per_radian
-                    * 180.0
-                    / std::f64::consts::PI;
-                format!("{j:>5}  {name:<16} {p:>10} {degrees:>8.1}  {driver}")
+                let value = units.from_steps(i64::from(*p), joint);
+                match units {
+                    Units::Deg => format!("{j:>5}  {name:<16} {p:>10} {value:>8.1}  {driver}"),
+                    Units::Rad => format!("{j:>5}  {name:<16} {p:>10} {value:>8.3}  {driver}"),
+                    Units::Steps => format!("{j:>5}  {name:<16} {p:>10} {p:>8}  {driver}"),
+                }
             }
             Some(None) => format!("{j:>5}  {:<16} {p:>10} {:>8}  {driver}", "-", "-"),
             None => format!("{j:>5}  {p:>16}  {driver}"),

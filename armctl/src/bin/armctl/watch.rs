@@ -24,6 +24,21 @@ pub struct Shown {
     pub units: Units,
 }
 
+/// Without --config, the names and units the controller keeps (issue 31: `armctl config
+/// push`; JOINT_DESC_GET, which any host may ask); `None` (steps) when it keeps none or
+/// cannot say, as `status` shows them.
+pub fn described(arm: &Client) -> Result<Option<Shown>, String> {
+    let status = arm.status().map_err(|e| e.to_string())?;
+    let described = arm
+        .described_names(usize::from(status.joints))
+        .ok()
+        .flatten();
+    Ok(described.map(|config| Shown {
+        units: config.units,
+        config,
+    }))
+}
+
 fn location_line(location: &Location, joints: usize, shown: Option<&Shown>) -> String {
     let mut line = format!("{:<8}", record::state_name(location.state));
     for (j, p) in location.position.iter().take(joints).enumerate() {

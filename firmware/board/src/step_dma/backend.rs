@@ -170,12 +170,34 @@ impl StepBackend for BoardSteps {
         }
         let mut origin = None;
         let loaded = self.prelude.iter().enumerate().all(|(joint, prelude)| {
-            unless_killed(|| {
+            let mut configured = true;
+            let unkilled = unless_killed(|| {
                 // A fresh timer for every run (issue 20): nothing left from the last one.
                 reset_joint_timer(joint);
-                configure_joint_timer(joint);
-                load_joint(joint, prelude);
-            })
+                match configure_joint_timer(joint) {
+                    // The switch from forced-inactive to PWM (load_joint) relies on the
+                    // first period having no pulse: one there would rise at the switch,
+                    // before the timers start together (issue 34; arm-step's streams test
+                    // the_first_prelude_period_has_no_pulse shows the producer never
+                    // makes one). Checked, not assumed: the run is refused.
+                    Ok(()) if prelude[0].high != 0 => {
+                        defmt::error!(
+                            "joint {} prelude starts with a pulse ({} ticks): run not started",
+                            joint,
+                            prelude[0].high
+                        );
+                        configured = false;
+                    }
+                    Ok(()) => load_joint(joint, prelude),
+                    // Fails loudly (issue 34): no run on a timer that did not take its
+                    // output enable or break; stopped as for a kill during the start.
+                    Err(e) => {
+                        defmt::error!("step timer not configured, run not started: {}", e);
+                        configured = false;
+                    }
+                }
+            });
+            unkilled && configured
         });
         if loaded {
             unless_killed(|| {
@@ -192,8 +214,9 @@ impl StepBackend for BoardSteps {
             });
         }
         let Some(origin) = origin else {
-            // The e-stop input opened during the start: its interrupt forced every output
-            // off; no counter ran, so nothing played.
+            // The e-stop input opened during the start (its interrupt forced every output
+            // off), or a timer did not take its configuration: no counter ran, so nothing
+            // played.
             self.stop();
             return;
         };

@@ -33,6 +33,9 @@ fn refill(joint: usize) {
     let half = usize::from(full_played);
     let in_half = next / HALF;
     let underrun = flags.teif(n) || (half_played && full_played) || in_half == half;
+    if half_played || full_played {
+        super::registers::sample_slack(joint, next);
+    }
     STEP.on_interrupt(&crate::BUS.step_progress, |steps| {
         if !half_played && !full_played {
             return ((), StepProgress::default());

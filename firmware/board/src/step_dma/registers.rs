@@ -122,6 +122,10 @@ pub(super) fn joint_timer(joint: usize) -> JointTimer {
 /// Puts joint `joint`'s timer through its RCC reset: every register back to its reset
 /// value, including state no register shows (a DMA burst cut in the middle, the prescaler
 /// and repetition counters), before [`configure_joint_timer`] and a run's prelude.
+///
+/// The release is read back (issue 34): the RCC write may still be on its way through the
+/// bus bridges when the timer writes that follow land, and a timer still in reset ignores
+/// them (CCER and BDTR are written only in [`configure_joint_timer`], which checks them).
 pub(super) fn reset_joint_timer(joint: usize) {
     let rcc = pac::RCC;
     let pulse = |on: bool| match joint {
@@ -134,34 +138,85 @@ pub(super) fn reset_joint_timer(joint: usize) {
         6 => rcc.apb2rstr().modify(|w| w.set_tim16rst(on)),
         _ => rcc.apb2rstr().modify(|w| w.set_tim17rst(on)),
     };
+    let in_reset = || match joint {
+        0 => rcc.apb1lrstr().read().tim2rst(),
+        1 => rcc.apb1lrstr().read().tim5rst(),
+        2 => rcc.apb1lrstr().read().tim3rst(),
+        3 => rcc.apb1lrstr().read().tim4rst(),
+        4 => rcc.apb2rstr().read().tim1rst(),
+        5 => rcc.apb2rstr().read().tim8rst(),
+        6 => rcc.apb2rstr().read().tim16rst(),
+        _ => rcc.apb2rstr().read().tim17rst(),
+    };
     pulse(true);
     pulse(false);
+    // The read-back: the release has reached the RCC. Bounded (a register that never
+    // reads back is caught by configure_joint_timer's check).
+    for _ in 0..RESET_READBACKS {
+        if !in_reset() {
+            break;
+        }
+    }
+}
+
+/// Reads of the RCC reset register after the release before [`reset_joint_timer`] gives
+/// up: the first read normally returns it released (the read itself waits for the write
+/// ahead of it on the same bus); the bound only keeps a broken chip from hanging the step
+/// lock.
+const RESET_READBACKS: u32 = 8;
+
+/// A joint timer that did not take its configuration: its output enable (CCER) or, on
+/// the timers with a break input, its main output and break (BDTR) read back otherwise
+/// than written (a timer still in reset, or unclocked). The run does not start.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, defmt::Format)]
+pub struct TimerNotConfigured {
+    /// The joint.
+    pub joint: usize,
+    /// CCER as read back.
+    pub ccer: u32,
+    /// BDTR as read back (0 on the timers without one).
+    pub bdtr: u32,
 }
 
 /// Joint `joint`'s timer at rest: counter stopped, no prescaler, STEP output forced
 /// inactive (low) and enabled; on the timers with a break input, the main output on,
-/// the lockup break armed, and the idle state low.
-pub(super) fn configure_joint_timer(joint: usize) {
+/// the lockup break armed, and the idle state low. CCER and BDTR are read back (issue
+/// 34): a timer that did not take them would not pulse, or would not break on a lockup.
+pub(super) fn configure_joint_timer(joint: usize) -> Result<(), TimerNotConfigured> {
     let timer = joint_timer(joint);
     timer.write(reg::CR1, reg::CR1_URS | reg::CR1_ARPE);
     timer.write(reg::CR2, 0);
     timer.write(reg::PSC, 0);
     timer.write(reg::CCMR1, reg::CCMR1_FORCE_INACTIVE);
-    timer.write(
-        reg::CCER,
-        if timer.complementary {
-            reg::CCER_CC1NE
-        } else {
-            reg::CCER_CC1E
-        },
-    );
-    if timer.has_moe {
+    let ccer = if timer.complementary {
+        reg::CCER_CC1NE
+    } else {
+        reg::CCER_CC1E
+    };
+    timer.write(reg::CCER, ccer);
+    let bdtr = if timer.has_moe {
         timer.write(reg::AF1, timer.read(reg::AF1) & !reg::AF1_BKINE);
-        timer.write(
-            reg::BDTR,
-            reg::BDTR_MOE | reg::BDTR_BKE | reg::BDTR_BKP | reg::BDTR_OSSI,
-        );
+        let bdtr = reg::BDTR_MOE | reg::BDTR_BKE | reg::BDTR_BKP | reg::BDTR_OSSI;
+        timer.write(reg::BDTR, bdtr);
+        bdtr
+    } else {
+        0
+    };
+    let read_ccer = timer.read(reg::CCER);
+    let read_bdtr = if timer.has_moe {
+        timer.read(reg::BDTR)
+    } else {
+        0
+    };
+    // BDTR's low bits (dead time, lock) are not written here: compare the bits set.
+    if read_ccer != ccer || read_bdtr & bdtr != bdtr {
+        return Err(TimerNotConfigured {
+            joint,
+            ccer: read_ccer,
+            bdtr: read_bdtr,
+        });
     }
+    Ok(())
 }
 
 /// Whether joint `joint`'s timer has had a break (its main output cleared by hardware).
@@ -280,6 +335,25 @@ pub(super) fn load_joint(joint: usize, prelude: &[PulsePeriod; PRELUDE]) {
 }
 
 const _: () = assert!(BUFFER_WORDS <= u16::MAX as usize);
+
+/// The DIAG report's DMA slack (issue 34, `crate::diag`): joint `joint`'s timer counter
+/// against the reload of the period it plays (arm-core's `DmaSlack::playing` of `next`,
+/// the period the stream's next burst reads), before the refill overwrites it.
+#[allow(
+    clippy::indexing_slicing,
+    reason = "playing() < 2 * HALF and joint < MAX_JOINTS (the refill's)"
+)]
+pub(super) fn sample_slack(joint: usize, next: usize) {
+    let playing = arm_core::diag::DmaSlack::playing(next, 2 * HALF);
+    let counter = joint_timer(joint).read(reg::CNT);
+    // SAFETY: a volatile read of one period the stream played; the refills (this
+    // interrupt's level) are the only writers and this one writes after.
+    let reload = unsafe {
+        addr_of!((*BUFFERS.0.get())[joint].periods[playing / HALF][playing % HALF].reload)
+            .read_volatile()
+    };
+    crate::diag::refill_looked(reload, counter);
+}
 
 /// Counter of each joint timer (for debugging with a probe).
 #[allow(dead_code)]

@@ -33,7 +33,7 @@ pub(super) fn handle_overtaken<const CAP: usize, C: Clock>(
         if let Some(Deferred::SaveSettings(settings)) = response.deferred {
             save = Some(settings);
         }
-        let next_stamp = bus.inbox.try_peek().ok().map(|queued| queued.stops_before);
+        let next_stamp = bus.inbox.peek_with(|queued| queued.stops_before);
         // An executed STOPPED arrived between this datagram and the next: apply it now.
         if stops.executed_between(datagram.stops_before, next_stamp) {
             let location = controller.stop_after_overtaken(plant);

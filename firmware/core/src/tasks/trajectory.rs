@@ -406,6 +406,13 @@ pub(super) fn deliver(bus: &Bus, response: &Response) {
             report: AnswerReport::RxCounters(bus.rx_counters()),
         }));
     }
+    if let Some(to) = response.asked_diag {
+        bus.send(Outgoing::Answer(Answer {
+            to,
+            seq: response.answer_seq,
+            report: AnswerReport::Diag(bus.diag()),
+        }));
+    }
     if let Some(location) = response.location {
         bus.send(Outgoing::Location(location));
     }
