@@ -212,13 +212,16 @@ class Arm:
         segment_ms: float = 10.0,
         window: Optional[int] = None,
         units: Optional[_Units] = None,
+        speed: Optional[int] = None,
     ) -> RunReport:
         """Runs through waypoints: `times` (N,) seconds, strictly increasing; `positions`
         (N, J) in `units`: default the joint `config` file's `units` when it states them,
         else radians with a config (a JointTrajectory's) and steps without; "deg" and
         "rad" need a config. With a config, joints the arrays leave out hold, and a
         refusal names the joint as the config does and gives positions in `units` too.
-        Returns the report (wait) or a RunHandle (wait=False)."""
+        Returns the report (wait) or a RunHandle (wait=False). `speed`: run at this
+        percent of the planned speed, 1..200 (OVERRIDE, issue 32; it stays for later runs
+        until changed)."""
     @overload
     def run(
         self,
@@ -230,6 +233,7 @@ class Arm:
         segment_ms: float = 10.0,
         window: Optional[int] = None,
         units: Optional[_Units] = None,
+        speed: Optional[int] = None,
     ) -> RunHandle: ...
     @overload
     def run(
@@ -241,6 +245,7 @@ class Arm:
         segment_ms: float = 10.0,
         window: Optional[int] = None,
         units: Optional[_Units] = None,
+        speed: Optional[int] = None,
     ) -> Union[RunReport, RunHandle]: ...
     @overload
     def run_file(
@@ -251,6 +256,7 @@ class Arm:
         segment_ms: float = 10.0,
         window: Optional[int] = None,
         units: Optional[_Units] = None,
+        speed: Optional[int] = None,
     ) -> RunReport:
         """Runs a JointTrajectory JSON (radians, with `config`) or CSV file (in `units`,
         default the config's `units`, else steps; joints the CSV leaves out hold). Every
@@ -265,6 +271,7 @@ class Arm:
         segment_ms: float = 10.0,
         window: Optional[int] = None,
         units: Optional[_Units] = None,
+        speed: Optional[int] = None,
     ) -> RunHandle: ...
     @overload
     def run_file(
@@ -275,6 +282,7 @@ class Arm:
         segment_ms: float = 10.0,
         window: Optional[int] = None,
         units: Optional[_Units] = None,
+        speed: Optional[int] = None,
     ) -> Union[RunReport, RunHandle]: ...
     @overload
     def move_to(
@@ -324,6 +332,15 @@ class Arm:
         config's), joints by name, as `armctl home --config`."""
     def stop(self) -> None:
         """STOPPED: every joint stops at once, the trajectory is dropped."""
+    def hold(self) -> None:
+        """HOLD (issue 32): the run decelerates along its path to a standstill and waits
+        (from any host); `resume()` goes on, `stop()` still stops at once."""
+    def resume(self) -> None:
+        """RESUME (issue 32): after a hold, back to the speed override and on."""
+    def override(self, percent: int) -> None:
+        """OVERRIDE (issue 32): run at `percent` of the planned speed (1..200), ramped in
+        for the run under way and kept for later runs; above 100 % only where every
+        joint's rate and acceleration allow (else RefusedError OVERRIDE_REFUSED)."""
     def go_home(self, wait: bool = True, timeout: float = 600.0) -> None:
         """RETURN: every joint to zero; with `wait`, until the move ended (at most
         `timeout` s). Ctrl-C or an error while waiting sends STOPPED (resent until ACKed),

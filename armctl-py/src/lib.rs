@@ -130,10 +130,12 @@ impl Arm {
         joints: usize,
         wait: bool,
         window: usize,
+        speed: Option<u8>,
     ) -> PyResult<Py<PyAny>> {
         let arm = self.controller()?;
         let options = RunOptions {
             window,
+            speed_percent: speed,
             ..RunOptions::default()
         };
         let handle = RunHandle::start(arm.clone(), points, options, joints)?;
@@ -189,7 +191,7 @@ impl Arm {
             true => errors::trajectory_err_in(e, &config, run.units),
             false => trajectory_err(e),
         })?;
-        self.start_run(py, points, arm_joints, wait, window)
+        self.start_run(py, points, arm_joints, wait, window, run.speed)
     }
 
     /// What `move_to` and `jog` share: targets (joint, value in `units`) from the arm's
@@ -251,7 +253,8 @@ impl Arm {
             return Ok(None);
         }
         let window = armctl::window_of(&status);
-        self.start_run(py, points, joints, wait, window).map(Some)
+        self.start_run(py, points, joints, wait, window, None)
+            .map(Some)
     }
 
     /// STATUS and a fresh LOCATION: what converting a trajectory needs.
@@ -302,6 +305,18 @@ fn wait_return(py: Python<'_>, arm: &Arc<Client>, deadline: std::time::Instant) 
 }
 
 /// A trajectory `run` or `run_file` has read, before it meets the arm.
+/// A speed override percent as the controller takes it (1..200).
+fn check_speed(speed: Option<u8>) -> PyResult<Option<u8>> {
+    match speed {
+        Some(p)
+            if !(protocol::OVERRIDE_MIN_PERCENT..=protocol::OVERRIDE_MAX_PERCENT).contains(&p) =>
+        {
+            Err(PyValueError::new_err(format!("speed {p} %: 1 to 200")))
+        }
+        other => Ok(other),
+    }
+}
+
 struct WaypointRun {
     waypoints: Waypoints,
     /// The joint config, if one was given (else every joint at the arm's step rate).
@@ -311,6 +326,8 @@ struct WaypointRun {
     /// The file they were read from (`run_file`), for errors; `None` for numpy arrays.
     file: Option<PathBuf>,
     segment_ms: f64,
+    /// The speed override to run at, percent (issue 32); `None`: none sent.
+    speed: Option<u8>,
 }
 
 #[pymethods]
@@ -422,8 +439,9 @@ impl Arm {
     /// it states them, else radians with a config and steps without. The arm moves
     /// from where it is to the first waypoint (at t=0 it must be there already), and
     /// through the rest resampled into `segment_ms` points. `wait=False` returns a
-    /// RunHandle at once.
-    #[pyo3(signature = (times, positions, config=None, wait=true, segment_ms=10.0, window=None, units=None))]
+    /// RunHandle at once. `speed`: run at this percent of the planned speed (1..200,
+    /// OVERRIDE, issue 32; it stays for later runs until changed).
+    #[pyo3(signature = (times, positions, config=None, wait=true, segment_ms=10.0, window=None, units=None, speed=None))]
     #[allow(clippy::too_many_arguments)]
     fn run(
         &self,
@@ -435,7 +453,9 @@ impl Arm {
         segment_ms: f64,
         window: Option<usize>,
         units: Option<String>,
+        speed: Option<u8>,
     ) -> PyResult<Py<PyAny>> {
+        let speed = check_speed(speed)?;
         let units = parse_units(units)?;
         let numpy = py.import("numpy")?;
         let times = numpy.call_method1("ascontiguousarray", (times, "float64"))?;
@@ -517,13 +537,14 @@ impl Arm {
             units,
             file: None,
             segment_ms,
+            speed,
         };
         self.run_waypoints(py, run, wait, window)
     }
 
     /// Runs a trajectory file as `armctl run` does: JointTrajectory JSON (radians, needs
     /// `config`) or CSV (`time_s, steps...`).
-    #[pyo3(signature = (path, config=None, wait=true, segment_ms=10.0, window=None, units=None))]
+    #[pyo3(signature = (path, config=None, wait=true, segment_ms=10.0, window=None, units=None, speed=None))]
     #[allow(clippy::too_many_arguments)]
     fn run_file(
         &self,
@@ -534,7 +555,9 @@ impl Arm {
         segment_ms: f64,
         window: Option<usize>,
         units: Option<String>,
+        speed: Option<u8>,
     ) -> PyResult<Py<PyAny>> {
+        let speed = check_speed(speed)?;
         let units = parse_units(units)?;
         let (waypoints, config) =
             trajectory::load_files_in(&path, config.as_deref(), units).map_err(trajectory_err)?;
@@ -554,6 +577,7 @@ impl Arm {
             units,
             file: Some(path),
             segment_ms,
+            speed,
         };
         self.run_waypoints(py, run, wait, window)
     }
@@ -659,6 +683,27 @@ impl Arm {
     /// STOPPED: stops every joint at once and drops the trajectory (obeyed from anyone).
     fn stop(&self, py: Python<'_>) -> PyResult<()> {
         self.call(py, |arm| arm.stop()).map(|_| ())
+    }
+
+    /// HOLD (issue 32): the run decelerates along its path to a standstill and waits
+    /// (obeyed from any host). `resume()` goes on; `stop()` still stops at once.
+    fn hold(&self, py: Python<'_>) -> PyResult<()> {
+        self.call(py, |arm| arm.hold()).map(|_| ())
+    }
+
+    /// RESUME (issue 32): after a hold, back to the speed override and on.
+    fn resume(&self, py: Python<'_>) -> PyResult<()> {
+        self.call(py, |arm| arm.resume()).map(|_| ())
+    }
+
+    /// OVERRIDE (issue 32): run at `percent` of the planned speed (1..200), ramped in for
+    /// the run under way and kept for the runs to come. Above 100 % only where every
+    /// joint's rate and acceleration allow (else a RefusedError OVERRIDE_REFUSED).
+    #[pyo3(name = "override")]
+    fn set_override(&self, py: Python<'_>, percent: u8) -> PyResult<()> {
+        let percent = check_speed(Some(percent))?.unwrap_or(100);
+        self.call(py, move |arm| arm.set_override(percent))
+            .map(|_| ())
     }
 
     /// RETURN: drives every joint to zero; with `wait`, until the move ended (at most

@@ -167,6 +167,47 @@ pub fn doc_frames() -> Vec<DocFrame> {
         ),
         command("ESTOP_RESET, seq 0x19", 0x19, Command::EstopReset),
         command("UNLOCK, seq 0x21", 0x21, Command::Unlock),
+        command("HOLD, seq 0x30", 0x30, Command::Hold),
+        command("RESUME, seq 0x31", 0x31, Command::Resume),
+        command(
+            "OVERRIDE, seq 0x32, 50 %",
+            0x32,
+            Command::Override { percent: 50 },
+        ),
+        command(
+            "STATUS, seq 0x33, with the MOTION report (request byte 0x10)",
+            0x33,
+            Command::StatusWith(protocol::StatusAsk {
+                motion: true,
+                ..protocol::StatusAsk::default()
+            }),
+        ),
+        report(
+            "MOTION report, seq 0x34: override 50 %, held and at rest (rate 0), the last controlled stop a HOLD, no override refused",
+            0x34,
+            Report::Motion(protocol::MotionReport {
+                factor_percent: 50,
+                flags: protocol::MotionFlags(
+                    protocol::MotionFlags::HELD | protocol::MotionFlags::AT_REST,
+                ),
+                rate_permille: 0,
+                last_stop: Some(protocol::ControlledStop::Hold),
+                refused_joint: 0xFF,
+                refused_limit: None,
+            }),
+        ),
+        report(
+            "ACK refusing an OVERRIDE with seq 0x35: OVERRIDE_REFUSED, state RUNNING",
+            0x35,
+            Report::Ack(Ack {
+                acked_tag: 0x29,
+                status: StatusCode::OverrideRefused,
+                state: State::Running,
+                next_seq: 0x0c,
+                buffered: 200,
+                free: 8_000,
+            }),
+        ),
         command(
             "SET_ENABLE, seq 0x1b, disable joints 0 and 1 (mask 0x0003)",
             0x1b,
@@ -184,6 +225,7 @@ pub fn doc_frames() -> Vec<DocFrame> {
                 stop_cause: false,
                 counters: false,
                 diag: false,
+                motion: false,
             }),
         ),
         command("RELEASE, seq 0x1e", 0x1e, Command::Release),
@@ -235,6 +277,7 @@ pub fn doc_frames() -> Vec<DocFrame> {
                 location: false,
                 look_only: false,
                 stop_cause: true,
+                motion: false,
                 counters: false,
                 diag: false,
             }),
@@ -245,6 +288,7 @@ pub fn doc_frames() -> Vec<DocFrame> {
             Command::StatusWith(protocol::StatusAsk {
                 location: false,
                 look_only: false,
+                motion: false,
                 stop_cause: false,
                 counters: true,
                 diag: false,
@@ -255,6 +299,7 @@ pub fn doc_frames() -> Vec<DocFrame> {
             0x26,
             Command::StatusWith(protocol::StatusAsk {
                 location: false,
+                motion: false,
                 look_only: false,
                 stop_cause: true,
                 counters: true,
@@ -364,6 +409,7 @@ pub fn doc_frames() -> Vec<DocFrame> {
                 look_only: true,
                 stop_cause: false,
                 counters: true,
+                motion: false,
                 diag: true,
             }),
         ),

@@ -176,6 +176,16 @@ wire_code! {
         /// The board's own timing counters, asked for by STATUS's request byte bit 6
         /// (controller to host; issue 34).
         Diag = 0x32 => "DIAG",
+        /// Decelerate the run along its path to a standstill and wait (issue 32; any
+        /// host, as STOPPED).
+        Hold = 0x27 => "HOLD",
+        /// Go on after a HOLD: accelerate back to the override (issue 32; the owner).
+        Resume = 0x28 => "RESUME",
+        /// Set the speed override, percent 1..200 (issue 32; the owner).
+        Override = 0x29 => "OVERRIDE",
+        /// The override, hold and ramp state (controller to host; asked for with
+        /// STATUS's request byte bit 4; issue 32).
+        Motion = 0x2a => "MOTION",
         /// An authenticated envelope around a whole frame, both directions
         /// (docs/PROTOCOL.md section 13, [`crate::auth`]).
         Auth = 0x50 => "AUTH",
@@ -248,6 +258,9 @@ wire_code! {
         /// sends UNLOCK; after it, points moving a joint further into a limit switch still
         /// active are refused with this code too.
         LimitLatched = 16 => "LIMIT_LATCHED",
+        /// OVERRIDE above 100 % where a joint's step rate or acceleration does not allow
+        /// it (the MOTION report names the joint and the limit; issue 32).
+        OverrideRefused = 17 => "OVERRIDE_REFUSED",
     }
 }
 
@@ -304,6 +317,9 @@ impl StatusCode {
             }
             LimitLatched => {
                 "a limit switch tripped: `armctl unlock`, then move that joint away from the switch (motion further in is refused while it is active)"
+            }
+            OverrideRefused => {
+                "the run is too fast for that override: a joint's step rate or acceleration would go over its limit (STATUS's MOTION report names the joint); ask 100 % or less"
             }
             SaveFailed => {
                 "the controller could not save its settings to flash: nothing changed; retry, and if it keeps failing the flash needs looking at (see the board's log)"

@@ -109,6 +109,15 @@ pub enum Command<'a> {
     /// STATUS with its request byte (issue 23): what else to answer, and whether a host
     /// that does not own the controller wants only to look.
     StatusWith(StatusAsk),
+    /// Decelerate along the path to a standstill and wait (issue 32).
+    Hold,
+    /// Accelerate back after a HOLD (issue 32).
+    Resume,
+    /// Set the speed override (issue 32).
+    Override {
+        /// Percent, 1..200.
+        percent: u8,
+    },
     /// Enable (`enable`) or disable the masked drivers, leaving the others as they are
     /// (issue 23: an explicit form beside TOGGLE_ENABLE_PINS).
     SetEnable {
@@ -144,6 +153,9 @@ pub struct StatusAsk {
     /// Bit 6: a DIAG report (the board's own timing counters) to the asker too, after
     /// every other report this byte asks for (issue 34; bits 4-5 are other issues').
     pub diag: bool,
+    /// Bit 4: a MOTION report (override, hold, ramp; issue 32) to the asker too, after
+    /// the RX_COUNTERS and before the DIAG.
+    pub motion: bool,
 }
 
 impl StatusAsk {
@@ -157,6 +169,8 @@ impl StatusAsk {
     pub const COUNTERS: u8 = 1 << 3;
     /// Bit 6.
     pub const DIAG: u8 = 1 << 6;
+    /// Bit 4.
+    pub const MOTION: u8 = 1 << 4;
 
     /// The byte on the wire.
     pub const fn byte(self) -> u8 {
@@ -165,12 +179,17 @@ impl StatusAsk {
             | (if self.stop_cause { Self::STOP_CAUSE } else { 0 })
             | (if self.counters { Self::COUNTERS } else { 0 })
             | (if self.diag { Self::DIAG } else { 0 })
+            | (if self.motion { Self::MOTION } else { 0 })
     }
 
     /// The request of a byte, `None` with other bits set.
     pub const fn from_byte(b: u8) -> Option<StatusAsk> {
-        let known =
-            Self::LOCATION | Self::LOOK_ONLY | Self::STOP_CAUSE | Self::COUNTERS | Self::DIAG;
+        let known = Self::LOCATION
+            | Self::LOOK_ONLY
+            | Self::STOP_CAUSE
+            | Self::COUNTERS
+            | Self::MOTION
+            | Self::DIAG;
         if b & !known != 0 {
             return None;
         }
@@ -180,6 +199,7 @@ impl StatusAsk {
             stop_cause: b & Self::STOP_CAUSE != 0,
             counters: b & Self::COUNTERS != 0,
             diag: b & Self::DIAG != 0,
+            motion: b & Self::MOTION != 0,
         })
     }
 }
@@ -217,6 +237,9 @@ impl<'a> Command<'a> {
             Command::SetEnable { .. } => Tag::SetEnable,
             Command::Release => Tag::Release,
             Command::Unlock => Tag::Unlock,
+            Command::Hold => Tag::Hold,
+            Command::Resume => Tag::Resume,
+            Command::Override { .. } => Tag::Override,
             Command::LimitsSet(_) => Tag::LimitsSet,
             Command::LimitsGet | Command::LimitsGetWithAccel => Tag::LimitsGet,
             Command::AccelSet { .. } => Tag::AccelSet,
@@ -248,6 +271,7 @@ impl<'a> Command<'a> {
             Command::AccelSet { .. } => size::ACCEL_SET,
             Command::JointDescSet(_) => size::JOINT_DESC_SET,
             Command::JointDescGet { .. } => size::JOINT_DESC_GET,
+            Command::Override { .. } => size::OVERRIDE,
             _ => 0,
         }
     }
@@ -314,6 +338,7 @@ impl<'a> Command<'a> {
             }
             Command::JointDescSet(set) => set.write(w, 0),
             Command::JointDescGet { joint } => w.u8(0, *joint),
+            Command::Override { percent } => w.u8(0, *percent),
             _ => {}
         })
     }
@@ -494,6 +519,7 @@ impl<'a> Command<'a> {
             | Tag::StopCause
             | Tag::RxCounters
             | Tag::Diag
+            | Tag::Motion
             | Tag::JointDesc => {
                 return Err(err(DecodeErrorKind::WrongDirection));
             }
@@ -526,6 +552,14 @@ impl<'a> Command<'a> {
                     None => return Err(out_of_range(Field::JointDesc)),
                 }
             }
+            Tag::Override => {
+                exactly(size::OVERRIDE)?;
+                let percent = u8_at(data, 0);
+                if !(crate::OVERRIDE_MIN_PERCENT..=crate::OVERRIDE_MAX_PERCENT).contains(&percent) {
+                    return Err(out_of_range(Field::Override));
+                }
+                Command::Override { percent }
+            }
             Tag::JointDescGet => {
                 exactly(size::JOINT_DESC_GET)?;
                 let joint = u8_at(data, 0);
@@ -557,6 +591,8 @@ impl<'a> Command<'a> {
             | Tag::EstopReset
             | Tag::Release
             | Tag::Unlock
+            | Tag::Hold
+            | Tag::Resume
             | Tag::LimitsGet => {
                 exactly(0)?;
                 match tag {
@@ -574,6 +610,8 @@ impl<'a> Command<'a> {
                     Tag::EstopReset => Command::EstopReset,
                     Tag::Release => Command::Release,
                     Tag::Unlock => Command::Unlock,
+                    Tag::Hold => Command::Hold,
+                    Tag::Resume => Command::Resume,
                     Tag::LimitsGet => Command::LimitsGet,
                     _ => Command::Status,
                 }

@@ -100,7 +100,7 @@ pub enum Field {
     Owner,
     /// SET_ENABLE's action (0 disable, 1 enable).
     EnableAction,
-    /// STATUS's request byte (bits 0 and 1 only).
+    /// STATUS's request byte (bits 0-4 only).
     StatusAsk,
     /// LIMITS_SET's joint (0-7) or range (min above max); ACCEL_SET's joint.
     JointLimits,
@@ -108,6 +108,8 @@ pub enum Field {
     LimitsAsk,
     /// JOINT_DESC_SET's or JOINT_DESC_GET's joint (0-7), unit, name or scale.
     JointDesc,
+    /// OVERRIDE's percent (1..200).
+    Override,
 }
 
 impl DecodeError {
@@ -156,7 +158,8 @@ impl fmt::Display for Field {
                 "network settings must be DHCP, or a unicast address with a prefix of 1..32 and a gateway inside its subnet",
             ),
             Field::Owner => f.write_str("unknown owner state"),
-            Field::StatusAsk => f.write_str("STATUS request byte may only use bits 0-3 and 6"),
+            Field::StatusAsk => f.write_str("STATUS request byte may only use bits 0-4 and 6"),
+            Field::Override => f.write_str("OVERRIDE percent must be 1..200"),
             Field::JointLimits => {
                 f.write_str("LIMITS_SET needs a joint of 0-7 and min not above max")
             }

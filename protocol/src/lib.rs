@@ -26,6 +26,7 @@ mod frame;
 mod joint_desc;
 mod joint_limits;
 pub mod limits;
+mod motion;
 mod net;
 mod report;
 mod rx_counters;
@@ -40,6 +41,10 @@ pub use frame::{Frame, PointList, PointsIter, crc8};
 pub use joint_desc::{JointDesc, JointDescSet, JointUnit, NAME_LEN as JOINT_NAME_LEN};
 pub use joint_limits::{JointLimits, LimitsReport, LimitsSet, Refusal, RefusalReason};
 pub use limits::DEFAULT_WINDOW;
+pub use motion::{
+    ControlledStop, MotionFlags, MotionReport, OVERRIDE_MAX_PERCENT, OVERRIDE_MIN_PERCENT,
+    OverrideLimit,
+};
 pub use net::{DiscoverReply, NetSettings, OwnerState};
 pub use report::Report;
 pub use rx_counters::RxCounters;
@@ -114,6 +119,11 @@ pub mod size {
     pub const RX_COUNTERS: usize = 24;
     /// DIAG data: nine 32-bit counters and clocks (issue 34).
     pub const DIAG: usize = 36;
+    /// OVERRIDE data: the percent (1..200).
+    pub const OVERRIDE: usize = 1;
+    /// MOTION report data: factor, flags, rate (u16), last controlled stop, refused joint
+    /// and limit, 1 reserved.
+    pub const MOTION: usize = 8;
     /// HELLO data: the host's nonce.
     pub const HELLO: usize = crate::auth::NONCE_LEN;
 }

@@ -8,6 +8,7 @@ use crate::error::{DecodeError, DecodeErrorKind, EncodeError, ExpectedLen, Field
 use crate::frame::{Frame, open, seal};
 use crate::joint_desc::JointDescSet;
 use crate::joint_limits::LimitsReport;
+use crate::motion::MotionReport;
 use crate::rx_counters::RxCounters;
 use crate::stop_cause::StopReport;
 use crate::types::{Ack, Location, StatusReport};
@@ -34,6 +35,8 @@ pub enum Report<'a> {
     RxCounters(RxCounters),
     /// The board's own timing counters (STATUS's request byte bit 6, issue 34).
     Diag(Diag),
+    /// Override, hold and ramp (STATUS's request byte bit 4; issue 32).
+    Motion(MotionReport),
     /// One joint's description, the answer to JOINT_DESC_GET (issue 31); the same data
     /// as JOINT_DESC_SET.
     JointDesc(JointDescSet),
@@ -51,6 +54,7 @@ impl<'a> Report<'a> {
             Report::StopCause(_) => Tag::StopCause,
             Report::RxCounters(_) => Tag::RxCounters,
             Report::Diag(_) => Tag::Diag,
+            Report::Motion(_) => Tag::Motion,
             Report::JointDesc(_) => Tag::JointDesc,
         }
     }
@@ -66,6 +70,7 @@ impl<'a> Report<'a> {
             Report::StopCause(_) => size::STOP_CAUSE,
             Report::RxCounters(_) => size::RX_COUNTERS,
             Report::Diag(_) => size::DIAG,
+            Report::Motion(_) => size::MOTION,
             Report::JointDesc(_) => size::JOINT_DESC_SET,
         }
     }
@@ -95,6 +100,7 @@ impl<'a> Report<'a> {
             Report::StopCause(stop) => stop.write(w, 0),
             Report::RxCounters(counters) => counters.write(w, 0),
             Report::Diag(diag) => diag.write(w, 0),
+            Report::Motion(motion) => motion.write(w, 0),
             Report::JointDesc(set) => set.write(w, 0),
         })
     }
@@ -180,6 +186,10 @@ impl<'a> Report<'a> {
             Some(Tag::Diag) => {
                 exactly(size::DIAG)?;
                 Report::Diag(Diag::read(data))
+            }
+            Some(Tag::Motion) => {
+                exactly(size::MOTION)?;
+                Report::Motion(MotionReport::read(data))
             }
             Some(Tag::JointDesc) => {
                 exactly(size::JOINT_DESC_SET)?;

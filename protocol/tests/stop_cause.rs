@@ -74,7 +74,10 @@ fn status_request_bit_2_asks_for_the_stop_cause() {
     assert_eq!(StatusAsk::from_byte(0x07).map(|a| a.byte()), Some(0x07));
     // Bit 3 asks for issue 30's RX_COUNTERS (this asserted 0x08 refused before the merge).
     assert_eq!(StatusAsk::from_byte(0x08).map(|a| a.counters), Some(true));
-    assert_eq!(StatusAsk::from_byte(0x10), None, "bit 4 is not defined");
+    // Bit 4 asks for issue 32's MOTION (this asserted 0x10 refused before it); bit 7
+    // stays undefined.
+    assert_eq!(StatusAsk::from_byte(0x10).map(|a| a.motion), Some(true));
+    assert_eq!(StatusAsk::from_byte(0x80), None, "bit 7 is not defined");
 }
 
 /// Issue 31's ACCEL_SET and LIMITS_GET's request byte: the LIMITS report with the

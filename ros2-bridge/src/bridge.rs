@@ -342,6 +342,22 @@ impl Bridge {
                 service_qos,
             )
             .map_err(|e| format!("e-stop service: {e:?}"))?;
+        // HOLD and RESUME (issue 32): the same Trigger type and QoS as the e-stop's.
+        let mut trigger = |service: &str, what: &str| {
+            let qos = QosProfile::publisher_default()
+                .durability(Durability::Volatile)
+                .history(History::KeepLast { depth: 10 });
+            node.create_server::<TriggerRequest, TriggerResponse>(
+                ServiceMapping::Enhanced,
+                &name(service)?,
+                &ServiceTypeName::new("std_srvs", "Trigger"),
+                qos.clone(),
+                qos,
+            )
+            .map_err(|e| format!("{what} service: {e:?}"))
+        };
+        let hold_server = trigger(&self.config.hold_service, "hold")?;
+        let resume_server = trigger(&self.config.resume_service, "resume")?;
         let spinner = node.spinner().map_err(|e| format!("spinner: {e:?}"))?;
 
         let publish_joint_states = joint_states::publish_samples(&samples, |sample: Sample| {
@@ -379,6 +395,13 @@ impl Bridge {
                 }
             }
         };
+        let serve_hold = serve_trigger(&hold_server, "HOLD", self.controller.clone(), Client::hold);
+        let serve_resume = serve_trigger(
+            &resume_server,
+            "RESUME",
+            self.controller.clone(),
+            Client::resume,
+        );
         let serve_gripper = async {
             match &gripper_server {
                 Some(server) => self.serve_gripper(server).await,
@@ -396,6 +419,8 @@ impl Bridge {
                 self.serve_trajectories(&trajectory_server),
                 serve_gripper,
                 serve_estop,
+                serve_hold,
+                serve_resume,
             );
         };
         async_io::block_on(async {
@@ -520,6 +545,46 @@ impl Bridge {
 
 /// How long a service answer waits at most for the client's reply reader to be matched.
 const REPLY_MATCH_WAIT: Duration = Duration::from_secs(1);
+
+/// Serves a `std_srvs/Trigger` service that sends one command (HOLD, RESUME; issue 32)
+/// from a thread of its own, as the e-stop's: `success` once the controller acknowledged
+/// it `OK`, else the refusal.
+async fn serve_trigger(
+    server: &ros2_client::Server<TriggerRequest, TriggerResponse>,
+    what: &'static str,
+    controller: Arc<Client>,
+    send: fn(&Client) -> armctl::Result<armctl::protocol::Ack>,
+) {
+    loop {
+        match server.async_receive_request().await {
+            Ok((request, _)) => {
+                let controller = controller.clone();
+                let response = match off_thread(move || send(&controller)).await {
+                    Some(Ok(ack)) => TriggerResponse {
+                        success: true,
+                        message: format!(
+                            "{what} acknowledged, controller state {}",
+                            ack.state.name()
+                        ),
+                    },
+                    Some(Err(e)) => TriggerResponse {
+                        success: false,
+                        message: format!("{what} failed: {e}"),
+                    },
+                    None => TriggerResponse {
+                        success: false,
+                        message: format!("{what} failed: internal error"),
+                    },
+                };
+                wait_reply_reader(server, request).await;
+                if let Err(e) = server.async_send_response(request, response).await {
+                    log::warn!("{what} response: {e:?}");
+                }
+            }
+            Err(e) => log::warn!("{what} request: {e:?}"),
+        }
+    }
+}
 
 /// Waits (bounded, polling every millisecond) until the server's reply writer has matched
 /// the reply reader of the client that sent `request`. A new rclpy client may send its

@@ -37,6 +37,13 @@ pub struct BridgeConfig {
     /// The `std_srvs/Trigger` service that sends STOPPED.
     #[serde(default = "default_estop_service")]
     pub estop_service: String,
+    /// The `std_srvs/Trigger` service that sends HOLD (issue 32): the run under way
+    /// decelerates along its path to a standstill and waits.
+    #[serde(default = "default_hold_service")]
+    pub hold_service: String,
+    /// The `std_srvs/Trigger` service that sends RESUME (issue 32).
+    #[serde(default = "default_resume_service")]
+    pub resume_service: String,
     /// The JointState topic.
     #[serde(default = "default_joint_states_topic")]
     pub joint_states_topic: String,
@@ -181,6 +188,8 @@ defaults! {
     default_action_name: String = String::from("/arm_controller/follow_joint_trajectory");
     default_gripper_action_name: String = String::from("/gripper_controller/gripper_cmd");
     default_estop_service: String = String::from("/arm_controller/estop");
+    default_hold_service: String = String::from("/arm_controller/hold");
+    default_resume_service: String = String::from("/arm_controller/resume");
     default_joint_states_topic: String = String::from("/joint_states");
     default_joint_state_rate_hz: f64 = 50.0;
     default_feedback_rate_hz: f64 = 30.0;

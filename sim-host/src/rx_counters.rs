@@ -25,6 +25,7 @@ pub fn read(controller: SocketAddr, from: Ipv4Addr) -> Option<RxCounters> {
         stop_cause: false,
         counters: true,
         diag: false,
+        motion: false,
     };
     let mut request = [0u8; 8];
     let mut reply = [0u8; protocol::MAX_DATAGRAM];

@@ -200,6 +200,15 @@ fn log_sent(frame: &[u8], to: Endpoint) {
             log::debug!("-> {} DIAG", show(to));
             None
         }
+        protocol::Report::Motion(m) => {
+            log::debug!(
+                "-> {} MOTION {} % flags {:#04x}",
+                show(to),
+                m.factor_percent,
+                m.flags.0
+            );
+            None
+        }
     };
     if let Some(state) = state {
         let before = REPORTED_STATE.swap(state, Ordering::Relaxed);

@@ -263,6 +263,32 @@ impl<const Q: usize> StepBackend for SimSteps<Q> {
     fn set_positions(&mut self, positions: [i32; MAX_JOINTS]) -> bool {
         self.origin.is_none() && self.streams.producer().set_positions(positions)
     }
+
+    /// The board's producer takes the warp on the run's clock (from the run's start, as
+    /// `start` restarts it at 0): the change goes in at the first tick after what it has
+    /// written (a buffer half or two ahead of the timers).
+    fn change_rate(&mut self, now_tick: u64, rate: u64, accel: u32, speed: u32) -> bool {
+        let Some(origin) = self.origin else {
+            return false;
+        };
+        let producer = self.streams.producer();
+        let ramp = arm_step::ramp_for(accel, speed, producer.timing().tick_hz);
+        let at = now_tick.saturating_sub(origin).max(producer.warp_horizon());
+        producer.change_warp(at, rate, ramp).is_ok()
+    }
+
+    fn set_start_rate(&mut self, _at_tick: u64, rate: u64) -> bool {
+        // The run's clock starts at 0 (`start`): the rate from there.
+        arm_step::Warp::steady(0, rate)
+            .is_ok_and(|warp| self.origin.is_none() && self.streams.producer().set_warp(warp))
+    }
+
+    fn rate_now(&self, now_tick: u64) -> Option<(u64, bool)> {
+        let origin = self.origin?;
+        let warp = self.streams.producer_ref().warp();
+        let tick = now_tick.saturating_sub(origin);
+        Some((warp.rate(tick), warp.ramping(tick)))
+    }
 }
 
 /// What one play of the step hardware found.

@@ -242,6 +242,8 @@ fn expect_report(frame: &protocol::Frame<Report<'_>>, e: &mut Expected) {
         Report::RxCounters(_) => {}
         // Issue 34: issue_34_diag_decodes_in_wireshark.
         Report::Diag(_) => {}
+        // Issue 32's MOTION: issue_32_motion_frames_decode_in_wireshark.
+        Report::Motion(_) => {}
     }
 }
 
@@ -1041,7 +1043,8 @@ fn issue_31_stop_cause_decodes_in_wireshark() {
 
 /// Issue 30's RX_COUNTERS beside issue 31's STOP_CAUSE: STATUS's request byte bit 3 (bit 2
 /// is the STOP_CAUSE's), both asked in one STATUS (0x0c), the replies in the controller's
-/// order (STATUS, STOP_CAUSE, RX_COUNTERS), and bit 4, the first unknown, refused.
+/// order (STATUS, STOP_CAUSE, RX_COUNTERS), and bit 7, unknown, refused (this sent bit 4
+/// before issue 32's MOTION took it).
 #[test]
 fn issue_30_rx_counters_decode_in_wireshark() {
     if !have_wireshark("issue 30 frames") {
@@ -1080,7 +1083,7 @@ fn issue_30_rx_counters_decode_in_wireshark() {
     };
     let n = Report::RxCounters(counters).encode(0x43, &mut buf).unwrap();
     log.record(controller, host, &buf[..n]).unwrap();
-    let mut unknown = vec![0x44, protocol::Tag::Status as u8, 0x10];
+    let mut unknown = vec![0x44, protocol::Tag::Status as u8, 0x80];
     unknown.push(crc8(&unknown));
     log.record(host, controller, &unknown).unwrap();
     drop(log);
@@ -1123,7 +1126,7 @@ fn issue_30_rx_counters_decode_in_wireshark() {
     assert_eq!(numbers(&p["armctl.rx.shed"]), [5_000], "{p:?}");
     assert_eq!(numbers(&p["armctl.rx.inbox_dropped"]), [7], "{p:?}");
     assert_eq!(numbers(&p["armctl.rx.group_ignored"]), [1], "{p:?}");
-    // Bit 4 is no request: INVALID_CONFIG.
+    // Bit 7 is no request: INVALID_CONFIG.
     let p = &packets[4];
     assert_eq!(numbers(&p["armctl.tag"]), [0x15], "{p:?}");
     assert_eq!(numbers(&p["armctl.verdict"]), [11], "{p:?}");
@@ -1292,4 +1295,91 @@ fn issue_31_joint_description_decodes_in_wireshark() {
         [11],
         "joint 8: INVALID_CONFIG"
     );
+}
+
+/// Issue 32's HOLD, RESUME, OVERRIDE and the MOTION report (PROTOCOL.md's worked
+/// examples) decode field by field; STATUS's bit 4 asks for MOTION; an OVERRIDE of 0 is
+/// flagged.
+#[test]
+fn issue_32_motion_frames_decode_in_wireshark() {
+    if !have_wireshark("issue 32 frames") {
+        return;
+    }
+    let dir = scratch("issue32");
+    let pcap = dir.join("issue32.pcap");
+    let host: std::net::SocketAddr = "127.0.0.1:40000".parse().unwrap();
+    let controller: std::net::SocketAddr = format!("127.0.0.1:{}", protocol::PORT).parse().unwrap();
+    let log = armctl::pcap::PcapLog::create(&pcap).expect("create the capture");
+    let mut buf = [0u8; protocol::MAX_DATAGRAM];
+    for (seq, cmd) in [
+        (0x30, Cmd::Hold),
+        (0x31, Cmd::Resume),
+        (0x32, Cmd::Override { percent: 50 }),
+        (
+            0x33,
+            Cmd::StatusWith(protocol::StatusAsk {
+                motion: true,
+                ..protocol::StatusAsk::default()
+            }),
+        ),
+    ] {
+        let n = cmd.encode(seq, &mut buf).unwrap();
+        log.record(host, controller, &buf[..n]).unwrap();
+    }
+    let motion = protocol::MotionReport {
+        factor_percent: 50,
+        flags: protocol::MotionFlags(protocol::MotionFlags::HELD | protocol::MotionFlags::AT_REST),
+        rate_permille: 0,
+        last_stop: Some(protocol::ControlledStop::Hold),
+        refused_joint: 0xFF,
+        refused_limit: None,
+    };
+    let n = Report::Motion(motion).encode(0x34, &mut buf).unwrap();
+    log.record(controller, host, &buf[..n]).unwrap();
+    let mut zero = vec![0x36, protocol::Tag::Override as u8, 0];
+    zero.push(crc8(&zero));
+    log.record(host, controller, &zero).unwrap();
+    drop(log);
+    let packets = dissect(
+        &pcap,
+        &[
+            "armctl.tag",
+            "armctl.verdict",
+            "armctl.status.ask.motion",
+            "armctl.override.percent",
+            "armctl.motion.factor",
+            "armctl.motion.held",
+            "armctl.motion.at_rest",
+            "armctl.motion.rate",
+            "armctl.motion.last_stop",
+            "armctl.motion.refused_joint",
+        ],
+        false,
+        None,
+    );
+    assert_eq!(packets.len(), 6);
+    for (p, tag) in packets.iter().zip([0x27, 0x28, 0x29, 0x15, 0x2a]) {
+        assert_eq!(numbers(&p["armctl.tag"]), [tag], "{p:?}");
+    }
+    // The commands have a verdict (the reports none): valid.
+    for p in &packets[..4] {
+        assert_eq!(numbers(&p["armctl.verdict"]), [0], "{p:?}");
+    }
+    assert_eq!(numbers(&packets[2]["armctl.override.percent"]), [50]);
+    assert_eq!(packets[3]["armctl.status.ask.motion"], "1");
+    let p = &packets[4];
+    assert_eq!(numbers(&p["armctl.motion.factor"]), [50], "{p:?}");
+    assert_eq!(p["armctl.motion.held"], "1", "{p:?}");
+    assert_eq!(p["armctl.motion.at_rest"], "1", "{p:?}");
+    assert_eq!(numbers(&p["armctl.motion.rate"]), [0], "{p:?}");
+    assert_eq!(numbers(&p["armctl.motion.last_stop"]), [1], "{p:?}");
+    assert_eq!(numbers(&p["armctl.motion.refused_joint"]), [255], "{p:?}");
+    // OVERRIDE 0: out of range, INVALID_CONFIG.
+    assert_eq!(
+        numbers(&packets[5]["armctl.verdict"]),
+        [11],
+        "{:?}",
+        packets[5]
+    );
+    let _ = std::fs::remove_dir_all(&dir);
 }

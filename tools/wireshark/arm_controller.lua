@@ -40,7 +40,8 @@ local tag_names = {
     [0x18] = "SET_ENABLE", [0x19] = "RELEASE", [0x1a] = "LIMITS_SET", [0x1b] = "LIMITS_GET",
     [0x1c] = "LIMITS", [0x1d] = "STOP_CAUSE", [0x1e] = "ACCEL_SET", [0x1f] = "JOINT_DESC_SET",
     [0x20] = "DISCOVER", [0x21] = "NET_SET", [0x22] = "DISCOVER_REPLY",
-    [0x23] = "JOINT_DESC_GET", [0x24] = "RX_COUNTERS", [0x25] = "UNLOCK", [0x26] = "JOINT_DESC", [0x32] = "DIAG",
+    [0x23] = "JOINT_DESC_GET", [0x24] = "RX_COUNTERS", [0x25] = "UNLOCK", [0x26] = "JOINT_DESC",
+    [0x27] = "HOLD", [0x28] = "RESUME", [0x29] = "OVERRIDE", [0x2a] = "MOTION", [0x32] = "DIAG",
     [0x50] = "AUTH", [0x51] = "HELLO", [0x52] = "SET_KEY", [0x53] = "HELLO_REPLY",
 }
 -- Names that depend on the direction.
@@ -57,8 +58,11 @@ local status_names = {
     [5] = "OUT_OF_ORDER", [6] = "TOO_MANY_POINTS", [7] = "INVALID_POINT", [8] = "BUFFER_FULL",
     [9] = "NOT_OWNER", [10] = "UNSUPPORTED", [11] = "INVALID_CONFIG", [12] = "ESTOP_LATCHED",
     [13] = "AUTH_REQUIRED", [14] = "AUTH_FAILED", [15] = "SAVE_FAILED",
-    [16] = "LIMIT_LATCHED",
+    [16] = "LIMIT_LATCHED", [17] = "OVERRIDE_REFUSED",
 }
+-- MOTION's last controlled stop and refused limit (issue 32).
+local controlled_stop_names = { [0] = "NONE", [1] = "HOLD" }
+local override_limit_names = { [0] = "none", [1] = "RATE", [2] = "ACCEL" }
 
 local crc_status_names = { [0] = "Bad", [1] = "Good", [2] = "Unverified" }
 local direction_names = { [0] = "host to controller", [1] = "controller to host" }
@@ -170,6 +174,17 @@ local f = {
     status_ask_stop = field("bool", "status.ask.stop_cause", "Also a STOP_CAUSE report", 8, nil, 0x04),
     status_ask_counters = field("bool", "status.ask.counters", "Also an RX_COUNTERS report", 8, nil, 0x08),
     status_ask_diag = field("bool", "status.ask.diag", "Also a DIAG report", 8, nil, 0x40),
+    status_ask_motion = field("bool", "status.ask.motion", "Also a MOTION report", 8, nil, 0x10),
+    override_percent = dec("uint8", "override.percent", "Override, percent"),
+    motion_factor = dec("uint8", "motion.factor", "Override asked, percent"),
+    motion_flags = hex("uint8", "motion.flags", "Flags"),
+    motion_held = field("bool", "motion.held", "Held (HOLD in force)", 8, nil, 0x01),
+    motion_at_rest = field("bool", "motion.at_rest", "At rest", 8, nil, 0x02),
+    motion_ramping = field("bool", "motion.ramping", "Ramping", 8, nil, 0x04),
+    motion_rate = dec("uint16", "motion.rate", "Rate now, tenths of a percent"),
+    motion_last_stop = dec("uint8", "motion.last_stop", "Last controlled stop", controlled_stop_names),
+    motion_refused_joint = dec("uint8", "motion.refused_joint", "Last OVERRIDE refused: joint (255 none)"),
+    motion_refused_limit = dec("uint8", "motion.refused_limit", "... the limit", override_limit_names),
     stop_cause = dec("uint8", "stop.cause", "What ended the last run", stop_cause_names),
     stop_detail = dec("uint8", "stop.detail", "Detail (FAULT: the joint)"),
     stop_ip = field("ipv4", "stop.from_ip", "STOPPED's sender"),
@@ -660,6 +675,14 @@ local host_dissectors = {
         if len ~= 36 then return length_error(tree, data, "36", len) end
         return dissect_joint_desc(tree, data)
     end,
+    -- OVERRIDE (issue 32): the percent, 1..200.
+    [0x29] = function(tree, data, len)
+        if len ~= 1 then return length_error(tree, data, "1", len) end
+        tree:add(f.override_percent, data(0, 1))
+        local percent = data(0, 1):uint()
+        if percent < 1 or percent > 200 then out_of_range(tree, "OVERRIDE percent must be 1..200") end
+        return percent .. " %"
+    end,
     -- JOINT_DESC_GET (issue 31): the joint.
     [0x23] = function(tree, data, len)
         if len ~= 1 then return length_error(tree, data, "1", len) end
@@ -726,7 +749,8 @@ host_dissectors[0x52] = function(tree, data, len)
     return "set a key"
 end
 -- Commands without data.
-for _, tag in ipairs({ 0x02, 0x04, 0x05, 0x07, 0x09, 0x0c, 0x0d, 0x0e, 0x0f, 0x11, 0x17, 0x19, 0x20 }) do
+for _, tag in ipairs({ 0x02, 0x04, 0x05, 0x07, 0x09, 0x0c, 0x0d, 0x0e, 0x0f, 0x11, 0x17, 0x19, 0x20,
+    0x27, 0x28 }) do
     host_dissectors[tag] = function(tree, data, len)
         if len ~= 0 then return length_error(tree, data, "0", len) end
         return ""
@@ -734,8 +758,8 @@ for _, tag in ipairs({ 0x02, 0x04, 0x05, 0x07, 0x09, 0x0c, 0x0d, 0x0e, 0x0f, 0x1
 end
 -- STATUS: no data (old hosts), or the request byte (issue 23): bit 0 a LOCATION too, bit 1
 -- look only; bit 2 a STOP_CAUSE report too (issue 31); bit 3 an RX_COUNTERS report too
--- (issue 30); bit 6 a DIAG report too (issue 34). The reports follow the STATUS in that
--- order: LOCATION, STOP_CAUSE, RX_COUNTERS, DIAG.
+-- (issue 30); bit 4 a MOTION report too (issue 32); bit 6 a DIAG report too (issue 34).
+-- The reports follow the STATUS in that order: LOCATION, STOP_CAUSE, RX_COUNTERS, MOTION, DIAG.
 host_dissectors[0x15] = function(tree, data, len)
     if len == 0 then return "" end
     if len ~= 1 then return length_error(tree, data, "0 or 1", len) end
@@ -744,14 +768,16 @@ host_dissectors[0x15] = function(tree, data, len)
     ask:add(f.status_ask_look, data(0, 1))
     ask:add(f.status_ask_stop, data(0, 1))
     ask:add(f.status_ask_counters, data(0, 1))
+    ask:add(f.status_ask_motion, data(0, 1))
     ask:add(f.status_ask_diag, data(0, 1))
     local b = data(0, 1):uint()
-    if bit.band(b, 0xb0) ~= 0 then out_of_range(tree, "STATUS request byte may only use bits 0-3 and 6") end
+    if bit.band(b, 0xa0) ~= 0 then out_of_range(tree, "STATUS request byte may only use bits 0-4 and 6") end
     local parts = {}
     if bit.band(b, 1) ~= 0 then parts[#parts + 1] = "with LOCATION" end
     if bit.band(b, 2) ~= 0 then parts[#parts + 1] = "look only" end
     if bit.band(b, 4) ~= 0 then parts[#parts + 1] = "with STOP_CAUSE" end
     if bit.band(b, 8) ~= 0 then parts[#parts + 1] = "with RX_COUNTERS" end
+    if bit.band(b, 16) ~= 0 then parts[#parts + 1] = "with MOTION" end
     if bit.band(b, 0x40) ~= 0 then parts[#parts + 1] = "with DIAG" end
     return table.concat(parts, ", ")
 end
@@ -841,6 +867,23 @@ local controller_dissectors = {
     [0x26] = function(tree, data, len)
         if len ~= 36 then return length_error(tree, data, "36", len) end
         return dissect_joint_desc(tree, data)
+    end,
+    -- MOTION (issue 32): factor, flags, rate (u16 LE, 0.1 %), last controlled stop,
+    -- refused joint and limit, 1 reserved.
+    [0x2a] = function(tree, data, len)
+        if len ~= 8 then return length_error(tree, data, "8", len) end
+        tree:add(f.motion_factor, data(0, 1))
+        local flags = tree:add(f.motion_flags, data(1, 1))
+        flags:add(f.motion_held, data(1, 1))
+        flags:add(f.motion_at_rest, data(1, 1))
+        flags:add(f.motion_ramping, data(1, 1))
+        tree:add_le(f.motion_rate, data(2, 2))
+        tree:add(f.motion_last_stop, data(4, 1))
+        tree:add(f.motion_refused_joint, data(5, 1))
+        tree:add(f.motion_refused_limit, data(6, 1))
+        local held = bit.band(data(1, 1):uint(), 1) ~= 0 and ", held" or ""
+        return string.format("%d %%%s, rate %.1f %%", data(0, 1):uint(), held,
+            data(2, 2):le_uint() / 10)
     end,
     [0x53] = function(tree, data, len)
         if len ~= 28 then return length_error(tree, data, "28", len) end

@@ -19,6 +19,7 @@ use crate::pcap::PcapLog;
 use crate::rtt::{DEFAULT_MIN_RTO, RESEND_HORIZON, RttEstimator};
 
 pub mod auth;
+mod motion_control;
 mod receiver;
 mod wire_tools;
 pub use wire_tools::{Diagnosis, Glance};

@@ -48,6 +48,8 @@ pub(crate) struct Shared {
     pub(super) rx_counters: Mutex<Vec<Sender<protocol::RxCounters>>>,
     /// DIAG reports (STATUS's request byte bit 6, issue 34), for `Client::diag`.
     pub(super) diags: Mutex<Vec<Sender<protocol::Diag>>>,
+    /// MOTION reports (STATUS's request byte bit 4, issue 32).
+    pub(super) motions: Mutex<Vec<Sender<protocol::MotionReport>>>,
     /// JOINT_DESC reports' subscribers (issue 31).
     pub(super) descs: Mutex<Vec<Sender<protocol::JointDescSet>>>,
     pub(super) last_location: Mutex<Option<Location>>,
@@ -157,6 +159,7 @@ impl Shared {
             Report::RxCounters(counters) => fan_out(&self.rx_counters, &counters),
             Report::Diag(diag) => fan_out(&self.diags, &diag),
             Report::JointDesc(desc) => fan_out(&self.descs, &desc),
+            Report::Motion(motion) => fan_out(&self.motions, &motion),
         }
     }
 }

@@ -64,6 +64,7 @@ impl Client {
             stop_cause: false,
             counters: false,
             diag: false,
+            motion: false,
         };
         let reports = self.status_reports();
         let locations = self.locations();
@@ -313,7 +314,7 @@ impl Client {
     }
 }
 
-fn recv_within<T>(rx: &std::sync::mpsc::Receiver<T>, timeout: Duration) -> Option<T> {
+pub(super) fn recv_within<T>(rx: &std::sync::mpsc::Receiver<T>, timeout: Duration) -> Option<T> {
     let deadline = Instant::now() + timeout;
     rx.recv_timeout(deadline.saturating_duration_since(Instant::now()))
         .ok()

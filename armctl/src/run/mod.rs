@@ -54,6 +54,11 @@ pub struct RunOptions {
     /// [`CANCEL_POLL`](crate::CANCEL_POLL) (no wait blocks longer without looking). Nothing
     /// is sent then: the caller stops the arm ([`Client::stop_until_acked`]).
     pub cancel: Option<Cancel>,
+    /// The speed override to run at, percent 1..200 (issue 32): sent as OVERRIDE before
+    /// NEW, and the upload's and the wait's timeouts stretched by 100 / percent. `None`:
+    /// no OVERRIDE sent (the controller keeps whatever factor it has, 100 % unless a host
+    /// set another).
+    pub speed_percent: Option<u8>,
 }
 
 impl Default for RunOptions {
@@ -66,6 +71,7 @@ impl Default for RunOptions {
             stall_timeout: Duration::from_secs(5),
             completion_timeout: None,
             cancel: None,
+            speed_percent: None,
         }
     }
 }
@@ -208,7 +214,10 @@ impl Client {
             points_per_frame: options.points_per_frame.clamp(1, MAX_POINTS_PER_FRAME),
             ..options.clone()
         };
-        let duration_us: i64 = points.iter().map(|p| i64::from(p.duration)).sum();
+        let nominal_us: i64 = points.iter().map(|p| i64::from(p.duration)).sum();
+        // Run at `speed` %: the run takes 100 / speed times as long.
+        let speed = options.speed_percent.unwrap_or(100).max(1);
+        let duration_us = nominal_us.saturating_mul(100) / i64::from(speed);
         let cancel = options.cancel.as_ref();
         let started = Instant::now();
         let locations = self.locations();
@@ -216,6 +225,12 @@ impl Client {
             let _upload = lock(&self.upload);
             if cancel.is_some_and(Cancel::is_cancelled) {
                 return Err(Error::Interrupted);
+            }
+            if let Some(percent) = options.speed_percent {
+                check(
+                    Tag::Override,
+                    self.exchange_unlocked(&Command::Override { percent }, cancel)?,
+                )?;
             }
             let ack = check(
                 Tag::New,

@@ -137,6 +137,14 @@ impl<const CAP: usize> TrajectoryBuffer<CAP> {
         self.points.get(self.slot(self.fed)).copied()
     }
 
+    /// The `i`-th point held, oldest first (fed ones first).
+    pub fn held(&self, i: usize) -> Option<StoredPoint> {
+        if i >= self.len {
+            return None;
+        }
+        self.points.get(self.slot(i)).copied()
+    }
+
     /// Marks the point [`next_unfed`](Self::next_unfed) returned as fed.
     pub fn mark_fed(&mut self) {
         if self.fed < self.len {

@@ -140,6 +140,7 @@ use crate::response::{Deferred, Discovery, HelloGrant, Reply, Response};
 use crate::uart::uart_frame;
 
 mod boot;
+mod motion;
 mod owner;
 mod runs;
 
@@ -312,6 +313,8 @@ pub struct Controller<const CAP: usize> {
     booted_net: NetSettings,
     /// Steps per second of all joints together that points may ask for (0: no limit).
     step_budget_hz: u32,
+    /// Override and hold (issue 32; the MOTION report).
+    motion: motion::Motion,
     /// The last INVALID_POINT for a limit (the LIMITS report's detail, issue 23).
     last_refusal: Refusal,
 }
@@ -671,6 +674,23 @@ impl<const CAP: usize> Controller<CAP> {
             response.reply = reply(self, StatusCode::Ok);
             return response;
         }
+        // HOLD (issue 32, docs/PROTOCOL.md "HOLD, RESUME, OVERRIDE"): from any host, as
+        // STOPPED (whoever sees a danger may stop the arm; a hold is the gentle stop and
+        // starts nothing), before the owner rule, taking nothing. The owner's goes the
+        // usual way (duplicates, ordering).
+        if tag == Tag::Hold as u8 && self.owner.is_some_and(|o| o.ip != from.ip) {
+            let status = match decoded {
+                Ok(Frame {
+                    body: Command::Hold,
+                    ..
+                }) => self.hold(plant).err().unwrap_or(StatusCode::Ok),
+                Ok(_) => StatusCode::BadLength,
+                Err(e) => e.status().unwrap_or(StatusCode::BadLength),
+            };
+            response.executed = status == StatusCode::Ok;
+            response.reply = reply(self, status);
+            return response;
+        }
         // Read-only STATUS and RELEASE from a host that does not own the controller
         // (docs/PROTOCOL.md section 1, issue 23): answered before the owner rule, taking
         // nothing.
@@ -1004,6 +1024,8 @@ impl<const CAP: usize> Controller<CAP> {
                 State::Pending => {
                     self.stop = StopReport::COMPLETE;
                     self.state = State::Running;
+                    self.motion.held = false;
+                    plant.set_start_rate(motion::rate_of(self.motion.factor));
                     self.pump(plant);
                     plant.start();
                 }
@@ -1197,10 +1219,16 @@ impl<const CAP: usize> Controller<CAP> {
                 if ask.counters {
                     response.asked_counters = Some(from);
                 }
+                if ask.motion {
+                    response.asked_motion = Some((from, self.motion_report(plant)));
+                }
                 if ask.diag {
                     response.asked_diag = Some(from);
                 }
             }
+            Command::Hold => self.hold(plant)?,
+            Command::Resume => self.resume(plant)?,
+            Command::Override { percent } => self.set_override(percent, plant)?,
             // The owner gives the controller up: no owner, no report destinations (the
             // next host to speak takes it, as at boot). Only while STOPPED: an upload or
             // run of the owner's would otherwise pass to whoever speaks next.
@@ -1343,6 +1371,9 @@ impl<const CAP: usize> Controller<CAP> {
         }
         if ask.counters {
             response.asked_counters = Some(from);
+        }
+        if ask.motion {
+            response.asked_motion = Some((from, self.motion_report(plant)));
         }
         if ask.diag {
             response.asked_diag = Some(from);

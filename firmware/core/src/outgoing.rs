@@ -147,6 +147,8 @@ pub enum AnswerReport {
     Diag(protocol::Diag),
     /// A JOINT_DESC report (the answer to JOINT_DESC_GET, issue 31).
     JointDesc(protocol::JointDescSet),
+    /// A MOTION report (STATUS's request byte bit 4, issue 32).
+    Motion(protocol::MotionReport),
 }
 
 /// Encodes [`Outgoing`] frames. Reports (everything but ACKs) carry the controller's own
@@ -206,6 +208,7 @@ impl ReportEncoder {
                     AnswerReport::StopCause(s) => Report::StopCause(s),
                     AnswerReport::RxCounters(c) => Report::RxCounters(c),
                     AnswerReport::Diag(d) => Report::Diag(d),
+                    AnswerReport::Motion(m) => Report::Motion(m),
                     AnswerReport::JointDesc(d) => Report::JointDesc(d),
                 },
             ),

@@ -42,4 +42,18 @@ pub trait Plant {
     fn serial_close(&mut self);
     /// Queues bytes for the serial port; `false` when the queue has no room.
     fn serial_send(&mut self, bytes: &[u8]) -> bool;
+    /// Changes the rate of the run under way (issue 32: HOLD, RESUME, OVERRIDE): ramps to
+    /// `rate` (`arm_step::RATE_ONE` = 100 %) with the slope that adds at most `accel`
+    /// steps/s^2 to a joint at `speed` steps/s, from now (or the first tick after what the
+    /// step side has committed). `false`: not taken (a step backend without a warp).
+    fn change_rate(&mut self, _rate: u64, _accel: u32, _speed: u32) -> bool {
+        false
+    }
+    /// The rate the next [`Plant::start`] starts the run at (`RATE_ONE`: 100 %).
+    fn set_start_rate(&mut self, _rate: u64) {}
+    /// The rate now (`RATE_ONE` = 100 %) and whether it is changing; `None`: no run, or a
+    /// step backend without a warp.
+    fn rate_now(&self) -> Option<(u64, bool)> {
+        None
+    }
 }

@@ -61,6 +61,9 @@ pub struct Response {
     /// issue 34), sent last. The counters are the board's ([`crate::bus::Bus::diag`]):
     /// the caller fills them in.
     pub asked_diag: Option<Endpoint>,
+    /// A MOTION report for the asker alone: STATUS's request byte asked for one (bit 4,
+    /// issue 32), sent last.
+    pub asked_motion: Option<(Endpoint, protocol::MotionReport)>,
     /// A LIMITS report for the endpoint that sent LIMITS_GET (issue 23).
     pub limits: Option<(Endpoint, LimitsReport)>,
     /// A JOINT_DESC report for the endpoint that sent JOINT_DESC_GET (issue 31).

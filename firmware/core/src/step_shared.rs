@@ -93,6 +93,26 @@ pub trait StepBackend {
     fn positions(&self) -> [i32; MAX_JOINTS];
     /// Overwrites the positions; refused (false) while running.
     fn set_positions(&mut self, positions: [i32; MAX_JOINTS]) -> bool;
+    /// Changes the rate of the run under way (issue 32: HOLD, RESUME, OVERRIDE; arm-step's
+    /// warp): from `now_tick` ([`StepKick::now_tick`]), or the first tick after every
+    /// edge already committed if later, ramps to `rate` (`arm_step::RATE_ONE` = 100 %)
+    /// with the slope that adds at most `accel` steps/s^2 to a joint moving at `speed`
+    /// steps/s ([`arm_step::ramp_for`]). False: not taken (no run, or a backend without a
+    /// warp: the default, the NUCLEO's and QEMU's for now).
+    fn change_rate(&mut self, _now_tick: u64, _rate: u64, _accel: u32, _speed: u32) -> bool {
+        false
+    }
+    /// The rate the run [`StepBackend::start`] starts next begins at, from its start
+    /// tick `at_tick` (`RATE_ONE`: no warp). Called just before the start. False: not
+    /// taken (the default: only 100 % is run).
+    fn set_start_rate(&mut self, _at_tick: u64, rate: u64) -> bool {
+        rate == arm_step::RATE_ONE
+    }
+    /// The rate at `now_tick` (`RATE_ONE` = 100 %) and whether it is changing; `None`:
+    /// no run, or a backend without a warp.
+    fn rate_now(&self, _now_tick: u64) -> Option<(u64, bool)> {
+        None
+    }
 }
 
 /// The test oracle's backend (arm-core's task tests; feature `test-support`): the boards
@@ -120,6 +140,23 @@ impl<const Q: usize> StepBackend for StepEngine<Q> {
     }
     fn set_positions(&mut self, positions: [i32; MAX_JOINTS]) -> bool {
         StepEngine::set_positions(self, positions)
+    }
+    fn change_rate(&mut self, now_tick: u64, rate: u64, accel: u32, speed: u32) -> bool {
+        if !self.is_running() {
+            return false;
+        }
+        let ramp = arm_step::ramp_for(accel, speed, StepEngine::timing(self).tick_hz);
+        let at = now_tick.max(self.warp_horizon());
+        self.change_warp(at, rate, ramp).is_ok()
+    }
+    fn set_start_rate(&mut self, at_tick: u64, rate: u64) -> bool {
+        // The engine's clock runs on across runs: the rate from this run's start.
+        arm_step::Warp::steady(at_tick, rate).is_ok_and(|warp| self.set_warp(warp))
+    }
+    fn rate_now(&self, now_tick: u64) -> Option<(u64, bool)> {
+        let warp = self.warp();
+        self.is_running()
+            .then(|| (warp.rate(now_tick), warp.ramping(now_tick)))
     }
 }
 
@@ -150,6 +187,8 @@ pub struct StepState<B> {
     lower_step_lines: bool,
     /// The wired e-stop input is open ([`StepShared::halt`]): no run starts.
     halted: bool,
+    /// The rate the next run starts at ([`StepShared::set_start_rate`]).
+    start_rate: u64,
 }
 
 impl<B: StepBackend> StepState<B> {
@@ -193,6 +232,7 @@ impl<const Q: usize, B: StepBackend, M: RawMutex> StepShared<Q, B, M> {
                 start_pending: false,
                 lower_step_lines: false,
                 halted: false,
+                start_rate: arm_step::RATE_ONE,
             })),
         }
     }
@@ -278,12 +318,30 @@ impl<const Q: usize, B: StepBackend, M: RawMutex> StepShared<Q, B, M> {
             }
             if s.start_pending {
                 s.start_pending = false;
+                let rate = s.start_rate;
+                s.engine.set_start_rate(start_tick, rate);
                 s.engine.start(start_tick);
             }
             true
         });
         self.finish_start();
         pushed
+    }
+
+    /// Changes the rate of the run under way ([`StepBackend::change_rate`]).
+    pub fn change_rate(&self, now_tick: u64, rate: u64, accel: u32, speed: u32) -> bool {
+        self.with_engine(|e| e.change_rate(now_tick, rate, accel, speed))
+    }
+
+    /// The rate now and whether it is changing ([`StepBackend::rate_now`]).
+    pub fn rate_now(&self, now_tick: u64) -> Option<(u64, bool)> {
+        self.with_engine(|e| e.rate_now(now_tick))
+    }
+
+    /// The rate the next run starts at (`RATE_ONE`: 100 %, the default), taken when it
+    /// starts ([`StepBackend::set_start_rate`]).
+    pub fn set_start_rate(&self, rate: u64) {
+        self.inner.lock(|s| s.borrow_mut().start_rate = rate);
     }
 
     /// Starts the engine at `start_tick` if it holds a segment, else as soon as one is
@@ -295,6 +353,8 @@ impl<const Q: usize, B: StepBackend, M: RawMutex> StepShared<Q, B, M> {
                 return;
             }
             if s.engine.queued() > 0 {
+                let rate = s.start_rate;
+                s.engine.set_start_rate(start_tick, rate);
                 s.engine.start(start_tick);
             } else {
                 s.start_pending = true;

@@ -92,6 +92,10 @@ pub struct FakePlant {
     pub serial_closes: u32,
     /// Segments `push_segment` took.
     pub pushed: u64,
+    /// Every rate change taken while running (issue 32), in order: (rate, accel, speed).
+    pub rate_changes: Vec<(u64, u32, u32)>,
+    /// The rate the next start begins at (`set_start_rate`).
+    pub start_rate: u64,
     /// Contract checks: panic on a segment shorter than 1 us or faster than
     /// [`FakePlant::max_step_rate_hz`] on any joint, a user pin other than 0 and 1, enable
     /// bits beyond the gripper's, a serial chunk of 0 or more than 255 bytes.
@@ -125,6 +129,8 @@ impl Default for FakePlant {
             serial_opens: 0,
             serial_closes: 0,
             pushed: 0,
+            rate_changes: Vec::new(),
+            start_rate: arm_step::RATE_ONE,
             checks: false,
             max_step_rate_hz: u64::MAX,
             set_positions_calls: Vec::new(),
@@ -170,6 +176,21 @@ impl Plant for FakePlant {
     fn start(&mut self) {
         self.starts += 1;
         self.running = true;
+    }
+    fn change_rate(&mut self, rate: u64, accel: u32, speed: u32) -> bool {
+        if self.running {
+            self.rate_changes.push((rate, accel, speed));
+        }
+        self.running
+    }
+    fn set_start_rate(&mut self, rate: u64) {
+        self.start_rate = rate;
+    }
+    fn rate_now(&self) -> Option<(u64, bool)> {
+        // Every change done at once.
+        let last = self.rate_changes.last().map(|&(rate, _, _)| rate);
+        self.running
+            .then_some((last.unwrap_or(self.start_rate), false))
     }
     fn set_user_pin(&mut self, pin: u8, high: bool) {
         assert!(!self.checks || pin < 2, "user pin {pin}");

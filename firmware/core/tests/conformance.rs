@@ -509,11 +509,12 @@ fn lengths_and_directions_are_checked() {
         (raw(13, Tag::EstopReset as u8, &[0]), BadLength),
         (raw(6, 0xFF, &[]), UnknownTag),
         (raw(7, Tag::Pending as u8, &[0; 13 * 116]), BadLength),
-        // STATUS takes one request byte (issue 23): bits 0-3 only (bit 2, the STOP_CAUSE
-        // report, since issue 31; bit 3, RX_COUNTERS, since issue 30). 0x10 is the first
-        // unknown bit (this sent 0x08 before RX_COUNTERS took bit 3).
+        // STATUS takes one request byte (issue 23): bits 0-4 only (bit 2, the STOP_CAUSE
+        // report, since issue 31; bit 3, RX_COUNTERS, since issue 30; bit 4, MOTION, since
+        // issue 32). Bit 7 stays unknown (this sent 0x08 before RX_COUNTERS took bit 3,
+        // 0x10 before MOTION took bit 4).
         (raw(8, Tag::Status as u8, &[0, 0]), BadLength),
-        (raw(15, Tag::Status as u8, &[0x10]), InvalidConfig),
+        (raw(15, Tag::Status as u8, &[0x80]), InvalidConfig),
         (raw(17, Tag::Status as u8, &[0x04]), Ok),
         (raw(18, Tag::Status as u8, &[0x08]), Ok),
         (raw(19, Tag::Status as u8, &[0x0c]), Ok),

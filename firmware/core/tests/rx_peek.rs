@@ -205,6 +205,7 @@ fn status_bit_3_asks_for_the_receive_counters() {
         stop_cause: false,
         counters: true,
         diag: false,
+        motion: false,
     };
     let r = s.send_raw(HOST, &frame(1, Command::StatusWith(ask)));
     assert_eq!(r.reply.unwrap().ack.status, protocol::StatusCode::Ok);
@@ -221,6 +222,7 @@ fn status_bit_3_asks_for_the_receive_counters() {
     // Bit 2 alone is the STOP_CAUSE's; bits 2 and 3 (0x0c) ask for both.
     let stop_only = StatusAsk {
         stop_cause: true,
+        motion: false,
         counters: false,
         ..ask
     };

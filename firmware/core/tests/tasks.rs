@@ -1427,6 +1427,7 @@ fn status_replies_go_out_in_the_documented_order() {
         stop_cause: true,
         counters: true,
         diag: false,
+        motion: false,
     };
     assert_eq!(ask.byte(), 0x0d);
     rig.route(&frame(0, Command::StatusWith(ask)));
@@ -1441,6 +1442,7 @@ fn status_replies_go_out_in_the_documented_order() {
             AnswerReport::RxCounters(_) => "RX_COUNTERS",
             AnswerReport::Diag(_) => "DIAG",
             AnswerReport::JointDesc(_) => "JOINT_DESC",
+            AnswerReport::Motion(_) => "MOTION",
         }),
         // The periodic stream is not an answer.
         _ => None,
@@ -1463,7 +1465,7 @@ fn status_replies_go_out_in_the_documented_order() {
 /// (docs/PROTOCOL.md's order), with the bus's source: "not measured" on a bus no board
 /// gave one (this rig, like the simulator).
 #[test]
-fn the_diag_report_goes_out_last() {
+fn the_diag_report_goes_out_last_after_motion() {
     use arm_core::{AnswerReport, Outgoing};
     let rig = Rig::new();
     let ask = protocol::StatusAsk {
@@ -1471,9 +1473,10 @@ fn the_diag_report_goes_out_last() {
         look_only: false,
         stop_cause: true,
         counters: true,
+        motion: true,
         diag: true,
     };
-    assert_eq!(ask.byte(), 0x4d);
+    assert_eq!(ask.byte(), 0x5d);
     rig.route(&frame(0, Command::StatusWith(ask)));
     let name = |o: &Outgoing| match o {
         Outgoing::Ack(_) => Some("ACK"),
@@ -1484,6 +1487,7 @@ fn the_diag_report_goes_out_last() {
             AnswerReport::Limits(_) => "LIMITS",
             AnswerReport::StopCause(_) => "STOP_CAUSE",
             AnswerReport::RxCounters(_) => "RX_COUNTERS",
+            AnswerReport::Motion(_) => "MOTION",
             AnswerReport::Diag(d) => {
                 assert_eq!(d, protocol::Diag::NOT_MEASURED);
                 "DIAG"
@@ -1495,7 +1499,7 @@ fn the_diag_report_goes_out_last() {
     rig.run(async {
         until("the replies", || {
             rig.drain();
-            rig.sent.borrow().iter().filter_map(name).count() >= 6
+            rig.sent.borrow().iter().filter_map(name).count() >= 7
         })
         .await;
         let sent: Vec<&str> = rig.sent.borrow().iter().filter_map(name).collect();
@@ -1507,6 +1511,7 @@ fn the_diag_report_goes_out_last() {
                 "LOCATION",
                 "STOP_CAUSE",
                 "RX_COUNTERS",
+                "MOTION",
                 "DIAG"
             ]
         );

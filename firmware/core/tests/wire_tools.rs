@@ -221,6 +221,7 @@ fn status_asks_for_a_location_and_a_look_only_status_never_takes_a_free_controll
         stop_cause: false,
         counters: false,
         diag: false,
+        motion: false,
     };
     // Nobody owns it: a look-only STATUS is answered and takes nothing.
     let r = s.send_raw(OTHER, &status_with(5, look));
@@ -240,6 +241,7 @@ fn status_asks_for_a_location_and_a_look_only_status_never_takes_a_free_controll
         location: true,
         look_only: false,
         stop_cause: false,
+        motion: false,
         counters: false,
         diag: false,
     };
@@ -252,9 +254,10 @@ fn status_asks_for_a_location_and_a_look_only_status_never_takes_a_free_controll
     assert_eq!(r.answer_seq, None);
     assert_eq!(r.reply.unwrap().ack.status, Ok);
     // A request byte with other bits: INVALID_CONFIG (to the owner, as any command).
-    // Bit 2 asks for the STOP_CAUSE report since issue 31 and bit 3 for RX_COUNTERS
-    // since issue 30: bit 4 is the first unknown (this sent 0x08 before).
-    let r = s.send_raw(HOST, &raw(8, Tag::Status as u8, &[0x10]));
+    // Bit 2 asks for the STOP_CAUSE report since issue 31, bit 3 for RX_COUNTERS since
+    // issue 30 and bit 4 for MOTION since issue 32: bit 7 stays unknown (this sent 0x08,
+    // then 0x10, before).
+    let r = s.send_raw(HOST, &raw(8, Tag::Status as u8, &[0x80]));
     assert_eq!(r.reply.unwrap().ack.status, InvalidConfig);
 }
 

@@ -5,6 +5,7 @@ use crate::ring::SegmentRing;
 use crate::schedule::{Edges, at_most_two};
 use crate::{
     ALL_JOINTS, JointMask, MAX_JOINTS, Poll, Segment, StepPins, StepTiming, US_PER_S, Warp,
+    WarpError,
 };
 
 /// The set bits of a joint mask, lowest first.
@@ -161,6 +162,75 @@ impl<const QUEUE: usize> StepEngine<QUEUE> {
     /// The time warp.
     pub fn warp(&self) -> &Warp {
         &self.warp
+    }
+
+    /// The earliest controller tick a warp change may take effect at
+    /// ([`StepEngine::change_warp`]): the latest rise scheduled under the current warp (0
+    /// when idle). Falling edges are on controller time and do not count, nor does a rise
+    /// the warp holds back for good (`u64::MAX`: it is mapped again at the change).
+    pub fn warp_horizon(&self) -> u64 {
+        if !self.running {
+            return 0;
+        }
+        let rising = !self.waiting & !self.high;
+        Joints(rising)
+            .map(|j| self.edges.get(j))
+            .filter(|&tick| tick != u64::MAX)
+            .max()
+            .unwrap_or(0)
+    }
+
+    /// Changes the warp during a run (or between runs): from controller tick `at` the rate
+    /// ramps to `target` with slope `ramp` ([`Warp::change_rate`]). Refused
+    /// ([`WarpError::Committed`]) before [`StepEngine::warp_horizon`]: what is scheduled
+    /// stays. Phases no pulse or segment end can still need are forgotten first. Poll again
+    /// after a change: the next segment end may have moved.
+    pub fn change_warp(&mut self, at: u64, target: u64, ramp: u64) -> Result<(), WarpError> {
+        if at < self.warp_horizon() {
+            return Err(WarpError::Committed);
+        }
+        if self.running {
+            // Never past `at` itself: the change starts from the phase that holds it.
+            let needed = self.oldest_needed().min(self.warp.trajectory_tick(at));
+            self.warp.forget_before(needed);
+        }
+        self.warp.change_rate(at, target, ramp)?;
+        if self.running {
+            self.head_end = self.front_end();
+            // A rise the old warp put at "never" (held for good) was not committed: map it
+            // again (after `at`, as the maps agree up to it).
+            for j in Joints(!self.waiting & !self.high) {
+                if self.edges.get(j) != u64::MAX {
+                    continue;
+                }
+                if let Some(joint) = self.joints.get(j).filter(|joint| joint.remaining > 0) {
+                    self.edges
+                        .set(j, joint.next_rise(&mut self.late_pulses, &self.warp));
+                }
+            }
+            self.next_edge = self.edges.earliest(!self.waiting, self.few_moving);
+        }
+        Ok(())
+    }
+
+    /// The oldest trajectory tick the run can still map: the oldest held segment's end
+    /// (its end is mapped to free it), each joint's next pulse, or the start of the segment
+    /// a joint between pulses goes on from (where the next pushed one will start if it
+    /// waits past the queue).
+    fn oldest_needed(&self) -> u64 {
+        let front_end = self.ring.front().map_or(u64::MAX, |front| front.end_tick);
+        let len = u32::try_from(self.ring.len()).unwrap_or(u32::MAX);
+        let joints = self.joints.iter().map(|joint| {
+            if joint.remaining > 0 {
+                return joint.ideal;
+            }
+            let held = joint.ordinal.wrapping_sub(self.head_ordinal) < len;
+            match self.ring.get(joint.slot) {
+                Some(slot) if held => self.origin + slot.start_tick,
+                _ => self.origin + self.queue_end.tick,
+            }
+        });
+        joints.fold(self.origin.saturating_add(front_end), u64::min)
     }
 
     /// The timing this engine was built with.

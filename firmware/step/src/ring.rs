@@ -160,6 +160,11 @@ impl<const QUEUE: usize> SegmentRing<QUEUE> {
     }
 
     /// Slot at ring index `index` (held or not: callers track holding by ordinal).
+    pub fn get(&self, index: usize) -> Option<&Slot> {
+        self.slots.get(index)
+    }
+
+    /// Slot at ring index `index` (held or not: callers track holding by ordinal).
     pub fn get_mut(&mut self, index: usize) -> Option<&mut Slot> {
         self.slots.get_mut(index)
     }

@@ -49,7 +49,7 @@
 //! # What uses it
 //!
 //! [`crate::StepEngine`] (the oracle) and [`crate::PulseProducer`] take the same warp
-//! (`set_warp`, before a run) and map each pulse's ideal tick through it at the one place
+//! (`set_warp` before a run, `change_warp` during one) and map each pulse's ideal tick through it at the one place
 //! they compute it; the producer's cruise fast path is left while a warp is set, and segment
 //! and run ends are mapped alike, so the two agree pulse for pulse (tests/producer.rs: half
 //! of its random cases carry holds, resumes and override changes). A run's `at_tick` is on
@@ -57,14 +57,26 @@
 //! reaches at or after the controller tick they mean). Unwarped runs cost a per-joint flag
 //! test per pulse in the producer (scripts/step-cost, README).
 //!
-//! Left for issue 32: changing the warp during a run (a change must lie after every edge
-//! already committed: the engine's scheduled edges, the producer's written periods and
-//! computed next rise; then both take it at the same tick), dropping phases that are over
-//! (the list is fixed, [`WARP_PHASES`]), the map's cost while warped (a phase scan and u128
-//! arithmetic per pulse, a ~40-step search on a ramp: fine on the host, to be measured on
-//! the board, or made incremental per joint), the acceleration budget between path and warp
-//! (above), the board's per-run clock restart (`start_new_clock`: the warp must move with it),
-//! and the controller's and protocol's HOLD, RESUME and OVERRIDE.
+//! # Changes during a run
+//!
+//! `change_warp` on the engine and on the producer takes a change at a controller tick no
+//! earlier than their `warp_horizon`: every edge already committed under the old map (the
+//! engine's scheduled rises, the producer's written periods and computed next rise) lies at
+//! or before it, and the two maps agree up to it, so nothing committed moves. Before the
+//! change each forgets the phases that are over ([`Warp::forget_before`]: below the oldest
+//! trajectory tick it can still ask for), so the fixed list ([`WARP_PHASES`]) is not used
+//! up by a long run with many holds. The caller takes a change at `max(now, horizon)`;
+//! tests/producer.rs applies random holds, resumes and overrides mid-run to both at the
+//! same tick and compares them pulse for pulse.
+//!
+//! The controller's HOLD, RESUME and OVERRIDE drive it through arm-core's `StepBackend`
+//! (`change_rate`, `set_start_rate`: the simulator's backend keeps the warp on the run's
+//! clock, which restarts at 0 every run, as the board's does).
+//!
+//! Left for issue 32: the map's cost while warped (a phase scan and u128 arithmetic per
+//! pulse, a ~40-step search on a ramp: fine on the host, to be measured on the board before
+//! the NUCLEO's backend takes it, or made incremental per joint), the acceleration budget
+//! between path and warp (above), and the NUCLEO's and QEMU's backends.
 
 /// A rate of 100 %: trajectory time runs as fast as controller time.
 pub const RATE_ONE: u64 = 1 << 16;
@@ -99,6 +111,10 @@ pub enum WarpError {
     NoRamp,
     /// No room for the change's phases ([`WARP_PHASES`]).
     Full,
+    /// The change lies before an edge already committed under the old warp (a rise the
+    /// engine scheduled, a period the producer wrote): take it at their `warp_horizon` or
+    /// later.
+    Committed,
 }
 
 /// One piece of the warp: from controller tick `start`, trajectory time `at` (units of
@@ -234,6 +250,33 @@ impl Warp {
         Ok(())
     }
 
+    /// Forgets the phases that are over for every trajectory tick at or after
+    /// `trajectory_tick`: those whose successor starts at a trajectory time strictly
+    /// before it (strictly: a phase ending held, rate 0, still answers for the trajectory
+    /// time it stands at). Queries for earlier trajectory ticks (or controller ticks before
+    /// the first phase kept) are no longer exact; the engine and the producer forget only
+    /// below every tick they can still ask for (the oldest queued segment's start, each
+    /// joint's next pulse). What is kept answers exactly as before.
+    pub fn forget_before(&mut self, trajectory_tick: u64) {
+        let want = u128::from(trajectory_tick) * PER_TICK;
+        let held = self.phases.get(..self.len).unwrap_or_default();
+        // Phases 0..over end before `want` (the last phase never ends).
+        let over = held
+            .iter()
+            .skip(1)
+            .take_while(|next| next.at < want)
+            .count();
+        if over > 0 {
+            self.phases.copy_within(over..self.len, 0);
+            self.len -= over;
+        }
+    }
+
+    /// Phases held (at least one; at most [`WARP_PHASES`]).
+    pub fn phases(&self) -> usize {
+        self.len
+    }
+
     /// HOLD at `at`: ramps to a standstill (rate 0) with slope `ramp`.
     pub fn hold(&mut self, at: u64, ramp: u64) -> Result<(), WarpError> {
         self.change_rate(at, 0, ramp)
@@ -309,6 +352,23 @@ impl Warp {
     pub fn rate(&self, tick: u64) -> u64 {
         let phase = self.phase_at(tick);
         phase.rate_after(tick - phase.start) / RAMP_SCALE
+    }
+
+    /// Whether the rate is changing at controller tick `tick` (a ramp's phase holds it).
+    pub fn ramping(&self, tick: u64) -> bool {
+        self.phase_at(tick).ramp != 0
+    }
+
+    /// A steady `rate` (`RATE_ONE` = 100 %) from controller tick `from`, trajectory time
+    /// being controller time before it: what a run started with an override takes
+    /// ([`Warp::IDENTITY`] itself at 100 %, keeping the unwarped fast paths).
+    pub fn steady(from: u64, rate: u64) -> Result<Warp, WarpError> {
+        let mut warp = Warp::IDENTITY;
+        if rate != RATE_ONE {
+            // A slope so steep the ramp takes no tick: a step to `rate` at `from`.
+            warp.change_rate(from, rate, i64::MAX as u64)?;
+        }
+        Ok(warp)
     }
 
     /// The phase that holds `tick` (the first one for ticks before it).
@@ -399,6 +459,15 @@ mod tests {
             at += 10_000;
         }
         assert_eq!(result, Err(WarpError::Full));
+        // Forgetting what is over makes room too, and keeps the rest exact.
+        let mut forgetful = warp;
+        let tau = warp.trajectory_tick(60_000);
+        forgetful.forget_before(tau);
+        assert!(forgetful.phases() < warp.phases());
+        for t in (tau..tau + 200_000).step_by(97) {
+            assert_eq!(forgetful.controller_tick(t), warp.controller_tick(t), "{t}");
+        }
+        assert_eq!(forgetful.hold(300_000, 1 << 40), Ok(()));
         // Replanning from an earlier tick drops the later changes: room again.
         assert_eq!(warp.hold(20, 1 << 40), Ok(()));
         assert!(!warp.is_identity());

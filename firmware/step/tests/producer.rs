@@ -3,7 +3,11 @@
 //! any length), random driver timing and tick rates (200 MHz, 10 MHz, odd ones), random
 //! timer ranges (32-bit, 16-bit, tiny ones that force gap splitting) and random buffer
 //! halves, every joint's rising edges, falling edges and DIR changes must be identical,
-//! as must the late-pulse count and the positions.
+//! as must the late-pulse count and the positions. Half the cases run under a warp set
+//! before the run (holds, resumes, overrides), and half of all cases get up to six more
+//! rate changes asked for MID-RUN at random instants: the producer takes each at the
+//! first tick its horizon allows (`warp_horizon`: nothing it wrote moves), and the engine
+//! takes the same change at the same tick when its clock reaches the instant asked for.
 //!
 //! `producer_matches_engine_on_10m_pulses` runs seeded cases until at least
 //! `STEP_EQ_PULSES` pulses (default 10,000,000) were compared; arm-step is built with
@@ -14,7 +18,7 @@ mod common;
 
 use arm_step::{
     MAX_JOINTS, MAX_RATE, PulsePeriod, PulseProducer, RATE_ONE, Segment, StepEngine, StepTiming,
-    Warp, ramp_for, sign_of,
+    Warp, WarpError, ramp_for, sign_of,
 };
 use common::Recorder;
 use proptest::prelude::*;
@@ -42,6 +46,18 @@ struct Case {
     halves: Vec<usize>,
     /// The time warp both take (holds, resumes, override changes), or the identity.
     warp: Warp,
+    /// Rate changes asked for during the first run (`at` is the instant asked for).
+    live: Vec<Change>,
+}
+
+/// A rate change during a run: asked for at controller tick `at` (in a case), taken at
+/// `at` (once applied: the first tick the producer's horizon allows).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct Change {
+    asked: u64,
+    at: u64,
+    target: u64,
+    ramp: u64,
 }
 
 /// xorshift64*.
@@ -125,13 +141,59 @@ fn random_case(rng: &mut Rng) -> Case {
         .collect();
     // Drawn last, so that the rest of a seed's case is what it was before warps.
     let warp = random_warp(rng, tick_hz, &runs);
+    let live = random_changes(rng, tick_hz, &runs);
     Case {
         timing,
         max_period,
         runs,
         halves,
         warp,
+        live,
     }
+}
+
+/// A rate from 0 (a hold) to 200 %, and a ramp slope that makes a full 0-100 % swing in 1 us
+/// to `span_us`.
+fn random_rate_and_ramp(rng: &mut Rng, tick_hz: u32, span_us: u64) -> (u64, u64) {
+    let target = match rng.below(4) {
+        0 => 0,
+        1 => rng.range(RATE_ONE / 10, RATE_ONE),
+        2 => rng.range(RATE_ONE, MAX_RATE),
+        _ => RATE_ONE,
+    };
+    // A full swing in `swing_us`: accel / speed = 1 / swing (module header of warp).
+    let swing_us = rng.range(1, span_us.max(1));
+    let accel = (1_000_000_000 / swing_us) as u32;
+    (target, ramp_for(accel.max(1), 1_000, tick_hz))
+}
+
+/// Half the cases: one to six rate changes asked for during the first run, at random
+/// instants over about twice its unwarped length; the last one leaves the rate above 0
+/// (the run ends).
+fn random_changes(rng: &mut Rng, tick_hz: u32, runs: &[(Vec<Segment>, u64, u64)]) -> Vec<Change> {
+    if rng.below(2) == 0 {
+        return Vec::new();
+    }
+    let (segments, first, _) = &runs[0];
+    let span_us: u64 = segments.iter().map(|s| u64::from(s.duration_us)).sum();
+    let span = span_us * u64::from(tick_hz) / 1_000_000;
+    let count = rng.range(1, 6);
+    let mut asked = *first;
+    (0..count)
+        .map(|i| {
+            asked += rng.below(2 * span / count + 1);
+            let (mut target, ramp) = random_rate_and_ramp(rng, tick_hz, span_us);
+            if i + 1 == count && target == 0 {
+                target = RATE_ONE;
+            }
+            Change {
+                asked,
+                at: asked,
+                target,
+                ramp,
+            }
+        })
+        .collect()
 }
 
 /// Half the cases: one to six rate changes (holds, resumes, overrides of 10-200 %) from the
@@ -149,19 +211,10 @@ fn random_warp(rng: &mut Rng, tick_hz: u32, runs: &[(Vec<Segment>, u64, u64)]) -
     let mut at = *first;
     for i in 0..changes {
         at += rng.below(2 * span / changes + 1);
-        let mut target = match rng.below(4) {
-            0 => 0,
-            1 => rng.range(RATE_ONE / 10, RATE_ONE),
-            2 => rng.range(RATE_ONE, MAX_RATE),
-            _ => RATE_ONE,
-        };
+        let (mut target, ramp) = random_rate_and_ramp(rng, tick_hz, span_us);
         if i + 1 == changes && target == 0 {
             target = RATE_ONE;
         }
-        // A full swing in `swing_us`: accel / speed = 1 / swing (module header of warp).
-        let swing_us = rng.range(1, span_us.max(1));
-        let accel = (1_000_000_000 / swing_us) as u32;
-        let ramp = ramp_for(accel.max(1), 1_000, tick_hz);
         warp.change_rate(at, target, ramp)
             .expect("at most 6 changes, rates in range");
     }
@@ -183,10 +236,14 @@ fn sort_lines(lines: &mut [Vec<Line>]) {
 /// What a run of either gives: per joint line changes, late pulses, positions.
 type Lines = (Vec<Vec<Line>>, u32, [i32; MAX_JOINTS]);
 
-/// The engine's line changes per joint, its late pulses and positions, the tick at which
-/// each run started (each starts after the previous one ran dry: its origin on trajectory
-/// time, its stream's start on controller time) and where it ran dry.
-fn engine_lines(case: &Case) -> (Lines, Vec<(u64, u64)>, Vec<u64>) {
+/// Where each run started (its origin on trajectory time, its stream's start on controller
+/// time; each starts after the previous one ran dry) and where each ended.
+type Runs = (Vec<(u64, u64)>, Vec<u64>);
+
+/// The engine's line changes per joint, its late pulses and positions, and its runs.
+/// `changes` (the producer's, as it applied them) are taken when the engine's clock reaches
+/// the instant each was asked for, at the tick the producer took it.
+fn engine_lines(case: &Case, changes: &[Change]) -> (Lines, Runs) {
     let mut starts = Vec::new();
     let mut ends = Vec::new();
     let mut engine = StepEngine::<QUEUE>::new(case.timing);
@@ -194,27 +251,54 @@ fn engine_lines(case: &Case) -> (Lines, Vec<(u64, u64)>, Vec<u64>) {
     let mut pins = Recorder::default();
     let mut lines = vec![Vec::new(); MAX_JOINTS];
     let mut last_end = 0;
-    for (segments, start, lead) in &case.runs {
+    for (run, (segments, start, lead)) in case.runs.iter().enumerate() {
         let start = *start.max(&(last_end + lead));
         // The run's segments start on trajectory time: at the first trajectory tick the
         // warp reaches at or after controller tick `start`.
         let origin = match start {
             0 => 0,
-            _ => case.warp.trajectory_tick(start - 1) + 1,
+            _ => engine.warp().trajectory_tick(start - 1) + 1,
         };
         starts.push((origin, start - lead));
         for segment in segments {
             assert!(engine.push(*segment).is_ok());
         }
         engine.start(origin);
+        let mut pending = if run == 0 { changes } else { &[] };
         let mut now = start - lead;
         loop {
+            while let Some((change, rest)) = pending.split_first() {
+                if change.asked > now {
+                    break;
+                }
+                assert!(
+                    engine.warp_horizon() <= change.at,
+                    "the engine commits no further than the producer"
+                );
+                engine
+                    .change_warp(change.at, change.target, change.ramp)
+                    .expect("at or after the horizon, room in the warp");
+                pending = rest;
+            }
             pins.now = now;
             let poll = engine.poll(now, &mut pins);
             match poll.next_deadline {
-                Some(deadline) => now = deadline,
+                // The next deadline, or the next instant a change is asked for.
+                Some(deadline) => {
+                    now = pending
+                        .first()
+                        .map_or(deadline, |change| deadline.min(change.asked))
+                }
                 None => break,
             }
+        }
+        // Changes the producer took after the run's end (asked for while it still wrote
+        // its last periods): taken here too, so that the next run starts on the same map.
+        for change in pending {
+            assert!(change.asked > now, "asked for during the run");
+            engine
+                .change_warp(change.at, change.target, change.ramp)
+                .expect("between runs");
         }
         ends.push(now);
         last_end = now + 1;
@@ -231,14 +315,47 @@ fn engine_lines(case: &Case) -> (Lines, Vec<(u64, u64)>, Vec<u64>) {
     sort_lines(&mut lines);
     (
         (lines, engine.late_pulses(), engine.positions()),
-        starts,
-        ends,
+        (starts, ends),
     )
 }
 
+/// Takes the changes asked for by now: once every joint still filling has written past the
+/// instant asked for, at the producer's horizon or that instant, whichever is later. One
+/// asked for after the run's end changes nothing in it (the maps agree up to the change)
+/// and is taken all the same, so that the next run starts on the map the engine has.
+fn take_changes(
+    producer: &mut PulseProducer<QUEUE>,
+    pending: &mut &[Change],
+    written: &[u64; MAX_JOINTS],
+    done: &[bool; MAX_JOINTS],
+    applied: &mut Vec<Change>,
+) {
+    while let Some((change, rest)) = pending.split_first() {
+        let reached = (0..MAX_JOINTS).all(|j| done[j] || written[j] >= change.asked);
+        if !reached {
+            return;
+        }
+        let horizon = producer.warp_horizon();
+        if horizon > 0 {
+            // Before the horizon: refused, nothing changed.
+            assert_eq!(
+                producer.change_warp(horizon - 1, change.target, change.ramp),
+                Err(WarpError::Committed)
+            );
+        }
+        let at = change.asked.max(horizon);
+        producer
+            .change_warp(at, change.target, change.ramp)
+            .expect("at the horizon, room in the warp");
+        applied.push(Change { at, ..*change });
+        *pending = rest;
+    }
+}
+
 /// The producer's line changes per joint (periods played back from each stream's start),
-/// its late pulses and positions; also checks that the buffers say what the positions say.
-fn producer_lines(case: &Case, run_starts: &[(u64, u64)], run_ends: &[u64]) -> Lines {
+/// its late pulses and positions, the changes it applied and its runs; also checks that the
+/// buffers say what the positions say.
+fn producer_lines(case: &Case) -> (Lines, Vec<Change>, Runs) {
     let mut producer = PulseProducer::<QUEUE>::new(case.timing, case.max_period);
     assert!(producer.set_warp(case.warp));
     let mut lines: Vec<Vec<Line>> = vec![Vec::new(); MAX_JOINTS];
@@ -246,13 +363,21 @@ fn producer_lines(case: &Case, run_starts: &[(u64, u64)], run_ends: &[u64]) -> L
     let mut deltas;
     let mut fills = 0usize;
     let mut moved = [0i32; MAX_JOINTS];
-    for (((segments, _, _), &(origin, stream)), &end) in
-        case.runs.iter().zip(run_starts).zip(run_ends)
-    {
+    let (mut starts, mut ends, mut applied) = (Vec::new(), Vec::new(), Vec::new());
+    let mut last_end = 0;
+    for (run, (segments, start, lead)) in case.runs.iter().enumerate() {
+        let start = *start.max(&(last_end + lead));
+        let origin = match start {
+            0 => 0,
+            _ => producer.warp().trajectory_tick(start - 1) + 1,
+        };
+        let stream = start - lead;
+        starts.push((origin, stream));
         for segment in segments {
             assert!(producer.push(*segment).is_ok());
         }
         producer.start(origin, stream);
+        let mut pending = if run == 0 { &case.live[..] } else { &[] };
         // Every joint is filled in turn, a half at a time, until it idles: its last pulse
         // is written.
         let mut at = [stream; MAX_JOINTS];
@@ -261,6 +386,7 @@ fn producer_lines(case: &Case, run_starts: &[(u64, u64)], run_ends: &[u64]) -> L
         while !done.iter().all(|&d| d) {
             guard += 1;
             assert!(guard < 10_000_000, "producer never drained");
+            take_changes(&mut producer, &mut pending, &at, &done, &mut applied);
             for joint in 0..MAX_JOINTS {
                 if done[joint] {
                     continue;
@@ -297,12 +423,15 @@ fn producer_lines(case: &Case, run_starts: &[(u64, u64)], run_ends: &[u64]) -> L
                 done[joint] = filled.idle;
             }
         }
+        // Changes asked for after the last pulse was written may still move the run's end.
+        take_changes(&mut producer, &mut pending, &at, &done, &mut applied);
+        assert!(pending.is_empty());
         assert!(producer.drained());
-        assert_eq!(
-            producer.run_end_tick(),
-            Some(end),
-            "the run ends where the engine ran dry"
-        );
+        let end = producer
+            .run_end_tick()
+            .expect("every pulse written: the run's end is known");
+        ends.push(end);
+        last_end = end + 1;
         producer.end_run();
         assert!(!producer.is_running());
         assert_eq!(
@@ -312,13 +441,24 @@ fn producer_lines(case: &Case, run_starts: &[(u64, u64)], run_ends: &[u64]) -> L
         );
     }
     sort_lines(&mut lines);
-    (lines, producer.late_pulses(), producer.positions())
+    (
+        (lines, producer.late_pulses(), producer.positions()),
+        applied,
+        (starts, ends),
+    )
 }
 
-/// Compares one case; returns the pulses compared and how many of them were late.
-fn compare(case: &Case) -> Result<(u64, u64), String> {
-    let ((engine, late, positions), starts, ends) = engine_lines(case);
-    let (produced, produced_late, produced_positions) = producer_lines(case, &starts, &ends);
+/// Compares one case; returns the pulses compared, how many of them were late and the
+/// changes taken mid-run.
+fn compare(case: &Case) -> Result<(u64, u64, usize), String> {
+    let ((produced, produced_late, produced_positions), applied, produced_runs) =
+        producer_lines(case);
+    let ((engine, late, positions), runs) = engine_lines(case, &applied);
+    if runs != produced_runs {
+        return Err(format!(
+            "runs (starts, ends): engine {runs:?}, producer {produced_runs:?}"
+        ));
+    }
     for joint in 0..MAX_JOINTS {
         if engine[joint] != produced[joint] {
             let first = engine[joint]
@@ -351,7 +491,7 @@ fn compare(case: &Case) -> Result<(u64, u64), String> {
         .flatten()
         .filter(|l| matches!(l, Line::Rise(_)))
         .count() as u64;
-    Ok((pulses, u64::from(late)))
+    Ok((pulses, u64::from(late), applied.len()))
 }
 
 #[test]
@@ -369,13 +509,19 @@ fn producer_matches_engine_on_10m_pulses() {
     let mut late = 0u64;
     let mut cases = 0u64;
     let (mut warped_cases, mut warped_pulses) = (0u64, 0u64);
+    let (mut live_cases, mut live_pulses, mut live_changes) = (0u64, 0u64, 0usize);
     while pulses < target {
         let case_seed = seed.wrapping_add(cases.wrapping_mul(0x9e37_79b9_7f4a_7c15)) | 1;
         let case = random_case(&mut Rng(case_seed));
         match compare(&case) {
-            Ok((n, l)) => {
+            Ok((n, l, changes)) => {
                 pulses += n;
                 late += l;
+                if changes > 0 {
+                    live_cases += 1;
+                    live_pulses += n;
+                    live_changes += changes;
+                }
                 if !case.warp.is_identity() {
                     warped_cases += 1;
                     warped_pulses += n;
@@ -387,10 +533,13 @@ fn producer_matches_engine_on_10m_pulses() {
     }
     println!(
         "producer == engine on {pulses} pulses ({late} of them late) in {cases} cases, \
-         {warped_pulses} pulses in {warped_cases} cases under a warp ({:.1} s)",
+         {warped_pulses} pulses in {warped_cases} cases under a warp set before the run, \
+         {live_pulses} pulses in {live_cases} cases with {live_changes} rate changes taken \
+         mid-run ({:.1} s)",
         started.elapsed().as_secs_f64()
     );
     assert!(warped_pulses > 0, "the warped cases moved");
+    assert!(live_changes > 0, "changes were taken mid-run");
     assert!(pulses >= target);
 }
 

@@ -10,7 +10,7 @@
 
 mod common;
 
-use arm_step::{MAX_JOINTS, RATE_ONE, Segment, StepEngine, Warp, ramp_for};
+use arm_step::{MAX_JOINTS, RATE_ONE, Segment, StepEngine, WARP_PHASES, Warp, WarpError, ramp_for};
 use common::{BOARD_TIMING, Recorder};
 
 const QUEUE: usize = 16;
@@ -185,4 +185,107 @@ fn an_override_slows_and_speeds_within_the_acceleration() {
     assert!(ratio <= 1.1, "implied {ratio} x the limit");
     assert_eq!(late, 0);
     assert_eq!(positions, final_points());
+}
+
+/// Holds and resumes taken DURING the run (`change_warp` when the clock reaches them, at
+/// the engine's horizon or later) give the edges of the same changes planned before it;
+/// twenty of them, more than [`WARP_PHASES`] holds without forgetting what is over; a change
+/// before the horizon is refused and changes nothing.
+#[test]
+fn changes_taken_mid_run_match_the_same_changes_planned_and_forget_what_is_over() {
+    let ramp = ramp_for(ACCEL, 4_000, BOARD_TIMING.tick_hz);
+    // Every 0.4 s from 0.1 s: a hold, then a resume 0.05 s later (mid-ramp) or 0.3 s later
+    // (held: the pulses due meanwhile are "never" until the resume maps them again).
+    let asked: Vec<(u64, u64)> = (0..20u64)
+        .map(|i| {
+            let hold = ORIGIN + HZ / 10 + (i / 2) * 2 * HZ / 5;
+            let after = if i % 4 == 1 { HZ / 20 } else { 3 * HZ / 10 };
+            (hold + if i % 2 == 0 { 0 } else { after }, i % 2)
+        })
+        .collect();
+    let mut engine = StepEngine::<QUEUE>::new(BOARD_TIMING);
+    for segment in segments() {
+        assert!(engine.push(segment).is_ok());
+    }
+    engine.start(ORIGIN);
+    let mut pins = Recorder::default();
+    let mut now = 0;
+    let mut taken = Vec::new();
+    let mut pending = &asked[..];
+    let mut most_phases = 0;
+    for _ in 0..400_000 {
+        while let Some((&(at, resume), rest)) = pending.split_first() {
+            if at > now {
+                break;
+            }
+            let horizon = engine.warp_horizon();
+            if horizon > 0 {
+                assert_eq!(
+                    engine.change_warp(horizon - 1, 0, ramp),
+                    Err(WarpError::Committed)
+                );
+            }
+            let at = at.max(horizon);
+            let target = if resume == 1 { RATE_ONE } else { 0 };
+            assert_eq!(engine.change_warp(at, target, ramp), Ok(()));
+            most_phases = most_phases.max(engine.warp().phases());
+            taken.push((at, target));
+            pending = rest;
+        }
+        pins.now = now;
+        match engine.poll(now, &mut pins).next_deadline {
+            Some(deadline) => {
+                now = pending
+                    .first()
+                    .map_or(deadline, |&(at, _)| deadline.min(at))
+            }
+            None => break,
+        }
+    }
+    assert!(!engine.is_running(), "the run ended");
+    assert_eq!(taken.len(), asked.len());
+    assert!(
+        most_phases < WARP_PHASES,
+        "{most_phases} phases held at most"
+    );
+    pins.check_timing(&BOARD_TIMING);
+
+    // The reference: as many of the same changes as one warp holds, planned before the
+    // run; the edges agree up to the first change it lacks.
+    let fit = planned_changes(&taken, ramp);
+    let mut planned = Warp::IDENTITY;
+    for &(at, target) in &taken[..fit] {
+        assert_eq!(planned.change_rate(at, target, ramp), Ok(()));
+    }
+    let checked = taken.get(fit).map_or(u64::MAX, |&(at, _)| at);
+    let (reference, _, _) = run(planned);
+    let upto = |p: &Recorder, joint| -> Vec<u64> {
+        rise_ticks(p, joint)
+            .into_iter()
+            .filter(|&t| t <= checked)
+            .collect()
+    };
+    for joint in 0..2 {
+        assert_eq!(upto(&pins, joint), upto(&reference, joint), "joint {joint}");
+    }
+    println!(
+        "{} changes taken mid-run, at most {most_phases} warp phases held ({WARP_PHASES} \
+         fit); edges equal to those of the first {fit} planned before the run, up to {:.3} s",
+        taken.len(),
+        checked.min(now) as f64 / HZ as f64
+    );
+    assert_eq!(
+        engine.positions(),
+        final_points(),
+        "every joint on its last point"
+    );
+}
+
+/// How many of `taken` (from the first) fit one warp planned before the run.
+fn planned_changes(taken: &[(u64, u64)], ramp: u64) -> usize {
+    let mut warp = Warp::IDENTITY;
+    taken
+        .iter()
+        .take_while(|&&(at, target)| warp.change_rate(at, target, ramp).is_ok())
+        .count()
 }

@@ -87,6 +87,8 @@ pub enum OwnedReport {
     RxCounters(protocol::RxCounters),
     Diag(protocol::Diag),
     JointDesc(protocol::JointDescSet),
+    /// MOTION (issue 32).
+    Motion(protocol::MotionReport),
 }
 
 impl Client {
@@ -127,6 +129,7 @@ impl Client {
             Report::RxCounters(c) => OwnedReport::RxCounters(c),
             Report::Diag(d) => OwnedReport::Diag(d),
             Report::JointDesc(d) => OwnedReport::JointDesc(d),
+            Report::Motion(m) => OwnedReport::Motion(m),
         };
         Some((frame.seq, report))
     }

@@ -93,6 +93,7 @@ pub fn rx_counters_after_stops(raw: &Raw, stops: u8) -> Option<protocol::RxCount
         stop_cause: false,
         counters: true,
         diag: false,
+        motion: false,
     });
     let mut request = [0u8; 8];
     let n = ask.encode(0x40, &mut request).unwrap();

@@ -107,6 +107,18 @@ pub enum Cmd {
     /// UNLOCK: clear the latch a limit switch set; then only motion away from a switch
     /// still active is accepted, until it opens.
     Unlock,
+    /// HOLD: decelerate the run along its path to a standstill and wait (RUNNING, held);
+    /// from any host. `resume` goes on; `stop` still stops at once.
+    Hold,
+    /// RESUME: after a hold, accelerate back and go on (the owner).
+    Resume,
+    /// OVERRIDE: run at PERCENT of the trajectory's speed (1..200), ramped in within the
+    /// joints' accelerations; also the speed of the runs to come until changed.
+    Override {
+        /// Percent of the planned speed: 100 is the file's own.
+        #[arg(value_parser = clap::value_parser!(u8).range(1..=200))]
+        percent: u8,
+    },
     /// RETURN: move every joint to zero.
     Return {
         /// Wait until the move ends.

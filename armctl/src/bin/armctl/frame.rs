@@ -121,6 +121,15 @@ pub enum EncodeCmd {
     EstopReset,
     /// UNLOCK (issue 33).
     Unlock,
+    /// HOLD (issue 32).
+    Hold,
+    /// RESUME (issue 32).
+    Resume,
+    /// OVERRIDE PERCENT (issue 32; 1..200 is what the controller takes).
+    Override {
+        /// Percent.
+        percent: u8,
+    },
     /// SET_ENABLE MASK (issue 23): `--disable` for limp, else holding.
     SetEnable {
         /// Mask, bits 0-7 joints, 8 gripper (decimal or 0x hex).
@@ -313,6 +322,9 @@ pub fn encode_frame(seq: u8, command: &EncodeCmd) -> Result<String, String> {
         EncodeCmd::UploadPeriod { us } => Command::UploadPeriod { period_us: *us },
         EncodeCmd::EstopReset => Command::EstopReset,
         EncodeCmd::Unlock => Command::Unlock,
+        EncodeCmd::Hold => Command::Hold,
+        EncodeCmd::Resume => Command::Resume,
+        EncodeCmd::Override { percent } => Command::Override { percent: *percent },
         EncodeCmd::SetEnable { mask, disable } => Command::SetEnable {
             mask: *mask,
             enable: !*disable,

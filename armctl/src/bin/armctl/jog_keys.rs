@@ -1,7 +1,8 @@
 //! `armctl jog` by keys: a joint chosen with a digit, jogged with the arrow keys (or `-`
 //! and `+`), the increment halved and doubled with `[` and `]`, Space stops the arm at once
-//! (STOPPED), `q` or Esc ends. A live line shows the joint, the increment and the
-//! positions.
+//! (STOPPED), `h` holds the move under way and resumes it (HOLD / RESUME, issue 32: a
+//! controlled stop along the path, then on), `q` or Esc ends. A live line shows the joint,
+//! the increment and the positions.
 //!
 //! [`Jog`] is the key handling alone (what each key asks for), tested without a terminal;
 //! [`execute`] reads keys, runs each jog as a move in a thread so that Space is read while
@@ -27,6 +28,8 @@ pub enum JogAction {
     Move { joint: usize, by: f64 },
     /// STOPPED now.
     Stop,
+    /// HOLD the move under way, or RESUME it if held.
+    HoldOrResume,
     /// End the tool.
     Quit,
     /// Only the line changes (joint or increment).
@@ -75,6 +78,7 @@ impl Jog {
     pub fn on_key(&mut self, key: &Key) -> JogAction {
         match key {
             Key::Char(' ') => JogAction::Stop,
+            Key::Char('h') | Key::Char('H') => JogAction::HoldOrResume,
             Key::Char('q') | Key::Char('Q') | Key::Escape => JogAction::Quit,
             Key::Char(c) if c.is_ascii_digit() => {
                 let j = (*c as u8 - b'0') as usize;
@@ -134,7 +138,7 @@ pub fn execute(arm: &Arm<'_>, increment: Option<f64>) -> CliResult {
     }
     println!(
         "jog: 0-{} choose a joint, arrows or -/+ move it, [ ] halve/double the step, \
-         Space stops, q quits",
+         Space stops, h holds/resumes, q quits",
         arm.joints - 1
     );
     let view = Mutex::new(View {
@@ -170,6 +174,21 @@ pub fn execute(arm: &Arm<'_>, increment: Option<f64>) -> CliResult {
                     v.message = match arm.client.stop() {
                         Ok(_) => "stopped".into(),
                         Err(e) => format!("STOPPED: {e}"),
+                    };
+                }
+                JogAction::HoldOrResume => {
+                    let held = matches!(
+                        arm.client.motion(),
+                        Ok((_, Some(m))) if m.flags.has(protocol::MotionFlags::HELD)
+                    );
+                    let (verb, result) = if held {
+                        ("resumed", arm.client.resume())
+                    } else {
+                        ("held", arm.client.hold())
+                    };
+                    v.message = match result {
+                        Ok(_) => verb.into(),
+                        Err(e) => format!("{}: {e}", if held { "RESUME" } else { "HOLD" }),
                     };
                 }
                 JogAction::Move { joint, by } if !v.moving => {
@@ -255,6 +274,7 @@ mod tests {
         assert_eq!(jog.on_key(&Key::Char('5')), JogAction::Ignore);
         assert_eq!(jog.joint, 2);
         assert_eq!(jog.on_key(&Key::Char(' ')), JogAction::Stop);
+        assert_eq!(jog.on_key(&Key::Char('h')), JogAction::HoldOrResume);
         assert_eq!(jog.on_key(&Key::Escape), JogAction::Quit);
     }
 

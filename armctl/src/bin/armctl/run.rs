@@ -53,6 +53,12 @@ pub struct RunArgs {
     /// Do not show a progress bar.
     #[arg(long)]
     pub quiet: bool,
+    /// Run at this speed, percent of the file's (1..200; OVERRIDE, issue 32): 50 takes
+    /// twice as long, every point still executed exactly. Above 100 % only where every
+    /// joint's rate and acceleration allow. The factor stays for later runs until changed
+    /// (`armctl override`).
+    #[arg(long, value_name = "PERCENT", value_parser = clap::value_parser!(u8).range(1..=200))]
+    pub speed: Option<u8>,
 }
 
 /// The step rate limit `run --dry-run` checks against without a controller: the board's
@@ -253,6 +259,7 @@ pub fn execute(arm: &Client, args: &RunArgs) -> CliResult {
         // 0: the controller's advertised window.
         window: args.window.map_or(0, usize::from),
         start_after: args.start_after,
+        speed_percent: args.speed,
         // From here on a signal stops the arm rather than just ending the tool.
         cancel: Some(crate::interrupt::watch()?),
         ..RunOptions::default()

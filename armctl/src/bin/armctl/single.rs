@@ -14,6 +14,31 @@ pub fn done(ack: armctl::Result<protocol::Ack>) -> CliResult {
     Ok(())
 }
 
+/// Runs `override`: OVERRIDE, and on OVERRIDE_REFUSED the joint and limit the MOTION
+/// report names.
+pub fn set_override(arm: &Client, percent: u8) -> CliResult {
+    match arm.set_override(percent) {
+        Err(armctl::Error::Refused {
+            status: protocol::StatusCode::OverrideRefused,
+            ..
+        }) => {
+            let why = match arm.motion() {
+                Ok((_, Some(m))) => format!(
+                    "joint {} would go over its {} limit",
+                    m.refused_joint,
+                    match m.refused_limit {
+                        Some(protocol::OverrideLimit::Accel) => "acceleration",
+                        _ => "step rate",
+                    }
+                ),
+                _ => "a joint would go over a limit".to_owned(),
+            };
+            Err(format!("OVERRIDE {percent} % refused: {why}"))
+        }
+        other => done(other),
+    }
+}
+
 /// Runs `return`: RETURN, and with `wait` the wait for the move's end. SIGINT, SIGTERM or SIGHUP
 /// from the RETURN on: STOPPED (crate::interrupt).
 pub fn go_home(arm: &Client, wait: bool) -> CliResult {

@@ -177,6 +177,40 @@ fn unlock_command_and_frame() {
 }
 
 #[test]
+fn hold_resume_override_and_run_speed() {
+    assert!(matches!(parse(&["hold"]).command, Cmd::Hold));
+    assert!(matches!(parse(&["resume"]).command, Cmd::Resume));
+    assert!(matches!(
+        parse(&["override", "25"]).command,
+        Cmd::Override { percent: 25 }
+    ));
+    for bad in ["0", "201"] {
+        assert!(
+            Cli::try_parse_from(["armctl", "override", bad]).is_err(),
+            "{bad}"
+        );
+    }
+    match parse(&["run", "t.csv", "--speed", "50"]).command {
+        Cmd::Run(args) => assert_eq!(args.speed, Some(50)),
+        other => panic!("{other:?}"),
+    }
+    assert_eq!(
+        encode(&["frame", "encode", "--seq", "16", "hold"]),
+        format!("1027{:02x}", protocol::crc8(&[0x10, 0x27]))
+    );
+    assert_eq!(
+        encode(&["frame", "encode", "--seq", "18", "override", "50"]),
+        format!("122932{:02x}", protocol::crc8(&[0x12, 0x29, 0x32]))
+    );
+    // watch's suffix: nothing at 100 % unheld (as older controllers show).
+    let mut m = protocol::MotionReport::IDLE;
+    assert_eq!(crate::watch::motion_suffix(Some(&m)), "");
+    m.factor_percent = 50;
+    m.flags = protocol::MotionFlags(protocol::MotionFlags::HELD | protocol::MotionFlags::AT_REST);
+    assert_eq!(crate::watch::motion_suffix(Some(&m)), " speed 50 % HELD");
+}
+
+#[test]
 fn estop_reset_frame_and_the_status_line() {
     assert_eq!(
         encode(&["frame", "encode", "--seq", "25", "estop-reset"]),

@@ -39,6 +39,30 @@ pub fn described(arm: &Client) -> Result<Option<Shown>, String> {
     }))
 }
 
+/// The override and hold as `watch` shows them after the positions (issue 32): nothing at
+/// 100 % with no hold (what older controllers show), else e.g. ` speed 50 %`, ` HELD`,
+/// ` ramping`.
+pub fn motion_suffix(motion: Option<&protocol::MotionReport>) -> String {
+    use protocol::MotionFlags;
+    let Some(m) = motion else {
+        return String::new();
+    };
+    let mut out = String::new();
+    if m.factor_percent != 100 {
+        out.push_str(&format!(" speed {} %", m.factor_percent));
+    }
+    if m.flags.has(MotionFlags::HELD) {
+        out.push_str(if m.flags.has(MotionFlags::AT_REST) {
+            " HELD"
+        } else {
+            " HOLDING"
+        });
+    } else if m.flags.has(MotionFlags::RAMPING) {
+        out.push_str(" ramping");
+    }
+    out
+}
+
 fn location_line(location: &Location, joints: usize, shown: Option<&Shown>) -> String {
     let mut line = format!("{:<8}", record::state_name(location.state));
     for (j, p) in location.position.iter().take(joints).enumerate() {
@@ -94,6 +118,8 @@ pub fn execute(
     let mut last_status = Instant::now();
     let mut seen = 0u64;
     let mut last_state = None;
+    // The last MOTION report (override, hold), asked with the owner's STATUS each second.
+    let mut motion = None;
     loop {
         if end.is_some_and(|e| Instant::now() >= e) {
             break;
@@ -142,7 +168,8 @@ pub fn execute(
                 // At most 10 lines a second on screen, every state change included.
                 if last_print.elapsed() >= Duration::from_millis(100) {
                     last_print = Instant::now();
-                    let line = location_line(&location, joints, shown);
+                    let line =
+                        location_line(&location, joints, shown) + &motion_suffix(motion.as_ref());
                     let written = if tty {
                         write!(out, "\r{line}").and_then(|()| out.flush())
                     } else {
@@ -160,7 +187,7 @@ pub fn execute(
         // STATUS now and then keeps this host the owner (reports go to the owner).
         if !read_only && last_status.elapsed() >= Duration::from_secs(1) {
             last_status = Instant::now();
-            arm.status().map_err(|e| e.to_string())?;
+            motion = arm.motion().map_err(|e| e.to_string())?.1;
         }
     }
     let written = if tty { writeln!(out) } else { Ok(()) }

@@ -58,6 +58,7 @@ macro_rules! with_boot_fields {
         mac: [0; 6],
         booted_net: NetSettings::fixed([192, 168, 1, 30], 24, None),
         step_budget_hz: crate::profile::BOOT_STEP_BUDGET_HZ,
+        motion: super::motion::Motion::IDLE,
         last_refusal: protocol::Refusal {
             seq: 0,
             tag: 0,

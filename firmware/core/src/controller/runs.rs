@@ -306,6 +306,9 @@ impl<const CAP: usize> Controller<CAP> {
         }
         self.return_plan = Some(plan);
         self.pump(plant);
+        // The controller's own move: at 100 %, never held from before.
+        self.motion.held = false;
+        plant.set_start_rate(arm_step::RATE_ONE);
         plant.start();
         None
     }
@@ -337,7 +340,7 @@ impl LastSegment {
 /// `d1` (docs/PROTOCOL.md, ACCEL_SET): the change of rate over the time between the two
 /// segments' midpoints, less one step of rounding in each segment's rate. A duration of
 /// 0 is rest (rate 0, no length). 0 when within the rounding.
-fn acceleration(s0: i32, d0: u32, s1: i32, d1: u32) -> u128 {
+pub(super) fn acceleration(s0: i32, d0: u32, s1: i32, d1: u32) -> u128 {
     let (s0, d0, s1, d1) = (
         i128::from(s0),
         i128::from(d0),

@@ -130,6 +130,20 @@ impl<
             Err(_) => false,
         }
     }
+    fn change_rate(&mut self, rate: u64, accel: u32, speed: u32) -> bool {
+        let taken = self
+            .step
+            .change_rate(self.kick.now_tick(), rate, accel, speed);
+        // The step side's next deadline may have moved (a resume, a faster override).
+        self.kick.kick();
+        taken
+    }
+    fn set_start_rate(&mut self, rate: u64) {
+        self.step.set_start_rate(rate);
+    }
+    fn rate_now(&self) -> Option<(u64, bool)> {
+        self.step.rate_now(self.kick.now_tick())
+    }
 }
 
 /// Owns the [`Controller`]: handles datagrams (STOPPED from `bus.estop` first; the wired
@@ -404,6 +418,13 @@ pub(super) fn deliver(bus: &Bus, response: &Response) {
             to,
             seq: response.answer_seq,
             report: AnswerReport::RxCounters(bus.rx_counters()),
+        }));
+    }
+    if let Some((to, motion)) = response.asked_motion {
+        bus.send(Outgoing::Answer(Answer {
+            to,
+            seq: response.answer_seq,
+            report: AnswerReport::Motion(motion),
         }));
     }
     if let Some(to) = response.asked_diag {

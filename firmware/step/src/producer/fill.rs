@@ -53,7 +53,7 @@ impl<const QUEUE: usize> PulseProducer<QUEUE> {
         while k < len {
             let s = &mut self.joints[j];
             if s.next_rise == u64::MAX {
-                if s.remaining > 0 {
+                if s.remaining > 0 || s.parked != u64::MAX {
                     if s.fast
                         && !s.warped
                         && s.open_delta == s.sign
@@ -72,12 +72,28 @@ impl<const QUEUE: usize> PulseProducer<QUEUE> {
                     }
                     s.cruising = false;
                     // Trajectory time: the warp says when it comes.
-                    let ideal = s.take_ideal();
-                    let ideal = if s.warped {
-                        self.warp.warped_tick(ideal)
+                    let taken = if s.parked != u64::MAX {
+                        core::mem::replace(&mut s.parked, u64::MAX)
                     } else {
-                        ideal
+                        s.take_ideal()
                     };
+                    let ideal = if s.warped {
+                        self.warp.warped_tick(taken)
+                    } else {
+                        taken
+                    };
+                    if ideal == u64::MAX {
+                        // Held for good under this warp: not committed. Short fillers
+                        // meanwhile, so that a change (a RESUME) is taken soon after.
+                        s.parked = taken;
+                        let idle = max.min(self.idle_short);
+                        let (written, sign) =
+                            Self::close_with_fillers(s, idle, &mut periods[k..], &mut signs[k..]);
+                        pulses += written;
+                        last_sign = sign;
+                        k = len;
+                        continue;
+                    }
                     let rise = if s.earliest > ideal {
                         self.late_pulses = self.late_pulses.wrapping_add(1);
                         s.earliest
@@ -186,6 +202,37 @@ impl<const QUEUE: usize> PulseProducer<QUEUE> {
             filled.segments_finished = self.pop_finished();
         }
         filled
+    }
+
+    /// Closes joint `s`'s open period and fills `periods` with fillers of `idle` ticks (a
+    /// joint whose next pulse the warp holds back); returns the pulses written (the open
+    /// one, if any) and the sign of the last period.
+    #[cold]
+    #[inline(never)]
+    fn close_with_fillers(
+        s: &mut super::JointStream,
+        idle: u32,
+        periods: &mut [PulsePeriod],
+        signs: &mut [i8],
+    ) -> (u32, i8) {
+        periods.fill(PulsePeriod {
+            reload: idle - 1,
+            repetition: 0,
+            high: 0,
+        });
+        if let Some(first) = periods.first_mut() {
+            first.high = s.open_high;
+        }
+        if let Some(sign) = signs.first_mut() {
+            *sign = s.open_delta;
+        }
+        let last_sign = if periods.len() >= 2 { 0 } else { s.open_delta };
+        let pulses = u32::from(s.open_delta != 0);
+        s.position = s.position.wrapping_add(i32::from(s.open_delta));
+        s.cursor += u64::from(idle) * periods.len() as u64;
+        s.open_high = 0;
+        s.open_delta = 0;
+        (pulses, last_sign)
     }
 
     /// The u32 inner loop for pulses that are all on time: the open period is one of this

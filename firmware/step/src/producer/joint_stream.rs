@@ -36,6 +36,10 @@ pub(super) struct JointStream {
     /// joint at hand: reading the warp's own flag cost 10 instructions per step at 1 kHz
     /// with 8 joints, scripts/step-cost).
     pub(super) warped: bool,
+    /// Ideal tick (trajectory time) of a pulse the warp holds back for good (it maps to
+    /// "never"), taken from the clock but not placed: placed when a warp change lets it
+    /// come; `u64::MAX`: none.
+    pub(super) parked: u64,
     /// -1 or +1.
     pub(super) sign: i8,
     /// Steps, counted per pulse written.
@@ -77,6 +81,7 @@ impl JointStream {
         wide_remainder: 0,
         wide_modulus: 1,
         warped: false,
+        parked: u64::MAX,
         sign: 1,
         position: 0,
         direction: None,
@@ -87,6 +92,15 @@ impl JointStream {
         next_rise: u64::MAX,
         seek_at: 0,
     };
+
+    /// Ideal tick of the next pulse (absolute), without advancing the clock.
+    pub(super) fn next_ideal(&self) -> u64 {
+        if self.fast {
+            self.base + u64::from(self.ideal)
+        } else {
+            self.wide_ideal
+        }
+    }
 
     /// Ideal tick of the next pulse (absolute), advancing the clock past it.
     ///

@@ -31,7 +31,7 @@
 
 use crate::engine::QueueEnd;
 use crate::ring::SegmentRing;
-use crate::{MAX_JOINTS, Segment, StepTiming, US_PER_S, Warp, write_each};
+use crate::{MAX_JOINTS, Segment, StepTiming, US_PER_S, Warp, WarpError, write_each};
 
 mod fill;
 mod joint_stream;
@@ -214,6 +214,78 @@ impl<const QUEUE: usize> PulseProducer<QUEUE> {
         &self.warp
     }
 
+    /// The earliest controller tick a warp change may take effect at
+    /// ([`PulseProducer::change_warp`]): every moving joint's written periods end at its
+    /// cursor, and a next rise computed but not written yet is committed too (0 when idle).
+    /// A buffer half or two ahead of the hardware: a change waits that long. Of a joint
+    /// that waits past the queue, only its last pulse counts (its idle fillers are on
+    /// controller time, and a pulse pushed later rises after them whatever the warp).
+    pub fn warp_horizon(&self) -> u64 {
+        if !self.running {
+            return 0;
+        }
+        self.joints
+            .iter()
+            .map(|j| match j.next_rise {
+                _ if j.waiting => j.seek_at,
+                u64::MAX => j.cursor,
+                rise => rise.max(j.cursor),
+            })
+            .max()
+            .unwrap_or(0)
+    }
+
+    /// Changes the warp during a run (or between runs), as
+    /// [`crate::StepEngine::change_warp`]: refused before
+    /// [`PulseProducer::warp_horizon`]; phases nothing can still need are forgotten first;
+    /// the cruise fast path is left (it runs unwarped only) and the run's end, if known, is
+    /// mapped again.
+    pub fn change_warp(&mut self, at: u64, target: u64, ramp: u64) -> Result<(), WarpError> {
+        if at < self.warp_horizon() {
+            return Err(WarpError::Committed);
+        }
+        if self.running {
+            // Never past `at` itself: the change starts from the phase that holds it.
+            let needed = self.oldest_needed().min(self.warp.trajectory_tick(at));
+            self.warp.forget_before(needed);
+        }
+        self.warp.change_rate(at, target, ramp)?;
+        for joint in &mut self.joints {
+            joint.cruising = false;
+            joint.warped = true;
+        }
+        if self.running && self.drained() {
+            let last_fall = self.joints.iter().map(|j| j.seek_at).max().unwrap_or(0);
+            let end = self.warp.controller_tick(self.origin + self.queue_end.tick);
+            self.run_end = end.max(last_fall);
+        }
+        Ok(())
+    }
+
+    /// The oldest trajectory tick the run can still map: each joint's next pulse, or the
+    /// start of the segment a joint between pulses goes on from (where the next pushed
+    /// one will start if it waits past the queue); the run's end is the latest of all.
+    fn oldest_needed(&self) -> u64 {
+        let len = u32::try_from(self.ring.len()).unwrap_or(u32::MAX);
+        self.joints
+            .iter()
+            .map(|joint| {
+                if joint.parked != u64::MAX {
+                    return joint.parked;
+                }
+                if joint.remaining > 0 {
+                    return joint.next_ideal();
+                }
+                let held = joint.ordinal.wrapping_sub(self.head_ordinal) < len;
+                match self.ring.get(joint.slot) {
+                    Some(slot) if held => self.origin + slot.start_tick,
+                    _ => self.origin + self.queue_end.tick,
+                }
+            })
+            .min()
+            .unwrap_or(self.origin)
+    }
+
     /// The timing this producer was built with.
     pub fn timing(&self) -> StepTiming {
         self.timing
@@ -269,6 +341,7 @@ impl<const QUEUE: usize> PulseProducer<QUEUE> {
             joint.open_high = 0;
             joint.open_delta = 0;
             joint.next_rise = u64::MAX;
+            joint.parked = u64::MAX;
             joint.seek_at = stream_tick;
             // Pulses rise at or after `at_tick >= stream_tick` anyway; this keeps a stale
             // bound from an earlier run from lying before the stream (the least low time
@@ -302,6 +375,7 @@ impl<const QUEUE: usize> PulseProducer<QUEUE> {
             joint.waiting = true;
             joint.cruising = false;
             joint.next_rise = u64::MAX;
+            joint.parked = u64::MAX;
         }
         self.running = false;
         self.queue_end = QueueEnd::ZERO;

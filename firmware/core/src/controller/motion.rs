@@ -1,0 +1,226 @@
+//! HOLD, RESUME and OVERRIDE (issue 32): the controller's side of motion control in
+//! flight. The step side does the time warp (arm-step's `Warp`, through
+//! [`Plant::change_rate`]); here are the rules: who may, in which state, how steep the
+//! ramp, whether an override above 100 % is allowed, and the MOTION report.
+//!
+//! A hold is RUNNING with a held flag (MOTION flags bit 0), not a state of its own: the
+//! manual's hosts know four states, and a held run is still a run (its points still come,
+//! STOPPED still ends it, the owner cannot be taken over). The ramp's slope is the
+//! gentlest any joint needs: `accel / speed` smallest over the joints with an ACCEL_SET
+//! limit, `speed` the fastest rate of that joint over the points held (fed and waiting);
+//! with no limit set, [`UNLIMITED_RAMP`].
+
+use protocol::{
+    ControlledStop, MAX_JOINTS, MotionFlags, MotionReport, OverrideLimit, State, StatusCode,
+};
+
+use super::Controller;
+use super::runs::acceleration;
+use crate::plant::Plant;
+
+/// The ramp when no joint has an acceleration limit (ACCEL_SET 0): a full swing (0 to
+/// 100 %) in 0.25 s, given as the `(accel, speed)` pair `ramp_for` takes. Gentle enough
+/// not to lose steps on a typical stepper arm, quick enough to feel like a hold.
+pub const UNLIMITED_RAMP: (u32, u32) = (4, 1);
+
+/// The controller's override and hold state.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct Motion {
+    /// The override asked for, percent (100: none).
+    pub factor: u8,
+    /// A HOLD is in force (until RESUME or the run's end).
+    pub held: bool,
+    /// The last controlled stop.
+    pub last_stop: ControlledStop,
+    /// The last OVERRIDE refused: joint (0xFF none) and limit.
+    pub refused: (u8, Option<OverrideLimit>),
+}
+
+impl Motion {
+    /// No override, no hold (boot).
+    pub const IDLE: Motion = Motion {
+        factor: 100,
+        held: false,
+        last_stop: ControlledStop::None,
+        refused: (0xFF, None),
+    };
+}
+
+/// `percent` as a warp rate (`arm_step::RATE_ONE` = 100 %).
+pub fn rate_of(percent: u8) -> u64 {
+    arm_step::RATE_ONE * u64::from(percent) / 100
+}
+
+impl<const CAP: usize> Controller<CAP> {
+    /// Each joint's fastest rate (steps/s) and sharpest acceleration (steps/s^2, between
+    /// consecutive points) over the points held. The oldest held point only starts the
+    /// differences: where it begins is the end of a point already finished, which the
+    /// buffer no longer holds (the joints' positions are no stand-in: the step side
+    /// finishes a segment when its pulses are written, a few milliseconds before they are
+    /// played, and the differences from them would make a point look several times as
+    /// fast). With one point held: from the positions. The acceleration is that between
+    /// consecutive differences (a first one has none before it: not from rest, which the
+    /// trajectory's first point already was checked from).
+    fn held_rates(&self, plant: &impl Plant) -> ([u64; MAX_JOINTS], [u128; MAX_JOINTS]) {
+        let mut speed = [0u64; MAX_JOINTS];
+        let mut accel = [0u128; MAX_JOINTS];
+        let (mut previous, mut i) = match (self.buffer.held(0), self.buffer.held(1)) {
+            (Some(first), Some(_)) => (first.position, 1),
+            _ => (plant.positions(), 0),
+        };
+        let mut last = ([0i32; MAX_JOINTS], 0u32);
+        while let Some(point) = self.buffer.held(i) {
+            i += 1;
+            let d = point.duration_us.max(1);
+            for j in 0..MAX_JOINTS {
+                let (Some(&to), Some(&from)) = (point.position.get(j), previous.get(j)) else {
+                    continue;
+                };
+                let steps = i64::from(to) - i64::from(from);
+                let steps = i32::try_from(steps).unwrap_or(i32::MAX);
+                let rate = u64::from(steps.unsigned_abs()) * 1_000_000 / u64::from(d);
+                if let Some(s) = speed.get_mut(j) {
+                    *s = (*s).max(rate);
+                }
+                let before = last.0.get(j).copied().unwrap_or(0);
+                if let Some(a) = accel.get_mut(j)
+                    && last.1 != 0
+                {
+                    *a = (*a).max(acceleration(before, last.1, steps, d));
+                }
+                if let Some(s) = last.0.get_mut(j) {
+                    *s = steps;
+                }
+            }
+            last.1 = d;
+            previous = point.position;
+        }
+        (speed, accel)
+    }
+
+    /// The ramp's `(accel, speed)`: the gentlest slope over the joints with a limit.
+    fn ramp_limits(&self, plant: &impl Plant) -> (u32, u32) {
+        let (speed, _) = self.held_rates(plant);
+        let mut ramp = UNLIMITED_RAMP;
+        let mut limited = false;
+        for (&max, &v) in self.settings.max_accel.iter().zip(&speed) {
+            if max == 0 || v == 0 {
+                continue;
+            }
+            let v = u32::try_from(v).unwrap_or(u32::MAX);
+            // max / v < ramp.0 / ramp.1, without division.
+            if !limited || u64::from(max) * u64::from(ramp.1) < u64::from(ramp.0) * u64::from(v) {
+                ramp = (max, v);
+                limited = true;
+            }
+        }
+        ramp
+    }
+
+    /// HOLD (any host): decelerate the run to a standstill. `BAD_STATE` outside RUNNING,
+    /// during a RETURN's encoder read, or on a step side without a warp.
+    pub(super) fn hold(&mut self, plant: &mut impl Plant) -> Result<(), StatusCode> {
+        if self.state != State::Running || self.return_pending {
+            return Err(StatusCode::BadState);
+        }
+        if self.motion.held {
+            return Ok(());
+        }
+        let (accel, speed) = self.ramp_limits(plant);
+        if !plant.change_rate(0, accel, speed) {
+            return Err(StatusCode::BadState);
+        }
+        self.motion.held = true;
+        self.motion.last_stop = ControlledStop::Hold;
+        Ok(())
+    }
+
+    /// RESUME (the owner): back to the override after a HOLD; nothing when not held.
+    pub(super) fn resume(&mut self, plant: &mut impl Plant) -> Result<(), StatusCode> {
+        if self.state != State::Running {
+            return Err(StatusCode::BadState);
+        }
+        if !self.motion.held {
+            return Ok(());
+        }
+        let (accel, speed) = self.ramp_limits(plant);
+        if !plant.change_rate(rate_of(self.motion.factor), accel, speed) {
+            return Err(StatusCode::BadState);
+        }
+        self.motion.held = false;
+        Ok(())
+    }
+
+    /// OVERRIDE (the owner): the factor from now (ramped) and for the runs to come.
+    /// Above 100 %, every joint's fastest rate times the factor must stay within its rate
+    /// limit and its sharpest acceleration times the factor squared within its ACCEL_SET
+    /// limit, over the points held: else `OVERRIDE_REFUSED`, the joint and limit kept for
+    /// MOTION.
+    pub(super) fn set_override(
+        &mut self,
+        percent: u8,
+        plant: &mut impl Plant,
+    ) -> Result<(), StatusCode> {
+        if percent > 100 {
+            let (speed, accel) = self.held_rates(plant);
+            let p = u128::from(percent);
+            for j in 0..MAX_JOINTS {
+                let rate_limit = self
+                    .settings
+                    .limits
+                    .get(j)
+                    .map_or(self.config.max_step_rate_hz, |l| {
+                        l.rate_hz(self.config.max_step_rate_hz)
+                    });
+                let v = u128::from(speed.get(j).copied().unwrap_or(0));
+                let joint = u8::try_from(j).unwrap_or(0xFF);
+                if v * p > u128::from(rate_limit) * 100 {
+                    self.motion.refused = (joint, Some(OverrideLimit::Rate));
+                    return Err(StatusCode::OverrideRefused);
+                }
+                let max = self.settings.max_accel.get(j).copied().unwrap_or(0);
+                let a = accel.get(j).copied().unwrap_or(0);
+                if max != 0 && a * p * p > u128::from(max) * 10_000 {
+                    self.motion.refused = (joint, Some(OverrideLimit::Accel));
+                    return Err(StatusCode::OverrideRefused);
+                }
+            }
+        }
+        self.motion.factor = percent;
+        if self.state == State::Running && !self.motion.held && !self.return_pending {
+            let (accel, speed) = self.ramp_limits(plant);
+            // A step side without a warp keeps 100 %; the factor still applies from the
+            // next run on that could take it.
+            let _ = plant.change_rate(rate_of(percent), accel, speed);
+        }
+        Ok(())
+    }
+
+    /// The MOTION report (STATUS's request byte bit 4).
+    pub fn motion_report(&self, plant: &impl Plant) -> MotionReport {
+        let running = self.state == State::Running;
+        let (rate, ramping) = match plant.rate_now() {
+            Some(now) if running => now,
+            _ => (rate_of(self.motion.factor), false),
+        };
+        let permille = rate * 1000 / arm_step::RATE_ONE;
+        let mut flags = 0;
+        if self.motion.held && running {
+            flags |= MotionFlags::HELD;
+        }
+        if running && rate == 0 {
+            flags |= MotionFlags::AT_REST;
+        }
+        if running && ramping {
+            flags |= MotionFlags::RAMPING;
+        }
+        MotionReport {
+            factor_percent: self.motion.factor,
+            flags: MotionFlags(flags),
+            rate_permille: u16::try_from(permille).unwrap_or(u16::MAX),
+            last_stop: Some(self.motion.last_stop),
+            refused_joint: self.motion.refused.0,
+            refused_limit: self.motion.refused.1,
+        }
+    }
+}

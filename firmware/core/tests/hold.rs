@@ -1,0 +1,212 @@
+//! Issue 32: HOLD, RESUME and OVERRIDE on the sans-io controller (the step side's warp is
+//! arm-step's, tested there; here the rules): HOLD from any host while RUNNING, with the
+//! gentlest slope any joint's ACCEL_SET limit needs at its speed; RESUME and OVERRIDE from
+//! the owner; an override above 100 % refused where a joint's rate or acceleration would
+//! break its limit, MOTION naming joint and limit; RUNING starts at the override; STOPPED
+//! during a hold stops as always; MOTION asked for with STATUS's request byte bit 4.
+
+mod common;
+
+use arm_core::hw::Endpoint;
+use common::*;
+use protocol::{
+    Command, ControlledStop, MAX_JOINTS, MotionFlags, MotionReport, OverrideLimit, Point, State,
+    StatusAsk, StatusCode,
+};
+
+const ONE: u64 = arm_step::RATE_ONE;
+
+/// `n` points of 10 ms moving joint 0 by `steps` each (and joint 1 by a quarter of it).
+fn cruise(from: [i32; MAX_JOINTS], n: usize, steps: i32) -> Vec<Point> {
+    let mut at = from;
+    (0..n)
+        .map(|_| {
+            let before = at;
+            at[0] += steps;
+            at[1] += steps / 4;
+            Point::from_motion(10_000, &before, &at)
+        })
+        .collect()
+}
+
+/// The MOTION report `from` gets for a STATUS with request byte bit 4.
+fn motion(s: &mut Session<64>, from: Endpoint) -> MotionReport {
+    s.seq = s.seq.wrapping_add(1);
+    let ask = StatusAsk {
+        motion: true,
+        ..StatusAsk::default()
+    };
+    let r = s.send_raw(from, &frame(s.seq, Command::StatusWith(ask)));
+    assert_eq!(r.reply.map(|r| r.ack.status), Some(StatusCode::Ok));
+    let (to, report) = r.asked_motion.expect("a MOTION report");
+    assert_eq!(to, from, "to the asker");
+    report
+}
+
+fn accel_set(s: &mut Session<64>, joint: u8, max: u32) {
+    s.expect(
+        Command::AccelSet {
+            joint,
+            max_accel_steps_s2: max,
+        },
+        StatusCode::Ok,
+    );
+}
+
+/// Joint 0 at 4,000 steps/s (40 steps per 10 ms) with 20,000 steps/s^2 allowed (the
+/// ramp into the cruise too), joint 1 at 1,000 steps/s with the same limit.
+fn running(points: usize) -> Session<64> {
+    let mut s = Session::<64>::new(64);
+    accel_set(&mut s, 0, 4_000_000);
+    accel_set(&mut s, 1, 4_000_000);
+    s.start_run(50, &cruise([0; MAX_JOINTS], points, 40));
+    s.plant.run(&mut s.controller, 1);
+    assert_eq!(s.controller.state(), State::Running);
+    s
+}
+
+#[test]
+fn nothing_changes_for_hosts_that_never_send_the_new_frames() {
+    let mut s = running(12);
+    assert_eq!(s.plant.start_rate, ONE, "a run starts at 100 %");
+    assert!(s.plant.rate_changes.is_empty());
+    let report = motion(&mut s, HOST);
+    assert_eq!(
+        report,
+        MotionReport {
+            rate_permille: 1000,
+            ..MotionReport::IDLE
+        }
+    );
+}
+
+#[test]
+fn hold_ramps_with_the_gentlest_slope_and_resume_goes_back_to_the_override() {
+    let mut s = running(12);
+    // The slope: the joint with the smallest accel / speed. Joint 0: 4e6 / 4,000 = 1,000
+    // per second, joint 1: 4e6 / 1,000 = 4,000: joint 0's.
+    s.expect(Command::Hold, StatusCode::Ok);
+    assert_eq!(s.plant.rate_changes, vec![(0, 4_000_000, 4_000)]);
+    let report = motion(&mut s, HOST);
+    assert!(report.flags.has(MotionFlags::HELD | MotionFlags::AT_REST));
+    assert_eq!(report.last_stop, Some(ControlledStop::Hold));
+    assert_eq!(s.controller.state(), State::Running, "held is RUNNING");
+    // A second HOLD changes nothing; RESUME ramps back to the override (100 %).
+    s.expect(Command::Hold, StatusCode::Ok);
+    assert_eq!(s.plant.rate_changes.len(), 1);
+    s.expect(Command::Resume, StatusCode::Ok);
+    assert_eq!(s.plant.rate_changes.last(), Some(&(ONE, 4_000_000, 4_000)));
+    assert!(!motion(&mut s, HOST).flags.has(MotionFlags::HELD));
+    // RESUME when not held: OK, nothing done.
+    s.expect(Command::Resume, StatusCode::Ok);
+    assert_eq!(s.plant.rate_changes.len(), 2);
+}
+
+#[test]
+fn any_host_may_hold_only_the_owner_resumes_or_overrides() {
+    let mut s = running(12);
+    let r = s.send_raw(OTHER, &frame(77, Command::Hold));
+    assert_eq!(r.reply.map(|r| r.ack.status), Some(StatusCode::Ok));
+    assert_eq!(s.plant.rate_changes.len(), 1);
+    for cmd in [Command::Resume, Command::Override { percent: 50 }] {
+        let r = s.send_raw(OTHER, &frame(78, cmd));
+        assert_eq!(r.reply.map(|r| r.ack.status), Some(StatusCode::NotOwner));
+    }
+    assert_eq!(s.plant.rate_changes.len(), 1);
+    // The owner is still the owner.
+    s.expect(Command::Resume, StatusCode::Ok);
+}
+
+#[test]
+fn hold_outside_running_is_bad_state_and_stopped_during_a_hold_stops() {
+    let mut s = Session::<64>::new(64);
+    s.expect(Command::Hold, StatusCode::BadState);
+    s.expect(Command::Resume, StatusCode::BadState);
+    let mut s = running(12);
+    s.expect(Command::Hold, StatusCode::Ok);
+    let stops = s.plant.stops;
+    s.expect(Command::Stopped, StatusCode::Ok);
+    assert_eq!(s.plant.stops, stops + 1, "the step side stopped at once");
+    assert_eq!(s.controller.state(), State::Stopped);
+    let report = motion(&mut s, HOST);
+    assert!(!report.flags.has(MotionFlags::HELD), "{report:?}");
+    assert_eq!(report.last_stop, Some(ControlledStop::Hold));
+}
+
+#[test]
+fn override_sets_the_starting_rate_and_ramps_a_run_under_way() {
+    let mut s = Session::<64>::new(64);
+    s.expect(Command::Override { percent: 50 }, StatusCode::Ok);
+    s.start_run(50, &cruise([0; MAX_JOINTS], 12, 40));
+    assert_eq!(s.plant.start_rate, ONE / 2, "run --speed 50");
+    s.plant.run(&mut s.controller, 1);
+    s.expect(Command::Override { percent: 25 }, StatusCode::Ok);
+    assert_eq!(
+        s.plant.rate_changes,
+        vec![(ONE / 4, 4, 1)],
+        "no ACCEL_SET: 0.25 s"
+    );
+    assert_eq!(motion(&mut s, HOST).factor_percent, 25);
+    // Held: the override waits for the resume.
+    s.expect(Command::Hold, StatusCode::Ok);
+    s.expect(Command::Override { percent: 80 }, StatusCode::Ok);
+    assert_eq!(s.plant.rate_changes.last().map(|c| c.0), Some(0));
+    s.expect(Command::Resume, StatusCode::Ok);
+    assert_eq!(
+        s.plant.rate_changes.last().map(|c| c.0),
+        Some(ONE * 80 / 100)
+    );
+}
+
+#[test]
+fn override_above_100_is_refused_where_a_joint_would_break_a_limit() {
+    // Joint 0's rate limit 5,000 steps/s: 4,000 x 1.25 fits, x 1.3 does not.
+    let mut s = Session::<64>::new(64);
+    let mut limits = protocol::JointLimits::NONE;
+    limits.max_rate_hz = 5_000;
+    s.expect(
+        Command::LimitsSet(protocol::LimitsSet { joint: 0, limits }),
+        StatusCode::Ok,
+    );
+    s.start_run(50, &cruise([0; MAX_JOINTS], 12, 40));
+    s.expect(Command::Override { percent: 125 }, StatusCode::Ok);
+    s.expect(
+        Command::Override { percent: 130 },
+        StatusCode::OverrideRefused,
+    );
+    let report = motion(&mut s, HOST);
+    assert_eq!(
+        report.factor_percent, 125,
+        "the refused one changed nothing"
+    );
+    assert_eq!(
+        (report.refused_joint, report.refused_limit),
+        (0, Some(OverrideLimit::Rate))
+    );
+    // Acceleration: joint 1 speeds up by 10 steps each 10 ms point from 1 (80,000
+    // steps/s^2 between points as ACCEL_SET defines it); allowed 84,000: 1.02^2 fits,
+    // 1.03^2 does not.
+    let mut s = Session::<64>::new(64);
+    accel_set(&mut s, 1, 84_000);
+    accel_set(&mut s, 0, 1_000_000);
+    let mut at = [0; MAX_JOINTS];
+    let speeding: Vec<Point> = (0..12)
+        .map(|i| {
+            let before = at;
+            at[0] += 40;
+            at[1] += 1 + 10 * i;
+            Point::from_motion(10_000, &before, &at)
+        })
+        .collect();
+    s.start_run(50, &speeding);
+    s.expect(Command::Override { percent: 102 }, StatusCode::Ok);
+    s.expect(
+        Command::Override { percent: 103 },
+        StatusCode::OverrideRefused,
+    );
+    let report = motion(&mut s, HOST);
+    assert_eq!(
+        (report.refused_joint, report.refused_limit),
+        (1, Some(OverrideLimit::Accel))
+    );
+}

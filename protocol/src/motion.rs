@@ -1,0 +1,108 @@
+//! HOLD, RESUME, OVERRIDE and the MOTION report (issue 32): motion control in flight as a
+//! time warp of what remains (arm-step's `Warp`: every joint on one time scale, so the
+//! path is kept; how many steps come is never changed, so every joint still ends exactly on
+//! its last point). MOTION is a report of its own, asked for with STATUS's request byte
+//! bit 4: the 36-byte STATUS report is full, and every host decodes it as exactly that.
+
+use crate::codec::{Writer, u8_at, u16_le};
+
+/// Override percent (OVERRIDE's byte, MOTION's factor): the lowest accepted.
+pub const OVERRIDE_MIN_PERCENT: u8 = 1;
+
+/// The highest: 200 % (arm-step's `MAX_RATE`); above 100 % only where every joint's rate
+/// and acceleration allow (else refused `OVERRIDE_REFUSED`, MOTION names the joint).
+pub const OVERRIDE_MAX_PERCENT: u8 = 200;
+
+crate::codes::wire_code! {
+    /// Which limit an override above 100 % would break (MOTION's refusal).
+    pub enum OverrideLimit {
+        /// A joint's most step rate (LIMITS' `max_rate_hz`, or the controller's).
+        Rate = 1 => "RATE",
+        /// A joint's most acceleration (ACCEL_SET's `max_accel_steps_s2`).
+        Accel = 2 => "ACCEL",
+    }
+}
+
+crate::codes::wire_code! {
+    /// What the last controlled stop was (MOTION byte 4).
+    pub enum ControlledStop {
+        /// None since boot (or since the last run started).
+        None = 0 => "NONE",
+        /// A HOLD: the run decelerated to a standstill and waits for RESUME.
+        Hold = 1 => "HOLD",
+    }
+}
+
+/// MOTION's flags byte.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+pub struct MotionFlags(pub u8);
+
+impl MotionFlags {
+    /// A HOLD is in force (RUNNING with the held flag): decelerating or at rest.
+    pub const HELD: u8 = 1 << 0;
+    /// The run stands still (the warp's rate is 0).
+    pub const AT_REST: u8 = 1 << 1;
+    /// The rate is changing (a hold, a resume or an override ramping).
+    pub const RAMPING: u8 = 1 << 2;
+
+    /// Whether every bit of `bits` is set.
+    pub const fn has(self, bits: u8) -> bool {
+        self.0 & bits == bits
+    }
+}
+
+/// The MOTION report (8 bytes), the answer to STATUS's request byte bit 4.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+pub struct MotionReport {
+    /// The override asked for, percent (1..200; 100 when no host sent OVERRIDE).
+    pub factor_percent: u8,
+    /// Held, at rest, ramping.
+    pub flags: MotionFlags,
+    /// The rate now, tenths of a percent (0..2000): below the factor while ramping, 0 at
+    /// rest.
+    pub rate_permille: u16,
+    /// What the last controlled stop was (`None`: a byte this crate does not know).
+    pub last_stop: Option<ControlledStop>,
+    /// The last OVERRIDE refused: the joint (0-7; 0xFF none).
+    pub refused_joint: u8,
+    /// ... and the limit it would have broken (`None`: none, or a byte this crate does
+    /// not know).
+    pub refused_limit: Option<OverrideLimit>,
+}
+
+impl MotionReport {
+    /// No override, no hold: what a controller that never got the new frames reports.
+    pub const IDLE: MotionReport = MotionReport {
+        factor_percent: 100,
+        flags: MotionFlags(0),
+        rate_permille: 1000,
+        last_stop: Some(ControlledStop::None),
+        refused_joint: 0xFF,
+        refused_limit: None,
+    };
+
+    pub(crate) fn read(b: &[u8]) -> MotionReport {
+        MotionReport {
+            factor_percent: u8_at(b, 0),
+            flags: MotionFlags(u8_at(b, 1)),
+            rate_permille: u16_le(b, 2),
+            last_stop: ControlledStop::from_u8(u8_at(b, 4)),
+            refused_joint: u8_at(b, 5),
+            refused_limit: OverrideLimit::from_u8(u8_at(b, 6)),
+        }
+    }
+
+    pub(crate) fn write(&self, w: &mut Writer<'_>, at: usize) {
+        w.u8(at, self.factor_percent);
+        w.u8(at + 1, self.flags.0);
+        w.u16(at + 2, self.rate_permille);
+        w.u8(at + 4, self.last_stop.map_or(0, |s| s as u8));
+        w.u8(at + 5, self.refused_joint);
+        w.u8(at + 6, self.refused_limit.map_or(0, |l| l as u8));
+        w.u8(at + 7, 0);
+    }
+}
