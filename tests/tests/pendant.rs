@@ -1,10 +1,10 @@
 //! The pendant in a real browser (issue 35): `armctl serve` against sim-host, its page in
 //! headless Chromium driven over WebDriver (`system_tests::webdriver`). The page shows the
 //! simulator's state and joint names; a jog click moves that joint (counted on the
-//! simulator's STEP trace); the e-stop click during a run stops the arm; hold and resume
-//! are offered only by a controller that has them (issue 32: disabled here, with the
-//! reason as the tooltip); a second browser sees the same positions; the page says when
-//! sim-host is gone.
+//! simulator's STEP trace); hold stops the run at rest (positions unchanged over 20
+//! updates), resume goes on, the override slider sets 50 % (issue 32); the e-stop click
+//! during a run stops the arm; a second browser sees the same positions; the page says
+//! when sim-host is gone.
 //!
 //! The e-stop's 100 ms criterion is the sum of two spans: the click to the STOPPED on the
 //! wire (the page's click time, taken in its handler, against the pendant's `--pcap`
@@ -80,16 +80,6 @@ fn the_pendant_in_a_browser_shows_jogs_stops_and_loses_the_simulator() {
     );
     assert_eq!(shown_positions(&second), shown_positions(&page));
 
-    // Hold, resume and the override need issue 32's HOLD: offered, disabled, saying why.
-    for id in ["hold", "resume", "override"] {
-        let (disabled, title): (bool, String) = serde_json::from_value(page.eval(&format!(
-            "const e = document.getElementById('{id}'); return [e.disabled, e.title]"
-        )))
-        .unwrap();
-        assert!(disabled, "#{id} enabled without HOLD");
-        assert_eq!(title, "needs a controller with HOLD (issue 32)");
-    }
-
     // A run chosen in the page: the check first, then Run.
     let file = trajectory(sim.dir(), 6, 2);
     page.type_into("#file", file.to_str().unwrap());
@@ -133,6 +123,57 @@ fn the_pendant_in_a_browser_shows_jogs_stops_and_loses_the_simulator() {
         page.screenshot(&path);
         println!("screenshot: {}", path.display());
     }
+    // Hold (issue 32): the run slows to a standstill and stays there, still RUNNING.
+    page.click("#hold");
+    assert!(
+        page.wait_for(
+            "return snap.state === 'RUNNING' && snap.motion.held && snap.motion.at_rest",
+            PAGE_WAIT
+        ),
+        "hold: {}",
+        page.text("body")
+    );
+    let held: Vec<i64> = serde_json::from_value(page.eval("return snap.steps")).unwrap();
+    let e0 = events(&page);
+    assert!(
+        page.wait_for(
+            &format!("return window.pendantEvents > {e0} + 20"),
+            PAGE_WAIT
+        ),
+        "no updates while held"
+    );
+    let still: Vec<i64> = serde_json::from_value(page.eval("return snap.steps")).unwrap();
+    assert_eq!(still, held, "the arm moved while held (20 updates later)");
+    assert!(
+        page.text("#speed").contains("HELD at rest"),
+        "{}",
+        page.text("#speed")
+    );
+    // Resume: the run goes on.
+    page.click("#resume");
+    assert!(
+        page.wait_for(
+            &format!(
+                "return !snap.motion.held && snap.steps[0] !== {} && snap.state === 'RUNNING'",
+                held[0]
+            ),
+            PAGE_WAIT
+        ),
+        "resume: {}",
+        page.text("body")
+    );
+    // The override slider: 50 %.
+    page.eval(
+        "const o = document.getElementById('override'); o.value = 50; \
+         o.dispatchEvent(new Event('change')); return true",
+    );
+    assert!(
+        page.wait_for("return snap.motion.factor_percent === 50", PAGE_WAIT),
+        "override: {}",
+        page.text("body")
+    );
+    println!("speed line: {}", page.text("#speed"));
+
     // The mark on the trace's clock, then the click.
     let arm = sim.connect_with(armctl::Options::default());
     arm.pin(0, true).expect("PIN0_ON");

@@ -15,8 +15,8 @@ use super::live::{Live, PlotRun};
 use crate::motion::{Arm, MotionArgs};
 use crate::run::RunArgs;
 
-/// Why hold, resume and the speed override are not offered: this controller's protocol
-/// has no HOLD yet (issue 32 adds HOLD, RESUME and OVERRIDE).
+/// Why hold, resume and the speed override are not offered: the controller answers no
+/// MOTION report (older than issue 32, which adds HOLD, RESUME and OVERRIDE).
 pub const HOLD_NEEDED: &str = "needs a controller with HOLD (issue 32)";
 
 /// The motion commands issue 32 adds, behind one call ([`Pendant::in_flight`]) so that the
@@ -128,15 +128,41 @@ impl Pendant {
         result
     }
 
-    /// Hold, resume or the override (issue 32). Until the controller and the client have
-    /// HOLD 0x27, RESUME 0x28 and OVERRIDE 0x29 this refuses with [`HOLD_NEEDED`], and
-    /// the page keeps the buttons disabled with that tooltip. Wiring them: send the
-    /// command here (STOPPED stays the e-stop), set `Snapshot::hold_available` from what
-    /// the controller answers (`UNKNOWN_TAG`: an older one), and show the hold and speed
-    /// factor in `Snapshot::to_json` from its report.
+    /// Hold, resume or the override (issue 32). HOLD from any host, as the controller takes
+    /// it (a read-only pendant may hold another host's run); RESUME and OVERRIDE from the
+    /// owner.
     pub fn in_flight(&self, what: InFlight) -> Result<String, String> {
-        let _ = what;
-        Err(HOLD_NEEDED.into())
+        if !self.live.lock().hold_available {
+            return Err(HOLD_NEEDED.into());
+        }
+        let result = match what {
+            InFlight::Hold => self
+                .arm
+                .hold()
+                .map(|_| "HOLD: the run slows to a standstill".to_string()),
+            InFlight::Resume => {
+                self.may_move()?;
+                self.arm
+                    .resume()
+                    .map(|_| "RESUME: the run goes on".to_string())
+            }
+            InFlight::Override(percent) => {
+                self.may_move()?;
+                let percent = percent.clamp(
+                    protocol::OVERRIDE_MIN_PERCENT,
+                    protocol::OVERRIDE_MAX_PERCENT,
+                );
+                self.arm
+                    .set_override(percent)
+                    .map(|_| format!("OVERRIDE: speed {percent} %"))
+            }
+        }
+        .map_err(|e| e.to_string());
+        match &result {
+            Ok(m) => self.live.say(m.clone(), false),
+            Err(m) => self.live.say(m.clone(), true),
+        }
+        result
     }
 
     /// Starts a motion in a thread of its own, unless one is in progress.
@@ -303,6 +329,8 @@ impl Pendant {
             dry_run: false,
             max_step_rate: max_rate,
             quiet: true,
+            // The speed factor is the page's slider (OVERRIDE), not the run's.
+            speed: None,
         };
         crate::run::convert(&args, &position, Some(joints), Some(max_rate), config)
     }

@@ -11,7 +11,10 @@ use std::time::{Duration, Instant};
 use armctl::Client;
 use armctl::motion::Units;
 use armctl::trajectory::ArmConfig;
-use protocol::{Location, MAX_JOINTS, MoreFlags, State, StatusCode, StatusFlags, StatusReport};
+use protocol::{
+    Location, MAX_JOINTS, MoreFlags, MotionFlags, MotionReport, State, StatusCode, StatusFlags,
+    StatusReport,
+};
 use serde_json::{Value, json};
 
 /// Silence after which the page says the controller stops answering: ten report periods at
@@ -25,6 +28,10 @@ const STATUS_EVERY: Duration = Duration::from_millis(250);
 /// How often a read-only pendant asks its look-only STATUS: as `armctl watch` does, half
 /// the controller's budget for such answers (docs/PROTOCOL.md section 1).
 const READ_ONLY_POLL: Duration = Duration::from_millis(200);
+
+/// A read-only pendant asks the MOTION report every this many polls (once a second):
+/// with the look-only STATUS, within the controller's budget for such answers.
+const READ_ONLY_MOTION_EVERY: u32 = 5;
 
 /// How often a read-only pendant asks who owns the controller (DISCOVER), and tries to
 /// take it once it is free.
@@ -80,8 +87,11 @@ pub struct Snapshot {
     pub message: String,
     /// Whether the last message is an error.
     pub error: bool,
-    /// Whether the controller takes HOLD, RESUME and OVERRIDE (issue 32).
+    /// Whether the controller takes HOLD, RESUME and OVERRIDE (issue 32): it answered
+    /// the MOTION report.
     pub hold_available: bool,
+    /// The speed factor and hold (the MOTION report, issue 32).
+    pub motion: Option<MotionReport>,
     /// Whether the stop cause is to be asked again (a STOPPED was sent).
     pub stop_stale: bool,
     /// Whether moving the arm needs the token (served on a non-loopback address).
@@ -228,6 +238,13 @@ impl Snapshot {
             "message": self.message,
             "error": self.error,
             "hold_available": self.hold_available,
+            "motion": self.motion.map(|m| json!({
+                "factor_percent": m.factor_percent,
+                "rate_permille": m.rate_permille,
+                "held": m.flags.has(MotionFlags::HELD),
+                "at_rest": m.flags.has(MotionFlags::AT_REST),
+                "ramping": m.flags.has(MotionFlags::RAMPING),
+            })),
             "token_needed": self.token_needed,
         })
     }
@@ -291,6 +308,7 @@ pub fn poll(arm: &Client, live: &Live, quit: &AtomicBool) {
     let mut last_state: Option<u8> = None;
     let mut was_active = false;
     let mut joints_described = 0u8;
+    let mut read_only_polls = 0u32;
     while !quit.load(Ordering::Relaxed) {
         if !claimed && (!read_only || last_owner_check.elapsed() >= OWNER_EVERY) {
             match arm.claim_locations() {
@@ -316,6 +334,10 @@ pub fn poll(arm: &Client, live: &Live, quit: &AtomicBool) {
                 });
             }
             std::thread::sleep(READ_ONLY_POLL);
+            read_only_polls = read_only_polls.wrapping_add(1);
+            if read_only_polls.is_multiple_of(READ_ONLY_MOTION_EVERY) {
+                ask_motion(arm, live);
+            }
             match arm.glance(true) {
                 Ok(glance) => {
                     if glance.location.is_some() {
@@ -332,13 +354,24 @@ pub fn poll(arm: &Client, live: &Live, quit: &AtomicBool) {
                     s.location = Some(location);
                 });
             }
-            let running = live.lock().run.active;
-            if running {
+            let (running, uploaded) = {
+                let s = live.lock();
+                (s.run.active, s.run.total > 0 && s.run.acked >= s.run.total)
+            };
+            if running && !(uploaded && last_status.elapsed() >= STATUS_EVERY) {
                 // STATUS waits behind an upload: the run's own STATUS reports instead.
                 arm.last_status().map(|status| (status, false))
+            } else if running {
+                // Uploaded: the run's speed factor and hold (look only, like STATUS).
+                last_status = Instant::now();
+                ask_motion(arm, live).map(|status| (status, true))
             } else if last_status.elapsed() >= STATUS_EVERY {
                 last_status = Instant::now();
-                match arm.status() {
+                let status = arm.status();
+                if status.is_ok() {
+                    ask_motion(arm, live);
+                }
+                match status {
                     Ok(status) => Some((status, true)),
                     Err(e) if e.status() == Some(StatusCode::NotOwner) => {
                         // Another host took the controller over.
@@ -400,6 +433,17 @@ pub fn poll(arm: &Client, live: &Live, quit: &AtomicBool) {
         }
         was_active = active;
     }
+}
+
+/// The MOTION report (issue 32: speed factor, hold) into the snapshot; the STATUS that
+/// came with it. A controller older than issue 32 answers none: hold stays unavailable.
+fn ask_motion(arm: &Client, live: &Live) -> Option<StatusReport> {
+    let (status, motion) = arm.motion().ok()?;
+    live.update(|s| {
+        s.hold_available = motion.is_some();
+        s.motion = motion;
+    });
+    Some(status)
 }
 
 /// The host that owns the controller, as DISCOVER tells (`192.168.1.5`, `nobody`); `None`

@@ -205,9 +205,10 @@ fn answer(
                 .duration_since(std::time::UNIX_EPOCH)
                 .map_or(0.0, |d| d.as_secs_f64() * 1e3);
             let action = &path["/api/".len()..];
-            // STOPPED from anyone, as the controller takes it; the rest needs the token.
-            let allowed =
-                action == "stop" || token.is_none_or(|t| request.param("token") == Some(t));
+            // STOPPED and HOLD from anyone, as the controller takes them; the rest needs
+            // the token.
+            let allowed = matches!(action, "stop" | "hold")
+                || token.is_none_or(|t| request.param("token") == Some(t));
             let result = if !allowed {
                 Err("this command needs the token printed when `armctl serve` started (the page's URL ?token=...)".to_string())
             } else {
