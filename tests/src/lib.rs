@@ -9,10 +9,14 @@
 
 /// What the firmware itself executes on Renode, from the CPU probe (tests/tests/renode_cost.rs).
 pub mod cost;
+/// `armctl serve` and its page in the browser tests (tests/tests/pendant.rs).
+pub mod pendant;
 /// The firmware on QEMU's mps2-an500 (tests/tests/qemu.rs).
 pub mod qemu;
 /// The NUCLEO-H743ZI2 firmware itself on Renode (tests/tests/renode.rs).
 pub mod renode;
+/// Headless Chromium over WebDriver for the pendant's tests (tests/tests/pendant.rs).
+pub mod webdriver;
 
 use std::io::{BufRead, BufReader};
 use std::net::{SocketAddr, UdpSocket};

@@ -13,6 +13,7 @@ use crate::net::NetCmd;
 use crate::plot::PlotArgs;
 use crate::pwm::PwmCmd;
 use crate::run::RunArgs;
+use crate::serve::ServeArgs;
 
 /// Drive an arm controller over UDP.
 #[derive(Parser, Debug)]
@@ -239,6 +240,9 @@ pub enum Cmd {
     /// Encode or decode frames (no controller needed).
     #[command(subcommand)]
     Frame(FrameCmd),
+    /// A pendant in the browser: serve a page (127.0.0.1:8520 by default) with live
+    /// positions, a plot of the run, the e-stop, jog, home, enable and trajectory runs.
+    Serve(ServeArgs),
     /// Draw a recorded run (CSV of LOCATION reports, or a sim-host VCD trace) as SVG.
     Plot(PlotArgs),
     /// The authentication key (docs/PROTOCOL.md section 13).

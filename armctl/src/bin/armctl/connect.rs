@@ -34,6 +34,9 @@ pub fn connect(cli: &Cli) -> Result<Client, String> {
         Cmd::Status { .. } => Ok(controller),
         // So does `diag` (issue 34).
         Cmd::Diag { .. } => Ok(controller),
+        // The pendant shows a controller that does not answer (yet), or another host's,
+        // read-only.
+        Cmd::Serve(_) => Ok(controller),
         // As Client::connect_with: check that the controller answers.
         _ => match controller.status() {
             Ok(_) => Ok(controller),

@@ -7,7 +7,7 @@
 //! - one module per subcommand or family: `status`, `watch`, `run`, `single` (the
 //!   commands that are one frame and an `OK`: stop, return, joints, set-location, enable,
 //!   pin, upload-period, reports), `pwm`, `serial`, `net`, `discover`, and `frame` and
-//!   `plot`, which need no controller.
+//!   `plot`, which need no controller; `serve`, the pendant in the browser.
 //!
 //! Every failure prints `error: ...` and exits with 1; clap exits with 2 on a usage error.
 //! A closed stdout (`armctl status | head -n 1`) ends the tool quietly, killed by SIGPIPE,
@@ -54,6 +54,7 @@ mod plot;
 mod pwm;
 mod run;
 mod serial;
+mod serve;
 mod single;
 mod status;
 mod watch;
@@ -130,6 +131,10 @@ fn execute(cli: Cli, command: &str) -> CliResult {
         Cmd::Run(args) if args.dry_run => run::dry_run(args),
         Cmd::Check(args) => run::dry_run(args),
         Cmd::Config(config::ConfigCmd::Init(args)) => config::init(args),
+        Cmd::Serve(args) => {
+            let arm = connect::connect(&cli)?;
+            serve::execute(arm, args)
+        }
         Cmd::Key(cli::KeyCmd::New { output }) => key::new(output.as_deref()),
         _ => {
             let arm = connect::connect(&cli)
@@ -202,6 +207,7 @@ fn execute_online(cli: &Cli, arm: &armctl::Client) -> CliResult {
         Cmd::Key(cli::KeyCmd::Clear) => single::done(arm.set_key(None)),
         Cmd::Config(command) => config::execute(arm, command),
         Cmd::Frame(_)
+        | Cmd::Serve(_)
         | Cmd::Check(_)
         | Cmd::Plot { .. }
         | Cmd::Discover { .. }

@@ -82,13 +82,13 @@ pub fn dry_run(args: &RunArgs) -> CliResult {
 }
 
 /// A trajectory file converted to points.
-struct Converted {
-    points: Vec<Point>,
+pub(crate) struct Converted {
+    pub(crate) points: Vec<Point>,
     /// How messages name each joint: `joint 2 (elbow)`, or `joint 2` without a name.
     joint_names: Vec<String>,
     /// The file's waypoints, each the end of one of `points` at its time
     /// ([`trajectory::check_waypoints`]).
-    waypoints: usize,
+    pub(crate) waypoints: usize,
     /// The joint config's names for a recording's header (empty without a config).
     config_names: Vec<String>,
     /// The joint config (without one: unnamed joints in steps) and the file's units, for
@@ -99,7 +99,7 @@ struct Converted {
 
 /// The trajectory file as points, from `current`. `described`: the arm the controller
 /// describes (issue 31), taken when no `--config` is given.
-fn convert(
+pub(crate) fn convert(
     args: &RunArgs,
     current: &[i32; 8],
     controller_joints: Option<usize>,
@@ -163,13 +163,18 @@ fn convert(
 }
 
 fn print_points_summary(points: &[Point], waypoints: usize) {
+    println!("{}", points_summary(points, waypoints));
+}
+
+/// What `check` says of converted points: count, duration, end, waypoints.
+pub(crate) fn points_summary(points: &[Point], waypoints: usize) -> String {
     let us: i64 = points.iter().map(|p| i64::from(p.duration)).sum();
-    println!(
+    format!(
         "{} points, {:.3} s, ends at {:?}; each of the {waypoints} waypoints is a point's end at its time",
         points.len(),
         us as f64 / 1e6,
         points.last().map(|p| p.position).unwrap_or_default()
-    );
+    )
 }
 
 /// Without `--config`, the arm the controller describes (issue 31: names, units, scale,
