@@ -444,6 +444,7 @@ pub fn doc_frames() -> Vec<DocFrame> {
                 stop_cause: false,
                 counters: true,
                 motion: false,
+                switches: false,
                 diag: true,
             }),
         ),

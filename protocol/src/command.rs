@@ -545,7 +545,6 @@ impl<'a> Command<'a> {
             | Tag::RxCounters
             | Tag::Diag
             | Tag::Motion
-            | Tag::JointDesc => {
             | Tag::JointDesc
             | Tag::Homing
             | Tag::Switches => {

@@ -19,8 +19,8 @@ use crate::pcap::PcapLog;
 use crate::rtt::{DEFAULT_MIN_RTO, RESEND_HORIZON, RttEstimator};
 
 pub mod auth;
-mod motion_control;
 mod homing;
+mod motion_control;
 pub use homing::Homed;
 mod receiver;
 mod wire_tools;

@@ -140,8 +140,8 @@ use crate::response::{Deferred, Discovery, HelloGrant, Reply, Response};
 use crate::uart::uart_frame;
 
 mod boot;
-mod motion;
 mod homing_run;
+mod motion;
 mod owner;
 mod runs;
 

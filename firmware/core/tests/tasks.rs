@@ -1468,7 +1468,7 @@ fn status_replies_go_out_in_the_documented_order() {
 /// (docs/PROTOCOL.md's order), with the bus's source: "not measured" on a bus no board
 /// gave one (this rig, like the simulator).
 #[test]
-fn the_diag_report_goes_out_last_after_motion() {
+fn the_diag_report_goes_out_last_after_motion_and_switches() {
     use arm_core::{AnswerReport, Outgoing};
     let rig = Rig::new();
     let ask = protocol::StatusAsk {
@@ -1477,9 +1477,10 @@ fn the_diag_report_goes_out_last_after_motion() {
         stop_cause: true,
         counters: true,
         motion: true,
+        switches: true,
         diag: true,
     };
-    assert_eq!(ask.byte(), 0x5d);
+    assert_eq!(ask.byte(), 0x7d);
     rig.route(&frame(0, Command::StatusWith(ask)));
     let name = |o: &Outgoing| match o {
         Outgoing::Ack(_) => Some("ACK"),
@@ -1491,6 +1492,8 @@ fn the_diag_report_goes_out_last_after_motion() {
             AnswerReport::StopCause(_) => "STOP_CAUSE",
             AnswerReport::RxCounters(_) => "RX_COUNTERS",
             AnswerReport::Motion(_) => "MOTION",
+            AnswerReport::Switches(_) => "SWITCHES",
+            AnswerReport::Homing(_) => "HOMING",
             AnswerReport::Diag(d) => {
                 assert_eq!(d, protocol::Diag::NOT_MEASURED);
                 "DIAG"
@@ -1502,7 +1505,7 @@ fn the_diag_report_goes_out_last_after_motion() {
     rig.run(async {
         until("the replies", || {
             rig.drain();
-            rig.sent.borrow().iter().filter_map(name).count() >= 7
+            rig.sent.borrow().iter().filter_map(name).count() >= 8
         })
         .await;
         let sent: Vec<&str> = rig.sent.borrow().iter().filter_map(name).collect();
@@ -1515,6 +1518,7 @@ fn the_diag_report_goes_out_last_after_motion() {
                 "STOP_CAUSE",
                 "RX_COUNTERS",
                 "MOTION",
+                "SWITCHES",
                 "DIAG"
             ]
         );
