@@ -868,8 +868,10 @@ fn estop_positions_match_the_pins(monitor: &str) {
 /// the CPU halted, registers written from the monitor): a timer pulsing at its ARR, a timer
 /// reloaded through its DCR/DMAR burst by a circular DMA2 stream routed by DMAMUX1 (the
 /// periods repeat in buffer order, the half-transfer and transfer-complete flags come and come
-/// again, NDTR counts down by whole bursts), and TIM8's CH1N stopping when MOE is cleared.
-/// Needs Renode only (no root, no network).
+/// again, NDTR counts down by whole bursts), TIM8's CH1N stopping when MOE is cleared, and
+/// DMA2 with a time per item (issue 34): two timers' bursts served lower stream first, the
+/// later one landing after its timer's next update event, which replays the period before
+/// (an extra pulse). Needs Renode only (no root, no network).
 #[test]
 fn the_models_alone_pulse_at_arr_and_reload_from_a_circular_stream() {
     let Some(run) = system_tests::renode::ScriptRun::run("step-models-check.resc", |dir| {
@@ -1005,5 +1007,53 @@ fn the_models_alone_pulse_at_arr_and_reload_from_a_circular_stream() {
         tim2.len(),
         tim3.len(),
         tim8.len()
+    ));
+
+    // 4. DMA with time: TIM1 (stream 1, 100-tick periods) and TIM4 (stream 3, 50-tick
+    //    periods) started together at 40 us on DMA2 at 40 ns an item. Stream 1 goes first:
+    //    TIM1's pulses are its buffer's; TIM4's bursts land after its next update event,
+    //    which replays the period before (a pulse its buffer does not have).
+    const SECTION_4_NS: u64 = 40_000;
+    const SECTION_4_TICKS: u64 = 4_000 / NS_PER_TICK;
+    let since_40us = |line: u8| -> Vec<(u64, u64)> {
+        pulses(line)
+            .into_iter()
+            .filter(|&(rise, _)| rise * NS_PER_TICK >= SECTION_4_NS)
+            .map(|(rise, width)| (rise - SECTION_4_NS / NS_PER_TICK, width))
+            .filter(|&(rise, _)| rise < SECTION_4_TICKS)
+            .collect()
+    };
+    let tim1 = since_40us(4);
+    let tim1_expected: Vec<(u64, u64)> = (0..SECTION_4_TICKS / 100)
+        .map(|k| (100 * k, if k < 2 { 3 + k } else { 5 + (k - 2) % 4 }))
+        .collect();
+    assert_eq!(tim1, tim1_expected, "TIM1 (stream 1, served first)\n{out}");
+    assert_eq!(value("TIM1 late bursts:"), 0, "TIM1's bursts\n{out}");
+    let tim4 = since_40us(3);
+    let tim4_buffer: Vec<(u64, u64)> = (0..SECTION_4_TICKS / 50)
+        .map(|k| (50 * k, if k < 2 { 8 + k } else { 10 + (k - 2) % 4 }))
+        .collect();
+    let late = value("TIM4 late bursts:");
+    assert!(late > 0, "TIM4's bursts should land late\n{out}");
+    assert_eq!(tim4.len(), tim4_buffer.len(), "TIM4: a pulse every period");
+    assert_ne!(tim4, tim4_buffer, "TIM4 played its buffer although its bursts were late");
+    let replayed = tim4.windows(2).filter(|w| w[0].1 == w[1].1).count();
+    assert!(
+        replayed > 0,
+        "a late burst replays the period before: TIM4 {tim4:?}"
+    );
+    let waits = (
+        value("stream 1 longest wait:"),
+        value("stream 3 longest wait:"),
+    );
+    // Stream 1: at most one item under way ahead of its own (2 x 40 ns); stream 3: stream
+    // 1's three words ahead of its first (4 x 40 ns).
+    assert_eq!(waits, (80, 160), "longest waits (ns) of streams 1 and 3\n{out}");
+    note(&format!(
+        "models alone, DMA with time: TIM1 (stream 1) {} pulses as its buffer, TIM4 (stream 3) \
+         {late} late bursts, {replayed} periods replayed; longest waits {} ns and {} ns",
+        tim1.len(),
+        waits.0,
+        waits.1
     ));
 }
