@@ -32,9 +32,10 @@
 // DMA latency (issue 34): a DMAR write takes effect when the DMA model lands it (its time per
 // item, STM32H7_StepDMA.cs), at the virtual time it lands. A burst still open at the next
 // update event is late: that update loads the preload registers as they are, so the period
-// before is played again (an extra pulse that neither the stream's NDTR nor the producer
-// counts, as on the chip), `LateBursts` counts it, and the new event's request is made once
-// the open burst has finished (the burst words stay in order).
+// before is played again, and its own DMA request is lost (the request is a level, still
+// raised for the open burst, RM0433 "DMA burst mode"): every later period comes one period
+// late, an extra pulse that neither the stream's NDTR nor the producer counts, which is the
+// chip's behaviour as issue 34 describes it. `LateBursts` counts them.
 //
 // GPIO outputs (Connections): 0 = CH1 (OC1), 1 = CH1N (OC1N), 2 = update DMA request (to
 // DMAMUX1), 3 = counting (CR1.CEN, for the edge recorder: the timer's tick 0), 4 = IRQ
@@ -120,7 +121,7 @@ namespace Antmicro.Renode.Peripherals.Timers
             anchorNs = 0;
             ref1 = false;
             burstIndex = 0;
-            burstOpen = requestAfterBurst = false;
+            burstOpen = false;
             ch1.Set(false);
             ch1n.Set(false);
             dmaRequest.Set(false);
@@ -467,9 +468,8 @@ namespace Antmicro.Renode.Peripherals.Timers
             if(burstOpen)
             {
                 // The last update's burst has not landed whole: this update replayed (part of)
-                // the period before; its own request follows the open burst.
+                // the period before, and its request merges with the one still raised.
                 LateBursts++;
-                requestAfterBurst = true;
                 return;
             }
             DmaRequests++;
@@ -497,11 +497,6 @@ namespace Antmicro.Renode.Peripherals.Timers
             {
                 burstIndex = 0;
                 burstOpen = false;
-                if(requestAfterBurst)
-                {
-                    requestAfterBurst = false;
-                    RequestDma();
-                }
             }
         }
 
@@ -657,7 +652,7 @@ namespace Antmicro.Renode.Peripherals.Timers
                     if((value & DIER_UDE) == 0)
                     {
                         // No request any more: a burst cut here is not waited for.
-                        burstOpen = requestAfterBurst = false;
+                        burstOpen = false;
                     }
                     UpdateIrq();
                     break;
@@ -750,7 +745,7 @@ namespace Antmicro.Renode.Peripherals.Timers
                 case DCR:
                     dcr = value;
                     burstIndex = 0;
-                    burstOpen = requestAfterBurst = false;
+                    burstOpen = false;
                     break;
                 case DMAR:
                     DmarWrite(value, cycle);
@@ -801,7 +796,7 @@ namespace Antmicro.Renode.Peripherals.Timers
         private ulong stoppedCount;
         private long periodStart, anchorNs, currentCycle, accessNs;
         private int burstIndex;
-        // A DMA burst requested and not yet written whole; an update event came meanwhile.
-        private bool burstOpen, requestAfterBurst;
+        // A DMA burst requested and not yet written whole.
+        private bool burstOpen;
     }
 }
