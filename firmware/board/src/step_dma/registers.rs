@@ -201,6 +201,11 @@ pub(super) fn dmamux_channel(joint: usize) -> usize {
 }
 
 const _: () = assert!(2 * JOINTS_PER_DMA == MAX_JOINTS);
+// The profile's DMA timing model (`arm_core::profile::StepDma`, the step-rate ceiling and
+// the shortest period derived from it) describes this split and this burst.
+const _: () = assert!(super::PROFILE.step_dma.controllers == 2);
+const _: () = assert!(super::PROFILE.step_dma.streams_per_controller as usize == JOINTS_PER_DMA);
+const _: () = assert!(WORDS_PER_PERIOD == arm_core::profile::DMA_WORDS_PER_PERIOD as usize);
 
 /// Words the stream moves per period (ARR, RCR, CCR1).
 pub(super) use board_logic::step_stream::WORDS_PER_PERIOD;
