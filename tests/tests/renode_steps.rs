@@ -1,7 +1,8 @@
 //! STEP and DIR of the NUCLEO-H743ZI2 firmware itself (the `cargo fw` ELF) on Renode, with
 //! the step path's models (`tests/renode/step-path.resc`: the joint timers with their update
-//! DMA requests and DCR/DMAR burst, DMAMUX1, DMA2's circular streams with half/complete
-//! interrupts, all from RM0433; an edge recorder on the STEP and DIR pins). The QEMU tests'
+//! DMA requests and DCR/DMAR burst, DMAMUX1, DMA1's and DMA2's circular streams with
+//! half/complete interrupts and a time per item served by RM0433's arbitration (issue 34),
+//! all from RM0433; an edge recorder on the STEP and DIR pins). The QEMU tests'
 //! trajectories are uploaded over the emulated Ethernet (`tests/tests/qemu.rs`: the same
 //! sweeps), and what the pins did is compared with arm-step's oracle (`StepEngine`, which
 //! `firmware/step/tests/producer.rs` compares with the producer on 10 M pulses):
@@ -986,7 +987,11 @@ fn positions_after_an_estop_are_the_pulses_the_pins_made() {
 /// unwind, no pulse after the stop) without the disable's TCIF.
 #[test]
 fn positions_after_an_estop_match_the_pins_if_a_disable_leaves_tcif_alone() {
-    estop_positions_match_the_pins("sysbus.stepDma2 TransferCompleteOnDisable false");
+    // Both controllers: joints 0-3 are on DMA1 since issue 34.
+    estop_positions_match_the_pins(
+        "sysbus.stepDma1 TransferCompleteOnDisable false; \
+         sysbus.stepDma2 TransferCompleteOnDisable false",
+    );
 }
 
 /// 300 points of 10 ms on six joints, STOPPED after 20 executed; `monitor` configures the
