@@ -693,8 +693,18 @@ fn a_run_makes_the_oracles_edges_on_the_pins() {
     assert_eq!(&start[..3], &[100, -200, 300]);
     let points = sweep(start, JOINTS, 120, 4, 10_000);
     let began = Instant::now();
+    // armctl's default stall wait is 12 s of wall time. Since the DMA models take time per
+    // item (issue 34: three more events per period, each an update of Renode's schedule, and
+    // the 16-bit timers of idle joints make a period every 328 us), this 1.2 s run takes
+    // 11-12 s of wall time here (4.5 s with the DMA untimed): generous, so that only a real
+    // stall fails.
+    let options = RunOptions {
+        stall_timeout: Duration::from_secs(60),
+        completion_timeout: Some(Duration::from_secs(300)),
+        ..RunOptions::default()
+    };
     let report = arm
-        .run_trajectory(&points, &RunOptions::default(), |_| {})
+        .run_trajectory(&points, &options, |_| {})
         .unwrap_or_else(|e| panic!("{e}\n{}", board.log()));
     let status = report.final_status.unwrap();
     assert_eq!(status.state, State::Stopped);
