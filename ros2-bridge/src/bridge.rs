@@ -40,6 +40,7 @@ use crate::msgs::{
 };
 
 mod joint_states;
+mod speed_scaling;
 mod trajectory;
 
 type TrajectoryServer = AsyncActionServer<
@@ -98,6 +99,8 @@ pub struct Bridge {
     status: StatusReport,
     latest: Arc<Mutex<Option<Sample>>>,
     observers: Arc<Mutex<Vec<mpsc::Sender<Sample>>>>,
+    /// The controller's rate now (MOTION), for the feedback's trajectory time.
+    rate: Arc<speed_scaling::Rate>,
     /// E-stops served so far: a run that ends STOPPED after one was aborted by it.
     estops: AtomicU64,
     shutdown: Arc<AtomicBool>,
@@ -179,6 +182,7 @@ impl Bridge {
             status,
             latest: Arc::new(Mutex::new(None)),
             observers: Arc::new(Mutex::new(Vec::new())),
+            rate: Arc::new(speed_scaling::Rate::default()),
             estops: AtomicU64::new(0),
             shutdown: Arc::new(AtomicBool::new(false)),
         })
@@ -212,10 +216,13 @@ impl Bridge {
         let (sample_tx, sample_rx) = async_channel::bounded(SAMPLE_QUEUE);
         let location_thread = self.start_location_thread(sample_tx, sample_rx.clone());
         let keep_alive_thread = self.start_keep_alive_thread();
-        let result = self.serve(sample_rx, stop);
+        let (scaling_tx, scaling_rx) = async_channel::bounded(1);
+        let motion_thread = self.start_motion_thread(scaling_tx, scaling_rx.clone());
+        let result = self.serve(sample_rx, scaling_rx, stop);
         self.shutdown.store(true, Ordering::Relaxed);
         let _ = location_thread.join();
         let _ = keep_alive_thread.join();
+        let _ = motion_thread.join();
         result
     }
 
@@ -264,9 +271,48 @@ impl Bridge {
         })
     }
 
+    /// Reads the MOTION report every `1 / speed_scaling_rate_hz` (issue 32): the rate for
+    /// the feedback, and the speed scaling state in percent to publish (the newest only).
+    /// A controller older than issue 32 has no MOTION: nothing is published then.
+    fn start_motion_thread(
+        &self,
+        states: async_channel::Sender<f64>,
+        oldest: async_channel::Receiver<f64>,
+    ) -> std::thread::JoinHandle<()> {
+        let controller = self.controller.clone();
+        let shutdown = self.shutdown.clone();
+        let rate = self.rate.clone();
+        let period = Duration::from_secs_f64(1.0 / self.config.speed_scaling_rate_hz);
+        std::thread::spawn(move || {
+            let mut warned = false;
+            while !shutdown.load(Ordering::Relaxed) {
+                let next = Instant::now() + period;
+                match controller.motion() {
+                    Ok((_, Some(motion))) => {
+                        rate.set(motion.rate_permille);
+                        if states.is_full() {
+                            let _ = oldest.try_recv();
+                        }
+                        let _ = states.try_send(f64::from(motion.rate_permille) / 10.0);
+                    }
+                    Ok((_, None)) if !warned => {
+                        warned = true;
+                        log::warn!(
+                            "the controller sends no MOTION report (older than issue 32): no speed scaling state"
+                        );
+                    }
+                    Ok(_) => {}
+                    Err(e) => log::debug!("MOTION: {e}"),
+                }
+                std::thread::sleep(next.saturating_duration_since(Instant::now()));
+            }
+        })
+    }
+
     fn serve(
         &self,
         samples: async_channel::Receiver<Sample>,
+        scaling_states: async_channel::Receiver<f64>,
         stop: async_channel::Receiver<()>,
     ) -> Result<(), String> {
         let name = |full: &str| -> Result<Name, String> {
@@ -367,6 +413,31 @@ impl Bridge {
                 service_qos,
             )
             .map_err(|e| format!("home service: {e:?}"))?;
+        // Speed scaling (issue 32), as UR's: a fraction in, percent out.
+        let scaling_qos = QosProfile::publisher_default()
+            .durability(Durability::Volatile)
+            .history(History::KeepLast { depth: 10 });
+        let float64 = || MessageTypeName::new("std_msgs", "Float64");
+        let scaling_topic = node
+            .create_topic(
+                &name(&self.config.speed_scaling_topic)?,
+                float64(),
+                &scaling_qos,
+            )
+            .map_err(|e| format!("speed scaling topic: {e:?}"))?;
+        let scaling_input = node
+            .create_subscription::<crate::msgs::Float64>(&scaling_topic, None)
+            .map_err(|e| format!("speed scaling subscription: {e:?}"))?;
+        let scaling_state_topic = node
+            .create_topic(
+                &name(&self.config.speed_scaling_state_topic)?,
+                float64(),
+                &scaling_qos,
+            )
+            .map_err(|e| format!("speed scaling state topic: {e:?}"))?;
+        let scaling_state = node
+            .create_publisher::<crate::msgs::Float64>(&scaling_state_topic, None)
+            .map_err(|e| format!("speed scaling state publisher: {e:?}"))?;
         let spinner = node.spinner().map_err(|e| format!("spinner: {e:?}"))?;
 
         let publish_joint_states = joint_states::publish_samples(&samples, |sample: Sample| {
@@ -411,6 +482,25 @@ impl Bridge {
             self.controller.clone(),
             Client::resume,
         );
+        let serve_speed_scaling = async {
+            loop {
+                match scaling_input.async_take().await {
+                    Ok((factor, _)) => self.set_speed_scaling(factor.data).await,
+                    Err(e) => log::warn!("speed scaling: {e:?}"),
+                }
+            }
+        };
+        let publish_speed_scaling = async {
+            while let Ok(mut percent) = scaling_states.recv().await {
+                while let Ok(newer) = scaling_states.try_recv() {
+                    percent = newer;
+                }
+                let state = crate::msgs::Float64 { data: percent };
+                if let Err(e) = scaling_state.async_publish(state).await {
+                    log::warn!("speed scaling state: {e:?}");
+                }
+            }
+        };
         // Issue 33: homing, one request at a time (a second waits for the first's answer).
         let serve_home = async {
             loop {
@@ -446,6 +536,8 @@ impl Bridge {
                 serve_hold,
                 serve_resume,
                 serve_home,
+                serve_speed_scaling,
+                publish_speed_scaling,
             );
         };
         async_io::block_on(async {
@@ -477,6 +569,21 @@ impl Bridge {
                 success: false,
                 message: "STOPPED failed: internal error".into(),
             },
+        }
+    }
+
+    /// A speed scaling input: OVERRIDE to the controller (from a thread of its own), or
+    /// the refusal logged. The state topic shows what the controller took.
+    async fn set_speed_scaling(&self, factor: f64) {
+        let percent = match speed_scaling::override_percent(factor) {
+            Ok(percent) => percent,
+            Err(e) => return log::warn!("{e}"),
+        };
+        let controller = self.controller.clone();
+        match off_thread(move || controller.set_override(percent)).await {
+            Some(Ok(_)) => log::info!("speed scaling {factor}: OVERRIDE {percent} % taken"),
+            Some(Err(e)) => log::warn!("speed scaling {factor}: OVERRIDE {percent} %: {e}"),
+            None => log::warn!("speed scaling {factor}: internal error"),
         }
     }
 

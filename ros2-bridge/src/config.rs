@@ -44,6 +44,20 @@ pub struct BridgeConfig {
     /// The `std_srvs/Trigger` service that sends RESUME (issue 32).
     #[serde(default = "default_resume_service")]
     pub resume_service: String,
+    /// The speed scaling input (issue 32; UR's speed slider): `std_msgs/Float64`, a
+    /// fraction, 1.0 = the trajectory's own speed, 0.01..=2.0 (above 1.0 where the
+    /// controller allows), sent to the controller as OVERRIDE (percent, rounded).
+    #[serde(default = "default_speed_scaling_topic")]
+    pub speed_scaling_topic: String,
+    /// The speed scaling state (as UR's `speed_scaling_state_broadcaster`):
+    /// `std_msgs/Float64`, **percent**, the controller's rate now (MOTION report): the
+    /// factor, below it while ramping, 0 while held.
+    #[serde(default = "default_speed_scaling_state_topic")]
+    pub speed_scaling_state_topic: String,
+    /// How often the speed scaling state is read from the controller and published,
+    /// 1..=100 Hz.
+    #[serde(default = "default_speed_scaling_rate_hz")]
+    pub speed_scaling_rate_hz: f64,
     /// The `std_srvs/Trigger` service that homes the arm (issue 33): on its home switches
     /// when it has them (HOME, answered when the cycle ended), by RETURN otherwise.
     #[serde(default = "default_home_service")]
@@ -195,6 +209,10 @@ defaults! {
     default_hold_service: String = String::from("/arm_controller/hold");
     default_resume_service: String = String::from("/arm_controller/resume");
     default_home_service: String = String::from("/arm_controller/home");
+    default_speed_scaling_topic: String = String::from("/arm_controller/speed_scaling_factor");
+    default_speed_scaling_state_topic: String =
+        String::from("/speed_scaling_state_broadcaster/speed_scaling");
+    default_speed_scaling_rate_hz: f64 = 10.0;
     default_joint_states_topic: String = String::from("/joint_states");
     default_joint_state_rate_hz: f64 = 50.0;
     default_feedback_rate_hz: f64 = 30.0;
@@ -256,6 +274,13 @@ impl BridgeConfig {
             if !(1.0..=1000.0).contains(&rate) {
                 return Err(format!("{file}: {name} {rate} must be 1 to 1000 Hz"));
             }
+        }
+        // Each reading is a STATUS round trip to the controller.
+        if !(1.0..=100.0).contains(&config.speed_scaling_rate_hz) {
+            return Err(format!(
+                "{file}: speed_scaling_rate_hz {} must be 1 to 100 Hz",
+                config.speed_scaling_rate_hz
+            ));
         }
         if config.segment_us == 0 {
             return Err(format!("{file}: segment_us must be at least 1"));

@@ -435,3 +435,11 @@ mod tests {
         assert!(cdr_encoding::from_bytes::<Feedback6, LittleEndian>(&bytes5).is_err());
     }
 }
+
+/// `std_msgs/Float64`: the speed scaling input (a fraction) and state (percent; issue 32).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Float64 {
+    /// The value.
+    pub data: f64,
+}
+impl Message for Float64 {}

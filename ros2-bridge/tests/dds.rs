@@ -990,3 +990,260 @@ fn cyclone_dds_reads_joint_states() {
     assert!(checked >= 20, "{checked} samples");
     println!("cyclonedds read {checked} JointState samples: names and positions match LOCATION");
 }
+
+/// A Trigger client of the bridge's `/arm_controller/NAME` service.
+fn trigger_client(
+    node: &mut Node,
+    service: &str,
+) -> ros2_client::service::Client<TriggerRequest, TriggerResponse> {
+    node.create_client(
+        ServiceMapping::Enhanced,
+        &Name::new("/arm_controller", service).unwrap(),
+        &ServiceTypeName::new("std_srvs", "Trigger"),
+        action_qos().goal_service,
+        action_qos().goal_service,
+    )
+    .unwrap()
+}
+
+/// Takes speed scaling states (percent) until one is within 0.05 of `want`, for at most
+/// `within`; returns the states seen.
+async fn wait_scaling_state(
+    states: &ros2_client::Subscription<msgs::Float64>,
+    want: f64,
+    within: Duration,
+) -> Result<Vec<f64>, Vec<f64>> {
+    let deadline = Instant::now() + within;
+    let mut seen = Vec::new();
+    loop {
+        let left = deadline.saturating_duration_since(Instant::now());
+        futures::select! {
+            s = states.async_take().fuse() => {
+                let data = s.expect("speed scaling state").0.data;
+                seen.push(data);
+                if (data - want).abs() < 0.05 {
+                    return Ok(seen);
+                }
+            }
+            _ = FutureExt::fuse(async_io::Timer::after(left)) => return Err(seen),
+        }
+    }
+}
+
+/// Issue 32 on ROS 2, as the UR driver offers it: the speed scaling input (a fraction on
+/// `/arm_controller/speed_scaling_factor`) applied before a goal and to a goal in flight,
+/// its state (percent, the controller's MOTION rate) on
+/// `/speed_scaling_state_broadcaster/speed_scaling`, and the hold and resume services
+/// mid-goal: held (state 0, the arm still), resumed, every goal ending exactly at its last
+/// point (LOCATION and the simulator's traced pulses).
+#[test]
+#[ignore = "DDS multicasts: runs only in a private network namespace, via ros2-bridge/tests/dds.sh as root (.ci/run runs it)"]
+fn speed_scaling_and_hold_resume_of_goals() {
+    let Some(_serial) = dds_turn("speed_scaling_and_hold_resume_of_goals") else {
+        return;
+    };
+    let domain = 47;
+    let mut fixture = Fixture::start(domain, true);
+    let base = vec![fixture.config.joint_names()[0].clone()];
+    let (_context, mut node) = node(domain, "scaling_client");
+    let client = trajectory_client(&mut node);
+    let hold = trigger_client(&mut node, "hold");
+    let resume = trigger_client(&mut node, "resume");
+    let float64 = MessageTypeName::new("std_msgs", "Float64");
+    let qos = QosProfile::publisher_default()
+        .durability(Durability::Volatile)
+        .history(History::KeepLast { depth: 10 });
+    let input_topic = node
+        .create_topic(
+            &Name::new("/arm_controller", "speed_scaling_factor").unwrap(),
+            float64.clone(),
+            &qos,
+        )
+        .unwrap();
+    let input = node
+        .create_publisher::<msgs::Float64>(&input_topic, None)
+        .unwrap();
+    let state_topic = node
+        .create_topic(
+            &Name::new("/speed_scaling_state_broadcaster", "speed_scaling").unwrap(),
+            float64,
+            &qos,
+        )
+        .unwrap();
+    let states = node
+        .create_subscription::<msgs::Float64>(&state_topic, None)
+        .unwrap();
+    assert_eq!(fixture.position(), [0; MAX_JOINTS]);
+    // Joint 0 (base) out to 0.3 rad, back, then out to 0.6 rad: 1528 steps/s at most.
+    let out = fixture.steps(0, 0.3);
+    let far = fixture.steps(0, 0.6);
+    let goal_to = |rad: f64, ms: u64| goal(&base, vec![point(ms, &[rad], &[])]);
+    let scale = |factor: f64| input.async_publish(msgs::Float64 { data: factor });
+    let slow = Duration::from_secs(20);
+
+    let (
+        (half, half_took),
+        ((in_flight, took), seen),
+        ((held_goal, still), hold_response, resume_response),
+    ) = with_node(&mut node, async |node: &Node| {
+        let t0 = Instant::now();
+        let phase = |what: &str| println!("[{:6.3} s] {what}", t0.elapsed().as_secs_f64());
+        wait_for(node, "goal", client.goal_client()).await;
+        wait_for(node, "result", client.result_client()).await;
+        wait_for(node, "hold", &hold).await;
+        wait_for(node, "resume", &resume).await;
+        retrying("speed scaling input", || input.wait_for_subscription(node)).await;
+        let first = wait_scaling_state(&states, 100.0, slow).await;
+        phase(&format!(
+            "services discovered; speed scaling state {first:?}"
+        ));
+        assert!(first.is_ok(), "no speed scaling state of 100 %: {first:?}");
+
+        // 1. At 0.5 before the goal: a 1 s goal takes 2 s.
+        scale(0.5).await.expect("publish 0.5");
+        let taken = wait_scaling_state(&states, 50.0, slow).await;
+        assert!(taken.is_ok(), "speed scaling 0.5 not taken: {taken:?}");
+        let started = Instant::now();
+        let half = run_goal(&client, goal_to(0.3, 1000), None, None).await;
+        let half_took = started.elapsed();
+        phase(&format!(
+            "goal at 50 % done in {:.3} s",
+            half_took.as_secs_f64()
+        ));
+        assert_eq!(fixture.position()[0], out, "{half:?}");
+
+        // 2. Back at 1.0; 0.25 from 0.4 s into a 2 s goal.
+        scale(1.0).await.expect("publish 1.0");
+        assert!(wait_scaling_state(&states, 100.0, slow).await.is_ok());
+        let started = Instant::now();
+        let run = run_goal(&client, goal_to(0.0, 2000), None, None);
+        let slow_down = async {
+            async_io::Timer::after(Duration::from_millis(400)).await;
+            scale(0.25).await.expect("publish 0.25");
+            wait_scaling_state(&states, 25.0, slow).await
+        };
+        let (in_flight, seen) = futures::join!(run, slow_down);
+        let took = started.elapsed();
+        phase(&format!(
+            "2 s goal slowed to 25 % at 0.4 s done in {:.3} s",
+            took.as_secs_f64()
+        ));
+        assert_eq!(fixture.position()[0], 0, "{in_flight:?}");
+
+        // 3. Held 0.6 s into a 2 s goal at 1.0, resumed once at rest and still.
+        scale(1.0).await.expect("publish 1.0");
+        assert!(wait_scaling_state(&states, 100.0, slow).await.is_ok());
+        let run = run_goal(&client, goal_to(0.6, 2000), None, None);
+        let hold_resume = async {
+            async_io::Timer::after(Duration::from_millis(600)).await;
+            let held = hold
+                .async_call_service(TriggerRequest::default())
+                .await
+                .expect("hold");
+            phase(&format!("hold answered: {held:?}"));
+            let at_rest = wait_scaling_state(&states, 0.0, slow).await;
+            assert!(at_rest.is_ok(), "not at rest after the hold: {at_rest:?}");
+            // Still: the next 20 LOCATION reports (0.4 s at 50 Hz) all equal, counted
+            // as they come (at most 10 s).
+            while fixture.samples.try_recv().is_ok() {}
+            let mut still: Vec<[i32; MAX_JOINTS]> = Vec::new();
+            let counting = Instant::now();
+            while still.len() < 20 && counting.elapsed() < Duration::from_secs(10) {
+                still.extend(fixture.samples.try_iter().map(|s| s.location.position));
+                async_io::Timer::after(Duration::from_millis(20)).await;
+            }
+            let resumed = resume
+                .async_call_service(TriggerRequest::default())
+                .await
+                .expect("resume");
+            phase(&format!("resume answered: {resumed:?}"));
+            (still, held, resumed)
+        };
+        let (held_goal, (still, held, resumed)) = futures::join!(run, hold_resume);
+        phase("held goal done");
+        (
+            (half, half_took),
+            ((in_flight, took), seen),
+            ((held_goal, still), held, resumed),
+        )
+    });
+
+    // 1. Speed scaling 0.5 before the goal: twice the time (only a lower bound is a gate:
+    // a busy machine makes it longer), exactly at the goal.
+    println!(
+        "MEASURED 1 s goal at speed scaling 0.5: {:.3} s from the goal sent to its result",
+        half_took.as_secs_f64()
+    );
+    assert_eq!(half.status, Some(GoalStatusEnum::Succeeded), "{half:?}");
+    assert!(half_took >= Duration::from_millis(1900), "{half_took:?}");
+    // 2. 0.25 sent 0.4 s into a 2 s goal: the rest (1.6 s) four times as long, so at
+    // least 0.4 + 6.4 s if it came in time; the state showed 25 %; exact at the goal.
+    println!(
+        "MEASURED 2 s goal, speed scaling 0.25 sent 0.4 s in: {:.3} s (0.4 + 1.6 x 4 = 6.8 s if taken at once, less by the ramp); states seen {seen:?}",
+        took.as_secs_f64()
+    );
+    assert_eq!(
+        in_flight.status,
+        Some(GoalStatusEnum::Succeeded),
+        "{in_flight:?}"
+    );
+    assert!(seen.is_ok(), "the state never showed 25 %: {seen:?}");
+    assert!(took >= Duration::from_millis(3000), "{took:?}");
+    // 3. Held: the arm stood still part way, then the goal ended exactly at its end.
+    assert!(hold_response.success, "{hold_response:?}");
+    assert!(resume_response.success, "{resume_response:?}");
+    assert!(
+        still.len() >= 20,
+        "{} LOCATION reports in 10 s",
+        still.len()
+    );
+    assert!(
+        still.iter().all(|p| *p == still[0]),
+        "moved while held: {still:?}"
+    );
+    assert!(
+        still[0][0] > 0 && still[0][0] < far,
+        "held at {:?}, the goal's end {far}",
+        still[0]
+    );
+    println!(
+        "MEASURED held at joint 0 = {} steps (of {far}) for {} LOCATION reports",
+        still[0][0],
+        still.len()
+    );
+    assert_eq!(
+        held_goal.status,
+        Some(GoalStatusEnum::Succeeded),
+        "{held_goal:?}"
+    );
+    let end = fixture.position();
+    assert_eq!(end[0], far);
+    fixture.shutdown();
+    fixture.sim.terminate();
+    let trace = armctl::vcd::read(&fixture.sim.trace()).unwrap();
+    let traced = trace.positions(6);
+    println!("MEASURED traced pulse positions at the end: {traced:?}");
+    assert_eq!(traced[0], i64::from(far));
+    assert!(traced[1..].iter().all(|&p| p == 0), "{traced:?}");
+    // The hold in the pulses: the last goal's longest pause between two STEP edges, and
+    // how many edges came after it (the rest of the path, every step of it).
+    let rises = armctl::vcd::read_changes(&fixture.sim.trace())
+        .unwrap()
+        .rising_edges("step0");
+    let last_goal = &rises[rises.len() - usize::try_from(far).unwrap()..];
+    let (gap_at, gap) = last_goal
+        .windows(2)
+        .enumerate()
+        .map(|(i, w)| (i, w[1] - w[0]))
+        .max_by_key(|&(_, g)| g)
+        .unwrap();
+    let resumed_s = (last_goal[last_goal.len() - 1] - last_goal[gap_at + 1]) as f64 * 1e-9;
+    println!(
+        "MEASURED traced hold: no STEP edge for {:.3} s after edge {} of {far}; the {} after it in {resumed_s:.3} s (nominal {:.3} s at 1528 steps/s)",
+        gap as f64 * 1e-9,
+        gap_at + 1,
+        last_goal.len() - gap_at - 1,
+        (last_goal.len() - gap_at - 1) as f64 / 1528.0
+    );
+    assert_eq!(i64::from(still[0][0]), (gap_at + 1) as i64);
+}

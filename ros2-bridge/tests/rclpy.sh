@@ -3,7 +3,8 @@
 # (ros-rclpy 9.1.2), both on rmw_fastrtps_cpp, from the PyPI wheels, drive armctl-ros2 on
 # sim-host (ros2-bridge/tests/rclpy/check_bridge.py: graph and types, type hashes,
 # /joint_states rate and values, e-stop first-call latency over 20 fresh clients, a goal with
-# velocities with feedback, cancel, wrong joint names, gripper).
+# velocities with feedback, cancel, wrong joint names, gripper, speed scaling and
+# hold/resume).
 #
 # Each distro gets a venv of its own, cached between runs of one machine under
 # ${ARMCTL_ROS2_VENVS:-~/.cache/arm-ros2-venvs}/DISTRO (rebuilt when this script or the

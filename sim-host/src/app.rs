@@ -388,6 +388,9 @@ fn wire(board: Board) -> io::Result<Wiring> {
     if let Some(input) = &board.estop_input {
         input.wire(step, &BUS.step_progress);
     }
+    // DIAG: the simulator's own figures (issue 34), not the board's.
+    crate::sim_diag::set_step_hz(timing.tick_hz);
+    BUS.set_diag_source(crate::sim_diag::report);
     let port = board.local_addr().map_or(protocol::PORT, |a| a.port());
     controller.set_mac(sim_mac(board.options.tap.as_deref(), port));
     // The board draws these from its RNG: the epochs of keys set (issue 30).
@@ -413,13 +416,17 @@ fn wire(board: Board) -> io::Result<Wiring> {
         },
         move |now| {
             let (played, edges) = step.on_interrupt(&BUS.step_progress, |steps| {
+                // The span the step lock is held (a critical section; issue 34's DIAG).
+                let holding = std::time::Instant::now();
                 let progress = steps.advance(now);
                 let played = crate::steptimer::Played {
                     running: steps.is_running(),
                     due: steps.next_due(),
                     ended: progress.ran_dry,
                 };
-                ((played, steps.take_switch_edges()), progress)
+                let edges = steps.take_switch_edges();
+                crate::sim_diag::played(holding.elapsed());
+                ((played, edges), progress)
             });
             // The switch edges the played steps made, as the board's EXTI handler sees
             // them: outside the backend's lock (a limit's halt takes it).

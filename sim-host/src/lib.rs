@@ -17,6 +17,7 @@ pub mod options;
 pub mod probe;
 pub mod rx_counters;
 pub mod serial;
+pub mod sim_diag;
 pub mod simnet;
 pub mod steppers;
 pub mod steptimer;

@@ -135,6 +135,8 @@ impl<const Q: usize> std::fmt::Debug for SimSteps<Q> {
 struct Stamped<'a> {
     pins: &'a mut SimSteppers,
     origin: u64,
+    /// The step clock tick the thread plays at (DIR lateness, [`crate::sim_diag`]).
+    now: u64,
     switches: Option<(&'a mut SwitchModel, &'static SwitchLine)>,
     halt: Option<u64>,
 }
@@ -143,11 +145,13 @@ impl<'a> Stamped<'a> {
     fn new(
         pins: &'a mut SimSteppers,
         origin: u64,
+        now: u64,
         switches: Option<(&'a mut SwitchModel, &'static SwitchLine)>,
     ) -> Self {
         Stamped {
             pins,
             origin,
+            now,
             switches,
             halt: None,
         }
@@ -177,6 +181,7 @@ impl TimedStepPins for Stamped<'_> {
     fn set_direction(&mut self, joint: usize, positive: bool, tick: u64) {
         self.pins.set_tick(self.origin + tick);
         self.pins.set_direction(joint, positive);
+        crate::sim_diag::dir_played(self.origin + tick, self.now);
     }
 }
 
@@ -235,6 +240,7 @@ impl<const Q: usize> SimSteps<Q> {
         let mut pins = Stamped::new(
             &mut self.pins,
             origin,
+            now,
             self.switches.as_mut().map(|(m, l)| (m, *l)),
         );
         let (advance, halt) =
@@ -304,6 +310,7 @@ impl<const Q: usize> StepBackend for SimSteps<Q> {
             &mut Stamped::new(
                 &mut self.pins,
                 origin,
+                now,
                 self.switches.as_mut().map(|(m, l)| (m, *l)),
             ),
         );

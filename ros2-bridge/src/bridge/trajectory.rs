@@ -129,19 +129,33 @@ impl Bridge {
             let points = plan.points.clone();
             let running_since = running_since.clone();
             let executed = executed.clone();
+            // The speed scaling input may slow the run down to 1 % at any time, and a hold
+            // stops it (issue 32): wait as long as the slowest factor takes (armctl's rule:
+            // twice the duration plus 10 s), not the nominal duration.
+            let nominal_us: u64 = points
+                .iter()
+                .map(|p| u64::try_from(p.duration).unwrap_or(0))
+                .sum();
+            let options = RunOptions {
+                completion_timeout: Some(
+                    Duration::from_micros(nominal_us.saturating_mul(100 * 2))
+                        + Duration::from_secs(10),
+                ),
+                ..RunOptions::default()
+            };
             std::thread::spawn(move || {
-                let result =
-                    controller.run_trajectory(&points, &RunOptions::default(), |p: &Progress| {
-                        executed.store(p.executed as u64, Ordering::Relaxed);
-                        if p.state == State::Running {
-                            lock(&running_since).get_or_insert_with(Instant::now);
-                        }
-                    });
+                let result = controller.run_trajectory(&points, &options, |p: &Progress| {
+                    executed.store(p.executed as u64, Ordering::Relaxed);
+                    if p.state == State::Running {
+                        lock(&running_since).get_or_insert_with(Instant::now);
+                    }
+                });
                 let _ = done_tx.send_blocking(result);
             });
         }
         let period = Duration::from_secs_f64(1.0 / self.config.feedback_rate_hz);
         let mut ticker = Timer::interval(period);
+        let mut clock = super::speed_scaling::Clock::default();
         let mut canceled = false;
         let mut path_violation: Option<String> = None;
         let outcome = loop {
@@ -149,8 +163,9 @@ impl Bridge {
                 done = done_rx.recv().fuse() => break done.ok(),
                 // After a cancel the goal is CANCELING: no more feedback for it.
                 _ = ticker.next().fuse() => if !canceled {
-                    let elapsed_us = lock(&running_since)
-                        .map_or(0, |t| t.elapsed().as_micros() as i64);
+                    // Trajectory time, at the controller's rate (speed scaling, holds).
+                    let running = lock(&running_since).is_some();
+                    let elapsed_us = clock.advance(Instant::now(), running, self.rate.permille());
                     let desired = plan.desired_steps(elapsed_us);
                     let actual = self.latest().map_or(plan.start, |s| s.location.position);
                     let feedback = goal::feedback(plan, &self.arm, &desired, &actual, elapsed_us,

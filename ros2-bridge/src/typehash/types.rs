@@ -1064,6 +1064,10 @@ pub(super) static COMMON: &[TypeDescription] = &[
         ],
     },
     TypeDescription {
+        name: "std_msgs/msg/Float64",
+        fields: &[f("data", 11, 0, 0, "")],
+    },
+    TypeDescription {
         name: "std_msgs/msg/Header",
         fields: &[
             f("stamp", 1, 0, 0, "builtin_interfaces/msg/Time"),
@@ -1578,6 +1582,10 @@ pub(super) static JAZZY_HASHES: &[(&str, &str)] = &[
         "RIHS01_41bcbbe07a75c9b52bc96bfd5c24d7f0fc0a08c0cb7921b3373c5732345a6f45",
     ),
     (
+        "std_msgs/msg/Float64",
+        "RIHS01_705ba9c3d1a09df43737eb67095534de36fd426c0587779bda2bc51fe790182a",
+    ),
+    (
         "std_msgs/msg/Header",
         "RIHS01_f49fb3ae2cf070f793645ff749683ac6b06203e41c891e17701b1cb597ce6a01",
     ),
@@ -1944,6 +1952,10 @@ pub(super) static KILTED_HASHES: &[(&str, &str)] = &[
     (
         "service_msgs/msg/ServiceEventInfo",
         "RIHS01_41bcbbe07a75c9b52bc96bfd5c24d7f0fc0a08c0cb7921b3373c5732345a6f45",
+    ),
+    (
+        "std_msgs/msg/Float64",
+        "RIHS01_705ba9c3d1a09df43737eb67095534de36fd426c0587779bda2bc51fe790182a",
     ),
     (
         "std_msgs/msg/Header",

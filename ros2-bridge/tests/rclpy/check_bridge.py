@@ -16,7 +16,9 @@ never run it on a shared network. Starts sim-host and the bridge as processes, t
   goal steps, with feedback at the configured rate;
 - cancel mid-way: CANCELED, and the positions stamped after the result stop changing;
 - wrong joint names: ABORTED, INVALID_JOINTS;
-- gripper: a goal in range SUCCEEDS with feedback; one out of range is rejected.
+- gripper: a goal in range SUCCEEDS with feedback; one out of range is rejected;
+- speed scaling and hold/resume (issue 32): 0.5 on the input, state 50 %, a 1 s goal takes
+  at least 1.9 s; a goal held (state 0 %, joint_states still), resumed, ends exactly.
 
 Prints one line per check and the figures, then 'N passed, N failed'. Exit status 1 if any
 check failed. Every wait polls for what it waits for, with a deadline. No check asserts a
@@ -46,6 +48,7 @@ from action_msgs.msg import GoalStatus
 from builtin_interfaces.msg import Duration
 from control_msgs.action import FollowJointTrajectory, GripperCommand
 from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectoryPoint
 
@@ -533,6 +536,76 @@ class Checker:
         check("wrong joint names: ABORTED, INVALID_JOINTS", status == GoalStatus.STATUS_ABORTED and code == FollowJointTrajectory.Result.INVALID_JOINTS,
               f"status {status} code {code}: {result.result.error_string if result else ''}")
 
+    def check_speed_scaling_and_hold(self):
+        """Issue 32, as UR's driver offers it: the speed scaling input (std_msgs/Float64, a
+        fraction) slows a goal, its state (percent) says so; the hold service stops a goal
+        part way (state 0, joint_states still), the resume service lets it end exactly at
+        its goal. Durations are only bounded from below (a busy machine makes them longer)."""
+        scaling_in = self.config.get("speed_scaling_topic", "/arm_controller/speed_scaling_factor")
+        scaling_state = self.config.get("speed_scaling_state_topic", "/speed_scaling_state_broadcaster/speed_scaling")
+        states = []
+        sub = self.node.create_subscription(Float64, scaling_state, lambda m: states.append(m.data), QoSProfile(depth=100))
+        pub = self.node.create_publisher(Float64, scaling_in, QoSProfile(depth=10))
+        hold = self.node.create_client(Trigger, self.config.get("hold_service", "/arm_controller/hold"))
+        resume = self.node.create_client(Trigger, self.config.get("resume_service", "/arm_controller/resume"))
+        try:
+            matched = wait_until(lambda: pub.get_subscription_count() > 0, 10)
+            check("speed scaling: the bridge subscribes to the input", matched, scaling_in)
+            shows = lambda want: wait_until(lambda: any(abs(v - want) < 0.05 for v in states[-3:]), 10)
+            check("speed scaling: state published, 100 %", shows(100.0), f"last {states[-3:]}")
+            pub.publish(Float64(data=0.5))
+            check("speed scaling: 0.5 taken, state 50 %", shows(50.0), f"last {states[-3:]}")
+            start = self.latest_positions()
+            out = list(start)
+            out[0] += 0.2
+            goal = FollowJointTrajectory.Goal()
+            goal.trajectory.joint_names = list(self.names)
+            goal.trajectory.points = [JointTrajectoryPoint(positions=out, time_from_start=duration(1.0))]
+            sent = time.monotonic()
+            handle = self.send_goal(self.fjt, goal)
+            result = self.result_of(handle.get_result_async, 60) if handle is not None and handle.accepted else None
+            took = time.monotonic() - sent
+            figure(f"1 s goal at speed scaling 0.5: {took:.3f} s from the goal sent to its result")
+            check("speed scaling 0.5: a 1 s goal SUCCEEDED, taking at least 1.9 s",
+                  result is not None and result.status == GoalStatus.STATUS_SUCCEEDED and took >= 1.9,
+                  f"{took:.3f} s, {result.result.error_string if result else 'no result'}")
+            pub.publish(Float64(data=1.0))
+            check("speed scaling: 1.0 taken, state 100 %", shows(100.0), f"last {states[-3:]}")
+            # Back over 2 s, held 0.6 s in, resumed once the arm stood still.
+            steps = lambda: [round(p * s) for p, s in zip(self.latest_positions(), self.spr)]
+            want = [round(p * s) for p, s in zip(start, self.spr)]
+            goal.trajectory.points = [JointTrajectoryPoint(positions=start, time_from_start=duration(2.0))]
+            handle = self.send_goal(self.fjt, goal)
+            if not check("hold: goal accepted", handle is not None and handle.accepted):
+                return
+            time.sleep(0.6)  # the test's own schedule: hold 0.6 s into the goal
+            held = self.result_of(lambda: hold.call_async(Trigger.Request()), 10)
+            check("hold: the service answers success", held is not None and held.success, f"{held}")
+            check("hold: state 0 % (at rest)", shows(0.0), f"last {states[-3:]}")
+            # By the bridge's stamps: this client may take JointStates up to ~1 s late (see
+            # check_cancel), and those of before the stop must not count.
+            rest_at = time.time()
+            n = self.state_count()
+            after = lambda: [m for _, m in self.states_since(n) if stamp_seconds(m.header.stamp) >= rest_at]
+            wait_until(lambda: len(after()) >= 20, 10)
+            still = [[round(p * s) for p, s in zip(m.position, self.spr)] for m in after()[:20]]
+            check("hold: 20 joint_states all equal, part way",
+                  len(still) == 20 and all(p == still[0] for p in still) and still[0] != want,
+                  f"{len(still)} states, first {still[0] if still else None}, goal {want}")
+            resumed = self.result_of(lambda: resume.call_async(Trigger.Request()), 10)
+            check("resume: the service answers success", resumed is not None and resumed.success, f"{resumed}")
+            result = self.result_of(handle.get_result_async, 60)
+            check("resume: the held goal SUCCEEDED", result is not None and result.status == GoalStatus.STATUS_SUCCEEDED,
+                  f"{result.result.error_string if result else 'no result'}")
+            wait_until(lambda: steps() == want, 5)
+            check("resume: joint_states at exactly the goal steps", steps() == want, f"steps {steps()}, goal {want}")
+            figure(f"hold: stood at {still[0][0] if still else None} steps of joint 0 (from {round(out[0] * self.spr[0])} to {want[0]})")
+        finally:
+            self.node.destroy_subscription(sub)
+            self.node.destroy_publisher(pub)
+            self.node.destroy_client(hold)
+            self.node.destroy_client(resume)
+
     def check_gripper(self):
         if "gripper" not in self.config:
             return
@@ -602,6 +675,7 @@ def main():
             checker.check_cancel()
             checker.check_wrong_names()
             checker.check_gripper()
+            checker.check_speed_scaling_and_hold()
         finally:
             checker.close()
             rclpy.try_shutdown()

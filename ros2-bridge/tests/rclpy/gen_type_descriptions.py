@@ -17,6 +17,8 @@ import sys
 # The top-level interfaces whose endpoints the bridge (ros2-client) creates.
 INTERFACES = [
     "sensor_msgs/msg/JointState", "rosgraph_msgs/msg/Clock", "std_srvs/srv/Trigger",
+    # The speed scaling input and state (issue 32).
+    "std_msgs/msg/Float64",
     "action_msgs/msg/GoalStatusArray", "action_msgs/srv/CancelGoal",
     "control_msgs/action/FollowJointTrajectory", "control_msgs/action/GripperCommand",
     "rcl_interfaces/msg/Log", "rcl_interfaces/msg/ParameterEvent",

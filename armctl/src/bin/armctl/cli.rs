@@ -68,7 +68,7 @@ pub enum Cmd {
     /// Print the controller's own counters (issue 34): the longest span with interrupts
     /// masked and where it was opened, DIR lateness, the least step DMA slack, RX ring
     /// overflows and shed datagrams. From any host, never taking the controller; the
-    /// simulator says "not measured" for what only a board measures.
+    /// simulator gives figures of its own (host ns, its step thread's lateness; no DMA).
     Diag {
         /// As JSON.
         #[arg(long)]

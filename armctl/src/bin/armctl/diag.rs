@@ -59,11 +59,15 @@ fn lines(d: &Diagnosis) -> Vec<String> {
     match g.masked_max_ns() {
         None => out.push("masked spans:   not measured on this controller".into()),
         Some(ns) => out.push(format!(
-            "masked spans:   longest {} ({} cycles at {}), opened at {:#010x}; {} spans",
+            "masked spans:   longest {} ({} cycles at {}), {}; {} spans",
             time(ns),
             g.masked_max_cycles,
             mhz(g.cpu_hz),
-            g.masked_opener,
+            // 0: none yet, or a controller with no address to give (the simulator).
+            match g.masked_opener {
+                0 => "no opener address".to_string(),
+                at => format!("opened at {at:#010x}"),
+            },
             g.masked_spans
         )),
     }
@@ -83,7 +87,8 @@ fn lines(d: &Diagnosis) -> Vec<String> {
             ),
         });
         out.push(match g.dma_slack_min_ns() {
-            None => "step DMA slack: no refill yet".into(),
+            // No refill yet, or none measured at all (the simulator has no DMA).
+            None => "step DMA slack: no refill measured".into(),
             Some(ns) => format!(
                 "step DMA slack: least {} before an update event ({} ticks); {} refills",
                 time(ns),
