@@ -1028,6 +1028,7 @@ impl<const CAP: usize> Controller<CAP> {
                     self.stop = StopReport::COMPLETE;
                     self.state = State::Running;
                     self.motion.held = false;
+                    self.motion.underrun = false;
                     plant.set_start_rate(motion::rate_of(self.motion.factor));
                     self.pump(plant);
                     plant.start();
