@@ -57,6 +57,8 @@ pub fn motion_suffix(motion: Option<&protocol::MotionReport>) -> String {
         } else {
             " HOLDING"
         });
+    } else if m.flags.has(MotionFlags::UNDERRUN_RAMP) {
+        out.push_str(" UNDERRUN (slowing: the host is late)");
     } else if m.flags.has(MotionFlags::RAMPING) {
         out.push_str(" ramping");
     }
