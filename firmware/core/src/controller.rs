@@ -1023,6 +1023,7 @@ impl<const CAP: usize> Controller<CAP> {
             Command::Runing if self.hard_limits.latched().is_some() => {
                 return Err(StatusCode::LimitLatched);
             }
+            Command::Runing if self.motion.door_open => return Err(StatusCode::DoorOpen),
             Command::Runing => match self.state {
                 State::Pending => {
                     self.stop = StopReport::COMPLETE;

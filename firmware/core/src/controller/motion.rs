@@ -11,7 +11,8 @@
 //! with no limit set, [`UNLIMITED_RAMP`].
 
 use protocol::{
-    ControlledStop, MAX_JOINTS, MotionFlags, MotionReport, OverrideLimit, State, StatusCode,
+    ControlledStop, Location, MAX_JOINTS, MotionFlags, MotionReport, OverrideLimit, State,
+    StatusCode,
 };
 
 use super::Controller;
@@ -44,6 +45,8 @@ pub(crate) struct Motion {
     pub refused: (u8, Option<OverrideLimit>),
     /// An underrun ramp is in force: the host is late and the run slows to the creep.
     pub underrun: bool,
+    /// The safety door is open (runs hold; RUNING and RESUME refused `DOOR_OPEN`).
+    pub door_open: bool,
 }
 
 impl Motion {
@@ -54,6 +57,7 @@ impl Motion {
         last_stop: ControlledStop::None,
         refused: (0xFF, None),
         underrun: false,
+        door_open: false,
     };
 }
 
@@ -205,9 +209,13 @@ impl<const CAP: usize> Controller<CAP> {
     }
 
     /// RESUME (the owner): back to the override after a HOLD; nothing when not held.
+    /// `DOOR_OPEN` while the safety door is.
     pub(super) fn resume(&mut self, plant: &mut impl Plant) -> Result<(), StatusCode> {
         if self.state != State::Running {
             return Err(StatusCode::BadState);
+        }
+        if self.motion.door_open {
+            return Err(StatusCode::DoorOpen);
         }
         if !self.motion.held {
             return Ok(());
@@ -272,6 +280,35 @@ impl<const CAP: usize> Controller<CAP> {
         Ok(())
     }
 
+    /// The safety door input (issue 32) is now `open` (or closed). Opening holds a run
+    /// (as HOLD, MOTION's last stop DOOR; a run during RETURN's encoder read or on a step
+    /// side without a warp cannot hold and is stopped instead: the door must stop motion);
+    /// while open, RUNING and RESUME are refused `DOOR_OPEN`. Closing only records it:
+    /// a host RESUMEs. Returns a LOCATION report when the state changed (reports on).
+    pub fn door_input(&mut self, open: bool, plant: &mut impl Plant) -> Option<Location> {
+        let was = self.motion.door_open;
+        self.motion.door_open = open;
+        if !open || was || self.state != State::Running {
+            return None;
+        }
+        match self.hold(plant) {
+            Ok(()) => {
+                self.motion.last_stop = ControlledStop::Door;
+                None
+            }
+            Err(_) => {
+                let before = self.state;
+                self.stop_by_host(plant, None);
+                (before != self.state && self.reports_on).then(|| self.location(plant))
+            }
+        }
+    }
+
+    /// Whether the safety door is open.
+    pub fn door_open(&self) -> bool {
+        self.motion.door_open
+    }
+
     /// The MOTION report (STATUS's request byte bit 4).
     pub fn motion_report(&self, plant: &impl Plant) -> MotionReport {
         let running = self.state == State::Running;
@@ -292,6 +329,9 @@ impl<const CAP: usize> Controller<CAP> {
         }
         if running && self.motion.underrun {
             flags |= MotionFlags::UNDERRUN_RAMP;
+        }
+        if self.motion.door_open {
+            flags |= MotionFlags::DOOR_OPEN;
         }
         MotionReport {
             factor_percent: self.motion.factor,
