@@ -190,3 +190,74 @@ fn without_accel_set_the_underrun_stays_dead() {
     assert_eq!(motion.last_stop, Some(ControlledStop::None));
     assert!(last_interval < 0.000_26, "at cruise speed to the end");
 }
+
+/// The safety door (issue 32) in the simulator: opening it 1 s into a run holds the run
+/// within the acceleration, no STEP edge while it is open; RESUME is refused
+/// DOOR_OPEN until it closes; closing it and a RESUME finish the run exactly.
+#[test]
+fn the_safety_door_holds_the_run_and_closing_it_and_a_resume_go_on() {
+    let (mut board, trace) = board("door", TICK_HZ);
+    let mut host = Host::new();
+    host.ok(
+        &mut board,
+        &Command::AccelSet {
+            joint: 0,
+            max_accel_steps_s2: ACCEL,
+        },
+    );
+    let points = trajectory();
+    let end = points.last().unwrap().position;
+    host.upload_and_run(&mut board, &points);
+    board.run_for(SECOND_NS);
+    let open_ns = board.clock.now_ns();
+    board.set_door(true);
+    board.run_for(SECOND_NS);
+    let at_rest = board.motors.positions()[0];
+    let ack = host.command(&mut board, &Command::Resume);
+    assert_eq!(ack.status, protocol::StatusCode::DoorOpen);
+    let (_, motion) = stop_and_motion(&mut host, &mut board);
+    assert!(
+        motion
+            .flags
+            .has(protocol::MotionFlags::DOOR_OPEN | protocol::MotionFlags::HELD)
+    );
+    assert_eq!(motion.last_stop, Some(ControlledStop::Door));
+    board.run_for(SECOND_NS / 2);
+    assert_eq!(board.motors.positions()[0], at_rest, "no step while open");
+    board.set_door(false);
+    board.run_for(SECOND_NS / 10);
+    assert_eq!(
+        board.motors.positions()[0],
+        at_rest,
+        "closing alone: still held"
+    );
+    let resume_ns = board.clock.now_ns();
+    host.ok(&mut board, &Command::Resume);
+    let last = run_until_stopped(&mut board, 60 * SECOND_NS);
+    assert_eq!(last.position, end, "on the last point");
+    let status = host.status(&mut board);
+    assert_eq!(usize::from(status.executed), points.len());
+    board.finish_trace();
+    let vcd = vcd::read_changes(&trace).unwrap();
+    assert_eq!(vcd.joint_position(0), i64::from(end[0]));
+    let rises = vcd.rising_edges("step0");
+    let window: Vec<u64> = rises
+        .iter()
+        .copied()
+        .filter(|t| (open_ns - SECOND_NS / 10..resume_ns).contains(t))
+        .collect();
+    let max = implied(&window).into_iter().fold(0.0, f64::max);
+    let last_held = window.last().copied().unwrap_or(open_ns);
+    println!(
+        "door opened 1 s into the run: last step {:.4} s after it, max implied acceleration \
+         {:.4} x the limit; RESUME while open: DOOR_OPEN; closed and resumed: every point \
+         ran, joint on its last point",
+        (last_held - open_ns) as f64 * 1e-9,
+        max / f64::from(ACCEL)
+    );
+    assert!(max <= 1.1 * f64::from(ACCEL), "{max}");
+    assert!(
+        last_held - open_ns <= 320_000_000,
+        "to rest within v/a + lookahead + 20 ms"
+    );
+}
