@@ -1378,7 +1378,9 @@ fn issue_32_motion_frames_decode_in_wireshark() {
     let underrun = protocol::MotionReport {
         factor_percent: 100,
         flags: protocol::MotionFlags(
-            protocol::MotionFlags::RAMPING | protocol::MotionFlags::UNDERRUN_RAMP,
+            protocol::MotionFlags::RAMPING
+                | protocol::MotionFlags::UNDERRUN_RAMP
+                | protocol::MotionFlags::DOOR_OPEN,
         ),
         rate_permille: 500,
         last_stop: Some(protocol::ControlledStop::Underrun),
@@ -1403,6 +1405,7 @@ fn issue_32_motion_frames_decode_in_wireshark() {
             "armctl.motion.at_rest",
             "armctl.motion.rate",
             "armctl.motion.underrun",
+            "armctl.motion.door_open",
             "armctl.motion.last_stop",
             "armctl.motion.refused_joint",
         ],
@@ -1429,6 +1432,7 @@ fn issue_32_motion_frames_decode_in_wireshark() {
     assert_eq!(p["armctl.motion.underrun"], "0", "{p:?}");
     let p = &packets[5];
     assert_eq!(p["armctl.motion.underrun"], "1", "{p:?}");
+    assert_eq!(p["armctl.motion.door_open"], "1", "{p:?}");
     assert_eq!(numbers(&p["armctl.motion.last_stop"]), [2], "{p:?}");
     assert_eq!(numbers(&p["armctl.motion.rate"]), [500], "{p:?}");
     // OVERRIDE 0: out of range, INVALID_CONFIG.

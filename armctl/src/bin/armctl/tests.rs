@@ -253,6 +253,15 @@ fn hold_resume_override_and_run_speed() {
         crate::watch::motion_suffix(Some(&m)),
         " speed 50 % UNDERRUN (slowing: the host is late)"
     );
+    m.flags = protocol::MotionFlags(
+        protocol::MotionFlags::HELD
+            | protocol::MotionFlags::AT_REST
+            | protocol::MotionFlags::DOOR_OPEN,
+    );
+    assert_eq!(
+        crate::watch::motion_suffix(Some(&m)),
+        " speed 50 % HELD DOOR OPEN"
+    );
 }
 
 #[test]
