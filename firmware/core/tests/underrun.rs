@@ -157,3 +157,58 @@ fn without_an_accel_limit_or_with_every_point_in_nothing_changes() {
     assert!(s.plant.rate_changes.is_empty());
     assert_eq!(s.controller.stop_report().cause, Some(StopCause::Complete));
 }
+
+/// A host that keeps a small buffer full is in time, however short the buffer is for the
+/// ramp: no slow-down (the watch acts on a buffer at most half full). Before that rule
+/// the watch slowed it to the creep for good: the 16 points held are about the ramp's
+/// path, and it could never hold twice that to ramp back.
+#[test]
+fn a_host_keeping_a_short_buffer_full_is_not_slowed() {
+    let mut s = Session::<16>::new(16);
+    // 4,000 steps/s to the creep with 14,500 steps/s^2 needs 137.6 ms: 14 of the 16
+    // points. The path ramps up by +1 per point (8,000 steps/s^2).
+    let accel = 14_500;
+    s.expect(
+        Command::AccelSet {
+            joint: 0,
+            max_accel_steps_s2: accel,
+        },
+        StatusCode::Ok,
+    );
+    let mut at = [0i32; MAX_JOINTS];
+    let pts: Vec<Point> = (1..=40)
+        .chain(std::iter::repeat_n(40, 200))
+        .map(|d| {
+            let before = at;
+            at[0] += d;
+            Point::from_motion(10_000, &before, &at)
+        })
+        .collect();
+    s.expect(Command::New { count: 400 }, StatusCode::Ok);
+    for chunk in pts[..16].chunks(8) {
+        assert_eq!(s.pending(chunk).status, StatusCode::Ok);
+    }
+    s.expect(Command::Runing, StatusCode::Ok);
+    let mut sent = 16;
+    while sent < pts.len() {
+        s.plant.run(&mut s.controller, 1);
+        // In time: the point that frees room is replaced at once.
+        let room = s.controller.free();
+        let next = (sent + room.min(10)).min(pts.len());
+        if next > sent {
+            assert_eq!(s.pending(&pts[sent..next]).status, StatusCode::Ok);
+            sent = next;
+        }
+    }
+    assert!(
+        s.plant.rate_changes.is_empty(),
+        "{:?}",
+        s.plant.rate_changes
+    );
+    // Then it goes silent: by the time the buffer is half empty the path held is shorter
+    // than the ramp: the dead underrun, as before.
+    s.plant.run_to_end(&mut s.controller);
+    let stop = s.controller.stop_report();
+    assert_eq!((stop.cause, stop.detail), (Some(StopCause::Underrun), 0));
+    assert_eq!(s.plant.positions, pts[pts.len() - 1].position);
+}

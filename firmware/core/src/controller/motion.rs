@@ -138,12 +138,14 @@ impl<const CAP: usize> Controller<CAP> {
     }
 
     /// Watches for an underrun coming (issue 32), after each finished segment: while the
-    /// host has points still to send and some joint has an ACCEL_SET limit, when the path
+    /// host has points still to send, some joint has an ACCEL_SET limit and the buffer is
+    /// at most half full (the host is falling behind), when the path
     /// held after the next point is shorter than the ramp from the rate now to
     /// [`UNDERRUN_CREEP_PERCENT`] needs (and the path after the current one is not), the
     /// run slows to the creep along what it holds: it ends at its last point at a crawl
     /// (STOPPED, UNDERRUN, detail 1) unless the host catches up, which (twice the path of
-    /// the ramp from the override held after the next point) ramps back to the override.
+    /// the ramp from the override held after the next point, or every point in) ramps back
+    /// to the override.
     /// Without a limit, or with too little path, the underrun stays the dead stop at the
     /// last point's speed it always was. A host that keeps enough path buffered sees
     /// nothing of this.
@@ -174,11 +176,17 @@ impl<const CAP: usize> Controller<CAP> {
         let creep = rate_of(UNDERRUN_CREEP_PERCENT);
         let full = rate_of(self.motion.factor);
         if self.motion.underrun {
-            if u128::from(r2) >= 2 * ramp_path_us(full, creep, accel, speed)
-                && plant.change_rate(full, accel, speed)
-            {
+            let caught_up = self.received >= self.expected
+                || u128::from(r2) >= 2 * ramp_path_us(full, creep, accel, speed);
+            if caught_up && plant.change_rate(full, accel, speed) {
                 self.motion.underrun = false;
             }
+            return;
+        }
+        // A buffer more than half full is a host keeping up whose buffer is too short for
+        // the ramp, not a late one: slowing it would crawl every run (and it could never
+        // catch up); its underrun, if one comes, stays dead.
+        if self.buffer.free() < self.buffer.capacity() / 2 {
             return;
         }
         let creep = creep.min(rate);
