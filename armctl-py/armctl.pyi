@@ -152,6 +152,8 @@ class RunEndedError(ArmctlError):
     """'stopped', 'estop_input', 'fault', 'underrun', 'starved' or 'unknown'."""
     stopped_by: Optional[str]
     """For 'stopped': the STOPPED's sender ('127.0.0.2:40001') if the controller said (issue 31)."""
+    controlled: bool
+    """For 'underrun': the controller slowed along what it held, within the accelerations, and stopped on the last point it had (issue 32); False: a dead stop at speed, or an older controller."""
     executed: Optional[int]
     received: Optional[int]
     """Points the controller had received: more than `executed` means points were still buffered."""

@@ -78,6 +78,7 @@ pub(crate) fn to_py_err_said(py: Python<'_>, error: Error, message: String) -> P
             received,
             total,
             stopped_by,
+            controlled,
         } => {
             let err = RunEndedError::new_err(message);
             let value = err.value(py);
@@ -87,6 +88,8 @@ pub(crate) fn to_py_err_said(py: Python<'_>, error: Error, message: String) -> P
             let _ = value.setattr("total", total);
             // Who sent the STOPPED ("127.0.0.2:40001"), if the controller said (issue 31).
             let _ = value.setattr("stopped_by", stopped_by.map(|a| a.to_string()));
+            // A controlled underrun (issue 32): slowed along what was held, then stopped.
+            let _ = value.setattr("controlled", controlled);
             err
         }
         Error::Stalled { .. } => StalledError::new_err(message),

@@ -68,6 +68,10 @@ pub enum Error {
         /// For [`RunEnd::Stopped`]: who sent the STOPPED, if the controller said (issue 31:
         /// the STOP_CAUSE report; `None` from an older controller).
         stopped_by: Option<std::net::SocketAddrV4>,
+        /// For [`RunEnd::Underrun`]: the controller slowed the run along what it held,
+        /// within the accelerations, and stopped at the last point it had (issue 32:
+        /// STOP_CAUSE detail 1); `false`: a dead stop at speed, or an older controller.
+        controlled: bool,
     },
     /// An upload made no progress for too long (every ACK lost, or the buffer never drained).
     Stalled {
@@ -209,6 +213,7 @@ impl fmt::Display for Error {
                 received,
                 total,
                 stopped_by,
+                controlled,
             } => {
                 let by;
                 let why = match (reason, stopped_by) {
@@ -224,6 +229,13 @@ impl fmt::Display for Error {
                         "the wired e-stop input opened (close it, then `armctl estop-reset`)"
                     }
                     (RunEnd::Fault, _) => "the controller found a fault",
+                    (RunEnd::Underrun, _) if *controlled => {
+                        "the trajectory buffer was running dry before every point had \
+                         arrived (controlled underrun: the controller slowed along what it \
+                         held, within the accelerations, and stopped on the last point it \
+                         had): the upload was too slow; use a larger window, longer \
+                         segments, or let RUNING wait for a full buffer (no --start-after)"
+                    }
                     (RunEnd::Underrun, _) => {
                         "the trajectory buffer ran dry before every point had arrived \
                          (underrun; every point received had run): the upload was too slow; \

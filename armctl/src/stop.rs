@@ -51,6 +51,16 @@ pub fn stop_cause_text(status: &StatusReport, stop: Option<&StopReport>) -> Stri
             ),
             None => cause.describe().into(),
         },
+        StopCause::Underrun => match stop.filter(|s| s.cause == Some(StopCause::Underrun)) {
+            Some(s) if s.detail == 1 => "a controlled underrun: the host was late and the \
+                 controller slowed along what it held, within the accelerations, to the last \
+                 point it had"
+                .into(),
+            Some(_) => "a dead underrun: the buffer ran dry at speed before the last point \
+                 arrived (too little path held to slow down, or no ACCEL_SET limit)"
+                .into(),
+            None => cause.describe().into(),
+        },
         _ => cause.describe().into(),
     }
 }

@@ -253,6 +253,7 @@ fn a_controller_that_falls_behind_is_not_blamed_on_the_upload() {
             received: Some(received),
             total: 1000,
             stopped_by: None,
+            controlled: false,
         } => assert!(
             *executed >= 50 && received > executed && *received < 1000,
             "{err}"
@@ -283,6 +284,7 @@ fn an_upload_slower_than_the_run_is_reported_as_such() {
             received: Some(received),
             total: 2000,
             stopped_by: None,
+            controlled: false,
         } => assert_eq!(executed, received, "{err}"),
         other => panic!("expected RunEnded(Underrun), got {other:?}"),
     }

@@ -197,6 +197,28 @@ pub fn doc_frames() -> Vec<DocFrame> {
             }),
         ),
         report(
+            "MOTION report, seq 0x36: a controlled underrun slowing (issue 32): override 100 %, ramping, rate 50 %, the last controlled stop UNDERRUN",
+            0x36,
+            Report::Motion(protocol::MotionReport {
+                factor_percent: 100,
+                flags: protocol::MotionFlags(
+                    protocol::MotionFlags::RAMPING | protocol::MotionFlags::UNDERRUN_RAMP,
+                ),
+                rate_permille: 500,
+                last_stop: Some(protocol::ControlledStop::Underrun),
+                refused_joint: 0xFF,
+                refused_limit: None,
+            }),
+        ),
+        report(
+            "STOP_CAUSE report, seq 0x37: the last run ended by a controlled underrun (detail 1)",
+            0x37,
+            Report::StopCause(protocol::StopReport {
+                detail: 1,
+                ..protocol::StopReport::of(protocol::StopCause::Underrun)
+            }),
+        ),
+        report(
             "ACK refusing an OVERRIDE with seq 0x35: OVERRIDE_REFUSED, state RUNNING",
             0x35,
             Report::Ack(Ack {

@@ -273,6 +273,9 @@ wire_code! {
         /// OVERRIDE above 100 % where a joint's step rate or acceleration does not allow
         /// it (the MOTION report names the joint and the limit; issue 32).
         OverrideRefused = 17 => "OVERRIDE_REFUSED",
+        /// The safety door is open (issue 32): RUNING and RESUME are refused until it is
+        /// closed (an open door holds a run; closing it and a RESUME go on).
+        DoorOpen = 18 => "DOOR_OPEN",
         /// HOME refused: no joint in use is set to home on a switch (HOMING_SET), or the
         /// controller has no switch inputs (issue 33). How a cycle ended is in the
         /// SWITCHES report.
@@ -337,6 +340,7 @@ impl StatusCode {
             OverrideRefused => {
                 "the run is too fast for that override: a joint's step rate or acceleration would go over its limit (STATUS's MOTION report names the joint); ask 100 % or less"
             }
+            DoorOpen => "the safety door is open: close it, then RUNING (or RESUME a held run)",
             HomingFailed => {
                 "no joint is set to home on a switch, or the controller has no switch inputs: HOMING_SET each joint (armctl homing set), or home by RETURN"
             }

@@ -30,6 +30,13 @@ crate::codes::wire_code! {
         None = 0 => "NONE",
         /// A HOLD: the run decelerated to a standstill and waits for RESUME.
         Hold = 1 => "HOLD",
+        /// An underrun with enough path buffered (issue 32): the run slowed along what
+        /// it held, within the accelerations, and ended STOPPED (cause UNDERRUN, detail 1)
+        /// at the last point it had. A dead underrun (too little path, or no ACCEL_SET
+        /// limit) does not change this byte: STOP_CAUSE's detail 0 says it.
+        Underrun = 2 => "UNDERRUN",
+        /// The safety door opened (issue 32): the run held; close it, then RESUME.
+        Door = 3 => "DOOR",
     }
 }
 
@@ -46,6 +53,12 @@ impl MotionFlags {
     pub const AT_REST: u8 = 1 << 1;
     /// The rate is changing (a hold, a resume or an override ramping).
     pub const RAMPING: u8 = 1 << 2;
+    /// The host is late (issue 32): the run is slowing along what it holds to the
+    /// underrun creep, and goes back to the override when enough points arrive.
+    pub const UNDERRUN_RAMP: u8 = 1 << 3;
+    /// The safety door is open (issue 32): runs hold, RUNING and RESUME are refused
+    /// `DOOR_OPEN`. Shown in any state.
+    pub const DOOR_OPEN: u8 = 1 << 4;
 
     /// Whether every bit of `bits` is set.
     pub const fn has(self, bits: u8) -> bool {

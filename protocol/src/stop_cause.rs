@@ -17,7 +17,10 @@ crate::codes::wire_code! {
         Stopped = 2 => "STOPPED",
         /// The wired e-stop input opened.
         EstopInput = 3 => "ESTOP_INPUT",
-        /// The buffer ran dry before NEW's count of points had arrived.
+        /// The buffer ran dry before NEW's count of points had arrived. `detail` 1: a
+        /// controlled underrun (the run slowed along what it held, within the
+        /// accelerations, issue 32); 0: a dead one (stopped at the speed of its last
+        /// point, as every controller before issue 32 did).
         Underrun = 4 => "UNDERRUN",
         /// The controller found a fault: RETURN's absolute encoder of joint `detail` did
         /// not answer properly (nothing moved).
@@ -54,8 +57,8 @@ pub struct StopReport {
     /// controller's).
     pub cause: Option<StopCause>,
     /// For [`StopCause::Fault`]: the joint whose encoder failed; for
-    /// [`StopCause::LimitSwitch`]: the joint (bits 0-6) and the side (bit 7: max); 0
-    /// otherwise.
+    /// [`StopCause::LimitSwitch`]: the joint (bits 0-6) and the side (bit 7: max); for
+    /// [`StopCause::Underrun`]: 1 controlled, 0 dead; 0 otherwise.
     pub detail: u8,
     /// For [`StopCause::Stopped`]: the sender's IPv4 address; zeros otherwise.
     pub from_ip: [u8; 4],

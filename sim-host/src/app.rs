@@ -491,6 +491,8 @@ fn spawn_tasks(spawner: Spawner, wiring: Wiring) {
             .estop_input
             .as_ref()
             .map(|_| -> &'static arm_core::EStopLine { &crate::estop::LINE }),
+        // The door is driven in-process on virtual time (VirtualBoard::set_door).
+        door: None,
         switches,
     };
     let sim_halt = || SimHalt {

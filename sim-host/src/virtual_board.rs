@@ -20,7 +20,7 @@ use std::sync::Arc;
 use std::task::{Context, Poll, Waker};
 
 use arm_core::hw::{Datagrams, Endpoint};
-use arm_core::{Bus, Controller, StepShared, TrajectoryHw};
+use arm_core::{Bus, Controller, DoorLine, StepShared, TrajectoryHw};
 
 use crate::app::{Board, STEP_QUEUE, controller_config, step_timing};
 use crate::clock::SimClock;
@@ -84,6 +84,8 @@ pub struct VirtualBoard {
     bus: &'static Bus,
     step: &'static VirtualSteps,
     kick: &'static SimStepKick,
+    /// The safety-door input (issue 32): [`VirtualBoard::set_door`].
+    door: &'static DoorLine,
     tasks: Pin<Box<dyn Future<Output = ()>>>,
 }
 
@@ -103,6 +105,7 @@ impl VirtualBoard {
             SimSteps::new(timing, board.step_pins(), clock),
         )));
         let bus: &'static Bus = Box::leak(Box::new(Bus::new()));
+        let door: &'static DoorLine = Box::leak(Box::new(DoorLine::new()));
         let socket: &'static VirtualSocket = Box::leak(Box::default());
         let kick: &'static SimStepKick = Box::leak(Box::new(board.kick.clone()));
         let clock_ref: &'static SimClock = Box::leak(Box::new(clock));
@@ -122,6 +125,7 @@ impl VirtualBoard {
             settings,
             encoders: board.encoders.clone(),
             estop: None,
+            door: Some(door),
             switches: None,
         };
         let (motors, tracer) = (board.motors.clone(), board.tracer.clone());
@@ -145,8 +149,15 @@ impl VirtualBoard {
             bus,
             step,
             kick,
+            door,
             tasks: Box::pin(tasks),
         })
+    }
+
+    /// Opens or closes the safety door (issue 32): the trajectory task applies it in the
+    /// next round (opening holds the run; closing and a RESUME go on).
+    pub fn set_door(&self, open: bool) {
+        self.door.set(open, &self.bus.step_progress);
     }
 
     /// Delivers a datagram from `from` (read by the network task in the next round).

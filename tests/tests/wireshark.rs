@@ -1374,6 +1374,21 @@ fn issue_32_motion_frames_decode_in_wireshark() {
     };
     let n = Report::Motion(motion).encode(0x34, &mut buf).unwrap();
     log.record(controller, host, &buf[..n]).unwrap();
+    // A controlled underrun slowing (MOTION flag bit 3, last stop 2).
+    let underrun = protocol::MotionReport {
+        factor_percent: 100,
+        flags: protocol::MotionFlags(
+            protocol::MotionFlags::RAMPING
+                | protocol::MotionFlags::UNDERRUN_RAMP
+                | protocol::MotionFlags::DOOR_OPEN,
+        ),
+        rate_permille: 500,
+        last_stop: Some(protocol::ControlledStop::Underrun),
+        refused_joint: 0xFF,
+        refused_limit: None,
+    };
+    let n = Report::Motion(underrun).encode(0x35, &mut buf).unwrap();
+    log.record(controller, host, &buf[..n]).unwrap();
     let mut zero = vec![0x36, protocol::Tag::Override as u8, 0];
     zero.push(crc8(&zero));
     log.record(host, controller, &zero).unwrap();
@@ -1389,14 +1404,16 @@ fn issue_32_motion_frames_decode_in_wireshark() {
             "armctl.motion.held",
             "armctl.motion.at_rest",
             "armctl.motion.rate",
+            "armctl.motion.underrun",
+            "armctl.motion.door_open",
             "armctl.motion.last_stop",
             "armctl.motion.refused_joint",
         ],
         false,
         None,
     );
-    assert_eq!(packets.len(), 6);
-    for (p, tag) in packets.iter().zip([0x27, 0x28, 0x29, 0x15, 0x2a]) {
+    assert_eq!(packets.len(), 7);
+    for (p, tag) in packets.iter().zip([0x27, 0x28, 0x29, 0x15, 0x2a, 0x2a]) {
         assert_eq!(numbers(&p["armctl.tag"]), [tag], "{p:?}");
     }
     // The commands have a verdict (the reports none): valid.
@@ -1412,12 +1429,18 @@ fn issue_32_motion_frames_decode_in_wireshark() {
     assert_eq!(numbers(&p["armctl.motion.rate"]), [0], "{p:?}");
     assert_eq!(numbers(&p["armctl.motion.last_stop"]), [1], "{p:?}");
     assert_eq!(numbers(&p["armctl.motion.refused_joint"]), [255], "{p:?}");
+    assert_eq!(p["armctl.motion.underrun"], "0", "{p:?}");
+    let p = &packets[5];
+    assert_eq!(p["armctl.motion.underrun"], "1", "{p:?}");
+    assert_eq!(p["armctl.motion.door_open"], "1", "{p:?}");
+    assert_eq!(numbers(&p["armctl.motion.last_stop"]), [2], "{p:?}");
+    assert_eq!(numbers(&p["armctl.motion.rate"]), [500], "{p:?}");
     // OVERRIDE 0: out of range, INVALID_CONFIG.
     assert_eq!(
-        numbers(&packets[5]["armctl.verdict"]),
+        numbers(&packets[6]["armctl.verdict"]),
         [11],
         "{:?}",
-        packets[5]
+        packets[6]
     );
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -60,7 +60,7 @@ local status_names = {
     [5] = "OUT_OF_ORDER", [6] = "TOO_MANY_POINTS", [7] = "INVALID_POINT", [8] = "BUFFER_FULL",
     [9] = "NOT_OWNER", [10] = "UNSUPPORTED", [11] = "INVALID_CONFIG", [12] = "ESTOP_LATCHED",
     [13] = "AUTH_REQUIRED", [14] = "AUTH_FAILED", [15] = "SAVE_FAILED",
-    [16] = "LIMIT_LATCHED", [17] = "OVERRIDE_REFUSED", [20] = "HOMING_FAILED",
+    [16] = "LIMIT_LATCHED", [17] = "OVERRIDE_REFUSED", [18] = "DOOR_OPEN", [20] = "HOMING_FAILED",
 }
 
 -- The SWITCHES report's phase and error bytes (issue 33).
@@ -70,7 +70,7 @@ local homing_error_names = {
     [3] = "approach missed the switch", [4] = "aborted", [5] = "bad settings",
 }
 -- MOTION's last controlled stop and refused limit (issue 32).
-local controlled_stop_names = { [0] = "NONE", [1] = "HOLD" }
+local controlled_stop_names = { [0] = "NONE", [1] = "HOLD", [2] = "UNDERRUN", [3] = "DOOR" }
 local override_limit_names = { [0] = "none", [1] = "RATE", [2] = "ACCEL" }
 
 local crc_status_names = { [0] = "Bad", [1] = "Good", [2] = "Unverified" }
@@ -190,6 +190,8 @@ local f = {
     motion_held = field("bool", "motion.held", "Held (HOLD in force)", 8, nil, 0x01),
     motion_at_rest = field("bool", "motion.at_rest", "At rest", 8, nil, 0x02),
     motion_ramping = field("bool", "motion.ramping", "Ramping", 8, nil, 0x04),
+    motion_underrun = field("bool", "motion.underrun", "Underrun ramp (the host is late)", 8, nil, 0x08),
+    motion_door_open = field("bool", "motion.door_open", "Safety door open", 8, nil, 0x10),
     motion_rate = dec("uint16", "motion.rate", "Rate now, tenths of a percent"),
     motion_last_stop = dec("uint8", "motion.last_stop", "Last controlled stop", controlled_stop_names),
     motion_refused_joint = dec("uint8", "motion.refused_joint", "Last OVERRIDE refused: joint (255 none)"),
@@ -214,7 +216,7 @@ local f = {
     sw_max = hex("uint8", "switches.max_active", "Max limits pressed"),
     sw_latched = hex("uint8", "switches.latched", "Latched limit (joint | 0x80 max; 0xff none)"),
     stop_cause = dec("uint8", "stop.cause", "What ended the last run", stop_cause_names),
-    stop_detail = dec("uint8", "stop.detail", "Detail (FAULT: the joint)"),
+    stop_detail = dec("uint8", "stop.detail", "Detail (FAULT: the joint; UNDERRUN: 1 controlled)"),
     stop_ip = field("ipv4", "stop.from_ip", "STOPPED's sender"),
     stop_port = dec("uint16", "stop.from_port", "STOPPED's sender port"),
     rx_ring_dropped = dec("uint32", "rx.ring_dropped", "Frames the MAC dropped (ring full)"),
@@ -971,6 +973,8 @@ local controller_dissectors = {
         flags:add(f.motion_held, data(1, 1))
         flags:add(f.motion_at_rest, data(1, 1))
         flags:add(f.motion_ramping, data(1, 1))
+        flags:add(f.motion_underrun, data(1, 1))
+        flags:add(f.motion_door_open, data(1, 1))
         tree:add_le(f.motion_rate, data(2, 2))
         tree:add(f.motion_last_stop, data(4, 1))
         tree:add(f.motion_refused_joint, data(5, 1))

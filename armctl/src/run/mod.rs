@@ -154,6 +154,8 @@ fn run_ended(status: Option<&StatusReport>, total: usize, stop: Option<&StopRepo
         received: status.map(|s| s.received),
         total,
         stopped_by: crate::stopped_by(stop),
+        controlled: reason == RunEnd::Underrun
+            && stop.is_some_and(|s| s.cause == Some(StopCause::Underrun) && s.detail == 1),
     }
 }
 

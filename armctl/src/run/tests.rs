@@ -96,6 +96,35 @@ fn the_stop_cause_names_the_input_or_the_stoppeds_sender() {
     );
     let e = run_ended(Some(&status(StopCause::Underrun)), 100, None);
     assert_eq!(reason(&e), RunEnd::Starved, "received > executed");
+    // Issue 32: an underrun with every received point run, controlled (detail 1) or dead.
+    let mut s = status(StopCause::Underrun);
+    s.received = 10;
+    let stop = StopReport {
+        detail: 1,
+        ..StopReport::of(StopCause::Underrun)
+    };
+    let e = run_ended(Some(&s), 100, Some(&stop));
+    assert_eq!(reason(&e), RunEnd::Underrun);
+    assert!(matches!(
+        e,
+        Error::RunEnded {
+            controlled: true,
+            ..
+        }
+    ));
+    assert!(e.to_string().contains("controlled underrun"), "{e}");
+    assert!(crate::stop::stop_cause_text(&s, Some(&stop)).contains("controlled underrun"));
+    let dead = StopReport::of(StopCause::Underrun);
+    let e = run_ended(Some(&s), 100, Some(&dead));
+    assert!(matches!(
+        e,
+        Error::RunEnded {
+            controlled: false,
+            ..
+        }
+    ));
+    assert!(!e.to_string().contains("controlled"), "{e}");
+    assert!(crate::stop::stop_cause_text(&s, Some(&dead)).contains("dead underrun"));
 }
 
 /// Issue 19's load test: under 20 % loss each way the window halved down to one frame, so

@@ -428,6 +428,8 @@ async fn main(spawner: Spawner) -> ! {
             settings,
             encoders,
             estop: Some(&estop::LINE),
+            // The safety door's pin is chosen (docs/BOARD.md), not wired yet.
+            door: None,
             switches: None,
         },
     ));

@@ -1023,11 +1023,13 @@ impl<const CAP: usize> Controller<CAP> {
             Command::Runing if self.hard_limits.latched().is_some() => {
                 return Err(StatusCode::LimitLatched);
             }
+            Command::Runing if self.motion.door_open => return Err(StatusCode::DoorOpen),
             Command::Runing => match self.state {
                 State::Pending => {
                     self.stop = StopReport::COMPLETE;
                     self.state = State::Running;
                     self.motion.held = false;
+                    self.motion.underrun = false;
                     plant.set_start_rate(motion::rate_of(self.motion.factor));
                     self.pump(plant);
                     plant.start();

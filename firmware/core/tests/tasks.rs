@@ -324,6 +324,7 @@ fn test_hw<'a, E: Encoders>(
         settings,
         encoders,
         estop: None,
+        door: None,
         switches: None,
     }
 }
@@ -1576,6 +1577,7 @@ fn the_wired_input_stops_the_steps_at_once_and_the_task_latches_the_controller()
     let line = EStopLine::new();
     let hw = TrajectoryHw {
         estop: Some(&line),
+        door: None,
         ..test_hw(
             &kick,
             &fx.outputs,

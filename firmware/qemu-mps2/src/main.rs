@@ -241,6 +241,7 @@ fn main() -> ! {
             // QEMU's mps2-an500 has no input a test could open (README, "On an emulated
             // board"): STATUS shows the wired e-stop input closed.
             estop: None,
+            door: None,
             switches: None,
         },
     )

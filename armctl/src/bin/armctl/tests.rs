@@ -245,6 +245,23 @@ fn hold_resume_override_and_run_speed() {
     m.factor_percent = 50;
     m.flags = protocol::MotionFlags(protocol::MotionFlags::HELD | protocol::MotionFlags::AT_REST);
     assert_eq!(crate::watch::motion_suffix(Some(&m)), " speed 50 % HELD");
+    // Issue 32's controlled underrun, slowing.
+    m.flags = protocol::MotionFlags(
+        protocol::MotionFlags::UNDERRUN_RAMP | protocol::MotionFlags::RAMPING,
+    );
+    assert_eq!(
+        crate::watch::motion_suffix(Some(&m)),
+        " speed 50 % UNDERRUN (slowing: the host is late)"
+    );
+    m.flags = protocol::MotionFlags(
+        protocol::MotionFlags::HELD
+            | protocol::MotionFlags::AT_REST
+            | protocol::MotionFlags::DOOR_OPEN,
+    );
+    assert_eq!(
+        crate::watch::motion_suffix(Some(&m)),
+        " speed 50 % HELD DOOR OPEN"
+    );
 }
 
 #[test]

@@ -41,7 +41,7 @@ pub fn described(arm: &Client) -> Result<Option<Shown>, String> {
 
 /// The override and hold as `watch` shows them after the positions (issue 32): nothing at
 /// 100 % with no hold (what older controllers show), else e.g. ` speed 50 %`, ` HELD`,
-/// ` ramping`.
+/// ` ramping`, ` UNDERRUN (slowing: ...)`, ` DOOR OPEN`.
 pub fn motion_suffix(motion: Option<&protocol::MotionReport>) -> String {
     use protocol::MotionFlags;
     let Some(m) = motion else {
@@ -57,8 +57,13 @@ pub fn motion_suffix(motion: Option<&protocol::MotionReport>) -> String {
         } else {
             " HOLDING"
         });
+    } else if m.flags.has(MotionFlags::UNDERRUN_RAMP) {
+        out.push_str(" UNDERRUN (slowing: the host is late)");
     } else if m.flags.has(MotionFlags::RAMPING) {
         out.push_str(" ramping");
+    }
+    if m.flags.has(MotionFlags::DOOR_OPEN) {
+        out.push_str(" DOOR OPEN");
     }
     out
 }

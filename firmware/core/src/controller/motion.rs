@@ -11,7 +11,8 @@
 //! with no limit set, [`UNLIMITED_RAMP`].
 
 use protocol::{
-    ControlledStop, MAX_JOINTS, MotionFlags, MotionReport, OverrideLimit, State, StatusCode,
+    ControlledStop, Location, MAX_JOINTS, MotionFlags, MotionReport, OverrideLimit, State,
+    StatusCode,
 };
 
 use super::Controller;
@@ -22,6 +23,14 @@ use crate::plant::Plant;
 /// 100 %) in 0.25 s, given as the `(accel, speed)` pair `ramp_for` takes. Gentle enough
 /// not to lose steps on a typical stepper arm, quick enough to feel like a hold.
 pub const UNLIMITED_RAMP: (u32, u32) = (4, 1);
+
+/// The rate an underrun ramp slows to, percent: the run ends at the last point it holds
+/// at this crawl rather than at standstill, because the ramp is started from a
+/// conservative count of the path left (whole points, the one being written not counted)
+/// and a ramp to 0 would leave the run at rest short of its last point with nothing to end
+/// it. At 5 % of 4,000 steps/s the stop is a 200 steps/s step, which a stepper takes from
+/// rest; the crawl lasts at most about two points' nominal time times 20.
+pub const UNDERRUN_CREEP_PERCENT: u8 = 5;
 
 /// The controller's override and hold state.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -34,6 +43,10 @@ pub(crate) struct Motion {
     pub last_stop: ControlledStop,
     /// The last OVERRIDE refused: joint (0xFF none) and limit.
     pub refused: (u8, Option<OverrideLimit>),
+    /// An underrun ramp is in force: the host is late and the run slows to the creep.
+    pub underrun: bool,
+    /// The safety door is open (runs hold; RUNING and RESUME refused `DOOR_OPEN`).
+    pub door_open: bool,
 }
 
 impl Motion {
@@ -43,6 +56,8 @@ impl Motion {
         held: false,
         last_stop: ControlledStop::None,
         refused: (0xFF, None),
+        underrun: false,
+        door_open: false,
     };
 }
 
@@ -100,6 +115,11 @@ impl<const CAP: usize> Controller<CAP> {
 
     /// The ramp's `(accel, speed)`: the gentlest slope over the joints with a limit.
     fn ramp_limits(&self, plant: &impl Plant) -> (u32, u32) {
+        self.accel_ramp(plant).unwrap_or(UNLIMITED_RAMP)
+    }
+
+    /// The gentlest slope over the joints with an ACCEL_SET limit; `None` without one.
+    fn accel_ramp(&self, plant: &impl Plant) -> Option<(u32, u32)> {
         let (speed, _) = self.held_rates(plant);
         let mut ramp = UNLIMITED_RAMP;
         let mut limited = false;
@@ -114,7 +134,68 @@ impl<const CAP: usize> Controller<CAP> {
                 limited = true;
             }
         }
-        ramp
+        limited.then_some(ramp)
+    }
+
+    /// Watches for an underrun coming (issue 32), after each finished segment: while the
+    /// host has points still to send, some joint has an ACCEL_SET limit and the buffer is
+    /// at most half full (the host is falling behind), when the path
+    /// held after the next point is shorter than the ramp from the rate now to
+    /// [`UNDERRUN_CREEP_PERCENT`] needs (and the path after the current one is not), the
+    /// run slows to the creep along what it holds: it ends at its last point at a crawl
+    /// (STOPPED, UNDERRUN, detail 1) unless the host catches up, which (twice the path of
+    /// the ramp from the override held after the next point, or every point in) ramps back
+    /// to the override.
+    /// Without a limit, or with too little path, the underrun stays the dead stop at the
+    /// last point's speed it always was. A host that keeps enough path buffered sees
+    /// nothing of this.
+    pub(super) fn watch_underrun(&mut self, plant: &mut impl Plant) {
+        if self.state != State::Running || self.return_pending || self.motion.held {
+            return;
+        }
+        if self.received >= self.expected && !self.motion.underrun {
+            // Every point is in: the trajectory's own end comes to rest.
+            return;
+        }
+        let Some((accel, speed)) = self.accel_ramp(plant) else {
+            return;
+        };
+        let Some((rate, _)) = plant.rate_now() else {
+            return;
+        };
+        // Nominal path after the point being written (r1) and after the next (r2), us.
+        let (mut r1, mut r2) = (0u64, 0u64);
+        let mut i = 1;
+        while let Some(point) = self.buffer.held(i) {
+            r1 += u64::from(point.duration_us);
+            if i >= 2 {
+                r2 += u64::from(point.duration_us);
+            }
+            i += 1;
+        }
+        let creep = rate_of(UNDERRUN_CREEP_PERCENT);
+        let full = rate_of(self.motion.factor);
+        if self.motion.underrun {
+            let caught_up = self.received >= self.expected
+                || u128::from(r2) >= 2 * ramp_path_us(full, creep, accel, speed);
+            if caught_up && plant.change_rate(full, accel, speed) {
+                self.motion.underrun = false;
+            }
+            return;
+        }
+        // A buffer more than half full is a host keeping up whose buffer is too short for
+        // the ramp, not a late one: slowing it would crawl every run (and it could never
+        // catch up); its underrun, if one comes, stays dead.
+        if self.buffer.free() < self.buffer.capacity() / 2 {
+            return;
+        }
+        let creep = creep.min(rate);
+        let need = ramp_path_us(rate, creep, accel, speed);
+        if u128::from(r2) < need && u128::from(r1) >= need && plant.change_rate(creep, accel, speed)
+        {
+            self.motion.underrun = true;
+            self.motion.last_stop = ControlledStop::Underrun;
+        }
     }
 
     /// HOLD (any host): decelerate the run to a standstill. `BAD_STATE` outside RUNNING,
@@ -136,9 +217,13 @@ impl<const CAP: usize> Controller<CAP> {
     }
 
     /// RESUME (the owner): back to the override after a HOLD; nothing when not held.
+    /// `DOOR_OPEN` while the safety door is.
     pub(super) fn resume(&mut self, plant: &mut impl Plant) -> Result<(), StatusCode> {
         if self.state != State::Running {
             return Err(StatusCode::BadState);
+        }
+        if self.motion.door_open {
+            return Err(StatusCode::DoorOpen);
         }
         if !self.motion.held {
             return Ok(());
@@ -148,6 +233,8 @@ impl<const CAP: usize> Controller<CAP> {
             return Err(StatusCode::BadState);
         }
         self.motion.held = false;
+        // The underrun watch looks again from the override's rate.
+        self.motion.underrun = false;
         Ok(())
     }
 
@@ -187,13 +274,47 @@ impl<const CAP: usize> Controller<CAP> {
             }
         }
         self.motion.factor = percent;
-        if self.state == State::Running && !self.motion.held && !self.return_pending {
+        // During an underrun ramp the factor applies when the host catches up.
+        if self.state == State::Running
+            && !self.motion.held
+            && !self.motion.underrun
+            && !self.return_pending
+        {
             let (accel, speed) = self.ramp_limits(plant);
             // A step side without a warp keeps 100 %; the factor still applies from the
             // next run on that could take it.
             let _ = plant.change_rate(rate_of(percent), accel, speed);
         }
         Ok(())
+    }
+
+    /// The safety door input (issue 32) is now `open` (or closed). Opening holds a run
+    /// (as HOLD, MOTION's last stop DOOR; a run during RETURN's encoder read or on a step
+    /// side without a warp cannot hold and is stopped instead: the door must stop motion);
+    /// while open, RUNING and RESUME are refused `DOOR_OPEN`. Closing only records it:
+    /// a host RESUMEs. Returns a LOCATION report when the state changed (reports on).
+    pub fn door_input(&mut self, open: bool, plant: &mut impl Plant) -> Option<Location> {
+        let was = self.motion.door_open;
+        self.motion.door_open = open;
+        if !open || was || self.state != State::Running {
+            return None;
+        }
+        match self.hold(plant) {
+            Ok(()) => {
+                self.motion.last_stop = ControlledStop::Door;
+                None
+            }
+            Err(_) => {
+                let before = self.state;
+                self.stop_by_host(plant, None);
+                (before != self.state && self.reports_on).then(|| self.location(plant))
+            }
+        }
+    }
+
+    /// Whether the safety door is open.
+    pub fn door_open(&self) -> bool {
+        self.motion.door_open
     }
 
     /// The MOTION report (STATUS's request byte bit 4).
@@ -214,6 +335,12 @@ impl<const CAP: usize> Controller<CAP> {
         if running && ramping {
             flags |= MotionFlags::RAMPING;
         }
+        if running && self.motion.underrun {
+            flags |= MotionFlags::UNDERRUN_RAMP;
+        }
+        if self.motion.door_open {
+            flags |= MotionFlags::DOOR_OPEN;
+        }
         MotionReport {
             factor_percent: self.motion.factor,
             flags: MotionFlags(flags),
@@ -223,4 +350,14 @@ impl<const CAP: usize> Controller<CAP> {
             refused_limit: self.motion.refused.1,
         }
     }
+}
+
+/// The nominal (trajectory) path, us, that a ramp of the rate from `from` to `to` (warp
+/// units, `to <= from`) runs with the slope `(accel, speed)`: the ramp lasts
+/// `(from - to) / RATE_ONE * speed / accel` s at the mean rate `(from + to) / 2`.
+pub fn ramp_path_us(from: u64, to: u64, accel: u32, speed: u32) -> u128 {
+    let (from, to) = (u128::from(from), u128::from(to.min(from)));
+    let one = u128::from(arm_step::RATE_ONE);
+    (from - to) * (from + to) * u128::from(speed) * 1_000_000
+        / (2 * one * one * u128::from(accel.max(1)))
 }

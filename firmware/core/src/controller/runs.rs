@@ -229,16 +229,21 @@ impl<const CAP: usize> Controller<CAP> {
             plant.stop();
             self.buffer.clear();
             self.return_plan = None;
-            self.stop = StopReport::of(if complete {
-                StopCause::Complete
+            self.stop = if complete {
+                StopReport::of(StopCause::Complete)
             } else {
-                StopCause::Underrun
-            });
+                StopReport {
+                    detail: u8::from(self.motion.underrun),
+                    ..StopReport::of(StopCause::Underrun)
+                }
+            };
+            self.motion.underrun = false;
             self.state = State::Stopped;
             self.claimer_heard_at_run_end();
             return self.reports_on.then(|| self.location(plant));
         }
         self.pump(plant);
+        self.watch_underrun(plant);
         None
     }
 
@@ -316,6 +321,7 @@ impl<const CAP: usize> Controller<CAP> {
         self.pump(plant);
         // The controller's own move: at 100 %, never held from before.
         self.motion.held = false;
+        self.motion.underrun = false;
         plant.set_start_rate(arm_step::RATE_ONE);
         plant.start();
         None

@@ -41,6 +41,9 @@ pub struct TrajectoryHw<'a, K, O, G, P, S, E> {
     /// The wired e-stop input, if the board has one ([`crate::estop_input`]; `None`:
     /// STATUS shows it closed, nothing latches).
     pub estop: Option<&'a EStopLine>,
+    /// The safety-door input, if the board has one ([`crate::door_input`]; `None`: the
+    /// door reads closed).
+    pub door: Option<&'a crate::DoorLine>,
     /// The limit and home switches, if the board has them ([`crate::switch_line`];
     /// `None`: nothing latches on a limit).
     pub switches: Option<&'a SwitchLine>,
@@ -185,6 +188,7 @@ where
         mut settings,
         mut encoders,
         estop,
+        door,
         switches,
     } = hw;
     match settings.load().await {
@@ -240,6 +244,7 @@ where
         // this event is, it is handled in the state that stop left. Likewise a limit
         // switch's.
         apply_estop_input(controller, estop, bus, &mut plant);
+        apply_door(controller, door, bus, &mut plant);
         apply_switches(
             controller,
             switches,
@@ -354,6 +359,26 @@ fn apply_estop_input<const CAP: usize>(
     }
     if !sample.open {
         controller.estop_input(false, plant);
+    }
+}
+
+/// Brings the controller up to date with the safety door: an opening since the last look
+/// (also one closed again since) holds the run, then the level now.
+fn apply_door<const CAP: usize>(
+    controller: &mut Controller<CAP>,
+    door: Option<&crate::DoorLine>,
+    bus: &Bus,
+    plant: &mut impl Plant,
+) {
+    let Some(line) = door else { return };
+    let sample = line.take();
+    if sample.opened
+        && let Some(location) = controller.door_input(true, plant)
+    {
+        bus.send(Outgoing::Location(location));
+    }
+    if !sample.open {
+        controller.door_input(false, plant);
     }
 }
 
