@@ -9,6 +9,13 @@
 //!   period after the input went high; the controller latched (STOP_CAUSE: the limit, joint
 //!   0, max side; RUNING refused `LIMIT_LATCHED`); the positions it reports are the pulses
 //!   the pins made; after UNLOCK, points further in are refused and a jog away runs.
+//! - HOME on joint 0's home + min switch (PE2): the test is the joint's physical model, its
+//!   physical position the start plus the signed STEP pulses the recorder saw, and it drives
+//!   PE2 high while that is at or below the switch's position (seek, back-off, slow
+//!   approach); the cycle ends homed and the position reported is the physical one minus
+//!   the switch's plus the offset, to the step (the switch's position being where the pin
+//!   went high on the final approach, as the recorder saw: the model reacts a monitor round
+//!   trip late, which moves where the switch closes, never the equality).
 //!
 //! Needs Renode and root, as `renode_steps.rs`; without them the test prints what it needs
 //! and passes.
@@ -16,11 +23,15 @@
 mod common;
 
 use std::sync::Arc;
-use std::time::Duration;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
 
-use armctl::Options;
+use armctl::{Homed, Options};
 use common::run_reporting_progress_with;
-use protocol::{Command, MAX_JOINTS, Point, PointList, State, StatusCode, StopCause};
+use protocol::{
+    Command, HomingPhase, HomingSettings, MAX_JOINTS, Point, PointList, State, StatusCode,
+    StopCause,
+};
 use system_tests::renode::{Edge, HOSTS, RenodeBoard, unavailable};
 
 /// Skips the test, saying what it needs, when Renode (or root) is missing.
@@ -163,9 +174,10 @@ fn a_max_limit_switch_stops_every_step_within_a_period_and_latches() {
         .expect("STEP edges");
     let before = edges.iter().filter(|e| e.line < 8 && e.ns < closed).count();
     note(&format!(
-        "PA3 high at {closed} ns; last STEP edge of any joint at {last_step} ns ({} ns after; \
-         shortest step period {shortest_period_ns} ns); {before} STEP edges before it",
-        last_step.saturating_sub(closed)
+        "PA3 high at {closed} ns; last STEP edge of any joint at {last_step} ns ({} ns from \
+         the closing; shortest step period {shortest_period_ns} ns); {before} STEP edges \
+         before it",
+        i128::from(last_step) - i128::from(closed)
     ));
     assert!(before > 0, "the joints moved before the switch closed");
     assert!(
@@ -233,6 +245,85 @@ fn a_max_limit_switch_stops_every_step_within_a_period_and_latches() {
     let after = position(&board, &arm);
     assert_eq!(after[0], here[0] - 50, "jogged away");
     board.monitor("sysbus.gpioPortA OnGPIO 3 false");
-    let _ = HOME0;
+    board.assert_healthy();
+}
+
+/// Where joint 0 physically is at boot (its count starts at 0), and its home switch: pressed
+/// at or below [`HOME_SWITCH`].
+const PHYSICAL_START: i32 = 150;
+const HOME_SWITCH: i32 = 0;
+
+#[test]
+fn home_on_joint_0s_switch_sets_physical_minus_switch_plus_offset() {
+    require_renode!();
+    let mut board = RenodeBoard::start_with_step_path(WATCH_SWITCHES);
+    let arm = board.connect_from(HOSTS[0], emulated());
+    let settings = HomingSettings {
+        enabled: true,
+        towards_max: false,
+        // Input A is the home switch and the min limit (docs/BOARD.md).
+        switch_is_limit: true,
+        order: 0,
+        seek_rate_hz: 400,
+        approach_rate_hz: 100,
+        backoff_steps: 40,
+        max_travel_steps: 1_000,
+        offset: -20,
+    };
+    arm.set_homing(0, settings)
+        .unwrap_or_else(|e| panic!("HOMING_SET: {e}\n{}", board.log()));
+
+    // The joint's physical model, on a thread of its own until the cycle ends.
+    let done = AtomicBool::new(false);
+    let (homed, toggles) = std::thread::scope(|s| {
+        let model = s.spawn(|| {
+            let mut pressed = false;
+            let mut toggles = 0;
+            let deadline = Instant::now() + Duration::from_secs(300);
+            while !done.load(Ordering::SeqCst) && Instant::now() < deadline {
+                let physical = PHYSICAL_START + signed_pulses(&board.edges(), 0, 0);
+                let want = physical <= HOME_SWITCH;
+                if want != pressed {
+                    board.monitor(&format!("sysbus.gpioPortE OnGPIO 2 {want}"));
+                    pressed = want;
+                    toggles += 1;
+                }
+            }
+            toggles
+        });
+        let homed = arm.home(Duration::from_secs(240));
+        done.store(true, Ordering::SeqCst);
+        (homed, model.join().unwrap())
+    });
+    let report = match homed {
+        Ok(Homed::OnSwitches(report)) => report,
+        other => panic!("HOME: {other:?}\n{}", board.log()),
+    };
+    assert_eq!(report.phase, HomingPhase::Homed);
+    assert_eq!(report.homed & 1, 1, "{report:?}");
+
+    let edges = board.edges();
+    let closings: Vec<u64> = edges
+        .iter()
+        .filter(|e| e.line == HOME0 && e.high)
+        .map(|e| e.ns)
+        .collect();
+    let last_closing = *closings.last().expect("PE2 went high");
+    let physical = PHYSICAL_START + signed_pulses(&edges, 0, 0);
+    let switch_at = physical - signed_pulses(&edges, 0, last_closing);
+    let reported = position(&board, &arm)[0];
+    note(&format!(
+        "homed: PE2 driven {toggles} times, closed {} times; the switch closed on the final \
+         approach at physical {switch_at} (modelled at {HOME_SWITCH}, the model a monitor \
+         round trip late); physical now {physical}, reported {reported}, offset {}",
+        closings.len(),
+        settings.offset
+    ));
+    assert!(closings.len() >= 2, "seek and approach each closed it");
+    assert_eq!(
+        reported,
+        physical - switch_at + settings.offset,
+        "position = physical - switch + offset"
+    );
     board.assert_healthy();
 }
