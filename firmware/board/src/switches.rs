@@ -337,10 +337,12 @@ fn on_edges() {
 /// backend there and wakes the trajectory task).
 pub fn service() {
     let Some(shared) = shared() else { return };
-    let p = shared.pending.lock(|p| p.replace(Pending::NONE));
-    if p.changed == 0 {
-        return;
-    }
+    // Copied out only when an edge came (the service runs for other reasons too).
+    let taken = shared.pending.lock(|p| {
+        let mut p = p.borrow_mut();
+        (p.changed != 0).then(|| core::mem::replace(&mut *p, Pending::NONE))
+    });
+    let Some(p) = taken else { return };
     let positions = STEP.positions();
     let wake = &crate::BUS.step_progress;
     let stamps = p.active_at.iter().zip(&p.last_at);
