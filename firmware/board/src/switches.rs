@@ -118,6 +118,11 @@ const LINES: u32 = {
     mask
 };
 
+// Each input on an EXTI line of its own, none on the e-stop's line 0, at most 16 inputs
+// (the `u16` masks of `Pending`): checked when the table changes.
+const _: () =
+    assert!(LINES.count_ones() as usize == INPUTS.len() && LINES & 1 == 0 && INPUTS.len() <= 16);
+
 /// arm-core's switch bank configuration for [`INPUTS`].
 #[allow(clippy::indexing_slicing)] // evaluated at compile time: out of range fails the build
 const CONFIG: SwitchConfig = {
