@@ -41,10 +41,12 @@ printf 'firmware: %s\n' "$elf"
 printf 'text %8d bytes  (flash: code, constants, vector table)\n' "$text"
 printf 'data %8d bytes  (flash image copied to RAM at boot)\n' "$data"
 printf 'bss  %8d bytes  (RAM zeroed at boot)\n' "$bss"
-# llvm-size counts the NOLOAD SRAM1 section (DMA buffers) in bss: AXI SRAM holds the rest.
+# llvm-size counts the NOLOAD SRAM1 and SRAM2 sections (DMA buffers; SRAM2: the step
+# streams', issue 34) in bss: AXI SRAM holds the rest.
 sram1="$("$size_tool" -A "$elf" | awk '$1 == ".sram1" { print $2 }')"
-printf 'flash image %d bytes (text + data) of 2097152; AXI RAM static %d of 524288 bytes, SRAM1 %d of 131072\n' \
-  "$((text + data))" "$((data + bss - ${sram1:-0}))" "${sram1:-0}"
+sram2="$("$size_tool" -A "$elf" | awk '$1 == ".sram2" { print $2 }')"
+printf 'flash image %d bytes (text + data) of 2097152; AXI RAM static %d of 524288 bytes, SRAM1 %d of 131072, SRAM2 %d of 131072\n' \
+  "$((text + data))" "$((data + bss - ${sram1:-0} - ${sram2:-0}))" "${sram1:-0}" "${sram2:-0}"
 # Per-section detail, for finding what grew.
 "$size_tool" -A "$elf" | awk 'NR > 2 && $2 > 0 && $1 !~ /^\.debug|^\.comment|^\.ARM|^\.symtab|^\.strtab|^\.shstrtab|^\.defmt|^Total/ {printf "  %-16s %8d @ 0x%08x\n", $1, $2, $3}'
 

@@ -18,22 +18,45 @@
 // both interrupts, and NDTR as it stands (the refill and the e-stop read where a stream is).
 //
 // Requests come in as GPIO inputs 0-7 (one per stream, from DMAMUX1's channels), one item
-// per rising edge, served at once (no bus timing, no FIFO: direct mode only; the FIFO
-// threshold register reads back). Outputs 0-7: the streams' interrupt lines.
+// per rising edge (no FIFO: direct mode only; the FIFO threshold register reads back).
+// Outputs 0-7: the streams' interrupt lines.
+//
+// Time (issue 34): each item takes `transferNanoseconds` of virtual time, one at a time per
+// controller, and lands (is written to its destination, NDTR counts it, its flags rise) at
+// the end of that time, so a timer sees its DMA burst when it lands, not at its update event.
+// Which pending request goes next is RM0433 15.3 "DMA arbitration": the higher software
+// priority (SxCR.PL) first, between equal ones the lower stream number; arbitration is made
+// again after every item, so a stream's three-word timer burst can be overtaken between its
+// words by a lower-numbered stream, and with every stream at "very high" the last stream
+// waits for all the others. 0 (the default) serves each request at once, as before issue 34.
+// The chip publishes no figure for one item: the step path's resc gives the profile's
+// estimate (ten 200 MHz bus cycles for a memory read and an AHB-to-APB write, scaled to the
+// emulated timer clock); a test can slow it (`TransferNanoseconds`) to see what a late burst
+// does. A stream disabled while its item is under way: the item lands at the disabling write
+// (RM0433 "DMA transfer suspension": the transfer under way completes first).
 //
 using System;
 using System.Collections.Generic;
 using Antmicro.Renode.Core;
 using Antmicro.Renode.Logging;
 using Antmicro.Renode.Peripherals.Bus;
+using Antmicro.Renode.Peripherals.Timers;
+using Antmicro.Renode.Time;
 
 namespace Antmicro.Renode.Peripherals.DMA
 {
     public class STM32H7_StepDMA : IDoubleWordPeripheral, IKnownSize, IGPIOReceiver, INumberedGPIOOutput
     {
-        public STM32H7_StepDMA(IMachine machine)
+        public STM32H7_StepDMA(IMachine machine, long transferNanoseconds = 0)
         {
+            this.machine = machine;
             sysbus = machine.GetSystemBus(this);
+            TransferNanoseconds = transferNanoseconds;
+            // The landing of the item under way, counted in nanoseconds (1 GHz: one count per
+            // Renode time tick), as the step timers schedule their events.
+            landing = new LimitTimer(machine.ClockSource, 1000000000, this, "transfer", limit: ulong.MaxValue,
+                direction: Direction.Ascending, enabled: false, workMode: WorkMode.OneShot, eventEnabled: true);
+            landing.LimitReached += OnLanding;
             streams = new Stream[NumberOfStreams];
             var connections = new Dictionary<int, IGPIO>();
             for(var i = 0; i < NumberOfStreams; i++)
@@ -61,6 +84,12 @@ namespace Antmicro.Renode.Peripherals.DMA
         /// Requests that came while their stream was disabled (dropped).
         public ulong DroppedRequests { get; private set; }
 
+        /// Virtual time one item takes, ns (0: served at once).
+        public long TransferNanoseconds { get; set; }
+
+        /// The longest wait of a stream's request for its item to land, ns (0 untimed).
+        public long LongestWaitNanoseconds(int stream) => streams[stream].LongestWait;
+
         public void Reset()
         {
             foreach(var s in streams)
@@ -69,6 +98,8 @@ namespace Antmicro.Renode.Peripherals.DMA
             }
             pending = new int[NumberOfStreams];
             servicing = false;
+            landing.Enabled = false;
+            inFlight = -1;
         }
 
         public uint ReadDoubleWord(long offset)
@@ -132,6 +163,12 @@ namespace Antmicro.Renode.Peripherals.DMA
             switch(register)
             {
                 case CR:
+                    if(TransferNanoseconds > 0)
+                    {
+                        // The CPU's instructions up to this write into virtual time, so that an
+                        // item that lands before it has landed.
+                        SyncCpuTime();
+                    }
                     WriteControl(s, value);
                     break;
                 case NDTR:
@@ -173,6 +210,15 @@ namespace Antmicro.Renode.Peripherals.DMA
                 return;
             }
             pending[number]++;
+            if(TransferNanoseconds > 0)
+            {
+                streams[number].Requested.Enqueue(ClockNow());
+                if(inFlight < 0 && !servicing)
+                {
+                    StartNext();
+                }
+                return;
+            }
             if(servicing)
             {
                 // A transfer of ours made the peripheral ask for its next item (a timer's
@@ -209,6 +255,97 @@ namespace Antmicro.Renode.Peripherals.DMA
             }
         }
 
+        // ---- time (TransferNanoseconds > 0) ----
+
+        private long ClockNow() => (long)machine.ClockSource.CurrentValue.Ticks;
+
+        private void SyncCpuTime()
+        {
+            if(machine.SystemBus.TryGetCurrentCPU(out var cpu) && cpu.OnPossessedThread)
+            {
+                cpu.SyncTime();
+            }
+        }
+
+        // Arbitration (RM0433 "DMA arbitration"): of the streams with a request, the highest
+        // SxCR.PL, then the lowest number. Requests of disabled streams are dropped. The
+        // winner's item lands TransferNanoseconds from now.
+        private void StartNext()
+        {
+            var best = -1;
+            uint bestLevel = 0;
+            for(var i = 0; i < NumberOfStreams; i++)
+            {
+                if(pending[i] == 0)
+                {
+                    continue;
+                }
+                if(!streams[i].Enabled)
+                {
+                    DroppedRequests += (ulong)pending[i];
+                    pending[i] = 0;
+                    streams[i].Requested.Clear();
+                    continue;
+                }
+                var level = (streams[i].Cr >> 16) & 3;
+                if(best < 0 || level > bestLevel)
+                {
+                    best = i;
+                    bestLevel = level;
+                }
+            }
+            if(best < 0)
+            {
+                return;
+            }
+            pending[best]--;
+            inFlight = best;
+            landing.Enabled = false;
+            landing.Value = 0;
+            landing.Limit = (ulong)TransferNanoseconds;
+            landing.Enabled = true;
+        }
+
+        private void OnLanding()
+        {
+            landing.Enabled = false;
+            Land();
+            StartNext();
+        }
+
+        // The item under way lands now: written, counted, flagged. A request it makes (the
+        // timer's next burst word) waits for the arbitration that follows.
+        private void Land()
+        {
+            var s = inFlight;
+            inFlight = -1;
+            if(s < 0)
+            {
+                return;
+            }
+            var stream = streams[s];
+            if(stream.Requested.Count > 0)
+            {
+                var wait = ClockNow() - stream.Requested.Dequeue();
+                if(wait > stream.LongestWait)
+                {
+                    stream.LongestWait = wait;
+                }
+            }
+            servicing = true;
+            try
+            {
+                if(stream.Enabled)
+                {
+                    TransferOne(s);
+                }
+            }
+            finally
+            {
+                servicing = false;
+            }
+        }
+
         private void WriteControl(int s, uint value)
         {
             var stream = streams[s];
@@ -218,12 +355,22 @@ namespace Antmicro.Renode.Peripherals.DMA
                 // While enabled only EN (and CT in double-buffer mode, by hardware) changes.
                 if(!enable)
                 {
+                    if(inFlight == s)
+                    {
+                        // The item under way completes first, then the stream stops.
+                        landing.Enabled = false;
+                        Land();
+                    }
                     stream.Enabled = false;
                     if(TransferCompleteOnDisable)
                     {
                         stream.Flags |= TCIF;
                     }
                     UpdateIrq(s);
+                    if(TransferNanoseconds > 0 && inFlight < 0 && !servicing)
+                    {
+                        StartNext();
+                    }
                 }
                 return;
             }
@@ -348,10 +495,14 @@ namespace Antmicro.Renode.Peripherals.DMA
         // Where each of the four streams' flags sit in LISR/HISR (and the clear registers).
         private static readonly int[] FlagShift = { 0, 6, 16, 22 };
 
+        private readonly IMachine machine;
         private readonly IBusController sysbus;
         private readonly Stream[] streams;
+        private readonly LimitTimer landing;
         private int[] pending;
         private bool servicing;
+        // The stream whose item is under way (timed), or -1.
+        private int inFlight;
 
         private class Stream
         {
@@ -366,6 +517,8 @@ namespace Antmicro.Renode.Peripherals.DMA
                 Index = 0;
                 Enabled = false;
                 Irq.Set(false);
+                Requested.Clear();
+                LongestWait = 0;
             }
 
             public GPIO Irq { get; }
@@ -373,6 +526,9 @@ namespace Antmicro.Renode.Peripherals.DMA
             public int Index;
             public bool Enabled;
             public ulong Transfers;
+            // When each request still waiting for its item came (ns), and the longest wait.
+            public readonly Queue<long> Requested = new Queue<long>();
+            public long LongestWait;
         }
     }
 }

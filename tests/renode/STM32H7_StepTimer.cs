@@ -27,8 +27,15 @@
 //
 // What is not modelled: input capture, slave modes and triggers, encoder mode, centre-aligned
 // and down counting, dead time, the OCxCE clear, the RCC reset of the timer (the firmware
-// rewrites every register it uses after its RCC reset), DBGMCU freeze, and the DMA latency (a
-// burst lands at the update event itself, not some tens of ns after it).
+// rewrites every register it uses after its RCC reset) and DBGMCU freeze.
+//
+// DMA latency (issue 34): a DMAR write takes effect when the DMA model lands it (its time per
+// item, STM32H7_StepDMA.cs), at the virtual time it lands. A burst still open at the next
+// update event is late: that update loads the preload registers as they are, so the period
+// before is played again, and its own DMA request is lost (the request is a level, still
+// raised for the open burst, RM0433 "DMA burst mode"): every later period comes one period
+// late, an extra pulse that neither the stream's NDTR nor the producer counts, which is the
+// chip's behaviour as issue 34 describes it. `LateBursts` counts them.
 //
 // GPIO outputs (Connections): 0 = CH1 (OC1), 1 = CH1N (OC1N), 2 = update DMA request (to
 // DMAMUX1), 3 = counting (CR1.CEN, for the edge recorder: the timer's tick 0), 4 = IRQ
@@ -89,6 +96,10 @@ namespace Antmicro.Renode.Peripherals.Timers
         public ulong DmaRequests { get; private set; }
         public ulong DmarWrites { get; private set; }
 
+        /// Update events that came while the DMA burst of the previous one was still open
+        /// (landing late): each replayed the period before. 0 in a good run.
+        public ulong LateBursts { get; private set; }
+
         public void Reset()
         {
             scheduler.Enabled = false;
@@ -110,6 +121,7 @@ namespace Antmicro.Renode.Peripherals.Timers
             anchorNs = 0;
             ref1 = false;
             burstIndex = 0;
+            burstOpen = false;
             ch1.Set(false);
             ch1n.Set(false);
             dmaRequest.Set(false);
@@ -142,7 +154,9 @@ namespace Antmicro.Renode.Peripherals.Timers
                 Write(offset, value, currentCycle);
                 return;
             }
-            var now = Now();
+            // A DMAR write is the DMA model's, landing at the clock's time (from its own
+            // event, where the CPU's time must not be synced again); all others are the CPU's.
+            var now = offset == DMAR ? (long)machine.ClockSource.CurrentValue.Ticks : Now();
             CatchUp(now);
             accessNs = now;
             var cycle = CycleAt(now);
@@ -451,8 +465,16 @@ namespace Antmicro.Renode.Peripherals.Timers
         // transfers are done (RM0433 "DMA burst mode").
         private void RequestDma()
         {
+            if(burstOpen)
+            {
+                // The last update's burst has not landed whole: this update replayed (part of)
+                // the period before, and its request merges with the one still raised.
+                LateBursts++;
+                return;
+            }
             DmaRequests++;
             burstIndex = 0;
+            burstOpen = true;
             dmaRequest.Set(false);
             dmaRequest.Set(true);
         }
@@ -474,6 +496,7 @@ namespace Antmicro.Renode.Peripherals.Timers
             else
             {
                 burstIndex = 0;
+                burstOpen = false;
             }
         }
 
@@ -626,6 +649,11 @@ namespace Antmicro.Renode.Peripherals.Timers
                     break;
                 case DIER:
                     dier = value;
+                    if((value & DIER_UDE) == 0)
+                    {
+                        // No request any more: a burst cut here is not waited for.
+                        burstOpen = false;
+                    }
                     UpdateIrq();
                     break;
                 case SR:
@@ -717,6 +745,7 @@ namespace Antmicro.Renode.Peripherals.Timers
                 case DCR:
                     dcr = value;
                     burstIndex = 0;
+                    burstOpen = false;
                     break;
                 case DMAR:
                     DmarWrite(value, cycle);
@@ -767,5 +796,7 @@ namespace Antmicro.Renode.Peripherals.Timers
         private ulong stoppedCount;
         private long periodStart, anchorNs, currentCycle, accessNs;
         private int burstIndex;
+        // A DMA burst requested and not yet written whole.
+        private bool burstOpen;
     }
 }

@@ -58,6 +58,8 @@ static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
 
 /// The ELF, built once per test process.
 static ELF: Mutex<Option<PathBuf>> = Mutex::new(None);
+/// The `tmc-drivers` build's ELF, once built (see [`firmware_elf_tmc`]).
+static ELF_TMC: Mutex<Option<PathBuf>> = Mutex::new(None);
 
 /// Substrings of a decoded log line that mean the firmware failed: the fault path
 /// (`firmware/board/src/fault.rs`) and the watchdog task's stall line (a check 100 ms late).
@@ -222,7 +224,25 @@ pub fn firmware_elf() -> PathBuf {
     if let Some(path) = std::env::var_os("RENODE_FIRMWARE") {
         return PathBuf::from(path);
     }
-    let mut built = ELF.lock().unwrap_or_else(|e| e.into_inner());
+    build_firmware(&ELF, None)
+}
+
+/// The board's ELF built for TMC-class drivers (`cargo fw --features tmc-drivers`: the
+/// profile's 1 MHz per joint and 1 us period floor), `RENODE_FIRMWARE_TMC` if set. Each
+/// build is copied beside `fw/firmware` (`firmware-default`, `firmware-tmc-drivers`), which
+/// the other build replaces.
+pub fn firmware_elf_tmc() -> PathBuf {
+    if let Some(path) = std::env::var_os("RENODE_FIRMWARE_TMC") {
+        return PathBuf::from(path);
+    }
+    build_firmware(&ELF_TMC, Some("tmc-drivers"))
+}
+
+fn build_firmware(cache: &Mutex<Option<PathBuf>>, feature: Option<&str>) -> PathBuf {
+    // One build at a time: both builds share the target directory.
+    static BUILDING: Mutex<()> = Mutex::new(());
+    let _one = BUILDING.lock().unwrap_or_else(|e| e.into_inner());
+    let mut built = cache.lock().unwrap_or_else(|e| e.into_inner());
     if let Some(path) = built.as_ref() {
         return path.clone();
     }
@@ -240,12 +260,16 @@ pub fn firmware_elf() -> PathBuf {
         .args(["build", "-p", "firmware", "--profile", "fw"])
         .args(["--target", "thumbv7em-none-eabihf", "--target-dir"])
         .arg(&target_dir)
+        .args(feature.map(|f| ["--features", f]).into_iter().flatten())
         .status()
         .expect("run cargo to build the firmware");
     assert!(status.success(), "cargo fw failed");
+    // A copy per build: the other build replaces `fw/firmware`.
     let path = target_dir.join("thumbv7em-none-eabihf/fw/firmware");
-    *built = Some(path.clone());
-    path
+    let copy = path.with_file_name(format!("firmware-{}", feature.unwrap_or("default")));
+    std::fs::copy(&path, &copy).expect("copy the firmware's ELF");
+    *built = Some(copy.clone());
+    copy
 }
 
 /// What the tests need from the ELF: the RTT control block and the defmt format strings.
@@ -615,7 +639,7 @@ impl RenodeBoard {
     /// Starts Renode with the board (the ELF built or named by `RENODE_FIRMWARE`) and waits
     /// until it answers STATUS from [`HOSTS`]`[0]`.
     pub fn start() -> RenodeBoard {
-        Self::start_inner(None)
+        Self::start_inner(None, firmware_elf())
     }
 
     /// As [`RenodeBoard::start`], with the step path's models (`tests/renode/step-path.resc`:
@@ -626,12 +650,17 @@ impl RenodeBoard {
     /// `monitor_commands` (`;`-separated, may be empty) run after the models are in, before
     /// the machine starts (e.g. a model property).
     pub fn start_with_step_path(monitor_commands: &str) -> RenodeBoard {
-        Self::start_inner(Some(monitor_commands))
+        Self::start_inner(Some(monitor_commands), firmware_elf())
     }
 
-    fn start_inner(step_path: Option<&str>) -> RenodeBoard {
+    /// As [`RenodeBoard::start_with_step_path`], with the `tmc-drivers` build
+    /// ([`firmware_elf_tmc`]).
+    pub fn start_tmc_with_step_path(monitor_commands: &str) -> RenodeBoard {
+        Self::start_inner(Some(monitor_commands), firmware_elf_tmc())
+    }
+
+    fn start_inner(step_path: Option<&str>, elf_path: PathBuf) -> RenodeBoard {
         let renode = renode_path().expect("Renode (check unavailable() first)");
-        let elf_path = firmware_elf();
         let turn = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
         let n = next_instance();
         let ns = format!("armrenode-{}-{n}", std::process::id());

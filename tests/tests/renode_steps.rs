@@ -1,7 +1,8 @@
 //! STEP and DIR of the NUCLEO-H743ZI2 firmware itself (the `cargo fw` ELF) on Renode, with
 //! the step path's models (`tests/renode/step-path.resc`: the joint timers with their update
-//! DMA requests and DCR/DMAR burst, DMAMUX1, DMA2's circular streams with half/complete
-//! interrupts, all from RM0433; an edge recorder on the STEP and DIR pins). The QEMU tests'
+//! DMA requests and DCR/DMAR burst, DMAMUX1, DMA1's and DMA2's circular streams with
+//! half/complete interrupts and a time per item served by RM0433's arbitration (issue 34),
+//! all from RM0433; an edge recorder on the STEP and DIR pins). The QEMU tests'
 //! trajectories are uploaded over the emulated Ethernet (`tests/tests/qemu.rs`: the same
 //! sweeps), and what the pins did is compared with arm-step's oracle (`StepEngine`, which
 //! `firmware/step/tests/producer.rs` compares with the producer on 10 M pulses):
@@ -30,7 +31,7 @@ mod common;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use arm_core::profile::NUCLEO_H743ZI2;
+use arm_core::profile::{BoardProfile, NUCLEO_H743ZI2, NUCLEO_H743ZI2_TMC};
 use arm_step::{JointMask, MAX_JOINTS, Segment, StepEngine, StepPins};
 use armctl::{Error, Options, RunEnd, RunOptions};
 use common::{assert_stays_put, run_reporting_progress_with, stop_mid_run, sweep};
@@ -192,7 +193,8 @@ fn segments(start: [i32; MAX_JOINTS], points: &[Point]) -> Vec<Segment> {
         .collect()
 }
 
-/// What arm-step's engine (the oracle) does for some segments from tick 0.
+/// What arm-step's engine (the oracle) does for some segments from tick 0 (the default
+/// build's profile, or the `tmc-drivers` build's: [`oracle_of`]).
 struct Oracle {
     /// Rising STEP edges per joint.
     rises: [Vec<u64>; MAX_JOINTS],
@@ -207,8 +209,13 @@ impl std::ops::Index<usize> for Oracle {
     }
 }
 
-/// The oracle's edges for `segments` from tick 0.
+/// The oracle's edges for `segments` from tick 0, on the default build.
 fn oracle(segments: &[Segment]) -> Oracle {
+    oracle_of(&NUCLEO_H743ZI2, segments)
+}
+
+/// The oracle's edges for `segments` from tick 0, on the build with `profile`.
+fn oracle_of(profile: &BoardProfile, segments: &[Segment]) -> Oracle {
     struct Rises {
         now: u64,
         rises: [Vec<u64>; MAX_JOINTS],
@@ -227,7 +234,7 @@ fn oracle(segments: &[Segment]) -> Oracle {
         }
         fn step_low(&mut self, _joints: JointMask) {}
     }
-    let mut engine = StepEngine::<64>::new(NUCLEO_H743ZI2.step_timing());
+    let mut engine = StepEngine::<64>::new(profile.step_timing());
     let mut pending = segments.iter().copied().peekable();
     let mut fill = |engine: &mut StepEngine<64>| {
         while engine.free_slots() > 0 {
@@ -339,11 +346,19 @@ fn assert_rises_match(board: &[Joint; MAX_JOINTS], oracle: &Oracle, offset: i64,
 /// Pulse width and DIR timing on every joint; returns the smallest DIR setup seen (ticks
 /// from a DIR change to the next rise) and the smallest gap from a fall to a DIR change.
 fn assert_pulse_and_dir_timing(board: &[Joint; MAX_JOINTS]) -> (Option<i64>, Option<i64>) {
-    let timing = NUCLEO_H743ZI2.step_timing();
+    assert_pulse_and_dir_timing_of(&NUCLEO_H743ZI2, board)
+}
+
+/// [`assert_pulse_and_dir_timing`] for the build with `profile`.
+fn assert_pulse_and_dir_timing_of(
+    profile: &BoardProfile,
+    board: &[Joint; MAX_JOINTS],
+) -> (Option<i64>, Option<i64>) {
+    let timing = profile.step_timing();
     // The drivers' own setup (without the latency budget the producer adds for the
     // interrupt): the least a driver needs.
     let driver_setup =
-        i64::from(NUCLEO_H743ZI2.driver.dir_setup_ns) * i64::from(timing.tick_hz) / 1_000_000_000;
+        i64::from(profile.driver.dir_setup_ns) * i64::from(timing.tick_hz) / 1_000_000_000;
     let (mut least_setup, mut least_after_fall) = (None::<i64>, None::<i64>);
     for (j, joint) in board.iter().enumerate() {
         assert!(
@@ -440,6 +455,160 @@ fn assert_no_late_events(board: &RenodeBoard) {
     }
 }
 
+/// A number the monitor printed for `command` (the first `0x..`), if any.
+fn monitor_value(board: &RenodeBoard, command: &str) -> Option<u64> {
+    board
+        .monitor(command)
+        .split_whitespace()
+        .find_map(|t| t.strip_prefix("0x"))
+        .and_then(|t| u64::from_str_radix(t, 16).ok())
+}
+
+/// No joint timer's update event came while its last DMA burst was still open (the DMA
+/// model's time per item: a late burst replays the period before, `LateBursts`).
+fn assert_no_late_bursts(board: &RenodeBoard) {
+    for (joint, timer) in JOINT_TIMERS.iter().enumerate() {
+        let late = monitor_value(board, &format!("sysbus.{timer} LateBursts"));
+        assert_eq!(late, Some(0), "joint {joint} ({timer}): late DMA bursts");
+    }
+}
+
+/// The joint timers' models, joint order (step-path.resc).
+const JOINT_TIMERS: [&str; MAX_JOINTS] = [
+    "stepTim2",
+    "stepTim5",
+    "stepTim3",
+    "stepTim4",
+    "stepTim1",
+    "stepTim8",
+    "stepTim16",
+    "stepTim17",
+];
+
+/// Each joint's DMA model and stream (firmware/board/src/step_dma: joints 0-3, the APB1
+/// timers, on DMA1 streams 0-3; joints 4-7, the APB2 timers, on DMA2 streams 0-3).
+fn joint_stream(joint: usize) -> (&'static str, usize) {
+    (if joint < 4 { "stepDma1" } else { "stepDma2" }, joint % 4)
+}
+
+/// The longest wait (ns, virtual) of any item of each joint's stream for the DMA model.
+fn longest_dma_waits(board: &RenodeBoard) -> Vec<Option<u64>> {
+    (0..MAX_JOINTS)
+        .map(|j| {
+            let (dma, stream) = joint_stream(j);
+            monitor_value(
+                board,
+                &format!("sysbus.{dma} LongestWaitNanoseconds {stream}"),
+            )
+        })
+        .collect()
+}
+
+/// `count` points of `duration_us` from `start`, joint `j` moving `steps[j]` steps in each
+/// (a constant rate per joint: `steps[j]` per `duration_us`).
+fn constant_rates(
+    start: [i32; MAX_JOINTS],
+    steps: [i32; MAX_JOINTS],
+    count: usize,
+    duration_us: i32,
+) -> Vec<Point> {
+    let mut at = start;
+    (0..count)
+        .map(|_| {
+            let mut next = at;
+            for (p, s) in next.iter_mut().zip(steps) {
+                *p += s;
+            }
+            let point = Point::from_motion(duration_us, &at, &next);
+            at = next;
+            point
+        })
+        .collect()
+}
+
+/// Runs `steps` per 1 ms point for 6 ms (after a slow first millisecond) on all 8 joints of the `tmc-drivers` build at the
+/// chip's instruction rate, and checks every edge against the oracle (every rise at its
+/// tick, no late event, no late DMA burst). Prints the DMA models' longest waits.
+fn eight_joints_run(name: &str, steps: [i32; MAX_JOINTS]) {
+    let mut board = RenodeBoard::start_tmc_with_step_path(CHIP_MIPS);
+    // Renode runs these runs (eight timers, their DMA items and the CPU's refills) far
+    // slower than real time: a command is waited for up to a minute of wall time.
+    let patient = Options {
+        attempts: 3,
+        give_up_after: Duration::from_secs(60),
+        report_timeout: Duration::from_secs(10),
+        ..emulated()
+    };
+    let arm = board.connect_from(HOSTS[0], patient);
+    arm.set_joints(8).unwrap();
+    arm.set_location(&[0; MAX_JOINTS]).unwrap();
+    let start = position(&board, &arm);
+    // A slow first millisecond (1/40 of the rates): its first pulses come long after the DIR
+    // setup, where the oracle (which starts its segments at tick 0, with the DIR change)
+    // and the board (which sets DIR before its timers start) place them alike.
+    let mut points = constant_rates(start, steps.map(|s| (s / 40).max(1)), 1, 1_000);
+    points.extend(constant_rates(points[0].position, steps, 6, 1_000));
+    let began = Instant::now();
+    let options = RunOptions {
+        stall_timeout: Duration::from_secs(120),
+        completion_timeout: Some(Duration::from_secs(600)),
+        ..RunOptions::default()
+    };
+    let report = arm
+        .run_trajectory(&points, &options, |_| {})
+        .unwrap_or_else(|e| panic!("{e}\n{}", board.log()));
+    let status = report.final_status.unwrap();
+    assert_eq!(status.state, State::Stopped);
+    assert_eq!(usize::from(status.executed), points.len());
+    assert!(!status.flags.has(StatusFlags::UNDERRUN), "{status:?}");
+    let end = position(&board, &arm);
+    assert_eq!(end, points.last().unwrap().position);
+    let wall = began.elapsed().as_secs_f64();
+    let waits = longest_dma_waits(&board);
+    let run = assert_run_is_the_oracles_of(&NUCLEO_H743ZI2_TMC, &board, start, end, &points);
+    assert_no_late_bursts(&board);
+    for (j, steps) in steps.iter().enumerate() {
+        let asked = 6 * steps + (steps / 40).max(1);
+        assert_eq!(run.pins[j].rises.len(), asked as usize, "joint {j}: rises");
+    }
+    note(&format!(
+        "{name}: rising STEP edges per joint {:?}, each at the oracle's tick, no late DMA \
+         burst; longest DMA wait per joint's stream {waits:?} ns (virtual, 4 ns a tick: \
+         the shortest period is 800 ns); {wall:.1} s of wall time",
+        run.counts()
+    ));
+    board.assert_healthy();
+}
+
+/// Joint 7 (TIM17, the last stream of its DMA controller, RM0433's arbitration serves it
+/// after every other very-high stream) at the `tmc-drivers` build's top rate, 1 MHz: 200-tick
+/// periods, the profile's DMA period floor (`min_dma_period_ns`), beside joints 0-6 at
+/// 400 kHz (3.8 MHz in all, within the 4 MHz step budget): every 1,000 ticks all eight
+/// bursts come at once. Every rise at the oracle's tick, on joints 6-7 (TIM16/17) too.
+///
+/// Failed before the streams were split over DMA1 and DMA2 (issue 34): with all eight on
+/// DMA2 at 40 ns an item, joint 7's burst waited for 21 words and landed 960 ns after its
+/// update event, after its next (800 ns); that update replayed the period before: an extra
+/// pulse on joint 7 that neither the producer nor NDTR counted.
+#[test]
+fn joint_7_at_its_top_rate_beside_seven_slower_joints_keeps_the_oracles_ticks() {
+    require_renode!();
+    eight_joints_run(
+        "joint 7 at 1 MHz, joints 0-6 at 400 kHz",
+        [400, 400, 400, 400, 400, 400, 400, 1_000],
+    );
+}
+
+/// All 8 joints in step (the same rate and phase, so every period's eight bursts come at
+/// the same instant) at 500 kHz each: the whole 4 MHz step budget (the `tmc-drivers`
+/// period floor of 1 us is 1 MHz a joint, which the budget gives one joint at a time).
+/// Every rise at the oracle's tick on all 8 joints.
+#[test]
+fn eight_joints_in_step_keep_the_oracles_ticks() {
+    require_renode!();
+    eight_joints_run("8 joints in step at 500 kHz", [500; MAX_JOINTS]);
+}
+
 fn ticks_us(ticks: i64) -> f64 {
     // In the firmware's ticks (200 MHz on the chip).
     ticks as f64 * 1e6 / f64::from(NUCLEO_H743ZI2.step_timer_hz)
@@ -481,11 +650,22 @@ fn assert_run_is_the_oracles(
     end: [i32; MAX_JOINTS],
     points: &[Point],
 ) -> RunEdges {
+    assert_run_is_the_oracles_of(&NUCLEO_H743ZI2, board, start, end, points)
+}
+
+/// [`assert_run_is_the_oracles`] for the build with `profile`.
+fn assert_run_is_the_oracles_of(
+    profile: &BoardProfile,
+    board: &RenodeBoard,
+    start: [i32; MAX_JOINTS],
+    end: [i32; MAX_JOINTS],
+    points: &[Point],
+) -> RunEdges {
     let pins = joints(&recorded(board));
-    let oracle = oracle(&segments(start, points));
+    let oracle = oracle_of(profile, &segments(start, points));
     let offset = lead_in(&pins, &oracle);
     assert_rises_match(&pins, &oracle, offset, true);
-    let (setup, after_fall) = assert_pulse_and_dir_timing(&pins);
+    let (setup, after_fall) = assert_pulse_and_dir_timing_of(profile, &pins);
     for j in 0..MAX_JOINTS {
         assert_eq!(
             signed_pulses(&pins[j]),
@@ -517,8 +697,18 @@ fn a_run_makes_the_oracles_edges_on_the_pins() {
     assert_eq!(&start[..3], &[100, -200, 300]);
     let points = sweep(start, JOINTS, 120, 4, 10_000);
     let began = Instant::now();
+    // armctl's default stall wait is 12 s of wall time. Since the DMA models take time per
+    // item (issue 34: three more events per period, each an update of Renode's schedule, and
+    // the 16-bit timers of idle joints make a period every 328 us), this 1.2 s run takes
+    // 11-12 s of wall time here (4.5 s with the DMA untimed): generous, so that only a real
+    // stall fails.
+    let options = RunOptions {
+        stall_timeout: Duration::from_secs(60),
+        completion_timeout: Some(Duration::from_secs(300)),
+        ..RunOptions::default()
+    };
     let report = arm
-        .run_trajectory(&points, &RunOptions::default(), |_| {})
+        .run_trajectory(&points, &options, |_| {})
         .unwrap_or_else(|e| panic!("{e}\n{}", board.log()));
     let status = report.final_status.unwrap();
     assert_eq!(status.state, State::Stopped);
@@ -811,7 +1001,11 @@ fn positions_after_an_estop_are_the_pulses_the_pins_made() {
 /// unwind, no pulse after the stop) without the disable's TCIF.
 #[test]
 fn positions_after_an_estop_match_the_pins_if_a_disable_leaves_tcif_alone() {
-    estop_positions_match_the_pins("sysbus.stepDma2 TransferCompleteOnDisable false");
+    // Both controllers: joints 0-3 are on DMA1 since issue 34.
+    estop_positions_match_the_pins(
+        "sysbus.stepDma1 TransferCompleteOnDisable false; \
+         sysbus.stepDma2 TransferCompleteOnDisable false",
+    );
 }
 
 /// 300 points of 10 ms on six joints, STOPPED after 20 executed; `monitor` configures the
@@ -872,8 +1066,10 @@ fn estop_positions_match_the_pins(monitor: &str) {
 /// the CPU halted, registers written from the monitor): a timer pulsing at its ARR, a timer
 /// reloaded through its DCR/DMAR burst by a circular DMA2 stream routed by DMAMUX1 (the
 /// periods repeat in buffer order, the half-transfer and transfer-complete flags come and come
-/// again, NDTR counts down by whole bursts), and TIM8's CH1N stopping when MOE is cleared.
-/// Needs Renode only (no root, no network).
+/// again, NDTR counts down by whole bursts), TIM8's CH1N stopping when MOE is cleared, and
+/// DMA2 with a time per item (issue 34): two timers' bursts served lower stream first, the
+/// later one landing after its timer's next update event, which replays the period before
+/// (an extra pulse). Needs Renode only (no root, no network).
 #[test]
 fn the_models_alone_pulse_at_arr_and_reload_from_a_circular_stream() {
     let Some(run) = system_tests::renode::ScriptRun::run("step-models-check.resc", |dir| {
@@ -1009,6 +1205,61 @@ fn the_models_alone_pulse_at_arr_and_reload_from_a_circular_stream() {
         tim2.len(),
         tim3.len(),
         tim8.len()
+    ));
+
+    // 4. DMA with time: TIM1 (stream 1, 100-tick periods) and TIM4 (stream 3, 50-tick
+    //    periods) started together at 40 us on DMA2 at 40 ns an item. Stream 1 goes first:
+    //    TIM1's pulses are its buffer's; TIM4's bursts land after its next update event,
+    //    which replays the period before (a pulse its buffer does not have).
+    const SECTION_4_NS: u64 = 40_000;
+    const SECTION_4_TICKS: u64 = 4_000 / NS_PER_TICK;
+    let since_40us = |line: u8| -> Vec<(u64, u64)> {
+        pulses(line)
+            .into_iter()
+            .filter(|&(rise, _)| rise * NS_PER_TICK >= SECTION_4_NS)
+            .map(|(rise, width)| (rise - SECTION_4_NS / NS_PER_TICK, width))
+            .filter(|&(rise, _)| rise < SECTION_4_TICKS)
+            .collect()
+    };
+    let tim1 = since_40us(4);
+    let tim1_expected: Vec<(u64, u64)> = (0..SECTION_4_TICKS / 100)
+        .map(|k| (100 * k, if k < 2 { 3 + k } else { 5 + (k - 2) % 4 }))
+        .collect();
+    assert_eq!(tim1, tim1_expected, "TIM1 (stream 1, served first)\n{out}");
+    assert_eq!(value("TIM1 late bursts:"), 0, "TIM1's bursts\n{out}");
+    let tim4 = since_40us(3);
+    let tim4_buffer: Vec<(u64, u64)> = (0..SECTION_4_TICKS / 50)
+        .map(|k| (50 * k, if k < 2 { 8 + k } else { 10 + (k - 2) % 4 }))
+        .collect();
+    let late = value("TIM4 late bursts:");
+    assert!(late > 0, "TIM4's bursts should land late\n{out}");
+    assert_eq!(tim4.len(), tim4_buffer.len(), "TIM4: a pulse every period");
+    assert_ne!(
+        tim4, tim4_buffer,
+        "TIM4 played its buffer although its bursts were late"
+    );
+    let replayed = tim4.windows(2).filter(|w| w[0].1 == w[1].1).count();
+    assert!(
+        replayed > 0,
+        "a late burst replays the period before: TIM4 {tim4:?}"
+    );
+    let waits = (
+        value("stream 1 longest wait:"),
+        value("stream 3 longest wait:"),
+    );
+    // Stream 1: at most one item under way ahead of its own (2 x 40 ns); stream 3: stream
+    // 1's three words ahead of its first (4 x 40 ns).
+    assert_eq!(
+        waits,
+        (80, 160),
+        "longest waits (ns) of streams 1 and 3\n{out}"
+    );
+    note(&format!(
+        "models alone, DMA with time: TIM1 (stream 1) {} pulses as its buffer, TIM4 (stream 3) \
+         {late} late bursts, {replayed} periods replayed; longest waits {} ns and {} ns",
+        tim1.len(),
+        waits.0,
+        waits.1
     ));
 }
 

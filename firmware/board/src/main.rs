@@ -14,7 +14,7 @@
 //! |---|---|---|
 //! | P0 (highest) | EXTI0: the wired e-stop input on PC0 ([`estop`]): every STEP output stopped (register writes), a gripper burst cut (two more), then the step service pended; EXTI1-3, EXTI9_5, EXTI15_10: the limit and home switches (`switches`, issue 33): stamped, a limit trip stops every STEP output the same way, the step service pended | nothing may delay an e-stop or a limit; it preempts even a DIR change, which no longer matters once the run is stopped |
 //! | P1 | TIM13: step clock ([`step_timer`]): DIR changes at reversals (from lock-free queues), the run's end handed to the step service | a DIR change must come between a pulse's fall and the next pulse's setup |
-//! | P2 | DMA2 streams 0-7: STEP buffer refills ([`step_dma`]); TIM7's vector: the step service (run end, the e-stop's halt); TIM15: gripper burst reloads ([`gripper`]) | a half (64 periods) of slack; 128 PWM periods |
+//! | P2 | DMA1 and DMA2 streams 0-3: STEP buffer refills ([`step_dma`]); TIM7's vector: the step service (run end, the e-stop's halt); TIM15: gripper burst reloads ([`gripper`]) | a half (64 periods) of slack; 128 PWM periods |
 //! | P3 | TIM12: embassy-time | task wake-ups |
 //! | P4 | Ethernet (and its look at STOPPED in each received frame, `net::RxPeek`), USART6, DMA, flash, RNG | driver bookkeeping; their tasks wait anyway. The Ethernet look halts the steps for a STOPPED within microseconds of its frame landing, whatever thread mode does (issue 30 part 4), and keeps two receive descriptors free by dropping the oldest frames the runner has not taken, so none lands in a full ring; at P4 it never holds off P0-P3 |
 //! | thread mode | every task, one executor | see below |
@@ -64,7 +64,8 @@
 //! | flash 0x081C_0000..0x0820_0000 | settings (two sectors, [`settings`]) | - |
 //! | AXI SRAM 0x2400_0000 (512 KiB) | `.data`, `.bss`, `.uninit`: the trajectory buffer (8192 points, 288 KiB), the bus, the tasks' futures, the UDP socket buffers, defmt's RTT buffer | MPU region 1: D-cache write-through (the probe sees every RTT write) |
 //! | DTCM 0x2000_0000 (128 KiB) | the stack (CPU only, zero wait states) | never cached |
-//! | SRAM1 0x3000_0000 (128 KiB) | every DMA buffer: Ethernet descriptors and packets (a ring of 40, 62 KiB, sized with the UDP socket and the inbox for a burst of 32 full datagrams: `net.rs`), serial RX ring and TX staging ([`memory::DmaBuffers`]); the step streams' buffers, 12 KiB (`step_dma` `BUFFERS`, a `.sram1` static) | MPU region 0: non-cacheable |
+//! | SRAM1 0x3000_0000 (128 KiB) | Ethernet descriptors and packets (a ring of 40, 62 KiB, sized with the UDP socket and the inbox for a burst of 32 full datagrams: `net.rs`), serial RX ring and TX staging ([`memory::DmaBuffers`]) | MPU region 0: non-cacheable |
+//! | SRAM2 0x3002_0000 (128 KiB) | the step streams' buffers, 12 KiB (`step_dma` `BUFFERS`, a `.sram2` static): off the Ethernet DMA's SRAM, so the step bursts never wait for it (issue 34) | MPU region 2: non-cacheable |
 //!
 //! A DMA never sees a stale cache line because nothing it touches is cacheable, and no
 //! store waits in a dirty line (write-through), so nothing needs cache maintenance, not
@@ -153,8 +154,9 @@ bind_interrupts!(
         RNG => rng::InterruptHandler<peripherals::RNG>;
         FLASH => flash::InterruptHandler;
         USART6 => usart::InterruptHandler<peripherals::USART6>;
-        DMA1_STREAM0 => dma::InterruptHandler<peripherals::DMA1_CH0>;
-        DMA1_STREAM1 => dma::InterruptHandler<peripherals::DMA1_CH1>;
+        // The serial port's streams: DMA1 4 and 5 (0-3 are joints 0-3's, `step_dma`).
+        DMA1_STREAM4 => dma::InterruptHandler<peripherals::DMA1_CH4>;
+        DMA1_STREAM5 => dma::InterruptHandler<peripherals::DMA1_CH5>;
     }
 );
 
@@ -266,8 +268,8 @@ fn set_driver_priorities() {
     for irq in [
         interrupt::ETH,
         interrupt::USART6,
-        interrupt::DMA1_STREAM0,
-        interrupt::DMA1_STREAM1,
+        interrupt::DMA1_STREAM4,
+        interrupt::DMA1_STREAM5,
         interrupt::FLASH,
         interrupt::RNG,
     ] {
@@ -366,11 +368,11 @@ async fn main(spawner: Spawner) -> ! {
     }));
     #[cfg(not(feature = "switch-inputs"))]
     let switch_line = None;
-    // The joint timers and DMA2 streams are driven through their registers
-    // (step_dma/); their handles are not used by anything else.
+    // The joint timers and their DMA streams (DMA1 and DMA2 streams 0-3) are driven
+    // through their registers (step_dma/); their handles are not used by anything else.
     let _step_hw = (
-        p.TIM1, p.TIM2, p.TIM3, p.TIM4, p.TIM5, p.TIM8, p.TIM16, p.TIM17, p.DMA2_CH0, p.DMA2_CH1,
-        p.DMA2_CH2, p.DMA2_CH3, p.DMA2_CH4, p.DMA2_CH5, p.DMA2_CH6, p.DMA2_CH7,
+        p.TIM1, p.TIM2, p.TIM3, p.TIM4, p.TIM5, p.TIM8, p.TIM16, p.TIM17, p.DMA1_CH0, p.DMA1_CH1,
+        p.DMA1_CH2, p.DMA1_CH3, p.DMA2_CH0, p.DMA2_CH1, p.DMA2_CH2, p.DMA2_CH3,
     );
     let outputs = OutputLines::new(OutputPins {
         pin0: p.PG2,
@@ -393,8 +395,8 @@ async fn main(spawner: Spawner) -> ! {
         p.USART6,
         p.PC7,
         p.PC6,
-        p.DMA1_CH0,
-        p.DMA1_CH1,
+        p.DMA1_CH4,
+        p.DMA1_CH5,
         Irqs,
         usart::Config::default(),
     ) {

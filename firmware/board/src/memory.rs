@@ -10,19 +10,22 @@
 //! (defmt-rtt's `disable-blocking-mode`): a log line that does not fit is dropped, so no
 //! log call can hold the CPU, with interrupts masked, while the step DMA replays its
 //! buffer. The DMA engines do not see the cache at all, so every buffer a DMA
-//! reads or writes lives in SRAM1 (D2 domain, 128 KiB at 0x3000_0000), which MPU region 0
-//! makes normal, non-cacheable, shareable memory: no cache maintenance is needed anywhere,
-//! and a buffer put there by mistake is merely slower, never stale.
+//! reads or writes lives in SRAM1 or SRAM2 (D2 domain, 128 KiB each at 0x3000_0000 and
+//! 0x3002_0000), which MPU regions 0 and 2 make normal, non-cacheable, shareable memory: no
+//! cache maintenance is needed anywhere, and a buffer put there by mistake is merely slower,
+//! never stale. The step streams' buffers have SRAM2 to themselves (issue 34): the Ethernet
+//! DMA's bursts into SRAM1 never hold up a step burst's memory read.
 //!
 //! | buffer | size | DMA |
 //! |---|---|---|
 //! | Ethernet descriptors and packet buffers ([`DmaBuffers::eth`]), a burst of 40 datagrams (`net.rs`) | ~62 KiB | ETH DMA |
-//! | serial receive ring ([`DmaBuffers::serial_rx`]) | 1 KiB | DMA1 stream 1 |
-//! | serial transmit staging ([`DmaBuffers::serial_tx`]) | 256 B | DMA1 stream 0 |
-//! | step streams: per joint 2 halves of 64 periods (ARR, RCR, CCR1), `step_dma/mod.rs` `BUFFERS` (a `.sram1` static, zeroed by `step_dma::init`) | 12 KiB | DMA2 streams 0-7 |
+//! | serial receive ring ([`DmaBuffers::serial_rx`]) | 1 KiB | DMA1 stream 5 |
+//! | serial transmit staging ([`DmaBuffers::serial_tx`]) | 256 B | DMA1 stream 4 |
+//! | SRAM2: step streams, per joint 2 halves of 64 periods (ARR, RCR, CCR1), `step_dma/mod.rs` `BUFFERS` (a `.sram2` static, zeroed by `step_dma::init`) | 12 KiB | DMA1 streams 0-3 (joints 0-3), DMA2 streams 0-3 (joints 4-7) |
 //!
-//! Anything new that a DMA touches goes into [`DmaBuffers`] (or another `.sram1` static):
-//! the `.sram1` output section (memory.x) is NOLOAD, so it is initialised here at run time.
+//! Anything new that a DMA touches goes into [`DmaBuffers`] (or another `.sram1`/`.sram2`
+//! static): those output sections (memory.x) are NOLOAD, so they are initialised at run
+//! time.
 //! The encoder bus (UART4) is interrupt-driven (no DMA) and needs nothing.
 
 use core::mem::MaybeUninit;
@@ -44,6 +47,11 @@ const AXI_SRAM_SIZE_LOG2: u32 = 19;
 const SRAM1_BASE: u32 = 0x3000_0000;
 /// log2 of SRAM1's size (128 KiB): the MPU region covers it whole.
 const SRAM1_SIZE_LOG2: u32 = 17;
+/// Start of SRAM2 (memory.x `SRAM2`): the step streams' buffers.
+const SRAM2_BASE: u32 = 0x3002_0000;
+/// log2 of SRAM2's size (128 KiB): MPU region 2 covers it whole (the base is a multiple
+/// of the size, as the MPU requires).
+const SRAM2_SIZE_LOG2: u32 = 17;
 
 /// Every buffer a DMA engine touches.
 pub struct DmaBuffers {
@@ -104,9 +112,9 @@ const RASR_ENABLE: u32 = 1;
 /// MPU_CTRL: enable, and keep the default memory map for everything no region covers.
 const MPU_CTRL_ENABLE_PRIVDEFENA: u32 = 0b101;
 
-/// Clocks SRAM1 (so the D2 domain follows the CPU), makes it non-cacheable with MPU
-/// region 0 and AXI SRAM write-through with region 1, then turns on both caches. Call
-/// once, early in `main`, before any DMA starts.
+/// Clocks SRAM1-3 (so the D2 domain follows the CPU), makes SRAM1 and SRAM2 non-cacheable
+/// with MPU regions 0 and 2 and AXI SRAM write-through with region 1, then turns on both
+/// caches. Call once, early in `main`, before any DMA starts.
 pub fn enable_caches(mpu: &mut MPU, scb: &mut SCB, cpuid: &mut CPUID) {
     clock_d2_srams();
     let sram1 = RASR_XN
@@ -114,6 +122,12 @@ pub fn enable_caches(mpu: &mut MPU, scb: &mut SCB, cpuid: &mut CPUID) {
         | RASR_NORMAL_NON_CACHEABLE
         | RASR_SHAREABLE
         | ((SRAM1_SIZE_LOG2 - 1) << 1)
+        | RASR_ENABLE;
+    let sram2 = RASR_XN
+        | RASR_AP_FULL
+        | RASR_NORMAL_NON_CACHEABLE
+        | RASR_SHAREABLE
+        | ((SRAM2_SIZE_LOG2 - 1) << 1)
         | RASR_ENABLE;
     let axi = RASR_XN
         | RASR_AP_FULL
@@ -131,6 +145,9 @@ pub fn enable_caches(mpu: &mut MPU, scb: &mut SCB, cpuid: &mut CPUID) {
         mpu.rnr.write(1);
         mpu.rbar.write(AXI_SRAM_BASE);
         mpu.rasr.write(axi);
+        mpu.rnr.write(2);
+        mpu.rbar.write(SRAM2_BASE);
+        mpu.rasr.write(sram2);
         mpu.ctrl.write(MPU_CTRL_ENABLE_PRIVDEFENA);
     }
     cortex_m::asm::dsb();

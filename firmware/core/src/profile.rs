@@ -86,9 +86,46 @@ pub struct BoardProfile {
     pub lookahead_us: u32,
     /// Shortest timer period the step outputs can be reloaded for, ns: where a DMA burst
     /// loads each period, the burst of one update must land before the next update
-    /// (0: periods are played in software, any length works).
+    /// (0: periods are played in software, any length works). At least
+    /// [`BoardProfile::dma_burst_latency_ns`] (checked).
     pub min_dma_period_ns: u32,
+    /// The step DMA's timing model ([`StepDma::NONE`]: periods are played in software).
+    pub step_dma: StepDma,
 }
+
+/// How a board's step periods reach its timers by DMA: the figures the aggregate step-rate
+/// ceiling ([`BoardProfile::dma_step_ceiling_hz`]) and the latest burst
+/// ([`BoardProfile::dma_burst_latency_ns`]) are derived from (issue 34). The model is
+/// RM0433's "DMA arbitration": each controller moves one item at a time; among the
+/// requests pending, the highest priority goes first, then the lower stream number, and
+/// arbitration is made again after every item. Renode's DMA model
+/// (tests/renode/STM32H7_StepDMA.cs) follows it with the same time per item.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct StepDma {
+    /// Time of one item (a word read from SRAM and written to a timer's DMAR), ns.
+    pub item_ns: u32,
+    /// DMA controllers the step streams are spread over.
+    pub controllers: u32,
+    /// Step streams on each controller (all at the same, very high, priority).
+    pub streams_per_controller: u32,
+    /// Items of other streams of the same priority that can be under way on a controller
+    /// when a step burst is requested (an item is never cut): one, the serial port's.
+    pub other_items: u32,
+}
+
+impl StepDma {
+    /// No DMA: periods played in software.
+    pub const NONE: StepDma = StepDma {
+        item_ns: 0,
+        controllers: 0,
+        streams_per_controller: 0,
+        other_items: 0,
+    };
+}
+
+/// Items a step period's DMA burst moves: ARR, RCR, CCR1 through the timer's DMAR
+/// (firmware/board's `step_dma`, which checks its `WORDS_PER_PERIOD` against this).
+pub const DMA_WORDS_PER_PERIOD: u32 = 3;
 
 /// `ns` in ticks of a `tick_hz` clock, rounded up (a driver's least time is never cut).
 #[allow(
@@ -133,6 +170,23 @@ impl BoardProfile {
         crate::step_shared::step_queue_for(self.lookahead_us)
     }
 
+    /// The latest a period's DMA burst lands after its update event, ns: on a controller
+    /// whose every step stream asks at the same instant, the last stream's three words
+    /// come after every other step stream's three and after an item of another stream
+    /// already under way: `(streams * 3 + other) * item`. 0 without DMA.
+    pub const fn dma_burst_latency_ns(&self) -> u32 {
+        let dma = self.step_dma;
+        (dma.streams_per_controller * DMA_WORDS_PER_PERIOD + dma.other_items) * dma.item_ns
+    }
+
+    /// The most steps per second of all joints together the step DMA carries, Hz
+    /// (`u32::MAX` without DMA): every joint at its shortest period
+    /// ([`BoardProfile::min_dma_period_ns`], which outlasts the latest burst), and no
+    /// more than the controllers move (one item per `item_ns` each, three a step).
+    pub const fn dma_step_ceiling_hz(&self) -> u32 {
+        dma_step_ceiling_hz(self.step_dma, self.min_dma_period_ns)
+    }
+
     /// [`BoardProfile::min_dma_period_ns`] in step timer ticks (rounded up).
     pub const fn min_dma_period_ticks(&self) -> u64 {
         ns_to_ticks(self.min_dma_period_ns, self.step_timer_hz) as u64
@@ -174,6 +228,15 @@ impl BoardProfile {
         assert!(max >= 100_000);
         // One joint at its full rate fits in the budget of all joints.
         assert!(self.step_budget_hz >= max);
+        // The budget is within what the step DMA carries, and every reloadable period
+        // outlasts the latest burst (issue 34); a DMA carries every joint.
+        assert!(self.step_budget_hz <= self.dma_step_ceiling_hz());
+        assert!(self.min_dma_period_ns >= self.dma_burst_latency_ns());
+        assert!(
+            self.step_dma.item_ns == 0
+                || (self.step_dma.controllers * self.step_dma.streams_per_controller) as usize
+                    == MAX_JOINTS
+        );
         // No pulse period is shorter than the step DMA reloads (the producer's other
         // periods are never shorter than a pulse period: tests/profile_periods.rs).
         assert!(timing.min_pulse_period_ticks() >= self.min_dma_period_ticks());
@@ -196,6 +259,69 @@ impl BoardProfile {
         }
         assert!(self.pwm_timer_clock_hz > 0);
     }
+}
+
+/// The NUCLEO's step DMA (firmware/board/src/step_dma, issue 34): joints 0-3 (the APB1
+/// timers) on DMA1 streams 0-3, joints 4-7 (APB2) on DMA2 streams 0-3, each controller
+/// writing through its own AHB-to-APB bridge, the buffers in SRAM2 (no Ethernet DMA there).
+/// An item is about ten 200 MHz bus cycles (the word read from SRAM2 and the write through
+/// the bridge to the timer; RM0433 publishes no figure, ST's DMA application notes break a
+/// transfer into cycles of this order): 50 ns. The one other item that can be under way is
+/// the serial port's (DMA1 streams 4-5, the same very high priority, higher numbers: it
+/// never wins a tie, but an item under way is not cut).
+pub const NUCLEO_STEP_DMA: StepDma = StepDma {
+    item_ns: 50,
+    controllers: 2,
+    streams_per_controller: 4,
+    other_items: 1,
+};
+
+/// The NUCLEO's CPU budget for steps: at the measured 42.4 instructions per step
+/// (scripts/step-cost, the whole step path with 8 joints at distinct rates, the worse of
+/// its 8-joint trajectories, after issue 20's BASEPRI lock and running sums), about 1.3
+/// cycles each on the Cortex-M7 at 400 MHz, 4 M steps/s is 4e6 * 42.4 * 1.3 / 400e6 = 55%
+/// of the CPU, leaving the rest to the network and the tasks (docs/PROTOCOL.md, "Step rate
+/// budget"; it was 31.3 and 41%).
+const NUCLEO_CPU_STEP_BUDGET_HZ: u32 = 4_000_000;
+
+/// The NUCLEO's step DMA ceiling ([`BoardProfile::dma_step_ceiling_hz`] of its
+/// `min_dma_period_ns` and [`NUCLEO_STEP_DMA`]): 8 joints at the 1 us floor, 8 M steps/s
+/// (the two controllers could move 2 / (3 * 50 ns) = 13.3 M).
+const NUCLEO_DMA_STEP_CEILING_HZ: u32 =
+    dma_step_ceiling_hz(NUCLEO_STEP_DMA, NUCLEO_MIN_DMA_PERIOD_NS);
+
+/// The NUCLEO's shortest reloadable step period (its profile's `min_dma_period_ns`, with
+/// the reason there).
+const NUCLEO_MIN_DMA_PERIOD_NS: u32 = 1_000;
+
+/// [`BoardProfile::dma_step_ceiling_hz`] of a step DMA and a shortest period.
+#[allow(
+    clippy::cast_possible_truncation,
+    reason = "const-evaluated, clamped to u32::MAX first"
+)]
+const fn dma_step_ceiling_hz(dma: StepDma, min_dma_period_ns: u32) -> u32 {
+    if dma.item_ns == 0 || min_dma_period_ns == 0 {
+        return u32::MAX;
+    }
+    let joints = dma.controllers * dma.streams_per_controller;
+    let at_floor = joints as u64 * 1_000_000_000 / min_dma_period_ns as u64;
+    let throughput =
+        dma.controllers as u64 * 1_000_000_000 / (DMA_WORDS_PER_PERIOD * dma.item_ns) as u64;
+    let ceiling = if at_floor < throughput {
+        at_floor
+    } else {
+        throughput
+    };
+    if ceiling > u32::MAX as u64 {
+        u32::MAX
+    } else {
+        ceiling as u32
+    }
+}
+
+/// The lesser of two rates.
+const fn min_hz(a: u32, b: u32) -> u32 {
+    if a < b { a } else { b }
 }
 
 /// The NUCLEO-H743ZI2 board firmware (`cargo fw`) with opto-isolated drivers.
@@ -221,18 +347,15 @@ pub const NUCLEO_H743ZI2: BoardProfile = BoardProfile {
     // under QEMU, 35 us while the step path's critical sections masked it, and 5 us from
     // an estimate before.
     dir_latency_ns: 3_000,
-    // A period's DMA burst (three words into an APB timer, with eight streams sharing two
-    // DMA controllers) must finish within the shortest period; 1 us periods leave a wide
-    // margin. Also the ceiling of the CPU budget per joint (`step_budget_hz` / 8 joints
-    // would be 500 kHz; one joint may take more while the others rest).
+    // A period's DMA burst (three words into an APB timer, behind at most three other step
+    // streams' on its controller: `step_dma`) must land within the shortest period, 1 us
+    // (`min_dma_period_ns`). Also the ceiling of the CPU budget per joint
+    // (`step_budget_hz` / 8 joints would be 500 kHz; one joint may take more while the
+    // others rest).
     step_rate_ceiling_hz: 1_000_000,
-    // 8 joints x 500 kHz. At the measured 42.4 instructions per step (scripts/step-cost,
-    // the whole step path with 8 joints at distinct rates, the worse of its 8-joint
-    // trajectories, after issue 20's BASEPRI lock and running sums), about 1.3 cycles each
-    // on the Cortex-M7 at 400 MHz, that is 4e6 * 42.4 * 1.3 / 400e6 = 55% of the CPU,
-    // leaving the rest to the network and the tasks (docs/PROTOCOL.md, "Step rate
-    // budget"; it was 31.3 and 41%).
-    step_budget_hz: 4_000_000,
+    // The lesser of the CPU's budget and the step DMA's ceiling (issue 34):
+    // min(4,000,000, 8,000,000) = 4,000,000 (8 joints x 500 kHz).
+    step_budget_hz: min_hz(NUCLEO_CPU_STEP_BUDGET_HZ, NUCLEO_DMA_STEP_CEILING_HZ),
     // 8192 * 36 bytes = 288 KiB of the 512 KiB AXI SRAM, i.e. 80 s of 10 ms points, so a
     // host streaming over a congested link has seconds of slack before an underrun.
     trajectory_capacity: 8192,
@@ -244,12 +367,15 @@ pub const NUCLEO_H743ZI2: BoardProfile = BoardProfile {
     step_buffer_half: arm_step::NUCLEO_STEP_BUFFER_HALF,
     // TIM2 and TIM5 (32-bit) for joints 0-1, 16-bit timers for the others (arm-step).
     step_timer_max_period_ticks: arm_step::NUCLEO_STEP_TIMER_MAX_PERIOD_TICKS,
-    // The update's burst (three words into an APB timer) waits behind up to seven other
-    // streams' on DMA2 and the AHB/APB bridges: about 24 word transfers of ~10 bus cycles
-    // at 200 MHz, 1.2 us at worst; 1 us with the bursts of a 1 MHz joint rarely aligned.
-    // The opto drivers' 5 us periods are far above it; TMC timing (0.2 us) is raised to
-    // it, which is the board's 1 MHz ceiling anyway.
-    min_dma_period_ns: 1_000,
+    // The update's burst lands at worst 650 ns after its update event
+    // (`dma_burst_latency_ns` of `step_dma` below: 13 items of 50 ns); 1 us leaves 35 % for
+    // what the estimate leaves out (the CPU's own accesses on the APB bridges). Before issue
+    // 34 all eight streams were on DMA2: 24 items, 1.2 us, over this floor (Renode with DMA
+    // time: a 1 MHz joint 7 made 1,142 extra pulses in 6 ms). The opto drivers' 5 us
+    // periods are far above it; TMC timing (0.2 us) is raised to it, which is the board's
+    // 1 MHz ceiling anyway.
+    min_dma_period_ns: NUCLEO_MIN_DMA_PERIOD_NS,
+    step_dma: NUCLEO_STEP_DMA,
     // Nothing long runs on the board during a run (a settings write needs STOPPED; the
     // tasks' polls and interrupts take microseconds): 50 ms is hundreds of times its
     // trajectory task's worst wake-up latency. 256 segments of 64 bytes, 16 KiB of the AXI
@@ -298,6 +424,8 @@ pub const QEMU_MPS2_AN500: BoardProfile = BoardProfile {
     ),
     // The NUCLEO's floor, so that the same trajectories give the same periods.
     min_dma_period_ns: NUCLEO_H743ZI2.min_dma_period_ns,
+    // No DMA: the periods are played in software.
+    step_dma: StepDma::NONE,
     // The emulated CPU runs on a host thread among others: the simulator's reason, and
     // its 4 MiB of RAM hold it easily.
     lookahead_us: SIMULATOR_LOOKAHEAD_US,
@@ -357,6 +485,11 @@ const _: () = assert!(NUCLEO_H743ZI2.max_step_rate_hz() == 200_000);
 const _: () = assert!(NUCLEO_H743ZI2_TMC.max_step_rate_hz() == 1_000_000);
 // The simulator is the NUCLEO.
 const _: () = assert!(SIMULATOR.max_step_rate_hz() == NUCLEO_H743ZI2.max_step_rate_hz());
+// The step DMA's figures (issue 34): a burst lands within 650 ns, 8 M steps/s of all joints
+// at the 1 us floor; the budget is the CPU's, the lesser.
+const _: () = assert!(NUCLEO_H743ZI2.dma_burst_latency_ns() == 650);
+const _: () = assert!(NUCLEO_H743ZI2.dma_step_ceiling_hz() == 8_000_000);
+const _: () = assert!(NUCLEO_H743ZI2.step_budget_hz == NUCLEO_CPU_STEP_BUDGET_HZ);
 
 /// `ticks` of a `from_hz` clock in ticks of a `to_hz` clock (`to_hz <= from_hz`).
 #[allow(

@@ -3,8 +3,9 @@
 //! the CPU refills half by half.
 //!
 //! Each joint's timer (see `pins.rs` for the map) runs PWM mode 1 on CH1 (joint 5: CH1N)
-//! with ARR and CCR1 preloaded. At each update event its DMA request makes a DMA2 stream
-//! write the next [`arm_step::PulsePeriod`] (ARR, RCR, CCR1) through the timer's DMA burst register
+//! with ARR and CCR1 preloaded. At each update event its DMA request makes a DMA stream
+//! (joints 0-3, the APB1 timers: DMA1 streams 0-3; joints 4-7, the APB2 timers: DMA2
+//! streams 0-3; `registers::joint_stream`) write the next [`arm_step::PulsePeriod`] (ARR, RCR, CCR1) through the timer's DMA burst register
 //! (`DCR.DBA` = ARR, three transfers): a period that starts with a pulse of `high` ticks,
 //! or none. Rising edges are period starts: placed by the counter to the tick, with no
 //! CPU involved. The stream is circular over [`HALF`]` * 2` periods; its half-transfer and
@@ -33,9 +34,11 @@
 //! header has every interleaving). The interrupts are bounded: a refill writes one half and returns; nothing
 //! re-pends itself, so no step path can starve the tasks.
 //!
-//! Memory: the buffers are a static in SRAM1 (`.sram1`, zeroed by [`init`]): DMA2 reaches
-//! it (never DTCM), and MPU region 0 makes all of SRAM1 non-cacheable, so with the D-cache
-//! on the streams read what the refills wrote ([`dma_buffer_region`], `memory.rs`).
+//! Memory: the buffers are a static in SRAM2 (`.sram2`, zeroed by [`init`]): DMA1 and DMA2
+//! reach it (never DTCM), no other DMA uses it (the Ethernet DMA's descriptors and packets
+//! are in SRAM1, so the streams' reads never wait behind it: issue 34), and MPU region 2
+//! makes all of SRAM2 non-cacheable, so with the D-cache on the streams read what the
+//! refills wrote ([`dma_buffer_region`], `memory.rs`).
 //!
 //! Files: this one has the board's profile (its figures, from arm-core's `profile`), the buffers and [`init`]; `registers.rs` the
 //! joint timers' and streams' registers (loading a run's prelude, where a stream stands);
@@ -64,7 +67,7 @@ pub use service::SERVICE_IRQ;
 pub use stop::{kill_handled, kill_step_outputs, stop_all_step_outputs};
 
 use refill::STREAM_IRQS;
-use registers::{configure_joint_timer, joint_timer};
+use registers::{configure_joint_timer, dmamux_channel, joint_timer};
 
 /// This board's profile (arm-core's `profile`: every per-board figure, with its reason):
 /// `--features tmc-drivers` for TMC-class driver timing, otherwise the opto-isolated
@@ -103,12 +106,13 @@ struct Buffers(UnsafeCell<[JointBuffer<HALF>; MAX_JOINTS]>);
 // half (the refill checks where the stream is before it writes).
 unsafe impl Sync for Buffers {}
 
-/// In SRAM1 (`.sram1`, NOLOAD: zeroed by [`init`]), which MPU region 0 makes
-/// non-cacheable (`memory.rs`): the DMA never reads a period still in the D-cache.
-#[unsafe(link_section = ".sram1.step_buffers")]
+/// In SRAM2 (`.sram2`, NOLOAD: zeroed by [`init`]), which MPU region 2 makes
+/// non-cacheable (`memory.rs`): the DMA never reads a period still in the D-cache, and
+/// never waits for the Ethernet DMA (SRAM1).
+#[unsafe(link_section = ".sram2.step_buffers")]
 static BUFFERS: Buffers = Buffers(UnsafeCell::new([JointBuffer::ZERO; MAX_JOINTS]));
 
-/// Address and length of the step DMA buffers (inside SRAM1, MPU region 0; logged at
+/// Address and length of the step DMA buffers (inside SRAM2, MPU region 2; logged at
 /// debug level by [`init`]).
 pub fn dma_buffer_region() -> (usize, usize) {
     (
@@ -140,12 +144,12 @@ fn route_lockup_to_timer_breaks() {
     unsafe { cfgr.write_volatile(cfgr.read_volatile() | SYSCFG_CFGR_CM7L) };
 }
 
-/// One-time set-up: clocks of the joint timers and DMA2, every timer's output forced
+/// One-time set-up: clocks of the joint timers, DMA1 and DMA2, every timer's output forced
 /// inactive (STEP low) and enabled, DMAMUX routes, the streams' and the step service's
 /// interrupts at P2 (the step lock's level, below the step clock's P1, which makes the
 /// DIR changes). Call before the STEP pins are switched to their timers.
 pub fn init() {
-    // SAFETY: before any stream runs or any refill can touch them: `.sram1` is NOLOAD,
+    // SAFETY: before any stream runs or any refill can touch them: `.sram2` is NOLOAD,
     // so the buffers are zeroed here, not by the reset handler.
     // `JointBuffer::ZERO` is all zero bytes.
     unsafe { BUFFERS.0.get().write_bytes(0, 1) };
@@ -168,7 +172,10 @@ pub fn init() {
         w.set_tim16en(true);
         w.set_tim17en(true);
     });
-    pac::RCC.ahb1enr().modify(|w| w.set_dma2en(true));
+    pac::RCC.ahb1enr().modify(|w| {
+        w.set_dma1en(true);
+        w.set_dma2en(true);
+    });
     for joint in 0..MAX_JOINTS {
         if let Err(e) = configure_joint_timer(joint) {
             // Loud, not fatal (issue 34): every run's start checks again and refuses, so
@@ -180,15 +187,15 @@ pub fn init() {
                 e
             );
         }
-        // DMA2 stream `joint` is DMAMUX1 channel 8 + joint.
         pac::DMAMUX1
-            .ccr(8 + joint)
+            .ccr(dmamux_channel(joint))
             .write(|w| w.set_dmareq_id(joint_timer(joint).request));
     }
     route_lockup_to_timer_breaks();
     for irq in STREAM_IRQS {
         irq.set_priority(STEP_LOCK_PRIORITY);
-        // SAFETY: the handlers only touch STEP (its lock, at their level) and DMA2's flags.
+        // SAFETY: the handlers only touch STEP (its lock, at their level) and their
+        // streams' flags.
         unsafe { irq.enable() };
     }
     service::init();

@@ -1,33 +1,35 @@
-//! The DMA2 streams' half-transfer and transfer-complete interrupts: each refills the
-//! half its stream just left, or stops everything on an underrun or a transfer error.
+//! The step streams' half-transfer and transfer-complete interrupts (DMA1 streams 0-3 for
+//! joints 0-3, DMA2 streams 0-3 for joints 4-7: `registers::joint_stream`): each refills
+//! the half its stream just left, or stops everything on an underrun or a transfer error.
 
 use arm_core::{StepBackend, StepProgress};
 use arm_step::MAX_JOINTS;
-use embassy_stm32::{interrupt, pac};
+use embassy_stm32::interrupt;
 
-use super::registers::{BUFFER_WORDS, WORDS_PER_PERIOD, clear_stream_flags};
+use super::registers::{BUFFER_WORDS, WORDS_PER_PERIOD, clear_stream_flags, joint_stream};
 use super::{HALF, STEP};
 
 /// The streams' interrupts, joint order.
 pub(super) const STREAM_IRQS: [interrupt::Interrupt; MAX_JOINTS] = [
+    interrupt::DMA1_STREAM0,
+    interrupt::DMA1_STREAM1,
+    interrupt::DMA1_STREAM2,
+    interrupt::DMA1_STREAM3,
     interrupt::DMA2_STREAM0,
     interrupt::DMA2_STREAM1,
     interrupt::DMA2_STREAM2,
     interrupt::DMA2_STREAM3,
-    interrupt::DMA2_STREAM4,
-    interrupt::DMA2_STREAM5,
-    interrupt::DMA2_STREAM6,
-    interrupt::DMA2_STREAM7,
 ];
 
 /// The body of joint `joint`'s stream interrupt: refill the half the stream left, or stop
 /// everything on an underrun or a transfer error.
 fn refill(joint: usize) {
-    let n = joint % 4;
-    let flags = pac::DMA2.isr(joint / 4).read();
+    let (dma, number) = joint_stream(joint);
+    let n = number % 4;
+    let flags = dma.isr(number / 4).read();
     clear_stream_flags(joint);
     let (half_played, full_played) = (flags.htif(n), flags.tcif(n));
-    let remaining = pac::DMA2.st(joint).ndtr().read().ndt() as usize;
+    let remaining = dma.st(number).ndtr().read().ndt() as usize;
     let next = BUFFER_WORDS.saturating_sub(remaining) / WORDS_PER_PERIOD;
     // HT: half 0 played, the stream is in half 1. TC: half 1 played, back in half 0.
     let half = usize::from(full_played);
@@ -58,34 +60,34 @@ fn refill(joint: usize) {
 }
 
 #[interrupt]
-fn DMA2_STREAM0() {
+fn DMA1_STREAM0() {
     refill(0);
 }
 #[interrupt]
-fn DMA2_STREAM1() {
+fn DMA1_STREAM1() {
     refill(1);
 }
 #[interrupt]
-fn DMA2_STREAM2() {
+fn DMA1_STREAM2() {
     refill(2);
 }
 #[interrupt]
-fn DMA2_STREAM3() {
+fn DMA1_STREAM3() {
     refill(3);
 }
 #[interrupt]
-fn DMA2_STREAM4() {
+fn DMA2_STREAM0() {
     refill(4);
 }
 #[interrupt]
-fn DMA2_STREAM5() {
+fn DMA2_STREAM1() {
     refill(5);
 }
 #[interrupt]
-fn DMA2_STREAM6() {
+fn DMA2_STREAM2() {
     refill(6);
 }
 #[interrupt]
-fn DMA2_STREAM7() {
+fn DMA2_STREAM3() {
     refill(7);
 }

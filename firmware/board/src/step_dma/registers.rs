@@ -1,5 +1,5 @@
-//! The joint timers' and DMA2 streams' registers: which timer a joint has, loading a
-//! timer with a run's prelude and starting its stream, where a stream stands, its flags.
+//! The joint timers' and DMA streams' registers: which timer and stream a joint has, loading
+//! a timer with a run's prelude and starting its stream, where a stream stands, its flags.
 
 use core::ptr::addr_of;
 
@@ -225,6 +225,43 @@ pub(super) fn broken(joint: usize) -> bool {
     timer.has_moe && timer.read(reg::BDTR) & reg::BDTR_MOE == 0
 }
 
+/// Joints per DMA controller: joints 0-3 (TIM2, TIM5, TIM3, TIM4, on APB1) on DMA1, joints
+/// 4-7 (TIM1, TIM8, TIM16, TIM17, on APB2) on DMA2 (issue 34). Split by timer bus, each
+/// controller writes its bursts through its own AHB-to-APB bridge, so neither waits for the
+/// other's, and a burst waits behind at most three others (RM0433 "DMA arbitration": every
+/// stream at very high priority, the lower number first), not seven: the profile's
+/// `min_dma_period_ns` derivation (`arm_core::profile`).
+pub(super) const JOINTS_PER_DMA: usize = 4;
+
+/// Joint `joint`'s DMA controller and stream number (stream `joint % 4`: the step streams
+/// are each controller's lowest, so they win ties with the serial port's DMA1 streams 4-5).
+pub(super) fn joint_stream(joint: usize) -> (pac::dma::Dma, usize) {
+    let dma = if joint < JOINTS_PER_DMA {
+        pac::DMA1
+    } else {
+        pac::DMA2
+    };
+    (dma, joint % JOINTS_PER_DMA)
+}
+
+/// DMAMUX1 channel of joint `joint`'s stream (channels 0-7 feed DMA1 streams 0-7, 8-15
+/// DMA2's: RM0433 "DMAMUX mapping").
+pub(super) fn dmamux_channel(joint: usize) -> usize {
+    let (_, stream) = joint_stream(joint);
+    if joint < JOINTS_PER_DMA {
+        stream
+    } else {
+        8 + stream
+    }
+}
+
+const _: () = assert!(2 * JOINTS_PER_DMA == MAX_JOINTS);
+// The profile's DMA timing model (`arm_core::profile::StepDma`, the step-rate ceiling and
+// the shortest period derived from it) describes this split and this burst.
+const _: () = assert!(super::PROFILE.step_dma.controllers == 2);
+const _: () = assert!(super::PROFILE.step_dma.streams_per_controller as usize == JOINTS_PER_DMA);
+const _: () = assert!(WORDS_PER_PERIOD == arm_core::profile::DMA_WORDS_PER_PERIOD as usize);
+
 /// Words the stream moves per period (ARR, RCR, CCR1).
 pub(super) use board_logic::step_stream::WORDS_PER_PERIOD;
 /// Words in one joint's whole circular buffer.
@@ -236,9 +273,10 @@ pub use board_logic::step_stream::StreamPosition;
 /// Where joint `joint`'s stream stands (running, or stopped by [`disable_stream`]):
 /// board-logic's `step_stream::stream_position` of its NDTR and flags.
 pub(super) fn stream_position(joint: usize) -> StreamPosition {
-    let remaining = pac::DMA2.st(joint).ndtr().read().ndt() as usize;
-    let flags = pac::DMA2.isr(joint / 4).read();
-    let n = joint % 4;
+    let (dma, n) = joint_stream(joint);
+    let remaining = dma.st(n).ndtr().read().ndt() as usize;
+    let flags = dma.isr(n / 4).read();
+    let n = n % 4;
     step_stream::stream_position::<HALF>(remaining, flags.htif(n), flags.tcif(n))
 }
 
@@ -258,11 +296,12 @@ const DISABLE_WAIT_READS: u32 = 1_000;
 /// once EN reads 0 a TCIF that no transfer set (board-logic's
 /// `step_stream::tcif_from_disable`) is cleared; HTIF is never set by a disable.
 pub(super) fn disable_stream(joint: usize) {
-    let stream = pac::DMA2.st(joint);
-    let n = joint % 4;
+    let (dma, number) = joint_stream(joint);
+    let stream = dma.st(number);
+    let n = number % 4;
     // NDTR before TCIF: see tcif_from_disable.
     let ndtr = stream.ndtr().read().ndt();
-    let tcif = pac::DMA2.isr(joint / 4).read().tcif(n);
+    let tcif = dma.isr(number / 4).read().tcif(n);
     stream.cr().modify(|w| w.set_en(false));
     for _ in 0..DISABLE_WAIT_READS {
         if !stream.cr().read().en() {
@@ -271,14 +310,15 @@ pub(super) fn disable_stream(joint: usize) {
     }
     let ndtr_after = stream.ndtr().read().ndt();
     if step_stream::tcif_from_disable(step_stream::BeforeDisable { ndtr, tcif }, ndtr_after) {
-        pac::DMA2.ifcr(joint / 4).write(|w| w.set_tcif(n, true));
+        dma.ifcr(number / 4).write(|w| w.set_tcif(n, true));
     }
 }
 
-/// Clears every interrupt flag of DMA2 stream `joint`.
+/// Clears every interrupt flag of joint `joint`'s stream.
 pub(super) fn clear_stream_flags(joint: usize) {
-    let n = joint % 4;
-    pac::DMA2.ifcr(joint / 4).write(|w| {
+    let (dma, number) = joint_stream(joint);
+    let n = number % 4;
+    dma.ifcr(number / 4).write(|w| {
         w.set_feif(n, true);
         w.set_dmeif(n, true);
         w.set_teif(n, true);
@@ -310,7 +350,8 @@ pub(super) fn load_joint(joint: usize, prelude: &[PulsePeriod; PRELUDE]) {
     timer.write(reg::SR, 0);
     timer.write(reg::DCR, reg::DCR_ARR_RCR_CCR1);
 
-    let stream = pac::DMA2.st(joint);
+    let (dma, number) = joint_stream(joint);
+    let stream = dma.st(number);
     stream.cr().modify(|w| w.set_en(false));
     clear_stream_flags(joint);
     stream.par().write_value(timer.dmar());
