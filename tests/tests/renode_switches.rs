@@ -129,7 +129,7 @@ fn position(board: &RenodeBoard, arm: &armctl::Client) -> [i32; MAX_JOINTS] {
 #[test]
 fn a_max_limit_switch_stops_every_step_within_a_period_and_latches() {
     require_renode!();
-    let mut board = RenodeBoard::start_with_step_path(WATCH_SWITCHES);
+    let mut board = RenodeBoard::start_switches_with_step_path(WATCH_SWITCHES);
     let arm = Arc::new(board.connect_from(HOSTS[0], emulated()));
     let status = arm.status().unwrap();
     assert_eq!(status.state, State::Stopped, "{status:?}\n{}", board.log());
@@ -256,7 +256,7 @@ const HOME_SWITCH: i32 = 0;
 #[test]
 fn home_on_joint_0s_switch_sets_physical_minus_switch_plus_offset() {
     require_renode!();
-    let mut board = RenodeBoard::start_with_step_path(WATCH_SWITCHES);
+    let mut board = RenodeBoard::start_switches_with_step_path(WATCH_SWITCHES);
     let arm = board.connect_from(HOSTS[0], emulated());
     let settings = HomingSettings {
         enabled: true,
