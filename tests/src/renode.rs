@@ -60,6 +60,8 @@ static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
 static ELF: Mutex<Option<PathBuf>> = Mutex::new(None);
 /// The `tmc-drivers` build's ELF, once built (see [`firmware_elf_tmc`]).
 static ELF_TMC: Mutex<Option<PathBuf>> = Mutex::new(None);
+/// The `switch-inputs` build's ELF, once built (see [`firmware_elf_switches`]).
+static ELF_SWITCHES: Mutex<Option<PathBuf>> = Mutex::new(None);
 
 /// Substrings of a decoded log line that mean the firmware failed: the fault path
 /// (`firmware/board/src/fault.rs`) and the watchdog task's stall line (a check 100 ms late).
@@ -236,6 +238,16 @@ pub fn firmware_elf_tmc() -> PathBuf {
         return PathBuf::from(path);
     }
     build_firmware(&ELF_TMC, Some("tmc-drivers"))
+}
+
+/// The board's ELF with the limit and home switch inputs (`cargo fw --features
+/// switch-inputs`, issue 33: opt-in, docs/BOARD.md), `RENODE_FIRMWARE_SWITCHES` if set;
+/// copied beside `fw/firmware` as `firmware-switch-inputs`.
+pub fn firmware_elf_switches() -> PathBuf {
+    if let Some(path) = std::env::var_os("RENODE_FIRMWARE_SWITCHES") {
+        return PathBuf::from(path);
+    }
+    build_firmware(&ELF_SWITCHES, Some("switch-inputs"))
 }
 
 fn build_firmware(cache: &Mutex<Option<PathBuf>>, feature: Option<&str>) -> PathBuf {
@@ -657,6 +669,12 @@ impl RenodeBoard {
     /// ([`firmware_elf_tmc`]).
     pub fn start_tmc_with_step_path(monitor_commands: &str) -> RenodeBoard {
         Self::start_inner(Some(monitor_commands), firmware_elf_tmc())
+    }
+
+    /// As [`RenodeBoard::start_with_step_path`], with the `switch-inputs` build
+    /// ([`firmware_elf_switches`]).
+    pub fn start_switches_with_step_path(monitor_commands: &str) -> RenodeBoard {
+        Self::start_inner(Some(monitor_commands), firmware_elf_switches())
     }
 
     fn start_inner(step_path: Option<&str>, elf_path: PathBuf) -> RenodeBoard {

@@ -12,14 +12,14 @@
 //!
 //! | priority | what | why |
 //! |---|---|---|
-//! | P0 (highest) | EXTI0: the wired e-stop input on PC0 ([`estop`]): every STEP output stopped (register writes), a gripper burst cut (two more), then the step service pended | nothing may delay an e-stop; it preempts even a DIR change, which no longer matters once the run is stopped |
+//! | P0 (highest) | EXTI0: the wired e-stop input on PC0 ([`estop`]): every STEP output stopped (register writes), a gripper burst cut (two more), then the step service pended; EXTI1-3, EXTI9_5, EXTI15_10: the limit and home switches (`switches`, issue 33): stamped, a limit trip stops every STEP output the same way, the step service pended | nothing may delay an e-stop or a limit; it preempts even a DIR change, which no longer matters once the run is stopped |
 //! | P1 | TIM13: step clock ([`step_timer`]): DIR changes at reversals (from lock-free queues), the run's end handed to the step service | a DIR change must come between a pulse's fall and the next pulse's setup |
 //! | P2 | DMA1 and DMA2 streams 0-3: STEP buffer refills ([`step_dma`]); TIM7's vector: the step service (run end, the e-stop's halt); TIM15: gripper burst reloads ([`gripper`]) | a half (64 periods) of slack; 128 PWM periods |
 //! | P3 | TIM12: embassy-time | task wake-ups |
 //! | P4 | Ethernet (and its look at STOPPED in each received frame, `net::RxPeek`), USART6, DMA, flash, RNG | driver bookkeeping; their tasks wait anyway. The Ethernet look halts the steps for a STOPPED within microseconds of its frame landing, whatever thread mode does (issue 30 part 4), and keeps two receive descriptors free by dropping the oldest frames the runner has not taken, so none lands in a full ring; at P4 it never holds off P0-P3 |
 //! | thread mode | every task, one executor | see below |
 //!
-//! P0 is the e-stop input's alone; the others kept their order, one level lower each
+//! P0 is the e-stop input's and the switches' alone; the others kept their order, one level lower each
 //! (issue 18). Critical sections mask every interrupt (`cortex-m`'s single-core
 //! implementation, timed by [`diag`] for the DIAG report: the longest one and where it was
 //! opened, `armctl diag`), the e-stop's and the DIR changes' too, so the ones left are short;
@@ -113,6 +113,8 @@ mod serial;
 mod settings;
 mod step_dma;
 mod step_timer;
+#[cfg(feature = "switch-inputs")]
+mod switches;
 
 use core::future::Future;
 
@@ -348,6 +350,24 @@ async fn main(spawner: Spawner) -> ! {
     // The wired e-stop input once the step outputs can be stopped (an input open at boot
     // latches at once).
     estop::start(p.PC0);
+    // The limit and home switches likewise (an input tripped at boot latches at once).
+    #[cfg(feature = "switch-inputs")]
+    let switch_line = Some(switches::start(switches::SwitchPins {
+        pe2: p.PE2,
+        pa3: p.PA3,
+        pe6: p.PE6,
+        pe7: p.PE7,
+        pe8: p.PE8,
+        pb1: p.PB1,
+        pe10: p.PE10,
+        pe11: p.PE11,
+        pe12: p.PE12,
+        pe13: p.PE13,
+        pe14: p.PE14,
+        pe15: p.PE15,
+    }));
+    #[cfg(not(feature = "switch-inputs"))]
+    let switch_line = None;
     // The joint timers and their DMA streams (DMA1 and DMA2 streams 0-3) are driven
     // through their registers (step_dma/); their handles are not used by anything else.
     let _step_hw = (
@@ -430,7 +450,7 @@ async fn main(spawner: Spawner) -> ! {
             estop: Some(&estop::LINE),
             // The safety door's pin is chosen (docs/BOARD.md), not wired yet.
             door: None,
-            switches: None,
+            switches: switch_line,
         },
     ));
 

@@ -7,7 +7,9 @@
 //!   the producer, behind the step lock, which TIM13 must never take (`lock.rs`);
 //! - the wired e-stop input (EXTI0, P0), after it forced every STEP output off: the
 //!   backend's halt (positions unwound, no run until the input closes) and the trajectory
-//!   task's wake-up (`crate::estop::service`).
+//!   task's wake-up (`crate::estop::service`);
+//! - the limit and home switches' EXTI handlers (P0): each edge fed to the switch line
+//!   with the joint's count, a limit trip's halt (`crate::switches::service`).
 
 use embassy_stm32::interrupt::InterruptExt;
 use embassy_stm32::{interrupt, pac};
@@ -30,6 +32,8 @@ pub(super) fn init() {
 #[interrupt]
 fn TIM7() {
     crate::estop::service();
+    #[cfg(feature = "switch-inputs")]
+    crate::switches::service();
     STEP.on_interrupt(&crate::BUS.step_progress, |steps| {
         ((), steps.on_service(crate::step_timer::now_tick()))
     });
