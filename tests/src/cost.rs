@@ -9,16 +9,20 @@ use std::collections::HashMap;
 use std::path::Path;
 
 /// Exception numbers (IPSR) of the board's step path: TIM13 (IRQ 44), the step service
-/// (TIM7's vector, IRQ 55), DMA2 streams 0-7 (IRQ 56-60, 68-70).
+/// (TIM7's vector, IRQ 55), the step streams (`firmware/board/src/step_dma/refill.rs`
+/// `STREAM_IRQS`: joints 0-3 on DMA1 streams 0-3, IRQ 11-14; joints 4-7 on DMA2 streams
+/// 0-3, IRQ 56-59, since issue 34 split them by timer bus).
 pub const TIM13: u32 = 16 + 44;
 /// The step service's exception number (TIM7's vector).
 pub const STEP_SERVICE: u32 = 16 + 55;
-/// DMA2 streams 0-7's exception numbers.
-pub const DMA2_STREAMS: [u32; 8] = [72, 73, 74, 75, 76, 84, 85, 86];
+/// The step streams' exception numbers, joint 0 first: DMA1 streams 0-3, DMA2 streams 0-3.
+/// (Until the split every joint was on DMA2; counting DMA2 alone after it left joints 0-3's
+/// refills out of the figures: 20 instructions per step instead of 35-49.)
+pub const STEP_STREAMS: [u32; 8] = [27, 28, 29, 30, 72, 73, 74, 75];
 
 /// Every exception the step path's interrupts run in.
 pub fn step_path_exceptions() -> impl Iterator<Item = u32> {
-    [TIM13, STEP_SERVICE].into_iter().chain(DMA2_STREAMS)
+    [TIM13, STEP_SERVICE].into_iter().chain(STEP_STREAMS)
 }
 
 /// A name for an exception number.
@@ -30,10 +34,14 @@ pub fn exception_name(n: u32) -> String {
         22 => "EXTI0 (e-stop input)".into(),
         59 => "TIM8_BRK_TIM12 (embassy-time)".into(),
         77 => "ETH".into(),
-        n if DMA2_STREAMS.contains(&n) => format!(
-            "DMA2_STREAM{} (refill)",
-            DMA2_STREAMS.iter().position(|&s| s == n).unwrap_or(0)
-        ),
+        n if STEP_STREAMS.contains(&n) => {
+            let joint = STEP_STREAMS.iter().position(|&s| s == n).unwrap_or(0);
+            format!(
+                "DMA{}_STREAM{} (refill, joint {joint})",
+                1 + joint / 4,
+                joint % 4
+            )
+        }
         n if n >= 16 => format!("IRQ {}", n - 16),
         n => format!("exception {n}"),
     }

@@ -158,11 +158,11 @@ fn per_step(board: &RenodeBoard, symbols: &Symbols, name: &str, steps: [i32; MAX
             points.len()
         );
     });
-    let refills: u64 = cost::DMA2_STREAMS
+    let refills: u64 = cost::STEP_STREAMS
         .iter()
         .map(|&n| counts.instructions(n))
         .sum();
-    let refill_entries: u64 = cost::DMA2_STREAMS.iter().map(|&n| counts.entries(n)).sum();
+    let refill_entries: u64 = cost::STEP_STREAMS.iter().map(|&n| counts.entries(n)).sum();
     let tim13 = counts.instructions(cost::TIM13);
     let service = counts.instructions(cost::STEP_SERVICE);
     let start: u64 = counts
