@@ -1161,11 +1161,8 @@ impl<const CAP: usize> Controller<CAP> {
             // point already taken was admitted under other limits.
             Command::LimitsSet(set) => {
                 flash_only(self)?;
-                let mut settings = self.settings;
-                let Some(slot) = settings.limits.get_mut(usize::from(set.joint)) else {
-                    return Err(StatusCode::InvalidConfig);
-                };
-                *slot = set.limits;
+                let settings =
+                    with_joint_setting(self.settings, set.joint, |s| &mut s.limits, set.limits)?;
                 response.deferred = Some(Deferred::SaveSettings(settings));
             }
             Command::LimitsGet | Command::LimitsGetWithAccel => {
@@ -1187,11 +1184,12 @@ impl<const CAP: usize> Controller<CAP> {
                 max_accel_steps_s2,
             } => {
                 flash_only(self)?;
-                let mut settings = self.settings;
-                let Some(slot) = settings.max_accel.get_mut(usize::from(joint)) else {
-                    return Err(StatusCode::InvalidConfig);
-                };
-                *slot = max_accel_steps_s2;
+                let settings = with_joint_setting(
+                    self.settings,
+                    joint,
+                    |s| &mut s.max_accel,
+                    max_accel_steps_s2,
+                )?;
                 response.deferred = Some(Deferred::SaveSettings(settings));
             }
             // The arm's description (issue 31): kept for the hosts, never used here; kept
@@ -1199,11 +1197,8 @@ impl<const CAP: usize> Controller<CAP> {
             // host never reads a description half-way through a config push's run.
             Command::JointDescSet(set) => {
                 flash_only(self)?;
-                let mut settings = self.settings;
-                let Some(slot) = settings.desc.get_mut(usize::from(set.joint)) else {
-                    return Err(StatusCode::InvalidConfig);
-                };
-                *slot = set.desc;
+                let settings =
+                    with_joint_setting(self.settings, set.joint, |s| &mut s.desc, set.desc)?;
                 response.deferred = Some(Deferred::SaveSettings(settings));
             }
             Command::JointDescGet { joint } => {
@@ -1262,11 +1257,8 @@ impl<const CAP: usize> Controller<CAP> {
             // Kept with the limits, as LIMITS_SET.
             Command::HomingSet(set) => {
                 flash_only(self)?;
-                let mut settings = self.settings;
-                let Some(slot) = settings.homing.get_mut(usize::from(set.joint)) else {
-                    return Err(StatusCode::InvalidConfig);
-                };
-                *slot = set.settings;
+                let settings =
+                    with_joint_setting(self.settings, set.joint, |s| &mut s.homing, set.settings)?;
                 response.deferred = Some(Deferred::SaveSettings(settings));
             }
             Command::HomingGet { joint } => {
@@ -1568,4 +1560,21 @@ fn blank_ack(to: Endpoint, seq: u8, tag: u8, status: StatusCode) -> Reply {
 
 fn saturate(n: usize) -> u16 {
     u16::try_from(n).unwrap_or(u16::MAX)
+}
+
+/// `settings` with joint `joint`'s entry of one per-joint table (`table`: the limits,
+/// accelerations, descriptions or homing settings) set to `value`, for the commands that
+/// keep one joint's setting and save it before their ACK; `INVALID_CONFIG` for a joint
+/// past the table.
+fn with_joint_setting<T>(
+    mut settings: PersistentSettings,
+    joint: u8,
+    table: impl FnOnce(&mut PersistentSettings) -> &mut [T],
+    value: T,
+) -> Result<PersistentSettings, StatusCode> {
+    let slot = table(&mut settings)
+        .get_mut(usize::from(joint))
+        .ok_or(StatusCode::InvalidConfig)?;
+    *slot = value;
+    Ok(settings)
 }
