@@ -455,6 +455,15 @@ fn bad_requests_get_errors_and_leave_the_run_alone() {
     assert_eq!(status, 200, "{body}");
     let (status, body) = system_tests::pendant::request(url, "POST", "/api/run", b"");
     assert_eq!(status, 200, "{body}");
+    // A bad file checked while the run starts is refused and leaves the run's file alone
+    // (a CI run saw the run read this upload: "cannot parse: line 2").
+    let (status, body) = system_tests::pendant::request(
+        url,
+        "POST",
+        "/api/check?name=t.csv",
+        b"t,j0\nnot,a,number\n",
+    );
+    assert!((400..500).contains(&status), "{status} {body}");
 
     let host = url.trim_start_matches("http://").trim_end_matches('/');
     let raw = |bytes: &[u8]| -> String {

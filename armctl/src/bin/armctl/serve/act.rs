@@ -40,8 +40,21 @@ pub struct Pendant {
     job: Mutex<Option<Cancel>>,
     /// Where uploaded trajectory files are kept (a directory of this process).
     dir: PathBuf,
-    /// The last file checked (kept here, and its name in the page): what `run` runs.
-    checked: Mutex<Option<(PathBuf, String)>>,
+    /// The last file checked: what `run` runs. Its bytes are kept, not a path, so a later
+    /// upload (even one refused) never changes the file a run reads.
+    checked: Mutex<Option<Checked>>,
+    /// Numbers each check's own copy, so two checks at once never share a file.
+    checks: std::sync::atomic::AtomicU64,
+}
+
+/// A trajectory file that passed its check.
+#[derive(Clone)]
+struct Checked {
+    /// Its name as the page chose it (messages name it so).
+    name: String,
+    /// "json" or "csv": how it is read.
+    ext: String,
+    body: Arc<[u8]>,
 }
 
 fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
@@ -56,6 +69,7 @@ impl Pendant {
             job: Mutex::new(None),
             dir,
             checked: Mutex::new(None),
+            checks: std::sync::atomic::AtomicU64::new(0),
         }
     }
 
@@ -270,28 +284,46 @@ impl Pendant {
             Some(e @ ("json" | "csv")) => e.to_string(),
             _ => return Err(format!("{name}: a .json (JointTrajectory) or .csv file")),
         };
-        let path = self.dir.join(format!("trajectory.{ext}"));
-        std::fs::write(&path, body).map_err(|e| format!("{}: {e}", path.display()))?;
+        let n = self
+            .checks
+            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let path = self.dir.join(format!("check-{n}.{ext}"));
         *lock(&self.checked) = None;
-        // Messages name the file as the page chose it, not the copy kept here.
-        let converted = self
-            .convert(&path, None)
-            .map_err(|e| {
-                let e = e.replace(&path.display().to_string(), name);
-                if e.contains("--config FILE") {
-                    // The page takes no config: the controller's description stands for it.
-                    format!(
-                        "{e}; for the pendant, store the arm's description on the controller: `armctl config push ARM.json`"
-                    )
-                } else {
-                    e
-                }
-            })?;
-        *lock(&self.checked) = Some((path, name.to_string()));
+        let converted = self.convert_copy(&path, name, body, None);
+        let _ = std::fs::remove_file(&path);
+        let converted = converted?;
+        *lock(&self.checked) = Some(Checked {
+            name: name.to_string(),
+            ext,
+            body: body.into(),
+        });
         Ok(format!(
             "{name}: {}",
             crate::run::points_summary(&converted.points, converted.waypoints)
         ))
+    }
+
+    /// `body` written to `path` and converted (see [`Pendant::convert`]); messages name the
+    /// file as the page chose it (`name`), not the copy kept here.
+    fn convert_copy(
+        &self,
+        path: &std::path::Path,
+        name: &str,
+        body: &[u8],
+        current: Option<[i32; MAX_JOINTS]>,
+    ) -> Result<crate::run::Converted, String> {
+        std::fs::write(path, body).map_err(|e| format!("{}: {e}", path.display()))?;
+        self.convert(path, current).map_err(|e| {
+            let e = e.replace(&path.display().to_string(), name);
+            if e.contains("--config FILE") {
+                // The page takes no config: the controller's description stands for it.
+                format!(
+                    "{e}; for the pendant, store the arm's description on the controller: `armctl config push ARM.json`"
+                )
+            } else {
+                e
+            }
+        })
     }
 
     /// The file at `path` as points from `current` (the last position reported when
@@ -337,7 +369,7 @@ impl Pendant {
 
     /// Runs the trajectory checked last, converted again from where the arm is now.
     pub fn run(self: &Arc<Self>) -> Result<String, String> {
-        let Some((path, name)) = lock(&self.checked).clone() else {
+        let Some(checked) = lock(&self.checked).clone() else {
             return Err("choose a trajectory file first (it is checked before it runs)".into());
         };
         self.may_move()?;
@@ -345,12 +377,15 @@ impl Pendant {
         if let Some(status) = status {
             crate::motion::ready_to_move(&status)?;
         }
-        self.start_job(format!("run {name}"), move |me, cancel| {
+        self.start_job(format!("run {}", checked.name), move |me, cancel| {
             let current = me
                 .arm
                 .current_location(Duration::from_secs(2))
                 .map_err(|e| e.to_string())?;
-            let converted = me.convert(&path, Some(current.position))?;
+            // One job at a time (start_job), so the run's copy is its own.
+            let path = me.dir.join(format!("run.{}", checked.ext));
+            let converted =
+                me.convert_copy(&path, &checked.name, &checked.body, Some(current.position))?;
             let points = converted.points;
             let joints = me.live.lock().joints().max(1);
             let mut t = 0.0;
