@@ -149,8 +149,10 @@ use crate::step_timer::StepTimer;
 bind_interrupts!(
     /// Interrupt handlers of the embassy drivers.
     pub struct Irqs {
-        // Ours first: it reads the DMA's status before embassy's clears every flag set.
-        ETH => net::RxPeek, eth::InterruptHandler;
+        // RxFlags reads the DMA's drop flags before embassy's handler clears every flag
+        // set; RxPeek looks at the ring after it, so a frame landing during the look
+        // raises the interrupt again.
+        ETH => net::RxFlags, eth::InterruptHandler, net::RxPeek;
         RNG => rng::InterruptHandler<peripherals::RNG>;
         FLASH => flash::InterruptHandler;
         USART6 => usart::InterruptHandler<peripherals::USART6>;

@@ -15,9 +15,10 @@
 //! The MAC's descriptors and packet buffers ([`PacketQueue`]) are in SRAM1, non-cacheable
 //! (see `memory.rs`): the Ethernet DMA cannot reach DTCM and does not see the D-cache.
 //!
-//! [`RxPeek`] is the second half of the `ETH` interrupt (after embassy's, which wakes the
-//! runner): it looks at every receive buffer the DMA has just filled and halts the steps
-//! for a STOPPED there (arm-core's `ingress::stop_in_frame`; issue 30 part 4), whatever
+//! [`RxPeek`] is the last part of the `ETH` interrupt (after embassy's, which wakes the
+//! runner and clears the receive flag; [`RxFlags`] reads the drop flags before that): it
+//! looks at every receive buffer the DMA has just filled and halts the steps for a
+//! STOPPED there (arm-core's `ingress::stop_in_frame`; issue 30 part 4), whatever
 //! thread mode is doing, and counts the frames the MAC dropped because the ring was full.
 //! It also keeps the ring from filling ([`make_room`]): while the stack's runner does not
 //! take the frames (a flood it cannot keep up with, or thread mode busy with a window of
@@ -221,8 +222,34 @@ unsafe impl Sync for EthInterruptOnly {}
 
 static PEEK: EthInterruptOnly = EthInterruptOnly(UnsafeCell::new(RingPeek::new()));
 
-/// The `ETH` interrupt's look at STOPPED (bound after embassy's handler, whose
-/// flag-clearing `modify` is left to run after this one reads the status; see `main.rs`).
+/// The first part of the `ETH` interrupt (bound before embassy's handler, whose
+/// flag-clearing `modify` clears every flag it reads set): the receive-side flags and drop
+/// counters, kept for [`RxPeek`], which runs after embassy's handler.
+pub struct RxFlags;
+
+/// What [`RxFlags`] read for [`RxPeek`] in the same interrupt: drops, then the "receive
+/// buffer unavailable" flag. Only the `ETH` interrupt touches it (atomics for `static`).
+static RX_DROPS: [AtomicU32; 2] = [AtomicU32::new(0), AtomicU32::new(0)];
+
+impl Handler<EthIrq> for RxFlags {
+    unsafe fn on_interrupt() {
+        let dma = pac::ETH.ethernet_dma();
+        // Reading these counters clears them (RM0433): each drop is counted once.
+        let full = u32::from(dma.dmacsr().read().rbu());
+        let missed = pac::ETH.ethernet_mtl().mtlrx_qmpocr().read();
+        let dropped = u32::from(missed.ovfpktcnt())
+            + u32::from(missed.mispktcnt())
+            + u32::from(dma.dmacmfcr().read().mfc());
+        RX_DROPS[0].store(dropped, Ordering::Relaxed);
+        RX_DROPS[1].store(full, Ordering::Relaxed);
+    }
+}
+
+/// The `ETH` interrupt's look at STOPPED, bound *after* embassy's handler: that one clears
+/// the receive flag, so a frame landing while this looks raises the interrupt again and
+/// is looked at then. (Bound before it, the look ran first and the flag was cleared after
+/// it: a frame that landed during the look was never looked at; the runner's first look
+/// took it, `renode.rs` saw it once as 4 of 5 STOPPEDs halted by the interrupt.)
 ///
 /// At P4, the lowest level: the e-stop input, the DIR changes, the step refills and the
 /// time driver all preempt it, and it takes no lock they wait for but the step lock of
@@ -233,13 +260,8 @@ pub struct RxPeek;
 
 impl Handler<EthIrq> for RxPeek {
     unsafe fn on_interrupt() {
-        let dma = pac::ETH.ethernet_dma();
-        // Reading these counters clears them (RM0433): each drop is counted once.
-        let full = u32::from(dma.dmacsr().read().rbu());
-        let missed = pac::ETH.ethernet_mtl().mtlrx_qmpocr().read();
-        let dropped = u32::from(missed.ovfpktcnt())
-            + u32::from(missed.mispktcnt())
-            + u32::from(dma.dmacmfcr().read().mfc());
+        let dropped = RX_DROPS[0].swap(0, Ordering::Relaxed);
+        let full = RX_DROPS[1].swap(0, Ordering::Relaxed);
         let (stops, free) = peek_filled_buffers();
         let made_room = make_room(free);
         let dropped = dropped + made_room;
