@@ -29,7 +29,7 @@ create_exception!(
     armctl,
     RunEndedError,
     ArmctlError,
-    "A run ended before every point ran: `.reason` is 'stopped', 'estop_input', 'fault', 'underrun', 'starved' or 'unknown'; `.stopped_by` the STOPPED's sender ('127.0.0.2:40001') if the controller said; `.executed` and `.total` count points."
+    "A run ended before every point ran: `.reason` is 'stopped', 'estop_input', 'fault', 'underrun', 'starved', 'limit_switch' or 'unknown'; `.limit_switch` (joint, 'max' or 'min') for a limit switch's cut; `.stopped_by` the STOPPED's sender ('127.0.0.2:40001') if the controller said; `.executed` and `.total` count points."
 );
 create_exception!(
     armctl,
@@ -79,6 +79,7 @@ pub(crate) fn to_py_err_said(py: Python<'_>, error: Error, message: String) -> P
             total,
             stopped_by,
             controlled,
+            limit_switch,
         } => {
             let err = RunEndedError::new_err(message);
             let value = err.value(py);
@@ -90,6 +91,11 @@ pub(crate) fn to_py_err_said(py: Python<'_>, error: Error, message: String) -> P
             let _ = value.setattr("stopped_by", stopped_by.map(|a| a.to_string()));
             // A controlled underrun (issue 32): slowed along what was held, then stopped.
             let _ = value.setattr("controlled", controlled);
+            // A limit switch's cut (issue 33): (joint, "max" or "min"), if the controller said.
+            let _ = value.setattr(
+                "limit_switch",
+                limit_switch.map(|(joint, max)| (joint, if max { "max" } else { "min" })),
+            );
             err
         }
         Error::Stalled { .. } => StalledError::new_err(message),

@@ -72,6 +72,9 @@ pub enum Error {
         /// within the accelerations, and stopped at the last point it had (issue 32:
         /// STOP_CAUSE detail 1); `false`: a dead stop at speed, or an older controller.
         controlled: bool,
+        /// For [`RunEnd::LimitSwitch`]: the joint and whether its max-side switch tripped
+        /// (`false`: the min side), if the controller said (the STOP_CAUSE report).
+        limit_switch: Option<(u8, bool)>,
     },
     /// An upload made no progress for too long (every ACK lost, or the buffer never drained).
     Stalled {
@@ -119,13 +122,16 @@ pub enum RunEnd {
     /// (`received` > `executed`), or every point had arrived: it fell behind feeding its
     /// own step engine (a controller fault, not the upload's).
     Starved,
+    /// A limit switch tripped (issue 33): the joint stopped at once and is latched until
+    /// UNLOCK.
+    LimitSwitch,
     /// The controller left the upload for a reason it did not say.
     Unknown,
 }
 
 impl RunEnd {
     /// The reason as one lower-case word (`stopped`, `estop_input`, `fault`, `underrun`,
-    /// `starved`, `unknown`): what
+    /// `starved`, `limit_switch`, `unknown`): what
     /// the Python package's `RunEndedError.reason` says.
     pub fn name(self) -> &'static str {
         match self {
@@ -134,6 +140,7 @@ impl RunEnd {
             RunEnd::Fault => "fault",
             RunEnd::Underrun => "underrun",
             RunEnd::Starved => "starved",
+            RunEnd::LimitSwitch => "limit_switch",
             RunEnd::Unknown => "unknown",
         }
     }
@@ -214,6 +221,7 @@ impl fmt::Display for Error {
                 total,
                 stopped_by,
                 controlled,
+                limit_switch,
             } => {
                 let by;
                 let why = match (reason, stopped_by) {
@@ -229,6 +237,19 @@ impl fmt::Display for Error {
                         "the wired e-stop input opened (close it, then `armctl estop-reset`)"
                     }
                     (RunEnd::Fault, _) => "the controller found a fault",
+                    (RunEnd::LimitSwitch, _) => {
+                        by = match limit_switch {
+                            Some((joint, max)) => format!(
+                                "the {} limit switch of joint {joint} tripped (the joint is \
+                                 latched: `armctl unlock`, then move it off the switch)",
+                                if *max { "max" } else { "min" }
+                            ),
+                            None => "a limit switch tripped (the joint is latched: `armctl \
+                                     unlock`, then move it off the switch)"
+                                .to_string(),
+                        };
+                        by.as_str()
+                    }
                     (RunEnd::Underrun, _) if *controlled => {
                         "the trajectory buffer was running dry before every point had \
                          arrived (controlled underrun: the controller slowed along what it \

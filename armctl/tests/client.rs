@@ -254,6 +254,7 @@ fn a_controller_that_falls_behind_is_not_blamed_on_the_upload() {
             total: 1000,
             stopped_by: None,
             controlled: false,
+            limit_switch: None,
         } => assert!(
             *executed >= 50 && received > executed && *received < 1000,
             "{err}"
@@ -285,6 +286,7 @@ fn an_upload_slower_than_the_run_is_reported_as_such() {
             total: 2000,
             stopped_by: None,
             controlled: false,
+            limit_switch: None,
         } => assert_eq!(executed, received, "{err}"),
         other => panic!("expected RunEnded(Underrun), got {other:?}"),
     }

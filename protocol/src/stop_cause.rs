@@ -26,7 +26,7 @@ crate::codes::wire_code! {
         /// not answer properly (nothing moved).
         Fault = 5 => "FAULT",
         /// A limit switch tripped (issue 33): `detail` is the joint in bits 0-6, bit 7 set
-        /// for its max side (no board wires the switches yet).
+        /// for its max side (the simulator; the NUCLEO built with `switch-inputs`).
         LimitSwitch = 6 => "LIMIT_SWITCH",
         /// Reserved: a hold (not made yet).
         Hold = 7 => "HOLD",

@@ -61,6 +61,11 @@ fn home_on_switches_or_by_return_status_names_the_latched_limit_and_unlock() {
     // Joint 1 into its max limit: the move fails, the latch names joint 1's max side.
     let (ok, out, err) = armctl(&sim, &["move", "--relative", "1=400"]);
     assert!(!ok, "the move ran into the limit: {out}{err}");
+    // The move's own error names the switch (it said "a reason it did not say" before).
+    assert!(
+        err.contains("max limit switch of joint 1 tripped"),
+        "{out}{err}"
+    );
     let (ok, out, err) = armctl(&sim, &["status"]);
     assert!(ok, "{err}");
     assert!(out.contains("LATCHED on the max limit of joint 1"), "{out}");

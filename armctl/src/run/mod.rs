@@ -141,6 +141,7 @@ fn run_ended(status: Option<&StatusReport>, total: usize, stop: Option<&StopRepo
             Some(StopCause::EstopInput) => RunEnd::EstopInput,
             Some(StopCause::Fault) => RunEnd::Fault,
             Some(StopCause::Underrun) => underrun(s),
+            Some(StopCause::LimitSwitch) => RunEnd::LimitSwitch,
             Some(_) => RunEnd::Unknown,
             None if s.flags.has(StatusFlags::STOPPED_BY_HOST) => RunEnd::Stopped,
             None if s.flags.has(StatusFlags::UNDERRUN) => underrun(s),
@@ -156,6 +157,9 @@ fn run_ended(status: Option<&StatusReport>, total: usize, stop: Option<&StopRepo
         stopped_by: crate::stopped_by(stop),
         controlled: reason == RunEnd::Underrun
             && stop.is_some_and(|s| s.cause == Some(StopCause::Underrun) && s.detail == 1),
+        limit_switch: stop
+            .filter(|s| reason == RunEnd::LimitSwitch && s.cause == Some(StopCause::LimitSwitch))
+            .map(|s| (s.detail & 0x7f, s.detail & 0x80 != 0)),
     }
 }
 

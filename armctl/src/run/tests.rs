@@ -142,3 +142,32 @@ fn losses_never_shrink_the_window_below_four_frames() {
     assert_eq!(upload::shrunk_window(2.0, 2), 2.0);
     assert_eq!(upload::shrunk_window(1.0, 1), 1.0);
 }
+
+/// Issue 33: a run cut by a limit switch ended "for a reason it did not say" (`unknown`).
+/// The stop cause names the joint and the side, and how to go on.
+#[test]
+fn a_limit_switch_cut_names_the_joint_and_the_side() {
+    let status = StatusReport {
+        state: State::Stopped,
+        more_flags: protocol::MoreFlags(protocol::MoreFlags::of_stop_cause(StopCause::LimitSwitch)),
+        received: 50,
+        executed: 10,
+        ..StatusReport::default()
+    };
+    let stop = StopReport {
+        detail: 0x80 | 2,
+        ..StopReport::of(StopCause::LimitSwitch)
+    };
+    let e = run_ended(Some(&status), 100, Some(&stop));
+    assert_eq!(reason(&e), RunEnd::LimitSwitch, "{e}");
+    assert_eq!(RunEnd::LimitSwitch.name(), "limit_switch");
+    let text = e.to_string();
+    assert!(
+        text.contains("joint 2") && text.contains("max") && text.contains("armctl unlock"),
+        "{text}"
+    );
+    // An older report without the detail still names the cause.
+    let e = run_ended(Some(&status), 100, None);
+    assert_eq!(reason(&e), RunEnd::LimitSwitch, "{e}");
+    assert!(e.to_string().contains("limit switch"), "{e}");
+}
