@@ -34,23 +34,7 @@ impl Client {
         };
         let (tx, rx) = std::sync::mpsc::channel();
         super::lock(&self.shared.switches).push(tx);
-        for _ in 0..self.options.attempts {
-            let ack = self.exchange_unlocked(&Command::StatusWith(ask), None)?;
-            if matches!(
-                ack.status,
-                StatusCode::InvalidConfig | StatusCode::BadLength
-            ) {
-                return Ok(None);
-            }
-            check(Tag::Status, ack)?;
-            if let Some(report) = recv_within(&rx, self.options.report_timeout) {
-                return Ok(Some(report));
-            }
-        }
-        Err(Error::NoReport {
-            command: Tag::Status,
-            attempts: self.options.attempts,
-        })
+        self.ask_status(ask, None, |_| recv_within(&rx, self.options.report_timeout))
     }
 
     /// HOME: starts the homing cycle on the home switches (only while STOPPED; refused

@@ -1,11 +1,11 @@
 //! Issue 32's motion control in flight on the client: HOLD, RESUME, OVERRIDE and the MOTION
 //! report (docs/PROTOCOL.md, "HOLD, RESUME, OVERRIDE").
 
-use protocol::{Ack, Command, MotionReport, StatusAsk, StatusCode, StatusReport, Tag};
+use protocol::{Ack, Command, MotionReport, StatusAsk, StatusReport, Tag};
 
 use super::wire_tools::recv_within;
 use super::{Client, check};
-use crate::error::{Error, Result};
+use crate::error::Result;
 
 impl Client {
     /// HOLD: the run decelerates along its path to a standstill and waits (RUNNING, held);
@@ -45,24 +45,14 @@ impl Client {
         let reports = self.status_reports();
         let (tx, motions) = std::sync::mpsc::channel();
         super::lock(&self.shared.motions).push(tx);
-        for _ in 0..self.options.attempts {
-            let ack = self.exchange_unlocked(&Command::StatusWith(ask), None)?;
-            if matches!(
-                ack.status,
-                StatusCode::InvalidConfig | StatusCode::BadLength
-            ) {
-                return Ok((self.status_unlocked(None)?, None));
-            }
-            check(Tag::Status, ack)?;
-            let Ok(status) = reports.recv_timeout(self.options.report_timeout) else {
-                continue;
-            };
+        let answer = self.ask_status(ask, None, |_| {
+            let status = reports.recv_timeout(self.options.report_timeout).ok()?;
             // The MOTION report comes last after the STATUS.
-            return Ok((status, recv_within(&motions, self.options.report_timeout)));
+            Some((status, recv_within(&motions, self.options.report_timeout)))
+        })?;
+        match answer {
+            Some(answer) => Ok(answer),
+            None => Ok((self.status_unlocked(None)?, None)),
         }
-        Err(Error::NoReport {
-            command: Tag::Status,
-            attempts: self.options.attempts,
-        })
     }
 }

@@ -69,31 +69,53 @@ impl Client {
         };
         let reports = self.status_reports();
         let locations = self.locations();
-        for _ in 0..self.options.attempts {
-            let ack = self.exchange_unlocked(&Command::StatusWith(ask), None)?;
-            if ack.status == StatusCode::BadLength {
-                let status = self.status_unlocked(None)?;
-                return Ok(Glance {
-                    status,
-                    location: None,
-                    read_only: false,
-                });
-            }
-            let ack = check(Tag::Status, ack)?;
+        let answer = self.ask_status(ask, None, |ack| {
             // A read-only answer's ACK has the NOT_OWNER zeros; the owner's has its
             // buffer's free slots (capacity > 0).
             let read_only = ack.free == 0 && ack.buffered == 0 && ack.next_seq == 0;
-            let Ok(status) = reports.recv_timeout(self.options.report_timeout) else {
-                continue;
-            };
+            let status = reports.recv_timeout(self.options.report_timeout).ok()?;
             // The LOCATION comes right after the STATUS; any LOCATION from now on is as
             // fresh.
             let location = recv_within(&locations, self.options.report_timeout);
-            return Ok(Glance {
+            Some(Glance {
                 status,
                 location,
                 read_only: read_only && status.capacity > 0,
-            });
+            })
+        })?;
+        match answer {
+            Some(glance) => Ok(glance),
+            None => Ok(Glance {
+                status: self.status_unlocked(None)?,
+                location: None,
+                read_only: false,
+            }),
+        }
+    }
+
+    /// STATUS with the request byte `ask` (the caller holds the upload lock and has
+    /// subscribed to the reports it waits for), `attempts` times: once one is ACKed OK,
+    /// `reports` waits for its answers (`None`: one was lost, ask again). `Ok(None)`: a
+    /// controller older than what `ask` asks for refused it (`INVALID_CONFIG` for a bit
+    /// it does not know, `BAD_LENGTH` for the byte before issue 23).
+    pub(super) fn ask_status<T>(
+        &self,
+        ask: StatusAsk,
+        cancel: Option<&crate::Cancel>,
+        mut reports: impl FnMut(&Ack) -> Option<T>,
+    ) -> Result<Option<T>> {
+        for _ in 0..self.options.attempts {
+            let ack = self.exchange_unlocked(&Command::StatusWith(ask), cancel)?;
+            if matches!(
+                ack.status,
+                StatusCode::InvalidConfig | StatusCode::BadLength
+            ) {
+                return Ok(None);
+            }
+            let ack = check(Tag::Status, ack)?;
+            if let Some(answer) = reports(&ack) {
+                return Ok(Some(answer));
+            }
         }
         Err(Error::NoReport {
             command: Tag::Status,
@@ -134,25 +156,15 @@ impl Client {
         let reports = self.status_reports();
         let (tx, stops) = std::sync::mpsc::channel();
         super::lock(&self.shared.stops).push(tx);
-        for _ in 0..self.options.attempts {
-            let ack = self.exchange_unlocked(&Command::StatusWith(ask), cancel)?;
-            if matches!(
-                ack.status,
-                StatusCode::InvalidConfig | StatusCode::BadLength
-            ) {
-                return Ok((self.status_unlocked(cancel)?, None));
-            }
-            check(Tag::Status, ack)?;
-            let Ok(status) = reports.recv_timeout(self.options.report_timeout) else {
-                continue;
-            };
+        let answer = self.ask_status(ask, cancel, |_| {
+            let status = reports.recv_timeout(self.options.report_timeout).ok()?;
             // The STOP_CAUSE report comes right after the STATUS.
-            return Ok((status, recv_within(&stops, self.options.report_timeout)));
+            Some((status, recv_within(&stops, self.options.report_timeout)))
+        })?;
+        match answer {
+            Some(answer) => Ok(answer),
+            None => Ok((self.status_unlocked(cancel)?, None)),
         }
-        Err(Error::NoReport {
-            command: Tag::Status,
-            attempts: self.options.attempts,
-        })
     }
 
     /// The controller's own timing and receive counters (issue 34, `armctl diag`): a
@@ -173,30 +185,14 @@ impl Client {
         super::lock(&self.shared.rx_counters).push(tx);
         let (tx, diags) = std::sync::mpsc::channel();
         super::lock(&self.shared.diags).push(tx);
-        for _ in 0..self.options.attempts {
-            let ack = self.exchange_unlocked(&Command::StatusWith(ask), None)?;
-            if matches!(
-                ack.status,
-                StatusCode::InvalidConfig | StatusCode::BadLength
-            ) {
-                return Ok(None);
-            }
-            check(Tag::Status, ack)?;
-            let Ok(status) = reports.recv_timeout(self.options.report_timeout) else {
-                continue;
-            };
+        self.ask_status(ask, None, |_| {
+            let status = reports.recv_timeout(self.options.report_timeout).ok()?;
             // RX_COUNTERS, then DIAG, right after the STATUS.
-            let (Some(rx), Some(diag)) = (
-                recv_within(&counters, self.options.report_timeout),
-                recv_within(&diags, self.options.report_timeout),
-            ) else {
-                continue;
-            };
-            return Ok(Some(Diagnosis { status, rx, diag }));
-        }
-        Err(Error::NoReport {
-            command: Tag::Status,
-            attempts: self.options.attempts,
+            Some(Diagnosis {
+                status,
+                rx: recv_within(&counters, self.options.report_timeout)?,
+                diag: recv_within(&diags, self.options.report_timeout)?,
+            })
         })
     }
 
