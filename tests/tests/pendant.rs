@@ -360,6 +360,14 @@ fn another_hosts_controller_is_shown_read_only_with_its_owner() {
         "buttons that move: {disabled:?}"
     );
     // The endpoint refuses too, saying why.
+    assert_jog_refused(&page, "read-only: 127.0.0.2 owns the controller");
+    done.store(true, std::sync::atomic::Ordering::Relaxed);
+    let _ = keeper.join();
+}
+
+/// A jog asked by the page's own script (as a hand-made request would) is refused, saying
+/// `why`.
+fn assert_jog_refused(page: &Session, why: &str) {
     let answer: serde_json::Value =
         serde_json::from_value(page.eval(
             "return await fetch('/api/jog?joint=0&by=1', {method: 'POST'}).then(r => r.json())",
@@ -367,14 +375,9 @@ fn another_hosts_controller_is_shown_read_only_with_its_owner() {
         .unwrap();
     assert_eq!(answer["ok"], false, "{answer}");
     assert!(
-        answer["message"]
-            .as_str()
-            .unwrap_or_default()
-            .contains("read-only: 127.0.0.2 owns the controller"),
+        answer["message"].as_str().unwrap_or_default().contains(why),
         "{answer}"
     );
-    done.store(true, std::sync::atomic::Ordering::Relaxed);
-    let _ = keeper.join();
 }
 
 #[test]
@@ -399,19 +402,7 @@ fn a_keyed_controller_is_driven_through_the_key_and_the_token() {
     let driver = Driver::start();
     let page = open(&driver, &pendant.url);
     // Without the token, nothing that moves the arm.
-    let answer: serde_json::Value =
-        serde_json::from_value(page.eval(
-            "return await fetch('/api/jog?joint=0&by=1', {method: 'POST'}).then(r => r.json())",
-        ))
-        .unwrap();
-    assert_eq!(answer["ok"], false, "{answer}");
-    assert!(
-        answer["message"]
-            .as_str()
-            .unwrap_or_default()
-            .contains("needs the token"),
-        "{answer}"
-    );
+    assert_jog_refused(&page, "needs the token");
     assert!(!page.eval("return snap.read_only").as_bool().unwrap_or(true));
     page.click("tr[data-joint='0'] .jog-plus");
     assert!(
