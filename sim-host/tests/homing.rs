@@ -13,8 +13,8 @@ use std::time::{Duration, Instant};
 
 use common::{Client, OwnedReport, points_through, temp_path};
 use protocol::{
-    Command, HomingFailure, HomingPhase, HomingSet, HomingSettings, MAX_JOINTS, State, StatusAsk,
-    StatusCode, SwitchesReport,
+    Command, HomingFailure, HomingPhase, HomingSet, HomingSettings, MAX_JOINTS, State, StatusCode,
+    SwitchesReport,
 };
 use sim_host::options::SimOptions;
 
@@ -41,26 +41,12 @@ fn settings(max_travel_steps: u32) -> HomingSettings {
     }
 }
 
-fn switches(client: &mut Client) -> SwitchesReport {
-    client.ok(&Command::StatusWith(StatusAsk {
-        switches: true,
-        ..StatusAsk::default()
-    }));
-    let deadline = Instant::now() + Duration::from_secs(2);
-    while let Some(left) = deadline.checked_duration_since(Instant::now()) {
-        if let Some((_, OwnedReport::Switches(s))) = client.receive(left) {
-            return s;
-        }
-    }
-    panic!("no SWITCHES report");
-}
-
 /// HOME, then the SWITCHES report once the cycle is over (polled, bounded).
 fn home(client: &mut Client) -> SwitchesReport {
     client.ok(&Command::Home);
     let deadline = Instant::now() + Duration::from_secs(60);
     loop {
-        let report = switches(client);
+        let report = client.switches();
         if report.phase != HomingPhase::Homing {
             assert_eq!(client.status().state, State::Stopped);
             return report;
@@ -100,7 +86,7 @@ fn homing_from_random_positions_ends_at_the_switch_plus_offset_to_the_step() {
     // Nothing set to home yet: refused, nothing moves.
     let ack = client.command(&Command::Home);
     assert_eq!(ack.status, StatusCode::HomingFailed);
-    assert_eq!(switches(&mut client).phase, HomingPhase::Never);
+    assert_eq!(client.switches().phase, HomingPhase::Never);
 
     client.ok(&Command::HomingSet(HomingSet {
         joint: 0,

@@ -9,30 +9,13 @@ mod common;
 
 use std::time::{Duration, Instant};
 
-use common::{Client, OwnedReport, points_through, temp_path};
-use protocol::{
-    Command, HomingPhase, HomingSet, HomingSettings, MAX_JOINTS, State, StatusAsk, StatusCode,
-    SwitchesReport,
-};
+use common::{Client, points_through, temp_path};
+use protocol::{Command, HomingPhase, HomingSet, HomingSettings, MAX_JOINTS, State, StatusCode};
 use sim_host::options::SimOptions;
 
 const START: i64 = 700;
 const SWITCH: i64 = -100;
 const OFFSET: i32 = 5;
-
-fn switches(client: &mut Client) -> SwitchesReport {
-    client.ok(&Command::StatusWith(StatusAsk {
-        switches: true,
-        ..StatusAsk::default()
-    }));
-    let deadline = Instant::now() + Duration::from_secs(2);
-    while let Some(left) = deadline.checked_duration_since(Instant::now()) {
-        if let Some((_, OwnedReport::Switches(s))) = client.receive(left) {
-            return s;
-        }
-    }
-    panic!("no SWITCHES report");
-}
 
 #[test]
 fn a_home_switch_that_is_the_limit_homes_and_still_guards_the_end() {
@@ -65,7 +48,7 @@ fn a_home_switch_that_is_the_limit_homes_and_still_guards_the_end() {
     client.ok(&Command::Home);
     let deadline = Instant::now() + Duration::from_secs(30);
     let report = loop {
-        let report = switches(&mut client);
+        let report = client.switches();
         if report.phase != HomingPhase::Homing {
             break report;
         }
@@ -109,7 +92,7 @@ fn a_home_switch_that_is_the_limit_homes_and_still_guards_the_end() {
     let status = client.run_points(&points, Duration::from_secs(30));
     assert!(status.executed < 50, "{status:?}");
     assert_eq!(physical(), SWITCH, "stopped on the switch");
-    assert_eq!(switches(&mut client).latched, Some(0));
+    assert_eq!(client.switches().latched, Some(0));
     assert_eq!(
         client.command(&Command::Runing).status,
         StatusCode::LimitLatched

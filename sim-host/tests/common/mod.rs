@@ -288,6 +288,21 @@ impl Client {
             }
         }
     }
+
+    /// A SWITCHES report (STATUS request byte bit 5), fresh.
+    pub fn switches(&mut self) -> protocol::SwitchesReport {
+        self.ok(&Command::StatusWith(protocol::StatusAsk {
+            switches: true,
+            ..protocol::StatusAsk::default()
+        }));
+        let deadline = Instant::now() + Duration::from_secs(2);
+        while let Some(left) = deadline.checked_duration_since(Instant::now()) {
+            if let Some((_, OwnedReport::Switches(s))) = self.receive(left) {
+                return s;
+            }
+        }
+        panic!("no SWITCHES report");
+    }
 }
 
 /// A unique temporary path for this test.
