@@ -855,9 +855,7 @@ impl Arm {
             self.call(py, move |arm| arm.set_estop_category(category))?;
         }
         let (_, motion) = self.call(py, |arm| arm.motion())?;
-        Ok(motion
-            .and_then(|m| m.estop_category)
-            .map_or(0, |c| c as u8))
+        Ok(motion.and_then(|m| m.estop_category).map_or(0, |c| c as u8))
     }
 
     /// RETURN: drives every joint to zero; with `wait`, until the move ended (at most

@@ -241,7 +241,10 @@ fn estop_category_1_from_armctl_ends_the_run_with_the_drivers_disabled() {
     assert!(!ended.success(), "the run was cut short: {ended}");
     let out = status_until(&sim, "OPEN, LATCHED");
     assert!(out.contains("state            STOPPED"), "{out}");
-    assert!(out.contains("drivers enabled no"), "drivers disabled: {out}");
+    assert!(
+        out.contains("drivers enabled no"),
+        "drivers disabled: {out}"
+    );
     signal(&sim, libc::SIGUSR2);
     status_until(&sim, "closed, LATCHED");
     sim.terminate();
