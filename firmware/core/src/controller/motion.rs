@@ -357,6 +357,12 @@ impl<const CAP: usize> Controller<CAP> {
             Err(_) => {
                 let before = self.state;
                 self.stop_by_host(plant, None);
+                // The cause says the door (STOP_CAUSE HOLD, detail DOOR), not the wired
+                // e-stop input that stop_by_host names when no host stopped it.
+                self.stop = protocol::StopReport {
+                    detail: ControlledStop::Door as u8,
+                    ..protocol::StopReport::of(protocol::StopCause::Hold)
+                };
                 (before != self.state && self.reports_on).then(|| self.location(plant))
             }
         }
