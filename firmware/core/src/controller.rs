@@ -97,6 +97,11 @@
 //! `ESTOP_LATCHED`; with no latch: `OK`, nothing changes). Old hosts see state STOPPED
 //! and a RUNING refused.
 //!
+//! Under ESTOP_CATEGORY 1 (issue 32, `controller/motion.rs`) an opening the handler left
+//! to a controlled stop goes to [`Controller::estop_controlled`] instead: latched at once,
+//! the run ramps to a standstill with HOLD's slope within a bound, then
+//! [`Controller::estop_ramp_poll`] stops it as above and disables the drivers.
+//!
 //! # Overtaken frames
 //! The tasks handle a STOPPED before datagrams queued ahead of it (the e-stop path in
 //! [`crate::tasks`]). Such an overtaken frame is still handled with [`Controller::handle`]
