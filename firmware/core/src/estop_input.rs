@@ -113,23 +113,28 @@ impl EStopLine {
         kick: &impl StepKick,
         wake: &Signal<Cs, ()>,
     ) {
+        // Decided from a look at the line, acted on outside its lock (as before category
+        // 1: the halt takes only the step lock, never inside a critical section, which
+        // would hold off the DIR changes and the other P0 inputs on the NUCLEO), then
+        // recorded. The handler is never re-entered (one interrupt, or one thread under
+        // the simulator's lock); the task's `ramp_over` in between changes nothing here.
+        let (category_1, ramping) = self.state.lock(|s| {
+            let line = s.get();
+            (line.category_1, line.ramping)
+        });
+        let controlled = open && category_1 && !ramping && step.rate_now(kick.now_tick()).is_some();
+        if controlled {
+            step.block_starts();
+        } else if open {
+            step.halt();
+            kick.kick();
+        } else {
+            step.release();
+        }
         self.state.lock(|s| {
             let mut line = s.get();
-            let controlled = open
-                && line.category_1
-                && !line.ramping
-                && step.rate_now(kick.now_tick()).is_some();
-            if controlled {
-                step.block_starts();
-                line.ramping = true;
-            } else if open {
-                step.halt();
-                kick.kick();
-                line.ramping = false;
-            } else {
-                step.release();
-            }
             if open {
+                line.ramping = controlled;
                 let all_controlled = !line.sample.opened || line.sample.controlled;
                 line.sample.controlled = controlled && all_controlled;
                 line.sample.opened = true;
