@@ -180,3 +180,98 @@ fn an_open_door_stops_the_run_refuses_runing_and_closed_lets_it_run() {
     assert_eq!(after[0], here[0] + 20, "ran to its end");
     board.assert_healthy();
 }
+
+/// The recorder's input for the wired e-stop pin (PC0).
+const ESTOP: u8 = 43;
+
+/// ESTOP_CATEGORY 1 on the board itself: its step side has no warp, so EXTI0 stops every
+/// STEP output as category 0 (no edge later than one step period after PC0 went high),
+/// then the controller disables the drivers (category 1's end) and latches; MOTION shows
+/// the category. (The same ELF: the e-stop input is in every build.)
+#[test]
+fn estop_category_1_on_the_board_stops_at_once_then_disables_the_drivers() {
+    if let Some(reason) = unavailable() {
+        note(&reason);
+        return;
+    }
+    let mut board = RenodeBoard::start_door_with_step_path(
+        "sysbus.stepRecorder Watch \"sysbus.gpioPortC\" 0 43",
+    );
+    let arm = Arc::new(board.connect_from(HOSTS[0], emulated()));
+    arm.set_estop_category(protocol::EStopCategory::Controlled)
+        .unwrap_or_else(|e| panic!("ESTOP_CATEGORY 1: {e}\n{}", board.log()));
+    let (_, motion) = arm.motion().unwrap();
+    assert_eq!(
+        motion.and_then(|m| m.estop_category),
+        Some(protocol::EStopCategory::Controlled)
+    );
+    let status = arm.status().unwrap();
+    assert!(
+        status.flags.has(protocol::StatusFlags::DRIVERS_ENABLED),
+        "{status:?}"
+    );
+    let start = arm
+        .current_location(Duration::from_secs(5))
+        .unwrap()
+        .position;
+    let period_ns = 2_500_000;
+    let runner =
+        run_reporting_progress_with(&arm, points(start, 200, 4), armctl::RunOptions::default());
+    runner.wait_executed(20);
+    board.monitor("sysbus.gpioPortC OnGPIO 0 true");
+    let end = runner.join();
+    note(&format!("the run: {end:?}"));
+    let status = arm
+        .wait_stopped(Duration::from_secs(60))
+        .unwrap_or_else(|e| panic!("STOPPED after the e-stop: {e}\n{}", board.log()));
+    let edges = board.edges();
+    let opened = edges
+        .iter()
+        .find(|e| e.line == ESTOP && e.high)
+        .unwrap_or_else(|| panic!("the recorder saw PC0 go high\n{}", board.log()))
+        .ns;
+    let last_step = edges
+        .iter()
+        .filter(|e| e.line < 8)
+        .map(|e| e.ns)
+        .max()
+        .expect("STEP edges");
+    note(&format!(
+        "category 1 on the board: PC0 high at {opened} ns, last STEP edge {} ns after \
+         (step period {period_ns} ns); {} points executed",
+        i128::from(last_step) - i128::from(opened),
+        status.executed
+    ));
+    assert!(
+        last_step <= opened + period_ns,
+        "a STEP edge {} ns after PC0 went high",
+        last_step - opened
+    );
+    // The drivers go off once the task applied it (bounded wait on what STATUS shows).
+    let deadline = std::time::Instant::now() + Duration::from_secs(30);
+    let status = loop {
+        let status = arm.status().unwrap();
+        if !status.flags.has(protocol::StatusFlags::DRIVERS_ENABLED) {
+            break status;
+        }
+        assert!(
+            std::time::Instant::now() < deadline,
+            "the drivers stayed enabled: {status:?}\n{}",
+            board.log()
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    assert_eq!(status.state, State::Stopped);
+    assert!(
+        status
+            .more_flags
+            .has(protocol::MoreFlags::ESTOP_LATCHED | protocol::MoreFlags::ESTOP_OPEN),
+        "{status:?}"
+    );
+    let (_, stop) = arm.stop_report().unwrap();
+    assert_eq!(stop.and_then(|s| s.cause), Some(StopCause::EstopInput));
+    let ack = arm.exchange(&Command::Runing).unwrap();
+    assert_eq!(ack.status, StatusCode::EstopLatched);
+    board.monitor("sysbus.gpioPortC OnGPIO 0 false");
+    board.assert_healthy();
+}

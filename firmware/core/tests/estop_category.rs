@@ -6,6 +6,8 @@
 //! bound, on a step side without a warp, or at a second opening the stop is instant.
 //! Sans-io on virtual time: the controller over a fake plant, the edge handler over the
 //! shared engine, and both together over the engine (the oracle's warp) with its edges.
+//! (One file past 600 lines for the three layers of one rule: the last test reuses the
+//! first's trajectory and the second's step timer.)
 
 mod common;
 
