@@ -356,6 +356,12 @@ class Arm:
         """OVERRIDE (issue 32): run at `percent` of the planned speed (1..200), ramped in
         for the run under way and kept for later runs; above 100 % only where every
         joint's rate and acceleration allow (else RefusedError OVERRIDE_REFUSED)."""
+    def estop_category(self, category: Optional[int] = None) -> int:
+        """The wired e-stop input's stop category (issue 32): with `category` (0 or 1)
+        sets it (only while STOPPED; kept in the controller's settings); returns it as the
+        controller reports it (0 from a controller older than issue 32). 0: every joint
+        stops at once; 1: the run decelerates along its path, then the drivers are
+        disabled."""
     def go_home(self, wait: bool = True, timeout: float = 600.0) -> None:
         """RETURN: every joint to zero; with `wait`, until the move ended (at most
         `timeout` s). Ctrl-C or an error while waiting sends STOPPED (resent until ACKed),

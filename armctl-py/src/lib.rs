@@ -839,6 +839,25 @@ impl Arm {
             .map(|_| ())
     }
 
+    /// The wired e-stop input's stop category (issue 32): with `category` (0 or 1), sets
+    /// it (ESTOP_CATEGORY: only while STOPPED, kept in the controller's settings); then
+    /// returns it as the controller reports it (MOTION; 0 from a controller older than
+    /// issue 32, which stops at once). 0: every joint stops at once; 1: the run
+    /// decelerates along its path, then the drivers are disabled.
+    #[pyo3(signature = (category=None))]
+    fn estop_category(&self, py: Python<'_>, category: Option<u8>) -> PyResult<u8> {
+        if let Some(byte) = category {
+            let Some(category) = protocol::EStopCategory::from_u8(byte) else {
+                return Err(pyo3::exceptions::PyValueError::new_err(format!(
+                    "e-stop category {byte}: give 0 or 1"
+                )));
+            };
+            self.call(py, move |arm| arm.set_estop_category(category))?;
+        }
+        let (_, motion) = self.call(py, |arm| arm.motion())?;
+        Ok(motion.and_then(|m| m.estop_category).map_or(0, |c| c as u8))
+    }
+
     /// RETURN: drives every joint to zero; with `wait`, until the move ended (at most
     /// `timeout` seconds). A KeyboardInterrupt or an error while waiting sends STOPPED
     /// (resent until ACKed) before it propagates.

@@ -48,3 +48,13 @@ def test_override_is_checked(sim):
         arm.override(100)
         with pytest.raises(armctl.RefusedError, match="BAD_STATE"):
             arm.hold()  # nothing runs
+
+
+def test_estop_category_is_set_and_read_back(sim):
+    with armctl.connect(sim.address) as arm:
+        assert arm.estop_category() == 0
+        assert arm.estop_category(1) == 1
+        assert arm.estop_category() == 1
+        with pytest.raises(ValueError, match="0 or 1"):
+            arm.estop_category(2)
+        assert arm.estop_category(0) == 0

@@ -61,6 +61,13 @@ pub fn stop_cause_text(status: &StatusReport, stop: Option<&StopReport>) -> Stri
                 .into(),
             None => cause.describe().into(),
         },
+        StopCause::Hold => match stop.filter(|s| s.cause == Some(StopCause::Hold)) {
+            Some(s) if s.detail == protocol::ControlledStop::Door as u8 => "the safety door \
+                 opened and this controller's step side cannot hold a run, so it stopped it \
+                 (close the door, then run again)"
+                .into(),
+            _ => cause.describe().into(),
+        },
         _ => cause.describe().into(),
     }
 }

@@ -175,6 +175,11 @@ pub fn doc_frames() -> Vec<DocFrame> {
             Command::Override { percent: 50 },
         ),
         command(
+            "ESTOP_CATEGORY, seq 0x3a, category 1 (a controlled stop)",
+            0x3a,
+            Command::EstopCategory(protocol::EStopCategory::Controlled),
+        ),
+        command(
             "STATUS, seq 0x33, with the MOTION report (request byte 0x10)",
             0x33,
             Command::StatusWith(protocol::StatusAsk {
@@ -194,6 +199,7 @@ pub fn doc_frames() -> Vec<DocFrame> {
                 last_stop: Some(protocol::ControlledStop::Hold),
                 refused_joint: 0xFF,
                 refused_limit: None,
+                estop_category: Some(protocol::EStopCategory::Instant),
             }),
         ),
         report(
@@ -208,6 +214,7 @@ pub fn doc_frames() -> Vec<DocFrame> {
                 last_stop: Some(protocol::ControlledStop::Underrun),
                 refused_joint: 0xFF,
                 refused_limit: None,
+                estop_category: Some(protocol::EStopCategory::Instant),
             }),
         ),
         report(

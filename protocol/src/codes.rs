@@ -186,6 +186,9 @@ wire_code! {
         /// The override, hold and ramp state (controller to host; asked for with
         /// STATUS's request byte bit 4; issue 32).
         Motion = 0x2a => "MOTION",
+        /// Set the wired e-stop input's stop category, 0 or 1 (issue 32), kept in the
+        /// settings; read back in MOTION's byte 7.
+        EstopCategory = 0x2b => "ESTOP_CATEGORY",
         /// Run the homing cycle on the home switches (issue 33; no data; RETURN is
         /// unchanged).
         Home = 0x2c => "HOME",

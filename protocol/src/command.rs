@@ -8,6 +8,7 @@ use crate::frame::{Frame, PointList, open, seal};
 use crate::homing::HomingSet;
 use crate::joint_desc::JointDescSet;
 use crate::joint_limits::{JointLimits, LimitsSet};
+use crate::motion::EStopCategory;
 use crate::net::NetSettings;
 use crate::types::{Location, Pwm, UartInit};
 use crate::{FRAME_OVERHEAD, MAX_POINTS_PER_FRAME, MAX_SERIAL_CHUNK, limits, size};
@@ -128,6 +129,8 @@ pub enum Command<'a> {
         /// Percent, 1..200.
         percent: u8,
     },
+    /// Set the wired e-stop input's stop category (issue 32), kept in the settings.
+    EstopCategory(EStopCategory),
     /// Enable (`enable`) or disable the masked drivers, leaving the others as they are
     /// (issue 23: an explicit form beside TOGGLE_ENABLE_PINS).
     SetEnable {
@@ -258,6 +261,7 @@ impl<'a> Command<'a> {
             Command::Hold => Tag::Hold,
             Command::Resume => Tag::Resume,
             Command::Override { .. } => Tag::Override,
+            Command::EstopCategory(_) => Tag::EstopCategory,
             Command::LimitsSet(_) => Tag::LimitsSet,
             Command::LimitsGet | Command::LimitsGetWithAccel => Tag::LimitsGet,
             Command::AccelSet { .. } => Tag::AccelSet,
@@ -293,6 +297,7 @@ impl<'a> Command<'a> {
             Command::JointDescSet(_) => size::JOINT_DESC_SET,
             Command::JointDescGet { .. } => size::JOINT_DESC_GET,
             Command::Override { .. } => size::OVERRIDE,
+            Command::EstopCategory(_) => size::ESTOP_CATEGORY,
             Command::HomingSet(_) => size::HOMING_SET,
             Command::HomingGet { .. } => size::HOMING_GET,
             _ => 0,
@@ -362,6 +367,7 @@ impl<'a> Command<'a> {
             Command::JointDescSet(set) => set.write(w, 0),
             Command::JointDescGet { joint } => w.u8(0, *joint),
             Command::Override { percent } => w.u8(0, *percent),
+            Command::EstopCategory(category) => w.u8(0, *category as u8),
             Command::HomingSet(set) => set.write(w, 0),
             Command::HomingGet { joint } => w.u8(0, *joint),
             _ => {}
@@ -586,6 +592,13 @@ impl<'a> Command<'a> {
                     return Err(out_of_range(Field::Override));
                 }
                 Command::Override { percent }
+            }
+            Tag::EstopCategory => {
+                exactly(size::ESTOP_CATEGORY)?;
+                match EStopCategory::from_u8(u8_at(data, 0)) {
+                    Some(category) => Command::EstopCategory(category),
+                    None => return Err(out_of_range(Field::EstopCategory)),
+                }
             }
             Tag::JointDescGet => {
                 exactly(size::JOINT_DESC_GET)?;

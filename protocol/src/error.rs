@@ -110,6 +110,8 @@ pub enum Field {
     JointDesc,
     /// OVERRIDE's percent (1..200).
     Override,
+    /// ESTOP_CATEGORY's byte (0 or 1).
+    EstopCategory,
     /// HOMING_SET's or HOMING_GET's joint (0-7), flags (bits 0-2), or settings that cannot
     /// run (a zero rate, back-off or travel on an enabled joint); the HOMING or SWITCHES
     /// report's codes.
@@ -164,6 +166,7 @@ impl fmt::Display for Field {
             Field::Owner => f.write_str("unknown owner state"),
             Field::StatusAsk => f.write_str("STATUS request byte may only use bits 0-6"),
             Field::Override => f.write_str("OVERRIDE percent must be 1..200"),
+            Field::EstopCategory => f.write_str("ESTOP_CATEGORY must be 0 or 1"),
             Field::JointLimits => {
                 f.write_str("LIMITS_SET needs a joint of 0-7 and min not above max")
             }

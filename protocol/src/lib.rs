@@ -44,8 +44,8 @@ pub use joint_desc::{JointDesc, JointDescSet, JointUnit, NAME_LEN as JOINT_NAME_
 pub use joint_limits::{JointLimits, LimitsReport, LimitsSet, Refusal, RefusalReason};
 pub use limits::DEFAULT_WINDOW;
 pub use motion::{
-    ControlledStop, MotionFlags, MotionReport, OVERRIDE_MAX_PERCENT, OVERRIDE_MIN_PERCENT,
-    OverrideLimit,
+    ControlledStop, EStopCategory, MotionFlags, MotionReport, OVERRIDE_MAX_PERCENT,
+    OVERRIDE_MIN_PERCENT, OverrideLimit,
 };
 pub use net::{DiscoverReply, NetSettings, OwnerState};
 pub use report::Report;
@@ -123,6 +123,8 @@ pub mod size {
     pub const DIAG: usize = 36;
     /// OVERRIDE data: the percent (1..200).
     pub const OVERRIDE: usize = 1;
+    /// ESTOP_CATEGORY data: the category (0 or 1).
+    pub const ESTOP_CATEGORY: usize = 1;
     /// MOTION report data: factor, flags, rate (u16), last controlled stop, refused joint
     /// and limit, 1 reserved.
     pub const MOTION: usize = 8;

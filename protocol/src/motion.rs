@@ -37,6 +37,27 @@ crate::codes::wire_code! {
         Underrun = 2 => "UNDERRUN",
         /// The safety door opened (issue 32): the run held; close it, then RESUME.
         Door = 3 => "DOOR",
+        /// The wired e-stop input opened under category 1 (issue 32): the run
+        /// decelerated along its path, then stopped latched with the drivers disabled.
+        EStop = 4 => "ESTOP",
+    }
+}
+
+crate::codes::wire_code! {
+    /// How the wired e-stop input stops the arm (ESTOP_CATEGORY's byte, MOTION's byte 7;
+    /// IEC 60204-1's stop categories). Either way the controller ends latched STOPPED
+    /// (RUNING and RETURN refused until the input is closed and a host sends ESTOP_RESET).
+    #[derive(Default)]
+    pub enum EStopCategory {
+        /// Every STEP output stops at once, in the input's interrupt (the default, and
+        /// what an older controller does).
+        #[default]
+        Instant = 0 => "CATEGORY_0",
+        /// A controlled stop: the run decelerates along its path within every joint's
+        /// acceleration, then the drivers are disabled. Within a bound
+        /// (PROTOCOL.md, "Wired e-stop input"), else, and on a step side without a time
+        /// warp, the stop is category 0's.
+        Controlled = 1 => "CATEGORY_1",
     }
 }
 
@@ -59,6 +80,10 @@ impl MotionFlags {
     /// The safety door is open (issue 32): runs hold, RUNING and RESUME are refused
     /// `DOOR_OPEN`. Shown in any state.
     pub const DOOR_OPEN: u8 = 1 << 4;
+    /// The wired e-stop input opened under category 1 (issue 32): the run is
+    /// decelerating to a standstill, after which the drivers are disabled and the
+    /// controller is latched STOPPED.
+    pub const ESTOP_RAMP: u8 = 1 << 5;
 
     /// Whether every bit of `bits` is set.
     pub const fn has(self, bits: u8) -> bool {
@@ -85,6 +110,9 @@ pub struct MotionReport {
     /// ... and the limit it would have broken (`None`: none, or a byte this crate does
     /// not know).
     pub refused_limit: Option<OverrideLimit>,
+    /// The wired e-stop input's stop category (byte 7; an older controller sends 0,
+    /// which is what it does). `None`: a byte this crate does not know.
+    pub estop_category: Option<EStopCategory>,
 }
 
 impl MotionReport {
@@ -96,6 +124,7 @@ impl MotionReport {
         last_stop: Some(ControlledStop::None),
         refused_joint: 0xFF,
         refused_limit: None,
+        estop_category: Some(EStopCategory::Instant),
     };
 
     pub(crate) fn read(b: &[u8]) -> MotionReport {
@@ -106,6 +135,7 @@ impl MotionReport {
             last_stop: ControlledStop::from_u8(u8_at(b, 4)),
             refused_joint: u8_at(b, 5),
             refused_limit: OverrideLimit::from_u8(u8_at(b, 6)),
+            estop_category: EStopCategory::from_u8(u8_at(b, 7)),
         }
     }
 
@@ -116,6 +146,6 @@ impl MotionReport {
         w.u8(at + 4, self.last_stop.map_or(0, |s| s as u8));
         w.u8(at + 5, self.refused_joint);
         w.u8(at + 6, self.refused_limit.map_or(0, |l| l as u8));
-        w.u8(at + 7, 0);
+        w.u8(at + 7, self.estop_category.map_or(0, |c| c as u8));
     }
 }

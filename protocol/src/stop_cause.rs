@@ -28,7 +28,8 @@ crate::codes::wire_code! {
         /// A limit switch tripped (issue 33): `detail` is the joint in bits 0-6, bit 7 set
         /// for its max side (the simulator; the NUCLEO built with `switch-inputs`).
         LimitSwitch = 6 => "LIMIT_SWITCH",
-        /// Reserved: a hold (not made yet).
+        /// A hold that had to stop the run (issue 32): `detail` 3 (DOOR) when the safety
+        /// door opened on a step side without a time warp, which cannot hold.
         Hold = 7 => "HOLD",
     }
 }
@@ -43,7 +44,7 @@ impl StopCause {
             StopCause::Underrun => "underrun: the buffer ran dry before the last point arrived",
             StopCause::Fault => "a fault (RETURN: an absolute encoder did not answer)",
             StopCause::LimitSwitch => "a limit switch",
-            StopCause::Hold => "a hold",
+            StopCause::Hold => "a hold that had to stop the run (the safety door opened)",
         }
     }
 }

@@ -153,6 +153,7 @@ fn command_fields(cmd: &Command<'_>) -> Value {
         // Not in the shared golden file either (issue 32): protocol/tests/motion.rs.
         Command::Hold | Command::Resume => json!({}),
         Command::Override { percent } => json!({ "percent": percent }),
+        Command::EstopCategory(category) => json!({ "category": *category as u8 }),
         // Issue 33's homing: protocol/tests/homing.rs.
         Command::HomingSet(set) => json!({ "homing": format!("{set:?}") }),
         Command::HomingGet { joint } => json!({ "joint": joint }),
@@ -469,7 +470,8 @@ fn vectors_cover_every_command_and_report() {
         .filter(|t| *t != Tag::Diag)
         // Issue 31's arm description as well: protocol/tests/joint_desc.rs.
         .filter(|t| !matches!(t, Tag::JointDescSet | Tag::JointDescGet | Tag::JointDesc))
-        // Issue 32's HOLD, RESUME, OVERRIDE and MOTION as well: protocol/tests/motion.rs;
+        // Issue 32's HOLD, RESUME, OVERRIDE, MOTION and ESTOP_CATEGORY as well:
+        // protocol/tests/motion.rs;
         // issue 33's homing: protocol/tests/homing.rs.
         .filter(|t| {
             !matches!(
@@ -478,6 +480,7 @@ fn vectors_cover_every_command_and_report() {
                     | Tag::Resume
                     | Tag::Override
                     | Tag::Motion
+                    | Tag::EstopCategory
                     | Tag::Home
                     | Tag::HomingSet
                     | Tag::HomingGet

@@ -71,6 +71,7 @@ fn motion_report_round_trips_and_status_bit_4_asks_for_it() {
         last_stop: Some(ControlledStop::Hold),
         refused_joint: 3,
         refused_limit: Some(OverrideLimit::Accel),
+        estop_category: Some(protocol::EStopCategory::Instant),
     };
     let mut buf = [0u8; 16];
     let n = Report::Motion(report).encode(0x40, &mut buf).unwrap();

@@ -63,6 +63,9 @@ pub struct Board {
     /// The wired e-stop input (`--estop-input`): open and close it here in-process, or
     /// with SIGUSR1/SIGUSR2 from outside ([`crate::estop`]).
     pub estop_input: Option<Arc<SimEStopInput>>,
+    /// The safety-door input (`--door-input`, issue 32): open and close it here
+    /// in-process, or with SIGRTMIN+1/SIGRTMIN+2 from outside ([`crate::door`]).
+    pub door_input: Option<Arc<crate::door::SimDoorInput>>,
 }
 
 impl Board {
@@ -124,6 +127,9 @@ impl Board {
                 options.servo_on_stop.into(),
             ))
         });
+        let door_input = options
+            .door_input
+            .then(|| Arc::new(crate::door::SimDoorInput::new(tracer.clone())));
         Ok(Board {
             options: options.clone(),
             clock,
@@ -147,6 +153,7 @@ impl Board {
             probe,
             udp,
             estop_input,
+            door_input,
         })
     }
 
@@ -388,6 +395,9 @@ fn wire(board: Board) -> io::Result<Wiring> {
     if let Some(input) = &board.estop_input {
         input.wire(step, &BUS.step_progress);
     }
+    if let Some(door) = &board.door_input {
+        door.wire(&BUS.step_progress);
+    }
     // DIAG: the simulator's own figures (issue 34), not the board's.
     crate::sim_diag::set_step_hz(timing.tick_hz);
     BUS.set_diag_source(crate::sim_diag::report);
@@ -491,8 +501,11 @@ fn spawn_tasks(spawner: Spawner, wiring: Wiring) {
             .estop_input
             .as_ref()
             .map(|_| -> &'static arm_core::EStopLine { &crate::estop::LINE }),
-        // The door is driven in-process on virtual time (VirtualBoard::set_door).
-        door: None,
+        // `--door-input` (in-process on virtual time: VirtualBoard::set_door).
+        door: board
+            .door_input
+            .as_ref()
+            .map(|_| -> &'static arm_core::DoorLine { &crate::door::LINE }),
         switches,
     };
     let sim_halt = || SimHalt {
@@ -586,6 +599,11 @@ pub fn run(options: &SimOptions) -> io::Result<()> {
         Some(input) => Some((crate::estop::Signals::catch()?, input.clone())),
         None => None,
     };
+    // Likewise SIGRTMIN+1/SIGRTMIN+2 for the door.
+    let door_signals = match &board.door_input {
+        Some(door) => Some((crate::door::Signals::catch()?, door.clone())),
+        None => None,
+    };
     if let Some(addr) = board.local_addr() {
         // The first line on stdout: scripts and tests read the port from it.
         println!("sim-host: listening on udp {addr}");
@@ -600,6 +618,10 @@ pub fn run(options: &SimOptions) -> io::Result<()> {
     if let Some((signals, input)) = estop_signals {
         signals.apply_to(input)?;
         log::info!("e-stop input: closed; SIGUSR1 opens it, SIGUSR2 closes it");
+    }
+    if let Some((signals, door)) = door_signals {
+        signals.apply_to(door)?;
+        log::info!("door input: closed; SIGRTMIN+1 opens it, SIGRTMIN+2 closes it");
     }
     // The executor lives as long as the process: run() never returns.
     crate::steptimer::raise_nice("executor", crate::steptimer::EXECUTOR_NICE);

@@ -517,6 +517,13 @@ pub fn format_settings(settings: &PersistentSettings) -> String {
             ));
         }
     }
+    // ESTOP_CATEGORY (issue 32): only when not the default 0.
+    if settings.estop_category != protocol::EStopCategory::Instant {
+        text.push_str(&format!(
+            "estop_category={}\n",
+            settings.estop_category as u8
+        ));
+    }
     text
 }
 
@@ -631,6 +638,13 @@ pub fn parse_settings(text: &str) -> Result<PersistentSettings, String> {
                 }
                 *settings.homing.get_mut(joint).ok_or_else(bad)? = homing;
             }
+            "estop_category" => {
+                settings.estop_category = value
+                    .parse::<u8>()
+                    .ok()
+                    .and_then(protocol::EStopCategory::from_u8)
+                    .ok_or_else(|| format!("bad estop_category {value:?}: give 0 or 1"))?;
+            }
             other if other.starts_with("accel.") => {
                 let bad = || format!("bad {other}: give accel.J=steps/s², J 0-7");
                 let joint: usize = other["accel.".len()..].parse().map_err(|_| bad())?;
@@ -738,6 +752,7 @@ mod tests {
             max_accel: [0, 50_000, 0, 0, 0, 0, 0, 1],
             desc: [protocol::JointDesc::NONE; protocol::MAX_JOINTS],
             homing: [protocol::HomingSettings::NONE; protocol::MAX_JOINTS],
+            estop_category: protocol::EStopCategory::Instant,
         };
         assert_eq!(parse_settings(&format_settings(&settings)), Ok(settings));
         // JOINT_DESC_SET's descriptions (issue 31) round-trip exactly, any name included;
@@ -777,6 +792,13 @@ mod tests {
             "{text}"
         );
         assert_eq!(parse_settings(&text), Ok(homed));
+        // ESTOP_CATEGORY's (issue 32) round-trips; a file without it loads category 0.
+        let mut controlled = homed;
+        controlled.estop_category = protocol::EStopCategory::Controlled;
+        let text = format_settings(&controlled);
+        assert!(text.contains("estop_category=1\n"), "{text}");
+        assert_eq!(parse_settings(&text), Ok(controlled));
+        assert!(parse_settings("estop_category=2\n").is_err());
         assert!(parse_settings("homing.2=1,0,0,100,40,30000,0\n").is_err());
         assert!(parse_settings("desc.8=deg,0,1.0,61\n").is_err());
         assert!(parse_settings("desc.0=furlong,0,1.0,61\n").is_err());

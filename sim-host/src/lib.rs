@@ -9,6 +9,7 @@
 
 pub mod clock;
 pub mod devices;
+pub mod door;
 pub mod estop;
 pub mod faults;
 pub mod flood;

@@ -151,6 +151,12 @@ pub struct SimOptions {
     #[arg(long)]
     pub estop_input: bool,
 
+    /// Give the simulator the safety-door input (issue 32; the NUCLEO's PF4), closed at
+    /// start: SIGRTMIN+1 opens it (a run holds along its path; RUNING and RESUME refused
+    /// DOOR_OPEN), SIGRTMIN+2 closes it (RESUME goes on). Without it the door reads closed.
+    #[arg(long)]
+    pub door_input: bool,
+
     /// What a stop (STOPPED, the wired e-stop input) does to a servo PWM on the gripper
     /// timer: `hold` keeps its duty (the board's default: a limp servo gripper drops its
     /// part), `cut` stops it as PWM_STOP does. A counted burst is cut either way (issue 30;

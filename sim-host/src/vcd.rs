@@ -56,6 +56,8 @@ pub enum Signal {
     EStop,
     /// The wired e-stop input (`--estop-input`): high while it is open.
     EStopInput,
+    /// The safety-door input (`--door-input`, issue 32): high while it is open.
+    DoorInput,
 }
 
 /// A traced value.
@@ -215,6 +217,7 @@ fn identifier(signal: Signal) -> String {
         Signal::Pin1 => 3 * TRACED_JOINTS + 7,
         Signal::EStop => 3 * TRACED_JOINTS + 8,
         Signal::EStopInput => 3 * TRACED_JOINTS + 9,
+        Signal::DoorInput => 3 * TRACED_JOINTS + 10,
     };
     // 94 printable characters: two-character codes are never needed for < 94 signals.
     char::from(b'!' + index as u8).to_string()
@@ -289,6 +292,7 @@ fn declarations() -> Vec<(Signal, &'static str, String, Value)> {
             "estop_input",
             Value::Bit(false),
         ),
+        (Signal::DoorInput, "wire 1", "door_input", Value::Bit(false)),
     ];
     for (signal, kind, name, value) in gripper {
         all.push((signal, kind, name.to_string(), value));

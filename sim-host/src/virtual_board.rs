@@ -20,7 +20,7 @@ use std::sync::Arc;
 use std::task::{Context, Poll, Waker};
 
 use arm_core::hw::{Datagrams, Endpoint};
-use arm_core::{Bus, Controller, DoorLine, StepShared, TrajectoryHw};
+use arm_core::{Bus, Controller, DoorLine, EStopLine, StepShared, TrajectoryHw};
 
 use crate::app::{Board, STEP_QUEUE, controller_config, step_timing};
 use crate::clock::SimClock;
@@ -86,6 +86,10 @@ pub struct VirtualBoard {
     kick: &'static SimStepKick,
     /// The safety-door input (issue 32): [`VirtualBoard::set_door`].
     door: &'static DoorLine,
+    /// The wired e-stop input (issue 18; its category, issue 32):
+    /// [`VirtualBoard::set_estop_input`]. A line of this board's own, not
+    /// `crate::estop::LINE`: tests run several boards in one process.
+    estop: &'static EStopLine,
     tasks: Pin<Box<dyn Future<Output = ()>>>,
 }
 
@@ -106,6 +110,7 @@ impl VirtualBoard {
         )));
         let bus: &'static Bus = Box::leak(Box::new(Bus::new()));
         let door: &'static DoorLine = Box::leak(Box::new(DoorLine::new()));
+        let estop: &'static EStopLine = Box::leak(Box::new(EStopLine::new()));
         let socket: &'static VirtualSocket = Box::leak(Box::default());
         let kick: &'static SimStepKick = Box::leak(Box::new(board.kick.clone()));
         let clock_ref: &'static SimClock = Box::leak(Box::new(clock));
@@ -124,7 +129,7 @@ impl VirtualBoard {
             serial: board.serial,
             settings,
             encoders: board.encoders.clone(),
-            estop: None,
+            estop: Some(estop),
             door: Some(door),
             switches: None,
         };
@@ -150,6 +155,7 @@ impl VirtualBoard {
             step,
             kick,
             door,
+            estop,
             tasks: Box::pin(tasks),
         })
     }
@@ -158,6 +164,18 @@ impl VirtualBoard {
     /// next round (opening holds the run; closing and a RESUME go on).
     pub fn set_door(&self, open: bool) {
         self.door.set(open, &self.bus.step_progress);
+    }
+
+    /// Opens or closes the wired e-stop input, as `--estop-input`'s signals do
+    /// ([`crate::estop::SimEStopInput`]: the edge handler's work right here, before any
+    /// task runs: category 0 halts the steps at once, category 1 leaves a run to the
+    /// controlled stop; the trajectory task applies it in the next round). Traced as the
+    /// `estop_input` wire.
+    pub fn set_estop_input(&self, open: bool) {
+        self.tracer
+            .record(crate::vcd::Signal::EStopInput, crate::vcd::Value::Bit(open));
+        self.estop
+            .edge(open, self.step, self.kick, &self.bus.step_progress);
     }
 
     /// Delivers a datagram from `from` (read by the network task in the next round).

@@ -13,10 +13,9 @@ mod virtual_host;
 
 use armctl::vcd;
 use protocol::{
-    Command, ControlledStop, Frame, MAX_JOINTS, MotionReport, Point, PointList, Report, State,
-    StatusAsk, StopCause, StopReport,
+    Command, ControlledStop, MAX_JOINTS, MotionReport, Point, PointList, State, StopCause,
+    StopReport,
 };
-use sim_host::virtual_board::VirtualBoard;
 use virtual_host::*;
 
 /// 200 MHz step timer: tick rounding (5 ns) does not show in the implied accelerations.
@@ -42,38 +41,6 @@ fn trajectory() -> Vec<Point> {
             Point::from_motion(10_000, &before, &at)
         })
         .collect()
-}
-
-/// STOP_CAUSE and MOTION (STATUS's request byte bits 2 and 4).
-fn stop_and_motion(host: &mut Host, board: &mut VirtualBoard) -> (StopReport, MotionReport) {
-    host.reports.clear();
-    let ask = StatusAsk {
-        stop_cause: true,
-        motion: true,
-        ..StatusAsk::default()
-    };
-    host.ok(board, &Command::StatusWith(ask));
-    let (mut stop, mut motion) = (None, None);
-    board.run_until(SECOND_NS / 10, |b| {
-        for (_, bytes) in b.sent() {
-            host.reports.push((0, bytes));
-        }
-        for (_, bytes) in &host.reports {
-            match Report::decode(bytes) {
-                Ok(Frame {
-                    body: Report::StopCause(s),
-                    ..
-                }) => stop = Some(s),
-                Ok(Frame {
-                    body: Report::Motion(m),
-                    ..
-                }) => motion = Some(m),
-                _ => {}
-            }
-        }
-        stop.is_some() && motion.is_some()
-    });
-    (stop.expect("STOP_CAUSE"), motion.expect("MOTION"))
 }
 
 /// Runs the late host; returns the rises of joint 0, the last point sent, and the reports.

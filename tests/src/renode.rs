@@ -62,6 +62,7 @@ static ELF: Mutex<Option<PathBuf>> = Mutex::new(None);
 static ELF_TMC: Mutex<Option<PathBuf>> = Mutex::new(None);
 /// The `switch-inputs` build's ELF, once built (see [`firmware_elf_switches`]).
 static ELF_SWITCHES: Mutex<Option<PathBuf>> = Mutex::new(None);
+static ELF_DOOR: Mutex<Option<PathBuf>> = Mutex::new(None);
 
 /// Substrings of a decoded log line that mean the firmware failed: the fault path
 /// (`firmware/board/src/fault.rs`) and the watchdog task's stall line (a check 100 ms late).
@@ -248,6 +249,16 @@ pub fn firmware_elf_switches() -> PathBuf {
         return PathBuf::from(path);
     }
     build_firmware(&ELF_SWITCHES, Some("switch-inputs"))
+}
+
+/// The board's ELF with the safety-door input (`cargo fw --features door-input`, issue 32:
+/// opt-in, docs/BOARD.md), `RENODE_FIRMWARE_DOOR` if set; copied beside `fw/firmware` as
+/// `firmware-door-input`.
+pub fn firmware_elf_door() -> PathBuf {
+    if let Some(path) = std::env::var_os("RENODE_FIRMWARE_DOOR") {
+        return PathBuf::from(path);
+    }
+    build_firmware(&ELF_DOOR, Some("door-input"))
 }
 
 fn build_firmware(cache: &Mutex<Option<PathBuf>>, feature: Option<&str>) -> PathBuf {
@@ -675,6 +686,12 @@ impl RenodeBoard {
     /// ([`firmware_elf_switches`]).
     pub fn start_switches_with_step_path(monitor_commands: &str) -> RenodeBoard {
         Self::start_inner(Some(monitor_commands), firmware_elf_switches())
+    }
+
+    /// As [`RenodeBoard::start_with_step_path`], with the `door-input` build
+    /// ([`firmware_elf_door`]).
+    pub fn start_door_with_step_path(monitor_commands: &str) -> RenodeBoard {
+        Self::start_inner(Some(monitor_commands), firmware_elf_door())
     }
 
     fn start_inner(step_path: Option<&str>, elf_path: PathBuf) -> RenodeBoard {

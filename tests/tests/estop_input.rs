@@ -191,3 +191,61 @@ fn the_wired_input_stops_armctl_run_latches_and_estop_reset_clears_it() {
         .count();
     assert!(after > 0, "no pulse after the reset");
 }
+
+/// Issue 32 from outside: `armctl estop-category` shows 0, sets 1 (kept in the settings);
+/// SIGUSR1 during `armctl run` then ends the run latched with the drivers disabled (the
+/// controlled stop's end; its ramp figures are sim-host/tests/estop_category.rs's, on
+/// virtual time).
+#[test]
+fn estop_category_1_from_armctl_ends_the_run_with_the_drivers_disabled() {
+    let mut sim = SimHost::start_traced(&["--estop-input", "--joints", "1"]);
+    let dir = sim.dir().to_path_buf();
+    let long = dir.join("long.csv");
+    std::fs::write(&long, "time_s,j0\n0,0\n10,2000\n").unwrap();
+    let (ok, out) = armctl(&sim, &["estop-category"]);
+    assert!(ok && out.contains("e-stop category 0"), "{out}");
+    let (ok, out) = armctl(&sim, &["estop-category", "1"]);
+    assert!(ok, "{out}");
+    let (ok, out) = armctl(&sim, &["estop-category"]);
+    assert!(ok && out.contains("e-stop category 1"), "{out}");
+    let out = status_until(&sim, "e-stop input");
+    assert!(out.contains("drivers enabled yes"), "{out}");
+
+    let mut run = Command::new(armctl_bin())
+        .arg("--controller")
+        .arg(sim.addr.to_string())
+        .args(["run", long.to_str().unwrap(), "--quiet"])
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("armctl run");
+    let deadline = Instant::now() + Duration::from_secs(10);
+    loop {
+        let (ok, out) = armctl(&sim, &["status"]);
+        assert!(ok, "{out}");
+        if out.contains("state            RUNNING") {
+            break;
+        }
+        assert!(Instant::now() < deadline, "the run never started: {out}");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    signal(&sim, libc::SIGUSR1);
+    let deadline = Instant::now() + Duration::from_secs(10);
+    let ended = loop {
+        if let Some(status) = run.try_wait().unwrap() {
+            break status;
+        }
+        assert!(Instant::now() < deadline, "armctl run did not end");
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    assert!(!ended.success(), "the run was cut short: {ended}");
+    let out = status_until(&sim, "OPEN, LATCHED");
+    assert!(out.contains("state            STOPPED"), "{out}");
+    assert!(
+        out.contains("drivers enabled no"),
+        "drivers disabled: {out}"
+    );
+    signal(&sim, libc::SIGUSR2);
+    status_until(&sim, "closed, LATCHED");
+    sim.terminate();
+}

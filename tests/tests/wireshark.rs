@@ -1371,6 +1371,7 @@ fn issue_32_motion_frames_decode_in_wireshark() {
         last_stop: Some(protocol::ControlledStop::Hold),
         refused_joint: 0xFF,
         refused_limit: None,
+        estop_category: Some(protocol::EStopCategory::Instant),
     };
     let n = Report::Motion(motion).encode(0x34, &mut buf).unwrap();
     log.record(controller, host, &buf[..n]).unwrap();
@@ -1386,6 +1387,7 @@ fn issue_32_motion_frames_decode_in_wireshark() {
         last_stop: Some(protocol::ControlledStop::Underrun),
         refused_joint: 0xFF,
         refused_limit: None,
+        estop_category: Some(protocol::EStopCategory::Instant),
     };
     let n = Report::Motion(underrun).encode(0x35, &mut buf).unwrap();
     log.record(controller, host, &buf[..n]).unwrap();
@@ -1441,6 +1443,76 @@ fn issue_32_motion_frames_decode_in_wireshark() {
         [11],
         "{:?}",
         packets[6]
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Issue 32's ESTOP_CATEGORY (PROTOCOL.md's worked example) and MOTION's e-stop fields
+/// (flag bit 5, last stop 4 ESTOP, byte 7 the category) decode; a category of 2 is
+/// flagged INVALID_CONFIG.
+#[test]
+fn issue_32_estop_category_decodes_in_wireshark() {
+    if !have_wireshark("issue 32 e-stop category") {
+        return;
+    }
+    let dir = scratch("issue32estop");
+    let pcap = dir.join("estop.pcap");
+    let host: std::net::SocketAddr = "127.0.0.1:40000".parse().unwrap();
+    let controller: std::net::SocketAddr = format!("127.0.0.1:{}", protocol::PORT).parse().unwrap();
+    let log = armctl::pcap::PcapLog::create(&pcap).expect("create the capture");
+    let mut buf = [0u8; protocol::MAX_DATAGRAM];
+    let n = Cmd::EstopCategory(protocol::EStopCategory::Controlled)
+        .encode(0x3a, &mut buf)
+        .unwrap();
+    assert_eq!(&buf[..n], [0x3a, 0x2b, 0x01, 0x58], "PROTOCOL.md's example");
+    log.record(host, controller, &buf[..n]).unwrap();
+    let ramp = protocol::MotionReport {
+        factor_percent: 100,
+        flags: protocol::MotionFlags(
+            protocol::MotionFlags::HELD
+                | protocol::MotionFlags::RAMPING
+                | protocol::MotionFlags::ESTOP_RAMP,
+        ),
+        rate_permille: 400,
+        last_stop: Some(protocol::ControlledStop::EStop),
+        refused_joint: 0xFF,
+        refused_limit: None,
+        estop_category: Some(protocol::EStopCategory::Controlled),
+    };
+    let n = Report::Motion(ramp).encode(0x3b, &mut buf).unwrap();
+    log.record(controller, host, &buf[..n]).unwrap();
+    let mut two = vec![0x3c, protocol::Tag::EstopCategory as u8, 2];
+    two.push(crc8(&two));
+    log.record(host, controller, &two).unwrap();
+    drop(log);
+    let packets = dissect(
+        &pcap,
+        &[
+            "armctl.tag",
+            "armctl.verdict",
+            "armctl.estop_category",
+            "armctl.motion.estop_ramp",
+            "armctl.motion.last_stop",
+        ],
+        false,
+        None,
+    );
+    assert_eq!(packets.len(), 3);
+    for (p, tag) in packets.iter().zip([0x2b, 0x2a, 0x2b]) {
+        assert_eq!(numbers(&p["armctl.tag"]), [tag], "{p:?}");
+    }
+    let p = &packets[0];
+    assert_eq!(numbers(&p["armctl.verdict"]), [0], "{p:?}");
+    assert_eq!(numbers(&p["armctl.estop_category"]), [1], "{p:?}");
+    let p = &packets[1];
+    assert_eq!(p["armctl.motion.estop_ramp"], "1", "{p:?}");
+    assert_eq!(numbers(&p["armctl.motion.last_stop"]), [4], "{p:?}");
+    assert_eq!(numbers(&p["armctl.estop_category"]), [1], "{p:?}");
+    assert_eq!(
+        numbers(&packets[2]["armctl.verdict"]),
+        [11],
+        "{:?}",
+        packets[2]
     );
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -42,7 +42,7 @@ local tag_names = {
     [0x20] = "DISCOVER", [0x21] = "NET_SET", [0x22] = "DISCOVER_REPLY",
     [0x23] = "JOINT_DESC_GET", [0x24] = "RX_COUNTERS", [0x25] = "UNLOCK", [0x26] = "JOINT_DESC",
     [0x27] = "HOLD", [0x28] = "RESUME", [0x29] = "OVERRIDE", [0x2a] = "MOTION", [0x32] = "DIAG",
-    [0x2c] = "HOME", [0x2d] = "HOMING_SET", [0x2e] = "HOMING_GET", [0x2f] = "HOMING",
+    [0x2b] = "ESTOP_CATEGORY", [0x2c] = "HOME", [0x2d] = "HOMING_SET", [0x2e] = "HOMING_GET", [0x2f] = "HOMING",
     [0x30] = "SWITCHES",
     [0x50] = "AUTH", [0x51] = "HELLO", [0x52] = "SET_KEY", [0x53] = "HELLO_REPLY",
 }
@@ -70,7 +70,11 @@ local homing_error_names = {
     [3] = "approach missed the switch", [4] = "aborted", [5] = "bad settings",
 }
 -- MOTION's last controlled stop and refused limit (issue 32).
-local controlled_stop_names = { [0] = "NONE", [1] = "HOLD", [2] = "UNDERRUN", [3] = "DOOR" }
+local controlled_stop_names = {
+    [0] = "NONE", [1] = "HOLD", [2] = "UNDERRUN", [3] = "DOOR", [4] = "ESTOP",
+}
+-- The wired e-stop input's stop category (ESTOP_CATEGORY, MOTION byte 7; issue 32).
+local estop_category_names = { [0] = "CATEGORY_0", [1] = "CATEGORY_1" }
 local override_limit_names = { [0] = "none", [1] = "RATE", [2] = "ACCEL" }
 
 local crc_status_names = { [0] = "Bad", [1] = "Good", [2] = "Unverified" }
@@ -192,6 +196,8 @@ local f = {
     motion_ramping = field("bool", "motion.ramping", "Ramping", 8, nil, 0x04),
     motion_underrun = field("bool", "motion.underrun", "Underrun ramp (the host is late)", 8, nil, 0x08),
     motion_door_open = field("bool", "motion.door_open", "Safety door open", 8, nil, 0x10),
+    motion_estop_ramp = field("bool", "motion.estop_ramp", "Category 1 e-stop ramp", 8, nil, 0x20),
+    estop_category = dec("uint8", "estop_category", "E-stop stop category", estop_category_names),
     motion_rate = dec("uint16", "motion.rate", "Rate now, tenths of a percent"),
     motion_last_stop = dec("uint8", "motion.last_stop", "Last controlled stop", controlled_stop_names),
     motion_refused_joint = dec("uint8", "motion.refused_joint", "Last OVERRIDE refused: joint (255 none)"),
@@ -738,6 +744,14 @@ local host_dissectors = {
         if percent < 1 or percent > 200 then out_of_range(tree, "OVERRIDE percent must be 1..200") end
         return percent .. " %"
     end,
+    -- ESTOP_CATEGORY (issue 32): the category, 0 or 1.
+    [0x2b] = function(tree, data, len)
+        if len ~= 1 then return length_error(tree, data, "1", len) end
+        tree:add(f.estop_category, data(0, 1))
+        local category = data(0, 1):uint()
+        if category > 1 then out_of_range(tree, "ESTOP_CATEGORY must be 0 or 1") end
+        return "category " .. category
+    end,
     -- JOINT_DESC_GET (issue 31): the joint.
     [0x23] = function(tree, data, len)
         if len ~= 1 then return length_error(tree, data, "1", len) end
@@ -965,7 +979,7 @@ local controller_dissectors = {
         return dissect_joint_desc(tree, data)
     end,
     -- MOTION (issue 32): factor, flags, rate (u16 LE, 0.1 %), last controlled stop,
-    -- refused joint and limit, 1 reserved.
+    -- refused joint and limit, the e-stop category.
     [0x2a] = function(tree, data, len)
         if len ~= 8 then return length_error(tree, data, "8", len) end
         tree:add(f.motion_factor, data(0, 1))
@@ -975,10 +989,12 @@ local controller_dissectors = {
         flags:add(f.motion_ramping, data(1, 1))
         flags:add(f.motion_underrun, data(1, 1))
         flags:add(f.motion_door_open, data(1, 1))
+        flags:add(f.motion_estop_ramp, data(1, 1))
         tree:add_le(f.motion_rate, data(2, 2))
         tree:add(f.motion_last_stop, data(4, 1))
         tree:add(f.motion_refused_joint, data(5, 1))
         tree:add(f.motion_refused_limit, data(6, 1))
+        tree:add(f.estop_category, data(7, 1))
         local held = bit.band(data(1, 1):uint(), 1) ~= 0 and ", held" or ""
         return string.format("%d %%%s, rate %.1f %%", data(0, 1):uint(), held,
             data(2, 2):le_uint() / 10)

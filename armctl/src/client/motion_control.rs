@@ -1,7 +1,7 @@
 //! Issue 32's motion control in flight on the client: HOLD, RESUME, OVERRIDE and the MOTION
 //! report (docs/PROTOCOL.md, "HOLD, RESUME, OVERRIDE").
 
-use protocol::{Ack, Command, MotionReport, StatusAsk, StatusReport, Tag};
+use protocol::{Ack, Command, EStopCategory, MotionReport, StatusAsk, StatusReport, Tag};
 
 use super::wire_tools::recv_within;
 use super::{Client, check};
@@ -29,6 +29,16 @@ impl Client {
     pub fn set_override(&self, percent: u8) -> Result<Ack> {
         self.send(&Command::Override { percent })
             .and_then(|ack| check(Tag::Override, ack))
+    }
+
+    /// ESTOP_CATEGORY: how the wired e-stop input stops the arm (0 at once, 1 a
+    /// controlled stop then the drivers disabled), kept in the controller's settings; the
+    /// ACK comes once saved. Only while STOPPED (`BAD_STATE`); the owner only; an older
+    /// controller answers `UNKNOWN_TAG`. Read it back with [`Client::motion`] (MOTION's
+    /// `estop_category`).
+    pub fn set_estop_category(&self, category: EStopCategory) -> Result<Ack> {
+        self.send(&Command::EstopCategory(category))
+            .and_then(|ack| check(Tag::EstopCategory, ack))
     }
 
     /// STATUS with request byte bit 4 (look only, any host): the STATUS and the MOTION

@@ -125,6 +125,13 @@ fn the_stop_cause_names_the_input_or_the_stoppeds_sender() {
     ));
     assert!(!e.to_string().contains("controlled"), "{e}");
     assert!(crate::stop::stop_cause_text(&s, Some(&dead)).contains("dead underrun"));
+    // Issue 32: the safety door on a step side that cannot hold (STOP_CAUSE HOLD, DOOR).
+    let door = StopReport {
+        detail: protocol::ControlledStop::Door as u8,
+        ..StopReport::of(StopCause::Hold)
+    };
+    let s = status(StopCause::Hold);
+    assert!(crate::stop::stop_cause_text(&s, Some(&door)).contains("safety door"));
 }
 
 /// Issue 19's load test: under 20 % loss each way the window halved down to one frame, so

@@ -130,6 +130,31 @@ pub fn decode_desc(
     PersistentSettings { desc, ..settings }
 }
 
+/// Map key of the stop record (ESTOP_CATEGORY, issue 32): the wired e-stop input's
+/// category; beside the others, so that a flash written before it loads with category 0.
+/// Key 12 is kept for the next stop setting.
+pub const STOP_KEY: u8 = 11;
+/// Bytes of the stop record: the e-stop category, three reserved (0).
+pub const STOP_RECORD_LEN: usize = 4;
+
+/// The stored stop record for `settings`.
+pub fn encode_stop(settings: &PersistentSettings) -> [u8; STOP_RECORD_LEN] {
+    [settings.estop_category as u8, 0, 0, 0]
+}
+
+/// `settings` with the stop record's values; an unknown category loads as 0 (the
+/// instant stop: never a slower stop than asked for).
+pub fn decode_stop(
+    settings: PersistentSettings,
+    record: &[u8; STOP_RECORD_LEN],
+) -> PersistentSettings {
+    let estop_category = protocol::EStopCategory::from_u8(record[0]).unwrap_or_default();
+    PersistentSettings {
+        estop_category,
+        ..settings
+    }
+}
+
 /// Map keys of the homing records (HOMING_SET, issue 33): joints 0-1, 2-3, 4-5, 6-7, two
 /// joints a record as the descriptions; beside the others, so that a flash written before
 /// them loads with no homing.
@@ -480,6 +505,9 @@ impl<F: NorFlash> SettingsArea<F> {
                 settings = decode_homing(settings, part, &record);
             }
         }
+        if let Some(record) = self.fetch_record::<STOP_RECORD_LEN>(&STOP_KEY).await? {
+            settings = decode_stop(settings, &record);
+        }
         Ok(settings)
     }
 
@@ -592,6 +620,13 @@ impl<F: NorFlash> SettingsArea<F> {
                 )
                 .await?;
         }
+        self.map
+            .store_item::<&[u8]>(
+                &mut self.buffer.0,
+                &STOP_KEY,
+                &encode_stop(settings).as_slice(),
+            )
+            .await?;
         Ok(())
     }
 
@@ -624,7 +659,29 @@ mod tests {
             max_accel: [0; protocol::MAX_JOINTS],
             desc: [protocol::JointDesc::NONE; protocol::MAX_JOINTS],
             homing: [protocol::HomingSettings::NONE; protocol::MAX_JOINTS],
+            estop_category: protocol::EStopCategory::Instant,
         }
+    }
+
+    /// Issue 32: the e-stop category is kept (key 11); a flash written before it (the
+    /// settings and network records alone) loads with category 0, and an unknown byte loads as 0.
+    #[test]
+    fn the_estop_category_is_stored_and_an_older_flash_loads_category_0() {
+        let mut controlled = custom();
+        controlled.estop_category = protocol::EStopCategory::Controlled;
+        let mut area = SettingsArea::new(Flash::default(), RANGE);
+        block_on(area.save(&controlled)).unwrap();
+        assert_eq!(block_on(area.load()), LoadOutcome::Stored(controlled));
+        let mut old = SettingsArea::new(Flash::default(), RANGE);
+        let first: &[u8] = &encode(&custom());
+        let net: &[u8] = &encode_net(&custom());
+        block_on(old.map.store_item(&mut old.buffer.0, &SETTINGS_KEY, &first)).unwrap();
+        block_on(old.map.store_item(&mut old.buffer.0, &NET_KEY, &net)).unwrap();
+        assert_eq!(block_on(old.load()), LoadOutcome::Stored(custom()));
+        assert_eq!(
+            decode_stop(custom(), &[7, 0, 0, 0]).estop_category,
+            protocol::EStopCategory::Instant
+        );
     }
 
     /// Issue 31: each joint's description (name, units, scale) is kept; a flash written

@@ -15,6 +15,12 @@
 //! it (RUNING and RETURN refused until the input is closed and a host sends ESTOP_RESET).
 //! docs/BOARD.md, "Wired e-stop input", has the path from pin to STEP low.
 //!
+//! Category 1 (ESTOP_CATEGORY, issue 32) changes nothing here: this board's step side has
+//! no time warp, so a run cannot ramp down and [`EXTI0`] stops it as category 0 whatever
+//! the setting (the service's `EStopLine::edge` finds no warp and halts too); the
+//! controller then disables the drivers, category 1's end. When the producer gains the
+//! warp, [`EXTI0`]'s kill must first ask the line whether the opening is left to a ramp.
+//!
 //! # Every interleaving
 //!
 //! The guarantee: once [`EXTI0`] has seen the input open, no STEP edge comes, and no run

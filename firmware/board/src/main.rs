@@ -16,7 +16,7 @@
 //! | P1 | TIM13: step clock ([`step_timer`]): DIR changes at reversals (from lock-free queues), the run's end handed to the step service | a DIR change must come between a pulse's fall and the next pulse's setup |
 //! | P2 | DMA1 and DMA2 streams 0-3: STEP buffer refills ([`step_dma`]); TIM7's vector: the step service (run end, the e-stop's halt); TIM15: gripper burst reloads ([`gripper`]) | a half (64 periods) of slack; 128 PWM periods |
 //! | P3 | TIM12: embassy-time | task wake-ups |
-//! | P4 | Ethernet (and its look at STOPPED in each received frame, `net::RxPeek`), USART6, DMA, flash, RNG | driver bookkeeping; their tasks wait anyway. The Ethernet look halts the steps for a STOPPED within microseconds of its frame landing, whatever thread mode does (issue 30 part 4), and keeps two receive descriptors free by dropping the oldest frames the runner has not taken, so none lands in a full ring; at P4 it never holds off P0-P3 |
+//! | P4 | EXTI4: the safety door on PF4 (`door`, feature `door-input`, issue 32): the level recorded, the trajectory task woken; Ethernet (and its look at STOPPED in each received frame, `net::RxPeek`), USART6, DMA, flash, RNG | driver bookkeeping; their tasks wait anyway. The Ethernet look halts the steps for a STOPPED within microseconds of its frame landing, whatever thread mode does (issue 30 part 4), and keeps two receive descriptors free by dropping the oldest frames the runner has not taken, so none lands in a full ring; at P4 it never holds off P0-P3 |
 //! | thread mode | every task, one executor | see below |
 //!
 //! P0 is the e-stop input's and the switches' alone; the others kept their order, one level lower each
@@ -101,6 +101,8 @@
 
 mod clocks;
 mod diag;
+#[cfg(feature = "door-input")]
+mod door;
 mod encoder;
 mod estop;
 mod fault;
@@ -370,6 +372,14 @@ async fn main(spawner: Spawner) -> ! {
     }));
     #[cfg(not(feature = "switch-inputs"))]
     let switch_line = None;
+    // The safety door (issue 32, opt-in): a door open at boot refuses RUNING at once.
+    #[cfg(feature = "door-input")]
+    let door_line: Option<&'static arm_core::DoorLine> = {
+        door::start(p.PF4);
+        Some(&door::LINE)
+    };
+    #[cfg(not(feature = "door-input"))]
+    let door_line = None;
     // The joint timers and their DMA streams (DMA1 and DMA2 streams 0-3) are driven
     // through their registers (step_dma/); their handles are not used by anything else.
     let _step_hw = (
@@ -450,8 +460,8 @@ async fn main(spawner: Spawner) -> ! {
             settings,
             encoders,
             estop: Some(&estop::LINE),
-            // The safety door's pin is chosen (docs/BOARD.md), not wired yet.
-            door: None,
+            // PF4 with `--features door-input` (docs/BOARD.md, "Safety door input").
+            door: door_line,
             switches: switch_line,
         },
     ));

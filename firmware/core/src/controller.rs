@@ -97,6 +97,11 @@
 //! `ESTOP_LATCHED`; with no latch: `OK`, nothing changes). Old hosts see state STOPPED
 //! and a RUNING refused.
 //!
+//! Under ESTOP_CATEGORY 1 (issue 32, `controller/motion.rs`) an opening the handler left
+//! to a controlled stop goes to [`Controller::estop_controlled`] instead: latched at once,
+//! the run ramps to a standstill with HOLD's slope within a bound, then
+//! [`Controller::estop_ramp_poll`] stops it as above and disables the drivers.
+//!
 //! # Overtaken frames
 //! The tasks handle a STOPPED before datagrams queued ahead of it (the e-stop path in
 //! [`crate::tasks`]). Such an overtaken frame is still handled with [`Controller::handle`]
@@ -142,6 +147,9 @@ use crate::uart::uart_frame;
 mod boot;
 mod homing_run;
 mod motion;
+pub use motion::{
+    ESTOP_RAMP_LOOKAHEAD_US, ESTOP_RAMP_POLL_US, ESTOP_RAMP_SLACK_US, estop_ramp_bound_us,
+};
 mod owner;
 mod runs;
 
@@ -1232,6 +1240,16 @@ impl<const CAP: usize> Controller<CAP> {
             Command::Hold => self.hold(plant)?,
             Command::Resume => self.resume(plant)?,
             Command::Override { percent } => self.set_override(percent, plant)?,
+            // Kept with the limits, under their rule (STOPPED only, ACKed after the save):
+            // a run never changes its stop category under way.
+            Command::EstopCategory(estop_category) => {
+                flash_only(self)?;
+                let settings = PersistentSettings {
+                    estop_category,
+                    ..self.settings
+                };
+                response.deferred = Some(Deferred::SaveSettings(settings));
+            }
             // The owner gives the controller up: no owner, no report destinations (the
             // next host to speak takes it, as at boot). Only while STOPPED: an upload or
             // run of the owner's would otherwise pass to whoever speaks next.
@@ -1475,10 +1493,21 @@ impl<const CAP: usize> Controller<CAP> {
         if !open {
             return None;
         }
+        // Category 1 ends with the drivers disabled, also when its stop had to be
+        // instant (a board without a warp: its handler halted, as category 0's).
+        if self.settings.estop_category == protocol::EStopCategory::Controlled {
+            return self.estop_stop_now(plant);
+        }
         self.more_flags.set(MoreFlags::ESTOP_LATCHED, true);
         let before = self.state;
         self.stop_by_host(plant, None);
         (before != self.state && self.reports_on).then(|| self.location(plant))
+    }
+
+    /// Every driver (and the gripper's) disabled: ENABLE off.
+    fn disable_drivers(&mut self, plant: &mut impl Plant) {
+        self.enabled = 0;
+        plant.set_enabled(0);
     }
 
     /// A limit switch's event (issue 33, [`crate::switches`]): a trip does what a STOPPED

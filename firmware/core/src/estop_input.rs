@@ -18,6 +18,18 @@
 //! An opening is never lost: [`EStopSample::opened`] stays set until the task takes it,
 //! so an input that opens and closes again before the task runs still latches.
 //!
+//! # Category 1 (issue 32)
+//! With the stop category set to 1 (ESTOP_CATEGORY, [`EStopLine::set_category`]) an
+//! opening while a run plays on a step side with a time warp ([`StepShared::rate_now`]
+//! says so: the simulator's; the boards' have none and stop as category 0) is left to a
+//! controlled stop: the handler only blocks new runs ([`StepShared::block_starts`]),
+//! records the opening as `controlled` and wakes the task, which ramps the run to a
+//! standstill within the accelerations, then disables the drivers and latches
+//! ([`crate::Controller::estop_controlled`]). Every other opening halts at once as in
+//! category 0: no run to ramp, no warp, or a ramp already under way (a second opening).
+//! The task bounds the ramp ([`crate::controller::estop_ramp_bound_us`]) and
+//! halts when it is passed.
+//!
 //! The line is the same for every board: what is hardware-specific is only who calls
 //! [`EStopLine::edge`] with which level (docs/BOARD.md has the NUCLEO's pin and interrupt,
 //! sim-host/README.md the simulator's option and signals). A board without the input
@@ -41,12 +53,28 @@ pub struct EStopSample {
     /// It opened at least once since the last [`EStopLine::take`] (it may have closed
     /// again since).
     pub opened: bool,
+    /// Every opening since the last take was left to a category 1 controlled stop (the
+    /// handler halted nothing): the task ramps the run down. False when any of them
+    /// halted.
+    pub controlled: bool,
+}
+
+/// The line's state under its lock.
+#[derive(Clone, Copy, Debug, Default)]
+struct LineState {
+    /// What the task takes.
+    sample: EStopSample,
+    /// Category 1 is set ([`EStopLine::set_category`]).
+    category_1: bool,
+    /// A category 1 ramp is under way (set by the opening left to it, cleared by
+    /// [`EStopLine::ramp_over`]): another opening halts at once.
+    ramping: bool,
 }
 
 /// The wired e-stop input as the edge handler and the trajectory task share it. Put one
 /// in a `static` (`new` is `const`).
 pub struct EStopLine {
-    state: Mutex<Cs, Cell<EStopSample>>,
+    state: Mutex<Cs, Cell<LineState>>,
 }
 
 impl Default for EStopLine {
@@ -59,16 +87,23 @@ impl EStopLine {
     /// Closed, nothing to take.
     pub const fn new() -> Self {
         EStopLine {
-            state: Mutex::new(Cell::new(EStopSample {
-                open: false,
-                opened: false,
+            state: Mutex::new(Cell::new(LineState {
+                sample: EStopSample {
+                    open: false,
+                    opened: false,
+                    controlled: false,
+                },
+                category_1: false,
+                ramping: false,
             })),
         }
     }
 
     /// The edge handler's work: the input is now `open` (or closed). Opening halts the
-    /// step backend at once, before anything else ([`StepShared::halt`], then `kick`);
-    /// closing lets runs start again ([`StepShared::release`]). Then the level is
+    /// step backend at once, before anything else ([`StepShared::halt`], then `kick`),
+    /// unless category 1 leaves it to a controlled stop (see the module header: a run
+    /// under way on a step side with a warp and no ramp yet; then new runs are blocked
+    /// only); closing lets runs start again ([`StepShared::release`]). Then the level is
     /// recorded and the trajectory task woken with `wake` (the bus's `step_progress`).
     /// Callable from any context; never waits.
     pub fn edge<const Q: usize, B: StepBackend, M: embassy_sync::blocking_mutex::raw::RawMutex>(
@@ -78,18 +113,34 @@ impl EStopLine {
         kick: &impl StepKick,
         wake: &Signal<Cs, ()>,
     ) {
-        if open {
+        // Decided from a look at the line, acted on outside its lock (as before category
+        // 1: the halt takes only the step lock, never inside a critical section, which
+        // would hold off the DIR changes and the other P0 inputs on the NUCLEO), then
+        // recorded. The handler is never re-entered (one interrupt, or one thread under
+        // the simulator's lock); the task's `ramp_over` in between changes nothing here.
+        let (category_1, ramping) = self.state.lock(|s| {
+            let line = s.get();
+            (line.category_1, line.ramping)
+        });
+        let controlled = open && category_1 && !ramping && step.rate_now(kick.now_tick()).is_some();
+        if controlled {
+            step.block_starts();
+        } else if open {
             step.halt();
             kick.kick();
         } else {
             step.release();
         }
         self.state.lock(|s| {
-            let was = s.get();
-            s.set(EStopSample {
-                open,
-                opened: was.opened || open,
-            });
+            let mut line = s.get();
+            if open {
+                line.ramping = controlled;
+                let all_controlled = !line.sample.opened || line.sample.controlled;
+                line.sample.controlled = controlled && all_controlled;
+                line.sample.opened = true;
+            }
+            line.sample.open = open;
+            s.set(line);
         });
         wake.signal(());
     }
@@ -106,7 +157,7 @@ impl EStopLine {
         step: &StepShared<Q, B, M>,
     ) {
         self.state.lock(|s| {
-            if !s.get().open {
+            if !s.get().sample.open {
                 step.release();
             }
         });
@@ -114,18 +165,41 @@ impl EStopLine {
 
     /// Whether the input is open now.
     pub fn is_open(&self) -> bool {
-        self.state.lock(|s| s.get().open)
+        self.state.lock(|s| s.get().sample.open)
     }
 
     /// The level now and whether it opened since the last call (which this call clears).
     pub fn take(&self) -> EStopSample {
         self.state.lock(|s| {
-            let sample = s.get();
-            s.set(EStopSample {
-                open: sample.open,
-                opened: false,
-            });
+            let mut line = s.get();
+            let sample = line.sample;
+            line.sample.opened = false;
+            line.sample.controlled = false;
+            s.set(line);
             sample
         })
+    }
+
+    /// The stop category the controller's settings say (ESTOP_CATEGORY); the trajectory
+    /// task sets it before it looks at the line, so that the handler knows it.
+    pub fn set_category(&self, category: protocol::EStopCategory) {
+        self.state.lock(|s| {
+            let mut line = s.get();
+            line.category_1 = category == protocol::EStopCategory::Controlled;
+            s.set(line);
+        });
+    }
+
+    /// The trajectory task's controlled stop ended (or never began): the next opening
+    /// may be left to one again. Nothing while an opening is still to be taken (its
+    /// ramp is the one under way).
+    pub fn ramp_over(&self) {
+        self.state.lock(|s| {
+            let mut line = s.get();
+            if !line.sample.opened {
+                line.ramping = false;
+            }
+            s.set(line);
+        });
     }
 }

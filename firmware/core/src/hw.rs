@@ -145,6 +145,9 @@ pub struct PersistentSettings {
     /// Each joint's homing on its home switch (HOMING_SET, issue 33), kept with its
     /// limits; none by default and in settings stored before it.
     pub homing: [protocol::HomingSettings; protocol::MAX_JOINTS],
+    /// How the wired e-stop input stops the arm (ESTOP_CATEGORY, issue 32): category 0
+    /// (instant, the default and what settings stored before it load with) or 1.
+    pub estop_category: protocol::EStopCategory,
 }
 
 impl PersistentSettings {
@@ -161,6 +164,7 @@ impl PersistentSettings {
         max_accel: [0; protocol::MAX_JOINTS],
         desc: [protocol::JointDesc::NONE; protocol::MAX_JOINTS],
         homing: [protocol::HomingSettings::NONE; protocol::MAX_JOINTS],
+        estop_category: protocol::EStopCategory::Instant,
     };
 
     /// The network part, as NET_SET and DISCOVER_REPLY carry it.

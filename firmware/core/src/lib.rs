@@ -79,7 +79,12 @@
 //! wakes `trajectory_task` (through `bus.step_progress`), which, whatever woke it and
 //! before it handles anything else, applies it to the controller ([`Controller::estop_input`]:
 //! STOPPED, and a latch that refuses RUNING and RETURN with `ESTOP_LATCHED` until the
-//! input is closed and a host sends ESTOP_RESET).
+//! input is closed and a host sends ESTOP_RESET). Under stop category 1 (ESTOP_CATEGORY,
+//! issue 32) the handler leaves a run on a step side with a warp to a controlled stop
+//! (it only blocks new runs); the task ramps it down within the accelerations, bounded,
+//! then stops it and disables the drivers ([`Controller::estop_controlled`],
+//! [`Controller::estop_ramp_poll`]). The safety door (`door_input.rs`) is recorded alike
+//! and holds the run.
 #![no_std]
 // Firmware code never panics on data from the network: no indexing, no unwrap, no
 // silently truncating cast (issue 12). Unit tests index and unwrap freely.

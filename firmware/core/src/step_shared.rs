@@ -302,6 +302,13 @@ impl<const Q: usize, B: StepBackend, M: RawMutex> StepShared<Q, B, M> {
         })
     }
 
+    /// The wired e-stop input opened under category 1 ([`crate::estop_input`]): the run
+    /// under way goes on (the trajectory task ramps it down) but no run starts until
+    /// [`StepShared::release`], as after [`StepShared::halt`].
+    pub fn block_starts(&self) {
+        self.inner.lock(|s| s.borrow_mut().halted = true)
+    }
+
     /// The wired e-stop input closed: runs may start again (the controller still refuses
     /// them until its latch is cleared).
     pub fn release(&self) {

@@ -96,6 +96,12 @@ pub struct FakePlant {
     pub rate_changes: Vec<(u64, u32, u32)>,
     /// The rate the next start begins at (`set_start_rate`).
     pub start_rate: u64,
+    /// Fault: a step side without a warp (the boards' today): `change_rate` is refused
+    /// and `rate_now` is `None`.
+    pub warpless: bool,
+    /// Fault: a rate change never settles (`rate_now` says ramping): a ramp that never
+    /// reaches its standstill.
+    pub ramp_never_ends: bool,
     /// Contract checks: panic on a segment shorter than 1 us or faster than
     /// [`FakePlant::max_step_rate_hz`] on any joint, a user pin other than 0 and 1, enable
     /// bits beyond the gripper's, a serial chunk of 0 or more than 255 bytes.
@@ -131,6 +137,8 @@ impl Default for FakePlant {
             pushed: 0,
             rate_changes: Vec::new(),
             start_rate: arm_step::RATE_ONE,
+            warpless: false,
+            ramp_never_ends: false,
             checks: false,
             max_step_rate_hz: u64::MAX,
             set_positions_calls: Vec::new(),
@@ -178,6 +186,9 @@ impl Plant for FakePlant {
         self.running = true;
     }
     fn change_rate(&mut self, rate: u64, accel: u32, speed: u32) -> bool {
+        if self.warpless {
+            return false;
+        }
         if self.running {
             self.rate_changes.push((rate, accel, speed));
         }
@@ -189,8 +200,8 @@ impl Plant for FakePlant {
     fn rate_now(&self) -> Option<(u64, bool)> {
         // Every change done at once.
         let last = self.rate_changes.last().map(|&(rate, _, _)| rate);
-        self.running
-            .then_some((last.unwrap_or(self.start_rate), false))
+        (self.running && !self.warpless)
+            .then_some((last.unwrap_or(self.start_rate), self.ramp_never_ends))
     }
     fn set_user_pin(&mut self, pin: u8, high: bool) {
         assert!(!self.checks || pin < 2, "user pin {pin}");

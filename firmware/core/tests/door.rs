@@ -78,3 +78,29 @@ fn idle_an_open_door_refuses_runing_until_closed() {
     s.expect(Command::Runing, StatusCode::Ok);
     assert_eq!(s.controller.state(), State::Running);
 }
+
+/// On a step side without a warp (the NUCLEO's for now) an open door cannot hold the run:
+/// it is stopped, and its stop cause says the door (HOLD with detail 3 DOOR), not the
+/// wired e-stop input (which it said before: stop_by_host's cause for "no host").
+#[test]
+fn without_a_warp_the_door_stops_the_run_and_the_cause_says_so() {
+    let mut s = Session::<64>::new(64);
+    s.plant.warpless = true;
+    let pts = slow(20);
+    s.expect(Command::New { count: 20 }, StatusCode::Ok);
+    for chunk in pts.chunks(10) {
+        assert_eq!(s.pending(chunk).status, StatusCode::Ok);
+    }
+    s.expect(Command::Runing, StatusCode::Ok);
+    s.plant.run(&mut s.controller, 2);
+    let stops = s.plant.stops;
+    let location = s.controller.door_input(true, &mut s.plant);
+    assert!(location.is_some(), "a LOCATION of the state change");
+    assert_eq!(s.plant.stops, stops + 1, "stopped at once");
+    assert_eq!(s.controller.state(), State::Stopped);
+    let stop = s.controller.stop_report();
+    assert_eq!(stop.cause, Some(StopCause::Hold), "{stop:?}");
+    assert_eq!(stop.detail, ControlledStop::Door as u8);
+    assert!(!s.controller.estop_latched());
+    s.expect(Command::Runing, StatusCode::DoorOpen);
+}

@@ -269,7 +269,8 @@ fn an_opening_is_kept_until_the_task_takes_it() {
         line.take(),
         EStopSample {
             open: false,
-            opened: true
+            opened: true,
+            controlled: false,
         },
         "opened and closed before the task looked"
     );
@@ -279,14 +280,16 @@ fn an_opening_is_kept_until_the_task_takes_it() {
         line.take(),
         EStopSample {
             open: true,
-            opened: true
+            opened: true,
+            controlled: false,
         }
     );
     assert_eq!(
         line.take(),
         EStopSample {
             open: true,
-            opened: false
+            opened: false,
+            controlled: false,
         }
     );
 }

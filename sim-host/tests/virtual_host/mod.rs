@@ -7,7 +7,8 @@ use std::path::PathBuf;
 
 use arm_core::hw::Endpoint;
 use protocol::{
-    Command, Frame, Location, MAX_JOINTS, Point, PointList, Report, State, StatusCode, StatusReport,
+    Command, Frame, Location, MAX_JOINTS, MotionReport, Point, PointList, Report, State, StatusAsk,
+    StatusCode, StatusReport, StopReport,
 };
 use sim_host::options::SimOptions;
 use sim_host::virtual_board::VirtualBoard;
@@ -130,6 +131,38 @@ impl Host {
         }
         self.ok(board, &Command::Runing);
     }
+}
+
+/// STOP_CAUSE and MOTION (STATUS's request byte bits 2 and 4).
+pub fn stop_and_motion(host: &mut Host, board: &mut VirtualBoard) -> (StopReport, MotionReport) {
+    host.reports.clear();
+    let ask = StatusAsk {
+        stop_cause: true,
+        motion: true,
+        ..StatusAsk::default()
+    };
+    host.ok(board, &Command::StatusWith(ask));
+    let (mut stop, mut motion) = (None, None);
+    board.run_until(SECOND_NS / 10, |b| {
+        for (_, bytes) in b.sent() {
+            host.reports.push((0, bytes));
+        }
+        for (_, bytes) in &host.reports {
+            match Report::decode(bytes) {
+                Ok(Frame {
+                    body: Report::StopCause(s),
+                    ..
+                }) => stop = Some(s),
+                Ok(Frame {
+                    body: Report::Motion(m),
+                    ..
+                }) => motion = Some(m),
+                _ => {}
+            }
+        }
+        stop.is_some() && motion.is_some()
+    });
+    (stop.expect("STOP_CAUSE"), motion.expect("MOTION"))
 }
 
 /// Runs the board until a LOCATION report says STOPPED (at most `limit_ns`).

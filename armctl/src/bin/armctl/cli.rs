@@ -104,6 +104,14 @@ pub enum Cmd {
     /// ESTOP_RESET: clear the wired e-stop input's latch (once the input is closed again);
     /// until then RUNING and RETURN are refused with ESTOP_LATCHED.
     EstopReset,
+    /// ESTOP_CATEGORY: how the wired e-stop input stops the arm, 0 (at once, the
+    /// default) or 1 (a controlled stop along the path, then the drivers disabled); kept
+    /// in the controller's settings, set only while STOPPED. Without a value: shows it.
+    EstopCategory {
+        /// 0 or 1.
+        #[arg(value_parser = clap::value_parser!(u8).range(0..=1))]
+        category: Option<u8>,
+    },
     /// UNLOCK: clear the latch a limit switch set; then only motion away from a switch
     /// still active is accepted, until it opens.
     Unlock,

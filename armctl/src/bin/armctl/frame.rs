@@ -119,6 +119,11 @@ pub enum EncodeCmd {
     },
     /// ESTOP_RESET.
     EstopReset,
+    /// ESTOP_CATEGORY N (issue 32; 0 or 1 is what the controller takes).
+    EstopCategory {
+        /// The category.
+        category: u8,
+    },
     /// UNLOCK (issue 33).
     Unlock,
     /// HOLD (issue 32).
@@ -321,6 +326,10 @@ pub fn encode_frame(seq: u8, command: &EncodeCmd) -> Result<String, String> {
         EncodeCmd::Status => Command::Status,
         EncodeCmd::UploadPeriod { us } => Command::UploadPeriod { period_us: *us },
         EncodeCmd::EstopReset => Command::EstopReset,
+        EncodeCmd::EstopCategory { category } => Command::EstopCategory(
+            protocol::EStopCategory::from_u8(*category)
+                .ok_or_else(|| format!("ESTOP_CATEGORY {category}: the protocol has 0 and 1"))?,
+        ),
         EncodeCmd::Unlock => Command::Unlock,
         EncodeCmd::Hold => Command::Hold,
         EncodeCmd::Resume => Command::Resume,

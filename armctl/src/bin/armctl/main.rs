@@ -174,6 +174,7 @@ fn execute_online(cli: &Cli, arm: &armctl::Client) -> CliResult {
         Cmd::Stop => single::done(arm.stop()),
         Cmd::Release => owner::release(arm),
         Cmd::EstopReset => single::done(arm.estop_reset()),
+        Cmd::EstopCategory { category } => single::estop_category(arm, *category),
         Cmd::Unlock => single::done(arm.unlock()),
         Cmd::Hold => single::done(arm.hold()),
         Cmd::Resume => single::done(arm.resume()),

@@ -39,6 +39,35 @@ pub fn set_override(arm: &Client, percent: u8) -> CliResult {
     }
 }
 
+/// Runs `estop-category`: with a value, ESTOP_CATEGORY; without, the category MOTION
+/// reports (a controller older than issue 32 has none: it stops at once, category 0).
+pub fn estop_category(arm: &Client, category: Option<u8>) -> CliResult {
+    if let Some(byte) = category {
+        let category = protocol::EStopCategory::from_u8(byte)
+            .ok_or_else(|| format!("e-stop category {byte}: give 0 or 1"))?;
+        return done(arm.set_estop_category(category));
+    }
+    let (_, motion) = arm.motion().map_err(|e| e.to_string())?;
+    println!("{}", estop_category_line(motion.map(|m| m.estop_category)));
+    Ok(())
+}
+
+/// The line `estop-category` prints for MOTION's category (`None`: no MOTION report, an
+/// older controller; `Some(None)`: a byte this armctl does not know).
+pub fn estop_category_line(category: Option<Option<protocol::EStopCategory>>) -> String {
+    match category {
+        Some(Some(protocol::EStopCategory::Instant)) => {
+            "e-stop category 0: the input stops every joint at once".to_owned()
+        }
+        Some(Some(protocol::EStopCategory::Controlled)) => "e-stop category 1: the input \
+             decelerates the run along its path, then disables the drivers"
+            .to_owned(),
+        Some(None) => "e-stop category unknown (a newer controller)".to_owned(),
+        None => "e-stop category 0: this controller predates ESTOP_CATEGORY (it stops at once)"
+            .to_owned(),
+    }
+}
+
 /// Runs `return`: RETURN, and with `wait` the wait for the move's end. SIGINT, SIGTERM or SIGHUP
 /// from the RETURN on: STOPPED (crate::interrupt).
 pub fn go_home(arm: &Client, wait: bool) -> CliResult {

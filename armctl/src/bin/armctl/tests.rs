@@ -214,6 +214,29 @@ fn the_switches_line_names_the_latched_limit_and_the_homing() {
 }
 
 #[test]
+fn estop_category_sets_shows_and_encodes() {
+    assert!(matches!(
+        parse(&["estop-category", "1"]).command,
+        Cmd::EstopCategory { category: Some(1) }
+    ));
+    assert!(matches!(
+        parse(&["estop-category"]).command,
+        Cmd::EstopCategory { category: None }
+    ));
+    assert!(Cli::try_parse_from(["armctl", "estop-category", "2"]).is_err());
+    // PROTOCOL.md's worked example.
+    assert_eq!(
+        encode(&["frame", "encode", "--seq", "58", "estop-category", "1"]),
+        "3a2b0158"
+    );
+    use crate::single::estop_category_line;
+    use protocol::EStopCategory;
+    assert!(estop_category_line(Some(Some(EStopCategory::Controlled))).contains("category 1"));
+    assert!(estop_category_line(Some(Some(EStopCategory::Instant))).contains("category 0"));
+    assert!(estop_category_line(None).contains("predates"));
+}
+
+#[test]
 fn hold_resume_override_and_run_speed() {
     assert!(matches!(parse(&["hold"]).command, Cmd::Hold));
     assert!(matches!(parse(&["resume"]).command, Cmd::Resume));

@@ -11,8 +11,8 @@
 //! with no limit set, [`UNLIMITED_RAMP`].
 
 use protocol::{
-    ControlledStop, Location, MAX_JOINTS, MotionFlags, MotionReport, OverrideLimit, State,
-    StatusCode,
+    ControlledStop, EStopCategory, Location, MAX_JOINTS, MoreFlags, MotionFlags, MotionReport,
+    OverrideLimit, State, StatusCode,
 };
 
 use super::Controller;
@@ -32,6 +32,41 @@ pub const UNLIMITED_RAMP: (u32, u32) = (4, 1);
 /// rest; the crawl lasts at most about two points' nominal time times 20.
 pub const UNDERRUN_CREEP_PERCENT: u8 = 5;
 
+/// A category 1 e-stop's slack past its ramp and the step side's lookahead
+/// ([`estop_ramp_bound_us`]): a scheduler's delay of the trajectory task's look.
+pub const ESTOP_RAMP_SLACK_US: u64 = 20_000;
+
+/// The longest lookahead of any board ([`crate::profile::ALL`]): a rate change takes
+/// effect only after the edges the step side already holds, so a category 1 ramp may
+/// start that late.
+pub const ESTOP_RAMP_LOOKAHEAD_US: u64 = {
+    let mut most = 0;
+    let mut rest: &[&crate::profile::BoardProfile] = &crate::profile::ALL;
+    while let [profile, tail @ ..] = rest {
+        if profile.lookahead_us as u64 > most {
+            most = profile.lookahead_us as u64;
+        }
+        rest = tail;
+    }
+    most
+};
+
+/// How often the trajectory task looks at a category 1 ramp (standstill reached, bound
+/// passed): the drivers are disabled at most this late after the standstill.
+pub const ESTOP_RAMP_POLL_US: u64 = 1_000;
+
+/// The bound on a category 1 e-stop's ramp from `rate` (warp units) with the slope
+/// `(accel, speed)`: the ramp's own time, `rate / RATE_ONE * speed / accel` (v/a of the
+/// joint that sets the slope, scaled by the rate now), plus [`ESTOP_RAMP_LOOKAHEAD_US`]
+/// and [`ESTOP_RAMP_SLACK_US`]. Past it the run is halted at once, as category 0.
+pub fn estop_ramp_bound_us(rate: u64, accel: u32, speed: u32) -> u64 {
+    let ramp = u128::from(rate) * u128::from(speed) * 1_000_000
+        / (u128::from(arm_step::RATE_ONE) * u128::from(accel.max(1)));
+    u64::try_from(ramp)
+        .unwrap_or(u64::MAX)
+        .saturating_add(ESTOP_RAMP_LOOKAHEAD_US + ESTOP_RAMP_SLACK_US)
+}
+
 /// The controller's override and hold state.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(crate) struct Motion {
@@ -47,6 +82,9 @@ pub(crate) struct Motion {
     pub underrun: bool,
     /// The safety door is open (runs hold; RUNING and RESUME refused `DOOR_OPEN`).
     pub door_open: bool,
+    /// A category 1 e-stop's ramp is under way: the time, us, past which it is halted
+    /// ([`estop_ramp_bound_us`]).
+    pub estop_ramp: Option<u64>,
 }
 
 impl Motion {
@@ -58,6 +96,7 @@ impl Motion {
         refused: (0xFF, None),
         underrun: false,
         door_open: false,
+        estop_ramp: None,
     };
 }
 
@@ -232,6 +271,10 @@ impl<const CAP: usize> Controller<CAP> {
         if self.motion.door_open {
             return Err(StatusCode::DoorOpen);
         }
+        // A category 1 e-stop's ramp is a hold no host lifts.
+        if self.motion.estop_ramp.is_some() {
+            return Err(StatusCode::EstopLatched);
+        }
         if !self.motion.held {
             return Ok(());
         }
@@ -303,7 +346,7 @@ impl<const CAP: usize> Controller<CAP> {
     pub fn door_input(&mut self, open: bool, plant: &mut impl Plant) -> Option<Location> {
         let was = self.motion.door_open;
         self.motion.door_open = open;
-        if !open || was || self.state != State::Running {
+        if !open || was || self.state != State::Running || self.motion.estop_ramp.is_some() {
             return None;
         }
         match self.hold(plant) {
@@ -314,9 +357,88 @@ impl<const CAP: usize> Controller<CAP> {
             Err(_) => {
                 let before = self.state;
                 self.stop_by_host(plant, None);
+                // The cause says the door (STOP_CAUSE HOLD, detail DOOR), not the wired
+                // e-stop input that stop_by_host names when no host stopped it.
+                self.stop = protocol::StopReport {
+                    detail: ControlledStop::Door as u8,
+                    ..protocol::StopReport::of(protocol::StopCause::Hold)
+                };
                 (before != self.state && self.reports_on).then(|| self.location(plant))
             }
         }
+    }
+
+    /// The wired e-stop input's stop category (ESTOP_CATEGORY, kept in the settings).
+    pub fn estop_category(&self) -> EStopCategory {
+        self.settings.estop_category
+    }
+
+    /// The wired e-stop input opened and its handler left the stop to a category 1
+    /// controlled stop ([`crate::EStopSample::controlled`]; it only blocked new runs).
+    /// The latch is set at once; a run under way ramps to a standstill along its path
+    /// with the hold's slope (RUNNING, held, MOTION flag `ESTOP_RAMP`; RESUME refused
+    /// `ESTOP_LATCHED`), bounded by [`estop_ramp_bound_us`] from `now_us`; the caller
+    /// then calls [`Controller::estop_ramp_poll`] at least every
+    /// [`ESTOP_RAMP_POLL_US`]. Anything else stops at once as category 0, with the
+    /// drivers disabled after ([`Controller::estop_ramp_poll`]'s end): no run to ramp
+    /// (a RETURN's encoder read), a step side that refuses the warp, or a ramp already
+    /// under way (a second opening). Returns a LOCATION report when the state changed.
+    pub fn estop_controlled(&mut self, now_us: u64, plant: &mut impl Plant) -> Option<Location> {
+        self.more_flags.set(MoreFlags::ESTOP_OPEN, true);
+        self.more_flags.set(MoreFlags::ESTOP_LATCHED, true);
+        if self.motion.estop_ramp.is_none() && self.state == State::Running && !self.return_pending
+        {
+            let rate = plant
+                .rate_now()
+                .map_or(arm_step::RATE_ONE, |(rate, _)| rate);
+            let (accel, speed) = self.ramp_limits(plant);
+            if plant.change_rate(0, accel, speed) {
+                self.motion.held = true;
+                self.motion.underrun = false;
+                self.motion.last_stop = ControlledStop::EStop;
+                self.motion.estop_ramp =
+                    Some(now_us.saturating_add(estop_ramp_bound_us(rate, accel, speed)));
+                return None;
+            }
+        }
+        self.estop_stop_now(plant)
+    }
+
+    /// The deadline of a category 1 ramp under way ([`Controller::estop_controlled`]);
+    /// the caller wakes by then (and every [`ESTOP_RAMP_POLL_US`]).
+    pub fn estop_ramp_deadline(&self) -> Option<u64> {
+        self.motion.estop_ramp
+    }
+
+    /// A category 1 ramp's look at `now_us`: at a standstill (the rate 0 and no longer
+    /// changing, or no run any more: it ended, or a STOPPED or a second opening stopped
+    /// it), or past its bound, the run is stopped at once (as category 0: no pulse after
+    /// this, the trajectory dropped, state STOPPED, latched) and the drivers are disabled
+    /// (ENABLE off, every joint and the gripper; SET_ENABLE enables them again after
+    /// ESTOP_RESET). Returns a LOCATION report when the state changed.
+    pub fn estop_ramp_poll(&mut self, now_us: u64, plant: &mut impl Plant) -> Option<Location> {
+        let deadline = self.motion.estop_ramp?;
+        let at_rest =
+            self.state != State::Running || matches!(plant.rate_now(), None | Some((0, false)));
+        if !at_rest && now_us < deadline {
+            return None;
+        }
+        if !at_rest {
+            warn!("category 1 e-stop: no standstill within its bound, halted");
+        }
+        self.estop_stop_now(plant)
+    }
+
+    /// The end of a category 1 stop (and its fallback): stop at once, latched, drivers
+    /// disabled.
+    pub(super) fn estop_stop_now(&mut self, plant: &mut impl Plant) -> Option<Location> {
+        self.motion.estop_ramp = None;
+        self.motion.held = false;
+        self.more_flags.set(MoreFlags::ESTOP_LATCHED, true);
+        let before = self.state;
+        self.stop_by_host(plant, None);
+        self.disable_drivers(plant);
+        (before != self.state && self.reports_on).then(|| self.location(plant))
     }
 
     /// Whether the safety door is open.
@@ -348,6 +470,9 @@ impl<const CAP: usize> Controller<CAP> {
         if self.motion.door_open {
             flags |= MotionFlags::DOOR_OPEN;
         }
+        if self.motion.estop_ramp.is_some() {
+            flags |= MotionFlags::ESTOP_RAMP;
+        }
         MotionReport {
             factor_percent: self.motion.factor,
             flags: MotionFlags(flags),
@@ -355,6 +480,7 @@ impl<const CAP: usize> Controller<CAP> {
             last_stop: Some(self.motion.last_stop),
             refused_joint: self.motion.refused.0,
             refused_limit: self.motion.refused.1,
+            estop_category: Some(self.settings.estop_category),
         }
     }
 }

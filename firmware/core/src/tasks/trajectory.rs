@@ -7,7 +7,7 @@ use core::pin::pin;
 use embassy_sync::blocking_mutex::raw::RawMutex;
 
 use arm_step::Segment;
-use embassy_futures::select::{Either, Either3, select, select3};
+use embassy_futures::select::{Either, Either4, select, select4};
 use heapless::Vec;
 use protocol::{MAX_JOINTS, Pwm, UartInit};
 
@@ -217,16 +217,30 @@ where
     let mut stops = OvertakingStops::new();
     loop {
         // Biased: a waiting STOPPED is always taken first. (The e-stop input wakes the
-        // task through `step_progress`; it is applied below before any event.)
-        let event = select3(
+        // task through `step_progress`; it is applied below before any event.) A
+        // category 1 e-stop's ramp is looked at every ESTOP_RAMP_POLL_US until it ends.
+        let ramp_look = controller.estop_ramp_deadline().map(|deadline| {
+            deadline.min(
+                clock
+                    .now_us()
+                    .saturating_add(crate::controller::ESTOP_RAMP_POLL_US),
+            )
+        });
+        let event = select4(
             bus.estop.receive(),
             bus.inbox.receive(),
             bus.step_progress.wait(),
+            async {
+                match ramp_look {
+                    Some(at) => clock.sleep_until(at).await,
+                    None => core::future::pending().await,
+                }
+            },
         )
         .await;
         // Taken from the inbox: its slot of the sender's share of the receive path is
         // free again (crate::ingress).
-        if let Either3::Second(d) = &event {
+        if let Either4::Second(d) = &event {
             bus.release(d.from.ip);
         }
         let mut plant = TaskPlant {
@@ -243,7 +257,7 @@ where
         // The input's stop came first (its handler stopped the steps already); whatever
         // this event is, it is handled in the state that stop left. Likewise a limit
         // switch's.
-        apply_estop_input(controller, estop, bus, &mut plant);
+        apply_estop_input(controller, estop, bus, clock.now_us(), &mut plant);
         apply_door(controller, door, bus, &mut plant);
         apply_switches(
             controller,
@@ -255,19 +269,19 @@ where
             &mut plant,
         );
         let response = match event {
-            Either3::First(d) => {
+            Either4::First(d) => {
                 let response = controller.handle(d.from, &d.bytes, clock.now_us(), &mut plant);
                 // Refused (BAD_LENGTH) or a duplicate: it did nothing, and it must not
                 // stop the frames it overtook either.
                 stops.took(response.executed);
                 response
             }
-            Either3::Second(d) if stops.executed_between(d.stops_before, None) => Response {
+            Either4::Second(d) if stops.executed_between(d.stops_before, None) => Response {
                 deferred: handle_overtaken(controller, bus, d, clock, &mut plant, &stops),
                 ..Response::default()
             },
-            Either3::Second(d) => controller.handle(d.from, &d.bytes, clock.now_us(), &mut plant),
-            Either3::Third(()) => Response::default(),
+            Either4::Second(d) => controller.handle(d.from, &d.bytes, clock.now_us(), &mut plant),
+            Either4::Third(()) | Either4::Fourth(()) => Response::default(),
         };
         // Published before the reports are queued: the network task addresses them when
         // it sends them, possibly while this task waits below.
@@ -292,7 +306,7 @@ where
             Some(Deferred::ReadEncoders) => {
                 let read = answering_wakeups(bus, encoders.read_joints(controller.joints())).await;
                 // An input opened during the read stops the RETURN before it moves.
-                apply_estop_input(controller, estop, bus, &mut plant);
+                apply_estop_input(controller, estop, bus, clock.now_us(), &mut plant);
                 let location = match read {
                     Ok(read) => controller.begin_return(read, &mut plant),
                     Err(fault) => {
@@ -313,6 +327,16 @@ where
         controller.note_time(clock.now_us());
         if let Some(location) = controller.on_step_progress(finished, ran_dry, &mut plant) {
             bus.send(Outgoing::Location(location));
+        }
+        // A category 1 e-stop's ramp: at a standstill or past its bound, stopped and the
+        // drivers disabled; then the line may leave the next opening to a ramp again.
+        if let Some(location) = controller.estop_ramp_poll(clock.now_us(), &mut plant) {
+            bus.send(Outgoing::Location(location));
+        }
+        if let Some(line) = estop
+            && controller.estop_ramp_deadline().is_none()
+        {
+            line.ramp_over();
         }
         if plant.pushed {
             // A producer that was idle between refills takes the new segments now.
@@ -343,18 +367,25 @@ async fn answering_wakeups<F: Future>(bus: &Bus, work: F) -> F::Output {
 }
 
 /// Brings the controller up to date with the wired e-stop input: every opening since the
-/// last look (also one closed again since) stops and latches it, then the level now.
+/// last look (also one closed again since) stops and latches it (one the handler left to
+/// a category 1 ramp starts the ramp), then the level now. First tells the line the
+/// stop category (it may have changed with the settings).
 fn apply_estop_input<const CAP: usize>(
     controller: &mut Controller<CAP>,
     estop: Option<&EStopLine>,
     bus: &Bus,
+    now_us: u64,
     plant: &mut impl Plant,
 ) {
     let Some(line) = estop else { return };
+    line.set_category(controller.estop_category());
     let sample = line.take();
-    if sample.opened
-        && let Some(location) = controller.estop_input(true, plant)
-    {
+    let location = match sample.opened {
+        true if sample.controlled => controller.estop_controlled(now_us, plant),
+        true => controller.estop_input(true, plant),
+        false => None,
+    };
+    if let Some(location) = location {
         bus.send(Outgoing::Location(location));
     }
     if !sample.open {

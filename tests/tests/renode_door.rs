@@ -1,0 +1,277 @@
+//! Issue 32's safety door on the NUCLEO-H743ZI2 firmware itself (the `cargo fw --features
+//! door-input` ELF) on Renode, with the step path's models and edge recorder (as
+//! `renode_switches.rs`). PF4 is a GPIO input the test drives from Renode's monitor
+//! (`sysbus.gpioPortF OnGPIO 4 true`: the STM32 GPIO model, SYSCFG's EXTI routing, EXTI
+//! line 4 and the NVIC are Renode's own); the recorder watches it too, so the door's edge
+//! and every STEP edge are on one virtual clock (ns).
+//!
+//! The board's step side has no time warp yet, so an open door cannot hold the run: the
+//! controller stops it (PROTOCOL.md, "Safety door"): the run is cut, no STEP edge long
+//! after PF4 went high (the latency is printed), STOP_CAUSE HOLD with detail DOOR, MOTION
+//! shows the door open; RUNING is refused `DOOR_OPEN` while it is; closed, a run goes.
+//!
+//! Needs Renode and root, as `renode_steps.rs`; without them the test prints what it needs
+//! and passes.
+
+mod common;
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use armctl::Options;
+use common::run_reporting_progress_with;
+use protocol::{
+    Command, ControlledStop, MAX_JOINTS, MotionFlags, Point, PointList, State, StatusCode,
+    StopCause,
+};
+use system_tests::renode::{HOSTS, RenodeBoard, unavailable};
+
+/// The recorder's input for the door pin (PF4).
+const DOOR: u8 = 42;
+
+/// The recorder watches the door pin too.
+const WATCH_DOOR: &str = "sysbus.stepRecorder Watch \"sysbus.gpioPortF\" 4 42";
+
+/// The most a STEP edge may come after the door opened: the trajectory task's stop (the
+/// door's handler halts nothing), far above its wake-up on the board, far below a run.
+const STOP_BOUND_NS: u64 = 50_000_000;
+
+fn note(text: &str) {
+    use std::io::Write;
+    let _ = writeln!(std::io::stderr().lock(), "renode door: {text}");
+}
+
+fn emulated() -> Options {
+    Options {
+        ack_timeout: Duration::from_millis(400),
+        min_ack_timeout: Duration::from_millis(50),
+        attempts: 20,
+        report_timeout: Duration::from_millis(1500),
+        ..Options::default()
+    }
+}
+
+/// Points of 10 ms from `start`, joint 0 `step` further each.
+fn points(start: [i32; MAX_JOINTS], n: i32, step: i32) -> Vec<Point> {
+    let mut previous = start;
+    (1..=n)
+        .map(|i| {
+            let mut target = start;
+            target[0] += step * i;
+            let point = Point::from_motion(10_000, &previous, &target);
+            previous = target;
+            point
+        })
+        .collect()
+}
+
+fn motion_flags(arm: &armctl::Client) -> u8 {
+    arm.motion()
+        .ok()
+        .and_then(|(_, m)| m)
+        .map_or(0, |m| m.flags.0)
+}
+
+#[test]
+fn an_open_door_stops_the_run_refuses_runing_and_closed_lets_it_run() {
+    if let Some(reason) = unavailable() {
+        note(&reason);
+        return;
+    }
+    let mut board = RenodeBoard::start_door_with_step_path(WATCH_DOOR);
+    let arm = Arc::new(board.connect_from(HOSTS[0], emulated()));
+    let status = arm.status().unwrap();
+    assert_eq!(status.state, State::Stopped, "{status:?}\n{}", board.log());
+    assert_eq!(
+        motion_flags(&arm) & MotionFlags::DOOR_OPEN,
+        0,
+        "closed at boot"
+    );
+    let start = arm
+        .current_location(Duration::from_secs(5))
+        .unwrap()
+        .position;
+
+    // 200 points of 10 ms, joint 0 +4 steps each (400 steps/s, a 2.5 ms period).
+    let runner =
+        run_reporting_progress_with(&arm, points(start, 200, 4), armctl::RunOptions::default());
+    runner.wait_executed(20);
+    board.monitor("sysbus.gpioPortF OnGPIO 4 true");
+    let end = runner.join();
+    note(&format!("the run: {end:?}"));
+    let status = arm
+        .wait_stopped(Duration::from_secs(60))
+        .unwrap_or_else(|e| panic!("STOPPED after the door: {e}\n{}", board.log()));
+    assert!(status.executed < 200, "the run was cut: {status:?}");
+
+    let edges = board.edges();
+    let opened = edges
+        .iter()
+        .find(|e| e.line == DOOR && e.high)
+        .unwrap_or_else(|| panic!("the recorder saw PF4 go high\n{}", board.log()))
+        .ns;
+    let last_step = edges
+        .iter()
+        .filter(|e| e.line < 8)
+        .map(|e| e.ns)
+        .max()
+        .expect("STEP edges");
+    let before = edges.iter().filter(|e| e.line < 8 && e.ns < opened).count();
+    note(&format!(
+        "PF4 high at {opened} ns; last STEP edge at {last_step} ns ({} ns after; bound \
+         {STOP_BOUND_NS} ns); {before} STEP edges before it; {} points executed",
+        i128::from(last_step) - i128::from(opened),
+        status.executed
+    ));
+    assert!(before > 0, "the joint moved before the door opened");
+    assert!(
+        last_step <= opened + STOP_BOUND_NS,
+        "a STEP edge {} ns after the door opened",
+        last_step - opened
+    );
+
+    let (_, stop) = arm.stop_report().unwrap();
+    let stop = stop.expect("a STOP_CAUSE report");
+    assert_eq!(stop.cause, Some(StopCause::Hold), "{stop:?}");
+    assert_eq!(stop.detail, ControlledStop::Door as u8, "{stop:?}");
+    assert_ne!(motion_flags(&arm) & MotionFlags::DOOR_OPEN, 0, "open");
+
+    // While open: RUNING refused DOOR_OPEN.
+    let here = arm
+        .current_location(Duration::from_secs(5))
+        .unwrap()
+        .position;
+    let short = points(here, 10, 2);
+    let ack = arm
+        .exchange(&Command::New {
+            count: short.len() as u16,
+        })
+        .unwrap();
+    assert_eq!(ack.status, StatusCode::Ok);
+    let ack = arm
+        .exchange(&Command::Pending(PointList::Points(&short)))
+        .unwrap();
+    assert_eq!(ack.status, StatusCode::Ok);
+    for _ in 0..3 {
+        let ack = arm.exchange(&Command::Runing).unwrap();
+        assert_eq!(ack.status, StatusCode::DoorOpen);
+    }
+    arm.stop().unwrap();
+
+    // Closed: the door reads closed and a run goes to its end.
+    board.monitor("sysbus.gpioPortF OnGPIO 4 false");
+    let deadline = std::time::Instant::now() + Duration::from_secs(30);
+    while motion_flags(&arm) & MotionFlags::DOOR_OPEN != 0 {
+        assert!(
+            std::time::Instant::now() < deadline,
+            "the door never read closed\n{}",
+            board.log()
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let report = arm
+        .run_trajectory(&short, &armctl::RunOptions::default(), |_| {})
+        .unwrap_or_else(|e| panic!("a run after closing: {e}\n{}", board.log()));
+    note(&format!("the run after closing: {report:?}"));
+    let after = arm
+        .current_location(Duration::from_secs(5))
+        .unwrap()
+        .position;
+    assert_eq!(after[0], here[0] + 20, "ran to its end");
+    board.assert_healthy();
+}
+
+/// The recorder's input for the wired e-stop pin (PC0).
+const ESTOP: u8 = 43;
+
+/// ESTOP_CATEGORY 1 on the board itself: its step side has no warp, so EXTI0 stops every
+/// STEP output as category 0 (no edge later than one step period after PC0 went high),
+/// then the controller disables the drivers (category 1's end) and latches; MOTION shows
+/// the category. (The same ELF: the e-stop input is in every build.)
+#[test]
+fn estop_category_1_on_the_board_stops_at_once_then_disables_the_drivers() {
+    if let Some(reason) = unavailable() {
+        note(&reason);
+        return;
+    }
+    let mut board = RenodeBoard::start_door_with_step_path(
+        "sysbus.stepRecorder Watch \"sysbus.gpioPortC\" 0 43",
+    );
+    let arm = Arc::new(board.connect_from(HOSTS[0], emulated()));
+    arm.set_estop_category(protocol::EStopCategory::Controlled)
+        .unwrap_or_else(|e| panic!("ESTOP_CATEGORY 1: {e}\n{}", board.log()));
+    let (_, motion) = arm.motion().unwrap();
+    assert_eq!(
+        motion.and_then(|m| m.estop_category),
+        Some(protocol::EStopCategory::Controlled)
+    );
+    let status = arm.status().unwrap();
+    assert!(
+        status.flags.has(protocol::StatusFlags::DRIVERS_ENABLED),
+        "{status:?}"
+    );
+    let start = arm
+        .current_location(Duration::from_secs(5))
+        .unwrap()
+        .position;
+    let period_ns = 2_500_000;
+    let runner =
+        run_reporting_progress_with(&arm, points(start, 200, 4), armctl::RunOptions::default());
+    runner.wait_executed(20);
+    board.monitor("sysbus.gpioPortC OnGPIO 0 true");
+    let end = runner.join();
+    note(&format!("the run: {end:?}"));
+    let status = arm
+        .wait_stopped(Duration::from_secs(60))
+        .unwrap_or_else(|e| panic!("STOPPED after the e-stop: {e}\n{}", board.log()));
+    let edges = board.edges();
+    let opened = edges
+        .iter()
+        .find(|e| e.line == ESTOP && e.high)
+        .unwrap_or_else(|| panic!("the recorder saw PC0 go high\n{}", board.log()))
+        .ns;
+    let last_step = edges
+        .iter()
+        .filter(|e| e.line < 8)
+        .map(|e| e.ns)
+        .max()
+        .expect("STEP edges");
+    note(&format!(
+        "category 1 on the board: PC0 high at {opened} ns, last STEP edge {} ns after \
+         (step period {period_ns} ns); {} points executed",
+        i128::from(last_step) - i128::from(opened),
+        status.executed
+    ));
+    assert!(
+        last_step <= opened + period_ns,
+        "a STEP edge {} ns after PC0 went high",
+        last_step - opened
+    );
+    // The drivers go off once the task applied it (bounded wait on what STATUS shows).
+    let deadline = std::time::Instant::now() + Duration::from_secs(30);
+    let status = loop {
+        let status = arm.status().unwrap();
+        if !status.flags.has(protocol::StatusFlags::DRIVERS_ENABLED) {
+            break status;
+        }
+        assert!(
+            std::time::Instant::now() < deadline,
+            "the drivers stayed enabled: {status:?}\n{}",
+            board.log()
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    assert_eq!(status.state, State::Stopped);
+    assert!(
+        status
+            .more_flags
+            .has(protocol::MoreFlags::ESTOP_LATCHED | protocol::MoreFlags::ESTOP_OPEN),
+        "{status:?}"
+    );
+    let (_, stop) = arm.stop_report().unwrap();
+    assert_eq!(stop.and_then(|s| s.cause), Some(StopCause::EstopInput));
+    let ack = arm.exchange(&Command::Runing).unwrap();
+    assert_eq!(ack.status, StatusCode::EstopLatched);
+    board.monitor("sysbus.gpioPortC OnGPIO 0 false");
+    board.assert_healthy();
+}
