@@ -296,10 +296,9 @@ mod tests {
             total += u64::from(p.duration_us);
             if i > 0 {
                 let q = b.held(i - 1).unwrap();
-                for j in 0..MAX_JOINTS {
-                    let steps =
-                        (i64::from(p.position[j]) - i64::from(q.position[j])).unsigned_abs();
-                    peak[j] = peak[j].max(steps * 1_000_000 / u64::from(p.duration_us.max(1)));
+                for ((peak, &to), &from) in peak.iter_mut().zip(&p.position).zip(&q.position) {
+                    let steps = (i64::from(to) - i64::from(from)).unsigned_abs();
+                    *peak = (*peak).max(steps * 1_000_000 / u64::from(p.duration_us.max(1)));
                 }
             }
         }
@@ -326,7 +325,7 @@ mod tests {
             if r % 3 != 0 {
                 let d = 1 + (next() % 5_000) as u32;
                 for (j, p) in position.iter_mut().enumerate() {
-                    *p += (next() % (50 + 40 * j as u64)) as i32 - 20;
+                    *p += i32::try_from(next() % (50 + 40 * j as u64)).unwrap() - 20;
                 }
                 b.push(StoredPoint {
                     duration_us: d,
@@ -346,11 +345,8 @@ mod tests {
             }
             let (total, exact) = full_scan(&b);
             assert_eq!(b.duration_sum_us(), total);
-            for j in 0..MAX_JOINTS {
-                assert!(
-                    b.peak_rates()[j] >= exact[j],
-                    "joint {j}: never below the scan"
-                );
+            for (j, (&peak, &exact)) in b.peak_rates().iter().zip(&exact).enumerate() {
+                assert!(peak >= exact, "joint {j}: never below the scan");
             }
             assert!(
                 b.scanned() <= finished,
