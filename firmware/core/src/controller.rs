@@ -142,6 +142,7 @@ use crate::uart::uart_frame;
 mod boot;
 mod homing_run;
 mod motion;
+pub use motion::UNLIMITED_RAMP;
 mod owner;
 mod runs;
 
