@@ -1806,7 +1806,7 @@ fn a_hold_and_resume_make_the_warped_oracles_edges() {
 #[test]
 fn an_override_mid_run_makes_the_warped_oracles_edges() {
     require_renode!();
-    let mut board = RenodeBoard::start_with_step_path("");
+    let mut board = RenodeBoard::start_with_step_path(CHIP_MIPS);
     let arm = Arc::new(board.connect_from(HOSTS[0], emulated()));
     arm.set_location(&[0; JOINTS]).unwrap();
     let start = position(&board, &arm);
