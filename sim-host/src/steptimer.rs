@@ -354,6 +354,11 @@ impl<const Q: usize> StepBackend for SimSteps<Q> {
             .is_ok_and(|warp| self.origin.is_none() && self.streams.producer().set_warp(warp))
     }
 
+    /// The NUCLEO's, which the simulator models: a speed change is refused alike.
+    fn warp_budget_hz(&self) -> u32 {
+        arm_core::profile::SIMULATOR.warp_budget_hz
+    }
+
     fn rate_now(&self, now_tick: u64) -> Option<(u64, bool)> {
         let origin = self.origin?;
         let warp = self.streams.producer_ref().warp();

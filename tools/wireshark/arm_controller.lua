@@ -71,7 +71,7 @@ local homing_error_names = {
 }
 -- MOTION's last controlled stop and refused limit (issue 32).
 local controlled_stop_names = { [0] = "NONE", [1] = "HOLD", [2] = "UNDERRUN", [3] = "DOOR" }
-local override_limit_names = { [0] = "none", [1] = "RATE", [2] = "ACCEL" }
+local override_limit_names = { [0] = "none", [1] = "RATE", [2] = "ACCEL", [3] = "STEP_BUDGET" }
 
 local crc_status_names = { [0] = "Bad", [1] = "Good", [2] = "Unverified" }
 local direction_names = { [0] = "host to controller", [1] = "controller to host" }

@@ -72,6 +72,12 @@ pub struct BoardProfile {
     /// Steps per second of all joints together the board takes on (STATUS
     /// `step_budget_hz`, the controller's boot value).
     pub step_budget_hz: u32,
+    /// Steps per second of all joints together the board's step side can place while a
+    /// run's time is warped (issue 32: HOLD, RESUME, OVERRIDE, a factor other than 100 %;
+    /// each such pulse inverts arm-step's `Warp`, some 40 times an unwarped pulse's cost);
+    /// 0: no limit. The controller refuses a warp above it (`OVERRIDE_REFUSED`, MOTION
+    /// `STEP_BUDGET`) rather than let the step buffers run dry.
+    pub warp_budget_hz: u32,
     /// Trajectory points buffered (STATUS `capacity`; the controller's compile-time size).
     pub trajectory_capacity: usize,
     /// Input clock of the gripper timer, Hz (STATUS `pwm_timer_clock_hz`).
@@ -284,6 +290,14 @@ pub const NUCLEO_STEP_DMA: StepDma = StepDma {
 /// budget"; it was 31.3 and 41%).
 const NUCLEO_CPU_STEP_BUDGET_HZ: u32 = 4_000_000;
 
+/// The NUCLEO's budget for warped steps (issue 32, [`BoardProfile::warp_budget_hz`]): a
+/// warped pulse cost the step path's interrupts 2,152 instructions during a ramp and 2,119
+/// at a steady 50 % (tests/tests/renode_cost.rs `step_path_instructions_per_step_during_a_ramp`,
+/// the `cargo fw` ELF on Renode: `Warp::warped_tick`'s u128 bisection and division are
+/// 1,800-1,900 of them), against 42.4 unwarped. At the same 55 % of the CPU as the
+/// unwarped budget: 0.55 * 400e6 / (2,200 * 1.3) = 77 k steps/s; 75,000.
+const NUCLEO_WARP_STEP_BUDGET_HZ: u32 = 75_000;
+
 /// The NUCLEO's step DMA ceiling ([`BoardProfile::dma_step_ceiling_hz`] of its
 /// `min_dma_period_ns` and [`NUCLEO_STEP_DMA`]): 8 joints at the 1 us floor, 8 M steps/s
 /// (the two controllers could move 2 / (3 * 50 ns) = 13.3 M).
@@ -356,6 +370,7 @@ pub const NUCLEO_H743ZI2: BoardProfile = BoardProfile {
     // The lesser of the CPU's budget and the step DMA's ceiling (issue 34):
     // min(4,000,000, 8,000,000) = 4,000,000 (8 joints x 500 kHz).
     step_budget_hz: min_hz(NUCLEO_CPU_STEP_BUDGET_HZ, NUCLEO_DMA_STEP_CEILING_HZ),
+    warp_budget_hz: NUCLEO_WARP_STEP_BUDGET_HZ,
     // 8192 * 36 bytes = 288 KiB of the 512 KiB AXI SRAM, i.e. 80 s of 10 ms points, so a
     // host streaming over a congested link has seconds of slack before an underrun.
     trajectory_capacity: 8192,
@@ -408,6 +423,9 @@ pub const QEMU_MPS2_AN500: BoardProfile = BoardProfile {
     step_rate_ceiling_hz: 100_000,
     // The NUCLEO's: uploads are refused alike.
     step_budget_hz: NUCLEO_H743ZI2.step_budget_hz,
+    // The NUCLEO's: a speed change is refused alike (its own cost, a software player on
+    // the host's emulated CPU, is not measured).
+    warp_budget_hz: NUCLEO_H743ZI2.warp_budget_hz,
     // The NUCLEO's, so that uploads (flow control) behave the same.
     trajectory_capacity: NUCLEO_H743ZI2.trajectory_capacity,
     // The gripper "timer" counts SYSCLK, as a CMSDK timer would.

@@ -230,6 +230,10 @@ impl StepBackend for QemuSteps {
         arm_step::Warp::steady(0, rate).is_ok_and(|warp| streams.producer().set_warp(warp))
     }
 
+    fn warp_budget_hz(&self) -> u32 {
+        arm_core::profile::QEMU_MPS2_AN500.warp_budget_hz
+    }
+
     fn rate_now(&self, now_tick: u64) -> Option<(u64, bool)> {
         if !self.player.is_playing() {
             return None;

@@ -345,6 +345,10 @@ impl StepBackend for BoardSteps {
             && arm_step::Warp::steady(0, rate).is_ok_and(|warp| streams.producer().set_warp(warp))
     }
 
+    fn warp_budget_hz(&self) -> u32 {
+        super::PROFILE.warp_budget_hz
+    }
+
     fn rate_now(&self, now_tick: u64) -> Option<(u64, bool)> {
         let tick = match self.run {
             Run::Running { origin } => now_tick.saturating_sub(origin),

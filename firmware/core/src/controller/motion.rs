@@ -129,6 +129,28 @@ impl<const CAP: usize> Controller<CAP> {
         speed
     }
 
+    /// Whether the step side can place every pulse of the run under a warp up to `rate`
+    /// (issue 32): each joint's fastest rate over the points held, summed, at `rate`, within
+    /// its warp budget ([`Plant::warp_budget_hz`]; 0: no limit). A warped pulse costs the
+    /// NUCLEO's step interrupts some 40 times an unwarped one: past the budget its DMA
+    /// buffers would run dry (a dead stop at speed) where the refusal leaves the run as it
+    /// was. The sum of each joint's peak is at least the run's rate at any instant.
+    pub(super) fn warp_fits(&self, plant: &impl Plant, rate: u64) -> bool {
+        let budget = plant.warp_budget_hz();
+        if budget == 0 {
+            return true;
+        }
+        let total: u128 = self.held_speeds(plant).iter().map(|&v| u128::from(v)).sum();
+        total * u128::from(rate) <= u128::from(budget) * u128::from(arm_step::RATE_ONE)
+    }
+
+    /// A change refused for the warp budget: `OVERRIDE_REFUSED`, MOTION's refusal the whole
+    /// run (joint 0xFF) and `STEP_BUDGET`.
+    pub(super) fn over_warp_budget(&mut self) -> StatusCode {
+        self.motion.refused = (0xFF, Some(OverrideLimit::StepBudget));
+        StatusCode::OverrideRefused
+    }
+
     /// The ramp's `(accel, speed)`: the gentlest slope over the joints with a limit.
     fn ramp_limits(&self, plant: &impl Plant) -> (u32, u32) {
         self.accel_ramp(plant).unwrap_or(UNLIMITED_RAMP)
@@ -209,7 +231,11 @@ impl<const CAP: usize> Controller<CAP> {
         }
         let creep = creep.min(rate);
         let need = ramp_path_us(rate, creep, accel, speed);
-        if u128::from(r2) < need && u128::from(r1) >= need && plant.change_rate(creep, accel, speed)
+        // Past the step side's warp budget the underrun stays the dead stop it was.
+        if u128::from(r2) < need
+            && u128::from(r1) >= need
+            && self.warp_fits(plant, rate)
+            && plant.change_rate(creep, accel, speed)
         {
             self.motion.underrun = true;
             self.motion.last_stop = ControlledStop::Underrun;
@@ -217,13 +243,22 @@ impl<const CAP: usize> Controller<CAP> {
     }
 
     /// HOLD (any host): decelerate the run to a standstill. `BAD_STATE` outside RUNNING,
-    /// during a RETURN's encoder read, or on a step side without a warp.
+    /// during a RETURN's encoder read, or on a step side without a warp;
+    /// `OVERRIDE_REFUSED` (MOTION `STEP_BUDGET`) past its warp budget
+    /// ([`Self::warp_fits`]). RESUME is never refused for the budget: a held run must be
+    /// able to go on.
     pub(super) fn hold(&mut self, plant: &mut impl Plant) -> Result<(), StatusCode> {
         if self.state != State::Running || self.return_pending {
             return Err(StatusCode::BadState);
         }
         if self.motion.held {
             return Ok(());
+        }
+        let now = plant
+            .rate_now()
+            .map_or(arm_step::RATE_ONE, |(rate, _)| rate);
+        if plant.rate_now().is_some() && !self.warp_fits(plant, now) {
+            return Err(self.over_warp_budget());
         }
         let (accel, speed) = self.ramp_limits(plant);
         if !plant.change_rate(0, accel, speed) {
@@ -257,6 +292,8 @@ impl<const CAP: usize> Controller<CAP> {
     }
 
     /// OVERRIDE (the owner): the factor from now (ramped) and for the runs to come.
+    /// `OVERRIDE_REFUSED` (MOTION `STEP_BUDGET`) past the step side's warp budget
+    /// ([`Self::warp_fits`]).
     /// Above 100 %, every joint's fastest rate times the factor must stay within its rate
     /// limit and its sharpest acceleration times the factor squared within its ACCEL_SET
     /// limit, over the points held: else `OVERRIDE_REFUSED`, the joint and limit kept for
@@ -291,6 +328,16 @@ impl<const CAP: usize> Controller<CAP> {
                     return Err(StatusCode::OverrideRefused);
                 }
             }
+        }
+        // The factor's warp must fit the step side's budget: from the rate now (the ramp
+        // passes every rate between) while a run goes, else at the factor (where RESUME or
+        // the next RUNING go; RUNING checks again with the points it then holds).
+        let running = self.state == State::Running && !self.return_pending;
+        let now = plant.rate_now().map(|(rate, _)| rate).filter(|_| running);
+        let highest = now.unwrap_or(0).max(rate_of(percent));
+        let warped = now.is_some() || percent != 100;
+        if warped && !self.warp_fits(plant, highest) {
+            return Err(self.over_warp_budget());
         }
         self.motion.factor = percent;
         // During an underrun ramp the factor applies when the host catches up.
