@@ -1710,11 +1710,12 @@ fn assert_warped_run_ends_exact(
 /// pause are the board's (with a resume far after), then the resume's with the hold
 /// fixed, on every rise of the run. Two numbers against every edge of every joint: a board
 /// whose pulses did not follow the warp (a refill that placed a ramp's pulse a tick off)
-/// matches at no tick.
+/// matches at no tick. At [`CHIP_MIPS`]: the warp budget is the chip's (see
+/// [`an_override_mid_run_makes_the_warped_oracles_edges`]).
 #[test]
 fn a_hold_and_resume_make_the_warped_oracles_edges() {
     require_renode!();
-    let mut board = RenodeBoard::start_with_step_path("");
+    let mut board = RenodeBoard::start_with_step_path(CHIP_MIPS);
     let arm = Arc::new(board.connect_from(HOSTS[0], emulated()));
     arm.set_location(&[0; JOINTS]).unwrap();
     let start = position(&board, &arm);
@@ -1803,6 +1804,11 @@ fn a_hold_and_resume_make_the_warped_oracles_edges() {
 /// OVERRIDE 50 mid-run on the NUCLEO ELF (issue 32): the rest of the run at half speed,
 /// ramped; it ends exact, and every rising STEP edge is at the warped oracle's tick (the
 /// change's tick fitted as in [`a_hold_and_resume_make_the_warped_oracles_edges`]).
+///
+/// Run at [`CHIP_MIPS`], as the hold: a warped pulse costs the step interrupts some 2,100
+/// instructions (renode_cost), and at Renode's default 100 MIPS this run's six joints
+/// (8,400 steps/s) ran a step stream dry during the ramp ("step stream underrun", the run
+/// ended after 35 of 120 points); the NUCLEO's warp budget is the chip's 400 MHz.
 #[test]
 fn an_override_mid_run_makes_the_warped_oracles_edges() {
     require_renode!();

@@ -291,11 +291,14 @@ pub const NUCLEO_STEP_DMA: StepDma = StepDma {
 const NUCLEO_CPU_STEP_BUDGET_HZ: u32 = 4_000_000;
 
 /// The NUCLEO's budget for warped steps (issue 32, [`BoardProfile::warp_budget_hz`]): a
-/// warped pulse cost the step path's interrupts 2,152 instructions during a ramp and 2,119
-/// at a steady 50 % (tests/tests/renode_cost.rs `step_path_instructions_per_step_during_a_ramp`,
-/// the `cargo fw` ELF on Renode: `Warp::warped_tick`'s u128 bisection and division are
-/// 1,800-1,900 of them), against 42.4 unwarped. At the same 55 % of the CPU as the
-/// unwarped budget: 0.55 * 400e6 / (2,200 * 1.3) = 77 k steps/s; 75,000.
+/// warped pulse cost the step path's interrupts 1,947-2,173 instructions during a ramp
+/// (100 -> 50 %: six joints at 8,400 steps/s, one at 50 kHz, eight at 69,600 together) and
+/// 2,119 at a steady 50 % (tests/tests/renode_cost.rs
+/// `step_path_instructions_per_step_during_a_ramp`, the `cargo fw` ELF on Renode at 400
+/// MIPS: `Warp::warped_tick`'s u128 bisection and division are 1,770-1,920 of them), against
+/// 34-42 unwarped. At the same 55 % of the CPU as the unwarped budget: 0.55 * 400e6 /
+/// (2,200 * 1.3) = 77 k steps/s; 75,000. The eight joints at 69,600 ramped without a step
+/// stream running dry there.
 const NUCLEO_WARP_STEP_BUDGET_HZ: u32 = 75_000;
 
 /// The NUCLEO's step DMA ceiling ([`BoardProfile::dma_step_ceiling_hz`] of its
