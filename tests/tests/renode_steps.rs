@@ -1727,6 +1727,8 @@ fn a_hold_and_resume_make_the_warped_oracles_edges() {
         .hold()
         .unwrap_or_else(|e| panic!("HOLD: {e}\n{}", board.log()));
     assert_eq!(ack.state, State::Running);
+    // Where the pins were just after the HOLD's ACK: its latency, printed below.
+    let at_hold = position(&board, &arm);
     wait_motion(&arm, MotionFlags::AT_REST, true, "held");
     let ack = arm
         .resume()
@@ -1772,6 +1774,19 @@ fn a_hold_and_resume_make_the_warped_oracles_edges() {
         (hold + 1, moved),
         u64::MAX,
     );
+    // The pins' time just after the HOLD's ACK: the unwarped oracle's tick of the last
+    // pulse the fastest joint had made (before the hold's ramp, the two agree).
+    let unwarped = oracle(&segments);
+    let fastest = JOINTS - 1;
+    let acked = usize::try_from(at_hold[fastest].abs_diff(start[fastest])).unwrap();
+    let acked = unwarped[fastest][acked.saturating_sub(1)];
+    note(&format!(
+        "HOLD taken {:.1} ms after the pins' time at its ACK ({:.1} ms): the producer's \
+         write-ahead (a change waits for the periods already written, up to two buffer \
+         halves of each joint's)",
+        ticks_us(i64::try_from(hold).unwrap() - i64::try_from(acked).unwrap()) / 1e3,
+        ticks_us(i64::try_from(acked).unwrap()) / 1e3
+    ));
     let changes = [
         held[0],
         RateChange {

@@ -517,6 +517,36 @@ const _: () = assert!(NUCLEO_H743ZI2.step_budget_hz == NUCLEO_CPU_STEP_BUDGET_HZ
     clippy::cast_possible_truncation,
     reason = "const-evaluated: scaled down from a u32 (to_hz <= from_hz)"
 )]
+/// The longest period the step producer writes on any joint, ns: 2^16 ticks at 200 MHz,
+/// the NUCLEO's 16-bit timers' range. Its 32-bit timers (joints 0-1) could take one period
+/// per pulse however slow, but a HOLD, RESUME or OVERRIDE (issue 32) takes effect only
+/// after every period already written, up to two buffer halves ahead of the pins: at 64
+/// periods a half, a joint at 400 steps/s was 320 ms ahead (Renode: a HOLD taken 310 ms
+/// after its ACK). Capped, two halves are at most 42 ms; the empty periods cost a refill
+/// for a slow joint some 3,000 a second, a few tens of instructions each.
+pub const STREAM_PERIOD_CAP_NS: u64 = 327_680;
+
+impl BoardProfile {
+    /// Each joint's longest period in the step streams: its timer's range, at most
+    /// [`STREAM_PERIOD_CAP_NS`] (the boards and the simulator build their streams with it).
+    pub const fn stream_period_ticks(&self) -> [u32; MAX_JOINTS] {
+        let cap = STREAM_PERIOD_CAP_NS * self.step_timer_hz as u64 / 1_000_000_000;
+        let mut periods = self.step_timer_max_period_ticks;
+        let mut j = 0;
+        while j < MAX_JOINTS {
+            #[allow(clippy::indexing_slicing, reason = "const-evaluated: j < MAX_JOINTS")]
+            if periods[j] as u64 > cap {
+                periods[j] = cap as u32;
+            }
+            j += 1;
+        }
+        periods
+    }
+}
+
+const _: () = assert!(NUCLEO_H743ZI2.stream_period_ticks()[0] == 1 << 16);
+const _: () = assert!(NUCLEO_H743ZI2.stream_period_ticks()[7] == 1 << 16);
+
 const fn scaled_periods(ticks: [u32; MAX_JOINTS], from_hz: u32, to_hz: u32) -> [u32; MAX_JOINTS] {
     assert!(to_hz <= from_hz);
     let mut scaled = [0; MAX_JOINTS];

@@ -63,7 +63,7 @@ pub const STEP_QUEUE: usize = PROFILE.step_queue();
 
 /// The longest period of each joint's "timer": the NUCLEO's, in time (the profile's), so
 /// that gaps are split into the same periods and refills come as often as there.
-pub const MAX_PERIOD_TICKS: [u32; MAX_JOINTS] = PROFILE.step_timer_max_period_ticks;
+pub const MAX_PERIOD_TICKS: [u32; MAX_JOINTS] = PROFILE.stream_period_ticks();
 
 /// Longest time between two plays while a run plays, SYSCLK cycles (5 ms, as sim-host's
 /// step thread): the lines and the positions the tasks read lag the present by at most
