@@ -512,11 +512,6 @@ const _: () = assert!(NUCLEO_H743ZI2.dma_burst_latency_ns() == 650);
 const _: () = assert!(NUCLEO_H743ZI2.dma_step_ceiling_hz() == 8_000_000);
 const _: () = assert!(NUCLEO_H743ZI2.step_budget_hz == NUCLEO_CPU_STEP_BUDGET_HZ);
 
-/// `ticks` of a `from_hz` clock in ticks of a `to_hz` clock (`to_hz <= from_hz`).
-#[allow(
-    clippy::cast_possible_truncation,
-    reason = "const-evaluated: scaled down from a u32 (to_hz <= from_hz)"
-)]
 /// The longest period the step producer writes on any joint, ns: 2^16 ticks at 200 MHz,
 /// the NUCLEO's 16-bit timers' range. Its 32-bit timers (joints 0-1) could take one period
 /// per pulse however slow, but a HOLD, RESUME or OVERRIDE (issue 32) takes effect only
@@ -529,6 +524,10 @@ pub const STREAM_PERIOD_CAP_NS: u64 = 327_680;
 impl BoardProfile {
     /// Each joint's longest period in the step streams: its timer's range, at most
     /// [`STREAM_PERIOD_CAP_NS`] (the boards and the simulator build their streams with it).
+    #[allow(
+        clippy::cast_possible_truncation,
+        reason = "const-evaluated: the cap is below a period that is a u32"
+    )]
     pub const fn stream_period_ticks(&self) -> [u32; MAX_JOINTS] {
         let cap = STREAM_PERIOD_CAP_NS * self.step_timer_hz as u64 / 1_000_000_000;
         let mut periods = self.step_timer_max_period_ticks;
@@ -547,6 +546,11 @@ impl BoardProfile {
 const _: () = assert!(NUCLEO_H743ZI2.stream_period_ticks()[0] == 1 << 16);
 const _: () = assert!(NUCLEO_H743ZI2.stream_period_ticks()[7] == 1 << 16);
 
+/// `ticks` of a `from_hz` clock in ticks of a `to_hz` clock (`to_hz <= from_hz`).
+#[allow(
+    clippy::cast_possible_truncation,
+    reason = "const-evaluated: scaled down from a u32 (to_hz <= from_hz)"
+)]
 const fn scaled_periods(ticks: [u32; MAX_JOINTS], from_hz: u32, to_hz: u32) -> [u32; MAX_JOINTS] {
     assert!(to_hz <= from_hz);
     let mut scaled = [0; MAX_JOINTS];
