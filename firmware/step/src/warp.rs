@@ -76,7 +76,7 @@
 //! The NUCLEO's and QEMU's backends take it too (`firmware/board/src/step_dma/backend.rs`,
 //! `firmware/qemu-mps2/src/step_out.rs`). Its cost there, measured on the `cargo fw` ELF on
 //! Renode (tests/tests/renode_cost.rs, `step_path_instructions_per_step_during_a_ramp`):
-//! [`Warp::warped_tick`] is 1,770-1,920 instructions per warped pulse (the ramp's u128
+//! `Warp::warped_tick` is 1,770-1,920 instructions per warped pulse (the ramp's u128
 //! bisection, the steady phase's u128 division), the step interrupts 1,947-2,173 per pulse
 //! in all, against 34-42 unwarped; so the controller refuses a warp past the board's
 //! `warp_budget_hz` (75,000 steps/s of all joints on the NUCLEO). Left for issue 32: a
