@@ -20,6 +20,10 @@ crate::codes::wire_code! {
         Rate = 1 => "RATE",
         /// A joint's most acceleration (ACCEL_SET's `max_accel_steps_s2`).
         Accel = 2 => "ACCEL",
+        /// The step side's budget for warped steps (issue 32: all joints' steps per second
+        /// under a warp, `BoardProfile::warp_budget_hz`): the whole run, joint 0xFF. Also
+        /// for a HOLD refused `OVERRIDE_REFUSED` and a RUNING at a factor other than 100 %.
+        StepBudget = 3 => "STEP_BUDGET",
     }
 }
 

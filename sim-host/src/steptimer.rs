@@ -19,8 +19,8 @@ use std::time::{Duration, Instant};
 use arm_core::hw::StepKick;
 use arm_core::{StepBackend, StepProgress};
 use arm_step::{
-    HaltingStepPins, MAX_JOINTS, NUCLEO_STEP_TIMER_MAX_PERIOD_TICKS, Segment, StepPins,
-    StepStreams, StepTiming, StreamPlayer, TimedStepPins,
+    HaltingStepPins, MAX_JOINTS, Segment, StepPins, StepStreams, StepTiming, StreamPlayer,
+    TimedStepPins,
 };
 
 use crate::clock::SimClock;
@@ -195,7 +195,12 @@ impl<const Q: usize> SimSteps<Q> {
     /// Idle hardware driving `pins`.
     pub fn new(timing: StepTiming, pins: SimSteppers, clock: SimClock) -> SimSteps<Q> {
         SimSteps {
-            streams: Box::new(StepStreams::new(timing, NUCLEO_STEP_TIMER_MAX_PERIOD_TICKS)),
+            // The board's stream periods (its timers' ranges, capped: a speed change waits
+            // for at most two buffer halves of them, `profile::STREAM_PERIOD_CAP_NS`).
+            streams: Box::new(StepStreams::new(
+                timing,
+                arm_core::profile::NUCLEO_H743ZI2.stream_period_ticks(),
+            )),
             player: Box::new(StreamPlayer::IDLE),
             pins,
             clock,
@@ -352,6 +357,11 @@ impl<const Q: usize> StepBackend for SimSteps<Q> {
         // The run's clock starts at 0 (`start`): the rate from there.
         arm_step::Warp::steady(0, rate)
             .is_ok_and(|warp| self.origin.is_none() && self.streams.producer().set_warp(warp))
+    }
+
+    /// The NUCLEO's, which the simulator models: a speed change is refused alike.
+    fn warp_budget_hz(&self) -> u32 {
+        arm_core::profile::SIMULATOR.warp_budget_hz
     }
 
     fn rate_now(&self, now_tick: u64) -> Option<(u64, bool)> {

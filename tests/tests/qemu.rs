@@ -387,6 +387,77 @@ fn upload_streams_past_the_buffer_and_ends_exactly() {
     board.assert_healthy();
 }
 
+/// HOLD and RESUME on the QEMU board (issue 32: its backend takes arm-step's warp as the
+/// NUCLEO's does): HOLD 20 points into the QEMU sweep, the MOTION report at rest, the
+/// joints stay put while held, RESUME, the run ends with every point executed and every
+/// joint exactly on its last point, the board's own lines having made exactly the pulses
+/// asked. (Exact edge times are the Renode tests', against the warped oracle.)
+#[test]
+fn hold_and_resume_end_every_joint_on_its_last_point() {
+    require_qemu!();
+    let mut board = QemuBoard::start();
+    let arm = Arc::new(board.connect_with(emulated()));
+    arm.set_location(&[0; 6]).unwrap();
+    let start = position(&board, &arm);
+    let points = sweep(start, 6, 120, 4, 10_000);
+    let options = RunOptions {
+        completion_timeout: Some(Duration::from_secs(120)),
+        ..RunOptions::default()
+    };
+    let run = common::run_reporting_progress_with(&arm, points.clone(), options);
+    run.wait_executed(20);
+    let ack = arm
+        .hold()
+        .unwrap_or_else(|e| panic!("HOLD: {e}\n{}", board.log()));
+    assert_eq!(ack.state, State::Running);
+    let deadline = Instant::now() + Duration::from_secs(30);
+    let held = loop {
+        let (status, motion) = arm.motion().unwrap();
+        let motion = motion.expect("a MOTION report");
+        if motion.flags.has(protocol::MotionFlags::AT_REST) {
+            break status;
+        }
+        assert!(Instant::now() < deadline, "not at rest: {motion:?}");
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    assert_eq!(held.state, State::Running);
+    let at_rest = assert_stays_put(&arm, 10);
+    assert!(
+        usize::from(held.executed) < points.len(),
+        "held before the end: {held:?}"
+    );
+    let ack = arm
+        .resume()
+        .unwrap_or_else(|e| panic!("RESUME: {e}\n{}", board.log()));
+    assert_eq!(ack.state, State::Running);
+    let report = run
+        .join()
+        .unwrap_or_else(|e| panic!("{e}\n{}", board.log()));
+    let status = report.final_status.unwrap();
+    assert_eq!(status.state, State::Stopped);
+    assert_eq!(usize::from(status.executed), points.len());
+    assert!(!status.flags.has(StatusFlags::UNDERRUN), "{status:?}");
+    let end = position(&board, &arm);
+    let expected = points.last().unwrap().position;
+    assert_eq!(end[..6], expected[..6]);
+    let asked = steps_asked(start, &points);
+    assert_lines_saw(&board, moved(start, end), |rising| *rising == asked);
+    let _ = writeln_note(&format!(
+        "qemu: held at rest at {at_rest:?} ({} of {} points executed), resumed, ended on \
+         {:?}",
+        held.executed,
+        points.len(),
+        &end[..6]
+    ));
+    board.assert_healthy();
+}
+
+/// Prints a figure to the real stderr (seen without --nocapture).
+fn writeln_note(text: &str) -> std::io::Result<()> {
+    use std::io::Write;
+    writeln!(std::io::stderr().lock(), "{text}")
+}
+
 #[test]
 fn emergency_stop_mid_run_freezes_the_joints() {
     require_qemu!();

@@ -32,10 +32,10 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use arm_core::profile::{BoardProfile, NUCLEO_H743ZI2, NUCLEO_H743ZI2_TMC};
-use arm_step::{JointMask, MAX_JOINTS, Segment, StepEngine, StepPins};
+use arm_step::{JointMask, MAX_JOINTS, RATE_ONE, Segment, StepEngine, StepPins, Warp};
 use armctl::{Error, Options, RunEnd, RunOptions};
 use common::{assert_stays_put, run_reporting_progress_with, stop_mid_run, sweep};
-use protocol::{Point, State, StatusFlags};
+use protocol::{MotionFlags, Point, State, StatusFlags};
 use system_tests::renode::{
     BOARD, EMULATED_TIMER_HZ, Edge, HOSTS, RenodeBoard, STOPPED_LANDED, malformed_flood,
     unavailable,
@@ -216,6 +216,12 @@ fn oracle(segments: &[Segment]) -> Oracle {
 
 /// The oracle's edges for `segments` from tick 0, on the build with `profile`.
 fn oracle_of(profile: &BoardProfile, segments: &[Segment]) -> Oracle {
+    oracle_warped(profile, segments, Warp::IDENTITY)
+}
+
+/// The oracle's edges for `segments` from tick 0 under `warp` (issue 32: HOLD, RESUME and
+/// OVERRIDE as rate changes on the oracle's clock), on the build with `profile`.
+fn oracle_warped(profile: &BoardProfile, segments: &[Segment], warp: Warp) -> Oracle {
     struct Rises {
         now: u64,
         rises: [Vec<u64>; MAX_JOINTS],
@@ -235,6 +241,7 @@ fn oracle_of(profile: &BoardProfile, segments: &[Segment]) -> Oracle {
         fn step_low(&mut self, _joints: JointMask) {}
     }
     let mut engine = StepEngine::<64>::new(profile.step_timing());
+    assert!(engine.set_warp(warp));
     let mut pending = segments.iter().copied().peekable();
     let mut fill = |engine: &mut StepEngine<64>| {
         while engine.free_slots() > 0 {
@@ -1509,5 +1516,367 @@ fn every_single_stopped_halts_the_arm_under_a_flood_while_the_keyed_owner_stream
         q(1.0) < 10_000.0,
         "the last STEP edge within 10 ms of virtual time after a STOPPED landed"
     );
+    board.assert_healthy();
+}
+
+/// A rate change the board took (issue 32), on the oracle's clock (the board's run clock,
+/// its joint timers' tick 0, less the lead-in).
+#[derive(Clone, Copy, Debug)]
+struct RateChange {
+    at: u64,
+    target: u64,
+}
+
+/// The warp of `changes` (in time order), each ramped with `ramp`.
+fn warp_of(changes: &[RateChange], ramp: u64) -> Warp {
+    let mut warp = Warp::IDENTITY;
+    for c in changes {
+        warp.change_rate(c.at, c.target, ramp)
+            .unwrap_or_else(|e| panic!("{c:?}: {e:?}"));
+    }
+    warp
+}
+
+/// The ramp of a HOLD, RESUME or OVERRIDE on a board without ACCEL_SET limits (erased
+/// settings): arm-core's `UNLIMITED_RAMP` at the board's step clock.
+fn unlimited_ramp() -> u64 {
+    let (accel, speed) = arm_core::controller::UNLIMITED_RAMP;
+    arm_step::ramp_for(accel, speed, NUCLEO_H743ZI2.step_timing().tick_hz)
+}
+
+/// Where the oracle's rises first differ from the board's (moved onto the oracle's clock
+/// by `offset`), both taken below tick `limit`: the earliest difference over the joints, as
+/// the oracle's rise against the board's (`Less`: the oracle's comes earlier, or the board
+/// has none), with the joint and the rise's index. `None`: equal.
+fn first_difference(
+    board: &[Joint; MAX_JOINTS],
+    offset: i64,
+    oracle: &Oracle,
+    limit: u64,
+) -> Option<(std::cmp::Ordering, usize, usize, u64)> {
+    let mut first: Option<(std::cmp::Ordering, usize, usize, u64)> = None;
+    for j in 0..MAX_JOINTS {
+        let b: Vec<u64> = board[j]
+            .rises
+            .iter()
+            .map(|&r| u64::try_from(i64::try_from(r).unwrap() - offset).unwrap())
+            .filter(|&r| r < limit)
+            .collect();
+        let o: Vec<u64> = oracle[j].iter().copied().filter(|&r| r < limit).collect();
+        let Some(k) = (0..b.len().max(o.len())).find(|&k| b.get(k) != o.get(k)) else {
+            continue;
+        };
+        let (order, tick) = match (o.get(k), b.get(k)) {
+            (Some(o), Some(b)) => (o.cmp(b), *o.min(b)),
+            (Some(o), None) => (std::cmp::Ordering::Less, *o),
+            (None, Some(b)) => (std::cmp::Ordering::Greater, *b),
+            (None, None) => unreachable!(),
+        };
+        if first.is_none_or(|f| tick < f.3) {
+            first = Some((order, j, k, tick));
+        }
+    }
+    first
+}
+
+/// The tick (oracle's clock, in `lo..=hi`) at which the board took a rate change to
+/// `target` (a slowing one if `slowing`), after the changes `before` and before `after`
+/// (fixed): the one at which the oracle's rises below `limit` are the board's, found by
+/// bisection. Each rise's tick is monotone in the change's tick (a slowing change taken
+/// later lets every later rise come earlier or as early; a speeding one, later), so the
+/// first difference says which way to go. One free number per change: that it makes
+/// every edge of every joint the board's is the comparison. Panics, with the nearest
+/// difference, if no tick does.
+#[allow(clippy::too_many_arguments)]
+fn fit_change(
+    board: &[Joint; MAX_JOINTS],
+    offset: i64,
+    segments: &[Segment],
+    (before, after): (&[RateChange], &[RateChange]),
+    target: u64,
+    slowing: bool,
+    (mut lo, mut hi): (u64, u64),
+    limit: u64,
+) -> u64 {
+    let mut nearest = None;
+    while lo <= hi {
+        let at = lo + (hi - lo) / 2;
+        let mut changes = before.to_vec();
+        changes.push(RateChange { at, target });
+        changes.extend_from_slice(after);
+        let oracle = oracle_warped(
+            &NUCLEO_H743ZI2,
+            segments,
+            warp_of(&changes, unlimited_ramp()),
+        );
+        let Some(difference) = first_difference(board, offset, &oracle, limit) else {
+            return at;
+        };
+        nearest = Some((at, difference));
+        let later = (difference.0 == std::cmp::Ordering::Less) != slowing;
+        if later {
+            lo = at + 1;
+        } else if at == 0 {
+            break;
+        } else {
+            hi = at - 1;
+        }
+    }
+    panic!(
+        "no change tick to {target} makes the oracle's rises the board's: nearest (tick, \
+         (oracle vs board, joint, rise, at)) {nearest:?}"
+    );
+}
+
+/// The longest stretch without a rise on any joint, on the board's ticks: (last rise
+/// before it, first after).
+fn longest_pause(board: &[Joint; MAX_JOINTS]) -> (u64, u64) {
+    let mut rises: Vec<u64> = board.iter().flat_map(|j| j.rises.iter().copied()).collect();
+    rises.sort_unstable();
+    rises
+        .windows(2)
+        .map(|w| (w[0], w[1]))
+        .max_by_key(|(a, b)| b - a)
+        .expect("rises")
+}
+
+/// Waits (bounded) until the MOTION report shows `flags` set (`set`) or clear.
+fn wait_motion(arm: &armctl::Client, flags: u8, set: bool, what: &str) {
+    let deadline = Instant::now() + Duration::from_secs(120);
+    loop {
+        let (status, motion) = arm.motion().unwrap();
+        let motion = motion.expect("a MOTION report (issue 32's firmware)");
+        if motion.flags.has(flags) == set {
+            note(&format!("{what}: {motion:?}, executed {}", status.executed));
+            return;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "{what}: not within 120 s: {motion:?}"
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
+}
+
+/// The run's options on the emulator: the hold lasts as long as the test takes to see it
+/// at rest (several seconds of wall time), generous so that only a real stall fails.
+fn held_run_options() -> RunOptions {
+    RunOptions {
+        stall_timeout: Duration::from_secs(60),
+        completion_timeout: Some(Duration::from_secs(600)),
+        ..RunOptions::default()
+    }
+}
+
+/// The checks after a warped run: it ended with every point executed, every joint at its
+/// last point, the pulses signed by DIR summing to the move, pulse width and DIR timing.
+fn assert_warped_run_ends_exact(
+    board: &RenodeBoard,
+    arm: &armctl::Client,
+    report: armctl::Result<armctl::RunReport>,
+    start: [i32; MAX_JOINTS],
+    points: &[Point],
+) -> [Joint; MAX_JOINTS] {
+    let report = report.unwrap_or_else(|e| panic!("{e}\n{}", board.log()));
+    let status = report.final_status.unwrap();
+    assert_eq!(status.state, State::Stopped);
+    assert_eq!(usize::from(status.executed), points.len());
+    assert!(!status.flags.has(StatusFlags::UNDERRUN), "{status:?}");
+    let end = position(board, arm);
+    assert_eq!(end[..JOINTS], points.last().unwrap().position[..JOINTS]);
+    let pins = joints(&recorded(board));
+    for j in 0..MAX_JOINTS {
+        assert_eq!(
+            signed_pulses(&pins[j]),
+            end[j] - start[j],
+            "joint {j}: net pulses"
+        );
+    }
+    assert_pulse_and_dir_timing(&pins);
+    assert_no_late_events(board);
+    pins
+}
+
+/// Issue 32's Done-when on the NUCLEO ELF: a run of six joints (the QEMU test's sweep,
+/// 120 points of 10 ms), HOLD 20 points in, the test waits for the MOTION report's
+/// AT_REST, RESUME, the run ends: every joint exactly at its last point, and every rising
+/// STEP edge of every joint at the tick of arm-step's oracle when the oracle takes the
+/// same warp (hold at the tick the board took it, ramp to 0, resume, ramp back; erased
+/// settings: no ACCEL_SET limit, so both ramps are `UNLIMITED_RAMP`'s slope).
+///
+/// The board takes a change at the first tick after what its producer has written
+/// (`max(now, warp_horizon())` on the run's clock), which the host cannot know. So the
+/// hold's tick is fitted: by bisection, the one tick at which the oracle's rises before the
+/// pause are the board's (with a resume far after), then the resume's with the hold
+/// fixed, on every rise of the run. Two numbers against every edge of every joint: a board
+/// whose pulses did not follow the warp (a refill that placed a ramp's pulse a tick off)
+/// matches at no tick. At [`CHIP_MIPS`]: the warp budget is the chip's (see
+/// [`an_override_mid_run_makes_the_warped_oracles_edges`]).
+#[test]
+fn a_hold_and_resume_make_the_warped_oracles_edges() {
+    require_renode!();
+    let mut board = RenodeBoard::start_with_step_path(CHIP_MIPS);
+    let arm = Arc::new(board.connect_from(HOSTS[0], emulated()));
+    arm.set_location(&[0; JOINTS]).unwrap();
+    let start = position(&board, &arm);
+    let points = sweep(start, JOINTS, 120, 4, 10_000);
+    let began = Instant::now();
+    let run = run_reporting_progress_with(&arm, points.clone(), held_run_options());
+    run.wait_executed(20);
+    let ack = arm
+        .hold()
+        .unwrap_or_else(|e| panic!("HOLD: {e}\n{}", board.log()));
+    assert_eq!(ack.state, State::Running);
+    // Where the pins were just after the HOLD's ACK: its latency, printed below.
+    let at_hold = position(&board, &arm);
+    wait_motion(&arm, MotionFlags::AT_REST, true, "held");
+    let ack = arm
+        .resume()
+        .unwrap_or_else(|e| panic!("RESUME: {e}\n{}", board.log()));
+    assert_eq!(ack.state, State::Running);
+    let pins = assert_warped_run_ends_exact(&board, &arm, run.join(), start, &points);
+    note(&format!(
+        "held run of {} points took {:.1} s of wall time",
+        points.len(),
+        began.elapsed().as_secs_f64()
+    ));
+
+    let segments = segments(start, &points);
+    let offset = lead_in(&pins, &oracle(&segments));
+    let shift = |tick: u64| u64::try_from(i64::try_from(tick).unwrap() - offset).unwrap();
+    let (paused, moved) = longest_pause(&pins);
+    let (paused, moved) = (shift(paused), shift(moved));
+    let far = RateChange {
+        at: moved,
+        target: RATE_ONE,
+    };
+    let hold = fit_change(
+        &pins,
+        offset,
+        &segments,
+        (&[], &[far]),
+        0,
+        true,
+        (0, paused),
+        paused + (moved - paused) / 2,
+    );
+    let held = [RateChange {
+        at: hold,
+        target: 0,
+    }];
+    let resume = fit_change(
+        &pins,
+        offset,
+        &segments,
+        (&held, &[]),
+        RATE_ONE,
+        false,
+        (hold + 1, moved),
+        u64::MAX,
+    );
+    // The pins' time just after the HOLD's ACK: the unwarped oracle's tick of the last
+    // pulse the fastest joint had made (before the hold's ramp, the two agree).
+    let unwarped = oracle(&segments);
+    let fastest = JOINTS - 1;
+    let acked = usize::try_from(at_hold[fastest].abs_diff(start[fastest])).unwrap();
+    let acked = unwarped[fastest][acked.saturating_sub(1)];
+    note(&format!(
+        "HOLD taken {:.1} ms after the pins' time at its ACK ({:.1} ms): the producer's \
+         write-ahead (a change waits for the periods already written, up to two buffer \
+         halves of each joint's)",
+        ticks_us(i64::try_from(hold).unwrap() - i64::try_from(acked).unwrap()) / 1e3,
+        ticks_us(i64::try_from(acked).unwrap()) / 1e3
+    ));
+    let changes = [
+        held[0],
+        RateChange {
+            at: resume,
+            target: RATE_ONE,
+        },
+    ];
+    let oracle = oracle_warped(
+        &NUCLEO_H743ZI2,
+        &segments,
+        warp_of(&changes, unlimited_ramp()),
+    );
+    assert_rises_match(&pins, &oracle, offset, true);
+    let (least, most, dir_changes) = dir_lateness(&pins, &oracle, offset);
+    note(&format!(
+        "every rise at the warped oracle's tick: HOLD taken at tick {hold} ({:.1} ms into the \
+         run), standstill from {:.1} ms to RESUME at {:.1} ms; rises per joint {:?}; {} DIR \
+         changes {}..={} ticks after the oracle's",
+        ticks_us(i64::try_from(hold).unwrap()) / 1e3,
+        ticks_us(i64::try_from(paused).unwrap()) / 1e3,
+        ticks_us(i64::try_from(resume).unwrap()) / 1e3,
+        pins.iter().map(|p| p.rises.len()).collect::<Vec<_>>(),
+        dir_changes,
+        least,
+        most
+    ));
+    board.assert_healthy();
+}
+
+/// OVERRIDE 50 mid-run on the NUCLEO ELF (issue 32): the rest of the run at half speed,
+/// ramped; it ends exact, and every rising STEP edge is at the warped oracle's tick (the
+/// change's tick fitted as in [`a_hold_and_resume_make_the_warped_oracles_edges`]).
+///
+/// Run at [`CHIP_MIPS`], as the hold: a warped pulse costs the step interrupts some 2,100
+/// instructions (renode_cost), and at Renode's default 100 MIPS this run's six joints
+/// (8,400 steps/s) ran a step stream dry during the ramp ("step stream underrun", the run
+/// ended after 35 of 120 points); the NUCLEO's warp budget is the chip's 400 MHz.
+#[test]
+fn an_override_mid_run_makes_the_warped_oracles_edges() {
+    require_renode!();
+    let mut board = RenodeBoard::start_with_step_path(CHIP_MIPS);
+    let arm = Arc::new(board.connect_from(HOSTS[0], emulated()));
+    arm.set_location(&[0; JOINTS]).unwrap();
+    let start = position(&board, &arm);
+    let points = sweep(start, JOINTS, 120, 4, 10_000);
+    let run = run_reporting_progress_with(&arm, points.clone(), held_run_options());
+    run.wait_executed(20);
+    arm.set_override(50)
+        .unwrap_or_else(|e| panic!("OVERRIDE: {e}\n{}", board.log()));
+    let pins = assert_warped_run_ends_exact(&board, &arm, run.join(), start, &points);
+
+    let segments = segments(start, &points);
+    let offset = lead_in(&pins, &oracle(&segments));
+    let last = pins
+        .iter()
+        .filter_map(|p| p.rises.last())
+        .max()
+        .copied()
+        .unwrap();
+    let last = u64::try_from(i64::try_from(last).unwrap() - offset).unwrap();
+    let half = RATE_ONE / 2;
+    let at = fit_change(
+        &pins,
+        offset,
+        &segments,
+        (&[], &[]),
+        half,
+        true,
+        (0, last),
+        u64::MAX,
+    );
+    let oracle = oracle_warped(
+        &NUCLEO_H743ZI2,
+        &segments,
+        warp_of(&[RateChange { at, target: half }], unlimited_ramp()),
+    );
+    assert_rises_match(&pins, &oracle, offset, true);
+    let unwarped_end = oracle_of(&NUCLEO_H743ZI2, &segments)
+        .rises
+        .iter()
+        .filter_map(|r| r.last())
+        .max()
+        .copied()
+        .unwrap();
+    note(&format!(
+        "every rise at the warped oracle's tick: OVERRIDE 50 taken at {:.1} ms; last rise at \
+         {:.1} ms (unwarped {:.1} ms)",
+        ticks_us(i64::try_from(at).unwrap()) / 1e3,
+        ticks_us(i64::try_from(last).unwrap()) / 1e3,
+        ticks_us(i64::try_from(unwarped_end).unwrap()) / 1e3,
+    ));
     board.assert_healthy();
 }

@@ -75,7 +75,7 @@ local controlled_stop_names = {
 }
 -- The wired e-stop input's stop category (ESTOP_CATEGORY, MOTION byte 7; issue 32).
 local estop_category_names = { [0] = "CATEGORY_0", [1] = "CATEGORY_1" }
-local override_limit_names = { [0] = "none", [1] = "RATE", [2] = "ACCEL" }
+local override_limit_names = { [0] = "none", [1] = "RATE", [2] = "ACCEL", [3] = "STEP_BUDGET" }
 
 local crc_status_names = { [0] = "Bad", [1] = "Good", [2] = "Unverified" }
 local direction_names = { [0] = "host to controller", [1] = "controller to host" }

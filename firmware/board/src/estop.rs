@@ -16,10 +16,11 @@
 //! docs/BOARD.md, "Wired e-stop input", has the path from pin to STEP low.
 //!
 //! Category 1 (ESTOP_CATEGORY, issue 32) changes nothing here: this board's step side has
-//! no time warp, so a run cannot ramp down and [`EXTI0`] stops it as category 0 whatever
-//! the setting (the service's `EStopLine::edge` finds no warp and halts too); the
-//! controller then disables the drivers, category 1's end. When the producer gains the
-//! warp, [`EXTI0`]'s kill must first ask the line whether the opening is left to a ramp.
+//! no ramped category 1: [`EXTI0`] stops it as category 0 whatever the setting (the
+//! service halts the backend before `EStopLine::edge`, which then finds no run to ramp
+//! and halts too); the controller then disables the drivers, category 1's end. A ramped
+//! category 1 on the board needs [`EXTI0`]'s kill to ask the line first whether the
+//! opening is left to a ramp, and a bound the trajectory task cannot miss (a timer).
 //!
 //! # Every interleaving
 //!
@@ -144,6 +145,12 @@ pub fn service() {
     }
     let wake = &crate::BUS.step_progress;
     if OPENED.swap(false, Ordering::SeqCst) || is_open() {
+        // EXTI0 has already forced every STEP output low, whatever the category: the run
+        // is over here too (halted first, so the line finds no run left to a ramp and
+        // stops as category 0; the controller still disables the drivers for category 1).
+        // Without this, with the producer's warp (issue 32), the line would leave a
+        // killed run "ramping" on the producer's count.
+        STEP.halt();
         LINE.edge(true, &STEP, &STEP_TIMER, wake);
         crate::step_dma::kill_handled();
     }

@@ -148,7 +148,8 @@ mod boot;
 mod homing_run;
 mod motion;
 pub use motion::{
-    ESTOP_RAMP_LOOKAHEAD_US, ESTOP_RAMP_POLL_US, ESTOP_RAMP_SLACK_US, estop_ramp_bound_us,
+    ESTOP_RAMP_LOOKAHEAD_US, ESTOP_RAMP_POLL_US, ESTOP_RAMP_SLACK_US, UNLIMITED_RAMP,
+    estop_ramp_bound_us,
 };
 mod owner;
 mod runs;
@@ -1033,6 +1034,15 @@ impl<const CAP: usize> Controller<CAP> {
             }
             Command::Runing if self.motion.door_open => return Err(StatusCode::DoorOpen),
             Command::Runing => match self.state {
+                // A run at a factor other than 100 % is warped from its start: within the
+                // step side's warp budget over the points held (issue 32), else refused
+                // (old hosts never set a factor).
+                State::Pending
+                    if self.motion.factor != 100
+                        && !self.warp_fits(plant, motion::rate_of(self.motion.factor)) =>
+                {
+                    return Err(self.over_warp_budget());
+                }
                 State::Pending => {
                     self.stop = StopReport::COMPLETE;
                     self.state = State::Running;

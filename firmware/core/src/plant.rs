@@ -56,6 +56,11 @@ pub trait Plant {
     fn rate_now(&self) -> Option<(u64, bool)> {
         None
     }
+    /// Steps per second of all joints together the step side can place under a warp
+    /// (`BoardProfile::warp_budget_hz`); 0: no limit (the default).
+    fn warp_budget_hz(&self) -> u32 {
+        0
+    }
     /// The limit switch whose trips must not halt the steps now (issue 33: the one the
     /// homing cycle homes on, when it is also the limit; `None`: every limit halts). Set
     /// before the move that may reach it starts. Default: no switches, nothing to do.

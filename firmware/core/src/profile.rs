@@ -72,6 +72,12 @@ pub struct BoardProfile {
     /// Steps per second of all joints together the board takes on (STATUS
     /// `step_budget_hz`, the controller's boot value).
     pub step_budget_hz: u32,
+    /// Steps per second of all joints together the board's step side can place while a
+    /// run's time is warped (issue 32: HOLD, RESUME, OVERRIDE, a factor other than 100 %;
+    /// each such pulse inverts arm-step's `Warp`, some 40 times an unwarped pulse's cost);
+    /// 0: no limit. The controller refuses a warp above it (`OVERRIDE_REFUSED`, MOTION
+    /// `STEP_BUDGET`) rather than let the step buffers run dry.
+    pub warp_budget_hz: u32,
     /// Trajectory points buffered (STATUS `capacity`; the controller's compile-time size).
     pub trajectory_capacity: usize,
     /// Input clock of the gripper timer, Hz (STATUS `pwm_timer_clock_hz`).
@@ -284,6 +290,17 @@ pub const NUCLEO_STEP_DMA: StepDma = StepDma {
 /// budget"; it was 31.3 and 41%).
 const NUCLEO_CPU_STEP_BUDGET_HZ: u32 = 4_000_000;
 
+/// The NUCLEO's budget for warped steps (issue 32, [`BoardProfile::warp_budget_hz`]): a
+/// warped pulse cost the step path's interrupts 1,947-2,173 instructions during a ramp
+/// (100 -> 50 %: six joints at 8,400 steps/s, one at 50 kHz, eight at 69,600 together) and
+/// 2,119 at a steady 50 % (tests/tests/renode_cost.rs
+/// `step_path_instructions_per_step_during_a_ramp`, the `cargo fw` ELF on Renode at 400
+/// MIPS: `Warp::warped_tick`'s u128 bisection and division are 1,770-1,920 of them), against
+/// 34-42 unwarped. At the same 55 % of the CPU as the unwarped budget: 0.55 * 400e6 /
+/// (2,200 * 1.3) = 77 k steps/s; 75,000. The eight joints at 69,600 ramped without a step
+/// stream running dry there.
+const NUCLEO_WARP_STEP_BUDGET_HZ: u32 = 75_000;
+
 /// The NUCLEO's step DMA ceiling ([`BoardProfile::dma_step_ceiling_hz`] of its
 /// `min_dma_period_ns` and [`NUCLEO_STEP_DMA`]): 8 joints at the 1 us floor, 8 M steps/s
 /// (the two controllers could move 2 / (3 * 50 ns) = 13.3 M).
@@ -356,6 +373,7 @@ pub const NUCLEO_H743ZI2: BoardProfile = BoardProfile {
     // The lesser of the CPU's budget and the step DMA's ceiling (issue 34):
     // min(4,000,000, 8,000,000) = 4,000,000 (8 joints x 500 kHz).
     step_budget_hz: min_hz(NUCLEO_CPU_STEP_BUDGET_HZ, NUCLEO_DMA_STEP_CEILING_HZ),
+    warp_budget_hz: NUCLEO_WARP_STEP_BUDGET_HZ,
     // 8192 * 36 bytes = 288 KiB of the 512 KiB AXI SRAM, i.e. 80 s of 10 ms points, so a
     // host streaming over a congested link has seconds of slack before an underrun.
     trajectory_capacity: 8192,
@@ -408,6 +426,9 @@ pub const QEMU_MPS2_AN500: BoardProfile = BoardProfile {
     step_rate_ceiling_hz: 100_000,
     // The NUCLEO's: uploads are refused alike.
     step_budget_hz: NUCLEO_H743ZI2.step_budget_hz,
+    // The NUCLEO's: a speed change is refused alike (its own cost, a software player on
+    // the host's emulated CPU, is not measured).
+    warp_budget_hz: NUCLEO_H743ZI2.warp_budget_hz,
     // The NUCLEO's, so that uploads (flow control) behave the same.
     trajectory_capacity: NUCLEO_H743ZI2.trajectory_capacity,
     // The gripper "timer" counts SYSCLK, as a CMSDK timer would.
@@ -490,6 +511,40 @@ const _: () = assert!(SIMULATOR.max_step_rate_hz() == NUCLEO_H743ZI2.max_step_ra
 const _: () = assert!(NUCLEO_H743ZI2.dma_burst_latency_ns() == 650);
 const _: () = assert!(NUCLEO_H743ZI2.dma_step_ceiling_hz() == 8_000_000);
 const _: () = assert!(NUCLEO_H743ZI2.step_budget_hz == NUCLEO_CPU_STEP_BUDGET_HZ);
+
+/// The longest period the step producer writes on any joint, ns: 2^16 ticks at 200 MHz,
+/// the NUCLEO's 16-bit timers' range. Its 32-bit timers (joints 0-1) could take one period
+/// per pulse however slow, but a HOLD, RESUME or OVERRIDE (issue 32) takes effect only
+/// after every period already written, up to two buffer halves ahead of the pins: at 64
+/// periods a half, a joint at 400 steps/s was 320 ms ahead (Renode: a HOLD taken 310 ms
+/// after its ACK). Capped, two halves are at most 42 ms; the empty periods cost a refill
+/// for a slow joint some 3,000 a second, a few tens of instructions each.
+pub const STREAM_PERIOD_CAP_NS: u64 = 327_680;
+
+impl BoardProfile {
+    /// Each joint's longest period in the step streams: its timer's range, at most
+    /// [`STREAM_PERIOD_CAP_NS`] (the boards and the simulator build their streams with it).
+    #[allow(
+        clippy::cast_possible_truncation,
+        reason = "const-evaluated: the cap is below a period that is a u32"
+    )]
+    pub const fn stream_period_ticks(&self) -> [u32; MAX_JOINTS] {
+        let cap = STREAM_PERIOD_CAP_NS * self.step_timer_hz as u64 / 1_000_000_000;
+        let mut periods = self.step_timer_max_period_ticks;
+        let mut j = 0;
+        while j < MAX_JOINTS {
+            #[allow(clippy::indexing_slicing, reason = "const-evaluated: j < MAX_JOINTS")]
+            if periods[j] as u64 > cap {
+                periods[j] = cap as u32;
+            }
+            j += 1;
+        }
+        periods
+    }
+}
+
+const _: () = assert!(NUCLEO_H743ZI2.stream_period_ticks()[0] == 1 << 16);
+const _: () = assert!(NUCLEO_H743ZI2.stream_period_ticks()[7] == 1 << 16);
 
 /// `ticks` of a `from_hz` clock in ticks of a `to_hz` clock (`to_hz <= from_hz`).
 #[allow(

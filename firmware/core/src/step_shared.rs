@@ -113,6 +113,11 @@ pub trait StepBackend {
     fn rate_now(&self, _now_tick: u64) -> Option<(u64, bool)> {
         None
     }
+    /// Steps per second of all joints together this backend can place under a warp
+    /// (`BoardProfile::warp_budget_hz`); 0: no limit (the default, the test oracle's).
+    fn warp_budget_hz(&self) -> u32 {
+        0
+    }
 }
 
 /// The test oracle's backend (arm-core's task tests; feature `test-support`): the boards
@@ -338,6 +343,11 @@ impl<const Q: usize, B: StepBackend, M: RawMutex> StepShared<Q, B, M> {
     /// Changes the rate of the run under way ([`StepBackend::change_rate`]).
     pub fn change_rate(&self, now_tick: u64, rate: u64, accel: u32, speed: u32) -> bool {
         self.with_engine(|e| e.change_rate(now_tick, rate, accel, speed))
+    }
+
+    /// The warp budget ([`StepBackend::warp_budget_hz`]).
+    pub fn warp_budget_hz(&self) -> u32 {
+        self.with_engine(|e| e.warp_budget_hz())
     }
 
     /// The rate now and whether it is changing ([`StepBackend::rate_now`]).

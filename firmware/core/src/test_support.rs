@@ -96,12 +96,14 @@ pub struct FakePlant {
     pub rate_changes: Vec<(u64, u32, u32)>,
     /// The rate the next start begins at (`set_start_rate`).
     pub start_rate: u64,
-    /// Fault: a step side without a warp (the boards' today): `change_rate` is refused
-    /// and `rate_now` is `None`.
+    /// Fault: a step side without a warp (the boards' before issue 32's board work):
+    /// `change_rate` is refused and `rate_now` is `None`.
     pub warpless: bool,
     /// Fault: a rate change never settles (`rate_now` says ramping): a ramp that never
     /// reaches its standstill.
     pub ramp_never_ends: bool,
+    /// The step side's warp budget, steps/s of all joints (0: no limit, the default).
+    pub warp_budget_hz: u32,
     /// Contract checks: panic on a segment shorter than 1 us or faster than
     /// [`FakePlant::max_step_rate_hz`] on any joint, a user pin other than 0 and 1, enable
     /// bits beyond the gripper's, a serial chunk of 0 or more than 255 bytes.
@@ -135,6 +137,7 @@ impl Default for FakePlant {
             serial_opens: 0,
             serial_closes: 0,
             pushed: 0,
+            warp_budget_hz: 0,
             rate_changes: Vec::new(),
             start_rate: arm_step::RATE_ONE,
             warpless: false,
@@ -196,6 +199,9 @@ impl Plant for FakePlant {
     }
     fn set_start_rate(&mut self, rate: u64) {
         self.start_rate = rate;
+    }
+    fn warp_budget_hz(&self) -> u32 {
+        self.warp_budget_hz
     }
     fn rate_now(&self) -> Option<(u64, bool)> {
         // Every change done at once.

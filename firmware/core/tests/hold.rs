@@ -210,3 +210,50 @@ fn override_above_100_is_refused_where_a_joint_would_break_a_limit() {
         (1, Some(OverrideLimit::Accel))
     );
 }
+
+/// The step side's warp budget (issue 32, `BoardProfile::warp_budget_hz`: the NUCLEO's
+/// step interrupts place some 40 times fewer warped pulses than unwarped ones): joint 0 at
+/// 4,000 steps/s and joint 1 at 1,000 are 5,000 steps/s together. With a budget below
+/// that, HOLD and OVERRIDE are refused `OVERRIDE_REFUSED` (MOTION: joint 0xFF,
+/// `STEP_BUDGET`) and nothing changes; at the budget they are taken. A run at a factor
+/// is checked at RUNING, at the factor's rate.
+#[test]
+fn hold_and_override_past_the_warp_budget_are_refused() {
+    let mut s = Session::<64>::new(64);
+    s.plant.warp_budget_hz = 4_999;
+    s.start_run(50, &cruise([0; MAX_JOINTS], 12, 40));
+    s.plant.run(&mut s.controller, 1);
+    s.expect(Command::Hold, StatusCode::OverrideRefused);
+    s.expect(
+        Command::Override { percent: 50 },
+        StatusCode::OverrideRefused,
+    );
+    assert!(s.plant.rate_changes.is_empty(), "nothing changed");
+    let report = motion(&mut s, HOST);
+    assert_eq!(
+        (
+            report.factor_percent,
+            report.refused_joint,
+            report.refused_limit
+        ),
+        (100, 0xFF, Some(OverrideLimit::StepBudget))
+    );
+    assert!(!report.flags.has(MotionFlags::HELD));
+    s.plant.warp_budget_hz = 5_000;
+    s.expect(Command::Override { percent: 50 }, StatusCode::Ok);
+    s.expect(Command::Hold, StatusCode::Ok);
+    s.expect(Command::Resume, StatusCode::Ok);
+    assert_eq!(s.plant.rate_changes.len(), 3);
+
+    // RUNING at 90 %: 4,500 steps/s warped, over a 4,000 budget; at 50 %, 2,500: taken.
+    let mut s = Session::<64>::new(64);
+    s.plant.warp_budget_hz = 4_000;
+    s.expect(Command::Override { percent: 90 }, StatusCode::Ok);
+    s.expect(Command::New { count: 12 }, StatusCode::Ok);
+    s.pending(&cruise([0; MAX_JOINTS], 12, 40));
+    s.expect(Command::Runing, StatusCode::OverrideRefused);
+    assert_eq!(s.controller.state(), State::Pending);
+    s.expect(Command::Override { percent: 50 }, StatusCode::Ok);
+    s.expect(Command::Runing, StatusCode::Ok);
+    assert_eq!(s.plant.start_rate, ONE / 2);
+}

@@ -63,7 +63,7 @@ pub const STEP_QUEUE: usize = PROFILE.step_queue();
 
 /// The longest period of each joint's "timer": the NUCLEO's, in time (the profile's), so
 /// that gaps are split into the same periods and refills come as often as there.
-pub const MAX_PERIOD_TICKS: [u32; MAX_JOINTS] = PROFILE.step_timer_max_period_ticks;
+pub const MAX_PERIOD_TICKS: [u32; MAX_JOINTS] = PROFILE.stream_period_ticks();
 
 /// Longest time between two plays while a run plays, SYSCLK cycles (5 ms, as sim-host's
 /// step thread): the lines and the positions the tasks read lag the present by at most
@@ -199,6 +199,48 @@ impl StepBackend for QemuSteps {
                 .streams
                 .get_mut()
                 .is_some_and(|s| s.producer().set_positions(positions))
+    }
+
+    /// HOLD, RESUME and OVERRIDE (issue 32), as the NUCLEO's and the simulator's backends:
+    /// the producer's warp on the run's clock (tick 0 = `origin`, SYSCLK cycles), a change
+    /// at the first tick after what it has written, never before now.
+    fn change_rate(&mut self, now_tick: u64, rate: u64, accel: u32, speed: u32) -> bool {
+        if !self.player.is_playing() {
+            return false;
+        }
+        let Some(streams) = self.streams.get_mut() else {
+            return false;
+        };
+        let producer = streams.producer();
+        let ramp = arm_step::ramp_for(accel, speed, STEP_TIMING.tick_hz);
+        let at = now_tick
+            .saturating_sub(self.origin)
+            .max(producer.warp_horizon());
+        producer.change_warp(at, rate, ramp).is_ok()
+    }
+
+    fn set_start_rate(&mut self, _at_tick: u64, rate: u64) -> bool {
+        // The run's clock starts at 0 (`start`): the rate from there.
+        if self.player.is_playing() {
+            return false;
+        }
+        let Some(streams) = self.streams.get_mut() else {
+            return false;
+        };
+        arm_step::Warp::steady(0, rate).is_ok_and(|warp| streams.producer().set_warp(warp))
+    }
+
+    fn warp_budget_hz(&self) -> u32 {
+        arm_core::profile::QEMU_MPS2_AN500.warp_budget_hz
+    }
+
+    fn rate_now(&self, now_tick: u64) -> Option<(u64, bool)> {
+        if !self.player.is_playing() {
+            return None;
+        }
+        let warp = self.streams.get()?.producer_ref().warp();
+        let tick = now_tick.saturating_sub(self.origin);
+        Some((warp.rate(tick), warp.ramping(tick)))
     }
 }
 

@@ -73,10 +73,16 @@
 //! (`change_rate`, `set_start_rate`: the simulator's backend keeps the warp on the run's
 //! clock, which restarts at 0 every run, as the board's does).
 //!
-//! Left for issue 32: the map's cost while warped (a phase scan and u128 arithmetic per
-//! pulse, a ~40-step search on a ramp: fine on the host, to be measured on the board before
-//! the NUCLEO's backend takes it, or made incremental per joint), the acceleration budget
-//! between path and warp (above), and the NUCLEO's and QEMU's backends.
+//! The NUCLEO's and QEMU's backends take it too (`firmware/board/src/step_dma/backend.rs`,
+//! `firmware/qemu-mps2/src/step_out.rs`). Its cost there, measured on the `cargo fw` ELF on
+//! Renode (tests/tests/renode_cost.rs, `step_path_instructions_per_step_during_a_ramp`):
+//! `Warp::warped_tick` is 1,770-1,920 instructions per warped pulse (the ramp's u128
+//! bisection, the steady phase's u128 division), the step interrupts 1,947-2,173 per pulse
+//! in all, against 34-42 unwarped; so the controller refuses a warp past the board's
+//! `warp_budget_hz` (75,000 steps/s of all joints on the NUCLEO). Left for issue 32: a
+//! cheaper inversion (a steady phase whose rate is a whole `RATE_ONE` unit as a shift and
+//! a 64-by-32 division; a ramp's search started from the joint's previous pulse), which
+//! would raise that budget, and the acceleration budget between path and warp (above).
 
 /// A rate of 100 %: trajectory time runs as fast as controller time.
 pub const RATE_ONE: u64 = 1 << 16;

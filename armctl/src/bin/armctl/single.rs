@@ -23,6 +23,13 @@ pub fn set_override(arm: &Client, percent: u8) -> CliResult {
             ..
         }) => {
             let why = match arm.motion() {
+                Ok((_, Some(m)))
+                    if m.refused_limit == Some(protocol::OverrideLimit::StepBudget) =>
+                {
+                    "the run's steps per second at that speed are more than the board can time \
+                     under a speed change (its warp budget)"
+                        .to_owned()
+                }
                 Ok((_, Some(m))) => format!(
                     "joint {} would go over its {} limit",
                     m.refused_joint,

@@ -313,6 +313,51 @@ impl StepBackend for BoardSteps {
                 .get_mut()
                 .is_some_and(|s| s.producer().set_positions(positions))
     }
+
+    /// HOLD, RESUME and OVERRIDE (issue 32): the producer takes the warp on the run's
+    /// clock (tick 0 = the joint timers' start, `origin` on the step clock), as the
+    /// simulator's backend does. The change goes in at the first tick after what it has
+    /// written (a buffer half or two ahead of the timers), never before now; while the
+    /// start is priming (no timer counts yet) at that first tick. The pulses of a ramp are
+    /// then placed by the warp's inversion in the refills (their cost: `scripts/step-cost`,
+    /// README).
+    fn change_rate(&mut self, now_tick: u64, rate: u64, accel: u32, speed: u32) -> bool {
+        let now = match self.run {
+            Run::Running { origin } => now_tick.saturating_sub(origin),
+            Run::Priming { .. } => 0,
+            Run::Idle => return false,
+        };
+        let Some(streams) = self.streams.get_mut() else {
+            return false;
+        };
+        let producer = streams.producer();
+        let ramp = arm_step::ramp_for(accel, speed, STEP_TIMING.tick_hz);
+        let at = now.max(producer.warp_horizon());
+        producer.change_warp(at, rate, ramp).is_ok()
+    }
+
+    fn set_start_rate(&mut self, _at_tick: u64, rate: u64) -> bool {
+        // The run's clock starts at 0 (the timers' start): the rate from there.
+        let Some(streams) = self.streams.get_mut() else {
+            return false;
+        };
+        self.run == Run::Idle
+            && arm_step::Warp::steady(0, rate).is_ok_and(|warp| streams.producer().set_warp(warp))
+    }
+
+    fn warp_budget_hz(&self) -> u32 {
+        super::PROFILE.warp_budget_hz
+    }
+
+    fn rate_now(&self, now_tick: u64) -> Option<(u64, bool)> {
+        let tick = match self.run {
+            Run::Running { origin } => now_tick.saturating_sub(origin),
+            Run::Priming { .. } => 0,
+            Run::Idle => return None,
+        };
+        let warp = self.streams.get()?.producer_ref().warp();
+        Some((warp.rate(tick), warp.ramping(tick)))
+    }
 }
 
 impl BoardSteps {

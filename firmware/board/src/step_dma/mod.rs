@@ -94,9 +94,10 @@ pub const STEP_TIMER_HZ: u32 = PROFILE.step_timer_hz;
 /// joints one after the other).
 pub const STEP_TIMING: StepTiming = PROFILE.step_timing();
 
-/// The longest period of each joint's timer (the profile's: 2^32 ticks for TIM2 and TIM5,
-/// 2^16 for the 16-bit ones).
-pub const MAX_PERIOD_TICKS: [u32; MAX_JOINTS] = PROFILE.step_timer_max_period_ticks;
+/// The longest period of each joint's stream: its timer's range (2^32 ticks for TIM2 and
+/// TIM5, 2^16 for the 16-bit ones), capped at 2^16 so that a speed change (issue 32) waits
+/// for at most two buffer halves of 328 us periods (`profile::STREAM_PERIOD_CAP_NS`).
+pub const MAX_PERIOD_TICKS: [u32; MAX_JOINTS] = PROFILE.stream_period_ticks();
 
 /// Every joint's DMA buffer. Written by the refills (inside [`STEP`]'s lock,
 /// for the half the stream is not reading) and read by the DMA.

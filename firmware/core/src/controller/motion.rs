@@ -106,22 +106,21 @@ pub fn rate_of(percent: u8) -> u64 {
 }
 
 impl<const CAP: usize> Controller<CAP> {
-    /// Each joint's fastest rate (steps/s) and sharpest acceleration (steps/s^2, between
-    /// consecutive points) over the points held. The oldest held point only starts the
-    /// differences: where it begins is the end of a point already finished, which the
-    /// buffer no longer holds (the joints' positions are no stand-in: the step side
-    /// finishes a segment when its pulses are written, a few milliseconds before they are
-    /// played, and the differences from them would make a point look several times as
-    /// fast). With one point held: from the positions. The acceleration is that between
-    /// consecutive differences (a first one has none before it: not from rest, which the
-    /// trajectory's first point already was checked from).
-    fn held_rates(&self, plant: &impl Plant) -> ([u64; MAX_JOINTS], [u128; MAX_JOINTS]) {
-        let mut speed = [0u64; MAX_JOINTS];
+    /// Each joint's sharpest acceleration (steps/s^2, between consecutive points) over
+    /// the points held, for an OVERRIDE above 100 % (a command, not each segment: this
+    /// scans every point held). The oldest held point only starts the differences: where
+    /// it begins is the end of a point already finished, which the buffer no longer holds
+    /// (the joints' positions are no stand-in: the step side finishes a segment when its
+    /// pulses are written, a few milliseconds before they are played, and the differences
+    /// from them would make a point look several times as fast). The acceleration is that
+    /// between consecutive differences (a first one has none before it: not from rest,
+    /// which the trajectory's first point already was checked from).
+    fn held_accels(&self) -> [u128; MAX_JOINTS] {
         let mut accel = [0u128; MAX_JOINTS];
-        let (mut previous, mut i) = match (self.buffer.held(0), self.buffer.held(1)) {
-            (Some(first), Some(_)) => (first.position, 1),
-            _ => (plant.positions(), 0),
+        let Some(mut previous) = self.buffer.held(0).map(|p| p.position) else {
+            return accel;
         };
+        let mut i = 1;
         let mut last = ([0i32; MAX_JOINTS], 0u32);
         while let Some(point) = self.buffer.held(i) {
             i += 1;
@@ -132,10 +131,6 @@ impl<const CAP: usize> Controller<CAP> {
                 };
                 let steps = i64::from(to) - i64::from(from);
                 let steps = i32::try_from(steps).unwrap_or(i32::MAX);
-                let rate = u64::from(steps.unsigned_abs()) * 1_000_000 / u64::from(d);
-                if let Some(s) = speed.get_mut(j) {
-                    *s = (*s).max(rate);
-                }
                 let before = last.0.get(j).copied().unwrap_or(0);
                 if let Some(a) = accel.get_mut(j)
                     && last.1 != 0
@@ -149,7 +144,50 @@ impl<const CAP: usize> Controller<CAP> {
             last.1 = d;
             previous = point.position;
         }
-        (speed, accel)
+        accel
+    }
+
+    /// Each joint's fastest rate (steps/s) over the points held, O(1): the buffer's bound
+    /// ([`crate::buffer::TrajectoryBuffer::peak_rates`], never below the exact maximum
+    /// between consecutive held points); with one point held, from the joints' positions.
+    fn held_speeds(&self, plant: &impl Plant) -> [u64; MAX_JOINTS] {
+        if self.buffer.buffered() != 1 {
+            return self.buffer.peak_rates();
+        }
+        let mut speed = [0u64; MAX_JOINTS];
+        if let Some(point) = self.buffer.held(0) {
+            let d = u64::from(point.duration_us.max(1));
+            for ((s, &to), &from) in speed
+                .iter_mut()
+                .zip(&point.position)
+                .zip(&plant.positions())
+            {
+                *s = (i64::from(to) - i64::from(from)).unsigned_abs() * 1_000_000 / d;
+            }
+        }
+        speed
+    }
+
+    /// Whether the step side can place every pulse of the run under a warp up to `rate`
+    /// (issue 32): each joint's fastest rate over the points held, summed, at `rate`, within
+    /// its warp budget ([`Plant::warp_budget_hz`]; 0: no limit). A warped pulse costs the
+    /// NUCLEO's step interrupts some 40 times an unwarped one: past the budget its DMA
+    /// buffers would run dry (a dead stop at speed) where the refusal leaves the run as it
+    /// was. The sum of each joint's peak is at least the run's rate at any instant.
+    pub(super) fn warp_fits(&self, plant: &impl Plant, rate: u64) -> bool {
+        let budget = plant.warp_budget_hz();
+        if budget == 0 {
+            return true;
+        }
+        let total: u128 = self.held_speeds(plant).iter().map(|&v| u128::from(v)).sum();
+        total * u128::from(rate) <= u128::from(budget) * u128::from(arm_step::RATE_ONE)
+    }
+
+    /// A change refused for the warp budget: `OVERRIDE_REFUSED`, MOTION's refusal the whole
+    /// run (joint 0xFF) and `STEP_BUDGET`.
+    pub(super) fn over_warp_budget(&mut self) -> StatusCode {
+        self.motion.refused = (0xFF, Some(OverrideLimit::StepBudget));
+        StatusCode::OverrideRefused
     }
 
     /// The ramp's `(accel, speed)`: the gentlest slope over the joints with a limit.
@@ -159,7 +197,7 @@ impl<const CAP: usize> Controller<CAP> {
 
     /// The gentlest slope over the joints with an ACCEL_SET limit; `None` without one.
     fn accel_ramp(&self, plant: &impl Plant) -> Option<(u32, u32)> {
-        let (speed, _) = self.held_rates(plant);
+        let speed = self.held_speeds(plant);
         let mut ramp = UNLIMITED_RAMP;
         let mut limited = false;
         for (&max, &v) in self.settings.max_accel.iter().zip(&speed) {
@@ -196,10 +234,11 @@ impl<const CAP: usize> Controller<CAP> {
             // Every point is in: the trajectory's own end comes to rest.
             return;
         }
-        // Cheap tests first: this runs after every finished segment, and the scans below
-        // are O(points held) (8,192 on the NUCLEO: a livelock there, IWDG reset, seen on
-        // Renode streaming past the buffer). A step side without a warp (the boards for
-        // now) cannot slow down; a buffer more than half full is not an underrun coming.
+        // This runs after every finished segment: everything below is O(1) (the buffer
+        // keeps the sums and rate bounds it needs; a scan of the points held, 8,192 on the
+        // NUCLEO, livelocked the board and the IWDG reset it, seen on Renode streaming
+        // past the buffer). A step side without a warp cannot slow down; a buffer more
+        // than half full is not an underrun coming.
         let Some((rate, _)) = plant.rate_now() else {
             return;
         };
@@ -210,15 +249,9 @@ impl<const CAP: usize> Controller<CAP> {
             return;
         };
         // Nominal path after the point being written (r1) and after the next (r2), us.
-        let (mut r1, mut r2) = (0u64, 0u64);
-        let mut i = 1;
-        while let Some(point) = self.buffer.held(i) {
-            r1 += u64::from(point.duration_us);
-            if i >= 2 {
-                r2 += u64::from(point.duration_us);
-            }
-            i += 1;
-        }
+        let duration = |i| self.buffer.held(i).map_or(0, |p| u64::from(p.duration_us));
+        let r1 = self.buffer.duration_sum_us().saturating_sub(duration(0));
+        let r2 = r1.saturating_sub(duration(1));
         let creep = rate_of(UNDERRUN_CREEP_PERCENT);
         let full = rate_of(self.motion.factor);
         if self.motion.underrun {
@@ -237,7 +270,11 @@ impl<const CAP: usize> Controller<CAP> {
         }
         let creep = creep.min(rate);
         let need = ramp_path_us(rate, creep, accel, speed);
-        if u128::from(r2) < need && u128::from(r1) >= need && plant.change_rate(creep, accel, speed)
+        // Past the step side's warp budget the underrun stays the dead stop it was.
+        if u128::from(r2) < need
+            && u128::from(r1) >= need
+            && self.warp_fits(plant, rate)
+            && plant.change_rate(creep, accel, speed)
         {
             self.motion.underrun = true;
             self.motion.last_stop = ControlledStop::Underrun;
@@ -245,13 +282,22 @@ impl<const CAP: usize> Controller<CAP> {
     }
 
     /// HOLD (any host): decelerate the run to a standstill. `BAD_STATE` outside RUNNING,
-    /// during a RETURN's encoder read, or on a step side without a warp.
+    /// during a RETURN's encoder read, or on a step side without a warp;
+    /// `OVERRIDE_REFUSED` (MOTION `STEP_BUDGET`) past its warp budget
+    /// ([`Self::warp_fits`]). RESUME is never refused for the budget: a held run must be
+    /// able to go on.
     pub(super) fn hold(&mut self, plant: &mut impl Plant) -> Result<(), StatusCode> {
         if self.state != State::Running || self.return_pending {
             return Err(StatusCode::BadState);
         }
         if self.motion.held {
             return Ok(());
+        }
+        let now = plant
+            .rate_now()
+            .map_or(arm_step::RATE_ONE, |(rate, _)| rate);
+        if plant.rate_now().is_some() && !self.warp_fits(plant, now) {
+            return Err(self.over_warp_budget());
         }
         let (accel, speed) = self.ramp_limits(plant);
         if !plant.change_rate(0, accel, speed) {
@@ -289,6 +335,8 @@ impl<const CAP: usize> Controller<CAP> {
     }
 
     /// OVERRIDE (the owner): the factor from now (ramped) and for the runs to come.
+    /// `OVERRIDE_REFUSED` (MOTION `STEP_BUDGET`) past the step side's warp budget
+    /// ([`Self::warp_fits`]).
     /// Above 100 %, every joint's fastest rate times the factor must stay within its rate
     /// limit and its sharpest acceleration times the factor squared within its ACCEL_SET
     /// limit, over the points held: else `OVERRIDE_REFUSED`, the joint and limit kept for
@@ -299,7 +347,8 @@ impl<const CAP: usize> Controller<CAP> {
         plant: &mut impl Plant,
     ) -> Result<(), StatusCode> {
         if percent > 100 {
-            let (speed, accel) = self.held_rates(plant);
+            let speed = self.held_speeds(plant);
+            let accel = self.held_accels();
             let p = u128::from(percent);
             for j in 0..MAX_JOINTS {
                 let rate_limit = self
@@ -322,6 +371,16 @@ impl<const CAP: usize> Controller<CAP> {
                     return Err(StatusCode::OverrideRefused);
                 }
             }
+        }
+        // The factor's warp must fit the step side's budget: from the rate now (the ramp
+        // passes every rate between) while a run goes, else at the factor (where RESUME or
+        // the next RUNING go; RUNING checks again with the points it then holds).
+        let running = self.state == State::Running && !self.return_pending;
+        let now = plant.rate_now().map(|(rate, _)| rate).filter(|_| running);
+        let highest = now.unwrap_or(0).max(rate_of(percent));
+        let warped = now.is_some() || percent != 100;
+        if warped && !self.warp_fits(plant, highest) {
+            return Err(self.over_warp_budget());
         }
         self.motion.factor = percent;
         // During an underrun ramp the factor applies when the host catches up.

@@ -149,6 +149,9 @@ impl<
     fn rate_now(&self) -> Option<(u64, bool)> {
         self.step.rate_now(self.kick.now_tick())
     }
+    fn warp_budget_hz(&self) -> u32 {
+        self.step.warp_budget_hz()
+    }
     fn set_limit_mask(&mut self, mask: Option<(u8, crate::switches::Side)>) {
         if let Some(line) = self.switches {
             line.set_mask(mask);
