@@ -873,6 +873,20 @@ impl RenodeBoard {
             .map_or_else(String::new, |m| m.run(command))
     }
 
+    /// The machine's elapsed virtual time (Renode's `machine ElapsedVirtualTime`); `None`
+    /// if the monitor did not answer in that form.
+    pub fn virtual_time(&self) -> Option<Duration> {
+        let answer = self.monitor("machine ElapsedVirtualTime");
+        let at = answer.find("Elapsed Virtual Time: ")? + "Elapsed Virtual Time: ".len();
+        let text = answer.get(at..)?.split_whitespace().next()?;
+        let mut parts = text.split(':');
+        let (h, m, s) = (parts.next()?, parts.next()?, parts.next()?);
+        let seconds = h.parse::<f64>().ok()? * 3600.0
+            + m.parse::<f64>().ok()? * 60.0
+            + s.parse::<f64>().ok()?;
+        Some(Duration::from_secs_f64(seconds))
+    }
+
     /// The firmware's defmt log so far, one decoded line per frame: reads what the RTT
     /// up-buffer holds, frees it for the firmware (defmt-rtt drops what does not fit while
     /// no one reads), and decodes.

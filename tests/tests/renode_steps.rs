@@ -1290,17 +1290,26 @@ fn every_single_stopped_halts_the_arm_under_a_flood_while_the_keyed_owner_stream
     require_renode!();
     const KEY: AuthKey = AuthKey([0x5a; KEY_LEN]);
     const STOPS: u8 = 20;
-    // The flood: bursts of 5 every 20 ms of wall time (`RENODE_FLOOD_BURST` changes the
-    // 5): ~240 datagrams/s, ~1,300 per second of the board's virtual time (printed). About
-    // the most the emulator carries while the owner is still answered: each frame costs it
-    // a Python hook per Ethernet register write (`nucleo-h743zi2.resc`), and its virtual
-    // time slows down with the rate. Unpaced (~100k/s from one socket) the board's virtual
-    // time advanced 12 ms in 10 s of wall time; at ~900/s (20 per 20 ms) and ~3,000/s the
-    // owner's STATUS got no ACK within armctl's 2 s of wall time (the board's 50-100 ms).
+    // The flood: 1,300 datagrams per second of the board's *virtual* time
+    // (`RENODE_FLOOD_RATE` changes it), sent every 20 ms of wall time as what is due by
+    // then (at most 5 at once: `RENODE_FLOOD_BURST`). About the most the emulator carries
+    // while the owner is still answered: each frame costs it a Python hook per Ethernet
+    // register write (`nucleo-h743zi2.resc`), and its virtual time slows down with the
+    // rate. Unpaced (~100k/s from one socket) the board's virtual time advanced 12 ms in
+    // 10 s of wall time; at ~900/s (20 per 20 ms) and ~3,000/s the owner's STATUS got no
+    // ACK within armctl's 2 s of wall time (the board's 50-100 ms). Paced in wall time
+    // (5 per 20 ms, as before), a loaded machine slows Renode and not the flood: 5,570-8,247
+    // per virtual second were printed on one, and the board's executor stalled 109-112 ms
+    // (2 of 5 runs: the firmware's "check late" line). Paced in virtual time, a machine ten
+    // times slower floods the board alike. Without the monitor's virtual time: wall pacing.
     let flood_burst: u64 = std::env::var("RENODE_FLOOD_BURST")
         .ok()
         .and_then(|v| v.parse().ok())
         .unwrap_or(5);
+    let flood_rate: f64 = std::env::var("RENODE_FLOOD_RATE")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(1_300.0);
     const FLOOD_PERIOD: Duration = Duration::from_millis(20);
     let mips = std::env::var("RENODE_FLOOD_MIPS").unwrap_or_else(|_| "100".into());
     let mut board =
@@ -1350,15 +1359,23 @@ fn every_single_stopped_halts_the_arm_under_a_flood_while_the_keyed_owner_stream
     let (flood, tries) = std::thread::scope(|scope| {
         let flood = scope.spawn(|| {
             let started = Instant::now();
+            let virtual_start = board.virtual_time();
             let mut sent = 0u64;
             while !done.load(Ordering::Relaxed)
                 && sent < 5_000_000
                 && started.elapsed() < Duration::from_secs(600)
             {
-                for _ in 0..flood_burst {
+                let due = match (virtual_start, board.virtual_time()) {
+                    (Some(from), Some(now)) => {
+                        (now.saturating_sub(from).as_secs_f64() * flood_rate) as u64
+                    }
+                    _ => sent + flood_burst,
+                };
+                let burst = due.saturating_sub(sent).min(flood_burst);
+                for _ in 0..burst {
                     let _ = flooder.send(&status_frame[..status_len]);
                 }
-                sent += flood_burst;
+                sent += burst;
                 flooded.store(sent, Ordering::Relaxed);
                 std::thread::sleep(FLOOD_PERIOD);
             }
