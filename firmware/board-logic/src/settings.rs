@@ -663,6 +663,16 @@ mod tests {
         }
     }
 
+    /// A settings area holding only `records` (key, bytes): a flash written by an older
+    /// firmware, before the records that came later.
+    fn older_flash(records: &[(u8, &[u8])]) -> SettingsArea<Flash> {
+        let mut old = SettingsArea::new(Flash::default(), RANGE);
+        for (key, bytes) in records {
+            block_on(old.map.store_item(&mut old.buffer.0, key, bytes)).unwrap();
+        }
+        old
+    }
+
     /// Issue 32: the e-stop category is kept (key 11); a flash written before it (the
     /// settings and network records alone) loads with category 0, and an unknown byte loads as 0.
     #[test]
@@ -672,11 +682,10 @@ mod tests {
         let mut area = SettingsArea::new(Flash::default(), RANGE);
         block_on(area.save(&controlled)).unwrap();
         assert_eq!(block_on(area.load()), LoadOutcome::Stored(controlled));
-        let mut old = SettingsArea::new(Flash::default(), RANGE);
-        let first: &[u8] = &encode(&custom());
-        let net: &[u8] = &encode_net(&custom());
-        block_on(old.map.store_item(&mut old.buffer.0, &SETTINGS_KEY, &first)).unwrap();
-        block_on(old.map.store_item(&mut old.buffer.0, &NET_KEY, &net)).unwrap();
+        let mut old = older_flash(&[
+            (SETTINGS_KEY, &encode(&custom())),
+            (NET_KEY, &encode_net(&custom())),
+        ]);
         assert_eq!(block_on(old.load()), LoadOutcome::Stored(custom()));
         assert_eq!(
             decode_stop(custom(), &[7, 0, 0, 0]).estop_category,
@@ -714,15 +723,12 @@ mod tests {
             block_on(area.save(&described)).unwrap();
         }
         assert_eq!(block_on(area.load()), LoadOutcome::Stored(described));
-        let mut old = SettingsArea::new(Flash::default(), RANGE);
-        let first: &[u8] = &encode(&custom());
-        let net: &[u8] = &encode_net(&custom());
-        let auth: &[u8] = &encode_auth(&custom());
-        let accel: &[u8] = &encode_accel(&custom());
-        block_on(old.map.store_item(&mut old.buffer.0, &SETTINGS_KEY, &first)).unwrap();
-        block_on(old.map.store_item(&mut old.buffer.0, &NET_KEY, &net)).unwrap();
-        block_on(old.map.store_item(&mut old.buffer.0, &AUTH_KEY, &auth)).unwrap();
-        block_on(old.map.store_item(&mut old.buffer.0, &ACCEL_KEY, &accel)).unwrap();
+        let mut old = older_flash(&[
+            (SETTINGS_KEY, &encode(&custom())),
+            (NET_KEY, &encode_net(&custom())),
+            (AUTH_KEY, &encode_auth(&custom())),
+            (ACCEL_KEY, &encode_accel(&custom())),
+        ]);
         assert_eq!(block_on(old.load()), LoadOutcome::Stored(custom()));
     }
 
@@ -760,9 +766,7 @@ mod tests {
         }
         assert_eq!(block_on(area.load()), LoadOutcome::Stored(homed));
         // Before issue 33: no homing records.
-        let mut old = SettingsArea::new(Flash::default(), RANGE);
-        let first: &[u8] = &encode(&custom());
-        block_on(old.map.store_item(&mut old.buffer.0, &SETTINGS_KEY, &first)).unwrap();
+        let mut old = older_flash(&[(SETTINGS_KEY, &encode(&custom()))]);
         let LoadOutcome::Stored(loaded) = block_on(old.load()) else {
             panic!("the old record loads");
         };
@@ -787,13 +791,11 @@ mod tests {
         let mut area = SettingsArea::new(Flash::default(), RANGE);
         block_on(area.save(&fast)).unwrap();
         assert_eq!(block_on(area.load()), LoadOutcome::Stored(fast));
-        let mut old = SettingsArea::new(Flash::default(), RANGE);
-        let first: &[u8] = &encode(&custom());
-        let net: &[u8] = &encode_net(&custom());
-        let auth: &[u8] = &encode_auth(&custom());
-        block_on(old.map.store_item(&mut old.buffer.0, &SETTINGS_KEY, &first)).unwrap();
-        block_on(old.map.store_item(&mut old.buffer.0, &NET_KEY, &net)).unwrap();
-        block_on(old.map.store_item(&mut old.buffer.0, &AUTH_KEY, &auth)).unwrap();
+        let mut old = older_flash(&[
+            (SETTINGS_KEY, &encode(&custom())),
+            (NET_KEY, &encode_net(&custom())),
+            (AUTH_KEY, &encode_auth(&custom())),
+        ]);
         for (half, key) in LIMITS_KEYS.iter().enumerate() {
             let limits: &[u8] = &encode_limits(&custom(), half);
             block_on(old.map.store_item(&mut old.buffer.0, key, &limits)).unwrap();
@@ -823,13 +825,11 @@ mod tests {
         }
         assert_eq!(block_on(area.load()), LoadOutcome::Stored(limited));
         // A flash written before LIMITS_SET: no limits records, no limits.
-        let mut old = SettingsArea::new(Flash::default(), RANGE);
-        let first: &[u8] = &encode(&custom());
-        let net: &[u8] = &encode_net(&custom());
-        let auth: &[u8] = &encode_auth(&custom());
-        block_on(old.map.store_item(&mut old.buffer.0, &SETTINGS_KEY, &first)).unwrap();
-        block_on(old.map.store_item(&mut old.buffer.0, &NET_KEY, &net)).unwrap();
-        block_on(old.map.store_item(&mut old.buffer.0, &AUTH_KEY, &auth)).unwrap();
+        let mut old = older_flash(&[
+            (SETTINGS_KEY, &encode(&custom())),
+            (NET_KEY, &encode_net(&custom())),
+            (AUTH_KEY, &encode_auth(&custom())),
+        ]);
         assert_eq!(block_on(old.load()), LoadOutcome::Stored(custom()));
         // A record with min above max is no limit.
         let mut bad = encode_limits(&limited, 0);
@@ -853,11 +853,10 @@ mod tests {
         block_on(area.save(&cleared)).unwrap();
         assert_eq!(block_on(area.load()), LoadOutcome::Stored(cleared));
         // A flash written before issue 21 has no authentication record: no key.
-        let mut old = SettingsArea::new(Flash::default(), RANGE);
-        let first: &[u8] = &encode(&custom());
-        let net: &[u8] = &encode_net(&custom());
-        block_on(old.map.store_item(&mut old.buffer.0, &SETTINGS_KEY, &first)).unwrap();
-        block_on(old.map.store_item(&mut old.buffer.0, &NET_KEY, &net)).unwrap();
+        let mut old = older_flash(&[
+            (SETTINGS_KEY, &encode(&custom())),
+            (NET_KEY, &encode_net(&custom())),
+        ]);
         assert_eq!(block_on(old.load()), LoadOutcome::Stored(custom()));
     }
 
