@@ -60,6 +60,28 @@ fn points(start: [i32; MAX_JOINTS], n: i32, step: i32) -> Vec<Point> {
         .collect()
 }
 
+/// When the input `line` (the recorder's, named `pin`) first went high, and the last STEP
+/// edge of any joint, ns of virtual time.
+fn opened_and_last_step(
+    board: &RenodeBoard,
+    edges: &[system_tests::renode::Edge],
+    line: u8,
+    pin: &str,
+) -> (u64, u64) {
+    let opened = edges
+        .iter()
+        .find(|e| e.line == line && e.high)
+        .unwrap_or_else(|| panic!("the recorder saw {pin} go high\n{}", board.log()))
+        .ns;
+    let last_step = edges
+        .iter()
+        .filter(|e| e.line < 8)
+        .map(|e| e.ns)
+        .max()
+        .expect("STEP edges");
+    (opened, last_step)
+}
+
 fn motion_flags(arm: &armctl::Client) -> u8 {
     arm.motion()
         .ok()
@@ -147,17 +169,7 @@ fn an_open_door_holds_the_run_refuses_resume_and_closed_the_run_ends_exact() {
     assert_eq!(motion.last_stop, Some(ControlledStop::Door), "{motion:?}");
 
     let edges = board.edges();
-    let opened = edges
-        .iter()
-        .find(|e| e.line == DOOR && e.high)
-        .unwrap_or_else(|| panic!("the recorder saw PF4 go high\n{}", board.log()))
-        .ns;
-    let last_step = edges
-        .iter()
-        .filter(|e| e.line < 8)
-        .map(|e| e.ns)
-        .max()
-        .expect("STEP edges");
+    let (opened, last_step) = opened_and_last_step(&board, &edges, DOOR, "PF4");
     let before = edges.iter().filter(|e| e.line < 8 && e.ns < opened).count();
     let after = edges
         .iter()
@@ -265,17 +277,7 @@ fn estop_category_1_on_the_board_stops_at_once_then_disables_the_drivers() {
         .wait_stopped(Duration::from_secs(60))
         .unwrap_or_else(|e| panic!("STOPPED after the e-stop: {e}\n{}", board.log()));
     let edges = board.edges();
-    let opened = edges
-        .iter()
-        .find(|e| e.line == ESTOP && e.high)
-        .unwrap_or_else(|| panic!("the recorder saw PC0 go high\n{}", board.log()))
-        .ns;
-    let last_step = edges
-        .iter()
-        .filter(|e| e.line < 8)
-        .map(|e| e.ns)
-        .max()
-        .expect("STEP edges");
+    let (opened, last_step) = opened_and_last_step(&board, &edges, ESTOP, "PC0");
     note(&format!(
         "category 1 on the board: PC0 high at {opened} ns, last STEP edge {} ns after \
          (step period {period_ns} ns); {} points executed",
