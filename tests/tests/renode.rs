@@ -476,17 +476,15 @@ fn the_eth_interrupt_halts_for_stopped_and_rx_counters_tell_it() {
     let c = rx_counters_after_stops(&raw, stops)
         .unwrap_or_else(|| panic!("STOPPEDs ACKed and RX_COUNTERS answered\n{}", board.log()));
     note(&format!("RX_COUNTERS after {stops} STOPPEDs: {c:?}"));
-    // Every STOPPED was ACKed, so every one halted the arm: by the interrupt's look or by
-    // the runner's first look (`Bus::receive_first`), both before any queue. The interrupt
-    // took 5 of 5 in every run alone (4 of 4 runs, 2026-11-28), and 4 of 5 once in a
-    // fresh-clone `.ci/run` on a loaded machine: one frame taken by the runner before the
-    // interrupt's look. The likely cause, fixed since: the look ran before embassy's
-    // handler cleared the receive flag, so a frame landing during the look raised no
-    // interrupt of its own (`net.rs`, `RxPeek`). Until loaded runs show it gone, asserted:
-    // at most one of five by the runner; the flood tests count the rest.
+    // Every STOPPED was ACKed, and the interrupt halted for each one before its ACK. Before
+    // the ETH handlers were bound `RxFlags, eth::InterruptHandler, RxPeek` (`net.rs`), the
+    // look ran before embassy's handler cleared the receive flag: a frame landing during
+    // the look raised no interrupt of its own and the runner's first look took it (4 of 5
+    // once, on a loaded machine). Since then: 5 of 5 in every run, alone and in loaded
+    // fresh-clone `.ci/run`s, as the flood test below asserts for every STOPPED.
     assert!(
-        c.interrupt_stops + 1 >= u32::from(stops),
-        "the ETH interrupt halted for the STOPPEDs ACKed (all but one at most): {c:?}\n{}",
+        c.interrupt_stops >= u32::from(stops),
+        "the ETH interrupt halted for every STOPPED ACKed: {c:?}\n{}",
         board.log()
     );
     board.assert_healthy();
