@@ -92,6 +92,23 @@ fn the_door_holds_armctl_run_and_resume_after_closing_ends_it() {
     );
     assert_eq!(m.last_stop, Some(protocol::ControlledStop::Door));
     let held_at = joint0(&arm).expect("LOCATION");
+    // `armctl status` says so, as text and as JSON.
+    let (ok, out) = armctl(&sim, &["status"]);
+    assert!(
+        ok && out.contains("HELD at rest")
+            && out.contains("DOOR OPEN")
+            && out.contains("last controlled stop DOOR"),
+        "status while held: {out}"
+    );
+    let (ok, out) = armctl(&sim, &["status", "--json"]);
+    let json: serde_json::Value = serde_json::from_str(&out).unwrap_or_default();
+    assert!(
+        ok && json["motion"]["last_stop"] == "Door"
+            && json["motion"]["flags"]
+                .as_u64()
+                .is_some_and(|f| f & 0x13 == 0x13),
+        "status --json while held: {out}"
+    );
     let (ok, out) = armctl(&sim, &["resume"]);
     assert!(!ok && out.contains("DOOR_OPEN"), "resume while open: {out}");
     std::thread::sleep(Duration::from_millis(300));

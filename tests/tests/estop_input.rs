@@ -210,6 +210,10 @@ fn estop_category_1_from_armctl_ends_the_run_with_the_drivers_disabled() {
     assert!(ok && out.contains("e-stop category 1"), "{out}");
     let out = status_until(&sim, "e-stop input");
     assert!(out.contains("drivers enabled yes"), "{out}");
+    assert!(
+        out.contains("e-stop category 1: the input decelerates"),
+        "{out}"
+    );
 
     let mut run = Command::new(armctl_bin())
         .arg("--controller")

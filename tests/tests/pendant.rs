@@ -149,6 +149,12 @@ fn the_pendant_in_a_browser_shows_jogs_stops_and_loses_the_simulator() {
         "{}",
         page.text("#speed")
     );
+    // The wired input's stop category (MOTION byte 7): the default, 0.
+    assert!(
+        page.text("#estopin").ends_with(", category 0"),
+        "{}",
+        page.text("#estopin")
+    );
     // Resume: the run goes on.
     page.click("#resume");
     assert!(

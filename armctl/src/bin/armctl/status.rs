@@ -31,6 +31,9 @@ pub fn execute(arm: &Client, json: bool, config: Option<&std::path::Path>) -> Cl
     // What ended the last run and who sent the STOPPED (issue 31); `None` from an older
     // controller, or if the report was lost.
     let stop = arm.stop_report().ok().and_then(|(_, stop)| stop);
+    // The override, a hold, the door and the e-stop category (issue 32's MOTION report);
+    // `None` from an older controller, or if the report was lost.
+    let motion = arm.motion().ok().and_then(|(_, motion)| motion);
     if json {
         // The STATUS fields as before, plus `positions` (null when none came) and
         // `read_only`.
@@ -57,6 +60,10 @@ pub fn execute(arm: &Client, json: bool, config: Option<&std::path::Path>) -> Cl
                 armctl::stopped_by(stop.as_ref())
                     .map_or(serde_json::Value::Null, |a| a.to_string().into()),
             );
+            map.insert(
+                "motion".into(),
+                serde_json::to_value(motion).map_err(|e| e.to_string())?,
+            );
             if let Some(config) = &config {
                 let names: Vec<serde_json::Value> = config
                     .joints
@@ -74,6 +81,13 @@ pub fn execute(arm: &Client, json: bool, config: Option<&std::path::Path>) -> Cl
     } else {
         print_status(&status);
         println!("{}", stop_line(&status, stop.as_ref()));
+        if let Some(m) = &motion {
+            println!("{}", motion_line(m));
+            println!(
+                "{}",
+                crate::single::estop_category_line(Some(m.estop_category))
+            );
+        }
         // Issue 33: the switches, when the controller has any or has homed (an older
         // controller refuses the request bit: nothing printed).
         if let Ok(Some(switches)) = arm.switches() {
@@ -182,6 +196,56 @@ pub fn switches_line(
         )),
     }
     (!parts.is_empty()).then(|| format!("switches         {}", parts.join("; ")))
+}
+
+/// The speed override, a hold or ramp, the safety door, the last controlled stop and the
+/// last OVERRIDE refused (issue 32's MOTION report), as one line.
+pub fn motion_line(m: &protocol::MotionReport) -> String {
+    use protocol::MotionFlags;
+    let mut parts = vec![format!(
+        "speed {} % (now {:.1} %)",
+        m.factor_percent,
+        f64::from(m.rate_permille) / 10.0
+    )];
+    let flag = |bit| m.flags.has(bit);
+    if flag(MotionFlags::HELD) {
+        parts.push(
+            if flag(MotionFlags::AT_REST) {
+                "HELD at rest: `armctl resume` goes on"
+            } else {
+                "HOLDING (decelerating)"
+            }
+            .to_owned(),
+        );
+    } else if flag(MotionFlags::ESTOP_RAMP) {
+        parts.push("E-STOP category 1: decelerating, then the drivers off".to_owned());
+    } else if flag(MotionFlags::UNDERRUN_RAMP) {
+        parts.push("UNDERRUN: slowing, the host is late".to_owned());
+    } else if flag(MotionFlags::RAMPING) {
+        parts.push("ramping".to_owned());
+    }
+    if flag(MotionFlags::DOOR_OPEN) {
+        parts.push("DOOR OPEN: runs hold, RUNING and RESUME refused".to_owned());
+    }
+    match m.last_stop {
+        Some(protocol::ControlledStop::None) => {}
+        Some(stop) => parts.push(format!("last controlled stop {}", stop.name())),
+        None => parts.push("last controlled stop unknown (a newer controller)".to_owned()),
+    }
+    match (m.refused_limit, m.refused_joint) {
+        (Some(protocol::OverrideLimit::StepBudget), _) => parts.push(
+            "last OVERRIDE refused: the run's steps per second would pass the board's \
+             budget for warped steps (STEP_BUDGET)"
+                .to_owned(),
+        ),
+        (Some(limit), joint) => parts.push(format!(
+            "last OVERRIDE refused: joint {joint} would pass its {} limit",
+            limit.name()
+        )),
+        (None, 0xFF) => {}
+        (None, joint) => parts.push(format!("last OVERRIDE refused: joint {joint} (limit ?)")),
+    }
+    format!("motion           {}", parts.join("; "))
 }
 
 /// What ended the last run (issue 31: STATUS `more_flags` bits 5-7 and the STOP_CAUSE

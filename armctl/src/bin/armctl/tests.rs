@@ -285,6 +285,60 @@ fn hold_resume_override_and_run_speed() {
         crate::watch::motion_suffix(Some(&m)),
         " speed 50 % HELD DOOR OPEN"
     );
+    m.flags =
+        protocol::MotionFlags(protocol::MotionFlags::ESTOP_RAMP | protocol::MotionFlags::RAMPING);
+    assert_eq!(
+        crate::watch::motion_suffix(Some(&m)),
+        " speed 50 % E-STOP (category 1: decelerating)"
+    );
+}
+
+/// `armctl status`'s MOTION line (issue 32): the override and the rate now, a hold, the
+/// door, the last controlled stop and the last OVERRIDE refused, each named.
+#[test]
+fn status_names_the_override_the_hold_the_door_and_a_refusal() {
+    use crate::status::motion_line;
+    use protocol::{ControlledStop, MotionFlags, MotionReport, OverrideLimit};
+    assert_eq!(
+        motion_line(&MotionReport::IDLE),
+        "motion           speed 100 % (now 100.0 %)"
+    );
+    let held = MotionReport {
+        factor_percent: 50,
+        flags: MotionFlags(MotionFlags::HELD | MotionFlags::AT_REST | MotionFlags::DOOR_OPEN),
+        rate_permille: 0,
+        last_stop: Some(ControlledStop::Door),
+        ..MotionReport::IDLE
+    };
+    assert_eq!(
+        motion_line(&held),
+        "motion           speed 50 % (now 0.0 %); HELD at rest: `armctl resume` goes on; \
+         DOOR OPEN: runs hold, RUNING and RESUME refused; last controlled stop DOOR"
+    );
+    let holding = MotionReport {
+        flags: MotionFlags(MotionFlags::HELD | MotionFlags::RAMPING),
+        rate_permille: 375,
+        refused_joint: 2,
+        refused_limit: Some(OverrideLimit::Rate),
+        ..MotionReport::IDLE
+    };
+    assert_eq!(
+        motion_line(&holding),
+        "motion           speed 100 % (now 37.5 %); HOLDING (decelerating); \
+         last OVERRIDE refused: joint 2 would pass its RATE limit"
+    );
+    let over_budget = MotionReport {
+        refused_limit: Some(OverrideLimit::StepBudget),
+        last_stop: None,
+        ..MotionReport::IDLE
+    };
+    assert_eq!(
+        motion_line(&over_budget),
+        "motion           speed 100 % (now 100.0 %); \
+         last controlled stop unknown (a newer controller); \
+         last OVERRIDE refused: the run's steps per second would pass the board's budget \
+         for warped steps (STEP_BUDGET)"
+    );
 }
 
 #[test]

@@ -57,6 +57,8 @@ pub fn motion_suffix(motion: Option<&protocol::MotionReport>) -> String {
         } else {
             " HOLDING"
         });
+    } else if m.flags.has(MotionFlags::ESTOP_RAMP) {
+        out.push_str(" E-STOP (category 1: decelerating)");
     } else if m.flags.has(MotionFlags::UNDERRUN_RAMP) {
         out.push_str(" UNDERRUN (slowing: the host is late)");
     } else if m.flags.has(MotionFlags::RAMPING) {

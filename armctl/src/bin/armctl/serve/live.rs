@@ -244,6 +244,11 @@ impl Snapshot {
                 "held": m.flags.has(MotionFlags::HELD),
                 "at_rest": m.flags.has(MotionFlags::AT_REST),
                 "ramping": m.flags.has(MotionFlags::RAMPING),
+                "underrun": m.flags.has(MotionFlags::UNDERRUN_RAMP),
+                "door_open": m.flags.has(MotionFlags::DOOR_OPEN),
+                "estop_ramp": m.flags.has(MotionFlags::ESTOP_RAMP),
+                // 0 or 1 (IEC 60204-1); null: a byte this pendant does not know.
+                "estop_category": m.estop_category.map(|c| c as u8),
             })),
             "token_needed": self.token_needed,
         })
