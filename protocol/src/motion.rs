@@ -100,7 +100,8 @@ impl MotionFlags {
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 pub struct MotionReport {
-    /// The override asked for, percent (1..200; 100 when no host sent OVERRIDE).
+    /// The override in force, percent (1..200; 100 when no host sent OVERRIDE): the one
+    /// asked for, or lower where a point that arrived after it lowered it (issue 32).
     pub factor_percent: u8,
     /// Held, at rest, ramping.
     pub flags: MotionFlags,

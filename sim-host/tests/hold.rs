@@ -180,6 +180,46 @@ fn run_at_50_percent_takes_twice_as_long_and_ends_exact() {
     assert!((ratio - 2.0).abs() <= 0.04, "x{ratio}");
 }
 
+/// `run --speed 150` (OVERRIDE 150 before NEW) with joint 0's rate limit at 5,000
+/// steps/s (LIMITS_SET) and a cruise at 4,000: the points lower the override to 125 %, so
+/// no two rises are closer than the limit allows (before, the points were checked at
+/// 100 % and the cruise ran at 6,000 steps/s), the cruise takes 1/1.25 of its nominal
+/// time and the run ends exact.
+#[test]
+fn run_at_150_percent_is_held_to_the_joints_rate_limit() {
+    let (_, nominal) = run_span("speed100b", None);
+    let (mut board, trace) = board("speed150", TICK_HZ);
+    let mut host = Host::new();
+    let mut limits = protocol::JointLimits::NONE;
+    limits.max_rate_hz = 5_000;
+    host.ok(
+        &mut board,
+        &Command::LimitsSet(protocol::LimitsSet { joint: 0, limits }),
+    );
+    host.ok(&mut board, &Command::Override { percent: 150 });
+    let (points, end) = trajectory(60);
+    host.upload_and_run(&mut board, &points);
+    finish(&mut host, &mut board, points.len(), end);
+    let (_, motion) = stop_and_motion(&mut host, &mut board);
+    board.finish_trace();
+    let vcd = vcd::read_changes(&trace).unwrap();
+    assert_eq!(vcd.joint_position(0), i64::from(end[0]));
+    let rises = vcd.rising_edges("step0");
+    let shortest = rises.windows(2).map(|w| w[1] - w[0]).min().unwrap();
+    let fastest = 1e9 / shortest as f64;
+    // The cruise: the 60 points of 40 steps after the ramp up (pulses 820..3220).
+    let cruise = |r: &[u64]| (r[3220] - r[820]) as f64;
+    let ratio = cruise(&nominal) / cruise(&rises);
+    println!(
+        "run --speed 150, joint 0 limited to 5,000 steps/s: override lowered to {} % \
+         (refused joint {}, {:?}); fastest {fastest:.1} steps/s; cruise x{ratio:.4} as fast",
+        motion.factor_percent, motion.refused_joint, motion.refused_limit
+    );
+    assert_eq!(motion.factor_percent, 125);
+    assert!(fastest <= 5_000.0 * 1.001, "{fastest} steps/s");
+    assert!((ratio - 1.25).abs() <= 0.01, "x{ratio}");
+}
+
 #[test]
 fn override_25_mid_run_makes_the_rest_four_times_as_long_and_ends_exact() {
     let (_, nominal) = run_span("override100", None);

@@ -984,13 +984,29 @@ impl<const CAP: usize> Controller<CAP> {
                 let mut admitted = [StoredPoint::default(); MAX_POINTS_PER_FRAME];
                 let mut previous = self.received_end;
                 let mut last = self.received_last;
+                // An override above 100 % that a point would take past a limit is
+                // lowered to what every point allows (issue 32: points that arrive
+                // after the OVERRIDE, or before RUNING at `--speed`).
+                let mut cap = None;
                 for (i, (slot, point)) in admitted.iter_mut().zip(points.iter()).enumerate() {
                     // The trajectory's last point must bring every joint to rest.
                     let ends = self.received as usize + i + 1 >= self.expected as usize;
+                    let before = last;
                     let checked = self.admit(&previous, &point).and_then(|stored| {
                         self.within_accel(&mut last, &previous, &stored, ends)
                             .map(|()| stored)
                     });
+                    if let Ok(stored) = &checked
+                        && let Some(lower) = self.factor_cap(
+                            cap.map_or(self.motion.factor, |c: (u8, u8, _)| c.0),
+                            &before,
+                            &previous,
+                            stored,
+                            ends,
+                        )
+                    {
+                        cap = Some(lower);
+                    }
                     *slot = match checked {
                         Ok(stored) => stored,
                         Err(refusal) => {
@@ -1024,6 +1040,9 @@ impl<const CAP: usize> Controller<CAP> {
                 }
                 self.received_last = last;
                 self.order.take(frame.seq);
+                if let Some(cap) = cap {
+                    self.lower_override(cap, plant);
+                }
                 if self.state == State::New {
                     self.state = State::Pending;
                 }

@@ -211,6 +211,93 @@ fn override_above_100_is_refused_where_a_joint_would_break_a_limit() {
     );
 }
 
+/// Points that arrive after the OVERRIDE (before RUNING, as `armctl run --speed 150`
+/// sends them, or during the run) are held to the same rule: an override above 100 % that
+/// a point would take past a joint's rate or ACCEL_SET limit is lowered to the highest
+/// the point allows, MOTION naming the joint and limit; the run starts at it, or ramps to
+/// it from the point's arrival. Before this, points were checked at 100 % only: joint 0
+/// ran at 1.5 times its rate limit.
+#[test]
+fn points_arriving_under_an_override_above_100_lower_it_to_what_they_allow() {
+    // Joint 0's rate limit 5,000 steps/s. OVERRIDE 150 with nothing held: taken.
+    let mut s = Session::<64>::new(64);
+    let mut limits = protocol::JointLimits::NONE;
+    limits.max_rate_hz = 5_000;
+    s.expect(
+        Command::LimitsSet(protocol::LimitsSet { joint: 0, limits }),
+        StatusCode::Ok,
+    );
+    s.expect(Command::Override { percent: 150 }, StatusCode::Ok);
+    // 4,000 steps/s: 125 % fits (5,000), 126 % does not.
+    let first = cruise([0; MAX_JOINTS], 12, 40);
+    s.start_run(50, &first);
+    assert_eq!(
+        s.plant.start_rate,
+        ONE * 125 / 100,
+        "the run starts at 125 %"
+    );
+    let report = motion(&mut s, HOST);
+    assert_eq!(
+        (
+            report.factor_percent,
+            report.refused_joint,
+            report.refused_limit
+        ),
+        (125, 0, Some(OverrideLimit::Rate))
+    );
+    s.plant.run(&mut s.controller, 1);
+    // During the run, 4,800 steps/s: 104 % (4,992) fits, 105 % (5,040) does not; ramped
+    // from now, with no ACCEL_SET limit the 0.25 s swing.
+    let at = first.last().unwrap().position;
+    s.pending(&cruise(at, 12, 48));
+    assert_eq!(s.plant.rate_changes, vec![(ONE * 104 / 100, 4, 1)]);
+    assert_eq!(motion(&mut s, HOST).factor_percent, 104);
+    // Points the factor keeps within every limit change nothing.
+    let at = [at[0] + 12 * 48, at[1] + 12 * 12, 0, 0, 0, 0, 0, 0];
+    s.pending(&cruise(at, 12, 40));
+    assert_eq!(s.plant.rate_changes.len(), 1);
+    assert_eq!(motion(&mut s, HOST).factor_percent, 104);
+
+    // Acceleration: joint 1 speeds up by 10 steps each 10 ms point (80,000 steps/s^2 as
+    // ACCEL_SET defines it); allowed 84,000: 1.02^2 fits, 1.03^2 does not. OVERRIDE 110
+    // before the points: the run starts at 102 %.
+    let mut s = Session::<64>::new(64);
+    accel_set(&mut s, 1, 84_000);
+    accel_set(&mut s, 0, 1_000_000);
+    s.expect(Command::Override { percent: 110 }, StatusCode::Ok);
+    let mut at = [0; MAX_JOINTS];
+    let speeding: Vec<Point> = (0..12)
+        .map(|i| {
+            let before = at;
+            at[0] += 40;
+            at[1] += 1 + 10 * i;
+            Point::from_motion(10_000, &before, &at)
+        })
+        .collect();
+    s.start_run(50, &speeding);
+    let report = motion(&mut s, HOST);
+    assert_eq!(
+        (
+            report.factor_percent,
+            report.refused_joint,
+            report.refused_limit
+        ),
+        (102, 1, Some(OverrideLimit::Accel))
+    );
+    assert_eq!(s.plant.start_rate, ONE * 102 / 100);
+
+    // At 100 % or below, nothing is checked again: a point admitted at 100 % is within.
+    let mut s = Session::<64>::new(64);
+    s.expect(
+        Command::LimitsSet(protocol::LimitsSet { joint: 0, limits }),
+        StatusCode::Ok,
+    );
+    s.expect(Command::Override { percent: 100 }, StatusCode::Ok);
+    s.start_run(50, &cruise([0; MAX_JOINTS], 12, 50));
+    let report = motion(&mut s, HOST);
+    assert_eq!((report.factor_percent, report.refused_limit), (100, None));
+}
+
 /// The step side's warp budget (issue 32, `BoardProfile::warp_budget_hz`: the NUCLEO's
 /// step interrupts place some 40 times fewer warped pulses than unwarped ones): joint 0 at
 /// 4,000 steps/s and joint 1 at 1,000 are 5,000 steps/s together. With a budget below

@@ -334,6 +334,107 @@ impl<const CAP: usize> Controller<CAP> {
         Ok(())
     }
 
+    /// The highest override above 100 % (percent, below `factor`) under which the point
+    /// `stored`, after `previous` and the segment `last` (and, if it `ends` the
+    /// trajectory, its stop), keeps every joint in use within its rate limit and its
+    /// ACCEL_SET limit, with the joint and the limit that set it; `None` when `factor`
+    /// fits (always at 100 % or less: the point was admitted at 100 %). The rules of
+    /// [`Self::set_override`], for a point that arrives after the override was taken.
+    pub(super) fn factor_cap(
+        &self,
+        factor: u8,
+        last: &super::runs::LastSegment,
+        previous: &[i32; MAX_JOINTS],
+        stored: &crate::buffer::StoredPoint,
+        ends: bool,
+    ) -> Option<(u8, u8, OverrideLimit)> {
+        if factor <= 100 {
+            return None;
+        }
+        let d = stored.duration_us.max(1);
+        let joints = usize::from(self.settings.joints).min(MAX_JOINTS);
+        let mut cap: Option<(u8, u8, OverrideLimit)> = None;
+        let mut lower = |percent: u128, joint: usize, limit| {
+            let percent = u8::try_from(percent.clamp(100, u128::from(factor))).unwrap_or(100);
+            if percent < cap.map_or(factor, |c| c.0) {
+                cap = Some((percent, u8::try_from(joint).unwrap_or(0xFF), limit));
+            }
+        };
+        for j in 0..joints {
+            let (Some(&to), Some(&from)) = (stored.position.get(j), previous.get(j)) else {
+                continue;
+            };
+            let steps = (i64::from(to) - i64::from(from)).unsigned_abs();
+            let rate_hz = self
+                .settings
+                .limits
+                .get(j)
+                .map_or(self.config.max_step_rate_hz, |l| {
+                    l.rate_hz(self.config.max_step_rate_hz)
+                });
+            // steps * 1e6 / d * p <= rate_hz * 100: the largest such p.
+            if steps > 0 {
+                let most =
+                    u128::from(rate_hz) * u128::from(d) * 100 / (u128::from(steps) * 1_000_000);
+                if most < u128::from(factor) {
+                    lower(most, j, OverrideLimit::Rate);
+                }
+            }
+            let max = u128::from(self.settings.max_accel.get(j).copied().unwrap_or(0));
+            if max == 0 {
+                continue;
+            }
+            let s1 = i32::try_from(i64::from(to) - i64::from(from)).unwrap_or(i32::MAX);
+            let s0 = last.steps.get(j).copied().unwrap_or(0);
+            let mut a = super::runs::acceleration(s0, last.duration_us, s1, d);
+            if ends {
+                a = a.max(super::runs::acceleration(s1, d, 0, 0));
+            }
+            // a * p^2 <= max * 10^4: the largest such p, by bisection over 100..=factor
+            // (a fits at 100: the point was admitted).
+            let fits = |p: u128| a * p * p <= max * 10_000;
+            if !fits(u128::from(factor)) {
+                let (mut ok, mut over) = (100u128, u128::from(factor));
+                while over - ok > 1 {
+                    let mid = (ok + over) / 2;
+                    if fits(mid) {
+                        ok = mid;
+                    } else {
+                        over = mid;
+                    }
+                }
+                lower(ok, j, OverrideLimit::Accel);
+            }
+        }
+        cap
+    }
+
+    /// A point arrived that the override above 100 % would take past a limit
+    /// ([`Self::factor_cap`]): the override is lowered to `percent`, what it allows, and
+    /// MOTION's refusal names the joint and the limit. A run under way (not held, not in
+    /// an underrun ramp, where the factor applies when it ends) ramps to it from now,
+    /// before the run reaches the point when the host keeps the ramp's path buffered;
+    /// before RUNING the run starts at it.
+    pub(super) fn lower_override(
+        &mut self,
+        (percent, joint, limit): (u8, u8, OverrideLimit),
+        plant: &mut impl Plant,
+    ) {
+        if percent >= self.motion.factor {
+            return;
+        }
+        self.motion.factor = percent;
+        self.motion.refused = (joint, Some(limit));
+        if self.state == State::Running
+            && !self.motion.held
+            && !self.motion.underrun
+            && !self.return_pending
+        {
+            let (accel, speed) = self.ramp_limits(plant);
+            let _ = plant.change_rate(rate_of(percent), accel, speed);
+        }
+    }
+
     /// OVERRIDE (the owner): the factor from now (ramped) and for the runs to come.
     /// `OVERRIDE_REFUSED` (MOTION `STEP_BUDGET`) past the step side's warp budget
     /// ([`Self::warp_fits`]).

@@ -337,9 +337,9 @@ fn saturate_i32(v: i64) -> i32 {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct LastSegment {
     /// Each joint's steps (signed).
-    steps: [i32; MAX_JOINTS],
+    pub(super) steps: [i32; MAX_JOINTS],
     /// Its duration; 0: rest (a trajectory's start).
-    duration_us: u32,
+    pub(super) duration_us: u32,
 }
 
 impl LastSegment {
