@@ -53,6 +53,34 @@ fn accel_set(s: &mut Session<64>, joint: u8, max: u32) {
     );
 }
 
+/// LIMITS_SET: joint 0's step rate limit `max_rate_hz` (no range limits).
+fn rate_limit_joint0(s: &mut Session<64>, max_rate_hz: u32) {
+    let mut limits = protocol::JointLimits::NONE;
+    limits.max_rate_hz = max_rate_hz;
+    s.expect(
+        Command::LimitsSet(protocol::LimitsSet { joint: 0, limits }),
+        StatusCode::Ok,
+    );
+}
+
+/// Joint 1 speeding up by 10 steps each 10 ms point from 1 (80,000 steps/s^2 between
+/// points as ACCEL_SET defines it) over 12 points, joint 0 at 40 steps a point; with
+/// ACCEL_SET 84,000 for joint 1 (1.02^2 of it fits, 1.03^2 does not) and 1,000,000 for
+/// joint 0.
+fn speeding(s: &mut Session<64>) -> Vec<Point> {
+    accel_set(s, 1, 84_000);
+    accel_set(s, 0, 1_000_000);
+    let mut at = [0; MAX_JOINTS];
+    (0..12)
+        .map(|i| {
+            let before = at;
+            at[0] += 40;
+            at[1] += 1 + 10 * i;
+            Point::from_motion(10_000, &before, &at)
+        })
+        .collect()
+}
+
 /// Joint 0 at 4,000 steps/s (40 steps per 10 ms) with 20,000 steps/s^2 allowed (the
 /// ramp into the cruise too), joint 1 at 1,000 steps/s with the same limit.
 fn running(points: usize) -> Session<64> {
@@ -162,12 +190,7 @@ fn override_sets_the_starting_rate_and_ramps_a_run_under_way() {
 fn override_above_100_is_refused_where_a_joint_would_break_a_limit() {
     // Joint 0's rate limit 5,000 steps/s: 4,000 x 1.25 fits, x 1.3 does not.
     let mut s = Session::<64>::new(64);
-    let mut limits = protocol::JointLimits::NONE;
-    limits.max_rate_hz = 5_000;
-    s.expect(
-        Command::LimitsSet(protocol::LimitsSet { joint: 0, limits }),
-        StatusCode::Ok,
-    );
+    rate_limit_joint0(&mut s, 5_000);
     s.start_run(50, &cruise([0; MAX_JOINTS], 12, 40));
     s.expect(Command::Override { percent: 125 }, StatusCode::Ok);
     s.expect(
@@ -183,21 +206,9 @@ fn override_above_100_is_refused_where_a_joint_would_break_a_limit() {
         (report.refused_joint, report.refused_limit),
         (0, Some(OverrideLimit::Rate))
     );
-    // Acceleration: joint 1 speeds up by 10 steps each 10 ms point from 1 (80,000
-    // steps/s^2 between points as ACCEL_SET defines it); allowed 84,000: 1.02^2 fits,
-    // 1.03^2 does not.
+    // Acceleration ([`speeding`]): 1.02^2 fits, 1.03^2 does not.
     let mut s = Session::<64>::new(64);
-    accel_set(&mut s, 1, 84_000);
-    accel_set(&mut s, 0, 1_000_000);
-    let mut at = [0; MAX_JOINTS];
-    let speeding: Vec<Point> = (0..12)
-        .map(|i| {
-            let before = at;
-            at[0] += 40;
-            at[1] += 1 + 10 * i;
-            Point::from_motion(10_000, &before, &at)
-        })
-        .collect();
+    let speeding = speeding(&mut s);
     s.start_run(50, &speeding);
     s.expect(Command::Override { percent: 102 }, StatusCode::Ok);
     s.expect(
@@ -221,12 +232,7 @@ fn override_above_100_is_refused_where_a_joint_would_break_a_limit() {
 fn points_arriving_under_an_override_above_100_lower_it_to_what_they_allow() {
     // Joint 0's rate limit 5,000 steps/s. OVERRIDE 150 with nothing held: taken.
     let mut s = Session::<64>::new(64);
-    let mut limits = protocol::JointLimits::NONE;
-    limits.max_rate_hz = 5_000;
-    s.expect(
-        Command::LimitsSet(protocol::LimitsSet { joint: 0, limits }),
-        StatusCode::Ok,
-    );
+    rate_limit_joint0(&mut s, 5_000);
     s.expect(Command::Override { percent: 150 }, StatusCode::Ok);
     // 4,000 steps/s: 125 % fits (5,000), 126 % does not.
     let first = cruise([0; MAX_JOINTS], 12, 40);
@@ -258,22 +264,11 @@ fn points_arriving_under_an_override_above_100_lower_it_to_what_they_allow() {
     assert_eq!(s.plant.rate_changes.len(), 1);
     assert_eq!(motion(&mut s, HOST).factor_percent, 104);
 
-    // Acceleration: joint 1 speeds up by 10 steps each 10 ms point (80,000 steps/s^2 as
-    // ACCEL_SET defines it); allowed 84,000: 1.02^2 fits, 1.03^2 does not. OVERRIDE 110
-    // before the points: the run starts at 102 %.
+    // Acceleration ([`speeding`]): 1.02^2 fits, 1.03^2 does not. OVERRIDE 110 before
+    // the points: the run starts at 102 %.
     let mut s = Session::<64>::new(64);
-    accel_set(&mut s, 1, 84_000);
-    accel_set(&mut s, 0, 1_000_000);
     s.expect(Command::Override { percent: 110 }, StatusCode::Ok);
-    let mut at = [0; MAX_JOINTS];
-    let speeding: Vec<Point> = (0..12)
-        .map(|i| {
-            let before = at;
-            at[0] += 40;
-            at[1] += 1 + 10 * i;
-            Point::from_motion(10_000, &before, &at)
-        })
-        .collect();
+    let speeding = speeding(&mut s);
     s.start_run(50, &speeding);
     let report = motion(&mut s, HOST);
     assert_eq!(
@@ -288,10 +283,7 @@ fn points_arriving_under_an_override_above_100_lower_it_to_what_they_allow() {
 
     // At 100 % or below, nothing is checked again: a point admitted at 100 % is within.
     let mut s = Session::<64>::new(64);
-    s.expect(
-        Command::LimitsSet(protocol::LimitsSet { joint: 0, limits }),
-        StatusCode::Ok,
-    );
+    rate_limit_joint0(&mut s, 5_000);
     s.expect(Command::Override { percent: 100 }, StatusCode::Ok);
     s.start_run(50, &cruise([0; MAX_JOINTS], 12, 50));
     let report = motion(&mut s, HOST);

@@ -425,13 +425,21 @@ impl<const CAP: usize> Controller<CAP> {
         }
         self.motion.factor = percent;
         self.motion.refused = (joint, Some(limit));
+        self.ramp_to_factor(plant);
+    }
+
+    /// The factor in force from now: a run under way ramps to it, with HOLD's slope. Held,
+    /// it is where RESUME goes; during an underrun ramp it applies when the host catches
+    /// up; RETURN runs at 100 %. A step side without a warp keeps 100 %; the factor still
+    /// applies from the next run on that could take it.
+    fn ramp_to_factor(&mut self, plant: &mut impl Plant) {
         if self.state == State::Running
             && !self.motion.held
             && !self.motion.underrun
             && !self.return_pending
         {
             let (accel, speed) = self.ramp_limits(plant);
-            let _ = plant.change_rate(rate_of(percent), accel, speed);
+            let _ = plant.change_rate(rate_of(self.motion.factor), accel, speed);
         }
     }
 
@@ -484,17 +492,7 @@ impl<const CAP: usize> Controller<CAP> {
             return Err(self.over_warp_budget());
         }
         self.motion.factor = percent;
-        // During an underrun ramp the factor applies when the host catches up.
-        if self.state == State::Running
-            && !self.motion.held
-            && !self.motion.underrun
-            && !self.return_pending
-        {
-            let (accel, speed) = self.ramp_limits(plant);
-            // A step side without a warp keeps 100 %; the factor still applies from the
-            // next run on that could take it.
-            let _ = plant.change_rate(rate_of(percent), accel, speed);
-        }
+        self.ramp_to_factor(plant);
         Ok(())
     }
 
