@@ -285,6 +285,44 @@ fn a_refused_upload_leaves_the_controller_stopped() {
     assert!(ok, "{out}\n{err}");
 }
 
+/// Issue 32: `armctl run --speed 150` of a file at 4,000 steps/s with joint 0 limited to
+/// 5,000 (kept on the controller): the controller lowers the override to what the points
+/// allow, and the run says so and ends on its last point. Before, the points were checked
+/// at 100 % and ran at 6,000 (sim-host `tests/hold.rs` measures the STEP rises).
+#[test]
+fn run_at_150_percent_is_lowered_to_the_joints_rate_limit_and_says_so() {
+    let sim = SimHost::start(&["--joints", "1"]);
+    let (ok, out, err) = armctl(
+        &sim,
+        &["config", "set", "--joint", "0", "--max-rate", "5000"],
+    );
+    assert!(ok, "{out}\n{err}");
+    let file = sim.dir().join("cruise.csv");
+    std::fs::write(&file, "time_s,j0\n0,0\n1,4000\n").unwrap();
+    let (ok, out, err) = armctl(
+        &sim,
+        &["run", file.to_str().unwrap(), "--quiet", "--speed", "150"],
+    );
+    assert!(ok, "{out}\n{err}");
+    assert!(
+        out.contains("speed 150 % lowered to ")
+            && out.contains("joint 0 would pass its RATE limit"),
+        "{out}"
+    );
+    let percent: u32 = out
+        .split("lowered to ")
+        .nth(1)
+        .and_then(|r| r.split(' ').next())
+        .and_then(|n| n.parse().ok())
+        .expect("a percent");
+    println!(
+        "{}",
+        out.lines().find(|l| l.starts_with("speed")).unwrap_or("")
+    );
+    assert!((100..=125).contains(&percent), "{out}");
+    assert!(out.contains("final positions match"), "{out}");
+}
+
 /// The 6-axis example config the issue 31 user had (armctl/examples/arm.json).
 fn example_config() -> String {
     concat!(env!("CARGO_MANIFEST_DIR"), "/../armctl/examples/arm.json").to_string()

@@ -54,9 +54,10 @@ pub struct RunArgs {
     #[arg(long)]
     pub quiet: bool,
     /// Run at this speed, percent of the file's (1..200; OVERRIDE, issue 32): 50 takes
-    /// twice as long, every point still executed exactly. Above 100 % only where every
-    /// joint's rate and acceleration allow. The factor stays for later runs until changed
-    /// (`armctl override`).
+    /// twice as long, every point still executed exactly. Above 100 % only as far as every
+    /// joint's rate and acceleration allow: the controller lowers it where a point needs
+    /// (the run says so). The factor stays for later runs until changed (`armctl
+    /// override`).
     #[arg(long, value_name = "PERCENT", value_parser = clap::value_parser!(u8).range(1..=200))]
     pub speed: Option<u8>,
 }
@@ -330,6 +331,12 @@ pub fn execute(arm: &Client, args: &RunArgs) -> CliResult {
             )
         })
         .collect();
+    if let Some(asked) = args.speed.filter(|&p| p > 100) {
+        println!(
+            "{}",
+            speed_line(asked, arm.motion().ok().and_then(|(_, m)| m))
+        );
+    }
     if wrong.is_empty() {
         println!(
             // run_trajectory has checked that the controller executed every point, and it
@@ -341,5 +348,22 @@ pub fn execute(arm: &Client, args: &RunArgs) -> CliResult {
         Ok(())
     } else {
         Err(format!("final positions differ: {}", wrong.join("; ")))
+    }
+}
+
+/// What became of `--speed` above 100 % (issue 32): the controller lowers the override
+/// where a point would take a joint past its rate or acceleration limit (MOTION's factor
+/// and refusal).
+pub fn speed_line(asked: u8, motion: Option<protocol::MotionReport>) -> String {
+    match motion {
+        Some(m) if m.factor_percent < asked => format!(
+            "speed {asked} % lowered to {} % by the controller: joint {} would pass its {} \
+             limit (every joint within its limits; `armctl override` changes it)",
+            m.factor_percent,
+            m.refused_joint,
+            m.refused_limit.map_or("?", |l| l.name())
+        ),
+        Some(m) => format!("speed {} %", m.factor_percent),
+        None => format!("speed {asked} % asked (the controller did not say what it ran at)"),
     }
 }
