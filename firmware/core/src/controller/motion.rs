@@ -334,6 +334,16 @@ impl<const CAP: usize> Controller<CAP> {
         Ok(())
     }
 
+    /// Joint `j`'s step rate limit, steps/s: its LIMITS_SET `max_rate_hz` within the
+    /// controller's `max_step_rate_hz`, or that alone.
+    fn joint_rate_limit(&self, j: usize) -> u32 {
+        let board_hz = self.config.max_step_rate_hz;
+        self.settings
+            .limits
+            .get(j)
+            .map_or(board_hz, |l| l.rate_hz(board_hz))
+    }
+
     /// The highest override above 100 % (percent, below `factor`) under which the point
     /// `stored`, after `previous` and the segment `last` (and, if it `ends` the
     /// trajectory, its stop), keeps every joint in use within its rate limit and its
@@ -365,13 +375,7 @@ impl<const CAP: usize> Controller<CAP> {
                 continue;
             };
             let steps = (i64::from(to) - i64::from(from)).unsigned_abs();
-            let rate_hz = self
-                .settings
-                .limits
-                .get(j)
-                .map_or(self.config.max_step_rate_hz, |l| {
-                    l.rate_hz(self.config.max_step_rate_hz)
-                });
+            let rate_hz = self.joint_rate_limit(j);
             // steps * 1e6 / d * p <= rate_hz * 100: the largest such p.
             if steps > 0 {
                 let most =
@@ -460,13 +464,7 @@ impl<const CAP: usize> Controller<CAP> {
             let accel = self.held_accels();
             let p = u128::from(percent);
             for j in 0..MAX_JOINTS {
-                let rate_limit = self
-                    .settings
-                    .limits
-                    .get(j)
-                    .map_or(self.config.max_step_rate_hz, |l| {
-                        l.rate_hz(self.config.max_step_rate_hz)
-                    });
+                let rate_limit = self.joint_rate_limit(j);
                 let v = u128::from(speed.get(j).copied().unwrap_or(0));
                 let joint = u8::try_from(j).unwrap_or(0xFF);
                 if v * p > u128::from(rate_limit) * 100 {
