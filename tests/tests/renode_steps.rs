@@ -9,7 +9,8 @@
 //!
 //! - every rising STEP edge of every joint at the oracle's tick, counted from its own timer's
 //!   start (CR1.CEN), with one offset for all joints (the run's lead-in, which the firmware
-//!   picks); each pulse as wide as the profile says;
+//!   picks); each pulse as wide as the profile says (the one under way at an e-stop at
+//!   least that: the stop lets it end at its own CCR1, `renode_stop_pulse.rs`);
 //! - DIR changed only while STEP is low, after the joint's last pulse fell, and at least the
 //!   drivers' DIR setup before the next rise; the pulses signed by DIR sum to the move;
 //! - after an e-stop mid-run, the positions the board reports are the signed pulses its pins
@@ -92,6 +93,10 @@ struct Joint {
     dir_at_start: bool,
     /// A STEP edge that was not on the timer's tick grid (ns since the start).
     off_grid: Vec<u64>,
+    /// The pulse (index into `rises`) that was high when a stop froze the counter: it falls
+    /// at its CCR1 after the stop resumed the counter (`step_dma/stop.rs`), off the grid by
+    /// the freeze, at least as wide as the others (its fall is recorded rounded up).
+    under_way_at_stop: Option<usize>,
     /// STEP high when the record ends.
     high_at_end: bool,
 }
@@ -110,15 +115,27 @@ fn recorded(board: &RenodeBoard) -> Vec<Edge> {
     edges
 }
 
+/// A timer's counting line rising again this soon after it fell is a stop resuming the
+/// counter of a pulse under way (`step_dma/stop.rs`: a few instructions), not a run's start.
+const RESUME_NS: u64 = 1_000;
+
 /// Splits the recorder's edges into joints, from each joint timer's last start.
 fn joints(edges: &[Edge]) -> [Joint; MAX_JOINTS] {
     std::array::from_fn(|j| {
-        let start_ns = edges
-            .iter()
-            .filter(|e| usize::from(e.line) == 16 + j && e.high)
-            .map(|e| e.ns)
-            .next_back()
-            .unwrap_or(0);
+        let counting = || edges.iter().filter(|e| usize::from(e.line) == 16 + j);
+        let mut start_ns = 0;
+        let mut last_fall = None;
+        for e in counting() {
+            if !e.high {
+                last_fall = Some(e.ns);
+            } else if last_fall.is_none_or(|f| e.ns - f > RESUME_NS) {
+                start_ns = e.ns;
+            }
+        }
+        // The counter's first freeze after the start: a stop's, or the run's end.
+        let freeze_ns = counting()
+            .find(|e| !e.high && e.ns > start_ns)
+            .map(|e| e.ns);
         let mut joint = Joint {
             start_ns,
             ..Joint::default()
@@ -142,6 +159,13 @@ fn joints(edges: &[Edge]) -> [Joint; MAX_JOINTS] {
             }
             if line == j && e.ns >= start_ns {
                 let since = e.ns - start_ns;
+                let after_freeze = freeze_ns.is_some_and(|f| e.ns >= f);
+                if after_freeze && !e.high && high && joint.under_way_at_stop.is_none() {
+                    joint.under_way_at_stop = Some(joint.rises.len() - 1);
+                    joint.falls.push(since.div_ceil(NS_PER_TICK));
+                    high = false;
+                    continue;
+                }
                 if since % NS_PER_TICK != 0 {
                     joint.off_grid.push(since);
                 }
@@ -375,7 +399,16 @@ fn assert_pulse_and_dir_timing_of(
         );
         assert!(!joint.high_at_end, "joint {j}: STEP left high");
         assert_eq!(joint.falls.len(), joint.rises.len(), "joint {j}");
-        for (rise, fall) in joint.rises.iter().zip(&joint.falls) {
+        for (k, (rise, fall)) in joint.rises.iter().zip(&joint.falls).enumerate() {
+            if joint.under_way_at_stop == Some(k) {
+                assert!(
+                    fall - rise >= u64::from(timing.pulse_width_ticks),
+                    "joint {j}: the pulse under way at the stop (tick {rise}) was cut to {} \
+                     ticks",
+                    fall - rise
+                );
+                continue;
+            }
             assert_eq!(
                 fall - rise,
                 u64::from(timing.pulse_width_ticks),
@@ -1044,7 +1077,11 @@ fn estop_positions_match_the_pins(monitor: &str) {
     let made: Vec<i32> = pins.iter().map(signed_pulses).collect();
     let moved: Vec<i32> = (0..MAX_JOINTS).map(|j| reported[j] - start[j]).collect();
     note(&format!(
-        "after the e-stop: reported moves {moved:?}, signed pulses on the pins {made:?}"
+        "after the e-stop: reported moves {moved:?}, signed pulses on the pins {made:?}; \
+         joints with a pulse under way at the stop (left to end at its width) {:?}",
+        (0..MAX_JOINTS)
+            .filter(|&j| pins[j].under_way_at_stop.is_some())
+            .collect::<Vec<_>>()
     ));
     assert_eq!(
         made, moved,

@@ -2,8 +2,9 @@
 //! GND, read with the internal pull-up, so that a pressed button *and* a broken wire read
 //! high: open. EXTI line 0 interrupts on both edges at P0, above every other interrupt
 //! (main.rs's priority table), and its handler stops every STEP output itself with
-//! register writes alone ([`crate::step_dma::kill_step_outputs`]: every joint timer's
-//! output forced inactive first, then counters and streams stopped). The rest needs the
+//! register accesses alone ([`crate::step_dma::kill_step_outputs`]: each joint timer's
+//! counter frozen, then its output forced inactive, or a pulse under way left to end at its
+//! width; then the streams stopped). The rest needs the
 //! step lock, which this interrupt, above the lock's level, must never take (issue 20:
 //! the lock is BASEPRI at P2, so that it never holds this interrupt or the DIR changes
 //! off), then stops a gripper burst the same way ([`crate::gripper::cut_at_stop`]:

@@ -41,8 +41,8 @@ const ENABLE_LINES: [(pac::gpio::Gpio, u8); 9] = [
 /// The gripper's PWM output: PE5 (TIM15_CH1).
 const GRIPPER_PWM_PIN: usize = 5;
 
-/// The hook that stops all step output: every joint timer's output forced inactive, its
-/// counter stopped, its DMA stream disabled ([`crate::step_dma::stop_all_step_outputs`]),
+/// The hook that stops all step output: every joint timer's counter frozen and its output
+/// forced inactive (or left to end a pulse under way), its DMA stream disabled ([`crate::step_dma::stop_all_step_outputs`]),
 /// and the step clock's interrupt (DIR changes, end of run) masked.
 pub fn stop_all_step_output() {
     crate::step_dma::stop_all_step_outputs();

@@ -42,8 +42,8 @@
 //! One thread-mode executor is enough: no task computes for long (a PENDING frame of 12
 //! points is decoded and checked in microseconds), the e-stop has its own queue, and
 //! everything with a deadline below a millisecond is an interrupt. STEP pulses are made by
-//! timer hardware fed by DMA ([`step_dma`]); an emergency stop forces every STEP output
-//! low and stops the timers and streams (under the step lock; the wired e-stop input's
+//! timer hardware fed by DMA ([`step_dma`]); an emergency stop takes every STEP output
+//! low (a pulse under way at its own width) and stops the streams (under the step lock; the wired e-stop input's
 //! interrupt, above that lock, with register writes alone, `step_dma::kill_step_outputs`).
 //!
 //! Network input can never panic or block: arm-core decodes it with the `protocol` crate

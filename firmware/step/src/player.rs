@@ -14,7 +14,11 @@
 //!
 //! An emergency stop ([`StreamPlayer::stop`]) plays the edges up to the stop's tick, cuts
 //! a pulse in progress and drops the rest, taking back the pulses written but never
-//! played ([`StepStreams::unwind`]), as the board does with the streams' positions.
+//! played ([`StepStreams::unwind`]), as the board does with the streams' positions. (The
+//! NUCLEO lets a pulse in progress end at its width instead, for real drivers that may miss
+//! a cut one: docs/BOARD.md, "A stop never cuts a pulse short". The players' lines count
+//! rises, the simulator's drivers and the QEMU board's counters alike, so a cut pulse here
+//! counts as one; [`crate::StepEngine::stop`] cuts it the same way.)
 
 use crate::producer::PulsePeriod;
 use crate::stream::{JointBuffer, PRELUDE, Refill, StepStreams};

@@ -24,9 +24,9 @@
 //! the producer's `run_end_tick`: the step clock sees it and pends the step service
 //! (`service.rs`, P2), which ends it under the lock.
 //!
-//! Safety: [`stop_all_step_outputs`] forces every STEP output inactive (OCxM = force
-//! inactive: the pin goes low at once, whatever the counter does), stops the counters and
-//! disables the streams, for STOPPED, the end of a run, an underrun (a stream
+//! Safety: [`stop_all_step_outputs`] freezes every counter and forces its STEP output
+//! inactive, except that a pulse under way is left to end at its own width (OCxM =
+//! inactive on match, the counter resumed: `stop.rs`), and disables the streams, for STOPPED, the end of a run, an underrun (a stream
 //! that reaches a half its interrupt has not refilled: [`refill::refill`] sees both halves
 //! played, or the stream already back in the half it is about to write) and the fault
 //! path; the wired e-stop input's interrupt, above the step lock, makes the same writes

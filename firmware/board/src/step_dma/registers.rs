@@ -50,10 +50,13 @@ pub(super) mod reg {
     pub const DIER_UDE: u32 = 1 << 8;
     /// EGR: update generation.
     pub const EGR_UG: u32 = 1 << 0;
-    /// CCMR1: OC1 preload, PWM mode 1 (active while CNT < CCR1), forced inactive.
+    /// CCMR1: OC1 preload, PWM mode 1 (active while CNT < CCR1), forced inactive, and
+    /// inactive on match (OC1REF low at CNT = CCR1 and never raised again: what a stop
+    /// leaves a pulse under way to end on, `stop.rs`).
     pub const CCMR1_OC1PE: u32 = 1 << 3;
     pub const CCMR1_PWM1: u32 = 0b110 << 4;
     pub const CCMR1_FORCE_INACTIVE: u32 = 0b100 << 4;
+    pub const CCMR1_INACTIVE_ON_MATCH: u32 = 0b010 << 4;
     /// CCER: CC1 output enable, CC1N output enable.
     pub const CCER_CC1E: u32 = 1 << 0;
     pub const CCER_CC1NE: u32 = 1 << 2;
