@@ -190,6 +190,33 @@ pub fn renode_missing() -> Option<String> {
     None
 }
 
+/// Skips the calling test, saying what it needs, when Renode (or root) is missing
+/// ([`unavailable`]). The message goes to the real stderr (not the test harness's capture),
+/// so a passing skip is still seen.
+#[macro_export]
+macro_rules! require_renode {
+    () => {
+        if let Some(reason) = $crate::renode::unavailable() {
+            use std::io::Write;
+            let _ = writeln!(std::io::stderr().lock(), "{}: {reason}", module_path!());
+            return;
+        }
+    };
+}
+
+/// Client options for the emulated board: Renode answers in tens of milliseconds of wall
+/// time (a longer first ACK wait than loopback's, many tries), and its LOCATION reports can
+/// come 1.5 s apart when a run loads it.
+pub fn emulated() -> Options {
+    Options {
+        ack_timeout: Duration::from_millis(400),
+        min_ack_timeout: Duration::from_millis(50),
+        attempts: 20,
+        report_timeout: Duration::from_millis(1500),
+        ..Options::default()
+    }
+}
+
 /// `Some(reason)` when the tests cannot run here: they then skip, saying why.
 pub fn unavailable() -> Option<String> {
     let hint = ".ci/run installs mono-complete and runs these tests with \

@@ -29,11 +29,13 @@ use std::net::Ipv4Addr;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
-use armctl::{Client, Options};
+use armctl::Client;
 use protocol::{
     Ack, Command, MAX_DATAGRAM, Point, PointList, Report, State, StatusCode, StatusFlags, Tag,
 };
-use system_tests::renode::{BOARD, HOSTS, RenodeBoard, ScriptRun, malformed_flood, unavailable};
+use system_tests::renode::emulated;
+use system_tests::renode::{BOARD, HOSTS, RenodeBoard, ScriptRun, malformed_flood};
+use system_tests::require_renode;
 
 mod common;
 use common::{
@@ -41,34 +43,10 @@ use common::{
     refusals_in_stopped, rx_counters_after_stops, sweep,
 };
 
-/// Skips the test, saying what it needs, when Renode (or root) is missing. The message goes
-/// to the real stderr (not the test harness's capture), so a passing skip is still seen.
-macro_rules! require_renode {
-    () => {
-        if let Some(reason) = unavailable() {
-            use std::io::Write;
-            let _ = writeln!(std::io::stderr().lock(), "{}: {reason}", module_path!());
-            return;
-        }
-    };
-}
-
 /// Prints a figure to the real stderr (seen without --nocapture, as .ci/run's log shows).
 fn note(text: &str) {
     use std::io::Write;
     let _ = writeln!(std::io::stderr().lock(), "renode: {text}");
-}
-
-/// Emulated time runs 2-3 times slower than wall time, and Renode stalls now and then:
-/// a long first wait for an ACK, many attempts.
-fn emulated() -> Options {
-    Options {
-        ack_timeout: Duration::from_millis(400),
-        min_ack_timeout: Duration::from_millis(50),
-        attempts: 20,
-        report_timeout: Duration::from_millis(1500),
-        ..Options::default()
-    }
 }
 
 fn refused(board: &RenodeBoard, result: armctl::Result<Ack>, status: StatusCode, what: &str) {

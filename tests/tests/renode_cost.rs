@@ -30,24 +30,15 @@ use std::time::Duration;
 
 use arm_core::profile::NUCLEO_H743ZI2;
 use arm_step::MAX_JOINTS;
-use armctl::{Options, RunOptions};
+use armctl::RunOptions;
 use common::{run_reporting_progress_with, sweep};
 use protocol::Point;
 use system_tests::cost::{self, Counts, Symbols};
+use system_tests::renode::emulated;
 use system_tests::renode::{
-    EMULATED_TIMER_HZ, HOSTS, RenodeBoard, firmware_elf, malformed_flood, repo_root, unavailable,
+    EMULATED_TIMER_HZ, HOSTS, RenodeBoard, firmware_elf, malformed_flood, repo_root,
 };
-
-/// Skips the test, saying what it needs, when Renode (or root) is missing.
-macro_rules! require_renode {
-    () => {
-        if let Some(reason) = unavailable() {
-            use std::io::Write;
-            let _ = writeln!(std::io::stderr().lock(), "{}: {reason}", module_path!());
-            return;
-        }
-    };
-}
+use system_tests::require_renode;
 
 /// Prints a figure to the real stderr (seen without --nocapture).
 fn note(text: &str) {
@@ -75,16 +66,6 @@ const MASKED_SPAN_GOAL: u64 = 400;
 
 /// Clock of the chip's M7 these figures are converted at (MHz).
 const CPU_MHZ: f64 = 400.0;
-
-fn emulated() -> Options {
-    Options {
-        ack_timeout: Duration::from_millis(400),
-        min_ack_timeout: Duration::from_millis(50),
-        attempts: 20,
-        report_timeout: Duration::from_millis(1500),
-        ..Options::default()
-    }
-}
 
 /// Arms the probe, runs `f`, and reads what it counted.
 fn measured(board: &RenodeBoard, f: impl FnOnce()) -> Counts {

@@ -14,10 +14,10 @@
 //! without them the test prints what it needs and passes.
 
 use std::process::Command;
-use std::time::Duration;
 
-use armctl::{Options, RunOptions};
+use armctl::RunOptions;
 use protocol::{Diag, MAX_JOINTS, Point};
+use system_tests::renode::emulated;
 use system_tests::renode::{BOARD, HOSTS, RenodeBoard, unavailable};
 
 /// As the other Renode suites: the emulated CPU at the chip's instruction rate.
@@ -25,16 +25,6 @@ const CHIP_MIPS: &str = "sysbus.cpu PerformanceInMips 400";
 
 /// Joints the board drives with erased settings.
 const JOINTS: usize = 6;
-
-fn emulated() -> Options {
-    Options {
-        ack_timeout: Duration::from_millis(400),
-        min_ack_timeout: Duration::from_millis(50),
-        attempts: 20,
-        report_timeout: Duration::from_millis(1500),
-        ..Options::default()
-    }
-}
 
 #[test]
 fn armctl_diag_prints_the_boards_own_counters() {

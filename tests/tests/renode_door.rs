@@ -18,11 +18,11 @@ mod common;
 use std::sync::Arc;
 use std::time::Duration;
 
-use armctl::Options;
 use common::run_reporting_progress_with;
 use protocol::{
     Command, ControlledStop, MAX_JOINTS, MotionFlags, Point, State, StatusCode, StopCause,
 };
+use system_tests::renode::emulated;
 use system_tests::renode::{HOSTS, RenodeBoard, unavailable};
 
 /// The recorder's input for the door pin (PF4).
@@ -34,16 +34,6 @@ const WATCH_DOOR: &str = "sysbus.stepRecorder Watch \"sysbus.gpioPortF\" 4 42";
 fn note(text: &str) {
     use std::io::Write;
     let _ = writeln!(std::io::stderr().lock(), "renode door: {text}");
-}
-
-fn emulated() -> Options {
-    Options {
-        ack_timeout: Duration::from_millis(400),
-        min_ack_timeout: Duration::from_millis(50),
-        attempts: 20,
-        report_timeout: Duration::from_millis(1500),
-        ..Options::default()
-    }
 }
 
 /// Points of 10 ms from `start`, joint 0 `step` further each.

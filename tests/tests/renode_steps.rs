@@ -37,21 +37,11 @@ use arm_step::{JointMask, MAX_JOINTS, RATE_ONE, Segment, StepEngine, StepPins, W
 use armctl::{Error, Options, RunEnd, RunOptions};
 use common::{assert_stays_put, run_reporting_progress_with, stop_mid_run, sweep};
 use protocol::{MotionFlags, Point, State, StatusFlags};
+use system_tests::renode::emulated;
 use system_tests::renode::{
     BOARD, EMULATED_TIMER_HZ, Edge, HOSTS, RenodeBoard, STOPPED_LANDED, malformed_flood,
-    unavailable,
 };
-
-/// Skips the test, saying what it needs, when Renode (or root) is missing.
-macro_rules! require_renode {
-    () => {
-        if let Some(reason) = unavailable() {
-            use std::io::Write;
-            let _ = writeln!(std::io::stderr().lock(), "{}: {reason}", module_path!());
-            return;
-        }
-    };
-}
+use system_tests::require_renode;
 
 /// Prints a figure to the real stderr (seen without --nocapture).
 fn note(text: &str) {
@@ -69,16 +59,6 @@ const NS_PER_TICK: u64 = 1_000_000_000 / EMULATED_TIMER_HZ;
 /// at 400 MHz, one instruction a cycle: `dir_latency_ns`'s reason), for the tests that hold
 /// DIR timing to that budget. Renode's default is 100 MIPS.
 const CHIP_MIPS: &str = "sysbus.cpu PerformanceInMips 400";
-
-fn emulated() -> Options {
-    Options {
-        ack_timeout: Duration::from_millis(400),
-        min_ack_timeout: Duration::from_millis(50),
-        attempts: 20,
-        report_timeout: Duration::from_millis(1500),
-        ..Options::default()
-    }
-}
 
 /// What one joint's lines did, in its timer's ticks from its (last) CR1.CEN.
 #[derive(Debug, Default)]

@@ -32,18 +32,9 @@ use arm_core::profile::NUCLEO_H743ZI2;
 use armctl::{Error, Options, RunEnd, RunOptions};
 use common::{assert_stays_put, run_reporting_progress_with};
 use protocol::{Command, MAX_JOINTS, Point, StatusCode};
-use system_tests::renode::{EMULATED_TIMER_HZ, Edge, HOSTS, RenodeBoard, unavailable};
-
-/// Skips the test, saying what it needs, when Renode (or root) is missing.
-macro_rules! require_renode {
-    () => {
-        if let Some(reason) = unavailable() {
-            use std::io::Write;
-            let _ = writeln!(std::io::stderr().lock(), "{}: {reason}", module_path!());
-            return;
-        }
-    };
-}
+use system_tests::renode::emulated;
+use system_tests::renode::{EMULATED_TIMER_HZ, Edge, HOSTS, RenodeBoard};
+use system_tests::require_renode;
 
 /// Prints a figure to the real stderr (seen without --nocapture).
 fn note(text: &str) {
@@ -70,16 +61,6 @@ const ESTOP_LINE: u8 = 43;
 /// runs: the refills keep up with 1.28 M steps/s), and the recorder on PC0.
 const MONITOR: &str = "sysbus.cpu PerformanceInMips 400; \
     sysbus.stepRecorder Watch \"sysbus.gpioPortC\" 0 43";
-
-fn emulated() -> Options {
-    Options {
-        ack_timeout: Duration::from_millis(400),
-        min_ack_timeout: Duration::from_millis(50),
-        attempts: 20,
-        report_timeout: Duration::from_millis(1500),
-        ..Options::default()
-    }
-}
 
 /// How a run is stopped.
 #[derive(Clone, Copy, Debug)]

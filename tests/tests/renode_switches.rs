@@ -26,24 +26,15 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
-use armctl::{Homed, Options};
+use armctl::Homed;
 use common::run_reporting_progress_with;
 use protocol::{
     Command, HomingPhase, HomingSettings, MAX_JOINTS, Point, PointList, State, StatusCode,
     StopCause,
 };
-use system_tests::renode::{Edge, HOSTS, RenodeBoard, unavailable};
-
-/// Skips the test, saying what it needs, when Renode (or root) is missing.
-macro_rules! require_renode {
-    () => {
-        if let Some(reason) = unavailable() {
-            use std::io::Write;
-            let _ = writeln!(std::io::stderr().lock(), "{}: {reason}", module_path!());
-            return;
-        }
-    };
-}
+use system_tests::renode::emulated;
+use system_tests::renode::{Edge, HOSTS, RenodeBoard};
+use system_tests::require_renode;
 
 /// Prints a figure to the real stderr (seen without --nocapture).
 fn note(text: &str) {
@@ -59,16 +50,6 @@ const HOME0: u8 = 41;
 /// The recorder watches the switch pins too.
 const WATCH_SWITCHES: &str = "sysbus.stepRecorder Watch \"sysbus.gpioPortA\" 3 40; \
                               sysbus.stepRecorder Watch \"sysbus.gpioPortE\" 2 41";
-
-fn emulated() -> Options {
-    Options {
-        ack_timeout: Duration::from_millis(400),
-        min_ack_timeout: Duration::from_millis(50),
-        attempts: 20,
-        report_timeout: Duration::from_millis(1500),
-        ..Options::default()
-    }
-}
 
 /// Points of `duration_us` from `start` through `targets`.
 fn points_through(
