@@ -218,6 +218,34 @@ pub fn doc_frames() -> Vec<DocFrame> {
             }),
         ),
         report(
+            "MOTION report, seq 0x38: a category 1 e-stop ramping down (issue 32): override 100 %, ramping, rate 40 %, the e-stop ramp under way, the last controlled stop ESTOP, category 1 (byte 7)",
+            0x38,
+            Report::Motion(protocol::MotionReport {
+                factor_percent: 100,
+                flags: protocol::MotionFlags(
+                    protocol::MotionFlags::RAMPING | protocol::MotionFlags::ESTOP_RAMP,
+                ),
+                rate_permille: 400,
+                last_stop: Some(protocol::ControlledStop::EStop),
+                refused_joint: 0xFF,
+                refused_limit: None,
+                estop_category: Some(protocol::EStopCategory::Controlled),
+            }),
+        ),
+        report(
+            "MOTION report, seq 0x39: an OVERRIDE refused for the warp budget (issue 32): override 100 %, rate 100 %, the refusal the whole run's (joint 0xff) and STEP_BUDGET (3)",
+            0x39,
+            Report::Motion(protocol::MotionReport {
+                factor_percent: 100,
+                flags: protocol::MotionFlags(0),
+                rate_permille: 1000,
+                last_stop: None,
+                refused_joint: 0xFF,
+                refused_limit: Some(protocol::OverrideLimit::StepBudget),
+                estop_category: Some(protocol::EStopCategory::Instant),
+            }),
+        ),
+        report(
             "STOP_CAUSE report, seq 0x37: the last run ended by a controlled underrun (detail 1)",
             0x37,
             Report::StopCause(protocol::StopReport {
