@@ -95,20 +95,20 @@ fn recorded(board: &RenodeBoard) -> Vec<Edge> {
     edges
 }
 
-/// A timer's counting line rising again this soon after it fell is a stop resuming the
-/// counter of a pulse under way (`step_dma/stop.rs`: a few instructions), not a run's start.
-const RESUME_NS: u64 = 1_000;
-
-/// Splits the recorder's edges into joints, from each joint timer's last start.
+/// Splits the recorder's edges into joints, from each joint timer's last start. A counting
+/// line rising while the joint's STEP is high is not a start: it is a stop resuming the
+/// counter of a pulse under way (`step_dma/stop.rs` resumes only then), where a run's start
+/// always finds STEP low (its first period has no pulse).
 fn joints(edges: &[Edge]) -> [Joint; MAX_JOINTS] {
     std::array::from_fn(|j| {
         let counting = || edges.iter().filter(|e| usize::from(e.line) == 16 + j);
         let mut start_ns = 0;
-        let mut last_fall = None;
-        for e in counting() {
-            if !e.high {
-                last_fall = Some(e.ns);
-            } else if last_fall.is_none_or(|f| e.ns - f > RESUME_NS) {
+        let mut step_high = false;
+        for e in edges {
+            let line = usize::from(e.line);
+            if line == j {
+                step_high = e.high;
+            } else if line == 16 + j && e.high && !step_high {
                 start_ns = e.ns;
             }
         }
@@ -160,6 +160,51 @@ fn joints(edges: &[Edge]) -> [Joint; MAX_JOINTS] {
         joint.high_at_end = high;
         joint
     })
+}
+
+/// [`joints`] on a record made by hand (no Renode): a run's start, two pulses, a stop that
+/// froze the counter while the second was high and resumed it (the pulse falling off the
+/// grid, after its width), then a later run's reset and start. Each run is found from its
+/// own start and the resumed pulse is the one under way, its fall rounded up.
+#[test]
+fn joints_take_a_stops_resume_for_no_run_start() {
+    let width = u64::from(NUCLEO_H743ZI2.step_timing().pulse_width_ticks) * NS_PER_TICK;
+    let e = |ns, line, high| Edge { ns, line, high };
+    let first_run = [
+        e(1_000, 16, true),
+        e(11_000, 0, true),
+        e(11_000 + width, 0, false),
+        e(21_000, 0, true),
+        // The stop: frozen 300 ns into the pulse, resumed 50 ns later.
+        e(21_300, 16, false),
+        e(21_350, 16, true),
+        e(21_050 + width, 0, false),
+    ];
+    let board = joints(&first_run);
+    assert_eq!(
+        board[0].start_ns, 1_000,
+        "the resume was taken for the start"
+    );
+    assert_eq!(board[0].rises, [10_000 / NS_PER_TICK, 20_000 / NS_PER_TICK]);
+    assert_eq!(board[0].under_way_at_stop, Some(1));
+    assert!(board[0].off_grid.is_empty(), "{:?}", board[0].off_grid);
+    assert_eq!(
+        board[0].falls[1] - board[0].rises[1],
+        (width + 50).div_ceil(NS_PER_TICK)
+    );
+    assert!(!board[0].high_at_end);
+    // The next run: the timer's reset (counting falls) and its start with STEP low.
+    let mut two_runs = first_run.to_vec();
+    two_runs.extend([
+        e(90_000, 16, false),
+        e(90_400, 16, true),
+        e(100_400, 0, true),
+        e(100_400 + width, 0, false),
+    ]);
+    let board = joints(&two_runs);
+    assert_eq!(board[0].start_ns, 90_400);
+    assert_eq!(board[0].rises, [10_000 / NS_PER_TICK]);
+    assert_eq!(board[0].under_way_at_stop, None);
 }
 
 /// The net steps of `joint`: its rises signed by DIR at each (DIR high = positive).
