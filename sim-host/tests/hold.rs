@@ -284,3 +284,80 @@ fn stopped_during_a_hold_and_during_its_ramp_leaves_no_step_after_it() {
         assert_eq!(last_v, "0", "{name}: STEP left high");
     }
 }
+
+/// `n` points of 10 ms moving joints 0-5 by `steps` each from `from`.
+fn six_joints(from: [i32; MAX_JOINTS], n: usize, steps: i32) -> Vec<Point> {
+    let mut at = from;
+    (0..n)
+        .map(|_| {
+            let before = at;
+            for p in at.iter_mut().take(6) {
+                *p += steps;
+            }
+            Point::from_motion(10_000, &before, &at)
+        })
+        .collect()
+}
+
+/// Points arriving during a run at `run --speed 50` past the warp budget (the NUCLEO's
+/// 75,000 warped steps/s, which the simulator takes): six joints at 10,000 steps/s (60,000
+/// together, 30,000 warped at 50 %), then points at 30,000 each (180,000, 90,000 at 50 %)
+/// sent while it runs. The override is lowered to 41 % (73,800), MOTION names the whole
+/// run and STEP_BUDGET, every point runs and every joint ends on its last point, and the
+/// fast points' steps come at 41 % of their nominal rate. (Before, nothing checked points
+/// that arrived during a warp: the run went on at 50 %, past the budget, where the NUCLEO's
+/// step buffers run dry.)
+#[test]
+fn points_past_the_warp_budget_mid_run_lower_the_override_and_end_exact() {
+    let (mut board, trace) = board("warp_budget", TICK_HZ);
+    let mut host = Host::new();
+    host.ok(&mut board, &Command::Override { percent: 50 });
+    let slow = six_joints([0; MAX_JOINTS], 20, 100);
+    let fast = six_joints(slow.last().unwrap().position, 60, 300);
+    let end = fast.last().unwrap().position;
+    host.ok(&mut board, &Command::New { count: 80 });
+    for chunk in slow.chunks(protocol::MAX_POINTS_PER_FRAME) {
+        host.ok(
+            &mut board,
+            &Command::Pending(protocol::PointList::Points(chunk)),
+        );
+    }
+    host.ok(&mut board, &Command::Runing);
+    board.run_for(SECOND_NS / 10);
+    let sent_ns = board.clock.now_ns();
+    for chunk in fast.chunks(protocol::MAX_POINTS_PER_FRAME) {
+        host.ok(
+            &mut board,
+            &Command::Pending(protocol::PointList::Points(chunk)),
+        );
+    }
+    finish(&mut host, &mut board, 80, end);
+    let (_, motion) = stop_and_motion(&mut host, &mut board);
+    board.finish_trace();
+    let vcd = vcd::read_changes(&trace).unwrap();
+    for (j, &at) in end.iter().enumerate().take(6) {
+        assert_eq!(vcd.joint_position(j), i64::from(at), "joint {j}");
+    }
+    // Joint 0's rate over the fast points' middle (well after the ramp to 41 %).
+    let rises = vcd.rising_edges("step0");
+    let (a, b) = (2_000 + 300 * 20, 2_000 + 300 * 50);
+    let rate = (b - a) as f64 / ((rises[b] - rises[a]) as f64 * 1e-9);
+    println!(
+        "run --speed 50, points at 180,000 steps/s together sent {:.3} s in: override \
+         lowered to {} % (refused joint {:#x}, {:?}); joint 0 at {rate:.0} steps/s over its \
+         fast points (nominal 30,000); every joint on its last point",
+        sent_ns as f64 * 1e-9,
+        motion.factor_percent,
+        motion.refused_joint,
+        motion.refused_limit
+    );
+    assert_eq!(
+        (
+            motion.factor_percent,
+            motion.refused_joint,
+            motion.refused_limit
+        ),
+        (41, 0xFF, Some(protocol::OverrideLimit::StepBudget))
+    );
+    assert!((rate / 30_000.0 - 0.41).abs() <= 0.005, "{rate} steps/s");
+}

@@ -1043,6 +1043,7 @@ impl<const CAP: usize> Controller<CAP> {
                 if let Some(cap) = cap {
                     self.lower_override(cap, plant);
                 }
+                self.fit_warp_budget(plant);
                 if self.state == State::New {
                     self.state = State::Pending;
                 }
@@ -1067,6 +1068,7 @@ impl<const CAP: usize> Controller<CAP> {
                     self.state = State::Running;
                     self.motion.held = false;
                     self.motion.underrun = false;
+                    self.motion.warped = self.motion.factor != 100;
                     plant.set_start_rate(motion::rate_of(self.motion.factor));
                     self.pump(plant);
                     plant.start();

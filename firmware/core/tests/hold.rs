@@ -336,3 +336,69 @@ fn hold_and_override_past_the_warp_budget_are_refused() {
     s.expect(Command::Runing, StatusCode::Ok);
     assert_eq!(s.plant.start_rate, ONE / 2);
 }
+
+/// Points that arrive while the run is warped, past the step side's warp budget (left open
+/// by issue 32: before, nothing checked them, and on the NUCLEO the step buffers would run
+/// dry, a dead stop at speed): the PENDING is `OK`, the override is lowered to the highest
+/// percent at which every point held fits, and MOTION's refusal is the whole run's (0xFF)
+/// and `STEP_BUDGET`; the run ramps to it from then. A run never warped is left alone.
+#[test]
+fn points_arriving_under_a_warp_past_the_budget_lower_the_override() {
+    // 5,000 steps/s together (joint 0 4,000, joint 1 1,000) at 50 %: 2,500 warped, within
+    // a 4,000 budget.
+    let mut s = Session::<64>::new(64);
+    s.plant.warp_budget_hz = 4_000;
+    s.expect(Command::Override { percent: 50 }, StatusCode::Ok);
+    let first = cruise([0; MAX_JOINTS], 12, 40);
+    s.start_run(50, &first);
+    assert_eq!(s.plant.start_rate, ONE / 2);
+    s.plant.run(&mut s.controller, 1);
+    // Twice as fast: 10,000 steps/s together, 5,000 at 50 %; 40 % (4,000) fits, 41 % not.
+    let at = first.last().unwrap().position;
+    s.pending(&cruise(at, 12, 80));
+    assert_eq!(
+        s.plant.rate_changes.iter().map(|c| c.0).collect::<Vec<_>>(),
+        vec![ONE * 40 / 100],
+        "the run ramps to 40 %"
+    );
+    let report = motion(&mut s, HOST);
+    assert_eq!(
+        (
+            report.factor_percent,
+            report.refused_joint,
+            report.refused_limit
+        ),
+        (40, 0xFF, Some(OverrideLimit::StepBudget))
+    );
+
+    // Held, the lowered factor is where RESUME goes; nothing ramps meanwhile.
+    let mut s = Session::<64>::new(64);
+    s.plant.warp_budget_hz = 5_000;
+    let first = cruise([0; MAX_JOINTS], 12, 40);
+    s.start_run(50, &first);
+    s.plant.run(&mut s.controller, 1);
+    s.expect(Command::Hold, StatusCode::Ok);
+    let at = first.last().unwrap().position;
+    s.pending(&cruise(at, 12, 80));
+    assert_eq!(
+        s.plant.rate_changes.iter().map(|c| c.0).collect::<Vec<_>>(),
+        vec![0],
+        "only the hold's ramp"
+    );
+    // 10,000 steps/s together: 50 % fits the 5,000 budget.
+    assert_eq!(motion(&mut s, HOST).factor_percent, 50);
+    s.expect(Command::Resume, StatusCode::Ok);
+    assert_eq!(s.plant.rate_changes.last().map(|c| c.0), Some(ONE / 2));
+
+    // Never warped (an old host's run at 100 %): the same points change nothing.
+    let mut s = Session::<64>::new(64);
+    s.plant.warp_budget_hz = 4_000;
+    let first = cruise([0; MAX_JOINTS], 12, 40);
+    s.start_run(50, &first);
+    s.plant.run(&mut s.controller, 1);
+    let at = first.last().unwrap().position;
+    s.pending(&cruise(at, 12, 80));
+    assert!(s.plant.rate_changes.is_empty());
+    let report = motion(&mut s, HOST);
+    assert_eq!((report.factor_percent, report.refused_limit), (100, None));
+}

@@ -331,11 +331,12 @@ pub fn execute(arm: &Client, args: &RunArgs) -> CliResult {
             )
         })
         .collect();
-    if let Some(asked) = args.speed.filter(|&p| p > 100) {
-        println!(
-            "{}",
-            speed_line(asked, arm.motion().ok().and_then(|(_, m)| m))
-        );
+    if let Some(asked) = args.speed.filter(|&p| p != 100) {
+        let motion = arm.motion().ok().and_then(|(_, m)| m);
+        // Below 100 % only a lowered speed is news (the warp budget lowers it too).
+        if asked > 100 || motion.is_some_and(|m| m.factor_percent < asked) {
+            println!("{}", speed_line(asked, motion));
+        }
     }
     if wrong.is_empty() {
         println!(
@@ -351,11 +352,21 @@ pub fn execute(arm: &Client, args: &RunArgs) -> CliResult {
     }
 }
 
-/// What became of `--speed` above 100 % (issue 32): the controller lowers the override
-/// where a point would take a joint past its rate or acceleration limit (MOTION's factor
-/// and refusal).
+/// What became of `--speed` (issue 32): the controller lowers the override where a point
+/// would take a joint past its rate or acceleration limit, or the steps of all joints
+/// together past the step side's warp budget (MOTION's factor and refusal).
 pub fn speed_line(asked: u8, motion: Option<protocol::MotionReport>) -> String {
     match motion {
+        Some(m)
+            if m.factor_percent < asked
+                && m.refused_limit == Some(protocol::OverrideLimit::StepBudget) =>
+        {
+            format!(
+                "speed {asked} % lowered to {} % by the controller: the steps of all joints \
+                 together would pass its warp budget (STEP_BUDGET; every step still made)",
+                m.factor_percent
+            )
+        }
         Some(m) if m.factor_percent < asked => format!(
             "speed {asked} % lowered to {} % by the controller: joint {} would pass its {} \
              limit (every joint within its limits; `armctl override` changes it)",

@@ -792,3 +792,29 @@ fn a_controllers_refusal_is_told_in_the_users_terms() {
     };
     assert_eq!(refused_point(&other, &sent), None);
 }
+
+#[test]
+fn the_speed_line_says_which_limit_lowered_the_speed() {
+    let lowered = |factor_percent, refused_joint, refused_limit| {
+        Some(protocol::MotionReport {
+            factor_percent,
+            refused_joint,
+            refused_limit: Some(refused_limit),
+            ..protocol::MotionReport::IDLE
+        })
+    };
+    assert_eq!(
+        run::speed_line(150, lowered(125, 0, protocol::OverrideLimit::Rate)),
+        "speed 150 % lowered to 125 % by the controller: joint 0 would pass its RATE limit \
+         (every joint within its limits; `armctl override` changes it)"
+    );
+    assert_eq!(
+        run::speed_line(50, lowered(41, 0xFF, protocol::OverrideLimit::StepBudget)),
+        "speed 50 % lowered to 41 % by the controller: the steps of all joints together \
+         would pass its warp budget (STEP_BUDGET; every step still made)"
+    );
+    assert_eq!(
+        run::speed_line(50, Some(protocol::MotionReport::IDLE)),
+        "speed 100 %"
+    );
+}

@@ -85,6 +85,10 @@ pub(crate) struct Motion {
     /// A category 1 e-stop's ramp is under way: the time, us, past which it is halted
     /// ([`estop_ramp_bound_us`]).
     pub estop_ramp: Option<u64>,
+    /// The run under way is warped: started at a factor other than 100 %, or its rate
+    /// changed since (the warp stays off its unwarped fast path even back at 100 %), so
+    /// its pulses count against the step side's warp budget.
+    pub warped: bool,
 }
 
 impl Motion {
@@ -97,6 +101,7 @@ impl Motion {
         underrun: false,
         door_open: false,
         estop_ramp: None,
+        warped: false,
     };
 }
 
@@ -257,7 +262,7 @@ impl<const CAP: usize> Controller<CAP> {
         if self.motion.underrun {
             let caught_up = self.received >= self.expected
                 || u128::from(r2) >= 2 * ramp_path_us(full, creep, accel, speed);
-            if caught_up && plant.change_rate(full, accel, speed) {
+            if caught_up && self.change_rate(plant, full, accel, speed) {
                 self.motion.underrun = false;
             }
             return;
@@ -274,7 +279,7 @@ impl<const CAP: usize> Controller<CAP> {
         if u128::from(r2) < need
             && u128::from(r1) >= need
             && self.warp_fits(plant, rate)
-            && plant.change_rate(creep, accel, speed)
+            && self.change_rate(plant, creep, accel, speed)
         {
             self.motion.underrun = true;
             self.motion.last_stop = ControlledStop::Underrun;
@@ -300,7 +305,7 @@ impl<const CAP: usize> Controller<CAP> {
             return Err(self.over_warp_budget());
         }
         let (accel, speed) = self.ramp_limits(plant);
-        if !plant.change_rate(0, accel, speed) {
+        if !self.change_rate(plant, 0, accel, speed) {
             return Err(StatusCode::BadState);
         }
         self.motion.held = true;
@@ -325,7 +330,7 @@ impl<const CAP: usize> Controller<CAP> {
             return Ok(());
         }
         let (accel, speed) = self.ramp_limits(plant);
-        if !plant.change_rate(rate_of(self.motion.factor), accel, speed) {
+        if !self.change_rate(plant, rate_of(self.motion.factor), accel, speed) {
             return Err(StatusCode::BadState);
         }
         self.motion.held = false;
@@ -432,6 +437,42 @@ impl<const CAP: usize> Controller<CAP> {
         self.ramp_to_factor(plant);
     }
 
+    /// [`Plant::change_rate`], noting a change taken: the run is warped from then on.
+    fn change_rate(&mut self, plant: &mut impl Plant, rate: u64, accel: u32, speed: u32) -> bool {
+        let taken = plant.change_rate(rate, accel, speed);
+        self.motion.warped |= taken;
+        taken
+    }
+
+    /// Points were taken while the run is warped: the factor it runs at (held: where
+    /// RESUME goes) must keep the warped steps of every point held within the step side's
+    /// warp budget ([`Self::warp_fits`]). Else the override is lowered to the highest percent
+    /// that does and MOTION's refusal is the whole run's (0xFF) and `STEP_BUDGET`; the run
+    /// ramps to it from now, as for a point past a joint's limit ([`Self::lower_override`]).
+    /// Past the budget the step buffers would run dry, a dead stop at speed; slower, the
+    /// run keeps every step. A run never warped is left alone: old hosts never warp.
+    pub(super) fn fit_warp_budget(&mut self, plant: &mut impl Plant) {
+        if self.state != State::Running || self.return_pending || !self.motion.warped {
+            return;
+        }
+        if self.warp_fits(plant, rate_of(self.motion.factor)) {
+            return;
+        }
+        // The highest percent below the factor that fits (0 always does: no steps).
+        let (mut fits, mut over) = (0u8, self.motion.factor);
+        while over - fits > 1 {
+            let mid = fits + (over - fits) / 2;
+            if self.warp_fits(plant, rate_of(mid)) {
+                fits = mid;
+            } else {
+                over = mid;
+            }
+        }
+        self.motion.factor = fits.max(protocol::OVERRIDE_MIN_PERCENT);
+        self.motion.refused = (0xFF, Some(OverrideLimit::StepBudget));
+        self.ramp_to_factor(plant);
+    }
+
     /// The factor in force from now: a run under way ramps to it, with HOLD's slope. Held,
     /// it is where RESUME goes; during an underrun ramp it applies when the host catches
     /// up; RETURN runs at 100 %. A step side without a warp keeps 100 %; the factor still
@@ -443,7 +484,7 @@ impl<const CAP: usize> Controller<CAP> {
             && !self.return_pending
         {
             let (accel, speed) = self.ramp_limits(plant);
-            let _ = plant.change_rate(rate_of(self.motion.factor), accel, speed);
+            let _ = self.change_rate(plant, rate_of(self.motion.factor), accel, speed);
         }
     }
 
@@ -548,7 +589,7 @@ impl<const CAP: usize> Controller<CAP> {
                 .rate_now()
                 .map_or(arm_step::RATE_ONE, |(rate, _)| rate);
             let (accel, speed) = self.ramp_limits(plant);
-            if plant.change_rate(0, accel, speed) {
+            if self.change_rate(plant, 0, accel, speed) {
                 self.motion.held = true;
                 self.motion.underrun = false;
                 self.motion.last_stop = ControlledStop::EStop;

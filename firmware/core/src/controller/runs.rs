@@ -322,6 +322,7 @@ impl<const CAP: usize> Controller<CAP> {
         // The controller's own move: at 100 %, never held from before.
         self.motion.held = false;
         self.motion.underrun = false;
+        self.motion.warped = false;
         plant.set_start_rate(arm_step::RATE_ONE);
         plant.start();
         None
