@@ -217,6 +217,18 @@ pub fn emulated() -> Options {
     }
 }
 
+/// [`emulated`] for runs of eight joints at high rates (the timers, their DMA items and the
+/// CPU's refills): Renode runs them far slower than real time, so a command is waited for
+/// up to a minute of wall time and a report up to 10 s.
+pub fn emulated_eight_joints() -> Options {
+    Options {
+        attempts: 3,
+        give_up_after: Duration::from_secs(60),
+        report_timeout: Duration::from_secs(10),
+        ..emulated()
+    }
+}
+
 /// `Some(reason)` when the tests cannot run here: they then skip, saying why.
 pub fn unavailable() -> Option<String> {
     let hint = ".ci/run installs mono-complete and runs these tests with \

@@ -37,10 +37,10 @@ use arm_step::{JointMask, MAX_JOINTS, RATE_ONE, Segment, StepEngine, StepPins, W
 use armctl::{Error, Options, RunEnd, RunOptions};
 use common::{assert_stays_put, run_reporting_progress_with, stop_mid_run, sweep};
 use protocol::{MotionFlags, Point, State, StatusFlags};
-use system_tests::renode::emulated;
 use system_tests::renode::{
     BOARD, EMULATED_TIMER_HZ, Edge, HOSTS, RenodeBoard, STOPPED_LANDED, malformed_flood,
 };
+use system_tests::renode::{emulated, emulated_eight_joints};
 use system_tests::require_renode;
 
 /// Prints a figure to the real stderr (seen without --nocapture).
@@ -596,15 +596,7 @@ fn constant_rates(
 /// tick, no late event, no late DMA burst). Prints the DMA models' longest waits.
 fn eight_joints_run(name: &str, steps: [i32; MAX_JOINTS]) {
     let mut board = RenodeBoard::start_tmc_with_step_path(CHIP_MIPS);
-    // Renode runs these runs (eight timers, their DMA items and the CPU's refills) far
-    // slower than real time: a command is waited for up to a minute of wall time.
-    let patient = Options {
-        attempts: 3,
-        give_up_after: Duration::from_secs(60),
-        report_timeout: Duration::from_secs(10),
-        ..emulated()
-    };
-    let arm = board.connect_from(HOSTS[0], patient);
+    let arm = board.connect_from(HOSTS[0], emulated_eight_joints());
     arm.set_joints(8).unwrap();
     arm.set_location(&[0; MAX_JOINTS]).unwrap();
     let start = position(&board, &arm);

@@ -29,10 +29,10 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use arm_core::profile::NUCLEO_H743ZI2;
-use armctl::{Error, Options, RunEnd, RunOptions};
+use armctl::{Error, RunEnd, RunOptions};
 use common::{assert_stays_put, run_reporting_progress_with};
 use protocol::{Command, MAX_JOINTS, Point, StatusCode};
-use system_tests::renode::emulated;
+use system_tests::renode::emulated_eight_joints;
 use system_tests::renode::{EMULATED_TIMER_HZ, Edge, HOSTS, RenodeBoard};
 use system_tests::require_renode;
 
@@ -137,14 +137,7 @@ fn position(board: &RenodeBoard, arm: &armctl::Client) -> [i32; MAX_JOINTS] {
 /// and the positions against the pins each time.
 fn stops_leave_every_pulse_whole(stop: Stop) {
     let mut board = RenodeBoard::start_with_step_path(MONITOR);
-    // The eight-joint runs take Renode far longer than real time.
-    let patient = Options {
-        attempts: 3,
-        give_up_after: Duration::from_secs(60),
-        report_timeout: Duration::from_secs(10),
-        ..emulated()
-    };
-    let arm = Arc::new(board.connect_from(HOSTS[0], patient));
+    let arm = Arc::new(board.connect_from(HOSTS[0], emulated_eight_joints()));
     arm.set_joints(8)
         .unwrap_or_else(|e| panic!("SET_JOINTS 8: {e}\n{}", board.log()));
     // The profile's pulse in the emulator's ticks (`EMULATED_TIMER_HZ`: the firmware's

@@ -43,6 +43,15 @@ fn motion(s: &mut Session<64>, from: Endpoint) -> MotionReport {
     report
 }
 
+/// MOTION's factor and the refusal it names: (percent, joint, limit).
+fn refusal(report: &MotionReport) -> (u8, u8, Option<OverrideLimit>) {
+    (
+        report.factor_percent,
+        report.refused_joint,
+        report.refused_limit,
+    )
+}
+
 fn accel_set(s: &mut Session<64>, joint: u8, max: u32) {
     s.expect(
         Command::AccelSet {
@@ -243,14 +252,7 @@ fn points_arriving_under_an_override_above_100_lower_it_to_what_they_allow() {
         "the run starts at 125 %"
     );
     let report = motion(&mut s, HOST);
-    assert_eq!(
-        (
-            report.factor_percent,
-            report.refused_joint,
-            report.refused_limit
-        ),
-        (125, 0, Some(OverrideLimit::Rate))
-    );
+    assert_eq!(refusal(&report), (125, 0, Some(OverrideLimit::Rate)));
     s.plant.run(&mut s.controller, 1);
     // During the run, 4,800 steps/s: 104 % (4,992) fits, 105 % (5,040) does not; ramped
     // from now, with no ACCEL_SET limit the 0.25 s swing.
@@ -271,14 +273,7 @@ fn points_arriving_under_an_override_above_100_lower_it_to_what_they_allow() {
     let speeding = speeding(&mut s);
     s.start_run(50, &speeding);
     let report = motion(&mut s, HOST);
-    assert_eq!(
-        (
-            report.factor_percent,
-            report.refused_joint,
-            report.refused_limit
-        ),
-        (102, 1, Some(OverrideLimit::Accel))
-    );
+    assert_eq!(refusal(&report), (102, 1, Some(OverrideLimit::Accel)));
     assert_eq!(s.plant.start_rate, ONE * 102 / 100);
 
     // At 100 % or below, nothing is checked again: a point admitted at 100 % is within.
@@ -310,11 +305,7 @@ fn hold_and_override_past_the_warp_budget_are_refused() {
     assert!(s.plant.rate_changes.is_empty(), "nothing changed");
     let report = motion(&mut s, HOST);
     assert_eq!(
-        (
-            report.factor_percent,
-            report.refused_joint,
-            report.refused_limit
-        ),
+        refusal(&report),
         (100, 0xFF, Some(OverrideLimit::StepBudget))
     );
     assert!(!report.flags.has(MotionFlags::HELD));
@@ -363,11 +354,7 @@ fn points_arriving_under_a_warp_past_the_budget_lower_the_override() {
     );
     let report = motion(&mut s, HOST);
     assert_eq!(
-        (
-            report.factor_percent,
-            report.refused_joint,
-            report.refused_limit
-        ),
+        refusal(&report),
         (40, 0xFF, Some(OverrideLimit::StepBudget))
     );
 
