@@ -6,7 +6,7 @@
 //! let it last the drivers' least high time: a pulse cut shorter may be missed by the driver
 //! while the controller counts it, and the arm is a step away from where it says. Eight
 //! joints step at 160 kHz (each pulse 2.5 us of a 6.25 us period), so a stop finds one or
-//! more of them high nearly every time; each test stops runs until one did (at most
+//! more of them high most of the time; each test stops runs until one did (at most
 //! [`ATTEMPTS`]) and checks, for every pulse on every joint:
 //!
 //! - it was high for at least the profile's pulse width (the default build's opto drivers:
@@ -42,10 +42,11 @@ fn note(text: &str) {
     let _ = writeln!(std::io::stderr().lock(), "renode stop pulse: {text}");
 }
 
-/// Runs stopped per test at most: with 8 joints each high 35-40 % of the time, out of
-/// phase, a stop finds none high about once in 60, so four attempts all missing is about
-/// one in 10 million.
-const ATTEMPTS: usize = 4;
+/// Runs stopped per test at most. Were the joints' phases independent, a stop would find
+/// none of the 8 high about once in 60; they are not quite (in step, 4 STOPPEDs of 4 found
+/// none), and measured at these rates STOPPED found none in 1 stop of 8, the e-stop input
+/// in none of 4. Taken as one in four, twelve all missing is about one in 17 million.
+const ATTEMPTS: usize = 12;
 
 /// Steps per 2 ms point on joint 0 (160 kHz); joint `j` makes `j` * [`STEPS_APART`] more, so
 /// that the joints' pulses drift apart in phase (in step, one stop would find all eight
