@@ -146,3 +146,66 @@ fn a_gripper_burst_lasts_exactly_its_pulses_on_virtual_time() {
     let (on, off) = vcd.high_span("gripper_pwm_active").expect("on, then off");
     assert_eq!(off - on, 20_000_000, "20 periods of 1 ms");
 }
+
+/// STATUS `executed` counts a point once its periods are all written to the step
+/// hardware, which may be [`BoardProfile::step_dma_lead_ns`] ahead of the pins: a host
+/// that takes `executed > 0` for "moving" is early. tests/tests/estop_input.rs did (CI,
+/// 2026-11-29: its e-stop input opened 314 ms in, after STATUS said RUNNING with points
+/// executed, before the run's first pulse). What it waits for now, `executed` past the
+/// lead's worth of points, is checked here against the pins, poll by poll.
+///
+/// [`BoardProfile::step_dma_lead_ns`]: arm_core::profile::BoardProfile::step_dma_lead_ns
+#[test]
+fn executed_runs_ahead_of_the_pins_by_at_most_the_dma_lead_on_virtual_time() {
+    const SEGMENT_NS: u64 = 10_000_000;
+    let (mut board, trace) = board("executed-lead", sim_host::app::PROFILE.step_timer_hz);
+    let mut host = Host::new();
+    // The system test's run: 10 ms points of 2 steps on joint 0 (200 steps/s).
+    let targets: Vec<[i32; MAX_JOINTS]> = (1..=30)
+        .map(|k| core::array::from_fn(|j| if j == 0 { 2 * k } else { 0 }))
+        .collect();
+    let points = points_through([0; MAX_JOINTS], &targets, (SEGMENT_NS / 1_000) as i32);
+    host.upload_and_run(&mut board, &points);
+    // (executed, the time its report had come by), every simulated millisecond: the pins
+    // by then had made at least the pulses they had when STATUS counted.
+    let mut polls = Vec::new();
+    loop {
+        let status = host.status(&mut board);
+        let by = board.clock.now_ns();
+        polls.push((status.executed, by));
+        if status.state == State::Stopped {
+            break;
+        }
+        assert!(by < SECOND_NS, "the run did not end");
+        board.run_for(1_000_000);
+    }
+    board.finish_trace();
+    let edges = vcd::read_changes(&trace).unwrap().rising_edges("step0");
+    assert_eq!(edges.len(), 60);
+    let pulses_by = |t: u64| edges.iter().filter(|e| **e <= t).count();
+
+    let lead = sim_host::app::PROFILE.step_dma_lead_ns();
+    let moving_after = sim_host::app::PROFILE.points_ahead_of_the_pins(SEGMENT_NS) as u16 + 1;
+    let early = polls
+        .iter()
+        .filter(|(executed, by)| *executed > 0 && pulses_by(*by) == 0)
+        .count();
+    assert!(
+        early > 0,
+        "no STATUS showed a point executed before a pulse"
+    );
+    for (executed, by) in &polls {
+        // Point k's last pulse is at most `lead` after STATUS counts it.
+        let points_by_pins = pulses_by(by + lead) / 2;
+        assert!(
+            usize::from(*executed) <= points_by_pins,
+            "at {by} ns: {executed} executed, pins through point {points_by_pins}"
+        );
+        if *executed >= moving_after {
+            assert!(pulses_by(*by) > 0, "at {by} ns: {executed} executed");
+        }
+    }
+    eprintln!(
+        "{early} STATUS polls showed points executed before the first pulse; lead {lead} ns, moving once {moving_after} are executed"
+    );
+}

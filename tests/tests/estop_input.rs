@@ -17,6 +17,14 @@ use system_tests::{SimHost, armctl_bin};
 /// Joint 0's step period in the long run (200 steps/s).
 const STEP_PERIOD_NS: u64 = 5_000_000;
 
+/// `armctl run`'s segments (its default `--segment-ms`).
+const SEGMENT_NS: u64 = 10_000_000;
+
+/// STATUS `executed` that says the run has pulsed: a point counts once its periods are
+/// written to the step hardware, up to the profile's DMA lead before the pins make them.
+const MOVING_AFTER: u32 =
+    arm_core::profile::SIMULATOR.points_ahead_of_the_pins(SEGMENT_NS) as u32 + 1;
+
 fn armctl(sim: &SimHost, args: &[&str]) -> (bool, String) {
     let output = Command::new(armctl_bin())
         .arg("--controller")
@@ -79,9 +87,11 @@ fn the_wired_input_stops_armctl_run_latches_and_estop_reset_clears_it() {
         .stderr(Stdio::piped())
         .spawn()
         .expect("armctl run");
-    // The run under way and moving, as STATUS shows it: RUNNING with a point executed (a
-    // guessed 1 s sleep here raced a loaded machine; RUNNING alone once came before the
-    // first pulse).
+    // The run under way and moving, as STATUS shows it: RUNNING with more points executed
+    // than the step hardware's buffers hold ahead of the pins. (A guessed 1 s sleep here
+    // raced a loaded machine; RUNNING alone came before the first pulse, and so did "a
+    // point executed": STATUS counts 4 of these points as soon as RUNING starts them, CI
+    // 2026-11-29; sim-host virtual_time.rs checks the bound.)
     let deadline = Instant::now() + Duration::from_secs(10);
     loop {
         let (ok, out) = armctl(&sim, &["status"]);
@@ -92,7 +102,7 @@ fn the_wired_input_stops_armctl_run_latches_and_estop_reset_clears_it() {
             .and_then(|l| l.split(" received, ").nth(1))
             .and_then(|rest| rest.split(' ').next())
             .and_then(|n| n.parse::<u32>().ok());
-        if out.contains("state            RUNNING") && executed.is_some_and(|n| n > 0) {
+        if out.contains("state            RUNNING") && executed.is_some_and(|n| n >= MOVING_AFTER) {
             break;
         }
         assert!(Instant::now() < deadline, "the run never moved: {out}");

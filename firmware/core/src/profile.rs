@@ -541,7 +541,24 @@ impl BoardProfile {
         }
         periods
     }
+
+    /// How far ahead of the STEP pins the step hardware's buffers may be written, ns: the
+    /// prelude and two buffer halves of periods, each at most [`STREAM_PERIOD_CAP_NS`].
+    /// A point counts in STATUS `executed` once all its periods are written, so up to
+    /// this long before its last pulse (docs/PROTOCOL.md, STATUS).
+    pub const fn step_dma_lead_ns(&self) -> u64 {
+        (2 * self.step_buffer_half + arm_step::PRELUDE) as u64 * STREAM_PERIOD_CAP_NS
+    }
+
+    /// Points of `segment_ns` each that STATUS may count `executed` before the pins have
+    /// begun them: one more executed says the run has pulsed.
+    pub const fn points_ahead_of_the_pins(&self, segment_ns: u64) -> u64 {
+        self.step_dma_lead_ns().div_ceil(segment_ns)
+    }
 }
+
+// 42.6 ms on the NUCLEO and the simulator: 2 x 64 periods and the prelude's 2.
+const _: () = assert!(NUCLEO_H743ZI2.step_dma_lead_ns() == 42_598_400);
 
 const _: () = assert!(NUCLEO_H743ZI2.stream_period_ticks()[0] == 1 << 16);
 const _: () = assert!(NUCLEO_H743ZI2.stream_period_ticks()[7] == 1 << 16);
