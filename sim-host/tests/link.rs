@@ -76,10 +76,17 @@ fn seqs(client: &mut Client, n: usize) -> Vec<u8> {
         .collect()
 }
 
-/// Starts a run of 12 points of 20 ms moving joint 0 by +5 steps each, from where it is,
-/// as `client` (NEW, PENDING, RUNING, each ACKed); once it moved a point's worth, sends `stop`
-/// from `panel` (raw bytes, no ACK awaited), and returns the STATUS once the run has
-/// ended, and the steps joint 0 moved of the 60 planned.
+/// Points of [`run_then_stop`]'s runs: 1.2 s of them, so that a STOPPED sent once the run
+/// moved lands in it however slow the machine (12 points left 220 ms).
+const STOP_RUN_POINTS: i32 = 60;
+
+/// Steps joint 0 moves in a whole run of [`run_then_stop`].
+const STOP_RUN_STEPS: i32 = 5 * STOP_RUN_POINTS;
+
+/// Starts a run of [`STOP_RUN_POINTS`] points of 20 ms moving joint 0 by +5 steps each,
+/// from where it is, as `client` (NEW, PENDING, RUNING, each ACKed); once it moved a
+/// point's worth, sends `stop` from `panel` (raw bytes, no ACK awaited), and returns the
+/// STATUS once the run has ended, and the steps joint 0 moved of [`STOP_RUN_STEPS`].
 fn run_then_stop(
     client: &mut Client,
     panel: &Client,
@@ -88,7 +95,7 @@ fn run_then_stop(
     // STATUS first: the client is the owner and a LOCATION listener.
     client.status();
     let start = client.location().position;
-    let targets: Vec<[i32; MAX_JOINTS]> = (1..=12)
+    let targets: Vec<[i32; MAX_JOINTS]> = (1..=STOP_RUN_POINTS)
         .map(|i| {
             let mut t = start;
             t[0] += 5 * i;
@@ -99,7 +106,9 @@ fn run_then_stop(
     client.ok(&Command::New {
         count: pts.len() as u16,
     });
-    client.ok(&Command::Pending(PointList::Points(&pts)));
+    for chunk in pts.chunks(protocol::MAX_POINTS_PER_FRAME) {
+        client.ok(&Command::Pending(PointList::Points(chunk)));
+    }
     client.ok(&Command::Runing);
     // Under way (a point's worth moved), observed rather than slept for (issue 19).
     client.wait_moved(start[0], 5, Duration::from_secs(5));
@@ -119,7 +128,7 @@ fn every_crc_valid_stopped_stops_the_run_and_a_bad_crc_does_not() {
     let mut client = sim.client();
     let panel = sim.client();
     let stopped_early = |(status, moved): (protocol::StatusReport, i32)| {
-        status.flags.has(StatusFlags::STOPPED_BY_HOST) && moved < 60
+        status.flags.has(StatusFlags::STOPPED_BY_HOST) && moved < STOP_RUN_STEPS
     };
     // An e-stop panel's one fixed frame, sent at every stop, runs less than 2 s apart.
     let fixed = raw(0x5a, Tag::Stopped as u8, &[]);
@@ -142,7 +151,7 @@ fn every_crc_valid_stopped_stops_the_run_and_a_bad_crc_does_not() {
     *bad.last_mut().unwrap() ^= 0x01;
     let (status, moved) = run_then_stop(&mut client, &panel, &bad);
     assert!(
-        !status.flags.has(StatusFlags::STOPPED_BY_HOST) && moved == 60,
+        !status.flags.has(StatusFlags::STOPPED_BY_HOST) && moved == STOP_RUN_STEPS,
         "a bad CRC stops nothing: {status:?}, moved {moved}"
     );
 }
@@ -216,9 +225,17 @@ fn a_second_tool_on_the_owners_machine_disturbs_neither_upload_nor_reports() {
         holes[holes.len() * 9 / 10],
         longest_hole
     );
-    // 10 ms reports; a loaded test machine may delay some, never by 0.3 s.
+    // None went to the poller: its STATUS did not take the reports over.
+    let diverted = poller
+        .reports
+        .iter()
+        .filter(|(_, r)| matches!(r, OwnedReport::Location(_)))
+        .count();
+    assert_eq!(diverted, 0, "LOCATION reports sent to the poller");
+    // 10 ms reports, stamped when this thread reads them: a loaded machine stalls it
+    // (300 ms was the bound; it must hold ten times slower), never for the run's length.
     assert!(
-        longest_hole < Duration::from_millis(300),
+        longest_hole < Duration::from_secs(2),
         "a {longest_hole:?} hole in the uploader's LOCATION reports"
     );
 }

@@ -67,7 +67,7 @@ fn move_jog_home_and_a_file_in_degrees() {
     );
 
     // watch with the config: names and degrees.
-    let (ok, out, err) = armctl(&sim, &["watch", "--duration", "0.3", "--config", config]);
+    let (ok, out, err) = armctl(&sim, &["watch", "--duration", "2", "--config", config]);
     assert!(ok, "{out}\n{err}");
     assert!(
         out.lines()

@@ -41,9 +41,13 @@ fn discover_answers_any_host_and_net_set_is_stored_for_the_next_reset() {
     assert!(out.contains("owned by 127.0.0.1"), "{out}");
     assert!(out.contains("1 controller(s) answered"), "{out}");
     // Discovery changed nothing: 127.0.0.2 is still not the owner (its STATUS is
-    // answered read-only since issue 23, its commands refused).
+    // answered read-only since issue 23, its commands refused). The owner speaks before
+    // each such command: 5 s of its silence and it is no longer one (cli.rs's stop test
+    // saw a loaded machine take that long between two armctl commands).
+    arm.status().unwrap();
     let (ok, out) = armctl(&["--bind", "127.0.0.2:0", "--controller", &to, "status"]);
     assert!(ok && out.contains("read-only"), "{out}");
+    arm.status().unwrap();
     let (ok, out) = armctl(&[
         "--bind",
         "127.0.0.2:0",
@@ -58,6 +62,7 @@ fn discover_answers_any_host_and_net_set_is_stored_for_the_next_reset() {
     assert!(out.contains("owned by this host"), "{out}");
 
     // NET_SET from another host: NOT_OWNER.
+    arm.status().unwrap();
     let (ok, out) = armctl(&[
         "--bind",
         "127.0.0.2:0",
@@ -73,7 +78,8 @@ fn discover_answers_any_host_and_net_set_is_stored_for_the_next_reset() {
     let start = arm.last_location().map(|l| l.position).unwrap_or_default();
     let mut target = start;
     target[0] += 2_000;
-    let points = [Point::from_motion(2_000_000, &start, &target)];
+    // 10 s: still running when NET_SET comes, however slow the machine.
+    let points = [Point::from_motion(10_000_000, &start, &target)];
     arm.run_trajectory(
         &points,
         &RunOptions {

@@ -163,9 +163,11 @@ fn every_refused_command_gives_its_error() {
         StatusCode::InvalidPoint,
         "a point over the max step rate",
     );
-    // BUFFER_FULL: a 16-point buffer, 12 + 12 points before RUNING.
+    // BUFFER_FULL: a 16-point buffer, 12 + 12 points before RUNING. Points of 0.5 s: the
+    // run below must still be RUNNING after five more round trips however slow the
+    // machine (at 10 ms each it underran 120 ms after RUNING).
     arm.send(&Command::New { count: 100 }).unwrap();
-    let points = sweep(position(&arm), 2, 24, 1, 10_000);
+    let points = sweep(position(&arm), 2, 24, 1, 500_000);
     arm.send(&Command::Pending(PointList::Points(&points[..12])))
         .unwrap();
     let full = refused(

@@ -306,5 +306,8 @@ fn a_run_with_status_polled_alongside_ends_exactly() {
         stdout.contains("final positions match the last point"),
         "{stdout}"
     );
-    assert!(polls >= 5, "only {polls} polls during the run");
+    // About 12 in the 3 s run here; a poll (an armctl process and 200 ms) ten times
+    // slower still fits 2 (5 was the bound).
+    println!("{polls} STATUS polls during the run");
+    assert!(polls >= 2, "only {polls} polls during the run");
 }

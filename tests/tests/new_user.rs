@@ -85,7 +85,7 @@ fn config_init_push_then_move_jog_run_without_config() {
     assert!(ok, "{out}\n{err}");
     let json: serde_json::Value = serde_json::from_str(&out).unwrap();
     assert_eq!(json["joint_names"], serde_json::json!(["base", "shoulder"]));
-    let (ok, out, err) = armctl(&sim, &["watch", "--duration", "0.3"]);
+    let (ok, out, err) = armctl(&sim, &["watch", "--duration", "2"]);
     assert!(ok, "{out}\n{err}");
     assert!(
         out.lines()

@@ -55,6 +55,10 @@ fn a_second_host_reads_status_and_positions_and_is_told_who_owns_the_arm_until_r
     // The first host takes the controller and declares positions.
     let (ok, out, err) = armctl_from(&sim, "127.0.0.1:0", &["set-location", "5", "-6", "7"]);
     assert!(ok, "{out}\n{err}");
+    // The owner (this machine, 127.0.0.1) speaks before each of the second host's commands
+    // until it releases: 5 s of its silence and it is no longer one (cli.rs's stop test
+    // saw a loaded machine take that long between two armctl commands).
+    let owner = sim.connect();
     // A second host reads STATUS and the positions, read-only.
     let (ok, out, err) = armctl_from(&sim, "127.0.0.2:0", &["status"]);
     assert!(ok, "{out}\n{err}");
@@ -63,12 +67,14 @@ fn a_second_host_reads_status_and_positions_and_is_told_who_owns_the_arm_until_r
     assert!(out.contains("    1                -6  enabled"), "{out}");
     assert!(out.contains("    2                 7  enabled"), "{out}");
     assert!(out.contains("read-only"), "{out}");
+    owner.status().unwrap();
     let (ok, out, _) = armctl_from(&sim, "127.0.0.2:0", &["status", "--json"]);
     assert!(ok);
     let json: serde_json::Value = serde_json::from_str(&out).unwrap();
     assert_eq!(json["positions"], serde_json::json!([5, -6, 7]), "{out}");
     assert_eq!(json["read_only"], true);
     // It can watch too, polling read-only.
+    owner.status().unwrap();
     let (ok, out, err) = armctl_from(&sim, "127.0.0.2:0", &["watch", "--duration", "1"]);
     assert!(ok, "{out}\n{err}");
     assert!(err.contains("read-only"), "{err}");
@@ -76,15 +82,18 @@ fn a_second_host_reads_status_and_positions_and_is_told_who_owns_the_arm_until_r
         out.contains("STOPPED  j0         5 j1        -6 j2         7"),
         "{out}"
     );
+    owner.status().unwrap();
     // Its commands are refused, and the message names the owner.
     let (ok, out, err) = armctl_from(&sim, "127.0.0.2:0", &["pin", "0", "on"]);
     assert!(!ok, "{out}");
     assert!(err.contains("NOT_OWNER"), "{err}");
     assert!(err.contains("owned by 127.0.0.1"), "{err}");
+    owner.status().unwrap();
     // The owner releases; the second host takes the controller at once.
     let (ok, out, err) = armctl_from(&sim, "127.0.0.1:0", &["release"]);
     assert!(ok, "{out}\n{err}");
     assert!(out.contains("released"), "{out}");
+    drop(owner);
     let (ok, out, err) = armctl_from(&sim, "127.0.0.2:0", &["pin", "0", "on"]);
     assert!(ok, "{out}\n{err}");
     // Now the first host is the stranger.
