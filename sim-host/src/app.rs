@@ -418,6 +418,7 @@ fn wire(board: Board) -> io::Result<Wiring> {
     // The step timers and DMA streams, played in simulated time.
     let kick = board.kick.clone();
     let clock = board.clock;
+    let tracer = board.tracer.clone();
     crate::steptimer::spawn_step_thread(
         &board.kick,
         board.probe.clone(),
@@ -455,6 +456,9 @@ fn wire(board: Board) -> io::Result<Wiring> {
                     );
                 }
             }
+            // Every change up to `now` is recorded (a switch's halt too): the trace may
+            // be written up to there.
+            tracer.steps_played_to(clock.tick_to_ns(now));
             played
         },
     )?;

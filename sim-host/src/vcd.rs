@@ -6,6 +6,11 @@
 //! writer thread takes them through a channel, keeps them in a heap for a short reorder
 //! window (VCD needs non-decreasing times) and writes them buffered. [`Tracer::finish`]
 //! flushes everything: it runs at exit and on SIGINT/SIGTERM.
+//!
+//! The step thread says how far it has played ([`Tracer::steps_played_to`]) and the writer
+//! never writes past that: a step thread stalled longer than the reorder window (a loaded
+//! machine) delays the trace instead of having its edges restamped later than they were,
+//! which moved a run's pulses after an e-stop input's edge in the trace.
 
 use std::cmp::Reverse;
 use std::collections::BinaryHeap;
@@ -114,6 +119,9 @@ pub struct Tracer {
 
 struct TracerInner {
     sender: Mutex<mpsc::Sender<Message>>,
+    /// Simulated ns up to which the step thread has recorded every change
+    /// (`u64::MAX`: no step thread says, as on the virtual board).
+    steps_played_ns: Arc<AtomicU64>,
     order: AtomicU64,
     clock: SimClock,
     writer: Mutex<Option<JoinHandle<()>>>,
@@ -139,12 +147,15 @@ impl Tracer {
         let (sender, receiver) = mpsc::channel();
         let window_ns = (REORDER_WINDOW.as_nanos() as f64 * clock.time_scale()) as u64;
         let mut writer = VcdWriter::new(file)?;
+        let steps_played_ns = Arc::new(AtomicU64::new(u64::MAX));
+        let played = steps_played_ns.clone();
         let thread = std::thread::Builder::new()
             .name("vcd-writer".into())
-            .spawn(move || writer.run(receiver, clock, window_ns))?;
+            .spawn(move || writer.run(receiver, clock, window_ns, &played))?;
         Ok(Tracer {
             inner: Some(Arc::new(TracerInner {
                 sender: Mutex::new(sender),
+                steps_played_ns,
                 order: AtomicU64::new(0),
                 clock,
                 writer: Mutex::new(Some(thread)),
@@ -155,6 +166,14 @@ impl Tracer {
     /// Whether changes are recorded.
     pub fn is_enabled(&self) -> bool {
         self.inner.is_some()
+    }
+
+    /// The step thread has recorded every change up to simulated nanosecond `t_ns`: the
+    /// writer may write up to there (and no further than the reorder window allows).
+    pub fn steps_played_to(&self, t_ns: u64) {
+        if let Some(inner) = &self.inner {
+            inner.steps_played_ns.store(t_ns, Ordering::Release);
+        }
     }
 
     /// Records `signal` taking `value` at simulated nanosecond `t_ns`.
@@ -359,10 +378,19 @@ impl<W: Write> VcdWriter<W> {
         write_value(&mut self.out, change.signal, change.value)
     }
 
-    fn run(&mut self, receiver: mpsc::Receiver<Message>, clock: SimClock, window_ns: u64) {
+    fn run(
+        &mut self,
+        receiver: mpsc::Receiver<Message>,
+        clock: SimClock,
+        window_ns: u64,
+        steps_played_ns: &AtomicU64,
+    ) {
         let mut pending: BinaryHeap<Reverse<Change>> = BinaryHeap::new();
         let mut finished: Option<mpsc::Sender<()>> = None;
         loop {
+            // Read before taking the changes: the step thread sent every change up to it
+            // before storing it.
+            let played = steps_played_ns.load(Ordering::Acquire);
             match receiver.recv_timeout(Duration::from_millis(20)) {
                 Ok(Message::Change(c)) => pending.push(Reverse(c)),
                 Ok(Message::Finish(done)) => finished = Some(done),
@@ -379,7 +407,7 @@ impl<W: Write> VcdWriter<W> {
             if finished.is_some() {
                 break;
             }
-            let horizon = clock.now_ns().saturating_sub(window_ns);
+            let horizon = clock.now_ns().saturating_sub(window_ns).min(played);
             while pending.peek().is_some_and(|c| c.0.t_ns <= horizon) {
                 if let Some(Reverse(c)) = pending.pop()
                     && let Err(e) = self.write(c)
@@ -427,6 +455,79 @@ fn write_value(out: &mut impl Write, signal: Signal, value: Value) -> io::Result
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The writer's output, readable while it runs.
+    #[derive(Clone, Default)]
+    struct Shared(Arc<Mutex<Vec<u8>>>);
+
+    impl Write for Shared {
+        fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
+            self.0.lock().unwrap().extend_from_slice(buf);
+            Ok(buf.len())
+        }
+        fn flush(&mut self) -> io::Result<()> {
+            Ok(())
+        }
+    }
+
+    /// A step thread stalled past the reorder window: before, a task's later change was
+    /// written meanwhile and the step edges that came after it were restamped at its time
+    /// (in a CI run, a run's pulses moved after the e-stop input's edge). Now nothing past
+    /// the step thread's mark is written, and the edges keep their times.
+    #[test]
+    fn a_stalled_step_thread_holds_the_trace_back_rather_than_being_restamped() {
+        let clock = SimClock::virtual_time(1_000_000);
+        clock.advance_ns(1_000_000_000);
+        let out = Shared::default();
+        let mut writer = VcdWriter::new(out.clone()).expect("header");
+        let header = out.0.lock().unwrap().len();
+        let (sender, receiver) = mpsc::channel();
+        let played = Arc::new(AtomicU64::new(100_000_000));
+        let mark = played.clone();
+        let thread = std::thread::spawn(move || {
+            writer.run(receiver, clock, 200_000_000, &mark);
+        });
+        let change = |t_ns, signal, value| {
+            Message::Change(Change {
+                t_ns,
+                order: t_ns,
+                signal,
+                value,
+                guard: None,
+            })
+        };
+        // A task's change at 700 ms: inside the old horizon (1 s less the 200 ms window),
+        // past the step thread's 100 ms.
+        sender
+            .send(change(700_000_000, Signal::EStopInput, Value::Bit(true)))
+            .unwrap();
+        // The writer polls every 20 ms: it had written it within this before.
+        let until = std::time::Instant::now() + Duration::from_millis(500);
+        while std::time::Instant::now() < until {
+            assert_eq!(
+                out.0.lock().unwrap().len(),
+                header,
+                "written past the step thread's mark"
+            );
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        // The stalled thread's pulse, then its mark.
+        sender
+            .send(change(150_000_000, Signal::Step(0), Value::Bit(true)))
+            .unwrap();
+        sender
+            .send(change(152_000_000, Signal::Step(0), Value::Bit(false)))
+            .unwrap();
+        played.store(1_000_000_000, Ordering::Release);
+        let (done, wait) = mpsc::channel();
+        sender.send(Message::Finish(done)).unwrap();
+        wait.recv_timeout(Duration::from_secs(30)).expect("finished");
+        thread.join().unwrap();
+        let text = out.0.lock().unwrap().clone();
+        let parsed = armctl::vcd::changes(text.as_slice(), "t.vcd").expect("parse");
+        assert_eq!(parsed.rising_edges("step0"), vec![150_000_000]);
+        assert_eq!(parsed.rising_edges("estop_input"), vec![700_000_000]);
+    }
 
     #[test]
     fn writer_output_parses_back() {
