@@ -133,15 +133,22 @@ fn the_pendant_in_a_browser_shows_jogs_stops_and_loses_the_simulator() {
         "hold: {}",
         page.text("body")
     );
+    // At rest is the rate at the present; the simulator's positions are the pulses its
+    // step thread has played, up to a few ms behind (more on a loaded machine): 20 updates
+    // for them to catch up, then 20 more that must not move.
+    let updates = |what: &str| {
+        let e0 = events(&page);
+        assert!(
+            page.wait_for(
+                &format!("return window.pendantEvents > {e0} + 20"),
+                PAGE_WAIT
+            ),
+            "no updates while held ({what})"
+        );
+    };
+    updates("settling");
     let held: Vec<i64> = serde_json::from_value(page.eval("return snap.steps")).unwrap();
-    let e0 = events(&page);
-    assert!(
-        page.wait_for(
-            &format!("return window.pendantEvents > {e0} + 20"),
-            PAGE_WAIT
-        ),
-        "no updates while held"
-    );
+    updates("standing");
     let still: Vec<i64> = serde_json::from_value(page.eval("return snap.steps")).unwrap();
     assert_eq!(still, held, "the arm moved while held (20 updates later)");
     assert!(
