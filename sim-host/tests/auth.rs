@@ -4,7 +4,7 @@
 
 mod common;
 
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use armctl::{Client as Armctl, Options, RunOptions};
 use common::*;
@@ -142,7 +142,10 @@ fn a_replayed_envelope_is_refused_and_a_stranger_still_stops_a_run() {
     .unwrap();
     let mut ack_of = |bytes: &[u8]| {
         raw.socket.send(bytes).unwrap();
+        // Bounded: other reports may keep arriving if the ACK never does.
+        let deadline = Instant::now() + Duration::from_secs(10);
         loop {
+            assert!(Instant::now() < deadline, "no ACK within 10 s");
             let n = raw.socket.recv(&mut buf).expect("an answer");
             let inner = match Envelope::open(&buf[..n]) {
                 Ok(e) => e.inner.to_vec(),

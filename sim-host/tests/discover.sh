@@ -121,19 +121,19 @@ echo "discover.sh: broadcast discovery found both controllers ($mac_a, $mac_b)"
 
 # 1b. Issue 21 F7: commands sent to a broadcast address are ignored (no ACK, nothing done),
 # a broadcast STOPPED is obeyed. 7 datagrams, each sent once.
-broadcast() { # broadcast ADDRESS HEX: one datagram with SO_BROADCAST from 192.168.7.1
-  in_ns timeout 10 python3 -c '
+broadcast() { # broadcast ADDRESS HEX [WAIT_S]: one datagram with SO_BROADCAST from 192.168.7.1
+  in_ns timeout 20 python3 -c '
 import socket, sys
 s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
 s.setsockopt(socket.SOL_SOCKET, socket.SO_BROADCAST, 1)
 s.bind(("192.168.7.1", 0))
-s.settimeout(0.5)
+s.settimeout(float(sys.argv[3]))
 s.sendto(bytes.fromhex(sys.argv[2]), (sys.argv[1], 8510))
 try:
     print(s.recvfrom(64)[0].hex())
 except socket.timeout:
     print("none")
-' "$1" "$2"
+' "$1" "$2" "${3:-0.5}"
 }
 encode() { "$armctl" frame encode "$@" | grep -Eo '^([0-9a-f]{2} ?)+$' | tr -d ' '; }
 pin_on=$(encode --seq 1 pin0-on)
@@ -162,7 +162,8 @@ for name in a b; do
   grep -q "to a broadcast address was ignored" "$work/$name.out" "$work/$name.err" \
     || fail "controller $name did not log the ignored broadcast"
 done
-reply=$(broadcast 255.255.255.255 "$(encode --seq 3 stopped)")
+# 5 s for the answer that must come (a loaded machine); 0.5 s above for the ones that must not.
+reply=$(broadcast 255.255.255.255 "$(encode --seq 3 stopped)" 5)
 [ "$reply" != none ] || fail "a broadcast STOPPED was not ACKed"
 grep -q "192.168.7.77" "$work/a.txt" "$work/b.txt" 2>/dev/null \
   && fail "a broadcast NET_SET was stored"
@@ -181,14 +182,20 @@ if in_ns timeout 30 "$armctl" --bind 192.168.7.1:0 --controller 192.168.7.2:8510
 fi
 expect "NOT_OWNER" "$(cat "$work/err.txt")" "net set from another host"
 
-printf 'time_s,j0\n0.0,0\n4.0,4000\n' >"$work/slow.csv"
+# 20 s: still RUNNING at the NET_SET below however slow the machine (it is stopped then).
+printf 'time_s,j0\n0.0,0\n20.0,4000\n' >"$work/slow.csv"
 ip netns exec "$ns" timeout 30 "$armctl" --bind 192.168.7.200:0 --controller 192.168.7.2:8510 \
   run --quiet "$work/slow.csv" >"$work/run.out" 2>&1 &
 run_pid=$!
+running=no
 for _ in $(seq 100); do
-  grep -q "RUNNING" <<<"$(line_of 192.168.7.2 "$(discover --to 192.168.7.2:8510 2>/dev/null)")" && break
+  if grep -q "RUNNING" <<<"$(line_of 192.168.7.2 "$(discover --to 192.168.7.2:8510 2>/dev/null)")"; then
+    running=yes
+    break
+  fi
   sleep 0.1
 done
+[ "$running" = yes ] || fail "discover never showed controller a RUNNING during armctl run"
 if admin net set --ip 192.168.7.66/24 2>"$work/err.txt"; then
   fail "net set while RUNNING was accepted"
 fi

@@ -643,7 +643,13 @@ fn session_captures_pair_acks_and_mark_retransmissions() {
     discover.push(crc8(&discover));
     socket.send(&discover).unwrap();
     let mut buf = [0u8; 2048];
+    // Bounded: other datagrams may keep arriving if the reply never does.
+    let deadline = std::time::Instant::now() + Duration::from_secs(10);
     let reply = loop {
+        assert!(
+            std::time::Instant::now() < deadline,
+            "no DISCOVER_REPLY within 10 s"
+        );
         let n = socket.recv(&mut buf).expect("a DISCOVER_REPLY");
         if let Ok(frame) = protocol::DiscoverReply::decode(&buf[..n]) {
             break frame.body;

@@ -271,9 +271,11 @@ impl<'a> Scenario<'a> {
                     pose: ABOVE_PLACE,
                     seconds: 0.8,
                 },
+                // Long enough that the stop 1.2 s in lands well before the end even on a
+                // loaded machine at the test's 4x (2.0 s here left 0.4 s of real time).
                 Leg {
                     pose: HOME,
-                    seconds: 2.0,
+                    seconds: 4.0,
                 },
             ],
         );
@@ -283,12 +285,19 @@ impl<'a> Scenario<'a> {
             let scale = self.board.clock.time_scale();
             std::thread::spawn(move || {
                 // Wait until it moves, then 1.2 s (simulated) into the move: STOPPED.
-                let until = Instant::now() + Duration::from_secs(10);
+                let until = Instant::now() + Duration::from_secs(30);
                 while arm
                     .last_location()
                     .is_none_or(|l| l.state != State::Running as u8)
-                    && Instant::now() < until
                 {
+                    if Instant::now() >= until {
+                        return (
+                            Duration::ZERO,
+                            Err(armctl::Error::Io(io::Error::other(
+                                "the retreat never showed RUNNING within 30 s",
+                            ))),
+                        );
+                    }
                     std::thread::sleep(Duration::from_millis(2));
                 }
                 std::thread::sleep(Duration::from_secs_f64(1.2 / scale));
@@ -314,7 +323,9 @@ impl<'a> Scenario<'a> {
             format!(
                 "e-stop: STOPPED acknowledged in {:.2} ms (state {}); the run ended early: {}",
                 ack_time.as_secs_f64() * 1e3,
-                stop_ack.as_ref().map_or("?", |s| s.name()),
+                stop_ack
+                    .as_ref()
+                    .map_or_else(|e| e.to_string(), |s| s.name().to_string()),
                 match &outcome {
                     Ok(_) => "no (it completed)".to_string(),
                     Err(e) => e.to_string(),
