@@ -521,7 +521,8 @@ mod tests {
         played.store(1_000_000_000, Ordering::Release);
         let (done, wait) = mpsc::channel();
         sender.send(Message::Finish(done)).unwrap();
-        wait.recv_timeout(Duration::from_secs(30)).expect("finished");
+        wait.recv_timeout(Duration::from_secs(30))
+            .expect("finished");
         thread.join().unwrap();
         let text = out.0.lock().unwrap().clone();
         let parsed = armctl::vcd::changes(text.as_slice(), "t.vcd").expect("parse");
