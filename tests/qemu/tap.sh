@@ -85,7 +85,28 @@ echo "qemu/tap.sh: second host refused (NOT_OWNER)"
 } >"$work/run.csv"
 owner run --quiet "$work/run.csv" >"$work/run.out" 2>&1 &
 run_pid=$!
-sleep 1.5
+# Stop only once the run is under way and has pulsed, as STATUS shows it (bounded, never a
+# guessed sleep: a sleep of 1.5 s here could end before the upload of the 400 points to a
+# loaded QEMU, and the STOPPED then came before RUNING). STATUS `executed` counts a point
+# once its steps are written to the step hardware, up to 42.6 ms before the pins (this
+# board's profile, as the NUCLEO's: docs/PROTOCOL.md STATUS executed): 5 of these 10 ms
+# points, so 6 executed says the run has moved. The run lasts 4 s after that.
+moving=""
+executed=""
+poll_deadline=$((SECONDS + 60))
+while [ "$SECONDS" -lt "$poll_deadline" ]; do
+  kill -0 "$run_pid" 2>/dev/null || fail "the run ended before it was seen moving: $(cat "$work/run.out")"
+  kill -0 "$qemu_pid" 2>/dev/null || fail "QEMU exited"
+  st=$(owner status 2>/dev/null) || st=""
+  executed=$(awk '/^trajectory / { print $(NF-1) }' <<<"$st")
+  if grep -q "^state  *RUNNING" <<<"$st" && [ "${executed:-0}" -ge 6 ] 2>/dev/null; then
+    moving=1
+    break
+  fi
+  sleep 0.05
+done
+[ -n "$moving" ] || fail "the owner's run was not seen RUNNING with 6 points executed in 60 s (last: ${executed:-none} executed): $(cat "$work/run.out")"
+echo "qemu/tap.sh: the owner's run is moving ($executed points executed): STOPPED from the second host"
 other stop >/dev/null || fail "STOPPED from the second host was not acknowledged"
 set +e
 wait "$run_pid"

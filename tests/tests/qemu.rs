@@ -95,7 +95,7 @@ fn a_line_being_written_is_not_read() {
     assert_eq!(lines_seen(cut), ([0; MAX_JOINTS], [0; MAX_JOINTS]));
 }
 
-/// Waits (3 s at most) until the STEP lines, at rest, have seen `moved` net pulses since
+/// Waits (30 s at most) until the STEP lines, at rest, have seen `moved` net pulses since
 /// boot (the edges played from the producer's buffers, signed by DIR) and rising edges
 /// that `rising_ok` accepts: what left the "pins" must be what the controller says it
 /// moved, and the steps the trajectory asked for.
@@ -104,7 +104,10 @@ fn assert_lines_saw(
     moved: [i32; MAX_JOINTS],
     rising_ok: impl Fn(&[u32; MAX_JOINTS]) -> bool,
 ) {
-    let deadline = Instant::now() + Duration::from_secs(3);
+    // The line comes from the board's step-output monitor, at rest, on the emulator's own
+    // progress: a loaded host stalls QEMU, so the bound is generous (it returns as soon as
+    // the line says so; only a wrong count waits it out).
+    let deadline = Instant::now() + Duration::from_secs(30);
     loop {
         // The firmware's log alone: in `board.log()` the QEMU heading that follows it
         // gives a line still being written its newline, so the half line was read (a run
@@ -874,10 +877,68 @@ fn a_fault_ends_qemu_with_a_failure_and_its_log() {
         );
         assert!(FAULT_MARKERS.iter().any(|m| log.contains(m)));
     }
-    // And without one it keeps running.
-    let (exited, log) = run_to_exit("", Duration::from_secs(2));
-    assert_eq!(exited, None, "QEMU exited without an injected fault\n{log}");
-    assert!(log.contains("listening on 10.0.2.15/24:8510"), "{log}");
+    // And without one it keeps running: it comes up (its "listening on" line) and is still
+    // running, with no fault in its log, once its own clock is well past the time an
+    // injected fault would have come (300 ms after its tasks start, ~0.34 s of its clock).
+    // Observed, not timed: this once waited a fixed 2 s of wall time for the line, which a
+    // loaded host's stalled QEMU could miss. Its clock is read off its log's timestamps; a
+    // STOPPED at rest makes it log a line (the step-output monitor's "STOPPED frame to the
+    // last STEP edge", within 100 ms of its clock).
+    let mut board = QemuBoard::start();
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while !board
+        .firmware_log()
+        .contains("listening on 10.0.2.15/24:8510")
+    {
+        board.assert_healthy();
+        assert!(
+            Instant::now() < deadline,
+            "no 'listening on 10.0.2.15/24:8510' in 30 s\n{}",
+            board.log()
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let arm = board.connect_with(emulated());
+    const PAST_ANY_INJECTION_S: f64 = 1.0;
+    while board_clock_s(&board.firmware_log()).is_none_or(|s| s < PAST_ANY_INJECTION_S) {
+        board.assert_healthy();
+        assert!(
+            Instant::now() < deadline,
+            "the board's clock did not pass {PAST_ANY_INJECTION_S} s in 30 s\n{}",
+            board.log()
+        );
+        let _ = arm.stop();
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    println!(
+        "qemu: no fault injected: still running at {:?} s of the board's clock",
+        board_clock_s(&board.firmware_log())
+    );
+    board.assert_healthy();
+}
+
+/// The board's clock (seconds since boot) as its log's last whole line stamps it
+/// (`[   0.034389] INFO  ...`); `None` before any.
+fn board_clock_s(log: &str) -> Option<f64> {
+    log.split_inclusive('\n')
+        .filter(|line| line.ends_with('\n'))
+        .filter_map(|line| {
+            line.strip_prefix('[')?
+                .split_once(']')?
+                .0
+                .trim()
+                .parse()
+                .ok()
+        })
+        .next_back()
+}
+
+#[test]
+fn the_board_clock_is_read_off_the_last_whole_log_line() {
+    let log = "[   0.027130] INFO  link_up = true\r\n[   1.034389] INFO  listening on x\r\n[   2.5";
+    assert_eq!(board_clock_s(log), Some(1.034389));
+    assert_eq!(board_clock_s("[   0.5"), None);
+    assert_eq!(board_clock_s(""), None);
 }
 
 #[test]
@@ -1138,7 +1199,7 @@ fn the_qemu_board_says_its_timing_is_not_measured() {
 /// its receive interrupt taking the frame from the chip to the last STEP rise after it
 /// (its own clock: QEMU runs without icount, so that is host time; the frame's landing in
 /// QEMU's model is not visible to the guest: the interrupt is the first look). Printed
-/// p50/p90/max; asserted only under 100 ms.
+/// p50/p90/max; asserted only under 1 s (host time: see the assertion).
 #[test]
 fn every_single_stopped_halts_the_arm_under_a_flood_and_its_last_step_edge_is_logged() {
     require_qemu!();
@@ -1286,9 +1347,18 @@ fn every_single_stopped_halts_the_arm_under_a_flood_and_its_last_step_edge_is_lo
         "at most 2 of 20 lost before the board\n{}",
         board.log()
     );
+    // The figure is printed above (p50, p90 and max have been 0 us: the halt in the
+    // interrupt stops the software player before its next edge). The bound only tells a
+    // halt from none: the STOPPED lands early in a 6 s run, which a missed halt would play
+    // on for seconds. It is measured by the board's own clock, and QEMU runs without
+    // icount, so that clock is host time: a stall of the emulator's thread on a loaded
+    // host between the interrupt's look and the player's halt counts in full. 100 ms was
+    // asserted here; 1 s holds on a host ten times slower or busier.
     assert!(
-        q(1.0) < 100_000.0,
-        "the last STEP edge within 100 ms of the STOPPED's frame"
+        q(1.0) < 1_000_000.0,
+        "the last STEP edge within 1 s of the STOPPED's frame (max {:.0} us)\n{}",
+        q(1.0),
+        board.log()
     );
     board.assert_healthy();
 }
