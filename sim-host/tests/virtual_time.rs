@@ -185,7 +185,7 @@ fn executed_runs_ahead_of_the_pins_by_at_most_the_dma_lead_on_virtual_time() {
     let pulses_by = |t: u64| edges.iter().filter(|e| **e <= t).count();
 
     let lead = sim_host::app::PROFILE.step_dma_lead_ns();
-    let moving_after = sim_host::app::PROFILE.points_ahead_of_the_pins(SEGMENT_NS) as u16 + 1;
+    let moving_after = sim_host::app::PROFILE.executed_once_pulsed(SEGMENT_NS) as u16;
     let early = polls
         .iter()
         .filter(|(executed, by)| *executed > 0 && pulses_by(*by) == 0)

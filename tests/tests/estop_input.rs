@@ -22,8 +22,7 @@ const SEGMENT_NS: u64 = 10_000_000;
 
 /// STATUS `executed` that says the run has pulsed: a point counts once its periods are
 /// written to the step hardware, up to the profile's DMA lead before the pins make them.
-const MOVING_AFTER: u32 =
-    arm_core::profile::SIMULATOR.points_ahead_of_the_pins(SEGMENT_NS) as u32 + 1;
+const MOVING_AFTER: u32 = arm_core::profile::SIMULATOR.executed_once_pulsed(SEGMENT_NS) as u32;
 
 fn armctl(sim: &SimHost, args: &[&str]) -> (bool, String) {
     let output = Command::new(armctl_bin())

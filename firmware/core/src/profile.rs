@@ -550,10 +550,10 @@ impl BoardProfile {
         (2 * self.step_buffer_half + arm_step::PRELUDE) as u64 * STREAM_PERIOD_CAP_NS
     }
 
-    /// Points of `segment_ns` each that STATUS may count `executed` before the pins have
-    /// begun them: one more executed says the run has pulsed.
-    pub const fn points_ahead_of_the_pins(&self, segment_ns: u64) -> u64 {
-        self.step_dma_lead_ns().div_ceil(segment_ns)
+    /// STATUS `executed` that says a run of points of `segment_ns` each has pulsed: one
+    /// more than the points the lead may hold before the pins have begun them.
+    pub const fn executed_once_pulsed(&self, segment_ns: u64) -> u64 {
+        self.step_dma_lead_ns().div_ceil(segment_ns) + 1
     }
 }
 
