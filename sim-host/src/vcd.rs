@@ -10,7 +10,7 @@
 //! The step thread says how far it has played ([`Tracer::steps_played_to`]) and the writer
 //! never writes past that: a step thread stalled longer than the reorder window (a loaded
 //! machine) delays the trace instead of having its edges restamped later than they were,
-//! which moved a run's pulses after an e-stop input's edge in the trace.
+//! which could move a run's pulses after an e-stop input's edge in the trace.
 
 use std::cmp::Reverse;
 use std::collections::BinaryHeap;
@@ -472,8 +472,9 @@ mod tests {
 
     /// A step thread stalled past the reorder window: before, a task's later change was
     /// written meanwhile and the step edges that came after it were restamped at its time
-    /// (in a CI run, a run's pulses moved after the e-stop input's edge). Now nothing past
-    /// the step thread's mark is written, and the edges keep their times.
+    /// (a run's pulses could land after the e-stop input's edge; found reading the code,
+    /// not seen in a run). Now nothing past the step thread's mark is written, and the
+    /// edges keep their times.
     #[test]
     fn a_stalled_step_thread_holds_the_trace_back_rather_than_being_restamped() {
         let clock = SimClock::virtual_time(1_000_000);

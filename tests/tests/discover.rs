@@ -44,34 +44,21 @@ fn discover_answers_any_host_and_net_set_is_stored_for_the_next_reset() {
     // answered read-only since issue 23, its commands refused). The owner speaks before
     // each such command: 5 s of its silence and it is no longer one (cli.rs's stop test
     // saw a loaded machine take that long between two armctl commands).
-    arm.status().unwrap();
-    let (ok, out) = armctl(&["--bind", "127.0.0.2:0", "--controller", &to, "status"]);
+    let second_host = |args: &[&str]| {
+        arm.status().unwrap();
+        let mut all = vec!["--bind", "127.0.0.2:0", "--controller", to.as_str()];
+        all.extend_from_slice(args);
+        armctl(&all)
+    };
+    let (ok, out) = second_host(&["status"]);
     assert!(ok && out.contains("read-only"), "{out}");
-    arm.status().unwrap();
-    let (ok, out) = armctl(&[
-        "--bind",
-        "127.0.0.2:0",
-        "--controller",
-        &to,
-        "pin",
-        "0",
-        "on",
-    ]);
+    let (ok, out) = second_host(&["pin", "0", "on"]);
     assert!(!ok && out.contains("NOT_OWNER"), "{out}");
     let (_, out) = armctl(&["discover", "--to", &to]);
     assert!(out.contains("owned by this host"), "{out}");
 
     // NET_SET from another host: NOT_OWNER.
-    arm.status().unwrap();
-    let (ok, out) = armctl(&[
-        "--bind",
-        "127.0.0.2:0",
-        "--controller",
-        &to,
-        "net",
-        "set",
-        "--dhcp",
-    ]);
+    let (ok, out) = second_host(&["net", "set", "--dhcp"]);
     assert!(!ok && out.contains("NOT_OWNER"), "{out}");
 
     // While the arm runs: BAD_STATE.

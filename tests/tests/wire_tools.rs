@@ -59,32 +59,33 @@ fn a_second_host_reads_status_and_positions_and_is_told_who_owns_the_arm_until_r
     // until it releases: 5 s of its silence and it is no longer one (cli.rs's stop test
     // saw a loaded machine take that long between two armctl commands).
     let owner = sim.connect();
+    let second_host = |args: &[&str]| {
+        owner.status().unwrap();
+        armctl_from(&sim, "127.0.0.2:0", args)
+    };
     // A second host reads STATUS and the positions, read-only.
-    let (ok, out, err) = armctl_from(&sim, "127.0.0.2:0", &["status"]);
+    let (ok, out, err) = second_host(&["status"]);
     assert!(ok, "{out}\n{err}");
     assert!(out.contains("state            STOPPED"), "{out}");
     assert!(out.contains("    0                 5  enabled"), "{out}");
     assert!(out.contains("    1                -6  enabled"), "{out}");
     assert!(out.contains("    2                 7  enabled"), "{out}");
     assert!(out.contains("read-only"), "{out}");
-    owner.status().unwrap();
-    let (ok, out, _) = armctl_from(&sim, "127.0.0.2:0", &["status", "--json"]);
+    let (ok, out, _) = second_host(&["status", "--json"]);
     assert!(ok);
     let json: serde_json::Value = serde_json::from_str(&out).unwrap();
     assert_eq!(json["positions"], serde_json::json!([5, -6, 7]), "{out}");
     assert_eq!(json["read_only"], true);
     // It can watch too, polling read-only.
-    owner.status().unwrap();
-    let (ok, out, err) = armctl_from(&sim, "127.0.0.2:0", &["watch", "--duration", "1"]);
+    let (ok, out, err) = second_host(&["watch", "--duration", "1"]);
     assert!(ok, "{out}\n{err}");
     assert!(err.contains("read-only"), "{err}");
     assert!(
         out.contains("STOPPED  j0         5 j1        -6 j2         7"),
         "{out}"
     );
-    owner.status().unwrap();
     // Its commands are refused, and the message names the owner.
-    let (ok, out, err) = armctl_from(&sim, "127.0.0.2:0", &["pin", "0", "on"]);
+    let (ok, out, err) = second_host(&["pin", "0", "on"]);
     assert!(!ok, "{out}");
     assert!(err.contains("NOT_OWNER"), "{err}");
     assert!(err.contains("owned by 127.0.0.1"), "{err}");
