@@ -460,18 +460,33 @@ fn pty_sim(settings: &str) -> (Sim, std::fs::File, common::Client) {
     (sim, tty, client)
 }
 
+/// `n` bytes read from the pty, or a panic after `within`: bytes that never come fail the
+/// test rather than hanging it (a blocking read on a thread of its own, left blocked then).
+fn read_pty_within(tty: &std::fs::File, n: usize, within: Duration) -> Vec<u8> {
+    use std::io::Read;
+    let mut tty = tty.try_clone().expect("the pty's descriptor clones");
+    let (sender, receiver) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        let mut got = vec![0u8; n];
+        let _ = sender.send(tty.read_exact(&mut got).map(|()| got));
+    });
+    receiver
+        .recv_timeout(within)
+        .unwrap_or_else(|_| panic!("{n} bytes on the pty within {within:?}"))
+        .expect("the pty reads")
+}
+
 #[test]
 fn serial_pty_passes_bytes_both_ways() {
-    use std::io::{Read, Write};
+    use std::io::Write;
     let (_sim, mut tty, mut client) = pty_sim("pty.txt");
     // Host to device.
     client.ok(&Command::UsartSend(b"to the device\n"));
-    let mut got = vec![0u8; 14];
-    tty.read_exact(&mut got).expect("bytes on the pty");
+    let got = read_pty_within(&tty, 14, Duration::from_secs(10));
     assert_eq!(got, b"to the device\n");
     // Device to host.
     tty.write_all(b"from the device").unwrap();
-    let deadline = Instant::now() + Duration::from_secs(2);
+    let deadline = Instant::now() + Duration::from_secs(10);
     let mut received = Vec::new();
     while received.len() < 15 {
         let left = deadline
