@@ -10,8 +10,9 @@
 //! but the thread does not wake per edge: it wakes when a joint's timer enters a new half
 //! (the refill), at the end of the run, when kicked, and every [`PLAY_INTERVAL`] to bring
 //! the motors and the trace up to the present. It never spins, so it leaves the cores to
-//! the executor. An emergency stop plays the edges up to the stop's tick, cuts a pulse in
-//! progress and drops the rest: no STEP edge after the stop, as on the board.
+//! the executor. An emergency stop plays the edges up to the stop's tick, lets a pulse in
+//! progress fall at its own width and drops the rest: no STEP pulse rises after the stop,
+//! and none is cut short, as on the board (docs/PROTOCOL.md, STOPPED).
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Condvar, Mutex};
 use std::time::{Duration, Instant};
@@ -307,9 +308,10 @@ impl<const Q: usize> StepBackend for SimSteps<Q> {
             self.streams.producer().stop();
             return;
         };
-        // Everything up to the stop happened; nothing after it does.
+        // Everything up to the stop happened; nothing rises after it, and a pulse high at
+        // it falls at its own width (the outputs are quiet from `quiet`).
         let now = self.clock.now_tick();
-        self.player.stop(
+        let quiet = self.player.stop(
             &mut self.streams,
             now.saturating_sub(origin),
             &mut Stamped::new(
@@ -322,7 +324,7 @@ impl<const Q: usize> StepBackend for SimSteps<Q> {
         self.primed_finished = 0;
         if let Some(probe) = &self.probe {
             probe.engine_running.store(false, Ordering::Release);
-            probe.engine_stopped(Instant::now(), self.clock.tick_to_ns(now));
+            probe.engine_stopped(Instant::now(), self.clock.tick_to_ns(origin + quiet));
         }
     }
 

@@ -107,15 +107,34 @@ fn stopped_mid_run_leaves_no_step_after_it_on_virtual_time() {
     board.finish_trace();
     let vcd = vcd::read_changes(&trace).unwrap();
     assert_eq!(vcd.joint_position(0), stopped_at);
-    // The last edge of STEP came before the ACK of STOPPED (one round, 10 us, at most
-    // after the datagram was delivered), and the line is low.
-    let changes = &vcd.changes["step0"];
-    let (last_t, last_v) = changes.last().unwrap();
+    // The last rise of STEP came before the ACK of STOPPED (one round, 10 us, at most
+    // after the datagram was delivered), and the line is low. A pulse high at the stop
+    // keeps its width (PROTOCOL.md, STOPPED: a stop never cuts a pulse short): the only
+    // change after the ACK is such a fall, as wide after its rise as the run's first.
+    let rises = vcd.rising_edges("step0");
+    let last_rise = *rises.last().unwrap();
     assert!(
-        *last_t <= acked_ns,
-        "STEP changed at {last_t} ns, after the ACK at {acked_ns}"
+        last_rise <= acked_ns,
+        "STEP rose at {last_rise} ns, after the ACK at {acked_ns}"
     );
+    let changes = &vcd.changes["step0"];
+    let width = |rise: u64| {
+        changes
+            .iter()
+            .find(|(t, v)| *t > rise && v == "0")
+            .map(|(t, _)| t - rise)
+            .expect("every pulse falls")
+    };
+    assert_eq!(width(last_rise), width(rises[0]), "the last pulse was cut");
+    let after: Vec<_> = changes.iter().filter(|(t, _)| *t > acked_ns).collect();
+    assert!(after.len() <= 1, "STEP changed after the ACK: {after:?}");
+    let (_, last_v) = changes.last().unwrap();
     assert_eq!(last_v, "0", "STEP left high");
+    println!(
+        "STOPPED at {acked_ns} ns: last rise {last_rise} ns, pulse width {} ns, {} change after the ACK",
+        width(last_rise),
+        after.len()
+    );
 }
 
 #[test]

@@ -24,9 +24,12 @@
 //! pulse counter in its DIR direction (and counts in its edge counter), so the pulses
 //! "output" can be compared with the positions the controller reports and the steps the
 //! trajectory asked for (tests/tests/qemu.rs reads them from the log). An emergency stop
-//! ([`StepBackend::stop`]) plays the edges up to the stop's SYSCLK tick, cuts a pulse in
-//! progress, drops the rest (the positions keep only the pulses played, as the NUCLEO's
-//! unwind from its streams' positions) and lowers every STEP line before it returns.
+//! ([`StepBackend::stop`]) plays the edges up to the stop's SYSCLK tick, drops the rest
+//! (the positions keep only the pulses played, as the NUCLEO's unwind from its streams'
+//! positions) and lowers every STEP line before it returns. The player gives a pulse high
+//! at the stop its own fall tick, but these lines are written when played, not at their
+//! ticks, so here it falls at once: the counters count rises, and the board has no driver
+//! to miss a short pulse (the NUCLEO keeps its width: docs/BOARD.md).
 
 use core::sync::atomic::{AtomicI32, AtomicU8, AtomicU32, Ordering};
 
@@ -173,8 +176,8 @@ impl StepBackend for QemuSteps {
         self.primed_finished = primed.segments_finished;
     }
 
-    /// Plays every edge up to now, cuts the pulses in progress, drops the rest and lowers
-    /// every STEP line: no STEP edge after this returns.
+    /// Plays every edge up to now, drops the rest and lowers every STEP line (a pulse in
+    /// progress falls at once: see the module's header): no STEP edge after this returns.
     fn stop(&mut self) {
         if let Some(streams) = self.streams.get_mut() {
             let t = now_cycles().saturating_sub(self.origin);

@@ -12,13 +12,11 @@
 //! tests compare them with [`crate::StepEngine`]'s); only when the lines see them
 //! depends on how often the owner plays.
 //!
-//! An emergency stop ([`StreamPlayer::stop`]) plays the edges up to the stop's tick, cuts
-//! a pulse in progress and drops the rest, taking back the pulses written but never
-//! played ([`StepStreams::unwind`]), as the board does with the streams' positions. (The
-//! NUCLEO lets a pulse in progress end at its width instead, for real drivers that may miss
-//! a cut one: docs/BOARD.md, "A stop never cuts a pulse short". The players' lines count
-//! rises, the simulator's drivers and the QEMU board's counters alike, so a cut pulse here
-//! counts as one; [`crate::StepEngine::stop`] cuts it the same way.)
+//! An emergency stop ([`StreamPlayer::stop`]) plays the edges up to the stop's tick, lets
+//! a pulse in progress fall at its own width (its rise counted it; a driver may miss one cut
+//! shorter: docs/PROTOCOL.md, STOPPED, and docs/BOARD.md, "A stop never cuts a pulse
+//! short", as the NUCLEO does) and drops the rest, taking back the pulses written but never
+//! played ([`StepStreams::unwind`]), as the board does with the streams' positions.
 
 use crate::producer::PulsePeriod;
 use crate::stream::{JointBuffer, PRELUDE, Refill, StepStreams};
@@ -341,9 +339,11 @@ impl<const HALF: usize> StreamPlayer<HALF> {
     }
 
     /// Emergency stop at run tick `t`: plays every edge up to `t`, lowers a STEP line
-    /// still high at `t` (the pulse is cut), takes back the pulses written but not
-    /// played, and stops the producer (queue and DIR changes dropped). Nothing is
-    /// played after this until the next [`StreamPlayer::prime`].
+    /// still high at `t` at the pulse's own end (after `t`: a stop never cuts a pulse
+    /// short), takes back the pulses written but not played, and stops the producer
+    /// (queue and DIR changes dropped). Nothing rises after `t`, and nothing is played
+    /// after this until the next [`StreamPlayer::prime`]. Returns the run tick from which
+    /// every STEP line is low: `t`, or the last kept pulse's fall.
     #[allow(
         clippy::indexing_slicing,
         reason = "j enumerates the [_; MAX_JOINTS] arrays"
@@ -353,17 +353,21 @@ impl<const HALF: usize> StreamPlayer<HALF> {
         streams: &mut StepStreams<Q, HALF>,
         t: u64,
         pins: &mut impl TimedStepPins,
-    ) {
+    ) -> u64 {
         if !self.playing {
             streams.producer().stop();
             streams.clear_dir_changes();
-            return;
+            return t;
         }
         self.advance(streams, t, pins);
         self.playing = false;
+        let mut quiet = t;
         for j in 0..MAX_JOINTS {
-            if self.joints[j].fall != 0 {
-                pins.step_low(j, t);
+            // `advance` played every fall at or before `t`: one still due is after it.
+            let fall = self.joints[j].fall;
+            if fall != 0 {
+                pins.step_low(j, fall);
+                quiet = quiet.max(fall);
             }
             let (first_unplayed, stale) = self.unplayed_from(j);
             streams.unwind(j, &self.buffers[j], first_unplayed, stale);
@@ -371,6 +375,7 @@ impl<const HALF: usize> StreamPlayer<HALF> {
         }
         streams.producer().stop();
         streams.clear_dir_changes();
+        quiet
     }
 
     /// The positions the played pulses make: the producer's count less what the buffers
@@ -659,11 +664,17 @@ mod tests {
             let (_, halt) = player.advance_halting(&mut streams, 10_000_000, &mut lines);
             let halt = halt.expect("the halt was asked for");
             assert_eq!(halt, oracle[joint][rise - 1], "joint {joint}'s rise {rise}");
-            player.stop(&mut streams, halt, &mut lines);
+            // No rise after the halt; the pulse that closed the switch (it rose at the halt)
+            // keeps its width, as every other: a stop never cuts a pulse short.
+            let quiet = player.stop(&mut streams, halt, &mut lines);
+            assert_eq!(quiet, halt + 500);
             for (j, rises) in oracle.iter().enumerate() {
                 let expected: Vec<u64> = rises.iter().copied().filter(|&r| r <= halt).collect();
                 assert_eq!(lines.rises[j], expected, "halt at {halt}, joint {j}");
-                assert!(lines.last[j] <= halt);
+                assert!(lines.last[j] <= quiet);
+                for (rise, fall) in lines.rises[j].iter().zip(&lines.falls[j]) {
+                    assert_eq!(fall - rise, 500, "halt at {halt}, joint {j}: a pulse cut");
+                }
             }
             assert_eq!(lines.high, 0);
             assert_eq!(player.positions(&streams), lines.pulses);
@@ -723,7 +734,7 @@ mod tests {
     }
 
     #[test]
-    fn a_stop_plays_up_to_its_tick_and_nothing_after() {
+    fn a_stop_plays_up_to_its_tick_and_a_high_pulse_keeps_its_width() {
         for sparse in [false, true] {
             stops_as_the_engine(&segments(sparse));
         }
@@ -731,17 +742,39 @@ mod tests {
 
     fn stops_as_the_engine(segments: &[Segment]) {
         let oracle = engine_rises(&segments[..Q], 0);
-        for stop_at in [0, 250, 1_000_000, 1_234_567, 1_500_000, 2_000_000] {
+        // Some stops land while joint 0's pulse is high (250 ticks into its 500).
+        let mid_pulse = [oracle[0][3] + 250, oracle[0][40] + 1, oracle[0][41] + 499];
+        let mut kept = 0;
+        for stop_at in [0, 250, 1_000_000, 1_234_567, 1_500_000, 2_000_000]
+            .into_iter()
+            .chain(mid_pulse)
+        {
             let (mut streams, mut player) = primed(segments);
             let mut lines = Lines::default();
             player.advance(&mut streams, stop_at / 2, &mut lines);
-            player.stop(&mut streams, stop_at, &mut lines);
+            let quiet = player.stop(&mut streams, stop_at, &mut lines);
             assert_eq!(lines.high, 0, "stop at {stop_at}: a STEP line left high");
             for (j, rises) in oracle.iter().enumerate() {
                 let expected: Vec<u64> = rises.iter().copied().filter(|&r| r <= stop_at).collect();
                 assert_eq!(lines.rises[j], expected, "stop at {stop_at}, joint {j}");
-                assert!(lines.last[j] <= stop_at);
+                // Every pulse keeps its width, one high at the stop too: none is cut.
+                assert_eq!(lines.falls[j].len(), lines.rises[j].len());
+                for (rise, fall) in lines.rises[j].iter().zip(&lines.falls[j]) {
+                    assert_eq!(
+                        fall - rise,
+                        500,
+                        "stop at {stop_at}, joint {j}: a pulse cut"
+                    );
+                    kept += usize::from(*fall > stop_at);
+                }
+                assert!(lines.last[j] <= quiet);
             }
+            let last_fall = lines.falls.iter().flatten().copied().max().unwrap_or(0);
+            assert_eq!(
+                quiet,
+                stop_at.max(last_fall),
+                "stop at {stop_at}: STEP low from"
+            );
             assert_eq!(streams.producer_ref().positions(), lines.pulses);
             assert!(!streams.producer_ref().is_running());
             assert!(!player.is_playing());
@@ -751,6 +784,7 @@ mod tests {
             player.advance(&mut streams, stop_at + 10_000_000, &mut lines);
             assert_eq!(lines.rises, before);
         }
+        assert!(kept >= mid_pulse.len(), "{kept} pulses high at a stop");
     }
 
     #[test]
