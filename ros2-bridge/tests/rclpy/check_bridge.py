@@ -11,7 +11,7 @@ never run it on a shared network. Starts sim-host and the bridge as processes, t
   loosely: dds.rs checks the period exactly), none lost (DDS sequence numbers), the config's
   joint names, positions in radians;
 - e-stop: 20 fresh clients (a new node and client each), each calling the Trigger service
-  once: every first call answered, within 2 s (the latency is printed: p50, p90, max);
+  once: every first call answered, within 5 s (the latency is printed: p50, p90, max);
 - a FollowJointTrajectory goal with velocities (MoveIt-style) ends SUCCEEDED exactly at the
   goal steps, with feedback at the configured rate, none lost; feedback is counted on the
   action's feedback topic (FeedbackTap), also for a client whose feedback callback lags;
@@ -163,7 +163,10 @@ class Checker:
         # Per state: header.stamp, DDS source and reception timestamps, the callback (host
         # clock, s), and the DDS publication sequence number.
         self.arrivals = []
-        self.node.create_subscription(JointState, self.config.get("joint_states_topic", "/joint_states"), self.on_state, QoSProfile(depth=100))
+        # History 1000 (20 s at 50 Hz; was 100, 2 s): this client's callbacks ran up to 1 s
+        # behind DDS reception in a Kilted .ci/run, and a reader that drops the oldest would
+        # show holes in the sequence numbers that are the client's, not the bridge's.
+        self.node.create_subscription(JointState, self.config.get("joint_states_topic", "/joint_states"), self.on_state, QoSProfile(depth=1000))
         # Feedback history 100 (rclpy's default 10): on a busy 2-core machine this Python
         # client may fall behind by more than 10 messages (0.33 s at 30 Hz). Its own callback
         # group, so that a slow feedback callback (check_lagging_client) holds up only it.
@@ -355,9 +358,10 @@ class Checker:
     # The bound on the first call of a fresh client: one that a machine ten times slower or
     # busier than ours still meets. The bridge answers in about 1 ms (its log); the rest is
     # DDS discovery of the new client, which took up to 330 ms (Jazzy) and 219 ms (Kilted) on
-    # an idle 2-core machine where a 100 ms bound failed .ci/run. A call that is lost or
-    # never matched (the defect this guards) takes the full 10 s wait.
-    def check_estop_first_calls(self, clients=20, limit=2.0):
+    # an idle 2-core machine where a 100 ms bound failed .ci/run: ten times that is 3.3 s,
+    # so 5 s (was 2 s). A call that is lost or never matched (the defect this guards) takes
+    # the full 10 s wait.
+    def check_estop_first_calls(self, clients=20, limit=5.0):
         service = self.config.get("estop_service", "/arm_controller/estop")
         latencies = []
         failures = []
