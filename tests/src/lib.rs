@@ -397,6 +397,14 @@ impl SimHost {
         self.child.as_ref().expect("sim-host still running").id()
     }
 
+    /// Sends it `signal`, as a wire to one of its inputs would change (`--estop-input`:
+    /// SIGUSR1 opens, SIGUSR2 closes; `--door-input`: SIGRTMIN+1 and SIGRTMIN+2).
+    pub fn signal(&self, signal: i32) {
+        // SAFETY: kill(2) with the pid of a simulator this test started and has not reaped.
+        let sent = unsafe { libc::kill(self.pid() as libc::pid_t, signal) };
+        assert_eq!(sent, 0, "kill({}, {signal})", self.pid());
+    }
+
     /// The simulator's log so far (warnings and errors).
     pub fn log(&self) -> String {
         std::fs::read_to_string(self.dir.join("sim-host.log")).unwrap_or_default()

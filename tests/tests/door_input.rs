@@ -12,25 +12,10 @@ use armctl::vcd;
 use protocol::MotionFlags;
 use system_tests::{SimHost, armctl_bin};
 
+/// `armctl` run against `sim`: whether it succeeded, and its stdout and stderr together.
 fn armctl(sim: &SimHost, args: &[&str]) -> (bool, String) {
-    let output = Command::new(armctl_bin())
-        .arg("--controller")
-        .arg(sim.addr.to_string())
-        .args(args)
-        .output()
-        .expect("run armctl");
-    let text = format!(
-        "{}{}",
-        String::from_utf8_lossy(&output.stdout),
-        String::from_utf8_lossy(&output.stderr)
-    );
-    (output.status.success(), text)
-}
-
-fn signal(sim: &SimHost, signal: i32) {
-    // SAFETY: kill(2) with the pid of a simulator this test started and has not reaped.
-    let sent = unsafe { libc::kill(sim.pid() as libc::pid_t, signal) };
-    assert_eq!(sent, 0, "kill({}, {signal})", sim.pid());
+    let (ok, out, err) = system_tests::run_armctl(Some(sim), args);
+    (ok, out + &err)
 }
 
 /// Joint 0's position now (STATUS with its LOCATION, look only).
@@ -85,7 +70,7 @@ fn the_door_holds_armctl_run_and_resume_after_closing_ends_it() {
         assert!(Instant::now() < deadline, "the run never moved");
         std::thread::sleep(Duration::from_millis(20));
     }
-    signal(&sim, open_door);
+    sim.signal(open_door);
     let m = motion_until(
         &arm,
         MotionFlags::HELD | MotionFlags::AT_REST | MotionFlags::DOOR_OPEN,
@@ -120,7 +105,7 @@ fn the_door_holds_armctl_run_and_resume_after_closing_ends_it() {
         "the run is held, not ended"
     );
 
-    signal(&sim, close_door);
+    sim.signal(close_door);
     let deadline = Instant::now() + Duration::from_secs(10);
     loop {
         if let Ok((_, Some(m))) = arm.motion()
@@ -147,7 +132,7 @@ fn the_door_holds_armctl_run_and_resume_after_closing_ends_it() {
     assert_eq!(joint0(&arm).expect("LOCATION"), 2000);
 
     // Idle with the door open: RUNING refused DOOR_OPEN (armctl run says so).
-    signal(&sim, open_door);
+    sim.signal(open_door);
     motion_until(&arm, MotionFlags::DOOR_OPEN);
     let (ok, out) = armctl(&sim, &["run", short.to_str().unwrap(), "--quiet"]);
     assert!(!ok && out.contains("DOOR_OPEN"), "run while open: {out}");

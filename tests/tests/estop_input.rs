@@ -24,25 +24,10 @@ const SEGMENT_NS: u64 = 10_000_000;
 /// written to the step hardware, up to the profile's DMA lead before the pins make them.
 const MOVING_AFTER: u32 = arm_core::profile::SIMULATOR.executed_once_pulsed(SEGMENT_NS) as u32;
 
+/// `armctl` run against `sim`: whether it succeeded, and its stdout and stderr together.
 fn armctl(sim: &SimHost, args: &[&str]) -> (bool, String) {
-    let output = Command::new(armctl_bin())
-        .arg("--controller")
-        .arg(sim.addr.to_string())
-        .args(args)
-        .output()
-        .expect("run armctl");
-    let text = format!(
-        "{}{}",
-        String::from_utf8_lossy(&output.stdout),
-        String::from_utf8_lossy(&output.stderr)
-    );
-    (output.status.success(), text)
-}
-
-fn signal(sim: &SimHost, signal: i32) {
-    // SAFETY: kill(2) with the pid of a simulator this test started and has not reaped.
-    let sent = unsafe { libc::kill(sim.pid() as libc::pid_t, signal) };
-    assert_eq!(sent, 0, "kill({}, {signal})", sim.pid());
+    let (ok, out, err) = system_tests::run_armctl(Some(sim), args);
+    (ok, out + &err)
 }
 
 /// Polls `armctl status` until its e-stop line contains `want`.
@@ -107,7 +92,7 @@ fn the_wired_input_stops_armctl_run_latches_and_estop_reset_clears_it() {
         assert!(Instant::now() < deadline, "the run never moved: {out}");
         std::thread::sleep(Duration::from_millis(20));
     }
-    signal(&sim, libc::SIGUSR1);
+    sim.signal(libc::SIGUSR1);
     let deadline = Instant::now() + Duration::from_secs(10);
     let ended = loop {
         if let Some(status) = run.try_wait().unwrap() {
@@ -152,7 +137,7 @@ fn the_wired_input_stops_armctl_run_latches_and_estop_reset_clears_it() {
         "not while open: {out}"
     );
 
-    signal(&sim, libc::SIGUSR2);
+    sim.signal(libc::SIGUSR2);
     status_until(&sim, "closed, LATCHED");
     runing_refused("closed, not reset");
     let (ok, out) = armctl(&sim, &["return"]);
@@ -242,7 +227,7 @@ fn estop_category_1_from_armctl_ends_the_run_with_the_drivers_disabled() {
         assert!(Instant::now() < deadline, "the run never started: {out}");
         std::thread::sleep(Duration::from_millis(20));
     }
-    signal(&sim, libc::SIGUSR1);
+    sim.signal(libc::SIGUSR1);
     let deadline = Instant::now() + Duration::from_secs(10);
     let ended = loop {
         if let Some(status) = run.try_wait().unwrap() {
@@ -258,7 +243,7 @@ fn estop_category_1_from_armctl_ends_the_run_with_the_drivers_disabled() {
         out.contains("drivers enabled no"),
         "drivers disabled: {out}"
     );
-    signal(&sim, libc::SIGUSR2);
+    sim.signal(libc::SIGUSR2);
     status_until(&sim, "closed, LATCHED");
     sim.terminate();
 }
