@@ -397,6 +397,19 @@ impl SimHost {
         self.child.as_ref().expect("sim-host still running").id()
     }
 
+    /// `armctl run FILE --quiet` against it, started and left running (stdout dropped,
+    /// stderr piped for the test to read when it ends).
+    pub fn spawn_armctl_run(&self, file: &Path) -> std::process::Child {
+        Command::new(armctl_bin())
+            .arg("--controller")
+            .arg(self.addr.to_string())
+            .args(["run", file.to_str().expect("a UTF-8 path"), "--quiet"])
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .expect("armctl run")
+    }
+
     /// Sends it `signal`, as a wire to one of its inputs would change (`--estop-input`:
     /// SIGUSR1 opens, SIGUSR2 closes; `--door-input`: SIGRTMIN+1 and SIGRTMIN+2).
     pub fn signal(&self, signal: i32) {

@@ -5,12 +5,11 @@
 //! the door is open; closed, `armctl resume` goes on and `armctl run` ends with the joint
 //! on its last point. Idle with the door open, `armctl run` is refused DOOR_OPEN.
 
-use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use armctl::vcd;
 use protocol::MotionFlags;
-use system_tests::{SimHost, armctl_bin};
+use system_tests::SimHost;
 
 /// `armctl` run against `sim`: whether it succeeded, and its stdout and stderr together.
 fn armctl(sim: &SimHost, args: &[&str]) -> (bool, String) {
@@ -55,14 +54,7 @@ fn the_door_holds_armctl_run_and_resume_after_closing_ends_it() {
     let open_door = libc::SIGRTMIN() + 1;
     let close_door = libc::SIGRTMIN() + 2;
 
-    let mut run = Command::new(armctl_bin())
-        .arg("--controller")
-        .arg(sim.addr.to_string())
-        .args(["run", long.to_str().unwrap(), "--quiet"])
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("armctl run");
+    let mut run = sim.spawn_armctl_run(&long);
     let arm = sim.connect();
     // Moving (what we observe, bounded).
     let deadline = Instant::now() + Duration::from_secs(10);

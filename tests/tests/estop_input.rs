@@ -7,12 +7,11 @@
 //! `armctl estop-reset` is refused while open and clears the latch once closed;
 //! `armctl status` shows the input and the latch; then a run works again.
 
-use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use armctl::vcd;
 use protocol::{Command as Cmd, State, StatusCode};
-use system_tests::{SimHost, armctl_bin};
+use system_tests::SimHost;
 
 /// Joint 0's step period in the long run (200 steps/s).
 const STEP_PERIOD_NS: u64 = 5_000_000;
@@ -63,14 +62,7 @@ fn the_wired_input_stops_armctl_run_latches_and_estop_reset_clears_it() {
         "{out}"
     );
 
-    let mut run = Command::new(armctl_bin())
-        .arg("--controller")
-        .arg(sim.addr.to_string())
-        .args(["run", long.to_str().unwrap(), "--quiet"])
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("armctl run");
+    let mut run = sim.spawn_armctl_run(&long);
     // The run under way and moving, as STATUS shows it: RUNNING with more points executed
     // than the step hardware's buffers hold ahead of the pins. (A guessed 1 s sleep here
     // raced a loaded machine; RUNNING alone came before the first pulse, and so did "a
@@ -209,14 +201,7 @@ fn estop_category_1_from_armctl_ends_the_run_with_the_drivers_disabled() {
         "{out}"
     );
 
-    let mut run = Command::new(armctl_bin())
-        .arg("--controller")
-        .arg(sim.addr.to_string())
-        .args(["run", long.to_str().unwrap(), "--quiet"])
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("armctl run");
+    let mut run = sim.spawn_armctl_run(&long);
     let deadline = Instant::now() + Duration::from_secs(10);
     loop {
         let (ok, out) = armctl(&sim, &["status"]);
