@@ -1247,27 +1247,7 @@ impl<const CAP: usize> Controller<CAP> {
                 response.joint_desc = Some((from, protocol::JointDescSet { joint, desc: *desc }));
             }
             Command::Status => response.status = Some((from, self.status(plant))),
-            Command::StatusWith(ask) => {
-                response.status = Some((from, self.status(plant)));
-                if ask.location {
-                    response.asked_location = Some((from, self.location(plant)));
-                }
-                if ask.stop_cause {
-                    response.asked_stop = Some((from, self.stop));
-                }
-                if ask.counters {
-                    response.asked_counters = Some(from);
-                }
-                if ask.motion {
-                    response.asked_motion = Some((from, self.motion_report(plant)));
-                }
-                if ask.switches {
-                    response.asked_switches = Some((from, self.switches_report()));
-                }
-                if ask.diag {
-                    response.asked_diag = Some(from);
-                }
-            }
+            Command::StatusWith(ask) => self.answer_status(plant, from, ask, response),
             Command::Hold => self.hold(plant)?,
             Command::Resume => self.resume(plant)?,
             Command::Override { percent } => self.set_override(percent, plant)?,
@@ -1366,6 +1346,36 @@ impl<const CAP: usize> Controller<CAP> {
         self.uploader = None;
     }
 
+    /// STATUS for `from`, and each report its request byte asks for besides: the same
+    /// for the owner's STATUS and another host's look-only one.
+    fn answer_status(
+        &self,
+        plant: &impl Plant,
+        from: Endpoint,
+        ask: protocol::StatusAsk,
+        response: &mut Response,
+    ) {
+        response.status = Some((from, self.status(plant)));
+        if ask.location {
+            response.asked_location = Some((from, self.location(plant)));
+        }
+        if ask.stop_cause {
+            response.asked_stop = Some((from, self.stop));
+        }
+        if ask.counters {
+            response.asked_counters = Some(from);
+        }
+        if ask.motion {
+            response.asked_motion = Some((from, self.motion_report(plant)));
+        }
+        if ask.switches {
+            response.asked_switches = Some((from, self.switches_report()));
+        }
+        if ask.diag {
+            response.asked_diag = Some(from);
+        }
+    }
+
     /// STATUS and RELEASE from `from`, a host that does not own the controller (none may,
     /// or another does): the response, or `None` to go on with the owner rule.
     ///
@@ -1444,25 +1454,7 @@ impl<const CAP: usize> Controller<CAP> {
         let mut ack = blank_ack(from, seq, tag, StatusCode::Ok);
         ack.ack.state = self.state;
         response.reply = Some(ack);
-        response.status = Some((from, self.status(plant)));
-        if ask.location {
-            response.asked_location = Some((from, self.location(plant)));
-        }
-        if ask.stop_cause {
-            response.asked_stop = Some((from, self.stop));
-        }
-        if ask.counters {
-            response.asked_counters = Some(from);
-        }
-        if ask.motion {
-            response.asked_motion = Some((from, self.motion_report(plant)));
-        }
-        if ask.switches {
-            response.asked_switches = Some((from, self.switches_report()));
-        }
-        if ask.diag {
-            response.asked_diag = Some(from);
-        }
+        self.answer_status(plant, from, ask, &mut response);
         response.answer_seq = Some(seq);
         Some(response)
     }
