@@ -742,7 +742,7 @@ mod tests {
 
     fn stops_as_the_engine(segments: &[Segment]) {
         let oracle = engine_rises(&segments[..Q], 0);
-        // Some stops land while joint 0's pulse is high (250 ticks into its 500).
+        // Some stops land while joint 0's pulse is high: 250, 1 and 499 ticks into its 500.
         let mid_pulse = [oracle[0][3] + 250, oracle[0][40] + 1, oracle[0][41] + 499];
         let mut kept = 0;
         for stop_at in [0, 250, 1_000_000, 1_234_567, 1_500_000, 2_000_000]
