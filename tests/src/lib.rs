@@ -392,7 +392,7 @@ impl SimHost {
             .unwrap_or_else(|e| panic!("connect to sim-host at {}: {e}", self.addr))
     }
 
-    /// Its process id (to signal it: `--estop-input` takes SIGUSR1 and SIGUSR2).
+    /// Its process id ([`SimHost::signal`] sends it the inputs' signals).
     pub fn pid(&self) -> u32 {
         self.child.as_ref().expect("sim-host still running").id()
     }
